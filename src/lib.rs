@@ -1,0 +1,8 @@
+//! adrive: an operator console with an embedded drive-by-wire actuator engine.
+//!
+//! The crate reads like the design: [`config`] describes a vehicle, [`vehicle`] holds
+//! its devices and their cached state, [`engine`] runs two threads per actuator over a
+//! [`driver::Driver`], [`interlock`] guards command intake, and [`sim`] emulates the
+//! devices on real pseudo-terminals.
+
+pub mod value;
