@@ -6,3 +6,5 @@
 //! devices on real pseudo-terminals.
 
 pub mod value;
+pub mod driver;
+pub mod sim;

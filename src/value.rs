@@ -6,6 +6,63 @@ use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
 
+/// The role a device plays in the vehicle; a device's name in the config is its role.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    Steer,
+    Gas,
+    Brake,
+    Trans,
+    Estop,
+    Obd,
+}
+
+impl Role {
+    pub const ALL: [Role; 6] = [
+        Role::Steer,
+        Role::Gas,
+        Role::Brake,
+        Role::Trans,
+        Role::Estop,
+        Role::Obd,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Steer => "steer",
+            Role::Gas => "gas",
+            Role::Brake => "brake",
+            Role::Trans => "trans",
+            Role::Estop => "estop",
+            Role::Obd => "obd",
+        }
+    }
+
+    /// Actuators take commands; sensors only report.
+    pub fn is_actuator(self) -> bool {
+        !matches!(self, Role::Estop | Role::Obd)
+    }
+}
+
+impl fmt::Display for Role {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Role {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Role::ALL
+            .into_iter()
+            .find(|r| r.as_str() == s)
+            .ok_or_else(|| {
+                format!("unknown device {s:?}: expected steer, gas, brake, trans, estop or obd")
+            })
+    }
+}
+
 /// Transmission position. The paper's numeric codes are accepted too:
 /// −1 reverse, 0 park, 1 drive.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]

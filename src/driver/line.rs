@@ -1,0 +1,1 @@
+//! The adrive ASCII line protocol (placeholder; see the engine commit).
