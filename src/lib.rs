@@ -5,6 +5,15 @@
 //! [`driver::Driver`], [`interlock`] guards command intake, and [`sim`] emulates the
 //! devices on real pseudo-terminals.
 
-pub mod value;
+pub mod cli;
+pub mod config;
+pub mod console;
 pub mod driver;
+pub mod engine;
+pub mod exit;
+pub mod headless;
+pub mod interlock;
+pub mod logging;
 pub mod sim;
+pub mod value;
+pub mod vehicle;

@@ -129,3 +129,19 @@ pub fn read_until(
         }
     }
 }
+
+/// Build the driver a device's configuration asks for.
+pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
+    match config.driver {
+        crate::config::DriverKind::Line => Box::new(line::LineDriver::new(config.reply_timeout)),
+    }
+}
+
+/// Open a serial port (or pseudo-terminal) by path at a baud rate.
+pub fn open_serial(path: &str, baud: u32, timeout: Duration) -> io::Result<Box<dyn Link>> {
+    let port = serialport::new(path, baud)
+        .timeout(timeout)
+        .open_native()
+        .map_err(io::Error::from)?;
+    Ok(Box::new(port))
+}

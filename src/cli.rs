@@ -1,0 +1,240 @@
+//! The command line: `adrive [run]` (the console), `adrive sim`. Parsing is clap's;
+//! each subcommand is one function here that wires the parts together.
+
+use crate::config::{self, VehicleConfig};
+use crate::engine::Engine;
+use crate::exit::{self, Exit};
+use crate::sim::{Sim, SimEvent};
+use crate::value::{EstopState, Role};
+use crate::vehicle::Vehicle;
+use crate::{console, driver, headless, logging};
+use clap::{Args, Parser, Subcommand};
+use std::io::BufRead;
+use std::path::PathBuf;
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "adrive",
+    version,
+    about = "Drive-by-wire actuator engine with a Sparrow-style operator console"
+)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Option<Cmd>,
+    #[command(flatten)]
+    pub run: RunArgs,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Cmd {
+    /// Run the engine with the console (the default).
+    Run(RunArgs),
+    /// Run the simulated devices alone and print their port paths.
+    Sim(SimArgs),
+}
+
+#[derive(Args, Debug, Clone, Default)]
+pub struct RunArgs {
+    /// Vehicle TOML (default: the built-in simulated Alice).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Simulate every device on pseudo-terminals.
+    #[arg(long)]
+    pub sim: bool,
+    /// No console: log and keep figures only; SIGINT/SIGTERM stop safely.
+    #[arg(long)]
+    pub headless: bool,
+    /// Run just these devices (repeatable), for the bench.
+    #[arg(long, value_name = "NAME")]
+    pub only: Vec<Role>,
+    /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
+    #[arg(long, value_name = "DIR")]
+    pub log_dir: Option<PathBuf>,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct SimArgs {
+    /// Vehicle TOML whose devices to simulate (default: the built-in Alice).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Simulate just these devices (repeatable).
+    #[arg(long, value_name = "NAME")]
+    pub only: Vec<Role>,
+    /// Do not print what each device receives.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// Entry point; returns the process status.
+pub fn main() -> i32 {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Some(Cmd::Run(args)) => run(args),
+        Some(Cmd::Sim(args)) => sim(args),
+        None => run(cli.run),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("adrive: {e:#}");
+            2
+        }
+    }
+}
+
+fn load(path: &Option<PathBuf>, only: &[Role]) -> anyhow::Result<VehicleConfig> {
+    let mut c = match path {
+        Some(p) => config::load(p)?,
+        None => VehicleConfig::alice(),
+    };
+    for r in only {
+        if c.device(*r).is_none() {
+            anyhow::bail!("--only {r}: {} has no device {r}", c.source);
+        }
+    }
+    c.retain_only(only);
+    Ok(c)
+}
+
+fn default_log_dir() -> PathBuf {
+    std::env::var_os("XDG_STATE_HOME")
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".local/state")))
+        .map(|d| d.join("adrive"))
+        .unwrap_or_else(|| PathBuf::from("logs"))
+}
+
+/// `adrive run`: the engine with the console or headless.
+pub fn run(args: RunArgs) -> anyhow::Result<i32> {
+    let mut config = load(&args.config, &args.only)?;
+    let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
+    let log = logging::init(args.headless, Some(&log_dir))?;
+    let sim = if args.sim {
+        let s = Sim::start(&config, None)?;
+        s.patch(&mut config);
+        Some(s)
+    } else {
+        None
+    };
+    let vehicle = Arc::new(Vehicle::new(config, |c| {
+        let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+        Box::new(move || driver::open_serial(&path, baud, timeout))
+    }));
+    let exits = exit::install()?;
+    let engine = Engine::start(vehicle.clone())?;
+    tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
+    let why = if args.headless {
+        headless::wait(&vehicle, &exits)
+    } else {
+        console::run(&vehicle, &exits)?
+    };
+    tracing::info!("stopping: {}", why.describe());
+    let (safe, stuck) = engine.shutdown(Duration::from_secs(2));
+    if safe {
+        tracing::info!("safe state acknowledged: gas 0, brake full");
+    }
+    drop(sim);
+    if args.headless {
+        print!("{}", headless::summary(&vehicle));
+    }
+    let code = if !safe || !stuck.is_empty() {
+        eprintln!(
+            "adrive: stopped ({}) but the safe state was {}acknowledged{}",
+            why.describe(),
+            if safe { "" } else { "NOT " },
+            if stuck.is_empty() {
+                String::new()
+            } else {
+                format!("; threads still running: {}", stuck.join(", "))
+            }
+        );
+        why.code().max(3)
+    } else {
+        why.code()
+    };
+    drop(log);
+    Ok(code)
+}
+
+/// `adrive sim`: the simulated devices alone.
+pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
+    let config = load(&args.config, &args.only)?;
+    let (tx, rx) = crossbeam_channel::unbounded::<SimEvent>();
+    let sim = Sim::start(&config, (!args.quiet).then_some(tx))?;
+    let exits = exit::install()?;
+    for p in &sim.ports {
+        let d = config.device(p.role).expect("simulated from the config");
+        println!("{:<6} {}  ({} baud)", p.role.as_str(), p.path, d.baud);
+    }
+    println!("type `estop pause|run|disable` or `silent NAME on|off`; Ctrl-C stops");
+    let (lines_tx, lines) = crossbeam_channel::unbounded::<String>();
+    std::thread::Builder::new()
+        .name("sim/stdin".into())
+        .spawn(move || {
+            for line in std::io::stdin().lock().lines().map_while(Result::ok) {
+                if lines_tx.send(line).is_err() {
+                    break;
+                }
+            }
+        })?;
+    let start = Instant::now();
+    loop {
+        crossbeam_channel::select! {
+            recv(exits) -> _ => break,
+            recv(rx) -> ev => if let Ok(ev) = ev {
+                println!(
+                    "{:>9.3}s {:<6} <- {:<10} {}",
+                    ev.at.duration_since(start).as_secs_f64(),
+                    ev.role.as_str(),
+                    ev.command.to_string(),
+                    printable(&ev.request)
+                );
+            },
+            recv(lines) -> line => match line {
+                Ok(line) => println!("{}", sim_command(&sim, &line)),
+                Err(_) => {
+                    // Standard input closed: keep serving until a signal.
+                    let why = exits.recv().unwrap_or(Exit::Quit);
+                    tracing::debug!("sim stopping: {}", why.describe());
+                    break;
+                }
+            },
+        }
+    }
+    Ok(0)
+}
+
+fn sim_command(sim: &Sim, line: &str) -> String {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    match words.as_slice() {
+        [] => String::new(),
+        ["estop", state] => match state.parse::<EstopState>() {
+            Ok(s) => {
+                sim.set_estop(s);
+                format!("estop is now {s}")
+            }
+            Err(e) => e,
+        },
+        ["silent", name, on @ ("on" | "off")] => match name.parse::<Role>() {
+            Ok(r) => match sim.faults(r) {
+                Some(f) => {
+                    f.silent.store(*on == "on", Relaxed);
+                    format!("{r} silent {on}")
+                }
+                None => format!("{r} is not simulated"),
+            },
+            Err(e) => e,
+        },
+        _ => format!(
+            "unknown: {line:?} (expected `estop pause|run|disable` or `silent NAME on|off`)"
+        ),
+    }
+}
+
+/// Bytes as text, with non-printable bytes escaped.
+pub fn printable(bytes: &[u8]) -> String {
+    bytes.escape_ascii().to_string()
+}

@@ -1,0 +1,285 @@
+//! The shared port of one device and the rule by which its two threads take turns.
+//!
+//! The paper's Adrive guarded the port with a plain mutex. Field testing found
+//! commands waiting ~200 ms: while a command was on the wire the status thread queued
+//! on the mutex, took the port as soon as the command finished, and the next command
+//! then waited for the whole status poll. The paper patched it with a 10 Hz rate cap.
+//!
+//! adrive's rule ([`PortRule::Priority`]): a status poll yields while a command waits
+//! — whether the command thread is already queued on the port or the command is still
+//! in its slot — and a command thread that finishes with a newer command pending keeps
+//! the port for it. A poll still runs once it is `status_max_age` overdue, so the cache
+//! never goes stale under a command flood. The paper's first-come-first-served lock
+//! stays available ([`PortRule::Paper`]) so the difference can be shown.
+//!
+//! The [`Conn`] behind the arbiter owns the driver and the open port: it opens the port
+//! lazily, reopens it with exponential backoff after a disconnect, and timestamps the
+//! first byte of every transaction.
+
+use crate::config::PortRule;
+use crate::driver::{Driver, DriverError, Link};
+use crate::engine::slot::CommandSlot;
+use parking_lot::{Condvar, Mutex, MutexGuard};
+use std::io::{self, Read, Write};
+use std::time::{Duration, Instant};
+
+/// Opens a device's port (a serial port, a pseudo-terminal, a test double).
+pub type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
+
+const BACKOFF_MIN: Duration = Duration::from_millis(100);
+const BACKOFF_MAX: Duration = Duration::from_secs(5);
+
+#[derive(Default)]
+struct Arb {
+    busy: bool,
+    /// Command threads queued for the port.
+    commands_waiting: u32,
+    /// An overdue status poll is next in line.
+    status_urgent: bool,
+    next_ticket: u64,
+    serving: u64,
+    stopped: bool,
+}
+
+/// The arbiter of one device's port.
+pub struct Port {
+    rule: PortRule,
+    arb: Mutex<Arb>,
+    cv: Condvar,
+    conn: Mutex<Conn>,
+}
+
+/// The port, held by one thread for one or more transactions.
+pub struct PortGuard<'a> {
+    port: &'a Port,
+    conn: Option<MutexGuard<'a, Conn>>,
+}
+
+impl Port {
+    pub fn new(rule: PortRule, conn: Conn) -> Port {
+        Port {
+            rule,
+            arb: Mutex::new(Arb::default()),
+            cv: Condvar::new(),
+            conn: Mutex::new(conn),
+        }
+    }
+
+    pub fn rule(&self) -> PortRule {
+        self.rule
+    }
+
+    fn take(&self, mut a: MutexGuard<'_, Arb>) -> Option<PortGuard<'_>> {
+        if a.stopped {
+            return None;
+        }
+        a.busy = true;
+        drop(a);
+        Some(PortGuard {
+            port: self,
+            conn: Some(self.conn.lock()),
+        })
+    }
+
+    fn wait_ticket(&self, a: &mut MutexGuard<'_, Arb>) {
+        let ticket = a.next_ticket;
+        a.next_ticket += 1;
+        while !a.stopped && (a.busy || a.serving != ticket) {
+            self.cv.wait(a);
+        }
+        a.serving += 1;
+    }
+
+    /// Take the port for a command. `None` once stopped.
+    pub fn acquire_command(&self) -> Option<PortGuard<'_>> {
+        let mut a = self.arb.lock();
+        match self.rule {
+            PortRule::Paper => self.wait_ticket(&mut a),
+            PortRule::Priority => {
+                a.commands_waiting += 1;
+                while !a.stopped && (a.busy || a.status_urgent) {
+                    self.cv.wait(&mut a);
+                }
+                a.commands_waiting -= 1;
+            }
+        }
+        self.take(a)
+    }
+
+    /// Take the port for a status poll, yielding to commands until `overdue_at`.
+    /// `None` once stopped.
+    pub fn acquire_status(&self, overdue_at: Instant, slot: &CommandSlot) -> Option<PortGuard<'_>> {
+        let mut a = self.arb.lock();
+        match self.rule {
+            PortRule::Paper => self.wait_ticket(&mut a),
+            PortRule::Priority => loop {
+                if a.stopped {
+                    return None;
+                }
+                let overdue = Instant::now() >= overdue_at;
+                let command_waiting = a.commands_waiting > 0 || slot.has_pending();
+                if !a.busy && (overdue || !command_waiting) {
+                    break;
+                }
+                if overdue {
+                    a.status_urgent = true;
+                    self.cv.wait(&mut a);
+                } else {
+                    // Woken by a release; re-check at the deadline in any case.
+                    self.cv.wait_until(&mut a, overdue_at);
+                }
+            },
+        }
+        a.status_urgent = false;
+        self.take(a)
+    }
+
+    /// Wake every waiter and refuse further acquisitions.
+    pub fn stop(&self) {
+        self.arb.lock().stopped = true;
+        self.cv.notify_all();
+    }
+}
+
+impl PortGuard<'_> {
+    /// Run one transaction; returns its result and when its first byte was written.
+    pub fn transact<T>(
+        &mut self,
+        f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
+    ) -> (Result<T, DriverError>, Option<Instant>) {
+        self.conn.as_mut().expect("held").transact(f)
+    }
+
+    /// An overdue status poll is waiting: let it have the port next.
+    pub fn status_waiting(&self) -> bool {
+        self.port.arb.lock().status_urgent
+    }
+
+    pub fn is_connected(&self) -> bool {
+        self.conn.as_ref().expect("held").link.is_some()
+    }
+}
+
+impl Drop for PortGuard<'_> {
+    fn drop(&mut self) {
+        drop(self.conn.take());
+        self.port.arb.lock().busy = false;
+        self.port.cv.notify_all();
+    }
+}
+
+/// The driver and its open port.
+pub struct Conn {
+    driver: Box<dyn Driver>,
+    link: Option<Box<dyn Link>>,
+    opener: Opener,
+    next_open: Instant,
+    backoff: Duration,
+    /// Times the port was (re)opened successfully.
+    pub opened: u64,
+}
+
+impl Conn {
+    pub fn new(driver: Box<dyn Driver>, opener: Opener) -> Conn {
+        Conn {
+            driver,
+            link: None,
+            opener,
+            next_open: Instant::now(),
+            backoff: BACKOFF_MIN,
+            opened: 0,
+        }
+    }
+
+    fn fail_open(&mut self) {
+        self.link = None;
+        self.next_open = Instant::now() + self.backoff;
+        self.backoff = (self.backoff * 2).min(BACKOFF_MAX);
+    }
+
+    fn ensure_open(&mut self) -> Result<(), DriverError> {
+        if self.link.is_some() {
+            return Ok(());
+        }
+        let now = Instant::now();
+        if now < self.next_open {
+            return Err(DriverError::Io(io::Error::new(
+                io::ErrorKind::NotConnected,
+                format!(
+                    "port closed, next open attempt in {} ms",
+                    (self.next_open - now).as_millis()
+                ),
+            )));
+        }
+        let mut link = match (self.opener)() {
+            Ok(l) => l,
+            Err(e) => {
+                self.fail_open();
+                return Err(DriverError::Io(e));
+            }
+        };
+        if let Err(e) = self.driver.open(link.as_mut()) {
+            self.fail_open();
+            return Err(e);
+        }
+        self.link = Some(link);
+        self.backoff = BACKOFF_MIN;
+        self.opened += 1;
+        Ok(())
+    }
+
+    fn transact<T>(
+        &mut self,
+        f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
+    ) -> (Result<T, DriverError>, Option<Instant>) {
+        if let Err(e) = self.ensure_open() {
+            return (Err(e), None);
+        }
+        let link = self.link.as_mut().expect("opened").as_mut();
+        let mut stamped = Stamped {
+            inner: link,
+            first_write: None,
+        };
+        let r = f(self.driver.as_mut(), &mut stamped);
+        let first = stamped.first_write;
+        if let Err(e) = &r {
+            if e.is_disconnect() {
+                self.fail_open();
+            }
+        }
+        (r, first)
+    }
+}
+
+/// A link that notes when the first byte of a transaction was handed to the port.
+struct Stamped<'a> {
+    inner: &'a mut dyn Link,
+    first_write: Option<Instant>,
+}
+
+impl Read for Stamped<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        self.inner.read(buf)
+    }
+}
+
+impl Write for Stamped<'_> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        if self.first_write.is_none() && !buf.is_empty() {
+            self.first_write = Some(Instant::now());
+        }
+        self.inner.write(buf)
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+impl Link for Stamped<'_> {
+    fn set_timeout(&mut self, timeout: Duration) -> io::Result<()> {
+        self.inner.set_timeout(timeout)
+    }
+    fn discard_input(&mut self) -> io::Result<()> {
+        self.inner.discard_input()
+    }
+}

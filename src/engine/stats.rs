@@ -1,0 +1,168 @@
+//! Always-on measurement. Counters are atomics and latencies go into fixed-size atomic
+//! histograms (`histogram::AtomicHistogram`): recording is one atomic add, never a lock
+//! and never an allocation, so the command path can afford it on every command.
+//! Readers (console, broadcast, summary) take snapshots.
+
+use histogram::AtomicHistogram;
+use serde::Serialize;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::time::Duration;
+
+/// Relative error ≈ 2^-7 < 1 %; values up to 2^36 ns ≈ 68 s.
+const GROUPING_POWER: u8 = 7;
+const MAX_VALUE_POWER: u8 = 36;
+
+/// A latency histogram in nanoseconds.
+pub struct Latency(AtomicHistogram);
+
+impl Default for Latency {
+    fn default() -> Self {
+        Latency(
+            AtomicHistogram::new(GROUPING_POWER, MAX_VALUE_POWER)
+                .expect("histogram parameters are valid"),
+        )
+    }
+}
+
+impl Latency {
+    /// Record one sample; saturates at the histogram's top.
+    pub fn record(&self, d: Duration) {
+        let ns = (d.as_nanos() as u64).min((1u64 << MAX_VALUE_POWER) - 1);
+        let _ = self.0.increment(ns);
+    }
+
+    /// Count, p50, p99 and max of everything recorded so far.
+    pub fn summary(&self) -> LatencySummary {
+        let h = self.0.load();
+        let mut out = [None, None, None];
+        let _ = h.quantile_buckets_into(&[0.5, 0.99, 1.0], &mut out);
+        let count: u64 = h.as_slice().iter().sum();
+        // A bucket stands for its range; report its upper edge (conservative).
+        let us = |b: &Option<histogram::Bucket>| b.as_ref().map(|b| b.end() as f64 / 1e3);
+        LatencySummary {
+            count,
+            p50_us: us(&out[0]),
+            p99_us: us(&out[1]),
+            max_us: us(&out[2]),
+        }
+    }
+
+    /// The non-empty buckets as (upper edge in µs, count), for plots.
+    pub fn buckets(&self) -> Vec<(f64, u64)> {
+        self.0
+            .load()
+            .iter()
+            .filter(|b| b.count() > 0)
+            .map(|b| (b.end() as f64 / 1e3, b.count()))
+            .collect()
+    }
+}
+
+/// Figures of one latency histogram, in microseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct LatencySummary {
+    pub count: u64,
+    pub p50_us: Option<f64>,
+    pub p99_us: Option<f64>,
+    pub max_us: Option<f64>,
+}
+
+/// Every figure kept per device.
+#[derive(Default)]
+pub struct Stats {
+    /// Commands accepted at intake into the device's slot.
+    pub received: AtomicU64,
+    /// Command transactions completed without error.
+    pub executed: AtomicU64,
+    /// Commands replaced by a newer one before they reached the wire.
+    pub superseded: AtomicU64,
+    /// Last command sent again after `command_timeout` (or a manual wake).
+    pub resent: AtomicU64,
+    /// Commands refused at intake (interlock, range, disengaged…).
+    pub rejected: AtomicU64,
+    pub command_errors: AtomicU64,
+    pub polls: AtomicU64,
+    pub status_errors: AtomicU64,
+    pub reconnects: AtomicU64,
+    /// Receipt of a command to the first byte of it written to the port.
+    pub command_delay: Latency,
+    /// One command transaction, first byte out to reply in.
+    pub command_txn: Latency,
+    /// One status transaction.
+    pub status_txn: Latency,
+}
+
+/// A copy of a device's figures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct StatsSnapshot {
+    pub received: u64,
+    pub executed: u64,
+    pub superseded: u64,
+    pub resent: u64,
+    pub rejected: u64,
+    pub command_errors: u64,
+    pub polls: u64,
+    pub status_errors: u64,
+    pub reconnects: u64,
+    pub command_delay: LatencySummary,
+    pub command_txn: LatencySummary,
+    pub status_txn: LatencySummary,
+}
+
+impl Stats {
+    pub fn bump(counter: &AtomicU64) {
+        counter.fetch_add(1, Relaxed);
+    }
+
+    pub fn snapshot(&self) -> StatsSnapshot {
+        StatsSnapshot {
+            received: self.received.load(Relaxed),
+            executed: self.executed.load(Relaxed),
+            superseded: self.superseded.load(Relaxed),
+            resent: self.resent.load(Relaxed),
+            rejected: self.rejected.load(Relaxed),
+            command_errors: self.command_errors.load(Relaxed),
+            polls: self.polls.load(Relaxed),
+            status_errors: self.status_errors.load(Relaxed),
+            reconnects: self.reconnects.load(Relaxed),
+            command_delay: self.command_delay.summary(),
+            command_txn: self.command_txn.summary(),
+            status_txn: self.status_txn.summary(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn latency_summary_reports_quantiles_within_one_percent() {
+        let l = Latency::default();
+        for us in 1..=1000u64 {
+            l.record(Duration::from_micros(us));
+        }
+        let s = l.summary();
+        assert_eq!(s.count, 1000);
+        let near = |got: Option<f64>, want: f64| {
+            let g = got.unwrap();
+            assert!((g - want).abs() / want < 0.01, "got {g}, want {want}");
+        };
+        near(s.p50_us, 500.0);
+        near(s.p99_us, 990.0);
+        near(s.max_us, 1000.0);
+    }
+
+    #[test]
+    fn an_empty_histogram_has_no_quantiles() {
+        let s = Latency::default().summary();
+        assert_eq!((s.count, s.p50_us, s.max_us), (0, None, None));
+    }
+
+    #[test]
+    fn huge_samples_saturate_instead_of_vanishing() {
+        let l = Latency::default();
+        l.record(Duration::from_secs(100_000));
+        assert_eq!(l.summary().count, 1);
+    }
+}

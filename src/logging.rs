@@ -1,0 +1,45 @@
+//! Logging through `tracing`: to stderr in headless mode, and always to a daily rolling
+//! file through `tracing-appender`'s non-blocking writer. The returned guard flushes
+//! the file when dropped, so every exit path keeps it alive until the very end.
+
+use std::path::Path;
+use tracing_appender::non_blocking::WorkerGuard;
+use tracing_subscriber::layer::SubscriberExt;
+use tracing_subscriber::util::SubscriberInitExt;
+use tracing_subscriber::{fmt, EnvFilter, Layer};
+
+/// Keeps the log file writer alive; dropping it flushes the file.
+pub struct LogGuard {
+    _file: Option<WorkerGuard>,
+}
+
+/// Start logging. `stderr`: also log to standard error (headless, subcommands).
+/// `dir`: where the rolling log file `adrive.log.YYYY-MM-DD` goes.
+pub fn init(stderr: bool, dir: Option<&Path>) -> std::io::Result<LogGuard> {
+    let filter = || EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let (file_layer, guard) = match dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)?;
+            let appender = tracing_appender::rolling::daily(dir, "adrive.log");
+            let (writer, guard) = tracing_appender::non_blocking(appender);
+            let layer = fmt::layer()
+                .with_writer(writer)
+                .with_ansi(false)
+                .with_thread_names(true)
+                .with_filter(filter());
+            (Some(layer), Some(guard))
+        }
+        None => (None, None),
+    };
+    let stderr_layer = stderr.then(|| {
+        fmt::layer()
+            .with_writer(std::io::stderr)
+            .with_thread_names(true)
+            .with_filter(filter())
+    });
+    let _ = tracing_subscriber::registry()
+        .with(file_layer)
+        .with(stderr_layer)
+        .try_init();
+    Ok(LogGuard { _file: guard })
+}

@@ -1,0 +1,345 @@
+//! The vehicle structure (the paper's "vehicle struct"): every device with its
+//! configuration, cached state, command slot, port and statistics, plus command intake.
+//! Threads share one `Arc<Vehicle>`; readers only ever read the cache.
+
+use crate::config::{DeviceConfig, VehicleConfig};
+use crate::driver::DriverError;
+use crate::engine::port::{Conn, Opener, Port};
+use crate::engine::slot::CommandSlot;
+use crate::engine::stats::Stats;
+use crate::interlock::{self, Facts, Reject};
+use crate::value::{Command, EstopState, Reading, Role};
+use parking_lot::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::time::{Duration, Instant};
+
+/// After this many failed transactions in a row a device counts as faulty.
+pub const FAULT_AFTER: u32 = 3;
+
+/// The safe state: gas released, brake full.
+pub const SAFE_GAS: f64 = 0.0;
+pub const SAFE_BRAKE: f64 = 1.0;
+
+/// The latest state a device reported.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Cached {
+    pub reading: Reading,
+    /// When it was read; `None` before the first good poll.
+    pub at: Option<Instant>,
+}
+
+impl Cached {
+    pub fn age(&self) -> Option<Duration> {
+        self.at.map(|t| t.elapsed())
+    }
+}
+
+/// Error codes shown per thread, as on the paper's screen: 0 is good, ≥ 1 is bad.
+pub fn error_code(e: &DriverError) -> u32 {
+    match e {
+        DriverError::Timeout(_) => 1,
+        DriverError::Garbled(_) => 2,
+        DriverError::Refused(_) => 3,
+        DriverError::Unsupported(_) => 4,
+        DriverError::Io(_) => 5,
+    }
+}
+
+/// Health of a device, kept by its threads.
+#[derive(Default)]
+pub struct Health {
+    pub status_error: AtomicU32,
+    pub command_error: AtomicU32,
+    pub consecutive_errors: AtomicU32,
+    pub connected: AtomicBool,
+    pub last_error: Mutex<Option<(Instant, String)>>,
+}
+
+/// Settings the console can change while running.
+pub struct Settings {
+    status_period_us: AtomicU64,
+    command_timeout_us: AtomicU64,
+    pub status_enabled: AtomicBool,
+    pub command_enabled: AtomicBool,
+}
+
+impl Settings {
+    fn new(c: &DeviceConfig) -> Settings {
+        Settings {
+            status_period_us: AtomicU64::new(c.status_period.as_micros() as u64),
+            command_timeout_us: AtomicU64::new(c.command_timeout.as_micros() as u64),
+            status_enabled: AtomicBool::new(true),
+            command_enabled: AtomicBool::new(true),
+        }
+    }
+    pub fn status_period(&self) -> Duration {
+        Duration::from_micros(self.status_period_us.load(Relaxed))
+    }
+    pub fn command_timeout(&self) -> Duration {
+        Duration::from_micros(self.command_timeout_us.load(Relaxed))
+    }
+    pub fn set_status_period(&self, d: Duration) {
+        self.status_period_us
+            .store(d.as_micros().max(1000) as u64, Relaxed);
+    }
+    pub fn set_command_timeout(&self, d: Duration) {
+        self.command_timeout_us
+            .store(d.as_micros().max(1000) as u64, Relaxed);
+    }
+}
+
+/// One device of the vehicle.
+pub struct Device {
+    pub role: Role,
+    pub config: DeviceConfig,
+    pub slot: CommandSlot,
+    pub port: Port,
+    pub cache: Mutex<Cached>,
+    pub stats: Stats,
+    pub settings: Settings,
+    pub health: Health,
+}
+
+impl Device {
+    pub fn new(config: DeviceConfig, opener: Opener) -> Device {
+        let driver = crate::driver::build(&config);
+        Device {
+            role: config.name,
+            port: Port::new(config.port_rule, Conn::new(driver, opener)),
+            settings: Settings::new(&config),
+            config,
+            slot: CommandSlot::default(),
+            cache: Mutex::new(Cached::default()),
+            stats: Stats::default(),
+            health: Health::default(),
+        }
+    }
+
+    pub fn is_actuator(&self) -> bool {
+        self.role.is_actuator()
+    }
+
+    pub fn cached(&self) -> Cached {
+        *self.cache.lock()
+    }
+
+    /// Failing repeatedly, or its port is gone.
+    pub fn is_faulty(&self) -> bool {
+        self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER
+    }
+
+    pub(crate) fn record_ok(&self) {
+        self.health.consecutive_errors.store(0, Relaxed);
+        self.health.connected.store(true, Relaxed);
+    }
+
+    pub(crate) fn record_error(&self, e: &DriverError, is_command: bool) {
+        let n = self.health.consecutive_errors.fetch_add(1, Relaxed) + 1;
+        let code = error_code(e);
+        if is_command {
+            self.health.command_error.store(code, Relaxed);
+        } else {
+            self.health.status_error.store(code, Relaxed);
+        }
+        if e.is_disconnect() {
+            self.health.connected.store(false, Relaxed);
+        }
+        let msg = e.to_string();
+        let mut last = self.health.last_error.lock();
+        // Log the first error of a run and every change of message, not a flood.
+        let fresh = n == 1 || last.as_ref().is_none_or(|(_, m)| *m != msg);
+        *last = Some((Instant::now(), msg));
+        drop(last);
+        if fresh || n == FAULT_AFTER {
+            tracing::warn!(device = %self.role, errors_in_a_row = n, "{}: {e}", if is_command { "command" } else { "status" });
+        }
+    }
+}
+
+/// The whole vehicle.
+pub struct Vehicle {
+    pub name: String,
+    pub config: VehicleConfig,
+    pub devices: Vec<Device>,
+    /// Interlock rules at intake; switched off only from the console, with confirmation.
+    pub interlocks: AtomicBool,
+    rejections: [AtomicU64; Reject::ALL.len()],
+}
+
+impl Vehicle {
+    /// Build the vehicle; `open` makes the opener of each device's port.
+    pub fn new(config: VehicleConfig, mut open: impl FnMut(&DeviceConfig) -> Opener) -> Vehicle {
+        let devices = config
+            .devices
+            .iter()
+            .map(|c| Device::new(c.clone(), open(c)))
+            .collect();
+        Vehicle {
+            name: config.vehicle.name.clone(),
+            config,
+            devices,
+            interlocks: AtomicBool::new(true),
+            rejections: Default::default(),
+        }
+    }
+
+    pub fn device(&self, role: Role) -> Option<&Device> {
+        self.devices.iter().find(|d| d.role == role)
+    }
+
+    /// Rejections so far, by reason.
+    pub fn rejections(&self) -> Vec<(Reject, u64)> {
+        Reject::ALL
+            .iter()
+            .map(|r| (*r, self.rejections[r.index()].load(Relaxed)))
+            .collect()
+    }
+
+    /// What the interlocks know right now, from caches and slots.
+    pub fn facts(&self) -> Facts {
+        let brake = self.device(Role::Brake).map(|d| {
+            let vals = d.slot.in_flight();
+            let nums = vals.iter().flatten().map(|c| c.as_f64());
+            let (lo, hi) = nums.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            });
+            if lo.is_finite() {
+                (lo, hi)
+            } else {
+                // Nothing commanded yet: judge by what the brake reports.
+                let p = d.cached().reading.position.unwrap_or(0.0);
+                (p, p)
+            }
+        });
+        let reading = |role| {
+            self.device(role)
+                .and_then(|d| d.cached().at.map(|_| d.cached().reading))
+        };
+        let trans = reading(Role::Trans);
+        let obd = reading(Role::Obd);
+        let estop = reading(Role::Estop);
+        Facts {
+            brake_low: brake.map(|b| b.0),
+            brake_high: brake.map(|b| b.1),
+            gear: trans.and_then(|r| r.gear),
+            running: obd.and_then(|r| r.running),
+            speed: obd.and_then(|r| r.speed),
+            estop: estop.and_then(|r| r.estop),
+        }
+    }
+
+    fn reject(&self, device: Option<&Device>, command: Option<Command>, why: Reject) -> Reject {
+        self.rejections[why.index()].fetch_add(1, Relaxed);
+        if let Some(d) = device {
+            Stats::bump(&d.stats.rejected);
+        }
+        tracing::info!(
+            device = device.map(|d| d.role.as_str()).unwrap_or("-"),
+            command = command.map(|c| c.to_string()).unwrap_or_default(),
+            "rejected: {why}"
+        );
+        why
+    }
+
+    /// Command intake: check the command, then store it in the device's slot and wake
+    /// its command thread. `received` is when the command was born (socket read, key
+    /// press). Nothing is written here; a rejected command never reaches the slot.
+    pub fn submit(&self, role: Role, command: Command, received: Instant) -> Result<(), Reject> {
+        let Some(d) = self.device(role) else {
+            return Err(self.reject(None, Some(command), Reject::NoSuchDevice));
+        };
+        if !d.is_actuator() {
+            return Err(self.reject(Some(d), Some(command), Reject::NotAnActuator));
+        }
+        match (role, command) {
+            (Role::Trans, Command::Gear(_)) => {}
+            (Role::Trans, Command::Set(_)) | (_, Command::Gear(_)) => {
+                return Err(self.reject(Some(d), Some(command), Reject::WrongKind))
+            }
+            (_, Command::Set(v)) => {
+                if !v.is_finite() {
+                    return Err(self.reject(Some(d), Some(command), Reject::NotFinite));
+                }
+                let [lo, hi] = d.config.range();
+                if v < lo || v > hi {
+                    return Err(self.reject(Some(d), Some(command), Reject::OutOfRange));
+                }
+            }
+        }
+        if self.interlocks.load(Relaxed) {
+            if let Err(why) = interlock::check(&self.facts(), role, command) {
+                return Err(self.reject(Some(d), Some(command), why));
+            }
+        }
+        self.store(d, command, received);
+        Ok(())
+    }
+
+    fn store(&self, d: &Device, command: Command, received: Instant) {
+        Stats::bump(&d.stats.received);
+        if d.slot.submit(command, received) {
+            Stats::bump(&d.stats.superseded);
+        }
+    }
+
+    /// The follower's virtual `accel` command, −1…1: positive is gas, negative is brake;
+    /// it never applies both. Going from braking to gas, the brake is released first and
+    /// the gas follows once the brake has acknowledged the release (a later `accel`).
+    pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
+        if !a.is_finite() {
+            return Err(self.reject(None, None, Reject::NotFinite));
+        }
+        if !(-1.0..=1.0).contains(&a) {
+            return Err(self.reject(None, None, Reject::OutOfRange));
+        }
+        if a > 0.0 {
+            self.submit(Role::Brake, Command::Set(0.0), received)?;
+            let released = self
+                .facts()
+                .brake_high
+                .is_none_or(|b| b <= interlock::RELEASED);
+            if released {
+                self.submit(Role::Gas, Command::Set(a), received)?;
+            } else {
+                tracing::debug!("accel {a}: gas waits for the brake release");
+            }
+            Ok(())
+        } else {
+            self.submit(Role::Gas, Command::Set(0.0), received)?;
+            self.submit(Role::Brake, Command::Set(-a), received)
+        }
+    }
+
+    /// Command the safe state (gas 0, brake full) to every actuator there is,
+    /// bypassing the interlocks (the safe state is always allowed).
+    pub fn command_safe_state(&self) {
+        let now = Instant::now();
+        if let Some(g) = self.device(Role::Gas) {
+            self.store(g, Command::Set(SAFE_GAS), now);
+        }
+        if let Some(b) = self.device(Role::Brake) {
+            self.store(b, Command::Set(SAFE_BRAKE), now);
+        }
+    }
+
+    /// Wait until every reachable gas and brake device acknowledged the safe state.
+    /// Returns false if one did not by the deadline.
+    pub fn wait_safe(&self, deadline: Instant) -> bool {
+        let mut ok = true;
+        for (role, value) in [(Role::Gas, SAFE_GAS), (Role::Brake, SAFE_BRAKE)] {
+            if let Some(d) = self.device(role) {
+                let done = d.slot.wait_executed(|c| c == Command::Set(value), deadline);
+                if !done {
+                    tracing::error!(device = %role, "did not acknowledge the safe state");
+                    ok = false;
+                }
+            }
+        }
+        ok
+    }
+
+    /// The e-stop's last reported state.
+    pub fn estop(&self) -> Option<EstopState> {
+        self.facts().estop
+    }
+}
