@@ -163,6 +163,9 @@ pub struct Vehicle {
     pub devices: Vec<Device>,
     /// Interlock rules at intake; switched off only from the console, with confirmation.
     pub interlocks: AtomicBool,
+    engaged: AtomicBool,
+    /// Why the vehicle is (dis)engaged, for the console and the broadcast.
+    gate_reason: Mutex<String>,
     rejections: [AtomicU64; Reject::ALL.len()],
 }
 
@@ -179,6 +182,8 @@ impl Vehicle {
             config,
             devices,
             interlocks: AtomicBool::new(true),
+            engaged: AtomicBool::new(false),
+            gate_reason: Mutex::new("not engaged yet".into()),
             rejections: Default::default(),
         }
     }
@@ -241,6 +246,74 @@ impl Vehicle {
         why
     }
 
+    pub fn is_engaged(&self) -> bool {
+        self.engaged.load(Relaxed)
+    }
+
+    /// Why the vehicle is engaged or not.
+    pub fn gate_reason(&self) -> String {
+        self.gate_reason.lock().clone()
+    }
+
+    /// Reasons engaging is refused right now (empty: it may engage).
+    pub fn engage_blockers(&self) -> Vec<String> {
+        let mut why = Vec::new();
+        for d in &self.devices {
+            if d.is_faulty() {
+                let last = d.health.last_error.lock().as_ref().map(|(_, m)| m.clone());
+                why.push(format!(
+                    "{} is faulty ({})",
+                    d.role,
+                    last.unwrap_or_default()
+                ));
+            } else if d.cached().at.is_none() {
+                why.push(format!("{} has not reported yet", d.role));
+            }
+        }
+        if let Some(EstopState::Pause | EstopState::Disable) = self.estop() {
+            why.push(format!("e-stop is in {}", self.estop().expect("just read")));
+        }
+        why
+    }
+
+    /// Engage: accept commands from now on. Refused while any device is faulty. Every
+    /// command slot is reset first so nothing resends a stale set point: gas 0, brake
+    /// full, steering held where it is, the gear left as it is.
+    pub fn engage(&self, by: &str) -> Result<(), Vec<String>> {
+        let blockers = self.engage_blockers();
+        if !blockers.is_empty() {
+            tracing::warn!(by, "engage refused: {}", blockers.join("; "));
+            return Err(blockers);
+        }
+        for d in &self.devices {
+            if !d.is_actuator() {
+                continue;
+            }
+            d.slot.reset(None);
+        }
+        self.command_safe_state();
+        if let Some(s) = self.device(Role::Steer) {
+            if let Some(p) = s.cached().reading.position {
+                self.store(s, Command::Set(p), Instant::now());
+            }
+        }
+        *self.gate_reason.lock() = format!("engaged by {by}");
+        self.engaged.store(true, Relaxed);
+        tracing::info!(by, "engaged");
+        Ok(())
+    }
+
+    /// Disengage and command the safe state. Returns false if it was not engaged.
+    pub fn disengage(&self, reason: &str) -> bool {
+        let was = self.engaged.swap(false, Relaxed);
+        *self.gate_reason.lock() = format!("disengaged: {reason}");
+        self.command_safe_state();
+        if was {
+            tracing::warn!("disengaged: {reason}");
+        }
+        was
+    }
+
     /// Command intake: check the command, then store it in the device's slot and wake
     /// its command thread. `received` is when the command was born (socket read, key
     /// press). Nothing is written here; a rejected command never reaches the slot.
@@ -265,6 +338,9 @@ impl Vehicle {
                     return Err(self.reject(Some(d), Some(command), Reject::OutOfRange));
                 }
             }
+        }
+        if !self.is_engaged() {
+            return Err(self.reject(Some(d), Some(command), Reject::Disengaged));
         }
         if self.interlocks.load(Relaxed) {
             if let Err(why) = interlock::check(&self.facts(), role, command) {
