@@ -31,8 +31,8 @@ pub fn encode_command(command: Command, out: &mut [u8; 32]) -> usize {
     let mut cursor = std::io::Cursor::new(&mut out[..]);
     // 32 bytes always hold "! " + a gear word or a 3-decimal number in −1e6…1e6.
     let _ = match command {
-        Command::Set(v) => write!(cursor, "! {:.3}\n", v.clamp(-1e6, 1e6)),
-        Command::Gear(g) => write!(cursor, "! {g}\n"),
+        Command::Set(v) => writeln!(cursor, "! {:.3}", v.clamp(-1e6, 1e6)),
+        Command::Gear(g) => writeln!(cursor, "! {g}"),
     };
     cursor.position() as usize
 }

@@ -224,10 +224,14 @@ fn command_loop(d: &Device) {
         let Some(mut port) = d.port.acquire_command() else {
             return;
         };
-        // A command that arrived while we waited for the port replaces this one.
-        if let Some(newer) = d.slot.take_newer() {
-            Stats::bump(&d.stats.superseded);
-            (job, resend) = (newer, false);
+        // A command that arrived while we waited for the port replaces this one. (The
+        // paper's thread sent the value it had cued before blocking: that staleness is
+        // what its field tests saw as ~200 ms stalls, so the paper rule keeps it.)
+        if d.port.rule() == PortRule::Priority {
+            if let Some(newer) = d.slot.take_newer() {
+                Stats::bump(&d.stats.superseded);
+                (job, resend) = (newer, false);
+            }
         }
         loop {
             d.slot.set_last(job.command);

@@ -115,9 +115,7 @@ impl Model {
         let v = self.velocity + drive * h;
         // Braking and drag only slow the vehicle; they never reverse it.
         let slowed = v.abs() - stop * h;
-        self.velocity = if self.gear == Gear::Park {
-            0.0
-        } else if slowed <= 0.0 {
+        self.velocity = if self.gear == Gear::Park || slowed <= 0.0 {
             0.0
         } else {
             slowed * v.signum()

@@ -1,0 +1,173 @@
+//! The real `adrive` binary as a user runs it: a malformed config, a headless run
+//! stopped by a signal, and `adrive sim` serving a device on a pseudo-terminal.
+
+mod common;
+
+use adrive::driver::{self, line::LineDriver, Driver};
+use adrive::value::Command;
+use common::DEADLINE;
+use std::io::{BufRead, BufReader, Read};
+use std::process::{Child, Command as Process, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_adrive");
+
+/// Lines of a child's stream, delivered through a channel so reads can time out.
+fn lines(stream: impl Read + Send + 'static) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Read lines until one contains `pattern`; returns every line read.
+fn until(rx: &mpsc::Receiver<String>, pattern: &str) -> Vec<String> {
+    let end = Instant::now() + DEADLINE;
+    let mut seen = Vec::new();
+    loop {
+        let left = end.saturating_duration_since(Instant::now());
+        match rx.recv_timeout(left) {
+            Ok(l) => {
+                let hit = l.contains(pattern);
+                seen.push(l);
+                if hit {
+                    return seen;
+                }
+            }
+            Err(_) => panic!("no line with {pattern:?}; got:\n{}", seen.join("\n")),
+        }
+    }
+}
+
+fn signal(child: &Child, sig: i32) {
+    // SAFETY: plain kill(2) on our own child.
+    assert_eq!(unsafe { libc::kill(child.id() as i32, sig) }, 0);
+}
+
+fn wait_exit(child: &mut Child) -> i32 {
+    let end = Instant::now() + DEADLINE;
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s.code().unwrap_or(-1);
+        }
+        assert!(Instant::now() < end, "adrive did not exit");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+#[test]
+fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
+    let dir = tempdir();
+    let path = dir.join("bad.toml");
+    std::fs::write(
+        &path,
+        "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"steer\"\ndriver = \"modbsu\"\nport = \"/dev/ttyUSB0\"\n",
+    )
+    .unwrap();
+    let out = Process::new(BIN)
+        .args(["--headless", "--config"])
+        .arg(&path)
+        .arg("--log-dir")
+        .arg(dir.join("log"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains(&format!("{}:6: ", path.display())), "{err}");
+    assert!(err.contains("modbsu") && err.contains("line"), "{err}");
+    // It stopped before starting anything: no log was even written.
+    assert!(!dir.join("log").exists());
+}
+
+fn tempdir() -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!(
+        "adrive-test-{}-{}",
+        std::process::id(),
+        Instant::now().elapsed().as_nanos() ^ rand_seed()
+    ));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn rand_seed() -> u128 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos()
+}
+
+#[test]
+fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
+    let dir = tempdir();
+    let mut child = Process::new(BIN)
+        .args(["--sim", "--headless", "--log-dir"])
+        .arg(&dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = lines(child.stderr.take().unwrap());
+    until(&err, "running headless");
+    signal(&child, libc::SIGTERM);
+    assert_eq!(wait_exit(&mut child), 0);
+    let mut out = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    for device in ["steer", "gas", "brake", "trans", "estop", "obd"] {
+        assert!(
+            out.lines().any(|l| l.starts_with(device)),
+            "summary lacks {device}:\n{out}"
+        );
+    }
+    assert!(out.contains("delay p99"), "{out}");
+    // The rolling log file was flushed and tells the safe state was reached.
+    let log: String = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| std::fs::read_to_string(e.unwrap().path()).unwrap())
+        .collect();
+    assert!(log.contains("stopping: SIGTERM"), "{log}");
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
+#[test]
+fn sim_prints_port_paths_and_each_command_a_device_receives() {
+    let mut child = Process::new(BIN)
+        .args(["sim", "--only", "steer"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let out = lines(child.stdout.take().unwrap());
+    let first = until(&out, "steer");
+    let path = first
+        .last()
+        .unwrap()
+        .split_whitespace()
+        .nth(1)
+        .unwrap()
+        .to_string();
+    assert!(path.starts_with("/dev/pts/"), "{path}");
+
+    let mut link = driver::open_serial(&path, 38400, Duration::from_secs(2)).unwrap();
+    let mut drv = LineDriver::new(Duration::from_secs(2));
+    drv.command(link.as_mut(), Command::Set(0.25)).unwrap();
+    let reading = drv.poll(link.as_mut()).unwrap();
+    assert!(reading.position.is_some());
+    let seen = until(&out, "<-");
+    let line = seen.last().unwrap();
+    assert!(line.contains("steer") && line.contains("0.250"), "{line}");
+
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), 0);
+}

@@ -1,0 +1,96 @@
+//! Shared helpers for the integration tests: a simulated vehicle on real
+//! pseudo-terminals with the real engine on top, and waiting for events with a deadline.
+#![allow(dead_code)]
+
+use adrive::config::{self, VehicleConfig};
+use adrive::driver;
+use adrive::engine::Engine;
+use adrive::sim::{Sim, SimEvent};
+use adrive::vehicle::Vehicle;
+use crossbeam_channel::Receiver;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Generous: these machines are slow and shared; a passing test never waits this long.
+pub const DEADLINE: Duration = Duration::from_secs(20);
+
+/// Wait until `cond` holds, checking often; panics with `what` at the deadline.
+pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
+    let end = Instant::now() + DEADLINE;
+    while !cond() {
+        assert!(Instant::now() < end, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+pub struct Rig {
+    pub sim: Sim,
+    pub vehicle: Arc<Vehicle>,
+    pub engine: Option<Engine>,
+    pub events: Receiver<SimEvent>,
+}
+
+impl Rig {
+    /// Simulate the vehicle described by `toml` and run the engine on it.
+    pub fn start(toml: &str) -> Rig {
+        let config = config::parse(toml, "test.toml").expect("test config parses");
+        Rig::with_config(config)
+    }
+
+    pub fn with_config(mut config: VehicleConfig) -> Rig {
+        let (tx, events) = crossbeam_channel::unbounded();
+        let sim = Sim::start(&config, Some(tx)).expect("sim starts");
+        sim.patch(&mut config);
+        let vehicle = Arc::new(Vehicle::new(config, |c| {
+            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+            Box::new(move || driver::open_serial(&path, baud, timeout))
+        }));
+        let engine = Engine::start(vehicle.clone()).expect("engine starts");
+        Rig {
+            sim,
+            vehicle,
+            engine: Some(engine),
+            events,
+        }
+    }
+
+    /// Wait for every device to report, then engage.
+    pub fn engage(&self) {
+        wait_for("every device to report", || {
+            self.vehicle.engage_blockers().is_empty()
+        });
+        self.vehicle.engage("test").expect("engage");
+    }
+
+    /// Every command the simulated devices applied so far.
+    pub fn received(&self) -> Vec<SimEvent> {
+        self.events.try_iter().collect()
+    }
+}
+
+impl Drop for Rig {
+    fn drop(&mut self) {
+        if let Some(e) = self.engine.take() {
+            e.shutdown(Duration::from_secs(2));
+        }
+    }
+}
+
+/// A one-device vehicle: steering, simulated with the given extra settings.
+pub fn steer_only(extra: &str, sim: &str) -> String {
+    format!(
+        r#"
+[vehicle]
+name = "bench"
+
+[[device]]
+name = "steer"
+driver = "line"
+baud = 38400
+{extra}
+
+[device.sim]
+{sim}
+"#
+    )
+}
