@@ -4,6 +4,8 @@
 //! transaction at a time, and measures around it.
 
 pub mod line;
+#[cfg(test)]
+mod mock;
 
 use crate::value::{Command, Reading};
 use std::io::{self, Read, Write};
