@@ -6,6 +6,7 @@
 pub mod line;
 #[cfg(test)]
 mod mock;
+pub mod modbus;
 
 use crate::value::{Command, Reading};
 use std::io::{self, Read, Write};
