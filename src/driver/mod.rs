@@ -3,7 +3,11 @@
 //! the engine owns the port, opens it, hands it to the driver as a [`Link`] for one
 //! transaction at a time, and measures around it.
 
+pub mod elm327;
 pub mod line;
+#[cfg(test)]
+mod mock;
+pub mod modbus;
 
 use crate::value::{Command, Reading};
 use std::io::{self, Read, Write};

@@ -7,8 +7,12 @@
 //! time, as the real device does. Faults can be injected per device ([`Faults`]).
 
 pub mod device;
+pub mod elm327;
 pub mod line;
 pub mod model;
+pub mod modbus;
+#[cfg(test)]
+pub(crate) mod test_serve;
 
 use crate::config::{DeviceConfig, DriverKind, VehicleConfig};
 use crate::value::{Command, EstopState, Reading, Role};
