@@ -5,6 +5,7 @@
 //! [`driver::Driver`], [`interlock`] guards command intake, and [`sim`] emulates the
 //! devices on real pseudo-terminals.
 
-pub mod value;
 pub mod driver;
+pub mod net;
 pub mod sim;
+pub mod value;
