@@ -14,7 +14,7 @@
 //! [`MIN_KEY_LEN`] bytes: `openssl rand -hex 32 > adrive.key` makes a good one.
 
 use super::proto::{hex_digit, Datagram, Reject};
-use hmac::{Hmac, KeyInit, Mac};
+use hmac::{Hmac, Mac};
 use sha2::Sha256;
 use std::fmt::{self, Write as _};
 use std::path::{Path, PathBuf};
