@@ -14,6 +14,7 @@ pub mod exit;
 pub mod headless;
 pub mod interlock;
 pub mod logging;
+pub mod net;
 pub mod sim;
 pub mod value;
 pub mod vehicle;

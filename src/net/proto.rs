@@ -1,0 +1,1195 @@
+//! The command protocol: what a planner (or a person with `nc`) sends adrive over UDP,
+//! as pure functions on bytes. The listener thread hands each datagram to [`parse`],
+//! checks it with [`Auth`](super::auth::Auth) when a key is set, and then applies the
+//! commands; nothing here touches a socket, a clock or the heap, so the whole path from
+//! socket to serial write stays allocation-free and every rule is tested on bytes.
+//!
+//! # Grammar
+//!
+//! A datagram is UTF-8 text of at most [`MAX_DATAGRAM`] bytes: one item per line.
+//!
+//! ```text
+//! datagram = line *( EOL line ) [ EOL ]        EOL = "\n" | "\r\n"
+//! line     = [ item ] [ "#" comment ]          blank lines and comments are ignored
+//! item     = "steer" SP number                 -1 (full left) … 1 (full right)
+//!          | "gas"   SP number                 0 … 1
+//!          | "brake" SP number                 0 … 1
+//!          | "accel" SP number                 -1 … 1: < 0 brakes, > 0 gives gas
+//!          | "trans" SP gear                   park|p  reverse|rev|r  neutral|n  drive|d
+//!                                              or the paper's codes -1 (reverse),
+//!                                              0 (park), 1 (drive)
+//!          | "engage" | "disengage"
+//!          | "seq" SP u64                      header: the sender's counter
+//!          | "tag" SP 64 hex digits            header: HMAC-SHA256, must be the last line
+//! ```
+//!
+//! - Words are separated by spaces or tabs; leading and trailing blanks are ignored.
+//! - Keywords and gear names are case-insensitive (`STEER 0.2`, `trans Drive`).
+//! - A number is a decimal such as `0.25`, `-1`, `.5`, `+1e-1`. It must be finite and
+//!   inside the range above; an out-of-range value is rejected, never clamped.
+//! - A datagram holds at least one command and at most [`MAX_COMMANDS`]. Its commands
+//!   are applied in order, so the last one for a device wins.
+//! - **A datagram is one intent**: if any line is bad, the whole datagram is rejected
+//!   and none of its commands is applied.
+//! - `seq` may appear once, anywhere before `tag`. Without a key it is optional and
+//!   lets adrive notice a sender that is alive but frozen (the same counter again and
+//!   again). With a key it is required and must be strictly greater than the last one
+//!   accepted from that key, so a captured datagram cannot be replayed.
+//! - `tag` may appear once, as the last line (its own line ending may follow, nothing
+//!   else). It is the HMAC-SHA256, under the shared key, of **every byte before the
+//!   `tag` line**, line endings included, written as 64 hex digits (either case).
+//!
+//! # Examples with `nc`
+//!
+//! Without a key, type commands by hand:
+//!
+//! ```text
+//! echo 'steer 0.2' | nc -u -w0 127.0.0.1 47576
+//! printf 'engage\ntrans drive\n' | nc -u -w0 127.0.0.1 47576
+//! printf 'seq 17\nsteer -0.25\ngas 0.3  # gentle\n' | nc -u -w0 127.0.0.1 47576
+//! echo 'accel -0.5' | nc -u -w0 127.0.0.1 47576
+//! echo 'disengage' | nc -u -w0 127.0.0.1 47576
+//! ```
+//!
+//! # Signing from a shell
+//!
+//! With a key file (its text, without surrounding whitespace, is the key — see
+//! [`Auth::from_key_file`](super::auth::Auth::from_key_file)), sign with `openssl`.
+//! `date +%s%N` gives a counter that grows from one call to the next:
+//!
+//! ```text
+//! openssl rand -hex 32 > adrive.key            # once; give the same file to adrive
+//! KEY=$(cat adrive.key)
+//! body=$(printf 'seq %s\nsteer 0.2\ngas 0.1' "$(date +%s%N)")
+//! tag=$(printf '%s\n' "$body" | openssl dgst -sha256 -hmac "$KEY" | awk '{print $NF}')
+//! printf '%s\ntag %s\n' "$body" "$tag" | nc -u -w0 127.0.0.1 47576
+//! ```
+//!
+//! The signed bytes are exactly `seq …\nsteer 0.2\ngas 0.1\n`: `$(…)` drops the final
+//! newline of `body`, and both `printf '%s\n'` put it back.
+//!
+//! # Rejections
+//!
+//! Every rejected datagram has one [`Reject`] reason, with a stable snake_case name
+//! for counters and logs ([`Reject::as_str`]); [`ParseError`] adds the line number and
+//! the offending word for a person (`line 2: out_of_range: steer takes -1 to 1 (got
+//! "1.5")`). [`RejectCounts`] counts them without locks.
+
+use crate::value::{Command, Gear, Role};
+use arrayvec::ArrayVec;
+use std::fmt;
+use std::ops::Range;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// The largest datagram accepted, in bytes; a larger one is rejected as `oversized`.
+/// Sixteen commands with long numbers, a `seq` and a `tag` fit with room to spare.
+pub const MAX_DATAGRAM: usize = 1024;
+
+/// The most commands one datagram may carry; more is `too_many_commands`.
+pub const MAX_COMMANDS: usize = 16;
+
+/// One thing a datagram asks of adrive.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum NetCommand {
+    /// A set point for one actuator (`steer`, `gas`, `brake`, `trans`).
+    Set(Role, Command),
+    /// Combined pedal: below zero brakes, above zero gives gas (−1…1).
+    Accel(f64),
+    /// Let network commands drive the actuators.
+    Engage,
+    /// Stop taking network commands and bring the vehicle to its safe state.
+    Disengage,
+}
+
+impl fmt::Display for NetCommand {
+    /// The command as one protocol line (without its line ending); [`parse`] reads it
+    /// back to the same command, exactly (`f64` prints its shortest round-trip form).
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            NetCommand::Set(role, Command::Set(v)) => write!(f, "{role} {}", Num(*v)),
+            NetCommand::Set(role, Command::Gear(g)) => write!(f, "{role} {g}"),
+            NetCommand::Accel(v) => write!(f, "accel {}", Num(*v)),
+            NetCommand::Engage => f.write_str("engage"),
+            NetCommand::Disengage => f.write_str("disengage"),
+        }
+    }
+}
+
+/// A value as the protocol writes it: plain decimal, or scientific for tiny values
+/// (`1e-300`), whose plain form would not fit a line. Either way the shortest digits
+/// that read back to the same `f64`.
+struct Num(f64);
+
+impl fmt::Display for Num {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.0 == 0.0 || self.0.abs() >= 1e-4 || !self.0.is_finite() {
+            write!(f, "{}", self.0)
+        } else {
+            write!(f, "{:e}", self.0)
+        }
+    }
+}
+
+/// The commands of one datagram, in order, without touching the heap.
+pub type Commands = ArrayVec<NetCommand, MAX_COMMANDS>;
+
+/// A datagram that follows the grammar. Whether it may be applied (tag, counter,
+/// engage state, interlocks) is for the caller to decide.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Datagram {
+    /// The sender's counter (`seq` line), if any.
+    pub seq: Option<u64>,
+    /// The HMAC-SHA256 tag (`tag` line), if any.
+    pub tag: Option<[u8; 32]>,
+    /// The bytes the tag covers: everything before the `tag` line (the whole datagram
+    /// when there is none), as offsets into the bytes given to [`parse`].
+    pub signed: Range<usize>,
+    /// The commands, in datagram order; never empty.
+    pub commands: Commands,
+}
+
+impl Datagram {
+    /// The signed part of `bytes`, which must be the bytes this datagram was parsed from.
+    pub fn signed_bytes<'a>(&self, bytes: &'a [u8]) -> &'a [u8] {
+        bytes.get(self.signed.clone()).unwrap_or(&[])
+    }
+}
+
+/// Why a datagram was rejected. Each reason has a stable snake_case name
+/// ([`Reject::as_str`]) used by counters, logs and the state broadcast.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Reject {
+    /// No bytes, or no command (only blanks, comments or headers).
+    Empty,
+    /// Longer than [`MAX_DATAGRAM`].
+    Oversized,
+    /// Not valid UTF-8.
+    NotUtf8,
+    /// A control byte other than tab, LF, or CR before LF: binary data.
+    Binary,
+    /// A line with the wrong number of words (`steer`, `engage now`).
+    BadSyntax,
+    /// A first word that is no command.
+    UnknownVerb,
+    /// A device name that is not one of steer, gas, brake, trans (`stear 0.2`). The
+    /// listener also uses it for a device this vehicle does not have.
+    UnknownDevice,
+    /// A device that takes no commands (the sensors `estop`, `obd`). The listener also
+    /// uses it for a command that the engage state does not allow.
+    NotAllowed,
+    /// A value that is not a number (or, for `trans`, a gear).
+    BadValue,
+    /// NaN or infinity, written or by overflow (`1e999`).
+    NotFinite,
+    /// A number outside the device's range.
+    OutOfRange,
+    /// More than [`MAX_COMMANDS`] commands.
+    TooManyCommands,
+    /// A malformed, repeated or misplaced `seq` or `tag` line.
+    BadHeader,
+    /// A key is set and the datagram has no `seq`.
+    MissingSeq,
+    /// A key is set and the datagram has no `tag`.
+    MissingTag,
+    /// The tag does not match the signed bytes under the key.
+    BadTag,
+    /// The `seq` is not greater than the last one accepted.
+    Replayed,
+}
+
+impl Reject {
+    /// Every reason, in a fixed order: the index of a reason here is its counter slot.
+    pub const ALL: [Reject; 17] = [
+        Reject::Empty,
+        Reject::Oversized,
+        Reject::NotUtf8,
+        Reject::Binary,
+        Reject::BadSyntax,
+        Reject::UnknownVerb,
+        Reject::UnknownDevice,
+        Reject::NotAllowed,
+        Reject::BadValue,
+        Reject::NotFinite,
+        Reject::OutOfRange,
+        Reject::TooManyCommands,
+        Reject::BadHeader,
+        Reject::MissingSeq,
+        Reject::MissingTag,
+        Reject::BadTag,
+        Reject::Replayed,
+    ];
+
+    /// The number of reasons.
+    pub const COUNT: usize = Reject::ALL.len();
+
+    /// The stable name, for counters and logs.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Reject::Empty => "empty",
+            Reject::Oversized => "oversized",
+            Reject::NotUtf8 => "not_utf8",
+            Reject::Binary => "binary",
+            Reject::BadSyntax => "bad_syntax",
+            Reject::UnknownVerb => "unknown_verb",
+            Reject::UnknownDevice => "unknown_device",
+            Reject::NotAllowed => "not_allowed",
+            Reject::BadValue => "bad_value",
+            Reject::NotFinite => "not_finite",
+            Reject::OutOfRange => "out_of_range",
+            Reject::TooManyCommands => "too_many_commands",
+            Reject::BadHeader => "bad_header",
+            Reject::MissingSeq => "missing_seq",
+            Reject::MissingTag => "missing_tag",
+            Reject::BadTag => "bad_tag",
+            Reject::Replayed => "replayed",
+        }
+    }
+
+    /// Its slot in [`Reject::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// A sentence for a person.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Reject::Empty => "the datagram holds no command",
+            Reject::Oversized => "the datagram is over 1024 bytes",
+            Reject::NotUtf8 => "the datagram is not UTF-8 text",
+            Reject::Binary => "the datagram holds a control byte (binary data)",
+            Reject::BadSyntax => "a line has the wrong number of words",
+            Reject::UnknownVerb => "a line starts with no known command",
+            Reject::UnknownDevice => "a command names an unknown device",
+            Reject::NotAllowed => "a command is not allowed",
+            Reject::BadValue => "a value is not a number or a gear",
+            Reject::NotFinite => "a value is NaN or infinite",
+            Reject::OutOfRange => "a value is out of range",
+            Reject::TooManyCommands => "the datagram holds more than 16 commands",
+            Reject::BadHeader => "a seq or tag line is malformed, repeated or misplaced",
+            Reject::MissingSeq => "the datagram has no seq line and a key is set",
+            Reject::MissingTag => "the datagram has no tag line and a key is set",
+            Reject::BadTag => "the tag does not match the key",
+            Reject::Replayed => "the seq is not greater than the last one accepted",
+        }
+    }
+}
+
+impl fmt::Display for Reject {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.as_str(), self.describe())
+    }
+}
+
+impl std::error::Error for Reject {}
+
+/// A rejection with where and why, for a person: `line 2: out_of_range: steer takes
+/// -1 to 1 (got "1.5")`. Built without allocating (the word is copied, truncated).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ParseError {
+    /// The reason, for counters.
+    pub reason: Reject,
+    /// The 1-based line, when one line is at fault.
+    pub line: Option<u32>,
+    expected: &'static str,
+    got: Snippet,
+}
+
+impl ParseError {
+    fn new(reason: Reject, line: Option<u32>, expected: &'static str, got: &str) -> Self {
+        ParseError {
+            reason,
+            line,
+            expected,
+            got: Snippet::new(got),
+        }
+    }
+
+    /// The offending word, possibly truncated; empty when there is none.
+    pub fn got(&self) -> &str {
+        self.got.as_str()
+    }
+}
+
+impl From<ParseError> for Reject {
+    fn from(e: ParseError) -> Reject {
+        e.reason
+    }
+}
+
+impl fmt::Display for ParseError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if let Some(line) = self.line {
+            write!(f, "line {line}: ")?;
+        }
+        write!(f, "{}: {}", self.reason.as_str(), self.expected)?;
+        if !self.got.as_str().is_empty() {
+            write!(f, " (got \"{}", self.got.as_str().escape_debug())?;
+            if self.got.truncated {
+                f.write_str("…")?;
+            }
+            f.write_str("\")")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for ParseError {}
+
+/// A short inline copy of the offending word.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Snippet {
+    buf: [u8; Snippet::CAP],
+    len: u8,
+    truncated: bool,
+}
+
+impl Snippet {
+    const CAP: usize = 24;
+
+    fn new(s: &str) -> Self {
+        let mut len = s.len().min(Self::CAP);
+        while !s.is_char_boundary(len) {
+            len -= 1;
+        }
+        let mut buf = [0; Self::CAP];
+        buf[..len].copy_from_slice(&s.as_bytes()[..len]);
+        Snippet {
+            buf,
+            len: len as u8,
+            truncated: len < s.len(),
+        }
+    }
+
+    fn as_str(&self) -> &str {
+        // Cut at a char boundary of a &str in `new`, so always valid.
+        std::str::from_utf8(&self.buf[..self.len as usize]).unwrap_or("")
+    }
+}
+
+/// Reads one datagram. Allocation-free; never panics, whatever the bytes.
+pub fn parse(bytes: &[u8]) -> Result<Datagram, ParseError> {
+    if bytes.is_empty() {
+        return Err(ParseError::new(
+            Reject::Empty,
+            None,
+            "the datagram is empty",
+            "",
+        ));
+    }
+    if bytes.len() > MAX_DATAGRAM {
+        return Err(ParseError::new(
+            Reject::Oversized,
+            None,
+            "a datagram holds at most 1024 bytes",
+            "",
+        ));
+    }
+    if let Some(at) = bytes.iter().position(|&b| is_binary(b)) {
+        return Err(ParseError::new(
+            Reject::Binary,
+            Some(line_of(bytes, at)),
+            "text only: control bytes other than tab and line endings are not allowed",
+            "",
+        ));
+    }
+    let text = match std::str::from_utf8(bytes) {
+        Ok(text) => text,
+        Err(e) => {
+            return Err(ParseError::new(
+                Reject::NotUtf8,
+                Some(line_of(bytes, e.valid_up_to())),
+                "the datagram must be UTF-8 text",
+                "",
+            ))
+        }
+    };
+
+    let mut datagram = Datagram {
+        seq: None,
+        tag: None,
+        signed: 0..bytes.len(),
+        commands: Commands::new(),
+    };
+    let mut start = 0;
+    let mut line_no = 0u32;
+    while start < text.len() {
+        let (raw, next) = match text[start..].find('\n') {
+            Some(i) => (&text[start..start + i], start + i + 1),
+            None => (&text[start..], text.len()),
+        };
+        line_no += 1;
+        let line = Some(line_no);
+        if datagram.tag.is_some() {
+            return Err(ParseError::new(
+                Reject::BadHeader,
+                line,
+                "the tag line must be the last line",
+                raw,
+            ));
+        }
+        let content = raw.strip_suffix('\r').unwrap_or(raw);
+        if content.contains('\r') {
+            return Err(ParseError::new(
+                Reject::Binary,
+                line,
+                "a carriage return may only end a line (CR LF)",
+                "",
+            ));
+        }
+        let content = content.split('#').next().unwrap_or("");
+        let mut words = content.split_ascii_whitespace();
+        let Some(verb) = words.next() else {
+            start = next;
+            continue;
+        };
+        let arg = words.next();
+        let extra = words.next();
+        let one_arg = |usage: &'static str| match (arg, extra) {
+            (Some(a), None) => Ok(a),
+            (None, _) => Err(ParseError::new(Reject::BadSyntax, line, usage, verb)),
+            (Some(_), Some(x)) => Err(ParseError::new(Reject::BadSyntax, line, usage, x)),
+        };
+
+        let command = match Verb::from_word(verb) {
+            Some(Verb::Seq) => {
+                let a =
+                    one_arg("seq takes one counter (0 to 18446744073709551615)").map_err(|e| {
+                        ParseError {
+                            reason: Reject::BadHeader,
+                            ..e
+                        }
+                    })?;
+                if datagram.seq.is_some() {
+                    return Err(ParseError::new(
+                        Reject::BadHeader,
+                        line,
+                        "only one seq line is allowed",
+                        a,
+                    ));
+                }
+                datagram.seq = Some(parse_seq(a).ok_or_else(|| {
+                    ParseError::new(
+                        Reject::BadHeader,
+                        line,
+                        "seq takes a decimal counter from 0 to 18446744073709551615",
+                        a,
+                    )
+                })?);
+                None
+            }
+            Some(Verb::Tag) => {
+                let a = one_arg("tag takes 64 hex digits").map_err(|e| ParseError {
+                    reason: Reject::BadHeader,
+                    ..e
+                })?;
+                datagram.tag = Some(parse_hex32(a).ok_or_else(|| {
+                    ParseError::new(Reject::BadHeader, line, "tag takes 64 hex digits", a)
+                })?);
+                datagram.signed = 0..start;
+                None
+            }
+            Some(Verb::Engage | Verb::Disengage) if arg.is_some() => {
+                return Err(ParseError::new(
+                    Reject::BadSyntax,
+                    line,
+                    "engage and disengage take no value",
+                    arg.unwrap_or(""),
+                ))
+            }
+            Some(Verb::Engage) => Some(NetCommand::Engage),
+            Some(Verb::Disengage) => Some(NetCommand::Disengage),
+            Some(Verb::Accel) => {
+                let a = one_arg("accel takes one value from -1 to 1")?;
+                Some(NetCommand::Accel(number(
+                    a,
+                    -1.0,
+                    1.0,
+                    line,
+                    "accel takes -1 to 1",
+                )?))
+            }
+            Some(Verb::Device(Role::Steer)) => {
+                let a = one_arg("steer takes one value from -1 to 1")?;
+                let v = number(a, -1.0, 1.0, line, "steer takes -1 to 1")?;
+                Some(NetCommand::Set(Role::Steer, Command::Set(v)))
+            }
+            Some(Verb::Device(role @ (Role::Gas | Role::Brake))) => {
+                let (usage, range) = if role == Role::Gas {
+                    ("gas takes one value from 0 to 1", "gas takes 0 to 1")
+                } else {
+                    ("brake takes one value from 0 to 1", "brake takes 0 to 1")
+                };
+                let a = one_arg(usage)?;
+                Some(NetCommand::Set(
+                    role,
+                    Command::Set(number(a, 0.0, 1.0, line, range)?),
+                ))
+            }
+            Some(Verb::Device(Role::Trans)) => {
+                let a = one_arg("trans takes one gear")?;
+                Some(NetCommand::Set(Role::Trans, Command::Gear(gear(a, line)?)))
+            }
+            Some(Verb::Device(_)) => {
+                return Err(ParseError::new(
+                    Reject::NotAllowed,
+                    line,
+                    "estop and obd are sensors: they take no commands",
+                    verb,
+                ))
+            }
+            None if extra.is_none() && arg.is_some_and(looks_like_value) => {
+                return Err(ParseError::new(
+                    Reject::UnknownDevice,
+                    line,
+                    "the devices are steer, gas, brake and trans",
+                    verb,
+                ))
+            }
+            None => {
+                return Err(ParseError::new(
+                    Reject::UnknownVerb,
+                    line,
+                    "a line is steer, gas, brake, trans, accel, engage, disengage, seq or tag",
+                    verb,
+                ))
+            }
+        };
+        if let Some(command) = command {
+            if datagram.commands.try_push(command).is_err() {
+                return Err(ParseError::new(
+                    Reject::TooManyCommands,
+                    line,
+                    "a datagram holds at most 16 commands",
+                    "",
+                ));
+            }
+        }
+        start = next;
+    }
+    if datagram.commands.is_empty() {
+        return Err(ParseError::new(
+            Reject::Empty,
+            None,
+            "the datagram holds no command",
+            "",
+        ));
+    }
+    Ok(datagram)
+}
+
+/// The first word of a line.
+#[derive(Clone, Copy)]
+enum Verb {
+    Device(Role),
+    Accel,
+    Engage,
+    Disengage,
+    Seq,
+    Tag,
+}
+
+impl Verb {
+    fn from_word(word: &str) -> Option<Verb> {
+        const OTHERS: [(&str, Verb); 5] = [
+            ("accel", Verb::Accel),
+            ("engage", Verb::Engage),
+            ("disengage", Verb::Disengage),
+            ("seq", Verb::Seq),
+            ("tag", Verb::Tag),
+        ];
+        Role::ALL
+            .into_iter()
+            .find(|r| r.as_str().eq_ignore_ascii_case(word))
+            .map(Verb::Device)
+            .or_else(|| {
+                OTHERS
+                    .into_iter()
+                    .find(|(w, _)| w.eq_ignore_ascii_case(word))
+                    .map(|(_, v)| v)
+            })
+    }
+}
+
+/// A control byte other than tab, LF and CR (CR is checked per line), or DEL.
+fn is_binary(b: u8) -> bool {
+    (b < 0x20 && !matches!(b, b'\t' | b'\n' | b'\r')) || b == 0x7f
+}
+
+/// The 1-based line that byte `at` sits on.
+fn line_of(bytes: &[u8], at: usize) -> u32 {
+    let newlines = bytes[..at.min(bytes.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count();
+    u32::try_from(newlines).map_or(u32::MAX, |n| n.saturating_add(1))
+}
+
+fn parse_f64(word: &str) -> Option<f64> {
+    word.parse::<f64>().ok()
+}
+
+/// A finite number inside `lo..=hi`.
+fn number(
+    word: &str,
+    lo: f64,
+    hi: f64,
+    line: Option<u32>,
+    range: &'static str,
+) -> Result<f64, ParseError> {
+    let v = parse_f64(word).ok_or_else(|| {
+        ParseError::new(
+            Reject::BadValue,
+            line,
+            "a decimal number such as 0.25",
+            word,
+        )
+    })?;
+    if !v.is_finite() {
+        return Err(ParseError::new(
+            Reject::NotFinite,
+            line,
+            "a finite number",
+            word,
+        ));
+    }
+    if !(lo..=hi).contains(&v) {
+        return Err(ParseError::new(Reject::OutOfRange, line, range, word));
+    }
+    Ok(v)
+}
+
+const GEAR_USAGE: &str = "trans takes park, reverse, neutral, drive or -1, 0, 1";
+
+/// A gear name (or short form) or one of the paper's codes −1, 0, 1.
+fn gear(word: &str, line: Option<u32>) -> Result<Gear, ParseError> {
+    const NAMES: [(&str, Gear); 9] = [
+        ("park", Gear::Park),
+        ("p", Gear::Park),
+        ("reverse", Gear::Reverse),
+        ("rev", Gear::Reverse),
+        ("r", Gear::Reverse),
+        ("neutral", Gear::Neutral),
+        ("n", Gear::Neutral),
+        ("drive", Gear::Drive),
+        ("d", Gear::Drive),
+    ];
+    if let Some((_, g)) = NAMES.iter().find(|(n, _)| n.eq_ignore_ascii_case(word)) {
+        return Ok(*g);
+    }
+    match parse_f64(word) {
+        Some(v) if !v.is_finite() => Err(ParseError::new(
+            Reject::NotFinite,
+            line,
+            "a finite number",
+            word,
+        )),
+        Some(-1.0) => Ok(Gear::Reverse),
+        Some(0.0) => Ok(Gear::Park),
+        Some(1.0) => Ok(Gear::Drive),
+        Some(_) => Err(ParseError::new(Reject::OutOfRange, line, GEAR_USAGE, word)),
+        None => Err(ParseError::new(Reject::BadValue, line, GEAR_USAGE, word)),
+    }
+}
+
+/// Whether an unknown first word is followed by something that reads as a value,
+/// which makes the word a misspelt device rather than an unknown command.
+fn looks_like_value(word: &str) -> bool {
+    parse_f64(word).is_some() || gear(word, None).is_ok()
+}
+
+/// Decimal digits only (no sign), within u64.
+fn parse_seq(word: &str) -> Option<u64> {
+    if word.is_empty() || !word.bytes().all(|b| b.is_ascii_digit()) {
+        return None;
+    }
+    word.parse().ok()
+}
+
+/// Exactly 64 hex digits, either case.
+pub(crate) fn parse_hex32(word: &str) -> Option<[u8; 32]> {
+    let bytes = word.as_bytes();
+    if bytes.len() != 64 {
+        return None;
+    }
+    let mut out = [0u8; 32];
+    for (o, pair) in out.iter_mut().zip(bytes.chunks_exact(2)) {
+        *o = (hex_digit(pair[0])? << 4) | hex_digit(pair[1])?;
+    }
+    Some(out)
+}
+
+pub(crate) fn hex_digit(b: u8) -> Option<u8> {
+    match b {
+        b'0'..=b'9' => Some(b - b'0'),
+        b'a'..=b'f' => Some(b - b'a' + 10),
+        b'A'..=b'F' => Some(b - b'A' + 10),
+        _ => None,
+    }
+}
+
+/// Rejected datagrams by reason, lock-free: the listener counts, the console and the
+/// state broadcast read.
+#[derive(Debug)]
+pub struct RejectCounts([AtomicU64; Reject::COUNT]);
+
+impl RejectCounts {
+    pub const fn new() -> Self {
+        RejectCounts([const { AtomicU64::new(0) }; Reject::COUNT])
+    }
+
+    pub fn incr(&self, reason: Reject) {
+        self.0[reason.index()].fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub fn get(&self, reason: Reject) -> u64 {
+        self.0[reason.index()].load(Ordering::Relaxed)
+    }
+
+    /// Every datagram rejected, for any reason.
+    pub fn total(&self) -> u64 {
+        self.0.iter().map(|c| c.load(Ordering::Relaxed)).sum()
+    }
+
+    /// `(name, count)` for every reason, in [`Reject::ALL`] order, zeros included.
+    pub fn iter(&self) -> impl Iterator<Item = (&'static str, u64)> + '_ {
+        Reject::ALL.into_iter().map(|r| (r.as_str(), self.get(r)))
+    }
+}
+
+impl Default for RejectCounts {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ok(text: &str) -> Datagram {
+        parse(text.as_bytes()).unwrap_or_else(|e| panic!("{text:?} rejected: {e}"))
+    }
+
+    fn reason(bytes: &[u8]) -> Reject {
+        match parse(bytes) {
+            Ok(d) => panic!("{:?} accepted as {d:?}", String::from_utf8_lossy(bytes)),
+            Err(e) => e.reason,
+        }
+    }
+
+    fn set(role: Role, v: f64) -> NetCommand {
+        NetCommand::Set(role, Command::Set(v))
+    }
+
+    #[test]
+    fn one_command_typed_by_hand() {
+        let d = ok("steer 0.2\n");
+        assert_eq!(d.commands.as_slice(), [set(Role::Steer, 0.2)]);
+        assert_eq!(d.seq, None);
+        assert_eq!(d.tag, None);
+        assert_eq!(d.signed, 0..10);
+        // `echo -n` and the last line without a newline.
+        assert_eq!(ok("steer 0.2").commands.as_slice(), [set(Role::Steer, 0.2)]);
+    }
+
+    #[test]
+    fn several_lines_keep_their_order() {
+        let d = ok("seq 9\nengage\nsteer -0.25\ngas 0.3\nbrake 1\naccel -0.5\ntrans drive\n");
+        assert_eq!(d.seq, Some(9));
+        assert_eq!(
+            d.commands.as_slice(),
+            [
+                NetCommand::Engage,
+                set(Role::Steer, -0.25),
+                set(Role::Gas, 0.3),
+                set(Role::Brake, 1.0),
+                NetCommand::Accel(-0.5),
+                NetCommand::Set(Role::Trans, Command::Gear(Gear::Drive)),
+            ]
+        );
+        assert_eq!(ok("disengage").commands.as_slice(), [NetCommand::Disengage]);
+    }
+
+    #[test]
+    fn crlf_blanks_comments_case_and_tabs() {
+        let d = ok("# planner v2\r\n\r\n  STEER\t-1  \r\nGas 0 # coast\r\n\r\n");
+        assert_eq!(
+            d.commands.as_slice(),
+            [set(Role::Steer, -1.0), set(Role::Gas, 0.0)]
+        );
+    }
+
+    #[test]
+    fn gears_by_name_short_form_and_paper_code() {
+        for (word, gear) in [
+            ("park", Gear::Park),
+            ("P", Gear::Park),
+            ("0", Gear::Park),
+            ("-0", Gear::Park),
+            ("1.0", Gear::Drive),
+            ("Reverse", Gear::Reverse),
+            ("-1", Gear::Reverse),
+            ("neutral", Gear::Neutral),
+            ("n", Gear::Neutral),
+            ("DRIVE", Gear::Drive),
+            ("1", Gear::Drive),
+        ] {
+            let d = ok(&format!("trans {word}"));
+            assert_eq!(
+                d.commands.as_slice(),
+                [NetCommand::Set(Role::Trans, Command::Gear(gear))],
+                "{word}"
+            );
+        }
+        assert_eq!(reason(b"trans 2"), Reject::OutOfRange);
+        assert_eq!(reason(b"trans sport"), Reject::BadValue);
+        assert_eq!(reason(b"trans nan"), Reject::NotFinite);
+    }
+
+    #[test]
+    fn range_edges_are_inclusive_and_never_clamped() {
+        ok("steer -1\nsteer 1\ngas 0\ngas 1\nbrake 0\nbrake 1\naccel -1\naccel 1");
+        for bad in [
+            "steer 1.0001",
+            "steer -1.5",
+            "gas -0.1",
+            "gas 1.01",
+            "brake 2",
+            "brake -1",
+            "accel 1.5",
+        ] {
+            assert_eq!(reason(bad.as_bytes()), Reject::OutOfRange, "{bad}");
+        }
+    }
+
+    #[test]
+    fn every_reject_reason_from_bytes() {
+        let cases: &[(&[u8], Reject)] = &[
+            (b"", Reject::Empty),
+            (b"\n# nothing to do\n  \n", Reject::Empty),
+            (b"seq 4\n", Reject::Empty),
+            (&[b' '; MAX_DATAGRAM + 1], Reject::Oversized),
+            (b"steer 0.\xff2", Reject::NotUtf8),
+            (b"\xc3\x28", Reject::NotUtf8),
+            (b"steer 0\x002", Reject::Binary),
+            (b"\x1b[A", Reject::Binary),
+            (b"steer 0.2\rgas 0", Reject::Binary),
+            (b"steer", Reject::BadSyntax),
+            (b"steer 0.1 0.2", Reject::BadSyntax),
+            (b"engage now", Reject::BadSyntax),
+            (b"hello", Reject::UnknownVerb),
+            (b"set steer 0.2", Reject::UnknownVerb),
+            (b"stear 0.2", Reject::UnknownDevice),
+            (b"gear drive", Reject::UnknownDevice),
+            (b"estop 1", Reject::NotAllowed),
+            (b"obd 0", Reject::NotAllowed),
+            (b"steer left", Reject::BadValue),
+            (b"gas 0x1", Reject::BadValue),
+            (b"steer NaN", Reject::NotFinite),
+            (b"gas inf", Reject::NotFinite),
+            (b"brake -infinity", Reject::NotFinite),
+            (b"accel 1e999", Reject::NotFinite),
+            (b"steer 1.5", Reject::OutOfRange),
+            (b"seq -1\nsteer 0", Reject::BadHeader),
+            (b"seq 1\nseq 2\nsteer 0", Reject::BadHeader),
+            (b"seq 18446744073709551616\nsteer 0", Reject::BadHeader),
+            (b"steer 0\ntag 00", Reject::BadHeader),
+            (b"steer 0\ntag abc", Reject::BadHeader),
+        ];
+        for (bytes, want) in cases {
+            assert_eq!(reason(bytes), *want, "{:?}", String::from_utf8_lossy(bytes));
+        }
+        let many = "gas 0\n".repeat(MAX_COMMANDS + 1);
+        assert_eq!(reason(many.as_bytes()), Reject::TooManyCommands);
+        ok(&"gas 0\n".repeat(MAX_COMMANDS));
+    }
+
+    #[test]
+    fn one_bad_line_rejects_the_whole_datagram() {
+        let err = parse(b"steer 0.2\ngas 0.3\nbrake 7\n").unwrap_err();
+        assert_eq!(err.reason, Reject::OutOfRange);
+        assert_eq!(err.line, Some(3));
+    }
+
+    #[test]
+    fn largest_datagram_is_accepted() {
+        let mut text = "steer 0.5\n".to_string();
+        text.push_str(&"#".repeat(MAX_DATAGRAM - text.len()));
+        assert_eq!(text.len(), MAX_DATAGRAM);
+        ok(&text);
+    }
+
+    #[test]
+    fn tag_covers_every_byte_before_its_line() {
+        let tag = "ab".repeat(32);
+        let text = format!("seq 3\r\nsteer 0.2\r\ntag {tag}\r\n");
+        let d = ok(&text);
+        assert_eq!(d.tag, Some([0xab; 32]));
+        assert_eq!(d.seq, Some(3));
+        assert_eq!(d.signed_bytes(text.as_bytes()), b"seq 3\r\nsteer 0.2\r\n");
+        let upper = format!("steer 0.2\ntag {}", tag.to_uppercase());
+        assert_eq!(ok(&upper).tag, Some([0xab; 32]));
+    }
+
+    #[test]
+    fn nothing_may_follow_the_tag_line() {
+        let tag = "00".repeat(32);
+        for text in [
+            format!("tag {tag}\nsteer 0.2\n"),
+            format!("steer 0.2\ntag {tag}\n# note\n"),
+            format!("steer 0.2\ntag {tag}\n\n"),
+            format!("steer 0.2\ntag {tag}\ntag {tag}"),
+        ] {
+            assert_eq!(reason(text.as_bytes()), Reject::BadHeader, "{text:?}");
+        }
+    }
+
+    #[test]
+    fn error_names_line_reason_and_word() {
+        let err = parse(b"steer 0.2\n\nsteer 1.5\n").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "line 3: out_of_range: steer takes -1 to 1 (got \"1.5\")"
+        );
+        let err = parse(b"stear 0.2").unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "line 1: unknown_device: the devices are steer, gas, brake and trans (got \"stear\")"
+        );
+        let long = format!("{} 1", "x".repeat(100));
+        let err = parse(long.as_bytes()).unwrap_err();
+        assert_eq!(err.got(), "x".repeat(24));
+        assert!(err.to_string().ends_with("…\")"), "{err}");
+        assert_eq!(
+            parse(b"").unwrap_err().to_string(),
+            "empty: the datagram is empty"
+        );
+    }
+
+    #[test]
+    fn messages_quote_the_limits_in_force() {
+        assert!(Reject::Oversized
+            .describe()
+            .contains(&MAX_DATAGRAM.to_string()));
+        assert!(Reject::TooManyCommands
+            .describe()
+            .contains(&MAX_COMMANDS.to_string()));
+        let err = parse(&[b'#'; MAX_DATAGRAM + 1]).unwrap_err();
+        assert!(err.to_string().contains(&MAX_DATAGRAM.to_string()));
+    }
+
+    #[test]
+    fn reject_names_are_distinct_snake_case_and_indexed() {
+        for (i, r) in Reject::ALL.into_iter().enumerate() {
+            assert_eq!(r.index(), i);
+            assert!(r
+                .as_str()
+                .bytes()
+                .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_'));
+            assert_eq!(
+                Reject::ALL
+                    .iter()
+                    .filter(|o| o.as_str() == r.as_str())
+                    .count(),
+                1
+            );
+        }
+    }
+
+    #[test]
+    fn reject_counts_by_reason() {
+        static COUNTS: RejectCounts = RejectCounts::new();
+        COUNTS.incr(Reject::BadTag);
+        COUNTS.incr(Reject::BadTag);
+        COUNTS.incr(Reject::Binary);
+        assert_eq!(COUNTS.get(Reject::BadTag), 2);
+        assert_eq!(COUNTS.get(Reject::Replayed), 0);
+        assert_eq!(COUNTS.total(), 3);
+        let all: Vec<_> = COUNTS.iter().collect();
+        assert_eq!(all.len(), Reject::COUNT);
+        assert!(all.contains(&("bad_tag", 2)));
+        assert!(all.contains(&("binary", 1)));
+    }
+
+    #[test]
+    fn commands_print_as_lines_that_parse_back() {
+        let cmds = [
+            set(Role::Steer, -0.25),
+            set(Role::Gas, 1e-7),
+            set(Role::Brake, 1.0),
+            NetCommand::Accel(-0.0),
+            NetCommand::Set(Role::Trans, Command::Gear(Gear::Reverse)),
+            NetCommand::Engage,
+            NetCommand::Disengage,
+        ];
+        let text: String = cmds.iter().map(|c| format!("{c}\n")).collect();
+        assert_eq!(ok(&text).commands.as_slice(), cmds);
+        assert_eq!(set(Role::Steer, -0.25).to_string(), "steer -0.25");
+        assert_eq!(set(Role::Gas, 1e-300).to_string(), "gas 1e-300");
+        assert_eq!(NetCommand::Accel(-0.0).to_string(), "accel -0");
+    }
+
+    mod props {
+        use super::*;
+        use crate::net::auth::Auth;
+        use crate::net::fuzzing::{exercise, FUZZ_KEY};
+        use proptest::prelude::*;
+        use proptest::sample::select;
+
+        /// Any value in 0…1, tiny and edge values included; callers add a sign.
+        fn magnitude() -> impl Strategy<Value = f64> {
+            prop_oneof![
+                0.0..=1.0,
+                select(vec![0.0, 1.0, 1e-300, 5e-324, 1e-4, 0.1, 1.0 / 3.0]),
+                (prop::num::f64::NORMAL | prop::num::f64::SUBNORMAL)
+                    .prop_map(f64::abs)
+                    .prop_filter("at most 1", |v| *v <= 1.0),
+            ]
+        }
+
+        fn signed_value() -> impl Strategy<Value = f64> {
+            (magnitude(), any::<bool>()).prop_map(|(v, neg)| if neg { -v } else { v })
+        }
+
+        fn command() -> impl Strategy<Value = NetCommand> {
+            prop_oneof![
+                signed_value().prop_map(|v| NetCommand::Set(Role::Steer, Command::Set(v))),
+                magnitude().prop_map(|v| NetCommand::Set(Role::Gas, Command::Set(v))),
+                magnitude().prop_map(|v| NetCommand::Set(Role::Brake, Command::Set(v))),
+                signed_value().prop_map(NetCommand::Accel),
+                select(Gear::ALL.to_vec())
+                    .prop_map(|g| NetCommand::Set(Role::Trans, Command::Gear(g))),
+                Just(NetCommand::Engage),
+                Just(NetCommand::Disengage),
+            ]
+        }
+
+        /// How a sender might lay out one line around the words `c` prints as.
+        #[derive(Debug, Clone)]
+        struct Layout {
+            indent: &'static str,
+            gap: &'static str,
+            upper: bool,
+            comment: bool,
+            crlf: bool,
+        }
+
+        fn layout() -> impl Strategy<Value = Layout> {
+            (
+                select(vec!["", " ", "\t", " \t "]),
+                select(vec![" ", "\t", "   ", " \t"]),
+                any::<bool>(),
+                any::<bool>(),
+                any::<bool>(),
+            )
+                .prop_map(|(indent, gap, upper, comment, crlf)| Layout {
+                    indent,
+                    gap,
+                    upper,
+                    comment,
+                    crlf,
+                })
+        }
+
+        fn render(c: &NetCommand, l: &Layout) -> String {
+            let mut line = c.to_string().replace(' ', l.gap);
+            if l.upper {
+                line = line.to_uppercase();
+            }
+            let comment = if l.comment { " # note" } else { "" };
+            let eol = if l.crlf { "\r\n" } else { "\n" };
+            format!("{}{line}{comment}{eol}", l.indent)
+        }
+
+        /// Words and shapes the grammar cares about, to reach past the first check.
+        fn protocol_text() -> impl Strategy<Value = Vec<u8>> {
+            let word = prop_oneof![
+                select(vec![
+                    "steer",
+                    "gas",
+                    "brake",
+                    "trans",
+                    "accel",
+                    "engage",
+                    "disengage",
+                    "seq",
+                    "tag",
+                    "estop",
+                    "obd",
+                    "drive",
+                    "park",
+                    "r",
+                    "-1",
+                    "0",
+                    "1",
+                    "0.5",
+                    "-0",
+                    "1e999",
+                    "NaN",
+                    "inf",
+                    "+.5",
+                    "1e-300",
+                    "18446744073709551616",
+                    "#",
+                ])
+                .prop_map(String::from),
+                "[ -~]{0,12}",
+                "[0-9a-fA-F]{64}",
+            ];
+            let sep = select(vec![" ", "\t", "\n", "\r\n", "\r", "  "]);
+            prop::collection::vec((word, sep), 0..40).prop_map(|parts| {
+                parts
+                    .into_iter()
+                    .flat_map(|(w, s)| [w, s.to_string()])
+                    .collect::<String>()
+                    .into_bytes()
+            })
+        }
+
+        proptest! {
+            #[test]
+            fn parse_never_panics_on_any_bytes(
+                bytes in prop::collection::vec(any::<u8>(), 0..MAX_DATAGRAM + 64)
+            ) {
+                let _ = exercise(&bytes);
+            }
+
+            #[test]
+            fn parse_never_panics_on_protocol_like_text(bytes in protocol_text()) {
+                let _ = exercise(&bytes);
+            }
+
+            #[test]
+            fn formatted_commands_parse_back(
+                lines in prop::collection::vec((command(), layout()), 1..=MAX_COMMANDS),
+                seq in prop::option::of(any::<u64>()),
+            ) {
+                let mut text = seq.map(|s| format!("seq {s}\n")).unwrap_or_default();
+                for (c, l) in &lines {
+                    text.push_str(&render(c, l));
+                }
+                prop_assert!(text.len() <= MAX_DATAGRAM, "{} bytes", text.len());
+                let d = parse(text.as_bytes()).map_err(|e| {
+                    TestCaseError::fail(format!("{text:?}: {e}"))
+                })?;
+                let want: Vec<NetCommand> = lines.iter().map(|(c, _)| *c).collect();
+                prop_assert_eq!(d.commands.as_slice(), want.as_slice());
+                prop_assert_eq!(d.seq, seq);
+                prop_assert_eq!(exercise(text.as_bytes()), Ok(d));
+            }
+
+            #[test]
+            fn signed_commands_verify_and_parse_back(
+                cmds in prop::collection::vec(command(), 1..=MAX_COMMANDS),
+                seq in any::<u64>(),
+            ) {
+                let auth = Auth::from_key_bytes(FUZZ_KEY).unwrap();
+                let body: String = cmds.iter().map(|c| format!("{c}\n")).collect();
+                let text = auth.sign(&body, seq);
+                let d = parse(text.as_bytes()).unwrap();
+                prop_assert_eq!(d.commands.as_slice(), cmds.as_slice());
+                prop_assert_eq!(auth.verify(&d, text.as_bytes(), seq.checked_sub(1)), Ok(()));
+            }
+        }
+    }
+}
