@@ -1,5 +1,5 @@
 //! The engine: two threads per actuator, one per sensor, over the shared
-//! [`Vehicle`](crate::vehicle::Vehicle).
+//! [`Vehicle`].
 //!
 //! - The **status thread** polls its device every `status_period` and stores the
 //!   reading in the cache. Readers (network, console, supervisor) only read the cache.
