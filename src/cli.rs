@@ -5,13 +5,12 @@ use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
 use crate::exit::{self, Exit};
 use crate::sim::{Sim, SimEvent};
-use crate::value::{EstopState, Role};
+use crate::value::Role;
 use crate::vehicle::Vehicle;
 use crate::{console, driver, headless, logging};
 use clap::{Args, Parser, Subcommand};
 use std::io::BufRead;
 use std::path::PathBuf;
-use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -167,9 +166,19 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let exits = exit::install()?;
     for p in &sim.ports {
         let d = config.device(p.role).expect("simulated from the config");
-        println!("{:<6} {}  ({} baud)", p.role.as_str(), p.path, d.baud);
+        println!(
+            "{:<6} {}  -> {}  ({:?}, {} baud)",
+            p.role.as_str(),
+            p.path,
+            p.pty.lock(),
+            d.driver,
+            d.baud
+        );
     }
-    println!("type `estop pause|run|disable` or `silent NAME on|off`; Ctrl-C stops");
+    println!(
+        "type `estop pause|run|disable`, `stall`, `silent gas on`, `garbage steer on`, \
+         `corrupt brake on`, `slow trans 80`, `vanish obd 2000`, `clear gas`; Ctrl-C stops"
+    );
     let (lines_tx, lines) = crossbeam_channel::unbounded::<String>();
     std::thread::Builder::new()
         .name("sim/stdin".into())
@@ -194,7 +203,11 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
                 );
             },
             recv(lines) -> line => match line {
-                Ok(line) => println!("{}", sim_command(&sim, &line)),
+                Ok(line) if line.trim().is_empty() => {}
+                Ok(line) => match sim.apply(&line) {
+                    Ok(done) => println!("{done}"),
+                    Err(e) => println!("error: {e}"),
+                },
                 Err(_) => {
                     // Standard input closed: keep serving until a signal.
                     let why = exits.recv().unwrap_or(Exit::Quit);
@@ -205,33 +218,6 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
         }
     }
     Ok(0)
-}
-
-fn sim_command(sim: &Sim, line: &str) -> String {
-    let words: Vec<&str> = line.split_whitespace().collect();
-    match words.as_slice() {
-        [] => String::new(),
-        ["estop", state] => match state.parse::<EstopState>() {
-            Ok(s) => {
-                sim.set_estop(s);
-                format!("estop is now {s}")
-            }
-            Err(e) => e,
-        },
-        ["silent", name, on @ ("on" | "off")] => match name.parse::<Role>() {
-            Ok(r) => match sim.faults(r) {
-                Some(f) => {
-                    f.silent.store(*on == "on", Relaxed);
-                    format!("{r} silent {on}")
-                }
-                None => format!("{r} is not simulated"),
-            },
-            Err(e) => e,
-        },
-        _ => format!(
-            "unknown: {line:?} (expected `estop pause|run|disable` or `silent NAME on|off`)"
-        ),
-    }
 }
 
 /// Bytes as text, with non-printable bytes escaped.

@@ -41,6 +41,18 @@ pub enum PortRule {
 pub enum DriverKind {
     /// The adrive ASCII line protocol.
     Line,
+    /// Modbus RTU: servo drives, linear actuators, pedal robots.
+    Modbus,
+    /// An ELM327 OBD-II adapter.
+    Elm327,
+}
+
+/// Settings of a Modbus RTU device: its slave id and register map.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModbusConfig {
+    pub slave: u8,
+    pub registers: crate::driver::modbus::RegisterMap,
 }
 
 /// Settings of the simulated device standing in for this one under `--sim`.
@@ -106,6 +118,9 @@ pub struct DeviceConfig {
     pub range: Option<[f64; 2]>,
     #[serde(default)]
     pub sim: SimConfig,
+    /// Required with `driver = "modbus"`.
+    #[serde(default)]
+    pub modbus: Option<ModbusConfig>,
 }
 
 fn default_baud() -> u32 {
@@ -227,6 +242,9 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
                 ),
             ));
         }
+        if let Some(why) = driver_mismatch(&d) {
+            return Err(err(at, why));
+        }
         if d.status_max_age < d.status_period {
             return Err(err(
                 at,
@@ -245,6 +263,41 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         devices,
         source: path.to_string(),
     })
+}
+
+/// What is wrong with the driver settings of a device, if anything.
+fn driver_mismatch(d: &DeviceConfig) -> Option<String> {
+    let name = d.name;
+    match (d.driver, &d.modbus) {
+        (DriverKind::Modbus, None) => Some(format!(
+            "{name}: driver \"modbus\" needs a [device.modbus] table with `slave` and `registers`"
+        )),
+        (DriverKind::Modbus, Some(m)) => {
+            if !name.is_actuator() {
+                Some(format!(
+                    "{name}: the modbus driver is for actuators (steer, gas, brake, trans)"
+                ))
+            } else if (name == Role::Trans) != m.registers.is_gearbox() {
+                Some(format!(
+                    "{name}: registers.gear is expected {} (it makes the device a transmission)",
+                    if name == Role::Trans {
+                        "on trans"
+                    } else {
+                        "only on trans"
+                    }
+                ))
+            } else {
+                None
+            }
+        }
+        (_, Some(_)) => Some(format!(
+            "{name}: a [device.modbus] table goes with driver = \"modbus\" only"
+        )),
+        (DriverKind::Elm327, None) if name != Role::Obd => Some(format!(
+            "{name}: the elm327 driver is for the obd sensor only"
+        )),
+        _ => None,
+    }
 }
 
 fn line_of(text: &str, offset: usize) -> usize {
@@ -355,6 +408,26 @@ status_period = "50ms"
         assert!(e.contains("status_max_age"), "{e}");
         let twice = format!("{GOOD}\n[[device]]\nname = \"steer\"\ndriver = \"line\"\n");
         assert!(error(&twice).contains("defined twice"));
+    }
+
+    #[test]
+    fn a_modbus_device_needs_its_table_and_a_sensible_map() {
+        let modbus = GOOD.replace("driver = \"line\"", "driver = \"modbus\"");
+        let e = error(&modbus);
+        assert!(
+            e.starts_with("v.toml:5: ") && e.contains("[device.modbus]"),
+            "{e}"
+        );
+        let ok = format!(
+            "{modbus}\n[device.modbus]\nslave = 7\nregisters = {{ target = 0, position = 0 }}\n"
+        );
+        let d = &parse(&ok, "v.toml").unwrap().devices[0];
+        assert_eq!(d.modbus.as_ref().unwrap().slave, 7);
+        let geared = ok.replace("position = 0", "gear = 0");
+        assert!(error(&geared).contains("registers.gear"));
+        let typo = ok.replace("position = 0", "postion = 0");
+        let e = error(&typo);
+        assert!(e.starts_with("v.toml:13: ") && e.contains("postion"), "{e}");
     }
 
     #[test]

@@ -3,8 +3,9 @@
 
 mod common;
 
-use adrive::driver::{self, line::LineDriver, Driver};
-use adrive::value::Command;
+use adrive::config::VehicleConfig;
+use adrive::driver;
+use adrive::value::{Command, Role};
 use common::DEADLINE;
 use std::io::{BufRead, BufReader, Read};
 use std::process::{Child, Command as Process, Stdio};
@@ -157,10 +158,14 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
         .nth(1)
         .unwrap()
         .to_string();
-    assert!(path.starts_with("/dev/pts/"), "{path}");
+    let pty = std::fs::read_link(&path).unwrap();
+    assert!(pty.starts_with("/dev/pts/"), "{path} -> {pty:?}");
 
-    let mut link = driver::open_serial(&path, 38400, Duration::from_secs(2)).unwrap();
-    let mut drv = LineDriver::new(Duration::from_secs(2));
+    // Talk to it as adrive would: the built-in steering's Modbus driver and baud.
+    let alice = VehicleConfig::alice();
+    let steer = alice.device(Role::Steer).unwrap();
+    let mut link = driver::open_serial(&path, steer.baud, Duration::from_secs(2)).unwrap();
+    let mut drv = driver::build(steer);
     drv.command(link.as_mut(), Command::Set(0.25)).unwrap();
     let reading = drv.poll(link.as_mut()).unwrap();
     assert!(reading.position.is_some());

@@ -133,6 +133,12 @@ impl Model {
         self.coolant += (warm - self.coolant) * (1.0 - (-h / 600.0).exp());
     }
 
+    /// The engine dies (a stall): rpm falls to zero until the starter runs.
+    pub fn stall(&mut self) {
+        self.step();
+        self.running = false;
+    }
+
     /// What `role`'s device reports now.
     pub fn reading(&mut self, role: Role) -> Reading {
         self.step();
