@@ -10,7 +10,7 @@ use crate::vehicle::Vehicle;
 use crate::{console, driver, headless, logging};
 use clap::{Args, Parser, Subcommand};
 use std::io::BufRead;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -33,6 +33,8 @@ pub enum Cmd {
     Run(RunArgs),
     /// Run the simulated devices alone and print their port paths.
     Sim(SimArgs),
+    /// List serial ports with what the OS knows of each.
+    Ports,
 }
 
 #[derive(Args, Debug, Clone, Default)]
@@ -73,6 +75,12 @@ pub fn main() -> i32 {
     let result = match cli.command {
         Some(Cmd::Run(args)) => run(args),
         Some(Cmd::Sim(args)) => sim(args),
+        Some(Cmd::Ports) => {
+            let ports = crate::ports::scan(Path::new("/sys"), Path::new("/dev"));
+            let ptys = crate::ports::pseudo_terminals(Path::new("/dev"));
+            print!("{}", crate::ports::report(&ports, &ptys));
+            Ok(0)
+        }
         None => run(cli.run),
     };
     match result {

@@ -15,6 +15,7 @@ pub mod headless;
 pub mod interlock;
 pub mod logging;
 pub mod net;
+pub mod ports;
 pub mod sim;
 pub mod value;
 pub mod vehicle;

@@ -7,10 +7,12 @@ use crate::driver::DriverError;
 use crate::engine::port::{Conn, Opener, Port};
 use crate::engine::slot::CommandSlot;
 use crate::engine::stats::Stats;
+use crate::engine::trace::Trace;
 use crate::interlock::{self, Facts, Reject};
 use crate::value::{Command, EstopState, Reading, Role};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// After this many failed transactions in a row a device counts as faulty.
@@ -98,14 +100,18 @@ pub struct Device {
     pub stats: Stats,
     pub settings: Settings,
     pub health: Health,
+    /// Raw traffic on the port.
+    pub trace: Arc<Trace>,
 }
 
 impl Device {
     pub fn new(config: DeviceConfig, opener: Opener) -> Device {
         let driver = crate::driver::build(&config);
+        let trace = Arc::new(Trace::new(config.name.as_str()));
         Device {
             role: config.name,
-            port: Port::new(config.port_rule, Conn::new(driver, opener)),
+            port: Port::new(config.port_rule, Conn::new(driver, opener, trace.clone())),
+            trace,
             settings: Settings::new(&config),
             config,
             slot: CommandSlot::default(),

@@ -14,6 +14,7 @@
 pub mod port;
 pub mod slot;
 pub mod stats;
+pub mod trace;
 
 use crate::config::PortRule;
 use crate::engine::slot::{Pending, Wake};

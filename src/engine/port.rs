@@ -19,8 +19,10 @@
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
 use crate::engine::slot::CommandSlot;
+use crate::engine::trace::{Dir, Trace};
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::io::{self, Read, Write};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Opens a device's port (a serial port, a pseudo-terminal, a test double).
@@ -177,10 +179,11 @@ pub struct Conn {
     backoff: Duration,
     /// Times the port was (re)opened successfully.
     pub opened: u64,
+    trace: Arc<Trace>,
 }
 
 impl Conn {
-    pub fn new(driver: Box<dyn Driver>, opener: Opener) -> Conn {
+    pub fn new(driver: Box<dyn Driver>, opener: Opener, trace: Arc<Trace>) -> Conn {
         Conn {
             driver,
             link: None,
@@ -188,6 +191,7 @@ impl Conn {
             next_open: Instant::now(),
             backoff: BACKOFF_MIN,
             opened: 0,
+            trace,
         }
     }
 
@@ -218,7 +222,12 @@ impl Conn {
                 return Err(DriverError::Io(e));
             }
         };
-        if let Err(e) = self.driver.open(link.as_mut()) {
+        let mut traced = Stamped {
+            inner: link.as_mut(),
+            first_write: None,
+            trace: &self.trace,
+        };
+        if let Err(e) = self.driver.open(&mut traced) {
             self.fail_open();
             return Err(e);
         }
@@ -239,6 +248,7 @@ impl Conn {
         let mut stamped = Stamped {
             inner: link,
             first_write: None,
+            trace: &self.trace,
         };
         let r = f(self.driver.as_mut(), &mut stamped);
         let first = stamped.first_write;
@@ -251,15 +261,19 @@ impl Conn {
     }
 }
 
-/// A link that notes when the first byte of a transaction was handed to the port.
+/// A link that notes when the first byte of a transaction was handed to the port and
+/// records the traffic in the device's trace.
 struct Stamped<'a> {
     inner: &'a mut dyn Link,
     first_write: Option<Instant>,
+    trace: &'a Trace,
 }
 
 impl Read for Stamped<'_> {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
-        self.inner.read(buf)
+        let n = self.inner.read(buf)?;
+        self.trace.record(Dir::In, &buf[..n]);
+        Ok(n)
     }
 }
 
@@ -268,7 +282,9 @@ impl Write for Stamped<'_> {
         if self.first_write.is_none() && !buf.is_empty() {
             self.first_write = Some(Instant::now());
         }
-        self.inner.write(buf)
+        let n = self.inner.write(buf)?;
+        self.trace.record(Dir::Out, &buf[..n]);
+        Ok(n)
     }
     fn flush(&mut self) -> io::Result<()> {
         self.inner.flush()
