@@ -102,15 +102,22 @@ pub struct Device {
     pub health: Health,
     /// Raw traffic on the port.
     pub trace: Arc<Trace>,
+    /// Times the port was opened (1 after start; more after reconnects).
+    pub opens: Arc<AtomicU64>,
 }
 
 impl Device {
     pub fn new(config: DeviceConfig, opener: Opener) -> Device {
         let driver = crate::driver::build(&config);
         let trace = Arc::new(Trace::new(config.name.as_str()));
+        let opens = Arc::new(AtomicU64::new(0));
         Device {
             role: config.name,
-            port: Port::new(config.port_rule, Conn::new(driver, opener, trace.clone())),
+            port: Port::new(
+                config.port_rule,
+                Conn::new(driver, opener, trace.clone(), opens.clone()),
+            ),
+            opens,
             trace,
             settings: Settings::new(&config),
             config,

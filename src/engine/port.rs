@@ -30,6 +30,9 @@ pub type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
 
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
 const BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// After this many failed transactions in a row the port is closed and reopened, and
+/// the driver's `open` runs again (it un-wedges adapters such as the ELM327).
+pub const REOPEN_AFTER: u32 = 5;
 
 #[derive(Default)]
 struct Arb {
@@ -177,21 +180,28 @@ pub struct Conn {
     opener: Opener,
     next_open: Instant,
     backoff: Duration,
-    /// Times the port was (re)opened successfully.
-    pub opened: u64,
+    /// Times the port was (re)opened successfully (shared with the device's readers).
+    opened: Arc<std::sync::atomic::AtomicU64>,
     trace: Arc<Trace>,
+    failures: u32,
 }
 
 impl Conn {
-    pub fn new(driver: Box<dyn Driver>, opener: Opener, trace: Arc<Trace>) -> Conn {
+    pub fn new(
+        driver: Box<dyn Driver>,
+        opener: Opener,
+        trace: Arc<Trace>,
+        opened: Arc<std::sync::atomic::AtomicU64>,
+    ) -> Conn {
         Conn {
             driver,
             link: None,
             opener,
             next_open: Instant::now(),
             backoff: BACKOFF_MIN,
-            opened: 0,
+            opened,
             trace,
+            failures: 0,
         }
     }
 
@@ -233,7 +243,12 @@ impl Conn {
         }
         self.link = Some(link);
         self.backoff = BACKOFF_MIN;
-        self.opened += 1;
+        let n = self
+            .opened
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        if n > 0 {
+            tracing::info!(device = self.trace.device(), "port reopened");
+        }
         Ok(())
     }
 
@@ -252,9 +267,21 @@ impl Conn {
         };
         let r = f(self.driver.as_mut(), &mut stamped);
         let first = stamped.first_write;
-        if let Err(e) = &r {
-            if e.is_disconnect() {
-                self.fail_open();
+        match &r {
+            Ok(_) => self.failures = 0,
+            Err(e) => {
+                self.failures += 1;
+                if e.is_disconnect() {
+                    self.fail_open();
+                } else if self.failures >= REOPEN_AFTER {
+                    tracing::warn!(
+                        device = self.trace.device(),
+                        "{} failed transactions in a row: reopening the port",
+                        self.failures
+                    );
+                    self.failures = 0;
+                    self.fail_open();
+                }
             }
         }
         (r, first)

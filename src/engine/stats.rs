@@ -83,7 +83,6 @@ pub struct Stats {
     pub command_errors: AtomicU64,
     pub polls: AtomicU64,
     pub status_errors: AtomicU64,
-    pub reconnects: AtomicU64,
     /// Receipt of a command to the first byte of it written to the port.
     pub command_delay: Latency,
     /// One command transaction, first byte out to reply in.
@@ -103,7 +102,6 @@ pub struct StatsSnapshot {
     pub command_errors: u64,
     pub polls: u64,
     pub status_errors: u64,
-    pub reconnects: u64,
     pub command_delay: LatencySummary,
     pub command_txn: LatencySummary,
     pub status_txn: LatencySummary,
@@ -124,7 +122,6 @@ impl Stats {
             command_errors: self.command_errors.load(Relaxed),
             polls: self.polls.load(Relaxed),
             status_errors: self.status_errors.load(Relaxed),
-            reconnects: self.reconnects.load(Relaxed),
             command_delay: self.command_delay.summary(),
             command_txn: self.command_txn.summary(),
             status_txn: self.status_txn.summary(),

@@ -113,6 +113,10 @@ impl Trace {
         }
     }
 
+    pub fn device(&self) -> &'static str {
+        self.device
+    }
+
     pub fn record(&self, dir: Dir, bytes: &[u8]) {
         if bytes.is_empty() {
             return;
