@@ -141,6 +141,56 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
 }
 
 #[test]
+fn only_runs_just_the_named_devices() {
+    let dir = tempdir();
+    let mut child = Process::new(BIN)
+        .args([
+            "--sim",
+            "--headless",
+            "--only",
+            "steer",
+            "--only",
+            "obd",
+            "--log-dir",
+        ])
+        .arg(&dir)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = lines(child.stderr.take().unwrap());
+    let seen = until(&err, "running headless");
+    let started = seen.iter().find(|l| l.contains("engine started")).unwrap();
+    assert!(
+        started.contains("steer/command") && started.contains("obd/status"),
+        "{started}"
+    );
+    assert!(!started.contains("gas/"), "{started}");
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), 0);
+    let mut out = String::new();
+    child
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut out)
+        .unwrap();
+    let devices: Vec<&str> = out
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(devices, ["steer", "obd"], "{out}");
+
+    let bad = Process::new(BIN)
+        .args(["--sim", "--headless", "--only", "wiper"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("wiper"));
+}
+
+#[test]
 fn sim_prints_port_paths_and_each_command_a_device_receives() {
     let mut child = Process::new(BIN)
         .args(["sim", "--only", "steer"])
