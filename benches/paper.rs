@@ -1,0 +1,197 @@
+//! The paper's measurements, repeated against simulated devices on real
+//! pseudo-terminals, with every rule side by side in the same run (these machines are
+//! noisy; only figures from one run compare):
+//!
+//! 1. The cued-command scenario: status polls of 100 ms, commands at 100 Hz — the
+//!    paper's plain lock, the paper's lock with its 10 Hz rate cap, adrive's rule.
+//! 2. Receipt → first-byte delay against the number of actuators (the paper's Fig. 3).
+//! 3. CPU time against the command rate (the paper's Fig. 4).
+//!
+//! Run: `cargo bench --bench paper` (about a minute).
+
+use adrive::config;
+use adrive::driver;
+use adrive::engine::stats::LatencySummary;
+use adrive::engine::Engine;
+use adrive::sim::Sim;
+use adrive::value::{Command, Role};
+use adrive::vehicle::Vehicle;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+struct Run {
+    vehicle: Arc<Vehicle>,
+    engine: Option<Engine>,
+    _sim: Sim,
+}
+
+impl Run {
+    fn start(toml: &str) -> Run {
+        let mut c = config::parse(toml, "bench.toml").unwrap();
+        let sim = Sim::start(&c, None).unwrap();
+        sim.patch(&mut c);
+        let vehicle = Arc::new(Vehicle::new(c, |d| {
+            let (p, b, t) = (d.port.clone(), d.baud, d.reply_timeout);
+            Box::new(move || driver::open_serial(&p, b, t))
+        }));
+        let engine = Engine::start(vehicle.clone()).unwrap();
+        let end = Instant::now() + Duration::from_secs(20);
+        while !vehicle.engage_blockers().is_empty() {
+            assert!(Instant::now() < end, "devices did not report");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        vehicle.engage("bench").unwrap();
+        // These vehicles have no transmission or engine: measure the engine, not the
+        // interlocks (which would refuse all gas).
+        vehicle
+            .interlocks
+            .store(false, std::sync::atomic::Ordering::Relaxed);
+        Run {
+            vehicle,
+            engine: Some(engine),
+            _sim: sim,
+        }
+    }
+
+    /// Send `rate` Hz of commands to every actuator listed for `secs`.
+    fn drive(&self, roles: &[Role], rate: f64, secs: f64) {
+        let period = Duration::from_secs_f64(1.0 / rate);
+        let start = Instant::now();
+        let mut next = start;
+        let mut i = 0u64;
+        while start.elapsed().as_secs_f64() < secs {
+            let v = (i % 50) as f64 / 100.0;
+            for r in roles {
+                let _ = self.vehicle.submit(*r, Command::Set(v), Instant::now());
+            }
+            i += 1;
+            next += period;
+            if let Some(d) = next.checked_duration_since(Instant::now()) {
+                std::thread::sleep(d);
+            }
+        }
+    }
+}
+
+impl Drop for Run {
+    fn drop(&mut self) {
+        if let Some(e) = self.engine.take() {
+            e.shutdown(Duration::from_secs(2));
+        }
+    }
+}
+
+fn device(name: &str, extra: &str, sim: &str) -> String {
+    format!("[[device]]\nname = \"{name}\"\ndriver = \"line\"\nbaud = 38400\nreply_timeout = \"1s\"\n{extra}\n[device.sim]\n{sim}\n")
+}
+
+fn ms(v: Option<f64>) -> String {
+    v.map_or("-".into(), |us| format!("{:.2}", us / 1000.0))
+}
+
+fn row(label: &str, s: &LatencySummary, extra: &str) {
+    println!(
+        "{label:<34} {:>7} {:>9} {:>9} {:>9}  {extra}",
+        s.count,
+        ms(s.p50_us),
+        ms(s.p99_us),
+        ms(s.max_us)
+    );
+}
+
+fn cpu_time() -> Duration {
+    // SAFETY: getrusage fills the struct we hand it.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) };
+    let t = |v: libc::timeval| Duration::new(v.tv_sec as u64, v.tv_usec as u32 * 1000);
+    t(u.ru_utime) + t(u.ru_stime)
+}
+
+fn main() {
+    let secs = 4.0;
+    println!("== 1. cued commands: status polls of ~100 ms, commands at 100 Hz for {secs} s ==");
+    println!(
+        "{:<34} {:>7} {:>9} {:>9} {:>9}",
+        "rule", "sent", "p50 ms", "p99 ms", "max ms"
+    );
+    for (label, extra) in [
+        ("paper: plain lock", "port_rule = \"paper\""),
+        (
+            "paper + 10 Hz rate cap",
+            "port_rule = \"paper\"\nmin_command_interval = \"100ms\"",
+        ),
+        ("adrive: priority (default)", "port_rule = \"priority\""),
+    ] {
+        let toml = format!(
+            "[vehicle]\nname = \"bench\"\n{}",
+            device(
+                "steer",
+                &format!("status_period = \"100ms\"\nstatus_max_age = \"500ms\"\n{extra}"),
+                "poll_delay = \"95ms\"\ncommand_delay = \"20ms\""
+            )
+        );
+        let run = Run::start(&toml);
+        run.drive(&[Role::Steer], 100.0, secs);
+        let s = run.vehicle.device(Role::Steer).unwrap().stats.snapshot();
+        row(
+            label,
+            &s.command_delay,
+            &format!(
+                "executed {} superseded {} polls {}",
+                s.executed, s.superseded, s.polls
+            ),
+        );
+    }
+
+    println!();
+    println!("== 2. delay against the number of actuators (100 Hz each, {secs} s) ==");
+    println!(
+        "{:<34} {:>7} {:>9} {:>9} {:>9}",
+        "actuators", "sent", "p50 ms", "p99 ms", "max ms"
+    );
+    let roles = [Role::Steer, Role::Gas, Role::Brake];
+    for n in 1..=roles.len() {
+        let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
+        for r in &roles[..n] {
+            toml.push_str(&device(r.as_str(), "status_period = \"100ms\"", ""));
+        }
+        let run = Run::start(&toml);
+        run.drive(&roles[..n], 100.0, secs);
+        for r in &roles[..n] {
+            let s = run.vehicle.device(*r).unwrap().stats.snapshot();
+            row(&format!("{n} actuator(s): {r}"), &s.command_delay, "");
+        }
+    }
+
+    println!();
+    println!("== 3. CPU against the command rate (3 actuators, {secs} s each) ==");
+    println!(
+        "{:<34} {:>9} {:>12}",
+        "commands/s per actuator", "CPU %", "delay p99 ms"
+    );
+    let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
+    for r in &roles {
+        toml.push_str(&device(r.as_str(), "status_period = \"100ms\"", ""));
+    }
+    for rate in [0.0, 10.0, 100.0, 1000.0] {
+        let run = Run::start(&toml);
+        let t0 = cpu_time();
+        let w0 = Instant::now();
+        if rate == 0.0 {
+            std::thread::sleep(Duration::from_secs_f64(secs));
+        } else {
+            run.drive(&[Role::Steer, Role::Gas], rate, secs);
+        }
+        // The simulator runs in this process too; its share is included.
+        let cpu = (cpu_time() - t0).as_secs_f64() / w0.elapsed().as_secs_f64() * 100.0;
+        let p99 = run
+            .vehicle
+            .device(Role::Steer)
+            .unwrap()
+            .stats
+            .snapshot()
+            .command_delay
+            .p99_us;
+        println!("{rate:<34} {cpu:>9.1} {:>12}", ms(p99));
+    }
+}
