@@ -5,13 +5,13 @@
 //! the real one over a [`Vehicle`]. Reading goes through [`Snapshot`]: plain data
 //! captured once per tick, which the view draws without touching the engine.
 //!
-//! The network panel and the bench trace have no engine source yet: they take a
-//! [`NetSource`] and a [`TraceSource`] when one exists and show "not running" /
-//! "not available" otherwise.
+//! The network panel has no engine source yet: it takes a [`NetSource`] when one
+//! exists and shows "not running" otherwise.
 //!
 //! [`update`]: super::update::update
 
 use crate::engine::stats::StatsSnapshot;
+use crate::engine::trace::TraceEntry;
 use crate::interlock::Reject;
 use crate::sim::Faults;
 use crate::value::{Command, Reading, Role};
@@ -85,31 +85,8 @@ pub trait NetSource: Send + Sync {
     fn status(&self) -> NetStatus;
 }
 
-/// Direction of bytes on a device's wire.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Dir {
-    /// From the device.
-    In,
-    /// To the device.
-    Out,
-}
-
-/// One chunk of raw traffic on a device's port.
-#[derive(Clone, Debug, PartialEq)]
-pub struct TraceEntry {
-    pub at: Instant,
-    pub dir: Dir,
-    pub bytes: Vec<u8>,
-}
-
-/// Where the bench view's raw traffic comes from (a tap on the port, to come).
-pub trait TraceSource: Send + Sync {
-    /// The most recent traffic of `role`, oldest first.
-    fn trace(&self, role: Role) -> Vec<TraceEntry>;
-}
-
 /// Everything the console draws, captured at one instant.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default)]
 pub struct Snapshot {
     pub vehicle: String,
     pub devices: Vec<DeviceSnap>,
@@ -121,6 +98,7 @@ pub struct Snapshot {
     pub rejections: Vec<(Reject, u64)>,
     pub net: Option<NetStatus>,
     pub logs: Vec<LogLine>,
+    /// Raw traffic of the bench device, oldest first.
     pub trace: Vec<TraceEntry>,
     /// Fault injection is available (the devices are simulated in this process).
     pub can_inject: bool,
@@ -165,7 +143,6 @@ pub trait Controls {
 #[derive(Clone, Default)]
 pub struct Sources {
     pub net: Option<Arc<dyn NetSource>>,
-    pub trace: Option<Arc<dyn TraceSource>>,
     pub logs: Option<LogRing>,
     /// Fault switches of devices simulated in this process (`--sim`).
     pub sim_faults: Vec<(Role, Arc<Faults>)>,
@@ -256,10 +233,10 @@ pub fn capture(
             .as_ref()
             .map(|l| l.recent())
             .unwrap_or_default(),
-        trace: match (bench, &sources.trace) {
-            (Some(r), Some(t)) => t.trace(r),
-            _ => Vec::new(),
-        },
+        trace: bench
+            .and_then(|r| vehicle.device(r))
+            .map(|d| d.trace.entries())
+            .unwrap_or_default(),
         can_inject: !sources.sim_faults.is_empty(),
     }
 }

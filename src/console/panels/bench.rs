@@ -1,13 +1,14 @@
 //! The bench view: one device up close. Its full panel and counters, its delay
 //! histogram (receipt → first byte for an actuator, status transaction for a sensor)
-//! as a bar chart over powers of two, and its raw traffic: direction, time, hex and
-//! ASCII. The trace takes `&[TraceEntry]` and says "not available" without a tap.
+//! as a bar chart over powers of two, and its raw traffic from the port's trace:
+//! direction, time, hex and ASCII ("not available" while there is none).
 
 use super::device::DevicePanel;
 use super::fmt_us;
-use crate::console::controls::{DeviceSnap, Dir, TraceEntry};
+use crate::console::controls::DeviceSnap;
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
+use crate::engine::trace::TraceEntry;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Direction, Layout, Rect};
 use ratatui::text::{Line, Span};
@@ -51,24 +52,13 @@ pub fn log2_bins(buckets: &[(f64, u64)]) -> Vec<(f64, u64)> {
 
 /// One trace line: direction, time before now, hex, ASCII.
 pub fn trace_line(e: &TraceEntry, now: Instant) -> String {
-    let dir = match e.dir {
-        Dir::Out => "→",
-        Dir::In => "←",
-    };
     let ago = now.saturating_duration_since(e.at).as_secs_f64();
-    let hex: Vec<String> = e.bytes.iter().map(|b| format!("{b:02x}")).collect();
-    let ascii: String = e
-        .bytes
-        .iter()
-        .map(|&b| {
-            if (0x20..0x7f).contains(&b) {
-                b as char
-            } else {
-                '.'
-            }
-        })
-        .collect();
-    format!("{dir} -{ago:>7.3}s  {:<48} {ascii}", hex.join(" "))
+    format!(
+        "{} -{ago:>7.3}s  {:<48} {}",
+        e.dir.arrow(),
+        e.hex(),
+        e.ascii()
+    )
 }
 
 impl Widget for &BenchView<'_> {
@@ -136,7 +126,7 @@ impl Widget for &BenchView<'_> {
         block.render(bottom, buf);
         let lines: Vec<Line> = if self.trace.is_empty() {
             vec![Line::from(Span::styled(
-                "trace: not available (no port tap in this build)",
+                "trace: not available (no traffic yet)",
                 t.label(),
             ))]
         } else {
@@ -176,14 +166,14 @@ mod tests {
     #[test]
     fn trace_lines_show_direction_time_hex_and_ascii() {
         let now = Instant::now();
-        let e = TraceEntry {
-            at: now - Duration::from_millis(12),
-            dir: Dir::Out,
-            bytes: b"S 0.5\r".to_vec(),
-        };
+        let e = TraceEntry::new(
+            now - Duration::from_millis(12),
+            crate::engine::trace::Dir::Out,
+            b"S 0.5\r",
+        );
         assert_eq!(
             trace_line(&e, now),
-            format!("→ -  0.012s  {:<48} S 0.5.", "53 20 30 2e 35 0d")
+            format!("-> -  0.012s  {:<48} S 0.5.", "53 20 30 2e 35 0d")
         );
     }
 }
