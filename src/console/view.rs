@@ -44,27 +44,27 @@ impl Model {
             Span::styled(" INTERLOCKS OFF ", t.fault().patch(bar))
         };
         let faults = s.devices.iter().filter(|d| d.faulty).count();
-        let faults = if faults > 0 {
-            Span::styled(format!(" {faults} FAULTY "), t.fault().patch(bar))
-        } else {
-            Span::styled(" no faults ", bar)
-        };
         let mode = match self.mode {
             Mode::Help | Mode::Confirm | Mode::Edit => self.back_to,
             m => m,
         };
-        Line::from(vec![
+        let mut spans = vec![
             Span::styled(format!(" ADRIVE {} ", s.vehicle), t.title().patch(bar)),
             Span::styled("│", bar),
-            gate,
+            Span::styled(format!(" {} ", mode.as_str().to_uppercase()), bar),
             Span::styled("│", bar),
             interlocks,
             Span::styled("│", bar),
-            faults,
-            Span::styled("│", bar),
-            Span::styled(format!(" {} ", mode.as_str().to_uppercase()), bar),
-        ])
-        .style(bar)
+        ];
+        if faults > 0 {
+            spans.push(Span::styled(
+                format!(" {faults} FAULTY "),
+                t.fault().patch(bar),
+            ));
+            spans.push(Span::styled("│", bar));
+        }
+        spans.push(gate);
+        Line::from(spans).style(bar)
     }
 
     fn render_main(&self, body: Rect, buf: &mut Buffer) {

@@ -72,12 +72,12 @@ impl SupervisorPanel<'_> {
         let mut out = vec![
             first,
             Line::from(vec![
-                l("accel "),
+                l("faults "),
+                faults,
+                l("  accel "),
                 accel,
                 l("  recovery "),
                 Span::raw("-"),
-                l("  faults "),
-                faults,
             ]),
             Line::from(vec![
                 l("why "),
