@@ -78,7 +78,7 @@ impl<'a> DevicePanel<'a> {
         }
         let meas_style = if d.stale { t.stale() } else { Style::new() };
         if d.actuator {
-            spans.push(Span::styled("  cmd ", t.label()));
+            spans.push(Span::styled(" cmd ", t.label()));
             let cmd = d.latest.map(|c| match c {
                 Command::Set(v) => format!("{v:.3}"),
                 Command::Gear(g) => g.to_string(),
@@ -88,16 +88,16 @@ impl<'a> DevicePanel<'a> {
                 cmd.unwrap_or_else(|| "-".into()),
                 Style::new(),
             ));
-            spans.push(Span::styled("  meas ", t.label()));
+            spans.push(Span::styled(" meas ", t.label()));
         } else {
             spans.push(Span::styled("  ", t.label()));
         }
         spans.push(Span::styled(self.measured(), meas_style));
         if d.faulty {
-            spans.push(Span::styled("  FAULT", t.fault()));
+            spans.push(Span::styled(" FAULT", t.fault()));
         }
         if d.silenced {
-            spans.push(Span::styled("  sim:silent", t.warn()));
+            spans.push(Span::styled(" silent", t.warn()));
         }
         Line::from(spans)
     }
@@ -305,7 +305,7 @@ mod tests {
             bordered: false,
         };
         let mut want = Buffer::with_lines([
-            "STEER -1…1  cmd -  meas 0.231           ",
+            "STEER -1…1 cmd - meas 0.231             ",
             "st delay 50ms  cm delay 250ms           ",
             "status 1 e0  command 1 e0  age 20ms     ",
             "position 0.231  velocity 0.012          ",
