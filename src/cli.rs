@@ -51,6 +51,13 @@ pub struct RunArgs {
     /// Run just these devices (repeatable), for the bench.
     #[arg(long, value_name = "NAME")]
     pub only: Vec<Role>,
+    /// Keymap TOML merged over the built-in one (default: ~/.config/adrive/keymap.toml if present).
+    #[arg(long, value_name = "FILE")]
+    pub keymap: Option<PathBuf>,
+    /// Teleop deadman: with no teleop key for this long, gas goes to 0 and the brake on
+    /// [default: 1s].
+    #[arg(long, value_name = "DURATION", value_parser = humantime::parse_duration)]
+    pub deadman: Option<Duration>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
@@ -118,7 +125,17 @@ fn default_log_dir() -> PathBuf {
 pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut config = load(&args.config, &args.only)?;
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
-    let log = logging::init(args.headless, Some(&log_dir))?;
+    // A bad keymap stops here, before anything starts.
+    let keymap = if args.headless {
+        None
+    } else {
+        Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+    };
+    let ring = (!args.headless).then(console::logring::LogRing::default);
+    let extra = ring
+        .as_ref()
+        .map(|r| Box::new(r.layer()) as logging::ExtraLayer);
+    let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
         s.patch(&mut config);
@@ -133,10 +150,31 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let exits = exit::install()?;
     let engine = Engine::start(vehicle.clone())?;
     tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
-    let why = if args.headless {
-        headless::wait(&vehicle, &exits)
-    } else {
-        console::run(&vehicle, &exits)?
+    let why = match keymap {
+        None => headless::wait(&vehicle, &exits),
+        Some(keymap) => {
+            let sources = console::controls::Sources {
+                logs: ring,
+                sim_faults: sim
+                    .as_ref()
+                    .map(|s| s.ports.iter().map(|p| (p.role, p.faults.clone())).collect())
+                    .unwrap_or_default(),
+                ..Default::default()
+            };
+            let opts = console::Options {
+                keymap,
+                deadman: args.deadman.unwrap_or(console::model::DEADMAN),
+                sources,
+            };
+            match console::run_with(&vehicle, &exits, opts) {
+                Ok(why) => why,
+                // Still stop safely below.
+                Err(e) => {
+                    eprintln!("adrive: console: {e}");
+                    Exit::Panic(format!("console: {e}"))
+                }
+            }
+        }
     };
     tracing::info!("stopping: {}", why.describe());
     let (safe, stuck) = engine.shutdown(Duration::from_secs(2));

@@ -6,7 +6,7 @@ use std::path::Path;
 use tracing_appender::non_blocking::WorkerGuard;
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
-use tracing_subscriber::{fmt, EnvFilter, Layer};
+use tracing_subscriber::{fmt, EnvFilter, Layer, Registry};
 
 /// Keeps the log file writer alive; dropping it flushes the file.
 pub struct LogGuard {
@@ -16,6 +16,18 @@ pub struct LogGuard {
 /// Start logging. `stderr`: also log to standard error (headless, subcommands).
 /// `dir`: where the rolling log file `adrive.log.YYYY-MM-DD` goes.
 pub fn init(stderr: bool, dir: Option<&Path>) -> std::io::Result<LogGuard> {
+    init_with(stderr, dir, None)
+}
+
+/// A layer added beside the file and stderr layers (e.g. the console's log pane).
+pub type ExtraLayer = Box<dyn Layer<Registry> + Send + Sync>;
+
+/// [`init`] with an extra layer that sees every event, unfiltered.
+pub fn init_with(
+    stderr: bool,
+    dir: Option<&Path>,
+    extra: Option<ExtraLayer>,
+) -> std::io::Result<LogGuard> {
     let filter = || EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
     let (file_layer, guard) = match dir {
         Some(dir) => {
@@ -38,6 +50,7 @@ pub fn init(stderr: bool, dir: Option<&Path>) -> std::io::Result<LogGuard> {
             .with_filter(filter())
     });
     let _ = tracing_subscriber::registry()
+        .with(extra)
         .with(file_layer)
         .with(stderr_layer)
         .try_init();

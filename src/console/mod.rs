@@ -1,84 +1,172 @@
-//! The operator console: a full-screen view of every device over the running engine.
-//! (A first, read-only screen; the Sparrow-style editing console grows here.)
+//! The operator console: a Sparrow-style full-screen view of every device over the
+//! running engine, built on the Elm architecture.
+//!
+//! - [`keymap`]: keys → [`Action`](keymap::Action)s per mode, from `keymaps/*.toml`;
+//!   [`keymap::key_to_action`] is the pure key handler.
+//! - [`model`]: the state; [`update`]: the only code that changes it, through the
+//!   [`controls::Controls`] trait (the engine, or a fake in tests).
+//! - [`view`] and [`panels`]: `impl Widget for &Model`, free of side effects.
+//! - [`run`]: the loop — one `select!` over terminal events (read on their own
+//!   thread), a 10 Hz tick and the exits channel (signals, panics). ratatui's diffing
+//!   sends only changed cells; `ratatui::init`/`restore` (with its panic hook) leave
+//!   the terminal as it was on every way out.
+
+pub mod controls;
+pub mod keymap;
+pub mod logring;
+pub mod model;
+pub mod panels;
+pub mod sample;
+pub mod theme;
+pub mod update;
+pub mod view;
 
 use crate::exit::Exit;
 use crate::vehicle::Vehicle;
-use crossbeam_channel::Receiver;
-use crossterm::event::{self, Event, KeyCode, KeyEventKind, KeyModifiers};
-use ratatui::layout::Constraint;
-use ratatui::style::{Color, Style};
-use ratatui::widgets::{Block, Row, Table};
-use std::time::Duration;
+use controls::{Controls, Live, Sources};
+use crossbeam_channel::{select, Receiver};
+use crossterm::event::{self, Event};
+use keymap::{key_to_action, Keymap};
+use model::Model;
+use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use theme::Theme;
+use update::Flow;
 
-/// Run the console until the operator quits or an exit arrives.
-pub fn run(vehicle: &Vehicle, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
-    let mut terminal = ratatui::init();
-    let why = loop {
-        if let Ok(why) = exits.try_recv() {
-            break why;
+/// The console's refresh period.
+pub const TICK: Duration = Duration::from_millis(100);
+/// A loop turn longer than this is logged.
+const TURN_BUDGET: Duration = Duration::from_millis(50);
+
+/// How the console runs.
+pub struct Options {
+    pub keymap: Keymap,
+    pub deadman: Duration,
+    pub sources: Sources,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            keymap: Keymap::default_map(),
+            deadman: model::DEADMAN,
+            sources: Sources::default(),
         }
-        terminal.draw(|f| {
-            let rows = vehicle.devices.iter().map(|d| {
-                let c = d.cached();
-                let s = d.stats.snapshot();
-                let value = c
-                    .reading
-                    .position
-                    .map(|p| format!("{p:.3}"))
-                    .or(c.reading.gear.map(|g| g.to_string()))
-                    .or(c.reading.estop.map(|e| e.to_string()))
-                    .or(c.reading.rpm.map(|r| format!("{r:.0} rpm")))
-                    .unwrap_or_else(|| "-".into());
-                let style = if d.is_faulty() {
-                    Style::default().fg(Color::Red)
-                } else {
-                    Style::default()
-                };
-                Row::new(vec![
-                    d.role.to_string(),
-                    d.slot.latest().map(|c| c.to_string()).unwrap_or("-".into()),
-                    value,
-                    s.received.to_string(),
-                    s.executed.to_string(),
-                    (s.command_errors + s.status_errors).to_string(),
-                    c.age()
-                        .map(|a| format!("{}ms", a.as_millis()))
-                        .unwrap_or("-".into()),
-                ])
-                .style(style)
-            });
-            let table = Table::new(
-                rows,
-                [
-                    Constraint::Length(6),
-                    Constraint::Length(9),
-                    Constraint::Length(10),
-                    Constraint::Length(8),
-                    Constraint::Length(8),
-                    Constraint::Length(7),
-                    Constraint::Length(7),
-                ],
-            )
-            .header(Row::new(vec![
-                "device", "command", "measured", "recv", "exec", "errors", "age",
-            ]))
-            .block(Block::bordered().title(format!(" adrive — {} — q quit ", vehicle.name)));
-            f.render_widget(table, f.area());
-        })?;
-        if event::poll(Duration::from_millis(100))? {
-            if let Event::Key(k) = event::read()? {
-                let ctrl_c =
-                    k.code == KeyCode::Char('c') && k.modifiers.contains(KeyModifiers::CONTROL);
-                if k.kind == KeyEventKind::Press && (k.code == KeyCode::Char('q') || ctrl_c) {
-                    break if ctrl_c {
-                        Exit::Signal(signal_hook::consts::SIGINT)
-                    } else {
-                        Exit::Quit
-                    };
+    }
+}
+
+/// Run the console with the default keymap until the operator quits or an exit
+/// arrives.
+pub fn run(vehicle: &Vehicle, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
+    run_with(vehicle, exits, Options::default())
+}
+
+/// Read terminal events on a thread of their own until `stop`, so the loop can
+/// `select!` over them.
+fn spawn_reader(
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<(Receiver<Event>, std::thread::JoinHandle<()>)> {
+    let (tx, rx) = crossbeam_channel::bounded(256);
+    let h = std::thread::Builder::new()
+        .name("console/input".into())
+        .spawn(move || {
+            while !stop.load(Relaxed) {
+                match event::poll(TICK) {
+                    Ok(true) => match event::read() {
+                        Ok(ev) => {
+                            if tx.send(ev).is_err() {
+                                return;
+                            }
+                        }
+                        Err(e) => {
+                            tracing::warn!("terminal input: {e}");
+                            return;
+                        }
+                    },
+                    Ok(false) => {}
+                    Err(e) => {
+                        tracing::warn!("terminal input: {e}");
+                        return;
+                    }
                 }
             }
+        })?;
+    Ok((rx, h))
+}
+
+/// Run the console until the operator quits (`q`, Ctrl-C) or an exit arrives. The
+/// terminal is restored before this returns; an error of the terminal itself ends
+/// the console as a hang-up would (the caller still brings the vehicle to the safe
+/// state).
+pub fn run_with(vehicle: &Vehicle, exits: &Receiver<Exit>, opts: Options) -> std::io::Result<Exit> {
+    let live = Live {
+        vehicle,
+        sources: &opts.sources,
+    };
+    let mut model = Model::new(
+        opts.keymap,
+        Theme::from_env(),
+        live.snapshot(Instant::now(), None),
+        opts.deadman,
+    );
+    let mut terminal = ratatui::try_init()?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let (events, reader) = match spawn_reader(stop.clone()) {
+        Ok(r) => r,
+        Err(e) => {
+            ratatui::restore();
+            return Err(e);
         }
     };
+    let ticker = crossbeam_channel::tick(TICK);
+    let hangup = Exit::Signal(libc::SIGHUP);
+    let why = loop {
+        if let Err(e) = terminal.draw(|f| f.render_widget(&model, f.area())) {
+            tracing::warn!("console: cannot draw ({e}); stopping as on a hang-up");
+            break hangup;
+        }
+        enum Msg {
+            Exit(Exit),
+            Tick,
+            Event(Event),
+            Gone,
+        }
+        let msg = select! {
+            recv(exits) -> why => Msg::Exit(why.unwrap_or(Exit::Quit)),
+            recv(ticker) -> _ => Msg::Tick,
+            recv(events) -> ev => ev.map_or(Msg::Gone, Msg::Event),
+        };
+        // Measure the turn from here: the wait is not work.
+        let start = Instant::now();
+        let flow = match msg {
+            Msg::Exit(why) => Flow::Exit(why),
+            Msg::Tick => {
+                update::tick(&mut model, &live, start);
+                Flow::Continue
+            }
+            Msg::Event(Event::Key(k)) => match key_to_action(&model.keymap, model.mode, &k) {
+                Some(a) => update::update(&mut model, a, &live, start),
+                None => Flow::Continue,
+            },
+            // A resize: the next draw adapts to the new size.
+            Msg::Event(_) => Flow::Continue,
+            // The reader stopped: the terminal is gone.
+            Msg::Gone => Flow::Exit(hangup.clone()),
+        };
+        let took = start.elapsed();
+        if took > TURN_BUDGET {
+            tracing::warn!("console: a loop turn took {} ms", took.as_millis());
+        }
+        if let Flow::Exit(why) = flow {
+            break why;
+        }
+    };
+    stop.store(true, Relaxed);
     ratatui::restore();
+    let deadline = Instant::now() + 2 * TICK;
+    while !reader.is_finished() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(5));
+    }
     Ok(why)
 }

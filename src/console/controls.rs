@@ -1,0 +1,319 @@
+//! What the console reads from and does to the engine, behind one trait.
+//!
+//! [`Controls`] is the console's only door to the running vehicle: [`update`] takes a
+//! `&dyn Controls`, so it is tested with a recording fake and no threads. [`Live`] is
+//! the real one over a [`Vehicle`]. Reading goes through [`Snapshot`]: plain data
+//! captured once per tick, which the view draws without touching the engine.
+//!
+//! The network panel has no engine source yet: it takes a [`NetSource`] when one
+//! exists and shows "not running" otherwise.
+//!
+//! [`update`]: super::update::update
+
+use crate::engine::stats::StatsSnapshot;
+use crate::engine::trace::TraceEntry;
+use crate::interlock::Reject;
+use crate::sim::Faults;
+use crate::value::{Command, Reading, Role};
+use crate::vehicle::Vehicle;
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use super::logring::{LogLine, LogRing};
+
+/// One device as the console shows it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeviceSnap {
+    pub role: Role,
+    pub actuator: bool,
+    pub range: [f64; 2],
+    /// The command it will have next (pending or last sent).
+    pub latest: Option<Command>,
+    /// The last command it acknowledged.
+    pub executed: Option<Command>,
+    pub reading: Reading,
+    /// Age of the reading; `None` before the first good poll.
+    pub age: Option<Duration>,
+    /// The reading is older than the device's `status_max_age` (or there is none).
+    pub stale: bool,
+    pub status_period: Duration,
+    pub command_timeout: Duration,
+    pub status_on: bool,
+    pub command_on: bool,
+    pub status_error: u32,
+    pub command_error: u32,
+    pub faulty: bool,
+    pub last_error: Option<String>,
+    pub stats: StatsSnapshot,
+    /// Receipt → first byte histogram, (upper edge µs, count); filled for the bench.
+    pub delay_buckets: Vec<(f64, u64)>,
+    /// The simulated device is silenced (bench fault injection).
+    pub silenced: bool,
+}
+
+/// The network listener's state, as `src/net` will publish it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NetStatus {
+    pub listen: String,
+    /// Addresses commands came from recently.
+    pub senders: Vec<String>,
+    /// Commands accepted per device.
+    pub commands: Vec<(Role, u64)>,
+    /// Commands refused, by reason.
+    pub rejections: Vec<(String, u64)>,
+    pub watchdog: Watchdog,
+}
+
+/// The network command watchdog.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Watchdog {
+    /// No command yet: nothing to watch.
+    #[default]
+    Idle,
+    /// Commands arriving; the last one this long ago.
+    Ok {
+        since_last: Duration,
+        timeout: Duration,
+    },
+    /// Commands stopped: the vehicle was brought to a safe stop.
+    Tripped,
+}
+
+/// Where the network panel's figures come from (implemented by `src/net`).
+pub trait NetSource: Send + Sync {
+    fn status(&self) -> NetStatus;
+}
+
+/// Everything the console draws, captured at one instant.
+#[derive(Clone, Debug, Default)]
+pub struct Snapshot {
+    pub vehicle: String,
+    pub devices: Vec<DeviceSnap>,
+    pub engaged: bool,
+    pub gate_reason: String,
+    pub blockers: Vec<String>,
+    pub interlocks: bool,
+    /// Intake rejections by reason (non-zero only).
+    pub rejections: Vec<(Reject, u64)>,
+    pub net: Option<NetStatus>,
+    pub logs: Vec<LogLine>,
+    /// Raw traffic of the bench device, oldest first.
+    pub trace: Vec<TraceEntry>,
+    /// Fault injection is available (the devices are simulated in this process).
+    pub can_inject: bool,
+}
+
+impl Snapshot {
+    pub fn device(&self, role: Role) -> Option<&DeviceSnap> {
+        self.devices.iter().find(|d| d.role == role)
+    }
+}
+
+/// Which thread of a device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Thread {
+    Status,
+    Command,
+}
+
+/// What the console can do to the engine.
+pub trait Controls {
+    /// Capture what to draw; `bench` gets its histogram (and trace) filled in.
+    fn snapshot(&self, now: Instant, bench: Option<Role>) -> Snapshot;
+    fn submit(&self, role: Role, command: Command) -> Result<(), Reject>;
+    fn submit_accel(&self, accel: f64) -> Result<(), Reject>;
+    fn engage(&self) -> Result<(), Vec<String>>;
+    fn disengage(&self, reason: &str);
+    fn set_interlocks(&self, on: bool);
+    fn set_status_period(&self, role: Role, d: Duration);
+    fn set_command_timeout(&self, role: Role, d: Duration);
+    fn set_enabled(&self, role: Role, thread: Thread, on: bool);
+    /// Wake a command thread (broadcast its condition variable).
+    fn wake(&self, role: Role);
+    /// Re-seat steering after a disable/re-enable.
+    fn reset_steering(&self) -> Result<(), String>;
+    /// Gas 0, brake full, bypassing the interlocks.
+    fn safe_state(&self);
+    /// Toggle silence of a simulated device; `None` when not simulated here.
+    fn toggle_silent(&self, role: Role) -> Option<bool>;
+}
+
+/// The console's sources beyond the vehicle.
+#[derive(Clone, Default)]
+pub struct Sources {
+    pub net: Option<Arc<dyn NetSource>>,
+    pub logs: Option<LogRing>,
+    /// Fault switches of devices simulated in this process (`--sim`).
+    pub sim_faults: Vec<(Role, Arc<Faults>)>,
+}
+
+/// [`Controls`] over the real vehicle.
+pub struct Live<'a> {
+    pub vehicle: &'a Vehicle,
+    pub sources: &'a Sources,
+}
+
+impl Live<'_> {
+    fn faults(&self, role: Role) -> Option<&Arc<Faults>> {
+        self.sources
+            .sim_faults
+            .iter()
+            .find(|(r, _)| *r == role)
+            .map(|(_, f)| f)
+    }
+}
+
+/// Capture a snapshot of `vehicle` as of `now`.
+pub fn capture(
+    vehicle: &Vehicle,
+    sources: &Sources,
+    now: Instant,
+    bench: Option<Role>,
+) -> Snapshot {
+    let devices = vehicle
+        .devices
+        .iter()
+        .map(|d| {
+            let cached = d.cached();
+            let age = cached.at.map(|t| now.saturating_duration_since(t));
+            DeviceSnap {
+                role: d.role,
+                actuator: d.is_actuator(),
+                range: d.config.range(),
+                latest: d.slot.latest(),
+                executed: d.slot.executed(),
+                reading: cached.reading,
+                age,
+                stale: age.is_none_or(|a| a > d.config.status_max_age),
+                status_period: d.settings.status_period(),
+                command_timeout: d.settings.command_timeout(),
+                status_on: d.settings.status_enabled.load(Relaxed),
+                command_on: d.settings.command_enabled.load(Relaxed),
+                status_error: d.health.status_error.load(Relaxed),
+                command_error: d.health.command_error.load(Relaxed),
+                faulty: d.is_faulty(),
+                last_error: d.health.last_error.lock().as_ref().map(|(_, m)| m.clone()),
+                stats: d.stats.snapshot(),
+                delay_buckets: if bench == Some(d.role) {
+                    if d.is_actuator() {
+                        d.stats.command_delay.buckets()
+                    } else {
+                        d.stats.status_txn.buckets()
+                    }
+                } else {
+                    Vec::new()
+                },
+                silenced: sources
+                    .sim_faults
+                    .iter()
+                    .any(|(r, f)| *r == d.role && f.silent.load(Relaxed)),
+            }
+        })
+        .collect();
+    Snapshot {
+        vehicle: vehicle.name.clone(),
+        devices,
+        engaged: vehicle.is_engaged(),
+        gate_reason: vehicle.gate_reason(),
+        blockers: if vehicle.is_engaged() {
+            Vec::new()
+        } else {
+            vehicle.engage_blockers()
+        },
+        interlocks: vehicle.interlocks.load(Relaxed),
+        rejections: vehicle
+            .rejections()
+            .into_iter()
+            .filter(|(_, n)| *n > 0)
+            .collect(),
+        net: sources.net.as_ref().map(|n| n.status()),
+        logs: sources
+            .logs
+            .as_ref()
+            .map(|l| l.recent())
+            .unwrap_or_default(),
+        trace: bench
+            .and_then(|r| vehicle.device(r))
+            .map(|d| d.trace.entries())
+            .unwrap_or_default(),
+        can_inject: !sources.sim_faults.is_empty(),
+    }
+}
+
+impl Controls for Live<'_> {
+    fn snapshot(&self, now: Instant, bench: Option<Role>) -> Snapshot {
+        capture(self.vehicle, self.sources, now, bench)
+    }
+    fn submit(&self, role: Role, command: Command) -> Result<(), Reject> {
+        self.vehicle.submit(role, command, Instant::now())
+    }
+    fn submit_accel(&self, accel: f64) -> Result<(), Reject> {
+        self.vehicle.submit_accel(accel, Instant::now())
+    }
+    fn engage(&self) -> Result<(), Vec<String>> {
+        self.vehicle.engage("console")
+    }
+    fn disengage(&self, reason: &str) {
+        self.vehicle.disengage(reason);
+    }
+    fn set_interlocks(&self, on: bool) {
+        self.vehicle.interlocks.store(on, Relaxed);
+        tracing::warn!(
+            "interlocks switched {} from the console",
+            if on { "on" } else { "off" }
+        );
+    }
+    fn set_status_period(&self, role: Role, d: Duration) {
+        if let Some(dev) = self.vehicle.device(role) {
+            dev.settings.set_status_period(d);
+        }
+    }
+    fn set_command_timeout(&self, role: Role, d: Duration) {
+        if let Some(dev) = self.vehicle.device(role) {
+            dev.settings.set_command_timeout(d);
+        }
+    }
+    fn set_enabled(&self, role: Role, thread: Thread, on: bool) {
+        if let Some(dev) = self.vehicle.device(role) {
+            let flag = match thread {
+                Thread::Status => &dev.settings.status_enabled,
+                Thread::Command => &dev.settings.command_enabled,
+            };
+            flag.store(on, Relaxed);
+            tracing::info!(device = %role, "{thread:?} thread {}", if on { "enabled" } else { "disabled" });
+        }
+    }
+    fn wake(&self, role: Role) {
+        if let Some(dev) = self.vehicle.device(role) {
+            dev.slot.nudge();
+        }
+    }
+    fn reset_steering(&self) -> Result<(), String> {
+        let dev = self
+            .vehicle
+            .device(Role::Steer)
+            .ok_or("this vehicle has no steering")?;
+        let at = dev
+            .cached()
+            .reading
+            .position
+            .ok_or("steering has not reported a position yet")?;
+        dev.slot.reset(None);
+        self.vehicle
+            .submit(Role::Steer, Command::Set(at), Instant::now())
+            .map_err(|r| format!("steering {at:.3} rejected: {r}"))?;
+        dev.slot.nudge();
+        Ok(())
+    }
+    fn safe_state(&self) {
+        self.vehicle.command_safe_state();
+    }
+    fn toggle_silent(&self, role: Role) -> Option<bool> {
+        let f = self.faults(role)?;
+        let now = !f.silent.load(Relaxed);
+        f.silent.store(now, Relaxed);
+        tracing::warn!(device = %role, "simulated device {}", if now { "silenced" } else { "answering again" });
+        Some(now)
+    }
+}

@@ -1,0 +1,764 @@
+//! Key bindings: which key runs which [`Action`] in which [`Mode`].
+//!
+//! Bindings are TOML, one section per mode, records `{ on, run, desc }` (the layout of
+//! yazi's keymaps). `keymaps/default.toml` is compiled in; a user file (`--keymap FILE`,
+//! or `keymap.toml` in the user's config directory) is merged over it: a record whose
+//! key is already bound in that mode replaces the binding, `run = "none"` removes it,
+//! any other record is added. Help and hint bar are generated from the loaded map.
+//!
+//! A file with an unknown key, an unknown action, an unknown field or section, or the
+//! same key bound twice in one section is refused with `file:line: message` naming
+//! the expected form. Nothing here panics on bad input.
+
+use crate::value::Role;
+use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+use serde::Deserialize;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// The compiled-in keymap.
+pub const DEFAULT_TOML: &str = include_str!("../../keymaps/default.toml");
+/// The name errors in the compiled-in keymap are reported under.
+pub const DEFAULT_PATH: &str = "keymaps/default.toml";
+
+/// One key: a code plus modifiers. Written `g`, `G`, `?`, `<C-c>`, `<Up>`, `<Space>`,
+/// `<Enter>`, `<Esc>`, `<A-x>`, `<S-Tab>`, `<F1>`, `<lt>` (a literal `<`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Key {
+    pub code: KeyCode,
+    pub ctrl: bool,
+    pub alt: bool,
+    pub shift: bool,
+}
+
+const NAMED: &[(&str, KeyCode)] = &[
+    ("Enter", KeyCode::Enter),
+    ("Esc", KeyCode::Esc),
+    ("Tab", KeyCode::Tab),
+    ("BackTab", KeyCode::BackTab),
+    ("Backspace", KeyCode::Backspace),
+    ("Delete", KeyCode::Delete),
+    ("Insert", KeyCode::Insert),
+    ("Home", KeyCode::Home),
+    ("End", KeyCode::End),
+    ("PageUp", KeyCode::PageUp),
+    ("PageDown", KeyCode::PageDown),
+    ("Up", KeyCode::Up),
+    ("Down", KeyCode::Down),
+    ("Left", KeyCode::Left),
+    ("Right", KeyCode::Right),
+    ("Space", KeyCode::Char(' ')),
+    ("lt", KeyCode::Char('<')),
+];
+
+/// The expected form of a key, for error messages.
+pub const KEY_FORM: &str = "a single character (g, G, ?) or <Name> with Name one of \
+Enter, Esc, Tab, BackTab, Backspace, Delete, Insert, Home, End, PageUp, PageDown, Up, \
+Down, Left, Right, Space, lt, F1…F12 or a character, optionally after C- (Ctrl), A- (Alt), \
+S- (Shift), e.g. <C-c>";
+
+impl Key {
+    pub const fn plain(code: KeyCode) -> Key {
+        Key {
+            code,
+            ctrl: false,
+            alt: false,
+            shift: false,
+        }
+    }
+
+    pub const fn ctrl(c: char) -> Key {
+        Key {
+            code: KeyCode::Char(c),
+            ctrl: true,
+            alt: false,
+            shift: false,
+        }
+    }
+
+    /// The key of a terminal event. A shifted character arrives as its capital (or
+    /// its symbol), so Shift is dropped for characters; `<S-Tab>` is `BackTab`.
+    pub fn from_event(e: &KeyEvent) -> Key {
+        let m = e.modifiers;
+        let is_char = matches!(e.code, KeyCode::Char(_) | KeyCode::BackTab);
+        Key {
+            code: e.code,
+            ctrl: m.contains(KeyModifiers::CONTROL),
+            alt: m.contains(KeyModifiers::ALT),
+            shift: m.contains(KeyModifiers::SHIFT) && !is_char,
+        }
+    }
+
+    fn name(self) -> String {
+        match self.code {
+            KeyCode::F(n) => format!("F{n}"),
+            KeyCode::Char(c) => NAMED
+                .iter()
+                .find(|(_, k)| *k == KeyCode::Char(c))
+                .map(|(n, _)| n.to_string())
+                .unwrap_or_else(|| c.to_string()),
+            code => NAMED
+                .iter()
+                .find(|(_, k)| *k == code)
+                .map(|(n, _)| n.to_string())
+                .unwrap_or_else(|| format!("{code:?}")),
+        }
+    }
+}
+
+impl fmt::Display for Key {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let plain = !(self.ctrl || self.alt || self.shift);
+        if let (true, KeyCode::Char(c)) = (plain, self.code) {
+            if c != ' ' && c != '<' {
+                return write!(f, "{c}");
+            }
+        }
+        f.write_str("<")?;
+        if self.ctrl {
+            f.write_str("C-")?;
+        }
+        if self.alt {
+            f.write_str("A-")?;
+        }
+        if self.shift {
+            f.write_str("S-")?;
+        }
+        write!(f, "{}>", self.name())
+    }
+}
+
+impl FromStr for Key {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Key, String> {
+        let bad = || format!("unknown key {s:?}: expected {KEY_FORM}");
+        let mut chars = s.chars();
+        if let (Some(c), None) = (chars.next(), chars.next()) {
+            if c.is_control() {
+                return Err(bad());
+            }
+            return Ok(Key::plain(KeyCode::Char(c)));
+        }
+        let inner = s
+            .strip_prefix('<')
+            .and_then(|r| r.strip_suffix('>'))
+            .filter(|r| !r.is_empty())
+            .ok_or_else(bad)?;
+        let mut key = Key::plain(KeyCode::Null);
+        let mut rest = inner;
+        loop {
+            let (m, tail) = match rest.split_once('-') {
+                Some((m, tail)) if !tail.is_empty() && m.len() == 1 => (m, tail),
+                _ => break,
+            };
+            match m {
+                "C" | "c" => key.ctrl = true,
+                "A" | "a" | "M" | "m" => key.alt = true,
+                "S" | "s" => key.shift = true,
+                _ => return Err(bad()),
+            }
+            rest = tail;
+        }
+        let mut chars = rest.chars();
+        key.code = if let (Some(c), None) = (chars.next(), chars.next()) {
+            KeyCode::Char(c)
+        } else if let Some(n) = rest
+            .strip_prefix('F')
+            .and_then(|n| n.parse::<u8>().ok())
+            .filter(|n| (1..=12).contains(n))
+        {
+            KeyCode::F(n)
+        } else {
+            NAMED
+                .iter()
+                .find(|(n, _)| n.eq_ignore_ascii_case(rest))
+                .map(|(_, k)| *k)
+                .ok_or_else(bad)?
+        };
+        // `<S-Tab>` is what terminals send as BackTab; a shifted character is its capital.
+        if key.shift {
+            match key.code {
+                KeyCode::Tab => (key.code, key.shift) = (KeyCode::BackTab, false),
+                KeyCode::Char(c) if c.is_alphabetic() => {
+                    (key.code, key.shift) = (KeyCode::Char(c.to_ascii_uppercase()), false)
+                }
+                KeyCode::Char(_) => key.shift = false,
+                _ => {}
+            }
+        }
+        Ok(key)
+    }
+}
+
+/// The console's modes; each has its own section in a keymap.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Mode {
+    /// The main screen: cursor over fields, shortcuts.
+    Main,
+    /// Editing a field in place.
+    Edit,
+    /// Driving from the keyboard, with a deadman.
+    Teleop,
+    /// One device up close.
+    Bench,
+    /// A yes/no question before a consequential action.
+    Confirm,
+    /// The help overlay.
+    Help,
+}
+
+impl Mode {
+    pub const ALL: [Mode; 6] = [
+        Mode::Main,
+        Mode::Edit,
+        Mode::Teleop,
+        Mode::Bench,
+        Mode::Confirm,
+        Mode::Help,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Mode::Main => "main",
+            Mode::Edit => "edit",
+            Mode::Teleop => "teleop",
+            Mode::Bench => "bench",
+            Mode::Confirm => "confirm",
+            Mode::Help => "help",
+        }
+    }
+
+    fn index(self) -> usize {
+        Mode::ALL.iter().position(|m| *m == self).expect("listed")
+    }
+}
+
+impl fmt::Display for Mode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// What a field edit (or a shortcut that starts one) is about.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Target {
+    /// A device's command.
+    Device(Role),
+    /// The vehicle's virtual `accel` command (−1…1: brake below 0, gas above).
+    Accel,
+}
+
+/// Everything a key can do.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Action {
+    /// Leave (safe state first).
+    Quit,
+    Help,
+    /// Leave the current mode (back to where it was entered from).
+    Back,
+    Up,
+    Down,
+    Left,
+    Right,
+    /// Edit the field under the cursor.
+    Edit,
+    /// Jump to a command field and edit it (the paper's g, s, b, c, t).
+    EditOf(Target),
+    Commit,
+    Cancel,
+    Backspace,
+    Clear,
+    /// Wake a command thread (broadcast its condition variable): the device under the
+    /// cursor (`None`) or a named one.
+    Wake(Option<Role>),
+    WakeAll,
+    /// Re-seat steering after a disable/re-enable: hold where it is, wake its thread.
+    ResetSteering,
+    Engage,
+    Disengage,
+    /// Interlocks on/off (asks first).
+    Interlocks,
+    Confirm,
+    Teleop,
+    SteerLeft,
+    SteerRight,
+    AccelUp,
+    AccelDown,
+    FullBrake,
+    Center,
+    Bench,
+    NextDevice,
+    PrevDevice,
+    /// Bench, under `--sim`: make the simulated device silent (or answer again).
+    InjectFault,
+    /// Unbinds a key in a user keymap.
+    None,
+    /// A character typed while editing (not bindable).
+    Input(char),
+    /// Ctrl-C (always bound, not bindable).
+    Interrupt,
+}
+
+/// The valid `run` values, for error messages.
+pub const ACTION_FORM: &str = "quit, help, back, up, down, left, right, edit, \
+edit steer|gas|brake|trans|accel, commit, cancel, backspace, clear, wake, wake DEVICE, \
+wake all, reset_steering, engage, disengage, interlocks, confirm, teleop, steer_left, \
+steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
+inject_fault, none";
+
+const SIMPLE: &[(&str, Action)] = &[
+    ("quit", Action::Quit),
+    ("help", Action::Help),
+    ("back", Action::Back),
+    ("up", Action::Up),
+    ("down", Action::Down),
+    ("left", Action::Left),
+    ("right", Action::Right),
+    ("edit", Action::Edit),
+    ("commit", Action::Commit),
+    ("cancel", Action::Cancel),
+    ("backspace", Action::Backspace),
+    ("clear", Action::Clear),
+    ("wake", Action::Wake(None)),
+    ("wake all", Action::WakeAll),
+    ("reset_steering", Action::ResetSteering),
+    ("engage", Action::Engage),
+    ("disengage", Action::Disengage),
+    ("interlocks", Action::Interlocks),
+    ("confirm", Action::Confirm),
+    ("teleop", Action::Teleop),
+    ("steer_left", Action::SteerLeft),
+    ("steer_right", Action::SteerRight),
+    ("accel_up", Action::AccelUp),
+    ("accel_down", Action::AccelDown),
+    ("full_brake", Action::FullBrake),
+    ("center", Action::Center),
+    ("bench", Action::Bench),
+    ("next_device", Action::NextDevice),
+    ("prev_device", Action::PrevDevice),
+    ("inject_fault", Action::InjectFault),
+    ("none", Action::None),
+];
+
+impl FromStr for Action {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Action, String> {
+        let words: Vec<&str> = s.split_whitespace().collect();
+        let norm = words.join(" ");
+        if let Some((_, a)) = SIMPLE.iter().find(|(n, _)| *n == norm) {
+            return Ok(*a);
+        }
+        let bad = || format!("unknown action {s:?}: expected one of {ACTION_FORM}");
+        match words.as_slice() {
+            ["edit", "accel"] => Ok(Action::EditOf(Target::Accel)),
+            ["edit", dev] => match dev.parse::<Role>() {
+                Ok(r) if r.is_actuator() => Ok(Action::EditOf(Target::Device(r))),
+                _ => Err(bad()),
+            },
+            ["wake", dev] => match dev.parse::<Role>() {
+                Ok(r) if r.is_actuator() => Ok(Action::Wake(Some(r))),
+                _ => Err(bad()),
+            },
+            _ => Err(bad()),
+        }
+    }
+}
+
+impl fmt::Display for Action {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if let Some((n, _)) = SIMPLE.iter().find(|(_, a)| a == self) {
+            return f.write_str(n);
+        }
+        match self {
+            Action::EditOf(Target::Accel) => f.write_str("edit accel"),
+            Action::EditOf(Target::Device(r)) => write!(f, "edit {r}"),
+            Action::Wake(Some(r)) => write!(f, "wake {r}"),
+            Action::Input(c) => write!(f, "input {c:?}"),
+            Action::Interrupt => f.write_str("interrupt"),
+            other => write!(f, "{other:?}"),
+        }
+    }
+}
+
+/// One binding.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Binding {
+    pub on: Key,
+    pub run: Action,
+    pub desc: String,
+}
+
+/// A keymap error: `file:line: message`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{path}:{line}: {message}")]
+pub struct KeymapError {
+    pub path: String,
+    pub line: usize,
+    pub message: String,
+}
+
+/// Bindings per mode, in file order (help lists them in that order).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Keymap {
+    modes: [Vec<Binding>; 6],
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawFile {
+    main: Option<RawSection>,
+    edit: Option<RawSection>,
+    teleop: Option<RawSection>,
+    bench: Option<RawSection>,
+    confirm: Option<RawSection>,
+    help: Option<RawSection>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSection {
+    #[serde(default)]
+    keymap: Vec<toml::Spanned<RawBinding>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBinding {
+    on: toml::Spanned<String>,
+    run: toml::Spanned<String>,
+    #[serde(default)]
+    desc: String,
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    text[..offset.min(text.len())].matches('\n').count() + 1
+}
+
+impl Keymap {
+    /// The compiled-in default keymap.
+    pub fn default_map() -> Keymap {
+        Keymap::parse(DEFAULT_TOML, DEFAULT_PATH).expect("the compiled-in keymap parses")
+    }
+
+    /// Parse one keymap file on its own; `path` names it in errors.
+    pub fn parse(text: &str, path: &str) -> Result<Keymap, KeymapError> {
+        let err = |offset: usize, message: String| KeymapError {
+            path: path.to_string(),
+            line: line_of(text, offset),
+            message,
+        };
+        let raw: RawFile = toml::from_str(text).map_err(|e| {
+            let offset = e.span().map(|s| s.start).unwrap_or(0);
+            let mut message = e.message().trim().to_string();
+            if message.contains("unknown field") && !message.contains("`keymap`") {
+                message.push_str(" (sections are [main], [edit], [teleop], [bench], [confirm], [help], each with keymap = [{ on = \"g\", run = \"edit gas\", desc = \"…\" }, …])");
+            }
+            err(offset, message)
+        })?;
+        let sections = [
+            raw.main,
+            raw.edit,
+            raw.teleop,
+            raw.bench,
+            raw.confirm,
+            raw.help,
+        ];
+        let mut modes: [Vec<Binding>; 6] = Default::default();
+        for (i, section) in sections.into_iter().enumerate() {
+            let Some(section) = section else { continue };
+            for rec in section.keymap {
+                let rec = rec.into_inner();
+                let on: Key = rec
+                    .on
+                    .get_ref()
+                    .parse()
+                    .map_err(|m| err(rec.on.span().start, m))?;
+                let run: Action = rec
+                    .run
+                    .get_ref()
+                    .parse()
+                    .map_err(|m| err(rec.run.span().start, m))?;
+                if modes[i].iter().any(|b| b.on == on) {
+                    return Err(err(
+                        rec.on.span().start,
+                        format!(
+                            "{on} is bound twice in [{}]: expected each key once per section",
+                            Mode::ALL[i]
+                        ),
+                    ));
+                }
+                modes[i].push(Binding {
+                    on,
+                    run,
+                    desc: rec.desc,
+                });
+            }
+        }
+        Ok(Keymap { modes })
+    }
+
+    /// Merge `over` (a user file) over this map.
+    pub fn merge(&mut self, over: Keymap) {
+        for (mine, theirs) in self.modes.iter_mut().zip(over.modes) {
+            for b in theirs {
+                match mine.iter().position(|m| m.on == b.on) {
+                    Some(i) if b.run == Action::None => {
+                        mine.remove(i);
+                    }
+                    Some(i) => mine[i] = b,
+                    None if b.run == Action::None => {}
+                    None => mine.push(b),
+                }
+            }
+        }
+    }
+
+    /// The default map with the file at `path` merged over it.
+    pub fn load(path: &Path) -> Result<Keymap, KeymapError> {
+        let name = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| KeymapError {
+            path: name.clone(),
+            line: 0,
+            message: format!("cannot read: {e}"),
+        })?;
+        let mut map = Keymap::default_map();
+        map.merge(Keymap::parse(&text, &name)?);
+        Ok(map)
+    }
+
+    /// What `adrive` runs with: `--keymap FILE` if given, else the user's
+    /// `$XDG_CONFIG_HOME/adrive/keymap.toml` (or `~/.config/adrive/keymap.toml`) if it
+    /// exists, merged over the default.
+    pub fn for_run(flag: Option<&Path>) -> Result<Keymap, KeymapError> {
+        match flag.map(Path::to_path_buf).or_else(user_keymap_path) {
+            Some(p) if flag.is_some() || p.exists() => Keymap::load(&p),
+            _ => Ok(Keymap::default_map()),
+        }
+    }
+
+    pub fn bindings(&self, mode: Mode) -> &[Binding] {
+        &self.modes[mode.index()]
+    }
+
+    pub fn lookup(&self, mode: Mode, key: Key) -> Option<Action> {
+        self.bindings(mode)
+            .iter()
+            .find(|b| b.on == key)
+            .map(|b| b.run)
+    }
+
+    /// The first key bound to `action` in `mode`, for hints such as "y to confirm".
+    pub fn key_for(&self, mode: Mode, action: Action) -> Option<Key> {
+        self.bindings(mode)
+            .iter()
+            .find(|b| b.run == action)
+            .map(|b| b.on)
+    }
+}
+
+/// The user's keymap file location.
+pub fn user_keymap_path() -> Option<PathBuf> {
+    std::env::var_os("XDG_CONFIG_HOME")
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from)
+        .or_else(|| std::env::var_os("HOME").map(|h| PathBuf::from(h).join(".config")))
+        .map(|d| d.join("adrive").join("keymap.toml"))
+}
+
+/// The pure key handler: what a terminal key event means in `mode`. Ctrl-C always
+/// means [`Action::Interrupt`]; releases are ignored; an unbound character typed
+/// while editing is [`Action::Input`].
+pub fn key_to_action(map: &Keymap, mode: Mode, e: &KeyEvent) -> Option<Action> {
+    if e.kind == KeyEventKind::Release {
+        return None;
+    }
+    let key = Key::from_event(e);
+    if key == Key::ctrl('c') {
+        return Some(Action::Interrupt);
+    }
+    match map.lookup(mode, key) {
+        Some(Action::None) => None,
+        Some(a) => Some(a),
+        None => match (mode, key) {
+            (
+                Mode::Edit,
+                Key {
+                    code: KeyCode::Char(c),
+                    ctrl: false,
+                    alt: false,
+                    ..
+                },
+            ) => Some(Action::Input(c)),
+            _ => None,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_round_trip_through_text() {
+        for s in [
+            "g",
+            "G",
+            "?",
+            "<C-c>",
+            "<Up>",
+            "<Space>",
+            "<Enter>",
+            "<Esc>",
+            "<Tab>",
+            "<BackTab>",
+            "<F1>",
+            "<F12>",
+            "<lt>",
+            "<A-x>",
+            "<C-A-Left>",
+            "<S-Up>",
+            "<Backspace>",
+            "<PageDown>",
+            "-",
+            ">",
+        ] {
+            let k: Key = s.parse().unwrap_or_else(|e| panic!("{s}: {e}"));
+            assert_eq!(k.to_string(), s, "{s}");
+        }
+        assert_eq!("<S-Tab>".parse::<Key>().unwrap().to_string(), "<BackTab>");
+        assert_eq!("<S-g>".parse::<Key>().unwrap().to_string(), "G");
+        assert_eq!("<enter>".parse::<Key>().unwrap().to_string(), "<Enter>");
+        assert_eq!(" ".parse::<Key>().unwrap().to_string(), "<Space>");
+    }
+
+    #[test]
+    fn bad_keys_say_what_is_expected() {
+        for s in ["", "gg", "<Foo>", "<X-a>", "<>", "<C->", "<F13>"] {
+            let e = s.parse::<Key>().unwrap_err();
+            assert!(e.contains("expected"), "{s}: {e}");
+        }
+    }
+
+    #[test]
+    fn key_events_map_to_keys() {
+        let ev = |code, m| KeyEvent::new(code, m);
+        assert_eq!(
+            Key::from_event(&ev(KeyCode::Char('G'), KeyModifiers::SHIFT)),
+            "G".parse().unwrap()
+        );
+        assert_eq!(
+            Key::from_event(&ev(KeyCode::Char('c'), KeyModifiers::CONTROL)),
+            Key::ctrl('c')
+        );
+        assert_eq!(
+            Key::from_event(&ev(KeyCode::BackTab, KeyModifiers::SHIFT)),
+            "<BackTab>".parse().unwrap()
+        );
+    }
+
+    #[test]
+    fn actions_round_trip_and_list_valid_names() {
+        for (n, a) in SIMPLE {
+            assert_eq!(n.parse::<Action>(), Ok(*a));
+            assert_eq!(a.to_string(), *n);
+        }
+        for s in [
+            "edit gas",
+            "edit accel",
+            "edit trans",
+            "wake steer",
+            "wake all",
+        ] {
+            assert_eq!(s.parse::<Action>().unwrap().to_string(), s);
+        }
+        let e = "edit obd".parse::<Action>().unwrap_err();
+        assert!(e.contains("reset_steering"), "{e}");
+        assert!("fly".parse::<Action>().is_err());
+    }
+
+    #[test]
+    fn the_default_keymap_loads_and_binds_the_papers_keys() {
+        let m = Keymap::default_map();
+        for (k, a) in [
+            ("g", "edit gas"),
+            ("s", "edit steer"),
+            ("b", "edit brake"),
+            ("c", "edit accel"),
+            ("t", "edit trans"),
+            ("e", "reset_steering"),
+            ("?", "help"),
+            ("q", "quit"),
+        ] {
+            assert_eq!(
+                m.lookup(Mode::Main, k.parse().unwrap()),
+                Some(a.parse().unwrap()),
+                "{k}"
+            );
+        }
+        for mode in Mode::ALL {
+            assert!(!m.bindings(mode).is_empty(), "{mode} has no bindings");
+        }
+    }
+
+    #[test]
+    fn errors_name_file_line_and_form() {
+        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit gas\" },\n  { on = \"<Hyper-x>\", run = \"quit\" },\n]\n";
+        let e = Keymap::parse(text, "my.toml").unwrap_err();
+        assert_eq!((e.path.as_str(), e.line), ("my.toml", 4), "{e}");
+        assert!(e.message.contains("expected"), "{e}");
+
+        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit gas\" },\n\n  { on = \"x\", run = \"launch\" },\n]\n";
+        let e = Keymap::parse(text, "my.toml").unwrap_err();
+        assert_eq!(e.line, 5, "{e}");
+        assert!(e.message.contains("reset_steering"), "{e}");
+
+        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit gas\" },\n  { on = \"g\", run = \"quit\" },\n]\n";
+        let e = Keymap::parse(text, "my.toml").unwrap_err();
+        assert_eq!(e.line, 4, "{e}");
+        assert!(e.message.contains("twice"), "{e}");
+
+        let text = "[mian]\nkeymap = []\n";
+        let e = Keymap::parse(text, "my.toml").unwrap_err();
+        assert_eq!(e.line, 1, "{e}");
+        assert!(e.message.contains("[main]"), "{e}");
+
+        let text = "[main]\nkeymap = [\n  { on = \"g\", rn = \"quit\" },\n]\n";
+        let e = Keymap::parse(text, "my.toml").unwrap_err();
+        assert_eq!(e.line, 3, "{e}");
+    }
+
+    #[test]
+    fn a_user_file_is_merged_over_the_default() {
+        let mut m = Keymap::default_map();
+        let user = Keymap::parse(
+            "[main]\nkeymap = [\n { on = \"g\", run = \"none\" },\n { on = \"<F5>\", run = \"edit gas\", desc = \"gas\" },\n { on = \"q\", run = \"help\" },\n]\n",
+            "user.toml",
+        )
+        .unwrap();
+        m.merge(user);
+        assert_eq!(m.lookup(Mode::Main, "g".parse().unwrap()), None);
+        assert_eq!(
+            m.lookup(Mode::Main, "<F5>".parse().unwrap()),
+            Some(Action::EditOf(Target::Device(Role::Gas)))
+        );
+        assert_eq!(
+            m.lookup(Mode::Main, "q".parse().unwrap()),
+            Some(Action::Help)
+        );
+    }
+
+    #[test]
+    fn ctrl_c_is_always_an_interrupt_and_editing_takes_characters() {
+        let m = Keymap::default_map();
+        let ev = KeyEvent::new(KeyCode::Char('c'), KeyModifiers::CONTROL);
+        for mode in Mode::ALL {
+            assert_eq!(key_to_action(&m, mode, &ev), Some(Action::Interrupt));
+        }
+        let ev = KeyEvent::new(KeyCode::Char('7'), KeyModifiers::NONE);
+        assert_eq!(key_to_action(&m, Mode::Edit, &ev), Some(Action::Input('7')));
+        let mut rel = KeyEvent::new(KeyCode::Char('q'), KeyModifiers::NONE);
+        rel.kind = KeyEventKind::Release;
+        assert_eq!(key_to_action(&m, Mode::Main, &rel), None);
+    }
+}

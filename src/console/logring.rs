@@ -1,0 +1,138 @@
+//! The log pane's source: a `tracing` layer that keeps the last warnings and errors in
+//! a small ring the console reads each tick. It sits beside the file and stderr layers
+//! (see [`crate::logging::init_with`]) and never blocks for long: one short lock per
+//! warning.
+
+use parking_lot::Mutex;
+use std::collections::VecDeque;
+use std::fmt::Write;
+use std::sync::Arc;
+use std::time::Instant;
+use tracing::field::{Field, Visit};
+use tracing::{Event, Level, Subscriber};
+use tracing_subscriber::layer::Context;
+use tracing_subscriber::Layer;
+
+/// How many lines the ring keeps.
+pub const KEEP: usize = 200;
+
+/// One warning or error.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LogLine {
+    /// Seconds since the ring was made (the console's start).
+    pub secs: f64,
+    pub level: Level,
+    pub text: String,
+}
+
+/// The shared ring; clone it to hand out.
+#[derive(Clone)]
+pub struct LogRing {
+    inner: Arc<Mutex<VecDeque<LogLine>>>,
+    start: Instant,
+}
+
+impl Default for LogRing {
+    fn default() -> Self {
+        LogRing {
+            inner: Arc::new(Mutex::new(VecDeque::with_capacity(KEEP))),
+            start: Instant::now(),
+        }
+    }
+}
+
+impl LogRing {
+    /// The layer that fills this ring.
+    pub fn layer(&self) -> RingLayer {
+        RingLayer { ring: self.clone() }
+    }
+
+    pub fn push(&self, level: Level, text: String) {
+        let mut q = self.inner.lock();
+        if q.len() == KEEP {
+            q.pop_front();
+        }
+        q.push_back(LogLine {
+            secs: self.start.elapsed().as_secs_f64(),
+            level,
+            text,
+        });
+    }
+
+    /// The lines kept, oldest first.
+    pub fn recent(&self) -> Vec<LogLine> {
+        self.inner.lock().iter().cloned().collect()
+    }
+}
+
+/// A `tracing` layer keeping WARN and ERROR events in a [`LogRing`].
+pub struct RingLayer {
+    ring: LogRing,
+}
+
+#[derive(Default)]
+struct Text {
+    message: String,
+    fields: String,
+}
+
+impl Visit for Text {
+    fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
+        if field.name() == "message" {
+            let _ = write!(self.message, "{value:?}");
+        } else {
+            let _ = write!(self.fields, " {}={value:?}", field.name());
+        }
+    }
+    fn record_str(&mut self, field: &Field, value: &str) {
+        if field.name() == "message" {
+            self.message.push_str(value);
+        } else {
+            let _ = write!(self.fields, " {}={value}", field.name());
+        }
+    }
+}
+
+impl<S: Subscriber> Layer<S> for RingLayer {
+    fn on_event(&self, event: &Event<'_>, _ctx: Context<'_, S>) {
+        let level = *event.metadata().level();
+        if level > Level::WARN {
+            return;
+        }
+        let mut t = Text::default();
+        event.record(&mut t);
+        self.ring.push(level, format!("{}{}", t.message, t.fields));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tracing_subscriber::layer::SubscriberExt;
+
+    #[test]
+    fn keeps_warnings_and_errors_only() {
+        let ring = LogRing::default();
+        let sub = tracing_subscriber::registry().with(ring.layer());
+        tracing::subscriber::with_default(sub, || {
+            tracing::info!("fine");
+            tracing::warn!(device = "steer", "status: timeout");
+            tracing::error!("boom");
+        });
+        let lines = ring.recent();
+        assert_eq!(lines.len(), 2);
+        assert_eq!(lines[0].text, "status: timeout device=steer");
+        assert_eq!(lines[1].level, Level::ERROR);
+    }
+
+    #[test]
+    fn the_ring_forgets_the_oldest() {
+        let ring = LogRing::default();
+        for i in 0..KEEP + 5 {
+            ring.push(Level::WARN, i.to_string());
+        }
+        let lines = ring.recent();
+        assert_eq!(lines.len(), KEEP);
+        assert_eq!(lines[0].text, "5");
+    }
+}

@@ -1,0 +1,290 @@
+//! The console's state (the "model" of the Elm architecture): the mode, the cursor,
+//! an edit in progress, a pending question, teleop and bench state, and the latest
+//! [`Snapshot`] of the vehicle. Only [`update`](super::update) changes it; the view
+//! only reads it.
+
+use super::controls::{DeviceSnap, Snapshot};
+use super::keymap::{Keymap, Mode};
+use super::theme::Theme;
+use crate::value::Role;
+use std::time::{Duration, Instant};
+
+/// Default teleop deadman: no teleop key for this long → gas 0, brake full. Longer than
+/// a terminal's key-repeat delay (typically 250–660 ms), so holding a key never trips it.
+pub const DEADMAN: Duration = Duration::from_millis(1000);
+/// Teleop steps per key.
+pub const STEER_STEP: f64 = 0.05;
+pub const GAS_STEP: f64 = 0.1;
+pub const BRAKE_STEP: f64 = 0.25;
+
+/// A field the cursor can stand on (the Sparrow screen's editable entries).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Field {
+    /// The device's command.
+    Command(Role),
+    /// `st delay`: the status period.
+    StDelay(Role),
+    /// `cm delay`: the command timeout (resend period).
+    CmDelay(Role),
+    /// Status thread enabled.
+    StatusOn(Role),
+    /// Command thread enabled.
+    CommandOn(Role),
+    /// The vehicle's virtual accel command.
+    Accel,
+}
+
+impl Field {
+    pub fn role(self) -> Option<Role> {
+        match self {
+            Field::Command(r)
+            | Field::StDelay(r)
+            | Field::CmDelay(r)
+            | Field::StatusOn(r)
+            | Field::CommandOn(r) => Some(r),
+            Field::Accel => None,
+        }
+    }
+
+    pub fn name(self) -> String {
+        match self {
+            Field::Command(r) => format!("{r} command"),
+            Field::StDelay(r) => format!("{r} st delay"),
+            Field::CmDelay(r) => format!("{r} cm delay"),
+            Field::StatusOn(r) => format!("{r} status thread"),
+            Field::CommandOn(r) => format!("{r} command thread"),
+            Field::Accel => "accel".into(),
+        }
+    }
+
+    /// The fields of one device, in screen order.
+    pub fn of(d: &DeviceSnap) -> Vec<Field> {
+        let r = d.role;
+        if d.actuator {
+            vec![
+                Field::Command(r),
+                Field::StDelay(r),
+                Field::CmDelay(r),
+                Field::StatusOn(r),
+                Field::CommandOn(r),
+            ]
+        } else {
+            vec![Field::StDelay(r), Field::StatusOn(r)]
+        }
+    }
+
+    fn same_kind(self, role: Role) -> Field {
+        match self {
+            Field::Command(_) => Field::Command(role),
+            Field::StDelay(_) => Field::StDelay(role),
+            Field::CmDelay(_) => Field::CmDelay(role),
+            Field::StatusOn(_) => Field::StatusOn(role),
+            Field::CommandOn(_) => Field::CommandOn(role),
+            Field::Accel => Field::Accel,
+        }
+    }
+}
+
+/// A field being edited in place.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Edit {
+    pub field: Field,
+    pub buffer: String,
+    /// The buffer still holds the prefilled value: the first character replaces it.
+    pub fresh: bool,
+    /// Why the last commit was refused (shown inline; nothing was changed).
+    pub error: Option<String>,
+}
+
+/// A question waiting for yes or no.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ask {
+    Engage,
+    Disengage,
+    /// Switch the interlocks to this.
+    Interlocks(bool),
+}
+
+impl Ask {
+    pub fn question(self) -> &'static str {
+        match self {
+            Ask::Engage => "Engage? Commands will move the vehicle.",
+            Ask::Disengage => "Disengage? Gas 0, brake full, commands refused.",
+            Ask::Interlocks(true) => "Turn the interlocks ON?",
+            Ask::Interlocks(false) => {
+                "Turn the interlocks OFF? Nothing will stop gas against the brake."
+            }
+        }
+    }
+}
+
+/// The outcome line under the screen.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Message {
+    pub text: String,
+    pub bad: bool,
+    pub at: Instant,
+}
+
+/// Teleop: set points driven by keys, with a deadman.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Teleop {
+    pub steer: f64,
+    /// −1 full brake … 1 full gas.
+    pub accel: f64,
+    pub deadman: Duration,
+    /// The last teleop key; `None` until the first one (the deadman is idle).
+    pub last_key: Option<Instant>,
+    pub tripped: bool,
+}
+
+/// What the deadman is doing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Deadman {
+    /// No teleop key yet.
+    Idle,
+    /// Keys arriving; trips after `left` without one.
+    Armed { left: Duration },
+    /// Tripped: gas 0 and brake full were commanded.
+    Tripped,
+}
+
+impl Teleop {
+    pub fn new(deadman: Duration) -> Teleop {
+        Teleop {
+            steer: 0.0,
+            accel: 0.0,
+            deadman,
+            last_key: None,
+            tripped: false,
+        }
+    }
+
+    pub fn state(&self, now: Instant) -> Deadman {
+        match self.last_key {
+            _ if self.tripped => Deadman::Tripped,
+            None => Deadman::Idle,
+            Some(t) => Deadman::Armed {
+                left: self
+                    .deadman
+                    .saturating_sub(now.saturating_duration_since(t)),
+            },
+        }
+    }
+}
+
+/// The whole console state.
+pub struct Model {
+    pub keymap: Keymap,
+    pub theme: Theme,
+    pub mode: Mode,
+    /// Where `back`/`cancel` returns to from edit, confirm and help.
+    pub back_to: Mode,
+    pub snap: Snapshot,
+    /// Index into [`Model::fields`].
+    pub cursor: usize,
+    pub edit: Option<Edit>,
+    pub ask: Option<Ask>,
+    pub message: Option<Message>,
+    pub teleop: Teleop,
+    /// The device the bench view shows.
+    pub bench: Role,
+    pub help_scroll: u16,
+    /// The last accel the console sent.
+    pub accel: Option<f64>,
+    /// The time of the last tick or key (the view's "now").
+    pub now: Instant,
+}
+
+impl Model {
+    pub fn new(keymap: Keymap, theme: Theme, snap: Snapshot, deadman: Duration) -> Model {
+        let bench = snap.devices.first().map(|d| d.role).unwrap_or(Role::Steer);
+        Model {
+            keymap,
+            theme,
+            mode: Mode::Main,
+            back_to: Mode::Main,
+            snap,
+            cursor: 0,
+            edit: None,
+            ask: None,
+            message: None,
+            teleop: Teleop::new(deadman),
+            bench,
+            help_scroll: 0,
+            accel: None,
+            now: Instant::now(),
+        }
+    }
+
+    /// Every field in cursor order: each device's, then accel.
+    pub fn fields(&self) -> Vec<Field> {
+        let mut f: Vec<Field> = self.snap.devices.iter().flat_map(Field::of).collect();
+        f.push(Field::Accel);
+        f
+    }
+
+    pub fn field(&self) -> Field {
+        let f = self.fields();
+        f[self.cursor.min(f.len() - 1)]
+    }
+
+    pub fn select(&mut self, field: Field) -> bool {
+        match self.fields().iter().position(|f| *f == field) {
+            Some(i) => {
+                self.cursor = i;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Move the cursor to the neighbouring device (`step` ±1), same kind of field.
+    pub fn move_device(&mut self, step: isize) {
+        let here = self.field();
+        let mut stops: Vec<Option<Role>> = self.snap.devices.iter().map(|d| Some(d.role)).collect();
+        stops.push(None);
+        let i = stops.iter().position(|r| *r == here.role()).unwrap_or(0) as isize;
+        let j = (i + step).clamp(0, stops.len() as isize - 1) as usize;
+        let target = match stops[j] {
+            None => Field::Accel,
+            Some(r) => {
+                let d = self.snap.device(r).expect("listed");
+                let want = here.same_kind(r);
+                let of = Field::of(d);
+                if of.contains(&want) {
+                    want
+                } else {
+                    of[0]
+                }
+            }
+        };
+        self.select(target);
+    }
+
+    pub fn say(&mut self, text: impl Into<String>, bad: bool) {
+        self.message = Some(Message {
+            text: text.into(),
+            bad,
+            at: self.now,
+        });
+    }
+
+    /// The device the bench shows, if it is in the vehicle.
+    pub fn bench_device(&self) -> Option<&DeviceSnap> {
+        self.snap.device(self.bench)
+    }
+
+    /// Whether the bench view is on screen (possibly under a dialog).
+    pub fn in_bench(&self) -> bool {
+        self.mode == Mode::Bench
+            || (matches!(self.mode, Mode::Edit | Mode::Help | Mode::Confirm)
+                && self.back_to == Mode::Bench)
+    }
+
+    /// Whether the teleop view is on screen (possibly under a dialog).
+    pub fn in_teleop(&self) -> bool {
+        self.mode == Mode::Teleop
+            || (matches!(self.mode, Mode::Help | Mode::Confirm) && self.back_to == Mode::Teleop)
+    }
+}

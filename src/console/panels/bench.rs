@@ -1,0 +1,179 @@
+//! The bench view: one device up close. Its full panel and counters, its delay
+//! histogram (receipt → first byte for an actuator, status transaction for a sensor)
+//! as a bar chart over powers of two, and its raw traffic from the port's trace:
+//! direction, time, hex and ASCII ("not available" while there is none).
+
+use super::device::DevicePanel;
+use super::fmt_us;
+use crate::console::controls::DeviceSnap;
+use crate::console::model::{Edit, Field};
+use crate::console::theme::Theme;
+use crate::engine::trace::TraceEntry;
+use ratatui::buffer::Buffer;
+use ratatui::layout::{Constraint, Direction, Layout, Rect};
+use ratatui::text::{Line, Span};
+use ratatui::widgets::{Bar, BarChart, BarGroup, Block, Paragraph, Widget};
+use std::time::Instant;
+
+pub struct BenchView<'a> {
+    pub d: &'a DeviceSnap,
+    pub trace: &'a [TraceEntry],
+    pub theme: Theme,
+    pub edit: Option<&'a Edit>,
+    pub now: Instant,
+    pub can_inject: bool,
+}
+
+/// Histogram buckets (upper edge µs, count) regrouped by powers of two of µs:
+/// (upper edge µs, count), from the lowest to the highest non-empty bin.
+pub fn log2_bins(buckets: &[(f64, u64)]) -> Vec<(f64, u64)> {
+    let mut bins: Vec<(f64, u64)> = Vec::new();
+    for &(edge, n) in buckets {
+        let k = edge.max(1.0).log2().ceil() as i32;
+        let top = 2f64.powi(k);
+        match bins.iter_mut().find(|(e, _)| *e == top) {
+            Some(b) => b.1 += n,
+            None => bins.push((top, n)),
+        }
+    }
+    bins.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Fill the gaps so the shape reads right.
+    let mut out = Vec::new();
+    if let (Some(lo), Some(hi)) = (bins.first(), bins.last()) {
+        let mut e = lo.0;
+        while e <= hi.0 {
+            let n = bins.iter().find(|b| b.0 == e).map_or(0, |b| b.1);
+            out.push((e, n));
+            e *= 2.0;
+        }
+    }
+    out
+}
+
+/// One trace line: direction, time before now, hex, ASCII.
+pub fn trace_line(e: &TraceEntry, now: Instant) -> String {
+    let ago = now.saturating_duration_since(e.at).as_secs_f64();
+    format!(
+        "{} -{ago:>7.3}s  {:<48} {}",
+        e.dir.arrow(),
+        e.hex(),
+        e.ascii()
+    )
+}
+
+impl Widget for &BenchView<'_> {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        let t = &self.theme;
+        let [top, bottom] =
+            Layout::vertical([Constraint::Length(11), Constraint::Min(3)]).areas(area);
+        let [left, right] = Layout::horizontal([Constraint::Length(46), Constraint::Min(20)])
+            .direction(Direction::Horizontal)
+            .areas(top);
+        let panel = DevicePanel {
+            d: self.d,
+            theme: *t,
+            cursor: self.d.actuator.then_some(Field::Command(self.d.role)),
+            edit: self.edit,
+            bordered: true,
+        };
+        (&panel).render(left, buf);
+
+        let bins = log2_bins(&self.d.delay_buckets);
+        let what = if self.d.actuator {
+            " receipt → first byte "
+        } else {
+            " status transaction "
+        };
+        let block = Block::bordered().title(Span::styled(what, t.title()));
+        if bins.is_empty() {
+            let inner = block.inner(right);
+            block.render(right, buf);
+            Paragraph::new(Span::styled("no samples yet", t.label())).render(inner, buf);
+        } else {
+            let bars: Vec<Bar> = bins
+                .iter()
+                .map(|(e, n)| {
+                    Bar::default()
+                        .value(*n)
+                        .label(Line::from(format!("≤{:>6}", fmt_us(Some(*e)))))
+                        .text_value(n.to_string())
+                })
+                .collect();
+            BarChart::default()
+                .block(block)
+                .direction(Direction::Horizontal)
+                .bar_width(1)
+                .bar_gap(0)
+                .bar_style(if t.color {
+                    ratatui::style::Style::new().fg(ratatui::style::Color::Cyan)
+                } else {
+                    ratatui::style::Style::new()
+                })
+                .data(BarGroup::default().bars(&bars))
+                .render(right, buf);
+        }
+
+        let mut title = format!(" {} raw traffic ", self.d.role);
+        if self.can_inject {
+            title.push_str(if self.d.silenced {
+                "— sim: SILENT "
+            } else {
+                "— sim: answering "
+            });
+        }
+        let block = Block::bordered().title(Span::styled(title, t.title()));
+        let inner = block.inner(bottom);
+        block.render(bottom, buf);
+        let lines: Vec<Line> = if self.trace.is_empty() {
+            vec![Line::from(Span::styled(
+                "trace: not available (no traffic yet)",
+                t.label(),
+            ))]
+        } else {
+            let n = inner.height as usize;
+            self.trace[self.trace.len().saturating_sub(n)..]
+                .iter()
+                .map(|e| Line::from(trace_line(e, self.now)))
+                .collect()
+        };
+        Paragraph::new(lines).render(inner, buf);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    #[test]
+    fn buckets_regroup_by_powers_of_two_with_gaps_filled() {
+        let b = [(20.0, 1), (26.5, 2), (30.0, 1), (45.0, 1), (1200.0, 1)];
+        assert_eq!(
+            log2_bins(&b),
+            [
+                (32.0, 4),
+                (64.0, 1),
+                (128.0, 0),
+                (256.0, 0),
+                (512.0, 0),
+                (1024.0, 0),
+                (2048.0, 1)
+            ]
+        );
+        assert!(log2_bins(&[]).is_empty());
+    }
+
+    #[test]
+    fn trace_lines_show_direction_time_hex_and_ascii() {
+        let now = Instant::now();
+        let e = TraceEntry::new(
+            now - Duration::from_millis(12),
+            crate::engine::trace::Dir::Out,
+            b"S 0.5\r",
+        );
+        assert_eq!(
+            trace_line(&e, now),
+            format!("-> -  0.012s  {:<48} S 0.5.", "53 20 30 2e 35 0d")
+        );
+    }
+}

@@ -1,0 +1,100 @@
+//! The help overlay, generated from the loaded keymap: every mode's bindings with
+//! key, description and action name.
+
+use super::hint::short;
+use crate::console::keymap::{Keymap, Mode};
+use crate::console::theme::Theme;
+use ratatui::buffer::Buffer;
+use ratatui::layout::Rect;
+use ratatui::text::{Line, Span};
+use ratatui::widgets::{Block, Clear, Paragraph, Widget};
+
+pub struct HelpPanel<'a> {
+    pub map: &'a Keymap,
+    pub theme: Theme,
+    pub scroll: u16,
+}
+
+impl HelpPanel<'_> {
+    pub fn lines(&self) -> Vec<Line<'static>> {
+        let t = &self.theme;
+        let mut out = vec![
+            Line::from(Span::styled(
+                "Error codes: 0 is good, ≥ 1 is bad:",
+                t.label(),
+            )),
+            Line::from(Span::styled(
+                "1 timeout 2 garbled 3 refused 4 unsupported 5 i/o",
+                t.label(),
+            )),
+        ];
+        for mode in [
+            Mode::Main,
+            Mode::Teleop,
+            Mode::Bench,
+            Mode::Edit,
+            Mode::Confirm,
+            Mode::Help,
+        ] {
+            out.push(Line::from(Span::styled(
+                mode.as_str().to_uppercase(),
+                t.title(),
+            )));
+            for b in self.map.bindings(mode) {
+                out.push(Line::from(vec![
+                    Span::styled(format!("  {:<11}", short(b.on)), t.key()),
+                    Span::raw(format!("{:<22}", b.desc)),
+                    Span::styled(b.run.to_string(), t.label()),
+                ]));
+            }
+        }
+        out.push(Line::from(Span::styled(
+            "  <C-c>      stop adrive (safe state first; cannot be rebound)",
+            t.label(),
+        )));
+        out
+    }
+}
+
+impl Widget for &HelpPanel<'_> {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        Clear.render(area, buf);
+        let block = Block::bordered()
+            .title(Span::styled(
+                " help — keys from the loaded keymap ",
+                self.theme.title(),
+            ))
+            .title_bottom(" ↑↓ scroll  Esc close ");
+        let inner = block.inner(area);
+        block.render(area, buf);
+        let lines = self.lines();
+        let max = lines.len().saturating_sub(inner.height as usize) as u16;
+        if inner.width >= 100 && lines.len() > inner.height as usize {
+            // Two columns when wide.
+            let half = inner.width / 2;
+            let rows = inner.height as usize;
+            let skip = self.scroll.min(max) as usize;
+            let left: Vec<Line> = lines.iter().skip(skip).take(rows).cloned().collect();
+            let right: Vec<Line> = lines.iter().skip(skip + rows).take(rows).cloned().collect();
+            Paragraph::new(left).render(
+                Rect {
+                    width: half,
+                    ..inner
+                },
+                buf,
+            );
+            Paragraph::new(right).render(
+                Rect {
+                    x: inner.x + half,
+                    width: inner.width - half,
+                    ..inner
+                },
+                buf,
+            );
+        } else {
+            Paragraph::new(lines)
+                .scroll((self.scroll.min(max), 0))
+                .render(inner, buf);
+        }
+    }
+}

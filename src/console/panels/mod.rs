@@ -1,0 +1,49 @@
+//! One widget per panel of the screen. Each takes plain data (a [`DeviceSnap`], the
+//! [`Model`]) and draws into a `Rect`; none touches the engine.
+//!
+//! [`DeviceSnap`]: super::controls::DeviceSnap
+//! [`Model`]: super::model::Model
+
+pub mod bench;
+pub mod device;
+pub mod dialog;
+pub mod help;
+pub mod hint;
+pub mod log;
+pub mod network;
+pub mod supervisor;
+pub mod teleop;
+
+use ratatui::style::Style;
+use ratatui::text::Span;
+use std::time::Duration;
+
+/// A latency in µs as `26µs`, `1.2ms`, `1.50s`, or `-` when there is none.
+pub fn fmt_us(v: Option<f64>) -> String {
+    match v {
+        None => "-".into(),
+        Some(us) if us < 1000.0 => format!("{us:.0}µs"),
+        Some(us) if us < 1_000_000.0 => format!("{:.1}ms", us / 1000.0),
+        Some(us) => format!("{:.2}s", us / 1e6),
+    }
+}
+
+/// An age as `20ms` or `1.5s`.
+pub fn fmt_age(d: Option<Duration>) -> String {
+    match d {
+        None => "never".into(),
+        Some(d) if d < Duration::from_secs(10) && d.as_millis() < 1000 => {
+            format!("{}ms", d.as_millis())
+        }
+        Some(d) => format!("{:.1}s", d.as_secs_f64()),
+    }
+}
+
+/// A number with 3 decimals, or `-`.
+pub fn fmt_f(v: Option<f64>) -> String {
+    v.map(|v| format!("{v:.3}")).unwrap_or_else(|| "-".into())
+}
+
+pub fn label<'a>(text: &'a str, style: Style) -> Span<'a> {
+    Span::styled(text, style)
+}

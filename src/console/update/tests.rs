@@ -1,0 +1,420 @@
+//! `update` and `tick` with a recording fake engine: keys → actions → state.
+
+use super::*;
+use crate::console::controls::{capture, Snapshot, Sources};
+use crate::console::keymap::{key_to_action, Keymap};
+use crate::console::sample;
+use crate::console::theme::Theme;
+use crate::interlock::Reject;
+use crossterm::event::{KeyEvent, KeyModifiers};
+use std::cell::RefCell;
+
+/// Records every call; refuses submits while `refuse` is set.
+struct Fake {
+    snap: Snapshot,
+    calls: RefCell<Vec<String>>,
+    refuse: Option<Reject>,
+    engage: Result<(), Vec<String>>,
+}
+
+impl Fake {
+    fn new() -> Fake {
+        let now = Instant::now();
+        let v = sample::vehicle(now);
+        Fake {
+            snap: capture(&v, &Sources::default(), now, None),
+            calls: RefCell::default(),
+            refuse: None,
+            engage: Ok(()),
+        }
+    }
+    fn log(&self, s: String) {
+        self.calls.borrow_mut().push(s);
+    }
+    fn calls(&self) -> Vec<String> {
+        self.calls.borrow().clone()
+    }
+}
+
+impl Controls for Fake {
+    fn snapshot(&self, _now: Instant, _bench: Option<Role>) -> Snapshot {
+        self.snap.clone()
+    }
+    fn submit(&self, role: Role, command: Command) -> Result<(), Reject> {
+        self.log(format!("submit {role} {command}"));
+        self.refuse.map_or(Ok(()), Err)
+    }
+    fn submit_accel(&self, accel: f64) -> Result<(), Reject> {
+        self.log(format!("accel {accel}"));
+        self.refuse.map_or(Ok(()), Err)
+    }
+    fn engage(&self) -> Result<(), Vec<String>> {
+        self.log("engage".into());
+        self.engage.clone()
+    }
+    fn disengage(&self, _reason: &str) {
+        self.log("disengage".into());
+    }
+    fn set_interlocks(&self, on: bool) {
+        self.log(format!("interlocks {on}"));
+    }
+    fn set_status_period(&self, role: Role, d: Duration) {
+        self.log(format!("st delay {role} {d:?}"));
+    }
+    fn set_command_timeout(&self, role: Role, d: Duration) {
+        self.log(format!("cm delay {role} {d:?}"));
+    }
+    fn set_enabled(&self, role: Role, thread: Thread, on: bool) {
+        self.log(format!("enable {role} {thread:?} {on}"));
+    }
+    fn wake(&self, role: Role) {
+        self.log(format!("wake {role}"));
+    }
+    fn reset_steering(&self) -> Result<(), String> {
+        self.log("reset steering".into());
+        Ok(())
+    }
+    fn safe_state(&self) {
+        self.log("safe state".into());
+    }
+    fn toggle_silent(&self, role: Role) -> Option<bool> {
+        self.log(format!("silent {role}"));
+        None
+    }
+}
+
+fn model(f: &Fake) -> Model {
+    Model::new(
+        Keymap::default_map(),
+        Theme::default(),
+        f.snap.clone(),
+        Duration::from_millis(500),
+    )
+}
+
+/// Press keys (written as in a keymap) through the default keymap.
+fn press(m: &mut Model, f: &Fake, keys: &[&str], now: Instant) -> Flow {
+    let mut flow = Flow::Continue;
+    for k in keys {
+        let key: crate::console::keymap::Key = k.parse().unwrap();
+        let mods = if key.ctrl {
+            KeyModifiers::CONTROL
+        } else {
+            KeyModifiers::NONE
+        };
+        let ev = KeyEvent::new(key.code, mods);
+        if let Some(a) = key_to_action(&m.keymap, m.mode, &ev) {
+            flow = update(m, a, f, now);
+        }
+    }
+    flow
+}
+
+fn typing(s: &str) -> Vec<String> {
+    s.chars().map(|c| c.to_string()).collect()
+}
+
+#[test]
+fn s_then_a_value_then_enter_submits_a_steering_command() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["s"], now);
+    assert_eq!(m.mode, Mode::Edit);
+    assert_eq!(m.edit.as_ref().unwrap().field, Field::Command(Role::Steer));
+    let keys = typing("0.5");
+    let keys: Vec<&str> = keys.iter().map(String::as_str).collect();
+    press(&mut m, &f, &keys, now);
+    assert_eq!(m.edit.as_ref().unwrap().buffer, "0.5");
+    press(&mut m, &f, &["<Enter>"], now);
+    assert_eq!(m.mode, Mode::Main);
+    assert_eq!(f.calls(), ["submit steer 0.500"]);
+    assert!(!m.message.unwrap().bad);
+}
+
+#[test]
+fn esc_cancels_an_edit_and_changes_nothing() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["g", "1", "<Esc>"], now);
+    assert_eq!(m.mode, Mode::Main);
+    assert!(m.edit.is_none());
+    assert!(f.calls().is_empty());
+}
+
+#[test]
+fn a_bad_value_shows_an_inline_error_and_changes_nothing() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    // Out of the gas range 0…1.
+    press(&mut m, &f, &["g", "2", "<Enter>"], now);
+    assert_eq!(m.mode, Mode::Edit, "stays in the field");
+    let err = m.edit.as_ref().unwrap().error.clone().unwrap();
+    assert!(err.contains("out of range"), "{err}");
+    // Not a number.
+    press(&mut m, &f, &["<C-u>", "x", "<Enter>"], now);
+    assert!(m
+        .edit
+        .as_ref()
+        .unwrap()
+        .error
+        .as_ref()
+        .unwrap()
+        .contains("not a number"));
+    // A bad gear, a bad period, a bad flag.
+    press(&mut m, &f, &["<Esc>", "t", "z", "<Enter>"], now);
+    assert!(m
+        .edit
+        .as_ref()
+        .unwrap()
+        .error
+        .as_ref()
+        .unwrap()
+        .contains("gear"));
+    assert!(f.calls().is_empty(), "{:?}", f.calls());
+    // Typing clears the error; a good value then goes through.
+    press(&mut m, &f, &["<Backspace>", "d", "<Enter>"], now);
+    assert_eq!(f.calls(), ["submit trans drive"]);
+}
+
+#[test]
+fn delays_and_thread_flags_are_edited_in_place() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    // Cursor starts on steer's command; down to st delay.
+    press(&mut m, &f, &["j", "<Enter>"], now);
+    assert_eq!(m.edit.as_ref().unwrap().field, Field::StDelay(Role::Steer));
+    assert_eq!(m.edit.as_ref().unwrap().buffer, "50ms", "prefilled");
+    press(&mut m, &f, &["2", "0", "<Enter>"], now);
+    press(&mut m, &f, &["j", "<Enter>", "1", "s", "<Enter>"], now);
+    press(&mut m, &f, &["j", "<Enter>", "0", "<Enter>"], now);
+    press(&mut m, &f, &["j", "<Enter>", "o", "n", "<Enter>"], now);
+    assert_eq!(
+        f.calls(),
+        [
+            "st delay steer 20ms",
+            "cm delay steer 1s",
+            "enable steer Status false",
+            "enable steer Command true",
+        ]
+    );
+    press(&mut m, &f, &["k", "<Enter>", "0", "m", "s", "<Enter>"], now);
+    assert!(m.edit.as_ref().unwrap().error.is_some(), "0ms is refused");
+}
+
+#[test]
+fn left_and_right_move_between_devices_keeping_the_field() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["j", "l"], now);
+    assert_eq!(m.field(), Field::StDelay(Role::Gas));
+    press(&mut m, &f, &["l", "l", "l"], now);
+    assert_eq!(m.field(), Field::StDelay(Role::Estop));
+    press(&mut m, &f, &["h"], now);
+    assert_eq!(m.field(), Field::StDelay(Role::Trans));
+}
+
+#[test]
+fn a_refused_command_is_reported_not_hidden() {
+    let mut f = Fake::new();
+    f.refuse = Some(Reject::Disengaged);
+    let mut m = model(&f);
+    press(&mut m, &f, &["b", "0", "<Enter>"], Instant::now());
+    let msg = m.message.unwrap();
+    assert!(msg.bad && msg.text.contains("refused"), "{}", msg.text);
+}
+
+#[test]
+fn engage_disengage_and_interlocks_ask_first() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["E"], now);
+    assert_eq!((m.mode, m.ask), (Mode::Confirm, Some(Ask::Engage)));
+    press(&mut m, &f, &["n"], now);
+    assert_eq!(m.mode, Mode::Main);
+    assert!(f.calls().is_empty());
+    press(&mut m, &f, &["E", "y"], now);
+    assert_eq!(f.calls(), ["engage"]);
+    press(&mut m, &f, &["I", "<Esc>", "I", "y", "D", "y"], now);
+    assert_eq!(f.calls(), ["engage", "interlocks false", "disengage"]);
+    // Keys other than yes/no do nothing while asking.
+    press(&mut m, &f, &["E", "g", "s"], now);
+    assert_eq!(m.mode, Mode::Confirm);
+    assert_eq!(f.calls().len(), 3);
+}
+
+#[test]
+fn a_refused_engage_says_why() {
+    let mut f = Fake::new();
+    f.engage = Err(vec!["steer is faulty (timeout)".into()]);
+    let mut m = model(&f);
+    press(&mut m, &f, &["E", "y"], Instant::now());
+    let msg = m.message.unwrap();
+    assert!(
+        msg.bad && msg.text.contains("steer is faulty"),
+        "{}",
+        msg.text
+    );
+}
+
+#[test]
+fn wake_keys_wake_command_threads() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["S", "G", "w", "W"], now);
+    assert_eq!(
+        f.calls(),
+        [
+            "wake steer",
+            "wake gas",
+            "wake steer",
+            "wake steer",
+            "wake gas",
+            "wake brake",
+            "wake trans"
+        ]
+    );
+    press(&mut m, &f, &["e"], now);
+    assert_eq!(f.calls().last().unwrap(), "reset steering");
+}
+
+#[test]
+fn q_quits_and_ctrl_c_is_sigint_from_any_mode() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    assert_eq!(press(&mut m, &f, &["q"], now), Flow::Exit(Exit::Quit));
+    press(&mut m, &f, &["g"], now);
+    assert_eq!(
+        press(&mut m, &f, &["<C-c>"], now),
+        Flow::Exit(Exit::Signal(libc::SIGINT))
+    );
+    // While editing, q is a character.
+    assert_eq!(press(&mut m, &f, &["q"], now), Flow::Continue);
+}
+
+#[test]
+fn help_opens_over_any_mode_and_closes_back() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["d", "?"], now);
+    assert_eq!((m.mode, m.back_to), (Mode::Help, Mode::Teleop));
+    press(&mut m, &f, &["j", "j"], now);
+    assert_eq!(m.help_scroll, 2);
+    press(&mut m, &f, &["<Esc>"], now);
+    assert_eq!(m.mode, Mode::Teleop);
+}
+
+#[test]
+fn teleop_steps_steering_and_accel_and_space_brakes() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["d"], now);
+    assert_eq!(m.mode, Mode::Teleop);
+    assert_eq!(m.teleop.steer, 0.231, "starts where the steering is");
+    press(
+        &mut m,
+        &f,
+        &["<Right>", "a", "a", "<Up>", "w", "<Space>"],
+        now,
+    );
+    assert_eq!(
+        f.calls(),
+        [
+            "submit steer 0.281",
+            "submit steer 0.231",
+            "submit steer 0.181",
+            "accel 0.1",
+            "accel 0.2",
+            "accel -1",
+        ]
+    );
+    // From braking, up releases first.
+    press(&mut m, &f, &["<Up>"], now);
+    assert_eq!(m.teleop.accel, 0.0);
+    press(&mut m, &f, &["<Esc>"], now);
+    assert_eq!(m.mode, Mode::Main);
+    assert_eq!(f.calls().last().unwrap(), "safe state");
+}
+
+#[test]
+fn the_deadman_brakes_when_teleop_keys_stop() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let t0 = Instant::now();
+    press(&mut m, &f, &["d"], t0);
+    // No key yet: idle, nothing happens however long.
+    tick(&mut m, &f, t0 + Duration::from_secs(5));
+    assert_eq!(m.teleop.state(m.now), super::super::model::Deadman::Idle);
+    press(&mut m, &f, &["w"], t0 + Duration::from_secs(5));
+    let t1 = t0 + Duration::from_secs(5);
+    tick(&mut m, &f, t1 + Duration::from_millis(400));
+    assert!(matches!(
+        m.teleop.state(m.now),
+        super::super::model::Deadman::Armed { .. }
+    ));
+    assert!(!f.calls().contains(&"safe state".to_string()));
+    // A key re-arms it.
+    press(&mut m, &f, &["w"], t1 + Duration::from_millis(400));
+    tick(&mut m, &f, t1 + Duration::from_millis(800));
+    assert!(!f.calls().contains(&"safe state".to_string()));
+    tick(&mut m, &f, t1 + Duration::from_millis(950));
+    assert_eq!(m.teleop.state(m.now), super::super::model::Deadman::Tripped);
+    assert_eq!(f.calls().last().unwrap(), "safe state");
+    assert_eq!(m.teleop.accel, -1.0);
+    assert!(m.message.as_ref().unwrap().bad);
+    // Tripping happens once, not every tick.
+    tick(&mut m, &f, t1 + Duration::from_secs(3));
+    let n = f.calls().iter().filter(|c| *c == "safe state").count();
+    assert_eq!(n, 1);
+    // The next key re-arms.
+    press(&mut m, &f, &["<Left>"], t1 + Duration::from_secs(3));
+    assert!(matches!(
+        m.teleop.state(m.now),
+        super::super::model::Deadman::Armed { .. }
+    ));
+}
+
+#[test]
+fn bench_cycles_devices_sends_to_one_device_and_asks_for_sim_faults() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["l", "x"], now);
+    assert_eq!((m.mode, m.bench), (Mode::Bench, Role::Gas));
+    press(&mut m, &f, &["<Tab>", "<Enter>"], now);
+    assert_eq!(m.edit.as_ref().unwrap().field, Field::Command(Role::Brake));
+    press(&mut m, &f, &["0", ".", "5", "<Enter>"], now);
+    assert_eq!(m.mode, Mode::Bench);
+    assert_eq!(f.calls(), ["submit brake 0.500"]);
+    press(&mut m, &f, &["f"], now);
+    assert!(m.message.as_ref().unwrap().text.contains("--sim"));
+    press(&mut m, &f, &["<BackTab>", "<BackTab>", "<BackTab>"], now);
+    assert_eq!(m.bench, Role::Obd);
+    press(&mut m, &f, &["<Enter>"], now);
+    assert_eq!(m.mode, Mode::Bench, "a sensor takes no commands");
+    press(&mut m, &f, &["<Esc>"], now);
+    assert_eq!(m.mode, Mode::Main);
+}
+
+#[test]
+fn c_edits_the_virtual_accel() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    press(
+        &mut m,
+        &f,
+        &["c", "-", "0", ".", "3", "<Enter>"],
+        Instant::now(),
+    );
+    assert_eq!(f.calls(), ["accel -0.3"]);
+    assert_eq!(m.accel, Some(-0.3));
+}

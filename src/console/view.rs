@@ -1,0 +1,235 @@
+//! The whole screen, drawn from the [`Model`] alone (`impl Widget for &Model`): a top
+//! bar, the device panels in a grid (two columns at 80×24, three from 120 columns,
+//! bordered with more figures when there is room), the supervisory and network panels
+//! (or teleop), the log pane, the outcome line and the hint bar; the bench view
+//! instead of the grid; help and confirmation over it. Below the minimum size it says
+//! so instead.
+
+use super::keymap::Mode;
+use super::model::Model;
+use super::panels::bench::BenchView;
+use super::panels::device::DevicePanel;
+use super::panels::dialog::Dialog;
+use super::panels::help::HelpPanel;
+use super::panels::hint::{HintBar, MessageLine};
+use super::panels::log::LogPanel;
+use super::panels::network::NetworkPanel;
+use super::panels::supervisor::SupervisorPanel;
+use super::panels::teleop::TeleopPanel;
+use ratatui::buffer::Buffer;
+use ratatui::layout::{Constraint, Layout, Rect};
+use ratatui::text::{Line, Span};
+use ratatui::widgets::{Paragraph, Widget, Wrap};
+
+/// The smallest screen the console draws (80×24, less a tmux status line and one).
+pub const MIN_WIDTH: u16 = 80;
+pub const MIN_HEIGHT: u16 = 22;
+
+/// Height of a bordered device panel on a large screen.
+const BIG_PANEL: u16 = 10;
+
+impl Model {
+    fn header(&self) -> Line<'static> {
+        let (s, t) = (&self.snap, &self.theme);
+        let bar = t.bar();
+        let gate = if s.engaged {
+            Span::styled(" ENGAGED ", t.good().patch(bar))
+        } else {
+            let why = s.gate_reason.trim_start_matches("disengaged: ");
+            Span::styled(format!(" DISENGAGED ({why}) "), t.warn().patch(bar))
+        };
+        let interlocks = if s.interlocks {
+            Span::styled(" interlocks on ", bar)
+        } else {
+            Span::styled(" INTERLOCKS OFF ", t.fault().patch(bar))
+        };
+        let faults = s.devices.iter().filter(|d| d.faulty).count();
+        let mode = match self.mode {
+            Mode::Help | Mode::Confirm | Mode::Edit => self.back_to,
+            m => m,
+        };
+        let mut spans = vec![
+            Span::styled(format!(" ADRIVE {} ", s.vehicle), t.title().patch(bar)),
+            Span::styled("│", bar),
+            Span::styled(format!(" {} ", mode.as_str().to_uppercase()), bar),
+            Span::styled("│", bar),
+            interlocks,
+            Span::styled("│", bar),
+        ];
+        if faults > 0 {
+            spans.push(Span::styled(
+                format!(" {faults} FAULTY "),
+                t.fault().patch(bar),
+            ));
+            spans.push(Span::styled("│", bar));
+        }
+        spans.push(gate);
+        Line::from(spans).style(bar)
+    }
+
+    fn render_main(&self, body: Rect, buf: &mut Buffer) {
+        let n = self.snap.devices.len().max(1) as u16;
+        let cols: u16 = if body.width >= 120 { 3 } else { 2 };
+        let rows = n.div_ceil(cols);
+        let big = body.height >= rows * BIG_PANEL + 4 + 3;
+        let panel_h = if big { BIG_PANEL } else { 6 };
+        let teleop = self.in_teleop();
+        let lower_h = match (big, teleop) {
+            (true, true) => 6,
+            (true, false) => 4,
+            (false, _) => 2,
+        };
+        let [grid, lower, log] = Layout::vertical([
+            Constraint::Length(rows * panel_h),
+            Constraint::Length(lower_h),
+            Constraint::Min(0),
+        ])
+        .areas(body);
+        let show_cursor = !self.in_teleop();
+        let cursor = show_cursor.then(|| self.field());
+        let col_w = grid.width / cols;
+        for (i, d) in self.snap.devices.iter().enumerate() {
+            let (r, c) = (i as u16 / cols, i as u16 % cols);
+            let w = if c == cols - 1 {
+                grid.width - col_w * c
+            } else if big {
+                col_w
+            } else {
+                col_w - 1
+            };
+            let area = Rect {
+                x: grid.x + c * col_w,
+                y: grid.y + r * panel_h,
+                width: w,
+                height: panel_h,
+            }
+            .intersection(grid);
+            let p = DevicePanel {
+                d,
+                theme: self.theme,
+                cursor,
+                edit: self.edit.as_ref(),
+                bordered: big,
+            };
+            (&p).render(area, buf);
+        }
+        let mut lower = lower;
+        if teleop {
+            let [tp, rest] =
+                Layout::vertical([Constraint::Length(2), Constraint::Min(0)]).areas(lower);
+            let p = TeleopPanel {
+                t: &self.teleop,
+                now: self.now,
+                theme: self.theme,
+            };
+            (&p).render(tp, buf);
+            lower = rest;
+        }
+        if lower.height > 0 {
+            let [left, right] =
+                Layout::horizontal([Constraint::Percentage(50), Constraint::Percentage(50)])
+                    .areas(lower);
+            let sup = SupervisorPanel {
+                m: self,
+                cursor: show_cursor,
+            };
+            (&sup).render(
+                Rect {
+                    width: left.width.saturating_sub(1),
+                    ..left
+                },
+                buf,
+            );
+            let net = NetworkPanel {
+                snap: &self.snap,
+                theme: self.theme,
+            };
+            (&net).render(right, buf);
+        }
+        if log.height > 0 {
+            let p = LogPanel {
+                lines: &self.snap.logs,
+                theme: self.theme,
+            };
+            (&p).render(log, buf);
+        }
+    }
+}
+
+fn too_small(area: Rect, buf: &mut Buffer) {
+    let text = format!(
+        "adrive needs a terminal of at least {MIN_WIDTH}×{MIN_HEIGHT}; this one is {}×{}. \
+         Enlarge the window (the engine keeps running; q quits).",
+        area.width, area.height
+    );
+    Paragraph::new(text)
+        .wrap(Wrap { trim: true })
+        .render(area, buf);
+}
+
+impl Widget for &Model {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        if area.width < MIN_WIDTH || area.height < MIN_HEIGHT {
+            too_small(area, buf);
+            return;
+        }
+        let msg_h = if area.height > MIN_HEIGHT { 1 } else { 0 };
+        let [header, body, msg, hint] = Layout::vertical([
+            Constraint::Length(1),
+            Constraint::Min(0),
+            Constraint::Length(msg_h),
+            Constraint::Length(1),
+        ])
+        .areas(area);
+        Paragraph::new(self.header()).render(header, buf);
+        if self.in_bench() {
+            if let Some(d) = self.bench_device() {
+                let v = BenchView {
+                    d,
+                    trace: &self.snap.trace,
+                    theme: self.theme,
+                    edit: self.edit.as_ref(),
+                    now: self.now,
+                    can_inject: self.snap.can_inject,
+                };
+                (&v).render(body, buf);
+            }
+        } else {
+            self.render_main(body, buf);
+        }
+        match self.mode {
+            Mode::Help => {
+                let h = HelpPanel {
+                    map: &self.keymap,
+                    theme: self.theme,
+                    scroll: self.help_scroll,
+                };
+                (&h).render(body, buf);
+            }
+            Mode::Confirm => {
+                if let Some(ask) = self.ask {
+                    let d = Dialog {
+                        ask,
+                        map: &self.keymap,
+                        theme: self.theme,
+                    };
+                    (&d).render(body, buf);
+                }
+            }
+            _ => {}
+        }
+        if msg.height > 0 {
+            (&MessageLine { m: self }).render(msg, buf);
+        } else if self.mode == Mode::Edit {
+            // No room for both: the edit's line wins over the hints.
+            (&MessageLine { m: self }).render(hint, buf);
+            return;
+        }
+        let h = HintBar {
+            map: &self.keymap,
+            mode: self.mode,
+            theme: self.theme,
+        };
+        (&h).render(hint, buf);
+    }
+}
