@@ -46,6 +46,8 @@ pub struct DeviceSnap {
     pub faulty: bool,
     pub last_error: Option<String>,
     pub stats: StatsSnapshot,
+    /// Times the port was reopened after the first open.
+    pub reconnects: u64,
     /// Receipt → first byte histogram, (upper edge µs, count); filled for the bench.
     pub delay_buckets: Vec<(f64, u64)>,
     /// The simulated device is silenced (bench fault injection).
@@ -195,6 +197,10 @@ pub fn capture(
                 faulty: d.is_faulty(),
                 last_error: d.health.last_error.lock().as_ref().map(|(_, m)| m.clone()),
                 stats: d.stats.snapshot(),
+                reconnects: d
+                    .opens
+                    .load(std::sync::atomic::Ordering::Relaxed)
+                    .saturating_sub(1),
                 delay_buckets: if bench == Some(d.role) {
                     if d.is_actuator() {
                         d.stats.command_delay.buckets()

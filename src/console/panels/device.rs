@@ -235,7 +235,7 @@ impl<'a> DevicePanel<'a> {
             l(" cm err "),
             num(s.command_errors),
             l(" reconn "),
-            num(s.reconnects),
+            num(d.reconnects),
         ]));
         if let Some(e) = &d.last_error {
             let style = if d.faulty { t.fault() } else { t.label() };
