@@ -276,7 +276,10 @@ pub enum Action {
     /// Re-seat steering after a disable/re-enable: hold where it is, wake its thread.
     ResetSteering,
     Engage,
+    /// Disengage (asks first).
     Disengage,
+    /// Stop now: disengage and command the safe state, without asking.
+    Stop,
     /// Interlocks on/off (asks first).
     Interlocks,
     Confirm,
@@ -303,7 +306,7 @@ pub enum Action {
 /// The valid `run` values, for error messages.
 pub const ACTION_FORM: &str = "quit, help, back, up, down, left, right, edit, \
 edit steer|gas|brake|trans|accel, commit, cancel, backspace, clear, wake, wake DEVICE, \
-wake all, reset_steering, engage, disengage, interlocks, confirm, teleop, steer_left, \
+wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
 steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
 inject_fault, none";
 
@@ -325,6 +328,7 @@ const SIMPLE: &[(&str, Action)] = &[
     ("reset_steering", Action::ResetSteering),
     ("engage", Action::Engage),
     ("disengage", Action::Disengage),
+    ("stop", Action::Stop),
     ("interlocks", Action::Interlocks),
     ("confirm", Action::Confirm),
     ("teleop", Action::Teleop),

@@ -131,6 +131,7 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         },
         Action::Engage => ask(m, Ask::Engage),
         Action::Disengage => ask(m, Ask::Disengage),
+        Action::Stop => stop(m, c),
         Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.interlocks)),
         Action::Teleop => enter_teleop(m),
         Action::Bench => {
@@ -416,6 +417,12 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
     }
 }
 
+/// The operator's stop: no question asked.
+fn stop(m: &mut Model, c: &dyn Controls) {
+    c.disengage("operator stop from the console");
+    m.say("STOP: disengaged, gas 0, brake full", true);
+}
+
 fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
     let roles: Vec<Role> = m.snap.devices.iter().map(|d| d.role).collect();
     let i = roles.iter().position(|r| *r == m.bench).unwrap_or(0);
@@ -438,6 +445,7 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
             ),
         },
         Action::Wake(_) => wake(m, c, m.bench),
+        Action::Stop => stop(m, c),
         Action::InjectFault => match c.toggle_silent(m.bench) {
             Some(true) => m.say(
                 format!("sim: {} silenced (it stops answering)", m.bench),

@@ -249,6 +249,16 @@ fn engage_disengage_and_interlocks_ask_first() {
 }
 
 #[test]
+fn space_stops_at_once_without_asking() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    press(&mut m, &f, &["<Space>"], Instant::now());
+    assert_eq!(m.mode, Mode::Main);
+    assert_eq!(f.calls(), ["disengage"]);
+    assert!(m.message.unwrap().text.contains("STOP"));
+}
+
+#[test]
 fn a_refused_engage_says_why() {
     let mut f = Fake::new();
     f.engage = Err(vec!["steer is faulty (timeout)".into()]);
