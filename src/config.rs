@@ -68,6 +68,10 @@ pub struct SimConfig {
     /// Extra processing time for a command.
     #[serde(default, deserialize_with = "duration")]
     pub command_delay: Duration,
+    /// The device's own watchdog, as drive-by-wire firmware has: with no command frame
+    /// for this long, a gas actuator goes to 0 and a brake actuator applies fully.
+    #[serde(default, deserialize_with = "opt_duration")]
+    pub watchdog: Option<Duration>,
 }
 
 impl Default for SimConfig {
@@ -76,6 +80,7 @@ impl Default for SimConfig {
             turnaround: default_turnaround(),
             poll_delay: Duration::ZERO,
             command_delay: Duration::ZERO,
+            watchdog: None,
         }
     }
 }

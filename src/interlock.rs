@@ -7,7 +7,7 @@
 //! [`check`] is a pure function of the command and a [`Facts`] snapshot, so every rule
 //! is unit- and property-tested without threads.
 
-use crate::value::{Command, EstopState, Gear, Role};
+use crate::value::{Command, Control, EstopState, Gear, Role};
 use serde::Serialize;
 use std::fmt;
 
@@ -47,11 +47,13 @@ pub enum Reject {
     BrakeReleaseEstop,
     ShiftWhileMoving,
     ShiftWithoutBrake,
+    StartInGear,
     Disengaged,
+    Recovering,
 }
 
 impl Reject {
-    pub const ALL: [Reject; 13] = [
+    pub const ALL: [Reject; 15] = [
         Reject::NoSuchDevice,
         Reject::NotAnActuator,
         Reject::WrongKind,
@@ -64,7 +66,9 @@ impl Reject {
         Reject::BrakeReleaseEstop,
         Reject::ShiftWhileMoving,
         Reject::ShiftWithoutBrake,
+        Reject::StartInGear,
         Reject::Disengaged,
+        Reject::Recovering,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -81,7 +85,9 @@ impl Reject {
             Reject::BrakeReleaseEstop => "brake_release_estop",
             Reject::ShiftWhileMoving => "shift_while_moving",
             Reject::ShiftWithoutBrake => "shift_without_brake",
+            Reject::StartInGear => "start_in_gear",
             Reject::Disengaged => "disengaged",
+            Reject::Recovering => "recovering",
         }
     }
 
@@ -95,6 +101,7 @@ impl Reject {
                 | Reject::NotFinite
                 | Reject::OutOfRange
                 | Reject::Disengaged
+                | Reject::Recovering
         )
     }
 
@@ -118,7 +125,9 @@ impl fmt::Display for Reject {
             Reject::BrakeReleaseEstop => "the brake stays on while the e-stop pauses",
             Reject::ShiftWhileMoving => "shift only when stopped",
             Reject::ShiftWithoutBrake => "shift only with the brake applied",
+            Reject::StartInGear => "the starter runs only in park or neutral",
             Reject::Disengaged => "adrive is disengaged",
+            Reject::Recovering => "a recovery procedure has the vehicle",
         })
     }
 }
@@ -153,6 +162,12 @@ pub fn check(facts: &Facts, role: Role, command: Command) -> Result<(), Reject> 
             }
             if !facts.brake_low.is_some_and(|b| b >= SHIFT_BRAKE) {
                 return Err(Reject::ShiftWithoutBrake);
+            }
+            Ok(())
+        }
+        (Role::Trans, Command::Control(Control::Start)) => {
+            if facts.gear.is_some_and(Gear::is_driving) {
+                return Err(Reject::StartInGear);
             }
             Ok(())
         }

@@ -168,6 +168,71 @@ impl FromStr for EstopState {
     }
 }
 
+/// A drive-control command: what a servo drive's control word or a transmission
+/// controller's ignition input does. The supervisor's recovery procedures use them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Control {
+    /// Power stage off (a servo drive's fault latch clears on disable → enable).
+    Disable,
+    /// Power stage on.
+    Enable,
+    /// Enable and find the reference position again.
+    Home,
+    /// Run the starter motor until the engine catches (transmission controller).
+    Start,
+}
+
+impl Control {
+    pub const ALL: [Control; 4] = [
+        Control::Disable,
+        Control::Enable,
+        Control::Home,
+        Control::Start,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Control::Disable => "disable",
+            Control::Enable => "enable",
+            Control::Home => "home",
+            Control::Start => "start",
+        }
+    }
+
+    /// The value written to a Modbus device's `control` register.
+    pub fn code(self) -> u16 {
+        match self {
+            Control::Disable => 0,
+            Control::Enable => 1,
+            Control::Home => 3,
+            Control::Start => 4,
+        }
+    }
+
+    pub fn from_code(code: u16) -> Option<Control> {
+        Control::ALL.into_iter().find(|c| c.code() == code)
+    }
+}
+
+impl fmt::Display for Control {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Control {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Control::ALL
+            .into_iter()
+            .find(|c| c.as_str() == s)
+            .ok_or_else(|| {
+                format!("unknown control {s:?}: expected disable, enable, home or start")
+            })
+    }
+}
+
 /// One command for one actuator. `Copy` and allocation-free: it travels from the
 /// socket to the serial write without touching the heap.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -177,6 +242,8 @@ pub enum Command {
     Set(f64),
     /// A transmission position.
     Gear(Gear),
+    /// Drive control (enable, home, starter…).
+    Control(Control),
 }
 
 impl Command {
@@ -188,6 +255,15 @@ impl Command {
             Command::Gear(Gear::Park) => 0.0,
             Command::Gear(Gear::Drive) => 1.0,
             Command::Gear(Gear::Neutral) => 2.0,
+            Command::Control(_) => f64::NAN,
+        }
+    }
+
+    /// The set point, for a `Set` command.
+    pub fn set_point(self) -> Option<f64> {
+        match self {
+            Command::Set(v) => Some(v),
+            _ => None,
         }
     }
 }
@@ -197,6 +273,7 @@ impl fmt::Display for Command {
         match self {
             Command::Set(v) => write!(f, "{v:.3}"),
             Command::Gear(g) => write!(f, "{g}"),
+            Command::Control(c) => f.write_str(c.as_str()),
         }
     }
 }

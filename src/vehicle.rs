@@ -217,7 +217,7 @@ impl Vehicle {
     pub fn facts(&self) -> Facts {
         let brake = self.device(Role::Brake).map(|d| {
             let vals = d.slot.in_flight();
-            let nums = vals.iter().flatten().map(|c| c.as_f64());
+            let nums = vals.iter().flatten().filter_map(|c| c.set_point());
             let (lo, hi) = nums.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
                 (lo.min(v), hi.max(v))
             });
@@ -338,7 +338,7 @@ impl Vehicle {
             return Err(self.reject(Some(d), Some(command), Reject::NotAnActuator));
         }
         match (role, command) {
-            (Role::Trans, Command::Gear(_)) => {}
+            (Role::Trans, Command::Gear(_)) | (_, Command::Control(_)) => {}
             (Role::Trans, Command::Set(_)) | (_, Command::Gear(_)) => {
                 return Err(self.reject(Some(d), Some(command), Reject::WrongKind))
             }

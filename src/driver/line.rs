@@ -5,7 +5,8 @@
 //! ```text
 //! host → device   ?\n                      ask for status
 //! device → host   = pos=0.120 vel=0.000\n  status: space-separated key=value pairs
-//! host → device   ! 0.250\n                command: a number, or a word (drive, park…)
+//! host → device   ! 0.250\n                command: a number, a gear (drive, park…) or a
+//!                                          control word (disable, enable, home, start)
 //! device → host   ok\n                     accepted
 //! device → host   err <reason>\n           refused
 //! ```
@@ -17,7 +18,7 @@
 //! ignored.
 
 use super::{read_until, Driver, DriverError, Link};
-use crate::value::{Command, Gear, Reading};
+use crate::value::{Command, Control, Gear, Reading};
 use std::io::Write;
 use std::time::Duration;
 
@@ -33,6 +34,7 @@ pub fn encode_command(command: Command, out: &mut [u8; 32]) -> usize {
     let _ = match command {
         Command::Set(v) => writeln!(cursor, "! {:.3}", v.clamp(-1e6, 1e6)),
         Command::Gear(g) => writeln!(cursor, "! {g}"),
+        Command::Control(c) => writeln!(cursor, "! {}", c.as_str()),
     };
     cursor.position() as usize
 }
@@ -129,6 +131,9 @@ pub fn decode_request(line: &[u8]) -> Result<Request, String> {
         if v.is_finite() {
             return Ok(Request::Command(Command::Set(v)));
         }
+    }
+    if let Ok(c) = arg.parse::<Control>() {
+        return Ok(Request::Command(Command::Control(c)));
     }
     arg.parse::<Gear>()
         .map(|g| Request::Command(Command::Gear(g)))

@@ -108,6 +108,7 @@ impl fmt::Display for NetCommand {
         match self {
             NetCommand::Set(role, Command::Set(v)) => write!(f, "{role} {}", Num(*v)),
             NetCommand::Set(role, Command::Gear(g)) => write!(f, "{role} {g}"),
+            NetCommand::Set(role, Command::Control(c)) => write!(f, "{role} {c}"),
             NetCommand::Accel(v) => write!(f, "accel {}", Num(*v)),
             NetCommand::Engage => f.write_str("engage"),
             NetCommand::Disengage => f.write_str("disengage"),

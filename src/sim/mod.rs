@@ -283,7 +283,8 @@ impl Sim {
 
     /// Apply one line of the simulator's little command language (used by `adrive sim`
     /// on its standard input): `estop pause|run|disable`, `stall`,
-    /// `FAULT DEVICE on|off|MS`, `clear DEVICE`. Returns what was done.
+    /// `nostart on|off`, `jam steer`, `FAULT DEVICE on|off|MS`, `clear DEVICE`.
+    /// Returns what was done.
     pub fn apply(&self, line: &str) -> Result<String, String> {
         let words: Vec<&str> = line.split_whitespace().collect();
         let device = |name: &str| -> Result<&SimPort, String> {
@@ -300,6 +301,14 @@ impl Sim {
                 self.model.lock().stall();
                 Ok("engine stalled".into())
             }
+            ["jam", "steer"] => {
+                self.model.lock().jam_steering();
+                Ok("steering drive fault latched (disable → enable clears it)".into())
+            }
+            ["nostart", on @ ("on" | "off")] => {
+                self.model.lock().start_fails = *on == "on";
+                Ok(format!("starter failure {on}"))
+            }
             ["clear", name] => {
                 device(name)?.faults.clear();
                 Ok(format!("{name}: faults cleared"))
@@ -309,7 +318,7 @@ impl Sim {
                 p.faults.set(fault, arg).map(|done| format!("{}: {done}", p.role))
             }
             _ => Err(format!(
-                "unknown: {line:?}; expected `estop pause|run|disable`, `stall`, `clear DEVICE`, \
+                "unknown: {line:?}; expected `estop pause|run|disable`, `stall`, `nostart on|off`, `jam steer`, `clear DEVICE`, \
                  or `FAULT DEVICE ARG` with FAULT one of {} (e.g. `silent gas on`, `slow steer 80`, `vanish brake 2000`)",
                 FAULT_NAMES.join(", ")
             )),
@@ -383,7 +392,16 @@ impl Served {
         let mut responder = responder_for(c);
         let mut input: Vec<u8> = Vec::with_capacity(256);
         let mut chunk = [0u8; 256];
+        let mut last_command = Instant::now();
+        let mut tripped = false;
         while !self.stop.load(Relaxed) && self.faults.vanish_ms.load(Relaxed) == 0 {
+            if let Some(limit) = c.sim.watchdog {
+                if !tripped && last_command.elapsed() > limit {
+                    tripped = true;
+                    self.model.lock().watchdog_trip(c.name);
+                    tracing::warn!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
+                }
+            }
             match port.read(&mut chunk) {
                 Ok(0) => continue,
                 Ok(n) => input.extend_from_slice(&chunk[..n]),
@@ -405,6 +423,10 @@ impl Served {
                     break;
                 };
                 let request: Vec<u8> = input.drain(..reply.consumed.min(input.len())).collect();
+                if plant.applied.is_some() {
+                    last_command = Instant::now();
+                    tripped = false;
+                }
                 if let (Some(tx), Some(command)) = (&self.events, plant.applied) {
                     let _ = tx.send(SimEvent {
                         role: c.name,

@@ -81,6 +81,12 @@ impl ModbusSlave {
     }
 
     fn write(&mut self, addr: u16, raw: u16, plant: &mut dyn Plant) -> Result<(), Exception> {
+        if Some(addr) == self.map.control && addr != self.map.target {
+            let c = crate::value::Control::from_code(raw).ok_or(Exception::IllegalDataValue)?;
+            return plant
+                .command(Command::Control(c))
+                .map_err(|_| Exception::ServerDeviceFailure);
+        }
         if addr != self.map.target {
             return Err(Exception::IllegalDataAddress);
         }

@@ -4,7 +4,7 @@
 //! e-stop state can be changed from outside. State advances with wall time on every
 //! access, so no extra thread is needed.
 
-use crate::value::{Command, EstopState, Gear, Reading, Role};
+use crate::value::{Command, Control, EstopState, Gear, Reading, Role};
 use std::time::{Duration, Instant};
 
 /// Steering slew rate, full range per second.
@@ -19,6 +19,11 @@ const GAS_ACCEL: f64 = 3.0;
 const BRAKE_DECEL: f64 = 8.0;
 /// Brake line pressure at full brake, bar.
 const BRAKE_BAR: f64 = 80.0;
+/// How long the starter cranks before the engine catches.
+pub const CRANK_TIME: Duration = Duration::from_millis(800);
+/// Steering status bits: the drive's fault latch, and its power stage off.
+pub const STEER_FAULT: u16 = 0x0001;
+pub const STEER_DISABLED: u16 = 0x0100;
 
 #[derive(Clone, Debug)]
 pub struct Model {
@@ -37,6 +42,13 @@ pub struct Model {
     pub velocity: f64,
     pub coolant: f64,
     pub estop: EstopState,
+    /// The steering drive's power stage is on.
+    pub steer_enabled: bool,
+    /// The steering drive latched a fault: it holds still until disabled and enabled.
+    pub steer_fault: bool,
+    cranking: Option<Instant>,
+    /// Fault injection: the starter turns but the engine never catches.
+    pub start_fails: bool,
     last: Instant,
 }
 
@@ -64,6 +76,10 @@ impl Model {
             velocity: 0.0,
             coolant: 85.0,
             estop: EstopState::Run,
+            steer_enabled: true,
+            steer_fault: false,
+            cranking: None,
+            start_fails: false,
             last: Instant::now(),
         }
     }
@@ -89,12 +105,22 @@ impl Model {
                 self.shifting = None;
             }
         }
+        if let Some(at) = self.cranking {
+            if now >= at {
+                self.cranking = None;
+                if !self.start_fails {
+                    self.running = true;
+                }
+            }
+        }
     }
 
     fn advance(&mut self, h: f64) {
         let before = self.steer;
         let err = self.steer_cmd - self.steer;
-        self.steer += err.clamp(-STEER_RATE * h, STEER_RATE * h);
+        if self.steer_enabled && !self.steer_fault {
+            self.steer += err.clamp(-STEER_RATE * h, STEER_RATE * h);
+        }
         self.steer_vel = (self.steer - before) / h;
         let k = 1.0 - (-h / PEDAL_TAU).exp();
         self.gas += (self.gas_cmd - self.gas) * k;
@@ -133,6 +159,23 @@ impl Model {
         self.coolant += (warm - self.coolant) * (1.0 - (-h / 600.0).exp());
     }
 
+    /// Fault injection: the steering drive latches a fault (it stops following).
+    pub fn jam_steering(&mut self) {
+        self.step();
+        self.steer_fault = true;
+    }
+
+    /// The device's own watchdog tripped: no command frame for too long. Gas goes to
+    /// zero and the brake comes on, by the device itself.
+    pub fn watchdog_trip(&mut self, role: Role) {
+        self.step();
+        match role {
+            Role::Gas => self.gas_cmd = 0.0,
+            Role::Brake => self.brake_cmd = 1.0,
+            _ => {}
+        }
+    }
+
     /// The engine dies (a stall): rpm falls to zero until the starter runs.
     pub fn stall(&mut self) {
         self.step();
@@ -147,6 +190,12 @@ impl Model {
             Role::Steer => {
                 r.position = Some(self.steer);
                 r.velocity = Some(self.steer_vel);
+                if self.steer_fault {
+                    r.fault |= STEER_FAULT;
+                }
+                if !self.steer_enabled {
+                    r.fault |= STEER_DISABLED;
+                }
             }
             Role::Gas => r.position = Some(self.gas),
             Role::Brake => {
@@ -179,6 +228,34 @@ impl Model {
                     self.shifting = Some((g, Instant::now() + SHIFT_TIME));
                 }
             }
+            (Role::Steer, Command::Control(c)) => match c {
+                Control::Disable => self.steer_enabled = false,
+                Control::Enable => {
+                    // A latched fault clears on a disable → enable cycle.
+                    if !self.steer_enabled {
+                        self.steer_fault = false;
+                    }
+                    self.steer_enabled = true;
+                }
+                Control::Home => {
+                    if self.steer_fault && self.steer_enabled {
+                        return Err("drive fault latched: disable and enable first".into());
+                    }
+                    self.steer_fault = false;
+                    self.steer_enabled = true;
+                    self.steer_cmd = self.steer;
+                }
+                Control::Start => return Err("steering has no starter".into()),
+            },
+            (Role::Trans, Command::Control(Control::Start)) => {
+                if self.gear.is_driving() || self.shifting.is_some() {
+                    return Err("the starter runs only in park or neutral".into());
+                }
+                if !self.running && self.cranking.is_none() {
+                    self.cranking = Some(Instant::now() + CRANK_TIME);
+                }
+            }
+            (Role::Gas | Role::Brake, Command::Control(_)) => {}
             (Role::Estop | Role::Obd, _) => return Err("sensor".into()),
             _ => return Err(format!("{role} cannot take {command}")),
         }
@@ -240,6 +317,61 @@ mod tests {
             *at = Instant::now();
         }
         assert_eq!(m.reading(Role::Trans).gear, Some(Gear::Drive));
+    }
+
+    #[test]
+    fn a_latched_steering_fault_clears_only_on_disable_then_enable() {
+        let mut m = Model::new();
+        m.jam_steering();
+        m.command(Role::Steer, Command::Set(1.0)).unwrap();
+        run_for(&mut m, 0.5);
+        assert_eq!(m.steer, 0.0, "a faulted drive holds still");
+        assert_eq!(m.reading(Role::Steer).fault & STEER_FAULT, STEER_FAULT);
+        assert!(m
+            .command(Role::Steer, Command::Control(Control::Home))
+            .is_err());
+        m.command(Role::Steer, Command::Control(Control::Enable))
+            .unwrap();
+        assert!(m.steer_fault, "enable alone does not clear the latch");
+        m.command(Role::Steer, Command::Control(Control::Disable))
+            .unwrap();
+        m.command(Role::Steer, Command::Control(Control::Enable))
+            .unwrap();
+        m.command(Role::Steer, Command::Control(Control::Home))
+            .unwrap();
+        assert_eq!(m.reading(Role::Steer).fault, 0);
+        assert_eq!(m.steer_cmd, m.steer, "homing holds where it is");
+    }
+
+    #[test]
+    fn the_starter_restarts_a_stalled_engine_only_out_of_gear() {
+        let mut m = Model::new();
+        m.gear = Gear::Drive;
+        m.stall();
+        run_for(&mut m, 2.0);
+        assert_eq!(m.reading(Role::Obd).running, Some(false));
+        assert!(m.reading(Role::Obd).rpm.unwrap() < 50.0);
+        assert!(m
+            .command(Role::Trans, Command::Control(Control::Start))
+            .is_err());
+        m.gear = Gear::Park;
+        m.command(Role::Trans, Command::Control(Control::Start))
+            .unwrap();
+        if let Some(at) = m.cranking.as_mut() {
+            *at = Instant::now();
+        }
+        m.step();
+        assert!(m.running);
+    }
+
+    #[test]
+    fn the_device_watchdog_releases_gas_and_applies_the_brake() {
+        let mut m = Model::new();
+        m.command(Role::Gas, Command::Set(0.6)).unwrap();
+        m.command(Role::Brake, Command::Set(0.0)).unwrap();
+        m.watchdog_trip(Role::Gas);
+        m.watchdog_trip(Role::Brake);
+        assert_eq!((m.gas_cmd, m.brake_cmd), (0.0, 1.0));
     }
 
     #[test]

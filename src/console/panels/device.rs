@@ -82,6 +82,7 @@ impl<'a> DevicePanel<'a> {
             let cmd = d.latest.map(|c| match c {
                 Command::Set(v) => format!("{v:.3}"),
                 Command::Gear(g) => g.to_string(),
+                Command::Control(c) => c.to_string(),
             });
             spans.push(self.field(
                 Field::Command(d.role),

@@ -63,6 +63,10 @@ pub struct RegisterMap {
     /// points.
     #[serde(default)]
     pub gear: Option<u16>,
+    /// Holding register of the drive's control word: 0 disable, 1 enable, 3 home,
+    /// 4 run the starter (see [`crate::value::Control::code`]).
+    #[serde(default)]
+    pub control: Option<u16>,
     /// Status word register; its bits under `fault_mask` are the device's faults.
     #[serde(default)]
     pub status: Option<u16>,
@@ -116,6 +120,7 @@ impl RegisterMap {
             velocity: None,
             pressure: None,
             gear: None,
+            control: None,
             status: None,
             fault_mask: 0xFFFF,
             scale: 1.0,
@@ -420,7 +425,14 @@ impl Driver for ModbusDriver {
     }
 
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        let mut addr = self.map.target;
         let value = match (command, self.map.is_gearbox()) {
+            (Command::Control(c), _) => {
+                addr = self.map.control.ok_or_else(|| {
+                    DriverError::Unsupported(format!("{c}: this device has no control register"))
+                })?;
+                c.code()
+            }
             (Command::Gear(g), true) => g.code(),
             (Command::Set(v), false) => self.map.raw(v).ok_or_else(|| {
                 DriverError::Unsupported(format!(
@@ -439,10 +451,7 @@ impl Driver for ModbusDriver {
                 )))
             }
         };
-        let request = Request::WriteSingle {
-            addr: self.map.target,
-            value,
-        };
+        let request = Request::WriteSingle { addr, value };
         self.transact(link, &request).map(|_| ())
     }
 }
