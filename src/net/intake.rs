@@ -119,6 +119,7 @@ impl Intake {
                     tracing::warn!(%from, "rejected datagram: {e}");
                 }
                 out.line(format_args!("rejected: {e}"));
+                out.refused = true;
                 return self.reply(&mut inner, i, out, received);
             }
         };
@@ -129,6 +130,7 @@ impl Intake {
                     tracing::warn!(%from, "rejected datagram: {r}");
                 }
                 out.line(format_args!("rejected: {r}"));
+                out.refused = true;
                 return self.reply(&mut inner, i, out, received);
             }
             inner.keyed_seq = d.seq;
@@ -145,6 +147,7 @@ impl Intake {
                 out.line(format_args!(
                     "rejected: replayed: the rolling counter did not advance (seq {seq})"
                 ));
+                out.refused = true;
                 return self.reply(&mut inner, i, out, received);
             }
             inner.get(i).seq = Some(seq);

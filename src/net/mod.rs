@@ -139,10 +139,18 @@ impl Net {
     }
 
     /// Stop and join the threads; returns the names of those that did not stop.
-    pub fn shutdown(self, deadline: Duration) -> Vec<String> {
+    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.close();
         self.stop.stop();
-        self.threads.join(Instant::now() + deadline)
+        std::mem::take(&mut self.threads).join(Instant::now() + deadline)
+    }
+}
+
+impl Drop for Net {
+    /// Dropped without [`Net::shutdown`]: the threads are told to stop, not joined.
+    fn drop(&mut self) {
+        self.close();
+        self.stop.stop();
     }
 }
 
