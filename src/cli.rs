@@ -191,6 +191,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // engine command the safe state again and wait for its acknowledgement.
     net.close();
     vehicle.disengage(&format!("stopping: {}", why.describe()));
+    let net_figures = net.status().snapshot();
     let mut stuck = net.shutdown(Duration::from_millis(500));
     stuck.extend(gate.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
@@ -201,6 +202,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     drop(sim);
     if args.headless {
         print!("{}", headless::summary(&vehicle));
+        println!("{}", headless::net_summary(&net_figures));
     }
     let code = if !safe || !stuck.is_empty() {
         eprintln!(
