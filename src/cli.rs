@@ -61,7 +61,7 @@ pub struct RunArgs {
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
     /// Where the command listener binds, e.g. 0.0.0.0:47576 to take commands from other
-    /// hosts (default: the vehicle file's [network] listen, 127.0.0.1:47576).
+    /// hosts (default: the vehicle file's `[network]` listen, 127.0.0.1:47576).
     #[arg(long, value_name = "ADDR", value_parser = net::config::parse_listen)]
     pub listen: Option<SocketAddr>,
 }

@@ -205,4 +205,38 @@ mod tests {
         );
         assert!(parse_listen("anywhere").is_err());
     }
+
+    #[test]
+    fn network_section_errors_name_file_and_line() {
+        let base = "[vehicle]\nname = \"x\"\n\n[network]\n";
+        let err = |extra: &str| {
+            crate::config::parse(&format!("{base}{extra}"), "v.toml")
+                .unwrap_err()
+                .to_string()
+        };
+        let e = err("listen = \"nowhere\"\n");
+        assert!(e.starts_with("v.toml:5: "), "{e}");
+        let e = err("allow = [\"10.0.0\"]\n");
+        assert!(
+            e.starts_with("v.toml:5: ") && e.contains("IP address"),
+            "{e}"
+        );
+        let e = err("watchdog = \"1s\"\n");
+        assert!(
+            e.starts_with("v.toml:5: ") && e.contains("watchdog_timeout"),
+            "{e}"
+        );
+        let e = err("watchdog_timeout = \"0ms\"\n");
+        assert!(
+            e.starts_with("v.toml:4: ") && e.contains("above zero"),
+            "{e}"
+        );
+        let e = err("broadcast_rate = 0.0\n");
+        assert!(e.contains("broadcast_rate"), "{e}");
+        let ok = crate::config::parse(&format!("{base}allow_engage = true\n"), "v.toml").unwrap();
+        assert!(ok.network.allow_engage);
+        assert_eq!(ok.network.watchdog_timeout, Duration::from_millis(500));
+        let alice = crate::config::VehicleConfig::alice();
+        assert!(alice.network.allow_engage);
+    }
 }
