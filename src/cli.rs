@@ -1,16 +1,20 @@
-//! The command line: `adrive [run]` (the console), `adrive sim`. Parsing is clap's;
-//! each subcommand is one function here that wires the parts together.
+//! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
+//! `adrive watch`. Parsing is clap's; each subcommand is one function here that wires
+//! the parts together.
 
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
 use crate::exit::{self, Exit};
+use crate::net::{self, auth::Auth, client, Net};
 use crate::sim::{Sim, SimEvent};
 use crate::value::Role;
 use crate::vehicle::Vehicle;
-use crate::{console, driver, headless, logging};
+use crate::{console, driver, gate, headless, logging};
 use clap::{Args, Parser, Subcommand};
 use std::io::BufRead;
+use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -35,6 +39,10 @@ pub enum Cmd {
     Sim(SimArgs),
     /// List serial ports with what the OS knows of each.
     Ports,
+    /// Send commands to a running adrive, once or repeatedly, as a planner would.
+    Send(SendArgs),
+    /// Print the state broadcast as it arrives.
+    Watch(WatchArgs),
 }
 
 #[derive(Args, Debug, Clone, Default)]
@@ -61,6 +69,43 @@ pub struct RunArgs {
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
+    /// Where the command listener binds, e.g. 0.0.0.0:47576 to take commands from other
+    /// hosts (default: the vehicle file's `[network]` listen, 127.0.0.1:47576).
+    #[arg(long, value_name = "ADDR", value_parser = net::config::parse_listen)]
+    pub listen: Option<SocketAddr>,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct SendArgs {
+    /// Commands, e.g. `steer 0.2`, `engage trans drive accel 0.3`: each verb starts a line.
+    #[arg(required = true, value_name = "COMMAND", allow_hyphen_values = true)]
+    pub words: Vec<String>,
+    /// The adrive to send to.
+    #[arg(long, value_name = "ADDR", default_value = net::config::DEFAULT_LISTEN)]
+    pub to: SocketAddr,
+    /// Repeat the datagram this many times a second, with a rolling `seq`, until
+    /// interrupted (as a planner would).
+    #[arg(long, value_name = "HZ")]
+    pub rate: Option<f64>,
+    /// Stop after this many datagrams (with --rate).
+    #[arg(long, value_name = "N")]
+    pub count: Option<u64>,
+    /// Sign every datagram with this shared key file (HMAC-SHA256, seq = Unix ns).
+    #[arg(long, value_name = "FILE")]
+    pub key: Option<PathBuf>,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct WatchArgs {
+    /// Print each broadcast as it came: one JSON object per line.
+    #[arg(long)]
+    pub json: bool,
+    /// The address the broadcast is sent to: this host's, or a multicast group.
+    #[arg(long, value_name = "ADDR", default_value = net::config::DEFAULT_BROADCAST)]
+    pub from: SocketAddr,
+    /// Stop after this many broadcasts.
+    #[arg(long, value_name = "N")]
+    pub count: Option<u64>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -88,6 +133,8 @@ pub fn main() -> i32 {
             print!("{}", crate::ports::report(&ports, &ptys));
             Ok(0)
         }
+        Some(Cmd::Send(args)) => send(args),
+        Some(Cmd::Watch(args)) => watch(args),
         None => run(cli.run),
     };
     match result {
@@ -124,6 +171,10 @@ fn default_log_dir() -> PathBuf {
 /// `adrive run`: the engine with the console or headless.
 pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut config = load(&args.config, &args.only)?;
+    if let Some(addr) = args.listen {
+        config.network.listen = addr;
+    }
+    let auth = network_key(&config)?;
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
     // A bad keymap stops here, before anything starts.
     let keymap = if args.headless {
@@ -148,13 +199,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         Box::new(move || driver::open_serial(&path, baud, timeout))
     }));
     let exits = exit::install()?;
+    // The command socket is bound before any device is driven: a busy port is a
+    // configuration error (status 2), not a half-started vehicle.
+    let net = Net::start(vehicle.clone(), vehicle.config.network.clone(), auth)?;
     let engine = Engine::start(vehicle.clone())?;
+    let gate = gate::Monitor::start(vehicle.clone())?;
     tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
     let why = match keymap {
         None => headless::wait(&vehicle, &exits),
         Some(keymap) => {
             let sources = console::controls::Sources {
                 logs: ring,
+                net: Some(net.status().clone() as Arc<dyn console::controls::NetSource>),
                 sim_faults: sim
                     .as_ref()
                     .map(|s| s.ports.iter().map(|p| (p.role, p.faults.clone())).collect())
@@ -177,13 +233,23 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         }
     };
     tracing::info!("stopping: {}", why.describe());
-    let (safe, stuck) = engine.shutdown(Duration::from_secs(2));
+    // No network command may follow the safe state: refuse datagrams, disengage (which
+    // commands the safe state at once), stop the network and gate threads, then let the
+    // engine command the safe state again and wait for its acknowledgement.
+    net.close();
+    vehicle.disengage(&format!("stopping: {}", why.describe()));
+    let net_figures = net.status().snapshot();
+    let mut stuck = net.shutdown(Duration::from_millis(500));
+    stuck.extend(gate.shutdown(Duration::from_millis(200)));
+    let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
+    stuck.extend(engine_stuck);
     if safe {
         tracing::info!("safe state acknowledged: gas 0, brake full");
     }
     drop(sim);
     if args.headless {
         print!("{}", headless::summary(&vehicle));
+        println!("{}", headless::net_summary(&net_figures));
     }
     let code = if !safe || !stuck.is_empty() {
         eprintln!(
@@ -202,6 +268,47 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     };
     drop(log);
     Ok(code)
+}
+
+/// The `[network]` key file, relative to the vehicle file's directory.
+fn network_key(config: &VehicleConfig) -> anyhow::Result<Option<Auth>> {
+    let Some(file) = &config.network.key_file else {
+        return Ok(None);
+    };
+    let path = match Path::new(&config.source).parent() {
+        Some(dir) if file.is_relative() => dir.join(file),
+        _ => file.clone(),
+    };
+    Ok(Some(Auth::load(&path)?))
+}
+
+/// Set when SIGINT or SIGTERM arrives (for the clients, which have no engine to stop).
+fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
+    let flag = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, flag.clone())?;
+    }
+    Ok(flag)
+}
+
+/// `adrive send`: commands in one datagram, once or at a rate.
+pub fn send(args: SendArgs) -> anyhow::Result<i32> {
+    let auth = args.key.as_deref().map(Auth::load).transpose()?;
+    let body = client::lines_from_words(&args.words);
+    let opts = client::SendOptions {
+        to: args.to,
+        rate: args.rate,
+        count: args.count,
+        auth,
+    };
+    let stop = stop_flag()?;
+    Ok(client::send(&opts, &body, &stop)?)
+}
+
+/// `adrive watch`: print the state broadcast.
+pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
+    let stop = stop_flag()?;
+    Ok(client::watch(args.from, args.json, args.count, &stop)?)
 }
 
 /// `adrive sim`: the simulated devices alone.

@@ -3,6 +3,7 @@
 //! compiled in. Loading is split into [`load`] (a path) and [`parse`] (text) so tests
 //! feed bytes, and every error names the file, the line and what was expected.
 
+pub use crate::net::config::NetworkConfig;
 use crate::value::Role;
 use serde::{Deserialize, Deserializer};
 use std::fmt;
@@ -166,6 +167,8 @@ pub struct VehicleSettings {
 pub struct VehicleConfig {
     pub vehicle: VehicleSettings,
     pub devices: Vec<DeviceConfig>,
+    /// `[network]`: the command listener, watchdog and state broadcast.
+    pub network: NetworkConfig,
     /// Where it was loaded from (for messages).
     pub source: String,
 }
@@ -194,6 +197,8 @@ struct Raw {
     vehicle: VehicleSettings,
     #[serde(default)]
     device: Vec<toml::Spanned<DeviceConfig>>,
+    #[serde(default)]
+    network: Option<toml::Spanned<NetworkConfig>>,
 }
 
 /// Load a vehicle from a file.
@@ -263,9 +268,19 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         }
         devices.push(d);
     }
+    let network = match raw.network {
+        Some(n) => {
+            let at = n.span().start;
+            let n = n.into_inner();
+            n.check().map_err(|m| err(at, format!("[network] {m}")))?;
+            n
+        }
+        None => NetworkConfig::default(),
+    };
     Ok(VehicleConfig {
         vehicle: raw.vehicle,
         devices,
+        network,
         source: path.to_string(),
     })
 }
@@ -326,7 +341,7 @@ pub fn parse_duration(s: &str) -> Result<Duration, String> {
         .map_err(|_| format!("expected a duration such as \"250ms\" or \"1s\", got {s:?}"))
 }
 
-fn duration<'de, D: Deserializer<'de>>(d: D) -> Result<Duration, D::Error> {
+pub(crate) fn duration<'de, D: Deserializer<'de>>(d: D) -> Result<Duration, D::Error> {
     let s = String::deserialize(d).map_err(|_| {
         serde::de::Error::invalid_type(
             serde::de::Unexpected::Other("a non-string"),

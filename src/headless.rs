@@ -95,3 +95,29 @@ pub fn summary(vehicle: &Vehicle) -> String {
     }
     out
 }
+
+/// One line of network figures for the summary printed on exit.
+pub fn net_summary(n: &crate::net::NetSnapshot) -> String {
+    let mut out = format!(
+        "network {}: {} datagrams, {} accepted",
+        n.listen, n.datagrams, n.accepted
+    );
+    let rejected = [
+        &n.rejected.datagram,
+        &n.rejected.intake,
+        &n.rejected.refused,
+    ];
+    let nonzero: Vec<String> = rejected
+        .into_iter()
+        .flatten()
+        .filter(|(_, c)| *c > 0)
+        .map(|(r, c)| format!("{r} {c}"))
+        .collect();
+    if !nonzero.is_empty() {
+        let _ = write!(out, "; rejected: {}", nonzero.join(", "));
+    }
+    if let Some(why) = &n.watchdog.last_trip {
+        let _ = write!(out, "; watchdog tripped: {why}");
+    }
+    out
+}

@@ -3,6 +3,7 @@
 //! the file when dropped, so every exit path keeps it alive until the very end.
 
 use std::path::Path;
+use std::time::{Duration, Instant};
 use tracing_appender::non_blocking::WorkerGuard;
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
@@ -55,4 +56,46 @@ pub fn init_with(
         .with(stderr_layer)
         .try_init();
     Ok(LogGuard { _file: guard })
+}
+
+/// Log at most `per_second` lines a second; count the rest and say how many were left
+/// out when the next second opens.
+pub struct RateLimit {
+    per_second: u32,
+    window: Instant,
+    logged: u32,
+    suppressed: u64,
+}
+
+impl RateLimit {
+    pub fn new(per_second: u32) -> RateLimit {
+        RateLimit {
+            per_second,
+            window: Instant::now(),
+            logged: 0,
+            suppressed: 0,
+        }
+    }
+
+    /// May a line be logged now?
+    pub fn allow(&mut self, now: Instant) -> bool {
+        if now.saturating_duration_since(self.window) >= Duration::from_secs(1) {
+            if self.suppressed > 0 {
+                tracing::warn!(
+                    "{} more similar lines not logged in the last second",
+                    self.suppressed
+                );
+            }
+            self.window = now;
+            self.logged = 0;
+            self.suppressed = 0;
+        }
+        if self.logged < self.per_second {
+            self.logged += 1;
+            true
+        } else {
+            self.suppressed += 1;
+            false
+        }
+    }
 }

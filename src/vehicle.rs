@@ -9,6 +9,7 @@ use crate::engine::slot::CommandSlot;
 use crate::engine::stats::Stats;
 use crate::engine::trace::Trace;
 use crate::interlock::{self, Facts, Reject};
+use crate::logging::RateLimit;
 use crate::value::{Command, EstopState, Reading, Role};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};
@@ -180,6 +181,8 @@ pub struct Vehicle {
     /// Why the vehicle is (dis)engaged, for the console and the broadcast.
     gate_reason: Mutex<String>,
     rejections: [AtomicU64; Reject::ALL.len()],
+    /// Rejections are logged at most 10 a second (a planner at 100 Hz must not flood).
+    reject_log: Mutex<RateLimit>,
 }
 
 impl Vehicle {
@@ -198,6 +201,7 @@ impl Vehicle {
             engaged: AtomicBool::new(false),
             gate_reason: Mutex::new("not engaged yet".into()),
             rejections: Default::default(),
+            reject_log: Mutex::new(RateLimit::new(10)),
         }
     }
 
@@ -250,6 +254,9 @@ impl Vehicle {
         self.rejections[why.index()].fetch_add(1, Relaxed);
         if let Some(d) = device {
             Stats::bump(&d.stats.rejected);
+        }
+        if !self.reject_log.lock().allow(Instant::now()) {
+            return why;
         }
         tracing::info!(
             device = device.map(|d| d.role.as_str()).unwrap_or("-"),

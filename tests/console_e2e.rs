@@ -50,6 +50,8 @@ impl Console {
         let io = |fd: &OwnedFd| Stdio::from(fd.try_clone().unwrap());
         let mut cmd = Command::new(BIN);
         cmd.arg("--sim")
+            // Tests run in parallel: each takes its own ephemeral command port.
+            .args(["--listen", "127.0.0.1:0"])
             .arg("--log-dir")
             .arg(&log_dir)
             .args(extra)

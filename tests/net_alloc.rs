@@ -58,3 +58,68 @@ fn parse_verify_and_count_do_not_allocate() {
     });
     assert_eq!(n, 0, "the command path allocated {n} times");
 }
+
+/// The listener's whole decision on a command datagram from the commander of an
+/// engaged vehicle — sender table, counter, commander, interlocks, slot — and the
+/// repeated `engage` of a planner, with its reply: no allocation.
+#[test]
+fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
+    use adrive::config::VehicleConfig;
+    use adrive::net::intake::Intake;
+    use adrive::net::NetStatus;
+    use adrive::value::{Reading, Role};
+    use adrive::vehicle::{Cached, Vehicle};
+    use std::sync::atomic::AtomicBool;
+    use std::sync::Arc;
+    use std::time::Instant;
+
+    let config = VehicleConfig::alice();
+    let network = config.network.clone();
+    let vehicle = Arc::new(Vehicle::new(config, |_| {
+        Box::new(|| Err(std::io::Error::other("no port in this test")))
+    }));
+    // Every device has "reported": the vehicle may engage (no engine runs here).
+    for d in &vehicle.devices {
+        let mut reading = Reading::default();
+        match d.role {
+            Role::Estop => reading.estop = Some(adrive::value::EstopState::Run),
+            Role::Obd => reading.speed = Some(0.0),
+            _ => reading.position = Some(0.0),
+        }
+        *d.cache.lock() = Cached {
+            reading,
+            at: Some(Instant::now()),
+        };
+    }
+    let status = Arc::new(NetStatus::new(network.listen, network.watchdog_timeout));
+    let mut intake = Intake::new(
+        vehicle.clone(),
+        network,
+        None,
+        status,
+        Arc::new(AtomicBool::new(false)),
+    );
+    let from = "127.0.0.1:40000".parse().unwrap();
+    let reply = intake.handle(b"engage\n", from, Instant::now()).unwrap();
+    assert_eq!(reply.as_str(), "ok engaged\n");
+    let datagrams: [&[u8]; 3] = [
+        b"seq 1\nsteer 0.2\naccel -0.3\n",
+        b"seq 2\nengage\nsteer -0.1 # planner\naccel -0.5\n",
+        b"seq 3\nbrake 1\ngas 0\n",
+    ];
+    let mut replies = Vec::with_capacity(3);
+    let n = allocations_in(|| {
+        for d in datagrams {
+            replies.push(intake.handle(d, from, Instant::now()));
+        }
+    });
+    assert_eq!(n, 0, "the listener path allocated {n} times");
+    assert!(vehicle.is_engaged());
+    assert_eq!(
+        vehicle.device(Role::Steer).unwrap().slot.latest(),
+        Some(adrive::value::Command::Set(-0.1))
+    );
+    assert!(replies
+        .iter()
+        .all(|r| r.is_none_or(|r| r.as_str() == "ok engaged\n")));
+}

@@ -1,9 +1,248 @@
-//! The network side of the engine: the command protocol planners and people speak to
-//! adrive over UDP ([`proto`]) and the shared-key authentication that can guard it
-//! ([`auth`]). These are pure functions on bytes; the listener thread that owns the
-//! socket, the engage gate and the watchdog build on them.
+//! The network side of the engine, the paper's two network threads plus what today's
+//! drive-by-wire interfaces add:
+//!
+//! - `net/listen` owns the UDP command socket. Each datagram is stamped the moment
+//!   `recv_from` returns, then [`intake`] checks the sender (allow-list), the grammar
+//!   ([`proto`]), the key ([`auth`]) and the rolling counter, decides who commands, and
+//!   hands each command to [`Vehicle::submit`], which checks the interlocks, stores it
+//!   in the device's slot and wakes its command thread.
+//! - `net/broadcast` sends the cached state of every device as one JSON object per
+//!   datagram ([`state`]) at `broadcast_rate`, to unicast addresses and/or multicast
+//!   groups.
+//! - `net/watchdog` brings the vehicle to the safe state and disengages it when the
+//!   sender commanding it goes quiet, or its rolling counter stops, for
+//!   `watchdog_timeout`.
+//!
+//! [`NetStatus`] publishes counters, senders and the watchdog for the console and the
+//! broadcast; [`client`] holds `adrive send` and `adrive watch`.
 
 pub mod auth;
+pub mod client;
+pub mod config;
 #[doc(hidden)]
 pub mod fuzzing;
+pub mod intake;
 pub mod proto;
+pub mod state;
+pub mod status;
+
+pub use config::NetworkConfig;
+pub use status::{NetSnapshot, NetStatus, Refusal, WatchdogState};
+
+use crate::engine::{StopSignal, Threads};
+use crate::logging::RateLimit;
+use crate::vehicle::Vehicle;
+use auth::Auth;
+use intake::Intake;
+use socket2::{Domain, Protocol, Socket, Type};
+use std::io;
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// How often the listener looks up from its socket to check for a stop.
+const LISTEN_POLL: Duration = Duration::from_millis(50);
+/// Kernel receive buffer asked for the command socket, so a burst waits in the kernel
+/// rather than being dropped.
+const RECV_BUFFER: usize = 1 << 20;
+
+/// The running network threads.
+pub struct Net {
+    status: Arc<NetStatus>,
+    stop: Arc<StopSignal>,
+    closing: Arc<AtomicBool>,
+    threads: Threads,
+}
+
+impl Net {
+    /// Bind the command socket and start `net/listen`, `net/broadcast` and
+    /// `net/watchdog`. A bind error comes back before any thread starts.
+    pub fn start(
+        vehicle: Arc<Vehicle>,
+        config: NetworkConfig,
+        auth: Option<Auth>,
+    ) -> io::Result<Net> {
+        let socket = bind_command_socket(config.listen)
+            .map_err(|e| io::Error::new(e.kind(), format!("listen on {}: {e}", config.listen)))?;
+        let local = socket.local_addr()?;
+        let out = broadcast_socket(&config)?;
+        let status = Arc::new(NetStatus::new(local, config.watchdog_timeout));
+        let stop = Arc::new(StopSignal::default());
+        let closing = Arc::new(AtomicBool::new(false));
+        let mut threads = Threads::default();
+
+        let mut intake = Intake::new(
+            vehicle.clone(),
+            config.clone(),
+            auth.clone(),
+            status.clone(),
+            closing.clone(),
+        );
+        let s = stop.clone();
+        threads.spawn("net/listen".into(), move || {
+            listen_loop(&socket, &mut intake, &s)
+        })?;
+
+        let (v, st, s) = (vehicle.clone(), status.clone(), stop.clone());
+        let (dest, period) = (config.broadcast_to.clone(), config.broadcast_period());
+        threads.spawn("net/broadcast".into(), move || {
+            broadcast_loop(&out, &dest, period, &v, &st, &s)
+        })?;
+
+        let (v, st, s) = (vehicle, status.clone(), stop.clone());
+        let tick = (config.watchdog_timeout / 10)
+            .clamp(Duration::from_millis(1), Duration::from_millis(10));
+        threads.spawn("net/watchdog".into(), move || {
+            let mut next = Instant::now();
+            loop {
+                next += tick;
+                if !s.sleep_until(next) {
+                    return;
+                }
+                intake::watchdog_tick(&v, &st, Instant::now());
+                next = next.max(Instant::now());
+            }
+        })?;
+        tracing::info!(
+            listen = %local,
+            broadcast = ?config.broadcast_to,
+            allow_engage = config.allow_engage,
+            key = auth.is_some(),
+            watchdog = ?config.watchdog_timeout,
+            "network up"
+        );
+        Ok(Net {
+            status,
+            stop,
+            closing,
+            threads,
+        })
+    }
+
+    /// Where the command listener is bound (the real port when 0 was asked for).
+    pub fn local_addr(&self) -> SocketAddr {
+        self.status.listen
+    }
+
+    pub fn status(&self) -> &Arc<NetStatus> {
+        &self.status
+    }
+
+    pub fn thread_names(&self) -> Vec<&str> {
+        self.threads.names()
+    }
+
+    /// Refuse every datagram from now on (the first step of shutting down).
+    pub fn close(&self) {
+        self.closing.store(true, Relaxed);
+    }
+
+    /// Stop and join the threads; returns the names of those that did not stop.
+    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.close();
+        self.stop.stop();
+        std::mem::take(&mut self.threads).join(Instant::now() + deadline)
+    }
+}
+
+impl Drop for Net {
+    /// Dropped without [`Net::shutdown`]: the threads are told to stop, not joined.
+    fn drop(&mut self) {
+        self.close();
+        self.stop.stop();
+    }
+}
+
+fn bind_command_socket(addr: SocketAddr) -> io::Result<UdpSocket> {
+    let s = Socket::new(Domain::for_address(addr), Type::DGRAM, Some(Protocol::UDP))?;
+    let _ = s.set_recv_buffer_size(RECV_BUFFER);
+    s.bind(&addr.into())?;
+    s.set_read_timeout(Some(LISTEN_POLL))?;
+    Ok(s.into())
+}
+
+fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
+    let v6 = config.broadcast_to.first().is_some_and(SocketAddr::is_ipv6);
+    let any: SocketAddr = if v6 {
+        (Ipv6Addr::UNSPECIFIED, 0).into()
+    } else {
+        (Ipv4Addr::UNSPECIFIED, 0).into()
+    };
+    let s = UdpSocket::bind(any)?;
+    if v6 {
+        s.set_multicast_loop_v6(true)?;
+    } else {
+        s.set_multicast_ttl_v4(config.multicast_ttl)?;
+        s.set_multicast_loop_v4(true)?;
+    }
+    Ok(s)
+}
+
+fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
+    // One byte more than the largest datagram, so a larger one shows as oversized.
+    let mut buf = [0u8; proto::MAX_DATAGRAM + 1];
+    let mut errors = RateLimit::new(1);
+    while !stop.is_stopped() {
+        match socket.recv_from(&mut buf) {
+            Ok((n, from)) => {
+                let received = Instant::now();
+                if let Some(reply) = intake.handle(&buf[..n], from, received) {
+                    let _ = socket.send_to(reply.as_bytes(), from);
+                }
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                ) => {}
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => {
+                // E.g. ICMP port unreachable after a reply: log, never spin.
+                if errors.allow(Instant::now()) {
+                    tracing::warn!("command socket: {e}");
+                }
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+    }
+}
+
+fn broadcast_loop(
+    socket: &UdpSocket,
+    dest: &[SocketAddr],
+    period: Duration,
+    vehicle: &Vehicle,
+    status: &NetStatus,
+    stop: &StopSignal,
+) {
+    let started = Instant::now();
+    let mut next = started;
+    let mut errors = RateLimit::new(1);
+    for seq in 0u64.. {
+        if !stop.sleep_until(next) {
+            return;
+        }
+        next = (next + period).max(Instant::now());
+        let state = state::build(vehicle, Some(status.snapshot()), seq, started);
+        let bytes = match serde_json::to_vec(&state) {
+            Ok(b) => b,
+            Err(e) => {
+                tracing::error!("state broadcast: {e}");
+                continue;
+            }
+        };
+        for to in dest {
+            if let Err(e) = socket.send_to(&bytes, to) {
+                if errors.allow(Instant::now()) {
+                    tracing::warn!(%to, "state broadcast: {e}");
+                }
+            }
+        }
+    }
+}
+
+/// Is this a multicast group?
+pub fn is_multicast(ip: IpAddr) -> bool {
+    ip.is_multicast()
+}

@@ -1,0 +1,366 @@
+//! The two network clients: `adrive send`, which sends commands the way a planner
+//! would (once, or repeated at a rate with a rolling counter), and `adrive watch`,
+//! which prints the state broadcast as it arrives.
+
+use super::auth::Auth;
+use super::proto::{self, MAX_DATAGRAM};
+use crate::value::Role;
+use serde_json::Value;
+use socket2::{Domain, Protocol, Socket, Type};
+use std::fmt::Write as _;
+use std::io::{self, Write};
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+/// How long a one-shot `send` waits for a reply.
+pub const REPLY_WAIT: Duration = Duration::from_millis(200);
+
+/// The words that start a command line.
+const VERBS: [&str; 9] = [
+    "steer",
+    "gas",
+    "brake",
+    "accel",
+    "trans",
+    "engage",
+    "disengage",
+    "estop",
+    "obd",
+];
+
+/// Command-line words to protocol lines: each verb starts a new line, so
+/// `engage trans drive accel 0.3` and `'trans drive' 'accel 0.3'` both work.
+/// A `;` or newline inside an argument also separates lines.
+pub fn lines_from_words(words: &[String]) -> String {
+    let mut lines: Vec<String> = Vec::new();
+    for arg in words {
+        for (k, part) in arg.split([';', '\n']).enumerate() {
+            for (j, w) in part.split_whitespace().enumerate() {
+                let verb = VERBS.iter().any(|v| v.eq_ignore_ascii_case(w));
+                let split = k > 0 && j == 0;
+                match lines.last_mut() {
+                    Some(l) if !verb && !split => {
+                        l.push(' ');
+                        l.push_str(w);
+                    }
+                    _ => lines.push(w.to_string()),
+                }
+            }
+        }
+    }
+    lines.iter().map(|l| format!("{l}\n")).collect()
+}
+
+/// What `send` does.
+pub struct SendOptions {
+    pub to: SocketAddr,
+    /// Repeat at this many datagrams a second until stopped.
+    pub rate: Option<f64>,
+    /// Stop after this many datagrams.
+    pub count: Option<u64>,
+    pub auth: Option<Auth>,
+}
+
+/// Unix time in nanoseconds: a counter that grows across runs, for signed datagrams.
+fn now_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
+/// `adrive send`: returns the exit status (0 sent and not refused, 1 refused or no
+/// listener, 2 bad command line).
+pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32> {
+    if let Err(e) = proto::parse(body.as_bytes()) {
+        eprintln!("adrive send: {e}");
+        eprintln!("the commands, one per line, as sent:\n{body}");
+        return Ok(2);
+    }
+    let any: SocketAddr = if opts.to.is_ipv6() {
+        (Ipv6Addr::UNSPECIFIED, 0).into()
+    } else {
+        (Ipv4Addr::UNSPECIFIED, 0).into()
+    };
+    let socket = UdpSocket::bind(any)?;
+    socket.connect(opts.to)?;
+    let mut seq: u64 = 0;
+    let mut datagram = |repeat: bool| -> String {
+        seq = match (&opts.auth, repeat) {
+            (Some(_), _) => now_ns().max(seq + 1),
+            (None, true) => seq + 1,
+            (None, false) => 0,
+        };
+        match &opts.auth {
+            Some(a) => a.sign(body, seq),
+            None if repeat => format!("seq {seq}\n{body}"),
+            None => body.to_string(),
+        }
+    };
+    let mut buf = [0u8; 2048];
+    let Some(rate) = opts.rate else {
+        let text = datagram(false);
+        check_size(&text)?;
+        socket.send(text.as_bytes())?;
+        socket.set_read_timeout(Some(REPLY_WAIT))?;
+        return match socket.recv(&mut buf) {
+            Ok(n) => {
+                let reply = String::from_utf8_lossy(&buf[..n]);
+                print!("{reply}");
+                Ok(if refused(&reply) { 1 } else { 0 })
+            }
+            Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
+                eprintln!("adrive send: nothing is listening at {}", opts.to);
+                Ok(1)
+            }
+            Err(_) => Ok(0),
+        };
+    };
+    if !(rate.is_finite() && rate > 0.0 && rate <= 10_000.0) {
+        eprintln!("adrive send: --rate takes datagrams per second, above 0 and at most 10000");
+        return Ok(2);
+    }
+    let period = Duration::from_secs_f64(1.0 / rate);
+    let start = Instant::now();
+    let mut next = start;
+    let mut sent = 0u64;
+    let mut last_reply = String::new();
+    let mut unreachable = false;
+    eprintln!(
+        "adrive send: {} a second to {}; Ctrl-C stops (the watchdog then stops the vehicle)",
+        rate, opts.to
+    );
+    while !stop.load(Relaxed) && opts.count.is_none_or(|c| sent < c) {
+        let text = datagram(true);
+        check_size(&text)?;
+        match socket.send(text.as_bytes()) {
+            Ok(_) => sent += 1,
+            Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {}
+            Err(e) => return Err(e),
+        }
+        next += period;
+        // Read replies until the next datagram is due.
+        loop {
+            let left = next.saturating_duration_since(Instant::now());
+            if left.is_zero() || stop.load(Relaxed) {
+                break;
+            }
+            socket.set_read_timeout(Some(left))?;
+            match socket.recv(&mut buf) {
+                Ok(n) => {
+                    unreachable = false;
+                    let reply = String::from_utf8_lossy(&buf[..n]).into_owned();
+                    if reply != last_reply {
+                        for line in reply.lines() {
+                            println!("{:>8.3}s {line}", start.elapsed().as_secs_f64());
+                        }
+                        let _ = io::stdout().flush();
+                        last_reply = reply;
+                    }
+                }
+                Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
+                    if !unreachable {
+                        eprintln!("adrive send: nothing is listening at {} (yet)", opts.to);
+                        unreachable = true;
+                    }
+                    std::thread::sleep(left.min(Duration::from_millis(5)));
+                }
+                Err(_) => {}
+            }
+        }
+        next = next.max(Instant::now() - period);
+    }
+    eprintln!(
+        "adrive send: sent {sent} datagrams in {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
+    Ok(0)
+}
+
+fn check_size(text: &str) -> io::Result<()> {
+    if text.len() > MAX_DATAGRAM {
+        return Err(io::Error::other(format!(
+            "the datagram would be {} bytes; adrive takes at most {MAX_DATAGRAM}",
+            text.len()
+        )));
+    }
+    Ok(())
+}
+
+/// Does a reply refuse or reject anything?
+pub fn refused(reply: &str) -> bool {
+    reply
+        .lines()
+        .any(|l| l.starts_with("refused") || l.starts_with("rejected"))
+}
+
+/// A socket that receives the state broadcast sent to `from` (a unicast address of
+/// this host, or a multicast group, joined on every interface).
+pub fn watch_socket(from: SocketAddr) -> io::Result<UdpSocket> {
+    let s = Socket::new(Domain::for_address(from), Type::DGRAM, Some(Protocol::UDP))?;
+    // Several watchers of one multicast group on one host.
+    s.set_reuse_address(true)?;
+    let bind: SocketAddr = match from.ip() {
+        IpAddr::V4(g) if g.is_multicast() => {
+            s.bind(&SocketAddr::from((Ipv4Addr::UNSPECIFIED, from.port())).into())?;
+            s.join_multicast_v4(&g, &Ipv4Addr::UNSPECIFIED)?;
+            return Ok(s.into());
+        }
+        IpAddr::V6(g) if g.is_multicast() => {
+            s.bind(&SocketAddr::from((Ipv6Addr::UNSPECIFIED, from.port())).into())?;
+            s.join_multicast_v6(&g, 0)?;
+            return Ok(s.into());
+        }
+        _ => from,
+    };
+    s.bind(&bind.into())?;
+    Ok(s.into())
+}
+
+/// `adrive watch`: print each broadcast until stopped (or `count` of them).
+pub fn watch(
+    from: SocketAddr,
+    json: bool,
+    count: Option<u64>,
+    stop: &AtomicBool,
+) -> io::Result<i32> {
+    let socket =
+        watch_socket(from).map_err(|e| io::Error::new(e.kind(), format!("{from}: {e}")))?;
+    socket.set_read_timeout(Some(Duration::from_millis(200)))?;
+    if !json {
+        eprintln!(
+            "adrive watch: listening on {from}; each device as commanded/measured; Ctrl-C stops"
+        );
+    }
+    let mut buf = vec![0u8; 65536];
+    let mut seen = 0u64;
+    let mut last_gate = String::new();
+    let mut out = io::stdout().lock();
+    while !stop.load(Relaxed) && count.is_none_or(|c| seen < c) {
+        let n = match socket.recv(&mut buf) {
+            Ok(n) => n,
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                ) =>
+            {
+                continue
+            }
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        seen += 1;
+        let bytes = &buf[..n];
+        if json {
+            out.write_all(bytes)?;
+            out.write_all(b"\n")?;
+            out.flush()?;
+            continue;
+        }
+        match serde_json::from_slice::<Value>(bytes) {
+            Ok(v) => {
+                let gate = v["gate"].as_str().unwrap_or("").to_string();
+                if gate != last_gate {
+                    writeln!(out, "-- {gate}")?;
+                    last_gate = gate;
+                }
+                writeln!(out, "{}", human_line(&v))?;
+            }
+            Err(e) => writeln!(out, "?? not a state broadcast ({e}): {n} bytes")?,
+        }
+        out.flush()?;
+    }
+    Ok(0)
+}
+
+fn num(v: &Value) -> Option<f64> {
+    v.as_f64()
+}
+
+fn value(v: &Value) -> String {
+    match v {
+        Value::Number(n) => format!("{:.2}", n.as_f64().unwrap_or(f64::NAN)),
+        Value::String(s) => s.clone(),
+        _ => "-".into(),
+    }
+}
+
+/// One broadcast as one line for a person.
+pub fn human_line(v: &Value) -> String {
+    let mut l = String::new();
+    let _ = write!(
+        l,
+        "{:>7.1}s {:<10} watchdog {:<7}",
+        num(&v["uptime_s"]).unwrap_or(0.0),
+        if v["engaged"].as_bool() == Some(true) {
+            "ENGAGED"
+        } else {
+            "disengaged"
+        },
+        v["net"]["watchdog"]["state"].as_str().unwrap_or("-"),
+    );
+    if let Some(devices) = v["devices"].as_object() {
+        // In the vehicle's order (the JSON object is; a parsed `Value` is sorted).
+        let order = |n: &str| Role::ALL.iter().position(|r| r.as_str() == n).unwrap_or(99);
+        let mut devices: Vec<_> = devices.iter().collect();
+        devices.sort_by_key(|(n, _)| order(n));
+        for (name, d) in devices {
+            let m = &d["measured"];
+            let flag = if d["faulty"].as_bool() == Some(true) {
+                "!FAULTY"
+            } else {
+                ""
+            };
+            let measured = match name.as_str() {
+                "trans" => value(&m["gear"]),
+                "estop" => value(&m["estop"]),
+                "obd" => {
+                    let _ = write!(
+                        l,
+                        " | speed {:.2} m/s rpm {:.0}{flag}",
+                        num(&m["speed"]).unwrap_or(f64::NAN),
+                        num(&m["rpm"]).unwrap_or(f64::NAN)
+                    );
+                    continue;
+                }
+                _ => value(&m["position"]),
+            };
+            if d["actuator"].as_bool() == Some(true) {
+                let _ = write!(l, " | {name} {}/{measured}{flag}", value(&d["commanded"]));
+            } else {
+                let _ = write!(l, " | {name} {measured}{flag}");
+            }
+        }
+    }
+    l
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn words(s: &[&str]) -> String {
+        lines_from_words(&s.iter().map(|w| w.to_string()).collect::<Vec<_>>())
+    }
+
+    #[test]
+    fn words_become_one_line_per_verb() {
+        assert_eq!(
+            words(&["engage", "trans", "drive", "accel", "0.3"]),
+            "engage\ntrans drive\naccel 0.3\n"
+        );
+        assert_eq!(words(&["steer 0.2", "GAS", "0"]), "steer 0.2\nGAS 0\n");
+        assert_eq!(words(&["steer 0.2; brake 1"]), "steer 0.2\nbrake 1\n");
+        assert_eq!(words(&["steer", "-0.25"]), "steer -0.25\n");
+    }
+
+    #[test]
+    fn a_reply_that_refuses_is_noticed() {
+        assert!(refused(
+            "ok engaged\nrejected gas 0.3: gas_while_braking: …\n"
+        ));
+        assert!(!refused("ok engaged\n"));
+    }
+}

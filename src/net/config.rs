@@ -1,0 +1,242 @@
+//! The `[network]` section of a vehicle file: where the command listener binds, who
+//! may send, whether the network may engage, the watchdog, and where the state
+//! broadcast goes. Every key has a default, so a vehicle file without the section gets
+//! a loopback-only listener that cannot engage.
+
+use serde::{Deserialize, Deserializer};
+use std::fmt;
+use std::net::{IpAddr, SocketAddr};
+use std::path::PathBuf;
+use std::str::FromStr;
+use std::time::Duration;
+
+/// The command listener's default address (the paper's "Skynet key" 47576).
+pub const DEFAULT_LISTEN: &str = "127.0.0.1:47576";
+/// Where the state broadcast goes by default.
+pub const DEFAULT_BROADCAST: &str = "127.0.0.1:47577";
+/// The listener's port when `--listen` names only an address.
+pub const DEFAULT_PORT: u16 = 47576;
+
+/// `[network]`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworkConfig {
+    /// Where the command listener binds (`--listen` overrides it).
+    pub listen: SocketAddr,
+    /// May a network sender engage the vehicle? Off unless the vehicle file says so.
+    pub allow_engage: bool,
+    /// While engaged by the network, no valid command for this long (or a frozen
+    /// rolling counter) brings the vehicle to the safe state and disengages it.
+    #[serde(deserialize_with = "crate::config::duration")]
+    pub watchdog_timeout: Duration,
+    /// Destinations of the state broadcast: unicast addresses and/or multicast groups.
+    pub broadcast_to: Vec<SocketAddr>,
+    /// State broadcasts per second.
+    pub broadcast_rate: f64,
+    /// Time-to-live of multicast broadcasts (1: this subnet only).
+    pub multicast_ttl: u32,
+    /// Senders allowed to command: IP addresses (any port) or `ip:port`. Empty: any
+    /// sender that can reach the listener.
+    pub allow: Vec<Allow>,
+    /// A shared key file; when set, every datagram must be signed (HMAC-SHA256) and
+    /// carry a strictly increasing `seq`. Relative to the vehicle file's directory.
+    pub key_file: Option<PathBuf>,
+    /// Answer refusals (and engage / disengage) with a datagram to the sender.
+    pub replies: bool,
+}
+
+impl Default for NetworkConfig {
+    fn default() -> Self {
+        NetworkConfig {
+            listen: DEFAULT_LISTEN.parse().expect("valid address"),
+            allow_engage: false,
+            watchdog_timeout: Duration::from_millis(500),
+            broadcast_to: vec![DEFAULT_BROADCAST.parse().expect("valid address")],
+            broadcast_rate: 10.0,
+            multicast_ttl: 1,
+            allow: Vec::new(),
+            key_file: None,
+            replies: true,
+        }
+    }
+}
+
+impl NetworkConfig {
+    /// Cross-field checks, as one message naming the key.
+    pub fn check(&self) -> Result<(), String> {
+        if self.watchdog_timeout.is_zero() {
+            return Err("watchdog_timeout must be above zero".into());
+        }
+        if !(self.broadcast_rate.is_finite()
+            && self.broadcast_rate > 0.0
+            && self.broadcast_rate <= 1000.0)
+        {
+            return Err(format!(
+                "broadcast_rate: expected broadcasts per second, above 0 and at most 1000 (got {})",
+                self.broadcast_rate
+            ));
+        }
+        Ok(())
+    }
+
+    /// Is `from` allowed to send commands?
+    pub fn allows(&self, from: SocketAddr) -> bool {
+        self.allow.is_empty() || self.allow.iter().any(|a| a.matches(from))
+    }
+
+    /// The time between two state broadcasts.
+    pub fn broadcast_period(&self) -> Duration {
+        Duration::from_secs_f64(1.0 / self.broadcast_rate)
+    }
+}
+
+/// One allow-list entry: an IP address (any port) or an exact `ip:port`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Allow {
+    Ip(IpAddr),
+    Addr(SocketAddr),
+}
+
+impl Allow {
+    pub fn matches(&self, from: SocketAddr) -> bool {
+        let ip = canonical(from.ip());
+        match *self {
+            Allow::Ip(a) => canonical(a) == ip,
+            Allow::Addr(a) => canonical(a.ip()) == ip && a.port() == from.port(),
+        }
+    }
+}
+
+/// An IPv4 address seen through an IPv6 socket (`::ffff:a.b.c.d`) is that IPv4 address.
+fn canonical(ip: IpAddr) -> IpAddr {
+    match ip {
+        IpAddr::V6(v6) => v6
+            .to_ipv4_mapped()
+            .map(IpAddr::V4)
+            .unwrap_or(IpAddr::V6(v6)),
+        v4 => v4,
+    }
+}
+
+impl FromStr for Allow {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let s = s.trim();
+        s.parse::<SocketAddr>()
+            .map(Allow::Addr)
+            .or_else(|_| s.parse::<IpAddr>().map(Allow::Ip))
+            .map_err(|_| {
+                format!("expected an IP address (\"10.0.0.5\") or address:port (\"10.0.0.5:9000\"), got {s:?}")
+            })
+    }
+}
+
+impl fmt::Display for Allow {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Allow::Ip(ip) => write!(f, "{ip}"),
+            Allow::Addr(a) => write!(f, "{a}"),
+        }
+    }
+}
+
+impl<'de> Deserialize<'de> for Allow {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        String::deserialize(d)?
+            .parse()
+            .map_err(serde::de::Error::custom)
+    }
+}
+
+/// `--listen ADDR`: `ip:port`, or an IP alone for the default port.
+pub fn parse_listen(s: &str) -> Result<SocketAddr, String> {
+    s.parse::<SocketAddr>()
+        .or_else(|_| {
+            s.parse::<IpAddr>()
+                .map(|ip| SocketAddr::new(ip, DEFAULT_PORT))
+        })
+        .map_err(|_| {
+            format!("expected ADDRESS:PORT or ADDRESS (e.g. 0.0.0.0:{DEFAULT_PORT}), got {s:?}")
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_loopback_and_no_network_engage() {
+        let c = NetworkConfig::default();
+        assert_eq!(c.listen.to_string(), "127.0.0.1:47576");
+        assert_eq!(c.broadcast_to[0].to_string(), "127.0.0.1:47577");
+        assert!(!c.allow_engage);
+        assert_eq!(c.watchdog_timeout, Duration::from_millis(500));
+        assert_eq!(c.broadcast_period(), Duration::from_millis(100));
+        assert!(c.check().is_ok());
+        assert!(c.allows("10.1.2.3:4".parse().unwrap()));
+    }
+
+    #[test]
+    fn allow_list_by_ip_or_exact_address() {
+        let c = NetworkConfig {
+            allow: vec![
+                "10.0.0.5".parse().unwrap(),
+                "127.0.0.1:9000".parse().unwrap(),
+            ],
+            ..NetworkConfig::default()
+        };
+        assert!(c.allows("10.0.0.5:1234".parse().unwrap()));
+        assert!(c.allows("[::ffff:10.0.0.5]:1".parse().unwrap()));
+        assert!(c.allows("127.0.0.1:9000".parse().unwrap()));
+        assert!(!c.allows("127.0.0.1:9001".parse().unwrap()));
+        assert!(!c.allows("10.0.0.6:1234".parse().unwrap()));
+        assert!("10.0.0".parse::<Allow>().is_err());
+    }
+
+    #[test]
+    fn listen_takes_an_address_with_or_without_port() {
+        assert_eq!(
+            parse_listen("0.0.0.0").unwrap().to_string(),
+            "0.0.0.0:47576"
+        );
+        assert_eq!(
+            parse_listen("10.0.0.1:9").unwrap().to_string(),
+            "10.0.0.1:9"
+        );
+        assert!(parse_listen("anywhere").is_err());
+    }
+
+    #[test]
+    fn network_section_errors_name_file_and_line() {
+        let base = "[vehicle]\nname = \"x\"\n\n[network]\n";
+        let err = |extra: &str| {
+            crate::config::parse(&format!("{base}{extra}"), "v.toml")
+                .unwrap_err()
+                .to_string()
+        };
+        let e = err("listen = \"nowhere\"\n");
+        assert!(e.starts_with("v.toml:5: "), "{e}");
+        let e = err("allow = [\"10.0.0\"]\n");
+        assert!(
+            e.starts_with("v.toml:5: ") && e.contains("IP address"),
+            "{e}"
+        );
+        let e = err("watchdog = \"1s\"\n");
+        assert!(
+            e.starts_with("v.toml:5: ") && e.contains("watchdog_timeout"),
+            "{e}"
+        );
+        let e = err("watchdog_timeout = \"0ms\"\n");
+        assert!(
+            e.starts_with("v.toml:4: ") && e.contains("above zero"),
+            "{e}"
+        );
+        let e = err("broadcast_rate = 0.0\n");
+        assert!(e.contains("broadcast_rate"), "{e}");
+        let ok = crate::config::parse(&format!("{base}allow_engage = true\n"), "v.toml").unwrap();
+        assert!(ok.network.allow_engage);
+        assert_eq!(ok.network.watchdog_timeout, Duration::from_millis(500));
+        let alice = crate::config::VehicleConfig::alice();
+        assert!(alice.network.allow_engage);
+    }
+}

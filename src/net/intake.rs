@@ -1,0 +1,389 @@
+//! What the listener does with one datagram, without the socket: check the sender,
+//! the grammar, the key and the counter; decide who commands; engage, disengage, or
+//! hand each command to [`Vehicle::submit`] (which checks the interlocks and wakes the
+//! command thread). And what the watchdog does on each tick. Both share the
+//! [`NetStatus`] table under one short-held lock.
+//!
+//! The path of an accepted command datagram does not touch the heap: the parser and
+//! the key check are allocation-free, the sender table is a fixed array, and a reply is
+//! written into an inline [`Reply`] buffer. Only refusals are logged (rate-limited), and
+//! only engaging and disengaging format a reason string.
+
+use super::auth::Auth;
+use super::config::NetworkConfig;
+use super::proto::{parse, NetCommand, Reject};
+use super::status::{Inner, NetStatus, Refusal, WatchdogState};
+use crate::logging::RateLimit;
+use crate::vehicle::Vehicle;
+use arrayvec::ArrayString;
+use std::fmt::Write;
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// A reply datagram: one line per thing refused (or engaged / disengaged).
+pub type Reply = ArrayString<512>;
+
+/// At most this often a reply goes to one sender.
+pub const REPLY_EVERY: Duration = Duration::from_millis(20);
+/// At most this many replies a second in all.
+pub const REPLY_BUDGET: u32 = 500;
+
+/// The listener's decisions. Owned by the listener thread.
+pub struct Intake {
+    vehicle: Arc<Vehicle>,
+    config: NetworkConfig,
+    auth: Option<Auth>,
+    status: Arc<NetStatus>,
+    closing: Arc<AtomicBool>,
+    log: RateLimit,
+}
+
+/// What one datagram led to, for its reply.
+struct Outcome {
+    reply: Reply,
+    /// Something was refused or rejected.
+    refused: bool,
+    /// Engage or disengage: always worth a reply.
+    gate: bool,
+}
+
+impl Outcome {
+    fn line(&mut self, args: std::fmt::Arguments) {
+        // A full buffer drops the rest of the reply, never the command.
+        let _ = self.reply.write_fmt(args);
+        let _ = self.reply.try_push('\n');
+    }
+}
+
+impl Intake {
+    pub fn new(
+        vehicle: Arc<Vehicle>,
+        config: NetworkConfig,
+        auth: Option<Auth>,
+        status: Arc<NetStatus>,
+        closing: Arc<AtomicBool>,
+    ) -> Intake {
+        Intake {
+            vehicle,
+            config,
+            auth,
+            status,
+            closing,
+            log: RateLimit::new(10),
+        }
+    }
+
+    pub fn status(&self) -> &Arc<NetStatus> {
+        &self.status
+    }
+
+    /// Handle one datagram from `from`, received at `received` (stamped right after
+    /// `recv_from`). Returns the reply to send back, if any.
+    pub fn handle(&mut self, bytes: &[u8], from: SocketAddr, received: Instant) -> Option<Reply> {
+        let st = self.status.clone();
+        st.count_datagram();
+        if !self.config.allows(from) {
+            st.count_refusal(Refusal::NotOnAllowList);
+            if self.log.allow(received) {
+                tracing::warn!(%from, "refused datagram: {}", Refusal::NotOnAllowList.describe());
+            }
+            return None;
+        }
+        let mut inner = st.inner.lock();
+        let i = inner.sender(from, received);
+        let quiet_for = received.saturating_duration_since(inner.get(i).last_seen);
+        {
+            let s = inner.get(i);
+            s.datagrams += 1;
+            s.last_seen = received;
+            if quiet_for >= self.config.watchdog_timeout {
+                s.latched = false;
+            }
+        }
+        let mut out = Outcome {
+            reply: Reply::new(),
+            refused: false,
+            gate: false,
+        };
+        if self.closing.load(Relaxed) {
+            st.count_refusal(Refusal::Closing);
+            return None;
+        }
+        let d = match parse(bytes) {
+            Ok(d) => d,
+            Err(e) => {
+                self.reject(&mut inner, i, e.reason, received);
+                if self.log.allow(received) {
+                    tracing::warn!(%from, "rejected datagram: {e}");
+                }
+                out.line(format_args!("rejected: {e}"));
+                out.refused = true;
+                return self.reply(&mut inner, i, out, received);
+            }
+        };
+        if let Some(auth) = &self.auth {
+            if let Err(r) = auth.verify(&d, bytes, inner.keyed_seq) {
+                self.reject(&mut inner, i, r, received);
+                if self.log.allow(received) {
+                    tracing::warn!(%from, "rejected datagram: {r}");
+                }
+                out.line(format_args!("rejected: {r}"));
+                out.refused = true;
+                return self.reply(&mut inner, i, out, received);
+            }
+            inner.keyed_seq = d.seq;
+        }
+        if let Some(seq) = d.seq {
+            if self.auth.is_none() && inner.get(i).seq == Some(seq) {
+                // Alive but frozen: the same counter again. Not a valid command, so
+                // the watchdog keeps counting.
+                inner.get(i).stale = true;
+                self.reject(&mut inner, i, Reject::Replayed, received);
+                if self.log.allow(received) {
+                    tracing::warn!(%from, seq, "rejected datagram: the rolling counter did not advance");
+                }
+                out.line(format_args!(
+                    "rejected: replayed: the rolling counter did not advance (seq {seq})"
+                ));
+                out.refused = true;
+                return self.reply(&mut inner, i, out, received);
+            }
+            inner.get(i).seq = Some(seq);
+        }
+        inner.get(i).stale = false;
+        sync(&self.vehicle, &mut inner);
+
+        let mut asked_engage = false;
+        let mut commanded = false;
+        for c in &d.commands {
+            let engaged = self.vehicle.is_engaged();
+            let other = inner.commander.filter(|c| *c != from && engaged);
+            match *c {
+                NetCommand::Disengage => {
+                    // Anyone allowed to send may stop the vehicle.
+                    out.gate = true;
+                    let mut why = ArrayString::<96>::new();
+                    let _ = write!(why, "disengage from {from}");
+                    self.vehicle.disengage(&why);
+                    if let Some(c) = inner.commander.take() {
+                        if c != from {
+                            if let Some(s) = inner.find(c) {
+                                s.latched = true;
+                            }
+                        }
+                    }
+                    inner.get(i).latched = false;
+                    inner.watchdog = WatchdogState::Off;
+                    out.line(format_args!("ok disengaged"));
+                }
+                _ if other.is_some() => {
+                    if !out.refused {
+                        st.count_refusal(Refusal::OtherCommander);
+                        if self.log.allow(received) {
+                            tracing::warn!(%from, commander = %other.unwrap_or(from), "refused: {}", Refusal::OtherCommander.describe());
+                        }
+                        out.line(format_args!(
+                            "refused: {} ({})",
+                            Refusal::OtherCommander.describe(),
+                            other.unwrap_or(from)
+                        ));
+                    }
+                    out.refused = true;
+                    if matches!(c, NetCommand::Engage) {
+                        out.gate = true;
+                    }
+                }
+                NetCommand::Engage => {
+                    asked_engage = true;
+                    out.gate = true;
+                    self.engage(&mut inner, i, from, received, &mut out);
+                }
+                NetCommand::Set(role, command) => {
+                    commanded = true;
+                    match self.vehicle.submit(role, command, received) {
+                        Ok(()) => st.count_command(role),
+                        Err(r) => {
+                            st.count_intake(r);
+                            out.refused = true;
+                            out.line(format_args!("rejected {c}: {}: {r}", r.as_str()));
+                        }
+                    }
+                }
+                NetCommand::Accel(a) => {
+                    commanded = true;
+                    match self.vehicle.submit_accel(a, received) {
+                        Ok(()) => st.count_accel(),
+                        Err(r) => {
+                            st.count_intake(r);
+                            out.refused = true;
+                            out.line(format_args!("rejected {c}: {}: {r}", r.as_str()));
+                        }
+                    }
+                }
+            }
+        }
+        let engaged = self.vehicle.is_engaged();
+        if engaged && commanded && inner.commander.is_none() {
+            // Engaged from the console: the first network sender to command takes over,
+            // and the watchdog watches it from now on.
+            inner.commander = Some(from);
+            inner.watchdog = WatchdogState::Armed;
+            tracing::info!(%from, "network sender commands the engaged vehicle");
+        }
+        if engaged && inner.commander == Some(from) {
+            inner.last_valid = Some(received);
+        }
+        let refused_whole = out.refused && inner.commander.is_some_and(|c| c != from);
+        let s = inner.get(i);
+        if !asked_engage {
+            s.latched = false;
+        }
+        if refused_whole {
+            s.rejected += 1;
+        } else {
+            s.accepted += 1;
+            st.count_accepted();
+        }
+        self.reply(&mut inner, i, out, received)
+    }
+
+    fn engage(
+        &mut self,
+        inner: &mut Inner,
+        i: usize,
+        from: SocketAddr,
+        now: Instant,
+        out: &mut Outcome,
+    ) {
+        let st = &self.status;
+        if !self.config.allow_engage {
+            st.count_refusal(Refusal::EngageNotAllowed);
+            out.refused = true;
+            out.line(format_args!(
+                "refused engage: {}",
+                Refusal::EngageNotAllowed.describe()
+            ));
+            return;
+        }
+        if self.vehicle.is_engaged() {
+            // Already engaged: by this sender (a planner repeats `engage` in every
+            // datagram; nothing is reset), or from the console (this sender takes over).
+            if inner.commander.is_none() {
+                inner.commander = Some(from);
+                inner.last_valid = Some(now);
+                inner.watchdog = WatchdogState::Armed;
+                tracing::info!(%from, "network sender commands the engaged vehicle");
+            }
+            out.line(format_args!("ok engaged"));
+            return;
+        }
+        if inner.get(i).latched {
+            st.count_refusal(Refusal::EngageLatched);
+            out.refused = true;
+            out.line(format_args!(
+                "refused engage: {} ({})",
+                Refusal::EngageLatched.describe(),
+                self.vehicle.gate_reason()
+            ));
+            return;
+        }
+        let mut by = ArrayString::<96>::new();
+        let _ = write!(by, "network {from}");
+        match self.vehicle.engage(&by) {
+            Ok(()) => {
+                inner.commander = Some(from);
+                inner.last_valid = Some(now);
+                inner.watchdog = WatchdogState::Armed;
+                out.line(format_args!("ok engaged"));
+            }
+            Err(why) => {
+                st.count_refusal(Refusal::EngageBlocked);
+                out.refused = true;
+                out.line(format_args!("refused engage: {}", why.join("; ")));
+            }
+        }
+    }
+
+    fn reject(&mut self, inner: &mut Inner, i: usize, r: Reject, _now: Instant) {
+        self.status.count_reject(r);
+        inner.get(i).rejected += 1;
+    }
+
+    /// The reply for `out`, if it says something and the budgets allow.
+    fn reply(&self, inner: &mut Inner, i: usize, out: Outcome, now: Instant) -> Option<Reply> {
+        if !self.config.replies || out.reply.is_empty() || !(out.refused || out.gate) {
+            return None;
+        }
+        let s = inner.get(i);
+        if s.last_reply
+            .is_some_and(|t| now.saturating_duration_since(t) < REPLY_EVERY)
+        {
+            return None;
+        }
+        s.last_reply = Some(now);
+        let (window, n) = &mut inner.replies;
+        if now.saturating_duration_since(*window) >= Duration::from_secs(1) {
+            *window = now;
+            *n = 0;
+        }
+        if *n >= REPLY_BUDGET {
+            return None;
+        }
+        *n += 1;
+        Some(out.reply)
+    }
+}
+
+/// Notice a disengage by someone else (console, gate monitor, shutdown): the commander
+/// loses command and must re-engage on purpose. Notice an engage from the console.
+pub(crate) fn sync(vehicle: &Vehicle, inner: &mut Inner) {
+    let engaged = vehicle.is_engaged();
+    if !engaged {
+        if let Some(c) = inner.commander.take() {
+            if let Some(s) = inner.find(c) {
+                s.latched = true;
+            }
+            tracing::info!(commander = %c, "network command ended: {}", vehicle.gate_reason());
+        }
+        if inner.watchdog != WatchdogState::Tripped {
+            inner.watchdog = WatchdogState::Off;
+        }
+    } else if inner.commander.is_none() {
+        inner.watchdog = WatchdogState::Idle;
+    }
+}
+
+/// One watchdog tick: while a network sender commands the engaged vehicle, no valid
+/// datagram from it for `timeout` (silence, or a counter that stopped advancing) brings
+/// the vehicle to the safe state and disengages it. Returns the cause when it tripped.
+pub fn watchdog_tick(vehicle: &Vehicle, status: &NetStatus, now: Instant) -> Option<String> {
+    let mut inner = status.inner.lock();
+    sync(vehicle, &mut inner);
+    let c = inner.commander?;
+    let last = inner.last_valid?;
+    let quiet = now.saturating_duration_since(last);
+    if quiet < status.watchdog_timeout {
+        return None;
+    }
+    let ms = quiet.as_millis();
+    let cause = match inner.find(c) {
+        Some(s) if s.stale && s.last_seen > last => format!(
+            "the rolling counter of {c} stopped advancing at {} for {ms} ms",
+            s.seq.unwrap_or_default()
+        ),
+        _ => format!("no valid command from {c} for {ms} ms"),
+    };
+    inner.commander = None;
+    if let Some(s) = inner.find(c) {
+        s.latched = true;
+    }
+    inner.watchdog = WatchdogState::Tripped;
+    inner.last_trip = Some(cause.clone());
+    // Under the lock, so no datagram slips in between the decision and the safe state.
+    vehicle.disengage(&format!("watchdog: {cause}"));
+    drop(inner);
+    tracing::warn!("watchdog: {cause}; safe state commanded");
+    Some(cause)
+}

@@ -1,0 +1,692 @@
+//! The network side over real UDP sockets on loopback, in front of the real engine and
+//! the simulated Alice on pseudo-terminals: commands in, state out, the engage gate,
+//! the watchdog, two commanders, authentication and garbage.
+
+mod common;
+
+use adrive::config::{self, NetworkConfig};
+use adrive::interlock::Reject as Intake;
+use adrive::net::auth::Auth;
+use adrive::net::{Net, Refusal, WatchdogState};
+use adrive::value::{Command, EstopState, Role};
+use common::{wait_for, Rig, DEADLINE};
+use serde_json::Value;
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+struct NetRig {
+    net: Option<Net>,
+    /// Receives the state broadcast.
+    broadcast: UdpSocket,
+    rig: Rig,
+}
+
+impl Drop for NetRig {
+    fn drop(&mut self) {
+        if let Some(n) = self.net.take() {
+            n.shutdown(Duration::from_secs(1));
+        }
+    }
+}
+
+impl NetRig {
+    /// The simulated Alice with its network on ephemeral loopback ports.
+    fn start(tweak: impl FnOnce(&mut NetworkConfig)) -> NetRig {
+        Self::with_auth(tweak, None)
+    }
+
+    fn with_auth(tweak: impl FnOnce(&mut NetworkConfig), auth: Option<Auth>) -> NetRig {
+        let broadcast = UdpSocket::bind("127.0.0.1:0").unwrap();
+        broadcast
+            .set_read_timeout(Some(Duration::from_millis(100)))
+            .unwrap();
+        let mut c = config::VehicleConfig::alice();
+        c.network.listen = "127.0.0.1:0".parse().unwrap();
+        c.network.broadcast_to = vec![broadcast.local_addr().unwrap()];
+        c.network.broadcast_rate = 50.0;
+        tweak(&mut c.network);
+        let network = c.network.clone();
+        let rig = Rig::with_config(c);
+        let net = Net::start(rig.vehicle.clone(), network, auth).expect("net starts");
+        NetRig {
+            net: Some(net),
+            broadcast,
+            rig,
+        }
+    }
+
+    fn net(&self) -> &Net {
+        self.net.as_ref().unwrap()
+    }
+
+    fn client(&self) -> Client {
+        let sock = UdpSocket::bind("127.0.0.1:0").unwrap();
+        sock.connect(self.net().local_addr()).unwrap();
+        Client { sock, seq: 0 }
+    }
+
+    fn ready(&self) {
+        wait_for("every device to report", || {
+            self.rig.vehicle.engage_blockers().is_empty()
+        });
+    }
+
+    /// Read broadcasts until one satisfies `want`; returns it.
+    fn broadcast_until(&self, what: &str, mut want: impl FnMut(&Value) -> bool) -> Value {
+        let end = Instant::now() + DEADLINE;
+        let mut buf = vec![0u8; 65536];
+        loop {
+            assert!(Instant::now() < end, "no broadcast with {what}");
+            if let Ok(n) = self.broadcast.recv(&mut buf) {
+                let v: Value = serde_json::from_slice(&buf[..n]).expect("JSON");
+                if want(&v) {
+                    return v;
+                }
+            }
+        }
+    }
+
+    fn events_since(&self, t: Instant) -> Vec<adrive::sim::SimEvent> {
+        self.rig
+            .received()
+            .into_iter()
+            .filter(|e| e.at >= t)
+            .collect()
+    }
+}
+
+struct Client {
+    sock: UdpSocket,
+    seq: u64,
+}
+
+impl Client {
+    fn addr(&self) -> SocketAddr {
+        self.sock.local_addr().unwrap()
+    }
+
+    fn send(&self, bytes: &[u8]) {
+        self.sock.send(bytes).unwrap();
+    }
+
+    /// Send with the next rolling counter.
+    fn send_seq(&mut self, body: &str) {
+        self.seq += 1;
+        self.send(format!("seq {}\n{body}", self.seq).as_bytes());
+    }
+
+    /// Send and wait for the reply (older replies waiting are dropped first).
+    #[track_caller]
+    fn ask(&self, bytes: &[u8]) -> String {
+        // Replies to one sender are spaced by at least 20 ms.
+        std::thread::sleep(Duration::from_millis(25));
+        while self.reply(Duration::from_millis(1)).is_some() {}
+        self.send(bytes);
+        self.reply(Duration::from_secs(5)).unwrap_or_else(|| {
+            panic!(
+                "no reply to {:?}",
+                String::from_utf8_lossy(&bytes[..bytes.len().min(40)])
+            )
+        })
+    }
+
+    fn reply(&self, within: Duration) -> Option<String> {
+        self.sock.set_read_timeout(Some(within)).unwrap();
+        let mut buf = [0u8; 2048];
+        let n = self.sock.recv(&mut buf).ok()?;
+        Some(String::from_utf8_lossy(&buf[..n]).into_owned())
+    }
+}
+
+fn set(v: f64) -> Command {
+    Command::Set(v)
+}
+
+fn long_watchdog(c: &mut NetworkConfig) {
+    c.watchdog_timeout = Duration::from_secs(30);
+}
+
+#[test]
+fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let mut a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    let t = Instant::now();
+    a.send_seq("steer -0.25 # a little left");
+    wait_for("the steering device to get -0.25", || {
+        n.events_since(t)
+            .iter()
+            .any(|e| e.role == Role::Steer && e.command == set(-0.25))
+    });
+    let v = n.broadcast_until("steer commanded -0.25", |v| {
+        v["devices"]["steer"]["commanded"].as_f64() == Some(-0.25)
+    });
+    assert_eq!(v["schema"], 1);
+    assert_eq!(v["engaged"], true);
+    assert_eq!(v["net"]["commander"], a.addr().to_string());
+    assert_eq!(v["net"]["watchdog"]["state"], "armed");
+    assert_eq!(v["net"]["commands"]["steer"], 1);
+    let steer = &v["devices"]["steer"];
+    assert!(steer["delay_us"]["p99_us"].as_f64().is_some(), "{steer}");
+    assert!(steer["measured"]["position"].as_f64().is_some(), "{steer}");
+    assert!(steer["status_age_ms"].as_f64().unwrap() < 1000.0);
+    assert_eq!(steer["faulty"], false);
+    assert_eq!(v["devices"]["obd"]["actuator"], false);
+    // The receipt → first byte delay is measured from the socket read.
+    let delay = n
+        .rig
+        .vehicle
+        .device(Role::Steer)
+        .unwrap()
+        .stats
+        .snapshot()
+        .command_delay;
+    assert!(
+        delay.count >= 1 && delay.max_us.unwrap() < 100_000.0,
+        "{delay:?}"
+    );
+}
+
+#[test]
+fn disengaged_commands_are_counted_and_not_executed() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let t = Instant::now();
+    let a = n.client();
+    let reply = a.ask(b"steer 0.3\ngas 0");
+    assert!(
+        reply.contains("rejected steer 0.3: disengaged") && reply.contains("rejected gas 0:"),
+        "{reply}"
+    );
+    let status = n.net().status();
+    assert_eq!(status.intake_rejections(Intake::Disengaged), 2);
+    let steer = n.rig.vehicle.device(Role::Steer).unwrap();
+    assert_eq!(steer.stats.rejected.load(Relaxed), 1);
+    std::thread::sleep(Duration::from_millis(300));
+    assert!(
+        !n.events_since(t).iter().any(|e| e.command == set(0.3)),
+        "a disengaged command reached a device"
+    );
+    let snap = status.snapshot();
+    assert_eq!(snap.watchdog.state, WatchdogState::Off);
+    assert_eq!(snap.commander, None);
+    assert_eq!(snap.senders[0].addr, a.addr());
+}
+
+#[test]
+fn engage_is_refused_while_a_device_is_faulty_and_the_reasons_come_back() {
+    let n = NetRig::start(|c| {
+        long_watchdog(c);
+    });
+    n.ready();
+    n.rig
+        .sim
+        .faults(Role::Gas)
+        .unwrap()
+        .silent
+        .store(true, Relaxed);
+    let gas = n.rig.vehicle.device(Role::Gas).unwrap();
+    wait_for("gas to be faulty", || gas.is_faulty());
+    let a = n.client();
+    let reply = a.ask(b"engage");
+    assert!(
+        reply.starts_with("refused engage: ") && reply.contains("gas is faulty"),
+        "{reply}"
+    );
+    assert!(!n.rig.vehicle.is_engaged());
+    assert_eq!(n.net().status().refusals(Refusal::EngageBlocked), 1);
+    n.broadcast_until("the blocker in the broadcast", |v| {
+        v["blockers"].as_array().is_some_and(|b| {
+            b.iter()
+                .any(|s| s.as_str().unwrap().contains("gas is faulty"))
+        }) && v["faults"].as_array().is_some_and(|f| !f.is_empty())
+            && v["devices"]["gas"]["faulty"] == true
+    });
+    // Healthy again: engage passes.
+    n.rig
+        .sim
+        .faults(Role::Gas)
+        .unwrap()
+        .silent
+        .store(false, Relaxed);
+    wait_for("gas to recover", || !gas.is_faulty());
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+}
+
+#[test]
+fn network_engage_is_refused_when_the_vehicle_file_does_not_allow_it() {
+    let n = NetRig::start(|c| c.allow_engage = false);
+    n.ready();
+    let reply = n.client().ask(b"engage");
+    assert!(reply.contains("does not allow engaging"), "{reply}");
+    assert!(!n.rig.vehicle.is_engaged());
+    // The console still may; then a network sender commands.
+    n.rig.vehicle.engage("console").unwrap();
+    let t = Instant::now();
+    let mut a = n.client();
+    a.send_seq("steer 0.1");
+    wait_for("steer 0.1 at the device", || {
+        n.events_since(t).iter().any(|e| e.command == set(0.1))
+    });
+    assert_eq!(n.net().status().snapshot().commander, Some(a.addr()));
+}
+
+#[test]
+fn engage_resets_stale_set_points_and_repeating_it_does_not() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let v = &n.rig.vehicle;
+    let steer = v.device(Role::Steer).unwrap();
+    let mut a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    a.send_seq("steer 0.8");
+    wait_for("steer 0.8 on the wire", || {
+        steer.slot.executed() == Some(set(0.8))
+    });
+    // The wheel needs ~0.8 s to get there; disengage on the way.
+    assert_eq!(a.ask(b"disengage"), "ok disengaged\n");
+    assert_eq!(steer.slot.latest(), Some(set(0.8)), "the stale set point");
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    let held = steer.slot.latest().unwrap().as_f64();
+    assert!(held < 0.8, "engage kept the stale set point {held}");
+    // (The slot reads empty for an instant while its command thread takes it.)
+    wait_for("gas 0 and brake full", || {
+        v.device(Role::Gas).unwrap().slot.latest() == Some(set(0.0))
+            && v.device(Role::Brake).unwrap().slot.latest() == Some(set(1.0))
+    });
+
+    // A planner repeats `engage` in every datagram: nothing is reset again.
+    a.send_seq("engage\nsteer -0.5");
+    wait_for("steer -0.5", || steer.slot.executed() == Some(set(-0.5)));
+    let gate = v.gate_reason();
+    for _ in 0..3 {
+        assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    }
+    assert_eq!(steer.slot.latest(), Some(set(-0.5)));
+    assert_eq!(v.gate_reason(), gate);
+}
+
+/// Sends `body` with an advancing counter every 50 ms until `stop`.
+fn feed(
+    mut c: Client,
+    body: &'static str,
+    stop: Arc<AtomicBool>,
+) -> std::thread::JoinHandle<Instant> {
+    std::thread::spawn(move || {
+        let mut last = Instant::now();
+        while !stop.load(Relaxed) {
+            c.send_seq(body);
+            last = Instant::now();
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        last
+    })
+}
+
+/// Engage and get the brake to 0.2 with a steady sender; returns it running.
+fn braking_at_0_2(
+    n: &NetRig,
+) -> (
+    Arc<AtomicBool>,
+    std::thread::JoinHandle<Instant>,
+    SocketAddr,
+) {
+    n.ready();
+    let a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    let addr = a.addr();
+    let stop = Arc::new(AtomicBool::new(false));
+    let h = feed(a, "accel -0.2", stop.clone());
+    let brake = n.rig.vehicle.device(Role::Brake).unwrap();
+    wait_for("brake 0.2", || brake.slot.executed() == Some(set(0.2)));
+    std::thread::sleep(Duration::from_millis(400));
+    assert!(
+        n.rig.vehicle.is_engaged(),
+        "the steady sender kept it engaged"
+    );
+    (stop, h, addr)
+}
+
+const TIMEOUT: Duration = Duration::from_millis(300);
+/// Watchdog tick, the command thread waking, one brake transaction at 9600 baud, and
+/// slack for a loaded machine.
+const MARGIN: Duration = Duration::from_millis(250);
+
+#[test]
+fn the_watchdog_brakes_and_disengages_when_commands_stop() {
+    let n = NetRig::start(|c| c.watchdog_timeout = TIMEOUT);
+    let (stop, h, addr) = braking_at_0_2(&n);
+    stop.store(true, Relaxed);
+    let last = h.join().unwrap();
+    let v = &n.rig.vehicle;
+    wait_for("the watchdog to disengage", || !v.is_engaged());
+    let brake = v.device(Role::Brake).unwrap();
+    wait_for("the brake to acknowledge full", || {
+        brake.slot.executed() == Some(set(1.0))
+    });
+    let got = n.events_since(last);
+    let full = got
+        .iter()
+        .find(|e| e.role == Role::Brake && e.command == set(1.0))
+        .expect("the brake device got brake 1");
+    let after = full.at - last;
+    assert!(
+        after < TIMEOUT + MARGIN,
+        "brake on {after:?} after the last command"
+    );
+    assert!(after >= TIMEOUT, "tripped early, after {after:?}");
+    assert_eq!(v.device(Role::Gas).unwrap().slot.executed(), Some(set(0.0)));
+    let snap = n.net().status().snapshot();
+    assert_eq!(snap.watchdog.state, WatchdogState::Tripped);
+    let why = snap.watchdog.last_trip.unwrap();
+    assert!(
+        why.contains(&format!("no valid command from {addr}")),
+        "{why}"
+    );
+    assert!(v.gate_reason().contains("watchdog"), "{}", v.gate_reason());
+}
+
+#[test]
+fn a_frozen_rolling_counter_trips_the_watchdog() {
+    let n = NetRig::start(|c| c.watchdog_timeout = TIMEOUT);
+    n.ready();
+    let mut a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    for _ in 0..6 {
+        a.send_seq("accel -0.2");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Alive, but the counter is stuck.
+    let frozen_from = Instant::now();
+    let frozen = format!("seq {}\naccel -0.2\n", a.seq);
+    let v = &n.rig.vehicle;
+    while v.is_engaged() {
+        assert!(frozen_from.elapsed() < DEADLINE);
+        a.send(frozen.as_bytes());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let after = frozen_from.elapsed();
+    assert!(
+        after < TIMEOUT + MARGIN,
+        "disengaged {after:?} after the counter froze"
+    );
+    let brake = v.device(Role::Brake).unwrap();
+    wait_for("the brake to acknowledge full", || {
+        brake.slot.executed() == Some(set(1.0))
+    });
+    let snap = n.net().status().snapshot();
+    let why = snap.watchdog.last_trip.unwrap();
+    assert!(why.contains("rolling counter"), "{why}");
+    assert!(snap.rejected.get("replayed") >= 3);
+    assert!(snap.senders.iter().any(|s| s.frozen && s.latched));
+    // The frozen sender cannot simply engage again; after a datagram without
+    // `engage` it can.
+    let reply = a.ask(format!("seq {}\nengage", a.seq + 1).as_bytes());
+    assert!(
+        reply.starts_with("refused engage: disengaged while"),
+        "{reply}"
+    );
+    a.seq += 1;
+    a.send_seq("steer 0");
+    std::thread::sleep(Duration::from_millis(50));
+    let reply = a.ask(format!("seq {}\nengage", a.seq + 1).as_bytes());
+    assert_eq!(reply, "ok engaged\n");
+}
+
+#[test]
+fn a_second_sender_is_refused_while_another_commands() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let t = Instant::now();
+    let mut a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    a.send_seq("steer 0.2");
+    let b = n.client();
+    let reply = b.ask(b"steer 0.9");
+    assert_eq!(
+        reply,
+        format!(
+            "refused: another sender is commanding the vehicle ({})\n",
+            a.addr()
+        )
+    );
+    assert!(b.ask(b"engage").starts_with("refused: another sender"));
+    assert_eq!(n.net().status().refusals(Refusal::OtherCommander), 2);
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(!n.events_since(t).iter().any(|e| e.command == set(0.9)));
+    assert!(n.rig.vehicle.is_engaged());
+    // Anyone allowed to send may stop the vehicle; the commander must then re-engage
+    // on purpose.
+    assert_eq!(b.ask(b"disengage"), "ok disengaged\n");
+    assert!(!n.rig.vehicle.is_engaged());
+    assert!(a
+        .ask(b"engage")
+        .starts_with("refused engage: disengaged while"));
+}
+
+#[test]
+fn the_allow_list_refuses_other_senders_silently() {
+    let n = NetRig::start(|c| c.allow = vec!["127.0.0.1:1".parse().unwrap()]);
+    n.ready();
+    let a = n.client();
+    a.send(b"engage");
+    assert_eq!(a.reply(Duration::from_millis(300)), None);
+    assert!(!n.rig.vehicle.is_engaged());
+    assert_eq!(n.net().status().refusals(Refusal::NotOnAllowList), 1);
+}
+
+const KEY: &[u8] = b"a shared key of at least 16 bytes";
+
+#[test]
+fn authentication_passes_a_good_tag_and_rejects_bad_missing_and_replayed() {
+    let auth = Auth::from_key_bytes(KEY).unwrap();
+    let n = NetRig::with_auth(long_watchdog, Some(auth.clone()));
+    n.ready();
+    let a = n.client();
+    let t = Instant::now();
+    assert_eq!(a.ask(auth.sign("engage\n", 100).as_bytes()), "ok engaged\n");
+
+    let good = auth.sign("steer 0.3\n", 101);
+    a.send(good.as_bytes());
+    wait_for("steer 0.3", || {
+        n.events_since(t).iter().any(|e| e.command == set(0.3))
+    });
+
+    let bad = auth.sign("steer 0.6\n", 102).replace("0.6", "0.7");
+    assert!(a.ask(bad.as_bytes()).starts_with("rejected: bad_tag"));
+    assert!(a
+        .ask(b"seq 103\nsteer 0.7\n")
+        .starts_with("rejected: missing_tag"));
+    assert!(a.ask(good.as_bytes()).starts_with("rejected: replayed"));
+    let other = Auth::from_key_bytes(b"somebody else's key, 16+ bytes").unwrap();
+    assert!(a
+        .ask(other.sign("steer 0.7", 104).as_bytes())
+        .starts_with("rejected: bad_tag"));
+
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(!n
+        .events_since(t)
+        .iter()
+        .any(|e| e.command == set(0.7) || e.command == set(0.6)));
+    let snap = n.net().status().snapshot();
+    assert_eq!(snap.rejected.get("bad_tag"), 2);
+    assert_eq!(snap.rejected.get("missing_tag"), 1);
+    assert_eq!(snap.rejected.get("replayed"), 1);
+    // A newer counter passes again.
+    a.send(auth.sign("steer 0.4\n", 200).as_bytes());
+    wait_for("steer 0.4", || {
+        n.events_since(t).iter().any(|e| e.command == set(0.4))
+    });
+}
+
+#[test]
+fn garbage_of_every_kind_is_rejected_counted_and_harmless() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let v = &n.rig.vehicle;
+    let a = n.client();
+    let polls = v.device(Role::Steer).unwrap().stats.polls.load(Relaxed);
+    let cases: &[(&[u8], &str)] = &[
+        (b"", "empty"),
+        (&[b'#'; 5000], "oversized"),
+        (b"\x00\x01\x02\x03\xde\xad\xbe\xef", "binary"),
+        (b"steer \xff\xfe", "not_utf8"),
+        (b"steer NaN", "not_finite"),
+        (b"gas inf", "not_finite"),
+        (b"steer 1.5", "out_of_range"),
+        (b"wiper 0.2", "unknown_device"),
+        (b"launch missiles", "unknown_verb"),
+        (b"estop 1", "not_allowed"),
+    ];
+    for (bytes, reason) in cases {
+        let reply = a.ask(bytes);
+        assert!(
+            reply.starts_with("rejected: ") && reply.contains(reason),
+            "{:?}: {reply}",
+            String::from_utf8_lossy(&bytes[..bytes.len().min(20)])
+        );
+    }
+    let snap = n.net().status().snapshot();
+    for (_, reason) in cases {
+        assert!(snap.rejected.get(reason) >= 1, "{reason} not counted");
+    }
+    assert_eq!(snap.rejected.get("not_finite"), 2);
+    // The listener still works and nothing moved.
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    assert!(v.devices.iter().all(|d| !d.is_faulty()));
+    wait_for("status polls to go on", || {
+        v.device(Role::Steer).unwrap().stats.polls.load(Relaxed) > polls + 5
+    });
+    assert_eq!(
+        v.device(Role::Steer).unwrap().stats.received.load(Relaxed),
+        1,
+        "only the engage hold"
+    );
+}
+
+/// A heavy flood of junk from one sender (2500 times a planner's rate) while the
+/// commander steers at 50 Hz: the commander's datagrams get through, the watchdog
+/// stays calm, the devices keep polling and readers (the console) never wait.
+#[test]
+fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
+    let n = NetRig::start(|c| c.watchdog_timeout = Duration::from_millis(500));
+    n.ready();
+    let mut a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    let stop = Arc::new(AtomicBool::new(false));
+    let flooder = {
+        let flood = n.client();
+        let stop = stop.clone();
+        std::thread::spawn(move || {
+            let junk = [
+                b"\xff\x00garbage".as_slice(),
+                b"steer 7",
+                b"",
+                &[b'x'; 1500],
+            ];
+            let mut sent = 0u64;
+            let start = Instant::now();
+            while !stop.load(Relaxed) {
+                // 50 000 datagrams a second, in bursts of 500.
+                for _ in 0..500 {
+                    let _ = flood.sock.send(junk[sent as usize % junk.len()]);
+                    sent += 1;
+                }
+                let due = start + Duration::from_micros(sent * 20);
+                std::thread::sleep(due.saturating_duration_since(Instant::now()));
+            }
+            sent
+        })
+    };
+    let v = &n.rig.vehicle;
+    let steer = v.device(Role::Steer).unwrap();
+    let before = steer.stats.snapshot();
+    let start = Instant::now();
+    let mut i = 0;
+    let mut slowest_read = Duration::ZERO;
+    while start.elapsed() < Duration::from_millis(1500) {
+        a.send_seq(if i % 2 == 0 {
+            "steer 0.1"
+        } else {
+            "steer -0.1"
+        });
+        i += 1;
+        let t = Instant::now();
+        let _ = n.net().status().snapshot();
+        for d in &v.devices {
+            let _ = d.cached();
+        }
+        slowest_read = slowest_read.max(t.elapsed());
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    stop.store(true, Relaxed);
+    let flooded = flooder.join().unwrap();
+    assert!(v.is_engaged(), "the watchdog tripped under the flood");
+    let got = steer.stats.snapshot().received - before.received;
+    assert!(
+        got as f64 >= i as f64 * 0.95,
+        "{got} of {i} commands got through a flood of {flooded}"
+    );
+    let rejected = n.net().status().snapshot().rejected;
+    let junk: u64 = rejected.datagram.iter().map(|(_, c)| c).sum();
+    assert!(
+        junk as f64 > flooded as f64 * 0.9,
+        "{junk} of {flooded} junk datagrams read"
+    );
+    assert!(
+        slowest_read < Duration::from_millis(50),
+        "a reader waited {slowest_read:?}"
+    );
+    let delay = steer.stats.snapshot().command_delay;
+    assert!(delay.p99_us.unwrap() < 60_000.0, "{delay:?}");
+    let brake = v.device(Role::Brake).unwrap();
+    assert!(brake.cached().age().unwrap() < Duration::from_millis(600));
+}
+
+#[test]
+fn the_gate_monitor_disengages_on_estop_pause_and_on_a_fault() {
+    let n = NetRig::start(long_watchdog);
+    let _monitor = adrive::gate::Monitor::start(n.rig.vehicle.clone()).unwrap();
+    n.ready();
+    let v = &n.rig.vehicle;
+    let brake = v.device(Role::Brake).unwrap();
+    let mut a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    a.send_seq("accel -0.3");
+    wait_for("brake 0.3", || brake.slot.executed() == Some(set(0.3)));
+    n.rig.sim.set_estop(EstopState::Pause);
+    wait_for("disengaged by the e-stop", || !v.is_engaged());
+    assert!(
+        v.gate_reason().contains("e-stop pause"),
+        "{}",
+        v.gate_reason()
+    );
+    wait_for("brake full", || brake.slot.executed() == Some(set(1.0)));
+    // The commander was disengaged against its will: it must drop `engage` first.
+    let reply = a.ask(b"engage");
+    assert!(reply.contains("disengaged: e-stop pause"), "{reply}");
+    // A fresh sender is told what blocks engaging.
+    let reply = n.client().ask(b"engage");
+    assert!(reply.contains("e-stop is in pause"), "{reply}");
+
+    n.rig.sim.set_estop(EstopState::Run);
+    wait_for("the e-stop to read run", || {
+        v.estop() == Some(EstopState::Run)
+    });
+    v.engage("test").unwrap();
+    n.rig
+        .sim
+        .faults(Role::Trans)
+        .unwrap()
+        .silent
+        .store(true, Relaxed);
+    wait_for("disengaged by the fault", || !v.is_engaged());
+    assert!(
+        v.gate_reason().contains("trans is faulty"),
+        "{}",
+        v.gate_reason()
+    );
+}

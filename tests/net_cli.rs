@@ -1,0 +1,312 @@
+//! The network clients as a user runs them, against the real `adrive --sim
+//! --headless`: the README's planner stand-in (`adrive send --rate 20 …`) engages,
+//! shifts and drives while `adrive watch` shows it, and the watchdog stops the vehicle
+//! when the sender stops; one-shot `send`, its replies and exit status; `--key`.
+
+mod common;
+
+use common::DEADLINE;
+use serde_json::Value;
+use std::io::{BufRead, BufReader, Read};
+use std::net::UdpSocket;
+use std::path::PathBuf;
+use std::process::{Child, Command as Process, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_adrive");
+
+fn lines(stream: impl Read + Send + 'static) -> mpsc::Receiver<String> {
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+fn free_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn tempdir(tag: &str) -> PathBuf {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos();
+    let d = std::env::temp_dir().join(format!("adrive-net-{tag}-{}-{nanos}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A headless simulated Alice on its own ports; killed (SIGTERM) on drop.
+struct Adrive {
+    child: Child,
+    listen: String,
+    broadcast: String,
+    dir: PathBuf,
+}
+
+impl Adrive {
+    fn start(tag: &str, network_extra: &str) -> Adrive {
+        let dir = tempdir(tag);
+        let (listen, broadcast) = (
+            format!("127.0.0.1:{}", free_port()),
+            format!("127.0.0.1:{}", free_port()),
+        );
+        // The built-in Alice with its [network] section replaced.
+        let alice = adrive::config::ALICE_TOML;
+        let start = alice.find("[network]").unwrap();
+        let end = start + alice[start..].find("[[device]]").unwrap();
+        let config = format!(
+            "{}[network]\nlisten = \"{listen}\"\nbroadcast_to = [\"{broadcast}\"]\nallow_engage = true\n{network_extra}\n\n{}",
+            &alice[..start],
+            &alice[end..]
+        );
+        let path = dir.join("alice.toml");
+        std::fs::write(&path, config).unwrap();
+        let mut child = Process::new(BIN)
+            .args(["--sim", "--headless", "--config"])
+            .arg(&path)
+            .arg("--log-dir")
+            .arg(dir.join("log"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let err = lines(child.stderr.take().unwrap());
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let l = err
+                .recv_timeout(end.saturating_duration_since(Instant::now()))
+                .expect("adrive to start");
+            if l.contains("running headless") {
+                break;
+            }
+        }
+        // Keep draining its log.
+        std::thread::spawn(move || for _ in err {});
+        Adrive {
+            child,
+            listen,
+            broadcast,
+            dir,
+        }
+    }
+
+    fn send(&self, args: &[&str]) -> std::process::Output {
+        Process::new(BIN)
+            .args(["send", "--to", &self.listen])
+            .args(args)
+            .current_dir(&self.dir)
+            .output()
+            .unwrap()
+    }
+}
+
+impl Drop for Adrive {
+    fn drop(&mut self) {
+        signal(&self.child, libc::SIGTERM);
+        let _ = self.child.wait();
+    }
+}
+
+fn signal(child: &Child, sig: i32) {
+    // SAFETY: plain kill(2) on our own child.
+    unsafe { libc::kill(child.id() as i32, sig) };
+}
+
+/// `adrive watch --json`, one parsed broadcast at a time.
+struct Watch {
+    child: Child,
+    rx: mpsc::Receiver<String>,
+}
+
+impl Watch {
+    fn start(from: &str) -> Watch {
+        let mut child = Process::new(BIN)
+            .args(["watch", "--json", "--from", from])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let rx = lines(child.stdout.take().unwrap());
+        Watch { child, rx }
+    }
+
+    /// Broadcasts until one satisfies `want`; returns it and when it arrived.
+    fn until(&self, what: &str, mut want: impl FnMut(&Value) -> bool) -> (Value, Instant) {
+        let end = Instant::now() + DEADLINE;
+        let mut last = Value::Null;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            let Ok(line) = self.rx.recv_timeout(left) else {
+                panic!("no broadcast with {what}; the last:\n{last:#}");
+            };
+            let v: Value = serde_json::from_str(&line).expect("one JSON object per line");
+            if want(&v) {
+                return (v, Instant::now());
+            }
+            last = v;
+        }
+    }
+}
+
+impl Drop for Watch {
+    fn drop(&mut self) {
+        signal(&self.child, libc::SIGINT);
+        let _ = self.child.wait();
+    }
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or(f64::NAN)
+}
+
+/// The README's "Done when": a planner stand-in engages, shifts to drive and holds gas
+/// at 0.3; `watch` shows gas at 0.3 and the speed rising; the sender stops and the
+/// watchdog brings the vehicle to a safe stop within its timeout.
+#[test]
+fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
+    let adrive = Adrive::start("planner", "watchdog_timeout = \"500ms\"");
+    let watch = Watch::start(&adrive.broadcast);
+    watch.until("every device reporting", |v| {
+        v["blockers"].as_array().is_some_and(|b| b.is_empty())
+    });
+    let mut sender = Process::new(BIN)
+        .args(["send", "--to", &adrive.listen, "--rate", "20"])
+        .args(["engage", "trans", "drive", "accel", "0.3"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let replies = lines(sender.stdout.take().unwrap());
+    let (v, _) = watch.until("gas at 0.3 in drive", |v| {
+        let d = &v["devices"];
+        v["engaged"] == true
+            && d["trans"]["measured"]["gear"] == "drive"
+            && d["gas"]["commanded"].as_f64() == Some(0.3)
+            && f(&d["gas"]["measured"]["position"]) > 0.28
+    });
+    assert_eq!(v["net"]["watchdog"]["state"], "armed");
+    let speed = |v: &Value| f(&v["devices"]["obd"]["measured"]["speed"]);
+    let s0 = speed(&v);
+    let (v, _) = watch.until("the speed rising", |v| speed(v) > s0 + 0.5);
+    assert_eq!(f(&v["devices"]["brake"]["commanded"]), 0.0);
+    let first = replies.recv_timeout(DEADLINE).unwrap();
+    assert!(first.ends_with("ok engaged"), "{first}");
+
+    // Stop the planner: the watchdog commands the safe state and disengages.
+    signal(&sender, libc::SIGINT);
+    let stopped = Instant::now();
+    assert!(sender.wait().unwrap().success());
+    let (v, at) = watch.until("the watchdog to trip", |v| v["engaged"] == false);
+    let after = at - stopped;
+    // 500 ms timeout, plus the last datagram's period, a broadcast period and slack.
+    assert!(
+        after < Duration::from_millis(500 + 50 + 100 + 400),
+        "{after:?}"
+    );
+    assert_eq!(v["net"]["watchdog"]["state"], "tripped");
+    let gate = v["gate"].as_str().unwrap();
+    assert!(
+        gate.starts_with("disengaged: watchdog: no valid command"),
+        "{gate}"
+    );
+    watch.until("gas 0 and brake full at the devices", |v| {
+        let d = &v["devices"];
+        d["gas"]["executed"].as_f64() == Some(0.0)
+            && d["brake"]["executed"].as_f64() == Some(1.0)
+            && f(&d["brake"]["measured"]["position"]) > 0.9
+    });
+    watch.until("a standstill", |v| speed(v) < 0.05);
+}
+
+#[test]
+fn send_once_prints_the_reply_and_its_status_says_whether_it_was_refused() {
+    let adrive = Adrive::start("once", "");
+    let out = adrive.send(&["steer", "0.2"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("rejected steer 0.2: disengaged"),
+        "{stdout}"
+    );
+    assert_eq!(out.status.code(), Some(1));
+
+    let out = adrive.send(&["stear 0.2"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("unknown_device"), "{stderr}");
+
+    let nobody = format!("127.0.0.1:{}", free_port());
+    let out = Process::new(BIN)
+        .args(["send", "--to", &nobody, "engage"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("nothing is listening"));
+}
+
+#[test]
+fn send_with_a_key_signs_and_unsigned_datagrams_are_rejected() {
+    let dir = tempdir("keyfile");
+    let key = dir.join("adrive.key");
+    std::fs::write(&key, "correct horse battery staple\n").unwrap();
+    let adrive = Adrive::start("key", &format!("key_file = \"{}\"", key.display()));
+    let out = adrive.send(&["engage"]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("missing_tag"));
+    assert_eq!(out.status.code(), Some(1));
+    // Refused (with the reasons) until every device has reported.
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let out = adrive.send(&["--key", key.to_str().unwrap(), "engage"]);
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        if stdout == "ok engaged\n" {
+            assert_eq!(out.status.code(), Some(0));
+            break;
+        }
+        assert!(stdout.contains("has not reported yet"), "{stdout}");
+        assert!(Instant::now() < end, "{stdout}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
+    let dir = tempdir("nokey");
+    let path = dir.join("v.toml");
+    std::fs::write(
+        &path,
+        "[vehicle]\nname = \"x\"\n\n[network]\nkey_file = \"missing.key\"\n",
+    )
+    .unwrap();
+    let out = Process::new(BIN)
+        .args(["--headless", "--config"])
+        .arg(&path)
+        .arg("--log-dir")
+        .arg(dir.join("log"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("missing.key"), "{err}");
+
+    let busy = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let out = Process::new(BIN)
+        .args(["--sim", "--headless", "--listen"])
+        .arg(busy.local_addr().unwrap().to_string())
+        .arg("--log-dir")
+        .arg(dir.join("log"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("listen on"), "{err}");
+}
