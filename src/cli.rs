@@ -215,7 +215,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                     .as_ref()
                     .map(|s| s.ports.iter().map(|p| (p.role, p.faults.clone())).collect())
                     .unwrap_or_default(),
-                ..Default::default()
             };
             let opts = console::Options {
                 keymap,

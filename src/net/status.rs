@@ -418,7 +418,7 @@ impl crate::console::controls::NetSource for NetStatus {
         .filter(|(_, n)| *n > 0)
         .map(|(r, n)| (r.to_string(), *n))
         .collect();
-        rejections.sort_by(|a, b| b.1.cmp(&a.1));
+        rejections.sort_by_key(|r| std::cmp::Reverse(r.1));
         Panel {
             listen: s.listen.to_string(),
             senders: s
