@@ -66,6 +66,10 @@ pub struct RunArgs {
     /// [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = humantime::parse_duration)]
     pub deadman: Option<Duration>,
+    /// Fault injection for tests: make a thread panic once running (`main` or
+    /// `supervisor`).
+    #[arg(long, value_name = "THREAD", hide = true)]
+    pub inject_panic: Option<String>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
@@ -204,6 +208,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let net = Net::start(vehicle.clone(), vehicle.config.network.clone(), auth)?;
     let engine = Engine::start(vehicle.clone())?;
     let gate = gate::Monitor::start(vehicle.clone())?;
+    let mut sup_cfg = vehicle.config.supervisor.clone();
+    sup_cfg.panic_for_test = args.inject_panic.as_deref() == Some("supervisor");
+    let supervisor = crate::supervisor::start(vehicle.clone(), sup_cfg, Box::new(exit::request))?;
+    if args.inject_panic.as_deref() == Some("main") {
+        // Let the devices report first, so the unwinding really has a vehicle to stop.
+        std::thread::sleep(Duration::from_millis(1500));
+        panic!("injected panic (--inject-panic main)");
+    }
     tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
     let why = match keymap {
         None => headless::wait(&vehicle, &exits),
@@ -238,7 +250,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     net.close();
     vehicle.disengage(&format!("stopping: {}", why.describe()));
     let net_figures = net.status().snapshot();
-    let mut stuck = net.shutdown(Duration::from_millis(500));
+    let mut stuck = supervisor.shutdown(Duration::from_millis(500));
+    stuck.extend(net.shutdown(Duration::from_millis(500)));
     stuck.extend(gate.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);

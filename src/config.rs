@@ -162,10 +162,60 @@ pub struct VehicleSettings {
     pub name: String,
 }
 
+/// How the supervisor watches and recovers (`[supervisor]` in the vehicle file).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SupervisorConfig {
+    /// How often it looks (the paper's was 1 s).
+    #[serde(deserialize_with = "duration")]
+    pub period: Duration,
+    /// Failed transactions over all transactions in `error_window` above which a device
+    /// is at fault.
+    pub error_rate: f64,
+    #[serde(deserialize_with = "duration")]
+    pub error_window: Duration,
+    /// A measured value further than this from its command …
+    pub follow_tolerance: f64,
+    /// … for longer than this is "not following".
+    #[serde(deserialize_with = "duration")]
+    pub follow_time: Duration,
+    /// Reported positions may stray this fraction of the range outside it.
+    pub range_margin: f64,
+    /// Tries of a recovery procedure before it gives up.
+    pub attempts: u32,
+    /// Time a recovery step may take.
+    #[serde(deserialize_with = "duration")]
+    pub step_timeout: Duration,
+    /// A procedure that gives up is a fatal device error: end the process (status 4)
+    /// after the safe state, so a service manager can act.
+    pub exit_on_give_up: bool,
+    /// Fault injection for tests (`--inject-panic supervisor`).
+    #[serde(skip)]
+    pub panic_for_test: bool,
+}
+
+impl Default for SupervisorConfig {
+    fn default() -> Self {
+        SupervisorConfig {
+            period: Duration::from_millis(100),
+            error_rate: 0.5,
+            error_window: Duration::from_secs(2),
+            follow_tolerance: 0.1,
+            follow_time: Duration::from_millis(2500),
+            range_margin: 0.05,
+            attempts: 3,
+            step_timeout: Duration::from_secs(4),
+            exit_on_give_up: true,
+            panic_for_test: false,
+        }
+    }
+}
+
 /// A whole vehicle.
 #[derive(Clone, Debug, PartialEq)]
 pub struct VehicleConfig {
     pub vehicle: VehicleSettings,
+    pub supervisor: SupervisorConfig,
     pub devices: Vec<DeviceConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
@@ -195,6 +245,8 @@ impl VehicleConfig {
 #[serde(deny_unknown_fields)]
 struct Raw {
     vehicle: VehicleSettings,
+    #[serde(default)]
+    supervisor: SupervisorConfig,
     #[serde(default)]
     device: Vec<toml::Spanned<DeviceConfig>>,
     #[serde(default)]
@@ -279,6 +331,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     };
     Ok(VehicleConfig {
         vehicle: raw.vehicle,
+        supervisor: raw.supervisor,
         devices,
         network,
         source: path.to_string(),

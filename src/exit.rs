@@ -16,6 +16,8 @@ pub enum Exit {
     Signal(i32),
     /// A thread panicked; the message says which and why.
     Panic(String),
+    /// A device failed for good (a recovery procedure gave up).
+    Fatal(String),
 }
 
 impl Exit {
@@ -25,6 +27,7 @@ impl Exit {
             Exit::Quit | Exit::Signal(SIGINT) | Exit::Signal(SIGTERM) => 0,
             Exit::Signal(s) => 128 + s,
             Exit::Panic(_) => 101,
+            Exit::Fatal(_) => 4,
         }
     }
 
@@ -36,6 +39,7 @@ impl Exit {
             Exit::Signal(SIGHUP) => "SIGHUP (terminal hung up)".into(),
             Exit::Signal(s) => format!("signal {s}"),
             Exit::Panic(m) => format!("panic: {m}"),
+            Exit::Fatal(m) => format!("fatal device error: {m}"),
         }
     }
 }

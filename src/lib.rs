@@ -19,5 +19,6 @@ pub mod logging;
 pub mod net;
 pub mod ports;
 pub mod sim;
+pub mod supervisor;
 pub mod value;
 pub mod vehicle;

@@ -178,6 +178,10 @@ pub struct Vehicle {
     /// Interlock rules at intake; switched off only from the console, with confirmation.
     pub interlocks: AtomicBool,
     engaged: AtomicBool,
+    /// What the supervisor sees: faults and the recovery in progress.
+    pub supervision: Arc<crate::supervisor::status::Status>,
+    /// Devices a recovery procedure has taken over (bit per role): intake refuses them.
+    recovering: std::sync::atomic::AtomicU8,
     /// Why the vehicle is (dis)engaged, for the console and the broadcast.
     gate_reason: Mutex<String>,
     rejections: [AtomicU64; Reject::ALL.len()],
@@ -199,6 +203,8 @@ impl Vehicle {
             devices,
             interlocks: AtomicBool::new(true),
             engaged: AtomicBool::new(false),
+            supervision: Default::default(),
+            recovering: Default::default(),
             gate_reason: Mutex::new("not engaged yet".into()),
             rejections: Default::default(),
             reject_log: Mutex::new(RateLimit::new(10)),
@@ -362,6 +368,9 @@ impl Vehicle {
         if !self.is_engaged() {
             return Err(self.reject(Some(d), Some(command), Reject::Disengaged));
         }
+        if self.is_recovering(role) {
+            return Err(self.reject(Some(d), Some(command), Reject::Recovering));
+        }
         if self.interlocks.load(Relaxed) {
             if let Err(why) = interlock::check(&self.facts(), role, command) {
                 return Err(self.reject(Some(d), Some(command), why));
@@ -403,6 +412,110 @@ impl Vehicle {
         } else {
             self.submit(Role::Gas, Command::Set(0.0), received)?;
             self.submit(Role::Brake, Command::Set(-a), received)
+        }
+    }
+
+    /// A recovery procedure takes these devices over (intake refuses them) or, with an
+    /// empty list, hands everything back.
+    pub fn set_recovering(&self, roles: &[Role]) {
+        let mask = roles.iter().fold(0u8, |m, r| m | 1 << (*r as u8));
+        self.recovering.store(mask, Relaxed);
+    }
+
+    pub fn is_recovering(&self, role: Role) -> bool {
+        self.recovering.load(Relaxed) & (1 << (role as u8)) != 0
+    }
+
+    /// The supervisor's own commands: past the gate and the intake interlocks (the
+    /// wire-level checks in [`Vehicle::clear_to_send`] still apply).
+    pub fn override_command(&self, role: Role, command: Command) {
+        if let Some(d) = self.device(role) {
+            self.store(d, command, Instant::now());
+        }
+    }
+
+    /// The last check, made by a command thread right before its command goes on the
+    /// wire, against what the other actuators have on or are putting on the wire. Intake
+    /// checked the same rules, but gas and brake have threads of their own, so a brake
+    /// command submitted a moment after a gas command could otherwise reach its device
+    /// first. Each thread has already recorded its own command in its slot before it
+    /// looks at the others', so of two racing threads at least one sees the other.
+    ///
+    /// Returns what to send instead (`None`: nothing). Braking is never refused: it
+    /// first has the gas released and waits a bounded time for that to reach the wire.
+    pub fn clear_to_send(&self, role: Role, command: Command) -> Option<Command> {
+        if !self.interlocks.load(Relaxed) {
+            return Some(command);
+        }
+        let set = |c: Option<Command>| c.and_then(Command::set_point);
+        let released = |c: Option<Command>| set(c).is_none_or(|v| v <= interlock::RELEASED);
+        match (role, command) {
+            (Role::Gas, Command::Set(v)) if v > interlock::RELEASED => {
+                let braking = self.device(Role::Brake).is_some_and(|b| {
+                    let (p, l, s) = b.slot.wire();
+                    !(released(p) && released(l) && released(s))
+                });
+                let why = if braking {
+                    Some(Reject::GasWhileBraking)
+                } else if self.estop() != Some(EstopState::Run) {
+                    Some(Reject::GasEstop)
+                } else {
+                    None
+                };
+                match why {
+                    Some(why) => {
+                        self.reject(self.device(Role::Gas), Some(command), why);
+                        Some(Command::Set(0.0))
+                    }
+                    None => Some(command),
+                }
+            }
+            (Role::Brake, Command::Set(v)) => {
+                if v > interlock::RELEASED {
+                    if let Some(g) = self.device(Role::Gas) {
+                        let (p, l, _) = g.slot.wire();
+                        if !(released(p) && released(l)) {
+                            self.store(g, Command::Set(0.0), Instant::now());
+                        }
+                        let deadline =
+                            Instant::now() + g.config.reply_timeout * 2 + Duration::from_millis(50);
+                        g.slot.wait_wire(
+                            |p, l, s| released(p) && released(l) && released(s),
+                            deadline,
+                        );
+                    }
+                }
+                if v < interlock::SHIFT_BRAKE {
+                    // A shift on its way keeps the brake on until it is through.
+                    if let Some(t) = self.device(Role::Trans) {
+                        let deadline =
+                            Instant::now() + t.config.reply_timeout * 2 + Duration::from_millis(50);
+                        t.slot.wait_wire(|p, l, s| p.is_none() && l == s, deadline);
+                    }
+                }
+                Some(command)
+            }
+            (Role::Trans, Command::Gear(g)) => {
+                let facts = self.facts();
+                if Some(g) == facts.gear {
+                    return Some(command);
+                }
+                let why = if !facts.speed.is_some_and(|s| s.abs() < interlock::STOPPED) {
+                    Some(Reject::ShiftWhileMoving)
+                } else if !facts.brake_low.is_some_and(|b| b >= interlock::SHIFT_BRAKE) {
+                    Some(Reject::ShiftWithoutBrake)
+                } else {
+                    None
+                };
+                match why {
+                    Some(why) => {
+                        self.reject(self.device(Role::Trans), Some(command), why);
+                        None
+                    }
+                    None => Some(command),
+                }
+            }
+            _ => Some(command),
         }
     }
 

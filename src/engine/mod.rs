@@ -98,6 +98,7 @@ pub struct Engine {
     vehicle: Arc<Vehicle>,
     stop: Arc<StopSignal>,
     threads: Threads,
+    stopped: bool,
 }
 
 impl Engine {
@@ -114,7 +115,7 @@ impl Engine {
             if vehicle.devices[i].is_actuator() {
                 let v = vehicle.clone();
                 threads.spawn(format!("{role}/command"), move || {
-                    command_loop(&v.devices[i])
+                    command_loop(&v, &v.devices[i])
                 })?;
             }
         }
@@ -122,6 +123,7 @@ impl Engine {
             vehicle,
             stop,
             threads,
+            stopped: false,
         })
     }
 
@@ -135,7 +137,12 @@ impl Engine {
 
     /// Bring the vehicle to the safe state, then stop and join every thread.
     /// Returns whether the safe state was acknowledged and which threads did not stop.
-    pub fn shutdown(self, deadline: Duration) -> (bool, Vec<String>) {
+    pub fn shutdown(mut self, deadline: Duration) -> (bool, Vec<String>) {
+        self.stop_all(deadline)
+    }
+
+    fn stop_all(&mut self, deadline: Duration) -> (bool, Vec<String>) {
+        self.stopped = true;
         let end = Instant::now() + deadline;
         self.vehicle.command_safe_state();
         let safe = self.vehicle.wait_safe(Instant::now() + deadline / 2);
@@ -144,7 +151,21 @@ impl Engine {
             d.slot.stop();
             d.port.stop();
         }
-        (safe, self.threads.join(end))
+        (safe, std::mem::take(&mut self.threads).join(end))
+    }
+}
+
+/// An engine dropped without [`Engine::shutdown`] — e.g. while a panic unwinds the
+/// thread that owns it — still commands the safe state before its threads stop.
+impl Drop for Engine {
+    fn drop(&mut self) {
+        if !self.stopped {
+            tracing::error!("engine dropped without shutdown: commanding the safe state");
+            let (safe, _) = self.stop_all(Duration::from_secs(2));
+            if safe {
+                tracing::info!("safe state acknowledged: gas 0, brake full");
+            }
+        }
     }
 }
 
@@ -191,7 +212,7 @@ fn status_loop(d: &Device, stop: &StopSignal) {
     }
 }
 
-fn command_loop(d: &Device) {
+fn command_loop(v: &Vehicle, d: &Device) {
     let mut last_sent_at: Option<Instant> = None;
     loop {
         let (mut job, mut resend) = match d.slot.wait(d.settings.command_timeout()) {
@@ -236,8 +257,19 @@ fn command_loop(d: &Device) {
         }
         loop {
             d.slot.set_last(job.command);
-            let (result, first) = port.transact(|drv, link| drv.command(link, job.command));
+            // The wire-level interlock check; it may replace the command (gas while
+            // braking goes out as 0), drop it (a shift that became unsafe), or wait a
+            // moment (braking waits for the gas release to reach the wire).
+            let Some(command) = v.clear_to_send(d.role, job.command) else {
+                d.slot.restore_last(d.slot.sent());
+                break;
+            };
+            if command != job.command {
+                d.slot.set_last(command);
+            }
+            let (result, first) = port.transact(|drv, link| drv.command(link, command));
             let done = Instant::now();
+            d.slot.set_sent(command);
             if let Some(first) = first {
                 if !resend {
                     d.stats.command_delay.record(first - job.received);
@@ -253,7 +285,7 @@ fn command_loop(d: &Device) {
                     }
                     d.health.command_error.store(0, Relaxed);
                     d.record_ok();
-                    d.slot.set_executed(job.command);
+                    d.slot.set_executed(command);
                 }
                 Err(e) => {
                     Stats::bump(&d.stats.command_errors);

@@ -35,6 +35,9 @@ struct State {
     last: Option<Command>,
     /// The last command the device acknowledged.
     executed: Option<Command>,
+    /// The last command whose transaction finished (its bytes are on the wire,
+    /// acknowledged or not).
+    sent: Option<Command>,
     nudged: bool,
     stopped: bool,
 }
@@ -122,6 +125,45 @@ impl CommandSlot {
         self.cv.notify_all();
     }
 
+    /// Record that a transaction finished, and wake anyone waiting for it.
+    pub fn set_sent(&self, command: Command) {
+        self.state.lock().sent = Some(command);
+        self.cv.notify_all();
+    }
+
+    /// Pending, last handed to the wire, last finished on the wire.
+    pub fn wire(&self) -> (Option<Command>, Option<Command>, Option<Command>) {
+        let s = self.state.lock();
+        (s.pending.map(|p| p.command), s.last, s.sent)
+    }
+
+    /// Wait until `done(pending, last, sent)` holds or the deadline passes.
+    pub fn wait_wire(
+        &self,
+        done: impl Fn(Option<Command>, Option<Command>, Option<Command>) -> bool,
+        deadline: Instant,
+    ) -> bool {
+        let mut s = self.state.lock();
+        loop {
+            if done(s.pending.map(|p| p.command), s.last, s.sent) {
+                return true;
+            }
+            if s.stopped || self.cv.wait_until(&mut s, deadline).timed_out() {
+                return done(s.pending.map(|p| p.command), s.last, s.sent);
+            }
+        }
+    }
+
+    /// Undo `set_last` for a command that did not go out after all.
+    pub fn restore_last(&self, last: Option<Command>) {
+        self.state.lock().last = last;
+        self.cv.notify_all();
+    }
+
+    pub fn sent(&self) -> Option<Command> {
+        self.state.lock().sent
+    }
+
     pub fn executed(&self) -> Option<Command> {
         self.state.lock().executed
     }
@@ -167,6 +209,7 @@ impl CommandSlot {
         s.pending = None;
         s.last = to;
         s.executed = None;
+        s.sent = None;
     }
 }
 

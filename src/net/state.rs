@@ -30,8 +30,11 @@ pub struct State {
     /// What would refuse an engage right now (empty: it may engage).
     pub blockers: Vec<String>,
     pub interlocks: bool,
-    /// Faults seen by the supervisor side: every faulty device with its last error.
+    /// Every faulty device with its last error.
     pub faults: Vec<String>,
+    /// The supervisor: named faults with cause and age, the recovery in progress step
+    /// by step, the last outcome, recent history.
+    pub supervisor: crate::supervisor::status::SupervisorSnapshot,
     /// Intake rejections of every command (network and console), by reason.
     #[serde(serialize_with = "pairs")]
     pub rejections: Vec<(&'static str, u64)>,
@@ -154,6 +157,7 @@ pub fn build(vehicle: &Vehicle, net: Option<NetSnapshot>, seq: u64, started: Ins
         blockers: vehicle.engage_blockers(),
         interlocks: vehicle.interlocks.load(Relaxed),
         faults,
+        supervisor: vehicle.supervision.snapshot(),
         rejections: vehicle
             .rejections()
             .into_iter()

@@ -1,0 +1,387 @@
+//! The supervisor (the paper's supervisory thread): it watches every device through
+//! the cache, names each fault with its cause and time, reports it (console, state
+//! broadcast, log), and runs recovery procedures as explicit state machines
+//! ([`recovery`]). A procedure that gives up leaves the vehicle in the safe state,
+//! disengaged, and — as a fatal device error — asks the process to end.
+//!
+//! The gate monitor ([`crate::gate`]) disengages within milliseconds on an e-stop or
+//! a faulty device; the supervisor works at its own, slower period on diagnosis and
+//! recovery.
+
+pub mod recovery;
+pub mod status;
+
+use crate::config::SupervisorConfig;
+use crate::engine::{StopSignal, Threads};
+use crate::exit::Exit;
+use crate::value::{Command, EstopState, Gear, Role};
+use crate::vehicle::{Device, Vehicle};
+use recovery::{Procedure, Progress};
+use status::{Fault, FaultKind};
+use std::collections::HashMap;
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Where the supervisor sends a request to end the process (a fatal device error).
+pub type ExitSink = Box<dyn Fn(Exit) + Send>;
+
+/// Per-device memory between ticks.
+#[derive(Default)]
+struct Track {
+    /// (time, attempts, errors) samples over the error window.
+    window: Vec<(Instant, u64, u64)>,
+    /// Since when the measured value is away from the command.
+    away_since: Option<Instant>,
+}
+
+/// The fault detector, separate from the thread so tests can drive it.
+pub struct Detector {
+    cfg: SupervisorConfig,
+    tracks: HashMap<Role, Track>,
+    started: Instant,
+}
+
+impl Detector {
+    pub fn new(cfg: SupervisorConfig) -> Detector {
+        Detector {
+            cfg,
+            tracks: HashMap::new(),
+            started: Instant::now(),
+        }
+    }
+
+    /// Every fault visible now. `previous` keeps the `since` of faults that persist.
+    pub fn detect(&mut self, v: &Vehicle, previous: &[Fault], now: Instant) -> Vec<Fault> {
+        let mut out = Vec::new();
+        let mut raise = |kind, device, cause: String| {
+            let since = previous
+                .iter()
+                .find(|f| f.kind == kind && f.device == device)
+                .map_or(now, |f| f.since);
+            out.push(Fault {
+                kind,
+                device,
+                cause,
+                since,
+            });
+        };
+        for d in &v.devices {
+            self.device_faults(d, now, &mut raise);
+        }
+        let facts = v.facts();
+        if facts.running == Some(false) && facts.gear.is_some_and(Gear::is_driving) {
+            let rpm = v
+                .device(Role::Obd)
+                .and_then(|d| d.cached().reading.rpm)
+                .unwrap_or(0.0);
+            raise(
+                FaultKind::EngineStall,
+                None,
+                format!(
+                    "engine stopped ({rpm:.0} rpm) in {}",
+                    facts.gear.expect("checked")
+                ),
+            );
+        }
+        match facts.estop {
+            Some(EstopState::Pause) => raise(FaultKind::EstopPause, None, "e-stop in pause".into()),
+            Some(EstopState::Disable) => {
+                raise(FaultKind::EstopDisable, None, "e-stop in disable".into())
+            }
+            _ => {}
+        }
+        out
+    }
+
+    fn device_faults(
+        &mut self,
+        d: &Device,
+        now: Instant,
+        raise: &mut impl FnMut(FaultKind, Option<Role>, String),
+    ) {
+        let who = Some(d.role);
+        let cached = d.cached();
+        let opens = d.opens.load(Relaxed);
+        let last_error = || {
+            d.health
+                .last_error
+                .lock()
+                .as_ref()
+                .map(|(_, m)| m.clone())
+                .unwrap_or_default()
+        };
+        let gone = opens > 0 && !d.health.connected.load(Relaxed) && d.is_faulty();
+        if gone {
+            raise(
+                FaultKind::Disconnected,
+                who,
+                format!("port closed: {}", last_error()),
+            );
+        }
+        let limit = d.config.status_max_age + d.config.reply_timeout;
+        let age = cached
+            .at
+            .map_or(now - self.started, |t| now.saturating_duration_since(t));
+        if !gone && age > limit && d.settings.status_enabled.load(Relaxed) {
+            let what = if cached.at.is_some() {
+                "no status"
+            } else {
+                "never answered"
+            };
+            raise(
+                FaultKind::Silent,
+                who,
+                format!(
+                    "{what} for {} ms (max {} ms): {}",
+                    age.as_millis(),
+                    d.config.status_max_age.as_millis(),
+                    last_error()
+                ),
+            );
+        }
+
+        let track = self.tracks.entry(d.role).or_default();
+        let s = d.stats.snapshot();
+        let attempts = s.polls + s.executed + s.command_errors;
+        let errors = s.status_errors + s.command_errors;
+        track.window.push((now, attempts, errors));
+        track
+            .window
+            .retain(|(t, _, _)| now - *t <= self.cfg.error_window);
+        if let (Some(first), Some(last)) = (track.window.first(), track.window.last()) {
+            let (tries, errs) = (last.1 - first.1, last.2 - first.2);
+            if tries >= 4 && errs as f64 / tries as f64 > self.cfg.error_rate {
+                raise(
+                    FaultKind::ErrorRate,
+                    who,
+                    format!(
+                        "{errs} of {tries} transactions failed in {} s: {}",
+                        self.cfg.error_window.as_secs_f64(),
+                        last_error()
+                    ),
+                );
+            }
+        }
+
+        let fresh = cached.at.is_some() && age <= limit;
+        if !fresh {
+            track.away_since = None;
+            return;
+        }
+        if cached.reading.fault != 0 {
+            raise(
+                FaultKind::DeviceFault,
+                who,
+                format!("status word reports faults 0x{:04x}", cached.reading.fault),
+            );
+        }
+        let Some(pos) = cached.reading.position else {
+            return;
+        };
+        if d.is_actuator() {
+            let [lo, hi] = d.config.range();
+            let m = self.cfg.range_margin * (hi - lo);
+            if pos < lo - m || pos > hi + m {
+                raise(
+                    FaultKind::OutOfRange,
+                    who,
+                    format!("reports {pos:.3}, outside [{lo}, {hi}]"),
+                );
+            }
+        }
+        if let Some(Command::Set(cmd)) = d.slot.executed() {
+            if (pos - cmd).abs() > self.cfg.follow_tolerance {
+                let since = *track.away_since.get_or_insert(now);
+                if now - since > self.cfg.follow_time {
+                    raise(
+                        FaultKind::NotFollowing,
+                        who,
+                        format!(
+                            "measured {pos:.3}, commanded {cmd:.3} for {:.1} s",
+                            (now - since).as_secs_f64()
+                        ),
+                    );
+                }
+            } else {
+                track.away_since = None;
+            }
+        }
+    }
+}
+
+/// Faults that take the vehicle out of the planner's hands.
+pub fn disengages(kind: FaultKind) -> bool {
+    !matches!(kind, FaultKind::EngineStall)
+}
+
+/// The procedure a fault calls for, if any.
+pub fn procedure_for(f: &Fault, v: &Vehicle, cfg: &SupervisorConfig) -> Option<Procedure> {
+    match (f.kind, f.device) {
+        (FaultKind::EngineStall, _) => {
+            let gear = v
+                .facts()
+                .gear
+                .filter(|g| g.is_driving())
+                .unwrap_or(Gear::Drive);
+            Some(Procedure::engine_stall(gear, cfg))
+        }
+        (FaultKind::NotFollowing | FaultKind::DeviceFault, Some(Role::Steer)) => {
+            Some(Procedure::steering(cfg))
+        }
+        (FaultKind::Disconnected, Some(role)) => Some(Procedure::reconnect(role, cfg)),
+        _ => None,
+    }
+}
+
+/// The supervisor's state between ticks: detector, current procedure, cool-downs.
+pub struct Supervisor {
+    cfg: SupervisorConfig,
+    detector: Detector,
+    procedure: Option<Procedure>,
+    /// A procedure of this name may not start again before this time.
+    cooldown: HashMap<String, Instant>,
+    exit: ExitSink,
+}
+
+impl Supervisor {
+    pub fn new(cfg: SupervisorConfig, exit: ExitSink) -> Supervisor {
+        Supervisor {
+            detector: Detector::new(cfg.clone()),
+            cfg,
+            procedure: None,
+            cooldown: HashMap::new(),
+            exit,
+        }
+    }
+
+    /// One turn: detect, report, act.
+    pub fn tick(&mut self, v: &Vehicle, now: Instant) {
+        let status = &v.supervision;
+        let before = status.faults();
+        let faults = self.detector.detect(v, &before, now);
+        for f in &faults {
+            if !before
+                .iter()
+                .any(|b| b.kind == f.kind && b.device == f.device)
+            {
+                tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
+                status.note(format!("fault: {}", f.describe()));
+            }
+        }
+        for b in &before {
+            if !faults
+                .iter()
+                .any(|f| f.kind == b.kind && f.device == b.device)
+            {
+                tracing::info!(fault = %b.kind, device = ?b.device, "cleared: {}", b.describe());
+                status.note(format!(
+                    "cleared: {} {}",
+                    b.device.map(|d| d.as_str()).unwrap_or(""),
+                    b.kind
+                ));
+            }
+        }
+        status.set_faults(faults.clone());
+
+        if v.is_engaged() {
+            if let Some(f) = faults.iter().find(|f| disengages(f.kind)) {
+                v.disengage(&format!("supervisor: {}", f.describe()));
+            }
+        }
+        if self.procedure.is_none() {
+            for f in &faults {
+                if let Some(p) = procedure_for(f, v, &self.cfg) {
+                    if self.cooldown.get(p.name()).is_some_and(|t| now < *t) {
+                        continue;
+                    }
+                    tracing::warn!("recovery {} started for {}", p.name(), f.describe());
+                    status.note(format!("recovery {} started: {}", p.name(), f.describe()));
+                    self.procedure = Some(p);
+                    break;
+                }
+            }
+        }
+        if let Some(p) = self.procedure.as_mut() {
+            let progress = p.advance(v, now);
+            status.set_recovery(Some(p.view()));
+            match progress {
+                Progress::Running => {}
+                Progress::Done => {
+                    let msg = format!(
+                        "recovery {} done in {:.1} s",
+                        p.name(),
+                        p.elapsed(now).as_secs_f64()
+                    );
+                    tracing::info!("{msg}");
+                    status.note(msg.clone());
+                    status.set_outcome(msg);
+                    self.finish(v, now);
+                }
+                Progress::GaveUp(why) => {
+                    let msg = format!("recovery {} gave up: {why}", p.name());
+                    tracing::error!("{msg}");
+                    status.note(msg.clone());
+                    status.set_outcome(msg.clone());
+                    v.command_safe_state();
+                    v.disengage(&msg);
+                    self.finish(v, now);
+                    if self.cfg.exit_on_give_up {
+                        (self.exit)(Exit::Fatal(msg));
+                    }
+                }
+            }
+        }
+    }
+
+    fn finish(&mut self, v: &Vehicle, now: Instant) {
+        if let Some(p) = self.procedure.take() {
+            self.cooldown
+                .insert(p.name().to_string(), now + self.cfg.step_timeout);
+        }
+        v.set_recovering(&[]);
+        v.supervision.set_recovery(None);
+    }
+}
+
+/// The supervisor thread, `supervisor`.
+pub struct Running {
+    stop: Arc<StopSignal>,
+    threads: Threads,
+}
+
+/// Start the supervisor thread at `cfg.period`.
+pub fn start(v: Arc<Vehicle>, cfg: SupervisorConfig, exit: ExitSink) -> std::io::Result<Running> {
+    let stop = Arc::new(StopSignal::default());
+    let mut threads = Threads::default();
+    let s = stop.clone();
+    threads.spawn("supervisor".into(), move || {
+        let period = cfg.period;
+        let panic_now = cfg.panic_for_test;
+        let mut sup = Supervisor::new(cfg, exit);
+        let mut next = Instant::now();
+        loop {
+            next += period;
+            if !s.sleep_until(next) {
+                return;
+            }
+            next = next.max(Instant::now());
+            if panic_now {
+                panic!("injected panic (--inject-panic supervisor)");
+            }
+            let t = Instant::now();
+            sup.tick(&v, t);
+            if t.elapsed() > period {
+                tracing::warn!("supervisor turn took {:?} (period {period:?})", t.elapsed());
+            }
+        }
+    })?;
+    Ok(Running { stop, threads })
+}
+
+impl Running {
+    pub fn shutdown(self, deadline: Duration) -> Vec<String> {
+        self.stop.stop();
+        self.threads.join(Instant::now() + deadline)
+    }
+}
