@@ -1,7 +1,8 @@
 //! Interlocks: the rules every command must pass at intake, before it may reach a
 //! command slot. A rejected command is counted and logged, never sent. The rules
 //! (DESIGN.md "Safety"): no gas while the brake is applied; gas only in drive or
-//! reverse with the engine running; shift only when stopped with the brake applied;
+//! reverse with the engine running; shift only when stopped with the brake applied,
+//! and keep the brake applied until the shift is through;
 //! e-stop pause or disable means gas zero and the brake held.
 //!
 //! [`check`] is a pure function of the command and a [`Facts`] snapshot, so every rule
@@ -29,6 +30,8 @@ pub struct Facts {
     pub running: Option<bool>,
     pub speed: Option<f64>,
     pub estop: Option<EstopState>,
+    /// A shift is commanded and the gearbox does not report that gear yet.
+    pub shifting: bool,
 }
 
 /// Why intake refused a command.
@@ -45,6 +48,7 @@ pub enum Reject {
     GasEngineOff,
     GasEstop,
     BrakeReleaseEstop,
+    BrakeReleaseShifting,
     ShiftWhileMoving,
     ShiftWithoutBrake,
     StartInGear,
@@ -53,7 +57,7 @@ pub enum Reject {
 }
 
 impl Reject {
-    pub const ALL: [Reject; 15] = [
+    pub const ALL: [Reject; 16] = [
         Reject::NoSuchDevice,
         Reject::NotAnActuator,
         Reject::WrongKind,
@@ -64,6 +68,7 @@ impl Reject {
         Reject::GasEngineOff,
         Reject::GasEstop,
         Reject::BrakeReleaseEstop,
+        Reject::BrakeReleaseShifting,
         Reject::ShiftWhileMoving,
         Reject::ShiftWithoutBrake,
         Reject::StartInGear,
@@ -83,6 +88,7 @@ impl Reject {
             Reject::GasEngineOff => "gas_engine_off",
             Reject::GasEstop => "gas_estop",
             Reject::BrakeReleaseEstop => "brake_release_estop",
+            Reject::BrakeReleaseShifting => "brake_release_shifting",
             Reject::ShiftWhileMoving => "shift_while_moving",
             Reject::ShiftWithoutBrake => "shift_without_brake",
             Reject::StartInGear => "start_in_gear",
@@ -123,6 +129,7 @@ impl fmt::Display for Reject {
             Reject::GasEngineOff => "gas only with the engine running",
             Reject::GasEstop => "no gas unless the e-stop says run",
             Reject::BrakeReleaseEstop => "the brake stays on while the e-stop pauses",
+            Reject::BrakeReleaseShifting => "the brake stays on until the shift is through",
             Reject::ShiftWhileMoving => "shift only when stopped",
             Reject::ShiftWithoutBrake => "shift only with the brake applied",
             Reject::StartInGear => "the starter runs only in park or neutral",
@@ -153,6 +160,9 @@ pub fn check(facts: &Facts, role: Role, command: Command) -> Result<(), Reject> 
         (Role::Brake, Command::Set(v)) if v < 1.0 => {
             if matches!(facts.estop, Some(EstopState::Pause | EstopState::Disable)) {
                 return Err(Reject::BrakeReleaseEstop);
+            }
+            if facts.shifting && v < SHIFT_BRAKE {
+                return Err(Reject::BrakeReleaseShifting);
             }
             Ok(())
         }
@@ -187,6 +197,7 @@ mod tests {
             running: Some(true),
             speed: Some(5.0),
             estop: Some(EstopState::Run),
+            shifting: false,
         }
     }
 
@@ -273,6 +284,20 @@ mod tests {
             check(&moving, Role::Trans, Command::Gear(Gear::Drive)),
             Ok(())
         );
+    }
+
+    #[test]
+    fn the_brake_stays_on_until_a_shift_is_through() {
+        let f = Facts {
+            shifting: true,
+            speed: Some(0.0),
+            ..driving()
+        };
+        assert_eq!(
+            check(&f, Role::Brake, Command::Set(0.0)),
+            Err(Reject::BrakeReleaseShifting)
+        );
+        assert_eq!(check(&f, Role::Brake, Command::Set(0.5)), Ok(()));
     }
 
     #[test]

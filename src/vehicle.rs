@@ -103,22 +103,22 @@ pub struct Device {
     pub health: Health,
     /// Raw traffic on the port.
     pub trace: Arc<Trace>,
-    /// Times the port was opened (1 after start; more after reconnects).
-    pub opens: Arc<AtomicU64>,
+    /// Times the port was opened, and whether it is missing.
+    pub port_health: Arc<crate::engine::port::PortHealth>,
 }
 
 impl Device {
     pub fn new(config: DeviceConfig, opener: Opener) -> Device {
         let driver = crate::driver::build(&config);
         let trace = Arc::new(Trace::new(config.name.as_str()));
-        let opens = Arc::new(AtomicU64::new(0));
+        let port_health = Arc::new(crate::engine::port::PortHealth::default());
         Device {
             role: config.name,
             port: Port::new(
                 config.port_rule,
-                Conn::new(driver, opener, trace.clone(), opens.clone()),
+                Conn::new(driver, opener, trace.clone(), port_health.clone()),
             ),
-            opens,
+            port_health,
             trace,
             settings: Settings::new(&config),
             config,
@@ -244,6 +244,12 @@ impl Vehicle {
                 .and_then(|d| d.cached().at.map(|_| d.cached().reading))
         };
         let trans = reading(Role::Trans);
+        let shifting = self
+            .device(Role::Trans)
+            .is_some_and(|d| match d.slot.latest() {
+                Some(Command::Gear(g)) => trans.and_then(|r| r.gear) != Some(g),
+                _ => false,
+            });
         let obd = reading(Role::Obd);
         let estop = reading(Role::Estop);
         Facts {
@@ -253,6 +259,7 @@ impl Vehicle {
             running: obd.and_then(|r| r.running),
             speed: obd.and_then(|r| r.speed),
             estop: estop.and_then(|r| r.estop),
+            shifting,
         }
     }
 
@@ -390,6 +397,7 @@ impl Vehicle {
     /// The follower's virtual `accel` command, −1…1: positive is gas, negative is brake;
     /// it never applies both. Going from braking to gas, the brake is released first and
     /// the gas follows once the brake has acknowledged the release (a later `accel`).
+    /// While a shift is under way the brake holds and positive `accel` waits.
     pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
         if !a.is_finite() {
             return Err(self.reject(None, None, Reject::NotFinite));
@@ -398,6 +406,10 @@ impl Vehicle {
             return Err(self.reject(None, None, Reject::OutOfRange));
         }
         if a > 0.0 {
+            if self.interlocks.load(Relaxed) && self.facts().shifting {
+                tracing::debug!("accel {a}: the brake holds until the shift is through");
+                return Ok(());
+            }
             self.submit(Role::Brake, Command::Set(0.0), received)?;
             let released = self
                 .facts()

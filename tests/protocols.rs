@@ -162,7 +162,7 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
     rig.engage();
     let brake = rig.vehicle.device(Role::Brake).unwrap();
-    assert_eq!(brake.opens.load(Relaxed), 1);
+    assert_eq!(brake.port_health.opens.load(Relaxed), 1);
     rig.sim
         .faults(Role::Brake)
         .unwrap()
@@ -179,7 +179,7 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
     });
 
     wait_for("the brake to come back", || {
-        brake.opens.load(Relaxed) >= 2 && !brake.is_faulty()
+        brake.port_health.opens.load(Relaxed) >= 2 && !brake.is_faulty()
     });
     let port = rig
         .sim

@@ -198,6 +198,7 @@ pub fn capture(
                 last_error: d.health.last_error.lock().as_ref().map(|(_, m)| m.clone()),
                 stats: d.stats.snapshot(),
                 reconnects: d
+                    .port_health
                     .opens
                     .load(std::sync::atomic::Ordering::Relaxed)
                     .saturating_sub(1),

@@ -19,6 +19,7 @@ pub mod trace;
 use crate::config::PortRule;
 use crate::engine::slot::{Pending, Wake};
 use crate::engine::stats::Stats;
+use crate::value::Command;
 use crate::vehicle::{Device, Vehicle};
 use parking_lot::{Condvar, Mutex};
 use std::sync::atomic::Ordering::Relaxed;
@@ -218,7 +219,10 @@ fn command_loop(v: &Vehicle, d: &Device) {
         let (mut job, mut resend) = match d.slot.wait(d.settings.command_timeout()) {
             Wake::Stop => return,
             Wake::Command(p) => (p, false),
+            // Set points and gears are resent; a drive-control command (enable, home,
+            // the starter) happens once, when asked.
             Wake::Timeout | Wake::Nudge => match d.slot.last() {
+                Some(Command::Control(_)) | None => continue,
                 Some(command) => (
                     Pending {
                         command,
@@ -226,7 +230,6 @@ fn command_loop(v: &Vehicle, d: &Device) {
                     },
                     true,
                 ),
-                None => continue,
             },
         };
         if !d.settings.command_enabled.load(Relaxed) {

@@ -22,8 +22,18 @@ use crate::engine::slot::CommandSlot;
 use crate::engine::trace::{Dir, Trace};
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::io::{self, Read, Write};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// What readers may know of a device's port without touching it.
+#[derive(Default, Debug)]
+pub struct PortHealth {
+    /// Times the port was opened (1 after start; more after reconnects).
+    pub opens: AtomicU64,
+    /// The last attempt to open it failed: the port is gone (unplugged, wrong path).
+    pub missing: AtomicBool,
+}
 
 /// Opens a device's port (a serial port, a pseudo-terminal, a test double).
 pub type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
@@ -180,10 +190,12 @@ pub struct Conn {
     opener: Opener,
     next_open: Instant,
     backoff: Duration,
-    /// Times the port was (re)opened successfully (shared with the device's readers).
-    opened: Arc<std::sync::atomic::AtomicU64>,
+    /// Open count and whether the port can be opened (shared with readers).
+    health: Arc<PortHealth>,
     trace: Arc<Trace>,
     failures: u32,
+    /// Why the last open failed, repeated while waiting to retry.
+    open_error: Option<String>,
 }
 
 impl Conn {
@@ -191,7 +203,7 @@ impl Conn {
         driver: Box<dyn Driver>,
         opener: Opener,
         trace: Arc<Trace>,
-        opened: Arc<std::sync::atomic::AtomicU64>,
+        health: Arc<PortHealth>,
     ) -> Conn {
         Conn {
             driver,
@@ -199,9 +211,10 @@ impl Conn {
             opener,
             next_open: Instant::now(),
             backoff: BACKOFF_MIN,
-            opened,
+            health,
             trace,
             failures: 0,
+            open_error: None,
         }
     }
 
@@ -220,7 +233,8 @@ impl Conn {
             return Err(DriverError::Io(io::Error::new(
                 io::ErrorKind::NotConnected,
                 format!(
-                    "port closed, next open attempt in {} ms",
+                    "{} (next open attempt in {} ms)",
+                    self.open_error.as_deref().unwrap_or("port closed"),
                     (self.next_open - now).as_millis()
                 ),
             )));
@@ -228,10 +242,14 @@ impl Conn {
         let mut link = match (self.opener)() {
             Ok(l) => l,
             Err(e) => {
+                self.health.missing.store(true, Relaxed);
+                self.open_error = Some(format!("cannot open: {e}"));
                 self.fail_open();
                 return Err(DriverError::Io(e));
             }
         };
+        self.health.missing.store(false, Relaxed);
+        self.open_error = None;
         let mut traced = Stamped {
             inner: link.as_mut(),
             first_write: None,
@@ -243,9 +261,7 @@ impl Conn {
         }
         self.link = Some(link);
         self.backoff = BACKOFF_MIN;
-        let n = self
-            .opened
-            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let n = self.health.opens.fetch_add(1, Relaxed);
         if n > 0 {
             tracing::info!(device = self.trace.device(), "port reopened");
         }
@@ -280,7 +296,9 @@ impl Conn {
                         self.failures
                     );
                     self.failures = 0;
-                    self.fail_open();
+                    // Reopen at the next transaction; backoff is for ports that fail
+                    // to open.
+                    self.link = None;
                 }
             }
         }

@@ -31,7 +31,8 @@ pub enum Wake {
 #[derive(Default)]
 struct State {
     pending: Option<Pending>,
-    /// The last command handed to the wire (for resends and display).
+    /// The last command taken for the wire (for resends and display): in flight from
+    /// the moment the command thread takes it.
     last: Option<Command>,
     /// The last command the device acknowledged.
     executed: Option<Command>,
@@ -81,6 +82,8 @@ impl CommandSlot {
             }
             if let Some(p) = s.pending.take() {
                 s.nudged = false;
+                // Taken is in flight: readers never see the slot empty meanwhile.
+                s.last = Some(p.command);
                 return Wake::Command(p);
             }
             if std::mem::take(&mut s.nudged) {
@@ -91,7 +94,10 @@ impl CommandSlot {
                     return Wake::Stop;
                 }
                 return match s.pending.take() {
-                    Some(p) => Wake::Command(p),
+                    Some(p) => {
+                        s.last = Some(p.command);
+                        Wake::Command(p)
+                    }
                     None => Wake::Timeout,
                 };
             }
@@ -101,7 +107,12 @@ impl CommandSlot {
     /// Take a command that arrived after the thread woke (while it waited for the port),
     /// so the newest one goes out instead.
     pub fn take_newer(&self) -> Option<Pending> {
-        self.state.lock().pending.take()
+        let mut s = self.state.lock();
+        let p = s.pending.take();
+        if let Some(p) = p {
+            s.last = Some(p.command);
+        }
+        p
     }
 
     /// Sleep until `until` unless stopped; a new command may arrive meanwhile and stays

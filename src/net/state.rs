@@ -126,7 +126,12 @@ pub fn build(vehicle: &Vehicle, net: Option<NetSnapshot>, seq: u64, started: Ins
                     status_error: d.health.status_error.load(Relaxed),
                     command_error: d.health.command_error.load(Relaxed),
                     last_error,
-                    counters: Counters::new(&s, d.opens.load(std::sync::atomic::Ordering::Relaxed)),
+                    counters: Counters::new(
+                        &s,
+                        d.port_health
+                            .opens
+                            .load(std::sync::atomic::Ordering::Relaxed),
+                    ),
                     delay_us: s.command_delay,
                     command_txn_us: s.command_txn,
                     status_txn_us: s.status_txn,

@@ -283,7 +283,8 @@ impl Sim {
 
     /// Apply one line of the simulator's little command language (used by `adrive sim`
     /// on its standard input): `estop pause|run|disable`, `stall`,
-    /// `nostart on|off`, `jam steer`, `FAULT DEVICE on|off|MS`, `clear DEVICE`.
+    /// `nostart on|off`, `jam steer`, `stuck steer on|off`, `bias DEVICE X`,
+    /// `FAULT DEVICE on|off|MS`, `clear DEVICE`.
     /// Returns what was done.
     pub fn apply(&self, line: &str) -> Result<String, String> {
         let words: Vec<&str> = line.split_whitespace().collect();
@@ -305,6 +306,20 @@ impl Sim {
                 self.model.lock().jam_steering();
                 Ok("steering drive fault latched (disable → enable clears it)".into())
             }
+            ["stuck", "steer", on @ ("on" | "off")] => {
+                self.model.lock().steer_stuck = *on == "on";
+                Ok(format!("steering motor stuck {on} (no fault bits)"))
+            }
+            ["bias", name, x] => {
+                let r: Role = name.parse()?;
+                let x: f64 = x
+                    .parse()
+                    .ok()
+                    .filter(|x: &f64| x.is_finite())
+                    .ok_or_else(|| format!("bias takes a number, got {x:?}"))?;
+                self.model.lock().bias[r as usize] = x;
+                Ok(format!("{r} reports its position {x:+} off"))
+            }
             ["nostart", on @ ("on" | "off")] => {
                 self.model.lock().start_fails = *on == "on";
                 Ok(format!("starter failure {on}"))
@@ -318,7 +333,7 @@ impl Sim {
                 p.faults.set(fault, arg).map(|done| format!("{}: {done}", p.role))
             }
             _ => Err(format!(
-                "unknown: {line:?}; expected `estop pause|run|disable`, `stall`, `nostart on|off`, `jam steer`, `clear DEVICE`, \
+                "unknown: {line:?}; expected `estop pause|run|disable`, `stall`, `nostart on|off`, `jam steer`, `stuck steer on|off`, `bias DEVICE X`, `clear DEVICE`, \
                  or `FAULT DEVICE ARG` with FAULT one of {} (e.g. `silent gas on`, `slow steer 80`, `vanish brake 2000`)",
                 FAULT_NAMES.join(", ")
             )),

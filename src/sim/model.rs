@@ -49,6 +49,12 @@ pub struct Model {
     cranking: Option<Instant>,
     /// Fault injection: the starter turns but the engine never catches.
     pub start_fails: bool,
+    /// Fault injection: the steering motor does not move, and its drive does not
+    /// notice (no fault bits).
+    pub steer_stuck: bool,
+    /// Fault injection: an offset added to the position each device reports (a
+    /// slipped sensor), by role.
+    pub bias: [f64; 6],
     last: Instant,
 }
 
@@ -80,6 +86,8 @@ impl Model {
             steer_fault: false,
             cranking: None,
             start_fails: false,
+            steer_stuck: false,
+            bias: [0.0; 6],
             last: Instant::now(),
         }
     }
@@ -118,7 +126,7 @@ impl Model {
     fn advance(&mut self, h: f64) {
         let before = self.steer;
         let err = self.steer_cmd - self.steer;
-        if self.steer_enabled && !self.steer_fault {
+        if self.steer_enabled && !self.steer_fault && !self.steer_stuck {
             self.steer += err.clamp(-STEER_RATE * h, STEER_RATE * h);
         }
         self.steer_vel = (self.steer - before) / h;
@@ -210,6 +218,9 @@ impl Model {
                 r.coolant = Some(self.coolant);
                 r.running = Some(self.running);
             }
+        }
+        if let Some(p) = r.position.as_mut() {
+            *p += self.bias[role as usize];
         }
         r
     }

@@ -102,7 +102,7 @@ impl Detector {
     ) {
         let who = Some(d.role);
         let cached = d.cached();
-        let opens = d.opens.load(Relaxed);
+        let opens = d.port_health.opens.load(Relaxed);
         let last_error = || {
             d.health
                 .last_error
@@ -111,7 +111,7 @@ impl Detector {
                 .map(|(_, m)| m.clone())
                 .unwrap_or_default()
         };
-        let gone = opens > 0 && !d.health.connected.load(Relaxed) && d.is_faulty();
+        let gone = opens > 0 && d.port_health.missing.load(Relaxed);
         if gone {
             raise(
                 FaultKind::Disconnected,

@@ -28,6 +28,11 @@ pub struct Rig {
     pub vehicle: Arc<Vehicle>,
     pub engine: Option<Engine>,
     pub events: Receiver<SimEvent>,
+    /// With [`Rig::supervised`]: the gate monitor, the supervisor, and where the
+    /// supervisor asks the process to end.
+    pub gate: Option<adrive::gate::Monitor>,
+    pub supervisor: Option<adrive::supervisor::Running>,
+    pub exits: Option<Receiver<adrive::exit::Exit>>,
 }
 
 impl Rig {
@@ -51,7 +56,35 @@ impl Rig {
             vehicle,
             engine: Some(engine),
             events,
+            gate: None,
+            supervisor: None,
+            exits: None,
         }
+    }
+
+    /// The same, with the gate monitor and the supervisor running as in `adrive run`.
+    pub fn supervised(toml: &str) -> Rig {
+        let mut rig = Rig::start(toml);
+        let (tx, rx) = crossbeam_channel::unbounded();
+        let cfg = rig.vehicle.config.supervisor.clone();
+        rig.gate = Some(adrive::gate::Monitor::start(rig.vehicle.clone()).unwrap());
+        rig.supervisor = Some(
+            adrive::supervisor::start(
+                rig.vehicle.clone(),
+                cfg,
+                Box::new(move |e| {
+                    let _ = tx.send(e);
+                }),
+            )
+            .unwrap(),
+        );
+        rig.exits = Some(rx);
+        rig
+    }
+
+    /// The supervisor's history so far.
+    pub fn history(&self) -> Vec<String> {
+        self.vehicle.supervision.snapshot().history
     }
 
     /// Wait for every device to report, then engage.
@@ -70,6 +103,12 @@ impl Rig {
 
 impl Drop for Rig {
     fn drop(&mut self) {
+        if let Some(s) = self.supervisor.take() {
+            s.shutdown(Duration::from_secs(1));
+        }
+        if let Some(g) = self.gate.take() {
+            g.shutdown(Duration::from_secs(1));
+        }
         if let Some(e) = self.engine.take() {
             e.shutdown(Duration::from_secs(2));
         }
