@@ -66,9 +66,9 @@ pub struct RunArgs {
     /// [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = humantime::parse_duration)]
     pub deadman: Option<Duration>,
-    /// Fault injection for tests: make a thread panic once running (`main` or
-    /// `supervisor`).
-    #[arg(long, value_name = "THREAD", hide = true)]
+    /// Fault injection for tests: make a thread panic once running, `main` or
+    /// `supervisor`, optionally after a delay (`supervisor:4s`).
+    #[arg(long, value_name = "THREAD[:DELAY]", hide = true)]
     pub inject_panic: Option<String>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
@@ -208,12 +208,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let net = Net::start(vehicle.clone(), vehicle.config.network.clone(), auth)?;
     let engine = Engine::start(vehicle.clone())?;
     let gate = gate::Monitor::start(vehicle.clone())?;
+    let (panic_in, panic_after) = match args.inject_panic.as_deref() {
+        None => ("", Duration::ZERO),
+        Some(spec) => match spec.split_once(':') {
+            Some((t, d)) => (t, config::parse_duration(d).map_err(anyhow::Error::msg)?),
+            None => (spec, Duration::from_millis(1500)),
+        },
+    };
     let mut sup_cfg = vehicle.config.supervisor.clone();
-    sup_cfg.panic_for_test = args.inject_panic.as_deref() == Some("supervisor");
+    sup_cfg.panic_for_test = (panic_in == "supervisor").then_some(panic_after);
     let supervisor = crate::supervisor::start(vehicle.clone(), sup_cfg, Box::new(exit::request))?;
-    if args.inject_panic.as_deref() == Some("main") {
+    if panic_in == "main" {
         // Let the devices report first, so the unwinding really has a vehicle to stop.
-        std::thread::sleep(Duration::from_millis(1500));
+        let _ = exits.recv_timeout(panic_after);
         panic!("injected panic (--inject-panic main)");
     }
     tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
@@ -364,7 +371,7 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
                     ev.at.duration_since(start).as_secs_f64(),
                     ev.role.as_str(),
                     ev.command.to_string(),
-                    printable(&ev.request)
+                    ev.note.clone().unwrap_or_else(|| printable(&ev.request))
                 );
             },
             recv(lines) -> line => match line {

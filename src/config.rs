@@ -189,9 +189,9 @@ pub struct SupervisorConfig {
     /// A procedure that gives up is a fatal device error: end the process (status 4)
     /// after the safe state, so a service manager can act.
     pub exit_on_give_up: bool,
-    /// Fault injection for tests (`--inject-panic supervisor`).
+    /// Fault injection for tests (`--inject-panic supervisor:DELAY`).
     #[serde(skip)]
-    pub panic_for_test: bool,
+    pub panic_for_test: Option<Duration>,
 }
 
 impl Default for SupervisorConfig {
@@ -206,7 +206,7 @@ impl Default for SupervisorConfig {
             attempts: 3,
             step_timeout: Duration::from_secs(4),
             exit_on_give_up: true,
-            panic_for_test: false,
+            panic_for_test: None,
         }
     }
 }

@@ -12,7 +12,7 @@ use crate::interlock::{self, Facts, Reject};
 use crate::logging::RateLimit;
 use crate::value::{Command, EstopState, Reading, Role};
 use parking_lot::Mutex;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -280,7 +280,7 @@ impl Vehicle {
     }
 
     pub fn is_engaged(&self) -> bool {
-        self.engaged.load(Relaxed)
+        self.engaged.load(SeqCst)
     }
 
     /// Why the vehicle is engaged or not.
@@ -331,14 +331,14 @@ impl Vehicle {
             }
         }
         *self.gate_reason.lock() = format!("engaged by {by}");
-        self.engaged.store(true, Relaxed);
+        self.engaged.store(true, SeqCst);
         tracing::info!(by, "engaged");
         Ok(())
     }
 
     /// Disengage and command the safe state. Returns false if it was not engaged.
     pub fn disengage(&self, reason: &str) -> bool {
-        let was = self.engaged.swap(false, Relaxed);
+        let was = self.engaged.swap(false, SeqCst);
         *self.gate_reason.lock() = format!("disengaged: {reason}");
         self.command_safe_state();
         if was {
@@ -384,6 +384,11 @@ impl Vehicle {
             }
         }
         self.store(d, command, received);
+        // A disengage that raced this command (it checks the gate, then stores): the
+        // safe state must be the last word.
+        if !self.is_engaged() {
+            self.command_safe_state();
+        }
         Ok(())
     }
 

@@ -145,6 +145,8 @@ impl Engine {
     fn stop_all(&mut self, deadline: Duration) -> (bool, Vec<String>) {
         self.stopped = true;
         let end = Instant::now() + deadline;
+        // Refuse every command from here on, then the safe state.
+        self.vehicle.disengage("stopping");
         self.vehicle.command_safe_state();
         let safe = self.vehicle.wait_safe(Instant::now() + deadline / 2);
         self.stop.stop();

@@ -128,8 +128,10 @@ pub struct SimEvent {
     pub at: Instant,
     /// The command the device applied.
     pub command: Command,
-    /// The raw request bytes.
+    /// The raw request bytes; empty when the device acted on its own.
     pub request: Vec<u8>,
+    /// Why, when the device acted on its own (its watchdog).
+    pub note: Option<String>,
 }
 
 /// One simulated device's port.
@@ -415,6 +417,23 @@ impl Served {
                     tripped = true;
                     self.model.lock().watchdog_trip(c.name);
                     tracing::warn!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
+                    let safe = match c.name {
+                        Role::Brake => Some(Command::Set(1.0)),
+                        Role::Gas => Some(Command::Set(0.0)),
+                        _ => None,
+                    };
+                    if let (Some(tx), Some(command)) = (&self.events, safe) {
+                        let _ = tx.send(SimEvent {
+                            role: c.name,
+                            at: Instant::now(),
+                            command,
+                            request: Vec::new(),
+                            note: Some(format!(
+                                "device watchdog: no command for {}",
+                                humantime::format_duration(limit)
+                            )),
+                        });
+                    }
                 }
             }
             match port.read(&mut chunk) {
@@ -448,6 +467,7 @@ impl Served {
                         at: arrived,
                         command,
                         request: request.clone(),
+                        note: None,
                     });
                 }
                 if self.faults.silent.load(Relaxed) || reply.bytes.is_empty() {

@@ -357,7 +357,7 @@ pub fn start(v: Arc<Vehicle>, cfg: SupervisorConfig, exit: ExitSink) -> std::io:
     let s = stop.clone();
     threads.spawn("supervisor".into(), move || {
         let period = cfg.period;
-        let panic_now = cfg.panic_for_test;
+        let panic_at = cfg.panic_for_test.map(|d| Instant::now() + d);
         let mut sup = Supervisor::new(cfg, exit);
         let mut next = Instant::now();
         loop {
@@ -366,7 +366,7 @@ pub fn start(v: Arc<Vehicle>, cfg: SupervisorConfig, exit: ExitSink) -> std::io:
                 return;
             }
             next = next.max(Instant::now());
-            if panic_now {
+            if panic_at.is_some_and(|t| Instant::now() >= t) {
                 panic!("injected panic (--inject-panic supervisor)");
             }
             let t = Instant::now();

@@ -1,0 +1,356 @@
+//! Every way adrive ends, with the real binary driving `adrive sim` (another process)
+//! over pseudo-terminals: SIGINT, SIGTERM, SIGHUP, a panic in a thread, a panic in the
+//! main thread, a fatal device error — each first brings the simulated gas to 0 and the
+//! brake on, then flushes its log and exits with its status — and `kill -9`, after
+//! which the simulated actuators' own watchdogs brake the vehicle.
+
+mod common;
+
+use adrive::config::ALICE_TOML;
+use common::DEADLINE;
+use std::io::{BufRead, BufReader, Write};
+use std::net::UdpSocket;
+use std::path::PathBuf;
+use std::process::{Child, ChildStdin, Command as Process, Stdio};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_adrive");
+
+/// `adrive sim` in its own process; every line it prints is kept.
+struct SimProcess {
+    child: Child,
+    stdin: ChildStdin,
+    lines: Arc<Mutex<Vec<String>>>,
+    new: mpsc::Receiver<String>,
+    paths: Vec<String>,
+}
+
+impl SimProcess {
+    fn start() -> SimProcess {
+        let mut child = Process::new(BIN)
+            .arg("sim")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        let stdin = child.stdin.take().unwrap();
+        let out = child.stdout.take().unwrap();
+        let lines = Arc::new(Mutex::new(Vec::new()));
+        let (tx, new) = mpsc::channel();
+        let keep = lines.clone();
+        std::thread::spawn(move || {
+            for l in BufReader::new(out).lines().map_while(Result::ok) {
+                keep.lock().unwrap().push(l.clone());
+                let _ = tx.send(l);
+            }
+        });
+        let mut sim = SimProcess {
+            child,
+            stdin,
+            lines,
+            new,
+            paths: Vec::new(),
+        };
+        for _ in 0..6 {
+            let l = sim.next_line();
+            sim.paths
+                .push(l.split_whitespace().nth(1).unwrap().to_string());
+        }
+        sim
+    }
+
+    fn next_line(&self) -> String {
+        self.new
+            .recv_timeout(DEADLINE)
+            .expect("a line from adrive sim")
+    }
+
+    /// Wait for a printed line containing every one of `words`.
+    fn wait_for(&self, words: &[&str]) -> String {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            if let Some(l) = self
+                .lines
+                .lock()
+                .unwrap()
+                .iter()
+                .find(|l| words.iter().all(|w| l.contains(w)))
+            {
+                return l.clone();
+            }
+            assert!(Instant::now() < end, "adrive sim never printed {words:?}");
+            let _ = self.new.recv_timeout(Duration::from_millis(50));
+        }
+    }
+
+    fn say(&mut self, line: &str) {
+        writeln!(self.stdin, "{line}").unwrap();
+    }
+
+    /// The last command the named device received (`0.300`, `drive`, …).
+    fn last_command(&self, device: &str) -> Option<String> {
+        self.lines
+            .lock()
+            .unwrap()
+            .iter()
+            .rev()
+            .filter_map(|l| {
+                let w: Vec<&str> = l.split_whitespace().collect();
+                (w.get(1) == Some(&device) && w.get(2) == Some(&"<-")).then(|| w[3].to_string())
+            })
+            .next()
+    }
+}
+
+impl Drop for SimProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn tempdir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("adrive-exit-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// The built-in Alice pointed at the simulator's ports.
+fn vehicle_file(dir: &std::path::Path, sim: &SimProcess, extra: &str) -> PathBuf {
+    let mut paths = sim.paths.iter();
+    let mut text = String::new();
+    for line in ALICE_TOML.lines() {
+        if line.starts_with("port = ") {
+            text.push_str(&format!("port = \"{}\"\n", paths.next().unwrap()));
+        } else {
+            text.push_str(line);
+            text.push('\n');
+        }
+    }
+    // Alice allows network engage; its broadcast goes to loopback.
+    text.push_str(&format!("\n[supervisor]\n{extra}\n"));
+    let path = dir.join("vehicle.toml");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+struct Adrive {
+    child: Child,
+    port: u16,
+    dir: PathBuf,
+}
+
+impl Adrive {
+    fn start(name: &str, sim: &SimProcess, extra_args: &[&str], supervisor: &str) -> Adrive {
+        let dir = tempdir(name);
+        let config = vehicle_file(&dir, sim, supervisor);
+        let port = free_port();
+        let child = Process::new(BIN)
+            .args(["--headless", "--config"])
+            .arg(&config)
+            .args(["--listen", &format!("127.0.0.1:{port}"), "--log-dir"])
+            .arg(dir.join("log"))
+            .args(extra_args)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        Adrive { child, port, dir }
+    }
+
+    /// A planner: engage, drive, gas 0.3, twenty times a second.
+    fn planner(&self) -> Child {
+        Process::new(BIN)
+            .args([
+                "send",
+                "--to",
+                &format!("127.0.0.1:{}", self.port),
+                "--rate",
+                "20",
+            ])
+            .args(["engage", "trans", "drive", "accel", "0.3"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap()
+    }
+
+    fn signal(&self, sig: i32) {
+        // SAFETY: kill(2) on our own child.
+        assert_eq!(unsafe { libc::kill(self.child.id() as i32, sig) }, 0);
+    }
+
+    fn wait(&mut self) -> Option<i32> {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return s.code();
+            }
+            assert!(Instant::now() < end, "adrive did not exit");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_dir(self.dir.join("log"))
+            .unwrap()
+            .map(|e| std::fs::read_to_string(e.unwrap().path()).unwrap())
+            .collect()
+    }
+}
+
+impl Drop for Adrive {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+/// Drive the simulated Alice until gas 0.3 reaches the gas device; returns the planner.
+fn drive(sim: &SimProcess, adrive: &Adrive) -> Child {
+    let planner = adrive.planner();
+    sim.wait_for(&["gas", "<-", "0.300"]);
+    planner
+}
+
+/// End adrive the given way while the vehicle drives; check the safe state reached the
+/// devices first, the exit status, and the log.
+fn ends_safely(
+    name: &str,
+    args: &[&str],
+    supervisor: &str,
+    end: impl FnOnce(&mut SimProcess, &Adrive),
+    status: i32,
+    stopping: &str,
+) {
+    let mut sim = SimProcess::start();
+    let mut adrive = Adrive::start(name, &sim, args, supervisor);
+    let mut planner = drive(&sim, &adrive);
+    end(&mut sim, &adrive);
+    assert_eq!(adrive.wait(), Some(status), "exit status after {name}");
+    let _ = planner.kill();
+    let _ = planner.wait();
+    assert_eq!(
+        sim.last_command("gas").as_deref(),
+        Some("0.000"),
+        "gas after {name}"
+    );
+    assert_eq!(
+        sim.last_command("brake").as_deref(),
+        Some("1.000"),
+        "brake after {name}"
+    );
+    let log = adrive.log();
+    assert!(
+        log.contains(stopping),
+        "{name}: log lacks {stopping:?}:\n{log}"
+    );
+    assert!(
+        log.contains("safe state acknowledged"),
+        "{name}: log lacks the safe state:\n{log}"
+    );
+}
+
+#[test]
+fn sigint_stops_safely() {
+    ends_safely(
+        "int",
+        &[],
+        "",
+        |_, a| a.signal(libc::SIGINT),
+        0,
+        "stopping: SIGINT",
+    );
+}
+
+#[test]
+fn sigterm_stops_safely() {
+    ends_safely(
+        "term",
+        &[],
+        "",
+        |_, a| a.signal(libc::SIGTERM),
+        0,
+        "stopping: SIGTERM",
+    );
+}
+
+#[test]
+fn sighup_stops_safely() {
+    ends_safely(
+        "hup",
+        &[],
+        "",
+        |_, a| a.signal(libc::SIGHUP),
+        129,
+        "stopping: SIGHUP",
+    );
+}
+
+#[test]
+fn a_panic_in_a_thread_stops_safely() {
+    ends_safely(
+        "panic-thread",
+        &["--inject-panic", "supervisor:5s"],
+        "",
+        |_, _| {},
+        101,
+        "stopping: panic: thread supervisor",
+    );
+}
+
+#[test]
+fn a_panic_in_the_main_thread_stops_safely() {
+    ends_safely(
+        "panic-main",
+        &["--inject-panic", "main:5s"],
+        "",
+        |_, _| {},
+        101,
+        "engine dropped without shutdown",
+    );
+}
+
+#[test]
+fn a_fatal_device_error_stops_safely() {
+    ends_safely(
+        "fatal",
+        &[],
+        "attempts = 1\nstep_timeout = \"1s\"",
+        |sim, _| {
+            sim.say("nostart on");
+            sim.say("stall");
+        },
+        4,
+        "stopping: fatal device error: recovery engine_stall gave up",
+    );
+}
+
+/// `kill -9` leaves adrive no chance: the simulated actuators' own watchdogs release
+/// the gas and apply the brake.
+#[test]
+fn kill_9_leaves_the_vehicle_braked_by_the_device_watchdogs() {
+    let sim = SimProcess::start();
+    let mut adrive = Adrive::start("kill9", &sim, &[], "");
+    let mut planner = drive(&sim, &adrive);
+    adrive.signal(libc::SIGKILL);
+    assert_eq!(adrive.wait(), None, "killed by a signal");
+    let gas = sim.wait_for(&["gas", "<-", "0.000", "device watchdog"]);
+    let brake = sim.wait_for(&["brake", "<-", "1.000", "device watchdog"]);
+    assert!(gas.contains("no command for 1s"), "{gas}");
+    assert!(brake.contains("no command for 1s"), "{brake}");
+    let _ = planner.kill();
+    let _ = planner.wait();
+}
