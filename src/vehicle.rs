@@ -519,7 +519,14 @@ impl Vehicle {
                 }
                 let why = if !facts.speed.is_some_and(|s| s.abs() < interlock::STOPPED) {
                     Some(Reject::ShiftWhileMoving)
-                } else if !facts.brake_low.is_some_and(|b| b >= interlock::SHIFT_BRAKE) {
+                } else if !facts.brake_low.is_some_and(|b| b >= interlock::SHIFT_BRAKE)
+                    || self.device(Role::Brake).is_some_and(|b| {
+                        let (p, l, s) = b.slot.wire();
+                        [p, l, s]
+                            .iter()
+                            .any(|c| set(*c).is_some_and(|v| v < interlock::SHIFT_BRAKE))
+                    })
+                {
                     Some(Reject::ShiftWithoutBrake)
                 } else {
                     None

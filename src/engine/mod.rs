@@ -223,7 +223,7 @@ fn command_loop(v: &Vehicle, d: &Device) {
             Wake::Command(p) => (p, false),
             // Set points and gears are resent; a drive-control command (enable, home,
             // the starter) happens once, when asked.
-            Wake::Timeout | Wake::Nudge => match d.slot.last() {
+            Wake::Timeout | Wake::Nudge => match d.slot.resend() {
                 Some(Command::Control(_)) | None => continue,
                 Some(command) => (
                     Pending {

@@ -31,9 +31,11 @@ pub enum Wake {
 #[derive(Default)]
 struct State {
     pending: Option<Pending>,
-    /// The last command taken for the wire (for resends and display): in flight from
-    /// the moment the command thread takes it.
+    /// The last command taken for the wire: in flight from the moment the command
+    /// thread takes it, then what the device was last given. Never forgotten.
     last: Option<Command>,
+    /// What to send again after `command_timeout`; engage clears it.
+    resend: Option<Command>,
     /// The last command the device acknowledged.
     executed: Option<Command>,
     /// The last command whose transaction finished (its bytes are on the wire,
@@ -84,6 +86,7 @@ impl CommandSlot {
                 s.nudged = false;
                 // Taken is in flight: readers never see the slot empty meanwhile.
                 s.last = Some(p.command);
+                s.resend = Some(p.command);
                 return Wake::Command(p);
             }
             if std::mem::take(&mut s.nudged) {
@@ -96,6 +99,7 @@ impl CommandSlot {
                 return match s.pending.take() {
                     Some(p) => {
                         s.last = Some(p.command);
+                        s.resend = Some(p.command);
                         Wake::Command(p)
                     }
                     None => Wake::Timeout,
@@ -111,6 +115,7 @@ impl CommandSlot {
         let p = s.pending.take();
         if let Some(p) = p {
             s.last = Some(p.command);
+            s.resend = Some(p.command);
         }
         p
     }
@@ -125,9 +130,16 @@ impl CommandSlot {
         !s.stopped
     }
 
-    /// Record what went to the wire.
+    /// Record what goes to the wire.
     pub fn set_last(&self, command: Command) {
-        self.state.lock().last = Some(command);
+        let mut s = self.state.lock();
+        s.last = Some(command);
+        s.resend = Some(command);
+    }
+
+    /// What the command thread sends again when nothing new arrives.
+    pub fn resend(&self) -> Option<Command> {
+        self.state.lock().resend
     }
 
     /// Record what the device acknowledged, and wake anyone waiting for it.
@@ -167,7 +179,10 @@ impl CommandSlot {
 
     /// Undo `set_last` for a command that did not go out after all.
     pub fn restore_last(&self, last: Option<Command>) {
-        self.state.lock().last = last;
+        let mut s = self.state.lock();
+        s.last = last;
+        s.resend = last;
+        drop(s);
         self.cv.notify_all();
     }
 
@@ -213,14 +228,13 @@ impl CommandSlot {
         s.pending.map(|p| p.command).or(s.last)
     }
 
-    /// Drop the pending command and forget the last one (e.g. on engage, so nothing
-    /// resends a stale set point).
+    /// Drop the pending command and forget the one to resend (e.g. on engage, so
+    /// nothing resends a stale set point). What the device was sent and acknowledged
+    /// stays known: the interlocks judge by it.
     pub fn reset(&self, to: Option<Command>) {
         let mut s = self.state.lock();
         s.pending = None;
-        s.last = to;
-        s.executed = None;
-        s.sent = None;
+        s.resend = to;
     }
 }
 

@@ -20,7 +20,7 @@ pub mod model;
 pub(crate) mod test_serve;
 
 use crate::config::{DeviceConfig, DriverKind, VehicleConfig};
-use crate::value::{Command, EstopState, Reading, Role};
+use crate::value::{Command, EstopState, Gear, Reading, Role};
 use crossbeam_channel::Sender;
 use device::{Plant, Responder};
 use model::Model;
@@ -132,6 +132,9 @@ pub struct SimEvent {
     pub request: Vec<u8>,
     /// Why, when the device acted on its own (its watchdog).
     pub note: Option<String>,
+    /// The simulated vehicle's speed (m/s, signed) and gear when the command arrived.
+    pub speed: f64,
+    pub gear: Gear,
 }
 
 /// One simulated device's port.
@@ -174,6 +177,8 @@ struct DevicePlant<'a> {
     role: Role,
     model: &'a Mutex<Model>,
     applied: Option<Command>,
+    /// Speed and gear when the command arrived.
+    before: (f64, Gear),
 }
 
 impl Plant for DevicePlant<'_> {
@@ -181,7 +186,10 @@ impl Plant for DevicePlant<'_> {
         self.model.lock().reading(self.role)
     }
     fn command(&mut self, command: Command) -> Result<(), String> {
-        self.model.lock().command(self.role, command)?;
+        let mut m = self.model.lock();
+        m.step();
+        self.before = (m.velocity, m.gear);
+        m.command(self.role, command)?;
         self.applied = Some(command);
         Ok(())
     }
@@ -423,7 +431,13 @@ impl Served {
                         _ => None,
                     };
                     if let (Some(tx), Some(command)) = (&self.events, safe) {
+                        let (speed, gear) = {
+                            let m = self.model.lock();
+                            (m.velocity, m.gear)
+                        };
                         let _ = tx.send(SimEvent {
+                            speed,
+                            gear,
                             role: c.name,
                             at: Instant::now(),
                             command,
@@ -452,6 +466,7 @@ impl Served {
                     role: c.name,
                     model: &self.model,
                     applied: None,
+                    before: (0.0, Gear::Park),
                 };
                 let Some(reply) = responder.respond(&input, &mut plant) else {
                     break;
@@ -468,6 +483,8 @@ impl Served {
                         command,
                         request: request.clone(),
                         note: None,
+                        speed: plant.before.0,
+                        gear: plant.before.1,
                     });
                 }
                 if self.faults.silent.load(Relaxed) || reply.bytes.is_empty() {
