@@ -194,7 +194,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
         s.patch(&mut config);
-        Some(s)
+        Some(Arc::new(s))
     } else {
         None
     };
@@ -211,8 +211,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut sup_cfg = vehicle.config.supervisor.clone();
     sup_cfg.panic_for_test = args.inject_panic.as_deref() == Some("supervisor");
     let supervisor = crate::supervisor::start(vehicle.clone(), sup_cfg, Box::new(exit::request))?;
-    if args.inject_panic.as_deref() == Some("main") {
-        // Let the devices report first, so the unwinding really has a vehicle to stop.
+    // Let the devices report first, so the unwinding really has a vehicle to stop; with
+    // the console, it panics from its own loop, so the terminal is taken over then.
+    let panic_main = args.inject_panic.as_deref() == Some("main");
+    if panic_main && keymap.is_none() {
         std::thread::sleep(Duration::from_millis(1500));
         panic!("injected panic (--inject-panic main)");
     }
@@ -223,15 +225,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             let sources = console::controls::Sources {
                 logs: ring,
                 net: Some(net.status().clone() as Arc<dyn console::controls::NetSource>),
-                sim_faults: sim
-                    .as_ref()
-                    .map(|s| s.ports.iter().map(|p| (p.role, p.faults.clone())).collect())
-                    .unwrap_or_default(),
+                sim: sim.clone(),
             };
             let opts = console::Options {
                 keymap,
                 deadman: args.deadman.unwrap_or(console::model::DEADMAN),
                 sources,
+                panic_after: panic_main.then_some(Duration::from_millis(1500)),
             };
             match console::run_with(&vehicle, &exits, opts) {
                 Ok(why) => why,
