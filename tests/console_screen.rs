@@ -361,3 +361,15 @@ fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
     }
     find(&b, "steer raw traffic — sim: silent, slow 150ms");
 }
+
+#[test]
+fn the_bench_shows_the_supervisors_strip_too() {
+    let f = fixture_with(sample::make_recovering);
+    let mut m = f.model(Theme::default());
+    f.act(&mut m, &[Action::Bench]);
+    let b = render(&m, 80, 24);
+    find(&b, "RECOVERY engine_stall 4/7 park");
+    let (x, y) = find(&b, "FAULT engine_stall");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+    find(&b, "steer raw traffic");
+}

@@ -25,6 +25,9 @@ use ratatui::widgets::{Paragraph, Widget, Wrap};
 pub const MIN_WIDTH: u16 = 80;
 pub const MIN_HEIGHT: u16 = 22;
 
+/// The bench view's height with its simulator box and three rows of traffic.
+const BENCH_MIN: u16 = 18;
+
 /// Height of a bordered device panel on a large screen.
 const BIG_PANEL: u16 = 10;
 
@@ -203,6 +206,19 @@ impl Widget for &Model {
         .areas(area);
         Paragraph::new(self.header()).render(header, buf);
         if self.in_bench() {
+            // The supervisor's strip under the bench, so an injected fault's effect
+            // shows where it was injected.
+            let strip = SupervisorStrip {
+                snap: &self.snap,
+                theme: self.theme,
+            };
+            let room = body.height.saturating_sub(BENCH_MIN);
+            let strip_h = (strip.lines().len() as u16).min(3).min(room);
+            let [body, strip_area] =
+                Layout::vertical([Constraint::Min(0), Constraint::Length(strip_h)]).areas(body);
+            if strip_h > 0 {
+                (&strip).render(strip_area, buf);
+            }
             if let Some(d) = self.bench_device() {
                 let v = BenchView {
                     d,
