@@ -5,13 +5,15 @@
 #
 # Needs tmux and python3 (with venv). It builds adrive (debug), runs it with --sim in a
 # detached 80×24 tmux session, drives it with keys, and saves for each screen:
-#   NAME.txt   the plain text (tmux capture-pane -p)
-#   NAME.ansi  the same with colour escapes (capture-pane -p -e)
+#   NAME.ansi  the screen with colour escapes (tmux capture-pane -p -e)
+#   NAME.txt   the same capture, escapes removed
 #   NAME.png   the .ansi rendered by render.py (Pillow, installed into a venv under
 #              target/screenshots-venv on first use)
 # Screens: main (engaged, steering commanded to 0.5), help, bench (gas, with its raw
-# traffic and delay histogram), fault (steering silenced through the bench's sim
-# fault key, shown in red).
+# traffic, delay histogram and the simulator's fault keys), recovery and
+# recovery-wide (an engine stall injected from the bench while in drive, captured while
+# the supervisor's engine_stall procedure runs, at 80×24 and at 120×40), fault
+# (steering silenced with the bench's sim key, shown in red).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=screenshots
@@ -27,22 +29,23 @@ if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import PIL' 2>/dev/nu
 fi
 
 tmux new-session -d -s "$session" -x 80 -y 24 \
-    "env TERM=xterm-256color target/debug/adrive --sim --log-dir $logs"
+    "env TERM=xterm-256color target/debug/adrive --sim --listen 127.0.0.1:0 --log-dir $logs"
 
-# Wait until the screen shows $1 (20 s at most).
+# Wait until the screen shows $1 ($2 tenths of a second at most, default 20 s).
 wait_for() {
-    for _ in $(seq 200); do
+    for _ in $(seq "${2:-200}"); do
         if tmux capture-pane -p -t "$session" | grep -qF -- "$1"; then return 0; fi
         sleep 0.1
     done
     echo "timed out waiting for: $1" >&2
     tmux capture-pane -p -t "$session" >&2
-    exit 1
+    return 1
 }
 keys() { tmux send-keys -t "$session" "$@"; }
 shot() {
-    tmux capture-pane -p -t "$session" >"$out/$1.txt"
+    # One capture, so the text and the colours show the same instant.
     tmux capture-pane -p -e -t "$session" >"$out/$1.ansi"
+    sed 's/\x1b\[[0-9;]*m//g' "$out/$1.ansi" >"$out/$1.txt"
     "$venv/bin/python" "$out/render.py" "$out/$1.ansi" "$out/$1.png"
     echo "wrote $out/$1.{txt,ansi,png}"
 }
@@ -69,11 +72,34 @@ keys Escape
 keys l x; wait_for "GAS 0…1"; wait_for "raw traffic"
 sleep 1
 shot bench
+keys Escape
+
+# In drive, stall the engine from the bench, then watch the supervisor recover it.
+keys t; wait_for "edit trans command"
+keys C-u d Enter
+wait_for "gear drive"
+keys x; wait_for "raw traffic"
+keys K; wait_for "sim: engine stalled"
+keys Escape
+wait_for "RECOVERY engine_stall" 50
+sleep 0.2
+shot recovery
+tmux resize-window -t "$session" -x 120 -y 40
+wait_for "  try 1/3  " 20
+shot recovery-wide
+wait_for "recovery engine_stall done" 100
+tmux resize-window -t "$session" -x 80 -y 24
+sleep 0.5
 
 # Silence the simulated steering from the bench, then look at the main screen.
-keys BTab; wait_for "steer raw traffic"
-keys f; wait_for "FAULT"
-keys Escape; wait_for "1 FAULTY"
+keys x; wait_for "raw traffic"
+for _ in $(seq 6); do
+    if tmux capture-pane -p -t "$session" | grep -qF "steer raw traffic"; then break; fi
+    keys BTab; sleep 0.3
+done
+wait_for "steer raw traffic"
+keys s; wait_for "FAULT steer"
+keys Escape; wait_for "FAULT steer silent"
 sleep 1
 shot fault
 

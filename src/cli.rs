@@ -194,7 +194,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
         s.patch(&mut config);
-        Some(s)
+        Some(Arc::new(s))
     } else {
         None
     };
@@ -218,8 +218,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut sup_cfg = vehicle.config.supervisor.clone();
     sup_cfg.panic_for_test = (panic_in == "supervisor").then_some(panic_after);
     let supervisor = crate::supervisor::start(vehicle.clone(), sup_cfg, Box::new(exit::request))?;
-    if panic_in == "main" {
-        // Let the devices report first, so the unwinding really has a vehicle to stop.
+    // Let the devices report first, so the unwinding really has a vehicle to stop; with
+    // the console, it panics from its own loop, so the terminal is taken over then.
+    let panic_main = panic_in == "main";
+    if panic_main && keymap.is_none() {
         let _ = exits.recv_timeout(panic_after);
         panic!("injected panic (--inject-panic main)");
     }
@@ -230,15 +232,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             let sources = console::controls::Sources {
                 logs: ring,
                 net: Some(net.status().clone() as Arc<dyn console::controls::NetSource>),
-                sim_faults: sim
-                    .as_ref()
-                    .map(|s| s.ports.iter().map(|p| (p.role, p.faults.clone())).collect())
-                    .unwrap_or_default(),
+                sim: sim.clone(),
             };
             let opts = console::Options {
                 keymap,
                 deadman: args.deadman.unwrap_or(console::model::DEADMAN),
                 sources,
+                panic_after: panic_main.then_some(panic_after),
             };
             match console::run_with(&vehicle, &exits, opts) {
                 Ok(why) => why,

@@ -243,6 +243,131 @@ fn sigterm_stops_safely_and_restores_the_terminal() {
     assert!(c.log().contains("safe state acknowledged"));
 }
 
+/// An SSH session dropping: SIGHUP ends the run as a hang-up (status 129), the safe
+/// state first, then the terminal as it was.
+#[test]
+fn sighup_stops_safely_and_restores_the_terminal() {
+    let mut c = Console::start("hup", &[]);
+    c.wait_for("the main screen", |s| s.contains("STEER"));
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(c.child.id() as i32, libc::SIGHUP) };
+    let status = c.wait_exit();
+    assert_eq!(status.code(), Some(129), "{status:?}");
+    assert!(left_alternate_screen(&c.bytes()), "no ESC[?1049l written");
+    assert!(c.cooked(), "the terminal was left in raw mode");
+    let log = c.log();
+    assert!(log.contains("stopping: SIGHUP"), "{log}");
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
+/// A panic in another thread (the supervisor's, on its first turn) ends the run like
+/// any other exit: safe state, terminal restored, status 101.
+#[test]
+fn a_panic_in_the_supervisor_thread_stops_safely_and_restores_the_terminal() {
+    let mut c = Console::start("panic-sup", &["--inject-panic", "supervisor"]);
+    let status = c.wait_exit();
+    assert_eq!(status.code(), Some(101), "{status:?}");
+    assert!(left_alternate_screen(&c.bytes()), "no ESC[?1049l written");
+    assert!(c.cooked(), "the terminal was left in raw mode");
+    let log = c.log();
+    assert!(
+        log.contains("injected panic (--inject-panic supervisor)"),
+        "{log}"
+    );
+    assert!(log.contains("stopping: panic: thread supervisor"), "{log}");
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
+/// A panic in the console's own (main) thread while it holds the terminal: the panic
+/// hook restores the terminal before anything is printed, and unwinding drops the
+/// engine, which commands the safe state.
+#[test]
+fn a_panic_in_the_main_thread_restores_the_terminal_and_the_engine_stops_safely() {
+    let mut c = Console::start("panic-main", &["--inject-panic", "main"]);
+    c.wait_for("the main screen", |s| s.contains("STEER"));
+    let status = c.wait_exit();
+    assert_eq!(status.code(), Some(101), "{status:?}");
+    let bytes = c.bytes();
+    assert!(left_alternate_screen(&bytes), "no ESC[?1049l written");
+    // The panic message comes after the restore, on the normal screen.
+    let restored = bytes.windows(8).position(|w| w == b"\x1b[?1049l").unwrap();
+    let text = String::from_utf8_lossy(&bytes[restored..]);
+    assert!(text.contains("injected panic"), "{text}");
+    assert!(c.cooked(), "the terminal was left in raw mode");
+    let log = c.log();
+    assert!(log.contains("engine dropped without shutdown"), "{log}");
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
+/// The bench's simulator keys: the e-stop to pause (the supervisor's fault, the
+/// vehicle disengaged) and back to run; steering silenced (its fault, in red) and
+/// cleared.
+#[test]
+fn bench_keys_inject_faults_that_the_console_shows_and_clear() {
+    let mut c = Console::start("bench-faults", &[]);
+    c.engage();
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("steer raw traffic"));
+    c.keys("p");
+    let s = c.wait_for("the e-stop pause fault", |s| {
+        s.contains("FAULT estop_pause") && s.contains("DISENGAGED")
+    });
+    assert!(
+        s.contains("e-stop pause ·"),
+        "the simulator box says so:\n{s}"
+    );
+    c.keys("r");
+    c.wait_for("the fault gone", |s| {
+        !s.contains("estop_pause") && s.contains("e-stop run ·")
+    });
+    c.keys("s");
+    c.wait_for("steering silent", |s| {
+        s.contains("faults silent") && s.contains("FAULT steer silent")
+    });
+    c.keys("x");
+    c.wait_for("steering answering again", |s| {
+        s.contains("faults none") && !s.contains("FAULT steer")
+    });
+    // Back on the main screen, nothing is left faulty.
+    c.keys("\x1b");
+    c.wait_for("the main screen", |s| {
+        s.contains("faults none") && !s.contains("FAULTY")
+    });
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// An engine stall injected from the bench while in drive: the supervisor's
+/// engine_stall procedure runs step by step on screen and reports its outcome.
+#[test]
+fn an_engine_stall_from_the_bench_is_recovered_step_by_step_on_screen() {
+    let mut c = Console::start("stall", &[]);
+    c.engage();
+    c.keys("t");
+    c.wait_for("the gear edit", |s| s.contains("edit trans command"));
+    c.keys("\x15d\r");
+    c.wait_for("drive", |s| s.contains("gear drive"));
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("raw traffic"));
+    c.keys("K");
+    c.wait_for("the stall recovery", |s| {
+        s.contains("RECOVERY engine_stall") && s.contains("(try 1/3)")
+    });
+    c.keys("\x1b");
+    c.wait_for("the outcome", |s| {
+        s.contains("supervisor: recovery engine_stall done")
+    });
+    c.wait_for("the engine running in drive", |s| {
+        s.contains("gear drive") && s.contains("run 1")
+    });
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let log = c.log();
+    for step in ["gas off", "brake", "park", "starter", "back in drive"] {
+        assert!(log.contains(step), "{step} not logged:\n{log}");
+    }
+}
+
 #[test]
 fn a_resize_redraws_and_a_small_window_gets_a_message() {
     use std::os::fd::AsRawFd;

@@ -26,11 +26,17 @@ struct Fixture {
 }
 
 fn fixture(faulty: bool) -> Fixture {
+    fixture_with(|v, now| {
+        if faulty {
+            sample::make_faulty(v, Role::Steer, now);
+        }
+    })
+}
+
+fn fixture_with(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
     let now = Instant::now();
     let vehicle = sample::vehicle(now);
-    if faulty {
-        sample::make_faulty(&vehicle, Role::Steer, now);
-    }
+    setup(&vehicle, now);
     let logs = LogRing::default();
     logs.push(
         tracing::Level::WARN,
@@ -96,6 +102,8 @@ fn snapshot(name: &str, screen: &str) {
     // Log timestamps (seconds since start) and trace ages.
     s.add_filter(r"\d+\.\ds (WARN|ERROR)", "[secs] $1");
     s.add_filter(r"-\s*\d+\.\d{3}s", "-[ago]");
+    // Fault ages and recovery times (the supervisor reads its own clock).
+    s.add_filter(r"\b\d+\.\ds\b", "[s]");
     s.bind(|| insta::assert_snapshot!(name, screen));
 }
 
@@ -207,7 +215,7 @@ fn a_faulty_device_is_red() {
     assert_eq!(b[(x, y)].fg, Color::Red);
     let (x, y) = find(&b, "1 FAULTY");
     assert_eq!(b[(x, y)].fg, Color::Red);
-    let (x, y) = find(&b, "steer (no reply");
+    let (x, y) = find(&b, "FAULT steer faulty: no reply");
     assert_eq!(b[(x, y)].fg, Color::Red);
     // A healthy device is not.
     let (x, y) = find(&b, "GAS");
@@ -264,4 +272,104 @@ fn a_small_terminal_gets_a_message_not_a_crash() {
     for (w, h) in [(1, 1), (0, 0), (79, 40), (200, 21), (10, 3)] {
         render(&m, w, h);
     }
+}
+
+#[test]
+fn a_recovery_in_progress_and_the_faults_at_80x24() {
+    let f = fixture_with(sample::make_recovering);
+    let b = render(&f.model(Theme::default()), 80, 24);
+    let screen = text(&b);
+    snapshot("recovery_80x24", &screen);
+    // The procedure on one line: name, step n/N, its name, the try.
+    find(&b, "RECOVERY engine_stall 4/7 park (try 1/3)");
+    find(&b, "then starter › back in drive");
+    // Every fault with kind, cause and age, in red, cause included.
+    for needle in [
+        "FAULT engine_stall",
+        "engine stopped (0 rpm) in drive",
+        "FAULT brake silent",
+        "no status for 1700 ms",
+    ] {
+        let (x, y) = find(&b, needle);
+        assert_eq!(b[(x, y)].fg, Color::Red, "{needle}");
+    }
+    // The compact line counts them, and the brake's panel is red.
+    let (x, y) = find(&b, "faults 2");
+    assert_eq!(b[(x + 7, y)].fg, Color::Red);
+    let (x, y) = find(&b, "BRAKE");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+    // The hint bar is still there.
+    assert!(
+        screen.lines().last().unwrap().contains("? help"),
+        "{screen}"
+    );
+}
+
+#[test]
+fn a_recovery_in_progress_and_the_faults_at_120x40() {
+    let f = fixture_with(sample::make_recovering);
+    let b = render(&f.model(Theme::default()), 120, 40);
+    snapshot("recovery_120x40", &text(&b));
+    // Each step shown, the current one highlighted.
+    find(&b, "✓ gas off");
+    let (x, y) = find(&b, "▶ park");
+    assert!(b[(x, y)].modifier.contains(Modifier::REVERSED));
+    find(&b, "· release");
+    find(&b, "step 4/7  try 1/3");
+    let (x, y) = find(&b, "fault engine_stall");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+    let (x, y) = find(&b, "fault brake silent");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+    find(&b, "last recovery steering done in 0.9 s");
+}
+
+#[test]
+fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
+    use adrive::console::controls::SimFaults;
+    let f = fixture(false);
+    let mut m = f.model(Theme::default());
+    f.act(&mut m, &[Action::Bench]);
+    // What a --sim run captures (the fixture has no simulator).
+    m.snap.can_inject = true;
+    m.snap.sim_vehicle = Some("e-stop run · engine running · steering ok".into());
+    for d in &mut m.snap.devices {
+        d.sim = Some(SimFaults {
+            text: "none".into(),
+            ..SimFaults::default()
+        });
+    }
+    m.snap.devices[0].sim = Some(SimFaults {
+        silent: true,
+        slow_ms: 150,
+        text: "silent, slow 150ms".into(),
+        ..SimFaults::default()
+    });
+    let b = render(&m, 80, 24);
+    snapshot("bench_sim_80x24", &text(&b));
+    let (x, y) = find(&b, "faults silent, slow 150ms");
+    assert_eq!(b[(x + 7, y)].fg, Color::Red);
+    find(&b, "e-stop run · engine running");
+    // The legend comes from the keymap.
+    for needle in [
+        "s silent",
+        "v vanish for 2s",
+        "K engine stall",
+        "p e-stop pause",
+        "r e-stop run",
+    ] {
+        find(&b, needle);
+    }
+    find(&b, "steer raw traffic — sim: silent, slow 150ms");
+}
+
+#[test]
+fn the_bench_shows_the_supervisors_strip_too() {
+    let f = fixture_with(sample::make_recovering);
+    let mut m = f.model(Theme::default());
+    f.act(&mut m, &[Action::Bench]);
+    let b = render(&m, 80, 24);
+    find(&b, "RECOVERY engine_stall 4/7 park");
+    let (x, y) = find(&b, "FAULT engine_stall");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+    find(&b, "steer raw traffic");
 }

@@ -5,15 +5,17 @@
 //! the real one over a [`Vehicle`]. Reading goes through [`Snapshot`]: plain data
 //! captured once per tick, which the view draws without touching the engine.
 //!
-//! The network panel has no engine source yet: it takes a [`NetSource`] when one
-//! exists and shows "not running" otherwise.
+//! The network panel takes a [`NetSource`] when the listener runs and shows "not
+//! running" otherwise. Under `--sim` the console also holds the in-process
+//! [`Sim`], so the bench view can inject faults through [`Sim::apply`].
 //!
 //! [`update`]: super::update::update
 
 use crate::engine::stats::StatsSnapshot;
 use crate::engine::trace::TraceEntry;
 use crate::interlock::Reject;
-use crate::sim::Faults;
+use crate::sim::{Faults, Sim};
+use crate::supervisor::status::SupervisorSnapshot;
 use crate::value::{Command, Reading, Role};
 use crate::vehicle::Vehicle;
 use std::sync::atomic::Ordering::Relaxed;
@@ -50,8 +52,36 @@ pub struct DeviceSnap {
     pub reconnects: u64,
     /// Receipt → first byte histogram, (upper edge µs, count); filled for the bench.
     pub delay_buckets: Vec<(f64, u64)>,
-    /// The simulated device is silenced (bench fault injection).
-    pub silenced: bool,
+    /// The faults injected into the simulated device (`--sim` only).
+    pub sim: Option<SimFaults>,
+}
+
+/// The faults switched on in one simulated device.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SimFaults {
+    pub silent: bool,
+    pub garbage: bool,
+    pub corrupt: bool,
+    /// Extra reply delay (0: off).
+    pub slow_ms: u64,
+    /// All of them in words ([`Faults::describe`]): `none`, `silent, slow 150ms`.
+    pub text: String,
+}
+
+impl SimFaults {
+    pub fn of(f: &Faults) -> SimFaults {
+        SimFaults {
+            silent: f.silent.load(Relaxed),
+            garbage: f.garbage.load(Relaxed),
+            corrupt: f.corrupt.load(Relaxed),
+            slow_ms: f.slow_ms.load(Relaxed),
+            text: f.describe(),
+        }
+    }
+
+    pub fn any(&self) -> bool {
+        self.silent || self.garbage || self.corrupt || self.slow_ms > 0
+    }
 }
 
 /// The network listener's state, as `src/net` will publish it.
@@ -104,6 +134,10 @@ pub struct Snapshot {
     pub trace: Vec<TraceEntry>,
     /// Fault injection is available (the devices are simulated in this process).
     pub can_inject: bool,
+    /// The simulated vehicle's own state (e-stop, engine, steering drive), in words.
+    pub sim_vehicle: Option<String>,
+    /// Faults and recovery as the supervisor sees them.
+    pub supervision: SupervisorSnapshot,
 }
 
 impl Snapshot {
@@ -133,12 +167,12 @@ pub trait Controls {
     fn set_enabled(&self, role: Role, thread: Thread, on: bool);
     /// Wake a command thread (broadcast its condition variable).
     fn wake(&self, role: Role);
-    /// Re-seat steering after a disable/re-enable.
-    fn reset_steering(&self) -> Result<(), String>;
     /// Gas 0, brake full, bypassing the interlocks.
     fn safe_state(&self);
-    /// Toggle silence of a simulated device; `None` when not simulated here.
-    fn toggle_silent(&self, role: Role) -> Option<bool>;
+    /// One line of the simulator's command language ([`Sim::apply`]), e.g.
+    /// `silent gas on`, `stall`, `estop pause`; `None` when the devices are not
+    /// simulated in this process.
+    fn sim(&self, line: &str) -> Option<Result<String, String>>;
 }
 
 /// The console's sources beyond the vehicle.
@@ -146,8 +180,8 @@ pub trait Controls {
 pub struct Sources {
     pub net: Option<Arc<dyn NetSource>>,
     pub logs: Option<LogRing>,
-    /// Fault switches of devices simulated in this process (`--sim`).
-    pub sim_faults: Vec<(Role, Arc<Faults>)>,
+    /// The simulator, when the devices are simulated in this process (`--sim`).
+    pub sim: Option<Arc<Sim>>,
 }
 
 /// [`Controls`] over the real vehicle.
@@ -156,14 +190,20 @@ pub struct Live<'a> {
     pub sources: &'a Sources,
 }
 
-impl Live<'_> {
-    fn faults(&self, role: Role) -> Option<&Arc<Faults>> {
-        self.sources
-            .sim_faults
-            .iter()
-            .find(|(r, _)| *r == role)
-            .map(|(_, f)| f)
-    }
+/// The simulated vehicle's state in words: `e-stop run · engine running · steering ok`.
+fn sim_vehicle(sim: &Sim) -> String {
+    let m = sim.model().lock();
+    let engine = if m.running {
+        "engine running"
+    } else {
+        "ENGINE STOPPED"
+    };
+    let steering = match (m.steer_fault, m.steer_enabled) {
+        (true, _) => "steering FAULT LATCHED",
+        (false, false) => "steering disabled",
+        (false, true) => "steering ok",
+    };
+    format!("e-stop {} · {engine} · {steering}", m.estop)
 }
 
 /// Capture a snapshot of `vehicle` as of `now`.
@@ -173,6 +213,7 @@ pub fn capture(
     now: Instant,
     bench: Option<Role>,
 ) -> Snapshot {
+    let supervision = vehicle.supervision.snapshot();
     let devices = vehicle
         .devices
         .iter()
@@ -194,7 +235,10 @@ pub fn capture(
                 command_on: d.settings.command_enabled.load(Relaxed),
                 status_error: d.health.status_error.load(Relaxed),
                 command_error: d.health.command_error.load(Relaxed),
-                faulty: d.is_faulty(),
+                // Faulty to the engine (no replies) or to the supervisor (any fault
+                // it names this device in).
+                faulty: d.is_faulty()
+                    || supervision.faults.iter().any(|f| f.device == Some(d.role)),
                 last_error: d.health.last_error.lock().as_ref().map(|(_, m)| m.clone()),
                 stats: d.stats.snapshot(),
                 reconnects: d
@@ -211,10 +255,11 @@ pub fn capture(
                 } else {
                     Vec::new()
                 },
-                silenced: sources
-                    .sim_faults
-                    .iter()
-                    .any(|(r, f)| *r == d.role && f.silent.load(Relaxed)),
+                sim: sources
+                    .sim
+                    .as_ref()
+                    .and_then(|s| s.faults(d.role))
+                    .map(|f| SimFaults::of(f)),
             }
         })
         .collect();
@@ -244,7 +289,9 @@ pub fn capture(
             .and_then(|r| vehicle.device(r))
             .map(|d| d.trace.entries())
             .unwrap_or_default(),
-        can_inject: !sources.sim_faults.is_empty(),
+        can_inject: sources.sim.is_some(),
+        sim_vehicle: sources.sim.as_deref().map(sim_vehicle),
+        supervision,
     }
 }
 
@@ -296,31 +343,16 @@ impl Controls for Live<'_> {
             dev.slot.nudge();
         }
     }
-    fn reset_steering(&self) -> Result<(), String> {
-        let dev = self
-            .vehicle
-            .device(Role::Steer)
-            .ok_or("this vehicle has no steering")?;
-        let at = dev
-            .cached()
-            .reading
-            .position
-            .ok_or("steering has not reported a position yet")?;
-        dev.slot.reset(None);
-        self.vehicle
-            .submit(Role::Steer, Command::Set(at), Instant::now())
-            .map_err(|r| format!("steering {at:.3} rejected: {r}"))?;
-        dev.slot.nudge();
-        Ok(())
-    }
     fn safe_state(&self) {
         self.vehicle.command_safe_state();
     }
-    fn toggle_silent(&self, role: Role) -> Option<bool> {
-        let f = self.faults(role)?;
-        let now = !f.silent.load(Relaxed);
-        f.silent.store(now, Relaxed);
-        tracing::warn!(device = %role, "simulated device {}", if now { "silenced" } else { "answering again" });
-        Some(now)
+    fn sim(&self, line: &str) -> Option<Result<String, String>> {
+        let sim = self.sources.sim.as_ref()?;
+        let done = sim.apply(line);
+        match &done {
+            Ok(what) => tracing::warn!("simulator, from the console: {what}"),
+            Err(e) => tracing::info!("simulator refused {line:?}: {e}"),
+        }
+        Some(done)
     }
 }

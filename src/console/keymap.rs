@@ -10,7 +10,7 @@
 //! same key bound twice in one section is refused with `file:line: message` naming
 //! the expected form. Nothing here panics on bad input.
 
-use crate::value::Role;
+use crate::value::{EstopState, Role};
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use serde::Deserialize;
 use std::fmt;
@@ -273,7 +273,8 @@ pub enum Action {
     /// cursor (`None`) or a named one.
     Wake(Option<Role>),
     WakeAll,
-    /// Re-seat steering after a disable/re-enable: hold where it is, wake its thread.
+    /// Reset steering after a disable and re-enable (the paper's `e`): home the drive,
+    /// then hold where it stops.
     ResetSteering,
     Engage,
     /// Disengage (asks first).
@@ -293,8 +294,8 @@ pub enum Action {
     Bench,
     NextDevice,
     PrevDevice,
-    /// Bench, under `--sim`: make the simulated device silent (or answer again).
-    InjectFault,
+    /// Bench, under `--sim`: inject or clear a simulator fault.
+    Sim(SimAction),
     /// Unbinds a key in a user keymap.
     None,
     /// A character typed while editing (not bindable).
@@ -303,12 +304,41 @@ pub enum Action {
     Interrupt,
 }
 
+/// What a bench key does to the simulator (`--sim` only). The first five act on the
+/// device on the bench and toggle; the rest act on the simulated vehicle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SimAction {
+    /// Stop answering (on/off).
+    Silent,
+    /// Answer noise instead of replies (on/off).
+    Garbage,
+    /// Flip a bit of every reply: a bad CRC or checksum (on/off).
+    Corrupt,
+    /// Reply [`SIM_SLOW`] late (on/off).
+    Slow,
+    /// Close the port and come back after [`SIM_VANISH`], as a USB unplug.
+    Vanish,
+    /// Clear every fault of the device.
+    Clear,
+    /// The engine dies.
+    Stall,
+    /// The steering drive latches a fault (disable → enable clears it).
+    Jam,
+    /// Put the simulated e-stop in this state.
+    Estop(EstopState),
+}
+
+/// How late a "slow" simulated device replies.
+pub const SIM_SLOW: std::time::Duration = std::time::Duration::from_millis(150);
+/// How long a "vanished" simulated device stays away.
+pub const SIM_VANISH: std::time::Duration = std::time::Duration::from_millis(2000);
+
 /// The valid `run` values, for error messages.
 pub const ACTION_FORM: &str = "quit, help, back, up, down, left, right, edit, \
 edit steer|gas|brake|trans|accel, commit, cancel, backspace, clear, wake, wake DEVICE, \
 wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
 steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
-inject_fault, none";
+sim silent|garbage|corrupt|slow|vanish|clear|stall|jam, sim estop pause|run|disable, none";
 
 const SIMPLE: &[(&str, Action)] = &[
     ("quit", Action::Quit),
@@ -341,7 +371,26 @@ const SIMPLE: &[(&str, Action)] = &[
     ("bench", Action::Bench),
     ("next_device", Action::NextDevice),
     ("prev_device", Action::PrevDevice),
-    ("inject_fault", Action::InjectFault),
+    ("sim silent", Action::Sim(SimAction::Silent)),
+    ("sim garbage", Action::Sim(SimAction::Garbage)),
+    ("sim corrupt", Action::Sim(SimAction::Corrupt)),
+    ("sim slow", Action::Sim(SimAction::Slow)),
+    ("sim vanish", Action::Sim(SimAction::Vanish)),
+    ("sim clear", Action::Sim(SimAction::Clear)),
+    ("sim stall", Action::Sim(SimAction::Stall)),
+    ("sim jam", Action::Sim(SimAction::Jam)),
+    (
+        "sim estop pause",
+        Action::Sim(SimAction::Estop(EstopState::Pause)),
+    ),
+    (
+        "sim estop run",
+        Action::Sim(SimAction::Estop(EstopState::Run)),
+    ),
+    (
+        "sim estop disable",
+        Action::Sim(SimAction::Estop(EstopState::Disable)),
+    ),
     ("none", Action::None),
 ];
 

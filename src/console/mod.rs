@@ -44,6 +44,9 @@ pub struct Options {
     pub keymap: Keymap,
     pub deadman: Duration,
     pub sources: Sources,
+    /// Fault injection for tests (`--inject-panic main`): the console's loop panics
+    /// this long after it starts, with the terminal in its hands.
+    pub panic_after: Option<Duration>,
 }
 
 impl Default for Options {
@@ -52,6 +55,7 @@ impl Default for Options {
             keymap: Keymap::default_map(),
             deadman: model::DEADMAN,
             sources: Sources::default(),
+            panic_after: None,
         }
     }
 }
@@ -120,6 +124,7 @@ pub fn run_with(vehicle: &Vehicle, exits: &Receiver<Exit>, opts: Options) -> std
         }
     };
     let ticker = crossbeam_channel::tick(TICK);
+    let started = Instant::now();
     let hangup = Exit::Signal(libc::SIGHUP);
     let why = loop {
         if let Err(e) = terminal.draw(|f| f.render_widget(&model, f.area())) {
@@ -142,6 +147,9 @@ pub fn run_with(vehicle: &Vehicle, exits: &Receiver<Exit>, opts: Options) -> std
         let flow = match msg {
             Msg::Exit(why) => Flow::Exit(why),
             Msg::Tick => {
+                if opts.panic_after.is_some_and(|d| started.elapsed() >= d) {
+                    panic!("injected panic (--inject-panic main)");
+                }
                 update::tick(&mut model, &live, start);
                 Flow::Continue
             }

@@ -12,6 +12,8 @@ use std::time::{Duration, Instant};
 /// Default teleop deadman: no teleop key for this long → gas 0, brake full. Longer than
 /// a terminal's key-repeat delay (typically 250–660 ms), so holding a key never trips it.
 pub const DEADMAN: Duration = Duration::from_millis(1000);
+/// How long `e` waits for the steering drive to acknowledge its home command.
+pub const HOME_WAIT: Duration = Duration::from_secs(3);
 /// Teleop steps per key.
 pub const STEER_STEP: f64 = 0.05;
 pub const GAS_STEP: f64 = 0.1;
@@ -194,6 +196,11 @@ pub struct Model {
     pub accel: Option<f64>,
     /// The time of the last tick or key (the view's "now").
     pub now: Instant,
+    /// `e` sent steering a home command at this time; once the drive acknowledges
+    /// it, the console commands it to hold where it stopped.
+    pub steer_reset: Option<Instant>,
+    /// The supervisor's last recovery outcome already shown as a message.
+    pub outcome_seen: Option<String>,
 }
 
 impl Model {
@@ -204,7 +211,6 @@ impl Model {
             theme,
             mode: Mode::Main,
             back_to: Mode::Main,
-            snap,
             cursor: 0,
             edit: None,
             ask: None,
@@ -214,6 +220,9 @@ impl Model {
             help_scroll: 0,
             accel: None,
             now: Instant::now(),
+            outcome_seen: snap.supervision.last_outcome.clone(),
+            steer_reset: None,
+            snap,
         }
     }
 

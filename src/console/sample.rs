@@ -2,6 +2,7 @@
 //! ports: for the console's tests, snapshots and the fault screenshot.
 
 use crate::config::VehicleConfig;
+use crate::supervisor::status::{Fault, FaultKind, RecoveryView};
 use crate::value::{EstopState, Gear, Reading, Role};
 use crate::vehicle::{Cached, Vehicle, FAULT_AFTER};
 use std::sync::atomic::Ordering::Relaxed;
@@ -72,4 +73,50 @@ pub fn make_faulty(v: &Vehicle, role: Role, now: Instant) {
         *d.health.last_error.lock() = Some((now, "no reply within 200ms".into()));
         d.cache.lock().at = Some(now - Duration::from_millis(1_500));
     }
+}
+
+/// An engine stall being recovered: the supervisor's fault, its procedure at step 4
+/// of 7 (park, first try), and the faulty brake it also sees; the engine reads
+/// stopped, in drive.
+pub fn make_recovering(v: &Vehicle, now: Instant) {
+    if let Some(d) = v.device(Role::Obd) {
+        let mut c = d.cache.lock();
+        c.reading.rpm = Some(0.0);
+        c.reading.running = Some(false);
+    }
+    make_faulty(v, Role::Brake, now);
+    let s = &v.supervision;
+    s.set_faults(vec![
+        Fault {
+            kind: FaultKind::EngineStall,
+            device: None,
+            cause: "engine stopped (0 rpm) in drive".into(),
+            since: now - Duration::from_secs(3),
+        },
+        Fault {
+            kind: FaultKind::Silent,
+            device: Some(Role::Brake),
+            cause: "no status for 1700 ms (max 500 ms): no reply within 200ms".into(),
+            since: now - Duration::from_millis(1_200),
+        },
+    ]);
+    s.set_recovery(Some(RecoveryView {
+        name: "engine_stall".into(),
+        steps: [
+            "gas off",
+            "brake",
+            "wait stopped",
+            "park",
+            "starter",
+            "back in drive",
+            "release",
+        ]
+        .map(String::from)
+        .to_vec(),
+        step: 3,
+        attempt: 1,
+        attempts: 3,
+        elapsed_ms: 0.0,
+    }));
+    s.set_outcome("recovery steering done in 0.9 s".into());
 }

@@ -3,10 +3,10 @@
 //! through [`Controls`], so both are tested with a recording fake and no terminal.
 
 use super::controls::{Controls, Thread};
-use super::keymap::{Action, Mode, Target};
-use super::model::{Ask, Edit, Field, Model, BRAKE_STEP, GAS_STEP, STEER_STEP};
+use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
+use super::model::{Ask, Edit, Field, Model, BRAKE_STEP, GAS_STEP, HOME_WAIT, STEER_STEP};
 use crate::exit::Exit;
-use crate::value::{Command, Gear, Role};
+use crate::value::{Command, Control, EstopState, Gear, Role};
 use std::time::{Duration, Instant};
 
 /// What the loop does after an update.
@@ -17,11 +17,19 @@ pub enum Flow {
     Exit(Exit),
 }
 
-/// Advance time: take a new snapshot and run the deadman.
+/// Advance time: take a new snapshot, follow up a steering reset, show a new
+/// recovery outcome, and run the deadman.
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
     m.snap = c.snapshot(now, m.in_bench().then_some(m.bench));
     m.cursor = m.cursor.min(m.fields().len() - 1);
+    follow_steer_reset(m, c, now);
+    let outcome = m.snap.supervision.last_outcome.clone();
+    if outcome.is_some() && outcome != m.outcome_seen {
+        let text = outcome.clone().unwrap_or_default();
+        m.say(format!("supervisor: {text}"), text.contains("gave up"));
+        m.outcome_seen = outcome;
+    }
     let t = &mut m.teleop;
     if let Some(last) = t.last_key {
         if !t.tripped && now.saturating_duration_since(last) >= t.deadman {
@@ -125,10 +133,7 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
             }
             m.say(format!("woke {} command threads", roles.len()), false);
         }
-        Action::ResetSteering => match c.reset_steering() {
-            Ok(()) => m.say("steering reset: holding its position, thread woken", false),
-            Err(e) => m.say(format!("steering reset refused: {e}"), true),
-        },
+        Action::ResetSteering => reset_steering(m, c),
         Action::Engage => ask(m, Ask::Engage),
         Action::Disengage => ask(m, Ask::Disengage),
         Action::Stop => stop(m, c),
@@ -446,19 +451,105 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
         },
         Action::Wake(_) => wake(m, c, m.bench),
         Action::Stop => stop(m, c),
-        Action::InjectFault => match c.toggle_silent(m.bench) {
-            Some(true) => m.say(
-                format!("sim: {} silenced (it stops answering)", m.bench),
-                true,
-            ),
-            Some(false) => m.say(format!("sim: {} answers again", m.bench), false),
-            None => m.say(
-                "fault injection needs --sim (devices simulated in this process)",
-                true,
-            ),
-        },
+        Action::Sim(what) => sim(m, c, what),
         Action::Back | Action::Cancel => m.mode = Mode::Main,
         _ => {}
+    }
+}
+
+/// The paper's `e`, after the operator disabled and re-enabled the steering drive:
+/// home it now; [`tick`] then commands it to hold where it stopped, once the drive
+/// acknowledged the home command. (A latched drive fault needs the disable → enable
+/// cycle first; the supervisor's `steering` procedure runs that whole sequence on its
+/// own when the drive reports a fault.)
+fn reset_steering(m: &mut Model, c: &dyn Controls) {
+    if m.snap.device(Role::Steer).is_none() {
+        return m.say("steering reset refused: this vehicle has no steering", true);
+    }
+    match c.submit(Role::Steer, Command::Control(Control::Home)) {
+        Ok(()) => {
+            m.steer_reset = Some(m.now);
+            m.say(
+                "steering reset: home sent; it will hold where it stops",
+                false,
+            );
+        }
+        Err(why) => m.say(format!("steering reset refused: {why}"), true),
+    }
+}
+
+/// The second half of `e`: hold once home is acknowledged, or give up after
+/// [`HOME_WAIT`].
+fn follow_steer_reset(m: &mut Model, c: &dyn Controls, now: Instant) {
+    let Some(since) = m.steer_reset else { return };
+    let steer = m.snap.device(Role::Steer);
+    let homed = steer.is_some_and(|d| d.executed == Some(Command::Control(Control::Home)));
+    let at = steer.and_then(|d| d.reading.position);
+    match at {
+        Some(at) if homed => {
+            m.steer_reset = None;
+            let at = (at * 1000.0).round() / 1000.0;
+            match c.submit(Role::Steer, Command::Set(at)) {
+                Ok(()) => m.say(format!("steering reset: homed, holding {at:.3}"), false),
+                Err(why) => m.say(
+                    format!("steering reset: homed, but hold {at:.3} refused: {why}"),
+                    true,
+                ),
+            }
+        }
+        _ if now.saturating_duration_since(since) > HOME_WAIT => {
+            m.steer_reset = None;
+            m.say(
+                format!(
+                    "steering reset: home not acknowledged within {}s (a latched drive fault \
+                     needs disable → enable first)",
+                    HOME_WAIT.as_secs()
+                ),
+                true,
+            );
+        }
+        _ => {}
+    }
+}
+
+/// The simulator line a bench key means for `role`, from the faults it has now.
+pub fn sim_line(m: &Model, what: SimAction, role: Role) -> String {
+    let f = m
+        .snap
+        .device(role)
+        .and_then(|d| d.sim.clone())
+        .unwrap_or_default();
+    let on = |b: bool| if b { "off" } else { "on" };
+    match what {
+        SimAction::Silent => format!("silent {role} {}", on(f.silent)),
+        SimAction::Garbage => format!("garbage {role} {}", on(f.garbage)),
+        SimAction::Corrupt => format!("corrupt {role} {}", on(f.corrupt)),
+        SimAction::Slow if f.slow_ms > 0 => format!("slow {role} 0"),
+        SimAction::Slow => format!("slow {role} {}", SIM_SLOW.as_millis()),
+        SimAction::Vanish => format!("vanish {role} {}", SIM_VANISH.as_millis()),
+        SimAction::Clear => format!("clear {role}"),
+        SimAction::Stall => "stall".into(),
+        SimAction::Jam => "jam steer".into(),
+        SimAction::Estop(s) => format!("estop {s}"),
+    }
+}
+
+/// A bench fault key: tell the simulator, say what happened, show it at once.
+fn sim(m: &mut Model, c: &dyn Controls, what: SimAction) {
+    let line = sim_line(m, what, m.bench);
+    match c.sim(&line) {
+        None => m.say(
+            "fault injection needs --sim (devices simulated in this process)",
+            true,
+        ),
+        Some(Err(e)) => m.say(format!("sim: {e}"), true),
+        Some(Ok(done)) => {
+            let harmless = matches!(what, SimAction::Clear | SimAction::Estop(EstopState::Run))
+                || done.ends_with(" off")
+                || done.ends_with(" 0");
+            m.say(format!("sim: {done}"), !harmless);
+            m.snap = c.snapshot(m.now, Some(m.bench));
+        }
     }
 }
 

@@ -14,7 +14,7 @@ use super::panels::help::HelpPanel;
 use super::panels::hint::{HintBar, MessageLine};
 use super::panels::log::LogPanel;
 use super::panels::network::NetworkPanel;
-use super::panels::supervisor::SupervisorPanel;
+use super::panels::supervisor::{SupervisorPanel, SupervisorStrip};
 use super::panels::teleop::TeleopPanel;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Layout, Rect};
@@ -24,6 +24,9 @@ use ratatui::widgets::{Paragraph, Widget, Wrap};
 /// The smallest screen the console draws (80×24, less a tmux status line and one).
 pub const MIN_WIDTH: u16 = 80;
 pub const MIN_HEIGHT: u16 = 22;
+
+/// The bench view's height with its simulator box and three rows of traffic.
+const BENCH_MIN: u16 = 18;
 
 /// Height of a bordered device panel on a large screen.
 const BIG_PANEL: u16 = 10;
@@ -72,20 +75,45 @@ impl Model {
         let cols: u16 = if body.width >= 120 { 3 } else { 2 };
         let rows = n.div_ceil(cols);
         let big = body.height >= rows * BIG_PANEL + 4 + 3;
-        let panel_h = if big { BIG_PANEL } else { 6 };
-        let teleop = self.in_teleop();
-        let lower_h = match (big, teleop) {
-            (true, true) => 6,
-            (true, false) => 4,
-            (false, _) => 2,
+        let show_cursor = !self.in_teleop();
+        let sup = SupervisorPanel {
+            m: self,
+            cursor: show_cursor,
+            compact: !big,
         };
-        let [grid, lower, log] = Layout::vertical([
-            Constraint::Length(rows * panel_h),
-            Constraint::Length(lower_h),
+        let strip = SupervisorStrip {
+            snap: &self.snap,
+            theme: self.theme,
+        };
+        // While the supervisor has faults or a recovery to show, a small screen's
+        // device panels give up their last line (counters) to make room for them.
+        let panel_h = match (big, sup.active()) {
+            (true, _) => BIG_PANEL,
+            (false, true) => 5,
+            (false, false) => 6,
+        };
+        let teleop = self.in_teleop();
+        let grid_h = rows * panel_h;
+        let rest = body.height.saturating_sub(grid_h);
+        let teleop_h = if teleop { 2 } else { 0 };
+        // Small: teleop replaces the two supervisory lines; the strip goes under.
+        // Large: the supervisory panel grows with what it shows, leaving the log 3.
+        let (sup_h, strip_h) = if big {
+            let want = (sup.full_lines(body.width / 2).len() as u16).max(4);
+            (want.min(rest.saturating_sub(teleop_h + 3)), 0)
+        } else {
+            let head = if teleop { 0 } else { 2 };
+            let room = rest.saturating_sub(teleop_h + head + 1);
+            (head, (strip.lines().len() as u16).min(4).min(room))
+        };
+        let [grid, teleop_area, lower, strip_area, log] = Layout::vertical([
+            Constraint::Length(grid_h),
+            Constraint::Length(teleop_h),
+            Constraint::Length(sup_h),
+            Constraint::Length(strip_h),
             Constraint::Min(0),
         ])
         .areas(body);
-        let show_cursor = !self.in_teleop();
         let cursor = show_cursor.then(|| self.field());
         let col_w = grid.width / cols;
         for (i, d) in self.snap.devices.iter().enumerate() {
@@ -113,26 +141,18 @@ impl Model {
             };
             (&p).render(area, buf);
         }
-        let mut lower = lower;
         if teleop {
-            let [tp, rest] =
-                Layout::vertical([Constraint::Length(2), Constraint::Min(0)]).areas(lower);
             let p = TeleopPanel {
                 t: &self.teleop,
                 now: self.now,
                 theme: self.theme,
             };
-            (&p).render(tp, buf);
-            lower = rest;
+            (&p).render(teleop_area, buf);
         }
         if lower.height > 0 {
             let [left, right] =
                 Layout::horizontal([Constraint::Percentage(50), Constraint::Percentage(50)])
                     .areas(lower);
-            let sup = SupervisorPanel {
-                m: self,
-                cursor: show_cursor,
-            };
             (&sup).render(
                 Rect {
                     width: left.width.saturating_sub(1),
@@ -145,6 +165,9 @@ impl Model {
                 theme: self.theme,
             };
             (&net).render(right, buf);
+        }
+        if strip_area.height > 0 {
+            (&strip).render(strip_area, buf);
         }
         if log.height > 0 {
             let p = LogPanel {
@@ -183,6 +206,19 @@ impl Widget for &Model {
         .areas(area);
         Paragraph::new(self.header()).render(header, buf);
         if self.in_bench() {
+            // The supervisor's strip under the bench, so an injected fault's effect
+            // shows where it was injected.
+            let strip = SupervisorStrip {
+                snap: &self.snap,
+                theme: self.theme,
+            };
+            let room = body.height.saturating_sub(BENCH_MIN);
+            let strip_h = (strip.lines().len() as u16).min(3).min(room);
+            let [body, strip_area] =
+                Layout::vertical([Constraint::Min(0), Constraint::Length(strip_h)]).areas(body);
+            if strip_h > 0 {
+                (&strip).render(strip_area, buf);
+            }
             if let Some(d) = self.bench_device() {
                 let v = BenchView {
                     d,
@@ -191,6 +227,8 @@ impl Widget for &Model {
                     edit: self.edit.as_ref(),
                     now: self.now,
                     can_inject: self.snap.can_inject,
+                    sim_vehicle: self.snap.sim_vehicle.as_deref(),
+                    map: &self.keymap,
                 };
                 (&v).render(body, buf);
             }

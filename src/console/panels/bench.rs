@@ -1,18 +1,23 @@
 //! The bench view: one device up close. Its full panel and counters, its delay
 //! histogram (receipt → first byte for an actuator, status transaction for a sensor)
 //! as a bar chart over powers of two, and its raw traffic from the port's trace:
-//! direction, time, hex and ASCII ("not available" while there is none).
+//! direction, time, hex and ASCII ("not available" while there is none). Under
+//! `--sim`, a simulator box between them: the faults injected into this device, the
+//! simulated e-stop, engine and steering drive, and the fault keys (from the keymap).
 
 use super::device::DevicePanel;
 use super::fmt_us;
+use super::hint::grouped;
+use super::wrap;
 use crate::console::controls::DeviceSnap;
+use crate::console::keymap::{Action, Keymap, Mode};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::engine::trace::TraceEntry;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Direction, Layout, Rect};
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Bar, BarChart, BarGroup, Block, Paragraph, Widget};
+use ratatui::widgets::{Bar, BarChart, BarGroup, Block, Borders, Paragraph, Widget};
 use std::time::Instant;
 
 pub struct BenchView<'a> {
@@ -22,6 +27,43 @@ pub struct BenchView<'a> {
     pub edit: Option<&'a Edit>,
     pub now: Instant,
     pub can_inject: bool,
+    /// The simulated vehicle's state in words (`--sim` only).
+    pub sim_vehicle: Option<&'a str>,
+    /// For the fault keys' legend.
+    pub map: &'a Keymap,
+}
+
+/// Rows the simulator box takes.
+const SIM_BOX: u16 = 4;
+
+impl BenchView<'_> {
+    /// The simulator box: this device's faults, the simulated vehicle, the keys.
+    fn sim_lines(&self, width: u16) -> Vec<Line<'static>> {
+        let t = &self.theme;
+        let faults = self.d.sim.as_ref().filter(|f| f.any());
+        let mut first = vec![
+            Span::styled("faults ", t.label()),
+            match faults {
+                Some(f) => Span::styled(f.text.clone(), t.fault()),
+                None => Span::raw("none"),
+            },
+        ];
+        if let Some(v) = self.sim_vehicle {
+            first.push(Span::styled(" · ", t.label()));
+            first.push(Span::raw(v.to_string()));
+        }
+        let keys = grouped(self.map, Mode::Bench)
+            .into_iter()
+            .filter(|(_, _, a)| matches!(a, Action::Sim(_)))
+            .map(|(k, desc, _)| {
+                let desc = desc.trim_start_matches("sim: ").trim_end_matches(" on/off");
+                vec![Span::styled(k, t.key()), Span::raw(format!(" {desc}"))]
+            })
+            .collect();
+        let mut out = vec![Line::from(first)];
+        out.extend(wrap(keys, width, ""));
+        out
+    }
 }
 
 /// Histogram buckets (upper edge µs, count) regrouped by powers of two of µs:
@@ -64,8 +106,25 @@ pub fn trace_line(e: &TraceEntry, now: Instant) -> String {
 impl Widget for &BenchView<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
         let t = &self.theme;
-        let [top, bottom] =
-            Layout::vertical([Constraint::Length(11), Constraint::Min(3)]).areas(area);
+        let sim_h = if self.can_inject { SIM_BOX } else { 0 };
+        let [top, sim, bottom] = Layout::vertical([
+            Constraint::Length(11),
+            Constraint::Length(sim_h),
+            Constraint::Min(3),
+        ])
+        .areas(area);
+        if sim.height > 0 {
+            let block = Block::new().borders(Borders::TOP).title(Span::styled(
+                format!(
+                    " simulator: {} and the vehicle (on/off keys toggle) ",
+                    self.d.role
+                ),
+                t.title(),
+            ));
+            let inner = block.inner(sim);
+            block.render(sim, buf);
+            Paragraph::new(self.sim_lines(inner.width)).render(inner, buf);
+        }
         let [left, right] = Layout::horizontal([Constraint::Length(46), Constraint::Min(20)])
             .direction(Direction::Horizontal)
             .areas(top);
@@ -114,12 +173,10 @@ impl Widget for &BenchView<'_> {
         }
 
         let mut title = format!(" {} raw traffic ", self.d.role);
-        if self.can_inject {
-            title.push_str(if self.d.silenced {
-                "— sim: SILENT "
-            } else {
-                "— sim: answering "
-            });
+        match self.d.sim.as_ref().filter(|f| f.any()) {
+            Some(f) => title.push_str(&format!("— sim: {} ", f.text)),
+            None if !self.can_inject => title.push_str("— fault injection needs --sim "),
+            None => {}
         }
         let block = Block::bordered().title(Span::styled(title, t.title()));
         let inner = block.inner(bottom);

@@ -97,8 +97,8 @@ impl<'a> DevicePanel<'a> {
         if d.faulty {
             spans.push(Span::styled(" FAULT", t.fault()));
         }
-        if d.silenced {
-            spans.push(Span::styled(" silent", t.warn()));
+        if let Some(f) = d.sim.as_ref().filter(|f| f.any()) {
+            spans.push(Span::styled(format!(" sim: {}", f.text), t.warn()));
         }
         Line::from(spans)
     }

@@ -15,7 +15,7 @@ pub mod supervisor;
 pub mod teleop;
 
 use ratatui::style::Style;
-use ratatui::text::Span;
+use ratatui::text::{Line, Span};
 use std::time::Duration;
 
 /// A latency in µs as `26µs`, `1.2ms`, `1.50s`, or `-` when there is none.
@@ -46,4 +46,36 @@ pub fn fmt_f(v: Option<f64>) -> String {
 
 pub fn label<'a>(text: &'a str, style: Style) -> Span<'a> {
     Span::styled(text, style)
+}
+
+/// Lay groups of spans (a group is never split) out in lines of at most `width`
+/// columns, two spaces apart, each line starting with `indent`.
+pub fn wrap(
+    groups: Vec<Vec<Span<'static>>>,
+    width: u16,
+    indent: &'static str,
+) -> Vec<Line<'static>> {
+    let width = width as usize;
+    let start = indent.chars().count();
+    let mut out = Vec::new();
+    let mut line: Vec<Span> = vec![Span::raw(indent)];
+    let mut used = start;
+    for g in groups {
+        let w: usize = g.iter().map(|s| s.content.chars().count()).sum();
+        if line.len() > 1 && used + 2 + w > width {
+            out.push(Line::from(std::mem::take(&mut line)));
+            line.push(Span::raw(indent));
+            used = start;
+        }
+        if line.len() > 1 {
+            line.push(Span::raw("  "));
+            used += 2;
+        }
+        used += w;
+        line.extend(g);
+    }
+    if line.len() > 1 {
+        out.push(Line::from(line));
+    }
+    out
 }

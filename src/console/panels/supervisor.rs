@@ -1,8 +1,19 @@
-//! The supervisory panel: engaged or not and why, interlocks on/off, faulty devices
-//! with their last error, the console's accel command, and recovery in progress
-//! (`-` until the supervisor thread exists).
+//! The supervisory panel: engaged or not and why, interlocks on/off, the console's
+//! accel command, and what the supervisor sees — every fault with its device, kind,
+//! age and cause (in red), the recovery procedure in progress with each of its steps
+//! (done, current, to come), its try and elapsed time, and the last outcome.
+//!
+//! On a small screen it is two lines beside the network panel ([`SupervisorPanel`]
+//! with `compact`) plus, while there are faults or a recovery, a full-width strip
+//! under them ([`SupervisorStrip`]): one line for the recovery
+//! (`RECOVERY engine_stall 4/7 park (try 1/3) 2.1s  then starter › back in drive`)
+//! and one per fault. On a larger screen it is one taller panel.
 
+use super::wrap;
+use crate::console::controls::Snapshot;
 use crate::console::model::{Field, Model};
+use crate::console::theme::Theme;
+use crate::supervisor::status::{FaultView, RecoveryView};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
@@ -12,28 +23,84 @@ use ratatui::widgets::{Paragraph, Widget};
 pub struct SupervisorPanel<'a> {
     pub m: &'a Model,
     pub cursor: bool,
+    /// Two lines only (the strip shows faults and recovery).
+    pub compact: bool,
+}
+
+/// Seconds with one decimal: `2.1s`.
+fn secs(ms: f64) -> String {
+    format!("{:.1}s", ms / 1000.0)
+}
+
+/// `steer silent` or `engine_stall`.
+fn fault_name(f: &FaultView) -> String {
+    match f.device {
+        Some(d) => format!("{d} {}", f.kind),
+        None => f.kind.to_string(),
+    }
+}
+
+/// Every fault to show, in words: the supervisor's (`steer silent 1.5s no status
+/// for …`), then any device the engine marks faulty that the supervisor has not
+/// named yet (`steer faulty: no reply within 200ms`; it notices at its next turn).
+pub fn fault_texts(s: &Snapshot) -> Vec<String> {
+    let sup = &s.supervision;
+    let mut out: Vec<String> = sup
+        .faults
+        .iter()
+        .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
+        .collect();
+    for d in s.devices.iter().filter(|d| d.faulty) {
+        if !sup.faults.iter().any(|f| f.device == Some(d.role)) {
+            out.push(format!(
+                "{} faulty: {}",
+                d.role,
+                d.last_error.as_deref().unwrap_or("no reply")
+            ));
+        }
+    }
+    out
+}
+
+/// One fault on one line, all red.
+fn fault_line(text: String, t: &Theme, tag: &'static str) -> Line<'static> {
+    Line::from(vec![
+        Span::styled(tag, t.fault()),
+        Span::styled(text, t.fault()),
+    ])
+}
+
+/// The step tokens of a procedure: `✓ done`, `▶ current` (highlighted), `· to come`.
+fn step_spans(r: &RecoveryView, t: &Theme) -> Vec<Span<'static>> {
+    r.steps
+        .iter()
+        .enumerate()
+        .map(|(i, s)| {
+            use std::cmp::Ordering::*;
+            match i.cmp(&r.step) {
+                Less => Span::styled(format!("✓ {s}"), t.good()),
+                Equal => Span::styled(format!("▶ {s}"), t.warn().patch(t.cursor())),
+                Greater => Span::styled(format!("· {s}"), t.label()),
+            }
+        })
+        .collect()
 }
 
 impl SupervisorPanel<'_> {
-    pub fn lines(&self) -> Vec<Line<'static>> {
-        let (s, t) = (&self.m.snap, &self.m.theme);
-        let l = |x: &'static str| Span::styled(x, t.label());
-        let engaged = if s.engaged {
-            Span::styled("1", t.good())
-        } else {
-            Span::styled("0", t.warn())
-        };
-        let interlocks = if s.interlocks {
-            Span::styled("on", t.good())
-        } else {
-            Span::styled("OFF", t.fault())
-        };
-        let accel_text = self
+    /// Whether there is anything to show beyond "all well".
+    pub fn active(&self) -> bool {
+        let s = &self.m.snap;
+        s.supervision.recovery.is_some() || !fault_texts(s).is_empty()
+    }
+
+    fn accel(&self) -> Span<'static> {
+        let t = &self.m.theme;
+        let text = self
             .m
             .accel
             .map(|a| format!("{a:.3}"))
             .unwrap_or_else(|| "-".into());
-        let accel = match &self.m.edit {
+        match &self.m.edit {
             Some(e) if e.field == Field::Accel => Span::styled(
                 format!("{}▏", e.buffer),
                 if e.error.is_some() {
@@ -42,43 +109,77 @@ impl SupervisorPanel<'_> {
                     t.editing()
                 },
             ),
-            _ if self.cursor && self.m.field() == Field::Accel => {
-                Span::styled(accel_text, t.cursor())
-            }
-            _ => Span::raw(accel_text),
-        };
-        let first = Line::from(vec![
+            _ if self.cursor && self.m.field() == Field::Accel => Span::styled(text, t.cursor()),
+            _ => Span::raw(text),
+        }
+    }
+
+    fn first(&self) -> Line<'static> {
+        let (s, t) = (&self.m.snap, &self.m.theme);
+        let l = |x: &'static str| Span::styled(x, t.label());
+        Line::from(vec![
             Span::styled("SUPERVISORY", t.title()),
             l(" engaged "),
-            engaged,
+            if s.engaged {
+                Span::styled("1", t.good())
+            } else {
+                Span::styled("0", t.warn())
+            },
             l(" interlocks "),
-            interlocks,
-        ]);
-        let faulty: Vec<String> = s
-            .devices
-            .iter()
-            .filter(|d| d.faulty)
-            .map(|d| match &d.last_error {
-                Some(e) => format!("{} ({e})", d.role),
-                None => d.role.to_string(),
-            })
-            .collect();
-        let faults = if faulty.is_empty() {
+            if s.interlocks {
+                Span::styled("on", t.good())
+            } else {
+                Span::styled("OFF", t.fault())
+            },
+        ])
+    }
+
+    /// The two lines of a small screen: state, then accel, how many faults and the
+    /// recovery step (the strip under them has the details).
+    pub fn compact_lines(&self) -> Vec<Line<'static>> {
+        let (sup, t) = (&self.m.snap.supervision, &self.m.theme);
+        let l = |x: &'static str| Span::styled(x, t.label());
+        let recovery = match &sup.recovery {
+            Some(r) => Span::styled(
+                format!(
+                    "{}/{} {}",
+                    r.step + 1,
+                    r.steps.len(),
+                    r.steps.get(r.step).map(String::as_str).unwrap_or("done")
+                ),
+                t.warn(),
+            ),
+            None => Span::raw("-"),
+        };
+        let n = fault_texts(&self.m.snap).len();
+        let faults = if n == 0 {
             Span::raw("none")
         } else {
-            Span::styled(faulty.join(", "), t.fault())
+            Span::styled(n.to_string(), t.fault())
         };
+        vec![
+            self.first(),
+            Line::from(vec![
+                l("accel "),
+                self.accel(),
+                l("  faults "),
+                faults,
+                l("  recovery "),
+                recovery,
+            ]),
+        ]
+    }
+
+    /// Everything, for a larger screen `width` columns wide.
+    pub fn full_lines(&self, width: u16) -> Vec<Line<'static>> {
+        let (s, t) = (&self.m.snap, &self.m.theme);
+        let sup = &s.supervision;
+        let l = |x: &'static str| Span::styled(x, t.label());
+        let mut first = self.first();
+        first.spans.extend([l("  accel "), self.accel()]);
         let why_style = if s.engaged { Style::new() } else { t.warn() };
         let mut out = vec![
             first,
-            Line::from(vec![
-                l("faults "),
-                faults,
-                l("  accel "),
-                accel,
-                l("  recovery "),
-                Span::raw("-"),
-            ]),
             Line::from(vec![
                 l("why "),
                 Span::styled(s.gate_reason.clone(), why_style),
@@ -90,12 +191,218 @@ impl SupervisorPanel<'_> {
                 Span::styled(s.blockers.join("; "), t.warn()),
             ]));
         }
+        let faults = fault_texts(s);
+        if faults.is_empty() {
+            out.push(Line::from(vec![l("faults "), Span::raw("none")]));
+        }
+        out.extend(faults.into_iter().map(|f| fault_line(f, t, "fault ")));
+        match &sup.recovery {
+            Some(r) => {
+                out.push(Line::from(vec![
+                    l("recovery "),
+                    Span::styled(r.name.clone(), t.warn()),
+                    Span::raw(format!(
+                        "  step {}/{}  try {}/{}  {}",
+                        r.step + 1,
+                        r.steps.len(),
+                        r.attempt,
+                        r.attempts,
+                        secs(r.elapsed_ms)
+                    )),
+                ]));
+                let steps = step_spans(r, t).into_iter().map(|s| vec![s]).collect();
+                out.extend(wrap(steps, width, "  "));
+            }
+            None => out.push(Line::from(vec![l("recovery "), Span::raw("-")])),
+        }
+        if let Some(o) = &sup.last_outcome {
+            let style = if o.contains("gave up") {
+                t.fault()
+            } else {
+                Style::new()
+            };
+            out.push(Line::from(vec![l("last "), Span::styled(o.clone(), style)]));
+        }
         out
     }
 }
 
 impl Widget for &SupervisorPanel<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        Paragraph::new(self.lines()).render(area, buf);
+        let lines = if self.compact {
+            self.compact_lines()
+        } else {
+            self.full_lines(area.width)
+        };
+        Paragraph::new(lines).render(area, buf);
+    }
+}
+
+/// The full-width lines of a small screen while the supervisor has something to
+/// show: the recovery in progress, then one line per fault (as many as fit).
+pub struct SupervisorStrip<'a> {
+    pub snap: &'a Snapshot,
+    pub theme: Theme,
+}
+
+impl SupervisorStrip<'_> {
+    pub fn lines(&self) -> Vec<Line<'static>> {
+        let t = &self.theme;
+        let mut out = Vec::new();
+        if let Some(r) = &self.snap.supervision.recovery {
+            let mut spans = vec![
+                Span::styled("RECOVERY ", t.warn()),
+                Span::styled(format!("{} {}", r.describe(), secs(r.elapsed_ms)), t.warn()),
+            ];
+            let next: Vec<&str> = r
+                .steps
+                .iter()
+                .skip(r.step + 1)
+                .map(String::as_str)
+                .collect();
+            if !next.is_empty() {
+                spans.push(Span::styled("  then ", t.label()));
+                spans.push(Span::styled(next.join(" › "), t.label()));
+            }
+            out.push(Line::from(spans));
+        }
+        out.extend(
+            fault_texts(self.snap)
+                .into_iter()
+                .map(|f| fault_line(f, t, "FAULT ")),
+        );
+        out
+    }
+}
+
+impl Widget for &SupervisorStrip<'_> {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        let mut lines = self.lines();
+        let n = area.height as usize;
+        if lines.len() > n && n > 0 {
+            let more = lines.len() - (n - 1);
+            lines.truncate(n - 1);
+            lines.push(Line::from(Span::styled(
+                format!("… {more} more (a larger terminal shows them all)"),
+                self.theme.fault(),
+            )));
+        }
+        Paragraph::new(lines).render(area, buf);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::supervisor::status::{FaultKind, SupervisorSnapshot};
+    use crate::value::Role;
+    use ratatui::style::Color;
+
+    fn sample() -> Snapshot {
+        let supervision = SupervisorSnapshot {
+            faults: vec![
+                FaultView {
+                    kind: FaultKind::EngineStall,
+                    device: None,
+                    cause: "engine stopped (0 rpm) in drive".into(),
+                    age_ms: 3_050.0,
+                },
+                FaultView {
+                    kind: FaultKind::Silent,
+                    device: Some(Role::Brake),
+                    cause: "no status for 1500 ms (max 500 ms)".into(),
+                    age_ms: 1_500.0,
+                },
+            ],
+            recovery: Some(RecoveryView {
+                name: "engine_stall".into(),
+                steps: [
+                    "gas off",
+                    "brake",
+                    "wait stopped",
+                    "park",
+                    "starter",
+                    "back in drive",
+                    "release",
+                ]
+                .map(String::from)
+                .to_vec(),
+                step: 3,
+                attempt: 1,
+                attempts: 3,
+                elapsed_ms: 2_140.0,
+            }),
+            last_outcome: None,
+            history: Vec::new(),
+        };
+        Snapshot {
+            supervision,
+            ..Snapshot::default()
+        }
+    }
+
+    fn render(w: &impl Fn(Rect, &mut Buffer), width: u16, height: u16) -> Buffer {
+        let mut buf = Buffer::empty(Rect::new(0, 0, width, height));
+        w(buf.area, &mut buf);
+        buf
+    }
+
+    fn row(b: &Buffer, y: u16) -> String {
+        (0..b.area.width)
+            .map(|x| b[(x, y)].symbol().to_string())
+            .collect::<String>()
+            .trim_end()
+            .to_string()
+    }
+
+    #[test]
+    fn the_strip_shows_the_recovery_step_then_each_fault_in_red() {
+        let snap = sample();
+        let s = SupervisorStrip {
+            snap: &snap,
+            theme: Theme::default(),
+        };
+        let b = render(&|a, buf| (&s).render(a, buf), 80, 3);
+        assert_eq!(
+            row(&b, 0),
+            "RECOVERY engine_stall 4/7 park (try 1/3) 2.1s  then starter › back in drive › re"
+        );
+        assert_eq!(
+            row(&b, 1),
+            "FAULT engine_stall 3.0s engine stopped (0 rpm) in drive"
+        );
+        assert_eq!(
+            row(&b, 2),
+            "FAULT brake silent 1.5s no status for 1500 ms (max 500 ms)"
+        );
+        for y in [1, 2] {
+            assert_eq!(b[(0, y)].fg, Color::Red);
+            assert_eq!(b[(12, y)].fg, Color::Red, "the cause is red too");
+        }
+        // Too little room: the last line says how many are left out.
+        let b = render(&|a, buf| (&s).render(a, buf), 80, 2);
+        assert_eq!(row(&b, 1), "… 2 more (a larger terminal shows them all)");
+    }
+
+    #[test]
+    fn steps_wrap_and_the_current_one_is_highlighted() {
+        let r = sample().supervision.recovery.unwrap();
+        let t = Theme::default();
+        let steps = step_spans(&r, &t).into_iter().map(|s| vec![s]).collect();
+        let lines = wrap(steps, 40, "  ");
+        let text: Vec<String> = lines
+            .iter()
+            .map(|l| l.spans.iter().map(|s| s.content.as_ref()).collect())
+            .collect();
+        assert_eq!(
+            text,
+            [
+                "  ✓ gas off  ✓ brake  ✓ wait stopped",
+                "  ▶ park  · starter  · back in drive",
+                "  · release",
+            ]
+        );
+        let park = &lines[1].spans[1];
+        assert_eq!(park.style, t.warn().patch(t.cursor()));
     }
 }

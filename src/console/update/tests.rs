@@ -15,6 +15,8 @@ struct Fake {
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
     engage: Result<(), Vec<String>>,
+    /// The devices are simulated: `sim` lines are taken.
+    simulated: bool,
 }
 
 impl Fake {
@@ -26,6 +28,7 @@ impl Fake {
             calls: RefCell::default(),
             refuse: None,
             engage: Ok(()),
+            simulated: false,
         }
     }
     fn log(&self, s: String) {
@@ -70,16 +73,15 @@ impl Controls for Fake {
     fn wake(&self, role: Role) {
         self.log(format!("wake {role}"));
     }
-    fn reset_steering(&self) -> Result<(), String> {
-        self.log("reset steering".into());
-        Ok(())
-    }
     fn safe_state(&self) {
         self.log("safe state".into());
     }
-    fn toggle_silent(&self, role: Role) -> Option<bool> {
-        self.log(format!("silent {role}"));
-        None
+    fn sim(&self, line: &str) -> Option<Result<String, String>> {
+        if !self.simulated {
+            return None;
+        }
+        self.log(format!("sim {line}"));
+        Some(Ok(line.to_string()))
     }
 }
 
@@ -291,7 +293,7 @@ fn wake_keys_wake_command_threads() {
         ]
     );
     press(&mut m, &f, &["e"], now);
-    assert_eq!(f.calls().last().unwrap(), "reset steering");
+    assert_eq!(f.calls().last().unwrap(), "submit steer home");
 }
 
 #[test]
@@ -405,8 +407,9 @@ fn bench_cycles_devices_sends_to_one_device_and_asks_for_sim_faults() {
     press(&mut m, &f, &["0", ".", "5", "<Enter>"], now);
     assert_eq!(m.mode, Mode::Bench);
     assert_eq!(f.calls(), ["submit brake 0.500"]);
-    press(&mut m, &f, &["f"], now);
-    assert!(m.message.as_ref().unwrap().text.contains("--sim"));
+    press(&mut m, &f, &["s"], now);
+    assert!(m.message.as_ref().unwrap().text.contains("needs --sim"));
+    assert_eq!(f.calls(), ["submit brake 0.500"], "nothing was injected");
     press(&mut m, &f, &["<BackTab>", "<BackTab>", "<BackTab>"], now);
     assert_eq!(m.bench, Role::Obd);
     press(&mut m, &f, &["<Enter>"], now);
@@ -427,4 +430,122 @@ fn c_edits_the_virtual_accel() {
     );
     assert_eq!(f.calls(), ["accel -0.3"]);
     assert_eq!(m.accel, Some(-0.3));
+}
+
+#[test]
+fn e_homes_the_steering_then_holds_where_it_stopped() {
+    let mut f = Fake::new();
+    let mut m = model(&f);
+    let t0 = Instant::now();
+    press(&mut m, &f, &["e"], t0);
+    assert_eq!(f.calls(), ["submit steer home"]);
+    assert_eq!(m.steer_reset, Some(t0));
+    // Not acknowledged yet: nothing more.
+    tick(&mut m, &f, t0 + Duration::from_millis(100));
+    assert_eq!(f.calls().len(), 1);
+    // The drive acknowledged home: hold where it is.
+    let steer = f.snap.devices.iter_mut().find(|d| d.role == Role::Steer);
+    steer.unwrap().executed = Some(Command::Control(crate::value::Control::Home));
+    tick(&mut m, &f, t0 + Duration::from_millis(200));
+    assert_eq!(f.calls(), ["submit steer home", "submit steer 0.231"]);
+    assert_eq!(m.steer_reset, None);
+    let msg = m.message.clone().unwrap();
+    assert!(
+        !msg.bad && msg.text.contains("holding 0.231"),
+        "{}",
+        msg.text
+    );
+}
+
+#[test]
+fn e_says_so_when_home_is_not_acknowledged_or_refused() {
+    let mut f = Fake::new();
+    let mut m = model(&f);
+    let t0 = Instant::now();
+    press(&mut m, &f, &["e"], t0);
+    tick(&mut m, &f, t0 + HOME_WAIT + Duration::from_millis(100));
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.contains("not acknowledged"),
+        "{}",
+        msg.text
+    );
+    assert_eq!(m.steer_reset, None);
+    assert_eq!(f.calls(), ["submit steer home"], "no hold without home");
+    // Refused at intake (a recovery procedure has the steering).
+    f.refuse = Some(Reject::Recovering);
+    press(&mut m, &f, &["e"], t0);
+    let msg = m.message.clone().unwrap();
+    assert!(msg.bad && msg.text.contains("refused"), "{}", msg.text);
+    assert_eq!(m.steer_reset, None);
+}
+
+#[test]
+fn bench_fault_keys_drive_the_simulator_and_toggle_from_its_state() {
+    use crate::console::controls::SimFaults;
+    let mut f = Fake::new();
+    f.simulated = true;
+    let mut m = model(&f);
+    let now = Instant::now();
+    // Steering on the bench.
+    press(&mut m, &f, &["x"], now);
+    assert_eq!((m.mode, m.bench), (Mode::Bench, Role::Steer));
+    press(
+        &mut m,
+        &f,
+        &["s", "g", "c", "l", "v", "x", "K", "J", "p", "r"],
+        now,
+    );
+    assert_eq!(
+        f.calls(),
+        [
+            "sim silent steer on",
+            "sim garbage steer on",
+            "sim corrupt steer on",
+            "sim slow steer 150",
+            "sim vanish steer 2000",
+            "sim clear steer",
+            "sim stall",
+            "sim jam steer",
+            "sim estop pause",
+            "sim estop run",
+        ]
+    );
+    assert!(
+        !m.message.as_ref().unwrap().bad,
+        "e-stop run is not a fault"
+    );
+    // The same keys switch off what is on, on the device now on the bench.
+    let gas = f.snap.devices.iter_mut().find(|d| d.role == Role::Gas);
+    gas.unwrap().sim = Some(SimFaults {
+        silent: true,
+        slow_ms: 150,
+        ..SimFaults::default()
+    });
+    let mut m = model(&f);
+    press(&mut m, &f, &["l", "x", "s", "l", "g"], now);
+    assert_eq!(m.bench, Role::Gas);
+    assert_eq!(
+        &f.calls()[10..],
+        ["sim silent gas off", "sim slow gas 0", "sim garbage gas on"]
+    );
+    assert!(m.message.as_ref().unwrap().bad, "garbage on is a fault");
+}
+
+#[test]
+fn a_recovery_outcome_is_said_once() {
+    let mut f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    f.snap.supervision.last_outcome = Some("recovery engine_stall done in 6.1 s".into());
+    tick(&mut m, &f, now);
+    let msg = m.message.take().unwrap();
+    assert_eq!(msg.text, "supervisor: recovery engine_stall done in 6.1 s");
+    assert!(!msg.bad);
+    tick(&mut m, &f, now);
+    assert!(m.message.is_none(), "said once");
+    f.snap.supervision.last_outcome =
+        Some("recovery engine_stall gave up: step park did not complete".into());
+    tick(&mut m, &f, now);
+    assert!(m.message.take().unwrap().bad);
 }
