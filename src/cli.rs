@@ -123,6 +123,10 @@ pub struct SimArgs {
     /// Do not print what each device receives.
     #[arg(long, short)]
     pub quiet: bool,
+    /// Inject a fault or event at start, as typed on standard input (repeatable):
+    /// `--fault "silent gas on" --fault "slow steer 80"`.
+    #[arg(long, value_name = "LINE")]
+    pub fault: Vec<String>,
 }
 
 /// Entry point; returns the process status.
@@ -335,6 +339,10 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let config = load(&args.config, &args.only)?;
     let (tx, rx) = crossbeam_channel::unbounded::<SimEvent>();
     let sim = Sim::start(&config, (!args.quiet).then_some(tx))?;
+    for f in &args.fault {
+        sim.apply(f)
+            .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?;
+    }
     let exits = exit::install()?;
     for p in &sim.ports {
         let d = config.device(p.role).expect("simulated from the config");

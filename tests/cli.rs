@@ -232,3 +232,39 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
     signal(&child, libc::SIGINT);
     assert_eq!(wait_exit(&mut child), 0);
 }
+
+#[test]
+fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
+    let mut child = Process::new(BIN)
+        .args(["sim", "--only", "steer", "--fault", "silent steer on"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let out = lines(child.stdout.take().unwrap());
+    let path = until(&out, "steer")
+        .last()
+        .unwrap()
+        .split_whitespace()
+        .nth(1)
+        .unwrap()
+        .to_string();
+    let steer = VehicleConfig::alice();
+    let steer = steer.device(Role::Steer).unwrap();
+    let mut link = driver::open_serial(&path, steer.baud, Duration::from_millis(200)).unwrap();
+    let mut drv = driver::build(steer);
+    assert!(matches!(
+        drv.poll(link.as_mut()),
+        Err(driver::DriverError::Timeout(_))
+    ));
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), 0);
+
+    let bad = Process::new(BIN)
+        .args(["sim", "--fault", "wobble gas on"])
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown fault \"wobble\""));
+}
