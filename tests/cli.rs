@@ -6,65 +6,16 @@ mod common;
 use adrive::config::VehicleConfig;
 use adrive::driver;
 use adrive::value::{Command, Role};
-use common::DEADLINE;
-use std::io::{BufRead, BufReader, Read};
-use std::process::{Child, Command as Process, Stdio};
-use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use common::{lines, signal, tempdir, until, wait_exit};
+use std::io::Read;
+use std::process::{Command as Process, Stdio};
+use std::time::Duration;
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
-/// Lines of a child's stream, delivered through a channel so reads can time out.
-fn lines(stream: impl Read + Send + 'static) -> mpsc::Receiver<String> {
-    let (tx, rx) = mpsc::channel();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stream).lines().map_while(Result::ok) {
-            if tx.send(line).is_err() {
-                break;
-            }
-        }
-    });
-    rx
-}
-
-/// Read lines until one contains `pattern`; returns every line read.
-fn until(rx: &mpsc::Receiver<String>, pattern: &str) -> Vec<String> {
-    let end = Instant::now() + DEADLINE;
-    let mut seen = Vec::new();
-    loop {
-        let left = end.saturating_duration_since(Instant::now());
-        match rx.recv_timeout(left) {
-            Ok(l) => {
-                let hit = l.contains(pattern);
-                seen.push(l);
-                if hit {
-                    return seen;
-                }
-            }
-            Err(_) => panic!("no line with {pattern:?}; got:\n{}", seen.join("\n")),
-        }
-    }
-}
-
-fn signal(child: &Child, sig: i32) {
-    // SAFETY: plain kill(2) on our own child.
-    assert_eq!(unsafe { libc::kill(child.id() as i32, sig) }, 0);
-}
-
-fn wait_exit(child: &mut Child) -> i32 {
-    let end = Instant::now() + DEADLINE;
-    loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            return s.code().unwrap_or(-1);
-        }
-        assert!(Instant::now() < end, "adrive did not exit");
-        std::thread::sleep(Duration::from_millis(10));
-    }
-}
-
 #[test]
 fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
-    let dir = tempdir();
+    let dir = tempdir("cli");
     let path = dir.join("bad.toml");
     std::fs::write(
         &path,
@@ -86,26 +37,9 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     assert!(!dir.join("log").exists());
 }
 
-fn tempdir() -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!(
-        "adrive-test-{}-{}",
-        std::process::id(),
-        Instant::now().elapsed().as_nanos() ^ rand_seed()
-    ));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn rand_seed() -> u128 {
-    std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos()
-}
-
 #[test]
 fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
-    let dir = tempdir();
+    let dir = tempdir("cli");
     let mut child = Process::new(BIN)
         .args([
             "--sim",
@@ -122,7 +56,7 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     let err = lines(child.stderr.take().unwrap());
     until(&err, "running headless");
     signal(&child, libc::SIGTERM);
-    assert_eq!(wait_exit(&mut child), 0);
+    assert_eq!(wait_exit(&mut child), Some(0));
     let mut out = String::new();
     child
         .stdout
@@ -148,7 +82,7 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
 
 #[test]
 fn only_runs_just_the_named_devices() {
-    let dir = tempdir();
+    let dir = tempdir("cli");
     let mut child = Process::new(BIN)
         .args([
             "--sim",
@@ -173,7 +107,7 @@ fn only_runs_just_the_named_devices() {
     );
     assert!(!started.contains("gas/"), "{started}");
     signal(&child, libc::SIGINT);
-    assert_eq!(wait_exit(&mut child), 0);
+    assert_eq!(wait_exit(&mut child), Some(0));
     let mut out = String::new();
     child
         .stdout
@@ -230,7 +164,7 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
     assert!(line.contains("steer") && line.contains("0.250"), "{line}");
 
     signal(&child, libc::SIGINT);
-    assert_eq!(wait_exit(&mut child), 0);
+    assert_eq!(wait_exit(&mut child), Some(0));
 }
 
 #[test]
@@ -259,7 +193,7 @@ fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
         Err(driver::DriverError::Timeout(_))
     ));
     signal(&child, libc::SIGINT);
-    assert_eq!(wait_exit(&mut child), 0);
+    assert_eq!(wait_exit(&mut child), Some(0));
 
     let bad = Process::new(BIN)
         .args(["sim", "--fault", "wobble gas on"])

@@ -7,9 +7,8 @@
 mod common;
 
 use adrive::config::ALICE_TOML;
-use common::DEADLINE;
+use common::{free_port, tempdir, DEADLINE};
 use std::io::{BufRead, BufReader, Write};
-use std::net::UdpSocket;
 use std::path::PathBuf;
 use std::process::{Child, ChildStdin, Command as Process, Stdio};
 use std::sync::{mpsc, Arc, Mutex};
@@ -109,21 +108,6 @@ impl Drop for SimProcess {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
-}
-
-fn free_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-fn tempdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("adrive-exit-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
 }
 
 /// The built-in Alice pointed at the simulator's ports.

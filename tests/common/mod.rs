@@ -133,3 +133,77 @@ baud = 38400
 "#
     )
 }
+
+/// Lines of a child's output, delivered through a channel so reads can time out.
+pub fn lines(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc::Receiver<String> {
+    use std::io::BufRead;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stream)
+            .lines()
+            .map_while(Result::ok)
+        {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Read lines until one contains `pattern`; returns every line read.
+pub fn until(rx: &std::sync::mpsc::Receiver<String>, pattern: &str) -> Vec<String> {
+    let end = Instant::now() + DEADLINE;
+    let mut seen = Vec::new();
+    loop {
+        let left = end.saturating_duration_since(Instant::now());
+        match rx.recv_timeout(left) {
+            Ok(l) => {
+                let hit = l.contains(pattern);
+                seen.push(l);
+                if hit {
+                    return seen;
+                }
+            }
+            Err(_) => panic!("no line with {pattern:?}; got:\n{}", seen.join("\n")),
+        }
+    }
+}
+
+/// Send `sig` to a child process; false if it is already gone.
+pub fn signal(child: &std::process::Child, sig: i32) -> bool {
+    // SAFETY: plain kill(2) on our own child.
+    unsafe { libc::kill(child.id() as i32, sig) == 0 }
+}
+
+/// Wait for a child to exit; its status code (`None` when a signal ended it).
+pub fn wait_exit(child: &mut std::process::Child) -> Option<i32> {
+    let end = Instant::now() + DEADLINE;
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return s.code();
+        }
+        assert!(Instant::now() < end, "the process did not exit");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// A UDP port free on loopback right now.
+pub fn free_port() -> u16 {
+    std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// A fresh, empty directory for one test.
+pub fn tempdir(tag: &str) -> std::path::PathBuf {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos();
+    let d = std::env::temp_dir().join(format!("adrive-{tag}-{}-{nanos}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
