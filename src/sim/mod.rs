@@ -424,7 +424,7 @@ impl Served {
                 if !tripped && last_command.elapsed() > limit {
                     tripped = true;
                     self.model.lock().watchdog_trip(c.name);
-                    tracing::warn!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
+                    tracing::info!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
                     let safe = match c.name {
                         Role::Brake => Some(Command::Set(1.0)),
                         Role::Gas => Some(Command::Set(0.0)),
