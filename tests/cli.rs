@@ -40,19 +40,21 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
 #[test]
 fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     let dir = tempdir("cli");
-    let mut child = Process::new(BIN)
-        .args([
-            "--sim",
-            "--headless",
-            "--listen",
-            "127.0.0.1:0",
-            "--log-dir",
-        ])
-        .arg(&dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args([
+                "--sim",
+                "--headless",
+                "--listen",
+                "127.0.0.1:0",
+                "--log-dir",
+            ])
+            .arg(&dir)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
     let err = lines(child.stderr.take().unwrap());
     until(&err, "running headless");
     signal(&child, libc::SIGTERM);
@@ -83,21 +85,23 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
 #[test]
 fn only_runs_just_the_named_devices() {
     let dir = tempdir("cli");
-    let mut child = Process::new(BIN)
-        .args([
-            "--sim",
-            "--headless",
-            "--only",
-            "steer",
-            "--only",
-            "obd",
-            "--log-dir",
-        ])
-        .arg(&dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args([
+                "--sim",
+                "--headless",
+                "--only",
+                "steer",
+                "--only",
+                "obd",
+                "--log-dir",
+            ])
+            .arg(&dir)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
     let err = lines(child.stderr.take().unwrap());
     let seen = until(&err, "running headless");
     let started = seen.iter().find(|l| l.contains("engine started")).unwrap();
@@ -132,13 +136,15 @@ fn only_runs_just_the_named_devices() {
 
 #[test]
 fn sim_prints_port_paths_and_each_command_a_device_receives() {
-    let mut child = Process::new(BIN)
-        .args(["sim", "--only", "steer"])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args(["sim", "--only", "steer"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     let out = lines(child.stdout.take().unwrap());
     let first = until(&out, "steer");
     let path = first
@@ -169,13 +175,15 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
 
 #[test]
 fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
-    let mut child = Process::new(BIN)
-        .args(["sim", "--only", "steer", "--fault", "silent steer on"])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args(["sim", "--only", "steer", "--fault", "silent steer on"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     let out = lines(child.stdout.take().unwrap());
     let path = until(&out, "steer")
         .last()

@@ -203,8 +203,8 @@ impl Drop for Adrive {
 }
 
 /// Drive the simulated Alice until gas 0.3 reaches the gas device; returns the planner.
-fn drive(sim: &SimProcess, adrive: &Adrive) -> Child {
-    let planner = adrive.planner();
+fn drive(sim: &SimProcess, adrive: &Adrive) -> common::Reaped {
+    let planner = common::Reaped(adrive.planner());
     sim.wait_for(&["gas", "<-", "0.300"]);
     planner
 }

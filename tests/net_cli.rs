@@ -144,13 +144,15 @@ fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
     watch.until("every device reporting", |v| {
         v["blockers"].as_array().is_some_and(|b| b.is_empty())
     });
-    let mut sender = Process::new(BIN)
-        .args(["send", "--to", &adrive.listen, "--rate", "20"])
-        .args(["engage", "trans", "drive", "accel", "0.3"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    let mut sender = common::Reaped(
+        Process::new(BIN)
+            .args(["send", "--to", &adrive.listen, "--rate", "20"])
+            .args(["engage", "trans", "drive", "accel", "0.3"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
     let replies = lines(sender.stdout.take().unwrap());
     let (v, _) = watch.until("gas at 0.3 in drive", |v| {
         let d = &v["devices"];
