@@ -28,53 +28,6 @@ struct Args {
     seed: u64,
 }
 
-/// Words that steer mutants into the grammar's corners.
-const DICTIONARY: &[&str] = &[
-    "steer",
-    "gas",
-    "brake",
-    "trans",
-    "accel",
-    "engage",
-    "disengage",
-    "seq",
-    "tag",
-    "estop",
-    "obd",
-    "STEER",
-    "drive",
-    "park",
-    "neutral",
-    "reverse",
-    "r",
-    "-1",
-    "0",
-    "1",
-    "-0",
-    "0.5",
-    "1.0000001",
-    "-1e0",
-    "+.5",
-    "1e-300",
-    "5e-324",
-    "1e999",
-    "NaN",
-    "inf",
-    "-infinity",
-    "0x1",
-    "18446744073709551615",
-    "18446744073709551616",
-    " ",
-    "\t",
-    "\n",
-    "\r\n",
-    "\r",
-    "#",
-    "é",
-    "\u{0}",
-    "\u{7f}",
-];
-
 /// SplitMix64: small, seedable, good enough to pick mutations.
 struct Rng(u64);
 
@@ -146,7 +99,9 @@ fn mutate(rng: &mut Rng, pool: &[Vec<u8>], out: &mut Vec<u8>) {
                 out.splice(at..at, chunk);
             }
             5 | 6 => {
-                let word = DICTIONARY[rng.below(DICTIONARY.len())].as_bytes();
+                let word = adrive::net::fuzzing::DICTIONARY
+                    [rng.below(adrive::net::fuzzing::DICTIONARY.len())]
+                .as_bytes();
                 let at = rng.below(len + 1);
                 out.splice(at..at, word.iter().copied());
             }

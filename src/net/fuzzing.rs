@@ -7,6 +7,54 @@ use super::auth::Auth;
 use super::proto::{parse, Datagram, NetCommand, Reject, MAX_COMMANDS};
 use crate::value::{Command, Role};
 
+/// Words and shapes the grammar cares about: fuzzers splice them into their inputs to
+/// get past the first check (the stable loop, the property tests).
+pub const DICTIONARY: &[&str] = &[
+    "steer",
+    "gas",
+    "brake",
+    "trans",
+    "accel",
+    "engage",
+    "disengage",
+    "seq",
+    "tag",
+    "estop",
+    "obd",
+    "STEER",
+    "drive",
+    "park",
+    "neutral",
+    "reverse",
+    "r",
+    "-1",
+    "0",
+    "1",
+    "-0",
+    "0.5",
+    "1.0000001",
+    "-1e0",
+    "+.5",
+    "1e-300",
+    "5e-324",
+    "1e999",
+    "NaN",
+    "inf",
+    "-infinity",
+    "0x1",
+    "18446744073709551615",
+    "18446744073709551616",
+    " ",
+    "\t",
+    "\n",
+    "\r\n",
+    "\r",
+    "#",
+    "é",
+    "\u{0}",
+    "\u{7f}",
+];
+
 /// The key the oracle checks tags with (and that fuzz seeds are signed with).
 pub const FUZZ_KEY: &[u8] = b"adrive fuzzing key, not a secret";
 

@@ -1105,35 +1105,7 @@ mod tests {
         /// Words and shapes the grammar cares about, to reach past the first check.
         fn protocol_text() -> impl Strategy<Value = Vec<u8>> {
             let word = prop_oneof![
-                select(vec![
-                    "steer",
-                    "gas",
-                    "brake",
-                    "trans",
-                    "accel",
-                    "engage",
-                    "disengage",
-                    "seq",
-                    "tag",
-                    "estop",
-                    "obd",
-                    "drive",
-                    "park",
-                    "r",
-                    "-1",
-                    "0",
-                    "1",
-                    "0.5",
-                    "-0",
-                    "1e999",
-                    "NaN",
-                    "inf",
-                    "+.5",
-                    "1e-300",
-                    "18446744073709551616",
-                    "#",
-                ])
-                .prop_map(String::from),
+                select(crate::net::fuzzing::DICTIONARY.to_vec()).prop_map(String::from),
                 "[ -~]{0,12}",
                 "[0-9a-fA-F]{64}",
             ];
