@@ -101,22 +101,13 @@ pub fn make_recovering(v: &Vehicle, now: Instant) {
         },
     ]);
     s.set_recovery(Some(RecoveryView {
-        name: "engine_stall".into(),
-        steps: [
-            "gas off",
-            "brake",
-            "wait stopped",
-            "park",
-            "starter",
-            "back in drive",
-            "release",
-        ]
-        .map(String::from)
-        .to_vec(),
         step: 3,
-        attempt: 1,
-        attempts: 3,
         elapsed_ms: 0.0,
+        ..crate::supervisor::recovery::Procedure::engine_stall(
+            crate::value::Gear::Drive,
+            &crate::config::SupervisorConfig::default(),
+        )
+        .view()
     }));
     s.set_outcome("recovery steering done in 0.9 s".into());
 }

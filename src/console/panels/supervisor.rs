@@ -315,22 +315,13 @@ mod tests {
                 },
             ],
             recovery: Some(RecoveryView {
-                name: "engine_stall".into(),
-                steps: [
-                    "gas off",
-                    "brake",
-                    "wait stopped",
-                    "park",
-                    "starter",
-                    "back in drive",
-                    "release",
-                ]
-                .map(String::from)
-                .to_vec(),
                 step: 3,
-                attempt: 1,
-                attempts: 3,
                 elapsed_ms: 2_140.0,
+                ..crate::supervisor::recovery::Procedure::engine_stall(
+                    crate::value::Gear::Drive,
+                    &crate::config::SupervisorConfig::default(),
+                )
+                .view()
             }),
             last_outcome: None,
             history: Vec::new(),
