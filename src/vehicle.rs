@@ -240,8 +240,8 @@ impl Vehicle {
             }
         });
         let reading = |role| {
-            self.device(role)
-                .and_then(|d| d.cached().at.map(|_| d.cached().reading))
+            let c = self.device(role)?.cached();
+            c.at.map(|_| c.reading)
         };
         let trans = reading(Role::Trans);
         let shifting = self
@@ -573,6 +573,7 @@ impl Vehicle {
 
     /// The e-stop's last reported state.
     pub fn estop(&self) -> Option<EstopState> {
-        self.facts().estop
+        let c = self.device(Role::Estop)?.cached();
+        c.at.and(c.reading.estop)
     }
 }
