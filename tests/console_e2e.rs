@@ -330,8 +330,10 @@ fn bench_keys_inject_faults_that_the_console_shows_and_clear() {
     });
     // Back on the main screen, nothing is left faulty.
     c.keys("\x1b");
+    // Wait for the mode itself: sent too soon after Esc, `q` would arrive with it as
+    // one `ESC q` sequence, which a terminal reads as Alt-q.
     c.wait_for("the main screen", |s| {
-        s.contains("faults none") && !s.contains("FAULTY")
+        s.contains("│ MAIN │") && s.contains("faults none") && !s.contains("FAULTY")
     });
     c.keys("q");
     assert!(c.wait_exit().success());
@@ -358,7 +360,7 @@ fn an_engine_stall_from_the_bench_is_recovered_step_by_step_on_screen() {
         s.contains("supervisor: recovery engine_stall done")
     });
     c.wait_for("the engine running in drive", |s| {
-        s.contains("gear drive") && s.contains("run 1")
+        s.contains("│ MAIN │") && s.contains("gear drive") && s.contains("run 1")
     });
     c.keys("q");
     assert!(c.wait_exit().success());
