@@ -11,16 +11,18 @@
 
 use adrive::config;
 use adrive::driver;
-use adrive::engine::stats::LatencySummary;
 use adrive::engine::Engine;
+use adrive::safety::Gate;
 use adrive::sim::Sim;
-use adrive::value::{Command, Role};
-use adrive::vehicle::Vehicle;
+use adrive::value::Command;
+use adrive::vehicle::stats::LatencySummary;
+use adrive::vehicle::{Device, Vehicle};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 struct Run {
     vehicle: Arc<Vehicle>,
+    gate: Arc<Gate>,
     engine: Option<Engine>,
     _sim: Sim,
 }
@@ -34,35 +36,39 @@ impl Run {
             let (p, b, t) = (d.port.clone(), d.baud, d.reply_timeout);
             Box::new(move || driver::open_serial(&p, b, t))
         }));
-        let engine = Engine::start(vehicle.clone()).unwrap();
+        let gate = Arc::new(Gate::new(vehicle.clone()));
+        let engine = Engine::start(gate.clone()).unwrap();
         let end = Instant::now() + Duration::from_secs(20);
-        while !vehicle.engage_blockers().is_empty() {
+        while !gate.blockers().is_empty() {
             assert!(Instant::now() < end, "devices did not report");
             std::thread::sleep(Duration::from_millis(5));
         }
-        vehicle.engage("bench").unwrap();
-        // These vehicles have no transmission or engine: measure the engine, not the
-        // interlocks (which would refuse all gas).
-        vehicle
-            .interlocks
-            .store(false, std::sync::atomic::Ordering::Relaxed);
+        gate.engage("bench").unwrap();
         Run {
             vehicle,
+            gate,
             engine: Some(engine),
             _sim: sim,
         }
     }
 
+    fn device(&self, name: &str) -> &Device {
+        self.vehicle
+            .find(name)
+            .expect("a device of the bench vehicle")
+    }
+
     /// Send `rate` Hz of commands to every actuator listed for `secs`.
-    fn drive(&self, roles: &[Role], rate: f64, secs: f64) {
+    fn drive(&self, names: &[&str], rate: f64, secs: f64) {
+        let ids: Vec<_> = names.iter().map(|n| self.device(n).id).collect();
         let period = Duration::from_secs_f64(1.0 / rate);
         let start = Instant::now();
         let mut next = start;
         let mut i = 0u64;
         while start.elapsed().as_secs_f64() < secs {
             let v = (i % 50) as f64 / 100.0;
-            for r in roles {
-                let _ = self.vehicle.submit(*r, Command::Set(v), Instant::now());
+            for id in &ids {
+                let _ = self.gate.submit(*id, Command::Set(v), Instant::now());
             }
             i += 1;
             next += period;
@@ -82,7 +88,7 @@ impl Drop for Run {
 }
 
 fn device(name: &str, extra: &str, sim: &str) -> String {
-    format!("[[device]]\nname = \"{name}\"\ndriver = \"line\"\nbaud = 38400\nreply_timeout = \"1s\"\n{extra}\n[device.sim]\n{sim}\n")
+    format!("[[device]]\nname = \"{name}\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nbaud = 38400\nreply_timeout = \"1s\"\n{extra}\n[device.sim]\n{sim}\n")
 }
 
 fn ms(v: Option<f64>) -> String {
@@ -131,8 +137,8 @@ fn main() {
             )
         );
         let run = Run::start(&toml);
-        run.drive(&[Role::Steer], 100.0, secs);
-        let s = run.vehicle.device(Role::Steer).unwrap().stats.snapshot();
+        run.drive(&["steer"], 100.0, secs);
+        let s = run.device("steer").stats.snapshot();
         row(
             label,
             &s.command_delay,
@@ -149,16 +155,16 @@ fn main() {
         "{:<34} {:>7} {:>9} {:>9} {:>9}",
         "actuators", "sent", "p50 ms", "p99 ms", "max ms"
     );
-    let roles = [Role::Steer, Role::Gas, Role::Brake];
+    let roles = ["steer", "gas", "brake"];
     for n in 1..=roles.len() {
         let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
         for r in &roles[..n] {
-            toml.push_str(&device(r.as_str(), "status_period = \"100ms\"", ""));
+            toml.push_str(&device(r, "status_period = \"100ms\"", ""));
         }
         let run = Run::start(&toml);
         run.drive(&roles[..n], 100.0, secs);
         for r in &roles[..n] {
-            let s = run.vehicle.device(*r).unwrap().stats.snapshot();
+            let s = run.device(r).stats.snapshot();
             row(&format!("{n} actuator(s): {r}"), &s.command_delay, "");
         }
     }
@@ -171,7 +177,7 @@ fn main() {
     );
     let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
     for r in &roles {
-        toml.push_str(&device(r.as_str(), "status_period = \"100ms\"", ""));
+        toml.push_str(&device(r, "status_period = \"100ms\"", ""));
     }
     for rate in [0.0, 10.0, 100.0, 1000.0] {
         let run = Run::start(&toml);
@@ -180,18 +186,11 @@ fn main() {
         if rate == 0.0 {
             std::thread::sleep(Duration::from_secs_f64(secs));
         } else {
-            run.drive(&[Role::Steer, Role::Gas], rate, secs);
+            run.drive(&["steer", "gas"], rate, secs);
         }
         // The simulator runs in this process too; its share is included.
         let cpu = (cpu_time() - t0).as_secs_f64() / w0.elapsed().as_secs_f64() * 100.0;
-        let p99 = run
-            .vehicle
-            .device(Role::Steer)
-            .unwrap()
-            .stats
-            .snapshot()
-            .command_delay
-            .p99_us;
+        let p99 = run.device("steer").stats.snapshot().command_delay.p99_us;
         println!("{rate:<34} {cpu:>9.1} {:>12}", ms(p99));
     }
 }

@@ -6,10 +6,10 @@ use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
 use crate::exit::{self, Exit};
 use crate::net::{self, auth::Auth, client, Net};
+use crate::safety::{gate, Gate};
 use crate::sim::{Sim, SimEvent};
-use crate::value::Role;
 use crate::vehicle::Vehicle;
-use crate::{console, driver, gate, headless, logging};
+use crate::{console, driver, headless, logging};
 use clap::{Args, Parser, Subcommand};
 use std::io::BufRead;
 use std::net::SocketAddr;
@@ -58,7 +58,7 @@ pub struct RunArgs {
     pub headless: bool,
     /// Run just these devices (repeatable), for the bench.
     #[arg(long, value_name = "NAME")]
-    pub only: Vec<Role>,
+    pub only: Vec<String>,
     /// Keymap TOML merged over the built-in one (default: ~/.config/adrive/keymap.toml if present).
     #[arg(long, value_name = "FILE")]
     pub keymap: Option<PathBuf>,
@@ -119,7 +119,7 @@ pub struct SimArgs {
     pub config: Option<PathBuf>,
     /// Simulate just these devices (repeatable).
     #[arg(long, value_name = "NAME")]
-    pub only: Vec<Role>,
+    pub only: Vec<String>,
     /// Do not print what each device receives.
     #[arg(long, short)]
     pub quiet: bool,
@@ -154,17 +154,14 @@ pub fn main() -> i32 {
     }
 }
 
-fn load(path: &Option<PathBuf>, only: &[Role]) -> anyhow::Result<VehicleConfig> {
+fn load(path: &Option<PathBuf>, only: &[String]) -> anyhow::Result<VehicleConfig> {
     let mut c = match path {
         Some(p) => config::load(p)?,
         None => VehicleConfig::alice(),
     };
-    for r in only {
-        if c.device(*r).is_none() {
-            anyhow::bail!("--only {r}: {} has no device {r}", c.source);
-        }
-    }
-    c.retain_only(only);
+    let source = c.source.clone();
+    c.retain_only(only)
+        .map_err(|e| anyhow::anyhow!("{e} in {source}"))?;
     Ok(c)
 }
 
@@ -206,12 +203,14 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
         Box::new(move || driver::open_serial(&path, baud, timeout))
     }));
+    let gate = Arc::new(Gate::new(vehicle.clone()));
+    gate.announce();
     let exits = exit::install()?;
     // The command socket is bound before any device is driven: a busy port is a
     // configuration error (status 2), not a half-started vehicle.
-    let net = Net::start(vehicle.clone(), vehicle.config.network.clone(), auth)?;
-    let engine = Engine::start(vehicle.clone())?;
-    let gate = gate::Monitor::start(vehicle.clone())?;
+    let net = Net::start(gate.clone(), vehicle.config.network.clone(), auth)?;
+    let engine = Engine::start(gate.clone())?;
+    let monitor = gate::Monitor::start(gate.clone())?;
     let (panic_in, panic_after) = match args.inject_panic.as_deref() {
         None => ("", Duration::ZERO),
         Some(spec) => match spec.split_once(':') {
@@ -221,7 +220,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     };
     let mut sup_cfg = vehicle.config.supervisor.clone();
     sup_cfg.panic_for_test = (panic_in == "supervisor").then_some(panic_after);
-    let supervisor = crate::supervisor::start(vehicle.clone(), sup_cfg, Box::new(exit::request))?;
+    let supervisor = crate::supervisor::start(gate.clone(), sup_cfg, Box::new(exit::request))?;
     // Let the devices report first, so the unwinding really has a vehicle to stop; with
     // the console, it panics from its own loop, so the terminal is taken over then.
     let panic_main = panic_in == "main";
@@ -231,11 +230,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
     let why = match keymap {
-        None => headless::wait(&vehicle, &exits),
+        None => headless::wait(&gate, &exits),
         Some(keymap) => {
             let sources = console::controls::Sources {
                 logs: ring,
-                net: Some(net.status().clone() as Arc<dyn console::controls::NetSource>),
+                net: Some(net.status().clone()),
                 sim: sim.clone(),
             };
             let opts = console::Options {
@@ -244,7 +243,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 sources,
                 panic_after: panic_main.then_some(panic_after),
             };
-            match console::run_with(&vehicle, &exits, opts) {
+            match console::run_with(&gate, &exits, opts) {
                 Ok(why) => why,
                 // Still stop safely below.
                 Err(e) => {
@@ -259,19 +258,25 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // commands the safe state at once), stop the network and gate threads, then let the
     // engine command the safe state again and wait for its acknowledgement.
     net.close();
-    vehicle.disengage(&format!("stopping: {}", why.describe()));
+    gate.disengage(&format!("stopping: {}", why.describe()));
     let net_figures = net.status().snapshot();
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
-    stuck.extend(gate.shutdown(Duration::from_millis(200)));
+    stuck.extend(monitor.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);
     if safe {
-        tracing::info!("safe state acknowledged: gas 0, brake full");
+        tracing::info!(
+            "safe state acknowledged: {}",
+            headless::safe_state_words(&vehicle)
+        );
     }
     drop(sim);
     if args.headless {
-        print!("{}", headless::summary(&vehicle));
+        for d in &vehicle.devices {
+            d.stats.refresh();
+        }
+        print!("{}", headless::summary(&gate.snapshot(0)));
         println!("{}", headless::net_summary(&net_figures));
     }
     let code = if !safe || !stuck.is_empty() {
@@ -344,21 +349,25 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?;
     }
     let exits = exit::install()?;
+    let width = sim
+        .ports
+        .iter()
+        .map(|p| p.name.len())
+        .max()
+        .unwrap_or(6)
+        .max(6);
     for p in &sim.ports {
-        let d = config.device(p.role).expect("simulated from the config");
+        let d = config.device(&p.name).expect("simulated from the config");
         println!(
-            "{:<6} {}  -> {}  ({:?}, {} baud)",
-            p.role.as_str(),
+            "{:<width$} {}  -> {}  ({}, {} baud)",
+            p.name,
             p.path,
             p.pty.lock(),
-            d.driver,
+            d.driver.as_str(),
             d.baud
         );
     }
-    println!(
-        "type `estop pause|run|disable`, `stall`, `silent gas on`, `garbage steer on`, \
-         `corrupt brake on`, `slow trans 80`, `vanish obd 2000`, `clear gas`; Ctrl-C stops"
-    );
+    println!("type a fault or event (`help` lists them), e.g. `estop pause`, `silent gas on`; Ctrl-C stops");
     let (lines_tx, lines) = crossbeam_channel::unbounded::<String>();
     std::thread::Builder::new()
         .name("sim/stdin".into())
@@ -375,10 +384,10 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             recv(exits) -> _ => break,
             recv(rx) -> ev => if let Ok(ev) = ev {
                 println!(
-                    "{:>9.3}s {:<6} <- {:<10} {}",
+                    "{:>9.3}s {:<width$} <- {:<10} {}",
                     ev.at.duration_since(start).as_secs_f64(),
-                    ev.role.as_str(),
-                    ev.command.to_string(),
+                    ev.name,
+                    ev.text,
                     ev.note.clone().unwrap_or_else(|| printable(&ev.request))
                 );
             },

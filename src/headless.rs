@@ -3,6 +3,8 @@
 //! prints a per-device summary.
 
 use crate::exit::Exit;
+use crate::safety::Gate;
+use crate::snapshot::{NetView, Snapshot};
 use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
 use std::fmt::Write;
@@ -12,10 +14,10 @@ use std::time::Duration;
 pub const REPORT_EVERY: Duration = Duration::from_secs(10);
 
 /// Run until an exit arrives; returns it.
-pub fn wait(vehicle: &Vehicle, exits: &Receiver<Exit>) -> Exit {
+pub fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
     tracing::info!(
-        vehicle = %vehicle.name,
-        devices = vehicle.devices.len(),
+        vehicle = %gate.vehicle.name,
+        devices = gate.vehicle.devices.len(),
         "running headless; SIGINT or SIGTERM stops safely"
     );
     let tick = crossbeam_channel::tick(REPORT_EVERY);
@@ -23,21 +25,36 @@ pub fn wait(vehicle: &Vehicle, exits: &Receiver<Exit>) -> Exit {
         crossbeam_channel::select! {
             recv(exits) -> why => return why.unwrap_or(Exit::Quit),
             recv(tick) -> _ => {
-                for d in &vehicle.devices {
-                    let s = d.stats.snapshot();
+                for d in gate.snapshot(0).devices {
                     tracing::info!(
-                        device = %d.role,
-                        polls = s.polls,
-                        status_errors = s.status_errors,
-                        received = s.received,
-                        executed = s.executed,
-                        delay_p99_us = s.command_delay.p99_us.unwrap_or(0.0),
-                        faulty = d.is_faulty(),
+                        device = %d.name,
+                        polls = d.counters.polls,
+                        status_errors = d.counters.status_errors,
+                        received = d.counters.received,
+                        executed = d.counters.executed,
+                        delay_p99_us = d.delay_us.p99_us.unwrap_or(0.0),
+                        faulty = d.health.faulty,
                         "figures"
                     );
                 }
             }
         }
+    }
+}
+
+/// The safe state in words, for the log: `gas 0.000, brake 1.000`.
+pub fn safe_state_words(vehicle: &Vehicle) -> String {
+    let words: Vec<String> = crate::safety::safe::state(&vehicle.config)
+        .into_iter()
+        .map(|(id, c)| {
+            let d = vehicle.device(id);
+            format!("{} {}", d.name(), d.config.command_text(c))
+        })
+        .collect();
+    if words.is_empty() {
+        "nothing to command (no throttle or brake bound)".into()
+    } else {
+        words.join(", ")
     }
 }
 
@@ -50,11 +67,18 @@ fn fmt_us(v: Option<f64>) -> String {
 }
 
 /// The per-device summary printed on exit.
-pub fn summary(vehicle: &Vehicle) -> String {
+pub fn summary(snap: &Snapshot) -> String {
+    let w = snap
+        .devices
+        .iter()
+        .map(|d| d.name.len())
+        .max()
+        .unwrap_or(6)
+        .max(6);
     let mut out = String::new();
     let _ = writeln!(
         out,
-        "{:<6} {:>8} {:>8} {:>8} {:>6} {:>8} {:>6} {:>7} {:>6}   {:>9} {:>9} {:>9}   {:>9}",
+        "{:<w$} {:>8} {:>8} {:>8} {:>6} {:>8} {:>6} {:>7} {:>6}   {:>9} {:>9} {:>9}   {:>9}",
         "device",
         "received",
         "executed",
@@ -69,12 +93,12 @@ pub fn summary(vehicle: &Vehicle) -> String {
         "delay max",
         "txn p50"
     );
-    for d in &vehicle.devices {
-        let s = d.stats.snapshot();
+    for d in &snap.devices {
+        let s = &d.counters;
         let _ = writeln!(
             out,
-            "{:<6} {:>8} {:>8} {:>8} {:>6} {:>8} {:>6} {:>7} {:>6}   {:>9} {:>9} {:>9}   {:>9}",
-            d.role.as_str(),
+            "{:<w$} {:>8} {:>8} {:>8} {:>6} {:>8} {:>6} {:>7} {:>6}   {:>9} {:>9} {:>9}   {:>9}",
+            d.name,
             s.received,
             s.executed,
             s.superseded,
@@ -83,13 +107,13 @@ pub fn summary(vehicle: &Vehicle) -> String {
             s.command_errors,
             s.polls,
             s.status_errors,
-            fmt_us(s.command_delay.p50_us),
-            fmt_us(s.command_delay.p99_us),
-            fmt_us(s.command_delay.max_us),
+            fmt_us(d.delay_us.p50_us),
+            fmt_us(d.delay_us.p99_us),
+            fmt_us(d.delay_us.max_us),
             fmt_us(if d.is_actuator() {
-                s.command_txn.p50_us
+                d.command_txn_us.p50_us
             } else {
-                s.status_txn.p50_us
+                d.status_txn_us.p50_us
             }),
         );
     }
@@ -97,7 +121,7 @@ pub fn summary(vehicle: &Vehicle) -> String {
 }
 
 /// One line of network figures for the summary printed on exit.
-pub fn net_summary(n: &crate::net::NetSnapshot) -> String {
+pub fn net_summary(n: &NetView) -> String {
     let mut out = format!(
         "network {}: {} datagrams, {} accepted",
         n.listen, n.datagrams, n.accepted
@@ -109,8 +133,8 @@ pub fn net_summary(n: &crate::net::NetSnapshot) -> String {
     ];
     let nonzero: Vec<String> = rejected
         .into_iter()
-        .flatten()
-        .filter(|(_, c)| *c > 0)
+        .flat_map(|p| p.iter())
+        .filter(|(_, c)| **c > 0)
         .map(|(r, c)| format!("{r} {c}"))
         .collect();
     if !nonzero.is_empty() {

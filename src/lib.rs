@@ -1,10 +1,13 @@
 //! adrive: an operator console with an embedded drive-by-wire actuator engine.
 //!
-//! The crate reads like the design: [`config`] describes a vehicle, [`vehicle`] holds
-//! its devices and their cached state, [`engine`] runs two threads per actuator over a
-//! [`driver::Driver`], [`interlock`] guards command intake, [`gate`] disengages on an
-//! e-stop or a fault, [`net`] takes commands and broadcasts state over UDP, and [`sim`]
-//! emulates the devices on real pseudo-terminals.
+//! The crate reads like the design, from the bottom up: [`value`] is what devices
+//! speak, [`config`] describes a vehicle — devices by name and kind, and the safety
+//! roles bound to them — and [`driver`] speaks each protocol. [`snapshot`] is the one
+//! state type every reader shares; [`vehicle`] holds the devices and their cached
+//! state; [`safety`] holds every rule and the engage gate; [`engine`] runs two threads
+//! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
+//! broadcasts state over UDP; [`sim`] emulates the devices on real pseudo-terminals;
+//! [`console`] is the operator's screen and [`cli`] puts it all together.
 
 pub mod cli;
 pub mod config;
@@ -12,13 +15,14 @@ pub mod console;
 pub mod driver;
 pub mod engine;
 pub mod exit;
-pub mod gate;
 pub mod headless;
-pub mod interlock;
 pub mod logging;
 pub mod net;
 pub mod ports;
+pub mod safety;
 pub mod sim;
+pub mod snapshot;
 pub mod supervisor;
+pub mod threads;
 pub mod value;
 pub mod vehicle;

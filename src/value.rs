@@ -1,135 +1,60 @@
-//! The values adrive speaks in: gears, e-stop states, actuator commands and the
-//! readings a device reports. Every part (drivers, engine, network, console, simulator)
-//! shares these types, so a value means the same thing everywhere.
+//! The values adrive speaks in: device identities and kinds, commands, readings, and
+//! the e-stop's states. Every part (drivers, engine, network, console, simulator)
+//! shares these types, so a value means the same thing everywhere. What a number or a
+//! state index *names* — a device's states, its readings and their units — is in the
+//! device's configuration ([`crate::config::DeviceConfig`]).
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
 
-/// The role a device plays in the vehicle; a device's name in the config is its role.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Role {
-    Steer,
-    Gas,
-    Brake,
-    Trans,
-    Estop,
-    Obd,
+/// A device's place in its vehicle (the vehicle file's order, from 0). Cheap to copy
+/// and to compare; names are for people and the wire.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct DeviceId(pub u16);
+
+impl DeviceId {
+    pub fn index(self) -> usize {
+        self.0 as usize
+    }
 }
 
-impl Role {
-    pub const ALL: [Role; 6] = [
-        Role::Steer,
-        Role::Gas,
-        Role::Brake,
-        Role::Trans,
-        Role::Estop,
-        Role::Obd,
-    ];
+/// What a device is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    /// An actuator that takes a number in a range (steering, throttle, brake, a wiper).
+    Setpoint,
+    /// An actuator that takes one of its named states (a gearbox, turn signals, a horn).
+    State,
+    /// A device that only reports (OBD-II, an e-stop, a battery monitor).
+    Sensor,
+}
 
+impl Kind {
     pub fn as_str(self) -> &'static str {
         match self {
-            Role::Steer => "steer",
-            Role::Gas => "gas",
-            Role::Brake => "brake",
-            Role::Trans => "trans",
-            Role::Estop => "estop",
-            Role::Obd => "obd",
+            Kind::Setpoint => "setpoint",
+            Kind::State => "state",
+            Kind::Sensor => "sensor",
         }
     }
 
     /// Actuators take commands; sensors only report.
     pub fn is_actuator(self) -> bool {
-        !matches!(self, Role::Estop | Role::Obd)
+        self != Kind::Sensor
     }
 }
 
-impl fmt::Display for Role {
+impl fmt::Display for Kind {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.as_str())
-    }
-}
-
-impl FromStr for Role {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Role::ALL
-            .into_iter()
-            .find(|r| r.as_str() == s)
-            .ok_or_else(|| {
-                format!("unknown device {s:?}: expected steer, gas, brake, trans, estop or obd")
-            })
-    }
-}
-
-/// Transmission position. The paper's numeric codes are accepted too:
-/// −1 reverse, 0 park, 1 drive.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Gear {
-    Park,
-    Reverse,
-    Neutral,
-    Drive,
-}
-
-impl Gear {
-    pub const ALL: [Gear; 4] = [Gear::Park, Gear::Reverse, Gear::Neutral, Gear::Drive];
-
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Gear::Park => "park",
-            Gear::Reverse => "reverse",
-            Gear::Neutral => "neutral",
-            Gear::Drive => "drive",
-        }
-    }
-
-    /// A gear in which the engine drives the wheels.
-    pub fn is_driving(self) -> bool {
-        matches!(self, Gear::Drive | Gear::Reverse)
-    }
-
-    /// Register code used on the wire by the Modbus transmission (0 park, 1 reverse,
-    /// 2 neutral, 3 drive: the PRND order of a shifter).
-    pub fn code(self) -> u16 {
-        match self {
-            Gear::Park => 0,
-            Gear::Reverse => 1,
-            Gear::Neutral => 2,
-            Gear::Drive => 3,
-        }
-    }
-
-    pub fn from_code(code: u16) -> Option<Gear> {
-        Gear::ALL.get(code as usize).copied()
-    }
-}
-
-impl fmt::Display for Gear {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl FromStr for Gear {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s.trim().to_ascii_lowercase().as_str() {
-            "park" | "p" | "0" => Ok(Gear::Park),
-            "reverse" | "rev" | "r" | "-1" => Ok(Gear::Reverse),
-            "neutral" | "n" => Ok(Gear::Neutral),
-            "drive" | "d" | "1" => Ok(Gear::Drive),
-            other => Err(format!(
-                "unknown gear {other:?}: expected park, reverse, neutral, drive (or -1, 0, 1)"
-            )),
-        }
     }
 }
 
 /// The DARPA e-stop states: `disable` ends the run, `pause` must bring the vehicle
-/// to a stop and hold it, `run` lets it drive.
+/// to a stop and hold it, `run` lets it drive. A device bound to the `estop` role
+/// reports a state reading that has these three among its states.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum EstopState {
@@ -139,6 +64,8 @@ pub enum EstopState {
 }
 
 impl EstopState {
+    pub const ALL: [EstopState; 3] = [EstopState::Disable, EstopState::Pause, EstopState::Run];
+
     pub fn as_str(self) -> &'static str {
         match self {
             EstopState::Disable => "disable",
@@ -179,7 +106,7 @@ pub enum Control {
     Enable,
     /// Enable and find the reference position again.
     Home,
-    /// Run the starter motor until the engine catches (transmission controller).
+    /// Run the starter motor until the engine catches.
     Start,
 }
 
@@ -235,30 +162,17 @@ impl FromStr for Control {
 
 /// One command for one actuator. `Copy` and allocation-free: it travels from the
 /// socket to the serial write without touching the heap.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-#[serde(untagged)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Command {
-    /// A set point in the device's value domain (steer −1…1, gas and brake 0…1).
+    /// A set point in a setpoint actuator's range.
     Set(f64),
-    /// A transmission position.
-    Gear(Gear),
+    /// One of a state actuator's states, by its index in the device's `states`.
+    State(u8),
     /// Drive control (enable, home, starter…).
     Control(Control),
 }
 
 impl Command {
-    /// The command as a number, for plots and JSON: gears by the paper's code.
-    pub fn as_f64(self) -> f64 {
-        match self {
-            Command::Set(v) => v,
-            Command::Gear(Gear::Reverse) => -1.0,
-            Command::Gear(Gear::Park) => 0.0,
-            Command::Gear(Gear::Drive) => 1.0,
-            Command::Gear(Gear::Neutral) => 2.0,
-            Command::Control(_) => f64::NAN,
-        }
-    }
-
     /// The set point, for a `Set` command.
     pub fn set_point(self) -> Option<f64> {
         match self {
@@ -266,42 +180,96 @@ impl Command {
             _ => None,
         }
     }
-}
 
-impl fmt::Display for Command {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+    /// The state index, for a `State` command.
+    pub fn state(self) -> Option<u8> {
         match self {
-            Command::Set(v) => write!(f, "{v:.3}"),
-            Command::Gear(g) => write!(f, "{g}"),
-            Command::Control(c) => f.write_str(c.as_str()),
+            Command::State(s) => Some(s),
+            _ => None,
+        }
+    }
+
+    /// The command as a number, for plots: set points as they are, states by index.
+    pub fn as_f64(self) -> f64 {
+        match self {
+            Command::Set(v) => v,
+            Command::State(s) => s as f64,
+            Command::Control(_) => f64::NAN,
         }
     }
 }
 
-/// What a device last reported. Each device fills the fields it knows; the rest stay
-/// `None`. Units: positions in the device's domain, speed in m/s, temperature in °C.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+/// The most readings one device reports.
+pub const MAX_READINGS: usize = 16;
+
+/// What a device last reported: one value per reading the device declares, by the
+/// reading's index in its configuration (numbers as they are, flags as 0 or 1, states
+/// by index), and the device's fault bits. `Copy` and heap-free, so the cache and
+/// every reader can hold it cheaply.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Reading {
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub position: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub velocity: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub pressure: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub gear: Option<Gear>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub estop: Option<EstopState>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub rpm: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub speed: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub coolant: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub running: Option<bool>,
+    values: [Option<f64>; MAX_READINGS],
     /// Device-reported fault bits; 0 is good.
     pub fault: u16,
+}
+
+impl Reading {
+    /// The value of reading `i` (`None`: not reported).
+    pub fn get(&self, i: usize) -> Option<f64> {
+        self.values.get(i).copied().flatten()
+    }
+
+    /// Set reading `i`; an index past [`MAX_READINGS`] is ignored (configurations
+    /// cannot declare one).
+    pub fn set(&mut self, i: usize, v: f64) {
+        if let Some(slot) = self.values.get_mut(i) {
+            *slot = Some(v);
+        }
+    }
+
+    /// Every reported value, by index.
+    pub fn values(&self) -> impl Iterator<Item = (usize, f64)> + '_ {
+        self.values
+            .iter()
+            .enumerate()
+            .filter_map(|(i, v)| v.map(|v| (i, v)))
+    }
+}
+
+/// A value for people and JSON: a number, a flag, or a state's name.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Value {
+    Flag(bool),
+    Number(f64),
+    Text(String),
+}
+
+impl Value {
+    pub fn as_f64(&self) -> Option<f64> {
+        match self {
+            Value::Number(v) => Some(*v),
+            Value::Flag(b) => Some(f64::from(u8::from(*b))),
+            Value::Text(_) => None,
+        }
+    }
+
+    pub fn as_str(&self) -> Option<&str> {
+        match self {
+            Value::Text(s) => Some(s),
+            _ => None,
+        }
+    }
+}
+
+impl fmt::Display for Value {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Value::Flag(b) => write!(f, "{}", if *b { "yes" } else { "no" }),
+            Value::Number(v) => write!(f, "{v:.3}"),
+            Value::Text(s) => f.write_str(s),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -309,22 +277,32 @@ mod tests {
     use super::*;
 
     #[test]
-    fn gears_parse_names_and_paper_codes() {
-        assert_eq!("drive".parse::<Gear>(), Ok(Gear::Drive));
-        assert_eq!("-1".parse::<Gear>(), Ok(Gear::Reverse));
-        assert_eq!("0".parse::<Gear>(), Ok(Gear::Park));
-        assert_eq!("N".parse::<Gear>(), Ok(Gear::Neutral));
-        assert!("sport".parse::<Gear>().is_err());
-        for g in Gear::ALL {
-            assert_eq!(g.to_string().parse::<Gear>(), Ok(g));
-            assert_eq!(Gear::from_code(g.code()), Some(g));
+    fn estop_states_round_trip() {
+        for s in EstopState::ALL {
+            assert_eq!(s.to_string().parse::<EstopState>(), Ok(s));
         }
     }
 
     #[test]
-    fn estop_states_round_trip() {
-        for s in [EstopState::Disable, EstopState::Pause, EstopState::Run] {
-            assert_eq!(s.to_string().parse::<EstopState>(), Ok(s));
-        }
+    fn a_reading_holds_values_by_index_and_ignores_the_impossible() {
+        let mut r = Reading::default();
+        r.set(0, 0.5);
+        r.set(3, 1.0);
+        r.set(MAX_READINGS, 9.0);
+        assert_eq!(r.get(0), Some(0.5));
+        assert_eq!(r.get(1), None);
+        assert_eq!(r.values().collect::<Vec<_>>(), vec![(0, 0.5), (3, 1.0)]);
+    }
+
+    #[test]
+    fn values_serialize_as_plain_json() {
+        let v = vec![
+            Value::Number(0.25),
+            Value::Flag(true),
+            Value::Text("drive".into()),
+        ];
+        let json = serde_json::to_string(&v).unwrap();
+        assert_eq!(json, r#"[0.25,true,"drive"]"#);
+        assert_eq!(serde_json::from_str::<Vec<Value>>(&json).unwrap(), v);
     }
 }

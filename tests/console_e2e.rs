@@ -348,7 +348,7 @@ fn an_engine_stall_from_the_bench_is_recovered_step_by_step_on_screen() {
     c.keys("t");
     c.wait_for("the gear edit", |s| s.contains("edit trans command"));
     c.keys("\x15d\r");
-    c.wait_for("drive", |s| s.contains("gear drive"));
+    c.wait_for("drive", |s| s.contains("state drive"));
     c.keys("x");
     c.wait_for("the bench", |s| s.contains("raw traffic"));
     c.keys("K");
@@ -360,7 +360,9 @@ fn an_engine_stall_from_the_bench_is_recovered_step_by_step_on_screen() {
         s.contains("supervisor: recovery engine_stall done")
     });
     c.wait_for("the engine running in drive", |s| {
-        s.contains("│ MAIN │") && s.contains("gear drive") && s.contains("run 1")
+        s.contains("│ MAIN │")
+            && s.contains("state drive")
+            && (s.contains("run 1") || s.contains("running 1"))
     });
     c.keys("q");
     assert!(c.wait_exit().success());

@@ -1,8 +1,8 @@
 //! Every keymap shipped in `keymaps/` loads (merged over the default, as `--keymap`
 //! does), and a broken keymap file is refused with its file, line and expected form.
 
+use adrive::config::Role;
 use adrive::console::keymap::{Action, Keymap, Mode, Target};
-use adrive::value::Role;
 use std::path::Path;
 
 #[test]
@@ -34,7 +34,7 @@ fn the_teleop_keymap_changes_what_it_says() {
     // The rest of the default is still there.
     assert_eq!(
         map.lookup(Mode::Main, key("s")),
-        Some(Action::EditOf(Target::Device(Role::Steer)))
+        Some(Action::EditOf(Target::Device(Role::Steering)))
     );
 }
 

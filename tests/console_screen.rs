@@ -2,6 +2,7 @@
 //! and 120×40 (volatile figures masked), the styles that must be red, `NO_COLOR`, and
 //! small terminals. The vehicle is the sample Alice: real structures, no threads.
 
+use adrive::config::Role;
 use adrive::console::controls::Live;
 use adrive::console::controls::{capture, Sources};
 use adrive::console::keymap::{Action, Keymap, Mode};
@@ -10,17 +11,19 @@ use adrive::console::model::{Model, DEADMAN};
 use adrive::console::sample;
 use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
-use adrive::engine::trace::Dir;
-use adrive::value::Role;
+use adrive::safety::Gate;
+use adrive::vehicle::trace::Dir;
 use adrive::vehicle::Vehicle;
 use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;
 use ratatui::style::{Color, Modifier};
 use ratatui::Terminal;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 struct Fixture {
-    vehicle: Vehicle,
+    vehicle: Arc<Vehicle>,
+    gate: Gate,
     sources: Sources,
     now: Instant,
 }
@@ -28,14 +31,14 @@ struct Fixture {
 fn fixture(faulty: bool) -> Fixture {
     fixture_with(|v, now| {
         if faulty {
-            sample::make_faulty(v, Role::Steer, now);
+            sample::make_faulty(v, "steer", now);
         }
     })
 }
 
 fn fixture_with(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
     let now = Instant::now();
-    let vehicle = sample::vehicle(now);
+    let vehicle = Arc::new(sample::vehicle(now));
     setup(&vehicle, now);
     let logs = LogRing::default();
     logs.push(
@@ -43,6 +46,7 @@ fn fixture_with(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
         "status: no reply within 200ms device=steer errors_in_a_row=3".into(),
     );
     Fixture {
+        gate: Gate::new(vehicle.clone()),
         vehicle,
         sources: Sources {
             logs: Some(logs),
@@ -54,14 +58,14 @@ fn fixture_with(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
 
 impl Fixture {
     fn model(&self, theme: Theme) -> Model {
-        let snap = capture(&self.vehicle, &self.sources, self.now, None);
+        let snap = capture(&self.gate, &self.sources, self.now, None);
         let mut m = Model::new(Keymap::default_map(), theme, snap, DEADMAN);
         m.now = self.now;
         m
     }
     fn live(&self) -> Live<'_> {
         Live {
-            vehicle: &self.vehicle,
+            gate: &self.gate,
             sources: &self.sources,
         }
     }
@@ -175,13 +179,13 @@ fn help_is_generated_from_the_keymap() {
 #[test]
 fn bench_view_with_traffic() {
     let f = fixture(false);
-    let d = f.vehicle.device(Role::Gas).unwrap();
+    let d = f.vehicle.find("gas").unwrap();
     d.trace
         .record(Dir::Out, &[0x01, 0x03, 0x00, 0x00, 0x00, 0x02]);
     d.trace.record(Dir::In, b"\x01\x03\x04OK\x00\x00");
     let mut m = f.model(Theme::default());
     f.act(&mut m, &[Action::Right, Action::Bench]);
-    assert_eq!(m.bench, Role::Gas);
+    assert_eq!(m.bench, d.id);
     let b = render(&m, 80, 24);
     snapshot("bench_80x24", &text(&b));
     find(&b, "01 03 00 00 00 02");
@@ -248,7 +252,7 @@ fn a_bad_value_is_shown_inline_in_red() {
     f.act(
         &mut m,
         &[
-            Action::EditOf(adrive::console::keymap::Target::Device(Role::Gas)),
+            Action::EditOf(adrive::console::keymap::Target::Device(Role::Throttle)),
             Action::Input('7'),
             Action::Commit,
         ],
@@ -331,14 +335,16 @@ fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
     f.act(&mut m, &[Action::Bench]);
     // What a --sim run captures (the fixture has no simulator).
     m.snap.can_inject = true;
-    m.snap.sim_vehicle = Some("e-stop run · engine running · steering ok".into());
-    for d in &mut m.snap.devices {
-        d.sim = Some(SimFaults {
+    m.snap.sim_vehicle = Some("e-stop run · engine running · steer drive ok".into());
+    let n = m.snap.devices.len();
+    m.snap.sim_faults = vec![
+        Some(SimFaults {
             text: "none".into(),
             ..SimFaults::default()
         });
-    }
-    m.snap.devices[0].sim = Some(SimFaults {
+        n
+    ];
+    m.snap.sim_faults[0] = Some(SimFaults {
         silent: true,
         slow_ms: 150,
         text: "silent, slow 150ms".into(),

@@ -3,8 +3,8 @@
 
 mod common;
 
-use adrive::interlock::Reject;
-use adrive::value::{Command, Gear, Role};
+use adrive::safety::Reject;
+use adrive::value::Command;
 use common::{steer_only, wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
@@ -24,22 +24,22 @@ fn commands_at_twice_the_execution_rate_keep_only_the_latest() {
         "command_delay = \"150ms\"",
     ));
     rig.engage();
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
+    let steer = rig.device("steer");
     wait_for("the engage hold to execute", || {
         steer.stats.executed.load(Relaxed) == 1
     });
     rig.received();
 
     let t = Instant::now();
-    rig.vehicle.submit(Role::Steer, set(0.1), t).unwrap();
+    rig.gate.submit(rig.id("steer"), set(0.1), t).unwrap();
     wait_for("the first command on the wire", || {
         steer.slot.last() == Some(set(0.1))
     });
-    rig.vehicle
-        .submit(Role::Steer, set(0.2), Instant::now())
+    rig.gate
+        .submit(rig.id("steer"), set(0.2), Instant::now())
         .unwrap();
     let third = Instant::now();
-    rig.vehicle.submit(Role::Steer, set(0.3), third).unwrap();
+    rig.gate.submit(rig.id("steer"), set(0.3), third).unwrap();
     wait_for("the third command to execute", || {
         steer.slot.executed() == Some(set(0.3))
     });
@@ -61,9 +61,9 @@ fn commands_at_twice_the_execution_rate_keep_only_the_latest() {
 fn the_last_command_is_resent_after_command_timeout() {
     let rig = Rig::start(&steer_only("command_timeout = \"50ms\"", ""));
     rig.engage();
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
-    rig.vehicle
-        .submit(Role::Steer, set(-0.4), Instant::now())
+    let steer = rig.device("steer");
+    rig.gate
+        .submit(rig.id("steer"), set(-0.4), Instant::now())
         .unwrap();
     wait_for("three resends", || steer.stats.resent.load(Relaxed) >= 3);
     let got: Vec<Command> = rig.received().iter().map(|e| e.command).collect();
@@ -77,11 +77,12 @@ fn the_last_command_is_resent_after_command_timeout() {
 fn a_sensor_has_only_a_status_thread() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
     let names = rig.engine.as_ref().unwrap().thread_names();
-    for r in Role::ALL {
+    for d in &rig.vehicle.devices {
+        let r = d.name();
         assert!(names.contains(&format!("{r}/status").as_str()), "{names:?}");
         assert_eq!(
             names.contains(&format!("{r}/command").as_str()),
-            r.is_actuator(),
+            d.is_actuator(),
             "{names:?}"
         );
     }
@@ -95,13 +96,13 @@ fn readers_see_the_cache_without_waiting_for_the_port() {
         "status_period = \"10ms\"\nreply_timeout = \"2s\"",
         "poll_delay = \"400ms\"",
     ));
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
+    let steer = rig.device("steer");
     wait_for("a first reading", || steer.cached().at.is_some());
     let polls = steer.stats.polls.load(Relaxed);
     // The status thread is now in its next 400 ms poll.
     let t = Instant::now();
     for _ in 0..1000 {
-        assert!(steer.cached().reading.position.is_some());
+        assert!(steer.cached().reading.get(0).is_some());
     }
     assert!(
         t.elapsed() < Duration::from_millis(200),
@@ -125,13 +126,13 @@ fn max_delay_under_100hz_commands(port_rule: &str) -> f64 {
         "poll_delay = \"95ms\"",
     ));
     rig.engage();
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
+    let steer = rig.device("steer");
     let start = Instant::now();
     let mut i = 0u32;
     while start.elapsed() < Duration::from_millis(1500) {
         let v = (i % 100) as f64 / 100.0;
-        rig.vehicle
-            .submit(Role::Steer, set(v), Instant::now())
+        rig.gate
+            .submit(rig.id("steer"), set(v), Instant::now())
             .unwrap();
         i += 1;
         std::thread::sleep(Duration::from_millis(10));
@@ -173,13 +174,13 @@ fn status_is_polled_within_max_age_under_a_command_flood() {
         "command_delay = \"40ms\"",
     ));
     rig.engage();
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
+    let steer = rig.device("steer");
     let start = Instant::now();
     let mut worst = Duration::ZERO;
     let mut i = 0u32;
     while start.elapsed() < Duration::from_millis(2000) {
-        rig.vehicle
-            .submit(Role::Steer, set((i % 10) as f64 / 10.0), Instant::now())
+        rig.gate
+            .submit(rig.id("steer"), set((i % 10) as f64 / 10.0), Instant::now())
             .unwrap();
         i += 1;
         std::thread::sleep(Duration::from_millis(5));
@@ -197,27 +198,23 @@ fn status_is_polled_within_max_age_under_a_command_flood() {
 #[test]
 fn a_silent_device_counts_errors_and_the_others_keep_flowing() {
     let toml = format!(
-        "{}\n[[device]]\nname = \"gas\"\ndriver = \"line\"\nreply_timeout = \"50ms\"\nstatus_period = \"20ms\"\n",
+        "{}\n[[device]]\nname = \"gas\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"50ms\"\nstatus_period = \"20ms\"\n",
         steer_only("", "")
     );
     let rig = Rig::start(&toml);
     rig.engage();
-    rig.sim
-        .faults(Role::Gas)
-        .unwrap()
-        .silent
-        .store(true, Relaxed);
-    let gas = rig.vehicle.device(Role::Gas).unwrap();
+    rig.sim.faults("gas").unwrap().silent.store(true, Relaxed);
+    let gas = rig.device("gas");
     wait_for("gas to be marked faulty", || gas.is_faulty());
     wait_for("status errors to be counted", || {
         gas.stats.status_errors.load(Relaxed) >= 3
     });
     assert_eq!(gas.health.status_error.load(Relaxed), 1, "timeout code");
 
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
+    let steer = rig.device("steer");
     for v in [0.2, -0.2, 0.5] {
-        rig.vehicle
-            .submit(Role::Steer, set(v), Instant::now())
+        rig.gate
+            .submit(rig.id("steer"), set(v), Instant::now())
             .unwrap();
         wait_for("steering to execute", || {
             steer.slot.executed() == Some(set(v))
@@ -227,11 +224,7 @@ fn a_silent_device_counts_errors_and_the_others_keep_flowing() {
     assert!(rig.received().iter().any(|e| e.command == set(0.5)));
 
     // The gas device comes back: errors stop and it is healthy again.
-    rig.sim
-        .faults(Role::Gas)
-        .unwrap()
-        .silent
-        .store(false, Relaxed);
+    rig.sim.faults("gas").unwrap().silent.store(false, Relaxed);
     wait_for("gas to recover", || !gas.is_faulty());
 }
 
@@ -240,56 +233,57 @@ fn a_silent_device_counts_errors_and_the_others_keep_flowing() {
 #[test]
 fn interlocks_reject_and_never_send() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
-    let v = &rig.vehicle;
     let now = Instant::now;
     rig.engage();
-    let gas = v.device(Role::Gas).unwrap();
-    let brake = v.device(Role::Brake).unwrap();
+    let gas = rig.device("gas");
+    let brake = rig.device("brake");
     wait_for("the safe state", || brake.slot.executed() == Some(set(1.0)));
 
     // Gas while braking.
     assert_eq!(
-        v.submit(Role::Gas, set(0.3), now()),
+        rig.gate.submit(rig.id("gas"), set(0.3), now()),
         Err(Reject::GasWhileBraking)
     );
     // Gas in park.
-    v.submit(Role::Brake, set(0.0), now()).unwrap();
+    rig.gate.submit(rig.id("brake"), set(0.0), now()).unwrap();
     wait_for("brake released", || brake.slot.executed() == Some(set(0.0)));
     assert_eq!(
-        v.submit(Role::Gas, set(0.3), now()),
+        rig.gate.submit(rig.id("gas"), set(0.3), now()),
         Err(Reject::GasNotInGear)
     );
     // Shift without the brake.
     assert_eq!(
-        v.submit(Role::Trans, Command::Gear(Gear::Drive), now()),
+        rig.gate
+            .submit(rig.id("trans"), rig.state("trans", "drive"), now()),
         Err(Reject::ShiftWithoutBrake)
     );
 
     // Get moving properly: brake, shift, release, gas.
-    v.submit(Role::Brake, set(1.0), now()).unwrap();
+    rig.gate.submit(rig.id("brake"), set(1.0), now()).unwrap();
     wait_for("brake applied", || brake.slot.executed() == Some(set(1.0)));
-    v.submit(Role::Trans, Command::Gear(Gear::Drive), now())
+    rig.gate
+        .submit(rig.id("trans"), rig.state("trans", "drive"), now())
         .unwrap();
-    let trans = v.device(Role::Trans).unwrap();
+    let trans = rig.device("trans");
     wait_for("drive engaged", || {
-        trans.cached().reading.gear == Some(Gear::Drive)
+        trans.cached().reading.get(0) == Some(3.0)
     });
-    v.submit(Role::Brake, set(0.0), now()).unwrap();
+    rig.gate.submit(rig.id("brake"), set(0.0), now()).unwrap();
     wait_for("brake released", || brake.slot.executed() == Some(set(0.0)));
-    v.submit(Role::Gas, set(0.6), now()).unwrap();
-    let obd = v.device(Role::Obd).unwrap();
+    rig.gate.submit(rig.id("gas"), set(0.6), now()).unwrap();
     wait_for("the vehicle to move", || {
-        obd.cached().reading.speed.unwrap_or(0.0) > 0.5
+        rig.reading("obd", "speed").unwrap_or(0.0) > 0.5
     });
     // Shift while moving (even with the brake on).
-    v.submit(Role::Gas, set(0.0), now()).unwrap();
-    v.submit(Role::Brake, set(0.5), now()).unwrap();
+    rig.gate.submit(rig.id("gas"), set(0.0), now()).unwrap();
+    rig.gate.submit(rig.id("brake"), set(0.5), now()).unwrap();
     assert_eq!(
-        v.submit(Role::Trans, Command::Gear(Gear::Park), now()),
+        rig.gate
+            .submit(rig.id("trans"), rig.state("trans", "park"), now()),
         Err(Reject::ShiftWhileMoving)
     );
 
-    let counts: std::collections::HashMap<_, _> = v.rejections().into_iter().collect();
+    let counts: std::collections::HashMap<_, _> = rig.gate.rejections().into_iter().collect();
     assert_eq!(counts[&Reject::GasWhileBraking], 1);
     assert_eq!(counts[&Reject::GasNotInGear], 1);
     assert_eq!(counts[&Reject::ShiftWithoutBrake], 1);
@@ -299,19 +293,19 @@ fn interlocks_reject_and_never_send() {
     let sent = rig.received();
     assert!(!sent
         .iter()
-        .any(|e| e.role == Role::Gas && e.command == set(0.3)));
-    assert!(!sent.iter().any(|e| e.command == Command::Gear(Gear::Park)));
+        .any(|e| e.name == "gas" && e.command == set(0.3)));
+    assert!(!sent.iter().any(|e| e.command == rig.state("trans", "park")));
     assert!(sent
         .iter()
-        .any(|e| e.role == Role::Gas && e.command == set(0.6)));
+        .any(|e| e.name == "gas" && e.command == set(0.6)));
 }
 
 #[test]
 fn disengaged_commands_are_counted_and_not_executed() {
     let rig = Rig::start(&steer_only("", ""));
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
+    let steer = rig.device("steer");
     assert_eq!(
-        rig.vehicle.submit(Role::Steer, set(0.5), Instant::now()),
+        rig.gate.submit(rig.id("steer"), set(0.5), Instant::now()),
         Err(Reject::Disengaged)
     );
     assert_eq!(steer.stats.rejected.load(Relaxed), 1);
@@ -321,28 +315,31 @@ fn disengaged_commands_are_counted_and_not_executed() {
 #[test]
 fn accel_never_applies_gas_and_brake_together() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
-    let v = &rig.vehicle;
     rig.engage();
-    let brake = v.device(Role::Brake).unwrap();
+    let brake = rig.device("brake");
     wait_for("the safe state", || brake.slot.executed() == Some(set(1.0)));
-    v.submit(Role::Trans, Command::Gear(Gear::Drive), Instant::now())
+    rig.gate
+        .submit(rig.id("trans"), rig.state("trans", "drive"), Instant::now())
         .unwrap();
-    let trans = v.device(Role::Trans).unwrap();
-    wait_for("drive", || trans.cached().reading.gear == Some(Gear::Drive));
+    let trans = rig.device("trans");
+    wait_for("drive", || trans.cached().reading.get(0) == Some(3.0));
     // From full brake: the first accel releases the brake; gas follows once the
     // release is acknowledged.
-    v.submit_accel(0.4, Instant::now()).unwrap();
-    assert_eq!(v.device(Role::Gas).unwrap().slot.latest(), Some(set(0.0)));
+    rig.gate.submit_accel(0.4, Instant::now()).unwrap();
+    assert_eq!(rig.device("gas").slot.latest(), Some(set(0.0)));
     wait_for("brake release", || brake.slot.executed() == Some(set(0.0)));
-    v.submit_accel(0.4, Instant::now()).unwrap();
-    let gas = v.device(Role::Gas).unwrap();
+    rig.gate.submit_accel(0.4, Instant::now()).unwrap();
+    let gas = rig.device("gas");
     wait_for("gas", || gas.slot.executed() == Some(set(0.4)));
-    v.submit_accel(-0.7, Instant::now()).unwrap();
+    rig.gate.submit_accel(-0.7, Instant::now()).unwrap();
     wait_for("brake", || brake.slot.executed() == Some(set(0.7)));
     assert_eq!(gas.slot.executed(), Some(set(0.0)));
-    assert_eq!(v.submit_accel(1.5, Instant::now()), Err(Reject::OutOfRange));
     assert_eq!(
-        v.submit_accel(f64::NAN, Instant::now()),
+        rig.gate.submit_accel(1.5, Instant::now()),
+        Err(Reject::OutOfRange)
+    );
+    assert_eq!(
+        rig.gate.submit_accel(f64::NAN, Instant::now()),
         Err(Reject::NotFinite)
     );
 }

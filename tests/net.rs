@@ -5,12 +5,12 @@
 mod common;
 
 use adrive::config::{self, NetworkConfig};
-use adrive::interlock::Reject as Intake;
 use adrive::net::auth::Auth;
-use adrive::net::{Net, Refusal, WatchdogState};
-use adrive::value::{Command, EstopState, Role};
+use adrive::net::{Net, Refusal};
+use adrive::safety::Reject as Intake;
+use adrive::snapshot::{Snapshot, WatchdogState};
+use adrive::value::{Command, EstopState, Value};
 use common::{wait_for, Rig, DEADLINE};
-use serde_json::Value;
 use std::net::{SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::sync::Arc;
@@ -49,7 +49,7 @@ impl NetRig {
         tweak(&mut c.network);
         let network = c.network.clone();
         let rig = Rig::with_config(c);
-        let net = Net::start(rig.vehicle.clone(), network, auth).expect("net starts");
+        let net = Net::start(rig.gate.clone(), network, auth).expect("net starts");
         NetRig {
             net: Some(net),
             broadcast,
@@ -69,18 +69,18 @@ impl NetRig {
 
     fn ready(&self) {
         wait_for("every device to report", || {
-            self.rig.vehicle.engage_blockers().is_empty()
+            self.rig.gate.blockers().is_empty()
         });
     }
 
     /// Read broadcasts until one satisfies `want`; returns it.
-    fn broadcast_until(&self, what: &str, mut want: impl FnMut(&Value) -> bool) -> Value {
+    fn broadcast_until(&self, what: &str, mut want: impl FnMut(&Snapshot) -> bool) -> Snapshot {
         let end = Instant::now() + DEADLINE;
         let mut buf = vec![0u8; 65536];
         loop {
             assert!(Instant::now() < end, "no broadcast with {what}");
             if let Ok(n) = self.broadcast.recv(&mut buf) {
-                let v: Value = serde_json::from_slice(&buf[..n]).expect("JSON");
+                let v: Snapshot = serde_json::from_slice(&buf[..n]).expect("a snapshot");
                 if want(&v) {
                     return v;
                 }
@@ -159,31 +159,31 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
     wait_for("the steering device to get -0.25", || {
         n.events_since(t)
             .iter()
-            .any(|e| e.role == Role::Steer && e.command == set(-0.25))
+            .any(|e| e.name == "steer" && e.command == set(-0.25))
     });
     let v = n.broadcast_until("steer commanded -0.25", |v| {
-        v["devices"]["steer"]["commanded"].as_f64() == Some(-0.25)
+        v.device("steer").and_then(|d| d.commanded.clone()) == Some(Value::Number(-0.25))
     });
-    assert_eq!(v["schema"], 1);
-    assert_eq!(v["engaged"], true);
-    assert_eq!(v["net"]["commander"], a.addr().to_string());
-    assert_eq!(v["net"]["watchdog"]["state"], "armed");
-    assert_eq!(v["net"]["commands"]["steer"], 1);
-    let steer = &v["devices"]["steer"];
-    assert!(steer["delay_us"]["p99_us"].as_f64().is_some(), "{steer}");
-    assert!(steer["measured"]["position"].as_f64().is_some(), "{steer}");
-    assert!(steer["status_age_ms"].as_f64().unwrap() < 1000.0);
-    assert_eq!(steer["faulty"], false);
-    assert_eq!(v["devices"]["obd"]["actuator"], false);
+    assert_eq!(v.schema, 2);
+    assert!(v.gate.engaged);
+    let net = v.net.as_ref().unwrap();
+    assert_eq!(net.commander, Some(a.addr()));
+    assert_eq!(net.watchdog.state, WatchdogState::Armed);
+    assert_eq!(net.commands.get("steer"), Some(&1));
+    let steer = v.device("steer").unwrap();
+    assert!(steer.delay_us.p99_us.is_some(), "{steer:?}");
+    assert!(steer.position().is_some(), "{steer:?}");
+    assert!(steer.status_age_ms.unwrap() < 1000.0);
+    assert!(!steer.health.faulty);
+    assert!(!v.device("obd").unwrap().is_actuator());
+    assert_eq!(
+        v.gate.roles.get("throttle").map(String::as_str),
+        Some("gas")
+    );
     // The receipt → first byte delay is measured from the socket read.
-    let delay = n
-        .rig
-        .vehicle
-        .device(Role::Steer)
-        .unwrap()
-        .stats
-        .snapshot()
-        .command_delay;
+    let d = n.rig.device("steer");
+    d.stats.refresh();
+    let delay = d.stats.snapshot().command_delay;
     assert!(
         delay.count >= 1 && delay.max_us.unwrap() < 100_000.0,
         "{delay:?}"
@@ -203,7 +203,7 @@ fn disengaged_commands_are_counted_and_not_executed() {
     );
     let status = n.net().status();
     assert_eq!(status.intake_rejections(Intake::Disengaged), 2);
-    let steer = n.rig.vehicle.device(Role::Steer).unwrap();
+    let steer = n.rig.device("steer");
     assert_eq!(steer.stats.rejected.load(Relaxed), 1);
     std::thread::sleep(Duration::from_millis(300));
     assert!(
@@ -222,13 +222,8 @@ fn engage_is_refused_while_a_device_is_faulty_and_the_reasons_come_back() {
         long_watchdog(c);
     });
     n.ready();
-    n.rig
-        .sim
-        .faults(Role::Gas)
-        .unwrap()
-        .silent
-        .store(true, Relaxed);
-    let gas = n.rig.vehicle.device(Role::Gas).unwrap();
+    n.rig.sim.faults("gas").unwrap().silent.store(true, Relaxed);
+    let gas = n.rig.device("gas");
     wait_for("gas to be faulty", || gas.is_faulty());
     let a = n.client();
     let reply = a.ask(b"engage");
@@ -236,19 +231,17 @@ fn engage_is_refused_while_a_device_is_faulty_and_the_reasons_come_back() {
         reply.starts_with("refused engage: ") && reply.contains("gas is faulty"),
         "{reply}"
     );
-    assert!(!n.rig.vehicle.is_engaged());
+    assert!(!n.rig.gate.is_engaged());
     assert_eq!(n.net().status().refusals(Refusal::EngageBlocked), 1);
     n.broadcast_until("the blocker in the broadcast", |v| {
-        v["blockers"].as_array().is_some_and(|b| {
-            b.iter()
-                .any(|s| s.as_str().unwrap().contains("gas is faulty"))
-        }) && v["faults"].as_array().is_some_and(|f| !f.is_empty())
-            && v["devices"]["gas"]["faulty"] == true
+        v.gate.blockers.iter().any(|s| s.contains("gas is faulty"))
+            && v.faulty().count() > 0
+            && v.device("gas").is_some_and(|d| d.health.faulty)
     });
     // Healthy again: engage passes.
     n.rig
         .sim
-        .faults(Role::Gas)
+        .faults("gas")
         .unwrap()
         .silent
         .store(false, Relaxed);
@@ -262,9 +255,9 @@ fn network_engage_is_refused_when_the_vehicle_file_does_not_allow_it() {
     n.ready();
     let reply = n.client().ask(b"engage");
     assert!(reply.contains("does not allow engaging"), "{reply}");
-    assert!(!n.rig.vehicle.is_engaged());
+    assert!(!n.rig.gate.is_engaged());
     // The console still may; then a network sender commands.
-    n.rig.vehicle.engage("console").unwrap();
+    n.rig.gate.engage("console").unwrap();
     let t = Instant::now();
     let mut a = n.client();
     a.send_seq("steer 0.1");
@@ -278,8 +271,7 @@ fn network_engage_is_refused_when_the_vehicle_file_does_not_allow_it() {
 fn engage_resets_stale_set_points_and_repeating_it_does_not() {
     let n = NetRig::start(long_watchdog);
     n.ready();
-    let v = &n.rig.vehicle;
-    let steer = v.device(Role::Steer).unwrap();
+    let steer = n.rig.device("steer");
     let mut a = n.client();
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
     a.send_seq("steer 0.8");
@@ -294,19 +286,29 @@ fn engage_resets_stale_set_points_and_repeating_it_does_not() {
     assert!(held < 0.8, "engage kept the stale set point {held}");
     // (The slot reads empty for an instant while its command thread takes it.)
     wait_for("gas 0 and brake full", || {
-        v.device(Role::Gas).unwrap().slot.latest() == Some(set(0.0))
-            && v.device(Role::Brake).unwrap().slot.latest() == Some(set(1.0))
+        n.rig.device("gas").slot.latest() == Some(set(0.0))
+            && n.rig.device("brake").slot.latest() == Some(set(1.0))
     });
 
-    // A planner repeats `engage` in every datagram: nothing is reset again.
+    // A planner repeats `engage` in every datagram: nothing is reset again, and the
+    // repeats are not answered (a rejected sentinel's reply is the first to come back).
     a.send_seq("engage\nsteer -0.5");
     wait_for("steer -0.5", || steer.slot.executed() == Some(set(-0.5)));
-    let gate = v.gate_reason();
+    let gate = n.rig.gate.reason();
+    std::thread::sleep(Duration::from_millis(25));
     for _ in 0..3 {
-        assert_eq!(a.ask(b"engage"), "ok engaged\n");
+        a.send_seq("engage");
     }
+    a.send(b"estop 1");
+    let reply = a
+        .reply(Duration::from_secs(5))
+        .expect("the sentinel's reply");
+    assert!(
+        reply.starts_with("rejected: line 1: not_allowed"),
+        "{reply}"
+    );
     assert_eq!(steer.slot.latest(), Some(set(-0.5)));
-    assert_eq!(v.gate_reason(), gate);
+    assert_eq!(n.rig.gate.reason(), gate);
 }
 
 /// Sends `body` with an advancing counter every 50 ms until `stop`.
@@ -340,13 +342,10 @@ fn braking_at_0_2(
     let addr = a.addr();
     let stop = Arc::new(AtomicBool::new(false));
     let h = feed(a, "accel -0.2", stop.clone());
-    let brake = n.rig.vehicle.device(Role::Brake).unwrap();
+    let brake = n.rig.device("brake");
     wait_for("brake 0.2", || brake.slot.executed() == Some(set(0.2)));
     std::thread::sleep(Duration::from_millis(400));
-    assert!(
-        n.rig.vehicle.is_engaged(),
-        "the steady sender kept it engaged"
-    );
+    assert!(n.rig.gate.is_engaged(), "the steady sender kept it engaged");
     (stop, h, addr)
 }
 
@@ -361,16 +360,15 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
     let (stop, h, addr) = braking_at_0_2(&n);
     stop.store(true, Relaxed);
     let last = h.join().unwrap();
-    let v = &n.rig.vehicle;
-    wait_for("the watchdog to disengage", || !v.is_engaged());
-    let brake = v.device(Role::Brake).unwrap();
+    wait_for("the watchdog to disengage", || !n.rig.gate.is_engaged());
+    let brake = n.rig.device("brake");
     wait_for("the brake to acknowledge full", || {
         brake.slot.executed() == Some(set(1.0))
     });
     let got = n.events_since(last);
     let full = got
         .iter()
-        .find(|e| e.role == Role::Brake && e.command == set(1.0))
+        .find(|e| e.name == "brake" && e.command == set(1.0))
         .expect("the brake device got brake 1");
     let after = full.at - last;
     assert!(
@@ -378,7 +376,7 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
         "brake on {after:?} after the last command"
     );
     assert!(after >= TIMEOUT, "tripped early, after {after:?}");
-    assert_eq!(v.device(Role::Gas).unwrap().slot.executed(), Some(set(0.0)));
+    assert_eq!(n.rig.device("gas").slot.executed(), Some(set(0.0)));
     let snap = n.net().status().snapshot();
     assert_eq!(snap.watchdog.state, WatchdogState::Tripped);
     let why = snap.watchdog.last_trip.unwrap();
@@ -386,7 +384,11 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
         why.contains(&format!("no valid command from {addr}")),
         "{why}"
     );
-    assert!(v.gate_reason().contains("watchdog"), "{}", v.gate_reason());
+    assert!(
+        n.rig.gate.reason().contains("watchdog"),
+        "{}",
+        n.rig.gate.reason()
+    );
 }
 
 #[test]
@@ -402,8 +404,7 @@ fn a_frozen_rolling_counter_trips_the_watchdog() {
     // Alive, but the counter is stuck.
     let frozen_from = Instant::now();
     let frozen = format!("seq {}\naccel -0.2\n", a.seq);
-    let v = &n.rig.vehicle;
-    while v.is_engaged() {
+    while n.rig.gate.is_engaged() {
         assert!(frozen_from.elapsed() < DEADLINE);
         a.send(frozen.as_bytes());
         std::thread::sleep(Duration::from_millis(20));
@@ -413,7 +414,7 @@ fn a_frozen_rolling_counter_trips_the_watchdog() {
         after < TIMEOUT + MARGIN,
         "disengaged {after:?} after the counter froze"
     );
-    let brake = v.device(Role::Brake).unwrap();
+    let brake = n.rig.device("brake");
     wait_for("the brake to acknowledge full", || {
         brake.slot.executed() == Some(set(1.0))
     });
@@ -457,11 +458,11 @@ fn a_second_sender_is_refused_while_another_commands() {
     assert_eq!(n.net().status().refusals(Refusal::OtherCommander), 2);
     std::thread::sleep(Duration::from_millis(200));
     assert!(!n.events_since(t).iter().any(|e| e.command == set(0.9)));
-    assert!(n.rig.vehicle.is_engaged());
+    assert!(n.rig.gate.is_engaged());
     // Anyone allowed to send may stop the vehicle; the commander must then re-engage
     // on purpose.
     assert_eq!(b.ask(b"disengage"), "ok disengaged\n");
-    assert!(!n.rig.vehicle.is_engaged());
+    assert!(!n.rig.gate.is_engaged());
     assert!(a
         .ask(b"engage")
         .starts_with("refused engage: disengaged while"));
@@ -474,7 +475,7 @@ fn the_allow_list_refuses_other_senders_silently() {
     let a = n.client();
     a.send(b"engage");
     assert_eq!(a.reply(Duration::from_millis(300)), None);
-    assert!(!n.rig.vehicle.is_engaged());
+    assert!(!n.rig.gate.is_engaged());
     assert_eq!(n.net().status().refusals(Refusal::NotOnAllowList), 1);
 }
 
@@ -526,9 +527,8 @@ fn authentication_passes_a_good_tag_and_rejects_bad_missing_and_replayed() {
 fn garbage_of_every_kind_is_rejected_counted_and_harmless() {
     let n = NetRig::start(long_watchdog);
     n.ready();
-    let v = &n.rig.vehicle;
     let a = n.client();
-    let polls = v.device(Role::Steer).unwrap().stats.polls.load(Relaxed);
+    let polls = n.rig.device("steer").stats.polls.load(Relaxed);
     let cases: &[(&[u8], &str)] = &[
         (b"", "empty"),
         (&[b'#'; 5000], "oversized"),
@@ -556,12 +556,12 @@ fn garbage_of_every_kind_is_rejected_counted_and_harmless() {
     assert_eq!(snap.rejected.get("not_finite"), 2);
     // The listener still works and nothing moved.
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
-    assert!(v.devices.iter().all(|d| !d.is_faulty()));
+    assert!(n.rig.vehicle.devices.iter().all(|d| !d.is_faulty()));
     wait_for("status polls to go on", || {
-        v.device(Role::Steer).unwrap().stats.polls.load(Relaxed) > polls + 5
+        n.rig.device("steer").stats.polls.load(Relaxed) > polls + 5
     });
     assert_eq!(
-        v.device(Role::Steer).unwrap().stats.received.load(Relaxed),
+        n.rig.device("steer").stats.received.load(Relaxed),
         1,
         "only the engage hold"
     );
@@ -601,8 +601,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
             sent
         })
     };
-    let v = &n.rig.vehicle;
-    let steer = v.device(Role::Steer).unwrap();
+    let steer = n.rig.device("steer");
     let before = steer.stats.snapshot();
     let start = Instant::now();
     let mut i = 0;
@@ -616,7 +615,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         i += 1;
         let t = Instant::now();
         let _ = n.net().status().snapshot();
-        for d in &v.devices {
+        for d in &n.rig.vehicle.devices {
             let _ = d.cached();
         }
         slowest_read = slowest_read.max(t.elapsed());
@@ -624,7 +623,10 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
     }
     stop.store(true, Relaxed);
     let flooded = flooder.join().unwrap();
-    assert!(v.is_engaged(), "the watchdog tripped under the flood");
+    assert!(
+        n.rig.gate.is_engaged(),
+        "the watchdog tripped under the flood"
+    );
     let got = steer.stats.snapshot().received - before.received;
     assert!(
         got as f64 >= i as f64 * 0.95,
@@ -640,53 +642,53 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         slowest_read < Duration::from_millis(50),
         "a reader waited {slowest_read:?}"
     );
+    steer.stats.refresh();
     let delay = steer.stats.snapshot().command_delay;
     assert!(delay.p99_us.unwrap() < 60_000.0, "{delay:?}");
-    let brake = v.device(Role::Brake).unwrap();
+    let brake = n.rig.device("brake");
     assert!(brake.cached().age().unwrap() < Duration::from_millis(600));
 }
 
 #[test]
 fn the_gate_monitor_disengages_on_estop_pause_and_on_a_fault() {
     let n = NetRig::start(long_watchdog);
-    let _monitor = adrive::gate::Monitor::start(n.rig.vehicle.clone()).unwrap();
+    let _monitor = adrive::safety::gate::Monitor::start(n.rig.gate.clone()).unwrap();
     n.ready();
-    let v = &n.rig.vehicle;
-    let brake = v.device(Role::Brake).unwrap();
+    let brake = n.rig.device("brake");
     let mut a = n.client();
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
     a.send_seq("accel -0.3");
     wait_for("brake 0.3", || brake.slot.executed() == Some(set(0.3)));
     n.rig.sim.set_estop(EstopState::Pause);
-    wait_for("disengaged by the e-stop", || !v.is_engaged());
+    wait_for("disengaged by the e-stop", || !n.rig.gate.is_engaged());
     assert!(
-        v.gate_reason().contains("e-stop pause"),
+        n.rig.gate.reason().contains("e-stop is in pause"),
         "{}",
-        v.gate_reason()
+        n.rig.gate.reason()
     );
     wait_for("brake full", || brake.slot.executed() == Some(set(1.0)));
     // The commander was disengaged against its will: it must drop `engage` first.
     let reply = a.ask(b"engage");
-    assert!(reply.contains("disengaged: e-stop pause"), "{reply}");
+    assert!(reply.contains("disengaged: e-stop is in pause"), "{reply}");
     // A fresh sender is told what blocks engaging.
     let reply = n.client().ask(b"engage");
     assert!(reply.contains("e-stop is in pause"), "{reply}");
 
     n.rig.sim.set_estop(EstopState::Run);
     wait_for("the e-stop to read run", || {
-        v.estop() == Some(EstopState::Run)
+        n.rig.vehicle.estop() == Some(EstopState::Run)
     });
-    v.engage("test").unwrap();
+    n.rig.gate.engage("test").unwrap();
     n.rig
         .sim
-        .faults(Role::Trans)
+        .faults("trans")
         .unwrap()
         .silent
         .store(true, Relaxed);
-    wait_for("disengaged by the fault", || !v.is_engaged());
+    wait_for("disengaged by the fault", || !n.rig.gate.is_engaged());
     assert!(
-        v.gate_reason().contains("trans is faulty"),
+        n.rig.gate.reason().contains("trans is faulty"),
         "{}",
-        v.gate_reason()
+        n.rig.gate.reason()
     );
 }

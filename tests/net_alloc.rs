@@ -2,8 +2,9 @@
 //! counts every allocation made on the test's thread while a datagram is parsed,
 //! checked and counted.
 
+use adrive::config::VehicleConfig;
 use adrive::net::auth::Auth;
-use adrive::net::proto::{parse, Reject, RejectCounts};
+use adrive::net::proto::{parse, Reject, RejectCounts, Vocabulary};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
@@ -39,6 +40,10 @@ fn parse_verify_and_count_do_not_allocate() {
     let plain = b"seq 4\r\nsteer 0.2 # left\r\naccel -0.5\r\n";
     let bad = b"steer 0.2\nstear 0.3\n";
     let counts = RejectCounts::new();
+    let alice = VehicleConfig::alice();
+    let vocab = Vocabulary::of(&alice);
+    #[allow(clippy::result_large_err)]
+    let parse = |b: &[u8]| parse(b, &vocab);
 
     let n = allocations_in(|| {
         let d = parse(signed.as_bytes()).unwrap();
@@ -61,13 +66,13 @@ fn parse_verify_and_count_do_not_allocate() {
 
 /// The listener's whole decision on a command datagram from the commander of an
 /// engaged vehicle — sender table, counter, commander, interlocks, slot — and the
-/// repeated `engage` of a planner, with its reply: no allocation.
+/// repeated `engage` of a planner (which is not answered): no allocation.
 #[test]
 fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
-    use adrive::config::VehicleConfig;
     use adrive::net::intake::Intake;
     use adrive::net::NetStatus;
-    use adrive::value::{Reading, Role};
+    use adrive::safety::Gate;
+    use adrive::value::{Command, Reading};
     use adrive::vehicle::{Cached, Vehicle};
     use std::sync::atomic::AtomicBool;
     use std::sync::Arc;
@@ -81,19 +86,30 @@ fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
     // Every device has "reported": the vehicle may engage (no engine runs here).
     for d in &vehicle.devices {
         let mut reading = Reading::default();
-        match d.role {
-            Role::Estop => reading.estop = Some(adrive::value::EstopState::Run),
-            Role::Obd => reading.speed = Some(0.0),
-            _ => reading.position = Some(0.0),
+        for i in 0..d.config.readings.len() {
+            reading.set(i, 0.0);
+        }
+        if d.name() == "estop" {
+            reading.set(0, 2.0); // run
         }
         *d.cache.lock() = Cached {
             reading,
             at: Some(Instant::now()),
         };
     }
-    let status = Arc::new(NetStatus::new(network.listen, network.watchdog_timeout));
+    let gate = Arc::new(Gate::new(vehicle.clone()));
+    let names = vehicle
+        .devices
+        .iter()
+        .map(|d| d.name().to_string())
+        .collect();
+    let status = Arc::new(NetStatus::new(
+        network.listen,
+        network.watchdog_timeout,
+        names,
+    ));
     let mut intake = Intake::new(
-        vehicle.clone(),
+        gate.clone(),
         network,
         None,
         status,
@@ -114,12 +130,13 @@ fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
         }
     });
     assert_eq!(n, 0, "the listener path allocated {n} times");
-    assert!(vehicle.is_engaged());
+    assert!(gate.is_engaged());
     assert_eq!(
-        vehicle.device(Role::Steer).unwrap().slot.latest(),
-        Some(adrive::value::Command::Set(-0.1))
+        vehicle.find("steer").unwrap().slot.latest(),
+        Some(Command::Set(-0.1))
     );
-    assert!(replies
-        .iter()
-        .all(|r| r.is_none_or(|r| r.as_str() == "ok engaged\n")));
+    assert!(
+        replies.iter().all(Option::is_none),
+        "accepted commands and a repeated engage are not answered: {replies:?}"
+    );
 }

@@ -5,8 +5,9 @@
 
 mod common;
 
+use adrive::snapshot::{Snapshot, WatchdogState};
+use adrive::value::Value;
 use common::{free_port, lines, signal, tempdir, DEADLINE};
-use serde_json::Value;
 use std::net::UdpSocket;
 use std::path::PathBuf;
 use std::process::{Child, Command as Process, Stdio};
@@ -106,15 +107,15 @@ impl Watch {
     }
 
     /// Broadcasts until one satisfies `want`; returns it and when it arrived.
-    fn until(&self, what: &str, mut want: impl FnMut(&Value) -> bool) -> (Value, Instant) {
+    fn until(&self, what: &str, mut want: impl FnMut(&Snapshot) -> bool) -> (Snapshot, Instant) {
         let end = Instant::now() + DEADLINE;
-        let mut last = Value::Null;
+        let mut last = Snapshot::default();
         loop {
             let left = end.saturating_duration_since(Instant::now());
             let Ok(line) = self.rx.recv_timeout(left) else {
-                panic!("no broadcast with {what}; the last:\n{last:#}");
+                panic!("no broadcast with {what}; the last:\n{last:#?}");
             };
-            let v: Value = serde_json::from_str(&line).expect("one JSON object per line");
+            let v: Snapshot = serde_json::from_str(&line).expect("one snapshot per line");
             if want(&v) {
                 return (v, Instant::now());
             }
@@ -130,8 +131,25 @@ impl Drop for Watch {
     }
 }
 
-fn f(v: &Value) -> f64 {
-    v.as_f64().unwrap_or(f64::NAN)
+/// A device's reading, as a number (NaN when missing).
+fn f(v: &Snapshot, device: &str, reading: &str) -> f64 {
+    v.device(device)
+        .and_then(|d| d.number(reading))
+        .unwrap_or(f64::NAN)
+}
+
+/// A device's command (pending or last sent), or what it acknowledged.
+fn cmd(v: &Snapshot, device: &str, executed: bool) -> Option<Value> {
+    let d = v.device(device)?;
+    if executed {
+        d.executed.clone()
+    } else {
+        d.commanded.clone()
+    }
+}
+
+fn watchdog(v: &Snapshot) -> WatchdogState {
+    v.net.as_ref().expect("the network part").watchdog.state
 }
 
 /// The README's "Done when": a planner stand-in engages, shifts to drive and holds gas
@@ -141,9 +159,7 @@ fn f(v: &Value) -> f64 {
 fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
     let adrive = Adrive::start("planner", "watchdog_timeout = \"500ms\"");
     let watch = Watch::start(&adrive.broadcast);
-    watch.until("every device reporting", |v| {
-        v["blockers"].as_array().is_some_and(|b| b.is_empty())
-    });
+    watch.until("every device reporting", |v| v.gate.blockers.is_empty());
     let mut sender = common::Reaped(
         Process::new(BIN)
             .args(["send", "--to", &adrive.listen, "--rate", "20"])
@@ -155,17 +171,17 @@ fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
     );
     let replies = lines(sender.stdout.take().unwrap());
     let (v, _) = watch.until("gas at 0.3 in drive", |v| {
-        let d = &v["devices"];
-        v["engaged"] == true
-            && d["trans"]["measured"]["gear"] == "drive"
-            && d["gas"]["commanded"].as_f64() == Some(0.3)
-            && f(&d["gas"]["measured"]["position"]) > 0.28
+        v.gate.engaged
+            && v.device("trans").and_then(|d| d.reading("state").cloned())
+                == Some(Value::Text("drive".into()))
+            && cmd(v, "gas", false) == Some(Value::Number(0.3))
+            && f(v, "gas", "position") > 0.28
     });
-    assert_eq!(v["net"]["watchdog"]["state"], "armed");
-    let speed = |v: &Value| f(&v["devices"]["obd"]["measured"]["speed"]);
+    assert_eq!(watchdog(&v), WatchdogState::Armed);
+    let speed = |v: &Snapshot| f(v, "obd", "speed");
     let s0 = speed(&v);
     let (v, _) = watch.until("the speed rising", |v| speed(v) > s0 + 0.5);
-    assert_eq!(f(&v["devices"]["brake"]["commanded"]), 0.0);
+    assert_eq!(cmd(&v, "brake", false), Some(Value::Number(0.0)));
     let first = replies.recv_timeout(DEADLINE).unwrap();
     assert!(first.ends_with("ok engaged"), "{first}");
 
@@ -173,24 +189,23 @@ fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
     signal(&sender, libc::SIGINT);
     let stopped = Instant::now();
     assert!(sender.wait().unwrap().success());
-    let (v, at) = watch.until("the watchdog to trip", |v| v["engaged"] == false);
+    let (v, at) = watch.until("the watchdog to trip", |v| !v.gate.engaged);
     let after = at - stopped;
     // 500 ms timeout, plus the last datagram's period, a broadcast period and slack.
     assert!(
         after < Duration::from_millis(500 + 50 + 100 + 400),
         "{after:?}"
     );
-    assert_eq!(v["net"]["watchdog"]["state"], "tripped");
-    let gate = v["gate"].as_str().unwrap();
+    assert_eq!(watchdog(&v), WatchdogState::Tripped);
+    let gate = &v.gate.reason;
     assert!(
         gate.starts_with("disengaged: watchdog: no valid command"),
         "{gate}"
     );
     watch.until("gas 0 and brake full at the devices", |v| {
-        let d = &v["devices"];
-        d["gas"]["executed"].as_f64() == Some(0.0)
-            && d["brake"]["executed"].as_f64() == Some(1.0)
-            && f(&d["brake"]["measured"]["position"]) > 0.9
+        cmd(v, "gas", true) == Some(Value::Number(0.0))
+            && cmd(v, "brake", true) == Some(Value::Number(1.0))
+            && f(v, "brake", "position") > 0.9
     });
     watch.until("a standstill", |v| speed(v) < 0.05);
 }
@@ -206,10 +221,19 @@ fn send_once_prints_the_reply_and_its_status_says_whether_it_was_refused() {
     );
     assert_eq!(out.status.code(), Some(1));
 
-    let out = adrive.send(&["stear 0.2"]);
+    // A line of the wrong shape is caught before sending (status 2); a device the
+    // vehicle does not have comes back in adrive's reply (status 1).
+    let out = adrive.send(&["steer"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
-    assert!(stderr.contains("unknown_device"), "{stderr}");
+    assert!(stderr.contains("bad_syntax"), "{stderr}");
+    let out = adrive.send(&["stear 0.2"]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{stdout}");
+    assert!(
+        stdout.contains("unknown_device: the devices are steer, gas, brake and trans"),
+        "{stdout}"
+    );
 
     let nobody = format!("127.0.0.1:{}", free_port());
     let out = Process::new(BIN)

@@ -7,19 +7,19 @@ mod common;
 use adrive::config::VehicleConfig;
 use adrive::driver::{self, DriverError};
 use adrive::sim::{wire_time, Sim};
-use adrive::value::{Command, Gear, Role};
+use adrive::value::Command;
 use common::{wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
 
-/// Open `role`'s simulated device and its driver as adrive would.
+/// Open a simulated device and its driver as adrive would.
 fn connect(
     sim: &Sim,
     config: &VehicleConfig,
-    role: Role,
+    name: &str,
 ) -> (Box<dyn driver::Link>, Box<dyn driver::Driver>) {
-    let d = config.device(role).unwrap();
-    let mut link = driver::open_serial(sim.path(role).unwrap(), d.baud, d.reply_timeout).unwrap();
+    let d = config.device(name).unwrap();
+    let mut link = driver::open_serial(sim.path(name).unwrap(), d.baud, d.reply_timeout).unwrap();
     let mut drv = driver::build(d);
     drv.open(link.as_mut()).expect("driver open");
     (link, drv)
@@ -31,24 +31,22 @@ fn modbus_actuators_answer_at_their_baud_timing() {
     let sim = Sim::start(&config, None).unwrap();
     // The transmission runs at 9600 baud: a poll (8-byte request, 9-byte reply) takes
     // at least 17 character times on the wire.
-    let (mut link, mut drv) = connect(&sim, &config, Role::Trans);
+    let (mut link, mut drv) = connect(&sim, &config, "trans");
     let t = Instant::now();
     let r = drv.poll(link.as_mut()).unwrap();
     let took = t.elapsed();
-    assert_eq!(r.gear, Some(Gear::Park));
+    assert_eq!(r.get(0), Some(0.0), "park");
     assert!(took >= wire_time(17, 9600), "poll took {took:?}");
-    drv.command(link.as_mut(), Command::Gear(Gear::Neutral))
-        .unwrap();
+    drv.command(link.as_mut(), Command::State(2)).unwrap();
     // Writing a single register: 8 bytes each way.
     let t = Instant::now();
-    drv.command(link.as_mut(), Command::Gear(Gear::Neutral))
-        .unwrap();
+    drv.command(link.as_mut(), Command::State(2)).unwrap();
     assert!(t.elapsed() >= wire_time(16, 9600));
 
-    let (mut link, mut drv) = connect(&sim, &config, Role::Steer);
+    let (mut link, mut drv) = connect(&sim, &config, "steer");
     drv.command(link.as_mut(), Command::Set(0.5)).unwrap();
     wait_for("the wheel to move", || {
-        drv.poll(link.as_mut()).unwrap().position.unwrap() > 0.1
+        drv.poll(link.as_mut()).unwrap().get(0).unwrap() > 0.1
     });
 }
 
@@ -57,7 +55,7 @@ fn the_elm327_driver_initialises_and_reads_engine_data() {
     let config = VehicleConfig::alice();
     let sim = Sim::start(&config, None).unwrap();
     let t = Instant::now();
-    let (mut link, mut drv) = connect(&sim, &config, Role::Obd);
+    let (mut link, mut drv) = connect(&sim, &config, "obd");
     // ATZ is slow on a real adapter (and on the simulated one).
     assert!(
         t.elapsed() >= Duration::from_millis(900),
@@ -65,14 +63,11 @@ fn the_elm327_driver_initialises_and_reads_engine_data() {
         t.elapsed()
     );
     let r = drv.poll(link.as_mut()).unwrap();
-    assert!(
-        (600.0..800.0).contains(&r.rpm.unwrap()),
-        "idle rpm {:?}",
-        r.rpm
-    );
-    assert_eq!(r.speed, Some(0.0));
-    assert_eq!(r.running, Some(true));
-    assert!(r.coolant.is_some());
+    let rpm = r.get(0).unwrap();
+    assert!((600.0..800.0).contains(&rpm), "idle rpm {rpm}");
+    assert_eq!(r.get(1), Some(0.0), "speed");
+    assert!(r.get(2).is_some(), "coolant");
+    assert_eq!(r.get(3), Some(1.0), "running");
     assert!(matches!(
         drv.command(link.as_mut(), Command::Set(1.0)),
         Err(DriverError::Unsupported(_))
@@ -83,24 +78,18 @@ fn the_elm327_driver_initialises_and_reads_engine_data() {
 fn the_line_protocol_estop_reports_state_changes() {
     let config = VehicleConfig::alice();
     let sim = Sim::start(&config, None).unwrap();
-    let (mut link, mut drv) = connect(&sim, &config, Role::Estop);
-    assert_eq!(
-        drv.poll(link.as_mut()).unwrap().estop,
-        Some(adrive::value::EstopState::Run)
-    );
+    let (mut link, mut drv) = connect(&sim, &config, "estop");
+    assert_eq!(drv.poll(link.as_mut()).unwrap().get(0), Some(2.0), "run");
     sim.apply("estop pause").unwrap();
-    assert_eq!(
-        drv.poll(link.as_mut()).unwrap().estop,
-        Some(adrive::value::EstopState::Pause)
-    );
+    assert_eq!(drv.poll(link.as_mut()).unwrap().get(0), Some(1.0), "pause");
 }
 
 /// Run the whole simulated Alice; inject `fault` into `victim` and check it is counted
 /// as `kind` while steering keeps working.
-fn fault_is_counted_and_isolated(victim: Role, fault: &str, kind: u32) {
+fn fault_is_counted_and_isolated(victim: &str, fault: &str, kind: u32) {
     let rig = Rig::start(adrive::config::ALICE_TOML);
     rig.engage();
-    let d = rig.vehicle.device(victim).unwrap();
+    let d = rig.device(victim);
     rig.sim.apply(&format!("{fault} {victim} on")).unwrap();
     wait_for("the fault to be counted", || {
         d.stats.status_errors.load(Relaxed) >= 3
@@ -109,11 +98,11 @@ fn fault_is_counted_and_isolated(victim: Role, fault: &str, kind: u32) {
     assert_eq!(d.health.status_error.load(Relaxed), kind, "{fault}");
     assert!(d.cached().age().unwrap() > Duration::ZERO);
 
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
+    let steer = rig.device("steer");
     let before = steer.stats.executed.load(Relaxed);
     for v in [0.3, -0.3] {
-        rig.vehicle
-            .submit(Role::Steer, Command::Set(v), Instant::now())
+        rig.gate
+            .submit(rig.id("steer"), Command::Set(v), Instant::now())
             .unwrap();
         wait_for("steering to execute", || {
             steer.slot.executed() == Some(Command::Set(v))
@@ -128,23 +117,23 @@ fn fault_is_counted_and_isolated(victim: Role, fault: &str, kind: u32) {
 
 #[test]
 fn a_bad_crc_is_rejected_and_counted_as_garbled() {
-    fault_is_counted_and_isolated(Role::Brake, "corrupt", 2);
+    fault_is_counted_and_isolated("brake", "corrupt", 2);
 }
 
 #[test]
 fn garbage_is_rejected_and_counted_as_garbled() {
-    fault_is_counted_and_isolated(Role::Gas, "garbage", 2);
+    fault_is_counted_and_isolated("gas", "garbage", 2);
 }
 
 #[test]
 fn silence_is_counted_as_timeouts() {
-    fault_is_counted_and_isolated(Role::Trans, "silent", 1);
+    fault_is_counted_and_isolated("trans", "silent", 1);
 }
 
 #[test]
 fn a_slow_device_shows_in_its_transaction_times() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
-    let gas = rig.vehicle.device(Role::Gas).unwrap();
+    let gas = rig.device("gas");
     wait_for("a few polls", || gas.stats.polls.load(Relaxed) >= 3);
     rig.sim.apply("slow gas 50").unwrap();
     let polls = gas.stats.polls.load(Relaxed);
@@ -161,18 +150,18 @@ fn a_slow_device_shows_in_its_transaction_times() {
 fn a_port_that_disappears_comes_back_behind_the_same_path() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
     rig.engage();
-    let brake = rig.vehicle.device(Role::Brake).unwrap();
+    let brake = rig.device("brake");
     assert_eq!(brake.port_health.opens.load(Relaxed), 1);
     rig.sim
-        .faults(Role::Brake)
+        .faults("brake")
         .unwrap()
         .vanish(Duration::from_millis(1500));
     wait_for("the brake to be marked faulty", || brake.is_faulty());
     assert!(!brake.health.connected.load(Relaxed));
 
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
-    rig.vehicle
-        .submit(Role::Steer, Command::Set(0.4), Instant::now())
+    let steer = rig.device("steer");
+    rig.gate
+        .submit(rig.id("steer"), Command::Set(0.4), Instant::now())
         .unwrap();
     wait_for("steering meanwhile", || {
         steer.slot.executed() == Some(Command::Set(0.4))
@@ -181,16 +170,11 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
     wait_for("the brake to come back", || {
         brake.port_health.opens.load(Relaxed) >= 2 && !brake.is_faulty()
     });
-    let port = rig
-        .sim
-        .ports
-        .iter()
-        .find(|p| p.role == Role::Brake)
-        .unwrap();
+    let port = rig.sim.ports.iter().find(|p| p.name == "brake").unwrap();
     // A new pseudo-terminal (the kernel may reuse the number, as with ttyUSBn).
     assert_eq!(port.lives.load(Relaxed), 2);
-    rig.vehicle
-        .submit(Role::Brake, Command::Set(0.8), Instant::now())
+    rig.gate
+        .submit(rig.id("brake"), Command::Set(0.8), Instant::now())
         .unwrap();
     wait_for("the brake to take commands again", || {
         brake.slot.executed() == Some(Command::Set(0.8))

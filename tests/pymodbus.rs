@@ -6,9 +6,10 @@
 
 mod common;
 
-use adrive::driver::modbus::{alice_map, ModbusDriver};
+use adrive::config::wire::{Field, ModbusMap, Wire};
+use adrive::driver::modbus::ModbusDriver;
 use adrive::driver::{Driver, DriverError};
-use adrive::value::{Command, Role};
+use adrive::value::Command;
 use common::DEADLINE;
 use serialport::{SerialPort, TTYPort};
 use std::io::{BufRead, BufReader};
@@ -124,6 +125,19 @@ fn start_server() -> Server {
     }
 }
 
+/// Alice's steering drive's register map, as her vehicle file has it.
+fn steer_map() -> ModbusMap {
+    match adrive::config::VehicleConfig::alice()
+        .device("steer")
+        .unwrap()
+        .wire
+        .clone()
+    {
+        Wire::Modbus(m) => m,
+        other => panic!("{other:?}"),
+    }
+}
+
 /// Poll until the server answers (it opens the port just after printing READY).
 fn first_poll(drv: &mut ModbusDriver, link: &mut TTYPort) -> adrive::value::Reading {
     let end = Instant::now() + DEADLINE;
@@ -139,15 +153,10 @@ fn first_poll(drv: &mut ModbusDriver, link: &mut TTYPort) -> adrive::value::Read
 #[test]
 fn the_modbus_driver_reads_and_writes_a_pymodbus_rtu_server() {
     let mut server = start_server();
-    let mut drv = ModbusDriver::new(
-        alice_map(Role::Steer).unwrap(),
-        1,
-        BAUD,
-        Duration::from_millis(300),
-    );
+    let mut drv = ModbusDriver::new(steer_map(), BAUD, Duration::from_millis(300));
     let r = first_poll(&mut drv, &mut server.link);
-    assert_eq!(r.position, Some(0.25));
-    assert_eq!(r.velocity, Some(-0.1));
+    assert_eq!(r.get(0), Some(0.25), "position");
+    assert_eq!(r.get(1), Some(-0.1), "velocity");
     assert_eq!(r.fault, 0);
 
     drv.command(&mut server.link, Command::Set(-0.5)).unwrap();
@@ -161,20 +170,15 @@ fn the_modbus_driver_reads_and_writes_a_pymodbus_rtu_server() {
 #[test]
 fn pymodbus_exceptions_and_silence_become_named_errors() {
     let mut server = start_server();
-    let mut good = ModbusDriver::new(
-        alice_map(Role::Steer).unwrap(),
-        1,
-        BAUD,
-        Duration::from_millis(300),
-    );
+    let mut good = ModbusDriver::new(steer_map(), BAUD, Duration::from_millis(300));
     first_poll(&mut good, &mut server.link);
 
     // A register the server does not have: exception 02.
-    let mut map = alice_map(Role::Steer).unwrap();
-    map.position = Some(40);
-    map.velocity = None;
-    map.status = None;
-    let mut off_map = ModbusDriver::new(map, 1, BAUD, Duration::from_millis(300));
+    let mut map = steer_map();
+    map.fields
+        .retain(|(_, f)| matches!(f, Field::Reading { index: 0, .. }));
+    map.fields[0].0 = 40;
+    let mut off_map = ModbusDriver::new(map, BAUD, Duration::from_millis(300));
     match off_map.poll(&mut server.link) {
         Err(DriverError::Refused(why)) => {
             assert!(why.to_lowercase().contains("illegal data address"), "{why}")
@@ -184,8 +188,10 @@ fn pymodbus_exceptions_and_silence_become_named_errors() {
 
     // Another slave id: a real server stays silent.
     let mut stranger = ModbusDriver::new(
-        alice_map(Role::Steer).unwrap(),
-        9,
+        ModbusMap {
+            slave: 9,
+            ..steer_map()
+        },
         BAUD,
         Duration::from_millis(200),
     );
@@ -193,5 +199,5 @@ fn pymodbus_exceptions_and_silence_become_named_errors() {
     assert!(matches!(r, Err(DriverError::Timeout(_))), "{r:?}");
 
     // The bus is not wedged: the right slave still answers.
-    assert_eq!(good.poll(&mut server.link).unwrap().position, Some(0.25));
+    assert_eq!(good.poll(&mut server.link).unwrap().get(0), Some(0.25));
 }

@@ -6,9 +6,9 @@ mod common;
 
 use adrive::config::ALICE_TOML;
 use adrive::exit::Exit;
-use adrive::interlock::Reject;
-use adrive::supervisor::status::FaultKind;
-use adrive::value::{Command, Gear, Role};
+use adrive::safety::Reject;
+use adrive::snapshot::FaultKind;
+use adrive::value::Command;
 use common::{wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
@@ -22,7 +22,7 @@ fn alice(supervisor: &str) -> String {
     format!("{ALICE_TOML}\n[supervisor]\nperiod = \"50ms\"\n{supervisor}\n")
 }
 
-fn fault_within(rig: &Rig, kind: FaultKind, device: Option<Role>, bound: Duration) -> String {
+fn fault_within(rig: &Rig, kind: FaultKind, device: Option<&str>, bound: Duration) -> String {
     let t = Instant::now();
     wait_for(&format!("{kind} on {device:?}"), || {
         rig.vehicle.supervision.has(kind, device)
@@ -37,7 +37,7 @@ fn fault_within(rig: &Rig, kind: FaultKind, device: Option<Role>, bound: Duratio
         .supervision
         .faults()
         .into_iter()
-        .find(|f| f.kind == kind && f.device == device)
+        .find(|f| f.kind == kind && f.device.as_deref() == device)
         .unwrap();
     assert!(!f.cause.is_empty());
     f.describe()
@@ -45,8 +45,8 @@ fn fault_within(rig: &Rig, kind: FaultKind, device: Option<Role>, bound: Duratio
 
 /// Steering still takes and executes commands (the other devices are unaffected).
 fn steering_still_works(rig: &Rig, v: f64) {
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
-    rig.vehicle.override_command(Role::Steer, set(v));
+    let steer = rig.device("steer");
+    rig.gate.supervise(rig.id("steer"), set(v));
     wait_for("steering to execute", || {
         steer.slot.executed() == Some(set(v))
     });
@@ -62,20 +62,16 @@ fn a_silent_device_is_named_with_its_cause_and_the_vehicle_stops_safely() {
     let what = fault_within(
         &rig,
         FaultKind::Silent,
-        Some(Role::Gas),
+        Some("gas"),
         Duration::from_millis(600 + 50 + 1000),
     );
     assert!(
         what.contains("no status") && what.contains("no reply"),
         "{what}"
     );
-    wait_for("disengaged", || !rig.vehicle.is_engaged());
-    assert!(
-        rig.vehicle.gate_reason().contains("gas"),
-        "{}",
-        rig.vehicle.gate_reason()
-    );
-    let brake = rig.vehicle.device(Role::Brake).unwrap();
+    wait_for("disengaged", || !rig.gate.is_engaged());
+    assert!(rig.gate.reason().contains("gas"), "{}", rig.gate.reason());
+    let brake = rig.device("brake");
     wait_for("brake on", || brake.slot.executed() == Some(set(1.0)));
     steering_still_works(&rig, 0.2);
     // Reported: the broadcast carries the supervisor's snapshot.
@@ -85,9 +81,7 @@ fn a_silent_device_is_named_with_its_cause_and_the_vehicle_stops_safely() {
 
     rig.sim.apply("clear gas").unwrap();
     wait_for("the fault to clear", || {
-        !rig.vehicle
-            .supervision
-            .has(FaultKind::Silent, Some(Role::Gas))
+        !rig.vehicle.supervision.has(FaultKind::Silent, Some("gas"))
     });
     assert!(
         rig.history()
@@ -106,11 +100,11 @@ fn garbage_shows_as_an_error_rate() {
     let what = fault_within(
         &rig,
         FaultKind::ErrorRate,
-        Some(Role::Brake),
+        Some("brake"),
         Duration::from_secs(4),
     );
     assert!(what.contains("failed"), "{what}");
-    wait_for("disengaged", || !rig.vehicle.is_engaged());
+    wait_for("disengaged", || !rig.gate.is_engaged());
     steering_still_works(&rig, -0.2);
 }
 
@@ -118,18 +112,13 @@ fn garbage_shows_as_an_error_rate() {
 fn a_value_out_of_range_is_a_fault() {
     let rig = Rig::supervised(&alice(""));
     wait_for("steering to report", || {
-        rig.vehicle
-            .device(Role::Steer)
-            .unwrap()
-            .cached()
-            .at
-            .is_some()
+        rig.device("steer").cached().at.is_some()
     });
     rig.sim.apply("bias steer 1.5").unwrap();
     let what = fault_within(
         &rig,
         FaultKind::OutOfRange,
-        Some(Role::Steer),
+        Some("steer"),
         Duration::from_secs(2),
     );
     assert!(what.contains("1.5"), "{what}");
@@ -137,7 +126,7 @@ fn a_value_out_of_range_is_a_fault() {
     wait_for("cleared", || {
         !rig.vehicle
             .supervision
-            .has(FaultKind::OutOfRange, Some(Role::Steer))
+            .has(FaultKind::OutOfRange, Some("steer"))
     });
 }
 
@@ -148,22 +137,22 @@ fn a_value_out_of_range_is_a_fault() {
 fn steering_that_does_not_follow_is_recovered_without_a_jump() {
     let rig = Rig::supervised(&alice("follow_time = \"600ms\""));
     rig.engage();
-    let steer = rig.vehicle.device(Role::Steer).unwrap();
-    rig.vehicle
-        .submit(Role::Steer, set(0.6), Instant::now())
+    let steer = rig.device("steer");
+    rig.gate
+        .submit(rig.id("steer"), set(0.6), Instant::now())
         .unwrap();
     wait_for("steering under way", || {
-        steer.cached().reading.position.unwrap() > 0.15
+        steer.cached().reading.get(0).unwrap() > 0.15
     });
     rig.sim.apply("stuck steer on").unwrap();
     let what = fault_within(
         &rig,
         FaultKind::NotFollowing,
-        Some(Role::Steer),
+        Some("steer"),
         Duration::from_secs(3),
     );
     assert!(what.contains("commanded 0.600"), "{what}");
-    wait_for("disengaged", || !rig.vehicle.is_engaged());
+    wait_for("disengaged", || !rig.gate.is_engaged());
     wait_for("the steering procedure to finish", || {
         rig.vehicle
             .supervision
@@ -184,7 +173,7 @@ fn steering_that_does_not_follow_is_recovered_without_a_jump() {
     );
     // Held at the measured position, not the stale 0.6.
     let held = steer.slot.executed().and_then(Command::set_point).unwrap();
-    let pos = steer.cached().reading.position.unwrap();
+    let pos = steer.cached().reading.get(0).unwrap();
     assert!(
         held < 0.5 && (held - pos).abs() < 0.05,
         "held {held}, at {pos}"
@@ -192,14 +181,14 @@ fn steering_that_does_not_follow_is_recovered_without_a_jump() {
     let sent: Vec<Command> = rig
         .received()
         .iter()
-        .filter(|e| e.role == Role::Steer)
+        .filter(|e| e.name == "steer")
         .map(|e| e.command)
         .collect();
     assert_eq!(sent.last(), Some(&set(held)), "{sent:?}");
     wait_for("not following to clear", || {
         !rig.vehicle
             .supervision
-            .has(FaultKind::NotFollowing, Some(Role::Steer))
+            .has(FaultKind::NotFollowing, Some("steer"))
     });
 }
 
@@ -213,7 +202,7 @@ fn a_latched_steering_drive_fault_is_cleared_by_the_procedure() {
     let what = fault_within(
         &rig,
         FaultKind::DeviceFault,
-        Some(Role::Steer),
+        Some("steer"),
         Duration::from_secs(1),
     );
     assert!(what.contains("0x0001"), "{what}");
@@ -225,15 +214,10 @@ fn a_latched_steering_drive_fault_is_cleared_by_the_procedure() {
             .is_some_and(|o| o.contains("steering done"))
     });
     wait_for("the latch to clear", || {
-        rig.vehicle
-            .device(Role::Steer)
-            .unwrap()
-            .cached()
-            .reading
-            .fault
-            == 0
+        rig.device("steer").cached().reading.fault == 0
     });
-    assert!(!rig.sim.model().lock().steer_fault);
+    let m = rig.sim.model().lock();
+    assert!(!m.device(m.find("steer").unwrap()).fault_latched);
 }
 
 /// The paper's example, end to end and step by step: the engine stalls in drive; gas
@@ -244,17 +228,18 @@ fn an_engine_stall_is_recovered_step_by_step() {
     let rig = Rig::supervised(&alice(""));
     rig.engage();
     let v = &rig.vehicle;
-    let trans = v.device(Role::Trans).unwrap();
-    v.submit(Role::Trans, Command::Gear(Gear::Drive), Instant::now())
+    let trans = rig.device("trans");
+    rig.gate
+        .submit(rig.id("trans"), rig.state("trans", "drive"), Instant::now())
         .unwrap();
-    wait_for("drive", || trans.cached().reading.gear == Some(Gear::Drive));
-    v.submit_accel(0.3, Instant::now()).unwrap();
+    wait_for("drive", || trans.cached().reading.get(0) == Some(3.0));
+    rig.gate.submit_accel(0.3, Instant::now()).unwrap();
     wait_for("brake released", || {
-        v.device(Role::Brake).unwrap().slot.executed() == Some(set(0.0))
+        rig.device("brake").slot.executed() == Some(set(0.0))
     });
-    v.submit_accel(0.3, Instant::now()).unwrap();
+    rig.gate.submit_accel(0.3, Instant::now()).unwrap();
     wait_for("gas", || {
-        v.device(Role::Gas).unwrap().slot.executed() == Some(set(0.3))
+        rig.device("gas").slot.executed() == Some(set(0.3))
     });
 
     rig.sim.apply("stall").unwrap();
@@ -263,11 +248,11 @@ fn an_engine_stall_is_recovered_step_by_step() {
         v.supervision.snapshot().recovery.is_some()
     });
     assert_eq!(
-        v.submit(Role::Gas, set(0.5), Instant::now()),
+        rig.gate.submit(rig.id("gas"), set(0.5), Instant::now()),
         Err(Reject::Recovering)
     );
     assert!(
-        v.is_engaged(),
+        rig.gate.is_engaged(),
         "an engine stall is recovered without disengaging"
     );
     wait_for("the procedure to finish", || {
@@ -295,14 +280,14 @@ fn an_engine_stall_is_recovered_step_by_step() {
         ],
         "{h:?}"
     );
-    assert_eq!(trans.cached().reading.gear, Some(Gear::Drive));
+    assert_eq!(trans.cached().reading.get(0), Some(3.0), "drive");
     assert!(rig.sim.model().lock().running);
     // The trans device saw park, the starter, drive — in that order.
     let t: Vec<String> = rig
         .received()
         .iter()
-        .filter(|e| e.role == Role::Trans)
-        .map(|e| e.command.to_string())
+        .filter(|e| e.name == "trans")
+        .map(|e| e.text.clone())
         .collect();
     let tail: Vec<&str> = t
         .iter()
@@ -311,10 +296,13 @@ fn an_engine_stall_is_recovered_step_by_step() {
         .collect();
     assert_eq!(tail, ["park", "start", "drive"], "{t:?}");
     // No stale set point: gas stays 0 and the brake on until the planner says otherwise.
-    assert_eq!(v.device(Role::Gas).unwrap().slot.latest(), Some(set(0.0)));
-    assert_eq!(v.device(Role::Brake).unwrap().slot.latest(), Some(set(1.0)));
+    assert_eq!(rig.device("gas").slot.latest(), Some(set(0.0)));
+    assert_eq!(rig.device("brake").slot.latest(), Some(set(1.0)));
     // Control is back.
-    assert_eq!(v.submit(Role::Steer, set(0.1), Instant::now()), Ok(()));
+    assert_eq!(
+        rig.gate.submit(rig.id("steer"), set(0.1), Instant::now()),
+        Ok(())
+    );
 }
 
 /// When the starter never catches, the procedure tries its configured number of times,
@@ -324,11 +312,11 @@ fn an_engine_stall_is_recovered_step_by_step() {
 fn a_recovery_that_cannot_succeed_gives_up_safely() {
     let rig = Rig::supervised(&alice("attempts = 2\nstep_timeout = \"1500ms\""));
     rig.engage();
-    let v = &rig.vehicle;
-    let trans = v.device(Role::Trans).unwrap();
-    v.submit(Role::Trans, Command::Gear(Gear::Drive), Instant::now())
+    let trans = rig.device("trans");
+    rig.gate
+        .submit(rig.id("trans"), rig.state("trans", "drive"), Instant::now())
         .unwrap();
-    wait_for("drive", || trans.cached().reading.gear == Some(Gear::Drive));
+    wait_for("drive", || trans.cached().reading.get(0) == Some(3.0));
     rig.sim.apply("nostart on").unwrap();
     rig.sim.apply("stall").unwrap();
     let exit = rig
@@ -344,8 +332,12 @@ fn a_recovery_that_cannot_succeed_gives_up_safely() {
         ),
         other => panic!("expected a fatal device error, got {other:?}"),
     }
-    assert!(!v.is_engaged());
-    assert!(v.gate_reason().contains("gave up"), "{}", v.gate_reason());
+    assert!(!rig.gate.is_engaged());
+    assert!(
+        rig.gate.reason().contains("gave up"),
+        "{}",
+        rig.gate.reason()
+    );
     let h = rig.history();
     assert_eq!(
         h.iter()
@@ -355,8 +347,8 @@ fn a_recovery_that_cannot_succeed_gives_up_safely() {
         "{h:?}"
     );
     wait_for("safe state", || {
-        v.device(Role::Brake).unwrap().slot.executed() == Some(set(1.0))
-            && v.device(Role::Gas).unwrap().slot.executed() == Some(set(0.0))
+        rig.device("brake").slot.executed() == Some(set(1.0))
+            && rig.device("gas").slot.executed() == Some(set(0.0))
     });
 }
 
@@ -364,20 +356,17 @@ fn a_recovery_that_cannot_succeed_gives_up_safely() {
 fn estop_pause_disengages_and_holds_the_brake() {
     let rig = Rig::supervised(&alice(""));
     rig.engage();
-    rig.vehicle
-        .submit(Role::Brake, set(0.0), Instant::now())
+    rig.gate
+        .submit(rig.id("brake"), set(0.0), Instant::now())
         .unwrap();
-    let brake = rig.vehicle.device(Role::Brake).unwrap();
+    let brake = rig.device("brake");
     wait_for("brake released", || brake.slot.executed() == Some(set(0.0)));
     rig.sim.apply("estop pause").unwrap();
     fault_within(&rig, FaultKind::EstopPause, None, Duration::from_secs(1));
-    wait_for("disengaged", || !rig.vehicle.is_engaged());
+    wait_for("disengaged", || !rig.gate.is_engaged());
     wait_for("brake on", || brake.slot.executed() == Some(set(1.0)));
-    assert_eq!(
-        rig.vehicle.device(Role::Gas).unwrap().slot.latest(),
-        Some(set(0.0))
-    );
-    let refused = rig.vehicle.engage("test").unwrap_err().join("; ");
+    assert_eq!(rig.device("gas").slot.latest(), Some(set(0.0)));
+    let refused = rig.gate.engage("test").unwrap_err().join("; ");
     assert!(refused.contains("e-stop"), "{refused}");
 }
 
@@ -386,16 +375,16 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
     let rig = Rig::supervised(&alice(""));
     rig.engage();
     rig.sim
-        .faults(Role::Brake)
+        .faults("brake")
         .unwrap()
         .vanish(Duration::from_millis(1500));
     fault_within(
         &rig,
         FaultKind::Disconnected,
-        Some(Role::Brake),
+        Some("brake"),
         Duration::from_secs(2),
     );
-    wait_for("disengaged", || !rig.vehicle.is_engaged());
+    wait_for("disengaged", || !rig.gate.is_engaged());
     wait_for("the reconnect procedure to finish", || {
         rig.vehicle
             .supervision
@@ -403,12 +392,12 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
             .last_outcome
             .is_some_and(|o| o.contains("reconnect brake done"))
     });
-    let brake = rig.vehicle.device(Role::Brake).unwrap();
+    let brake = rig.device("brake");
     assert!(brake.port_health.opens.load(Relaxed) >= 2);
     wait_for("cleared", || {
         !rig.vehicle
             .supervision
-            .has(FaultKind::Disconnected, Some(Role::Brake))
+            .has(FaultKind::Disconnected, Some("brake"))
     });
     steering_still_works(&rig, 0.3);
 }

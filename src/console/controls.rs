@@ -2,59 +2,28 @@
 //!
 //! [`Controls`] is the console's only door to the running vehicle: [`update`] takes a
 //! `&dyn Controls`, so it is tested with a recording fake and no threads. [`Live`] is
-//! the real one over a [`Vehicle`]. Reading goes through [`Snapshot`]: plain data
-//! captured once per tick, which the view draws without touching the engine.
+//! the real one over the [`Gate`]. Reading goes through a [`Frame`]: the vehicle's
+//! one [`Snapshot`] plus what only the console shows (log lines, the bench device's
+//! traffic and histogram), captured once per tick, which the view draws without
+//! touching the engine.
 //!
-//! The network panel takes a [`NetSource`] when the listener runs and shows "not
-//! running" otherwise. Under `--sim` the console also holds the in-process
+//! The network panel shows the snapshot's network part when the listener runs and
+//! "not running" otherwise. Under `--sim` the console also holds the in-process
 //! [`Sim`], so the bench view can inject faults through [`Sim::apply`].
 //!
 //! [`update`]: super::update::update
 
-use crate::engine::stats::StatsSnapshot;
-use crate::engine::trace::TraceEntry;
-use crate::interlock::Reject;
+use crate::net::NetStatus;
+use crate::safety::{Gate, Reject};
 use crate::sim::{Faults, Sim};
-use crate::supervisor::status::SupervisorSnapshot;
-use crate::value::{Command, Reading, Role};
-use crate::vehicle::Vehicle;
+use crate::snapshot::{DeviceView, Snapshot};
+use crate::value::{Command, DeviceId};
+use crate::vehicle::trace::TraceEntry;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use super::logring::{LogLine, LogRing};
-
-/// One device as the console shows it.
-#[derive(Clone, Debug, PartialEq)]
-pub struct DeviceSnap {
-    pub role: Role,
-    pub actuator: bool,
-    pub range: [f64; 2],
-    /// The command it will have next (pending or last sent).
-    pub latest: Option<Command>,
-    /// The last command it acknowledged.
-    pub executed: Option<Command>,
-    pub reading: Reading,
-    /// Age of the reading; `None` before the first good poll.
-    pub age: Option<Duration>,
-    /// The reading is older than the device's `status_max_age` (or there is none).
-    pub stale: bool,
-    pub status_period: Duration,
-    pub command_timeout: Duration,
-    pub status_on: bool,
-    pub command_on: bool,
-    pub status_error: u32,
-    pub command_error: u32,
-    pub faulty: bool,
-    pub last_error: Option<String>,
-    pub stats: StatsSnapshot,
-    /// Times the port was reopened after the first open.
-    pub reconnects: u64,
-    /// Receipt → first byte histogram, (upper edge µs, count); filled for the bench.
-    pub delay_buckets: Vec<(f64, u64)>,
-    /// The faults injected into the simulated device (`--sim` only).
-    pub sim: Option<SimFaults>,
-}
 
 /// The faults switched on in one simulated device.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -84,65 +53,68 @@ impl SimFaults {
     }
 }
 
-/// The network listener's state, as `src/net` will publish it.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct NetStatus {
-    pub listen: String,
-    /// Addresses commands came from recently.
-    pub senders: Vec<String>,
-    /// Commands accepted per device.
-    pub commands: Vec<(Role, u64)>,
-    /// Commands refused, by reason.
-    pub rejections: Vec<(String, u64)>,
-    pub watchdog: Watchdog,
-}
-
-/// The network command watchdog.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub enum Watchdog {
-    /// No command yet: nothing to watch.
-    #[default]
-    Idle,
-    /// Commands arriving; the last one this long ago.
-    Ok {
-        since_last: Duration,
-        timeout: Duration,
-    },
-    /// Commands stopped: the vehicle was brought to a safe stop.
-    Tripped,
-}
-
-/// Where the network panel's figures come from (implemented by `src/net`).
-pub trait NetSource: Send + Sync {
-    fn status(&self) -> NetStatus;
-}
-
-/// Everything the console draws, captured at one instant.
+/// Everything the console draws, captured at one instant: the vehicle's one
+/// [`Snapshot`] (which `Frame` dereferences to) and what only the console shows.
 #[derive(Clone, Debug, Default)]
-pub struct Snapshot {
-    pub vehicle: String,
-    pub devices: Vec<DeviceSnap>,
-    pub engaged: bool,
-    pub gate_reason: String,
-    pub blockers: Vec<String>,
-    pub interlocks: bool,
-    /// Intake rejections by reason (non-zero only).
-    pub rejections: Vec<(Reject, u64)>,
-    pub net: Option<NetStatus>,
+pub struct Frame {
+    pub snap: Snapshot,
     pub logs: Vec<LogLine>,
     /// Raw traffic of the bench device, oldest first.
     pub trace: Vec<TraceEntry>,
+    /// The bench device's histogram (receipt → first byte for an actuator, the status
+    /// transaction for a sensor): (upper edge µs, count).
+    pub buckets: Vec<(f64, u64)>,
     /// Fault injection is available (the devices are simulated in this process).
     pub can_inject: bool,
-    /// The simulated vehicle's own state (e-stop, engine, steering drive), in words.
+    /// The simulated vehicle's own state (e-stop, engine, the bench device's drive).
     pub sim_vehicle: Option<String>,
-    /// Faults and recovery as the supervisor sees them.
-    pub supervision: SupervisorSnapshot,
+    /// The faults injected into each simulated device, by device (`--sim` only).
+    pub sim_faults: Vec<Option<SimFaults>>,
 }
 
-impl Snapshot {
-    pub fn device(&self, role: Role) -> Option<&DeviceSnap> {
-        self.devices.iter().find(|d| d.role == role)
+impl std::ops::Deref for Frame {
+    type Target = Snapshot;
+    fn deref(&self) -> &Snapshot {
+        &self.snap
+    }
+}
+
+impl Frame {
+    /// A device by id (its place in the vehicle).
+    pub fn at(&self, id: DeviceId) -> Option<&DeviceView> {
+        self.snap.devices.get(id.index())
+    }
+
+    /// The id of a device by name.
+    pub fn id_of(&self, name: &str) -> Option<DeviceId> {
+        self.snap
+            .devices
+            .iter()
+            .position(|d| d.name == name)
+            .map(|i| DeviceId(i as u16))
+    }
+
+    /// The device bound to a role.
+    pub fn bound_id(&self, role: crate::config::Role) -> Option<DeviceId> {
+        self.snap
+            .bound(role.as_str())
+            .and_then(|d| self.id_of(&d.name))
+    }
+
+    /// Red on screen: faulty to the engine (no replies) or to the supervisor (any
+    /// fault it names this device in).
+    pub fn red(&self, d: &DeviceView) -> bool {
+        d.health.faulty
+            || self
+                .snap
+                .supervisor
+                .faults
+                .iter()
+                .any(|f| f.device.as_deref() == Some(d.name.as_str()))
+    }
+
+    pub fn sim_of(&self, id: DeviceId) -> Option<&SimFaults> {
+        self.sim_faults.get(id.index()).and_then(Option::as_ref)
     }
 }
 
@@ -155,19 +127,22 @@ pub enum Thread {
 
 /// What the console can do to the engine.
 pub trait Controls {
-    /// Capture what to draw; `bench` gets its histogram (and trace) filled in.
-    fn snapshot(&self, now: Instant, bench: Option<Role>) -> Snapshot;
-    fn submit(&self, role: Role, command: Command) -> Result<(), Reject>;
+    /// Capture what to draw; `bench` gets its histogram and trace filled in.
+    fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame;
+    /// Read a device's command from text, as the vehicle file defines it (a number in
+    /// range, a state or an alias).
+    fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String>;
+    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject>;
     fn submit_accel(&self, accel: f64) -> Result<(), Reject>;
     fn engage(&self) -> Result<(), Vec<String>>;
     fn disengage(&self, reason: &str);
     fn set_interlocks(&self, on: bool);
-    fn set_status_period(&self, role: Role, d: Duration);
-    fn set_command_timeout(&self, role: Role, d: Duration);
-    fn set_enabled(&self, role: Role, thread: Thread, on: bool);
+    fn set_status_period(&self, id: DeviceId, d: Duration);
+    fn set_command_timeout(&self, id: DeviceId, d: Duration);
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool);
     /// Wake a command thread (broadcast its condition variable).
-    fn wake(&self, role: Role);
-    /// Gas 0, brake full, bypassing the interlocks.
+    fn wake(&self, id: DeviceId);
+    /// The safe state (throttle 0, brake full), bypassing the interlocks.
     fn safe_state(&self);
     /// One line of the simulator's command language ([`Sim::apply`]), e.g.
     /// `silent gas on`, `stall`, `estop pause`; `None` when the devices are not
@@ -178,7 +153,7 @@ pub trait Controls {
 /// The console's sources beyond the vehicle.
 #[derive(Clone, Default)]
 pub struct Sources {
-    pub net: Option<Arc<dyn NetSource>>,
+    pub net: Option<Arc<NetStatus>>,
     pub logs: Option<LogRing>,
     /// The simulator, when the devices are simulated in this process (`--sim`).
     pub sim: Option<Arc<Sim>>,
@@ -186,165 +161,132 @@ pub struct Sources {
 
 /// [`Controls`] over the real vehicle.
 pub struct Live<'a> {
-    pub vehicle: &'a Vehicle,
+    pub gate: &'a Gate,
     pub sources: &'a Sources,
 }
 
-/// The simulated vehicle's state in words: `e-stop run · engine running · steering ok`.
-fn sim_vehicle(sim: &Sim) -> String {
+/// The simulated vehicle's state in words: `e-stop run · engine running · steer drive
+/// ok` (the drive of `device`, when it is a setpoint actuator).
+fn sim_vehicle(sim: &Sim, device: Option<&str>) -> String {
     let m = sim.model().lock();
     let engine = if m.running {
         "engine running"
     } else {
         "ENGINE STOPPED"
     };
-    let steering = match (m.steer_fault, m.steer_enabled) {
-        (true, _) => "steering FAULT LATCHED",
-        (false, false) => "steering disabled",
-        (false, true) => "steering ok",
-    };
-    format!("e-stop {} · {engine} · {steering}", m.estop)
+    let mut out = format!("e-stop {} · {engine}", m.estop);
+    if let Some(d) = device.and_then(|n| m.find(n)).map(|id| m.device(id)) {
+        if d.kind == crate::value::Kind::Setpoint {
+            let drive = match (d.fault_latched, d.enabled, d.stuck) {
+                (true, _, _) => "FAULT LATCHED",
+                (false, false, _) => "disabled",
+                (false, true, true) => "stuck",
+                (false, true, false) => "ok",
+            };
+            out.push_str(&format!(" · {} drive {drive}", d.name));
+        }
+    }
+    out
 }
 
-/// Capture a snapshot of `vehicle` as of `now`.
-pub fn capture(
-    vehicle: &Vehicle,
-    sources: &Sources,
-    now: Instant,
-    bench: Option<Role>,
-) -> Snapshot {
-    let supervision = vehicle.supervision.snapshot();
-    let devices = vehicle
-        .devices
-        .iter()
-        .map(|d| {
-            let cached = d.cached();
-            let age = cached.at.map(|t| now.saturating_duration_since(t));
-            DeviceSnap {
-                role: d.role,
-                actuator: d.is_actuator(),
-                range: d.config.range(),
-                latest: d.slot.latest(),
-                executed: d.slot.executed(),
-                reading: cached.reading,
-                age,
-                stale: age.is_none_or(|a| a > d.config.status_max_age),
-                status_period: d.settings.status_period(),
-                command_timeout: d.settings.command_timeout(),
-                status_on: d.settings.status_enabled.load(Relaxed),
-                command_on: d.settings.command_enabled.load(Relaxed),
-                status_error: d.health.status_error.load(Relaxed),
-                command_error: d.health.command_error.load(Relaxed),
-                // Faulty to the engine (no replies) or to the supervisor (any fault
-                // it names this device in).
-                faulty: d.is_faulty()
-                    || supervision.faults.iter().any(|f| f.device == Some(d.role)),
-                last_error: d.health.last_error.lock().as_ref().map(|(_, m)| m.clone()),
-                stats: d.stats.snapshot(),
-                reconnects: d
-                    .port_health
-                    .opens
-                    .load(std::sync::atomic::Ordering::Relaxed)
-                    .saturating_sub(1),
-                delay_buckets: if bench == Some(d.role) {
-                    if d.is_actuator() {
-                        d.stats.command_delay.buckets()
-                    } else {
-                        d.stats.status_txn.buckets()
-                    }
-                } else {
-                    Vec::new()
-                },
-                sim: sources
-                    .sim
-                    .as_ref()
-                    .and_then(|s| s.faults(d.role))
-                    .map(|f| SimFaults::of(f)),
-            }
-        })
-        .collect();
-    Snapshot {
-        vehicle: vehicle.name.clone(),
-        devices,
-        engaged: vehicle.is_engaged(),
-        gate_reason: vehicle.gate_reason(),
-        blockers: if vehicle.is_engaged() {
-            Vec::new()
-        } else {
-            vehicle.engage_blockers()
-        },
-        interlocks: vehicle.interlocks.load(Relaxed),
-        rejections: vehicle
-            .rejections()
-            .into_iter()
-            .filter(|(_, n)| *n > 0)
-            .collect(),
-        net: sources.net.as_ref().map(|n| n.status()),
+/// Capture a frame of the vehicle behind `gate` as of `now`.
+pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<DeviceId>) -> Frame {
+    let v = &gate.vehicle;
+    let mut snap = gate.snapshot_at(0, now);
+    snap.net = sources.net.as_ref().map(|n| n.snapshot());
+    let bench_dev = bench.and_then(|id| v.devices.get(id.index()));
+    Frame {
         logs: sources
             .logs
             .as_ref()
             .map(|l| l.recent())
             .unwrap_or_default(),
-        trace: bench
-            .and_then(|r| vehicle.device(r))
-            .map(|d| d.trace.entries())
+        trace: bench_dev.map(|d| d.trace.entries()).unwrap_or_default(),
+        buckets: bench_dev
+            .map(|d| {
+                if d.is_actuator() {
+                    d.stats.command_delay.buckets()
+                } else {
+                    d.stats.status_txn.buckets()
+                }
+            })
             .unwrap_or_default(),
         can_inject: sources.sim.is_some(),
-        sim_vehicle: sources.sim.as_deref().map(sim_vehicle),
-        supervision,
+        sim_vehicle: sources
+            .sim
+            .as_deref()
+            .map(|s| sim_vehicle(s, bench_dev.map(|d| d.name()))),
+        sim_faults: v
+            .devices
+            .iter()
+            .map(|d| {
+                sources
+                    .sim
+                    .as_ref()
+                    .and_then(|s| s.faults(d.name()))
+                    .map(|f| SimFaults::of(f))
+            })
+            .collect(),
+        snap,
     }
 }
 
 impl Controls for Live<'_> {
-    fn snapshot(&self, now: Instant, bench: Option<Role>) -> Snapshot {
-        capture(self.vehicle, self.sources, now, bench)
+    fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
+        capture(self.gate, self.sources, now, bench)
     }
-    fn submit(&self, role: Role, command: Command) -> Result<(), Reject> {
-        self.vehicle.submit(role, command, Instant::now())
+    fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
+        match self.gate.vehicle.devices.get(id.index()) {
+            Some(d) => d.config.parse_command(text),
+            None => Err("no such device".into()),
+        }
+    }
+    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject> {
+        self.gate.submit(id, command, Instant::now())
     }
     fn submit_accel(&self, accel: f64) -> Result<(), Reject> {
-        self.vehicle.submit_accel(accel, Instant::now())
+        self.gate.submit_accel(accel, Instant::now())
     }
     fn engage(&self) -> Result<(), Vec<String>> {
-        self.vehicle.engage("console")
+        self.gate.engage("console")
     }
     fn disengage(&self, reason: &str) {
-        self.vehicle.disengage(reason);
+        self.gate.disengage(reason);
     }
     fn set_interlocks(&self, on: bool) {
-        self.vehicle.interlocks.store(on, Relaxed);
+        self.gate.interlocks.store(on, Relaxed);
         tracing::warn!(
             "interlocks switched {} from the console",
             if on { "on" } else { "off" }
         );
     }
-    fn set_status_period(&self, role: Role, d: Duration) {
-        if let Some(dev) = self.vehicle.device(role) {
+    fn set_status_period(&self, id: DeviceId, d: Duration) {
+        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
             dev.settings.set_status_period(d);
         }
     }
-    fn set_command_timeout(&self, role: Role, d: Duration) {
-        if let Some(dev) = self.vehicle.device(role) {
+    fn set_command_timeout(&self, id: DeviceId, d: Duration) {
+        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
             dev.settings.set_command_timeout(d);
         }
     }
-    fn set_enabled(&self, role: Role, thread: Thread, on: bool) {
-        if let Some(dev) = self.vehicle.device(role) {
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
+        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
             let flag = match thread {
                 Thread::Status => &dev.settings.status_enabled,
                 Thread::Command => &dev.settings.command_enabled,
             };
             flag.store(on, Relaxed);
-            tracing::info!(device = %role, "{thread:?} thread {}", if on { "enabled" } else { "disabled" });
+            tracing::info!(device = %dev.name(), "{thread:?} thread {}", if on { "enabled" } else { "disabled" });
         }
     }
-    fn wake(&self, role: Role) {
-        if let Some(dev) = self.vehicle.device(role) {
+    fn wake(&self, id: DeviceId) {
+        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
             dev.slot.nudge();
         }
     }
     fn safe_state(&self) {
-        self.vehicle.command_safe_state();
+        self.gate.command_safe_state();
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         let sim = self.sources.sim.as_ref()?;

@@ -10,7 +10,8 @@
 //! same key bound twice in one section is refused with `file:line: message` naming
 //! the expected form. Nothing here panics on bad input.
 
-use crate::value::{EstopState, Role};
+use crate::config::Role;
+use crate::value::EstopState;
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use serde::Deserialize;
 use std::fmt;
@@ -240,10 +241,14 @@ impl fmt::Display for Mode {
     }
 }
 
+/// The roles that bind an actuator, which keys may name.
+pub const ACTUATOR_ROLES: [Role; 4] = [Role::Steering, Role::Throttle, Role::Brake, Role::Gear];
+
 /// What a field edit (or a shortcut that starts one) is about.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Target {
-    /// A device's command.
+    /// The command of the device bound to a role (the vehicle file's
+    /// `[vehicle.roles]`).
     Device(Role),
     /// The vehicle's virtual `accel` command (−1…1: brake below 0, gas above).
     Accel,
@@ -335,7 +340,8 @@ pub const SIM_VANISH: std::time::Duration = std::time::Duration::from_millis(200
 
 /// The valid `run` values, for error messages.
 pub const ACTION_FORM: &str = "quit, help, back, up, down, left, right, edit, \
-edit steer|gas|brake|trans|accel, commit, cancel, backspace, clear, wake, wake DEVICE, \
+edit steering|throttle|brake|gear|accel (also steer, gas, trans), commit, cancel, \
+backspace, clear, wake, wake steering|throttle|brake|gear, \
 wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
 steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
 sim silent|garbage|corrupt|slow|vanish|clear|stall|jam, sim estop pause|run|disable, none";
@@ -405,12 +411,12 @@ impl FromStr for Action {
         let bad = || format!("unknown action {s:?}: expected one of {ACTION_FORM}");
         match words.as_slice() {
             ["edit", "accel"] => Ok(Action::EditOf(Target::Accel)),
-            ["edit", dev] => match dev.parse::<Role>() {
-                Ok(r) if r.is_actuator() => Ok(Action::EditOf(Target::Device(r))),
+            ["edit", dev] => match Role::from_word(dev) {
+                Some(r) if ACTUATOR_ROLES.contains(&r) => Ok(Action::EditOf(Target::Device(r))),
                 _ => Err(bad()),
             },
-            ["wake", dev] => match dev.parse::<Role>() {
-                Ok(r) if r.is_actuator() => Ok(Action::Wake(Some(r))),
+            ["wake", dev] => match Role::from_word(dev) {
+                Some(r) if ACTUATOR_ROLES.contains(&r) => Ok(Action::Wake(Some(r))),
                 _ => Err(bad()),
             },
             _ => Err(bad()),
@@ -505,7 +511,7 @@ impl Keymap {
             let offset = e.span().map(|s| s.start).unwrap_or(0);
             let mut message = e.message().trim().to_string();
             if message.contains("unknown field") && !message.contains("`keymap`") {
-                message.push_str(" (sections are [main], [edit], [teleop], [bench], [confirm], [help], each with keymap = [{ on = \"g\", run = \"edit gas\", desc = \"…\" }, …])");
+                message.push_str(" (sections are [main], [edit], [teleop], [bench], [confirm], [help], each with keymap = [{ on = \"g\", run = \"edit throttle\", desc = \"…\" }, …])");
             }
             err(offset, message)
         })?;
@@ -717,13 +723,21 @@ mod tests {
             assert_eq!(a.to_string(), *n);
         }
         for s in [
-            "edit gas",
+            "edit throttle",
             "edit accel",
-            "edit trans",
-            "wake steer",
+            "edit gear",
+            "wake steering",
             "wake all",
         ] {
             assert_eq!(s.parse::<Action>().unwrap().to_string(), s);
+        }
+        // Alice's device names, as keymaps written for her say them.
+        for (old, new) in [
+            ("edit gas", "edit throttle"),
+            ("wake trans", "wake gear"),
+            ("edit steer", "edit steering"),
+        ] {
+            assert_eq!(old.parse::<Action>().unwrap().to_string(), new);
         }
         let e = "edit obd".parse::<Action>().unwrap_err();
         assert!(e.contains("reset_steering"), "{e}");
@@ -734,11 +748,11 @@ mod tests {
     fn the_default_keymap_loads_and_binds_the_papers_keys() {
         let m = Keymap::default_map();
         for (k, a) in [
-            ("g", "edit gas"),
-            ("s", "edit steer"),
+            ("g", "edit throttle"),
+            ("s", "edit steering"),
             ("b", "edit brake"),
             ("c", "edit accel"),
-            ("t", "edit trans"),
+            ("t", "edit gear"),
             ("e", "reset_steering"),
             ("?", "help"),
             ("q", "quit"),
@@ -756,17 +770,17 @@ mod tests {
 
     #[test]
     fn errors_name_file_line_and_form() {
-        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit gas\" },\n  { on = \"<Hyper-x>\", run = \"quit\" },\n]\n";
+        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit throttle\" },\n  { on = \"<Hyper-x>\", run = \"quit\" },\n]\n";
         let e = Keymap::parse(text, "my.toml").unwrap_err();
         assert_eq!((e.path.as_str(), e.line), ("my.toml", 4), "{e}");
         assert!(e.message.contains("expected"), "{e}");
 
-        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit gas\" },\n\n  { on = \"x\", run = \"launch\" },\n]\n";
+        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit throttle\" },\n\n  { on = \"x\", run = \"launch\" },\n]\n";
         let e = Keymap::parse(text, "my.toml").unwrap_err();
         assert_eq!(e.line, 5, "{e}");
         assert!(e.message.contains("reset_steering"), "{e}");
 
-        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit gas\" },\n  { on = \"g\", run = \"quit\" },\n]\n";
+        let text = "[main]\nkeymap = [\n  { on = \"g\", run = \"edit throttle\" },\n  { on = \"g\", run = \"quit\" },\n]\n";
         let e = Keymap::parse(text, "my.toml").unwrap_err();
         assert_eq!(e.line, 4, "{e}");
         assert!(e.message.contains("twice"), "{e}");
@@ -785,7 +799,7 @@ mod tests {
     fn a_user_file_is_merged_over_the_default() {
         let mut m = Keymap::default_map();
         let user = Keymap::parse(
-            "[main]\nkeymap = [\n { on = \"g\", run = \"none\" },\n { on = \"<F5>\", run = \"edit gas\", desc = \"gas\" },\n { on = \"q\", run = \"help\" },\n]\n",
+            "[main]\nkeymap = [\n { on = \"g\", run = \"none\" },\n { on = \"<F5>\", run = \"edit throttle\", desc = \"gas\" },\n { on = \"q\", run = \"help\" },\n]\n",
             "user.toml",
         )
         .unwrap();
@@ -793,7 +807,7 @@ mod tests {
         assert_eq!(m.lookup(Mode::Main, "g".parse().unwrap()), None);
         assert_eq!(
             m.lookup(Mode::Main, "<F5>".parse().unwrap()),
-            Some(Action::EditOf(Target::Device(Role::Gas)))
+            Some(Action::EditOf(Target::Device(Role::Throttle)))
         );
         assert_eq!(
             m.lookup(Mode::Main, "q".parse().unwrap()),

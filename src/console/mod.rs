@@ -22,7 +22,7 @@ pub mod update;
 pub mod view;
 
 use crate::exit::Exit;
-use crate::vehicle::Vehicle;
+use crate::safety::Gate;
 use controls::{Controls, Live, Sources};
 use crossbeam_channel::{select, Receiver};
 use crossterm::event::{self, Event};
@@ -62,8 +62,8 @@ impl Default for Options {
 
 /// Run the console with the default keymap until the operator quits or an exit
 /// arrives.
-pub fn run(vehicle: &Vehicle, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
-    run_with(vehicle, exits, Options::default())
+pub fn run(gate: &Gate, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
+    run_with(gate, exits, Options::default())
 }
 
 /// Read terminal events on a thread of their own until `stop`, so the loop can
@@ -103,15 +103,15 @@ fn spawn_reader(
 /// terminal is restored before this returns; an error of the terminal itself ends
 /// the console as a hang-up would (the caller still brings the vehicle to the safe
 /// state).
-pub fn run_with(vehicle: &Vehicle, exits: &Receiver<Exit>, opts: Options) -> std::io::Result<Exit> {
+pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::Result<Exit> {
     let live = Live {
-        vehicle,
+        gate,
         sources: &opts.sources,
     };
     let mut model = Model::new(
         opts.keymap,
         Theme::from_env(),
-        live.snapshot(Instant::now(), None),
+        live.frame(Instant::now(), None),
         opts.deadman,
     );
     let mut terminal = ratatui::try_init()?;

@@ -1,12 +1,13 @@
 //! The console's state (the "model" of the Elm architecture): the mode, the cursor,
 //! an edit in progress, a pending question, teleop and bench state, and the latest
-//! [`Snapshot`] of the vehicle. Only [`update`](super::update) changes it; the view
+//! [`Frame`] of the vehicle. Only [`update`](super::update) changes it; the view
 //! only reads it.
 
-use super::controls::{DeviceSnap, Snapshot};
+use super::controls::Frame;
 use super::keymap::{Keymap, Mode};
 use super::theme::Theme;
-use crate::value::Role;
+use crate::snapshot::DeviceView;
+use crate::value::DeviceId;
 use std::time::{Duration, Instant};
 
 /// Default teleop deadman: no teleop key for this long → gas 0, brake full. Longer than
@@ -23,21 +24,21 @@ pub const BRAKE_STEP: f64 = 0.25;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Field {
     /// The device's command.
-    Command(Role),
+    Command(DeviceId),
     /// `st delay`: the status period.
-    StDelay(Role),
+    StDelay(DeviceId),
     /// `cm delay`: the command timeout (resend period).
-    CmDelay(Role),
+    CmDelay(DeviceId),
     /// Status thread enabled.
-    StatusOn(Role),
+    StatusOn(DeviceId),
     /// Command thread enabled.
-    CommandOn(Role),
+    CommandOn(DeviceId),
     /// The vehicle's virtual accel command.
     Accel,
 }
 
 impl Field {
-    pub fn role(self) -> Option<Role> {
+    pub fn device(self) -> Option<DeviceId> {
         match self {
             Field::Command(r)
             | Field::StDelay(r)
@@ -48,21 +49,22 @@ impl Field {
         }
     }
 
-    pub fn name(self) -> String {
+    /// The field in words, `steer cm delay`, with the device's name from `frame`.
+    pub fn name(self, frame: &Frame) -> String {
+        let n = |id: DeviceId| frame.at(id).map_or("?", |d| d.name.as_str()).to_string();
         match self {
-            Field::Command(r) => format!("{r} command"),
-            Field::StDelay(r) => format!("{r} st delay"),
-            Field::CmDelay(r) => format!("{r} cm delay"),
-            Field::StatusOn(r) => format!("{r} status thread"),
-            Field::CommandOn(r) => format!("{r} command thread"),
+            Field::Command(r) => format!("{} command", n(r)),
+            Field::StDelay(r) => format!("{} st delay", n(r)),
+            Field::CmDelay(r) => format!("{} cm delay", n(r)),
+            Field::StatusOn(r) => format!("{} status thread", n(r)),
+            Field::CommandOn(r) => format!("{} command thread", n(r)),
             Field::Accel => "accel".into(),
         }
     }
 
     /// The fields of one device, in screen order.
-    pub fn of(d: &DeviceSnap) -> Vec<Field> {
-        let r = d.role;
-        if d.actuator {
+    pub fn of(r: DeviceId, d: &DeviceView) -> Vec<Field> {
+        if d.is_actuator() {
             vec![
                 Field::Command(r),
                 Field::StDelay(r),
@@ -75,7 +77,7 @@ impl Field {
         }
     }
 
-    fn same_kind(self, role: Role) -> Field {
+    fn same_kind(self, role: DeviceId) -> Field {
         match self {
             Field::Command(_) => Field::Command(role),
             Field::StDelay(_) => Field::StDelay(role),
@@ -182,7 +184,7 @@ pub struct Model {
     pub mode: Mode,
     /// Where `back`/`cancel` returns to from edit, confirm and help.
     pub back_to: Mode,
-    pub snap: Snapshot,
+    pub snap: Frame,
     /// Index into [`Model::fields`].
     pub cursor: usize,
     pub edit: Option<Edit>,
@@ -190,7 +192,7 @@ pub struct Model {
     pub message: Option<Message>,
     pub teleop: Teleop,
     /// The device the bench view shows.
-    pub bench: Role,
+    pub bench: DeviceId,
     pub help_scroll: u16,
     /// The last accel the console sent.
     pub accel: Option<f64>,
@@ -204,8 +206,8 @@ pub struct Model {
 }
 
 impl Model {
-    pub fn new(keymap: Keymap, theme: Theme, snap: Snapshot, deadman: Duration) -> Model {
-        let bench = snap.devices.first().map(|d| d.role).unwrap_or(Role::Steer);
+    pub fn new(keymap: Keymap, theme: Theme, snap: Frame, deadman: Duration) -> Model {
+        let bench = DeviceId(0);
         Model {
             keymap,
             theme,
@@ -220,7 +222,7 @@ impl Model {
             help_scroll: 0,
             accel: None,
             now: Instant::now(),
-            outcome_seen: snap.supervision.last_outcome.clone(),
+            outcome_seen: snap.supervisor.last_outcome.clone(),
             steer_reset: None,
             snap,
         }
@@ -228,14 +230,24 @@ impl Model {
 
     /// Every field in cursor order: each device's, then accel.
     pub fn fields(&self) -> Vec<Field> {
-        let mut f: Vec<Field> = self.snap.devices.iter().flat_map(Field::of).collect();
-        f.push(Field::Accel);
+        let mut f: Vec<Field> = self
+            .snap
+            .devices
+            .iter()
+            .enumerate()
+            .flat_map(|(i, d)| Field::of(DeviceId(i as u16), d))
+            .collect();
+        if self.snap.gate.accel {
+            f.push(Field::Accel);
+        }
         f
     }
 
     pub fn field(&self) -> Field {
         let f = self.fields();
-        f[self.cursor.min(f.len() - 1)]
+        f.get(self.cursor.min(f.len().saturating_sub(1)))
+            .copied()
+            .unwrap_or(Field::Accel)
     }
 
     pub fn select(&mut self, field: Field) -> bool {
@@ -251,16 +263,20 @@ impl Model {
     /// Move the cursor to the neighbouring device (`step` ±1), same kind of field.
     pub fn move_device(&mut self, step: isize) {
         let here = self.field();
-        let mut stops: Vec<Option<Role>> = self.snap.devices.iter().map(|d| Some(d.role)).collect();
-        stops.push(None);
-        let i = stops.iter().position(|r| *r == here.role()).unwrap_or(0) as isize;
+        let mut stops: Vec<Option<DeviceId>> = (0..self.snap.devices.len())
+            .map(|i| Some(DeviceId(i as u16)))
+            .collect();
+        if self.snap.gate.accel {
+            stops.push(None);
+        }
+        let i = stops.iter().position(|r| *r == here.device()).unwrap_or(0) as isize;
         let j = (i + step).clamp(0, stops.len() as isize - 1) as usize;
         let target = match stops[j] {
             None => Field::Accel,
             Some(r) => {
-                let d = self.snap.device(r).expect("listed");
+                let d = self.snap.at(r).expect("listed");
                 let want = here.same_kind(r);
-                let of = Field::of(d);
+                let of = Field::of(r, d);
                 if of.contains(&want) {
                     want
                 } else {
@@ -280,8 +296,8 @@ impl Model {
     }
 
     /// The device the bench shows, if it is in the vehicle.
-    pub fn bench_device(&self) -> Option<&DeviceSnap> {
-        self.snap.device(self.bench)
+    pub fn bench_device(&self) -> Option<&DeviceView> {
+        self.snap.at(self.bench)
     }
 
     /// Whether the bench view is on screen (possibly under a dialog).

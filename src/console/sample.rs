@@ -1,52 +1,65 @@
 //! A vehicle at rest with plausible readings and figures, built without threads or
 //! ports: for the console's tests, snapshots and the fault screenshot.
 
-use crate::config::VehicleConfig;
-use crate::supervisor::status::{Fault, FaultKind, RecoveryView};
-use crate::value::{EstopState, Gear, Reading, Role};
+use crate::config::{SupervisorConfig, VehicleConfig};
+use crate::safety::Gate;
+use crate::snapshot::FaultKind;
+use crate::snapshot::RecoveryView;
+use crate::value::Reading;
+use crate::vehicle::supervision::Fault;
 use crate::vehicle::{Cached, Vehicle, FAULT_AFTER};
 use std::sync::atomic::Ordering::Relaxed;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+/// A device's reading, by reading name.
+fn reading(v: &Vehicle, device: &str, values: &[(&str, f64)]) -> Reading {
+    let d = v.find(device).expect("a device of Alice");
+    let mut r = Reading::default();
+    for (name, x) in values {
+        r.set(d.config.reading(name).expect("a reading of the device"), *x);
+    }
+    r
+}
 
 /// The built-in Alice, not started, every device having reported 20 ms before `now`.
 pub fn vehicle(now: Instant) -> Vehicle {
-    let v = Vehicle::new(VehicleConfig::alice(), |_| {
+    vehicle_of(VehicleConfig::alice(), now)
+}
+
+/// A vehicle of `config`, not started, every device having reported 20 ms before
+/// `now` (Alice's devices with her readings at rest).
+pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
+    let v = Vehicle::new(config, |_| {
         Box::new(|| Err(std::io::Error::other("sample vehicle: no port")))
     });
     let at = Some(now - Duration::from_millis(20));
     for d in &v.devices {
-        let reading = match d.role {
-            Role::Steer => Reading {
-                position: Some(0.231),
-                velocity: Some(0.012),
-                ..Reading::default()
-            },
-            Role::Gas => Reading {
-                position: Some(0.0),
-                ..Reading::default()
-            },
-            Role::Brake => Reading {
-                position: Some(1.0),
-                pressure: Some(80.0),
-                ..Reading::default()
-            },
-            Role::Trans => Reading {
-                gear: Some(Gear::Park),
-                ..Reading::default()
-            },
-            Role::Estop => Reading {
-                estop: Some(EstopState::Run),
-                ..Reading::default()
-            },
-            Role::Obd => Reading {
-                rpm: Some(700.0),
-                speed: Some(0.0),
-                coolant: Some(85.0),
-                running: Some(true),
-                ..Reading::default()
-            },
+        let r = match d.name() {
+            "steer" => reading(&v, "steer", &[("position", 0.231), ("velocity", 0.012)]),
+            "gas" => reading(&v, "gas", &[("position", 0.0)]),
+            "brake" => reading(&v, "brake", &[("position", 1.0), ("pressure", 80.0)]),
+            "trans" => reading(&v, "trans", &[("state", 0.0)]),
+            "estop" => reading(&v, "estop", &[("estop", 2.0)]),
+            "obd" => reading(
+                &v,
+                "obd",
+                &[
+                    ("rpm", 700.0),
+                    ("speed", 0.0),
+                    ("coolant", 85.0),
+                    ("running", 1.0),
+                ],
+            ),
+            _ => {
+                let mut r = Reading::default();
+                for i in 0..d.config.readings.len() {
+                    r.set(i, 0.0);
+                }
+                r
+            }
         };
-        *d.cache.lock() = Cached { reading, at };
+        *d.cache.lock() = Cached { reading: r, at };
         let s = &d.stats;
         s.polls.store(1200, Relaxed);
         if d.is_actuator() {
@@ -60,14 +73,20 @@ pub fn vehicle(now: Instant) -> Vehicle {
             s.command_txn.record(Duration::from_micros(4_200));
         }
         s.status_txn.record(Duration::from_micros(3_100));
+        d.stats.refresh();
         d.health.connected.store(true, Relaxed);
     }
     v
 }
 
-/// Make `role` faulty: no reply three times in a row.
-pub fn make_faulty(v: &Vehicle, role: Role, now: Instant) {
-    if let Some(d) = v.device(role) {
+/// The sample vehicle behind its gate.
+pub fn gate(now: Instant) -> Arc<Gate> {
+    Arc::new(Gate::new(Arc::new(vehicle(now))))
+}
+
+/// Make a device faulty: no reply three times in a row.
+pub fn make_faulty(v: &Vehicle, name: &str, now: Instant) {
+    if let Some(d) = v.find(name) {
         d.health.consecutive_errors.store(FAULT_AFTER, Relaxed);
         d.health.status_error.store(1, Relaxed);
         *d.health.last_error.lock() = Some((now, "no reply within 200ms".into()));
@@ -75,16 +94,24 @@ pub fn make_faulty(v: &Vehicle, role: Role, now: Instant) {
     }
 }
 
+/// The engine-stall procedure's steps on Alice, as the supervisor runs them.
+pub fn engine_stall() -> RecoveryView {
+    let v = vehicle(Instant::now());
+    crate::supervisor::recovery::Procedure::engine_stall(&v, 3, &SupervisorConfig::default())
+        .expect("Alice binds everything an engine stall needs")
+        .view()
+}
+
 /// An engine stall being recovered: the supervisor's fault, its procedure at step 4
 /// of 7 (park, first try), and the faulty brake it also sees; the engine reads
 /// stopped, in drive.
 pub fn make_recovering(v: &Vehicle, now: Instant) {
-    if let Some(d) = v.device(Role::Obd) {
+    if let Some(d) = v.find("obd") {
         let mut c = d.cache.lock();
-        c.reading.rpm = Some(0.0);
-        c.reading.running = Some(false);
+        c.reading.set(0, 0.0);
+        c.reading.set(3, 0.0);
     }
-    make_faulty(v, Role::Brake, now);
+    make_faulty(v, "brake", now);
     let s = &v.supervision;
     s.set_faults(vec![
         Fault {
@@ -95,7 +122,7 @@ pub fn make_recovering(v: &Vehicle, now: Instant) {
         },
         Fault {
             kind: FaultKind::Silent,
-            device: Some(Role::Brake),
+            device: Some("brake".into()),
             cause: "no status for 1700 ms (max 500 ms): no reply within 200ms".into(),
             since: now - Duration::from_millis(1_200),
         },
@@ -103,11 +130,7 @@ pub fn make_recovering(v: &Vehicle, now: Instant) {
     s.set_recovery(Some(RecoveryView {
         step: 3,
         elapsed_ms: 0.0,
-        ..crate::supervisor::recovery::Procedure::engine_stall(
-            crate::value::Gear::Drive,
-            &crate::config::SupervisorConfig::default(),
-        )
-        .view()
+        ..engine_stall()
     }));
     s.set_outcome("recovery steering done in 0.9 s".into());
 }

@@ -5,8 +5,10 @@
 use super::controls::{Controls, Thread};
 use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
 use super::model::{Ask, Edit, Field, Model, BRAKE_STEP, GAS_STEP, HOME_WAIT, STEER_STEP};
+use crate::config::Role;
 use crate::exit::Exit;
-use crate::value::{Command, Control, EstopState, Gear, Role};
+use crate::snapshot::DeviceView;
+use crate::value::{Command, Control, DeviceId, EstopState, Value};
 use std::time::{Duration, Instant};
 
 /// What the loop does after an update.
@@ -21,10 +23,10 @@ pub enum Flow {
 /// recovery outcome, and run the deadman.
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
-    m.snap = c.snapshot(now, m.in_bench().then_some(m.bench));
-    m.cursor = m.cursor.min(m.fields().len() - 1);
+    m.snap = c.frame(now, m.in_bench().then_some(m.bench));
+    m.cursor = m.cursor.min(m.fields().len().saturating_sub(1));
     follow_steer_reset(m, c, now);
-    let outcome = m.snap.supervision.last_outcome.clone();
+    let outcome = m.snap.supervisor.last_outcome.clone();
     if outcome.is_some() && outcome != m.outcome_seen {
         let text = outcome.clone().unwrap_or_default();
         m.say(format!("supervisor: {text}"), text.contains("gave up"));
@@ -83,18 +85,34 @@ fn ask(m: &mut Model, q: Ask) {
     m.mode = Mode::Confirm;
 }
 
-fn wake(m: &mut Model, c: &dyn Controls, role: Role) {
-    match m.snap.device(role) {
-        Some(d) if d.actuator => {
-            c.wake(role);
-            m.say(format!("woke the {role} command thread"), false);
+fn wake(m: &mut Model, c: &dyn Controls, id: DeviceId) {
+    match m.snap.at(id) {
+        Some(d) if d.is_actuator() => {
+            c.wake(id);
+            let name = d.name.clone();
+            m.say(format!("woke the {name} command thread"), false);
         }
-        Some(_) => m.say(
-            format!("{role} is a sensor: it has no command thread"),
-            true,
-        ),
-        None => m.say(format!("this vehicle has no {role}"), true),
+        Some(d) => {
+            let name = d.name.clone();
+            m.say(
+                format!("{name} is a sensor: it has no command thread"),
+                true,
+            )
+        }
+        None => m.say("no such device", true),
     }
+}
+
+/// The device bound to `role`, or say there is none.
+fn bound(m: &mut Model, role: Role) -> Option<DeviceId> {
+    let id = m.snap.bound_id(role);
+    if id.is_none() {
+        m.say(
+            format!("this vehicle has no {role} bound (vehicle.roles)"),
+            true,
+        );
+    }
+    id
 }
 
 fn main(m: &mut Model, a: Action, c: &dyn Controls) {
@@ -106,41 +124,56 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::Edit => start_edit(m, m.field()),
         Action::EditOf(t) => {
             let f = match t {
-                Target::Accel => Field::Accel,
-                Target::Device(r) => Field::Command(r),
+                Target::Accel if m.snap.gate.accel => Field::Accel,
+                Target::Accel => {
+                    return m.say(
+                        "this vehicle has no accel (it needs throttle and brake bound)",
+                        true,
+                    )
+                }
+                Target::Device(r) => match bound(m, r) {
+                    Some(id) => Field::Command(id),
+                    None => return,
+                },
             };
             if m.select(f) {
                 start_edit(m, f);
             } else {
-                m.say(format!("this vehicle has no {}", f.name()), true);
+                let name = f.name(&m.snap);
+                m.say(format!("this vehicle has no {name}"), true);
             }
         }
-        Action::Wake(Some(r)) => wake(m, c, r),
-        Action::Wake(None) => match m.field().role() {
+        Action::Wake(Some(r)) => {
+            if let Some(id) = bound(m, r) {
+                wake(m, c, id)
+            }
+        }
+        Action::Wake(None) => match m.field().device() {
             Some(r) => wake(m, c, r),
             None => m.say("move the cursor to a device to wake it", true),
         },
         Action::WakeAll => {
-            let roles: Vec<Role> = m
+            let ids: Vec<DeviceId> = m
                 .snap
                 .devices
                 .iter()
-                .filter(|d| d.actuator)
-                .map(|d| d.role)
+                .enumerate()
+                .filter(|(_, d)| d.is_actuator())
+                .map(|(i, _)| DeviceId(i as u16))
                 .collect();
-            for r in &roles {
-                c.wake(*r);
+            for id in &ids {
+                c.wake(*id);
             }
-            m.say(format!("woke {} command threads", roles.len()), false);
+            m.say(format!("woke {} command threads", ids.len()), false);
         }
         Action::ResetSteering => reset_steering(m, c),
         Action::Engage => ask(m, Ask::Engage),
         Action::Disengage => ask(m, Ask::Disengage),
         Action::Stop => stop(m, c),
-        Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.interlocks)),
+        Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.gate.interlocks)),
         Action::Teleop => enter_teleop(m),
         Action::Bench => {
-            if let Some(r) = m.field().role() {
+            if let Some(r) = m.field().device() {
                 m.bench = r;
             }
             m.mode = Mode::Bench;
@@ -151,13 +184,18 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
 
 /// The text a field starts from when editing.
 fn current_text(m: &Model, f: Field) -> String {
-    let d = f.role().and_then(|r| m.snap.device(r));
+    let d = f.device().and_then(|r| m.snap.at(r));
+    let ms = |x: f64| fmt_ms(Duration::from_secs_f64(x / 1e3));
     match (f, d) {
-        (Field::Command(_), Some(d)) => d.latest.map(|c| c.to_string()).unwrap_or_default(),
-        (Field::StDelay(_), Some(d)) => fmt_ms(d.status_period),
-        (Field::CmDelay(_), Some(d)) => fmt_ms(d.command_timeout),
-        (Field::StatusOn(_), Some(d)) => (d.status_on as u8).to_string(),
-        (Field::CommandOn(_), Some(d)) => (d.command_on as u8).to_string(),
+        (Field::Command(_), Some(d)) => match &d.commanded {
+            Some(Value::Number(v)) => format!("{v:.3}"),
+            Some(v) => v.to_string(),
+            None => String::new(),
+        },
+        (Field::StDelay(_), Some(d)) => ms(d.settings.status_period_ms),
+        (Field::CmDelay(_), Some(d)) => ms(d.settings.command_timeout_ms),
+        (Field::StatusOn(_), Some(d)) => (d.settings.status_on as u8).to_string(),
+        (Field::CommandOn(_), Some(d)) => (d.settings.command_on as u8).to_string(),
         (Field::Accel, _) => m.accel.map(|a| format!("{a:.3}")).unwrap_or_default(),
         _ => String::new(),
     }
@@ -185,14 +223,14 @@ fn start_edit(m: &mut Model, f: Field) {
 /// What a committed edit does.
 #[derive(Debug, PartialEq)]
 enum Apply {
-    Submit(Role, Command),
+    Submit(DeviceId, Command),
     Accel(f64),
-    StDelay(Role, Duration),
-    CmDelay(Role, Duration),
-    Enable(Role, Thread, bool),
+    StDelay(DeviceId, Duration),
+    CmDelay(DeviceId, Duration),
+    Enable(DeviceId, Thread, bool),
 }
 
-fn parse_number(text: &str, lo: f64, hi: f64) -> Result<f64, String> {
+pub(crate) fn parse_number(text: &str, lo: f64, hi: f64) -> Result<f64, String> {
     let v: f64 = text
         .trim()
         .parse()
@@ -226,15 +264,9 @@ fn parse_flag(text: &str) -> Result<bool, String> {
     }
 }
 
-fn parse_edit(m: &Model, f: Field, text: &str) -> Result<Apply, String> {
+fn parse_edit(c: &dyn Controls, f: Field, text: &str) -> Result<Apply, String> {
     match f {
-        Field::Command(Role::Trans) => text
-            .parse::<Gear>()
-            .map(|g| Apply::Submit(Role::Trans, Command::Gear(g))),
-        Field::Command(r) => {
-            let [lo, hi] = m.snap.device(r).map(|d| d.range).unwrap_or([-1.0, 1.0]);
-            parse_number(text, lo, hi).map(|v| Apply::Submit(r, Command::Set(v)))
-        }
+        Field::Command(r) => c.parse(r, text).map(|cmd| Apply::Submit(r, cmd)),
         Field::Accel => parse_number(text, -1.0, 1.0).map(Apply::Accel),
         Field::StDelay(r) => parse_period(text).map(|d| Apply::StDelay(r, d)),
         Field::CmDelay(r) => parse_period(text).map(|d| Apply::CmDelay(r, d)),
@@ -273,7 +305,7 @@ fn edit(m: &mut Model, a: Action, c: &dyn Controls) {
         }
         Action::Commit => {
             let (field, text) = (e.field, e.buffer.clone());
-            match parse_edit(m, field, &text) {
+            match parse_edit(c, field, &text) {
                 Err(why) => {
                     if let Some(e) = m.edit.as_mut() {
                         e.error = Some(why);
@@ -290,12 +322,35 @@ fn edit(m: &mut Model, a: Action, c: &dyn Controls) {
     }
 }
 
+/// A command in words for device `id`: `0.250`, `drive`, `home`.
+pub fn words(m: &Model, id: DeviceId, cmd: Command) -> String {
+    match cmd {
+        Command::Set(v) => format!("{v:.3}"),
+        Command::State(s) => m
+            .snap
+            .at(id)
+            .and_then(|d| d.states.get(s as usize).cloned())
+            .unwrap_or_else(|| format!("#{s}")),
+        Command::Control(k) => k.to_string(),
+    }
+}
+
+fn name_of(m: &Model, id: DeviceId) -> String {
+    m.snap
+        .at(id)
+        .map_or("?".into(), |d: &DeviceView| d.name.clone())
+}
+
 fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
+    let fname = field.name(&m.snap);
     match apply {
-        Apply::Submit(r, cmd) => match c.submit(r, cmd) {
-            Ok(()) => m.say(format!("{r} ← {cmd}"), false),
-            Err(why) => m.say(format!("{r} {cmd} refused: {why}"), true),
-        },
+        Apply::Submit(r, cmd) => {
+            let (name, w) = (name_of(m, r), words(m, r, cmd));
+            match c.submit(r, cmd) {
+                Ok(()) => m.say(format!("{name} ← {w}"), false),
+                Err(why) => m.say(format!("{name} {w} refused: {why}"), true),
+            }
+        }
         Apply::Accel(a) => match c.submit_accel(a) {
             Ok(()) => {
                 m.accel = Some(a);
@@ -305,18 +360,15 @@ fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
         },
         Apply::StDelay(r, d) => {
             c.set_status_period(r, d);
-            m.say(format!("{} = {}", field.name(), fmt_ms(d)), false);
+            m.say(format!("{fname} = {}", fmt_ms(d)), false);
         }
         Apply::CmDelay(r, d) => {
             c.set_command_timeout(r, d);
-            m.say(format!("{} = {}", field.name(), fmt_ms(d)), false);
+            m.say(format!("{fname} = {}", fmt_ms(d)), false);
         }
         Apply::Enable(r, t, on) => {
             c.set_enabled(r, t, on);
-            m.say(
-                format!("{} {}", field.name(), if on { "on" } else { "off" }),
-                false,
-            );
+            m.say(format!("{fname} {}", if on { "on" } else { "off" }), false);
         }
     }
 }
@@ -352,10 +404,10 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
 }
 
 fn enter_teleop(m: &mut Model) {
-    let steer = m.snap.device(Role::Steer);
+    let steer = m.snap.bound("steering");
     let at = steer
-        .and_then(|d| d.reading.position)
-        .or(steer.and_then(|d| d.latest.map(|c| c.as_f64())))
+        .and_then(|d| d.position())
+        .or(steer.and_then(|d| d.commanded.as_ref().and_then(Value::as_f64)))
         .unwrap_or(0.0);
     let deadman = m.teleop.deadman;
     m.teleop = super::model::Teleop::new(deadman);
@@ -402,8 +454,13 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
     let (steer, accel) = (t.steer, t.accel);
     let mut refused = Vec::new();
     if steer != steer0 || a == Action::Center {
-        if let Err(why) = c.submit(Role::Steer, Command::Set(steer)) {
-            refused.push(format!("steer {steer:.2}: {why}"));
+        match m.snap.bound_id(Role::Steering) {
+            Some(id) => {
+                if let Err(why) = c.submit(id, Command::Set(steer)) {
+                    refused.push(format!("steer {steer:.2}: {why}"));
+                }
+            }
+            None => refused.push("steer: no steering bound".into()),
         }
     }
     if accel != accel0 || matches!(a, Action::AccelUp | Action::AccelDown | Action::FullBrake) {
@@ -429,25 +486,25 @@ fn stop(m: &mut Model, c: &dyn Controls) {
 }
 
 fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
-    let roles: Vec<Role> = m.snap.devices.iter().map(|d| d.role).collect();
-    let i = roles.iter().position(|r| *r == m.bench).unwrap_or(0);
+    let n = m.snap.devices.len() as u16;
+    let i = m.bench.0;
     match a {
-        Action::NextDevice | Action::Right | Action::Down if !roles.is_empty() => {
-            m.bench = roles[(i + 1) % roles.len()]
+        Action::NextDevice | Action::Right | Action::Down if n > 0 => {
+            m.bench = DeviceId((i + 1) % n)
         }
-        Action::PrevDevice | Action::Left | Action::Up if !roles.is_empty() => {
-            m.bench = roles[(i + roles.len() - 1) % roles.len()]
+        Action::PrevDevice | Action::Left | Action::Up if n > 0 => {
+            m.bench = DeviceId((i + n - 1) % n)
         }
         Action::Edit => match m.bench_device() {
-            Some(d) if d.actuator => {
-                let f = Field::Command(d.role);
+            Some(d) if d.is_actuator() => {
+                let f = Field::Command(m.bench);
                 m.select(f);
                 start_edit(m, f);
             }
-            _ => m.say(
-                format!("{} is a sensor: it takes no commands", m.bench),
-                true,
-            ),
+            _ => {
+                let name = name_of(m, m.bench);
+                m.say(format!("{name} is a sensor: it takes no commands"), true)
+            }
         },
         Action::Wake(_) => wake(m, c, m.bench),
         Action::Stop => stop(m, c),
@@ -463,10 +520,13 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
 /// cycle first; the supervisor's `steering` procedure runs that whole sequence on its
 /// own when the drive reports a fault.)
 fn reset_steering(m: &mut Model, c: &dyn Controls) {
-    if m.snap.device(Role::Steer).is_none() {
-        return m.say("steering reset refused: this vehicle has no steering", true);
-    }
-    match c.submit(Role::Steer, Command::Control(Control::Home)) {
+    let Some(id) = m.snap.bound_id(Role::Steering) else {
+        return m.say(
+            "steering reset refused: this vehicle has no steering bound",
+            true,
+        );
+    };
+    match c.submit(id, Command::Control(Control::Home)) {
         Ok(()) => {
             m.steer_reset = Some(m.now);
             m.say(
@@ -482,14 +542,18 @@ fn reset_steering(m: &mut Model, c: &dyn Controls) {
 /// [`HOME_WAIT`].
 fn follow_steer_reset(m: &mut Model, c: &dyn Controls, now: Instant) {
     let Some(since) = m.steer_reset else { return };
-    let steer = m.snap.device(Role::Steer);
-    let homed = steer.is_some_and(|d| d.executed == Some(Command::Control(Control::Home)));
-    let at = steer.and_then(|d| d.reading.position);
+    let Some(id) = m.snap.bound_id(Role::Steering) else {
+        m.steer_reset = None;
+        return;
+    };
+    let steer = m.snap.at(id);
+    let homed = steer.is_some_and(|d| d.executed == Some(Value::Text("home".into())));
+    let at = steer.and_then(|d| d.position());
     match at {
         Some(at) if homed => {
             m.steer_reset = None;
             let at = (at * 1000.0).round() / 1000.0;
-            match c.submit(Role::Steer, Command::Set(at)) {
+            match c.submit(id, Command::Set(at)) {
                 Ok(()) => m.say(format!("steering reset: homed, holding {at:.3}"), false),
                 Err(why) => m.say(
                     format!("steering reset: homed, but hold {at:.3} refused: {why}"),
@@ -512,24 +576,30 @@ fn follow_steer_reset(m: &mut Model, c: &dyn Controls, now: Instant) {
     }
 }
 
-/// The simulator line a bench key means for `role`, from the faults it has now.
-pub fn sim_line(m: &Model, what: SimAction, role: Role) -> String {
-    let f = m
-        .snap
-        .device(role)
-        .and_then(|d| d.sim.clone())
-        .unwrap_or_default();
+/// The simulator line a bench key means for device `id`, from the faults it has now.
+pub fn sim_line(m: &Model, what: SimAction, id: DeviceId) -> String {
+    let f = m.snap.sim_of(id).cloned().unwrap_or_default();
+    let name = name_of(m, id);
     let on = |b: bool| if b { "off" } else { "on" };
     match what {
-        SimAction::Silent => format!("silent {role} {}", on(f.silent)),
-        SimAction::Garbage => format!("garbage {role} {}", on(f.garbage)),
-        SimAction::Corrupt => format!("corrupt {role} {}", on(f.corrupt)),
-        SimAction::Slow if f.slow_ms > 0 => format!("slow {role} 0"),
-        SimAction::Slow => format!("slow {role} {}", SIM_SLOW.as_millis()),
-        SimAction::Vanish => format!("vanish {role} {}", SIM_VANISH.as_millis()),
-        SimAction::Clear => format!("clear {role}"),
+        SimAction::Silent => format!("silent {name} {}", on(f.silent)),
+        SimAction::Garbage => format!("garbage {name} {}", on(f.garbage)),
+        SimAction::Corrupt => format!("corrupt {name} {}", on(f.corrupt)),
+        SimAction::Slow if f.slow_ms > 0 => format!("slow {name} 0"),
+        SimAction::Slow => format!("slow {name} {}", SIM_SLOW.as_millis()),
+        SimAction::Vanish => format!("vanish {name} {}", SIM_VANISH.as_millis()),
+        SimAction::Clear => format!("clear {name}"),
         SimAction::Stall => "stall".into(),
-        SimAction::Jam => "jam steer".into(),
+        // The bench device's drive when it has one, else the steering's.
+        SimAction::Jam => match m.snap.at(id) {
+            Some(d) if d.kind == crate::value::Kind::Setpoint => format!("jam {name}"),
+            _ => format!(
+                "jam {}",
+                m.snap
+                    .bound("steering")
+                    .map_or("?".to_string(), |d| d.name.clone())
+            ),
+        },
         SimAction::Estop(s) => format!("estop {s}"),
     }
 }
@@ -548,7 +618,7 @@ fn sim(m: &mut Model, c: &dyn Controls, what: SimAction) {
                 || done.ends_with(" off")
                 || done.ends_with(" 0");
             m.say(format!("sim: {done}"), !harmless);
-            m.snap = c.snapshot(m.now, Some(m.bench));
+            m.snap = c.frame(m.now, Some(m.bench));
         }
     }
 }

@@ -35,18 +35,18 @@ impl Model {
     fn header(&self) -> Line<'static> {
         let (s, t) = (&self.snap, &self.theme);
         let bar = t.bar();
-        let gate = if s.engaged {
+        let gate = if s.gate.engaged {
             Span::styled(" ENGAGED ", t.good().patch(bar))
         } else {
-            let why = s.gate_reason.trim_start_matches("disengaged: ");
+            let why = s.gate.reason.trim_start_matches("disengaged: ");
             Span::styled(format!(" DISENGAGED ({why}) "), t.warn().patch(bar))
         };
-        let interlocks = if s.interlocks {
+        let interlocks = if s.gate.interlocks {
             Span::styled(" interlocks on ", bar)
         } else {
             Span::styled(" INTERLOCKS OFF ", t.fault().patch(bar))
         };
-        let faults = s.devices.iter().filter(|d| d.faulty).count();
+        let faults = s.devices.iter().filter(|d| s.red(d)).count();
         let mode = match self.mode {
             Mode::Help | Mode::Confirm | Mode::Edit => self.back_to,
             m => m,
@@ -117,6 +117,7 @@ impl Model {
         let cursor = show_cursor.then(|| self.field());
         let col_w = grid.width / cols;
         for (i, d) in self.snap.devices.iter().enumerate() {
+            let id = crate::value::DeviceId(i as u16);
             let (r, c) = (i as u16 / cols, i as u16 % cols);
             let w = if c == cols - 1 {
                 grid.width - col_w * c
@@ -133,7 +134,10 @@ impl Model {
             }
             .intersection(grid);
             let p = DevicePanel {
+                id,
                 d,
+                red: self.snap.red(d),
+                sim: self.snap.sim_of(id),
                 theme: self.theme,
                 cursor,
                 edit: self.edit.as_ref(),
@@ -221,7 +225,11 @@ impl Widget for &Model {
             }
             if let Some(d) = self.bench_device() {
                 let v = BenchView {
+                    id: self.bench,
                     d,
+                    red: self.snap.red(d),
+                    sim: self.snap.sim_of(self.bench),
+                    buckets: &self.snap.buckets,
                     trace: &self.snap.trace,
                     theme: self.theme,
                     edit: self.edit.as_ref(),

@@ -5,20 +5,24 @@
 //! ```text
 //! host → device   ?\n                      ask for status
 //! device → host   = pos=0.120 vel=0.000\n  status: space-separated key=value pairs
-//! host → device   ! 0.250\n                command: a number, a gear (drive, park…) or a
-//!                                          control word (disable, enable, home, start)
+//! host → device   ! 0.250\n                command: a number, a state's word (drive,
+//!                                          left…) or a control word (disable, enable,
+//!                                          home, start)
 //! device → host   ok\n                     accepted
 //! device → host   err <reason>\n           refused
 //! ```
 //!
-//! Status keys: `pos` position, `vel` velocity, `prs` pressure, `gear`
-//! (park|reverse|neutral|drive), `estop` (disable|pause|run), `rpm`, `spd` speed m/s,
-//! `clt` coolant °C, `run` engine running 0|1, `flt` fault bits. Unknown keys are
-//! ignored (newer firmware may report more). Lines end in `\n`; a `\r` before it is
-//! ignored.
+//! Each reading has a status key: the well-known ones by default `pos` position, `vel`
+//! velocity, `prs` pressure, `state`, `estop` (disable|pause|run), `rpm`, `spd` speed
+//! m/s, `clt` coolant °C, `run` engine running 0|1, `volt`, `amp`, `soc`; any other
+//! reading by its name; `flt` carries fault bits. A vehicle file may rename keys and
+//! state words (`[device.line] keys = {…}, words = {…}`): the map is
+//! [`LineMap`]. Unknown keys are ignored (newer firmware may report more). Lines end
+//! in `\n`; a `\r` before it is ignored.
 
 use super::{read_until, Driver, DriverError, Link};
-use crate::value::{Command, Control, Gear, Reading};
+use crate::config::wire::LineMap;
+use crate::value::{Command, Control, Reading};
 use std::io::Write;
 use std::time::Duration;
 
@@ -27,13 +31,19 @@ pub const MAX_LINE: usize = 128;
 /// The status request.
 pub const POLL: &[u8] = b"?\n";
 
-/// Encode a command into `out` (no allocation); returns the length.
-pub fn encode_command(command: Command, out: &mut [u8; 32]) -> usize {
+/// Encode a command into `out` (no allocation); returns the length. A state goes out
+/// as its word.
+pub fn encode_command(command: Command, map: &LineMap, out: &mut [u8; 48]) -> usize {
     let mut cursor = std::io::Cursor::new(&mut out[..]);
-    // 32 bytes always hold "! " + a gear word or a 3-decimal number in −1e6…1e6.
+    // 48 bytes always hold "! " + a word of at most 24 bytes or a 3-decimal number in
+    // −1e6…1e6.
     let _ = match command {
         Command::Set(v) => writeln!(cursor, "! {:.3}", v.clamp(-1e6, 1e6)),
-        Command::Gear(g) => writeln!(cursor, "! {g}"),
+        Command::State(i) => writeln!(
+            cursor,
+            "! {}",
+            map.words.get(i as usize).map_or("?", String::as_str)
+        ),
         Command::Control(c) => writeln!(cursor, "! {}", c.as_str()),
     };
     cursor.position() as usize
@@ -47,8 +57,8 @@ fn trim_line(line: &[u8]) -> &[u8] {
     l
 }
 
-/// Decode a status reply line (`= k=v …`).
-pub fn decode_status(line: &[u8]) -> Result<Reading, String> {
+/// Decode a status reply line (`= k=v …`) by the device's keys.
+pub fn decode_status(line: &[u8], map: &LineMap) -> Result<Reading, String> {
     let text = std::str::from_utf8(trim_line(line)).map_err(|_| "not ASCII".to_string())?;
     let rest = text
         .strip_prefix('=')
@@ -58,55 +68,59 @@ pub fn decode_status(line: &[u8]) -> Result<Reading, String> {
         let (k, v) = pair
             .split_once('=')
             .ok_or_else(|| format!("expected key=value, got {pair:?}"))?;
-        let num = || {
-            v.parse::<f64>()
+        if k == "flt" {
+            r.fault = v
+                .parse()
+                .map_err(|_| format!("flt: expected 0…65535, got {v:?}"))?;
+            continue;
+        }
+        // Unknown keys are ignored: newer firmware may report more.
+        let Some(i) = map.keys.iter().position(|key| key == k) else {
+            continue;
+        };
+        let words = &map.reading_words[i];
+        let value = if !words.is_empty() {
+            words
+                .iter()
+                .position(|w| w.eq_ignore_ascii_case(v))
+                .ok_or_else(|| format!("{k}: expected one of {}, got {v:?}", words.join(", ")))?
+                as f64
+        } else {
+            let x = v
+                .parse::<f64>()
                 .ok()
                 .filter(|x| x.is_finite())
-                .ok_or_else(|| format!("{k}: expected a number, got {v:?}"))
-        };
-        match k {
-            "pos" => r.position = Some(num()?),
-            "vel" => r.velocity = Some(num()?),
-            "prs" => r.pressure = Some(num()?),
-            "rpm" => r.rpm = Some(num()?),
-            "spd" => r.speed = Some(num()?),
-            "clt" => r.coolant = Some(num()?),
-            "run" => r.running = Some(num()? != 0.0),
-            "flt" => {
-                r.fault = v
-                    .parse()
-                    .map_err(|_| format!("flt: expected 0…65535, got {v:?}"))?
+                .ok_or_else(|| format!("{k}: expected a number, got {v:?}"))?;
+            if map.flags[i] {
+                f64::from(u8::from(x != 0.0))
+            } else {
+                x
             }
-            "gear" => r.gear = Some(v.parse()?),
-            "estop" => r.estop = Some(v.parse()?),
-            _ => {}
-        }
+        };
+        r.set(i, value);
     }
     Ok(r)
 }
 
 /// Encode a status reply (device side).
-pub fn encode_status(r: &Reading) -> Vec<u8> {
+pub fn encode_status(r: &Reading, map: &LineMap) -> Vec<u8> {
     let mut s = String::from("=");
-    let mut put = |k: &str, v: Option<String>| {
-        if let Some(v) = v {
-            s.push(' ');
-            s.push_str(k);
-            s.push('=');
-            s.push_str(&v);
+    for (i, v) in r.values() {
+        let (Some(key), Some(words)) = (map.keys.get(i), map.reading_words.get(i)) else {
+            continue;
+        };
+        s.push(' ');
+        s.push_str(key);
+        s.push('=');
+        if !words.is_empty() {
+            s.push_str(words.get(v as usize).map_or("?", String::as_str));
+        } else if map.flags[i] {
+            s.push_str(if v != 0.0 { "1" } else { "0" });
+        } else {
+            s.push_str(&format!("{v:.4}"));
         }
-    };
-    put("pos", r.position.map(|v| format!("{v:.4}")));
-    put("vel", r.velocity.map(|v| format!("{v:.4}")));
-    put("prs", r.pressure.map(|v| format!("{v:.3}")));
-    put("gear", r.gear.map(|g| g.to_string()));
-    put("estop", r.estop.map(|e| e.to_string()));
-    put("rpm", r.rpm.map(|v| format!("{v:.0}")));
-    put("spd", r.speed.map(|v| format!("{v:.3}")));
-    put("clt", r.coolant.map(|v| format!("{v:.1}")));
-    put("run", r.running.map(|v| u8::from(v).to_string()));
-    put("flt", Some(r.fault.to_string()));
-    s.push('\n');
+    }
+    s.push_str(&format!(" flt={}\n", r.fault));
     s.into_bytes()
 }
 
@@ -117,8 +131,9 @@ pub enum Request {
     Command(Command),
 }
 
-/// Decode one request line (device side).
-pub fn decode_request(line: &[u8]) -> Result<Request, String> {
+/// Decode one request line (device side). A word is one of the device's states, then
+/// a control word.
+pub fn decode_request(line: &[u8], map: &LineMap) -> Result<Request, String> {
     let text = std::str::from_utf8(trim_line(line)).map_err(|_| "not ASCII".to_string())?;
     if text == "?" {
         return Ok(Request::Poll);
@@ -132,11 +147,11 @@ pub fn decode_request(line: &[u8]) -> Result<Request, String> {
             return Ok(Request::Command(Command::Set(v)));
         }
     }
-    if let Ok(c) = arg.parse::<Control>() {
-        return Ok(Request::Command(Command::Control(c)));
+    if let Some(i) = map.words.iter().position(|w| w.eq_ignore_ascii_case(arg)) {
+        return Ok(Request::Command(Command::State(i as u8)));
     }
-    arg.parse::<Gear>()
-        .map(|g| Request::Command(Command::Gear(g)))
+    arg.parse::<Control>()
+        .map(|c| Request::Command(Command::Control(c)))
         .map_err(|_| format!("bad command value {arg:?}"))
 }
 
@@ -159,13 +174,15 @@ pub fn decode_ack(line: &[u8]) -> Result<(), DriverError> {
 
 /// Host side of the line protocol.
 pub struct LineDriver {
+    map: LineMap,
     reply_timeout: Duration,
     buf: Vec<u8>,
 }
 
 impl LineDriver {
-    pub fn new(reply_timeout: Duration) -> Self {
+    pub fn new(map: LineMap, reply_timeout: Duration) -> Self {
         LineDriver {
+            map,
             reply_timeout,
             buf: Vec::with_capacity(MAX_LINE * 2),
         }
@@ -184,13 +201,13 @@ impl LineDriver {
 
 impl Driver for LineDriver {
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError> {
-        let line = self.transact(link, POLL)?;
-        decode_status(line).map_err(DriverError::Garbled)
+        self.transact(link, POLL)?;
+        decode_status(&self.buf, &self.map).map_err(DriverError::Garbled)
     }
 
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
-        let mut frame = [0u8; 32];
-        let n = encode_command(command, &mut frame);
+        let mut frame = [0u8; 48];
+        let n = encode_command(command, &self.map, &mut frame);
         let line = self.transact(link, &frame[..n])?;
         decode_ack(line)
     }
@@ -199,60 +216,92 @@ impl Driver for LineDriver {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::value::EstopState;
+    use crate::config::wire::Wire;
+
+    fn map(device: &str) -> LineMap {
+        match crate::config::one_device(device).wire {
+            Wire::Line(m) => m,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    fn gearbox() -> LineMap {
+        map("name = \"trans\"\nkind = \"state\"\nstates = [\"park\", \"drive\"]\ndriver = \"line\"\n[device.line]\nwords = { drive = \"D\" }")
+    }
+
+    fn sensor() -> LineMap {
+        map("name = \"obd\"\nkind = \"sensor\"\nreadings = [\"rpm\", \"running\", { name = \"volts\", units = \"V\" }, \"estop\"]\ndriver = \"line\"")
+    }
 
     #[test]
     fn commands_encode_without_allocation_into_a_line() {
-        let mut out = [0u8; 32];
-        let n = encode_command(Command::Set(-0.25), &mut out);
+        let mut out = [0u8; 48];
+        let m = gearbox();
+        let n = encode_command(Command::Set(-0.25), &m, &mut out);
         assert_eq!(&out[..n], b"! -0.250\n");
-        let n = encode_command(Command::Gear(Gear::Drive), &mut out);
-        assert_eq!(&out[..n], b"! drive\n");
-        let n = encode_command(Command::Set(f64::MAX), &mut out);
+        let n = encode_command(Command::State(1), &m, &mut out);
+        assert_eq!(&out[..n], b"! D\n", "a state goes out as its word");
+        let n = encode_command(Command::Set(f64::MAX), &m, &mut out);
         assert_eq!(&out[..n], b"! 1000000.000\n");
+        let n = encode_command(Command::Control(Control::Home), &m, &mut out);
+        assert_eq!(&out[..n], b"! home\n");
     }
 
     #[test]
     fn status_round_trips_through_the_wire_form() {
-        let r = Reading {
-            position: Some(0.5),
-            velocity: Some(-0.1),
-            gear: Some(Gear::Reverse),
-            estop: Some(EstopState::Pause),
-            running: Some(true),
-            fault: 3,
-            ..Reading::default()
-        };
-        assert_eq!(decode_status(&encode_status(&r)), Ok(r));
+        let m = sensor();
+        let mut r = Reading::default();
+        r.set(0, 812.0);
+        r.set(1, 1.0);
+        r.set(2, 47.5);
+        r.set(3, 1.0);
+        r.fault = 3;
+        let wire = encode_status(&r, &m);
+        assert_eq!(
+            wire,
+            b"= rpm=812.0000 run=1 volts=47.5000 estop=pause flt=3\n"
+        );
+        assert_eq!(decode_status(&wire, &m), Ok(r));
     }
 
     #[test]
     fn status_accepts_crlf_and_ignores_unknown_keys() {
-        let r = decode_status(b"= pos=0.1 temp=33 \r\n").unwrap();
-        assert_eq!(r.position, Some(0.1));
+        let r = decode_status(b"= rpm=700 temp=33 \r\n", &sensor()).unwrap();
+        assert_eq!(r.get(0), Some(700.0));
+        assert_eq!(r.get(2), None);
     }
 
     #[test]
     fn garbage_status_is_an_error_naming_the_problem() {
-        assert!(decode_status(b"pos=1\n").unwrap_err().contains("'='"));
-        assert!(decode_status(b"= pos=abc\n").unwrap_err().contains("pos"));
-        assert!(decode_status(b"= pos=NaN\n").is_err());
-        assert!(decode_status(b"= gear=sport\n").is_err());
+        let m = sensor();
+        assert!(decode_status(b"rpm=1\n", &m).unwrap_err().contains("'='"));
+        assert!(decode_status(b"= rpm=abc\n", &m)
+            .unwrap_err()
+            .contains("rpm"));
+        assert!(decode_status(b"= rpm=NaN\n", &m).is_err());
+        assert!(decode_status(b"= estop=sport\n", &m)
+            .unwrap_err()
+            .contains("disable, pause, run"));
     }
 
     #[test]
     fn requests_decode_on_the_device_side() {
-        assert_eq!(decode_request(b"?\n"), Ok(Request::Poll));
+        let m = gearbox();
+        assert_eq!(decode_request(b"?\n", &m), Ok(Request::Poll));
         assert_eq!(
-            decode_request(b"! 0.250\r\n"),
+            decode_request(b"! 0.250\r\n", &m),
             Ok(Request::Command(Command::Set(0.25)))
         );
         assert_eq!(
-            decode_request(b"! park\n"),
-            Ok(Request::Command(Command::Gear(Gear::Park)))
+            decode_request(b"! d\n", &m),
+            Ok(Request::Command(Command::State(1)))
         );
-        assert!(decode_request(b"! inf\n").is_err());
-        assert!(decode_request(b"hello\n").is_err());
+        assert_eq!(
+            decode_request(b"! enable\n", &m),
+            Ok(Request::Command(Command::Control(Control::Enable)))
+        );
+        assert!(decode_request(b"! inf\n", &m).is_err());
+        assert!(decode_request(b"hello\n", &m).is_err());
     }
 
     #[test]

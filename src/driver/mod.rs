@@ -136,19 +136,15 @@ pub fn read_until(
 
 /// Build the driver a device's configuration asks for.
 pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
-    use crate::config::DriverKind;
-    match (config.driver, &config.modbus) {
-        (DriverKind::Modbus, Some(m)) => Box::new(modbus::ModbusDriver::new(
-            m.registers.clone(),
-            m.slave,
+    use crate::config::wire::Wire;
+    match &config.wire {
+        Wire::Modbus(m) => Box::new(modbus::ModbusDriver::new(
+            m.clone(),
             config.baud,
             config.reply_timeout,
         )),
-        (DriverKind::Elm327, _) => Box::new(elm327::Elm327Driver::new(config.reply_timeout)),
-        // A modbus device without its table is refused when the config is parsed.
-        (DriverKind::Line | DriverKind::Modbus, _) => {
-            Box::new(line::LineDriver::new(config.reply_timeout))
-        }
+        Wire::Elm327(m) => Box::new(elm327::Elm327Driver::new(m.clone(), config.reply_timeout)),
+        Wire::Line(m) => Box::new(line::LineDriver::new(m.clone(), config.reply_timeout)),
     }
 }
 

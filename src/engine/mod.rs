@@ -3,100 +3,32 @@
 //!
 //! - The **status thread** polls its device every `status_period` and stores the
 //!   reading in the cache. Readers (network, console, supervisor) only read the cache.
-//! - The **command thread** sleeps on its [`slot`] until a command arrives, then sends
+//! - The **command thread** sleeps on its slot ([`crate::vehicle::slot`]) until a
+//!   command arrives, then sends
 //!   the latest one at once; with nothing new for `command_timeout` it sends the last
 //!   one again. Commands are never queued.
-//! - Both share the device's [`port`] under adrive's priority rule (or the paper's).
+//! - Both share the device's port ([`crate::vehicle::port`]) under adrive's priority
+//!   rule (or the paper's).
+//! - Right before a command goes out, the command thread asks the safety rules'
+//!   wire check ([`Gate::check_wire`]); a wait it asks for (braking waits for the
+//!   throttle's release to go out) happens without the port held.
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
 //! [`Engine::shutdown`] joins them with a deadline and names any that did not stop.
 
-pub mod port;
-pub mod slot;
-pub mod stats;
-pub mod trace;
-
 use crate::config::PortRule;
-use crate::engine::slot::{Pending, Wake};
-use crate::engine::stats::Stats;
-use crate::value::Command;
-use crate::vehicle::{Device, Vehicle};
-use parking_lot::{Condvar, Mutex};
+use crate::safety::{Gate, WireStep};
+use crate::threads::{StopSignal, Threads};
+use crate::vehicle::slot::{Pending, Wake};
+use crate::vehicle::stats::Stats;
+use crate::vehicle::{Cached, Device, Vehicle};
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
-use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-
-/// A stop signal that sleeping threads wake up for.
-#[derive(Default)]
-pub struct StopSignal {
-    stopped: Mutex<bool>,
-    cv: Condvar,
-}
-
-impl StopSignal {
-    pub fn stop(&self) {
-        *self.stopped.lock() = true;
-        self.cv.notify_all();
-    }
-    pub fn is_stopped(&self) -> bool {
-        *self.stopped.lock()
-    }
-    /// Sleep until `until`; false if stopped meanwhile.
-    pub fn sleep_until(&self, until: Instant) -> bool {
-        let mut s = self.stopped.lock();
-        while !*s && Instant::now() < until {
-            self.cv.wait_until(&mut s, until);
-        }
-        !*s
-    }
-}
-
-/// Named threads with a stop signal, joined with a deadline.
-#[derive(Default)]
-pub struct Threads {
-    handles: Vec<(String, JoinHandle<()>)>,
-}
-
-impl Threads {
-    pub fn spawn(
-        &mut self,
-        name: String,
-        f: impl FnOnce() + Send + 'static,
-    ) -> std::io::Result<()> {
-        let h = std::thread::Builder::new().name(name.clone()).spawn(f)?;
-        self.handles.push((name, h));
-        Ok(())
-    }
-
-    pub fn names(&self) -> Vec<&str> {
-        self.handles.iter().map(|(n, _)| n.as_str()).collect()
-    }
-
-    /// Join every thread, waiting at most until `deadline`; returns the names of those
-    /// still running (and logs them).
-    pub fn join(self, deadline: Instant) -> Vec<String> {
-        let mut stuck = Vec::new();
-        for (name, h) in self.handles {
-            while !h.is_finished() && Instant::now() < deadline {
-                std::thread::sleep(Duration::from_millis(2));
-            }
-            if h.is_finished() {
-                if h.join().is_err() {
-                    tracing::error!(thread = %name, "thread panicked");
-                }
-            } else {
-                tracing::error!(thread = %name, "thread did not stop in time");
-                stuck.push(name);
-            }
-        }
-        stuck
-    }
-}
 
 /// The running engine.
 pub struct Engine {
-    vehicle: Arc<Vehicle>,
+    gate: Arc<Gate>,
     stop: Arc<StopSignal>,
     threads: Threads,
     stopped: bool,
@@ -104,32 +36,37 @@ pub struct Engine {
 
 impl Engine {
     /// Start the status thread of every device and the command thread of every actuator.
-    pub fn start(vehicle: Arc<Vehicle>) -> std::io::Result<Engine> {
+    pub fn start(gate: Arc<Gate>) -> std::io::Result<Engine> {
         let stop = Arc::new(StopSignal::default());
         let mut threads = Threads::default();
+        let vehicle = gate.vehicle.clone();
         for i in 0..vehicle.devices.len() {
-            let role = vehicle.devices[i].role;
+            let name = vehicle.devices[i].name().to_string();
             let (v, s) = (vehicle.clone(), stop.clone());
-            threads.spawn(format!("{role}/status"), move || {
+            threads.spawn(format!("{name}/status"), move || {
                 status_loop(&v.devices[i], &s)
             })?;
             if vehicle.devices[i].is_actuator() {
-                let v = vehicle.clone();
-                threads.spawn(format!("{role}/command"), move || {
-                    command_loop(&v, &v.devices[i])
+                let g = gate.clone();
+                threads.spawn(format!("{name}/command"), move || {
+                    command_loop(&g, &g.vehicle.devices[i])
                 })?;
             }
         }
         Ok(Engine {
-            vehicle,
+            gate,
             stop,
             threads,
             stopped: false,
         })
     }
 
+    pub fn gate(&self) -> &Arc<Gate> {
+        &self.gate
+    }
+
     pub fn vehicle(&self) -> &Arc<Vehicle> {
-        &self.vehicle
+        &self.gate.vehicle
     }
 
     pub fn thread_names(&self) -> Vec<&str> {
@@ -146,11 +83,11 @@ impl Engine {
         self.stopped = true;
         let end = Instant::now() + deadline;
         // Refuse every command from here on, then the safe state.
-        self.vehicle.disengage("stopping");
-        self.vehicle.command_safe_state();
-        let safe = self.vehicle.wait_safe(Instant::now() + deadline / 2);
+        self.gate.disengage("stopping");
+        self.gate.command_safe_state();
+        let safe = self.gate.wait_safe(Instant::now() + deadline / 2);
         self.stop.stop();
-        for d in &self.vehicle.devices {
+        for d in &self.gate.vehicle.devices {
             d.slot.stop();
             d.port.stop();
         }
@@ -166,7 +103,7 @@ impl Drop for Engine {
             tracing::error!("engine dropped without shutdown: commanding the safe state");
             let (safe, _) = self.stop_all(Duration::from_secs(2));
             if safe {
-                tracing::info!("safe state acknowledged: gas 0, brake full");
+                tracing::info!("safe state acknowledged");
             }
         }
     }
@@ -200,7 +137,7 @@ fn status_loop(d: &Device, stop: &StopSignal) {
         }
         match result {
             Ok(reading) => {
-                *d.cache.lock() = crate::vehicle::Cached {
+                *d.cache.lock() = Cached {
                     reading,
                     at: Some(done),
                 };
@@ -215,96 +152,122 @@ fn status_loop(d: &Device, stop: &StopSignal) {
     }
 }
 
-fn command_loop(v: &Vehicle, d: &Device) {
+/// One actuator's command thread: wait for a command (or the resend timeout), have
+/// it checked at the wire, take the port, send the newest command, keep the port for
+/// a newer one that arrived meanwhile.
+fn command_loop(gate: &Gate, d: &Device) {
     let mut last_sent_at: Option<Instant> = None;
     loop {
-        let (mut job, mut resend) = match d.slot.wait(d.settings.command_timeout()) {
+        // 1. Something to send: a new command (in flight from now on), or the last
+        //    one again. Set points and states are resent; a drive-control command
+        //    (enable, home, the starter) happens once, when asked.
+        let (mut job, mut fresh) = match d.slot.wait(d.settings.command_timeout()) {
             Wake::Stop => return,
-            Wake::Command(p) => (p, false),
-            // Set points and gears are resent; a drive-control command (enable, home,
-            // the starter) happens once, when asked.
+            Wake::Command(p) => (p, true),
             Wake::Timeout | Wake::Nudge => match d.slot.resend() {
-                Some(Command::Control(_)) | None => continue,
-                Some(command) => (
-                    Pending {
+                Some(crate::value::Command::Control(_)) | None => continue,
+                Some(command) => {
+                    d.slot.fly(command);
+                    let p = Pending {
                         command,
                         received: Instant::now(),
-                    },
-                    true,
-                ),
+                    };
+                    (p, false)
+                }
             },
         };
         if !d.settings.command_enabled.load(Relaxed) {
+            d.slot.drop_flight();
             continue;
         }
-        // The paper's rate cap, when configured: hold off, letting newer commands
-        // replace this one meanwhile.
+        // 2. The paper's rate cap, when configured: hold off, letting newer commands
+        //    replace this one meanwhile.
         if let (Some(min), Some(t)) = (d.config.min_command_interval, last_sent_at) {
             if !d.slot.sleep_until(t + min) {
                 return;
             }
             if let Some(newer) = d.slot.take_newer() {
                 Stats::bump(&d.stats.superseded);
-                (job, resend) = (newer, false);
+                (job, fresh) = (newer, true);
             }
         }
-        let Some(mut port) = d.port.acquire_command() else {
-            return;
-        };
-        // A command that arrived while we waited for the port replaces this one. (The
-        // paper's thread sent the value it had cued before blocking: that staleness is
-        // what its field tests saw as ~200 ms stalls, so the paper rule keeps it.)
-        if d.port.rule() == PortRule::Priority {
-            if let Some(newer) = d.slot.take_newer() {
-                Stats::bump(&d.stats.superseded);
-                (job, resend) = (newer, false);
-            }
-        }
+        // 3. The wire check (it may replace the command — gas while braking goes out
+        //    as 0 — or drop it — a shift that became unsafe — or first wait for
+        //    another device, never while holding the port), then the port, then one
+        //    transaction. A newer command taken on the way is checked in its turn; the
+        //    port is kept for it unless it must wait.
+        let mut port = None;
+        let mut waited = false;
         loop {
-            d.slot.set_last(job.command);
-            // The wire-level interlock check; it may replace the command (gas while
-            // braking goes out as 0), drop it (a shift that became unsafe), or wait a
-            // moment (braking waits for the gas release to reach the wire).
-            let Some(command) = v.clear_to_send(d.role, job.command) else {
-                d.slot.restore_last(d.slot.sent());
-                break;
+            let command = match gate.check_wire(d, job.command, waited) {
+                WireStep::Send(c) => c,
+                WireStep::Drop => {
+                    d.slot.drop_flight();
+                    break;
+                }
+                WireStep::Wait(w) => {
+                    port = None;
+                    gate.wait_for(w);
+                    waited = true;
+                    continue;
+                }
+            };
+            let held = match port.as_mut() {
+                Some(p) => p,
+                None => {
+                    let Some(p) = d.port.acquire_command() else {
+                        return;
+                    };
+                    let p = port.insert(p);
+                    // A command that arrived while we waited for the port replaces this
+                    // one. (The paper's thread sent the value it had cued before
+                    // blocking: that staleness is what its field tests saw as ~200 ms
+                    // stalls, so the paper rule keeps it.)
+                    if d.port.rule() == PortRule::Priority {
+                        if let Some(newer) = d.slot.take_newer() {
+                            Stats::bump(&d.stats.superseded);
+                            (job, fresh, waited) = (newer, true, false);
+                            continue;
+                        }
+                    }
+                    p
+                }
             };
             if command != job.command {
-                d.slot.set_last(command);
+                d.slot.fly(command);
             }
-            let (result, first) = port.transact(|drv, link| drv.command(link, command));
+            let (result, first) = held.transact(|drv, link| drv.command(link, command));
             let done = Instant::now();
-            d.slot.set_sent(command);
             if let Some(first) = first {
-                if !resend {
+                if fresh {
                     d.stats.command_delay.record(first - job.received);
                 }
                 d.stats.command_txn.record(done - first);
                 last_sent_at = Some(first);
             }
+            d.slot.finish(command, result.is_ok());
             match result {
                 Ok(()) => {
                     Stats::bump(&d.stats.executed);
-                    if resend {
+                    if !fresh {
                         Stats::bump(&d.stats.resent);
                     }
                     d.health.command_error.store(0, Relaxed);
                     d.record_ok();
-                    d.slot.set_executed(command);
                 }
                 Err(e) => {
                     Stats::bump(&d.stats.command_errors);
                     d.record_error(&e, true);
                 }
             }
-            // Keep the port for a command that came in meanwhile, unless an overdue
-            // status poll is waiting or a rate cap applies.
+            // 4. Keep the port for a command that came in meanwhile, unless an overdue
+            //    status poll is waiting or a rate cap applies.
             if d.port.rule() == PortRule::Priority
                 && d.config.min_command_interval.is_none()
-                && !port.status_waiting()
+                && !held.status_waiting()
             {
                 if let Some(next) = d.slot.take_newer() {
-                    (job, resend) = (next, false);
+                    (job, fresh, waited) = (next, true, false);
                     continue;
                 }
             }

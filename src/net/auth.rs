@@ -158,8 +158,14 @@ impl fmt::Debug for Auth {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::net::proto::{parse, NetCommand};
-    use crate::value::{Command, Role};
+    use crate::net::proto::{NetCommand, Vocabulary};
+    use crate::value::{Command, DeviceId};
+
+    #[allow(clippy::result_large_err)]
+    fn parse(bytes: &[u8]) -> Result<crate::net::proto::Datagram, crate::net::proto::ParseError> {
+        let alice = crate::config::VehicleConfig::alice();
+        crate::net::proto::parse(bytes, &Vocabulary::of(&alice))
+    }
 
     const KEY: &[u8] = b"correct horse battery staple";
 
@@ -186,8 +192,8 @@ mod tests {
         assert_eq!(
             d.commands.as_slice(),
             [
-                NetCommand::Set(Role::Steer, Command::Set(0.2)),
-                NetCommand::Set(Role::Gas, Command::Set(0.1)),
+                NetCommand::Set(DeviceId(0), Command::Set(0.2)),
+                NetCommand::Set(DeviceId(1), Command::Set(0.1)),
             ]
         );
         auth().verify(&d, OPENSSL_DATAGRAM, Some(1000)).unwrap();

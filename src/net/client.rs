@@ -3,9 +3,9 @@
 //! which prints the state broadcast as it arrives.
 
 use super::auth::Auth;
-use super::proto::{self, MAX_DATAGRAM};
-use crate::value::Role;
-use serde_json::Value;
+use super::proto::{self, Vocabulary, MAX_DATAGRAM};
+use crate::snapshot::Snapshot;
+use crate::value::Value;
 use socket2::{Domain, Protocol, Socket, Type};
 use std::fmt::Write as _;
 use std::io::{self, Write};
@@ -16,40 +16,31 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 /// How long a one-shot `send` waits for a reply.
 pub const REPLY_WAIT: Duration = Duration::from_millis(200);
 
-/// The words that start a command line.
-const VERBS: [&str; 9] = [
-    "steer",
-    "gas",
-    "brake",
-    "accel",
-    "trans",
-    "engage",
-    "disengage",
-    "estop",
-    "obd",
-];
-
-/// Command-line words to protocol lines: each verb starts a new line, so
-/// `engage trans drive accel 0.3` and `'trans drive' 'accel 0.3'` both work.
-/// A `;` or newline inside an argument also separates lines.
+/// Command-line words to protocol lines: `engage` and `disengage` stand alone, every
+/// other line is a name and a value, so `engage trans drive accel 0.3` and
+/// `'trans drive' 'accel 0.3'` both work whatever the vehicle's devices are called.
+/// A `;` or newline inside an argument also ends a line.
 pub fn lines_from_words(words: &[String]) -> String {
-    let mut lines: Vec<String> = Vec::new();
+    let mut lines: Vec<Vec<String>> = Vec::new();
+    let alone = |w: &str| {
+        ["engage", "disengage"]
+            .iter()
+            .any(|k| k.eq_ignore_ascii_case(w))
+    };
     for arg in words {
         for (k, part) in arg.split([';', '\n']).enumerate() {
             for (j, w) in part.split_whitespace().enumerate() {
-                let verb = VERBS.iter().any(|v| v.eq_ignore_ascii_case(w));
                 let split = k > 0 && j == 0;
                 match lines.last_mut() {
-                    Some(l) if !verb && !split => {
-                        l.push(' ');
-                        l.push_str(w);
+                    Some(l) if !split && !alone(w) && l.len() == 1 && !alone(&l[0]) => {
+                        l.push(w.to_string())
                     }
-                    _ => lines.push(w.to_string()),
+                    _ => lines.push(vec![w.to_string()]),
                 }
             }
         }
     }
-    lines.iter().map(|l| format!("{l}\n")).collect()
+    lines.iter().map(|l| format!("{}\n", l.join(" "))).collect()
 }
 
 /// What `send` does.
@@ -73,7 +64,7 @@ fn now_ns() -> u64 {
 /// `adrive send`: returns the exit status (0 sent and not refused, 1 refused or no
 /// listener, 2 bad command line).
 pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32> {
-    if let Err(e) = proto::parse(body.as_bytes()) {
+    if let Err(e) = proto::parse(body.as_bytes(), &Vocabulary::open()) {
         eprintln!("adrive send: {e}");
         eprintln!("the commands, one per line, as sent:\n{body}");
         return Ok(2);
@@ -259,12 +250,11 @@ pub fn watch(
             out.flush()?;
             continue;
         }
-        match serde_json::from_slice::<Value>(bytes) {
+        match serde_json::from_slice::<Snapshot>(bytes) {
             Ok(v) => {
-                let gate = v["gate"].as_str().unwrap_or("").to_string();
-                if gate != last_gate {
-                    writeln!(out, "-- {gate}")?;
-                    last_gate = gate;
+                if v.gate.reason != last_gate {
+                    writeln!(out, "-- {}", v.gate.reason)?;
+                    last_gate = v.gate.reason.clone();
                 }
                 writeln!(out, "{}", human_line(&v))?;
             }
@@ -275,63 +265,57 @@ pub fn watch(
     Ok(0)
 }
 
-fn num(v: &Value) -> Option<f64> {
-    v.as_f64()
-}
-
-fn value(v: &Value) -> String {
+fn value(v: Option<&Value>) -> String {
     match v {
-        Value::Number(n) => format!("{:.2}", n.as_f64().unwrap_or(f64::NAN)),
-        Value::String(s) => s.clone(),
-        _ => "-".into(),
+        Some(Value::Number(n)) => format!("{n:.2}"),
+        Some(other) => other.to_string(),
+        None => "-".into(),
     }
 }
 
-/// One broadcast as one line for a person.
-pub fn human_line(v: &Value) -> String {
+/// One snapshot as one line for a person: each actuator as commanded/measured, each
+/// sensor's readings.
+pub fn human_line(v: &Snapshot) -> String {
     let mut l = String::new();
     let _ = write!(
         l,
         "{:>7.1}s {:<10} watchdog {:<7}",
-        num(&v["uptime_s"]).unwrap_or(0.0),
-        if v["engaged"].as_bool() == Some(true) {
+        v.uptime_s,
+        if v.gate.engaged {
             "ENGAGED"
         } else {
             "disengaged"
         },
-        v["net"]["watchdog"]["state"].as_str().unwrap_or("-"),
+        v.net
+            .as_ref()
+            .map_or("-".to_string(), |n| format!("{:?}", n.watchdog.state)
+                .to_lowercase()),
     );
-    if let Some(devices) = v["devices"].as_object() {
-        // In the vehicle's order (the JSON object is; a parsed `Value` is sorted).
-        let order = |n: &str| Role::ALL.iter().position(|r| r.as_str() == n).unwrap_or(99);
-        let mut devices: Vec<_> = devices.iter().collect();
-        devices.sort_by_key(|(n, _)| order(n));
-        for (name, d) in devices {
-            let m = &d["measured"];
-            let flag = if d["faulty"].as_bool() == Some(true) {
-                "!FAULTY"
-            } else {
-                ""
-            };
-            let measured = match name.as_str() {
-                "trans" => value(&m["gear"]),
-                "estop" => value(&m["estop"]),
-                "obd" => {
-                    let _ = write!(
-                        l,
-                        " | speed {:.2} m/s rpm {:.0}{flag}",
-                        num(&m["speed"]).unwrap_or(f64::NAN),
-                        num(&m["rpm"]).unwrap_or(f64::NAN)
-                    );
-                    continue;
+    for d in &v.devices {
+        let flag = if d.health.faulty { "!FAULTY" } else { "" };
+        if d.is_actuator() {
+            let measured = d.readings.0.first().and_then(|(_, v)| v.as_ref());
+            let _ = write!(
+                l,
+                " | {} {}/{}{flag}",
+                d.name,
+                value(d.commanded.as_ref()),
+                value(measured)
+            );
+        } else {
+            let _ = write!(l, " | {}", d.name);
+            let single = d.readings.len() == 1;
+            for ((name, v), (_, units)) in d.readings.iter().zip(d.reading_units.iter()) {
+                if single {
+                    let _ = write!(l, " {}", value(v.as_ref()));
+                } else {
+                    let _ = write!(l, " {name} {}", value(v.as_ref()));
                 }
-                _ => value(&m["position"]),
-            };
-            if d["actuator"].as_bool() == Some(true) {
-                let _ = write!(l, " | {name} {}/{measured}{flag}", value(&d["commanded"]));
-            } else {
-                let _ = write!(l, " | {name} {measured}{flag}");
+                if !units.is_empty() && matches!(v, Some(Value::Number(_))) {
+                    let _ = write!(l, " {units}");
+                }
             }
+            l.push_str(flag);
         }
     }
     l
@@ -346,10 +330,14 @@ mod tests {
     }
 
     #[test]
-    fn words_become_one_line_per_verb() {
+    fn words_become_one_line_per_command() {
         assert_eq!(
             words(&["engage", "trans", "drive", "accel", "0.3"]),
             "engage\ntrans drive\naccel 0.3\n"
+        );
+        assert_eq!(
+            words(&["signal", "left", "horn", "on", "disengage"]),
+            "signal left\nhorn on\ndisengage\n"
         );
         assert_eq!(words(&["steer 0.2", "GAS", "0"]), "steer 0.2\nGAS 0\n");
         assert_eq!(words(&["steer 0.2; brake 1"]), "steer 0.2\nbrake 1\n");

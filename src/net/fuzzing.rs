@@ -4,8 +4,13 @@
 //! an accepted datagram breaks a promise the engine relies on. Not part of the API.
 
 use super::auth::Auth;
-use super::proto::{parse, Datagram, NetCommand, Reject, MAX_COMMANDS};
-use crate::value::{Command, Role};
+use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary, MAX_COMMANDS};
+use crate::config::VehicleConfig;
+use crate::value::{Command, Kind};
+use std::sync::LazyLock;
+
+/// The vehicle the fuzzers speak to: the built-in Alice.
+static ALICE: LazyLock<VehicleConfig> = LazyLock::new(VehicleConfig::alice);
 
 /// Words and shapes the grammar cares about: fuzzers splice them into their inputs to
 /// get past the first check (the stable loop, the property tests).
@@ -62,7 +67,7 @@ pub const FUZZ_KEY: &[u8] = b"adrive fuzzing key, not a secret";
 /// [`Auth::verify`] on it, and returns what [`parse`] decided. Panics on a broken
 /// invariant; that panic is the fuzzers' finding.
 pub fn exercise(bytes: &[u8]) -> Result<Datagram, Reject> {
-    let datagram = parse(bytes).map_err(|e| {
+    let datagram = parse(bytes, &Vocabulary::of(&ALICE)).map_err(|e| {
         // The human message must render for any input.
         let _ = e.to_string();
         e.reason
@@ -94,20 +99,33 @@ fn check_accepted(d: &Datagram, bytes: &[u8]) {
     }
     for c in &d.commands {
         match *c {
-            NetCommand::Set(Role::Steer, Command::Set(v)) | NetCommand::Accel(v) => {
+            NetCommand::Accel(v) => {
                 assert!((-1.0..=1.0).contains(&v), "accepted out of range: {c:?}")
             }
-            NetCommand::Set(Role::Gas | Role::Brake, Command::Set(v)) => {
-                assert!((0.0..=1.0).contains(&v), "accepted out of range: {c:?}")
+            NetCommand::Set(id, command) => {
+                let dev = &ALICE.devices[id.index()];
+                match (dev.kind, command) {
+                    (Kind::Setpoint, Command::Set(v)) => {
+                        let [lo, hi] = dev.range;
+                        assert!((lo..=hi).contains(&v), "accepted out of range: {c:?}")
+                    }
+                    (Kind::State, Command::State(s)) => {
+                        assert!((s as usize) < dev.states.len(), "no such state: {c:?}")
+                    }
+                    _ => panic!("accepted a command its device does not take: {c:?}"),
+                }
             }
-            NetCommand::Set(Role::Trans, Command::Gear(_)) => {}
             NetCommand::Engage | NetCommand::Disengage => {}
-            NetCommand::Set(..) => panic!("accepted a command no actuator takes: {c:?}"),
         }
     }
     // What was accepted prints back to lines that parse to the same commands.
-    let text: String = d.commands.iter().map(|c| format!("{c}\n")).collect();
-    let again = parse(text.as_bytes()).unwrap_or_else(|e| panic!("{text:?}: {e}"));
+    let vocab = Vocabulary::of(&ALICE);
+    let text: String = d
+        .commands
+        .iter()
+        .map(|c| format!("{}\n", vocab.line(c)))
+        .collect();
+    let again = parse(text.as_bytes(), &vocab).unwrap_or_else(|e| panic!("{text:?}: {e}"));
     assert_eq!(again.commands, d.commands, "{text:?}");
 }
 

@@ -1,20 +1,27 @@
-//! What the listener does with one datagram, without the socket: check the sender,
-//! the grammar, the key and the counter; decide who commands; engage, disengage, or
-//! hand each command to [`Vehicle::submit`] (which checks the interlocks and wakes the
-//! command thread). And what the watchdog does on each tick. Both share the
-//! [`NetStatus`] table under one short-held lock.
+//! What the listener does with one datagram, without the socket, in three steps:
 //!
-//! The path of an accepted command datagram does not touch the heap: the parser and
-//! the key check are allocation-free, the sender table is a fixed array, and a reply is
-//! written into an inline [`Reply`] buffer. Only refusals are logged (rate-limited), and
-//! only engaging and disengaging format a reason string.
+//! 1. **admit**, under the [`NetStatus`] lock: the sender (allow-list, its table
+//!    entry), the grammar against the vehicle's words, the key and the counter, and who
+//!    commands now;
+//! 2. **apply**, without any lock of its own: each command goes to the
+//!    [`Gate`] (which checks the interlocks and wakes the command
+//!    thread), `engage` and `disengage` to the gate;
+//! 3. **record**, under the lock again: the commander, the watchdog, counters and the
+//!    reply.
+//!
+//! The watchdog's tick shares the same table. The path of an accepted command
+//! datagram does not touch the heap: the parser and the key check are allocation-free,
+//! the sender table is a fixed array, and a reply is written into an inline [`Reply`]
+//! buffer. Only refusals are logged (rate-limited), and only engaging and disengaging
+//! format a reason string.
 
 use super::auth::Auth;
 use super::config::NetworkConfig;
-use super::proto::{parse, NetCommand, Reject};
-use super::status::{Inner, NetStatus, Refusal, WatchdogState};
+use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary};
+use super::status::{Inner, NetStatus, Refusal};
 use crate::logging::RateLimit;
-use crate::vehicle::Vehicle;
+use crate::safety::Gate;
+use crate::snapshot::WatchdogState;
 use arrayvec::ArrayString;
 use std::fmt::Write;
 use std::net::SocketAddr;
@@ -32,7 +39,7 @@ pub const REPLY_BUDGET: u32 = 500;
 
 /// The listener's decisions. Owned by the listener thread.
 pub struct Intake {
-    vehicle: Arc<Vehicle>,
+    gate: Arc<Gate>,
     config: NetworkConfig,
     auth: Option<Auth>,
     status: Arc<NetStatus>,
@@ -50,6 +57,14 @@ struct Outcome {
 }
 
 impl Outcome {
+    fn new() -> Outcome {
+        Outcome {
+            reply: Reply::new(),
+            refused: false,
+            gate: false,
+        }
+    }
+
     fn line(&mut self, args: std::fmt::Arguments) {
         // A full buffer drops the rest of the reply, never the command.
         let _ = self.reply.write_fmt(args);
@@ -57,16 +72,31 @@ impl Outcome {
     }
 }
 
+/// What applying a datagram changed, for the record step.
+#[derive(Default)]
+struct Effects {
+    /// The sender asked to engage.
+    asked_engage: bool,
+    /// It sent a command for a device (or accel).
+    commanded: bool,
+    /// It disengaged the vehicle; the commander it took command from, if another.
+    disengaged: Option<Option<SocketAddr>>,
+    /// It engaged the vehicle, or took command of a vehicle the console engaged.
+    took_command: bool,
+    /// Its commands were refused because another sender commands.
+    refused_other: bool,
+}
+
 impl Intake {
     pub fn new(
-        vehicle: Arc<Vehicle>,
+        gate: Arc<Gate>,
         config: NetworkConfig,
         auth: Option<Auth>,
         status: Arc<NetStatus>,
         closing: Arc<AtomicBool>,
     ) -> Intake {
         Intake {
-            vehicle,
+            gate,
             config,
             auth,
             status,
@@ -91,6 +121,30 @@ impl Intake {
             }
             return None;
         }
+        if self.closing.load(Relaxed) {
+            st.count_refusal(Refusal::Closing);
+            return None;
+        }
+        let (i, d, commander) = match self.admit(bytes, from, received) {
+            Ok(admitted) => admitted,
+            Err(reply) => return reply,
+        };
+        let mut out = Outcome::new();
+        let effects = self.apply(&d, from, commander, received, &mut out);
+        self.record(i, from, effects, out, received)
+    }
+
+    /// Step 1, under the lock: sender table, grammar, key, counter. Returns the
+    /// sender's slot, the datagram, and who commands now; or the reply to a rejection.
+    // The reply is inline (no heap on the command path).
+    #[allow(clippy::type_complexity, clippy::result_large_err)]
+    fn admit(
+        &mut self,
+        bytes: &[u8],
+        from: SocketAddr,
+        received: Instant,
+    ) -> Result<(usize, Datagram, Option<SocketAddr>), Option<Reply>> {
+        let st = self.status.clone();
         let mut inner = st.inner.lock();
         let i = inner.sender(from, received);
         let quiet_for = received.saturating_duration_since(inner.get(i).last_seen);
@@ -102,36 +156,29 @@ impl Intake {
                 s.latched = false;
             }
         }
-        let mut out = Outcome {
-            reply: Reply::new(),
-            refused: false,
-            gate: false,
-        };
-        if self.closing.load(Relaxed) {
-            st.count_refusal(Refusal::Closing);
-            return None;
-        }
-        let d = match parse(bytes) {
+        let mut out = Outcome::new();
+        let vocab = Vocabulary::of(&self.gate.vehicle.config);
+        let d = match parse(bytes, &vocab) {
             Ok(d) => d,
             Err(e) => {
-                self.reject(&mut inner, i, e.reason, received);
+                self.reject(&mut inner, i, e.reason);
                 if self.log.allow(received) {
                     tracing::warn!(%from, "rejected datagram: {e}");
                 }
                 out.line(format_args!("rejected: {e}"));
                 out.refused = true;
-                return self.reply(&mut inner, i, out, received);
+                return Err(self.reply(&mut inner, i, out, received));
             }
         };
         if let Some(auth) = &self.auth {
             if let Err(r) = auth.verify(&d, bytes, inner.keyed_seq) {
-                self.reject(&mut inner, i, r, received);
+                self.reject(&mut inner, i, r);
                 if self.log.allow(received) {
                     tracing::warn!(%from, "rejected datagram: {r}");
                 }
                 out.line(format_args!("rejected: {r}"));
                 out.refused = true;
-                return self.reply(&mut inner, i, out, received);
+                return Err(self.reply(&mut inner, i, out, received));
             }
             inner.keyed_seq = d.seq;
         }
@@ -140,7 +187,7 @@ impl Intake {
                 // Alive but frozen: the same counter again. Not a valid command, so
                 // the watchdog keeps counting.
                 inner.get(i).stale = true;
-                self.reject(&mut inner, i, Reject::Replayed, received);
+                self.reject(&mut inner, i, Reject::Replayed);
                 if self.log.allow(received) {
                     tracing::warn!(%from, seq, "rejected datagram: the rolling counter did not advance");
                 }
@@ -148,34 +195,39 @@ impl Intake {
                     "rejected: replayed: the rolling counter did not advance (seq {seq})"
                 ));
                 out.refused = true;
-                return self.reply(&mut inner, i, out, received);
+                return Err(self.reply(&mut inner, i, out, received));
             }
             inner.get(i).seq = Some(seq);
         }
         inner.get(i).stale = false;
-        sync(&self.vehicle, &mut inner);
+        sync(&self.gate, &mut inner);
+        Ok((i, d, inner.commander))
+    }
 
-        let mut asked_engage = false;
-        let mut commanded = false;
+    /// Step 2, without the lock: every command to the gate, in order.
+    fn apply(
+        &mut self,
+        d: &Datagram,
+        from: SocketAddr,
+        mut commander: Option<SocketAddr>,
+        received: Instant,
+        out: &mut Outcome,
+    ) -> Effects {
+        let st = self.status.clone();
+        let mut fx = Effects::default();
+        let gate = self.gate.clone();
+        let vocab = Vocabulary::of(&gate.vehicle.config);
         for c in &d.commands {
-            let engaged = self.vehicle.is_engaged();
-            let other = inner.commander.filter(|c| *c != from && engaged);
+            let engaged = self.gate.is_engaged();
+            let other = commander.filter(|c| *c != from && engaged);
             match *c {
                 NetCommand::Disengage => {
                     // Anyone allowed to send may stop the vehicle.
                     out.gate = true;
                     let mut why = ArrayString::<96>::new();
                     let _ = write!(why, "disengage from {from}");
-                    self.vehicle.disengage(&why);
-                    if let Some(c) = inner.commander.take() {
-                        if c != from {
-                            if let Some(s) = inner.find(c) {
-                                s.latched = true;
-                            }
-                        }
-                    }
-                    inner.get(i).latched = false;
-                    inner.watchdog = WatchdogState::Off;
+                    self.gate.disengage(&why);
+                    fx.disengaged = Some(commander.take().filter(|c| *c != from));
                     out.line(format_args!("ok disengaged"));
                 }
                 _ if other.is_some() => {
@@ -191,43 +243,92 @@ impl Intake {
                         ));
                     }
                     out.refused = true;
+                    fx.refused_other = true;
                     if matches!(c, NetCommand::Engage) {
                         out.gate = true;
                     }
                 }
                 NetCommand::Engage => {
-                    asked_engage = true;
-                    out.gate = true;
-                    self.engage(&mut inner, i, from, received, &mut out);
+                    fx.asked_engage = true;
+                    if self.engage(from, commander, out) {
+                        commander = Some(from);
+                        fx.took_command = true;
+                    }
                 }
-                NetCommand::Set(role, command) => {
-                    commanded = true;
-                    match self.vehicle.submit(role, command, received) {
-                        Ok(()) => st.count_command(role),
+                NetCommand::Set(id, command) => {
+                    fx.commanded = true;
+                    match self.gate.submit(id, command, received) {
+                        Ok(()) => st.count_command(id),
                         Err(r) => {
                             st.count_intake(r);
                             out.refused = true;
-                            out.line(format_args!("rejected {c}: {}: {r}", r.as_str()));
+                            out.line(format_args!(
+                                "rejected {}: {}: {r}",
+                                vocab.line(c),
+                                r.as_str()
+                            ));
                         }
                     }
                 }
                 NetCommand::Accel(a) => {
-                    commanded = true;
-                    match self.vehicle.submit_accel(a, received) {
+                    fx.commanded = true;
+                    match self.gate.submit_accel(a, received) {
                         Ok(()) => st.count_accel(),
                         Err(r) => {
                             st.count_intake(r);
                             out.refused = true;
-                            out.line(format_args!("rejected {c}: {}: {r}", r.as_str()));
+                            out.line(format_args!(
+                                "rejected {}: {}: {r}",
+                                vocab.line(c),
+                                r.as_str()
+                            ));
                         }
                     }
                 }
             }
+            if fx.commanded
+                && commander.is_none()
+                && self.gate.is_engaged()
+                && fx.disengaged.is_none()
+            {
+                // Engaged from the console: the first network sender to command takes
+                // over, and the watchdog watches it from now on.
+                commander = Some(from);
+                fx.took_command = true;
+            }
         }
-        let engaged = self.vehicle.is_engaged();
-        if engaged && commanded && inner.commander.is_none() {
-            // Engaged from the console: the first network sender to command takes over,
-            // and the watchdog watches it from now on.
+        fx
+    }
+
+    /// Step 3, under the lock: who commands, the watchdog, counters, the reply.
+    fn record(
+        &mut self,
+        i: usize,
+        from: SocketAddr,
+        fx: Effects,
+        out: Outcome,
+        received: Instant,
+    ) -> Option<Reply> {
+        let st = self.status.clone();
+        let mut inner = st.inner.lock();
+        if let Some(previous) = fx.disengaged {
+            if let Some(c) = inner.commander.take() {
+                if c != from {
+                    if let Some(s) = inner.find(c) {
+                        s.latched = true;
+                    }
+                }
+            }
+            if let Some(p) = previous {
+                if let Some(s) = inner.find(p) {
+                    s.latched = true;
+                }
+            }
+            inner.get(i).latched = false;
+            inner.watchdog = WatchdogState::Off;
+        }
+        let engaged = self.gate.is_engaged();
+        if engaged && fx.took_command && inner.commander.is_none() {
             inner.commander = Some(from);
             inner.watchdog = WatchdogState::Armed;
             tracing::info!(%from, "network sender commands the engaged vehicle");
@@ -235,9 +336,9 @@ impl Intake {
         if engaged && inner.commander == Some(from) {
             inner.last_valid = Some(received);
         }
-        let refused_whole = out.refused && inner.commander.is_some_and(|c| c != from);
+        let refused_whole = fx.refused_other;
         let s = inner.get(i);
-        if !asked_engage {
+        if !fx.asked_engage {
             s.latched = false;
         }
         if refused_whole {
@@ -249,68 +350,69 @@ impl Intake {
         self.reply(&mut inner, i, out, received)
     }
 
+    /// `engage` from `from`; true when it engaged the vehicle or took command of it.
+    /// A repeat from the sender already commanding changes nothing and is not answered.
     fn engage(
         &mut self,
-        inner: &mut Inner,
-        i: usize,
         from: SocketAddr,
-        now: Instant,
+        commander: Option<SocketAddr>,
         out: &mut Outcome,
-    ) {
+    ) -> bool {
         let st = &self.status;
         if !self.config.allow_engage {
             st.count_refusal(Refusal::EngageNotAllowed);
             out.refused = true;
+            out.gate = true;
             out.line(format_args!(
                 "refused engage: {}",
                 Refusal::EngageNotAllowed.describe()
             ));
-            return;
+            return false;
         }
-        if self.vehicle.is_engaged() {
+        if self.gate.is_engaged() {
             // Already engaged: by this sender (a planner repeats `engage` in every
-            // datagram; nothing is reset), or from the console (this sender takes over).
-            if inner.commander.is_none() {
-                inner.commander = Some(from);
-                inner.last_valid = Some(now);
-                inner.watchdog = WatchdogState::Armed;
-                tracing::info!(%from, "network sender commands the engaged vehicle");
+            // datagram; nothing changes, nothing is said), or from the console (this
+            // sender takes over).
+            if commander == Some(from) {
+                return false;
             }
+            out.gate = true;
             out.line(format_args!("ok engaged"));
-            return;
+            return true;
         }
-        if inner.get(i).latched {
+        let latched = st.inner.lock().find(from).is_some_and(|s| s.latched);
+        if latched {
             st.count_refusal(Refusal::EngageLatched);
             out.refused = true;
+            out.gate = true;
             out.line(format_args!(
                 "refused engage: {} ({})",
                 Refusal::EngageLatched.describe(),
-                self.vehicle.gate_reason()
+                self.gate.reason()
             ));
-            return;
+            return false;
         }
         let mut by = ArrayString::<96>::new();
         let _ = write!(by, "network {from}");
-        match self.vehicle.engage(&by) {
+        out.gate = true;
+        match self.gate.engage(&by) {
             Ok(()) => {
-                inner.commander = Some(from);
-                inner.last_valid = Some(now);
-                inner.watchdog = WatchdogState::Armed;
                 out.line(format_args!("ok engaged"));
+                true
             }
             Err(why) => {
                 st.count_refusal(Refusal::EngageBlocked);
                 out.refused = true;
                 out.line(format_args!("refused engage: {}", why.join("; ")));
+                false
             }
         }
     }
 
-    fn reject(&mut self, inner: &mut Inner, i: usize, r: Reject, _now: Instant) {
+    fn reject(&self, inner: &mut Inner, i: usize, r: Reject) {
         self.status.count_reject(r);
         inner.get(i).rejected += 1;
     }
-
     /// The reply for `out`, if it says something and the budgets allow.
     fn reply(&self, inner: &mut Inner, i: usize, out: Outcome, now: Instant) -> Option<Reply> {
         if !self.config.replies || out.reply.is_empty() || !(out.refused || out.gate) {
@@ -338,14 +440,14 @@ impl Intake {
 
 /// Notice a disengage by someone else (console, gate monitor, shutdown): the commander
 /// loses command and must re-engage on purpose. Notice an engage from the console.
-pub(crate) fn sync(vehicle: &Vehicle, inner: &mut Inner) {
-    let engaged = vehicle.is_engaged();
+pub(crate) fn sync(gate: &Gate, inner: &mut Inner) {
+    let engaged = gate.is_engaged();
     if !engaged {
         if let Some(c) = inner.commander.take() {
             if let Some(s) = inner.find(c) {
                 s.latched = true;
             }
-            tracing::info!(commander = %c, "network command ended: {}", vehicle.gate_reason());
+            tracing::info!(commander = %c, "network command ended: {}", gate.reason());
         }
         if inner.watchdog != WatchdogState::Tripped {
             inner.watchdog = WatchdogState::Off;
@@ -358,9 +460,9 @@ pub(crate) fn sync(vehicle: &Vehicle, inner: &mut Inner) {
 /// One watchdog tick: while a network sender commands the engaged vehicle, no valid
 /// datagram from it for `timeout` (silence, or a counter that stopped advancing) brings
 /// the vehicle to the safe state and disengages it. Returns the cause when it tripped.
-pub fn watchdog_tick(vehicle: &Vehicle, status: &NetStatus, now: Instant) -> Option<String> {
+pub fn watchdog_tick(gate: &Gate, status: &NetStatus, now: Instant) -> Option<String> {
     let mut inner = status.inner.lock();
-    sync(vehicle, &mut inner);
+    sync(gate, &mut inner);
     let c = inner.commander?;
     let last = inner.last_valid?;
     let quiet = now.saturating_duration_since(last);
@@ -382,7 +484,7 @@ pub fn watchdog_tick(vehicle: &Vehicle, status: &NetStatus, now: Instant) -> Opt
     inner.watchdog = WatchdogState::Tripped;
     inner.last_trip = Some(cause.clone());
     // Under the lock, so no datagram slips in between the decision and the safe state.
-    vehicle.disengage(&format!("watchdog: {cause}"));
+    gate.disengage(&format!("watchdog: {cause}"));
     drop(inner);
     tracing::warn!("watchdog: {cause}; safe state commanded");
     Some(cause)

@@ -4,10 +4,10 @@
 //! - `net/listen` owns the UDP command socket. Each datagram is stamped the moment
 //!   `recv_from` returns, then [`intake`] checks the sender (allow-list), the grammar
 //!   ([`proto`]), the key ([`auth`]) and the rolling counter, decides who commands, and
-//!   hands each command to [`Vehicle::submit`], which checks the interlocks, stores it
+//!   hands each command to [`Gate::submit`], which checks the interlocks, stores it
 //!   in the device's slot and wakes its command thread.
-//! - `net/broadcast` sends the cached state of every device as one JSON object per
-//!   datagram ([`state`]) at `broadcast_rate`, to unicast addresses and/or multicast
+//! - `net/broadcast` sends the [`Snapshot`] as one JSON
+//!   object per datagram at `broadcast_rate`, to unicast addresses and/or multicast
 //!   groups.
 //! - `net/watchdog` brings the vehicle to the safe state and disengages it when the
 //!   sender commanding it goes quiet, or its rolling counter stops, for
@@ -23,15 +23,15 @@ pub mod config;
 pub mod fuzzing;
 pub mod intake;
 pub mod proto;
-pub mod state;
 pub mod status;
 
 pub use config::NetworkConfig;
-pub use status::{NetSnapshot, NetStatus, Refusal, WatchdogState};
+pub use status::{NetStatus, Refusal};
 
-use crate::engine::{StopSignal, Threads};
 use crate::logging::RateLimit;
-use crate::vehicle::Vehicle;
+use crate::safety::Gate;
+use crate::snapshot::Snapshot;
+use crate::threads::{StopSignal, Threads};
 use auth::Auth;
 use intake::Intake;
 use socket2::{Domain, Protocol, Socket, Type};
@@ -58,22 +58,24 @@ pub struct Net {
 impl Net {
     /// Bind the command socket and start `net/listen`, `net/broadcast` and
     /// `net/watchdog`. A bind error comes back before any thread starts.
-    pub fn start(
-        vehicle: Arc<Vehicle>,
-        config: NetworkConfig,
-        auth: Option<Auth>,
-    ) -> io::Result<Net> {
+    pub fn start(gate: Arc<Gate>, config: NetworkConfig, auth: Option<Auth>) -> io::Result<Net> {
         let socket = bind_command_socket(config.listen)
             .map_err(|e| io::Error::new(e.kind(), format!("listen on {}: {e}", config.listen)))?;
         let local = socket.local_addr()?;
         let out = broadcast_socket(&config)?;
-        let status = Arc::new(NetStatus::new(local, config.watchdog_timeout));
+        let names = gate
+            .vehicle
+            .devices
+            .iter()
+            .map(|d| d.name().to_string())
+            .collect();
+        let status = Arc::new(NetStatus::new(local, config.watchdog_timeout, names));
         let stop = Arc::new(StopSignal::default());
         let closing = Arc::new(AtomicBool::new(false));
         let mut threads = Threads::default();
 
         let mut intake = Intake::new(
-            vehicle.clone(),
+            gate.clone(),
             config.clone(),
             auth.clone(),
             status.clone(),
@@ -84,25 +86,19 @@ impl Net {
             listen_loop(&socket, &mut intake, &s)
         })?;
 
-        let (v, st, s) = (vehicle.clone(), status.clone(), stop.clone());
+        let (g, st, s) = (gate.clone(), status.clone(), stop.clone());
         let (dest, period) = (config.broadcast_to.clone(), config.broadcast_period());
         threads.spawn("net/broadcast".into(), move || {
-            broadcast_loop(&out, &dest, period, &v, &st, &s)
+            broadcast_loop(&out, &dest, period, &g, &st, &s)
         })?;
 
-        let (v, st, s) = (vehicle, status.clone(), stop.clone());
+        let (g, st, s) = (gate, status.clone(), stop.clone());
         let tick = (config.watchdog_timeout / 10)
             .clamp(Duration::from_millis(1), Duration::from_millis(10));
         threads.spawn("net/watchdog".into(), move || {
-            let mut next = Instant::now();
-            loop {
-                next += tick;
-                if !s.sleep_until(next) {
-                    return;
-                }
-                intake::watchdog_tick(&v, &st, Instant::now());
-                next = next.max(Instant::now());
-            }
+            crate::threads::every(tick, &s, || {
+                intake::watchdog_tick(&g, &st, Instant::now());
+            })
         })?;
         tracing::info!(
             listen = %local,
@@ -208,30 +204,32 @@ fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
     }
 }
 
+/// The whole snapshot, the network's part included.
+pub fn snapshot(gate: &Gate, status: &NetStatus, seq: u64) -> Snapshot {
+    let mut snap = gate.snapshot(seq);
+    snap.net = Some(status.snapshot());
+    snap
+}
+
 fn broadcast_loop(
     socket: &UdpSocket,
     dest: &[SocketAddr],
     period: Duration,
-    vehicle: &Vehicle,
+    gate: &Gate,
     status: &NetStatus,
     stop: &StopSignal,
 ) {
-    let started = Instant::now();
-    let mut next = started;
     let mut errors = RateLimit::new(1);
-    for seq in 0u64.. {
-        if !stop.sleep_until(next) {
+    let mut seq = 0u64;
+    let mut bytes = Vec::with_capacity(8192);
+    crate::threads::every(period, stop, || {
+        let snap = snapshot(gate, status, seq);
+        seq += 1;
+        bytes.clear();
+        if let Err(e) = serde_json::to_writer(&mut bytes, &snap) {
+            tracing::error!("state broadcast: {e}");
             return;
         }
-        next = (next + period).max(Instant::now());
-        let state = state::build(vehicle, Some(status.snapshot()), seq, started);
-        let bytes = match serde_json::to_vec(&state) {
-            Ok(b) => b,
-            Err(e) => {
-                tracing::error!("state broadcast: {e}");
-                continue;
-            }
-        };
         for to in dest {
             if let Err(e) = socket.send_to(&bytes, to) {
                 if errors.allow(Instant::now()) {
@@ -239,7 +237,7 @@ fn broadcast_loop(
                 }
             }
         }
-    }
+    });
 }
 
 /// Is this a multicast group?

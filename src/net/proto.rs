@@ -11,20 +11,22 @@
 //! ```text
 //! datagram = line *( EOL line ) [ EOL ]        EOL = "\n" | "\r\n"
 //! line     = [ item ] [ "#" comment ]          blank lines and comments are ignored
-//! item     = "steer" SP number                 -1 (full left) … 1 (full right)
-//!          | "gas"   SP number                 0 … 1
-//!          | "brake" SP number                 0 … 1
-//!          | "accel" SP number                 -1 … 1: < 0 brakes, > 0 gives gas
-//!          | "trans" SP gear                   park|p  reverse|rev|r  neutral|n  drive|d
-//!                                              or the paper's codes -1 (reverse),
-//!                                              0 (park), 1 (drive)
+//! item     = DEVICE SP value                   any actuator of the vehicle, by name:
+//!                                              a number in a setpoint device's range,
+//!                                              or a state device's state (or alias)
+//!          | "accel" SP number                 -1 … 1: < 0 brakes, > 0 throttle (when
+//!                                              throttle and brake are bound)
 //!          | "engage" | "disengage"
 //!          | "seq" SP u64                      header: the sender's counter
 //!          | "tag" SP 64 hex digits            header: HMAC-SHA256, must be the last line
 //! ```
 //!
 //! - Words are separated by spaces or tabs; leading and trailing blanks are ignored.
-//! - Keywords and gear names are case-insensitive (`STEER 0.2`, `trans Drive`).
+//! - Keywords, device names and state names are case-insensitive (`STEER 0.2`,
+//!   `trans Drive`). Which devices exist, their ranges and states come from the
+//!   vehicle file ([`Vocabulary`]); on the built-in Alice they are `steer -1…1`,
+//!   `gas 0…1`, `brake 0…1`, `trans park|reverse|neutral|drive` (also `p r rev n d`
+//!   and the paper's `-1 0 1`).
 //! - A number is a decimal such as `0.25`, `-1`, `.5`, `+1e-1`. It must be finite and
 //!   inside the range above; an out-of-range value is rejected, never clamped.
 //! - A datagram holds at least one command and at most [`MAX_COMMANDS`]. Its commands
@@ -75,9 +77,15 @@
 //! the offending word for a person (`line 2: out_of_range: steer takes -1 to 1 (got
 //! "1.5")`). [`RejectCounts`] counts them without locks.
 
-use crate::value::{Command, Gear, Role};
-use arrayvec::ArrayVec;
+// A rejection carries what was expected inline (a device's name, range or states):
+// 160 bytes on the stack, because the command path must not touch the heap.
+#![allow(clippy::result_large_err)]
+
+use crate::config::DeviceConfig;
+use crate::value::{Command, DeviceId, Kind};
+use arrayvec::{ArrayString, ArrayVec};
 use std::fmt;
+use std::fmt::Write as _;
 use std::ops::Range;
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -91,9 +99,9 @@ pub const MAX_COMMANDS: usize = 16;
 /// One thing a datagram asks of adrive.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum NetCommand {
-    /// A set point for one actuator (`steer`, `gas`, `brake`, `trans`).
-    Set(Role, Command),
-    /// Combined pedal: below zero brakes, above zero gives gas (−1…1).
+    /// A command for one actuator.
+    Set(DeviceId, Command),
+    /// Combined pedal: below zero brakes, above zero throttle (−1…1).
     Accel(f64),
     /// Let network commands drive the actuators.
     Engage,
@@ -101,17 +109,104 @@ pub enum NetCommand {
     Disengage,
 }
 
-impl fmt::Display for NetCommand {
-    /// The command as one protocol line (without its line ending); [`parse`] reads it
+/// The words a datagram may use on one vehicle: its actuators by name, with their
+/// ranges and states, and whether `accel` exists. [`Vocabulary::open`] is for a client
+/// that does not know the vehicle (`adrive send`): it checks only the shape of each
+/// line, so the vehicle's reply has the last word.
+#[derive(Clone, Copy, Debug)]
+pub struct Vocabulary<'a> {
+    devices: &'a [DeviceConfig],
+    accel: bool,
+    open: bool,
+}
+
+/// The device id an open vocabulary gives every device.
+pub const UNKNOWN: DeviceId = DeviceId(u16::MAX);
+
+impl<'a> Vocabulary<'a> {
+    pub fn new(devices: &'a [DeviceConfig], accel: bool) -> Vocabulary<'a> {
+        Vocabulary {
+            devices,
+            accel,
+            open: false,
+        }
+    }
+
+    /// The words of a vehicle.
+    pub fn of(config: &'a crate::config::VehicleConfig) -> Vocabulary<'a> {
+        Vocabulary::new(&config.devices, config.roles.has_accel())
+    }
+
+    /// Any well-formed device line passes (device ids are [`UNKNOWN`]).
+    pub fn open() -> Vocabulary<'static> {
+        Vocabulary {
+            devices: &[],
+            accel: true,
+            open: true,
+        }
+    }
+
+    fn find(&self, word: &str) -> Option<(DeviceId, &'a DeviceConfig)> {
+        self.devices
+            .iter()
+            .enumerate()
+            .find(|(_, d)| d.name.eq_ignore_ascii_case(word))
+            .map(|(i, d)| (DeviceId(i as u16), d))
+    }
+
+    /// A command as one protocol line (without its line ending); [`parse`] reads it
     /// back to the same command, exactly (`f64` prints its shortest round-trip form).
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            NetCommand::Set(role, Command::Set(v)) => write!(f, "{role} {}", Num(*v)),
-            NetCommand::Set(role, Command::Gear(g)) => write!(f, "{role} {g}"),
-            NetCommand::Set(role, Command::Control(c)) => write!(f, "{role} {c}"),
-            NetCommand::Accel(v) => write!(f, "accel {}", Num(*v)),
-            NetCommand::Engage => f.write_str("engage"),
-            NetCommand::Disengage => f.write_str("disengage"),
+    pub fn line(&self, c: &NetCommand) -> String {
+        let name = |id: DeviceId| {
+            self.devices
+                .get(id.index())
+                .map_or("?", |d| d.name.as_str())
+        };
+        match c {
+            NetCommand::Set(id, Command::Set(v)) => format!("{} {}", name(*id), Num(*v)),
+            NetCommand::Set(id, Command::State(s)) => format!(
+                "{} {}",
+                name(*id),
+                self.devices
+                    .get(id.index())
+                    .and_then(|d| d.state_name(*s))
+                    .unwrap_or("?")
+            ),
+            NetCommand::Set(id, Command::Control(k)) => format!("{} {k}", name(*id)),
+            NetCommand::Accel(v) => format!("accel {}", Num(*v)),
+            NetCommand::Engage => "engage".into(),
+            NetCommand::Disengage => "disengage".into(),
+        }
+    }
+
+    /// Whether a word reads as some device's value (a number, or a state or alias of a
+    /// state device), which makes an unknown word before it a misspelt device rather
+    /// than an unknown command.
+    fn looks_like_value(&self, word: &str) -> bool {
+        parse_f64(word).is_some()
+            || self
+                .devices
+                .iter()
+                .any(|d| d.kind == Kind::State && d.state_index(word).is_some())
+    }
+
+    /// The actuators, for messages: `steer, gas, brake and trans`.
+    fn names(&self, out: &mut Expected) {
+        let mut first = true;
+        let n = self.devices.iter().filter(|d| d.is_actuator()).count();
+        for (i, d) in self.devices.iter().filter(|d| d.is_actuator()).enumerate() {
+            let sep = if first {
+                ""
+            } else if i + 1 == n {
+                " and "
+            } else {
+                ", "
+            };
+            first = false;
+            if out.try_push_str(sep).is_err() || out.try_push_str(&d.name).is_err() {
+                let _ = out.try_push_str("…");
+                return;
+            }
         }
     }
 }
@@ -172,13 +267,11 @@ pub enum Reject {
     BadSyntax,
     /// A first word that is no command.
     UnknownVerb,
-    /// A device name that is not one of steer, gas, brake, trans (`stear 0.2`). The
-    /// listener also uses it for a device this vehicle does not have.
+    /// A name that is not one of the vehicle's devices (`stear 0.2`).
     UnknownDevice,
-    /// A device that takes no commands (the sensors `estop`, `obd`). The listener also
-    /// uses it for a command that the engage state does not allow.
+    /// A device that takes no commands (a sensor such as `estop` or `obd`).
     NotAllowed,
-    /// A value that is not a number (or, for `trans`, a gear).
+    /// A value that is not a number (or, for a state device, one of its states).
     BadValue,
     /// NaN or infinity, written or by overflow (`1e999`).
     NotFinite,
@@ -262,7 +355,7 @@ impl Reject {
             Reject::UnknownVerb => "a line starts with no known command",
             Reject::UnknownDevice => "a command names an unknown device",
             Reject::NotAllowed => "a command is not allowed",
-            Reject::BadValue => "a value is not a number or a gear",
+            Reject::BadValue => "a value is not a number or one of the device's states",
             Reject::NotFinite => "a value is NaN or infinite",
             Reject::OutOfRange => "a value is out of range",
             Reject::TooManyCommands => "the datagram holds more than 16 commands",
@@ -291,16 +384,38 @@ pub struct ParseError {
     pub reason: Reject,
     /// The 1-based line, when one line is at fault.
     pub line: Option<u32>,
-    expected: &'static str,
+    expected: Expected,
     got: Snippet,
 }
 
+/// What was expected, in words, inline (no heap).
+pub type Expected = ArrayString<120>;
+
+fn expected(text: &str) -> Expected {
+    let mut e = Expected::new();
+    for c in text.chars() {
+        if e.try_push(c).is_err() {
+            break;
+        }
+    }
+    e
+}
+
 impl ParseError {
-    fn new(reason: Reject, line: Option<u32>, expected: &'static str, got: &str) -> Self {
+    fn new(reason: Reject, line: Option<u32>, what: &str, got: &str) -> Self {
         ParseError {
             reason,
             line,
-            expected,
+            expected: expected(what),
+            got: Snippet::new(got),
+        }
+    }
+
+    fn with(reason: Reject, line: Option<u32>, what: Expected, got: &str) -> Self {
+        ParseError {
+            reason,
+            line,
+            expected: what,
             got: Snippet::new(got),
         }
     }
@@ -322,7 +437,7 @@ impl fmt::Display for ParseError {
         if let Some(line) = self.line {
             write!(f, "line {line}: ")?;
         }
-        write!(f, "{}: {}", self.reason.as_str(), self.expected)?;
+        write!(f, "{}: {}", self.reason.as_str(), self.expected.as_str())?;
         if !self.got.as_str().is_empty() {
             write!(f, " (got \"{}", self.got.as_str().escape_debug())?;
             if self.got.truncated {
@@ -367,8 +482,9 @@ impl Snippet {
     }
 }
 
-/// Reads one datagram. Allocation-free; never panics, whatever the bytes.
-pub fn parse(bytes: &[u8]) -> Result<Datagram, ParseError> {
+/// Reads one datagram against a vehicle's words. Allocation-free; never panics,
+/// whatever the bytes.
+pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
     if bytes.is_empty() {
         return Err(ParseError::new(
             Reject::Empty,
@@ -499,6 +615,14 @@ pub fn parse(bytes: &[u8]) -> Result<Datagram, ParseError> {
             }
             Some(Verb::Engage) => Some(NetCommand::Engage),
             Some(Verb::Disengage) => Some(NetCommand::Disengage),
+            Some(Verb::Accel) if !vocab.accel => {
+                return Err(ParseError::new(
+                    Reject::UnknownVerb,
+                    line,
+                    "this vehicle has no accel (it needs throttle and brake bound)",
+                    verb,
+                ))
+            }
             Some(Verb::Accel) => {
                 let a = one_arg("accel takes one value from -1 to 1")?;
                 Some(NetCommand::Accel(number(
@@ -506,54 +630,10 @@ pub fn parse(bytes: &[u8]) -> Result<Datagram, ParseError> {
                     -1.0,
                     1.0,
                     line,
-                    "accel takes -1 to 1",
+                    expected("accel takes -1 to 1"),
                 )?))
             }
-            Some(Verb::Device(Role::Steer)) => {
-                let a = one_arg("steer takes one value from -1 to 1")?;
-                let v = number(a, -1.0, 1.0, line, "steer takes -1 to 1")?;
-                Some(NetCommand::Set(Role::Steer, Command::Set(v)))
-            }
-            Some(Verb::Device(role @ (Role::Gas | Role::Brake))) => {
-                let (usage, range) = if role == Role::Gas {
-                    ("gas takes one value from 0 to 1", "gas takes 0 to 1")
-                } else {
-                    ("brake takes one value from 0 to 1", "brake takes 0 to 1")
-                };
-                let a = one_arg(usage)?;
-                Some(NetCommand::Set(
-                    role,
-                    Command::Set(number(a, 0.0, 1.0, line, range)?),
-                ))
-            }
-            Some(Verb::Device(Role::Trans)) => {
-                let a = one_arg("trans takes one gear")?;
-                Some(NetCommand::Set(Role::Trans, Command::Gear(gear(a, line)?)))
-            }
-            Some(Verb::Device(_)) => {
-                return Err(ParseError::new(
-                    Reject::NotAllowed,
-                    line,
-                    "estop and obd are sensors: they take no commands",
-                    verb,
-                ))
-            }
-            None if extra.is_none() && arg.is_some_and(looks_like_value) => {
-                return Err(ParseError::new(
-                    Reject::UnknownDevice,
-                    line,
-                    "the devices are steer, gas, brake and trans",
-                    verb,
-                ))
-            }
-            None => {
-                return Err(ParseError::new(
-                    Reject::UnknownVerb,
-                    line,
-                    "a line is steer, gas, brake, trans, accel, engage, disengage, seq or tag",
-                    verb,
-                ))
-            }
+            None => Some(device_line(vocab, verb, arg, extra, line)?),
         };
         if let Some(command) = command {
             if datagram.commands.try_push(command).is_err() {
@@ -578,10 +658,9 @@ pub fn parse(bytes: &[u8]) -> Result<Datagram, ParseError> {
     Ok(datagram)
 }
 
-/// The first word of a line.
+/// The first word of a line, when it is a keyword.
 #[derive(Clone, Copy)]
 enum Verb {
-    Device(Role),
     Accel,
     Engage,
     Disengage,
@@ -591,23 +670,121 @@ enum Verb {
 
 impl Verb {
     fn from_word(word: &str) -> Option<Verb> {
-        const OTHERS: [(&str, Verb); 5] = [
+        const WORDS: [(&str, Verb); 5] = [
             ("accel", Verb::Accel),
             ("engage", Verb::Engage),
             ("disengage", Verb::Disengage),
             ("seq", Verb::Seq),
             ("tag", Verb::Tag),
         ];
-        Role::ALL
+        WORDS
             .into_iter()
-            .find(|r| r.as_str().eq_ignore_ascii_case(word))
-            .map(Verb::Device)
-            .or_else(|| {
-                OTHERS
-                    .into_iter()
-                    .find(|(w, _)| w.eq_ignore_ascii_case(word))
-                    .map(|(_, v)| v)
-            })
+            .find(|(w, _)| w.eq_ignore_ascii_case(word))
+            .map(|(_, v)| v)
+    }
+}
+
+/// A line that names a device: `DEVICE VALUE`.
+fn device_line(
+    vocab: &Vocabulary,
+    verb: &str,
+    arg: Option<&str>,
+    extra: Option<&str>,
+    line: Option<u32>,
+) -> Result<NetCommand, ParseError> {
+    let usage = |what: &str| {
+        let mut e = Expected::new();
+        let _ = write!(e, "{what} takes one value");
+        e
+    };
+    let Some((id, d)) = vocab.find(verb) else {
+        if vocab.open
+            && crate::config::device::check_name("device", &verb.to_ascii_lowercase()).is_ok()
+        {
+            return match (arg, extra) {
+                (Some(a), None) => {
+                    let v = parse_f64(a);
+                    if v.is_some_and(|v| !v.is_finite()) {
+                        return Err(ParseError::new(
+                            Reject::NotFinite,
+                            line,
+                            "a finite number",
+                            a,
+                        ));
+                    }
+                    Ok(NetCommand::Set(
+                        UNKNOWN,
+                        v.map_or(Command::State(0), Command::Set),
+                    ))
+                }
+                (None, _) => Err(ParseError::with(Reject::BadSyntax, line, usage(verb), verb)),
+                (Some(_), Some(x)) => {
+                    Err(ParseError::with(Reject::BadSyntax, line, usage(verb), x))
+                }
+            };
+        }
+        let mut e = Expected::new();
+        let reason = if extra.is_none() && arg.is_some_and(|a| vocab.looks_like_value(a)) {
+            let _ = e.try_push_str("the devices are ");
+            vocab.names(&mut e);
+            Reject::UnknownDevice
+        } else {
+            let _ = e.try_push_str("a line is a device and a value (");
+            vocab.names(&mut e);
+            let _ = e.try_push_str("), accel, engage, disengage, seq or tag");
+            Reject::UnknownVerb
+        };
+        return Err(ParseError::with(reason, line, e, verb));
+    };
+    let a = match (arg, extra) {
+        (Some(a), None) => a,
+        (None, _) => {
+            return Err(ParseError::with(
+                Reject::BadSyntax,
+                line,
+                usage(&d.name),
+                verb,
+            ))
+        }
+        (Some(_), Some(x)) => {
+            return Err(ParseError::with(Reject::BadSyntax, line, usage(&d.name), x))
+        }
+    };
+    match d.kind {
+        Kind::Sensor => {
+            let mut e = Expected::new();
+            let _ = write!(e, "{} is a sensor: it takes no commands", d.name);
+            Err(ParseError::with(Reject::NotAllowed, line, e, verb))
+        }
+        Kind::Setpoint => {
+            let [lo, hi] = d.range;
+            let mut e = Expected::new();
+            let _ = write!(e, "{} takes {lo} to {hi}", d.name);
+            Ok(NetCommand::Set(
+                id,
+                Command::Set(number(a, lo, hi, line, e)?),
+            ))
+        }
+        Kind::State => {
+            if let Some(s) = d.state_index(a) {
+                return Ok(NetCommand::Set(id, Command::State(s)));
+            }
+            let mut e = Expected::new();
+            let _ = write!(e, "{} takes ", d.name);
+            for (i, st) in d.states.iter().enumerate() {
+                let sep = if i == 0 { "" } else { ", " };
+                if e.try_push_str(sep).is_err() || e.try_push_str(st).is_err() {
+                    let _ = e.try_push_str("…");
+                    break;
+                }
+            }
+            let reason = match parse_f64(a) {
+                Some(v) if !v.is_finite() => Reject::NotFinite,
+                Some(_) => Reject::OutOfRange,
+                None => Reject::BadValue,
+            };
+            Err(ParseError::with(reason, line, e, a))
+        }
     }
 }
 
@@ -635,7 +812,7 @@ fn number(
     lo: f64,
     hi: f64,
     line: Option<u32>,
-    range: &'static str,
+    range: Expected,
 ) -> Result<f64, ParseError> {
     let v = parse_f64(word).ok_or_else(|| {
         ParseError::new(
@@ -654,48 +831,9 @@ fn number(
         ));
     }
     if !(lo..=hi).contains(&v) {
-        return Err(ParseError::new(Reject::OutOfRange, line, range, word));
+        return Err(ParseError::with(Reject::OutOfRange, line, range, word));
     }
     Ok(v)
-}
-
-const GEAR_USAGE: &str = "trans takes park, reverse, neutral, drive or -1, 0, 1";
-
-/// A gear name (or short form) or one of the paper's codes −1, 0, 1.
-fn gear(word: &str, line: Option<u32>) -> Result<Gear, ParseError> {
-    const NAMES: [(&str, Gear); 9] = [
-        ("park", Gear::Park),
-        ("p", Gear::Park),
-        ("reverse", Gear::Reverse),
-        ("rev", Gear::Reverse),
-        ("r", Gear::Reverse),
-        ("neutral", Gear::Neutral),
-        ("n", Gear::Neutral),
-        ("drive", Gear::Drive),
-        ("d", Gear::Drive),
-    ];
-    if let Some((_, g)) = NAMES.iter().find(|(n, _)| n.eq_ignore_ascii_case(word)) {
-        return Ok(*g);
-    }
-    match parse_f64(word) {
-        Some(v) if !v.is_finite() => Err(ParseError::new(
-            Reject::NotFinite,
-            line,
-            "a finite number",
-            word,
-        )),
-        Some(-1.0) => Ok(Gear::Reverse),
-        Some(0.0) => Ok(Gear::Park),
-        Some(1.0) => Ok(Gear::Drive),
-        Some(_) => Err(ParseError::new(Reject::OutOfRange, line, GEAR_USAGE, word)),
-        None => Err(ParseError::new(Reject::BadValue, line, GEAR_USAGE, word)),
-    }
-}
-
-/// Whether an unknown first word is followed by something that reads as a value,
-/// which makes the word a misspelt device rather than an unknown command.
-fn looks_like_value(word: &str) -> bool {
-    parse_f64(word).is_some() || gear(word, None).is_ok()
 }
 
 /// Decimal digits only (no sign), within u64.
@@ -766,6 +904,18 @@ impl Default for RejectCounts {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::VehicleConfig;
+    use std::sync::LazyLock;
+
+    static ALICE: LazyLock<VehicleConfig> = LazyLock::new(VehicleConfig::alice);
+
+    pub(crate) fn alice() -> Vocabulary<'static> {
+        Vocabulary::of(&ALICE)
+    }
+
+    fn parse(bytes: &[u8]) -> Result<Datagram, ParseError> {
+        super::parse(bytes, &alice())
+    }
 
     fn ok(text: &str) -> Datagram {
         parse(text.as_bytes()).unwrap_or_else(|e| panic!("{text:?} rejected: {e}"))
@@ -778,19 +928,28 @@ mod tests {
         }
     }
 
-    fn set(role: Role, v: f64) -> NetCommand {
-        NetCommand::Set(role, Command::Set(v))
+    fn id(name: &str) -> DeviceId {
+        DeviceId(ALICE.devices.iter().position(|d| d.name == name).unwrap() as u16)
+    }
+
+    fn set(name: &str, v: f64) -> NetCommand {
+        NetCommand::Set(id(name), Command::Set(v))
+    }
+
+    fn state(name: &str, s: &str) -> NetCommand {
+        let d = ALICE.device(name).unwrap();
+        NetCommand::Set(id(name), Command::State(d.state_index(s).unwrap()))
     }
 
     #[test]
     fn one_command_typed_by_hand() {
         let d = ok("steer 0.2\n");
-        assert_eq!(d.commands.as_slice(), [set(Role::Steer, 0.2)]);
+        assert_eq!(d.commands.as_slice(), [set("steer", 0.2)]);
         assert_eq!(d.seq, None);
         assert_eq!(d.tag, None);
         assert_eq!(d.signed, 0..10);
         // `echo -n` and the last line without a newline.
-        assert_eq!(ok("steer 0.2").commands.as_slice(), [set(Role::Steer, 0.2)]);
+        assert_eq!(ok("steer 0.2").commands.as_slice(), [set("steer", 0.2)]);
     }
 
     #[test]
@@ -801,11 +960,11 @@ mod tests {
             d.commands.as_slice(),
             [
                 NetCommand::Engage,
-                set(Role::Steer, -0.25),
-                set(Role::Gas, 0.3),
-                set(Role::Brake, 1.0),
+                set("steer", -0.25),
+                set("gas", 0.3),
+                set("brake", 1.0),
                 NetCommand::Accel(-0.5),
-                NetCommand::Set(Role::Trans, Command::Gear(Gear::Drive)),
+                state("trans", "drive"),
             ]
         );
         assert_eq!(ok("disengage").commands.as_slice(), [NetCommand::Disengage]);
@@ -814,33 +973,24 @@ mod tests {
     #[test]
     fn crlf_blanks_comments_case_and_tabs() {
         let d = ok("# planner v2\r\n\r\n  STEER\t-1  \r\nGas 0 # coast\r\n\r\n");
-        assert_eq!(
-            d.commands.as_slice(),
-            [set(Role::Steer, -1.0), set(Role::Gas, 0.0)]
-        );
+        assert_eq!(d.commands.as_slice(), [set("steer", -1.0), set("gas", 0.0)]);
     }
 
     #[test]
     fn gears_by_name_short_form_and_paper_code() {
         for (word, gear) in [
-            ("park", Gear::Park),
-            ("P", Gear::Park),
-            ("0", Gear::Park),
-            ("-0", Gear::Park),
-            ("1.0", Gear::Drive),
-            ("Reverse", Gear::Reverse),
-            ("-1", Gear::Reverse),
-            ("neutral", Gear::Neutral),
-            ("n", Gear::Neutral),
-            ("DRIVE", Gear::Drive),
-            ("1", Gear::Drive),
+            ("park", "park"),
+            ("P", "park"),
+            ("0", "park"),
+            ("Reverse", "reverse"),
+            ("-1", "reverse"),
+            ("neutral", "neutral"),
+            ("n", "neutral"),
+            ("DRIVE", "drive"),
+            ("1", "drive"),
         ] {
             let d = ok(&format!("trans {word}"));
-            assert_eq!(
-                d.commands.as_slice(),
-                [NetCommand::Set(Role::Trans, Command::Gear(gear))],
-                "{word}"
-            );
+            assert_eq!(d.commands.as_slice(), [state("trans", gear)], "{word}");
         }
         assert_eq!(reason(b"trans 2"), Reject::OutOfRange);
         assert_eq!(reason(b"trans sport"), Reject::BadValue);
@@ -882,6 +1032,7 @@ mod tests {
             (b"set steer 0.2", Reject::UnknownVerb),
             (b"stear 0.2", Reject::UnknownDevice),
             (b"gear drive", Reject::UnknownDevice),
+            (b"wiper 0.5", Reject::UnknownDevice),
             (b"estop 1", Reject::NotAllowed),
             (b"obd 0", Reject::NotAllowed),
             (b"steer left", Reject::BadValue),
@@ -1015,19 +1166,60 @@ mod tests {
     #[test]
     fn commands_print_as_lines_that_parse_back() {
         let cmds = [
-            set(Role::Steer, -0.25),
-            set(Role::Gas, 1e-7),
-            set(Role::Brake, 1.0),
+            set("steer", -0.25),
+            set("gas", 1e-7),
+            set("brake", 1.0),
             NetCommand::Accel(-0.0),
-            NetCommand::Set(Role::Trans, Command::Gear(Gear::Reverse)),
+            state("trans", "reverse"),
             NetCommand::Engage,
             NetCommand::Disengage,
         ];
-        let text: String = cmds.iter().map(|c| format!("{c}\n")).collect();
+        let v = alice();
+        let text: String = cmds.iter().map(|c| format!("{}\n", v.line(c))).collect();
         assert_eq!(ok(&text).commands.as_slice(), cmds);
-        assert_eq!(set(Role::Steer, -0.25).to_string(), "steer -0.25");
-        assert_eq!(set(Role::Gas, 1e-300).to_string(), "gas 1e-300");
-        assert_eq!(NetCommand::Accel(-0.0).to_string(), "accel -0");
+        assert_eq!(v.line(&set("steer", -0.25)), "steer -0.25");
+        assert_eq!(v.line(&set("gas", 1e-300)), "gas 1e-300");
+        assert_eq!(v.line(&NetCommand::Accel(-0.0)), "accel -0");
+    }
+
+    #[test]
+    fn any_device_by_name_with_its_own_range_and_states() {
+        let cart = crate::config::parse(
+            "[vehicle]\nname = \"c\"\n[[device]]\nname = \"wiper\"\nkind = \"setpoint\"\nrange = [0.0, 100.0]\nunits = \"%\"\ndriver = \"line\"\n[[device]]\nname = \"signal\"\nkind = \"state\"\nstates = [\"off\", \"left\", \"right\", \"hazard\"]\ndriver = \"line\"\n",
+            "c.toml",
+        )
+        .unwrap();
+        let v = Vocabulary::of(&cart);
+        let d = super::parse(b"wiper 50\nSIGNAL left\n", &v).unwrap();
+        assert_eq!(
+            d.commands.as_slice(),
+            [
+                NetCommand::Set(DeviceId(0), Command::Set(50.0)),
+                NetCommand::Set(DeviceId(1), Command::State(1))
+            ]
+        );
+        let e = super::parse(b"wiper 101", &v).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "line 1: out_of_range: wiper takes 0 to 100 (got \"101\")"
+        );
+        let e = super::parse(b"signal up", &v).unwrap_err();
+        assert_eq!(e.reason, Reject::BadValue);
+        assert!(e.to_string().contains("off, left, right, hazard"), "{e}");
+        let e = super::parse(b"accel 0.1", &v).unwrap_err();
+        assert_eq!(
+            e.reason,
+            Reject::UnknownVerb,
+            "no accel without throttle and brake"
+        );
+        // A client that does not know the vehicle checks the shape alone.
+        assert!(super::parse(b"horn on\nwiper 0.5", &Vocabulary::open()).is_ok());
+        assert_eq!(
+            super::parse(b"horn", &Vocabulary::open())
+                .unwrap_err()
+                .reason,
+            Reject::BadSyntax
+        );
     }
 
     mod props {
@@ -1054,12 +1246,11 @@ mod tests {
 
         fn command() -> impl Strategy<Value = NetCommand> {
             prop_oneof![
-                signed_value().prop_map(|v| NetCommand::Set(Role::Steer, Command::Set(v))),
-                magnitude().prop_map(|v| NetCommand::Set(Role::Gas, Command::Set(v))),
-                magnitude().prop_map(|v| NetCommand::Set(Role::Brake, Command::Set(v))),
+                signed_value().prop_map(|v| set("steer", v)),
+                magnitude().prop_map(|v| set("gas", v)),
+                magnitude().prop_map(|v| set("brake", v)),
                 signed_value().prop_map(NetCommand::Accel),
-                select(Gear::ALL.to_vec())
-                    .prop_map(|g| NetCommand::Set(Role::Trans, Command::Gear(g))),
+                select(vec!["park", "reverse", "neutral", "drive"]).prop_map(|g| state("trans", g)),
                 Just(NetCommand::Engage),
                 Just(NetCommand::Disengage),
             ]
@@ -1093,7 +1284,7 @@ mod tests {
         }
 
         fn render(c: &NetCommand, l: &Layout) -> String {
-            let mut line = c.to_string().replace(' ', l.gap);
+            let mut line = alice().line(c).replace(' ', l.gap);
             if l.upper {
                 line = line.to_uppercase();
             }
@@ -1157,7 +1348,7 @@ mod tests {
                 seq in any::<u64>(),
             ) {
                 let auth = Auth::from_key_bytes(FUZZ_KEY).unwrap();
-                let body: String = cmds.iter().map(|c| format!("{c}\n")).collect();
+                let body: String = cmds.iter().map(|c| format!("{}\n", alice().line(c))).collect();
                 let text = auth.sign(&body, seq);
                 let d = parse(text.as_bytes()).unwrap();
                 prop_assert_eq!(d.commands.as_slice(), cmds.as_slice());

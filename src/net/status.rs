@@ -2,13 +2,13 @@
 //! summary: counters as atomics, and the small per-sender table behind a
 //! `parking_lot::Mutex` that the listener and the watchdog hold only for the few
 //! microseconds one datagram or one tick takes. [`NetStatus::snapshot`] copies it all
-//! into a plain [`NetSnapshot`]; readers never block the listener for longer.
+//! into a plain [`NetView`]; readers never block the listener for longer.
 
 use super::proto::{Reject, RejectCounts};
-use crate::interlock;
-use crate::value::Role;
+use crate::safety;
+use crate::snapshot::{NetView, Pairs, Rejections, SenderView, WatchdogState, WatchdogView};
+use crate::value::DeviceId;
 use parking_lot::Mutex;
-use serde::Serialize;
 use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::time::{Duration, Instant};
@@ -72,20 +72,6 @@ impl Refusal {
     pub fn index(self) -> usize {
         self as usize
     }
-}
-
-/// The watchdog, as shown to people.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum WatchdogState {
-    /// Disengaged.
-    Off,
-    /// Engaged (from the console) with no network sender commanding yet.
-    Idle,
-    /// Engaged and a network sender commands: it must keep sending.
-    Armed,
-    /// It brought the vehicle to the safe state; stays so until the next engage.
-    Tripped,
 }
 
 /// One sender in the table.
@@ -183,16 +169,19 @@ pub struct NetStatus {
     pub(crate) inner: Mutex<Inner>,
     /// Datagrams rejected whole, by reason (grammar, authentication, counter).
     pub rejects: RejectCounts,
-    intake: [AtomicU64; interlock::Reject::ALL.len()],
+    intake: [AtomicU64; safety::Reject::ALL.len()],
     refused: [AtomicU64; Refusal::ALL.len()],
-    commands: [AtomicU64; Role::ALL.len()],
+    /// Network commands accepted, by device.
+    commands: Vec<AtomicU64>,
+    /// The devices' names, by id.
+    names: Vec<String>,
     accel: AtomicU64,
     datagrams: AtomicU64,
     accepted: AtomicU64,
 }
 
 impl NetStatus {
-    pub fn new(listen: SocketAddr, watchdog_timeout: Duration) -> NetStatus {
+    pub fn new(listen: SocketAddr, watchdog_timeout: Duration, devices: Vec<String>) -> NetStatus {
         let now = Instant::now();
         NetStatus {
             listen,
@@ -209,7 +198,8 @@ impl NetStatus {
             rejects: RejectCounts::new(),
             intake: Default::default(),
             refused: Default::default(),
-            commands: Default::default(),
+            commands: devices.iter().map(|_| AtomicU64::new(0)).collect(),
+            names: devices,
             accel: AtomicU64::new(0),
             datagrams: AtomicU64::new(0),
             accepted: AtomicU64::new(0),
@@ -225,15 +215,15 @@ impl NetStatus {
     pub(crate) fn count_reject(&self, r: Reject) {
         self.rejects.incr(r);
     }
-    pub(crate) fn count_intake(&self, r: interlock::Reject) {
+    pub(crate) fn count_intake(&self, r: safety::Reject) {
         self.intake[r.index()].fetch_add(1, Relaxed);
     }
     pub(crate) fn count_refusal(&self, r: Refusal) {
         self.refused[r.index()].fetch_add(1, Relaxed);
     }
-    pub(crate) fn count_command(&self, role: Role) {
-        if let Some(i) = Role::ALL.iter().position(|r| *r == role) {
-            self.commands[i].fetch_add(1, Relaxed);
+    pub(crate) fn count_command(&self, id: DeviceId) {
+        if let Some(c) = self.commands.get(id.index()) {
+            c.fetch_add(1, Relaxed);
         }
     }
     pub(crate) fn count_accel(&self) {
@@ -246,20 +236,20 @@ impl NetStatus {
     }
 
     /// Network commands refused at intake (interlocks, disengaged…) for one reason.
-    pub fn intake_rejections(&self, r: interlock::Reject) -> u64 {
+    pub fn intake_rejections(&self, r: safety::Reject) -> u64 {
         self.intake[r.index()].load(Relaxed)
     }
 
-    /// A plain copy of everything, for display.
-    pub fn snapshot(&self) -> NetSnapshot {
+    /// A plain copy of everything, for the snapshot.
+    pub fn snapshot(&self) -> NetView {
         let now = Instant::now();
         let ms = |d: Duration| d.as_secs_f64() * 1e3;
         let inner = self.inner.lock();
-        let mut senders: Vec<SenderSnapshot> = inner
+        let mut senders: Vec<SenderView> = inner
             .senders
             .iter()
             .flatten()
-            .map(|s| SenderSnapshot {
+            .map(|s| SenderView {
                 addr: s.addr,
                 age_ms: ms(now.saturating_duration_since(s.last_seen)),
                 seq: s.seq,
@@ -271,7 +261,7 @@ impl NetStatus {
                 latched: s.latched,
             })
             .collect();
-        let watchdog = WatchdogSnapshot {
+        let watchdog = WatchdogView {
             state: inner.watchdog,
             timeout_ms: ms(self.watchdog_timeout),
             last_command_age_ms: inner
@@ -283,159 +273,38 @@ impl NetStatus {
         let commander = inner.commander;
         drop(inner);
         senders.sort_by(|a, b| a.age_ms.total_cmp(&b.age_ms));
-        NetSnapshot {
+        let named = |pairs: Vec<(&str, u64)>| -> Pairs<u64> {
+            pairs.into_iter().map(|(n, c)| (n.to_string(), c)).collect()
+        };
+        NetView {
             listen: self.listen,
             datagrams: self.datagrams.load(Relaxed),
             accepted: self.accepted.load(Relaxed),
             commander,
             watchdog,
             senders,
-            commands: Role::ALL
+            commands: self
+                .names
                 .iter()
-                .filter(|r| r.is_actuator())
-                .map(|r| {
-                    let i = Role::ALL.iter().position(|x| x == r).expect("listed");
-                    (r.as_str(), self.commands[i].load(Relaxed))
-                })
-                .chain([("accel", self.accel.load(Relaxed))])
+                .zip(&self.commands)
+                .map(|(n, c)| (n.clone(), c.load(Relaxed)))
+                .chain([("accel".to_string(), self.accel.load(Relaxed))])
                 .collect(),
             rejected: Rejections {
-                datagram: self.rejects.iter().collect(),
-                intake: interlock::Reject::ALL
-                    .iter()
-                    .map(|r| (r.as_str(), self.intake[r.index()].load(Relaxed)))
-                    .collect(),
-                refused: Refusal::ALL
-                    .iter()
-                    .map(|r| (r.as_str(), self.refused[r.index()].load(Relaxed)))
-                    .collect(),
-            },
-        }
-    }
-}
-
-/// A copy of [`NetStatus`].
-#[derive(Clone, Debug, Serialize)]
-pub struct NetSnapshot {
-    pub listen: SocketAddr,
-    /// Datagrams received, and those accepted (parsed, authentic, not refused whole).
-    pub datagrams: u64,
-    pub accepted: u64,
-    /// The sender commanding the vehicle, if any.
-    pub commander: Option<SocketAddr>,
-    pub watchdog: WatchdogSnapshot,
-    /// Most recently seen first.
-    pub senders: Vec<SenderSnapshot>,
-    /// Network commands accepted, per device (and `accel`).
-    #[serde(serialize_with = "pairs")]
-    pub commands: Vec<(&'static str, u64)>,
-    pub rejected: Rejections,
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct WatchdogSnapshot {
-    pub state: WatchdogState,
-    pub timeout_ms: f64,
-    /// Time since the commander's last valid datagram.
-    pub last_command_age_ms: Option<f64>,
-    /// Why it last tripped.
-    pub last_trip: Option<String>,
-}
-
-#[derive(Clone, Debug, Serialize)]
-pub struct SenderSnapshot {
-    pub addr: SocketAddr,
-    pub age_ms: f64,
-    pub seq: Option<u64>,
-    pub datagrams: u64,
-    pub accepted: u64,
-    pub rejected: u64,
-    pub commanding: bool,
-    pub frozen: bool,
-    pub latched: bool,
-}
-
-/// Rejections by reason; every reason is listed, zeros included.
-#[derive(Clone, Debug, Serialize)]
-pub struct Rejections {
-    /// Whole datagrams: grammar, authentication, counter (`net::proto::Reject`).
-    #[serde(serialize_with = "pairs")]
-    pub datagram: Vec<(&'static str, u64)>,
-    /// Single network commands refused at intake (`interlock::Reject`).
-    #[serde(serialize_with = "pairs")]
-    pub intake: Vec<(&'static str, u64)>,
-    /// The listener's own refusals ([`Refusal`]).
-    #[serde(serialize_with = "pairs")]
-    pub refused: Vec<(&'static str, u64)>,
-}
-
-impl Rejections {
-    pub fn get(&self, name: &str) -> u64 {
-        [&self.datagram, &self.intake, &self.refused]
-            .into_iter()
-            .flatten()
-            .filter(|(n, _)| *n == name)
-            .map(|(_, c)| c)
-            .sum()
-    }
-}
-
-/// `[(name, value)]` as a JSON object, in order.
-pub(crate) fn pairs<S: serde::Serializer, V: Serialize>(
-    v: &[(&'static str, V)],
-    s: S,
-) -> Result<S::Ok, S::Error> {
-    use serde::ser::SerializeMap;
-    let mut m = s.serialize_map(Some(v.len()))?;
-    for (k, x) in v {
-        m.serialize_entry(k, x)?;
-    }
-    m.end()
-}
-
-/// The console's network panel reads the live status through this.
-impl crate::console::controls::NetSource for NetStatus {
-    fn status(&self) -> crate::console::controls::NetStatus {
-        use crate::console::controls::{NetStatus as Panel, Watchdog};
-        let s = self.snapshot();
-        let watchdog = match s.watchdog.state {
-            WatchdogState::Off | WatchdogState::Idle => Watchdog::Idle,
-            WatchdogState::Armed => Watchdog::Ok {
-                since_last: Duration::from_secs_f64(
-                    s.watchdog.last_command_age_ms.unwrap_or(0.0) / 1000.0,
+                datagram: named(self.rejects.iter().collect()),
+                intake: named(
+                    safety::Reject::ALL
+                        .iter()
+                        .map(|r| (r.as_str(), self.intake[r.index()].load(Relaxed)))
+                        .collect(),
                 ),
-                timeout: Duration::from_secs_f64(s.watchdog.timeout_ms / 1000.0),
+                refused: named(
+                    Refusal::ALL
+                        .iter()
+                        .map(|r| (r.as_str(), self.refused[r.index()].load(Relaxed)))
+                        .collect(),
+                ),
             },
-            WatchdogState::Tripped => Watchdog::Tripped,
-        };
-        let mut rejections: Vec<(String, u64)> = [
-            &s.rejected.datagram,
-            &s.rejected.intake,
-            &s.rejected.refused,
-        ]
-        .into_iter()
-        .flatten()
-        .filter(|(_, n)| *n > 0)
-        .map(|(r, n)| (r.to_string(), *n))
-        .collect();
-        rejections.sort_by_key(|r| std::cmp::Reverse(r.1));
-        Panel {
-            listen: s.listen.to_string(),
-            senders: s
-                .senders
-                .iter()
-                .map(|x| {
-                    let mark = if x.commanding { "*" } else { "" };
-                    format!("{}{mark}", x.addr)
-                })
-                .collect(),
-            commands: s
-                .commands
-                .iter()
-                .filter_map(|(name, n)| Some((name.parse().ok()?, *n)))
-                .collect(),
-            rejections,
-            watchdog,
         }
     }
 }

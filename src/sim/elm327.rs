@@ -11,6 +11,7 @@
 //! to repeat the last command.
 
 use super::device::{Plant, Reply, Responder};
+use crate::config::wire::ElmMap;
 use crate::driver::elm327::proto::{Pid, MODE_CURRENT, MODE_CURRENT_REPLY};
 use crate::value::Reading;
 use std::time::Duration;
@@ -39,18 +40,15 @@ pub struct Elm327Emulator {
     search: bool,
     second_ecu: bool,
     last: Option<String>,
-}
-
-impl Default for Elm327Emulator {
-    fn default() -> Self {
-        Elm327Emulator::new()
-    }
+    /// Where the plant's reading keeps rpm, speed and coolant.
+    map: ElmMap,
 }
 
 impl Elm327Emulator {
-    /// An adapter just powered on.
-    pub fn new() -> Elm327Emulator {
+    /// An adapter just powered on, reporting the readings `map` names.
+    pub fn new(map: ElmMap) -> Elm327Emulator {
         Elm327Emulator {
+            map,
             echo: true,
             linefeeds: false,
             headers: false,
@@ -69,7 +67,7 @@ impl Elm327Emulator {
 
     fn reset(&mut self) {
         let second = self.second_ecu;
-        *self = Elm327Emulator::new();
+        *self = Elm327Emulator::new(self.map.clone());
         self.second_ecu = second;
     }
 
@@ -203,11 +201,12 @@ impl Elm327Emulator {
             // Supported PIDs 01–20: 05, 0C, 0D.
             0x00 => Some(vec![0x08, 0x18, 0x00, 0x00]),
             code => Pid::from_code(code).and_then(|pid| {
-                let value = match pid {
-                    Pid::Rpm => reading.rpm,
-                    Pid::Speed => reading.speed,
-                    Pid::Coolant => reading.coolant,
+                let at = match pid {
+                    Pid::Rpm => self.map.rpm,
+                    Pid::Speed => self.map.speed,
+                    Pid::Coolant => self.map.coolant,
                 };
+                let value = at.and_then(|i| reading.get(i));
                 value.map(|v| pid.encode(v))
             }),
         };
@@ -218,7 +217,11 @@ impl Elm327Emulator {
         if self.second_ecu {
             let second = match Pid::from_code(request[1]) {
                 Some(Pid::Rpm) => Some(Pid::Rpm.encode(0.0)),
-                Some(Pid::Speed) => reading.speed.map(|v| Pid::Speed.encode(v)),
+                Some(Pid::Speed) => self
+                    .map
+                    .speed
+                    .and_then(|i| reading.get(i))
+                    .map(|v| Pid::Speed.encode(v)),
                 _ => None,
             };
             if let Some(d) = second {
@@ -297,14 +300,22 @@ mod tests {
     use crate::sim::test_serve::{serve_pty, TestPlant};
     use crate::value::Command;
 
+    fn map() -> ElmMap {
+        ElmMap {
+            rpm: Some(0),
+            speed: Some(1),
+            coolant: Some(2),
+            running: Some(3),
+        }
+    }
+
     fn engine() -> TestPlant {
+        let mut reading = Reading::default();
+        reading.set(0, 1726.0);
+        reading.set(1, 10.0);
+        reading.set(2, 83.0);
         TestPlant {
-            reading: Reading {
-                rpm: Some(1726.0),
-                speed: Some(10.0),
-                coolant: Some(83.0),
-                ..Reading::default()
-            },
+            reading,
             ..TestPlant::default()
         }
     }
@@ -318,7 +329,7 @@ mod tests {
 
     #[test]
     fn a_reset_is_slow_and_echoes() {
-        let (mut e, mut p) = (Elm327Emulator::new(), engine());
+        let (mut e, mut p) = (Elm327Emulator::new(map()), engine());
         let (out, extra) = say(&mut e, &mut p, "ATZ");
         assert_eq!(out, "ATZ\r\r\rELM327 v1.5\r\r>");
         assert!(extra >= Duration::from_millis(500));
@@ -333,7 +344,7 @@ mod tests {
 
     #[test]
     fn the_first_request_searches_then_answers() {
-        let (mut e, mut p) = (Elm327Emulator::new(), engine());
+        let (mut e, mut p) = (Elm327Emulator::new(map()), engine());
         let (out, _) = say(&mut e, &mut p, "010C");
         assert_eq!(out, "010C\rSEARCHING...\r41 0C 1A F8 \r\r>");
         let (out, _) = say(&mut e, &mut p, "ATE0");
@@ -348,21 +359,26 @@ mod tests {
 
     #[test]
     fn unknowns_and_missing_pids() {
-        let (mut e, mut p) = (Elm327Emulator::new(), engine());
+        let (mut e, mut p) = (Elm327Emulator::new(map()), engine());
         say(&mut e, &mut p, "ATE0");
         say(&mut e, &mut p, "0100");
         assert_eq!(say(&mut e, &mut p, "HELLO").0, "?\r\r>");
         let (out, extra) = say(&mut e, &mut p, "0111");
         assert_eq!(out, "NO DATA\r\r>");
         assert_eq!(extra, NO_DATA_TIME);
-        p.reading.coolant = None;
+        p.reading = {
+            let mut r = Reading::default();
+            r.set(0, 1726.0);
+            r.set(1, 10.0);
+            r
+        };
         assert_eq!(say(&mut e, &mut p, "0105").0, "NO DATA\r\r>");
         assert_eq!(say(&mut e, &mut p, "0100").0, "41 00 08 18 00 00 \r\r>");
     }
 
     #[test]
     fn a_second_ecu_answers_after_the_engine() {
-        let (mut e, mut p) = (Elm327Emulator::new().with_second_ecu(true), engine());
+        let (mut e, mut p) = (Elm327Emulator::new(map()).with_second_ecu(true), engine());
         say(&mut e, &mut p, "ATE0");
         let (out, _) = say(&mut e, &mut p, "010C");
         assert_eq!(out, "SEARCHING...\r41 0C 1A F8 \r41 0C 00 00 \r\r>");
@@ -376,7 +392,7 @@ mod tests {
 
     #[test]
     fn bytes_arrive_in_pieces() {
-        let (mut e, mut p) = (Elm327Emulator::new(), engine());
+        let (mut e, mut p) = (Elm327Emulator::new(map()), engine());
         assert_eq!(e.respond(b"01", &mut p), None);
         let r = e.respond(b"010D\r01", &mut p).unwrap();
         assert_eq!(r.consumed, 5);
@@ -384,16 +400,17 @@ mod tests {
 
     #[test]
     fn the_driver_and_the_emulator_agree_over_a_pseudo_terminal() {
-        let (server, mut link) = serve_pty(Elm327Emulator::new().with_second_ecu(true), engine());
-        let mut d = Elm327Driver::new(Duration::from_secs(2));
+        let (server, mut link) =
+            serve_pty(Elm327Emulator::new(map()).with_second_ecu(true), engine());
+        let mut d = Elm327Driver::new(map(), Duration::from_secs(2));
         d.open(&mut link).unwrap();
         assert_eq!(d.banner(), Some(BANNER));
         for i in 0..COOLANT_EVERY + 1 {
             let r = d.poll(&mut link).unwrap();
-            assert_eq!(r.rpm, Some(1726.0), "poll {i}");
-            assert!((r.speed.unwrap() - 10.0).abs() < 0.2);
-            assert_eq!(r.coolant, Some(83.0));
-            assert_eq!(r.running, Some(true));
+            assert_eq!(r.get(0), Some(1726.0), "poll {i}");
+            assert!((r.get(1).unwrap() - 10.0).abs() < 0.2);
+            assert_eq!(r.get(2), Some(83.0));
+            assert_eq!(r.get(3), Some(1.0), "running");
         }
         assert!(matches!(
             d.command(&mut link, Command::Set(0.0)),

@@ -1,10 +1,11 @@
 //! Device side of the adrive ASCII line protocol (see [`crate::driver::line`]).
 
 use super::device::{Plant, Reply, Responder};
+use crate::config::wire::LineMap;
 use crate::driver::line::{decode_request, encode_status, Request, MAX_LINE};
 
-#[derive(Default)]
-pub struct LineDevice;
+/// A line-protocol device with the device's keys and words.
+pub struct LineDevice(pub LineMap);
 
 impl Responder for LineDevice {
     fn respond(&mut self, input: &[u8], plant: &mut dyn Plant) -> Option<Reply> {
@@ -17,8 +18,8 @@ impl Responder for LineDevice {
             });
         };
         let consumed = end + 1;
-        let bytes = match decode_request(&input[..consumed]) {
-            Ok(Request::Poll) => encode_status(&plant.reading()),
+        let bytes = match decode_request(&input[..consumed], &self.0) {
+            Ok(Request::Poll) => encode_status(&plant.reading(), &self.0),
             Ok(Request::Command(c)) => match plant.command(c) {
                 Ok(()) => b"ok\n".to_vec(),
                 Err(e) => format!("err {e}\n").into_bytes(),

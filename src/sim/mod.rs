@@ -19,8 +19,9 @@ pub mod model;
 #[cfg(test)]
 pub(crate) mod test_serve;
 
-use crate::config::{DeviceConfig, DriverKind, VehicleConfig};
-use crate::value::{Command, EstopState, Gear, Reading, Role};
+use crate::config::wire::Wire;
+use crate::config::{DeviceConfig, VehicleConfig};
+use crate::value::{Command, DeviceId, EstopState, Kind, Reading};
 use crossbeam_channel::Sender;
 use device::{Plant, Responder};
 use model::Model;
@@ -124,7 +125,9 @@ impl Faults {
 /// Something a simulated device received, for `adrive sim`'s log.
 #[derive(Clone, Debug)]
 pub struct SimEvent {
-    pub role: Role,
+    pub device: DeviceId,
+    /// The device's name.
+    pub name: String,
     pub at: Instant,
     /// The command the device applied.
     pub command: Command,
@@ -132,14 +135,17 @@ pub struct SimEvent {
     pub request: Vec<u8>,
     /// Why, when the device acted on its own (its watchdog).
     pub note: Option<String>,
-    /// The simulated vehicle's speed (m/s, signed) and gear when the command arrived.
+    /// The simulated vehicle's speed (m/s, signed) when the command arrived.
     pub speed: f64,
-    pub gear: Gear,
+    /// A state device's state when the command arrived (a shift is a new state).
+    pub state_before: Option<u8>,
+    /// The command in words (`0.250`, `drive`, `home`).
+    pub text: String,
 }
 
 /// One simulated device's port.
 pub struct SimPort {
-    pub role: Role,
+    pub name: String,
     /// The stable path adrive (or any tool) opens: a link to the current pty.
     pub path: String,
     /// The pseudo-terminal behind the link right now.
@@ -164,32 +170,32 @@ pub fn wire_time(bytes: usize, baud: u32) -> Duration {
 }
 
 fn responder_for(c: &DeviceConfig) -> Box<dyn Responder> {
-    match (c.driver, &c.modbus) {
-        (DriverKind::Modbus, Some(m)) => {
-            Box::new(modbus::ModbusSlave::new(m.slave, m.registers.clone()))
-        }
-        (DriverKind::Elm327, _) => Box::new(elm327::Elm327Emulator::new()),
-        (DriverKind::Line | DriverKind::Modbus, _) => Box::new(line::LineDevice),
+    match &c.wire {
+        Wire::Modbus(m) => Box::new(modbus::ModbusSlave::new(m.clone())),
+        Wire::Elm327(m) => Box::new(elm327::Elm327Emulator::new(m.clone())),
+        Wire::Line(m) => Box::new(line::LineDevice(m.clone())),
     }
 }
 
 struct DevicePlant<'a> {
-    role: Role,
+    id: DeviceId,
     model: &'a Mutex<Model>,
     applied: Option<Command>,
-    /// Speed and gear when the command arrived.
-    before: (f64, Gear),
+    /// The vehicle's speed, and the device's state, when the command arrived.
+    before: (f64, Option<u8>),
 }
 
 impl Plant for DevicePlant<'_> {
     fn reading(&mut self) -> Reading {
-        self.model.lock().reading(self.role)
+        self.model.lock().reading(self.id)
     }
     fn command(&mut self, command: Command) -> Result<(), String> {
         let mut m = self.model.lock();
         m.step();
-        self.before = (m.velocity, m.gear);
-        m.command(self.role, command)?;
+        let d = m.device(self.id);
+        let state = (d.kind == Kind::State).then_some(d.state);
+        self.before = (m.velocity, state);
+        m.command(self.id, command)?;
         self.applied = Some(command);
         Ok(())
     }
@@ -221,21 +227,22 @@ impl Sim {
             SIM_COUNT.fetch_add(1, Relaxed)
         ));
         std::fs::create_dir_all(&dir)?;
-        let model = Arc::new(Mutex::new(Model::new()));
+        let model = Arc::new(Mutex::new(Model::new(config)));
         let stop = Arc::new(AtomicBool::new(false));
         let mut ports = Vec::new();
         let mut threads = Vec::new();
-        for c in &config.devices {
+        for (i, c) in config.devices.iter().enumerate() {
             let link = dir.join(c.name.as_str());
             let (master, slave, pty) = bring_up(&link)?;
             let port = SimPort {
-                role: c.name,
+                name: c.name.clone(),
                 path: link.display().to_string(),
                 pty: Arc::new(Mutex::new(pty)),
                 faults: Arc::new(Faults::default()),
                 lives: Arc::new(AtomicU32::new(1)),
             };
             let dev = Served {
+                id: DeviceId(i as u16),
                 config: c.clone(),
                 link,
                 model: model.clone(),
@@ -260,17 +267,17 @@ impl Sim {
         })
     }
 
-    fn port(&self, role: Role) -> Option<&SimPort> {
-        self.ports.iter().find(|p| p.role == role)
+    fn port(&self, name: &str) -> Option<&SimPort> {
+        self.ports.iter().find(|p| p.name == name)
     }
 
-    /// The stable path of `role`'s device.
-    pub fn path(&self, role: Role) -> Option<&str> {
-        self.port(role).map(|p| p.path.as_str())
+    /// The stable path of a device's port.
+    pub fn path(&self, name: &str) -> Option<&str> {
+        self.port(name).map(|p| p.path.as_str())
     }
 
-    pub fn faults(&self, role: Role) -> Option<&Arc<Faults>> {
-        self.port(role).map(|p| &p.faults)
+    pub fn faults(&self, name: &str) -> Option<&Arc<Faults>> {
+        self.port(name).map(|p| &p.faults)
     }
 
     /// The simulated vehicle, for tests and the console's bench view.
@@ -285,70 +292,211 @@ impl Sim {
     /// Point every device of `config` at its simulated port.
     pub fn patch(&self, config: &mut VehicleConfig) {
         for d in &mut config.devices {
-            if let Some(p) = self.path(d.name) {
+            if let Some(p) = self.path(&d.name) {
                 d.port = p.to_string();
             }
         }
     }
 
     /// Apply one line of the simulator's little command language (used by `adrive sim`
-    /// on its standard input): `estop pause|run|disable`, `stall`,
-    /// `nostart on|off`, `jam steer`, `stuck steer on|off`, `bias DEVICE X`,
-    /// `FAULT DEVICE on|off|MS`, `clear DEVICE`.
-    /// Returns what was done.
+    /// on its standard input, `--fault`, the console's bench keys and tests); returns
+    /// what was done. `help` lists it all ([`COMMANDS`]).
     pub fn apply(&self, line: &str) -> Result<String, String> {
         let words: Vec<&str> = line.split_whitespace().collect();
-        let device = |name: &str| -> Result<&SimPort, String> {
-            let r: Role = name.parse()?;
-            self.port(r).ok_or_else(|| format!("{r} is not simulated"))
+        let Some((&verb, args)) = words.split_first() else {
+            return Err("empty line; `help` lists the commands".into());
         };
-        match words.as_slice() {
-            ["estop", state] => {
+        let Some(cmd) = COMMANDS.iter().find(|c| c.verb == verb) else {
+            return Err(format!(
+                "unknown command {verb:?}; `help` lists them: {}",
+                COMMANDS
+                    .iter()
+                    .map(|c| c.verb)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        };
+        let usage = || format!("usage: {} {} ({})", cmd.verb, cmd.args, cmd.what);
+        if args.len() != cmd.args.split_whitespace().count() {
+            return Err(usage());
+        }
+        let device = |name: &str, want: Option<Kind>| -> Result<(DeviceId, &SimPort), String> {
+            let m = self.model.lock();
+            let id = m.find(name).ok_or_else(|| {
+                format!(
+                    "no device {name:?}; the devices are {}",
+                    m.devices
+                        .iter()
+                        .map(|d| d.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )
+            })?;
+            if let Some(k) = want {
+                if m.device(id).kind != k {
+                    return Err(format!(
+                        "{name} is a {} device; {} is for {k} devices. {}",
+                        m.device(id).kind,
+                        cmd.verb,
+                        usage()
+                    ));
+                }
+            }
+            drop(m);
+            Ok((id, self.port(name).expect("every device has a port")))
+        };
+        let on_off = |w: &str| match w {
+            "on" | "1" | "true" => Ok(true),
+            "off" | "0" | "false" => Ok(false),
+            _ => Err(usage()),
+        };
+        match (verb, args) {
+            ("help", _) => Ok(help()),
+            ("estop", [state]) => {
                 let s: EstopState = state.parse()?;
                 self.set_estop(s);
                 Ok(format!("estop is now {s}"))
             }
-            ["stall"] => {
+            ("stall", _) => {
                 self.model.lock().stall();
                 Ok("engine stalled".into())
             }
-            ["jam", "steer"] => {
-                self.model.lock().jam_steering();
-                Ok("steering drive fault latched (disable → enable clears it)".into())
+            ("nostart", [on]) => {
+                let on = on_off(on)?;
+                self.model.lock().start_fails = on;
+                Ok(format!("starter failure {}", if on { "on" } else { "off" }))
             }
-            ["stuck", "steer", on @ ("on" | "off")] => {
-                self.model.lock().steer_stuck = *on == "on";
-                Ok(format!("steering motor stuck {on} (no fault bits)"))
+            ("jam", [name]) => {
+                let (id, _) = device(name, Some(Kind::Setpoint))?;
+                self.model.lock().jam(id);
+                Ok(format!(
+                    "{name}: drive fault latched (disable → enable clears it)"
+                ))
             }
-            ["bias", name, x] => {
-                let r: Role = name.parse()?;
+            ("stuck", [name, on]) => {
+                let (id, _) = device(name, Some(Kind::Setpoint))?;
+                let on = on_off(on)?;
+                self.model.lock().device_mut(id).stuck = on;
+                Ok(format!(
+                    "{name}: motor stuck {} (no fault bits)",
+                    if on { "on" } else { "off" }
+                ))
+            }
+            ("bias", [name, x]) => {
+                let (id, _) = device(name, Some(Kind::Setpoint))?;
                 let x: f64 = x
                     .parse()
                     .ok()
                     .filter(|x: &f64| x.is_finite())
-                    .ok_or_else(|| format!("bias takes a number, got {x:?}"))?;
-                self.model.lock().bias[r as usize] = x;
-                Ok(format!("{r} reports its position {x:+} off"))
+                    .ok_or_else(usage)?;
+                self.model.lock().device_mut(id).bias = x;
+                Ok(format!("{name} reports its position {x:+} off"))
             }
-            ["nostart", on @ ("on" | "off")] => {
-                self.model.lock().start_fails = *on == "on";
-                Ok(format!("starter failure {on}"))
-            }
-            ["clear", name] => {
-                device(name)?.faults.clear();
+            ("clear", [name]) => {
+                let (_, p) = device(name, None)?;
+                p.faults.clear();
                 Ok(format!("{name}: faults cleared"))
             }
-            [fault, name, arg] => {
-                let p = device(name)?;
-                p.faults.set(fault, arg).map(|done| format!("{}: {done}", p.role))
+            (fault, [name, arg]) => {
+                let (_, p) = device(name, None)?;
+                p.faults
+                    .set(fault, arg)
+                    .map(|done| format!("{name}: {done}"))
             }
-            _ => Err(format!(
-                "unknown: {line:?}; expected `estop pause|run|disable`, `stall`, `nostart on|off`, `jam steer`, `stuck steer on|off`, `bias DEVICE X`, `clear DEVICE`, \
-                 or `FAULT DEVICE ARG` with FAULT one of {} (e.g. `silent gas on`, `slow steer 80`, `vanish brake 2000`)",
-                FAULT_NAMES.join(", ")
-            )),
+            _ => Err(usage()),
         }
     }
+}
+
+/// One command of the simulator's language.
+pub struct SimCommand {
+    pub verb: &'static str,
+    pub args: &'static str,
+    pub what: &'static str,
+}
+
+/// The simulator's little language: one table for parsing, errors and `help`.
+pub const COMMANDS: [SimCommand; 13] = [
+    SimCommand {
+        verb: "estop",
+        args: "disable|pause|run",
+        what: "change the e-stop state",
+    },
+    SimCommand {
+        verb: "stall",
+        args: "",
+        what: "the engine stalls",
+    },
+    SimCommand {
+        verb: "nostart",
+        args: "on|off",
+        what: "the starter turns but the engine never catches",
+    },
+    SimCommand {
+        verb: "silent",
+        args: "DEVICE on|off",
+        what: "any device: stop answering",
+    },
+    SimCommand {
+        verb: "garbage",
+        args: "DEVICE on|off",
+        what: "any device: answer noise",
+    },
+    SimCommand {
+        verb: "corrupt",
+        args: "DEVICE on|off",
+        what: "any device: flip a bit in every reply (bad CRC / checksum)",
+    },
+    SimCommand {
+        verb: "slow",
+        args: "DEVICE MS",
+        what: "any device: answer MS later (0 clears)",
+    },
+    SimCommand {
+        verb: "vanish",
+        args: "DEVICE MS",
+        what: "any device: close the port and remove its link (a USB unplug), back after MS",
+    },
+    SimCommand {
+        verb: "jam",
+        args: "DEVICE",
+        what: "a setpoint device's drive latches a fault (bit 0x0001; disable → enable clears it)",
+    },
+    SimCommand {
+        verb: "stuck",
+        args: "DEVICE on|off",
+        what: "a setpoint device's motor stops and its drive does not notice",
+    },
+    SimCommand {
+        verb: "bias",
+        args: "DEVICE X",
+        what: "a setpoint device reports its position X off (a slipped sensor)",
+    },
+    SimCommand {
+        verb: "clear",
+        args: "DEVICE",
+        what: "clear a device's port faults",
+    },
+    SimCommand {
+        verb: "help",
+        args: "",
+        what: "this list",
+    },
+];
+
+/// The language, one command a line.
+pub fn help() -> String {
+    COMMANDS
+        .iter()
+        .map(|c| {
+            format!(
+                "{:<28} {}",
+                format!("{} {}", c.verb, c.args).trim_end(),
+                c.what
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 impl Drop for Sim {
@@ -363,6 +511,7 @@ impl Drop for Sim {
 
 /// One simulated device and its port loop.
 struct Served {
+    id: DeviceId,
     config: DeviceConfig,
     link: PathBuf,
     model: Arc<Mutex<Model>>,
@@ -423,24 +572,18 @@ impl Served {
             if let Some(limit) = c.sim.watchdog {
                 if !tripped && last_command.elapsed() > limit {
                     tripped = true;
-                    self.model.lock().watchdog_trip(c.name);
+                    let safe = self.model.lock().watchdog_trip(self.id);
                     tracing::info!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
-                    let safe = match c.name {
-                        Role::Brake => Some(Command::Set(1.0)),
-                        Role::Gas => Some(Command::Set(0.0)),
-                        _ => None,
-                    };
                     if let (Some(tx), Some(command)) = (&self.events, safe) {
-                        let (speed, gear) = {
-                            let m = self.model.lock();
-                            (m.velocity, m.gear)
-                        };
+                        let speed = self.model.lock().velocity;
                         let _ = tx.send(SimEvent {
+                            device: self.id,
+                            name: c.name.clone(),
                             speed,
-                            gear,
-                            role: c.name,
                             at: Instant::now(),
                             command,
+                            text: c.command_text(command),
+                            state_before: None,
                             request: Vec::new(),
                             note: Some(format!(
                                 "device watchdog: no command for {}",
@@ -463,10 +606,10 @@ impl Served {
             let mut arrived = Instant::now();
             loop {
                 let mut plant = DevicePlant {
-                    role: c.name,
+                    id: self.id,
                     model: &self.model,
                     applied: None,
-                    before: (0.0, Gear::Park),
+                    before: (0.0, None),
                 };
                 let Some(reply) = responder.respond(&input, &mut plant) else {
                     break;
@@ -478,13 +621,15 @@ impl Served {
                 }
                 if let (Some(tx), Some(command)) = (&self.events, plant.applied) {
                     let _ = tx.send(SimEvent {
-                        role: c.name,
+                        device: self.id,
+                        name: c.name.clone(),
                         at: arrived,
                         command,
+                        text: c.command_text(command),
                         request: request.clone(),
                         note: None,
                         speed: plant.before.0,
-                        gear: plant.before.1,
+                        state_before: plant.before.1,
                     });
                 }
                 if self.faults.silent.load(Relaxed) || reply.bytes.is_empty() {

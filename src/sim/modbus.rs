@@ -1,5 +1,5 @@
 //! A simulated Modbus RTU slave: serves functions 03, 04, 06 and 16 over a
-//! [`RegisterMap`] from a live [`Plant`], so `adrive --sim` exercises the same driver
+//! [`ModbusMap`] from a live [`Plant`], so `adrive --sim` exercises the same driver
 //! code as the field, and any Modbus master (mbpoll, pymodbus) pointed at the
 //! pseudo-terminal sees an ordinary servo drive.
 //!
@@ -11,24 +11,25 @@
 //! dropped without a word; a broadcast (id 0) write is applied, never answered.
 
 use super::device::{Plant, Reply, Responder};
+use crate::config::wire::{Field, ModbusMap, RegisterKind};
+use crate::config::ReadingKind;
 use crate::driver::modbus::proto::{self, Exception, Incoming, Request, Response};
-use crate::driver::modbus::{to_register, Field, RegisterKind, RegisterMap};
 use crate::value::{Command, Reading};
 
-/// The device side of a Modbus actuator.
+/// The device side of a Modbus device.
 pub struct ModbusSlave {
     id: u8,
-    map: RegisterMap,
-    /// Raw contents of the target register: the last set point written.
+    map: ModbusMap,
+    /// Raw contents of the target register: the last set point or state code written.
     target: u16,
     /// Frames dropped for a bad CRC (for the simulator's statistics).
     pub dropped: u64,
 }
 
 impl ModbusSlave {
-    pub fn new(id: u8, map: RegisterMap) -> ModbusSlave {
+    pub fn new(map: ModbusMap) -> ModbusSlave {
         ModbusSlave {
-            id,
+            id: map.slave,
             map,
             target: 0,
             dropped: 0,
@@ -45,10 +46,10 @@ impl ModbusSlave {
         (addr as u32..addr as u32 + count as u32)
             .map(|a| {
                 let a = u16::try_from(a).map_err(|_| Exception::IllegalDataAddress)?;
-                if kind == RegisterKind::Holding && a == self.map.target {
+                if kind == RegisterKind::Holding && Some(a) == self.map.target {
                     return Ok(self.target);
                 }
-                if kind != self.map.position_kind {
+                if kind != self.map.table {
                     return Err(Exception::IllegalDataAddress);
                 }
                 let field = self.map.field_at(a).ok_or(Exception::IllegalDataAddress)?;
@@ -59,41 +60,43 @@ impl ModbusSlave {
 
     /// A feedback field as its register holds it; a value the plant does not know
     /// reads as 0.
-    fn encode(&self, field: Field, now: &Reading) -> u16 {
-        let m = &self.map;
-        let fit = |x: f64| {
-            let bound = if m.signed {
-                x.clamp(i16::MIN as f64, i16::MAX as f64)
-            } else {
-                x.clamp(0.0, u16::MAX as f64)
-            };
-            to_register(bound, m.signed).unwrap_or(0)
-        };
+    fn encode(&self, field: &Field, now: &Reading) -> u16 {
         match field {
-            Field::Position => now.position.map_or(0, |v| fit((v - m.offset) / m.scale)),
-            Field::Velocity => now.velocity.map_or(0, |v| fit(v / m.scale)),
-            Field::Pressure => now
-                .pressure
-                .map_or(0, |p| fit(p / m.pressure_scale.unwrap_or(m.scale))),
-            Field::Gear => now.gear.map_or(0, |g| g.code()),
             Field::Status => now.fault,
+            Field::Reading { index, scale } => {
+                let Some(v) = now.get(*index) else {
+                    return 0;
+                };
+                match &self.map.kinds[*index] {
+                    ReadingKind::Number => scale.raw_clamped(v),
+                    ReadingKind::Flag => u16::from(v != 0.0),
+                    ReadingKind::States(_) if self.map.own_states[*index] => {
+                        self.map.codes.get(v as usize).copied().unwrap_or(0)
+                    }
+                    ReadingKind::States(_) => v as u16,
+                }
+            }
         }
     }
 
     fn write(&mut self, addr: u16, raw: u16, plant: &mut dyn Plant) -> Result<(), Exception> {
-        if Some(addr) == self.map.control && addr != self.map.target {
+        if Some(addr) == self.map.control && Some(addr) != self.map.target {
             let c = crate::value::Control::from_code(raw).ok_or(Exception::IllegalDataValue)?;
             return plant
                 .command(Command::Control(c))
                 .map_err(|_| Exception::ServerDeviceFailure);
         }
-        if addr != self.map.target {
+        if Some(addr) != self.map.target {
             return Err(Exception::IllegalDataAddress);
         }
-        let command = if self.map.is_gearbox() {
-            Command::Gear(crate::value::Gear::from_code(raw).ok_or(Exception::IllegalDataValue)?)
+        let command = if self.map.codes.is_empty() {
+            Command::Set(self.map.scale.value(raw))
         } else {
-            Command::Set(self.map.value(raw))
+            Command::State(
+                self.map
+                    .state_of_code(raw)
+                    .ok_or(Exception::IllegalDataValue)?,
+            )
         };
         plant
             .command(command)
@@ -194,23 +197,23 @@ impl Responder for ModbusSlave {
 mod tests {
     use super::*;
     use crate::driver::modbus::proto::{decode_response, encode_request, FrameError};
-    use crate::driver::modbus::{alice_map, ModbusDriver};
+    use crate::driver::modbus::tests::alice;
+    use crate::driver::modbus::ModbusDriver;
     use crate::driver::Driver;
     use crate::sim::test_serve::{serve_pty, TestPlant};
-    use crate::value::{Gear, Role};
     use std::time::Duration;
 
+    /// Alice's brake: position 0.5, pressure 25 bar, a fault bit and an info bit.
     fn brake() -> (ModbusSlave, TestPlant) {
+        let mut reading = Reading::default();
+        reading.set(0, 0.5);
+        reading.set(1, 25.0);
+        reading.fault = 0x0102;
         let plant = TestPlant {
-            reading: Reading {
-                position: Some(0.5),
-                pressure: Some(0.25),
-                fault: 0x0102,
-                ..Reading::default()
-            },
+            reading,
             ..TestPlant::default()
         };
-        (ModbusSlave::new(3, alice_map(Role::Brake).unwrap()), plant)
+        (ModbusSlave::new(alice("brake")), plant)
     }
 
     fn ask(
@@ -302,8 +305,8 @@ mod tests {
     }
 
     #[test]
-    fn an_unknown_gear_code_is_an_illegal_value() {
-        let mut s = ModbusSlave::new(4, alice_map(Role::Trans).unwrap());
+    fn an_unknown_state_code_is_an_illegal_value() {
+        let mut s = ModbusSlave::new(alice("trans"));
         let mut p = TestPlant::default();
         let r = ask(
             &mut s,
@@ -319,7 +322,7 @@ mod tests {
             &Request::WriteSingle { addr: 0, value: 1 },
         );
         assert!(r.is_ok());
-        assert_eq!(p.commands, vec![Command::Gear(Gear::Reverse)]);
+        assert_eq!(p.commands, vec![Command::State(1)], "reverse");
     }
 
     #[test]
@@ -362,21 +365,16 @@ mod tests {
     fn the_driver_and_the_slave_agree_over_a_pseudo_terminal() {
         let (s, p) = brake();
         let (server, mut link) = serve_pty(s, p);
-        let mut d = ModbusDriver::new(
-            alice_map(Role::Brake).unwrap(),
-            3,
-            115_200,
-            Duration::from_secs(2),
-        );
+        let mut d = ModbusDriver::new(alice("brake"), 115_200, Duration::from_secs(2));
         let r = d.poll(&mut link).unwrap();
-        assert_eq!(r.position, Some(0.5));
-        assert_eq!(r.pressure, Some(0.25));
+        assert_eq!(r.get(0), Some(0.5), "position");
+        assert_eq!(r.get(1), Some(25.0), "pressure");
         assert_eq!(r.fault, 0x0002);
         d.command(&mut link, Command::Set(0.3)).unwrap();
         // Same slave id, a map the device does not have: its feedback is unmapped.
-        let mut wrong = alice_map(Role::Brake).unwrap();
-        wrong.position = Some(10);
-        let mut wrong = ModbusDriver::new(wrong, 3, 115_200, Duration::from_secs(2));
+        let mut wrong = alice("brake");
+        wrong.fields[0].0 = 10;
+        let mut wrong = ModbusDriver::new(wrong, 115_200, Duration::from_secs(2));
         match wrong.poll(&mut link) {
             Err(crate::driver::DriverError::Refused(why)) => {
                 assert!(why.contains("illegal data address"), "{why}")

@@ -1,95 +1,283 @@
-//! A simple model of Alice that ties the simulated devices together: steering moves
-//! toward its command at a limited rate, gas and brake follow with a lag, shifting
-//! takes time, engine rpm and vehicle speed respond to gas, brake and gear, and the
-//! e-stop state can be changed from outside. State advances with wall time on every
-//! access, so no extra thread is needed.
+//! The simulated vehicle behind every simulated device. Each device has its own
+//! simulated state from the vehicle file: a setpoint actuator moves toward its command
+//! at its `[device.sim] rate` or with its `lag`; a state actuator settles into a new
+//! state after `settle` (reporting `transit` meanwhile); a sensor's readings are
+//! constants, ramps or noise. The vehicle itself — speed, engine, rpm, coolant, the
+//! e-stop — works through the role bindings: the throttle's position drives, the
+//! brake's stops, the gear's state picks the direction, the starter cranks. So Alice
+//! behaves as she always did, and any other vehicle file gets a plausible vehicle.
+//!
+//! State advances with wall time on every access, so no extra thread is needed.
 
-use crate::value::{Command, Control, EstopState, Gear, Reading, Role};
+use crate::config::{Bindings, ReadingKind, Role, SimReading, VehicleConfig};
+use crate::value::{Command, Control, DeviceId, EstopState, Kind, Reading};
 use std::time::{Duration, Instant};
 
-/// Steering slew rate, full range per second.
-pub const STEER_RATE: f64 = 1.0;
-/// Time a shift takes.
-pub const SHIFT_TIME: Duration = Duration::from_millis(600);
-const PEDAL_TAU: f64 = 0.08;
 const IDLE_RPM: f64 = 700.0;
-/// Full-gas acceleration, m/s².
+/// Full-throttle acceleration, m/s².
 const GAS_ACCEL: f64 = 3.0;
 /// Full-brake deceleration, m/s².
 const BRAKE_DECEL: f64 = 8.0;
-/// Brake line pressure at full brake, bar.
-const BRAKE_BAR: f64 = 80.0;
 /// How long the starter cranks before the engine catches.
 pub const CRANK_TIME: Duration = Duration::from_millis(800);
-/// Steering status bits: the drive's fault latch, and its power stage off.
-pub const STEER_FAULT: u16 = 0x0001;
-pub const STEER_DISABLED: u16 = 0x0100;
+/// A drive's status bits: its fault latch, and its power stage off (informational).
+pub const DRIVE_FAULT: u16 = 0x0001;
+pub const DRIVE_DISABLED: u16 = 0x0100;
 
+/// Where a simulated reading comes from.
+#[derive(Clone, Debug, PartialEq)]
+enum Source {
+    Position,
+    Velocity,
+    State,
+    Speed,
+    Rpm,
+    Coolant,
+    Running,
+    /// The e-stop, as state indices of disable, pause, run.
+    Estop([u8; 3]),
+    Configured(SimReading),
+}
+
+/// One simulated device.
+#[derive(Clone, Debug)]
+pub struct SimDevice {
+    pub name: String,
+    pub kind: Kind,
+    pub range: [f64; 2],
+    /// A setpoint actuator's position and command, and how fast it moved last step.
+    pub position: f64,
+    pub command: f64,
+    pub velocity: f64,
+    rate: Option<f64>,
+    lag: Option<f64>,
+    /// A state actuator's state, and the state it is settling into (and when).
+    pub state: u8,
+    target: Option<(u8, Instant)>,
+    settle: Duration,
+    transit: Option<u8>,
+    /// A drive's power stage is on.
+    pub enabled: bool,
+    /// The drive latched a fault: it holds still until disabled and enabled.
+    pub fault_latched: bool,
+    /// Fault injection: the motor does not move, and the drive does not notice.
+    pub stuck: bool,
+    /// Fault injection: an offset added to the position it reports (a slipped sensor).
+    pub bias: f64,
+    /// What the device's own watchdog commands.
+    pub safe: Option<Command>,
+    sources: Vec<Source>,
+}
+
+impl SimDevice {
+    fn step(&mut self, h: f64) {
+        if self.kind != Kind::Setpoint {
+            return;
+        }
+        let before = self.position;
+        if self.enabled && !self.fault_latched && !self.stuck {
+            let err = self.command - self.position;
+            self.position += match (self.rate, self.lag) {
+                (Some(r), _) => err.clamp(-r * h, r * h),
+                (None, Some(tau)) if tau > 0.0 => err * (1.0 - (-h / tau).exp()),
+                _ => err,
+            };
+        }
+        self.velocity = (self.position - before) / h;
+    }
+
+    /// The state it reports now.
+    fn reported_state(&self) -> u8 {
+        match self.target {
+            Some(_) => self.transit.unwrap_or(self.state),
+            None => self.state,
+        }
+    }
+
+    /// The fraction of its range (0 at the bottom, 1 at the top).
+    fn fraction(&self) -> f64 {
+        let [lo, hi] = self.range;
+        if hi > lo {
+            ((self.position - lo) / (hi - lo)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// The simulated vehicle.
 #[derive(Clone, Debug)]
 pub struct Model {
-    pub steer: f64,
-    pub steer_cmd: f64,
-    pub steer_vel: f64,
-    pub gas: f64,
-    pub gas_cmd: f64,
-    pub brake: f64,
-    pub brake_cmd: f64,
-    pub gear: Gear,
-    shifting: Option<(Gear, Instant)>,
+    pub devices: Vec<SimDevice>,
+    roles: Bindings,
     pub running: bool,
     pub rpm: f64,
     /// Signed: positive forward.
     pub velocity: f64,
     pub coolant: f64,
     pub estop: EstopState,
-    /// The steering drive's power stage is on.
-    pub steer_enabled: bool,
-    /// The steering drive latched a fault: it holds still until disabled and enabled.
-    pub steer_fault: bool,
     cranking: Option<Instant>,
     /// Fault injection: the starter turns but the engine never catches.
     pub start_fails: bool,
-    /// Fault injection: the steering motor does not move, and its drive does not
-    /// notice (no fault bits).
-    pub steer_stuck: bool,
-    /// Fault injection: an offset added to the position each device reports (a
-    /// slipped sensor), by role.
-    pub bias: [f64; 6],
+    /// A small deterministic noise source.
+    noise: u64,
+    started: Instant,
     last: Instant,
 }
 
-impl Default for Model {
-    fn default() -> Self {
-        Model::new()
-    }
-}
-
 impl Model {
-    /// Alice parked, engine idling, brake on, e-stop in run.
-    pub fn new() -> Model {
+    /// The vehicle of `config` at rest: engine idling, brake on, e-stop in run, every
+    /// actuator at its safe value (or the bottom of its range, or its first state).
+    pub fn new(config: &VehicleConfig) -> Model {
+        let b = &config.roles;
+        let safe = crate::safety::safe::state(config);
+        let devices = config
+            .devices
+            .iter()
+            .enumerate()
+            .map(|(i, d)| {
+                let id = DeviceId(i as u16);
+                let own_safe = safe.iter().find(|(x, _)| *x == id).map(|(_, c)| *c);
+                let start = match own_safe {
+                    Some(Command::Set(v)) => v,
+                    _ => 0.0f64.clamp(d.range[0], d.range[1]),
+                };
+                let state = match own_safe {
+                    Some(Command::State(s)) => s,
+                    _ => b
+                        .gear
+                        .as_ref()
+                        .filter(|g| g.device == id)
+                        .and_then(|g| g.park)
+                        .unwrap_or(0),
+                };
+                let sources = d
+                    .readings
+                    .iter()
+                    .enumerate()
+                    .map(|(r, spec)| {
+                        let at = crate::config::roles::ReadingRef {
+                            device: id,
+                            reading: r,
+                        };
+                        if let Some(c) = d.sim.readings.get(&spec.name) {
+                            return Source::Configured(c.clone());
+                        }
+                        if b.estop.is_some_and(|e| e.at == at) {
+                            return Source::Estop(b.estop.expect("checked").states);
+                        }
+                        if b.speed == Some(at) {
+                            return Source::Speed;
+                        }
+                        if b.engine_running == Some(at) {
+                            return Source::Running;
+                        }
+                        match (spec.name.as_str(), &spec.kind) {
+                            ("position", _) if d.kind == Kind::Setpoint => Source::Position,
+                            ("velocity", _) if d.kind == Kind::Setpoint => Source::Velocity,
+                            ("state", _) if d.kind == Kind::State => Source::State,
+                            ("speed", _) => Source::Speed,
+                            ("rpm", _) => Source::Rpm,
+                            ("coolant", _) => Source::Coolant,
+                            ("running", _) => Source::Running,
+                            (_, ReadingKind::States(s)) if s.iter().any(|x| x == "run") => {
+                                let idx =
+                                    |n: &str| s.iter().position(|x| x == n).unwrap_or(0) as u8;
+                                Source::Estop([idx("disable"), idx("pause"), idx("run")])
+                            }
+                            _ => Source::Configured(SimReading {
+                                value: 0.0,
+                                noise: 0.0,
+                                ramp_to: None,
+                                ramp_time: Duration::from_secs(60),
+                                per_position: None,
+                            }),
+                        }
+                    })
+                    .collect();
+                SimDevice {
+                    name: d.name.clone(),
+                    kind: d.kind,
+                    range: d.range,
+                    position: start,
+                    command: start,
+                    velocity: 0.0,
+                    rate: d.sim.rate,
+                    lag: d.sim.lag.map(|l| l.as_secs_f64()),
+                    state,
+                    target: None,
+                    settle: d.sim.settle,
+                    transit: d.sim.transit.as_deref().and_then(|t| d.state_index(t)),
+                    enabled: true,
+                    fault_latched: false,
+                    stuck: false,
+                    bias: 0.0,
+                    safe: own_safe,
+                    sources,
+                }
+            })
+            .collect();
+        let now = Instant::now();
         Model {
-            steer: 0.0,
-            steer_cmd: 0.0,
-            steer_vel: 0.0,
-            gas: 0.0,
-            gas_cmd: 0.0,
-            brake: 1.0,
-            brake_cmd: 1.0,
-            gear: Gear::Park,
-            shifting: None,
+            devices,
+            roles: b.clone(),
             running: true,
             rpm: IDLE_RPM,
             velocity: 0.0,
             coolant: 85.0,
             estop: EstopState::Run,
-            steer_enabled: true,
-            steer_fault: false,
             cranking: None,
             start_fails: false,
-            steer_stuck: false,
-            bias: [0.0; 6],
-            last: Instant::now(),
+            noise: 0x2545_f491_4f6c_dd1d,
+            started: now,
+            last: now,
         }
+    }
+
+    /// A device by name.
+    pub fn find(&self, name: &str) -> Option<DeviceId> {
+        self.devices
+            .iter()
+            .position(|d| d.name == name)
+            .map(|i| DeviceId(i as u16))
+    }
+
+    pub fn device(&self, id: DeviceId) -> &SimDevice {
+        &self.devices[id.index()]
+    }
+
+    pub fn device_mut(&mut self, id: DeviceId) -> &mut SimDevice {
+        &mut self.devices[id.index()]
+    }
+
+    /// The device bound to a role.
+    pub fn bound(&self, role: Role) -> Option<&SimDevice> {
+        self.roles.device(role).map(|id| self.device(id))
+    }
+
+    /// The gear state reported now drives the wheels (no gearbox: always forward).
+    fn drive_direction(&self) -> f64 {
+        let Some(g) = &self.roles.gear else {
+            return 1.0;
+        };
+        let d = self.device(g.device);
+        if d.target.is_some() {
+            return 0.0;
+        }
+        if g.forward.contains(&d.state) {
+            1.0
+        } else if g.reverse.contains(&d.state) {
+            -1.0
+        } else {
+            0.0
+        }
+    }
+
+    fn parked(&self) -> bool {
+        self.roles
+            .gear
+            .as_ref()
+            .is_some_and(|g| g.park == Some(self.device(g.device).reported_state()))
     }
 
     /// Advance the model to now.
@@ -107,10 +295,12 @@ impl Model {
             self.advance(h);
             left -= h;
         }
-        if let Some((g, at)) = self.shifting {
-            if now >= at {
-                self.gear = g;
-                self.shifting = None;
+        for d in &mut self.devices {
+            if let Some((s, at)) = d.target {
+                if now >= at {
+                    d.state = s;
+                    d.target = None;
+                }
             }
         }
         if let Some(at) = self.cranking {
@@ -124,64 +314,57 @@ impl Model {
     }
 
     fn advance(&mut self, h: f64) {
-        let before = self.steer;
-        let err = self.steer_cmd - self.steer;
-        if self.steer_enabled && !self.steer_fault && !self.steer_stuck {
-            self.steer += err.clamp(-STEER_RATE * h, STEER_RATE * h);
+        for d in &mut self.devices {
+            d.step(h);
         }
-        self.steer_vel = (self.steer - before) / h;
-        let k = 1.0 - (-h / PEDAL_TAU).exp();
-        self.gas += (self.gas_cmd - self.gas) * k;
-        self.brake += (self.brake_cmd - self.brake) * k;
-
-        let in_gear = self.shifting.is_none() && self.gear.is_driving() && self.running;
-        let dir = if self.gear == Gear::Reverse {
-            -1.0
-        } else {
-            1.0
-        };
+        let throttle = self.bound(Role::Throttle).map_or(0.0, SimDevice::fraction);
+        let brake = self.bound(Role::Brake).map_or(0.0, SimDevice::fraction);
+        let dir = self.drive_direction();
+        let in_gear = dir != 0.0 && self.running;
         let drive = if in_gear {
-            self.gas * GAS_ACCEL * dir
+            throttle * GAS_ACCEL * dir
         } else {
             0.0
         };
-        let stop = self.brake * BRAKE_DECEL + 0.3 + 0.02 * self.velocity.abs();
+        let stop = brake * BRAKE_DECEL + 0.3 + 0.02 * self.velocity.abs();
         let v = self.velocity + drive * h;
         // Braking and drag only slow the vehicle; they never reverse it.
         let slowed = v.abs() - stop * h;
-        self.velocity = if self.gear == Gear::Park || slowed <= 0.0 {
+        self.velocity = if self.parked() || slowed <= 0.0 {
             0.0
         } else {
             slowed * v.signum()
         };
-
         let target = if !self.running {
             0.0
         } else if in_gear {
-            IDLE_RPM + self.gas * 2500.0 + self.velocity.abs() * 80.0
+            IDLE_RPM + throttle * 2500.0 + self.velocity.abs() * 80.0
         } else {
-            IDLE_RPM + self.gas * 4500.0
+            IDLE_RPM + throttle * 4500.0
         };
         self.rpm += (target - self.rpm) * (1.0 - (-h / 0.3).exp());
         let warm = if self.running { 90.0 } else { 20.0 };
         self.coolant += (warm - self.coolant) * (1.0 - (-h / 600.0).exp());
     }
 
-    /// Fault injection: the steering drive latches a fault (it stops following).
-    pub fn jam_steering(&mut self) {
+    /// Fault injection: a drive latches a fault (it stops following).
+    pub fn jam(&mut self, id: DeviceId) {
         self.step();
-        self.steer_fault = true;
+        self.device_mut(id).fault_latched = true;
     }
 
-    /// The device's own watchdog tripped: no command frame for too long. Gas goes to
-    /// zero and the brake comes on, by the device itself.
-    pub fn watchdog_trip(&mut self, role: Role) {
+    /// The device's own watchdog tripped: no command frame for too long. It goes to
+    /// its safe value by itself.
+    pub fn watchdog_trip(&mut self, id: DeviceId) -> Option<Command> {
         self.step();
-        match role {
-            Role::Gas => self.gas_cmd = 0.0,
-            Role::Brake => self.brake_cmd = 1.0,
-            _ => {}
+        let safe = self.device(id).safe?;
+        let d = self.device_mut(id);
+        match safe {
+            Command::Set(v) => d.command = v,
+            Command::State(s) => d.state = s,
+            Command::Control(_) => {}
         }
+        Some(safe)
     }
 
     /// The engine dies (a stall): rpm falls to zero until the starter runs.
@@ -190,85 +373,119 @@ impl Model {
         self.running = false;
     }
 
-    /// What `role`'s device reports now.
-    pub fn reading(&mut self, role: Role) -> Reading {
-        self.step();
-        let mut r = Reading::default();
-        match role {
-            Role::Steer => {
-                r.position = Some(self.steer);
-                r.velocity = Some(self.steer_vel);
-                if self.steer_fault {
-                    r.fault |= STEER_FAULT;
-                }
-                if !self.steer_enabled {
-                    r.fault |= STEER_DISABLED;
-                }
-            }
-            Role::Gas => r.position = Some(self.gas),
-            Role::Brake => {
-                r.position = Some(self.brake);
-                r.pressure = Some(self.brake * BRAKE_BAR);
-            }
-            Role::Trans => r.gear = Some(self.gear),
-            Role::Estop => r.estop = Some(self.estop),
-            Role::Obd => {
-                r.rpm = Some(self.rpm);
-                r.speed = Some(self.velocity.abs());
-                r.coolant = Some(self.coolant);
-                r.running = Some(self.running);
-            }
+    fn gaussian(&mut self) -> f64 {
+        // xorshift64*, then the sum of four uniforms: a bell shape, σ ≈ 0.58.
+        let mut sum = 0.0;
+        for _ in 0..4 {
+            self.noise ^= self.noise >> 12;
+            self.noise ^= self.noise << 25;
+            self.noise ^= self.noise >> 27;
+            let u =
+                (self.noise.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 11) as f64 / (1u64 << 53) as f64;
+            sum += u - 0.5;
         }
-        if let Some(p) = r.position.as_mut() {
-            *p += self.bias[role as usize];
+        sum / 0.577
+    }
+
+    /// What a device reports now.
+    pub fn reading(&mut self, id: DeviceId) -> Reading {
+        self.step();
+        let elapsed = self.started.elapsed().as_secs_f64();
+        let mut r = Reading::default();
+        let sources = self.devices[id.index()].sources.clone();
+        for (i, src) in sources.iter().enumerate() {
+            let d = &self.devices[id.index()];
+            let v = match src {
+                Source::Position => d.position + d.bias,
+                Source::Velocity => d.velocity,
+                Source::State => d.reported_state() as f64,
+                Source::Speed => self.velocity.abs(),
+                Source::Rpm => self.rpm,
+                Source::Coolant => self.coolant,
+                Source::Running => f64::from(u8::from(self.running)),
+                Source::Estop([disable, pause, run]) => f64::from(match self.estop {
+                    EstopState::Disable => *disable,
+                    EstopState::Pause => *pause,
+                    EstopState::Run => *run,
+                }),
+                Source::Configured(c) => {
+                    let base = match (c.per_position, c.ramp_to) {
+                        (Some(k), _) => d.position * k,
+                        (None, Some(to)) => {
+                            let t = (elapsed / c.ramp_time.as_secs_f64().max(1e-3)).min(1.0);
+                            c.value + (to - c.value) * t
+                        }
+                        (None, None) => c.value,
+                    };
+                    if c.noise > 0.0 {
+                        base + c.noise * self.gaussian()
+                    } else {
+                        base
+                    }
+                }
+            };
+            r.set(i, v);
+        }
+        let d = &self.devices[id.index()];
+        if d.fault_latched {
+            r.fault |= DRIVE_FAULT;
+        }
+        if !d.enabled {
+            r.fault |= DRIVE_DISABLED;
         }
         r
     }
 
-    /// Apply a command that `role`'s device received. Devices clamp set points to
-    /// their travel; they do not enforce adrive's interlocks.
-    pub fn command(&mut self, role: Role, command: Command) -> Result<(), String> {
+    /// Apply a command that a device received. Devices clamp set points to their
+    /// travel; they do not enforce adrive's interlocks.
+    pub fn command(&mut self, id: DeviceId, command: Command) -> Result<(), String> {
         self.step();
-        match (role, command) {
-            (Role::Steer, Command::Set(v)) => self.steer_cmd = v.clamp(-1.0, 1.0),
-            (Role::Gas, Command::Set(v)) => self.gas_cmd = v.clamp(0.0, 1.0),
-            (Role::Brake, Command::Set(v)) => self.brake_cmd = v.clamp(0.0, 1.0),
-            (Role::Trans, Command::Gear(g)) => {
-                if g != self.gear && self.shifting.map(|s| s.0) != Some(g) {
-                    self.gear = Gear::Neutral;
-                    self.shifting = Some((g, Instant::now() + SHIFT_TIME));
+        let is_starter = self.roles.starter == Some(id);
+        let gear_drives = self.drive_direction() != 0.0
+            || self
+                .roles
+                .gear
+                .as_ref()
+                .is_some_and(|g| self.device(g.device).target.is_some());
+        let d = &mut self.devices[id.index()];
+        match (d.kind, command) {
+            (Kind::Sensor, _) => return Err("a sensor takes no commands".into()),
+            (Kind::Setpoint, Command::Set(v)) => d.command = v.clamp(d.range[0], d.range[1]),
+            (Kind::State, Command::State(s)) => {
+                if s != d.state && d.target.map(|t| t.0) != Some(s) {
+                    if d.settle.is_zero() {
+                        d.state = s;
+                    } else {
+                        d.target = Some((s, Instant::now() + d.settle));
+                    }
                 }
             }
-            (Role::Steer, Command::Control(c)) => match c {
-                Control::Disable => self.steer_enabled = false,
-                Control::Enable => {
-                    // A latched fault clears on a disable → enable cycle.
-                    if !self.steer_enabled {
-                        self.steer_fault = false;
-                    }
-                    self.steer_enabled = true;
-                }
-                Control::Home => {
-                    if self.steer_fault && self.steer_enabled {
-                        return Err("drive fault latched: disable and enable first".into());
-                    }
-                    self.steer_fault = false;
-                    self.steer_enabled = true;
-                    self.steer_cmd = self.steer;
-                }
-                Control::Start => return Err("steering has no starter".into()),
-            },
-            (Role::Trans, Command::Control(Control::Start)) => {
-                if self.gear.is_driving() || self.shifting.is_some() {
-                    return Err("the starter runs only in park or neutral".into());
+            (_, Command::Control(Control::Start)) if is_starter => {
+                if gear_drives {
+                    return Err("the starter runs only out of gear".into());
                 }
                 if !self.running && self.cranking.is_none() {
                     self.cranking = Some(Instant::now() + CRANK_TIME);
                 }
             }
-            (Role::Gas | Role::Brake, Command::Control(_)) => {}
-            (Role::Estop | Role::Obd, _) => return Err("sensor".into()),
-            _ => return Err(format!("{role} cannot take {command}")),
+            (_, Command::Control(Control::Start)) => return Err("no starter here".into()),
+            (_, Command::Control(Control::Disable)) => d.enabled = false,
+            (_, Command::Control(Control::Enable)) => {
+                // A latched fault clears on a disable → enable cycle.
+                if !d.enabled {
+                    d.fault_latched = false;
+                }
+                d.enabled = true;
+            }
+            (_, Command::Control(Control::Home)) => {
+                if d.fault_latched && d.enabled {
+                    return Err("drive fault latched: disable and enable first".into());
+                }
+                d.fault_latched = false;
+                d.enabled = true;
+                d.command = d.position;
+            }
+            (kind, other) => return Err(format!("a {kind} device cannot take {other:?}")),
         }
         Ok(())
     }
@@ -278,42 +495,63 @@ impl Model {
 mod tests {
     use super::*;
 
+    fn alice() -> (Model, impl Fn(&str) -> DeviceId) {
+        let cfg = VehicleConfig::alice();
+        let names: Vec<String> = cfg.devices.iter().map(|d| d.name.clone()).collect();
+        (Model::new(&cfg), move |n: &str| {
+            DeviceId(names.iter().position(|x| x == n).unwrap() as u16)
+        })
+    }
+
     fn run_for(m: &mut Model, secs: f64) {
         // Move the model's clock back instead of sleeping.
         m.last -= Duration::from_secs_f64(secs);
         m.step();
     }
 
+    fn settle(m: &mut Model) {
+        for d in &mut m.devices {
+            if let Some((_, at)) = d.target.as_mut() {
+                *at = Instant::now();
+            }
+        }
+        m.step();
+    }
+
+    const DRIVE: u8 = 3;
+
     #[test]
     fn steering_moves_at_a_limited_rate() {
-        let mut m = Model::new();
-        m.command(Role::Steer, Command::Set(1.0)).unwrap();
+        let (mut m, id) = alice();
+        m.command(id("steer"), Command::Set(1.0)).unwrap();
         run_for(&mut m, 0.5);
-        assert!((m.steer - 0.5).abs() < 0.02, "{}", m.steer);
+        let s = m.device(id("steer")).position;
+        assert!((s - 0.5).abs() < 0.02, "{s}");
         run_for(&mut m, 1.0);
-        assert_eq!(m.steer, 1.0);
+        assert_eq!(m.device(id("steer")).position, 1.0);
     }
 
     #[test]
     fn gas_in_drive_moves_the_vehicle_and_brake_stops_it() {
-        let mut m = Model::new();
-        m.gear = Gear::Drive;
-        m.command(Role::Brake, Command::Set(0.0)).unwrap();
-        m.command(Role::Gas, Command::Set(0.5)).unwrap();
+        let (mut m, id) = alice();
+        m.command(id("trans"), Command::State(DRIVE)).unwrap();
+        settle(&mut m);
+        m.command(id("brake"), Command::Set(0.0)).unwrap();
+        m.command(id("gas"), Command::Set(0.5)).unwrap();
         run_for(&mut m, 3.0);
         assert!(m.velocity > 2.0, "{}", m.velocity);
         assert!(m.rpm > IDLE_RPM + 500.0);
-        m.command(Role::Gas, Command::Set(0.0)).unwrap();
-        m.command(Role::Brake, Command::Set(1.0)).unwrap();
+        m.command(id("gas"), Command::Set(0.0)).unwrap();
+        m.command(id("brake"), Command::Set(1.0)).unwrap();
         run_for(&mut m, 3.0);
         assert_eq!(m.velocity, 0.0);
     }
 
     #[test]
     fn gas_in_park_does_not_move_the_vehicle() {
-        let mut m = Model::new();
-        m.command(Role::Brake, Command::Set(0.0)).unwrap();
-        m.command(Role::Gas, Command::Set(1.0)).unwrap();
+        let (mut m, id) = alice();
+        m.command(id("brake"), Command::Set(0.0)).unwrap();
+        m.command(id("gas"), Command::Set(1.0)).unwrap();
         run_for(&mut m, 2.0);
         assert_eq!(m.velocity, 0.0);
         assert!(m.rpm > 3000.0);
@@ -321,53 +559,55 @@ mod tests {
 
     #[test]
     fn a_shift_passes_through_neutral_and_takes_time() {
-        let mut m = Model::new();
-        m.command(Role::Trans, Command::Gear(Gear::Drive)).unwrap();
-        assert_eq!(m.reading(Role::Trans).gear, Some(Gear::Neutral));
-        if let Some((_, at)) = m.shifting.as_mut() {
-            *at = Instant::now();
-        }
-        assert_eq!(m.reading(Role::Trans).gear, Some(Gear::Drive));
+        let (mut m, id) = alice();
+        let trans = id("trans");
+        m.command(trans, Command::State(DRIVE)).unwrap();
+        assert_eq!(m.reading(trans).get(0), Some(2.0), "neutral while shifting");
+        settle(&mut m);
+        assert_eq!(m.reading(trans).get(0), Some(DRIVE as f64));
     }
 
     #[test]
-    fn a_latched_steering_fault_clears_only_on_disable_then_enable() {
-        let mut m = Model::new();
-        m.jam_steering();
-        m.command(Role::Steer, Command::Set(1.0)).unwrap();
+    fn a_latched_drive_fault_clears_only_on_disable_then_enable() {
+        let (mut m, id) = alice();
+        let s = id("steer");
+        m.jam(s);
+        m.command(s, Command::Set(1.0)).unwrap();
         run_for(&mut m, 0.5);
-        assert_eq!(m.steer, 0.0, "a faulted drive holds still");
-        assert_eq!(m.reading(Role::Steer).fault & STEER_FAULT, STEER_FAULT);
-        assert!(m
-            .command(Role::Steer, Command::Control(Control::Home))
-            .is_err());
-        m.command(Role::Steer, Command::Control(Control::Enable))
-            .unwrap();
-        assert!(m.steer_fault, "enable alone does not clear the latch");
-        m.command(Role::Steer, Command::Control(Control::Disable))
-            .unwrap();
-        m.command(Role::Steer, Command::Control(Control::Enable))
-            .unwrap();
-        m.command(Role::Steer, Command::Control(Control::Home))
-            .unwrap();
-        assert_eq!(m.reading(Role::Steer).fault, 0);
-        assert_eq!(m.steer_cmd, m.steer, "homing holds where it is");
+        assert_eq!(m.device(s).position, 0.0, "a faulted drive holds still");
+        assert_eq!(m.reading(s).fault & DRIVE_FAULT, DRIVE_FAULT);
+        assert!(m.command(s, Command::Control(Control::Home)).is_err());
+        m.command(s, Command::Control(Control::Enable)).unwrap();
+        assert!(
+            m.device(s).fault_latched,
+            "enable alone does not clear the latch"
+        );
+        m.command(s, Command::Control(Control::Disable)).unwrap();
+        m.command(s, Command::Control(Control::Enable)).unwrap();
+        m.command(s, Command::Control(Control::Home)).unwrap();
+        assert_eq!(m.reading(s).fault, 0);
+        assert_eq!(
+            m.device(s).command,
+            m.device(s).position,
+            "homing holds where it is"
+        );
     }
 
     #[test]
     fn the_starter_restarts_a_stalled_engine_only_out_of_gear() {
-        let mut m = Model::new();
-        m.gear = Gear::Drive;
+        let (mut m, id) = alice();
+        let (trans, obd) = (id("trans"), id("obd"));
+        m.command(trans, Command::State(DRIVE)).unwrap();
+        settle(&mut m);
         m.stall();
         run_for(&mut m, 2.0);
-        assert_eq!(m.reading(Role::Obd).running, Some(false));
-        assert!(m.reading(Role::Obd).rpm.unwrap() < 50.0);
-        assert!(m
-            .command(Role::Trans, Command::Control(Control::Start))
-            .is_err());
-        m.gear = Gear::Park;
-        m.command(Role::Trans, Command::Control(Control::Start))
-            .unwrap();
+        let r = m.reading(obd);
+        assert_eq!(r.get(3), Some(0.0), "not running");
+        assert!(r.get(0).unwrap() < 50.0, "rpm");
+        assert!(m.command(trans, Command::Control(Control::Start)).is_err());
+        m.command(trans, Command::State(0)).unwrap();
+        settle(&mut m);
+        m.command(trans, Command::Control(Control::Start)).unwrap();
         if let Some(at) = m.cranking.as_mut() {
             *at = Instant::now();
         }
@@ -377,18 +617,34 @@ mod tests {
 
     #[test]
     fn the_device_watchdog_releases_gas_and_applies_the_brake() {
-        let mut m = Model::new();
-        m.command(Role::Gas, Command::Set(0.6)).unwrap();
-        m.command(Role::Brake, Command::Set(0.0)).unwrap();
-        m.watchdog_trip(Role::Gas);
-        m.watchdog_trip(Role::Brake);
-        assert_eq!((m.gas_cmd, m.brake_cmd), (0.0, 1.0));
+        let (mut m, id) = alice();
+        m.command(id("gas"), Command::Set(0.6)).unwrap();
+        m.command(id("brake"), Command::Set(0.0)).unwrap();
+        m.watchdog_trip(id("gas"));
+        m.watchdog_trip(id("brake"));
+        assert_eq!(
+            (m.device(id("gas")).command, m.device(id("brake")).command),
+            (0.0, 1.0)
+        );
+        assert_eq!(
+            m.watchdog_trip(id("steer")),
+            None,
+            "steering has no safe value"
+        );
     }
 
     #[test]
     fn sensors_refuse_commands() {
-        let mut m = Model::new();
-        assert!(m.command(Role::Obd, Command::Set(1.0)).is_err());
-        assert!(m.command(Role::Steer, Command::Gear(Gear::Drive)).is_err());
+        let (mut m, id) = alice();
+        assert!(m.command(id("obd"), Command::Set(1.0)).is_err());
+        assert!(m.command(id("steer"), Command::State(1)).is_err());
+    }
+
+    #[test]
+    fn a_configured_reading_ramps_and_a_brake_reports_pressure() {
+        let (mut m, id) = alice();
+        let r = m.reading(id("brake"));
+        assert_eq!(r.get(1), Some(80.0), "full brake: 80 bar");
+        assert_eq!(m.reading(id("estop")).get(0), Some(2.0), "run");
     }
 }

@@ -3,118 +3,135 @@
 //! effect (the device acknowledged, the gear reads park, the engine runs). A step that
 //! does not complete within `step_timeout` restarts the procedure from the top, up to
 //! `attempts` times; then it gives up. Every step is visible in the console and the
-//! broadcast and is logged.
+//! broadcast and is logged. Procedures reach devices through the role bindings.
 //!
-//! - **engine stall** (the paper's example): gas off, brake, wait until stopped, park,
-//!   starter, back to the previous gear, release. While it runs, intake refuses gas and
-//!   shifts; afterwards the brake stays applied until the planner commands otherwise,
-//!   and the gas slot holds 0 — nothing jumps back to a stale set point.
+//! - **engine stall** (the paper's example): throttle off, brake, wait until stopped,
+//!   park, starter, back to the previous gear, release. While it runs, intake refuses
+//!   the throttle and the gearbox; afterwards the brake stays applied until the planner
+//!   commands otherwise, and the throttle slot holds 0 — nothing jumps back to a stale
+//!   set point. It needs throttle, brake, gear, starter and engine_running bound.
 //! - **steering** (the paper's `e` key): disable, enable (a servo drive's fault latch
 //!   clears on that cycle), home, hold where it is.
 //! - **reconnect**: a vanished device; the engine reopens its port with backoff, the
 //!   procedure waits for it to answer again.
 
+use crate::config::roles::ReadingRef;
 use crate::config::SupervisorConfig;
-use crate::interlock;
-use crate::value::{Command, Control, Gear, Role};
-use crate::vehicle::{Vehicle, SAFE_BRAKE, SAFE_GAS};
+use crate::safety::{rules, Gate};
+use crate::snapshot::RecoveryView;
+use crate::value::{Command, Control, DeviceId};
+use crate::vehicle::Vehicle;
 use std::time::{Duration, Instant};
 
-use super::status::RecoveryView;
-
 /// One step of a procedure.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Step {
-    GasOff,
-    Brake,
-    WaitStopped,
-    Park,
-    Start,
-    Regear(Gear),
+    /// Command a value and wait until the device acknowledged it.
+    Send {
+        device: DeviceId,
+        command: Command,
+        label: String,
+    },
+    /// Wait until the vehicle stopped (done at once with no speed bound).
+    WaitStopped(Option<ReadingRef>),
+    /// Shift and wait until the gearbox reports the state in a fresh status.
+    Shift {
+        device: DeviceId,
+        state: u8,
+        label: String,
+    },
+    /// Run the starter until a fresh status says the engine runs.
+    Start {
+        starter: DeviceId,
+        running: ReadingRef,
+    },
+    /// Home a drive: done when it acknowledged and a fresh status shows no fault bits.
+    Home(DeviceId),
+    /// Command a drive to hold where it is now.
+    Hold(DeviceId),
+    /// Hand the pedals back (nothing to do: the brake stays until commanded).
     Release,
-    Disable,
-    Enable,
-    Home,
-    Hold,
-    Reopen(Role),
+    /// Wait until a device's port is open again and it reported.
+    Reopen(DeviceId, String),
 }
 
 impl Step {
-    pub fn name(self) -> String {
+    pub fn name(&self) -> String {
         match self {
-            Step::GasOff => "gas off".into(),
-            Step::Brake => "brake".into(),
-            Step::WaitStopped => "wait stopped".into(),
-            Step::Park => "park".into(),
-            Step::Start => "starter".into(),
-            Step::Regear(g) => format!("back in {g}"),
+            Step::Send { label, .. } | Step::Shift { label, .. } => label.clone(),
+            Step::WaitStopped(_) => "wait stopped".into(),
+            Step::Start { .. } => "starter".into(),
+            Step::Home(_) => "home".into(),
+            Step::Hold(_) => "hold position".into(),
             Step::Release => "release".into(),
-            Step::Disable => "disable".into(),
-            Step::Enable => "enable".into(),
-            Step::Home => "home".into(),
-            Step::Hold => "hold position".into(),
-            Step::Reopen(r) => format!("reopen {r}"),
+            Step::Reopen(_, name) => format!("reopen {name}"),
         }
     }
 
     /// Issue the step's command.
-    fn begin(self, v: &Vehicle) {
+    fn begin(&self, gate: &Gate) {
+        let v = &gate.vehicle;
         match self {
-            Step::GasOff => v.override_command(Role::Gas, Command::Set(SAFE_GAS)),
-            Step::Brake => v.override_command(Role::Brake, Command::Set(SAFE_BRAKE)),
-            Step::Park => v.override_command(Role::Trans, Command::Gear(Gear::Park)),
-            Step::Start => v.override_command(Role::Trans, Command::Control(Control::Start)),
-            Step::Regear(g) => v.override_command(Role::Trans, Command::Gear(g)),
-            Step::Disable => v.override_command(Role::Steer, Command::Control(Control::Disable)),
-            Step::Enable => v.override_command(Role::Steer, Command::Control(Control::Enable)),
-            Step::Home => v.override_command(Role::Steer, Command::Control(Control::Home)),
-            Step::Hold => {
-                if let Some(p) = v
-                    .device(Role::Steer)
-                    .and_then(|d| d.cached().reading.position)
-                {
-                    v.override_command(Role::Steer, Command::Set(p));
+            Step::Send {
+                device, command, ..
+            } => gate.supervise(*device, *command),
+            Step::Shift { device, state, .. } => gate.supervise(*device, Command::State(*state)),
+            Step::Start { starter, .. } => {
+                gate.supervise(*starter, Command::Control(Control::Start))
+            }
+            Step::Home(d) => gate.supervise(*d, Command::Control(Control::Home)),
+            Step::Hold(d) => {
+                let dev = v.device(*d);
+                if let Some(p) = dev.config.reading("position").and_then(|i| dev.reading(i)) {
+                    gate.supervise(*d, Command::Set(p));
                 }
             }
-            Step::WaitStopped | Step::Release | Step::Reopen(_) => {}
+            Step::WaitStopped(_) | Step::Release | Step::Reopen(..) => {}
         }
     }
 
     /// The vehicle shows the step's effect.
-    fn done(self, v: &Vehicle, began: Instant) -> bool {
-        let executed = |role: Role, want: Command| {
-            v.device(role)
-                .is_none_or(|d| d.slot.executed() == Some(want))
-        };
-        let fresh = |role: Role| {
-            v.device(role)
-                .and_then(|d| d.cached().at)
-                .is_some_and(|t| t > began)
-        };
-        let facts = v.facts();
+    fn done(&self, v: &Vehicle, began: Instant) -> bool {
+        let fresh = |d: DeviceId| v.device(d).cached().at.is_some_and(|t| t > began);
         match self {
-            Step::GasOff => executed(Role::Gas, Command::Set(SAFE_GAS)),
-            Step::Brake => executed(Role::Brake, Command::Set(SAFE_BRAKE)),
-            Step::WaitStopped => facts.speed.is_none_or(|s| s.abs() < interlock::STOPPED),
-            Step::Park => fresh(Role::Trans) && facts.gear == Some(Gear::Park),
-            Step::Start => fresh(Role::Obd) && facts.running == Some(true),
-            Step::Regear(g) => fresh(Role::Trans) && facts.gear == Some(g),
-            Step::Release => true,
-            Step::Disable => executed(Role::Steer, Command::Control(Control::Disable)),
-            Step::Enable => executed(Role::Steer, Command::Control(Control::Enable)),
-            Step::Home => {
-                executed(Role::Steer, Command::Control(Control::Home))
-                    && fresh(Role::Steer)
-                    && v.device(Role::Steer)
-                        .is_some_and(|d| d.cached().reading.fault == 0)
+            Step::Send {
+                device, command, ..
+            } => v.device(*device).slot.executed() == Some(*command),
+            Step::WaitStopped(speed) => {
+                speed.is_none_or(|r| v.reading(r).is_none_or(|s| s.abs() < rules::STOPPED))
             }
-            Step::Hold => v
-                .device(Role::Steer)
-                .and_then(|d| d.slot.executed())
-                .is_some_and(|c| matches!(c, Command::Set(_))),
-            Step::Reopen(r) => v
-                .device(r)
-                .is_some_and(|d| !d.is_faulty() && d.cached().at.is_some_and(|t| t > began)),
+            Step::Shift { device, state, .. } => {
+                let d = v.device(*device);
+                fresh(*device)
+                    && d.config.reading("state").and_then(|i| d.reading(i)) == Some(*state as f64)
+            }
+            Step::Start { running, .. } => {
+                fresh(running.device) && v.reading(*running).is_some_and(|x| x != 0.0)
+            }
+            Step::Home(d) => {
+                let dev = v.device(*d);
+                dev.slot.executed() == Some(Command::Control(Control::Home))
+                    && fresh(*d)
+                    && dev.cached().reading.fault == 0
+            }
+            Step::Hold(d) => matches!(v.device(*d).slot.executed(), Some(Command::Set(_))),
+            Step::Release => true,
+            Step::Reopen(d, _) => {
+                let dev = v.device(*d);
+                !dev.is_faulty() && fresh(*d)
+            }
+        }
+    }
+
+    /// The step moves an actuator (as opposed to waiting or commanding the safe state).
+    pub fn moves(&self, gate: &Gate) -> bool {
+        let safe = crate::safety::safe::state(&gate.vehicle.config);
+        match self {
+            Step::Send {
+                device, command, ..
+            } => !safe.contains(&(*device, *command)),
+            Step::Shift { .. } | Step::Start { .. } | Step::Home(_) | Step::Hold(_) => true,
+            Step::WaitStopped(_) | Step::Release | Step::Reopen(..) => false,
         }
     }
 }
@@ -133,7 +150,7 @@ pub struct Procedure {
     name: String,
     steps: Vec<Step>,
     /// Devices whose intake is refused while it runs.
-    takes: Vec<Role>,
+    takes: Vec<DeviceId>,
     step: usize,
     attempt: u32,
     attempts: u32,
@@ -144,7 +161,12 @@ pub struct Procedure {
 }
 
 impl Procedure {
-    fn new(name: &str, steps: Vec<Step>, takes: Vec<Role>, cfg: &SupervisorConfig) -> Procedure {
+    fn new(
+        name: &str,
+        steps: Vec<Step>,
+        takes: Vec<DeviceId>,
+        cfg: &SupervisorConfig,
+    ) -> Procedure {
         Procedure {
             name: name.to_string(),
             steps,
@@ -158,39 +180,89 @@ impl Procedure {
         }
     }
 
-    /// Engine stall: stop driving forward, park, start, back in `gear`, release.
-    pub fn engine_stall(gear: Gear, cfg: &SupervisorConfig) -> Procedure {
-        Procedure::new(
-            "engine_stall",
-            vec![
-                Step::GasOff,
-                Step::Brake,
-                Step::WaitStopped,
-                Step::Park,
-                Step::Start,
-                Step::Regear(gear),
-                Step::Release,
-            ],
-            vec![Role::Gas, Role::Trans],
-            cfg,
-        )
+    /// Engine stall: stop driving, park, start, back in `gear` (a state of the gear
+    /// device), release. `None` when the vehicle lacks a binding it needs.
+    pub fn engine_stall(v: &Vehicle, gear: u8, cfg: &SupervisorConfig) -> Option<Procedure> {
+        let b = v.bindings();
+        let (throttle, brake, g, starter, running) = (
+            b.throttle?,
+            b.brake?,
+            b.gear.as_ref()?,
+            b.starter?,
+            b.engine_running?,
+        );
+        let name = |id: DeviceId| v.device(id).name().to_string();
+        let state = |s: u8| {
+            v.device(g.device)
+                .config
+                .state_name(s)
+                .unwrap_or("?")
+                .to_string()
+        };
+        let mut steps = vec![
+            Step::Send {
+                device: throttle,
+                command: Command::Set(v.device(throttle).config.range[0]),
+                label: format!("{} off", name(throttle)),
+            },
+            Step::Send {
+                device: brake,
+                command: Command::Set(v.device(brake).config.range[1]),
+                label: name(brake),
+            },
+            Step::WaitStopped(b.speed),
+        ];
+        if let Some(park) = g.park {
+            steps.push(Step::Shift {
+                device: g.device,
+                state: park,
+                label: state(park),
+            });
+        }
+        steps.push(Step::Start { starter, running });
+        steps.push(Step::Shift {
+            device: g.device,
+            state: gear,
+            label: format!("back in {}", state(gear)),
+        });
+        steps.push(Step::Release);
+        let mut takes = vec![throttle, g.device];
+        if !takes.contains(&starter) {
+            takes.push(starter);
+        }
+        Some(Procedure::new("engine_stall", steps, takes, cfg))
     }
 
     /// Steering drive fault: disable, enable, home, hold where it is.
-    pub fn steering(cfg: &SupervisorConfig) -> Procedure {
-        Procedure::new(
+    pub fn steering(v: &Vehicle, cfg: &SupervisorConfig) -> Option<Procedure> {
+        let s = v.bindings().steering?;
+        Some(Procedure::new(
             "steering",
-            vec![Step::Disable, Step::Enable, Step::Home, Step::Hold],
-            vec![Role::Steer],
+            vec![
+                Step::Send {
+                    device: s,
+                    command: Command::Control(Control::Disable),
+                    label: "disable".into(),
+                },
+                Step::Send {
+                    device: s,
+                    command: Command::Control(Control::Enable),
+                    label: "enable".into(),
+                },
+                Step::Home(s),
+                Step::Hold(s),
+            ],
+            vec![s],
             cfg,
-        )
+        ))
     }
 
     /// A vanished device: wait for the engine to reopen it and for it to answer.
-    pub fn reconnect(role: Role, cfg: &SupervisorConfig) -> Procedure {
+    pub fn reconnect(v: &Vehicle, id: DeviceId, cfg: &SupervisorConfig) -> Procedure {
+        let name = v.device(id).name().to_string();
         Procedure::new(
-            &format!("reconnect {role}"),
-            vec![Step::Reopen(role)],
+            &format!("reconnect {name}"),
+            vec![Step::Reopen(id, name)],
             vec![],
             cfg,
         )
@@ -202,6 +274,11 @@ impl Procedure {
 
     pub fn steps(&self) -> &[Step] {
         &self.steps
+    }
+
+    /// The procedure moves an actuator at some step.
+    pub fn moves(&self, gate: &Gate) -> bool {
+        self.steps.iter().any(|s| s.moves(gate))
     }
 
     pub fn elapsed(&self, now: Instant) -> Duration {
@@ -220,10 +297,11 @@ impl Procedure {
     }
 
     /// Move the procedure on as far as the vehicle allows now.
-    pub fn advance(&mut self, v: &Vehicle, now: Instant) -> Progress {
-        v.set_recovering(&self.takes);
+    pub fn advance(&mut self, gate: &Gate, now: Instant) -> Progress {
+        let v = &gate.vehicle;
+        gate.set_recovering(&self.takes);
         loop {
-            let Some(&step) = self.steps.get(self.step) else {
+            let Some(step) = self.steps.get(self.step) else {
                 return Progress::Done;
             };
             let began = match self.began {
@@ -245,7 +323,7 @@ impl Procedure {
                         self.steps.len(),
                         step.name()
                     ));
-                    step.begin(v);
+                    step.begin(gate);
                     self.began = Some(now);
                     now
                 }

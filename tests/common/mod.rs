@@ -5,8 +5,10 @@
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;
 use adrive::engine::Engine;
+use adrive::safety::{gate, Gate};
 use adrive::sim::{Sim, SimEvent};
-use adrive::vehicle::Vehicle;
+use adrive::value::{Command, DeviceId};
+use adrive::vehicle::{Device, Vehicle};
 use crossbeam_channel::Receiver;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -26,11 +28,12 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
 pub struct Rig {
     pub sim: Sim,
     pub vehicle: Arc<Vehicle>,
+    pub gate: Arc<Gate>,
     pub engine: Option<Engine>,
     pub events: Receiver<SimEvent>,
     /// With [`Rig::supervised`]: the gate monitor, the supervisor, and where the
     /// supervisor asks the process to end.
-    pub gate: Option<adrive::gate::Monitor>,
+    pub monitor: Option<gate::Monitor>,
     pub supervisor: Option<adrive::supervisor::Running>,
     pub exits: Option<Receiver<adrive::exit::Exit>>,
 }
@@ -50,13 +53,15 @@ impl Rig {
             let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
             Box::new(move || driver::open_serial(&path, baud, timeout))
         }));
-        let engine = Engine::start(vehicle.clone()).expect("engine starts");
+        let gate = Arc::new(Gate::new(vehicle.clone()));
+        let engine = Engine::start(gate.clone()).expect("engine starts");
         Rig {
             sim,
             vehicle,
+            gate,
             engine: Some(engine),
             events,
-            gate: None,
+            monitor: None,
             supervisor: None,
             exits: None,
         }
@@ -67,10 +72,10 @@ impl Rig {
         let mut rig = Rig::start(toml);
         let (tx, rx) = crossbeam_channel::unbounded();
         let cfg = rig.vehicle.config.supervisor.clone();
-        rig.gate = Some(adrive::gate::Monitor::start(rig.vehicle.clone()).unwrap());
+        rig.monitor = Some(gate::Monitor::start(rig.gate.clone()).unwrap());
         rig.supervisor = Some(
             adrive::supervisor::start(
-                rig.vehicle.clone(),
+                rig.gate.clone(),
                 cfg,
                 Box::new(move |e| {
                     let _ = tx.send(e);
@@ -89,15 +94,45 @@ impl Rig {
 
     /// Wait for every device to report, then engage.
     pub fn engage(&self) {
-        wait_for("every device to report", || {
-            self.vehicle.engage_blockers().is_empty()
-        });
-        self.vehicle.engage("test").expect("engage");
+        wait_for("every device to report", || self.gate.blockers().is_empty());
+        self.gate.engage("test").expect("engage");
     }
 
     /// Every command the simulated devices applied so far.
     pub fn received(&self) -> Vec<SimEvent> {
         self.events.try_iter().collect()
+    }
+
+    /// A device by name.
+    pub fn device(&self, name: &str) -> &Device {
+        self.vehicle
+            .find(name)
+            .unwrap_or_else(|| panic!("no device {name}"))
+    }
+
+    pub fn id(&self, name: &str) -> DeviceId {
+        self.device(name).id
+    }
+
+    /// Intake of a command to a device by name, as the network or console would.
+    pub fn submit(&self, name: &str, command: Command) -> Result<(), adrive::safety::Reject> {
+        self.gate.submit(self.id(name), command, Instant::now())
+    }
+
+    /// A state by name, for a state device.
+    pub fn state(&self, name: &str, state: &str) -> Command {
+        Command::State(
+            self.device(name)
+                .config
+                .state_index(state)
+                .expect("a state"),
+        )
+    }
+
+    /// A reading of a device's cache by reading name (`None` before it reported).
+    pub fn reading(&self, name: &str, reading: &str) -> Option<f64> {
+        let d = self.device(name);
+        d.reading(d.config.reading(reading)?)
     }
 }
 
@@ -106,7 +141,7 @@ impl Drop for Rig {
         if let Some(s) = self.supervisor.take() {
             s.shutdown(Duration::from_secs(1));
         }
-        if let Some(g) = self.gate.take() {
+        if let Some(g) = self.monitor.take() {
             g.shutdown(Duration::from_secs(1));
         }
         if let Some(e) = self.engine.take() {
@@ -122,8 +157,13 @@ pub fn steer_only(extra: &str, sim: &str) -> String {
 [vehicle]
 name = "bench"
 
+[vehicle.roles]
+steering = "steer"
+
 [[device]]
 name = "steer"
+kind = "setpoint"
+range = [-1.0, 1.0]
 driver = "line"
 baud = 38400
 {extra}

@@ -9,11 +9,13 @@ use super::device::DevicePanel;
 use super::fmt_us;
 use super::hint::grouped;
 use super::wrap;
-use crate::console::controls::DeviceSnap;
+use crate::console::controls::SimFaults;
 use crate::console::keymap::{Action, Keymap, Mode};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
-use crate::engine::trace::TraceEntry;
+use crate::snapshot::DeviceView;
+use crate::value::DeviceId;
+use crate::vehicle::trace::TraceEntry;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Direction, Layout, Rect};
 use ratatui::text::{Line, Span};
@@ -21,7 +23,14 @@ use ratatui::widgets::{Bar, BarChart, BarGroup, Block, Borders, Paragraph, Widge
 use std::time::Instant;
 
 pub struct BenchView<'a> {
-    pub d: &'a DeviceSnap,
+    pub id: DeviceId,
+    pub d: &'a DeviceView,
+    /// Faulty to the engine or the supervisor.
+    pub red: bool,
+    /// The faults injected into its simulated device.
+    pub sim: Option<&'a SimFaults>,
+    /// Its histogram: (upper edge µs, count).
+    pub buckets: &'a [(f64, u64)],
     pub trace: &'a [TraceEntry],
     pub theme: Theme,
     pub edit: Option<&'a Edit>,
@@ -40,7 +49,7 @@ impl BenchView<'_> {
     /// The simulator box: this device's faults, the simulated vehicle, the keys.
     fn sim_lines(&self, width: u16) -> Vec<Line<'static>> {
         let t = &self.theme;
-        let faults = self.d.sim.as_ref().filter(|f| f.any());
+        let faults = self.sim.filter(|f| f.any());
         let mut first = vec![
             Span::styled("faults ", t.label()),
             match faults {
@@ -117,7 +126,7 @@ impl Widget for &BenchView<'_> {
             let block = Block::new().borders(Borders::TOP).title(Span::styled(
                 format!(
                     " simulator: {} and the vehicle (on/off keys toggle) ",
-                    self.d.role
+                    self.d.name
                 ),
                 t.title(),
             ));
@@ -129,16 +138,19 @@ impl Widget for &BenchView<'_> {
             .direction(Direction::Horizontal)
             .areas(top);
         let panel = DevicePanel {
+            id: self.id,
             d: self.d,
+            red: self.red,
+            sim: self.sim,
             theme: *t,
-            cursor: self.d.actuator.then_some(Field::Command(self.d.role)),
+            cursor: self.d.is_actuator().then_some(Field::Command(self.id)),
             edit: self.edit,
             bordered: true,
         };
         (&panel).render(left, buf);
 
-        let bins = log2_bins(&self.d.delay_buckets);
-        let what = if self.d.actuator {
+        let bins = log2_bins(self.buckets);
+        let what = if self.d.is_actuator() {
             " receipt → first byte "
         } else {
             " status transaction "
@@ -172,8 +184,8 @@ impl Widget for &BenchView<'_> {
                 .render(right, buf);
         }
 
-        let mut title = format!(" {} raw traffic ", self.d.role);
-        match self.d.sim.as_ref().filter(|f| f.any()) {
+        let mut title = format!(" {} raw traffic ", self.d.name);
+        match self.sim.filter(|f| f.any()) {
             Some(f) => title.push_str(&format!("— sim: {} ", f.text)),
             None if !self.can_inject => title.push_str("— fault injection needs --sim "),
             None => {}
@@ -225,7 +237,7 @@ mod tests {
         let now = Instant::now();
         let e = TraceEntry::new(
             now - Duration::from_millis(12),
-            crate::engine::trace::Dir::Out,
+            crate::vehicle::trace::Dir::Out,
             b"S 0.5\r",
         );
         assert_eq!(

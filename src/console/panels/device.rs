@@ -3,20 +3,27 @@
 //! status age; the device's own fields; receipt → first-byte delay p50/p99/max; and
 //! counters. Editable fields show the cursor and an edit in progress in place.
 
-use super::{fmt_age, fmt_f, fmt_us};
-use crate::console::controls::DeviceSnap;
+use super::{fmt_age, fmt_us};
+use crate::console::controls::SimFaults;
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::update::fmt_ms;
-use crate::value::{Command, Role};
+use crate::snapshot::{DeviceView, LatencySummary};
+use crate::value::{DeviceId, Kind, Value};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Paragraph, Widget};
+use std::time::Duration;
 
 pub struct DevicePanel<'a> {
-    pub d: &'a DeviceSnap,
+    pub id: DeviceId,
+    pub d: &'a DeviceView,
+    /// Faulty to the engine or the supervisor: drawn red.
+    pub red: bool,
+    /// The faults injected into its simulated device (`--sim`).
+    pub sim: Option<&'a SimFaults>,
     pub theme: Theme,
     /// The field under the cursor, when the cursor is shown.
     pub cursor: Option<Field>,
@@ -25,15 +32,91 @@ pub struct DevicePanel<'a> {
     pub bordered: bool,
 }
 
-fn range_text(d: &DeviceSnap) -> String {
-    match d.role {
-        Role::Trans => "P/R/N/D".into(),
-        _ if !d.actuator => String::new(),
-        _ => {
-            let [lo, hi] = d.range;
-            format!("{lo}…{hi}")
-        }
+/// A number as a panel shows it: 3 decimals below 10, 1 below 1000, none above.
+pub fn fmt_num(v: f64) -> String {
+    let a = v.abs();
+    if a < 10.0 {
+        format!("{v:.3}")
+    } else if a < 1000.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.0}")
     }
+}
+
+/// A value as a panel shows it (flags as 1 or 0, as on the paper's screen).
+pub fn fmt_value(v: Option<&Value>) -> String {
+    match v {
+        None => "-".into(),
+        Some(Value::Number(x)) => fmt_num(*x),
+        Some(Value::Flag(b)) => u8::from(*b).to_string(),
+        Some(Value::Text(s)) => s.clone(),
+    }
+}
+
+/// A reading's value: a well-known reading with its usual decimals (`700` rpm,
+/// `0.00` m/s), any other as [`fmt_value`].
+pub fn fmt_reading(name: &str, v: Option<&Value>) -> String {
+    match (v, crate::config::device::well_known(name)) {
+        (Some(Value::Number(x)), Some(w)) => format!("{x:.*}", w.decimals),
+        _ => fmt_value(v),
+    }
+}
+
+/// What a device takes, short: `-1…1`, `P/R/N/D` (initials when they are distinct),
+/// `off/left/right/hazard`.
+pub fn domain(d: &DeviceView) -> String {
+    match d.kind {
+        Kind::Setpoint => {
+            let [lo, hi] = d.range.unwrap_or([0.0, 0.0]);
+            if d.units.is_empty() {
+                format!("{lo}…{hi}")
+            } else {
+                format!("{lo}…{hi} {}", d.units)
+            }
+        }
+        Kind::State => {
+            let initials: Vec<String> = d
+                .states
+                .iter()
+                .map(|s| {
+                    s.chars()
+                        .next()
+                        .unwrap_or('?')
+                        .to_ascii_uppercase()
+                        .to_string()
+                })
+                .collect();
+            let distinct = initials
+                .iter()
+                .enumerate()
+                .all(|(i, x)| !initials[..i].contains(x));
+            if distinct {
+                initials.join("/")
+            } else {
+                d.states.join("/")
+            }
+        }
+        Kind::Sensor => String::new(),
+    }
+}
+
+/// The measured value: an actuator's first reading; a sensor's first, with its units.
+pub fn measured(d: &DeviceView) -> String {
+    let Some((name, v)) = d.readings.0.first() else {
+        return "-".into();
+    };
+    let text = fmt_reading(name, v.as_ref());
+    let units = d.reading_units.get(name).map_or("", String::as_str);
+    if d.is_actuator() || units.is_empty() || !matches!(v, Some(Value::Number(_))) {
+        text
+    } else {
+        format!("{text} {units}")
+    }
+}
+
+fn age(d: &DeviceView) -> Option<Duration> {
+    d.status_age_ms.map(|ms| Duration::from_secs_f64(ms / 1e3))
 }
 
 impl<'a> DevicePanel<'a> {
@@ -54,50 +137,32 @@ impl<'a> DevicePanel<'a> {
         Span::styled(text, base)
     }
 
-    fn measured(&self) -> String {
-        let r = &self.d.reading;
-        match self.d.role {
-            Role::Trans => r.gear.map(|g| g.to_string()).unwrap_or("-".into()),
-            Role::Estop => r.estop.map(|e| e.to_string()).unwrap_or("-".into()),
-            Role::Obd => r
-                .rpm
-                .map(|v| format!("{v:.0} rpm"))
-                .unwrap_or_else(|| "-".into()),
-            _ => fmt_f(r.position),
-        }
-    }
-
     /// The title line.
     pub fn title(&self) -> Line<'a> {
         let (d, t) = (self.d, &self.theme);
-        let name_style = if d.faulty { t.fault() } else { t.title() };
-        let mut spans = vec![Span::styled(d.role.as_str().to_uppercase(), name_style)];
-        let range = range_text(d);
+        let name_style = if self.red { t.fault() } else { t.title() };
+        let mut spans = vec![Span::styled(d.name.to_uppercase(), name_style)];
+        let range = domain(d);
         if !range.is_empty() {
             spans.push(Span::styled(format!(" {range}"), t.label()));
         }
         let meas_style = if d.stale { t.stale() } else { Style::new() };
-        if d.actuator {
+        if d.is_actuator() {
             spans.push(Span::styled(" cmd ", t.label()));
-            let cmd = d.latest.map(|c| match c {
-                Command::Set(v) => format!("{v:.3}"),
-                Command::Gear(g) => g.to_string(),
-                Command::Control(c) => c.to_string(),
-            });
             spans.push(self.field(
-                Field::Command(d.role),
-                cmd.unwrap_or_else(|| "-".into()),
+                Field::Command(self.id),
+                fmt_value(d.commanded.as_ref()),
                 Style::new(),
             ));
             spans.push(Span::styled(" meas ", t.label()));
         } else {
             spans.push(Span::styled("  ", t.label()));
         }
-        spans.push(Span::styled(self.measured(), meas_style));
-        if d.faulty {
+        spans.push(Span::styled(measured(d), meas_style));
+        if self.red {
             spans.push(Span::styled(" FAULT", t.fault()));
         }
-        if let Some(f) = d.sim.as_ref().filter(|f| f.any()) {
+        if let Some(f) = self.sim.filter(|f| f.any()) {
             spans.push(Span::styled(format!(" sim: {}", f.text), t.warn()));
         }
         Line::from(spans)
@@ -117,82 +182,90 @@ impl<'a> DevicePanel<'a> {
         self.field(f, (on as u8).to_string(), base)
     }
 
+    /// The readings line: `name value` pairs two spaces apart, with the well-known
+    /// readings' short names when the full ones do not fit `width`.
+    fn readings(&self, width: u16, style: Style) -> Line<'a> {
+        let t = &self.theme;
+        let pairs = |short: bool| -> Vec<(String, String)> {
+            self.d
+                .readings
+                .iter()
+                .map(|(n, v)| {
+                    let label = if short {
+                        crate::config::device::well_known(n).map_or(n, |w| w.line_key)
+                    } else {
+                        n
+                    };
+                    (label.to_string(), fmt_reading(n, v.as_ref()))
+                })
+                .collect()
+        };
+        let len = |p: &[(String, String)]| -> usize {
+            p.iter().map(|(a, b)| a.len() + 1 + b.len()).sum::<usize>()
+                + 2 * p.len().saturating_sub(1)
+        };
+        let mut p = pairs(false);
+        if len(&p) > width as usize {
+            p = pairs(true);
+        }
+        let mut spans = Vec::new();
+        for (i, (name, v)) in p.into_iter().enumerate() {
+            if i > 0 {
+                spans.push(Span::raw("  "));
+            }
+            spans.push(Span::styled(format!("{name} "), t.label()));
+            spans.push(Span::styled(v, style));
+        }
+        Line::from(spans)
+    }
+
     /// Every line under the title, most important first.
-    pub fn details(&self) -> Vec<Line<'a>> {
+    pub fn details(&self, width: u16) -> Vec<Line<'a>> {
         let (d, t) = (self.d, &self.theme);
-        let r = d.role;
+        let r = self.id;
         let l = |s: &'static str| Span::styled(s, t.label());
+        let ms = |x: f64| fmt_ms(Duration::from_secs_f64(x / 1e3));
         let mut out = Vec::new();
         // st delay / cm delay
         let mut delays = vec![
             l("st delay "),
-            self.field(Field::StDelay(r), fmt_ms(d.status_period), Style::new()),
+            self.field(
+                Field::StDelay(r),
+                ms(d.settings.status_period_ms),
+                Style::new(),
+            ),
         ];
-        if d.actuator {
+        if d.is_actuator() {
             delays.push(l("  cm delay "));
-            delays.push(self.field(Field::CmDelay(r), fmt_ms(d.command_timeout), Style::new()));
+            delays.push(self.field(
+                Field::CmDelay(r),
+                ms(d.settings.command_timeout_ms),
+                Style::new(),
+            ));
         }
         out.push(Line::from(delays));
         // thread flags, error codes, age
         let mut flags = vec![
             l("status "),
-            self.flag(Field::StatusOn(r), d.status_on),
+            self.flag(Field::StatusOn(r), d.settings.status_on),
             l(" e"),
-            self.code(d.status_error),
+            self.code(d.health.status_error),
         ];
-        if d.actuator {
+        if d.is_actuator() {
             flags.extend([
                 l("  command "),
-                self.flag(Field::CommandOn(r), d.command_on),
+                self.flag(Field::CommandOn(r), d.settings.command_on),
                 l(" e"),
-                self.code(d.command_error),
+                self.code(d.health.command_error),
             ]);
         }
         let age_style = if d.stale { t.stale() } else { Style::new() };
         flags.push(l("  age "));
-        flags.push(Span::styled(fmt_age(d.age), age_style));
+        flags.push(Span::styled(fmt_age(age(d)), age_style));
         out.push(Line::from(flags));
-        // device fields
-        let rd = &d.reading;
-        let v = |x: String| Span::styled(x, age_style);
-        let fields: Vec<Span> = match r {
-            Role::Steer => vec![
-                l("position "),
-                v(fmt_f(rd.position)),
-                l("  velocity "),
-                v(fmt_f(rd.velocity)),
-            ],
-            Role::Brake => vec![
-                l("position "),
-                v(fmt_f(rd.position)),
-                l("  pressure "),
-                v(rd.pressure.map(|p| format!("{p:.1}")).unwrap_or("-".into())),
-            ],
-            Role::Gas => vec![l("position "), v(fmt_f(rd.position))],
-            Role::Trans => vec![
-                l("gear "),
-                v(rd.gear.map(|g| g.to_string()).unwrap_or("-".into())),
-            ],
-            Role::Estop => vec![
-                l("state "),
-                v(rd.estop.map(|e| e.to_string()).unwrap_or("-".into())),
-            ],
-            Role::Obd => vec![
-                l("rpm "),
-                v(rd.rpm.map(|x| format!("{x:.0}")).unwrap_or("-".into())),
-                l(" speed "),
-                v(rd.speed.map(|x| format!("{x:.1}")).unwrap_or("-".into())),
-                l(" cool "),
-                v(rd.coolant.map(|x| format!("{x:.0}")).unwrap_or("-".into())),
-                l(" run "),
-                v(rd.running
-                    .map(|x| (x as u8).to_string())
-                    .unwrap_or("-".into())),
-            ],
-        };
-        out.push(Line::from(fields));
-        let s = &d.stats;
-        let lat = |name: &'static str, x: &crate::engine::stats::LatencySummary| {
+        out.push(self.readings(width, age_style));
+        let s = &d.counters;
+        let lat = |name: &'static str, x: &LatencySummary| {
             Line::from(vec![
                 l(name),
                 l(" p50 "),
@@ -204,8 +277,8 @@ impl<'a> DevicePanel<'a> {
             ])
         };
         let num = |n: u64| Span::raw(n.to_string());
-        if d.actuator {
-            out.push(lat("delay", &s.command_delay));
+        if d.is_actuator() {
+            out.push(lat("delay", &d.delay_us));
             out.push(Line::from(vec![
                 l("rx "),
                 num(s.received),
@@ -225,9 +298,9 @@ impl<'a> DevicePanel<'a> {
                     },
                 ),
             ]));
-            out.push(lat("txn", &s.command_txn));
+            out.push(lat("txn", &d.command_txn_us));
         }
-        out.push(lat("poll", &s.status_txn));
+        out.push(lat("poll", &d.status_txn_us));
         out.push(Line::from(vec![
             l("polls "),
             num(s.polls),
@@ -236,10 +309,10 @@ impl<'a> DevicePanel<'a> {
             l(" cm err "),
             num(s.command_errors),
             l(" reconn "),
-            num(d.reconnects),
+            num(s.reconnects),
         ]));
-        if let Some(e) = &d.last_error {
-            let style = if d.faulty { t.fault() } else { t.label() };
+        if let Some(e) = &d.health.last_error {
+            let style = if self.red { t.fault() } else { t.label() };
             out.push(Line::from(vec![
                 l("last error "),
                 Span::styled(e.clone(), style),
@@ -252,7 +325,7 @@ impl<'a> DevicePanel<'a> {
 impl Widget for &DevicePanel<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
         if self.bordered {
-            let border = if self.d.faulty {
+            let border = if self.red {
                 self.theme.fault()
             } else {
                 self.theme.label()
@@ -260,10 +333,10 @@ impl Widget for &DevicePanel<'_> {
             let block = Block::bordered().border_style(border).title(self.title());
             let inner = block.inner(area);
             block.render(area, buf);
-            Paragraph::new(self.details()).render(inner, buf);
+            Paragraph::new(self.details(inner.width)).render(inner, buf);
         } else {
             let mut lines = vec![self.title()];
-            lines.extend(self.details());
+            lines.extend(self.details(area.width));
             Paragraph::new(lines).render(area, buf);
         }
     }
@@ -277,16 +350,28 @@ mod tests {
     use ratatui::style::{Color, Modifier};
     use std::time::Instant;
 
-    fn snap_of(role: Role, faulty: bool) -> DeviceSnap {
+    fn snap_of(name: &str, faulty: bool) -> (DeviceId, DeviceView) {
         let now = Instant::now();
-        let v = sample::vehicle(now);
+        let g = sample::gate(now);
         if faulty {
-            sample::make_faulty(&v, role, now);
+            sample::make_faulty(&g.vehicle, name, now);
         }
-        capture(&v, &Sources::default(), now, None)
-            .device(role)
-            .unwrap()
-            .clone()
+        let f = capture(&g, &Sources::default(), now, None);
+        let id = f.id_of(name).unwrap();
+        (id, f.at(id).unwrap().clone())
+    }
+
+    fn panel<'a>(id: DeviceId, d: &'a DeviceView) -> DevicePanel<'a> {
+        DevicePanel {
+            id,
+            d,
+            red: d.health.faulty,
+            sim: None,
+            theme: Theme::default(),
+            cursor: None,
+            edit: None,
+            bordered: false,
+        }
     }
 
     fn render(p: &DevicePanel, w: u16, h: u16) -> Buffer {
@@ -296,15 +381,18 @@ mod tests {
     }
 
     #[test]
+    fn a_state_device_shows_its_states_by_initial() {
+        let (id, d) = snap_of("trans", false);
+        let p = panel(id, &d);
+        let buf = render(&p, 40, 1);
+        let line: String = (0..40).map(|x| buf[(x, 0)].symbol().to_string()).collect();
+        assert_eq!(line.trim_end(), "TRANS P/R/N/D cmd - meas park");
+    }
+
+    #[test]
     fn a_steering_panel_reads_like_the_papers_screen() {
-        let d = snap_of(Role::Steer, false);
-        let p = DevicePanel {
-            d: &d,
-            theme: Theme::default(),
-            cursor: None,
-            edit: None,
-            bordered: false,
-        };
+        let (id, d) = snap_of("steer", false);
+        let p = panel(id, &d);
         let mut want = Buffer::with_lines([
             "STEER -1…1 cmd - meas 0.231             ",
             "st delay 50ms  cm delay 250ms           ",
@@ -323,19 +411,13 @@ mod tests {
 
     #[test]
     fn a_sensor_panel_has_no_command_fields() {
-        let d = snap_of(Role::Obd, false);
-        let p = DevicePanel {
-            d: &d,
-            theme: Theme::default(),
-            cursor: None,
-            edit: None,
-            bordered: false,
-        };
+        let (id, d) = snap_of("obd", false);
+        let p = panel(id, &d);
         let mut want = Buffer::with_lines([
             "OBD  700 rpm                            ",
             "st delay 250ms                          ",
             "status 1 e0  age 20ms                   ",
-            "rpm 700 speed 0.0 cool 85 run 1         ",
+            "rpm 700  spd 0.00  clt 85  run 1        ",
             "poll p50 3.1ms p99 3.1ms max 3.1ms      ",
         ]);
         want.set_style(want.area, Style::reset());
@@ -346,14 +428,8 @@ mod tests {
 
     #[test]
     fn a_faulty_device_is_red_and_its_values_dimmed() {
-        let d = snap_of(Role::Steer, true);
-        let p = DevicePanel {
-            d: &d,
-            theme: Theme::default(),
-            cursor: None,
-            edit: None,
-            bordered: false,
-        };
+        let (id, d) = snap_of("steer", true);
+        let p = panel(id, &d);
         let buf = render(&p, 50, 6);
         let name = &buf[(0, 0)];
         assert_eq!(name.symbol(), "S");
@@ -370,19 +446,17 @@ mod tests {
 
     #[test]
     fn the_cursor_and_an_edit_show_in_place() {
-        let d = snap_of(Role::Gas, false);
+        let (id, d) = snap_of("gas", false);
         let edit = Edit {
-            field: Field::CmDelay(Role::Gas),
+            field: Field::CmDelay(id),
             buffer: "300".into(),
             fresh: false,
             error: None,
         };
         let p = DevicePanel {
-            d: &d,
-            theme: Theme::default(),
-            cursor: Some(Field::StDelay(Role::Gas)),
+            cursor: Some(Field::StDelay(id)),
             edit: Some(&edit),
-            bordered: false,
+            ..panel(id, &d)
         };
         let buf = render(&p, 40, 3);
         let line: String = (0..40).map(|x| buf[(x, 1)].symbol().to_string()).collect();

@@ -87,7 +87,7 @@ impl Widget for &MessageLine<'_> {
         let line = if let (Mode::Edit, Some(e)) = (m.mode, &m.edit) {
             match &e.error {
                 Some(err) => Line::from(vec![
-                    Span::styled(format!("{}: ", e.field.name()), t.fault()),
+                    Span::styled(format!("{}: ", e.field.name(&m.snap)), t.fault()),
                     Span::styled(err.clone(), t.fault()),
                 ]),
                 None => {
@@ -98,7 +98,7 @@ impl Widget for &MessageLine<'_> {
                             .unwrap_or_else(|| "?".into())
                     };
                     Line::from(vec![
-                        Span::styled(format!("edit {}: ", e.field.name()), t.editing()),
+                        Span::styled(format!("edit {}: ", e.field.name(&m.snap)), t.editing()),
                         Span::raw(format!(
                             "{} applies, {} cancels",
                             k(Action::Commit),

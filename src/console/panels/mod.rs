@@ -1,7 +1,7 @@
-//! One widget per panel of the screen. Each takes plain data (a [`DeviceSnap`], the
-//! [`Model`]) and draws into a `Rect`; none touches the engine.
+//! One widget per panel of the screen. Each takes plain data (a device of the
+//! [`Snapshot`], the [`Model`]) and draws into a `Rect`; none touches the engine.
 //!
-//! [`DeviceSnap`]: super::controls::DeviceSnap
+//! [`Snapshot`]: crate::snapshot::Snapshot
 //! [`Model`]: super::model::Model
 
 pub mod bench;

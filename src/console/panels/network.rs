@@ -1,17 +1,19 @@
 //! The network panel: listen address, senders, commands per device, rejections by
-//! reason and the command watchdog, from a [`NetStatus`] when the listener runs;
+//! reason and the command watchdog, from the snapshot's network part when the
+//! listener runs;
 //! "not running" otherwise (with the intake's own rejections, which the console's
 //! commands count in too).
 
-use crate::console::controls::{NetStatus, Snapshot, Watchdog};
+use crate::console::controls::Frame;
 use crate::console::theme::Theme;
+use crate::snapshot::{NetView, WatchdogState};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
 
 pub struct NetworkPanel<'a> {
-    pub snap: &'a Snapshot,
+    pub snap: &'a Frame,
     pub theme: Theme,
 }
 
@@ -26,38 +28,59 @@ fn rejections(list: &[(String, u64)]) -> String {
 }
 
 impl NetworkPanel<'_> {
-    fn running(&self, n: &NetStatus) -> Vec<Line<'static>> {
+    fn running(&self, n: &NetView) -> Vec<Line<'static>> {
         let t = &self.theme;
         let l = |x: &'static str| Span::styled(x, t.label());
-        let wd = match n.watchdog {
-            Watchdog::Idle => Span::raw("idle"),
-            Watchdog::Ok {
-                since_last,
-                timeout,
-            } => Span::styled(
-                format!("ok {}/{}ms", since_last.as_millis(), timeout.as_millis()),
+        let wd = match n.watchdog.state {
+            WatchdogState::Off | WatchdogState::Idle => Span::raw("idle"),
+            WatchdogState::Armed => Span::styled(
+                format!(
+                    "ok {:.0}/{:.0}ms",
+                    n.watchdog.last_command_age_ms.unwrap_or(0.0),
+                    n.watchdog.timeout_ms
+                ),
                 t.good(),
             ),
-            Watchdog::Tripped => Span::styled("TRIPPED", t.fault()),
+            WatchdogState::Tripped => Span::styled("TRIPPED", t.fault()),
         };
         let cmds = n
             .commands
             .iter()
+            .filter(|(_, c)| **c > 0)
             .map(|(r, c)| format!("{r} {c}"))
             .collect::<Vec<_>>()
             .join(" ");
+        let mut rejected: Vec<(String, u64)> = [
+            &n.rejected.datagram,
+            &n.rejected.intake,
+            &n.rejected.refused,
+        ]
+        .into_iter()
+        .flat_map(|p| p.iter())
+        .filter(|(_, c)| **c > 0)
+        .map(|(r, c)| (r.to_string(), *c))
+        .collect();
+        rejected.sort_by_key(|r| std::cmp::Reverse(r.1));
+        let senders: Vec<String> = n
+            .senders
+            .iter()
+            .map(|x| format!("{}{}", x.addr, if x.commanding { "*" } else { "" }))
+            .collect();
         vec![
             Line::from(vec![
                 Span::styled("NETWORK ", t.title()),
-                Span::raw(n.listen.clone()),
+                Span::raw(n.listen.to_string()),
                 l(" senders "),
                 Span::raw(n.senders.len().to_string()),
                 l(" watchdog "),
                 wd,
             ]),
-            Line::from(vec![l("cmds "), Span::raw(cmds)]),
-            Line::from(vec![l("rejected "), Span::raw(rejections(&n.rejections))]),
-            Line::from(vec![l("from "), Span::raw(n.senders.join(", "))]),
+            Line::from(vec![
+                l("cmds "),
+                Span::raw(if cmds.is_empty() { "none".into() } else { cmds }),
+            ]),
+            Line::from(vec![l("rejected "), Span::raw(rejections(&rejected))]),
+            Line::from(vec![l("from "), Span::raw(senders.join(", "))]),
         ]
     }
 
@@ -70,7 +93,8 @@ impl NetworkPanel<'_> {
                     .snap
                     .rejections
                     .iter()
-                    .map(|(r, n)| (r.as_str().to_string(), *n))
+                    .filter(|(_, n)| **n > 0)
+                    .map(|(r, n)| (r.to_string(), *n))
                     .collect();
                 vec![
                     Line::from(vec![
@@ -96,8 +120,7 @@ impl Widget for &NetworkPanel<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::value::Role;
-    use std::time::Duration;
+    use crate::snapshot::{Pairs, Rejections, SenderView, Snapshot, WatchdogView};
 
     fn text(p: &NetworkPanel, w: u16, h: u16) -> Vec<String> {
         let mut buf = Buffer::empty(Rect::new(0, 0, w, h));
@@ -115,7 +138,7 @@ mod tests {
 
     #[test]
     fn without_a_listener_it_says_not_running() {
-        let snap = Snapshot::default();
+        let snap = Frame::default();
         let p = NetworkPanel {
             snap: &snap,
             theme: Theme::default(),
@@ -128,18 +151,42 @@ mod tests {
 
     #[test]
     fn with_a_listener_it_shows_its_figures() {
-        let snap = Snapshot {
-            net: Some(NetStatus {
-                listen: "127.0.0.1:7400".into(),
-                senders: vec!["127.0.0.1:5000".into()],
-                commands: vec![(Role::Steer, 12), (Role::Gas, 3)],
-                rejections: vec![("disengaged".into(), 2)],
-                watchdog: Watchdog::Ok {
-                    since_last: Duration::from_millis(40),
-                    timeout: Duration::from_millis(500),
-                },
-            }),
-            ..Snapshot::default()
+        let pairs = |v: &[(&str, u64)]| -> Pairs<u64> {
+            v.iter().map(|(n, c)| (n.to_string(), *c)).collect()
+        };
+        let snap = Frame {
+            snap: Snapshot {
+                net: Some(NetView {
+                    listen: "127.0.0.1:7400".parse().unwrap(),
+                    datagrams: 17,
+                    accepted: 15,
+                    commander: None,
+                    watchdog: WatchdogView {
+                        state: WatchdogState::Armed,
+                        timeout_ms: 500.0,
+                        last_command_age_ms: Some(40.0),
+                        last_trip: None,
+                    },
+                    senders: vec![SenderView {
+                        addr: "127.0.0.1:5000".parse().unwrap(),
+                        age_ms: 40.0,
+                        seq: None,
+                        datagrams: 17,
+                        accepted: 15,
+                        rejected: 2,
+                        commanding: false,
+                        frozen: false,
+                        latched: false,
+                    }],
+                    commands: pairs(&[("steer", 12), ("gas", 3), ("brake", 0)]),
+                    rejected: Rejections {
+                        intake: pairs(&[("disengaged", 2), ("gas_estop", 0)]),
+                        ..Rejections::default()
+                    },
+                }),
+                ..Snapshot::default()
+            },
+            ..Frame::default()
         };
         let p = NetworkPanel {
             snap: &snap,

@@ -10,10 +10,10 @@
 //! and one per fault. On a larger screen it is one taller panel.
 
 use super::wrap;
-use crate::console::controls::Snapshot;
+use crate::console::controls::Frame;
 use crate::console::model::{Field, Model};
 use crate::console::theme::Theme;
-use crate::supervisor::status::{FaultView, RecoveryView};
+use crate::snapshot::{FaultView, RecoveryView};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
@@ -34,7 +34,7 @@ fn secs(ms: f64) -> String {
 
 /// `steer silent` or `engine_stall`.
 fn fault_name(f: &FaultView) -> String {
-    match f.device {
+    match &f.device {
         Some(d) => format!("{d} {}", f.kind),
         None => f.kind.to_string(),
     }
@@ -43,19 +43,23 @@ fn fault_name(f: &FaultView) -> String {
 /// Every fault to show, in words: the supervisor's (`steer silent 1.5s no status
 /// for …`), then any device the engine marks faulty that the supervisor has not
 /// named yet (`steer faulty: no reply within 200ms`; it notices at its next turn).
-pub fn fault_texts(s: &Snapshot) -> Vec<String> {
-    let sup = &s.supervision;
+pub fn fault_texts(s: &Frame) -> Vec<String> {
+    let sup = &s.supervisor;
     let mut out: Vec<String> = sup
         .faults
         .iter()
         .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
         .collect();
-    for d in s.devices.iter().filter(|d| d.faulty) {
-        if !sup.faults.iter().any(|f| f.device == Some(d.role)) {
+    for d in s.devices.iter().filter(|d| d.health.faulty) {
+        if !sup
+            .faults
+            .iter()
+            .any(|f| f.device.as_deref() == Some(d.name.as_str()))
+        {
             out.push(format!(
                 "{} faulty: {}",
-                d.role,
-                d.last_error.as_deref().unwrap_or("no reply")
+                d.name,
+                d.health.last_error.as_deref().unwrap_or("no reply")
             ));
         }
     }
@@ -90,7 +94,7 @@ impl SupervisorPanel<'_> {
     /// Whether there is anything to show beyond "all well".
     pub fn active(&self) -> bool {
         let s = &self.m.snap;
-        s.supervision.recovery.is_some() || !fault_texts(s).is_empty()
+        s.supervisor.recovery.is_some() || !fault_texts(s).is_empty()
     }
 
     fn accel(&self) -> Span<'static> {
@@ -120,13 +124,13 @@ impl SupervisorPanel<'_> {
         Line::from(vec![
             Span::styled("SUPERVISORY", t.title()),
             l(" engaged "),
-            if s.engaged {
+            if s.gate.engaged {
                 Span::styled("1", t.good())
             } else {
                 Span::styled("0", t.warn())
             },
             l(" interlocks "),
-            if s.interlocks {
+            if s.gate.interlocks {
                 Span::styled("on", t.good())
             } else {
                 Span::styled("OFF", t.fault())
@@ -137,7 +141,7 @@ impl SupervisorPanel<'_> {
     /// The two lines of a small screen: state, then accel, how many faults and the
     /// recovery step (the strip under them has the details).
     pub fn compact_lines(&self) -> Vec<Line<'static>> {
-        let (sup, t) = (&self.m.snap.supervision, &self.m.theme);
+        let (sup, t) = (&self.m.snap.supervisor, &self.m.theme);
         let l = |x: &'static str| Span::styled(x, t.label());
         let recovery = match &sup.recovery {
             Some(r) => Span::styled(
@@ -173,22 +177,26 @@ impl SupervisorPanel<'_> {
     /// Everything, for a larger screen `width` columns wide.
     pub fn full_lines(&self, width: u16) -> Vec<Line<'static>> {
         let (s, t) = (&self.m.snap, &self.m.theme);
-        let sup = &s.supervision;
+        let sup = &s.supervisor;
         let l = |x: &'static str| Span::styled(x, t.label());
         let mut first = self.first();
         first.spans.extend([l("  accel "), self.accel()]);
-        let why_style = if s.engaged { Style::new() } else { t.warn() };
+        let why_style = if s.gate.engaged {
+            Style::new()
+        } else {
+            t.warn()
+        };
         let mut out = vec![
             first,
             Line::from(vec![
                 l("why "),
-                Span::styled(s.gate_reason.clone(), why_style),
+                Span::styled(s.gate.reason.clone(), why_style),
             ]),
         ];
-        if !s.engaged && !s.blockers.is_empty() {
+        if !s.gate.engaged && !s.gate.blockers.is_empty() {
             out.push(Line::from(vec![
                 l("engage blocked: "),
-                Span::styled(s.blockers.join("; "), t.warn()),
+                Span::styled(s.gate.blockers.join("; "), t.warn()),
             ]));
         }
         let faults = fault_texts(s);
@@ -241,7 +249,7 @@ impl Widget for &SupervisorPanel<'_> {
 /// The full-width lines of a small screen while the supervisor has something to
 /// show: the recovery in progress, then one line per fault (as many as fit).
 pub struct SupervisorStrip<'a> {
-    pub snap: &'a Snapshot,
+    pub snap: &'a Frame,
     pub theme: Theme,
 }
 
@@ -249,7 +257,7 @@ impl SupervisorStrip<'_> {
     pub fn lines(&self) -> Vec<Line<'static>> {
         let t = &self.theme;
         let mut out = Vec::new();
-        if let Some(r) = &self.snap.supervision.recovery {
+        if let Some(r) = &self.snap.supervisor.recovery {
             let mut spans = vec![
                 Span::styled("RECOVERY ", t.warn()),
                 Span::styled(format!("{} {}", r.describe(), secs(r.elapsed_ms)), t.warn()),
@@ -294,12 +302,11 @@ impl Widget for &SupervisorStrip<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::supervisor::status::{FaultKind, SupervisorSnapshot};
-    use crate::value::Role;
+    use crate::snapshot::{FaultKind, Snapshot, SupervisorView};
     use ratatui::style::Color;
 
-    fn sample() -> Snapshot {
-        let supervision = SupervisorSnapshot {
+    fn sample() -> Frame {
+        let supervisor = SupervisorView {
             faults: vec![
                 FaultView {
                     kind: FaultKind::EngineStall,
@@ -309,7 +316,7 @@ mod tests {
                 },
                 FaultView {
                     kind: FaultKind::Silent,
-                    device: Some(Role::Brake),
+                    device: Some("brake".into()),
                     cause: "no status for 1500 ms (max 500 ms)".into(),
                     age_ms: 1_500.0,
                 },
@@ -317,18 +324,17 @@ mod tests {
             recovery: Some(RecoveryView {
                 step: 3,
                 elapsed_ms: 2_140.0,
-                ..crate::supervisor::recovery::Procedure::engine_stall(
-                    crate::value::Gear::Drive,
-                    &crate::config::SupervisorConfig::default(),
-                )
-                .view()
+                ..crate::console::sample::engine_stall()
             }),
             last_outcome: None,
             history: Vec::new(),
         };
-        Snapshot {
-            supervision,
-            ..Snapshot::default()
+        Frame {
+            snap: Snapshot {
+                supervisor,
+                ..Snapshot::default()
+            },
+            ..Frame::default()
         }
     }
 
@@ -377,7 +383,7 @@ mod tests {
 
     #[test]
     fn steps_wrap_and_the_current_one_is_highlighted() {
-        let r = sample().supervision.recovery.unwrap();
+        let r = sample().snap.supervisor.recovery.clone().unwrap();
         let t = Theme::default();
         let steps = step_spans(&r, &t).into_iter().map(|s| vec![s]).collect();
         let lines = wrap(steps, 40, "  ");

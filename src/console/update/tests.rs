@@ -1,17 +1,19 @@
 //! `update` and `tick` with a recording fake engine: keys → actions → state.
 
 use super::*;
-use crate::console::controls::{capture, Snapshot, Sources};
+use crate::config::VehicleConfig;
+use crate::console::controls::{capture, Frame, Sources};
 use crate::console::keymap::{key_to_action, Keymap};
 use crate::console::sample;
 use crate::console::theme::Theme;
-use crate::interlock::Reject;
+use crate::safety::Reject;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
 
 /// Records every call; refuses submits while `refuse` is set.
 struct Fake {
-    snap: Snapshot,
+    config: VehicleConfig,
+    snap: Frame,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
     engage: Result<(), Vec<String>>,
@@ -22,9 +24,10 @@ struct Fake {
 impl Fake {
     fn new() -> Fake {
         let now = Instant::now();
-        let v = sample::vehicle(now);
+        let g = sample::gate(now);
         Fake {
-            snap: capture(&v, &Sources::default(), now, None),
+            config: VehicleConfig::alice(),
+            snap: capture(&g, &Sources::default(), now, None),
             calls: RefCell::default(),
             refuse: None,
             engage: Ok(()),
@@ -37,14 +40,36 @@ impl Fake {
     fn calls(&self) -> Vec<String> {
         self.calls.borrow().clone()
     }
+    fn name(&self, id: DeviceId) -> &str {
+        &self.config.devices[id.index()].name
+    }
+    /// A device of the sample in the frame, by name, to change what the console sees.
+    fn device(&mut self, name: &str) -> &mut DeviceView {
+        self.snap
+            .snap
+            .devices
+            .iter_mut()
+            .find(|d| d.name == name)
+            .unwrap()
+    }
+}
+
+/// Alice's device by name.
+fn id(name: &str) -> DeviceId {
+    let a = VehicleConfig::alice();
+    DeviceId(a.devices.iter().position(|d| d.name == name).unwrap() as u16)
 }
 
 impl Controls for Fake {
-    fn snapshot(&self, _now: Instant, _bench: Option<Role>) -> Snapshot {
+    fn frame(&self, _now: Instant, _bench: Option<DeviceId>) -> Frame {
         self.snap.clone()
     }
-    fn submit(&self, role: Role, command: Command) -> Result<(), Reject> {
-        self.log(format!("submit {role} {command}"));
+    fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
+        self.config.devices[id.index()].parse_command(text)
+    }
+    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject> {
+        let d = &self.config.devices[id.index()];
+        self.log(format!("submit {} {}", d.name, d.command_text(command)));
         self.refuse.map_or(Ok(()), Err)
     }
     fn submit_accel(&self, accel: f64) -> Result<(), Reject> {
@@ -61,17 +86,17 @@ impl Controls for Fake {
     fn set_interlocks(&self, on: bool) {
         self.log(format!("interlocks {on}"));
     }
-    fn set_status_period(&self, role: Role, d: Duration) {
-        self.log(format!("st delay {role} {d:?}"));
+    fn set_status_period(&self, id: DeviceId, d: Duration) {
+        self.log(format!("st delay {} {d:?}", self.name(id)));
     }
-    fn set_command_timeout(&self, role: Role, d: Duration) {
-        self.log(format!("cm delay {role} {d:?}"));
+    fn set_command_timeout(&self, id: DeviceId, d: Duration) {
+        self.log(format!("cm delay {} {d:?}", self.name(id)));
     }
-    fn set_enabled(&self, role: Role, thread: Thread, on: bool) {
-        self.log(format!("enable {role} {thread:?} {on}"));
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
+        self.log(format!("enable {} {thread:?} {on}", self.name(id)));
     }
-    fn wake(&self, role: Role) {
-        self.log(format!("wake {role}"));
+    fn wake(&self, id: DeviceId) {
+        self.log(format!("wake {}", self.name(id)));
     }
     fn safe_state(&self) {
         self.log("safe state".into());
@@ -123,7 +148,7 @@ fn s_then_a_value_then_enter_submits_a_steering_command() {
     let now = Instant::now();
     press(&mut m, &f, &["s"], now);
     assert_eq!(m.mode, Mode::Edit);
-    assert_eq!(m.edit.as_ref().unwrap().field, Field::Command(Role::Steer));
+    assert_eq!(m.edit.as_ref().unwrap().field, Field::Command(id("steer")));
     let keys = typing("0.5");
     let keys: Vec<&str> = keys.iter().map(String::as_str).collect();
     press(&mut m, &f, &keys, now);
@@ -174,7 +199,7 @@ fn a_bad_value_shows_an_inline_error_and_changes_nothing() {
         .error
         .as_ref()
         .unwrap()
-        .contains("gear"));
+        .contains("trans takes one of park, reverse, neutral, drive"));
     assert!(f.calls().is_empty(), "{:?}", f.calls());
     // Typing clears the error; a good value then goes through.
     press(&mut m, &f, &["<Backspace>", "d", "<Enter>"], now);
@@ -188,7 +213,7 @@ fn delays_and_thread_flags_are_edited_in_place() {
     let now = Instant::now();
     // Cursor starts on steer's command; down to st delay.
     press(&mut m, &f, &["j", "<Enter>"], now);
-    assert_eq!(m.edit.as_ref().unwrap().field, Field::StDelay(Role::Steer));
+    assert_eq!(m.edit.as_ref().unwrap().field, Field::StDelay(id("steer")));
     assert_eq!(m.edit.as_ref().unwrap().buffer, "50ms", "prefilled");
     press(&mut m, &f, &["2", "0", "<Enter>"], now);
     press(&mut m, &f, &["j", "<Enter>", "1", "s", "<Enter>"], now);
@@ -213,11 +238,11 @@ fn left_and_right_move_between_devices_keeping_the_field() {
     let mut m = model(&f);
     let now = Instant::now();
     press(&mut m, &f, &["j", "l"], now);
-    assert_eq!(m.field(), Field::StDelay(Role::Gas));
+    assert_eq!(m.field(), Field::StDelay(id("gas")));
     press(&mut m, &f, &["l", "l", "l"], now);
-    assert_eq!(m.field(), Field::StDelay(Role::Estop));
+    assert_eq!(m.field(), Field::StDelay(id("estop")));
     press(&mut m, &f, &["h"], now);
-    assert_eq!(m.field(), Field::StDelay(Role::Trans));
+    assert_eq!(m.field(), Field::StDelay(id("trans")));
 }
 
 #[test]
@@ -401,9 +426,9 @@ fn bench_cycles_devices_sends_to_one_device_and_asks_for_sim_faults() {
     let mut m = model(&f);
     let now = Instant::now();
     press(&mut m, &f, &["l", "x"], now);
-    assert_eq!((m.mode, m.bench), (Mode::Bench, Role::Gas));
+    assert_eq!((m.mode, m.bench), (Mode::Bench, id("gas")));
     press(&mut m, &f, &["<Tab>", "<Enter>"], now);
-    assert_eq!(m.edit.as_ref().unwrap().field, Field::Command(Role::Brake));
+    assert_eq!(m.edit.as_ref().unwrap().field, Field::Command(id("brake")));
     press(&mut m, &f, &["0", ".", "5", "<Enter>"], now);
     assert_eq!(m.mode, Mode::Bench);
     assert_eq!(f.calls(), ["submit brake 0.500"]);
@@ -411,7 +436,7 @@ fn bench_cycles_devices_sends_to_one_device_and_asks_for_sim_faults() {
     assert!(m.message.as_ref().unwrap().text.contains("needs --sim"));
     assert_eq!(f.calls(), ["submit brake 0.500"], "nothing was injected");
     press(&mut m, &f, &["<BackTab>", "<BackTab>", "<BackTab>"], now);
-    assert_eq!(m.bench, Role::Obd);
+    assert_eq!(m.bench, id("obd"));
     press(&mut m, &f, &["<Enter>"], now);
     assert_eq!(m.mode, Mode::Bench, "a sensor takes no commands");
     press(&mut m, &f, &["<Esc>"], now);
@@ -444,8 +469,7 @@ fn e_homes_the_steering_then_holds_where_it_stopped() {
     tick(&mut m, &f, t0 + Duration::from_millis(100));
     assert_eq!(f.calls().len(), 1);
     // The drive acknowledged home: hold where it is.
-    let steer = f.snap.devices.iter_mut().find(|d| d.role == Role::Steer);
-    steer.unwrap().executed = Some(Command::Control(crate::value::Control::Home));
+    f.device("steer").executed = Some(Value::Text("home".into()));
     tick(&mut m, &f, t0 + Duration::from_millis(200));
     assert_eq!(f.calls(), ["submit steer home", "submit steer 0.231"]);
     assert_eq!(m.steer_reset, None);
@@ -489,7 +513,7 @@ fn bench_fault_keys_drive_the_simulator_and_toggle_from_its_state() {
     let now = Instant::now();
     // Steering on the bench.
     press(&mut m, &f, &["x"], now);
-    assert_eq!((m.mode, m.bench), (Mode::Bench, Role::Steer));
+    assert_eq!((m.mode, m.bench), (Mode::Bench, id("steer")));
     press(
         &mut m,
         &f,
@@ -516,15 +540,15 @@ fn bench_fault_keys_drive_the_simulator_and_toggle_from_its_state() {
         "e-stop run is not a fault"
     );
     // The same keys switch off what is on, on the device now on the bench.
-    let gas = f.snap.devices.iter_mut().find(|d| d.role == Role::Gas);
-    gas.unwrap().sim = Some(SimFaults {
+    f.snap.sim_faults = vec![None; f.snap.devices.len()];
+    f.snap.sim_faults[id("gas").index()] = Some(SimFaults {
         silent: true,
         slow_ms: 150,
         ..SimFaults::default()
     });
     let mut m = model(&f);
     press(&mut m, &f, &["l", "x", "s", "l", "g"], now);
-    assert_eq!(m.bench, Role::Gas);
+    assert_eq!(m.bench, id("gas"));
     assert_eq!(
         &f.calls()[10..],
         ["sim silent gas off", "sim slow gas 0", "sim garbage gas on"]
@@ -537,14 +561,14 @@ fn a_recovery_outcome_is_said_once() {
     let mut f = Fake::new();
     let mut m = model(&f);
     let now = Instant::now();
-    f.snap.supervision.last_outcome = Some("recovery engine_stall done in 6.1 s".into());
+    f.snap.snap.supervisor.last_outcome = Some("recovery engine_stall done in 6.1 s".into());
     tick(&mut m, &f, now);
     let msg = m.message.take().unwrap();
     assert_eq!(msg.text, "supervisor: recovery engine_stall done in 6.1 s");
     assert!(!msg.bad);
     tick(&mut m, &f, now);
     assert!(m.message.is_none(), "said once");
-    f.snap.supervision.last_outcome =
+    f.snap.snap.supervisor.last_outcome =
         Some("recovery engine_stall gave up: step park did not complete".into());
     tick(&mut m, &f, now);
     assert!(m.message.take().unwrap().bad);

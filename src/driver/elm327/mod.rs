@@ -20,6 +20,7 @@ pub mod proto;
 
 use self::proto::{ElmError, Pid};
 use super::{read_until, Driver, DriverError, Link};
+use crate::config::wire::ElmMap;
 use crate::value::{Command, Reading};
 use std::time::Duration;
 
@@ -40,6 +41,7 @@ pub const INIT: [&str; 4] = ["ATE0", "ATL0", "ATH0", "ATSP0"];
 
 /// Host side of an ELM327 OBD-II adapter.
 pub struct Elm327Driver {
+    map: ElmMap,
     reply_timeout: Duration,
     searched: bool,
     polls: u64,
@@ -50,8 +52,9 @@ pub struct Elm327Driver {
 impl Elm327Driver {
     /// A driver that waits up to `reply_timeout` for each OBD answer (an ELM327 gives
     /// up on a silent car after about 200 ms by itself and says `NO DATA`).
-    pub fn new(reply_timeout: Duration) -> Elm327Driver {
+    pub fn new(map: ElmMap, reply_timeout: Duration) -> Elm327Driver {
         Elm327Driver {
+            map,
             reply_timeout,
             searched: false,
             polls: 0,
@@ -117,29 +120,40 @@ impl Driver for Elm327Driver {
     }
 
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError> {
-        let rpm = self.read_pid(link, Pid::Rpm)?;
-        let speed = self.read_pid(link, Pid::Speed)?;
-        if self.polls % COOLANT_EVERY == 0 {
-            // A car that does not report coolant still reports the rest.
-            self.coolant = match self.read_pid(link, Pid::Coolant) {
-                Ok(c) => Some(c),
-                Err(DriverError::Refused(_)) => None,
-                Err(e) => return Err(e),
-            };
+        let m = self.map.clone();
+        let mut r = Reading::default();
+        if m.rpm.is_some() || m.running.is_some() {
+            let rpm = self.read_pid(link, Pid::Rpm)?;
+            if let Some(i) = m.rpm {
+                r.set(i, rpm);
+            }
+            if let Some(i) = m.running {
+                r.set(i, f64::from(u8::from(rpm > RUNNING_RPM)));
+            }
+        }
+        if let Some(i) = m.speed {
+            r.set(i, self.read_pid(link, Pid::Speed)?);
+        }
+        if let Some(i) = m.coolant {
+            if self.polls % COOLANT_EVERY == 0 {
+                // A car that does not report coolant still reports the rest.
+                self.coolant = match self.read_pid(link, Pid::Coolant) {
+                    Ok(c) => Some(c),
+                    Err(DriverError::Refused(_)) => None,
+                    Err(e) => return Err(e),
+                };
+            }
+            if let Some(c) = self.coolant {
+                r.set(i, c);
+            }
         }
         self.polls += 1;
-        Ok(Reading {
-            rpm: Some(rpm),
-            speed: Some(speed),
-            coolant: self.coolant,
-            running: Some(rpm > RUNNING_RPM),
-            ..Reading::default()
-        })
+        Ok(r)
     }
 
     fn command(&mut self, _link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
         Err(DriverError::Unsupported(format!(
-            "the OBD-II adapter is a sensor; it takes no command ({command})"
+            "the OBD-II adapter is a sensor; it takes no command ({command:?})"
         )))
     }
 }
@@ -150,6 +164,15 @@ mod tests {
     use crate::driver::mock::{rx, tx, MockLink, Step};
 
     const T: Duration = Duration::from_millis(300);
+
+    fn full() -> ElmMap {
+        ElmMap {
+            rpm: Some(0),
+            speed: Some(1),
+            coolant: Some(2),
+            running: Some(3),
+        }
+    }
 
     fn init_script() -> Vec<Step> {
         vec![
@@ -169,7 +192,7 @@ mod tests {
     #[test]
     fn open_resets_and_configures_the_adapter() {
         let mut link = MockLink::new(init_script());
-        let mut d = Elm327Driver::new(T);
+        let mut d = Elm327Driver::new(full(), T);
         d.open(&mut link).unwrap();
         assert_eq!(d.banner(), Some("ELM327 v1.5"));
     }
@@ -181,7 +204,7 @@ mod tests {
         script.push(tx(b"ATL0\r"));
         script.push(rx(b"?\r\r>"));
         let mut link = MockLink::new(script);
-        match Elm327Driver::new(T).open(&mut link) {
+        match Elm327Driver::new(full(), T).open(&mut link) {
             Err(DriverError::Refused(why)) => assert!(why.starts_with("ATL0"), "{why}"),
             other => panic!("{other:?}"),
         }
@@ -191,7 +214,7 @@ mod tests {
     fn an_adapter_that_is_not_an_elm327_is_garbled() {
         let mut link = MockLink::new([tx(b"ATZ\r"), rx(b"\r\rHELLO\r\r>")]);
         assert!(matches!(
-            Elm327Driver::new(T).open(&mut link),
+            Elm327Driver::new(full(), T).open(&mut link),
             Err(DriverError::Garbled(_))
         ));
     }
@@ -224,20 +247,20 @@ mod tests {
             rx(b"NO DATA\r\r>"),
         ]);
         let mut link = MockLink::new(script);
-        let mut d = Elm327Driver::new(T);
+        let mut d = Elm327Driver::new(full(), T);
         d.open(&mut link).unwrap();
         let r = d.poll(&mut link).unwrap();
-        assert_eq!(r.rpm, Some(800.0));
-        assert_eq!(r.speed, Some(20.0));
-        assert_eq!(r.coolant, Some(83.0));
-        assert_eq!(r.running, Some(true));
+        assert_eq!(r.get(0), Some(800.0), "rpm");
+        assert_eq!(r.get(1), Some(20.0), "72 km/h is 20 m/s");
+        assert_eq!(r.get(2), Some(83.0), "coolant");
+        assert_eq!(r.get(3), Some(1.0), "running");
         for _ in 1..COOLANT_EVERY {
             let r = d.poll(&mut link).unwrap();
-            assert_eq!(r.coolant, Some(83.0), "the last coolant value stays");
-            assert_eq!(r.running, Some(false));
+            assert_eq!(r.get(2), Some(83.0), "the last coolant value stays");
+            assert_eq!(r.get(3), Some(0.0), "not running");
         }
         let r = d.poll(&mut link).unwrap();
-        assert_eq!(r.coolant, None, "a coolant PID that went silent is unknown");
+        assert_eq!(r.get(2), None, "a coolant PID that went silent is unknown");
     }
 
     #[test]
@@ -248,7 +271,7 @@ mod tests {
             tx(b"010D\r"),
             rx(b"41 0D 00\r\r>"),
         ]);
-        let mut d = Elm327Driver::new(T);
+        let mut d = Elm327Driver::new(full(), T);
         d.read_pid(&mut link, Pid::Rpm).unwrap();
         assert_eq!(link.timeout, Some(SEARCH_TIMEOUT));
         d.read_pid(&mut link, Pid::Speed).unwrap();
@@ -258,13 +281,13 @@ mod tests {
     #[test]
     fn no_data_and_silence_fail_the_poll() {
         let mut link = MockLink::new([tx(b"010C\r"), rx(b"NO DATA\r\r>")]);
-        match Elm327Driver::new(T).poll(&mut link) {
+        match Elm327Driver::new(full(), T).poll(&mut link) {
             Err(DriverError::Refused(why)) => assert_eq!(why, "rpm: NO DATA"),
             other => panic!("{other:?}"),
         }
         let mut link = MockLink::new([tx(b"010C\r"), rx(b"41 0C"), Step::Silence]);
         assert!(matches!(
-            Elm327Driver::new(T).poll(&mut link),
+            Elm327Driver::new(full(), T).poll(&mut link),
             Err(DriverError::Timeout(_))
         ));
     }
@@ -273,7 +296,7 @@ mod tests {
     fn commands_are_unsupported() {
         let mut link = MockLink::new([]);
         assert!(matches!(
-            Elm327Driver::new(T).command(&mut link, Command::Set(1.0)),
+            Elm327Driver::new(full(), T).command(&mut link, Command::Set(1.0)),
             Err(DriverError::Unsupported(_))
         ));
     }

@@ -28,21 +28,61 @@ pub enum Wake {
     Stop,
 }
 
+/// Where an actuator's commands are on their way to the device.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct WireState {
+    /// Waiting in the slot for the command thread.
+    pub pending: Option<Command>,
+    /// Taken by the command thread and not finished: being checked, waiting for the
+    /// port, or on the wire.
+    pub flight: Option<Command>,
+    /// The last command whose transaction finished (its bytes went out, acknowledged
+    /// or not).
+    pub sent: Option<Command>,
+    /// The last command the device acknowledged.
+    pub acked: Option<Command>,
+}
+
+impl WireState {
+    /// Every value the device has or is about to have: pending, in flight, last sent,
+    /// acknowledged. The interlocks judge by these.
+    pub fn values(&self) -> impl Iterator<Item = Command> {
+        [self.pending, self.flight, self.sent, self.acked]
+            .into_iter()
+            .flatten()
+    }
+
+    /// The set points among [`WireState::values`].
+    pub fn set_points(&self) -> impl Iterator<Item = f64> {
+        self.values().filter_map(Command::set_point)
+    }
+
+    /// What the device will have next: pending, else in flight, else last sent.
+    pub fn latest(&self) -> Option<Command> {
+        self.pending.or(self.flight).or(self.sent)
+    }
+}
+
 #[derive(Default)]
 struct State {
-    pending: Option<Pending>,
-    /// The last command taken for the wire: in flight from the moment the command
-    /// thread takes it, then what the device was last given. Never forgotten.
-    last: Option<Command>,
+    wire: WireState,
+    /// When the pending command was born.
+    received: Option<Instant>,
     /// What to send again after `command_timeout`; engage clears it.
     resend: Option<Command>,
-    /// The last command the device acknowledged.
-    executed: Option<Command>,
-    /// The last command whose transaction finished (its bytes are on the wire,
-    /// acknowledged or not).
-    sent: Option<Command>,
     nudged: bool,
     stopped: bool,
+}
+
+impl State {
+    /// The command thread takes the pending command: it is in flight from now on.
+    fn take(&mut self) -> Option<Pending> {
+        let command = self.wire.pending.take()?;
+        let received = self.received.take().unwrap_or_else(Instant::now);
+        self.wire.flight = Some(command);
+        self.resend = Some(command);
+        Some(Pending { command, received })
+    }
 }
 
 #[derive(Default)]
@@ -56,8 +96,9 @@ impl CommandSlot {
     /// command that had not reached the wire yet.
     pub fn submit(&self, command: Command, received: Instant) -> bool {
         let mut s = self.state.lock();
-        let superseded = s.pending.is_some();
-        s.pending = Some(Pending { command, received });
+        let superseded = s.wire.pending.is_some();
+        s.wire.pending = Some(command);
+        s.received = Some(received);
         drop(s);
         self.cv.notify_all();
         superseded
@@ -74,7 +115,8 @@ impl CommandSlot {
         self.cv.notify_all();
     }
 
-    /// Sleep until something happens, at most `timeout`.
+    /// Sleep until something happens, at most `timeout`. A command taken here is in
+    /// flight until [`CommandSlot::finish`] or [`CommandSlot::drop_flight`].
     pub fn wait(&self, timeout: Duration) -> Wake {
         let deadline = Instant::now() + timeout;
         let mut s = self.state.lock();
@@ -82,11 +124,8 @@ impl CommandSlot {
             if s.stopped {
                 return Wake::Stop;
             }
-            if let Some(p) = s.pending.take() {
+            if let Some(p) = s.take() {
                 s.nudged = false;
-                // Taken is in flight: readers never see the slot empty meanwhile.
-                s.last = Some(p.command);
-                s.resend = Some(p.command);
                 return Wake::Command(p);
             }
             if std::mem::take(&mut s.nudged) {
@@ -96,12 +135,8 @@ impl CommandSlot {
                 if s.stopped {
                     return Wake::Stop;
                 }
-                return match s.pending.take() {
-                    Some(p) => {
-                        s.last = Some(p.command);
-                        s.resend = Some(p.command);
-                        Wake::Command(p)
-                    }
+                return match s.take() {
+                    Some(p) => Wake::Command(p),
                     None => Wake::Timeout,
                 };
             }
@@ -111,13 +146,7 @@ impl CommandSlot {
     /// Take a command that arrived after the thread woke (while it waited for the port),
     /// so the newest one goes out instead.
     pub fn take_newer(&self) -> Option<Pending> {
-        let mut s = self.state.lock();
-        let p = s.pending.take();
-        if let Some(p) = p {
-            s.last = Some(p.command);
-            s.resend = Some(p.command);
-        }
-        p
+        self.state.lock().take()
     }
 
     /// Sleep until `until` unless stopped; a new command may arrive meanwhile and stays
@@ -130,11 +159,35 @@ impl CommandSlot {
         !s.stopped
     }
 
-    /// Record what goes to the wire.
-    pub fn set_last(&self, command: Command) {
+    /// Put `command` in flight (a resend, or what the wire check sends instead).
+    pub fn fly(&self, command: Command) {
         let mut s = self.state.lock();
-        s.last = Some(command);
+        s.wire.flight = Some(command);
         s.resend = Some(command);
+        drop(s);
+        self.cv.notify_all();
+    }
+
+    /// The command in flight did not go out after all (the wire check dropped it).
+    pub fn drop_flight(&self) {
+        let mut s = self.state.lock();
+        s.wire.flight = None;
+        s.resend = s.wire.sent;
+        drop(s);
+        self.cv.notify_all();
+    }
+
+    /// The transaction of the command in flight finished: its bytes are on the wire,
+    /// and `acked` says whether the device acknowledged it. Wakes anyone waiting.
+    pub fn finish(&self, command: Command, acked: bool) {
+        let mut s = self.state.lock();
+        s.wire.flight = None;
+        s.wire.sent = Some(command);
+        if acked {
+            s.wire.acked = Some(command);
+        }
+        drop(s);
+        self.cv.notify_all();
     }
 
     /// What the command thread sends again when nothing new arrives.
@@ -142,90 +195,53 @@ impl CommandSlot {
         self.state.lock().resend
     }
 
-    /// Record what the device acknowledged, and wake anyone waiting for it.
-    pub fn set_executed(&self, command: Command) {
-        self.state.lock().executed = Some(command);
-        self.cv.notify_all();
+    /// Where its commands are.
+    pub fn wire(&self) -> WireState {
+        self.state.lock().wire
     }
 
-    /// Record that a transaction finished, and wake anyone waiting for it.
-    pub fn set_sent(&self, command: Command) {
-        self.state.lock().sent = Some(command);
-        self.cv.notify_all();
-    }
-
-    /// Pending, last handed to the wire, last finished on the wire.
-    pub fn wire(&self) -> (Option<Command>, Option<Command>, Option<Command>) {
-        let s = self.state.lock();
-        (s.pending.map(|p| p.command), s.last, s.sent)
-    }
-
-    /// Wait until `done(pending, last, sent)` holds or the deadline passes.
-    pub fn wait_wire(
-        &self,
-        done: impl Fn(Option<Command>, Option<Command>, Option<Command>) -> bool,
-        deadline: Instant,
-    ) -> bool {
+    /// Wait until `done` holds for the wire state or the deadline passes; returns
+    /// whether it held.
+    pub fn wait_wire(&self, done: impl Fn(&WireState) -> bool, deadline: Instant) -> bool {
         let mut s = self.state.lock();
         loop {
-            if done(s.pending.map(|p| p.command), s.last, s.sent) {
+            if done(&s.wire) {
                 return true;
             }
             if s.stopped || self.cv.wait_until(&mut s, deadline).timed_out() {
-                return done(s.pending.map(|p| p.command), s.last, s.sent);
+                return done(&s.wire);
             }
         }
     }
 
-    /// Undo `set_last` for a command that did not go out after all.
-    pub fn restore_last(&self, last: Option<Command>) {
-        let mut s = self.state.lock();
-        s.last = last;
-        s.resend = last;
-        drop(s);
-        self.cv.notify_all();
-    }
-
     pub fn sent(&self) -> Option<Command> {
-        self.state.lock().sent
+        self.state.lock().wire.sent
     }
 
+    /// The last command the device acknowledged.
     pub fn executed(&self) -> Option<Command> {
-        self.state.lock().executed
-    }
-
-    /// Every value this actuator has or is about to have: pending, last sent,
-    /// acknowledged. Interlocks judge by the extremes of these.
-    pub fn in_flight(&self) -> [Option<Command>; 3] {
-        let s = self.state.lock();
-        [s.pending.map(|p| p.command), s.last, s.executed]
+        self.state.lock().wire.acked
     }
 
     pub fn has_pending(&self) -> bool {
-        self.state.lock().pending.is_some()
+        self.state.lock().wire.pending.is_some()
     }
 
     /// Wait until the device acknowledged a command matching `done`, or the deadline.
     pub fn wait_executed(&self, done: impl Fn(Command) -> bool, deadline: Instant) -> bool {
-        let mut s = self.state.lock();
-        loop {
-            if s.executed.is_some_and(&done) {
-                return true;
-            }
-            if self.cv.wait_until(&mut s, deadline).timed_out() {
-                return s.executed.is_some_and(&done);
-            }
-        }
+        self.wait_wire(|w| w.acked.is_some_and(&done), deadline)
     }
 
+    /// The command in flight, else the last sent.
     pub fn last(&self) -> Option<Command> {
-        self.state.lock().last
+        let s = self.state.lock();
+        s.wire.flight.or(s.wire.sent)
     }
 
-    /// The command the device will have next: the pending one, else the last sent.
+    /// The command the device will have next: the pending one, else in flight, else
+    /// the last sent.
     pub fn latest(&self) -> Option<Command> {
-        let s = self.state.lock();
-        s.pending.map(|p| p.command).or(s.last)
+        self.state.lock().wire.latest()
     }
 
     /// Drop the pending command and forget the one to resend (e.g. on engage, so
@@ -233,7 +249,8 @@ impl CommandSlot {
     /// stays known: the interlocks judge by it.
     pub fn reset(&self, to: Option<Command>) {
         let mut s = self.state.lock();
-        s.pending = None;
+        s.wire.pending = None;
+        s.received = None;
         s.resend = to;
     }
 }

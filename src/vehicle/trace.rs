@@ -97,14 +97,14 @@ struct Ring {
 
 /// The bounded trace of one device.
 pub struct Trace {
-    device: &'static str,
+    device: String,
     ring: Mutex<Ring>,
 }
 
 impl Trace {
-    pub fn new(device: &'static str) -> Trace {
+    pub fn new(device: &str) -> Trace {
         Trace {
-            device,
+            device: device.to_string(),
             ring: Mutex::new(Ring {
                 entries: Vec::with_capacity(CAPACITY),
                 next: 0,
@@ -113,8 +113,8 @@ impl Trace {
         }
     }
 
-    pub fn device(&self) -> &'static str {
-        self.device
+    pub fn device(&self) -> &str {
+        &self.device
     }
 
     pub fn record(&self, dir: Dir, bytes: &[u8]) {
@@ -134,7 +134,7 @@ impl Trace {
             r.next = (r.next + 1) % CAPACITY;
         }
         tracing::trace!(
-            device = self.device,
+            device = %self.device,
             "{} {}  |{}|",
             dir.arrow(),
             e.hex(),

@@ -18,8 +18,8 @@
 
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
-use crate::engine::slot::CommandSlot;
-use crate::engine::trace::{Dir, Trace};
+use crate::vehicle::slot::CommandSlot;
+use crate::vehicle::trace::{Dir, Trace};
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::io::{self, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};

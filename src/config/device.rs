@@ -1,0 +1,783 @@
+//! One device of a vehicle file: its free name, its kind (setpoint, state or sensor),
+//! what it takes (a range with units, or a list of named states), what it reports
+//! (named readings with units), how often it is polled, and how its protocol maps all
+//! of that to the wire ([`super::wire`]). The raw TOML form is turned into a checked
+//! [`DeviceConfig`] here; every refusal says what was expected.
+
+use super::wire::{self, Wire};
+use super::{duration, opt_duration, SimConfig};
+use crate::value::{Command, Kind};
+use serde::Deserialize;
+use std::time::Duration;
+use toml::Spanned;
+
+/// Words of the command grammar that cannot name a device.
+pub const RESERVED: [&str; 8] = [
+    "accel",
+    "engage",
+    "disengage",
+    "seq",
+    "tag",
+    "all",
+    "help",
+    "none",
+];
+
+/// The longest device or reading name.
+pub const MAX_NAME: usize = 32;
+
+/// Check a device or reading name: `[a-z][a-z0-9_]*`, at most [`MAX_NAME`] characters.
+pub fn check_name(what: &str, name: &str) -> Result<(), String> {
+    let mut chars = name.chars();
+    let ok = chars.next().is_some_and(|c| c.is_ascii_lowercase())
+        && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
+        && name.len() <= MAX_NAME;
+    if !ok {
+        return Err(format!(
+            "{what} {name:?}: expected a name of lowercase letters, digits and _, starting with a letter, at most {MAX_NAME} characters (e.g. \"steer\", \"turn_signal\")"
+        ));
+    }
+    if RESERVED.contains(&name) {
+        return Err(format!(
+            "{what} {name:?} is a word of the command grammar; choose another name (reserved: {})",
+            RESERVED.join(", ")
+        ));
+    }
+    Ok(())
+}
+
+/// How a driver port is shared by a device's two threads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum PortRule {
+    /// adrive's rule: a status poll yields while a command waits for the port (but
+    /// still runs at least every `status_max_age`).
+    #[default]
+    Priority,
+    /// The paper's rule: first come, first served on a plain lock.
+    Paper,
+}
+
+/// Which protocol a device speaks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DriverKind {
+    /// The adrive ASCII line protocol.
+    Line,
+    /// Modbus RTU: servo drives, linear actuators, pedal robots, battery monitors.
+    Modbus,
+    /// An ELM327 OBD-II adapter.
+    Elm327,
+}
+
+impl DriverKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DriverKind::Line => "line",
+            DriverKind::Modbus => "modbus",
+            DriverKind::Elm327 => "elm327",
+        }
+    }
+}
+
+/// What kind of value a reading holds.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ReadingKind {
+    /// A number in the reading's units.
+    Number,
+    /// Yes or no (an engine running), 1 or 0 on the wire.
+    Flag,
+    /// One of these named states (a gear, an e-stop state), by index.
+    States(Vec<String>),
+}
+
+/// One named value a device reports.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReadingSpec {
+    pub name: String,
+    pub units: String,
+    pub kind: ReadingKind,
+}
+
+impl ReadingSpec {
+    /// The state's name of a value of a state reading.
+    pub fn state_name(&self, v: f64) -> Option<&str> {
+        match &self.kind {
+            ReadingKind::States(s) => s.get(v as usize).map(String::as_str),
+            _ => None,
+        }
+    }
+
+    /// The value for people and JSON.
+    pub fn value(&self, v: f64) -> crate::value::Value {
+        use crate::value::Value;
+        match &self.kind {
+            ReadingKind::Number => Value::Number(v),
+            ReadingKind::Flag => Value::Flag(v != 0.0),
+            ReadingKind::States(s) => s
+                .get(v as usize)
+                .map_or(Value::Number(v), |n| Value::Text(n.clone())),
+        }
+    }
+}
+
+/// A well-known reading: its default units and kind, so a vehicle file can just name it.
+pub struct WellKnown {
+    pub name: &'static str,
+    pub units: &'static str,
+    pub flag: bool,
+    /// The key in the line protocol's status reply.
+    pub line_key: &'static str,
+    /// Decimals shown on screen.
+    pub decimals: usize,
+    pub what: &'static str,
+}
+
+/// The readings adrive knows by name. Any other reading needs its `units`.
+pub const WELL_KNOWN: [WellKnown; 12] = [
+    WellKnown {
+        name: "position",
+        units: "",
+        flag: false,
+        line_key: "pos",
+        decimals: 3,
+        what: "where a setpoint actuator is, in its units",
+    },
+    WellKnown {
+        name: "velocity",
+        units: "/s",
+        flag: false,
+        line_key: "vel",
+        decimals: 3,
+        what: "how fast it moves, units per second",
+    },
+    WellKnown {
+        name: "pressure",
+        units: "bar",
+        flag: false,
+        line_key: "prs",
+        decimals: 1,
+        what: "brake line pressure",
+    },
+    WellKnown {
+        name: "state",
+        units: "",
+        flag: false,
+        line_key: "state",
+        decimals: 0,
+        what: "the state a state actuator reports",
+    },
+    WellKnown {
+        name: "estop",
+        units: "",
+        flag: false,
+        line_key: "estop",
+        decimals: 0,
+        what: "disable, pause or run",
+    },
+    WellKnown {
+        name: "rpm",
+        units: "rpm",
+        flag: false,
+        line_key: "rpm",
+        decimals: 0,
+        what: "engine speed",
+    },
+    WellKnown {
+        name: "speed",
+        units: "m/s",
+        flag: false,
+        line_key: "spd",
+        decimals: 2,
+        what: "road speed",
+    },
+    WellKnown {
+        name: "coolant",
+        units: "°C",
+        flag: false,
+        line_key: "clt",
+        decimals: 0,
+        what: "coolant temperature",
+    },
+    WellKnown {
+        name: "running",
+        units: "",
+        flag: true,
+        line_key: "run",
+        decimals: 0,
+        what: "the engine runs (1) or not (0)",
+    },
+    WellKnown {
+        name: "voltage",
+        units: "V",
+        flag: false,
+        line_key: "volt",
+        decimals: 1,
+        what: "battery voltage",
+    },
+    WellKnown {
+        name: "current",
+        units: "A",
+        flag: false,
+        line_key: "amp",
+        decimals: 1,
+        what: "battery current",
+    },
+    WellKnown {
+        name: "soc",
+        units: "%",
+        flag: false,
+        line_key: "soc",
+        decimals: 0,
+        what: "battery state of charge",
+    },
+];
+
+pub fn well_known(name: &str) -> Option<&'static WellKnown> {
+    WELL_KNOWN.iter().find(|w| w.name == name)
+}
+
+/// One device, checked.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeviceConfig {
+    /// Its free name: how the vehicle file, the network and the console call it.
+    pub name: String,
+    pub kind: Kind,
+    pub driver: DriverKind,
+    /// Serial port path (`/dev/ttyUSB0`, `/dev/serial/by-id/…`). Unused under `--sim`.
+    pub port: String,
+    pub baud: u32,
+    /// How often the status thread polls the device.
+    pub status_period: Duration,
+    /// The command thread resends the last command when no new one came for this long.
+    pub command_timeout: Duration,
+    /// A status poll happens at least this often, even while commands keep the port busy.
+    pub status_max_age: Duration,
+    /// How long one transaction may take, reply included.
+    pub reply_timeout: Duration,
+    /// The paper's rate cap: at least this long between two commands. Off by default.
+    pub min_command_interval: Option<Duration>,
+    pub port_rule: PortRule,
+    /// A setpoint actuator's range `[min, max]`; `[0, 0]` for the others.
+    pub range: [f64; 2],
+    /// A setpoint actuator's units (for people; `""` when unitless).
+    pub units: String,
+    /// A state actuator's states, in order.
+    pub states: Vec<String>,
+    /// Other words for states (`d` for `drive`, the paper's `1`), by state index.
+    pub aliases: Vec<(String, u8)>,
+    /// What it reports, by index (the index of a value in a [`crate::value::Reading`]).
+    pub readings: Vec<ReadingSpec>,
+    /// What this device is commanded when the vehicle goes to its safe state (beyond
+    /// what its role asks: throttle 0, brake full).
+    pub safe: Option<Command>,
+    pub sim: SimConfig,
+    /// How the protocol maps the device to the wire.
+    pub wire: Wire,
+}
+
+impl DeviceConfig {
+    pub fn is_actuator(&self) -> bool {
+        self.kind.is_actuator()
+    }
+
+    /// The command value domain of a setpoint actuator.
+    pub fn range(&self) -> [f64; 2] {
+        self.range
+    }
+
+    /// The index of a reading by name.
+    pub fn reading(&self, name: &str) -> Option<usize> {
+        self.readings.iter().position(|r| r.name == name)
+    }
+
+    /// The state index of a word: a state's name or an alias, any case.
+    pub fn state_index(&self, word: &str) -> Option<u8> {
+        self.states
+            .iter()
+            .position(|s| s.eq_ignore_ascii_case(word))
+            .map(|i| i as u8)
+            .or_else(|| {
+                self.aliases
+                    .iter()
+                    .find(|(a, _)| a.eq_ignore_ascii_case(word))
+                    .map(|(_, i)| *i)
+            })
+    }
+
+    /// A state's name by index.
+    pub fn state_name(&self, i: u8) -> Option<&str> {
+        self.states.get(i as usize).map(String::as_str)
+    }
+
+    /// A command as people and JSON write it.
+    pub fn command_value(&self, c: Command) -> crate::value::Value {
+        use crate::value::Value;
+        match c {
+            Command::Set(v) => Value::Number(v),
+            Command::State(i) => Value::Text(
+                self.state_name(i)
+                    .map_or_else(|| format!("#{i}"), str::to_string),
+            ),
+            Command::Control(c) => Value::Text(c.as_str().to_string()),
+        }
+    }
+
+    /// A command in words: `0.250`, `drive`, `home`.
+    pub fn command_text(&self, c: Command) -> String {
+        match c {
+            Command::Set(v) => format!("{v:.3}"),
+            other => self.command_value(other).to_string(),
+        }
+    }
+
+    /// Read a command from a word, as the network and the console take it: a number
+    /// for a setpoint actuator (finite, inside the range), a state or alias for a
+    /// state actuator. The error says what was expected.
+    pub fn parse_command(&self, word: &str) -> Result<Command, String> {
+        match self.kind {
+            Kind::Setpoint => {
+                let [lo, hi] = self.range;
+                let v: f64 = word.trim().parse().map_err(|_| {
+                    format!("{word:?} is not a number: {} takes {lo} … {hi}", self.name)
+                })?;
+                if !v.is_finite() || v < lo || v > hi {
+                    return Err(format!(
+                        "{v} is out of range: {} takes {lo} … {hi}",
+                        self.name
+                    ));
+                }
+                Ok(Command::Set(v))
+            }
+            Kind::State => self
+                .state_index(word.trim())
+                .map(Command::State)
+                .ok_or_else(|| {
+                    format!(
+                        "{} takes one of {}, got {word:?}",
+                        self.name,
+                        self.states.join(", ")
+                    )
+                }),
+            Kind::Sensor => Err(format!("{} is a sensor: it takes no commands", self.name)),
+        }
+    }
+
+    /// What the device takes, in words: `-1 … 1`, `park | reverse | neutral | drive`.
+    pub fn domain(&self) -> String {
+        match self.kind {
+            Kind::Setpoint => {
+                let [lo, hi] = self.range;
+                format!("{lo} … {hi}{}", unit_suffix(&self.units))
+            }
+            Kind::State => self.states.join(" | "),
+            Kind::Sensor => "reports only".into(),
+        }
+    }
+}
+
+fn unit_suffix(u: &str) -> String {
+    if u.is_empty() {
+        String::new()
+    } else {
+        format!(" {u}")
+    }
+}
+
+/// A device as written in the vehicle file, before checking.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawDevice {
+    name: Spanned<String>,
+    kind: Spanned<Kind>,
+    driver: Spanned<DriverKind>,
+    #[serde(default)]
+    port: Option<Spanned<String>>,
+    #[serde(default = "default_baud")]
+    baud: u32,
+    #[serde(default = "default_status_period", deserialize_with = "duration")]
+    status_period: Duration,
+    #[serde(default = "default_command_timeout", deserialize_with = "duration")]
+    command_timeout: Duration,
+    #[serde(default = "default_status_max_age", deserialize_with = "duration")]
+    status_max_age: Duration,
+    #[serde(default = "default_reply_timeout", deserialize_with = "duration")]
+    reply_timeout: Duration,
+    #[serde(default, deserialize_with = "opt_duration")]
+    min_command_interval: Option<Duration>,
+    #[serde(default)]
+    port_rule: PortRule,
+    #[serde(default)]
+    range: Option<Spanned<Vec<f64>>>,
+    #[serde(default)]
+    units: Option<String>,
+    #[serde(default)]
+    states: Option<Spanned<Vec<String>>>,
+    #[serde(default)]
+    aliases: Option<Spanned<toml::Table>>,
+    #[serde(default)]
+    readings: Option<Spanned<Vec<Spanned<toml::Value>>>>,
+    #[serde(default)]
+    safe: Option<Spanned<toml::Value>>,
+    #[serde(default)]
+    sim: SimConfig,
+    #[serde(default)]
+    modbus: Option<Spanned<wire::RawModbus>>,
+    #[serde(default)]
+    line: Option<Spanned<wire::RawLine>>,
+}
+
+fn default_baud() -> u32 {
+    9600
+}
+fn default_status_period() -> Duration {
+    Duration::from_millis(100)
+}
+fn default_command_timeout() -> Duration {
+    Duration::from_millis(250)
+}
+fn default_status_max_age() -> Duration {
+    Duration::from_millis(500)
+}
+fn default_reply_timeout() -> Duration {
+    Duration::from_millis(200)
+}
+
+/// A refusal and where it points (a byte offset into the file).
+pub(super) type Refusal = (usize, String);
+
+impl RawDevice {
+    /// Where the device starts, for messages about it as a whole.
+    pub(super) fn at(&self) -> usize {
+        self.name.span().start
+    }
+
+    pub(super) fn name(&self) -> &str {
+        self.name.get_ref()
+    }
+
+    /// Check everything about the device on its own; `sim` says the port is not needed.
+    pub(super) fn check(self) -> Result<DeviceConfig, Refusal> {
+        let at_name = self.name.span().start;
+        let name = self.name.into_inner();
+        check_name("device", &name).map_err(|m| (at_name, m))?;
+        let kind = *self.kind.get_ref();
+        let at_kind = self.kind.span().start;
+        let driver = *self.driver.get_ref();
+        let at_driver = self.driver.span().start;
+
+        // What it takes.
+        let range = match (kind, &self.range) {
+            (Kind::Setpoint, None) => {
+                return Err((
+                    at_kind,
+                    format!("{name}: a setpoint device needs `range = [min, max]`"),
+                ))
+            }
+            (Kind::Setpoint, Some(r)) => {
+                let v = r.get_ref();
+                match v.as_slice() {
+                    [lo, hi] if lo.is_finite() && hi.is_finite() && lo < hi => [*lo, *hi],
+                    _ => {
+                        return Err((
+                            r.span().start,
+                            format!(
+                                "{name}: range: expected [min, max], two finite numbers with min < max (got {v:?})"
+                            ),
+                        ))
+                    }
+                }
+            }
+            (_, Some(r)) => {
+                return Err((
+                    r.span().start,
+                    format!("{name}: range is for setpoint devices ({name} is a {kind})"),
+                ))
+            }
+            (_, None) => [0.0, 0.0],
+        };
+        let states = match (kind, self.states) {
+            (Kind::State, None) => {
+                return Err((
+                    at_kind,
+                    format!("{name}: a state device needs `states = [\"…\", …]`"),
+                ))
+            }
+            (Kind::State, Some(s)) => {
+                let at = s.span().start;
+                let list = s.into_inner();
+                check_states(&name, &list).map_err(|m| (at, m))?;
+                list
+            }
+            (_, Some(s)) => {
+                return Err((
+                    s.span().start,
+                    format!("{name}: states are for state devices ({name} is a {kind})"),
+                ))
+            }
+            (_, None) => Vec::new(),
+        };
+        let mut aliases = Vec::new();
+        if let Some(a) = self.aliases {
+            let at = a.span().start;
+            if kind != Kind::State {
+                return Err((at, format!("{name}: aliases are for state devices")));
+            }
+            for (word, target) in a.into_inner() {
+                let Some(target) = target.as_str() else {
+                    return Err((
+                        at,
+                        format!("{name}: aliases: {word} = expected a state name in quotes"),
+                    ));
+                };
+                let Some(i) = states.iter().position(|s| s == target) else {
+                    return Err((
+                        at,
+                        format!(
+                            "{name}: aliases: {word} = {target:?} is not a state (states: {})",
+                            states.join(", ")
+                        ),
+                    ));
+                };
+                if states.iter().any(|s| s.eq_ignore_ascii_case(&word)) {
+                    return Err((at, format!("{name}: aliases: {word:?} is already a state")));
+                }
+                aliases.push((word, i as u8));
+            }
+        }
+
+        // What it reports.
+        let readings = match self.readings {
+            Some(r) => {
+                let at = r.span().start;
+                let list = r.into_inner();
+                if list.is_empty() {
+                    return Err((at, format!("{name}: readings: expected at least one")));
+                }
+                let mut out: Vec<ReadingSpec> = Vec::new();
+                for item in list {
+                    let at = item.span().start;
+                    let spec = reading_spec(&name, kind, &states, item.into_inner())
+                        .map_err(|m| (at, m))?;
+                    if out.iter().any(|o| o.name == spec.name) {
+                        return Err((at, format!("{name}: reading {} is listed twice", spec.name)));
+                    }
+                    out.push(spec);
+                }
+                out
+            }
+            None => match kind {
+                Kind::Setpoint => vec![ReadingSpec {
+                    name: "position".into(),
+                    units: self.units.clone().unwrap_or_default(),
+                    kind: ReadingKind::Number,
+                }],
+                Kind::State => vec![ReadingSpec {
+                    name: "state".into(),
+                    units: String::new(),
+                    kind: ReadingKind::States(states.clone()),
+                }],
+                Kind::Sensor => {
+                    return Err((
+                        at_kind,
+                        format!("{name}: a sensor needs `readings = [\"…\", …]` (what it reports)"),
+                    ))
+                }
+            },
+        };
+        if readings.len() > crate::value::MAX_READINGS {
+            return Err((
+                at_name,
+                format!(
+                    "{name}: at most {} readings a device (got {})",
+                    crate::value::MAX_READINGS,
+                    readings.len()
+                ),
+            ));
+        }
+        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == "position") {
+            return Err((
+                at_name,
+                format!("{name}: a setpoint device reports its `position` (add it to readings)"),
+            ));
+        }
+        let units = self.units.unwrap_or_default();
+        if kind != Kind::Setpoint && !units.is_empty() {
+            return Err((
+                at_name,
+                format!("{name}: units are for setpoint devices (readings carry their own)"),
+            ));
+        }
+
+        let partial = DeviceConfig {
+            name: name.clone(),
+            kind,
+            driver,
+            port: String::new(),
+            baud: self.baud,
+            status_period: self.status_period,
+            command_timeout: self.command_timeout,
+            status_max_age: self.status_max_age,
+            reply_timeout: self.reply_timeout,
+            min_command_interval: self.min_command_interval,
+            port_rule: self.port_rule,
+            range,
+            units,
+            states,
+            aliases,
+            readings,
+            safe: None,
+            sim: self.sim,
+            wire: Wire::Line(Default::default()),
+        };
+        let safe = match self.safe {
+            None => None,
+            Some(s) => {
+                let at = s.span().start;
+                Some(safe_value(&partial, s.get_ref()).map_err(|m| (at, m))?)
+            }
+        };
+        let wire = wire::resolve(&partial, at_driver, self.modbus, self.line)?;
+        let port = self.port.map(Spanned::into_inner).unwrap_or_default();
+        Ok(DeviceConfig {
+            port,
+            safe,
+            wire,
+            ..partial
+        })
+    }
+}
+
+fn check_states(name: &str, list: &[String]) -> Result<(), String> {
+    if list.len() < 2 {
+        return Err(format!(
+            "{name}: states: expected at least two names, e.g. [\"off\", \"on\"]"
+        ));
+    }
+    if list.len() > u8::MAX as usize {
+        return Err(format!("{name}: states: at most 255"));
+    }
+    for (i, s) in list.iter().enumerate() {
+        check_name("state", s).map_err(|m| format!("{name}: {m}"))?;
+        if list[..i].contains(s) {
+            return Err(format!("{name}: state {s} is listed twice"));
+        }
+    }
+    Ok(())
+}
+
+/// One entry of `readings`: a well-known name, or a table
+/// `{ name, units, states = [..], flag = true }`.
+fn reading_spec(
+    device: &str,
+    kind: Kind,
+    states: &[String],
+    v: toml::Value,
+) -> Result<ReadingSpec, String> {
+    let form = "expected a name (\"rpm\") or { name = \"voltage\", units = \"V\" } (or states = [..], flag = true)";
+    let (name, units, rstates, flag) = match v {
+        toml::Value::String(n) => (n, None, None, false),
+        toml::Value::Table(mut t) => {
+            let name = match t.remove("name") {
+                Some(toml::Value::String(n)) => n,
+                _ => return Err(format!("{device}: readings: {form}")),
+            };
+            let units = match t.remove("units") {
+                None => None,
+                Some(toml::Value::String(u)) => Some(u),
+                Some(_) => return Err(format!("{device}: reading {name}: units: expected text")),
+            };
+            let rstates = match t.remove("states") {
+                None => None,
+                Some(toml::Value::Array(a)) => Some(
+                    a.into_iter()
+                        .map(|s| match s {
+                            toml::Value::String(s) => Ok(s),
+                            _ => Err(format!("{device}: reading {name}: states: expected names")),
+                        })
+                        .collect::<Result<Vec<_>, _>>()?,
+                ),
+                Some(_) => {
+                    return Err(format!(
+                        "{device}: reading {name}: states: expected a list of names"
+                    ))
+                }
+            };
+            let flag = match t.remove("flag") {
+                None => false,
+                Some(toml::Value::Boolean(b)) => b,
+                Some(_) => {
+                    return Err(format!(
+                        "{device}: reading {name}: flag: expected true or false"
+                    ))
+                }
+            };
+            if let Some(k) = t.keys().next() {
+                return Err(format!(
+                    "{device}: reading {name}: unknown key {k:?}; expected name, units, states, flag"
+                ));
+            }
+            (name, units, rstates, flag)
+        }
+        _ => return Err(format!("{device}: readings: {form}")),
+    };
+    check_name("reading", &name).map_err(|m| format!("{device}: {m}"))?;
+    let known = well_known(&name);
+    let kind_of = if let Some(s) = rstates {
+        check_states(&format!("{device}.{name}"), &s)?;
+        ReadingKind::States(s)
+    } else if flag || known.is_some_and(|k| k.flag) {
+        ReadingKind::Flag
+    } else if name == "state" {
+        if kind != Kind::State {
+            return Err(format!(
+                "{device}: reading state: give its states (state = {{ name = \"state\", states = [..] }})"
+            ));
+        }
+        ReadingKind::States(states.to_vec())
+    } else if name == "estop" {
+        ReadingKind::States(
+            crate::value::EstopState::ALL
+                .iter()
+                .map(|s| s.as_str().to_string())
+                .collect(),
+        )
+    } else {
+        ReadingKind::Number
+    };
+    let units = match (units, known) {
+        (Some(u), _) => u,
+        (None, Some(k)) => k.units.to_string(),
+        (None, None) if matches!(kind_of, ReadingKind::Number) => {
+            return Err(format!(
+                "{device}: reading {name} is not a well-known one: give its units, e.g. {{ name = \"{name}\", units = \"V\" }}"
+            ))
+        }
+        (None, None) => String::new(),
+    };
+    Ok(ReadingSpec {
+        name,
+        units,
+        kind: kind_of,
+    })
+}
+
+/// A device's own `safe` value: a number in its range, or one of its states.
+fn safe_value(d: &DeviceConfig, v: &toml::Value) -> Result<Command, String> {
+    let name = &d.name;
+    match (d.kind, v) {
+        (Kind::Setpoint, toml::Value::Float(_) | toml::Value::Integer(_)) => {
+            let x = v
+                .as_float()
+                .or(v.as_integer().map(|i| i as f64))
+                .unwrap_or(f64::NAN);
+            d.parse_command(&x.to_string())
+                .map_err(|e| format!("safe: {e}"))
+        }
+        (Kind::State, toml::Value::String(s)) => {
+            d.parse_command(s).map_err(|e| format!("safe: {e}"))
+        }
+        (Kind::Sensor, _) => Err(format!("{name}: safe is for actuators")),
+        _ => Err(format!("{name}: safe: expected {}", d.domain())),
+    }
+}

@@ -1,0 +1,455 @@
+//! Vehicle configuration: which devices exist, by name and kind, how to reach them,
+//! how often to poll them, and which of them the safety rules act on (the role
+//! bindings). Loaded from TOML; the built-in simulated Alice is `vehicles/alice.toml`,
+//! compiled in. Loading is split into [`load`] (a path) and [`parse`] (text) so tests
+//! feed bytes, and every error names the file, the line and what was expected.
+//!
+//! - [`device`]: one device, its kind, states and readings;
+//! - [`wire`]: how each protocol maps a device to the wire;
+//! - [`roles`]: the safety roles, bound to devices and readings.
+
+pub mod device;
+pub mod roles;
+pub mod wire;
+
+pub use crate::net::config::NetworkConfig;
+pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
+pub use roles::{Bindings, Role};
+use serde::{Deserialize, Deserializer};
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::Path;
+use std::time::Duration;
+use toml::Spanned;
+
+/// The built-in vehicle, as shipped in `vehicles/alice.toml`.
+pub const ALICE_TOML: &str = include_str!("../../vehicles/alice.toml");
+/// The name errors in the built-in vehicle are reported under.
+pub const ALICE_PATH: &str = "vehicles/alice.toml";
+
+/// A configuration error: `file:line: message`.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{path}:{line}: {message}")]
+pub struct ConfigError {
+    pub path: String,
+    pub line: usize,
+    pub message: String,
+}
+
+/// How a simulated reading behaves: a value, optionally ramping and noisy, or a
+/// multiple of the device's own position (a brake's pressure).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimReading {
+    #[serde(default)]
+    pub value: f64,
+    /// Gaussian-ish noise of this standard deviation on every reading.
+    #[serde(default)]
+    pub noise: f64,
+    /// Ramp from `value` to this over `ramp_time`, then stay.
+    #[serde(default)]
+    pub ramp_to: Option<f64>,
+    #[serde(default = "default_ramp", deserialize_with = "duration")]
+    pub ramp_time: Duration,
+    /// Report the device's position times this instead.
+    #[serde(default)]
+    pub per_position: Option<f64>,
+}
+
+fn default_ramp() -> Duration {
+    Duration::from_secs(60)
+}
+
+/// Settings of the simulated device standing in for this one under `--sim`.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimConfig {
+    /// Time the device takes to start answering once a request is complete.
+    #[serde(default = "default_turnaround", deserialize_with = "duration")]
+    pub turnaround: Duration,
+    /// Extra processing time for a status request (a slow device).
+    #[serde(default, deserialize_with = "duration")]
+    pub poll_delay: Duration,
+    /// Extra processing time for a command.
+    #[serde(default, deserialize_with = "duration")]
+    pub command_delay: Duration,
+    /// The device's own watchdog, as drive-by-wire firmware has: with no command frame
+    /// for this long, the device goes to its safe value by itself.
+    #[serde(default, deserialize_with = "opt_duration")]
+    pub watchdog: Option<Duration>,
+    /// A setpoint actuator moves toward its command at most this fast (units/s) …
+    #[serde(default)]
+    pub rate: Option<f64>,
+    /// … or follows it with this first-order lag (without either: at once).
+    #[serde(default, deserialize_with = "opt_duration")]
+    pub lag: Option<Duration>,
+    /// A state actuator settles into a new state after this long …
+    #[serde(default, deserialize_with = "duration")]
+    pub settle: Duration,
+    /// … reporting this state meanwhile (default: the old one).
+    #[serde(default)]
+    pub transit: Option<String>,
+    /// How sensor readings behave, by reading name. Readings bound to a role, and
+    /// rpm and coolant, come from the simulated vehicle unless listed here.
+    #[serde(default)]
+    pub readings: BTreeMap<String, SimReading>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            turnaround: default_turnaround(),
+            poll_delay: Duration::ZERO,
+            command_delay: Duration::ZERO,
+            watchdog: None,
+            rate: None,
+            lag: None,
+            settle: Duration::ZERO,
+            transit: None,
+            readings: BTreeMap::new(),
+        }
+    }
+}
+
+fn default_turnaround() -> Duration {
+    Duration::from_millis(2)
+}
+
+/// Vehicle-wide settings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VehicleSettings {
+    pub name: String,
+}
+
+/// How the supervisor watches and recovers (`[supervisor]` in the vehicle file).
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SupervisorConfig {
+    /// How often it looks (the paper's was 1 s).
+    #[serde(deserialize_with = "duration")]
+    pub period: Duration,
+    /// Failed transactions over all transactions in `error_window` above which a device
+    /// is at fault.
+    pub error_rate: f64,
+    #[serde(deserialize_with = "duration")]
+    pub error_window: Duration,
+    /// A measured value further than this from its command …
+    pub follow_tolerance: f64,
+    /// … for longer than this is "not following".
+    #[serde(deserialize_with = "duration")]
+    pub follow_time: Duration,
+    /// Reported positions may stray this fraction of the range outside it.
+    pub range_margin: f64,
+    /// Tries of a recovery procedure before it gives up.
+    pub attempts: u32,
+    /// Time a recovery step may take.
+    #[serde(deserialize_with = "duration")]
+    pub step_timeout: Duration,
+    /// A procedure that gives up is a fatal device error: end the process (status 4)
+    /// after the safe state, so a service manager can act.
+    pub exit_on_give_up: bool,
+    /// Fault injection for tests (`--inject-panic supervisor:DELAY`).
+    #[serde(skip)]
+    pub panic_for_test: Option<Duration>,
+}
+
+impl Default for SupervisorConfig {
+    fn default() -> Self {
+        SupervisorConfig {
+            period: Duration::from_millis(100),
+            error_rate: 0.5,
+            error_window: Duration::from_secs(2),
+            follow_tolerance: 0.1,
+            follow_time: Duration::from_millis(2500),
+            range_margin: 0.05,
+            attempts: 3,
+            step_timeout: Duration::from_secs(4),
+            exit_on_give_up: true,
+            panic_for_test: None,
+        }
+    }
+}
+
+/// A whole vehicle.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VehicleConfig {
+    pub vehicle: VehicleSettings,
+    /// Which devices and readings the safety rules act on.
+    pub roles: Bindings,
+    pub supervisor: SupervisorConfig,
+    pub devices: Vec<DeviceConfig>,
+    /// `[network]`: the command listener, watchdog and state broadcast.
+    pub network: NetworkConfig,
+    /// Where it was loaded from (for messages).
+    pub source: String,
+}
+
+impl VehicleConfig {
+    /// The built-in simulated Alice.
+    pub fn alice() -> VehicleConfig {
+        parse(ALICE_TOML, ALICE_PATH).expect("the built-in vehicle parses")
+    }
+
+    /// A device by name.
+    pub fn device(&self, name: &str) -> Option<&DeviceConfig> {
+        self.devices.iter().find(|d| d.name == name)
+    }
+
+    /// The device bound to `role`.
+    pub fn bound(&self, role: Role) -> Option<&DeviceConfig> {
+        self.roles.device(role).map(|id| &self.devices[id.index()])
+    }
+
+    /// Keep only the named devices (`--only`); bindings to the others are dropped.
+    /// Every name must exist.
+    pub fn retain_only(&mut self, only: &[String]) -> Result<(), String> {
+        if only.is_empty() {
+            return Ok(());
+        }
+        for n in only {
+            if self.device(n).is_none() {
+                return Err(format!(
+                    "--only {n}: no such device (devices: {})",
+                    self.devices
+                        .iter()
+                        .map(|d| d.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ));
+            }
+        }
+        let keep: Vec<bool> = self
+            .devices
+            .iter()
+            .map(|d| only.contains(&d.name))
+            .collect();
+        let mut map = Vec::new();
+        let mut next = 0u16;
+        for k in &keep {
+            map.push(k.then(|| {
+                next += 1;
+                crate::value::DeviceId(next - 1)
+            }));
+        }
+        let m = |id: crate::value::DeviceId| map[id.index()];
+        let r = &mut self.roles;
+        r.steering = r.steering.and_then(m);
+        r.throttle = r.throttle.and_then(m);
+        r.brake = r.brake.and_then(m);
+        r.starter = r.starter.and_then(m);
+        r.gear = r.gear.take().and_then(|mut g| {
+            g.device = m(g.device)?;
+            Some(g)
+        });
+        r.estop = r.estop.and_then(|mut e| {
+            e.at.device = m(e.at.device)?;
+            Some(e)
+        });
+        let reading = |x: Option<roles::ReadingRef>| {
+            x.and_then(|mut x| {
+                x.device = m(x.device)?;
+                Some(x)
+            })
+        };
+        r.speed = reading(r.speed);
+        r.engine_running = reading(r.engine_running);
+        let mut i = 0;
+        self.devices.retain(|_| {
+            i += 1;
+            keep[i - 1]
+        });
+        Ok(())
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawVehicle {
+    name: String,
+    #[serde(default)]
+    roles: Option<roles::RawRoles>,
+    #[serde(default)]
+    gear: Option<Spanned<roles::RawGear>>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Raw {
+    vehicle: RawVehicle,
+    #[serde(default)]
+    supervisor: SupervisorConfig,
+    #[serde(default)]
+    device: Vec<Spanned<device::RawDevice>>,
+    #[serde(default)]
+    network: Option<Spanned<NetworkConfig>>,
+}
+
+/// Load a vehicle from a file.
+pub fn load(path: &Path) -> Result<VehicleConfig, ConfigError> {
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        path: name.clone(),
+        line: 0,
+        message: format!("cannot read: {e}"),
+    })?;
+    parse(&text, &name)
+}
+
+/// Parse a vehicle from TOML text; `path` names it in errors.
+pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
+    let err = |offset: usize, message: String| ConfigError {
+        path: path.to_string(),
+        line: line_of(text, offset),
+        message,
+    };
+    let raw: Raw = toml::from_str(text).map_err(|e| {
+        let offset = e.span().map(|s| s.start).unwrap_or(0);
+        err(offset, e.message().trim().to_string())
+    })?;
+    let mut devices: Vec<DeviceConfig> = Vec::new();
+    for spanned in raw.device {
+        let at = spanned.span().start;
+        let raw_device = spanned.into_inner();
+        if devices.iter().any(|o| o.name == raw_device.name()) {
+            return Err(err(
+                raw_device.at(),
+                format!(
+                    "device {} is defined twice (names must be unique)",
+                    raw_device.name()
+                ),
+            ));
+        }
+        let d = raw_device.check().map_err(|(o, m)| err(o.max(at), m))?;
+        if d.baud == 0 {
+            return Err(err(
+                at,
+                format!("baud of {}: expected a positive number", d.name),
+            ));
+        }
+        if d.status_period.is_zero() || d.reply_timeout.is_zero() || d.command_timeout.is_zero() {
+            return Err(err(
+                at,
+                format!(
+                    "{}: status_period, command_timeout and reply_timeout must be above zero",
+                    d.name
+                ),
+            ));
+        }
+        if d.status_max_age < d.status_period {
+            return Err(err(
+                at,
+                format!(
+                    "{}: status_max_age ({}) must be at least status_period ({})",
+                    d.name,
+                    humantime::format_duration(d.status_max_age),
+                    humantime::format_duration(d.status_period)
+                ),
+            ));
+        }
+        check_sim(&d).map_err(|m| err(at, m))?;
+        devices.push(d);
+    }
+    if devices.len() > u16::MAX as usize {
+        return Err(err(0, "too many devices".into()));
+    }
+    let roles = roles::bind(
+        raw.vehicle.roles.unwrap_or_default(),
+        raw.vehicle.gear,
+        &devices,
+    )
+    .map_err(|(o, m)| err(o, m))?;
+    let network = match raw.network {
+        Some(n) => {
+            let at = n.span().start;
+            let n = n.into_inner();
+            n.check().map_err(|m| err(at, format!("[network] {m}")))?;
+            n
+        }
+        None => NetworkConfig::default(),
+    };
+    Ok(VehicleConfig {
+        vehicle: VehicleSettings {
+            name: raw.vehicle.name,
+        },
+        roles,
+        supervisor: raw.supervisor,
+        devices,
+        network,
+        source: path.to_string(),
+    })
+}
+
+/// The simulator's settings must name the device's own states and readings.
+fn check_sim(d: &DeviceConfig) -> Result<(), String> {
+    let name = &d.name;
+    if let Some(t) = &d.sim.transit {
+        if d.state_index(t).is_none() {
+            return Err(format!(
+                "{name}: sim.transit: {t:?} is not one of its states ({})",
+                d.states.join(", ")
+            ));
+        }
+    }
+    for r in d.sim.readings.keys() {
+        if d.reading(r).is_none() {
+            return Err(format!(
+                "{name}: sim.readings: {r:?} is not one of its readings"
+            ));
+        }
+    }
+    if d.sim.rate.is_some_and(|r| !(r.is_finite() && r > 0.0)) {
+        return Err(format!(
+            "{name}: sim.rate: expected units per second above 0"
+        ));
+    }
+    Ok(())
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    text.as_bytes()[..offset.min(text.len())]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+struct Expected(&'static str);
+impl serde::de::Expected for Expected {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.0)
+    }
+}
+
+/// A duration written as `"250ms"`, `"1s"`, `"1m 30s"`.
+pub fn parse_duration(s: &str) -> Result<Duration, String> {
+    humantime::parse_duration(s.trim())
+        .map_err(|_| format!("expected a duration such as \"250ms\" or \"1s\", got {s:?}"))
+}
+
+pub(crate) fn duration<'de, D: Deserializer<'de>>(d: D) -> Result<Duration, D::Error> {
+    let s = String::deserialize(d).map_err(|_| {
+        serde::de::Error::invalid_type(
+            serde::de::Unexpected::Other("a non-string"),
+            &Expected("a duration string such as \"250ms\""),
+        )
+    })?;
+    parse_duration(&s).map_err(serde::de::Error::custom)
+}
+
+pub(crate) fn opt_duration<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Duration>, D::Error> {
+    duration(d).map(Some)
+}
+
+#[cfg(test)]
+mod tests;
+
+/// One device from a vehicle-file fragment (the lines of its `[[device]]` table), for
+/// unit tests of drivers and simulated devices.
+#[cfg(test)]
+pub(crate) fn one_device(fragment: &str) -> DeviceConfig {
+    let text = format!("[vehicle]\nname = \"t\"\n[[device]]\n{fragment}\n");
+    match parse(&text, "test.toml") {
+        Ok(mut v) => v.devices.remove(0),
+        Err(e) => panic!("{e}\n{text}"),
+    }
+}

@@ -1,0 +1,470 @@
+//! Safety roles as bindings. The safety rules, the safe state, `accel` and the
+//! supervisor's procedures never name a device: they ask for the device (or the
+//! reading) bound to a role in `[vehicle.roles]`. A rule whose devices are not bound is
+//! simply absent (a cart without a gearbox has no shift rule), and adrive says at start
+//! which rules are active and what is missing.
+
+use super::device::{DeviceConfig, ReadingKind, Refusal};
+use crate::value::{DeviceId, EstopState, Kind};
+use serde::Deserialize;
+use std::fmt;
+use toml::Spanned;
+
+/// The roles the safety rules need.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Role {
+    /// A setpoint actuator: the steering (held where it is on engage).
+    Steering,
+    /// A setpoint actuator: the throttle (0 in the safe state).
+    Throttle,
+    /// A setpoint actuator: the brake (its maximum in the safe state).
+    Brake,
+    /// A state actuator: the gearbox or direction switch.
+    Gear,
+    /// A state reading with disable, pause and run.
+    Estop,
+    /// A number reading: road speed, m/s.
+    Speed,
+    /// A flag (or number, non-zero) reading: the engine runs.
+    EngineRunning,
+    /// An actuator that takes the `start` control.
+    Starter,
+}
+
+impl Role {
+    pub const ALL: [Role; 8] = [
+        Role::Steering,
+        Role::Throttle,
+        Role::Brake,
+        Role::Gear,
+        Role::Estop,
+        Role::Speed,
+        Role::EngineRunning,
+        Role::Starter,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Role::Steering => "steering",
+            Role::Throttle => "throttle",
+            Role::Brake => "brake",
+            Role::Gear => "gear",
+            Role::Estop => "estop",
+            Role::Speed => "speed",
+            Role::EngineRunning => "engine_running",
+            Role::Starter => "starter",
+        }
+    }
+
+    /// Older names still understood (keymaps written for Alice's device names).
+    pub fn from_word(w: &str) -> Option<Role> {
+        match w {
+            "steer" => Some(Role::Steering),
+            "gas" => Some(Role::Throttle),
+            "trans" => Some(Role::Gear),
+            _ => Role::ALL.into_iter().find(|r| r.as_str() == w),
+        }
+    }
+}
+
+impl fmt::Display for Role {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A reading of a device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReadingRef {
+    pub device: DeviceId,
+    pub reading: usize,
+}
+
+/// The gearbox binding: which of its states drive forward or backward, and which one
+/// parks (where an engine is started).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GearBinding {
+    pub device: DeviceId,
+    pub forward: Vec<u8>,
+    pub reverse: Vec<u8>,
+    /// The state to start the engine in (park, else neutral).
+    pub park: Option<u8>,
+}
+
+impl GearBinding {
+    /// A state in which the engine drives the wheels.
+    pub fn drives(&self, state: u8) -> bool {
+        self.forward.contains(&state) || self.reverse.contains(&state)
+    }
+
+    pub fn is_reverse(&self, state: u8) -> bool {
+        self.reverse.contains(&state)
+    }
+}
+
+/// The e-stop binding: a state reading and which of its states mean what.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstopBinding {
+    pub at: ReadingRef,
+    /// State index of disable, pause, run.
+    pub states: [u8; 3],
+}
+
+impl EstopBinding {
+    /// What a reported value means (an unknown state counts as disable).
+    pub fn state(&self, v: f64) -> EstopState {
+        let i = v as u8;
+        if i == self.states[2] {
+            EstopState::Run
+        } else if i == self.states[1] {
+            EstopState::Pause
+        } else {
+            EstopState::Disable
+        }
+    }
+}
+
+/// Every binding of a vehicle, checked against its devices.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Bindings {
+    pub steering: Option<DeviceId>,
+    pub throttle: Option<DeviceId>,
+    pub brake: Option<DeviceId>,
+    pub gear: Option<GearBinding>,
+    pub estop: Option<EstopBinding>,
+    pub speed: Option<ReadingRef>,
+    pub engine_running: Option<ReadingRef>,
+    pub starter: Option<DeviceId>,
+}
+
+impl Bindings {
+    /// The actuator bound to `role`, if that role binds an actuator.
+    pub fn actuator(&self, role: Role) -> Option<DeviceId> {
+        match role {
+            Role::Steering => self.steering,
+            Role::Throttle => self.throttle,
+            Role::Brake => self.brake,
+            Role::Gear => self.gear.as_ref().map(|g| g.device),
+            Role::Starter => self.starter,
+            Role::Estop | Role::Speed | Role::EngineRunning => None,
+        }
+    }
+
+    /// The device a role reaches (an actuator, or the device of a reading).
+    pub fn device(&self, role: Role) -> Option<DeviceId> {
+        match role {
+            Role::Estop => self.estop.map(|e| e.at.device),
+            Role::Speed => self.speed.map(|r| r.device),
+            Role::EngineRunning => self.engine_running.map(|r| r.device),
+            other => self.actuator(other),
+        }
+    }
+
+    pub fn is_bound(&self, role: Role) -> bool {
+        self.device(role).is_some()
+    }
+
+    /// The roles an actuator plays (commands to it are checked by their rules).
+    pub fn roles_of(&self, d: DeviceId) -> impl Iterator<Item = Role> + '_ {
+        Role::ALL
+            .into_iter()
+            .filter(move |r| self.actuator(*r) == Some(d))
+    }
+
+    /// `accel` exists when throttle and brake are bound.
+    pub fn has_accel(&self) -> bool {
+        self.throttle.is_some() && self.brake.is_some()
+    }
+}
+
+/// `[vehicle.roles]` as written: role = "device" or "device.reading".
+#[derive(Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawRoles {
+    steering: Option<Spanned<String>>,
+    throttle: Option<Spanned<String>>,
+    brake: Option<Spanned<String>>,
+    gear: Option<Spanned<String>>,
+    estop: Option<Spanned<String>>,
+    speed: Option<Spanned<String>>,
+    engine_running: Option<Spanned<String>>,
+    starter: Option<Spanned<String>>,
+}
+
+/// `[vehicle.gear]`: which gearbox states drive, and where to park.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawGear {
+    #[serde(default)]
+    forward: Vec<String>,
+    #[serde(default)]
+    reverse: Vec<String>,
+    #[serde(default)]
+    park: Option<String>,
+}
+
+/// Check every binding against the devices.
+pub(super) fn bind(
+    raw: RawRoles,
+    gear: Option<Spanned<RawGear>>,
+    devices: &[DeviceConfig],
+) -> Result<Bindings, Refusal> {
+    let find = |s: &Spanned<String>| -> Result<(DeviceId, Option<usize>), Refusal> {
+        let at = s.span().start;
+        let text = s.get_ref();
+        let (dev, reading) = match text.split_once('.') {
+            Some((d, r)) => (d, Some(r)),
+            None => (text.as_str(), None),
+        };
+        let Some(i) = devices.iter().position(|d| d.name == dev) else {
+            return Err((
+                at,
+                format!(
+                    "roles: no device named {dev:?} (devices: {})",
+                    devices
+                        .iter()
+                        .map(|d| d.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            ));
+        };
+        let reading = match reading {
+            None => None,
+            Some(r) => Some(devices[i].reading(r).ok_or_else(|| {
+                (
+                    at,
+                    format!(
+                        "roles: {dev} has no reading {r:?} (its readings: {})",
+                        devices[i]
+                            .readings
+                            .iter()
+                            .map(|r| r.name.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                )
+            })?),
+        };
+        Ok((DeviceId(i as u16), reading))
+    };
+    let actuator = |role: Role,
+                    s: &Option<Spanned<String>>,
+                    want: Kind|
+     -> Result<Option<DeviceId>, Refusal> {
+        let Some(s) = s else { return Ok(None) };
+        let (id, reading) = find(s)?;
+        let d = &devices[id.index()];
+        let at = s.span().start;
+        if reading.is_some() {
+            return Err((
+                at,
+                format!(
+                    "roles: {role} binds a device, not a reading (write {:?})",
+                    d.name
+                ),
+            ));
+        }
+        if d.kind != want {
+            return Err((
+                at,
+                format!(
+                    "roles: {role} must be a {want} device; {} is a {}",
+                    d.name, d.kind
+                ),
+            ));
+        }
+        Ok(Some(id))
+    };
+    let reading = |role: Role,
+                   s: &Option<Spanned<String>>,
+                   default: &[&str],
+                   ok: &dyn Fn(&ReadingKind) -> bool,
+                   want: &str|
+     -> Result<Option<ReadingRef>, Refusal> {
+        let Some(s) = s else { return Ok(None) };
+        let (id, r) = find(s)?;
+        let d = &devices[id.index()];
+        let at = s.span().start;
+        let r = match r {
+            Some(r) => r,
+            None => default.iter().find_map(|n| d.reading(n)).ok_or_else(|| {
+                (
+                    at,
+                    format!(
+                        "roles: {role} = {:?}: name the reading as \"{}.READING\"",
+                        d.name, d.name
+                    ),
+                )
+            })?,
+        };
+        if !ok(&d.readings[r].kind) {
+            return Err((
+                at,
+                format!(
+                    "roles: {role} must be {want}; {}.{} is not",
+                    d.name, d.readings[r].name
+                ),
+            ));
+        }
+        Ok(Some(ReadingRef {
+            device: id,
+            reading: r,
+        }))
+    };
+
+    let mut b = Bindings {
+        steering: actuator(Role::Steering, &raw.steering, Kind::Setpoint)?,
+        throttle: actuator(Role::Throttle, &raw.throttle, Kind::Setpoint)?,
+        brake: actuator(Role::Brake, &raw.brake, Kind::Setpoint)?,
+        ..Bindings::default()
+    };
+    for (role, id) in [(Role::Throttle, b.throttle), (Role::Brake, b.brake)] {
+        if let Some(id) = id {
+            let [lo, _] = devices[id.index()].range;
+            if lo != 0.0 {
+                let at = if role == Role::Throttle {
+                    &raw.throttle
+                } else {
+                    &raw.brake
+                };
+                return Err((
+                    at.as_ref().map_or(0, |s| s.span().start),
+                    format!(
+                        "roles: {role} {}: its range must start at 0 (released), got [{lo}, …]",
+                        devices[id.index()].name
+                    ),
+                ));
+            }
+        }
+    }
+    if b.throttle.is_some() && b.throttle == b.brake {
+        return Err((0, "roles: throttle and brake must be two devices".into()));
+    }
+    if let Some(g) = actuator(Role::Gear, &raw.gear, Kind::State)? {
+        let d = &devices[g.index()];
+        let at = raw.gear.as_ref().map_or(0, |s| s.span().start);
+        let Some(spec) = gear else {
+            return Err((
+                at,
+                format!(
+                    "roles: gear needs a [vehicle.gear] table saying which of {}'s states drive, e.g. forward = [\"drive\"], reverse = [\"reverse\"], park = \"park\"",
+                    d.name
+                ),
+            ));
+        };
+        let at = spec.span().start;
+        let spec = spec.into_inner();
+        let state = |s: &str| {
+            d.states
+                .iter()
+                .position(|x| x == s)
+                .map(|i| i as u8)
+                .ok_or_else(|| {
+                    (
+                        at,
+                        format!(
+                            "vehicle.gear: {s:?} is not a state of {} ({})",
+                            d.name,
+                            d.states.join(", ")
+                        ),
+                    )
+                })
+        };
+        let forward = spec
+            .forward
+            .iter()
+            .map(|s| state(s))
+            .collect::<Result<Vec<_>, _>>()?;
+        let reverse = spec
+            .reverse
+            .iter()
+            .map(|s| state(s))
+            .collect::<Result<Vec<_>, _>>()?;
+        if forward.is_empty() && reverse.is_empty() {
+            return Err((
+                at,
+                "vehicle.gear: expected at least one state in forward or reverse".into(),
+            ));
+        }
+        if forward.iter().any(|s| reverse.contains(s)) {
+            return Err((
+                at,
+                "vehicle.gear: a state cannot drive both forward and reverse".into(),
+            ));
+        }
+        let park = spec.park.as_deref().map(state).transpose()?;
+        if park.is_some_and(|p| forward.contains(&p) || reverse.contains(&p)) {
+            return Err((
+                at,
+                "vehicle.gear: park must be a state that does not drive".into(),
+            ));
+        }
+        b.gear = Some(GearBinding {
+            device: g,
+            forward,
+            reverse,
+            park,
+        });
+    } else if let Some(g) = gear {
+        return Err((
+            g.span().start,
+            "vehicle.gear goes with a gear binding in [vehicle.roles]".into(),
+        ));
+    }
+    let estop_kind = |k: &ReadingKind| match k {
+        ReadingKind::States(s) => EstopState::ALL
+            .iter()
+            .all(|e| s.iter().any(|x| x == e.as_str())),
+        _ => false,
+    };
+    if let Some(r) = reading(
+        Role::Estop,
+        &raw.estop,
+        &["estop", "state"],
+        &estop_kind,
+        "a state reading with disable, pause and run",
+    )? {
+        let ReadingKind::States(s) = &devices[r.device.index()].readings[r.reading].kind else {
+            unreachable!("checked above")
+        };
+        let idx = |e: EstopState| s.iter().position(|x| x == e.as_str()).expect("checked") as u8;
+        b.estop = Some(EstopBinding {
+            at: r,
+            states: [
+                idx(EstopState::Disable),
+                idx(EstopState::Pause),
+                idx(EstopState::Run),
+            ],
+        });
+    }
+    b.speed = reading(
+        Role::Speed,
+        &raw.speed,
+        &["speed"],
+        &|k| *k == ReadingKind::Number,
+        "a number reading (m/s)",
+    )?;
+    b.engine_running = reading(
+        Role::EngineRunning,
+        &raw.engine_running,
+        &["running"],
+        &|k| matches!(k, ReadingKind::Flag | ReadingKind::Number),
+        "a flag reading",
+    )?;
+    if let Some(s) = &raw.starter {
+        let (id, r) = find(s)?;
+        let d = &devices[id.index()];
+        if r.is_some() || !d.is_actuator() {
+            return Err((
+                s.span().start,
+                format!(
+                    "roles: starter must be an actuator that takes the start control; {} is not",
+                    d.name
+                ),
+            ));
+        }
+        b.starter = Some(id);
+    }
+    Ok(b)
+}

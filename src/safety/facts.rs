@@ -1,0 +1,155 @@
+//! What the rules need to know, gathered from the bound devices' slots and caches —
+//! and only what the command at hand needs: a command to a device no rule looks at
+//! gathers nothing, and each fact locks one slot or one cache once.
+
+use super::rules::{Facts, Plays};
+use super::wire::WireFacts;
+use crate::config::Bindings;
+use crate::value::Command;
+use crate::vehicle::slot::WireState;
+use crate::vehicle::{Device, Vehicle};
+
+/// A set point as a fraction of its device's range top.
+fn fraction(d: &Device, v: f64) -> f64 {
+    let hi = d.config.range[1];
+    if hi > 0.0 {
+        v / hi
+    } else {
+        v
+    }
+}
+
+fn extremes(d: &Device, values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let (lo, hi) = values
+        .map(|v| fraction(d, v))
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    lo.is_finite().then_some((lo, hi))
+}
+
+/// The brake's lowest and highest value pending, in flight, sent or acknowledged —
+/// or, with nothing commanded yet, what it reports.
+fn brake(v: &Vehicle, b: &Bindings) -> Option<(f64, f64)> {
+    let d = v.device(b.brake?);
+    extremes(d, d.slot.wire().set_points()).or_else(|| {
+        let p = d.reading(d.config.reading("position")?)?;
+        Some((fraction(d, p), fraction(d, p)))
+    })
+}
+
+/// The gear reported, whether it drives, and whether a shift is under way (a gear
+/// commanded that the gearbox does not report yet).
+fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
+    let Some(g) = &b.gear else {
+        return (None, false, false);
+    };
+    let d = v.device(g.device);
+    let reported = d
+        .config
+        .reading("state")
+        .and_then(|i| d.reading(i))
+        .map(|x| x as u8);
+    let shifting = match d.slot.latest() {
+        Some(Command::State(s)) => reported != Some(s),
+        _ => false,
+    };
+    (reported, reported.is_some_and(|s| g.drives(s)), shifting)
+}
+
+/// Facts for an intake check of a command to a device that plays `plays`.
+pub fn gather(v: &Vehicle, plays: Plays) -> Facts {
+    if plays.is_free() {
+        return Facts::default();
+    }
+    let b = v.bindings();
+    let mut f = Facts::default();
+    if plays.throttle || plays.gear {
+        if let Some((lo, hi)) = brake(v, b) {
+            f.brake_low = Some(lo);
+            f.brake_high = Some(hi);
+        }
+    }
+    if plays.throttle || plays.brake || plays.gear || plays.starter {
+        (f.gear, f.in_gear, f.shifting) = gear(v, b);
+    }
+    if plays.throttle {
+        f.running = b
+            .engine_running
+            .and_then(|r| v.reading(r))
+            .map(|x| x != 0.0);
+    }
+    if plays.throttle || plays.brake {
+        f.estop = v.estop();
+    }
+    if plays.gear {
+        f.speed = b.speed.and_then(|r| v.reading(r));
+    }
+    f
+}
+
+/// Facts for the wire check of a command to a device that plays `plays`.
+pub fn gather_wire(v: &Vehicle, plays: Plays) -> WireFacts {
+    let b = v.bindings();
+    let mut f = WireFacts {
+        throttle_released: true,
+        ..WireFacts::default()
+    };
+    if plays.throttle || plays.gear {
+        if let Some(id) = b.brake {
+            let d = v.device(id);
+            let w = d.slot.wire();
+            let on_wire = [w.pending, w.flight, w.sent]
+                .into_iter()
+                .flatten()
+                .filter_map(Command::set_point);
+            f.brake_high = extremes(d, on_wire).map(|(_, hi)| hi);
+            f.brake_low = extremes(d, w.set_points()).map(|(lo, _)| lo);
+        }
+    }
+    if plays.brake {
+        if let Some(id) = b.throttle {
+            let d = v.device(id);
+            let w = d.slot.wire();
+            f.throttle_released = throttle_released(d, &w);
+            f.throttle_going = [w.pending, w.flight]
+                .into_iter()
+                .flatten()
+                .filter_map(Command::set_point)
+                .any(|x| fraction(d, x) > super::rules::RELEASED);
+        }
+        if let Some(g) = &b.gear {
+            let d = v.device(g.device);
+            let reported = d
+                .config
+                .reading("state")
+                .and_then(|i| d.reading(i))
+                .map(|x| x as u8);
+            let w = d.slot.wire();
+            f.shift_on_its_way = matches!(w.pending.or(w.flight), Some(Command::State(s)) if Some(s) != reported && w.sent != Some(Command::State(s)));
+        }
+    }
+    if plays.throttle {
+        f.estop = v.estop();
+    }
+    if plays.gear {
+        let (gear, _, _) = gear(v, b);
+        f.gear = gear;
+        f.speed = b.speed.and_then(|r| v.reading(r));
+    }
+    f
+}
+
+/// The throttle has nothing above released pending, in flight or last sent.
+pub fn throttle_released(d: &Device, w: &WireState) -> bool {
+    [w.pending, w.flight, w.sent]
+        .into_iter()
+        .flatten()
+        .filter_map(Command::set_point)
+        .all(|x| fraction(d, x) <= super::rules::RELEASED)
+}
+
+/// A set point of `d` as a fraction of its range top (the rules' scale).
+pub fn share(d: &Device, v: f64) -> f64 {
+    fraction(d, v)
+}

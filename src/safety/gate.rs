@@ -1,0 +1,65 @@
+//! The engage gate's blockers and its monitor. [`blockers`] is the one list of what
+//! refuses an engage right now — a faulty device, a device that has not reported yet,
+//! the e-stop in pause or disable; the monitor thread (`gate/monitor`) disengages an
+//! engaged vehicle as soon as that list is not empty, whoever engaged it (console or
+//! network). Both read the caches only.
+
+use super::Gate;
+use crate::threads::{StopSignal, Threads};
+use crate::value::EstopState;
+use crate::vehicle::Vehicle;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// How often the monitor looks.
+pub const EVERY: Duration = Duration::from_millis(10);
+
+/// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
+pub fn blockers(v: &Vehicle) -> Vec<String> {
+    let mut why = Vec::new();
+    for d in &v.devices {
+        if d.is_faulty() {
+            why.push(format!(
+                "{} is faulty ({})",
+                d.name(),
+                d.health.last_error().unwrap_or_default()
+            ));
+        } else if d.cached().at.is_none() {
+            why.push(format!("{} has not reported yet", d.name()));
+        }
+    }
+    if let Some(s @ (EstopState::Pause | EstopState::Disable)) = v.estop() {
+        why.push(format!("e-stop is in {s}"));
+    }
+    why
+}
+
+/// The running monitor.
+pub struct Monitor {
+    stop: Arc<StopSignal>,
+    threads: Threads,
+}
+
+impl Monitor {
+    pub fn start(gate: Arc<Gate>) -> std::io::Result<Monitor> {
+        let stop = Arc::new(StopSignal::default());
+        let mut threads = Threads::default();
+        let s = stop.clone();
+        threads.spawn("gate/monitor".into(), move || {
+            crate::threads::every(EVERY, &s, || {
+                if gate.is_engaged() {
+                    if let Some(why) = blockers(&gate.vehicle).into_iter().next() {
+                        gate.disengage(&why);
+                    }
+                }
+            })
+        })?;
+        Ok(Monitor { stop, threads })
+    }
+
+    /// Stop and join; returns the thread's name if it did not stop.
+    pub fn shutdown(self, deadline: Duration) -> Vec<String> {
+        self.stop.stop();
+        self.threads.join(Instant::now() + deadline)
+    }
+}

@@ -1,0 +1,457 @@
+//! Safety, in one place: the rules every command must pass and the gate that applies
+//! them to the vehicle. The rules themselves are pure functions —
+//! [`rules::check`] at intake, [`wire::verdict`] right before a command goes out,
+//! [`gate::blockers`] for engaging and the monitor, [`safe::state`] for the safe state
+//! — and act on roles bound in the vehicle file, never on device names.
+//!
+//! [`Gate`] is the policy object over the [`Vehicle`]: it is engaged or not (and says
+//! why), takes commands from every source (network, console, supervisor) through
+//! [`Gate::submit`], counts what it rejects, and commands the safe state. The vehicle
+//! itself holds state and no policy.
+
+pub mod facts;
+pub mod gate;
+pub mod rules;
+pub mod safe;
+pub mod wire;
+
+pub use rules::{Facts, Plays, Reject, Rules};
+
+use crate::config::Role;
+use crate::logging::RateLimit;
+use crate::snapshot::{GateView, Pairs, Snapshot, SCHEMA};
+use crate::value::{Command, DeviceId, Kind};
+use crate::vehicle::{Device, Vehicle};
+use parking_lot::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use wire::Verdict;
+pub use wire::Wait;
+
+/// What the command thread does with its command, by the wire check.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum WireStep {
+    Send(Command),
+    Drop,
+    Wait(Wait),
+}
+
+/// The engage gate and command intake of one vehicle.
+pub struct Gate {
+    pub vehicle: Arc<Vehicle>,
+    rules: Rules,
+    /// The roles each device's commands are checked for, by device.
+    plays: Vec<Plays>,
+    /// Interlock rules at intake and at the wire; switched off only from the console,
+    /// with confirmation.
+    pub interlocks: AtomicBool,
+    engaged: AtomicBool,
+    /// Why the vehicle is (dis)engaged, for the console and the broadcast.
+    reason: Mutex<String>,
+    /// Devices a recovery procedure has taken over: intake refuses them.
+    recovering: Vec<AtomicBool>,
+    rejections: [AtomicU64; Reject::ALL.len()],
+    /// Rejections are logged at most 10 a second (a planner at 100 Hz must not flood).
+    reject_log: Mutex<RateLimit>,
+}
+
+impl Gate {
+    pub fn new(vehicle: Arc<Vehicle>) -> Gate {
+        let plays = vehicle
+            .devices
+            .iter()
+            .map(|d| Plays::of(&d.roles))
+            .collect();
+        let recovering = vehicle
+            .devices
+            .iter()
+            .map(|_| AtomicBool::new(false))
+            .collect();
+        Gate {
+            rules: Rules::active(vehicle.bindings()),
+            plays,
+            interlocks: AtomicBool::new(true),
+            engaged: AtomicBool::new(false),
+            reason: Mutex::new("not engaged yet".into()),
+            recovering,
+            rejections: Default::default(),
+            reject_log: Mutex::new(RateLimit::new(10)),
+            vehicle,
+        }
+    }
+
+    /// The rules active on this vehicle.
+    pub fn rules(&self) -> Rules {
+        self.rules
+    }
+
+    /// Say which rules are active and what is missing, once, at start.
+    pub fn announce(&self) {
+        tracing::info!(
+            vehicle = %self.vehicle.name,
+            "interlock rules: {}",
+            match self.rules.names() {
+                n if n.is_empty() => "none (no throttle, brake or gear bound)".to_string(),
+                n => n.join(", "),
+            }
+        );
+        for m in Rules::missing(self.vehicle.bindings()) {
+            tracing::warn!(vehicle = %self.vehicle.name, "{m}");
+        }
+    }
+
+    /// Rejections so far, by reason.
+    pub fn rejections(&self) -> Vec<(Reject, u64)> {
+        Reject::ALL
+            .iter()
+            .map(|r| (*r, self.rejections[r.index()].load(Relaxed)))
+            .collect()
+    }
+
+    fn reject(&self, device: Option<&Device>, command: Option<Command>, why: Reject) -> Reject {
+        self.rejections[why.index()].fetch_add(1, Relaxed);
+        if let Some(d) = device {
+            crate::vehicle::stats::Stats::bump(&d.stats.rejected);
+        }
+        if !self.reject_log.lock().allow(Instant::now()) {
+            return why;
+        }
+        tracing::info!(
+            device = device.map(|d| d.name()).unwrap_or("-"),
+            command = match (device, command) {
+                (Some(d), Some(c)) => d.config.command_text(c),
+                (None, Some(c)) => format!("{c:?}"),
+                _ => String::new(),
+            },
+            "rejected: {why}"
+        );
+        why
+    }
+
+    pub fn is_engaged(&self) -> bool {
+        self.engaged.load(SeqCst)
+    }
+
+    /// Why the vehicle is engaged or not.
+    pub fn reason(&self) -> String {
+        self.reason.lock().clone()
+    }
+
+    /// Reasons engaging is refused right now (empty: it may engage).
+    pub fn blockers(&self) -> Vec<String> {
+        gate::blockers(&self.vehicle)
+    }
+
+    /// Engage: accept commands from now on. Refused while anything blocks it. Every
+    /// command slot is reset first so nothing resends a stale set point: the safe
+    /// state (throttle 0, brake full), steering held where it is, the rest left as
+    /// they are.
+    pub fn engage(&self, by: &str) -> Result<(), Vec<String>> {
+        let blockers = self.blockers();
+        if !blockers.is_empty() {
+            tracing::warn!(by, "engage refused: {}", blockers.join("; "));
+            return Err(blockers);
+        }
+        for d in self.vehicle.devices.iter().filter(|d| d.is_actuator()) {
+            d.slot.reset(None);
+        }
+        self.command_safe_state();
+        if let Some(s) = self.vehicle.bound(Role::Steering) {
+            if let Some(p) = s.config.reading("position").and_then(|i| s.reading(i)) {
+                self.store(s, Command::Set(p), Instant::now());
+            }
+        }
+        *self.reason.lock() = format!("engaged by {by}");
+        self.engaged.store(true, SeqCst);
+        tracing::info!(by, "engaged");
+        Ok(())
+    }
+
+    /// Disengage and command the safe state. Returns false if it was not engaged.
+    pub fn disengage(&self, reason: &str) -> bool {
+        let was = self.engaged.swap(false, SeqCst);
+        *self.reason.lock() = format!("disengaged: {reason}");
+        self.command_safe_state();
+        if was {
+            tracing::warn!("disengaged: {reason}");
+        }
+        was
+    }
+
+    /// Check a command for a device: it must be an actuator, the value of its kind and
+    /// inside its range. (Intake's first half; no state involved.)
+    pub fn check_value(&self, d: &Device, command: Command) -> Result<(), Reject> {
+        match (d.kind(), command) {
+            (Kind::Sensor, _) => Err(Reject::NotAnActuator),
+            (_, Command::Control(_)) => Ok(()),
+            (Kind::State, Command::State(s)) if (s as usize) < d.config.states.len() => Ok(()),
+            (Kind::State, Command::State(_)) => Err(Reject::OutOfRange),
+            (Kind::Setpoint, Command::Set(v)) => {
+                if !v.is_finite() {
+                    return Err(Reject::NotFinite);
+                }
+                let [lo, hi] = d.config.range;
+                if v < lo || v > hi {
+                    return Err(Reject::OutOfRange);
+                }
+                Ok(())
+            }
+            _ => Err(Reject::WrongKind),
+        }
+    }
+
+    /// Command intake: check the command, then store it in the device's slot and wake
+    /// its command thread. `received` is when the command was born (socket read, key
+    /// press). Nothing is written here; a rejected command never reaches the slot.
+    pub fn submit(&self, id: DeviceId, command: Command, received: Instant) -> Result<(), Reject> {
+        let Some(d) = self.vehicle.devices.get(id.index()) else {
+            return Err(self.reject(None, Some(command), Reject::NoSuchDevice));
+        };
+        if let Err(why) = self.check_value(d, command) {
+            return Err(self.reject(Some(d), Some(command), why));
+        }
+        if !self.is_engaged() {
+            return Err(self.reject(Some(d), Some(command), Reject::Disengaged));
+        }
+        if self.recovering[id.index()].load(Relaxed) {
+            return Err(self.reject(Some(d), Some(command), Reject::Recovering));
+        }
+        let plays = self.plays[id.index()];
+        if !plays.is_free() && self.interlocks.load(Relaxed) {
+            let facts = facts::gather(&self.vehicle, plays);
+            if let Err(why) = rules::check(&facts, self.rules, plays, self.scaled(d, command)) {
+                return Err(self.reject(Some(d), Some(command), why));
+            }
+        }
+        self.store(d, command, received);
+        // A disengage that raced this command (it checks the gate, then stores): the
+        // safe state must be the last word.
+        if !self.is_engaged() {
+            self.command_safe_state();
+        }
+        Ok(())
+    }
+
+    /// The command as the rules see it: throttle and brake set points as fractions of
+    /// their range's top.
+    fn scaled(&self, d: &Device, command: Command) -> Command {
+        match command {
+            Command::Set(v) if d.plays(Role::Throttle) || d.plays(Role::Brake) => {
+                Command::Set(facts::share(d, v))
+            }
+            other => other,
+        }
+    }
+
+    /// Intake by device name (the console and tools).
+    pub fn submit_named(
+        &self,
+        name: &str,
+        command: Command,
+        received: Instant,
+    ) -> Result<(), Reject> {
+        match self.vehicle.find(name) {
+            Some(d) => self.submit(d.id, command, received),
+            None => Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
+        }
+    }
+
+    fn store(&self, d: &Device, command: Command, received: Instant) {
+        crate::vehicle::stats::Stats::bump(&d.stats.received);
+        if d.slot.submit(command, received) {
+            crate::vehicle::stats::Stats::bump(&d.stats.superseded);
+        }
+    }
+
+    /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
+    /// throttle, negative is brake; it never applies both. Going from braking to
+    /// throttle, the brake is released first and the throttle follows once the brake
+    /// has acknowledged the release (a later `accel`). While a shift is under way the
+    /// brake holds and positive `accel` waits. Needs throttle and brake bound.
+    pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
+        let b = self.vehicle.bindings();
+        let (Some(tid), Some(bid)) = (b.throttle, b.brake) else {
+            return Err(self.reject(None, None, Reject::NoSuchDevice));
+        };
+        if !a.is_finite() {
+            return Err(self.reject(None, None, Reject::NotFinite));
+        }
+        if !(-1.0..=1.0).contains(&a) {
+            return Err(self.reject(None, None, Reject::OutOfRange));
+        }
+        let (t, br) = (self.vehicle.device(tid), self.vehicle.device(bid));
+        let top = |d: &Device| d.config.range[1];
+        if a > 0.0 {
+            if self.interlocks.load(Relaxed)
+                && facts::gather(&self.vehicle, self.plays[bid.index()]).shifting
+            {
+                tracing::debug!("accel {a}: the brake holds until the shift is through");
+                return Ok(());
+            }
+            self.submit(bid, Command::Set(0.0), received)?;
+            let released = facts::gather(&self.vehicle, self.plays[tid.index()])
+                .brake_high
+                .is_none_or(|x| x <= rules::RELEASED);
+            if released {
+                self.submit(tid, Command::Set(a * top(t)), received)?;
+            } else {
+                tracing::debug!("accel {a}: gas waits for the brake release");
+            }
+            Ok(())
+        } else {
+            self.submit(tid, Command::Set(0.0), received)?;
+            self.submit(bid, Command::Set(-a * top(br)), received)
+        }
+    }
+
+    /// A recovery procedure takes these devices over (intake refuses them) or, with an
+    /// empty list, hands everything back.
+    pub fn set_recovering(&self, ids: &[DeviceId]) {
+        for (i, r) in self.recovering.iter().enumerate() {
+            r.store(ids.contains(&DeviceId(i as u16)), Relaxed);
+        }
+    }
+
+    pub fn is_recovering(&self, id: DeviceId) -> bool {
+        self.recovering[id.index()].load(Relaxed)
+    }
+
+    /// The supervisor's own commands: past the gate and the intake interlocks (the
+    /// wire-level checks still apply).
+    pub fn supervise(&self, id: DeviceId, command: Command) {
+        self.store(self.vehicle.device(id), command, Instant::now());
+    }
+
+    /// The wire check for the command `d`'s thread has in flight: send it (or what
+    /// to send instead), drop it, or first wait for another device — which the
+    /// command thread does with [`Gate::wait_for`], without holding its port, and then
+    /// asks again with `waited` set (braking then goes out regardless).
+    pub fn check_wire(&self, d: &Device, command: Command, waited: bool) -> WireStep {
+        let plays = self.plays[d.id.index()];
+        if plays.is_free() || !self.interlocks.load(Relaxed) {
+            return WireStep::Send(command);
+        }
+        let f = facts::gather_wire(&self.vehicle, plays);
+        match wire::verdict(&f, self.rules, plays, self.scaled(d, command), waited) {
+            Verdict::Send(_) => WireStep::Send(command),
+            Verdict::Replace(c, why) => {
+                self.reject(Some(d), Some(command), why);
+                // The rules replace with "released": the bottom of the range.
+                WireStep::Send(match c {
+                    Command::Set(_) => Command::Set(d.config.range[0]),
+                    other => other,
+                })
+            }
+            Verdict::Drop(why) => {
+                self.reject(Some(d), Some(command), why);
+                WireStep::Drop
+            }
+            Verdict::Wait(w) => WireStep::Wait(w),
+        }
+    }
+
+    /// Do what a [`WireStep::Wait`] asks, bounded by two reply timeouts of the device
+    /// waited for.
+    pub fn wait_for(&self, w: Wait) {
+        let b = self.vehicle.bindings();
+        match w {
+            Wait::ThrottleReleased => {
+                let Some(t) = b.throttle.map(|id| self.vehicle.device(id)) else {
+                    return;
+                };
+                let wire = t.slot.wire();
+                let going = [wire.pending, wire.flight]
+                    .into_iter()
+                    .flatten()
+                    .filter_map(Command::set_point)
+                    .any(|x| facts::share(t, x) > rules::RELEASED);
+                if going {
+                    self.store(t, Command::Set(t.config.range[0]), Instant::now());
+                }
+                let deadline =
+                    Instant::now() + t.config.reply_timeout * 2 + Duration::from_millis(50);
+                t.slot
+                    .wait_wire(|w| facts::throttle_released(t, w), deadline);
+            }
+            Wait::ShiftOut => {
+                let Some(g) = b.gear.as_ref().map(|g| self.vehicle.device(g.device)) else {
+                    return;
+                };
+                let deadline =
+                    Instant::now() + g.config.reply_timeout * 2 + Duration::from_millis(50);
+                g.slot.wait_wire(
+                    |w| w.pending.or(w.flight).is_none_or(|c| Some(c) == w.sent),
+                    deadline,
+                );
+            }
+        }
+    }
+
+    /// Command the safe state to every actuator there is, bypassing the interlocks
+    /// (the safe state is always allowed).
+    pub fn command_safe_state(&self) {
+        let now = Instant::now();
+        for (id, c) in safe::state(&self.vehicle.config) {
+            self.store(self.vehicle.device(id), c, now);
+        }
+    }
+
+    /// Wait until every reachable device acknowledged its part of the safe state.
+    /// Returns false if one did not by the deadline.
+    pub fn wait_safe(&self, deadline: Instant) -> bool {
+        let mut ok = true;
+        for (id, want) in safe::state(&self.vehicle.config) {
+            let d = self.vehicle.device(id);
+            if !d.slot.wait_executed(|c| c == want, deadline) {
+                tracing::error!(device = %d.name(), "did not acknowledge the safe state");
+                ok = false;
+            }
+        }
+        ok
+    }
+
+    /// The gate's part of the snapshot.
+    pub fn view(&self) -> GateView {
+        let b = self.vehicle.bindings();
+        GateView {
+            engaged: self.is_engaged(),
+            reason: self.reason(),
+            blockers: self.blockers(),
+            interlocks: self.interlocks.load(Relaxed),
+            rules: self.rules.names().into_iter().map(str::to_string).collect(),
+            roles: self.vehicle.role_names(),
+            accel: b.has_accel(),
+        }
+    }
+
+    /// The whole vehicle now (without the network part, which the network adds).
+    pub fn snapshot(&self, seq: u64) -> Snapshot {
+        self.snapshot_at(seq, Instant::now())
+    }
+
+    /// The whole vehicle, ages as of `now` (the console draws one instant).
+    pub fn snapshot_at(&self, seq: u64, now: Instant) -> Snapshot {
+        Snapshot {
+            schema: SCHEMA,
+            vehicle: self.vehicle.name.clone(),
+            seq,
+            time_ms: SystemTime::now()
+                .duration_since(UNIX_EPOCH)
+                .map(|d| d.as_millis() as u64)
+                .unwrap_or(0),
+            uptime_s: now
+                .saturating_duration_since(self.vehicle.started)
+                .as_secs_f64(),
+            gate: self.view(),
+            devices: self.vehicle.device_views(now),
+            supervisor: self.vehicle.supervision.snapshot(),
+            rejections: self
+                .rejections()
+                .into_iter()
+                .map(|(r, n)| (r.as_str().to_string(), n))
+                .collect::<Pairs<u64>>(),
+            net: None,
+        }
+    }
+}

@@ -1,0 +1,495 @@
+//! The interlock rules, as pure functions: what every command must pass at intake,
+//! before it may reach a command slot, and again at the wire ([`super::wire`]). A
+//! rejected command is counted and logged, never sent. The rules (DESIGN.md
+//! "Safety"): no throttle while the brake is applied; throttle only in a driving gear,
+//! with the engine running and the e-stop in run; shift only when stopped with the
+//! brake applied, and keep the brake applied until the shift is through; while the
+//! e-stop pauses or disables, the brake stays on; the starter runs only out of gear.
+//!
+//! Each rule acts on roles, never on device names, and applies only when the devices
+//! it needs are bound ([`Rules::active`]): a cart without a gearbox has no shift rule.
+//! [`check`] is a pure function of the command and a [`Facts`] value, so every rule is
+//! unit- and property-tested without threads.
+
+use crate::config::{Bindings, Role};
+use crate::value::{Command, Control, EstopState};
+use serde::Serialize;
+use std::fmt;
+
+/// Throttle or brake at or below this fraction of its range counts as released.
+pub const RELEASED: f64 = 0.02;
+/// Brake at or above this fraction of its range counts as applied for shifting.
+pub const SHIFT_BRAKE: f64 = 0.3;
+/// Below this speed (m/s) the vehicle counts as stopped.
+pub const STOPPED: f64 = 0.1;
+
+/// What the interlocks know of the vehicle. Throttle and brake values are fractions
+/// of their range's top (0 released … 1 full), whatever the devices' units.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Facts {
+    /// Highest brake value pending, in flight, sent or acknowledged (None: unknown).
+    pub brake_high: Option<f64>,
+    /// Lowest brake value pending, in flight, sent or acknowledged.
+    pub brake_low: Option<f64>,
+    /// The gear reported, as a state of the gear device.
+    pub gear: Option<u8>,
+    /// The reported gear drives the wheels.
+    pub in_gear: bool,
+    pub running: Option<bool>,
+    pub speed: Option<f64>,
+    pub estop: Option<EstopState>,
+    /// A shift is commanded and the gearbox does not report that gear yet.
+    pub shifting: bool,
+}
+
+/// Why intake refused a command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Reject {
+    NoSuchDevice,
+    NotAnActuator,
+    WrongKind,
+    NotFinite,
+    OutOfRange,
+    GasWhileBraking,
+    GasNotInGear,
+    GasEngineOff,
+    GasEstop,
+    BrakeReleaseEstop,
+    BrakeReleaseShifting,
+    ShiftWhileMoving,
+    ShiftWithoutBrake,
+    StartInGear,
+    Disengaged,
+    Recovering,
+}
+
+impl Reject {
+    pub const ALL: [Reject; 16] = [
+        Reject::NoSuchDevice,
+        Reject::NotAnActuator,
+        Reject::WrongKind,
+        Reject::NotFinite,
+        Reject::OutOfRange,
+        Reject::GasWhileBraking,
+        Reject::GasNotInGear,
+        Reject::GasEngineOff,
+        Reject::GasEstop,
+        Reject::BrakeReleaseEstop,
+        Reject::BrakeReleaseShifting,
+        Reject::ShiftWhileMoving,
+        Reject::ShiftWithoutBrake,
+        Reject::StartInGear,
+        Reject::Disengaged,
+        Reject::Recovering,
+    ];
+
+    /// The interlock rules among the reasons.
+    pub const RULES: [Reject; 9] = [
+        Reject::GasWhileBraking,
+        Reject::GasNotInGear,
+        Reject::GasEngineOff,
+        Reject::GasEstop,
+        Reject::BrakeReleaseEstop,
+        Reject::BrakeReleaseShifting,
+        Reject::ShiftWhileMoving,
+        Reject::ShiftWithoutBrake,
+        Reject::StartInGear,
+    ];
+
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Reject::NoSuchDevice => "no_such_device",
+            Reject::NotAnActuator => "not_an_actuator",
+            Reject::WrongKind => "wrong_kind",
+            Reject::NotFinite => "not_finite",
+            Reject::OutOfRange => "out_of_range",
+            Reject::GasWhileBraking => "gas_while_braking",
+            Reject::GasNotInGear => "gas_not_in_gear",
+            Reject::GasEngineOff => "gas_engine_off",
+            Reject::GasEstop => "gas_estop",
+            Reject::BrakeReleaseEstop => "brake_release_estop",
+            Reject::BrakeReleaseShifting => "brake_release_shifting",
+            Reject::ShiftWhileMoving => "shift_while_moving",
+            Reject::ShiftWithoutBrake => "shift_without_brake",
+            Reject::StartInGear => "start_in_gear",
+            Reject::Disengaged => "disengaged",
+            Reject::Recovering => "recovering",
+        }
+    }
+
+    /// True for the safety rules (as opposed to malformed commands).
+    pub fn is_interlock(self) -> bool {
+        Reject::RULES.contains(&self)
+    }
+
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The roles a rule needs bound to apply.
+    pub fn needs(self) -> &'static [Role] {
+        match self {
+            Reject::GasWhileBraking => &[Role::Throttle, Role::Brake],
+            Reject::GasNotInGear => &[Role::Throttle, Role::Gear],
+            Reject::GasEngineOff => &[Role::Throttle, Role::EngineRunning],
+            Reject::GasEstop => &[Role::Throttle, Role::Estop],
+            Reject::BrakeReleaseEstop => &[Role::Brake, Role::Estop],
+            Reject::BrakeReleaseShifting => &[Role::Brake, Role::Gear],
+            Reject::ShiftWhileMoving => &[Role::Gear, Role::Speed],
+            Reject::ShiftWithoutBrake => &[Role::Gear, Role::Brake],
+            Reject::StartInGear => &[Role::Starter, Role::Gear],
+            _ => &[],
+        }
+    }
+}
+
+impl fmt::Display for Reject {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Reject::NoSuchDevice => "no such device in this vehicle",
+            Reject::NotAnActuator => "the device is a sensor and takes no commands",
+            Reject::WrongKind => "wrong kind of value for this device",
+            Reject::NotFinite => "value is not a finite number",
+            Reject::OutOfRange => "value outside the device's range",
+            Reject::GasWhileBraking => "no gas while the brake is applied",
+            Reject::GasNotInGear => "gas only in a driving gear",
+            Reject::GasEngineOff => "gas only with the engine running",
+            Reject::GasEstop => "no gas unless the e-stop says run",
+            Reject::BrakeReleaseEstop => "the brake stays on while the e-stop pauses",
+            Reject::BrakeReleaseShifting => "the brake stays on until the shift is through",
+            Reject::ShiftWhileMoving => "shift only when stopped",
+            Reject::ShiftWithoutBrake => "shift only with the brake applied",
+            Reject::StartInGear => "the starter runs only out of gear",
+            Reject::Disengaged => "adrive is disengaged",
+            Reject::Recovering => "a recovery procedure has the vehicle",
+        })
+    }
+}
+
+/// Which rules apply on a vehicle: those whose roles are all bound.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Rules(u32);
+
+impl Rules {
+    /// Every rule (tests of the rules alone).
+    pub const ALL: Rules = Rules(u32::MAX);
+
+    pub fn active(b: &Bindings) -> Rules {
+        Rules(
+            Reject::RULES
+                .iter()
+                .filter(|r| r.needs().iter().all(|role| b.is_bound(*role)))
+                .fold(0, |m, r| m | 1 << r.index()),
+        )
+    }
+
+    pub fn has(self, r: Reject) -> bool {
+        self.0 & (1 << r.index()) != 0
+    }
+
+    /// The active rules, by name.
+    pub fn names(self) -> Vec<&'static str> {
+        Reject::RULES
+            .iter()
+            .filter(|r| self.has(**r))
+            .map(|r| r.as_str())
+            .collect()
+    }
+
+    /// What the vehicle lacks, in sentences, for the start-up log: each rule that is
+    /// absent and why, and what the safe state cannot do.
+    pub fn missing(b: &Bindings) -> Vec<String> {
+        let mut out = Vec::new();
+        if b.brake.is_none() {
+            out.push("no brake bound: the safe state cannot brake".to_string());
+        }
+        if b.throttle.is_none() {
+            out.push("no throttle bound: accel is not available".to_string());
+        }
+        if b.estop.is_none() {
+            out.push("no estop bound: an e-stop pause is not watched".to_string());
+        }
+        for r in Reject::RULES {
+            let absent: Vec<&str> = r
+                .needs()
+                .iter()
+                .filter(|role| !b.is_bound(**role))
+                .map(|role| role.as_str())
+                .collect();
+            // A rule about a role the vehicle lacks entirely is simply not there;
+            // name only rules half-bound (their subject exists, a fact they need not).
+            if !absent.is_empty() && absent.len() < r.needs().len() {
+                out.push(format!(
+                    "rule {} is off: no {} bound",
+                    r.as_str(),
+                    absent.join(", ")
+                ));
+            }
+        }
+        out
+    }
+}
+
+/// The roles a command to one actuator plays, for [`check`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Plays {
+    pub throttle: bool,
+    pub brake: bool,
+    pub gear: bool,
+    pub starter: bool,
+}
+
+impl Plays {
+    pub fn of(roles: &[Role]) -> Plays {
+        Plays {
+            throttle: roles.contains(&Role::Throttle),
+            brake: roles.contains(&Role::Brake),
+            gear: roles.contains(&Role::Gear),
+            starter: roles.contains(&Role::Starter),
+        }
+    }
+
+    /// No rule looks at this device's commands.
+    pub fn is_free(self) -> bool {
+        self == Plays::default()
+    }
+}
+
+/// The safety rules alone (range and kind are checked by the caller). `command` goes
+/// to a device that plays `plays`; throttle and brake set points are fractions of
+/// their range's top.
+pub fn check(facts: &Facts, rules: Rules, plays: Plays, command: Command) -> Result<(), Reject> {
+    let on = |r: Reject| rules.has(r);
+    match command {
+        Command::Set(v) if plays.throttle && v > RELEASED => {
+            if on(Reject::GasWhileBraking) && facts.brake_high.is_some_and(|b| b > RELEASED) {
+                return Err(Reject::GasWhileBraking);
+            }
+            if on(Reject::GasNotInGear) && !facts.in_gear {
+                return Err(Reject::GasNotInGear);
+            }
+            if on(Reject::GasEngineOff) && facts.running != Some(true) {
+                return Err(Reject::GasEngineOff);
+            }
+            if on(Reject::GasEstop) && facts.estop != Some(EstopState::Run) {
+                return Err(Reject::GasEstop);
+            }
+            Ok(())
+        }
+        Command::Set(v) if plays.brake && v < 1.0 => {
+            if on(Reject::BrakeReleaseEstop)
+                && matches!(facts.estop, Some(EstopState::Pause | EstopState::Disable))
+            {
+                return Err(Reject::BrakeReleaseEstop);
+            }
+            if on(Reject::BrakeReleaseShifting) && facts.shifting && v < SHIFT_BRAKE {
+                return Err(Reject::BrakeReleaseShifting);
+            }
+            Ok(())
+        }
+        Command::State(g) if plays.gear && Some(g) != facts.gear => {
+            if on(Reject::ShiftWhileMoving) && !facts.speed.is_some_and(|s| s.abs() < STOPPED) {
+                return Err(Reject::ShiftWhileMoving);
+            }
+            if on(Reject::ShiftWithoutBrake) && !facts.brake_low.is_some_and(|b| b >= SHIFT_BRAKE) {
+                return Err(Reject::ShiftWithoutBrake);
+            }
+            Ok(())
+        }
+        Command::Control(Control::Start) if plays.starter => {
+            if on(Reject::StartInGear) && facts.in_gear {
+                return Err(Reject::StartInGear);
+            }
+            Ok(())
+        }
+        _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const DRIVE: u8 = 3;
+    const PARK: u8 = 0;
+
+    fn driving() -> Facts {
+        Facts {
+            brake_high: Some(0.0),
+            brake_low: Some(0.0),
+            gear: Some(DRIVE),
+            in_gear: true,
+            running: Some(true),
+            speed: Some(5.0),
+            estop: Some(EstopState::Run),
+            shifting: false,
+        }
+    }
+
+    const GAS: Plays = Plays {
+        throttle: true,
+        brake: false,
+        gear: false,
+        starter: false,
+    };
+    const BRAKE: Plays = Plays {
+        throttle: false,
+        brake: true,
+        gear: false,
+        starter: false,
+    };
+    const TRANS: Plays = Plays {
+        throttle: false,
+        brake: false,
+        gear: true,
+        starter: true,
+    };
+
+    fn check_all(f: &Facts, plays: Plays, c: Command) -> Result<(), Reject> {
+        check(f, Rules::ALL, plays, c)
+    }
+
+    #[test]
+    fn gas_passes_when_everything_allows_it() {
+        assert_eq!(check_all(&driving(), GAS, Command::Set(0.5)), Ok(()));
+    }
+
+    #[test]
+    fn gas_while_braking_is_rejected() {
+        let f = Facts {
+            brake_high: Some(0.4),
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&f, GAS, Command::Set(0.3)),
+            Err(Reject::GasWhileBraking)
+        );
+        // Releasing the gas is always allowed.
+        assert_eq!(check_all(&f, GAS, Command::Set(0.0)), Ok(()));
+    }
+
+    #[test]
+    fn gas_out_of_gear_is_rejected() {
+        let f = Facts {
+            gear: Some(PARK),
+            in_gear: false,
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&f, GAS, Command::Set(0.3)),
+            Err(Reject::GasNotInGear)
+        );
+    }
+
+    #[test]
+    fn gas_with_the_engine_off_or_estop_not_run_is_rejected() {
+        let f = Facts {
+            running: Some(false),
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&f, GAS, Command::Set(0.3)),
+            Err(Reject::GasEngineOff)
+        );
+        for estop in [Some(EstopState::Pause), Some(EstopState::Disable), None] {
+            let f = Facts { estop, ..driving() };
+            assert_eq!(check_all(&f, GAS, Command::Set(0.3)), Err(Reject::GasEstop));
+        }
+    }
+
+    #[test]
+    fn shift_while_moving_or_without_brake_is_rejected() {
+        let moving = Facts {
+            brake_low: Some(1.0),
+            brake_high: Some(1.0),
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&moving, TRANS, Command::State(PARK)),
+            Err(Reject::ShiftWhileMoving)
+        );
+        let stopped_no_brake = Facts {
+            speed: Some(0.0),
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&stopped_no_brake, TRANS, Command::State(PARK)),
+            Err(Reject::ShiftWithoutBrake)
+        );
+        let ok = Facts {
+            speed: Some(0.0),
+            ..moving
+        };
+        assert_eq!(check_all(&ok, TRANS, Command::State(PARK)), Ok(()));
+        // Re-sending the current gear is not a shift.
+        assert_eq!(check_all(&moving, TRANS, Command::State(DRIVE)), Ok(()));
+    }
+
+    #[test]
+    fn the_brake_stays_on_until_a_shift_is_through() {
+        let f = Facts {
+            shifting: true,
+            speed: Some(0.0),
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&f, BRAKE, Command::Set(0.0)),
+            Err(Reject::BrakeReleaseShifting)
+        );
+        assert_eq!(check_all(&f, BRAKE, Command::Set(0.5)), Ok(()));
+    }
+
+    #[test]
+    fn estop_pause_holds_the_brake() {
+        let f = Facts {
+            estop: Some(EstopState::Pause),
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&f, BRAKE, Command::Set(0.2)),
+            Err(Reject::BrakeReleaseEstop)
+        );
+        assert_eq!(check_all(&f, BRAKE, Command::Set(1.0)), Ok(()));
+    }
+
+    #[test]
+    fn a_rule_without_its_devices_is_absent() {
+        // A cart without a gearbox: gas needs no gear, and nothing is a shift.
+        let b = Bindings {
+            throttle: Some(crate::value::DeviceId(0)),
+            brake: Some(crate::value::DeviceId(1)),
+            ..Bindings::default()
+        };
+        let rules = Rules::active(&b);
+        assert!(rules.has(Reject::GasWhileBraking));
+        assert!(!rules.has(Reject::GasNotInGear));
+        assert!(!rules.has(Reject::ShiftWhileMoving));
+        let parked = Facts {
+            gear: None,
+            in_gear: false,
+            running: None,
+            estop: None,
+            ..driving()
+        };
+        assert_eq!(check(&parked, rules, GAS, Command::Set(0.5)), Ok(()));
+        assert_eq!(rules.names(), vec!["gas_while_braking"]);
+        assert!(Rules::missing(&b)
+            .iter()
+            .any(|m| m.contains("no estop bound")));
+    }
+
+    #[test]
+    fn a_device_without_a_role_is_checked_by_no_rule() {
+        let nobody = Plays::default();
+        assert!(nobody.is_free());
+        let f = Facts::default();
+        for c in [
+            Command::Set(1.0),
+            Command::State(2),
+            Command::Control(Control::Start),
+        ] {
+            assert_eq!(check_all(&f, nobody, c), Ok(()));
+        }
+    }
+}

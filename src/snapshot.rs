@@ -1,0 +1,462 @@
+//! The one state snapshot. The engine fills it from the caches (never the ports); the
+//! state broadcast sends it, the console draws it, headless prints it, recordings keep
+//! it, and `adrive watch` reads the very same type back. No reader builds a view of
+//! its own. Plain data only — every part of adrive may depend on this module, and it
+//! depends on none of them.
+//!
+//! [`SCHEMA`] is the broadcast's version: a field may be added without a new version;
+//! renaming or removing one bumps it. `schemas/snapshot-2.json` is its JSON Schema,
+//! checked by a test against real broadcasts.
+
+use crate::value::{Kind, Value};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+use std::net::SocketAddr;
+
+/// The version of the snapshot's JSON form.
+pub const SCHEMA: u32 = 2;
+
+/// The whole vehicle at one instant.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Snapshot {
+    pub schema: u32,
+    pub vehicle: String,
+    /// Counts broadcasts from 0; a gap means a lost datagram.
+    pub seq: u64,
+    /// Wall clock, milliseconds since the Unix epoch.
+    pub time_ms: u64,
+    pub uptime_s: f64,
+    pub gate: GateView,
+    /// Every device, in the vehicle file's order.
+    pub devices: Vec<DeviceView>,
+    /// The supervisor: named faults, the recovery in progress, recent history.
+    pub supervisor: SupervisorView,
+    /// Intake rejections of every command (network and console), by reason.
+    pub rejections: Pairs<u64>,
+    /// The network side, when the listener runs.
+    pub net: Option<NetView>,
+}
+
+impl Snapshot {
+    pub fn device(&self, name: &str) -> Option<&DeviceView> {
+        self.devices.iter().find(|d| d.name == name)
+    }
+
+    /// The device bound to a role (`"throttle"`), by the gate's bindings.
+    pub fn bound(&self, role: &str) -> Option<&DeviceView> {
+        let target = self.gate.roles.get(role)?;
+        let name = target.split('.').next().unwrap_or(target);
+        self.device(name)
+    }
+
+    /// Every faulty device with its last error, `gas: no reply within 100ms`.
+    pub fn faulty(&self) -> impl Iterator<Item = &DeviceView> {
+        self.devices.iter().filter(|d| d.health.faulty)
+    }
+}
+
+/// The engage gate and the safety rules.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct GateView {
+    pub engaged: bool,
+    /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
+    /// "disengaged: watchdog: …").
+    pub reason: String,
+    /// What would refuse an engage right now (empty: it may engage).
+    pub blockers: Vec<String>,
+    /// The interlock rules are on.
+    pub interlocks: bool,
+    /// The rules active on this vehicle (those whose devices are bound).
+    pub rules: Vec<String>,
+    /// The role bindings: role → device or device.reading.
+    pub roles: Pairs<String>,
+    /// `accel` exists (throttle and brake are bound).
+    pub accel: bool,
+}
+
+/// One device.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceView {
+    pub name: String,
+    pub kind: Kind,
+    /// The roles it plays (`throttle`, `gear`…).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub roles: Vec<String>,
+    /// A setpoint actuator's range and units.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub units: String,
+    /// A state actuator's states.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub states: Vec<String>,
+    /// The last reading: every reading the device declares, by name (null until
+    /// reported). Numbers in their units, flags as booleans, states by name.
+    pub readings: Pairs<Option<Value>>,
+    /// Units of each reading, by name (`""` when unitless).
+    pub reading_units: Pairs<String>,
+    /// Device-reported fault bits; 0 is good.
+    pub fault: u16,
+    /// The command the device will have next (pending or last sent).
+    pub commanded: Option<Value>,
+    /// The last command the device acknowledged.
+    pub executed: Option<Value>,
+    /// Age of the cached reading, ms (null before the first good poll).
+    pub status_age_ms: Option<f64>,
+    /// The reading is older than the device's `status_max_age` (or there is none).
+    pub stale: bool,
+    pub health: Health,
+    pub settings: Settings,
+    pub counters: Counters,
+    /// Command receipt to first byte written, µs.
+    pub delay_us: LatencySummary,
+    /// One command transaction, µs.
+    pub command_txn_us: LatencySummary,
+    /// One status transaction, µs.
+    pub status_txn_us: LatencySummary,
+}
+
+impl DeviceView {
+    pub fn is_actuator(&self) -> bool {
+        self.kind.is_actuator()
+    }
+
+    /// A reading's value by name.
+    pub fn reading(&self, name: &str) -> Option<&Value> {
+        self.readings.get(name).and_then(Option::as_ref)
+    }
+
+    /// A number reading (a flag as 0/1).
+    pub fn number(&self, name: &str) -> Option<f64> {
+        self.reading(name).and_then(Value::as_f64)
+    }
+
+    /// The position of a setpoint actuator.
+    pub fn position(&self) -> Option<f64> {
+        self.number("position")
+    }
+}
+
+/// A device's health, as its threads keep it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Health {
+    /// Failing repeatedly, silent past its `status_max_age`, or its port is gone.
+    pub faulty: bool,
+    pub connected: bool,
+    /// The last attempt to open its port failed (unplugged, wrong path).
+    pub missing: bool,
+    /// Times its port was opened (1 after start; more after reconnects).
+    pub opens: u64,
+    /// Error codes as on the paper's screen: 0 good, ≥ 1 bad (1 timeout, 2 garbled,
+    /// 3 refused, 4 unsupported, 5 I/O).
+    pub status_error: u32,
+    pub command_error: u32,
+    pub last_error: Option<String>,
+}
+
+/// What the console may change while running.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Settings {
+    pub status_period_ms: f64,
+    pub command_timeout_ms: f64,
+    pub status_max_age_ms: f64,
+    pub status_on: bool,
+    pub command_on: bool,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Counters {
+    /// Commands accepted at intake into the device's slot.
+    pub received: u64,
+    /// Command transactions completed without error.
+    pub executed: u64,
+    /// Commands replaced by a newer one before they reached the wire.
+    pub superseded: u64,
+    /// Last command sent again after `command_timeout` (or a manual wake).
+    pub resent: u64,
+    /// Commands refused at intake (interlock, range, disengaged…).
+    pub rejected: u64,
+    pub command_errors: u64,
+    pub polls: u64,
+    pub status_errors: u64,
+    /// Times the port was reopened after the first open.
+    pub reconnects: u64,
+}
+
+/// Figures of one latency histogram, in microseconds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LatencySummary {
+    pub count: u64,
+    pub p50_us: Option<f64>,
+    pub p99_us: Option<f64>,
+    pub max_us: Option<f64>,
+}
+
+/// The kinds of fault the supervisor detects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FaultKind {
+    /// No status for longer than the device's `status_max_age`.
+    Silent,
+    /// Its port is gone (USB unplugged).
+    Disconnected,
+    /// Too many failed transactions in the recent window.
+    ErrorRate,
+    /// It reports a value outside its range.
+    OutOfRange,
+    /// Its measured value stays away from the command.
+    NotFollowing,
+    /// It reports fault bits in its status word.
+    DeviceFault,
+    /// Engine stopped while in gear.
+    EngineStall,
+    EstopPause,
+    EstopDisable,
+}
+
+impl FaultKind {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            FaultKind::Silent => "silent",
+            FaultKind::Disconnected => "disconnected",
+            FaultKind::ErrorRate => "error_rate",
+            FaultKind::OutOfRange => "out_of_range",
+            FaultKind::NotFollowing => "not_following",
+            FaultKind::DeviceFault => "device_fault",
+            FaultKind::EngineStall => "engine_stall",
+            FaultKind::EstopPause => "estop_pause",
+            FaultKind::EstopDisable => "estop_disable",
+        }
+    }
+}
+
+impl fmt::Display for FaultKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A fault as the snapshot carries it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FaultView {
+    pub kind: FaultKind,
+    pub device: Option<String>,
+    pub cause: String,
+    pub age_ms: f64,
+}
+
+impl FaultView {
+    /// `steer not_following: measured 0.02, commanded 0.50 for 2.6 s`
+    pub fn describe(&self) -> String {
+        match &self.device {
+            Some(d) => format!("{d} {}: {}", self.kind, self.cause),
+            None => format!("{}: {}", self.kind, self.cause),
+        }
+    }
+}
+
+/// Where a recovery procedure is.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RecoveryView {
+    /// `engine_stall`, `steering`, `reconnect brake`.
+    pub name: String,
+    /// Every step, in order.
+    pub steps: Vec<String>,
+    /// The step now running (index into `steps`).
+    pub step: usize,
+    /// This try, from 1, and how many are allowed.
+    pub attempt: u32,
+    pub attempts: u32,
+    pub elapsed_ms: f64,
+}
+
+impl RecoveryView {
+    /// `engine_stall 3/6 park (try 1/3)`
+    pub fn describe(&self) -> String {
+        format!(
+            "{} {}/{} {} (try {}/{})",
+            self.name,
+            self.step + 1,
+            self.steps.len(),
+            self.steps
+                .get(self.step)
+                .map(String::as_str)
+                .unwrap_or("done"),
+            self.attempt,
+            self.attempts
+        )
+    }
+}
+
+/// The supervisor's state.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SupervisorView {
+    pub faults: Vec<FaultView>,
+    pub recovery: Option<RecoveryView>,
+    /// The last procedure's outcome, e.g. `engine_stall recovered in 2.3 s`.
+    pub last_outcome: Option<String>,
+    /// Recent steps and outcomes, newest last.
+    pub history: Vec<String>,
+}
+
+/// The network command watchdog, as shown to people.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WatchdogState {
+    /// Disengaged.
+    Off,
+    /// Engaged (from the console) with no network sender commanding yet.
+    Idle,
+    /// Engaged and a network sender commands: it must keep sending.
+    Armed,
+    /// It brought the vehicle to the safe state; stays so until the next engage.
+    Tripped,
+}
+
+/// The network side: listener, watchdog, senders, counters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NetView {
+    pub listen: SocketAddr,
+    /// Datagrams received, and those accepted (parsed, authentic, not refused whole).
+    pub datagrams: u64,
+    pub accepted: u64,
+    /// The sender commanding the vehicle, if any.
+    pub commander: Option<SocketAddr>,
+    pub watchdog: WatchdogView,
+    /// Most recently seen first.
+    pub senders: Vec<SenderView>,
+    /// Network commands accepted, per device (and `accel`).
+    pub commands: Pairs<u64>,
+    pub rejected: Rejections,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WatchdogView {
+    pub state: WatchdogState,
+    pub timeout_ms: f64,
+    /// Time since the commander's last valid datagram.
+    pub last_command_age_ms: Option<f64>,
+    /// Why it last tripped.
+    pub last_trip: Option<String>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SenderView {
+    pub addr: SocketAddr,
+    pub age_ms: f64,
+    pub seq: Option<u64>,
+    pub datagrams: u64,
+    pub accepted: u64,
+    pub rejected: u64,
+    pub commanding: bool,
+    pub frozen: bool,
+    pub latched: bool,
+}
+
+/// Rejections by reason; every reason is listed, zeros included.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Rejections {
+    /// Whole datagrams: grammar, authentication, counter.
+    pub datagram: Pairs<u64>,
+    /// Single network commands refused at intake (interlocks, disengaged…).
+    pub intake: Pairs<u64>,
+    /// The listener's own refusals.
+    pub refused: Pairs<u64>,
+}
+
+impl Rejections {
+    pub fn get(&self, name: &str) -> u64 {
+        [&self.datagram, &self.intake, &self.refused]
+            .into_iter()
+            .filter_map(|p| p.get(name))
+            .sum()
+    }
+}
+
+/// Named values in order, written as a JSON object (`{"steer": 3, "gas": 0}`) and read
+/// back in the same order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pairs<V>(pub Vec<(String, V)>);
+
+impl<V> Default for Pairs<V> {
+    fn default() -> Self {
+        Pairs(Vec::new())
+    }
+}
+
+impl<V> Pairs<V> {
+    pub fn get(&self, name: &str) -> Option<&V> {
+        self.0.iter().find(|(n, _)| n == name).map(|(_, v)| v)
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = (&str, &V)> {
+        self.0.iter().map(|(n, v)| (n.as_str(), v))
+    }
+
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
+impl<V> FromIterator<(String, V)> for Pairs<V> {
+    fn from_iter<I: IntoIterator<Item = (String, V)>>(iter: I) -> Self {
+        Pairs(iter.into_iter().collect())
+    }
+}
+
+impl<V: Serialize> Serialize for Pairs<V> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut m = s.serialize_map(Some(self.0.len()))?;
+        for (k, v) in &self.0 {
+            m.serialize_entry(k, v)?;
+        }
+        m.end()
+    }
+}
+
+impl<'de, V: Deserialize<'de>> Deserialize<'de> for Pairs<V> {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Visit<V>(std::marker::PhantomData<V>);
+        impl<'de, V: Deserialize<'de>> serde::de::Visitor<'de> for Visit<V> {
+            type Value = Pairs<V>;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("an object")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut a: A,
+            ) -> Result<Pairs<V>, A::Error> {
+                let mut out = Vec::new();
+                while let Some((k, v)) = a.next_entry::<String, V>()? {
+                    out.push((k, v));
+                }
+                Ok(Pairs(out))
+            }
+        }
+        d.deserialize_map(Visit(std::marker::PhantomData))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pairs_keep_their_order_through_json() {
+        let p: Pairs<u64> = [
+            ("steer".to_string(), 3),
+            ("gas".to_string(), 0),
+            ("a".to_string(), 1),
+        ]
+        .into_iter()
+        .collect();
+        let json = serde_json::to_string(&p).unwrap();
+        assert_eq!(json, r#"{"steer":3,"gas":0,"a":1}"#);
+        assert_eq!(serde_json::from_str::<Pairs<u64>>(&json).unwrap(), p);
+    }
+}

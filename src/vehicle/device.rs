@@ -1,0 +1,193 @@
+//! One device of the vehicle: its configuration, its command slot and shared port,
+//! the cache its status thread fills, its statistics, health and the settings the
+//! console may change while running. Threads share it through the
+//! [`Vehicle`](super::Vehicle); readers only ever read the cache.
+
+use super::port::{Conn, Opener, Port, PortHealth};
+use super::slot::CommandSlot;
+use super::stats::Stats;
+use super::trace::Trace;
+use crate::config::{DeviceConfig, Role};
+use crate::driver::DriverError;
+use crate::value::{DeviceId, Kind, Reading};
+use parking_lot::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// After this many failed transactions in a row a device counts as faulty.
+pub const FAULT_AFTER: u32 = 3;
+
+/// The latest state a device reported.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Cached {
+    pub reading: Reading,
+    /// When it was read; `None` before the first good poll.
+    pub at: Option<Instant>,
+}
+
+impl Cached {
+    pub fn age(&self) -> Option<Duration> {
+        self.at.map(|t| t.elapsed())
+    }
+}
+
+/// Error codes shown per thread, as on the paper's screen: 0 is good, ≥ 1 is bad.
+pub fn error_code(e: &DriverError) -> u32 {
+    match e {
+        DriverError::Timeout(_) => 1,
+        DriverError::Garbled(_) => 2,
+        DriverError::Refused(_) => 3,
+        DriverError::Unsupported(_) => 4,
+        DriverError::Io(_) => 5,
+    }
+}
+
+/// Health of a device, kept by its threads.
+#[derive(Default)]
+pub struct Health {
+    pub status_error: AtomicU32,
+    pub command_error: AtomicU32,
+    pub consecutive_errors: AtomicU32,
+    pub connected: AtomicBool,
+    pub last_error: Mutex<Option<(Instant, String)>>,
+}
+
+impl Health {
+    pub fn last_error(&self) -> Option<String> {
+        self.last_error.lock().as_ref().map(|(_, m)| m.clone())
+    }
+}
+
+/// Settings the console can change while running.
+pub struct Settings {
+    status_period_us: AtomicU64,
+    command_timeout_us: AtomicU64,
+    pub status_enabled: AtomicBool,
+    pub command_enabled: AtomicBool,
+}
+
+impl Settings {
+    fn new(c: &DeviceConfig) -> Settings {
+        Settings {
+            status_period_us: AtomicU64::new(c.status_period.as_micros() as u64),
+            command_timeout_us: AtomicU64::new(c.command_timeout.as_micros() as u64),
+            status_enabled: AtomicBool::new(true),
+            command_enabled: AtomicBool::new(true),
+        }
+    }
+    pub fn status_period(&self) -> Duration {
+        Duration::from_micros(self.status_period_us.load(Relaxed))
+    }
+    pub fn command_timeout(&self) -> Duration {
+        Duration::from_micros(self.command_timeout_us.load(Relaxed))
+    }
+    pub fn set_status_period(&self, d: Duration) {
+        self.status_period_us
+            .store(d.as_micros().max(1000) as u64, Relaxed);
+    }
+    pub fn set_command_timeout(&self, d: Duration) {
+        self.command_timeout_us
+            .store(d.as_micros().max(1000) as u64, Relaxed);
+    }
+}
+
+/// One device of the vehicle.
+pub struct Device {
+    pub id: DeviceId,
+    pub config: DeviceConfig,
+    /// The safety roles it plays (from the vehicle's bindings).
+    pub roles: Vec<Role>,
+    pub slot: CommandSlot,
+    pub port: Port,
+    pub cache: Mutex<Cached>,
+    pub stats: Stats,
+    pub settings: Settings,
+    pub health: Health,
+    /// Raw traffic on the port.
+    pub trace: Arc<Trace>,
+    /// Times the port was opened, and whether it is missing.
+    pub port_health: Arc<PortHealth>,
+}
+
+impl Device {
+    pub fn new(id: DeviceId, config: DeviceConfig, roles: Vec<Role>, opener: Opener) -> Device {
+        let driver = crate::driver::build(&config);
+        let trace = Arc::new(Trace::new(config.name.as_str()));
+        let port_health = Arc::new(PortHealth::default());
+        Device {
+            id,
+            roles,
+            port: Port::new(
+                config.port_rule,
+                Conn::new(driver, opener, trace.clone(), port_health.clone()),
+            ),
+            port_health,
+            trace,
+            settings: Settings::new(&config),
+            config,
+            slot: CommandSlot::default(),
+            cache: Mutex::new(Cached::default()),
+            stats: Stats::default(),
+            health: Health::default(),
+        }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.config.name
+    }
+
+    pub fn kind(&self) -> Kind {
+        self.config.kind
+    }
+
+    pub fn is_actuator(&self) -> bool {
+        self.config.is_actuator()
+    }
+
+    pub fn plays(&self, role: Role) -> bool {
+        self.roles.contains(&role)
+    }
+
+    pub fn cached(&self) -> Cached {
+        *self.cache.lock()
+    }
+
+    /// A reading of the last good status, if there is one.
+    pub fn reading(&self, i: usize) -> Option<f64> {
+        let c = self.cached();
+        c.at.and(c.reading.get(i))
+    }
+
+    /// Failing repeatedly, or its port is gone.
+    pub fn is_faulty(&self) -> bool {
+        self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER
+    }
+
+    pub(crate) fn record_ok(&self) {
+        self.health.consecutive_errors.store(0, Relaxed);
+        self.health.connected.store(true, Relaxed);
+    }
+
+    pub(crate) fn record_error(&self, e: &DriverError, is_command: bool) {
+        let n = self.health.consecutive_errors.fetch_add(1, Relaxed) + 1;
+        let code = error_code(e);
+        if is_command {
+            self.health.command_error.store(code, Relaxed);
+        } else {
+            self.health.status_error.store(code, Relaxed);
+        }
+        if e.is_disconnect() {
+            self.health.connected.store(false, Relaxed);
+        }
+        let msg = e.to_string();
+        let mut last = self.health.last_error.lock();
+        // Log the first error of a run and every change of message, not a flood.
+        let fresh = n == 1 || last.as_ref().is_none_or(|(_, m)| *m != msg);
+        *last = Some((Instant::now(), msg));
+        drop(last);
+        if fresh || n == FAULT_AFTER {
+            tracing::warn!(device = %self.name(), errors_in_a_row = n, "{}: {e}", if is_command { "command" } else { "status" });
+        }
+    }
+}

@@ -1,0 +1,194 @@
+//! The vehicle structure (the paper's "vehicle struct"): every device with its
+//! configuration, cached state, command slot, port and statistics, and what the
+//! supervisor sees. It holds state and produces the devices' part of the
+//! [`Snapshot`](crate::snapshot::Snapshot); it has no policy — the safety rules that
+//! decide what may reach a slot live in [`crate::safety`].
+//!
+//! - [`device`]: one device; [`slot`]: its latest-wins command slot; [`port`]: its
+//!   shared port and the rule by which its two threads take turns; [`stats`]: its
+//!   always-on figures; [`trace`]: its raw traffic; [`supervision`]: the supervisor's
+//!   board.
+
+pub mod device;
+pub mod port;
+pub mod slot;
+pub mod stats;
+pub mod supervision;
+pub mod trace;
+
+pub use device::{error_code, Cached, Device, Health, Settings, FAULT_AFTER};
+
+use crate::config::roles::ReadingRef;
+use crate::config::{Bindings, DeviceConfig, Role, VehicleConfig};
+use crate::snapshot::{self, DeviceView, Pairs};
+use crate::value::{DeviceId, EstopState};
+use port::Opener;
+use std::sync::atomic::Ordering::Relaxed;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The whole vehicle.
+pub struct Vehicle {
+    pub name: String,
+    pub config: VehicleConfig,
+    pub devices: Vec<Device>,
+    /// What the supervisor sees: faults and the recovery in progress.
+    pub supervision: Arc<supervision::Board>,
+    pub started: Instant,
+}
+
+impl Vehicle {
+    /// Build the vehicle; `open` makes the opener of each device's port.
+    pub fn new(config: VehicleConfig, mut open: impl FnMut(&DeviceConfig) -> Opener) -> Vehicle {
+        let devices = config
+            .devices
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                let id = DeviceId(i as u16);
+                let roles = config.roles.roles_of(id).collect();
+                Device::new(id, c.clone(), roles, open(c))
+            })
+            .collect();
+        Vehicle {
+            name: config.vehicle.name.clone(),
+            config,
+            devices,
+            supervision: Default::default(),
+            started: Instant::now(),
+        }
+    }
+
+    pub fn bindings(&self) -> &Bindings {
+        &self.config.roles
+    }
+
+    pub fn device(&self, id: DeviceId) -> &Device {
+        &self.devices[id.index()]
+    }
+
+    /// A device by name (any case).
+    pub fn find(&self, name: &str) -> Option<&Device> {
+        self.devices
+            .iter()
+            .find(|d| d.name().eq_ignore_ascii_case(name))
+    }
+
+    /// The device bound to `role`.
+    pub fn bound(&self, role: Role) -> Option<&Device> {
+        self.config.roles.device(role).map(|id| self.device(id))
+    }
+
+    /// A bound reading's last good value.
+    pub fn reading(&self, r: ReadingRef) -> Option<f64> {
+        self.device(r.device).reading(r.reading)
+    }
+
+    /// The e-stop's last reported state (`None`: no e-stop bound, or no report yet).
+    pub fn estop(&self) -> Option<EstopState> {
+        let e = self.config.roles.estop?;
+        self.reading(e.at).map(|v| e.state(v))
+    }
+
+    /// The devices' part of the snapshot, ages as of `now`.
+    pub fn device_views(&self, now: Instant) -> Vec<DeviceView> {
+        self.devices.iter().map(|d| view(d, now)).collect()
+    }
+
+    /// The role bindings in words: role → device or device.reading.
+    pub fn role_names(&self) -> Pairs<String> {
+        let b = &self.config.roles;
+        let name = |id: DeviceId| self.device(id).name().to_string();
+        let reading = |r: ReadingRef| {
+            format!(
+                "{}.{}",
+                name(r.device),
+                self.device(r.device).config.readings[r.reading].name
+            )
+        };
+        Role::ALL
+            .into_iter()
+            .filter_map(|role| {
+                let target = match role {
+                    Role::Estop => b.estop.map(|e| reading(e.at)),
+                    Role::Speed => b.speed.map(reading),
+                    Role::EngineRunning => b.engine_running.map(reading),
+                    other => b.actuator(other).map(name),
+                }?;
+                Some((role.as_str().to_string(), target))
+            })
+            .collect()
+    }
+}
+
+fn ms(d: std::time::Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// One device as the snapshot carries it, ages as of `now`.
+fn view(d: &Device, now: Instant) -> DeviceView {
+    let c = d.cached();
+    let cfg = &d.config;
+    let s = d.stats.snapshot();
+    let age = c.at.map(|t| now.saturating_duration_since(t));
+    let value = |cmd| cfg.command_value(cmd);
+    DeviceView {
+        name: cfg.name.clone(),
+        kind: cfg.kind,
+        roles: d.roles.iter().map(|r| r.as_str().to_string()).collect(),
+        range: (cfg.kind == crate::value::Kind::Setpoint).then_some(cfg.range),
+        units: cfg.units.clone(),
+        states: cfg.states.clone(),
+        readings: cfg
+            .readings
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                (
+                    r.name.clone(),
+                    c.at.and(c.reading.get(i)).map(|v| r.value(v)),
+                )
+            })
+            .collect(),
+        reading_units: cfg
+            .readings
+            .iter()
+            .map(|r| (r.name.clone(), r.units.clone()))
+            .collect(),
+        fault: c.reading.fault,
+        commanded: d.slot.latest().map(value),
+        executed: d.slot.executed().map(value),
+        status_age_ms: age.map(ms),
+        stale: age.is_none_or(|a| a > cfg.status_max_age),
+        health: snapshot::Health {
+            faulty: d.is_faulty(),
+            connected: d.health.connected.load(Relaxed),
+            missing: d.port_health.missing.load(Relaxed),
+            opens: d.port_health.opens.load(Relaxed),
+            status_error: d.health.status_error.load(Relaxed),
+            command_error: d.health.command_error.load(Relaxed),
+            last_error: d.health.last_error(),
+        },
+        settings: snapshot::Settings {
+            status_period_ms: ms(d.settings.status_period()),
+            command_timeout_ms: ms(d.settings.command_timeout()),
+            status_max_age_ms: ms(cfg.status_max_age),
+            status_on: d.settings.status_enabled.load(Relaxed),
+            command_on: d.settings.command_enabled.load(Relaxed),
+        },
+        counters: snapshot::Counters {
+            received: s.received,
+            executed: s.executed,
+            superseded: s.superseded,
+            resent: s.resent,
+            rejected: s.rejected,
+            command_errors: s.command_errors,
+            polls: s.polls,
+            status_errors: s.status_errors,
+            reconnects: d.port_health.opens.load(Relaxed).saturating_sub(1),
+        },
+        delay_us: s.command_delay,
+        command_txn_us: s.command_txn,
+        status_txn_us: s.status_txn,
+    }
+}

@@ -1,0 +1,112 @@
+//! What the supervisor knows, for everyone who shows it: the faults it sees (each with
+//! a name, a cause and a time) and the recovery procedure in progress, step by step.
+//! The supervisor thread writes it; the snapshot carries it to the console, the
+//! broadcast and tests. Held in the [`Vehicle`](super::Vehicle), like every other state.
+
+pub use crate::snapshot::{FaultKind, FaultView, RecoveryView, SupervisorView};
+use parking_lot::Mutex;
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+/// One fault: what, where, why, since when.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Fault {
+    pub kind: FaultKind,
+    /// The device, for device faults.
+    pub device: Option<String>,
+    pub cause: String,
+    pub since: Instant,
+}
+
+impl Fault {
+    /// `steer not_following: measured 0.02, commanded 0.50 for 2.6 s`
+    pub fn describe(&self) -> String {
+        match &self.device {
+            Some(d) => format!("{d} {}: {}", self.kind, self.cause),
+            None => format!("{}: {}", self.kind, self.cause),
+        }
+    }
+}
+
+#[derive(Default)]
+struct Inner {
+    faults: Vec<Fault>,
+    recovery: Option<(RecoveryView, Instant)>,
+    last_outcome: Option<String>,
+    history: VecDeque<String>,
+}
+
+/// Lines of history kept.
+pub const HISTORY: usize = 32;
+
+/// The supervisor's board: what it publishes for everyone.
+#[derive(Default)]
+pub struct Board {
+    inner: Mutex<Inner>,
+}
+
+impl Board {
+    pub fn snapshot(&self) -> SupervisorView {
+        let i = self.inner.lock();
+        let now = Instant::now();
+        SupervisorView {
+            faults: i
+                .faults
+                .iter()
+                .map(|f| FaultView {
+                    kind: f.kind,
+                    device: f.device.clone(),
+                    cause: f.cause.clone(),
+                    age_ms: ms(now - f.since),
+                })
+                .collect(),
+            recovery: i.recovery.as_ref().map(|(r, started)| RecoveryView {
+                elapsed_ms: ms(now - *started),
+                ..r.clone()
+            }),
+            last_outcome: i.last_outcome.clone(),
+            history: i.history.iter().cloned().collect(),
+        }
+    }
+
+    pub fn faults(&self) -> Vec<Fault> {
+        self.inner.lock().faults.clone()
+    }
+
+    pub fn has(&self, kind: FaultKind, device: Option<&str>) -> bool {
+        self.inner
+            .lock()
+            .faults
+            .iter()
+            .any(|f| f.kind == kind && f.device.as_deref() == device)
+    }
+
+    pub fn set_faults(&self, faults: Vec<Fault>) {
+        self.inner.lock().faults = faults;
+    }
+
+    pub fn set_recovery(&self, view: Option<RecoveryView>) {
+        let mut i = self.inner.lock();
+        i.recovery = match (view, i.recovery.take()) {
+            (Some(v), Some((_, started))) => Some((v, started)),
+            (Some(v), None) => Some((v, Instant::now())),
+            (None, _) => None,
+        };
+    }
+
+    pub fn note(&self, line: String) {
+        let mut i = self.inner.lock();
+        if i.history.len() == HISTORY {
+            i.history.pop_front();
+        }
+        i.history.push_back(line);
+    }
+
+    pub fn set_outcome(&self, outcome: String) {
+        self.inner.lock().last_outcome = Some(outcome);
+    }
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1000.0
+}
