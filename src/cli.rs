@@ -334,10 +334,14 @@ pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
     Ok(client::watch(args.from, args.json, args.count, &stop)?)
 }
 
+/// How many received commands `adrive sim` holds while its output is slow; past
+/// that they are counted and said, never kept (its memory stays flat).
+const SIM_BACKLOG: usize = 4096;
+
 /// `adrive sim`: the simulated devices alone.
 pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let config = load(&args.config, &args.only)?;
-    let (tx, rx) = crossbeam_channel::unbounded::<SimEvent>();
+    let (tx, rx) = crossbeam_channel::bounded::<SimEvent>(SIM_BACKLOG);
     let sim = Sim::start(&config, (!args.quiet).then_some(tx))?;
     for f in &args.fault {
         sim.apply(f)
@@ -355,11 +359,8 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             d.baud
         );
     }
-    println!(
-        "type `estop pause|run|disable`, `stall`, `silent gas on`, `garbage steer on`, \
-         `corrupt brake on`, `slow trans 80`, `vanish obd 2000`, `clear gas`; Ctrl-C stops"
-    );
-    let (lines_tx, lines) = crossbeam_channel::unbounded::<String>();
+    println!("type `help` for the faults and events it takes (`silent gas on`, `estop pause`, …); Ctrl-C stops");
+    let (lines_tx, mut lines) = crossbeam_channel::unbounded::<String>();
     std::thread::Builder::new()
         .name("sim/stdin".into())
         .spawn(move || {
@@ -370,10 +371,16 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             }
         })?;
     let start = Instant::now();
-    loop {
+    let mut dropped = 0;
+    let why = loop {
         crossbeam_channel::select! {
-            recv(exits) -> _ => break,
+            recv(exits) -> why => break why.unwrap_or(Exit::Quit),
             recv(rx) -> ev => if let Ok(ev) = ev {
+                let now = sim.dropped_events();
+                if now > dropped {
+                    println!("… {} commands not shown: the output was too slow", now - dropped);
+                    dropped = now;
+                }
                 println!(
                     "{:>9.3}s {:<6} <- {:<10} {}",
                     ev.at.duration_since(start).as_secs_f64(),
@@ -388,15 +395,15 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
                     Ok(done) => println!("{done}"),
                     Err(e) => println!("error: {e}"),
                 },
-                Err(_) => {
-                    // Standard input closed: keep serving until a signal.
-                    let why = exits.recv().unwrap_or(Exit::Quit);
-                    tracing::debug!("sim stopping: {}", why.describe());
-                    break;
-                }
+                // Standard input closed (`< /dev/null`, a service): keep serving and
+                // printing until a signal.
+                Err(_) => lines = crossbeam_channel::never(),
             },
         }
-    }
+    };
+    tracing::debug!("sim stopping: {}", why.describe());
+    // Dropping the simulator closes the ports and removes its directory of links.
+    drop(sim);
     Ok(0)
 }
 
