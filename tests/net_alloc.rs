@@ -119,7 +119,6 @@ fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
         vehicle.device(Role::Steer).unwrap().slot.latest(),
         Some(adrive::value::Command::Set(-0.1))
     );
-    assert!(replies
-        .iter()
-        .all(|r| r.is_none_or(|r| r.as_str() == "ok engaged\n")));
+    // Accepted commands and a repeated `engage` from the commander are not answered.
+    assert!(replies.iter().all(|r| r.is_none()), "{replies:?}");
 }

@@ -45,7 +45,7 @@ struct Outcome {
     reply: Reply,
     /// Something was refused or rejected.
     refused: bool,
-    /// Engage or disengage: always worth a reply.
+    /// It engaged, disengaged or handed command to this sender: worth a reply.
     gate: bool,
 }
 
@@ -197,7 +197,6 @@ impl Intake {
                 }
                 NetCommand::Engage => {
                     asked_engage = true;
-                    out.gate = true;
                     self.engage(&mut inner, i, from, received, &mut out);
                 }
                 NetCommand::Set(role, command) => {
@@ -249,6 +248,9 @@ impl Intake {
         self.reply(&mut inner, i, out, received)
     }
 
+    /// `engage` from `from`. Answered when it engages, hands command to this sender
+    /// or is refused; a repeat by the sender already commanding changes nothing and is
+    /// not answered (a planner repeats `engage` in every datagram).
     fn engage(
         &mut self,
         inner: &mut Inner,
@@ -268,15 +270,16 @@ impl Intake {
             return;
         }
         if self.vehicle.is_engaged() {
-            // Already engaged: by this sender (a planner repeats `engage` in every
-            // datagram; nothing is reset), or from the console (this sender takes over).
+            // Already engaged: by this sender (nothing is reset, nothing to say), or
+            // from the console (this sender takes over).
             if inner.commander.is_none() {
                 inner.commander = Some(from);
                 inner.last_valid = Some(now);
                 inner.watchdog = WatchdogState::Armed;
                 tracing::info!(%from, "network sender commands the engaged vehicle");
+                out.gate = true;
+                out.line(format_args!("ok engaged"));
             }
-            out.line(format_args!("ok engaged"));
             return;
         }
         if inner.get(i).latched {
@@ -296,6 +299,7 @@ impl Intake {
                 inner.commander = Some(from);
                 inner.last_valid = Some(now);
                 inner.watchdog = WatchdogState::Armed;
+                out.gate = true;
                 out.line(format_args!("ok engaged"));
             }
             Err(why) => {

@@ -599,7 +599,9 @@ watchdog = "300ms"
         let end = Instant::now() + Duration::from_secs(20);
         let trip = loop {
             let left = end.saturating_duration_since(Instant::now());
-            let ev = events.recv_timeout(left).expect("the device watchdog to trip");
+            let ev = events
+                .recv_timeout(left)
+                .expect("the device watchdog to trip");
             if ev.note.is_some() {
                 break ev;
             }
@@ -609,8 +611,14 @@ watchdog = "300ms"
         assert_eq!(sim.ports[0].lives.load(Relaxed), 1);
         assert_eq!(trip.command, Command::Set(0.0));
         let after = trip.at.duration_since(before);
-        assert!(after >= Duration::from_millis(300), "tripped early: {after:?}");
-        assert!(after < Duration::from_millis(1300), "tripped late: {after:?}");
+        assert!(
+            after >= Duration::from_millis(300),
+            "tripped early: {after:?}"
+        );
+        assert!(
+            after < Duration::from_millis(1300),
+            "tripped late: {after:?}"
+        );
         assert_eq!(sim.model().lock().gas_cmd, 0.0);
         let end = Instant::now() + Duration::from_secs(20);
         while sim.model().lock().reading(Role::Gas).position > Some(0.01) {
