@@ -105,8 +105,8 @@ impl SimProcess {
 
 impl Drop for SimProcess {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        // SIGTERM first: it removes its directory of links.
+        common::stop(&mut self.child);
     }
 }
 
@@ -132,19 +132,19 @@ fn vehicle_file(dir: &std::path::Path, sim: &SimProcess, extra: &str) -> PathBuf
 struct Adrive {
     child: Child,
     port: u16,
-    dir: PathBuf,
+    dir: tempfile::TempDir,
 }
 
 impl Adrive {
     fn start(name: &str, sim: &SimProcess, extra_args: &[&str], supervisor: &str) -> Adrive {
         let dir = tempdir(name);
-        let config = vehicle_file(&dir, sim, supervisor);
+        let config = vehicle_file(dir.path(), sim, supervisor);
         let port = free_port();
         let child = Process::new(BIN)
             .args(["--headless", "--config"])
             .arg(&config)
             .args(["--listen", &format!("127.0.0.1:{port}"), "--log-dir"])
-            .arg(dir.join("log"))
+            .arg(dir.path().join("log"))
             .args(extra_args)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
@@ -187,7 +187,7 @@ impl Adrive {
     }
 
     fn log(&self) -> String {
-        std::fs::read_dir(self.dir.join("log"))
+        std::fs::read_dir(self.dir.path().join("log"))
             .unwrap()
             .map(|e| std::fs::read_to_string(e.unwrap().path()).unwrap())
             .collect()
@@ -196,9 +196,7 @@ impl Adrive {
 
 impl Drop for Adrive {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-        let _ = std::fs::remove_dir_all(&self.dir);
+        common::stop(&mut self.child);
     }
 }
 

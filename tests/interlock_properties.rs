@@ -186,8 +186,8 @@ fn run(ops: &[Op]) -> Vec<String> {
             }
         }
     }
-    // Let what is in flight land.
-    std::thread::sleep(Duration::from_millis(150));
+    // Everything in flight has landed once each actuator answered a poll behind it.
+    rig.settle(&[Role::Gas, Role::Brake, Role::Trans]);
     let mut events = rig.received();
     events.sort_by_key(|e| e.at);
     violations(&events, &paused)

@@ -95,6 +95,27 @@ impl Rig {
         self.vehicle.engage("test").expect("engage");
     }
 
+    /// A barrier for what the devices received: make `roles` answer again, wait
+    /// until each one's command thread has taken what was pending (it holds the port
+    /// before it takes its slot), then for two status polls after that. The port
+    /// serves one transaction at a time and a simulated device its requests in order,
+    /// so once those polls were answered, every command sent before has been applied
+    /// and recorded.
+    pub fn settle(&self, roles: &[adrive::value::Role]) {
+        use std::sync::atomic::Ordering::Relaxed;
+        for &role in roles {
+            self.sim.faults(role).expect("simulated").clear();
+            let d = self.vehicle.device(role).expect("configured");
+            wait_for(&format!("{role}'s command to be taken"), || {
+                !d.slot.has_pending()
+            });
+            let polls = d.stats.polls.load(Relaxed);
+            wait_for(&format!("two polls of {role}"), || {
+                d.stats.polls.load(Relaxed) >= polls + 2
+            });
+        }
+    }
+
     /// Every command the simulated devices applied so far.
     pub fn received(&self) -> Vec<SimEvent> {
         self.events.try_iter().collect()
