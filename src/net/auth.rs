@@ -306,8 +306,11 @@ mod tests {
 
     #[test]
     fn key_file_errors_name_the_file_and_debug_hides_the_key() {
-        let dir = std::env::temp_dir().join(format!("adrive-auth-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let guard = tempfile::Builder::new()
+            .prefix("adrive-auth-")
+            .tempdir()
+            .unwrap();
+        let dir = guard.path();
         let path = dir.join("short.key");
         std::fs::write(&path, "secret\n").unwrap();
         let err = Auth::load(&path).unwrap_err().to_string();
@@ -315,7 +318,6 @@ mod tests {
         assert!(err.contains("at least 16"), "{err}");
         let missing = Auth::load(&dir.join("none.key")).unwrap_err().to_string();
         assert!(missing.contains("none.key"), "{missing}");
-        std::fs::remove_dir_all(&dir).unwrap();
 
         assert!(!format!("{:?}", auth()).contains("horse"));
     }
