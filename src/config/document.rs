@@ -4,9 +4,9 @@
 //! serves three kinds of error that must name a line: a syntax error told in the user's
 //! terms (a misspelt table header rather than the "duplicate key" it causes twenty
 //! lines later, a duplicate key named), a value that serde refuses (told with the key's
-//! range from [`limits`]), and a check made after typing — a range, a
-//! rule between two keys, a port that is missing outside `--sim`, a key file that
-//! cannot be read — which asks [`Lines`] for the line of its key.
+//! range from [`limits`]), and a check made after typing — a range, a rule between two
+//! keys, a port that is missing outside `--sim`, a key file that cannot be read — which
+//! asks [`Lines`] for the line of its key.
 
 use super::limits;
 use super::ConfigError;
