@@ -1,6 +1,7 @@
 //! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
-//! `adrive watch`. Parsing is clap's; each subcommand is one function here that wires
-//! the parts together.
+//! `adrive watch`, and `adrive completions` / `adrive manpage`, generated from the same
+//! definitions. Parsing is clap's; each subcommand is one function here that wires the
+//! parts together.
 
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
@@ -10,7 +11,7 @@ use crate::sim::{Sim, SimEvent};
 use crate::value::Role;
 use crate::vehicle::Vehicle;
 use crate::{console, driver, gate, headless, logging};
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, CommandFactory, Parser, Subcommand};
 use std::io::BufRead;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
@@ -43,6 +44,18 @@ pub enum Cmd {
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
+    /// Print a shell completion script (see the README for where each shell wants it).
+    Completions {
+        /// The shell to complete in.
+        shell: clap_complete::Shell,
+    },
+    /// Print the manual page (roff), or write every page into a directory with --dir.
+    Manpage {
+        /// Write adrive.1 and a page per subcommand (adrive-send.1, …) into this directory
+        /// instead, e.g. ~/.local/share/man/man1.
+        #[arg(long, value_name = "DIR")]
+        dir: Option<PathBuf>,
+    },
 }
 
 #[derive(Args, Debug, Clone, Default)]
@@ -63,8 +76,8 @@ pub struct RunArgs {
     #[arg(long, value_name = "FILE")]
     pub keymap: Option<PathBuf>,
     /// Teleop deadman: with no teleop key for this long, gas goes to 0 and the brake on
-    /// [default: 1s].
-    #[arg(long, value_name = "DURATION", value_parser = humantime::parse_duration)]
+    /// (100ms to 5s) [default: 1s].
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
     pub deadman: Option<Duration>,
     /// Fault injection for tests: make a thread panic once running, `main` or
     /// `supervisor`, optionally after a delay (`supervisor:4s`).
@@ -143,6 +156,11 @@ pub fn main() -> i32 {
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
+        Some(Cmd::Completions { shell }) => {
+            clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut std::io::stdout());
+            Ok(0)
+        }
+        Some(Cmd::Manpage { dir }) => manpage(dir.as_deref(), &mut std::io::stdout()).map(|()| 0),
         None => run(cli.run),
     };
     match result {
@@ -179,6 +197,9 @@ fn default_log_dir() -> PathBuf {
 /// `adrive run`: the engine with the console or headless.
 pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut config = load(&args.config, &args.only)?;
+    if !args.sim {
+        config.check_ports()?;
+    }
     if let Some(addr) = args.listen {
         config.network.listen = addr;
     }
@@ -302,7 +323,30 @@ fn network_key(config: &VehicleConfig) -> anyhow::Result<Option<Auth>> {
         Some(dir) if file.is_relative() => dir.join(file),
         _ => file.clone(),
     };
-    Ok(Some(Auth::load(&path)?))
+    let auth = Auth::load(&path).map_err(|e| {
+        let v = config::Violation {
+            paths: vec!["key_file".into()],
+            message: format!("key_file: {e}"),
+        };
+        config.refuse("network", v)
+    })?;
+    Ok(Some(auth))
+}
+
+/// `adrive manpage`: the manual page, from the same definitions as `--help`, to `out`;
+/// or, with a directory, every page (the subcommands' too) written there.
+pub fn manpage(dir: Option<&Path>, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
+    let cmd = Cli::command().disable_help_subcommand(true);
+    match dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)
+                .and_then(|()| clap_mangen::generate_to(cmd, dir))
+                .map_err(|e| anyhow::anyhow!("manpage --dir {}: {e}", dir.display()))?;
+            eprintln!("adrive manpage: wrote the pages to {}", dir.display());
+        }
+        None => clap_mangen::Man::new(cmd).render(out)?,
+    }
+    Ok(())
 }
 
 /// Set when SIGINT or SIGTERM arrives (for the clients, which have no engine to stop).
@@ -316,7 +360,10 @@ fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
 
 /// `adrive send`: commands in one datagram, once or at a rate.
 pub fn send(args: SendArgs) -> anyhow::Result<i32> {
-    let auth = args.key.as_deref().map(Auth::load).transpose()?;
+    let auth = match args.key.as_deref() {
+        Some(key) => Some(Auth::load(key).map_err(|e| anyhow::anyhow!("--key {e}"))?),
+        None => None,
+    };
     let body = client::lines_from_words(&args.words);
     let opts = client::SendOptions {
         to: args.to,

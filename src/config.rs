@@ -2,9 +2,18 @@
 //! them. Loaded from TOML; the built-in simulated Alice is `vehicles/alice.toml`,
 //! compiled in. Loading is split into [`load`] (a path) and [`parse`] (text) so tests
 //! feed bytes, and every error names the file, the line and what was expected.
+//!
+//! Safety-relevant values are held to the ranges of [`limits`]; where each key sits in
+//! the file is [`document`]'s business, so that a check made after typing still names
+//! its line.
+
+pub mod document;
+pub mod limits;
 
 pub use crate::net::config::NetworkConfig;
 use crate::value::Role;
+use document::{Document, Lines};
+pub use limits::Violation;
 use serde::{Deserialize, Deserializer};
 use std::fmt;
 use std::path::Path;
@@ -15,13 +24,23 @@ pub const ALICE_TOML: &str = include_str!("../vehicles/alice.toml");
 /// The name errors in the built-in vehicle are reported under.
 pub const ALICE_PATH: &str = "vehicles/alice.toml";
 
-/// A configuration error: `file:line: message`.
+/// A configuration error: `file:line: message` (`file: message` without a line, when
+/// the file cannot be read at all).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{path}:{line}: {message}")]
 pub struct ConfigError {
     pub path: String,
+    /// 1-based; 0 when the error is about the whole file.
     pub line: usize,
     pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            0 => write!(f, "{}: {}", self.path, self.message),
+            l => write!(f, "{}:{l}: {}", self.path, self.message),
+        }
+    }
 }
 
 /// How a device's two threads share its port.
@@ -79,15 +98,15 @@ impl Default for SimConfig {
     fn default() -> Self {
         SimConfig {
             turnaround: default_turnaround(),
-            poll_delay: Duration::ZERO,
-            command_delay: Duration::ZERO,
+            poll_delay: limits::SIM_POLL_DELAY.default_value(),
+            command_delay: limits::SIM_COMMAND_DELAY.default_value(),
             watchdog: None,
         }
     }
 }
 
 fn default_turnaround() -> Duration {
-    Duration::from_millis(2)
+    limits::SIM_TURNAROUND.default_value()
 }
 
 /// One device.
@@ -119,8 +138,8 @@ pub struct DeviceConfig {
     pub min_command_interval: Option<Duration>,
     #[serde(default)]
     pub port_rule: PortRule,
-    /// Value domain `[min, max]` of commands (actuators only).
-    #[serde(default)]
+    /// Value domain `[min, max]` of commands (steer, gas and brake only).
+    #[serde(default, deserialize_with = "range")]
     pub range: Option<[f64; 2]>,
     #[serde(default)]
     pub sim: SimConfig,
@@ -130,28 +149,107 @@ pub struct DeviceConfig {
 }
 
 fn default_baud() -> u32 {
-    9600
+    limits::BAUD.default_value() as u32
 }
 fn default_status_period() -> Duration {
-    Duration::from_millis(100)
+    limits::STATUS_PERIOD.default_value()
 }
 fn default_command_timeout() -> Duration {
-    Duration::from_millis(250)
+    limits::COMMAND_TIMEOUT.default_value()
 }
 fn default_status_max_age() -> Duration {
-    Duration::from_millis(500)
+    limits::STATUS_MAX_AGE.default_value()
 }
 fn default_reply_timeout() -> Duration {
-    Duration::from_millis(200)
+    limits::REPLY_TIMEOUT.default_value()
 }
 
 impl DeviceConfig {
     /// The command value domain: the configured range, or the role's natural one.
     pub fn range(&self) -> [f64; 2] {
-        self.range.unwrap_or(match self.name {
-            Role::Steer => [-1.0, 1.0],
-            _ => [0.0, 1.0],
-        })
+        self.range.unwrap_or(domain(self.name))
+    }
+
+    /// Every limit and rule of one device, as the loader applies them to a vehicle
+    /// file and the console to its in-place edits (`port` aside: see
+    /// [`VehicleConfig::check_ports`]).
+    pub fn check(&self) -> Result<(), Violation> {
+        use limits::*;
+        BAUD.check(u64::from(self.baud))?;
+        STATUS_PERIOD.check(self.status_period)?;
+        STATUS_MAX_AGE.check(self.status_max_age)?;
+        COMMAND_TIMEOUT.check(self.command_timeout)?;
+        REPLY_TIMEOUT.check(self.reply_timeout)?;
+        if let Some(i) = self.min_command_interval {
+            MIN_COMMAND_INTERVAL.check(i)?;
+        }
+        SIM_TURNAROUND.check(self.sim.turnaround)?;
+        SIM_POLL_DELAY.check(self.sim.poll_delay)?;
+        SIM_COMMAND_DELAY.check(self.sim.command_delay)?;
+        if let Some(w) = self.sim.watchdog {
+            SIM_WATCHDOG.check(w)?;
+        }
+        if let Some(m) = &self.modbus {
+            MODBUS_SLAVE.check(u64::from(m.slave))?;
+        }
+        let show = fmt_duration;
+        if self.status_max_age < self.status_period {
+            return Err(MAX_AGE_COVERS_PERIOD.violation(
+                &["status_max_age", "status_period"],
+                format!(
+                    "status_max_age {}, status_period {}",
+                    show(self.status_max_age),
+                    show(self.status_period)
+                ),
+            ));
+        }
+        if self.reply_timeout > self.status_max_age {
+            return Err(REPLY_WITHIN_MAX_AGE.violation(
+                &["reply_timeout", "status_max_age"],
+                format!(
+                    "reply_timeout {}, status_max_age {}",
+                    show(self.reply_timeout),
+                    show(self.status_max_age)
+                ),
+            ));
+        }
+        if let Some(w) = self.sim.watchdog.filter(|w| *w <= self.command_timeout) {
+            return Err(WATCHDOG_OUTLASTS_RESEND.violation(
+                &["sim.watchdog", "command_timeout"],
+                format!(
+                    "sim.watchdog {}, command_timeout {}",
+                    show(w),
+                    show(self.command_timeout)
+                ),
+            ));
+        }
+        if let Some([lo, hi]) = self.range {
+            let [dlo, dhi] = domain(self.name);
+            let safe = match self.name {
+                Role::Gas => Some(crate::vehicle::SAFE_GAS),
+                Role::Brake => Some(crate::vehicle::SAFE_BRAKE),
+                _ => None,
+            };
+            let fits = matches!(self.name, Role::Steer | Role::Gas | Role::Brake)
+                && lo.is_finite()
+                && hi.is_finite()
+                && dlo <= lo
+                && lo < hi
+                && hi <= dhi
+                && safe.is_none_or(|v| lo <= v && v <= hi);
+            if !fits {
+                return Err(RANGE_FORM.violation(&["range"], format!("range [{lo}, {hi}]")));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The natural command domain of a role: steer −1 … 1, the pedals 0 … 1.
+fn domain(role: Role) -> [f64; 2] {
+    match role {
+        Role::Steer => [-1.0, 1.0],
+        _ => [0.0, 1.0],
     }
 }
 
@@ -196,18 +294,35 @@ pub struct SupervisorConfig {
 
 impl Default for SupervisorConfig {
     fn default() -> Self {
+        use limits::*;
         SupervisorConfig {
-            period: Duration::from_millis(100),
-            error_rate: 0.5,
-            error_window: Duration::from_secs(2),
-            follow_tolerance: 0.1,
-            follow_time: Duration::from_millis(2500),
-            range_margin: 0.05,
-            attempts: 3,
-            step_timeout: Duration::from_secs(4),
+            period: SUPERVISOR_PERIOD.default_value(),
+            error_rate: ERROR_RATE.default_value(),
+            error_window: ERROR_WINDOW.default_value(),
+            follow_tolerance: FOLLOW_TOLERANCE.default_value(),
+            follow_time: FOLLOW_TIME.default_value(),
+            range_margin: RANGE_MARGIN.default_value(),
+            attempts: ATTEMPTS.default_value() as u32,
+            step_timeout: STEP_TIMEOUT.default_value(),
             exit_on_give_up: true,
             panic_for_test: None,
         }
+    }
+}
+
+impl SupervisorConfig {
+    /// Every value within its limit.
+    pub fn check(&self) -> Result<(), Violation> {
+        use limits::*;
+        SUPERVISOR_PERIOD.check(self.period)?;
+        ERROR_RATE.check(self.error_rate)?;
+        ERROR_WINDOW.check(self.error_window)?;
+        FOLLOW_TOLERANCE.check(self.follow_tolerance)?;
+        FOLLOW_TIME.check(self.follow_time)?;
+        RANGE_MARGIN.check(self.range_margin)?;
+        ATTEMPTS.check(u64::from(self.attempts))?;
+        STEP_TIMEOUT.check(self.step_timeout)?;
+        Ok(())
     }
 }
 
@@ -221,6 +336,8 @@ pub struct VehicleConfig {
     pub network: NetworkConfig,
     /// Where it was loaded from (for messages).
     pub source: String,
+    /// The line of every key in that file, for errors found after loading.
+    pub lines: Lines,
 }
 
 impl VehicleConfig {
@@ -239,6 +356,30 @@ impl VehicleConfig {
             self.devices.retain(|d| only.contains(&d.name));
         }
     }
+
+    /// A violation found after loading, inside `owner` (`device.steer`, `network`), as
+    /// an error at the line of the key it blames.
+    pub fn refuse(&self, owner: &str, v: Violation) -> ConfigError {
+        refuse(&self.source, &self.lines, owner, v)
+    }
+
+    /// Every device that is not simulated needs a port to open.
+    pub fn check_ports(&self) -> Result<(), ConfigError> {
+        for d in &self.devices {
+            if d.port.trim().is_empty() {
+                let v = Violation {
+                    paths: vec!["port".into()],
+                    message: format!(
+                        "port: expected the path of a serial port (\"/dev/ttyUSB0\", \
+                         \"/dev/serial/by-id/…\"), got {:?}; without hardware, run with --sim",
+                        d.port
+                    ),
+                };
+                return Err(self.refuse(&format!("device.{}", d.name), v));
+            }
+        }
+        Ok(())
+    }
 }
 
 #[derive(Deserialize)]
@@ -250,92 +391,67 @@ struct Raw {
     #[serde(default)]
     device: Vec<toml::Spanned<DeviceConfig>>,
     #[serde(default)]
-    network: Option<toml::Spanned<NetworkConfig>>,
+    network: Option<NetworkConfig>,
 }
 
 /// Load a vehicle from a file.
 pub fn load(path: &Path) -> Result<VehicleConfig, ConfigError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+    let bytes = std::fs::read(path).map_err(|e| ConfigError {
         path: name.clone(),
         line: 0,
         message: format!("cannot read: {e}"),
     })?;
-    parse(&text, &name)
+    parse(document::utf8(&bytes, &name)?, &name)
 }
 
 /// Parse a vehicle from TOML text; `path` names it in errors.
 pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
-    let err = |offset: usize, message: String| ConfigError {
-        path: path.to_string(),
-        line: line_of(text, offset),
-        message,
-    };
-    let raw: Raw = toml::from_str(text).map_err(|e| {
-        let offset = e.span().map(|s| s.start).unwrap_or(0);
-        err(offset, e.message().trim().to_string())
-    })?;
+    let doc = Document::parse(text, path)?;
+    let raw: Raw = toml::from_str(text).map_err(|e| doc.type_error(e.span(), e.message()))?;
+    let lines = doc.lines();
     let mut devices: Vec<DeviceConfig> = Vec::new();
     for spanned in raw.device {
-        let at = spanned.span().start;
+        let offset = spanned.span().start;
         let d = spanned.into_inner();
-        if devices.iter().any(|o| o.name == d.name) {
-            return Err(err(at, format!("device {} is defined twice", d.name)));
-        }
-        let [lo, hi] = d.range();
-        if !(lo.is_finite() && hi.is_finite() && lo < hi) {
-            return Err(err(
-                at,
-                format!("range of {}: expected [min, max] with min < max", d.name),
-            ));
-        }
-        if d.baud == 0 {
-            return Err(err(
-                at,
-                format!("baud of {}: expected a positive number", d.name),
-            ));
-        }
-        if d.status_period.is_zero() || d.reply_timeout.is_zero() || d.command_timeout.is_zero() {
-            return Err(err(
-                at,
-                format!(
-                    "{}: status_period, command_timeout and reply_timeout must be above zero",
-                    d.name
-                ),
-            ));
+        let name = d.name;
+        if devices.iter().any(|o| o.name == name) {
+            return Err(doc.error_at(offset, format!("device {name} is defined twice")));
         }
         if let Some(why) = driver_mismatch(&d) {
-            return Err(err(at, why));
+            return Err(doc.error_at(offset, why));
         }
-        if d.status_max_age < d.status_period {
-            return Err(err(
-                at,
-                format!(
-                    "{}: status_max_age ({}) must be at least status_period ({})",
-                    d.name,
-                    humantime::format_duration(d.status_max_age),
-                    humantime::format_duration(d.status_period)
-                ),
-            ));
-        }
+        d.check()
+            .map_err(|v| refuse(path, &lines, &format!("device.{name}"), v))?;
         devices.push(d);
     }
-    let network = match raw.network {
-        Some(n) => {
-            let at = n.span().start;
-            let n = n.into_inner();
-            n.check().map_err(|m| err(at, format!("[network] {m}")))?;
-            n
-        }
-        None => NetworkConfig::default(),
-    };
+    raw.supervisor
+        .check()
+        .map_err(|v| refuse(path, &lines, "supervisor", v))?;
+    let network = raw.network.unwrap_or_default();
+    network
+        .check()
+        .map_err(|v| refuse(path, &lines, "network", v))?;
     Ok(VehicleConfig {
         vehicle: raw.vehicle,
         supervisor: raw.supervisor,
         devices,
         network,
         source: path.to_string(),
+        lines,
     })
+}
+
+/// A violation inside `owner` (`device.steer`, `network`, `supervisor`) of the file at
+/// `path`, as an error at the line of the key it blames (else of its table).
+fn refuse(path: &str, lines: &Lines, owner: &str, v: Violation) -> ConfigError {
+    let mut keys: Vec<String> = v.paths.iter().map(|p| format!("{owner}.{p}")).collect();
+    keys.push(owner.to_string());
+    ConfigError {
+        path: path.to_string(),
+        line: lines.first(&keys),
+        message: format!("{}{v}", document::context(owner)),
+    }
 }
 
 /// What is wrong with the driver settings of a device, if anything.
@@ -373,14 +489,6 @@ fn driver_mismatch(d: &DeviceConfig) -> Option<String> {
     }
 }
 
-fn line_of(text: &str, offset: usize) -> usize {
-    text.as_bytes()[..offset.min(text.len())]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
-}
-
 struct Expected(&'static str);
 impl serde::de::Expected for Expected {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
@@ -408,104 +516,23 @@ fn opt_duration<'de, D: Deserializer<'de>>(d: D) -> Result<Option<Duration>, D::
     duration(d).map(Some)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    const GOOD: &str = r#"
-[vehicle]
-name = "bench"
-
-[[device]]
-name = "steer"
-driver = "line"
-port = "/dev/ttyUSB0"
-status_period = "50ms"
-"#;
-
-    #[test]
-    fn the_built_in_alice_parses_with_all_six_devices() {
-        let a = VehicleConfig::alice();
-        let names: Vec<_> = a.devices.iter().map(|d| d.name).collect();
-        assert_eq!(names, Role::ALL.to_vec());
-    }
-
-    #[test]
-    fn defaults_fill_what_is_not_said() {
-        let v = parse(GOOD, "bench.toml").unwrap();
-        let d = &v.devices[0];
-        assert_eq!(d.status_period, Duration::from_millis(50));
-        assert_eq!(d.baud, 9600);
-        assert_eq!(d.port_rule, PortRule::Priority);
-        assert_eq!(d.min_command_interval, None);
-        assert_eq!(d.range(), [-1.0, 1.0]);
-    }
-
-    fn error(text: &str) -> String {
-        parse(text, "v.toml").unwrap_err().to_string()
-    }
-
-    #[test]
-    fn an_unknown_driver_names_file_line_and_the_choices() {
-        let e = error(&GOOD.replace("driver = \"line\"", "driver = \"modbsu\""));
-        assert!(e.starts_with("v.toml:7: "), "{e}");
-        assert!(e.contains("modbsu") && e.contains("line"), "{e}");
-    }
-
-    #[test]
-    fn a_bad_duration_names_its_line_and_form() {
-        let e = error(&GOOD.replace("\"50ms\"", "\"fast\""));
-        assert!(e.starts_with("v.toml:9: "), "{e}");
-        assert!(e.contains("250ms"), "{e}");
-    }
-
-    #[test]
-    fn an_unknown_device_or_field_is_refused() {
-        let e = error(&GOOD.replace("\"steer\"", "\"wiper\""));
-        assert!(
-            e.starts_with("v.toml:6: ") && e.contains("`steer`, `gas`"),
-            "{e}"
-        );
-        let e = error(&GOOD.replace("port =", "prot ="));
-        assert!(e.starts_with("v.toml:8: ") && e.contains("prot"), "{e}");
-    }
-
-    #[test]
-    fn cross_field_errors_point_at_the_device() {
-        let e = error(&format!("{GOOD}range = [1.0, -1.0]\n"));
-        assert!(
-            e.starts_with("v.toml:5: ") && e.contains("min < max"),
-            "{e}"
-        );
-        let e = error(&format!("{GOOD}status_max_age = \"10ms\"\n"));
-        assert!(e.contains("status_max_age"), "{e}");
-        let twice = format!("{GOOD}\n[[device]]\nname = \"steer\"\ndriver = \"line\"\n");
-        assert!(error(&twice).contains("defined twice"));
-    }
-
-    #[test]
-    fn a_modbus_device_needs_its_table_and_a_sensible_map() {
-        let modbus = GOOD.replace("driver = \"line\"", "driver = \"modbus\"");
-        let e = error(&modbus);
-        assert!(
-            e.starts_with("v.toml:5: ") && e.contains("[device.modbus]"),
-            "{e}"
-        );
-        let ok = format!(
-            "{modbus}\n[device.modbus]\nslave = 7\nregisters = {{ target = 0, position = 0 }}\n"
-        );
-        let d = &parse(&ok, "v.toml").unwrap().devices[0];
-        assert_eq!(d.modbus.as_ref().unwrap().slave, 7);
-        let geared = ok.replace("position = 0", "gear = 0");
-        assert!(error(&geared).contains("registers.gear"));
-        let typo = ok.replace("position = 0", "postion = 0");
-        let e = error(&typo);
-        assert!(e.starts_with("v.toml:13: ") && e.contains("postion"), "{e}");
-    }
-
-    #[test]
-    fn broken_toml_names_the_line() {
-        let e = error("[vehicle]\nname = \"x\"\n[[device]\n");
-        assert!(e.starts_with("v.toml:3: "), "{e}");
+/// `[min, max]`: exactly two numbers (a third is refused, never dropped).
+fn range<'de, D: Deserializer<'de>>(d: D) -> Result<Option<[f64; 2]>, D::Error> {
+    let v = Vec::<f64>::deserialize(d).map_err(|_| {
+        serde::de::Error::custom("range: expected [min, max], two numbers such as [-1.0, 1.0]")
+    })?;
+    match v[..] {
+        [lo, hi] => Ok(Some([lo, hi])),
+        _ => Err(serde::de::Error::custom(format!(
+            "range: expected [min, max], two numbers, got {} number{}",
+            v.len(),
+            if v.len() == 1 { "" } else { "s" }
+        ))),
     }
 }
+
+/// A duration as written in a vehicle file (`250ms`, `2s`).
+pub use limits::fmt_duration;
+
+#[cfg(test)]
+mod tests;

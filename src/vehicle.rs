@@ -2,7 +2,7 @@
 //! configuration, cached state, command slot, port and statistics, plus command intake.
 //! Threads share one `Arc<Vehicle>`; readers only ever read the cache.
 
-use crate::config::{DeviceConfig, VehicleConfig};
+use crate::config::{DeviceConfig, VehicleConfig, Violation};
 use crate::driver::DriverError;
 use crate::engine::port::{Conn, Opener, Port};
 use crate::engine::slot::CommandSlot;
@@ -81,11 +81,11 @@ impl Settings {
     pub fn command_timeout(&self) -> Duration {
         Duration::from_micros(self.command_timeout_us.load(Relaxed))
     }
-    pub fn set_status_period(&self, d: Duration) {
+    fn set_status_period(&self, d: Duration) {
         self.status_period_us
             .store(d.as_micros().max(1000) as u64, Relaxed);
     }
-    pub fn set_command_timeout(&self, d: Duration) {
+    fn set_command_timeout(&self, d: Duration) {
         self.command_timeout_us
             .store(d.as_micros().max(1000) as u64, Relaxed);
     }
@@ -131,6 +131,20 @@ impl Device {
 
     pub fn is_actuator(&self) -> bool {
         self.role.is_actuator()
+    }
+
+    /// Change the settings the console edits in place (`st delay`, `cm delay`): the
+    /// device's configuration with the change must pass the very checks a vehicle file
+    /// does ([`DeviceConfig::check`]), or nothing changes.
+    pub fn change_settings(&self, change: impl FnOnce(&mut DeviceConfig)) -> Result<(), Violation> {
+        let mut c = self.config.clone();
+        c.status_period = self.settings.status_period();
+        c.command_timeout = self.settings.command_timeout();
+        change(&mut c);
+        c.check()?;
+        self.settings.set_status_period(c.status_period);
+        self.settings.set_command_timeout(c.command_timeout);
+        Ok(())
     }
 
     pub fn cached(&self) -> Cached {

@@ -414,7 +414,7 @@ fn measure_output_rate() {
     let start = Instant::now();
     let mut i = 0u32;
     while start.elapsed() < window {
-        c.keys(if i % 2 == 0 { "d" } else { "a" });
+        c.keys(if i.is_multiple_of(2) { "d" } else { "a" });
         i += 1;
         let next = start + Duration::from_millis(100) * i;
         std::thread::sleep(next.saturating_duration_since(Instant::now()));

@@ -92,7 +92,7 @@ fn a_sensor_has_only_a_status_thread() {
 #[test]
 fn readers_see_the_cache_without_waiting_for_the_port() {
     let rig = Rig::start(&steer_only(
-        "status_period = \"10ms\"\nreply_timeout = \"2s\"",
+        "status_period = \"10ms\"\nstatus_max_age = \"2s\"\nreply_timeout = \"2s\"",
         "poll_delay = \"400ms\"",
     ));
     let steer = rig.vehicle.device(Role::Steer).unwrap();
@@ -120,7 +120,7 @@ fn readers_see_the_cache_without_waiting_for_the_port() {
 fn max_delay_under_100hz_commands(port_rule: &str) -> f64 {
     let rig = Rig::start(&steer_only(
         &format!(
-            "port_rule = \"{port_rule}\"\nstatus_period = \"100ms\"\nstatus_max_age = \"500ms\"\nreply_timeout = \"1s\""
+            "port_rule = \"{port_rule}\"\nstatus_period = \"100ms\"\nstatus_max_age = \"500ms\"\nreply_timeout = \"500ms\""
         ),
         "poll_delay = \"95ms\"",
     ));

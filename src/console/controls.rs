@@ -162,8 +162,10 @@ pub trait Controls {
     fn engage(&self) -> Result<(), Vec<String>>;
     fn disengage(&self, reason: &str);
     fn set_interlocks(&self, on: bool);
-    fn set_status_period(&self, role: Role, d: Duration);
-    fn set_command_timeout(&self, role: Role, d: Duration);
+    /// Refused, with the reason, when the vehicle file would refuse the value.
+    fn set_status_period(&self, role: Role, d: Duration) -> Result<(), String>;
+    /// Refused, with the reason, when the vehicle file would refuse the value.
+    fn set_command_timeout(&self, role: Role, d: Duration) -> Result<(), String>;
     fn set_enabled(&self, role: Role, thread: Thread, on: bool);
     /// Wake a command thread (broadcast its condition variable).
     fn wake(&self, role: Role);
@@ -295,6 +297,25 @@ pub fn capture(
     }
 }
 
+/// A console edit of a device's settings, checked as the vehicle file is, and logged.
+pub fn change_settings(
+    vehicle: &Vehicle,
+    role: Role,
+    change: impl FnOnce(&mut crate::config::DeviceConfig),
+) -> Result<(), String> {
+    let dev = vehicle
+        .device(role)
+        .ok_or_else(|| format!("no device {role}"))?;
+    dev.change_settings(change).map_err(|v| v.message)?;
+    tracing::info!(
+        device = %role,
+        "from the console: status_period {}, command_timeout {}",
+        crate::config::fmt_duration(dev.settings.status_period()),
+        crate::config::fmt_duration(dev.settings.command_timeout())
+    );
+    Ok(())
+}
+
 impl Controls for Live<'_> {
     fn snapshot(&self, now: Instant, bench: Option<Role>) -> Snapshot {
         capture(self.vehicle, self.sources, now, bench)
@@ -318,15 +339,11 @@ impl Controls for Live<'_> {
             if on { "on" } else { "off" }
         );
     }
-    fn set_status_period(&self, role: Role, d: Duration) {
-        if let Some(dev) = self.vehicle.device(role) {
-            dev.settings.set_status_period(d);
-        }
+    fn set_status_period(&self, role: Role, d: Duration) -> Result<(), String> {
+        change_settings(self.vehicle, role, |c| c.status_period = d)
     }
-    fn set_command_timeout(&self, role: Role, d: Duration) {
-        if let Some(dev) = self.vehicle.device(role) {
-            dev.settings.set_command_timeout(d);
-        }
+    fn set_command_timeout(&self, role: Role, d: Duration) -> Result<(), String> {
+        change_settings(self.vehicle, role, |c| c.command_timeout = d)
     }
     fn set_enabled(&self, role: Role, thread: Thread, on: bool) {
         if let Some(dev) = self.vehicle.device(role) {

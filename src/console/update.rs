@@ -203,19 +203,18 @@ fn parse_number(text: &str, lo: f64, hi: f64) -> Result<f64, String> {
     Ok(v)
 }
 
-/// `50ms`, `1s`, `1.5s` or a bare number of milliseconds; 1 ms … 60 s.
+/// `50ms`, `1s`, `1.5s` or a bare number of milliseconds. Its range is the vehicle
+/// file's, checked where the value is applied ([`Controls::set_status_period`]).
 fn parse_period(text: &str) -> Result<Duration, String> {
     let t = text.trim();
-    let d = match t.parse::<f64>() {
-        Ok(ms) if ms.is_finite() && ms >= 0.0 => Duration::from_secs_f64(ms / 1000.0),
+    match t.parse::<f64>() {
+        Ok(ms) if ms.is_finite() && (0.0..1e12).contains(&ms) => {
+            Ok(Duration::from_secs_f64(ms / 1000.0))
+        }
         _ => humantime::parse_duration(t).map_err(|_| {
             format!("{t:?} is not a duration: expected milliseconds (250) or 250ms, 1s, 1.5s")
-        })?,
-    };
-    if d < Duration::from_millis(1) || d > Duration::from_secs(60) {
-        return Err(format!("{} is out of range: expected 1ms … 60s", fmt_ms(d)));
+        }),
     }
-    Ok(d)
 }
 
 fn parse_flag(text: &str) -> Result<bool, String> {
@@ -280,9 +279,16 @@ fn edit(m: &mut Model, a: Action, c: &dyn Controls) {
                     }
                 }
                 Ok(apply) => {
-                    m.edit = None;
+                    let pending = m.edit.take();
                     m.mode = m.back_to;
-                    run_apply(m, c, field, apply);
+                    // A setting the vehicle file would refuse: stay in the field.
+                    if let Err(why) = run_apply(m, c, field, apply) {
+                        m.edit = pending.map(|e| Edit {
+                            error: Some(why),
+                            ..e
+                        });
+                        m.mode = Mode::Edit;
+                    }
                 }
             }
         }
@@ -290,7 +296,8 @@ fn edit(m: &mut Model, a: Action, c: &dyn Controls) {
     }
 }
 
-fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
+/// Apply a committed edit; `Err` when a setting is refused (the edit stays open).
+fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) -> Result<(), String> {
     match apply {
         Apply::Submit(r, cmd) => match c.submit(r, cmd) {
             Ok(()) => m.say(format!("{r} ← {cmd}"), false),
@@ -304,11 +311,11 @@ fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
             Err(why) => m.say(format!("accel {a:.3} refused: {why}"), true),
         },
         Apply::StDelay(r, d) => {
-            c.set_status_period(r, d);
+            c.set_status_period(r, d)?;
             m.say(format!("{} = {}", field.name(), fmt_ms(d)), false);
         }
         Apply::CmDelay(r, d) => {
-            c.set_command_timeout(r, d);
+            c.set_command_timeout(r, d)?;
             m.say(format!("{} = {}", field.name(), fmt_ms(d)), false);
         }
         Apply::Enable(r, t, on) => {
@@ -319,6 +326,7 @@ fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
             );
         }
     }
+    Ok(())
 }
 
 fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {

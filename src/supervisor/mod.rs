@@ -103,12 +103,14 @@ impl Detector {
         let who = Some(d.role);
         let cached = d.cached();
         let opens = d.port_health.opens.load(Relaxed);
+        // `: <the device's last error>`, or nothing when it has none (never an empty cause).
         let last_error = || {
             d.health
                 .last_error
                 .lock()
                 .as_ref()
-                .map(|(_, m)| m.clone())
+                .filter(|(_, m)| !m.is_empty())
+                .map(|(_, m)| format!(": {m}"))
                 .unwrap_or_default()
         };
         let gone = opens > 0 && d.port_health.missing.load(Relaxed);
@@ -116,7 +118,7 @@ impl Detector {
             raise(
                 FaultKind::Disconnected,
                 who,
-                format!("port closed: {}", last_error()),
+                format!("port closed{}", last_error()),
             );
         }
         let limit = d.config.status_max_age + d.config.reply_timeout;
@@ -133,7 +135,7 @@ impl Detector {
                 FaultKind::Silent,
                 who,
                 format!(
-                    "{what} for {} ms (max {} ms): {}",
+                    "{what} for {} ms (max {} ms){}",
                     age.as_millis(),
                     d.config.status_max_age.as_millis(),
                     last_error()
@@ -156,7 +158,7 @@ impl Detector {
                     FaultKind::ErrorRate,
                     who,
                     format!(
-                        "{errs} of {tries} transactions failed in {} s: {}",
+                        "{errs} of {tries} transactions failed in {} s{}",
                         self.cfg.error_window.as_secs_f64(),
                         last_error()
                     ),
@@ -383,5 +385,37 @@ impl Running {
     pub fn shutdown(self, deadline: Duration) -> Vec<String> {
         self.stop.stop();
         self.threads.join(Instant::now() + deadline)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::VehicleConfig;
+
+    /// The console once set a status period longer than `status_max_age`: the device
+    /// answered every poll, so it had no last error, and its `silent` fault was logged
+    /// as `… (max 250 ms): ` with an empty cause.
+    #[test]
+    fn a_silent_device_without_an_error_has_no_empty_cause() {
+        let mut config = VehicleConfig::alice();
+        config.retain_only(&[Role::Steer]);
+        let v = Vehicle::new(config, |_| {
+            Box::new(|| Err(std::io::Error::other("no port in this test")))
+        });
+        let now = Instant::now();
+        v.devices[0].cache.lock().at = Some(now - Duration::from_secs(2));
+        let faults = Detector::new(SupervisorConfig::default()).detect(&v, &[], now);
+        let silent = faults
+            .iter()
+            .find(|f| f.kind == FaultKind::Silent)
+            .expect("silent");
+        assert_eq!(silent.cause, "no status for 2000 ms (max 250 ms)");
+        *v.devices[0].health.last_error.lock() = Some((now, "timeout".into()));
+        let faults = Detector::new(SupervisorConfig::default()).detect(&v, &[], now);
+        assert!(
+            faults[0].cause.ends_with("(max 250 ms): timeout"),
+            "{faults:?}"
+        );
     }
 }

@@ -1,7 +1,7 @@
 //! `update` and `tick` with a recording fake engine: keys → actions → state.
 
 use super::*;
-use crate::console::controls::{capture, Snapshot, Sources};
+use crate::console::controls::{capture, change_settings, Snapshot, Sources};
 use crate::console::keymap::{key_to_action, Keymap};
 use crate::console::sample;
 use crate::console::theme::Theme;
@@ -9,8 +9,10 @@ use crate::interlock::Reject;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
 
-/// Records every call; refuses submits while `refuse` is set.
+/// Records every call; refuses submits while `refuse` is set. Settings go through the
+/// sample vehicle's real checks.
 struct Fake {
+    vehicle: crate::vehicle::Vehicle,
     snap: Snapshot,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
@@ -25,6 +27,7 @@ impl Fake {
         let v = sample::vehicle(now);
         Fake {
             snap: capture(&v, &Sources::default(), now, None),
+            vehicle: v,
             calls: RefCell::default(),
             refuse: None,
             engage: Ok(()),
@@ -61,11 +64,15 @@ impl Controls for Fake {
     fn set_interlocks(&self, on: bool) {
         self.log(format!("interlocks {on}"));
     }
-    fn set_status_period(&self, role: Role, d: Duration) {
+    fn set_status_period(&self, role: Role, d: Duration) -> Result<(), String> {
+        change_settings(&self.vehicle, role, |c| c.status_period = d)?;
         self.log(format!("st delay {role} {d:?}"));
+        Ok(())
     }
-    fn set_command_timeout(&self, role: Role, d: Duration) {
+    fn set_command_timeout(&self, role: Role, d: Duration) -> Result<(), String> {
+        change_settings(&self.vehicle, role, |c| c.command_timeout = d)?;
         self.log(format!("cm delay {role} {d:?}"));
+        Ok(())
     }
     fn set_enabled(&self, role: Role, thread: Thread, on: bool) {
         self.log(format!("enable {role} {thread:?} {on}"));
@@ -205,6 +212,47 @@ fn delays_and_thread_flags_are_edited_in_place() {
     );
     press(&mut m, &f, &["k", "<Enter>", "0", "m", "s", "<Enter>"], now);
     assert!(m.edit.as_ref().unwrap().error.is_some(), "0ms is refused");
+}
+
+/// The console took `st delay 1.5s` on a device whose `status_max_age` is 250 ms, which
+/// the vehicle file refuses; the device then flipped between faulty and clear.
+#[test]
+fn a_status_period_the_vehicle_file_would_refuse_is_refused_in_place() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    // Steer's st delay; Alice's steer has status_max_age 250ms.
+    press(
+        &mut m,
+        &f,
+        &["j", "<Enter>", "1", ".", "5", "s", "<Enter>"],
+        now,
+    );
+    assert_eq!(m.mode, Mode::Edit, "stays in the field");
+    let e = m.edit.as_ref().unwrap();
+    assert_eq!(e.buffer, "1.5s", "what was typed is kept");
+    let err = e.error.clone().unwrap();
+    assert!(
+        err.contains("status_max_age 250ms, status_period 1500ms")
+            && err.contains("expected `status_max_age` at least `status_period`"),
+        "{err}"
+    );
+    // Out of the vehicle file's range, too.
+    press(&mut m, &f, &["<C-u>", "0", "<Enter>"], now);
+    let err = m.edit.as_ref().unwrap().error.clone().unwrap();
+    assert!(err.contains("status_period: expected a duration"), "{err}");
+    assert!(f.calls().is_empty(), "nothing changed: {:?}", f.calls());
+    let steer = f.vehicle.device(Role::Steer).unwrap();
+    assert_eq!(steer.settings.status_period(), Duration::from_millis(50));
+    // A value the file takes goes through.
+    press(&mut m, &f, &["<C-u>", "2", "0", "0", "<Enter>"], now);
+    assert_eq!(m.mode, Mode::Main);
+    assert_eq!(f.calls(), ["st delay steer 200ms"]);
+    assert_eq!(steer.settings.status_period(), Duration::from_millis(200));
+    // cm delay: the simulated gas's own watchdog (1s) must outlast the resend.
+    press(&mut m, &f, &["j", "l", "<Enter>", "2", "s", "<Enter>"], now);
+    let err = m.edit.as_ref().unwrap().error.clone().unwrap();
+    assert!(err.contains("sim.watchdog 1s, command_timeout 2s"), "{err}");
 }
 
 #[test]

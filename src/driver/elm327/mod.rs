@@ -119,7 +119,7 @@ impl Driver for Elm327Driver {
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError> {
         let rpm = self.read_pid(link, Pid::Rpm)?;
         let speed = self.read_pid(link, Pid::Speed)?;
-        if self.polls % COOLANT_EVERY == 0 {
+        if self.polls.is_multiple_of(COOLANT_EVERY) {
             // A car that does not report coolant still reports the rest.
             self.coolant = match self.read_pid(link, Pid::Coolant) {
                 Ok(c) => Some(c),
