@@ -19,6 +19,9 @@ use std::time::{Duration, Instant};
 /// After this many failed transactions in a row a device counts as faulty.
 pub const FAULT_AFTER: u32 = 3;
 
+/// A device's error that persists unchanged is logged again this often.
+pub const REPEAT_ERROR_EVERY: Duration = Duration::from_secs(60);
+
 /// The safe state: gas released, brake full.
 pub const SAFE_GAS: f64 = 0.0;
 pub const SAFE_BRAKE: f64 = 1.0;
@@ -56,6 +59,8 @@ pub struct Health {
     pub consecutive_errors: AtomicU32,
     pub connected: AtomicBool,
     pub last_error: Mutex<Option<(Instant, String)>>,
+    /// When an error was last logged.
+    error_logged: Mutex<Option<Instant>>,
 }
 
 /// Settings the console can change while running.
@@ -159,12 +164,20 @@ impl Device {
             self.health.connected.store(false, Relaxed);
         }
         let msg = e.to_string();
+        let now = Instant::now();
         let mut last = self.health.last_error.lock();
-        // Log the first error of a run and every change of message, not a flood.
         let fresh = n == 1 || last.as_ref().is_none_or(|(_, m)| *m != msg);
-        *last = Some((Instant::now(), msg));
+        *last = Some((now, msg));
         drop(last);
-        if fresh || n == FAULT_AFTER {
+        // Log the first error of a run and every change of message; an error that
+        // persists (a port that is not there) is repeated rarely, not at the poll rate.
+        let mut logged = self.health.error_logged.lock();
+        let due = fresh || logged.is_none_or(|t| now - t >= REPEAT_ERROR_EVERY);
+        if due {
+            *logged = Some(now);
+        }
+        drop(logged);
+        if due {
             tracing::warn!(device = %self.role, errors_in_a_row = n, "{}: {e}", if is_command { "command" } else { "status" });
         }
     }

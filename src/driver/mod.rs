@@ -229,12 +229,16 @@ pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
     }
 }
 
-/// Open a serial port (or pseudo-terminal) by path at a baud rate.
+/// Open a serial port (or pseudo-terminal) by path at a baud rate. An error names the
+/// path (`cannot open /dev/ttyUSB0: No such file or directory`).
 pub fn open_serial(path: &str, baud: u32, timeout: Duration) -> io::Result<Box<dyn Link>> {
     let port = serialport::new(path, baud)
         .timeout(timeout)
         .open_native()
-        .map_err(io::Error::from)?;
+        .map_err(|e| {
+            let e = io::Error::from(e);
+            io::Error::new(e.kind(), format!("cannot open {path}: {e}"))
+        })?;
     Ok(Box::new(port))
 }
 

@@ -149,7 +149,12 @@ impl Detector {
         track
             .window
             .retain(|(t, _, _)| now - *t <= self.cfg.error_window);
-        if let (Some(first), Some(last)) = (track.window.first(), track.window.last()) {
+        // A port that cannot be opened fails every transaction: that is said above (or
+        // as silence, for a port never opened), not again as an error rate.
+        let missing = d.port_health.missing.load(Relaxed);
+        if let (false, Some(first), Some(last)) =
+            (missing, track.window.first(), track.window.last())
+        {
             let (tries, errs) = (last.1 - first.1, last.2 - first.2);
             if tries >= 4 && errs as f64 / tries as f64 > self.cfg.error_rate {
                 raise(
