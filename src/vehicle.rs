@@ -59,6 +59,9 @@ pub struct Health {
     pub consecutive_errors: AtomicU32,
     pub connected: AtomicBool,
     pub last_error: Mutex<Option<(Instant, String)>>,
+    /// When the device last answered (a good status or an acknowledged command), in
+    /// nanoseconds after [`Device::started`] plus one; 0 before its first answer.
+    answered_ns: AtomicU64,
     /// When an error was last logged.
     error_logged: Mutex<Option<Instant>>,
 }
@@ -110,6 +113,8 @@ pub struct Device {
     pub trace: Arc<Trace>,
     /// Times the port was opened, and whether it is missing.
     pub port_health: Arc<crate::engine::port::PortHealth>,
+    /// When the device was set up (the engine starts right after).
+    pub started: Instant,
 }
 
 impl Device {
@@ -131,6 +136,7 @@ impl Device {
             cache: Mutex::new(Cached::default()),
             stats: Stats::default(),
             health: Health::default(),
+            started: Instant::now(),
         }
     }
 
@@ -142,14 +148,61 @@ impl Device {
         *self.cache.lock()
     }
 
-    /// Failing repeatedly, or its port is gone.
+    /// Faulty: failing repeatedly (its port gone, too), or silent.
     pub fn is_faulty(&self) -> bool {
-        self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER
+        self.fault().is_some()
     }
 
-    pub(crate) fn record_ok(&self) {
+    /// Why the device is faulty, if it is: its last error after [`FAULT_AFTER`] failed
+    /// transactions in a row, or its silence ([`Device::silence`]).
+    pub fn fault(&self) -> Option<String> {
+        let last = || {
+            let last = self.health.last_error.lock();
+            last.as_ref().map(|(_, m)| m.clone())
+        };
+        if self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER {
+            return Some(last().unwrap_or_else(|| "failing".into()));
+        }
+        let quiet = self.silence(Instant::now())?;
+        Some(format!(
+            "no answer for {} ms (max {} ms)",
+            quiet.as_millis(),
+            self.config.status_max_age.as_millis()
+        ))
+    }
+
+    /// How long since the device last answered — a good status or an acknowledged
+    /// command; `None` before its first answer.
+    pub fn quiet_for(&self, now: Instant) -> Option<Duration> {
+        match self.health.answered_ns.load(Relaxed) {
+            0 => None,
+            ns => Some(now.saturating_duration_since(self.started + Duration::from_nanos(ns - 1))),
+        }
+    }
+
+    /// The device is silent: it answered once, but nothing for longer than its
+    /// `status_max_age` (while its status polls are on). This is the one silence rule:
+    /// computed from the time of the last answer whenever it is asked, it holds by
+    /// construction — the gate monitor, which looks every 10 ms, disengages within
+    /// `status_max_age` + 10 ms of the last answer, whatever the reply timeout or the
+    /// supervisor's period. Commands count as answers: a device busy acknowledging a
+    /// command flood is not silent while its next status poll waits for the port.
+    pub fn silence(&self, now: Instant) -> Option<Duration> {
+        self.quiet_for(now)
+            .filter(|quiet| self.is_silent_after(*quiet))
+    }
+
+    /// Quiet this long, the device counts as silent.
+    pub fn is_silent_after(&self, quiet: Duration) -> bool {
+        quiet > self.config.status_max_age && self.settings.status_enabled.load(Relaxed)
+    }
+
+    /// A transaction succeeded at `at`.
+    pub(crate) fn record_ok(&self, at: Instant) {
         self.health.consecutive_errors.store(0, Relaxed);
         self.health.connected.store(true, Relaxed);
+        let ns = at.saturating_duration_since(self.started).as_nanos() as u64 + 1;
+        self.health.answered_ns.fetch_max(ns, Relaxed);
     }
 
     pub(crate) fn record_error(&self, e: &DriverError, is_command: bool) {
@@ -305,13 +358,8 @@ impl Vehicle {
     pub fn engage_blockers(&self) -> Vec<String> {
         let mut why = Vec::new();
         for d in &self.devices {
-            if d.is_faulty() {
-                let last = d.health.last_error.lock().as_ref().map(|(_, m)| m.clone());
-                why.push(format!(
-                    "{} is faulty ({})",
-                    d.role,
-                    last.unwrap_or_default()
-                ));
+            if let Some(fault) = d.fault() {
+                why.push(format!("{} is faulty ({fault})", d.role));
             } else if d.cached().at.is_none() {
                 why.push(format!("{} has not reported yet", d.role));
             }

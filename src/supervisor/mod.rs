@@ -119,27 +119,35 @@ impl Detector {
                 format!("port closed: {}", last_error()),
             );
         }
+        // Silence is the device's own rule; one that never answered is measured from the
+        // supervisor's start.
+        let (what, quiet) = match d.quiet_for(now) {
+            Some(q) => ("no answer", q),
+            None => ("never answered", now - self.started),
+        };
+        if !gone && d.is_silent_after(quiet) {
+            let mut cause = format!(
+                "{what} for {} ms (max {} ms)",
+                quiet.as_millis(),
+                d.config.status_max_age.as_millis()
+            );
+            // The error that went with it, unless it is older than the last answer.
+            if let Some((_, e)) = d
+                .health
+                .last_error
+                .lock()
+                .as_ref()
+                .filter(|(t, _)| now - *t < quiet)
+            {
+                cause = format!("{cause}: {e}");
+            }
+            raise(FaultKind::Silent, who, cause);
+        }
+        // Readings this old are still judged (a poll may wait out a command flood).
         let limit = d.config.status_max_age + d.config.reply_timeout;
         let age = cached
             .at
             .map_or(now - self.started, |t| now.saturating_duration_since(t));
-        if !gone && age > limit && d.settings.status_enabled.load(Relaxed) {
-            let what = if cached.at.is_some() {
-                "no status"
-            } else {
-                "never answered"
-            };
-            raise(
-                FaultKind::Silent,
-                who,
-                format!(
-                    "{what} for {} ms (max {} ms): {}",
-                    age.as_millis(),
-                    d.config.status_max_age.as_millis(),
-                    last_error()
-                ),
-            );
-        }
 
         let track = self.tracks.entry(d.role).or_default();
         let s = d.stats.snapshot();
