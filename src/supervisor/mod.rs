@@ -252,6 +252,8 @@ pub struct Supervisor {
     cfg: SupervisorConfig,
     detector: Detector,
     procedure: Option<Procedure>,
+    /// A procedure that waits for the vehicle to be engaged (said once).
+    waiting: Option<String>,
     /// A procedure of this name may not start again before this time.
     cooldown: HashMap<String, Instant>,
     exit: ExitSink,
@@ -263,6 +265,7 @@ impl Supervisor {
             detector: Detector::new(cfg.clone()),
             cfg,
             procedure: None,
+            waiting: None,
             cooldown: HashMap::new(),
             exit,
         }
@@ -273,20 +276,17 @@ impl Supervisor {
         let status = &v.supervision;
         let before = status.faults();
         let faults = self.detector.detect(v, &before, now);
-        for f in &faults {
-            if !before
-                .iter()
-                .any(|b| b.kind == f.kind && b.device == f.device)
-            {
-                tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
-                status.note(format!("fault: {}", f.describe()));
-            }
+        let among = |list: &[Fault], f: &Fault| {
+            list.iter()
+                .any(|g| g.kind == f.kind && g.device == f.device)
+        };
+        let is_new = |f: &Fault| !among(&before, f);
+        for f in faults.iter().filter(|f| is_new(f)) {
+            tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
+            status.note(format!("fault: {}", f.describe()));
         }
         for b in &before {
-            if !faults
-                .iter()
-                .any(|f| f.kind == b.kind && f.device == b.device)
-            {
+            if !among(&faults, b) {
                 tracing::info!(fault = %b.kind, device = ?b.device, "cleared: {}", b.describe());
                 status.note(format!(
                     "cleared: {} {}",
@@ -297,23 +297,49 @@ impl Supervisor {
         }
         status.set_faults(faults.clone());
 
+        // A disengaged vehicle is never moved by adrive on its own: a procedure that
+        // moves an actuator runs only while engaged, and stops when it no longer is
+        // (the disengage has commanded the safe state). It starts again from the top at
+        // the next engage if its fault is still there.
+        if self.procedure.as_ref().is_some_and(|p| !p.may_run(v)) {
+            let p = self.procedure.take().expect("checked");
+            let msg = format!("recovery {} stopped: the vehicle is disengaged", p.name());
+            tracing::warn!("{msg}");
+            status.note(msg.clone());
+            status.set_outcome(msg);
+            v.set_recovering(&[]);
+            status.set_recovery(None);
+        }
+        let start = match self.procedure {
+            None => self.next_procedure(v, &faults, &is_new, now),
+            Some(_) => None,
+        };
+        // A fault disengages the vehicle, unless it was there before and a procedure
+        // (running, or starting now) deals with it: engaging with it is the permission
+        // to recover.
         if v.is_engaged() {
-            if let Some(f) = faults.iter().find(|f| disengages(f.kind)) {
+            let dealt_with = |f: &Fault| {
+                let p = self.procedure.as_ref().or(start.as_ref().map(|(p, _)| p));
+                !is_new(f)
+                    && p.is_some_and(|p| {
+                        procedure_for(f, v, &self.cfg).is_some_and(|q| q.name() == p.name())
+                    })
+            };
+            if let Some(f) = faults.iter().find(|f| disengages(f.kind) && !dealt_with(f)) {
                 v.disengage(&format!("supervisor: {}", f.describe()));
             }
         }
-        if self.procedure.is_none() {
-            for f in &faults {
-                if let Some(p) = procedure_for(f, v, &self.cfg) {
-                    if self.cooldown.get(p.name()).is_some_and(|t| now < *t) {
-                        continue;
-                    }
-                    tracing::warn!("recovery {} started for {}", p.name(), f.describe());
-                    status.note(format!("recovery {} started: {}", p.name(), f.describe()));
-                    self.procedure = Some(p);
-                    break;
-                }
+        match start {
+            Some((p, f)) if p.may_run(v) => {
+                tracing::warn!("recovery {} started for {}", p.name(), f.describe());
+                status.note(format!("recovery {} started: {}", p.name(), f.describe()));
+                self.waiting = None;
+                self.procedure = Some(p);
             }
+            _ => {}
+        }
+        if self.procedure.is_none() {
+            self.note_waiting(v, &faults, now);
         }
         if let Some(p) = self.procedure.as_mut() {
             let progress = p.advance(v, now);
@@ -345,6 +371,46 @@ impl Supervisor {
                 }
             }
         }
+    }
+
+    /// The procedure to start now, and the fault it is for: the first fault whose
+    /// procedure is not cooling down and, if it moves an actuator, may move it — the
+    /// vehicle is engaged and the fault is not one that disengages it this turn.
+    fn next_procedure(
+        &self,
+        v: &Vehicle,
+        faults: &[Fault],
+        is_new: &dyn Fn(&Fault) -> bool,
+        now: Instant,
+    ) -> Option<(Procedure, Fault)> {
+        faults.iter().find_map(|f| {
+            let p = self.ready(f, v, now)?;
+            let disengaging = p.moves() && disengages(f.kind) && is_new(f);
+            (p.may_run(v) && !disengaging).then(|| (p, f.clone()))
+        })
+    }
+
+    /// The procedure `f` calls for, unless it is cooling down after its last run.
+    fn ready(&self, f: &Fault, v: &Vehicle, now: Instant) -> Option<Procedure> {
+        let p = procedure_for(f, v, &self.cfg)?;
+        let cooling = self.cooldown.get(p.name()).is_some_and(|t| now < *t);
+        (!cooling).then_some(p)
+    }
+
+    /// Say once that a fault's procedure waits for the vehicle to be engaged.
+    fn note_waiting(&mut self, v: &Vehicle, faults: &[Fault], now: Instant) {
+        let waiting = faults.iter().find_map(|f| {
+            let p = self.ready(f, v, now)?;
+            (!p.may_run(v)).then(|| (p.name().to_string(), f))
+        });
+        let name = waiting.as_ref().map(|(n, _)| n.clone());
+        if let Some((name, f)) = waiting.filter(|_| name != self.waiting) {
+            let msg = format!("recovery {name} waits for engage: {}", f.describe());
+            tracing::warn!("{msg}");
+            v.supervision.note(msg.clone());
+            v.supervision.set_outcome(msg);
+        }
+        self.waiting = name;
     }
 
     fn finish(&mut self, v: &Vehicle, now: Instant) {
