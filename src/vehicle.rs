@@ -19,6 +19,11 @@ use std::time::{Duration, Instant};
 /// After this many failed transactions in a row a device counts as faulty.
 pub const FAULT_AFTER: u32 = 3;
 
+/// A command thread that waits at the wire for another device's command waits at most
+/// two of that device's reply timeouts (the transaction on its wire, then this one) and
+/// this much more.
+const WIRE_SLACK: Duration = Duration::from_millis(50);
+
 /// A device's error that persists unchanged is logged again this often.
 pub const REPEAT_ERROR_EVERY: Duration = Duration::from_secs(60);
 
@@ -291,8 +296,14 @@ impl Vehicle {
 
     /// What the interlocks know right now, from caches and slots.
     pub fn facts(&self) -> Facts {
+        let mut brake_releasing = false;
         let brake = self.device(Role::Brake).map(|d| {
             let vals = d.slot.in_flight();
+            let [pending, last, _] = vals;
+            brake_releasing = pending
+                .or(last)
+                .and_then(Command::set_point)
+                .is_some_and(|v| v <= interlock::RELEASED);
             let nums = vals.iter().flatten().filter_map(|c| c.set_point());
             let (lo, hi) = nums.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
                 (lo.min(v), hi.max(v))
@@ -321,6 +332,7 @@ impl Vehicle {
         Facts {
             brake_low: brake.map(|b| b.0),
             brake_high: brake.map(|b| b.1),
+            brake_releasing,
             gear: trans.and_then(|r| r.gear),
             running: obd.and_then(|r| r.running),
             speed: obd.and_then(|r| r.speed),
@@ -461,9 +473,10 @@ impl Vehicle {
     }
 
     /// The follower's virtual `accel` command, −1…1: positive is gas, negative is brake;
-    /// it never applies both. Going from braking to gas, the brake is released first and
-    /// the gas follows once the brake has acknowledged the release (a later `accel`).
-    /// While a shift is under way the brake holds and positive `accel` waits.
+    /// it never applies both. Going from braking to gas, the brake release is submitted
+    /// first and the gas with it: the gas's command thread holds it back until the
+    /// release has reached the brake ([`Vehicle::clear_to_send`]), so one `accel` is
+    /// enough. While a shift is under way the brake holds and positive `accel` waits.
     pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
         if !a.is_finite() {
             return Err(self.reject(None, None, Reject::NotFinite));
@@ -477,16 +490,7 @@ impl Vehicle {
                 return Ok(());
             }
             self.submit(Role::Brake, Command::Set(0.0), received)?;
-            let released = self
-                .facts()
-                .brake_high
-                .is_none_or(|b| b <= interlock::RELEASED);
-            if released {
-                self.submit(Role::Gas, Command::Set(a), received)?;
-            } else {
-                tracing::debug!("accel {a}: gas waits for the brake release");
-            }
-            Ok(())
+            self.submit(Role::Gas, Command::Set(a), received)
         } else {
             self.submit(Role::Gas, Command::Set(0.0), received)?;
             self.submit(Role::Brake, Command::Set(-a), received)
@@ -521,17 +525,34 @@ impl Vehicle {
     ///
     /// Returns what to send instead (`None`: nothing). Braking is never refused: it
     /// first has the gas released and waits a bounded time for that to reach the wire.
+    /// Gas that follows a brake release (an `accel` from braking) likewise waits, a
+    /// bounded time, for the release to reach the wire; if it does not, or the brake is
+    /// applied again meanwhile, the gas goes out as 0.
     pub fn clear_to_send(&self, role: Role, command: Command) -> Option<Command> {
         if !self.interlocks.load(Relaxed) {
             return Some(command);
         }
         let set = |c: Option<Command>| c.and_then(Command::set_point);
         let released = |c: Option<Command>| set(c).is_none_or(|v| v <= interlock::RELEASED);
+        // Nothing applied pending, in flight or on the wire.
+        let clear = |p, l, s| released(p) && released(l) && released(s);
         match (role, command) {
             (Role::Gas, Command::Set(v)) if v > interlock::RELEASED => {
                 let braking = self.device(Role::Brake).is_some_and(|b| {
                     let (p, l, s) = b.slot.wire();
-                    !(released(p) && released(l) && released(s))
+                    if clear(p, l, s) {
+                        return false;
+                    }
+                    if !released(p.or(l)) {
+                        return true;
+                    }
+                    // The newest brake command releases it: wait for that to land, or
+                    // for the brake to be applied again.
+                    let deadline = Instant::now() + b.config.reply_timeout * 2 + WIRE_SLACK;
+                    b.slot
+                        .wait_wire(|p, l, s| clear(p, l, s) || !released(p.or(l)), deadline);
+                    let (p, l, s) = b.slot.wire();
+                    !clear(p, l, s)
                 });
                 let why = if braking {
                     Some(Reject::GasWhileBraking)
@@ -555,19 +576,14 @@ impl Vehicle {
                         if !(released(p) && released(l)) {
                             self.store(g, Command::Set(0.0), Instant::now());
                         }
-                        let deadline =
-                            Instant::now() + g.config.reply_timeout * 2 + Duration::from_millis(50);
-                        g.slot.wait_wire(
-                            |p, l, s| released(p) && released(l) && released(s),
-                            deadline,
-                        );
+                        let deadline = Instant::now() + g.config.reply_timeout * 2 + WIRE_SLACK;
+                        g.slot.wait_wire(clear, deadline);
                     }
                 }
                 if v < interlock::SHIFT_BRAKE {
                     // A shift on its way keeps the brake on until it is through.
                     if let Some(t) = self.device(Role::Trans) {
-                        let deadline =
-                            Instant::now() + t.config.reply_timeout * 2 + Duration::from_millis(50);
+                        let deadline = Instant::now() + t.config.reply_timeout * 2 + WIRE_SLACK;
                         t.slot.wait_wire(|p, l, s| p.is_none() && l == s, deadline);
                     }
                 }

@@ -45,6 +45,12 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
             tracing::warn!("teleop deadman tripped: gas 0, brake full");
         }
     }
+    // The accel shown is the one sent while engaged: once disengaged (STOP, `D`, the
+    // gate, the watchdog, the supervisor) the vehicle has gas 0 and the brake full,
+    // whatever the console sent before.
+    if !m.snap.engaged {
+        m.accel = None;
+    }
 }
 
 /// Apply one action.
