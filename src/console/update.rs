@@ -466,8 +466,8 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
 /// The paper's `e`, after the operator disabled and re-enabled the steering drive:
 /// home it now; [`tick`] then commands it to hold where it stopped, once the drive
 /// acknowledged the home command. (A latched drive fault needs the disable → enable
-/// cycle first; the supervisor's `steering` procedure runs that whole sequence on its
-/// own when the drive reports a fault.)
+/// cycle first; the supervisor's `steering` procedure runs that whole sequence when the
+/// drive reports a fault, once the vehicle is engaged.)
 fn reset_steering(m: &mut Model, c: &dyn Controls) {
     if m.snap.device(Role::Steer).is_none() {
         return m.say("steering reset refused: this vehicle has no steering", true);
