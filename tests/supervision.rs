@@ -432,7 +432,7 @@ fn an_engine_stall_is_recovered_step_by_step() {
 fn a_recovery_that_cannot_succeed_gives_up_safely() {
     let rig = Rig::supervised(&alice("attempts = 2\nstep_timeout = \"1500ms\""));
     let v = &rig.vehicle;
-    let trans = engaged_in_drive(&rig);
+    engaged_in_drive(&rig);
     rig.sim.apply("nostart on").unwrap();
     rig.sim.apply("stall").unwrap();
     let exit = rig
