@@ -1,6 +1,8 @@
 //! The engage gate's monitor: while the vehicle is engaged, an e-stop that pauses or
-//! disables, or a device that turns faulty, disengages it at once (which commands the
-//! safe state). Engaging is refused in those same conditions
+//! disables, or a device that turns faulty — failing, or silent for longer than its
+//! `status_max_age` ([`crate::vehicle::Device::silence`]) — disengages it at once (which
+//! commands the safe state). Looking every [`EVERY`], it bounds how late a silent
+//! device, the e-stop first of all, is acted on. Engaging is refused in those same conditions
 //! ([`Vehicle::engage_blockers`]); this thread covers their arriving while engaged,
 //! whoever engaged it (console or network). One thread, `gate/monitor`, reading caches.
 
@@ -18,10 +20,10 @@ pub fn trip_reason(vehicle: &Vehicle) -> Option<String> {
     if let Some(s @ (EstopState::Pause | EstopState::Disable)) = vehicle.estop() {
         return Some(format!("e-stop {s}"));
     }
-    vehicle.devices.iter().find(|d| d.is_faulty()).map(|d| {
-        let last = d.health.last_error.lock().as_ref().map(|(_, m)| m.clone());
-        format!("{} is faulty ({})", d.role, last.unwrap_or_default())
-    })
+    vehicle
+        .devices
+        .iter()
+        .find_map(|d| Some(format!("{} is faulty ({})", d.role, d.fault()?)))
 }
 
 /// The running monitor.

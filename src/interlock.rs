@@ -1,7 +1,8 @@
 //! Interlocks: the rules every command must pass at intake, before it may reach a
 //! command slot. A rejected command is counted and logged, never sent. The rules
-//! (DESIGN.md "Safety"): no gas while the brake is applied; gas only in drive or
-//! reverse with the engine running; shift only when stopped with the brake applied,
+//! (DESIGN.md "Safety"): no gas while the brake is applied (gas that follows a brake
+//! release on its way is held back at the wire until the release is there); gas only in
+//! drive or reverse with the engine running; shift only when stopped with the brake applied,
 //! and keep the brake applied until the shift is through;
 //! e-stop pause or disable means gas zero and the brake held.
 //!
@@ -26,6 +27,9 @@ pub struct Facts {
     pub brake_high: Option<f64>,
     /// Lowest brake value pending, sent or acknowledged.
     pub brake_low: Option<f64>,
+    /// The brake's newest command releases it: gas may follow, held back at the wire
+    /// until the release has reached the brake ([`crate::vehicle::Vehicle::clear_to_send`]).
+    pub brake_releasing: bool,
     pub gear: Option<Gear>,
     pub running: Option<bool>,
     pub speed: Option<f64>,
@@ -143,7 +147,7 @@ impl fmt::Display for Reject {
 pub fn check(facts: &Facts, role: Role, command: Command) -> Result<(), Reject> {
     match (role, command) {
         (Role::Gas, Command::Set(v)) if v > RELEASED => {
-            if facts.brake_high.is_some_and(|b| b > RELEASED) {
+            if facts.brake_high.is_some_and(|b| b > RELEASED) && !facts.brake_releasing {
                 return Err(Reject::GasWhileBraking);
             }
             if !facts.gear.is_some_and(Gear::is_driving) {
@@ -193,6 +197,7 @@ mod tests {
         Facts {
             brake_high: Some(0.0),
             brake_low: Some(0.0),
+            brake_releasing: false,
             gear: Some(Gear::Drive),
             running: Some(true),
             speed: Some(5.0),
@@ -218,6 +223,21 @@ mod tests {
         );
         // Releasing the gas is always allowed.
         assert_eq!(check(&f, Role::Gas, Command::Set(0.0)), Ok(()));
+        // With a release on its way the gas may follow it (the wire holds it back).
+        let releasing = Facts {
+            brake_releasing: true,
+            ..f
+        };
+        assert_eq!(check(&releasing, Role::Gas, Command::Set(0.3)), Ok(()));
+        // The other rules still apply.
+        let in_park = Facts {
+            gear: Some(Gear::Park),
+            ..releasing
+        };
+        assert_eq!(
+            check(&in_park, Role::Gas, Command::Set(0.3)),
+            Err(Reject::GasNotInGear)
+        );
     }
 
     #[test]

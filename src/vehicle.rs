@@ -19,6 +19,14 @@ use std::time::{Duration, Instant};
 /// After this many failed transactions in a row a device counts as faulty.
 pub const FAULT_AFTER: u32 = 3;
 
+/// A command thread that waits at the wire for another device's command waits at most
+/// two of that device's reply timeouts (the transaction on its wire, then this one) and
+/// this much more.
+const WIRE_SLACK: Duration = Duration::from_millis(50);
+
+/// A device's error that persists unchanged is logged again this often.
+pub const REPEAT_ERROR_EVERY: Duration = Duration::from_secs(60);
+
 /// The safe state: gas released, brake full.
 pub const SAFE_GAS: f64 = 0.0;
 pub const SAFE_BRAKE: f64 = 1.0;
@@ -56,6 +64,11 @@ pub struct Health {
     pub consecutive_errors: AtomicU32,
     pub connected: AtomicBool,
     pub last_error: Mutex<Option<(Instant, String)>>,
+    /// When the device last answered (a good status or an acknowledged command), in
+    /// nanoseconds after [`Device::started`] plus one; 0 before its first answer.
+    answered_ns: AtomicU64,
+    /// When an error was last logged.
+    error_logged: Mutex<Option<Instant>>,
 }
 
 /// Settings the console can change while running.
@@ -105,6 +118,8 @@ pub struct Device {
     pub trace: Arc<Trace>,
     /// Times the port was opened, and whether it is missing.
     pub port_health: Arc<crate::engine::port::PortHealth>,
+    /// When the device was set up (the engine starts right after).
+    pub started: Instant,
 }
 
 impl Device {
@@ -126,6 +141,7 @@ impl Device {
             cache: Mutex::new(Cached::default()),
             stats: Stats::default(),
             health: Health::default(),
+            started: Instant::now(),
         }
     }
 
@@ -151,14 +167,61 @@ impl Device {
         *self.cache.lock()
     }
 
-    /// Failing repeatedly, or its port is gone.
+    /// Faulty: failing repeatedly (its port gone, too), or silent.
     pub fn is_faulty(&self) -> bool {
-        self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER
+        self.fault().is_some()
     }
 
-    pub(crate) fn record_ok(&self) {
+    /// Why the device is faulty, if it is: its last error after [`FAULT_AFTER`] failed
+    /// transactions in a row, or its silence ([`Device::silence`]).
+    pub fn fault(&self) -> Option<String> {
+        let last = || {
+            let last = self.health.last_error.lock();
+            last.as_ref().map(|(_, m)| m.clone())
+        };
+        if self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER {
+            return Some(last().unwrap_or_else(|| "failing".into()));
+        }
+        let quiet = self.silence(Instant::now())?;
+        Some(format!(
+            "no answer for {} ms (max {} ms)",
+            quiet.as_millis(),
+            self.config.status_max_age.as_millis()
+        ))
+    }
+
+    /// How long since the device last answered — a good status or an acknowledged
+    /// command; `None` before its first answer.
+    pub fn quiet_for(&self, now: Instant) -> Option<Duration> {
+        match self.health.answered_ns.load(Relaxed) {
+            0 => None,
+            ns => Some(now.saturating_duration_since(self.started + Duration::from_nanos(ns - 1))),
+        }
+    }
+
+    /// The device is silent: it answered once, but nothing for longer than its
+    /// `status_max_age` (while its status polls are on). This is the one silence rule:
+    /// computed from the time of the last answer whenever it is asked, it holds by
+    /// construction — the gate monitor, which looks every 10 ms, disengages within
+    /// `status_max_age` + 10 ms of the last answer, whatever the reply timeout or the
+    /// supervisor's period. Commands count as answers: a device busy acknowledging a
+    /// command flood is not silent while its next status poll waits for the port.
+    pub fn silence(&self, now: Instant) -> Option<Duration> {
+        self.quiet_for(now)
+            .filter(|quiet| self.is_silent_after(*quiet))
+    }
+
+    /// Quiet this long, the device counts as silent.
+    pub fn is_silent_after(&self, quiet: Duration) -> bool {
+        quiet > self.config.status_max_age && self.settings.status_enabled.load(Relaxed)
+    }
+
+    /// A transaction succeeded at `at`.
+    pub(crate) fn record_ok(&self, at: Instant) {
         self.health.consecutive_errors.store(0, Relaxed);
         self.health.connected.store(true, Relaxed);
+        let ns = at.saturating_duration_since(self.started).as_nanos() as u64 + 1;
+        self.health.answered_ns.fetch_max(ns, Relaxed);
     }
 
     pub(crate) fn record_error(&self, e: &DriverError, is_command: bool) {
@@ -173,12 +236,20 @@ impl Device {
             self.health.connected.store(false, Relaxed);
         }
         let msg = e.to_string();
+        let now = Instant::now();
         let mut last = self.health.last_error.lock();
-        // Log the first error of a run and every change of message, not a flood.
         let fresh = n == 1 || last.as_ref().is_none_or(|(_, m)| *m != msg);
-        *last = Some((Instant::now(), msg));
+        *last = Some((now, msg));
         drop(last);
-        if fresh || n == FAULT_AFTER {
+        // Log the first error of a run and every change of message; an error that
+        // persists (a port that is not there) is repeated rarely, not at the poll rate.
+        let mut logged = self.health.error_logged.lock();
+        let due = fresh || logged.is_none_or(|t| now - t >= REPEAT_ERROR_EVERY);
+        if due {
+            *logged = Some(now);
+        }
+        drop(logged);
+        if due {
             tracing::warn!(device = %self.role, errors_in_a_row = n, "{}: {e}", if is_command { "command" } else { "status" });
         }
     }
@@ -239,8 +310,14 @@ impl Vehicle {
 
     /// What the interlocks know right now, from caches and slots.
     pub fn facts(&self) -> Facts {
+        let mut brake_releasing = false;
         let brake = self.device(Role::Brake).map(|d| {
             let vals = d.slot.in_flight();
+            let [pending, last, _] = vals;
+            brake_releasing = pending
+                .or(last)
+                .and_then(Command::set_point)
+                .is_some_and(|v| v <= interlock::RELEASED);
             let nums = vals.iter().flatten().filter_map(|c| c.set_point());
             let (lo, hi) = nums.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
                 (lo.min(v), hi.max(v))
@@ -269,6 +346,7 @@ impl Vehicle {
         Facts {
             brake_low: brake.map(|b| b.0),
             brake_high: brake.map(|b| b.1),
+            brake_releasing,
             gear: trans.and_then(|r| r.gear),
             running: obd.and_then(|r| r.running),
             speed: obd.and_then(|r| r.speed),
@@ -306,13 +384,8 @@ impl Vehicle {
     pub fn engage_blockers(&self) -> Vec<String> {
         let mut why = Vec::new();
         for d in &self.devices {
-            if d.is_faulty() {
-                let last = d.health.last_error.lock().as_ref().map(|(_, m)| m.clone());
-                why.push(format!(
-                    "{} is faulty ({})",
-                    d.role,
-                    last.unwrap_or_default()
-                ));
+            if let Some(fault) = d.fault() {
+                why.push(format!("{} is faulty ({fault})", d.role));
             } else if d.cached().at.is_none() {
                 why.push(format!("{} has not reported yet", d.role));
             }
@@ -414,9 +487,10 @@ impl Vehicle {
     }
 
     /// The follower's virtual `accel` command, −1…1: positive is gas, negative is brake;
-    /// it never applies both. Going from braking to gas, the brake is released first and
-    /// the gas follows once the brake has acknowledged the release (a later `accel`).
-    /// While a shift is under way the brake holds and positive `accel` waits.
+    /// it never applies both. Going from braking to gas, the brake release is submitted
+    /// first and the gas with it: the gas's command thread holds it back until the
+    /// release has reached the brake ([`Vehicle::clear_to_send`]), so one `accel` is
+    /// enough. While a shift is under way the brake holds and positive `accel` waits.
     pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
         if !a.is_finite() {
             return Err(self.reject(None, None, Reject::NotFinite));
@@ -430,16 +504,7 @@ impl Vehicle {
                 return Ok(());
             }
             self.submit(Role::Brake, Command::Set(0.0), received)?;
-            let released = self
-                .facts()
-                .brake_high
-                .is_none_or(|b| b <= interlock::RELEASED);
-            if released {
-                self.submit(Role::Gas, Command::Set(a), received)?;
-            } else {
-                tracing::debug!("accel {a}: gas waits for the brake release");
-            }
-            Ok(())
+            self.submit(Role::Gas, Command::Set(a), received)
         } else {
             self.submit(Role::Gas, Command::Set(0.0), received)?;
             self.submit(Role::Brake, Command::Set(-a), received)
@@ -474,17 +539,34 @@ impl Vehicle {
     ///
     /// Returns what to send instead (`None`: nothing). Braking is never refused: it
     /// first has the gas released and waits a bounded time for that to reach the wire.
+    /// Gas that follows a brake release (an `accel` from braking) likewise waits, a
+    /// bounded time, for the release to reach the wire; if it does not, or the brake is
+    /// applied again meanwhile, the gas goes out as 0.
     pub fn clear_to_send(&self, role: Role, command: Command) -> Option<Command> {
         if !self.interlocks.load(Relaxed) {
             return Some(command);
         }
         let set = |c: Option<Command>| c.and_then(Command::set_point);
         let released = |c: Option<Command>| set(c).is_none_or(|v| v <= interlock::RELEASED);
+        // Nothing applied pending, in flight or on the wire.
+        let clear = |p, l, s| released(p) && released(l) && released(s);
         match (role, command) {
             (Role::Gas, Command::Set(v)) if v > interlock::RELEASED => {
                 let braking = self.device(Role::Brake).is_some_and(|b| {
                     let (p, l, s) = b.slot.wire();
-                    !(released(p) && released(l) && released(s))
+                    if clear(p, l, s) {
+                        return false;
+                    }
+                    if !released(p.or(l)) {
+                        return true;
+                    }
+                    // The newest brake command releases it: wait for that to land, or
+                    // for the brake to be applied again.
+                    let deadline = Instant::now() + b.config.reply_timeout * 2 + WIRE_SLACK;
+                    b.slot
+                        .wait_wire(|p, l, s| clear(p, l, s) || !released(p.or(l)), deadline);
+                    let (p, l, s) = b.slot.wire();
+                    !clear(p, l, s)
                 });
                 let why = if braking {
                     Some(Reject::GasWhileBraking)
@@ -508,19 +590,14 @@ impl Vehicle {
                         if !(released(p) && released(l)) {
                             self.store(g, Command::Set(0.0), Instant::now());
                         }
-                        let deadline =
-                            Instant::now() + g.config.reply_timeout * 2 + Duration::from_millis(50);
-                        g.slot.wait_wire(
-                            |p, l, s| released(p) && released(l) && released(s),
-                            deadline,
-                        );
+                        let deadline = Instant::now() + g.config.reply_timeout * 2 + WIRE_SLACK;
+                        g.slot.wait_wire(clear, deadline);
                     }
                 }
                 if v < interlock::SHIFT_BRAKE {
                     // A shift on its way keeps the brake on until it is through.
                     if let Some(t) = self.device(Role::Trans) {
-                        let deadline =
-                            Instant::now() + t.config.reply_timeout * 2 + Duration::from_millis(50);
+                        let deadline = Instant::now() + t.config.reply_timeout * 2 + WIRE_SLACK;
                         t.slot.wait_wire(|p, l, s| p.is_none() && l == s, deadline);
                     }
                 }

@@ -178,6 +178,15 @@ impl Console {
             std::thread::sleep(Duration::from_millis(200));
         }
     }
+
+    /// Engage, then `t`, Ctrl-U, `d`, Enter: drive.
+    fn engage_in_drive(&mut self) {
+        self.engage();
+        self.keys("t");
+        self.wait_for("the gear edit", |s| s.contains("edit trans command"));
+        self.keys("\x15d\r");
+        self.wait_for("drive", |s| s.contains("gear drive"));
+    }
 }
 
 impl Drop for Console {
@@ -344,11 +353,7 @@ fn bench_keys_inject_faults_that_the_console_shows_and_clear() {
 #[test]
 fn an_engine_stall_from_the_bench_is_recovered_step_by_step_on_screen() {
     let mut c = Console::start("stall", &[]);
-    c.engage();
-    c.keys("t");
-    c.wait_for("the gear edit", |s| s.contains("edit trans command"));
-    c.keys("\x15d\r");
-    c.wait_for("drive", |s| s.contains("gear drive"));
+    c.engage_in_drive();
     c.keys("x");
     c.wait_for("the bench", |s| s.contains("raw traffic"));
     c.keys("K");
@@ -425,4 +430,36 @@ fn measure_output_rate() {
     );
     c.keys("q");
     c.wait_exit();
+}
+
+/// The number on screen right after `label`.
+fn number_after(screen: &str, label: &str) -> Option<f64> {
+    let at = screen.find(label)? + label.len();
+    screen[at..].split_whitespace().next()?.parse().ok()
+}
+
+/// In `adrive --sim`: `E` `y`, then `t` Ctrl-U `d` Enter, then `c` Ctrl-U `0.3` Enter
+/// left gas and brake both at 0 and the vehicle standing: the gas waited for a second
+/// `accel`. And `accel 0.300` stayed on screen after STOP. One `accel` gives gas now,
+/// and STOP clears it.
+#[test]
+fn one_accel_from_braking_gives_gas_and_stop_clears_it() {
+    let mut c = Console::start("accel", &[]);
+    c.engage_in_drive();
+    c.keys("c");
+    c.wait_for("the accel edit", |s| s.contains("edit accel"));
+    c.keys("\x150.3\r");
+    c.wait_for("the brake released and the gas given", |s| {
+        s.contains("BRAKE 0…1 cmd 0.000")
+            && number_after(s, "GAS 0…1 cmd 0.300 meas ").is_some_and(|g| g > 0.1)
+            && s.contains("accel 0.300")
+    });
+    c.keys(" ");
+    c.wait_for("STOP: full brake, no gas, no accel shown", |s| {
+        s.contains("BRAKE 0…1 cmd 1.000")
+            && s.contains("GAS 0…1 cmd 0.000")
+            && s.contains("accel -")
+    });
+    c.keys("q");
+    assert!(c.wait_exit().success());
 }

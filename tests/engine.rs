@@ -318,8 +318,8 @@ fn disengaged_commands_are_counted_and_not_executed() {
     assert_eq!(steer.slot.latest(), None);
 }
 
-#[test]
-fn accel_never_applies_gas_and_brake_together() {
+/// Alice engaged (gas 0, brake full) and in drive.
+fn alice_in_drive() -> Rig {
     let rig = Rig::start(adrive::config::ALICE_TOML);
     let v = &rig.vehicle;
     rig.engage();
@@ -329,11 +329,71 @@ fn accel_never_applies_gas_and_brake_together() {
         .unwrap();
     let trans = v.device(Role::Trans).unwrap();
     wait_for("drive", || trans.cached().reading.gear == Some(Gear::Drive));
-    // From full brake: the first accel releases the brake; gas follows once the
-    // release is acknowledged.
-    v.submit_accel(0.4, Instant::now()).unwrap();
-    assert_eq!(v.device(Role::Gas).unwrap().slot.latest(), Some(set(0.0)));
-    wait_for("brake release", || brake.slot.executed() == Some(set(0.0)));
+    rig
+}
+
+/// `c 0.3` in the console, from full brake, released the brake and never gave gas:
+/// the gas waited for a second `accel`. One is enough now, from any source: the gas is
+/// held back at its command thread until the brake release has reached the brake.
+#[test]
+fn one_accel_from_full_brake_gives_gas_once_the_brake_is_released() {
+    let rig = alice_in_drive();
+    let v = &rig.vehicle;
+    rig.received();
+    v.submit_accel(0.3, Instant::now()).unwrap();
+    let gas = v.device(Role::Gas).unwrap();
+    wait_for("gas", || gas.slot.executed() == Some(set(0.3)));
+    assert_eq!(
+        v.device(Role::Brake).unwrap().slot.executed(),
+        Some(set(0.0))
+    );
+    let mut got = rig.received();
+    got.sort_by_key(|e| e.at);
+    let order: Vec<(Role, Command)> = got
+        .iter()
+        .filter(|e| matches!(e.role, Role::Gas | Role::Brake))
+        .map(|e| (e.role, e.command))
+        .collect();
+    assert_eq!(
+        order,
+        [(Role::Brake, set(0.0)), (Role::Gas, set(0.3))],
+        "the brake was released first, then the gas given"
+    );
+    assert_eq!(
+        v.rejections()
+            .into_iter()
+            .find(|(r, _)| *r == Reject::GasWhileBraking),
+        Some((Reject::GasWhileBraking, 0))
+    );
+}
+
+/// Gas that follows a release waits a bounded time for it (two brake reply timeouts
+/// and a little): a release that does not reach the wire by then leaves the gas at 0.
+#[test]
+fn gas_waiting_for_a_release_that_never_lands_goes_out_as_zero() {
+    let rig = alice_in_drive();
+    let v = &rig.vehicle;
+    let brake = v.device(Role::Brake).unwrap();
+    let gas = v.device(Role::Gas).unwrap();
+    // The brake's command thread is off: the release cannot reach the wire.
+    brake.settings.command_enabled.store(false, Relaxed);
+    v.submit_accel(0.3, Instant::now()).unwrap();
+    wait_for("the gas to be refused at the wire", || {
+        gas.slot.sent() == Some(set(0.0))
+    });
+    assert_ne!(gas.slot.executed(), Some(set(0.3)));
+    brake.settings.command_enabled.store(true, Relaxed);
+    assert!(!rig
+        .received()
+        .iter()
+        .any(|e| e.role == Role::Gas && e.command == set(0.3)));
+}
+
+#[test]
+fn accel_never_applies_gas_and_brake_together() {
+    let rig = alice_in_drive();
+    let v = &rig.vehicle;
+    let brake = v.device(Role::Brake).unwrap();
     v.submit_accel(0.4, Instant::now()).unwrap();
     let gas = v.device(Role::Gas).unwrap();
     wait_for("gas", || gas.slot.executed() == Some(set(0.4)));

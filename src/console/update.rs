@@ -45,6 +45,12 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
             tracing::warn!("teleop deadman tripped: gas 0, brake full");
         }
     }
+    // The accel shown is the one sent while engaged: once disengaged (STOP, `D`, the
+    // gate, the watchdog, the supervisor) the vehicle has gas 0 and the brake full,
+    // whatever the console sent before.
+    if !m.snap.engaged {
+        m.accel = None;
+    }
 }
 
 /// Apply one action.
@@ -468,8 +474,8 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
 /// The paper's `e`, after the operator disabled and re-enabled the steering drive:
 /// home it now; [`tick`] then commands it to hold where it stopped, once the drive
 /// acknowledged the home command. (A latched drive fault needs the disable → enable
-/// cycle first; the supervisor's `steering` procedure runs that whole sequence on its
-/// own when the drive reports a fault.)
+/// cycle first; the supervisor's `steering` procedure runs that whole sequence when the
+/// drive reports a fault, once the vehicle is engaged.)
 fn reset_steering(m: &mut Model, c: &dyn Controls) {
     if m.snap.device(Role::Steer).is_none() {
         return m.say("steering reset refused: this vehicle has no steering", true);

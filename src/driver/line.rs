@@ -17,7 +17,7 @@
 //! ignored (newer firmware may report more). Lines end in `\n`; a `\r` before it is
 //! ignored.
 
-use super::{read_until, Driver, DriverError, Link};
+use super::{read_until, send_request, Driver, DriverError, Link};
 use crate::value::{Command, Control, Gear, Reading};
 use std::io::Write;
 use std::time::Duration;
@@ -171,13 +171,11 @@ impl LineDriver {
         }
     }
 
+    /// One request and its reply line, over by `reply_timeout` whatever the device sends.
     fn transact(&mut self, link: &mut dyn Link, request: &[u8]) -> Result<&[u8], DriverError> {
-        link.discard_input()?;
-        link.write_all(request)?;
-        link.flush()?;
+        let deadline = send_request(link, request, self.reply_timeout)?;
         self.buf.clear();
-        link.set_timeout(self.reply_timeout)?;
-        read_until(link, &mut self.buf, b'\n', MAX_LINE, self.reply_timeout)?;
+        read_until(link, &mut self.buf, b'\n', MAX_LINE, &deadline)?;
         Ok(&self.buf)
     }
 }

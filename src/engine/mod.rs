@@ -205,7 +205,7 @@ fn status_loop(d: &Device, stop: &StopSignal) {
                     at: Some(done),
                 };
                 d.health.status_error.store(0, Relaxed);
-                d.record_ok();
+                d.record_ok(done);
             }
             Err(e) => {
                 Stats::bump(&d.stats.status_errors);
@@ -289,7 +289,7 @@ fn command_loop(v: &Vehicle, d: &Device) {
                         Stats::bump(&d.stats.resent);
                     }
                     d.health.command_error.store(0, Relaxed);
-                    d.record_ok();
+                    d.record_ok(done);
                     d.slot.set_executed(command);
                 }
                 Err(e) => {

@@ -142,11 +142,7 @@ pub fn build(vehicle: &Vehicle, net: Option<NetSnapshot>, seq: u64, started: Ins
     let faults = vehicle
         .devices
         .iter()
-        .filter(|d| d.is_faulty())
-        .map(|d| {
-            let last = d.health.last_error.lock().as_ref().map(|(_, m)| m.clone());
-            format!("{}: {}", d.role, last.unwrap_or_else(|| "faulty".into()))
-        })
+        .filter_map(|d| Some(format!("{}: {}", d.role, d.fault()?)))
         .collect();
     State {
         schema: SCHEMA,

@@ -121,27 +121,35 @@ impl Detector {
                 format!("port closed{}", last_error()),
             );
         }
+        // Silence is the device's own rule; one that never answered is measured from the
+        // supervisor's start.
+        let (what, quiet) = match d.quiet_for(now) {
+            Some(q) => ("no answer", q),
+            None => ("never answered", now - self.started),
+        };
+        if !gone && d.is_silent_after(quiet) {
+            let mut cause = format!(
+                "{what} for {} ms (max {} ms)",
+                quiet.as_millis(),
+                d.config.status_max_age.as_millis()
+            );
+            // The error that went with it, unless it is older than the last answer.
+            if let Some((_, e)) = d
+                .health
+                .last_error
+                .lock()
+                .as_ref()
+                .filter(|(t, _)| now - *t < quiet)
+            {
+                cause = format!("{cause}: {e}");
+            }
+            raise(FaultKind::Silent, who, cause);
+        }
+        // Readings this old are still judged (a poll may wait out a command flood).
         let limit = d.config.status_max_age + d.config.reply_timeout;
         let age = cached
             .at
             .map_or(now - self.started, |t| now.saturating_duration_since(t));
-        if !gone && age > limit && d.settings.status_enabled.load(Relaxed) {
-            let what = if cached.at.is_some() {
-                "no status"
-            } else {
-                "never answered"
-            };
-            raise(
-                FaultKind::Silent,
-                who,
-                format!(
-                    "{what} for {} ms (max {} ms){}",
-                    age.as_millis(),
-                    d.config.status_max_age.as_millis(),
-                    last_error()
-                ),
-            );
-        }
 
         let track = self.tracks.entry(d.role).or_default();
         let s = d.stats.snapshot();
@@ -151,7 +159,12 @@ impl Detector {
         track
             .window
             .retain(|(t, _, _)| now - *t <= self.cfg.error_window);
-        if let (Some(first), Some(last)) = (track.window.first(), track.window.last()) {
+        // A port that cannot be opened fails every transaction: that is said above (or
+        // as silence, for a port never opened), not again as an error rate.
+        let missing = d.port_health.missing.load(Relaxed);
+        if let (false, Some(first), Some(last)) =
+            (missing, track.window.first(), track.window.last())
+        {
             let (tries, errs) = (last.1 - first.1, last.2 - first.2);
             if tries >= 4 && errs as f64 / tries as f64 > self.cfg.error_rate {
                 raise(
@@ -241,6 +254,8 @@ pub struct Supervisor {
     cfg: SupervisorConfig,
     detector: Detector,
     procedure: Option<Procedure>,
+    /// A procedure that waits for the vehicle to be engaged (said once).
+    waiting: Option<String>,
     /// A procedure of this name may not start again before this time.
     cooldown: HashMap<String, Instant>,
     exit: ExitSink,
@@ -252,6 +267,7 @@ impl Supervisor {
             detector: Detector::new(cfg.clone()),
             cfg,
             procedure: None,
+            waiting: None,
             cooldown: HashMap::new(),
             exit,
         }
@@ -262,20 +278,17 @@ impl Supervisor {
         let status = &v.supervision;
         let before = status.faults();
         let faults = self.detector.detect(v, &before, now);
-        for f in &faults {
-            if !before
-                .iter()
-                .any(|b| b.kind == f.kind && b.device == f.device)
-            {
-                tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
-                status.note(format!("fault: {}", f.describe()));
-            }
+        let among = |list: &[Fault], f: &Fault| {
+            list.iter()
+                .any(|g| g.kind == f.kind && g.device == f.device)
+        };
+        let is_new = |f: &Fault| !among(&before, f);
+        for f in faults.iter().filter(|f| is_new(f)) {
+            tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
+            status.note(format!("fault: {}", f.describe()));
         }
         for b in &before {
-            if !faults
-                .iter()
-                .any(|f| f.kind == b.kind && f.device == b.device)
-            {
+            if !among(&faults, b) {
                 tracing::info!(fault = %b.kind, device = ?b.device, "cleared: {}", b.describe());
                 status.note(format!(
                     "cleared: {} {}",
@@ -286,23 +299,49 @@ impl Supervisor {
         }
         status.set_faults(faults.clone());
 
+        // A disengaged vehicle is never moved by adrive on its own: a procedure that
+        // moves an actuator runs only while engaged, and stops when it no longer is
+        // (the disengage has commanded the safe state). It starts again from the top at
+        // the next engage if its fault is still there.
+        if self.procedure.as_ref().is_some_and(|p| !p.may_run(v)) {
+            let p = self.procedure.take().expect("checked");
+            let msg = format!("recovery {} stopped: the vehicle is disengaged", p.name());
+            tracing::warn!("{msg}");
+            status.note(msg.clone());
+            status.set_outcome(msg);
+            v.set_recovering(&[]);
+            status.set_recovery(None);
+        }
+        let start = match self.procedure {
+            None => self.next_procedure(v, &faults, &is_new, now),
+            Some(_) => None,
+        };
+        // A fault disengages the vehicle, unless it was there before and a procedure
+        // (running, or starting now) deals with it: engaging with it is the permission
+        // to recover.
         if v.is_engaged() {
-            if let Some(f) = faults.iter().find(|f| disengages(f.kind)) {
+            let dealt_with = |f: &Fault| {
+                let p = self.procedure.as_ref().or(start.as_ref().map(|(p, _)| p));
+                !is_new(f)
+                    && p.is_some_and(|p| {
+                        procedure_for(f, v, &self.cfg).is_some_and(|q| q.name() == p.name())
+                    })
+            };
+            if let Some(f) = faults.iter().find(|f| disengages(f.kind) && !dealt_with(f)) {
                 v.disengage(&format!("supervisor: {}", f.describe()));
             }
         }
-        if self.procedure.is_none() {
-            for f in &faults {
-                if let Some(p) = procedure_for(f, v, &self.cfg) {
-                    if self.cooldown.get(p.name()).is_some_and(|t| now < *t) {
-                        continue;
-                    }
-                    tracing::warn!("recovery {} started for {}", p.name(), f.describe());
-                    status.note(format!("recovery {} started: {}", p.name(), f.describe()));
-                    self.procedure = Some(p);
-                    break;
-                }
+        match start {
+            Some((p, f)) if p.may_run(v) => {
+                tracing::warn!("recovery {} started for {}", p.name(), f.describe());
+                status.note(format!("recovery {} started: {}", p.name(), f.describe()));
+                self.waiting = None;
+                self.procedure = Some(p);
             }
+            _ => {}
+        }
+        if self.procedure.is_none() {
+            self.note_waiting(v, &faults, now);
         }
         if let Some(p) = self.procedure.as_mut() {
             let progress = p.advance(v, now);
@@ -334,6 +373,46 @@ impl Supervisor {
                 }
             }
         }
+    }
+
+    /// The procedure to start now, and the fault it is for: the first fault whose
+    /// procedure is not cooling down and, if it moves an actuator, may move it — the
+    /// vehicle is engaged and the fault is not one that disengages it this turn.
+    fn next_procedure(
+        &self,
+        v: &Vehicle,
+        faults: &[Fault],
+        is_new: &dyn Fn(&Fault) -> bool,
+        now: Instant,
+    ) -> Option<(Procedure, Fault)> {
+        faults.iter().find_map(|f| {
+            let p = self.ready(f, v, now)?;
+            let disengaging = p.moves() && disengages(f.kind) && is_new(f);
+            (p.may_run(v) && !disengaging).then(|| (p, f.clone()))
+        })
+    }
+
+    /// The procedure `f` calls for, unless it is cooling down after its last run.
+    fn ready(&self, f: &Fault, v: &Vehicle, now: Instant) -> Option<Procedure> {
+        let p = procedure_for(f, v, &self.cfg)?;
+        let cooling = self.cooldown.get(p.name()).is_some_and(|t| now < *t);
+        (!cooling).then_some(p)
+    }
+
+    /// Say once that a fault's procedure waits for the vehicle to be engaged.
+    fn note_waiting(&mut self, v: &Vehicle, faults: &[Fault], now: Instant) {
+        let waiting = faults.iter().find_map(|f| {
+            let p = self.ready(f, v, now)?;
+            (!p.may_run(v)).then(|| (p.name().to_string(), f))
+        });
+        let name = waiting.as_ref().map(|(n, _)| n.clone());
+        if let Some((name, f)) = waiting.filter(|_| name != self.waiting) {
+            let msg = format!("recovery {name} waits for engage: {}", f.describe());
+            tracing::warn!("{msg}");
+            v.supervision.note(msg.clone());
+            v.supervision.set_outcome(msg);
+        }
+        self.waiting = name;
     }
 
     fn finish(&mut self, v: &Vehicle, now: Instant) {

@@ -9,10 +9,15 @@
 //!   starter, back to the previous gear, release. While it runs, intake refuses gas and
 //!   shifts; afterwards the brake stays applied until the planner commands otherwise,
 //!   and the gas slot holds 0 — nothing jumps back to a stale set point.
-//! - **steering** (the paper's `e` key): disable, enable (a servo drive's fault latch
-//!   clears on that cycle), home, hold where it is.
+//! - **steering** (the paper's `e` key): gas off and brake, then disable, enable (a
+//!   servo drive's fault latch clears on that cycle), home, hold where it is. Gas and
+//!   brake stay taken until it is done: the vehicle stands while its steering is reset.
 //! - **reconnect**: a vanished device; the engine reopens its port with backoff, the
 //!   procedure waits for it to answer again.
+//!
+//! A procedure that moves an actuator ([`Procedure::moves`]: anything beyond the safe
+//! state of gas 0 and brake full) runs only while the vehicle is engaged; the
+//! supervisor holds that rule.
 
 use crate::config::SupervisorConfig;
 use crate::interlock;
@@ -54,6 +59,23 @@ impl Step {
             Step::Home => "home".into(),
             Step::Hold => "hold position".into(),
             Step::Reopen(r) => format!("reopen {r}"),
+        }
+    }
+
+    /// The step commands an actuator to anything but the safe state (gas 0, brake
+    /// full): a gear, the starter, the steering drive's controls or a set point.
+    pub fn moves(self) -> bool {
+        match self {
+            Step::GasOff | Step::Brake | Step::WaitStopped | Step::Release | Step::Reopen(_) => {
+                false
+            }
+            Step::Park
+            | Step::Start
+            | Step::Regear(_)
+            | Step::Disable
+            | Step::Enable
+            | Step::Home
+            | Step::Hold => true,
         }
     }
 
@@ -176,12 +198,19 @@ impl Procedure {
         )
     }
 
-    /// Steering drive fault: disable, enable, home, hold where it is.
+    /// Steering drive fault: stand still, then disable, enable, home, hold where it is.
     pub fn steering(cfg: &SupervisorConfig) -> Procedure {
         Procedure::new(
             "steering",
-            vec![Step::Disable, Step::Enable, Step::Home, Step::Hold],
-            vec![Role::Steer],
+            vec![
+                Step::GasOff,
+                Step::Brake,
+                Step::Disable,
+                Step::Enable,
+                Step::Home,
+                Step::Hold,
+            ],
+            vec![Role::Steer, Role::Gas, Role::Brake],
             cfg,
         )
     }
@@ -202,6 +231,19 @@ impl Procedure {
 
     pub fn steps(&self) -> &[Step] {
         &self.steps
+    }
+
+    /// Some step moves an actuator ([`Step::moves`]).
+    pub fn moves(&self) -> bool {
+        self.steps.iter().any(|s| s.moves())
+    }
+
+    /// The rule for every procedure: a disengaged vehicle is never moved by adrive on
+    /// its own, so one that moves an actuator runs only while the vehicle is engaged
+    /// (engaging is the permission to move it). One that moves nothing — reconnect —
+    /// always may.
+    pub fn may_run(&self, v: &Vehicle) -> bool {
+        !self.moves() || v.is_engaged()
     }
 
     pub fn elapsed(&self, now: Instant) -> Duration {
@@ -276,6 +318,31 @@ impl Procedure {
                 continue;
             }
             return Progress::Running;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_the_safe_state_and_waiting_count_as_not_moving() {
+        let cfg = SupervisorConfig::default();
+        assert!(Procedure::engine_stall(Gear::Drive, &cfg).moves());
+        assert!(Procedure::steering(&cfg).moves());
+        assert!(!Procedure::reconnect(Role::Brake, &cfg).moves());
+        for step in [Step::GasOff, Step::Brake, Step::WaitStopped, Step::Release] {
+            assert!(!step.moves(), "{}", step.name());
+        }
+        for step in [
+            Step::Park,
+            Step::Start,
+            Step::Disable,
+            Step::Home,
+            Step::Hold,
+        ] {
+            assert!(step.moves(), "{}", step.name());
         }
     }
 }

@@ -480,6 +480,23 @@ fn c_edits_the_virtual_accel() {
     assert_eq!(m.accel, Some(-0.3));
 }
 
+/// `accel 0.300` stayed on screen after STOP, although STOP brakes fully.
+#[test]
+fn stop_clears_the_accel_shown() {
+    let mut f = Fake::new();
+    f.snap.engaged = true;
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["c", "0", ".", "3", "<Enter>"], now);
+    tick(&mut m, &f, now);
+    assert_eq!(m.accel, Some(0.3), "shown while engaged");
+    press(&mut m, &f, &["<Space>"], now);
+    assert_eq!(f.calls(), ["accel 0.3", "disengage"]);
+    f.snap.engaged = false;
+    tick(&mut m, &f, now);
+    assert_eq!(m.accel, None);
+}
+
 #[test]
 fn e_homes_the_steering_then_holds_where_it_stopped() {
     let mut f = Fake::new();
