@@ -11,7 +11,7 @@ use crate::value::Role;
 use crate::vehicle::Vehicle;
 use crate::{console, driver, gate, headless, logging};
 use clap::{Args, Parser, Subcommand};
-use std::io::BufRead;
+use std::io::{self, BufRead, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -148,7 +148,7 @@ pub fn main() -> i32 {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("adrive: {e:#}");
+            tell(io::stderr(), format_args!("adrive: {e:#}\n"));
             2
         }
     }
@@ -248,7 +248,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 Ok(why) => why,
                 // Still stop safely below.
                 Err(e) => {
-                    eprintln!("adrive: console: {e}");
+                    tell(io::stderr(), format_args!("adrive: console: {e}\n"));
                     Exit::Panic(format!("console: {e}"))
                 }
             }
@@ -271,12 +271,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     drop(sim);
     if args.headless {
-        print!("{}", headless::summary(&vehicle));
-        println!("{}", headless::net_summary(&net_figures));
+        tell(
+            io::stdout(),
+            format_args!(
+                "{}{}\n",
+                headless::summary(&vehicle),
+                headless::net_summary(&net_figures)
+            ),
+        );
     }
-    let code = if !safe || !stuck.is_empty() {
-        eprintln!(
-            "adrive: stopped ({}) but the safe state was {}acknowledged{}",
+    if !safe || !stuck.is_empty() {
+        let msg = format!(
+            "stopped ({}) but the safe state was {}acknowledged{}",
             why.describe(),
             if safe { "" } else { "NOT " },
             if stuck.is_empty() {
@@ -285,12 +291,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 format!("; threads still running: {}", stuck.join(", "))
             }
         );
-        why.code().max(3)
-    } else {
-        why.code()
-    };
+        tracing::error!("{msg}");
+        tell(io::stderr(), format_args!("adrive: {msg}\n"));
+    }
+    let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// Write to standard output or error, which may be a terminal that hung up (an SSH
+/// session dropping): there a failed write is dropped, where `print!` and `eprintln!`
+/// would panic on the way out.
+fn tell(mut to: impl Write, text: std::fmt::Arguments) {
+    let _ = to.write_fmt(text).and_then(|()| to.flush());
 }
 
 /// The `[network]` key file, relative to the vehicle file's directory.
