@@ -195,6 +195,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         .as_ref()
         .map(|r| Box::new(r.layer()) as logging::ExtraLayer);
     let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
+    for w in keymap.iter().flat_map(|k| k.warnings()) {
+        tracing::warn!("keymap: {w}");
+    }
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
         s.patch(&mut config);
