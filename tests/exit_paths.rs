@@ -89,6 +89,12 @@ impl SimProcess {
         writeln!(self.stdin, "{line}").unwrap();
     }
 
+    /// Stop it as a user would (SIGTERM), so that it removes its port links.
+    fn stop(mut self) {
+        common::signal(&self.child, libc::SIGTERM);
+        let _ = common::wait_exit(&mut self.child);
+    }
+
     /// The last command the named device received (`0.300`, `drive`, …).
     fn last_command(&self, device: &str) -> Option<String> {
         self.lines
@@ -388,6 +394,7 @@ fn a_recovery_that_gives_up_without_the_safe_state_acknowledged_exits_3() {
         "{log}"
     );
     assert!(log.contains("safe state was NOT acknowledged"), "{log}");
+    sim.stop();
 }
 
 /// An SSH session drops while the console drives: sshd closes the master side of the
@@ -434,6 +441,7 @@ fn the_terminal_goes_away(name: &str, args: &[&str], shows: &str, controlling: b
         log.contains("safe state acknowledged"),
         "the log lacks the safe state:\n{log}"
     );
+    sim.stop();
 }
 
 /// `kill -9` leaves adrive no chance: the simulated actuators' own watchdogs release
