@@ -12,7 +12,7 @@ use crate::value::Role;
 use crate::vehicle::Vehicle;
 use crate::{console, driver, gate, headless, logging};
 use clap::{Args, CommandFactory, Parser, Subcommand};
-use std::io::BufRead;
+use std::io::{self, BufRead, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -166,7 +166,7 @@ pub fn main() -> i32 {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("adrive: {e:#}");
+            tell(io::stderr(), format_args!("adrive: {e:#}\n"));
             2
         }
     }
@@ -216,6 +216,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         .as_ref()
         .map(|r| Box::new(r.layer()) as logging::ExtraLayer);
     let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
+    for w in keymap.iter().flat_map(|k| k.warnings()) {
+        tracing::warn!("keymap: {w}");
+    }
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
         s.patch(&mut config);
@@ -269,7 +272,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 Ok(why) => why,
                 // Still stop safely below.
                 Err(e) => {
-                    eprintln!("adrive: console: {e}");
+                    tell(io::stderr(), format_args!("adrive: console: {e}\n"));
                     Exit::Panic(format!("console: {e}"))
                 }
             }
@@ -292,12 +295,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     drop(sim);
     if args.headless {
-        print!("{}", headless::summary(&vehicle));
-        println!("{}", headless::net_summary(&net_figures));
+        tell(
+            io::stdout(),
+            format_args!(
+                "{}{}\n",
+                headless::summary(&vehicle),
+                headless::net_summary(&net_figures)
+            ),
+        );
     }
-    let code = if !safe || !stuck.is_empty() {
-        eprintln!(
-            "adrive: stopped ({}) but the safe state was {}acknowledged{}",
+    if !safe || !stuck.is_empty() {
+        let msg = format!(
+            "stopped ({}) but the safe state was {}acknowledged{}",
             why.describe(),
             if safe { "" } else { "NOT " },
             if stuck.is_empty() {
@@ -306,12 +315,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 format!("; threads still running: {}", stuck.join(", "))
             }
         );
-        why.code().max(3)
-    } else {
-        why.code()
-    };
+        tracing::error!("{msg}");
+        tell(io::stderr(), format_args!("adrive: {msg}\n"));
+    }
+    let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// Write to standard output or error, which may be a terminal that hung up (an SSH
+/// session dropping): there a failed write is dropped, where `print!` and `eprintln!`
+/// would panic on the way out.
+fn tell(mut to: impl Write, text: std::fmt::Arguments) {
+    let _ = to.write_fmt(text).and_then(|()| to.flush());
 }
 
 /// The `[network]` key file, relative to the vehicle file's directory.

@@ -38,10 +38,9 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     assert!(!dir.path().join("log").exists());
 }
 
-#[test]
-fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
-    let dir = tempdir("cli");
-    let mut child = common::Reaped(
+/// `adrive --sim --headless` logging into `dir`, its output and error piped.
+fn headless_sim(dir: &std::path::Path) -> common::Reaped {
+    common::Reaped(
         Process::new(BIN)
             .args([
                 "--sim",
@@ -50,12 +49,19 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
                 "127.0.0.1:0",
                 "--log-dir",
             ])
-            .arg(dir.path())
+            .arg(dir)
+            .env_remove("NO_COLOR")
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
             .unwrap(),
-    );
+    )
+}
+
+#[test]
+fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
+    let dir = tempdir("cli");
+    let mut child = headless_sim(dir.path());
     let err = lines(child.stderr.take().unwrap());
     until(&err, "running headless");
     signal(&child, libc::SIGTERM);
@@ -307,4 +313,24 @@ fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
     assert_eq!(bad.status.code(), Some(2));
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(err.contains("unknown command \"wobble\""), "{err}");
+}
+
+/// A headless run whose standard error goes to a file or a pipe (`2> adrive.err`, a
+/// service manager's journal) logs plain text: colour escapes belong on a terminal
+/// only. They once filled such files.
+#[test]
+fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
+    let dir = tempdir("cli-colour");
+    let mut child = headless_sim(dir.path());
+    let err = lines(child.stderr.take().unwrap());
+    let mut seen = until(&err, "running headless");
+    signal(&child, libc::SIGINT);
+    let status = wait_exit(&mut child);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(status, Some(0));
+    // The pipe closes when adrive exits: these are all the lines it wrote.
+    seen.extend(err.iter());
+    let text = seen.join("\n");
+    assert!(text.contains("stopping: SIGINT"), "{text}");
+    assert!(!text.contains('\x1b'), "colour escapes in:\n{text:?}");
 }

@@ -11,28 +11,24 @@ use std::process::{Command, Output};
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
 /// A directory for one test's files, removed when the test ends, passing or failing.
-struct Scratch(PathBuf);
+struct Scratch(tempfile::TempDir);
 
 impl Scratch {
     fn new() -> Scratch {
         Scratch(common::tempdir("messages"))
     }
     fn file(&self, name: &str, contents: impl AsRef<[u8]>) -> PathBuf {
-        let p = self.0.join(name);
+        let p = self.0.path().join(name);
         std::fs::write(&p, contents).unwrap();
         p
     }
 }
 
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
 fn adrive(args: &[&str], config: Option<&Path>, dir: &Scratch) -> Output {
     let mut cmd = Command::new(BIN);
-    cmd.args(args).arg("--log-dir").arg(dir.0.join("log"));
+    cmd.args(args)
+        .arg("--log-dir")
+        .arg(dir.0.path().join("log"));
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
     }
@@ -65,7 +61,7 @@ fn multicast_ttl_300_is_refused_at_its_line_not_by_the_os() {
         "{err}"
     );
     assert!(!err.contains("os error"), "{err}");
-    assert!(!dir.0.join("log").exists(), "nothing started");
+    assert!(!dir.0.path().join("log").exists(), "nothing started");
 }
 
 /// A device with no `port` (or `port = ""`) ran forever, never connecting.
@@ -86,7 +82,7 @@ fn a_device_without_a_port_is_refused_outside_sim() {
         )) && err.contains("--sim"),
         "{err}"
     );
-    assert!(!dir.0.join("log").exists(), "nothing started");
+    assert!(!dir.0.path().join("log").exists(), "nothing started");
 }
 
 /// A missing `key_file` named the key's path but not the vehicle file's line, and
@@ -101,7 +97,7 @@ fn a_missing_key_file_names_the_vehicle_file_line_and_the_os_error_once() {
     let out = adrive(&["--headless"], Some(&path), &dir);
     let err = stderr(&out);
     assert_eq!(out.status.code(), Some(2), "{err}");
-    let key = dir.0.join("missing.key");
+    let key = dir.0.path().join("missing.key");
     assert!(
         err.contains(&format!(
             "{}:5: [network] key_file: {}: No such file or directory (os error 2)",
@@ -168,7 +164,7 @@ fn deadman_zero_is_refused_with_its_range() {
                 && err.contains("from 100ms to 5s"),
             "{err}"
         );
-        assert!(!dir.0.join("log").exists(), "nothing started");
+        assert!(!dir.0.path().join("log").exists(), "nothing started");
     }
 }
 
@@ -222,17 +218,17 @@ fn the_man_page_is_roff_with_every_option_and_subcommand() {
     let dir = Scratch::new();
     let out = Command::new(BIN)
         .args(["manpage", "--dir"])
-        .arg(&dir.0)
+        .arg(dir.0.path())
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", stderr(&out));
-    let send = std::fs::read_to_string(dir.0.join("adrive-send.1")).unwrap();
+    let send = std::fs::read_to_string(dir.0.path().join("adrive-send.1")).unwrap();
     assert!(
         send.contains(".TH adrive-send 1") && send.contains("\\-\\-rate"),
         "{send}"
     );
     assert_eq!(
-        std::fs::read_to_string(dir.0.join("adrive.1")).unwrap(),
+        std::fs::read_to_string(dir.0.path().join("adrive.1")).unwrap(),
         page,
         "the page on standard output is the one written"
     );

@@ -3,19 +3,21 @@
 //! (`vt100`), so checks read what an operator would see. Every wait has a generous
 //! deadline and polls; none is a fixed sleep.
 
+mod common;
+
+use common::pty::{attach, openpty};
+use common::DEADLINE;
 use std::fs::File;
 use std::io::{Read, Write};
-use std::os::fd::{FromRawFd, OwnedFd};
-use std::os::unix::process::CommandExt;
+use std::os::fd::OwnedFd;
 use std::path::PathBuf;
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, ExitStatus};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 const COLS: u16 = 100;
 const ROWS: u16 = 30;
-const DEADLINE: Duration = Duration::from_secs(20);
 
 /// The console in a pseudo-terminal, with everything it wrote so far.
 struct Console {
@@ -26,28 +28,12 @@ struct Console {
     log_dir: PathBuf,
 }
 
-fn openpty(cols: u16, rows: u16) -> (OwnedFd, OwnedFd) {
-    let (mut m, mut s) = (0, 0);
-    let ws = libc::winsize {
-        ws_row: rows,
-        ws_col: cols,
-        ws_xpixel: 0,
-        ws_ypixel: 0,
-    };
-    // SAFETY: openpty writes two fds into the given ints; the winsize is read only.
-    let r = unsafe { libc::openpty(&mut m, &mut s, std::ptr::null_mut(), std::ptr::null(), &ws) };
-    assert_eq!(r, 0, "openpty: {}", std::io::Error::last_os_error());
-    // SAFETY: both fds were just opened and are owned by nobody else.
-    unsafe { (OwnedFd::from_raw_fd(m), OwnedFd::from_raw_fd(s)) }
-}
-
 impl Console {
     fn start(name: &str, extra: &[&str]) -> Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
         let (master, slave) = openpty(COLS, ROWS);
-        let io = |fd: &OwnedFd| Stdio::from(fd.try_clone().unwrap());
         let mut cmd = Command::new(BIN);
         cmd.arg("--sim")
             // Tests run in parallel: each takes its own ephemeral command port.
@@ -56,19 +42,8 @@ impl Console {
             .arg(&log_dir)
             .args(extra)
             .env("TERM", "xterm-256color")
-            .env_remove("NO_COLOR")
-            .stdin(io(&slave))
-            .stdout(io(&slave))
-            .stderr(io(&slave));
-        // SAFETY: only async-signal-safe calls between fork and exec.
-        unsafe {
-            cmd.pre_exec(|| {
-                if libc::setsid() < 0 || libc::ioctl(0, libc::TIOCSCTTY as _, 0) < 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
+            .env_remove("NO_COLOR");
+        attach(&mut cmd, &slave, true);
         let child = cmd.spawn().expect("start adrive");
         let master = File::from(master);
         let out = Arc::new(Mutex::new(Vec::new()));

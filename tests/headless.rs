@@ -5,21 +5,11 @@ mod common;
 
 use adrive::config::ALICE_TOML;
 use common::{lines, signal, tempdir, until, wait_exit, Reaped};
-use std::path::PathBuf;
 use std::process::{Command as Process, Stdio};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 const DEVICES: [&str; 6] = ["steer", "gas", "brake", "trans", "estop", "obd"];
-
-/// A test directory removed when the test ends, passing or failing.
-struct Dir(PathBuf);
-
-impl Drop for Dir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 /// Without hardware, `adrive --headless` printed about 300 warnings in 3 s (`status:
 /// port: No such file or directory device=steer`) and never named the path it tried.
@@ -27,8 +17,8 @@ impl Drop for Dir {
 /// once; nothing repeats at the polling rate.
 #[test]
 fn headless_without_hardware_names_each_missing_port_once() {
-    let dir = Dir(tempdir("headless"));
-    let port = |device: &str| dir.0.join(format!("missing-{device}"));
+    let dir = tempdir("headless");
+    let port = |device: &str| dir.path().join(format!("missing-{device}"));
     // Alice, each port pointed at a path that does not exist.
     let mut toml = String::new();
     let mut device = "";
@@ -46,14 +36,14 @@ fn headless_without_hardware_names_each_missing_port_once() {
             toml.push('\n');
         }
     }
-    let vehicle = dir.0.join("vehicle.toml");
+    let vehicle = dir.path().join("vehicle.toml");
     std::fs::write(&vehicle, toml).unwrap();
     let mut child = Reaped(
         Process::new(BIN)
             .args(["--headless", "--listen", "127.0.0.1:0", "--config"])
             .arg(&vehicle)
             .arg("--log-dir")
-            .arg(dir.0.join("log"))
+            .arg(dir.path().join("log"))
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()

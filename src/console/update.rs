@@ -59,6 +59,10 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
     match a {
         Action::Interrupt => return Flow::Exit(Exit::Signal(libc::SIGINT)),
         Action::Quit => return Flow::Exit(Exit::Quit),
+        Action::Stop => {
+            stop(m, c);
+            return Flow::Continue;
+        }
         Action::Help if !matches!(m.mode, Mode::Help | Mode::Edit | Mode::Confirm) => {
             m.back_to = m.mode;
             m.mode = Mode::Help;
@@ -142,7 +146,6 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::ResetSteering => reset_steering(m, c),
         Action::Engage => ask(m, Ask::Engage),
         Action::Disengage => ask(m, Ask::Disengage),
-        Action::Stop => stop(m, c),
         Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.interlocks)),
         Action::Teleop => enter_teleop(m),
         Action::Bench => {
@@ -436,9 +439,21 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
     }
 }
 
-/// The operator's stop: no question asked.
+/// The operator's stop, the same from every mode: no question asked, and whatever was
+/// half done (an edit, a question) is dropped. Teleop stays, its brake full and its
+/// deadman idle until the next key.
 fn stop(m: &mut Model, c: &dyn Controls) {
     c.disengage("operator stop from the console");
+    if matches!(m.mode, Mode::Edit | Mode::Confirm) {
+        m.edit = None;
+        m.ask = None;
+        m.mode = m.back_to;
+    }
+    if m.mode == Mode::Teleop {
+        m.teleop.accel = -1.0;
+        m.teleop.last_key = None;
+        m.teleop.tripped = false;
+    }
     m.say("STOP: disengaged, gas 0, brake full", true);
 }
 
@@ -464,7 +479,6 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
             ),
         },
         Action::Wake(_) => wake(m, c, m.bench),
-        Action::Stop => stop(m, c),
         Action::Sim(what) => sim(m, c, what),
         Action::Back | Action::Cancel => m.mode = Mode::Main,
         _ => {}

@@ -2,6 +2,8 @@
 //! pseudo-terminals with the real engine on top, and waiting for events with a deadline.
 #![allow(dead_code)]
 
+pub mod pty;
+
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;
 use adrive::engine::Engine;

@@ -308,6 +308,41 @@ fn space_stops_at_once_without_asking() {
     assert!(m.message.unwrap().text.contains("STOP"));
 }
 
+/// The emergency stop once existed only in main, teleop (as a full brake that stayed
+/// engaged) and bench: Space in the middle of an edit or a question typed a space or
+/// did nothing. It stops from every mode now, dropping what was half done.
+#[test]
+fn space_is_stop_in_every_mode() {
+    let now = Instant::now();
+    for (keys, back_in) in [
+        (&["g", "0", "."][..], Mode::Main),
+        (&["E"][..], Mode::Main),
+        (&["?"][..], Mode::Help),
+        (&["d", "w"][..], Mode::Teleop),
+        (&["d", "E"][..], Mode::Teleop),
+        (&["x"][..], Mode::Bench),
+        (&["x", "<Enter>"][..], Mode::Bench),
+    ] {
+        let f = Fake::new();
+        let mut m = model(&f);
+        press(&mut m, &f, keys, now);
+        let before = f.calls().len();
+        press(&mut m, &f, &["<Space>"], now);
+        assert_eq!(f.calls()[before..], ["disengage"], "{keys:?}");
+        assert_eq!(m.mode, back_in, "{keys:?}");
+        assert!(m.edit.is_none() && m.ask.is_none(), "{keys:?}");
+        assert!(
+            m.message.as_ref().unwrap().text.contains("STOP"),
+            "{keys:?}"
+        );
+        if back_in == Mode::Teleop {
+            // The next up releases the brake first; the deadman waits for a key.
+            assert_eq!(m.teleop.accel, -1.0);
+            assert_eq!(m.teleop.last_key, None);
+        }
+    }
+}
+
 #[test]
 fn a_refused_engage_says_why() {
     let mut f = Fake::new();
@@ -373,19 +408,14 @@ fn help_opens_over_any_mode_and_closes_back() {
 }
 
 #[test]
-fn teleop_steps_steering_and_accel_and_space_brakes() {
+fn teleop_steps_steering_and_accel_and_b_brakes() {
     let f = Fake::new();
     let mut m = model(&f);
     let now = Instant::now();
     press(&mut m, &f, &["d"], now);
     assert_eq!(m.mode, Mode::Teleop);
     assert_eq!(m.teleop.steer, 0.231, "starts where the steering is");
-    press(
-        &mut m,
-        &f,
-        &["<Right>", "a", "a", "<Up>", "w", "<Space>"],
-        now,
-    );
+    press(&mut m, &f, &["<Right>", "a", "a", "<Up>", "w", "b"], now);
     assert_eq!(
         f.calls(),
         [
