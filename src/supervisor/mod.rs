@@ -482,14 +482,17 @@ mod tests {
         let v = Vehicle::new(config, |_| {
             Box::new(|| Err(std::io::Error::other("no port in this test")))
         });
-        let now = Instant::now();
-        v.devices[0].cache.lock().at = Some(now - Duration::from_secs(2));
+        // It answered when it started, and not since: 2 s later it is silent.
+        let answered = v.devices[0].started;
+        let now = answered + Duration::from_secs(2);
+        v.devices[0].cache.lock().at = Some(answered);
+        v.devices[0].record_ok(answered);
         let faults = Detector::new(SupervisorConfig::default()).detect(&v, &[], now);
         let silent = faults
             .iter()
             .find(|f| f.kind == FaultKind::Silent)
             .expect("silent");
-        assert_eq!(silent.cause, "no status for 2000 ms (max 250 ms)");
+        assert_eq!(silent.cause, "no answer for 2000 ms (max 250 ms)");
         *v.devices[0].health.last_error.lock() = Some((now, "timeout".into()));
         let faults = Detector::new(SupervisorConfig::default()).detect(&v, &[], now);
         assert!(
