@@ -88,7 +88,7 @@ impl Drop for Run {
 }
 
 fn device(name: &str, extra: &str, sim: &str) -> String {
-    format!("[[device]]\nname = \"{name}\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nbaud = 38400\nreply_timeout = \"1s\"\n{extra}\n[device.sim]\n{sim}\n")
+    format!("[[device]]\nname = \"{name}\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nbaud = 38400\nreply_timeout = \"500ms\"\n{extra}\n[device.sim]\n{sim}\n")
 }
 
 fn ms(v: Option<f64>) -> String {

@@ -1,6 +1,7 @@
 //! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
-//! `adrive watch`. Parsing is clap's; each subcommand is one function here that wires
-//! the parts together.
+//! `adrive watch`, and `adrive completions` / `adrive manpage`, generated from the same
+//! definitions. Parsing is clap's; each subcommand is one function here that wires the
+//! parts together.
 
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
@@ -10,8 +11,8 @@ use crate::safety::{gate, Gate};
 use crate::sim::{Sim, SimEvent};
 use crate::vehicle::Vehicle;
 use crate::{console, driver, headless, logging};
-use clap::{Args, Parser, Subcommand};
-use std::io::BufRead;
+use clap::{Args, CommandFactory, Parser, Subcommand};
+use std::io::{self, BufRead, Write};
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -43,6 +44,18 @@ pub enum Cmd {
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
+    /// Print a shell completion script (see the README for where each shell wants it).
+    Completions {
+        /// The shell to complete in.
+        shell: clap_complete::Shell,
+    },
+    /// Print the manual page (roff), or write every page into a directory with --dir.
+    Manpage {
+        /// Write adrive.1 and a page per subcommand (adrive-send.1, …) into this directory
+        /// instead, e.g. ~/.local/share/man/man1.
+        #[arg(long, value_name = "DIR")]
+        dir: Option<PathBuf>,
+    },
 }
 
 #[derive(Args, Debug, Clone, Default)]
@@ -56,15 +69,15 @@ pub struct RunArgs {
     /// No console: log and keep figures only; SIGINT/SIGTERM stop safely.
     #[arg(long)]
     pub headless: bool,
-    /// Run just these devices (repeatable), for the bench.
-    #[arg(long, value_name = "NAME")]
+    /// Run just these devices (repeatable, or comma-separated), for the bench.
+    #[arg(long, value_name = "NAME", value_delimiter = ',')]
     pub only: Vec<String>,
     /// Keymap TOML merged over the built-in one (default: ~/.config/adrive/keymap.toml if present).
     #[arg(long, value_name = "FILE")]
     pub keymap: Option<PathBuf>,
     /// Teleop deadman: with no teleop key for this long, gas goes to 0 and the brake on
-    /// [default: 1s].
-    #[arg(long, value_name = "DURATION", value_parser = humantime::parse_duration)]
+    /// (100ms to 5s) [default: 1s].
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
     pub deadman: Option<Duration>,
     /// Fault injection for tests: make a thread panic once running, `main` or
     /// `supervisor`, optionally after a delay (`supervisor:4s`).
@@ -117,8 +130,8 @@ pub struct SimArgs {
     /// Vehicle TOML whose devices to simulate (default: the built-in Alice).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
-    /// Simulate just these devices (repeatable).
-    #[arg(long, value_name = "NAME")]
+    /// Simulate just these devices (repeatable, or comma-separated).
+    #[arg(long, value_name = "NAME", value_delimiter = ',')]
     pub only: Vec<String>,
     /// Do not print what each device receives.
     #[arg(long, short)]
@@ -143,12 +156,17 @@ pub fn main() -> i32 {
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
+        Some(Cmd::Completions { shell }) => {
+            clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut std::io::stdout());
+            Ok(0)
+        }
+        Some(Cmd::Manpage { dir }) => manpage(dir.as_deref(), &mut std::io::stdout()).map(|()| 0),
         None => run(cli.run),
     };
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("adrive: {e:#}");
+            tell(io::stderr(), format_args!("adrive: {e:#}\n"));
             2
         }
     }
@@ -176,6 +194,9 @@ fn default_log_dir() -> PathBuf {
 /// `adrive run`: the engine with the console or headless.
 pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut config = load(&args.config, &args.only)?;
+    if !args.sim {
+        config.check_ports()?;
+    }
     if let Some(addr) = args.listen {
         config.network.listen = addr;
     }
@@ -192,6 +213,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         .as_ref()
         .map(|r| Box::new(r.layer()) as logging::ExtraLayer);
     let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
+    for w in keymap.iter().flat_map(|k| k.warnings()) {
+        tracing::warn!("keymap: {w}");
+    }
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
         s.patch(&mut config);
@@ -247,7 +271,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 Ok(why) => why,
                 // Still stop safely below.
                 Err(e) => {
-                    eprintln!("adrive: console: {e}");
+                    tell(io::stderr(), format_args!("adrive: console: {e}\n"));
                     Exit::Panic(format!("console: {e}"))
                 }
             }
@@ -276,12 +300,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         for d in &vehicle.devices {
             d.stats.refresh();
         }
-        print!("{}", headless::summary(&gate.snapshot(0)));
-        println!("{}", headless::net_summary(&net_figures));
+        tell(
+            io::stdout(),
+            format_args!(
+                "{}{}\n",
+                headless::summary(&gate.snapshot(0)),
+                headless::net_summary(&net_figures)
+            ),
+        );
     }
-    let code = if !safe || !stuck.is_empty() {
-        eprintln!(
-            "adrive: stopped ({}) but the safe state was {}acknowledged{}",
+    if !safe || !stuck.is_empty() {
+        let msg = format!(
+            "stopped ({}) but the safe state was {}acknowledged{}",
             why.describe(),
             if safe { "" } else { "NOT " },
             if stuck.is_empty() {
@@ -290,12 +320,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 format!("; threads still running: {}", stuck.join(", "))
             }
         );
-        why.code().max(3)
-    } else {
-        why.code()
-    };
+        tracing::error!("{msg}");
+        tell(io::stderr(), format_args!("adrive: {msg}\n"));
+    }
+    let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// Write to standard output or error, which may be a terminal that hung up (an SSH
+/// session dropping): there a failed write is dropped, where `print!` and `eprintln!`
+/// would panic on the way out.
+fn tell(mut to: impl Write, text: std::fmt::Arguments) {
+    let _ = to.write_fmt(text).and_then(|()| to.flush());
 }
 
 /// The `[network]` key file, relative to the vehicle file's directory.
@@ -307,7 +344,30 @@ fn network_key(config: &VehicleConfig) -> anyhow::Result<Option<Auth>> {
         Some(dir) if file.is_relative() => dir.join(file),
         _ => file.clone(),
     };
-    Ok(Some(Auth::load(&path)?))
+    let auth = Auth::load(&path).map_err(|e| {
+        let v = config::Violation {
+            paths: vec!["key_file".into()],
+            message: format!("key_file: {e}"),
+        };
+        config.refuse("network", v)
+    })?;
+    Ok(Some(auth))
+}
+
+/// `adrive manpage`: the manual page, from the same definitions as `--help`, to `out`;
+/// or, with a directory, every page (the subcommands' too) written there.
+pub fn manpage(dir: Option<&Path>, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
+    let cmd = Cli::command().disable_help_subcommand(true);
+    match dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir)
+                .and_then(|()| clap_mangen::generate_to(cmd, dir))
+                .map_err(|e| anyhow::anyhow!("manpage --dir {}: {e}", dir.display()))?;
+            eprintln!("adrive manpage: wrote the pages to {}", dir.display());
+        }
+        None => clap_mangen::Man::new(cmd).render(out)?,
+    }
+    Ok(())
 }
 
 /// Set when SIGINT or SIGTERM arrives (for the clients, which have no engine to stop).
@@ -321,7 +381,10 @@ fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
 
 /// `adrive send`: commands in one datagram, once or at a rate.
 pub fn send(args: SendArgs) -> anyhow::Result<i32> {
-    let auth = args.key.as_deref().map(Auth::load).transpose()?;
+    let auth = match args.key.as_deref() {
+        Some(key) => Some(Auth::load(key).map_err(|e| anyhow::anyhow!("--key {e}"))?),
+        None => None,
+    };
     let body = client::lines_from_words(&args.words);
     let opts = client::SendOptions {
         to: args.to,
@@ -339,10 +402,14 @@ pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
     Ok(client::watch(args.from, args.json, args.count, &stop)?)
 }
 
+/// How many received commands `adrive sim` holds while its output is slow; past
+/// that they are counted and said, never kept (its memory stays flat).
+const SIM_BACKLOG: usize = 4096;
+
 /// `adrive sim`: the simulated devices alone.
 pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let config = load(&args.config, &args.only)?;
-    let (tx, rx) = crossbeam_channel::unbounded::<SimEvent>();
+    let (tx, rx) = crossbeam_channel::bounded::<SimEvent>(SIM_BACKLOG);
     let sim = Sim::start(&config, (!args.quiet).then_some(tx))?;
     for f in &args.fault {
         sim.apply(f)
@@ -367,8 +434,8 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             d.baud
         );
     }
-    println!("type a fault or event (`help` lists them), e.g. `estop pause`, `silent gas on`; Ctrl-C stops");
-    let (lines_tx, lines) = crossbeam_channel::unbounded::<String>();
+    println!("type `help` for the faults and events it takes (`silent gas on`, `estop pause`, …); Ctrl-C stops");
+    let (lines_tx, mut lines) = crossbeam_channel::unbounded::<String>();
     std::thread::Builder::new()
         .name("sim/stdin".into())
         .spawn(move || {
@@ -379,10 +446,16 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             }
         })?;
     let start = Instant::now();
-    loop {
+    let mut dropped = 0;
+    let why = loop {
         crossbeam_channel::select! {
-            recv(exits) -> _ => break,
+            recv(exits) -> why => break why.unwrap_or(Exit::Quit),
             recv(rx) -> ev => if let Ok(ev) = ev {
+                let now = sim.dropped_events();
+                if now > dropped {
+                    println!("… {} commands not shown: the output was too slow", now - dropped);
+                    dropped = now;
+                }
                 println!(
                     "{:>9.3}s {:<width$} <- {:<10} {}",
                     ev.at.duration_since(start).as_secs_f64(),
@@ -397,15 +470,15 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
                     Ok(done) => println!("{done}"),
                     Err(e) => println!("error: {e}"),
                 },
-                Err(_) => {
-                    // Standard input closed: keep serving until a signal.
-                    let why = exits.recv().unwrap_or(Exit::Quit);
-                    tracing::debug!("sim stopping: {}", why.describe());
-                    break;
-                }
+                // Standard input closed (`< /dev/null`, a service): keep serving and
+                // printing until a signal.
+                Err(_) => lines = crossbeam_channel::never(),
             },
         }
-    }
+    };
+    tracing::debug!("sim stopping: {}", why.describe());
+    // Dropping the simulator closes the ports and removes its directory of links.
+    drop(sim);
     Ok(0)
 }
 

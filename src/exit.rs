@@ -1,6 +1,6 @@
 //! Every way the process can be asked to end, funnelled into one channel: SIGINT,
-//! SIGTERM, SIGHUP (an SSH session dropping), a panic in any thread, or the operator's
-//! quit. Whoever owns the run waits on it and then always takes the same road out:
+//! SIGTERM, SIGHUP or the console's terminal dying (an SSH session dropping), a panic
+//! in any thread, or the operator's quit. Whoever owns the run waits on it and then always takes the same road out:
 //! safe state first, then terminal, then logs.
 
 use crossbeam_channel::{Receiver, Sender};
@@ -14,6 +14,9 @@ pub enum Exit {
     Quit,
     /// A signal arrived.
     Signal(i32),
+    /// The console's terminal went away without a word (it cannot be written, its
+    /// input hung up): a hang-up like SIGHUP, which may come with it or not at all.
+    HangUp(String),
     /// A thread panicked; the message says which and why.
     Panic(String),
     /// A device failed for good (a recovery procedure gave up).
@@ -26,6 +29,7 @@ impl Exit {
         match self {
             Exit::Quit | Exit::Signal(SIGINT) | Exit::Signal(SIGTERM) => 0,
             Exit::Signal(s) => 128 + s,
+            Exit::HangUp(_) => 128 + SIGHUP,
             Exit::Panic(_) => 101,
             Exit::Fatal(_) => 4,
         }
@@ -38,9 +42,26 @@ impl Exit {
             Exit::Signal(SIGTERM) => "SIGTERM".into(),
             Exit::Signal(SIGHUP) => "SIGHUP (terminal hung up)".into(),
             Exit::Signal(s) => format!("signal {s}"),
+            Exit::HangUp(why) => format!("terminal hung up ({why})"),
             Exit::Panic(m) => format!("panic: {m}"),
             Exit::Fatal(m) => format!("fatal device error: {m}"),
         }
+    }
+}
+
+/// The status of a run whose safe state was not acknowledged.
+pub const UNSAFE: i32 = 3;
+
+/// The process status once the run has stopped: `why`'s own, unless the stop went
+/// wrong. A safe state that was not acknowledged (`safe` false) is the worst news
+/// there is — the vehicle may still be moving — so it says [`UNSAFE`] whatever ended
+/// the run, a recovery that gave up included. Threads that would not stop
+/// (`all_stopped` false) raise a clean status to [`UNSAFE`] too.
+pub fn status(why: &Exit, safe: bool, all_stopped: bool) -> i32 {
+    match (safe, all_stopped) {
+        (false, _) => UNSAFE,
+        (true, false) => why.code().max(UNSAFE),
+        (true, true) => why.code(),
     }
 }
 
@@ -87,4 +108,39 @@ pub fn install() -> std::io::Result<Receiver<Exit>> {
         previous(info);
     }));
     Ok(rx)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A recovery gave up (4) and then the safe state was not acknowledged: the worse
+    /// news, 3, is what a service manager must see (it once said 4).
+    #[test]
+    fn a_safe_state_not_acknowledged_outranks_a_recovery_that_gave_up() {
+        let fatal = Exit::Fatal("recovery reconnect brake gave up".into());
+        assert_eq!(status(&fatal, true, true), 4);
+        assert_eq!(status(&fatal, false, true), UNSAFE);
+        for why in [
+            Exit::Quit,
+            Exit::Signal(SIGHUP),
+            Exit::HangUp("input: hung up".into()),
+            Exit::Panic("p".into()),
+        ] {
+            assert_eq!(status(&why, false, true), UNSAFE, "{why:?}");
+            assert_eq!(status(&why, false, false), UNSAFE, "{why:?}");
+        }
+    }
+
+    #[test]
+    fn a_clean_stop_keeps_the_status_of_its_reason() {
+        assert_eq!(status(&Exit::Quit, true, true), 0);
+        assert_eq!(status(&Exit::Signal(SIGINT), true, true), 0);
+        assert_eq!(status(&Exit::Signal(SIGHUP), true, true), 129);
+        assert_eq!(status(&Exit::HangUp("x".into()), true, true), 129);
+        assert_eq!(status(&Exit::Panic("p".into()), true, true), 101);
+        // A thread that would not stop: never a clean 0.
+        assert_eq!(status(&Exit::Quit, true, false), UNSAFE);
+        assert_eq!(status(&Exit::Signal(SIGHUP), true, false), 129);
+    }
 }

@@ -1,7 +1,9 @@
-//! Logging through `tracing`: to stderr in headless mode, and always to a daily rolling
-//! file through `tracing-appender`'s non-blocking writer. The returned guard flushes
+//! Logging through `tracing`: to stderr in headless mode (coloured on a terminal,
+//! plain text elsewhere), and always to a daily rolling file, plain text, through
+//! `tracing-appender`'s non-blocking writer. The returned guard flushes
 //! the file when dropped, so every exit path keeps it alive until the very end.
 
+use std::io::IsTerminal;
 use std::path::Path;
 use std::time::{Duration, Instant};
 use tracing_appender::non_blocking::WorkerGuard;
@@ -45,10 +47,15 @@ pub fn init_with(
         None => (None, None),
     };
     let stderr_layer = stderr.then(|| {
-        fmt::layer()
+        let mut layer = fmt::layer()
             .with_writer(std::io::stderr)
-            .with_thread_names(true)
-            .with_filter(filter())
+            .with_thread_names(true);
+        // Colour (unless NO_COLOR, tracing-subscriber's default) on a terminal only:
+        // a file, a pipe or a journal gets plain text.
+        if !std::io::stderr().is_terminal() {
+            layer.set_ansi(false);
+        }
+        layer.with_filter(filter())
     });
     let _ = tracing_subscriber::registry()
         .with(extra)

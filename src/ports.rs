@@ -209,9 +209,12 @@ mod tests {
 
     /// A fake /sys and /dev with one FTDI adapter, one CDC-ACM device, an absent 8250
     /// UART and a virtual console, laid out as the kernel does.
-    fn fake_tree() -> PathBuf {
-        let root = std::env::temp_dir().join(format!("adrive-ports-{}", std::process::id()));
-        let _ = fs::remove_dir_all(&root);
+    fn fake_tree() -> tempfile::TempDir {
+        let guard = tempfile::Builder::new()
+            .prefix("adrive-ports-")
+            .tempdir()
+            .unwrap();
+        let root = guard.path();
         let sys = root.join("sys");
         let usb = sys.join("devices/pci0000:00/usb1/1-1");
         let ftdi = usb.join("1-1:1.0/ttyUSB0");
@@ -263,12 +266,13 @@ mod tests {
             dev.join("serial/by-id/usb-FTDI_FT232R_USB_UART_A10K1XYZ-if00-port0"),
         )
         .unwrap();
-        root
+        guard
     }
 
     #[test]
     fn a_fake_sysfs_lists_usb_adapters_with_identity_and_latency() {
-        let root = fake_tree();
+        let guard = fake_tree();
+        let root = guard.path();
         let ports = scan(&root.join("sys"), &root.join("dev"));
         let names: Vec<_> = ports
             .iter()
@@ -297,7 +301,6 @@ mod tests {
             "{text}"
         );
         assert!(!text.contains("ptmx"));
-        let _ = fs::remove_dir_all(root);
     }
 
     #[test]

@@ -152,6 +152,13 @@ pub struct Health {
     pub status_error: u32,
     pub command_error: u32,
     pub last_error: Option<String>,
+    /// Age of `last_error`, ms.
+    #[serde(default)]
+    pub last_error_age_ms: Option<f64>,
+    /// Time since the device last answered (a good status or an acknowledged
+    /// command), ms; null before its first answer. Past `status_max_age` it is silent.
+    #[serde(default)]
+    pub quiet_ms: Option<f64>,
 }
 
 /// What the console may change while running.

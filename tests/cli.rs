@@ -1,13 +1,14 @@
 //! The real `adrive` binary as a user runs it: a malformed config, a headless run
-//! stopped by a signal, and `adrive sim` serving a device on a pseudo-terminal.
+//! stopped by a signal, and `adrive sim` serving a device on a pseudo-terminal, with
+//! its standard input open or closed, and cleaning up after itself when signalled.
 
 mod common;
 
 use adrive::config::VehicleConfig;
 use adrive::driver;
 use adrive::value::Command;
-use common::{lines, signal, tempdir, until, wait_exit};
-use std::io::Read;
+use common::{lines, signal, sim_dirs, tempdir, until, wait_exit};
+use std::io::{Read, Write};
 use std::process::{Command as Process, Stdio};
 use std::time::Duration;
 
@@ -16,7 +17,7 @@ const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 #[test]
 fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     let dir = tempdir("cli");
-    let path = dir.join("bad.toml");
+    let path = dir.path().join("bad.toml");
     std::fs::write(
         &path,
         "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"steer\"\ndriver = \"modbsu\"\nport = \"/dev/ttyUSB0\"\n",
@@ -26,7 +27,7 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
         .args(["--headless", "--config"])
         .arg(&path)
         .arg("--log-dir")
-        .arg(dir.join("log"))
+        .arg(dir.path().join("log"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -34,13 +35,12 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     assert!(err.contains(&format!("{}:6: ", path.display())), "{err}");
     assert!(err.contains("modbsu") && err.contains("line"), "{err}");
     // It stopped before starting anything: no log was even written.
-    assert!(!dir.join("log").exists());
+    assert!(!dir.path().join("log").exists());
 }
 
-#[test]
-fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
-    let dir = tempdir("cli");
-    let mut child = common::Reaped(
+/// `adrive --sim --headless` logging into `dir`, its output and error piped.
+fn headless_sim(dir: &std::path::Path) -> common::Reaped {
+    common::Reaped(
         Process::new(BIN)
             .args([
                 "--sim",
@@ -49,12 +49,19 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
                 "127.0.0.1:0",
                 "--log-dir",
             ])
-            .arg(&dir)
+            .arg(dir)
+            .env_remove("NO_COLOR")
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
             .unwrap(),
-    );
+    )
+}
+
+#[test]
+fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
+    let dir = tempdir("cli");
+    let mut child = headless_sim(dir.path());
     let err = lines(child.stderr.take().unwrap());
     until(&err, "running headless");
     signal(&child, libc::SIGTERM);
@@ -74,7 +81,7 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     }
     assert!(out.contains("delay p99"), "{out}");
     // The rolling log file was flushed and tells the safe state was reached.
-    let log: String = std::fs::read_dir(&dir)
+    let log: String = std::fs::read_dir(dir.path())
         .unwrap()
         .map(|e| std::fs::read_to_string(e.unwrap().path()).unwrap())
         .collect();
@@ -90,13 +97,15 @@ fn only_runs_just_the_named_devices() {
             .args([
                 "--sim",
                 "--headless",
+                "--listen",
+                "127.0.0.1:0",
                 "--only",
                 "steer",
                 "--only",
                 "obd",
                 "--log-dir",
             ])
-            .arg(&dir)
+            .arg(dir.path())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
@@ -138,7 +147,7 @@ fn only_runs_just_the_named_devices() {
 fn sim_prints_port_paths_and_each_command_a_device_receives() {
     let mut child = common::Reaped(
         Process::new(BIN)
-            .args(["sim", "--only", "steer"])
+            .args(["sim", "--only", "steer,estop"])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -169,8 +178,105 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
     let line = seen.last().unwrap();
     assert!(line.contains("steer") && line.contains("0.250"), "{line}");
 
+    // Its little command language describes itself, and says which devices a command
+    // applies to.
+    let stdin = child.stdin.as_mut().unwrap();
+    writeln!(stdin, "help").unwrap();
+    let help = until(&out, "SETPOINT is one of").join("\n");
+    assert!(help.contains("stuck SETPOINT on|off"), "{help}");
+    assert!(
+        help.contains("DEVICE is one of steer, estop\n  SETPOINT is one of steer"),
+        "{help}"
+    );
+    writeln!(stdin, "stuck estop on").unwrap();
+    let e = until(&out, "error:").pop().unwrap();
+    assert!(
+        e.contains("it applies to setpoint devices (steer), not estop (a sensor)"),
+        "{e}"
+    );
+
     signal(&child, libc::SIGINT);
     assert_eq!(wait_exit(&mut child), Some(0));
+}
+
+/// `adrive sim` and what it prints: the port path of its only device.
+fn sim_path(out: &std::sync::mpsc::Receiver<String>, device: &str) -> String {
+    until(out, device)
+        .last()
+        .unwrap()
+        .split_whitespace()
+        .nth(1)
+        .unwrap()
+        .to_string()
+}
+
+/// The incident: run with its standard input closed (`adrive sim < /dev/null`, as from
+/// a service), `adrive sim` stopped printing the commands its devices received, and
+/// its memory grew with every one of them (an unbounded channel no longer drained).
+#[test]
+fn sim_with_stdin_closed_keeps_printing_every_command_its_devices_receive() {
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args(["sim", "--only", "gas"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let out = lines(child.stdout.take().unwrap());
+    let path = sim_path(&out, "gas");
+    until(&out, "Ctrl-C stops");
+    let alice = VehicleConfig::alice();
+    let gas = alice.device("gas").unwrap();
+    let mut link = driver::open_serial(&path, gas.baud, Duration::from_secs(2)).unwrap();
+    let mut drv = driver::build(gas);
+    // Each command is printed, in order, long after standard input was seen closed.
+    for i in 1..=50 {
+        let v = f64::from(i) / 100.0;
+        drv.command(link.as_mut(), Command::Set(v)).unwrap();
+        let seen = until(&out, "<-");
+        let line = seen.last().unwrap();
+        assert!(
+            line.contains("gas") && line.contains(&format!("{v:.3}")),
+            "command {i}: {line}"
+        );
+    }
+    signal(&child, libc::SIGTERM);
+    assert_eq!(wait_exit(&mut child), Some(0));
+}
+
+/// Stopped by SIGTERM, SIGINT or SIGHUP, `adrive sim` removes its directory of links
+/// (else every run leaves `adrive-sim-*` with dead links behind in /tmp).
+#[test]
+fn sim_removes_its_directory_of_links_when_signalled() {
+    for sig in [libc::SIGTERM, libc::SIGINT, libc::SIGHUP] {
+        let tmp = tempdir("sim-signal");
+        let mut child = common::Reaped(
+            Process::new(BIN)
+                .args(["sim", "--only", "steer"])
+                .env("TMPDIR", tmp.path())
+                .stdin(Stdio::piped())
+                .stdout(Stdio::piped())
+                .stderr(Stdio::null())
+                .spawn()
+                .unwrap(),
+        );
+        let out = lines(child.stdout.take().unwrap());
+        let path = sim_path(&out, "steer");
+        assert!(path.starts_with(&*tmp.path().to_string_lossy()), "{path}");
+        assert_eq!(sim_dirs(tmp.path()).len(), 1);
+        signal(&child, sig);
+        assert!(
+            wait_exit(&mut child).is_some(),
+            "signal {sig} ended it uncleanly"
+        );
+        assert_eq!(
+            sim_dirs(tmp.path()),
+            Vec::<String>::new(),
+            "after signal {sig}"
+        );
+    }
 }
 
 #[test]
@@ -210,4 +316,24 @@ fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
     assert_eq!(bad.status.code(), Some(2));
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(err.contains("unknown command \"wobble\""), "{err}");
+}
+
+/// A headless run whose standard error goes to a file or a pipe (`2> adrive.err`, a
+/// service manager's journal) logs plain text: colour escapes belong on a terminal
+/// only. They once filled such files.
+#[test]
+fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
+    let dir = tempdir("cli-colour");
+    let mut child = headless_sim(dir.path());
+    let err = lines(child.stderr.take().unwrap());
+    let mut seen = until(&err, "running headless");
+    signal(&child, libc::SIGINT);
+    let status = wait_exit(&mut child);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(status, Some(0));
+    // The pipe closes when adrive exits: these are all the lines it wrote.
+    seen.extend(err.iter());
+    let text = seen.join("\n");
+    assert!(text.contains("stopping: SIGINT"), "{text}");
+    assert!(!text.contains('\x1b'), "colour escapes in:\n{text:?}");
 }

@@ -3,19 +3,21 @@
 //! (`vt100`), so checks read what an operator would see. Every wait has a generous
 //! deadline and polls; none is a fixed sleep.
 
+mod common;
+
+use common::pty::{attach, openpty};
+use common::DEADLINE;
 use std::fs::File;
 use std::io::{Read, Write};
-use std::os::fd::{FromRawFd, OwnedFd};
-use std::os::unix::process::CommandExt;
+use std::os::fd::OwnedFd;
 use std::path::PathBuf;
-use std::process::{Child, Command, ExitStatus, Stdio};
+use std::process::{Child, Command, ExitStatus};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 const COLS: u16 = 100;
 const ROWS: u16 = 30;
-const DEADLINE: Duration = Duration::from_secs(20);
 
 /// The console in a pseudo-terminal, with everything it wrote so far.
 struct Console {
@@ -26,28 +28,12 @@ struct Console {
     log_dir: PathBuf,
 }
 
-fn openpty(cols: u16, rows: u16) -> (OwnedFd, OwnedFd) {
-    let (mut m, mut s) = (0, 0);
-    let ws = libc::winsize {
-        ws_row: rows,
-        ws_col: cols,
-        ws_xpixel: 0,
-        ws_ypixel: 0,
-    };
-    // SAFETY: openpty writes two fds into the given ints; the winsize is read only.
-    let r = unsafe { libc::openpty(&mut m, &mut s, std::ptr::null_mut(), std::ptr::null(), &ws) };
-    assert_eq!(r, 0, "openpty: {}", std::io::Error::last_os_error());
-    // SAFETY: both fds were just opened and are owned by nobody else.
-    unsafe { (OwnedFd::from_raw_fd(m), OwnedFd::from_raw_fd(s)) }
-}
-
 impl Console {
     fn start(name: &str, extra: &[&str]) -> Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
         let (master, slave) = openpty(COLS, ROWS);
-        let io = |fd: &OwnedFd| Stdio::from(fd.try_clone().unwrap());
         let mut cmd = Command::new(BIN);
         cmd.arg("--sim")
             // Tests run in parallel: each takes its own ephemeral command port.
@@ -56,19 +42,8 @@ impl Console {
             .arg(&log_dir)
             .args(extra)
             .env("TERM", "xterm-256color")
-            .env_remove("NO_COLOR")
-            .stdin(io(&slave))
-            .stdout(io(&slave))
-            .stderr(io(&slave));
-        // SAFETY: only async-signal-safe calls between fork and exec.
-        unsafe {
-            cmd.pre_exec(|| {
-                if libc::setsid() < 0 || libc::ioctl(0, libc::TIOCSCTTY as _, 0) < 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
+            .env_remove("NO_COLOR");
+        attach(&mut cmd, &slave, true);
         let child = cmd.spawn().expect("start adrive");
         let master = File::from(master);
         let out = Arc::new(Mutex::new(Vec::new()));
@@ -177,6 +152,15 @@ impl Console {
             assert!(Instant::now() < end, "could not engage:\n{s}");
             std::thread::sleep(Duration::from_millis(200));
         }
+    }
+
+    /// Engage, then `t`, Ctrl-U, `d`, Enter: drive.
+    fn engage_in_drive(&mut self) {
+        self.engage();
+        self.keys("t");
+        self.wait_for("the gear edit", |s| s.contains("edit trans command"));
+        self.keys("\x15d\r");
+        self.wait_for("drive", |s| s.contains("state drive"));
     }
 }
 
@@ -344,11 +328,7 @@ fn bench_keys_inject_faults_that_the_console_shows_and_clear() {
 #[test]
 fn an_engine_stall_from_the_bench_is_recovered_step_by_step_on_screen() {
     let mut c = Console::start("stall", &[]);
-    c.engage();
-    c.keys("t");
-    c.wait_for("the gear edit", |s| s.contains("edit trans command"));
-    c.keys("\x15d\r");
-    c.wait_for("drive", |s| s.contains("state drive"));
+    c.engage_in_drive();
     c.keys("x");
     c.wait_for("the bench", |s| s.contains("raw traffic"));
     c.keys("K");
@@ -416,7 +396,7 @@ fn measure_output_rate() {
     let start = Instant::now();
     let mut i = 0u32;
     while start.elapsed() < window {
-        c.keys(if i % 2 == 0 { "d" } else { "a" });
+        c.keys(if i.is_multiple_of(2) { "d" } else { "a" });
         i += 1;
         let next = start + Duration::from_millis(100) * i;
         std::thread::sleep(next.saturating_duration_since(Instant::now()));
@@ -427,4 +407,36 @@ fn measure_output_rate() {
     );
     c.keys("q");
     c.wait_exit();
+}
+
+/// The number on screen right after `label`.
+fn number_after(screen: &str, label: &str) -> Option<f64> {
+    let at = screen.find(label)? + label.len();
+    screen[at..].split_whitespace().next()?.parse().ok()
+}
+
+/// In `adrive --sim`: `E` `y`, then `t` Ctrl-U `d` Enter, then `c` Ctrl-U `0.3` Enter
+/// left gas and brake both at 0 and the vehicle standing: the gas waited for a second
+/// `accel`. And `accel 0.300` stayed on screen after STOP. One `accel` gives gas now,
+/// and STOP clears it.
+#[test]
+fn one_accel_from_braking_gives_gas_and_stop_clears_it() {
+    let mut c = Console::start("accel", &[]);
+    c.engage_in_drive();
+    c.keys("c");
+    c.wait_for("the accel edit", |s| s.contains("edit accel"));
+    c.keys("\x150.3\r");
+    c.wait_for("the brake released and the gas given", |s| {
+        s.contains("BRAKE 0…1 cmd 0.000")
+            && number_after(s, "GAS 0…1 cmd 0.300 meas ").is_some_and(|g| g > 0.1)
+            && s.contains("accel 0.300")
+    });
+    c.keys(" ");
+    c.wait_for("STOP: full brake, no gas, no accel shown", |s| {
+        s.contains("BRAKE 0…1 cmd 1.000")
+            && s.contains("GAS 0…1 cmd 0.000")
+            && s.contains("accel -")
+    });
+    c.keys("q");
+    assert!(c.wait_exit().success());
 }

@@ -16,6 +16,15 @@ fn every_shipped_keymap_loads() {
             for mode in Mode::ALL {
                 assert!(!map.bindings(mode).is_empty(), "{}: {mode}", path.display());
             }
+            // An emergency stop in every mode: no shipped keymap takes it away.
+            assert!(map.warnings().is_empty(), "{:?}", map.warnings());
+            for mode in Mode::ALL {
+                assert!(
+                    map.key_for(mode, Action::Stop).is_some(),
+                    "{}: no STOP key in {mode}",
+                    path.display()
+                );
+            }
             n += 1;
         }
     }
@@ -27,7 +36,8 @@ fn the_teleop_keymap_changes_what_it_says() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("keymaps/teleop.toml");
     let map = Keymap::load(&path).unwrap();
     let key = |s: &str| s.parse().unwrap();
-    assert_eq!(map.lookup(Mode::Main, key("<Space>")), Some(Action::Teleop));
+    assert_eq!(map.lookup(Mode::Main, key("i")), Some(Action::Teleop));
+    assert_eq!(map.lookup(Mode::Main, key("<Space>")), Some(Action::Stop));
     assert_eq!(map.lookup(Mode::Teleop, key("i")), Some(Action::AccelUp));
     assert_eq!(map.lookup(Mode::Teleop, key("w")), None, "unbound");
     assert_eq!(map.lookup(Mode::Teleop, key("<Up>")), Some(Action::AccelUp));
@@ -59,6 +69,11 @@ fn a_broken_keymap_file_names_file_line_and_form() {
             "bound twice",
         ),
         ("[main]\nkeymap = [\n  { on = \"g\" \n", 3, ""),
+        (
+            "[main]\nkeymap = [\n    { on = \"<C-c>\", run = \"help\", desc = \"help\" },\n]\n",
+            3,
+            "<C-c> cannot be bound",
+        ),
     ];
     for (i, (text, line, form)) in cases.iter().enumerate() {
         let path = dir.join(format!("broken{i}.toml"));

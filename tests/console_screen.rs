@@ -379,3 +379,22 @@ fn the_bench_shows_the_supervisors_strip_too() {
     assert_eq!(b[(x, y)].fg, Color::Red);
     find(&b, "steer raw traffic");
 }
+
+/// On the bench at 100 columns, the gas silenced, the header once ended `DISENGAGED
+/// (gas is faulty (no reply within 100ms)`: cut mid-reason, a parenthesis left open.
+/// The reason is shortened at a word instead, with "…" and its parentheses closed.
+#[test]
+fn the_header_at_100_columns_shortens_the_reason_and_closes_it() {
+    let f = fixture_with(|v, now| sample::make_faulty(v, "gas", now));
+    f.gate.disengage("gas is faulty (no reply within 100ms)");
+    let mut m = f.model(Theme::default());
+    f.act(&mut m, &[Action::Bench]);
+    let b = render(&m, 100, 30);
+    let screen = text(&b);
+    let header = screen.lines().next().unwrap();
+    assert!(
+        header.contains("│ DISENGAGED (gas is faulty (no reply"),
+        "{header}"
+    );
+    assert!(header.ends_with("…))"), "{header}");
+}

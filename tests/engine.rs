@@ -3,6 +3,7 @@
 
 mod common;
 
+use adrive::config::ALICE_TOML;
 use adrive::safety::Reject;
 use adrive::value::Command;
 use common::{steer_only, wait_for, Rig};
@@ -75,7 +76,7 @@ fn the_last_command_is_resent_after_command_timeout() {
 
 #[test]
 fn a_sensor_has_only_a_status_thread() {
-    let rig = Rig::start(adrive::config::ALICE_TOML);
+    let rig = Rig::start(ALICE_TOML);
     let names = rig.engine.as_ref().unwrap().thread_names();
     for d in &rig.vehicle.devices {
         let r = d.name();
@@ -93,7 +94,7 @@ fn a_sensor_has_only_a_status_thread() {
 #[test]
 fn readers_see_the_cache_without_waiting_for_the_port() {
     let rig = Rig::start(&steer_only(
-        "status_period = \"10ms\"\nreply_timeout = \"2s\"",
+        "status_period = \"10ms\"\nstatus_max_age = \"2s\"\nreply_timeout = \"2s\"",
         "poll_delay = \"400ms\"",
     ));
     let steer = rig.device("steer");
@@ -121,7 +122,7 @@ fn readers_see_the_cache_without_waiting_for_the_port() {
 fn max_delay_under_100hz_commands(port_rule: &str) -> f64 {
     let rig = Rig::start(&steer_only(
         &format!(
-            "port_rule = \"{port_rule}\"\nstatus_period = \"100ms\"\nstatus_max_age = \"500ms\"\nreply_timeout = \"1s\""
+            "port_rule = \"{port_rule}\"\nstatus_period = \"100ms\"\nstatus_max_age = \"500ms\"\nreply_timeout = \"500ms\""
         ),
         "poll_delay = \"95ms\"",
     ));
@@ -232,7 +233,7 @@ fn a_silent_device_counts_errors_and_the_others_keep_flowing() {
 /// rejected, counted, and never reaches the device.
 #[test]
 fn interlocks_reject_and_never_send() {
-    let rig = Rig::start(adrive::config::ALICE_TOML);
+    let rig = Rig::start(ALICE_TOML);
     let now = Instant::now;
     rig.engage();
     let gas = rig.device("gas");
@@ -312,9 +313,9 @@ fn disengaged_commands_are_counted_and_not_executed() {
     assert_eq!(steer.slot.latest(), None);
 }
 
-#[test]
-fn accel_never_applies_gas_and_brake_together() {
-    let rig = Rig::start(adrive::config::ALICE_TOML);
+/// Alice engaged (gas 0, brake full) and in drive.
+fn alice_in_drive() -> Rig {
+    let rig = Rig::start(ALICE_TOML);
     rig.engage();
     let brake = rig.device("brake");
     wait_for("the safe state", || brake.slot.executed() == Some(set(1.0)));
@@ -323,11 +324,45 @@ fn accel_never_applies_gas_and_brake_together() {
         .unwrap();
     let trans = rig.device("trans");
     wait_for("drive", || trans.cached().reading.get(0) == Some(3.0));
-    // From full brake: the first accel releases the brake; gas follows once the
-    // release is acknowledged.
-    rig.gate.submit_accel(0.4, Instant::now()).unwrap();
-    assert_eq!(rig.device("gas").slot.latest(), Some(set(0.0)));
-    wait_for("brake release", || brake.slot.executed() == Some(set(0.0)));
+    rig
+}
+
+/// `c 0.3` in the console, from full brake, released the brake and never gave gas:
+/// the gas waited for a second `accel`. One is enough now, from any source: the gas is
+/// held back at its command thread until the brake release has reached the brake.
+#[test]
+fn one_accel_from_full_brake_gives_gas_once_the_brake_is_released() {
+    let rig = alice_in_drive();
+    rig.received();
+    rig.gate.submit_accel(0.3, Instant::now()).unwrap();
+    let gas = rig.device("gas");
+    wait_for("gas", || gas.slot.executed() == Some(set(0.3)));
+    assert_eq!(rig.device("brake").slot.executed(), Some(set(0.0)));
+    let mut got = rig.received();
+    got.sort_by_key(|e| e.at);
+    let order: Vec<(&str, Command)> = got
+        .iter()
+        .filter(|e| matches!(e.name.as_str(), "gas" | "brake"))
+        .map(|e| (e.name.as_str(), e.command))
+        .collect();
+    assert_eq!(
+        order,
+        [("brake", set(0.0)), ("gas", set(0.3))],
+        "the brake was released first, then the gas given"
+    );
+    assert_eq!(
+        rig.gate
+            .rejections()
+            .into_iter()
+            .find(|(r, _)| *r == Reject::GasWhileBraking),
+        Some((Reject::GasWhileBraking, 0))
+    );
+}
+
+#[test]
+fn accel_never_applies_gas_and_brake_together() {
+    let rig = alice_in_drive();
+    let brake = rig.device("brake");
     rig.gate.submit_accel(0.4, Instant::now()).unwrap();
     let gas = rig.device("gas");
     wait_for("gas", || gas.slot.executed() == Some(set(0.4)));

@@ -7,10 +7,11 @@
 mod common;
 
 use adrive::config::ALICE_TOML;
+use common::pty::Master;
 use common::{free_port, tempdir, DEADLINE};
 use std::io::{BufRead, BufReader, Write};
 use std::path::PathBuf;
-use std::process::{Child, ChildStdin, Command as Process, Stdio};
+use std::process::{Child, ChildStdin, Command as Process, ExitStatus, Stdio};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -88,6 +89,12 @@ impl SimProcess {
         writeln!(self.stdin, "{line}").unwrap();
     }
 
+    /// Stop it as a user would (SIGTERM), so that it removes its port links.
+    fn stop(mut self) {
+        common::signal(&self.child, libc::SIGTERM);
+        let _ = common::wait_exit(&mut self.child);
+    }
+
     /// The last command the named device received (`0.300`, `drive`, …).
     fn last_command(&self, device: &str) -> Option<String> {
         self.lines
@@ -105,8 +112,8 @@ impl SimProcess {
 
 impl Drop for SimProcess {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        // SIGTERM first: it removes its directory of links.
+        common::stop(&mut self.child);
     }
 }
 
@@ -132,25 +139,70 @@ fn vehicle_file(dir: &std::path::Path, sim: &SimProcess, extra: &str) -> PathBuf
 struct Adrive {
     child: Child,
     port: u16,
-    dir: PathBuf,
+    dir: tempfile::TempDir,
+    /// With the console: the master side of its terminal.
+    terminal: Option<Master>,
 }
 
 impl Adrive {
     fn start(name: &str, sim: &SimProcess, extra_args: &[&str], supervisor: &str) -> Adrive {
-        let dir = tempdir(name);
-        let config = vehicle_file(&dir, sim, supervisor);
-        let port = free_port();
-        let child = Process::new(BIN)
-            .args(["--headless", "--config"])
-            .arg(&config)
-            .args(["--listen", &format!("127.0.0.1:{port}"), "--log-dir"])
-            .arg(dir.join("log"))
+        let (dir, port, mut cmd) = Adrive::command(name, sim, supervisor);
+        let child = cmd
+            .arg("--headless")
             .args(extra_args)
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()
             .unwrap();
-        Adrive { child, port, dir }
+        Adrive {
+            child,
+            port,
+            dir,
+            terminal: None,
+        }
+    }
+
+    /// adrive on a pseudo-terminal, as over SSH, once it `shows` a word there;
+    /// `controlling`: the terminal is its controlling terminal (the kernel sends
+    /// SIGHUP when it hangs up).
+    fn on_terminal(
+        name: &str,
+        sim: &SimProcess,
+        args: &[&str],
+        shows: &str,
+        controlling: bool,
+    ) -> Adrive {
+        let (dir, port, mut cmd) = Adrive::command(name, sim, "");
+        cmd.args(args).env("TERM", "xterm-256color");
+        let (child, terminal) = Master::spawn(&mut cmd, 100, 30, controlling);
+        let adrive = Adrive {
+            child,
+            port,
+            dir,
+            terminal: Some(terminal),
+        };
+        common::wait_for(shows, || {
+            let out = adrive.terminal.as_ref().unwrap().bytes();
+            out.windows(shows.len()).any(|w| w == shows.as_bytes())
+        });
+        adrive
+    }
+
+    /// adrive on the simulator's ports with its own command port and log directory.
+    fn command(
+        name: &str,
+        sim: &SimProcess,
+        supervisor: &str,
+    ) -> (tempfile::TempDir, u16, Process) {
+        let dir = tempdir(name);
+        let config = vehicle_file(dir.path(), sim, supervisor);
+        let port = free_port();
+        let mut cmd = Process::new(BIN);
+        cmd.arg("--config")
+            .arg(&config)
+            .args(["--listen", &format!("127.0.0.1:{port}"), "--log-dir"])
+            .arg(dir.path().join("log"));
+        (dir, port, cmd)
     }
 
     /// A planner: engage, drive, gas 0.3, twenty times a second.
@@ -176,10 +228,14 @@ impl Adrive {
     }
 
     fn wait(&mut self) -> Option<i32> {
+        self.wait_status().code()
+    }
+
+    fn wait_status(&mut self) -> ExitStatus {
         let end = Instant::now() + DEADLINE;
         loop {
             if let Some(s) = self.child.try_wait().unwrap() {
-                return s.code();
+                return s;
             }
             assert!(Instant::now() < end, "adrive did not exit");
             std::thread::sleep(Duration::from_millis(10));
@@ -187,7 +243,7 @@ impl Adrive {
     }
 
     fn log(&self) -> String {
-        std::fs::read_dir(self.dir.join("log"))
+        std::fs::read_dir(self.dir.path().join("log"))
             .unwrap()
             .map(|e| std::fs::read_to_string(e.unwrap().path()).unwrap())
             .collect()
@@ -196,9 +252,7 @@ impl Adrive {
 
 impl Drop for Adrive {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-        let _ = std::fs::remove_dir_all(&self.dir);
+        common::stop(&mut self.child);
     }
 }
 
@@ -320,6 +374,76 @@ fn a_fatal_device_error_stops_safely() {
         4,
         "stopping: fatal device error: recovery engine_stall gave up",
     );
+}
+
+/// The brake vanishes for good while the vehicle drives: its `reconnect` recovery gives
+/// up (a fatal device error, 4) and the safe state cannot be acknowledged (3). The
+/// status must say the worse, 3: the vehicle may still be moving. It once said 4.
+#[test]
+fn a_recovery_that_gives_up_without_the_safe_state_acknowledged_exits_3() {
+    let mut sim = SimProcess::start();
+    let supervisor = "attempts = 1\nstep_timeout = \"1s\"";
+    let mut adrive = Adrive::start("unsafe-fatal", &sim, &[], supervisor);
+    let mut planner = drive(&sim, &adrive);
+    sim.say("vanish brake 600000");
+    let status = adrive.wait_status();
+    let _ = planner.kill();
+    let _ = planner.wait();
+    let log = adrive.log();
+    assert_eq!(status.code(), Some(3), "{status}; log:\n{log}");
+    assert!(
+        log.contains("stopping: fatal device error: recovery reconnect brake gave up"),
+        "{log}"
+    );
+    assert!(log.contains("safe state was NOT acknowledged"), "{log}");
+    sim.stop();
+}
+
+/// An SSH session drops while the console drives: sshd closes the master side of the
+/// console's terminal. The console must not die with its terminal (it once aborted on
+/// a failed write to it, leaving the vehicle to the devices' own watchdogs): it stops
+/// as on a hang-up, the safe state first.
+#[test]
+fn dropped_ssh_session_closes_the_terminal_and_the_vehicle_is_braked() {
+    the_terminal_goes_away("ssh-drop", &[], "STEER", true);
+}
+
+/// The same without SIGHUP (the terminal was not the console's controlling terminal):
+/// the dead terminal alone must be noticed and end the run the same way.
+#[test]
+fn a_terminal_closed_without_a_hangup_signal_still_brakes_the_vehicle() {
+    the_terminal_goes_away("tty-gone", &[], "STEER", false);
+}
+
+/// Headless in an SSH session that drops: SIGHUP stops it safely, and the summary it
+/// prints on the way out to the dead terminal must not turn that into a panic (101).
+#[test]
+fn dropped_ssh_session_under_headless_exits_as_a_hang_up() {
+    the_terminal_goes_away("ssh-headless", &["--headless"], "running headless", true);
+}
+
+fn the_terminal_goes_away(name: &str, args: &[&str], shows: &str, controlling: bool) {
+    let sim = SimProcess::start();
+    let mut adrive = Adrive::on_terminal(name, &sim, args, shows, controlling);
+    let mut planner = drive(&sim, &adrive);
+    adrive.terminal.as_mut().unwrap().hang_up();
+    let status = adrive.wait_status();
+    let _ = planner.kill();
+    let _ = planner.wait();
+    let log = adrive.log();
+    assert_eq!(status.code(), Some(129), "{status}; log:\n{log}");
+    assert_eq!(sim.last_command("gas").as_deref(), Some("0.000"), "gas");
+    assert_eq!(sim.last_command("brake").as_deref(), Some("1.000"), "brake");
+    let stopping = log.lines().find(|l| l.contains("stopping: "));
+    assert!(
+        stopping.is_some_and(|l| l.contains("terminal hung up")),
+        "no hang-up stopping line:\n{log}"
+    );
+    assert!(
+        log.contains("safe state acknowledged"),
+        "the log lacks the safe state:\n{log}"
+    );
+    sim.stop();
 }
 
 /// `kill -9` leaves adrive no chance: the simulated actuators' own watchdogs release

@@ -285,7 +285,22 @@ fn run(b: Bound, ops: &[Op]) -> Vec<String> {
     );
     let mut events = rig.received();
     events.sort_by_key(|e| e.at);
-    violations(b, &events, &paused)
+    let mut bad = violations(b, &events, &paused);
+    if !bad.is_empty() {
+        // What each device received, to read the violation in.
+        let t0 = events.first().map_or_else(Instant::now, |e| e.at);
+        bad.push("received (ms, device, command, state before):".into());
+        bad.extend(events.iter().map(|e| {
+            format!(
+                "  {:8.1} {} {} {:?}",
+                (e.at - t0).as_secs_f64() * 1e3,
+                e.name,
+                e.text,
+                e.state_before
+            )
+        }));
+    }
+    bad
 }
 
 proptest! {

@@ -9,10 +9,10 @@ use adrive::snapshot::{Snapshot, WatchdogState};
 use adrive::value::Value;
 use common::{free_port, lines, signal, tempdir, DEADLINE};
 use std::net::UdpSocket;
-use std::path::PathBuf;
 use std::process::{Child, Command as Process, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
+use tempfile::TempDir;
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
@@ -21,7 +21,7 @@ struct Adrive {
     child: Child,
     listen: String,
     broadcast: String,
-    dir: PathBuf,
+    dir: TempDir,
 }
 
 impl Adrive {
@@ -40,13 +40,13 @@ impl Adrive {
             &alice[..start],
             &alice[end..]
         );
-        let path = dir.join("alice.toml");
+        let path = dir.path().join("alice.toml");
         std::fs::write(&path, config).unwrap();
         let mut child = Process::new(BIN)
             .args(["--sim", "--headless", "--config"])
             .arg(&path)
             .arg("--log-dir")
-            .arg(dir.join("log"))
+            .arg(dir.path().join("log"))
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()
@@ -75,7 +75,7 @@ impl Adrive {
         Process::new(BIN)
             .args(["send", "--to", &self.listen])
             .args(args)
-            .current_dir(&self.dir)
+            .current_dir(self.dir.path())
             .output()
             .unwrap()
     }
@@ -83,8 +83,7 @@ impl Adrive {
 
 impl Drop for Adrive {
     fn drop(&mut self) {
-        signal(&self.child, libc::SIGTERM);
-        let _ = self.child.wait();
+        common::stop(&mut self.child);
     }
 }
 
@@ -126,8 +125,7 @@ impl Watch {
 
 impl Drop for Watch {
     fn drop(&mut self) {
-        signal(&self.child, libc::SIGINT);
-        let _ = self.child.wait();
+        common::stop(&mut self.child);
     }
 }
 
@@ -247,7 +245,7 @@ fn send_once_prints_the_reply_and_its_status_says_whether_it_was_refused() {
 #[test]
 fn send_with_a_key_signs_and_unsigned_datagrams_are_rejected() {
     let dir = tempdir("keyfile");
-    let key = dir.join("adrive.key");
+    let key = dir.path().join("adrive.key");
     std::fs::write(&key, "correct horse battery staple\n").unwrap();
     let adrive = Adrive::start("key", &format!("key_file = \"{}\"", key.display()));
     let out = adrive.send(&["engage"]);
@@ -271,7 +269,7 @@ fn send_with_a_key_signs_and_unsigned_datagrams_are_rejected() {
 #[test]
 fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
     let dir = tempdir("nokey");
-    let path = dir.join("v.toml");
+    let path = dir.path().join("v.toml");
     std::fs::write(
         &path,
         "[vehicle]\nname = \"x\"\n\n[network]\nkey_file = \"missing.key\"\n",
@@ -281,7 +279,7 @@ fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
         .args(["--headless", "--config"])
         .arg(&path)
         .arg("--log-dir")
-        .arg(dir.join("log"))
+        .arg(dir.path().join("log"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -293,10 +291,33 @@ fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
         .args(["--sim", "--headless", "--listen"])
         .arg(busy.local_addr().unwrap().to_string())
         .arg("--log-dir")
-        .arg(dir.join("log"))
+        .arg(dir.path().join("log"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains("listen on"), "{err}");
+}
+
+/// The incident: `adrive send engage` to an adrive that drops the datagram (this sender
+/// not on its allow list) or does not answer (`replies = false`) printed nothing and
+/// exited 0, like a success. Now it says so and exits 3, once or at a rate.
+#[test]
+fn send_says_when_an_engage_got_no_reply_and_exits_3() {
+    for network in ["allow = [\"10.9.9.9\"]", "replies = false"] {
+        let adrive = Adrive::start("noreply", network);
+        for args in [
+            &["engage"][..],
+            &["--rate", "50", "--count", "75", "engage"],
+        ] {
+            let out = adrive.send(args);
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(3), "{network} {args:?}: {err}");
+            assert!(
+                err.contains(&format!("no reply from {}", adrive.listen)),
+                "{network} {args:?}: {err}"
+            );
+            assert!(out.stdout.is_empty(), "{network} {args:?}");
+        }
+    }
 }

@@ -4,6 +4,7 @@
 //! of that to the wire ([`super::wire`]). The raw TOML form is turned into a checked
 //! [`DeviceConfig`] here; every refusal says what was expected.
 
+use super::limits::{self, Violation};
 use super::wire::{self, Wire};
 use super::{duration, opt_duration, SimConfig};
 use crate::value::{Command, Kind};
@@ -277,6 +278,62 @@ pub struct DeviceConfig {
 }
 
 impl DeviceConfig {
+    /// Every limit and rule of one device, as the loader applies them to a vehicle
+    /// file and the console to its in-place edits (`port` aside: see
+    /// [`super::VehicleConfig::check_ports`]).
+    pub fn check_limits(&self) -> Result<(), Violation> {
+        use limits::*;
+        BAUD.check(u64::from(self.baud))?;
+        STATUS_PERIOD.check(self.status_period)?;
+        STATUS_MAX_AGE.check(self.status_max_age)?;
+        COMMAND_TIMEOUT.check(self.command_timeout)?;
+        REPLY_TIMEOUT.check(self.reply_timeout)?;
+        if let Some(i) = self.min_command_interval {
+            MIN_COMMAND_INTERVAL.check(i)?;
+        }
+        SIM_TURNAROUND.check(self.sim.turnaround)?;
+        SIM_POLL_DELAY.check(self.sim.poll_delay)?;
+        SIM_COMMAND_DELAY.check(self.sim.command_delay)?;
+        if let Some(w) = self.sim.watchdog {
+            SIM_WATCHDOG.check(w)?;
+        }
+        if let Wire::Modbus(m) = &self.wire {
+            MODBUS_SLAVE.check(u64::from(m.slave))?;
+        }
+        let show = fmt_duration;
+        if self.status_max_age < self.status_period {
+            return Err(MAX_AGE_COVERS_PERIOD.violation(
+                &["status_max_age", "status_period"],
+                format!(
+                    "status_max_age {}, status_period {}",
+                    show(self.status_max_age),
+                    show(self.status_period)
+                ),
+            ));
+        }
+        if self.reply_timeout > self.status_max_age {
+            return Err(REPLY_WITHIN_MAX_AGE.violation(
+                &["reply_timeout", "status_max_age"],
+                format!(
+                    "reply_timeout {}, status_max_age {}",
+                    show(self.reply_timeout),
+                    show(self.status_max_age)
+                ),
+            ));
+        }
+        if let Some(w) = self.sim.watchdog.filter(|w| *w <= self.command_timeout) {
+            return Err(WATCHDOG_OUTLASTS_RESEND.violation(
+                &["sim.watchdog", "command_timeout"],
+                format!(
+                    "sim.watchdog {}, command_timeout {}",
+                    show(w),
+                    show(self.command_timeout)
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     pub fn is_actuator(&self) -> bool {
         self.kind.is_actuator()
     }
@@ -428,19 +485,19 @@ pub(super) struct RawDevice {
 }
 
 fn default_baud() -> u32 {
-    9600
+    limits::BAUD.default_value() as u32
 }
 fn default_status_period() -> Duration {
-    Duration::from_millis(100)
+    limits::STATUS_PERIOD.default_value()
 }
 fn default_command_timeout() -> Duration {
-    Duration::from_millis(250)
+    limits::COMMAND_TIMEOUT.default_value()
 }
 fn default_status_max_age() -> Duration {
-    Duration::from_millis(500)
+    limits::STATUS_MAX_AGE.default_value()
 }
 fn default_reply_timeout() -> Duration {
-    Duration::from_millis(200)
+    limits::REPLY_TIMEOUT.default_value()
 }
 
 /// A refusal and where it points (a byte offset into the file).

@@ -6,14 +6,21 @@
 //!
 //! - [`device`]: one device, its kind, states and readings;
 //! - [`wire`]: how each protocol maps a device to the wire;
-//! - [`roles`]: the safety roles, bound to devices and readings.
+//! - [`roles`]: the safety roles, bound to devices and readings;
+//! - [`limits`]: the sane range of every safety-relevant value, in one table;
+//! - [`document`]: where each key sits in the file, so that a check made after typing
+//!   still names its line.
 
 pub mod device;
+pub mod document;
+pub mod limits;
 pub mod roles;
 pub mod wire;
 
 pub use crate::net::config::NetworkConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
+use document::{Document, Lines};
+pub use limits::{fmt_duration, Violation};
 pub use roles::{Bindings, Role};
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeMap;
@@ -27,13 +34,23 @@ pub const ALICE_TOML: &str = include_str!("../../vehicles/alice.toml");
 /// The name errors in the built-in vehicle are reported under.
 pub const ALICE_PATH: &str = "vehicles/alice.toml";
 
-/// A configuration error: `file:line: message`.
+/// A configuration error: `file:line: message` (`file: message` without a line, when
+/// the file cannot be read at all).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{path}:{line}: {message}")]
 pub struct ConfigError {
     pub path: String,
+    /// 1-based; 0 when the error is about the whole file.
     pub line: usize,
     pub message: String,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.line {
+            0 => write!(f, "{}: {}", self.path, self.message),
+            l => write!(f, "{}:{l}: {}", self.path, self.message),
+        }
+    }
 }
 
 /// How a simulated reading behaves: a value, optionally ramping and noisy, or a
@@ -99,8 +116,8 @@ impl Default for SimConfig {
     fn default() -> Self {
         SimConfig {
             turnaround: default_turnaround(),
-            poll_delay: Duration::ZERO,
-            command_delay: Duration::ZERO,
+            poll_delay: limits::SIM_POLL_DELAY.default_value(),
+            command_delay: limits::SIM_COMMAND_DELAY.default_value(),
             watchdog: None,
             rate: None,
             lag: None,
@@ -112,7 +129,7 @@ impl Default for SimConfig {
 }
 
 fn default_turnaround() -> Duration {
-    Duration::from_millis(2)
+    limits::SIM_TURNAROUND.default_value()
 }
 
 /// Vehicle-wide settings.
@@ -133,7 +150,8 @@ pub struct SupervisorConfig {
     pub error_rate: f64,
     #[serde(deserialize_with = "duration")]
     pub error_window: Duration,
-    /// A measured value further than this from its command …
+    /// A measured value further than this fraction of its device's range from its
+    /// command …
     pub follow_tolerance: f64,
     /// … for longer than this is "not following".
     #[serde(deserialize_with = "duration")]
@@ -155,18 +173,35 @@ pub struct SupervisorConfig {
 
 impl Default for SupervisorConfig {
     fn default() -> Self {
+        use limits::*;
         SupervisorConfig {
-            period: Duration::from_millis(100),
-            error_rate: 0.5,
-            error_window: Duration::from_secs(2),
-            follow_tolerance: 0.1,
-            follow_time: Duration::from_millis(2500),
-            range_margin: 0.05,
-            attempts: 3,
-            step_timeout: Duration::from_secs(4),
+            period: SUPERVISOR_PERIOD.default_value(),
+            error_rate: ERROR_RATE.default_value(),
+            error_window: ERROR_WINDOW.default_value(),
+            follow_tolerance: FOLLOW_TOLERANCE.default_value(),
+            follow_time: FOLLOW_TIME.default_value(),
+            range_margin: RANGE_MARGIN.default_value(),
+            attempts: ATTEMPTS.default_value() as u32,
+            step_timeout: STEP_TIMEOUT.default_value(),
             exit_on_give_up: true,
             panic_for_test: None,
         }
+    }
+}
+
+impl SupervisorConfig {
+    /// Every value within its limit.
+    pub fn check(&self) -> Result<(), Violation> {
+        use limits::*;
+        SUPERVISOR_PERIOD.check(self.period)?;
+        ERROR_RATE.check(self.error_rate)?;
+        ERROR_WINDOW.check(self.error_window)?;
+        FOLLOW_TOLERANCE.check(self.follow_tolerance)?;
+        FOLLOW_TIME.check(self.follow_time)?;
+        RANGE_MARGIN.check(self.range_margin)?;
+        ATTEMPTS.check(u64::from(self.attempts))?;
+        STEP_TIMEOUT.check(self.step_timeout)?;
+        Ok(())
     }
 }
 
@@ -182,9 +217,35 @@ pub struct VehicleConfig {
     pub network: NetworkConfig,
     /// Where it was loaded from (for messages).
     pub source: String,
+    /// The line of every key in that file, for errors found after loading.
+    pub lines: Lines,
 }
 
 impl VehicleConfig {
+    /// A violation found after loading, inside `owner` (`device.steer`, `network`), as
+    /// an error at the line of the key it blames.
+    pub fn refuse(&self, owner: &str, v: Violation) -> ConfigError {
+        refuse(&self.source, &self.lines, owner, v)
+    }
+
+    /// Every device that is not simulated needs a port to open.
+    pub fn check_ports(&self) -> Result<(), ConfigError> {
+        for d in &self.devices {
+            if d.port.trim().is_empty() {
+                let v = Violation {
+                    paths: vec!["port".into()],
+                    message: format!(
+                        "port: expected the path of a serial port (\"/dev/ttyUSB0\", \
+                         \"/dev/serial/by-id/…\"), got {:?}; without hardware, run with --sim",
+                        d.port
+                    ),
+                };
+                return Err(self.refuse(&format!("device.{}", d.name), v));
+            }
+        }
+        Ok(())
+    }
+
     /// The built-in simulated Alice.
     pub fn alice() -> VehicleConfig {
         parse(ALICE_TOML, ALICE_PATH).expect("the built-in vehicle parses")
@@ -281,37 +342,31 @@ struct Raw {
     #[serde(default)]
     device: Vec<Spanned<device::RawDevice>>,
     #[serde(default)]
-    network: Option<Spanned<NetworkConfig>>,
+    network: Option<NetworkConfig>,
 }
 
 /// Load a vehicle from a file.
 pub fn load(path: &Path) -> Result<VehicleConfig, ConfigError> {
     let name = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+    let bytes = std::fs::read(path).map_err(|e| ConfigError {
         path: name.clone(),
         line: 0,
         message: format!("cannot read: {e}"),
     })?;
-    parse(&text, &name)
+    parse(document::utf8(&bytes, &name)?, &name)
 }
 
 /// Parse a vehicle from TOML text; `path` names it in errors.
 pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
-    let err = |offset: usize, message: String| ConfigError {
-        path: path.to_string(),
-        line: line_of(text, offset),
-        message,
-    };
-    let raw: Raw = toml::from_str(text).map_err(|e| {
-        let offset = e.span().map(|s| s.start).unwrap_or(0);
-        err(offset, e.message().trim().to_string())
-    })?;
+    let doc = Document::parse(text, path)?;
+    let raw: Raw = toml::from_str(text).map_err(|e| doc.type_error(e.span(), e.message()))?;
+    let lines = doc.lines();
     let mut devices: Vec<DeviceConfig> = Vec::new();
     for spanned in raw.device {
         let at = spanned.span().start;
         let raw_device = spanned.into_inner();
         if devices.iter().any(|o| o.name == raw_device.name()) {
-            return Err(err(
+            return Err(doc.error_at(
                 raw_device.at(),
                 format!(
                     "device {} is defined twice (names must be unique)",
@@ -319,54 +374,31 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
                 ),
             ));
         }
-        let d = raw_device.check().map_err(|(o, m)| err(o.max(at), m))?;
-        if d.baud == 0 {
-            return Err(err(
-                at,
-                format!("baud of {}: expected a positive number", d.name),
-            ));
-        }
-        if d.status_period.is_zero() || d.reply_timeout.is_zero() || d.command_timeout.is_zero() {
-            return Err(err(
-                at,
-                format!(
-                    "{}: status_period, command_timeout and reply_timeout must be above zero",
-                    d.name
-                ),
-            ));
-        }
-        if d.status_max_age < d.status_period {
-            return Err(err(
-                at,
-                format!(
-                    "{}: status_max_age ({}) must be at least status_period ({})",
-                    d.name,
-                    humantime::format_duration(d.status_max_age),
-                    humantime::format_duration(d.status_period)
-                ),
-            ));
-        }
-        check_sim(&d).map_err(|m| err(at, m))?;
+        let d = raw_device
+            .check()
+            .map_err(|(o, m)| doc.error_at(o.max(at), m))?;
+        let owner = format!("device.{}", d.name);
+        d.check_limits()
+            .map_err(|v| refuse(path, &lines, &owner, v))?;
+        check_sim(&d).map_err(|m| doc.error_at(at, m))?;
         devices.push(d);
     }
     if devices.len() > u16::MAX as usize {
-        return Err(err(0, "too many devices".into()));
+        return Err(doc.error_at(0, "too many devices".into()));
     }
     let roles = roles::bind(
         raw.vehicle.roles.unwrap_or_default(),
         raw.vehicle.gear,
         &devices,
     )
-    .map_err(|(o, m)| err(o, m))?;
-    let network = match raw.network {
-        Some(n) => {
-            let at = n.span().start;
-            let n = n.into_inner();
-            n.check().map_err(|m| err(at, format!("[network] {m}")))?;
-            n
-        }
-        None => NetworkConfig::default(),
-    };
+    .map_err(|(o, m)| doc.error_at(o, m))?;
+    raw.supervisor
+        .check()
+        .map_err(|v| refuse(path, &lines, "supervisor", v))?;
+    let network = raw.network.unwrap_or_default();
+    network
+        .check()
+        .map_err(|v| refuse(path, &lines, "network", v))?;
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,
@@ -376,7 +408,20 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         devices,
         network,
         source: path.to_string(),
+        lines,
     })
+}
+
+/// A violation inside `owner` (`device.steer`, `network`, `supervisor`) of the file at
+/// `path`, as an error at the line of the key it blames (else of its table).
+fn refuse(path: &str, lines: &Lines, owner: &str, v: Violation) -> ConfigError {
+    let mut keys: Vec<String> = v.paths.iter().map(|p| format!("{owner}.{p}")).collect();
+    keys.push(owner.to_string());
+    ConfigError {
+        path: path.to_string(),
+        line: lines.first(&keys),
+        message: format!("{}{v}", document::context(owner)),
+    }
 }
 
 /// The simulator's settings must name the device's own states and readings.
@@ -403,14 +448,6 @@ fn check_sim(d: &DeviceConfig) -> Result<(), String> {
         ));
     }
     Ok(())
-}
-
-fn line_of(text: &str, offset: usize) -> usize {
-    text.as_bytes()[..offset.min(text.len())]
-        .iter()
-        .filter(|&&b| b == b'\n')
-        .count()
-        + 1
 }
 
 struct Expected(&'static str);

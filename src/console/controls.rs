@@ -137,8 +137,10 @@ pub trait Controls {
     fn engage(&self) -> Result<(), Vec<String>>;
     fn disengage(&self, reason: &str);
     fn set_interlocks(&self, on: bool);
-    fn set_status_period(&self, id: DeviceId, d: Duration);
-    fn set_command_timeout(&self, id: DeviceId, d: Duration);
+    /// Refused, with the reason, when the vehicle file would refuse the value.
+    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String>;
+    /// Refused, with the reason, when the vehicle file would refuse the value.
+    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String>;
     fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool);
     /// Wake a command thread (broadcast its condition variable).
     fn wake(&self, id: DeviceId);
@@ -231,6 +233,26 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
     }
 }
 
+/// A console edit of a device's settings, checked as the vehicle file is, and logged.
+pub fn change_settings(
+    vehicle: &crate::vehicle::Vehicle,
+    id: DeviceId,
+    change: impl FnOnce(&mut crate::config::DeviceConfig),
+) -> Result<(), String> {
+    let dev = vehicle
+        .devices
+        .get(id.index())
+        .ok_or_else(|| format!("no device #{}", id.index()))?;
+    dev.change_settings(change).map_err(|v| v.message)?;
+    tracing::info!(
+        device = dev.name(),
+        "from the console: status_period {}, command_timeout {}",
+        crate::config::fmt_duration(dev.settings.status_period()),
+        crate::config::fmt_duration(dev.settings.command_timeout())
+    );
+    Ok(())
+}
+
 impl Controls for Live<'_> {
     fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
         capture(self.gate, self.sources, now, bench)
@@ -260,15 +282,11 @@ impl Controls for Live<'_> {
             if on { "on" } else { "off" }
         );
     }
-    fn set_status_period(&self, id: DeviceId, d: Duration) {
-        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
-            dev.settings.set_status_period(d);
-        }
+    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        change_settings(&self.gate.vehicle, id, |c| c.status_period = d)
     }
-    fn set_command_timeout(&self, id: DeviceId, d: Duration) {
-        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
-            dev.settings.set_command_timeout(d);
-        }
+    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        change_settings(&self.gate.vehicle, id, |c| c.command_timeout = d)
     }
     fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
         if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {

@@ -6,9 +6,12 @@
 //! key is already bound in that mode replaces the binding, `run = "none"` removes it,
 //! any other record is added. Help and hint bar are generated from the loaded map.
 //!
-//! A file with an unknown key, an unknown action, an unknown field or section, or the
-//! same key bound twice in one section is refused with `file:line: message` naming
-//! the expected form. Nothing here panics on bad input.
+//! A file with an unknown key, an unknown action, an unknown field or section, the
+//! same key bound twice in one section, or a binding of Ctrl-C (always "stop adrive,
+//! safe state first") is refused with `file:line: message` naming the expected form.
+//! A user file that leaves a mode without a key bound to `stop` (the emergency stop,
+//! `<Space>` in every mode of the default) is loaded with a warning naming the record
+//! that took it away. Nothing here panics on bad input.
 
 use crate::config::Role;
 use crate::value::EstopState;
@@ -446,6 +449,8 @@ pub struct Binding {
     pub on: Key,
     pub run: Action,
     pub desc: String,
+    /// Where it was written (the line in its file).
+    pub line: usize,
 }
 
 /// A keymap error: `file:line: message`.
@@ -461,6 +466,10 @@ pub struct KeymapError {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Keymap {
     modes: [Vec<Binding>; 6],
+    /// The file it was read from, for messages.
+    path: String,
+    /// Problems that did not stop it loading (see [`Keymap::warnings`]).
+    warnings: Vec<KeymapError>,
 }
 
 #[derive(Deserialize)]
@@ -533,6 +542,14 @@ impl Keymap {
                     .get_ref()
                     .parse()
                     .map_err(|m| err(rec.on.span().start, m))?;
+                if on == Key::ctrl('c') {
+                    return Err(err(
+                        rec.on.span().start,
+                        "<C-c> cannot be bound or unbound: it always stops adrive, safe \
+                         state first; expected another key"
+                            .into(),
+                    ));
+                }
                 let run: Action = rec
                     .run
                     .get_ref()
@@ -551,17 +568,29 @@ impl Keymap {
                     on,
                     run,
                     desc: rec.desc,
+                    line: line_of(text, rec.on.span().start),
                 });
             }
         }
-        Ok(Keymap { modes })
+        Ok(Keymap {
+            modes,
+            path: path.to_string(),
+            warnings: Vec::new(),
+        })
     }
 
-    /// Merge `over` (a user file) over this map.
+    /// Merge `over` (a user file) over this map. A mode it leaves without a `stop` key
+    /// gets a warning at the record that took the last one away.
     pub fn merge(&mut self, over: Keymap) {
-        for (mine, theirs) in self.modes.iter_mut().zip(over.modes) {
+        for (i, (mine, theirs)) in self.modes.iter_mut().zip(over.modes).enumerate() {
+            let had_stop = mine.iter().any(|b| b.run == Action::Stop);
+            let mut took_stop = None;
             for b in theirs {
-                match mine.iter().position(|m| m.on == b.on) {
+                let at = mine.iter().position(|m| m.on == b.on);
+                if at.is_some_and(|i| mine[i].run == Action::Stop) {
+                    took_stop = Some((b.on, b.line));
+                }
+                match at {
                     Some(i) if b.run == Action::None => {
                         mine.remove(i);
                     }
@@ -569,6 +598,18 @@ impl Keymap {
                     None if b.run == Action::None => {}
                     None => mine.push(b),
                 }
+            }
+            let has_stop = mine.iter().any(|b| b.run == Action::Stop);
+            if let (true, false, Some((key, line))) = (had_stop, has_stop, took_stop) {
+                self.warnings.push(KeymapError {
+                    path: over.path.clone(),
+                    line,
+                    message: format!(
+                        "[{}] has no STOP key left: this record takes {key} away from \
+                         stop; expected run = \"stop\" on some key in every mode",
+                        Mode::ALL[i]
+                    ),
+                });
             }
         }
     }
@@ -584,6 +625,12 @@ impl Keymap {
         let mut map = Keymap::default_map();
         map.merge(Keymap::parse(&text, &name)?);
         Ok(map)
+    }
+
+    /// What loading found wrong without refusing the file (a mode left without a
+    /// STOP key), as `file:line: message`: adrive logs them and the console shows them.
+    pub fn warnings(&self) -> &[KeymapError] {
+        &self.warnings
     }
 
     /// What `adrive` runs with: `--keymap FILE` if given, else the user's
@@ -812,6 +859,61 @@ mod tests {
         assert_eq!(
             m.lookup(Mode::Main, "q".parse().unwrap()),
             Some(Action::Help)
+        );
+    }
+
+    /// A keymap once bound `<C-c>`, and the hint bar showed it, although Ctrl-C always
+    /// stops adrive. Binding or unbinding it is refused at its line.
+    #[test]
+    fn binding_ctrl_c_is_refused_at_its_line() {
+        for run in ["help", "none", "stop"] {
+            let text = format!(
+                "[teleop]\nkeymap = [\n  {{ on = \"i\", run = \"accel_up\" }},\n  {{ on = \"<C-c>\", run = \"{run}\" }},\n]\n"
+            );
+            let e = Keymap::parse(&text, "my.toml").unwrap_err();
+            assert_eq!((e.path.as_str(), e.line), ("my.toml", 4), "{e}");
+            assert!(
+                e.message.contains("<C-c>") && e.message.contains("expected another key"),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn every_mode_of_the_default_has_an_emergency_stop_on_space() {
+        let m = Keymap::default_map();
+        for mode in Mode::ALL {
+            assert_eq!(
+                m.lookup(mode, Key::plain(KeyCode::Char(' '))),
+                Some(Action::Stop),
+                "{mode}"
+            );
+        }
+        assert!(m.warnings().is_empty());
+    }
+
+    /// The shipped teleop keymap once took `<Space>` (STOP) on the main screen for
+    /// teleop, silently. A user file that leaves a mode without a stop key loads, with
+    /// a warning at the record that took it.
+    #[test]
+    fn a_user_keymap_that_takes_stop_away_is_warned_about_at_its_line() {
+        let mut m = Keymap::default_map();
+        let user = "[main]\nkeymap = [\n  { on = \"<Space>\", run = \"teleop\" },\n]\n\
+                    [bench]\nkeymap = [\n  { on = \"<Space>\", run = \"none\" },\n]\n\
+                    [help]\nkeymap = [\n  { on = \"<Space>\", run = \"back\" },\n  { on = \"s\", run = \"stop\" },\n]\n";
+        m.merge(Keymap::parse(user, "user.toml").unwrap());
+        let shown: Vec<String> = m.warnings().iter().map(|w| w.to_string()).collect();
+        assert_eq!(shown.len(), 2, "{shown:?}");
+        assert!(
+            shown[0].starts_with("user.toml:3: [main] has no STOP key"),
+            "{shown:?}"
+        );
+        assert!(shown[0].contains("<Space>"), "{shown:?}");
+        assert!(shown[1].starts_with("user.toml:7: [bench]"), "{shown:?}");
+        // [help] still has a stop key (s): no warning for it.
+        assert_eq!(
+            m.key_for(Mode::Help, Action::Stop),
+            Some("s".parse().unwrap())
         );
     }
 

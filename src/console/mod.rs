@@ -8,8 +8,8 @@
 //! - [`view`] and [`panels`]: `impl Widget for &Model`, free of side effects.
 //! - [`run`]: the loop — one `select!` over terminal events (read on their own
 //!   thread), a 10 Hz tick and the exits channel (signals, panics). ratatui's diffing
-//!   sends only changed cells; `ratatui::init`/`restore` (with its panic hook) leave
-//!   the terminal as it was on every way out.
+//!   sends only changed cells; [`terminal`] leaves the terminal as it was on every way
+//!   out, and turns a terminal that died (an SSH session dropping) into a hang-up.
 
 pub mod controls;
 pub mod keymap;
@@ -17,6 +17,7 @@ pub mod logring;
 pub mod model;
 pub mod panels;
 pub mod sample;
+pub mod terminal;
 pub mod theme;
 pub mod update;
 pub mod view;
@@ -30,7 +31,9 @@ use keymap::{key_to_action, Keymap};
 use model::Model;
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::sync::Arc;
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use terminal::Keyboard;
 use theme::Theme;
 use update::Flow;
 
@@ -66,32 +69,43 @@ pub fn run(gate: &Gate, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
     run_with(gate, exits, Options::default())
 }
 
+/// What the input thread delivers.
+enum Input {
+    Event(Event),
+    /// The terminal is gone; the cause.
+    Closed(String),
+}
+
 /// Read terminal events on a thread of their own until `stop`, so the loop can
-/// `select!` over them.
-fn spawn_reader(
-    stop: Arc<AtomicBool>,
-) -> std::io::Result<(Receiver<Event>, std::thread::JoinHandle<()>)> {
+/// `select!` over them. crossterm reads only bytes that [`Keyboard::wait`] saw
+/// waiting; a terminal that hung up is reported once and the thread ends.
+fn spawn_reader(stop: Arc<AtomicBool>) -> std::io::Result<(Receiver<Input>, JoinHandle<()>)> {
+    let keyboard = Keyboard::open()?;
     let (tx, rx) = crossbeam_channel::bounded(256);
     let h = std::thread::Builder::new()
         .name("console/input".into())
         .spawn(move || {
+            let closed = |why: String| {
+                let _ = tx.send(Input::Closed(why));
+            };
             while !stop.load(Relaxed) {
-                match event::poll(TICK) {
-                    Ok(true) => match event::read() {
-                        Ok(ev) => {
-                            if tx.send(ev).is_err() {
+                match keyboard.wait(TICK) {
+                    terminal::Input::Idle => continue,
+                    terminal::Input::Closed(why) => return closed(why),
+                    terminal::Input::Pending => {}
+                }
+                // Everything crossterm has parsed from the bytes read, without waiting.
+                loop {
+                    match event::poll(Duration::ZERO)
+                        .and_then(|ready| ready.then(event::read).transpose())
+                    {
+                        Ok(Some(ev)) => {
+                            if tx.send(Input::Event(ev)).is_err() {
                                 return;
                             }
                         }
-                        Err(e) => {
-                            tracing::warn!("terminal input: {e}");
-                            return;
-                        }
-                    },
-                    Ok(false) => {}
-                    Err(e) => {
-                        tracing::warn!("terminal input: {e}");
-                        return;
+                        Ok(None) => break,
+                        Err(e) => return closed(e.to_string()),
                     }
                 }
             }
@@ -100,9 +114,9 @@ fn spawn_reader(
 }
 
 /// Run the console until the operator quits (`q`, Ctrl-C) or an exit arrives. The
-/// terminal is restored before this returns; an error of the terminal itself ends
-/// the console as a hang-up would (the caller still brings the vehicle to the safe
-/// state).
+/// terminal is restored before this returns; a terminal that dies (it cannot be
+/// drawn on, or its input hung up) ends the console with [`Exit::HangUp`], and the
+/// caller brings the vehicle to the safe state as for SIGHUP.
 pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::Result<Exit> {
     let live = Live {
         gate,
@@ -114,33 +128,29 @@ pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::
         live.frame(Instant::now(), None),
         opts.deadman,
     );
-    let mut terminal = ratatui::try_init()?;
+    let mut screen = terminal::enter()?;
     let stop = Arc::new(AtomicBool::new(false));
-    let (events, reader) = match spawn_reader(stop.clone()) {
-        Ok(r) => r,
-        Err(e) => {
-            ratatui::restore();
-            return Err(e);
-        }
-    };
+    let (events, reader) = spawn_reader(stop.clone())?;
     let ticker = crossbeam_channel::tick(TICK);
     let started = Instant::now();
-    let hangup = Exit::Signal(libc::SIGHUP);
     let why = loop {
-        if let Err(e) = terminal.draw(|f| f.render_widget(&model, f.area())) {
-            tracing::warn!("console: cannot draw ({e}); stopping as on a hang-up");
-            break hangup;
+        if let Err(e) = screen.terminal.draw(|f| f.render_widget(&model, f.area())) {
+            break Exit::HangUp(format!("cannot draw: {e}"));
         }
         enum Msg {
             Exit(Exit),
             Tick,
             Event(Event),
-            Gone,
+            Gone(String),
         }
         let msg = select! {
             recv(exits) -> why => Msg::Exit(why.unwrap_or(Exit::Quit)),
             recv(ticker) -> _ => Msg::Tick,
-            recv(events) -> ev => ev.map_or(Msg::Gone, Msg::Event),
+            recv(events) -> input => match input {
+                Ok(Input::Event(ev)) => Msg::Event(ev),
+                Ok(Input::Closed(why)) => Msg::Gone(why),
+                Err(_) => Msg::Gone("input thread ended".into()),
+            },
         };
         // Measure the turn from here: the wait is not work.
         let start = Instant::now();
@@ -159,8 +169,7 @@ pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::
             },
             // A resize: the next draw adapts to the new size.
             Msg::Event(_) => Flow::Continue,
-            // The reader stopped: the terminal is gone.
-            Msg::Gone => Flow::Exit(hangup.clone()),
+            Msg::Gone(why) => Flow::Exit(Exit::HangUp(format!("input: {why}"))),
         };
         let took = start.elapsed();
         if took > TURN_BUDGET {
@@ -171,7 +180,7 @@ pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::
         }
     };
     stop.store(true, Relaxed);
-    ratatui::restore();
+    drop(screen);
     let deadline = Instant::now() + 2 * TICK;
     while !reader.is_finished() && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(5));

@@ -47,6 +47,12 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
             tracing::warn!("teleop deadman tripped: gas 0, brake full");
         }
     }
+    // The accel shown is the one sent while engaged: once disengaged (STOP, `D`, the
+    // gate, the watchdog, the supervisor) the vehicle has gas 0 and the brake full,
+    // whatever the console sent before.
+    if !m.snap.gate.engaged {
+        m.accel = None;
+    }
 }
 
 /// Apply one action.
@@ -55,6 +61,10 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
     match a {
         Action::Interrupt => return Flow::Exit(Exit::Signal(libc::SIGINT)),
         Action::Quit => return Flow::Exit(Exit::Quit),
+        Action::Stop => {
+            stop(m, c);
+            return Flow::Continue;
+        }
         Action::Help if !matches!(m.mode, Mode::Help | Mode::Edit | Mode::Confirm) => {
             m.back_to = m.mode;
             m.mode = Mode::Help;
@@ -169,7 +179,6 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::ResetSteering => reset_steering(m, c),
         Action::Engage => ask(m, Ask::Engage),
         Action::Disengage => ask(m, Ask::Disengage),
-        Action::Stop => stop(m, c),
         Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.gate.interlocks)),
         Action::Teleop => enter_teleop(m),
         Action::Bench => {
@@ -241,19 +250,18 @@ pub(crate) fn parse_number(text: &str, lo: f64, hi: f64) -> Result<f64, String> 
     Ok(v)
 }
 
-/// `50ms`, `1s`, `1.5s` or a bare number of milliseconds; 1 ms … 60 s.
+/// `50ms`, `1s`, `1.5s` or a bare number of milliseconds. Its range is the vehicle
+/// file's, checked where the value is applied ([`Controls::set_status_period`]).
 fn parse_period(text: &str) -> Result<Duration, String> {
     let t = text.trim();
-    let d = match t.parse::<f64>() {
-        Ok(ms) if ms.is_finite() && ms >= 0.0 => Duration::from_secs_f64(ms / 1000.0),
+    match t.parse::<f64>() {
+        Ok(ms) if ms.is_finite() && (0.0..1e12).contains(&ms) => {
+            Ok(Duration::from_secs_f64(ms / 1000.0))
+        }
         _ => humantime::parse_duration(t).map_err(|_| {
             format!("{t:?} is not a duration: expected milliseconds (250) or 250ms, 1s, 1.5s")
-        })?,
-    };
-    if d < Duration::from_millis(1) || d > Duration::from_secs(60) {
-        return Err(format!("{} is out of range: expected 1ms … 60s", fmt_ms(d)));
+        }),
     }
-    Ok(d)
 }
 
 fn parse_flag(text: &str) -> Result<bool, String> {
@@ -312,9 +320,16 @@ fn edit(m: &mut Model, a: Action, c: &dyn Controls) {
                     }
                 }
                 Ok(apply) => {
-                    m.edit = None;
+                    let pending = m.edit.take();
                     m.mode = m.back_to;
-                    run_apply(m, c, field, apply);
+                    // A setting the vehicle file would refuse: stay in the field.
+                    if let Err(why) = run_apply(m, c, field, apply) {
+                        m.edit = pending.map(|e| Edit {
+                            error: Some(why),
+                            ..e
+                        });
+                        m.mode = Mode::Edit;
+                    }
                 }
             }
         }
@@ -341,7 +356,8 @@ fn name_of(m: &Model, id: DeviceId) -> String {
         .map_or("?".into(), |d: &DeviceView| d.name.clone())
 }
 
-fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
+/// Apply a committed edit; `Err` when a setting is refused (the edit stays open).
+fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) -> Result<(), String> {
     let fname = field.name(&m.snap);
     match apply {
         Apply::Submit(r, cmd) => {
@@ -359,11 +375,11 @@ fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
             Err(why) => m.say(format!("accel {a:.3} refused: {why}"), true),
         },
         Apply::StDelay(r, d) => {
-            c.set_status_period(r, d);
+            c.set_status_period(r, d)?;
             m.say(format!("{fname} = {}", fmt_ms(d)), false);
         }
         Apply::CmDelay(r, d) => {
-            c.set_command_timeout(r, d);
+            c.set_command_timeout(r, d)?;
             m.say(format!("{fname} = {}", fmt_ms(d)), false);
         }
         Apply::Enable(r, t, on) => {
@@ -371,6 +387,7 @@ fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) {
             m.say(format!("{fname} {}", if on { "on" } else { "off" }), false);
         }
     }
+    Ok(())
 }
 
 fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
@@ -479,9 +496,21 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
     }
 }
 
-/// The operator's stop: no question asked.
+/// The operator's stop, the same from every mode: no question asked, and whatever was
+/// half done (an edit, a question) is dropped. Teleop stays, its brake full and its
+/// deadman idle until the next key.
 fn stop(m: &mut Model, c: &dyn Controls) {
     c.disengage("operator stop from the console");
+    if matches!(m.mode, Mode::Edit | Mode::Confirm) {
+        m.edit = None;
+        m.ask = None;
+        m.mode = m.back_to;
+    }
+    if m.mode == Mode::Teleop {
+        m.teleop.accel = -1.0;
+        m.teleop.last_key = None;
+        m.teleop.tripped = false;
+    }
     m.say("STOP: disengaged, gas 0, brake full", true);
 }
 
@@ -507,7 +536,6 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
             }
         },
         Action::Wake(_) => wake(m, c, m.bench),
-        Action::Stop => stop(m, c),
         Action::Sim(what) => sim(m, c, what),
         Action::Back | Action::Cancel => m.mode = Mode::Main,
         _ => {}
@@ -517,8 +545,8 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
 /// The paper's `e`, after the operator disabled and re-enabled the steering drive:
 /// home it now; [`tick`] then commands it to hold where it stopped, once the drive
 /// acknowledged the home command. (A latched drive fault needs the disable → enable
-/// cycle first; the supervisor's `steering` procedure runs that whole sequence on its
-/// own when the drive reports a fault.)
+/// cycle first; the supervisor's `steering` procedure runs that whole sequence when the
+/// drive reports a fault, once the vehicle is engaged.)
 fn reset_steering(m: &mut Model, c: &dyn Controls) {
     let Some(id) = m.snap.bound_id(Role::Steering) else {
         return m.say(

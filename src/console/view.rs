@@ -10,6 +10,7 @@ use super::model::Model;
 use super::panels::bench::BenchView;
 use super::panels::device::DevicePanel;
 use super::panels::dialog::Dialog;
+use super::panels::header::Header;
 use super::panels::help::HelpPanel;
 use super::panels::hint::{HintBar, MessageLine};
 use super::panels::log::LogPanel;
@@ -18,7 +19,6 @@ use super::panels::supervisor::{SupervisorPanel, SupervisorStrip};
 use super::panels::teleop::TeleopPanel;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Layout, Rect};
-use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget, Wrap};
 
 /// The smallest screen the console draws (80×24, less a tmux status line and one).
@@ -32,44 +32,6 @@ const BENCH_MIN: u16 = 18;
 const BIG_PANEL: u16 = 10;
 
 impl Model {
-    fn header(&self) -> Line<'static> {
-        let (s, t) = (&self.snap, &self.theme);
-        let bar = t.bar();
-        let gate = if s.gate.engaged {
-            Span::styled(" ENGAGED ", t.good().patch(bar))
-        } else {
-            let why = s.gate.reason.trim_start_matches("disengaged: ");
-            Span::styled(format!(" DISENGAGED ({why}) "), t.warn().patch(bar))
-        };
-        let interlocks = if s.gate.interlocks {
-            Span::styled(" interlocks on ", bar)
-        } else {
-            Span::styled(" INTERLOCKS OFF ", t.fault().patch(bar))
-        };
-        let faults = s.devices.iter().filter(|d| s.red(d)).count();
-        let mode = match self.mode {
-            Mode::Help | Mode::Confirm | Mode::Edit => self.back_to,
-            m => m,
-        };
-        let mut spans = vec![
-            Span::styled(format!(" ADRIVE {} ", s.vehicle), t.title().patch(bar)),
-            Span::styled("│", bar),
-            Span::styled(format!(" {} ", mode.as_str().to_uppercase()), bar),
-            Span::styled("│", bar),
-            interlocks,
-            Span::styled("│", bar),
-        ];
-        if faults > 0 {
-            spans.push(Span::styled(
-                format!(" {faults} FAULTY "),
-                t.fault().patch(bar),
-            ));
-            spans.push(Span::styled("│", bar));
-        }
-        spans.push(gate);
-        Line::from(spans).style(bar)
-    }
-
     fn render_main(&self, body: Rect, buf: &mut Buffer) {
         let n = self.snap.devices.len().max(1) as u16;
         let cols: u16 = if body.width >= 120 { 3 } else { 2 };
@@ -208,7 +170,7 @@ impl Widget for &Model {
             Constraint::Length(1),
         ])
         .areas(area);
-        Paragraph::new(self.header()).render(header, buf);
+        (&Header { m: self }).render(header, buf);
         if self.in_bench() {
             // The supervisor's strip under the bench, so an injected fault's effect
             // shows where it was injected.

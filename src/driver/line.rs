@@ -20,7 +20,7 @@
 //! [`LineMap`]. Unknown keys are ignored (newer firmware may report more). Lines end
 //! in `\n`; a `\r` before it is ignored.
 
-use super::{read_until, Driver, DriverError, Link};
+use super::{read_until, send_request, Driver, DriverError, Link};
 use crate::config::wire::LineMap;
 use crate::value::{Command, Control, Reading};
 use std::io::Write;
@@ -188,13 +188,11 @@ impl LineDriver {
         }
     }
 
+    /// One request and its reply line, over by `reply_timeout` whatever the device sends.
     fn transact(&mut self, link: &mut dyn Link, request: &[u8]) -> Result<&[u8], DriverError> {
-        link.discard_input()?;
-        link.write_all(request)?;
-        link.flush()?;
+        let deadline = send_request(link, request, self.reply_timeout)?;
         self.buf.clear();
-        link.set_timeout(self.reply_timeout)?;
-        read_until(link, &mut self.buf, b'\n', MAX_LINE, self.reply_timeout)?;
+        read_until(link, &mut self.buf, b'\n', MAX_LINE, &deadline)?;
         Ok(&self.buf)
     }
 }

@@ -2,6 +2,13 @@
 //! "a basic actuator class"). A driver knows bytes and registers, nothing of threads:
 //! the engine owns the port, opens it, hands it to the driver as a [`Link`] for one
 //! transaction at a time, and measures around it.
+//!
+//! Every exchange — one request, one reply — ends at its [`Deadline`], the device's
+//! `reply_timeout` after the request went out, whatever the device sends meanwhile:
+//! each read waits only for the time left ([`read_some`], [`read_until`]). A driver call
+//! makes a fixed, small number of exchanges (ELM327 poll: two or three; Modbus poll: one
+//! per register block), so the port is held for a bounded time and the other thread of
+//! the device gets its turn.
 
 pub mod elm327;
 pub mod line;
@@ -11,7 +18,7 @@ pub mod modbus;
 
 use crate::value::{Command, Reading};
 use std::io::{self, Read, Write};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 /// The byte stream a driver talks over: a serial port in the field, a pseudo-terminal
 /// under `--sim`, a scripted mock in unit tests.
@@ -101,37 +108,107 @@ pub trait Driver: Send {
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError>;
 }
 
+/// The end of one exchange — a request and its reply. Every read of the reply waits
+/// only for the time left until it, so the exchange ends by then whatever the device
+/// sends: a device that trickles a byte now and then without ever finishing its reply
+/// holds the port no longer than a silent one. (A per-read timeout would not do: each
+/// byte would start the wait afresh.)
+#[derive(Clone, Copy, Debug)]
+pub struct Deadline {
+    at: Instant,
+    budget: Duration,
+}
+
+impl Deadline {
+    /// The deadline `budget` from now (a device's reply timeout, taken as its request
+    /// goes out).
+    pub fn after(budget: Duration) -> Deadline {
+        Deadline {
+            at: Instant::now() + budget,
+            budget,
+        }
+    }
+
+    /// The time left, or the timeout error once it has passed.
+    pub fn remaining(&self) -> Result<Duration, DriverError> {
+        let left = self.at.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            Err(self.expired())
+        } else {
+            Ok(left)
+        }
+    }
+
+    /// The error of an exchange that reached its deadline.
+    pub fn expired(&self) -> DriverError {
+        DriverError::Timeout(self.budget)
+    }
+
+    /// Let the link block no longer than the time left (before a write or a read).
+    pub fn arm(&self, link: &mut dyn Link) -> Result<(), DriverError> {
+        link.set_timeout(self.remaining()?)?;
+        Ok(())
+    }
+}
+
+/// One read of at most `buf.len()` bytes that waits no longer than `deadline` allows.
+/// Returns how many bytes arrived (at least one); the deadline passing is
+/// [`DriverError::Timeout`], the port closing is an I/O error.
+pub fn read_some(
+    link: &mut dyn Link,
+    buf: &mut [u8],
+    deadline: &Deadline,
+) -> Result<usize, DriverError> {
+    loop {
+        deadline.arm(link)?;
+        match link.read(buf) {
+            Ok(0) => return Err(DriverError::Io(io::ErrorKind::UnexpectedEof.into())),
+            Ok(n) => return Ok(n),
+            Err(e) if e.kind() == io::ErrorKind::TimedOut => return Err(deadline.expired()),
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(DriverError::Io(e)),
+        }
+    }
+}
+
 /// Read from `link` until `terminator` arrives (included in `buf`), the reply grows past
-/// `max` bytes, or the link's timeout passes.
+/// `max` bytes, or `deadline` passes.
 pub fn read_until(
     link: &mut dyn Link,
     buf: &mut Vec<u8>,
     terminator: u8,
     max: usize,
-    timeout: Duration,
+    deadline: &Deadline,
 ) -> Result<(), DriverError> {
-    let mut byte = [0u8; 64];
+    let mut chunk = [0u8; 64];
     loop {
-        match link.read(&mut byte) {
-            Ok(0) => return Err(DriverError::Io(io::ErrorKind::UnexpectedEof.into())),
-            Ok(n) => {
-                buf.extend_from_slice(&byte[..n]);
-                if buf.contains(&terminator) {
-                    return Ok(());
-                }
-                if buf.len() > max {
-                    return Err(DriverError::Garbled(format!(
-                        "reply longer than {max} bytes without a terminator"
-                    )));
-                }
-            }
-            Err(e) if e.kind() == io::ErrorKind::TimedOut => {
-                return Err(DriverError::Timeout(timeout))
-            }
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(DriverError::Io(e)),
+        let n = read_some(link, &mut chunk, deadline)?;
+        buf.extend_from_slice(&chunk[..n]);
+        if buf.contains(&terminator) {
+            return Ok(());
+        }
+        if buf.len() > max {
+            return Err(DriverError::Garbled(format!(
+                "reply longer than {max} bytes without a terminator"
+            )));
         }
     }
+}
+
+/// Send one request and arm the exchange's deadline: input nobody asked for is dropped
+/// first, and the reply (read with [`read_until`] or [`read_some`]) must be complete
+/// `reply_timeout` after the request went out.
+pub fn send_request(
+    link: &mut dyn Link,
+    request: &[u8],
+    reply_timeout: Duration,
+) -> Result<Deadline, DriverError> {
+    link.discard_input()?;
+    let deadline = Deadline::after(reply_timeout);
+    deadline.arm(link)?;
+    link.write_all(request)?;
+    link.flush()?;
+    Ok(deadline)
 }
 
 /// Build the driver a device's configuration asks for.
@@ -148,11 +225,70 @@ pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
     }
 }
 
-/// Open a serial port (or pseudo-terminal) by path at a baud rate.
+/// Open a serial port (or pseudo-terminal) by path at a baud rate. An error names the
+/// path (`cannot open /dev/ttyUSB0: No such file or directory`).
 pub fn open_serial(path: &str, baud: u32, timeout: Duration) -> io::Result<Box<dyn Link>> {
     let port = serialport::new(path, baud)
         .timeout(timeout)
         .open_native()
-        .map_err(io::Error::from)?;
+        .map_err(|e| {
+            let e = io::Error::from(e);
+            io::Error::new(e.kind(), format!("cannot open {path}: {e}"))
+        })?;
     Ok(Box::new(port))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serialport::TTYPort;
+    use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+    use std::sync::Arc;
+
+    /// A device on a real pseudo-terminal that sends one byte every `every` and never
+    /// finishes its reply, until the returned flag is set.
+    fn trickle(mut device: TTYPort, every: Duration) -> Arc<AtomicBool> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let s = stop.clone();
+        std::thread::spawn(move || {
+            while !s.load(Relaxed) && device.write_all(b"x").is_ok() {
+                std::thread::sleep(every);
+            }
+        });
+        stop
+    }
+
+    #[test]
+    fn a_trickling_device_cannot_stretch_an_exchange_past_its_deadline() {
+        let (device, mut host) = TTYPort::pair().expect("a pseudo-terminal pair");
+        // Each byte comes well within the budget of a single read.
+        let stop = trickle(device, Duration::from_millis(30));
+        let budget = Duration::from_millis(300);
+        let started = Instant::now();
+        let deadline = Deadline::after(budget);
+        let mut reply = Vec::new();
+        let r = read_until(&mut host, &mut reply, b'\n', 1000, &deadline);
+        let took = started.elapsed();
+        stop.store(true, Relaxed);
+        assert!(
+            matches!(r, Err(DriverError::Timeout(t)) if t == budget),
+            "{r:?}"
+        );
+        assert!(reply.len() > 2, "the device did trickle: {reply:?}");
+        assert!(
+            took >= budget && took < budget + Duration::from_millis(200),
+            "the exchange took {took:?} for a deadline of {budget:?}"
+        );
+    }
+
+    #[test]
+    fn a_deadline_that_passed_fails_without_reading() {
+        let (_device, mut host) = TTYPort::pair().expect("a pseudo-terminal pair");
+        let deadline = Deadline::after(Duration::ZERO);
+        let mut buf = [0u8; 4];
+        assert!(matches!(
+            read_some(&mut host, &mut buf, &deadline),
+            Err(DriverError::Timeout(_))
+        ));
+    }
 }

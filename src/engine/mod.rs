@@ -142,7 +142,7 @@ fn status_loop(d: &Device, stop: &StopSignal) {
                     at: Some(done),
                 };
                 d.health.status_error.store(0, Relaxed);
-                d.record_ok();
+                d.record_ok(done);
             }
             Err(e) => {
                 Stats::bump(&d.stats.status_errors);
@@ -253,7 +253,7 @@ fn command_loop(gate: &Gate, d: &Device) {
                         Stats::bump(&d.stats.resent);
                     }
                     d.health.command_error.store(0, Relaxed);
-                    d.record_ok();
+                    d.record_ok(done);
                 }
                 Err(e) => {
                     Stats::bump(&d.stats.command_errors);

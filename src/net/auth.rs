@@ -40,16 +40,14 @@ pub enum KeyError {
     TooShort(usize),
     #[error("the key after `hex:` must be an even number of hex digits")]
     BadHex,
-    #[error("{}: {source}", path.display())]
+    // The cause is part of the message, not a `source`: a chain would print it twice.
+    #[error("{}: {error}", path.display())]
     Read {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
-    #[error("{}: {source}", path.display())]
-    InFile {
-        path: PathBuf,
-        source: Box<KeyError>,
-    },
+    #[error("{}: {error}", path.display())]
+    InFile { path: PathBuf, error: Box<KeyError> },
 }
 
 impl Auth {
@@ -68,7 +66,7 @@ impl Auth {
     /// A key written as hex digits (e.g. from a `--key-hex` option).
     pub fn from_hex(hex: &str) -> Result<Auth, KeyError> {
         let digits = hex.trim().as_bytes();
-        if digits.len() % 2 != 0 {
+        if !digits.len().is_multiple_of(2) {
             return Err(KeyError::BadHex);
         }
         let key = digits
@@ -91,13 +89,13 @@ impl Auth {
 
     /// Reads a key file; errors name the file.
     pub fn load(path: &Path) -> Result<Auth, KeyError> {
-        let contents = std::fs::read(path).map_err(|source| KeyError::Read {
+        let contents = std::fs::read(path).map_err(|error| KeyError::Read {
             path: path.to_owned(),
-            source,
+            error,
         })?;
         Auth::from_key_file(&contents).map_err(|e| KeyError::InFile {
             path: path.to_owned(),
-            source: Box::new(e),
+            error: Box::new(e),
         })
     }
 
@@ -312,8 +310,11 @@ mod tests {
 
     #[test]
     fn key_file_errors_name_the_file_and_debug_hides_the_key() {
-        let dir = std::env::temp_dir().join(format!("adrive-auth-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let guard = tempfile::Builder::new()
+            .prefix("adrive-auth-")
+            .tempdir()
+            .unwrap();
+        let dir = guard.path();
         let path = dir.join("short.key");
         std::fs::write(&path, "secret\n").unwrap();
         let err = Auth::load(&path).unwrap_err().to_string();
@@ -321,7 +322,6 @@ mod tests {
         assert!(err.contains("at least 16"), "{err}");
         let missing = Auth::load(&dir.join("none.key")).unwrap_err().to_string();
         assert!(missing.contains("none.key"), "{missing}");
-        std::fs::remove_dir_all(&dir).unwrap();
 
         assert!(!format!("{:?}", auth()).contains("horse"));
     }

@@ -3,7 +3,7 @@
 //! which prints the state broadcast as it arrives.
 
 use super::auth::Auth;
-use super::proto::{self, Vocabulary, MAX_DATAGRAM};
+use super::proto::{self, NetCommand, Vocabulary, MAX_DATAGRAM};
 use crate::snapshot::Snapshot;
 use crate::value::Value;
 use socket2::{Domain, Protocol, Socket, Type};
@@ -13,8 +13,25 @@ use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-/// How long a one-shot `send` waits for a reply.
+/// How long a one-shot `send` waits for a reply that may not come (an accepted command
+/// is not answered).
 pub const REPLY_WAIT: Duration = Duration::from_millis(200);
+/// How long `send` waits for the reply to `engage` or `disengage`, which adrive always
+/// answers unless the datagram was dropped (a sender not on the allow list,
+/// `replies = false`, a lost datagram).
+pub const EXPECTED_REPLY_WAIT: Duration = Duration::from_secs(1);
+
+/// `adrive send`'s exit statuses.
+pub mod status {
+    /// Sent, and nothing was refused.
+    pub const OK: i32 = 0;
+    /// Something was refused, or nothing listens at the address.
+    pub const REFUSED: i32 = 1;
+    /// A bad command line.
+    pub const USAGE: i32 = 2;
+    /// `engage` or `disengage` got no reply: whether it was applied is unknown.
+    pub const NO_REPLY: i32 = 3;
+}
 
 /// Command-line words to protocol lines: `engage` and `disengage` stand alone, every
 /// other line is a name and a value, so `engage trans drive accel 0.3` and
@@ -61,14 +78,28 @@ fn now_ns() -> u64 {
         .unwrap_or(0)
 }
 
-/// `adrive send`: returns the exit status (0 sent and not refused, 1 refused or no
-/// listener, 2 bad command line).
+/// `adrive send`: returns the exit status ([`status`]).
 pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32> {
-    if let Err(e) = proto::parse(body.as_bytes(), &Vocabulary::open()) {
-        eprintln!("adrive send: {e}");
-        eprintln!("the commands, one per line, as sent:\n{body}");
-        return Ok(2);
-    }
+    let expects_reply = match proto::parse(body.as_bytes(), &Vocabulary::open()) {
+        Ok(d) => d
+            .commands
+            .iter()
+            .any(|c| matches!(c, NetCommand::Engage | NetCommand::Disengage)),
+        Err(e) => {
+            eprintln!("adrive send: {e}");
+            eprintln!("the commands, one per line, as sent:\n{body}");
+            return Ok(status::USAGE);
+        }
+    };
+    let no_reply = || {
+        eprintln!(
+            "adrive send: no reply from {} within {}: the engage or disengage may not have \
+             been applied (this sender not on its allow list, `replies = false`, or the \
+             datagram lost); `adrive watch` shows the vehicle's state",
+            opts.to,
+            humantime::format_duration(EXPECTED_REPLY_WAIT)
+        );
+    };
     let any: SocketAddr = if opts.to.is_ipv6() {
         (Ipv6Addr::UNSPECIFIED, 0).into()
     } else {
@@ -94,23 +125,35 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         let text = datagram(false);
         check_size(&text)?;
         socket.send(text.as_bytes())?;
-        socket.set_read_timeout(Some(REPLY_WAIT))?;
+        socket.set_read_timeout(Some(if expects_reply {
+            EXPECTED_REPLY_WAIT
+        } else {
+            REPLY_WAIT
+        }))?;
         return match socket.recv(&mut buf) {
             Ok(n) => {
                 let reply = String::from_utf8_lossy(&buf[..n]);
                 print!("{reply}");
-                Ok(if refused(&reply) { 1 } else { 0 })
+                Ok(if refused(&reply) {
+                    status::REFUSED
+                } else {
+                    status::OK
+                })
             }
             Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
                 eprintln!("adrive send: nothing is listening at {}", opts.to);
-                Ok(1)
+                Ok(status::REFUSED)
             }
-            Err(_) => Ok(0),
+            Err(_) if expects_reply => {
+                no_reply();
+                Ok(status::NO_REPLY)
+            }
+            Err(_) => Ok(status::OK),
         };
     };
     if !(rate.is_finite() && rate > 0.0 && rate <= 10_000.0) {
         eprintln!("adrive send: --rate takes datagrams per second, above 0 and at most 10000");
-        return Ok(2);
+        return Ok(status::USAGE);
     }
     let period = Duration::from_secs_f64(1.0 / rate);
     let start = Instant::now();
@@ -118,6 +161,8 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
     let mut sent = 0u64;
     let mut last_reply = String::new();
     let mut unreachable = false;
+    // An expected reply: got one yet, and said that it is overdue.
+    let (mut replied, mut warned) = (false, false);
     eprintln!(
         "adrive send: {} a second to {}; Ctrl-C stops (the watchdog then stops the vehicle)",
         rate, opts.to
@@ -141,6 +186,7 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
             match socket.recv(&mut buf) {
                 Ok(n) => {
                     unreachable = false;
+                    replied = true;
                     let reply = String::from_utf8_lossy(&buf[..n]).into_owned();
                     if reply != last_reply {
                         for line in reply.lines() {
@@ -160,13 +206,21 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
                 Err(_) => {}
             }
         }
+        if expects_reply && !replied && !warned && start.elapsed() >= EXPECTED_REPLY_WAIT {
+            no_reply();
+            warned = true;
+        }
         next = next.max(Instant::now() - period);
     }
     eprintln!(
         "adrive send: sent {sent} datagrams in {:.1} s",
         start.elapsed().as_secs_f64()
     );
-    Ok(0)
+    Ok(if expects_reply && !replied {
+        status::NO_REPLY
+    } else {
+        status::OK
+    })
 }
 
 fn check_size(text: &str) -> io::Result<()> {

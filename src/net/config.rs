@@ -3,6 +3,7 @@
 //! broadcast goes. Every key has a default, so a vehicle file without the section gets
 //! a loopback-only listener that cannot engage.
 
+use crate::config::limits::{self, Violation};
 use serde::{Deserialize, Deserializer};
 use std::fmt;
 use std::net::{IpAddr, SocketAddr};
@@ -22,6 +23,7 @@ pub const DEFAULT_PORT: u16 = 47576;
 #[serde(deny_unknown_fields, default)]
 pub struct NetworkConfig {
     /// Where the command listener binds (`--listen` overrides it).
+    #[serde(deserialize_with = "listen")]
     pub listen: SocketAddr,
     /// May a network sender engage the vehicle? Off unless the vehicle file says so.
     pub allow_engage: bool,
@@ -30,6 +32,7 @@ pub struct NetworkConfig {
     #[serde(deserialize_with = "crate::config::duration")]
     pub watchdog_timeout: Duration,
     /// Destinations of the state broadcast: unicast addresses and/or multicast groups.
+    #[serde(deserialize_with = "destinations")]
     pub broadcast_to: Vec<SocketAddr>,
     /// State broadcasts per second.
     pub broadcast_rate: f64,
@@ -50,10 +53,10 @@ impl Default for NetworkConfig {
         NetworkConfig {
             listen: DEFAULT_LISTEN.parse().expect("valid address"),
             allow_engage: false,
-            watchdog_timeout: Duration::from_millis(500),
+            watchdog_timeout: limits::WATCHDOG_TIMEOUT.default_value(),
             broadcast_to: vec![DEFAULT_BROADCAST.parse().expect("valid address")],
-            broadcast_rate: 10.0,
-            multicast_ttl: 1,
+            broadcast_rate: limits::BROADCAST_RATE.default_value(),
+            multicast_ttl: limits::MULTICAST_TTL.default_value() as u32,
             allow: Vec::new(),
             key_file: None,
             replies: true,
@@ -62,20 +65,11 @@ impl Default for NetworkConfig {
 }
 
 impl NetworkConfig {
-    /// Cross-field checks, as one message naming the key.
-    pub fn check(&self) -> Result<(), String> {
-        if self.watchdog_timeout.is_zero() {
-            return Err("watchdog_timeout must be above zero".into());
-        }
-        if !(self.broadcast_rate.is_finite()
-            && self.broadcast_rate > 0.0
-            && self.broadcast_rate <= 1000.0)
-        {
-            return Err(format!(
-                "broadcast_rate: expected broadcasts per second, above 0 and at most 1000 (got {})",
-                self.broadcast_rate
-            ));
-        }
+    /// Every value within its limit.
+    pub fn check(&self) -> Result<(), Violation> {
+        limits::WATCHDOG_TIMEOUT.check(self.watchdog_timeout)?;
+        limits::BROADCAST_RATE.check(self.broadcast_rate)?;
+        limits::MULTICAST_TTL.check(u64::from(self.multicast_ttl))?;
         Ok(())
     }
 
@@ -148,6 +142,24 @@ impl<'de> Deserialize<'de> for Allow {
     }
 }
 
+fn listen<'de, D: Deserializer<'de>>(d: D) -> Result<SocketAddr, D::Error> {
+    parse_listen(&String::deserialize(d)?).map_err(serde::de::Error::custom)
+}
+
+fn destinations<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<SocketAddr>, D::Error> {
+    Vec::<String>::deserialize(d)?
+        .iter()
+        .map(|s| {
+            s.trim().parse::<SocketAddr>().map_err(|_| {
+                serde::de::Error::custom(format!(
+                    "expected ADDRESS:PORT, a unicast address or a multicast group \
+                     (\"127.0.0.1:47577\", \"239.255.0.1:47577\"), got {s:?}"
+                ))
+            })
+        })
+        .collect()
+}
+
 /// `--listen ADDR`: `ip:port`, or an IP alone for the default port.
 pub fn parse_listen(s: &str) -> Result<SocketAddr, String> {
     s.parse::<SocketAddr>()
@@ -156,7 +168,10 @@ pub fn parse_listen(s: &str) -> Result<SocketAddr, String> {
                 .map(|ip| SocketAddr::new(ip, DEFAULT_PORT))
         })
         .map_err(|_| {
-            format!("expected ADDRESS:PORT or ADDRESS (e.g. 0.0.0.0:{DEFAULT_PORT}), got {s:?}")
+            format!(
+                "expected IP:PORT or an IP alone for port {DEFAULT_PORT} \
+                 (\"127.0.0.1:{DEFAULT_PORT}\", \"0.0.0.0\"), got {s:?}"
+            )
         })
 }
 
@@ -214,8 +229,17 @@ mod tests {
                 .unwrap_err()
                 .to_string()
         };
-        let e = err("listen = \"nowhere\"\n");
-        assert!(e.starts_with("v.toml:5: "), "{e}");
+        let e = err("listen = \"localhost-ish\"\n");
+        assert!(
+            e.starts_with("v.toml:5: [network] listen: expected IP:PORT")
+                && e.contains("localhost-ish"),
+            "{e}"
+        );
+        let e = err("broadcast_to = [\"127.0.0.1\"]\n");
+        assert!(
+            e.starts_with("v.toml:5: [network] broadcast_to: expected ADDRESS:PORT"),
+            "{e}"
+        );
         let e = err("allow = [\"10.0.0\"]\n");
         assert!(
             e.starts_with("v.toml:5: ") && e.contains("IP address"),
@@ -228,7 +252,7 @@ mod tests {
         );
         let e = err("watchdog_timeout = \"0ms\"\n");
         assert!(
-            e.starts_with("v.toml:4: ") && e.contains("above zero"),
+            e.starts_with("v.toml:5: [network] watchdog_timeout: expected a duration"),
             "{e}"
         );
         let e = err("broadcast_rate = 0.0\n");

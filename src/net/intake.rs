@@ -52,7 +52,7 @@ struct Outcome {
     reply: Reply,
     /// Something was refused or rejected.
     refused: bool,
-    /// Engage or disengage: always worth a reply.
+    /// It engaged, disengaged or handed command to this sender: worth a reply.
     gate: bool,
 }
 

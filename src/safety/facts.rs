@@ -29,17 +29,30 @@ fn extremes(d: &Device, values: impl Iterator<Item = f64>) -> Option<(f64, f64)>
 }
 
 /// The brake's lowest and highest value pending, in flight, sent or acknowledged —
-/// or, with nothing commanded yet, what it reports.
-fn brake(v: &Vehicle, b: &Bindings) -> Option<(f64, f64)> {
+/// or, with nothing commanded yet, what it reports — and whether its newest command
+/// releases it.
+fn brake(v: &Vehicle, b: &Bindings) -> Option<(f64, f64, bool)> {
     let d = v.device(b.brake?);
-    extremes(d, d.slot.wire().set_points()).or_else(|| {
-        let p = d.reading(d.config.reading("position")?)?;
-        Some((fraction(d, p), fraction(d, p)))
-    })
+    let w = d.slot.wire();
+    let releasing = releases(d, w.latest());
+    extremes(d, w.set_points())
+        .or_else(|| {
+            let p = d.reading(d.config.reading("position")?)?;
+            Some((fraction(d, p), fraction(d, p)))
+        })
+        .map(|(lo, hi)| (lo, hi, releasing))
 }
 
-/// The gear reported, whether it drives, and whether a shift is under way (a gear
-/// commanded that the gearbox does not report yet).
+/// `c` is a set point of `d` at or below released.
+fn releases(d: &Device, c: Option<Command>) -> bool {
+    c.and_then(Command::set_point)
+        .is_some_and(|x| fraction(d, x) <= super::rules::RELEASED)
+}
+
+/// The gear reported, whether it drives, and whether a shift is under way: a gear
+/// commanded that the gearbox has not yet acknowledged and then reported in a status
+/// taken after that. (A gearbox passing through neutral reports neutral mid-shift: a
+/// status from before the command says nothing about it.)
 fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
     let Some(g) = &b.gear else {
         return (None, false, false);
@@ -50,8 +63,17 @@ fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
         .reading("state")
         .and_then(|i| d.reading(i))
         .map(|x| x as u8);
-    let shifting = match d.slot.latest() {
-        Some(Command::State(s)) => reported != Some(s),
+    let w = d.slot.wire();
+    let shifting = match w.latest() {
+        Some(Command::State(s)) => {
+            let status_after_ack = match (w.acked_at, d.cached().at) {
+                (Some(acked), Some(status)) => status > acked,
+                _ => false,
+            };
+            let through =
+                w.acked == Some(Command::State(s)) && status_after_ack && reported == Some(s);
+            !through
+        }
         _ => false,
     };
     (reported, reported.is_some_and(|s| g.drives(s)), shifting)
@@ -65,9 +87,10 @@ pub fn gather(v: &Vehicle, plays: Plays) -> Facts {
     let b = v.bindings();
     let mut f = Facts::default();
     if plays.throttle || plays.gear {
-        if let Some((lo, hi)) = brake(v, b) {
+        if let Some((lo, hi, releasing)) = brake(v, b) {
             f.brake_low = Some(lo);
             f.brake_high = Some(hi);
+            f.brake_releasing = releasing;
         }
     }
     if plays.throttle || plays.brake || plays.gear || plays.starter {
@@ -105,13 +128,14 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> WireFacts {
                 .filter_map(Command::set_point);
             f.brake_high = extremes(d, on_wire).map(|(_, hi)| hi);
             f.brake_low = extremes(d, w.set_points()).map(|(lo, _)| lo);
+            f.brake_releasing = releases(d, w.pending.or(w.flight));
         }
     }
     if plays.brake {
         if let Some(id) = b.throttle {
             let d = v.device(id);
             let w = d.slot.wire();
-            f.throttle_released = throttle_released(d, &w);
+            f.throttle_released = released_on_wire(d, &w);
             f.throttle_going = [w.pending, w.flight]
                 .into_iter()
                 .flatten()
@@ -119,14 +143,11 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> WireFacts {
                 .any(|x| fraction(d, x) > super::rules::RELEASED);
         }
         if let Some(g) = &b.gear {
-            let d = v.device(g.device);
-            let reported = d
-                .config
-                .reading("state")
-                .and_then(|i| d.reading(i))
-                .map(|x| x as u8);
-            let w = d.slot.wire();
-            f.shift_on_its_way = matches!(w.pending.or(w.flight), Some(Command::State(s)) if Some(s) != reported && w.sent != Some(Command::State(s)));
+            let w = v.device(g.device).slot.wire();
+            // A gear command not on the wire yet (whatever the gearbox reports: it may be
+            // passing through that gear).
+            f.shift_on_its_way =
+                matches!(w.pending.or(w.flight), Some(c @ Command::State(_)) if w.sent != Some(c));
         }
     }
     if plays.throttle {
@@ -140,8 +161,9 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> WireFacts {
     f
 }
 
-/// The throttle has nothing above released pending, in flight or last sent.
-pub fn throttle_released(d: &Device, w: &WireState) -> bool {
+/// A pedal (throttle or brake) has nothing above released pending, in flight or last
+/// sent.
+pub fn released_on_wire(d: &Device, w: &WireState) -> bool {
     [w.pending, w.flight, w.sent]
         .into_iter()
         .flatten()
@@ -152,4 +174,12 @@ pub fn throttle_released(d: &Device, w: &WireState) -> bool {
 /// A set point of `d` as a fraction of its range top (the rules' scale).
 pub fn share(d: &Device, v: f64) -> f64 {
     fraction(d, v)
+}
+
+/// The brake's newest command (pending, else in flight) applies it.
+pub fn brake_applied_again(d: &Device, w: &WireState) -> bool {
+    w.pending
+        .or(w.flight)
+        .and_then(Command::set_point)
+        .is_some_and(|x| fraction(d, x) > super::rules::RELEASED)
 }

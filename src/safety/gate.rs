@@ -1,8 +1,10 @@
 //! The engage gate's blockers and its monitor. [`blockers`] is the one list of what
-//! refuses an engage right now — a faulty device, a device that has not reported yet,
-//! the e-stop in pause or disable; the monitor thread (`gate/monitor`) disengages an
-//! engaged vehicle as soon as that list is not empty, whoever engaged it (console or
-//! network). Both read the caches only.
+//! refuses an engage right now — a faulty device (failing, or silent for longer than
+//! its `status_max_age`: [`crate::vehicle::Device::silence`]), a device that has not
+//! reported yet, the e-stop in pause or disable; the monitor thread (`gate/monitor`)
+//! disengages an engaged vehicle as soon as that list is not empty, whoever engaged it
+//! (console or network). Looking every [`EVERY`], it bounds how late a silent device,
+//! the e-stop first of all, is acted on. Both read the caches only.
 
 use super::Gate;
 use crate::threads::{StopSignal, Threads};
@@ -18,12 +20,8 @@ pub const EVERY: Duration = Duration::from_millis(10);
 pub fn blockers(v: &Vehicle) -> Vec<String> {
     let mut why = Vec::new();
     for d in &v.devices {
-        if d.is_faulty() {
-            why.push(format!(
-                "{} is faulty ({})",
-                d.name(),
-                d.health.last_error().unwrap_or_default()
-            ));
+        if let Some(fault) = d.fault() {
+            why.push(format!("{} is faulty ({fault})", d.name()));
         } else if d.cached().at.is_none() {
             why.push(format!("{} has not reported yet", d.name()));
         }

@@ -27,6 +27,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqC
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use wire::Verdict;
+
 pub use wire::Wait;
 
 /// What the command thread does with its command, by the wire check.
@@ -35,6 +36,16 @@ pub enum WireStep {
     Send(Command),
     Drop,
     Wait(Wait),
+}
+
+/// A command thread that waits at the wire for another device's command waits at most
+/// two of that device's reply timeouts (the transaction on its wire, then this one) and
+/// this much more.
+const WIRE_SLACK: Duration = Duration::from_millis(50);
+
+/// When a wait at the wire for `d` gives up.
+fn wire_deadline(d: &Device) -> Instant {
+    Instant::now() + d.config.reply_timeout * 2 + WIRE_SLACK
 }
 
 /// The engage gate and command intake of one vehicle.
@@ -266,9 +277,10 @@ impl Gate {
 
     /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
     /// throttle, negative is brake; it never applies both. Going from braking to
-    /// throttle, the brake is released first and the throttle follows once the brake
-    /// has acknowledged the release (a later `accel`). While a shift is under way the
-    /// brake holds and positive `accel` waits. Needs throttle and brake bound.
+    /// throttle, the release is submitted and the throttle with it: the throttle's
+    /// command thread holds it back until the release has reached the brake
+    /// ([`Wait::BrakeReleased`]), so one `accel` is enough. While a shift is under way
+    /// the brake holds and positive `accel` waits. Needs throttle and brake bound.
     pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
         let b = self.vehicle.bindings();
         let (Some(tid), Some(bid)) = (b.throttle, b.brake) else {
@@ -289,16 +301,10 @@ impl Gate {
                 tracing::debug!("accel {a}: the brake holds until the shift is through");
                 return Ok(());
             }
+            // The release, and the throttle with it: the throttle's command thread holds
+            // it back until the release has reached the brake, so one accel is enough.
             self.submit(bid, Command::Set(0.0), received)?;
-            let released = facts::gather(&self.vehicle, self.plays[tid.index()])
-                .brake_high
-                .is_none_or(|x| x <= rules::RELEASED);
-            if released {
-                self.submit(tid, Command::Set(a * top(t)), received)?;
-            } else {
-                tracing::debug!("accel {a}: gas waits for the brake release");
-            }
-            Ok(())
+            self.submit(tid, Command::Set(a * top(t)), received)
         } else {
             self.submit(tid, Command::Set(0.0), received)?;
             self.submit(bid, Command::Set(-a * top(br)), received)
@@ -369,20 +375,25 @@ impl Gate {
                 if going {
                     self.store(t, Command::Set(t.config.range[0]), Instant::now());
                 }
-                let deadline =
-                    Instant::now() + t.config.reply_timeout * 2 + Duration::from_millis(50);
                 t.slot
-                    .wait_wire(|w| facts::throttle_released(t, w), deadline);
+                    .wait_wire(|w| facts::released_on_wire(t, w), wire_deadline(t));
+            }
+            Wait::BrakeReleased => {
+                let Some(br) = b.brake.map(|id| self.vehicle.device(id)) else {
+                    return;
+                };
+                br.slot.wait_wire(
+                    |w| facts::released_on_wire(br, w) || facts::brake_applied_again(br, w),
+                    wire_deadline(br),
+                );
             }
             Wait::ShiftOut => {
                 let Some(g) = b.gear.as_ref().map(|g| self.vehicle.device(g.device)) else {
                     return;
                 };
-                let deadline =
-                    Instant::now() + g.config.reply_timeout * 2 + Duration::from_millis(50);
                 g.slot.wait_wire(
                     |w| w.pending.or(w.flight).is_none_or(|c| Some(c) == w.sent),
-                    deadline,
+                    wire_deadline(g),
                 );
             }
         }
@@ -453,5 +464,71 @@ impl Gate {
                 .collect::<Pairs<u64>>(),
             net: None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::console::sample;
+
+    /// Alice's sample with the brake sent full and its release waiting in its slot.
+    fn releasing() -> Arc<Gate> {
+        let gate = sample::gate(Instant::now());
+        let brake = gate.vehicle.find("brake").unwrap();
+        brake.slot.fly(Command::Set(1.0));
+        brake.slot.finish(Command::Set(1.0), true);
+        brake.slot.submit(Command::Set(0.0), Instant::now());
+        gate
+    }
+
+    /// Throttle behind a release waits for it a bounded time — two brake reply timeouts
+    /// and a little — and, the release not landed, goes out as 0.
+    #[test]
+    fn throttle_behind_a_release_that_never_lands_goes_out_as_zero() {
+        let gate = releasing();
+        let (gas, brake) = (
+            gate.vehicle.find("gas").unwrap(),
+            gate.vehicle.find("brake").unwrap(),
+        );
+        let throttle = Command::Set(0.3);
+        assert_eq!(
+            gate.check_wire(gas, throttle, false),
+            WireStep::Wait(Wait::BrakeReleased)
+        );
+        let t = Instant::now();
+        gate.wait_for(Wait::BrakeReleased);
+        assert!(t.elapsed() >= brake.config.reply_timeout * 2 + WIRE_SLACK);
+        assert_eq!(
+            gate.check_wire(gas, throttle, true),
+            WireStep::Send(Command::Set(0.0))
+        );
+    }
+
+    /// The release lands while the throttle waits: the throttle goes out as it is.
+    #[test]
+    fn throttle_behind_a_release_that_lands_goes_out() {
+        let gate = releasing();
+        let (gas, brake) = (
+            gate.vehicle.find("gas").unwrap(),
+            gate.vehicle.find("brake").unwrap(),
+        );
+        let throttle = Command::Set(0.3);
+        assert_eq!(
+            gate.check_wire(gas, throttle, false),
+            WireStep::Wait(Wait::BrakeReleased)
+        );
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                brake.slot.take_newer().expect("the release");
+                brake.slot.fly(Command::Set(0.0));
+                brake.slot.finish(Command::Set(0.0), true);
+            });
+            gate.wait_for(Wait::BrakeReleased);
+        });
+        assert_eq!(
+            gate.check_wire(gas, throttle, true),
+            WireStep::Send(throttle)
+        );
     }
 }

@@ -31,6 +31,9 @@ pub struct Facts {
     pub brake_high: Option<f64>,
     /// Lowest brake value pending, in flight, sent or acknowledged.
     pub brake_low: Option<f64>,
+    /// The brake's newest command releases it: throttle may follow, held back at the
+    /// wire until the release has reached the brake ([`super::wire::Wait::BrakeReleased`]).
+    pub brake_releasing: bool,
     /// The gear reported, as a state of the gear device.
     pub gear: Option<u8>,
     /// The reported gear drives the wheels.
@@ -263,7 +266,10 @@ pub fn check(facts: &Facts, rules: Rules, plays: Plays, command: Command) -> Res
     let on = |r: Reject| rules.has(r);
     match command {
         Command::Set(v) if plays.throttle && v > RELEASED => {
-            if on(Reject::GasWhileBraking) && facts.brake_high.is_some_and(|b| b > RELEASED) {
+            if on(Reject::GasWhileBraking)
+                && facts.brake_high.is_some_and(|b| b > RELEASED)
+                && !facts.brake_releasing
+            {
                 return Err(Reject::GasWhileBraking);
             }
             if on(Reject::GasNotInGear) && !facts.in_gear {
@@ -318,6 +324,7 @@ mod tests {
         Facts {
             brake_high: Some(0.0),
             brake_low: Some(0.0),
+            brake_releasing: false,
             gear: Some(DRIVE),
             in_gear: true,
             running: Some(true),
@@ -367,6 +374,22 @@ mod tests {
         );
         // Releasing the gas is always allowed.
         assert_eq!(check_all(&f, GAS, Command::Set(0.0)), Ok(()));
+        // With a release on its way the gas may follow it (the wire holds it back).
+        let releasing = Facts {
+            brake_releasing: true,
+            ..f
+        };
+        assert_eq!(check_all(&releasing, GAS, Command::Set(0.3)), Ok(()));
+        // The other rules still apply.
+        let in_park = Facts {
+            gear: Some(PARK),
+            in_gear: false,
+            ..releasing
+        };
+        assert_eq!(
+            check_all(&in_park, GAS, Command::Set(0.3)),
+            Err(Reject::GasNotInGear)
+        );
     }
 
     #[test]

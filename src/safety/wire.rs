@@ -20,6 +20,8 @@ pub struct WireFacts {
     pub brake_high: Option<f64>,
     /// The lowest brake value pending, in flight, sent or acknowledged.
     pub brake_low: Option<f64>,
+    /// The brake's newest command on its way (pending, else in flight) releases it.
+    pub brake_releasing: bool,
     /// The throttle has a value above released pending or in flight.
     pub throttle_going: bool,
     /// The throttle has nothing above released pending, in flight or last sent.
@@ -27,7 +29,8 @@ pub struct WireFacts {
     pub estop: Option<EstopState>,
     /// The gear reported.
     pub gear: Option<u8>,
-    /// A different gear is pending or in flight for the gearbox.
+    /// A gear command is pending or in flight for the gearbox that is not the last one
+    /// sent.
     pub shift_on_its_way: bool,
     pub speed: Option<f64>,
 }
@@ -50,6 +53,9 @@ pub enum Verdict {
 pub enum Wait {
     /// Have the throttle released, and wait until its release went out.
     ThrottleReleased,
+    /// Wait until a brake release on its way has gone out (or the brake is applied
+    /// again).
+    BrakeReleased,
     /// Wait until a shift on its way has gone out.
     ShiftOut,
 }
@@ -68,7 +74,13 @@ pub fn verdict(
     match command {
         Command::Set(v) if plays.throttle && v > RELEASED => {
             if on(Reject::GasWhileBraking) && f.brake_high.is_some_and(|b| b > RELEASED) {
-                Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking)
+                // Throttle that follows a release on its way (one `accel` from braking)
+                // waits for it once; otherwise, or if it did not land, it goes out as 0.
+                if f.brake_releasing && !waited {
+                    Verdict::Wait(Wait::BrakeReleased)
+                } else {
+                    Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking)
+                }
             } else if on(Reject::GasEstop) && f.estop != Some(EstopState::Run) {
                 Verdict::Replace(Command::Set(0.0), Reject::GasEstop)
             } else {
@@ -132,6 +144,7 @@ mod tests {
         WireFacts {
             brake_high: Some(0.0),
             brake_low: Some(0.0),
+            brake_releasing: false,
             throttle_going: false,
             throttle_released: true,
             estop: Some(EstopState::Run),
@@ -154,6 +167,24 @@ mod tests {
         assert_eq!(
             verdict(&calm(), Rules::ALL, GAS, Command::Set(0.4), false),
             Verdict::Send(Command::Set(0.4))
+        );
+    }
+
+    #[test]
+    fn throttle_behind_a_release_on_its_way_waits_for_it_once() {
+        let f = WireFacts {
+            brake_high: Some(1.0),
+            brake_releasing: true,
+            ..calm()
+        };
+        assert_eq!(
+            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), false),
+            Verdict::Wait(Wait::BrakeReleased)
+        );
+        assert_eq!(
+            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), true),
+            Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking),
+            "the release did not land: no throttle"
         );
     }
 

@@ -11,8 +11,10 @@
 //! `ttyUSBn`: when a device "vanishes" its pseudo-terminal closes and the link goes;
 //! when it comes back it does so on a new pseudo-terminal behind the same link.
 
+pub mod commands;
 pub mod device;
 pub mod elm327;
+pub mod firmware;
 pub mod line;
 pub mod modbus;
 pub mod model;
@@ -22,8 +24,10 @@ pub(crate) mod test_serve;
 use crate::config::wire::Wire;
 use crate::config::{DeviceConfig, VehicleConfig};
 use crate::value::{Command, DeviceId, EstopState, Kind, Reading};
+use commands::SimCommand;
 use crossbeam_channel::Sender;
 use device::{Plant, Responder};
+use firmware::Watchdog;
 use model::Model;
 use parking_lot::Mutex;
 use serialport::{SerialPort, TTYPort};
@@ -50,44 +54,12 @@ pub struct Faults {
     vanish_ms: AtomicU64,
 }
 
-/// The kinds of fault, by name, for command lines and keys.
-pub const FAULT_NAMES: [&str; 5] = ["silent", "garbage", "corrupt", "slow", "vanish"];
-
 impl Faults {
     /// Close the device's port now and bring it back, on a new pseudo-terminal behind
     /// the same path, after `down`.
     pub fn vanish(&self, down: Duration) {
         self.vanish_ms
             .store(down.as_millis().max(1) as u64, Relaxed);
-    }
-
-    /// Switch a fault by name: `silent`, `garbage`, `corrupt` take on/off; `slow` a
-    /// delay in ms (0 off); `vanish` a down time in ms.
-    pub fn set(&self, name: &str, arg: &str) -> Result<String, String> {
-        let on = || match arg {
-            "on" | "1" | "true" => Ok(true),
-            "off" | "0" | "false" => Ok(false),
-            _ => Err(format!("{name} takes on or off, got {arg:?}")),
-        };
-        let ms = || {
-            arg.trim_end_matches("ms")
-                .parse::<u64>()
-                .map_err(|_| format!("{name} takes milliseconds, got {arg:?}"))
-        };
-        match name {
-            "silent" => self.silent.store(on()?, Relaxed),
-            "garbage" => self.garbage.store(on()?, Relaxed),
-            "corrupt" => self.corrupt.store(on()?, Relaxed),
-            "slow" => self.slow_ms.store(ms()?, Relaxed),
-            "vanish" => self.vanish(Duration::from_millis(ms()?)),
-            _ => {
-                return Err(format!(
-                    "unknown fault {name:?}: expected one of {}",
-                    FAULT_NAMES.join(", ")
-                ))
-            }
-        }
-        Ok(format!("{name} {arg}"))
     }
 
     /// Clear every fault.
@@ -135,12 +107,31 @@ pub struct SimEvent {
     pub request: Vec<u8>,
     /// Why, when the device acted on its own (its watchdog).
     pub note: Option<String>,
+    /// The command in words (`0.250`, `drive`, `home`).
+    pub text: String,
     /// The simulated vehicle's speed (m/s, signed) when the command arrived.
     pub speed: f64,
     /// A state device's state when the command arrived (a shift is a new state).
     pub state_before: Option<u8>,
-    /// The command in words (`0.250`, `drive`, `home`).
-    pub text: String,
+}
+
+/// Where the devices tell what they received (`adrive sim`'s printer, a test). A
+/// device never waits for the reader: when a bounded receiver is full, the event is
+/// counted as dropped instead.
+#[derive(Clone, Default)]
+struct Events {
+    tx: Option<Sender<SimEvent>>,
+    dropped: Arc<AtomicU64>,
+}
+
+impl Events {
+    fn emit(&self, ev: SimEvent) {
+        if let Some(tx) = &self.tx {
+            if tx.try_send(ev).is_err() {
+                self.dropped.fetch_add(1, Relaxed);
+            }
+        }
+    }
 }
 
 /// One simulated device's port.
@@ -162,6 +153,7 @@ pub struct Sim {
     model: Arc<Mutex<Model>>,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<()>>,
+    events: Events,
 }
 
 /// Wire time of `bytes` at `baud`, 10 bits a byte (start, 8 data, stop).
@@ -219,8 +211,13 @@ fn bring_up(link: &Path) -> std::io::Result<(TTYPort, TTYPort, String)> {
 
 impl Sim {
     /// Start a simulated device for every device of `config`. `events`, if given,
-    /// receives every command a device applies.
+    /// receives every command a device applies; a device never waits for it (see
+    /// [`Sim::dropped_events`]).
     pub fn start(config: &VehicleConfig, events: Option<Sender<SimEvent>>) -> std::io::Result<Sim> {
+        let events = Events {
+            tx: events,
+            dropped: Arc::default(),
+        };
         let dir = std::env::temp_dir().join(format!(
             "adrive-sim-{}-{}",
             std::process::id(),
@@ -264,7 +261,13 @@ impl Sim {
             model,
             stop,
             threads,
+            events,
         })
+    }
+
+    /// Events lost because their bounded receiver was full.
+    pub fn dropped_events(&self) -> u64 {
+        self.events.dropped.load(Relaxed)
     }
 
     fn port(&self, name: &str) -> Option<&SimPort> {
@@ -298,205 +301,75 @@ impl Sim {
         }
     }
 
-    /// Apply one line of the simulator's little command language (used by `adrive sim`
-    /// on its standard input, `--fault`, the console's bench keys and tests); returns
-    /// what was done. `help` lists it all ([`COMMANDS`]).
+    /// Apply one line of the simulator's little command language
+    /// ([`commands::VERBS`]; used by `adrive sim` on its standard input, `--fault` and
+    /// the console's bench keys). Returns what was done (for `help`, the table).
     pub fn apply(&self, line: &str) -> Result<String, String> {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        let Some((&verb, args)) = words.split_first() else {
-            return Err("empty line; `help` lists the commands".into());
-        };
-        let Some(cmd) = COMMANDS.iter().find(|c| c.verb == verb) else {
-            return Err(format!(
-                "unknown command {verb:?}; `help` lists them: {}",
-                COMMANDS
-                    .iter()
-                    .map(|c| c.verb)
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ));
-        };
-        let usage = || format!("usage: {} {} ({})", cmd.verb, cmd.args, cmd.what);
-        if args.len() != cmd.args.split_whitespace().count() {
-            return Err(usage());
-        }
-        let device = |name: &str, want: Option<Kind>| -> Result<(DeviceId, &SimPort), String> {
+        let devices: Vec<(String, Kind)> = {
             let m = self.model.lock();
-            let id = m.find(name).ok_or_else(|| {
-                format!(
-                    "no device {name:?}; the devices are {}",
-                    m.devices
-                        .iter()
-                        .map(|d| d.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )
-            })?;
-            if let Some(k) = want {
-                if m.device(id).kind != k {
-                    return Err(format!(
-                        "{name} is a {} device; {} is for {k} devices. {}",
-                        m.device(id).kind,
-                        cmd.verb,
-                        usage()
-                    ));
-                }
-            }
-            drop(m);
-            Ok((id, self.port(name).expect("every device has a port")))
+            m.devices.iter().map(|d| (d.name.clone(), d.kind)).collect()
         };
-        let on_off = |w: &str| match w {
-            "on" | "1" | "true" => Ok(true),
-            "off" | "0" | "false" => Ok(false),
-            _ => Err(usage()),
+        let name = |id: DeviceId| devices[id.index()].0.clone();
+        let port_fault = |id: DeviceId, what: &str, set: &dyn Fn(&Faults)| {
+            let n = name(id);
+            set(&self.port(&n).expect("every device has a port").faults);
+            Ok(format!("{n}: {what}"))
         };
-        match (verb, args) {
-            ("help", _) => Ok(help()),
-            ("estop", [state]) => {
-                let s: EstopState = state.parse()?;
+        let on_off = |on: bool| if on { "on" } else { "off" };
+        match commands::parse(line, &devices)? {
+            SimCommand::Help => Ok(format!(
+                "commands:\n{}",
+                commands::help(&devices).trim_end()
+            )),
+            SimCommand::Estop(s) => {
                 self.set_estop(s);
                 Ok(format!("estop is now {s}"))
             }
-            ("stall", _) => {
+            SimCommand::Stall => {
                 self.model.lock().stall();
                 Ok("engine stalled".into())
             }
-            ("nostart", [on]) => {
-                let on = on_off(on)?;
+            SimCommand::NoStart(on) => {
                 self.model.lock().start_fails = on;
-                Ok(format!("starter failure {}", if on { "on" } else { "off" }))
+                Ok(format!("starter failure {}", on_off(on)))
             }
-            ("jam", [name]) => {
-                let (id, _) = device(name, Some(Kind::Setpoint))?;
+            SimCommand::Jam(id) => {
                 self.model.lock().jam(id);
                 Ok(format!(
-                    "{name}: drive fault latched (disable → enable clears it)"
+                    "{}: drive fault latched (disable → enable clears it)",
+                    name(id)
                 ))
             }
-            ("stuck", [name, on]) => {
-                let (id, _) = device(name, Some(Kind::Setpoint))?;
-                let on = on_off(on)?;
+            SimCommand::Stuck(id, on) => {
                 self.model.lock().device_mut(id).stuck = on;
                 Ok(format!(
-                    "{name}: motor stuck {} (no fault bits)",
-                    if on { "on" } else { "off" }
+                    "{}: motor stuck {} (no fault bits)",
+                    name(id),
+                    on_off(on)
                 ))
             }
-            ("bias", [name, x]) => {
-                let (id, _) = device(name, Some(Kind::Setpoint))?;
-                let x: f64 = x
-                    .parse()
-                    .ok()
-                    .filter(|x: &f64| x.is_finite())
-                    .ok_or_else(usage)?;
+            SimCommand::Bias(id, x) => {
                 self.model.lock().device_mut(id).bias = x;
-                Ok(format!("{name} reports its position {x:+} off"))
+                Ok(format!("{} reports its position {x:+} off", name(id)))
             }
-            ("clear", [name]) => {
-                let (_, p) = device(name, None)?;
-                p.faults.clear();
-                Ok(format!("{name}: faults cleared"))
-            }
-            (fault, [name, arg]) => {
-                let (_, p) = device(name, None)?;
-                p.faults
-                    .set(fault, arg)
-                    .map(|done| format!("{name}: {done}"))
-            }
-            _ => Err(usage()),
+            SimCommand::Silent(r, on) => port_fault(r, &format!("silent {}", on_off(on)), &|f| {
+                f.silent.store(on, Relaxed)
+            }),
+            SimCommand::Garbage(r, on) => port_fault(r, &format!("garbage {}", on_off(on)), &|f| {
+                f.garbage.store(on, Relaxed)
+            }),
+            SimCommand::Corrupt(r, on) => port_fault(r, &format!("corrupt {}", on_off(on)), &|f| {
+                f.corrupt.store(on, Relaxed)
+            }),
+            SimCommand::Slow(r, ms) => port_fault(r, &format!("slow {ms} ms"), &|f| {
+                f.slow_ms.store(ms, Relaxed)
+            }),
+            SimCommand::Vanish(r, ms) => port_fault(r, &format!("vanish for {ms} ms"), &|f| {
+                f.vanish(Duration::from_millis(ms))
+            }),
+            SimCommand::Clear(r) => port_fault(r, "faults cleared", &|f| f.clear()),
         }
     }
-}
-
-/// One command of the simulator's language.
-pub struct SimCommand {
-    pub verb: &'static str,
-    pub args: &'static str,
-    pub what: &'static str,
-}
-
-/// The simulator's little language: one table for parsing, errors and `help`.
-pub const COMMANDS: [SimCommand; 13] = [
-    SimCommand {
-        verb: "estop",
-        args: "disable|pause|run",
-        what: "change the e-stop state",
-    },
-    SimCommand {
-        verb: "stall",
-        args: "",
-        what: "the engine stalls",
-    },
-    SimCommand {
-        verb: "nostart",
-        args: "on|off",
-        what: "the starter turns but the engine never catches",
-    },
-    SimCommand {
-        verb: "silent",
-        args: "DEVICE on|off",
-        what: "any device: stop answering",
-    },
-    SimCommand {
-        verb: "garbage",
-        args: "DEVICE on|off",
-        what: "any device: answer noise",
-    },
-    SimCommand {
-        verb: "corrupt",
-        args: "DEVICE on|off",
-        what: "any device: flip a bit in every reply (bad CRC / checksum)",
-    },
-    SimCommand {
-        verb: "slow",
-        args: "DEVICE MS",
-        what: "any device: answer MS later (0 clears)",
-    },
-    SimCommand {
-        verb: "vanish",
-        args: "DEVICE MS",
-        what: "any device: close the port and remove its link (a USB unplug), back after MS",
-    },
-    SimCommand {
-        verb: "jam",
-        args: "DEVICE",
-        what: "a setpoint device's drive latches a fault (bit 0x0001; disable → enable clears it)",
-    },
-    SimCommand {
-        verb: "stuck",
-        args: "DEVICE on|off",
-        what: "a setpoint device's motor stops and its drive does not notice",
-    },
-    SimCommand {
-        verb: "bias",
-        args: "DEVICE X",
-        what: "a setpoint device reports its position X off (a slipped sensor)",
-    },
-    SimCommand {
-        verb: "clear",
-        args: "DEVICE",
-        what: "clear a device's port faults",
-    },
-    SimCommand {
-        verb: "help",
-        args: "",
-        what: "this list",
-    },
-];
-
-/// The language, one command a line.
-pub fn help() -> String {
-    COMMANDS
-        .iter()
-        .map(|c| {
-            format!(
-                "{:<28} {}",
-                format!("{} {}", c.verb, c.args).trim_end(),
-                c.what
-            )
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 impl Drop for Sim {
@@ -509,7 +382,7 @@ impl Drop for Sim {
     }
 }
 
-/// One simulated device and its port loop.
+/// One simulated device: its firmware (the watchdog) and its port loop.
 struct Served {
     id: DeviceId,
     config: DeviceConfig,
@@ -519,151 +392,259 @@ struct Served {
     faults: Arc<Faults>,
     pty: Arc<Mutex<String>>,
     lives: Arc<AtomicU32>,
-    events: Option<Sender<SimEvent>>,
+    events: Events,
+}
+
+/// The device's USB link: up on a pseudo-terminal pair, or gone until a time.
+enum Link {
+    Up(Box<Up>),
+    Down { back: Instant },
+}
+
+/// A link that is up: both ends of its pseudo-terminal (holding the device end open
+/// keeps the adrive end readable while adrive closes and reopens the port), the
+/// protocol and the bytes of a request not yet complete.
+struct Up {
+    master: TTYPort,
+    _slave: TTYPort,
+    responder: Box<dyn Responder>,
+    input: Vec<u8>,
 }
 
 impl Served {
-    fn run(self, mut master: TTYPort, mut slave: TTYPort) {
-        loop {
-            // Holding the slave end open keeps the master readable while adrive closes
-            // and reopens the port.
-            self.serve(&mut master);
-            let _ = &mut slave;
-            let down = self.faults.vanish_ms.swap(0, Relaxed);
-            if self.stop.load(Relaxed) || down == 0 {
-                return;
+    /// The device thread: until stopped, its firmware's watchdog runs on every turn,
+    /// whether the link is up or gone (a real actuator's microcontroller keeps running
+    /// when its USB link drops); while the link is up, requests are served.
+    fn run(self, master: TTYPort, slave: TTYPort) {
+        let mut watchdog = Watchdog::new(self.config.sim.watchdog, Instant::now());
+        let mut link = Link::Up(Box::new(self.up(master, slave)));
+        while !self.stop.load(Relaxed) {
+            if watchdog.expired(Instant::now()) {
+                self.watchdog_trip(watchdog.limit().unwrap_or_default());
             }
-            // Vanish: close both ends and remove the link, as a USB unplug does.
-            drop(master);
-            drop(slave);
-            let _ = std::fs::remove_file(&self.link);
-            tracing::info!(device = %self.config.name, "simulated device vanished for {down} ms");
-            let back = Instant::now() + Duration::from_millis(down);
-            while Instant::now() < back {
-                if self.stop.load(Relaxed) {
-                    return;
+            link = match link {
+                Link::Up(mut up) => match self.faults.vanish_ms.swap(0, Relaxed) {
+                    0 => {
+                        if self.serve(&mut up) {
+                            watchdog.feed(Instant::now());
+                        }
+                        Link::Up(up)
+                    }
+                    down => {
+                        // Vanish: close both ends and remove the link, as a USB unplug does.
+                        drop(up);
+                        let _ = std::fs::remove_file(&self.link);
+                        tracing::info!(device = %self.config.name, "simulated device vanished for {down} ms");
+                        Link::Down {
+                            back: Instant::now() + Duration::from_millis(down),
+                        }
+                    }
+                },
+                Link::Down { back } if Instant::now() < back => {
+                    std::thread::sleep(Duration::from_millis(5));
+                    Link::Down { back }
                 }
-                std::thread::sleep(Duration::from_millis(5));
-            }
-            match bring_up(&self.link) {
-                Ok((m, s, pty)) => {
-                    tracing::info!(device = %self.config.name, pty = %pty, "simulated device is back");
-                    *self.pty.lock() = pty;
-                    self.lives.fetch_add(1, Relaxed);
-                    (master, slave) = (m, s);
-                }
-                Err(e) => {
-                    tracing::error!(device = %self.config.name, "simulated device cannot come back: {e}");
-                    return;
-                }
-            }
+                Link::Down { .. } => match bring_up(&self.link) {
+                    Ok((m, s, pty)) => {
+                        tracing::info!(device = %self.config.name, pty = %pty, "simulated device is back");
+                        *self.pty.lock() = pty;
+                        self.lives.fetch_add(1, Relaxed);
+                        Link::Up(Box::new(self.up(m, s)))
+                    }
+                    Err(e) => {
+                        tracing::error!(device = %self.config.name, "simulated device cannot come back: {e}");
+                        return;
+                    }
+                },
+            };
         }
     }
 
-    /// Serve requests until stopped or told to vanish.
-    fn serve(&self, port: &mut TTYPort) {
+    fn up(&self, master: TTYPort, slave: TTYPort) -> Up {
+        Up {
+            master,
+            _slave: slave,
+            responder: responder_for(&self.config),
+            input: Vec::with_capacity(256),
+        }
+    }
+
+    /// The watchdog tripped: the device goes to its safe value by itself (gas to 0,
+    /// brake on).
+    fn watchdog_trip(&self, limit: Duration) {
         let c = &self.config;
-        let mut responder = responder_for(c);
-        let mut input: Vec<u8> = Vec::with_capacity(256);
+        let (speed, safe) = {
+            let mut m = self.model.lock();
+            let safe = m.watchdog_trip(self.id);
+            (m.velocity, safe)
+        };
+        tracing::info!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
+        let Some(safe) = safe else { return };
+        self.events.emit(SimEvent {
+            speed,
+            state_before: None,
+            device: self.id,
+            name: c.name.clone(),
+            at: Instant::now(),
+            command: safe,
+            text: c.command_text(safe),
+            request: Vec::new(),
+            note: Some(format!(
+                "device watchdog: no command for {}",
+                humantime::format_duration(limit)
+            )),
+        });
+    }
+
+    /// Wait briefly for bytes and serve every complete request, one transaction at a
+    /// time. Returns whether a command was applied.
+    fn serve(&self, up: &mut Up) -> bool {
+        let c = &self.config;
         let mut chunk = [0u8; 256];
-        let mut last_command = Instant::now();
-        let mut tripped = false;
-        while !self.stop.load(Relaxed) && self.faults.vanish_ms.load(Relaxed) == 0 {
-            if let Some(limit) = c.sim.watchdog {
-                if !tripped && last_command.elapsed() > limit {
-                    tripped = true;
-                    let safe = self.model.lock().watchdog_trip(self.id);
-                    tracing::info!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
-                    if let (Some(tx), Some(command)) = (&self.events, safe) {
-                        let speed = self.model.lock().velocity;
-                        let _ = tx.send(SimEvent {
-                            device: self.id,
-                            name: c.name.clone(),
-                            speed,
-                            at: Instant::now(),
-                            command,
-                            text: c.command_text(command),
-                            state_before: None,
-                            request: Vec::new(),
-                            note: Some(format!(
-                                "device watchdog: no command for {}",
-                                humantime::format_duration(limit)
-                            )),
-                        });
-                    }
+        match up.master.read(&mut chunk) {
+            Ok(0) => return false,
+            Ok(n) => up.input.extend_from_slice(&chunk[..n]),
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => return false,
+            Err(_) => {
+                // No reader on the other side yet (EIO): wait and retry.
+                std::thread::sleep(Duration::from_millis(10));
+                return false;
+            }
+        }
+        let mut commanded = false;
+        let mut arrived = Instant::now();
+        loop {
+            let mut plant = DevicePlant {
+                id: self.id,
+                model: &self.model,
+                applied: None,
+                before: (0.0, None),
+            };
+            let Some(reply) = up.responder.respond(&up.input, &mut plant) else {
+                break;
+            };
+            let consumed = reply.consumed.min(up.input.len());
+            let request: Vec<u8> = up.input.drain(..consumed).collect();
+            if let Some(command) = plant.applied {
+                commanded = true;
+                self.events.emit(SimEvent {
+                    device: self.id,
+                    name: c.name.clone(),
+                    at: arrived,
+                    command,
+                    text: c.command_text(command),
+                    request: request.clone(),
+                    note: None,
+                    speed: plant.before.0,
+                    state_before: plant.before.1,
+                });
+            }
+            if self.faults.silent.load(Relaxed) || reply.bytes.is_empty() {
+                continue;
+            }
+            let mut bytes = reply.bytes;
+            if self.faults.garbage.load(Relaxed) {
+                bytes = b"\xff\x00?#garbage\xfe\r\n".to_vec();
+            }
+            if self.faults.corrupt.load(Relaxed) {
+                if let Some(last) = bytes.last_mut() {
+                    *last ^= 0x01;
                 }
             }
-            match port.read(&mut chunk) {
-                Ok(0) => continue,
-                Ok(n) => input.extend_from_slice(&chunk[..n]),
-                Err(e) if e.kind() == std::io::ErrorKind::TimedOut => continue,
-                Err(_) => {
-                    // No reader on the other side yet (EIO): wait and retry.
-                    std::thread::sleep(Duration::from_millis(10));
-                    continue;
-                }
+            let processing = if plant.applied.is_some() {
+                c.sim.command_delay
+            } else {
+                c.sim.poll_delay
+            };
+            let hold = wire_time(request.len() + bytes.len(), c.baud)
+                + c.sim.turnaround
+                + processing
+                + reply.extra
+                + Duration::from_millis(self.faults.slow_ms.load(Relaxed));
+            let due = arrived + hold;
+            let now = Instant::now();
+            if due > now {
+                std::thread::sleep(due - now);
             }
-            let mut arrived = Instant::now();
-            loop {
-                let mut plant = DevicePlant {
-                    id: self.id,
-                    model: &self.model,
-                    applied: None,
-                    before: (0.0, None),
-                };
-                let Some(reply) = responder.respond(&input, &mut plant) else {
-                    break;
-                };
-                let request: Vec<u8> = input.drain(..reply.consumed.min(input.len())).collect();
-                if plant.applied.is_some() {
-                    last_command = Instant::now();
-                    tripped = false;
-                }
-                if let (Some(tx), Some(command)) = (&self.events, plant.applied) {
-                    let _ = tx.send(SimEvent {
-                        device: self.id,
-                        name: c.name.clone(),
-                        at: arrived,
-                        command,
-                        text: c.command_text(command),
-                        request: request.clone(),
-                        note: None,
-                        speed: plant.before.0,
-                        state_before: plant.before.1,
-                    });
-                }
-                if self.faults.silent.load(Relaxed) || reply.bytes.is_empty() {
-                    continue;
-                }
-                let mut bytes = reply.bytes;
-                if self.faults.garbage.load(Relaxed) {
-                    bytes = b"\xff\x00?#garbage\xfe\r\n".to_vec();
-                }
-                if self.faults.corrupt.load(Relaxed) {
-                    if let Some(last) = bytes.last_mut() {
-                        *last ^= 0x01;
-                    }
-                }
-                let processing = if plant.applied.is_some() {
-                    c.sim.command_delay
-                } else {
-                    c.sim.poll_delay
-                };
-                let hold = wire_time(request.len() + bytes.len(), c.baud)
-                    + c.sim.turnaround
-                    + processing
-                    + reply.extra
-                    + Duration::from_millis(self.faults.slow_ms.load(Relaxed));
-                let due = arrived + hold;
-                let now = Instant::now();
-                if due > now {
-                    std::thread::sleep(due - now);
-                }
-                let _ = port.write_all(&bytes);
-                let _ = port.flush();
-                // A request that queued meanwhile starts being served now.
-                arrived = Instant::now();
+            let _ = up.master.write_all(&bytes);
+            let _ = up.master.flush();
+            // A request that queued meanwhile starts being served now.
+            arrived = Instant::now();
+        }
+        commanded
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::driver;
+
+    const GAS_ONLY: &str = r#"
+[vehicle]
+name = "bench"
+
+[vehicle.roles]
+throttle = "gas"
+
+[[device]]
+name = "gas"
+kind = "setpoint"
+range = [0.0, 1.0]
+driver = "line"
+port = "simulated"
+baud = 115200
+
+[device.sim]
+watchdog = "300ms"
+"#;
+
+    /// The incident: a vanished simulated gas actuator kept its last command (0.300)
+    /// forever, because its watchdog ran only while its port was up. A real actuator's
+    /// firmware keeps running when its USB link drops.
+    #[test]
+    fn a_vanished_gas_actuator_goes_to_zero_when_its_own_watchdog_trips() {
+        let config = crate::config::parse(GAS_ONLY, "gas.toml").unwrap();
+        let gas = config.device("gas").unwrap();
+        let (tx, events) = crossbeam_channel::unbounded();
+        let sim = Sim::start(&config, Some(tx)).unwrap();
+        let path = sim.path("gas").unwrap().to_string();
+        let mut link = driver::open_serial(&path, gas.baud, Duration::from_secs(2)).unwrap();
+        let mut drv = driver::build(gas);
+        let before = Instant::now();
+        drv.command(link.as_mut(), Command::Set(0.3)).unwrap();
+        assert_eq!(sim.model().lock().devices[0].command, 0.3);
+        drop(link);
+        sim.apply("vanish gas 60000").unwrap();
+
+        let end = Instant::now() + Duration::from_secs(20);
+        let trip = loop {
+            let left = end.saturating_duration_since(Instant::now());
+            let ev = events
+                .recv_timeout(left)
+                .expect("the device watchdog to trip");
+            if ev.note.is_some() {
+                break ev;
             }
+        };
+        // Still unplugged: the link is gone and the device has not come back.
+        assert!(!Path::new(&path).exists(), "{path} is back");
+        assert_eq!(sim.ports[0].lives.load(Relaxed), 1);
+        assert_eq!(trip.command, Command::Set(0.0));
+        let after = trip.at.duration_since(before);
+        assert!(
+            after >= Duration::from_millis(300),
+            "tripped early: {after:?}"
+        );
+        assert!(
+            after < Duration::from_millis(1300),
+            "tripped late: {after:?}"
+        );
+        assert_eq!(sim.model().lock().devices[0].command, 0.0);
+        let end = Instant::now() + Duration::from_secs(20);
+        while sim.model().lock().reading(DeviceId(0)).get(0) > Some(0.01) {
+            assert!(Instant::now() < end, "the gas never reached 0");
+            std::thread::sleep(Duration::from_millis(5));
         }
     }
 }

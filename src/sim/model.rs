@@ -86,12 +86,10 @@ impl SimDevice {
         self.velocity = (self.position - before) / h;
     }
 
-    /// The state it reports now.
+    /// The state it reports now: mid-shift, its transit state (if it has one) or the
+    /// one it left.
     fn reported_state(&self) -> u8 {
-        match self.target {
-            Some(_) => self.transit.unwrap_or(self.state),
-            None => self.state,
-        }
+        self.state
     }
 
     /// The fraction of its range (0 at the bottom, 1 at the top).
@@ -452,11 +450,17 @@ impl Model {
             (Kind::Sensor, _) => return Err("a sensor takes no commands".into()),
             (Kind::Setpoint, Command::Set(v)) => d.command = v.clamp(d.range[0], d.range[1]),
             (Kind::State, Command::State(s)) => {
-                if s != d.state && d.target.map(|t| t.0) != Some(s) {
-                    if d.settle.is_zero() {
+                // Where it is heading: a new state starts a new shift (through its
+                // transit state, if it has one); the state it is in ends one early.
+                let heading = d.target.map_or(d.state, |t| t.0);
+                if s != heading {
+                    if let Some(t) = d.transit.filter(|_| !d.settle.is_zero()) {
+                        d.state = t;
+                    }
+                    d.target = (d.state != s && !d.settle.is_zero())
+                        .then(|| (s, Instant::now() + d.settle));
+                    if d.target.is_none() {
                         d.state = s;
-                    } else {
-                        d.target = Some((s, Instant::now() + d.settle));
                     }
                 }
             }
@@ -565,6 +569,12 @@ mod tests {
         assert_eq!(m.reading(trans).get(0), Some(2.0), "neutral while shifting");
         settle(&mut m);
         assert_eq!(m.reading(trans).get(0), Some(DRIVE as f64));
+        // Neutral commanded mid-shift: it stays there.
+        m.command(trans, Command::State(0)).unwrap();
+        assert_eq!(m.reading(trans).get(0), Some(2.0));
+        m.command(trans, Command::State(2)).unwrap();
+        settle(&mut m);
+        assert_eq!(m.reading(trans).get(0), Some(2.0), "stopped in neutral");
     }
 
     #[test]

@@ -125,36 +125,45 @@ fn device_faults(
     raise: &mut impl FnMut(FaultKind, Option<&str>, String),
 ) {
     let who = Some(d.name.as_str());
-    let last_error = || d.health.last_error.clone().unwrap_or_default();
-    let gone = d.health.opens > 0 && d.health.missing;
+    let h = &d.health;
+    let from_ms = |ms: f64| Duration::from_secs_f64(ms / 1e3);
+    // `: <the device's last error>`, or nothing when it has none (never an empty cause).
+    let last_error = || {
+        h.last_error
+            .as_deref()
+            .filter(|m| !m.is_empty())
+            .map(|m| format!(": {m}"))
+            .unwrap_or_default()
+    };
+    let gone = h.opens > 0 && h.missing;
     if gone {
         raise(
             FaultKind::Disconnected,
             who,
-            format!("port closed: {}", last_error()),
+            format!("port closed{}", last_error()),
         );
     }
+    // Silence is the device's own rule (`Device::silence`); one that never answered
+    // is measured from the supervisor's start.
+    let (what, quiet) = match h.quiet_ms {
+        Some(q) => ("no answer", from_ms(q)),
+        None => ("never answered", now - mem.started),
+    };
+    if !gone && d.settings.status_on && quiet > c.status_max_age {
+        let mut cause = format!(
+            "{what} for {} ms (max {} ms)",
+            quiet.as_millis(),
+            c.status_max_age.as_millis()
+        );
+        // The error that went with it, unless it is older than the last answer.
+        if h.last_error_age_ms.is_some_and(|a| from_ms(a) < quiet) {
+            cause.push_str(&last_error());
+        }
+        raise(FaultKind::Silent, who, cause);
+    }
+    // Readings this old are still judged (a poll may wait out a command flood).
     let limit = c.status_max_age + c.reply_timeout;
-    let age = d
-        .status_age_ms
-        .map_or(now - mem.started, |ms| Duration::from_secs_f64(ms / 1e3));
-    if !gone && age > limit && d.settings.status_on {
-        let what = if d.status_age_ms.is_some() {
-            "no status"
-        } else {
-            "never answered"
-        };
-        raise(
-            FaultKind::Silent,
-            who,
-            format!(
-                "{what} for {} ms (max {} ms): {}",
-                age.as_millis(),
-                c.status_max_age.as_millis(),
-                last_error()
-            ),
-        );
-    }
+    let age = d.status_age_ms.map_or(now - mem.started, from_ms);
 
     let track = mem.tracks.entry(d.name.clone()).or_default();
     let s = d.counters;
@@ -164,14 +173,17 @@ fn device_faults(
     track
         .window
         .retain(|(t, _, _)| now - *t <= sup.error_window);
-    if let (Some(first), Some(last)) = (track.window.first(), track.window.last()) {
+    // A port that cannot be opened fails every transaction: that is said above (or as
+    // silence, for a port never opened), not again as an error rate.
+    if let (false, Some(first), Some(last)) = (h.missing, track.window.first(), track.window.last())
+    {
         let (tries, errs) = (last.1 - first.1, last.2 - first.2);
         if tries >= 4 && errs as f64 / tries as f64 > sup.error_rate {
             raise(
                 FaultKind::ErrorRate,
                 who,
                 format!(
-                    "{errs} of {tries} transactions failed in {} s: {}",
+                    "{errs} of {tries} transactions failed in {} s{}",
                     sup.error_window.as_secs_f64(),
                     last_error()
                 ),
@@ -207,7 +219,7 @@ fn device_faults(
         );
     }
     if let Some(Value::Number(cmd)) = d.executed {
-        if (pos - cmd).abs() > sup.follow_tolerance {
+        if (pos - cmd).abs() > sup.follow_tolerance * (hi - lo) {
             let since = *track.away_since.get_or_insert(now);
             if now - since > sup.follow_time {
                 raise(
@@ -262,6 +274,8 @@ pub struct Supervisor {
     cfg: SupervisorConfig,
     memory: Memory,
     procedure: Option<Procedure>,
+    /// A procedure that waits for the vehicle to be engaged (said once).
+    waiting: Option<String>,
     /// A procedure of this name may not start again before this time.
     cooldown: HashMap<String, Instant>,
     exit: ExitSink,
@@ -273,6 +287,7 @@ impl Supervisor {
             memory: Memory::new(Instant::now()),
             cfg,
             procedure: None,
+            waiting: None,
             cooldown: HashMap::new(),
             exit,
         }
@@ -285,20 +300,17 @@ impl Supervisor {
         let before = board.faults();
         let snap = gate.snapshot(0);
         let faults = detect(&snap, &v.config, &self.cfg, &mut self.memory, &before, now);
-        for f in &faults {
-            if !before
-                .iter()
-                .any(|b| b.kind == f.kind && b.device == f.device)
-            {
-                tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
-                board.note(format!("fault: {}", f.describe()));
-            }
+        let among = |list: &[Fault], f: &Fault| {
+            list.iter()
+                .any(|g| g.kind == f.kind && g.device == f.device)
+        };
+        let is_new = |f: &Fault| !among(&before, f);
+        for f in faults.iter().filter(|f| is_new(f)) {
+            tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
+            board.note(format!("fault: {}", f.describe()));
         }
         for b in &before {
-            if !faults
-                .iter()
-                .any(|f| f.kind == b.kind && f.device == b.device)
-            {
+            if !among(&faults, b) {
                 tracing::info!(fault = %b.kind, device = ?b.device, "cleared: {}", b.describe());
                 board.note(format!(
                     "cleared: {} {}",
@@ -309,23 +321,49 @@ impl Supervisor {
         }
         board.set_faults(faults.clone());
 
+        // A disengaged vehicle is never moved by adrive on its own: a procedure that
+        // moves an actuator runs only while engaged, and stops when it no longer is
+        // (the disengage has commanded the safe state). It starts again from the top at
+        // the next engage if its fault is still there.
+        if self.procedure.as_ref().is_some_and(|p| !p.may_run(gate)) {
+            let p = self.procedure.take().expect("checked");
+            let msg = format!("recovery {} stopped: the vehicle is disengaged", p.name());
+            tracing::warn!("{msg}");
+            board.note(msg.clone());
+            board.set_outcome(msg);
+            gate.set_recovering(&[]);
+            board.set_recovery(None);
+        }
+        let start = match self.procedure {
+            None => self.next_procedure(gate, &faults, &is_new, now),
+            Some(_) => None,
+        };
+        // A fault disengages the vehicle, unless it was there before and a procedure
+        // (running, or starting now) deals with it: engaging with it is the permission
+        // to recover.
         if gate.is_engaged() {
-            if let Some(f) = faults.iter().find(|f| disengages(f.kind)) {
+            let dealt_with = |f: &Fault| {
+                let p = self.procedure.as_ref().or(start.as_ref().map(|(p, _)| p));
+                !is_new(f)
+                    && p.is_some_and(|p| {
+                        procedure_for(f, gate, &self.cfg).is_some_and(|q| q.name() == p.name())
+                    })
+            };
+            if let Some(f) = faults.iter().find(|f| disengages(f.kind) && !dealt_with(f)) {
                 gate.disengage(&format!("supervisor: {}", f.describe()));
             }
         }
-        if self.procedure.is_none() {
-            for f in &faults {
-                if let Some(p) = procedure_for(f, gate, &self.cfg) {
-                    if self.cooldown.get(p.name()).is_some_and(|t| now < *t) {
-                        continue;
-                    }
-                    tracing::warn!("recovery {} started for {}", p.name(), f.describe());
-                    board.note(format!("recovery {} started: {}", p.name(), f.describe()));
-                    self.procedure = Some(p);
-                    break;
-                }
+        match start {
+            Some((p, f)) if p.may_run(gate) => {
+                tracing::warn!("recovery {} started for {}", p.name(), f.describe());
+                board.note(format!("recovery {} started: {}", p.name(), f.describe()));
+                self.waiting = None;
+                self.procedure = Some(p);
             }
+            _ => {}
+        }
+        if self.procedure.is_none() {
+            self.note_waiting(gate, &faults, now);
         }
         if let Some(p) = self.procedure.as_mut() {
             let progress = p.advance(gate, now);
@@ -357,6 +395,46 @@ impl Supervisor {
                 }
             }
         }
+    }
+
+    /// The procedure to start now, and the fault it is for: the first fault whose
+    /// procedure is not cooling down and, if it moves an actuator, may move it — the
+    /// vehicle is engaged and the fault is not one that disengages it this turn.
+    fn next_procedure(
+        &self,
+        gate: &Gate,
+        faults: &[Fault],
+        is_new: &dyn Fn(&Fault) -> bool,
+        now: Instant,
+    ) -> Option<(Procedure, Fault)> {
+        faults.iter().find_map(|f| {
+            let p = self.ready(f, gate, now)?;
+            let disengaging = p.moves(gate) && disengages(f.kind) && is_new(f);
+            (p.may_run(gate) && !disengaging).then(|| (p, f.clone()))
+        })
+    }
+
+    /// The procedure `f` calls for, unless it is cooling down after its last run.
+    fn ready(&self, f: &Fault, gate: &Gate, now: Instant) -> Option<Procedure> {
+        let p = procedure_for(f, gate, &self.cfg)?;
+        let cooling = self.cooldown.get(p.name()).is_some_and(|t| now < *t);
+        (!cooling).then_some(p)
+    }
+
+    /// Say once that a fault's procedure waits for the vehicle to be engaged.
+    fn note_waiting(&mut self, gate: &Gate, faults: &[Fault], now: Instant) {
+        let waiting = faults.iter().find_map(|f| {
+            let p = self.ready(f, gate, now)?;
+            (!p.may_run(gate)).then(|| (p.name().to_string(), f))
+        });
+        let name = waiting.as_ref().map(|(n, _)| n.clone());
+        if let Some((name, f)) = waiting.filter(|_| name != self.waiting) {
+            let msg = format!("recovery {name} waits for engage: {}", f.describe());
+            tracing::warn!("{msg}");
+            gate.vehicle.supervision.note(msg.clone());
+            gate.vehicle.supervision.set_outcome(msg);
+        }
+        self.waiting = name;
     }
 
     fn finish(&mut self, gate: &Gate, now: Instant) {
@@ -398,5 +476,40 @@ impl Running {
     pub fn shutdown(self, deadline: Duration) -> Vec<String> {
         self.stop.stop();
         self.threads.join(Instant::now() + deadline)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::console::sample;
+
+    /// The console once set a status period longer than `status_max_age`: the device
+    /// answered every poll, so it had no last error, and its `silent` fault was logged
+    /// as `… (max 250 ms): ` with an empty cause.
+    #[test]
+    fn a_silent_device_without_an_error_has_no_empty_cause() {
+        let gate = sample::gate(Instant::now());
+        let v = &gate.vehicle;
+        let steer = v.find("steer").expect("alice steers");
+        let answered = steer.started + Duration::from_millis(100);
+        steer.record_ok(answered);
+        // It answered, and not since: 2 s later it is silent.
+        let now = answered + Duration::from_secs(2);
+        let sup = SupervisorConfig::default();
+        let silent = |faults: Vec<Fault>| {
+            faults
+                .into_iter()
+                .find(|f| f.kind == FaultKind::Silent && f.device.as_deref() == Some("steer"))
+                .expect("steer is silent")
+        };
+        let mut mem = Memory::new(answered);
+        let snap = gate.snapshot_at(0, now);
+        let f = silent(detect(&snap, &v.config, &sup, &mut mem, &[], now));
+        assert_eq!(f.cause, "no answer for 2000 ms (max 250 ms)");
+        *steer.health.last_error.lock() = Some((now, "timeout".into()));
+        let snap = gate.snapshot_at(0, now);
+        let f = silent(detect(&snap, &v.config, &sup, &mut mem, &[], now));
+        assert!(f.cause.ends_with("(max 250 ms): timeout"), "{f:?}");
     }
 }

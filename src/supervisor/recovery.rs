@@ -10,10 +10,16 @@
 //!   the throttle and the gearbox; afterwards the brake stays applied until the planner
 //!   commands otherwise, and the throttle slot holds 0 — nothing jumps back to a stale
 //!   set point. It needs throttle, brake, gear, starter and engine_running bound.
-//! - **steering** (the paper's `e` key): disable, enable (a servo drive's fault latch
-//!   clears on that cycle), home, hold where it is.
+//! - **steering** (the paper's `e` key): throttle off and brake, then disable, enable (a
+//!   servo drive's fault latch clears on that cycle), home, hold where it is. Throttle
+//!   and brake stay taken until it is done: the vehicle stands while its steering is
+//!   reset.
 //! - **reconnect**: a vanished device; the engine reopens its port with backoff, the
 //!   procedure waits for it to answer again.
+//!
+//! A procedure that moves an actuator ([`Procedure::moves`]: anything beyond the safe
+//! state of gas 0 and brake full) runs only while the vehicle is engaged; the
+//! supervisor holds that rule.
 
 use crate::config::roles::ReadingRef;
 use crate::config::SupervisorConfig;
@@ -136,6 +142,28 @@ impl Step {
     }
 }
 
+/// Throttle off and full brake, for the pedals that are bound: the first steps of the
+/// safe state ([`crate::safety::safe::state`]).
+fn stand_still(v: &Vehicle) -> Vec<Step> {
+    let b = v.bindings();
+    crate::safety::safe::state(&v.config)
+        .into_iter()
+        .filter(|(d, _)| [b.throttle, b.brake].contains(&Some(*d)))
+        .map(|(device, command)| {
+            let name = v.device(device).name();
+            Step::Send {
+                device,
+                command,
+                label: if b.throttle == Some(device) {
+                    format!("{name} off")
+                } else {
+                    name.to_string()
+                },
+            }
+        })
+        .collect()
+}
+
 /// How a turn of a procedure went.
 #[derive(Debug, PartialEq)]
 pub enum Progress {
@@ -184,14 +212,15 @@ impl Procedure {
     /// device), release. `None` when the vehicle lacks a binding it needs.
     pub fn engine_stall(v: &Vehicle, gear: u8, cfg: &SupervisorConfig) -> Option<Procedure> {
         let b = v.bindings();
-        let (throttle, brake, g, starter, running) = (
+        // The throttle and brake are needed too: a stalled engine is restarted with the
+        // vehicle held.
+        let (throttle, _brake, g, starter, running) = (
             b.throttle?,
             b.brake?,
             b.gear.as_ref()?,
             b.starter?,
             b.engine_running?,
         );
-        let name = |id: DeviceId| v.device(id).name().to_string();
         let state = |s: u8| {
             v.device(g.device)
                 .config
@@ -199,19 +228,8 @@ impl Procedure {
                 .unwrap_or("?")
                 .to_string()
         };
-        let mut steps = vec![
-            Step::Send {
-                device: throttle,
-                command: Command::Set(v.device(throttle).config.range[0]),
-                label: format!("{} off", name(throttle)),
-            },
-            Step::Send {
-                device: brake,
-                command: Command::Set(v.device(brake).config.range[1]),
-                label: name(brake),
-            },
-            Step::WaitStopped(b.speed),
-        ];
+        let mut steps = stand_still(v);
+        steps.push(Step::WaitStopped(b.speed));
         if let Some(park) = g.park {
             steps.push(Step::Shift {
                 device: g.device,
@@ -233,28 +251,31 @@ impl Procedure {
         Some(Procedure::new("engine_stall", steps, takes, cfg))
     }
 
-    /// Steering drive fault: disable, enable, home, hold where it is.
+    /// Steering drive fault: stand still (throttle off and brake, where bound), then
+    /// disable, enable, home, hold where it is.
     pub fn steering(v: &Vehicle, cfg: &SupervisorConfig) -> Option<Procedure> {
-        let s = v.bindings().steering?;
-        Some(Procedure::new(
-            "steering",
-            vec![
-                Step::Send {
-                    device: s,
-                    command: Command::Control(Control::Disable),
-                    label: "disable".into(),
-                },
-                Step::Send {
-                    device: s,
-                    command: Command::Control(Control::Enable),
-                    label: "enable".into(),
-                },
-                Step::Home(s),
-                Step::Hold(s),
-            ],
-            vec![s],
-            cfg,
-        ))
+        let b = v.bindings();
+        let s = b.steering?;
+        let mut steps = stand_still(v);
+        steps.extend([
+            Step::Send {
+                device: s,
+                command: Command::Control(Control::Disable),
+                label: "disable".into(),
+            },
+            Step::Send {
+                device: s,
+                command: Command::Control(Control::Enable),
+                label: "enable".into(),
+            },
+            Step::Home(s),
+            Step::Hold(s),
+        ]);
+        let takes = [Some(s), b.throttle, b.brake]
+            .into_iter()
+            .flatten()
+            .collect();
+        Some(Procedure::new("steering", steps, takes, cfg))
     }
 
     /// A vanished device: wait for the engine to reopen it and for it to answer.
@@ -276,9 +297,17 @@ impl Procedure {
         &self.steps
     }
 
-    /// The procedure moves an actuator at some step.
+    /// The procedure moves an actuator at some step ([`Step::moves`]).
     pub fn moves(&self, gate: &Gate) -> bool {
         self.steps.iter().any(|s| s.moves(gate))
+    }
+
+    /// The rule for every procedure: a disengaged vehicle is never moved by adrive on
+    /// its own, so one that moves an actuator runs only while the vehicle is engaged
+    /// (engaging is the permission to move it). One that moves nothing — reconnect —
+    /// always may.
+    pub fn may_run(&self, gate: &Gate) -> bool {
+        !self.moves(gate) || gate.is_engaged()
     }
 
     pub fn elapsed(&self, now: Instant) -> Duration {
@@ -355,5 +384,40 @@ impl Procedure {
             }
             return Progress::Running;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_the_safe_state_and_waiting_count_as_not_moving() {
+        let cfg = SupervisorConfig::default();
+        let gate = crate::console::sample::gate(Instant::now());
+        let v = &gate.vehicle;
+        let b = v.bindings();
+        let drive = b.gear.as_ref().expect("gear").forward[0];
+        let stall = Procedure::engine_stall(v, drive, &cfg).expect("alice has it all");
+        assert!(stall.moves(&gate));
+        let steering = Procedure::steering(v, &cfg).expect("steering bound");
+        assert!(steering.moves(&gate));
+        let brake = b.brake.expect("brake");
+        assert!(!Procedure::reconnect(v, brake, &cfg).moves(&gate));
+        let names = |p: &Procedure, moving: bool| -> Vec<String> {
+            p.steps()
+                .iter()
+                .filter(|s| s.moves(&gate) == moving)
+                .map(Step::name)
+                .collect()
+        };
+        assert_eq!(
+            names(&stall, false),
+            ["gas off", "brake", "wait stopped", "release"]
+        );
+        assert_eq!(
+            names(&steering, true),
+            ["disable", "enable", "home", "hold position"]
+        );
     }
 }

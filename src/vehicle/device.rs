@@ -7,7 +7,7 @@ use super::port::{Conn, Opener, Port, PortHealth};
 use super::slot::CommandSlot;
 use super::stats::Stats;
 use super::trace::Trace;
-use crate::config::{DeviceConfig, Role};
+use crate::config::{DeviceConfig, Role, Violation};
 use crate::driver::DriverError;
 use crate::value::{DeviceId, Kind, Reading};
 use parking_lot::Mutex;
@@ -17,6 +17,9 @@ use std::time::{Duration, Instant};
 
 /// After this many failed transactions in a row a device counts as faulty.
 pub const FAULT_AFTER: u32 = 3;
+
+/// A device's error that persists unchanged is logged again this often.
+pub const REPEAT_ERROR_EVERY: Duration = Duration::from_secs(60);
 
 /// The latest state a device reported.
 #[derive(Clone, Copy, Debug, Default)]
@@ -51,11 +54,21 @@ pub struct Health {
     pub consecutive_errors: AtomicU32,
     pub connected: AtomicBool,
     pub last_error: Mutex<Option<(Instant, String)>>,
+    /// When the device last answered (a good status or an acknowledged command), in
+    /// nanoseconds after [`Device::started`] plus one; 0 before its first answer.
+    answered_ns: AtomicU64,
+    /// When an error was last logged.
+    error_logged: Mutex<Option<Instant>>,
 }
 
 impl Health {
     pub fn last_error(&self) -> Option<String> {
         self.last_error.lock().as_ref().map(|(_, m)| m.clone())
+    }
+
+    /// When the last error happened.
+    pub fn last_error_at(&self) -> Option<Instant> {
+        self.last_error.lock().as_ref().map(|(t, _)| *t)
     }
 }
 
@@ -82,11 +95,11 @@ impl Settings {
     pub fn command_timeout(&self) -> Duration {
         Duration::from_micros(self.command_timeout_us.load(Relaxed))
     }
-    pub fn set_status_period(&self, d: Duration) {
+    fn set_status_period(&self, d: Duration) {
         self.status_period_us
             .store(d.as_micros().max(1000) as u64, Relaxed);
     }
-    pub fn set_command_timeout(&self, d: Duration) {
+    fn set_command_timeout(&self, d: Duration) {
         self.command_timeout_us
             .store(d.as_micros().max(1000) as u64, Relaxed);
     }
@@ -108,6 +121,8 @@ pub struct Device {
     pub trace: Arc<Trace>,
     /// Times the port was opened, and whether it is missing.
     pub port_health: Arc<PortHealth>,
+    /// When the device was set up (the engine starts right after).
+    pub started: Instant,
 }
 
 impl Device {
@@ -130,7 +145,22 @@ impl Device {
             cache: Mutex::new(Cached::default()),
             stats: Stats::default(),
             health: Health::default(),
+            started: Instant::now(),
         }
+    }
+
+    /// Change the settings the console edits in place (`st delay`, `cm delay`): the
+    /// device's configuration with the change must pass the very checks a vehicle file
+    /// does ([`DeviceConfig::check_limits`]), or nothing changes.
+    pub fn change_settings(&self, change: impl FnOnce(&mut DeviceConfig)) -> Result<(), Violation> {
+        let mut c = self.config.clone();
+        c.status_period = self.settings.status_period();
+        c.command_timeout = self.settings.command_timeout();
+        change(&mut c);
+        c.check_limits()?;
+        self.settings.set_status_period(c.status_period);
+        self.settings.set_command_timeout(c.command_timeout);
+        Ok(())
     }
 
     pub fn name(&self) -> &str {
@@ -159,14 +189,57 @@ impl Device {
         c.at.and(c.reading.get(i))
     }
 
-    /// Failing repeatedly, or its port is gone.
+    /// Faulty: failing repeatedly (its port gone, too), or silent.
     pub fn is_faulty(&self) -> bool {
-        self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER
+        self.fault().is_some()
     }
 
-    pub(crate) fn record_ok(&self) {
+    /// Why the device is faulty, if it is: its last error after [`FAULT_AFTER`] failed
+    /// transactions in a row, or its silence ([`Device::silence`]).
+    pub fn fault(&self) -> Option<String> {
+        if self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER {
+            return Some(self.health.last_error().unwrap_or_else(|| "failing".into()));
+        }
+        let quiet = self.silence(Instant::now())?;
+        Some(format!(
+            "no answer for {} ms (max {} ms)",
+            quiet.as_millis(),
+            self.config.status_max_age.as_millis()
+        ))
+    }
+
+    /// How long since the device last answered — a good status or an acknowledged
+    /// command; `None` before its first answer.
+    pub fn quiet_for(&self, now: Instant) -> Option<Duration> {
+        match self.health.answered_ns.load(Relaxed) {
+            0 => None,
+            ns => Some(now.saturating_duration_since(self.started + Duration::from_nanos(ns - 1))),
+        }
+    }
+
+    /// The device is silent: it answered once, but nothing for longer than its
+    /// `status_max_age` (while its status polls are on). This is the one silence rule:
+    /// computed from the time of the last answer whenever it is asked, it holds by
+    /// construction — the gate monitor, which looks every 10 ms, disengages within
+    /// `status_max_age` + 10 ms of the last answer, whatever the reply timeout or the
+    /// supervisor's period. Commands count as answers: a device busy acknowledging a
+    /// command flood is not silent while its next status poll waits for the port.
+    pub fn silence(&self, now: Instant) -> Option<Duration> {
+        self.quiet_for(now)
+            .filter(|quiet| self.is_silent_after(*quiet))
+    }
+
+    /// Quiet this long, the device counts as silent.
+    pub fn is_silent_after(&self, quiet: Duration) -> bool {
+        quiet > self.config.status_max_age && self.settings.status_enabled.load(Relaxed)
+    }
+
+    /// A transaction succeeded at `at`.
+    pub(crate) fn record_ok(&self, at: Instant) {
         self.health.consecutive_errors.store(0, Relaxed);
         self.health.connected.store(true, Relaxed);
+        let ns = at.saturating_duration_since(self.started).as_nanos() as u64 + 1;
+        self.health.answered_ns.fetch_max(ns, Relaxed);
     }
 
     pub(crate) fn record_error(&self, e: &DriverError, is_command: bool) {
@@ -181,12 +254,20 @@ impl Device {
             self.health.connected.store(false, Relaxed);
         }
         let msg = e.to_string();
+        let now = Instant::now();
         let mut last = self.health.last_error.lock();
-        // Log the first error of a run and every change of message, not a flood.
         let fresh = n == 1 || last.as_ref().is_none_or(|(_, m)| *m != msg);
-        *last = Some((Instant::now(), msg));
+        *last = Some((now, msg));
         drop(last);
-        if fresh || n == FAULT_AFTER {
+        // Log the first error of a run and every change of message; an error that
+        // persists (a port that is not there) is repeated rarely, not at the poll rate.
+        let mut logged = self.health.error_logged.lock();
+        let due = fresh || logged.is_none_or(|t| now - t >= REPEAT_ERROR_EVERY);
+        if due {
+            *logged = Some(now);
+        }
+        drop(logged);
+        if due {
             tracing::warn!(device = %self.name(), errors_in_a_row = n, "{}: {e}", if is_command { "command" } else { "status" });
         }
     }

@@ -168,6 +168,11 @@ fn view(d: &Device, now: Instant) -> DeviceView {
             status_error: d.health.status_error.load(Relaxed),
             command_error: d.health.command_error.load(Relaxed),
             last_error: d.health.last_error(),
+            last_error_age_ms: d
+                .health
+                .last_error_at()
+                .map(|t| ms(now.saturating_duration_since(t))),
+            quiet_ms: d.quiet_for(now).map(ms),
         },
         settings: snapshot::Settings {
             status_period_ms: ms(d.settings.status_period()),

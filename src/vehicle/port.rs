@@ -228,22 +228,19 @@ impl Conn {
         if self.link.is_some() {
             return Ok(());
         }
-        let now = Instant::now();
-        if now < self.next_open {
+        if Instant::now() < self.next_open {
+            // Waiting to retry: the same words as the failed open, so a log that
+            // reports changes of error stays quiet until something changes.
             return Err(DriverError::Io(io::Error::new(
                 io::ErrorKind::NotConnected,
-                format!(
-                    "{} (next open attempt in {} ms)",
-                    self.open_error.as_deref().unwrap_or("port closed"),
-                    (self.next_open - now).as_millis()
-                ),
+                self.open_error.as_deref().unwrap_or("port closed"),
             )));
         }
         let mut link = match (self.opener)() {
             Ok(l) => l,
             Err(e) => {
                 self.health.missing.store(true, Relaxed);
-                self.open_error = Some(format!("cannot open: {e}"));
+                self.open_error = Some(e.to_string());
                 self.fail_open();
                 return Err(DriverError::Io(e));
             }

@@ -41,6 +41,9 @@ pub struct WireState {
     pub sent: Option<Command>,
     /// The last command the device acknowledged.
     pub acked: Option<Command>,
+    /// When the device first acknowledged `acked` (a resend of it does not move this):
+    /// a status taken after it reports the command's effect.
+    pub acked_at: Option<Instant>,
 }
 
 impl WireState {
@@ -183,8 +186,9 @@ impl CommandSlot {
         let mut s = self.state.lock();
         s.wire.flight = None;
         s.wire.sent = Some(command);
-        if acked {
+        if acked && s.wire.acked != Some(command) {
             s.wire.acked = Some(command);
+            s.wire.acked_at = Some(Instant::now());
         }
         drop(s);
         self.cv.notify_all();

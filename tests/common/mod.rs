@@ -2,6 +2,8 @@
 //! pseudo-terminals with the real engine on top, and waiting for events with a deadline.
 #![allow(dead_code)]
 
+pub mod pty;
+
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;
 use adrive::engine::Engine;
@@ -237,24 +239,40 @@ pub fn free_port() -> u16 {
         .port()
 }
 
-/// A fresh, empty directory for one test.
-pub fn tempdir(tag: &str) -> std::path::PathBuf {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .as_nanos();
-    let d = std::env::temp_dir().join(format!("adrive-{tag}-{}-{nanos}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh, empty directory for one test under the system's temporary directory
+/// (`$TMPDIR`), removed when the guard drops: when the test ends, passing or failing.
+pub fn tempdir(tag: &str) -> tempfile::TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("adrive-{tag}-"))
+        .tempdir()
+        .expect("a temporary directory")
 }
 
-/// A child process that is killed when the test ends, passing or failing.
+/// End a child the way a service manager does: SIGTERM, so that it cleans up after
+/// itself (`adrive sim` removes its directory of links), then SIGKILL if it has not
+/// exited by the deadline.
+pub fn stop(child: &mut std::process::Child) {
+    if matches!(child.try_wait(), Ok(Some(_))) {
+        return;
+    }
+    signal(child, libc::SIGTERM);
+    let end = Instant::now() + DEADLINE;
+    while Instant::now() < end {
+        if !matches!(child.try_wait(), Ok(None)) {
+            return;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// A child process that is stopped ([`stop`]) when the test ends, passing or failing.
 pub struct Reaped(pub std::process::Child);
 
 impl Drop for Reaped {
     fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
+        stop(&mut self.0);
     }
 }
 
@@ -269,4 +287,16 @@ impl std::ops::DerefMut for Reaped {
     fn deref_mut(&mut self) -> &mut Self::Target {
         &mut self.0
     }
+}
+
+/// The entries named `adrive-sim-*` in `dir`: a simulator's directory of links.
+pub fn sim_dirs(dir: &std::path::Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .map(|d| {
+            d.filter_map(|e| e.ok())
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with("adrive-sim-"))
+                .collect()
+        })
+        .unwrap_or_default()
 }

@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod device;
 pub mod dialog;
+pub mod header;
 pub mod help;
 pub mod hint;
 pub mod log;

@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::config::VehicleConfig;
-use crate::console::controls::{capture, Frame, Sources};
+use crate::console::controls::{capture, change_settings, Frame, Sources};
 use crate::console::keymap::{key_to_action, Keymap};
 use crate::console::sample;
 use crate::console::theme::Theme;
@@ -10,9 +10,12 @@ use crate::safety::Reject;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
 
-/// Records every call; refuses submits while `refuse` is set.
+/// Records every call; refuses submits while `refuse` is set. Settings go through the
+/// sample vehicle's real checks.
 struct Fake {
-    config: VehicleConfig,
+    /// The sample vehicle (not started): its configuration, and the real checks of
+    /// a console setting edit.
+    gate: std::sync::Arc<crate::safety::Gate>,
     snap: Frame,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
@@ -26,8 +29,8 @@ impl Fake {
         let now = Instant::now();
         let g = sample::gate(now);
         Fake {
-            config: VehicleConfig::alice(),
             snap: capture(&g, &Sources::default(), now, None),
+            gate: g,
             calls: RefCell::default(),
             refuse: None,
             engage: Ok(()),
@@ -41,7 +44,7 @@ impl Fake {
         self.calls.borrow().clone()
     }
     fn name(&self, id: DeviceId) -> &str {
-        &self.config.devices[id.index()].name
+        &self.gate.vehicle.config.devices[id.index()].name
     }
     /// A device of the sample in the frame, by name, to change what the console sees.
     fn device(&mut self, name: &str) -> &mut DeviceView {
@@ -65,10 +68,10 @@ impl Controls for Fake {
         self.snap.clone()
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
-        self.config.devices[id.index()].parse_command(text)
+        self.gate.vehicle.config.devices[id.index()].parse_command(text)
     }
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject> {
-        let d = &self.config.devices[id.index()];
+        let d = &self.gate.vehicle.config.devices[id.index()];
         self.log(format!("submit {} {}", d.name, d.command_text(command)));
         self.refuse.map_or(Ok(()), Err)
     }
@@ -86,11 +89,15 @@ impl Controls for Fake {
     fn set_interlocks(&self, on: bool) {
         self.log(format!("interlocks {on}"));
     }
-    fn set_status_period(&self, id: DeviceId, d: Duration) {
+    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        change_settings(&self.gate.vehicle, id, |c| c.status_period = d)?;
         self.log(format!("st delay {} {d:?}", self.name(id)));
+        Ok(())
     }
-    fn set_command_timeout(&self, id: DeviceId, d: Duration) {
+    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        change_settings(&self.gate.vehicle, id, |c| c.command_timeout = d)?;
         self.log(format!("cm delay {} {d:?}", self.name(id)));
+        Ok(())
     }
     fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
         self.log(format!("enable {} {thread:?} {on}", self.name(id)));
@@ -232,6 +239,47 @@ fn delays_and_thread_flags_are_edited_in_place() {
     assert!(m.edit.as_ref().unwrap().error.is_some(), "0ms is refused");
 }
 
+/// The console took `st delay 1.5s` on a device whose `status_max_age` is 250 ms, which
+/// the vehicle file refuses; the device then flipped between faulty and clear.
+#[test]
+fn a_status_period_the_vehicle_file_would_refuse_is_refused_in_place() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    // Steer's st delay; Alice's steer has status_max_age 250ms.
+    press(
+        &mut m,
+        &f,
+        &["j", "<Enter>", "1", ".", "5", "s", "<Enter>"],
+        now,
+    );
+    assert_eq!(m.mode, Mode::Edit, "stays in the field");
+    let e = m.edit.as_ref().unwrap();
+    assert_eq!(e.buffer, "1.5s", "what was typed is kept");
+    let err = e.error.clone().unwrap();
+    assert!(
+        err.contains("status_max_age 250ms, status_period 1500ms")
+            && err.contains("expected `status_max_age` at least `status_period`"),
+        "{err}"
+    );
+    // Out of the vehicle file's range, too.
+    press(&mut m, &f, &["<C-u>", "0", "<Enter>"], now);
+    let err = m.edit.as_ref().unwrap().error.clone().unwrap();
+    assert!(err.contains("status_period: expected a duration"), "{err}");
+    assert!(f.calls().is_empty(), "nothing changed: {:?}", f.calls());
+    let steer = f.gate.vehicle.find("steer").unwrap();
+    assert_eq!(steer.settings.status_period(), Duration::from_millis(50));
+    // A value the file takes goes through.
+    press(&mut m, &f, &["<C-u>", "2", "0", "0", "<Enter>"], now);
+    assert_eq!(m.mode, Mode::Main);
+    assert_eq!(f.calls(), ["st delay steer 200ms"]);
+    assert_eq!(steer.settings.status_period(), Duration::from_millis(200));
+    // cm delay: the simulated gas's own watchdog (1s) must outlast the resend.
+    press(&mut m, &f, &["j", "l", "<Enter>", "2", "s", "<Enter>"], now);
+    let err = m.edit.as_ref().unwrap().error.clone().unwrap();
+    assert!(err.contains("sim.watchdog 1s, command_timeout 2s"), "{err}");
+}
+
 #[test]
 fn left_and_right_move_between_devices_keeping_the_field() {
     let f = Fake::new();
@@ -283,6 +331,41 @@ fn space_stops_at_once_without_asking() {
     assert_eq!(m.mode, Mode::Main);
     assert_eq!(f.calls(), ["disengage"]);
     assert!(m.message.unwrap().text.contains("STOP"));
+}
+
+/// The emergency stop once existed only in main, teleop (as a full brake that stayed
+/// engaged) and bench: Space in the middle of an edit or a question typed a space or
+/// did nothing. It stops from every mode now, dropping what was half done.
+#[test]
+fn space_is_stop_in_every_mode() {
+    let now = Instant::now();
+    for (keys, back_in) in [
+        (&["g", "0", "."][..], Mode::Main),
+        (&["E"][..], Mode::Main),
+        (&["?"][..], Mode::Help),
+        (&["d", "w"][..], Mode::Teleop),
+        (&["d", "E"][..], Mode::Teleop),
+        (&["x"][..], Mode::Bench),
+        (&["x", "<Enter>"][..], Mode::Bench),
+    ] {
+        let f = Fake::new();
+        let mut m = model(&f);
+        press(&mut m, &f, keys, now);
+        let before = f.calls().len();
+        press(&mut m, &f, &["<Space>"], now);
+        assert_eq!(f.calls()[before..], ["disengage"], "{keys:?}");
+        assert_eq!(m.mode, back_in, "{keys:?}");
+        assert!(m.edit.is_none() && m.ask.is_none(), "{keys:?}");
+        assert!(
+            m.message.as_ref().unwrap().text.contains("STOP"),
+            "{keys:?}"
+        );
+        if back_in == Mode::Teleop {
+            // The next up releases the brake first; the deadman waits for a key.
+            assert_eq!(m.teleop.accel, -1.0);
+            assert_eq!(m.teleop.last_key, None);
+        }
+    }
 }
 
 #[test]
@@ -350,19 +433,14 @@ fn help_opens_over_any_mode_and_closes_back() {
 }
 
 #[test]
-fn teleop_steps_steering_and_accel_and_space_brakes() {
+fn teleop_steps_steering_and_accel_and_b_brakes() {
     let f = Fake::new();
     let mut m = model(&f);
     let now = Instant::now();
     press(&mut m, &f, &["d"], now);
     assert_eq!(m.mode, Mode::Teleop);
     assert_eq!(m.teleop.steer, 0.231, "starts where the steering is");
-    press(
-        &mut m,
-        &f,
-        &["<Right>", "a", "a", "<Up>", "w", "<Space>"],
-        now,
-    );
+    press(&mut m, &f, &["<Right>", "a", "a", "<Up>", "w", "b"], now);
     assert_eq!(
         f.calls(),
         [
@@ -455,6 +533,23 @@ fn c_edits_the_virtual_accel() {
     );
     assert_eq!(f.calls(), ["accel -0.3"]);
     assert_eq!(m.accel, Some(-0.3));
+}
+
+/// `accel 0.300` stayed on screen after STOP, although STOP brakes fully.
+#[test]
+fn stop_clears_the_accel_shown() {
+    let mut f = Fake::new();
+    f.snap.snap.gate.engaged = true;
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["c", "0", ".", "3", "<Enter>"], now);
+    tick(&mut m, &f, now);
+    assert_eq!(m.accel, Some(0.3), "shown while engaged");
+    press(&mut m, &f, &["<Space>"], now);
+    assert_eq!(f.calls(), ["accel 0.3", "disengage"]);
+    f.snap.snap.gate.engaged = false;
+    tick(&mut m, &f, now);
+    assert_eq!(m.accel, None);
 }
 
 #[test]

@@ -1,0 +1,254 @@
+//! The top bar: the vehicle, the mode, interlocks, how many devices are faulty, and
+//! ENGAGED or DISENGAGED with the reason — fitted to the width it gets. The gate is
+//! what an operator looks for, so it is always whole: a reason too long is shortened
+//! at a word, with "…" and every parenthesis it opened closed, never cut in the
+//! middle (at 100 columns it once read `DISENGAGED (gas is faulty (no reply within
+//! 100ms)`); a vehicle name too long gives way before the gate does.
+
+use crate::console::keymap::Mode;
+use crate::console::model::Model;
+use ratatui::buffer::Buffer;
+use ratatui::layout::Rect;
+use ratatui::text::{Line, Span};
+use ratatui::widgets::{Paragraph, Widget};
+use unicode_width::UnicodeWidthStr;
+
+/// The fewest columns a long vehicle name is shortened to (" ADRIVE " and 12 more).
+const TITLE_MIN: usize = 20;
+
+pub struct Header<'a> {
+    pub m: &'a Model,
+}
+
+impl Header<'_> {
+    /// The bar for a screen `width` columns wide.
+    pub fn line(&self, width: u16) -> Line<'static> {
+        let (s, t) = (&self.m.snap, &self.m.theme);
+        let bar = t.bar();
+        let mode = match self.m.mode {
+            Mode::Help | Mode::Confirm | Mode::Edit => self.m.back_to,
+            m => m,
+        };
+        let mut rest = vec![
+            Span::styled("│", bar),
+            Span::styled(format!(" {} ", mode.as_str().to_uppercase()), bar),
+            Span::styled("│", bar),
+            if s.gate.interlocks {
+                Span::styled(" interlocks on ", bar)
+            } else {
+                Span::styled(" INTERLOCKS OFF ", t.fault().patch(bar))
+            },
+            Span::styled("│", bar),
+        ];
+        let faults = s.devices.iter().filter(|d| s.red(d)).count();
+        if faults > 0 {
+            rest.push(Span::styled(
+                format!(" {faults} FAULTY "),
+                t.fault().patch(bar),
+            ));
+            rest.push(Span::styled("│", bar));
+        }
+        let (gate, style) = if s.gate.engaged {
+            (" ENGAGED ".to_string(), t.good().patch(bar))
+        } else {
+            (" DISENGAGED ".to_string(), t.warn().patch(bar))
+        };
+        let why = s.gate.reason.trim_start_matches("disengaged: ");
+        let title = format!(" ADRIVE {} ", s.vehicle);
+        let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
+        let width = width as usize;
+        // A long vehicle name gives way to the reason, down to TITLE_MIN columns.
+        let reason_wants = if s.gate.engaged { 0 } else { why.width() + 2 };
+        let title_room = width
+            .saturating_sub(fixed + reason_wants)
+            .max(title.width().min(TITLE_MIN));
+        let title = shorten(&title, title_room);
+        let room = width.saturating_sub(title.width() + fixed);
+        let gate = match s.gate.engaged {
+            true => gate,
+            // " DISENGAGED " + "(" + reason + ")" (+ " " when there is room): the
+            // reason gets what is left.
+            false => match shorten(why, room.saturating_sub(2)) {
+                r if r.is_empty() => gate,
+                r if r.width() + 2 < room => format!("{gate}({r}) "),
+                r => format!("{gate}({r})"),
+            },
+        };
+        let mut spans = vec![Span::styled(title, t.title().patch(bar))];
+        spans.extend(rest);
+        spans.push(Span::styled(gate, style));
+        Line::from(spans).style(bar)
+    }
+}
+
+impl Widget for &Header<'_> {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        Paragraph::new(self.line(area.width)).render(area, buf);
+    }
+}
+
+/// `text` in at most `max` columns: whole when it fits; else its longest prefix that
+/// ends at a word, then "…", then a ")" for each parenthesis the prefix left open;
+/// empty when not even "…" fits.
+pub fn shorten(text: &str, max: usize) -> String {
+    if text.width() <= max {
+        return text.to_string();
+    }
+    // The longest prefix (in characters) whose shortened form fits.
+    let fits = |p: &str| p.width() + 1 + open_parens(p) <= max;
+    let mut end = 0;
+    for (i, c) in text.char_indices() {
+        let next = i + c.len_utf8();
+        if !fits(&text[..next]) {
+            break;
+        }
+        end = next;
+    }
+    let mut prefix = &text[..end];
+    // Back to the end of a word (words are what spaces separate) when the cut fell
+    // inside one; a first word too long for the room is cut where it must be.
+    let inside_word = text[end..]
+        .chars()
+        .next()
+        .is_some_and(|c| !c.is_whitespace())
+        && prefix.chars().last().is_some_and(|c| !c.is_whitespace());
+    if inside_word {
+        if let Some(at) = prefix.rfind(char::is_whitespace) {
+            prefix = &prefix[..at];
+        }
+    }
+    // Nothing dangling before the "…": a space, an opening parenthesis, a separator.
+    let prefix = prefix.trim_end_matches([' ', '(', ';', ',', ':']);
+    if max == 0 {
+        return String::new();
+    }
+    format!("{prefix}…{}", ")".repeat(open_parens(prefix)))
+}
+
+/// How many parentheses `s` leaves open.
+fn open_parens(s: &str) -> usize {
+    s.chars().fold(0usize, |depth, c| match c {
+        '(' => depth + 1,
+        ')' => depth.saturating_sub(1),
+        _ => depth,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::console::controls::{capture, Sources};
+    use crate::console::keymap::Keymap;
+    use crate::console::sample;
+    use crate::console::theme::Theme;
+    use crate::console::view::MIN_WIDTH;
+    use std::time::{Duration, Instant};
+
+    const REASON: &str = "gate: gas is faulty (no reply within 100ms); brake is faulty \
+                          (garbled reply (bad CRC)); e-stop is in pause";
+
+    fn model(engaged: bool, reason: &str, vehicle: &str) -> Model {
+        let now = Instant::now();
+        let mut frame = capture(&sample::gate(now), &Sources::default(), now, None);
+        frame.snap.devices[1].health.faulty = true;
+        frame.snap.gate.engaged = engaged;
+        frame.snap.gate.reason = format!("disengaged: {reason}");
+        frame.snap.vehicle = vehicle.to_string();
+        Model::new(
+            Keymap::default_map(),
+            Theme::default(),
+            frame,
+            Duration::from_secs(1),
+        )
+    }
+
+    fn text(l: &Line) -> String {
+        l.spans.iter().map(|s| s.content.as_ref()).collect()
+    }
+
+    #[test]
+    fn a_short_reason_is_shown_whole() {
+        let m = model(false, "operator stop from the console", "Alice");
+        let l = text(&Header { m: &m }.line(100));
+        assert!(
+            l.ends_with(" DISENGAGED (operator stop from the console) "),
+            "{l}"
+        );
+    }
+
+    /// At 100 columns the header once ended `DISENGAGED (gas is faulty (no reply
+    /// within 100ms)`: half a reason, a parenthesis left open. At any width the gate
+    /// is whole, the reason ends in "…" at a word and every parenthesis is closed.
+    #[test]
+    fn the_header_fits_any_width_with_the_reason_shortened_and_closed() {
+        for vehicle in [
+            "Alice",
+            "Alice, the 2005 Grand Challenge vehicle of Team Caltech",
+        ] {
+            let m = model(false, REASON, vehicle);
+            // Below MIN_WIDTH the console draws no header, only the size it needs.
+            for width in MIN_WIDTH..=200u16 {
+                let l = text(&Header { m: &m }.line(width));
+                assert!(l.width() <= width as usize, "{width}: {l}");
+                assert!(l.contains(" DISENGAGED "), "{width}: {l}");
+                assert_eq!(open_parens(&l), 0, "{width}: {l}");
+                assert_eq!(
+                    l.matches('(').count(),
+                    l.matches(')').count(),
+                    "{width}: {l}"
+                );
+                if l.contains(REASON) {
+                    continue;
+                }
+                // Shortened: at a word, or to nothing but "…".
+                if let Some(r) = l.split(" DISENGAGED (").nth(1) {
+                    let cut = r.trim_end_matches([')', ' ']);
+                    assert!(cut.ends_with('…'), "{width}: {l}");
+                    let kept = cut.trim_end_matches('…');
+                    assert!(REASON.starts_with(kept), "{width}: {l}");
+                    let next = REASON[kept.len()..].chars().next().unwrap();
+                    let one_word = !kept.contains(' ');
+                    assert!(
+                        one_word || " (;,:".contains(next),
+                        "{width}: cut inside a word: {l}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn at_100_columns_the_reason_is_shortened_not_cut() {
+        let mut m = model(false, "gas is faulty (no reply within 100ms)", "Alice");
+        m.mode = Mode::Bench;
+        let l = text(&Header { m: &m }.line(100));
+        assert!(l.contains(" DISENGAGED (gas is faulty (no reply"), "{l}");
+        assert!(l.trim_end().ends_with("…))"), "{l}");
+    }
+
+    #[test]
+    fn engaged_needs_no_reason_and_a_long_name_gives_way() {
+        let m = model(
+            true,
+            "",
+            "a vehicle with a name far too long for any header bar",
+        );
+        let l = text(&Header { m: &m }.line(80));
+        assert!(l.ends_with(" ENGAGED "), "{l}");
+        assert!(l.starts_with(" ADRIVE a vehicle with"), "{l}");
+        assert!(l.contains('…') && l.width() <= 80, "{l}");
+    }
+
+    #[test]
+    fn shorten_cuts_at_words_and_closes_parentheses() {
+        let s = "gas is faulty (no reply within 100ms)";
+        assert_eq!(shorten(s, 100), s);
+        assert_eq!(shorten(s, 20), "gas is faulty (no…)");
+        assert_eq!(shorten(s, 16), "gas is faulty…");
+        assert_eq!(shorten(s, 4), "gas…");
+        assert_eq!(shorten(s, 3), "ga…");
+        assert_eq!(shorten(s, 1), "…");
+        assert_eq!(shorten(s, 0), "");
+        assert_eq!(shorten("a (b (c d e f g) h)", 12), "a (b (c d…))");
+    }
+}

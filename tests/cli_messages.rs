@@ -1,0 +1,235 @@
+//! What a user reads when something is wrong, from the real binary: a vehicle file
+//! with a value outside its range, a device without a port, a key file that is
+//! missing or too short, a byte that is not UTF-8, `--deadman 0s`; and the shell
+//! completions and manual page generated from the command-line definitions.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_adrive");
+
+/// A directory for one test's files, removed when the test ends, passing or failing.
+struct Scratch(tempfile::TempDir);
+
+impl Scratch {
+    fn new() -> Scratch {
+        Scratch(common::tempdir("messages"))
+    }
+    fn file(&self, name: &str, contents: impl AsRef<[u8]>) -> PathBuf {
+        let p = self.0.path().join(name);
+        std::fs::write(&p, contents).unwrap();
+        p
+    }
+}
+
+fn adrive(args: &[&str], config: Option<&Path>, dir: &Scratch) -> Output {
+    let mut cmd = Command::new(BIN);
+    cmd.args(args)
+        .arg("--log-dir")
+        .arg(dir.0.path().join("log"));
+    if let Some(c) = config {
+        cmd.arg("--config").arg(c);
+    }
+    cmd.output().unwrap()
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+const VEHICLE: &str = "[vehicle]\nname = \"bench\"\n\n[network]\nlisten = \"127.0.0.1:0\"\n\n[[device]]\nname = \"estop\"\nkind = \"sensor\"\nreadings = [\"estop\"]\ndriver = \"line\"\nport = \"/dev/null-estop\"\n";
+
+/// `multicast_ttl = 300` reached the socket and came back as `Invalid argument (os error
+/// 22)`; it is refused at its line, with the range, before anything starts.
+#[test]
+fn multicast_ttl_300_is_refused_at_its_line_not_by_the_os() {
+    let dir = Scratch::new();
+    let path = dir.file(
+        "v.toml",
+        VEHICLE.replace("listen =", "multicast_ttl = 300\nlisten ="),
+    );
+    let out = adrive(&["--headless"], Some(&path), &dir);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}:5: [network] multicast_ttl: expected a whole number from 0 to 255, got 300",
+            path.display()
+        )),
+        "{err}"
+    );
+    assert!(!err.contains("os error"), "{err}");
+    assert!(!dir.0.path().join("log").exists(), "nothing started");
+}
+
+/// A device with no `port` (or `port = ""`) ran forever, never connecting.
+#[test]
+fn a_device_without_a_port_is_refused_outside_sim() {
+    let dir = Scratch::new();
+    let path = dir.file(
+        "v.toml",
+        VEHICLE.replace("port = \"/dev/null-estop\"\n", ""),
+    );
+    let out = adrive(&["--headless"], Some(&path), &dir);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}:7: estop: port: expected the path of a serial port",
+            path.display()
+        )) && err.contains("--sim"),
+        "{err}"
+    );
+    assert!(!dir.0.path().join("log").exists(), "nothing started");
+}
+
+/// A missing `key_file` named the key's path but not the vehicle file's line, and
+/// printed the OS error twice.
+#[test]
+fn a_missing_key_file_names_the_vehicle_file_line_and_the_os_error_once() {
+    let dir = Scratch::new();
+    let path = dir.file(
+        "v.toml",
+        VEHICLE.replace("listen =", "key_file = \"missing.key\"\nlisten ="),
+    );
+    let out = adrive(&["--headless"], Some(&path), &dir);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    let key = dir.0.path().join("missing.key");
+    assert!(
+        err.contains(&format!(
+            "{}:5: [network] key_file: {}: No such file or directory (os error 2)",
+            path.display(),
+            key.display()
+        )),
+        "{err}"
+    );
+    assert_eq!(err.matches("os error").count(), 1, "{err}");
+}
+
+/// `adrive send --key short.key` said why twice.
+#[test]
+fn send_with_a_short_key_says_why_once() {
+    let dir = Scratch::new();
+    let key = dir.file("short.key", "short\n");
+    let out = Command::new(BIN)
+        .args(["send", "--to", "127.0.0.1:9", "--key"])
+        .arg(&key)
+        .args(["steer", "0"])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert_eq!(
+        err.trim_end(),
+        format!(
+            "adrive: --key {}: the key is 5 bytes; use at least 16 (e.g. `openssl rand -hex 32 > adrive.key`)",
+            key.display()
+        )
+    );
+}
+
+/// A byte that is not UTF-8 was reported at line 0.
+#[test]
+fn a_byte_that_is_not_utf8_names_its_line() {
+    let dir = Scratch::new();
+    let mut bytes = VEHICLE.as_bytes().to_vec();
+    bytes[VEHICLE.find("bench").unwrap()] = 0xe9;
+    let path = dir.file("v.toml", bytes);
+    let out = adrive(&["--headless"], Some(&path), &dir);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}:2: byte 0xe9 at column 9 is not UTF-8",
+            path.display()
+        )),
+        "{err}"
+    );
+}
+
+/// `--deadman 0s` was taken: the deadman then tripped on every key, or with a huge
+/// value never.
+#[test]
+fn deadman_zero_is_refused_with_its_range() {
+    for bad in ["0s", "1h"] {
+        let dir = Scratch::new();
+        let out = adrive(&["--sim", "--deadman", bad], None, &dir);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(
+            err.contains(&format!("'{bad}' for '--deadman <DURATION>'"))
+                && err.contains("from 100ms to 5s"),
+            "{err}"
+        );
+        assert!(!dir.0.path().join("log").exists(), "nothing started");
+    }
+}
+
+fn stdout_of(args: &[&str]) -> String {
+    let out = Command::new(BIN).args(args).output().unwrap();
+    assert!(out.status.success(), "{args:?}: {}", stderr(&out));
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn completions_cover_every_subcommand_and_option_in_each_shell() {
+    let bash = stdout_of(&["completions", "bash"]);
+    assert!(bash.contains("_adrive()") && bash.contains("complete -F _adrive"));
+    let zsh = stdout_of(&["completions", "zsh"]);
+    assert!(zsh.starts_with("#compdef adrive"), "{}", &zsh[..80]);
+    let fish = stdout_of(&["completions", "fish"]);
+    assert!(fish.contains("complete -c adrive"));
+    for script in [&bash, &zsh, &fish] {
+        for word in [
+            "send", "watch", "sim", "ports", "deadman", "keymap", "count",
+        ] {
+            assert!(script.contains(word), "no {word} in\n{script}");
+        }
+    }
+    // bash itself reads the script without a syntax error.
+    let check = Command::new("bash").arg("-n").arg("-c").arg(&bash).output();
+    match check {
+        Ok(out) => assert!(out.status.success(), "{}", stderr(&out)),
+        Err(e) => panic!("bash is needed to check the completion script: {e}"),
+    }
+}
+
+#[test]
+fn the_man_page_is_roff_with_every_option_and_subcommand() {
+    let page = stdout_of(&["manpage"]);
+    assert!(page.contains(".TH adrive 1"), "{page}");
+    for section in [".SH NAME", ".SH SYNOPSIS", ".SH OPTIONS", ".SH SUBCOMMANDS"] {
+        assert!(page.contains(section), "no {section}");
+    }
+    for word in [
+        "\\-\\-deadman",
+        "\\-\\-keymap",
+        "\\-\\-listen",
+        "adrive\\-send(1)",
+        "adrive\\-watch(1)",
+    ] {
+        assert!(page.contains(word), "no {word} in\n{page}");
+    }
+    assert!(!page.contains("inject"), "a hidden option leaked");
+    // With --dir, every page is written, the subcommands' included.
+    let dir = Scratch::new();
+    let out = Command::new(BIN)
+        .args(["manpage", "--dir"])
+        .arg(dir.0.path())
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", stderr(&out));
+    let send = std::fs::read_to_string(dir.0.path().join("adrive-send.1")).unwrap();
+    assert!(
+        send.contains(".TH adrive-send 1") && send.contains("\\-\\-rate"),
+        "{send}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(dir.0.path().join("adrive.1")).unwrap(),
+        page,
+        "the page on standard output is the one written"
+    );
+}
