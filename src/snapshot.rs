@@ -9,6 +9,7 @@
 //! checked by a test against real broadcasts.
 
 use crate::value::{Kind, Value};
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::net::SocketAddr;
@@ -17,7 +18,7 @@ use std::net::SocketAddr;
 pub const SCHEMA: u32 = 2;
 
 /// The whole vehicle at one instant.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Snapshot {
     pub schema: u32,
     pub vehicle: String,
@@ -35,6 +36,9 @@ pub struct Snapshot {
     pub rejections: Pairs<u64>,
     /// The network side, when the listener runs.
     pub net: Option<NetView>,
+    /// The recording, when one runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub record: Option<RecordView>,
 }
 
 impl Snapshot {
@@ -56,7 +60,7 @@ impl Snapshot {
 }
 
 /// The engage gate and the safety rules.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct GateView {
     pub engaged: bool,
     /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
@@ -75,7 +79,7 @@ pub struct GateView {
 }
 
 /// One device.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct DeviceView {
     pub name: String,
     pub kind: Kind,
@@ -138,7 +142,7 @@ impl DeviceView {
 }
 
 /// A device's health, as its threads keep it.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Health {
     /// Failing repeatedly, silent past its `status_max_age`, or its port is gone.
     pub faulty: bool,
@@ -162,7 +166,7 @@ pub struct Health {
 }
 
 /// What the console may change while running.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Settings {
     pub status_period_ms: f64,
     pub command_timeout_ms: f64,
@@ -171,7 +175,7 @@ pub struct Settings {
     pub command_on: bool,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Counters {
     /// Commands accepted at intake into the device's slot.
     pub received: u64,
@@ -191,7 +195,7 @@ pub struct Counters {
 }
 
 /// Figures of one latency histogram, in microseconds.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct LatencySummary {
     pub count: u64,
     pub p50_us: Option<f64>,
@@ -200,7 +204,7 @@ pub struct LatencySummary {
 }
 
 /// The kinds of fault the supervisor detects.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum FaultKind {
     /// No status for longer than the device's `status_max_age`.
@@ -244,7 +248,7 @@ impl fmt::Display for FaultKind {
 }
 
 /// A fault as the snapshot carries it.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct FaultView {
     pub kind: FaultKind,
     pub device: Option<String>,
@@ -263,7 +267,7 @@ impl FaultView {
 }
 
 /// Where a recovery procedure is.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct RecoveryView {
     /// `engine_stall`, `steering`, `reconnect brake`.
     pub name: String,
@@ -296,7 +300,7 @@ impl RecoveryView {
 }
 
 /// The supervisor's state.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct SupervisorView {
     pub faults: Vec<FaultView>,
     pub recovery: Option<RecoveryView>,
@@ -307,7 +311,7 @@ pub struct SupervisorView {
 }
 
 /// The network command watchdog, as shown to people.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum WatchdogState {
     /// Disengaged.
@@ -321,7 +325,7 @@ pub enum WatchdogState {
 }
 
 /// The network side: listener, watchdog, senders, counters.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct NetView {
     pub listen: SocketAddr,
     /// Datagrams received, and those accepted (parsed, authentic, not refused whole).
@@ -337,7 +341,7 @@ pub struct NetView {
     pub rejected: Rejections,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct WatchdogView {
     pub state: WatchdogState,
     pub timeout_ms: f64,
@@ -347,7 +351,7 @@ pub struct WatchdogView {
     pub last_trip: Option<String>,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct SenderView {
     pub addr: SocketAddr,
     pub age_ms: f64,
@@ -361,7 +365,7 @@ pub struct SenderView {
 }
 
 /// Rejections by reason; every reason is listed, zeros included.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Rejections {
     /// Whole datagrams: grammar, authentication, counter.
     pub datagram: Pairs<u64>,
@@ -378,6 +382,21 @@ impl Rejections {
             .filter_map(|p| p.get(name))
             .sum()
     }
+}
+
+/// The recording of this run (`--record`, `[record]`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct RecordView {
+    /// The file being written (the last one, once recording stopped).
+    pub file: String,
+    /// Bytes written to it so far.
+    pub bytes: u64,
+    /// Messages written, all files of this run.
+    pub messages: u64,
+    /// Events left out because the recorder fell behind (the vehicle never waits).
+    pub dropped: u64,
+    /// Why recording stopped; the vehicle runs on.
+    pub error: Option<String>,
 }
 
 /// Named values in order, written as a JSON object (`{"steer": 3, "gas": 0}`) and read
@@ -412,6 +431,22 @@ impl<V> Pairs<V> {
 impl<V> FromIterator<(String, V)> for Pairs<V> {
     fn from_iter<I: IntoIterator<Item = (String, V)>>(iter: I) -> Self {
         Pairs(iter.into_iter().collect())
+    }
+}
+
+/// A JSON object whose every property is a `V`.
+impl<V: JsonSchema> JsonSchema for Pairs<V> {
+    fn schema_name() -> std::borrow::Cow<'static, str> {
+        format!("Pairs_{}", V::schema_name()).into()
+    }
+    fn inline_schema() -> bool {
+        true
+    }
+    fn json_schema(generator: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        schemars::json_schema!({
+            "type": "object",
+            "additionalProperties": generator.subschema_for::<V>(),
+        })
     }
 }
 

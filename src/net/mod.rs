@@ -158,7 +158,8 @@ fn bind_command_socket(addr: SocketAddr) -> io::Result<UdpSocket> {
     Ok(s.into())
 }
 
-fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
+/// The socket the state broadcast goes out of (multicast settings from `config`).
+pub fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
     let v6 = config.broadcast_to.first().is_some_and(SocketAddr::is_ipv6);
     let any: SocketAddr = if v6 {
         (Ipv6Addr::UNSPECIFIED, 0).into()
@@ -230,6 +231,12 @@ fn broadcast_loop(
             tracing::error!("state broadcast: {e}");
             return;
         }
+        gate.vehicle
+            .tap
+            .send(|| crate::vehicle::tap::Event::Snapshot {
+                at: Instant::now(),
+                json: bytes.clone(),
+            });
         for to in dest {
             if let Err(e) = socket.send_to(&bytes, to) {
                 if errors.allow(Instant::now()) {
