@@ -1,12 +1,13 @@
 //! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
-//! `adrive watch`, and `adrive completions` / `adrive manpage`, generated from the same
-//! definitions. Parsing is clap's; each subcommand is one function here that wires the
+//! `adrive watch`, `adrive record info`, `adrive export`, and
+//! `adrive completions` / `adrive manpage`, generated from the same definitions. Parsing is clap's; each subcommand is one function here that wires the
 //! parts together.
 
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
 use crate::exit::{self, Exit};
 use crate::net::{self, auth::Auth, client, Net};
+use crate::record::{self, Recorder};
 use crate::safety::{gate, Gate};
 use crate::sim::{Sim, SimEvent};
 use crate::vehicle::Vehicle;
@@ -44,6 +45,13 @@ pub enum Cmd {
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
+    /// Recordings: `adrive record info FILE`.
+    Record {
+        #[command(subcommand)]
+        command: RecordCmd,
+    },
+    /// Write a recording out as one CSV file per channel.
+    Export(ExportArgs),
     /// Print a shell completion script (see the README for where each shell wants it).
     Completions {
         /// The shell to complete in.
@@ -90,6 +98,33 @@ pub struct RunArgs {
     /// hosts (default: the vehicle file's `[network]` listen, 127.0.0.1:47576).
     #[arg(long, value_name = "ADDR", value_parser = net::config::parse_listen)]
     pub listen: Option<SocketAddr>,
+    /// Record this run into an MCAP file (Foxglove opens it), or into rolling files in
+    /// a directory (an existing one, or a path ending in `/`); default: the vehicle
+    /// file's `[record]`.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Record the raw serial traffic of every device too.
+    #[arg(long)]
+    pub record_raw: bool,
+}
+
+#[derive(Subcommand, Debug, Clone)]
+pub enum RecordCmd {
+    /// Channels, duration, message counts, commands refused, faults; whether the file
+    /// was finished or cut off.
+    Info {
+        /// The recording (.mcap).
+        file: PathBuf,
+    },
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct ExportArgs {
+    /// The recording (.mcap).
+    pub file: PathBuf,
+    /// Write one CSV file per channel into this directory (created if needed).
+    #[arg(long, value_name = "DIR", required = true)]
+    pub csv: PathBuf,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -156,6 +191,10 @@ pub fn main() -> i32 {
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
+        Some(Cmd::Record {
+            command: RecordCmd::Info { file },
+        }) => record_info(&file),
+        Some(Cmd::Export(args)) => export(args),
         Some(Cmd::Completions { shell }) => {
             clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut std::io::stdout());
             Ok(0)
@@ -208,11 +247,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     } else {
         Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
     };
+    let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
+    let tap = Arc::new(crate::vehicle::tap::Tap::default());
     let ring = (!args.headless).then(console::logring::LogRing::default);
-    let extra = ring
-        .as_ref()
-        .map(|r| Box::new(r.layer()) as logging::ExtraLayer);
-    let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
+    let mut extra: Vec<logging::ExtraLayer> = Vec::new();
+    extra.extend(
+        ring.as_ref()
+            .map(|r| Box::new(r.layer()) as logging::ExtraLayer),
+    );
+    if recording.is_some() {
+        extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));
+    }
+    let log = logging::init_with(args.headless, Some(&log_dir), Some(Box::new(extra)))?;
     for w in keymap.iter().flat_map(|k| k.warnings()) {
         tracing::warn!("keymap: {w}");
     }
@@ -223,10 +269,21 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     } else {
         None
     };
-    let vehicle = Arc::new(Vehicle::new(config, |c| {
-        let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
-        Box::new(move || driver::open_serial(&path, baud, timeout))
-    }));
+    let vehicle = Arc::new(Vehicle::with_tap(
+        config,
+        |c| {
+            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+            Box::new(move || driver::open_serial(&path, baud, timeout))
+        },
+        tap,
+    ));
+    // A recording that cannot start is refused before anything is driven.
+    let recorder = match recording {
+        Some(opts) => {
+            Some(Recorder::start(&vehicle, opts).map_err(|e| anyhow::anyhow!("record: {e}"))?)
+        }
+        None => None,
+    };
     let gate = Arc::new(Gate::new(vehicle.clone()));
     gate.announce();
     let exits = exit::install()?;
@@ -289,6 +346,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     stuck.extend(monitor.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);
+    // After the engine: the safe state's commands are in the recording.
+    if let Some(r) = recorder {
+        stuck.extend(r.shutdown(Duration::from_secs(2)));
+    }
     if safe {
         tracing::info!(
             "safe state acknowledged: {}",
@@ -308,6 +369,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 headless::net_summary(&net_figures)
             ),
         );
+        if let Some(r) = vehicle.tap.status() {
+            tell(
+                io::stdout(),
+                format_args!("{}\n", headless::record_summary(&r)),
+            );
+        }
     }
     if !safe || !stuck.is_empty() {
         let msg = format!(
@@ -340,10 +407,7 @@ fn network_key(config: &VehicleConfig) -> anyhow::Result<Option<Auth>> {
     let Some(file) = &config.network.key_file else {
         return Ok(None);
     };
-    let path = match Path::new(&config.source).parent() {
-        Some(dir) if file.is_relative() => dir.join(file),
-        _ => file.clone(),
-    };
+    let path = config.relative(file);
     let auth = Auth::load(&path).map_err(|e| {
         let v = config::Violation {
             paths: vec!["key_file".into()],
@@ -485,4 +549,32 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
 /// Bytes as text, with non-printable bytes escaped.
 pub fn printable(bytes: &[u8]) -> String {
     bytes.escape_ascii().to_string()
+}
+
+/// `adrive record info`: what a recording holds.
+pub fn record_info(file: &Path) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(file)?;
+    tell(io::stdout(), format_args!("{}", record::info::report(&rec)));
+    Ok(0)
+}
+
+/// `adrive export FILE --csv DIR`: one CSV per channel.
+pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(&args.file)?;
+    for (path, rows) in record::export::csv(&rec, &args.csv)? {
+        tell(
+            io::stdout(),
+            format_args!("{:>9} rows  {}\n", rows, path.display()),
+        );
+    }
+    if let Some(why) = &rec.cut {
+        tell(
+            io::stderr(),
+            format_args!(
+                "adrive export: {}: cut off ({why}); exported up to its last whole chunk\n",
+                args.file.display()
+            ),
+        );
+    }
+    Ok(0)
 }

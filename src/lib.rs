@@ -7,7 +7,8 @@
 //! state; [`safety`] holds every rule and the engage gate; [`engine`] runs two threads
 //! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
 //! broadcasts state over UDP; [`sim`] emulates the devices on real pseudo-terminals;
-//! [`console`] is the operator's screen and [`cli`] puts it all together.
+//! [`record`] keeps a run in an MCAP file; [`console`] is the operator's screen (and
+//! replays recordings) and [`cli`] puts it all together.
 
 pub mod cli;
 pub mod config;
@@ -19,6 +20,7 @@ pub mod headless;
 pub mod logging;
 pub mod net;
 pub mod ports;
+pub mod record;
 pub mod safety;
 pub mod sim;
 pub mod snapshot;

@@ -3,9 +3,11 @@
 //! `tracing-appender`'s non-blocking writer. The returned guard flushes
 //! the file when dropped, so every exit path keeps it alive until the very end.
 
+use std::fmt::Write as _;
 use std::io::IsTerminal;
 use std::path::Path;
 use std::time::{Duration, Instant};
+use tracing::field::{Field, Visit};
 use tracing_appender::non_blocking::WorkerGuard;
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
@@ -103,6 +105,46 @@ impl RateLimit {
         } else {
             self.suppressed += 1;
             false
+        }
+    }
+}
+
+/// An event's words, for the layers that keep them (the console's log pane, a
+/// recording): its message, then its other fields as ` key=value`.
+#[derive(Default)]
+pub struct EventText {
+    pub message: String,
+    pub fields: String,
+}
+
+impl EventText {
+    pub fn of(event: &tracing::Event<'_>) -> EventText {
+        let mut t = EventText::default();
+        event.record(&mut t);
+        t
+    }
+
+    /// `status: timeout device=steer`
+    pub fn line(self) -> String {
+        let mut s = self.message;
+        s.push_str(&self.fields);
+        s
+    }
+}
+
+impl Visit for EventText {
+    fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
+        if field.name() == "message" {
+            let _ = write!(self.message, "{value:?}");
+        } else {
+            let _ = write!(self.fields, " {}={value:?}", field.name());
+        }
+    }
+    fn record_str(&mut self, field: &Field, value: &str) {
+        if field.name() == "message" {
+            self.message.push_str(value);
+        } else {
+            let _ = write!(self.fields, " {}={value}", field.name());
         }
     }
 }

@@ -8,12 +8,14 @@
 //! - [`wire`]: how each protocol maps a device to the wire;
 //! - [`roles`]: the safety roles, bound to devices and readings;
 //! - [`limits`]: the sane range of every safety-relevant value, in one table;
+//! - [`record`]: `[record]`, recording every run into rolling files;
 //! - [`document`]: where each key sits in the file, so that a check made after typing
 //!   still names its line.
 
 pub mod device;
 pub mod document;
 pub mod limits;
+pub mod record;
 pub mod roles;
 pub mod wire;
 
@@ -21,6 +23,7 @@ pub use crate::net::config::NetworkConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
+pub use record::RecordConfig;
 pub use roles::{Bindings, Role};
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeMap;
@@ -215,6 +218,8 @@ pub struct VehicleConfig {
     pub devices: Vec<DeviceConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
+    /// `[record]`: record every run (none: only with `--record`).
+    pub record: Option<RecordConfig>,
     /// Where it was loaded from (for messages).
     pub source: String,
     /// The line of every key in that file, for errors found after loading.
@@ -249,6 +254,14 @@ impl VehicleConfig {
     /// The built-in simulated Alice.
     pub fn alice() -> VehicleConfig {
         parse(ALICE_TOML, ALICE_PATH).expect("the built-in vehicle parses")
+    }
+
+    /// A path the vehicle file names, relative to the file's directory.
+    pub fn relative(&self, file: &Path) -> std::path::PathBuf {
+        match Path::new(&self.source).parent() {
+            Some(dir) if file.is_relative() => dir.join(file),
+            _ => file.to_path_buf(),
+        }
     }
 
     /// A device by name.
@@ -343,6 +356,8 @@ struct Raw {
     device: Vec<Spanned<device::RawDevice>>,
     #[serde(default)]
     network: Option<NetworkConfig>,
+    #[serde(default)]
+    record: Option<RecordConfig>,
 }
 
 /// Load a vehicle from a file.
@@ -399,6 +414,9 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     network
         .check()
         .map_err(|v| refuse(path, &lines, "network", v))?;
+    if let Some(r) = &raw.record {
+        r.check().map_err(|v| refuse(path, &lines, "record", v))?;
+    }
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,
@@ -407,6 +425,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         supervisor: raw.supervisor,
         devices,
         network,
+        record: raw.record,
         source: path.to_string(),
         lines,
     })
