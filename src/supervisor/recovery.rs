@@ -214,7 +214,7 @@ impl Procedure {
         let b = v.bindings();
         // The throttle and brake are needed too: a stalled engine is restarted with the
         // vehicle held.
-        let (throttle, _brake, g, starter, running) = (
+        let (throttle, brake, g, starter, running) = (
             b.throttle?,
             b.brake?,
             b.gear.as_ref()?,
@@ -244,7 +244,9 @@ impl Procedure {
             label: format!("back in {}", state(gear)),
         });
         steps.push(Step::Release);
-        let mut takes = vec![throttle, g.device];
+        // Every device it commands, the brake included: a planner's `accel` releases
+        // the brake, and would undo the brake step as often as it is sent.
+        let mut takes = vec![throttle, brake, g.device];
         if !takes.contains(&starter) {
             takes.push(starter);
         }
