@@ -258,7 +258,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     if recording.is_some() {
         extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));
     }
-    let log = logging::init_with(args.headless, Some(&log_dir), Some(Box::new(extra)))?;
+    let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
     for w in keymap.iter().flat_map(|k| k.warnings()) {
         tracing::warn!("keymap: {w}");
     }

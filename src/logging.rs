@@ -21,18 +21,22 @@ pub struct LogGuard {
 /// Start logging. `stderr`: also log to standard error (headless, subcommands).
 /// `dir`: where the rolling log file `adrive.log.YYYY-MM-DD` goes.
 pub fn init(stderr: bool, dir: Option<&Path>) -> std::io::Result<LogGuard> {
-    init_with(stderr, dir, None)
+    init_with(stderr, dir, Vec::new())
 }
 
 /// A layer added beside the file and stderr layers (e.g. the console's log pane).
 pub type ExtraLayer = Box<dyn Layer<Registry> + Send + Sync>;
 
-/// [`init`] with an extra layer that sees every event, unfiltered.
+/// [`init`] with extra layers (the console's log pane, a recording) that see every
+/// event, unfiltered.
 pub fn init_with(
     stderr: bool,
     dir: Option<&Path>,
-    extra: Option<ExtraLayer>,
+    extra: Vec<ExtraLayer>,
 ) -> std::io::Result<LogGuard> {
+    // An empty list of layers is a layer that enables nothing, which would silence the
+    // file and stderr layers beside it: no list, then.
+    let extra = (!extra.is_empty()).then_some(extra);
     let filter = || EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
     let (file_layer, guard) = match dir {
         Some(dir) => {
