@@ -1,5 +1,5 @@
 //! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
-//! `adrive watch`, `adrive record info`, `adrive export`, and
+//! `adrive watch`, `adrive replay`, `adrive record info`, `adrive export`, and
 //! `adrive completions` / `adrive manpage`, generated from the same definitions. Parsing is clap's; each subcommand is one function here that wires the
 //! parts together.
 
@@ -45,6 +45,8 @@ pub enum Cmd {
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
+    /// Play a recording in the console: pause, step, seek, speed; read-only.
+    Replay(ReplayArgs),
     /// Recordings: `adrive record info FILE`.
     Record {
         #[command(subcommand)]
@@ -116,6 +118,25 @@ pub enum RecordCmd {
         /// The recording (.mcap).
         file: PathBuf,
     },
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct ReplayArgs {
+    /// The recording (.mcap).
+    pub file: PathBuf,
+    /// Also send each snapshot played as the state broadcast, to ADDR (repeatable;
+    /// default 127.0.0.1:47577), so other tools can be tested against a past drive.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = net::config::DEFAULT_BROADCAST)]
+    pub broadcast: Vec<SocketAddr>,
+    /// No console: play through once (with --broadcast), then exit.
+    #[arg(long, requires = "broadcast")]
+    pub headless: bool,
+    /// Play this many times faster (0.125 to 32) [default: 1].
+    #[arg(long, value_name = "X")]
+    pub speed: Option<f64>,
+    /// Keymap TOML merged over the built-in one, as for `adrive run`.
+    #[arg(long, value_name = "FILE")]
+    pub keymap: Option<PathBuf>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -191,6 +212,7 @@ pub fn main() -> i32 {
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
+        Some(Cmd::Replay(args)) => replay(args),
         Some(Cmd::Record {
             command: RecordCmd::Info { file },
         }) => record_info(&file),
@@ -577,4 +599,35 @@ pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
         );
     }
     Ok(0)
+}
+
+/// `adrive replay FILE`: the console plays a recording (or, headless, broadcasts it).
+pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(&args.file)?;
+    let mut player = console::replay::Player::load(&rec).map_err(anyhow::Error::msg)?;
+    drop(rec);
+    if let Some(x) = args.speed {
+        if !(0.125..=32.0).contains(&x) {
+            anyhow::bail!("--speed: expected 0.125 to 32, got {x}");
+        }
+        player.set_speed(x, Instant::now());
+    }
+    let keymap = if args.headless {
+        None
+    } else {
+        Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+    };
+    let broadcast = match args.broadcast.is_empty() {
+        true => None,
+        false => Some(console::replay::Broadcast::new(args.broadcast.clone())?),
+    };
+    let log = logging::init(args.headless, None)?;
+    let exits = exit::install()?;
+    let why = match (keymap, broadcast) {
+        (None, Some(b)) => console::replay::headless(player, &exits, &b),
+        (Some(keymap), b) => console::replay::run(player, keymap, &exits, b)?,
+        (None, None) => unreachable!("clap requires --broadcast with --headless"),
+    };
+    drop(log);
+    Ok(exit::status(&why, true, true))
 }
