@@ -144,9 +144,47 @@ pub fn report(rec: &Recording) -> String {
     );
     if !i.events.is_empty() {
         s.push('\n');
-        for (t, line) in &i.events {
-            let _ = writeln!(s, "{t:>9.1} s  {line}");
+        for line in timeline(&i.events) {
+            let _ = writeln!(s, "{line}");
         }
     }
     s
+}
+
+/// The events one a line, a run of the same event (an engage refused ten times a
+/// second while a device has not reported) on one line with its count and its end.
+pub fn timeline(events: &[(f64, String)]) -> Vec<String> {
+    events
+        .chunk_by(|a, b| a.1 == b.1)
+        .map(|run| {
+            let (t, line) = &run[0];
+            match run {
+                [_] => format!("{t:>9.1} s  {line}"),
+                [.., (end, _)] => format!("{t:>9.1} s  {line} (×{}, to {end:.1} s)", run.len()),
+                [] => unreachable!("chunk_by yields no empty run"),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_refused_engage_repeated_by_a_planner_is_one_line() {
+        let refused = "engage refused: obd has not reported yet".to_string();
+        let mut events = vec![(0.1, refused.clone())];
+        events.extend((2..=14).map(|k| (k as f64 / 10.0, refused.clone())));
+        events.push((1.5, "engaged by network".into()));
+        events.push((9.0, refused.clone()));
+        assert_eq!(
+            timeline(&events),
+            [
+                "      0.1 s  engage refused: obd has not reported yet (×14, to 1.4 s)",
+                "      1.5 s  engaged by network",
+                "      9.0 s  engage refused: obd has not reported yet",
+            ]
+        );
+    }
 }
