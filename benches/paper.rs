@@ -6,12 +6,16 @@
 //!    paper's plain lock, the paper's lock with its 10 Hz rate cap, adrive's rule.
 //! 2. Receipt → first-byte delay against the number of actuators (the paper's Fig. 3).
 //! 3. CPU time against the command rate (the paper's Fig. 4).
+//! 4. The command delay with recording off and on (raw traffic included), taken in
+//!    turns: recording must cost the command path nothing measurable.
 //!
-//! Run: `cargo bench --bench paper` (about a minute).
+//! Run: `cargo bench --bench paper` (about a minute and a half); `cargo bench --bench
+//! paper -- record` runs only the fourth.
 
 use adrive::config;
 use adrive::driver;
 use adrive::engine::Engine;
+use adrive::record::{Options, Recorder, Target};
 use adrive::safety::Gate;
 use adrive::sim::Sim;
 use adrive::value::Command;
@@ -115,6 +119,69 @@ fn cpu_time() -> Duration {
 
 fn main() {
     let secs = 4.0;
+    let only_record = std::env::args().skip(1).any(|a| a == "record");
+    if !only_record {
+        paper(secs);
+    }
+    recording(secs);
+}
+
+/// 4. Three actuators at 100 Hz, recording off and on in turns, each run alike.
+fn recording(secs: f64) {
+    println!();
+    println!("== 4. recording off and on, in turns (3 actuators at 100 Hz, {secs} s each) ==");
+    println!(
+        "{:<34} {:>7} {:>9} {:>9} {:>9}",
+        "recording", "sent", "p50 ms", "p99 ms", "max ms"
+    );
+    let roles = ["steer", "gas", "brake"];
+    let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
+    for r in &roles {
+        toml.push_str(&device(r, "status_period = \"100ms\"", ""));
+    }
+    let dir = tempfile::tempdir().unwrap();
+    for turn in 1..=2 {
+        for on in [false, true] {
+            let run = Run::start(&toml);
+            let recorder = on.then(|| {
+                let opts = Options {
+                    target: Target::File(dir.path().join(format!("bench-{turn}.mcap"))),
+                    raw: true,
+                };
+                Recorder::start(&run.vehicle, opts).unwrap()
+            });
+            run.drive(&roles, 100.0, secs);
+            if let Some(r) = recorder {
+                let late = r.shutdown(Duration::from_secs(5));
+                assert!(late.is_empty(), "the recorder did not stop: {late:?}");
+            }
+            let extra = match run.vehicle.tap.status() {
+                Some(v) => format!(
+                    "{} messages, {} kB, {} left out{}",
+                    v.messages,
+                    v.bytes / 1000,
+                    v.dropped,
+                    v.error.map(|e| format!(", error: {e}")).unwrap_or_default()
+                ),
+                None => String::new(),
+            };
+            // Every actuator's commands, one summary: the worst device's p99.
+            let worst = roles
+                .iter()
+                .map(|r| run.device(r).stats.snapshot().command_delay)
+                .max_by(|a, b| a.p99_us.unwrap_or(0.0).total_cmp(&b.p99_us.unwrap_or(0.0)))
+                .unwrap();
+            let label = format!(
+                "{} (turn {turn}, worst device)",
+                if on { "on " } else { "off" }
+            );
+            row(&label, &worst, &extra);
+        }
+    }
+}
+
+/// 1 to 3: the paper's measurements.
+fn paper(secs: f64) {
     println!("== 1. cued commands: status polls of ~100 ms, commands at 100 Hz for {secs} s ==");
     println!(
         "{:<34} {:>7} {:>9} {:>9} {:>9}",
