@@ -95,6 +95,23 @@ fn device(name: &str, extra: &str, sim: &str) -> String {
     format!("[[device]]\nname = \"{name}\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nbaud = 38400\nreply_timeout = \"500ms\"\n{extra}\n[device.sim]\n{sim}\n")
 }
 
+/// A vehicle of these actuators, each polled every 100 ms.
+fn vehicle(names: &[&str]) -> String {
+    let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
+    for n in names {
+        toml.push_str(&device(n, "status_period = \"100ms\"", ""));
+    }
+    toml
+}
+
+/// The header of a table of [`row`]s.
+fn table(first: &str) {
+    println!(
+        "{first:<34} {:>7} {:>9} {:>9} {:>9}",
+        "sent", "p50 ms", "p99 ms", "max ms"
+    );
+}
+
 fn ms(v: Option<f64>) -> String {
     v.map_or("-".into(), |us| format!("{:.2}", us / 1000.0))
 }
@@ -130,15 +147,9 @@ fn main() {
 fn recording(secs: f64) {
     println!();
     println!("== 4. recording off and on, in turns (3 actuators at 100 Hz, {secs} s each) ==");
-    println!(
-        "{:<34} {:>7} {:>9} {:>9} {:>9}",
-        "recording", "sent", "p50 ms", "p99 ms", "max ms"
-    );
+    table("recording");
     let roles = ["steer", "gas", "brake"];
-    let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
-    for r in &roles {
-        toml.push_str(&device(r, "status_period = \"100ms\"", ""));
-    }
+    let toml = vehicle(&roles);
     let dir = tempfile::tempdir().unwrap();
     for turn in 1..=2 {
         for on in [false, true] {
@@ -183,10 +194,7 @@ fn recording(secs: f64) {
 /// 1 to 3: the paper's measurements.
 fn paper(secs: f64) {
     println!("== 1. cued commands: status polls of ~100 ms, commands at 100 Hz for {secs} s ==");
-    println!(
-        "{:<34} {:>7} {:>9} {:>9} {:>9}",
-        "rule", "sent", "p50 ms", "p99 ms", "max ms"
-    );
+    table("rule");
     for (label, extra) in [
         ("paper: plain lock", "port_rule = \"paper\""),
         (
@@ -218,16 +226,10 @@ fn paper(secs: f64) {
 
     println!();
     println!("== 2. delay against the number of actuators (100 Hz each, {secs} s) ==");
-    println!(
-        "{:<34} {:>7} {:>9} {:>9} {:>9}",
-        "actuators", "sent", "p50 ms", "p99 ms", "max ms"
-    );
+    table("actuators");
     let roles = ["steer", "gas", "brake"];
     for n in 1..=roles.len() {
-        let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
-        for r in &roles[..n] {
-            toml.push_str(&device(r, "status_period = \"100ms\"", ""));
-        }
+        let toml = vehicle(&roles[..n]);
         let run = Run::start(&toml);
         run.drive(&roles[..n], 100.0, secs);
         for r in &roles[..n] {
@@ -242,10 +244,7 @@ fn paper(secs: f64) {
         "{:<34} {:>9} {:>12}",
         "commands/s per actuator", "CPU %", "delay p99 ms"
     );
-    let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
-    for r in &roles {
-        toml.push_str(&device(r, "status_period = \"100ms\"", ""));
-    }
+    let toml = vehicle(&roles);
     for rate in [0.0, 10.0, 100.0, 1000.0] {
         let run = Run::start(&toml);
         let t0 = cpu_time();

@@ -1,7 +1,8 @@
 //! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
 //! `adrive watch`, `adrive replay`, `adrive record info`, `adrive export`, and
-//! `adrive completions` / `adrive manpage`, generated from the same definitions. Parsing is clap's; each subcommand is one function here that wires the
-//! parts together.
+//! `adrive completions` / `adrive manpage`, generated from the same definitions.
+//! Parsing is clap's; each subcommand is one function here that wires the parts
+//! together.
 
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;

@@ -305,49 +305,16 @@ fn export_writes_one_csv_per_channel_with_a_column_per_field() {
     assert_eq!(snap.lines().count(), snapshots + 1, "a row per snapshot");
 }
 
-/// A Python interpreter with the pinned `mcap` reader and `jsonschema`, in a virtual
-/// environment of the test's own under `target/tmp/`; fails loudly when it cannot be
-/// made.
+/// A Python interpreter with the pinned `mcap` reader and `jsonschema`.
 fn python() -> &'static str {
-    const MCAP: &str = "mcap==1.3.0";
-    const JSONSCHEMA: &str = "jsonschema==4.23.0";
     static PYTHON: OnceLock<String> = OnceLock::new();
     PYTHON.get_or_init(|| {
-        let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("mcap-venv");
-        let py = venv.join("bin/python").display().to_string();
-        let ready = || {
-            Process::new(&py)
-                .args(["-c", "import mcap, jsonschema, importlib.metadata as m; assert m.version('mcap') == '1.3.0'"])
-                .stderr(Stdio::null())
-                .status()
-                .is_ok_and(|s| s.success())
-        };
-        if !ready() {
-            let run = |cmd: &mut Process| {
-                let out = cmd.output().map_err(|e| format!("{cmd:?}: {e}"))?;
-                match out.status.success() {
-                    true => Ok(()),
-                    false => Err(format!(
-                        "{cmd:?} failed ({}):\n{}{}",
-                        out.status,
-                        String::from_utf8_lossy(&out.stdout),
-                        String::from_utf8_lossy(&out.stderr)
-                    )),
-                }
-            };
-            let setup = run(Process::new("python3").args(["-m", "venv"]).arg(&venv)).and_then(|_| {
-                run(Process::new(&py).args(["-m", "pip", "install", "--quiet", MCAP, JSONSCHEMA]))
-            });
-            if let Err(e) = setup {
-                panic!(
-                    "the MCAP interoperability test needs Python 3 with {MCAP} and {JSONSCHEMA}; \
-                     setting up {} failed: {e}",
-                    venv.display()
-                );
-            }
-            assert!(ready(), "{py} still cannot import {MCAP} and {JSONSCHEMA}");
-        }
-        py
+        common::python::with(
+            "mcap-venv",
+            &["mcap==1.3.0", "jsonschema==4.23.0"],
+            "import mcap, jsonschema, importlib.metadata as m; assert m.version('mcap') == '1.3.0'",
+            "MCAP interoperability test",
+        )
     })
 }
 

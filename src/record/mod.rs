@@ -4,8 +4,9 @@
 //! log lines and, when asked, the raw serial traffic — as JSON messages with JSON
 //! Schemas ([`message`]), which Foxglove and every MCAP reader open.
 //!
-//! The vehicle's [`Tap`] feeds the recorder without locks and never waits for it; the
-//! recorder's thread (`record/write`) drains it every [`DRAIN`], writes, and closes a
+//! The vehicle's [`Tap`](crate::vehicle::tap::Tap) feeds the recorder without locks
+//! and never waits for it; the recorder's thread (`record/write`) drains it every
+//! [`DRAIN`], writes, and closes a
 //! compressed chunk every [`CHUNK_EVERY`], flushed and synced to the disk: a recording
 //! cut off by `kill -9` or a power loss reads up to its last chunk ([`read`]). When the
 //! file cannot be written (a full disk), recording stops with an error in the log and

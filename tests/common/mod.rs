@@ -3,6 +3,7 @@
 #![allow(dead_code)]
 
 pub mod pty;
+pub mod python;
 pub mod simproc;
 
 use adrive::config::{self, VehicleConfig};
