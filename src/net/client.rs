@@ -4,7 +4,7 @@
 
 use super::auth::Auth;
 use super::proto::{self, NetCommand, Vocabulary, MAX_DATAGRAM};
-use crate::snapshot::Snapshot;
+use crate::snapshot::{Assembler, Snapshot};
 use crate::value::Value;
 use socket2::{Domain, Protocol, Socket, Type};
 use std::fmt::Write as _;
@@ -280,6 +280,7 @@ pub fn watch(
     }
     let mut buf = vec![0u8; 65536];
     let mut seen = 0u64;
+    let mut parts = Assembler::default();
     let mut last_gate = String::new();
     let mut out = io::stdout().lock();
     while !stop.load(Relaxed) && count.is_none_or(|c| seen < c) {
@@ -296,23 +297,36 @@ pub fn watch(
             Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(e),
         };
-        seen += 1;
         let bytes = &buf[..n];
-        if json {
-            out.write_all(bytes)?;
-            out.write_all(b"\n")?;
-            out.flush()?;
-            continue;
-        }
-        match serde_json::from_slice::<Snapshot>(bytes) {
-            Ok(v) => {
-                if v.gate.reason != last_gate {
-                    writeln!(out, "-- {}", v.gate.reason)?;
-                    last_gate = v.gate.reason.clone();
+        let snap = match serde_json::from_slice::<Snapshot>(bytes) {
+            Ok(v) => v,
+            Err(e) => {
+                if !json {
+                    writeln!(out, "?? not a state broadcast ({e}): {n} bytes")?;
+                    out.flush()?;
                 }
-                writeln!(out, "{}", human_line(&v))?;
+                continue;
             }
-            Err(e) => writeln!(out, "?? not a state broadcast ({e}): {n} bytes")?,
+        };
+        let whole_datagram = snap.part.is_none();
+        // A vehicle of many devices broadcasts in parts: one line per whole snapshot.
+        let Some(v) = parts.push(snap) else {
+            continue;
+        };
+        seen += 1;
+        if json {
+            if whole_datagram {
+                out.write_all(bytes)?;
+            } else {
+                serde_json::to_writer(&mut out, &v)?;
+            }
+            out.write_all(b"\n")?;
+        } else {
+            if v.gate.reason != last_gate {
+                writeln!(out, "-- {}", v.gate.reason)?;
+                last_gate = v.gate.reason.clone();
+            }
+            writeln!(out, "{}", human_line(&v))?;
         }
         out.flush()?;
     }
