@@ -18,6 +18,7 @@ pub const SCHEMA: u32 = 2;
 
 /// The whole vehicle at one instant.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Snapshot {
     pub schema: u32,
     pub vehicle: String,
@@ -45,6 +46,7 @@ pub struct Snapshot {
 /// the same `seq`. Every part is a whole snapshot with a share of the devices (in
 /// order) and the gate and supervisor; the network part travels in part 0 only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Part {
     pub index: u16,
     pub count: u16,
@@ -120,6 +122,7 @@ impl Snapshot {
 
 /// The engage gate and the safety rules.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct GateView {
     pub engaged: bool,
     /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
@@ -139,6 +142,7 @@ pub struct GateView {
 
 /// One device.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct DeviceView {
     pub name: String,
     pub kind: Kind,
@@ -202,6 +206,7 @@ impl DeviceView {
 
 /// A device's health, as its threads keep it.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Health {
     /// Failing repeatedly, silent past its `status_max_age`, or its port is gone.
     pub faulty: bool,
@@ -226,6 +231,7 @@ pub struct Health {
 
 /// What the console may change while running.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Settings {
     pub status_period_ms: f64,
     pub command_timeout_ms: f64,
@@ -235,6 +241,7 @@ pub struct Settings {
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Counters {
     /// Commands accepted at intake into the device's slot.
     pub received: u64,
@@ -255,6 +262,7 @@ pub struct Counters {
 
 /// Figures of one latency histogram, in microseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct LatencySummary {
     pub count: u64,
     pub p50_us: Option<f64>,
@@ -264,6 +272,7 @@ pub struct LatencySummary {
 
 /// The kinds of fault the supervisor detects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum FaultKind {
     /// No status for longer than the device's `status_max_age`.
@@ -308,6 +317,7 @@ impl fmt::Display for FaultKind {
 
 /// A fault as the snapshot carries it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct FaultView {
     pub kind: FaultKind,
     pub device: Option<String>,
@@ -327,6 +337,7 @@ impl FaultView {
 
 /// Where a recovery procedure is.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct RecoveryView {
     /// `engine_stall`, `steering`, `reconnect brake`.
     pub name: String,
@@ -360,6 +371,7 @@ impl RecoveryView {
 
 /// The supervisor's state.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct SupervisorView {
     pub faults: Vec<FaultView>,
     pub recovery: Option<RecoveryView>,
@@ -371,6 +383,7 @@ pub struct SupervisorView {
 
 /// The network command watchdog, as shown to people.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum WatchdogState {
     /// Disengaged.
@@ -385,6 +398,7 @@ pub enum WatchdogState {
 
 /// The network side: listener, watchdog, senders, counters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct NetView {
     pub listen: SocketAddr,
     /// Datagrams received, and those accepted (parsed, authentic, not refused whole).
@@ -401,6 +415,7 @@ pub struct NetView {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct WatchdogView {
     pub state: WatchdogState,
     pub timeout_ms: f64,
@@ -411,6 +426,7 @@ pub struct WatchdogView {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct SenderView {
     pub addr: SocketAddr,
     pub age_ms: f64,
@@ -425,6 +441,7 @@ pub struct SenderView {
 
 /// Rejections by reason; every reason is listed, zeros included.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Rejections {
     /// Whole datagrams: grammar, authentication, counter.
     pub datagram: Pairs<u64>,
@@ -475,6 +492,21 @@ impl<V> Pairs<V> {
 impl<V> FromIterator<(String, V)> for Pairs<V> {
     fn from_iter<I: IntoIterator<Item = (String, V)>>(iter: I) -> Self {
         Pairs(iter.into_iter().collect())
+    }
+}
+
+/// A JSON object whose values are all `V`.
+#[cfg(test)]
+impl<V: schemars::JsonSchema> schemars::JsonSchema for Pairs<V> {
+    fn schema_name() -> std::borrow::Cow<'static, str> {
+        format!("Pairs_of_{}", V::schema_name()).into()
+    }
+
+    fn json_schema(generator: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        schemars::json_schema!({
+            "type": "object",
+            "additionalProperties": generator.subschema_for::<V>(),
+        })
     }
 }
 
@@ -610,5 +642,32 @@ mod tests {
         let one = snap.datagrams(max).unwrap();
         assert_eq!(one.len(), 1);
         assert!(!String::from_utf8_lossy(&one[0]).contains("\"part\""));
+    }
+
+    /// `schemas/snapshot-2.json` is the JSON Schema of exactly this type (its field
+    /// documentation included); `UPDATE_SCHEMA=1 cargo test --lib snapshot` rewrites it
+    /// after a change. tests/schema.rs checks real broadcasts against the file.
+    #[test]
+    fn the_schema_file_describes_this_snapshot() {
+        let mut schema = schemars::schema_for!(Snapshot);
+        schema.insert(
+            "$id".into(),
+            format!("urn:adrive:schema:snapshot-{SCHEMA}").into(),
+        );
+        schema.insert(
+            "title".into(),
+            format!("adrive state snapshot, schema {SCHEMA}").into(),
+        );
+        let text = serde_json::to_string_pretty(&schema).unwrap() + "\n";
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-2.json");
+        assert!(path.ends_with(&format!("snapshot-{SCHEMA}.json")));
+        if std::env::var_os("UPDATE_SCHEMA").is_some() {
+            std::fs::write(path, &text).unwrap();
+        }
+        let file = std::fs::read_to_string(path).unwrap_or_default();
+        assert!(
+            file == text,
+            "{path} is not the schema of Snapshot: rerun with UPDATE_SCHEMA=1 and review the diff"
+        );
     }
 }
