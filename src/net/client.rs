@@ -374,13 +374,19 @@ pub fn human_line(v: &Snapshot) -> String {
             let _ = write!(l, " | {}", d.name);
             let single = d.readings.len() == 1;
             for ((name, v), (_, units)) in d.readings.iter().zip(d.reading_units.iter()) {
+                // `estop run`, `obd rpm=700.00 speed=0.00m/s …`
                 if single {
                     let _ = write!(l, " {}", value(v.as_ref()));
                 } else {
-                    let _ = write!(l, " {name} {}", value(v.as_ref()));
+                    let _ = write!(l, " {name}={}", value(v.as_ref()));
                 }
-                if !units.is_empty() && matches!(v, Some(Value::Number(_))) {
-                    let _ = write!(l, " {units}");
+                if !units.is_empty() && units != name && matches!(v, Some(Value::Number(_))) {
+                    let sep = if units.starts_with(char::is_alphabetic) && single {
+                        " "
+                    } else {
+                        ""
+                    };
+                    let _ = write!(l, "{sep}{units}");
                 }
             }
             l.push_str(flag);
@@ -410,6 +416,23 @@ mod tests {
         assert_eq!(words(&["steer 0.2", "GAS", "0"]), "steer 0.2\nGAS 0\n");
         assert_eq!(words(&["steer 0.2; brake 1"]), "steer 0.2\nbrake 1\n");
         assert_eq!(words(&["steer", "-0.25"]), "steer -0.25\n");
+    }
+
+    /// `adrive watch`: each actuator as commanded/measured, each sensor's readings
+    /// with their units.
+    #[test]
+    fn a_broadcast_is_one_line_for_a_person() {
+        let snap = crate::console::sample::gate(Instant::now()).snapshot(0);
+        let l = human_line(&snap);
+        assert!(l.contains("disengaged watchdog -"), "{l}");
+        assert!(
+            l.contains(" | steer -/0.23 | gas -/0.00 | brake -/1.00 | trans -/park"),
+            "{l}"
+        );
+        assert!(
+            l.ends_with(" | estop run | obd rpm=700.00 speed=0.00m/s coolant=85.00°C running=yes"),
+            "{l}"
+        );
     }
 
     #[test]
