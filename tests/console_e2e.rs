@@ -166,6 +166,19 @@ impl Console {
         }
     }
 
+    /// Enter on the command under the cursor, `value`, Enter; then wait for device
+    /// `name`'s row to show `shown` as command and measurement.
+    fn command(&mut self, name: &str, value: &str, shown: &str) {
+        self.keys("\r");
+        self.wait_for("the command edit", |s| {
+            s.contains(&format!("edit {name} command"))
+        });
+        self.keys(&format!("\x15{value}\r"));
+        self.wait_for(&format!("{name} at {value}"), |s| {
+            cmd_meas(s, name) == shown
+        });
+    }
+
     /// Engage, then `t`, Ctrl-U, `d`, Enter: drive.
     fn engage_in_drive(&mut self) {
         self.engage();
@@ -464,6 +477,14 @@ fn row(screen: &str, name: &str) -> Vec<String> {
         .unwrap_or_default()
 }
 
+/// The command and the measurement in a device's row: `0.500 0.500`.
+fn cmd_meas(screen: &str, name: &str) -> String {
+    row(screen, name)
+        .get(1..3)
+        .map(|v| v.join(" "))
+        .unwrap_or_default()
+}
+
 /// The tractor's 32 devices at 80×24, as an operator runs it: a row each, then `/`
 /// jumps to a device by name, Enter edits its command from there, and the simulated
 /// device reports it back; the name prompt takes Space as STOP.
@@ -484,33 +505,21 @@ fn thirty_two_devices_at_80x24_jump_by_name_and_command_one() {
         assert_eq!(row(&s, name).first().map(String::as_str), Some(name), "{s}");
     }
     c.engage_now();
+    // Each key of the name moves the cursor; the prompt says what it found.
     c.keys("/wip");
     c.wait_for("the wiper found", |s| {
         s.contains("/wip▏  wiper 1 of 1") && s.contains("WIPER 0…1 cmd")
     });
     c.keys("\r");
     c.wait_for("the prompt closed", |s| !s.contains("/wip▏"));
-    c.keys("\r");
-    c.wait_for("the wiper's command edit", |s| {
-        s.contains("edit wiper command")
-    });
-    c.keys("0.5\r");
-    c.wait_for("the wiper commanded and there", |s| {
-        row(s, "wiper")
-            .get(1..3)
-            .is_some_and(|v| v == ["0.500", "0.500"])
-    });
+    // From there, Enter edits the command; the simulated wiper reports it back.
+    c.command("wiper", "0.5", "0.500 0.500");
     // A state device, found by a part of its name.
     c.keys("/sig\r");
     c.wait_for("the turn signal found", |s| {
         s.contains("TURN_SIGNAL O/L/R/H")
     });
-    c.keys("\r\x15left\r");
-    c.wait_for("the turn signal left", |s| {
-        row(s, "turn_signal")
-            .get(1..3)
-            .is_some_and(|v| v == ["left", "left"])
-    });
+    c.command("turn_signal", "left", "left left");
     // Space in the name prompt is STOP.
     c.keys("/h");
     c.wait_for("the prompt", |s| s.contains("/h▏"));
