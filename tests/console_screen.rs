@@ -638,3 +638,29 @@ fn the_bench_jumps_by_name_too() {
     assert_eq!(m.snap.devices[m.bench.index()].name, "cabin");
     find(&b, "CABIN");
 }
+
+/// 64 devices do not all have a row at 80×24: the list pages too, saying which rows
+/// it shows, and follows the cursor.
+#[test]
+fn a_list_longer_than_the_screen_pages_with_the_cursor() {
+    let mut toml = String::from("[vehicle]\nname = \"sixty-four\"\n");
+    for i in 0..64 {
+        toml.push_str(&format!(
+            "[[device]]\nname = \"valve{i:02}\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\ndriver = \"line\"\n"
+        ));
+    }
+    let config = adrive::config::parse(&toml, "sixty-four.toml").unwrap();
+    let f = fixture_of(config, |_, _| {});
+    let mut m = f.model(Theme::default());
+    let b = f.press(&mut m, &[], (80, 24));
+    let screen = text(&b);
+    assert!(screen.contains("1–34/64"), "{screen}");
+    find(&b, "valve33 ");
+    assert!(!screen.contains("valve34 "), "{screen}");
+    let b = f.press(&mut m, &["/", "5", "0"], (80, 24));
+    assert_eq!(under_cursor(&m), "valve50");
+    let screen = text(&b);
+    assert!(screen.contains("35–64/64"), "{screen}");
+    find(&b, "valve63 ");
+    assert!(!screen.contains("valve00 "), "{screen}");
+}

@@ -1,9 +1,10 @@
 //! The device list, for a vehicle with more devices than panels fit: one line a
 //! device — its name, command, measurement, the age of its status, its receipt →
 //! first-byte delay p50 and its error code — in columns down the screen, under a
-//! header line. A faulty device's line is red; a stale value is dimmed. The cursor
-//! shows on the command when it stands there (an edit of it too), else on the name
-//! of its device; while the name prompt is open, the names it matches are marked.
+//! header line (which, when the list pages, says which devices it shows: `35–64/64`).
+//! A faulty device's line is red; a stale value is dimmed. The cursor shows on the
+//! command when it stands there (an edit of it too), else on the name of its device;
+//! while the name prompt is open, the names it matches are marked.
 //!
 //! Values keep their columns: numbers and states are right-aligned in widths fixed
 //! by the screen, a name or value too long for its column ends in `…` (the full
@@ -90,19 +91,19 @@ fn fit(text: &str, width: usize, right: bool) -> String {
 }
 
 impl DeviceList<'_> {
-    fn header(&self, w: Widths, total: usize) -> Vec<Span<'static>> {
+    /// Which devices a list that pages shows: `35–64/64`.
+    fn page(&self) -> Option<String> {
         let n = self.snap.devices.len();
         let page = usize::from(self.cols) * usize::from(self.rows);
-        // A list that pages says which devices it shows.
-        let name = if page < n {
-            let last = (self.first + page).min(n);
-            format!("{}–{}/{n}", self.first + 1, last)
-        } else {
-            "device".to_string()
-        };
+        let last = (self.first + page).min(n);
+        (page < n).then(|| format!("{}–{last}/{n}", self.first + 1))
+    }
+
+    /// A column's header: `name` over the names, then the values'.
+    fn header(&self, name: &str, w: Widths, total: usize) -> Vec<Span<'static>> {
         let text = format!(
             "{} {} {} {} {} {}",
-            fit(&name, w.name, false),
+            fit(name, w.name, false),
             fit("cmd", w.cmd, true),
             fit("meas", w.meas, true),
             fit("age", AGE, true),
@@ -186,7 +187,13 @@ impl Widget for &DeviceList<'_> {
         let devices = &self.snap.devices;
         let cols = self.cols.max(1);
         let col_w = area.width / cols;
-        let longest = devices.iter().map(|d| d.name.len()).max().unwrap_or(0);
+        let page = self.page();
+        let longest = devices
+            .iter()
+            .map(|d| d.name.len())
+            .chain(page.as_ref().map(|p| p.chars().count()))
+            .max()
+            .unwrap_or(0);
         let w = Widths::of(usize::from(col_w), longest);
         for c in 0..cols {
             let x = area.x + c * col_w;
@@ -197,7 +204,12 @@ impl Widget for &DeviceList<'_> {
             };
             // The last character of a column is left blank, between it and the next.
             let total = usize::from(col_w.saturating_sub(1));
-            let mut lines = vec![Line::from(self.header(w, total))];
+            // The first column's header says which devices a list that pages shows.
+            let name = match (&page, c) {
+                (Some(p), 0) => p.as_str(),
+                _ => "device",
+            };
+            let mut lines = vec![Line::from(self.header(name, w, total))];
             for r in 0..self.rows {
                 let i = self.first + usize::from(c) * usize::from(self.rows) + usize::from(r);
                 let Some(d) = devices.get(i) else { break };
