@@ -290,6 +290,16 @@ impl Model {
             .map_or(self.snap.devices.len().saturating_sub(1), DeviceId::index)
     }
 
+    /// The device the name prompt and the match keys move: the bench's on the bench,
+    /// else the one under the cursor.
+    pub fn found_device(&self) -> usize {
+        if self.in_bench() {
+            self.bench.index()
+        } else {
+            self.cursor_device()
+        }
+    }
+
     /// How the main screen lays the devices out in `body`.
     pub fn layout_in(&self, body: Rect) -> Devices {
         layout::devices(

@@ -96,8 +96,8 @@ pub struct MessageLine<'a> {
     pub m: &'a Model,
 }
 
-/// The name prompt's line: `/hi▏  hitch 1 of 2 ·` and its keys; red when nothing
-/// matches.
+/// The name prompt's line: `/hi▏  hitch 1 of 2` (the device found, which of the
+/// matches in the vehicle's order) and its keys; red when nothing matches.
 fn prompt(m: &Model, f: &Find) -> Line<'static> {
     let t = &m.theme;
     let k = |a| {
@@ -109,7 +109,6 @@ fn prompt(m: &Model, f: &Find) -> Line<'static> {
     let names = m.snap.devices.iter().map(|d| d.name.as_str());
     let found = find::matches(names, &f.query);
     let mut spans = vec![Span::styled(format!("/{}▏", f.query), t.editing())];
-    let here = m.field().device().map(|id| id.index());
     match (found.is_empty(), f.query.is_empty()) {
         (true, true) => spans.push(Span::raw("  type a device's name")),
         (true, false) => spans.push(Span::styled(
@@ -117,17 +116,11 @@ fn prompt(m: &Model, f: &Find) -> Line<'static> {
             t.fault(),
         )),
         (false, _) => {
-            let at = if m.in_bench() {
-                Some(m.bench.index())
-            } else {
-                here
-            };
-            let mut sorted = found.clone();
+            let at = m.found_device();
+            let mut sorted = found;
             sorted.sort_unstable();
-            let pos = at.and_then(|i| sorted.iter().position(|&j| j == i));
-            let name = at
-                .and_then(|i| m.snap.devices.get(i))
-                .map_or("", |d| d.name.as_str());
+            let pos = sorted.iter().position(|&j| j == at);
+            let name = m.snap.devices.get(at).map_or("", |d| d.name.as_str());
             let of = match pos {
                 Some(p) => format!(" {} of {}", p + 1, sorted.len()),
                 None => format!(" {} matches", sorted.len()),

@@ -30,15 +30,6 @@ fn matches(m: &Model, query: &str) -> Vec<usize> {
     find::matches(names.iter().map(String::as_str), query)
 }
 
-/// The device the prompt moves: the bench's, or the one under the cursor.
-fn here(m: &Model) -> usize {
-    if m.in_bench() {
-        m.bench.index()
-    } else {
-        m.cursor_device()
-    }
-}
-
 fn go(m: &mut Model, i: usize) {
     let id = DeviceId(i as u16);
     if m.in_bench() {
@@ -67,7 +58,7 @@ fn follow(m: &mut Model) {
 /// prompt moves; false when none matches.
 fn step(m: &mut Model, query: &str, step: isize) -> bool {
     let found = matches(m, query);
-    match find::next(&found, here(m), step) {
+    match find::next(&found, m.found_device(), step) {
         Some(i) => {
             go(m, i);
             true
