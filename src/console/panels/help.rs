@@ -33,6 +33,7 @@ impl HelpPanel<'_> {
             Mode::Teleop,
             Mode::Bench,
             Mode::Edit,
+            Mode::Find,
             Mode::Confirm,
             Mode::Help,
         ] {
