@@ -698,6 +698,32 @@ pub fn user_keymap_path() -> Option<PathBuf> {
 /// The pure key handler: what a terminal key event means in `mode`. Ctrl-C always
 /// means [`Action::Interrupt`]; releases are ignored; an unbound character typed
 /// while editing or in the name prompt is [`Action::Input`].
+/// A key's description for this vehicle: `{throttle}` (any role's name in braces)
+/// becomes the name of the device bound to it (`gas` on Alice, `throttle` on the cart),
+/// so the default keymap's `g gas` reads `g throttle` on a vehicle that calls it so.
+/// `None` when a role it names is not bound: the key does nothing there.
+pub fn describe(desc: &str, roles: &crate::snapshot::Pairs<String>) -> Option<String> {
+    let mut out = String::with_capacity(desc.len());
+    let mut rest = desc;
+    while let Some(open) = rest.find('{') {
+        let Some(close) = rest[open..].find('}') else {
+            break;
+        };
+        let role = &rest[open + 1..open + close];
+        out.push_str(&rest[..open]);
+        match Role::from_word(role) {
+            Some(r) => {
+                let bound = roles.get(r.as_str())?;
+                out.push_str(bound.split('.').next().unwrap_or(bound));
+            }
+            None => out.push_str(&rest[open..=open + close]),
+        }
+        rest = &rest[open + close + 1..];
+    }
+    out.push_str(rest);
+    Some(out)
+}
+
 pub fn key_to_action(map: &Keymap, mode: Mode, e: &KeyEvent) -> Option<Action> {
     if e.kind == KeyEventKind::Release {
         return None;
@@ -952,5 +978,30 @@ mod tests {
         let mut rel = KeyEvent::new(KeyCode::Char('q'), KeyModifiers::NONE);
         rel.kind = KeyEventKind::Release;
         assert_eq!(key_to_action(&m, Mode::Main, &rel), None);
+    }
+
+    /// The default keymap's `g gas` is `g throttle` on a vehicle that calls it so, and
+    /// absent where nothing is bound.
+    #[test]
+    fn a_description_names_the_device_bound_to_its_role() {
+        use crate::snapshot::Pairs;
+        let alice: Pairs<String> = [("throttle", "gas"), ("estop", "estop.estop")]
+            .into_iter()
+            .map(|(r, d)| (r.to_string(), d.to_string()))
+            .collect();
+        assert_eq!(describe("{throttle}", &alice).as_deref(), Some("gas"));
+        assert_eq!(
+            describe("wake {throttle}", &alice).as_deref(),
+            Some("wake gas")
+        );
+        assert_eq!(
+            describe("{estop} pause", &alice).as_deref(),
+            Some("estop pause")
+        );
+        assert_eq!(describe("{gear}", &alice), None, "no gear bound");
+        assert_eq!(
+            describe("a {brace} {", &alice).as_deref(),
+            Some("a {brace} {")
+        );
     }
 }

@@ -295,6 +295,7 @@ impl Widget for &Model {
                     can_inject: self.snap.can_inject,
                     sim_vehicle: self.snap.sim_vehicle.as_deref(),
                     map: &self.keymap,
+                    roles: &self.snap.gate.roles,
                 };
                 (&v).render(body, buf);
             }
@@ -307,6 +308,7 @@ impl Widget for &Model {
                     map: &self.keymap,
                     theme: self.theme,
                     scroll: self.help_scroll,
+                    roles: &self.snap.gate.roles,
                 };
                 (&h).render(body, buf);
             }
@@ -336,6 +338,7 @@ impl Widget for &Model {
             mode: self.mode,
             theme: self.theme,
             first: many.then_some(Action::Find),
+            roles: &self.snap.gate.roles,
         };
         (&h).render(hint, buf);
     }

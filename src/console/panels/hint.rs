@@ -3,9 +3,10 @@
 //! the loaded keymap for the current mode.
 
 use crate::console::find;
-use crate::console::keymap::{Action, Binding, Key, Keymap, Mode};
+use crate::console::keymap::{describe, Action, Binding, Key, Keymap, Mode};
 use crate::console::model::{Find, Model};
 use crate::console::theme::Theme;
+use crate::snapshot::Pairs;
 use crossterm::event::KeyCode;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
@@ -35,9 +36,11 @@ pub fn short(k: Key) -> String {
     }
 }
 
-/// The bindings of `mode` grouped by action, in file order, help and quit first.
-pub fn grouped(map: &Keymap, mode: Mode) -> Vec<(String, String, Action)> {
-    grouped_first(map, mode, None)
+/// The bindings of `mode` grouped by action, in file order, help and quit first, with
+/// their descriptions for this vehicle's `roles` ([`describe`]; a key for a role the
+/// vehicle lacks is left out).
+pub fn grouped(map: &Keymap, mode: Mode, roles: &Pairs<String>) -> Vec<(String, String, Action)> {
+    grouped_first(map, mode, None, roles)
 }
 
 /// [`grouped`], with `first` (when bound) right after help and quit.
@@ -45,16 +48,20 @@ pub fn grouped_first(
     map: &Keymap,
     mode: Mode,
     first: Option<Action>,
+    roles: &Pairs<String>,
 ) -> Vec<(String, String, Action)> {
     let mut out: Vec<(String, String, Action)> = Vec::new();
     let bs: &[Binding] = map.bindings(mode);
     for b in bs {
+        let Some(desc) = describe(&b.desc, roles) else {
+            continue;
+        };
         match out.iter_mut().find(|(_, _, a)| *a == b.run) {
             Some(e) => {
                 e.0.push('/');
                 e.0.push_str(&short(b.on));
             }
-            None => out.push((short(b.on), b.desc.clone(), b.run)),
+            None => out.push((short(b.on), desc, b.run)),
         }
     }
     out.sort_by_key(|(_, _, a)| match a {
@@ -73,13 +80,15 @@ pub struct HintBar<'a> {
     /// An action worth showing before the others (the name prompt, when the
     /// devices are too many for a panel each).
     pub first: Option<Action>,
+    /// The vehicle's role bindings, for the keys' descriptions.
+    pub roles: &'a Pairs<String>,
 }
 
 impl Widget for &HintBar<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
         let mut spans = Vec::new();
         let mut used = 0usize;
-        for (keys, desc, _) in grouped_first(self.map, self.mode, self.first) {
+        for (keys, desc, _) in grouped_first(self.map, self.mode, self.first, self.roles) {
             let w = keys.chars().count() + 1 + desc.chars().count() + 2;
             if used + w > area.width as usize {
                 break;
