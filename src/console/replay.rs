@@ -14,6 +14,7 @@ use super::model::Model;
 use super::theme::Theme;
 use super::update::{self, Flow};
 use crate::exit::Exit;
+use crate::net::BROADCAST_MAX;
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
 use crate::safety::Reject;
@@ -409,10 +410,24 @@ impl Broadcast {
         })
     }
 
+    /// Send one recorded snapshot, in parts when it does not fit one datagram, as the
+    /// live broadcast does.
     pub fn send(&self, json: &[u8]) {
+        let parts = match json.len() <= BROADCAST_MAX {
+            true => Ok(vec![json.to_vec()]),
+            false => {
+                serde_json::from_slice::<Snapshot>(json).and_then(|s| s.datagrams(BROADCAST_MAX))
+            }
+        };
+        let parts = match parts {
+            Ok(p) => p,
+            Err(e) => return tracing::warn!("replay broadcast: a recorded snapshot: {e}"),
+        };
         for to in &self.to {
-            if let Err(e) = self.socket.send_to(json, to) {
-                tracing::warn!(%to, "replay broadcast: {e}");
+            for part in &parts {
+                if let Err(e) = self.socket.send_to(part, to) {
+                    tracing::warn!(%to, "replay broadcast: {e}");
+                }
             }
         }
     }

@@ -212,6 +212,11 @@ pub fn snapshot(gate: &Gate, status: &NetStatus, seq: u64) -> Snapshot {
     snap
 }
 
+/// The largest state broadcast datagram: a snapshot larger than this (a vehicle of
+/// many devices) goes out in parts ([`Snapshot::datagrams`]) that `adrive watch`
+/// joins. Alice's snapshot fits in one.
+pub const BROADCAST_MAX: usize = 16 * 1024;
+
 fn broadcast_loop(
     socket: &UdpSocket,
     dest: &[SocketAddr],
@@ -222,25 +227,32 @@ fn broadcast_loop(
 ) {
     let mut errors = RateLimit::new(1);
     let mut seq = 0u64;
-    let mut bytes = Vec::with_capacity(8192);
     crate::threads::every(period, stop, || {
         let snap = snapshot(gate, status, seq);
         seq += 1;
-        bytes.clear();
-        if let Err(e) = serde_json::to_writer(&mut bytes, &snap) {
-            tracing::error!("state broadcast: {e}");
-            return;
-        }
+        let datagrams = match snap.datagrams(BROADCAST_MAX) {
+            Ok(d) => d,
+            Err(e) => {
+                tracing::error!("state broadcast: {e}");
+                return;
+            }
+        };
+        // A recording keeps the snapshot whole, however many parts it went out in.
         gate.vehicle
             .tap
             .send(|| crate::vehicle::tap::Event::Snapshot {
                 at: Instant::now(),
-                json: bytes.clone(),
+                json: match datagrams.as_slice() {
+                    [whole] => whole.clone(),
+                    _ => serde_json::to_vec(&snap).unwrap_or_default(),
+                },
             });
         for to in dest {
-            if let Err(e) = socket.send_to(&bytes, to) {
-                if errors.allow(Instant::now()) {
-                    tracing::warn!(%to, "state broadcast: {e}");
+            for bytes in &datagrams {
+                if let Err(e) = socket.send_to(bytes, to) {
+                    if errors.allow(Instant::now()) {
+                        tracing::warn!(%to, "state broadcast: {e}");
+                    }
                 }
             }
         }

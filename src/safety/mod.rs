@@ -515,6 +515,7 @@ impl Gate {
                 .collect::<Pairs<u64>>(),
             net: None,
             record: self.vehicle.tap.status(),
+            part: None,
         }
     }
 }
