@@ -24,7 +24,9 @@ def main(path):
         for schema, channel, message in reader.iter_messages():
             check = validators.get(schema.id)
             if check is None:
-                check = jsonschema.Draft7Validator(json.loads(schema.data))
+                document = json.loads(schema.data)
+                # The draft the schema names ($schema), as Foxglove reads it.
+                check = jsonschema.validators.validator_for(document)(document)
                 validators[schema.id] = check
             check.validate(json.loads(message.data))
             counts[channel.topic] = counts.get(channel.topic, 0) + 1
