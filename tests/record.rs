@@ -583,3 +583,58 @@ fn a_full_disk_stops_the_recording_not_the_vehicle() {
     assert!(rec.chunks >= 1 && rec.cut.is_some(), "cut at the limit");
     assert!(!by_topic(&rec)["/snapshot"].is_empty());
 }
+
+#[test]
+fn a_record_table_rolls_to_a_new_file_by_age_and_keeps_the_newest() {
+    let dir = common::tempdir("roll");
+    let sim = SimProcess::start();
+    let port = free_port();
+    let mut cmd = adrive(&sim, dir.path(), port, &[]);
+    // The vehicle file records every run itself: rolling at the shortest age allowed,
+    // keeping one file.
+    let config = dir.path().join("vehicle.toml");
+    let mut text = std::fs::read_to_string(&config).unwrap();
+    text.push_str("\n[record]\ndir = \"rec\"\nroll_age = \"10s\"\nkeep = 1\n");
+    std::fs::write(&config, text).unwrap();
+    let mut a = common::Reaped(
+        cmd.stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let rec = dir.path().join("rec");
+    let files = || -> Vec<PathBuf> {
+        let mut f: Vec<PathBuf> = std::fs::read_dir(&rec)
+            .into_iter()
+            .flatten()
+            .map(|e| e.unwrap().path())
+            .collect();
+        f.sort();
+        f
+    };
+    common::wait_for("the first recording", || files().len() == 1);
+    let first = files().remove(0);
+    let name = first.file_name().unwrap().to_string_lossy().to_string();
+    assert!(
+        name.starts_with("alice-") && name.ends_with("Z.mcap"),
+        "{name}"
+    );
+    // Ten seconds on, the next file; the first is deleted (keep = 1).
+    let end = Instant::now() + Duration::from_secs(10) + DEADLINE;
+    while files() == [first.clone()] {
+        assert!(Instant::now() < end, "no second file in {}", rec.display());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    common::wait_for("the first file pruned", || !first.exists());
+    common::signal(&a, libc::SIGTERM);
+    assert_eq!(common::wait_exit(&mut a), Some(0));
+    let left = files();
+    assert_eq!(left.len(), 1, "{left:?}");
+    assert!(left[0] > first, "the newer file is kept");
+    let second = Recording::open(&left[0]).unwrap();
+    assert!(second.complete, "{:?}", second.cut);
+    assert!(
+        !by_topic(&second)["/snapshot"].is_empty(),
+        "each file stands alone, with its channels"
+    );
+}
