@@ -230,6 +230,18 @@ impl Player {
         };
     }
 
+    /// Play at this speed (the nearest of [`SPEEDS`]).
+    pub fn set_speed(&mut self, speed: f64, now: Instant) {
+        self.anchor = (now, self.time_now(now));
+        self.speed = (0..SPEEDS.len())
+            .min_by(|&a, &b| {
+                (SPEEDS[a] - speed)
+                    .abs()
+                    .total_cmp(&(SPEEDS[b] - speed).abs())
+            })
+            .unwrap_or(3);
+    }
+
     fn time_now(&self, now: Instant) -> u64 {
         if !self.playing {
             return self.time();
@@ -541,20 +553,6 @@ pub fn headless(mut player: Player, exits: &Receiver<Exit>, broadcast: &Broadcas
                 }
             },
         }
-    }
-}
-
-impl Player {
-    /// Play at this speed (the nearest of [`SPEEDS`]).
-    pub fn set_speed(&mut self, speed: f64, now: Instant) {
-        self.anchor = (now, self.time_now(now));
-        self.speed = (0..SPEEDS.len())
-            .min_by(|&a, &b| {
-                (SPEEDS[a] - speed)
-                    .abs()
-                    .total_cmp(&(SPEEDS[b] - speed).abs())
-            })
-            .unwrap_or(3);
     }
 }
 
