@@ -11,6 +11,9 @@ use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
 use tracing_subscriber::{fmt, EnvFilter, Layer, Registry};
 
+/// Log lines queued for the file writer at most.
+pub const LOG_QUEUE: usize = 4096;
+
 /// Keeps the log file writer alive; dropping it flushes the file.
 pub struct LogGuard {
     _file: Option<WorkerGuard>,
@@ -36,7 +39,14 @@ pub fn init_with(
         Some(dir) => {
             std::fs::create_dir_all(dir)?;
             let appender = tracing_appender::rolling::daily(dir, "adrive.log");
-            let (writer, guard) = tracing_appender::non_blocking(appender);
+            // The writer's queue is allocated whole up front: 128,000 lines by default,
+            // 4 MB resident from the start. Lines are rate-limited where they could
+            // flood, so a few thousand are plenty; past that they are dropped (counted
+            // by tracing-appender), never waited for.
+            let (writer, guard) = tracing_appender::non_blocking::NonBlockingBuilder::default()
+                .buffered_lines_limit(LOG_QUEUE)
+                .lossy(true)
+                .finish(appender);
             let layer = fmt::layer()
                 .with_writer(writer)
                 .with_ansi(false)
