@@ -318,9 +318,9 @@ fn section2_fig3(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
     match plot::figure(
         &path,
         "Fig. 3: receipt → first byte (100 Hz per actuator)",
-        "actuators",
-        "µs",
+        ("actuators", "µs"),
         0.8..80.0,
+        true,
         &series,
     ) {
         Ok(()) => println!("plot: {}", path.display()),
@@ -449,9 +449,9 @@ fn section3_fig4(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
     match plot::figure(
         &path,
         "Fig. 4: CPU against the command rate (4 actuators)",
-        "datagrams per second (idle drawn at 1)",
-        "% of one core",
+        ("datagrams per second (idle drawn at 1)", "% of one core"),
         0.8..15000.0,
+        false,
         &series,
     ) {
         Ok(()) => println!("plot: {}", path.display()),
