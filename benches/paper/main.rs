@@ -10,7 +10,8 @@
 //! Sections: 0 the floor; 1 receipt → first byte on an idle port, under each thread
 //! placement; 2 delay against the number of actuators (Fig. 3); 3 CPU against the
 //! command rate (Fig. 4); 4 the cued-command stall under each port rule, with the
-//! effective bandwidth; 5 the findings of the command-path review; 6 memory.
+//! effective bandwidth; 5 the findings of the command-path review; 6 memory; 7 the
+//! console's output to its terminal.
 
 mod floor;
 mod plot;
@@ -140,6 +141,8 @@ struct Results {
     cued: Vec<(String, LatencySummary, f64, f64)>,
     rss_headless: u64,
     rss_console: u64,
+    /// The console's output, bytes a second: idle, and with steering moving.
+    console_output: Option<(f64, f64)>,
 }
 
 fn main() {
@@ -177,6 +180,9 @@ fn main() {
     }
     if on("6") {
         section6_memory(&dir, &mut r);
+    }
+    if on("7") {
+        section7_console_output(&dir, secs, &mut r);
     }
     summary(&r, &out);
 }
@@ -692,6 +698,49 @@ fn section6_memory(dir: &tempfile::TempDir, r: &mut Results) {
     drop(master);
 }
 
+/// What the console costs a terminal (an SSH session over a slow link): bytes a second
+/// it writes on a 100×30 terminal, idle, and with the steering moving at 10 Hz (a
+/// planner alternating `steer 0.3` / `steer -0.3`).
+fn section7_console_output(dir: &tempfile::TempDir, secs: f64, r: &mut Results) {
+    println!(
+        "\n== 7. The console's output on a 100×30 terminal (`adrive --sim`), {secs} s each =="
+    );
+    let port = rig::free_port();
+    let mut cmd = Command::new(rig::ADRIVE);
+    cmd.arg("--sim")
+        .args(["--listen", &format!("127.0.0.1:{port}")])
+        .arg("--log-dir")
+        .arg(dir.path().join("logs"))
+        .env("TERM", "xterm-256color")
+        .env_remove("NO_COLOR");
+    let (mut child, master) = pty::Master::spawn(&mut cmd, 100, 30, true);
+    let planner = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    planner.connect(("127.0.0.1", port)).unwrap();
+    // Let the console settle: the first full frame, the devices' first reports.
+    std::thread::sleep(Duration::from_secs(2));
+    let window = Duration::from_secs_f64(secs);
+    let n0 = master.bytes().len();
+    std::thread::sleep(window);
+    let idle = (master.bytes().len() - n0) as f64 / window.as_secs_f64();
+    let n0 = master.bytes().len();
+    let start = Instant::now();
+    let mut i = 0u32;
+    while start.elapsed() < window {
+        let x = if i % 2 == 0 { 0.3 } else { -0.3 };
+        let _ = planner.send(format!("engage\nsteer {x}\n").as_bytes());
+        i += 1;
+        let next = start + Duration::from_millis(100) * i;
+        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+    }
+    let busy = (master.bytes().len() - n0) as f64 / start.elapsed().as_secs_f64();
+    println!("idle: {idle:.0} B/s · steering at 10 Hz: {busy:.0} B/s");
+    r.console_output = Some((idle, busy));
+    // SAFETY: kill(2) on our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let _ = child.wait();
+    drop(master);
+}
+
 #[path = "../../tests/common/pty.rs"]
 #[allow(dead_code)]
 mod pty;
@@ -771,15 +820,25 @@ fn summary(r: &Results, out: &Path) {
             )
         );
     }
-    println!(
-        "{:<52} {:>16} {:>24}",
-        "peak memory, headless / console",
-        "< 4 MB",
-        format!(
-            "{:.1} / {:.1} MB",
-            r.rss_headless as f64 / 1024.0,
-            r.rss_console as f64 / 1024.0
-        )
-    );
+    if r.rss_headless > 0 {
+        println!(
+            "{:<52} {:>16} {:>24}",
+            "peak memory, headless / console",
+            "< 4 MB",
+            format!(
+                "{:.1} / {:.1} MB",
+                r.rss_headless as f64 / 1024.0,
+                r.rss_console as f64 / 1024.0
+            )
+        );
+    }
+    if let Some((idle, busy)) = r.console_output {
+        println!(
+            "{:<52} {:>16} {:>24}",
+            "console output, idle / steering at 10 Hz",
+            "-",
+            format!("{:.1} / {:.1} kB/s", idle / 1000.0, busy / 1000.0)
+        );
+    }
     println!("\nplots: {}", out.display());
 }

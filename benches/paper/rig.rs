@@ -211,7 +211,7 @@ fn without_table(toml: &str, header: &str) -> String {
 }
 
 /// A UDP port free on loopback right now.
-fn free_port() -> u16 {
+pub fn free_port() -> u16 {
     UdpSocket::bind("127.0.0.1:0")
         .and_then(|s| s.local_addr())
         .expect("a free port")
