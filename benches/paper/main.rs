@@ -22,7 +22,7 @@ use floor::{quantile, Cpus, Floor};
 use rig::{Adrive, Sim};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 /// Seconds each measured window lasts (`ADRIVE_BENCH_SECS` to change).
@@ -71,7 +71,7 @@ fn drive(a: &Adrive, names: &[String], hz: f64, secs: f64) {
         let name = &names[i as usize % names.len()];
         let v = ((i / names.len() as u64) % 50) as f64 / 100.0;
         text.clear();
-        let _ = write!(text, "{name} {v:.2}\n");
+        let _ = writeln!(text, "{name} {v:.2}");
         a.send(&text);
         i += 1;
         next += step;
@@ -147,7 +147,7 @@ struct Results {
 
 fn main() {
     let secs = secs();
-    let dir = rig::workdir();
+    let dir = common::tempdir("bench");
     let out = target_dir();
     std::fs::create_dir_all(&out).unwrap();
     let mut r = Results::default();
@@ -321,17 +321,14 @@ fn section2_fig3(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
             points: pts(|x| x.2),
         },
     ];
-    match plot::figure(
+    plot::save(
         &path,
         "Fig. 3: receipt → first byte (100 Hz per actuator)",
         ("actuators", "µs"),
         0.8..80.0,
         true,
         &series,
-    ) {
-        Ok(()) => println!("plot: {}", path.display()),
-        Err(e) => println!("plot: {e}"),
-    }
+    );
 }
 
 /// Alice on the simulator, brought into drive with the brake on, ready for a planner.
@@ -378,19 +375,7 @@ fn section3_fig4(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
             std::thread::sleep(Duration::from_secs_f64(secs));
         } else {
             let n = (rate * secs) as u64;
-            let _ = Command::new(rig::ADRIVE)
-                .args([
-                    "send",
-                    "--to",
-                    &a.listen.to_string(),
-                    "--rate",
-                    &rate.to_string(),
-                ])
-                .args(["--count", &n.to_string()])
-                .args(body)
-                .stdout(Stdio::null())
-                .stderr(Stdio::null())
-                .status();
+            rig::send_at(a.listen, rate, n, &body);
         }
         let wall = t0.elapsed().as_secs_f64();
         let cpu = (rig::cpu_time(a.pid()) - c0).as_secs_f64() / wall * 100.0;
@@ -452,17 +437,14 @@ fn section3_fig4(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
         color: plotters::style::RGBColor(31, 119, 180),
         points: r.fig4.iter().map(|x| (x.1.max(1.0), x.2)).collect(),
     }];
-    match plot::figure(
+    plot::save(
         &path,
         "Fig. 4: CPU against the command rate (4 actuators)",
         ("datagrams per second (idle drawn at 1)", "% of one core"),
         0.8..15000.0,
         false,
         &series,
-    ) {
-        Ok(()) => println!("plot: {}", path.display()),
-        Err(e) => println!("plot: {e}"),
-    }
+    );
 }
 
 /// The CPU floor of taking datagrams at all: a thread that only receives them (one
@@ -472,7 +454,7 @@ fn bare_receiver(rate: f64, secs: f64) -> (f64, f64) {
     let rx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     rx.set_read_timeout(Some(Duration::from_millis(300)))
         .unwrap();
-    let to = rx.local_addr().unwrap().to_string();
+    let to = rx.local_addr().unwrap();
     let counter = std::thread::spawn(move || {
         let thread_cpu = || {
             // SAFETY: getrusage fills the struct we hand it.
@@ -496,13 +478,12 @@ fn bare_receiver(rate: f64, secs: f64) -> (f64, f64) {
             (thread_cpu() - c0).as_secs_f64() / wall * 100.0,
         )
     });
-    let _ = Command::new(rig::ADRIVE)
-        .args(["send", "--to", &to, "--rate", &rate.to_string()])
-        .args(["--count", &((rate * secs) as u64).to_string()])
-        .args(["engage", "steer 0.1", "accel -0.4", "trans drive"])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status();
+    rig::send_at(
+        to,
+        rate,
+        (rate * secs) as u64,
+        &["engage", "steer 0.1", "accel -0.4", "trans drive"],
+    );
     counter.join().unwrap()
 }
 
@@ -575,7 +556,7 @@ fn section5_findings(dir: &tempfile::TempDir, secs: f64) {
         let mut i = 0u64;
         let mut next = Instant::now();
         while t.elapsed().as_secs_f64() < secs {
-            let x = if i % 2 == 0 { -0.6 } else { -0.1 };
+            let x = if i.is_multiple_of(2) { -0.6 } else { -0.1 };
             a.send(&format!("engage\naccel {x}\n{extra}"));
             i += 1;
             next += Duration::from_millis(10);
@@ -608,7 +589,7 @@ fn section5_findings(dir: &tempfile::TempDir, secs: f64) {
     let rx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     rx.set_read_timeout(Some(Duration::from_millis(300)))
         .unwrap();
-    let to = rx.local_addr().unwrap().to_string();
+    let to = rx.local_addr().unwrap();
     let n = 20_000u64;
     let counter = std::thread::spawn(move || {
         let mut buf = [0u8; 2048];
@@ -623,21 +604,7 @@ fn section5_findings(dir: &tempfile::TempDir, secs: f64) {
             first.map_or(0.0, |f| last.duration_since(f).as_secs_f64()),
         )
     });
-    let _ = Command::new(rig::ADRIVE)
-        .args([
-            "send",
-            "--to",
-            &to,
-            "--rate",
-            "10000",
-            "--count",
-            &n.to_string(),
-            "steer",
-            "0.1",
-        ])
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status();
+    rig::send_at(to, 10000.0, n, &["steer 0.1"]);
     let (got, took) = counter.join().unwrap();
     println!(
         "c) `adrive send --rate 10000 --count {n}`: {got} datagrams at {:.0} a second (before the fix: ~250)",
@@ -653,20 +620,12 @@ fn section6_memory(dir: &tempfile::TempDir, r: &mut Results) {
     let sim = Sim::start(&alice);
     {
         let a = alice_in_drive(dir, &sim, "memory");
-        let _ = Command::new(rig::ADRIVE)
-            .args([
-                "send",
-                "--to",
-                &a.listen.to_string(),
-                "--rate",
-                "1000",
-                "--count",
-                "3000",
-            ])
-            .args(["engage", "steer 0.1", "accel -0.4", "trans drive"])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .status();
+        rig::send_at(
+            a.listen,
+            1000.0,
+            3000,
+            &["engage", "steer 0.1", "accel -0.4", "trans drive"],
+        );
         let _ = a.snapshot();
         let (bin, libs, anon) = rig::rss_parts(a.pid());
         r.rss_headless = rig::status_kb(a.pid(), "VmHWM:");
@@ -726,7 +685,7 @@ fn section7_console_output(dir: &tempfile::TempDir, secs: f64, r: &mut Results) 
     let start = Instant::now();
     let mut i = 0u32;
     while start.elapsed() < window {
-        let x = if i % 2 == 0 { 0.3 } else { -0.3 };
+        let x = if i.is_multiple_of(2) { 0.3 } else { -0.3 };
         let _ = planner.send(format!("engage\nsteer {x}\n").as_bytes());
         i += 1;
         let next = start + Duration::from_millis(100) * i;
@@ -741,9 +700,9 @@ fn section7_console_output(dir: &tempfile::TempDir, secs: f64, r: &mut Results) 
     drop(master);
 }
 
-#[path = "../../tests/common/pty.rs"]
-#[allow(dead_code)]
-mod pty;
+#[path = "../../tests/common/mod.rs"]
+mod common;
+use common::pty;
 
 fn summary(r: &Results, out: &Path) {
     println!("\n== The paper and adrive, side by side ==");

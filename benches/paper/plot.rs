@@ -13,9 +13,25 @@ pub struct Series<'a> {
     pub points: Vec<(f64, f64)>,
 }
 
+/// Write a [`figure`] and say where it went (or why it did not: a plot is a
+/// by-product, never a reason to lose the run's figures).
+pub fn save(
+    path: &Path,
+    title: &str,
+    axes: (&str, &str),
+    x: std::ops::Range<f64>,
+    log_y: bool,
+    series: &[Series],
+) {
+    match figure(path, title, axes, x, log_y, series) {
+        Ok(()) => println!("plot: {}", path.display()),
+        Err(e) => println!("plot {}: {e}", path.display()),
+    }
+}
+
 /// A figure with a logarithmic x axis (actuators, datagrams a second); the y axis is
 /// logarithmic too with `log_y` (delays from microseconds to milliseconds).
-pub fn figure(
+fn figure(
     path: &Path,
     title: &str,
     (x_label, y_label): (&str, &str),

@@ -16,27 +16,19 @@ pub const ADRIVE: &str = env!("CARGO_BIN_EXE_adrive");
 /// Long enough for anything that works; a bench that waits this long has failed.
 const DEADLINE: Duration = Duration::from_secs(30);
 
-/// A directory for one bench run's files, removed at the end.
-pub fn workdir() -> tempfile::TempDir {
-    tempfile::Builder::new()
-        .prefix("adrive-bench-")
-        .tempdir()
-        .expect("a temporary directory")
-}
+pub use crate::common::free_port;
+use crate::common::stop;
 
-/// Stop a child as a service manager does (SIGTERM), waiting for it.
-fn stop(child: &mut Child) {
-    // SAFETY: kill(2) on our own child.
-    unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
-    let end = Instant::now() + DEADLINE;
-    while Instant::now() < end {
-        if !matches!(child.try_wait(), Ok(None)) {
-            return;
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    let _ = child.kill();
-    let _ = child.wait();
+/// `adrive send` as a planner: `count` datagrams of `body` to `to`, `rate` a second,
+/// waiting for it to finish.
+pub fn send_at(to: SocketAddr, rate: f64, count: u64, body: &[&str]) {
+    let _ = Command::new(ADRIVE)
+        .args(["send", "--to", &to.to_string(), "--rate", &rate.to_string()])
+        .args(["--count", &count.to_string()])
+        .args(body)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status();
 }
 
 /// CPU time of a process, all its threads, from the scheduler's own accounting.
@@ -208,14 +200,6 @@ fn without_table(toml: &str, header: &str) -> String {
         }
     }
     out
-}
-
-/// A UDP port free on loopback right now.
-pub fn free_port() -> u16 {
-    UdpSocket::bind("127.0.0.1:0")
-        .and_then(|s| s.local_addr())
-        .expect("a free port")
-        .port()
 }
 
 impl Adrive {
