@@ -20,6 +20,40 @@ pub enum Cpus {
     Apart,
 }
 
+/// What the woken thread does before it stamps the wake.
+#[derive(Clone, Copy, Debug)]
+pub enum Then {
+    /// Nothing: the bare wake.
+    Stamp,
+    /// Write a command's 8 bytes to a raw pseudo-terminal first, stamped once the
+    /// kernel has taken them, as adrive stamps its first byte: the floor of a command
+    /// that has to reach a port.
+    Write,
+}
+
+/// A raw pseudo-terminal whose master side is drained by a thread of its own; the
+/// slave to write to.
+fn pty() -> std::fs::File {
+    use std::io::Read;
+    let (master, slave) = crate::common::pty::openpty(80, 24);
+    for fd in [&master, &slave] {
+        use std::os::fd::AsRawFd;
+        // SAFETY: tcgetattr/tcsetattr on a terminal we own; cfmakeraw edits the struct.
+        unsafe {
+            let mut t: libc::termios = std::mem::zeroed();
+            libc::tcgetattr(fd.as_raw_fd(), &mut t);
+            libc::cfmakeraw(&mut t);
+            libc::tcsetattr(fd.as_raw_fd(), libc::TCSANOW, &t);
+        }
+    }
+    let mut m = std::fs::File::from(master);
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        while matches!(m.read(&mut buf), Ok(n) if n > 0) {}
+    });
+    std::fs::File::from(slave)
+}
+
 /// Wakes measured at `rate` Hz in the background until [`Floor::finish`].
 pub struct Floor {
     stop: Arc<AtomicBool>,
@@ -39,6 +73,11 @@ fn pin(cpu: usize) {
 
 impl Floor {
     pub fn start(rate: f64, cpus: Cpus) -> Floor {
+        Floor::start_then(rate, cpus, Then::Stamp)
+    }
+
+    pub fn start_then(rate: f64, cpus: Cpus, then: Then) -> Floor {
+        let mut port = matches!(then, Then::Write).then(pty);
         let pair = Arc::new((Mutex::new(None::<Instant>), Condvar::new()));
         let stop = Arc::new(AtomicBool::new(false));
         let (p, s) = (pair.clone(), stop.clone());
@@ -55,6 +94,10 @@ impl Floor {
                     return out;
                 }
                 if let Some(t) = g.take() {
+                    if let Some(p) = port.as_mut() {
+                        use std::io::Write;
+                        let _ = p.write(b"! 0.250\n");
+                    }
                     out.push(t.elapsed());
                 }
                 p.1.wait(&mut g);
