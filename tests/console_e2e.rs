@@ -26,14 +26,20 @@ struct Console {
     slave: OwnedFd,
     out: Arc<Mutex<Vec<u8>>>,
     log_dir: PathBuf,
+    /// The terminal's columns and rows.
+    size: (u16, u16),
 }
 
 impl Console {
     fn start(name: &str, extra: &[&str]) -> Console {
+        Console::start_sized(name, extra, (COLS, ROWS))
+    }
+
+    fn start_sized(name: &str, extra: &[&str], size: (u16, u16)) -> Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
-        let (master, slave) = openpty(COLS, ROWS);
+        let (master, slave) = openpty(size.0, size.1);
         let mut cmd = Command::new(BIN);
         cmd.arg("--sim")
             // Tests run in parallel: each takes its own ephemeral command port.
@@ -63,6 +69,7 @@ impl Console {
             slave,
             out,
             log_dir,
+            size,
         }
     }
 
@@ -73,7 +80,7 @@ impl Console {
     /// The screen as the terminal shows it now.
     fn screen(&self) -> String {
         let nz = |n: u16| std::num::NonZeroU16::new(n).unwrap();
-        let mut p = vt100::Parser::new(nz(ROWS), nz(COLS), 0);
+        let mut p = vt100::Parser::new(nz(self.size.1), nz(self.size.0), 0);
         p.process(&self.bytes());
         p.screen().contents()
     }
@@ -138,6 +145,11 @@ impl Console {
         self.wait_for("the main screen", |s| {
             s.contains("STEER") && s.contains("OBD")
         });
+        self.engage_now();
+    }
+
+    /// Engage from the main screen, retrying while devices have not all reported yet.
+    fn engage_now(&mut self) {
         let end = Instant::now() + DEADLINE;
         loop {
             self.keys("E");
@@ -152,6 +164,19 @@ impl Console {
             assert!(Instant::now() < end, "could not engage:\n{s}");
             std::thread::sleep(Duration::from_millis(200));
         }
+    }
+
+    /// Enter on the command under the cursor, `value`, Enter; then wait for device
+    /// `name`'s row to show `shown` as command and measurement.
+    fn command(&mut self, name: &str, value: &str, shown: &str) {
+        self.keys("\r");
+        self.wait_for("the command edit", |s| {
+            s.contains(&format!("edit {name} command"))
+        });
+        self.keys(&format!("\x15{value}\r"));
+        self.wait_for(&format!("{name} at {value}"), |s| {
+            cmd_meas(s, name) == shown
+        });
     }
 
     /// Engage, then `t`, Ctrl-U, `d`, Enter: drive.
@@ -407,4 +432,70 @@ fn one_accel_from_braking_gives_gas_and_stop_clears_it() {
     });
     c.keys("q");
     assert!(c.wait_exit().success());
+}
+
+/// A device's row in the list of many devices: its name and the values after it
+/// (command, measurement, age, delay p50, error code).
+fn row(screen: &str, name: &str) -> Vec<String> {
+    let key = format!("{name} ");
+    screen
+        .lines()
+        .find_map(|l| l.find(&key).map(|at| l[at..].to_string()))
+        .map(|r| r.split_whitespace().map(String::from).collect())
+        .unwrap_or_default()
+}
+
+/// The command and the measurement in a device's row: `0.500 0.500`.
+fn cmd_meas(screen: &str, name: &str) -> String {
+    row(screen, name)
+        .get(1..3)
+        .map(|v| v.join(" "))
+        .unwrap_or_default()
+}
+
+/// The tractor's 32 devices at 80×24, as an operator runs it: a row each, then `/`
+/// jumps to a device by name, Enter edits its command from there, and the simulated
+/// device reports it back; the name prompt takes Space as STOP.
+#[test]
+fn thirty_two_devices_at_80x24_jump_by_name_and_command_one() {
+    let mut c = Console::start_sized("tractor", &["--config", "vehicles/tractor.toml"], (80, 24));
+    let s = c.wait_for("a row for every device", |s| {
+        s.contains("device         cmd   meas   age   p50 e") && s.contains("tyre_press…")
+    });
+    for name in [
+        "steer",
+        "engine",
+        "hitch_load",
+        "wiper",
+        "turn_signal",
+        "gnss",
+    ] {
+        assert_eq!(row(&s, name).first().map(String::as_str), Some(name), "{s}");
+    }
+    c.engage_now();
+    // Each key of the name moves the cursor; the prompt says what it found.
+    c.keys("/wip");
+    c.wait_for("the wiper found", |s| {
+        s.contains("/wip▏  wiper 1 of 1") && s.contains("WIPER 0…1 cmd")
+    });
+    c.keys("\r");
+    c.wait_for("the prompt closed", |s| !s.contains("/wip▏"));
+    // From there, Enter edits the command; the simulated wiper reports it back.
+    c.command("wiper", "0.5", "0.500 0.500");
+    // A state device, found by a part of its name.
+    c.keys("/sig\r");
+    c.wait_for("the turn signal found", |s| {
+        s.contains("TURN_SIGNAL O/L/R/H")
+    });
+    c.command("turn_signal", "left", "left left");
+    // Space in the name prompt is STOP.
+    c.keys("/h");
+    c.wait_for("the prompt", |s| s.contains("/h▏"));
+    c.keys(" ");
+    c.wait_for("the stop", |s| {
+        s.contains("STOP: disengaged") && s.contains("│ DISENGAGED") && !s.contains("/h▏")
+    });
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    assert!(c.log().contains("safe state acknowledged"));
 }
