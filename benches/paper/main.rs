@@ -118,6 +118,29 @@ struct Floors {
     write: f64,
 }
 
+/// The columns of a delay table whose first column, `first`, is `width` wide.
+fn delay_columns(first: &str, width: usize) -> String {
+    format!(
+        "{first:<width$} {:>6} {:>8} {:>7} {:>8} {:>6} {:>6} {:>8} {:>8}",
+        "sent", "mean µs", "p50 µs", "p99 µs", "wake", "+write", "p50/wake", "p50/+wr"
+    )
+}
+
+/// One row of a delay table ([`delay_columns`]).
+fn delay_row(label: &str, width: usize, d: &Delay, floor: Floors) -> String {
+    format!(
+        "{label:<width$} {:>6} {:>8.1} {:>7.1} {:>8.1} {:>6.1} {:>6.1} {:>7.2}× {:>7.2}×",
+        d.count,
+        d.mean,
+        d.p50,
+        d.p99,
+        floor.wake,
+        floor.write,
+        d.p50 / floor.wake,
+        d.p50 / floor.write
+    )
+}
+
 /// The floors measured while `f` runs.
 fn with_floor<T>(f: impl FnOnce() -> T) -> (T, Floors) {
     let wake = Floor::start(100.0, Cpus::Any);
@@ -205,25 +228,14 @@ fn main() {
 fn section0_floor() {
     println!("\n== 0. The floor: a bare parking_lot condition-variable wake, 100 Hz, 3 s ==");
     println!("{:<28} {:>9} {:>9}", "threads", "p50 µs", "p99 µs");
-    for (label, cpus) in [
-        ("anywhere (the kernel's)", Cpus::Any),
-        ("both on one CPU", Cpus::Same),
-        ("on two CPUs", Cpus::Apart),
+    for (label, cpus, then) in [
+        ("anywhere (the kernel's)", Cpus::Any, Then::Stamp),
+        ("both on one CPU", Cpus::Same, Then::Stamp),
+        ("on two CPUs", Cpus::Apart, Then::Stamp),
+        ("… then an 8-byte pty write", Cpus::Any, Then::Write),
+        ("… the same on one CPU", Cpus::Same, Then::Write),
     ] {
-        let f = Floor::start(100.0, cpus);
-        std::thread::sleep(Duration::from_secs(3));
-        let v = f.finish();
-        println!(
-            "{label:<28} {:>9.1} {:>9.1}",
-            quantile(&v, 0.5),
-            quantile(&v, 0.99)
-        );
-    }
-    for (label, cpus) in [
-        ("… then an 8-byte pty write", Cpus::Any),
-        ("… the same on one CPU", Cpus::Same),
-    ] {
-        let f = Floor::start_then(100.0, cpus, Then::Write);
+        let f = Floor::start_then(100.0, cpus, then);
         std::thread::sleep(Duration::from_secs(3));
         let v = f.finish();
         println!(
@@ -239,18 +251,7 @@ fn section1_idle_port(dir: &tempfile::TempDir, secs: f64, r: &mut Results) {
     println!(
         "\n== 1. Receipt → first byte, one actuator, idle port, planner at 100 Hz, {secs} s (the paper: 25.9 µs average) =="
     );
-    println!(
-        "{:<36} {:>5} {:>8} {:>7} {:>7} {:>6} {:>6} {:>7} {:>7}",
-        "where the command path runs",
-        "sent",
-        "mean µs",
-        "p50 µs",
-        "p99 µs",
-        "wake",
-        "+write",
-        "p50/wake",
-        "p50/+wr"
-    );
+    println!("{}", delay_columns("where the command path runs", 36));
     let names = vec!["steer".to_string()];
     let sim_file = dir.path().join("idle-sim.toml");
     std::fs::write(&sim_file, vehicle("", &[idle_actuator("steer")])).unwrap();
@@ -271,17 +272,7 @@ fn section1_idle_port(dir: &tempfile::TempDir, secs: f64, r: &mut Results) {
         );
         let (_, floor) = with_floor(|| drive(&a, &names, 100.0, secs));
         let d = delay_of(&a.snapshot(), &names);
-        println!(
-            "{label:<36} {:>5} {:>8.1} {:>7.1} {:>7.1} {:>6.1} {:>6.1} {:>7.2}× {:>7.2}×",
-            d.count,
-            d.mean,
-            d.p50,
-            d.p99,
-            floor.wake,
-            floor.write,
-            d.p50 / floor.wake,
-            d.p50 / floor.write
-        );
+        println!("{}", delay_row(label, 36, &d, floor));
         if head.is_empty() {
             r.idle = Some((d, floor));
         }
@@ -293,19 +284,7 @@ fn section2_fig3(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
     println!(
         "\n== 2. Fig. 3: receipt → first byte against the number of actuators, 100 Hz each, {secs} s =="
     );
-    println!(
-        "{:<10} {:>7} {:>8} {:>7} {:>8} {:>6} {:>6} {:>8} {:>8} {:>8}",
-        "actuators",
-        "sent",
-        "mean µs",
-        "p50 µs",
-        "p99 µs",
-        "wake",
-        "+write",
-        "p50/wake",
-        "p50/+wr",
-        "p50/p50₁"
-    );
+    println!("{} {:>8}", delay_columns("actuators", 10), "p50/p50₁");
     let mut one = f64::NAN;
     for n in [1usize, 2, 4, 8, 16, 32, 64] {
         let names: Vec<String> = (0..n).map(|i| format!("a{i:02}")).collect();
@@ -320,51 +299,33 @@ fn section2_fig3(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
             one = d.p50;
         }
         println!(
-            "{n:<10} {:>7} {:>8.1} {:>7.1} {:>8.1} {:>6.1} {:>6.1} {:>7.2}× {:>7.2}× {:>7.2}×",
-            d.count,
-            d.mean,
-            d.p50,
-            d.p99,
-            floor.wake,
-            floor.write,
-            d.p50 / floor.wake,
-            d.p50 / floor.write,
+            "{} {:>7.2}×",
+            delay_row(&n.to_string(), 10, &d, floor),
             d.p50 / one
         );
         r.fig3.push((n, d, floor));
     }
     println!("(p50: the median device's; p99: the worst device's; mean: over every command.)");
-    let pts = |f: fn(&(usize, Delay, Floors)) -> f64| -> Vec<(f64, f64)> {
-        r.fig3.iter().map(|x| (x.0 as f64, f(x))).collect()
-    };
+    type Of = fn(&(usize, Delay, Floors)) -> f64;
+    let pts = |f: Of| -> Vec<(f64, f64)> { r.fig3.iter().map(|x| (x.0 as f64, f(x))).collect() };
     let path = out.join("fig3.svg");
-    let series = [
-        plot::Series {
-            name: "adrive p50",
-            color: plotters::style::RGBColor(31, 119, 180),
-            points: pts(|x| x.1.p50),
-        },
-        plot::Series {
-            name: "adrive mean",
-            color: plotters::style::RGBColor(44, 160, 44),
-            points: pts(|x| x.1.mean),
-        },
-        plot::Series {
-            name: "adrive p99",
-            color: plotters::style::RGBColor(255, 127, 14),
-            points: pts(|x| x.1.p99),
-        },
-        plot::Series {
-            name: "floor: condvar wake p50",
-            color: plotters::style::RGBColor(120, 120, 120),
-            points: pts(|x| x.2.wake),
-        },
-        plot::Series {
-            name: "floor: wake + pty write p50",
-            color: plotters::style::RGBColor(148, 103, 189),
-            points: pts(|x| x.2.write),
-        },
+    let lines: [(&str, (u8, u8, u8), Of); 5] = [
+        ("adrive p50", (31, 119, 180), |x| x.1.p50),
+        ("adrive mean", (44, 160, 44), |x| x.1.mean),
+        ("adrive p99", (255, 127, 14), |x| x.1.p99),
+        ("floor: condvar wake p50", (120, 120, 120), |x| x.2.wake),
+        ("floor: wake + pty write p50", (148, 103, 189), |x| {
+            x.2.write
+        }),
     ];
+    let series: Vec<plot::Series> = lines
+        .iter()
+        .map(|&(name, (red, green, blue), of)| plot::Series {
+            name,
+            color: plotters::style::RGBColor(red, green, blue),
+            points: pts(of),
+        })
+        .collect();
     plot::save(
         &path,
         "Fig. 3: receipt → first byte (100 Hz per actuator)",
