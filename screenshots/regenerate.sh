@@ -4,8 +4,9 @@
 #   screenshots/regenerate.sh          every screen
 #   screenshots/regenerate.sh alice    Alice's screens only
 #   screenshots/regenerate.sh many     the many-devices screen only
+#   screenshots/regenerate.sh cart     the cart's screen only
 #
-# Needs tmux and python3 (with venv). It builds adrive (debug), runs it with --sim in a
+# Needs tmux and python3 (with venv). It builds adrive (release, as the README runs it), runs it with --sim in a
 # detached 80×24 tmux session, drives it with keys, and saves for each screen:
 #   NAME.ansi  the screen with colour escapes (tmux capture-pane -p -e)
 #   NAME.txt   the same capture, escapes removed
@@ -17,14 +18,15 @@
 # the supervisor's engine_stall procedure runs, at 80×24 and at 120×40), fault
 # (steering silenced with the bench's sim key, shown in red); many (the tractor's 32
 # devices, vehicles/tractor.toml, engaged with a few commanded, and the name prompt
-# open).
+# open); cart (vehicles/cart.toml, engaged, in forward, steering and a turn signal
+# commanded).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 what=${1:-all}
 case "$what" in
-    all | alice | many) ;;
+    all | alice | many | cart) ;;
     *)
-        echo "usage: $0 [alice|many]" >&2
+        echo "usage: $0 [alice|many|cart]" >&2
         exit 2
         ;;
 esac
@@ -33,7 +35,7 @@ session=adrive-shots-$$
 logs=$(mktemp -d)
 trap 'tmux kill-session -t "$session" 2>/dev/null || true; rm -rf "$logs"' EXIT
 
-cargo build --quiet
+cargo build --release --quiet
 venv=target/screenshots-venv
 if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import PIL' 2>/dev/null; then
     python3 -m venv "$venv"
@@ -45,7 +47,7 @@ fi
 start() {
     while tmux has-session -t "$session" 2>/dev/null; do sleep 0.1; done
     tmux new-session -d -s "$session" -x 80 -y 24 \
-        "env TERM=xterm-256color target/debug/adrive --sim --listen 127.0.0.1:0 --log-dir $logs $*"
+        "env TERM=xterm-256color target/release/adrive --sim --listen 127.0.0.1:0 --log-dir $logs $*"
 }
 
 # Wait until the screen shows $1 ($2 tenths of a second at most, default 20 s).
@@ -100,7 +102,7 @@ alice() {
     # In drive, stall the engine from the bench, then watch the supervisor recover it.
     keys t; wait_for "edit trans command"
     keys C-u d Enter
-    wait_for "gear drive"
+    wait_for "state drive"
     keys x; wait_for "raw traffic"
     keys K; wait_for "sim: engine stalled"
     keys Escape
@@ -156,8 +158,26 @@ many() {
     keys q
 }
 
+# The cart: its own devices under their own names, the keys' hints naming them.
+cart() {
+    start --config vehicles/cart.toml
+    wait_for "battery"
+    engage
+    keys t; wait_for "edit direction command"
+    keys C-u f Enter; wait_for "direction ← "
+    keys s; wait_for "edit steer command"
+    keys C-u; keys -l -- "-0.3"; keys Enter; wait_for "meas -0.300"
+    keys /; keys -l sig; keys Enter; wait_for "SIGNALS "
+    keys Enter; wait_for "edit signals command"
+    keys C-u; keys -l left; keys Enter; wait_for "signals ← "
+    sleep 1.5
+    shot cart
+    keys q
+}
+
 case "$what" in
     alice) alice ;;
     many) many ;;
-    all) alice; many ;;
+    cart) cart ;;
+    all) alice; many; cart ;;
 esac

@@ -9,6 +9,7 @@ use common::pty::{attach, openpty};
 use common::DEADLINE;
 use std::fs::File;
 use std::io::{Read, Write};
+use std::os::fd::AsRawFd;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
@@ -97,6 +98,18 @@ impl Console {
         }
     }
 
+    /// Resize the terminal as a terminal window does: the kernel signals SIGWINCH.
+    fn resize(&self, cols: u16, rows: u16) {
+        let ws = libc::winsize {
+            ws_row: rows,
+            ws_col: cols,
+            ws_xpixel: 0,
+            ws_ypixel: 0,
+        };
+        // SAFETY: TIOCSWINSZ reads the struct.
+        unsafe { libc::ioctl(self.master.as_raw_fd(), libc::TIOCSWINSZ as _, &ws) };
+    }
+
     fn keys(&mut self, k: &str) {
         self.master.write_all(k.as_bytes()).unwrap();
         self.master.flush().unwrap();
@@ -126,7 +139,6 @@ impl Console {
 
     /// Raw mode is off again: canonical input and echo, as a shell expects.
     fn cooked(&self) -> bool {
-        use std::os::fd::AsRawFd;
         // SAFETY: tcgetattr fills the struct from a valid terminal fd.
         let mut t: libc::termios = unsafe { std::mem::zeroed() };
         let r = unsafe { libc::tcgetattr(self.slave.as_raw_fd(), &mut t) };
@@ -379,24 +391,35 @@ fn an_engine_stall_from_the_bench_is_recovered_step_by_step_on_screen() {
 
 #[test]
 fn a_resize_redraws_and_a_small_window_gets_a_message() {
-    use std::os::fd::AsRawFd;
     let mut c = Console::start("resize", &[]);
     c.wait_for("the main screen", |s| s.contains("STEER"));
-    let set = |cols: u16, rows: u16| {
-        let ws = libc::winsize {
-            ws_row: rows,
-            ws_col: cols,
-            ws_xpixel: 0,
-            ws_ypixel: 0,
-        };
-        // SAFETY: TIOCSWINSZ reads the struct; the kernel signals SIGWINCH.
-        unsafe { libc::ioctl(c.master.as_raw_fd(), libc::TIOCSWINSZ as _, &ws) };
-    };
-    set(60, 20);
+    c.resize(60, 20);
     c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
-    set(COLS, ROWS);
+    c.resize(COLS, ROWS);
     c.wait_for("the screen again", |s| {
         s.contains("STEER") && !s.contains("at least")
+    });
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// Incident: after the terminal was resized, the next key stayed unread until another
+/// key came (crossterm's edge-triggered source returned the resize and dropped the
+/// keyboard's readiness), so a STOP pressed once did nothing. Keys have been read
+/// before the resize, as at any console in use.
+#[test]
+fn a_stop_pressed_after_a_resize_stops_at_once() {
+    let mut c = Console::start("stop-after-resize", &[]);
+    c.engage();
+    c.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.resize(COLS, ROWS);
+    c.wait_for("the screen again", |s| {
+        s.contains("STEER") && !s.contains("at least")
+    });
+    c.keys(" ");
+    c.wait_for("the stop, from one key", |s| {
+        s.contains("STOP: disengaged") && s.contains("│ DISENGAGED")
     });
     c.keys("q");
     assert!(c.wait_exit().success());

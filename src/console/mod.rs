@@ -99,9 +99,10 @@ fn spawn_reader(stop: Arc<AtomicBool>) -> std::io::Result<(Receiver<Input>, Join
                     terminal::Input::Closed(why) => return closed(why),
                     terminal::Input::Pending => {}
                 }
-                // Everything crossterm has parsed from the bytes read, without waiting.
+                // Everything crossterm has parsed from the bytes waiting. Its event
+                // source does not read at all with a zero timeout, hence the short one.
                 loop {
-                    match event::poll(Duration::ZERO)
+                    match event::poll(terminal::DRAIN)
                         .and_then(|ready| ready.then(event::read).transpose())
                     {
                         Ok(Some(ev)) => {
