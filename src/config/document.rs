@@ -15,11 +15,11 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 4] = ["vehicle", "network", "supervisor", "device"];
+const TABLES: [&str; 5] = ["vehicle", "network", "supervisor", "ros2", "device"];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
 const DEVICE_TABLES: [&str; 5] = ["sim", "modbus", "line", "aliases", "readings"];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [[device]] (with [device.sim], [device.modbus], [device.line])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [ros2], [[device]] (with [device.sim], [device.modbus], [device.line])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -278,6 +278,7 @@ fn suggest(written: &str) -> Option<String> {
         "[vehicle.gear]",
         "[network]",
         "[supervisor]",
+        "[ros2]",
         "[[device]]",
         "[device.sim]",
         "[device.modbus]",

@@ -15,6 +15,7 @@ pub mod device;
 pub mod document;
 pub mod limits;
 pub mod roles;
+pub mod ros2;
 pub mod wire;
 
 pub use crate::net::config::NetworkConfig;
@@ -22,6 +23,7 @@ pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
 pub use roles::{Bindings, Role};
+pub use ros2::Ros2Config;
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -215,6 +217,8 @@ pub struct VehicleConfig {
     pub devices: Vec<DeviceConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
+    /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
+    pub ros2: Ros2Config,
     /// Where it was loaded from (for messages).
     pub source: String,
     /// The line of every key in that file, for errors found after loading.
@@ -343,6 +347,8 @@ struct Raw {
     device: Vec<Spanned<device::RawDevice>>,
     #[serde(default)]
     network: Option<NetworkConfig>,
+    #[serde(default)]
+    ros2: Option<Ros2Config>,
 }
 
 /// Load a vehicle from a file.
@@ -399,6 +405,12 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     network
         .check()
         .map_err(|v| refuse(path, &lines, "network", v))?;
+    let ros2 = raw.ros2.unwrap_or_default();
+    ros2.check(&devices).map_err(|(key, message)| ConfigError {
+        path: path.to_string(),
+        line: lines.first(&[format!("ros2.{key}"), "ros2".to_string()]),
+        message: format!("[ros2] {message}"),
+    })?;
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,
@@ -407,6 +419,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         supervisor: raw.supervisor,
         devices,
         network,
+        ros2,
         source: path.to_string(),
         lines,
     })
