@@ -32,6 +32,8 @@ struct Vehicle {
     child: Reaped,
     endpoint: String,
     log: Receiver<String>,
+    /// Standard output: the summary at exit.
+    out: Receiver<String>,
     _dir: TempDir,
 }
 
@@ -65,16 +67,18 @@ impl Vehicle {
             .arg("--log-dir")
             .arg(dir.path().join("log"))
             .env("RUST_LOG", "adrive=info")
-            .stdout(Stdio::null())
+            .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
             .expect("adrive starts");
         let log = lines(child.stderr.take().unwrap());
+        let out = lines(child.stdout.take().unwrap());
         let child = Reaped(child);
         let mut v = Vehicle {
             child,
             endpoint,
             log,
+            out,
             _dir: dir,
         };
         v.until("ros2 up");
@@ -125,13 +129,21 @@ fn peer(args: &[&str]) -> String {
 }
 
 #[test]
-fn a_zenoh_peer_drives_alice_through_autoware_topics_and_the_watchdog_stops_her() {
+fn a_zenoh_peer_drives_alice_through_autoware_topics_and_the_watchdog_and_emergency_stop_her() {
     let mut alice = Vehicle::start("/alice");
     let text = peer(&["drive", &alice.endpoint, "/alice", &tire_angle_per_unit()]);
-    assert!(text.contains("ok engaged /alice"), "{text}");
-    assert!(text.contains("ok moving"), "{text}");
-    assert!(text.contains("ok stopped"), "{text}");
-    // It was the network watchdog that stopped her, on the ROS 2 stream's silence.
+    for step in [
+        "ok engaged /alice",
+        "ok moving",
+        "ok diagnostics of every device",
+        "ok stopped",
+        "ok disengaged by the emergency",
+        "ok stopped again",
+    ] {
+        assert!(text.contains(step), "{step}:\n{text}");
+    }
+    // It was the network watchdog that stopped her, on the ROS 2 stream's silence,
+    // then the emergency command.
     let log = alice.until("; safe state commanded");
     assert!(
         log.last()
@@ -140,9 +152,19 @@ fn a_zenoh_peer_drives_alice_through_autoware_topics_and_the_watchdog_stops_her(
         "{}",
         log.join("\n")
     );
-    // And she stops cleanly, ROS 2 node and all.
+    alice.until("ros2: emergency command: safe state");
+    // She stops cleanly, ROS 2 node and all; the summary counts the ROS 2 stream's
+    // refusals by reason, as the NETWORK panel does: the command sent before engaging.
     common::signal(&alice.child, libc::SIGTERM);
     assert_eq!(common::wait_exit(&mut alice.child), Some(0));
+    let out = common::until(&alice.out, "network ");
+    let summary = out.last().unwrap();
+    assert!(
+        summary.contains("; rejected: ")
+            && summary.contains("disengaged ")
+            && summary.contains("watchdog tripped: no valid command from [fd52:4f53:3200::]:0"),
+        "{summary}"
+    );
 }
 
 #[test]
@@ -185,7 +207,8 @@ fn two_adrives_with_different_namespaces_never_cross_talk_and_watch_sees_both() 
     assert!(!b_log.is_empty());
     common::signal(&a.child, libc::SIGTERM);
     assert_eq!(common::wait_exit(&mut a.child), Some(0));
-    let a_log: Vec<String> = a.log.try_iter().collect();
+    // Everything a logged, up to its last word on stopping.
+    let a_log = a.until("safe state acknowledged");
     assert!(
         !a_log
             .iter()

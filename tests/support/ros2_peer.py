@@ -4,7 +4,7 @@ official message definitions below (comments dropped, fields and constants as
 published in autoware_msgs, tier4_autoware_msgs and ROS 2's service_msgs).
 
     ros2_peer.py interfaces            < request.json   hashes and CDR bytes
-    ros2_peer.py drive ENDPOINT NS TIRE                 drive one vehicle, see the watchdog
+    ros2_peer.py drive ENDPOINT NS TIRE                 drive one vehicle; watchdog, emergency
     ros2_peer.py two EP_A NS_A EP_B NS_B TIRE           drive B, and A never moves
 
 TIRE is the vehicle's radians of tire angle per unit of steering (its [ros2]).
@@ -384,20 +384,24 @@ class Driver:
         self.cmd = (0.0, 1.0, 0.0)
         threading.Thread(target=self._run, daemon=True).start()
 
-    def _run(self):
+    def send(self, cmd):
+        """One actuation command and the gear command."""
         T = TS.types
+        accel, brake, steer = cmd
+        self.actuation(
+            T["tier4_vehicle_msgs/msg/ActuationCommandStamped"](
+                header=T["std_msgs/msg/Header"](stamp=stamp(), frame_id=""),
+                actuation=T["tier4_vehicle_msgs/msg/ActuationCommand"](
+                    accel_cmd=accel, brake_cmd=brake, steer_cmd=steer
+                ),
+            )
+        )
+        self.gear(T["autoware_vehicle_msgs/msg/GearCommand"](stamp=stamp(), command=DRIVE))
+
+    def _run(self):
         while True:
             if self.on.is_set():
-                accel, brake, steer = self.cmd
-                self.actuation(
-                    T["tier4_vehicle_msgs/msg/ActuationCommandStamped"](
-                        header=T["std_msgs/msg/Header"](stamp=stamp(), frame_id=""),
-                        actuation=T["tier4_vehicle_msgs/msg/ActuationCommand"](
-                            accel_cmd=accel, brake_cmd=brake, steer_cmd=steer
-                        ),
-                    )
-                )
-                self.gear(T["autoware_vehicle_msgs/msg/GearCommand"](stamp=stamp(), command=DRIVE))
+                self.send(self.cmd)
             time.sleep(0.05)
 
 
@@ -428,6 +432,8 @@ def drive_one(peer, ns, tire_angle_per_unit):
     say("steering", r("vehicle/status/steering_status").steering_tire_angle)
     assert r("vehicle/status/control_mode").mode != AUTONOMOUS
     d = Driver(peer, ns)
+    # One command before engaging: refused (the test reads it counted by reason).
+    d.send((0.0, 1.0, 0.0))
     d.cmd = (0.0, 1.0, 0.0)
     d.on.set()
     engage(peer, ns)
@@ -447,12 +453,34 @@ def drive_one(peer, ns, tire_angle_per_unit):
 
 def drive(endpoint, ns, tire):
     peer = Peer([endpoint])
+    diag = f"{ns}/diagnostics"
+    peer.subscribe(diag, "diagnostic_msgs/msg/DiagnosticArray")
+    emergency = peer.publisher(
+        f"{ns}/control/command/emergency_cmd", "tier4_vehicle_msgs/msg/VehicleEmergencyStamped"
+    )
     d, r = drive_one(peer, ns, float(tire))
+    devices = {"adrive: steer", "adrive: gas", "adrive: brake", "adrive: trans"}
+    wait_for(
+        "diagnostics of every device",
+        lambda: peer.get(diag) is not None and devices <= {s.name for s in peer.get(diag).status},
+    )
     # Stop publishing: the watchdog must stop the vehicle.
     d.on.clear()
     say("stopped publishing")
     wait_for("disengaged", lambda: r("vehicle/status/control_mode").mode != AUTONOMOUS, 10)
     wait_for("stopped", lambda: abs(r("vehicle/status/velocity_status").longitudinal_velocity) < 0.01, 20)
+    # Publish again, engage, drive; the emergency command must stop her while the
+    # actuation stream still asks for gas.
+    d.cmd = (0.0, 1.0, 0.0)
+    d.on.set()
+    engage(peer, ns)
+    d.cmd = (0.4, 0.0, 0.0)
+    wait_for("moving again", lambda: r("vehicle/status/velocity_status").longitudinal_velocity > 0.3)
+    emergency(TS.types["tier4_vehicle_msgs/msg/VehicleEmergencyStamped"](stamp=stamp(), emergency=True))
+    say("emergency")
+    wait_for("disengaged by the emergency", lambda: r("vehicle/status/control_mode").mode != AUTONOMOUS, 10)
+    wait_for("stopped again", lambda: abs(r("vehicle/status/velocity_status").longitudinal_velocity) < 0.01, 20)
+    d.on.clear()
     say("PASS")
 
 
