@@ -129,7 +129,8 @@ fn peer(args: &[&str]) -> String {
 }
 
 #[test]
-fn a_zenoh_peer_drives_alice_through_autoware_topics_and_the_watchdog_and_emergency_stop_her() {
+fn a_zenoh_peer_drives_alice_through_autoware_topics_and_silence_emergency_and_a_stale_stream_stop_her(
+) {
     let mut alice = Vehicle::start("/alice");
     let text = peer(&["drive", &alice.endpoint, "/alice", &tire_angle_per_unit()]);
     for step in [
@@ -139,6 +140,8 @@ fn a_zenoh_peer_drives_alice_through_autoware_topics_and_the_watchdog_and_emerge
         "ok stopped",
         "ok disengaged by the emergency",
         "ok stopped again",
+        "ok disengaged on the stale stream",
+        "ok stopped a third time",
     ] {
         assert!(text.contains(step), "{step}:\n{text}");
     }
@@ -153,8 +156,10 @@ fn a_zenoh_peer_drives_alice_through_autoware_topics_and_the_watchdog_and_emerge
         log.join("\n")
     );
     alice.until("ros2: emergency command: safe state");
+    alice.until("watchdog: the rolling counter of [fd52:4f53:3200::]:0 stopped advancing");
     // She stops cleanly, ROS 2 node and all; the summary counts the ROS 2 stream's
-    // refusals by reason, as the NETWORK panel does: the command sent before engaging.
+    // refusals by reason, as the NETWORK panel does: the command sent before engaging,
+    // the repeats of the stale stream.
     common::signal(&alice.child, libc::SIGTERM);
     assert_eq!(common::wait_exit(&mut alice.child), Some(0));
     let out = common::until(&alice.out, "network ");
@@ -162,7 +167,10 @@ fn a_zenoh_peer_drives_alice_through_autoware_topics_and_the_watchdog_and_emerge
     assert!(
         summary.contains("; rejected: ")
             && summary.contains("disengaged ")
-            && summary.contains("watchdog tripped: no valid command from [fd52:4f53:3200::]:0"),
+            && summary.contains("replayed ")
+            && summary.contains(
+                "watchdog tripped: the rolling counter of [fd52:4f53:3200::]:0 stopped advancing"
+            ),
         "{summary}"
     );
 }

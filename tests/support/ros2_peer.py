@@ -4,7 +4,7 @@ official message definitions below (comments dropped, fields and constants as
 published in autoware_msgs, tier4_autoware_msgs and ROS 2's service_msgs).
 
     ros2_peer.py interfaces            < request.json   hashes and CDR bytes
-    ros2_peer.py drive ENDPOINT NS TIRE                 drive one vehicle; watchdog, emergency
+    ros2_peer.py drive ENDPOINT NS TIRE                 drive one vehicle; watchdog, emergency, stale stream
     ros2_peer.py two EP_A NS_A EP_B NS_B TIRE           drive B, and A never moves
 
 TIRE is the vehicle's radians of tire angle per unit of steering (its [ros2]).
@@ -382,6 +382,8 @@ class Driver:
         self.gear = peer.publisher(f"{ns}/control/command/gear_cmd", "autoware_vehicle_msgs/msg/GearCommand")
         self.on = threading.Event()
         self.cmd = (0.0, 1.0, 0.0)
+        # A stamp to repeat, as a planner that hangs but keeps publishing would.
+        self.frozen = None
         threading.Thread(target=self._run, daemon=True).start()
 
     def send(self, cmd):
@@ -390,7 +392,7 @@ class Driver:
         accel, brake, steer = cmd
         self.actuation(
             T["tier4_vehicle_msgs/msg/ActuationCommandStamped"](
-                header=T["std_msgs/msg/Header"](stamp=stamp(), frame_id=""),
+                header=T["std_msgs/msg/Header"](stamp=self.frozen or stamp(), frame_id=""),
                 actuation=T["tier4_vehicle_msgs/msg/ActuationCommand"](
                     accel_cmd=accel, brake_cmd=brake, steer_cmd=steer
                 ),
@@ -480,6 +482,14 @@ def drive(endpoint, ns, tire):
     say("emergency")
     wait_for("disengaged by the emergency", lambda: r("vehicle/status/control_mode").mode != AUTONOMOUS, 10)
     wait_for("stopped again", lambda: abs(r("vehicle/status/velocity_status").longitudinal_velocity) < 0.01, 20)
+    # Engage and drive once more; a stream whose stamp stops advancing is stale: the
+    # watchdog stops her although messages keep coming.
+    engage(peer, ns)
+    wait_for("moving once more", lambda: r("vehicle/status/velocity_status").longitudinal_velocity > 0.3)
+    d.frozen = stamp()
+    say("stamp frozen")
+    wait_for("disengaged on the stale stream", lambda: r("vehicle/status/control_mode").mode != AUTONOMOUS, 10)
+    wait_for("stopped a third time", lambda: abs(r("vehicle/status/velocity_status").longitudinal_velocity) < 0.01, 20)
     d.on.clear()
     say("PASS")
 
