@@ -227,7 +227,7 @@ impl<'a> Document<'a> {
 pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
-        [section @ ("network" | "supervisor"), ..] => format!("[{section}] "),
+        [section @ ("network" | "supervisor" | "ros2"), ..] => format!("[{section}] "),
         _ => String::new(),
     }
 }
@@ -240,6 +240,7 @@ fn limit_of(path: &str) -> Option<&'static dyn limits::Row> {
     let (section, key) = match parts[..] {
         ["network", key] => (Section::Network, key),
         ["supervisor", key] => (Section::Supervisor, key),
+        ["ros2", key] => (Section::Ros2, key),
         ["device", _, key] => (Section::Device, key),
         ["device", _, "sim", key] => (Section::DeviceSim, key),
         ["device", _, "modbus", key] => (Section::DeviceModbus, key),

@@ -406,11 +406,8 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         .check()
         .map_err(|v| refuse(path, &lines, "network", v))?;
     let ros2 = raw.ros2.unwrap_or_default();
-    ros2.check(&devices).map_err(|(key, message)| ConfigError {
-        path: path.to_string(),
-        line: lines.first(&[format!("ros2.{key}"), "ros2".to_string()]),
-        message: format!("[ros2] {message}"),
-    })?;
+    ros2.check(&devices)
+        .map_err(|v| refuse(path, &lines, "ros2", v))?;
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,

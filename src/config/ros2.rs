@@ -5,6 +5,7 @@
 //! `tcp/localhost:7447`, no multicast scouting), domain 0 and the namespace
 //! `/<vehicle name in lower case>`.
 
+use super::limits::{self, Violation};
 use serde::Deserialize;
 
 /// The router an rmw_zenoh session connects to by default.
@@ -73,7 +74,7 @@ impl Default for Ros2Config {
             connect: vec![DEFAULT_CONNECT.to_string()],
             listen: vec![DEFAULT_LISTEN.to_string()],
             multicast_scouting: false,
-            report_rate: 30.0,
+            report_rate: limits::REPORT_RATE.default_value(),
             tire_angle_per_unit: 1.0,
             turn_indicators: None,
             hazard_lights: None,
@@ -111,8 +112,13 @@ impl Ros2Config {
     }
 
     /// Every value usable; the message names the key.
-    pub fn check(&self, devices: &[super::DeviceConfig]) -> Result<(), (String, String)> {
-        let bad = |key: &str, msg: String| Err((key.to_string(), format!("{key}: {msg}")));
+    pub fn check(&self, devices: &[super::DeviceConfig]) -> Result<(), Violation> {
+        let bad = |key: &str, msg: String| {
+            Err(Violation {
+                paths: vec![key.to_string()],
+                message: format!("{key}: {msg}"),
+            })
+        };
         if self.domain_id > MAX_DOMAIN_ID {
             return bad(
                 "domain_id",
@@ -129,15 +135,7 @@ impl Ros2Config {
                 ),
             );
         }
-        if !(self.report_rate.is_finite() && (1.0..=100.0).contains(&self.report_rate)) {
-            return bad(
-                "report_rate",
-                format!(
-                    "expected reports a second from 1 to 100, got {}",
-                    self.report_rate
-                ),
-            );
-        }
+        limits::REPORT_RATE.check(self.report_rate)?;
         if !(self.tire_angle_per_unit.is_finite() && self.tire_angle_per_unit != 0.0) {
             return bad(
                 "tire_angle_per_unit",

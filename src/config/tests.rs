@@ -365,6 +365,12 @@ fn a_bad_ros2_table_names_file_line_key_and_expected_form() {
         e.contains("steer must be a state device with the states off, on"),
         "{e}"
     );
+    let e = with("report_rate = 1000.0");
+    assert_eq!(line(&e), 14, "{e}");
+    assert!(
+        e.contains("[ros2] report_rate: expected a number from 1 to 100, got 1000"),
+        "{e}"
+    );
     let e = with("mode = \"router\"");
     assert_eq!(line(&e), 14, "{e}");
     assert!(e.contains("router"), "{e}");
