@@ -18,6 +18,7 @@ pub const SCHEMA: u32 = 2;
 
 /// The whole vehicle at one instant.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Snapshot {
     pub schema: u32,
     pub vehicle: String,
@@ -35,6 +36,20 @@ pub struct Snapshot {
     pub rejections: Pairs<u64>,
     /// The network side, when the listener runs.
     pub net: Option<NetView>,
+    /// Which part of a broadcast this is, when the whole did not fit one datagram
+    /// ([`Snapshot::datagrams`]); absent when it did.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub part: Option<Part>,
+}
+
+/// One part of a broadcast split over several datagrams: `index` of `count`, all with
+/// the same `seq`. Every part is a whole snapshot with a share of the devices (in
+/// order) and the gate and supervisor; the network part travels in part 0 only.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
+pub struct Part {
+    pub index: u16,
+    pub count: u16,
 }
 
 impl Snapshot {
@@ -49,6 +64,56 @@ impl Snapshot {
         self.device(name)
     }
 
+    /// The snapshot as broadcast datagrams of JSON, each at most `max` bytes where a
+    /// device allows: one datagram when it fits, else parts ([`Part`]) that
+    /// [`Assembler`] joins back. A vehicle of any number of devices is broadcast whole.
+    pub fn datagrams(&self, max: usize) -> serde_json::Result<Vec<Vec<u8>>> {
+        let whole = serde_json::to_vec(self)?;
+        if whole.len() <= max {
+            return Ok(vec![whole]);
+        }
+        // The devices in order, as many to a part as fit beside the head.
+        let head = Snapshot {
+            devices: Vec::new(),
+            net: None,
+            part: Some(Part {
+                index: u16::MAX,
+                count: u16::MAX,
+            }),
+            ..self.clone()
+        };
+        let room = max.saturating_sub(serde_json::to_vec(&head)?.len() + 1);
+        let net = serde_json::to_vec(&self.net)?.len();
+        let mut shares: Vec<Vec<DeviceView>> = vec![Vec::new()];
+        let mut used = net;
+        for d in &self.devices {
+            let size = serde_json::to_vec(d)?.len() + 1;
+            let last = shares.last_mut().expect("one share at least");
+            if !last.is_empty() && used + size > room {
+                shares.push(Vec::new());
+                used = 0;
+            }
+            used += size;
+            shares.last_mut().expect("just pushed").push(d.clone());
+        }
+        let count = shares.len() as u16;
+        shares
+            .into_iter()
+            .enumerate()
+            .map(|(i, devices)| {
+                serde_json::to_vec(&Snapshot {
+                    devices,
+                    net: if i == 0 { self.net.clone() } else { None },
+                    part: Some(Part {
+                        index: i as u16,
+                        count,
+                    }),
+                    ..head.clone()
+                })
+            })
+            .collect()
+    }
+
     /// Every faulty device with its last error, `gas: no reply within 100ms`.
     pub fn faulty(&self) -> impl Iterator<Item = &DeviceView> {
         self.devices.iter().filter(|d| d.health.faulty)
@@ -57,6 +122,7 @@ impl Snapshot {
 
 /// The engage gate and the safety rules.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct GateView {
     pub engaged: bool,
     /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
@@ -76,6 +142,7 @@ pub struct GateView {
 
 /// One device.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct DeviceView {
     pub name: String,
     pub kind: Kind,
@@ -139,6 +206,7 @@ impl DeviceView {
 
 /// A device's health, as its threads keep it.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Health {
     /// Failing repeatedly, silent past its `status_max_age`, or its port is gone.
     pub faulty: bool,
@@ -163,6 +231,7 @@ pub struct Health {
 
 /// What the console may change while running.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Settings {
     pub status_period_ms: f64,
     pub command_timeout_ms: f64,
@@ -172,6 +241,7 @@ pub struct Settings {
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Counters {
     /// Commands accepted at intake into the device's slot.
     pub received: u64,
@@ -192,6 +262,7 @@ pub struct Counters {
 
 /// Figures of one latency histogram, in microseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct LatencySummary {
     pub count: u64,
     pub p50_us: Option<f64>,
@@ -201,6 +272,7 @@ pub struct LatencySummary {
 
 /// The kinds of fault the supervisor detects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum FaultKind {
     /// No status for longer than the device's `status_max_age`.
@@ -245,6 +317,7 @@ impl fmt::Display for FaultKind {
 
 /// A fault as the snapshot carries it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct FaultView {
     pub kind: FaultKind,
     pub device: Option<String>,
@@ -264,6 +337,7 @@ impl FaultView {
 
 /// Where a recovery procedure is.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct RecoveryView {
     /// `engine_stall`, `steering`, `reconnect brake`.
     pub name: String,
@@ -297,6 +371,7 @@ impl RecoveryView {
 
 /// The supervisor's state.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct SupervisorView {
     pub faults: Vec<FaultView>,
     pub recovery: Option<RecoveryView>,
@@ -308,6 +383,7 @@ pub struct SupervisorView {
 
 /// The network command watchdog, as shown to people.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 #[serde(rename_all = "snake_case")]
 pub enum WatchdogState {
     /// Disengaged.
@@ -322,6 +398,7 @@ pub enum WatchdogState {
 
 /// The network side: listener, watchdog, senders, counters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct NetView {
     pub listen: SocketAddr,
     /// Datagrams received, and those accepted (parsed, authentic, not refused whole).
@@ -338,6 +415,7 @@ pub struct NetView {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct WatchdogView {
     pub state: WatchdogState,
     pub timeout_ms: f64,
@@ -348,6 +426,7 @@ pub struct WatchdogView {
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct SenderView {
     pub addr: SocketAddr,
     pub age_ms: f64,
@@ -362,6 +441,7 @@ pub struct SenderView {
 
 /// Rejections by reason; every reason is listed, zeros included.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 pub struct Rejections {
     /// Whole datagrams: grammar, authentication, counter.
     pub datagram: Pairs<u64>,
@@ -415,6 +495,21 @@ impl<V> FromIterator<(String, V)> for Pairs<V> {
     }
 }
 
+/// A JSON object whose values are all `V`.
+#[cfg(test)]
+impl<V: schemars::JsonSchema> schemars::JsonSchema for Pairs<V> {
+    fn schema_name() -> std::borrow::Cow<'static, str> {
+        format!("Pairs_of_{}", V::schema_name()).into()
+    }
+
+    fn json_schema(generator: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        schemars::json_schema!({
+            "type": "object",
+            "additionalProperties": generator.subschema_for::<V>(),
+        })
+    }
+}
+
 impl<V: Serialize> Serialize for Pairs<V> {
     fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeMap;
@@ -449,6 +544,42 @@ impl<'de, V: Deserialize<'de>> Deserialize<'de> for Pairs<V> {
     }
 }
 
+/// Joins the parts of a broadcast ([`Snapshot::datagrams`]) back into one snapshot. A
+/// part of a newer broadcast drops an older one still incomplete (a lost datagram).
+#[derive(Default)]
+pub struct Assembler {
+    seq: u64,
+    parts: Vec<Option<Snapshot>>,
+}
+
+impl Assembler {
+    /// Take one datagram's snapshot; returns the whole snapshot once it is complete.
+    pub fn push(&mut self, s: Snapshot) -> Option<Snapshot> {
+        let Some(part) = s.part else {
+            return Some(s);
+        };
+        let (index, count) = (usize::from(part.index), usize::from(part.count));
+        if index >= count {
+            return None;
+        }
+        if s.seq != self.seq || self.parts.len() != count {
+            self.seq = s.seq;
+            self.parts = vec![None; count];
+        }
+        self.parts[index] = Some(s);
+        if self.parts.iter().any(Option::is_none) {
+            return None;
+        }
+        let mut parts = std::mem::take(&mut self.parts).into_iter().flatten();
+        let mut whole = parts.next()?;
+        for p in parts {
+            whole.devices.extend(p.devices);
+        }
+        whole.part = None;
+        Some(whole)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -465,5 +596,78 @@ mod tests {
         let json = serde_json::to_string(&p).unwrap();
         assert_eq!(json, r#"{"steer":3,"gas":0,"a":1}"#);
         assert_eq!(serde_json::from_str::<Pairs<u64>>(&json).unwrap(), p);
+    }
+
+    /// A vehicle of 64 devices is broadcast whole: in parts of at most the datagram
+    /// size, joined back into the very same snapshot.
+    #[test]
+    fn a_large_snapshot_goes_in_parts_and_joins_back() {
+        let now = std::time::Instant::now();
+        let mut snap = crate::console::sample::gate(now).snapshot(7);
+        let one = snap.devices[0].clone();
+        snap.devices = (0..64)
+            .map(|i| DeviceView {
+                name: format!("device_{i}"),
+                ..one.clone()
+            })
+            .collect();
+        let max = 8 * 1024;
+        let datagrams = snap.datagrams(max).unwrap();
+        assert!(datagrams.len() > 1);
+        let mut asm = Assembler::default();
+        let mut whole = None;
+        // A stale part of an older broadcast first: it is dropped.
+        let mut old: Snapshot = serde_json::from_slice(&datagrams[1]).unwrap();
+        old.seq = 6;
+        assert_eq!(asm.push(old), None);
+        for d in &datagrams {
+            assert!(d.len() <= max, "{} bytes", d.len());
+            let part: Snapshot = serde_json::from_slice(d).unwrap();
+            assert!(
+                part.gate == snap.gate,
+                "every part says whether it is engaged"
+            );
+            whole = asm.push(part);
+        }
+        // (As sent: a number read back from JSON may differ in its last bit.)
+        let sent: Snapshot = serde_json::from_slice(&serde_json::to_vec(&snap).unwrap()).unwrap();
+        let whole = whole.expect("complete");
+        assert_eq!(whole.devices.len(), 64);
+        assert!(
+            whole == sent,
+            "the joined snapshot differs from the one sent"
+        );
+        // Small enough: one datagram, no parts.
+        snap.devices.truncate(2);
+        let one = snap.datagrams(max).unwrap();
+        assert_eq!(one.len(), 1);
+        assert!(!String::from_utf8_lossy(&one[0]).contains("\"part\""));
+    }
+
+    /// `schemas/snapshot-2.json` is the JSON Schema of exactly this type (its field
+    /// documentation included); `UPDATE_SCHEMA=1 cargo test --lib snapshot` rewrites it
+    /// after a change. tests/schema.rs checks real broadcasts against the file.
+    #[test]
+    fn the_schema_file_describes_this_snapshot() {
+        let mut schema = schemars::schema_for!(Snapshot);
+        schema.insert(
+            "$id".into(),
+            format!("urn:adrive:schema:snapshot-{SCHEMA}").into(),
+        );
+        schema.insert(
+            "title".into(),
+            format!("adrive state snapshot, schema {SCHEMA}").into(),
+        );
+        let text = serde_json::to_string_pretty(&schema).unwrap() + "\n";
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-2.json");
+        assert!(path.ends_with(&format!("snapshot-{SCHEMA}.json")));
+        if std::env::var_os("UPDATE_SCHEMA").is_some() {
+            std::fs::write(path, &text).unwrap();
+        }
+        let file = std::fs::read_to_string(path).unwrap_or_default();
+        assert!(
+            file == text,
+            "{path} is not the schema of Snapshot: rerun with UPDATE_SCHEMA=1 and review the diff"
+        );
     }
 }

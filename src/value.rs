@@ -21,6 +21,7 @@ impl DeviceId {
 
 /// What a device is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 #[serde(rename_all = "lowercase")]
 pub enum Kind {
     /// An actuator that takes a number in a range (steering, throttle, brake, a wiper).
@@ -238,6 +239,7 @@ impl Reading {
 
 /// A value for people and JSON: a number, a flag, or a state's name.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
 #[serde(untagged)]
 pub enum Value {
     Flag(bool),

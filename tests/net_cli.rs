@@ -5,129 +5,14 @@
 
 mod common;
 
+use adrive::config::ALICE_TOML;
 use adrive::snapshot::{Snapshot, WatchdogState};
 use adrive::value::Value;
+use common::headless::{Adrive, Watch, BIN};
 use common::{free_port, lines, signal, tempdir, DEADLINE};
 use std::net::UdpSocket;
-use std::process::{Child, Command as Process, Stdio};
-use std::sync::mpsc;
+use std::process::{Command as Process, Stdio};
 use std::time::{Duration, Instant};
-use tempfile::TempDir;
-
-const BIN: &str = env!("CARGO_BIN_EXE_adrive");
-
-/// A headless simulated Alice on its own ports; killed (SIGTERM) on drop.
-struct Adrive {
-    child: Child,
-    listen: String,
-    broadcast: String,
-    dir: TempDir,
-}
-
-impl Adrive {
-    fn start(tag: &str, network_extra: &str) -> Adrive {
-        let dir = tempdir(tag);
-        let (listen, broadcast) = (
-            format!("127.0.0.1:{}", free_port()),
-            format!("127.0.0.1:{}", free_port()),
-        );
-        // The built-in Alice with its [network] section replaced.
-        let alice = adrive::config::ALICE_TOML;
-        let start = alice.find("[network]").unwrap();
-        let end = start + alice[start..].find("[[device]]").unwrap();
-        let config = format!(
-            "{}[network]\nlisten = \"{listen}\"\nbroadcast_to = [\"{broadcast}\"]\nallow_engage = true\n{network_extra}\n\n{}",
-            &alice[..start],
-            &alice[end..]
-        );
-        let path = dir.path().join("alice.toml");
-        std::fs::write(&path, config).unwrap();
-        let mut child = Process::new(BIN)
-            .args(["--sim", "--headless", "--config"])
-            .arg(&path)
-            .arg("--log-dir")
-            .arg(dir.path().join("log"))
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        let err = lines(child.stderr.take().unwrap());
-        let end = Instant::now() + DEADLINE;
-        loop {
-            let l = err
-                .recv_timeout(end.saturating_duration_since(Instant::now()))
-                .expect("adrive to start");
-            if l.contains("running headless") {
-                break;
-            }
-        }
-        // Keep draining its log.
-        std::thread::spawn(move || for _ in err {});
-        Adrive {
-            child,
-            listen,
-            broadcast,
-            dir,
-        }
-    }
-
-    fn send(&self, args: &[&str]) -> std::process::Output {
-        Process::new(BIN)
-            .args(["send", "--to", &self.listen])
-            .args(args)
-            .current_dir(self.dir.path())
-            .output()
-            .unwrap()
-    }
-}
-
-impl Drop for Adrive {
-    fn drop(&mut self) {
-        common::stop(&mut self.child);
-    }
-}
-
-/// `adrive watch --json`, one parsed broadcast at a time.
-struct Watch {
-    child: Child,
-    rx: mpsc::Receiver<String>,
-}
-
-impl Watch {
-    fn start(from: &str) -> Watch {
-        let mut child = Process::new(BIN)
-            .args(["watch", "--json", "--from", from])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let rx = lines(child.stdout.take().unwrap());
-        Watch { child, rx }
-    }
-
-    /// Broadcasts until one satisfies `want`; returns it and when it arrived.
-    fn until(&self, what: &str, mut want: impl FnMut(&Snapshot) -> bool) -> (Snapshot, Instant) {
-        let end = Instant::now() + DEADLINE;
-        let mut last = Snapshot::default();
-        loop {
-            let left = end.saturating_duration_since(Instant::now());
-            let Ok(line) = self.rx.recv_timeout(left) else {
-                panic!("no broadcast with {what}; the last:\n{last:#?}");
-            };
-            let v: Snapshot = serde_json::from_str(&line).expect("one snapshot per line");
-            if want(&v) {
-                return (v, Instant::now());
-            }
-            last = v;
-        }
-    }
-}
-
-impl Drop for Watch {
-    fn drop(&mut self) {
-        common::stop(&mut self.child);
-    }
-}
 
 /// A device's reading, as a number (NaN when missing).
 fn f(v: &Snapshot, device: &str, reading: &str) -> f64 {
@@ -155,7 +40,7 @@ fn watchdog(v: &Snapshot) -> WatchdogState {
 /// watchdog brings the vehicle to a safe stop within its timeout.
 #[test]
 fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
-    let adrive = Adrive::start("planner", "watchdog_timeout = \"500ms\"");
+    let adrive = Adrive::start("planner", ALICE_TOML, "watchdog_timeout = \"500ms\"");
     let watch = Watch::start(&adrive.broadcast);
     watch.until("every device reporting", |v| v.gate.blockers.is_empty());
     let mut sender = common::Reaped(
@@ -210,7 +95,7 @@ fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
 
 #[test]
 fn send_once_prints_the_reply_and_its_status_says_whether_it_was_refused() {
-    let adrive = Adrive::start("once", "");
+    let adrive = Adrive::start("once", ALICE_TOML, "");
     let out = adrive.send(&["steer", "0.2"]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(
@@ -247,7 +132,11 @@ fn send_with_a_key_signs_and_unsigned_datagrams_are_rejected() {
     let dir = tempdir("keyfile");
     let key = dir.path().join("adrive.key");
     std::fs::write(&key, "correct horse battery staple\n").unwrap();
-    let adrive = Adrive::start("key", &format!("key_file = \"{}\"", key.display()));
+    let adrive = Adrive::start(
+        "key",
+        ALICE_TOML,
+        &format!("key_file = \"{}\"", key.display()),
+    );
     let out = adrive.send(&["engage"]);
     assert!(String::from_utf8_lossy(&out.stdout).contains("missing_tag"));
     assert_eq!(out.status.code(), Some(1));
@@ -305,7 +194,7 @@ fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
 #[test]
 fn send_says_when_an_engage_got_no_reply_and_exits_3() {
     for network in ["allow = [\"10.9.9.9\"]", "replies = false"] {
-        let adrive = Adrive::start("noreply", network);
+        let adrive = Adrive::start("noreply", ALICE_TOML, network);
         for args in [
             &["engage"][..],
             &["--rate", "50", "--count", "75", "engage"],

@@ -238,6 +238,23 @@ pub fn well_known(name: &str) -> Option<&'static WellKnown> {
     WELL_KNOWN.iter().find(|w| w.name == name)
 }
 
+/// The README's table of the well-known readings.
+pub fn well_known_markdown() -> String {
+    let mut out = String::from("| reading | units | line protocol key | |\n|---|---|---|---|\n");
+    for w in &WELL_KNOWN {
+        let units = match (w.units, w.flag) {
+            (_, true) => "1 or 0".to_string(),
+            ("", _) => "—".to_string(),
+            (u, _) => u.to_string(),
+        };
+        out.push_str(&format!(
+            "| `{}` | {units} | `{}` | {} |\n",
+            w.name, w.line_key, w.what
+        ));
+    }
+    out
+}
+
 /// One device, checked.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DeviceConfig {

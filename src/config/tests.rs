@@ -1,5 +1,7 @@
 use super::*;
 use crate::value::{Command, DeviceId, Kind};
+use std::path::Path;
+use std::time::Duration;
 
 const GOOD: &str = r#"
 [vehicle]
@@ -383,4 +385,354 @@ fn ros2_defaults_are_rmw_zenohs_and_the_namespace_is_the_vehicles() {
     assert_eq!(v.ros2.namespace_for(&v.vehicle.name), "/bench");
     assert_eq!(v.ros2.connect, ["tcp/localhost:7447"]);
     assert!(!v.ros2.multicast_scouting);
+}
+
+/// A vehicle with every section, each with a marker line a case replaces.
+const BASE: &str = r#"[vehicle]
+name = "bench"
+[vehicle.roles]
+brake = "brake"
+
+[network]
+# network
+
+[supervisor]
+# supervisor
+
+[[device]]
+name = "brake"
+kind = "setpoint"
+range = [0.0, 1.0]
+driver = "modbus"
+port = "/dev/ttyUSB0"
+# device
+[device.modbus]
+slave = 3
+registers = { target = 0, position = 0 }
+[device.sim]
+# sim
+"#;
+
+/// One absurd value: where it goes, the line the error must name (the first line of
+/// the edited file that starts with `at`), and what the error must say (the key, the
+/// accepted range or form).
+struct Absurd {
+    incident: &'static str,
+    replace: &'static str,
+    with: &'static str,
+    at: &'static str,
+    says: &'static [&'static str],
+}
+
+impl Absurd {
+    /// The edited file and the line number its error must name.
+    fn apply(&self) -> (String, usize) {
+        let text = BASE.replacen(self.replace, self.with, 1);
+        let line = text
+            .lines()
+            .position(|l| l.starts_with(self.at))
+            .unwrap_or_else(|| panic!("{}: no line starts with {:?}", self.incident, self.at))
+            + 1;
+        (text, line)
+    }
+}
+
+/// A vehicle file can switch safety off: every one of these loaded before.
+const ABSURD: &[Absurd] = &[
+    Absurd {
+        incident: "watchdog that never trips",
+        replace: "# network",
+        with: "watchdog_timeout = \"1000000000000s\"",
+        at: "watchdog_timeout",
+        says: &["[network] watchdog_timeout:", "from 10ms to 2s", "got 1000000000000s"],
+    },
+    Absurd {
+        incident: "silent device never flagged",
+        replace: "# device",
+        with: "reply_timeout = \"1000000000h\"",
+        at: "reply_timeout",
+        says: &["brake: reply_timeout:", "from 1ms to 5s", "got 3600000000000s"],
+    },
+    Absurd {
+        incident: "huge status period and max age",
+        replace: "# device",
+        with: "status_period = \"1000000000h\"\nstatus_max_age = \"1000000000h\"",
+        at: "status_period",
+        says: &["brake: status_period:", "from 1ms to 10s"],
+    },
+    Absurd {
+        incident: "huge status max age alone",
+        replace: "# device",
+        with: "status_max_age = \"100000h\"",
+        at: "status_max_age",
+        says: &["brake: status_max_age:", "from 1ms to 10s"],
+    },
+    Absurd {
+        incident: "resend never",
+        replace: "# device",
+        with: "command_timeout = \"0ms\"",
+        at: "command_timeout",
+        says: &["brake: command_timeout:", "from 1ms to 10s", "got 0s"],
+    },
+    Absurd {
+        incident: "rate cap that holds back the brake",
+        replace: "# device",
+        with: "min_command_interval = \"1h\"",
+        at: "min_command_interval",
+        says: &["brake: min_command_interval:", "from 1ms to 1s", "got 3600s"],
+    },
+    Absurd {
+        incident: "baud zero",
+        replace: "# device",
+        with: "baud = 0",
+        at: "baud",
+        says: &["brake: baud:", "a whole number from 300 to 4000000", "got 0"],
+    },
+    Absurd {
+        incident: "supervisor that spins",
+        replace: "# supervisor",
+        with: "period = \"0ms\"",
+        at: "period",
+        says: &["[supervisor] period:", "from 10ms to 1s", "got 0s"],
+    },
+    Absurd {
+        incident: "negative range margin",
+        replace: "# supervisor",
+        with: "range_margin = -3",
+        at: "range_margin",
+        says: &["range_margin:", "a number from 0 to 0.5", "got -3"],
+    },
+    Absurd {
+        incident: "error rate that can never be exceeded",
+        replace: "# supervisor",
+        with: "error_rate = 2.0",
+        at: "error_rate",
+        says: &["[supervisor] error_rate:", "from 0.01 to 0.99", "got 2"],
+    },
+    Absurd {
+        incident: "recovery with no attempt",
+        replace: "# supervisor",
+        with: "attempts = 0",
+        at: "attempts",
+        says: &["[supervisor] attempts:", "a whole number from 1 to 10", "got 0"],
+    },
+    Absurd {
+        incident: "negative attempts",
+        replace: "# supervisor",
+        with: "attempts = -1",
+        at: "attempts",
+        says: &["attempts:", "a whole number from 1 to 10", "got -1"],
+    },
+    Absurd {
+        incident: "negative follow tolerance",
+        replace: "# supervisor",
+        with: "follow_tolerance = -1",
+        at: "follow_tolerance",
+        says: &["follow_tolerance:", "a number from 0.01 to 0.5", "got -1"],
+    },
+    Absurd {
+        incident: "follow time of an hour",
+        replace: "# supervisor",
+        with: "follow_time = \"1h\"",
+        at: "follow_time",
+        says: &["[supervisor] follow_time:", "from 100ms to 10s"],
+    },
+    Absurd {
+        incident: "error window of zero",
+        replace: "# supervisor",
+        with: "error_window = \"0s\"",
+        at: "error_window",
+        says: &["[supervisor] error_window:", "from 100ms to 60s"],
+    },
+    Absurd {
+        incident: "recovery step that never times out",
+        replace: "# supervisor",
+        with: "step_timeout = \"100000h\"",
+        at: "step_timeout",
+        says: &["[supervisor] step_timeout:", "from 100ms to 30s"],
+    },
+    Absurd {
+        incident: "modbus broadcast address as slave",
+        replace: "slave = 3",
+        with: "slave = 0",
+        at: "slave",
+        says: &["brake: modbus.slave:", "a whole number from 1 to 247", "got 0"],
+    },
+    Absurd {
+        incident: "modbus slave past a byte",
+        replace: "slave = 3",
+        with: "slave = 300",
+        at: "slave",
+        says: &["modbus.slave:", "a whole number from 1 to 247", "got 300"],
+    },
+    Absurd {
+        incident: "range of three values truncated",
+        replace: "range = [0.0, 1.0]",
+        with: "range = [-1.0, 0.0, 1.0]",
+        at: "range",
+        says: &["range: expected [min, max], two finite numbers with min < max (got [-1.0, 0.0, 1.0])"],
+    },
+    Absurd {
+        incident: "a brake that is never released",
+        replace: "range = [0.0, 1.0]",
+        with: "range = [0.2, 1.0]",
+        at: "brake = ",
+        says: &["brake", "its range must start at 0 (released)"],
+    },
+    Absurd {
+        incident: "multicast ttl past a byte",
+        replace: "# network",
+        with: "multicast_ttl = 300",
+        at: "multicast_ttl",
+        says: &["[network] multicast_ttl:", "a whole number from 0 to 255", "got 300"],
+    },
+    Absurd {
+        incident: "broadcast rate of zero",
+        replace: "# network",
+        with: "broadcast_rate = 0.0",
+        at: "broadcast_rate",
+        says: &["[network] broadcast_rate:", "a number from 0.1 to 1000"],
+    },
+    Absurd {
+        incident: "simulated watchdog of zero",
+        replace: "# sim",
+        with: "watchdog = \"0ms\"",
+        at: "watchdog",
+        says: &["brake: sim.watchdog:", "from 10ms to 10s", "got 0s"],
+    },
+    Absurd {
+        incident: "simulated watchdog shorter than the resend",
+        replace: "# sim",
+        with: "watchdog = \"100ms\"",
+        at: "watchdog",
+        says: &[
+            "brake: sim.watchdog 100ms, command_timeout 250ms: expected `watchdog` longer",
+        ],
+    },
+    Absurd {
+        incident: "status period longer than the max age",
+        replace: "# device",
+        with: "status_period = \"1500ms\"\nstatus_max_age = \"250ms\"",
+        at: "status_max_age",
+        says: &["brake: status_max_age 250ms, status_period 1500ms: expected `status_max_age` at least `status_period`"],
+    },
+    Absurd {
+        incident: "reply timeout past the max age",
+        replace: "# device",
+        with: "reply_timeout = \"2s\"",
+        at: "reply_timeout",
+        says: &["brake: reply_timeout 2s, status_max_age 500ms: expected `reply_timeout` at most `status_max_age`"],
+    },
+];
+
+#[test]
+fn every_absurd_value_is_refused_with_file_line_key_and_range() {
+    assert!(parse(BASE, "v.toml").is_ok(), "the base vehicle loads");
+    for case in ABSURD {
+        assert!(BASE.contains(case.replace), "{}", case.incident);
+        let (text, line) = case.apply();
+        let e = match parse(&text, "v.toml") {
+            Ok(_) => panic!("{}: `{}` was accepted", case.incident, case.with),
+            Err(e) => e.to_string(),
+        };
+        let at = format!("v.toml:{line}: ");
+        assert!(
+            e.starts_with(&at),
+            "{}: wanted {at}…, got {e}",
+            case.incident
+        );
+        for said in case.says {
+            assert!(
+                e.contains(said),
+                "{}: wanted {said:?} in {e}",
+                case.incident
+            );
+        }
+    }
+}
+
+#[test]
+fn a_device_without_a_port_is_refused_outside_sim_at_its_line() {
+    let none = BASE.replace("port = \"/dev/ttyUSB0\"\n", "");
+    let v = parse(&none, "v.toml").expect("a portless device loads, for --sim");
+    let e = v.check_ports().unwrap_err().to_string();
+    assert!(
+        e.starts_with("v.toml:12: brake: port: expected the path of a serial port"),
+        "{e}"
+    );
+    assert!(e.contains("--sim"), "{e}");
+    let empty = BASE.replace("\"/dev/ttyUSB0\"", "\"\"");
+    let e = parse(&empty, "v.toml").unwrap().check_ports().unwrap_err();
+    assert!(e.to_string().starts_with("v.toml:17: brake: port:"), "{e}");
+    assert!(parse(BASE, "v.toml").unwrap().check_ports().is_ok());
+}
+
+#[test]
+fn the_console_s_status_period_goes_through_the_same_rule() {
+    let d = &parse(BASE, "v.toml").unwrap().devices[0];
+    let mut edited = d.clone();
+    edited.status_period = Duration::from_millis(1500);
+    let e = edited.check_limits().unwrap_err();
+    assert_eq!(e.paths[0], "status_max_age");
+    assert!(e.message.contains("status_period 1500ms"), "{e}");
+}
+
+/// `[[devcie]]` made the `[device.modbus]` under it a duplicate of the one above, and
+/// the error named that line, not the typo.
+#[test]
+fn a_misspelt_table_is_named_at_its_own_line_not_as_a_later_duplicate() {
+    let typo = format!(
+        "{BASE}\n[[devcie]]\nname = \"gas\"\ndriver = \"modbus\"\n[device.modbus]\nslave = 2\n"
+    );
+    let e = error(&typo);
+    assert!(
+        e.starts_with("v.toml:25: unknown table [[devcie]]: did you mean [[device]]?"),
+        "{e}"
+    );
+    let e = error(&BASE.replace("[device.sim]", "[device.simm]"));
+    assert!(
+        e.starts_with("v.toml:22: unknown table [device.simm]: did you mean [device.sim]?"),
+        "{e}"
+    );
+    let e = error(&format!("{BASE}[netwrok]\n"));
+    assert!(e.starts_with("v.toml:24: unknown table [netwrok]"), "{e}");
+}
+
+#[test]
+fn a_duplicate_key_is_named() {
+    let e = error(&BASE.replace("# device", "baud = 9600\nbaud = 19200"));
+    assert!(e.starts_with("v.toml:19: duplicate key `baud`"), "{e}");
+}
+
+#[test]
+fn a_byte_that_is_not_utf8_names_its_line() {
+    let mut bytes = BASE.as_bytes().to_vec();
+    let at = BASE.find("# device").unwrap() + 2;
+    bytes[at] = 0xff;
+    let e = document::utf8(&bytes, "v.toml").unwrap_err().to_string();
+    assert_eq!(
+        e,
+        "v.toml:18: byte 0xff at column 3 is not UTF-8: a vehicle file is UTF-8 text"
+    );
+}
+
+#[test]
+fn a_file_that_cannot_be_read_says_so_without_a_line() {
+    let e = load(Path::new("/nonexistent/vehicle.toml")).unwrap_err();
+    assert!(
+        e.to_string()
+            .starts_with("/nonexistent/vehicle.toml: cannot read: "),
+        "{e}"
+    );
+}
+
+/// The README's table of well-known readings is the loader's.
+#[test]
+fn the_readme_shows_the_well_known_readings() {
+    let readme = include_str!("../../README.md");
+    let table = device::well_known_markdown();
+    assert!(
+        readme.contains(&table),
+        "README.md must contain, verbatim, the table of well-known readings:\n{table}"
+    );
 }

@@ -373,15 +373,18 @@ fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal
     let raw = raw.into_inner();
     let at_slave = raw.slave.span().start;
     let slave = *raw.slave.get_ref();
-    let slave = u8::try_from(slave)
-        .ok()
-        .filter(|s| (1..=247).contains(s))
-        .ok_or_else(|| {
-            (
-                at_slave,
-                format!("{name}: modbus.slave: expected a slave id from 1 to 247 (got {slave}; 0 is the broadcast address)"),
-            )
-        })?;
+    // The one rule for a slave id is the limits table's.
+    let limit = &super::limits::MODBUS_SLAVE;
+    let slave = u64::try_from(slave)
+        .map_err(|_| {
+            limit.violation(format!(
+                "{}: expected {}, got {slave}",
+                limit.name(),
+                limit.expected()
+            ))
+        })
+        .and_then(|s| limit.check(s))
+        .map_err(|v| (at_slave, format!("{name}: {}", v.message)))? as u8;
     let at = raw.registers.span().start;
     let bad = |m: String| (at, format!("{name}: modbus.registers: {m}"));
     let mut target = None;

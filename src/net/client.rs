@@ -4,7 +4,7 @@
 
 use super::auth::Auth;
 use super::proto::{self, NetCommand, Vocabulary, MAX_DATAGRAM};
-use crate::snapshot::Snapshot;
+use crate::snapshot::{Assembler, Snapshot};
 use crate::value::Value;
 use socket2::{Domain, Protocol, Socket, Type};
 use std::fmt::Write as _;
@@ -280,6 +280,7 @@ pub fn watch(
     }
     let mut buf = vec![0u8; 65536];
     let mut seen = 0u64;
+    let mut parts = Assembler::default();
     let mut last_gate = String::new();
     let mut out = io::stdout().lock();
     while !stop.load(Relaxed) && count.is_none_or(|c| seen < c) {
@@ -296,23 +297,36 @@ pub fn watch(
             Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(e),
         };
-        seen += 1;
         let bytes = &buf[..n];
-        if json {
-            out.write_all(bytes)?;
-            out.write_all(b"\n")?;
-            out.flush()?;
-            continue;
-        }
-        match serde_json::from_slice::<Snapshot>(bytes) {
-            Ok(v) => {
-                if v.gate.reason != last_gate {
-                    writeln!(out, "-- {}", v.gate.reason)?;
-                    last_gate = v.gate.reason.clone();
+        let snap = match serde_json::from_slice::<Snapshot>(bytes) {
+            Ok(v) => v,
+            Err(e) => {
+                if !json {
+                    writeln!(out, "?? not a state broadcast ({e}): {n} bytes")?;
+                    out.flush()?;
                 }
-                writeln!(out, "{}", human_line(&v))?;
+                continue;
             }
-            Err(e) => writeln!(out, "?? not a state broadcast ({e}): {n} bytes")?,
+        };
+        let whole_datagram = snap.part.is_none();
+        // A vehicle of many devices broadcasts in parts: one line per whole snapshot.
+        let Some(v) = parts.push(snap) else {
+            continue;
+        };
+        seen += 1;
+        if json {
+            if whole_datagram {
+                out.write_all(bytes)?;
+            } else {
+                serde_json::to_writer(&mut out, &v)?;
+            }
+            out.write_all(b"\n")?;
+        } else {
+            if v.gate.reason != last_gate {
+                writeln!(out, "-- {}", v.gate.reason)?;
+                last_gate = v.gate.reason.clone();
+            }
+            writeln!(out, "{}", human_line(&v))?;
         }
         out.flush()?;
     }
@@ -360,13 +374,19 @@ pub fn human_line(v: &Snapshot) -> String {
             let _ = write!(l, " | {}", d.name);
             let single = d.readings.len() == 1;
             for ((name, v), (_, units)) in d.readings.iter().zip(d.reading_units.iter()) {
+                // `estop run`, `obd rpm=700.00 speed=0.00m/s …`
                 if single {
                     let _ = write!(l, " {}", value(v.as_ref()));
                 } else {
-                    let _ = write!(l, " {name} {}", value(v.as_ref()));
+                    let _ = write!(l, " {name}={}", value(v.as_ref()));
                 }
-                if !units.is_empty() && matches!(v, Some(Value::Number(_))) {
-                    let _ = write!(l, " {units}");
+                if !units.is_empty() && units != name && matches!(v, Some(Value::Number(_))) {
+                    let sep = if units.starts_with(char::is_alphabetic) && single {
+                        " "
+                    } else {
+                        ""
+                    };
+                    let _ = write!(l, "{sep}{units}");
                 }
             }
             l.push_str(flag);
@@ -396,6 +416,23 @@ mod tests {
         assert_eq!(words(&["steer 0.2", "GAS", "0"]), "steer 0.2\nGAS 0\n");
         assert_eq!(words(&["steer 0.2; brake 1"]), "steer 0.2\nbrake 1\n");
         assert_eq!(words(&["steer", "-0.25"]), "steer -0.25\n");
+    }
+
+    /// `adrive watch`: each actuator as commanded/measured, each sensor's readings
+    /// with their units.
+    #[test]
+    fn a_broadcast_is_one_line_for_a_person() {
+        let snap = crate::console::sample::gate(Instant::now()).snapshot(0);
+        let l = human_line(&snap);
+        assert!(l.contains("disengaged watchdog -"), "{l}");
+        assert!(
+            l.contains(" | steer -/0.23 | gas -/0.00 | brake -/1.00 | trans -/park"),
+            "{l}"
+        );
+        assert!(
+            l.ends_with(" | estop run | obd rpm=700.00 speed=0.00m/s coolant=85.00°C running=yes"),
+            "{l}"
+        );
     }
 
     #[test]

@@ -211,6 +211,11 @@ pub fn snapshot(gate: &Gate, status: &NetStatus, seq: u64) -> Snapshot {
     snap
 }
 
+/// The largest state broadcast datagram: a snapshot larger than this (a vehicle of
+/// many devices) goes out in parts ([`Snapshot::datagrams`]) that `adrive watch`
+/// joins. Alice's snapshot fits in one.
+pub const BROADCAST_MAX: usize = 16 * 1024;
+
 fn broadcast_loop(
     socket: &UdpSocket,
     dest: &[SocketAddr],
@@ -221,19 +226,22 @@ fn broadcast_loop(
 ) {
     let mut errors = RateLimit::new(1);
     let mut seq = 0u64;
-    let mut bytes = Vec::with_capacity(8192);
     crate::threads::every(period, stop, || {
         let snap = snapshot(gate, status, seq);
         seq += 1;
-        bytes.clear();
-        if let Err(e) = serde_json::to_writer(&mut bytes, &snap) {
-            tracing::error!("state broadcast: {e}");
-            return;
-        }
+        let datagrams = match snap.datagrams(BROADCAST_MAX) {
+            Ok(d) => d,
+            Err(e) => {
+                tracing::error!("state broadcast: {e}");
+                return;
+            }
+        };
         for to in dest {
-            if let Err(e) = socket.send_to(&bytes, to) {
-                if errors.allow(Instant::now()) {
-                    tracing::warn!(%to, "state broadcast: {e}");
+            for bytes in &datagrams {
+                if let Err(e) = socket.send_to(bytes, to) {
+                    if errors.allow(Instant::now()) {
+                        tracing::warn!(%to, "state broadcast: {e}");
+                    }
                 }
             }
         }

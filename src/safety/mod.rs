@@ -463,6 +463,7 @@ impl Gate {
                 .map(|(r, n)| (r.as_str().to_string(), n))
                 .collect::<Pairs<u64>>(),
             net: None,
+            part: None,
         }
     }
 }

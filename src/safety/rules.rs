@@ -155,10 +155,10 @@ impl fmt::Display for Reject {
             Reject::WrongKind => "wrong kind of value for this device",
             Reject::NotFinite => "value is not a finite number",
             Reject::OutOfRange => "value outside the device's range",
-            Reject::GasWhileBraking => "no gas while the brake is applied",
-            Reject::GasNotInGear => "gas only in a driving gear",
-            Reject::GasEngineOff => "gas only with the engine running",
-            Reject::GasEstop => "no gas unless the e-stop says run",
+            Reject::GasWhileBraking => "no throttle while the brake is applied",
+            Reject::GasNotInGear => "throttle only in a driving gear",
+            Reject::GasEngineOff => "throttle only with the engine running",
+            Reject::GasEstop => "no throttle unless the e-stop says run",
             Reject::BrakeReleaseEstop => "the brake stays on while the e-stop pauses",
             Reject::BrakeReleaseShifting => "the brake stays on until the shift is through",
             Reject::ShiftWhileMoving => "shift only when stopped",
@@ -311,6 +311,26 @@ pub fn check(facts: &Facts, rules: Rules, plays: Plays, command: Command) -> Res
         }
         _ => Ok(()),
     }
+}
+
+/// The README's table of the interlock rules: each with the roles it needs bound and
+/// what it refuses.
+pub fn markdown() -> String {
+    let mut out = String::from("| rule | applies when bound | refuses |\n|---|---|---|\n");
+    for r in Reject::RULES {
+        let needs: Vec<String> = r
+            .needs()
+            .iter()
+            .map(|n| format!("`{}`", n.as_str()))
+            .collect();
+        out.push_str(&format!(
+            "| `{}` | {} | {} |\n",
+            r.as_str(),
+            needs.join(", "),
+            r
+        ));
+    }
+    out
 }
 
 #[cfg(test)]
@@ -514,5 +534,16 @@ mod tests {
         ] {
             assert_eq!(check_all(&f, nobody, c), Ok(()));
         }
+    }
+
+    /// The README's table of rules is this module's.
+    #[test]
+    fn the_readme_shows_the_rules_table() {
+        let readme = include_str!("../../README.md");
+        let table = markdown();
+        assert!(
+            readme.contains(&table),
+            "README.md must contain, verbatim, the table of rules:\n{table}"
+        );
     }
 }

@@ -2,6 +2,7 @@
 //! pseudo-terminals with the real engine on top, and waiting for events with a deadline.
 #![allow(dead_code)]
 
+pub mod headless;
 pub mod pty;
 
 use adrive::config::{self, VehicleConfig};
