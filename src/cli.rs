@@ -109,6 +109,10 @@ pub struct RunArgs {
     /// Record the raw serial traffic of every device too.
     #[arg(long)]
     pub record_raw: bool,
+    /// Join the ROS 2 graph over Zenoh as an Autoware vehicle interface (the vehicle
+    /// file's `[ros2]`; built with the cargo feature `ros2`).
+    #[arg(long)]
+    pub ros2: bool,
 }
 
 #[derive(Subcommand, Debug, Clone)]
@@ -177,9 +181,22 @@ pub struct WatchArgs {
     /// The address the broadcast is sent to: this host's, or a multicast group.
     #[arg(long, value_name = "ADDR", default_value = net::config::DEFAULT_BROADCAST)]
     pub from: SocketAddr,
-    /// Stop after this many broadcasts.
+    /// Stop after this many broadcasts (with --ros2: report lines).
     #[arg(long, value_name = "N")]
     pub count: Option<u64>,
+    /// Watch the ROS 2 graph over Zenoh instead: list every vehicle seen, follow one
+    /// (built with the cargo feature `ros2`).
+    #[arg(long)]
+    pub ros2: bool,
+    /// With --ros2: a Zenoh router or peer to connect to (repeatable).
+    #[arg(long, value_name = "ENDPOINT", default_value = config::ros2::DEFAULT_CONNECT)]
+    pub connect: Vec<String>,
+    /// With --ros2: the ROS domain (ROS_DOMAIN_ID).
+    #[arg(long, value_name = "ID", default_value_t = 0)]
+    pub domain: u32,
+    /// With --ros2: the vehicle to follow, by namespace (default: the first one seen).
+    #[arg(long, value_name = "NS")]
+    pub namespace: Option<String>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -313,6 +330,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // The command socket is bound before any device is driven: a busy port is a
     // configuration error (status 2), not a half-started vehicle.
     let net = Net::start(gate.clone(), vehicle.config.network.clone(), auth)?;
+    let ros2 = ros2::start(args.ros2, &gate, &net, &vehicle.config)?;
     let engine = Engine::start(gate.clone())?;
     let monitor = gate::Monitor::start(gate.clone())?;
     let (panic_in, panic_after) = match args.inject_panic.as_deref() {
@@ -362,10 +380,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // commands the safe state at once), stop the network and gate threads, then let the
     // engine command the safe state again and wait for its acknowledgement.
     net.close();
+    ros2.close();
     gate.disengage(&format!("stopping: {}", why.describe()));
     let net_figures = net.status().snapshot();
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
+    stuck.extend(ros2.shutdown(Duration::from_millis(500)));
     stuck.extend(monitor.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);
@@ -483,10 +503,93 @@ pub fn send(args: SendArgs) -> anyhow::Result<i32> {
     Ok(client::send(&opts, &body, &stop)?)
 }
 
-/// `adrive watch`: print the state broadcast.
+/// `adrive watch`: print the state broadcast, or (`--ros2`) the vehicles on a ROS 2
+/// graph.
 pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
     let stop = stop_flag()?;
+    if args.ros2 {
+        return ros2::watch(&args, &stop);
+    }
     Ok(client::watch(args.from, args.json, args.count, &stop)?)
+}
+
+/// The ROS 2 interface when built in, and what `--ros2` says when it is not.
+mod ros2 {
+    use super::WatchArgs;
+    use crate::config::VehicleConfig;
+    use crate::net::Net;
+    use crate::safety::Gate;
+    use std::sync::atomic::AtomicBool;
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    #[cfg(not(feature = "ros2"))]
+    const NOT_BUILT: &str = "--ros2: this adrive was built without ROS 2; build it with \
+                             `cargo build --release --features ros2`";
+
+    /// The running node, if `--ros2` started one.
+    #[cfg(feature = "ros2")]
+    pub struct Running(Option<crate::ros2::Node>);
+    #[cfg(not(feature = "ros2"))]
+    pub struct Running;
+
+    #[cfg(feature = "ros2")]
+    pub fn start(
+        on: bool,
+        gate: &Arc<Gate>,
+        net: &Net,
+        config: &VehicleConfig,
+    ) -> anyhow::Result<Running> {
+        if !on {
+            return Ok(Running(None));
+        }
+        let node = crate::ros2::Node::start(gate.clone(), net.status().clone(), config)?;
+        Ok(Running(Some(node)))
+    }
+
+    #[cfg(not(feature = "ros2"))]
+    pub fn start(on: bool, _: &Arc<Gate>, _: &Net, _: &VehicleConfig) -> anyhow::Result<Running> {
+        if on {
+            anyhow::bail!(NOT_BUILT);
+        }
+        Ok(Running)
+    }
+
+    impl Running {
+        /// Refuse every ROS 2 command from now on.
+        pub fn close(&self) {
+            #[cfg(feature = "ros2")]
+            if let Some(n) = &self.0 {
+                n.close();
+            }
+        }
+
+        /// Stop the node; the names of the threads that did not stop.
+        pub fn shutdown(self, deadline: Duration) -> Vec<String> {
+            #[cfg(feature = "ros2")]
+            if let Some(n) = self.0 {
+                return n.shutdown(deadline);
+            }
+            let _ = deadline;
+            Vec::new()
+        }
+    }
+
+    #[cfg(feature = "ros2")]
+    pub fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
+        let opts = crate::ros2::watch::WatchOptions {
+            domain: args.domain,
+            connect: args.connect.clone(),
+            namespace: args.namespace.clone(),
+            count: args.count,
+        };
+        crate::ros2::watch::watch(&opts, stop)
+    }
+
+    #[cfg(not(feature = "ros2"))]
+    pub fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
+        anyhow::bail!(NOT_BUILT)
+    }
 }
 
 /// How many received commands `adrive sim` holds while its output is slow; past

@@ -18,6 +18,7 @@ pub mod limits;
 pub mod placement;
 pub mod record;
 pub mod roles;
+pub mod ros2;
 pub mod wire;
 
 pub use crate::net::config::NetworkConfig;
@@ -26,6 +27,7 @@ use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
 pub use record::RecordConfig;
 pub use roles::{Bindings, Role};
+pub use ros2::Ros2Config;
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -223,6 +225,8 @@ pub struct VehicleConfig {
     pub network: NetworkConfig,
     /// `[record]`: record every run (none: only with `--record`).
     pub record: Option<RecordConfig>,
+    /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
+    pub ros2: Ros2Config,
     /// Where it was loaded from (for messages).
     pub source: String,
     /// The line of every key in that file, for errors found after loading.
@@ -365,6 +369,7 @@ struct Raw {
     network: Option<NetworkConfig>,
     #[serde(default)]
     record: Option<RecordConfig>,
+    ros2: Option<Ros2Config>,
 }
 
 /// Load a vehicle from a file.
@@ -431,6 +436,9 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     if let Some(r) = &raw.record {
         r.check().map_err(|v| refuse(path, &lines, "record", v))?;
     }
+    let ros2 = raw.ros2.unwrap_or_default();
+    ros2.check(&devices)
+        .map_err(|v| refuse(path, &lines, "ros2", v))?;
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,
@@ -441,6 +449,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         devices,
         network,
         record: raw.record,
+        ros2,
         source: path.to_string(),
         lines,
     })
