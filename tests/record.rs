@@ -627,6 +627,13 @@ fn a_record_table_rolls_to_a_new_file_by_age_and_keeps_the_newest() {
         std::thread::sleep(Duration::from_millis(100));
     }
     common::wait_for("the first file pruned", || !first.exists());
+    // Stop once the new file has a snapshot in a whole chunk: stopped sooner, right
+    // after the roll, it would rightly hold none yet.
+    common::wait_for("a snapshot in the new file", || {
+        files().last().is_some_and(|f| {
+            Recording::open(f).is_ok_and(|r| by_topic(&r).contains_key("/snapshot"))
+        })
+    });
     common::signal(&a, libc::SIGTERM);
     assert_eq!(common::wait_exit(&mut a), Some(0));
     let left = files();

@@ -15,7 +15,14 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 6] = ["vehicle", "network", "supervisor", "record", "ros2", "device"];
+const TABLES: [&str; 6] = [
+    "vehicle",
+    "network",
+    "supervisor",
+    "record",
+    "ros2",
+    "device",
+];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
 const DEVICE_TABLES: [&str; 5] = ["sim", "modbus", "line", "aliases", "readings"];
 /// What the headers of a vehicle file are, for messages.
