@@ -685,7 +685,7 @@ fn section6_memory(dir: &tempfile::TempDir, r: &mut Results) {
     }
     let file = dir.path().join("console.toml");
     std::fs::write(&file, sim.patch(adrive::config::ALICE_TOML)).unwrap();
-    let mut cmd = Command::new(rig::ADRIVE);
+    let mut cmd = Command::new(rig::adrive());
     cmd.arg("--config")
         .arg(&file)
         .arg("--listen")
@@ -714,7 +714,7 @@ fn section7_console_output(dir: &tempfile::TempDir, secs: f64, r: &mut Results) 
         "\n== 7. The console's output on a 100×30 terminal (`adrive --sim`), {secs} s each =="
     );
     let port = rig::free_port();
-    let mut cmd = Command::new(rig::ADRIVE);
+    let mut cmd = Command::new(rig::adrive());
     cmd.arg("--sim")
         .args(["--listen", &format!("127.0.0.1:{port}")])
         .arg("--log-dir")

@@ -10,8 +10,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-/// The adrive binary cargo built for this bench.
-pub const ADRIVE: &str = env!("CARGO_BIN_EXE_adrive");
+/// The adrive binary cargo built for this bench, or the one `ADRIVE_BENCH_BIN` names
+/// (to compare builds, e.g. another profile, with one bench binary).
+pub fn adrive() -> String {
+    std::env::var("ADRIVE_BENCH_BIN").unwrap_or_else(|_| env!("CARGO_BIN_EXE_adrive").into())
+}
 
 /// Long enough for anything that works; a bench that waits this long has failed.
 const DEADLINE: Duration = Duration::from_secs(30);
@@ -22,7 +25,7 @@ use crate::common::stop;
 /// `adrive send` as a planner: `count` datagrams of `body` to `to`, `rate` a second,
 /// waiting for it to finish.
 pub fn send_at(to: SocketAddr, rate: f64, count: u64, body: &[&str]) {
-    let _ = Command::new(ADRIVE)
+    let _ = Command::new(adrive())
         .args(["send", "--to", &to.to_string(), "--rate", &rate.to_string()])
         .args(["--count", &count.to_string()])
         .args(body)
@@ -116,7 +119,7 @@ pub struct Sim {
 
 impl Sim {
     pub fn start(vehicle: &Path) -> Sim {
-        let mut child = Command::new(ADRIVE)
+        let mut child = Command::new(adrive())
             .args(["sim", "--quiet", "--config"])
             .arg(vehicle)
             .stdin(Stdio::null())
@@ -229,7 +232,7 @@ impl Adrive {
         };
         std::fs::write(&file, text).unwrap();
         let listen: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
-        let child = Command::new(ADRIVE)
+        let child = Command::new(adrive())
             .args(["--headless", "--config"])
             .arg(&file)
             .arg("--listen")

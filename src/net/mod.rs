@@ -2,7 +2,7 @@
 //! drive-by-wire interfaces add:
 //!
 //! - `net/listen` owns the UDP command socket. Each datagram is stamped the moment
-//!   `recv_from` returns, then [`intake`] checks the sender (allow-list), the grammar
+//!   the kernel hands it over (under a flood, reads are paced: [`pace`]), then [`intake`] checks the sender (allow-list), the grammar
 //!   ([`proto`]), the key ([`auth`]) and the rolling counter, decides who commands, and
 //!   hands each command to [`Gate::submit`], which checks the interlocks, stores it
 //!   in the device's slot and wakes its command thread.
@@ -22,6 +22,7 @@ pub mod config;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod intake;
+pub mod pace;
 pub mod proto;
 pub mod status;
 
@@ -195,10 +196,10 @@ impl Batch {
         unsafe { Box::new(std::mem::zeroed()) }
     }
 
-    /// Wait for at least one datagram (at most the socket's read timeout), then take
-    /// every one already queued, up to [`BATCH`]: under a flood, one system call and
-    /// one wake serve many. Returns how many arrived.
-    fn receive(&mut self, socket: &UdpSocket) -> io::Result<usize> {
+    /// Wait for at least one datagram (at most the socket's read timeout; not at all
+    /// when `wait` is false), then take every one already queued, up to [`BATCH`]:
+    /// under a flood, one system call and one wake serve many. Returns how many arrived.
+    fn receive(&mut self, socket: &UdpSocket, wait: bool) -> io::Result<usize> {
         use std::os::fd::AsRawFd;
         let mut iov: [libc::iovec; BATCH] = std::array::from_fn(|i| libc::iovec {
             iov_base: self.bufs[i].as_mut_ptr().cast(),
@@ -219,7 +220,11 @@ impl Batch {
                 socket.as_raw_fd(),
                 msgs.as_mut_ptr(),
                 BATCH as u32,
-                libc::MSG_WAITFORONE,
+                if wait {
+                    libc::MSG_WAITFORONE
+                } else {
+                    libc::MSG_DONTWAIT
+                },
                 std::ptr::null_mut(),
             )
         };
@@ -267,11 +272,29 @@ fn sender(a: &libc::sockaddr_storage) -> Option<SocketAddr> {
 fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
     let mut batch = Batch::new();
     let mut errors = RateLimit::new(1);
+    let mut pace = pace::Pace::new(Instant::now());
+    let mut last_read = Instant::now();
+    let mut not_before = None;
     while !stop.is_stopped() {
-        match batch.receive(socket) {
+        // Under a flood, pause, then take what queued meanwhile without waiting: those
+        // datagrams arrived after the previous read returned, so they are stamped then.
+        // Otherwise (and when nothing queued) wait, and stamp when the kernel hands
+        // the datagrams over.
+        let mut queued = None;
+        if let Some(at) = not_before.take() {
+            stop.sleep_until(at);
+            queued = match batch.receive(socket, false) {
+                Ok(0) => None,
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => None,
+                other => Some((other, last_read)),
+            };
+        }
+        let (result, received) =
+            queued.unwrap_or_else(|| (batch.receive(socket, true), Instant::now()));
+        match result {
             Ok(n) => {
-                // Stamped when the kernel handed them over.
-                let received = Instant::now();
+                last_read = Instant::now();
+                not_before = pace.read(n, last_read);
                 for i in 0..n {
                     let Some((bytes, from)) = batch.get(i) else {
                         continue;
