@@ -183,7 +183,19 @@ struct Results {
     console_output: Option<(f64, f64)>,
 }
 
+/// Run as the memory floor instead ([`section6_memory`]): a Rust program with twenty
+/// sleeping threads and nothing else.
+const IDLE: &str = "ADRIVE_BENCH_IDLE_THREADS";
+
 fn main() {
+    if std::env::var_os(IDLE).is_some() {
+        let idle =
+            (0..20).map(|_| std::thread::spawn(|| std::thread::sleep(Duration::from_millis(200))));
+        idle.collect::<Vec<_>>()
+            .into_iter()
+            .for_each(|t| t.join().unwrap());
+        return;
+    }
     let secs = secs();
     let dir = common::tempdir("bench");
     let out = target_dir();
@@ -456,6 +468,21 @@ fn section3_fig4(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
             p50
         );
         r.fig4.push((rate, got, cpu));
+        let why: Vec<String> = after
+            .rejections
+            .iter()
+            .filter_map(|(reason, n)| {
+                let n0 = before
+                    .rejections
+                    .iter()
+                    .find(|x| x.0 == reason)
+                    .map_or(0, |x| *x.1);
+                (*n > n0).then(|| format!("{reason} {}", n - n0))
+            })
+            .collect();
+        if !why.is_empty() {
+            println!("             rejected: {}", why.join(", "));
+        }
         if rate == 10000.0 || rate == 0.0 {
             let mut by: Vec<(String, f64)> = rig::cpu_by_thread(a.pid())
                 .into_iter()
@@ -664,6 +691,12 @@ fn section5_findings(dir: &tempfile::TempDir, secs: f64) {
 
 fn section6_memory(dir: &tempfile::TempDir, r: &mut Results) {
     println!("\n== 6. Memory: peak resident set (the paper: under 4 MB) ==");
+    let me = std::env::current_exe().unwrap();
+    println!(
+        "the floor: a Rust program whose 20 threads sleep, peak {} kB; adrive printing its version, peak {} kB",
+        rig::peak_kb_of(Command::new(me).env(IDLE, "1")),
+        rig::peak_kb_of(Command::new(rig::adrive()).arg("--version"))
+    );
     let alice = dir.path().join("alice.toml");
     std::fs::write(&alice, adrive::config::ALICE_TOML).unwrap();
     let sim = Sim::start(&alice);
