@@ -180,7 +180,7 @@ pub fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
 }
 
 /// Datagrams taken from the kernel in one system call at most.
-const BATCH: usize = 16;
+const BATCH: usize = 32;
 
 /// Buffers for one `recvmmsg`: room for [`BATCH`] datagrams and their senders.
 struct Batch {
@@ -294,7 +294,8 @@ fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
         match result {
             Ok(n) => {
                 last_read = Instant::now();
-                not_before = pace.read(n, last_read);
+                // A full batch leaves more queued: read on at once, never fall behind.
+                not_before = pace.read(n, last_read).filter(|_| n < BATCH);
                 for i in 0..n {
                     let Some((bytes, from)) = batch.get(i) else {
                         continue;

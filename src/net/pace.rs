@@ -6,8 +6,9 @@
 //! datagrams a second — every datagram should wake the listener at once: that wake is
 //! the start of the command's way to the wire. Under a flood (thousands a second, far
 //! more than any serial line can execute) a wake per datagram only burns CPU, so the
-//! listener then reads its socket at most once per [`FLOOD_GAP`], taking everything
-//! queued in one `recvmmsg`. The commands lose nothing they could use: a slot keeps only
+//! listener then pauses [`FLOOD_GAP`] after a read that emptied its socket, taking
+//! everything queued meanwhile in one `recvmmsg` (a read that did not empty it is
+//! followed at once by the next: pacing never lets the socket fall behind). The commands lose nothing they could use: a slot keeps only
 //! the newest command anyway.
 //!
 //! Datagrams found queued after such a pause are stamped as received when the previous
