@@ -4,12 +4,13 @@
 //! [`Snapshot`](crate::snapshot::Snapshot); it has no policy — the safety rules that
 //! decide what may reach a slot live in [`crate::safety`].
 //!
-//! - [`device`]: one device; [`slot`]: its latest-wins command slot; [`port`]: its
+//! - [`device`]: one device; [`estimate`]: its state estimator; [`slot`]: its latest-wins command slot; [`port`]: its
 //!   shared port and the rule by which its two threads take turns; [`stats`]: its
 //!   always-on figures; [`trace`]: its raw traffic; [`supervision`]: the supervisor's
 //!   board.
 
 pub mod device;
+pub mod estimate;
 pub mod port;
 pub mod slot;
 pub mod stats;
