@@ -181,6 +181,25 @@ pub struct DeviceView {
     pub command_txn_us: LatencySummary,
     /// One status transaction, µs.
     pub status_txn_us: LatencySummary,
+    /// What the estimator believes now, for a setpoint device with a declared
+    /// response (null without one, or before its first reading).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub estimate: Option<EstimateView>,
+}
+
+/// A setpoint device's estimated state at the snapshot's instant (its units).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(test, derive(schemars::JsonSchema))]
+pub struct EstimateView {
+    /// The estimated position.
+    pub position: f64,
+    /// One standard deviation of it.
+    pub sigma: f64,
+    /// The estimated velocity, units a second.
+    pub velocity: f64,
+    /// The velocity its command does not explain (a stuck motor, a driver's hand),
+    /// units a second.
+    pub drift: f64,
 }
 
 impl DeviceView {
@@ -238,6 +257,10 @@ pub struct Settings {
     pub status_max_age_ms: f64,
     pub status_on: bool,
     pub command_on: bool,
+    /// How status polls are scheduled: `fixed` (every `status_period_ms`) or
+    /// `adaptive` (by the estimate, from `status_period_ms` to `status_max_age_ms`).
+    #[serde(default)]
+    pub polling: String,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]

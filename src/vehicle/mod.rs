@@ -181,6 +181,7 @@ fn view(d: &Device, now: Instant) -> DeviceView {
             status_max_age_ms: ms(cfg.status_max_age),
             status_on: d.settings.status_enabled.load(Relaxed),
             command_on: d.settings.command_enabled.load(Relaxed),
+            polling: cfg.polling.as_str().to_string(),
         },
         counters: snapshot::Counters {
             received: s.received,
@@ -196,5 +197,11 @@ fn view(d: &Device, now: Instant) -> DeviceView {
         delay_us: s.command_delay,
         command_txn_us: s.command_txn,
         status_txn_us: s.status_txn,
+        estimate: d.estimate(now).map(|e| snapshot::EstimateView {
+            position: e.position,
+            sigma: e.sigma,
+            velocity: e.velocity,
+            drift: e.drift,
+        }),
     }
 }
