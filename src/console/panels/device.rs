@@ -1,5 +1,6 @@
 //! One device, laid out like a quarter of the paper's Figure 2: name, range, commanded
-//! and measured value; `st delay` / `cm delay`; thread flags and error codes with the
+//! and measured value; `st delay` / `cm delay`; measured and estimated position
+//! (`est ± σ`, and the drift its command does not explain); thread flags and error codes with the
 //! status age; the device's own fields; receipt → first-byte delay p50/p99/max; and
 //! counters. Editable fields show the cursor and an edit in progress in place.
 
@@ -243,7 +244,29 @@ impl<'a> DevicePanel<'a> {
                 Style::new(),
             ));
         }
+        if d.settings.polling == "adaptive" {
+            delays.push(l(" adaptive"));
+        }
         out.push(Line::from(delays));
+        // measured and estimated side by side
+        if let Some(e) = &d.estimate {
+            let meas = fmt_value(d.readings.get("position").and_then(Option::as_ref));
+            let (est, sigma, drift) = (fmt_num(e.position), fmt_num(e.sigma), fmt_num(e.drift));
+            let mut line = vec![
+                l("meas "),
+                Span::raw(meas.clone()),
+                l("  est "),
+                Span::raw(est.clone()),
+                l(" ± "),
+                Span::raw(sigma.clone()),
+            ];
+            // The drift (units a second its command does not explain), where it fits.
+            let used = "meas   est  ± ".len() + meas.len() + est.len() + sigma.len();
+            if used + "  drift ".len() + drift.len() <= width as usize {
+                line.extend([l("  drift "), Span::raw(drift)]);
+            }
+            out.push(Line::from(line));
+        }
         // thread flags, error codes, age
         let mut flags = vec![
             l("status "),
