@@ -6,8 +6,12 @@
 //!    paper's plain lock, the paper's lock with its 10 Hz rate cap, adrive's rule.
 //! 2. Receipt → first-byte delay against the number of actuators (the paper's Fig. 3).
 //! 3. CPU time against the command rate (the paper's Fig. 4).
+//! 4. The paper's open problem: fixed against adaptive polling on a 9600 baud link
+//!    with commands at 100 Hz, the simulator's true position known — command
+//!    transactions, polls, and the error of what adrive believes.
 //!
-//! Run: `cargo bench --bench paper` (about a minute).
+//! Run: `cargo bench --bench paper` (about a minute and a half); `cargo bench --bench
+//! paper -- 4` runs section 4 alone.
 
 use adrive::config;
 use adrive::driver;
@@ -115,6 +119,28 @@ fn cpu_time() -> Duration {
 
 fn main() {
     let secs = 4.0;
+    let only: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with('-'))
+        .collect();
+    let runs = |n: &str| only.is_empty() || only.iter().any(|o| o == n);
+    if runs("1") {
+        cued(secs);
+    }
+    if runs("2") {
+        actuators(secs);
+    }
+    if runs("3") {
+        cpu(secs);
+    }
+    if runs("4") {
+        for rule in ["priority", "paper"] {
+            estimator(rule, 20.0);
+        }
+    }
+}
+
+fn cued(secs: f64) {
     println!("== 1. cued commands: status polls of ~100 ms, commands at 100 Hz for {secs} s ==");
     println!(
         "{:<34} {:>7} {:>9} {:>9} {:>9}",
@@ -148,14 +174,18 @@ fn main() {
             ),
         );
     }
+}
 
+const ROLES: [&str; 3] = ["steer", "gas", "brake"];
+
+fn actuators(secs: f64) {
     println!();
     println!("== 2. delay against the number of actuators (100 Hz each, {secs} s) ==");
     println!(
         "{:<34} {:>7} {:>9} {:>9} {:>9}",
         "actuators", "sent", "p50 ms", "p99 ms", "max ms"
     );
-    let roles = ["steer", "gas", "brake"];
+    let roles = ROLES;
     for n in 1..=roles.len() {
         let mut toml = String::from("[vehicle]\nname = \"bench\"\n");
         for r in &roles[..n] {
@@ -168,7 +198,10 @@ fn main() {
             row(&format!("{n} actuator(s): {r}"), &s.command_delay, "");
         }
     }
+}
 
+fn cpu(secs: f64) {
+    let roles = ROLES;
     println!();
     println!("== 3. CPU against the command rate (3 actuators, {secs} s each) ==");
     println!(
@@ -192,5 +225,102 @@ fn main() {
         let cpu = (cpu_time() - t0).as_secs_f64() / w0.elapsed().as_secs_f64() * 100.0;
         let p99 = run.device("steer").stats.snapshot().command_delay.p99_us;
         println!("{rate:<34} {cpu:>9.1} {:>12}", ms(p99));
+    }
+}
+
+/// The command profile of section 4 at `t` seconds: a path follower's set point —
+/// a step, a hold, a ramp at half the drive's rate, a hold — repeated every 4 s.
+fn profile(t: f64) -> f64 {
+    match t % 4.0 {
+        c if c < 2.0 => 0.5,
+        c if c < 3.0 => 0.5 - 0.5 * (c - 2.0),
+        _ => 0.0,
+    }
+}
+
+/// Section 4: two identical drives on 9600 baud lines in one run, one polled every
+/// 50 ms, one adaptively (50 ms … 1 s); both commanded at 100 Hz under the port rule
+/// `rule`; the simulator's true position sampled every millisecond against the cache
+/// (what the paper's adrive believes) and the estimate.
+fn estimator(rule: &str, secs: f64) {
+    println!();
+    println!(
+        "== 4. fixed against adaptive polling: 9600 baud, commands at 100 Hz, port rule {rule}, {secs} s =="
+    );
+    let drive = |name: &str, polling: &str| {
+        format!(
+            "[[device]]\nname = \"{name}\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nbaud = 9600\nstatus_period = \"50ms\"\nstatus_max_age = \"1s\"\nreply_timeout = \"200ms\"\npolling = \"{polling}\"\nport_rule = \"{rule}\"\n[device.response]\nrate = 1.0\n[device.sim]\nrate = 1.0\n"
+        )
+    };
+    let toml = format!(
+        "[vehicle]\nname = \"bench\"\n{}{}",
+        drive("fixed", "fixed"),
+        drive("adaptive", "adaptive")
+    );
+    let run = Run::start(&toml);
+    let names = ["fixed", "adaptive"];
+    let devices: Vec<&Device> = names.iter().map(|n| run.device(n)).collect();
+    let before: Vec<_> = devices.iter().map(|d| d.stats.snapshot()).collect();
+    let model = run._sim.model().clone();
+    let sim_index: Vec<usize> = names
+        .iter()
+        .map(|n| {
+            model
+                .lock()
+                .devices
+                .iter()
+                .position(|d| d.name == *n)
+                .unwrap()
+        })
+        .collect();
+    // Per device: squared and worst error of the cache and of the estimate.
+    let mut err = [[(0.0f64, 0.0f64); 2]; 2];
+    let mut samples = 0u64;
+    let start = Instant::now();
+    let mut next_command = start;
+    while start.elapsed().as_secs_f64() < secs {
+        let now = Instant::now();
+        if now >= next_command {
+            let v = profile(start.elapsed().as_secs_f64());
+            for d in &devices {
+                let _ = run.gate.submit(d.id, Command::Set(v), now);
+            }
+            next_command += Duration::from_millis(10);
+        }
+        let truth: Vec<f64> = {
+            let mut m = model.lock();
+            m.step();
+            sim_index.iter().map(|&i| m.devices[i].position).collect()
+        };
+        for (i, d) in devices.iter().enumerate() {
+            let cached = d.reading(d.config.reading("position").unwrap());
+            let estimate = d.estimate(now).map(|e| e.position);
+            for (k, belief) in [cached, estimate].into_iter().enumerate() {
+                let e = (belief.unwrap_or(0.0) - truth[i]).abs();
+                err[i][k].0 += e * e;
+                err[i][k].1 = err[i][k].1.max(e);
+            }
+        }
+        samples += 1;
+        std::thread::sleep(Duration::from_millis(1));
+    }
+    let elapsed = start.elapsed().as_secs_f64();
+    println!(
+        "{:<10} {:>10} {:>8} {:>10} {:>10} {:>10} {:>10}",
+        "polling", "commands/s", "polls/s", "cache rms", "cache max", "est rms", "est max"
+    );
+    for (i, d) in devices.iter().enumerate() {
+        let s = d.stats.snapshot();
+        let rms = |k: usize| (err[i][k].0 / samples as f64).sqrt();
+        println!(
+            "{:<10} {:>10.1} {:>8.1} {:>10.4} {:>10.4} {:>10.4} {:>10.4}",
+            names[i],
+            (s.executed - before[i].executed) as f64 / elapsed,
+            (s.polls - before[i].polls) as f64 / elapsed,
+            rms(0),
+            err[i][0].1,
+            rms(1),
+            err[i][1].1,
+        );
     }
 }
