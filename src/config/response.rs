@@ -57,6 +57,18 @@ pub struct Response {
     pub deadband: f64,
 }
 
+impl Response {
+    /// How far toward its command a device that starts `gap` away gets in `elapsed`,
+    /// answering as declared.
+    pub fn progress(&self, gap: f64, elapsed: Duration) -> f64 {
+        let gap = gap.abs();
+        match self.motion {
+            Motion::Rate(r) => (r * elapsed.as_secs_f64()).min(gap),
+            Motion::Lag(tau) => gap * (1.0 - (-elapsed.as_secs_f64() / tau.as_secs_f64()).exp()),
+        }
+    }
+}
+
 /// Defaults, as fractions of the range's width.
 pub const NOISE_SHARE: f64 = 0.001;
 pub const TOLERANCE_SHARE: f64 = 0.01;

@@ -37,7 +37,14 @@ pub struct Track {
     window: Vec<(Instant, u64, u64)>,
     /// Since when the measured value is away from the command.
     away_since: Option<Instant>,
+    /// A device with a declared response: the command, when and how far away (by the
+    /// estimate) the current headway window began.
+    headway: Option<(f64, Instant, f64)>,
 }
+
+/// A device with a declared response makes headway when it gets at least this share
+/// of the way its response promises: a slow but healthy actuator does.
+const HEADWAY: f64 = 0.25;
 
 /// What the detectors remember between turns.
 pub struct Memory {
@@ -194,6 +201,7 @@ fn device_faults(
     let fresh = d.status_age_ms.is_some() && age <= limit;
     if !fresh {
         track.away_since = None;
+        track.headway = None;
         return;
     }
     if d.fault != 0 {
@@ -218,7 +226,34 @@ fn device_faults(
             format!("reports {pos:.3}, outside [{lo}, {hi}]"),
         );
     }
-    if let Some(Value::Number(cmd)) = d.executed {
+    if let (Some(r), Some(e), Some(&Value::Number(cmd))) =
+        (c.response, d.estimate, d.executed.as_ref())
+    {
+        // By the estimate: no headway toward the command for `stall_time`.
+        let gap = (cmd - e.position).abs();
+        match track.headway {
+            _ if gap <= r.deadband => track.headway = None,
+            Some((was, since, gap0)) if was == cmd => {
+                let elapsed = now - since;
+                let promised = r.progress(gap0, elapsed);
+                let made = gap0 - gap;
+                if elapsed > sup.stall_time && made < HEADWAY * promised {
+                    raise(
+                        FaultKind::NotFollowing,
+                        who,
+                        format!(
+                            "measured {pos:.3}, commanded {cmd:.3}: {made:.3} of the {promised:.3} its response promises in {:.1} s",
+                            elapsed.as_secs_f64()
+                        ),
+                    );
+                } else if elapsed > sup.stall_time {
+                    // Headway made: judge the next window from here.
+                    track.headway = Some((cmd, now, gap));
+                }
+            }
+            _ => track.headway = Some((cmd, now, gap)),
+        }
+    } else if let Some(Value::Number(cmd)) = d.executed {
         if (pos - cmd).abs() > sup.follow_tolerance * (hi - lo) {
             let since = *track.away_since.get_or_insert(now);
             if now - since > sup.follow_time {
