@@ -1,9 +1,12 @@
 #!/usr/bin/env bash
 # Regenerate the console screenshots from a real `adrive --sim` run.
 #
-#   screenshots/regenerate.sh
+#   screenshots/regenerate.sh          every screen
+#   screenshots/regenerate.sh alice    Alice's screens only
+#   screenshots/regenerate.sh many     the many-devices screen only
+#   screenshots/regenerate.sh cart     the cart's screen only
 #
-# Needs tmux and python3 (with venv). It builds adrive (debug), runs it with --sim in a
+# Needs tmux and python3 (with venv). It builds adrive (release, as the README runs it), runs it with --sim in a
 # detached 80×24 tmux session, drives it with keys, and saves for each screen:
 #   NAME.ansi  the screen with colour escapes (tmux capture-pane -p -e)
 #   NAME.txt   the same capture, escapes removed
@@ -13,23 +16,39 @@
 # traffic, delay histogram and the simulator's fault keys), recovery and
 # recovery-wide (an engine stall injected from the bench while in drive, captured while
 # the supervisor's engine_stall procedure runs, at 80×24 and at 120×40), fault
-# (steering silenced with the bench's sim key, shown in red).
+# (steering silenced with the bench's sim key, shown in red); many (the tractor's 32
+# devices, vehicles/tractor.toml, engaged with a few commanded, and the name prompt
+# open); cart (vehicles/cart.toml, engaged, in forward, steering and a turn signal
+# commanded).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+what=${1:-all}
+case "$what" in
+    all | alice | many | cart) ;;
+    *)
+        echo "usage: $0 [alice|many|cart]" >&2
+        exit 2
+        ;;
+esac
 out=screenshots
 session=adrive-shots-$$
 logs=$(mktemp -d)
 trap 'tmux kill-session -t "$session" 2>/dev/null || true; rm -rf "$logs"' EXIT
 
-cargo build --quiet
+cargo build --release --quiet
 venv=target/screenshots-venv
 if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c 'import PIL' 2>/dev/null; then
     python3 -m venv "$venv"
     "$venv/bin/pip" install --quiet pillow
 fi
 
-tmux new-session -d -s "$session" -x 80 -y 24 \
-    "env TERM=xterm-256color target/debug/adrive --sim --listen 127.0.0.1:0 --log-dir $logs"
+# Start adrive --sim (with these arguments) in the 80×24 session, once the last one
+# ended.
+start() {
+    while tmux has-session -t "$session" 2>/dev/null; do sleep 0.1; done
+    tmux new-session -d -s "$session" -x 80 -y 24 \
+        "env TERM=xterm-256color target/release/adrive --sim --listen 127.0.0.1:0 --log-dir $logs $*"
+}
 
 # Wait until the screen shows $1 ($2 tenths of a second at most, default 20 s).
 wait_for() {
@@ -50,57 +69,115 @@ shot() {
     echo "wrote $out/$1.{txt,ansi,png}"
 }
 
-wait_for "OBD"
 # Engage once every device has reported.
-for _ in $(seq 50); do
-    keys E; wait_for "Engage?"; keys y
-    sleep 0.3
-    if tmux capture-pane -p -t "$session" | grep -qF "│ ENGAGED"; then break; fi
-    sleep 0.3
-done
-wait_for "│ ENGAGED"
-keys s; wait_for "edit steer command"
-keys 0.5 Enter
-wait_for "meas 0.500"
-sleep 1
-shot main
+engage() {
+    for _ in $(seq 50); do
+        keys E; wait_for "Engage?"; keys y
+        sleep 0.3
+        if tmux capture-pane -p -t "$session" | grep -qF "│ ENGAGED"; then break; fi
+        sleep 0.3
+    done
+    wait_for "│ ENGAGED"
+}
 
-keys '?'; wait_for "keys from the loaded keymap"
-shot help
-keys Escape
+alice() {
+    start
+    wait_for "OBD"
+    engage
+    keys s; wait_for "edit steer command"
+    keys 0.5 Enter
+    wait_for "meas 0.500"
+    sleep 1
+    shot main
 
-keys l x; wait_for "GAS 0…1"; wait_for "raw traffic"
-sleep 1
-shot bench
-keys Escape
+    keys '?'; wait_for "keys from the loaded keymap"
+    shot help
+    keys Escape
 
-# In drive, stall the engine from the bench, then watch the supervisor recover it.
-keys t; wait_for "edit trans command"
-keys C-u d Enter
-wait_for "gear drive"
-keys x; wait_for "raw traffic"
-keys K; wait_for "sim: engine stalled"
-keys Escape
-wait_for "RECOVERY engine_stall" 50
-sleep 0.2
-shot recovery
-tmux resize-window -t "$session" -x 120 -y 40
-wait_for "  try 1/3  " 20
-shot recovery-wide
-wait_for "recovery engine_stall done" 100
-tmux resize-window -t "$session" -x 80 -y 24
-sleep 0.5
+    keys l x; wait_for "GAS 0…1"; wait_for "raw traffic"
+    sleep 1
+    shot bench
+    keys Escape
 
-# Silence the simulated steering from the bench, then look at the main screen.
-keys x; wait_for "raw traffic"
-for _ in $(seq 6); do
-    if tmux capture-pane -p -t "$session" | grep -qF "steer raw traffic"; then break; fi
-    keys BTab; sleep 0.3
-done
-wait_for "steer raw traffic"
-keys s; wait_for "FAULT steer"
-keys Escape; wait_for "FAULT steer silent"
-sleep 1
-shot fault
+    # In drive, stall the engine from the bench, then watch the supervisor recover it.
+    keys t; wait_for "edit trans command"
+    keys C-u d Enter
+    wait_for "state drive"
+    keys x; wait_for "raw traffic"
+    keys K; wait_for "sim: engine stalled"
+    keys Escape
+    wait_for "RECOVERY engine_stall" 50
+    sleep 0.2
+    shot recovery
+    tmux resize-window -t "$session" -x 120 -y 40
+    wait_for "  try 1/3  " 20
+    shot recovery-wide
+    wait_for "recovery engine_stall done" 100
+    tmux resize-window -t "$session" -x 80 -y 24
+    sleep 0.5
 
-keys q
+    # Silence the simulated steering from the bench, then look at the main screen.
+    keys x; wait_for "raw traffic"
+    for _ in $(seq 6); do
+        if tmux capture-pane -p -t "$session" | grep -qF "steer raw traffic"; then break; fi
+        keys BTab; sleep 0.3
+    done
+    wait_for "steer raw traffic"
+    keys s; wait_for "FAULT steer"
+    keys Escape; wait_for "FAULT steer silent"
+    sleep 1
+    shot fault
+
+    keys q
+}
+
+# The tractor: a row for each of its 32 devices. A few devices commanded from the
+# name prompt, then the prompt open on the hydraulics.
+many() {
+    start --config vehicles/tractor.toml
+    wait_for "tyre_press"
+    engage
+    # Find device $2 by typing $1, then command it $3.
+    command() {
+        keys /; keys -l "$1"; keys Enter; wait_for "${2^^} "
+        keys Enter; wait_for "edit $2 command"
+        keys C-u; keys -l "$3"; keys Enter; wait_for "$2 ← "
+    }
+    command wip wiper 0.5
+    command hit hitch 40
+    command sig turn_signal left
+    command head headlights low
+    command beac beacon on
+    command load loader_arm 0.3
+    sleep 1.5
+    keys /; keys -l hyd; wait_for "HYDRAULICS"
+    sleep 0.5
+    shot many
+    # Esc, then q once the prompt is gone (sent together they read as Alt-q).
+    keys Escape; wait_for "/ find device"
+    keys q
+}
+
+# The cart: its own devices under their own names, the keys' hints naming them.
+cart() {
+    start --config vehicles/cart.toml
+    wait_for "battery"
+    engage
+    keys t; wait_for "edit direction command"
+    keys C-u f Enter; wait_for "direction ← "
+    keys s; wait_for "edit steer command"
+    keys C-u; keys -l -- "-0.3"; keys Enter; wait_for "meas -0.300"
+    keys /; keys -l sig; keys Enter; wait_for "SIGNALS "
+    keys Enter; wait_for "edit signals command"
+    keys C-u; keys -l left; keys Enter; wait_for "signals ← "
+    sleep 1.5
+    shot cart
+    keys q
+}
+
+case "$what" in
+    alice) alice ;;
+    many) many ;;
+    cart) cart ;;
+    all) alice; many; cart ;;
+esac

@@ -1,13 +1,15 @@
 //! The whole console screen rendered into a `TestBackend`: text snapshots at 80×24
 //! and 120×40 (volatile figures masked), the styles that must be red, `NO_COLOR`, and
-//! small terminals. The vehicle is the sample Alice: real structures, no threads.
+//! small terminals. The vehicle is the sample Alice, or the tractor of 32 devices
+//! (`vehicles/tractor.toml`) for the screen with many devices, driven by keys through
+//! the keymap: real structures, no threads.
 
 use adrive::config::Role;
 use adrive::console::controls::Live;
 use adrive::console::controls::{capture, Sources};
-use adrive::console::keymap::{Action, Keymap, Mode};
+use adrive::console::keymap::{key_to_action, Action, Key, Keymap, Mode};
 use adrive::console::logring::LogRing;
-use adrive::console::model::{Model, DEADMAN};
+use adrive::console::model::{Field, Model, DEADMAN};
 use adrive::console::sample;
 use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
@@ -37,8 +39,20 @@ fn fixture(faulty: bool) -> Fixture {
 }
 
 fn fixture_with(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
+    fixture_of(adrive::config::VehicleConfig::alice(), setup)
+}
+
+/// The tractor: 32 devices of every kind with free names.
+fn tractor(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
+    let config = adrive::config::load(std::path::Path::new("vehicles/tractor.toml"))
+        .expect("vehicles/tractor.toml loads");
+    assert_eq!(config.devices.len(), 32);
+    fixture_of(config, setup)
+}
+
+fn fixture_of(config: adrive::config::VehicleConfig, setup: impl Fn(&Vehicle, Instant)) -> Fixture {
     let now = Instant::now();
-    let vehicle = Arc::new(sample::vehicle(now));
+    let vehicle = Arc::new(sample::vehicle_of(config, now));
     setup(&vehicle, now);
     let logs = LogRing::default();
     logs.push(
@@ -75,6 +89,28 @@ impl Fixture {
         }
         tick(m, &self.live(), self.now);
     }
+    /// Press keys, written as in a keymap (`/`, `<PageDown>`, `<Enter>`), through the
+    /// model's keymap, on a screen of `w`×`h`; then render it.
+    fn press(&self, m: &mut Model, keys: &[&str], (w, h): (u16, u16)) -> Buffer {
+        m.screen = ratatui::layout::Rect::new(0, 0, w, h);
+        for k in keys {
+            let key: Key = k.parse().unwrap_or_else(|e| panic!("{k}: {e}"));
+            let mut mods = crossterm::event::KeyModifiers::NONE;
+            if key.ctrl {
+                mods |= crossterm::event::KeyModifiers::CONTROL;
+            }
+            let ev = crossterm::event::KeyEvent::new(key.code, mods);
+            if let Some(a) = key_to_action(&m.keymap, m.mode, &ev) {
+                update(m, a, &self.live(), self.now);
+            }
+        }
+        render(m, w, h)
+    }
+}
+
+/// Every key of a word, to type it.
+fn typed(s: &str) -> Vec<String> {
+    s.chars().map(String::from).collect()
 }
 
 fn render(m: &Model, w: u16, h: u16) -> Buffer {
@@ -397,4 +433,234 @@ fn the_header_at_100_columns_shortens_the_reason_and_closes_it() {
         "{header}"
     );
     assert!(header.ends_with("…))"), "{header}");
+}
+
+/// The device under the cursor.
+fn under_cursor(m: &Model) -> String {
+    m.snap.devices[m.cursor_device()].name.clone()
+}
+
+/// The screen's line `y`.
+fn line(b: &Buffer, y: u16) -> String {
+    (0..b.area.width).map(|x| b[(x, y)].symbol()).collect()
+}
+
+#[test]
+fn thirty_two_devices_at_80x24_each_have_a_row_and_faulty_ones_are_red() {
+    let f = tractor(|v, now| {
+        sample::make_faulty(v, "hitch", now);
+        sample::make_faulty(v, "gnss", now);
+    });
+    let m = f.model(Theme::default());
+    let b = render(&m, 80, 24);
+    let screen = text(&b);
+    snapshot("many_80x24", &screen);
+    // A row for every device: its name (as much as fits the column) at the start of
+    // a column, then its values.
+    for d in &m.snap.devices {
+        // The name column is 11 wide: a longer name ends in "…".
+        let shown = if d.name.len() <= 11 {
+            format!("{} ", d.name)
+        } else {
+            format!("{}…", &d.name[..10])
+        };
+        let rows = (2..18).flat_map(|y| [(0, y), (40, y)]).filter(|&(x, y)| {
+            let row: String = line(&b, y).chars().skip(x).collect();
+            row.starts_with(&shown)
+        });
+        assert_eq!(rows.count(), 1, "{} has no row:\n{screen}", d.name);
+    }
+    // Faulty rows are red from the name to the error code; a healthy one is not.
+    for name in ["hitch ", "gnss "] {
+        let (x, y) = find(&b, name);
+        for dx in [0, 12, 30, 38] {
+            assert_eq!(b[(x + dx, y)].fg, Color::Red, "{name} at +{dx}");
+        }
+        assert_eq!(b[(x + 38, y)].symbol(), "1", "{name}'s error code");
+    }
+    let (x, y) = find(&b, "throttle");
+    assert_ne!(b[(x, y)].fg, Color::Red);
+    // The cursor's device in full under the list, and the name prompt's key hinted.
+    find(&b, "STEER -1…1 cmd - meas 0.231  st delay 50ms");
+    assert!(
+        screen.lines().last().unwrap().contains("/ find device"),
+        "{screen}"
+    );
+}
+
+#[test]
+fn page_down_and_up_turn_the_page_of_full_panels() {
+    let f = tractor(|_, _| {});
+    let mut m = f.model(Theme::default());
+    // 100×40: the list, then three rows of two panels.
+    let b = f.press(&mut m, &[], (100, 40));
+    find(&b, "STEER -1…1");
+    find(&b, "ESTOP  run");
+    assert!(!text(&b).contains("ENGINE "), "{}", text(&b));
+    let b = f.press(&mut m, &["<PageDown>"], (100, 40));
+    assert_eq!(under_cursor(&m), "engine");
+    find(&b, "ENGINE  700 rpm");
+    find(&b, "VALVE1 -1…1");
+    assert!(!text(&b).contains("STEER -1…1"));
+    // The cursor keeps to its kind of field: the engine's st delay, then the same
+    // field of the devices a page on.
+    let b = f.press(&mut m, &["<PageDown>", "<PageDown>"], (100, 40));
+    assert_eq!(under_cursor(&m), "work_lights");
+    let (x, y) = find(&b, "WORK_LIGHTS");
+    assert_eq!(find(&b, "st delay 100ms"), (x, y + 1));
+    assert!(b[(x + 9, y + 1)].modifier.contains(Modifier::REVERSED));
+    let b = f.press(&mut m, &["<PageUp>"], (100, 40));
+    assert_eq!(under_cursor(&m), "valve2");
+    find(&b, "VALVE2 -1…1");
+    // Far enough down, the last field (accel, the last device's page); up again,
+    // the first device.
+    let b = f.press(&mut m, &["<PageDown>"; 9], (100, 40));
+    assert_eq!(m.field(), Field::Accel);
+    find(&b, "TYRE_PRESSURE");
+    let b = f.press(&mut m, &["<PageUp>"; 9], (100, 40));
+    assert_eq!(m.field(), Field::StDelay(m.snap.id_of("steer").unwrap()));
+    find(&b, "STEER -1…1");
+}
+
+#[test]
+fn the_cursor_moving_off_the_page_turns_it() {
+    let f = tractor(|_, _| {});
+    let mut m = f.model(Theme::default());
+    // 80×24: the window holds the cursor's device alone, packed.
+    let b = f.press(&mut m, &["l"], (80, 24));
+    assert_eq!(under_cursor(&m), "throttle");
+    find(&b, "THROTTLE 0…1");
+    // Down through the throttle's fields (command, st delay, cm delay, status,
+    // command thread), then onto the brake's command.
+    let b = f.press(&mut m, &["j"; 4], (80, 24));
+    assert_eq!(
+        m.field(),
+        Field::CommandOn(m.snap.id_of("throttle").unwrap())
+    );
+    let (x, y) = find(&b, "command 1");
+    assert!(
+        b[(x + 8, y)].modifier.contains(Modifier::REVERSED),
+        "{}",
+        text(&b)
+    );
+    let b = f.press(&mut m, &["j"], (80, 24));
+    assert_eq!(under_cursor(&m), "brake");
+    find(&b, "BRAKE 0…1");
+    assert!(!text(&b).contains("THROTTLE 0…1"));
+    // On a taller screen the same move turns a page of six.
+    let b = f.press(&mut m, &["l", "l", "l", "l"], (100, 40));
+    assert_eq!(under_cursor(&m), "engine");
+    find(&b, "ENGINE  700 rpm");
+    assert!(!text(&b).contains("BRAKE 0…1"));
+}
+
+#[test]
+fn slash_jumps_to_a_device_by_its_name() {
+    let f = tractor(|_, _| {});
+    let mut m = f.model(Theme::default());
+    // Each key moves the cursor to the best match at once.
+    let b = f.press(&mut m, &["/", "h"], (80, 24));
+    assert_eq!(m.mode, Mode::Find);
+    assert_eq!(under_cursor(&m), "hitch");
+    find(&b, "/h▏  hitch 2 of 9");
+    // The names it matches are marked in the list.
+    let (x, y) = find(&b, "headlights");
+    assert!(b[(x, y)].modifier.contains(Modifier::UNDERLINED));
+    let (x, y) = find(&b, "brake");
+    assert!(!b[(x, y)].modifier.contains(Modifier::UNDERLINED));
+    let keys = typed("itch_");
+    let keys: Vec<&str> = keys.iter().map(String::as_str).collect();
+    let b = f.press(&mut m, &keys, (80, 24));
+    assert_eq!(under_cursor(&m), "hitch_load");
+    find(&b, "HITCH_LOAD  3.200 kN");
+    // Enter keeps it; the panel stays.
+    let b = f.press(&mut m, &["<Enter>"], (80, 24));
+    assert_eq!(m.mode, Mode::Main);
+    assert_eq!(under_cursor(&m), "hitch_load");
+    find(&b, "HITCH_LOAD");
+    // n and N: the next and previous device matching the same name.
+    f.press(&mut m, &["N"], (80, 24));
+    assert_eq!(under_cursor(&m), "hitch_load", "the only match");
+    // Esc goes back to where the prompt was opened.
+    f.press(&mut m, &["/", "w", "i"], (80, 24));
+    assert_eq!(under_cursor(&m), "wiper");
+    f.press(&mut m, &["<Esc>"], (80, 24));
+    assert_eq!(
+        (m.mode, under_cursor(&m).as_str()),
+        (Mode::Main, "hitch_load")
+    );
+    // Something that matches nothing is said, in red, and the cursor stays.
+    let b = f.press(&mut m, &["/", "x", "y"], (80, 24));
+    let (x, y) = find(&b, "no device matches \"xy\"");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+    assert_eq!(under_cursor(&m), "hitch_load");
+    f.press(&mut m, &["<Esc>"], (80, 24));
+}
+
+#[test]
+fn the_name_prompt_completes_walks_its_matches_and_stops_on_space() {
+    let f = tractor(|_, _| {});
+    let mut m = f.model(Theme::default());
+    // Tab completes to what the matches share: hitch and hitch_load.
+    let b = f.press(&mut m, &["/", "h", "i", "<Tab>"], (80, 24));
+    assert_eq!(m.find.as_ref().unwrap().query, "hitch");
+    find(&b, "/hitch▏");
+    // Down and up walk the matches in the vehicle's order.
+    f.press(&mut m, &["<Down>"], (80, 24));
+    assert_eq!(under_cursor(&m), "hitch_load");
+    f.press(&mut m, &["<Down>"], (80, 24));
+    assert_eq!(under_cursor(&m), "hitch", "wraps around");
+    f.press(&mut m, &["<Up>"], (80, 24));
+    assert_eq!(under_cursor(&m), "hitch_load");
+    // A name that only contains what is typed matches after those starting with it.
+    f.press(&mut m, &["<C-u>", "b", "r", "a", "k", "e"], (80, 24));
+    assert_eq!(under_cursor(&m), "brake");
+    f.press(&mut m, &["<Down>"], (80, 24));
+    assert_eq!(under_cursor(&m), "parking_brake");
+    // Space is STOP here too: the prompt is dropped, the vehicle disengaged.
+    let b = f.press(&mut m, &["<Space>"], (80, 24));
+    assert_eq!((m.mode, m.find.as_ref()), (Mode::Main, None));
+    find(&b, "STOP: disengaged");
+    let gate = f.gate.snapshot_at(0, f.now).gate;
+    assert!(gate.reason.contains("operator stop"), "{}", gate.reason);
+}
+
+#[test]
+fn the_bench_jumps_by_name_too() {
+    let f = tractor(|_, _| {});
+    let mut m = f.model(Theme::default());
+    let keys = typed("/cabin");
+    let mut keys: Vec<&str> = keys.iter().map(String::as_str).collect();
+    keys.insert(0, "x");
+    keys.push("<Enter>");
+    let b = f.press(&mut m, &keys, (80, 24));
+    assert_eq!(m.mode, Mode::Bench);
+    assert_eq!(m.snap.devices[m.bench.index()].name, "cabin");
+    find(&b, "CABIN");
+}
+
+/// 64 devices do not all have a row at 80×24: the list pages too, saying which rows
+/// it shows, and follows the cursor.
+#[test]
+fn a_list_longer_than_the_screen_pages_with_the_cursor() {
+    let mut toml = String::from("[vehicle]\nname = \"sixty-four\"\n");
+    for i in 0..64 {
+        toml.push_str(&format!(
+            "[[device]]\nname = \"valve{i:02}\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\ndriver = \"line\"\n"
+        ));
+    }
+    let config = adrive::config::parse(&toml, "sixty-four.toml").unwrap();
+    let f = fixture_of(config, |_, _| {});
+    let mut m = f.model(Theme::default());
+    let b = f.press(&mut m, &[], (80, 24));
+    let screen = text(&b);
+    assert!(screen.contains("1–34/64"), "{screen}");
+    find(&b, "valve33 ");
+    assert!(!screen.contains("valve34 "), "{screen}");
+    let b = f.press(&mut m, &["/", "5", "0"], (80, 24));
+    assert_eq!(under_cursor(&m), "valve50");
+    let screen = text(&b);
+    assert!(screen.contains("35–64/64"), "{screen}");
+    find(&b, "valve63 ");
+    assert!(!screen.contains("valve00 "), "{screen}");
 }

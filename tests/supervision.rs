@@ -364,6 +364,11 @@ fn an_engine_stall_is_recovered_step_by_step() {
         rig.gate.submit(rig.id("gas"), set(0.5), Instant::now()),
         Err(Reject::Recovering)
     );
+    // The planner cannot release the brake while the vehicle is held for the restart.
+    assert_eq!(
+        rig.gate.submit(rig.id("brake"), set(0.0), Instant::now()),
+        Err(Reject::Recovering)
+    );
     assert!(
         rig.gate.is_engaged(),
         "an engine stall is recovered without disengaging"

@@ -16,7 +16,7 @@
 use crate::net::NetStatus;
 use crate::safety::{Gate, Reject};
 use crate::sim::{Faults, Sim};
-use crate::snapshot::{DeviceView, Snapshot};
+use crate::snapshot::{DeviceView, FaultView, Snapshot};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::trace::TraceEntry;
 use std::sync::atomic::Ordering::Relaxed;
@@ -115,6 +115,51 @@ impl Frame {
 
     pub fn sim_of(&self, id: DeviceId) -> Option<&SimFaults> {
         self.sim_faults.get(id.index()).and_then(Option::as_ref)
+    }
+
+    /// Every fault to show, in words: the supervisor's (`steer silent 1.5s no status
+    /// for …`), then any device the engine marks faulty that the supervisor has not
+    /// named yet (`steer faulty: no reply within 200ms`; it notices at its next turn).
+    pub fn fault_texts(&self) -> Vec<String> {
+        let sup = &self.snap.supervisor;
+        let mut out: Vec<String> = sup
+            .faults
+            .iter()
+            .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
+            .collect();
+        for d in self.snap.devices.iter().filter(|d| d.health.faulty) {
+            if !sup
+                .faults
+                .iter()
+                .any(|f| f.device.as_deref() == Some(d.name.as_str()))
+            {
+                out.push(format!(
+                    "{} faulty: {}",
+                    d.name,
+                    d.health.last_error.as_deref().unwrap_or("no reply")
+                ));
+            }
+        }
+        out
+    }
+
+    /// How many lines the supervisor has to show under a small screen's panels: the
+    /// recovery in progress, then one per fault.
+    pub fn strip_len(&self) -> usize {
+        usize::from(self.snap.supervisor.recovery.is_some()) + self.fault_texts().len()
+    }
+}
+
+/// Seconds with one decimal: `2.1s`.
+pub fn secs(ms: f64) -> String {
+    format!("{:.1}s", ms / 1000.0)
+}
+
+/// `steer silent` or `engine_stall`.
+fn fault_name(f: &FaultView) -> String {
+    match &f.device {
+        Some(d) => format!("{d} {}", f.kind),
+        None => f.kind.to_string(),
     }
 }
 

@@ -210,16 +210,19 @@ pub enum Mode {
     Confirm,
     /// The help overlay.
     Help,
+    /// The name prompt: jump to a device by typing its name.
+    Find,
 }
 
 impl Mode {
-    pub const ALL: [Mode; 6] = [
+    pub const ALL: [Mode; 7] = [
         Mode::Main,
         Mode::Edit,
         Mode::Teleop,
         Mode::Bench,
         Mode::Confirm,
         Mode::Help,
+        Mode::Find,
     ];
 
     pub fn as_str(self) -> &'static str {
@@ -230,6 +233,7 @@ impl Mode {
             Mode::Bench => "bench",
             Mode::Confirm => "confirm",
             Mode::Help => "help",
+            Mode::Find => "find",
         }
     }
 
@@ -302,6 +306,16 @@ pub enum Action {
     Bench,
     NextDevice,
     PrevDevice,
+    /// The full panels of the next / previous page of devices.
+    PageDown,
+    PageUp,
+    /// Open the name prompt: jump to a device by typing its name.
+    Find,
+    /// The next / previous device matching the name looked for.
+    FindNext,
+    FindPrev,
+    /// Complete the name typed to the longest prefix its matches share.
+    Complete,
     /// Bench, under `--sim`: inject or clear a simulator fault.
     Sim(SimAction),
     /// Unbinds a key in a user keymap.
@@ -347,6 +361,7 @@ edit steering|throttle|brake|gear|accel (also steer, gas, trans), commit, cancel
 backspace, clear, wake, wake steering|throttle|brake|gear, \
 wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
 steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
+page_down, page_up, find, find_next, find_prev, complete, \
 sim silent|garbage|corrupt|slow|vanish|clear|stall|jam, sim estop pause|run|disable, none";
 
 const SIMPLE: &[(&str, Action)] = &[
@@ -380,6 +395,12 @@ const SIMPLE: &[(&str, Action)] = &[
     ("bench", Action::Bench),
     ("next_device", Action::NextDevice),
     ("prev_device", Action::PrevDevice),
+    ("page_down", Action::PageDown),
+    ("page_up", Action::PageUp),
+    ("find", Action::Find),
+    ("find_next", Action::FindNext),
+    ("find_prev", Action::FindPrev),
+    ("complete", Action::Complete),
     ("sim silent", Action::Sim(SimAction::Silent)),
     ("sim garbage", Action::Sim(SimAction::Garbage)),
     ("sim corrupt", Action::Sim(SimAction::Corrupt)),
@@ -465,7 +486,7 @@ pub struct KeymapError {
 /// Bindings per mode, in file order (help lists them in that order).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Keymap {
-    modes: [Vec<Binding>; 6],
+    modes: [Vec<Binding>; 7],
     /// The file it was read from, for messages.
     path: String,
     /// Problems that did not stop it loading (see [`Keymap::warnings`]).
@@ -481,6 +502,7 @@ struct RawFile {
     bench: Option<RawSection>,
     confirm: Option<RawSection>,
     help: Option<RawSection>,
+    find: Option<RawSection>,
 }
 
 #[derive(Deserialize)]
@@ -520,7 +542,7 @@ impl Keymap {
             let offset = e.span().map(|s| s.start).unwrap_or(0);
             let mut message = e.message().trim().to_string();
             if message.contains("unknown field") && !message.contains("`keymap`") {
-                message.push_str(" (sections are [main], [edit], [teleop], [bench], [confirm], [help], each with keymap = [{ on = \"g\", run = \"edit throttle\", desc = \"…\" }, …])");
+                message.push_str(" (sections are [main], [edit], [teleop], [bench], [confirm], [help], [find], each with keymap = [{ on = \"g\", run = \"edit throttle\", desc = \"…\" }, …])");
             }
             err(offset, message)
         })?;
@@ -531,8 +553,9 @@ impl Keymap {
             raw.bench,
             raw.confirm,
             raw.help,
+            raw.find,
         ];
-        let mut modes: [Vec<Binding>; 6] = Default::default();
+        let mut modes: [Vec<Binding>; 7] = Default::default();
         for (i, section) in sections.into_iter().enumerate() {
             let Some(section) = section else { continue };
             for rec in section.keymap {
@@ -674,7 +697,33 @@ pub fn user_keymap_path() -> Option<PathBuf> {
 
 /// The pure key handler: what a terminal key event means in `mode`. Ctrl-C always
 /// means [`Action::Interrupt`]; releases are ignored; an unbound character typed
-/// while editing is [`Action::Input`].
+/// while editing or in the name prompt is [`Action::Input`].
+/// A key's description for this vehicle: `{throttle}` (any role's name in braces)
+/// becomes the name of the device bound to it (`gas` on Alice, `throttle` on the cart),
+/// so the default keymap's `g gas` reads `g throttle` on a vehicle that calls it so.
+/// `None` when a role it names is not bound: the key does nothing there.
+pub fn describe(desc: &str, roles: &crate::snapshot::Pairs<String>) -> Option<String> {
+    let mut out = String::with_capacity(desc.len());
+    let mut rest = desc;
+    while let Some(open) = rest.find('{') {
+        let Some(close) = rest[open..].find('}') else {
+            break;
+        };
+        let role = &rest[open + 1..open + close];
+        out.push_str(&rest[..open]);
+        match Role::from_word(role) {
+            Some(r) => {
+                let bound = roles.get(r.as_str())?;
+                out.push_str(bound.split('.').next().unwrap_or(bound));
+            }
+            None => out.push_str(&rest[open..=open + close]),
+        }
+        rest = &rest[open + close + 1..];
+    }
+    out.push_str(rest);
+    Some(out)
+}
+
 pub fn key_to_action(map: &Keymap, mode: Mode, e: &KeyEvent) -> Option<Action> {
     if e.kind == KeyEventKind::Release {
         return None;
@@ -688,7 +737,7 @@ pub fn key_to_action(map: &Keymap, mode: Mode, e: &KeyEvent) -> Option<Action> {
         Some(a) => Some(a),
         None => match (mode, key) {
             (
-                Mode::Edit,
+                Mode::Edit | Mode::Find,
                 Key {
                     code: KeyCode::Char(c),
                     ctrl: false,
@@ -929,5 +978,30 @@ mod tests {
         let mut rel = KeyEvent::new(KeyCode::Char('q'), KeyModifiers::NONE);
         rel.kind = KeyEventKind::Release;
         assert_eq!(key_to_action(&m, Mode::Main, &rel), None);
+    }
+
+    /// The default keymap's `g gas` is `g throttle` on a vehicle that calls it so, and
+    /// absent where nothing is bound.
+    #[test]
+    fn a_description_names_the_device_bound_to_its_role() {
+        use crate::snapshot::Pairs;
+        let alice: Pairs<String> = [("throttle", "gas"), ("estop", "estop.estop")]
+            .into_iter()
+            .map(|(r, d)| (r.to_string(), d.to_string()))
+            .collect();
+        assert_eq!(describe("{throttle}", &alice).as_deref(), Some("gas"));
+        assert_eq!(
+            describe("wake {throttle}", &alice).as_deref(),
+            Some("wake gas")
+        );
+        assert_eq!(
+            describe("{estop} pause", &alice).as_deref(),
+            Some("estop pause")
+        );
+        assert_eq!(describe("{gear}", &alice), None, "no gear bound");
+        assert_eq!(
+            describe("a {brace} {", &alice).as_deref(),
+            Some("a {brace} {")
+        );
     }
 }

@@ -5,14 +5,19 @@
 //!   [`keymap::key_to_action`] is the pure key handler.
 //! - [`model`]: the state; [`update`]: the only code that changes it, through the
 //!   [`controls::Controls`] trait (the engine, or a fake in tests).
-//! - [`view`] and [`panels`]: `impl Widget for &Model`, free of side effects.
+//! - [`view`] and [`panels`]: `impl Widget for &Model`, free of side effects;
+//!   [`layout`]: where the devices go (a panel each, or with many devices a row each
+//!   and a window of full panels that pages), for the view and for paging alike;
+//!   [`find`]: a device by its name, for the name prompt.
 //! - [`run`]: the loop — one `select!` over terminal events (read on their own
 //!   thread), a 10 Hz tick and the exits channel (signals, panics). ratatui's diffing
 //!   sends only changed cells; [`terminal`] leaves the terminal as it was on every way
 //!   out, and turns a terminal that died (an SSH session dropping) into a hang-up.
 
 pub mod controls;
+pub mod find;
 pub mod keymap;
+pub mod layout;
 pub mod logring;
 pub mod model;
 pub mod panels;
@@ -94,9 +99,10 @@ fn spawn_reader(stop: Arc<AtomicBool>) -> std::io::Result<(Receiver<Input>, Join
                     terminal::Input::Closed(why) => return closed(why),
                     terminal::Input::Pending => {}
                 }
-                // Everything crossterm has parsed from the bytes read, without waiting.
+                // Everything crossterm has parsed from the bytes waiting. Its event
+                // source does not read at all with a zero timeout, hence the short one.
                 loop {
-                    match event::poll(Duration::ZERO)
+                    match event::poll(terminal::DRAIN)
                         .and_then(|ready| ready.then(event::read).transpose())
                     {
                         Ok(Some(ev)) => {
@@ -134,7 +140,11 @@ pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::
     let ticker = crossbeam_channel::tick(TICK);
     let started = Instant::now();
     let why = loop {
-        if let Err(e) = screen.terminal.draw(|f| f.render_widget(&model, f.area())) {
+        // The size drawn at is the one the next key pages with.
+        if let Err(e) = screen.terminal.draw(|f| {
+            model.screen = f.area();
+            f.render_widget(&model, f.area())
+        }) {
             break Exit::HangUp(format!("cannot draw: {e}"));
         }
         enum Msg {

@@ -1,13 +1,15 @@
 //! The console's state (the "model" of the Elm architecture): the mode, the cursor,
-//! an edit in progress, a pending question, teleop and bench state, and the latest
-//! [`Frame`] of the vehicle. Only [`update`](super::update) changes it; the view
-//! only reads it.
+//! an edit in progress, a pending question, the name prompt, teleop and bench state,
+//! the screen's size and the latest [`Frame`] of the vehicle. Only
+//! [`update`](super::update) changes it; the view only reads it.
 
 use super::controls::Frame;
 use super::keymap::{Keymap, Mode};
+use super::layout::{self, Devices};
 use super::theme::Theme;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
+use ratatui::layout::Rect;
 use std::time::{Duration, Instant};
 
 /// Default teleop deadman: no teleop key for this long → gas 0, brake full. Longer than
@@ -98,6 +100,17 @@ pub struct Edit {
     pub fresh: bool,
     /// Why the last commit was refused (shown inline; nothing was changed).
     pub error: Option<String>,
+}
+
+/// The name prompt (`/`): the device whose name matches what is typed is under the
+/// cursor (on the bench: on the bench) at once.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Find {
+    pub query: String,
+    /// Where the cursor was when the prompt opened: cancelling goes back there.
+    pub from_cursor: usize,
+    /// The device on the bench when the prompt opened.
+    pub from_bench: DeviceId,
 }
 
 /// A question waiting for yes or no.
@@ -203,6 +216,12 @@ pub struct Model {
     pub steer_reset: Option<Instant>,
     /// The supervisor's last recovery outcome already shown as a message.
     pub outcome_seen: Option<String>,
+    /// The terminal's size at the last draw: what a page of devices is worked out from.
+    pub screen: Rect,
+    /// The name prompt, while it is open.
+    pub find: Option<Find>,
+    /// The last name looked for, which the next and previous match keys look for again.
+    pub last_find: Option<String>,
 }
 
 impl Model {
@@ -224,6 +243,9 @@ impl Model {
             now: Instant::now(),
             outcome_seen: snap.supervisor.last_outcome.clone(),
             steer_reset: None,
+            screen: Rect::new(0, 0, layout::MIN_WIDTH, 24),
+            find: None,
+            last_find: None,
             snap,
         }
     }
@@ -256,6 +278,57 @@ impl Model {
                 self.cursor = i;
                 true
             }
+            None => false,
+        }
+    }
+
+    /// The index of the device under the cursor; the last device's while the cursor
+    /// is on something else (accel).
+    pub fn cursor_device(&self) -> usize {
+        self.field()
+            .device()
+            .map_or(self.snap.devices.len().saturating_sub(1), DeviceId::index)
+    }
+
+    /// The device the name prompt and the match keys move: the bench's on the bench,
+    /// else the one under the cursor.
+    pub fn found_device(&self) -> usize {
+        if self.in_bench() {
+            self.bench.index()
+        } else {
+            self.cursor_device()
+        }
+    }
+
+    /// How the main screen lays the devices out in `body`.
+    pub fn layout_in(&self, body: Rect) -> Devices {
+        layout::devices(
+            self.snap.devices.len(),
+            body,
+            self.snap.strip_len(),
+            self.cursor_device(),
+        )
+    }
+
+    /// How the main screen lays the devices out on the screen drawn last.
+    pub fn layout(&self) -> Devices {
+        self.layout_in(layout::split(self.screen)[1])
+    }
+
+    /// How many devices a page holds: the full panels on screen at once (every
+    /// device while each has its own panel).
+    pub fn page(&self) -> usize {
+        match self.layout() {
+            Devices::Panels { .. } => self.snap.devices.len(),
+            Devices::Many(l) => l.per_page,
+        }
+    }
+
+    /// Put the cursor on device `id`'s first field (its command, a sensor's
+    /// `st delay`).
+    pub fn select_device(&mut self, id: DeviceId) -> bool {
+        match self.snap.at(id).map(|d| Field::of(id, d)[0]) {
+            Some(f) => self.select(f),
             None => false,
         }
     }
@@ -303,8 +376,10 @@ impl Model {
     /// Whether the bench view is on screen (possibly under a dialog).
     pub fn in_bench(&self) -> bool {
         self.mode == Mode::Bench
-            || (matches!(self.mode, Mode::Edit | Mode::Help | Mode::Confirm)
-                && self.back_to == Mode::Bench)
+            || (matches!(
+                self.mode,
+                Mode::Edit | Mode::Help | Mode::Confirm | Mode::Find
+            ) && self.back_to == Mode::Bench)
     }
 
     /// Whether the teleop view is on screen (possibly under a dialog).

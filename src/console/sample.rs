@@ -27,8 +27,26 @@ pub fn vehicle(now: Instant) -> Vehicle {
     vehicle_of(VehicleConfig::alice(), now)
 }
 
+/// A reading of a device other than Alice's, at rest: the value its simulator
+/// starts from when the vehicle file gives one, else the engine idling in park with
+/// the e-stop in run, else 0 (a first state).
+fn at_rest(d: &crate::vehicle::Device, i: usize) -> f64 {
+    let name = d.config.readings[i].name.as_str();
+    if let Some(r) = d.config.sim.readings.get(name) {
+        return r.value;
+    }
+    match name {
+        "rpm" => 700.0,
+        "coolant" => 85.0,
+        "running" => 1.0,
+        "estop" => 2.0,
+        _ => 0.0,
+    }
+}
+
 /// A vehicle of `config`, not started, every device having reported 20 ms before
-/// `now` (Alice's devices with her readings at rest).
+/// `now` (Alice's devices with her readings at rest, any other's at its simulator's
+/// starting values, or idling in park).
 pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
     let v = Vehicle::new(config, |_| {
         Box::new(|| Err(std::io::Error::other("sample vehicle: no port")))
@@ -54,7 +72,7 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
             _ => {
                 let mut r = Reading::default();
                 for i in 0..d.config.readings.len() {
-                    r.set(i, 0.0);
+                    r.set(i, at_rest(d, i));
                 }
                 r
             }
@@ -85,7 +103,12 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
 
 /// The sample vehicle behind its gate.
 pub fn gate(now: Instant) -> Arc<Gate> {
-    Arc::new(Gate::new(Arc::new(vehicle(now))))
+    gate_of(VehicleConfig::alice(), now)
+}
+
+/// A sample vehicle of `config` behind its gate.
+pub fn gate_of(config: VehicleConfig, now: Instant) -> Arc<Gate> {
+    Arc::new(Gate::new(Arc::new(vehicle_of(config, now))))
 }
 
 /// Make a device faulty: no reply three times in a row.

@@ -21,6 +21,11 @@
 //!   (crossterm issue 793), even inside `poll` with a timeout. [`Keyboard::wait`]
 //!   watches the terminal itself and lets crossterm read only bytes that are there;
 //!   a hang-up is reported, never read.
+//! - crossterm's default event source (mio, edge-triggered) returns a resize and drops
+//!   the terminal's readiness reported with it: a key pressed after a window resize
+//!   stayed unread until the next key — a STOP pressed once did nothing. adrive uses
+//!   its `use-dev-tty` source, which polls level-triggered, and drains it with
+//!   [`DRAIN`].
 
 use crossterm::execute;
 use crossterm::terminal::{
@@ -33,6 +38,10 @@ use std::os::fd::{AsFd, BorrowedFd, OwnedFd};
 use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
 use std::sync::{Arc, Once};
 use std::time::Duration;
+
+/// How long the input thread lets crossterm look for more events once the keys
+/// waiting are parsed (its `use-dev-tty` source reads nothing with a zero timeout).
+pub const DRAIN: Duration = Duration::from_millis(1);
 
 /// The ratatui terminal the console draws on.
 pub type Term = ratatui::Terminal<CrosstermBackend<Output>>;

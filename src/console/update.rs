@@ -11,6 +11,8 @@ use crate::snapshot::DeviceView;
 use crate::value::{Command, Control, DeviceId, EstopState, Value};
 use std::time::{Duration, Instant};
 
+mod find;
+
 /// What the loop does after an update.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Flow {
@@ -65,7 +67,7 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
             stop(m, c);
             return Flow::Continue;
         }
-        Action::Help if !matches!(m.mode, Mode::Help | Mode::Edit | Mode::Confirm) => {
+        Action::Help if !matches!(m.mode, Mode::Help | Mode::Edit | Mode::Confirm | Mode::Find) => {
             m.back_to = m.mode;
             m.mode = Mode::Help;
             m.help_scroll = 0;
@@ -79,6 +81,7 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
         Mode::Confirm => confirm(m, a, c),
         Mode::Teleop => teleop(m, a, c, now),
         Mode::Bench => bench(m, a, c),
+        Mode::Find => find::prompt(m, a),
         Mode::Help => match a {
             Action::Up => m.help_scroll = m.help_scroll.saturating_sub(1),
             Action::Down => m.help_scroll = m.help_scroll.saturating_add(1),
@@ -131,6 +134,11 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::Down => m.cursor = (m.cursor + 1).min(m.fields().len() - 1),
         Action::Left => m.move_device(-1),
         Action::Right => m.move_device(1),
+        Action::PageDown => m.move_device(m.page() as isize),
+        Action::PageUp => m.move_device(-(m.page() as isize)),
+        Action::Find => find::open(m),
+        Action::FindNext => find::again(m, 1),
+        Action::FindPrev => find::again(m, -1),
         Action::Edit => start_edit(m, m.field()),
         Action::EditOf(t) => {
             let f = match t {
@@ -497,13 +505,14 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
 }
 
 /// The operator's stop, the same from every mode: no question asked, and whatever was
-/// half done (an edit, a question) is dropped. Teleop stays, its brake full and its
+/// half done (an edit, a question, the name prompt) is dropped. Teleop stays, its brake full and its
 /// deadman idle until the next key.
 fn stop(m: &mut Model, c: &dyn Controls) {
     c.disengage("operator stop from the console");
-    if matches!(m.mode, Mode::Edit | Mode::Confirm) {
+    if matches!(m.mode, Mode::Edit | Mode::Confirm | Mode::Find) {
         m.edit = None;
         m.ask = None;
+        m.find = None;
         m.mode = m.back_to;
     }
     if m.mode == Mode::Teleop {
@@ -536,6 +545,9 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
             }
         },
         Action::Wake(_) => wake(m, c, m.bench),
+        Action::Find => find::open(m),
+        Action::FindNext => find::again(m, 1),
+        Action::FindPrev => find::again(m, -1),
         Action::Sim(what) => sim(m, c, what),
         Action::Back | Action::Cancel => m.mode = Mode::Main,
         _ => {}

@@ -7,7 +7,7 @@
 //!
 //! - **engine stall** (the paper's example): throttle off, brake, wait until stopped,
 //!   park, starter, back to the previous gear, release. While it runs, intake refuses
-//!   the throttle and the gearbox; afterwards the brake stays applied until the planner
+//!   the throttle, the brake and the gearbox; afterwards the brake stays applied until the planner
 //!   commands otherwise, and the throttle slot holds 0 — nothing jumps back to a stale
 //!   set point. It needs throttle, brake, gear, starter and engine_running bound.
 //! - **steering** (the paper's `e` key): throttle off and brake, then disable, enable (a
@@ -212,9 +212,7 @@ impl Procedure {
     /// device), release. `None` when the vehicle lacks a binding it needs.
     pub fn engine_stall(v: &Vehicle, gear: u8, cfg: &SupervisorConfig) -> Option<Procedure> {
         let b = v.bindings();
-        // The throttle and brake are needed too: a stalled engine is restarted with the
-        // vehicle held.
-        let (throttle, _brake, g, starter, running) = (
+        let (throttle, brake, g, starter, running) = (
             b.throttle?,
             b.brake?,
             b.gear.as_ref()?,
@@ -244,7 +242,9 @@ impl Procedure {
             label: format!("back in {}", state(gear)),
         });
         steps.push(Step::Release);
-        let mut takes = vec![throttle, g.device];
+        // The brake too: the planner must not release it while the vehicle is held
+        // for the restart (the release step hands it back, still applied).
+        let mut takes = vec![throttle, brake, g.device];
         if !takes.contains(&starter) {
             takes.push(starter);
         }

@@ -40,6 +40,8 @@ pub struct BenchView<'a> {
     pub sim_vehicle: Option<&'a str>,
     /// For the fault keys' legend.
     pub map: &'a Keymap,
+    /// The vehicle's role bindings, for the keys' descriptions.
+    pub roles: &'a crate::snapshot::Pairs<String>,
 }
 
 /// Rows the simulator box takes.
@@ -61,7 +63,7 @@ impl BenchView<'_> {
             first.push(Span::styled(" · ", t.label()));
             first.push(Span::raw(v.to_string()));
         }
-        let keys = grouped(self.map, Mode::Bench)
+        let keys = grouped(self.map, Mode::Bench, self.roles)
             .into_iter()
             .filter(|(_, _, a)| matches!(a, Action::Sim(_)))
             .map(|(k, desc, _)| {

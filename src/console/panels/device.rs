@@ -2,9 +2,11 @@
 //! and measured value; `st delay` / `cm delay`; measured and estimated position
 //! (`est ± σ`, and the drift its command does not explain); thread flags and error codes with the
 //! status age; the device's own fields; receipt → first-byte delay p50/p99/max; and
-//! counters. Editable fields show the cursor and an edit in progress in place.
+//! counters. Editable fields show the cursor and an edit in progress in place. In a
+//! window too short for it (many devices on a small screen), the same panel is packed
+//! side by side into the lines there are ([`DevicePanel::packed`]).
 
-use super::{fmt_age, fmt_us};
+use super::{fmt_age, fmt_us, pack};
 use crate::console::controls::SimFaults;
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
@@ -116,7 +118,7 @@ pub fn measured(d: &DeviceView) -> String {
     }
 }
 
-fn age(d: &DeviceView) -> Option<Duration> {
+pub fn age(d: &DeviceView) -> Option<Duration> {
     d.status_age_ms.map(|ms| Duration::from_secs_f64(ms / 1e3))
 }
 
@@ -342,6 +344,32 @@ impl<'a> DevicePanel<'a> {
             ]));
         }
         out
+    }
+}
+
+impl<'a> DevicePanel<'a> {
+    /// The whole panel in `height` lines of `width` columns: the title and each line
+    /// under it side by side, two spaces apart, in the panel's order. When the field
+    /// under the cursor (or being edited) would fall below, the first lines give way.
+    pub fn packed(&self, width: u16, height: u16) -> Vec<Line<'a>> {
+        let mut groups = vec![self.title().spans];
+        groups.extend(self.details(width).into_iter().map(|l| l.spans));
+        let (mut lines, at) = pack(groups, width, "");
+        // The groups holding editable fields: the title (the command), the delays,
+        // the thread flags.
+        let group = match self.edit.map(|e| e.field).or(self.cursor) {
+            Some(f) if f.device() == Some(self.id) => match f {
+                Field::Command(_) => 0,
+                Field::StDelay(_) | Field::CmDelay(_) => 1,
+                _ => 2,
+            },
+            _ => 0,
+        };
+        let line = at.get(group).copied().unwrap_or(0);
+        let skip = (line + 1).saturating_sub(usize::from(height.max(1)));
+        lines.drain(..skip.min(lines.len()));
+        lines.truncate(usize::from(height));
+        lines
     }
 }
 

@@ -26,7 +26,7 @@ impl Header<'_> {
         let (s, t) = (&self.m.snap, &self.m.theme);
         let bar = t.bar();
         let mode = match self.m.mode {
-            Mode::Help | Mode::Confirm | Mode::Edit => self.m.back_to,
+            Mode::Help | Mode::Confirm | Mode::Edit | Mode::Find => self.m.back_to,
             m => m,
         };
         let mut rest = vec![

@@ -2,7 +2,7 @@
 //! key, description and action name.
 
 use super::hint::short;
-use crate::console::keymap::{Keymap, Mode};
+use crate::console::keymap::{describe, Keymap, Mode};
 use crate::console::theme::Theme;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
@@ -13,6 +13,8 @@ pub struct HelpPanel<'a> {
     pub map: &'a Keymap,
     pub theme: Theme,
     pub scroll: u16,
+    /// The vehicle's role bindings, for the keys' descriptions.
+    pub roles: &'a crate::snapshot::Pairs<String>,
 }
 
 impl HelpPanel<'_> {
@@ -33,6 +35,7 @@ impl HelpPanel<'_> {
             Mode::Teleop,
             Mode::Bench,
             Mode::Edit,
+            Mode::Find,
             Mode::Confirm,
             Mode::Help,
         ] {
@@ -43,7 +46,11 @@ impl HelpPanel<'_> {
             for b in self.map.bindings(mode) {
                 out.push(Line::from(vec![
                     Span::styled(format!("  {:<11}", short(b.on)), t.key()),
-                    Span::raw(format!("{:<22}", b.desc)),
+                    Span::raw(format!(
+                        "{:<22}",
+                        describe(&b.desc, self.roles)
+                            .unwrap_or_else(|| "(not on this vehicle)".into())
+                    )),
                     Span::styled(b.run.to_string(), t.label()),
                 ]));
             }

@@ -1,9 +1,12 @@
 //! The bottom two lines: the outcome of the last action (or the edit in progress and
-//! its error), and the hint bar, generated from the loaded keymap for the current mode.
+//! its error, or the name prompt and what it finds), and the hint bar, generated from
+//! the loaded keymap for the current mode.
 
-use crate::console::keymap::{Action, Binding, Key, Keymap, Mode};
-use crate::console::model::Model;
+use crate::console::find;
+use crate::console::keymap::{describe, Action, Binding, Key, Keymap, Mode};
+use crate::console::model::{Find, Model};
 use crate::console::theme::Theme;
+use crate::snapshot::Pairs;
 use crossterm::event::KeyCode;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
@@ -33,23 +36,39 @@ pub fn short(k: Key) -> String {
     }
 }
 
-/// The bindings of `mode` grouped by action, in file order, help and quit first.
-pub fn grouped(map: &Keymap, mode: Mode) -> Vec<(String, String, Action)> {
+/// The bindings of `mode` grouped by action, in file order, help and quit first, with
+/// their descriptions for this vehicle's `roles` ([`describe`]; a key for a role the
+/// vehicle lacks is left out).
+pub fn grouped(map: &Keymap, mode: Mode, roles: &Pairs<String>) -> Vec<(String, String, Action)> {
+    grouped_first(map, mode, None, roles)
+}
+
+/// [`grouped`], with `first` (when bound) right after help and quit.
+pub fn grouped_first(
+    map: &Keymap,
+    mode: Mode,
+    first: Option<Action>,
+    roles: &Pairs<String>,
+) -> Vec<(String, String, Action)> {
     let mut out: Vec<(String, String, Action)> = Vec::new();
     let bs: &[Binding] = map.bindings(mode);
     for b in bs {
+        let Some(desc) = describe(&b.desc, roles) else {
+            continue;
+        };
         match out.iter_mut().find(|(_, _, a)| *a == b.run) {
             Some(e) => {
                 e.0.push('/');
                 e.0.push_str(&short(b.on));
             }
-            None => out.push((short(b.on), b.desc.clone(), b.run)),
+            None => out.push((short(b.on), desc, b.run)),
         }
     }
     out.sort_by_key(|(_, _, a)| match a {
         Action::Help => 0,
         Action::Quit => 1,
-        _ => 2,
+        a if Some(*a) == first => 2,
+        _ => 3,
     });
     out
 }
@@ -58,13 +77,18 @@ pub struct HintBar<'a> {
     pub map: &'a Keymap,
     pub mode: Mode,
     pub theme: Theme,
+    /// An action worth showing before the others (the name prompt, when the
+    /// devices are too many for a panel each).
+    pub first: Option<Action>,
+    /// The vehicle's role bindings, for the keys' descriptions.
+    pub roles: &'a Pairs<String>,
 }
 
 impl Widget for &HintBar<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
         let mut spans = Vec::new();
         let mut used = 0usize;
-        for (keys, desc, _) in grouped(self.map, self.mode) {
+        for (keys, desc, _) in grouped_first(self.map, self.mode, self.first, self.roles) {
             let w = keys.chars().count() + 1 + desc.chars().count() + 2;
             if used + w > area.width as usize {
                 break;
@@ -81,10 +105,59 @@ pub struct MessageLine<'a> {
     pub m: &'a Model,
 }
 
+/// The name prompt's line: `/hi▏  hitch 1 of 2` (the device found, which of the
+/// matches in the vehicle's order) and its keys; red when nothing matches.
+fn prompt(m: &Model, f: &Find) -> Line<'static> {
+    let t = &m.theme;
+    let k = |a| {
+        m.keymap
+            .key_for(Mode::Find, a)
+            .map(short)
+            .unwrap_or_else(|| "?".into())
+    };
+    let names = m.snap.devices.iter().map(|d| d.name.as_str());
+    let found = find::matches(names, &f.query);
+    let mut spans = vec![Span::styled(format!("/{}▏", f.query), t.editing())];
+    match (found.is_empty(), f.query.is_empty()) {
+        (true, true) => spans.push(Span::raw("  type a device's name")),
+        (true, false) => spans.push(Span::styled(
+            format!("  no device matches {:?}", f.query),
+            t.fault(),
+        )),
+        (false, _) => {
+            let at = m.found_device();
+            let mut sorted = found;
+            sorted.sort_unstable();
+            let pos = sorted.iter().position(|&j| j == at);
+            let name = m.snap.devices.get(at).map_or("", |d| d.name.as_str());
+            let of = match pos {
+                Some(p) => format!(" {} of {}", p + 1, sorted.len()),
+                None => format!(" {} matches", sorted.len()),
+            };
+            spans.push(Span::styled(format!("  {name}"), t.title()));
+            spans.push(Span::raw(of));
+        }
+    }
+    spans.push(Span::styled(
+        format!(
+            "  {} jumps, {} cancels, {} completes, {}/{} next/previous",
+            k(Action::Commit),
+            k(Action::Cancel),
+            k(Action::Complete),
+            k(Action::FindNext),
+            k(Action::FindPrev)
+        ),
+        t.label(),
+    ));
+    Line::from(spans)
+}
+
 impl Widget for &MessageLine<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
         let (m, t) = (self.m, &self.m.theme);
-        let line = if let (Mode::Edit, Some(e)) = (m.mode, &m.edit) {
+        let line = if let (Mode::Find, Some(f)) = (m.mode, &m.find) {
+            prompt(m, f)
+        } else if let (Mode::Edit, Some(e)) = (m.mode, &m.edit) {
             match &e.error {
                 Some(err) => Line::from(vec![
                     Span::styled(format!("{}: ", e.field.name(&m.snap)), t.fault()),

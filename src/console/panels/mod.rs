@@ -10,6 +10,7 @@ pub mod dialog;
 pub mod header;
 pub mod help;
 pub mod hint;
+pub mod list;
 pub mod log;
 pub mod network;
 pub mod supervisor;
@@ -51,14 +52,20 @@ pub fn label<'a>(text: &'a str, style: Style) -> Span<'a> {
 
 /// Lay groups of spans (a group is never split) out in lines of at most `width`
 /// columns, two spaces apart, each line starting with `indent`.
-pub fn wrap(
-    groups: Vec<Vec<Span<'static>>>,
+pub fn wrap<'a>(groups: Vec<Vec<Span<'a>>>, width: u16, indent: &'static str) -> Vec<Line<'a>> {
+    pack(groups, width, indent).0
+}
+
+/// [`wrap`], also saying on which line each group landed.
+pub fn pack<'a>(
+    groups: Vec<Vec<Span<'a>>>,
     width: u16,
     indent: &'static str,
-) -> Vec<Line<'static>> {
+) -> (Vec<Line<'a>>, Vec<usize>) {
     let width = width as usize;
     let start = indent.chars().count();
     let mut out = Vec::new();
+    let mut at = Vec::with_capacity(groups.len());
     let mut line: Vec<Span> = vec![Span::raw(indent)];
     let mut used = start;
     for g in groups {
@@ -74,9 +81,10 @@ pub fn wrap(
         }
         used += w;
         line.extend(g);
+        at.push(out.len());
     }
     if line.len() > 1 {
         out.push(Line::from(line));
     }
-    out
+    (out, at)
 }

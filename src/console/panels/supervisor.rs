@@ -7,13 +7,13 @@
 //! with `compact`) plus, while there are faults or a recovery, a full-width strip
 //! under them ([`SupervisorStrip`]): one line for the recovery
 //! (`RECOVERY engine_stall 4/7 park (try 1/3) 2.1s  then starter › back in drive`)
-//! and one per fault. On a larger screen it is one taller panel.
+//! and one per fault — or all of them side by side when it has one line only. On a larger screen it is one taller panel.
 
 use super::wrap;
-use crate::console::controls::Frame;
+use crate::console::controls::{secs, Frame};
 use crate::console::model::{Field, Model};
 use crate::console::theme::Theme;
-use crate::snapshot::{FaultView, RecoveryView};
+use crate::snapshot::RecoveryView;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
@@ -25,45 +25,6 @@ pub struct SupervisorPanel<'a> {
     pub cursor: bool,
     /// Two lines only (the strip shows faults and recovery).
     pub compact: bool,
-}
-
-/// Seconds with one decimal: `2.1s`.
-fn secs(ms: f64) -> String {
-    format!("{:.1}s", ms / 1000.0)
-}
-
-/// `steer silent` or `engine_stall`.
-fn fault_name(f: &FaultView) -> String {
-    match &f.device {
-        Some(d) => format!("{d} {}", f.kind),
-        None => f.kind.to_string(),
-    }
-}
-
-/// Every fault to show, in words: the supervisor's (`steer silent 1.5s no status
-/// for …`), then any device the engine marks faulty that the supervisor has not
-/// named yet (`steer faulty: no reply within 200ms`; it notices at its next turn).
-pub fn fault_texts(s: &Frame) -> Vec<String> {
-    let sup = &s.supervisor;
-    let mut out: Vec<String> = sup
-        .faults
-        .iter()
-        .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
-        .collect();
-    for d in s.devices.iter().filter(|d| d.health.faulty) {
-        if !sup
-            .faults
-            .iter()
-            .any(|f| f.device.as_deref() == Some(d.name.as_str()))
-        {
-            out.push(format!(
-                "{} faulty: {}",
-                d.name,
-                d.health.last_error.as_deref().unwrap_or("no reply")
-            ));
-        }
-    }
-    out
 }
 
 /// One fault on one line, all red.
@@ -94,7 +55,7 @@ impl SupervisorPanel<'_> {
     /// Whether there is anything to show beyond "all well".
     pub fn active(&self) -> bool {
         let s = &self.m.snap;
-        s.supervisor.recovery.is_some() || !fault_texts(s).is_empty()
+        s.supervisor.recovery.is_some() || !s.fault_texts().is_empty()
     }
 
     fn accel(&self) -> Span<'static> {
@@ -155,7 +116,7 @@ impl SupervisorPanel<'_> {
             ),
             None => Span::raw("-"),
         };
-        let n = fault_texts(&self.m.snap).len();
+        let n = self.m.snap.fault_texts().len();
         let faults = if n == 0 {
             Span::raw("none")
         } else {
@@ -199,7 +160,7 @@ impl SupervisorPanel<'_> {
                 Span::styled(s.gate.blockers.join("; "), t.warn()),
             ]));
         }
-        let faults = fault_texts(s);
+        let faults = s.fault_texts();
         if faults.is_empty() {
             out.push(Line::from(vec![l("faults "), Span::raw("none")]));
         }
@@ -275,7 +236,8 @@ impl SupervisorStrip<'_> {
             out.push(Line::from(spans));
         }
         out.extend(
-            fault_texts(self.snap)
+            self.snap
+                .fault_texts()
                 .into_iter()
                 .map(|f| fault_line(f, t, "FAULT ")),
         );
@@ -287,7 +249,18 @@ impl Widget for &SupervisorStrip<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
         let mut lines = self.lines();
         let n = area.height as usize;
-        if lines.len() > n && n > 0 {
+        if lines.len() > 1 && n == 1 {
+            // One line for all (many devices on a small screen): side by side, as
+            // many as the width shows.
+            let mut one = Vec::new();
+            for (i, l) in lines.into_iter().enumerate() {
+                if i > 0 {
+                    one.push(Span::styled(" · ", self.theme.label()));
+                }
+                one.extend(l.spans);
+            }
+            lines = vec![Line::from(one)];
+        } else if lines.len() > n && n > 0 {
             let more = lines.len() - (n - 1);
             lines.truncate(n - 1);
             lines.push(Line::from(Span::styled(
@@ -302,7 +275,7 @@ impl Widget for &SupervisorStrip<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::snapshot::{FaultKind, Snapshot, SupervisorView};
+    use crate::snapshot::{FaultKind, FaultView, Snapshot, SupervisorView};
     use ratatui::style::Color;
 
     fn sample() -> Frame {

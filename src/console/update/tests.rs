@@ -26,8 +26,16 @@ struct Fake {
 
 impl Fake {
     fn new() -> Fake {
+        Fake::of(VehicleConfig::alice())
+    }
+    /// The tractor: 32 devices with free names (`vehicles/tractor.toml`).
+    fn tractor() -> Fake {
+        let text = include_str!("../../../vehicles/tractor.toml");
+        Fake::of(crate::config::parse(text, "vehicles/tractor.toml").unwrap())
+    }
+    fn of(config: VehicleConfig) -> Fake {
         let now = Instant::now();
-        let g = sample::gate(now);
+        let g = sample::gate_of(config, now);
         Fake {
             snap: capture(&g, &Sources::default(), now, None),
             gate: g,
@@ -347,6 +355,8 @@ fn space_is_stop_in_every_mode() {
         (&["d", "E"][..], Mode::Teleop),
         (&["x"][..], Mode::Bench),
         (&["x", "<Enter>"][..], Mode::Bench),
+        (&["/", "b", "r"][..], Mode::Main),
+        (&["x", "/", "o"][..], Mode::Bench),
     ] {
         let f = Fake::new();
         let mut m = model(&f);
@@ -355,7 +365,10 @@ fn space_is_stop_in_every_mode() {
         press(&mut m, &f, &["<Space>"], now);
         assert_eq!(f.calls()[before..], ["disengage"], "{keys:?}");
         assert_eq!(m.mode, back_in, "{keys:?}");
-        assert!(m.edit.is_none() && m.ask.is_none(), "{keys:?}");
+        assert!(
+            m.edit.is_none() && m.ask.is_none() && m.find.is_none(),
+            "{keys:?}"
+        );
         assert!(
             m.message.as_ref().unwrap().text.contains("STOP"),
             "{keys:?}"
@@ -667,4 +680,116 @@ fn a_recovery_outcome_is_said_once() {
         Some("recovery engine_stall gave up: step park did not complete".into());
     tick(&mut m, &f, now);
     assert!(m.message.take().unwrap().bad);
+}
+
+/// The device under the cursor, by name.
+fn under_cursor(m: &Model) -> &str {
+    &m.snap.devices[m.cursor_device()].name
+}
+
+#[test]
+fn a_device_found_by_name_is_edited_and_woken_from_the_cursor() {
+    let f = Fake::tractor();
+    let mut m = model(&f);
+    let now = Instant::now();
+    let keys = ["/", "w", "i", "p", "<Enter>"];
+    press(&mut m, &f, &keys, now);
+    assert_eq!((m.mode, under_cursor(&m)), (Mode::Main, "wiper"));
+    press(&mut m, &f, &["<Enter>", "0", ".", "5", "<Enter>", "w"], now);
+    assert_eq!(f.calls(), ["submit wiper 0.500", "wake wiper"]);
+    // A state device, by a part of its name, with its state typed.
+    let mut keys = vec!["/", "s", "i", "g", "n", "<Enter>", "<Enter>", "<C-u>"];
+    keys.extend(["h", "a", "z", "a", "r", "d", "<Enter>"]);
+    press(&mut m, &f, &keys, now);
+    assert_eq!(f.calls()[2..], ["submit turn_signal hazard"]);
+    // Any field of it: the cursor moves on from the command.
+    press(
+        &mut m,
+        &f,
+        &["j", "<Enter>", "<C-u>", "5", "0", "<Enter>"],
+        now,
+    );
+    assert_eq!(f.calls()[3..], ["st delay turn_signal 50ms"]);
+    // A sensor has no command thread to wake.
+    press(&mut m, &f, &["/", "b", "a", "t", "<Enter>", "w"], now);
+    assert_eq!(under_cursor(&m), "battery");
+    assert!(m
+        .message
+        .as_ref()
+        .unwrap()
+        .text
+        .contains("battery is a sensor"));
+    assert_eq!(f.calls().len(), 4);
+}
+
+#[test]
+fn escape_leaves_the_cursor_where_the_prompt_was_opened() {
+    let f = Fake::tractor();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["l", "l", "j"], now);
+    let (cursor, field) = (m.cursor, m.field());
+    press(&mut m, &f, &["/", "h", "o", "r"], now);
+    assert_eq!(under_cursor(&m), "horn");
+    press(&mut m, &f, &["<Esc>"], now);
+    assert_eq!((m.mode, m.cursor, m.field()), (Mode::Main, cursor, field));
+    // A name that matches nothing: Enter says so and changes nothing.
+    press(&mut m, &f, &["/", "z", "z", "<Enter>"], now);
+    assert_eq!((m.mode, m.cursor), (Mode::Main, cursor));
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.contains("no device matches \"zz\""),
+        "{}",
+        msg.text
+    );
+    // n before any name was looked for says how to look for one.
+    let mut m = model(&f);
+    press(&mut m, &f, &["n"], now);
+    assert!(m.message.unwrap().text.contains("/ finds a device"));
+    assert!(f.calls().is_empty());
+}
+
+#[test]
+fn n_and_capital_n_look_for_the_same_name_again() {
+    let f = Fake::tractor();
+    let mut m = model(&f);
+    let now = Instant::now();
+    // "light" matches headlights and work_lights only.
+    let keys = ["/", "l", "i", "g", "h", "t", "<Enter>"];
+    press(&mut m, &f, &keys, now);
+    assert_eq!(under_cursor(&m), "headlights");
+    press(&mut m, &f, &["n"], now);
+    assert_eq!(under_cursor(&m), "work_lights");
+    press(&mut m, &f, &["n"], now);
+    assert_eq!(under_cursor(&m), "headlights", "wraps around");
+    press(&mut m, &f, &["N"], now);
+    assert_eq!(under_cursor(&m), "work_lights");
+    // The bench looks for it too, and moves the bench device.
+    press(&mut m, &f, &["x", "n"], now);
+    assert_eq!(m.mode, Mode::Bench);
+    assert_eq!(m.snap.devices[m.bench.index()].name, "headlights");
+}
+
+#[test]
+fn page_keys_move_the_cursor_by_the_page_the_screen_shows() {
+    let f = Fake::tractor();
+    let mut m = model(&f);
+    let now = Instant::now();
+    // 80×24: one packed panel a page, so a page is a device.
+    m.screen = ratatui::layout::Rect::new(0, 0, 80, 24);
+    press(&mut m, &f, &["<PageDown>"], now);
+    assert_eq!(under_cursor(&m), "throttle");
+    // 100×40: three rows of two panels.
+    m.screen = ratatui::layout::Rect::new(0, 0, 100, 40);
+    press(&mut m, &f, &["<PageDown>"], now);
+    assert_eq!(under_cursor(&m), "hitch");
+    press(&mut m, &f, &["<PageUp>", "<PageUp>"], now);
+    assert_eq!(under_cursor(&m), "steer");
+    // Alice's devices all have their panels: a page is all of them.
+    let f = Fake::new();
+    let mut m = model(&f);
+    press(&mut m, &f, &["<PageDown>"], now);
+    assert_eq!(m.field(), Field::Accel);
+    press(&mut m, &f, &["<PageUp>"], now);
+    assert_eq!(m.field(), Field::Command(id("steer")));
 }
