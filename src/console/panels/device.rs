@@ -1,8 +1,8 @@
 //! One device, laid out like a quarter of the paper's Figure 2: name, range, commanded
-//! and measured value; `st delay` / `cm delay`; measured and estimated position
-//! (`est ± σ`, and the drift its command does not explain); thread flags and error codes with the
-//! status age; the device's own fields; receipt → first-byte delay p50/p99/max; and
-//! counters. Editable fields show the cursor and an edit in progress in place. In a
+//! and measured value; `st delay` / `cm delay`; thread flags and error codes with the
+//! status age; the device's own fields, then measured and estimated position side by
+//! side (`est ± σ`, and the drift its command does not explain); receipt → first-byte
+//! delay p50/p99/max; and counters. Editable fields show the cursor and an edit in progress in place. In a
 //! window too short for it (many devices on a small screen), the same panel is packed
 //! side by side into the lines there are ([`DevicePanel::packed`]).
 
@@ -250,25 +250,6 @@ impl<'a> DevicePanel<'a> {
             delays.push(l(" adaptive"));
         }
         out.push(Line::from(delays));
-        // measured and estimated side by side
-        if let Some(e) = &d.estimate {
-            let meas = fmt_value(d.readings.get("position").and_then(Option::as_ref));
-            let (est, sigma, drift) = (fmt_num(e.position), fmt_num(e.sigma), fmt_num(e.drift));
-            let mut line = vec![
-                l("meas "),
-                Span::raw(meas.clone()),
-                l("  est "),
-                Span::raw(est.clone()),
-                l(" ± "),
-                Span::raw(sigma.clone()),
-            ];
-            // The drift (units a second its command does not explain), where it fits.
-            let used = "meas   est  ± ".len() + meas.len() + est.len() + sigma.len();
-            if used + "  drift ".len() + drift.len() <= width as usize {
-                line.extend([l("  drift "), Span::raw(drift)]);
-            }
-            out.push(Line::from(line));
-        }
         // thread flags, error codes, age
         let mut flags = vec![
             l("status "),
@@ -289,6 +270,25 @@ impl<'a> DevicePanel<'a> {
         flags.push(Span::styled(fmt_age(age(d)), age_style));
         out.push(Line::from(flags));
         out.push(self.readings(width, age_style));
+        // measured and estimated side by side
+        if let Some(e) = &d.estimate {
+            let meas = fmt_value(d.readings.get("position").and_then(Option::as_ref));
+            let (est, sigma, drift) = (fmt_num(e.position), fmt_num(e.sigma), fmt_num(e.drift));
+            let mut line = vec![
+                l("meas "),
+                Span::raw(meas.clone()),
+                l("  est "),
+                Span::raw(est.clone()),
+                l(" ± "),
+                Span::raw(sigma.clone()),
+            ];
+            // The drift (units a second its command does not explain), where it fits.
+            let used = "meas   est  ± ".len() + meas.len() + est.len() + sigma.len();
+            if used + "  drift ".len() + drift.len() <= width as usize {
+                line.extend([l("  drift "), Span::raw(drift)]);
+            }
+            out.push(Line::from(line));
+        }
         let s = &d.counters;
         let lat = |name: &'static str, x: &LatencySummary| {
             Line::from(vec![
@@ -449,8 +449,8 @@ mod tests {
             "st delay 50ms  cm delay 250ms           ",
             "status 1 e0  command 1 e0  age 20ms     ",
             "position 0.231  velocity 0.012          ",
+            "meas 0.231  est 0.231 ± 0.003           ",
             "delay p50 26µs p99 1.2ms max 1.2ms      ",
-            "rx 120 ex 118 sup 2 rs 40 rj 0          ",
         ]);
         let got = render(&p, 40, 6);
         // Compare text only; styles are asserted separately.
