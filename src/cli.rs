@@ -409,8 +409,13 @@ const SIM_BACKLOG: usize = 4096;
 /// `adrive sim`: the simulated devices alone.
 pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let config = load(&args.config, &args.only)?;
-    let (tx, rx) = crossbeam_channel::bounded::<SimEvent>(SIM_BACKLOG);
+    let (tx, mut rx) = crossbeam_channel::bounded::<SimEvent>(SIM_BACKLOG);
     let sim = Sim::start(&config, (!args.quiet).then_some(tx))?;
+    if args.quiet {
+        // Nothing will ever come (the sender went with `None`): a disconnected
+        // receiver is always ready, and selecting on it would spin a core.
+        rx = crossbeam_channel::never();
+    }
     for f in &args.fault {
         sim.apply(f)
             .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?;

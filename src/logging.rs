@@ -7,9 +7,30 @@ use std::io::IsTerminal;
 use std::path::Path;
 use std::time::{Duration, Instant};
 use tracing_appender::non_blocking::WorkerGuard;
+use tracing_subscriber::filter::LevelFilter;
+use tracing_subscriber::layer::Filter;
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
 use tracing_subscriber::{fmt, EnvFilter, Layer, Registry};
+
+/// What is logged: `RUST_LOG` when set (`debug`, `adrive=trace`, any `EnvFilter`
+/// directive), else `info`. Without `RUST_LOG` no filter is parsed: `EnvFilter`
+/// compiles regular expressions at start, half a megabyte of code and heap that a
+/// plain level does without.
+fn filter<S>() -> Box<dyn Filter<S> + Send + Sync>
+where
+    S: tracing::Subscriber + for<'a> tracing_subscriber::registry::LookupSpan<'a>,
+{
+    match std::env::var("RUST_LOG") {
+        Ok(v) if !v.trim().is_empty() => {
+            Box::new(EnvFilter::try_new(v).unwrap_or_else(|_| EnvFilter::new("info")))
+        }
+        _ => Box::new(LevelFilter::INFO),
+    }
+}
+
+/// Log lines queued for the file writer at most.
+pub const LOG_QUEUE: usize = 4096;
 
 /// Keeps the log file writer alive; dropping it flushes the file.
 pub struct LogGuard {
@@ -31,12 +52,18 @@ pub fn init_with(
     dir: Option<&Path>,
     extra: Option<ExtraLayer>,
 ) -> std::io::Result<LogGuard> {
-    let filter = || EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
     let (file_layer, guard) = match dir {
         Some(dir) => {
             std::fs::create_dir_all(dir)?;
             let appender = tracing_appender::rolling::daily(dir, "adrive.log");
-            let (writer, guard) = tracing_appender::non_blocking(appender);
+            // The writer's queue is allocated whole up front: 128,000 lines by default,
+            // 4 MB resident from the start. Lines are rate-limited where they could
+            // flood, so a few thousand are plenty; past that they are dropped (counted
+            // by tracing-appender), never waited for.
+            let (writer, guard) = tracing_appender::non_blocking::NonBlockingBuilder::default()
+                .buffered_lines_limit(LOG_QUEUE)
+                .lossy(true)
+                .finish(appender);
             let layer = fmt::layer()
                 .with_writer(writer)
                 .with_ansi(false)

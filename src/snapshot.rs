@@ -291,6 +291,9 @@ pub struct LatencySummary {
     pub p50_us: Option<f64>,
     pub p99_us: Option<f64>,
     pub max_us: Option<f64>,
+    /// The average (the paper's Fig. 3 plots it), exact.
+    #[serde(default)]
+    pub mean_us: Option<f64>,
 }
 
 /// The kinds of fault the supervisor detects.

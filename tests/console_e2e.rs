@@ -425,38 +425,6 @@ fn a_stop_pressed_after_a_resize_stops_at_once() {
     assert!(c.wait_exit().success());
 }
 
-/// Bytes per second the console writes: idle, and with steering changing at 10 Hz
-/// (teleop keys alternating). Run with `cargo test --test console_e2e -- --ignored
-/// --nocapture measure`.
-#[test]
-#[ignore]
-fn measure_output_rate() {
-    let mut c = Console::start("rate", &[]);
-    c.engage();
-    std::thread::sleep(Duration::from_secs(2));
-    let window = Duration::from_secs(10);
-    let n0 = c.bytes().len();
-    std::thread::sleep(window);
-    let idle = (c.bytes().len() - n0) as f64 / window.as_secs_f64();
-    c.keys("d");
-    c.wait_for("teleop", |s| s.contains("TELEOP"));
-    let n0 = c.bytes().len();
-    let start = Instant::now();
-    let mut i = 0u32;
-    while start.elapsed() < window {
-        c.keys(if i.is_multiple_of(2) { "d" } else { "a" });
-        i += 1;
-        let next = start + Duration::from_millis(100) * i;
-        std::thread::sleep(next.saturating_duration_since(Instant::now()));
-    }
-    let busy = (c.bytes().len() - n0) as f64 / start.elapsed().as_secs_f64();
-    println!(
-        "console output at {COLS}x{ROWS}: idle {idle:.0} B/s, steering at 10 Hz {busy:.0} B/s"
-    );
-    c.keys("q");
-    c.wait_exit();
-}
-
 /// The number on screen right after `label`.
 fn number_after(screen: &str, label: &str) -> Option<f64> {
     let at = screen.find(label)? + label.len();

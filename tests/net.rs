@@ -184,8 +184,9 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
             .iter()
             .any(|e| e.name == "steer" && e.command == set(-0.25))
     });
-    let v = n.broadcast_until("steer commanded -0.25", |v| {
-        v.device("steer").and_then(|d| d.commanded.clone()) == Some(Value::Number(-0.25))
+    // Executed, not just commanded: its figures are recorded once it is on the wire.
+    let v = n.broadcast_until("steer executed -0.25", |v| {
+        v.device("steer").and_then(|d| d.executed.clone()) == Some(Value::Number(-0.25))
     });
     assert_eq!(v.schema, 2);
     assert!(v.gate.engaged);
@@ -194,6 +195,7 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
     assert_eq!(net.watchdog.state, WatchdogState::Armed);
     assert_eq!(net.commands.get("steer"), Some(&1));
     let steer = v.device("steer").unwrap();
+    assert_eq!(steer.commanded, Some(Value::Number(-0.25)));
     assert!(steer.delay_us.p99_us.is_some(), "{steer:?}");
     assert!(steer.position().is_some(), "{steer:?}");
     assert!(steer.status_age_ms.unwrap() < 1000.0);

@@ -15,6 +15,7 @@
 pub mod device;
 pub mod document;
 pub mod limits;
+pub mod placement;
 pub mod response;
 pub mod roles;
 pub mod wire;
@@ -139,6 +140,8 @@ fn default_turnaround() -> Duration {
 #[derive(Clone, Debug, PartialEq)]
 pub struct VehicleSettings {
     pub name: String,
+    /// Where the command path runs (`cpus`, `realtime_priority`).
+    pub placement: placement::Placement,
 }
 
 /// How the supervisor watches and recovers (`[supervisor]` in the vehicle file).
@@ -346,6 +349,10 @@ struct RawVehicle {
     roles: Option<roles::RawRoles>,
     #[serde(default)]
     gear: Option<Spanned<roles::RawGear>>,
+    #[serde(default)]
+    cpus: Vec<usize>,
+    #[serde(default)]
+    realtime_priority: Option<u64>,
 }
 
 #[derive(Deserialize)]
@@ -410,6 +417,13 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     raw.supervisor
         .check()
         .map_err(|v| refuse(path, &lines, "supervisor", v))?;
+    let placement = placement::Placement {
+        cpus: raw.vehicle.cpus,
+        realtime_priority: raw.vehicle.realtime_priority,
+    };
+    placement
+        .check()
+        .map_err(|v| refuse(path, &lines, "vehicle", v))?;
     let network = raw.network.unwrap_or_default();
     network
         .check()
@@ -417,6 +431,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,
+            placement,
         },
         roles,
         supervisor: raw.supervisor,

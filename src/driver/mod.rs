@@ -15,6 +15,7 @@ pub mod line;
 #[cfg(test)]
 mod mock;
 pub mod modbus;
+pub mod serial;
 
 use crate::value::{Command, Reading};
 use std::io::{self, Read, Write};
@@ -196,8 +197,9 @@ pub fn read_until(
 }
 
 /// Send one request and arm the exchange's deadline: input nobody asked for is dropped
-/// first, and the reply (read with [`read_until`] or [`read_some`]) must be complete
-/// `reply_timeout` after the request went out.
+/// first (the engine's port makes that a no-op after a clean transaction), and the
+/// reply (read with [`read_until`] or [`read_some`]) must be complete `reply_timeout`
+/// after the request went out.
 pub fn send_request(
     link: &mut dyn Link,
     request: &[u8],
@@ -225,17 +227,18 @@ pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
     }
 }
 
-/// Open a serial port (or pseudo-terminal) by path at a baud rate. An error names the
-/// path (`cannot open /dev/ttyUSB0: No such file or directory`).
+/// Open a serial port (or pseudo-terminal) by path at a baud rate, as a
+/// [`serial::SerialLink`]. An error names the path (`cannot open /dev/ttyUSB0: No such
+/// file or directory`).
 pub fn open_serial(path: &str, baud: u32, timeout: Duration) -> io::Result<Box<dyn Link>> {
+    let named = |e: io::Error| io::Error::new(e.kind(), format!("cannot open {path}: {e}"));
     let port = serialport::new(path, baud)
         .timeout(timeout)
         .open_native()
-        .map_err(|e| {
-            let e = io::Error::from(e);
-            io::Error::new(e.kind(), format!("cannot open {path}: {e}"))
-        })?;
-    Ok(Box::new(port))
+        .map_err(|e| named(e.into()))?;
+    Ok(Box::new(
+        serial::SerialLink::new(port, timeout).map_err(named)?,
+    ))
 }
 
 #[cfg(test)]

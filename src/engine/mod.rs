@@ -16,6 +16,9 @@
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
 //! [`Engine::shutdown`] joins them with a deadline and names any that did not stop.
+//! Command threads run where the vehicle file's [`placement`] puts the command path.
+
+pub mod placement;
 
 pub mod polling;
 
@@ -52,6 +55,7 @@ impl Engine {
             if vehicle.devices[i].is_actuator() {
                 let g = gate.clone();
                 threads.spawn(format!("{name}/command"), move || {
+                    placement::apply(&g.vehicle.config.vehicle.placement);
                     command_loop(&g, &g.vehicle.devices[i])
                 })?;
             }

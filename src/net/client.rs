@@ -156,6 +156,11 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         return Ok(status::USAGE);
     }
     let period = Duration::from_secs_f64(1.0 / rate);
+    // Wake within a microsecond of when asked, not the default 50 µs later: at
+    // 10,000 a second that is half a period.
+    // SAFETY: PR_SET_TIMERSLACK takes a number of nanoseconds and touches nothing else.
+    unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000) };
+    socket.set_nonblocking(true)?;
     let start = Instant::now();
     let mut next = start;
     let mut sent = 0u64;
@@ -176,13 +181,17 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
             Err(e) => return Err(e),
         }
         next += period;
-        // Read replies until the next datagram is due.
+        // Read replies until the next datagram is due. The wait is a poll with a
+        // nanosecond timeout: a socket read timeout is rounded up to the kernel's tick
+        // (4 ms at 250 Hz), which held every rate to about 250 a second.
         loop {
             let left = next.saturating_duration_since(Instant::now());
             if left.is_zero() || stop.load(Relaxed) {
                 break;
             }
-            socket.set_read_timeout(Some(left))?;
+            if !readable(&socket, left)? {
+                continue;
+            }
             match socket.recv(&mut buf) {
                 Ok(n) => {
                     unreachable = false;
@@ -210,7 +219,9 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
             no_reply();
             warned = true;
         }
-        next = next.max(Instant::now() - period);
+        // A late wake (a loaded machine) is made up, within CATCH_UP: at high rates
+        // the asked rate holds; a planner at 20 Hz never sends a burst.
+        next = next.max(Instant::now() - period.max(CATCH_UP));
     }
     eprintln!(
         "adrive send: sent {sent} datagrams in {:.1} s",
@@ -221,6 +232,22 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
     } else {
         status::OK
     })
+}
+
+/// How far behind its schedule `send --rate` may fall before it gives up making up
+/// the datagrams it owes (it sends them back to back until then).
+const CATCH_UP: Duration = Duration::from_millis(2);
+
+/// Wait at most `timeout` for `socket` to have something to read.
+fn readable(socket: &UdpSocket, timeout: Duration) -> io::Result<bool> {
+    use rustix::event::{PollFd, PollFlags, Timespec};
+    let mut fds = [PollFd::new(socket, PollFlags::IN)];
+    let timeout = Timespec::try_from(timeout).map_err(io::Error::other)?;
+    match rustix::event::poll(&mut fds, Some(&timeout)) {
+        Ok(n) => Ok(n > 0),
+        Err(rustix::io::Errno::INTR) => Ok(false),
+        Err(e) => Err(e.into()),
+    }
 }
 
 fn check_size(text: &str) -> io::Result<()> {

@@ -82,7 +82,9 @@ impl Net {
             closing.clone(),
         );
         let s = stop.clone();
+        let placement = gate.vehicle.config.vehicle.placement.clone();
         threads.spawn("net/listen".into(), move || {
+            crate::engine::placement::apply(&placement);
             listen_loop(&socket, &mut intake, &s)
         })?;
 
@@ -175,16 +177,107 @@ fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
     Ok(s)
 }
 
-fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
+/// Datagrams taken from the kernel in one system call at most.
+const BATCH: usize = 16;
+
+/// Buffers for one `recvmmsg`: room for [`BATCH`] datagrams and their senders.
+struct Batch {
     // One byte more than the largest datagram, so a larger one shows as oversized.
-    let mut buf = [0u8; proto::MAX_DATAGRAM + 1];
+    bufs: [[u8; proto::MAX_DATAGRAM + 1]; BATCH],
+    addrs: [libc::sockaddr_storage; BATCH],
+    lens: [usize; BATCH],
+}
+
+impl Batch {
+    fn new() -> Box<Batch> {
+        // SAFETY: all-zero bytes are valid for every field (plain bytes and integers).
+        unsafe { Box::new(std::mem::zeroed()) }
+    }
+
+    /// Wait for at least one datagram (at most the socket's read timeout), then take
+    /// every one already queued, up to [`BATCH`]: under a flood, one system call and
+    /// one wake serve many. Returns how many arrived.
+    fn receive(&mut self, socket: &UdpSocket) -> io::Result<usize> {
+        use std::os::fd::AsRawFd;
+        let mut iov: [libc::iovec; BATCH] = std::array::from_fn(|i| libc::iovec {
+            iov_base: self.bufs[i].as_mut_ptr().cast(),
+            iov_len: self.bufs[i].len(),
+        });
+        // SAFETY: an all-zero mmsghdr is a valid empty header; the pointers set below
+        // stay valid for the call (they point into `self` and `iov`).
+        let mut msgs: [libc::mmsghdr; BATCH] = unsafe { std::mem::zeroed() };
+        for (i, m) in msgs.iter_mut().enumerate() {
+            m.msg_hdr.msg_name = (&mut self.addrs[i] as *mut libc::sockaddr_storage).cast();
+            m.msg_hdr.msg_namelen = std::mem::size_of::<libc::sockaddr_storage>() as u32;
+            m.msg_hdr.msg_iov = &mut iov[i];
+            m.msg_hdr.msg_iovlen = 1;
+        }
+        // SAFETY: `msgs` holds BATCH valid headers; the kernel writes within them.
+        let n = unsafe {
+            libc::recvmmsg(
+                socket.as_raw_fd(),
+                msgs.as_mut_ptr(),
+                BATCH as u32,
+                libc::MSG_WAITFORONE,
+                std::ptr::null_mut(),
+            )
+        };
+        if n < 0 {
+            return Err(io::Error::last_os_error());
+        }
+        let n = n as usize;
+        for (i, m) in msgs.iter().enumerate().take(n) {
+            // A datagram longer than the buffer is cut to it (and so shows as oversized).
+            self.lens[i] = (m.msg_len as usize).min(self.bufs[i].len());
+        }
+        Ok(n)
+    }
+
+    /// The `i`th datagram and its sender.
+    fn get(&self, i: usize) -> Option<(&[u8], SocketAddr)> {
+        Some((&self.bufs[i][..self.lens[i]], sender(&self.addrs[i])?))
+    }
+}
+
+/// The address the kernel wrote for a datagram's sender.
+fn sender(a: &libc::sockaddr_storage) -> Option<SocketAddr> {
+    match i32::from(a.ss_family) {
+        libc::AF_INET => {
+            // SAFETY: the family says the storage holds a sockaddr_in.
+            let v4 = unsafe { &*(a as *const libc::sockaddr_storage).cast::<libc::sockaddr_in>() };
+            let ip = Ipv4Addr::from(u32::from_be(v4.sin_addr.s_addr));
+            Some(SocketAddr::from((ip, u16::from_be(v4.sin_port))))
+        }
+        libc::AF_INET6 => {
+            // SAFETY: the family says the storage holds a sockaddr_in6.
+            let v6 = unsafe { &*(a as *const libc::sockaddr_storage).cast::<libc::sockaddr_in6>() };
+            let ip = Ipv6Addr::from(v6.sin6_addr.s6_addr);
+            Some(SocketAddr::V6(std::net::SocketAddrV6::new(
+                ip,
+                u16::from_be(v6.sin6_port),
+                v6.sin6_flowinfo,
+                v6.sin6_scope_id,
+            )))
+        }
+        _ => None,
+    }
+}
+
+fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
+    let mut batch = Batch::new();
     let mut errors = RateLimit::new(1);
     while !stop.is_stopped() {
-        match socket.recv_from(&mut buf) {
-            Ok((n, from)) => {
+        match batch.receive(socket) {
+            Ok(n) => {
+                // Stamped when the kernel handed them over.
                 let received = Instant::now();
-                if let Some(reply) = intake.handle(&buf[..n], from, received) {
-                    let _ = socket.send_to(reply.as_bytes(), from);
+                for i in 0..n {
+                    let Some((bytes, from)) = batch.get(i) else {
+                        continue;
+                    };
+                    if let Some(reply) = intake.handle(bytes, from, received) {
+                        let _ = socket.send_to(reply.as_bytes(), from);
+                    }
                 }
             }
             Err(e)

@@ -506,6 +506,56 @@ mod tests {
         );
     }
 
+    /// The incident: a planner repeats `trans drive` in every datagram (the README's own
+    /// example does). In drive, with the repeat pending in the gearbox's slot, a brake
+    /// release waited up to 450 ms at the wire for that slot to drain although no
+    /// shift was under way; brake commands executed per second halved. A gear command
+    /// that repeats the last one sent is not a shift: the release goes out at once,
+    /// from intake to the wire. (A real shift still holds it: the test after this.)
+    #[test]
+    fn a_repeated_trans_drive_does_not_hold_a_brake_release() {
+        let gate = sample::gate(Instant::now());
+        let v = &gate.vehicle;
+        let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
+        let drive = Command::State(trans.config.state_index("drive").unwrap());
+        // In drive: shifted, acknowledged, and reported by a status taken after that.
+        trans.slot.fly(drive);
+        trans.slot.finish(drive, true);
+        *trans.cache.lock() = crate::vehicle::Cached {
+            reading: {
+                let mut r = crate::value::Reading::default();
+                r.set(0, 3.0);
+                r
+            },
+            at: Some(Instant::now()),
+        };
+        gate.engage("test").unwrap();
+        // The planner's datagram: `trans drive` again, and the brake released.
+        gate.submit(trans.id, drive, Instant::now()).unwrap();
+        let release = Command::Set(0.0);
+        assert_eq!(gate.submit(brake.id, release, Instant::now()), Ok(()));
+        assert_eq!(
+            gate.check_wire(brake, release, false),
+            WireStep::Send(release),
+            "the release must not wait for the repeated gear command"
+        );
+    }
+
+    /// A real shift on its way (a gear other than the last one sent) still keeps the
+    /// brake on until it is out.
+    #[test]
+    fn a_shift_on_its_way_holds_a_brake_release() {
+        let gate = sample::gate(Instant::now());
+        let v = &gate.vehicle;
+        let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
+        let drive = Command::State(trans.config.state_index("drive").unwrap());
+        trans.slot.submit(drive, Instant::now());
+        assert_eq!(
+            gate.check_wire(brake, Command::Set(0.0), false),
+            WireStep::Wait(Wait::ShiftOut)
+        );
+    }
+
     /// The release lands while the throttle waits: the throttle goes out as it is.
     #[test]
     fn throttle_behind_a_release_that_lands_goes_out() {

@@ -14,7 +14,11 @@
 //!
 //! The [`Conn`] behind the arbiter owns the driver and the open port: it opens the port
 //! lazily, reopens it with exponential backoff after a disconnect, and timestamps the
-//! first byte of every transaction.
+//! first byte of every transaction the moment the kernel has taken it. It also decides
+//! when input nobody asked for may be waiting: only after a transaction that failed or
+//! timed out (a late reply may follow) or a fresh open. After a clean transaction the
+//! reply was read to its end, so the driver's discard before the next request is
+//! skipped — one system call less between a command and the wire.
 
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
@@ -194,6 +198,9 @@ pub struct Conn {
     health: Arc<PortHealth>,
     trace: Arc<Trace>,
     failures: u32,
+    /// The last transaction succeeded: its reply was read to the end, nothing is left
+    /// on the line to discard.
+    clean: bool,
     /// Why the last open failed, repeated while waiting to retry.
     open_error: Option<String>,
 }
@@ -214,6 +221,7 @@ impl Conn {
             health,
             trace,
             failures: 0,
+            clean: false,
             open_error: None,
         }
     }
@@ -251,7 +259,9 @@ impl Conn {
             inner: link.as_mut(),
             first_write: None,
             trace: &self.trace,
+            clean: false,
         };
+        self.clean = false;
         if let Err(e) = self.driver.open(&mut traced) {
             self.fail_open();
             return Err(e);
@@ -277,9 +287,11 @@ impl Conn {
             inner: link,
             first_write: None,
             trace: &self.trace,
+            clean: self.clean,
         };
         let r = f(self.driver.as_mut(), &mut stamped);
         let first = stamped.first_write;
+        self.clean = r.is_ok();
         match &r {
             Ok(_) => self.failures = 0,
             Err(e) => {
@@ -303,12 +315,16 @@ impl Conn {
     }
 }
 
-/// A link that notes when the first byte of a transaction was handed to the port and
+/// A link that notes when the first byte of a transaction was taken by the port and
 /// records the traffic in the device's trace.
 struct Stamped<'a> {
     inner: &'a mut dyn Link,
     first_write: Option<Instant>,
     trace: &'a Trace,
+    /// Nothing unasked-for can be waiting: the first discard of this transaction (the
+    /// one before its request) has nothing to do. A later one — a driver that read
+    /// garbage mid-reply — still discards.
+    clean: bool,
 }
 
 impl Read for Stamped<'_> {
@@ -321,10 +337,11 @@ impl Read for Stamped<'_> {
 
 impl Write for Stamped<'_> {
     fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
-        if self.first_write.is_none() && !buf.is_empty() {
+        let n = self.inner.write(buf)?;
+        // Stamped once the kernel has the first byte, not before the call.
+        if self.first_write.is_none() && n > 0 {
             self.first_write = Some(Instant::now());
         }
-        let n = self.inner.write(buf)?;
         self.trace.record(Dir::Out, &buf[..n]);
         Ok(n)
     }
@@ -338,6 +355,111 @@ impl Link for Stamped<'_> {
         self.inner.set_timeout(timeout)
     }
     fn discard_input(&mut self) -> io::Result<()> {
+        if std::mem::take(&mut self.clean) {
+            return Ok(());
+        }
         self.inner.discard_input()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::driver::line::LineDriver;
+    use crate::value::Command;
+    use std::collections::VecDeque;
+    use std::sync::atomic::AtomicUsize;
+
+    /// A device that answers each request with the next scripted reply (`None`: silence)
+    /// and counts how often the host discarded its input.
+    struct Device {
+        replies: VecDeque<Option<&'static [u8]>>,
+        out: Vec<u8>,
+        discards: Arc<AtomicUsize>,
+    }
+
+    impl Read for Device {
+        fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+            if self.out.is_empty() {
+                return Err(io::ErrorKind::TimedOut.into());
+            }
+            let n = buf.len().min(self.out.len());
+            buf[..n].copy_from_slice(&self.out[..n]);
+            self.out.drain(..n);
+            Ok(n)
+        }
+    }
+
+    impl Write for Device {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            if buf.ends_with(b"\n") {
+                self.out = self
+                    .replies
+                    .pop_front()
+                    .flatten()
+                    .unwrap_or_default()
+                    .to_vec();
+            }
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Link for Device {
+        fn set_timeout(&mut self, _: Duration) -> io::Result<()> {
+            Ok(())
+        }
+        fn discard_input(&mut self) -> io::Result<()> {
+            self.discards.fetch_add(1, Relaxed);
+            Ok(())
+        }
+    }
+
+    /// Input is discarded before a request only when something unasked-for may be
+    /// waiting: after the port opened and after a transaction that failed — never
+    /// after a clean one, whose reply was read to its end.
+    #[test]
+    fn input_is_discarded_only_after_an_open_or_a_failed_transaction() {
+        let discards = Arc::new(AtomicUsize::new(0));
+        let mut device = Some(Device {
+            replies: [Some(&b"ok\n"[..]), Some(b"ok\n"), None, Some(b"ok\n")].into(),
+            out: Vec::new(),
+            discards: discards.clone(),
+        });
+        let opener: Opener =
+            Box::new(move || Ok(Box::new(device.take().expect("opened once")) as Box<dyn Link>));
+        let map = match crate::config::one_device(
+            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"",
+        )
+        .wire
+        {
+            crate::config::wire::Wire::Line(m) => m,
+            other => panic!("{other:?}"),
+        };
+        let driver = Box::new(LineDriver::new(map, Duration::from_millis(50)));
+        let mut conn = Conn::new(driver, opener, Arc::new(Trace::new("d")), Arc::default());
+        let mut send = || {
+            let (r, first) = conn.transact(|drv, link| drv.command(link, Command::Set(0.5)));
+            assert!(first.is_some(), "the request went out");
+            r.is_ok()
+        };
+        assert!(send());
+        assert_eq!(discards.load(Relaxed), 1, "a fresh port is discarded once");
+        assert!(send());
+        assert_eq!(
+            discards.load(Relaxed),
+            1,
+            "nothing to discard after a clean reply"
+        );
+        assert!(!send(), "the device stays silent");
+        assert_eq!(discards.load(Relaxed), 1);
+        assert!(send());
+        assert_eq!(
+            discards.load(Relaxed),
+            2,
+            "a late reply may follow a timeout"
+        );
     }
 }

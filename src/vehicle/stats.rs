@@ -22,15 +22,22 @@ pub const SUMMARY_EVERY: Duration = Duration::from_millis(200);
 pub struct Latency {
     hist: AtomicHistogram,
     count: AtomicU64,
+    /// Sum of every sample, in nanoseconds (for the mean).
+    sum_ns: AtomicU64,
     cache: Mutex<Cache>,
 }
 
-/// The last summary, and the scratch histogram it was computed in.
+/// The last summary.
 struct Cache {
     count: u64,
     at: Option<Instant>,
     summary: LatencySummary,
-    scratch: Option<Histogram>,
+}
+
+thread_local! {
+    /// Where a summary is computed: one copy of a histogram per reading thread, not
+    /// one per histogram kept (15 kB each, three per device).
+    static SCRATCH: std::cell::RefCell<Option<Histogram>> = const { std::cell::RefCell::new(None) };
 }
 
 impl Default for Latency {
@@ -39,11 +46,11 @@ impl Default for Latency {
             hist: AtomicHistogram::new(GROUPING_POWER, MAX_VALUE_POWER)
                 .expect("histogram parameters are valid"),
             count: AtomicU64::new(0),
+            sum_ns: AtomicU64::new(0),
             cache: Mutex::new(Cache {
                 count: 0,
                 at: None,
                 summary: LatencySummary::default(),
-                scratch: None,
             }),
         }
     }
@@ -54,6 +61,7 @@ impl Latency {
     pub fn record(&self, d: Duration) {
         let ns = (d.as_nanos() as u64).min((1u64 << MAX_VALUE_POWER) - 1);
         let _ = self.hist.increment(ns);
+        self.sum_ns.fetch_add(ns, Relaxed);
         self.count.fetch_add(1, Relaxed);
     }
 
@@ -71,7 +79,7 @@ impl Latency {
         if c.count == count || (fresh && c.count > 0) {
             return c.summary;
         }
-        c.summary = self.compute(&mut c.scratch);
+        c.summary = self.compute();
         c.count = count;
         c.at = Some(Instant::now());
         c.summary
@@ -80,30 +88,40 @@ impl Latency {
     /// The summary now, however recent the last one (tests, the exit summary).
     pub fn summary_now(&self) -> LatencySummary {
         let mut c = self.cache.lock();
-        c.summary = self.compute(&mut c.scratch);
+        c.summary = self.compute();
         c.count = self.count();
         c.at = Some(Instant::now());
         c.summary
     }
 
-    fn compute(&self, scratch: &mut Option<Histogram>) -> LatencySummary {
-        let h = match scratch {
-            Some(h) => {
-                let _ = self.hist.load_into(h);
-                h
-            }
-            None => scratch.insert(self.hist.load()),
-        };
-        let mut out = [None, None, None];
-        let _ = h.quantile_buckets_into(&[0.5, 0.99, 1.0], &mut out);
-        let count: u64 = h.as_slice().iter().sum();
+    fn compute(&self) -> LatencySummary {
+        let (out, count) = SCRATCH.with_borrow_mut(|scratch| {
+            let h = match scratch {
+                Some(h) => {
+                    // Every histogram here has the same parameters, so the copy fits;
+                    // were it not to, a fresh copy is made rather than stale figures.
+                    if self.hist.load_into(h).is_err() {
+                        *h = self.hist.load();
+                    }
+                    h
+                }
+                None => scratch.insert(self.hist.load()),
+            };
+            let mut out = [None, None, None];
+            let _ = h.quantile_buckets_into(&[0.5, 0.99, 1.0], &mut out);
+            (out, h.as_slice().iter().sum::<u64>())
+        });
         // A bucket stands for its range; report its upper edge (conservative).
         let us = |b: &Option<histogram::Bucket>| b.as_ref().map(|b| b.end() as f64 / 1e3);
+        // The sum and count are read apart from the histogram: a sample recorded in
+        // between moves the mean by one sample's worth at most.
+        let n = self.count.load(Relaxed);
         LatencySummary {
             count,
             p50_us: us(&out[0]),
             p99_us: us(&out[1]),
             max_us: us(&out[2]),
+            mean_us: (n > 0).then(|| self.sum_ns.load(Relaxed) as f64 / n as f64 / 1e3),
         }
     }
 
@@ -207,6 +225,7 @@ mod tests {
         near(s.p50_us, 500.0);
         near(s.p99_us, 990.0);
         near(s.max_us, 1000.0);
+        near(s.mean_us, 500.5);
     }
 
     #[test]

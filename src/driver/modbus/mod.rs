@@ -77,8 +77,8 @@ impl ModbusDriver {
         &mut self,
         link: &mut dyn Link,
         deadline: &Deadline,
-    ) -> Result<Vec<u8>, DriverError> {
-        let mut buf = Vec::with_capacity(proto::MAX_FRAME);
+    ) -> Result<proto::Frame, DriverError> {
+        let mut buf = proto::Frame::new();
         let mut want = 3;
         let mut chunk = [0u8; proto::MAX_FRAME];
         while buf.len() < want {
@@ -96,7 +96,7 @@ impl ModbusDriver {
                 }
                 Err(e) => return Err(e),
             };
-            buf.extend_from_slice(&chunk[..n]);
+            buf.extend(chunk[..n].iter().copied());
             if buf.len() >= 3 && want == 3 {
                 want = proto::response_len(&buf)
                     .map_err(|e| {
@@ -104,6 +104,12 @@ impl ModbusDriver {
                         DriverError::Garbled(e.to_string())
                     })?
                     .unwrap_or(3);
+                if want > proto::MAX_FRAME {
+                    let _ = link.discard_input();
+                    return Err(DriverError::Garbled(format!(
+                        "a reply announcing {want} bytes, longer than a frame"
+                    )));
+                }
             }
         }
         Ok(buf)

@@ -10,8 +10,8 @@
 //! length guess panics on a short buffer in the versions looked at, and its errors do
 //! not separate "wrong slave id" from "bad CRC", which the engine counts apart.
 //! `modbus-core` is close too, but brings its own `byteorder` types for little gain.
-//! Frames here are plain `Vec<u8>`; a few allocations per transaction are nothing next
-//! to the wire time of a serial line.
+//! A request frame is built on the stack ([`Frame`]): the command path from a
+//! datagram to the wire allocates nothing. Replies and the slave's side use `Vec`.
 //!
 //! Reference: MODBUS Application Protocol V1.1b3 and MODBUS over Serial Line V1.02.
 
@@ -49,6 +49,9 @@ pub fn push_crc(frame: &mut Vec<u8>) {
     let crc = crc16(frame);
     frame.extend_from_slice(&crc.to_le_bytes());
 }
+
+/// A request frame, on the stack.
+pub type Frame = arrayvec::ArrayVec<u8, MAX_FRAME>;
 
 /// True when the last two bytes of `frame` are the CRC of the rest.
 pub fn crc_ok(frame: &[u8]) -> bool {
@@ -202,28 +205,33 @@ fn be(bytes: &[u8], at: usize) -> u16 {
     u16::from_be_bytes([bytes[at], bytes[at + 1]])
 }
 
-/// The complete RTU frame of a request to `slave`.
-pub fn encode_request(slave: u8, request: &Request) -> Vec<u8> {
-    let mut f = vec![slave, request.function()];
+/// The complete RTU frame of a request to `slave`, on the stack.
+pub fn encode_request(slave: u8, request: &Request) -> Frame {
+    let mut f = Frame::new();
+    f.push(slave);
+    f.push(request.function());
     match request {
         Request::ReadHolding { addr, count } | Request::ReadInput { addr, count } => {
-            f.extend_from_slice(&addr.to_be_bytes());
-            f.extend_from_slice(&count.to_be_bytes());
+            f.extend(addr.to_be_bytes());
+            f.extend(count.to_be_bytes());
         }
         Request::WriteSingle { addr, value } => {
-            f.extend_from_slice(&addr.to_be_bytes());
-            f.extend_from_slice(&value.to_be_bytes());
+            f.extend(addr.to_be_bytes());
+            f.extend(value.to_be_bytes());
         }
         Request::WriteMultiple { addr, values } => {
-            f.extend_from_slice(&addr.to_be_bytes());
-            f.extend_from_slice(&(values.len() as u16).to_be_bytes());
+            // At most MAX_WRITE registers fit a frame; the rest are not sent.
+            let values = &values[..values.len().min(usize::from(MAX_WRITE))];
+            f.extend(addr.to_be_bytes());
+            f.extend((values.len() as u16).to_be_bytes());
             f.push((values.len() * 2) as u8);
             for v in values {
-                f.extend_from_slice(&v.to_be_bytes());
+                f.extend(v.to_be_bytes());
             }
         }
     }
-    push_crc(&mut f);
+    let crc = crc16(&f);
+    f.extend(crc.to_le_bytes());
     f
 }
 
@@ -534,7 +542,7 @@ mod tests {
                     count: 3
                 }
             ),
-            hex("11 03 00 6B 00 03 76 87")
+            hex("11 03 00 6B 00 03 76 87")[..]
         );
         // The catalogue check value of CRC-16/MODBUS.
         assert_eq!(crc16(b"123456789"), 0x4B37);
@@ -563,7 +571,7 @@ mod tests {
                     value: 0x0003
                 }
             ),
-            hex("11 06 00 01 00 03 9A 9B")
+            hex("11 06 00 01 00 03 9A 9B")[..]
         );
         let f = encode_request(
             0x11,
@@ -693,7 +701,7 @@ mod tests {
                 values: vec![1, 2, 3],
             },
         );
-        let mut buf = a.clone();
+        let mut buf = a.to_vec();
         buf.extend_from_slice(&b);
         for cut in 0..a.len() {
             assert_eq!(
@@ -798,7 +806,7 @@ mod tests {
     proptest! {
         #[test]
         fn requests_round_trip(slave in 1u8..=247, req in any_request(), tail in proptest::collection::vec(any::<u8>(), 0..8)) {
-            let mut buf = encode_request(slave, &req);
+            let mut buf = encode_request(slave, &req).to_vec();
             let len = buf.len();
             prop_assert!(len <= MAX_FRAME);
             buf.extend_from_slice(&tail);
