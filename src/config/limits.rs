@@ -345,14 +345,6 @@ pub const STALL_TIME: Limit<Duration> = Limit {
     default: Some(ms(500)),
     why: "a device with a declared response that makes no headway toward its command this long is `not_following`",
 };
-pub const OVERRIDE_TIME: Limit<Duration> = Limit {
-    section: Supervisor,
-    key: "override_time",
-    min: ms(50),
-    max: s(2),
-    default: Some(ms(300)),
-    why: "a device moved this long in a way its command cannot explain is a driver's `override`",
-};
 pub const RANGE_MARGIN: Limit<f64> = Limit {
     section: Supervisor,
     key: "range_margin",
@@ -496,7 +488,6 @@ pub static ALL: &[&dyn Row] = &[
     &FOLLOW_TOLERANCE,
     &FOLLOW_TIME,
     &STALL_TIME,
-    &OVERRIDE_TIME,
     &RANGE_MARGIN,
     &ATTEMPTS,
     &STEP_TIMEOUT,
@@ -611,7 +602,6 @@ mod tests {
             &ERROR_WINDOW,
             &FOLLOW_TIME,
             &STALL_TIME,
-            &OVERRIDE_TIME,
             &RESPONSE_LAG,
             &STEP_TIMEOUT,
             &DEADMAN,

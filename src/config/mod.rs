@@ -166,10 +166,6 @@ pub struct SupervisorConfig {
     /// this long is "not following" (a stuck motor).
     #[serde(deserialize_with = "duration")]
     pub stall_time: Duration,
-    /// A device moved this long in a way its command cannot explain (away from it, or
-    /// beyond it) is a driver's override.
-    #[serde(deserialize_with = "duration")]
-    pub override_time: Duration,
     /// Reported positions may stray this fraction of the range outside it.
     pub range_margin: f64,
     /// Tries of a recovery procedure before it gives up.
@@ -195,7 +191,6 @@ impl Default for SupervisorConfig {
             follow_tolerance: FOLLOW_TOLERANCE.default_value(),
             follow_time: FOLLOW_TIME.default_value(),
             stall_time: STALL_TIME.default_value(),
-            override_time: OVERRIDE_TIME.default_value(),
             range_margin: RANGE_MARGIN.default_value(),
             attempts: ATTEMPTS.default_value() as u32,
             step_timeout: STEP_TIMEOUT.default_value(),
@@ -215,7 +210,6 @@ impl SupervisorConfig {
         FOLLOW_TOLERANCE.check(self.follow_tolerance)?;
         FOLLOW_TIME.check(self.follow_time)?;
         STALL_TIME.check(self.stall_time)?;
-        OVERRIDE_TIME.check(self.override_time)?;
         RANGE_MARGIN.check(self.range_margin)?;
         ATTEMPTS.check(u64::from(self.attempts))?;
         STEP_TIMEOUT.check(self.step_timeout)?;

@@ -608,13 +608,6 @@ const ABSURD: &[Absurd] = &[
         says: &["brake: response.tolerance 7: expected", "below the width of its range"],
     },
     Absurd {
-        incident: "an override that never trips",
-        replace: "# supervisor",
-        with: "override_time = \"1h\"",
-        at: "override_time",
-        says: &["[supervisor] override_time:", "from 50ms to 2s", "got 3600s"],
-    },
-    Absurd {
         incident: "a stuck motor never named",
         replace: "# supervisor",
         with: "stall_time = \"0s\"",
