@@ -1,12 +1,14 @@
 //! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
-//! `adrive watch`, and `adrive completions` / `adrive manpage`, generated from the same
-//! definitions. Parsing is clap's; each subcommand is one function here that wires the
-//! parts together.
+//! `adrive watch`, `adrive replay`, `adrive record info`, `adrive export`, and
+//! `adrive completions` / `adrive manpage`, generated from the same definitions.
+//! Parsing is clap's; each subcommand is one function here that wires the parts
+//! together.
 
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
 use crate::exit::{self, Exit};
 use crate::net::{self, auth::Auth, client, Net};
+use crate::record::{self, Recorder};
 use crate::safety::{gate, Gate};
 use crate::sim::{Sim, SimEvent};
 use crate::vehicle::Vehicle;
@@ -44,6 +46,15 @@ pub enum Cmd {
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
+    /// Play a recording in the console: pause, step, seek, speed; read-only.
+    Replay(ReplayArgs),
+    /// Recordings: `adrive record info FILE`.
+    Record {
+        #[command(subcommand)]
+        command: RecordCmd,
+    },
+    /// Write a recording out as one CSV file per channel.
+    Export(ExportArgs),
     /// Print a shell completion script (see the README for where each shell wants it).
     Completions {
         /// The shell to complete in.
@@ -90,6 +101,56 @@ pub struct RunArgs {
     /// hosts (default: the vehicle file's `[network]` listen, 127.0.0.1:47576).
     #[arg(long, value_name = "ADDR", value_parser = net::config::parse_listen)]
     pub listen: Option<SocketAddr>,
+    /// Record this run into an MCAP file (Foxglove opens it), or into rolling files in
+    /// a directory (an existing one, or a path ending in `/`); default: the vehicle
+    /// file's `[record]`.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Record the raw serial traffic of every device too.
+    #[arg(long)]
+    pub record_raw: bool,
+    /// Join the ROS 2 graph over Zenoh as an Autoware vehicle interface (the vehicle
+    /// file's `[ros2]`; built with the cargo feature `ros2`).
+    #[arg(long)]
+    pub ros2: bool,
+}
+
+#[derive(Subcommand, Debug, Clone)]
+pub enum RecordCmd {
+    /// Channels, duration, message counts, commands refused, faults; whether the file
+    /// was finished or cut off.
+    Info {
+        /// The recording (.mcap).
+        file: PathBuf,
+    },
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct ReplayArgs {
+    /// The recording (.mcap).
+    pub file: PathBuf,
+    /// Also send each snapshot played as the state broadcast, to ADDR (repeatable;
+    /// default 127.0.0.1:47577), so other tools can be tested against a past drive.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = net::config::DEFAULT_BROADCAST)]
+    pub broadcast: Vec<SocketAddr>,
+    /// No console: play through once (with --broadcast), then exit.
+    #[arg(long, requires = "broadcast")]
+    pub headless: bool,
+    /// Play this many times faster (0.125 to 32) [default: 1].
+    #[arg(long, value_name = "X")]
+    pub speed: Option<f64>,
+    /// Keymap TOML merged over the built-in one, as for `adrive run`.
+    #[arg(long, value_name = "FILE")]
+    pub keymap: Option<PathBuf>,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct ExportArgs {
+    /// The recording (.mcap).
+    pub file: PathBuf,
+    /// Write one CSV file per channel into this directory (created if needed).
+    #[arg(long, value_name = "DIR", required = true)]
+    pub csv: PathBuf,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -120,9 +181,22 @@ pub struct WatchArgs {
     /// The address the broadcast is sent to: this host's, or a multicast group.
     #[arg(long, value_name = "ADDR", default_value = net::config::DEFAULT_BROADCAST)]
     pub from: SocketAddr,
-    /// Stop after this many broadcasts.
+    /// Stop after this many broadcasts (with --ros2: report lines).
     #[arg(long, value_name = "N")]
     pub count: Option<u64>,
+    /// Watch the ROS 2 graph over Zenoh instead: list every vehicle seen, follow one
+    /// (built with the cargo feature `ros2`).
+    #[arg(long)]
+    pub ros2: bool,
+    /// With --ros2: a Zenoh router or peer to connect to (repeatable).
+    #[arg(long, value_name = "ENDPOINT", default_value = config::ros2::DEFAULT_CONNECT)]
+    pub connect: Vec<String>,
+    /// With --ros2: the ROS domain (ROS_DOMAIN_ID).
+    #[arg(long, value_name = "ID", default_value_t = 0)]
+    pub domain: u32,
+    /// With --ros2: the vehicle to follow, by namespace (default: the first one seen).
+    #[arg(long, value_name = "NS")]
+    pub namespace: Option<String>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -156,6 +230,11 @@ pub fn main() -> i32 {
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
+        Some(Cmd::Replay(args)) => replay(args),
+        Some(Cmd::Record {
+            command: RecordCmd::Info { file },
+        }) => record_info(&file),
+        Some(Cmd::Export(args)) => export(args),
         Some(Cmd::Completions { shell }) => {
             clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut std::io::stdout());
             Ok(0)
@@ -208,10 +287,17 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     } else {
         Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
     };
+    let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
+    let tap = Arc::new(crate::vehicle::tap::Tap::default());
     let ring = (!args.headless).then(console::logring::LogRing::default);
-    let extra = ring
-        .as_ref()
-        .map(|r| Box::new(r.layer()) as logging::ExtraLayer);
+    let mut extra: Vec<logging::ExtraLayer> = Vec::new();
+    extra.extend(
+        ring.as_ref()
+            .map(|r| Box::new(r.layer()) as logging::ExtraLayer),
+    );
+    if recording.is_some() {
+        extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));
+    }
     let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
     for w in keymap.iter().flat_map(|k| k.warnings()) {
         tracing::warn!("keymap: {w}");
@@ -223,16 +309,28 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     } else {
         None
     };
-    let vehicle = Arc::new(Vehicle::new(config, |c| {
-        let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
-        Box::new(move || driver::open_serial(&path, baud, timeout))
-    }));
+    let vehicle = Arc::new(Vehicle::with_tap(
+        config,
+        |c| {
+            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+            Box::new(move || driver::open_serial(&path, baud, timeout))
+        },
+        tap,
+    ));
+    // A recording that cannot start is refused before anything is driven.
+    let recorder = match recording {
+        Some(opts) => {
+            Some(Recorder::start(&vehicle, opts).map_err(|e| anyhow::anyhow!("record: {e}"))?)
+        }
+        None => None,
+    };
     let gate = Arc::new(Gate::new(vehicle.clone()));
     gate.announce();
     let exits = exit::install()?;
     // The command socket is bound before any device is driven: a busy port is a
     // configuration error (status 2), not a half-started vehicle.
     let net = Net::start(gate.clone(), vehicle.config.network.clone(), auth)?;
+    let ros2 = ros2::start(args.ros2, &gate, &net, &vehicle.config)?;
     let engine = Engine::start(gate.clone())?;
     let monitor = gate::Monitor::start(gate.clone())?;
     let (panic_in, panic_after) = match args.inject_panic.as_deref() {
@@ -282,13 +380,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // commands the safe state at once), stop the network and gate threads, then let the
     // engine command the safe state again and wait for its acknowledgement.
     net.close();
+    ros2.close();
     gate.disengage(&format!("stopping: {}", why.describe()));
     let net_figures = net.status().snapshot();
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
+    stuck.extend(ros2.shutdown(Duration::from_millis(500)));
     stuck.extend(monitor.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);
+    // After the engine: the safe state's commands are in the recording.
+    if let Some(r) = recorder {
+        stuck.extend(r.shutdown(Duration::from_secs(2)));
+    }
     if safe {
         tracing::info!(
             "safe state acknowledged: {}",
@@ -308,6 +412,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 headless::net_summary(&net_figures)
             ),
         );
+        if let Some(r) = vehicle.tap.status() {
+            tell(
+                io::stdout(),
+                format_args!("{}\n", headless::record_summary(&r)),
+            );
+        }
     }
     if !safe || !stuck.is_empty() {
         let msg = format!(
@@ -340,10 +450,7 @@ fn network_key(config: &VehicleConfig) -> anyhow::Result<Option<Auth>> {
     let Some(file) = &config.network.key_file else {
         return Ok(None);
     };
-    let path = match Path::new(&config.source).parent() {
-        Some(dir) if file.is_relative() => dir.join(file),
-        _ => file.clone(),
-    };
+    let path = config.relative(file);
     let auth = Auth::load(&path).map_err(|e| {
         let v = config::Violation {
             paths: vec!["key_file".into()],
@@ -396,10 +503,93 @@ pub fn send(args: SendArgs) -> anyhow::Result<i32> {
     Ok(client::send(&opts, &body, &stop)?)
 }
 
-/// `adrive watch`: print the state broadcast.
+/// `adrive watch`: print the state broadcast, or (`--ros2`) the vehicles on a ROS 2
+/// graph.
 pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
     let stop = stop_flag()?;
+    if args.ros2 {
+        return ros2::watch(&args, &stop);
+    }
     Ok(client::watch(args.from, args.json, args.count, &stop)?)
+}
+
+/// The ROS 2 interface when built in, and what `--ros2` says when it is not.
+mod ros2 {
+    use super::WatchArgs;
+    use crate::config::VehicleConfig;
+    use crate::net::Net;
+    use crate::safety::Gate;
+    use std::sync::atomic::AtomicBool;
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    #[cfg(not(feature = "ros2"))]
+    const NOT_BUILT: &str = "--ros2: this adrive was built without ROS 2; build it with \
+                             `cargo build --release --features ros2`";
+
+    /// The running node, if `--ros2` started one.
+    #[cfg(feature = "ros2")]
+    pub struct Running(Option<crate::ros2::Node>);
+    #[cfg(not(feature = "ros2"))]
+    pub struct Running;
+
+    #[cfg(feature = "ros2")]
+    pub fn start(
+        on: bool,
+        gate: &Arc<Gate>,
+        net: &Net,
+        config: &VehicleConfig,
+    ) -> anyhow::Result<Running> {
+        if !on {
+            return Ok(Running(None));
+        }
+        let node = crate::ros2::Node::start(gate.clone(), net.status().clone(), config)?;
+        Ok(Running(Some(node)))
+    }
+
+    #[cfg(not(feature = "ros2"))]
+    pub fn start(on: bool, _: &Arc<Gate>, _: &Net, _: &VehicleConfig) -> anyhow::Result<Running> {
+        if on {
+            anyhow::bail!(NOT_BUILT);
+        }
+        Ok(Running)
+    }
+
+    impl Running {
+        /// Refuse every ROS 2 command from now on.
+        pub fn close(&self) {
+            #[cfg(feature = "ros2")]
+            if let Some(n) = &self.0 {
+                n.close();
+            }
+        }
+
+        /// Stop the node; the names of the threads that did not stop.
+        pub fn shutdown(self, deadline: Duration) -> Vec<String> {
+            #[cfg(feature = "ros2")]
+            if let Some(n) = self.0 {
+                return n.shutdown(deadline);
+            }
+            let _ = deadline;
+            Vec::new()
+        }
+    }
+
+    #[cfg(feature = "ros2")]
+    pub fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
+        let opts = crate::ros2::watch::WatchOptions {
+            domain: args.domain,
+            connect: args.connect.clone(),
+            namespace: args.namespace.clone(),
+            count: args.count,
+        };
+        crate::ros2::watch::watch(&opts, stop)
+    }
+
+    #[cfg(not(feature = "ros2"))]
+    pub fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
+        anyhow::bail!(NOT_BUILT)
+    }
 }
 
 /// How many received commands `adrive sim` holds while its output is slow; past
@@ -490,4 +680,63 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
 /// Bytes as text, with non-printable bytes escaped.
 pub fn printable(bytes: &[u8]) -> String {
     bytes.escape_ascii().to_string()
+}
+
+/// `adrive record info`: what a recording holds.
+pub fn record_info(file: &Path) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(file)?;
+    tell(io::stdout(), format_args!("{}", record::info::report(&rec)));
+    Ok(0)
+}
+
+/// `adrive export FILE --csv DIR`: one CSV per channel.
+pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(&args.file)?;
+    for (path, rows) in record::export::csv(&rec, &args.csv)? {
+        tell(
+            io::stdout(),
+            format_args!("{:>9} rows  {}\n", rows, path.display()),
+        );
+    }
+    if let Some(why) = &rec.cut {
+        tell(
+            io::stderr(),
+            format_args!(
+                "adrive export: {}: cut off ({why}); exported up to its last whole chunk\n",
+                args.file.display()
+            ),
+        );
+    }
+    Ok(0)
+}
+
+/// `adrive replay FILE`: the console plays a recording (or, headless, broadcasts it).
+pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(&args.file)?;
+    let mut player = console::replay::Player::load(&rec).map_err(anyhow::Error::msg)?;
+    drop(rec);
+    if let Some(x) = args.speed {
+        if !(0.125..=32.0).contains(&x) {
+            anyhow::bail!("--speed: expected 0.125 to 32, got {x}");
+        }
+        player.set_speed(x, Instant::now());
+    }
+    let keymap = if args.headless {
+        None
+    } else {
+        Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+    };
+    let broadcast = match args.broadcast.is_empty() {
+        true => None,
+        false => Some(console::replay::Broadcast::new(args.broadcast.clone())?),
+    };
+    let log = logging::init(args.headless, None)?;
+    let exits = exit::install()?;
+    let why = match (keymap, broadcast) {
+        (None, Some(b)) => console::replay::headless(player, &exits, &b),
+        (Some(keymap), b) => console::replay::run(player, keymap, &exits, b)?,
+        (None, None) => unreachable!("clap requires --broadcast with --headless"),
+    };
+    drop(log);
+    Ok(exit::status(&why, true, true))
 }

@@ -4,7 +4,7 @@
 
 use crate::exit::Exit;
 use crate::safety::Gate;
-use crate::snapshot::{NetView, Snapshot};
+use crate::snapshot::{NetView, RecordView, Snapshot};
 use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
 use std::fmt::Write;
@@ -144,4 +144,26 @@ pub fn net_summary(n: &NetView) -> String {
         let _ = write!(out, "; watchdog tripped: {why}");
     }
     out
+}
+
+/// The recording in one line: `recorded 1234 messages (2.1 MB) to FILE`, the events
+/// left out, or why recording stopped.
+pub fn record_summary(r: &RecordView) -> String {
+    let mut s = format!(
+        "recorded {} messages ({}) to {}",
+        r.messages,
+        bytesize::ByteSize::b(r.bytes).display().si(),
+        r.file
+    );
+    if r.dropped > 0 {
+        let _ = write!(
+            s,
+            "; {} events left out (the recorder fell behind)",
+            r.dropped
+        );
+    }
+    if let Some(e) = &r.error {
+        let _ = write!(s, "\n{e}");
+    }
+    s
 }

@@ -6,8 +6,10 @@
 //! state type every reader shares; [`vehicle`] holds the devices and their cached
 //! state; [`safety`] holds every rule and the engage gate; [`engine`] runs two threads
 //! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
-//! broadcasts state over UDP; [`sim`] emulates the devices on real pseudo-terminals;
-//! [`console`] is the operator's screen and [`cli`] puts it all together.
+//! broadcasts state over UDP; `ros2` (cargo feature `ros2`) speaks ROS 2 and
+//! Autoware over Zenoh through the same intake; [`sim`] emulates the devices on real
+//! pseudo-terminals; [`record`] keeps a run in an MCAP file; [`console`] is the
+//! operator's screen (and replays recordings) and [`cli`] puts it all together.
 
 pub mod cli;
 pub mod config;
@@ -19,6 +21,9 @@ pub mod headless;
 pub mod logging;
 pub mod net;
 pub mod ports;
+pub mod record;
+#[cfg(feature = "ros2")]
+pub mod ros2;
 pub mod safety;
 pub mod sim;
 pub mod snapshot;

@@ -3,9 +3,11 @@
 //! `tracing-appender`'s non-blocking writer. The returned guard flushes
 //! the file when dropped, so every exit path keeps it alive until the very end.
 
+use std::fmt::Write as _;
 use std::io::IsTerminal;
 use std::path::Path;
 use std::time::{Duration, Instant};
+use tracing::field::{Field, Visit};
 use tracing_appender::non_blocking::WorkerGuard;
 use tracing_subscriber::filter::LevelFilter;
 use tracing_subscriber::layer::Filter;
@@ -40,18 +42,22 @@ pub struct LogGuard {
 /// Start logging. `stderr`: also log to standard error (headless, subcommands).
 /// `dir`: where the rolling log file `adrive.log.YYYY-MM-DD` goes.
 pub fn init(stderr: bool, dir: Option<&Path>) -> std::io::Result<LogGuard> {
-    init_with(stderr, dir, None)
+    init_with(stderr, dir, Vec::new())
 }
 
 /// A layer added beside the file and stderr layers (e.g. the console's log pane).
 pub type ExtraLayer = Box<dyn Layer<Registry> + Send + Sync>;
 
-/// [`init`] with an extra layer that sees every event, unfiltered.
+/// [`init`] with extra layers (the console's log pane, a recording) that see every
+/// event, unfiltered.
 pub fn init_with(
     stderr: bool,
     dir: Option<&Path>,
-    extra: Option<ExtraLayer>,
+    extra: Vec<ExtraLayer>,
 ) -> std::io::Result<LogGuard> {
+    // An empty list of layers is a layer that enables nothing, which would silence the
+    // file and stderr layers beside it: no list, then.
+    let extra = (!extra.is_empty()).then_some(extra);
     let (file_layer, guard) = match dir {
         Some(dir) => {
             std::fs::create_dir_all(dir)?;
@@ -130,6 +136,46 @@ impl RateLimit {
         } else {
             self.suppressed += 1;
             false
+        }
+    }
+}
+
+/// An event's words, for the layers that keep them (the console's log pane, a
+/// recording): its message, then its other fields as ` key=value`.
+#[derive(Default)]
+pub struct EventText {
+    pub message: String,
+    pub fields: String,
+}
+
+impl EventText {
+    pub fn of(event: &tracing::Event<'_>) -> EventText {
+        let mut t = EventText::default();
+        event.record(&mut t);
+        t
+    }
+
+    /// `status: timeout device=steer`
+    pub fn line(self) -> String {
+        let mut s = self.message;
+        s.push_str(&self.fields);
+        s
+    }
+}
+
+impl Visit for EventText {
+    fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
+        if field.name() == "message" {
+            let _ = write!(self.message, "{value:?}");
+        } else {
+            let _ = write!(self.fields, " {}={value:?}", field.name());
+        }
+    }
+    fn record_str(&mut self, field: &Field, value: &str) {
+        if field.name() == "message" {
+            self.message.push_str(value);
+        } else {
+            let _ = write!(self.fields, " {}={value}", field.name());
         }
     }
 }

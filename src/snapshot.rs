@@ -9,6 +9,7 @@
 //! checked by a test against real broadcasts.
 
 use crate::value::{Kind, Value};
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::net::SocketAddr;
@@ -17,8 +18,7 @@ use std::net::SocketAddr;
 pub const SCHEMA: u32 = 2;
 
 /// The whole vehicle at one instant.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Snapshot {
     pub schema: u32,
     pub vehicle: String,
@@ -36,6 +36,9 @@ pub struct Snapshot {
     pub rejections: Pairs<u64>,
     /// The network side, when the listener runs.
     pub net: Option<NetView>,
+    /// The recording, when one runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub record: Option<RecordView>,
     /// Which part of a broadcast this is, when the whole did not fit one datagram
     /// ([`Snapshot::datagrams`]); absent when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -45,8 +48,7 @@ pub struct Snapshot {
 /// One part of a broadcast split over several datagrams: `index` of `count`, all with
 /// the same `seq`. Every part is a whole snapshot with a share of the devices (in
 /// order) and the gate and supervisor; the network part travels in part 0 only.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 pub struct Part {
     pub index: u16,
     pub count: u16,
@@ -121,8 +123,7 @@ impl Snapshot {
 }
 
 /// The engage gate and the safety rules.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct GateView {
     pub engaged: bool,
     /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
@@ -141,8 +142,7 @@ pub struct GateView {
 }
 
 /// One device.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct DeviceView {
     pub name: String,
     pub kind: Kind,
@@ -188,8 +188,7 @@ pub struct DeviceView {
 }
 
 /// A setpoint device's estimated state at the snapshot's instant (its units).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct EstimateView {
     /// The estimated position.
     pub position: f64,
@@ -224,8 +223,7 @@ impl DeviceView {
 }
 
 /// A device's health, as its threads keep it.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Health {
     /// Failing repeatedly, silent past its `status_max_age`, or its port is gone.
     pub faulty: bool,
@@ -249,8 +247,7 @@ pub struct Health {
 }
 
 /// What the console may change while running.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Settings {
     pub status_period_ms: f64,
     pub command_timeout_ms: f64,
@@ -263,8 +260,7 @@ pub struct Settings {
     pub polling: String,
 }
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Counters {
     /// Commands accepted at intake into the device's slot.
     pub received: u64,
@@ -284,8 +280,7 @@ pub struct Counters {
 }
 
 /// Figures of one latency histogram, in microseconds.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct LatencySummary {
     pub count: u64,
     pub p50_us: Option<f64>,
@@ -297,8 +292,7 @@ pub struct LatencySummary {
 }
 
 /// The kinds of fault the supervisor detects.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum FaultKind {
     /// No status for longer than the device's `status_max_age`.
@@ -342,8 +336,7 @@ impl fmt::Display for FaultKind {
 }
 
 /// A fault as the snapshot carries it.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct FaultView {
     pub kind: FaultKind,
     pub device: Option<String>,
@@ -362,8 +355,7 @@ impl FaultView {
 }
 
 /// Where a recovery procedure is.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct RecoveryView {
     /// `engine_stall`, `steering`, `reconnect brake`.
     pub name: String,
@@ -396,8 +388,7 @@ impl RecoveryView {
 }
 
 /// The supervisor's state.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct SupervisorView {
     pub faults: Vec<FaultView>,
     pub recovery: Option<RecoveryView>,
@@ -408,8 +399,7 @@ pub struct SupervisorView {
 }
 
 /// The network command watchdog, as shown to people.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum WatchdogState {
     /// Disengaged.
@@ -423,8 +413,7 @@ pub enum WatchdogState {
 }
 
 /// The network side: listener, watchdog, senders, counters.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct NetView {
     pub listen: SocketAddr,
     /// Datagrams received, and those accepted (parsed, authentic, not refused whole).
@@ -440,8 +429,7 @@ pub struct NetView {
     pub rejected: Rejections,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct WatchdogView {
     pub state: WatchdogState,
     pub timeout_ms: f64,
@@ -451,8 +439,7 @@ pub struct WatchdogView {
     pub last_trip: Option<String>,
 }
 
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct SenderView {
     pub addr: SocketAddr,
     pub age_ms: f64,
@@ -466,8 +453,7 @@ pub struct SenderView {
 }
 
 /// Rejections by reason; every reason is listed, zeros included.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Rejections {
     /// Whole datagrams: grammar, authentication, counter.
     pub datagram: Pairs<u64>,
@@ -484,6 +470,21 @@ impl Rejections {
             .filter_map(|p| p.get(name))
             .sum()
     }
+}
+
+/// The recording of this run (`--record`, `[record]`).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct RecordView {
+    /// The file being written (the last one, once recording stopped).
+    pub file: String,
+    /// Bytes written to it so far.
+    pub bytes: u64,
+    /// Messages written, all files of this run.
+    pub messages: u64,
+    /// Events left out because the recorder fell behind (the vehicle never waits).
+    pub dropped: u64,
+    /// Why recording stopped; the vehicle runs on.
+    pub error: Option<String>,
 }
 
 /// Named values in order, written as a JSON object (`{"steer": 3, "gas": 0}`) and read
@@ -522,7 +523,6 @@ impl<V> FromIterator<(String, V)> for Pairs<V> {
 }
 
 /// A JSON object whose values are all `V`.
-#[cfg(test)]
 impl<V: schemars::JsonSchema> schemars::JsonSchema for Pairs<V> {
     fn schema_name() -> std::borrow::Cow<'static, str> {
         format!("Pairs_of_{}", V::schema_name()).into()

@@ -4,6 +4,7 @@
 //! state index *names* — a device's states, its readings and their units — is in the
 //! device's configuration ([`crate::config::DeviceConfig`]).
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::str::FromStr;
@@ -20,8 +21,7 @@ impl DeviceId {
 }
 
 /// What a device is.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Kind {
     /// An actuator that takes a number in a range (steering, throttle, brake, a wiper).
@@ -238,8 +238,7 @@ impl Reading {
 }
 
 /// A value for people and JSON: a number, a flag, or a state's name.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[cfg_attr(test, derive(schemars::JsonSchema))]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum Value {
     Flag(bool),

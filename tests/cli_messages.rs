@@ -1,7 +1,8 @@
 //! What a user reads when something is wrong, from the real binary: a vehicle file
 //! with a value outside its range, a device without a port, a key file that is
 //! missing or too short, a byte that is not UTF-8, `--deadman 0s`; and the shell
-//! completions and manual page generated from the command-line definitions.
+//! completions and manual page generated from the command-line definitions; `--ros2`
+//! on a build without it.
 
 mod common;
 
@@ -231,5 +232,21 @@ fn the_man_page_is_roff_with_every_option_and_subcommand() {
         std::fs::read_to_string(dir.0.path().join("adrive.1")).unwrap(),
         page,
         "the page on standard output is the one written"
+    );
+}
+
+/// `--ros2` on a build without the feature says how to build it, and drives nothing.
+#[cfg(not(feature = "ros2"))]
+#[test]
+fn ros2_without_the_feature_says_how_to_build_it() {
+    let dir = Scratch::new();
+    let path = dir.file("v.toml", VEHICLE);
+    let out = adrive(&["--headless", "--ros2"], Some(&path), &dir);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--ros2: this adrive was built without ROS 2")
+            && err.contains("cargo build --release --features ros2"),
+        "{err}"
     );
 }

@@ -6,135 +6,13 @@
 
 mod common;
 
-use adrive::config::ALICE_TOML;
 use common::pty::Master;
+use common::simproc::{vehicle_file, SimProcess};
 use common::{free_port, tempdir, DEADLINE};
-use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
-use std::process::{Child, ChildStdin, Command as Process, ExitStatus, Stdio};
-use std::sync::{mpsc, Arc, Mutex};
+use std::process::{Child, Command as Process, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
-
-/// `adrive sim` in its own process; every line it prints is kept.
-struct SimProcess {
-    child: Child,
-    stdin: ChildStdin,
-    lines: Arc<Mutex<Vec<String>>>,
-    new: mpsc::Receiver<String>,
-    paths: Vec<String>,
-}
-
-impl SimProcess {
-    fn start() -> SimProcess {
-        let mut child = Process::new(BIN)
-            .arg("sim")
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap();
-        let stdin = child.stdin.take().unwrap();
-        let out = child.stdout.take().unwrap();
-        let lines = Arc::new(Mutex::new(Vec::new()));
-        let (tx, new) = mpsc::channel();
-        let keep = lines.clone();
-        std::thread::spawn(move || {
-            for l in BufReader::new(out).lines().map_while(Result::ok) {
-                keep.lock().unwrap().push(l.clone());
-                let _ = tx.send(l);
-            }
-        });
-        let mut sim = SimProcess {
-            child,
-            stdin,
-            lines,
-            new,
-            paths: Vec::new(),
-        };
-        for _ in 0..6 {
-            let l = sim.next_line();
-            sim.paths
-                .push(l.split_whitespace().nth(1).unwrap().to_string());
-        }
-        sim
-    }
-
-    fn next_line(&self) -> String {
-        self.new
-            .recv_timeout(DEADLINE)
-            .expect("a line from adrive sim")
-    }
-
-    /// Wait for a printed line containing every one of `words`.
-    fn wait_for(&self, words: &[&str]) -> String {
-        let end = Instant::now() + DEADLINE;
-        loop {
-            if let Some(l) = self
-                .lines
-                .lock()
-                .unwrap()
-                .iter()
-                .find(|l| words.iter().all(|w| l.contains(w)))
-            {
-                return l.clone();
-            }
-            assert!(Instant::now() < end, "adrive sim never printed {words:?}");
-            let _ = self.new.recv_timeout(Duration::from_millis(50));
-        }
-    }
-
-    fn say(&mut self, line: &str) {
-        writeln!(self.stdin, "{line}").unwrap();
-    }
-
-    /// Stop it as a user would (SIGTERM), so that it removes its port links.
-    fn stop(mut self) {
-        common::signal(&self.child, libc::SIGTERM);
-        let _ = common::wait_exit(&mut self.child);
-    }
-
-    /// The last command the named device received (`0.300`, `drive`, …).
-    fn last_command(&self, device: &str) -> Option<String> {
-        self.lines
-            .lock()
-            .unwrap()
-            .iter()
-            .rev()
-            .filter_map(|l| {
-                let w: Vec<&str> = l.split_whitespace().collect();
-                (w.get(1) == Some(&device) && w.get(2) == Some(&"<-")).then(|| w[3].to_string())
-            })
-            .next()
-    }
-}
-
-impl Drop for SimProcess {
-    fn drop(&mut self) {
-        // SIGTERM first: it removes its directory of links.
-        common::stop(&mut self.child);
-    }
-}
-
-/// The built-in Alice pointed at the simulator's ports.
-fn vehicle_file(dir: &std::path::Path, sim: &SimProcess, extra: &str) -> PathBuf {
-    let mut paths = sim.paths.iter();
-    let mut text = String::new();
-    for line in ALICE_TOML.lines() {
-        if line.starts_with("port = ") {
-            text.push_str(&format!("port = \"{}\"\n", paths.next().unwrap()));
-        } else {
-            text.push_str(line);
-            text.push('\n');
-        }
-    }
-    // Alice allows network engage; its broadcast goes to loopback.
-    text.push_str(&format!("\n[supervisor]\n{extra}\n"));
-    let path = dir.join("vehicle.toml");
-    std::fs::write(&path, text).unwrap();
-    path
-}
 
 struct Adrive {
     child: Child,

@@ -5,6 +5,8 @@
 //! that is impossible.
 
 mod common;
+#[path = "support/python_env.rs"]
+mod python_env;
 
 use adrive::config::wire::{Field, ModbusMap, Wire};
 use adrive::driver::modbus::ModbusDriver;
@@ -13,7 +15,6 @@ use adrive::value::Command;
 use common::DEADLINE;
 use serialport::{SerialPort, TTYPort};
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
 use std::process::{Child, Command as Process, Stdio};
 use std::sync::{mpsc, OnceLock};
 use std::time::{Duration, Instant};
@@ -22,54 +23,11 @@ const PYMODBUS: &str = "pymodbus==3.8.6";
 const PYSERIAL: &str = "pyserial==3.5";
 const BAUD: u32 = 115_200;
 
-fn run(cmd: &mut Process) -> Result<(), String> {
-    let out = cmd.output().map_err(|e| format!("{cmd:?}: {e}"))?;
-    if out.status.success() {
-        Ok(())
-    } else {
-        Err(format!(
-            "{cmd:?} failed ({}):\n{}{}",
-            out.status,
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        ))
-    }
-}
-
-fn has_pymodbus(python: &str) -> bool {
-    Process::new(python)
-        .args([
-            "-c",
-            "import serial, pymodbus, sys; sys.exit(0 if pymodbus.__version__ == '3.8.6' else 1)",
-        ])
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
 /// A Python interpreter that can import the pinned pymodbus and pyserial.
 fn python() -> &'static str {
     static PYTHON: OnceLock<String> = OnceLock::new();
     PYTHON.get_or_init(|| {
-        if has_pymodbus("python3") {
-            return "python3".into();
-        }
-        let venv = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("pymodbus-venv");
-        let py = venv.join("bin/python").display().to_string();
-        if !has_pymodbus(&py) {
-            let setup = run(Process::new("python3").args(["-m", "venv"]).arg(&venv)).and_then(|_| {
-                run(Process::new(&py).args(["-m", "pip", "install", "--quiet", PYMODBUS, PYSERIAL]))
-            });
-            if let Err(e) = setup {
-                panic!(
-                    "the pymodbus interoperability test needs Python 3 with {PYMODBUS} and {PYSERIAL}; \
-                     setting up {} failed: {e}",
-                    venv.display()
-                );
-            }
-            assert!(has_pymodbus(&py), "{py} still cannot import {PYMODBUS}");
-        }
-        py
+        python_env::python("pymodbus-venv", &[PYMODBUS, PYSERIAL], "serial, pymodbus")
     })
 }
 

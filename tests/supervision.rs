@@ -342,6 +342,52 @@ fn a_jammed_steering_drive_while_disengaged_receives_nothing_from_the_supervisor
     assert!(steer_fault_latched(&rig), "still latched");
 }
 
+/// A planner that keeps sending `accel 0.3` through an engine stall (as a planner at
+/// 20 Hz does) once released the brake 18 ms after the procedure's brake step, every
+/// time: the step never completed and the procedure gave up, on a vehicle left
+/// unbraked. The procedure takes the brake too: intake refuses its release meanwhile.
+#[test]
+fn a_planner_accel_during_a_stall_recovery_cannot_release_the_brake() {
+    let rig = Rig::supervised(&alice(""));
+    let v = &rig.vehicle;
+    engaged_in_drive(&rig);
+    rig.gate.submit_accel(0.3, Instant::now()).unwrap();
+    wait_for("gas", || {
+        rig.device("gas").slot.executed() == Some(set(0.3))
+    });
+    rig.sim.apply("stall").unwrap();
+    wait_for("the procedure to start", || {
+        v.supervision.snapshot().recovery.is_some()
+    });
+    assert_eq!(
+        rig.gate.submit_accel(0.3, Instant::now()),
+        Err(Reject::Recovering)
+    );
+    // The planner, until the procedure is done (or the wait for it failed).
+    struct Stop<'a>(&'a std::sync::atomic::AtomicBool);
+    impl Drop for Stop<'_> {
+        fn drop(&mut self) {
+            self.0.store(true, std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+    let done = std::sync::atomic::AtomicBool::new(false);
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                let _ = rig.gate.submit_accel(0.3, Instant::now());
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        });
+        let _stop = Stop(&done);
+        outcome(&rig, "engine_stall done");
+    });
+    let h = rig.history();
+    assert!(
+        !h.iter().any(|l| l.contains("did not complete")),
+        "every step completed the first time: {h:?}"
+    );
+}
+
 /// The paper's example, end to end and step by step: the engine stalls in drive; gas
 /// off, brake, stopped, park, starter, back in drive, release. Meanwhile the planner's
 /// gas is refused; afterwards nothing jumps back to its old set point.

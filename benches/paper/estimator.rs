@@ -1,4 +1,4 @@
-//! Section 8, the paper's open problem: fixed against adaptive polling on a 9600 baud
+//! Section 9, the paper's open problem: fixed against adaptive polling on a 9600 baud
 //! link with commands at 100 Hz. It runs in this process (engine and simulator), so
 //! that the simulator's true position can be sampled every millisecond against what
 //! adrive believes — the cache (the paper's way) and the estimate.
@@ -60,7 +60,7 @@ impl Drop for Run {
     }
 }
 
-/// The command profile of section 8 at `t` seconds: a path follower's set point —
+/// The command profile of section 9 at `t` seconds: a path follower's set point —
 /// a step, a hold, a ramp at half the drive's rate, a hold — repeated every 4 s.
 fn profile(t: f64) -> f64 {
     match t % 4.0 {
@@ -70,14 +70,14 @@ fn profile(t: f64) -> f64 {
     }
 }
 
-/// Section 8: two identical drives on 9600 baud lines in one run, one polled every
+/// Section 9: two identical drives on 9600 baud lines in one run, one polled every
 /// 50 ms, one adaptively (50 ms … 1 s); both commanded at 100 Hz under the port rule
 /// `rule`; the simulator's true position sampled every millisecond against the cache
 /// (what the paper's adrive believes) and the estimate.
-pub fn section8_estimator(rule: &str, secs: f64) {
+pub fn section9_estimator(rule: &str, secs: f64) {
     println!();
     println!(
-        "== 8. fixed against adaptive polling: 9600 baud, commands at 100 Hz, port rule {rule}, {secs} s =="
+        "== 9. fixed against adaptive polling: 9600 baud, commands at 100 Hz, port rule {rule}, {secs} s =="
     );
     let drive = |name: &str, polling: &str| {
         format!(

@@ -11,8 +11,8 @@
 //! placement; 2 delay against the number of actuators (Fig. 3); 3 CPU against the
 //! command rate (Fig. 4); 4 the cued-command stall under each port rule, with the
 //! effective bandwidth; 5 the findings of the command-path review; 6 memory; 7 the
-//! console's output to its terminal; 8 fixed against adaptive polling, the paper's open
-//! problem ([`estimator`]).
+//! console's output to its terminal; 8 the command delay with recording off and on; 9
+//! fixed against adaptive polling, the paper's open problem ([`estimator`]).
 
 mod estimator;
 mod floor;
@@ -225,11 +225,55 @@ fn main() {
         section7_console_output(&dir, secs, &mut r);
     }
     if on("8") {
+        section8_recording(&dir, secs);
+    }
+    if on("9") {
         for rule in ["priority", "paper"] {
-            estimator::section8_estimator(rule, 20.0);
+            estimator::section9_estimator(rule, 20.0);
         }
     }
     summary(&r, &out);
+}
+
+/// Three actuators at 100 Hz each, recording (raw traffic included) off and on in
+/// turns, each run alike: recording must cost the command path nothing measurable.
+fn section8_recording(dir: &tempfile::TempDir, secs: f64) {
+    println!(
+        "\n== 8. Recording off and on, in turns: 3 actuators, 100 Hz each, raw traffic recorded, {secs} s =="
+    );
+    println!("{}  recorded", delay_columns("recording", 10));
+    let names: Vec<String> = (0..3).map(|i| format!("a{i:02}")).collect();
+    let devices: Vec<String> = names.iter().map(|x| idle_actuator(x)).collect();
+    let sim_file = dir.path().join("rec-sim.toml");
+    std::fs::write(&sim_file, vehicle("", &devices)).unwrap();
+    let sim = Sim::start(&sim_file);
+    let toml = sim.patch(&vehicle("", &devices));
+    for turn in 1..=2 {
+        for on in [false, true] {
+            let file = dir.path().join(format!("rec-{turn}.mcap"));
+            let file = file.to_string_lossy();
+            let args: &[&str] = if on {
+                &["--record", &file, "--record-raw"]
+            } else {
+                &[]
+            };
+            let a = Adrive::start_with(dir.path(), "rec", &toml, args);
+            let (_, floor) = with_floor(|| drive(&a, &names, 100.0, secs));
+            let snap = a.snapshot();
+            let d = delay_of(&snap, &names);
+            let recorded = snap.record.map_or(String::new(), |r| {
+                format!(
+                    "{} messages, {} kB, {} left out",
+                    r.messages,
+                    r.bytes / 1000,
+                    r.dropped
+                )
+            });
+            let label = format!("{} {turn}", if on { "on" } else { "off" });
+            println!("{}  {recorded}", delay_row(&label, 10, &d, floor));
+        }
+    }
+    println!("(p50: the median device's; p99: the worst device's; mean: over every command.)");
 }
 
 fn section0_floor() {

@@ -206,6 +206,11 @@ impl Adrive {
     /// Start adrive headless on `toml` (its `[network]` section is added here), wait
     /// until every device reported and engage it from the planner's socket.
     pub fn start(dir: &Path, name: &str, toml: &str) -> Adrive {
+        Adrive::start_with(dir, name, toml, &[])
+    }
+
+    /// [`Adrive::start`] with more arguments (`--record FILE`).
+    pub fn start_with(dir: &Path, name: &str, toml: &str, args: &[&str]) -> Adrive {
         let broadcast = UdpSocket::bind("127.0.0.1:0").expect("a broadcast socket");
         broadcast
             .set_read_timeout(Some(Duration::from_millis(500)))
@@ -231,6 +236,7 @@ impl Adrive {
             .arg(listen.to_string())
             .arg("--log-dir")
             .arg(dir.join("logs"))
+            .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::null())

@@ -15,11 +15,18 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 4] = ["vehicle", "network", "supervisor", "device"];
+const TABLES: [&str; 6] = [
+    "vehicle",
+    "network",
+    "supervisor",
+    "record",
+    "ros2",
+    "device",
+];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
 const DEVICE_TABLES: [&str; 6] = ["sim", "modbus", "line", "response", "aliases", "readings"];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [[device]] (with [device.sim], [device.modbus], [device.line], [device.response])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [[device]] (with [device.sim], [device.modbus], [device.line], [device.response])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -227,7 +234,7 @@ impl<'a> Document<'a> {
 pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
-        [section @ ("network" | "supervisor"), ..] => format!("[{section}] "),
+        [section @ ("network" | "supervisor" | "record" | "ros2"), ..] => format!("[{section}] "),
         _ => String::new(),
     }
 }
@@ -240,6 +247,7 @@ fn limit_of(path: &str) -> Option<&'static dyn limits::Row> {
     let (section, key) = match parts[..] {
         ["network", key] => (Section::Network, key),
         ["supervisor", key] => (Section::Supervisor, key),
+        ["ros2", key] => (Section::Ros2, key),
         ["device", _, key] => (Section::Device, key),
         ["device", _, "sim", key] => (Section::DeviceSim, key),
         ["device", _, "modbus", key] => (Section::DeviceModbus, key),
@@ -279,6 +287,8 @@ fn suggest(written: &str) -> Option<String> {
         "[vehicle.gear]",
         "[network]",
         "[supervisor]",
+        "[record]",
+        "[ros2]",
         "[[device]]",
         "[device.sim]",
         "[device.modbus]",

@@ -25,6 +25,8 @@ pub enum Section {
     DeviceResponse,
     Network,
     Supervisor,
+    /// `[ros2]`: the ROS 2 / Autoware interface.
+    Ros2,
     /// A command-line option of `adrive run`.
     CommandLine,
 }
@@ -39,6 +41,7 @@ impl Section {
             Section::DeviceResponse => "[device.response]",
             Section::Network => "[network]",
             Section::Supervisor => "[supervisor]",
+            Section::Ros2 => "[ros2]",
             Section::CommandLine => "adrive run",
         }
     }
@@ -175,7 +178,9 @@ const fn s(n: u64) -> Duration {
     Duration::from_secs(n)
 }
 
-use Section::{CommandLine, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Supervisor};
+use Section::{
+    CommandLine, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2, Supervisor,
+};
 
 pub const BAUD: Limit<u64> = Limit {
     section: Device,
@@ -296,6 +301,14 @@ pub const MULTICAST_TTL: Limit<u64> = Limit {
     max: 255,
     default: Some(1),
     why: "IP time-to-live of multicast broadcasts (1: this subnet)",
+};
+pub const REPORT_RATE: Limit<f64> = Limit {
+    section: Ros2,
+    key: "report_rate",
+    min: 1.0,
+    max: 100.0,
+    default: Some(30.0),
+    why: "ROS 2 vehicle reports a second (Autoware's control wants them fresh)",
 };
 pub const SUPERVISOR_PERIOD: Limit<Duration> = Limit {
     section: Supervisor,
@@ -482,6 +495,7 @@ pub static ALL: &[&dyn Row] = &[
     &WATCHDOG_TIMEOUT,
     &BROADCAST_RATE,
     &MULTICAST_TTL,
+    &REPORT_RATE,
     &SUPERVISOR_PERIOD,
     &ERROR_RATE,
     &ERROR_WINDOW,
@@ -610,6 +624,7 @@ mod tests {
         }
         for l in [
             &BROADCAST_RATE,
+            &REPORT_RATE,
             &ERROR_RATE,
             &FOLLOW_TOLERANCE,
             &RANGE_MARGIN,

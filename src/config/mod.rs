@@ -9,6 +9,7 @@
 //! - [`roles`]: the safety roles, bound to devices and readings;
 //! - [`response`]: how a setpoint actuator answers its command (the estimator's model);
 //! - [`limits`]: the sane range of every safety-relevant value, in one table;
+//! - [`record`]: `[record]`, recording every run into rolling files;
 //! - [`document`]: where each key sits in the file, so that a check made after typing
 //!   still names its line.
 
@@ -16,16 +17,20 @@ pub mod device;
 pub mod document;
 pub mod limits;
 pub mod placement;
+pub mod record;
 pub mod response;
 pub mod roles;
+pub mod ros2;
 pub mod wire;
 
 pub use crate::net::config::NetworkConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
+pub use record::RecordConfig;
 pub use response::{Motion, Polling, Response};
 pub use roles::{Bindings, Role};
+pub use ros2::Ros2Config;
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -227,6 +232,10 @@ pub struct VehicleConfig {
     pub devices: Vec<DeviceConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
+    /// `[record]`: record every run (none: only with `--record`).
+    pub record: Option<RecordConfig>,
+    /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
+    pub ros2: Ros2Config,
     /// Where it was loaded from (for messages).
     pub source: String,
     /// The line of every key in that file, for errors found after loading.
@@ -261,6 +270,14 @@ impl VehicleConfig {
     /// The built-in simulated Alice.
     pub fn alice() -> VehicleConfig {
         parse(ALICE_TOML, ALICE_PATH).expect("the built-in vehicle parses")
+    }
+
+    /// A path the vehicle file names, relative to the file's directory.
+    pub fn relative(&self, file: &Path) -> std::path::PathBuf {
+        match Path::new(&self.source).parent() {
+            Some(dir) if file.is_relative() => dir.join(file),
+            _ => file.to_path_buf(),
+        }
     }
 
     /// A device by name.
@@ -359,6 +376,9 @@ struct Raw {
     device: Vec<Spanned<device::RawDevice>>,
     #[serde(default)]
     network: Option<NetworkConfig>,
+    #[serde(default)]
+    record: Option<RecordConfig>,
+    ros2: Option<Ros2Config>,
 }
 
 /// Load a vehicle from a file.
@@ -422,6 +442,12 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     network
         .check()
         .map_err(|v| refuse(path, &lines, "network", v))?;
+    if let Some(r) = &raw.record {
+        r.check().map_err(|v| refuse(path, &lines, "record", v))?;
+    }
+    let ros2 = raw.ros2.unwrap_or_default();
+    ros2.check(&devices)
+        .map_err(|v| refuse(path, &lines, "ros2", v))?;
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,
@@ -431,6 +457,8 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         supervisor: raw.supervisor,
         devices,
         network,
+        record: raw.record,
+        ros2,
         source: path.to_string(),
         lines,
     })

@@ -347,6 +347,46 @@ fn broken_toml_names_the_line() {
     assert_eq!(line(&e), 3, "{e}");
 }
 
+#[test]
+fn a_bad_ros2_table_names_file_line_key_and_expected_form() {
+    let with = |table: &str| error(&format!("{GOOD}\n[ros2]\n{table}\n"));
+    // GOOD ends on line 11; `[ros2]` is line 13, its first key line 14.
+    let e = with("mode = \"peer\"\ndomain_id = 300");
+    assert_eq!(line(&e), 15, "{e}");
+    assert!(
+        e.contains("[ros2] domain_id: expected 0 … 232, got 300"),
+        "{e}"
+    );
+    let e = with("namespace = \"alice\"");
+    assert_eq!(line(&e), 14, "{e}");
+    assert!(e.contains("expected a ROS namespace"), "{e}");
+    let e = with("connect = [\"10.0.0.2:7447\"]");
+    assert!(e.contains("expected a Zenoh endpoint such as"), "{e}");
+    let e = with("hazard_lights = \"steer\"");
+    assert!(
+        e.contains("steer must be a state device with the states off, on"),
+        "{e}"
+    );
+    let e = with("report_rate = 1000.0");
+    assert_eq!(line(&e), 14, "{e}");
+    assert!(
+        e.contains("[ros2] report_rate: expected a number from 1 to 100, got 1000"),
+        "{e}"
+    );
+    let e = with("mode = \"router\"");
+    assert_eq!(line(&e), 14, "{e}");
+    assert!(e.contains("router"), "{e}");
+}
+
+#[test]
+fn ros2_defaults_are_rmw_zenohs_and_the_namespace_is_the_vehicles() {
+    let v = parse(GOOD, "v.toml").unwrap();
+    assert_eq!(v.ros2, Ros2Config::default());
+    assert_eq!(v.ros2.namespace_for(&v.vehicle.name), "/bench");
+    assert_eq!(v.ros2.connect, ["tcp/localhost:7447"]);
+    assert!(!v.ros2.multicast_scouting);
+}
+
 /// A vehicle with every section, each with a marker line a case replaces.
 const BASE: &str = r#"[vehicle]
 name = "bench"

@@ -18,6 +18,7 @@ use crate::safety::{Gate, Reject};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultView, Snapshot};
 use crate::value::{Command, DeviceId};
+use crate::vehicle::tap::Source;
 use crate::vehicle::trace::TraceEntry;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
@@ -309,10 +310,12 @@ impl Controls for Live<'_> {
         }
     }
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject> {
-        self.gate.submit(id, command, Instant::now())
+        self.gate
+            .submit_from(Source::Console, id, command, Instant::now())
     }
     fn submit_accel(&self, accel: f64) -> Result<(), Reject> {
-        self.gate.submit_accel(accel, Instant::now())
+        self.gate
+            .submit_accel_from(Source::Console, accel, Instant::now())
     }
     fn engage(&self) -> Result<(), Vec<String>> {
         self.gate.engage("console")

@@ -3,12 +3,11 @@
 //! (see [`crate::logging::init_with`]) and never blocks for long: one short lock per
 //! warning.
 
+use crate::logging::EventText;
 use parking_lot::Mutex;
 use std::collections::VecDeque;
-use std::fmt::Write;
 use std::sync::Arc;
 use std::time::Instant;
-use tracing::field::{Field, Visit};
 use tracing::{Event, Level, Subscriber};
 use tracing_subscriber::layer::Context;
 use tracing_subscriber::Layer;
@@ -70,38 +69,13 @@ pub struct RingLayer {
     ring: LogRing,
 }
 
-#[derive(Default)]
-struct Text {
-    message: String,
-    fields: String,
-}
-
-impl Visit for Text {
-    fn record_debug(&mut self, field: &Field, value: &dyn std::fmt::Debug) {
-        if field.name() == "message" {
-            let _ = write!(self.message, "{value:?}");
-        } else {
-            let _ = write!(self.fields, " {}={value:?}", field.name());
-        }
-    }
-    fn record_str(&mut self, field: &Field, value: &str) {
-        if field.name() == "message" {
-            self.message.push_str(value);
-        } else {
-            let _ = write!(self.fields, " {}={value}", field.name());
-        }
-    }
-}
-
 impl<S: Subscriber> Layer<S> for RingLayer {
     fn on_event(&self, event: &Event<'_>, _ctx: Context<'_, S>) {
         let level = *event.metadata().level();
         if level > Level::WARN {
             return;
         }
-        let mut t = Text::default();
-        event.record(&mut t);
-        self.ring.push(level, format!("{}{}", t.message, t.fields));
+        self.ring.push(level, EventText::of(event).line());
     }
 }
 

@@ -13,6 +13,7 @@
 //!   thread), a 10 Hz tick and the exits channel (signals, panics). ratatui's diffing
 //!   sends only changed cells; [`terminal`] leaves the terminal as it was on every way
 //!   out, and turns a terminal that died (an SSH session dropping) into a hang-up.
+//! - [`replay`]: the same console playing a recording, read-only.
 
 pub mod controls;
 pub mod find;
@@ -21,6 +22,7 @@ pub mod layout;
 pub mod logring;
 pub mod model;
 pub mod panels;
+pub mod replay;
 pub mod sample;
 pub mod terminal;
 pub mod theme;
@@ -75,7 +77,7 @@ pub fn run(gate: &Gate, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
 }
 
 /// What the input thread delivers.
-enum Input {
+pub(crate) enum Input {
     Event(Event),
     /// The terminal is gone; the cause.
     Closed(String),
@@ -84,7 +86,9 @@ enum Input {
 /// Read terminal events on a thread of their own until `stop`, so the loop can
 /// `select!` over them. crossterm reads only bytes that [`Keyboard::wait`] saw
 /// waiting; a terminal that hung up is reported once and the thread ends.
-fn spawn_reader(stop: Arc<AtomicBool>) -> std::io::Result<(Receiver<Input>, JoinHandle<()>)> {
+pub(crate) fn spawn_reader(
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<(Receiver<Input>, JoinHandle<()>)> {
     let keyboard = Keyboard::open()?;
     let (tx, rx) = crossbeam_channel::bounded(256);
     let h = std::thread::Builder::new()

@@ -139,6 +139,7 @@ fn status_loop(d: &Device, stop: &StopSignal) {
         let (result, first) = port.transact(|drv, link| drv.poll(link));
         let done = Instant::now();
         drop(port);
+        d.tap_polled(first, done, result.as_ref());
         last_attempt = Some(started);
         Stats::bump(&d.stats.polls);
         if let Some(first) = first {
@@ -251,6 +252,14 @@ fn command_loop(gate: &Gate, d: &Device) {
             }
             let (result, first) = held.transact(|drv, link| drv.command(link, command));
             let done = Instant::now();
+            d.tap_written(
+                command,
+                job.received,
+                first,
+                done,
+                fresh,
+                result.as_ref().err(),
+            );
             if let Some(first) = first {
                 if fresh {
                     d.stats.command_delay.record(first - job.received);

@@ -22,6 +22,7 @@ use super::status::{Inner, NetStatus, Refusal};
 use crate::logging::RateLimit;
 use crate::safety::Gate;
 use crate::snapshot::WatchdogState;
+use crate::vehicle::tap::{Event, Source};
 use arrayvec::ArrayString;
 use std::fmt::Write;
 use std::net::SocketAddr;
@@ -244,6 +245,11 @@ impl Intake {
                     }
                     out.refused = true;
                     fx.refused_other = true;
+                    self.gate.vehicle.tap.send(|| Event::Refused {
+                        at: received,
+                        from,
+                        reason: Refusal::OtherCommander.as_str(),
+                    });
                     if matches!(c, NetCommand::Engage) {
                         out.gate = true;
                     }
@@ -257,7 +263,10 @@ impl Intake {
                 }
                 NetCommand::Set(id, command) => {
                     fx.commanded = true;
-                    match self.gate.submit(id, command, received) {
+                    match self
+                        .gate
+                        .submit_from(Source::Network(from), id, command, received)
+                    {
                         Ok(()) => st.count_command(id),
                         Err(r) => {
                             st.count_intake(r);
@@ -272,7 +281,10 @@ impl Intake {
                 }
                 NetCommand::Accel(a) => {
                     fx.commanded = true;
-                    match self.gate.submit_accel(a, received) {
+                    match self
+                        .gate
+                        .submit_accel_from(Source::Network(from), a, received)
+                    {
                         Ok(()) => st.count_accel(),
                         Err(r) => {
                             st.count_intake(r);
@@ -411,7 +423,14 @@ impl Intake {
 
     fn reject(&self, inner: &mut Inner, i: usize, r: Reject) {
         self.status.count_reject(r);
-        inner.get(i).rejected += 1;
+        let s = inner.get(i);
+        s.rejected += 1;
+        let from = s.addr;
+        self.gate.vehicle.tap.send(|| Event::Refused {
+            at: Instant::now(),
+            from,
+            reason: r.as_str(),
+        });
     }
     /// The reply for `out`, if it says something and the budgets allow.
     fn reply(&self, inner: &mut Inner, i: usize, out: Outcome, now: Instant) -> Option<Reply> {

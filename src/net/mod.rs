@@ -160,7 +160,8 @@ fn bind_command_socket(addr: SocketAddr) -> io::Result<UdpSocket> {
     Ok(s.into())
 }
 
-fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
+/// The socket the state broadcast goes out of (multicast settings from `config`).
+pub fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
     let v6 = config.broadcast_to.first().is_some_and(SocketAddr::is_ipv6);
     let any: SocketAddr = if v6 {
         (Ipv6Addr::UNSPECIFIED, 0).into()
@@ -329,6 +330,16 @@ fn broadcast_loop(
                 return;
             }
         };
+        // A recording keeps the snapshot whole, however many parts it went out in.
+        gate.vehicle
+            .tap
+            .send(|| crate::vehicle::tap::Event::Snapshot {
+                at: Instant::now(),
+                json: match datagrams.as_slice() {
+                    [whole] => whole.clone(),
+                    _ => serde_json::to_vec(&snap).unwrap_or_default(),
+                },
+            });
         for to in dest {
             for bytes in &datagrams {
                 if let Err(e) = socket.send_to(bytes, to) {

@@ -21,6 +21,7 @@ use crate::config::Role;
 use crate::logging::RateLimit;
 use crate::snapshot::{GateView, Pairs, Snapshot, SCHEMA};
 use crate::value::{Command, DeviceId, Kind};
+use crate::vehicle::tap::{Asked, Event, GateChange, Source};
 use crate::vehicle::{Device, Vehicle};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
@@ -162,6 +163,9 @@ impl Gate {
         let blockers = self.blockers();
         if !blockers.is_empty() {
             tracing::warn!(by, "engage refused: {}", blockers.join("; "));
+            self.tap_gate(GateChange::EngageRefused, || {
+                format!("{by}: {}", blockers.join("; "))
+            });
             return Err(blockers);
         }
         for d in self.vehicle.devices.iter().filter(|d| d.is_actuator()) {
@@ -176,6 +180,7 @@ impl Gate {
         *self.reason.lock() = format!("engaged by {by}");
         self.engaged.store(true, SeqCst);
         tracing::info!(by, "engaged");
+        self.tap_gate(GateChange::Engaged, || format!("engaged by {by}"));
         Ok(())
     }
 
@@ -186,8 +191,52 @@ impl Gate {
         self.command_safe_state();
         if was {
             tracing::warn!("disengaged: {reason}");
+            self.tap_gate(GateChange::Disengaged, || format!("disengaged: {reason}"));
         }
         was
+    }
+
+    fn tap_gate(&self, change: GateChange, reason: impl FnOnce() -> String) {
+        self.vehicle.tap.send(|| Event::Gate {
+            at: Instant::now(),
+            change,
+            reason: reason(),
+        });
+    }
+
+    /// [`Gate::submit`] for a command from `source`, which a recording keeps with its
+    /// outcome.
+    pub fn submit_from(
+        &self,
+        source: Source,
+        id: DeviceId,
+        command: Command,
+        received: Instant,
+    ) -> Result<(), Reject> {
+        let done = self.submit(id, command, received);
+        self.tap_received(source, Asked::Device(id, command), received, done);
+        done
+    }
+
+    /// [`Gate::submit_accel`] for a command from `source`, which a recording keeps.
+    pub fn submit_accel_from(
+        &self,
+        source: Source,
+        a: f64,
+        received: Instant,
+    ) -> Result<(), Reject> {
+        let done = self.submit_accel(a, received);
+        self.tap_received(source, Asked::Accel(a), received, done);
+        done
+    }
+
+    fn tap_received(&self, source: Source, asked: Asked, at: Instant, done: Result<(), Reject>) {
+        self.vehicle.tap.send(|| Event::Received {
+            at,
+            source,
+            asked,
+            refused: done.err().map(Reject::as_str),
+        });
     }
 
     /// Check a command for a device: it must be an actuator, the value of its kind and
@@ -326,7 +375,9 @@ impl Gate {
     /// The supervisor's own commands: past the gate and the intake interlocks (the
     /// wire-level checks still apply).
     pub fn supervise(&self, id: DeviceId, command: Command) {
-        self.store(self.vehicle.device(id), command, Instant::now());
+        let now = Instant::now();
+        self.store(self.vehicle.device(id), command, now);
+        self.tap_received(Source::Supervisor, Asked::Device(id, command), now, Ok(()));
     }
 
     /// The wire check for the command `d`'s thread has in flight: send it (or what
@@ -463,6 +514,7 @@ impl Gate {
                 .map(|(r, n)| (r.as_str().to_string(), n))
                 .collect::<Pairs<u64>>(),
             net: None,
+            record: self.vehicle.tap.status(),
             part: None,
         }
     }

@@ -7,7 +7,7 @@
 //! - [`device`]: one device; [`estimate`]: its state estimator; [`slot`]: its latest-wins command slot; [`port`]: its
 //!   shared port and the rule by which its two threads take turns; [`stats`]: its
 //!   always-on figures; [`trace`]: its raw traffic; [`supervision`]: the supervisor's
-//!   board.
+//!   board; [`tap`]: where everything that happens is handed to a recording.
 
 pub mod device;
 pub mod estimate;
@@ -15,6 +15,7 @@ pub mod port;
 pub mod slot;
 pub mod stats;
 pub mod supervision;
+pub mod tap;
 pub mod trace;
 
 pub use device::{error_code, Cached, Device, Health, Settings, FAULT_AFTER};
@@ -27,6 +28,7 @@ use port::Opener;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::Instant;
+use tap::Tap;
 
 /// The whole vehicle.
 pub struct Vehicle {
@@ -35,12 +37,24 @@ pub struct Vehicle {
     pub devices: Vec<Device>,
     /// What the supervisor sees: faults and the recovery in progress.
     pub supervision: Arc<supervision::Board>,
+    /// Where a recording taps the run (off unless one runs).
+    pub tap: Arc<Tap>,
     pub started: Instant,
 }
 
 impl Vehicle {
     /// Build the vehicle; `open` makes the opener of each device's port.
-    pub fn new(config: VehicleConfig, mut open: impl FnMut(&DeviceConfig) -> Opener) -> Vehicle {
+    pub fn new(config: VehicleConfig, open: impl FnMut(&DeviceConfig) -> Opener) -> Vehicle {
+        Vehicle::with_tap(config, open, Arc::default())
+    }
+
+    /// [`Vehicle::new`] with a tap made beforehand (the log's recording layer holds it
+    /// from the start).
+    pub fn with_tap(
+        config: VehicleConfig,
+        mut open: impl FnMut(&DeviceConfig) -> Opener,
+        tap: Arc<Tap>,
+    ) -> Vehicle {
         let devices = config
             .devices
             .iter()
@@ -48,14 +62,15 @@ impl Vehicle {
             .map(|(i, c)| {
                 let id = DeviceId(i as u16);
                 let roles = config.roles.roles_of(id).collect();
-                Device::new(id, c.clone(), roles, open(c))
+                Device::new(id, c.clone(), roles, open(c), tap.clone())
             })
             .collect();
         Vehicle {
             name: config.vehicle.name.clone(),
             config,
             devices,
-            supervision: Default::default(),
+            supervision: Arc::new(supervision::Board::new(tap.clone())),
+            tap,
             started: Instant::now(),
         }
     }

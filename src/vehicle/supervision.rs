@@ -3,9 +3,11 @@
 //! The supervisor thread writes it; the snapshot carries it to the console, the
 //! broadcast and tests. Held in the [`Vehicle`](super::Vehicle), like every other state.
 
+use super::tap::{Event, Tap};
 pub use crate::snapshot::{FaultKind, FaultView, RecoveryView, SupervisorView};
 use parking_lot::Mutex;
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// One fault: what, where, why, since when.
@@ -39,13 +41,22 @@ struct Inner {
 /// Lines of history kept.
 pub const HISTORY: usize = 32;
 
-/// The supervisor's board: what it publishes for everyone.
+/// The supervisor's board: what it publishes for everyone, a recording included
+/// (every fault raised and cleared, every line of history).
 #[derive(Default)]
 pub struct Board {
     inner: Mutex<Inner>,
+    tap: Arc<Tap>,
 }
 
 impl Board {
+    pub fn new(tap: Arc<Tap>) -> Board {
+        Board {
+            inner: Mutex::default(),
+            tap,
+        }
+    }
+
     pub fn snapshot(&self) -> SupervisorView {
         let i = self.inner.lock();
         let now = Instant::now();
@@ -82,7 +93,23 @@ impl Board {
     }
 
     pub fn set_faults(&self, faults: Vec<Fault>) {
-        self.inner.lock().faults = faults;
+        let before = std::mem::replace(&mut self.inner.lock().faults, faults.clone());
+        if !self.tap.is_on() {
+            return;
+        }
+        let same = |a: &Fault, b: &Fault| a.kind == b.kind && a.device == b.device;
+        let now = Instant::now();
+        let raised = faults.iter().filter(|f| !before.iter().any(|b| same(b, f)));
+        let cleared = before.iter().filter(|b| !faults.iter().any(|f| same(b, f)));
+        for (f, up) in raised.map(|f| (f, true)).chain(cleared.map(|f| (f, false))) {
+            self.tap.send(|| Event::Fault {
+                at: now,
+                raised: up,
+                kind: f.kind,
+                device: f.device.clone(),
+                cause: f.cause.clone(),
+            });
+        }
     }
 
     pub fn set_recovery(&self, view: Option<RecoveryView>) {
@@ -95,6 +122,10 @@ impl Board {
     }
 
     pub fn note(&self, line: String) {
+        self.tap.send(|| Event::Note {
+            at: Instant::now(),
+            text: line.clone(),
+        });
         let mut i = self.inner.lock();
         if i.history.len() == HISTORY {
             i.history.pop_front();

@@ -2,10 +2,13 @@
 //! its port, with a timestamp, in a bounded ring that the console's bench view reads.
 //! Recording copies at most [`CHUNK`] bytes into a preallocated slot under a lock held
 //! for that copy only; nothing allocates. At `RUST_LOG=adrive=trace` each chunk is also
-//! logged as hex and ASCII.
+//! logged as hex and ASCII, and when a recording asks for raw traffic, tapped for it.
 
+use super::tap::{Event, Tap};
+use crate::value::DeviceId;
 use parking_lot::Mutex;
 use std::fmt::Write as _;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Entries kept per device.
@@ -99,6 +102,7 @@ struct Ring {
 pub struct Trace {
     device: String,
     ring: Mutex<Ring>,
+    tap: Option<(DeviceId, Arc<Tap>)>,
 }
 
 impl Trace {
@@ -110,7 +114,14 @@ impl Trace {
                 next: 0,
                 total: 0,
             }),
+            tap: None,
         }
+    }
+
+    /// Hand every chunk to a recording's tap too, while it asks for raw traffic.
+    pub fn tapped(mut self, device: DeviceId, tap: Arc<Tap>) -> Trace {
+        self.tap = Some((device, tap));
+        self
     }
 
     pub fn device(&self) -> &str {
@@ -132,6 +143,12 @@ impl Trace {
                 r.entries[i] = e;
             }
             r.next = (r.next + 1) % CAPACITY;
+        }
+        if let Some((device, tap)) = self.tap.as_ref().filter(|(_, t)| t.wants_raw()) {
+            tap.send(|| Event::Raw {
+                device: *device,
+                entry: e,
+            });
         }
         tracing::trace!(
             device = %self.device,

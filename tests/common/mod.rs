@@ -4,6 +4,7 @@
 
 pub mod headless;
 pub mod pty;
+pub mod simproc;
 
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;

@@ -4,7 +4,7 @@
 //! closed, as a dropped SSH session closes it.
 
 use std::fs::File;
-use std::io::Read;
+use std::io::{Read, Write};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use std::os::unix::process::CommandExt;
 use std::process::{Child, Command, Stdio};
@@ -60,6 +60,8 @@ pub struct Master {
     out: Arc<Mutex<Vec<u8>>>,
     close: Arc<AtomicBool>,
     reader: Option<JoinHandle<()>>,
+    /// The master side again, for typing.
+    keys: Option<File>,
 }
 
 impl Master {
@@ -72,11 +74,13 @@ impl Master {
         drop(slave);
         let (out, close) = (Arc::default(), Arc::new(AtomicBool::new(false)));
         let (o, c) = (Arc::clone(&out), Arc::clone(&close));
+        let keys = master.try_clone().map(File::from).ok();
         let reader = std::thread::spawn(move || read_until_closed(File::from(master), &o, &c));
         let m = Master {
             out,
             close,
             reader: Some(reader),
+            keys,
         };
         (child, m)
     }
@@ -86,8 +90,17 @@ impl Master {
         self.out.lock().unwrap().clone()
     }
 
+    /// Type `text` on the terminal, as a user at its keyboard would.
+    pub fn write(&mut self, text: &[u8]) {
+        let keys = self.keys.as_mut().expect("the terminal is open");
+        keys.write_all(text)
+            .and_then(|()| keys.flush())
+            .expect("typing");
+    }
+
     /// Close the master side (every descriptor of it): the terminal hangs up.
     pub fn hang_up(&mut self) {
+        self.keys = None;
         self.close.store(true, Ordering::Relaxed);
         if let Some(r) = self.reader.take() {
             r.join().expect("the terminal reader");

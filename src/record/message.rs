@@ -1,0 +1,418 @@
+//! What a recording holds: its channels (topics), the JSON message of each and the
+//! JSON Schema that describes it, so that Foxglove and any MCAP reader know every
+//! field's type without being told. Device channels are `/DEVICE/command` (each
+//! command written, `value` a number) and `/DEVICE/reading` (each reading taken, by
+//! reading name), so a plot of `/steer/command.value` against
+//! `/steer/reading.position` needs no configuration.
+
+use crate::config::{DeviceConfig, ReadingKind};
+use crate::snapshot::{FaultKind, Snapshot};
+use crate::value::{Command, DeviceId, Reading};
+use crate::vehicle::tap::Source;
+use crate::vehicle::trace::TraceEntry;
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Map, Value};
+
+/// The MCAP profile: none of the well-known ones (JSON messages need none).
+pub const PROFILE: &str = "";
+/// The schema encoding and message encoding of every channel.
+pub const SCHEMA_ENCODING: &str = "jsonschema";
+pub const MESSAGE_ENCODING: &str = "json";
+/// The name of the metadata record that says what recorded the file.
+pub const METADATA: &str = "adrive";
+
+/// One channel of a recording.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Topic {
+    /// `/snapshot`: the state snapshot, as broadcast.
+    Snapshot,
+    /// `/commands`: every command received (network, console, supervisor) and every
+    /// datagram refused whole, with its outcome.
+    Commands,
+    /// `/gate`: engaged, disengaged, engage refused.
+    Gate,
+    /// `/faults`: each fault raised and cleared.
+    Faults,
+    /// `/supervisor`: the supervisor's history (recovery steps and outcomes).
+    Supervisor,
+    /// `/log`: log lines, as Foxglove's `foxglove.Log`.
+    Log,
+    /// `/record`: the recorder's own figures, once a second.
+    Record,
+    /// `/DEVICE/command`: each command written to a device.
+    Command(DeviceId),
+    /// `/DEVICE/reading`: each reading taken (or the poll's error).
+    Reading(DeviceId),
+    /// `/DEVICE/raw`: raw serial traffic, when asked for.
+    Raw(DeviceId),
+}
+
+impl Topic {
+    /// The MCAP topic, with device names from `devices`.
+    pub fn name(self, devices: &[DeviceConfig]) -> String {
+        let dev = |id: DeviceId| devices[id.index()].name.as_str();
+        match self {
+            Topic::Snapshot => "/snapshot".into(),
+            Topic::Commands => "/commands".into(),
+            Topic::Gate => "/gate".into(),
+            Topic::Faults => "/faults".into(),
+            Topic::Supervisor => "/supervisor".into(),
+            Topic::Log => "/log".into(),
+            Topic::Record => "/record".into(),
+            Topic::Command(id) => format!("/{}/command", dev(id)),
+            Topic::Reading(id) => format!("/{}/reading", dev(id)),
+            Topic::Raw(id) => format!("/{}/raw", dev(id)),
+        }
+    }
+
+    /// The schema's name and its JSON Schema text.
+    pub fn schema(self, devices: &[DeviceConfig]) -> (String, Vec<u8>) {
+        let (name, schema) = match self {
+            Topic::Snapshot => ("adrive.Snapshot".to_string(), schema_of::<Snapshot>()),
+            Topic::Commands => ("adrive.Received".into(), schema_of::<Received>()),
+            Topic::Gate => ("adrive.Gate".into(), schema_of::<GateMsg>()),
+            Topic::Faults => ("adrive.Fault".into(), schema_of::<FaultMsg>()),
+            Topic::Supervisor => ("adrive.Note".into(), schema_of::<NoteMsg>()),
+            Topic::Log => ("foxglove.Log".into(), foxglove_log_schema()),
+            Topic::Record => ("adrive.RecordStatus".into(), schema_of::<RecordMsg>()),
+            Topic::Command(_) => ("adrive.Written".into(), schema_of::<Written>()),
+            Topic::Reading(id) => {
+                let d = &devices[id.index()];
+                (format!("adrive.{}.Reading", d.name), reading_schema(d))
+            }
+            Topic::Raw(_) => ("adrive.Raw".into(), schema_of::<RawMsg>()),
+        };
+        (
+            name,
+            serde_json::to_vec(&schema).expect("a schema serializes"),
+        )
+    }
+}
+
+/// The JSON Schema of `T`, every subschema inlined (readers need not follow `$ref`).
+pub fn schema_of<T: JsonSchema>() -> Value {
+    let generator = schemars::generate::SchemaSettings::draft07()
+        .with(|s| s.inline_subschemas = true)
+        .into_generator();
+    generator.into_root_schema_for::<T>().to_value()
+}
+
+/// `/commands`: a command received, or a datagram refused whole.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Received {
+    /// `network 127.0.0.1:40001`, `console`, `supervisor`.
+    pub source: String,
+    /// The device (or `accel`); null for a datagram refused whole.
+    pub device: Option<String>,
+    /// The command in words (`0.250`, `drive`, `home`).
+    pub command: Option<String>,
+    /// The command as a number, for plots (a state by its index).
+    pub value: Option<f64>,
+    pub accepted: bool,
+    /// Why it was refused (`gas_while_braking`, `bad_tag`…).
+    pub reason: Option<String>,
+}
+
+impl Received {
+    pub fn source_text(source: Source) -> String {
+        match source {
+            Source::Network(a) => format!("network {a}"),
+            Source::Console => "console".into(),
+            Source::Supervisor => "supervisor".into(),
+        }
+    }
+}
+
+/// `/DEVICE/command`: one command transaction.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Written {
+    /// The command written, as a number (a set point; a state by its index); null for
+    /// a drive-control command.
+    pub value: Option<f64>,
+    /// The command in words.
+    pub command: String,
+    /// A new command (false: sent again after `command_timeout`).
+    pub fresh: bool,
+    /// The device acknowledged it.
+    pub ok: bool,
+    /// What went wrong (`timeout`, `garbled`, `refused`, `unsupported`, `io`).
+    pub error: Option<String>,
+    /// Receipt to first byte written, µs (new commands only).
+    pub delay_us: Option<f64>,
+    /// First byte to the device's answer, µs.
+    pub txn_us: Option<f64>,
+}
+
+impl Written {
+    pub fn of(d: &DeviceConfig, command: Command) -> (Option<f64>, String) {
+        let v = command.as_f64();
+        (v.is_finite().then_some(v), d.command_text(command))
+    }
+}
+
+/// `/gate`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct GateMsg {
+    /// `engaged`, `disengaged` or `engage_refused`.
+    pub event: String,
+    /// Engaged after this.
+    pub engaged: bool,
+    pub reason: String,
+}
+
+/// `/faults`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct FaultMsg {
+    /// `raised` or `cleared`.
+    pub event: String,
+    pub kind: FaultKind,
+    pub device: Option<String>,
+    pub cause: String,
+}
+
+/// `/supervisor`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct NoteMsg {
+    pub text: String,
+}
+
+/// `/DEVICE/raw`: one chunk of bytes on the port.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct RawMsg {
+    /// `out` (to the device) or `in`.
+    pub dir: String,
+    /// The bytes in hex, `01 03 00 00`.
+    pub hex: String,
+    /// Printable ASCII, other bytes as `.`.
+    pub text: String,
+    /// The chunk was longer than what was kept (64 bytes).
+    pub cut: bool,
+}
+
+impl RawMsg {
+    pub fn of(e: &TraceEntry) -> RawMsg {
+        RawMsg {
+            dir: match e.dir {
+                crate::vehicle::trace::Dir::Out => "out".into(),
+                crate::vehicle::trace::Dir::In => "in".into(),
+            },
+            hex: e.hex().trim_end_matches(" …").to_string(),
+            text: e.ascii(),
+            cut: e.cut,
+        }
+    }
+
+    /// The bytes back from the hex.
+    pub fn bytes(&self) -> Vec<u8> {
+        self.hex
+            .split_whitespace()
+            .filter_map(|h| u8::from_str_radix(h, 16).ok())
+            .collect()
+    }
+}
+
+/// `/record`: the recorder's figures.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct RecordMsg {
+    /// Messages written so far, every file of this run.
+    pub messages: u64,
+    /// Events left out so far because the recorder fell behind.
+    pub dropped: u64,
+    /// Bytes of this file so far.
+    pub bytes: u64,
+}
+
+/// `/log`, in Foxglove's `foxglove.Log` form, so its Log panel shows it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LogMsg {
+    pub timestamp: Time,
+    /// 1 debug, 2 info, 3 warning, 4 error (Foxglove's `LogLevel`).
+    pub level: u8,
+    pub message: String,
+    /// Where it was logged (the module).
+    pub name: String,
+    pub file: String,
+    pub line: u32,
+}
+
+/// Foxglove's `time`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Time {
+    pub sec: u64,
+    pub nsec: u32,
+}
+
+impl Time {
+    pub fn of_ns(ns: u64) -> Time {
+        Time {
+            sec: ns / 1_000_000_000,
+            nsec: (ns % 1_000_000_000) as u32,
+        }
+    }
+}
+
+impl LogMsg {
+    pub fn level_of(level: tracing::Level) -> u8 {
+        match level {
+            tracing::Level::TRACE | tracing::Level::DEBUG => 1,
+            tracing::Level::INFO => 2,
+            tracing::Level::WARN => 3,
+            tracing::Level::ERROR => 4,
+        }
+    }
+}
+
+/// `foxglove.Log`'s JSON Schema, as Foxglove publishes it.
+fn foxglove_log_schema() -> Value {
+    json!({
+        "title": "foxglove.Log",
+        "description": "A log message",
+        "type": "object",
+        "properties": {
+            "timestamp": {
+                "type": "object",
+                "title": "time",
+                "properties": {
+                    "sec": { "type": "integer", "minimum": 0 },
+                    "nsec": { "type": "integer", "minimum": 0, "maximum": 999_999_999 }
+                },
+                "description": "Timestamp of log message"
+            },
+            "level": {
+                "title": "foxglove.LogLevel",
+                "description": "Log level",
+                "oneOf": [
+                    { "title": "UNKNOWN", "const": 0 },
+                    { "title": "DEBUG", "const": 1 },
+                    { "title": "INFO", "const": 2 },
+                    { "title": "WARNING", "const": 3 },
+                    { "title": "ERROR", "const": 4 },
+                    { "title": "FATAL", "const": 5 }
+                ]
+            },
+            "message": { "type": "string", "description": "Log message" },
+            "name": { "type": "string", "description": "Process or node name" },
+            "file": { "type": "string", "description": "Filename" },
+            "line": { "type": "integer", "minimum": 0, "description": "Line number in the file" }
+        }
+    })
+}
+
+/// The figures every reading message carries beside the readings.
+const READING_FIELDS: [&str; 4] = ["ok", "error", "fault", "txn_us"];
+
+/// `/DEVICE/reading`'s schema: the device's readings by name, with their types and
+/// units, then whether the poll succeeded.
+pub fn reading_schema(d: &DeviceConfig) -> Value {
+    let mut props = Map::new();
+    props.insert(
+        "ok".into(),
+        json!({ "type": "boolean", "description": "the poll succeeded" }),
+    );
+    props.insert(
+        "error".into(),
+        json!({ "type": ["string", "null"], "description": "timeout, garbled, refused, unsupported or io" }),
+    );
+    props.insert(
+        "fault".into(),
+        json!({ "type": ["integer", "null"], "description": "device-reported fault bits; 0 is good" }),
+    );
+    props.insert(
+        "txn_us".into(),
+        json!({ "type": ["number", "null"], "description": "the status transaction, µs" }),
+    );
+    for r in &d.readings {
+        let mut s = match &r.kind {
+            ReadingKind::Number => json!({ "type": ["number", "null"] }),
+            ReadingKind::Flag => json!({ "type": ["boolean", "null"] }),
+            ReadingKind::States(states) => json!({
+                "type": ["string", "number", "null"],
+                "description": format!("one of {}", states.join(", ")),
+            }),
+        };
+        if !r.units.is_empty() {
+            s["description"] = json!(r.units);
+        }
+        props.insert(r.name.clone(), s);
+    }
+    json!({
+        "title": format!("adrive.{}.Reading", d.name),
+        "description": format!("A reading of {}, by reading name", d.name),
+        "type": "object",
+        "properties": props,
+        "required": ["ok"],
+    })
+}
+
+/// One reading message: each of the device's readings by name (null when not
+/// reported), and the poll's outcome.
+pub fn reading_message(
+    d: &DeviceConfig,
+    reading: Option<&Reading>,
+    error: Option<&str>,
+    txn_us: Option<f64>,
+) -> Value {
+    let mut m = Map::new();
+    m.insert("ok".into(), json!(reading.is_some()));
+    m.insert("error".into(), json!(error));
+    m.insert("fault".into(), json!(reading.map(|r| r.fault)));
+    m.insert("txn_us".into(), json!(txn_us));
+    for (i, r) in d.readings.iter().enumerate() {
+        if READING_FIELDS.contains(&r.name.as_str()) {
+            continue;
+        }
+        let v = reading.and_then(|x| x.get(i)).map(|v| r.value(v));
+        m.insert(r.name.clone(), json!(v));
+    }
+    Value::Object(m)
+}
+
+/// The paper's error codes in words.
+pub fn error_word(code: u32) -> &'static str {
+    match code {
+        1 => "timeout",
+        2 => "garbled",
+        3 => "refused",
+        4 => "unsupported",
+        5 => "io",
+        _ => "error",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn schemas_are_inlined_objects() {
+        let alice = crate::config::VehicleConfig::alice();
+        for t in [
+            Topic::Snapshot,
+            Topic::Commands,
+            Topic::Command(DeviceId(0)),
+        ] {
+            let (_, bytes) = t.schema(&alice.devices);
+            let text = String::from_utf8(bytes).unwrap();
+            assert!(!text.contains("$ref"), "{text}");
+            let v: Value = serde_json::from_str(&text).unwrap();
+            assert_eq!(v["type"], "object", "{text}");
+        }
+    }
+
+    #[test]
+    fn a_reading_message_names_each_reading() {
+        let alice = crate::config::VehicleConfig::alice();
+        let steer = alice.device("steer").unwrap();
+        let mut r = Reading::default();
+        r.set(0, 0.25);
+        let m = reading_message(steer, Some(&r), None, Some(10.0));
+        assert_eq!(m["position"], json!(0.25));
+        assert_eq!(m["ok"], json!(true));
+        let schema = reading_schema(steer);
+        assert!(schema["properties"]["position"].is_object());
+        let failed = reading_message(steer, None, Some("timeout"), None);
+        assert_eq!(failed["ok"], json!(false));
+        assert_eq!(failed["position"], Value::Null);
+    }
+}

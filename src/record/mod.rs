@@ -1,0 +1,128 @@
+//! Recording: every run can be kept in an MCAP file — the state snapshot at its
+//! broadcast rate, every command received with its outcome, every command written and
+//! every reading taken with their times, faults, recovery steps, engage and disengage,
+//! log lines and, when asked, the raw serial traffic — as JSON messages with JSON
+//! Schemas ([`message`]), which Foxglove and every MCAP reader open.
+//!
+//! The vehicle's [`Tap`](crate::vehicle::tap::Tap) feeds the recorder without locks
+//! and never waits for it; the recorder's thread (`record/write`) drains it every
+//! [`DRAIN`], writes, and closes a
+//! compressed chunk every [`CHUNK_EVERY`], flushed and synced to the disk: a recording
+//! cut off by `kill -9` or a power loss reads up to its last chunk ([`read`]). When the
+//! file cannot be written (a full disk), recording stops with an error in the log and
+//! in the snapshot; the vehicle runs on.
+//!
+//! [`read`] reads a recording back (a cut-off one too); [`info`] and [`export`] are
+//! `adrive record info` and `adrive export`; the console replays it
+//! (`crate::console::replay`).
+
+pub mod export;
+pub mod info;
+pub mod log;
+pub mod message;
+pub mod read;
+mod writer;
+
+use crate::config::VehicleConfig;
+use crate::threads::{StopSignal, Threads};
+use crate::vehicle::Vehicle;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// How often the recorder takes what the tap holds.
+pub const DRAIN: Duration = Duration::from_millis(20);
+/// How often a chunk is closed, flushed and synced: what a cut-off recording loses.
+pub const CHUNK_EVERY: Duration = Duration::from_secs(1);
+
+/// Where a recording goes.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Target {
+    /// One file (`--record FILE.mcap`).
+    File(PathBuf),
+    /// Rolling files in a directory (`[record]`, or `--record DIR/`).
+    Dir {
+        dir: PathBuf,
+        roll_size: u64,
+        roll_age: Duration,
+        /// Files of this vehicle kept (0: all).
+        keep: usize,
+    },
+}
+
+/// What to record, where.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    pub target: Target,
+    /// The raw serial traffic too.
+    pub raw: bool,
+}
+
+impl Options {
+    /// From `--record PATH` (a file, or an existing directory or one written with a
+    /// trailing `/` for rolling files) and `--record-raw`, else the vehicle file's
+    /// `[record]`; `None`: nothing to record.
+    pub fn of(path: Option<&Path>, raw: bool, config: &VehicleConfig) -> Option<Options> {
+        let table = config.record.as_ref();
+        let rolling = |dir: PathBuf| Target::Dir {
+            dir,
+            roll_size: table.map_or(100_000_000, |r| r.roll_size),
+            roll_age: table.map_or(Duration::from_secs(600), |r| r.roll_age),
+            keep: table.map_or(0, |r| r.keep),
+        };
+        let target = match path {
+            Some(p) if p.is_dir() || p.as_os_str().to_string_lossy().ends_with('/') => {
+                rolling(p.to_path_buf())
+            }
+            Some(p) => Target::File(p.to_path_buf()),
+            None => rolling(config.relative(&table?.dir)),
+        };
+        Some(Options {
+            target,
+            raw: raw || table.is_some_and(|r| r.raw),
+        })
+    }
+}
+
+/// The running recorder.
+pub struct Recorder {
+    stop: Arc<StopSignal>,
+    threads: Threads,
+}
+
+impl Recorder {
+    /// Open the first file and start recording what `vehicle`'s tap sees. A file that
+    /// cannot be created is an error here, before anything runs.
+    pub fn start(vehicle: &Arc<Vehicle>, opts: Options) -> std::io::Result<Recorder> {
+        // A file size limit (`ulimit -f`, a service's LimitFSIZE) must fail a write
+        // like a full disk does, not kill the process that drives the vehicle.
+        // SAFETY: setting a signal's disposition to "ignore".
+        unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
+        let out = writer::Output::open(vehicle.clone(), opts.target)?;
+        let rx = vehicle
+            .tap
+            .open(opts.raw)
+            .ok_or_else(|| std::io::Error::other("this vehicle is already being recorded"))?;
+        tracing::info!(file = %out.path().display(), raw = opts.raw, "recording");
+        let stop = Arc::new(StopSignal::default());
+        let mut threads = Threads::default();
+        let s = stop.clone();
+        threads.spawn("record/write".into(), move || writer::run(out, &rx, &s))?;
+        Ok(Recorder { stop, threads })
+    }
+
+    /// Write what is left, finish the file (its index and summary) and stop. Returns
+    /// the names of threads that did not stop.
+    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.stop.stop();
+        std::mem::take(&mut self.threads).join(Instant::now() + deadline)
+    }
+}
+
+impl Drop for Recorder {
+    /// Dropped without [`Recorder::shutdown`] (a panic unwinding): told to finish the
+    /// file, not waited for.
+    fn drop(&mut self) {
+        self.stop.stop();
+    }
+}

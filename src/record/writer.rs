@@ -1,0 +1,595 @@
+//! The recorder's thread and its files: events from the tap turned into MCAP messages,
+//! a chunk closed, flushed and synced every [`CHUNK_EVERY`], a new file when the
+//! current one is big or old enough (rolling), the oldest beyond `keep` deleted. Any
+//! write error stops recording — logged once, kept in the snapshot — and never
+//! reaches the vehicle.
+
+use super::message::{
+    self, error_word, FaultMsg, GateMsg, LogMsg, NoteMsg, RawMsg, Received, RecordMsg, Topic,
+    Written,
+};
+use super::{Target, CHUNK_EVERY, DRAIN};
+use crate::snapshot::RecordView;
+use crate::threads::StopSignal;
+use crate::vehicle::tap::{Asked, Event, GateChange, CAPACITY};
+use crate::vehicle::Vehicle;
+use crossbeam_channel::Receiver;
+use mcap::records::MessageHeader;
+use mcap::write::{Metadata, NoSeek};
+use std::collections::{BTreeMap, HashMap};
+use std::fs::File;
+use std::io::{self, BufWriter};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+type McapWriter = mcap::Writer<NoSeek<BufWriter<File>>>;
+
+/// Wall-clock nanoseconds of the instants events carry.
+#[derive(Clone, Copy)]
+struct Clock {
+    at: Instant,
+    wall_ns: u64,
+}
+
+impl Clock {
+    fn now() -> Clock {
+        Clock {
+            at: Instant::now(),
+            wall_ns: wall_ns(SystemTime::now()),
+        }
+    }
+
+    fn ns(&self, t: Instant) -> u64 {
+        match t.checked_duration_since(self.at) {
+            Some(d) => self.wall_ns + d.as_nanos() as u64,
+            None => self
+                .wall_ns
+                .saturating_sub(self.at.duration_since(t).as_nanos() as u64),
+        }
+    }
+}
+
+fn wall_ns(t: SystemTime) -> u64 {
+    t.duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+fn us(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e6
+}
+
+/// One open file.
+struct File1 {
+    path: PathBuf,
+    writer: McapWriter,
+    /// The same file, for `sync_data` and its size.
+    sync: File,
+    /// Channel ids in this file.
+    channels: HashMap<Topic, u16>,
+    opened: Instant,
+}
+
+/// Where the recording goes now.
+pub(super) struct Output {
+    vehicle: Arc<Vehicle>,
+    target: Target,
+    file: Option<File1>,
+    /// The last file's path, and its size once finished (for the status).
+    last: PathBuf,
+    last_bytes: u64,
+    clock: Clock,
+    messages: u64,
+    sequence: u32,
+    /// The drops already said.
+    dropped_said: u64,
+}
+
+impl Output {
+    /// Open the first file.
+    pub(super) fn open(vehicle: Arc<Vehicle>, target: Target) -> io::Result<Output> {
+        let mut out = Output {
+            vehicle,
+            target,
+            file: None,
+            last: PathBuf::new(),
+            last_bytes: 0,
+            clock: Clock::now(),
+            messages: 0,
+            sequence: 0,
+            dropped_said: 0,
+        };
+        out.next_file()?;
+        out.publish(None);
+        Ok(out)
+    }
+
+    pub(super) fn path(&self) -> &Path {
+        &self.last
+    }
+
+    /// Finish the current file (if any) and start the next.
+    fn next_file(&mut self) -> io::Result<()> {
+        if let Some(f) = self.file.take() {
+            self.last_bytes = finish(f)?;
+        }
+        let path = match &self.target {
+            Target::File(p) => p.clone(),
+            Target::Dir { dir, .. } => {
+                std::fs::create_dir_all(dir).map_err(|e| with_path(dir, e))?;
+                fresh_name(dir, &self.vehicle.name)
+            }
+        };
+        let file = File::create(&path).map_err(|e| with_path(&path, e))?;
+        let sync = file.try_clone().map_err(|e| with_path(&path, e))?;
+        let opts = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_threads(0)
+            .profile(message::PROFILE)
+            .library(format!("adrive {}", env!("CARGO_PKG_VERSION")))
+            .disable_seeking(true);
+        let mut writer = opts
+            .create(NoSeek::new(BufWriter::with_capacity(1 << 16, file)))
+            .map_err(|e| with_path(&path, mcap_io(e)))?;
+        let started = humantime::format_rfc3339_millis(SystemTime::now()).to_string();
+        let metadata = BTreeMap::from([
+            ("vehicle".to_string(), self.vehicle.name.clone()),
+            ("config".to_string(), self.vehicle.config.source.clone()),
+            ("adrive".to_string(), env!("CARGO_PKG_VERSION").to_string()),
+            ("started".to_string(), started),
+        ]);
+        writer
+            .write_metadata(&Metadata {
+                name: message::METADATA.into(),
+                metadata,
+            })
+            .map_err(|e| with_path(&path, mcap_io(e)))?;
+        self.last = path.clone();
+        self.file = Some(File1 {
+            path,
+            writer,
+            sync,
+            channels: HashMap::new(),
+            opened: Instant::now(),
+        });
+        if let Target::Dir { dir, keep, .. } = &self.target {
+            prune(dir, &self.vehicle.name, *keep, &self.last);
+        }
+        Ok(())
+    }
+
+    /// Write one message on `topic` at `at` (wall-clock ns).
+    fn write(&mut self, topic: Topic, at: u64, data: &[u8]) -> io::Result<()> {
+        let devices = &self.vehicle.config.devices;
+        let f = self.file.as_mut().expect("a file is open while recording");
+        let id = match f.channels.get(&topic) {
+            Some(id) => *id,
+            None => {
+                let (name, schema) = topic.schema(devices);
+                let schema_id = f
+                    .writer
+                    .add_schema(&name, message::SCHEMA_ENCODING, &schema)
+                    .map_err(mcap_io)?;
+                let id = f
+                    .writer
+                    .add_channel(
+                        schema_id,
+                        &topic.name(devices),
+                        message::MESSAGE_ENCODING,
+                        &BTreeMap::new(),
+                    )
+                    .map_err(mcap_io)?;
+                f.channels.insert(topic, id);
+                id
+            }
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = MessageHeader {
+            channel_id: id,
+            sequence: self.sequence,
+            log_time: at,
+            publish_time: at,
+        };
+        f.writer
+            .write_to_known_channel(&header, data)
+            .map_err(mcap_io)?;
+        self.messages += 1;
+        Ok(())
+    }
+
+    fn json(&mut self, topic: Topic, at: u64, value: &impl serde::Serialize) -> io::Result<()> {
+        let data = serde_json::to_vec(value).map_err(io::Error::other)?;
+        self.write(topic, at, &data)
+    }
+
+    /// Turn one event into its message.
+    fn event(&mut self, ev: Event) -> io::Result<()> {
+        let v = self.vehicle.clone();
+        let c = self.clock;
+        match ev {
+            Event::Snapshot { at, json } => self.write(Topic::Snapshot, c.ns(at), &json),
+            Event::Received {
+                at,
+                source,
+                asked,
+                refused,
+            } => {
+                let (device, command, value) = match asked {
+                    Asked::Device(id, cmd) => {
+                        let d = &v.device(id).config;
+                        let (value, text) = Written::of(d, cmd);
+                        (d.name.clone(), text, value)
+                    }
+                    Asked::Accel(a) => ("accel".to_string(), format!("{a:.3}"), Some(a)),
+                };
+                let m = Received {
+                    source: Received::source_text(source),
+                    device: Some(device),
+                    command: Some(command),
+                    value,
+                    accepted: refused.is_none(),
+                    reason: refused.map(str::to_string),
+                };
+                self.json(Topic::Commands, c.ns(at), &m)
+            }
+            Event::Refused { at, from, reason } => {
+                let m = Received {
+                    source: format!("network {from}"),
+                    device: None,
+                    command: None,
+                    value: None,
+                    accepted: false,
+                    reason: Some(reason.to_string()),
+                };
+                self.json(Topic::Commands, c.ns(at), &m)
+            }
+            Event::Written {
+                device,
+                command,
+                received,
+                first,
+                done,
+                fresh,
+                error,
+            } => {
+                let (value, text) = Written::of(&v.device(device).config, command);
+                let m = Written {
+                    value,
+                    command: text,
+                    fresh,
+                    ok: error == 0,
+                    error: (error != 0).then(|| error_word(error).to_string()),
+                    delay_us: first
+                        .filter(|_| fresh)
+                        .map(|f| us(f.saturating_duration_since(received))),
+                    txn_us: first.map(|f| us(done.saturating_duration_since(f))),
+                };
+                self.json(Topic::Command(device), c.ns(first.unwrap_or(done)), &m)
+            }
+            Event::Polled {
+                device,
+                first,
+                done,
+                reading,
+                error,
+            } => {
+                let m = message::reading_message(
+                    &v.device(device).config,
+                    reading.as_ref(),
+                    (error != 0).then(|| error_word(error)),
+                    first.map(|f| us(done.saturating_duration_since(f))),
+                );
+                self.json(Topic::Reading(device), c.ns(done), &m)
+            }
+            Event::Raw { device, entry } => {
+                self.json(Topic::Raw(device), c.ns(entry.at), &RawMsg::of(&entry))
+            }
+            Event::Gate { at, change, reason } => {
+                let m = GateMsg {
+                    event: match change {
+                        GateChange::Engaged => "engaged",
+                        GateChange::Disengaged => "disengaged",
+                        GateChange::EngageRefused => "engage_refused",
+                    }
+                    .into(),
+                    engaged: change == GateChange::Engaged,
+                    reason,
+                };
+                self.json(Topic::Gate, c.ns(at), &m)
+            }
+            Event::Fault {
+                at,
+                raised,
+                kind,
+                device,
+                cause,
+            } => {
+                let m = FaultMsg {
+                    event: if raised { "raised" } else { "cleared" }.into(),
+                    kind,
+                    device,
+                    cause,
+                };
+                self.json(Topic::Faults, c.ns(at), &m)
+            }
+            Event::Note { at, text } => self.json(Topic::Supervisor, c.ns(at), &NoteMsg { text }),
+            Event::Log {
+                at,
+                level,
+                target,
+                file,
+                line,
+                text,
+            } => {
+                let ns = wall_ns(at);
+                let m = LogMsg {
+                    timestamp: message::Time::of_ns(ns),
+                    level: LogMsg::level_of(level),
+                    message: text,
+                    name: target.to_string(),
+                    file: file.unwrap_or_default().to_string(),
+                    line: line.unwrap_or_default(),
+                };
+                self.json(Topic::Log, ns, &m)
+            }
+        }
+    }
+
+    /// Close the chunk, flush it to the disk, say how it goes, and roll to a new file
+    /// when this one is big or old enough.
+    fn checkpoint(&mut self) -> io::Result<()> {
+        let dropped = self.vehicle.tap.dropped();
+        let bytes = self.bytes();
+        let m = RecordMsg {
+            messages: self.messages,
+            dropped,
+            bytes,
+        };
+        let now = self.clock.ns(Instant::now());
+        self.json(Topic::Record, now, &m)?;
+        let f = self.file.as_mut().expect("open");
+        f.writer.flush().map_err(mcap_io)?;
+        f.sync.sync_data()?;
+        if dropped > self.dropped_said {
+            tracing::warn!(
+                "recording: {} events left out, the recorder fell behind (the vehicle did not wait)",
+                dropped - self.dropped_said
+            );
+            self.dropped_said = dropped;
+        }
+        self.publish(None);
+        if let Target::Dir {
+            roll_size,
+            roll_age,
+            ..
+        } = self.target
+        {
+            let f = self.file.as_ref().expect("open");
+            if self.bytes() >= roll_size || f.opened.elapsed() >= roll_age {
+                self.next_file()?;
+                tracing::info!(file = %self.last.display(), "recording: next file");
+            }
+        }
+        Ok(())
+    }
+
+    /// The size of the file being written (or of the last, once finished).
+    fn bytes(&self) -> u64 {
+        match &self.file {
+            Some(f) => f.sync.metadata().map_or(0, |m| m.len()),
+            None => self.last_bytes,
+        }
+    }
+
+    /// Put the recorder's account in the snapshot.
+    fn publish(&self, error: Option<String>) {
+        self.vehicle.tap.set_status(Some(RecordView {
+            file: self.last.display().to_string(),
+            bytes: self.bytes(),
+            messages: self.messages,
+            dropped: self.vehicle.tap.dropped(),
+            error,
+        }));
+    }
+
+    /// Finish the last file: its index, summary and footer.
+    fn close(&mut self) -> io::Result<()> {
+        if let Some(f) = self.file.take() {
+            self.last_bytes = finish(f)?;
+        }
+        Ok(())
+    }
+}
+
+/// Write a file's index, summary and footer; its final size.
+fn finish(mut f: File1) -> io::Result<u64> {
+    f.writer
+        .finish()
+        .map_err(|e| with_path(&f.path, mcap_io(e)))?;
+    f.sync.sync_data().map_err(|e| with_path(&f.path, e))?;
+    Ok(f.sync.metadata().map_or(0, |m| m.len()))
+}
+
+fn mcap_io(e: mcap::McapError) -> io::Error {
+    match e {
+        mcap::McapError::Io(e) => e,
+        other => io::Error::other(other),
+    }
+}
+
+fn with_path(path: &Path, e: io::Error) -> io::Error {
+    io::Error::new(e.kind(), format!("{}: {e}", path.display()))
+}
+
+/// A file name for `vehicle` in `dir` that does not exist yet:
+/// `alice-2026-11-23T00-28-47Z.mcap` (UTC; `-2`, `-3`… when taken).
+fn fresh_name(dir: &Path, vehicle: &str) -> PathBuf {
+    let stem = format!(
+        "{}-{}",
+        prefix(vehicle),
+        humantime::format_rfc3339_seconds(SystemTime::now())
+            .to_string()
+            .replace(':', "-")
+    );
+    let mut path = dir.join(format!("{stem}.mcap"));
+    let mut n = 1;
+    while path.exists() {
+        n += 1;
+        path = dir.join(format!("{stem}-{n}.mcap"));
+    }
+    path
+}
+
+/// The vehicle's name as a file name prefix: letters, digits, `-` and `_`.
+fn prefix(vehicle: &str) -> String {
+    let p: String = vehicle
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c.to_ascii_lowercase()
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if p.is_empty() {
+        "adrive".into()
+    } else {
+        p
+    }
+}
+
+/// Delete this vehicle's oldest recordings in `dir` beyond `keep` (0: keep all); never
+/// `current`. The names sort by time.
+fn prune(dir: &Path, vehicle: &str, keep: usize, current: &Path) {
+    if keep == 0 {
+        return;
+    }
+    let start = format!("{}-", prefix(vehicle));
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension().is_some_and(|x| x == "mcap")
+                && p.file_name()
+                    .is_some_and(|n| n.to_string_lossy().starts_with(&start))
+        })
+        .collect();
+    files.sort();
+    let excess = files.len().saturating_sub(keep);
+    for old in files.into_iter().take(excess).filter(|p| p != current) {
+        match std::fs::remove_file(&old) {
+            Ok(()) => {
+                tracing::info!(file = %old.display(), "recording: deleted the oldest (keep {keep})")
+            }
+            Err(e) => tracing::warn!(file = %old.display(), "recording: cannot delete: {e}"),
+        }
+    }
+}
+
+/// The recorder's thread: drain, write, checkpoint every [`CHUNK_EVERY`], until told
+/// to stop; then what is left, and the file is finished.
+pub(super) fn run(mut out: Output, rx: &Receiver<Event>, stop: &StopSignal) {
+    let mut checkpoint = Instant::now() + CHUNK_EVERY;
+    loop {
+        let go_on = stop.sleep_until(Instant::now() + DRAIN);
+        // At most a channel's worth a turn, so a flood cannot keep the checkpoint away.
+        let mut result = Ok(());
+        for ev in rx.try_iter().take(CAPACITY) {
+            result = out.event(ev);
+            if result.is_err() {
+                break;
+            }
+        }
+        if result.is_ok() && (!go_on || Instant::now() >= checkpoint) {
+            checkpoint = Instant::now() + CHUNK_EVERY;
+            result = out.checkpoint();
+        }
+        if let Err(e) = result {
+            return fail(&mut out, &e);
+        }
+        if !go_on {
+            break;
+        }
+    }
+    match out.close() {
+        Ok(()) => {
+            out.publish(None);
+            tracing::info!(
+            file = %out.last.display(),
+            messages = out.messages,
+            dropped = out.vehicle.tap.dropped(),
+            "recording finished"
+            )
+        }
+        Err(e) => fail(&mut out, &e),
+    }
+    out.vehicle.tap.close();
+}
+
+/// Writing failed: stop recording, loudly; the vehicle runs on.
+fn fail(out: &mut Output, e: &io::Error) {
+    out.vehicle.tap.close();
+    let file = out.last.display().to_string();
+    let what = if e.to_string().starts_with(&file) {
+        e.to_string()
+    } else {
+        format!("{file}: {e}")
+    };
+    let msg = format!("recording stopped: {what}; the vehicle runs on");
+    tracing::error!("{msg}");
+    out.publish(Some(msg));
+    // What was written up to the last chunk stays readable; try to finish it.
+    let _ = out.close();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn file_names_sort_by_time_and_never_collide() {
+        let dir = tempfile::Builder::new()
+            .prefix("adrive-names-")
+            .tempdir()
+            .unwrap();
+        let a = fresh_name(dir.path(), "Alice 2");
+        std::fs::write(&a, b"").unwrap();
+        let b = fresh_name(dir.path(), "Alice 2");
+        assert_ne!(a, b);
+        let name = a.file_name().unwrap().to_string_lossy().to_string();
+        assert!(
+            name.starts_with("alice_2-") && name.ends_with("Z.mcap"),
+            "{name}"
+        );
+    }
+
+    #[test]
+    fn prune_keeps_the_newest_of_this_vehicle_only() {
+        let dir = tempfile::Builder::new()
+            .prefix("adrive-prune-")
+            .tempdir()
+            .unwrap();
+        for n in [
+            "alice-1.mcap",
+            "alice-2.mcap",
+            "alice-3.mcap",
+            "bob-1.mcap",
+            "alice.txt",
+        ] {
+            std::fs::write(dir.path().join(n), b"").unwrap();
+        }
+        prune(dir.path(), "Alice", 2, &dir.path().join("alice-3.mcap"));
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().to_string())
+            .collect();
+        left.sort();
+        assert_eq!(
+            left,
+            ["alice-2.mcap", "alice-3.mcap", "alice.txt", "bob-1.mcap"]
+        );
+    }
+}
