@@ -139,6 +139,10 @@ pub struct GateView {
     pub roles: Pairs<String>,
     /// `accel` exists (throttle and brake are bound).
     pub accel: bool,
+    /// Devices a driver has taken over (a latched `override`): the vehicle is in
+    /// manual until they are cleared.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub overridden: Vec<String>,
 }
 
 /// One device.
@@ -307,6 +311,8 @@ pub enum FaultKind {
     NotFollowing,
     /// It reports fault bits in its status word.
     DeviceFault,
+    /// It moved in a way its command cannot explain: a driver's hand (not a failure).
+    Override,
     /// Engine stopped while in gear.
     EngineStall,
     EstopPause,
@@ -322,6 +328,7 @@ impl FaultKind {
             FaultKind::OutOfRange => "out_of_range",
             FaultKind::NotFollowing => "not_following",
             FaultKind::DeviceFault => "device_fault",
+            FaultKind::Override => "override",
             FaultKind::EngineStall => "engine_stall",
             FaultKind::EstopPause => "estop_pause",
             FaultKind::EstopDisable => "estop_disable",

@@ -14,10 +14,11 @@ use std::time::Duration;
 use toml::Spanned;
 
 /// Words of the command grammar that cannot name a device.
-pub const RESERVED: [&str; 8] = [
+pub const RESERVED: [&str; 9] = [
     "accel",
     "engage",
     "disengage",
+    "clear",
     "seq",
     "tag",
     "all",

@@ -278,6 +278,14 @@ pub const RESPONSE_LAG: Limit<Duration> = Limit {
     default: None,
     why: "the real device follows its command with this first-order lag (or moves at its `rate`)",
 };
+pub const OVERRIDE_TIME: Limit<Duration> = Limit {
+    section: DeviceResponse,
+    key: "override_time",
+    min: ms(50),
+    max: s(2),
+    default: Some(ms(300)),
+    why: "moved `override_threshold` away from its command this long, the device is in a driver's hands (`override`)",
+};
 pub const WATCHDOG_TIMEOUT: Limit<Duration> = Limit {
     section: Network,
     key: "watchdog_timeout",
@@ -424,7 +432,7 @@ pub const RANGE_FORM: Rule = Rule {
 };
 pub const RESPONSE_IN_UNITS: Rule = Rule {
     section: DeviceResponse,
-    text: "`rate`, `noise`, `tolerance` and `deadband` in the device's units, above 0: `rate` at most 1000 ranges a second, the others below the width of its range, `tolerance` above `noise`",
+    text: "`rate`, `noise`, `tolerance`, `deadband` and `override_threshold` (by default a tenth of the range) in the device's units, above 0: `rate` at most 1000 ranges a second, the others below the width of its range, `tolerance` above `noise`",
 };
 pub const RESPONSE_ON_SETPOINTS: Rule = Rule {
     section: Device,
@@ -492,6 +500,7 @@ pub static ALL: &[&dyn Row] = &[
     &SIM_WATCHDOG,
     &MODBUS_SLAVE,
     &RESPONSE_LAG,
+    &OVERRIDE_TIME,
     &WATCHDOG_TIMEOUT,
     &BROADCAST_RATE,
     &MULTICAST_TTL,
@@ -617,6 +626,7 @@ mod tests {
             &FOLLOW_TIME,
             &STALL_TIME,
             &RESPONSE_LAG,
+            &OVERRIDE_TIME,
             &STEP_TIMEOUT,
             &DEADMAN,
         ] {

@@ -2,7 +2,8 @@
 //! real device (`[device.response]`): it moves toward its command at a `rate`, or
 //! follows it with a first-order `lag`; its readings carry `noise`; it counts as at its
 //! command within `deadband`; and adaptive polling keeps the estimate within
-//! `tolerance`. The estimator ([`crate::vehicle::estimate`]) predicts the device from
+//! `tolerance`; moved `override_threshold` away from its command for `override_time`, it
+//! is in a driver's hands. The estimator ([`crate::vehicle::estimate`]) predicts the device from
 //! this between polls; `polling = "adaptive"` (a key of the device) polls by it.
 //!
 //! `[device.sim]` describes the *simulated* device and is never read here: the two are
@@ -55,6 +56,10 @@ pub struct Response {
     /// Within this of its command the device is there (end stops, a drive's own
     /// dead band).
     pub deadband: f64,
+    /// Moved this far in a way its command cannot explain (away from its command) …
+    pub override_threshold: f64,
+    /// … for longer than this, the device is in a driver's hands: `override`.
+    pub override_time: Duration,
 }
 
 impl Response {
@@ -73,6 +78,7 @@ impl Response {
 pub const NOISE_SHARE: f64 = 0.001;
 pub const TOLERANCE_SHARE: f64 = 0.01;
 pub const DEADBAND_SHARE: f64 = 0.01;
+pub const OVERRIDE_SHARE: f64 = 0.1;
 
 /// `[device.response]` as written.
 #[derive(Clone, Debug, Default, PartialEq, Deserialize)]
@@ -88,6 +94,10 @@ pub(super) struct RawResponse {
     tolerance: Option<f64>,
     #[serde(default)]
     deadband: Option<f64>,
+    #[serde(default)]
+    override_threshold: Option<f64>,
+    #[serde(default, deserialize_with = "super::opt_duration")]
+    override_time: Option<Duration>,
 }
 
 impl RawResponse {
@@ -114,6 +124,10 @@ impl RawResponse {
             noise: self.noise.unwrap_or(span * NOISE_SHARE),
             tolerance: self.tolerance.unwrap_or(span * TOLERANCE_SHARE),
             deadband: self.deadband.unwrap_or(span * DEADBAND_SHARE),
+            override_threshold: self.override_threshold.unwrap_or(span * OVERRIDE_SHARE),
+            override_time: self
+                .override_time
+                .unwrap_or(limits::OVERRIDE_TIME.default_value()),
         })
     }
 }
@@ -135,11 +149,13 @@ pub fn check(r: &Response, range: [f64; 2]) -> Result<(), Violation> {
         ("response.noise", r.noise),
         ("response.tolerance", r.tolerance),
         ("response.deadband", r.deadband),
+        ("response.override_threshold", r.override_threshold),
     ] {
         if !(v.is_finite() && v > 0.0 && v < span) {
             return Err(limits::RESPONSE_IN_UNITS.violation(&[key], format!("{key} {v}")));
         }
     }
+    limits::OVERRIDE_TIME.check(r.override_time)?;
     if r.tolerance <= r.noise {
         return Err(limits::RESPONSE_IN_UNITS.violation(
             &["response.tolerance", "response.noise"],

@@ -641,6 +641,20 @@ const ABSURD: &[Absurd] = &[
         says: &["brake: response.deadband -0.5: expected", "in the device's units, above 0"],
     },
     Absurd {
+        incident: "an override that never trips",
+        replace: "# response",
+        with: "override_time = \"1h\"",
+        at: "override_time",
+        says: &["brake: response.override_time:", "from 50ms to 2s", "got 3600s"],
+    },
+    Absurd {
+        incident: "an override threshold no hand can pass",
+        replace: "# response",
+        with: "override_threshold = 5.0",
+        at: "override_threshold",
+        says: &["brake: response.override_threshold 5: expected", "below the width of its range"],
+    },
+    Absurd {
         incident: "a tolerance wider than the whole range",
         replace: "# response",
         with: "tolerance = 7.0",

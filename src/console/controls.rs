@@ -16,7 +16,7 @@
 use crate::net::NetStatus;
 use crate::safety::{Gate, Reject};
 use crate::sim::{Faults, Sim};
-use crate::snapshot::{DeviceView, FaultView, Snapshot};
+use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::tap::Source;
 use crate::vehicle::trace::TraceEntry;
@@ -106,12 +106,39 @@ impl Frame {
     /// fault it names this device in).
     pub fn red(&self, d: &DeviceView) -> bool {
         d.health.faulty
-            || self
-                .snap
-                .supervisor
-                .faults
-                .iter()
-                .any(|f| f.device.as_deref() == Some(d.name.as_str()))
+            || self.snap.supervisor.faults.iter().any(|f| {
+                f.kind != FaultKind::Override && f.device.as_deref() == Some(d.name.as_str())
+            })
+    }
+
+    /// A driver has taken the device over (latched) or has a hand on it now: not a
+    /// failure, shown apart from faults.
+    pub fn overridden(&self, d: &DeviceView) -> bool {
+        self.snap.gate.overridden.contains(&d.name)
+            || self.snap.supervisor.faults.iter().any(|f| {
+                f.kind == FaultKind::Override && f.device.as_deref() == Some(d.name.as_str())
+            })
+    }
+
+    /// One line per device in the driver's hands: latched, and whether the hand is
+    /// still on it.
+    pub fn override_texts(&self) -> Vec<String> {
+        self.snap
+            .devices
+            .iter()
+            .filter(|d| self.overridden(d))
+            .map(|d| {
+                let held = self.snap.supervisor.faults.iter().any(|f| {
+                    f.kind == FaultKind::Override && f.device.as_deref() == Some(d.name.as_str())
+                });
+                let state = if held {
+                    "driver's hand on it"
+                } else {
+                    "let go: clear to engage again"
+                };
+                format!("{} in manual ({state})", d.name)
+            })
+            .collect()
     }
 
     pub fn sim_of(&self, id: DeviceId) -> Option<&SimFaults> {
@@ -126,6 +153,7 @@ impl Frame {
         let mut out: Vec<String> = sup
             .faults
             .iter()
+            .filter(|f| f.kind != FaultKind::Override)
             .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
             .collect();
         for d in self.snap.devices.iter().filter(|d| d.health.faulty) {

@@ -27,6 +27,8 @@ pub struct BenchView<'a> {
     pub d: &'a DeviceView,
     /// Faulty to the engine or the supervisor.
     pub red: bool,
+    /// In a driver's hands (`override`).
+    pub overridden: bool,
     /// The faults injected into its simulated device.
     pub sim: Option<&'a SimFaults>,
     /// Its histogram: (upper edge µs, count).
@@ -143,6 +145,7 @@ impl Widget for &BenchView<'_> {
             id: self.id,
             d: self.d,
             red: self.red,
+            overridden: self.overridden,
             sim: self.sim,
             theme: *t,
             cursor: self.d.is_actuator().then_some(Field::Command(self.id)),

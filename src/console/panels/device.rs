@@ -28,6 +28,8 @@ pub struct DevicePanel<'a> {
     pub d: &'a DeviceView,
     /// Faulty to the engine or the supervisor: drawn red.
     pub red: bool,
+    /// In a driver's hands (`override`): labelled so, not red.
+    pub overridden: bool,
     /// The faults injected into its simulated device (`--sim`).
     pub sim: Option<&'a SimFaults>,
     pub theme: Theme,
@@ -167,6 +169,9 @@ impl<'a> DevicePanel<'a> {
         spans.push(Span::styled(measured(d), meas_style));
         if self.red {
             spans.push(Span::styled(" FAULT", t.fault()));
+        }
+        if self.overridden {
+            spans.push(Span::styled(" OVERRIDE", t.warn()));
         }
         if let Some(f) = self.sim.filter(|f| f.any()) {
             spans.push(Span::styled(format!(" sim: {}", f.text), t.warn()));
@@ -433,6 +438,7 @@ mod tests {
             id,
             d,
             red: d.health.faulty,
+            overridden: false,
             sim: None,
             theme: Theme::default(),
             cursor: None,
@@ -498,6 +504,22 @@ mod tests {
         assert_eq!(plain(&buf, 8), "polls 1200 st err 0 cm err 0 reconn 0");
         let buf = render(&panel(id, &d), 40, 10);
         assert_eq!(plain(&buf, 9), "meas 0.231  est 0.231 ± 0.003");
+    }
+
+    #[test]
+    fn a_device_in_the_drivers_hands_is_labelled_override_in_yellow_not_red() {
+        let (id, d) = snap_of("steer", false);
+        let p = DevicePanel {
+            overridden: true,
+            ..panel(id, &d)
+        };
+        let buf = render(&p, 40, 1);
+        let line: String = (0..40).map(|x| buf[(x, 0)].symbol().to_string()).collect();
+        assert_eq!(line.trim_end(), "STEER -1…1 cmd - meas 0.231 OVERRIDE");
+        let at = line.find("OVERRIDE").unwrap() as u16 - 2; // "…" is 3 bytes, 1 cell
+        assert_eq!(buf[(at, 0)].symbol(), "O");
+        assert_eq!(buf[(at, 0)].fg, Color::Yellow);
+        assert_ne!(buf[(0, 0)].fg, Color::Red, "the name is not red");
     }
 
     #[test]

@@ -27,6 +27,8 @@ fn lag() -> Response {
         noise: 0.002,
         tolerance: 0.01,
         deadband: 0.01,
+        override_threshold: 0.1,
+        override_time: Duration::from_millis(300),
     }
 }
 
@@ -36,6 +38,8 @@ fn rate() -> Response {
         noise: 0.002,
         tolerance: 0.02,
         deadband: 0.02,
+        override_threshold: 0.1,
+        override_time: Duration::from_millis(300),
     }
 }
 
