@@ -21,11 +21,17 @@ pub enum Flow {
     Exit(Exit),
 }
 
-/// Advance time: take a new snapshot, follow up a steering reset, show a new
+/// Advance time: take a new snapshot (on the bench, its device's sample for the
+/// chart), follow up a steering reset, show a new
 /// recovery outcome, and run the deadman.
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
     m.snap = c.frame(now, m.in_bench().then_some(m.bench));
+    if m.in_bench() {
+        if let Some(d) = m.snap.at(m.bench) {
+            m.trail.push(m.bench, d, now);
+        }
+    }
     m.cursor = m.cursor.min(m.fields().len().saturating_sub(1));
     follow_steer_reset(m, c, now);
     let outcome = m.snap.supervisor.last_outcome.clone();

@@ -298,6 +298,7 @@ impl Widget for &Model {
                     sim_vehicle: self.snap.sim_vehicle.as_deref(),
                     map: &self.keymap,
                     roles: &self.snap.gate.roles,
+                    trail: &self.trail,
                 };
                 (&v).render(body, buf);
             }
