@@ -34,6 +34,9 @@ pub struct SimFaults {
     pub corrupt: bool,
     /// Extra reply delay (0: off).
     pub slow_ms: u64,
+    /// A driver's hand pushes its drive toward this (not a fault of the device: a
+    /// driver's override, for the supervisor to notice).
+    pub hand: Option<f64>,
     /// All of them in words ([`Faults::describe`]): `none`, `silent, slow 150ms`.
     pub text: String,
 }
@@ -45,6 +48,7 @@ impl SimFaults {
             garbage: f.garbage.load(Relaxed),
             corrupt: f.corrupt.load(Relaxed),
             slow_ms: f.slow_ms.load(Relaxed),
+            hand: None,
             text: f.describe(),
         }
     }
@@ -224,6 +228,9 @@ pub trait Controls {
     /// `silent gas on`, `stall`, `estop pause`; `None` when the devices are not
     /// simulated in this process.
     fn sim(&self, line: &str) -> Option<Result<String, String>>;
+    /// Clear the latched driver overrides ([`Gate::clear_overrides`], as the network's
+    /// `clear`): what was cleared, or why not (the driver's hand still on).
+    fn clear_overrides(&self) -> Result<Vec<String>, String>;
 }
 
 /// The console's sources beyond the vehicle.
@@ -260,6 +267,9 @@ fn sim_vehicle(sim: &Sim, device: Option<&str>) -> String {
                 (false, true, false) => "ok",
             };
             out.push_str(&format!(" · {} drive {drive}", d.name));
+            if let Some(x) = d.hand {
+                out.push_str(&format!(" · a hand pushes it toward {x}"));
+            }
         }
     }
     out
@@ -296,11 +306,11 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
             .devices
             .iter()
             .map(|d| {
-                sources
-                    .sim
-                    .as_ref()
-                    .and_then(|s| s.faults(d.name()))
-                    .map(|f| SimFaults::of(f))
+                let sim = sources.sim.as_ref()?;
+                let mut f = SimFaults::of(sim.faults(d.name())?);
+                let m = sim.model().lock();
+                f.hand = m.find(d.name()).and_then(|id| m.device(id).hand);
+                Some(f)
             })
             .collect(),
         snap,
@@ -390,5 +400,8 @@ impl Controls for Live<'_> {
             Err(e) => tracing::info!("simulator refused {line:?}: {e}"),
         }
         Some(done)
+    }
+    fn clear_overrides(&self) -> Result<Vec<String>, String> {
+        self.gate.clear_overrides()
     }
 }
