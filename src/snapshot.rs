@@ -139,6 +139,10 @@ pub struct GateView {
     pub roles: Pairs<String>,
     /// `accel` exists (throttle and brake are bound).
     pub accel: bool,
+    /// Devices a driver has taken over (a latched `override`): the vehicle is in
+    /// manual until they are cleared.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub overridden: Vec<String>,
 }
 
 /// One device.
@@ -181,6 +185,24 @@ pub struct DeviceView {
     pub command_txn_us: LatencySummary,
     /// One status transaction, µs.
     pub status_txn_us: LatencySummary,
+    /// What the estimator believes now, for a setpoint device with a declared
+    /// response (null without one, or before its first reading).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub estimate: Option<EstimateView>,
+}
+
+/// A setpoint device's estimated state at the snapshot's instant (its units).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct EstimateView {
+    /// The estimated position.
+    pub position: f64,
+    /// One standard deviation of it.
+    pub sigma: f64,
+    /// The estimated velocity, units a second.
+    pub velocity: f64,
+    /// The velocity its command does not explain (a stuck motor, a driver's hand),
+    /// units a second.
+    pub drift: f64,
 }
 
 impl DeviceView {
@@ -236,6 +258,10 @@ pub struct Settings {
     pub status_max_age_ms: f64,
     pub status_on: bool,
     pub command_on: bool,
+    /// How status polls are scheduled: `fixed` (every `status_period_ms`) or
+    /// `adaptive` (by the estimate, from `status_period_ms` to `status_max_age_ms`).
+    #[serde(default)]
+    pub polling: String,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -285,6 +311,8 @@ pub enum FaultKind {
     NotFollowing,
     /// It reports fault bits in its status word.
     DeviceFault,
+    /// It moved in a way its command cannot explain: a driver's hand (not a failure).
+    Override,
     /// Engine stopped while in gear.
     EngineStall,
     EstopPause,
@@ -300,6 +328,7 @@ impl FaultKind {
             FaultKind::OutOfRange => "out_of_range",
             FaultKind::NotFollowing => "not_following",
             FaultKind::DeviceFault => "device_fault",
+            FaultKind::Override => "override",
             FaultKind::EngineStall => "engine_stall",
             FaultKind::EstopPause => "estop_pause",
             FaultKind::EstopDisable => "estop_disable",

@@ -184,6 +184,7 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
     writeln!(stdin, "help").unwrap();
     let help = until(&out, "SETPOINT is one of").join("\n");
     assert!(help.contains("stuck SETPOINT on|off"), "{help}");
+    assert!(help.contains("override SETPOINT X|off"), "{help}");
     assert!(
         help.contains("DEVICE is one of steer, estop\n  SETPOINT is one of steer"),
         "{help}"

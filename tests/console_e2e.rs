@@ -360,6 +360,43 @@ fn bench_keys_inject_faults_that_the_console_shows_and_clear() {
     assert!(c.wait_exit().success());
 }
 
+/// A driver's hand from the bench (`o`) on the steering of an engaged vehicle: the
+/// supervisor names the override and the vehicle is handed over; `C` is refused in
+/// the message line while the hand is on, `o` lets go, `C` clears it, and engaging
+/// works again.
+#[test]
+fn the_override_key_hands_over_and_the_clear_key_clears_once_let_go() {
+    let mut c = Console::start("override", &[]);
+    c.engage();
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("steer raw traffic"));
+    c.keys("o");
+    c.wait_for("the override", |s| {
+        s.contains("a hand pushes it toward 1")
+            && s.contains("driver's hand on it")
+            && s.contains("DISENGAGED")
+    });
+    c.keys("C");
+    c.wait_for("the refusal", |s| {
+        s.contains("override not cleared: the driver is still moving steer")
+    });
+    c.keys("o");
+    c.wait_for("the hand off", |s| {
+        s.contains("the hand lets go") && s.contains("let go: clear to engage again")
+    });
+    c.keys("C");
+    c.wait_for("the override cleared", |s| {
+        s.contains("override cleared on steer: engage when ready")
+    });
+    c.keys("\x1b");
+    c.wait_for("the main screen", |s| s.contains("│ MAIN │"));
+    c.engage_now();
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let log = c.log();
+    assert!(log.contains("override cleared: steer"), "{log}");
+}
+
 /// An engine stall injected from the bench while in drive: the supervisor's
 /// engine_stall procedure runs step by step on screen and reports its outcome.
 #[test]

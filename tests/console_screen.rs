@@ -664,3 +664,55 @@ fn a_list_longer_than_the_screen_pages_with_the_cursor() {
     find(&b, "valve63 ");
     assert!(!screen.contains("valve00 "), "{screen}");
 }
+
+/// The bench chart: the gas commanded from 0 to 0.6 five seconds ago, the drive
+/// following it at its rate and the estimate tracking the readings, over the last 10 s.
+#[test]
+fn the_bench_charts_measured_estimate_and_command_through_a_step() {
+    use adrive::snapshot::EstimateView;
+    use adrive::value::Value;
+    let f = fixture(false);
+    let gas = f.vehicle.find("gas").unwrap().id;
+    let mut m = f.model(Theme::default());
+    f.act(&mut m, &[Action::Right, Action::Bench]);
+    assert_eq!(m.bench, gas);
+    // What ten seconds of ticks would have fed it, a sample each 100 ms.
+    m.trail = Default::default();
+    let mut d = m.snap.at(gas).unwrap().clone();
+    for k in 0..=100u32 {
+        let t = k as f64 / 10.0;
+        let cmd = if t < 5.0 { 0.0 } else { 0.6 };
+        let at = (if t < 5.0 { 0.0 } else { (t - 5.0) * 0.4 }).min(0.6);
+        let est = (if t < 5.2 { 0.0 } else { (t - 5.2) * 0.4 }).min(0.6);
+        d.commanded = Some(Value::Number(cmd));
+        for (name, v) in d.readings.0.iter_mut() {
+            if name == "position" {
+                *v = Some(Value::Number(at));
+            }
+        }
+        d.estimate = Some(EstimateView {
+            position: est,
+            ..EstimateView::default()
+        });
+        m.trail.push(
+            gas,
+            &d,
+            f.now - Duration::from_millis(10_000 - 100 * k as u64),
+        );
+    }
+    let b = render(&m, 120, 40);
+    snapshot("bench_chart_step_120x40", &text(&b));
+    for needle in [
+        "gas over the last 10 s",
+        "measured",
+        "estimate",
+        "command",
+        "now",
+    ] {
+        find(&b, needle);
+    }
+    // At 80×24 the chart gives way: the bench keeps every line it had.
+    let small = text(&render(&m, 80, 24));
+    assert!(!small.contains("over the last 10 s"), "{small}");
+    assert!(small.contains("gas raw traffic"), "{small}");
+}

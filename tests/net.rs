@@ -773,3 +773,43 @@ fn the_gate_monitor_disengages_on_estop_pause_and_on_a_fault() {
         n.rig.gate.reason()
     );
 }
+
+/// A driver's override, latched by the gate, is in the broadcast and blocks a network
+/// engage; the network's `clear` is refused while the supervisor still sees the hand,
+/// then clears it, and engage passes.
+#[test]
+fn a_latched_override_blocks_engage_until_the_network_clears_it_with_the_hand_off() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let board = &n.rig.vehicle.supervision;
+    let hand = adrive::vehicle::supervision::Fault {
+        kind: adrive::snapshot::FaultKind::Override,
+        device: Some("steer".into()),
+        cause: "a driver's hand".into(),
+        since: Instant::now(),
+    };
+    board.set_faults(vec![hand]);
+    n.rig.gate.take_over("steer", "a driver's hand");
+    n.broadcast_until("the override in the broadcast", |v| {
+        v.gate.overridden == ["steer"]
+            && v.gate
+                .blockers
+                .iter()
+                .any(|b| b.contains("steer is in the driver's hands (override)"))
+    });
+    let a = n.client();
+    let reply = a.ask(b"engage");
+    assert!(
+        reply.starts_with("refused engage: ") && reply.contains("override"),
+        "{reply}"
+    );
+    let reply = a.ask(b"clear");
+    assert!(
+        reply.contains("refused clear: override not cleared: the driver is still moving steer"),
+        "{reply}"
+    );
+    board.set_faults(vec![]);
+    assert_eq!(a.ask(b"clear"), "ok cleared override on steer\n");
+    assert_eq!(a.ask(b"clear"), "ok nothing to clear\n");
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+}

@@ -582,3 +582,53 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
     });
     steering_still_works(&rig, 0.3);
 }
+
+/// With a declared response the stuck motor is judged by the estimate: no headway for
+/// `stall_time` (500 ms), not a fixed tolerance for `follow_time` (2.5 s).
+#[test]
+fn a_stuck_motor_is_named_within_the_stall_time_not_the_follow_time() {
+    let rig = Rig::supervised(&alice(""));
+    rig.engage();
+    let steer = rig.device("steer");
+    rig.submit("steer", set(-0.8)).unwrap();
+    wait_for("steering under way", || {
+        steer.cached().reading.get(0).unwrap() < -0.1
+    });
+    rig.sim.apply("stuck steer on").unwrap();
+    let what = fault_within(
+        &rig,
+        FaultKind::NotFollowing,
+        Some("steer"),
+        Duration::from_millis(1500),
+    );
+    assert!(
+        what.contains("commanded -0.800") && what.contains("its response promises"),
+        "{what}"
+    );
+}
+
+/// A drive at half its declared rate is slow but healthy: a full-range sweep never
+/// names it (the fixed tolerance would have, after 2.5 s away from its command).
+#[test]
+fn a_slow_but_healthy_drive_is_never_named_not_following() {
+    let slow = alice("").replace(
+        "rate = 1.0                # full range a second",
+        "rate = 0.5",
+    );
+    assert_ne!(slow, alice(""));
+    let rig = Rig::supervised(&slow);
+    rig.engage();
+    let steer = rig.device("steer");
+    for target in [-1.0, 1.0] {
+        rig.submit("steer", set(target)).unwrap();
+        wait_for("the sweep to reach its end", || {
+            (steer.cached().reading.get(0).unwrap() - target).abs() < 0.01
+        });
+    }
+    let history = rig.history();
+    assert!(
+        !history.iter().any(|h| h.contains("not_following")),
+        "{history:?}"
+    );
+    assert!(rig.gate.is_engaged());
+}

@@ -11,8 +11,10 @@
 //! placement; 2 delay against the number of actuators (Fig. 3); 3 CPU against the
 //! command rate (Fig. 4); 4 the cued-command stall under each port rule, with the
 //! effective bandwidth; 5 the findings of the command-path review; 6 memory; 7 the
-//! console's output to its terminal; 8 the command delay with recording off and on.
+//! console's output to its terminal; 8 the command delay with recording off and on; 9
+//! fixed against adaptive polling, the paper's open problem ([`estimator`]).
 
+mod estimator;
 mod floor;
 mod plot;
 mod rig;
@@ -236,6 +238,11 @@ fn main() {
     }
     if on("8") {
         section8_recording(&dir, secs);
+    }
+    if on("9") {
+        for rule in ["priority", "paper"] {
+            estimator::section9_estimator(rule, 20.0);
+        }
     }
     summary(&r, &out);
 }

@@ -5,6 +5,7 @@
 //! [`DeviceConfig`] here; every refusal says what was expected.
 
 use super::limits::{self, Violation};
+use super::response::{self, Polling, RawResponse, Response};
 use super::wire::{self, Wire};
 use super::{duration, opt_duration, SimConfig};
 use crate::value::{Command, Kind};
@@ -13,10 +14,11 @@ use std::time::Duration;
 use toml::Spanned;
 
 /// Words of the command grammar that cannot name a device.
-pub const RESERVED: [&str; 8] = [
+pub const RESERVED: [&str; 9] = [
     "accel",
     "engage",
     "disengage",
+    "clear",
     "seq",
     "tag",
     "all",
@@ -292,6 +294,11 @@ pub struct DeviceConfig {
     pub sim: SimConfig,
     /// How the protocol maps the device to the wire.
     pub wire: Wire,
+    /// How the real device answers its command (setpoint devices; the estimator's
+    /// model). Without it the device has no estimate.
+    pub response: Option<Response>,
+    /// How its status thread schedules polls.
+    pub polling: Polling,
 }
 
 impl DeviceConfig {
@@ -316,6 +323,9 @@ impl DeviceConfig {
         }
         if let Wire::Modbus(m) = &self.wire {
             MODBUS_SLAVE.check(u64::from(m.slave))?;
+        }
+        if let Some(r) = &self.response {
+            response::check(r, self.range)?;
         }
         let show = fmt_duration;
         if self.status_max_age < self.status_period {
@@ -353,6 +363,16 @@ impl DeviceConfig {
 
     pub fn is_actuator(&self) -> bool {
         self.kind.is_actuator()
+    }
+
+    /// The device takes drive-control commands (`disable`, `enable`, `home`…): the line
+    /// protocol always, Modbus with a `control` register.
+    pub fn takes_controls(&self) -> bool {
+        match &self.wire {
+            Wire::Line(_) => true,
+            Wire::Modbus(m) => m.control.is_some(),
+            Wire::Elm327(_) => false,
+        }
     }
 
     /// The command value domain of a setpoint actuator.
@@ -499,6 +519,10 @@ pub(super) struct RawDevice {
     modbus: Option<Spanned<wire::RawModbus>>,
     #[serde(default)]
     line: Option<Spanned<wire::RawLine>>,
+    #[serde(default)]
+    response: Option<Spanned<RawResponse>>,
+    #[serde(default)]
+    polling: Option<Spanned<Polling>>,
 }
 
 fn default_baud() -> u32 {
@@ -683,6 +707,37 @@ impl RawDevice {
             ));
         }
 
+        let response = match self.response {
+            None => None,
+            Some(r) => {
+                let at = r.span().start;
+                if kind != Kind::Setpoint {
+                    return Err((
+                        at,
+                        format!(
+                            "{name}: [device.response] is for setpoint devices ({name} is a {kind}): {}",
+                            limits::RESPONSE_ON_SETPOINTS.text
+                        ),
+                    ));
+                }
+                Some(r.into_inner().resolve(&name, range).map_err(|m| (at, m))?)
+            }
+        };
+        let polling = match self.polling {
+            None => Polling::Fixed,
+            Some(p) => {
+                if *p.get_ref() == Polling::Adaptive && response.is_none() {
+                    return Err((
+                        p.span().start,
+                        format!(
+                            "{name}: polling = \"adaptive\" needs a [device.response] (how the real device answers its command: the estimate adaptive polling polls by)"
+                        ),
+                    ));
+                }
+                p.into_inner()
+            }
+        };
+
         let partial = DeviceConfig {
             name: name.clone(),
             kind,
@@ -703,6 +758,8 @@ impl RawDevice {
             safe: None,
             sim: self.sim,
             wire: Wire::Line(Default::default()),
+            response,
+            polling,
         };
         let safe = match self.safe {
             None => None,

@@ -24,9 +24,9 @@ const TABLES: [&str; 6] = [
     "device",
 ];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
-const DEVICE_TABLES: [&str; 5] = ["sim", "modbus", "line", "aliases", "readings"];
+const DEVICE_TABLES: [&str; 6] = ["sim", "modbus", "line", "response", "aliases", "readings"];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [[device]] (with [device.sim], [device.modbus], [device.line])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [[device]] (with [device.sim], [device.modbus], [device.line], [device.response])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -251,6 +251,7 @@ fn limit_of(path: &str) -> Option<&'static dyn limits::Row> {
         ["device", _, key] => (Section::Device, key),
         ["device", _, "sim", key] => (Section::DeviceSim, key),
         ["device", _, "modbus", key] => (Section::DeviceModbus, key),
+        ["device", _, "response", key] => (Section::DeviceResponse, key),
         _ => return None,
     };
     limits::find(section, key)
@@ -292,6 +293,7 @@ fn suggest(written: &str) -> Option<String> {
         "[device.sim]",
         "[device.modbus]",
         "[device.line]",
+        "[device.response]",
     ];
     known
         .iter()

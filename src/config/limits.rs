@@ -21,6 +21,8 @@ pub enum Section {
     DeviceSim,
     /// `[device.modbus]`.
     DeviceModbus,
+    /// `[device.response]`: how the real device answers its command.
+    DeviceResponse,
     Network,
     Supervisor,
     /// `[ros2]`: the ROS 2 / Autoware interface.
@@ -36,6 +38,7 @@ impl Section {
             Section::Device => "[[device]]",
             Section::DeviceSim => "[device.sim]",
             Section::DeviceModbus => "[device.modbus]",
+            Section::DeviceResponse => "[device.response]",
             Section::Network => "[network]",
             Section::Supervisor => "[supervisor]",
             Section::Ros2 => "[ros2]",
@@ -48,6 +51,7 @@ impl Section {
         match self {
             Section::DeviceSim => "sim.",
             Section::DeviceModbus => "modbus.",
+            Section::DeviceResponse => "response.",
             Section::CommandLine => "--",
             _ => "",
         }
@@ -174,7 +178,9 @@ const fn s(n: u64) -> Duration {
     Duration::from_secs(n)
 }
 
-use Section::{CommandLine, Device, DeviceModbus, DeviceSim, Network, Ros2, Supervisor};
+use Section::{
+    CommandLine, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2, Supervisor,
+};
 
 pub const BAUD: Limit<u64> = Limit {
     section: Device,
@@ -264,6 +270,22 @@ pub const MODBUS_SLAVE: Limit<u64> = Limit {
     default: None,
     why: "a Modbus RTU unit address, required (0 is broadcast, 248–255 reserved)",
 };
+pub const RESPONSE_LAG: Limit<Duration> = Limit {
+    section: DeviceResponse,
+    key: "lag",
+    min: ms(1),
+    max: s(10),
+    default: None,
+    why: "the real device follows its command with this first-order lag (or moves at its `rate`)",
+};
+pub const OVERRIDE_TIME: Limit<Duration> = Limit {
+    section: DeviceResponse,
+    key: "override_time",
+    min: ms(50),
+    max: s(2),
+    default: Some(ms(300)),
+    why: "moved `override_threshold` away from its command this long, the device is in a driver's hands (`override`)",
+};
 pub const WATCHDOG_TIMEOUT: Limit<Duration> = Limit {
     section: Network,
     key: "watchdog_timeout",
@@ -326,7 +348,7 @@ pub const FOLLOW_TOLERANCE: Limit<f64> = Limit {
     min: 0.01,
     max: 0.5,
     default: Some(0.1),
-    why: "a measured value further than this fraction of its range from its command …",
+    why: "a device without a declared response, measured further than this fraction of its range from its command …",
 };
 pub const FOLLOW_TIME: Limit<Duration> = Limit {
     section: Supervisor,
@@ -335,6 +357,14 @@ pub const FOLLOW_TIME: Limit<Duration> = Limit {
     max: s(10),
     default: Some(ms(2500)),
     why: "… for longer than this is `not_following`",
+};
+pub const STALL_TIME: Limit<Duration> = Limit {
+    section: Supervisor,
+    key: "stall_time",
+    min: ms(100),
+    max: s(10),
+    default: Some(ms(500)),
+    why: "a device with a declared response that makes no headway toward its command this long is `not_following`",
 };
 pub const RANGE_MARGIN: Limit<f64> = Limit {
     section: Supervisor,
@@ -400,6 +430,14 @@ pub const RANGE_FORM: Rule = Rule {
     section: Device,
     text: "`range` on every setpoint device, as `[min, max]`: two finite numbers, min < max; a throttle's and a brake's start at 0 (released)",
 };
+pub const RESPONSE_IN_UNITS: Rule = Rule {
+    section: DeviceResponse,
+    text: "`rate`, `noise`, `tolerance`, `deadband` and `override_threshold` (by default a tenth of the range) in the device's units, above 0: `rate` at most 1000 ranges a second, the others below the width of its range, `tolerance` above `noise`",
+};
+pub const RESPONSE_ON_SETPOINTS: Rule = Rule {
+    section: Device,
+    text: "`[device.response]` only on setpoint devices; `polling = \"adaptive\"` only with a `[device.response]` (the estimate it polls by)",
+};
 pub const PORT_NAMED: Rule = Rule {
     section: Device,
     text: "a `port` path on every device, unless it is simulated (`--sim`, `adrive sim`)",
@@ -461,6 +499,8 @@ pub static ALL: &[&dyn Row] = &[
     &SIM_COMMAND_DELAY,
     &SIM_WATCHDOG,
     &MODBUS_SLAVE,
+    &RESPONSE_LAG,
+    &OVERRIDE_TIME,
     &WATCHDOG_TIMEOUT,
     &BROADCAST_RATE,
     &MULTICAST_TTL,
@@ -470,6 +510,7 @@ pub static ALL: &[&dyn Row] = &[
     &ERROR_WINDOW,
     &FOLLOW_TOLERANCE,
     &FOLLOW_TIME,
+    &STALL_TIME,
     &RANGE_MARGIN,
     &ATTEMPTS,
     &STEP_TIMEOUT,
@@ -488,8 +529,10 @@ pub static RULES: &[&Rule] = &[
     &MAX_AGE_COVERS_PERIOD,
     &REPLY_WITHIN_MAX_AGE,
     &RANGE_FORM,
+    &RESPONSE_ON_SETPOINTS,
     &PORT_NAMED,
     &WATCHDOG_OUTLASTS_RESEND,
+    &RESPONSE_IN_UNITS,
 ];
 
 /// The README's table of limits and list of rules, as Markdown.
@@ -581,6 +624,9 @@ mod tests {
             &SUPERVISOR_PERIOD,
             &ERROR_WINDOW,
             &FOLLOW_TIME,
+            &STALL_TIME,
+            &RESPONSE_LAG,
+            &OVERRIDE_TIME,
             &STEP_TIMEOUT,
             &DEADMAN,
         ] {

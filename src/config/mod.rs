@@ -7,6 +7,7 @@
 //! - [`device`]: one device, its kind, states and readings;
 //! - [`wire`]: how each protocol maps a device to the wire;
 //! - [`roles`]: the safety roles, bound to devices and readings;
+//! - [`response`]: how a setpoint actuator answers its command (the estimator's model);
 //! - [`limits`]: the sane range of every safety-relevant value, in one table;
 //! - [`record`]: `[record]`, recording every run into rolling files;
 //! - [`document`]: where each key sits in the file, so that a check made after typing
@@ -17,6 +18,7 @@ pub mod document;
 pub mod limits;
 pub mod placement;
 pub mod record;
+pub mod response;
 pub mod roles;
 pub mod ros2;
 pub mod wire;
@@ -26,6 +28,7 @@ pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
 pub use record::RecordConfig;
+pub use response::{Motion, Polling, Response};
 pub use roles::{Bindings, Role};
 pub use ros2::Ros2Config;
 use serde::{Deserialize, Deserializer};
@@ -158,12 +161,16 @@ pub struct SupervisorConfig {
     pub error_rate: f64,
     #[serde(deserialize_with = "duration")]
     pub error_window: Duration,
-    /// A measured value further than this fraction of its device's range from its
-    /// command …
+    /// A device without a declared response, measured further than this fraction of
+    /// its range from its command …
     pub follow_tolerance: f64,
     /// … for longer than this is "not following".
     #[serde(deserialize_with = "duration")]
     pub follow_time: Duration,
+    /// A device with a declared response that makes no headway toward its command for
+    /// this long is "not following" (a stuck motor).
+    #[serde(deserialize_with = "duration")]
+    pub stall_time: Duration,
     /// Reported positions may stray this fraction of the range outside it.
     pub range_margin: f64,
     /// Tries of a recovery procedure before it gives up.
@@ -188,6 +195,7 @@ impl Default for SupervisorConfig {
             error_window: ERROR_WINDOW.default_value(),
             follow_tolerance: FOLLOW_TOLERANCE.default_value(),
             follow_time: FOLLOW_TIME.default_value(),
+            stall_time: STALL_TIME.default_value(),
             range_margin: RANGE_MARGIN.default_value(),
             attempts: ATTEMPTS.default_value() as u32,
             step_timeout: STEP_TIMEOUT.default_value(),
@@ -206,6 +214,7 @@ impl SupervisorConfig {
         ERROR_WINDOW.check(self.error_window)?;
         FOLLOW_TOLERANCE.check(self.follow_tolerance)?;
         FOLLOW_TIME.check(self.follow_time)?;
+        STALL_TIME.check(self.stall_time)?;
         RANGE_MARGIN.check(self.range_margin)?;
         ATTEMPTS.check(u64::from(self.attempts))?;
         STEP_TIMEOUT.check(self.step_timeout)?;

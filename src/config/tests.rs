@@ -411,6 +411,9 @@ slave = 3
 registers = { target = 0, position = 0 }
 [device.sim]
 # sim
+[device.response]
+lag = "80ms"
+# response
 "#;
 
 /// One absurd value: where it goes, the line the error must name (the first line of
@@ -617,6 +620,55 @@ const ABSURD: &[Absurd] = &[
         says: &["brake: status_max_age 250ms, status_period 1500ms: expected `status_max_age` at least `status_period`"],
     },
     Absurd {
+        incident: "an estimate that never lags",
+        replace: "lag = \"80ms\"",
+        with: "lag = \"0ms\"",
+        at: "lag",
+        says: &["brake: response.lag:", "from 1ms to 10s", "got 0s"],
+    },
+    Absurd {
+        incident: "a tolerance adaptive polling can never keep",
+        replace: "# response",
+        with: "noise = 0.05\ntolerance = 0.01",
+        at: "tolerance",
+        says: &["brake: response.tolerance 0.01, response.noise 0.05: expected", "`tolerance` above `noise`"],
+    },
+    Absurd {
+        incident: "a negative dead band",
+        replace: "# response",
+        with: "deadband = -0.5",
+        at: "deadband",
+        says: &["brake: response.deadband -0.5: expected", "in the device's units, above 0"],
+    },
+    Absurd {
+        incident: "an override that never trips",
+        replace: "# response",
+        with: "override_time = \"1h\"",
+        at: "override_time",
+        says: &["brake: response.override_time:", "from 50ms to 2s", "got 3600s"],
+    },
+    Absurd {
+        incident: "an override threshold no hand can pass",
+        replace: "# response",
+        with: "override_threshold = 5.0",
+        at: "override_threshold",
+        says: &["brake: response.override_threshold 5: expected", "below the width of its range"],
+    },
+    Absurd {
+        incident: "a tolerance wider than the whole range",
+        replace: "# response",
+        with: "tolerance = 7.0",
+        at: "tolerance",
+        says: &["brake: response.tolerance 7: expected", "below the width of its range"],
+    },
+    Absurd {
+        incident: "a stuck motor never named",
+        replace: "# supervisor",
+        with: "stall_time = \"0s\"",
+        at: "stall_time",
+        says: &["[supervisor] stall_time:", "from 100ms to 10s", "got 0s"],
+    },
+    Absurd {
         incident: "reply timeout past the max age",
         replace: "# device",
         with: "reply_timeout = \"2s\"",
@@ -649,6 +701,91 @@ fn every_absurd_value_is_refused_with_file_line_key_and_range() {
             );
         }
     }
+}
+
+/// `[device.response]` declares the real device's answer to its command: one way of
+/// moving, on a setpoint device, and adaptive polling only where there is an estimate.
+#[test]
+fn a_declared_response_is_checked_where_it_is_written() {
+    let v = parse(BASE, "v.toml").unwrap();
+    let r = v.devices[0].response.expect("declared");
+    assert_eq!(r.motion, Motion::Lag(Duration::from_millis(80)));
+    assert_eq!((r.noise, r.tolerance, r.deadband), (0.001, 0.01, 0.01));
+    assert_eq!(v.devices[0].polling, Polling::Fixed);
+    let a = VehicleConfig::alice();
+    assert_eq!(
+        a.device("steer").unwrap().response.unwrap().motion,
+        Motion::Rate(1.0)
+    );
+    assert!(a.device("trans").unwrap().response.is_none());
+
+    let both = BASE.replace("# response", "rate = 2.0");
+    let e = error(&both);
+    assert_eq!(
+        line(&e),
+        both.lines().position(|l| l == "[device.response]").unwrap() + 1,
+        "{e}"
+    );
+    assert!(e.contains("a `rate` or a `lag`, not both"), "{e}");
+
+    let neither = BASE.replace("lag = \"80ms\"", "noise = 0.01");
+    assert!(
+        error(&neither).contains("expected `rate = 1.0`"),
+        "{}",
+        error(&neither)
+    );
+
+    let typo = BASE.replace("# response", "tolerence = 0.1");
+    let e = error(&typo);
+    assert_eq!(
+        line(&e),
+        typo.lines()
+            .position(|l| l.starts_with("tolerence"))
+            .unwrap()
+            + 1,
+        "{e}"
+    );
+    assert!(e.contains("tolerance"), "{e}");
+
+    let adaptive = BASE.replace("# device", "polling = \"adaptive\"");
+    assert_eq!(
+        parse(&adaptive, "v.toml").unwrap().devices[0].polling,
+        Polling::Adaptive
+    );
+    let blind = adaptive.replace("[device.response]\nlag = \"80ms\"\n# response\n", "");
+    let e = error(&blind);
+    assert_eq!(
+        line(&e),
+        blind
+            .lines()
+            .position(|l| l.starts_with("polling"))
+            .unwrap()
+            + 1,
+        "{e}"
+    );
+    assert!(
+        e.contains("polling = \"adaptive\" needs a [device.response]"),
+        "{e}"
+    );
+    let e = error(&BASE.replace("# device", "polling = \"sometimes\""));
+    assert!(e.contains("sometimes") && e.contains("adaptive"), "{e}");
+
+    let on_a_state = format!(
+        "{}\n[[device]]\nname = \"trans\"\nkind = \"state\"\nstates = [\"park\", \"drive\"]\ndriver = \"line\"\nport = \"/dev/ttyUSB1\"\n[device.response]\nrate = 1.0\n",
+        BASE
+    );
+    let e = error(&on_a_state);
+    assert!(
+        e.contains("trans: [device.response] is for setpoint devices"),
+        "{e}"
+    );
+
+    let misspelt = BASE.replace("[device.response]", "[device.respnse]");
+    assert!(
+        error(&misspelt).contains("did you mean [device.response]"),
+        "{}",
+        error(&misspelt)
+    );
 }
 
 #[test]
@@ -685,8 +822,11 @@ fn a_misspelt_table_is_named_at_its_own_line_not_as_a_later_duplicate() {
         "{BASE}\n[[devcie]]\nname = \"gas\"\ndriver = \"modbus\"\n[device.modbus]\nslave = 2\n"
     );
     let e = error(&typo);
+    let at = typo.lines().position(|l| l == "[[devcie]]").unwrap() + 1;
     assert!(
-        e.starts_with("v.toml:25: unknown table [[devcie]]: did you mean [[device]]?"),
+        e.starts_with(&format!(
+            "v.toml:{at}: unknown table [[devcie]]: did you mean [[device]]?"
+        )),
         "{e}"
     );
     let e = error(&BASE.replace("[device.sim]", "[device.simm]"));
@@ -695,7 +835,11 @@ fn a_misspelt_table_is_named_at_its_own_line_not_as_a_later_duplicate() {
         "{e}"
     );
     let e = error(&format!("{BASE}[netwrok]\n"));
-    assert!(e.starts_with("v.toml:24: unknown table [netwrok]"), "{e}");
+    let at = BASE.lines().count() + 1;
+    assert!(
+        e.starts_with(&format!("v.toml:{at}: unknown table [netwrok]")),
+        "{e}"
+    );
 }
 
 #[test]

@@ -16,7 +16,7 @@
 use crate::net::NetStatus;
 use crate::safety::{Gate, Reject};
 use crate::sim::{Faults, Sim};
-use crate::snapshot::{DeviceView, FaultView, Snapshot};
+use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::tap::Source;
 use crate::vehicle::trace::TraceEntry;
@@ -34,6 +34,9 @@ pub struct SimFaults {
     pub corrupt: bool,
     /// Extra reply delay (0: off).
     pub slow_ms: u64,
+    /// A driver's hand pushes its drive toward this (not a fault of the device: a
+    /// driver's override, for the supervisor to notice).
+    pub hand: Option<f64>,
     /// All of them in words ([`Faults::describe`]): `none`, `silent, slow 150ms`.
     pub text: String,
 }
@@ -45,6 +48,7 @@ impl SimFaults {
             garbage: f.garbage.load(Relaxed),
             corrupt: f.corrupt.load(Relaxed),
             slow_ms: f.slow_ms.load(Relaxed),
+            hand: None,
             text: f.describe(),
         }
     }
@@ -106,12 +110,39 @@ impl Frame {
     /// fault it names this device in).
     pub fn red(&self, d: &DeviceView) -> bool {
         d.health.faulty
-            || self
-                .snap
-                .supervisor
-                .faults
-                .iter()
-                .any(|f| f.device.as_deref() == Some(d.name.as_str()))
+            || self.snap.supervisor.faults.iter().any(|f| {
+                f.kind != FaultKind::Override && f.device.as_deref() == Some(d.name.as_str())
+            })
+    }
+
+    /// A driver has taken the device over (latched) or has a hand on it now: not a
+    /// failure, shown apart from faults.
+    pub fn overridden(&self, d: &DeviceView) -> bool {
+        self.snap.gate.overridden.contains(&d.name)
+            || self.snap.supervisor.faults.iter().any(|f| {
+                f.kind == FaultKind::Override && f.device.as_deref() == Some(d.name.as_str())
+            })
+    }
+
+    /// One line per device in the driver's hands: latched, and whether the hand is
+    /// still on it.
+    pub fn override_texts(&self) -> Vec<String> {
+        self.snap
+            .devices
+            .iter()
+            .filter(|d| self.overridden(d))
+            .map(|d| {
+                let held = self.snap.supervisor.faults.iter().any(|f| {
+                    f.kind == FaultKind::Override && f.device.as_deref() == Some(d.name.as_str())
+                });
+                let state = if held {
+                    "driver's hand on it"
+                } else {
+                    "let go: clear to engage again"
+                };
+                format!("{} in manual ({state})", d.name)
+            })
+            .collect()
     }
 
     pub fn sim_of(&self, id: DeviceId) -> Option<&SimFaults> {
@@ -126,6 +157,7 @@ impl Frame {
         let mut out: Vec<String> = sup
             .faults
             .iter()
+            .filter(|f| f.kind != FaultKind::Override)
             .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
             .collect();
         for d in self.snap.devices.iter().filter(|d| d.health.faulty) {
@@ -196,6 +228,9 @@ pub trait Controls {
     /// `silent gas on`, `stall`, `estop pause`; `None` when the devices are not
     /// simulated in this process.
     fn sim(&self, line: &str) -> Option<Result<String, String>>;
+    /// Clear the latched driver overrides ([`Gate::clear_overrides`], as the network's
+    /// `clear`): what was cleared, or why not (the driver's hand still on).
+    fn clear_overrides(&self) -> Result<Vec<String>, String>;
 }
 
 /// The console's sources beyond the vehicle.
@@ -232,6 +267,9 @@ fn sim_vehicle(sim: &Sim, device: Option<&str>) -> String {
                 (false, true, false) => "ok",
             };
             out.push_str(&format!(" · {} drive {drive}", d.name));
+            if let Some(x) = d.hand {
+                out.push_str(&format!(" · a hand pushes it toward {x}"));
+            }
         }
     }
     out
@@ -268,11 +306,11 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
             .devices
             .iter()
             .map(|d| {
-                sources
-                    .sim
-                    .as_ref()
-                    .and_then(|s| s.faults(d.name()))
-                    .map(|f| SimFaults::of(f))
+                let sim = sources.sim.as_ref()?;
+                let mut f = SimFaults::of(sim.faults(d.name())?);
+                let m = sim.model().lock();
+                f.hand = m.find(d.name()).and_then(|id| m.device(id).hand);
+                Some(f)
             })
             .collect(),
         snap,
@@ -362,5 +400,8 @@ impl Controls for Live<'_> {
             Err(e) => tracing::info!("simulator refused {line:?}: {e}"),
         }
         Some(done)
+    }
+    fn clear_overrides(&self) -> Result<Vec<String>, String> {
+        self.gate.clear_overrides()
     }
 }

@@ -316,6 +316,9 @@ pub enum Action {
     FindPrev,
     /// Complete the name typed to the longest prefix its matches share.
     Complete,
+    /// Clear a latched driver override, as the network's `clear` does (refused while
+    /// the driver's hand is still on).
+    ClearOverride,
     /// Bench, under `--sim`: inject or clear a simulator fault.
     Sim(SimAction),
     /// Unbinds a key in a user keymap.
@@ -348,6 +351,9 @@ pub enum SimAction {
     Jam,
     /// Put the simulated e-stop in this state.
     Estop(EstopState),
+    /// A driver's hand pushes the device on the bench toward the end of its range
+    /// farther from where it is; again, the hand lets go (on/off).
+    Override,
 }
 
 /// How late a "slow" simulated device replies.
@@ -361,8 +367,9 @@ edit steering|throttle|brake|gear|accel (also steer, gas, trans), commit, cancel
 backspace, clear, wake, wake steering|throttle|brake|gear, \
 wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
 steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
-page_down, page_up, find, find_next, find_prev, complete, \
-sim silent|garbage|corrupt|slow|vanish|clear|stall|jam, sim estop pause|run|disable, none";
+page_down, page_up, find, find_next, find_prev, complete, clear_override, \
+sim silent|garbage|corrupt|slow|vanish|clear|stall|jam|override, \
+sim estop pause|run|disable, none";
 
 const SIMPLE: &[(&str, Action)] = &[
     ("quit", Action::Quit),
@@ -401,6 +408,7 @@ const SIMPLE: &[(&str, Action)] = &[
     ("find_next", Action::FindNext),
     ("find_prev", Action::FindPrev),
     ("complete", Action::Complete),
+    ("clear_override", Action::ClearOverride),
     ("sim silent", Action::Sim(SimAction::Silent)),
     ("sim garbage", Action::Sim(SimAction::Garbage)),
     ("sim corrupt", Action::Sim(SimAction::Corrupt)),
@@ -409,6 +417,7 @@ const SIMPLE: &[(&str, Action)] = &[
     ("sim clear", Action::Sim(SimAction::Clear)),
     ("sim stall", Action::Sim(SimAction::Stall)),
     ("sim jam", Action::Sim(SimAction::Jam)),
+    ("sim override", Action::Sim(SimAction::Override)),
     (
         "sim estop pause",
         Action::Sim(SimAction::Estop(EstopState::Pause)),

@@ -8,7 +8,8 @@
 //! - [`view`] and [`panels`]: `impl Widget for &Model`, free of side effects;
 //!   [`layout`]: where the devices go (a panel each, or with many devices a row each
 //!   and a window of full panels that pages), for the view and for paging alike;
-//!   [`find`]: a device by its name, for the name prompt.
+//!   [`find`]: a device by its name, for the name prompt; [`trail`]: the bench
+//!   device's last seconds, for the bench chart.
 //! - [`run`]: the loop — one `select!` over terminal events (read on their own
 //!   thread), a 10 Hz tick and the exits channel (signals, panics). ratatui's diffing
 //!   sends only changed cells; [`terminal`] leaves the terminal as it was on every way
@@ -26,6 +27,7 @@ pub mod replay;
 pub mod sample;
 pub mod terminal;
 pub mod theme;
+pub mod trail;
 pub mod update;
 pub mod view;
 

@@ -7,6 +7,7 @@ use super::controls::Frame;
 use super::keymap::{Keymap, Mode};
 use super::layout::{self, Devices};
 use super::theme::Theme;
+use super::trail::Trail;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
 use ratatui::layout::Rect;
@@ -206,6 +207,8 @@ pub struct Model {
     pub teleop: Teleop,
     /// The device the bench view shows.
     pub bench: DeviceId,
+    /// Its last seconds, for the bench chart (fed by each tick on the bench).
+    pub trail: Trail,
     pub help_scroll: u16,
     /// The last accel the console sent.
     pub accel: Option<f64>,
@@ -238,6 +241,7 @@ impl Model {
             message: None,
             teleop: Teleop::new(deadman),
             bench,
+            trail: Trail::default(),
             help_scroll: 0,
             accel: None,
             now: Instant::now(),

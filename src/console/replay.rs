@@ -341,6 +341,9 @@ impl Controls for Replay<'_> {
     fn sim(&self, _: &str) -> Option<Result<String, String>> {
         None
     }
+    fn clear_overrides(&self) -> Result<Vec<String>, String> {
+        Err(READ_ONLY.into())
+    }
 }
 
 /// The replay's own keys, before the keymap sees them.

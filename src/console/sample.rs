@@ -78,6 +78,9 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
             }
         };
         *d.cache.lock() = Cached { reading: r, at };
+        if let Some(at) = at {
+            d.estimate_reading(&r, at);
+        }
         d.record_ok(now - Duration::from_millis(20));
         let s = &d.stats;
         s.polls.store(1200, Relaxed);

@@ -88,6 +88,13 @@ impl Theme {
         self.fg(Color::Cyan).add_modifier(Modifier::BOLD)
     }
 
+    /// The lines of a chart, by their place in it (without colour, their markers
+    /// tell them apart).
+    pub fn plot(&self, i: usize) -> Style {
+        const LINES: [Color; 3] = [Color::Cyan, Color::Yellow, Color::Magenta];
+        self.fg(LINES[i % LINES.len()])
+    }
+
     /// The top bar.
     pub fn bar(&self) -> Style {
         Style::new().add_modifier(Modifier::REVERSED)

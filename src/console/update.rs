@@ -21,11 +21,17 @@ pub enum Flow {
     Exit(Exit),
 }
 
-/// Advance time: take a new snapshot, follow up a steering reset, show a new
+/// Advance time: take a new snapshot (on the bench, its device's sample for the
+/// chart), follow up a steering reset, show a new
 /// recovery outcome, and run the deadman.
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
     m.snap = c.frame(now, m.in_bench().then_some(m.bench));
+    if m.in_bench() {
+        if let Some(d) = m.snap.at(m.bench) {
+            m.trail.push(m.bench, d, now);
+        }
+    }
     m.cursor = m.cursor.min(m.fields().len().saturating_sub(1));
     follow_steer_reset(m, c, now);
     let outcome = m.snap.supervisor.last_outcome.clone();
@@ -188,6 +194,7 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::Engage => ask(m, Ask::Engage),
         Action::Disengage => ask(m, Ask::Disengage),
         Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.gate.interlocks)),
+        Action::ClearOverride => clear_override(m, c),
         Action::Teleop => enter_teleop(m),
         Action::Bench => {
             if let Some(r) = m.field().device() {
@@ -460,6 +467,7 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
         Action::AccelDown => t.accel = (t.accel - BRAKE_STEP).max(-1.0),
         Action::FullBrake => t.accel = -1.0,
         Action::Engage => return ask(m, Ask::Engage),
+        Action::ClearOverride => return clear_override(m, c),
         Action::Back | Action::Cancel => {
             c.safe_state();
             m.teleop.last_key = None;
@@ -549,6 +557,7 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::FindNext => find::again(m, 1),
         Action::FindPrev => find::again(m, -1),
         Action::Sim(what) => sim(m, c, what),
+        Action::ClearOverride => clear_override(m, c),
         Action::Back | Action::Cancel => m.mode = Mode::Main,
         _ => {}
     }
@@ -641,12 +650,48 @@ pub fn sim_line(m: &Model, what: SimAction, id: DeviceId) -> String {
             ),
         },
         SimAction::Estop(s) => format!("estop {s}"),
+        SimAction::Override if f.hand.is_some() => format!("override {name} off"),
+        SimAction::Override => format!("override {name} {}", far_end(m, id)),
+    }
+}
+
+/// The end of device `id`'s range farther from where it is (its reading, else its
+/// command): where a driver's hand pushing it moves it the most.
+fn far_end(m: &Model, id: DeviceId) -> f64 {
+    let Some(d) = m.snap.at(id) else { return 0.0 };
+    let Some([lo, hi]) = d.range else { return 0.0 };
+    let at = d
+        .position()
+        .or_else(|| d.commanded.as_ref().and_then(|v| v.as_f64()))
+        .unwrap_or(lo);
+    if at - lo > hi - at {
+        lo
+    } else {
+        hi
+    }
+}
+
+/// The operator clears a latched driver override: the gate's own rule (the same as
+/// the network's `clear`), refused while the driver's hand is still on.
+fn clear_override(m: &mut Model, c: &dyn Controls) {
+    match c.clear_overrides() {
+        Ok(cleared) if cleared.is_empty() => m.say("no override to clear", false),
+        Ok(cleared) => m.say(
+            format!(
+                "override cleared on {}: engage when ready",
+                cleared.join(", ")
+            ),
+            false,
+        ),
+        Err(why) => m.say(why, true),
     }
 }
 
 /// A bench fault key: tell the simulator, say what happened, show it at once.
 fn sim(m: &mut Model, c: &dyn Controls, what: SimAction) {
     let line = sim_line(m, what, m.bench);
+    let letting_go =
+        what == SimAction::Override && m.snap.sim_of(m.bench).is_some_and(|f| f.hand.is_some());
     match c.sim(&line) {
         None => m.say(
             "fault injection needs --sim (devices simulated in this process)",
@@ -654,9 +699,12 @@ fn sim(m: &mut Model, c: &dyn Controls, what: SimAction) {
         ),
         Some(Err(e)) => m.say(format!("sim: {e}"), true),
         Some(Ok(done)) => {
-            let harmless = matches!(what, SimAction::Clear | SimAction::Estop(EstopState::Run))
-                || done.ends_with(" off")
-                || done.ends_with(" 0");
+            let harmless = match what {
+                SimAction::Clear | SimAction::Estop(EstopState::Run) => true,
+                // "…toward 0" is a push, not a switch turned off.
+                SimAction::Override => letting_go,
+                _ => done.ends_with(" off") || done.ends_with(" 0"),
+            };
             m.say(format!("sim: {done}"), !harmless);
             m.snap = c.frame(m.now, Some(m.bench));
         }

@@ -51,6 +51,7 @@ impl Model {
             id,
             d,
             red: self.snap.red(d),
+            overridden: self.snap.overridden(d),
             sim: self.snap.sim_of(id),
             theme: self.theme,
             cursor: (!self.in_teleop()).then(|| self.field()),
@@ -286,6 +287,7 @@ impl Widget for &Model {
                     id: self.bench,
                     d,
                     red: self.snap.red(d),
+                    overridden: self.snap.overridden(d),
                     sim: self.snap.sim_of(self.bench),
                     buckets: &self.snap.buckets,
                     trace: &self.snap.trace,
@@ -296,6 +298,7 @@ impl Widget for &Model {
                     sim_vehicle: self.snap.sim_vehicle.as_deref(),
                     map: &self.keymap,
                     roles: &self.snap.gate.roles,
+                    trail: &self.trail,
                 };
                 (&v).render(body, buf);
             }

@@ -1,8 +1,9 @@
 //! The engine: two threads per actuator, one per sensor, over the shared
 //! [`Vehicle`].
 //!
-//! - The **status thread** polls its device every `status_period` and stores the
-//!   reading in the cache. Readers (network, console, supervisor) only read the cache.
+//! - The **status thread** polls its device every `status_period` (or, with adaptive
+//!   polling, when the estimate needs it: [`polling`]) and stores the reading in the
+//!   cache and the estimator. Readers (network, console, supervisor) only read them.
 //! - The **command thread** sleeps on its slot ([`crate::vehicle::slot`]) until a
 //!   command arrives, then sends
 //!   the latest one at once; with nothing new for `command_timeout` it sends the last
@@ -18,6 +19,8 @@
 //! Command threads run where the vehicle file's [`placement`] puts the command path.
 
 pub mod placement;
+
+pub mod polling;
 
 use crate::config::PortRule;
 use crate::safety::{Gate, WireStep};
@@ -117,13 +120,14 @@ fn status_loop(d: &Device, stop: &StopSignal) {
     let mut next = Instant::now();
     // The first poll is due at once.
     let mut last_attempt: Option<Instant> = None;
+    let mut schedule = polling::Schedule::default();
     loop {
         if !stop.sleep_until(next) {
             return;
         }
         let period = d.settings.status_period();
         next = (next + period).max(Instant::now());
-        if !d.settings.status_enabled.load(Relaxed) {
+        if !d.settings.status_enabled.load(Relaxed) || !schedule.due(d, Instant::now()) {
             continue;
         }
         let overdue_at = last_attempt.map_or_else(Instant::now, |t| t + d.config.status_max_age);
@@ -131,6 +135,7 @@ fn status_loop(d: &Device, stop: &StopSignal) {
             return;
         };
         let started = Instant::now();
+        schedule.start(d, started);
         let (result, first) = port.transact(|drv, link| drv.poll(link));
         let done = Instant::now();
         drop(port);
@@ -146,12 +151,16 @@ fn status_loop(d: &Device, stop: &StopSignal) {
                     reading,
                     at: Some(done),
                 };
+                let correction = d.estimate_reading(&reading, done);
+                schedule.finish(correction.is_some_and(|c| c.surprise));
                 d.health.status_error.store(0, Relaxed);
                 d.record_ok(done);
             }
             Err(e) => {
                 Stats::bump(&d.stats.status_errors);
                 d.record_error(&e, false);
+                // Nothing learnt: try again at the next wake-up.
+                schedule.finish(true);
             }
         }
     }
@@ -261,6 +270,7 @@ fn command_loop(gate: &Gate, d: &Device) {
             d.slot.finish(command, result.is_ok());
             match result {
                 Ok(()) => {
+                    d.estimate_command(command, first.unwrap_or(done));
                     Stats::bump(&d.stats.executed);
                     if !fresh {
                         Stats::bump(&d.stats.resent);

@@ -33,14 +33,14 @@ pub mod status {
     pub const NO_REPLY: i32 = 3;
 }
 
-/// Command-line words to protocol lines: `engage` and `disengage` stand alone, every
+/// Command-line words to protocol lines: `engage`, `disengage` and `clear` stand alone, every
 /// other line is a name and a value, so `engage trans drive accel 0.3` and
 /// `'trans drive' 'accel 0.3'` both work whatever the vehicle's devices are called.
 /// A `;` or newline inside an argument also ends a line.
 pub fn lines_from_words(words: &[String]) -> String {
     let mut lines: Vec<Vec<String>> = Vec::new();
     let alone = |w: &str| {
-        ["engage", "disengage"]
+        ["engage", "disengage", "clear"]
             .iter()
             .any(|k| k.eq_ignore_ascii_case(w))
     };
@@ -81,10 +81,12 @@ fn now_ns() -> u64 {
 /// `adrive send`: returns the exit status ([`status`]).
 pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32> {
     let expects_reply = match proto::parse(body.as_bytes(), &Vocabulary::open()) {
-        Ok(d) => d
-            .commands
-            .iter()
-            .any(|c| matches!(c, NetCommand::Engage | NetCommand::Disengage)),
+        Ok(d) => d.commands.iter().any(|c| {
+            matches!(
+                c,
+                NetCommand::Engage | NetCommand::Disengage | NetCommand::Clear
+            )
+        }),
         Err(e) => {
             eprintln!("adrive send: {e}");
             eprintln!("the commands, one per line, as sent:\n{body}");

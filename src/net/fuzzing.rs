@@ -115,7 +115,7 @@ fn check_accepted(d: &Datagram, bytes: &[u8]) {
                     _ => panic!("accepted a command its device does not take: {c:?}"),
                 }
             }
-            NetCommand::Engage | NetCommand::Disengage => {}
+            NetCommand::Engage | NetCommand::Disengage | NetCommand::Clear => {}
         }
     }
     // What was accepted prints back to lines that parse to the same commands.

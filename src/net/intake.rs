@@ -231,6 +231,19 @@ impl Intake {
                     fx.disengaged = Some(commander.take().filter(|c| *c != from));
                     out.line(format_args!("ok disengaged"));
                 }
+                NetCommand::Clear => {
+                    // Clearing moves nothing: it lets an engage through again once
+                    // the driver has let go.
+                    out.gate = true;
+                    match self.gate.clear_overrides() {
+                        Ok(c) if c.is_empty() => out.line(format_args!("ok nothing to clear")),
+                        Ok(c) => out.line(format_args!("ok cleared override on {}", c.join(", "))),
+                        Err(why) => {
+                            out.refused = true;
+                            out.line(format_args!("refused clear: {why}"));
+                        }
+                    }
+                }
                 _ if other.is_some() => {
                     if !out.refused {
                         st.count_refusal(Refusal::OtherCommander);

@@ -17,6 +17,7 @@
 //!          | "accel" SP number                 -1 … 1: < 0 brakes, > 0 throttle (when
 //!                                              throttle and brake are bound)
 //!          | "engage" | "disengage"
+//!          | "clear"                           clear a driver's latched override
 //!          | "seq" SP u64                      header: the sender's counter
 //!          | "tag" SP 64 hex digits            header: HMAC-SHA256, must be the last line
 //! ```
@@ -107,6 +108,8 @@ pub enum NetCommand {
     Engage,
     /// Stop taking network commands and bring the vehicle to its safe state.
     Disengage,
+    /// Clear a driver's latched override (refused while a hand is still on it).
+    Clear,
 }
 
 /// The words a datagram may use on one vehicle: its actuators by name, with their
@@ -176,6 +179,7 @@ impl<'a> Vocabulary<'a> {
             NetCommand::Accel(v) => format!("accel {}", Num(*v)),
             NetCommand::Engage => "engage".into(),
             NetCommand::Disengage => "disengage".into(),
+            NetCommand::Clear => "clear".into(),
         }
     }
 
@@ -605,16 +609,17 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
                 datagram.signed = 0..start;
                 None
             }
-            Some(Verb::Engage | Verb::Disengage) if arg.is_some() => {
+            Some(Verb::Engage | Verb::Disengage | Verb::Clear) if arg.is_some() => {
                 return Err(ParseError::new(
                     Reject::BadSyntax,
                     line,
-                    "engage and disengage take no value",
+                    "engage, disengage and clear take no value",
                     arg.unwrap_or(""),
                 ))
             }
             Some(Verb::Engage) => Some(NetCommand::Engage),
             Some(Verb::Disengage) => Some(NetCommand::Disengage),
+            Some(Verb::Clear) => Some(NetCommand::Clear),
             Some(Verb::Accel) if !vocab.accel => {
                 return Err(ParseError::new(
                     Reject::UnknownVerb,
@@ -664,16 +669,18 @@ enum Verb {
     Accel,
     Engage,
     Disengage,
+    Clear,
     Seq,
     Tag,
 }
 
 impl Verb {
     fn from_word(word: &str) -> Option<Verb> {
-        const WORDS: [(&str, Verb); 5] = [
+        const WORDS: [(&str, Verb); 6] = [
             ("accel", Verb::Accel),
             ("engage", Verb::Engage),
             ("disengage", Verb::Disengage),
+            ("clear", Verb::Clear),
             ("seq", Verb::Seq),
             ("tag", Verb::Tag),
         ];
@@ -1173,6 +1180,7 @@ mod tests {
             state("trans", "reverse"),
             NetCommand::Engage,
             NetCommand::Disengage,
+            NetCommand::Clear,
         ];
         let v = alice();
         let text: String = cmds.iter().map(|c| format!("{}\n", v.line(c))).collect();
@@ -1253,6 +1261,7 @@ mod tests {
                 select(vec!["park", "reverse", "neutral", "drive"]).prop_map(|g| state("trans", g)),
                 Just(NetCommand::Engage),
                 Just(NetCommand::Disengage),
+                Just(NetCommand::Clear),
             ]
         }
 

@@ -4,7 +4,8 @@
 //! reported yet, the e-stop in pause or disable; the monitor thread (`gate/monitor`)
 //! disengages an engaged vehicle as soon as that list is not empty, whoever engaged it
 //! (console or network). Looking every [`EVERY`], it bounds how late a silent device,
-//! the e-stop first of all, is acted on. Both read the caches only.
+//! the e-stop first of all, is acted on. Both read the caches only, and the devices a
+//! driver has taken over (latched `override`s, held by the [`Gate`]).
 
 use super::Gate;
 use crate::threads::{StopSignal, Threads};
@@ -17,8 +18,13 @@ use std::time::{Duration, Instant};
 pub const EVERY: Duration = Duration::from_millis(10);
 
 /// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
-pub fn blockers(v: &Vehicle) -> Vec<String> {
+pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     let mut why = Vec::new();
+    for d in overridden {
+        why.push(format!(
+            "{d} is in the driver's hands (override): clear it once the driver has let go"
+        ));
+    }
     for d in &v.devices {
         if let Some(fault) = d.fault() {
             why.push(format!("{} is faulty ({fault})", d.name()));
@@ -46,7 +52,7 @@ impl Monitor {
         threads.spawn("gate/monitor".into(), move || {
             crate::threads::every(EVERY, &s, || {
                 if gate.is_engaged() {
-                    if let Some(why) = blockers(&gate.vehicle).into_iter().next() {
+                    if let Some(why) = gate.blockers().into_iter().next() {
                         gate.disengage(&why);
                     }
                 }

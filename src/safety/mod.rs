@@ -2,7 +2,13 @@
 //! them to the vehicle. The rules themselves are pure functions —
 //! [`rules::check`] at intake, [`wire::verdict`] right before a command goes out,
 //! [`gate::blockers`] for engaging and the monitor, [`safe::state`] for the safe state
-//! — and act on roles bound in the vehicle file, never on device names.
+//! and [`safe::manual`] for it while a driver has taken over — and act on roles bound
+//! in the vehicle file, never on device names.
+//!
+//! A driver's override ([`Gate::take_over`]) is not a failure: the vehicle goes to the
+//! manual state (nothing braking against the driver), the override is latched, and
+//! engaging is refused until it is cleared ([`Gate::clear_overrides`]) with the driver's
+//! hands off.
 //!
 //! [`Gate`] is the policy object over the [`Vehicle`]: it is engaged or not (and says
 //! why), takes commands from every source (network, console, supervisor) through
@@ -63,6 +69,8 @@ pub struct Gate {
     reason: Mutex<String>,
     /// Devices a recovery procedure has taken over: intake refuses them.
     recovering: Vec<AtomicBool>,
+    /// Devices a driver has taken over (latched `override`), by name, in order.
+    overridden: Mutex<Vec<String>>,
     rejections: [AtomicU64; Reject::ALL.len()],
     /// Rejections are logged at most 10 a second (a planner at 100 Hz must not flood).
     reject_log: Mutex<RateLimit>,
@@ -87,6 +95,7 @@ impl Gate {
             engaged: AtomicBool::new(false),
             reason: Mutex::new("not engaged yet".into()),
             recovering,
+            overridden: Mutex::new(Vec::new()),
             rejections: Default::default(),
             reject_log: Mutex::new(RateLimit::new(10)),
             vehicle,
@@ -152,7 +161,75 @@ impl Gate {
 
     /// Reasons engaging is refused right now (empty: it may engage).
     pub fn blockers(&self) -> Vec<String> {
-        gate::blockers(&self.vehicle)
+        gate::blockers(&self.vehicle, &self.overridden.lock())
+    }
+
+    /// The devices a driver has taken over (latched overrides).
+    pub fn overridden(&self) -> Vec<String> {
+        self.overridden.lock().clone()
+    }
+
+    /// A driver took `device` over (`why`: the supervisor's `override`): latch it and
+    /// hand the vehicle to the driver — disengaged, in the manual state (throttle and
+    /// brake released, the steering no longer commanded). Already latched: nothing.
+    pub fn take_over(&self, device: &str, why: &str) {
+        {
+            let mut o = self.overridden.lock();
+            if o.iter().any(|d| d == device) {
+                return;
+            }
+            o.push(device.to_string());
+        }
+        tracing::warn!(device, "driver override: {why}");
+        // Nothing is resent to a device the manual state does not command.
+        let manual = safe::manual(&self.vehicle.config);
+        for d in self.vehicle.devices.iter().filter(|d| d.is_actuator()) {
+            if !manual.iter().any(|(id, _)| *id == d.id) {
+                d.slot.reset(None);
+            }
+        }
+        self.disengage(&format!("driver override on {device}"));
+    }
+
+    /// Clear the latched overrides, unless a driver's hand is still on one of them
+    /// (the supervisor still names its `override`). Returns what was cleared, or why
+    /// not.
+    pub fn clear_overrides(&self) -> Result<Vec<String>, String> {
+        let still: Vec<String> = self
+            .vehicle
+            .supervision
+            .faults()
+            .into_iter()
+            .filter(|f| f.kind == crate::snapshot::FaultKind::Override)
+            .filter_map(|f| f.device)
+            .collect();
+        let mut o = self.overridden.lock();
+        let held: Vec<&str> = o
+            .iter()
+            .filter(|d| still.contains(d))
+            .map(String::as_str)
+            .collect();
+        if !held.is_empty() {
+            return Err(format!(
+                "override not cleared: the driver is still moving {} (let go first)",
+                held.join(", ")
+            ));
+        }
+        let cleared = std::mem::take(&mut *o);
+        if !cleared.is_empty() {
+            tracing::info!("override cleared: {}", cleared.join(", "));
+        }
+        Ok(cleared)
+    }
+
+    /// What the vehicle is commanded when it must stop: the safe state, or the manual
+    /// state while a driver has taken over (one rule for every path that stops it).
+    fn stop_state(&self) -> Vec<(DeviceId, Command)> {
+        if self.overridden.lock().is_empty() {
+            safe::state(&self.vehicle.config)
+        } else {
+            safe::manual(&self.vehicle.config)
+        }
     }
 
     /// Engage: accept commands from now on. Refused while anything blocks it. Every
@@ -451,10 +528,11 @@ impl Gate {
     }
 
     /// Command the safe state to every actuator there is, bypassing the interlocks
-    /// (the safe state is always allowed).
+    /// (the safe state is always allowed) — the manual state while a driver has taken
+    /// over.
     pub fn command_safe_state(&self) {
         let now = Instant::now();
-        for (id, c) in safe::state(&self.vehicle.config) {
+        for (id, c) in self.stop_state() {
             self.store(self.vehicle.device(id), c, now);
         }
     }
@@ -463,7 +541,7 @@ impl Gate {
     /// Returns false if one did not by the deadline.
     pub fn wait_safe(&self, deadline: Instant) -> bool {
         let mut ok = true;
-        for (id, want) in safe::state(&self.vehicle.config) {
+        for (id, want) in self.stop_state() {
             let d = self.vehicle.device(id);
             if !d.slot.wait_executed(|c| c == want, deadline) {
                 tracing::error!(device = %d.name(), "did not acknowledge the safe state");
@@ -484,6 +562,7 @@ impl Gate {
             rules: self.rules.names().into_iter().map(str::to_string).collect(),
             roles: self.vehicle.role_names(),
             accel: b.has_accel(),
+            overridden: self.overridden(),
         }
     }
 

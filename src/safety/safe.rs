@@ -3,6 +3,12 @@
 //! vehicle file (horn off, hazard lights on). It comes from the bindings, never from
 //! device names; a vehicle without a brake binding has a safe state that cannot brake
 //! (adrive says so at start).
+//!
+//! The manual state is the safe state while a driver has taken over (a latched
+//! `override`): the throttle released and the brake released too — adrive never brakes
+//! against the driver — and nothing else commanded: the steering drive keeps the set
+//! point it has (the line protocols have no way to release it) and adrive stops
+//! sending it any.
 
 use crate::config::VehicleConfig;
 use crate::value::{Command, DeviceId};
@@ -29,6 +35,16 @@ pub fn state(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
     out
 }
 
+/// Every command of the manual state: the throttle and the brake released.
+pub fn manual(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
+    let b = &config.roles;
+    [b.throttle, b.brake]
+        .into_iter()
+        .flatten()
+        .map(|id| (id, Command::Set(config.devices[id.index()].range[0])))
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -45,6 +61,22 @@ mod tests {
             vec![
                 ("gas".to_string(), Command::Set(0.0)),
                 ("brake".to_string(), Command::Set(1.0))
+            ]
+        );
+    }
+
+    #[test]
+    fn alice_s_manual_state_releases_gas_and_brake_and_leaves_the_steering_alone() {
+        let a = VehicleConfig::alice();
+        let named: Vec<(String, Command)> = manual(&a)
+            .into_iter()
+            .map(|(id, c)| (a.devices[id.index()].name.clone(), c))
+            .collect();
+        assert_eq!(
+            named,
+            vec![
+                ("gas".to_string(), Command::Set(0.0)),
+                ("brake".to_string(), Command::Set(0.0))
             ]
         );
     }

@@ -3,7 +3,7 @@
 //! [`VERBS`], holds every command with its argument forms, the devices it applies to
 //! and what it does. Parsing reads the table, so an error names the form expected, and
 //! `help` prints the same table, so the two cannot drift apart. Devices are named as
-//! the vehicle file names them; a command for a drive (`jam`, `stuck`, `bias`) applies
+//! the vehicle file names them; a command for a drive (`jam`, `stuck`, `bias`, `override`) applies
 //! to setpoint devices.
 
 use crate::value::{DeviceId, EstopState, Kind};
@@ -34,6 +34,8 @@ pub enum Arg {
     Number(&'static str),
     /// An e-stop state.
     Estop,
+    /// A finite number, or `off`.
+    NumberOrOff(&'static str),
 }
 
 impl Arg {
@@ -46,6 +48,7 @@ impl Arg {
             Arg::Millis => "MS".into(),
             Arg::Number(name) => (*name).into(),
             Arg::Estop => "pause|run|disable".into(),
+            Arg::NumberOrOff(name) => format!("{name}|off"),
         }
     }
 
@@ -85,6 +88,10 @@ impl Arg {
                 .map(Value::Number)
                 .ok_or_else(|| format!("{name} is a number, got {word:?}")),
             Arg::Estop => word.parse().map(Value::Estop),
+            Arg::NumberOrOff(_) if word == "off" => Ok(Value::Off),
+            Arg::NumberOrOff(name) => Arg::Number(name)
+                .parse(word, devices)
+                .map_err(|e| format!("{e} or off")),
         }
     }
 }
@@ -107,6 +114,7 @@ pub enum Value {
     Millis(u64),
     Number(f64),
     Estop(EstopState),
+    Off,
 }
 
 /// One command of the language, parsed.
@@ -118,6 +126,8 @@ pub enum SimCommand {
     Jam(DeviceId),
     Stuck(DeviceId, bool),
     Bias(DeviceId, f64),
+    /// A driver's hand pushes the device toward the position (`None`: lets go).
+    Override(DeviceId, Option<f64>),
     Silent(DeviceId, bool),
     Garbage(DeviceId, bool),
     Corrupt(DeviceId, bool),
@@ -176,6 +186,13 @@ impl Values {
         match self.0[i] {
             Value::Number(x) => x,
             v => unreachable!("the table says argument {i} is a number, got {v:?}"),
+        }
+    }
+    fn number_or_off(&self, i: usize) -> Option<f64> {
+        match self.0[i] {
+            Value::Number(x) => Some(x),
+            Value::Off => None,
+            v => unreachable!("the table says argument {i} is a number or off, got {v:?}"),
         }
     }
     fn estop(&self, i: usize) -> EstopState {
@@ -277,6 +294,13 @@ pub const VERBS: &[Verb] = &[
         build: |v| SimCommand::Bias(v.device(0), v.number(1)),
     },
     Verb {
+        name: "override",
+        args: &[SETPOINT, Arg::NumberOrOff("X")],
+        does: "a driver's hand pushes the device toward X, stronger than its drive (off: lets go)",
+        example: "override steer 0.5",
+        build: |v| SimCommand::Override(v.device(0), v.number_or_off(1)),
+    },
+    Verb {
         name: "help",
         args: &[],
         does: "this list",
@@ -365,6 +389,13 @@ mod tests {
         assert_eq!(p("bias gas -0.25"), Ok(SimCommand::Bias(GAS, -0.25)));
         assert_eq!(p("slow steer 80ms"), Ok(SimCommand::Slow(STEER, 80)));
         assert_eq!(p("stuck gas on"), Ok(SimCommand::Stuck(GAS, true)));
+        assert_eq!(p("override gas off"), Ok(SimCommand::Override(GAS, None)));
+        assert_eq!(
+            p("override steer -0.5"),
+            Ok(SimCommand::Override(STEER, Some(-0.5)))
+        );
+        let e = p("override steer hard").unwrap_err();
+        assert!(e.contains("X is a number, got \"hard\" or off"), "{e}");
     }
 
     /// The incident: `stuck gas on` was refused with a message that did not say
@@ -416,6 +447,7 @@ mod tests {
         }
         assert!(h.contains("stuck SETPOINT on|off"), "{h}");
         assert!(h.contains("silent DEVICE on|off"), "{h}");
+        assert!(h.contains("override SETPOINT X|off"), "{h}");
         assert!(h.contains("SETPOINT is one of steer, gas, brake"), "{h}");
     }
 }

@@ -352,6 +352,13 @@ impl Sim {
                 self.model.lock().device_mut(id).bias = x;
                 Ok(format!("{} reports its position {x:+} off", name(id)))
             }
+            SimCommand::Override(id, to) => {
+                self.model.lock().set_override(id, to);
+                Ok(match to {
+                    Some(x) => format!("{}: a hand pushes it toward {x}", name(id)),
+                    None => format!("{}: the hand lets go", name(id)),
+                })
+            }
             SimCommand::Silent(r, on) => port_fault(r, &format!("silent {}", on_off(on)), &|f| {
                 f.silent.store(on, Relaxed)
             }),

@@ -64,6 +64,9 @@ pub struct SimDevice {
     pub stuck: bool,
     /// Fault injection: an offset added to the position it reports (a slipped sensor).
     pub bias: f64,
+    /// Fault injection: a driver's hand pushes the device toward this position,
+    /// stronger than its drive.
+    pub hand: Option<f64>,
     /// What the device's own watchdog commands.
     pub safe: Option<Command>,
     sources: Vec<Source>,
@@ -75,7 +78,12 @@ impl SimDevice {
             return;
         }
         let before = self.position;
-        if self.enabled && !self.fault_latched && !self.stuck {
+        if let Some(to) = self.hand {
+            // Twice as fast as the drive, and never slower than a range a second.
+            let [lo, hi] = self.range;
+            let r = self.rate.unwrap_or(0.0).max(hi - lo) * 2.0;
+            self.position += (to.clamp(lo, hi) - self.position).clamp(-r * h, r * h);
+        } else if self.enabled && !self.fault_latched && !self.stuck {
             let err = self.command - self.position;
             self.position += match (self.rate, self.lag) {
                 (Some(r), _) => err.clamp(-r * h, r * h),
@@ -210,6 +218,7 @@ impl Model {
                     fault_latched: false,
                     stuck: false,
                     bias: 0.0,
+                    hand: None,
                     safe: own_safe,
                     sources,
                 }
@@ -349,6 +358,12 @@ impl Model {
     pub fn jam(&mut self, id: DeviceId) {
         self.step();
         self.device_mut(id).fault_latched = true;
+    }
+
+    /// Fault injection: a driver's hand pushes a drive toward `to` (`None`: lets go).
+    pub fn set_override(&mut self, id: DeviceId, to: Option<f64>) {
+        self.step();
+        self.device_mut(id).hand = to;
     }
 
     /// The device's own watchdog tripped: no command frame for too long. It goes to
@@ -533,6 +548,23 @@ mod tests {
         assert!((s - 0.5).abs() < 0.02, "{s}");
         run_for(&mut m, 1.0);
         assert_eq!(m.device(id("steer")).position, 1.0);
+    }
+
+    #[test]
+    fn a_hand_pushes_a_drive_past_its_command_and_lets_go() {
+        let (mut m, id) = alice();
+        let s = id("steer");
+        m.command(s, Command::Set(0.0)).unwrap();
+        m.set_override(s, Some(-0.6));
+        run_for(&mut m, 1.0);
+        assert_eq!(
+            m.device(s).position,
+            -0.6,
+            "the hand is stronger than the drive"
+        );
+        m.set_override(s, None);
+        run_for(&mut m, 1.0);
+        assert_eq!(m.device(s).position, 0.0, "let go, the drive takes it back");
     }
 
     #[test]

@@ -37,7 +37,24 @@ pub struct Track {
     window: Vec<(Instant, u64, u64)>,
     /// Since when the measured value is away from the command.
     away_since: Option<Instant>,
+    /// A device with a declared response: the command, when and how far away (by the
+    /// estimate) the current headway window began.
+    headway: Option<(f64, Instant, f64)>,
+    /// A device with a declared response: where its commands alone can have taken it
+    /// (from its readings, never away from its command nor faster than declared), when
+    /// that was, and since when a reading has been further than `override_threshold`
+    /// from it.
+    explained: Option<(f64, Instant)>,
+    unexplained_since: Option<Instant>,
 }
+
+/// Slack on a declared response when judging what a command explains (a declared rate
+/// or lag is not exact, and a reading is a status period old).
+const EXPLAIN_SLACK: f64 = 1.5;
+
+/// A device with a declared response makes headway when it gets at least this share
+/// of the way its response promises: a slow but healthy actuator does.
+const HEADWAY: f64 = 0.25;
 
 /// What the detectors remember between turns.
 pub struct Memory {
@@ -84,7 +101,7 @@ pub fn detect(
         });
     };
     for (d, c) in snap.devices.iter().zip(&cfg.devices) {
-        device_faults(d, c, sup, mem, now, &mut raise);
+        device_faults(d, c, sup, mem, previous, now, &mut raise);
     }
     let b = &cfg.roles;
     let running = b.engine_running.and_then(|r| reading(snap, cfg, r));
@@ -121,6 +138,7 @@ fn device_faults(
     c: &crate::config::DeviceConfig,
     sup: &SupervisorConfig,
     mem: &mut Memory,
+    previous: &[Fault],
     now: Instant,
     raise: &mut impl FnMut(FaultKind, Option<&str>, String),
 ) {
@@ -194,6 +212,9 @@ fn device_faults(
     let fresh = d.status_age_ms.is_some() && age <= limit;
     if !fresh {
         track.away_since = None;
+        track.headway = None;
+        track.explained = None;
+        track.unexplained_since = None;
         return;
     }
     if d.fault != 0 {
@@ -218,7 +239,70 @@ fn device_faults(
             format!("reports {pos:.3}, outside [{lo}, {hi}]"),
         );
     }
-    if let Some(Value::Number(cmd)) = d.executed {
+    if let (Some(r), Some(&Value::Number(cmd))) = (c.response, d.executed.as_ref()) {
+        let unexplained = unexplained(track, &r, c.range, pos, cmd, now);
+        // Once named, an override lasts until the device is back at its command: a
+        // hand that holds still explains itself no better than a stuck motor would.
+        let named = previous
+            .iter()
+            .any(|f| f.kind == FaultKind::Override && f.device.as_deref() == who);
+        if named && (pos - cmd).abs() > r.override_threshold {
+            raise(
+                FaultKind::Override,
+                who,
+                format!("measured {pos:.3}, commanded {cmd:.3}: held away from its command (a driver's hand)"),
+            );
+            track.explained = None;
+            track.headway = None;
+            return;
+        }
+        if unexplained > r.override_threshold {
+            let since = *track.unexplained_since.get_or_insert(now);
+            if now - since > r.override_time {
+                raise(
+                    FaultKind::Override,
+                    who,
+                    format!(
+                        "measured {pos:.3}, commanded {cmd:.3}: {unexplained:.3} from where its command can have taken it for {:.1} s (a driver's hand)",
+                        (now - since).as_secs_f64()
+                    ),
+                );
+                // Held by a hand, it is not failing to follow.
+                track.headway = None;
+                return;
+            }
+        } else {
+            track.unexplained_since = None;
+        }
+    }
+    if let (Some(r), Some(e), Some(&Value::Number(cmd))) =
+        (c.response, d.estimate, d.executed.as_ref())
+    {
+        // By the estimate: no headway toward the command for `stall_time`.
+        let gap = (cmd - e.position).abs();
+        match track.headway {
+            _ if gap <= r.deadband => track.headway = None,
+            Some((was, since, gap0)) if was == cmd => {
+                let elapsed = now - since;
+                let promised = r.progress(gap0, elapsed);
+                let made = gap0 - gap;
+                if elapsed > sup.stall_time && made < HEADWAY * promised {
+                    raise(
+                        FaultKind::NotFollowing,
+                        who,
+                        format!(
+                            "measured {pos:.3}, commanded {cmd:.3}: {made:.3} of the {promised:.3} its response promises in {:.1} s",
+                            elapsed.as_secs_f64()
+                        ),
+                    );
+                } else if elapsed > sup.stall_time {
+                    // Headway made: judge the next window from here.
+                    track.headway = Some((cmd, now, gap));
+                }
+            }
+            _ => track.headway = Some((cmd, now, gap)),
+        }
+    } else if let Some(Value::Number(cmd)) = d.executed {
         if (pos - cmd).abs() > sup.follow_tolerance * (hi - lo) {
             let since = *track.away_since.get_or_insert(now);
             if now - since > sup.follow_time {
@@ -237,9 +321,43 @@ fn device_faults(
     }
 }
 
-/// Faults that take the vehicle out of the planner's hands.
+/// How far the reading `pos` is from where the command `cmd` can have taken the
+/// device since the last turn — 0 for a device that follows as declared, lags behind
+/// (a slow or stuck motor), or rests at an end stop; the distance it was pushed for a
+/// device that moved away from its command or faster than its response allows (a
+/// driver's hand). What is explained follows the readings; what is not stays put, so
+/// a hand that pushes and holds keeps the distance.
+fn unexplained(
+    track: &mut Track,
+    r: &crate::config::Response,
+    range: [f64; 2],
+    pos: f64,
+    cmd: f64,
+    now: Instant,
+) -> f64 {
+    let Some((from, at)) = track.explained else {
+        track.explained = Some((pos, now));
+        return 0.0;
+    };
+    let dt = (now - at).mul_f64(EXPLAIN_SLACK);
+    let step = r.progress(cmd - from, dt).copysign(cmd - from);
+    let [min, max] = range;
+    let (lo, hi) = if step >= 0.0 {
+        (from, from + step)
+    } else {
+        (from + step, from)
+    };
+    let explained = pos.clamp(lo.max(min), hi.min(max).max(lo.max(min)));
+    track.explained = Some((explained, now));
+    // A reading's own scatter and the dead band explain themselves, but never move
+    // what is explained: a slow push gets no further by them.
+    ((pos - explained).abs() - 3.0 * r.noise - r.deadband).max(0.0)
+}
+
+/// Faults that take the vehicle out of the planner's hands into the safe state (an
+/// override hands it to the driver instead: [`Gate::take_over`]).
 pub fn disengages(kind: FaultKind) -> bool {
-    !matches!(kind, FaultKind::EngineStall)
+    !matches!(kind, FaultKind::EngineStall | FaultKind::Override)
 }
 
 /// The procedure a fault calls for, if any (and if the vehicle has what it needs).
@@ -320,6 +438,11 @@ impl Supervisor {
             }
         }
         board.set_faults(faults.clone());
+        for f in faults.iter().filter(|f| f.kind == FaultKind::Override) {
+            if let Some(device) = f.device.as_deref() {
+                gate.take_over(device, &f.describe());
+            }
+        }
 
         // A disengaged vehicle is never moved by adrive on its own: a procedure that
         // moves an actuator runs only while engaged, and stops when it no longer is

@@ -3,6 +3,7 @@
 //! console may change while running. Threads share it through the
 //! [`Vehicle`](super::Vehicle); readers only ever read the cache.
 
+use super::estimate::{Correction, Estimate, Estimator};
 use super::port::{Conn, Opener, Port, PortHealth};
 use super::slot::CommandSlot;
 use super::stats::Stats;
@@ -10,7 +11,7 @@ use super::tap::{Event, Tap};
 use super::trace::Trace;
 use crate::config::{DeviceConfig, Role, Violation};
 use crate::driver::DriverError;
-use crate::value::{DeviceId, Kind, Reading};
+use crate::value::{Command, DeviceId, Kind, Reading};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
@@ -124,6 +125,9 @@ pub struct Device {
     pub port_health: Arc<PortHealth>,
     /// When the device was set up (the engine starts right after).
     pub started: Instant,
+    /// The state estimator of a setpoint device with a declared response, and the
+    /// index of the `position` reading it is corrected by.
+    estimator: Option<(Mutex<Estimator>, usize)>,
     /// The vehicle's recording tap.
     pub tap: Arc<Tap>,
 }
@@ -139,7 +143,12 @@ impl Device {
         let driver = crate::driver::build(&config);
         let trace = Arc::new(Trace::new(config.name.as_str()).tapped(id, tap.clone()));
         let port_health = Arc::new(PortHealth::default());
+        let estimator = config
+            .response
+            .zip(config.reading("position"))
+            .map(|(r, i)| (Mutex::new(Estimator::new(r, config.range)), i));
         Device {
+            estimator,
             id,
             roles,
             port: Port::new(
@@ -232,6 +241,31 @@ impl Device {
 
     pub fn cached(&self) -> Cached {
         *self.cache.lock()
+    }
+
+    /// What the estimator believes at `now` (`None` without a declared response, or
+    /// before the first reading).
+    pub fn estimate(&self, now: Instant) -> Option<Estimate> {
+        self.estimator.as_ref()?.0.lock().at(now)
+    }
+
+    /// A copy of the estimator, to plan by (`None` without a declared response).
+    pub fn estimator(&self) -> Option<Estimator> {
+        self.estimator.as_ref().map(|(e, _)| e.lock().clone())
+    }
+
+    /// The device acknowledged `command` at `at`: the estimate moves toward it.
+    pub(crate) fn estimate_command(&self, command: Command, at: Instant) {
+        if let (Some((e, _)), Command::Set(v)) = (&self.estimator, command) {
+            e.lock().command(v, at);
+        }
+    }
+
+    /// A good status taken at `at` corrects the estimate.
+    pub(crate) fn estimate_reading(&self, reading: &Reading, at: Instant) -> Option<Correction> {
+        let (e, i) = self.estimator.as_ref()?;
+        let position = reading.get(*i)?;
+        Some(e.lock().correct(position, at))
     }
 
     /// A reading of the last good status, if there is one.

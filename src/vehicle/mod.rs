@@ -4,12 +4,13 @@
 //! [`Snapshot`](crate::snapshot::Snapshot); it has no policy — the safety rules that
 //! decide what may reach a slot live in [`crate::safety`].
 //!
-//! - [`device`]: one device; [`slot`]: its latest-wins command slot; [`port`]: its
+//! - [`device`]: one device; [`estimate`]: its state estimator; [`slot`]: its latest-wins command slot; [`port`]: its
 //!   shared port and the rule by which its two threads take turns; [`stats`]: its
 //!   always-on figures; [`trace`]: its raw traffic; [`supervision`]: the supervisor's
 //!   board; [`tap`]: where everything that happens is handed to a recording.
 
 pub mod device;
+pub mod estimate;
 pub mod port;
 pub mod slot;
 pub mod stats;
@@ -195,6 +196,7 @@ fn view(d: &Device, now: Instant) -> DeviceView {
             status_max_age_ms: ms(cfg.status_max_age),
             status_on: d.settings.status_enabled.load(Relaxed),
             command_on: d.settings.command_enabled.load(Relaxed),
+            polling: cfg.polling.as_str().to_string(),
         },
         counters: snapshot::Counters {
             received: s.received,
@@ -210,5 +212,11 @@ fn view(d: &Device, now: Instant) -> DeviceView {
         delay_us: s.command_delay,
         command_txn_us: s.command_txn,
         status_txn_us: s.status_txn,
+        estimate: d.estimate(now).map(|e| snapshot::EstimateView {
+            position: e.position,
+            sigma: e.sigma,
+            velocity: e.velocity,
+            drift: e.drift,
+        }),
     }
 }

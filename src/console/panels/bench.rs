@@ -4,15 +4,19 @@
 //! direction, time, hex and ASCII ("not available" while there is none). Under
 //! `--sim`, a simulator box between them: the faults injected into this device, the
 //! simulated e-stop, engine and steering drive, and the fault keys (from the keymap).
+//! Where the screen is tall enough, a setpoint device's measured position, estimate
+//! and command over the last seconds ([`TrailChart`]) above the traffic.
 
 use super::device::DevicePanel;
 use super::fmt_us;
 use super::hint::grouped;
+use super::trail::{TrailChart, CHART_MAX, CHART_MIN};
 use super::wrap;
 use crate::console::controls::SimFaults;
 use crate::console::keymap::{Action, Keymap, Mode};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
+use crate::console::trail::Trail;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
 use crate::vehicle::trace::TraceEntry;
@@ -27,6 +31,8 @@ pub struct BenchView<'a> {
     pub d: &'a DeviceView,
     /// Faulty to the engine or the supervisor.
     pub red: bool,
+    /// In a driver's hands (`override`).
+    pub overridden: bool,
     /// The faults injected into its simulated device.
     pub sim: Option<&'a SimFaults>,
     /// Its histogram: (upper edge µs, count).
@@ -42,10 +48,14 @@ pub struct BenchView<'a> {
     pub map: &'a Keymap,
     /// The vehicle's role bindings, for the keys' descriptions.
     pub roles: &'a crate::snapshot::Pairs<String>,
+    /// The device's last seconds, for the chart.
+    pub trail: &'a Trail,
 }
 
 /// Rows the simulator box takes.
 const SIM_BOX: u16 = 4;
+/// Rows the traffic keeps before the chart takes any: three lines and the border.
+const TRAFFIC_MIN: u16 = 5;
 
 impl BenchView<'_> {
     /// The simulator box: this device's faults, the simulated vehicle, the keys.
@@ -124,6 +134,26 @@ impl Widget for &BenchView<'_> {
             Constraint::Min(3),
         ])
         .areas(area);
+        // The chart of a setpoint device where the traffic leaves it room; else it
+        // gives way and the panels keep their lines.
+        let chart_h = if self.d.range.is_some() {
+            bottom.height.saturating_sub(TRAFFIC_MIN).min(CHART_MAX)
+        } else {
+            0
+        };
+        let chart_h = if chart_h >= CHART_MIN { chart_h } else { 0 };
+        let [chart, bottom] =
+            Layout::vertical([Constraint::Length(chart_h), Constraint::Min(0)]).areas(bottom);
+        if chart.height > 0 {
+            let c = TrailChart {
+                id: self.id,
+                d: self.d,
+                trail: self.trail,
+                now: self.now,
+                theme: *t,
+            };
+            (&c).render(chart, buf);
+        }
         if sim.height > 0 {
             let block = Block::new().borders(Borders::TOP).title(Span::styled(
                 format!(
@@ -143,6 +173,7 @@ impl Widget for &BenchView<'_> {
             id: self.id,
             d: self.d,
             red: self.red,
+            overridden: self.overridden,
             sim: self.sim,
             theme: *t,
             cursor: self.d.is_actuator().then_some(Field::Command(self.id)),

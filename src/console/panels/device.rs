@@ -1,9 +1,13 @@
 //! One device, laid out like a quarter of the paper's Figure 2: name, range, commanded
 //! and measured value; `st delay` / `cm delay`; thread flags and error codes with the
-//! status age; the device's own fields; receipt → first-byte delay p50/p99/max; and
-//! counters. Editable fields show the cursor and an edit in progress in place. In a
-//! window too short for it (many devices on a small screen), the same panel is packed
-//! side by side into the lines there are ([`DevicePanel::packed`]).
+//! status age; the device's own fields, with the estimated position (`est ± σ`) beside
+//! the measured one where the line has room; receipt → first-byte delay p50/p99/max;
+//! counters; and, where the estimate did not fit beside the readings, `meas` and
+//! `est ± σ` (and the drift its command does not explain) on a line of their own, last,
+//! so that a small panel loses it before any counter. Editable fields show the cursor
+//! and an edit in progress in place. In a window too short for it (many devices on a
+//! small screen), the same panel is packed side by side into the lines there are
+//! ([`DevicePanel::packed`]).
 
 use super::{fmt_age, fmt_us, pack};
 use crate::console::controls::SimFaults;
@@ -24,6 +28,8 @@ pub struct DevicePanel<'a> {
     pub d: &'a DeviceView,
     /// Faulty to the engine or the supervisor: drawn red.
     pub red: bool,
+    /// In a driver's hands (`override`): labelled so, not red.
+    pub overridden: bool,
     /// The faults injected into its simulated device (`--sim`).
     pub sim: Option<&'a SimFaults>,
     pub theme: Theme,
@@ -164,6 +170,9 @@ impl<'a> DevicePanel<'a> {
         if self.red {
             spans.push(Span::styled(" FAULT", t.fault()));
         }
+        if self.overridden {
+            spans.push(Span::styled(" OVERRIDE", t.warn()));
+        }
         if let Some(f) = self.sim.filter(|f| f.any()) {
             spans.push(Span::styled(format!(" sim: {}", f.text), t.warn()));
         }
@@ -245,6 +254,9 @@ impl<'a> DevicePanel<'a> {
                 Style::new(),
             ));
         }
+        if d.settings.polling == "adaptive" {
+            delays.push(l(" adaptive"));
+        }
         out.push(Line::from(delays));
         // thread flags, error codes, age
         let mut flags = vec![
@@ -265,7 +277,38 @@ impl<'a> DevicePanel<'a> {
         flags.push(l("  age "));
         flags.push(Span::styled(fmt_age(age(d)), age_style));
         out.push(Line::from(flags));
-        out.push(self.readings(width, age_style));
+        // The estimate beside the measured position where the readings line has room;
+        // else on its own line, last, where the panel has a line to spare (Alice's
+        // 80×24 panels keep every counter).
+        let mut readings = self.readings(width, age_style);
+        let estimate = d.estimate.as_ref().map(|e| {
+            let est = vec![
+                l("est "),
+                Span::raw(fmt_num(e.position)),
+                l(" ± "),
+                Span::raw(fmt_num(e.sigma)),
+            ];
+            (est, fmt_num(e.drift))
+        });
+        let mut own_line = None;
+        if let Some((est, drift)) = estimate {
+            let est_width: usize = est.iter().map(Span::width).sum();
+            if readings.width() + 2 + est_width <= usize::from(width) {
+                readings.spans.push(Span::raw("  "));
+                readings.spans.extend(est);
+            } else {
+                let meas = fmt_value(d.readings.get("position").and_then(Option::as_ref));
+                let mut line = vec![l("meas "), Span::raw(meas), Span::raw("  ")];
+                line.extend(est);
+                // The drift (units a second its command does not explain), where it fits.
+                let used: usize = line.iter().map(Span::width).sum();
+                if used + "  drift ".len() + drift.len() <= usize::from(width) {
+                    line.extend([l("  drift "), Span::raw(drift)]);
+                }
+                own_line = Some(Line::from(line));
+            }
+        }
+        out.push(readings);
         let s = &d.counters;
         let lat = |name: &'static str, x: &LatencySummary| {
             Line::from(vec![
@@ -320,6 +363,7 @@ impl<'a> DevicePanel<'a> {
                 Span::styled(e.clone(), style),
             ]));
         }
+        out.extend(own_line);
         out
     }
 }
@@ -394,6 +438,7 @@ mod tests {
             id,
             d,
             red: d.health.faulty,
+            overridden: false,
             sim: None,
             theme: Theme::default(),
             cursor: None,
@@ -435,6 +480,46 @@ mod tests {
         let mut plain = got.clone();
         plain.set_style(plain.area, Style::reset());
         assert_eq!(plain, want);
+    }
+
+    #[test]
+    fn the_estimate_sits_beside_the_measured_position_where_it_fits_else_last() {
+        let plain = |buf: &Buffer, y: u16| -> String {
+            (0..buf.area.width)
+                .map(|x| buf[(x, y)].symbol().to_string())
+                .collect::<String>()
+                .trim_end()
+                .to_string()
+        };
+        // The gas has one reading: its estimate fits beside it at 40 columns.
+        let (id, d) = snap_of("gas", false);
+        let buf = render(&panel(id, &d), 40, 4);
+        assert_eq!(plain(&buf, 3), "position 0.000  est 0.000 ± 0.001");
+        // The steering's two readings leave no room: meas and est on a line of their
+        // own, after every counter.
+        let (id, d) = snap_of("steer", false);
+        let buf = render(&panel(id, &d), 40, 9);
+        assert_eq!(plain(&buf, 3), "position 0.231  velocity 0.012");
+        assert_eq!(plain(&buf, 6), "txn p50 4.3ms p99 4.3ms max 4.3ms");
+        assert_eq!(plain(&buf, 8), "polls 1200 st err 0 cm err 0 reconn 0");
+        let buf = render(&panel(id, &d), 40, 10);
+        assert_eq!(plain(&buf, 9), "meas 0.231  est 0.231 ± 0.003");
+    }
+
+    #[test]
+    fn a_device_in_the_drivers_hands_is_labelled_override_in_yellow_not_red() {
+        let (id, d) = snap_of("steer", false);
+        let p = DevicePanel {
+            overridden: true,
+            ..panel(id, &d)
+        };
+        let buf = render(&p, 40, 1);
+        let line: String = (0..40).map(|x| buf[(x, 0)].symbol().to_string()).collect();
+        assert_eq!(line.trim_end(), "STEER -1…1 cmd - meas 0.231 OVERRIDE");
+        let at = line.find("OVERRIDE").unwrap() as u16 - 2; // "…" is 3 bytes, 1 cell
+        assert_eq!(buf[(at, 0)].symbol(), "O");
+        assert_eq!(buf[(at, 0)].fg, Color::Yellow);
+        assert_ne!(buf[(0, 0)].fg, Color::Red, "the name is not red");
     }
 
     #[test]

@@ -15,6 +15,7 @@ pub mod log;
 pub mod network;
 pub mod supervisor;
 pub mod teleop;
+pub mod trail;
 
 use ratatui::style::Style;
 use ratatui::text::{Line, Span};

@@ -35,6 +35,14 @@ fn fault_line(text: String, t: &Theme, tag: &'static str) -> Line<'static> {
     ])
 }
 
+/// A device in the driver's hands: not a failure, so not red.
+fn override_line(text: String, t: &Theme) -> Line<'static> {
+    Line::from(vec![
+        Span::styled("OVERRIDE ", t.warn()),
+        Span::styled(text, t.warn()),
+    ])
+}
+
 /// The step tokens of a procedure: `✓ done`, `▶ current` (highlighted), `· to come`.
 fn step_spans(r: &RecoveryView, t: &Theme) -> Vec<Span<'static>> {
     r.steps
@@ -165,6 +173,7 @@ impl SupervisorPanel<'_> {
             out.push(Line::from(vec![l("faults "), Span::raw("none")]));
         }
         out.extend(faults.into_iter().map(|f| fault_line(f, t, "fault ")));
+        out.extend(s.override_texts().into_iter().map(|o| override_line(o, t)));
         match &sup.recovery {
             Some(r) => {
                 out.push(Line::from(vec![
@@ -240,6 +249,12 @@ impl SupervisorStrip<'_> {
                 .fault_texts()
                 .into_iter()
                 .map(|f| fault_line(f, t, "FAULT ")),
+        );
+        out.extend(
+            self.snap
+                .override_texts()
+                .into_iter()
+                .map(|o| override_line(o, t)),
         );
         out
     }

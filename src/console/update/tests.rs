@@ -123,6 +123,10 @@ impl Controls for Fake {
         self.log(format!("sim {line}"));
         Some(Ok(line.to_string()))
     }
+    fn clear_overrides(&self) -> Result<Vec<String>, String> {
+        self.log("clear overrides".into());
+        self.gate.clear_overrides()
+    }
 }
 
 fn model(f: &Fake) -> Model {
@@ -792,4 +796,64 @@ fn page_keys_move_the_cursor_by_the_page_the_screen_shows() {
     assert_eq!(m.field(), Field::Accel);
     press(&mut m, &f, &["<PageUp>"], now);
     assert_eq!(m.field(), Field::Command(id("steer")));
+}
+
+#[test]
+fn the_override_key_pushes_the_bench_device_toward_its_far_end_and_again_lets_go() {
+    use crate::console::controls::SimFaults;
+    let mut f = Fake::new();
+    f.simulated = true;
+    // The brake held full, the gas at rest: each pushed toward the other end.
+    for d in &mut f.snap.snap.devices {
+        if d.name == "brake" || d.name == "gas" {
+            let at = if d.name == "brake" { 1.0 } else { 0.0 };
+            for (n, v) in d.readings.0.iter_mut() {
+                if n == "position" {
+                    *v = Some(Value::Number(at));
+                }
+            }
+        }
+    }
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["l", "x", "o", "<Tab>", "o"], now);
+    assert_eq!(m.bench, id("brake"));
+    assert_eq!(f.calls(), ["sim override gas 1", "sim override brake 0"]);
+    assert!(
+        m.message.as_ref().unwrap().bad,
+        "a hand on it is an override"
+    );
+    // With the hand on, the same key lets go.
+    f.snap.sim_faults = vec![None; f.snap.devices.len()];
+    f.snap.sim_faults[id("brake").index()] = Some(SimFaults {
+        hand: Some(0.0),
+        ..SimFaults::default()
+    });
+    m.snap = f.snap.clone();
+    press(&mut m, &f, &["o"], now);
+    assert_eq!(&f.calls()[2..], ["sim override brake off"]);
+    assert!(!m.message.as_ref().unwrap().bad, "letting go is no fault");
+}
+
+#[test]
+fn the_clear_key_clears_a_latched_override_through_the_gate_from_main_teleop_and_bench() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["C"], now);
+    assert_eq!(m.message.as_ref().unwrap().text, "no override to clear");
+    // Latched, the driver's hand off: cleared, from each mode that has the key.
+    for keys in [&["C"][..], &["d", "C"], &["<Esc>", "x", "C"]] {
+        f.gate.take_over("steer", "test");
+        assert_eq!(f.gate.overridden(), ["steer"]);
+        press(&mut m, &f, keys, now);
+        let msg = m.message.as_ref().unwrap();
+        assert_eq!(msg.text, "override cleared on steer: engage when ready");
+        assert!(!msg.bad);
+        assert!(f.gate.overridden().is_empty(), "{keys:?}");
+    }
+    assert_eq!(
+        f.calls().iter().filter(|c| *c == "clear overrides").count(),
+        4
+    );
 }
