@@ -16,8 +16,9 @@ use ratatui::layout::{Constraint, Layout, Rect};
 
 /// A device panel's height on a small screen: the title and five lines.
 pub const PANEL: u16 = 6;
-/// A bordered device panel's height on a large screen.
-pub const BIG_PANEL: u16 = 10;
+/// A bordered device panel's height on a large screen: its border and nine lines, the
+/// last the measured value beside the estimate.
+pub const BIG_PANEL: u16 = 11;
 /// The width of one column of the device list.
 pub const LIST_COL: u16 = 40;
 /// The supervisory lines (or teleop's) under the devices on a small screen.
