@@ -174,3 +174,28 @@ fn a_full_range_sweep_end_stops_and_settling_pedals_never_trip_an_override() {
     assert_eq!(named.len(), 1, "{named:?}");
     assert!(named[0].contains("steer"), "{named:?}");
 }
+
+/// An operator's STOP is a person's decision: with the wheel in the driver's hands it
+/// still disengages into the full safe state — gas 0, brake full — while the stops
+/// adrive makes on its own (a disengage) keep the manual state, brake released.
+#[test]
+fn an_operator_stop_during_an_override_brakes_while_adrive_s_own_stops_do_not() {
+    let rig = Rig::supervised(&alice());
+    rig.engage();
+    push_until_named(&rig, "steer", -0.7);
+    in_manual(&rig);
+    // A stop of adrive's own while the override is latched: what the brake will have
+    // next is still the released brake.
+    rig.gate.disengage("test: a stop of adrive's own");
+    assert_eq!(rig.device("brake").slot.latest(), Some(set(0.0)));
+    rig.gate.stop("test: operator STOP");
+    assert_eq!(rig.device("brake").slot.latest(), Some(set(1.0)));
+    for (pedal, want) in [("gas", 0.0), ("brake", 1.0)] {
+        let d = rig.device(pedal);
+        wait_for(&format!("{pedal} at {want}"), || {
+            d.slot.executed() == Some(set(want))
+        });
+    }
+    assert!(!rig.gate.is_engaged());
+    assert_eq!(rig.gate.overridden(), vec!["steer".to_string()]);
+}

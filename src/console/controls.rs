@@ -214,6 +214,9 @@ pub trait Controls {
     fn submit_accel(&self, accel: f64) -> Result<(), Reject>;
     fn engage(&self) -> Result<(), Vec<String>>;
     fn disengage(&self, reason: &str);
+    /// The operator's STOP: disengage, throttle 0, brake full — even while a driver
+    /// has taken over ([`Gate::stop`]).
+    fn stop(&self, reason: &str);
     fn set_interlocks(&self, on: bool);
     /// Refused, with the reason, when the vehicle file would refuse the value.
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String>;
@@ -360,6 +363,9 @@ impl Controls for Live<'_> {
     }
     fn disengage(&self, reason: &str) {
         self.gate.disengage(reason);
+    }
+    fn stop(&self, reason: &str) {
+        self.gate.stop(reason);
     }
     fn set_interlocks(&self, on: bool) {
         self.gate.interlocks.store(on, Relaxed);

@@ -328,6 +328,7 @@ impl Controls for Replay<'_> {
         Err(vec![READ_ONLY.into()])
     }
     fn disengage(&self, _: &str) {}
+    fn stop(&self, _: &str) {}
     fn set_interlocks(&self, _: bool) {}
     fn set_status_period(&self, _: DeviceId, _: Duration) -> Result<(), String> {
         Err(READ_ONLY.into())

@@ -516,7 +516,7 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
 /// half done (an edit, a question, the name prompt) is dropped. Teleop stays, its brake full and its
 /// deadman idle until the next key.
 fn stop(m: &mut Model, c: &dyn Controls) {
-    c.disengage("operator stop from the console");
+    c.stop("operator stop from the console");
     if matches!(m.mode, Mode::Edit | Mode::Confirm | Mode::Find) {
         m.edit = None;
         m.ask = None;

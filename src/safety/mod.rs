@@ -263,9 +263,24 @@ impl Gate {
 
     /// Disengage and command the safe state. Returns false if it was not engaged.
     pub fn disengage(&self, reason: &str) -> bool {
+        self.disengage_into(reason, self.stop_state())
+    }
+
+    /// An operator's STOP: disengage into the full safe state — throttle 0, brake full
+    /// — even while a driver has taken over. Only the stops adrive makes on its own
+    /// (a fault, the watchdog, an exit) leave a driver's vehicle in the manual state;
+    /// a person pressing STOP has decided to brake.
+    pub fn stop(&self, reason: &str) -> bool {
+        self.disengage_into(reason, safe::state(&self.vehicle.config))
+    }
+
+    fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
         let was = self.engaged.swap(false, SeqCst);
         *self.reason.lock() = format!("disengaged: {reason}");
-        self.command_safe_state();
+        let now = Instant::now();
+        for (id, c) in state {
+            self.store(self.vehicle.device(id), c, now);
+        }
         if was {
             tracing::warn!("disengaged: {reason}");
             self.tap_gate(GateChange::Disengaged, || format!("disengaged: {reason}"));

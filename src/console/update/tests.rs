@@ -94,6 +94,9 @@ impl Controls for Fake {
     fn disengage(&self, _reason: &str) {
         self.log("disengage".into());
     }
+    fn stop(&self, _reason: &str) {
+        self.log("stop".into());
+    }
     fn set_interlocks(&self, on: bool) {
         self.log(format!("interlocks {on}"));
     }
@@ -341,7 +344,7 @@ fn space_stops_at_once_without_asking() {
     let mut m = model(&f);
     press(&mut m, &f, &["<Space>"], Instant::now());
     assert_eq!(m.mode, Mode::Main);
-    assert_eq!(f.calls(), ["disengage"]);
+    assert_eq!(f.calls(), ["stop"]);
     assert!(m.message.unwrap().text.contains("STOP"));
 }
 
@@ -367,7 +370,7 @@ fn space_is_stop_in_every_mode() {
         press(&mut m, &f, keys, now);
         let before = f.calls().len();
         press(&mut m, &f, &["<Space>"], now);
-        assert_eq!(f.calls()[before..], ["disengage"], "{keys:?}");
+        assert_eq!(f.calls()[before..], ["stop"], "{keys:?}");
         assert_eq!(m.mode, back_in, "{keys:?}");
         assert!(
             m.edit.is_none() && m.ask.is_none() && m.find.is_none(),
@@ -563,7 +566,7 @@ fn stop_clears_the_accel_shown() {
     tick(&mut m, &f, now);
     assert_eq!(m.accel, Some(0.3), "shown while engaged");
     press(&mut m, &f, &["<Space>"], now);
-    assert_eq!(f.calls(), ["accel 0.3", "disengage"]);
+    assert_eq!(f.calls(), ["accel 0.3", "stop"]);
     f.snap.snap.gate.engaged = false;
     tick(&mut m, &f, now);
     assert_eq!(m.accel, None);
