@@ -82,12 +82,12 @@ fn a_command_on_an_idle_port_is_on_the_wire_when_intake_returns_and_counted_once
 }
 
 /// The port stays held from the request to its reply: a status thread that wants the
-/// port all the while (polling every 5 ms, overdue after 150 ms, against a device that
+/// port all the while (polling every 20 ms, overdue after 150 ms, against a device that
 /// takes 100 ms to answer a command) polls only after the reply is in.
 #[test]
 fn a_status_poll_never_comes_between_a_fast_request_and_its_reply() {
     let rig = Rig::start(&steer_only(
-        "status_period = \"5ms\"\nstatus_max_age = \"150ms\"\nreply_timeout = \"150ms\"\ncommand_timeout = \"10s\"",
+        "status_period = \"20ms\"\nstatus_max_age = \"150ms\"\nreply_timeout = \"150ms\"\ncommand_timeout = \"10s\"",
         "command_delay = \"100ms\"",
     ));
     let steer = engaged(&rig);
@@ -95,7 +95,7 @@ fn a_status_poll_never_comes_between_a_fast_request_and_its_reply() {
     // ordinary one; try again until one goes the fast way.
     let mut v = 0.0;
     loop {
-        v += 0.01;
+        v += 0.001;
         assert!(v < 0.5, "no command found the port idle");
         let fast = submit_when_idle(&rig, steer, set(v));
         wait_for("the command to execute", || {

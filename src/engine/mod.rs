@@ -12,6 +12,9 @@
 //! - Right before a command goes out, the command thread asks the safety rules'
 //!   wire check ([`Gate::check_wire`]); a wait it asks for (braking waits for the
 //!   throttle's release to go out) happens without the port held.
+//! - A command that found its port idle was written by the thread that admitted it
+//!   ([`crate::vehicle::fast`]): the command thread wakes to the transaction with the
+//!   port held, reads the reply and keeps the books as for its own.
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
 //! [`Engine::shutdown`] joins them with a deadline and names any that did not stop.

@@ -348,6 +348,11 @@ impl Conn {
         &mut self,
         f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
     ) -> (Result<T, DriverError>, Option<Instant>) {
+        if let Err(e) = self.ensure_open() {
+            // Not a transaction: the port is closed (waiting to retry, or failed to
+            // open, which `ensure_open` accounted for).
+            return (Err(e), None);
+        }
         let (r, first) = self.run(f);
         self.settle(&r);
         (r, first)
@@ -358,6 +363,9 @@ impl Conn {
         &mut self,
         command: crate::value::Command,
     ) -> (Result<(), DriverError>, Option<Instant>) {
+        if let Err(e) = self.ensure_open() {
+            return (Err(e), None);
+        }
         let (r, first) = self.run(|drv, link| drv.send_command(link, command));
         if r.is_err() {
             self.settle(&r);
@@ -371,20 +379,27 @@ impl Conn {
 
     /// The second half: the reply, and the transaction's end.
     fn finish_half(&mut self) -> Result<(), DriverError> {
+        if self.link.is_none() {
+            // Cannot happen after a good first half; nothing to account for.
+            return Err(DriverError::Io(io::ErrorKind::NotConnected.into()));
+        }
         let (r, _) = self.run(|drv, link| drv.finish_command(link));
         self.settle(&r);
         r
     }
 
-    /// Open the port if needed and run `f` on it, stamping its first byte.
+    /// Run `f` on the open port, stamping its first byte.
     fn run<T>(
         &mut self,
         f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
     ) -> (Result<T, DriverError>, Option<Instant>) {
-        if let Err(e) = self.ensure_open() {
-            return (Err(e), None);
-        }
-        let link = self.link.as_mut().expect("opened").as_mut();
+        let Some(link) = self.link.as_mut() else {
+            return (
+                Err(DriverError::Io(io::ErrorKind::NotConnected.into())),
+                None,
+            );
+        };
+        let link = link.as_mut();
         let mut stamped = Stamped {
             inner: link,
             first_write: None,
@@ -601,6 +616,35 @@ mod tests {
             "a late reply may follow a timeout"
         );
         assert!(port.resume().is_none(), "nothing handed over any more");
+    }
+
+    /// The incident: a vanished brake was never reopened. Each transaction refused while
+    /// the port waited to retry counted as a disconnect, which pushed the retry further
+    /// (and doubled the backoff), so the retry never came. A port whose open failed is
+    /// opened again once its backoff has passed, however often it is asked meanwhile.
+    #[test]
+    fn a_port_waiting_to_reopen_is_reopened_after_its_backoff_however_often_asked() {
+        let (mut conn, _) = scripted([Some(&b"ok\n"[..])]);
+        let mut inner = std::mem::replace(&mut conn.opener, Box::new(|| unreachable!()));
+        let mut refused = false;
+        conn.opener = Box::new(move || {
+            if !std::mem::replace(&mut refused, true) {
+                return Err(io::ErrorKind::NotFound.into());
+            }
+            inner()
+        });
+        let set = Command::Set(0.5);
+        assert!(
+            conn.transact(|d, l| d.command(l, set)).0.is_err(),
+            "open fails"
+        );
+        let end = Instant::now() + Duration::from_secs(20);
+        // Asked every millisecond, as a command flood would.
+        while conn.transact(|d, l| d.command(l, set)).0.is_err() {
+            assert!(Instant::now() < end, "the port was never reopened");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(conn.health.opens.load(Relaxed), 1);
     }
 
     /// Under the paper's rule a command never jumps the queue for the port.

@@ -241,11 +241,10 @@ impl CommandSlot {
         debug_assert!(matches!(s.fast, Fast::Claimed));
         s.fast = Fast::Off;
         s.wire.flight = None;
-        let waiter_has_work = s.wire.pending.is_some() || s.nudged || s.stopped;
         drop(s);
-        if waiter_has_work {
-            self.cv.notify_all();
-        }
+        // The command thread waits out a claim with no deadline: back to its resend
+        // timeout.
+        self.cv.notify_all();
     }
 
     /// Take a command that arrived after the thread woke (while it waited for the port),
