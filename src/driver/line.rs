@@ -20,7 +20,7 @@
 //! [`LineMap`]. Unknown keys are ignored (newer firmware may report more). Lines end
 //! in `\n`; a `\r` before it is ignored.
 
-use super::{read_until, send_request, Driver, DriverError, Link};
+use super::{read_until, send_request, Deadline, Driver, DriverError, Link};
 use crate::config::wire::LineMap;
 use crate::value::{Command, Control, Reading};
 use std::io::Write;
@@ -177,6 +177,9 @@ pub struct LineDriver {
     map: LineMap,
     reply_timeout: Duration,
     buf: Vec<u8>,
+    /// The deadline of a command whose request went out and whose reply is still to
+    /// be read ([`Driver::send_command`] → [`Driver::finish_command`]).
+    awaiting: Option<Deadline>,
 }
 
 impl LineDriver {
@@ -185,6 +188,7 @@ impl LineDriver {
             map,
             reply_timeout,
             buf: Vec::with_capacity(MAX_LINE * 2),
+            awaiting: None,
         }
     }
 
@@ -204,10 +208,29 @@ impl Driver for LineDriver {
     }
 
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        self.send_command(link, command)?;
+        self.finish_command(link)
+    }
+
+    fn sends_at_once(&self) -> bool {
+        true
+    }
+
+    fn send_command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
         let mut frame = [0u8; 48];
         let n = encode_command(command, &self.map, &mut frame);
-        let line = self.transact(link, &frame[..n])?;
-        decode_ack(line)
+        self.awaiting = None;
+        self.awaiting = Some(send_request(link, &frame[..n], self.reply_timeout)?);
+        Ok(())
+    }
+
+    fn finish_command(&mut self, link: &mut dyn Link) -> Result<(), DriverError> {
+        let deadline = self.awaiting.take().ok_or_else(|| {
+            DriverError::Unsupported("a reply awaited with no command sent".into())
+        })?;
+        self.buf.clear();
+        read_until(link, &mut self.buf, b'\n', MAX_LINE, &deadline)?;
+        decode_ack(&self.buf)
     }
 }
 
@@ -215,6 +238,7 @@ impl Driver for LineDriver {
 mod tests {
     use super::*;
     use crate::config::wire::Wire;
+    use crate::driver::mock::{rx, tx, MockLink, Step};
 
     fn map(device: &str) -> LineMap {
         match crate::config::one_device(device).wire {
@@ -300,6 +324,50 @@ mod tests {
         );
         assert!(decode_request(b"! inf\n", &m).is_err());
         assert!(decode_request(b"hello\n", &m).is_err());
+    }
+
+    fn steering() -> LineDriver {
+        LineDriver::new(
+            map("name = \"steer\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\""),
+            Duration::from_millis(50),
+        )
+    }
+
+    /// A command split in two halves puts the same bytes on the wire as a whole one:
+    /// the first half only writes (the script has nothing to read before the request
+    /// is out), the second only reads and checks the reply.
+    #[test]
+    fn a_command_splits_into_its_request_and_its_reply() {
+        let mut d = steering();
+        assert!(d.sends_at_once());
+        let mut link = MockLink::new([tx(b"! 0.250\n")]);
+        d.send_command(&mut link, Command::Set(0.25)).unwrap();
+        link.done();
+        let mut link = MockLink::new([rx(b"ok\n")]);
+        d.finish_command(&mut link).unwrap();
+        drop(link);
+        let mut link = MockLink::new([tx(b"! -0.500\n"), rx(b"err limit\n")]);
+        assert!(matches!(
+            d.command(&mut link, Command::Set(-0.5)),
+            Err(DriverError::Refused(r)) if r == "limit"
+        ));
+    }
+
+    #[test]
+    fn a_split_reply_ends_at_the_requests_deadline() {
+        let mut d = steering();
+        let mut link = MockLink::new([tx(b"! 0.100\n")]);
+        d.send_command(&mut link, Command::Set(0.1)).unwrap();
+        drop(link);
+        let mut link = MockLink::new([rx(b"o"), Step::Silence]);
+        assert!(matches!(
+            d.finish_command(&mut link),
+            Err(DriverError::Timeout(_))
+        ));
+        drop(link);
+        // Nothing is awaited any more: a reply with no request is an error, not a read.
+        let mut link = MockLink::new([]);
+        assert!(d.finish_command(&mut link).is_err());
     }
 
     #[test]

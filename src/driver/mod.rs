@@ -96,6 +96,13 @@ impl DriverError {
 
 /// One device protocol, host side. Every call is one complete transaction: the engine
 /// holds the port for exactly its duration.
+///
+/// A driver may also split a command's transaction in two halves — write the request
+/// ([`Driver::send_command`]), read and check the reply ([`Driver::finish_command`]) —
+/// so that the thread that admitted a command can put it on the wire itself and leave
+/// the reply to the device's command thread. The engine calls the halves back to back
+/// on the same port, which stays held in between; a driver that does not split
+/// (`splits_commands` false) is only ever asked for whole transactions.
 pub trait Driver: Send {
     /// Bring a freshly opened port into a known state (e.g. the ELM327's reset
     /// sequence). Called again after every reconnect.
@@ -107,6 +114,29 @@ pub trait Driver: Send {
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError>;
     /// Send one command and wait for the device's acknowledgement.
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError>;
+    /// Whether [`Driver::send_command`] would write its request now, without waiting
+    /// (a Modbus line still in its inter-frame silence would wait). False for a driver
+    /// that does not split its commands.
+    fn sends_at_once(&self) -> bool {
+        false
+    }
+    /// The first half of [`Driver::command`]: write the request. Only called when
+    /// [`Driver::sends_at_once`] said so; [`Driver::finish_command`] follows on the same
+    /// link when this succeeded.
+    fn send_command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        let _ = link;
+        Err(DriverError::Unsupported(format!(
+            "{command:?}: this driver sends whole transactions only"
+        )))
+    }
+    /// The second half: read the reply to the request [`Driver::send_command`] wrote,
+    /// within its deadline, and check it.
+    fn finish_command(&mut self, link: &mut dyn Link) -> Result<(), DriverError> {
+        let _ = link;
+        Err(DriverError::Unsupported(
+            "this driver sends whole transactions only".into(),
+        ))
+    }
 }
 
 /// The end of one exchange — a request and its reply. Every read of the reply waits

@@ -13,6 +13,9 @@
 //! - Right before a command goes out, the command thread asks the safety rules'
 //!   wire check ([`Gate::check_wire`]); a wait it asks for (braking waits for the
 //!   throttle's release to go out) happens without the port held.
+//! - A command that found its port idle was written by the thread that admitted it
+//!   ([`crate::vehicle::fast`]): the command thread wakes to the transaction with the
+//!   port held, reads the reply and keeps the books as for its own.
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
 //! [`Engine::shutdown`] joins them with a deadline and names any that did not stop.
@@ -25,6 +28,7 @@ pub mod polling;
 use crate::config::PortRule;
 use crate::safety::{Gate, WireStep};
 use crate::threads::{StopSignal, Threads};
+use crate::vehicle::port::PortGuard;
 use crate::vehicle::slot::{Pending, Wake};
 use crate::vehicle::stats::Stats;
 use crate::vehicle::{Cached, Device, Vehicle};
@@ -168,7 +172,8 @@ fn status_loop(d: &Device, stop: &StopSignal) {
 
 /// One actuator's command thread: wait for a command (or the resend timeout), have
 /// it checked at the wire, take the port, send the newest command, keep the port for
-/// a newer one that arrived meanwhile.
+/// a newer one that arrived meanwhile. A command the admitting thread already wrote
+/// ([`crate::vehicle::fast`]) arrives with the port held: the thread reads its reply.
 fn command_loop(gate: &Gate, d: &Device) {
     let mut last_sent_at: Option<Instant> = None;
     loop {
@@ -177,6 +182,24 @@ fn command_loop(gate: &Gate, d: &Device) {
         //    (enable, home, the starter) happens once, when asked.
         let (mut job, mut fresh) = match d.slot.wait(d.settings.command_timeout()) {
             Wake::Stop => return,
+            Wake::Handed(h) => {
+                let Some(mut port) = d.port.resume() else {
+                    return;
+                };
+                let job = h.pending;
+                let result = h.sent.and_then(|()| port.finish_command());
+                finished(
+                    d,
+                    job,
+                    true,
+                    job.command,
+                    result,
+                    h.first,
+                    &mut last_sent_at,
+                );
+                keep_port(gate, d, port, &mut last_sent_at);
+                continue;
+            }
             Wake::Command(p) => (p, true),
             Wake::Timeout | Wake::Nudge => match d.slot.resend() {
                 Some(crate::value::Command::Control(_)) | None => continue,
@@ -205,96 +228,142 @@ fn command_loop(gate: &Gate, d: &Device) {
                 (job, fresh) = (newer, true);
             }
         }
-        // 3. The wire check (it may replace the command — gas while braking goes out
-        //    as 0 — or drop it — a shift that became unsafe — or first wait for
-        //    another device, never while holding the port), then the port, then one
-        //    transaction. A newer command taken on the way is checked in its turn; the
-        //    port is kept for it unless it must wait.
-        let mut port = None;
-        let mut waited = false;
-        loop {
-            let command = match gate.check_wire(d, job.command, waited) {
-                WireStep::Send(c) => c,
-                WireStep::Drop => {
-                    d.slot.drop_flight();
-                    break;
-                }
-                WireStep::Wait(w) => {
-                    port = None;
-                    gate.wait_for(w);
-                    waited = true;
-                    continue;
-                }
-            };
-            let held = match port.as_mut() {
-                Some(p) => p,
-                None => {
-                    let Some(p) = d.port.acquire_command() else {
-                        return;
-                    };
-                    let p = port.insert(p);
-                    // A command that arrived while we waited for the port replaces this
-                    // one. (The paper's thread sent the value it had cued before
-                    // blocking: that staleness is what its field tests saw as ~200 ms
-                    // stalls, so the paper rule keeps it.)
-                    if d.port.rule() == PortRule::Priority {
-                        if let Some(newer) = d.slot.take_newer() {
-                            Stats::bump(&d.stats.superseded);
-                            (job, fresh, waited) = (newer, true, false);
-                            continue;
-                        }
+        if !send(gate, d, job, fresh, None, &mut last_sent_at) {
+            return;
+        }
+    }
+}
+
+/// Send `job` (and any newer command taken on the way): the wire check (it may replace
+/// the command — gas while braking goes out as 0 — or drop it — a shift that became
+/// unsafe — or first wait for another device, never while holding the port), then the
+/// port (`port`, if already held), then one transaction. A newer command taken on the
+/// way is checked in its turn; the port is kept for it unless it must wait. Returns
+/// false once the port is stopped.
+fn send<'d>(
+    gate: &Gate,
+    d: &'d Device,
+    mut job: Pending,
+    mut fresh: bool,
+    mut port: Option<PortGuard<'d>>,
+    last_sent_at: &mut Option<Instant>,
+) -> bool {
+    let mut waited = false;
+    loop {
+        let command = match gate.check_wire(d, job.command, waited) {
+            WireStep::Send(c) => c,
+            WireStep::Drop => {
+                d.slot.drop_flight();
+                return true;
+            }
+            WireStep::Wait(w) => {
+                port = None;
+                gate.wait_for(w);
+                waited = true;
+                continue;
+            }
+        };
+        let held = match port.as_mut() {
+            Some(p) => p,
+            None => {
+                let Some(p) = d.port.acquire_command() else {
+                    return false;
+                };
+                let p = port.insert(p);
+                // A command that arrived while we waited for the port replaces this
+                // one. (The paper's thread sent the value it had cued before
+                // blocking: that staleness is what its field tests saw as ~200 ms
+                // stalls, so the paper rule keeps it.)
+                if d.port.rule() == PortRule::Priority {
+                    if let Some(newer) = d.slot.take_newer() {
+                        Stats::bump(&d.stats.superseded);
+                        (job, fresh, waited) = (newer, true, false);
+                        continue;
                     }
-                    p
                 }
-            };
-            if command != job.command {
-                d.slot.fly(command);
+                p
             }
-            let (result, first) = held.transact(|drv, link| drv.command(link, command));
-            let done = Instant::now();
-            d.tap_written(
-                command,
-                job.received,
-                first,
-                done,
-                fresh,
-                result.as_ref().err(),
-            );
-            if let Some(first) = first {
-                if fresh {
-                    d.stats.command_delay.record(first - job.received);
-                }
-                d.stats.command_txn.record(done - first);
-                last_sent_at = Some(first);
+        };
+        if command != job.command {
+            d.slot.fly(command);
+        }
+        let (result, first) = held.transact(|drv, link| drv.command(link, command));
+        finished(d, job, fresh, command, result, first, last_sent_at);
+        // Keep the port for a command that came in meanwhile.
+        match newer_for_held_port(d, held) {
+            Some(next) => (job, fresh, waited) = (next, true, false),
+            None => return true,
+        }
+    }
+}
+
+/// After a handed-over transaction: keep the port for a command that came in meanwhile
+/// (as [`send`] does after its own), else release it.
+fn keep_port<'d>(
+    gate: &Gate,
+    d: &'d Device,
+    port: PortGuard<'d>,
+    last_sent_at: &mut Option<Instant>,
+) {
+    if let Some(next) = newer_for_held_port(d, &port) {
+        send(gate, d, next, true, Some(port), last_sent_at);
+    }
+}
+
+/// A command that came in while the port was held, to send on it next — unless an
+/// overdue status poll is waiting or a rate cap applies.
+fn newer_for_held_port(d: &Device, held: &PortGuard<'_>) -> Option<Pending> {
+    if d.port.rule() == PortRule::Priority
+        && d.config.min_command_interval.is_none()
+        && !held.status_waiting()
+    {
+        d.slot.take_newer()
+    } else {
+        None
+    }
+}
+
+/// The bookkeeping of one command transaction, however it went out: the recording,
+/// the delay and transaction time, the slot, the counters and the device's health.
+fn finished(
+    d: &Device,
+    job: Pending,
+    fresh: bool,
+    command: crate::value::Command,
+    result: Result<(), crate::driver::DriverError>,
+    first: Option<Instant>,
+    last_sent_at: &mut Option<Instant>,
+) {
+    let done = Instant::now();
+    d.tap_written(
+        command,
+        job.received,
+        first,
+        done,
+        fresh,
+        result.as_ref().err(),
+    );
+    if let Some(first) = first {
+        if fresh {
+            d.stats.command_delay.record(first - job.received);
+        }
+        d.stats.command_txn.record(done - first);
+        *last_sent_at = Some(first);
+    }
+    d.slot.finish(command, result.is_ok());
+    match result {
+        Ok(()) => {
+            d.estimate_command(command, first.unwrap_or(done));
+            Stats::bump(&d.stats.executed);
+            if !fresh {
+                Stats::bump(&d.stats.resent);
             }
-            d.slot.finish(command, result.is_ok());
-            match result {
-                Ok(()) => {
-                    d.estimate_command(command, first.unwrap_or(done));
-                    Stats::bump(&d.stats.executed);
-                    if !fresh {
-                        Stats::bump(&d.stats.resent);
-                    }
-                    d.health.command_error.store(0, Relaxed);
-                    d.record_ok(done);
-                }
-                Err(e) => {
-                    Stats::bump(&d.stats.command_errors);
-                    d.record_error(&e, true);
-                }
-            }
-            // 4. Keep the port for a command that came in meanwhile, unless an overdue
-            //    status poll is waiting or a rate cap applies.
-            if d.port.rule() == PortRule::Priority
-                && d.config.min_command_interval.is_none()
-                && !held.status_waiting()
-            {
-                if let Some(next) = d.slot.take_newer() {
-                    (job, fresh, waited) = (next, true, false);
-                    continue;
-                }
-            }
-            break;
+            d.health.command_error.store(0, Relaxed);
+            d.record_ok(done);
+        }
+        Err(e) => {
+            Stats::bump(&d.stats.command_errors);
+            d.record_error(&e, true);
         }
     }
 }

@@ -376,7 +376,7 @@ impl Gate {
                 return Err(self.reject(Some(d), Some(command), why));
             }
         }
-        self.store(d, command, received);
+        self.admit(d, command, received);
         // A disengage that raced this command (it checks the gate, then stores): the
         // safe state must be the last word.
         if !self.is_engaged() {
@@ -409,8 +409,26 @@ impl Gate {
         }
     }
 
+    /// Store an admitted command — or, when its port is idle and the wire check says
+    /// send exactly it, write it from this thread ([`crate::vehicle::fast`]): the
+    /// command thread then only reads the reply.
+    fn admit(&self, d: &Device, command: Command, received: Instant) {
+        crate::vehicle::stats::Stats::bump(&d.stats.received);
+        let sent = crate::vehicle::fast::send(d, command, received, || {
+            self.is_engaged() && matches!(self.wire_verdict(d, command, false), Verdict::Send(_))
+        });
+        if !sent {
+            Self::queue(d, command, received);
+        }
+    }
+
     fn store(&self, d: &Device, command: Command, received: Instant) {
         crate::vehicle::stats::Stats::bump(&d.stats.received);
+        Self::queue(d, command, received);
+    }
+
+    /// Into the slot, for the command thread.
+    fn queue(d: &Device, command: Command, received: Instant) {
         if d.slot.submit(command, received) {
             crate::vehicle::stats::Stats::bump(&d.stats.superseded);
         }
@@ -477,12 +495,7 @@ impl Gate {
     /// command thread does with [`Gate::wait_for`], without holding its port, and then
     /// asks again with `waited` set (braking then goes out regardless).
     pub fn check_wire(&self, d: &Device, command: Command, waited: bool) -> WireStep {
-        let plays = self.plays[d.id.index()];
-        if plays.is_free() || !self.interlocks.load(Relaxed) {
-            return WireStep::Send(command);
-        }
-        let f = facts::gather_wire(&self.vehicle, plays);
-        match wire::verdict(&f, self.rules, plays, self.scaled(d, command), waited) {
+        match self.wire_verdict(d, command, waited) {
             Verdict::Send(_) => WireStep::Send(command),
             Verdict::Replace(c, why) => {
                 self.reject(Some(d), Some(command), why);
@@ -498,6 +511,17 @@ impl Gate {
             }
             Verdict::Wait(w) => WireStep::Wait(w),
         }
+    }
+
+    /// The wire check's verdict on `command` for `d`, counting nothing: [`wire::verdict`]
+    /// over what the other devices have on their way, or `Send` when no rule applies.
+    fn wire_verdict(&self, d: &Device, command: Command, waited: bool) -> Verdict {
+        let plays = self.plays[d.id.index()];
+        if plays.is_free() || !self.interlocks.load(Relaxed) {
+            return Verdict::Send(command);
+        }
+        let f = facts::gather_wire(&self.vehicle, plays);
+        wire::verdict(&f, self.rules, plays, self.scaled(d, command), waited)
     }
 
     /// Do what a [`WireStep::Wait`] asks, bounded by two reply timeouts of the device

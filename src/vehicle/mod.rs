@@ -7,10 +7,12 @@
 //! - [`device`]: one device; [`estimate`]: its state estimator; [`slot`]: its latest-wins command slot; [`port`]: its
 //!   shared port and the rule by which its two threads take turns; [`stats`]: its
 //!   always-on figures; [`trace`]: its raw traffic; [`supervision`]: the supervisor's
-//!   board; [`tap`]: where everything that happens is handed to a recording.
+//!   board; [`tap`]: where everything that happens is handed to a recording;
+//!   [`fast`]: a command written to an idle port by the thread that admitted it.
 
 pub mod device;
 pub mod estimate;
+pub mod fast;
 pub mod port;
 pub mod slot;
 pub mod stats;

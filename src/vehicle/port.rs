@@ -51,6 +51,10 @@ pub const REOPEN_AFTER: u32 = 5;
 #[derive(Default)]
 struct Arb {
     busy: bool,
+    /// The port is held across threads: a command's request went out from the thread
+    /// that admitted it, and the device's command thread is to read the reply
+    /// ([`PortGuard::hand_over`], [`Port::resume`]). `busy` stays set throughout.
+    handed: bool,
     /// Command threads queued for the port.
     commands_waiting: u32,
     /// An overdue status poll is next in line.
@@ -125,6 +129,43 @@ impl Port {
         self.take(a)
     }
 
+    /// Take the port for a command at once, only if it is idle: nobody holds it, no
+    /// command thread is queued for it, no overdue status poll is waiting, and the
+    /// device's driver can write a request now without waiting. Never under the paper's
+    /// rule (first come, first served: no command may jump the queue). `None`
+    /// otherwise; it never blocks.
+    pub fn try_acquire_idle(&self) -> Option<PortGuard<'_>> {
+        if self.rule != PortRule::Priority {
+            return None;
+        }
+        let a = self.arb.lock();
+        if a.stopped || a.busy || a.commands_waiting > 0 || a.status_urgent {
+            return None;
+        }
+        let guard = self.take(a)?;
+        let ready = {
+            let conn = guard.conn.as_ref().expect("held");
+            conn.link.is_some() && conn.driver.sends_at_once()
+        };
+        ready.then_some(guard)
+    }
+
+    /// Take back the port a [`PortGuard::hand_over`] left held, in the thread that is to
+    /// finish its transaction. `None` if nothing was handed over.
+    pub fn resume(&self) -> Option<PortGuard<'_>> {
+        let mut a = self.arb.lock();
+        if !a.handed {
+            return None;
+        }
+        debug_assert!(a.busy, "a handed-over port stays busy");
+        a.handed = false;
+        drop(a);
+        Some(PortGuard {
+            port: self,
+            conn: Some(self.conn.lock()),
+        })
+    }
+
     /// Take the port for a status poll, yielding to commands until `overdue_at`.
     /// `None` once stopped.
     pub fn acquire_status(&self, overdue_at: Instant, slot: &CommandSlot) -> Option<PortGuard<'_>> {
@@ -167,6 +208,34 @@ impl PortGuard<'_> {
         f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
     ) -> (Result<T, DriverError>, Option<Instant>) {
         self.conn.as_mut().expect("held").transact(f)
+    }
+
+    /// Write a command's request: the first half of a transaction split in two
+    /// ([`crate::driver::Driver::send_command`]). Returns its result and when its first
+    /// byte was taken by the kernel. The port's bookkeeping (failures, what to discard
+    /// next) counts a failed half as a failed transaction; after a good one,
+    /// [`PortGuard::finish_command`] must follow on this port, in this thread or — after
+    /// [`PortGuard::hand_over`] — in the one that resumes it.
+    pub fn send_command(
+        &mut self,
+        command: crate::value::Command,
+    ) -> (Result<(), DriverError>, Option<Instant>) {
+        self.conn.as_mut().expect("held").send_half(command)
+    }
+
+    /// Read and check the reply to the request [`PortGuard::send_command`] wrote: the
+    /// second half, which ends the transaction.
+    pub fn finish_command(&mut self) -> Result<(), DriverError> {
+        self.conn.as_mut().expect("held").finish_half()
+    }
+
+    /// Leave the port held — `busy`, so no status poll and no other command can take it
+    /// — while this thread lets go of it, for the thread that calls [`Port::resume`].
+    pub fn hand_over(mut self) {
+        drop(self.conn.take());
+        self.port.arb.lock().handed = true;
+        // Not dropped: the port stays busy until the resumed guard is.
+        std::mem::forget(self);
     }
 
     /// An overdue status poll is waiting: let it have the port next.
@@ -280,9 +349,57 @@ impl Conn {
         f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
     ) -> (Result<T, DriverError>, Option<Instant>) {
         if let Err(e) = self.ensure_open() {
+            // Not a transaction: the port is closed (waiting to retry, or failed to
+            // open, which `ensure_open` accounted for).
             return (Err(e), None);
         }
-        let link = self.link.as_mut().expect("opened").as_mut();
+        let (r, first) = self.run(f);
+        self.settle(&r);
+        (r, first)
+    }
+
+    /// The first half of a split command transaction: only a failure ends it here.
+    fn send_half(
+        &mut self,
+        command: crate::value::Command,
+    ) -> (Result<(), DriverError>, Option<Instant>) {
+        if let Err(e) = self.ensure_open() {
+            return (Err(e), None);
+        }
+        let (r, first) = self.run(|drv, link| drv.send_command(link, command));
+        if r.is_err() {
+            self.settle(&r);
+        } else {
+            // The reply is on its way: until it is read to its end, what is on the line
+            // is not known to be clean (a driver reading garbage mid-reply discards).
+            self.clean = false;
+        }
+        (r, first)
+    }
+
+    /// The second half: the reply, and the transaction's end.
+    fn finish_half(&mut self) -> Result<(), DriverError> {
+        if self.link.is_none() {
+            // Cannot happen after a good first half; nothing to account for.
+            return Err(DriverError::Io(io::ErrorKind::NotConnected.into()));
+        }
+        let (r, _) = self.run(|drv, link| drv.finish_command(link));
+        self.settle(&r);
+        r
+    }
+
+    /// Run `f` on the open port, stamping its first byte.
+    fn run<T>(
+        &mut self,
+        f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
+    ) -> (Result<T, DriverError>, Option<Instant>) {
+        let Some(link) = self.link.as_mut() else {
+            return (
+                Err(DriverError::Io(io::ErrorKind::NotConnected.into())),
+                None,
+            );
+        };
+        let link = link.as_mut();
         let mut stamped = Stamped {
             inner: link,
             first_write: None,
@@ -290,9 +407,14 @@ impl Conn {
             clean: self.clean,
         };
         let r = f(self.driver.as_mut(), &mut stamped);
-        let first = stamped.first_write;
+        (r, stamped.first_write)
+    }
+
+    /// Account for a transaction that ended with `r`: what to discard before the next
+    /// request, failures in a row, a reopen.
+    fn settle<T>(&mut self, r: &Result<T, DriverError>) {
         self.clean = r.is_ok();
-        match &r {
+        match r {
             Ok(_) => self.failures = 0,
             Err(e) => {
                 self.failures += 1;
@@ -311,7 +433,6 @@ impl Conn {
                 }
             }
         }
-        (r, first)
     }
 }
 
@@ -422,24 +543,8 @@ mod tests {
     /// after a clean one, whose reply was read to its end.
     #[test]
     fn input_is_discarded_only_after_an_open_or_a_failed_transaction() {
-        let discards = Arc::new(AtomicUsize::new(0));
-        let mut device = Some(Device {
-            replies: [Some(&b"ok\n"[..]), Some(b"ok\n"), None, Some(b"ok\n")].into(),
-            out: Vec::new(),
-            discards: discards.clone(),
-        });
-        let opener: Opener =
-            Box::new(move || Ok(Box::new(device.take().expect("opened once")) as Box<dyn Link>));
-        let map = match crate::config::one_device(
-            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"",
-        )
-        .wire
-        {
-            crate::config::wire::Wire::Line(m) => m,
-            other => panic!("{other:?}"),
-        };
-        let driver = Box::new(LineDriver::new(map, Duration::from_millis(50)));
-        let mut conn = Conn::new(driver, opener, Arc::new(Trace::new("d")), Arc::default());
+        let (mut conn, discards) =
+            scripted([Some(&b"ok\n"[..]), Some(b"ok\n"), None, Some(b"ok\n")]);
         let mut send = || {
             let (r, first) = conn.transact(|drv, link| drv.command(link, Command::Set(0.5)));
             assert!(first.is_some(), "the request went out");
@@ -461,5 +566,122 @@ mod tests {
             2,
             "a late reply may follow a timeout"
         );
+    }
+
+    /// A command split in two halves — the request written by one thread, the port
+    /// handed over still held, the reply read by another — keeps the port's books as a
+    /// whole transaction does: nobody can take the port in between, a clean reply
+    /// leaves nothing to discard, a timed-out one has the next request discard first.
+    #[test]
+    fn a_split_transaction_keeps_the_books_of_a_whole_one() {
+        let (conn, discards) = scripted([Some(&b"ok\n"[..]), Some(b"ok\n"), None, Some(b"ok\n")]);
+        let port = Port::new(PortRule::Priority, conn);
+        let set = Command::Set(0.5);
+        assert!(
+            port.try_acquire_idle().is_none(),
+            "a port not open yet is opened by a whole transaction"
+        );
+        let mut g = port.acquire_command().unwrap();
+        assert!(g.transact(|drv, link| drv.command(link, set)).0.is_ok());
+        drop(g);
+        assert_eq!(discards.load(Relaxed), 1, "a fresh port is discarded once");
+
+        let split = |port: &Port| {
+            let mut g = port.try_acquire_idle().expect("an idle, open port");
+            let (sent, first) = g.send_command(set);
+            assert!(sent.is_ok() && first.is_some(), "the request went out");
+            g.hand_over();
+            assert!(
+                port.try_acquire_idle().is_none(),
+                "the port stays held between the halves"
+            );
+            std::thread::scope(|s| {
+                s.spawn(|| port.resume().expect("handed over").finish_command())
+                    .join()
+                    .unwrap()
+            })
+        };
+        assert!(split(&port).is_ok());
+        assert_eq!(
+            discards.load(Relaxed),
+            1,
+            "nothing to discard after a clean reply"
+        );
+        assert!(matches!(split(&port), Err(DriverError::Timeout(_))));
+        assert_eq!(discards.load(Relaxed), 1);
+        assert!(split(&port).is_ok());
+        assert_eq!(
+            discards.load(Relaxed),
+            2,
+            "a late reply may follow a timeout"
+        );
+        assert!(port.resume().is_none(), "nothing handed over any more");
+    }
+
+    /// The incident: a vanished brake was never reopened. Each transaction refused while
+    /// the port waited to retry counted as a disconnect, which pushed the retry further
+    /// (and doubled the backoff), so the retry never came. A port whose open failed is
+    /// opened again once its backoff has passed, however often it is asked meanwhile.
+    #[test]
+    fn a_port_waiting_to_reopen_is_reopened_after_its_backoff_however_often_asked() {
+        let (mut conn, _) = scripted([Some(&b"ok\n"[..])]);
+        let mut inner = std::mem::replace(&mut conn.opener, Box::new(|| unreachable!()));
+        let mut refused = false;
+        conn.opener = Box::new(move || {
+            if !std::mem::replace(&mut refused, true) {
+                return Err(io::ErrorKind::NotFound.into());
+            }
+            inner()
+        });
+        let set = Command::Set(0.5);
+        assert!(
+            conn.transact(|d, l| d.command(l, set)).0.is_err(),
+            "open fails"
+        );
+        let end = Instant::now() + Duration::from_secs(20);
+        // Asked every millisecond, as a command flood would.
+        while conn.transact(|d, l| d.command(l, set)).0.is_err() {
+            assert!(Instant::now() < end, "the port was never reopened");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(conn.health.opens.load(Relaxed), 1);
+    }
+
+    /// Under the paper's rule a command never jumps the queue for the port.
+    #[test]
+    fn the_paper_rule_never_gives_the_port_at_once() {
+        let (conn, _) = scripted([Some(&b"ok\n"[..])]);
+        let port = Port::new(PortRule::Paper, conn);
+        let mut g = port.acquire_command().unwrap();
+        assert!(g
+            .transact(|drv, link| drv.command(link, Command::Set(0.5)))
+            .0
+            .is_ok());
+        drop(g);
+        assert!(port.try_acquire_idle().is_none());
+    }
+
+    /// A connection to a scripted line device answering each request with the next
+    /// reply (`None`: silence), and its count of discards.
+    fn scripted<const N: usize>(replies: [Option<&'static [u8]>; N]) -> (Conn, Arc<AtomicUsize>) {
+        let discards = Arc::new(AtomicUsize::new(0));
+        let mut device = Some(Device {
+            replies: replies.into(),
+            out: Vec::new(),
+            discards: discards.clone(),
+        });
+        let opener: Opener =
+            Box::new(move || Ok(Box::new(device.take().expect("opened once")) as Box<dyn Link>));
+        let map = match crate::config::one_device(
+            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"",
+        )
+        .wire
+        {
+            crate::config::wire::Wire::Line(m) => m,
+            other => panic!("{other:?}"),
+        };
+        let driver = Box::new(LineDriver::new(map, Duration::from_millis(50)));
+        let conn = Conn::new(driver, opener, Arc::new(Trace::new("d")), Arc::default());
+        (conn, discards)
     }
 }

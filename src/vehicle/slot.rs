@@ -2,9 +2,16 @@
 //! actuator's command thread: the paper's cached command plus condition variable.
 //! It holds at most one pending command — never a queue. A command that arrives while
 //! another is still pending replaces it, and the replaced one is counted as superseded.
+//!
+//! On the fast path ([`crate::vehicle::fast`]) the thread that admitted a command
+//! [claims](CommandSlot::claim) the slot of an idle command thread, writes the request
+//! itself and [hands the transaction over](CommandSlot::hand_over): the command thread
+//! wakes to a [`Wake::Handed`] and reads the reply. While a claim stands, the command
+//! thread takes nothing else from its slot.
 
+use crate::driver::DriverError;
 use crate::value::Command;
-use parking_lot::{Condvar, Mutex};
+use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 /// A command waiting for the wire, stamped where it was born.
@@ -15,11 +22,25 @@ pub struct Pending {
     pub received: Instant,
 }
 
+/// A command whose request another thread already wrote to the port, which it left
+/// held ([`crate::vehicle::port::PortGuard::hand_over`]): the command thread reads the
+/// reply and does the bookkeeping.
+#[derive(Debug)]
+pub struct Handover {
+    pub pending: Pending,
+    /// When the kernel took the request's first byte (`None`: nothing went out).
+    pub first: Option<Instant>,
+    /// How writing the request went: an error ends the transaction without a reply.
+    pub sent: Result<(), DriverError>,
+}
+
 /// What woke the command thread.
-#[derive(Debug, PartialEq)]
+#[derive(Debug)]
 pub enum Wake {
     /// A new command.
     Command(Pending),
+    /// A new command already on the wire: read its reply.
+    Handed(Handover),
     /// `command_timeout` passed with no new command: resend the last one.
     Timeout,
     /// Someone asked the thread to run now (the console's wake key): resend the last.
@@ -66,9 +87,23 @@ impl WireState {
     }
 }
 
+/// The fast path's hold on the slot.
+#[derive(Debug, Default)]
+enum Fast {
+    #[default]
+    Off,
+    /// Another thread is writing the command in flight.
+    Claimed,
+    /// ... and wrote it: the command thread is to finish the transaction.
+    Handed(Handover),
+}
+
 #[derive(Default)]
 struct State {
     wire: WireState,
+    /// The command thread is asleep in [`CommandSlot::wait`].
+    waiting: bool,
+    fast: Fast,
     /// When the pending command was born.
     received: Option<Instant>,
     /// What to send again after `command_timeout`; engage clears it.
@@ -78,6 +113,14 @@ struct State {
 }
 
 impl State {
+    /// See [`CommandSlot::is_idle`].
+    fn idle(&self) -> bool {
+        self.waiting
+            && self.wire.pending.is_none()
+            && self.wire.flight.is_none()
+            && matches!(self.fast, Fast::Off)
+    }
+
     /// The command thread takes the pending command: it is in flight from now on.
     fn take(&mut self) -> Option<Pending> {
         let command = self.wire.pending.take()?;
@@ -119,11 +162,28 @@ impl CommandSlot {
     }
 
     /// Sleep until something happens, at most `timeout`. A command taken here is in
-    /// flight until [`CommandSlot::finish`] or [`CommandSlot::drop_flight`].
+    /// flight until [`CommandSlot::finish`] or [`CommandSlot::drop_flight`]. A claim on
+    /// the slot is waited out whatever the timeout: its transaction comes first.
     pub fn wait(&self, timeout: Duration) -> Wake {
         let deadline = Instant::now() + timeout;
         let mut s = self.state.lock();
+        s.waiting = true;
+        let wake = self.wait_locked(&mut s, deadline);
+        s.waiting = false;
+        wake
+    }
+
+    fn wait_locked(&self, s: &mut MutexGuard<'_, State>, deadline: Instant) -> Wake {
         loop {
+            match std::mem::take(&mut s.fast) {
+                Fast::Handed(h) => return Wake::Handed(h),
+                Fast::Claimed => {
+                    s.fast = Fast::Claimed;
+                    self.cv.wait(s);
+                    continue;
+                }
+                Fast::Off => {}
+            }
             if s.stopped {
                 return Wake::Stop;
             }
@@ -134,7 +194,10 @@ impl CommandSlot {
             if std::mem::take(&mut s.nudged) {
                 return Wake::Nudge;
             }
-            if self.cv.wait_until(&mut s, deadline).timed_out() {
+            if self.cv.wait_until(s, deadline).timed_out() {
+                if !matches!(s.fast, Fast::Off) {
+                    continue;
+                }
                 if s.stopped {
                     return Wake::Stop;
                 }
@@ -144,6 +207,44 @@ impl CommandSlot {
                 };
             }
         }
+    }
+
+    /// Claim the slot for the fast path: only while the command thread sleeps in
+    /// [`CommandSlot::wait`] with nothing pending and nothing in flight. `command` is in
+    /// flight from here on (the wire check of the other devices sees it); the claim ends
+    /// with [`CommandSlot::hand_over`] or [`CommandSlot::unclaim`].
+    pub fn claim(&self, command: Command) -> bool {
+        let mut s = self.state.lock();
+        if s.stopped || !s.idle() {
+            return false;
+        }
+        s.fast = Fast::Claimed;
+        s.wire.flight = Some(command);
+        true
+    }
+
+    /// The claimed command's request went out (or failed to): wake the command thread
+    /// to finish its transaction. Its command is the one to resend from now on.
+    pub fn hand_over(&self, h: Handover) {
+        let mut s = self.state.lock();
+        debug_assert!(matches!(s.fast, Fast::Claimed));
+        s.resend = Some(h.pending.command);
+        s.fast = Fast::Handed(h);
+        drop(s);
+        self.cv.notify_all();
+    }
+
+    /// The claimed command did not go out: the slot is as before the claim (the caller
+    /// submits the command the ordinary way).
+    pub fn unclaim(&self) {
+        let mut s = self.state.lock();
+        debug_assert!(matches!(s.fast, Fast::Claimed));
+        s.fast = Fast::Off;
+        s.wire.flight = None;
+        drop(s);
+        // The command thread waits out a claim with no deadline: back to its resend
+        // timeout.
+        self.cv.notify_all();
     }
 
     /// Take a command that arrived after the thread woke (while it waited for the port),
@@ -227,6 +328,12 @@ impl CommandSlot {
         self.state.lock().wire.acked
     }
 
+    /// The command thread sleeps in [`CommandSlot::wait`] with nothing pending and
+    /// nothing in flight: a claim would be granted now.
+    pub fn is_idle(&self) -> bool {
+        self.state.lock().idle()
+    }
+
     pub fn has_pending(&self) -> bool {
         self.state.lock().wire.pending.is_some()
     }
@@ -270,14 +377,14 @@ mod tests {
         let t = Instant::now();
         assert!(!slot.submit(Command::Set(0.1), t));
         assert!(slot.submit(Command::Set(0.2), t));
-        assert_eq!(
+        assert!(matches!(
             slot.wait(Duration::ZERO),
             Wake::Command(Pending {
                 command: Command::Set(0.2),
-                received: t
-            })
-        );
-        assert_eq!(slot.wait(Duration::from_millis(1)), Wake::Timeout);
+                received
+            }) if received == t
+        ));
+        assert!(matches!(slot.wait(Duration::from_millis(1)), Wake::Timeout));
     }
 
     #[test]
@@ -293,8 +400,75 @@ mod tests {
     fn nudge_and_stop_wake_without_a_command() {
         let slot = CommandSlot::default();
         slot.nudge();
-        assert_eq!(slot.wait(Duration::from_secs(30)), Wake::Nudge);
+        assert!(matches!(slot.wait(Duration::from_secs(30)), Wake::Nudge));
         slot.stop();
-        assert_eq!(slot.wait(Duration::from_secs(30)), Wake::Stop);
+        assert!(matches!(slot.wait(Duration::from_secs(30)), Wake::Stop));
+    }
+
+    /// Wait until the thread sleeps in its slot, then claim it for `command`.
+    fn claim_when_asleep(slot: &CommandSlot, command: Command) {
+        let end = Instant::now() + Duration::from_secs(20);
+        while !slot.claim(command) {
+            assert!(Instant::now() < end, "the command thread never slept");
+            std::thread::yield_now();
+        }
+    }
+
+    /// A claim holds the command thread — past its timeout, and past a command that
+    /// arrives meanwhile — until the transaction is handed over; the newer command is
+    /// taken after it. (A thread that took its timeout while claimed would resend and
+    /// queue for a port only it can release.)
+    #[test]
+    fn a_claim_holds_the_thread_until_its_transaction_is_handed_over() {
+        let slot = Arc::new(CommandSlot::default());
+        let s2 = slot.clone();
+        let waiter = std::thread::spawn(move || {
+            let first = loop {
+                match s2.wait(Duration::from_millis(5)) {
+                    // A claim can only be made while the thread waits: in flight here
+                    // means it timed out under a claim.
+                    Wake::Timeout => assert_eq!(s2.wire().flight, None, "timed out while claimed"),
+                    w => break w,
+                }
+            };
+            let second = s2.wait(Duration::from_secs(30));
+            (first, second)
+        });
+        claim_when_asleep(&slot, Command::Set(0.1));
+        assert_eq!(slot.wire().flight, Some(Command::Set(0.1)), "in flight");
+        assert!(!slot.claim(Command::Set(0.2)), "one claim at a time");
+        slot.submit(Command::Set(0.3), Instant::now());
+        // Several of the thread's timeouts pass while the claim stands.
+        std::thread::sleep(Duration::from_millis(30));
+        let t = Instant::now();
+        slot.hand_over(Handover {
+            pending: Pending {
+                command: Command::Set(0.1),
+                received: t,
+            },
+            first: Some(t),
+            sent: Ok(()),
+        });
+        let (first, second) = waiter.join().unwrap();
+        assert!(
+            matches!(first, Wake::Handed(Handover { pending, .. }) if pending.command == Command::Set(0.1)),
+            "{first:?}"
+        );
+        assert!(
+            matches!(second, Wake::Command(p) if p.command == Command::Set(0.3)),
+            "{second:?}"
+        );
+    }
+
+    #[test]
+    fn an_unclaimed_slot_is_as_before() {
+        let slot = Arc::new(CommandSlot::default());
+        let s2 = slot.clone();
+        let waiter = std::thread::spawn(move || s2.wait(Duration::from_secs(30)));
+        claim_when_asleep(&slot, Command::Set(0.1));
+        slot.unclaim();
+        assert_eq!(slot.wire().flight, None);
+        slot.submit(Command::Set(0.1), Instant::now());
+        assert!(matches!(waiter.join().unwrap(), Wake::Command(_)));
     }
 }

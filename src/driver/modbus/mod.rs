@@ -25,6 +25,9 @@ pub struct ModbusDriver {
     reply_timeout: Duration,
     /// When the line last went quiet (end of our request or of the last reply).
     quiet_since: Option<Instant>,
+    /// A command's request that went out, and its deadline, while its reply is still
+    /// to be read ([`Driver::send_command`] → [`Driver::finish_command`]).
+    awaiting: Option<(Request, Deadline)>,
 }
 
 impl ModbusDriver {
@@ -38,6 +41,7 @@ impl ModbusDriver {
             gap: proto::frame_gap(baud),
             reply_timeout,
             quiet_since: None,
+            awaiting: None,
         }
     }
 
@@ -52,8 +56,18 @@ impl ModbusDriver {
         link: &mut dyn Link,
         request: &Request,
     ) -> Result<Response, DriverError> {
-        if let Some(t) = self.quiet_since {
-            let ready = t + self.gap;
+        let deadline = self.send(link, request)?;
+        self.receive(link, request, &deadline)
+    }
+
+    /// When the inter-frame silence after the last frame on the line is over.
+    fn ready_at(&self) -> Option<Instant> {
+        self.quiet_since.map(|t| t + self.gap)
+    }
+
+    /// Wait out the inter-frame silence, then send `request`; returns its deadline.
+    fn send(&mut self, link: &mut dyn Link, request: &Request) -> Result<Deadline, DriverError> {
+        if let Some(ready) = self.ready_at() {
             let now = Instant::now();
             if ready > now {
                 std::thread::sleep(ready - now);
@@ -62,8 +76,17 @@ impl ModbusDriver {
         let frame = proto::encode_request(self.slave, request);
         let sent = send_request(link, &frame, self.reply_timeout);
         self.quiet_since = Some(Instant::now());
-        let deadline = sent?;
-        let reply = self.read_frame(link, &deadline);
+        sent
+    }
+
+    /// Read and decode the reply to `request`, sent with `deadline`.
+    fn receive(
+        &mut self,
+        link: &mut dyn Link,
+        request: &Request,
+        deadline: &Deadline,
+    ) -> Result<Response, DriverError> {
+        let reply = self.read_frame(link, deadline);
         self.quiet_since = Some(Instant::now());
         let reply = reply?;
         proto::decode_response(self.slave, request, &reply).map_err(|e| match e {
@@ -171,6 +194,33 @@ impl Driver for ModbusDriver {
     }
 
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        self.send_command(link, command)?;
+        self.finish_command(link)
+    }
+
+    fn sends_at_once(&self) -> bool {
+        self.ready_at().is_none_or(|t| t <= Instant::now())
+    }
+
+    fn send_command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        self.awaiting = None;
+        let request = self.command_request(command)?;
+        let deadline = self.send(link, &request)?;
+        self.awaiting = Some((request, deadline));
+        Ok(())
+    }
+
+    fn finish_command(&mut self, link: &mut dyn Link) -> Result<(), DriverError> {
+        let (request, deadline) = self.awaiting.take().ok_or_else(|| {
+            DriverError::Unsupported("a reply awaited with no command sent".into())
+        })?;
+        self.receive(link, &request, &deadline).map(|_| ())
+    }
+}
+
+impl ModbusDriver {
+    /// The register write that carries `command`.
+    fn command_request(&self, command: Command) -> Result<Request, DriverError> {
         let (addr, value) = match command {
             Command::Control(c) => (
                 self.map.control.ok_or_else(|| {
@@ -199,12 +249,9 @@ impl Driver for ModbusDriver {
                 (self.target()?, raw)
             }
         };
-        let request = Request::WriteSingle { addr, value };
-        self.transact(link, &request).map(|_| ())
+        Ok(Request::WriteSingle { addr, value })
     }
-}
 
-impl ModbusDriver {
     fn target(&self) -> Result<u16, DriverError> {
         self.map
             .target
@@ -330,6 +377,70 @@ pub(crate) mod tests {
         );
         let mut link = MockLink::new([tx(req), rx(echo)]);
         steer().command(&mut link, Command::Set(0.25)).unwrap();
+    }
+
+    /// The split command: the request frame, exactly, then the echo read and checked
+    /// by the second half.
+    #[test]
+    fn a_set_point_splits_into_its_request_and_its_echo() {
+        let mut d = steer();
+        let write = Request::WriteSingle {
+            addr: 0,
+            value: 2500,
+        };
+        let echo = encode_response(
+            1,
+            &Response::WriteSingle {
+                addr: 0,
+                value: 2500,
+            },
+        );
+        assert!(d.sends_at_once(), "nothing went over the line yet");
+        let mut link = MockLink::new([tx(encode_request(1, &write))]);
+        d.send_command(&mut link, Command::Set(0.25)).unwrap();
+        link.done();
+        let mut link = MockLink::new([rx(&echo)]);
+        d.finish_command(&mut link).unwrap();
+        drop(link);
+        // An echo of another value is not an acknowledgement.
+        let mut link = MockLink::new([tx(encode_request(1, &write))]);
+        d.send_command(&mut link, Command::Set(0.25)).unwrap();
+        drop(link);
+        let wrong = encode_response(1, &Response::WriteSingle { addr: 0, value: 1 });
+        let mut link = MockLink::new([rx(&wrong)]);
+        assert!(matches!(
+            d.finish_command(&mut link),
+            Err(DriverError::Garbled(_))
+        ));
+    }
+
+    /// Right after a frame the line owes the inter-frame silence: the driver would wait
+    /// before writing, so it does not offer to write at once.
+    #[test]
+    fn a_request_does_not_go_at_once_inside_the_inter_frame_silence() {
+        // At 1200 baud the silence is 32 ms.
+        let mut d = ModbusDriver::new(alice("steer"), 1200, T);
+        let write = Request::WriteSingle {
+            addr: 0,
+            value: 2500,
+        };
+        let mut link = MockLink::new([tx(encode_request(1, &write))]);
+        d.send_command(&mut link, Command::Set(0.25)).unwrap();
+        assert!(!d.sends_at_once());
+        std::thread::sleep(proto::frame_gap(1200));
+        assert!(d.sends_at_once());
+        drop(link);
+    }
+
+    /// A command the device cannot take fails before a byte is written.
+    #[test]
+    fn an_unsupported_command_writes_nothing() {
+        let mut d = steer();
+        let mut link = MockLink::new([]);
+        assert!(matches!(
+            d.send_command(&mut link, Command::State(0)),
+            Err(DriverError::Unsupported(_))
+        ));
     }
 
     #[test]
