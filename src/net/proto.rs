@@ -630,13 +630,9 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
             }
             Some(Verb::Accel) => {
                 let a = one_arg("accel takes one value from -1 to 1")?;
-                Some(NetCommand::Accel(number(
-                    a,
-                    -1.0,
-                    1.0,
-                    line,
-                    expected("accel takes -1 to 1"),
-                )?))
+                Some(NetCommand::Accel(number(a, -1.0, 1.0, line, || {
+                    expected("accel takes -1 to 1")
+                })?))
             }
             None => Some(device_line(vocab, verb, arg, extra, line)?),
         };
@@ -765,11 +761,14 @@ fn device_line(
         }
         Kind::Setpoint => {
             let [lo, hi] = d.range;
-            let mut e = Expected::new();
-            let _ = write!(e, "{} takes {lo} to {hi}", d.name);
+            let range = || {
+                let mut e = Expected::new();
+                let _ = write!(e, "{} takes {lo} to {hi}", d.name);
+                e
+            };
             Ok(NetCommand::Set(
                 id,
-                Command::Set(number(a, lo, hi, line, e)?),
+                Command::Set(number(a, lo, hi, line, range)?),
             ))
         }
         Kind::State => {
@@ -813,13 +812,14 @@ fn parse_f64(word: &str) -> Option<f64> {
     word.parse::<f64>().ok()
 }
 
-/// A finite number inside `lo..=hi`.
+/// A finite number inside `lo..=hi`. `range` says so in words, built only for a
+/// refusal: formatting two numbers costs more than the rest of a datagram's parse.
 fn number(
     word: &str,
     lo: f64,
     hi: f64,
     line: Option<u32>,
-    range: Expected,
+    range: impl FnOnce() -> Expected,
 ) -> Result<f64, ParseError> {
     let v = parse_f64(word).ok_or_else(|| {
         ParseError::new(
@@ -838,7 +838,7 @@ fn number(
         ));
     }
     if !(lo..=hi).contains(&v) {
-        return Err(ParseError::with(Reject::OutOfRange, line, range, word));
+        return Err(ParseError::with(Reject::OutOfRange, line, range(), word));
     }
     Ok(v)
 }
