@@ -38,7 +38,14 @@ pub fn encode_command(command: Command, map: &LineMap, out: &mut [u8; 48]) -> us
     // 48 bytes always hold "! " + a word of at most 24 bytes or a 3-decimal number in
     // −1e6…1e6.
     let _ = match command {
-        Command::Set(v) => writeln!(cursor, "! {:.3}", v.clamp(-1e6, 1e6)),
+        Command::Set(v) => {
+            let mut digits = [0u8; 16];
+            let n = thousandths(v.clamp(-1e6, 1e6), &mut digits);
+            cursor
+                .write_all(b"! ")
+                .and_then(|()| cursor.write_all(&digits[..n]))
+                .and_then(|()| cursor.write_all(b"\n"))
+        }
         Command::State(i) => writeln!(
             cursor,
             "! {}",
@@ -47,6 +54,41 @@ pub fn encode_command(command: Command, map: &LineMap, out: &mut [u8; 48]) -> us
         Command::Control(c) => writeln!(cursor, "! {}", c.as_str()),
     };
     cursor.position() as usize
+}
+
+/// `v` (within ±1e6) with three decimals, as `{:.3}` writes it, without the
+/// formatting machinery, which costs microseconds on every command's way to its first
+/// byte. A thousandth is the protocol's resolution; a value within a rounding error of a
+/// half-thousandth may round the other way than the exact decimal would, and a negative
+/// value that rounds to zero is written `0.000`.
+fn thousandths(v: f64, out: &mut [u8; 16]) -> usize {
+    let m = (v * 1000.0).round_ties_even() as i64;
+    let mut n = 0;
+    if m < 0 {
+        out[0] = b'-';
+        n = 1;
+    }
+    let (whole, frac) = (m.unsigned_abs() / 1000, m.unsigned_abs() % 1000);
+    let mut int = [0u8; 8];
+    let mut k = 0;
+    let mut w = whole;
+    loop {
+        int[k] = b'0' + (w % 10) as u8;
+        k += 1;
+        w /= 10;
+        if w == 0 {
+            break;
+        }
+    }
+    for &d in int[..k].iter().rev() {
+        out[n] = d;
+        n += 1;
+    }
+    out[n] = b'.';
+    out[n + 1] = b'0' + (frac / 100) as u8;
+    out[n + 2] = b'0' + (frac / 10 % 10) as u8;
+    out[n + 3] = b'0' + (frac % 10) as u8;
+    n + 4
 }
 
 fn trim_line(line: &[u8]) -> &[u8] {
@@ -253,6 +295,30 @@ mod tests {
 
     fn sensor() -> LineMap {
         map("name = \"obd\"\nkind = \"sensor\"\nreadings = [\"rpm\", \"running\", { name = \"volts\", units = \"V\" }, \"estop\"]\ndriver = \"line\"")
+    }
+
+    #[test]
+    fn set_points_are_written_as_the_formatter_writes_three_decimals() {
+        // Thousandths and values between them (not within a rounding error of a tie).
+        let grid = (-1_000_000..=1_000_000)
+            .step_by(997)
+            .flat_map(|k| [k as f64 / 1000.0, k as f64 / 1000.0 + 0.0002]);
+        let binary = (-4096..=4096).map(|k| k as f64 / 1024.0);
+        let odd = (0..2000).map(|k| (k as f64 * 0.618_033_988_7) % 1.0 * 2000.0 - 1000.0);
+        for v in grid
+            .chain(binary)
+            .chain(odd)
+            .chain([1e6, -1e6, 0.0, 999_999.999])
+        {
+            let mut out = [0u8; 16];
+            let n = thousandths(v, &mut out);
+            let want = format!("{v:.3}");
+            let want = want
+                .strip_prefix("-")
+                .filter(|w| *w == "0.000")
+                .unwrap_or(&want);
+            assert_eq!(std::str::from_utf8(&out[..n]).unwrap(), want, "{v}");
+        }
     }
 
     #[test]
