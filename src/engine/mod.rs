@@ -184,7 +184,11 @@ fn command_loop(gate: &Gate, d: &Device) {
             Wake::Stop => return,
             Wake::Handed(h) => {
                 let Some(mut port) = d.port.resume() else {
-                    return;
+                    // Cannot happen (a handover leaves the port held); never a reason
+                    // for the thread that sends the safe state to stop.
+                    tracing::error!(device = %d.name(), "a handed-over command found its port not held");
+                    d.slot.finish(h.pending.command, false);
+                    continue;
                 };
                 let job = h.pending;
                 let result = h.sent.and_then(|()| port.finish_command());

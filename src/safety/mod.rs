@@ -181,14 +181,19 @@ impl Gate {
             o.push(device.to_string());
         }
         tracing::warn!(device, "driver override: {why}");
-        // Nothing is resent to a device the manual state does not command.
+        self.leave_to_the_driver();
+        self.disengage(&format!("driver override on {device}"));
+    }
+
+    /// Nothing is resent to a device the manual state does not command (the steering
+    /// in the driver's hands): its pending command is dropped and its resend forgotten.
+    fn leave_to_the_driver(&self) {
         let manual = safe::manual(&self.vehicle.config);
         for d in self.vehicle.devices.iter().filter(|d| d.is_actuator()) {
             if !manual.iter().any(|(id, _)| *id == d.id) {
                 d.slot.reset(None);
             }
         }
-        self.disengage(&format!("driver override on {device}"));
     }
 
     /// Clear the latched overrides, unless a driver's hand is still on one of them
@@ -414,11 +419,15 @@ impl Gate {
     /// command thread then only reads the reply.
     fn admit(&self, d: &Device, command: Command, received: Instant) {
         crate::vehicle::stats::Stats::bump(&d.stats.received);
-        let sent = crate::vehicle::fast::send(d, command, received, || {
+        use crate::vehicle::fast::{self, Sent};
+        match fast::send(d, command, received, || {
             self.is_engaged() && matches!(self.wire_verdict(d, command, false), Verdict::Send(_))
-        });
-        if !sent {
-            Self::queue(d, command, received);
+        }) {
+            Sent::Written | Sent::Queued { superseded: false } => {}
+            Sent::Queued { superseded: true } => {
+                crate::vehicle::stats::Stats::bump(&d.stats.superseded)
+            }
+            Sent::NotTaken => Self::queue(d, command, received),
         }
     }
 
@@ -571,6 +580,11 @@ impl Gate {
     /// over.
     pub fn command_safe_state(&self) {
         let now = Instant::now();
+        if !self.overridden.lock().is_empty() {
+            // A command that raced the override (checked before it, stored after its
+            // reset) must not be left to resend to the driver's device.
+            self.leave_to_the_driver();
+        }
         for (id, c) in self.stop_state() {
             self.store(self.vehicle.device(id), c, now);
         }

@@ -32,38 +32,98 @@ pub fn allowed(d: &Device) -> bool {
     d.is_actuator() && d.config.min_command_interval.is_none()
 }
 
+/// What [`send`] did with a command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sent {
+    /// Its request is on the wire; the command thread reads the reply.
+    Written,
+    /// The port was not idle after all: the command is pending in the slot for the
+    /// command thread, as if submitted (`superseded`: a command stored meanwhile, such
+    /// as a safe state, stands instead).
+    Queued { superseded: bool },
+    /// Not taken: the slot is as before, for the caller to submit the command.
+    NotTaken,
+}
+
 /// Write `command`, received at `received`, to `d`'s port now if the port is idle and
-/// `may_send` agrees (asked with the command already in flight). Returns false when it
-/// did not: nothing was written and the slot is as before, for the caller to store the
-/// command the ordinary way.
+/// `may_send` agrees (asked with the command already in flight).
 pub fn send(
     d: &Device,
     command: Command,
     received: Instant,
     may_send: impl FnOnce() -> bool,
-) -> bool {
+) -> Sent {
     if !allowed(d) || !d.settings.command_enabled.load(Relaxed) {
-        return false;
+        return Sent::NotTaken;
     }
     if !d.slot.claim(command) {
-        return false;
+        return Sent::NotTaken;
     }
+    let claim = Claim(&d.slot);
     let port = if may_send() {
         d.port.try_acquire_idle()
     } else {
         None
     };
     let Some(mut port) = port else {
-        d.slot.unclaim();
-        return false;
+        std::mem::forget(claim);
+        let superseded = d.slot.unclaim(Some(received));
+        return Sent::Queued { superseded };
     };
     let (sent, first) = port.send_command(command);
-    super::stats::Stats::bump(&d.stats.fast);
+    if sent.is_ok() {
+        super::stats::Stats::bump(&d.stats.fast);
+    }
     port.hand_over();
+    std::mem::forget(claim);
     d.slot.hand_over(Handover {
         pending: Pending { command, received },
         first,
         sent,
     });
-    true
+    Sent::Written
+}
+
+/// A claim on a slot, ended if the thread that holds it unwinds (a bug in a check or a
+/// driver must not leave the command thread waiting for a transaction that never
+/// comes: it would never send the safe state).
+struct Claim<'a>(&'a super::slot::CommandSlot);
+
+impl Drop for Claim<'_> {
+    fn drop(&mut self) {
+        self.0.unclaim(None);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vehicle::slot::{CommandSlot, Wake};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    /// A thread that unwinds while holding a claim (a bug in a check or a driver) ends
+    /// it: the command thread is not left waiting for a transaction that never comes,
+    /// and takes the next command — the safe state — as ever.
+    #[test]
+    fn a_claim_is_ended_when_its_thread_unwinds() {
+        let slot = Arc::new(CommandSlot::default());
+        let s2 = slot.clone();
+        let waiter = std::thread::spawn(move || s2.wait(Duration::from_secs(30)));
+        let end = Instant::now() + Duration::from_secs(20);
+        while !slot.claim(Command::Set(0.1)) {
+            assert!(Instant::now() < end, "the command thread never slept");
+            std::thread::yield_now();
+        }
+        let unwound = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            let _claim = Claim(&slot);
+            panic!("a bug while claimed");
+        }));
+        assert!(unwound.is_err());
+        assert_eq!(slot.wire().flight, None, "the claim ended");
+        slot.submit(Command::Set(-1.0), Instant::now());
+        assert!(
+            matches!(waiter.join().unwrap(), Wake::Command(p) if p.command == Command::Set(-1.0))
+        );
+    }
 }

@@ -138,16 +138,22 @@ impl Port {
         if self.rule != PortRule::Priority {
             return None;
         }
-        let a = self.arb.lock();
+        let mut a = self.arb.lock();
         if a.stopped || a.busy || a.commands_waiting > 0 || a.status_urgent {
             return None;
         }
-        let guard = self.take(a)?;
-        let ready = {
-            let conn = guard.conn.as_ref().expect("held");
-            conn.link.is_some() && conn.driver.sends_at_once()
-        };
-        ready.then_some(guard)
+        // Asked before the port is marked busy, so a refusal wakes nobody. Free while
+        // the port is not busy; a release still under way is a refusal too.
+        let conn = self.conn.try_lock()?;
+        if !conn.ready_at_once() {
+            return None;
+        }
+        a.busy = true;
+        drop(a);
+        Some(PortGuard {
+            port: self,
+            conn: Some(conn),
+        })
     }
 
     /// Take back the port a [`PortGuard::hand_over`] left held, in the thread that is to
@@ -356,6 +362,15 @@ impl Conn {
         let (r, first) = self.run(f);
         self.settle(&r);
         (r, first)
+    }
+
+    /// Whether a request can go out at once, from a thread that must not wait: the
+    /// port is open, its driver needs no pause before writing, and its last
+    /// transaction ended cleanly (a device that stopped answering or reading, whose
+    /// write might wait for room until the reply deadline, is left to its command
+    /// thread).
+    fn ready_at_once(&self) -> bool {
+        self.link.is_some() && self.clean && self.failures == 0 && self.driver.sends_at_once()
     }
 
     /// The first half of a split command transaction: only a failure ends it here.
@@ -571,7 +586,8 @@ mod tests {
     /// A command split in two halves — the request written by one thread, the port
     /// handed over still held, the reply read by another — keeps the port's books as a
     /// whole transaction does: nobody can take the port in between, a clean reply
-    /// leaves nothing to discard, a timed-out one has the next request discard first.
+    /// leaves nothing to discard, a timed-out one has the next request discard first —
+    /// and leaves that request to the command thread.
     #[test]
     fn a_split_transaction_keeps_the_books_of_a_whole_one() {
         let (conn, discards) = scripted([Some(&b"ok\n"[..]), Some(b"ok\n"), None, Some(b"ok\n")]);
@@ -609,11 +625,21 @@ mod tests {
         );
         assert!(matches!(split(&port), Err(DriverError::Timeout(_))));
         assert_eq!(discards.load(Relaxed), 1);
-        assert!(split(&port).is_ok());
+        assert!(
+            port.try_acquire_idle().is_none(),
+            "after a failed transaction the next one is the command thread's"
+        );
+        let mut g = port.acquire_command().unwrap();
+        assert!(g.transact(|drv, link| drv.command(link, set)).0.is_ok());
+        drop(g);
         assert_eq!(
             discards.load(Relaxed),
             2,
             "a late reply may follow a timeout"
+        );
+        assert!(
+            port.try_acquire_idle().is_some(),
+            "idle again after a clean transaction"
         );
         assert!(port.resume().is_none(), "nothing handed over any more");
     }

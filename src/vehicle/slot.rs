@@ -92,8 +92,12 @@ impl WireState {
 enum Fast {
     #[default]
     Off,
-    /// Another thread is writing the command in flight.
-    Claimed,
+    /// Another thread is writing `command`, in flight; `before` is what was to be
+    /// resent before the claim.
+    Claimed {
+        command: Command,
+        before: Option<Command>,
+    },
     /// ... and wrote it: the command thread is to finish the transaction.
     Handed(Handover),
 }
@@ -177,8 +181,8 @@ impl CommandSlot {
         loop {
             match std::mem::take(&mut s.fast) {
                 Fast::Handed(h) => return Wake::Handed(h),
-                Fast::Claimed => {
-                    s.fast = Fast::Claimed;
+                claimed @ Fast::Claimed { .. } => {
+                    s.fast = claimed;
                     self.cv.wait(s);
                     continue;
                 }
@@ -218,33 +222,60 @@ impl CommandSlot {
         if s.stopped || !s.idle() {
             return false;
         }
-        s.fast = Fast::Claimed;
+        // As when the command thread takes a command: it is the one to resend from now
+        // on — unless a reset comes before the claim ends (an override that forgets
+        // what is resent to a device), which then holds.
+        let before = s.resend.replace(command);
+        s.fast = Fast::Claimed { command, before };
         s.wire.flight = Some(command);
         true
     }
 
     /// The claimed command's request went out (or failed to): wake the command thread
-    /// to finish its transaction. Its command is the one to resend from now on.
+    /// to finish its transaction.
     pub fn hand_over(&self, h: Handover) {
         let mut s = self.state.lock();
-        debug_assert!(matches!(s.fast, Fast::Claimed));
-        s.resend = Some(h.pending.command);
+        debug_assert!(matches!(s.fast, Fast::Claimed { .. }));
         s.fast = Fast::Handed(h);
         drop(s);
         self.cv.notify_all();
     }
 
-    /// The claimed command did not go out: the slot is as before the claim (the caller
-    /// submits the command the ordinary way).
-    pub fn unclaim(&self) {
+    /// The claimed command did not go out: end the claim, in one step with what becomes
+    /// of its command. With `requeue`, the command (received then) is pending for the
+    /// command thread, as if it had been submitted — unless one stored meanwhile (a
+    /// safe state) is pending already, which stands: then returns true, the claimed one
+    /// superseded. Without, the slot is as before the claim.
+    pub fn unclaim(&self, requeue: Option<Instant>) -> bool {
         let mut s = self.state.lock();
-        debug_assert!(matches!(s.fast, Fast::Claimed));
-        s.fast = Fast::Off;
+        let Fast::Claimed { command, before } = std::mem::take(&mut s.fast) else {
+            debug_assert!(false, "unclaimed without a claim");
+            return false;
+        };
         s.wire.flight = None;
+        if s.resend == Some(command) {
+            s.resend = before;
+        }
+        let superseded = match requeue {
+            Some(_) if s.wire.pending.is_some() => true,
+            Some(received) => {
+                s.wire.pending = Some(command);
+                s.received = Some(received);
+                false
+            }
+            None => false,
+        };
         drop(s);
         // The command thread waits out a claim with no deadline: back to its resend
-        // timeout.
+        // timeout, or to the command.
         self.cv.notify_all();
+        superseded
+    }
+
+    /// A command waits for the port: pending, or claimed by the fast path.
+    pub fn has_pending(&self) -> bool {
+        let s = self.state.lock();
+        s.wire.pending.is_some() || matches!(s.fast, Fast::Claimed { .. })
     }
 
     /// Take a command that arrived after the thread woke (while it waited for the port),
@@ -332,10 +363,6 @@ impl CommandSlot {
     /// nothing in flight: a claim would be granted now.
     pub fn is_idle(&self) -> bool {
         self.state.lock().idle()
-    }
-
-    pub fn has_pending(&self) -> bool {
-        self.state.lock().wire.pending.is_some()
     }
 
     /// Wait until the device acknowledged a command matching `done`, or the deadline.
@@ -463,12 +490,60 @@ mod tests {
     #[test]
     fn an_unclaimed_slot_is_as_before() {
         let slot = Arc::new(CommandSlot::default());
+        slot.reset(Some(Command::Set(0.5)));
         let s2 = slot.clone();
         let waiter = std::thread::spawn(move || s2.wait(Duration::from_secs(30)));
         claim_when_asleep(&slot, Command::Set(0.1));
-        slot.unclaim();
+        assert_eq!(slot.resend(), Some(Command::Set(0.1)));
+        assert!(!slot.unclaim(None));
         assert_eq!(slot.wire().flight, None);
+        assert_eq!(slot.resend(), Some(Command::Set(0.5)), "resend as before");
         slot.submit(Command::Set(0.1), Instant::now());
         assert!(matches!(waiter.join().unwrap(), Wake::Command(_)));
+    }
+
+    /// A claimed command that cannot go out after all is queued for the command thread
+    /// in the same step — unless a command stored during the claim (the safe state of a
+    /// disengage that raced it) is pending: that one stands, never overwritten by the
+    /// older command.
+    #[test]
+    fn an_unclaimed_command_is_queued_unless_a_newer_one_is_pending() {
+        for newer in [None, Some(Command::Set(-1.0))] {
+            let slot = Arc::new(CommandSlot::default());
+            let s2 = slot.clone();
+            let waiter = std::thread::spawn(move || s2.wait(Duration::from_secs(30)));
+            claim_when_asleep(&slot, Command::Set(0.1));
+            if let Some(c) = newer {
+                slot.submit(c, Instant::now());
+            }
+            assert_eq!(slot.unclaim(Some(Instant::now())), newer.is_some());
+            let Wake::Command(p) = waiter.join().unwrap() else {
+                panic!("woken without a command")
+            };
+            assert_eq!(p.command, newer.unwrap_or(Command::Set(0.1)));
+        }
+    }
+
+    /// A reset during a claim (an override forgetting what is resent to a device the
+    /// manual state does not command) holds after the claimed command went out: the
+    /// command thread does not send it again and again.
+    #[test]
+    fn a_reset_during_a_claim_holds_after_the_hand_over() {
+        let slot = Arc::new(CommandSlot::default());
+        let s2 = slot.clone();
+        let waiter = std::thread::spawn(move || s2.wait(Duration::from_secs(30)));
+        claim_when_asleep(&slot, Command::Set(0.1));
+        slot.reset(None);
+        let t = Instant::now();
+        slot.hand_over(Handover {
+            pending: Pending {
+                command: Command::Set(0.1),
+                received: t,
+            },
+            first: Some(t),
+            sent: Ok(()),
+        });
+        assert!(matches!(waiter.join().unwrap(), Wake::Handed(_)));
+        assert_eq!(slot.resend(), None, "nothing to resend after the reset");
     }
 }
