@@ -156,8 +156,10 @@ fn a_rate_cap_or_the_paper_rule_keeps_the_ordinary_path() {
 }
 
 /// A fast-path command the device never answers ends at its reply timeout, is counted
-/// as a command error with the timeout's code, and the next command goes out and is
-/// acknowledged as usual.
+/// as a command error with the timeout's code, and the next command goes out the
+/// ordinary way — a port that stopped answering is never written by the thread that
+/// admits commands, which must not wait on it — and is acknowledged as usual; after that
+/// clean transaction the fast path is back.
 #[test]
 fn a_timed_out_fast_path_transaction_is_counted_and_the_next_goes_out() {
     let rig = Rig::start(&steer_only(
@@ -174,11 +176,17 @@ fn a_timed_out_fast_path_transaction_is_counted_and_the_next_goes_out() {
     assert_eq!(steer.health.command_error.load(Relaxed), 1, "timeout code");
     assert_ne!(steer.slot.executed(), Some(set(0.4)), "never acknowledged");
     faults.silent.store(false, Relaxed);
-    assert!(submit_when_idle(&rig, steer, set(-0.4)));
+    assert!(
+        !submit_when_idle(&rig, steer, set(-0.4)),
+        "after a failed transaction, the command thread's"
+    );
     wait_for("the next to execute", || {
         steer.slot.executed() == Some(set(-0.4))
     });
     assert_eq!(steer.stats.command_errors.load(Relaxed), 1);
     assert_eq!(steer.health.command_error.load(Relaxed), 0);
     assert_eq!(steer.stats.executed.load(Relaxed), 2);
+    assert!(submit_when_idle(&rig, steer, set(0.2)), "the fast path again");
+    wait_for("it to execute", || steer.slot.executed() == Some(set(0.2)));
+    assert_eq!(steer.stats.executed.load(Relaxed), 3);
 }
