@@ -186,7 +186,10 @@ fn a_timed_out_fast_path_transaction_is_counted_and_the_next_goes_out() {
     assert_eq!(steer.stats.command_errors.load(Relaxed), 1);
     assert_eq!(steer.health.command_error.load(Relaxed), 0);
     assert_eq!(steer.stats.executed.load(Relaxed), 2);
-    assert!(submit_when_idle(&rig, steer, set(0.2)), "the fast path again");
+    assert!(
+        submit_when_idle(&rig, steer, set(0.2)),
+        "the fast path again"
+    );
     wait_for("it to execute", || steer.slot.executed() == Some(set(0.2)));
     assert_eq!(steer.stats.executed.load(Relaxed), 3);
 }

@@ -3,7 +3,7 @@
 //! datagrams. The bench reads adrive's own figures from its state broadcast (the one
 //! snapshot every client reads) and its CPU time and memory from `/proc`.
 
-use adrive::snapshot::Snapshot;
+use adrive::snapshot::{Assembler, Snapshot};
 use std::io::{BufRead, BufReader};
 use std::net::{SocketAddr, UdpSocket};
 use std::path::{Path, PathBuf};
@@ -301,11 +301,13 @@ impl Adrive {
         let _ = self.planner.send(text.as_bytes());
     }
 
-    /// A state broadcast taken after now (its figures at most 200 ms old then).
+    /// A whole state broadcast taken after now (its figures at most 200 ms old then),
+    /// reassembled when a vehicle of many devices sends it in parts.
     pub fn snapshot(&self) -> Snapshot {
         let asked = Instant::now();
         let mut buf = vec![0u8; 65536];
         let end = asked + DEADLINE;
+        let mut parts = Assembler::default();
         loop {
             assert!(Instant::now() < end, "no state broadcast");
             let Ok(n) = self.broadcast.recv(&mut buf) else {
@@ -315,7 +317,10 @@ impl Adrive {
             if asked.elapsed() < Duration::from_millis(250) {
                 continue;
             }
-            return serde_json::from_slice(&buf[..n]).expect("a snapshot");
+            if let Some(whole) = parts.push(serde_json::from_slice(&buf[..n]).expect("a snapshot"))
+            {
+                return whole;
+            }
         }
     }
 

@@ -272,7 +272,8 @@ fn sender(a: &libc::sockaddr_storage) -> Option<SocketAddr> {
 fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
     let mut batch = Batch::new();
     let mut errors = RateLimit::new(1);
-    let mut pace = pace::Pace::new(Instant::now());
+    let status = intake.status().clone();
+    let mut pace = pace::Pace::new(Instant::now(), &status);
     let mut last_read = Instant::now();
     let mut not_before = None;
     while !stop.is_stopped() {
@@ -294,8 +295,6 @@ fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
         match result {
             Ok(n) => {
                 last_read = Instant::now();
-                // A full batch leaves more queued: read on at once, never fall behind.
-                not_before = pace.read(n, last_read).filter(|_| n < BATCH);
                 for i in 0..n {
                     let Some((bytes, from)) = batch.get(i) else {
                         continue;
@@ -304,6 +303,8 @@ fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
                         let _ = socket.send_to(reply.as_bytes(), from);
                     }
                 }
+                // A full batch leaves more queued: read on at once, never fall behind.
+                not_before = pace.read(last_read, &status).filter(|_| n < BATCH);
             }
             Err(e)
                 if matches!(

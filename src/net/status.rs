@@ -230,6 +230,18 @@ impl NetStatus {
         self.accel.fetch_add(1, Relaxed);
     }
 
+    /// Datagrams received so far.
+    pub(crate) fn datagrams(&self) -> u64 {
+        self.datagrams.load(Relaxed)
+    }
+
+    /// Commands accepted so far, each device's by its index, then `accel`'s.
+    pub(crate) fn each_command_count(&self, mut f: impl FnMut(usize, u64)) {
+        for (i, c) in self.commands.iter().chain([&self.accel]).enumerate() {
+            f(i, c.load(Relaxed));
+        }
+    }
+
     /// Refusals of one kind so far.
     pub fn refusals(&self, r: Refusal) -> u64 {
         self.refused[r.index()].load(Relaxed)
