@@ -172,6 +172,11 @@ pub struct DeviceView {
     pub commanded: Option<Value>,
     /// The last command the device acknowledged.
     pub executed: Option<Value>,
+    /// A set point device: the lowest and highest set point it acknowledged over the
+    /// last two supervisor periods (the last one always included) — everything its
+    /// commands can have driven it toward since the supervisor last looked.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub executed_span: Option<[f64; 2]>,
     /// Age of the cached reading, ms (null before the first good poll).
     pub status_age_ms: Option<f64>,
     /// The reading is older than the device's `status_max_age` (or there is none).

@@ -37,9 +37,9 @@ pub struct Track {
     window: Vec<(Instant, u64, u64)>,
     /// Since when the measured value is away from the command.
     away_since: Option<Instant>,
-    /// A device with a declared response: the command, when and how far away (by the
-    /// estimate) the current headway window began.
-    headway: Option<(f64, Instant, f64)>,
+    /// A device with a declared response: the span of its commands, when and how far
+    /// away from it (by the estimate) the current headway window began.
+    headway: Option<([f64; 2], Instant, f64)>,
     /// A device with a declared response: where its commands alone can have taken it
     /// (from its readings, never away from its command nor faster than declared), when
     /// that was, and since when a reading has been further than `override_threshold`
@@ -240,13 +240,18 @@ fn device_faults(
         );
     }
     if let (Some(r), Some(&Value::Number(cmd))) = (c.response, d.executed.as_ref()) {
-        let unexplained = unexplained(track, &r, c.range, pos, cmd, now);
+        // Every set point acknowledged since the last turn may have driven it: a
+        // controller alternating two set points faster than this turn comes must not
+        // look like a hand pushing toward the one not seen.
+        let span = d.executed_span.unwrap_or([cmd, cmd]);
+        let unexplained = unexplained(track, &r, c.range, pos, span, now);
         // Once named, an override lasts until the device is back at its command: a
         // hand that holds still explains itself no better than a stuck motor would.
         let named = previous
             .iter()
             .any(|f| f.kind == FaultKind::Override && f.device.as_deref() == who);
-        if named && (pos - cmd).abs() > r.override_threshold {
+        let off_span = (span[0] - pos).max(pos - span[1]).max(0.0);
+        if named && off_span > r.override_threshold {
             raise(
                 FaultKind::Override,
                 who,
@@ -278,11 +283,13 @@ fn device_faults(
     if let (Some(r), Some(e), Some(&Value::Number(cmd))) =
         (c.response, d.estimate, d.executed.as_ref())
     {
-        // By the estimate: no headway toward the command for `stall_time`.
-        let gap = (cmd - e.position).abs();
+        // By the estimate: no headway toward the commands for `stall_time` (inside the
+        // span of those acknowledged since the last turn, it is where they drive it).
+        let span = d.executed_span.unwrap_or([cmd, cmd]);
+        let gap = (span[0] - e.position).max(e.position - span[1]).max(0.0);
         match track.headway {
             _ if gap <= r.deadband => track.headway = None,
-            Some((was, since, gap0)) if was == cmd => {
+            Some((was, since, gap0)) if was == span => {
                 let elapsed = now - since;
                 let promised = r.progress(gap0, elapsed);
                 let made = gap0 - gap;
@@ -297,10 +304,10 @@ fn device_faults(
                     );
                 } else if elapsed > sup.stall_time {
                     // Headway made: judge the next window from here.
-                    track.headway = Some((cmd, now, gap));
+                    track.headway = Some((span, now, gap));
                 }
             }
-            _ => track.headway = Some((cmd, now, gap)),
+            _ => track.headway = Some((span, now, gap)),
         }
     } else if let Some(Value::Number(cmd)) = d.executed {
         if (pos - cmd).abs() > sup.follow_tolerance * (hi - lo) {
@@ -321,18 +328,19 @@ fn device_faults(
     }
 }
 
-/// How far the reading `pos` is from where the command `cmd` can have taken the
-/// device since the last turn — 0 for a device that follows as declared, lags behind
-/// (a slow or stuck motor), or rests at an end stop; the distance it was pushed for a
-/// device that moved away from its command or faster than its response allows (a
-/// driver's hand). What is explained follows the readings; what is not stays put, so
-/// a hand that pushes and holds keeps the distance.
+/// How far the reading `pos` is from where the commands — every set point in `span`,
+/// the lowest and highest acknowledged since the last turn — can have taken the device
+/// since that turn: 0 for a device that follows as declared, lags behind (a slow or
+/// stuck motor), or rests at an end stop; the distance it was pushed for a device that
+/// moved away from its commands or faster than its response allows (a driver's hand).
+/// What is explained follows the readings; what is not stays put, so a hand that
+/// pushes and holds keeps the distance.
 fn unexplained(
     track: &mut Track,
     r: &crate::config::Response,
     range: [f64; 2],
     pos: f64,
-    cmd: f64,
+    span: [f64; 2],
     now: Instant,
 ) -> f64 {
     let Some((from, at)) = track.explained else {
@@ -340,13 +348,9 @@ fn unexplained(
         return 0.0;
     };
     let dt = (now - at).mul_f64(EXPLAIN_SLACK);
-    let step = r.progress(cmd - from, dt).copysign(cmd - from);
+    let toward = |cmd: f64| from + r.progress(cmd - from, dt).copysign(cmd - from);
     let [min, max] = range;
-    let (lo, hi) = if step >= 0.0 {
-        (from, from + step)
-    } else {
-        (from + step, from)
-    };
+    let (lo, hi) = (toward(span[0]).min(from), toward(span[1]).max(from));
     let explained = pos.clamp(lo.max(min), hi.min(max).max(lo.max(min)));
     track.explained = Some((explained, now));
     // A reading's own scatter and the dead band explain themselves, but never move
@@ -634,5 +638,56 @@ mod tests {
         let snap = gate.snapshot_at(0, now);
         let f = silent(detect(&snap, &v.config, &sup, &mut mem, &[], now));
         assert!(f.cause.ends_with("(max 250 ms): timeout"), "{f:?}");
+    }
+
+    /// A controller alternating the brake between 0.1 and 0.6 every 10 ms, seen by
+    /// turns that always fall on the 0.6 (a 100 ms period locked to a 20 ms cycle):
+    /// the brake hovers between the two, moving toward each in turn. Judged by the one
+    /// command a turn sees, it is pushed toward 0.1 by a foot (an override, which
+    /// releases the brake) and makes no headway toward 0.6 (not following, which stops
+    /// the vehicle) — the bench's section 5 ran into both. Judged by every set point
+    /// acknowledged since the last turn, it is simply following.
+    #[test]
+    fn a_brake_alternating_faster_than_the_turns_is_neither_pushed_nor_stuck() {
+        let t0 = Instant::now();
+        let gate = sample::gate(t0);
+        let v = &gate.vehicle;
+        let sup = SupervisorConfig::default();
+        let turns = |span: Option<[f64; 2]>| {
+            let mut mem = Memory::new(t0);
+            let mut faults: Vec<Fault> = Vec::new();
+            let mut named = Vec::new();
+            for k in 0..40u32 {
+                let now = t0 + Duration::from_millis(100 * u64::from(k));
+                let mut snap = gate.snapshot_at(0, now);
+                let b = snap.devices.iter_mut().find(|d| d.name == "brake").unwrap();
+                let pos = 0.35 - 0.05 * f64::from(k % 2);
+                if let Some((_, x)) = b.readings.0.iter_mut().find(|(n, _)| n == "position") {
+                    *x = Some(Value::Number(pos));
+                }
+                b.status_age_ms = Some(5.0);
+                b.stale = false;
+                b.executed = Some(Value::Number(0.6));
+                b.executed_span = span;
+                if let Some(e) = b.estimate.as_mut() {
+                    e.position = pos;
+                }
+                faults = detect(&snap, &v.config, &sup, &mut mem, &faults, now);
+                named.extend(
+                    faults
+                        .iter()
+                        .filter(|f| f.device.as_deref() == Some("brake"))
+                        .map(|f| f.kind)
+                        .filter(|k| matches!(k, FaultKind::Override | FaultKind::NotFollowing)),
+                );
+            }
+            named
+        };
+        assert_eq!(turns(Some([0.1, 0.6])), vec![], "following its commands");
+        let old = turns(None);
+        assert!(
+            old.contains(&FaultKind::Override) || old.contains(&FaultKind::NotFollowing),
+            "judged by the one command a turn sees, it is at fault: {old:?}"
+        );
     }
 }

@@ -110,7 +110,11 @@ impl Vehicle {
 
     /// The devices' part of the snapshot, ages as of `now`.
     pub fn device_views(&self, now: Instant) -> Vec<DeviceView> {
-        self.devices.iter().map(|d| view(d, now)).collect()
+        let since = now.checked_sub(2 * self.config.supervisor.period);
+        self.devices
+            .iter()
+            .map(|d| view(d, now, since.unwrap_or(now)))
+            .collect()
     }
 
     /// The role bindings in words: role → device or device.reading.
@@ -143,8 +147,9 @@ fn ms(d: std::time::Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-/// One device as the snapshot carries it, ages as of `now`.
-fn view(d: &Device, now: Instant) -> DeviceView {
+/// One device as the snapshot carries it, ages as of `now`; its acknowledged set
+/// points since `since`.
+fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
     let c = d.cached();
     let cfg = &d.config;
     let s = d.stats.snapshot();
@@ -176,6 +181,7 @@ fn view(d: &Device, now: Instant) -> DeviceView {
         fault: c.reading.fault,
         commanded: d.slot.latest().map(value),
         executed: d.slot.executed().map(value),
+        executed_span: d.slot.acked_span(since),
         status_age_ms: age.map(ms),
         stale: age.is_none_or(|a| a > cfg.status_max_age),
         health: snapshot::Health {

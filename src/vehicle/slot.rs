@@ -12,6 +12,7 @@
 use crate::driver::DriverError;
 use crate::value::Command;
 use parking_lot::{Condvar, Mutex, MutexGuard};
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 /// A command waiting for the wire, stamped where it was born.
@@ -112,9 +113,15 @@ struct State {
     received: Option<Instant>,
     /// What to send again after `command_timeout`; engage clears it.
     resend: Option<Command>,
+    /// The last [`RECENT`] set points acknowledged, and when.
+    recent: VecDeque<(Instant, f64)>,
     nudged: bool,
     stopped: bool,
 }
+
+/// How many acknowledged set points [`CommandSlot::acked_span`] looks back over at most
+/// (a third of a second of commands at 100 Hz).
+pub const RECENT: usize = 32;
 
 impl State {
     /// See [`CommandSlot::is_idle`].
@@ -318,12 +325,35 @@ impl CommandSlot {
         let mut s = self.state.lock();
         s.wire.flight = None;
         s.wire.sent = Some(command);
-        if acked && s.wire.acked != Some(command) {
-            s.wire.acked = Some(command);
-            s.wire.acked_at = Some(Instant::now());
+        if acked {
+            let now = Instant::now();
+            if let Command::Set(v) = command {
+                if s.recent.len() == RECENT {
+                    s.recent.pop_front();
+                }
+                s.recent.push_back((now, v));
+            }
+            if s.wire.acked != Some(command) {
+                s.wire.acked = Some(command);
+                s.wire.acked_at = Some(now);
+            }
         }
         drop(s);
         self.cv.notify_all();
+    }
+
+    /// The lowest and highest set point acknowledged since `since` (of the last
+    /// [`RECENT`]), the last one always included: every command that can have driven
+    /// the device meanwhile. `None` before the first.
+    pub fn acked_span(&self, since: Instant) -> Option<[f64; 2]> {
+        let s = self.state.lock();
+        let (_, last) = *s.recent.back()?;
+        let span = s
+            .recent
+            .iter()
+            .filter(|(t, _)| *t >= since)
+            .fold([last, last], |[lo, hi], &(_, v)| [lo.min(v), hi.max(v)]);
+        Some(span)
     }
 
     /// What the command thread sends again when nothing new arrives.
