@@ -463,6 +463,19 @@ mod tests {
     }
 
     /// Wait until the thread sleeps in its slot, then claim it for `command`.
+    /// The claimed `command` was written: hand its transaction over.
+    fn hand_over_written(slot: &CommandSlot, command: Command) {
+        let t = Instant::now();
+        slot.hand_over(Handover {
+            pending: Pending {
+                command,
+                received: t,
+            },
+            first: Some(t),
+            sent: Ok(()),
+        });
+    }
+
     fn claim_when_asleep(slot: &CommandSlot, command: Command) {
         let end = Instant::now() + Duration::from_secs(20);
         while !slot.claim(command) {
@@ -497,15 +510,7 @@ mod tests {
         slot.submit(Command::Set(0.3), Instant::now());
         // Several of the thread's timeouts pass while the claim stands.
         std::thread::sleep(Duration::from_millis(30));
-        let t = Instant::now();
-        slot.hand_over(Handover {
-            pending: Pending {
-                command: Command::Set(0.1),
-                received: t,
-            },
-            first: Some(t),
-            sent: Ok(()),
-        });
+        hand_over_written(&slot, Command::Set(0.1));
         let (first, second) = waiter.join().unwrap();
         assert!(
             matches!(first, Wake::Handed(Handover { pending, .. }) if pending.command == Command::Set(0.1)),
@@ -564,15 +569,7 @@ mod tests {
         let waiter = std::thread::spawn(move || s2.wait(Duration::from_secs(30)));
         claim_when_asleep(&slot, Command::Set(0.1));
         slot.reset(None);
-        let t = Instant::now();
-        slot.hand_over(Handover {
-            pending: Pending {
-                command: Command::Set(0.1),
-                received: t,
-            },
-            first: Some(t),
-            sent: Ok(()),
-        });
+        hand_over_written(&slot, Command::Set(0.1));
         assert!(matches!(waiter.join().unwrap(), Wake::Handed(_)));
         assert_eq!(slot.resend(), None, "nothing to resend after the reset");
     }
