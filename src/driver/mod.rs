@@ -102,7 +102,7 @@ impl DriverError {
 /// so that the thread that admitted a command can put it on the wire itself and leave
 /// the reply to the device's command thread. The engine calls the halves back to back
 /// on the same port, which stays held in between; a driver that does not split
-/// (`splits_commands` false) is only ever asked for whole transactions.
+/// ([`Driver::sends_at_once`] false) is only ever asked for whole transactions.
 pub trait Driver: Send {
     /// Bring a freshly opened port into a known state (e.g. the ELM327's reset
     /// sequence). Called again after every reconnect.

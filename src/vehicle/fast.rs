@@ -18,7 +18,10 @@
 //! Anything else and the path is the ordinary one: the paper's port rule (first come,
 //! first served), a rate cap (`min_command_interval`), commands switched off, a driver
 //! that does not split its transactions or must wait before writing (a Modbus line in
-//! its inter-frame silence), a port not open yet.
+//! its inter-frame silence), a port not open yet or whose last transaction failed (a
+//! device that stopped answering or reading could make the write wait, and the thread
+//! that admits every command must not wait on one device). A claimed command that
+//! cannot go out after all is queued for the command thread in the same step.
 
 use super::slot::{Handover, Pending};
 use super::Device;
