@@ -49,15 +49,19 @@ pub fn manual(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
 mod tests {
     use super::*;
 
-    #[test]
-    fn alice_s_safe_state_is_gas_zero_and_brake_full() {
+    /// What `of` commands on Alice, by device name.
+    fn named(of: fn(&VehicleConfig) -> Vec<(DeviceId, Command)>) -> Vec<(String, Command)> {
         let a = VehicleConfig::alice();
-        let named: Vec<(String, Command)> = state(&a)
+        of(&a)
             .into_iter()
             .map(|(id, c)| (a.devices[id.index()].name.clone(), c))
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn alice_s_safe_state_is_gas_zero_and_brake_full() {
         assert_eq!(
-            named,
+            named(state),
             vec![
                 ("gas".to_string(), Command::Set(0.0)),
                 ("brake".to_string(), Command::Set(1.0))
@@ -67,13 +71,8 @@ mod tests {
 
     #[test]
     fn alice_s_manual_state_releases_gas_and_brake_and_leaves_the_steering_alone() {
-        let a = VehicleConfig::alice();
-        let named: Vec<(String, Command)> = manual(&a)
-            .into_iter()
-            .map(|(id, c)| (a.devices[id.index()].name.clone(), c))
-            .collect();
         assert_eq!(
-            named,
+            named(manual),
             vec![
                 ("gas".to_string(), Command::Set(0.0)),
                 ("brake".to_string(), Command::Set(0.0))
