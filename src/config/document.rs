@@ -42,9 +42,10 @@ impl Lines {
         self.keys.iter().find(|(p, _)| p == path).map(|&(_, l)| l)
     }
 
-    /// The line of the first of `paths` the file writes; else line 1.
+    /// The line of the first of `paths` the file writes; else 0, the file as a whole
+    /// (a default that the file does not write is at no line of it).
     pub fn first(&self, paths: &[impl AsRef<str>]) -> usize {
-        paths.iter().find_map(|p| self.get(p.as_ref())).unwrap_or(1)
+        paths.iter().find_map(|p| self.get(p.as_ref())).unwrap_or(0)
     }
 }
 
@@ -116,10 +117,25 @@ impl<'a> Document<'a> {
 
     /// A value serde refused, at `span`: named by its key, with the key's range when it
     /// has one (`attempts = -1`: "attempts: expected a whole number from 1 to 10, got -1").
+    /// A field missing from the root (a table the file lacks) is about the file as a
+    /// whole: it names no line, since no line is at fault.
     pub(crate) fn type_error(&self, span: Option<Range<usize>>, message: &str) -> ConfigError {
         let offset = span.map_or(0, |s| s.start);
         let Some(key) = self.key_at(offset) else {
-            return self.error_at(offset, message.to_string());
+            if !message.starts_with("missing field") {
+                return self.error_at(offset, message.to_string());
+            }
+            let message = match message {
+                "missing field `vehicle`" => {
+                    "no [vehicle] table: a vehicle file has [vehicle] with name = \"…\"".into()
+                }
+                m => m.to_string(),
+            };
+            return ConfigError {
+                path: self.path.to_string(),
+                line: 0,
+                message,
+            };
         };
         let name = key.path.rsplit('.').next().unwrap_or(&key.path);
         let got = self.text[key.value.clone()].trim();

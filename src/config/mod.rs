@@ -417,15 +417,19 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         d.check_limits()
             .map_err(|v| refuse(path, &lines, &owner, v))?;
         check_sim(&d).map_err(|m| doc.error_at(at, m))?;
+        if devices.len() == usize::from(u16::MAX) {
+            return Err(doc.error_at(
+                at,
+                format!("too many devices: a vehicle has at most {}", u16::MAX),
+            ));
+        }
         devices.push(d);
-    }
-    if devices.len() > u16::MAX as usize {
-        return Err(doc.error_at(0, "too many devices".into()));
     }
     let roles = roles::bind(
         raw.vehicle.roles.unwrap_or_default(),
         raw.vehicle.gear,
         &devices,
+        &|at| document::line_of(text, at),
     )
     .map_err(|(o, m)| doc.error_at(o, m))?;
     raw.supervisor

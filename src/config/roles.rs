@@ -3,6 +3,11 @@
 //! reading) bound to a role in `[vehicle.roles]`. A rule whose devices are not bound is
 //! simply absent (a cart without a gearbox has no shift rule), and adrive says at start
 //! which rules are active and what is missing.
+//!
+//! Which roles may share one device is decided here once, in [`SHARED`]: a device
+//! plays one role, except the pairs listed there with their reason. Every other pair
+//! is refused at the line of its second binding (throttle and brake on one device
+//! would be released and applied by the same set point).
 
 use super::device::{DeviceConfig, ReadingKind, Refusal};
 use crate::value::{DeviceId, EstopState, Kind};
@@ -65,6 +70,50 @@ impl Role {
             _ => Role::ALL.into_iter().find(|r| r.as_str() == w),
         }
     }
+}
+
+/// The pairs of roles one device may play, each with the reason it may; every other
+/// pair on one device is refused ([`Role::shares_with`]). The README's table is
+/// generated from this one ([`sharing_markdown`]).
+pub const SHARED: [(Role, Role, &str); 2] = [
+    (
+        Role::Gear,
+        Role::Starter,
+        "the gearbox controller cranks the engine, and only in park or neutral (Alice's `trans`): `start_in_gear` reads the very device that starts",
+    ),
+    (
+        Role::Speed,
+        Role::EngineRunning,
+        "two readings of one engine computer (an OBD-II adapter reports road speed and rpm); neither commands anything",
+    ),
+];
+
+impl Role {
+    /// Why `self` and `other` may be bound to one device; `None`: they may not.
+    pub fn shares_with(self, other: Role) -> Option<&'static str> {
+        SHARED
+            .iter()
+            .find(|(a, b, _)| [*a, *b] == [self, other] || [*b, *a] == [self, other])
+            .map(|(_, _, why)| *why)
+    }
+}
+
+/// The README's table of the roles that may share a device.
+pub fn sharing_markdown() -> String {
+    let mut out = String::from("| roles | may share one device because |\n|---|---|\n");
+    for (a, b, why) in SHARED {
+        out.push_str(&format!("| `{a}`, `{b}` | {why} |\n"));
+    }
+    out
+}
+
+/// The pairs of [`SHARED`], as a user reads them in a refusal.
+fn shared_pairs() -> String {
+    SHARED
+        .iter()
+        .map(|(a, b, _)| format!("{a} with {b}"))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 impl fmt::Display for Role {
@@ -191,6 +240,22 @@ pub(super) struct RawRoles {
     starter: Option<Spanned<String>>,
 }
 
+impl RawRoles {
+    /// The binding of `role`, as written.
+    fn get(&self, role: Role) -> Option<&Spanned<String>> {
+        match role {
+            Role::Steering => self.steering.as_ref(),
+            Role::Throttle => self.throttle.as_ref(),
+            Role::Brake => self.brake.as_ref(),
+            Role::Gear => self.gear.as_ref(),
+            Role::Estop => self.estop.as_ref(),
+            Role::Speed => self.speed.as_ref(),
+            Role::EngineRunning => self.engine_running.as_ref(),
+            Role::Starter => self.starter.as_ref(),
+        }
+    }
+}
+
 /// `[vehicle.gear]`: which gearbox states drive, and where to park.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -203,11 +268,13 @@ pub(super) struct RawGear {
     park: Option<String>,
 }
 
-/// Check every binding against the devices.
+/// Check every binding against the devices; `line` gives the line of a byte offset of
+/// the file (a refusal about two bindings names both lines).
 pub(super) fn bind(
     raw: RawRoles,
     gear: Option<Spanned<RawGear>>,
     devices: &[DeviceConfig],
+    line: &dyn Fn(usize) -> usize,
 ) -> Result<Bindings, Refusal> {
     let find = |s: &Spanned<String>| -> Result<(DeviceId, Option<usize>), Refusal> {
         let at = s.span().start;
@@ -313,6 +380,37 @@ pub(super) fn bind(
         }))
     };
 
+    // One device, two roles: only the pairs of SHARED. Checked first, in the order the
+    // file writes them, so the refusal names the second binding and quotes both.
+    let mut written: Vec<(Role, &Spanned<String>)> = Role::ALL
+        .into_iter()
+        .filter_map(|r| raw.get(r).map(|s| (r, s)))
+        .collect();
+    written.sort_by_key(|(_, s)| s.span().start);
+    let mut seen: Vec<(Role, &Spanned<String>, DeviceId)> = Vec::new();
+    for (role, s) in written {
+        let (id, _) = find(s)?;
+        if let Some((first, f, _)) = seen
+            .iter()
+            .find(|(r, _, d)| *d == id && r.shares_with(role).is_none())
+        {
+            return Err((
+                s.span().start,
+                format!(
+                    "roles: {role} = {:?} (line {}) and {first} = {:?} (line {}) are one device, {}: \
+                     a device plays one role, except {}",
+                    s.get_ref(),
+                    line(s.span().start),
+                    f.get_ref(),
+                    line(f.span().start),
+                    devices[id.index()].name,
+                    shared_pairs()
+                ),
+            ));
+        }
+        seen.push((role, s, id));
+    }
+
     let mut b = Bindings {
         steering: actuator(Role::Steering, &raw.steering, Kind::Setpoint)?,
         throttle: actuator(Role::Throttle, &raw.throttle, Kind::Setpoint)?,
@@ -320,16 +418,11 @@ pub(super) fn bind(
         ..Bindings::default()
     };
     for (role, id) in [(Role::Throttle, b.throttle), (Role::Brake, b.brake)] {
-        if let Some(id) = id {
+        if let (Some(id), Some(s)) = (id, raw.get(role)) {
             let [lo, _] = devices[id.index()].range;
             if lo != 0.0 {
-                let at = if role == Role::Throttle {
-                    &raw.throttle
-                } else {
-                    &raw.brake
-                };
                 return Err((
-                    at.as_ref().map_or(0, |s| s.span().start),
+                    s.span().start,
                     format!(
                         "roles: {role} {}: its range must start at 0 (released), got [{lo}, …]",
                         devices[id.index()].name
@@ -338,12 +431,12 @@ pub(super) fn bind(
             }
         }
     }
-    if b.throttle.is_some() && b.throttle == b.brake {
-        return Err((0, "roles: throttle and brake must be two devices".into()));
-    }
-    if let Some(g) = actuator(Role::Gear, &raw.gear, Kind::State)? {
+    if let (Some(g), Some(s)) = (
+        actuator(Role::Gear, &raw.gear, Kind::State)?,
+        raw.get(Role::Gear),
+    ) {
         let d = &devices[g.index()];
-        let at = raw.gear.as_ref().map_or(0, |s| s.span().start);
+        let at = s.span().start;
         let Some(spec) = gear else {
             return Err((
                 at,

@@ -880,3 +880,229 @@ fn the_readme_shows_the_well_known_readings() {
         "README.md must contain, verbatim, the table of well-known readings:\n{table}"
     );
 }
+
+/// Every way of writing one line wrong that the walk below tries, on a file whose first
+/// line is a comment: delete it, write it twice, misspell its key, give it a value of
+/// every wrong type, misspell its table; in `[vehicle.roles]`, bind it to every device
+/// and reading, and add every role bound to every device. Each: the file and the line
+/// edited.
+fn mutations(text: &str) -> Vec<(String, usize)> {
+    let lines: Vec<&str> = text.lines().collect();
+    let v = parse(text, "v.toml").expect("the walked file loads");
+    let targets: Vec<String> = v
+        .devices
+        .iter()
+        .flat_map(|d| {
+            std::iter::once(d.name.clone()).chain(
+                d.readings
+                    .iter()
+                    .map(move |r| format!("{}.{}", d.name, r.name)),
+            )
+        })
+        .collect();
+    let wrong = [
+        "\"x\"", "-1", "1e9", "[]", "{}", "true", "\"10h\"", "\"\"", "[0.0]",
+    ];
+    let edit = |i: usize, new: &[String]| {
+        let mut out: Vec<&str> = lines[..i].to_vec();
+        out.extend(new.iter().map(String::as_str));
+        out.extend(&lines[i + 1..]);
+        out.join("\n") + "\n"
+    };
+    let mut out = Vec::new();
+    let mut table = "";
+    for (i, l) in lines.iter().enumerate().skip(1) {
+        let l = l.to_string();
+        out.push((edit(i, &[]), i + 1));
+        out.push((edit(i, &[l.clone(), l.clone()]), i + 1));
+        if l.starts_with('[') {
+            table = lines[i];
+            out.push((edit(i, &[l.replacen('[', "[x", 1)]), i + 1));
+        }
+        let Some((key, value)) = l.split_once(" = ") else {
+            continue;
+        };
+        out.push((edit(i, &[format!("zzz = {value}")]), i + 1));
+        for w in wrong {
+            out.push((edit(i, &[format!("{key} = {w}")]), i + 1));
+        }
+        if table == "[vehicle.roles]" {
+            for t in &targets {
+                out.push((edit(i, &[format!("{key} = {t:?}")]), i + 1));
+                for r in Role::ALL {
+                    out.push((edit(i, &[l.clone(), format!("{r} = {t:?}")]), i + 2));
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Throttle and brake on one device were refused at line 1 (the refusal was built at
+/// byte 0): every refusal the walk provokes in the shipped vehicles and the test base
+/// names a line of the file, and never line 1, which is a comment nobody edited.
+#[test]
+fn no_refusal_names_the_first_line_when_it_is_not_at_fault() {
+    let base = format!("# a vehicle with every section\n{BASE}");
+    let mut wrong = Vec::new();
+    let mut refusals = 0;
+    for (name, text) in [
+        ("alice", ALICE_TOML),
+        ("cart", include_str!("../../vehicles/cart.toml")),
+        ("tractor", include_str!("../../vehicles/tractor.toml")),
+        ("base", base.as_str()),
+    ] {
+        assert!(text.starts_with('#'), "{name}: its first line is a comment");
+        for (edited, at) in mutations(text) {
+            let Err(e) = parse(&edited, "v.toml") else {
+                continue;
+            };
+            refusals += 1;
+            if e.line <= 1 {
+                wrong.push(format!("{name}, line {at} edited: {e}"));
+            }
+        }
+    }
+    assert!(refusals > 3000, "the walk provokes refusals: {refusals}");
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+/// Refusals the walk above cannot provoke by editing one line, each at its line.
+#[test]
+fn refusals_about_the_whole_file_name_no_line() {
+    let e = parse("# my car\n\n[network]\n", "v.toml").unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "v.toml: no [vehicle] table: a vehicle file has [vehicle] with name = \"…\""
+    );
+    let e = parse("# my car\n", "v.toml").unwrap_err();
+    assert_eq!(e.line, 0, "{e}");
+}
+
+/// `[vehicle.roles]` binding `role_a` and then `role_b` to one device fit for both
+/// (reading roles to its readings), with the gear table when gear is bound: the file
+/// and the line of the second binding.
+fn two_roles_on_one_device(a: Role, b: Role) -> (String, usize) {
+    let setpoint = [Role::Steering, Role::Throttle, Role::Brake];
+    let state = [Role::Gear, Role::Starter];
+    let readings = "{ name = \"speed\" }, { name = \"running\" }, { name = \"estop\" }";
+    let device = if setpoint.contains(&a) || setpoint.contains(&b) {
+        format!("kind = \"setpoint\"\nrange = [0.0, 1.0]\nreadings = [\"position\", {readings}]")
+    } else if state.contains(&a) || state.contains(&b) {
+        format!(
+            "kind = \"state\"\nstates = [\"park\", \"drive\"]\nreadings = [\"state\", {readings}]"
+        )
+    } else {
+        format!("kind = \"sensor\"\nreadings = [{readings}]")
+    };
+    let target = |r: Role| match r {
+        Role::Estop => "unit.estop",
+        Role::Speed => "unit.speed",
+        Role::EngineRunning => "unit.running",
+        _ => "unit",
+    };
+    let gear = if a == Role::Gear || b == Role::Gear {
+        "[vehicle.gear]\nforward = [\"drive\"]\npark = \"park\"\n"
+    } else {
+        ""
+    };
+    let text = format!(
+        "# two roles, one device\n[vehicle]\nname = \"pair\"\n[vehicle.roles]\n{a} = {:?}\n{b} = {:?}\n{gear}\n[[device]]\nname = \"unit\"\n{device}\ndriver = \"line\"\n",
+        target(a),
+        target(b)
+    );
+    (text, 6)
+}
+
+/// Steering on the throttle device started, and ran one device in two roles. Over every
+/// pair of roles, from the one table: a pair listed in `SHARED` loads with both roles on
+/// the device, every other is refused at the line of its second binding, naming both
+/// bindings with their lines.
+#[test]
+fn every_pair_of_roles_on_one_device_is_decided_by_the_sharing_table() {
+    let mut allowed = 0;
+    for (i, &a) in Role::ALL.iter().enumerate() {
+        for &b in &Role::ALL[i + 1..] {
+            for (first, second) in [(a, b), (b, a)] {
+                let (text, at) = two_roles_on_one_device(first, second);
+                match (first.shares_with(second), parse(&text, "v.toml")) {
+                    (Some(_), Ok(v)) => {
+                        allowed += 1;
+                        let unit = v.device("unit").map(|_| DeviceId(0));
+                        assert_eq!(v.roles.device(first), unit, "{first}, {second}");
+                        assert_eq!(v.roles.device(second), unit, "{first}, {second}");
+                    }
+                    (Some(why), Err(e)) => {
+                        panic!("{first} with {second} may share ({why}), yet: {e}\n{text}")
+                    }
+                    (None, Ok(_)) => panic!("{first} with {second} on one device was accepted"),
+                    (None, Err(e)) => {
+                        let want = format!(
+                            "v.toml:{at}: roles: {second} = {:?} (line {at}) and {first} = {:?} (line {}) are one device, unit: a device plays one role, except ",
+                            text.lines().nth(at - 1).unwrap().split('"').nth(1).unwrap(),
+                            text.lines().nth(at - 2).unwrap().split('"').nth(1).unwrap(),
+                            at - 1
+                        );
+                        assert!(e.to_string().starts_with(&want), "wanted {want}…\ngot {e}");
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(
+        allowed,
+        2 * roles::SHARED.len(),
+        "each pair of SHARED, both ways"
+    );
+}
+
+/// The roles whose sharing was decided when [`roles::SHARED`] was written. A new role
+/// fails here (and the match fails to compile) until its pairs are decided there.
+#[test]
+fn every_role_s_sharing_with_every_other_was_decided() {
+    let decided = |r: Role| match r {
+        Role::Steering
+        | Role::Throttle
+        | Role::Brake
+        | Role::Gear
+        | Role::Estop
+        | Role::Speed
+        | Role::EngineRunning
+        | Role::Starter => true,
+    };
+    assert!(Role::ALL.iter().all(|r| decided(*r)));
+    assert_eq!(
+        Role::ALL.len(),
+        8,
+        "a new role: decide in roles::SHARED which roles it may share a device with"
+    );
+    for (a, b, why) in roles::SHARED {
+        assert_ne!(a, b);
+        assert!(!why.is_empty());
+        assert_eq!(b.shares_with(a), Some(why), "symmetric");
+    }
+}
+
+/// The issue's own file: Alice with the brake on the gas device.
+#[test]
+fn throttle_and_brake_on_one_device_name_the_second_binding_and_quote_both() {
+    let text = ALICE_TOML.replace("brake = \"brake\"", "brake = \"gas\"");
+    let e = error(&text);
+    assert!(
+        e.starts_with(
+            "v.toml:38: roles: brake = \"gas\" (line 38) and throttle = \"gas\" (line 37) are one device, gas: a device plays one role, except gear with starter, speed with engine_running"
+        ),
+        "{e}"
+    );
+}
+
+/// The README's table of the roles that may share a device is the loader's.
+#[test]
+fn the_readme_shows_which_roles_may_share_a_device() {
+    let readme = include_str!("../../README.md");
+    let table = roles::sharing_markdown();
+    assert!(
+        readme.contains(&table),
+        "README.md must contain, verbatim, the table of shared roles:\n{table}"
+    );
+}
