@@ -2,7 +2,7 @@
 //! with a value outside its range, a device without a port, a key file that is
 //! missing or too short, a byte that is not UTF-8, `--deadman 0s`; and the shell
 //! completions and manual page generated from the command-line definitions; `--ros2`
-//! on a build without it.
+//! on a build without it; two roles bound to one device.
 
 mod common;
 
@@ -149,6 +149,61 @@ fn a_byte_that_is_not_utf8_names_its_line() {
         )),
         "{err}"
     );
+}
+
+/// How a pseudo-terminal is set up: changed by anything that opens it as a serial
+/// port (raw mode, the baud rate).
+fn termios(port: &serialport::TTYPort) -> [libc::tcflag_t; 4] {
+    use std::os::fd::AsRawFd;
+    // SAFETY: a zeroed termios is a valid out-parameter; the fd is open.
+    let mut t: libc::termios = unsafe { std::mem::zeroed() };
+    assert_eq!(unsafe { libc::tcgetattr(port.as_raw_fd(), &mut t) }, 0);
+    [t.c_iflag, t.c_oflag, t.c_cflag, t.c_lflag]
+}
+
+/// Steering bound to the throttle device started, and ran one device in two roles;
+/// throttle and brake on one device were refused at line 1. Both are refused at the
+/// line of the second binding, quoting both, with status 2, and no port is opened: the
+/// devices' port is a real pseudo-terminal, which is left as it was.
+#[test]
+fn two_roles_on_one_device_are_refused_at_the_second_binding_before_any_port_opens() {
+    use serialport::SerialPort;
+    let (mut host, device) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+    let port = device.name().expect("a named pseudo-terminal");
+    let before = termios(&device);
+    for (second, line) in [("steering", 11), ("brake", 11)] {
+        let dir = Scratch::new();
+        let path = dir.file(
+            "v.toml",
+            format!(
+                "# my car\n[vehicle]\nname = \"mine\"\n\n[network]\nlisten = \"127.0.0.1:0\"\n\n\
+                 [vehicle.roles]\nthrottle = \"gas\"\n# and, wrongly:\n{second} = \"gas\"\n\n\
+                 [[device]]\nname = \"gas\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\n\
+                 driver = \"line\"\nport = \"{port}\"\n"
+            ),
+        );
+        let out = adrive(&["--headless"], Some(&path), &dir);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(
+            err.contains(&format!(
+                "{}:{line}: roles: {second} = \"gas\" (line {line}) and throttle = \"gas\" (line 9) are one device, gas: a device plays one role, except gear with starter",
+                path.display()
+            )),
+            "{err}"
+        );
+        assert!(!dir.0.path().join("log").exists(), "nothing started");
+    }
+    assert_eq!(termios(&device), before, "the port was never opened");
+    let mut nothing = [0u8; 1];
+    host.set_timeout(std::time::Duration::ZERO).unwrap();
+    assert!(
+        std::io::Read::read(&mut host, &mut nothing).is_err(),
+        "nothing was written to the port"
+    );
+    // The check sees an open: the port opened as adrive opens it.
+    drop(adrive::driver::open_serial(&port, 9600, std::time::Duration::from_millis(100)).unwrap());
+    assert_ne!(termios(&device), before, "opening the port sets it up");
 }
 
 /// `--deadman 0s` was taken: the deadman then tripped on every key, or with a huge
