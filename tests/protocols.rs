@@ -180,3 +180,65 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
         brake.slot.executed() == Some(Command::Set(0.8))
     });
 }
+
+/// The first OBD answer may take 10 s (an ELM327 searches the car's protocols after it
+/// is opened), and meanwhile the engage gate said only "obd has not reported yet". The
+/// test plays the adapter on a real pseudo-terminal: it answers the reset and settings,
+/// then holds its first answer as a search does; the blocker says why it waits, and is
+/// gone once the adapter answers.
+#[test]
+fn an_elm327_searching_the_protocols_is_named_as_such_by_the_engage_gate() {
+    use adrive::safety::Gate;
+    use adrive::vehicle::Vehicle;
+    use serialport::SerialPort;
+    use std::io::{Read, Write};
+    use std::sync::Arc;
+
+    let (mut adapter, port) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+    adapter.set_timeout(common::DEADLINE).unwrap();
+    let toml = format!(
+        "[vehicle]\nname = \"obd only\"\n[[device]]\nname = \"obd\"\nkind = \"sensor\"\n\
+         readings = [\"rpm\", \"speed\"]\ndriver = \"elm327\"\nport = \"{}\"\nbaud = 38400\n\
+         status_period = \"10s\"\nstatus_max_age = \"10s\"\nreply_timeout = \"500ms\"\n",
+        port.name().unwrap()
+    );
+    let config = adrive::config::parse(&toml, "obd.toml").unwrap();
+    let vehicle = Arc::new(Vehicle::new(config, |c| {
+        let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+        Box::new(move || driver::open_serial(&path, baud, timeout))
+    }));
+    let gate = Arc::new(Gate::new(vehicle.clone()));
+    let engine = adrive::engine::Engine::start(gate.clone()).unwrap();
+    let mut writer = adapter.try_clone_native().unwrap();
+    let mut request = || {
+        let mut line = Vec::new();
+        let mut b = [0u8];
+        while b[0] != b'\r' {
+            adapter.read_exact(&mut b).expect("a request from adrive");
+            line.push(b[0]);
+        }
+        String::from_utf8(line).unwrap()
+    };
+    assert_eq!(request(), "ATZ\r");
+    assert_eq!(
+        gate.blockers(),
+        ["obd has not reported yet"],
+        "not open yet"
+    );
+    let mut answer = |text: &str| writer.write_all(text.as_bytes()).unwrap();
+    answer("\r\rELM327 v1.5\r\r>");
+    for setting in driver::elm327::INIT {
+        assert_eq!(request(), format!("{setting}\r"));
+        answer("OK\r\r>");
+    }
+    assert_eq!(request(), "010C\r");
+    answer("SEARCHING...\r");
+    wait_for("the blocker to say why obd waits", || {
+        gate.blockers() == ["obd: the adapter is searching the car's protocols, up to 10 s"]
+    });
+    answer("41 0C 1A F8 \r\r>");
+    assert_eq!(request(), "010D\r");
+    answer("41 0D 00 \r\r>");
+    wait_for("obd to report", || gate.blockers().is_empty());
+    engine.shutdown(Duration::from_secs(2));
+}

@@ -220,7 +220,7 @@ pub const REPLY_TIMEOUT: Limit<Duration> = Limit {
     min: ms(1),
     max: s(5),
     default: Some(ms(200)),
-    why: "the longest a transaction waits for the device",
+    why: "the longest a transaction waits for the device (except an ELM327's first request, its protocol search: up to 10 s)",
 };
 pub const MIN_COMMAND_INTERVAL: Limit<Duration> = Limit {
     section: Device,

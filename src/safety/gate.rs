@@ -1,16 +1,20 @@
 //! The engage gate's blockers and its monitor. [`blockers`] is the one list of what
 //! refuses an engage right now — a faulty device (failing, or silent for longer than
 //! its `status_max_age`: [`crate::vehicle::Device::silence`]), a device that has not
-//! reported yet, the e-stop in pause or disable; the monitor thread (`gate/monitor`)
+//! reported yet (an opened ELM327 says it is searching the car's protocols), the e-stop
+//! in pause or disable; the monitor thread (`gate/monitor`)
 //! disengages an engaged vehicle as soon as that list is not empty, whoever engaged it
 //! (console or network). Looking every [`EVERY`], it bounds how late a silent device,
 //! the e-stop first of all, is acted on. Both read the caches only, and the devices a
 //! driver has taken over (latched `override`s, held by the [`Gate`]).
 
 use super::Gate;
+use crate::config::DriverKind;
+use crate::driver::elm327;
 use crate::threads::{StopSignal, Threads};
 use crate::value::EstopState;
 use crate::vehicle::Vehicle;
+use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -29,7 +33,12 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
         if let Some(fault) = d.fault() {
             why.push(format!("{} is faulty ({fault})", d.name()));
         } else if d.cached().at.is_none() {
-            why.push(format!("{} has not reported yet", d.name()));
+            // An ELM327 that opened has its first answer coming: it searches protocols.
+            let opened = d.port_health.opens.load(Relaxed) > 0;
+            why.push(match d.config.driver {
+                DriverKind::Elm327 if opened => elm327::searching(d.name()),
+                _ => format!("{} has not reported yet", d.name()),
+            });
         }
     }
     if let Some(s @ (EstopState::Pause | EstopState::Disable)) = v.estop() {

@@ -28,6 +28,15 @@ use std::time::Duration;
 pub const RESET_TIMEOUT: Duration = Duration::from_millis(1500);
 /// How long the first OBD request after `open` may take (protocol search).
 pub const SEARCH_TIMEOUT: Duration = Duration::from_secs(10);
+/// Why an opened adapter has not reported yet (an engage blocker): its first request
+/// searches the car's protocols, for up to [`SEARCH_TIMEOUT`].
+pub fn searching(device: &str) -> String {
+    format!(
+        "{device}: the adapter is searching the car's protocols, up to {} s",
+        SEARCH_TIMEOUT.as_secs()
+    )
+}
+
 /// Coolant temperature is read on one poll in this many.
 pub const COOLANT_EVERY: u64 = 10;
 /// Above this engine speed the engine counts as running (a cranking starter turns it
