@@ -182,9 +182,22 @@ fn two_roles_on_one_device_are_refused_at_the_second_binding_before_any_port_ope
                  driver = \"line\"\nport = \"{port}\"\n"
             ),
         );
-        let out = adrive(&["--headless"], Some(&path), &dir);
-        let err = stderr(&out);
-        assert_eq!(out.status.code(), Some(2), "{err}");
+        // Spawned, not waited on blindly: an adrive that accepted the file would run on.
+        let log = dir.file("stderr", "");
+        let mut child = common::Reaped(
+            Command::new(BIN)
+                .args(["--headless", "--log-dir"])
+                .arg(dir.0.path().join("log"))
+                .arg("--config")
+                .arg(&path)
+                .stdout(std::process::Stdio::null())
+                .stderr(std::fs::File::create(&log).unwrap())
+                .spawn()
+                .unwrap(),
+        );
+        let code = common::wait_exit(&mut child);
+        let err = std::fs::read_to_string(&log).unwrap();
+        assert_eq!(code, Some(2), "{err}");
         assert!(
             err.contains(&format!(
                 "{}:{line}: roles: {second} = \"gas\" (line {line}) and throttle = \"gas\" (line 9) are one device, gas: a device plays one role, except gear with starter",
