@@ -541,7 +541,7 @@ fn the_allow_list_refuses_other_senders_silently() {
     // `b` is allowed, `a` is not.
     let b = UdpSocket::bind("127.0.0.1:0").unwrap();
     let allowed = b.local_addr().unwrap();
-    let n = NetRig::start(|c| c.allow = vec![adrive::net::config::Allow::Addr(allowed)]);
+    let n = NetRig::start(|c| c.allow = vec![adrive::config::network::Allow::Addr(allowed)]);
     n.ready();
     let a = n.client();
     a.send(b"engage");

@@ -16,9 +16,9 @@
 //! format a reason string.
 
 use super::auth::Auth;
-use super::config::NetworkConfig;
 use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary};
 use super::status::{Inner, NetStatus, Refusal};
+use crate::config::NetworkConfig;
 use crate::logging::RateLimit;
 use crate::safety::Gate;
 use crate::snapshot::WatchdogState;

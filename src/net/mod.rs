@@ -18,7 +18,7 @@
 
 pub mod auth;
 pub mod client;
-pub mod config;
+
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod intake;
@@ -26,7 +26,7 @@ pub mod pace;
 pub mod proto;
 pub mod status;
 
-pub use config::NetworkConfig;
+pub use crate::config::NetworkConfig;
 pub use status::{NetStatus, Refusal};
 
 use crate::logging::RateLimit;
