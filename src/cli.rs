@@ -382,7 +382,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     net.close();
     ros2.close();
     gate.disengage(&format!("stopping: {}", why.describe()));
-    let net_figures = net.status().snapshot();
+    let net_figures = net.status().snapshot(None);
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
     stuck.extend(ros2.shutdown(Duration::from_millis(500)));
@@ -409,7 +409,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             format_args!(
                 "{}{}\n",
                 headless::summary(&gate.snapshot(0)),
-                headless::net_summary(&net_figures)
+                headless::net_summary(&net_figures, &gate.view(Instant::now()))
             ),
         );
         if let Some(r) = vehicle.tap.status() {

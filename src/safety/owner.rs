@@ -142,7 +142,10 @@ pub fn markdown() -> String {
         (Act::Release, "release"),
         (Act::Take, "take (console key `T`, confirmed)"),
         (Act::Stop, "stop / disengage"),
-        (Act::Interlocks, "interlocks on/off (console key `I`, confirmed)"),
+        (
+            Act::Interlocks,
+            "interlocks on/off (console key `I`, confirmed)",
+        ),
     ];
     let states: [(&str, bool, Option<Source>); 4] = [
         ("disengaged", false, None),
@@ -197,13 +200,21 @@ mod tests {
             decide(true, c, net(5555), Act::Command),
             Err(Refusal::Commander(Source::Console))
         );
-        assert_eq!(decide(true, c, Source::Console, Act::Command), Ok(Outcome::Same));
+        assert_eq!(
+            decide(true, c, Source::Console, Act::Command),
+            Ok(Outcome::Same)
+        );
     }
 
     #[test]
     fn stopping_is_never_refused() {
         for engaged in [false, true] {
-            for c in [None, Some(Source::Console), Some(net(1)), Some(Source::Ros2)] {
+            for c in [
+                None,
+                Some(Source::Console),
+                Some(net(1)),
+                Some(Source::Ros2),
+            ] {
                 for s in [Source::Console, net(2), Source::Ros2] {
                     assert_eq!(decide(engaged, c, s, Act::Stop), Ok(Outcome::Stops));
                 }
@@ -218,7 +229,10 @@ mod tests {
             decide(true, None, net(1), Act::Command),
             Err(Refusal::NobodyCommands)
         );
-        assert_eq!(decide(true, None, net(1), Act::Engage), Ok(Outcome::Commands));
+        assert_eq!(
+            decide(true, None, net(1), Act::Engage),
+            Ok(Outcome::Commands)
+        );
         // One network sender never takes from another.
         assert_eq!(
             decide(true, Some(net(1)), net(2), Act::Engage),
