@@ -434,3 +434,184 @@ impl Gate {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::console::sample;
+    use crate::vehicle::slot::WireState;
+    use proptest::prelude::*;
+    use std::net::{Ipv4Addr, SocketAddr};
+
+    fn net(port: u16) -> Source {
+        Source::Network(SocketAddr::from((Ipv4Addr::LOCALHOST, port)))
+    }
+
+    fn slots(g: &Gate) -> Vec<WireState> {
+        g.vehicle.devices.iter().map(|d| d.slot.wire()).collect()
+    }
+
+    fn id(g: &Gate, name: &str) -> DeviceId {
+        g.vehicle.find(name).unwrap().id
+    }
+
+    /// The incident of the walk: engage at the console, then one `steer 0.5` from the
+    /// network. It is refused naming the console, nothing reaches the slot, and the
+    /// attempt is counted and worded for the console.
+    #[test]
+    fn a_network_steer_on_a_console_engaged_vehicle_is_refused_and_changes_nothing() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        assert_eq!(g.admit(Source::Console, Ask::Engage, t), Ok(Done::Engaged));
+        let before = slots(&g);
+        let steer = Ask::Set(id(&g, "steer"), Command::Set(0.5));
+        assert_eq!(
+            g.admit(net(5555), steer, t),
+            Err(Refused::Owner(owner::Refusal::Commander(Source::Console)))
+        );
+        assert_eq!(slots(&g), before);
+        assert_eq!(g.commander(), Some(Source::Console));
+        let v = g.view(t);
+        assert_eq!(v.commander.as_deref(), Some("console"));
+        assert_eq!(v.refused, 1);
+        let said = v.last_refused.unwrap();
+        assert!(
+            said.contains("steer 0.500") && said.contains("network 127.0.0.1:5555"),
+            "{said}"
+        );
+        // Handed over with the console's release, the sender engages and commands.
+        assert_eq!(
+            g.admit(Source::Console, Ask::Release, t),
+            Ok(Done::Released)
+        );
+        assert_eq!(g.admit(net(5555), Ask::Engage, t), Ok(Done::Commanding));
+        assert_eq!(g.admit(net(5555), steer, t), Ok(Done::Commanded));
+    }
+
+    /// The other incident: in neutral with the brake on, `accel 0.3` was rejected
+    /// (`gas_not_in_gear`) yet released the brake. A refused accel leaves both slots
+    /// as they were.
+    #[test]
+    fn a_rejected_accel_in_neutral_leaves_the_brake_applied() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        g.admit(Source::Console, Ask::Engage, t).unwrap();
+        let brake = g.vehicle.find("brake").unwrap();
+        assert_eq!(brake.slot.wire().latest(), Some(Command::Set(1.0)));
+        let before = slots(&g);
+        assert_eq!(
+            g.admit(Source::Console, Ask::Accel(0.3), t),
+            Err(Refused::Rule(Reject::GasNotInGear))
+        );
+        assert_eq!(slots(&g), before, "a refused accel changed a slot");
+    }
+
+    /// The commander's watchdog, over a clock of our own: a network commander quiet
+    /// for `watchdog_timeout` disengages; the console's deadman only while armed; a
+    /// release nobody picks up ends in the safe state too.
+    #[test]
+    fn the_watchdog_is_the_commanders_with_its_own_timeout() {
+        let g = sample::gate(Instant::now());
+        let t0 = Instant::now();
+        let timeout = g.vehicle.config.network.watchdog_timeout;
+        g.admit(net(1), Ask::Engage, t0).unwrap();
+        assert_eq!(g.watch(t0 + timeout / 2), None);
+        let why = g.watch(t0 + timeout).expect("tripped");
+        assert!(why.contains("no valid command from network"), "{why}");
+        assert!(!g.is_engaged());
+        assert_eq!(g.view(t0).watchdog.unwrap().state, WatchdogState::Tripped);
+        // The console outside teleop is not watched; its deadman is, once armed.
+        let t1 = t0 + timeout * 2;
+        g.admit(Source::Console, Ask::Engage, t1).unwrap();
+        assert_eq!(g.watch(t1 + Duration::from_secs(60)), None);
+        let deadman = Duration::from_millis(1000);
+        let t2 = t1 + Duration::from_secs(60);
+        g.deadman(Source::Console, Some(deadman), t2);
+        assert_eq!(g.watch(t2 + deadman / 2), None);
+        g.deadman(Source::Console, Some(deadman), t2 + deadman / 2);
+        assert_eq!(g.watch(t2 + deadman), None, "a key fed it");
+        let why = g.watch(t2 + deadman * 2).expect("tripped");
+        assert!(why.starts_with("deadman"), "{why}");
+        assert!(!g.is_engaged());
+        // A release nobody picks up.
+        g.deadman(Source::Console, None, t2);
+        let t3 = t2 + deadman * 3;
+        g.admit(Source::Console, Ask::Engage, t3).unwrap();
+        g.admit(Source::Console, Ask::Release, t3).unwrap();
+        assert!(g.is_engaged());
+        let why = g.watch(t3 + timeout).expect("ended");
+        assert!(why.contains("released by console"), "{why}");
+        assert!(!g.is_engaged());
+    }
+
+    #[derive(Clone, Copy, Debug)]
+    enum Step {
+        Ask(u8, Ask),
+        /// Time passes: this many milliseconds, then a watchdog turn.
+        Wait(u16),
+    }
+
+    fn sources() -> [Source; 4] {
+        [Source::Console, net(1), net(2), Source::Ros2]
+    }
+
+    fn step() -> impl Strategy<Value = Step> {
+        let ask = prop_oneof![
+            Just(Ask::Engage),
+            Just(Ask::Disengage),
+            Just(Ask::Stop),
+            Just(Ask::Release),
+            Just(Ask::Take),
+            Just(Ask::Hold),
+            (-1.2f64..1.2).prop_map(|v| Ask::Set(DeviceId(0), Command::Set(v))),
+            (0.0f64..1.0).prop_map(|v| Ask::Set(DeviceId(2), Command::Set(v))),
+            (-1.0f64..1.0).prop_map(Ask::Accel),
+            (0u8..4).prop_map(|s| Ask::Set(DeviceId(3), Command::State(s))),
+        ];
+        prop_oneof![
+            4 => (0u8..4, ask).prop_map(|(s, a)| Step::Ask(s, a)),
+            1 => (0u16..800).prop_map(Step::Wait),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+        /// Random interleavings of sources and asks: at every step at most one source
+        /// commands (and only while engaged), a refused ask changes no slot, a stop is
+        /// never refused, and the network never overrides the console's command.
+        #[test]
+        fn ownership_holds_over_any_interleaving(steps in prop::collection::vec(step(), 1..60)) {
+            let g = sample::gate(Instant::now());
+            let mut now = Instant::now();
+            for s in steps {
+                match s {
+                    Step::Wait(ms) => {
+                        now += Duration::from_millis(ms.into());
+                        g.watch(now);
+                    }
+                    Step::Ask(who, ask) => {
+                        let source = sources()[who as usize];
+                        let before = slots(&g);
+                        let commander = g.commander();
+                        let done = g.admit(source, ask, now);
+                        if matches!(ask, Ask::Stop | Ask::Disengage) {
+                            prop_assert!(done.is_ok(), "a stop was refused: {done:?}");
+                            prop_assert_eq!(g.commander(), None);
+                        }
+                        if done.is_err() {
+                            prop_assert_eq!(slots(&g), before.clone(), "refused {:?} by {:?} changed a slot", ask, source);
+                        }
+                        if commander == Some(Source::Console) && !source.is_console()
+                            && !matches!(ask, Ask::Stop | Ask::Disengage)
+                        {
+                            prop_assert_eq!(g.commander(), Some(Source::Console));
+                            prop_assert_eq!(slots(&g), before, "{:?} by {:?} moved the console's vehicle", ask, source);
+                        }
+                    }
+                }
+                let c = g.commander();
+                prop_assert!(c.is_none() || g.is_engaged());
+            }
+        }
+    }
+}
