@@ -833,3 +833,47 @@ fn a_latched_override_blocks_engage_until_the_network_clears_it_with_the_hand_of
     assert_eq!(a.ask(b"clear"), "ok nothing to clear\n");
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
 }
+
+/// The walk's second incident, from the network: engaged, `trans neutral` with the
+/// brake on, then `accel 0.3` at 20 Hz. Every reply said `rejected accel 0.3:
+/// gas_not_in_gear`, yet the brake's command went to 0 and the brake released — in
+/// neutral, on a slope, the vehicle rolled. A refused accel changes nothing: no brake
+/// command below full reaches the device, and the brake's slot keeps full.
+#[test]
+fn a_rejected_accel_in_neutral_leaves_the_brake_applied() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    let brake = n.rig.device("brake");
+    wait_for("the brake full", || brake.slot.executed() == Some(set(1.0)));
+    a.send(b"trans neutral");
+    // Until the shift is through the brake holds and accel waits; then it is refused.
+    let end = Instant::now() + DEADLINE;
+    let t = Instant::now();
+    while !a.ask(b"accel 0.3").contains("gas_not_in_gear") {
+        assert!(Instant::now() < end, "accel 0.3 never refused in neutral");
+    }
+    for _ in 0..10 {
+        let reply = a.ask(b"accel 0.3");
+        assert!(
+            reply.contains("rejected accel 0.3: gas_not_in_gear"),
+            "{reply}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // A sentinel through the same listener: when it arrived, all the above had.
+    a.send(b"steer 0.1");
+    wait_for("steer 0.1 at the device", || {
+        n.events_since(t)
+            .iter()
+            .any(|e| e.name == "steer" && e.command == set(0.1))
+    });
+    let released: Vec<_> = n
+        .events_since(t)
+        .into_iter()
+        .filter(|e| e.name == "brake" && e.command != set(1.0))
+        .collect();
+    assert!(released.is_empty(), "the brake was released: {released:?}");
+    assert_eq!(brake.slot.wire().latest(), Some(set(1.0)));
+}

@@ -140,7 +140,7 @@ pub fn markdown() -> String {
         (Act::Engage, "engage"),
         (Act::Command, "a command (`steer 0.1`, `accel 0.2`…)"),
         (Act::Release, "release"),
-        (Act::Take, "take (console key `T`, confirmed)"),
+        (Act::Take, "take (console key `A`, confirmed)"),
         (Act::Stop, "stop / disengage"),
         (
             Act::Interlocks,
@@ -165,10 +165,16 @@ pub fn markdown() -> String {
     let mut out = String::from("| the vehicle is | act | by a network sender or ROS 2 | by the console |\n|---|---|---|---|\n");
     for (state, engaged, commander) in states {
         for (act, name) in acts {
+            // Ownership lets a command through to the gate, which refuses it while
+            // disengaged.
+            let say = |r: Result<Outcome, Refusal>| match (engaged, act, r) {
+                (false, Act::Command, Ok(_)) => "refused: adrive is disengaged".to_string(),
+                (_, _, r) => cell(r),
+            };
             out.push_str(&format!(
                 "| {state} | {name} | {} | {} |\n",
-                cell(decide(engaged, commander, planner, act)),
-                cell(decide(engaged, commander, Source::Console, act)),
+                say(decide(engaged, commander, planner, act)),
+                say(decide(engaged, commander, Source::Console, act)),
             ));
         }
     }
@@ -254,6 +260,19 @@ mod tests {
         assert_eq!(
             decide(true, Some(net(1)), net(2), Act::Release),
             Err(Refusal::NotCommanding)
+        );
+    }
+
+    #[test]
+    fn the_readme_shows_who_commands() {
+        let readme = include_str!("../../README.md");
+        let table = markdown();
+        if let Some(path) = std::env::var_os("ADRIVE_PRINT_OWNER_TABLE") {
+            std::fs::write(path, &table).unwrap();
+        }
+        assert!(
+            readme.contains(&table),
+            "README.md must contain, verbatim, the table of who commands:\n{table}"
         );
     }
 
