@@ -7,7 +7,7 @@
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
 use crate::exit::{self, Exit};
-use crate::net::{self, auth::Auth, client, Net};
+use crate::net::{auth::Auth, client, Net};
 use crate::record::{self, Recorder};
 use crate::safety::{gate, Gate};
 use crate::sim::{Sim, SimEvent};
@@ -99,7 +99,7 @@ pub struct RunArgs {
     pub log_dir: Option<PathBuf>,
     /// Where the command listener binds, e.g. 0.0.0.0:47576 to take commands from other
     /// hosts (default: the vehicle file's `[network]` listen, 127.0.0.1:47576).
-    #[arg(long, value_name = "ADDR", value_parser = net::config::parse_listen)]
+    #[arg(long, value_name = "ADDR", value_parser = config::network::parse_listen)]
     pub listen: Option<SocketAddr>,
     /// Record this run into an MCAP file (Foxglove opens it), or into rolling files in
     /// a directory (an existing one, or a path ending in `/`); default: the vehicle
@@ -131,7 +131,7 @@ pub struct ReplayArgs {
     pub file: PathBuf,
     /// Also send each snapshot played as the state broadcast, to ADDR (repeatable;
     /// default 127.0.0.1:47577), so other tools can be tested against a past drive.
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = net::config::DEFAULT_BROADCAST)]
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = config::network::DEFAULT_BROADCAST)]
     pub broadcast: Vec<SocketAddr>,
     /// No console: play through once (with --broadcast), then exit.
     #[arg(long, requires = "broadcast")]
@@ -159,7 +159,7 @@ pub struct SendArgs {
     #[arg(required = true, value_name = "COMMAND", allow_hyphen_values = true)]
     pub words: Vec<String>,
     /// The adrive to send to.
-    #[arg(long, value_name = "ADDR", default_value = net::config::DEFAULT_LISTEN)]
+    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_LISTEN)]
     pub to: SocketAddr,
     /// Repeat the datagram this many times a second, with a rolling `seq`, until
     /// interrupted (as a planner would).
@@ -179,7 +179,7 @@ pub struct WatchArgs {
     #[arg(long)]
     pub json: bool,
     /// The address the broadcast is sent to: this host's, or a multicast group.
-    #[arg(long, value_name = "ADDR", default_value = net::config::DEFAULT_BROADCAST)]
+    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_BROADCAST)]
     pub from: SocketAddr,
     /// Stop after this many broadcasts (with --ros2: report lines).
     #[arg(long, value_name = "N")]
@@ -382,7 +382,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     net.close();
     ros2.close();
     gate.disengage(&format!("stopping: {}", why.describe()));
-    let net_figures = net.status().snapshot();
+    let net_figures = net.status().snapshot(None);
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
     stuck.extend(ros2.shutdown(Duration::from_millis(500)));
@@ -409,7 +409,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             format_args!(
                 "{}{}\n",
                 headless::summary(&gate.snapshot(0)),
-                headless::net_summary(&net_figures)
+                headless::net_summary(&net_figures, &gate.view(Instant::now()))
             ),
         );
         if let Some(r) = vehicle.tap.status() {

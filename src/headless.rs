@@ -121,7 +121,7 @@ pub fn summary(snap: &Snapshot) -> String {
 }
 
 /// One line of network figures for the summary printed on exit.
-pub fn net_summary(n: &NetView) -> String {
+pub fn net_summary(n: &NetView, gate: &crate::snapshot::GateView) -> String {
     let mut out = format!(
         "network {}: {} datagrams, {} accepted",
         n.listen, n.datagrams, n.accepted
@@ -140,7 +140,7 @@ pub fn net_summary(n: &NetView) -> String {
     if !nonzero.is_empty() {
         let _ = write!(out, "; rejected: {}", nonzero.join(", "));
     }
-    if let Some(why) = &n.watchdog.last_trip {
+    if let Some(why) = gate.watchdog.as_ref().and_then(|w| w.last_trip.as_ref()) {
         let _ = write!(out, "; watchdog tripped: {why}");
     }
     out

@@ -5,7 +5,7 @@
 //! depends on none of them.
 //!
 //! [`SCHEMA`] is the broadcast's version: a field may be added without a new version;
-//! renaming or removing one bumps it. `schemas/snapshot-2.json` is its JSON Schema,
+//! renaming or removing one bumps it. `schemas/snapshot-3.json` is its JSON Schema,
 //! checked by a test against real broadcasts.
 
 use crate::value::{Kind, Value};
@@ -15,7 +15,7 @@ use std::fmt;
 use std::net::SocketAddr;
 
 /// The version of the snapshot's JSON form.
-pub const SCHEMA: u32 = 2;
+pub const SCHEMA: u32 = 3;
 
 /// The whole vehicle at one instant.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -143,6 +143,21 @@ pub struct GateView {
     /// manual until they are cleared.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub overridden: Vec<String>,
+    /// Who commands the engaged vehicle: `console`, `network 127.0.0.1:5555`,
+    /// `ros2 /alice`; null when disengaged or handed over.
+    #[serde(default)]
+    pub commander: Option<String>,
+    /// The commander's watchdog (the network's `watchdog_timeout`, the console's
+    /// teleop deadman).
+    #[serde(default)]
+    pub watchdog: Option<WatchdogView>,
+    /// Asks refused because another source commands the vehicle (or nobody does).
+    #[serde(default)]
+    pub refused: u64,
+    /// The last of them, in words: `refused steer 0.500 from network 127.0.0.1:5555:
+    /// commanded by console`.
+    #[serde(default)]
+    pub last_refused: Option<String>,
 }
 
 /// One device.
@@ -410,15 +425,17 @@ pub struct SupervisorView {
     pub history: Vec<String>,
 }
 
-/// The network command watchdog, as shown to people.
+/// The commander's watchdog, as shown to people.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum WatchdogState {
     /// Disengaged.
     Off,
-    /// Engaged (from the console) with no network sender commanding yet.
+    /// Engaged, and the commander is not watched (a console outside teleop) or
+    /// nobody commands.
     Idle,
-    /// Engaged and a network sender commands: it must keep sending.
+    /// Engaged and the commander must keep sending (a network sender, ROS 2, a
+    /// console teleoperating).
     Armed,
     /// It brought the vehicle to the safe state; stays so until the next engage.
     Tripped,
@@ -431,9 +448,6 @@ pub struct NetView {
     /// Datagrams received, and those accepted (parsed, authentic, not refused whole).
     pub datagrams: u64,
     pub accepted: u64,
-    /// The sender commanding the vehicle, if any.
-    pub commander: Option<SocketAddr>,
-    pub watchdog: WatchdogView,
     /// Most recently seen first.
     pub senders: Vec<SenderView>,
     /// Network commands accepted, per device (and `accel`).
@@ -682,7 +696,7 @@ mod tests {
         assert!(!String::from_utf8_lossy(&one[0]).contains("\"part\""));
     }
 
-    /// `schemas/snapshot-2.json` is the JSON Schema of exactly this type (its field
+    /// `schemas/snapshot-3.json` is the JSON Schema of exactly this type (its field
     /// documentation included); `UPDATE_SCHEMA=1 cargo test --lib snapshot` rewrites it
     /// after a change. tests/schema.rs checks real broadcasts against the file.
     #[test]
@@ -697,7 +711,7 @@ mod tests {
             format!("adrive state snapshot, schema {SCHEMA}").into(),
         );
         let text = serde_json::to_string_pretty(&schema).unwrap() + "\n";
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-2.json");
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-3.json");
         assert!(path.ends_with(&format!("snapshot-{SCHEMA}.json")));
         if std::env::var_os("UPDATE_SCHEMA").is_some() {
             std::fs::write(path, &text).unwrap();

@@ -7,7 +7,43 @@
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use std::fmt;
+use std::net::SocketAddr;
 use std::str::FromStr;
+
+/// Where a command comes from: every command of every front end enters the one intake
+/// ([`crate::safety::intake`]) tagged with its source, and the vehicle is commanded by
+/// at most one of them at a time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Source {
+    /// The console of this process.
+    Console,
+    /// A network sender, by address.
+    Network(SocketAddr),
+    /// The ROS 2 node (one actuation publisher at a time within it).
+    Ros2,
+    /// The supervisor's recovery procedures (past ownership: they act on a vehicle in
+    /// trouble, and only on the devices they take over).
+    Supervisor,
+}
+
+impl Source {
+    /// A console, which may take command from any other source (with the operator's
+    /// confirmation); the network and ROS 2 never take it from a console.
+    pub fn is_console(self) -> bool {
+        matches!(self, Source::Console)
+    }
+}
+
+impl fmt::Display for Source {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Source::Console => f.write_str("console"),
+            Source::Network(a) => write!(f, "{a}"),
+            Source::Ros2 => f.write_str("ros2"),
+            Source::Supervisor => f.write_str("supervisor"),
+        }
+    }
+}
 
 /// A device's place in its vehicle (the vehicle file's order, from 0). Cheap to copy
 /// and to compare; names are for people and the wire.

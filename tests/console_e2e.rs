@@ -559,3 +559,81 @@ fn thirty_two_devices_at_80x24_jump_by_name_and_command_one() {
     assert!(c.wait_exit().success());
     assert!(c.log().contains("safe state acknowledged"));
 }
+
+/// The listener's address, from the NETWORK panel (`--listen 127.0.0.1:0` picks a
+/// free port).
+fn listen_addr(screen: &str) -> String {
+    let at = screen.find("NETWORK 127.0.0.1:").expect("the network panel") + "NETWORK ".len();
+    screen[at..].split_whitespace().next().unwrap().to_string()
+}
+
+/// `adrive send --to ADDR WORDS…`, as a planner in another terminal: its reply.
+fn send(to: &str, words: &[&str]) -> String {
+    let out = Command::new(BIN)
+        .args(["send", "--to", to])
+        .args(words)
+        .output()
+        .expect("adrive send runs");
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// The walk's first incident: engaged at the console and teleoperating, one `adrive
+/// send steer 0.5` from another terminal took the wheel (and the network watchdog then
+/// disengaged in the middle of teleop). Now the sender is refused with a reply naming
+/// the console, the console shows the attempt, and the steering stays; once the
+/// operator releases command (`R`), the sender engages and steers.
+#[test]
+fn a_network_sender_does_not_steer_the_consoles_vehicle_until_the_operator_releases() {
+    let mut c = Console::start("owner", &[]);
+    c.engage();
+    let s = c.wait_for("the header naming the console", |s| {
+        s.contains("ENGAGED (by console)")
+    });
+    let to = listen_addr(&s);
+    c.keys("d");
+    c.wait_for("teleop", |s| s.contains("DEADMAN"));
+    c.keys("a");
+    c.wait_for("the teleop steer", |s| s.contains("teleop: steer"));
+    let reply = send(&to, &["steer", "0.5"]);
+    assert!(
+        reply.contains("refused steer 0.5") && reply.contains("commanded by console"),
+        "{reply}"
+    );
+    let s = c.wait_for("the attempt in the message line", |s| {
+        s.contains("refused steer 0.500 from network")
+    });
+    assert!(!s.contains("cmd 0.500"), "the steering was moved:\n{s}");
+    assert!(s.contains("ENGAGED (by console)"), "{s}");
+    // Hand over: leave teleop (the brake holds), release command.
+    c.keys("\x1b");
+    c.wait_for("main", |s| s.contains("left teleop"));
+    c.keys("R");
+    c.wait_for("released", |s| s.contains("command released"));
+    let reply = send(&to, &["engage", "steer", "0.5"]);
+    assert!(reply.contains("ok engaged"), "{reply}");
+    c.wait_for("the sender steering", |s| s.contains("cmd 0.500"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let log = c.log();
+    assert!(
+        log.contains("WARN") && log.contains("refused steer 0.500 from network"),
+        "the refusal is not in the log at WARN:\n{log}"
+    );
+}
+
+/// The walk's second incident, from teleop: in park with the brake on, the up key
+/// (`accel 0.10`) was refused and yet released the brake. A refused accel changes
+/// nothing: the brake stays commanded full.
+#[test]
+fn a_refused_teleop_accel_in_park_leaves_the_brake_applied() {
+    let mut c = Console::start("park", &[]);
+    c.engage();
+    c.wait_for("the brake full", |s| s.contains("BRAKE 0…1 cmd 1.000"));
+    c.keys("d");
+    c.wait_for("teleop", |s| s.contains("DEADMAN"));
+    c.keys("w");
+    let s = c.wait_for("the refusal", |s| s.contains("refused: accel 0.10"));
+    assert!(s.contains("BRAKE 0…1 cmd 1.000"), "the brake was released:\n{s}");
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}

@@ -622,7 +622,7 @@ fn the_name_prompt_completes_walks_its_matches_and_stops_on_space() {
     assert_eq!((m.mode, m.find.as_ref()), (Mode::Main, None));
     find(&b, "STOP: disengaged");
     let gate = f.gate.snapshot_at(0, f.now).gate;
-    assert!(gate.reason.contains("operator stop"), "{}", gate.reason);
+    assert!(gate.reason.contains("stop from console"), "{}", gate.reason);
 }
 
 #[test]

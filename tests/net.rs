@@ -48,7 +48,9 @@ impl NetRig {
         c.network.broadcast_rate = 50.0;
         tweak(&mut c.network);
         let network = c.network.clone();
-        let rig = Rig::with_config(c);
+        let mut rig = Rig::with_config(c);
+        // As in `adrive run`: the monitor also runs the commander's watchdog.
+        rig.monitor = Some(adrive::safety::gate::Monitor::start(rig.gate.clone()).unwrap());
         let net = Net::start(rig.gate.clone(), network, auth).expect("net starts");
         NetRig {
             net: Some(net),
@@ -59,6 +61,23 @@ impl NetRig {
 
     fn net(&self) -> &Net {
         self.net.as_ref().unwrap()
+    }
+
+    /// The network's part of the snapshot.
+    fn snap(&self) -> adrive::snapshot::NetView {
+        self.net()
+            .status()
+            .snapshot(adrive::net::commanding(&self.rig.gate))
+    }
+
+    /// The network sender commanding the vehicle, if one does.
+    fn commander(&self) -> Option<std::net::SocketAddr> {
+        adrive::net::commanding(&self.rig.gate)
+    }
+
+    /// The commander's watchdog, as the snapshot shows it.
+    fn watchdog(&self) -> adrive::snapshot::WatchdogView {
+        self.rig.gate.view(Instant::now()).watchdog.unwrap()
     }
 
     fn client(&self) -> Client {
@@ -188,11 +207,14 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
     let v = n.broadcast_until("steer executed -0.25", |v| {
         v.device("steer").and_then(|d| d.executed.clone()) == Some(Value::Number(-0.25))
     });
-    assert_eq!(v.schema, 2);
+    assert_eq!(v.schema, 3);
     assert!(v.gate.engaged);
     let net = v.net.as_ref().unwrap();
-    assert_eq!(net.commander, Some(a.addr()));
-    assert_eq!(net.watchdog.state, WatchdogState::Armed);
+    assert_eq!(v.gate.commander, Some(format!("network {}", a.addr())));
+    assert_eq!(
+        v.gate.watchdog.as_ref().unwrap().state,
+        WatchdogState::Armed
+    );
     assert_eq!(net.commands.get("steer"), Some(&1));
     let steer = v.device("steer").unwrap();
     assert_eq!(steer.commanded, Some(Value::Number(-0.25)));
@@ -232,9 +254,9 @@ fn disengaged_commands_are_counted_and_not_executed() {
     assert_eq!(steer.stats.rejected.load(Relaxed), 1);
     // It never entered the slot, the only way to the device.
     assert_eq!(stored(&n, "steer"), 0);
-    let snap = status.snapshot();
-    assert_eq!(snap.watchdog.state, WatchdogState::Off);
-    assert_eq!(snap.commander, None);
+    let snap = n.snap();
+    assert_eq!(n.watchdog().state, WatchdogState::Off);
+    assert_eq!(n.commander(), None);
     assert_eq!(snap.senders[0].addr, a.addr());
     // A sentinel through the same device, once engaged: when it arrived, anything sent
     // before it had too.
@@ -298,7 +320,7 @@ fn network_engage_is_refused_when_the_vehicle_file_does_not_allow_it() {
     wait_for("steer 0.1 at the device", || {
         n.events_since(t).iter().any(|e| e.command == set(0.1))
     });
-    assert_eq!(n.net().status().snapshot().commander, Some(a.addr()));
+    assert_eq!(n.commander(), Some(a.addr()));
 }
 
 #[test]
@@ -357,7 +379,7 @@ fn repeated_engages_from_the_commander_are_not_answered() {
         assert!(reply.starts_with(SENTINEL_REPLY), "{reply}");
     }
     assert!(n.rig.gate.is_engaged());
-    assert_eq!(n.net().status().snapshot().commander, Some(a.addr()));
+    assert_eq!(n.commander(), Some(a.addr()));
     // Another sender's engage is still answered (refused), and so is a disengage.
     assert!(n
         .client()
@@ -432,9 +454,8 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
     );
     assert!(after >= TIMEOUT, "tripped early, after {after:?}");
     assert_eq!(n.rig.device("gas").slot.executed(), Some(set(0.0)));
-    let snap = n.net().status().snapshot();
-    assert_eq!(snap.watchdog.state, WatchdogState::Tripped);
-    let why = snap.watchdog.last_trip.unwrap();
+    assert_eq!(n.watchdog().state, WatchdogState::Tripped);
+    let why = n.watchdog().last_trip.unwrap();
     assert!(
         why.contains(&format!("no valid command from {addr}")),
         "{why}"
@@ -473,8 +494,8 @@ fn a_frozen_rolling_counter_trips_the_watchdog() {
     wait_for("the brake to acknowledge full", || {
         brake.slot.executed() == Some(set(1.0))
     });
-    let snap = n.net().status().snapshot();
-    let why = snap.watchdog.last_trip.unwrap();
+    let snap = n.snap();
+    let why = n.watchdog().last_trip.unwrap();
     assert!(why.contains("rolling counter"), "{why}");
     assert!(snap.rejected.get("replayed") >= 3);
     assert!(snap.senders.iter().any(|s| s.frozen && s.latched));
@@ -541,7 +562,7 @@ fn the_allow_list_refuses_other_senders_silently() {
     // `b` is allowed, `a` is not.
     let b = UdpSocket::bind("127.0.0.1:0").unwrap();
     let allowed = b.local_addr().unwrap();
-    let n = NetRig::start(|c| c.allow = vec![adrive::net::config::Allow::Addr(allowed)]);
+    let n = NetRig::start(|c| c.allow = vec![adrive::config::network::Allow::Addr(allowed)]);
     n.ready();
     let a = n.client();
     a.send(b"engage");
@@ -589,7 +610,7 @@ fn authentication_passes_a_good_tag_and_rejects_bad_missing_and_replayed() {
         before,
         "a rejected command reached the slot"
     );
-    let snap = n.net().status().snapshot();
+    let snap = n.snap();
     assert_eq!(snap.rejected.get("bad_tag"), 2);
     assert_eq!(snap.rejected.get("missing_tag"), 1);
     assert_eq!(snap.rejected.get("replayed"), 1);
@@ -630,7 +651,7 @@ fn garbage_of_every_kind_is_rejected_counted_and_harmless() {
             String::from_utf8_lossy(&bytes[..bytes.len().min(20)])
         );
     }
-    let snap = n.net().status().snapshot();
+    let snap = n.snap();
     for (_, reason) in cases {
         assert!(snap.rejected.get(reason) >= 1, "{reason} not counted");
     }
@@ -695,7 +716,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         });
         i += 1;
         let t = Instant::now();
-        let _ = n.net().status().snapshot();
+        let _ = n.snap();
         for d in &n.rig.vehicle.devices {
             let _ = d.cached();
         }
@@ -713,7 +734,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         got as f64 >= i as f64 * 0.95,
         "{got} of {i} commands got through a flood of {flooded}"
     );
-    let rejected = n.net().status().snapshot().rejected;
+    let rejected = n.snap().rejected;
     let junk: u64 = rejected.datagram.iter().map(|(_, c)| c).sum();
     assert!(
         junk as f64 > flooded as f64 * 0.9,
@@ -733,7 +754,6 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
 #[test]
 fn the_gate_monitor_disengages_on_estop_pause_and_on_a_fault() {
     let n = NetRig::start(long_watchdog);
-    let _monitor = adrive::safety::gate::Monitor::start(n.rig.gate.clone()).unwrap();
     n.ready();
     let brake = n.rig.device("brake");
     let mut a = n.client();
@@ -812,4 +832,48 @@ fn a_latched_override_blocks_engage_until_the_network_clears_it_with_the_hand_of
     assert_eq!(a.ask(b"clear"), "ok cleared override on steer\n");
     assert_eq!(a.ask(b"clear"), "ok nothing to clear\n");
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
+}
+
+/// The walk's second incident, from the network: engaged, `trans neutral` with the
+/// brake on, then `accel 0.3` at 20 Hz. Every reply said `rejected accel 0.3:
+/// gas_not_in_gear`, yet the brake's command went to 0 and the brake released — in
+/// neutral, on a slope, the vehicle rolled. A refused accel changes nothing: no brake
+/// command below full reaches the device, and the brake's slot keeps full.
+#[test]
+fn a_rejected_accel_in_neutral_leaves_the_brake_applied() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let a = n.client();
+    assert_eq!(a.ask(b"engage"), "ok engaged\n");
+    let brake = n.rig.device("brake");
+    wait_for("the brake full", || brake.slot.executed() == Some(set(1.0)));
+    a.send(b"trans neutral");
+    // Until the shift is through the brake holds and accel waits; then it is refused.
+    let end = Instant::now() + DEADLINE;
+    let t = Instant::now();
+    while !a.ask(b"accel 0.3").contains("gas_not_in_gear") {
+        assert!(Instant::now() < end, "accel 0.3 never refused in neutral");
+    }
+    for _ in 0..10 {
+        let reply = a.ask(b"accel 0.3");
+        assert!(
+            reply.contains("rejected accel 0.3: gas_not_in_gear"),
+            "{reply}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // A sentinel through the same listener: when it arrived, all the above had.
+    a.send(b"steer 0.1");
+    wait_for("steer 0.1 at the device", || {
+        n.events_since(t)
+            .iter()
+            .any(|e| e.name == "steer" && e.command == set(0.1))
+    });
+    let released: Vec<_> = n
+        .events_since(t)
+        .into_iter()
+        .filter(|e| e.name == "brake" && e.command != set(1.0))
+        .collect();
+    assert!(released.is_empty(), "the brake was released: {released:?}");
+    assert_eq!(brake.slot.wire().latest(), Some(set(1.0)));
 }

@@ -32,7 +32,7 @@ fn cmd(v: &Snapshot, device: &str, executed: bool) -> Option<Value> {
 }
 
 fn watchdog(v: &Snapshot) -> WatchdogState {
-    v.net.as_ref().expect("the network part").watchdog.state
+    v.gate.watchdog.as_ref().expect("the watchdog").state
 }
 
 /// The README's "Done when": a planner stand-in engages, shifts to drive and holds gas

@@ -106,7 +106,7 @@ fn the_utility_cart_drives_forward_and_the_watchdog_stops_it() {
         v.gate.reason
     );
     assert_eq!(
-        v.net.as_ref().unwrap().watchdog.state,
+        v.gate.watchdog.as_ref().unwrap().state,
         WatchdogState::Tripped
     );
     let (v, _) = watch.until("the cart standing, full brake, hazards on", |v| {

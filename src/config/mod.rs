@@ -16,6 +16,7 @@
 pub mod device;
 pub mod document;
 pub mod limits;
+pub mod network;
 pub mod placement;
 pub mod record;
 pub mod response;
@@ -23,10 +24,10 @@ pub mod roles;
 pub mod ros2;
 pub mod wire;
 
-pub use crate::net::config::NetworkConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
+pub use network::NetworkConfig;
 pub use record::RecordConfig;
 pub use response::{Motion, Polling, Response};
 pub use roles::{Bindings, Role};

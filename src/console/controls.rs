@@ -14,11 +14,11 @@
 //! [`update`]: super::update::update
 
 use crate::net::NetStatus;
-use crate::safety::{Gate, Reject};
+use crate::safety::{Ask, Done, Gate, Refused};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
+use crate::value::Source;
 use crate::value::{Command, DeviceId};
-use crate::vehicle::tap::Source;
 use crate::vehicle::trace::TraceEntry;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
@@ -210,14 +210,26 @@ pub trait Controls {
     /// Read a device's command from text, as the vehicle file defines it (a number in
     /// range, a state or an alias).
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String>;
-    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject>;
-    fn submit_accel(&self, accel: f64) -> Result<(), Reject>;
-    fn engage(&self) -> Result<(), Vec<String>>;
-    fn disengage(&self, reason: &str);
+    /// A command through the one intake, as the console's.
+    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused>;
+    fn submit_accel(&self, accel: f64) -> Result<(), Refused>;
+    fn engage(&self) -> Result<(), Refused>;
+    fn disengage(&self);
     /// The operator's STOP: disengage, throttle 0, brake full — even while a driver
-    /// has taken over ([`Gate::stop`]).
-    fn stop(&self, reason: &str);
-    fn set_interlocks(&self, on: bool);
+    /// has taken over ([`Gate::stop`]). Never refused.
+    fn stop(&self);
+    /// Take command from whoever commands the engaged vehicle (after the operator's
+    /// confirmation).
+    fn take(&self) -> Result<(), Refused>;
+    /// Give command up (the vehicle stays engaged for the handover).
+    fn release(&self) -> Result<(), Refused>;
+    /// Hold: the safe state (throttle 0, brake full), staying engaged — when the
+    /// console commands.
+    fn hold(&self) -> Result<(), Refused>;
+    /// Arm (and feed: a teleop key) or disarm the teleop deadman, the console's
+    /// watchdog.
+    fn deadman(&self, armed: Option<Duration>);
+    fn set_interlocks(&self, on: bool) -> Result<(), Refused>;
     /// Refused, with the reason, when the vehicle file would refuse the value.
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String>;
     /// Refused, with the reason, when the vehicle file would refuse the value.
@@ -225,15 +237,13 @@ pub trait Controls {
     fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool);
     /// Wake a command thread (broadcast its condition variable).
     fn wake(&self, id: DeviceId);
-    /// The safe state (throttle 0, brake full), bypassing the interlocks.
-    fn safe_state(&self);
     /// One line of the simulator's command language ([`Sim::apply`]), e.g.
     /// `silent gas on`, `stall`, `estop pause`; `None` when the devices are not
     /// simulated in this process.
     fn sim(&self, line: &str) -> Option<Result<String, String>>;
     /// Clear the latched driver overrides ([`Gate::clear_overrides`], as the network's
     /// `clear`): what was cleared, or why not (the driver's hand still on).
-    fn clear_overrides(&self) -> Result<Vec<String>, String>;
+    fn clear_overrides(&self) -> Result<Vec<String>, Refused>;
 }
 
 /// The console's sources beyond the vehicle.
@@ -282,7 +292,10 @@ fn sim_vehicle(sim: &Sim, device: Option<&str>) -> String {
 pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<DeviceId>) -> Frame {
     let v = &gate.vehicle;
     let mut snap = gate.snapshot_at(0, now);
-    snap.net = sources.net.as_ref().map(|n| n.snapshot());
+    snap.net = sources
+        .net
+        .as_ref()
+        .map(|n| n.snapshot(crate::net::commanding(gate)));
     let bench_dev = bench.and_then(|id| v.devices.get(id.index()));
     Frame {
         logs: sources
@@ -350,29 +363,35 @@ impl Controls for Live<'_> {
             None => Err("no such device".into()),
         }
     }
-    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject> {
-        self.gate
-            .submit_from(Source::Console, id, command, Instant::now())
+    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
+        self.ask(Ask::Set(id, command)).map(drop)
     }
-    fn submit_accel(&self, accel: f64) -> Result<(), Reject> {
-        self.gate
-            .submit_accel_from(Source::Console, accel, Instant::now())
+    fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
+        self.ask(Ask::Accel(accel)).map(drop)
     }
-    fn engage(&self) -> Result<(), Vec<String>> {
-        self.gate.engage("console")
+    fn engage(&self) -> Result<(), Refused> {
+        self.ask(Ask::Engage).map(drop)
     }
-    fn disengage(&self, reason: &str) {
-        self.gate.disengage(reason);
+    fn disengage(&self) {
+        let _ = self.ask(Ask::Disengage);
     }
-    fn stop(&self, reason: &str) {
-        self.gate.stop(reason);
+    fn stop(&self) {
+        let _ = self.ask(Ask::Stop);
     }
-    fn set_interlocks(&self, on: bool) {
-        self.gate.interlocks.store(on, Relaxed);
-        tracing::warn!(
-            "interlocks switched {} from the console",
-            if on { "on" } else { "off" }
-        );
+    fn take(&self) -> Result<(), Refused> {
+        self.ask(Ask::Take).map(drop)
+    }
+    fn release(&self) -> Result<(), Refused> {
+        self.ask(Ask::Release).map(drop)
+    }
+    fn hold(&self) -> Result<(), Refused> {
+        self.ask(Ask::Hold).map(drop)
+    }
+    fn deadman(&self, armed: Option<Duration>) {
+        self.gate.deadman(Source::Console, armed, Instant::now());
+    }
+    fn set_interlocks(&self, on: bool) -> Result<(), Refused> {
+        self.gate.set_interlocks(Source::Console, on)
     }
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
         change_settings(&self.gate.vehicle, id, |c| c.status_period = d)
@@ -395,9 +414,6 @@ impl Controls for Live<'_> {
             dev.slot.nudge();
         }
     }
-    fn safe_state(&self) {
-        self.gate.command_safe_state();
-    }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         let sim = self.sources.sim.as_ref()?;
         let done = sim.apply(line);
@@ -407,7 +423,17 @@ impl Controls for Live<'_> {
         }
         Some(done)
     }
-    fn clear_overrides(&self) -> Result<Vec<String>, String> {
-        self.gate.clear_overrides()
+    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
+        match self.ask(Ask::Clear)? {
+            Done::Cleared(c) => Ok(c),
+            _ => Ok(Vec::new()),
+        }
+    }
+}
+
+impl Live<'_> {
+    /// Into the one intake, as the console of this process.
+    fn ask(&self, ask: Ask) -> Result<Done, Refused> {
+        self.gate.admit(Source::Console, ask, Instant::now())
     }
 }

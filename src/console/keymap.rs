@@ -319,6 +319,10 @@ pub enum Action {
     /// Clear a latched driver override, as the network's `clear` does (refused while
     /// the driver's hand is still on).
     ClearOverride,
+    /// Take command of the engaged vehicle from whoever has it (asks first).
+    TakeCommand,
+    /// Give command up: the vehicle stays engaged for the handover to another source.
+    ReleaseCommand,
     /// Bench, under `--sim`: inject or clear a simulator fault.
     Sim(SimAction),
     /// Unbinds a key in a user keymap.
@@ -367,7 +371,8 @@ edit steering|throttle|brake|gear|accel (also steer, gas, trans), commit, cancel
 backspace, clear, wake, wake steering|throttle|brake|gear, \
 wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
 steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
-page_down, page_up, find, find_next, find_prev, complete, clear_override, \
+page_down, page_up, find, find_next, find_prev, complete, clear_override, take_command, \
+release_command, \
 sim silent|garbage|corrupt|slow|vanish|clear|stall|jam|override, \
 sim estop pause|run|disable, none";
 
@@ -409,6 +414,8 @@ const SIMPLE: &[(&str, Action)] = &[
     ("find_prev", Action::FindPrev),
     ("complete", Action::Complete),
     ("clear_override", Action::ClearOverride),
+    ("take_command", Action::TakeCommand),
+    ("release_command", Action::ReleaseCommand),
     ("sim silent", Action::Sim(SimAction::Silent)),
     ("sim garbage", Action::Sim(SimAction::Garbage)),
     ("sim corrupt", Action::Sim(SimAction::Corrupt)),

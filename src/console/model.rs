@@ -119,6 +119,8 @@ pub struct Find {
 pub enum Ask {
     Engage,
     Disengage,
+    /// Take command from whoever has it.
+    Take,
     /// Switch the interlocks to this.
     Interlocks(bool),
 }
@@ -128,6 +130,7 @@ impl Ask {
         match self {
             Ask::Engage => "Engage? Commands will move the vehicle.",
             Ask::Disengage => "Disengage? Gas 0, brake full, commands refused.",
+            Ask::Take => "Take command? The source commanding now is refused from then on.",
             Ask::Interlocks(true) => "Turn the interlocks ON?",
             Ask::Interlocks(false) => {
                 "Turn the interlocks OFF? Nothing will stop gas against the brake."
@@ -219,6 +222,9 @@ pub struct Model {
     pub steer_reset: Option<Instant>,
     /// The supervisor's last recovery outcome already shown as a message.
     pub outcome_seen: Option<String>,
+    /// How many asks of other sources the intake had refused at the last tick (a new
+    /// one is shown as a message).
+    pub refused_seen: u64,
     /// The terminal's size at the last draw: what a page of devices is worked out from.
     pub screen: Rect,
     /// The name prompt, while it is open.
@@ -246,6 +252,7 @@ impl Model {
             accel: None,
             now: Instant::now(),
             outcome_seen: snap.supervisor.last_outcome.clone(),
+            refused_seen: snap.gate.refused,
             steer_reset: None,
             screen: Rect::new(0, 0, layout::MIN_WIDTH, 24),
             find: None,

@@ -17,7 +17,7 @@ use crate::exit::Exit;
 use crate::net::BROADCAST_MAX;
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
-use crate::safety::Reject;
+use crate::safety::Refused;
 use crate::snapshot::Snapshot;
 use crate::value::{Command, DeviceId};
 use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
@@ -318,18 +318,30 @@ impl Controls for Replay<'_> {
     fn parse(&self, _: DeviceId, _: &str) -> Result<Command, String> {
         Err(READ_ONLY.into())
     }
-    fn submit(&self, _: DeviceId, _: Command) -> Result<(), Reject> {
-        Err(Reject::Disengaged)
+    fn submit(&self, _: DeviceId, _: Command) -> Result<(), Refused> {
+        Err(read_only())
     }
-    fn submit_accel(&self, _: f64) -> Result<(), Reject> {
-        Err(Reject::Disengaged)
+    fn submit_accel(&self, _: f64) -> Result<(), Refused> {
+        Err(read_only())
     }
-    fn engage(&self) -> Result<(), Vec<String>> {
-        Err(vec![READ_ONLY.into()])
+    fn engage(&self) -> Result<(), Refused> {
+        Err(read_only())
     }
-    fn disengage(&self, _: &str) {}
-    fn stop(&self, _: &str) {}
-    fn set_interlocks(&self, _: bool) {}
+    fn disengage(&self) {}
+    fn stop(&self) {}
+    fn take(&self) -> Result<(), Refused> {
+        Err(read_only())
+    }
+    fn release(&self) -> Result<(), Refused> {
+        Err(read_only())
+    }
+    fn hold(&self) -> Result<(), Refused> {
+        Err(read_only())
+    }
+    fn deadman(&self, _: Option<Duration>) {}
+    fn set_interlocks(&self, _: bool) -> Result<(), Refused> {
+        Err(read_only())
+    }
     fn set_status_period(&self, _: DeviceId, _: Duration) -> Result<(), String> {
         Err(READ_ONLY.into())
     }
@@ -338,13 +350,17 @@ impl Controls for Replay<'_> {
     }
     fn set_enabled(&self, _: DeviceId, _: Thread, _: bool) {}
     fn wake(&self, _: DeviceId) {}
-    fn safe_state(&self) {}
     fn sim(&self, _: &str) -> Option<Result<String, String>> {
         None
     }
-    fn clear_overrides(&self) -> Result<Vec<String>, String> {
-        Err(READ_ONLY.into())
+    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
+        Err(read_only())
     }
+}
+
+/// Every change is refused in a replay: nothing is sent.
+fn read_only() -> Refused {
+    Refused::Blocked(vec![READ_ONLY.into()])
 }
 
 /// The replay's own keys, before the keymap sees them.

@@ -40,20 +40,33 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
         m.say(format!("supervisor: {text}"), text.contains("gave up"));
         m.outcome_seen = outcome;
     }
-    let t = &mut m.teleop;
-    if let Some(last) = t.last_key {
-        if !t.tripped && now.saturating_duration_since(last) >= t.deadman {
-            t.tripped = true;
-            t.accel = -1.0;
-            c.safe_state();
-            let secs = t.deadman.as_secs_f64();
-            m.accel = Some(-1.0);
-            m.say(
-                format!("deadman: no teleop key for {secs:.1}s — gas 0, brake full"),
-                true,
-            );
-            tracing::warn!("teleop deadman tripped: gas 0, brake full");
+    // Someone else's command refused because of who commands: say it where the
+    // operator looks (the log pane has it at WARN too).
+    if m.snap.gate.refused > m.refused_seen {
+        if let Some(text) = m.snap.gate.last_refused.clone() {
+            m.say(text, true);
         }
+    }
+    m.refused_seen = m.snap.gate.refused;
+    // The deadman is the console's watchdog in the intake; here only what it did.
+    let t = &mut m.teleop;
+    let deadman_tripped = m.snap.gate.watchdog.as_ref().is_some_and(|w| {
+        w.state == crate::snapshot::WatchdogState::Tripped
+            && w.last_trip
+                .as_deref()
+                .is_some_and(|c| c.starts_with("deadman"))
+    });
+    if t.last_key.is_some() && !t.tripped && deadman_tripped {
+        t.tripped = true;
+        t.accel = -1.0;
+        m.accel = Some(-1.0);
+        let secs = t.deadman.as_secs_f64();
+        m.say(
+            format!(
+                "deadman: no teleop key for {secs:.1}s — gas 0, brake full, disengaged (E engages)"
+            ),
+            true,
+        );
     }
     // The accel shown is the one sent while engaged: once disengaged (STOP, `D`, the
     // gate, the watchdog, the supervisor) the vehicle has gas 0 and the brake full,
@@ -195,6 +208,8 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::Disengage => ask(m, Ask::Disengage),
         Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.gate.interlocks)),
         Action::ClearOverride => clear_override(m, c),
+        Action::TakeCommand => take(m),
+        Action::ReleaseCommand => release(m, c),
         Action::Teleop => enter_teleop(m),
         Action::Bench => {
             if let Some(r) = m.field().device() {
@@ -412,17 +427,21 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
             m.mode = m.back_to;
             match q {
                 Some(Ask::Engage) => match c.engage() {
-                    Ok(()) => m.say("engaged", false),
-                    Err(why) => m.say(format!("engage refused: {}", why.join("; ")), true),
+                    Ok(()) => m.say("engaged: the console commands", false),
+                    Err(why) => m.say(format!("engage refused: {why}"), true),
                 },
                 Some(Ask::Disengage) => {
-                    c.disengage("operator, from the console");
+                    c.disengage();
                     m.say("disengaged: gas 0, brake full", false);
                 }
-                Some(Ask::Interlocks(on)) => {
-                    c.set_interlocks(on);
-                    m.say(format!("interlocks {}", if on { "ON" } else { "OFF" }), !on);
-                }
+                Some(Ask::Take) => match c.take() {
+                    Ok(()) => m.say("the console commands the vehicle", false),
+                    Err(why) => m.say(format!("take command refused: {why}"), true),
+                },
+                Some(Ask::Interlocks(on)) => match c.set_interlocks(on) {
+                    Ok(()) => m.say(format!("interlocks {}", if on { "ON" } else { "OFF" }), !on),
+                    Err(why) => m.say(format!("interlocks refused: {why}"), true),
+                },
                 None => {}
             }
         }
@@ -467,9 +486,12 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
         Action::AccelDown => t.accel = (t.accel - BRAKE_STEP).max(-1.0),
         Action::FullBrake => t.accel = -1.0,
         Action::Engage => return ask(m, Ask::Engage),
+        Action::TakeCommand => return take(m),
         Action::ClearOverride => return clear_override(m, c),
         Action::Back | Action::Cancel => {
-            c.safe_state();
+            // Gas 0, brake full, staying engaged — if the console commands.
+            let _ = c.hold();
+            c.deadman(None);
             m.teleop.last_key = None;
             m.teleop.tripped = false;
             m.accel = Some(-1.0);
@@ -479,9 +501,10 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
         }
         _ => return,
     }
-    // Any teleop key re-arms the deadman.
+    // Any teleop key re-arms the deadman (and feeds it).
     t.last_key = Some(now);
     t.tripped = false;
+    c.deadman(Some(t.deadman));
     t.steer = (t.steer * 1000.0).round() / 1000.0;
     t.accel = (t.accel * 1000.0).round() / 1000.0;
     let (steer, accel) = (t.steer, t.accel);
@@ -516,7 +539,7 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
 /// half done (an edit, a question, the name prompt) is dropped. Teleop stays, its brake full and its
 /// deadman idle until the next key.
 fn stop(m: &mut Model, c: &dyn Controls) {
-    c.stop("operator stop from the console");
+    c.stop();
     if matches!(m.mode, Mode::Edit | Mode::Confirm | Mode::Find) {
         m.edit = None;
         m.ask = None;
@@ -524,6 +547,7 @@ fn stop(m: &mut Model, c: &dyn Controls) {
         m.mode = m.back_to;
     }
     if m.mode == Mode::Teleop {
+        c.deadman(None);
         m.teleop.accel = -1.0;
         m.teleop.last_key = None;
         m.teleop.tripped = false;
@@ -683,7 +707,32 @@ fn clear_override(m: &mut Model, c: &dyn Controls) {
             ),
             false,
         ),
-        Err(why) => m.say(why, true),
+        Err(why) => m.say(why.to_string(), true),
+    }
+}
+
+/// The operator asks to take command (confirmed first): only while engaged and
+/// commanded by another source.
+fn take(m: &mut Model) {
+    match m.snap.gate.commander.as_deref() {
+        _ if !m.snap.gate.engaged => m.say(
+            "nothing to take: the vehicle is not engaged (E engages)",
+            true,
+        ),
+        Some("console") => m.say("the console already commands the vehicle", false),
+        _ => ask(m, Ask::Take),
+    }
+}
+
+/// The operator gives command up: another source may engage within the handover,
+/// else the vehicle stops.
+fn release(m: &mut Model, c: &dyn Controls) {
+    match c.release() {
+        Ok(()) => m.say(
+            "command released: another source may engage now; nobody does, the vehicle stops",
+            false,
+        ),
+        Err(why) => m.say(format!("release refused: {why}"), true),
     }
 }
 

@@ -33,14 +33,14 @@ pub mod status {
     pub const NO_REPLY: i32 = 3;
 }
 
-/// Command-line words to protocol lines: `engage`, `disengage` and `clear` stand alone, every
+/// Command-line words to protocol lines: `engage`, `disengage`, `release` and `clear` stand alone, every
 /// other line is a name and a value, so `engage trans drive accel 0.3` and
 /// `'trans drive' 'accel 0.3'` both work whatever the vehicle's devices are called.
 /// A `;` or newline inside an argument also ends a line.
 pub fn lines_from_words(words: &[String]) -> String {
     let mut lines: Vec<Vec<String>> = Vec::new();
     let alone = |w: &str| {
-        ["engage", "disengage", "clear"]
+        ["engage", "disengage", "release", "clear"]
             .iter()
             .any(|k| k.eq_ignore_ascii_case(w))
     };
@@ -84,7 +84,10 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         Ok(d) => d.commands.iter().any(|c| {
             matches!(
                 c,
-                NetCommand::Engage | NetCommand::Disengage | NetCommand::Clear
+                NetCommand::Engage
+                    | NetCommand::Disengage
+                    | NetCommand::Release
+                    | NetCommand::Clear
             )
         }),
         Err(e) => {
@@ -383,10 +386,10 @@ pub fn human_line(v: &Snapshot) -> String {
         } else {
             "disengaged"
         },
-        v.net
+        v.gate
+            .watchdog
             .as_ref()
-            .map_or("-".to_string(), |n| format!("{:?}", n.watchdog.state)
-                .to_lowercase()),
+            .map_or("-".to_string(), |w| format!("{:?}", w.state).to_lowercase()),
     );
     for d in &v.devices {
         let flag = if d.health.faulty { "!FAULTY" } else { "" };
@@ -453,7 +456,7 @@ mod tests {
     fn a_broadcast_is_one_line_for_a_person() {
         let snap = crate::console::sample::gate(Instant::now()).snapshot(0);
         let l = human_line(&snap);
-        assert!(l.contains("disengaged watchdog -"), "{l}");
+        assert!(l.contains("disengaged watchdog off"), "{l}");
         assert!(
             l.contains(" | steer -/0.23 | gas -/0.00 | brake -/1.00 | trans -/park"),
             "{l}"

@@ -115,7 +115,10 @@ fn check_accepted(d: &Datagram, bytes: &[u8]) {
                     _ => panic!("accepted a command its device does not take: {c:?}"),
                 }
             }
-            NetCommand::Engage | NetCommand::Disengage | NetCommand::Clear => {}
+            NetCommand::Engage
+            | NetCommand::Disengage
+            | NetCommand::Release
+            | NetCommand::Clear => {}
         }
     }
     // What was accepted prints back to lines that parse to the same commands.

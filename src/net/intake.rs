@@ -1,28 +1,29 @@
 //! What the listener does with one datagram, without the socket, in three steps:
 //!
 //! 1. **admit**, under the [`NetStatus`] lock: the sender (allow-list, its table
-//!    entry), the grammar against the vehicle's words, the key and the counter, and who
-//!    commands now;
-//! 2. **apply**, without any lock of its own: each command goes to the
-//!    [`Gate`] (which checks the interlocks and wakes the command
-//!    thread), `engage` and `disengage` to the gate;
-//! 3. **record**, under the lock again: the commander, the watchdog, counters and the
-//!    reply.
+//!    entry), the grammar against the vehicle's words, the key and the counter;
+//! 2. **apply**, without any lock of its own: each command goes, tagged with its
+//!    sender, to the one intake below every front end ([`Gate::admit`]), which
+//!    decides who commands, feeds the commander's watchdog, checks the interlocks and
+//!    wakes the command thread; the outcome becomes the reply;
+//! 3. **record**, under the lock again: counters, the latch, the reply.
 //!
-//! The watchdog's tick shares the same table. The path of an accepted command
-//! datagram does not touch the heap: the parser and the key check are allocation-free,
-//! the sender table is a fixed array, and a reply is written into an inline [`Reply`]
-//! buffer. Only refusals are logged (rate-limited), and only engaging and disengaging
-//! format a reason string.
+//! What is the network's own: the allow-list, `allow_engage`, the rolling counter and
+//! the key, and the latch — a sender whose command ended against its will (the
+//! watchdog, a console taking command, a fault) and that repeats `engage` in every
+//! datagram is not engaged again until it sends one datagram without `engage`. The
+//! path of an accepted command datagram does not touch the heap: the parser and the
+//! key check are allocation-free, the sender table is a fixed array, and a reply is
+//! written into an inline [`Reply`] buffer. Only refusals are logged (rate-limited).
 
 use super::auth::Auth;
-use super::config::NetworkConfig;
 use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary};
 use super::status::{Inner, NetStatus, Refusal};
+use crate::config::NetworkConfig;
 use crate::logging::RateLimit;
-use crate::safety::Gate;
-use crate::snapshot::WatchdogState;
-use crate::vehicle::tap::{Event, Source};
+use crate::safety::{Ask, Done, Gate, Refused};
+use crate::value::Source;
+use crate::vehicle::tap::Event;
 use arrayvec::ArrayString;
 use std::fmt::Write;
 use std::net::SocketAddr;
@@ -78,13 +79,9 @@ impl Outcome {
 struct Effects {
     /// The sender asked to engage.
     asked_engage: bool,
-    /// It sent a command for a device (or accel).
-    commanded: bool,
-    /// It disengaged the vehicle; the commander it took command from, if another.
-    disengaged: Option<Option<SocketAddr>>,
-    /// It engaged the vehicle, or took command of a vehicle the console engaged.
-    took_command: bool,
-    /// Its commands were refused because another sender commands.
+    /// It gave command up, or disengaged the vehicle itself: not latched.
+    let_go: bool,
+    /// Its commands were refused because another source commands.
     refused_other: bool,
 }
 
@@ -126,12 +123,12 @@ impl Intake {
             st.count_refusal(Refusal::Closing);
             return None;
         }
-        let (i, d, commander) = match self.admit(bytes, from, received) {
+        let (i, d) = match self.admit(bytes, from, received) {
             Ok(admitted) => admitted,
             Err(reply) => return reply,
         };
         let mut out = Outcome::new();
-        let effects = self.apply(&d, from, commander, received, &mut out);
+        let effects = self.apply(&d, from, received, &mut out);
         self.record(i, from, effects, out, received)
     }
 
@@ -144,7 +141,7 @@ impl Intake {
         bytes: &[u8],
         from: SocketAddr,
         received: Instant,
-    ) -> Result<(usize, Datagram, Option<SocketAddr>), Option<Reply>> {
+    ) -> Result<(usize, Datagram), Option<Reply>> {
         let st = self.status.clone();
         let mut inner = st.inner.lock();
         let i = inner.sender(from, received);
@@ -188,6 +185,7 @@ impl Intake {
                 // Alive but frozen: the same counter again. Not a valid command, so
                 // the watchdog keeps counting.
                 inner.get(i).stale = true;
+                self.gate.frozen(Source::Network(from));
                 self.reject(&mut inner, i, Reject::Replayed);
                 if self.log.allow(received) {
                     tracing::warn!(%from, seq, "rejected datagram: the rolling counter did not advance");
@@ -202,15 +200,14 @@ impl Intake {
         }
         inner.get(i).stale = false;
         sync(&self.gate, &mut inner);
-        Ok((i, d, inner.commander))
+        Ok((i, d))
     }
 
-    /// Step 2, without the lock: every command to the gate, in order.
+    /// Step 2, without the lock: every command to the one intake, in order.
     fn apply(
         &mut self,
         d: &Datagram,
         from: SocketAddr,
-        mut commander: Option<SocketAddr>,
         received: Instant,
         out: &mut Outcome,
     ) -> Effects {
@@ -218,114 +215,118 @@ impl Intake {
         let mut fx = Effects::default();
         let gate = self.gate.clone();
         let vocab = Vocabulary::of(&gate.vehicle.config);
+        let source = Source::Network(from);
         for c in &d.commands {
-            let engaged = self.gate.is_engaged();
-            let other = commander.filter(|c| *c != from && engaged);
-            match *c {
-                NetCommand::Disengage => {
-                    // Anyone allowed to send may stop the vehicle.
+            let ask = match *c {
+                NetCommand::Engage => {
+                    fx.asked_engage = true;
+                    if let Some(why) = self.may_engage(from) {
+                        st.count_refusal(why);
+                        out.refused = true;
+                        out.gate = true;
+                        match why {
+                            Refusal::EngageLatched => out.line(format_args!(
+                                "refused engage: {} ({})",
+                                why.describe(),
+                                gate.reason()
+                            )),
+                            _ => out.line(format_args!("refused engage: {}", why.describe())),
+                        }
+                        continue;
+                    }
+                    Ask::Engage
+                }
+                NetCommand::Disengage => Ask::Disengage,
+                NetCommand::Release => Ask::Release,
+                NetCommand::Clear => Ask::Clear,
+                NetCommand::Set(id, command) => Ask::Set(id, command),
+                NetCommand::Accel(a) => Ask::Accel(a),
+            };
+            match gate.admit(source, ask, received) {
+                Ok(Done::Commanded) => match *c {
+                    NetCommand::Set(id, _) => st.count_command(id),
+                    _ => st.count_accel(),
+                },
+                Ok(Done::Engaged | Done::Commanding) => {
                     out.gate = true;
-                    let mut why = ArrayString::<96>::new();
-                    let _ = write!(why, "disengage from {from}");
-                    self.gate.disengage(&why);
-                    fx.disengaged = Some(commander.take().filter(|c| *c != from));
+                    out.line(format_args!("ok engaged"));
+                }
+                Ok(Done::Same) => {}
+                Ok(Done::Released) => {
+                    fx.let_go = true;
+                    out.gate = true;
+                    out.line(format_args!("ok released"));
+                }
+                Ok(Done::Disengaged(_)) => {
+                    fx.let_go = true;
+                    out.gate = true;
                     out.line(format_args!("ok disengaged"));
                 }
-                NetCommand::Clear => {
-                    // Clearing moves nothing: it lets an engage through again once
-                    // the driver has let go.
+                Ok(Done::Cleared(c)) => {
                     out.gate = true;
-                    match self.gate.clear_overrides() {
-                        Ok(c) if c.is_empty() => out.line(format_args!("ok nothing to clear")),
-                        Ok(c) => out.line(format_args!("ok cleared override on {}", c.join(", "))),
-                        Err(why) => {
-                            out.refused = true;
-                            out.line(format_args!("refused clear: {why}"));
-                        }
+                    if c.is_empty() {
+                        out.line(format_args!("ok nothing to clear"));
+                    } else {
+                        out.line(format_args!("ok cleared override on {}", c.join(", ")));
                     }
                 }
-                _ if other.is_some() => {
-                    if !out.refused {
+                Err(Refused::Owner(r)) => {
+                    if !fx.refused_other {
                         st.count_refusal(Refusal::OtherCommander);
-                        if self.log.allow(received) {
-                            tracing::warn!(%from, commander = %other.unwrap_or(from), "refused: {}", Refusal::OtherCommander.describe());
-                        }
-                        out.line(format_args!(
-                            "refused: {} ({})",
-                            Refusal::OtherCommander.describe(),
-                            other.unwrap_or(from)
-                        ));
+                        out.line(format_args!("refused {}: {r}", vocab.line(c)));
                     }
                     out.refused = true;
                     fx.refused_other = true;
-                    self.gate.vehicle.tap.send(|| Event::Refused {
+                    if matches!(c, NetCommand::Engage | NetCommand::Release) {
+                        out.gate = true;
+                    }
+                    gate.vehicle.tap.send(|| Event::Refused {
                         at: received,
                         from,
                         reason: Refusal::OtherCommander.as_str(),
                     });
-                    if matches!(c, NetCommand::Engage) {
-                        out.gate = true;
-                    }
                 }
-                NetCommand::Engage => {
-                    fx.asked_engage = true;
-                    if self.engage(from, commander, out) {
-                        commander = Some(from);
-                        fx.took_command = true;
-                    }
+                Err(Refused::Rule(r)) => {
+                    st.count_intake(r);
+                    out.refused = true;
+                    out.line(format_args!(
+                        "rejected {}: {}: {r}",
+                        vocab.line(c),
+                        r.as_str()
+                    ));
                 }
-                NetCommand::Set(id, command) => {
-                    fx.commanded = true;
-                    match self
-                        .gate
-                        .submit_from(Source::Network(from), id, command, received)
-                    {
-                        Ok(()) => st.count_command(id),
-                        Err(r) => {
-                            st.count_intake(r);
-                            out.refused = true;
-                            out.line(format_args!(
-                                "rejected {}: {}: {r}",
-                                vocab.line(c),
-                                r.as_str()
-                            ));
-                        }
-                    }
+                Err(Refused::Blocked(why)) => {
+                    st.count_refusal(Refusal::EngageBlocked);
+                    out.refused = true;
+                    out.gate = true;
+                    out.line(format_args!("refused engage: {}", why.join("; ")));
                 }
-                NetCommand::Accel(a) => {
-                    fx.commanded = true;
-                    match self
-                        .gate
-                        .submit_accel_from(Source::Network(from), a, received)
-                    {
-                        Ok(()) => st.count_accel(),
-                        Err(r) => {
-                            st.count_intake(r);
-                            out.refused = true;
-                            out.line(format_args!(
-                                "rejected {}: {}: {r}",
-                                vocab.line(c),
-                                r.as_str()
-                            ));
-                        }
-                    }
+                Err(Refused::Clear(why)) => {
+                    out.refused = true;
+                    out.gate = true;
+                    out.line(format_args!("refused clear: {why}"));
                 }
-            }
-            if fx.commanded
-                && commander.is_none()
-                && self.gate.is_engaged()
-                && fx.disengaged.is_none()
-            {
-                // Engaged from the console: the first network sender to command takes
-                // over, and the watchdog watches it from now on.
-                commander = Some(from);
-                fx.took_command = true;
             }
         }
         fx
     }
 
-    /// Step 3, under the lock: who commands, the watchdog, counters, the reply.
+    /// Whether this sender's `engage` may go to the intake: `None`, or the network's
+    /// own refusal (the vehicle file does not allow it; the sender is latched).
+    fn may_engage(&self, from: SocketAddr) -> Option<Refusal> {
+        if !self.config.allow_engage {
+            return Some(Refusal::EngageNotAllowed);
+        }
+        let latched = self
+            .status
+            .inner
+            .lock()
+            .find(from)
+            .is_some_and(|s| s.latched);
+        (latched && !self.gate.is_engaged()).then_some(Refusal::EngageLatched)
+    }
+
+    /// Step 3, under the lock: the latch, counters, the reply.
     fn record(
         &mut self,
         i: usize,
@@ -336,102 +337,24 @@ impl Intake {
     ) -> Option<Reply> {
         let st = self.status.clone();
         let mut inner = st.inner.lock();
-        if let Some(previous) = fx.disengaged {
-            if let Some(c) = inner.commander.take() {
-                if c != from {
-                    if let Some(s) = inner.find(c) {
-                        s.latched = true;
-                    }
-                }
-            }
-            if let Some(p) = previous {
-                if let Some(s) = inner.find(p) {
-                    s.latched = true;
-                }
-            }
-            inner.get(i).latched = false;
-            inner.watchdog = WatchdogState::Off;
+        if fx.let_go && inner.commanding == Some(from) {
+            inner.commanding = None;
         }
-        let engaged = self.gate.is_engaged();
-        if engaged && fx.took_command && inner.commander.is_none() {
-            inner.commander = Some(from);
-            inner.watchdog = WatchdogState::Armed;
-            tracing::info!(%from, "network sender commands the engaged vehicle");
+        sync(&self.gate, &mut inner);
+        if self.gate.commander() == Some(Source::Network(from)) {
+            inner.commanding = Some(from);
         }
-        if engaged && inner.commander == Some(from) {
-            inner.last_valid = Some(received);
-        }
-        let refused_whole = fx.refused_other;
         let s = inner.get(i);
-        if !fx.asked_engage {
+        if !fx.asked_engage || fx.let_go {
             s.latched = false;
         }
-        if refused_whole {
+        if fx.refused_other {
             s.rejected += 1;
         } else {
             s.accepted += 1;
             st.count_accepted();
         }
         self.reply(&mut inner, i, out, received)
-    }
-
-    /// `engage` from `from`; true when it engaged the vehicle or took command of it.
-    /// A repeat from the sender already commanding changes nothing and is not answered.
-    fn engage(
-        &mut self,
-        from: SocketAddr,
-        commander: Option<SocketAddr>,
-        out: &mut Outcome,
-    ) -> bool {
-        let st = &self.status;
-        if !self.config.allow_engage {
-            st.count_refusal(Refusal::EngageNotAllowed);
-            out.refused = true;
-            out.gate = true;
-            out.line(format_args!(
-                "refused engage: {}",
-                Refusal::EngageNotAllowed.describe()
-            ));
-            return false;
-        }
-        if self.gate.is_engaged() {
-            // Already engaged: by this sender (a planner repeats `engage` in every
-            // datagram; nothing changes, nothing is said), or from the console (this
-            // sender takes over).
-            if commander == Some(from) {
-                return false;
-            }
-            out.gate = true;
-            out.line(format_args!("ok engaged"));
-            return true;
-        }
-        let latched = st.inner.lock().find(from).is_some_and(|s| s.latched);
-        if latched {
-            st.count_refusal(Refusal::EngageLatched);
-            out.refused = true;
-            out.gate = true;
-            out.line(format_args!(
-                "refused engage: {} ({})",
-                Refusal::EngageLatched.describe(),
-                self.gate.reason()
-            ));
-            return false;
-        }
-        let mut by = ArrayString::<96>::new();
-        let _ = write!(by, "network {from}");
-        out.gate = true;
-        match self.gate.engage(&by) {
-            Ok(()) => {
-                out.line(format_args!("ok engaged"));
-                true
-            }
-            Err(why) => {
-                st.count_refusal(Refusal::EngageBlocked);
-                out.refused = true;
-                out.line(format_args!("refused engage: {}", why.join("; ")));
-                false
-            }
-        }
     }
 
     fn reject(&self, inner: &mut Inner, i: usize, r: Reject) {
@@ -470,54 +393,19 @@ impl Intake {
     }
 }
 
-/// Notice a disengage by someone else (console, gate monitor, shutdown): the commander
-/// loses command and must re-engage on purpose. Notice an engage from the console.
+/// Notice that the command of the sender this listener saw commanding ended without
+/// its asking (the watchdog, a console taking command, a fault, a disengage by someone
+/// else): latch it, so that a planner repeating `engage` must re-engage on purpose.
 pub(crate) fn sync(gate: &Gate, inner: &mut Inner) {
-    let engaged = gate.is_engaged();
-    if !engaged {
-        if let Some(c) = inner.commander.take() {
-            if let Some(s) = inner.find(c) {
-                s.latched = true;
-            }
-            tracing::info!(commander = %c, "network command ended: {}", gate.reason());
-        }
-        if inner.watchdog != WatchdogState::Tripped {
-            inner.watchdog = WatchdogState::Off;
-        }
-    } else if inner.commander.is_none() {
-        inner.watchdog = WatchdogState::Idle;
-    }
-}
-
-/// One watchdog tick: while a network sender commands the engaged vehicle, no valid
-/// datagram from it for `timeout` (silence, or a counter that stopped advancing) brings
-/// the vehicle to the safe state and disengages it. Returns the cause when it tripped.
-pub fn watchdog_tick(gate: &Gate, status: &NetStatus, now: Instant) -> Option<String> {
-    let mut inner = status.inner.lock();
-    sync(gate, &mut inner);
-    let c = inner.commander?;
-    let last = inner.last_valid?;
-    let quiet = now.saturating_duration_since(last);
-    if quiet < status.watchdog_timeout {
-        return None;
-    }
-    let ms = quiet.as_millis();
-    let cause = match inner.find(c) {
-        Some(s) if s.stale && s.last_seen > last => format!(
-            "the rolling counter of {c} stopped advancing at {} for {ms} ms",
-            s.seq.unwrap_or_default()
-        ),
-        _ => format!("no valid command from {c} for {ms} ms"),
+    let Some(c) = inner.commanding else {
+        return;
     };
-    inner.commander = None;
+    if gate.commander() == Some(Source::Network(c)) {
+        return;
+    }
+    inner.commanding = None;
     if let Some(s) = inner.find(c) {
         s.latched = true;
     }
-    inner.watchdog = WatchdogState::Tripped;
-    inner.last_trip = Some(cause.clone());
-    // Under the lock, so no datagram slips in between the decision and the safe state.
-    gate.disengage(&format!("watchdog: {cause}"));
-    drop(inner);
-    tracing::warn!("watchdog: {cause}; safe state commanded");
-    Some(cause)
+    tracing::info!(commander = %c, "network command ended: {}", gate.reason());
 }

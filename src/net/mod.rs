@@ -3,22 +3,22 @@
 //!
 //! - `net/listen` owns the UDP command socket. Each datagram is stamped the moment
 //!   the kernel hands it over (under a flood, reads are paced: [`pace`]), then [`intake`] checks the sender (allow-list), the grammar
-//!   ([`proto`]), the key ([`auth`]) and the rolling counter, decides who commands, and
-//!   hands each command to [`Gate::submit`], which checks the interlocks, stores it
-//!   in the device's slot and wakes its command thread.
+//!   ([`proto`]), the key ([`auth`]) and the rolling counter, and hands each command,
+//!   tagged with its sender, to the one intake ([`Gate::admit`]), which decides who
+//!   commands, feeds the commander's watchdog, checks the interlocks, stores it in the
+//!   device's slot and wakes its command thread.
 //! - `net/broadcast` sends the [`Snapshot`] as one JSON
 //!   object per datagram at `broadcast_rate`, to unicast addresses and/or multicast
 //!   groups.
-//! - `net/watchdog` brings the vehicle to the safe state and disengages it when the
-//!   sender commanding it goes quiet, or its rolling counter stops, for
-//!   `watchdog_timeout`.
 //!
-//! [`NetStatus`] publishes counters, senders and the watchdog for the console and the
+//! The watchdog of a commanding sender is the intake's ([`Gate::watch`]): quiet, or
+//! with its rolling counter stopped, for `watchdog_timeout`, it brings the vehicle to
+//! the safe state and disengages it. [`NetStatus`] publishes counters and senders for the console and the
 //! broadcast; [`client`] holds `adrive send` and `adrive watch`.
 
 pub mod auth;
 pub mod client;
-pub mod config;
+
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod intake;
@@ -26,7 +26,7 @@ pub mod pace;
 pub mod proto;
 pub mod status;
 
-pub use config::NetworkConfig;
+pub use crate::config::NetworkConfig;
 pub use status::{NetStatus, Refusal};
 
 use crate::logging::RateLimit;
@@ -95,14 +95,6 @@ impl Net {
             broadcast_loop(&out, &dest, period, &g, &st, &s)
         })?;
 
-        let (g, st, s) = (gate, status.clone(), stop.clone());
-        let tick = (config.watchdog_timeout / 10)
-            .clamp(Duration::from_millis(1), Duration::from_millis(10));
-        threads.spawn("net/watchdog".into(), move || {
-            crate::threads::every(tick, &s, || {
-                intake::watchdog_tick(&g, &st, Instant::now());
-            })
-        })?;
         tracing::info!(
             listen = %local,
             broadcast = ?config.broadcast_to,
@@ -323,10 +315,18 @@ fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
     }
 }
 
+/// The network sender commanding the vehicle, if one does.
+pub fn commanding(gate: &Gate) -> Option<SocketAddr> {
+    match gate.commander() {
+        Some(crate::value::Source::Network(a)) => Some(a),
+        _ => None,
+    }
+}
+
 /// The whole snapshot, the network's part included.
 pub fn snapshot(gate: &Gate, status: &NetStatus, seq: u64) -> Snapshot {
     let mut snap = gate.snapshot(seq);
-    snap.net = Some(status.snapshot());
+    snap.net = Some(status.snapshot(commanding(gate)));
     snap
 }
 

@@ -17,6 +17,8 @@
 //!          | "accel" SP number                 -1 … 1: < 0 brakes, > 0 throttle (when
 //!                                              throttle and brake are bound)
 //!          | "engage" | "disengage"
+//!          | "release"                         give command up (the vehicle stays engaged
+//!                                              for a handover; see the README)
 //!          | "clear"                           clear a driver's latched override
 //!          | "seq" SP u64                      header: the sender's counter
 //!          | "tag" SP 64 hex digits            header: HMAC-SHA256, must be the last line
@@ -108,6 +110,8 @@ pub enum NetCommand {
     Engage,
     /// Stop taking network commands and bring the vehicle to its safe state.
     Disengage,
+    /// Give command up: another source may then take it by engaging.
+    Release,
     /// Clear a driver's latched override (refused while a hand is still on it).
     Clear,
 }
@@ -179,6 +183,7 @@ impl<'a> Vocabulary<'a> {
             NetCommand::Accel(v) => format!("accel {}", Num(*v)),
             NetCommand::Engage => "engage".into(),
             NetCommand::Disengage => "disengage".into(),
+            NetCommand::Release => "release".into(),
             NetCommand::Clear => "clear".into(),
         }
     }
@@ -609,16 +614,17 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
                 datagram.signed = 0..start;
                 None
             }
-            Some(Verb::Engage | Verb::Disengage | Verb::Clear) if arg.is_some() => {
+            Some(Verb::Engage | Verb::Disengage | Verb::Release | Verb::Clear) if arg.is_some() => {
                 return Err(ParseError::new(
                     Reject::BadSyntax,
                     line,
-                    "engage, disengage and clear take no value",
+                    "engage, disengage, release and clear take no value",
                     arg.unwrap_or(""),
                 ))
             }
             Some(Verb::Engage) => Some(NetCommand::Engage),
             Some(Verb::Disengage) => Some(NetCommand::Disengage),
+            Some(Verb::Release) => Some(NetCommand::Release),
             Some(Verb::Clear) => Some(NetCommand::Clear),
             Some(Verb::Accel) if !vocab.accel => {
                 return Err(ParseError::new(
@@ -665,6 +671,7 @@ enum Verb {
     Accel,
     Engage,
     Disengage,
+    Release,
     Clear,
     Seq,
     Tag,
@@ -672,10 +679,11 @@ enum Verb {
 
 impl Verb {
     fn from_word(word: &str) -> Option<Verb> {
-        const WORDS: [(&str, Verb); 6] = [
+        const WORDS: [(&str, Verb); 7] = [
             ("accel", Verb::Accel),
             ("engage", Verb::Engage),
             ("disengage", Verb::Disengage),
+            ("release", Verb::Release),
             ("clear", Verb::Clear),
             ("seq", Verb::Seq),
             ("tag", Verb::Tag),
@@ -1181,6 +1189,7 @@ mod tests {
             NetCommand::Engage,
             NetCommand::Disengage,
             NetCommand::Clear,
+            NetCommand::Release,
         ];
         let v = alice();
         let text: String = cmds.iter().map(|c| format!("{}\n", v.line(c))).collect();
@@ -1262,6 +1271,7 @@ mod tests {
                 Just(NetCommand::Engage),
                 Just(NetCommand::Disengage),
                 Just(NetCommand::Clear),
+                Just(NetCommand::Release),
             ]
         }
 

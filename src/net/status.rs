@@ -6,7 +6,7 @@
 
 use super::proto::{Reject, RejectCounts};
 use crate::safety;
-use crate::snapshot::{NetView, Pairs, Rejections, SenderView, WatchdogState, WatchdogView};
+use crate::snapshot::{NetView, Pairs, Rejections, SenderView};
 use crate::value::DeviceId;
 use parking_lot::Mutex;
 use std::net::SocketAddr;
@@ -111,15 +111,11 @@ impl Sender {
 /// The state the listener and the watchdog share, under one short-held lock.
 pub(crate) struct Inner {
     pub senders: [Option<Sender>; MAX_SENDERS],
-    /// The network sender commanding the engaged vehicle.
-    pub commander: Option<SocketAddr>,
-    /// The commander's last valid datagram (what the watchdog watches).
-    pub last_valid: Option<Instant>,
+    /// The sender this listener last saw command the engaged vehicle (the gate says
+    /// who commands; this remembers whose command ended, to latch it).
+    pub commanding: Option<SocketAddr>,
     /// With a key: the last `seq` accepted (replay protection is per key).
     pub keyed_seq: Option<u64>,
-    pub watchdog: WatchdogState,
-    /// Why the watchdog last tripped.
-    pub last_trip: Option<String>,
     /// Global reply budget: (window start, replies in it).
     pub replies: (Instant, u32),
 }
@@ -138,7 +134,7 @@ impl Inner {
         let i = match self.senders.iter().position(Option::is_none) {
             Some(i) => i,
             None => {
-                let commander = self.commander;
+                let commander = self.commanding;
                 self.senders
                     .iter()
                     .enumerate()
@@ -188,11 +184,8 @@ impl NetStatus {
             watchdog_timeout,
             inner: Mutex::new(Inner {
                 senders: [None; MAX_SENDERS],
-                commander: None,
-                last_valid: None,
+                commanding: None,
                 keyed_seq: None,
-                watchdog: WatchdogState::Off,
-                last_trip: None,
                 replies: (now, 0),
             }),
             rejects: RejectCounts::new(),
@@ -252,8 +245,9 @@ impl NetStatus {
         self.intake[r.index()].load(Relaxed)
     }
 
-    /// A plain copy of everything, for the snapshot.
-    pub fn snapshot(&self) -> NetView {
+    /// A plain copy of everything, for the snapshot; `commander` is the network sender
+    /// the gate says commands, if one does.
+    pub fn snapshot(&self, commander: Option<SocketAddr>) -> NetView {
         let now = Instant::now();
         let ms = |d: Duration| d.as_secs_f64() * 1e3;
         let inner = self.inner.lock();
@@ -268,21 +262,11 @@ impl NetStatus {
                 datagrams: s.datagrams,
                 accepted: s.accepted,
                 rejected: s.rejected,
-                commanding: inner.commander == Some(s.addr),
+                commanding: commander == Some(s.addr),
                 frozen: s.stale,
                 latched: s.latched,
             })
             .collect();
-        let watchdog = WatchdogView {
-            state: inner.watchdog,
-            timeout_ms: ms(self.watchdog_timeout),
-            last_command_age_ms: inner
-                .commander
-                .and(inner.last_valid)
-                .map(|t| ms(now.saturating_duration_since(t))),
-            last_trip: inner.last_trip.clone(),
-        };
-        let commander = inner.commander;
         drop(inner);
         senders.sort_by(|a, b| a.age_ms.total_cmp(&b.age_ms));
         let named = |pairs: Vec<(&str, u64)>| -> Pairs<u64> {
@@ -292,8 +276,6 @@ impl NetStatus {
             listen: self.listen,
             datagrams: self.datagrams.load(Relaxed),
             accepted: self.accepted.load(Relaxed),
-            commander,
-            watchdog,
             senders,
             commands: self
                 .names

@@ -118,8 +118,7 @@ impl Received {
     pub fn source_text(source: Source) -> String {
         match source {
             Source::Network(a) => format!("network {a}"),
-            Source::Console => "console".into(),
-            Source::Supervisor => "supervisor".into(),
+            other => other.to_string(),
         }
     }
 }

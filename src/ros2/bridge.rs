@@ -1,14 +1,27 @@
 //! What Autoware's messages mean on this vehicle, as pure functions: a command message
-//! becomes lines of adrive's own command grammar (so it enters through the very intake
-//! UDP datagrams go through: grammar and ranges, the engage gate, one commander, the
-//! watchdog, the interlocks), and the [`Snapshot`] becomes the reports. Which device is
+//! becomes typed [`Ask`]s for the one intake every source goes through
+//! ([`crate::safety::Gate::admit`]: one commander, the watchdog, ranges, the
+//! interlocks, the engage gate), and the [`Snapshot`] becomes the reports. Which device is
 //! which comes from the vehicle's role bindings (steering, throttle, brake, gear, speed)
 //! and from `[ros2]` for turn indicators and hazard lights.
 
 use super::msgs::{self, gear, lights, mode, Time};
 use crate::config::{Role, Ros2Config, VehicleConfig};
+use crate::safety::Ask;
 use crate::snapshot::{DeviceView, Snapshot};
-use std::fmt::{self, Write};
+use crate::value::{Command, DeviceId};
+use std::fmt;
+
+/// The asks one actuation message becomes: steering, then the pedals.
+pub type Asks = arrayvec::ArrayVec<Ask, 3>;
+
+/// A state device commanded by Autoware codes: its id and the states by code.
+#[derive(Clone, Debug, PartialEq)]
+struct States {
+    device: DeviceId,
+    /// (code, state index) pairs.
+    by_code: Vec<(u8, Option<u8>)>,
+}
 
 /// The gear device's states in Autoware's terms.
 #[derive(Clone, Debug, PartialEq)]
@@ -37,6 +50,13 @@ pub struct VehicleMap {
     turn_indicators: Option<String>,
     hazard_lights: Option<String>,
     tire_angle_per_unit: f64,
+    /// The devices commands go to, by id.
+    steering_id: Option<DeviceId>,
+    throttle_id: Option<DeviceId>,
+    brake_id: Option<DeviceId>,
+    gear_states: Option<States>,
+    turn_states: Option<States>,
+    hazard_states: Option<States>,
 }
 
 /// A command message that does not apply to this vehicle, and why.
@@ -53,21 +73,6 @@ impl fmt::Display for Unmapped {
         match self {
             Unmapped::NoDevice(what) => write!(f, "this vehicle has no {what}"),
             Unmapped::Code(what, c) => write!(f, "{what} {c} is not a command adrive takes"),
-        }
-    }
-}
-
-/// A number as the command grammar takes it: the shortest round-trip digits, in
-/// scientific form when the plain one would be long.
-struct Num(f64);
-
-impl fmt::Display for Num {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let a = self.0.abs();
-        if self.0 == 0.0 || !self.0.is_finite() || (1e-4..1e6).contains(&a) {
-            write!(f, "{}", self.0)
-        } else {
-            write!(f, "{:e}", self.0)
         }
     }
 }
@@ -102,7 +107,54 @@ impl VehicleMap {
             let d = &config.devices[r.device.index()];
             (d.name.clone(), d.readings[r.reading].name.clone())
         });
+        let id = |role| config.roles.device(role);
+        let find = |name: &str| {
+            config
+                .devices
+                .iter()
+                .position(|d| d.name == name)
+                .map(|i| DeviceId(i as u16))
+        };
+        let states = |device: Option<&String>, codes: &[(u8, &str)]| {
+            let device = find(device?)?;
+            let d = &config.devices[device.index()];
+            Some(States {
+                device,
+                by_code: codes
+                    .iter()
+                    .map(|(c, name)| (*c, d.state_index(name)))
+                    .collect(),
+            })
+        };
+        let gear_states = config.roles.gear.as_ref().map(|g| {
+            let d = &config.devices[g.device.index()];
+            States {
+                device: g.device,
+                by_code: vec![
+                    (gear::NEUTRAL, d.state_index("neutral")),
+                    (gear::DRIVE, g.forward.first().copied()),
+                    (gear::REVERSE, g.reverse.first().copied()),
+                    (gear::PARK, g.park),
+                ],
+            }
+        });
         VehicleMap {
+            steering_id: id(Role::Steering),
+            throttle_id: id(Role::Throttle),
+            brake_id: id(Role::Brake),
+            gear_states,
+            turn_states: states(
+                ros2.turn_indicators.as_ref(),
+                &[
+                    (lights::DISABLE, "off"),
+                    (lights::ENABLE_LEFT, "left"),
+                    (lights::ENABLE_RIGHT, "right"),
+                ],
+            ),
+            hazard_states: states(
+                ros2.hazard_lights.as_ref(),
+                &[(lights::DISABLE, "off"), (lights::ENABLE_LEFT, "on")],
+            ),
             steering: name(Role::Steering),
             throttle: top(Role::Throttle),
             brake: top(Role::Brake),
@@ -123,81 +175,66 @@ impl VehicleMap {
         self.hazard_lights.is_some()
     }
 
-    /// Raw actuation as command lines: `steer` to the steering device, and the pedals
-    /// as one `accel` (braking wins: a brake command above 0 brakes, whatever the
-    /// accelerator says), each as a fraction of its device's range.
-    pub fn actuation(&self, a: &msgs::ActuationCommand, out: &mut String) {
-        if let Some(s) = &self.steering {
-            let _ = writeln!(out, "{s} {}", Num(a.steer_cmd));
+    /// Raw actuation as asks: `steer` to the steering device, and the pedals as one
+    /// `accel` (braking wins: a brake command above 0 brakes, whatever the accelerator
+    /// says), each as a fraction of its device's range; without `accel`, the pedal
+    /// released first, then the other.
+    pub fn actuation(&self, a: &msgs::ActuationCommand) -> Asks {
+        let mut out = Asks::new();
+        if let Some(s) = self.steering_id {
+            out.push(Ask::Set(s, Command::Set(a.steer_cmd)));
         }
-        let (Some((t, t_top)), Some((b, b_top))) = (&self.throttle, &self.brake) else {
-            return;
+        let (Some((_, t_top)), Some((_, b_top)), Some(t), Some(b)) =
+            (&self.throttle, &self.brake, self.throttle_id, self.brake_id)
+        else {
+            return out;
         };
         let braking = a.brake_cmd > 0.0 || a.brake_cmd.is_nan();
         if self.accel {
-            let pedal = if braking {
+            out.push(Ask::Accel(if braking {
                 -a.brake_cmd / b_top
             } else {
                 a.accel_cmd / t_top
-            };
-            let _ = writeln!(out, "accel {}", Num(pedal));
+            }));
         } else if braking {
-            let _ = writeln!(out, "{t} 0\n{b} {}", Num(a.brake_cmd));
+            out.push(Ask::Set(t, Command::Set(0.0)));
+            out.push(Ask::Set(b, Command::Set(a.brake_cmd)));
         } else {
-            let _ = writeln!(out, "{b} 0\n{t} {}", Num(a.accel_cmd));
+            out.push(Ask::Set(b, Command::Set(0.0)));
+            out.push(Ask::Set(t, Command::Set(a.accel_cmd)));
         }
+        out
     }
 
-    /// A gear command as a command line; `None` for `NONE` (no change asked).
-    pub fn gear(&self, code: u8) -> Result<Option<String>, Unmapped> {
+    /// A gear command as an ask; `None` for `NONE`.
+    pub fn gear(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
         if code == gear::NONE {
             return Ok(None);
         }
-        let g = self.gear.as_ref().ok_or(Unmapped::NoDevice("gear"))?;
-        let state = match code {
-            gear::NEUTRAL => &g.neutral,
-            gear::DRIVE..=gear::DRIVE_18 | gear::LOW | gear::LOW_2 => &g.forward,
-            gear::REVERSE | gear::REVERSE_2 => &g.reverse,
-            gear::PARK => &g.park,
+        let key = match code {
+            gear::NEUTRAL => gear::NEUTRAL,
+            gear::DRIVE..=gear::DRIVE_18 | gear::LOW | gear::LOW_2 => gear::DRIVE,
+            gear::REVERSE | gear::REVERSE_2 => gear::REVERSE,
+            gear::PARK => gear::PARK,
             _ => return Err(Unmapped::Code("gear", code)),
         };
-        let state = state.as_ref().ok_or(Unmapped::Code("gear", code))?;
-        Ok(Some(format!("{} {state}", g.device)))
+        state_ask(self.gear_states.as_ref(), "gear", key, code)
     }
 
-    /// A turn indicators command as a command line; `None` for `NO_COMMAND`.
-    pub fn turn_indicators(&self, code: u8) -> Result<Option<String>, Unmapped> {
+    /// A turn indicators command as an ask; `None` for `NO_COMMAND`.
+    pub fn turn_indicators(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
         if code == lights::NO_COMMAND {
             return Ok(None);
         }
-        let d = self
-            .turn_indicators
-            .as_ref()
-            .ok_or(Unmapped::NoDevice("turn indicators"))?;
-        let state = match code {
-            lights::DISABLE => "off",
-            lights::ENABLE_LEFT => "left",
-            lights::ENABLE_RIGHT => "right",
-            _ => return Err(Unmapped::Code("turn indicators", code)),
-        };
-        Ok(Some(format!("{d} {state}")))
+        state_ask(self.turn_states.as_ref(), "turn indicators", code, code)
     }
 
-    /// A hazard lights command as a command line; `None` for `NO_COMMAND`.
-    pub fn hazard_lights(&self, code: u8) -> Result<Option<String>, Unmapped> {
+    /// A hazard lights command as an ask; `None` for `NO_COMMAND`.
+    pub fn hazard_lights(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
         if code == lights::NO_COMMAND {
             return Ok(None);
         }
-        let d = self
-            .hazard_lights
-            .as_ref()
-            .ok_or(Unmapped::NoDevice("hazard lights"))?;
-        let state = match code {
-            lights::DISABLE => "off",
-            lights::ENABLE_LEFT => "on",
-            _ => return Err(Unmapped::Code("hazard lights", code)),
-        };
-        Ok(Some(format!("{d} {state}")))
+        state_ask(self.hazard_states.as_ref(), "hazard lights", code, code)
     }
 
     /// The reports of one snapshot, stamped `stamp`. A report whose device has not
@@ -372,6 +409,24 @@ pub fn diagnostics(snap: &Snapshot, stamp: Time) -> msgs::DiagnosticArray {
     }
 }
 
+/// The ask for the state a code names on a state device (`key` is the code as the
+/// map lists it; `code` as it came, for the error).
+fn state_ask(
+    states: Option<&States>,
+    what: &'static str,
+    key: u8,
+    code: u8,
+) -> Result<Option<Ask>, Unmapped> {
+    let s = states.ok_or(Unmapped::NoDevice(what))?;
+    let state = s
+        .by_code
+        .iter()
+        .find(|(c, _)| *c == key)
+        .and_then(|(_, i)| *i)
+        .ok_or(Unmapped::Code(what, code))?;
+    Ok(Some(Ask::Set(s.device, Command::State(state))))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -381,38 +436,53 @@ mod tests {
         VehicleMap::new(&c, &c.ros2)
     }
 
+    fn id(name: &str) -> DeviceId {
+        let c = VehicleConfig::alice();
+        DeviceId(c.devices.iter().position(|d| d.name == name).unwrap() as u16)
+    }
+
+    fn state(device: &str, name: &str) -> Ask {
+        let c = VehicleConfig::alice();
+        let d = id(device);
+        Ask::Set(
+            d,
+            Command::State(c.devices[d.index()].state_index(name).unwrap()),
+        )
+    }
+
     #[test]
     fn raw_actuation_becomes_steer_and_one_accel_with_braking_first() {
         let m = alice();
-        let mut out = String::new();
-        m.actuation(
-            &msgs::ActuationCommand {
-                accel_cmd: 0.3,
-                brake_cmd: 0.0,
-                steer_cmd: -0.25,
-            },
-            &mut out,
+        let asks = m.actuation(&msgs::ActuationCommand {
+            accel_cmd: 0.3,
+            brake_cmd: 0.0,
+            steer_cmd: -0.25,
+        });
+        assert_eq!(
+            asks.as_slice(),
+            [Ask::Set(id("steer"), Command::Set(-0.25)), Ask::Accel(0.3)]
         );
-        assert_eq!(out, "steer -0.25\naccel 0.3\n");
-        out.clear();
-        m.actuation(
-            &msgs::ActuationCommand {
-                accel_cmd: 0.3,
-                brake_cmd: 0.5,
-                steer_cmd: 1e-300,
-            },
-            &mut out,
+        let asks = m.actuation(&msgs::ActuationCommand {
+            accel_cmd: 0.3,
+            brake_cmd: 0.5,
+            steer_cmd: 1e-300,
+        });
+        assert_eq!(
+            asks.as_slice(),
+            [
+                Ask::Set(id("steer"), Command::Set(1e-300)),
+                Ask::Accel(-0.5)
+            ]
         );
-        assert_eq!(out, "steer 1e-300\naccel -0.5\n");
     }
 
     #[test]
     fn gears_map_to_the_gear_devices_states() {
         let m = alice();
-        assert_eq!(m.gear(gear::DRIVE_18), Ok(Some("trans drive".into())));
-        assert_eq!(m.gear(gear::REVERSE), Ok(Some("trans reverse".into())));
-        assert_eq!(m.gear(gear::PARK), Ok(Some("trans park".into())));
-        assert_eq!(m.gear(gear::NEUTRAL), Ok(Some("trans neutral".into())));
+        assert_eq!(m.gear(gear::DRIVE_18), Ok(Some(state("trans", "drive"))));
+        assert_eq!(m.gear(gear::REVERSE), Ok(Some(state("trans", "reverse"))));
+        assert_eq!(m.gear(gear::PARK), Ok(Some(state("trans", "park"))));
+        assert_eq!(m.gear(gear::NEUTRAL), Ok(Some(state("trans", "neutral"))));
         assert_eq!(m.gear(gear::NONE), Ok(None));
         assert_eq!(m.gear(99), Err(Unmapped::Code("gear", 99)));
     }

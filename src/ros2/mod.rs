@@ -16,4 +16,4 @@ pub mod msgs;
 pub mod node;
 pub mod watch;
 
-pub use node::{Node, ROS2_SENDER};
+pub use node::Node;

@@ -2,17 +2,17 @@
 //! report publishers and the command subscriptions, on two threads of its own:
 //!
 //! - `ros2/intake` takes every command message (Zenoh's callbacks only stamp it and
-//!   hand it over) and gives it to an [`Intake`] of its own that shares the UDP
-//!   listener's [`NetStatus`]: the same grammar and ranges, engage gate, one commander
-//!   across UDP and ROS 2, watchdog (the `net/watchdog` thread watches this stream as it
-//!   watches a UDP sender), interlocks, and rejections counted by reason for the
-//!   console's NETWORK panel. All of ROS 2 is one sender there, [`ROS2_SENDER`]; within
-//!   it, one actuation publisher (by GID) commands the engaged vehicle at a time.
-//!   Each actuation message is one datagram (`seq` = its rmw sequence number, then
-//!   `steer` and `accel`); the latest gear, turn-indicator and hazard-light commands
-//!   ride on the next one, so the stream the watchdog watches is the stream that moves
-//!   the vehicle. An emergency disengages. The control mode service engages
-//!   (`AUTONOMOUS`) and disengages (`MANUAL`).
+//!   hand it over), turns it into typed asks ([`bridge`]) and gives them, as the
+//!   source [`Source::Ros2`], to the one intake every source goes through
+//!   ([`Gate::admit`]): one commander across the console, UDP and ROS 2, the
+//!   commander's watchdog (the network's `watchdog_timeout`), ranges, interlocks and
+//!   the engage gate; refusals are counted by reason for the console's NETWORK panel.
+//!   Within ROS 2, one actuation publisher (by GID) commands the engaged vehicle at a
+//!   time. The latest gear, turn-indicator and hazard-light commands go in just before
+//!   the next actuation message, so the stream the watchdog watches is the stream that
+//!   moves the vehicle; an actuation stream whose stamp or sequence number stops
+//!   advancing is frozen and feeds nothing. An emergency disengages. The control mode
+//!   service engages (`AUTONOMOUS`) and disengages (`MANUAL`).
 //! - `ros2/report` publishes the reports at `report_rate` and `/diagnostics` once a
 //!   second, from the engine's snapshot.
 
@@ -21,25 +21,16 @@ use super::keys::{self, Attachment, Entity, Gid, NodeInfo, TypeInfo, DEFAULT_QOS
 use super::msgs::{self, mode, Message, Time};
 use crate::config::{Ros2Config, VehicleConfig};
 use crate::logging::RateLimit;
-use crate::net::intake::Intake;
 use crate::net::proto::Reject;
 use crate::net::{NetStatus, Refusal};
-use crate::safety::Gate;
+use crate::safety::{Ask, Done, Gate, Refused};
 use crate::threads::{StopSignal, Threads};
+use crate::value::Source;
 use crossbeam_channel::{Receiver, Sender};
-use std::net::{IpAddr, Ipv6Addr, SocketAddr};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use zenoh::Wait;
-
-/// The sender all ROS 2 commands come from, as the intake and the NETWORK panel see it:
-/// an address in the IPv6 unique-local range that spells "ROS2" (`52 4f 53 32`) and
-/// that no packet is ever sent to.
-pub const ROS2_SENDER: SocketAddr = SocketAddr::new(
-    IpAddr::V6(Ipv6Addr::new(0xfd52, 0x4f53, 0x3200, 0, 0, 0, 0, 0)),
-    0,
-);
 
 /// The node's name in the graph.
 pub const NODE_NAME: &str = "adrive";
@@ -324,16 +315,12 @@ impl Node {
 
         let stop = Arc::new(StopSignal::default());
         let closing = Arc::new(AtomicBool::new(false));
-        let mut net_config = config.network.clone();
-        // The allow-list and the key are the UDP listener's; Zenoh has its own access
-        // control and transport security.
-        net_config.allow.clear();
-        net_config.key_file = None;
-        net_config.replies = true;
-        let intake = Intake::new(gate.clone(), net_config, None, net.clone(), closing.clone());
         let mut threads = Threads::default();
+        // The allow-list and the key are the UDP listener's; Zenoh has its own access
+        // control and transport security. Engaging follows `allow_engage`, as for UDP.
         let mut commands = Commands {
-            intake,
+            allow_engage: config.network.allow_engage,
+            closing: closing.clone(),
             gate: gate.clone(),
             net,
             map: map.clone(),
@@ -451,15 +438,17 @@ struct Last {
 
 /// The `ros2/intake` thread's state.
 struct Commands {
-    intake: Intake,
+    allow_engage: bool,
+    /// adrive is shutting down: nothing more is handed to the intake.
+    closing: Arc<AtomicBool>,
     gate: Arc<Gate>,
     net: Arc<NetStatus>,
     map: VehicleMap,
     /// The actuation publisher commanding the engaged vehicle.
     commander: Option<Gid>,
     last: Option<Last>,
-    /// Gear, turn indicator and hazard light lines for the next actuation datagram.
-    pending: Vec<(Topic, String)>,
+    /// The latest gear, turn indicator and hazard light asks, for the next actuation.
+    pending: Vec<(Topic, Ask)>,
     log: RateLimit,
 }
 
@@ -480,15 +469,39 @@ impl Commands {
         }
     }
 
-    /// Hand one datagram of command lines to the intake; log what it refused.
-    fn submit(&mut self, text: &str, at: Instant) {
-        if let Some(reply) = self.intake.handle(text.as_bytes(), ROS2_SENDER, at) {
-            if reply.contains("refused") || reply.contains("rejected") {
-                if self.log.allow(at) {
-                    tracing::warn!("ros2: {}", reply.trim_end().replace('\n', "; "));
+    /// Hand one ask to the one intake, as ROS 2's; log what it refused. Returns
+    /// whether it was admitted.
+    fn submit(&mut self, ask: Ask, at: Instant) -> bool {
+        if self.closing.load(Relaxed) {
+            return false;
+        }
+        if ask == Ask::Engage && !self.allow_engage {
+            self.net.count_refusal(Refusal::EngageNotAllowed);
+            if self.log.allow(at) {
+                tracing::warn!(
+                    "ros2: refused engage: {}",
+                    Refusal::EngageNotAllowed.describe()
+                );
+            }
+            return false;
+        }
+        match self.gate.admit(Source::Ros2, ask, at) {
+            Ok(Done::Engaged | Done::Commanding | Done::Disengaged(true) | Done::Released) => {
+                tracing::info!("ros2: {} done", self.gate.ask_text(ask));
+                true
+            }
+            Ok(_) => true,
+            Err(why) => {
+                match &why {
+                    Refused::Owner(_) => self.net.count_refusal(Refusal::OtherCommander),
+                    Refused::Rule(r) => self.net.count_intake(*r),
+                    Refused::Blocked(_) => self.net.count_refusal(Refusal::EngageBlocked),
+                    Refused::Clear(_) => {}
                 }
-            } else {
-                tracing::info!("ros2: {}", reply.trim_end().replace('\n', "; "));
+                if self.log.allow(at) {
+                    tracing::warn!("ros2: refused {}: {why}", self.gate.ask_text(ask));
+                }
+                false
             }
         }
     }
@@ -501,10 +514,10 @@ impl Commands {
     }
 
     fn sample(&mut self, topic: Topic, payload: &[u8], attachment: Option<&[u8]>, at: Instant) {
-        let unmapped = |r: Result<Option<String>, bridge::Unmapped>, me: &mut Commands| match r {
-            Ok(Some(line)) => {
+        let unmapped = |r: Result<Option<Ask>, bridge::Unmapped>, me: &mut Commands| match r {
+            Ok(Some(ask)) => {
                 me.pending.retain(|(t, _)| *t != topic);
-                me.pending.push((topic, line));
+                me.pending.push((topic, ask));
             }
             Ok(None) => {}
             Err(e) => {
@@ -530,7 +543,7 @@ impl Commands {
             Topic::Emergency => match msgs::decode::<msgs::VehicleEmergencyStamped>(payload) {
                 Ok(m) if m.emergency => {
                     tracing::warn!("ros2: emergency command: safe state");
-                    self.submit("disengage\n", at);
+                    self.submit(Ask::Disengage, at);
                 }
                 Ok(_) => {}
                 Err(e) => self.reject(Reject::BadSyntax, &e, at),
@@ -565,30 +578,36 @@ impl Commands {
                 return;
             }
         }
-        // A stream whose stamp stops advancing is frozen: its datagram repeats the last
-        // counter, which the intake rejects as replayed, and the watchdog counts on.
+        // A stream whose stamp (or sequence number) stops advancing is frozen: alive,
+        // but nothing it sends is valid, and the commander's watchdog keeps counting.
         let frozen = self.last.is_some_and(|l| {
-            l.gid == att.gid && !m.header.stamp.is_zero() && l.stamp == m.header.stamp
+            l.gid == att.gid
+                && (l.seq == att.sequence_number
+                    || (!m.header.stamp.is_zero() && l.stamp == m.header.stamp))
         });
-        let seq = match self.last {
-            Some(l) if frozen => l.seq,
-            _ => att.sequence_number,
-        };
         self.last = Some(Last {
             gid: att.gid,
-            seq,
+            seq: att.sequence_number,
             stamp: m.header.stamp,
         });
+        if frozen {
+            self.net.count_reject(Reject::Replayed);
+            self.gate.frozen(Source::Ros2);
+            if self.log.allow(at) {
+                tracing::warn!("ros2: rejected actuation: its stamp stopped advancing");
+            }
+            return;
+        }
         // The gear first: a shift is asked while the brake still holds, and `accel`
         // after it waits for the shift (as `trans drive accel 0.3` does over UDP).
-        let mut text = format!("seq {}\n", seq as u64);
-        for (_, line) in self.pending.drain(..) {
-            text.push_str(&line);
-            text.push('\n');
+        let pending = std::mem::take(&mut self.pending);
+        for (_, ask) in pending {
+            self.submit(ask, at);
         }
-        self.map.actuation(&m.actuation, &mut text);
-        self.submit(&text, at);
-        if self.gate.is_engaged() && self.commander.is_none() {
+        for ask in self.map.actuation(&m.actuation) {
+            self.submit(ask, at);
+        }
+        if self.gate.commander() == Some(Source::Ros2) && self.commander.is_none() {
             self.commander = Some(att.gid);
         }
     }
@@ -604,11 +623,11 @@ impl Commands {
         let success = match msgs::decode::<msgs::ControlModeRequest>(&request) {
             Ok(r) => match r.mode {
                 mode::AUTONOMOUS => {
-                    self.submit("engage\n", at);
-                    self.gate.is_engaged()
+                    self.submit(Ask::Engage, at);
+                    self.gate.commander() == Some(Source::Ros2)
                 }
                 mode::MANUAL => {
-                    self.submit("disengage\n", at);
+                    self.submit(Ask::Disengage, at);
                     true
                 }
                 mode::NO_COMMAND => true,

@@ -3,7 +3,6 @@
 //! gathers nothing, and each fact locks one slot or one cache once.
 
 use super::rules::{Facts, Plays};
-use super::wire::WireFacts;
 use crate::config::Bindings;
 use crate::value::Command;
 use crate::vehicle::slot::WireState;
@@ -112,12 +111,9 @@ pub fn gather(v: &Vehicle, plays: Plays) -> Facts {
 }
 
 /// Facts for the wire check of a command to a device that plays `plays`.
-pub fn gather_wire(v: &Vehicle, plays: Plays) -> WireFacts {
+pub fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
     let b = v.bindings();
-    let mut f = WireFacts {
-        throttle_released: true,
-        ..WireFacts::default()
-    };
+    let mut f = Facts::default();
     if plays.throttle || plays.gear {
         if let Some(id) = b.brake {
             let d = v.device(id);
@@ -136,11 +132,6 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> WireFacts {
             let d = v.device(id);
             let w = d.slot.wire();
             f.throttle_released = released_on_wire(d, &w);
-            f.throttle_going = [w.pending, w.flight]
-                .into_iter()
-                .flatten()
-                .filter_map(Command::set_point)
-                .any(|x| fraction(d, x) > super::rules::RELEASED);
         }
         if let Some(g) = &b.gear {
             let w = v.device(g.device).slot.wire();
@@ -150,7 +141,7 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> WireFacts {
                 matches!(w.pending.or(w.flight), Some(c @ Command::State(_)) if w.sent != Some(c));
         }
     }
-    if plays.throttle {
+    if plays.throttle || plays.brake {
         f.estop = v.estop();
     }
     if plays.gear {

@@ -6,7 +6,8 @@
 //! disengages an engaged vehicle as soon as that list is not empty, whoever engaged it
 //! (console or network). Looking every [`EVERY`], it bounds how late a silent device,
 //! the e-stop first of all, is acted on. Both read the caches only, and the devices a
-//! driver has taken over (latched `override`s, held by the [`Gate`]).
+//! driver has taken over (latched `override`s, held by the [`Gate`]). The same thread
+//! runs the commander's watchdog ([`Gate::watch`]) at the same period.
 
 use super::Gate;
 use crate::config::DriverKind;
@@ -60,6 +61,7 @@ impl Monitor {
         let s = stop.clone();
         threads.spawn("gate/monitor".into(), move || {
             crate::threads::every(EVERY, &s, || {
+                gate.watch(Instant::now());
                 if gate.is_engaged() {
                     if let Some(why) = gate.blockers().into_iter().next() {
                         gate.disengage(&why);

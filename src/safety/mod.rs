@@ -17,10 +17,13 @@
 
 pub mod facts;
 pub mod gate;
+pub mod intake;
+pub mod owner;
 pub mod rules;
 pub mod safe;
 pub mod wire;
 
+pub use intake::{Ask, Done, Refused};
 pub use rules::{Facts, Plays, Reject, Rules};
 
 use crate::config::Role;
@@ -61,9 +64,11 @@ pub struct Gate {
     rules: Rules,
     /// The roles each device's commands are checked for, by device.
     plays: Vec<Plays>,
-    /// Interlock rules at intake and at the wire; switched off only from the console,
-    /// with confirmation.
-    pub interlocks: AtomicBool,
+    /// Interlock rules at intake and at the wire; switched off only from a console,
+    /// with confirmation ([`Gate::set_interlocks`]).
+    interlocks: AtomicBool,
+    /// Who commands, and the commander's watchdog ([`intake`]).
+    owner: Mutex<intake::Owner>,
     engaged: AtomicBool,
     /// Why the vehicle is (dis)engaged, for the console and the broadcast.
     reason: Mutex<String>,
@@ -92,6 +97,7 @@ impl Gate {
             rules: Rules::active(vehicle.bindings()),
             plays,
             interlocks: AtomicBool::new(true),
+            owner: Mutex::new(intake::Owner::new(Instant::now())),
             engaged: AtomicBool::new(false),
             reason: Mutex::new("not engaged yet".into()),
             recovering,
@@ -148,6 +154,11 @@ impl Gate {
             "rejected: {why}"
         );
         why
+    }
+
+    /// The interlock rules are on.
+    pub fn interlocks_on(&self) -> bool {
+        self.interlocks.load(Relaxed)
     }
 
     pub fn is_engaged(&self) -> bool {
@@ -301,32 +312,6 @@ impl Gate {
         });
     }
 
-    /// [`Gate::submit`] for a command from `source`, which a recording keeps with its
-    /// outcome.
-    pub fn submit_from(
-        &self,
-        source: Source,
-        id: DeviceId,
-        command: Command,
-        received: Instant,
-    ) -> Result<(), Reject> {
-        let done = self.submit(id, command, received);
-        self.tap_received(source, Asked::Device(id, command), received, done);
-        done
-    }
-
-    /// [`Gate::submit_accel`] for a command from `source`, which a recording keeps.
-    pub fn submit_accel_from(
-        &self,
-        source: Source,
-        a: f64,
-        received: Instant,
-    ) -> Result<(), Reject> {
-        let done = self.submit_accel(a, received);
-        self.tap_received(source, Asked::Accel(a), received, done);
-        done
-    }
-
     fn tap_received(&self, source: Source, asked: Asked, at: Instant, done: Result<(), Reject>) {
         self.vehicle.tap.send(|| Event::Received {
             at,
@@ -375,13 +360,13 @@ impl Gate {
             return Err(self.reject(Some(d), Some(command), Reject::Recovering));
         }
         let plays = self.plays[id.index()];
-        if !plays.is_free() && self.interlocks.load(Relaxed) {
+        if !plays.is_free() && self.interlocks_on() {
             let facts = facts::gather(&self.vehicle, plays);
             if let Err(why) = rules::check(&facts, self.rules, plays, self.scaled(d, command)) {
                 return Err(self.reject(Some(d), Some(command), why));
             }
         }
-        self.admit(d, command, received);
+        self.admit_checked(d, command, received);
         // A disengage that raced this command (it checks the gate, then stores): the
         // safe state must be the last word.
         if !self.is_engaged() {
@@ -417,7 +402,7 @@ impl Gate {
     /// Store an admitted command — or, when its port is idle and the wire check says
     /// send exactly it, write it from this thread ([`crate::vehicle::fast`]): the
     /// command thread then only reads the reply.
-    fn admit(&self, d: &Device, command: Command, received: Instant) {
+    fn admit_checked(&self, d: &Device, command: Command, received: Instant) {
         crate::vehicle::stats::Stats::bump(&d.stats.received);
         use crate::vehicle::fast::{self, Sent};
         match fast::send(d, command, received, || {
@@ -444,39 +429,77 @@ impl Gate {
     }
 
     /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
-    /// throttle, negative is brake; it never applies both. Going from braking to
-    /// throttle, the release is submitted and the throttle with it: the throttle's
-    /// command thread holds it back until the release has reached the brake
-    /// ([`Wait::BrakeReleased`]), so one `accel` is enough. While a shift is under way
-    /// the brake holds and positive `accel` waits. Needs throttle and brake bound.
+    /// throttle, negative is brake; it never applies both. It is admitted or refused as
+    /// a whole ([`rules::check_accel`]): a refused `accel` leaves both slots exactly as
+    /// they were. Going from braking to throttle, the release is stored and the
+    /// throttle with it: the throttle's command thread holds it back until the release
+    /// has reached the brake ([`Wait::BrakeReleased`]), so one `accel` is enough. While
+    /// a shift is under way the brake holds and positive `accel` waits. Needs throttle
+    /// and brake bound.
     pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
         let b = self.vehicle.bindings();
         let (Some(tid), Some(bid)) = (b.throttle, b.brake) else {
             return Err(self.reject(None, None, Reject::NoSuchDevice));
         };
-        if !a.is_finite() {
-            return Err(self.reject(None, None, Reject::NotFinite));
-        }
-        if !(-1.0..=1.0).contains(&a) {
-            return Err(self.reject(None, None, Reject::OutOfRange));
-        }
         let (t, br) = (self.vehicle.device(tid), self.vehicle.device(bid));
+        let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
         let top = |d: &Device| d.config.range[1];
-        if a > 0.0 {
-            if self.interlocks.load(Relaxed)
-                && facts::gather(&self.vehicle, self.plays[bid.index()]).shifting
-            {
+        let parts = [
+            (br, Command::Set(brake * top(br))),
+            (t, Command::Set(throttle * top(t))),
+        ];
+        for (d, c) in parts {
+            let why = if !a.is_finite() {
+                Err(Reject::NotFinite)
+            } else if !(-1.0..=1.0).contains(&a) {
+                Err(Reject::OutOfRange)
+            } else {
+                self.check_value(d, c)
+            };
+            if let Err(why) = why {
+                return Err(self.reject(Some(d), Some(c), why));
+            }
+        }
+        if !self.is_engaged() {
+            return Err(self.reject(Some(t), None, Reject::Disengaged));
+        }
+        if self.recovering[tid.index()].load(Relaxed) || self.recovering[bid.index()].load(Relaxed)
+        {
+            return Err(self.reject(Some(t), None, Reject::Recovering));
+        }
+        if self.interlocks_on() {
+            let both = Plays {
+                throttle: true,
+                brake: true,
+                ..Plays::default()
+            };
+            let facts = facts::gather(&self.vehicle, both);
+            if a > 0.0 && facts.shifting {
                 tracing::debug!("accel {a}: the brake holds until the shift is through");
                 return Ok(());
             }
-            // The release, and the throttle with it: the throttle's command thread holds
-            // it back until the release has reached the brake, so one accel is enough.
-            self.submit(bid, Command::Set(0.0), received)?;
-            self.submit(tid, Command::Set(a * top(t)), received)
-        } else {
-            self.submit(tid, Command::Set(0.0), received)?;
-            self.submit(bid, Command::Set(-a * top(br)), received)
+            if let Err(why) = rules::check_accel(&facts, self.rules, a) {
+                let at = if why.needs().first() == Some(&Role::Brake) {
+                    br
+                } else {
+                    t
+                };
+                return Err(self.reject(Some(at), None, why));
+            }
         }
+        // Both parts pass: the brake's first (a release the throttle follows, or the
+        // throttle's release before braking), then the other.
+        let (first, second) = if a > 0.0 {
+            (parts[0], parts[1])
+        } else {
+            (parts[1], parts[0])
+        };
+        self.admit_checked(first.0, first.1, received);
+        self.admit_checked(second.0, second.1, received);
+        if !self.is_engaged() {
+            self.command_safe_state();
+        }
+        Ok(())
     }
 
     /// A recovery procedure takes these devices over (intake refuses them) or, with an
@@ -526,7 +549,7 @@ impl Gate {
     /// over what the other devices have on their way, or `Send` when no rule applies.
     fn wire_verdict(&self, d: &Device, command: Command, waited: bool) -> Verdict {
         let plays = self.plays[d.id.index()];
-        if plays.is_free() || !self.interlocks.load(Relaxed) {
+        if plays.is_free() || !self.interlocks_on() {
             return Verdict::Send(command);
         }
         let f = facts::gather_wire(&self.vehicle, plays);
@@ -605,13 +628,18 @@ impl Gate {
     }
 
     /// The gate's part of the snapshot.
-    pub fn view(&self) -> GateView {
+    pub fn view(&self, now: Instant) -> GateView {
         let b = self.vehicle.bindings();
+        let who = self.command_view(now);
         GateView {
+            commander: who.commander,
+            watchdog: who.watchdog,
+            refused: who.refused,
+            last_refused: who.last_refused,
             engaged: self.is_engaged(),
             reason: self.reason(),
             blockers: self.blockers(),
-            interlocks: self.interlocks.load(Relaxed),
+            interlocks: self.interlocks_on(),
             rules: self.rules.names().into_iter().map(str::to_string).collect(),
             roles: self.vehicle.role_names(),
             accel: b.has_accel(),
@@ -637,7 +665,7 @@ impl Gate {
             uptime_s: now
                 .saturating_duration_since(self.vehicle.started)
                 .as_secs_f64(),
-            gate: self.view(),
+            gate: self.view(now),
             devices: self.vehicle.device_views(now),
             supervisor: self.vehicle.supervision.snapshot(),
             rejections: self

@@ -23,11 +23,14 @@ pub const SHIFT_BRAKE: f64 = 0.3;
 /// Below this speed (m/s) the vehicle counts as stopped.
 pub const STOPPED: f64 = 0.1;
 
-/// What the interlocks know of the vehicle. Throttle and brake values are fractions
-/// of their range's top (0 released … 1 full), whatever the devices' units.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+/// What the interlocks know of the vehicle, at intake ([`super::facts::gather`]) or at
+/// the wire ([`super::facts::gather_wire`]): one type, so that both checks ask the same
+/// rule functions ([`breaks`]). Throttle and brake values are fractions of their
+/// range's top (0 released … 1 full), whatever the devices' units.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Facts {
-    /// Highest brake value pending, in flight, sent or acknowledged (None: unknown).
+    /// Highest brake value pending, in flight, sent or acknowledged (None: unknown);
+    /// at the wire, pending, in flight or last sent.
     pub brake_high: Option<f64>,
     /// Lowest brake value pending, in flight, sent or acknowledged.
     pub brake_low: Option<f64>,
@@ -43,6 +46,30 @@ pub struct Facts {
     pub estop: Option<EstopState>,
     /// A shift is commanded and the gearbox does not report that gear yet.
     pub shifting: bool,
+    /// At the wire: the throttle has nothing above released pending, in flight or
+    /// last sent.
+    pub throttle_released: bool,
+    /// At the wire: a gear command is pending or in flight for the gearbox that is not
+    /// the last one sent.
+    pub shift_on_its_way: bool,
+}
+
+impl Default for Facts {
+    fn default() -> Facts {
+        Facts {
+            brake_high: None,
+            brake_low: None,
+            brake_releasing: false,
+            gear: None,
+            in_gear: false,
+            running: None,
+            speed: None,
+            estop: None,
+            shifting: false,
+            throttle_released: true,
+            shift_on_its_way: false,
+        }
+    }
 }
 
 /// Why intake refused a command.
@@ -259,62 +286,80 @@ impl Plays {
     }
 }
 
-/// The safety rules alone (range and kind are checked by the caller). `command` goes
-/// to a device that plays `plays`; throttle and brake set points are fractions of
-/// their range's top.
-pub fn check(facts: &Facts, rules: Rules, plays: Plays, command: Command) -> Result<(), Reject> {
-    let on = |r: Reject| rules.has(r);
-    match command {
-        Command::Set(v) if plays.throttle && v > RELEASED => {
-            if on(Reject::GasWhileBraking)
-                && facts.brake_high.is_some_and(|b| b > RELEASED)
-                && !facts.brake_releasing
-            {
-                return Err(Reject::GasWhileBraking);
-            }
-            if on(Reject::GasNotInGear) && !facts.in_gear {
-                return Err(Reject::GasNotInGear);
-            }
-            if on(Reject::GasEngineOff) && facts.running != Some(true) {
-                return Err(Reject::GasEngineOff);
-            }
-            if on(Reject::GasEstop) && facts.estop != Some(EstopState::Run) {
-                return Err(Reject::GasEstop);
-            }
-            Ok(())
+/// One interlock, written once: does `command`, for a device that plays `plays`, break
+/// `rule` given `f`? Intake ([`check`]) and the wire ([`super::wire::verdict`]) both ask
+/// this; only what each does about a broken rule differs (intake refuses; the wire
+/// waits, replaces or drops). A reason that is not an interlock breaks nothing.
+pub fn breaks(rule: Reject, f: &Facts, plays: Plays, command: Command) -> bool {
+    let gas = |v: f64| plays.throttle && v > RELEASED;
+    let shift = |g: u8| plays.gear && Some(g) != f.gear;
+    match (rule, command) {
+        (Reject::GasWhileBraking, Command::Set(v)) => {
+            gas(v) && f.brake_high.is_some_and(|b| b > RELEASED) && !f.brake_releasing
         }
-        Command::Set(v) if plays.brake && v < 1.0 => {
-            if on(Reject::BrakeReleaseEstop)
-                && matches!(facts.estop, Some(EstopState::Pause | EstopState::Disable))
-            {
-                return Err(Reject::BrakeReleaseEstop);
-            }
-            if on(Reject::BrakeReleaseShifting) && facts.shifting && v < SHIFT_BRAKE {
-                return Err(Reject::BrakeReleaseShifting);
-            }
-            Ok(())
+        (Reject::GasNotInGear, Command::Set(v)) => gas(v) && !f.in_gear,
+        (Reject::GasEngineOff, Command::Set(v)) => gas(v) && f.running != Some(true),
+        (Reject::GasEstop, Command::Set(v)) => gas(v) && f.estop != Some(EstopState::Run),
+        (Reject::BrakeReleaseEstop, Command::Set(v)) => {
+            plays.brake
+                && v < 1.0
+                && matches!(f.estop, Some(EstopState::Pause | EstopState::Disable))
         }
-        Command::State(g) if plays.gear && Some(g) != facts.gear => {
-            if on(Reject::ShiftWhileMoving) && !facts.speed.is_some_and(|s| s.abs() < STOPPED) {
-                return Err(Reject::ShiftWhileMoving);
-            }
-            if on(Reject::ShiftWithoutBrake) && !facts.brake_low.is_some_and(|b| b >= SHIFT_BRAKE) {
-                return Err(Reject::ShiftWithoutBrake);
-            }
-            Ok(())
+        (Reject::BrakeReleaseShifting, Command::Set(v)) => {
+            plays.brake && v < SHIFT_BRAKE && f.shifting
         }
-        Command::Control(Control::Start) if plays.starter => {
-            if on(Reject::StartInGear) && facts.in_gear {
-                return Err(Reject::StartInGear);
-            }
-            Ok(())
+        (Reject::ShiftWhileMoving, Command::State(g)) => {
+            shift(g) && !f.speed.is_some_and(|s| s.abs() < STOPPED)
         }
-        _ => Ok(()),
+        (Reject::ShiftWithoutBrake, Command::State(g)) => {
+            shift(g) && !f.brake_low.is_some_and(|b| b >= SHIFT_BRAKE)
+        }
+        (Reject::StartInGear, Command::Control(Control::Start)) => plays.starter && f.in_gear,
+        _ => false,
     }
 }
 
-/// The README's table of the interlock rules: each with the roles it needs bound and
-/// what it refuses.
+/// The intake check: the first active rule `command` breaks, in the order of
+/// [`Reject::RULES`].
+pub fn check(facts: &Facts, rules: Rules, plays: Plays, command: Command) -> Result<(), Reject> {
+    match Reject::RULES
+        .into_iter()
+        .find(|r| rules.has(*r) && breaks(*r, facts, plays, command))
+    {
+        Some(r) => Err(r),
+        None => Ok(()),
+    }
+}
+
+/// The throttle's and the brake's roles, for [`check_accel`].
+pub const THROTTLE: Plays = Plays {
+    throttle: true,
+    brake: false,
+    gear: false,
+    starter: false,
+};
+pub const BRAKE: Plays = Plays {
+    throttle: false,
+    brake: true,
+    gear: false,
+    starter: false,
+};
+
+/// The virtual `accel` command (−1 … 1, as fractions of the pedals' ranges) checked as
+/// a whole: both of its parts — throttle and brake — pass, or it is refused and
+/// neither is stored. Going from braking to throttle, the brake's release is checked
+/// first, and the throttle then as following that release (which the wire holds it
+/// behind). `f` holds the facts of both pedals.
+pub fn check_accel(f: &Facts, rules: Rules, a: f64) -> Result<(), Reject> {
+    let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
+    check(f, rules, BRAKE, Command::Set(brake))?;
+    let behind_the_release = Facts {
+        brake_releasing: f.brake_releasing || brake <= RELEASED,
+        ..*f
+    };
+    check(&behind_the_release, rules, THROTTLE, Command::Set(throttle))
+}
+
 pub fn markdown() -> String {
     let mut out = String::from("| rule | applies when bound | refuses |\n|---|---|---|\n");
     for r in Reject::RULES {
@@ -351,6 +396,7 @@ mod tests {
             speed: Some(5.0),
             estop: Some(EstopState::Run),
             shifting: false,
+            ..Facts::default()
         }
     }
 

@@ -9,31 +9,8 @@
 //! ([`WireFacts`]); the engine gathers them, asks, and acts. A wait happens before the
 //! command thread takes its port, so no port is held while another device is awaited.
 
-use super::rules::{Plays, Reject, Rules, RELEASED, SHIFT_BRAKE, STOPPED};
-use crate::value::{Command, EstopState};
-
-/// What the wire check knows. Throttle and brake as fractions of their range's top.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct WireFacts {
-    /// The brake has, or is about to have, more than released: the highest value
-    /// pending, in flight or last sent.
-    pub brake_high: Option<f64>,
-    /// The lowest brake value pending, in flight, sent or acknowledged.
-    pub brake_low: Option<f64>,
-    /// The brake's newest command on its way (pending, else in flight) releases it.
-    pub brake_releasing: bool,
-    /// The throttle has a value above released pending or in flight.
-    pub throttle_going: bool,
-    /// The throttle has nothing above released pending, in flight or last sent.
-    pub throttle_released: bool,
-    pub estop: Option<EstopState>,
-    /// The gear reported.
-    pub gear: Option<u8>,
-    /// A gear command is pending or in flight for the gearbox that is not the last one
-    /// sent.
-    pub shift_on_its_way: bool,
-    pub speed: Option<f64>,
-}
+use super::rules::{breaks, Facts, Plays, Reject, Rules, RELEASED, SHIFT_BRAKE};
+use crate::value::Command;
 
 /// What the command thread does with its command.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -62,55 +39,60 @@ pub enum Wait {
 
 /// The verdict on `command` for a device that plays `plays`; `waited` says the thread
 /// already waited once (it then never waits again: braking goes out regardless).
-/// Throttle and brake set points are fractions of their range's top.
-pub fn verdict(
-    f: &WireFacts,
-    rules: Rules,
-    plays: Plays,
-    command: Command,
-    waited: bool,
-) -> Verdict {
-    let on = |r: Reject| rules.has(r);
+/// Throttle and brake set points are fractions of their range's top. Every refusal is
+/// a rule of [`breaks`], the same function intake asks; the waits are the wire's own
+/// ordering of two pedals' threads (braking first has the throttle released, a release
+/// or a throttle waits for what is on its way), never a refusal.
+pub fn verdict(f: &Facts, rules: Rules, plays: Plays, command: Command, waited: bool) -> Verdict {
+    let broken = |r: Reject, f: &Facts| rules.has(r) && breaks(r, f, plays, command);
     match command {
         Command::Set(v) if plays.throttle && v > RELEASED => {
-            if on(Reject::GasWhileBraking) && f.brake_high.is_some_and(|b| b > RELEASED) {
-                // Throttle that follows a release on its way (one `accel` from braking)
-                // waits for it once; otherwise, or if it did not land, it goes out as 0.
+            // The brake applied, a release on its way or not: throttle that follows a
+            // release (one `accel` from braking) waits for it once; otherwise, or if it
+            // did not land, it goes out as 0.
+            let applied = Facts {
+                brake_releasing: false,
+                ..*f
+            };
+            if broken(Reject::GasWhileBraking, &applied) {
                 if f.brake_releasing && !waited {
                     Verdict::Wait(Wait::BrakeReleased)
                 } else {
                     Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking)
                 }
-            } else if on(Reject::GasEstop) && f.estop != Some(EstopState::Run) {
+            } else if broken(Reject::GasEstop, f) {
                 Verdict::Replace(Command::Set(0.0), Reject::GasEstop)
             } else {
                 Verdict::Send(command)
             }
         }
         Command::Set(v) if plays.brake => {
-            if !waited && on(Reject::GasWhileBraking) && v > RELEASED && !f.throttle_released {
+            if !waited && rules.has(Reject::GasWhileBraking) && v > RELEASED && !f.throttle_released
+            {
                 Verdict::Wait(Wait::ThrottleReleased)
             } else if !waited
-                && on(Reject::BrakeReleaseShifting)
+                && rules.has(Reject::BrakeReleaseShifting)
                 && v < SHIFT_BRAKE
                 && f.shift_on_its_way
             {
                 // A shift on its way keeps the brake on until it is out.
                 Verdict::Wait(Wait::ShiftOut)
+            } else if broken(Reject::BrakeReleaseEstop, f) {
+                // The e-stop paused between intake and the wire: the release (and the
+                // throttle behind it, which then sees the brake applied) stays back.
+                Verdict::Drop(Reject::BrakeReleaseEstop)
             } else {
                 // Braking is never refused.
                 Verdict::Send(command)
             }
         }
-        Command::State(g) if plays.gear && Some(g) != f.gear => {
-            if on(Reject::ShiftWhileMoving) && !f.speed.is_some_and(|s| s.abs() < STOPPED) {
-                Verdict::Drop(Reject::ShiftWhileMoving)
-            } else if on(Reject::ShiftWithoutBrake)
-                && !f.brake_low.is_some_and(|b| b >= SHIFT_BRAKE)
+        Command::State(_) if plays.gear => {
+            match [Reject::ShiftWhileMoving, Reject::ShiftWithoutBrake]
+                .into_iter()
+                .find(|r| broken(*r, f))
             {
-                Verdict::Drop(Reject::ShiftWithoutBrake)
-            } else {
-                Verdict::Send(command)
+                Some(r) => Verdict::Drop(r),
+                None => Verdict::Send(command),
             }
         }
         _ => Verdict::Send(command),
@@ -120,6 +102,7 @@ pub fn verdict(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::value::EstopState;
 
     const GAS: Plays = Plays {
         throttle: true,
@@ -140,23 +123,20 @@ mod tests {
         starter: false,
     };
 
-    fn calm() -> WireFacts {
-        WireFacts {
+    fn calm() -> Facts {
+        Facts {
             brake_high: Some(0.0),
             brake_low: Some(0.0),
-            brake_releasing: false,
-            throttle_going: false,
-            throttle_released: true,
             estop: Some(EstopState::Run),
             gear: Some(3),
-            shift_on_its_way: false,
             speed: Some(0.0),
+            ..Facts::default()
         }
     }
 
     #[test]
     fn gas_against_a_brake_on_the_wire_goes_out_as_zero() {
-        let f = WireFacts {
+        let f = Facts {
             brake_high: Some(0.5),
             ..calm()
         };
@@ -172,7 +152,7 @@ mod tests {
 
     #[test]
     fn throttle_behind_a_release_on_its_way_waits_for_it_once() {
-        let f = WireFacts {
+        let f = Facts {
             brake_high: Some(1.0),
             brake_releasing: true,
             ..calm()
@@ -190,7 +170,7 @@ mod tests {
 
     #[test]
     fn braking_first_has_the_gas_released_and_is_never_refused() {
-        let f = WireFacts {
+        let f = Facts {
             throttle_released: false,
             ..calm()
         };
@@ -206,7 +186,7 @@ mod tests {
 
     #[test]
     fn a_brake_release_waits_for_a_real_shift_only() {
-        let shifting = WireFacts {
+        let shifting = Facts {
             shift_on_its_way: true,
             ..calm()
         };
@@ -223,7 +203,7 @@ mod tests {
 
     #[test]
     fn a_shift_that_became_unsafe_is_dropped() {
-        let moving = WireFacts {
+        let moving = Facts {
             speed: Some(3.0),
             brake_low: Some(1.0),
             brake_high: Some(1.0),
@@ -233,7 +213,7 @@ mod tests {
             verdict(&moving, Rules::ALL, GEAR, Command::State(0), false),
             Verdict::Drop(Reject::ShiftWhileMoving)
         );
-        let releasing = WireFacts {
+        let releasing = Facts {
             brake_low: Some(0.1),
             brake_high: Some(1.0),
             ..calm()

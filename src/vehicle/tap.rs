@@ -24,13 +24,7 @@ use std::time::{Instant, SystemTime};
 /// drain is a few hundred; this leaves room for a recorder held up by a slow disk.
 pub const CAPACITY: usize = 8 * 1024;
 
-/// Where a command came from.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Source {
-    Network(SocketAddr),
-    Console,
-    Supervisor,
-}
+pub use crate::value::Source;
 
 /// What a source asked for.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -36,7 +36,7 @@ impl Widget for &Dialog<'_> {
         };
         Clear.render(r, buf);
         let style = match self.ask {
-            Ask::Interlocks(false) | Ask::Engage => self.theme.warn(),
+            Ask::Interlocks(false) | Ask::Engage | Ask::Take => self.theme.warn(),
             _ => self.theme.title(),
         };
         let block = Block::bordered()

@@ -53,26 +53,31 @@ impl Header<'_> {
         } else {
             (" DISENGAGED ".to_string(), t.warn().patch(bar))
         };
-        let why = s.gate.reason.trim_start_matches("disengaged: ");
+        // Engaged: who commands it; disengaged: why.
+        let who = match &s.gate.commander {
+            Some(c) => format!("by {c}"),
+            None => "nobody commands".to_string(),
+        };
+        let why = match s.gate.engaged {
+            true => who.as_str(),
+            false => s.gate.reason.trim_start_matches("disengaged: "),
+        };
         let title = format!(" ADRIVE {} ", s.vehicle);
         let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
         let width = width as usize;
         // A long vehicle name gives way to the reason, down to TITLE_MIN columns.
-        let reason_wants = if s.gate.engaged { 0 } else { why.width() + 2 };
+        let reason_wants = why.width() + 2;
         let title_room = width
             .saturating_sub(fixed + reason_wants)
             .max(title.width().min(TITLE_MIN));
         let title = shorten(&title, title_room);
         let room = width.saturating_sub(title.width() + fixed);
-        let gate = match s.gate.engaged {
-            true => gate,
-            // " DISENGAGED " + "(" + reason + ")" (+ " " when there is room): the
-            // reason gets what is left.
-            false => match shorten(why, room.saturating_sub(2)) {
-                r if r.is_empty() => gate,
-                r if r.width() + 2 < room => format!("{gate}({r}) "),
-                r => format!("{gate}({r})"),
-            },
+        // " ENGAGED " + "(by console)", " DISENGAGED " + "(" + reason + ")" (+ " " when
+        // there is room): the words get what is left.
+        let gate = match shorten(why, room.saturating_sub(2)) {
+            r if r.is_empty() => gate,
+            r if r.width() + 2 < room => format!("{gate}({r}) "),
+            r => format!("{gate}({r})"),
         };
         let mut spans = vec![Span::styled(title, t.title().patch(bar))];
         spans.extend(rest);
@@ -227,15 +232,18 @@ mod tests {
     }
 
     #[test]
-    fn engaged_needs_no_reason_and_a_long_name_gives_way() {
-        let m = model(
+    fn engaged_names_who_commands_and_a_long_name_gives_way() {
+        let mut m = model(
             true,
             "",
             "a vehicle with a name far too long for any header bar",
         );
+        m.snap.snap.gate.commander = Some("network 127.0.0.1:5555".into());
+        let l = text(&Header { m: &m }.line(100));
+        assert!(l.ends_with(" ENGAGED (by network 127.0.0.1:5555) "), "{l}");
         let l = text(&Header { m: &m }.line(80));
-        assert!(l.ends_with(" ENGAGED "), "{l}");
-        assert!(l.starts_with(" ADRIVE a vehicle with"), "{l}");
+        assert!(l.contains(" ENGAGED (by network"), "{l}");
+        assert!(l.starts_with(" ADRIVE a vehicle"), "{l}");
         assert!(l.contains('…') && l.width() <= 80, "{l}");
     }
 

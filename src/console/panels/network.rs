@@ -31,17 +31,21 @@ impl NetworkPanel<'_> {
     fn running(&self, n: &NetView) -> Vec<Line<'static>> {
         let t = &self.theme;
         let l = |x: &'static str| Span::styled(x, t.label());
-        let wd = match n.watchdog.state {
-            WatchdogState::Off | WatchdogState::Idle => Span::raw("idle"),
-            WatchdogState::Armed => Span::styled(
-                format!(
-                    "ok {:.0}/{:.0}ms",
-                    n.watchdog.last_command_age_ms.unwrap_or(0.0),
-                    n.watchdog.timeout_ms
+        // The commander's watchdog (a network sender's, ROS 2's, or the teleop deadman).
+        let wd = match &self.snap.gate.watchdog {
+            None => Span::raw("idle"),
+            Some(w) => match w.state {
+                WatchdogState::Off | WatchdogState::Idle => Span::raw("idle"),
+                WatchdogState::Armed => Span::styled(
+                    format!(
+                        "ok {:.0}/{:.0}ms",
+                        w.last_command_age_ms.unwrap_or(0.0),
+                        w.timeout_ms
+                    ),
+                    t.good(),
                 ),
-                t.good(),
-            ),
-            WatchdogState::Tripped => Span::styled("TRIPPED", t.fault()),
+                WatchdogState::Tripped => Span::styled("TRIPPED", t.fault()),
+            },
         };
         let cmds = n
             .commands
@@ -160,13 +164,6 @@ mod tests {
                     listen: "127.0.0.1:7400".parse().unwrap(),
                     datagrams: 17,
                     accepted: 15,
-                    commander: None,
-                    watchdog: WatchdogView {
-                        state: WatchdogState::Armed,
-                        timeout_ms: 500.0,
-                        last_command_age_ms: Some(40.0),
-                        last_trip: None,
-                    },
                     senders: vec![SenderView {
                         addr: "127.0.0.1:5000".parse().unwrap(),
                         age_ms: 40.0,
@@ -184,6 +181,15 @@ mod tests {
                         ..Rejections::default()
                     },
                 }),
+                gate: crate::snapshot::GateView {
+                    watchdog: Some(WatchdogView {
+                        state: WatchdogState::Armed,
+                        timeout_ms: 500.0,
+                        last_command_age_ms: Some(40.0),
+                        last_trip: None,
+                    }),
+                    ..Default::default()
+                },
                 ..Snapshot::default()
             },
             ..Frame::default()

@@ -52,7 +52,7 @@ impl TeleopPanel<'_> {
                 th.good().add_modifier(Modifier::BOLD),
             ),
             Deadman::Tripped => Span::styled(
-                "DEADMAN TRIPPED: gas 0, brake full (any key re-arms)",
+                "DEADMAN TRIPPED: gas 0, brake full, disengaged (E engages)",
                 th.fault().add_modifier(Modifier::REVERSED),
             ),
         };

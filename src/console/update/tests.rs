@@ -6,7 +6,7 @@ use crate::console::controls::{capture, change_settings, Frame, Sources};
 use crate::console::keymap::{key_to_action, Keymap};
 use crate::console::sample;
 use crate::console::theme::Theme;
-use crate::safety::Reject;
+use crate::safety::{Refused, Reject};
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
 
@@ -19,9 +19,11 @@ struct Fake {
     snap: Frame,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
-    engage: Result<(), Vec<String>>,
+    engage: Result<(), Refused>,
     /// The devices are simulated: `sim` lines are taken.
     simulated: bool,
+    /// The teleop deadman as the console last armed it (`None`: disarmed).
+    deadman: std::cell::Cell<Option<Duration>>,
 }
 
 impl Fake {
@@ -43,6 +45,7 @@ impl Fake {
             refuse: None,
             engage: Ok(()),
             simulated: false,
+            deadman: Default::default(),
         }
     }
     fn log(&self, s: String) {
@@ -78,27 +81,43 @@ impl Controls for Fake {
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
         self.gate.vehicle.config.devices[id.index()].parse_command(text)
     }
-    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Reject> {
+    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
         let d = &self.gate.vehicle.config.devices[id.index()];
         self.log(format!("submit {} {}", d.name, d.command_text(command)));
-        self.refuse.map_or(Ok(()), Err)
+        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
     }
-    fn submit_accel(&self, accel: f64) -> Result<(), Reject> {
+    fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
         self.log(format!("accel {accel}"));
-        self.refuse.map_or(Ok(()), Err)
+        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
     }
-    fn engage(&self) -> Result<(), Vec<String>> {
+    fn engage(&self) -> Result<(), Refused> {
         self.log("engage".into());
         self.engage.clone()
     }
-    fn disengage(&self, _reason: &str) {
+    fn disengage(&self) {
         self.log("disengage".into());
     }
-    fn stop(&self, _reason: &str) {
+    fn stop(&self) {
         self.log("stop".into());
     }
-    fn set_interlocks(&self, on: bool) {
+    fn take(&self) -> Result<(), Refused> {
+        self.log("take".into());
+        Ok(())
+    }
+    fn release(&self) -> Result<(), Refused> {
+        self.log("release".into());
+        Ok(())
+    }
+    fn hold(&self) -> Result<(), Refused> {
+        self.log("hold".into());
+        Ok(())
+    }
+    fn deadman(&self, armed: Option<Duration>) {
+        self.deadman.set(armed);
+    }
+    fn set_interlocks(&self, on: bool) -> Result<(), Refused> {
         self.log(format!("interlocks {on}"));
+        Ok(())
     }
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
         change_settings(&self.gate.vehicle, id, |c| c.status_period = d)?;
@@ -116,9 +135,6 @@ impl Controls for Fake {
     fn wake(&self, id: DeviceId) {
         self.log(format!("wake {}", self.name(id)));
     }
-    fn safe_state(&self) {
-        self.log("safe state".into());
-    }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         if !self.simulated {
             return None;
@@ -126,9 +142,9 @@ impl Controls for Fake {
         self.log(format!("sim {line}"));
         Some(Ok(line.to_string()))
     }
-    fn clear_overrides(&self) -> Result<Vec<String>, String> {
+    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
         self.log("clear overrides".into());
-        self.gate.clear_overrides()
+        self.gate.clear_overrides().map_err(Refused::Clear)
     }
 }
 
@@ -391,7 +407,7 @@ fn space_is_stop_in_every_mode() {
 #[test]
 fn a_refused_engage_says_why() {
     let mut f = Fake::new();
-    f.engage = Err(vec!["steer is faulty (timeout)".into()]);
+    f.engage = Err(Refused::Blocked(vec!["steer is faulty (timeout)".into()]));
     let mut m = model(&f);
     press(&mut m, &f, &["E", "y"], Instant::now());
     let msg = m.message.unwrap();
@@ -477,45 +493,68 @@ fn teleop_steps_steering_and_accel_and_b_brakes() {
     assert_eq!(m.teleop.accel, 0.0);
     press(&mut m, &f, &["<Esc>"], now);
     assert_eq!(m.mode, Mode::Main);
-    assert_eq!(f.calls().last().unwrap(), "safe state");
+    assert_eq!(
+        f.calls().last().unwrap(),
+        "hold",
+        "leaving teleop holds: brake full"
+    );
+    assert_eq!(f.deadman.get(), None, "and disarms the deadman");
 }
 
+/// The deadman is the console's watchdog in the intake (tested there, over time);
+/// the console arms and feeds it with every teleop key, disarms it on leaving teleop
+/// and on STOP, and shows what it did when the snapshot says it tripped.
 #[test]
-fn the_deadman_brakes_when_teleop_keys_stop() {
-    let f = Fake::new();
+fn teleop_keys_arm_the_deadman_and_the_console_shows_its_trip() {
+    let mut f = Fake::new();
     let mut m = model(&f);
     let t0 = Instant::now();
     press(&mut m, &f, &["d"], t0);
-    // No key yet: idle, nothing happens however long.
-    tick(&mut m, &f, t0 + Duration::from_secs(5));
+    assert_eq!(f.deadman.get(), None, "no key yet: idle");
     assert_eq!(m.teleop.state(m.now), super::super::model::Deadman::Idle);
-    press(&mut m, &f, &["w"], t0 + Duration::from_secs(5));
-    let t1 = t0 + Duration::from_secs(5);
-    tick(&mut m, &f, t1 + Duration::from_millis(400));
-    assert!(matches!(
-        m.teleop.state(m.now),
-        super::super::model::Deadman::Armed { .. }
-    ));
-    assert!(!f.calls().contains(&"safe state".to_string()));
-    // A key re-arms it.
-    press(&mut m, &f, &["w"], t1 + Duration::from_millis(400));
-    tick(&mut m, &f, t1 + Duration::from_millis(800));
-    assert!(!f.calls().contains(&"safe state".to_string()));
-    tick(&mut m, &f, t1 + Duration::from_millis(950));
+    press(&mut m, &f, &["w"], t0);
+    assert_eq!(f.deadman.get(), Some(m.teleop.deadman));
+    f.snap.snap.gate.engaged = false;
+    f.snap.snap.gate.watchdog = Some(crate::snapshot::WatchdogView {
+        state: crate::snapshot::WatchdogState::Tripped,
+        timeout_ms: 500.0,
+        last_command_age_ms: None,
+        last_trip: Some("deadman: no teleop key for 0.5s".into()),
+    });
+    tick(&mut m, &f, t0 + Duration::from_millis(600));
     assert_eq!(m.teleop.state(m.now), super::super::model::Deadman::Tripped);
-    assert_eq!(f.calls().last().unwrap(), "safe state");
     assert_eq!(m.teleop.accel, -1.0);
-    assert!(m.message.as_ref().unwrap().bad);
-    // Tripping happens once, not every tick.
-    tick(&mut m, &f, t1 + Duration::from_secs(3));
-    let n = f.calls().iter().filter(|c| *c == "safe state").count();
-    assert_eq!(n, 1);
-    // The next key re-arms.
-    press(&mut m, &f, &["<Left>"], t1 + Duration::from_secs(3));
+    let msg = m.message.clone().unwrap();
+    assert!(msg.bad && msg.text.contains("deadman"), "{}", msg.text);
+    // The next key re-arms it.
+    press(&mut m, &f, &["<Left>"], t0 + Duration::from_secs(3));
     assert!(matches!(
         m.teleop.state(m.now),
         super::super::model::Deadman::Armed { .. }
     ));
+    press(&mut m, &f, &["<Space>"], t0 + Duration::from_secs(3));
+    assert_eq!(f.deadman.get(), None, "STOP disarms it");
+}
+
+/// Another source's command refused because the console commands shows in the
+/// message line.
+#[test]
+fn a_refused_attempt_of_another_source_shows_in_the_message_line() {
+    let mut f = Fake::new();
+    let mut m = model(&f);
+    f.snap.snap.gate.refused = 1;
+    f.snap.snap.gate.last_refused =
+        Some("refused steer 0.500 from network 127.0.0.1:5555: commanded by console".into());
+    tick(&mut m, &f, Instant::now());
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.contains("127.0.0.1:5555"),
+        "{}",
+        msg.text
+    );
+    m.message = None;
+    tick(&mut m, &f, Instant::now());
+    assert!(m.message.is_none(), "said once");
 }
 
 #[test]

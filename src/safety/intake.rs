@@ -1,0 +1,617 @@
+//! The one intake below every front end. The console, the network listener and the
+//! ROS 2 node turn what they receive into an [`Ask`] tagged with its [`Source`] and
+//! hand it to [`Gate::admit`]; what comes back is the outcome each turns into its
+//! reply, log line or message. No front end decides who commands, and none formats
+//! text for another.
+//!
+//! `admit` applies, in order and under one lock:
+//! 1. **ownership** ([`owner::decide`]): at most one source commands the engaged
+//!    vehicle; command changes hands only explicitly (engage, release, a console's
+//!    take); stopping is never refused. A command from a source that does not command
+//!    is refused naming the commander, logged at WARN, counted and shown;
+//! 2. **the commander's watchdog**: every admitted ask of the commander feeds it;
+//!    [`Gate::watch`] (on `gate/monitor`) brings the vehicle to the safe state and
+//!    disengages it when it goes quiet — the network's `watchdog_timeout` for a network
+//!    sender or ROS 2, the teleop deadman for a console while it teleoperates. One rule,
+//!    one timeout per source;
+//! 3. **the interlocks and the engage gate**: [`Gate::submit`] and [`Gate::submit_accel`],
+//!    which admit a command (a compound one as a whole) or change nothing.
+//!
+//! The lock is held across the store, so no command of a previous commander lands after
+//! command changed hands. The accepted path does not touch the heap.
+
+use super::owner::{self, Act, Commander, Outcome};
+use super::{Gate, Reject};
+use crate::snapshot::{WatchdogState, WatchdogView};
+use crate::value::{Command, DeviceId, Source};
+use crate::vehicle::tap::Asked;
+use std::time::{Duration, Instant};
+
+/// What a source asks of the vehicle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Ask {
+    /// Engage a disengaged vehicle, or pick up one handed over; command it.
+    Engage,
+    /// Disengage into the stop state (the manual state while a driver has taken over).
+    Disengage,
+    /// The operator's STOP: disengage, throttle 0, brake full (always).
+    Stop,
+    /// Give command up: the vehicle stays engaged for the handover.
+    Release,
+    /// Take command from whoever has it (a console, after its confirmation).
+    Take,
+    /// Clear the latched driver overrides (moves nothing).
+    Clear,
+    /// Hold: the safe state (throttle 0, brake full), staying engaged — a console
+    /// leaving teleop.
+    Hold,
+    /// A command for one device.
+    Set(DeviceId, Command),
+    /// The virtual `accel` (−1 … 1): throttle and brake, as a whole.
+    Accel(f64),
+}
+
+impl Ask {
+    fn act(self) -> Option<Act> {
+        Some(match self {
+            Ask::Engage => Act::Engage,
+            Ask::Disengage | Ask::Stop => Act::Stop,
+            Ask::Release => Act::Release,
+            Ask::Take => Act::Take,
+            Ask::Set(..) | Ask::Accel(_) | Ask::Hold => Act::Command,
+            Ask::Clear => return None,
+        })
+    }
+}
+
+/// Why the intake refused an ask. Nothing changed.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Refused {
+    /// Ownership: another source commands, nobody does, …
+    Owner(owner::Refusal),
+    /// The value or an interlock (counted by reason).
+    Rule(Reject),
+    /// Engaging is blocked right now (a faulty device, the e-stop…).
+    Blocked(Vec<String>),
+    /// An override cannot be cleared yet: the driver's hand is still on.
+    Clear(String),
+}
+
+impl std::fmt::Display for Refused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Refused::Owner(r) => write!(f, "{r}"),
+            Refused::Rule(r) => write!(f, "{r}"),
+            Refused::Blocked(why) => write!(f, "{}", why.join("; ")),
+            Refused::Clear(why) => f.write_str(why),
+        }
+    }
+}
+
+/// What an admitted ask did.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Done {
+    /// The command is on its way.
+    Commanded,
+    /// Engaged; the source commands.
+    Engaged,
+    /// The source commands the engaged vehicle from now on (taken or picked up).
+    Commanding,
+    /// Nothing changed (the commander repeating `engage`, a console taking what it has).
+    Same,
+    /// Command given up; the vehicle stays engaged for the handover.
+    Released,
+    /// Disengaged (`true`: it was engaged).
+    Disengaged(bool),
+    /// The cleared overrides (empty: there was nothing to clear).
+    Cleared(Vec<String>),
+}
+
+/// Who commands and the commander's watchdog, under the gate's one intake lock.
+#[derive(Debug)]
+pub(crate) struct Owner {
+    commander: Option<Source>,
+    /// The commander's last admitted ask (what its watchdog watches).
+    last: Instant,
+    /// The commander's stream is alive but frozen (a rolling counter that stopped).
+    frozen: bool,
+    /// The console's deadman while it teleoperates (its watchdog); `None`: not watched.
+    deadman: Option<Duration>,
+    /// Released by this source; the handover ends at this instant.
+    handover: Option<(Source, Instant)>,
+    /// The watchdog tripped and the vehicle was not engaged since.
+    tripped: bool,
+    last_trip: Option<String>,
+    /// Asks refused because another source commands (or nobody does).
+    refused: u64,
+    last_refused: Option<(Source, Ask, owner::Refusal)>,
+}
+
+impl Owner {
+    pub(crate) fn new(now: Instant) -> Owner {
+        Owner {
+            commander: None,
+            last: now,
+            frozen: false,
+            deadman: None,
+            handover: None,
+            tripped: false,
+            last_trip: None,
+            refused: 0,
+            last_refused: None,
+        }
+    }
+
+    fn commands(&mut self, source: Source, now: Instant) {
+        self.commander = Some(source);
+        self.last = now;
+        self.frozen = false;
+        self.handover = None;
+    }
+
+    fn nobody(&mut self) {
+        self.commander = None;
+        self.handover = None;
+    }
+}
+
+/// What the snapshot shows of who commands.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CommandView {
+    pub commander: Option<String>,
+    pub watchdog: Option<WatchdogView>,
+    pub refused: u64,
+    pub last_refused: Option<String>,
+}
+
+impl Gate {
+    /// The one intake: `ask` from `source`, received at `received` (socket read, key
+    /// press). Ownership, the commander's watchdog, then the interlocks and the engage
+    /// gate; a refused ask changes nothing.
+    pub fn admit(&self, source: Source, ask: Ask, received: Instant) -> Result<Done, Refused> {
+        let mut o = self.owner.lock();
+        let engaged = self.is_engaged();
+        if !engaged {
+            o.nobody();
+        }
+        let outcome = match ask.act() {
+            None => Outcome::Same,
+            Some(act) => match owner::decide(engaged, o.commander, source, act) {
+                Ok(x) => x,
+                Err(r) => {
+                    o.refused += 1;
+                    o.last_refused = Some((source, ask, r));
+                    drop(o);
+                    self.refused_by_owner(source, ask, r, received);
+                    return Err(Refused::Owner(r));
+                }
+            },
+        };
+        let mine = o.commander == Some(source);
+        let done = match ask {
+            Ask::Set(id, c) => {
+                let done = self.submit(id, c, received);
+                self.tap_received(source, Asked::Device(id, c), received, done);
+                done.map(|()| Done::Commanded).map_err(Refused::Rule)
+            }
+            Ask::Accel(a) => {
+                let done = self.submit_accel(a, received);
+                self.tap_received(source, Asked::Accel(a), received, done);
+                done.map(|()| Done::Commanded).map_err(Refused::Rule)
+            }
+            Ask::Engage => match outcome {
+                Outcome::Engages => {
+                    let by = Commander(source).to_string();
+                    self.engage(&by).map_err(Refused::Blocked)?;
+                    o.commands(source, received);
+                    o.tripped = false;
+                    Ok(Done::Engaged)
+                }
+                Outcome::Commands => {
+                    let from = o.handover.map(|(s, _)| s);
+                    o.commands(source, received);
+                    tracing::warn!(
+                        "{} commands the vehicle (handed over by {})",
+                        Commander(source),
+                        from.map_or("nobody".into(), |s| Commander(s).to_string())
+                    );
+                    Ok(Done::Commanding)
+                }
+                _ => Ok(Done::Same),
+            },
+            Ask::Take => match outcome {
+                Outcome::Commands => {
+                    let from = o.commander;
+                    o.commands(source, received);
+                    tracing::warn!(
+                        "{} takes command from {}",
+                        Commander(source),
+                        from.map_or("nobody".into(), |s| Commander(s).to_string())
+                    );
+                    Ok(Done::Commanding)
+                }
+                _ => Ok(Done::Same),
+            },
+            Ask::Release => {
+                let handover = self.vehicle.config.network.watchdog_timeout;
+                o.nobody();
+                o.handover = Some((source, received + handover));
+                tracing::warn!(
+                    "{} released command: the vehicle is stopped unless a source engages within {} ms",
+                    Commander(source),
+                    handover.as_millis()
+                );
+                Ok(Done::Released)
+            }
+            Ask::Disengage | Ask::Stop => {
+                o.nobody();
+                let why = format!(
+                    "{} from {}",
+                    if ask == Ask::Stop {
+                        "stop"
+                    } else {
+                        "disengage"
+                    },
+                    Commander(source)
+                );
+                Ok(Done::Disengaged(if ask == Ask::Stop {
+                    self.stop(&why)
+                } else {
+                    self.disengage(&why)
+                }))
+            }
+            Ask::Hold if engaged => {
+                self.command_safe_state();
+                Ok(Done::Commanded)
+            }
+            Ask::Hold => Err(Refused::Rule(Reject::Disengaged)),
+            Ask::Clear => self
+                .clear_overrides()
+                .map(Done::Cleared)
+                .map_err(Refused::Clear),
+        };
+        if mine && done.is_ok() {
+            // A sign of life from the commander, whatever it asked.
+            o.last = o.last.max(received);
+            o.frozen = false;
+        }
+        done
+    }
+
+    /// The source commanding the engaged vehicle, if any.
+    pub fn commander(&self) -> Option<Source> {
+        let o = self.owner.lock();
+        o.commander.filter(|_| self.is_engaged())
+    }
+
+    /// The commander's stream is alive but frozen (a rolling counter that stopped
+    /// advancing): nothing it sends is valid, and its watchdog keeps counting; the
+    /// trip then says why.
+    pub fn frozen(&self, source: Source) {
+        let mut o = self.owner.lock();
+        if o.commander == Some(source) {
+            o.frozen = true;
+        }
+    }
+
+    /// Arm (`Some`) or disarm the console's deadman — its watchdog while it
+    /// teleoperates. Arming also feeds it: a teleop key is a sign of life.
+    pub fn deadman(&self, source: Source, armed: Option<Duration>, now: Instant) {
+        if !source.is_console() {
+            return;
+        }
+        let mut o = self.owner.lock();
+        o.deadman = armed;
+        if o.commander == Some(source) {
+            o.last = now;
+        }
+    }
+
+    /// The commander's watchdog timeout (`None`: not watched).
+    fn timeout(&self, o: &Owner, source: Source) -> Option<Duration> {
+        match source {
+            Source::Network(_) | Source::Ros2 => Some(self.vehicle.config.network.watchdog_timeout),
+            Source::Console => o.deadman,
+            Source::Supervisor => None,
+        }
+    }
+
+    /// One watchdog turn (from `gate/monitor`): a commander quiet for its timeout, or a
+    /// handover nobody picked up, brings the vehicle to the safe state and disengages
+    /// it. Returns the cause when it did.
+    pub fn watch(&self, now: Instant) -> Option<String> {
+        let mut o = self.owner.lock();
+        if !self.is_engaged() {
+            o.nobody();
+            return None;
+        }
+        let cause = match (o.commander, o.handover) {
+            (Some(c), _) => {
+                let t = self.timeout(&o, c)?;
+                let quiet = now.saturating_duration_since(o.last);
+                if quiet < t {
+                    return None;
+                }
+                match c {
+                    Source::Console => {
+                        format!("deadman: no teleop key for {:.1}s", t.as_secs_f64())
+                    }
+                    _ if o.frozen => format!(
+                        "the rolling counter of {} stopped advancing for {} ms",
+                        Commander(c),
+                        quiet.as_millis()
+                    ),
+                    _ => format!(
+                        "no valid command from {} for {} ms",
+                        Commander(c),
+                        quiet.as_millis()
+                    ),
+                }
+            }
+            (None, Some((from, end))) if now >= end => {
+                format!("released by {} and nobody took command", Commander(from))
+            }
+            _ => return None,
+        };
+        o.nobody();
+        o.tripped = true;
+        o.last_trip = Some(cause.clone());
+        // Under the lock: no command slips in between the decision and the safe state.
+        self.disengage(&format!("watchdog: {cause}"));
+        drop(o);
+        tracing::warn!("watchdog: {cause}; safe state commanded");
+        Some(cause)
+    }
+
+    /// Switch the interlocks — only from a console that commands the vehicle or may
+    /// (nobody else commands), after its confirmation.
+    pub fn set_interlocks(&self, source: Source, on: bool) -> Result<(), Refused> {
+        let o = self.owner.lock();
+        let engaged = self.is_engaged();
+        owner::decide(engaged, o.commander, source, Act::Interlocks).map_err(Refused::Owner)?;
+        self.interlocks
+            .store(on, std::sync::atomic::Ordering::Relaxed);
+        tracing::warn!(
+            "interlocks switched {} from the {}",
+            if on { "on" } else { "off" },
+            Commander(source)
+        );
+        Ok(())
+    }
+
+    /// Who commands, for the snapshot.
+    pub(crate) fn command_view(&self, now: Instant) -> CommandView {
+        let o = self.owner.lock();
+        let engaged = self.is_engaged();
+        let commander = o.commander.filter(|_| engaged);
+        let name = |s: Source| match s {
+            Source::Ros2 => format!("ros2 {}", self.vehicle.config.ros2.namespace),
+            other => Commander(other).to_string(),
+        };
+        let timeout = commander.and_then(|c| self.timeout(&o, c));
+        let state = match (engaged, timeout) {
+            (false, _) if o.tripped => WatchdogState::Tripped,
+            (false, _) => WatchdogState::Off,
+            (true, Some(_)) => WatchdogState::Armed,
+            (true, None) => WatchdogState::Idle,
+        };
+        let shown_timeout = timeout.unwrap_or(self.vehicle.config.network.watchdog_timeout);
+        CommandView {
+            commander: commander.map(name),
+            watchdog: Some(WatchdogView {
+                state,
+                timeout_ms: shown_timeout.as_secs_f64() * 1e3,
+                last_command_age_ms: commander
+                    .map(|_| now.saturating_duration_since(o.last).as_secs_f64() * 1e3),
+                last_trip: o.last_trip.clone(),
+            }),
+            refused: o.refused,
+            last_refused: o
+                .last_refused
+                .map(|(s, ask, r)| format!("refused {} from {}: {r}", self.ask_text(ask), name(s))),
+        }
+    }
+
+    /// An ask in words: `steer 0.500`, `accel 0.3`, `engage`.
+    pub fn ask_text(&self, ask: Ask) -> String {
+        match ask {
+            Ask::Set(id, c) => match self.vehicle.devices.get(id.index()) {
+                Some(d) => format!("{} {}", d.name(), d.config.command_text(c)),
+                None => format!("{c:?}"),
+            },
+            Ask::Accel(a) => format!("accel {a}"),
+            other => format!("{other:?}").to_lowercase(),
+        }
+    }
+
+    fn refused_by_owner(&self, source: Source, ask: Ask, r: owner::Refusal, at: Instant) {
+        if self.reject_log.lock().allow(at) {
+            tracing::warn!(
+                "refused {} from {}: {r}",
+                self.ask_text(ask),
+                Commander(source)
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::console::sample;
+    use crate::vehicle::slot::WireState;
+    use proptest::prelude::*;
+    use std::net::{Ipv4Addr, SocketAddr};
+
+    fn net(port: u16) -> Source {
+        Source::Network(SocketAddr::from((Ipv4Addr::LOCALHOST, port)))
+    }
+
+    fn slots(g: &Gate) -> Vec<WireState> {
+        g.vehicle.devices.iter().map(|d| d.slot.wire()).collect()
+    }
+
+    fn id(g: &Gate, name: &str) -> DeviceId {
+        g.vehicle.find(name).unwrap().id
+    }
+
+    /// The incident of the walk: engage at the console, then one `steer 0.5` from the
+    /// network. It is refused naming the console, nothing reaches the slot, and the
+    /// attempt is counted and worded for the console.
+    #[test]
+    fn a_network_steer_on_a_console_engaged_vehicle_is_refused_and_changes_nothing() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        assert_eq!(g.admit(Source::Console, Ask::Engage, t), Ok(Done::Engaged));
+        let before = slots(&g);
+        let steer = Ask::Set(id(&g, "steer"), Command::Set(0.5));
+        assert_eq!(
+            g.admit(net(5555), steer, t),
+            Err(Refused::Owner(owner::Refusal::Commander(Source::Console)))
+        );
+        assert_eq!(slots(&g), before);
+        assert_eq!(g.commander(), Some(Source::Console));
+        let v = g.view(t);
+        assert_eq!(v.commander.as_deref(), Some("console"));
+        assert_eq!(v.refused, 1);
+        let said = v.last_refused.unwrap();
+        assert!(
+            said.contains("steer 0.500") && said.contains("network 127.0.0.1:5555"),
+            "{said}"
+        );
+        // Handed over with the console's release, the sender engages and commands.
+        assert_eq!(
+            g.admit(Source::Console, Ask::Release, t),
+            Ok(Done::Released)
+        );
+        assert_eq!(g.admit(net(5555), Ask::Engage, t), Ok(Done::Commanding));
+        assert_eq!(g.admit(net(5555), steer, t), Ok(Done::Commanded));
+    }
+
+    /// The other incident: in neutral with the brake on, `accel 0.3` was rejected
+    /// (`gas_not_in_gear`) yet released the brake. A refused accel leaves both slots
+    /// as they were.
+    #[test]
+    fn a_rejected_accel_in_neutral_leaves_the_brake_applied() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        g.admit(Source::Console, Ask::Engage, t).unwrap();
+        let brake = g.vehicle.find("brake").unwrap();
+        assert_eq!(brake.slot.wire().latest(), Some(Command::Set(1.0)));
+        let before = slots(&g);
+        assert_eq!(
+            g.admit(Source::Console, Ask::Accel(0.3), t),
+            Err(Refused::Rule(Reject::GasNotInGear))
+        );
+        assert_eq!(slots(&g), before, "a refused accel changed a slot");
+    }
+
+    /// The commander's watchdog, over a clock of our own: a network commander quiet
+    /// for `watchdog_timeout` disengages; the console's deadman only while armed; a
+    /// release nobody picks up ends in the safe state too.
+    #[test]
+    fn the_watchdog_is_the_commanders_with_its_own_timeout() {
+        let g = sample::gate(Instant::now());
+        let t0 = Instant::now();
+        let timeout = g.vehicle.config.network.watchdog_timeout;
+        g.admit(net(1), Ask::Engage, t0).unwrap();
+        assert_eq!(g.watch(t0 + timeout / 2), None);
+        let why = g.watch(t0 + timeout).expect("tripped");
+        assert!(why.contains("no valid command from network"), "{why}");
+        assert!(!g.is_engaged());
+        assert_eq!(g.view(t0).watchdog.unwrap().state, WatchdogState::Tripped);
+        // The console outside teleop is not watched; its deadman is, once armed.
+        let t1 = t0 + timeout * 2;
+        g.admit(Source::Console, Ask::Engage, t1).unwrap();
+        assert_eq!(g.watch(t1 + Duration::from_secs(60)), None);
+        let deadman = Duration::from_millis(1000);
+        let t2 = t1 + Duration::from_secs(60);
+        g.deadman(Source::Console, Some(deadman), t2);
+        assert_eq!(g.watch(t2 + deadman / 2), None);
+        g.deadman(Source::Console, Some(deadman), t2 + deadman / 2);
+        assert_eq!(g.watch(t2 + deadman), None, "a key fed it");
+        let why = g.watch(t2 + deadman * 2).expect("tripped");
+        assert!(why.starts_with("deadman"), "{why}");
+        assert!(!g.is_engaged());
+        // A release nobody picks up.
+        g.deadman(Source::Console, None, t2);
+        let t3 = t2 + deadman * 3;
+        g.admit(Source::Console, Ask::Engage, t3).unwrap();
+        g.admit(Source::Console, Ask::Release, t3).unwrap();
+        assert!(g.is_engaged());
+        let why = g.watch(t3 + timeout).expect("ended");
+        assert!(why.contains("released by console"), "{why}");
+        assert!(!g.is_engaged());
+    }
+
+    #[derive(Clone, Copy, Debug)]
+    enum Step {
+        Ask(u8, Ask),
+        /// Time passes: this many milliseconds, then a watchdog turn.
+        Wait(u16),
+    }
+
+    fn sources() -> [Source; 4] {
+        [Source::Console, net(1), net(2), Source::Ros2]
+    }
+
+    fn step() -> impl Strategy<Value = Step> {
+        let ask = prop_oneof![
+            Just(Ask::Engage),
+            Just(Ask::Disengage),
+            Just(Ask::Stop),
+            Just(Ask::Release),
+            Just(Ask::Take),
+            Just(Ask::Hold),
+            (-1.2f64..1.2).prop_map(|v| Ask::Set(DeviceId(0), Command::Set(v))),
+            (0.0f64..1.0).prop_map(|v| Ask::Set(DeviceId(2), Command::Set(v))),
+            (-1.0f64..1.0).prop_map(Ask::Accel),
+            (0u8..4).prop_map(|s| Ask::Set(DeviceId(3), Command::State(s))),
+        ];
+        prop_oneof![
+            4 => (0u8..4, ask).prop_map(|(s, a)| Step::Ask(s, a)),
+            1 => (0u16..800).prop_map(Step::Wait),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+        /// Random interleavings of sources and asks: at every step at most one source
+        /// commands (and only while engaged), a refused ask changes no slot, a stop is
+        /// never refused, and the network never overrides the console's command.
+        #[test]
+        fn ownership_holds_over_any_interleaving(steps in prop::collection::vec(step(), 1..60)) {
+            let g = sample::gate(Instant::now());
+            let mut now = Instant::now();
+            for s in steps {
+                match s {
+                    Step::Wait(ms) => {
+                        now += Duration::from_millis(ms.into());
+                        g.watch(now);
+                    }
+                    Step::Ask(who, ask) => {
+                        let source = sources()[who as usize];
+                        let before = slots(&g);
+                        let commander = g.commander();
+                        let done = g.admit(source, ask, now);
+                        if matches!(ask, Ask::Stop | Ask::Disengage) {
+                            prop_assert!(done.is_ok(), "a stop was refused: {done:?}");
+                            prop_assert_eq!(g.commander(), None);
+                        }
+                        if done.is_err() {
+                            prop_assert_eq!(slots(&g), before.clone(), "refused {:?} by {:?} changed a slot", ask, source);
+                        }
+                        if commander == Some(Source::Console) && !source.is_console()
+                            && !matches!(ask, Ask::Stop | Ask::Disengage)
+                        {
+                            prop_assert_eq!(g.commander(), Some(Source::Console));
+                            prop_assert_eq!(slots(&g), before, "{:?} by {:?} moved the console's vehicle", ask, source);
+                        }
+                    }
+                }
+                let c = g.commander();
+                prop_assert!(c.is_none() || g.is_engaged());
+            }
+        }
+    }
+}
