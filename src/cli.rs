@@ -382,7 +382,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     net.close();
     ros2.close();
     gate.disengage(&format!("stopping: {}", why.describe()));
-    let net_figures = net.status().snapshot(None);
+    let net_figures = net.status().snapshot(&gate);
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
     stuck.extend(ros2.shutdown(Duration::from_millis(500)));

@@ -563,7 +563,10 @@ fn thirty_two_devices_at_80x24_jump_by_name_and_command_one() {
 /// The listener's address, from the NETWORK panel (`--listen 127.0.0.1:0` picks a
 /// free port).
 fn listen_addr(screen: &str) -> String {
-    let at = screen.find("NETWORK 127.0.0.1:").expect("the network panel") + "NETWORK ".len();
+    let at = screen
+        .find("NETWORK 127.0.0.1:")
+        .expect("the network panel")
+        + "NETWORK ".len();
     screen[at..].split_whitespace().next().unwrap().to_string()
 }
 
@@ -633,7 +636,10 @@ fn a_refused_teleop_accel_in_park_leaves_the_brake_applied() {
     c.wait_for("teleop", |s| s.contains("DEADMAN"));
     c.keys("w");
     let s = c.wait_for("the refusal", |s| s.contains("refused: accel 0.10"));
-    assert!(s.contains("BRAKE 0…1 cmd 1.000"), "the brake was released:\n{s}");
+    assert!(
+        s.contains("BRAKE 0…1 cmd 1.000"),
+        "the brake was released:\n{s}"
+    );
     c.keys("q");
     assert!(c.wait_exit().success());
 }

@@ -231,13 +231,18 @@ fn bench_view_with_traffic() {
 fn teleop_shows_the_deadman() {
     let f = fixture(false);
     let mut m = f.model(Theme::default());
-    f.act(&mut m, &[Action::Teleop]);
+    f.act(&mut m, &[Action::Engage, Action::Confirm, Action::Teleop]);
     let b = render(&m, 80, 24);
     find(&b, "DEADMAN idle");
+    // A teleop key arms the deadman, the console's watchdog in the intake.
     f.act(&mut m, &[Action::SteerRight]);
-    // Tripped: gas 0, brake full, shown reversed in red.
-    m.teleop.last_key = Some(f.now - Duration::from_secs(5));
-    tick(&mut m, &f.live(), f.now);
+    // No key for longer than the deadman: the intake trips it (gas 0, brake full,
+    // disengaged), and the console shows it reversed in red.
+    let later = Instant::now() + Duration::from_secs(5);
+    let why = f.gate.watch(later).expect("the deadman trips");
+    assert!(why.starts_with("deadman"), "{why}");
+    assert!(!f.gate.is_engaged());
+    tick(&mut m, &f.live(), later);
     let b = render(&m, 80, 24);
     let (x, y) = find(&b, "DEADMAN TRIPPED");
     assert_eq!(b[(x, y)].fg, Color::Red);

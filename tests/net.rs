@@ -65,9 +65,7 @@ impl NetRig {
 
     /// The network's part of the snapshot.
     fn snap(&self) -> adrive::snapshot::NetView {
-        self.net()
-            .status()
-            .snapshot(adrive::net::commanding(&self.rig.gate))
+        self.net().status().snapshot(&self.rig.gate)
     }
 
     /// The network sender commanding the vehicle, if one does.
@@ -260,9 +258,8 @@ fn disengaged_commands_are_counted_and_not_executed() {
     assert_eq!(snap.senders[0].addr, a.addr());
     // A sentinel through the same device, once engaged: when it arrived, anything sent
     // before it had too.
-    n.rig.gate.engage("test").unwrap();
     let mut b = n.client();
-    b.send_seq("steer 0.1");
+    b.send_seq("engage\nsteer 0.1");
     wait_for("the sentinel steer 0.1", || {
         n.events_since(t).iter().any(|e| e.command == set(0.1))
     });
@@ -312,11 +309,18 @@ fn network_engage_is_refused_when_the_vehicle_file_does_not_allow_it() {
     let reply = n.client().ask(b"engage");
     assert!(reply.contains("does not allow engaging"), "{reply}");
     assert!(!n.rig.gate.is_engaged());
-    // The console still may; then a network sender commands.
-    n.rig.gate.engage("console").unwrap();
+    // The console still may, and commands: a network sender's command is refused,
+    // naming the console, until the console releases command; then the sender picks
+    // the engaged vehicle up with `engage` (it engages nothing).
+    let console = adrive::value::Source::Console;
+    let ask = |a| n.rig.gate.admit(console, a, Instant::now());
+    ask(adrive::safety::Ask::Engage).unwrap();
     let t = Instant::now();
     let mut a = n.client();
-    a.send_seq("steer 0.1");
+    let reply = a.ask(b"steer 0.1");
+    assert_eq!(reply, "refused steer 0.1: commanded by console\n");
+    ask(adrive::safety::Ask::Release).unwrap();
+    a.send_seq("engage\nsteer 0.1");
     wait_for("steer 0.1 at the device", || {
         n.events_since(t).iter().any(|e| e.command == set(0.1))
     });
@@ -384,7 +388,7 @@ fn repeated_engages_from_the_commander_are_not_answered() {
     assert!(n
         .client()
         .ask(b"engage")
-        .starts_with("refused: another sender"));
+        .starts_with("refused engage: commanded by network"));
     assert_eq!(a.ask(b"disengage"), "ok disengaged\n");
 }
 
@@ -457,7 +461,7 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
     assert_eq!(n.watchdog().state, WatchdogState::Tripped);
     let why = n.watchdog().last_trip.unwrap();
     assert!(
-        why.contains(&format!("no valid command from {addr}")),
+        why.contains(&format!("no valid command from network {addr}")),
         "{why}"
     );
     assert!(
@@ -529,12 +533,11 @@ fn a_second_sender_is_refused_while_another_commands() {
     let reply = b.ask(b"steer 0.9");
     assert_eq!(
         reply,
-        format!(
-            "refused: another sender is commanding the vehicle ({})\n",
-            a.addr()
-        )
+        format!("refused steer 0.9: commanded by network {}\n", a.addr())
     );
-    assert!(b.ask(b"engage").starts_with("refused: another sender"));
+    assert!(b
+        .ask(b"engage")
+        .starts_with("refused engage: commanded by network"));
     assert_eq!(n.net().status().refusals(Refusal::OtherCommander), 2);
     assert_eq!(
         stored(&n, "steer"),
@@ -848,10 +851,17 @@ fn a_rejected_accel_in_neutral_leaves_the_brake_applied() {
     let brake = n.rig.device("brake");
     wait_for("the brake full", || brake.slot.executed() == Some(set(1.0)));
     a.send(b"trans neutral");
-    // Until the shift is through the brake holds and accel waits; then it is refused.
+    // Until the shift is through the brake holds and accel waits (no reply); then it
+    // is refused.
     let end = Instant::now() + DEADLINE;
     let t = Instant::now();
-    while !a.ask(b"accel 0.3").contains("gas_not_in_gear") {
+    loop {
+        a.send(b"accel 0.3");
+        if a.reply(Duration::from_millis(100))
+            .is_some_and(|r| r.contains("gas_not_in_gear"))
+        {
+            break;
+        }
         assert!(Instant::now() < end, "accel 0.3 never refused in neutral");
     }
     for _ in 0..10 {

@@ -292,10 +292,7 @@ fn sim_vehicle(sim: &Sim, device: Option<&str>) -> String {
 pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<DeviceId>) -> Frame {
     let v = &gate.vehicle;
     let mut snap = gate.snapshot_at(0, now);
-    snap.net = sources
-        .net
-        .as_ref()
-        .map(|n| n.snapshot(crate::net::commanding(gate)));
+    snap.net = sources.net.as_ref().map(|n| n.snapshot(gate));
     let bench_dev = bench.and_then(|id| v.devices.get(id.index()));
     Frame {
         logs: sources

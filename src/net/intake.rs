@@ -314,7 +314,8 @@ impl Intake {
     /// Whether this sender's `engage` may go to the intake: `None`, or the network's
     /// own refusal (the vehicle file does not allow it; the sender is latched).
     fn may_engage(&self, from: SocketAddr) -> Option<Refusal> {
-        if !self.config.allow_engage {
+        // Picking up a vehicle a console engaged and released engages nothing.
+        if !self.config.allow_engage && !self.gate.is_engaged() {
             return Some(Refusal::EngageNotAllowed);
         }
         let latched = self

@@ -326,7 +326,7 @@ pub fn commanding(gate: &Gate) -> Option<SocketAddr> {
 /// The whole snapshot, the network's part included.
 pub fn snapshot(gate: &Gate, status: &NetStatus, seq: u64) -> Snapshot {
     let mut snap = gate.snapshot(seq);
-    snap.net = Some(status.snapshot(commanding(gate)));
+    snap.net = Some(status.snapshot(gate));
     snap
 }
 

@@ -245,12 +245,14 @@ impl NetStatus {
         self.intake[r.index()].load(Relaxed)
     }
 
-    /// A plain copy of everything, for the snapshot; `commander` is the network sender
-    /// the gate says commands, if one does.
-    pub fn snapshot(&self, commander: Option<SocketAddr>) -> NetView {
+    /// A plain copy of everything, for the snapshot, as of what `gate` says now: which
+    /// sender commands, and whose command has ended (latched).
+    pub fn snapshot(&self, gate: &safety::Gate) -> NetView {
         let now = Instant::now();
         let ms = |d: Duration| d.as_secs_f64() * 1e3;
-        let inner = self.inner.lock();
+        let commander = super::commanding(gate);
+        let mut inner = self.inner.lock();
+        super::intake::sync(gate, &mut inner);
         let mut senders: Vec<SenderView> = inner
             .senders
             .iter()

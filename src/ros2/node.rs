@@ -475,7 +475,7 @@ impl Commands {
         if self.closing.load(Relaxed) {
             return false;
         }
-        if ask == Ask::Engage && !self.allow_engage {
+        if ask == Ask::Engage && !self.allow_engage && !self.gate.is_engaged() {
             self.net.count_refusal(Refusal::EngageNotAllowed);
             if self.log.allow(at) {
                 tracing::warn!(
