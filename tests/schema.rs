@@ -36,7 +36,7 @@ fn broadcasts_are_valid(tag: &str, vehicle: &str, commands: &str, n: usize) {
             "broadcast {i} of {tag}:\n{}",
             errors.join("\n")
         );
-        assert_eq!(v["schema"], 2);
+        assert_eq!(v["schema"], 3);
         engaged += usize::from(v["gate"]["engaged"] == true);
         std::thread::sleep(Duration::from_millis(20));
     }
