@@ -168,9 +168,7 @@ fn a_zenoh_peer_drives_alice_through_autoware_topics_and_silence_emergency_and_a
         summary.contains("; rejected: ")
             && summary.contains("disengaged ")
             && summary.contains("replayed ")
-            && summary.contains(
-                "watchdog tripped: the rolling counter of ros2 stopped advancing"
-            ),
+            && summary.contains("watchdog tripped: the rolling counter of ros2 stopped advancing"),
         "{summary}"
     );
 }

@@ -199,39 +199,27 @@ impl Gate {
                 self.tap_received(source, Asked::Accel(a), received, done);
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
-            Ask::Engage => match outcome {
-                Outcome::Engages => {
-                    let by = Commander(source).to_string();
-                    self.engage(&by).map_err(Refused::Blocked)?;
-                    o.commands(source, received);
-                    o.tripped = false;
-                    Ok(Done::Engaged)
-                }
-                Outcome::Commands => {
-                    let from = o.handover.map(|(s, _)| s);
-                    o.commands(source, received);
-                    tracing::warn!(
-                        "{} commands the vehicle (handed over by {})",
-                        Commander(source),
-                        from.map_or("nobody".into(), |s| Commander(s).to_string())
-                    );
-                    Ok(Done::Commanding)
-                }
-                _ => Ok(Done::Same),
-            },
-            Ask::Take => match outcome {
-                Outcome::Commands => {
-                    let from = o.commander;
-                    o.commands(source, received);
-                    tracing::warn!(
-                        "{} takes command from {}",
-                        Commander(source),
-                        from.map_or("nobody".into(), |s| Commander(s).to_string())
-                    );
-                    Ok(Done::Commanding)
-                }
-                _ => Ok(Done::Same),
-            },
+            // Taken by a console, or picked up after a release.
+            Ask::Engage | Ask::Take if outcome == Outcome::Commands => {
+                let from = o.commander.or(o.handover.map(|(s, _)| s));
+                o.commands(source, received);
+                tracing::warn!(
+                    "{} takes command from {}",
+                    Commander(source),
+                    from.map_or("nobody".into(), |s| Commander(s).to_string())
+                );
+                Ok(Done::Commanding)
+            }
+            Ask::Engage if outcome == Outcome::Engages => {
+                let by = Commander(source).to_string();
+                self.engage(&by).map_err(Refused::Blocked)?;
+                o.commands(source, received);
+                o.tripped = false;
+                // A deadman is armed by the next teleop key, not by engaging.
+                o.deadman = None;
+                Ok(Done::Engaged)
+            }
+            Ask::Engage | Ask::Take => Ok(Done::Same),
             Ask::Release => {
                 let handover = self.vehicle.config.network.watchdog_timeout;
                 o.nobody();
@@ -354,6 +342,7 @@ impl Gate {
             _ => return None,
         };
         o.nobody();
+        o.deadman = None;
         o.tripped = true;
         o.last_trip = Some(cause.clone());
         // Under the lock: no command slips in between the decision and the safe state.
@@ -533,6 +522,11 @@ mod tests {
         let why = g.watch(t2 + deadman * 2).expect("tripped");
         assert!(why.starts_with("deadman"), "{why}");
         assert!(!g.is_engaged());
+        // Engaged again, the deadman waits for the next teleop key.
+        let t4 = t2 + deadman * 2;
+        g.admit(Source::Console, Ask::Engage, t4).unwrap();
+        assert_eq!(g.watch(t4 + deadman * 2), None, "idle until a key");
+        g.admit(Source::Console, Ask::Disengage, t4).unwrap();
         // A release nobody picks up.
         g.deadman(Source::Console, None, t2);
         let t3 = t2 + deadman * 3;
