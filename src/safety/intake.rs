@@ -24,7 +24,7 @@ use super::owner::{self, Act, Commander, Outcome};
 use super::{Gate, Reject};
 use crate::snapshot::{WatchdogState, WatchdogView};
 use crate::value::{Command, DeviceId, Source};
-use crate::vehicle::tap::Asked;
+use crate::vehicle::tap::{Asked, Event};
 use std::time::{Duration, Instant};
 
 /// What a source asks of the vehicle.
@@ -183,6 +183,20 @@ impl Gate {
                     o.last_refused = Some((source, ask, r));
                     drop(o);
                     self.refused_by_owner(source, ask, r, received);
+                    // A recording keeps it with its reason, as every refused command.
+                    let asked = match ask {
+                        Ask::Set(id, c) => Some(Asked::Device(id, c)),
+                        Ask::Accel(a) => Some(Asked::Accel(a)),
+                        _ => None,
+                    };
+                    if let Some(asked) = asked {
+                        self.vehicle.tap.send(|| Event::Received {
+                            at: received,
+                            source,
+                            asked,
+                            refused: Some("other_commander"),
+                        });
+                    }
                     return Err(Refused::Owner(r));
                 }
             },
