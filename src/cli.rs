@@ -281,10 +281,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     let auth = network_key(&config)?;
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
-    // A bad keymap stops here, before anything starts.
+    // No terminal for the console, or a bad keymap, stops here, before anything starts.
     let keymap = if args.headless {
         None
     } else {
+        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
         Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
     };
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
@@ -724,6 +725,7 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
     let keymap = if args.headless {
         None
     } else {
+        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
         Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
     };
     let broadcast = match args.broadcast.is_empty() {

@@ -338,3 +338,60 @@ fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
     assert!(text.contains("stopping: SIGINT"), "{text}");
     assert!(!text.contains('\x1b'), "colour escapes in:\n{text:?}");
 }
+
+/// The incident: `adrive --sim < /dev/null`, or `ssh host adrive` without `-t`, started
+/// the engine, then printed "console: No such device or address" and a stray
+/// `ESC[?1049l` and exited 101, as after a panic. Without a terminal on both standard
+/// input and output the console is refused before anything starts: no log, no engine,
+/// a message pointing to `--headless` and `ssh -t`, status 2, no escape codes.
+#[test]
+fn the_console_without_a_terminal_is_refused_before_anything_starts() {
+    use std::os::unix::process::CommandExt;
+    let (_master, slave) = common::pty::openpty(80, 24);
+    // Standard input closed; then a terminal on standard input but a pipe on standard
+    // output (`adrive | less`).
+    let stdins = [Stdio::null(), Stdio::from(slave.try_clone().unwrap())];
+    for (i, stdin) in stdins.into_iter().enumerate() {
+        let dir = tempdir("cli-notty");
+        let log = dir.path().join("log");
+        let mut cmd = Process::new(BIN);
+        cmd.args(["--sim", "--listen", "127.0.0.1:0", "--log-dir"])
+            .arg(&log)
+            .stdin(stdin)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        // No controlling terminal, as under `ssh host adrive`: the program must not
+        // find one through /dev/tty either (nor take over the terminal running the tests).
+        // SAFETY: setsid is async-signal-safe.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::setsid();
+                Ok(())
+            });
+        }
+        let child = common::Reaped(cmd.spawn().unwrap());
+        let out = {
+            let mut c = child;
+            let mut out = String::new();
+            let mut err = String::new();
+            c.stdout.take().unwrap().read_to_string(&mut out).unwrap();
+            c.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+            (wait_exit(&mut c), out, err)
+        };
+        let (status, out, err) = out;
+        assert_eq!(status, Some(2), "case {i}: {err}");
+        assert!(
+            err.contains("needs a terminal")
+                && err.contains("--headless")
+                && err.contains("ssh -t"),
+            "case {i}: {err}"
+        );
+        assert!(
+            !out.contains('\x1b') && !err.contains('\x1b'),
+            "case {i}: {out:?} {err:?}"
+        );
+        assert!(!err.contains("panic"), "case {i}: {err}");
+        // Nothing started: not even the log.
+        assert!(!log.exists(), "case {i}: a log was written");
+    }
+}
