@@ -225,8 +225,7 @@ pub fn main() -> i32 {
         Some(Cmd::Ports) => {
             let ports = crate::ports::scan(Path::new("/sys"), Path::new("/dev"));
             let ptys = crate::ports::pseudo_terminals(Path::new("/dev"));
-            print!("{}", crate::ports::report(&ports, &ptys));
-            Ok(0)
+            print_out(crate::ports::report(&ports, &ptys).as_bytes())
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
@@ -236,14 +235,17 @@ pub fn main() -> i32 {
         }) => record_info(&file),
         Some(Cmd::Export(args)) => export(args),
         Some(Cmd::Completions { shell }) => {
-            clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut std::io::stdout());
-            Ok(0)
+            // Into memory first: clap_complete panics when its writer fails.
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut script);
+            print_out(&script)
         }
         Some(Cmd::Manpage { dir }) => manpage(dir.as_deref(), &mut std::io::stdout()).map(|()| 0),
         None => run(cli.run),
     };
     match result {
         Ok(code) => code,
+        Err(e) if closed_output(&e) => 0,
         Err(e) => {
             tell(io::stderr(), format_args!("adrive: {e:#}\n"));
             2
@@ -437,6 +439,25 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// `bytes` to standard output, whole; a failure (its reader gone) is the caller's.
+fn print_out(bytes: &[u8]) -> anyhow::Result<i32> {
+    let mut out = io::stdout().lock();
+    out.write_all(bytes)?;
+    out.flush()?;
+    Ok(0)
+}
+
+/// The error is standard output closed by its reader (`adrive manpage | head`,
+/// `adrive watch | head -2`): the output wanted has been read, and the command ends
+/// quietly with status 0, as Unix tools do. Nothing else here writes to a pipe or a
+/// socket that reports EPIPE: UDP does not, a serial port or terminal says EIO.
+fn closed_output(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<io::Error>()
+            .is_some_and(|e| e.kind() == io::ErrorKind::BrokenPipe)
+    })
 }
 
 /// Write to standard output or error, which may be a terminal that hung up (an SSH

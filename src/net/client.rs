@@ -135,7 +135,8 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         return match socket.recv(&mut buf) {
             Ok(n) => {
                 let reply = String::from_utf8_lossy(&buf[..n]);
-                print!("{reply}");
+                // The status tells the outcome, read or not (`| head`).
+                let _ = io::stdout().write_all(reply.as_bytes());
                 Ok(if refused(&reply) {
                     status::REFUSED
                 } else {
@@ -200,10 +201,14 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
                     replied = true;
                     let reply = String::from_utf8_lossy(&buf[..n]).into_owned();
                     if reply != last_reply {
+                        // Sending is the job: an output nobody reads (`| head`) is no
+                        // reason to stop commanding the vehicle.
+                        let mut out = io::stdout().lock();
                         for line in reply.lines() {
-                            println!("{:>8.3}s {line}", start.elapsed().as_secs_f64());
+                            let at = start.elapsed().as_secs_f64();
+                            let _ = writeln!(out, "{at:>8.3}s {line}");
                         }
-                        let _ = io::stdout().flush();
+                        let _ = out.flush();
                         last_reply = reply;
                     }
                 }
