@@ -177,16 +177,21 @@ fn device_faults(
             .map(|m| format!(": {m}"))
             .unwrap_or_default()
     };
-    let gone = h.opens > 0 && h.missing;
+    // A port that cannot be opened — unplugged, or a wrong path from the start — is
+    // gone; its error names the path (`cannot open /dev/ttyUSB7: No such file or
+    // directory`), said first so that a narrow line keeps it.
+    let gone = h.missing;
     let track = mem.tracks.entry(d.name.clone()).or_default();
     track.reopen(h, now);
     let since_reopen = track.reopened.map(|t| now - t);
     if gone {
-        raise(
-            FaultKind::Disconnected,
-            who,
-            format!("port closed{}", last_error()),
-        );
+        let cause = h
+            .last_error
+            .as_deref()
+            .map(|m| m.strip_prefix("port: ").unwrap_or(m))
+            .filter(|m| !m.is_empty())
+            .unwrap_or("port closed");
+        raise(FaultKind::Disconnected, who, cause.to_string());
     }
     // Silence is the device's own rule (`Device::silence`); one that never answered
     // is measured from the supervisor's start.
@@ -800,5 +805,41 @@ mod tests {
                 .all(|ms| silent.contains(&(ms, FaultKind::Silent))),
             "{silent:?}"
         );
+    }
+
+    /// The incident: a vehicle file naming a port that does not exist was reported as
+    /// `steer silent … never answered`, not `disconnected` as the fault table says, so
+    /// no reconnect procedure ran for it. A port that cannot be opened is disconnected,
+    /// opened before or not, and the cause names the path.
+    #[test]
+    fn a_port_that_cannot_be_opened_at_start_is_disconnected_not_silent() {
+        let t0 = Instant::now();
+        let gate = sample::gate(t0);
+        let v = &gate.vehicle;
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(t0);
+        let now = t0 + Duration::from_secs(2);
+        let mut snap = gate.snapshot_at(0, now);
+        let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+        d.health.opens = 0;
+        d.health.missing = true;
+        d.health.quiet_ms = None;
+        d.status_age_ms = None;
+        d.health.last_error =
+            Some("port: cannot open /dev/ttyUSB7: No such file or directory".into());
+        d.health.last_error_age_ms = Some(5.0);
+        let faults = detect(&snap, &v.config, &sup, &mut mem, &[], now);
+        let steer: Vec<&Fault> = faults
+            .iter()
+            .filter(|f| f.device.as_deref() == Some("steer"))
+            .collect();
+        assert_eq!(steer.len(), 1, "{steer:?}");
+        assert_eq!(steer[0].kind, FaultKind::Disconnected);
+        assert_eq!(
+            steer[0].cause,
+            "cannot open /dev/ttyUSB7: No such file or directory"
+        );
+        let f = &steer[0];
+        assert!(procedure_for(f, &gate, &sup).is_some_and(|p| p.name() == "reconnect steer"));
     }
 }
