@@ -229,7 +229,8 @@ pub fn main() -> i32 {
         Some(Cmd::Ports) => {
             let ports = crate::ports::scan(Path::new("/sys"), Path::new("/dev"));
             let ptys = crate::ports::pseudo_terminals(Path::new("/dev"));
-            print_out(crate::ports::report(&ports, &ptys).as_bytes())
+            let sims = crate::ports::simulated(&std::env::temp_dir(), Path::new("/proc"));
+            print_out(crate::ports::report(&ports, &ptys, &sims).as_bytes())
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),

@@ -448,3 +448,32 @@ fn a_closed_standard_output_ends_quietly_with_status_0() {
         assert_eq!(err, "", "{args:?}");
     }
 }
+
+/// The incident: with `adrive sim` running, `adrive ports` listed `/dev/pts/*` without
+/// saying which simulated device each is. Each of its pseudo-terminals is named by the
+/// device it simulates, with the simulator's process and the link a vehicle file names.
+#[test]
+fn ports_names_each_pseudo_terminal_of_a_running_sim_by_its_device() {
+    let sim = common::simproc::SimProcess::start();
+    let out = Process::new(BIN).arg("ports").output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{text}");
+    let pid = sim.child.id();
+    for (device, link) in ["steer", "gas", "brake", "trans", "estop", "obd"]
+        .iter()
+        .zip(&sim.paths)
+    {
+        let pty = std::fs::read_link(link).unwrap();
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{} ", pty.display())))
+            .unwrap_or_else(|| panic!("no line for {device} ({}):\n{text}", pty.display()));
+        assert!(
+            line.contains(device)
+                && line.contains(&format!("adrive sim (pid {pid})"))
+                && line.contains(link.as_str()),
+            "{line}\n{text}"
+        );
+    }
+    sim.stop();
+}
