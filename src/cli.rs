@@ -105,6 +105,11 @@ pub struct RunArgs {
     /// hosts (default: the vehicle file's `[network]` listen, 127.0.0.1:47576).
     #[arg(long, value_name = "ADDR", value_parser = net::config::parse_listen)]
     pub listen: Option<SocketAddr>,
+    /// Where the state broadcast goes, instead of the vehicle file's `[network]`
+    /// broadcast_to (repeatable, or comma-separated; default 127.0.0.1:47577): a
+    /// second adrive on one host needs its own.
+    #[arg(long, value_name = "ADDR", value_delimiter = ',')]
+    pub broadcast_to: Vec<SocketAddr>,
     /// Record this run into an MCAP file (Foxglove opens it), or into rolling files in
     /// a directory (an existing one, or a path ending in `/`); default: the vehicle
     /// file's `[record]`.
@@ -286,6 +291,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     if let Some(addr) = args.listen {
         config.network.listen = addr;
     }
+    if !args.broadcast_to.is_empty() {
+        config.network.broadcast_to = args.broadcast_to.clone();
+    }
     let auth = network_key(&config)?;
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
     // No terminal for the console, or a bad keymap, stops here, before anything starts.
@@ -294,6 +302,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     } else {
         console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
         Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+    };
+    // A port another adrive (or program) holds stops here too: each port is opened
+    // and locked now, and handed to its device as its first open.
+    let mut opened = if args.sim {
+        std::collections::HashMap::new()
+    } else {
+        open_ports(&config)?
     };
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
@@ -321,7 +336,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         config,
         |c| {
             let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
-            Box::new(move || driver::open_serial(&path, baud, timeout))
+            let mut first = opened.remove(c.name.as_str());
+            Box::new(move || match first.take() {
+                Some(link) => Ok(link),
+                None => driver::open_serial(&path, baud, timeout),
+            })
         },
         tap,
     ));
@@ -444,6 +463,32 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// Open and lock every device's port, before anything starts: a port in use by another
+/// process (a second adrive on the same vehicle) is refused, named with its holder.
+/// A port that cannot be opened for another reason (unplugged, a wrong path) is left
+/// to the engine, which reports it `disconnected` and reconnects when it appears.
+fn open_ports(
+    config: &VehicleConfig,
+) -> anyhow::Result<std::collections::HashMap<String, Box<dyn driver::Link>>> {
+    let mut opened = std::collections::HashMap::new();
+    for d in &config.devices {
+        match driver::open_serial(&d.port, d.baud, d.reply_timeout) {
+            Ok(link) => {
+                opened.insert(d.name.to_string(), link);
+            }
+            Err(e) if e.kind() == io::ErrorKind::ResourceBusy => {
+                anyhow::bail!(
+                    "device {}: {e}; is another adrive running on this vehicle? \
+                     (`adrive watch` shows a running one)",
+                    d.name
+                )
+            }
+            Err(_) => {}
+        }
+    }
+    Ok(opened)
 }
 
 /// `bytes` to standard output, whole; a failure (its reader gone) is the caller's.

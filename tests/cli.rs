@@ -477,3 +477,60 @@ fn ports_names_each_pseudo_terminal_of_a_running_sim_by_its_device() {
     }
     sim.stop();
 }
+
+/// The incident: a second adrive started on the serial ports of a running one showed
+/// the exclusive-access failure as six `silent` faults, kept running and exited 3 (as
+/// root it would have driven the devices beside the first). It is refused at start,
+/// status 2, naming the device, the port and the process holding it; nothing starts.
+#[test]
+fn a_second_adrive_on_the_same_ports_is_refused_at_start_naming_the_holder() {
+    let sim = common::simproc::SimProcess::start();
+    let dir = tempdir("cli-twice");
+    let vehicle = common::simproc::vehicle_file(dir.path(), &sim, "");
+    let start = |log: &str, broadcast: u16| {
+        Process::new(BIN)
+            .args(["--headless", "--listen", "127.0.0.1:0", "--broadcast-to"])
+            .arg(format!("127.0.0.1:{broadcast}"))
+            .arg("--config")
+            .arg(&vehicle)
+            .arg("--log-dir")
+            .arg(dir.path().join(log))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let broadcast = common::free_port();
+    let mut first = common::Reaped(start("first", broadcast));
+    let err = lines(first.stderr.take().unwrap());
+    let seen = until(&err, "running headless");
+    // `--broadcast-to`, as the troubleshooting section tells a second adrive on a host.
+    assert!(
+        seen.iter()
+            .any(|l| l.contains(&format!("broadcast=[127.0.0.1:{broadcast}]"))),
+        "{seen:#?}"
+    );
+    let mut second = common::Reaped(start("second", common::free_port()));
+    let status = wait_exit(&mut second);
+    let mut text = String::new();
+    second
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut text)
+        .unwrap();
+    assert_eq!(status, Some(2), "{text}");
+    assert!(
+        text.contains(&format!("device steer: cannot open {}", sim.paths[0]))
+            && text.contains(&format!("in use by process {} (adrive)", first.id())),
+        "{text}"
+    );
+    assert!(
+        !dir.path().join("second").exists(),
+        "the second one started"
+    );
+    // The first one runs on, untouched.
+    assert!(matches!(first.try_wait(), Ok(None)));
+    drop(first);
+    sim.stop();
+}
