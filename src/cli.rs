@@ -296,12 +296,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     let auth = network_key(&config)?;
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
-    // No terminal for the console, or a bad keymap, stops here, before anything starts.
+    // A bad keymap, or no terminal for the console, stops here, before anything starts.
     let keymap = if args.headless {
         None
     } else {
+        let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
         console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
-        Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+        Some(keymap)
     };
     // A port another adrive (or program) holds stops here too: each port is opened
     // and locked now, and handed to its device as its first open.
@@ -796,8 +797,9 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
     let keymap = if args.headless {
         None
     } else {
+        let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
         console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
-        Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+        Some(keymap)
     };
     let broadcast = match args.broadcast.is_empty() {
         true => None,
