@@ -721,3 +721,29 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
     assert!(!small.contains("over the last 10 s"), "{small}");
     assert!(small.contains("gas raw traffic"), "{small}");
 }
+
+/// The incident: a vehicle file naming a port that does not exist showed, at 100
+/// columns, a FAULT line cut off in the middle of the path. A fault's cause too long
+/// for the line goes on over the next, between words: the path is read whole, in red.
+#[test]
+fn a_long_fault_cause_wraps_and_keeps_the_path_whole() {
+    const PATH: &str = "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A50285BI-if00-port0";
+    let f = fixture_with(|v, now| {
+        v.supervision
+            .set_faults(vec![adrive::vehicle::supervision::Fault {
+                kind: adrive::snapshot::FaultKind::Disconnected,
+                device: Some("steer".into()),
+                cause: format!("cannot open {PATH}: No such file or directory"),
+                since: now,
+            }]);
+    });
+    let b = render(&f.model(Theme::default()), 100, 30);
+    let screen = text(&b);
+    assert!(screen.contains("FAULT steer disconnected"), "{screen}");
+    let (x, y) = find(&b, PATH);
+    assert_eq!(b[(x, y)].fg, Color::Red, "{screen}");
+    assert!(
+        screen.contains("No such file or directory"),
+        "the OS error too:\n{screen}"
+    );
+}

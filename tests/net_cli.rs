@@ -214,3 +214,36 @@ fn send_says_when_an_engage_got_no_reply_and_exits_3() {
         }
     }
 }
+
+/// The incident: `adrive send --rate 20 steer 0.1` to an address where nothing listens
+/// exited 0 (3 with `engage`), while one-shot `send` exits 1 as the README says. Once
+/// or at a rate, nothing listening is status 1, and it is said.
+#[test]
+fn send_to_nothing_listening_exits_1_once_or_at_a_rate() {
+    // Nothing listens on a port just freed.
+    let to = format!("127.0.0.1:{}", free_port());
+    for args in [
+        &["steer", "0.1"][..],
+        &["--rate", "50", "--count", "10", "steer", "0.1"],
+        &["--rate", "50", "--count", "60", "engage"],
+    ] {
+        let out = Process::new(BIN)
+            .args(["send", "--to", &to])
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains(&format!("nothing is listening at {to}")),
+            "{args:?}: {err}"
+        );
+        assert!(!err.contains("no reply"), "{args:?}: {err}");
+    }
+    let help = Process::new(BIN).args(["send", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        help.contains("1 something refused, or nothing listening"),
+        "{help}"
+    );
+}

@@ -84,6 +84,23 @@ impl Write for Output {
     }
 }
 
+/// The console draws on standard output and reads keys from standard input: both must
+/// be a terminal. Checked before anything starts, so that `adrive < /dev/null` or
+/// `ssh host adrive` (no `-t`: no terminal) is refused with a way forward instead of
+/// starting the engine and failing inside crossterm.
+pub fn check_standard_streams() -> Result<(), String> {
+    let which = match (io::stdin().is_terminal(), io::stdout().is_terminal()) {
+        (true, true) => return Ok(()),
+        (false, false) => "standard input and output are not one",
+        (false, true) => "standard input is not one",
+        (true, false) => "standard output is not one",
+    };
+    Err(format!(
+        "the console needs a terminal, and {which}; over SSH give it one with \
+         `ssh -t HOST adrive`, or run without a console: `adrive --headless`"
+    ))
+}
+
 /// The terminal in the console's hands: raw mode and the alternate screen until it
 /// is dropped, on every way out, unwinding included.
 pub struct Screen {

@@ -7,7 +7,9 @@
 //! with `compact`) plus, while there are faults or a recovery, a full-width strip
 //! under them ([`SupervisorStrip`]): one line for the recovery
 //! (`RECOVERY engine_stall 4/7 park (try 1/3) 2.1s  then starter › back in drive`)
-//! and one per fault — or all of them side by side when it has one line only. On a larger screen it is one taller panel.
+//! and one per fault (a fault too long for the width goes on over the next lines
+//! where there is room) — or all of them side by side when it has one line only. On a
+//! larger screen it is one taller panel.
 
 use super::wrap;
 use crate::console::controls::{secs, Frame};
@@ -260,10 +262,60 @@ impl SupervisorStrip<'_> {
     }
 }
 
+/// `line` in lines of at most `width` columns, broken between words, each after the
+/// first indented by `indent` columns: a fault's cause (a port's path) is read whole,
+/// not cut at the edge. A word wider than a line is left to be cut.
+fn wrap_words(line: Line<'static>, width: u16, indent: usize) -> Vec<Line<'static>> {
+    let width = width as usize;
+    if line.width() <= width || width <= indent {
+        return vec![line];
+    }
+    let mut out: Vec<Line<'static>> = Vec::new();
+    let mut current: Vec<Span<'static>> = Vec::new();
+    let (mut used, mut words) = (0, 0);
+    for span in line.spans {
+        let style = span.style;
+        for word in span.content.split_inclusive(' ') {
+            let bare = word.trim_end().chars().count();
+            if words > 0 && used + bare > width {
+                out.push(Line::from(std::mem::take(&mut current)));
+                current.push(Span::raw(" ".repeat(indent)));
+                (used, words) = (indent, 0);
+            }
+            current.push(Span::styled(word.to_string(), style));
+            used += word.chars().count();
+            words += 1;
+        }
+    }
+    out.push(Line::from(current));
+    out
+}
+
+impl SupervisorStrip<'_> {
+    /// [`SupervisorStrip::lines`] for `width` columns: a line too long for it goes on
+    /// over the next lines, under its text.
+    pub fn lines_in(&self, width: u16) -> Vec<Line<'static>> {
+        self.lines()
+            .into_iter()
+            .flat_map(|l| {
+                let indent = l.spans.first().map_or(0, |s| s.content.chars().count());
+                wrap_words(l, width, indent)
+            })
+            .collect()
+    }
+}
+
 impl Widget for &SupervisorStrip<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        let mut lines = self.lines();
         let n = area.height as usize;
+        // Wrapped where there is room for every line wrapped; else one line each, and
+        // what is left out counted in whole lines.
+        let wrapped = self.lines_in(area.width);
+        let mut lines = if wrapped.len() <= n {
+            wrapped
+        } else {
+            self.lines()
+        };
         if lines.len() > 1 && n == 1 {
             // One line for all (many devices on a small screen): side by side, as
             // many as the width shows.
