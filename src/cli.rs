@@ -55,7 +55,7 @@ pub enum Cmd {
     },
     /// Write a recording out as one CSV file per channel.
     Export(ExportArgs),
-    /// Print a shell completion script (see the README for where each shell wants it).
+    /// Print a shell completion script (see docs/commands.md for where each shell wants it).
     Completions {
         /// The shell to complete in.
         shell: clap_complete::Shell,

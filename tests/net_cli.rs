@@ -1,5 +1,5 @@
 //! The network clients as a user runs them, against the real `adrive --sim
-//! --headless`: the README's planner stand-in (`adrive send --rate 20 …`) engages,
+//! --headless`: the guide's planner stand-in (docs/network.md) (`adrive send --rate 20 …`) engages,
 //! shifts and drives while `adrive watch` shows it, and the watchdog stops the vehicle
 //! when the sender stops; one-shot `send`, its replies and exit status; `--key`.
 
@@ -35,7 +35,7 @@ fn watchdog(v: &Snapshot) -> WatchdogState {
     v.net.as_ref().expect("the network part").watchdog.state
 }
 
-/// The README's "Done when": a planner stand-in engages, shifts to drive and holds gas
+/// The planner stand-in of docs/network.md: a planner stand-in engages, shifts to drive and holds gas
 /// at 0.3; `watch` shows gas at 0.3 and the speed rising; the sender stops and the
 /// watchdog brings the vehicle to a safe stop within its timeout.
 #[test]

@@ -870,13 +870,13 @@ fn a_file_that_cannot_be_read_says_so_without_a_line() {
     );
 }
 
-/// The README's table of well-known readings is the loader's.
+/// The guide's table (docs/vehicles.md) of well-known readings is the loader's.
 #[test]
-fn the_readme_shows_the_well_known_readings() {
-    let readme = include_str!("../../README.md");
+fn the_guide_shows_the_well_known_readings() {
+    let readme = include_str!("../../docs/vehicles.md");
     let table = device::well_known_markdown();
     assert!(
         readme.contains(&table),
-        "README.md must contain, verbatim, the table of well-known readings:\n{table}"
+        "docs/vehicles.md must contain, verbatim, the table of well-known readings:\n{table}"
     );
 }
