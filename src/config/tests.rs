@@ -814,6 +814,24 @@ fn the_console_s_status_period_goes_through_the_same_rule() {
     assert!(e.message.contains("status_period 1500ms"), "{e}");
 }
 
+/// `[[devcie]]` was answered "did you mean [[device]]?", a misspelt key such as
+/// `baud_rate` only with the list of every key a device has.
+#[test]
+fn a_misspelt_key_gets_a_did_you_mean() {
+    let e = error(&BASE.replace("# device", "baud_rate = 9600"));
+    let at = BASE.lines().position(|l| l == "# device").unwrap() + 1;
+    assert!(
+        e.starts_with(&format!(
+            "v.toml:{at}: unknown field `baud_rate`: did you mean `baud`? expected one of `name`,"
+        )),
+        "{e}"
+    );
+    let e = error(&BASE.replace("# network", "allow_engag = true"));
+    assert!(e.contains("did you mean `allow_engage`?"), "{e}");
+    let e = error(&BASE.replace("# device", "colour = \"red\""));
+    assert!(!e.contains("did you mean"), "nothing is close: {e}");
+}
+
 /// `[[devcie]]` made the `[device.modbus]` under it a duplicate of the one above, and
 /// the error named that line, not the typo.
 #[test]
