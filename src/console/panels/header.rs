@@ -54,6 +54,15 @@ impl Header<'_> {
             (" DISENGAGED ".to_string(), t.warn().patch(bar))
         };
         let why = s.gate.reason.trim_start_matches("disengaged: ");
+        // The gate keeps the reason it disengaged for; once the override that was it
+        // is cleared, the bar says so rather than show the driver still in charge.
+        let cleared;
+        let why = if why.starts_with("driver override on ") && s.gate.overridden.is_empty() {
+            cleared = format!("{why}, cleared");
+            cleared.as_str()
+        } else {
+            why
+        };
         let title = format!(" ADRIVE {} ", s.vehicle);
         let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
         let width = width as usize;
@@ -237,6 +246,25 @@ mod tests {
         assert!(l.ends_with(" ENGAGED "), "{l}");
         assert!(l.starts_with(" ADRIVE a vehicle with"), "{l}");
         assert!(l.contains('…') && l.width() <= 80, "{l}");
+    }
+
+    /// After `C` cleared a driver's override the header still read `DISENGAGED
+    /// (driver override on steer)`, as if the driver still had the wheel.
+    #[test]
+    fn a_cleared_override_is_said_to_be_cleared() {
+        let mut m = model(false, "driver override on steer", "Alice");
+        m.snap.snap.gate.overridden = vec!["steer".into()];
+        let l = text(&Header { m: &m }.line(120));
+        assert!(
+            l.ends_with(" DISENGAGED (driver override on steer) "),
+            "{l}"
+        );
+        m.snap.snap.gate.overridden.clear();
+        let l = text(&Header { m: &m }.line(120));
+        assert!(
+            l.ends_with(" DISENGAGED (driver override on steer, cleared) "),
+            "{l}"
+        );
     }
 
     #[test]
