@@ -281,6 +281,7 @@ impl Player {
             trace,
             buckets: Vec::new(),
             can_inject: false,
+            read_only: true,
             sim_vehicle: None,
             sim_faults: vec![None; n],
         }
@@ -340,7 +341,7 @@ impl Controls for Replay<'_> {
     fn wake(&self, _: DeviceId) {}
     fn safe_state(&self) {}
     fn sim(&self, _: &str) -> Option<Result<String, String>> {
-        None
+        Some(Err(READ_ONLY.into()))
     }
     fn clear_overrides(&self) -> Result<Vec<String>, String> {
         Err(READ_ONLY.into())
@@ -622,6 +623,16 @@ mod tests {
         p.jump(true, now);
         assert_eq!(p.pos(), 4);
         assert_eq!(p.frame(now, None).seq, 4);
+    }
+
+    /// A simulator key on the bench of a replay said "fault injection needs --sim",
+    /// as if `--sim` would help; a replay is read-only, and its bench says so.
+    #[test]
+    fn the_simulator_keys_of_a_replay_say_it_is_read_only() {
+        let p = player(&[0, 100]);
+        let r = Replay { player: &p };
+        assert_eq!(r.sim("silent steer on"), Some(Err(READ_ONLY.to_string())));
+        assert!(p.frame(Instant::now(), None).read_only);
     }
 
     #[test]
