@@ -402,7 +402,10 @@ fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
     ] {
         find(&b, needle);
     }
-    find(&b, "steer raw traffic: dir, time ago, hex, text — sim: silent, slow 150ms");
+    find(
+        &b,
+        "steer raw traffic: dir, time ago, hex, text — sim: silent, slow 150ms",
+    );
 }
 
 #[test]

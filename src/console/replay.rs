@@ -542,19 +542,26 @@ pub fn run(
 }
 
 /// Play `player` without a console, broadcasting each snapshot at its recorded pace
-/// (times `speed`), until the end or an exit.
-pub fn headless(mut player: Player, exits: &Receiver<Exit>, broadcast: &Broadcast) -> Exit {
+/// (times `speed`), until the end or an exit: why it ended, and how many snapshots it
+/// sent.
+pub fn headless(
+    mut player: Player,
+    exits: &Receiver<Exit>,
+    broadcast: &Broadcast,
+) -> (Exit, usize) {
     broadcast.send(player.json());
+    let mut sent = 1;
     let tick = crossbeam_channel::tick(Duration::from_millis(5));
     loop {
         select! {
-            recv(exits) -> why => return why.unwrap_or(Exit::Quit),
+            recv(exits) -> why => return (why.unwrap_or(Exit::Quit), sent),
             recv(tick) -> _ => {
                 for i in player.advance(Instant::now()) {
                     broadcast.send(&player.frames[i].1);
+                    sent += 1;
                 }
                 if !player.is_playing() {
-                    return Exit::Quit;
+                    return (Exit::Quit, sent);
                 }
             },
         }
