@@ -59,7 +59,7 @@ pub enum Cmd {
     },
     /// Write a recording out as one CSV file per channel.
     Export(ExportArgs),
-    /// Print a shell completion script (see the README for where each shell wants it).
+    /// Print a shell completion script (see docs/commands.md for where each shell wants it).
     Completions {
         /// The shell to complete in.
         shell: clap_complete::Shell,
@@ -808,7 +808,27 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
     let log = logging::init(args.headless, None)?;
     let exits = exit::install()?;
     let why = match (keymap, broadcast) {
-        (None, Some(b)) => console::replay::headless(player, &exits, &b),
+        (None, Some(b)) => {
+            // Headless, nothing else would say what is played and where.
+            let to = args
+                .broadcast
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ");
+            let n = player.len();
+            // A closed standard output does not stop the replay.
+            let _ = writeln!(
+                io::stdout(),
+                "replaying {}: {n} snapshots over {:.1} s, to {to} at ×{}",
+                args.file.display(),
+                player.seconds().1,
+                player.speed()
+            );
+            let (why, sent) = console::replay::headless(player, &exits, &b);
+            let _ = writeln!(io::stdout(), "sent {sent} of {n} snapshots to {to}");
+            why
+        }
         (Some(keymap), b) => console::replay::run(player, keymap, &exits, b)?,
         (None, None) => unreachable!("clap requires --broadcast with --headless"),
     };

@@ -141,6 +141,7 @@ fn snapshot(name: &str, screen: &str) {
     let mut s = insta::Settings::clone_current();
     // Log timestamps (seconds since start) and trace ages.
     s.add_filter(r"\d+\.\ds (WARN|ERROR)", "[secs] $1");
+    s.add_filter(r"(->|<-)\s+\d+\.\d{3}s ago", "$1 [ago] ago");
     s.add_filter(r"-\s*\d+\.\d{3}s", "-[ago]");
     // Fault ages and recovery times (the supervisor reads its own clock).
     s.add_filter(r"\b\d+\.\ds\b", "[s]");
@@ -406,7 +407,10 @@ fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
     ] {
         find(&b, needle);
     }
-    find(&b, "steer raw traffic — sim: silent, slow 150ms");
+    find(
+        &b,
+        "steer raw traffic: dir, time ago, hex, text — sim: silent, slow 150ms",
+    );
 }
 
 #[test]

@@ -26,10 +26,12 @@
 //!   stayed unread until the next key — a STOP pressed once did nothing. adrive uses
 //!   its `use-dev-tty` source, which polls level-triggered, and drains it with
 //!   [`DRAIN`].
+//! - tmux pushes the top lines of a grown alternate screen into the scrollback as it
+//!   is left; [`restore`] leaves it blank.
 
 use crossterm::execute;
 use crossterm::terminal::{
-    disable_raw_mode, enable_raw_mode, EnterAlternateScreen, LeaveAlternateScreen,
+    disable_raw_mode, enable_raw_mode, Clear, ClearType, EnterAlternateScreen, LeaveAlternateScreen,
 };
 use ratatui::backend::CrosstermBackend;
 use rustix::event::{PollFd, PollFlags, Timespec};
@@ -160,12 +162,17 @@ pub fn enter() -> io::Result<Screen> {
 /// Leave raw mode and the alternate screen if the console had them. Each step is
 /// tried whatever the other did; a failure (a dead terminal) is logged, never
 /// printed, never a panic. Safe to call twice and from a panic hook.
+///
+/// The alternate screen is cleared before it is left: tmux, leaving an alternate
+/// screen that grew with its window, shrinks it back first and pushes its top lines
+/// into the scrollback unless they are blank — quitting after a resize once left the
+/// console's top lines there.
 pub fn restore() {
     if !ENTERED.swap(false, SeqCst) {
         return;
     }
     let raw = disable_raw_mode();
-    let screen = execute!(io::stdout(), LeaveAlternateScreen);
+    let screen = execute!(io::stdout(), Clear(ClearType::All), LeaveAlternateScreen);
     if let Some(e) = raw.err().or(screen.err()) {
         tracing::debug!("terminal not restored: {e}");
     }

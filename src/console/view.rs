@@ -298,6 +298,7 @@ impl Widget for &Model {
                     edit: self.edit.as_ref(),
                     now: self.now,
                     can_inject: self.snap.can_inject,
+                    read_only: self.snap.read_only,
                     sim_vehicle: self.snap.sim_vehicle.as_deref(),
                     map: &self.keymap,
                     roles: &self.snap.gate.roles,

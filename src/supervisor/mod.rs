@@ -467,12 +467,12 @@ impl Supervisor {
         };
         let is_new = |f: &Fault| !among(&before, f);
         for f in faults.iter().filter(|f| is_new(f)) {
-            tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
+            tracing::warn!(fault = %f.kind, device = f.device.as_deref(), "fault: {}", f.describe());
             board.note(format!("fault: {}", f.describe()));
         }
         for b in &before {
             if !among(&faults, b) {
-                tracing::info!(fault = %b.kind, device = ?b.device, "cleared: {}", b.describe());
+                tracing::info!(fault = %b.kind, device = b.device.as_deref(), "cleared: {}", b.describe());
                 board.note(format!(
                     "cleared: {} {}",
                     b.device.as_deref().unwrap_or(""),
@@ -841,5 +841,50 @@ mod tests {
         );
         let f = &steer[0];
         assert!(procedure_for(f, &gate, &sup).is_some_and(|p| p.name() == "reconnect steer"));
+    }
+
+    /// A fault's log line, in the console's log pane and the log file, named its device
+    /// `device=Some("steer")`, and a fault of no device (an engine stall) `device=None`.
+    #[test]
+    fn a_fault_log_line_names_its_device_plainly() {
+        use tracing_subscriber::layer::SubscriberExt;
+        let ring = crate::console::logring::LogRing::default();
+        let sub = tracing_subscriber::registry().with(ring.layer());
+        let gate = sample::gate(Instant::now());
+        let v = &gate.vehicle;
+        let set = |device: &str, i: usize, x: f64| {
+            v.find(device)
+                .expect("an alice device")
+                .cache
+                .lock()
+                .reading
+                .set(i, x);
+        };
+        set("steer", 0, 5.0); // position, far outside -1…1
+        set("obd", 0, 0.0); // rpm: the engine stopped …
+        set("obd", 3, 0.0); // … not running …
+        set("trans", 0, 3.0); // … in drive
+        let mut sup = Supervisor::new(SupervisorConfig::default(), Box::new(|_| {}));
+        tracing::subscriber::with_default(sub, || sup.tick(&gate, Instant::now()));
+        let lines: Vec<String> = ring.recent().into_iter().map(|l| l.text).collect();
+        let logged = |start: &str| {
+            lines
+                .iter()
+                .find(|l| l.starts_with(start))
+                .unwrap_or_else(|| panic!("{start}… is logged: {lines:#?}"))
+        };
+        let range = logged("fault: steer out_of_range");
+        assert!(
+            range.ends_with(" fault=out_of_range device=steer"),
+            "{range}"
+        );
+        let stall = logged("fault: engine_stall");
+        assert!(stall.ends_with(" fault=engine_stall"), "{stall}");
+        assert!(
+            lines
+                .iter()
+                .all(|l| !l.contains("Some(") && !l.contains("None")),
+            "{lines:#?}"
+        );
     }
 }

@@ -132,17 +132,12 @@ impl SupervisorPanel<'_> {
         } else {
             Span::styled(n.to_string(), t.fault())
         };
-        vec![
-            self.first(),
-            Line::from(vec![
-                l("accel "),
-                self.accel(),
-                l("  faults "),
-                faults,
-                l("  recovery "),
-                recovery,
-            ]),
-        ]
+        let mut second = Vec::new();
+        if self.m.snap.gate.accel {
+            second.extend([l("accel "), self.accel(), l("  ")]);
+        }
+        second.extend([l("faults "), faults, l("  recovery "), recovery]);
+        vec![self.first(), Line::from(second)]
     }
 
     /// Everything, for a larger screen `width` columns wide.
@@ -150,20 +145,33 @@ impl SupervisorPanel<'_> {
         let (s, t) = (&self.m.snap, &self.m.theme);
         let sup = &s.supervisor;
         let l = |x: &'static str| Span::styled(x, t.label());
-        let mut first = self.first();
-        first.spans.extend([l("  accel "), self.accel()]);
+        let first = self.first();
+        // `accel` where the vehicle has it (throttle and brake bound): on the first
+        // line when it fits there, else on a line of its own.
+        let accel = s.gate.accel.then(|| [l("accel "), self.accel()]);
+        let accel_width = accel
+            .as_ref()
+            .map_or(0, |a| 2 + a.iter().map(Span::width).sum::<usize>());
+        let (first, accel_line) = match accel {
+            Some(a) if first.width() + accel_width <= usize::from(width) => {
+                let mut first = first;
+                first.spans.push(l("  "));
+                first.spans.extend(a);
+                (first, None)
+            }
+            a => (first, a.map(|a| Line::from(Vec::from(a)))),
+        };
         let why_style = if s.gate.engaged {
             Style::new()
         } else {
             t.warn()
         };
-        let mut out = vec![
-            first,
-            Line::from(vec![
-                l("why "),
-                Span::styled(s.gate.reason.clone(), why_style),
-            ]),
-        ];
+        let mut out = vec![first];
+        out.extend(accel_line);
+        out.push(Line::from(vec![
+            l("why "),
+            Span::styled(s.gate.reason.clone(), why_style),
+        ]));
         if !s.gate.engaged && !s.gate.blockers.is_empty() {
             out.push(Line::from(vec![
                 l("engage blocked: "),
@@ -344,6 +352,7 @@ mod tests {
     use super::*;
     use crate::snapshot::{FaultKind, FaultView, Snapshot, SupervisorView};
     use ratatui::style::Color;
+    use unicode_width::UnicodeWidthStr;
 
     fn sample() -> Frame {
         let supervisor = SupervisorView {
@@ -441,5 +450,66 @@ mod tests {
         );
         let park = &lines[1].spans[1];
         assert_eq!(park.style, t.warn().patch(t.cursor()));
+    }
+
+    fn model(accel: bool) -> Model {
+        use crate::console::controls::{capture, Sources};
+        use crate::console::keymap::Keymap;
+        use std::time::{Duration, Instant};
+        let now = Instant::now();
+        let mut frame = capture(
+            &crate::console::sample::gate(now),
+            &Sources::default(),
+            now,
+            None,
+        );
+        frame.snap.gate.accel = accel;
+        Model::new(
+            Keymap::default_map(),
+            Theme::default(),
+            frame,
+            Duration::from_secs(1),
+        )
+    }
+
+    fn texts(lines: &[Line]) -> Vec<String> {
+        lines
+            .iter()
+            .map(|l| l.spans.iter().map(|s| s.content.as_ref()).collect())
+            .collect()
+    }
+
+    /// With `--only steer` the panel is 40 columns wide and its first line ran on
+    /// into `… interlocks on  ac` beside the network panel, offering an `accel` the
+    /// vehicle did not have (no throttle and brake bound). `accel` shows only where
+    /// it exists, and where it does not fit the first line it takes a line of its own.
+    #[test]
+    fn accel_shows_only_where_it_exists_and_never_runs_off_the_panel() {
+        let without = model(false);
+        let p = SupervisorPanel {
+            m: &without,
+            cursor: false,
+            compact: false,
+        };
+        let full = texts(&p.full_lines(40));
+        assert!(full.iter().all(|l| !l.contains("accel")), "{full:#?}");
+        let compact = texts(&p.compact_lines());
+        assert!(compact.iter().all(|l| !l.contains("accel")), "{compact:#?}");
+        assert_eq!(compact[1], "faults none  recovery -");
+
+        let with = model(true);
+        let p = SupervisorPanel {
+            m: &with,
+            cursor: false,
+            compact: false,
+        };
+        let full = texts(&p.full_lines(40));
+        assert!(full.iter().all(|l| l.width() <= 40), "{full:#?}");
+        assert_eq!(full[0], "SUPERVISORY engaged 0 interlocks on");
+        assert_eq!(full[1], "accel -");
+        let wide = texts(&p.full_lines(60));
+        assert_eq!(wide[0], "SUPERVISORY engaged 0 interlocks on  accel -");
+        let compact = texts(&p.compact_lines());
+        assert_eq!(compact[1], "accel -  faults none  recovery -");
     }
 }
