@@ -238,8 +238,10 @@ fn teleop_shows_the_deadman() {
     // A teleop key arms the deadman, the console's watchdog in the intake.
     f.act(&mut m, &[Action::SteerRight]);
     // No key for longer than the deadman: the intake trips it (gas 0, brake full,
-    // disengaged), and the console shows it reversed in red.
-    let later = Instant::now() + Duration::from_secs(5);
+    // disengaged), and the console shows it reversed in red. Five seconds after the
+    // fixture's readings, not after the clock reads now: the estimate's σ on the
+    // screen grows with that time, and the test's own run time must not change it.
+    let later = f.now + Duration::from_secs(5);
     let why = f.gate.watch(later).expect("the deadman trips");
     assert!(why.starts_with("deadman"), "{why}");
     assert!(!f.gate.is_engaged());
