@@ -16,7 +16,7 @@
 # traffic, delay histogram and the simulator's fault keys), recovery and
 # recovery-wide (an engine stall injected from the bench while in drive, captured while
 # the supervisor's engine_stall procedure runs, at 80×24 and at 120×40), fault
-# (steering silenced with the bench's sim key, shown in red); many (the tractor's 32
+# (steering silenced with the bench's sim key: the supervisor's silent fault in red); many (the tractor's 32
 # devices, vehicles/tractor.toml, engaged with a few commanded, and the name prompt
 # open); cart (vehicles/cart.toml, engaged, in forward, steering and a turn signal
 # commanded).
@@ -69,8 +69,23 @@ shot() {
     echo "wrote $out/$1.{txt,ansi,png}"
 }
 
-# Engage once every device has reported.
+# Wait until the screen no longer shows $1 ($2 tenths of a second at most, default 20 s).
+wait_gone() {
+    for _ in $(seq "${2:-200}"); do
+        if ! tmux capture-pane -p -t "$session" | grep -qF -- "$1"; then return 0; fi
+        sleep 0.1
+    done
+    echo "timed out waiting for this to go: $1" >&2
+    tmux capture-pane -p -t "$session" >&2
+    return 1
+}
+
+# Engage once every device has reported: a device that has not shows its status age as
+# "never", and an engage asked for before then is refused with a warning that would
+# stay in the log pane of every screen taken after it. Should one be refused anyway
+# (a device shown nowhere on the screen), it is asked again.
 engage() {
+    wait_gone "never"
     for _ in $(seq 50); do
         keys E; wait_for "Engage?"; keys y
         sleep 0.3

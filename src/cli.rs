@@ -43,6 +43,10 @@ pub enum Cmd {
     /// List serial ports with what the OS knows of each.
     Ports,
     /// Send commands to a running adrive, once or repeatedly, as a planner would.
+    ///
+    /// Exit status: 0 sent and nothing refused; 1 something refused, or nothing
+    /// listening (with --rate: the last datagram found nothing listening); 2 a bad
+    /// command line; 3 an engage, disengage or clear got no reply.
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
@@ -55,7 +59,7 @@ pub enum Cmd {
     },
     /// Write a recording out as one CSV file per channel.
     Export(ExportArgs),
-    /// Print a shell completion script (see the README for where each shell wants it).
+    /// Print a shell completion script (see docs/commands.md for where each shell wants it).
     Completions {
         /// The shell to complete in.
         shell: clap_complete::Shell,
@@ -101,6 +105,11 @@ pub struct RunArgs {
     /// hosts (default: the vehicle file's `[network]` listen, 127.0.0.1:47576).
     #[arg(long, value_name = "ADDR", value_parser = config::network::parse_listen)]
     pub listen: Option<SocketAddr>,
+    /// Where the state broadcast goes, instead of the vehicle file's `[network]`
+    /// broadcast_to (repeatable, or comma-separated; default 127.0.0.1:47577): a
+    /// second adrive on one host needs its own.
+    #[arg(long, value_name = "ADDR", value_delimiter = ',')]
+    pub broadcast_to: Vec<SocketAddr>,
     /// Record this run into an MCAP file (Foxglove opens it), or into rolling files in
     /// a directory (an existing one, or a path ending in `/`); default: the vehicle
     /// file's `[record]`.
@@ -225,8 +234,8 @@ pub fn main() -> i32 {
         Some(Cmd::Ports) => {
             let ports = crate::ports::scan(Path::new("/sys"), Path::new("/dev"));
             let ptys = crate::ports::pseudo_terminals(Path::new("/dev"));
-            print!("{}", crate::ports::report(&ports, &ptys));
-            Ok(0)
+            let sims = crate::ports::simulated(&std::env::temp_dir(), Path::new("/proc"));
+            print_out(crate::ports::report(&ports, &ptys, &sims).as_bytes())
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
@@ -236,14 +245,17 @@ pub fn main() -> i32 {
         }) => record_info(&file),
         Some(Cmd::Export(args)) => export(args),
         Some(Cmd::Completions { shell }) => {
-            clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut std::io::stdout());
-            Ok(0)
+            // Into memory first: clap_complete panics when its writer fails.
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "adrive", &mut script);
+            print_out(&script)
         }
         Some(Cmd::Manpage { dir }) => manpage(dir.as_deref(), &mut std::io::stdout()).map(|()| 0),
         None => run(cli.run),
     };
     match result {
         Ok(code) => code,
+        Err(e) if closed_output(&e) => 0,
         Err(e) => {
             tell(io::stderr(), format_args!("adrive: {e:#}\n"));
             2
@@ -279,13 +291,25 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     if let Some(addr) = args.listen {
         config.network.listen = addr;
     }
+    if !args.broadcast_to.is_empty() {
+        config.network.broadcast_to = args.broadcast_to.clone();
+    }
     let auth = network_key(&config)?;
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
-    // A bad keymap stops here, before anything starts.
+    // A bad keymap, or no terminal for the console, stops here, before anything starts.
     let keymap = if args.headless {
         None
     } else {
-        Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+        let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
+        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
+        Some(keymap)
+    };
+    // A port another adrive (or program) holds stops here too: each port is opened
+    // and locked now, and handed to its device as its first open.
+    let mut opened = if args.sim {
+        std::collections::HashMap::new()
+    } else {
+        open_ports(&config)?
     };
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
@@ -313,7 +337,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         config,
         |c| {
             let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
-            Box::new(move || driver::open_serial(&path, baud, timeout))
+            let mut first = opened.remove(c.name.as_str());
+            Box::new(move || match first.take() {
+                Some(link) => Ok(link),
+                None => driver::open_serial(&path, baud, timeout),
+            })
         },
         tap,
     ));
@@ -436,6 +464,51 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// Open and lock every device's port, before anything starts: a port in use by another
+/// process (a second adrive on the same vehicle) is refused, named with its holder.
+/// A port that cannot be opened for another reason (unplugged, a wrong path) is left
+/// to the engine, which reports it `disconnected` and reconnects when it appears.
+fn open_ports(
+    config: &VehicleConfig,
+) -> anyhow::Result<std::collections::HashMap<String, Box<dyn driver::Link>>> {
+    let mut opened = std::collections::HashMap::new();
+    for d in &config.devices {
+        match driver::open_serial(&d.port, d.baud, d.reply_timeout) {
+            Ok(link) => {
+                opened.insert(d.name.to_string(), link);
+            }
+            Err(e) if e.kind() == io::ErrorKind::ResourceBusy => {
+                anyhow::bail!(
+                    "device {}: {e}; is another adrive running on this vehicle? \
+                     (`adrive watch` shows a running one)",
+                    d.name
+                )
+            }
+            Err(_) => {}
+        }
+    }
+    Ok(opened)
+}
+
+/// `bytes` to standard output, whole; a failure (its reader gone) is the caller's.
+fn print_out(bytes: &[u8]) -> anyhow::Result<i32> {
+    let mut out = io::stdout().lock();
+    out.write_all(bytes)?;
+    out.flush()?;
+    Ok(0)
+}
+
+/// The error is standard output closed by its reader (`adrive manpage | head`,
+/// `adrive watch | head -2`): the output wanted has been read, and the command ends
+/// quietly with status 0, as Unix tools do. Nothing else here writes to a pipe or a
+/// socket that reports EPIPE: UDP does not, a serial port or terminal says EIO.
+fn closed_output(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<io::Error>()
+            .is_some_and(|e| e.kind() == io::ErrorKind::BrokenPipe)
+    })
 }
 
 /// Write to standard output or error, which may be a terminal that hung up (an SSH
@@ -724,7 +797,9 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
     let keymap = if args.headless {
         None
     } else {
-        Some(console::keymap::Keymap::for_run(args.keymap.as_deref())?)
+        let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
+        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
+        Some(keymap)
     };
     let broadcast = match args.broadcast.is_empty() {
         true => None,
@@ -733,7 +808,27 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
     let log = logging::init(args.headless, None)?;
     let exits = exit::install()?;
     let why = match (keymap, broadcast) {
-        (None, Some(b)) => console::replay::headless(player, &exits, &b),
+        (None, Some(b)) => {
+            // Headless, nothing else would say what is played and where.
+            let to = args
+                .broadcast
+                .iter()
+                .map(ToString::to_string)
+                .collect::<Vec<_>>()
+                .join(", ");
+            let n = player.len();
+            // A closed standard output does not stop the replay.
+            let _ = writeln!(
+                io::stdout(),
+                "replaying {}: {n} snapshots over {:.1} s, to {to} at ×{}",
+                args.file.display(),
+                player.seconds().1,
+                player.speed()
+            );
+            let (why, sent) = console::replay::headless(player, &exits, &b);
+            let _ = writeln!(io::stdout(), "sent {sent} of {n} snapshots to {to}");
+            why
+        }
         (Some(keymap), b) => console::replay::run(player, keymap, &exits, b)?,
         (None, None) => unreachable!("clap requires --broadcast with --headless"),
     };

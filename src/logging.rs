@@ -140,6 +140,60 @@ impl RateLimit {
     }
 }
 
+/// How often a condition that lasts is logged again.
+pub const REPEAT_EVERY: Duration = Duration::from_secs(60);
+
+/// A condition that repeats — a device failing every poll, a port reopened again and
+/// again, a broadcast that cannot be sent — logged once when it starts or changes, then
+/// at most once every [`REPEAT_EVERY`] with how many times it came meanwhile
+/// (`… (repeated 120 times in the last minute)`). [`RateLimit`] is for events that
+/// differ (each rejected command); this is for the same words again.
+#[derive(Debug, Default)]
+pub struct Repeats {
+    /// What was logged last, and when.
+    last: Option<(String, Instant)>,
+    /// Times it came since it was last logged.
+    unlogged: u64,
+}
+
+impl Repeats {
+    /// `what` happened at `now`: `Some(suffix)` when it is to be logged — an empty
+    /// suffix when it starts or changes, else how many times it repeated — `None`
+    /// when it is only counted.
+    pub fn note(&mut self, what: &str, now: Instant) -> Option<String> {
+        match &mut self.last {
+            Some((said, at)) if said == what => {
+                self.unlogged += 1;
+                let since = now.saturating_duration_since(*at);
+                if since < REPEAT_EVERY {
+                    return None;
+                }
+                *at = now;
+                let n = std::mem::take(&mut self.unlogged);
+                let times = match n {
+                    1 => "once".to_string(),
+                    n => format!("{n} times"),
+                };
+                Some(match since.as_secs() / 60 {
+                    0 | 1 => format!(" (repeated {times} in the last minute)"),
+                    m => format!(" (repeated {times} in the last {m} minutes)"),
+                })
+            }
+            _ => {
+                self.last = Some((what.to_string(), now));
+                self.unlogged = 0;
+                Some(String::new())
+            }
+        }
+    }
+
+    /// The condition is over: the next time it comes, it starts again (logged at once).
+    pub fn clear(&mut self) {
+        self.last = None;
+        self.unlogged = 0;
+    }
+}
+
 /// An event's words, for the layers that keep them (the console's log pane, a
 /// recording): its message, then its other fields as ` key=value`.
 #[derive(Default)]
@@ -177,5 +231,46 @@ impl Visit for EventText {
         } else {
             let _ = write!(self.fields, " {}={value}", field.name());
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A device failing twice a second for two minutes: logged when it starts, then
+    /// once a minute with the count of the minute; a change of words is logged at once;
+    /// after it cleared, the same words start again.
+    #[test]
+    fn a_repeating_condition_is_logged_once_then_once_a_minute_with_a_count() {
+        let t0 = Instant::now();
+        let mut r = Repeats::default();
+        let logged: Vec<(u64, String)> = (0..240u64)
+            .filter_map(|k| {
+                let ms = 500 * k;
+                r.note("timeout", t0 + Duration::from_millis(ms))
+                    .map(|s| (ms, s))
+            })
+            .collect();
+        assert_eq!(
+            logged,
+            [
+                (0, String::new()),
+                (60_000, " (repeated 120 times in the last minute)".into()),
+            ]
+        );
+        let t = t0 + Duration::from_secs(120);
+        assert_eq!(r.note("garbled", t), Some(String::new()), "a change");
+        assert_eq!(r.note("garbled", t + Duration::from_secs(1)), None);
+        r.clear();
+        assert_eq!(
+            r.note("garbled", t + Duration::from_secs(2)),
+            Some(String::new())
+        );
+        // Rare: the count says over how long.
+        assert_eq!(
+            r.note("garbled", t + Duration::from_secs(302)),
+            Some(" (repeated once in the last 5 minutes)".into())
+        );
     }
 }

@@ -2,8 +2,8 @@
 //! the stable `/dev/serial/by-id` name, USB vendor, product and serial number, the
 //! kernel driver, and for USB serial adapters the driver's `latency_timer`. An FTDI
 //! adapter defaults to 16 ms there, which adds up to 16 ms to every transaction: the
-//! listing warns and says how to fix it. Pseudo-terminals (e.g. `adrive sim`'s) are
-//! listed too.
+//! listing warns and says how to fix it. Pseudo-terminals are listed too, those of a
+//! running `adrive sim` by the device each simulates.
 //!
 //! Read straight from sysfs and /dev, so it needs no libudev; the roots are parameters
 //! so tests run it on a fake tree.
@@ -156,8 +156,55 @@ pub fn pseudo_terminals(dev: &Path) -> Vec<PathBuf> {
     v
 }
 
+/// A simulated device's pseudo-terminal, found through the link `adrive sim` keeps to
+/// it (`$TMPDIR/adrive-sim-PID-N/steer`, see [`crate::sim`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimLink {
+    /// `/dev/pts/5`.
+    pub pty: PathBuf,
+    /// The link a vehicle file names: `/tmp/adrive-sim-1234-0/steer`.
+    pub link: PathBuf,
+    pub device: String,
+    /// The process simulating it.
+    pub pid: u32,
+}
+
+/// The devices simulated by every `adrive sim` (or `adrive --sim`) still running: their
+/// directories of links under `tmp` (normally the temporary directory), whose process
+/// is alive under `proc` (normally `/proc`). A directory left by a killed simulator
+/// is skipped: its links may point at pseudo-terminals reused by others.
+pub fn simulated(tmp: &Path, proc: &Path) -> Vec<SimLink> {
+    let mut out = Vec::new();
+    for dir in fs::read_dir(tmp).into_iter().flatten().flatten() {
+        let name = dir.file_name().to_string_lossy().to_string();
+        let Some(pid) = name
+            .strip_prefix("adrive-sim-")
+            .and_then(|rest| rest.split('-').next())
+            .and_then(|pid| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if !proc.join(pid.to_string()).exists() {
+            continue;
+        }
+        for link in fs::read_dir(dir.path()).into_iter().flatten().flatten() {
+            let Ok(pty) = fs::read_link(link.path()) else {
+                continue;
+            };
+            out.push(SimLink {
+                pty,
+                link: link.path(),
+                device: link.file_name().to_string_lossy().to_string(),
+                pid,
+            });
+        }
+    }
+    out.sort_by(|a, b| (&a.link, &a.pty).cmp(&(&b.link, &b.pty)));
+    out
+}
+
 /// The listing `adrive ports` prints.
-pub fn report(ports: &[PortInfo], ptys: &[PathBuf]) -> String {
+pub fn report(ports: &[PortInfo], ptys: &[PathBuf], sims: &[SimLink]) -> String {
     let mut out = String::new();
     if ports.is_empty() {
         out.push_str("no serial ports found: no USB serial adapters (ttyUSB, ttyACM) and no serial hardware.\n");
@@ -195,9 +242,38 @@ pub fn report(ports: &[PortInfo], ptys: &[PathBuf]) -> String {
             }
         }
     }
-    if !ptys.is_empty() {
-        let names: Vec<String> = ptys.iter().map(|p| p.display().to_string()).collect();
-        let _ = writeln!(out, "pseudo-terminals: {}", names.join(" "));
+    if !ports.is_empty() && ports.iter().all(|p| p.usb.is_none()) {
+        out.push_str(
+            "no USB serial adapter (ttyUSB, ttyACM) found: the ports above are this \
+             machine's own serial hardware.\n",
+        );
+    }
+    if !sims.is_empty() {
+        out.push_str("simulated devices:\n");
+        let width = sims.iter().map(|s| s.device.len()).max().unwrap_or(0);
+        for s in sims {
+            let _ = writeln!(
+                out,
+                "    {}  {:<width$}  adrive sim (pid {})  {}",
+                s.pty.display(),
+                s.device,
+                s.pid,
+                s.link.display()
+            );
+        }
+    }
+    let others: Vec<String> = ptys
+        .iter()
+        .filter(|p| !sims.iter().any(|s| s.pty == **p))
+        .map(|p| p.display().to_string())
+        .collect();
+    if !others.is_empty() {
+        let what = if sims.is_empty() {
+            "pseudo-terminals"
+        } else {
+            "other pseudo-terminals"
+        };
+        let _ = writeln!(out, "{what}: {}", others.join(" "));
     }
     out
 }
@@ -290,7 +366,7 @@ mod tests {
         assert_eq!(usb.serial.as_deref(), Some("A10K1XYZ"));
         assert_eq!(ftdi.latency_timer_ms, Some(16));
         assert_eq!(ftdi.by_id.len(), 1);
-        let text = report(&ports, &pseudo_terminals(&root.join("dev")));
+        let text = report(&ports, &pseudo_terminals(&root.join("dev")), &[]);
         assert!(
             text.contains("WARNING") && text.contains("latency_timer"),
             "{text}"
@@ -305,7 +381,71 @@ mod tests {
 
     #[test]
     fn no_serial_hardware_is_said_plainly() {
-        let text = report(&[], &[]);
+        let text = report(&[], &[], &[]);
         assert!(text.starts_with("no serial ports found"), "{text}");
+    }
+
+    /// The incident: on a machine without USB serial hardware `adrive ports` listed
+    /// `/dev/ttyS0  driver serial` and nothing more, as if that were the adapter to use.
+    /// It says that no USB serial adapter was found.
+    #[test]
+    fn built_in_serial_ports_alone_say_there_is_no_usb_serial_adapter() {
+        let uart = PortInfo {
+            path: "/dev/ttyS0".into(),
+            driver: Some("serial".into()),
+            ..PortInfo::default()
+        };
+        let text = report(std::slice::from_ref(&uart), &[], &[]);
+        assert!(text.starts_with("/dev/ttyS0  driver serial\n"), "{text}");
+        assert!(
+            text.contains("no USB serial adapter (ttyUSB, ttyACM) found"),
+            "{text}"
+        );
+        let guard = fake_tree();
+        let ports = scan(&guard.path().join("sys"), &guard.path().join("dev"));
+        let text = report(&ports, &[], &[]);
+        assert!(!text.contains("no USB serial adapter"), "{text}");
+    }
+
+    /// With `adrive sim` running, `adrive ports` listed its `/dev/pts/*` without saying
+    /// which simulated device each is. The simulator's directory of links (in the
+    /// temporary directory, `adrive-sim-PID-N/steer`) says it; one whose process is
+    /// gone is left out.
+    #[test]
+    fn a_simulators_pseudo_terminals_are_named_by_device() {
+        let guard = fake_tree();
+        let root = guard.path();
+        let dev = root.join("dev");
+        fs::write(dev.join("pts/4"), "").unwrap();
+        fs::write(dev.join("pts/5"), "").unwrap();
+        let tmp = root.join("tmp");
+        let me = std::process::id();
+        let live = tmp.join(format!("adrive-sim-{me}-0"));
+        fs::create_dir_all(&live).unwrap();
+        symlink(dev.join("pts/3"), live.join("steer")).unwrap();
+        symlink(dev.join("pts/4"), live.join("gas")).unwrap();
+        // A simulator killed before it could clean up: its process is gone.
+        let dead = tmp.join("adrive-sim-4000000000-0");
+        fs::create_dir_all(&dead).unwrap();
+        symlink(dev.join("pts/5"), dead.join("brake")).unwrap();
+        let proc = root.join("proc");
+        fs::create_dir_all(proc.join(me.to_string())).unwrap();
+        let sims = simulated(&tmp, &proc);
+        let text = report(&[], &pseudo_terminals(&dev), &sims);
+        let line = |pts: &str| {
+            text.lines()
+                .find(|l| l.contains(&format!("pts/{pts} ")) || l.ends_with(&format!("pts/{pts}")))
+                .unwrap_or_else(|| panic!("no pts/{pts} in:\n{text}"))
+                .to_string()
+        };
+        let steer = line("3");
+        assert!(
+            steer.contains("steer")
+                && steer.contains(&format!("adrive sim (pid {me})"))
+                && steer.contains(&live.join("steer").display().to_string()),
+            "{text}"
+        );
+        assert!(line("4").contains("gas"), "{text}");
+        assert!(!line("5").contains("brake"), "{text}");
     }
 }

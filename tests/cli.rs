@@ -338,3 +338,199 @@ fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
     assert!(text.contains("stopping: SIGINT"), "{text}");
     assert!(!text.contains('\x1b'), "colour escapes in:\n{text:?}");
 }
+
+/// The incident: `adrive --sim < /dev/null`, or `ssh host adrive` without `-t`, started
+/// the engine, then printed "console: No such device or address" and a stray
+/// `ESC[?1049l` and exited 101, as after a panic. Without a terminal on both standard
+/// input and output the console is refused before anything starts: no log, no engine,
+/// a message pointing to `--headless` and `ssh -t`, status 2, no escape codes.
+#[test]
+fn the_console_without_a_terminal_is_refused_before_anything_starts() {
+    use std::os::unix::process::CommandExt;
+    let (_master, slave) = common::pty::openpty(80, 24);
+    // Standard input closed; then a terminal on standard input but a pipe on standard
+    // output (`adrive | less`).
+    let stdins = [Stdio::null(), Stdio::from(slave.try_clone().unwrap())];
+    for (i, stdin) in stdins.into_iter().enumerate() {
+        let dir = tempdir("cli-notty");
+        let log = dir.path().join("log");
+        let mut cmd = Process::new(BIN);
+        cmd.args(["--sim", "--listen", "127.0.0.1:0", "--log-dir"])
+            .arg(&log)
+            .stdin(stdin)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        // No controlling terminal, as under `ssh host adrive`: the program must not
+        // find one through /dev/tty either (nor take over the terminal running the tests).
+        // SAFETY: setsid is async-signal-safe.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::setsid();
+                Ok(())
+            });
+        }
+        let child = common::Reaped(cmd.spawn().unwrap());
+        let out = {
+            let mut c = child;
+            let mut out = String::new();
+            let mut err = String::new();
+            c.stdout.take().unwrap().read_to_string(&mut out).unwrap();
+            c.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+            (wait_exit(&mut c), out, err)
+        };
+        let (status, out, err) = out;
+        assert_eq!(status, Some(2), "case {i}: {err}");
+        assert!(
+            err.contains("needs a terminal")
+                && err.contains("--headless")
+                && err.contains("ssh -t"),
+            "case {i}: {err}"
+        );
+        assert!(
+            !out.contains('\x1b') && !err.contains('\x1b'),
+            "case {i}: {out:?} {err:?}"
+        );
+        assert!(!err.contains("panic"), "case {i}: {err}");
+        // Nothing started: not even the log.
+        assert!(!log.exists(), "case {i}: a log was written");
+    }
+}
+
+/// The incident: `adrive completions bash | head -1` panicked inside clap_complete
+/// (status 101); `adrive manpage | head` and `adrive watch | head -2` printed "Broken
+/// pipe (os error 32)" and exited 2. A standard output closed by its reader ends them
+/// quietly with status 0, as Unix tools do. The reader here is gone before the first
+/// write, so every write fails, whatever the pipe's buffer holds.
+#[test]
+fn a_closed_standard_output_ends_quietly_with_status_0() {
+    let port = common::free_port();
+    let from = format!("127.0.0.1:{port}");
+    let cases: [&[&str]; 4] = [
+        &["completions", "bash"],
+        &["manpage"],
+        &["ports"],
+        &["watch", "--from", &from],
+    ];
+    for args in cases {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let mut child = common::Reaped(
+            Process::new(BIN)
+                .args(args)
+                .stdin(Stdio::null())
+                .stdout(writer)
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap(),
+        );
+        let err = child.stderr.take().unwrap();
+        let err = std::thread::spawn(move || {
+            let mut s = String::new();
+            let _ = { err }.read_to_string(&mut s);
+            s
+        });
+        if args[0] == "watch" {
+            // Something to print: datagrams until it has gone.
+            let tx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+            let end = std::time::Instant::now() + common::DEADLINE;
+            while matches!(child.try_wait(), Ok(None)) && std::time::Instant::now() < end {
+                let _ = tx.send_to(b"not a snapshot", &from);
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        }
+        let status = wait_exit(&mut child);
+        let err = err.join().unwrap();
+        let err: String = err
+            .lines()
+            .filter(|l| !l.starts_with("adrive watch: listening"))
+            .collect();
+        assert_eq!(status, Some(0), "{args:?}: {err}");
+        assert_eq!(err, "", "{args:?}");
+    }
+}
+
+/// The incident: with `adrive sim` running, `adrive ports` listed `/dev/pts/*` without
+/// saying which simulated device each is. Each of its pseudo-terminals is named by the
+/// device it simulates, with the simulator's process and the link a vehicle file names.
+#[test]
+fn ports_names_each_pseudo_terminal_of_a_running_sim_by_its_device() {
+    let sim = common::simproc::SimProcess::start();
+    let out = Process::new(BIN).arg("ports").output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{text}");
+    let pid = sim.child.id();
+    for (device, link) in ["steer", "gas", "brake", "trans", "estop", "obd"]
+        .iter()
+        .zip(&sim.paths)
+    {
+        let pty = std::fs::read_link(link).unwrap();
+        let line = text
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{} ", pty.display())))
+            .unwrap_or_else(|| panic!("no line for {device} ({}):\n{text}", pty.display()));
+        assert!(
+            line.contains(device)
+                && line.contains(&format!("adrive sim (pid {pid})"))
+                && line.contains(link.as_str()),
+            "{line}\n{text}"
+        );
+    }
+    sim.stop();
+}
+
+/// The incident: a second adrive started on the serial ports of a running one showed
+/// the exclusive-access failure as six `silent` faults, kept running and exited 3 (as
+/// root it would have driven the devices beside the first). It is refused at start,
+/// status 2, naming the device, the port and the process holding it; nothing starts.
+#[test]
+fn a_second_adrive_on_the_same_ports_is_refused_at_start_naming_the_holder() {
+    let sim = common::simproc::SimProcess::start();
+    let dir = tempdir("cli-twice");
+    let vehicle = common::simproc::vehicle_file(dir.path(), &sim, "");
+    let start = |log: &str, broadcast: u16| {
+        Process::new(BIN)
+            .args(["--headless", "--listen", "127.0.0.1:0", "--broadcast-to"])
+            .arg(format!("127.0.0.1:{broadcast}"))
+            .arg("--config")
+            .arg(&vehicle)
+            .arg("--log-dir")
+            .arg(dir.path().join(log))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let broadcast = common::free_port();
+    let mut first = common::Reaped(start("first", broadcast));
+    let err = lines(first.stderr.take().unwrap());
+    let seen = until(&err, "running headless");
+    // `--broadcast-to`, as the troubleshooting section tells a second adrive on a host.
+    assert!(
+        seen.iter()
+            .any(|l| l.contains(&format!("broadcast=[127.0.0.1:{broadcast}]"))),
+        "{seen:#?}"
+    );
+    let mut second = common::Reaped(start("second", common::free_port()));
+    let status = wait_exit(&mut second);
+    let mut text = String::new();
+    second
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut text)
+        .unwrap();
+    assert_eq!(status, Some(2), "{text}");
+    assert!(
+        text.contains(&format!("device steer: cannot open {}", sim.paths[0]))
+            && text.contains(&format!("in use by process {} (adrive)", first.id())),
+        "{text}"
+    );
+    assert!(
+        !dir.path().join("second").exists(),
+        "the second one started"
+    );
+    // The first one runs on, untouched.
+    assert!(matches!(first.try_wait(), Ok(None)));
+    drop(first);
+    sim.stop();
+}

@@ -440,6 +440,40 @@ fn a_resize_redraws_and_a_small_window_gets_a_message() {
     assert!(c.wait_exit().success());
 }
 
+/// Incident: after the window was resized, quitting left the console's top lines in
+/// the terminal's scrollback: tmux, leaving an alternate screen that has grown, shrinks
+/// it back to the old size first and pushes its top lines into the history, unless
+/// they are blank. The console leaves the alternate screen blank.
+#[test]
+fn quitting_after_a_resize_leaves_the_alternate_screen_blank() {
+    let mut c = Console::start("resize-quit", &[]);
+    c.wait_for("the main screen", |s| s.contains("STEER"));
+    let clears = |b: &[u8]| b.windows(4).filter(|w| w == b"\x1b[2J").count();
+    let before = clears(&c.bytes());
+    c.resize(120, 40);
+    // The console clears the screen and draws it again at the new size.
+    let end = Instant::now() + DEADLINE;
+    while clears(&c.bytes()) == before {
+        assert!(Instant::now() < end, "no redraw after the resize");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let bytes = c.bytes();
+    let leave = bytes
+        .windows(8)
+        .rposition(|w| w == b"\x1b[?1049l")
+        .expect("ESC[?1049l written");
+    let nz = |n: u16| std::num::NonZeroU16::new(n).unwrap();
+    let mut screen = vt100::Parser::new(nz(40), nz(120), 0);
+    screen.process(&bytes[..leave]);
+    let left = screen.screen().contents();
+    assert!(
+        left.trim().is_empty(),
+        "left on the alternate screen:\n{left}"
+    );
+}
+
 /// Incident: after the terminal was resized, the next key stayed unread until another
 /// key came (crossterm's edge-triggered source returned the resize and dropped the
 /// keyboard's readiness), so a STOP pressed once did nothing. Keys have been read

@@ -141,6 +141,7 @@ fn snapshot(name: &str, screen: &str) {
     let mut s = insta::Settings::clone_current();
     // Log timestamps (seconds since start) and trace ages.
     s.add_filter(r"\d+\.\ds (WARN|ERROR)", "[secs] $1");
+    s.add_filter(r"(->|<-)\s+\d+\.\d{3}s ago", "$1 [ago] ago");
     s.add_filter(r"-\s*\d+\.\d{3}s", "-[ago]");
     // Fault ages and recovery times (the supervisor reads its own clock).
     s.add_filter(r"\b\d+\.\ds\b", "[s]");
@@ -237,8 +238,10 @@ fn teleop_shows_the_deadman() {
     // A teleop key arms the deadman, the console's watchdog in the intake.
     f.act(&mut m, &[Action::SteerRight]);
     // No key for longer than the deadman: the intake trips it (gas 0, brake full,
-    // disengaged), and the console shows it reversed in red.
-    let later = Instant::now() + Duration::from_secs(5);
+    // disengaged), and the console shows it reversed in red. Five seconds after the
+    // fixture's readings, not after the clock reads now: the estimate's σ on the
+    // screen grows with that time, and the test's own run time must not change it.
+    let later = f.now + Duration::from_secs(5);
     let why = f.gate.watch(later).expect("the deadman trips");
     assert!(why.starts_with("deadman"), "{why}");
     assert!(!f.gate.is_engaged());
@@ -406,7 +409,10 @@ fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
     ] {
         find(&b, needle);
     }
-    find(&b, "steer raw traffic — sim: silent, slow 150ms");
+    find(
+        &b,
+        "steer raw traffic: dir, time ago, hex, text — sim: silent, slow 150ms",
+    );
 }
 
 #[test]
@@ -720,4 +726,30 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
     let small = text(&render(&m, 80, 24));
     assert!(!small.contains("over the last 10 s"), "{small}");
     assert!(small.contains("gas raw traffic"), "{small}");
+}
+
+/// The incident: a vehicle file naming a port that does not exist showed, at 100
+/// columns, a FAULT line cut off in the middle of the path. A fault's cause too long
+/// for the line goes on over the next, between words: the path is read whole, in red.
+#[test]
+fn a_long_fault_cause_wraps_and_keeps_the_path_whole() {
+    const PATH: &str = "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A50285BI-if00-port0";
+    let f = fixture_with(|v, now| {
+        v.supervision
+            .set_faults(vec![adrive::vehicle::supervision::Fault {
+                kind: adrive::snapshot::FaultKind::Disconnected,
+                device: Some("steer".into()),
+                cause: format!("cannot open {PATH}: No such file or directory"),
+                since: now,
+            }]);
+    });
+    let b = render(&f.model(Theme::default()), 100, 30);
+    let screen = text(&b);
+    assert!(screen.contains("FAULT steer disconnected"), "{screen}");
+    let (x, y) = find(&b, PATH);
+    assert_eq!(b[(x, y)].fg, Color::Red, "{screen}");
+    assert!(
+        screen.contains("No such file or directory"),
+        "the OS error too:\n{screen}"
+    );
 }

@@ -1,5 +1,5 @@
 //! The network clients as a user runs them, against the real `adrive --sim
-//! --headless`: the README's planner stand-in (`adrive send --rate 20 …`) engages,
+//! --headless`: the guide's planner stand-in (docs/network.md) (`adrive send --rate 20 …`) engages,
 //! shifts and drives while `adrive watch` shows it, and the watchdog stops the vehicle
 //! when the sender stops; one-shot `send`, its replies and exit status; `--key`.
 
@@ -35,7 +35,7 @@ fn watchdog(v: &Snapshot) -> WatchdogState {
     v.gate.watchdog.as_ref().expect("the watchdog").state
 }
 
-/// The README's "Done when": a planner stand-in engages, shifts to drive and holds gas
+/// The planner stand-in of docs/network.md: a planner stand-in engages, shifts to drive and holds gas
 /// at 0.3; `watch` shows gas at 0.3 and the speed rising; the sender stops and the
 /// watchdog brings the vehicle to a safe stop within its timeout.
 #[test]
@@ -213,4 +213,37 @@ fn send_says_when_an_engage_got_no_reply_and_exits_3() {
             assert!(out.stdout.is_empty(), "{network} {args:?}");
         }
     }
+}
+
+/// The incident: `adrive send --rate 20 steer 0.1` to an address where nothing listens
+/// exited 0 (3 with `engage`), while one-shot `send` exits 1 as docs/network.md says. Once
+/// or at a rate, nothing listening is status 1, and it is said.
+#[test]
+fn send_to_nothing_listening_exits_1_once_or_at_a_rate() {
+    // Nothing listens on a port just freed.
+    let to = format!("127.0.0.1:{}", free_port());
+    for args in [
+        &["steer", "0.1"][..],
+        &["--rate", "50", "--count", "10", "steer", "0.1"],
+        &["--rate", "50", "--count", "60", "engage"],
+    ] {
+        let out = Process::new(BIN)
+            .args(["send", "--to", &to])
+            .args(args)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {err}");
+        assert!(
+            err.contains(&format!("nothing is listening at {to}")),
+            "{args:?}: {err}"
+        );
+        assert!(!err.contains("no reply"), "{args:?}: {err}");
+    }
+    let help = Process::new(BIN).args(["send", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&help.stdout);
+    assert!(
+        help.contains("1 something refused, or nothing listening"),
+        "{help}"
+    );
 }

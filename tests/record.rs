@@ -490,6 +490,38 @@ fn replay_broadcast_resends_the_recorded_snapshots_in_order() {
     );
 }
 
+/// `adrive replay FILE --headless --broadcast ADDR` printed nothing: whether it sent
+/// anything, and where, could only be seen on the receiving end. It says what it
+/// plays and, at the end, how many snapshots it sent.
+#[test]
+fn headless_replay_says_what_it_plays_and_what_it_sent() {
+    let rec = Recording::open(drive()).unwrap();
+    let (msgs, _) = rec.json();
+    let n = msgs.iter().filter(|(t, _, _)| t == "/snapshot").count();
+    let sock = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let to = sock.local_addr().unwrap().to_string();
+    let out = Process::new(BIN)
+        .arg("replay")
+        .arg(drive())
+        .args(["--headless", "--speed", "32", "--broadcast", &to])
+        .stderr(Stdio::null())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let name = drive().display().to_string();
+    assert!(
+        text.starts_with(&format!("replaying {name}: {n} snapshots")),
+        "{text}"
+    );
+    assert!(text.contains(&format!("to {to} at ×32")), "{text}");
+    assert!(
+        text.trim_end()
+            .ends_with(&format!("sent {n} of {n} snapshots to {to}")),
+        "{text}"
+    );
+}
+
 /// Wait until a recording being written holds `chunks` whole chunks.
 fn wait_chunks(file: &Path, chunks: usize) {
     common::wait_for("the recording's chunks", || {

@@ -581,6 +581,21 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
             .has(FaultKind::Disconnected, Some("brake"))
     });
     steering_still_works(&rig, 0.3);
+    // Back on its port, it had its own status_max_age to answer: it was not named
+    // silent or failing the moment the port reopened (false faults beside "reconnect
+    // brake done", cleared a moment later, as once).
+    let history = rig.history();
+    let gone = history
+        .iter()
+        .position(|l| l.starts_with("fault: brake disconnected"))
+        .expect("the disconnect is in the history");
+    let after: Vec<&String> = history[gone..]
+        .iter()
+        .filter(|l| {
+            l.starts_with("fault: brake silent") || l.starts_with("fault: brake error_rate")
+        })
+        .collect();
+    assert!(after.is_empty(), "{after:?}\n{history:#?}");
 }
 
 /// With a declared response the stuck motor is judged by the estimate: no headway for

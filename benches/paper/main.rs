@@ -5,7 +5,7 @@
 //!
 //! Every delay is compared with the machine's floor, a bare condition-variable wake
 //! measured in the same window ([`floor`]): these machines are shared and noisy, and
-//! only figures from one run compare. See the README's "Performance" section.
+//! only figures from one run compare. See docs/performance.md.
 //!
 //! Sections: 0 the floor; 1 receipt → first byte on an idle port, under each thread
 //! placement; 2 delay against the number of actuators (Fig. 3); 3 CPU against the

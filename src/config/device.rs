@@ -240,7 +240,7 @@ pub fn well_known(name: &str) -> Option<&'static WellKnown> {
     WELL_KNOWN.iter().find(|w| w.name == name)
 }
 
-/// The README's table of the well-known readings.
+/// The guide's table (docs/vehicles.md) of the well-known readings.
 pub fn well_known_markdown() -> String {
     let mut out = String::from("| reading | units | line protocol key | |\n|---|---|---|---|\n");
     for w in &WELL_KNOWN {

@@ -92,7 +92,7 @@ impl<'a> Document<'a> {
         ConfigError {
             path: self.path.to_string(),
             line: self.line(offset),
-            message,
+            message: suggest_key(message),
         }
     }
 
@@ -317,6 +317,47 @@ fn suggest(written: &str) -> Option<String> {
         .filter(|(d, _)| *d <= 3)
         .min_by_key(|(d, _)| *d)
         .map(|(_, k)| k.to_string())
+}
+
+/// serde's "unknown field `baud_rate`, expected one of `name`, …, `baud`, …" with the
+/// key it most likely meant named first: "unknown field `baud_rate`: did you mean
+/// `baud`? expected one of …". Likely is a key one or two edits away (`allow_engag`),
+/// else a key the written one begins or ends with (`baud_rate`, `my_baud`), else one a
+/// few edits away for its length.
+fn suggest_key(message: String) -> String {
+    const SEP: &str = ", expected one of ";
+    let Some(start) = message.find("unknown field `") else {
+        return message;
+    };
+    let Some(sep) = message[start..].find(SEP).map(|i| start + i) else {
+        return message;
+    };
+    let written = message[start + "unknown field `".len()..sep].trim_end_matches('`');
+    let known: Vec<&str> = message[sep + SEP.len()..]
+        .split(", ")
+        .map(|k| k.trim_matches('`'))
+        .collect();
+    let nearest = known
+        .iter()
+        .map(|k| (strsim::damerau_levenshtein(k, written), *k))
+        .min_by_key(|(d, _)| *d);
+    let affix = known
+        .iter()
+        .filter(|k| k.len() >= 3 && (written.starts_with(**k) || written.ends_with(**k)))
+        .max_by_key(|k| k.len())
+        .copied();
+    let meant = match nearest {
+        Some((d, k)) if d <= 2 => Some(k),
+        _ => affix.or(nearest.filter(|(d, k)| *d <= k.len() / 4).map(|(_, k)| k)),
+    };
+    match meant {
+        Some(k) => format!(
+            "{}: did you mean `{k}`? expected one of {}",
+            &message[..sep],
+            &message[sep + SEP.len()..]
+        ),
+        None => message,
+    }
 }
 
 /// The 1-based line of byte `offset`.

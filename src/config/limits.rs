@@ -6,7 +6,7 @@
 //! Each such value has a [`Limit`] here, and the rules between two values a [`Rule`].
 //! The loader refuses a file outside them (naming the file, the line, the key and the
 //! range), the console's in-place edits go through the same checks, `--deadman` is
-//! parsed by [`DEADMAN`], and the README's table is [`markdown`], compared by a test.
+//! parsed by [`DEADMAN`], and the guide's table (docs/vehicles.md) is [`markdown`], compared by a test.
 //! The defaults live here too, so a default can never fall outside its own range.
 
 use std::fmt;
@@ -109,7 +109,7 @@ pub struct Limit<T> {
     pub max: T,
     /// The value when the key is not written (`None`: off, or required).
     pub default: Option<T>,
-    /// Why the range is what it is, for the README.
+    /// Why the range is what it is, for the guide (docs/vehicles.md).
     pub why: &'static str,
 }
 
@@ -403,7 +403,7 @@ pub const DEADMAN: Limit<Duration> = Limit {
 #[derive(Debug)]
 pub struct Rule {
     pub section: Section,
-    /// The rule as the README and the error say it.
+    /// The rule as the guide and the error say it.
     pub text: &'static str,
 }
 
@@ -447,7 +447,7 @@ pub const WATCHDOG_OUTLASTS_RESEND: Rule = Rule {
     text: "`watchdog` longer than the device's `command_timeout` (which keeps a live adrive resending)",
 };
 
-/// One limit, whatever its type: a row of the README's table.
+/// One limit, whatever its type: a row of the guide's table (docs/vehicles.md).
 pub trait Row: Sync {
     fn section(&self) -> Section;
     fn key(&self) -> &'static str;
@@ -486,7 +486,7 @@ impl<T: Bounded + Sync> Row for Limit<T> {
     }
 }
 
-/// Every limit, in the README's order.
+/// Every limit, in the guide's order.
 pub static ALL: &[&dyn Row] = &[
     &BAUD,
     &STATUS_PERIOD,
@@ -524,7 +524,7 @@ pub fn find(section: Section, key: &str) -> Option<&'static dyn Row> {
         .find(|r| r.section() == section && r.key() == key)
 }
 
-/// Every rule, in the README's order.
+/// Every rule, in the guide's order.
 pub static RULES: &[&Rule] = &[
     &MAX_AGE_COVERS_PERIOD,
     &REPLY_WITHIN_MAX_AGE,
@@ -535,7 +535,7 @@ pub static RULES: &[&Rule] = &[
     &RESPONSE_IN_UNITS,
 ];
 
-/// The README's table of limits and list of rules, as Markdown.
+/// The guide's table (docs/vehicles.md) of limits and list of rules, as Markdown.
 pub fn markdown() -> String {
     let mut out = String::from("| section | key | accepted | default | |\n|---|---|---|---|---|\n");
     for row in ALL {
@@ -656,14 +656,14 @@ mod tests {
         assert!(parse_deadman("soon").unwrap_err().contains("250ms"));
     }
 
-    /// The README's table is this module's, so the documented ranges cannot drift.
+    /// The guide's table (docs/vehicles.md) is this module's, so the documented ranges cannot drift.
     #[test]
-    fn the_readme_shows_the_limits_table() {
-        let readme = include_str!("../../README.md");
+    fn the_guide_shows_the_limits_table() {
+        let readme = include_str!("../../docs/vehicles.md");
         let table = markdown();
         assert!(
             readme.contains(&table),
-            "README.md must contain, verbatim, the table of limits:\n{table}"
+            "docs/vehicles.md must contain, verbatim, the table of limits:\n{table}"
         );
     }
 }

@@ -73,8 +73,8 @@ impl Role {
 }
 
 /// The pairs of roles one device may play, each with the reason it may; every other
-/// pair on one device is refused ([`Role::shares_with`]). The README's table is
-/// generated from this one ([`sharing_markdown`]).
+/// pair on one device is refused ([`Role::shares_with`]). The guide's table
+/// (docs/vehicles.md) is generated from this one ([`sharing_markdown`]).
 pub const SHARED: [(Role, Role, &str); 2] = [
     (
         Role::Gear,
@@ -98,7 +98,7 @@ impl Role {
     }
 }
 
-/// The README's table of the roles that may share a device.
+/// The guide's table (docs/vehicles.md) of the roles that may share a device.
 pub fn sharing_markdown() -> String {
     let mut out = String::from("| roles | may share one device because |\n|---|---|\n");
     for (a, b, why) in SHARED {

@@ -814,6 +814,24 @@ fn the_console_s_status_period_goes_through_the_same_rule() {
     assert!(e.message.contains("status_period 1500ms"), "{e}");
 }
 
+/// `[[devcie]]` was answered "did you mean [[device]]?", a misspelt key such as
+/// `baud_rate` only with the list of every key a device has.
+#[test]
+fn a_misspelt_key_gets_a_did_you_mean() {
+    let e = error(&BASE.replace("# device", "baud_rate = 9600"));
+    let at = BASE.lines().position(|l| l == "# device").unwrap() + 1;
+    assert!(
+        e.starts_with(&format!(
+            "v.toml:{at}: unknown field `baud_rate`: did you mean `baud`? expected one of `name`,"
+        )),
+        "{e}"
+    );
+    let e = error(&BASE.replace("# network", "allow_engag = true"));
+    assert!(e.contains("did you mean `allow_engage`?"), "{e}");
+    let e = error(&BASE.replace("# device", "colour = \"red\""));
+    assert!(!e.contains("did you mean"), "nothing is close: {e}");
+}
+
 /// `[[devcie]]` made the `[device.modbus]` under it a duplicate of the one above, and
 /// the error named that line, not the typo.
 #[test]
@@ -870,14 +888,14 @@ fn a_file_that_cannot_be_read_says_so_without_a_line() {
     );
 }
 
-/// The README's table of well-known readings is the loader's.
+/// The guide's table (docs/vehicles.md) of well-known readings is the loader's.
 #[test]
-fn the_readme_shows_the_well_known_readings() {
-    let readme = include_str!("../../README.md");
+fn the_guide_shows_the_well_known_readings() {
+    let readme = include_str!("../../docs/vehicles.md");
     let table = device::well_known_markdown();
     assert!(
         readme.contains(&table),
-        "README.md must contain, verbatim, the table of well-known readings:\n{table}"
+        "docs/vehicles.md must contain, verbatim, the table of well-known readings:\n{table}"
     );
 }
 
@@ -1096,13 +1114,14 @@ fn throttle_and_brake_on_one_device_name_the_second_binding_and_quote_both() {
     );
 }
 
-/// The README's table of the roles that may share a device is the loader's.
+/// The guide's table (docs/vehicles.md) of the roles that may share a device is the
+/// loader's.
 #[test]
-fn the_readme_shows_which_roles_may_share_a_device() {
-    let readme = include_str!("../../README.md");
+fn the_guide_shows_which_roles_may_share_a_device() {
+    let readme = include_str!("../../docs/vehicles.md");
     let table = roles::sharing_markdown();
     assert!(
         readme.contains(&table),
-        "README.md must contain, verbatim, the table of shared roles:\n{table}"
+        "docs/vehicles.md must contain, verbatim, the table of shared roles:\n{table}"
     );
 }

@@ -71,6 +71,8 @@ pub struct Frame {
     pub buckets: Vec<(f64, u64)>,
     /// Fault injection is available (the devices are simulated in this process).
     pub can_inject: bool,
+    /// A replay: nothing can be sent.
+    pub read_only: bool,
     /// The simulated vehicle's own state (e-stop, engine, the bench device's drive).
     pub sim_vehicle: Option<String>,
     /// The faults injected into each simulated device, by device (`--sim` only).
@@ -311,6 +313,7 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
             })
             .unwrap_or_default(),
         can_inject: sources.sim.is_some(),
+        read_only: false,
         sim_vehicle: sources
             .sim
             .as_deref()

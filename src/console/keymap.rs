@@ -490,11 +490,13 @@ pub struct Binding {
     pub line: usize,
 }
 
-/// A keymap error: `file:line: message`.
+/// A keymap error: `file:line: message`, or `file: message` for the file as a whole
+/// (one that cannot be read).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{path}:{line}: {message}")]
+#[error("{path}{}: {message}", at_line(*.line))]
 pub struct KeymapError {
     pub path: String,
+    /// The 1-based line; 0 for the file as a whole.
     pub line: usize,
     pub message: String,
 }
@@ -535,6 +537,14 @@ struct RawBinding {
     run: toml::Spanned<String>,
     #[serde(default)]
     desc: String,
+}
+
+/// `:12` for line 12; nothing for line 0 (the file as a whole).
+fn at_line(line: usize) -> String {
+    match line {
+        0 => String::new(),
+        n => format!(":{n}"),
+    }
 }
 
 fn line_of(text: &str, offset: usize) -> usize {
@@ -928,6 +938,20 @@ mod tests {
     }
 
     /// A keymap once bound `<C-c>`, and the hint bar showed it, although Ctrl-C always
+    /// `adrive --keymap nonexist.toml` said `nonexist.toml:0: cannot read: …`: a file
+    /// that cannot be read has no line to name.
+    #[test]
+    fn a_keymap_file_that_cannot_be_read_is_named_without_a_line() {
+        let path = Path::new("target/no-such-directory/nonexist.toml");
+        let e = Keymap::load(path).unwrap_err();
+        let text = e.to_string();
+        assert!(
+            text.starts_with("target/no-such-directory/nonexist.toml: cannot read: "),
+            "{text}"
+        );
+        assert!(!text.contains(":0:"), "{text}");
+    }
+
     /// stops adrive. Binding or unbinding it is refused at its line.
     #[test]
     fn binding_ctrl_c_is_refused_at_its_line() {

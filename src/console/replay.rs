@@ -281,6 +281,7 @@ impl Player {
             trace,
             buckets: Vec::new(),
             can_inject: false,
+            read_only: true,
             sim_vehicle: None,
             sim_faults: vec![None; n],
         }
@@ -351,7 +352,7 @@ impl Controls for Replay<'_> {
     fn set_enabled(&self, _: DeviceId, _: Thread, _: bool) {}
     fn wake(&self, _: DeviceId) {}
     fn sim(&self, _: &str) -> Option<Result<String, String>> {
-        None
+        Some(Err(READ_ONLY.into()))
     }
     fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
         Err(read_only())
@@ -557,19 +558,26 @@ pub fn run(
 }
 
 /// Play `player` without a console, broadcasting each snapshot at its recorded pace
-/// (times `speed`), until the end or an exit.
-pub fn headless(mut player: Player, exits: &Receiver<Exit>, broadcast: &Broadcast) -> Exit {
+/// (times `speed`), until the end or an exit: why it ended, and how many snapshots it
+/// sent.
+pub fn headless(
+    mut player: Player,
+    exits: &Receiver<Exit>,
+    broadcast: &Broadcast,
+) -> (Exit, usize) {
     broadcast.send(player.json());
+    let mut sent = 1;
     let tick = crossbeam_channel::tick(Duration::from_millis(5));
     loop {
         select! {
-            recv(exits) -> why => return why.unwrap_or(Exit::Quit),
+            recv(exits) -> why => return (why.unwrap_or(Exit::Quit), sent),
             recv(tick) -> _ => {
                 for i in player.advance(Instant::now()) {
                     broadcast.send(&player.frames[i].1);
+                    sent += 1;
                 }
                 if !player.is_playing() {
-                    return Exit::Quit;
+                    return (Exit::Quit, sent);
                 }
             },
         }
@@ -638,6 +646,16 @@ mod tests {
         p.jump(true, now);
         assert_eq!(p.pos(), 4);
         assert_eq!(p.frame(now, None).seq, 4);
+    }
+
+    /// A simulator key on the bench of a replay said "fault injection needs --sim",
+    /// as if `--sim` would help; a replay is read-only, and its bench says so.
+    #[test]
+    fn the_simulator_keys_of_a_replay_say_it_is_read_only() {
+        let p = player(&[0, 100]);
+        let r = Replay { player: &p };
+        assert_eq!(r.sim("silent steer on"), Some(Err(READ_ONLY.to_string())));
+        assert!(p.frame(Instant::now(), None).read_only);
     }
 
     #[test]

@@ -26,10 +26,12 @@
 //!   stayed unread until the next key — a STOP pressed once did nothing. adrive uses
 //!   its `use-dev-tty` source, which polls level-triggered, and drains it with
 //!   [`DRAIN`].
+//! - tmux pushes the top lines of a grown alternate screen into the scrollback as it
+//!   is left; [`restore`] leaves it blank.
 
 use crossterm::execute;
 use crossterm::terminal::{
-    disable_raw_mode, enable_raw_mode, EnterAlternateScreen, LeaveAlternateScreen,
+    disable_raw_mode, enable_raw_mode, Clear, ClearType, EnterAlternateScreen, LeaveAlternateScreen,
 };
 use ratatui::backend::CrosstermBackend;
 use rustix::event::{PollFd, PollFlags, Timespec};
@@ -82,6 +84,23 @@ impl Write for Output {
         let r = self.out.flush();
         self.check(r)
     }
+}
+
+/// The console draws on standard output and reads keys from standard input: both must
+/// be a terminal. Checked before anything starts, so that `adrive < /dev/null` or
+/// `ssh host adrive` (no `-t`: no terminal) is refused with a way forward instead of
+/// starting the engine and failing inside crossterm.
+pub fn check_standard_streams() -> Result<(), String> {
+    let which = match (io::stdin().is_terminal(), io::stdout().is_terminal()) {
+        (true, true) => return Ok(()),
+        (false, false) => "standard input and output are not one",
+        (false, true) => "standard input is not one",
+        (true, false) => "standard output is not one",
+    };
+    Err(format!(
+        "the console needs a terminal, and {which}; over SSH give it one with \
+         `ssh -t HOST adrive`, or run without a console: `adrive --headless`"
+    ))
 }
 
 /// The terminal in the console's hands: raw mode and the alternate screen until it
@@ -143,12 +162,17 @@ pub fn enter() -> io::Result<Screen> {
 /// Leave raw mode and the alternate screen if the console had them. Each step is
 /// tried whatever the other did; a failure (a dead terminal) is logged, never
 /// printed, never a panic. Safe to call twice and from a panic hook.
+///
+/// The alternate screen is cleared before it is left: tmux, leaving an alternate
+/// screen that grew with its window, shrinks it back first and pushes its top lines
+/// into the scrollback unless they are blank — quitting after a resize once left the
+/// console's top lines there.
 pub fn restore() {
     if !ENTERED.swap(false, SeqCst) {
         return;
     }
     let raw = disable_raw_mode();
-    let screen = execute!(io::stdout(), LeaveAlternateScreen);
+    let screen = execute!(io::stdout(), Clear(ClearType::All), LeaveAlternateScreen);
     if let Some(e) = raw.err().or(screen.err()) {
         tracing::debug!("terminal not restored: {e}");
     }

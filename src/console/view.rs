@@ -171,7 +171,10 @@ impl Model {
         } else {
             let head = if teleop { 0 } else { HEAD };
             let room = rest.saturating_sub(teleop_h + head + 1);
-            (head, (strip.lines().len() as u16).min(4).min(room))
+            (
+                head,
+                (strip.lines_in(body.width).len() as u16).min(4).min(room),
+            )
         };
         let [grid, teleop_area, lower, strip_area, log] = Layout::vertical([
             Constraint::Length(grid_h),
@@ -276,7 +279,7 @@ impl Widget for &Model {
             // shows where it was injected.
             let strip = self.strip();
             let room = body.height.saturating_sub(BENCH_MIN);
-            let strip_h = (strip.lines().len() as u16).min(3).min(room);
+            let strip_h = (strip.lines_in(body.width).len() as u16).min(3).min(room);
             let [body, strip_area] =
                 Layout::vertical([Constraint::Min(0), Constraint::Length(strip_h)]).areas(body);
             if strip_h > 0 {
@@ -295,6 +298,7 @@ impl Widget for &Model {
                     edit: self.edit.as_ref(),
                     now: self.now,
                     can_inject: self.snap.can_inject,
+                    read_only: self.snap.read_only,
                     sim_vehicle: self.snap.sim_vehicle.as_deref(),
                     map: &self.keymap,
                     roles: &self.snap.gate.roles,

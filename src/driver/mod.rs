@@ -12,6 +12,7 @@
 
 pub mod elm327;
 pub mod line;
+pub mod lock;
 #[cfg(test)]
 mod mock;
 pub mod modbus;
@@ -258,14 +259,15 @@ pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
 }
 
 /// Open a serial port (or pseudo-terminal) by path at a baud rate, as a
-/// [`serial::SerialLink`]. An error names the path (`cannot open /dev/ttyUSB0: No such
-/// file or directory`).
+/// [`serial::SerialLink`], for this process alone. An error names the path (`cannot
+/// open /dev/ttyUSB0: No such file or directory`), and for a port in use, the process
+/// holding it (kind `ResourceBusy`, [`lock`]).
 pub fn open_serial(path: &str, baud: u32, timeout: Duration) -> io::Result<Box<dyn Link>> {
     let named = |e: io::Error| io::Error::new(e.kind(), format!("cannot open {path}: {e}"));
     let port = serialport::new(path, baud)
         .timeout(timeout)
         .open_native()
-        .map_err(|e| named(e.into()))?;
+        .map_err(|e| named(lock::explain(path, e.into())))?;
     Ok(Box::new(
         serial::SerialLink::new(port, timeout).map_err(named)?,
     ))

@@ -25,7 +25,8 @@ pub const EXPECTED_REPLY_WAIT: Duration = Duration::from_secs(1);
 pub mod status {
     /// Sent, and nothing was refused.
     pub const OK: i32 = 0;
-    /// Something was refused, or nothing listens at the address.
+    /// Something was refused, or nothing listens at the address (with `--rate`: the
+    /// last datagram found nothing listening).
     pub const REFUSED: i32 = 1;
     /// A bad command line.
     pub const USAGE: i32 = 2;
@@ -138,7 +139,8 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         return match socket.recv(&mut buf) {
             Ok(n) => {
                 let reply = String::from_utf8_lossy(&buf[..n]);
-                print!("{reply}");
+                // The status tells the outcome, read or not (`| head`).
+                let _ = io::stdout().write_all(reply.as_bytes());
                 Ok(if refused(&reply) {
                     status::REFUSED
                 } else {
@@ -171,6 +173,9 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
     let mut sent = 0u64;
     let mut last_reply = String::new();
     let mut unreachable = false;
+    // The datagram sent last found nothing listening (an ICMP port unreachable, read
+    // back as ECONNREFUSED within its period): the status at the end.
+    let mut refused_last = false;
     // An expected reply: got one yet, and said that it is overdue.
     let (mut replied, mut warned) = (false, false);
     eprintln!(
@@ -181,8 +186,12 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         let text = datagram(true);
         check_size(&text)?;
         match socket.send(text.as_bytes()) {
-            Ok(_) => sent += 1,
-            Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {}
+            Ok(_) => {
+                sent += 1;
+                refused_last = false;
+            }
+            // The refusal of an earlier datagram, reported instead of sending this one.
+            Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => refused_last = true,
             Err(e) => return Err(e),
         }
         next += period;
@@ -200,17 +209,23 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
             match socket.recv(&mut buf) {
                 Ok(n) => {
                     unreachable = false;
+                    refused_last = false;
                     replied = true;
                     let reply = String::from_utf8_lossy(&buf[..n]).into_owned();
                     if reply != last_reply {
+                        // Sending is the job: an output nobody reads (`| head`) is no
+                        // reason to stop commanding the vehicle.
+                        let mut out = io::stdout().lock();
                         for line in reply.lines() {
-                            println!("{:>8.3}s {line}", start.elapsed().as_secs_f64());
+                            let at = start.elapsed().as_secs_f64();
+                            let _ = writeln!(out, "{at:>8.3}s {line}");
                         }
-                        let _ = io::stdout().flush();
+                        let _ = out.flush();
                         last_reply = reply;
                     }
                 }
                 Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
+                    refused_last = true;
                     if !unreachable {
                         eprintln!("adrive send: nothing is listening at {} (yet)", opts.to);
                         unreachable = true;
@@ -220,7 +235,13 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
                 Err(_) => {}
             }
         }
-        if expects_reply && !replied && !warned && start.elapsed() >= EXPECTED_REPLY_WAIT {
+        // Nothing listening has been said already.
+        if expects_reply
+            && !replied
+            && !warned
+            && !unreachable
+            && start.elapsed() >= EXPECTED_REPLY_WAIT
+        {
             no_reply();
             warned = true;
         }
@@ -229,10 +250,19 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         next = next.max(Instant::now() - period.max(CATCH_UP));
     }
     eprintln!(
-        "adrive send: sent {sent} datagrams in {:.1} s",
-        start.elapsed().as_secs_f64()
+        "adrive send: sent {sent} datagrams in {:.1} s{}",
+        start.elapsed().as_secs_f64(),
+        if refused_last {
+            format!("; nothing is listening at {}", opts.to)
+        } else {
+            String::new()
+        }
     );
-    Ok(if expects_reply && !replied {
+    // As for one datagram: nothing listening at the end is status 1, before a missing
+    // reply (nothing could have answered).
+    Ok(if refused_last {
+        status::REFUSED
+    } else if expects_reply && !replied {
         status::NO_REPLY
     } else {
         status::OK

@@ -29,7 +29,7 @@ pub mod status;
 pub use crate::config::NetworkConfig;
 pub use status::{NetStatus, Refusal};
 
-use crate::logging::RateLimit;
+use crate::logging::Repeats;
 use crate::safety::Gate;
 use crate::snapshot::Snapshot;
 use crate::threads::{StopSignal, Threads};
@@ -263,7 +263,7 @@ fn sender(a: &libc::sockaddr_storage) -> Option<SocketAddr> {
 
 fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
     let mut batch = Batch::new();
-    let mut errors = RateLimit::new(1);
+    let mut errors = Repeats::default();
     let status = intake.status().clone();
     let mut pace = pace::Pace::new(Instant::now(), &status);
     let mut last_read = Instant::now();
@@ -306,8 +306,8 @@ fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
             Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
             Err(e) => {
                 // E.g. ICMP port unreachable after a reply: log, never spin.
-                if errors.allow(Instant::now()) {
-                    tracing::warn!("command socket: {e}");
+                if let Some(repeats) = errors.note(&e.to_string(), Instant::now()) {
+                    tracing::warn!("command socket: {e}{repeats}");
                 }
                 std::thread::sleep(Duration::from_millis(1));
             }
@@ -343,7 +343,8 @@ fn broadcast_loop(
     status: &NetStatus,
     stop: &StopSignal,
 ) {
-    let mut errors = RateLimit::new(1);
+    // One condition per destination: each fails or recovers on its own.
+    let mut errors: Vec<Repeats> = dest.iter().map(|_| Repeats::default()).collect();
     let mut seq = 0u64;
     crate::threads::every(period, stop, || {
         let snap = snapshot(gate, status, seq);
@@ -365,11 +366,15 @@ fn broadcast_loop(
                     _ => serde_json::to_vec(&snap).unwrap_or_default(),
                 },
             });
-        for to in dest {
+        for (to, errors) in dest.iter().zip(&mut errors) {
             for bytes in &datagrams {
-                if let Err(e) = socket.send_to(bytes, to) {
-                    if errors.allow(Instant::now()) {
-                        tracing::warn!(%to, "state broadcast: {e}");
+                match socket.send_to(bytes, to) {
+                    Ok(_) => errors.clear(),
+                    Err(e) => {
+                        let what = format!("state broadcast to {to}: {e}");
+                        if let Some(repeats) = errors.note(&what, Instant::now()) {
+                            tracing::warn!("{what}{repeats}");
+                        }
                     }
                 }
             }

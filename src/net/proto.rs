@@ -18,7 +18,7 @@
 //!                                              throttle and brake are bound)
 //!          | "engage" | "disengage"
 //!          | "release"                         give command up (the vehicle stays engaged
-//!                                              for a handover; see the README)
+//!                                              for a handover; see docs/safety.md)
 //!          | "clear"                           clear a driver's latched override
 //!          | "seq" SP u64                      header: the sender's counter
 //!          | "tag" SP 64 hex digits            header: HMAC-SHA256, must be the last line
@@ -740,9 +740,17 @@ fn device_line(
             vocab.names(&mut e);
             Reject::UnknownDevice
         } else {
-            let _ = e.try_push_str("a line is a device and a value (");
-            vocab.names(&mut e);
-            let _ = e.try_push_str("), accel, engage, disengage, seq or tag");
+            if vocab.open {
+                // A client that does not know the vehicle has no devices to list.
+                let _ = e.try_push_str(
+                    "a line is a device and a value, separated by a space (steer 0.2)",
+                );
+            } else {
+                let _ = e.try_push_str("a line is a device and a value (");
+                vocab.names(&mut e);
+                let _ = e.try_push_str(")");
+            }
+            let _ = e.try_push_str(", accel, engage, disengage, seq or tag");
             Reject::UnknownVerb
         };
         return Err(ParseError::with(reason, line, e, verb));
@@ -1236,6 +1244,19 @@ mod tests {
                 .unwrap_err()
                 .reason,
             Reject::BadSyntax
+        );
+    }
+
+    /// `adrive send steer=0.2` answered "a line is a device and a value (), accel, …":
+    /// the client knows no devices to list, so the brackets were empty.
+    #[test]
+    fn a_line_sent_without_the_vehicle_shows_the_form_not_empty_brackets() {
+        let e = super::parse(b"steer=0.2", &Vocabulary::open()).unwrap_err();
+        let s = e.to_string();
+        assert!(!s.contains("()"), "{s}");
+        assert!(
+            s.contains("a line is a device and a value, separated by a space (steer 0.2)"),
+            "{s}"
         );
     }
 

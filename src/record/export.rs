@@ -65,7 +65,25 @@ fn cell(v: &Value) -> String {
     match v {
         Value::Null => String::new(),
         Value::String(s) => s.clone(),
+        Value::Number(n) if n.is_f64() => n.as_f64().map_or_else(|| n.to_string(), number),
         other => other.to_string(),
+    }
+}
+
+/// A float to 12 significant digits, trailing zeros dropped: `57.958`, not the
+/// `57.958000000000006` its arithmetic left (a spreadsheet reads both alike; a
+/// person does not). Numbers below a millionth are written whole.
+fn number(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || x.abs() < 1e-6 {
+        return x.to_string();
+    }
+    let whole_digits = x.abs().log10().floor() as i32 + 1;
+    let decimals = (12 - whole_digits).clamp(0, 17) as usize;
+    let s = format!("{x:.decimals$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
     }
 }
 
@@ -152,6 +170,20 @@ pub fn csv(rec: &Recording, dir: &Path) -> Result<Vec<(PathBuf, u64)>, ReadError
 mod tests {
     use super::*;
     use serde_json::json;
+
+    /// A status age computed as 57.958 ms was exported as `57.958000000000006`: the
+    /// float's exact value, noise for a spreadsheet.
+    #[test]
+    fn numbers_are_written_as_people_read_them() {
+        assert_eq!(cell(&json!(57.958000000000006)), "57.958");
+        assert_eq!(cell(&json!(0.1 + 0.2)), "0.3");
+        assert_eq!(cell(&json!(-0.25)), "-0.25");
+        assert_eq!(cell(&json!(0.001234)), "0.001234");
+        assert_eq!(cell(&json!(3)), "3");
+        assert_eq!(cell(&json!(1_795_299_498_139u64)), "1795299498139");
+        assert_eq!(cell(&json!(1_795_299_498.5)), "1795299498.5");
+        assert_eq!(cell(&json!(2.5e-9)), "0.0000000025");
+    }
 
     #[test]
     fn topics_become_file_names() {

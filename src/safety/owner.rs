@@ -13,8 +13,8 @@
 //!
 //! [`decide`] says what an act leads to given who commands now; the intake
 //! ([`super::intake`]) applies it under one lock, so that no command slips between a
-//! decision and a change of hands. The README's table of these rules is [`markdown`],
-//! checked by a test.
+//! decision and a change of hands. The guide's table (docs/safety.md) of these rules is
+//! [`markdown`], checked by a test.
 
 use crate::value::Source;
 
@@ -131,7 +131,7 @@ pub fn decide(
     }
 }
 
-/// The README's table of who may do what, from [`decide`] itself.
+/// The guide's table (docs/safety.md) of who may do what, from [`decide`] itself.
 pub fn markdown() -> String {
     use std::net::{IpAddr, Ipv4Addr, SocketAddr};
     let planner = Source::Network(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 5555));
@@ -264,15 +264,15 @@ mod tests {
     }
 
     #[test]
-    fn the_readme_shows_who_commands() {
-        let readme = include_str!("../../README.md");
+    fn the_guide_shows_who_commands() {
+        let readme = include_str!("../../docs/safety.md");
         let table = markdown();
         if let Some(path) = std::env::var_os("ADRIVE_PRINT_OWNER_TABLE") {
             std::fs::write(path, &table).unwrap();
         }
         assert!(
             readme.contains(&table),
-            "README.md must contain, verbatim, the table of who commands:\n{table}"
+            "docs/safety.md must contain, verbatim, the table of who commands:\n{table}"
         );
     }
 

@@ -360,6 +360,8 @@ pub fn check_accel(f: &Facts, rules: Rules, a: f64) -> Result<(), Reject> {
     check(&behind_the_release, rules, THROTTLE, Command::Set(throttle))
 }
 
+/// The guide's table (docs/vehicles.md) of the interlock rules: each with the roles it needs bound and
+/// what it refuses.
 pub fn markdown() -> String {
     let mut out = String::from("| rule | applies when bound | refuses |\n|---|---|---|\n");
     for r in Reject::RULES {
@@ -582,14 +584,14 @@ mod tests {
         }
     }
 
-    /// The README's table of rules is this module's.
+    /// The guide's table (docs/vehicles.md) of rules is this module's.
     #[test]
-    fn the_readme_shows_the_rules_table() {
-        let readme = include_str!("../../README.md");
+    fn the_guide_shows_the_rules_table() {
+        let readme = include_str!("../../docs/vehicles.md");
         let table = markdown();
         assert!(
             readme.contains(&table),
-            "README.md must contain, verbatim, the table of rules:\n{table}"
+            "docs/vehicles.md must contain, verbatim, the table of rules:\n{table}"
         );
     }
 }

@@ -6,8 +6,9 @@
 //! looks at the others', so of two racing threads at least one sees the other.
 //!
 //! [`verdict`] is a pure function of what the other devices' slots and caches hold
-//! ([`WireFacts`]); the engine gathers them, asks, and acts. A wait happens before the
-//! command thread takes its port, so no port is held while another device is awaited.
+//! ([`Facts`], the type the intake check asks over too); the engine gathers them, asks,
+//! and acts. A wait happens before the command thread takes its port, so no port is
+//! held while another device is awaited.
 
 use super::rules::{breaks, Facts, Plays, Reject, Rules, RELEASED, SHIFT_BRAKE};
 use crate::value::Command;

@@ -46,6 +46,30 @@ pub struct Track {
     /// from it.
     explained: Option<(f64, Instant)>,
     unexplained_since: Option<Instant>,
+    /// The port's open count at the last turn, and whether it has been seen gone
+    /// (missing) since it was last opened.
+    opens: u64,
+    gone: bool,
+    /// When the port was last seen back after a disconnect ([`Track::reopen`]).
+    reopened: Option<Instant>,
+}
+
+impl Track {
+    /// Follow the port through `h`: a port opened again after it was seen gone (a USB
+    /// unplug, a wrong path at start) is back at `now`. From then on the device is
+    /// judged afresh — its silence counts from the reopen, its error rate over the
+    /// transactions since — as it is at start. A port reopened while the device stays
+    /// silent (after failed transactions, never gone) is no new start.
+    fn reopen(&mut self, h: &crate::snapshot::Health, now: Instant) {
+        if h.missing {
+            self.gone = true;
+        } else if h.opens > self.opens && self.gone {
+            self.gone = false;
+            self.reopened = Some(now);
+            self.window.clear();
+        }
+        self.opens = h.opens;
+    }
 }
 
 /// Slack on a declared response when judging what a command explains (a declared rate
@@ -153,19 +177,28 @@ fn device_faults(
             .map(|m| format!(": {m}"))
             .unwrap_or_default()
     };
-    let gone = h.opens > 0 && h.missing;
+    // A port that cannot be opened — unplugged, or a wrong path from the start — is
+    // gone; its error names the path (`cannot open /dev/ttyUSB7: No such file or
+    // directory`), said first so that a narrow line keeps it.
+    let gone = h.missing;
+    let track = mem.tracks.entry(d.name.clone()).or_default();
+    track.reopen(h, now);
+    let since_reopen = track.reopened.map(|t| now - t);
     if gone {
-        raise(
-            FaultKind::Disconnected,
-            who,
-            format!("port closed{}", last_error()),
-        );
+        let cause = h
+            .last_error
+            .as_deref()
+            .map(|m| m.strip_prefix("port: ").unwrap_or(m))
+            .filter(|m| !m.is_empty())
+            .unwrap_or("port closed");
+        raise(FaultKind::Disconnected, who, cause.to_string());
     }
     // Silence is the device's own rule (`Device::silence`); one that never answered
     // is measured from the supervisor's start.
-    let (what, quiet) = match h.quiet_ms {
-        Some(q) => ("no answer", from_ms(q)),
-        None => ("never answered", now - mem.started),
+    let (what, quiet) = match (h.quiet_ms.map(from_ms), since_reopen) {
+        (Some(q), Some(r)) if r < q => ("no answer since the port reopened", r),
+        (Some(q), _) => ("no answer", q),
+        (None, r) => ("never answered", r.unwrap_or(now - mem.started)),
     };
     if !gone && d.settings.status_on && quiet > c.status_max_age {
         let mut cause = format!(
@@ -183,7 +216,6 @@ fn device_faults(
     let limit = c.status_max_age + c.reply_timeout;
     let age = d.status_age_ms.map_or(now - mem.started, from_ms);
 
-    let track = mem.tracks.entry(d.name.clone()).or_default();
     let s = d.counters;
     let attempts = s.polls + s.executed + s.command_errors;
     let errors = s.status_errors + s.command_errors;
@@ -193,8 +225,15 @@ fn device_faults(
         .retain(|(t, _, _)| now - *t <= sup.error_window);
     // A port that cannot be opened fails every transaction: that is said above (or as
     // silence, for a port never opened), not again as an error rate.
-    if let (false, Some(first), Some(last)) = (h.missing, track.window.first(), track.window.last())
-    {
+    // Nor is one back after a disconnect judged before it had its `status_max_age` to
+    // answer (the window holds only the transactions since the reopen).
+    let settling = since_reopen.is_some_and(|r| r <= c.status_max_age);
+    if let (false, false, Some(first), Some(last)) = (
+        h.missing,
+        settling,
+        track.window.first(),
+        track.window.last(),
+    ) {
         let (tries, errs) = (last.1 - first.1, last.2 - first.2);
         if tries >= 4 && errs as f64 / tries as f64 > sup.error_rate {
             raise(
@@ -428,12 +467,12 @@ impl Supervisor {
         };
         let is_new = |f: &Fault| !among(&before, f);
         for f in faults.iter().filter(|f| is_new(f)) {
-            tracing::warn!(fault = %f.kind, device = ?f.device, "fault: {}", f.describe());
+            tracing::warn!(fault = %f.kind, device = f.device.as_deref(), "fault: {}", f.describe());
             board.note(format!("fault: {}", f.describe()));
         }
         for b in &before {
             if !among(&faults, b) {
-                tracing::info!(fault = %b.kind, device = ?b.device, "cleared: {}", b.describe());
+                tracing::info!(fault = %b.kind, device = b.device.as_deref(), "cleared: {}", b.describe());
                 board.note(format!(
                     "cleared: {} {}",
                     b.device.as_deref().unwrap_or(""),
@@ -688,6 +727,164 @@ mod tests {
         assert!(
             old.contains(&FaultKind::Override) || old.contains(&FaultKind::NotFollowing),
             "judged by the one command a turn sees, it is at fault: {old:?}"
+        );
+    }
+
+    /// The incident: after `vanish steer 3000` the supervisor named `silent` and
+    /// `error_rate` the moment the port reopened — its last answer was 3 s old and the
+    /// failed transactions of the unplug were still in the error window — and cleared
+    /// them once it answered. A port back after a disconnect is judged from its reopen:
+    /// silent only after its own `status_max_age` without an answer since, its error
+    /// rate only over the transactions since. A device that still does not answer is
+    /// named silent once that grace has passed; one whose port is reopened while it stays
+    /// silent (after failed transactions, not a disconnect) gets no grace at all.
+    #[test]
+    fn a_port_back_after_a_disconnect_gets_its_status_max_age_before_silent_or_error_rate() {
+        let t0 = Instant::now();
+        let gate = sample::gate(t0);
+        let v = &gate.vehicle;
+        let sup = SupervisorConfig::default();
+        // Steer (status_max_age 250 ms), turn by turn every 50 ms: answering up to 1 s,
+        // then its transactions fail; `unplugged` (500 ms later, for 3 s) its port is
+        // gone; from `reopened` on, open again; answering again from `answers` (if ever).
+        let run = |unplugged: bool, answers: Option<u64>| {
+            let mut mem = Memory::new(t0);
+            let mut faults: Vec<Fault> = Vec::new();
+            let mut named: Vec<(u64, FaultKind)> = Vec::new();
+            let (mut polls, mut errors, mut answered) = (0u64, 0u64, 0u64);
+            let reopened = if unplugged { 4500 } else { 1500 };
+            for ms in (0..6000u64).step_by(50) {
+                let now = t0 + Duration::from_millis(ms);
+                let mut snap = gate.snapshot_at(0, now);
+                let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+                let ok = ms < 1000 || answers.is_some_and(|a| ms >= a);
+                if ok {
+                    polls += 1;
+                    answered = ms;
+                } else if !(unplugged && (1500..reopened).contains(&ms)) {
+                    errors += 1;
+                }
+                d.counters.polls = polls + errors;
+                d.counters.status_errors = errors;
+                d.health.quiet_ms = Some((ms - answered) as f64);
+                d.status_age_ms = Some((ms - answered) as f64);
+                d.health.missing = unplugged && (1500..reopened).contains(&ms);
+                d.health.opens = if ms < reopened { 1 } else { 2 };
+                d.health.last_error = (!ok).then(|| "no reply within 100ms".into());
+                d.health.last_error_age_ms = (!ok).then_some(10.0);
+                faults = detect(&snap, &v.config, &sup, &mut mem, &faults, now);
+                named.extend(
+                    faults
+                        .iter()
+                        .filter(|f| f.device.as_deref() == Some("steer"))
+                        .map(|f| (ms, f.kind))
+                        .filter(|(_, k)| matches!(k, FaultKind::Silent | FaultKind::ErrorRate)),
+                );
+            }
+            named
+        };
+        // Back, and answering within its status_max_age (250 ms): nothing after the reopen.
+        let back = run(true, Some(4700));
+        assert!(
+            back.iter().all(|(ms, _)| *ms < 4500),
+            "named after the reopen: {back:?}"
+        );
+        assert!(back.contains(&(1250, FaultKind::Silent)), "{back:?}");
+        // Back, never answering: silent once 250 ms passed since the reopen, not before.
+        let mute = run(true, None);
+        let first = mute
+            .iter()
+            .find(|(ms, k)| *ms >= 4500 && *k == FaultKind::Silent)
+            .expect("named silent after its grace");
+        assert_eq!(first.0, 4800, "{mute:?}");
+        // Reopened while silent, never gone: still silent, turn after turn.
+        let silent = run(false, None);
+        assert!(
+            (1250..6000)
+                .step_by(50)
+                .all(|ms| silent.contains(&(ms, FaultKind::Silent))),
+            "{silent:?}"
+        );
+    }
+
+    /// The incident: a vehicle file naming a port that does not exist was reported as
+    /// `steer silent … never answered`, not `disconnected` as the fault table says, so
+    /// no reconnect procedure ran for it. A port that cannot be opened is disconnected,
+    /// opened before or not, and the cause names the path.
+    #[test]
+    fn a_port_that_cannot_be_opened_at_start_is_disconnected_not_silent() {
+        let t0 = Instant::now();
+        let gate = sample::gate(t0);
+        let v = &gate.vehicle;
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(t0);
+        let now = t0 + Duration::from_secs(2);
+        let mut snap = gate.snapshot_at(0, now);
+        let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+        d.health.opens = 0;
+        d.health.missing = true;
+        d.health.quiet_ms = None;
+        d.status_age_ms = None;
+        d.health.last_error =
+            Some("port: cannot open /dev/ttyUSB7: No such file or directory".into());
+        d.health.last_error_age_ms = Some(5.0);
+        let faults = detect(&snap, &v.config, &sup, &mut mem, &[], now);
+        let steer: Vec<&Fault> = faults
+            .iter()
+            .filter(|f| f.device.as_deref() == Some("steer"))
+            .collect();
+        assert_eq!(steer.len(), 1, "{steer:?}");
+        assert_eq!(steer[0].kind, FaultKind::Disconnected);
+        assert_eq!(
+            steer[0].cause,
+            "cannot open /dev/ttyUSB7: No such file or directory"
+        );
+        let f = &steer[0];
+        assert!(procedure_for(f, &gate, &sup).is_some_and(|p| p.name() == "reconnect steer"));
+    }
+
+    /// A fault's log line, in the console's log pane and the log file, named its device
+    /// `device=Some("steer")`, and a fault of no device (an engine stall) `device=None`.
+    #[test]
+    fn a_fault_log_line_names_its_device_plainly() {
+        use tracing_subscriber::layer::SubscriberExt;
+        let ring = crate::console::logring::LogRing::default();
+        let sub = tracing_subscriber::registry().with(ring.layer());
+        let gate = sample::gate(Instant::now());
+        let v = &gate.vehicle;
+        let set = |device: &str, i: usize, x: f64| {
+            v.find(device)
+                .expect("an alice device")
+                .cache
+                .lock()
+                .reading
+                .set(i, x);
+        };
+        set("steer", 0, 5.0); // position, far outside -1…1
+        set("obd", 0, 0.0); // rpm: the engine stopped …
+        set("obd", 3, 0.0); // … not running …
+        set("trans", 0, 3.0); // … in drive
+        let mut sup = Supervisor::new(SupervisorConfig::default(), Box::new(|_| {}));
+        tracing::subscriber::with_default(sub, || sup.tick(&gate, Instant::now()));
+        let lines: Vec<String> = ring.recent().into_iter().map(|l| l.text).collect();
+        let logged = |start: &str| {
+            lines
+                .iter()
+                .find(|l| l.starts_with(start))
+                .unwrap_or_else(|| panic!("{start}… is logged: {lines:#?}"))
+        };
+        let range = logged("fault: steer out_of_range");
+        assert!(
+            range.ends_with(" fault=out_of_range device=steer"),
+            "{range}"
+        );
+        let stall = logged("fault: engine_stall");
+        assert!(stall.ends_with(" fault=engine_stall"), "{stall}");
+        assert!(
+            lines
+                .iter()
+                .all(|l| !l.contains("Some(") && !l.contains("None")),
+            "{lines:#?}"
         );
     }
 }

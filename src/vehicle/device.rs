@@ -20,9 +20,6 @@ use std::time::{Duration, Instant};
 /// After this many failed transactions in a row a device counts as faulty.
 pub const FAULT_AFTER: u32 = 3;
 
-/// A device's error that persists unchanged is logged again this often.
-pub const REPEAT_ERROR_EVERY: Duration = Duration::from_secs(60);
-
 /// The latest state a device reported.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Cached {
@@ -59,8 +56,8 @@ pub struct Health {
     /// When the device last answered (a good status or an acknowledged command), in
     /// nanoseconds after [`Device::started`] plus one; 0 before its first answer.
     answered_ns: AtomicU64,
-    /// When an error was last logged.
-    error_logged: Mutex<Option<Instant>>,
+    /// Errors that repeat, logged when they start or change, then once a minute.
+    errors_logged: Mutex<crate::logging::Repeats>,
 }
 
 impl Health {
@@ -340,20 +337,20 @@ impl Device {
         }
         let msg = e.to_string();
         let now = Instant::now();
-        let mut last = self.health.last_error.lock();
-        let fresh = n == 1 || last.as_ref().is_none_or(|(_, m)| *m != msg);
-        *last = Some((now, msg));
-        drop(last);
+        *self.health.last_error.lock() = Some((now, msg.clone()));
         // Log the first error of a run and every change of message; an error that
-        // persists (a port that is not there) is repeated rarely, not at the poll rate.
-        let mut logged = self.health.error_logged.lock();
-        let due = fresh || logged.is_none_or(|t| now - t >= REPEAT_ERROR_EVERY);
-        if due {
-            *logged = Some(now);
-        }
-        drop(logged);
-        if due {
-            tracing::warn!(device = %self.name(), errors_in_a_row = n, "{}: {e}", if is_command { "command" } else { "status" });
+        // persists (a port that is not there) is repeated once a minute with a count,
+        // not at the poll rate.
+        let repeats = {
+            let mut logged = self.health.errors_logged.lock();
+            if n == 1 {
+                logged.clear();
+            }
+            logged.note(&msg, now)
+        };
+        if let Some(repeats) = repeats {
+            let thread = if is_command { "command" } else { "status" };
+            tracing::warn!(device = %self.name(), errors_in_a_row = n, "{thread}: {e}{repeats}");
         }
     }
 }

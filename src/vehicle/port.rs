@@ -278,6 +278,12 @@ pub struct Conn {
     clean: bool,
     /// Why the last open failed, repeated while waiting to retry.
     open_error: Option<String>,
+    /// Reopens after failed transactions (a device that stays silent is reopened every
+    /// few transactions): logged when they start, then once a minute with a count.
+    reopens: crate::logging::Repeats,
+    /// The next open is to be logged ("port reopened"): after a disconnect, or after
+    /// a reopen that was logged.
+    announce_open: bool,
 }
 
 impl Conn {
@@ -298,11 +304,14 @@ impl Conn {
             failures: 0,
             clean: false,
             open_error: None,
+            reopens: crate::logging::Repeats::default(),
+            announce_open: false,
         }
     }
 
     fn fail_open(&mut self) {
         self.link = None;
+        self.announce_open = true;
         self.next_open = Instant::now() + self.backoff;
         self.backoff = (self.backoff * 2).min(BACKOFF_MAX);
     }
@@ -344,7 +353,7 @@ impl Conn {
         self.link = Some(link);
         self.backoff = BACKOFF_MIN;
         let n = self.health.opens.fetch_add(1, Relaxed);
-        if n > 0 {
+        if n > 0 && std::mem::take(&mut self.announce_open) {
             tracing::info!(device = self.trace.device(), "port reopened");
         }
         Ok(())
@@ -430,17 +439,23 @@ impl Conn {
     fn settle<T>(&mut self, r: &Result<T, DriverError>) {
         self.clean = r.is_ok();
         match r {
-            Ok(_) => self.failures = 0,
+            Ok(_) => {
+                self.failures = 0;
+                self.reopens.clear();
+            }
             Err(e) => {
                 self.failures += 1;
                 if e.is_disconnect() {
                     self.fail_open();
                 } else if self.failures >= REOPEN_AFTER {
-                    tracing::warn!(
-                        device = self.trace.device(),
+                    let what = format!(
                         "{} failed transactions in a row: reopening the port",
                         self.failures
                     );
+                    if let Some(repeats) = self.reopens.note(&what, Instant::now()) {
+                        tracing::warn!(device = self.trace.device(), "{what}{repeats}");
+                        self.announce_open = true;
+                    }
                     self.failures = 0;
                     // Reopen at the next transaction; backoff is for ports that fail
                     // to open.

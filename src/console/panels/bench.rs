@@ -42,6 +42,8 @@ pub struct BenchView<'a> {
     pub edit: Option<&'a Edit>,
     pub now: Instant,
     pub can_inject: bool,
+    /// A replay: nothing can be sent, faults included.
+    pub read_only: bool,
     /// The simulated vehicle's state in words (`--sim` only).
     pub sim_vehicle: Option<&'a str>,
     /// For the fault keys' legend.
@@ -117,11 +119,24 @@ pub fn log2_bins(buckets: &[(f64, u64)]) -> Vec<(f64, u64)> {
 pub fn trace_line(e: &TraceEntry, now: Instant) -> String {
     let ago = now.saturating_duration_since(e.at).as_secs_f64();
     format!(
-        "{} -{ago:>7.3}s  {:<48} {}",
+        "{} {ago:>7.3}s ago  {:<48} {}",
         e.dir.arrow(),
         e.hex(),
         e.ascii()
     )
+}
+
+/// The raw traffic's title: its columns, then the faults injected into the device, or
+/// why none can be (not simulated here; a replay, which is read-only).
+fn traffic_title(name: &str, sim: Option<&str>, can_inject: bool, read_only: bool) -> String {
+    let mut title = format!(" {name} raw traffic: dir, time ago, hex, text ");
+    match sim {
+        Some(f) => title.push_str(&format!("— sim: {f} ")),
+        None if read_only => title.push_str("— replay: read-only "),
+        None if !can_inject => title.push_str("— fault injection needs --sim "),
+        None => {}
+    }
+    title
 }
 
 impl Widget for &BenchView<'_> {
@@ -217,12 +232,12 @@ impl Widget for &BenchView<'_> {
                 .render(right, buf);
         }
 
-        let mut title = format!(" {} raw traffic ", self.d.name);
-        match self.sim.filter(|f| f.any()) {
-            Some(f) => title.push_str(&format!("— sim: {} ", f.text)),
-            None if !self.can_inject => title.push_str("— fault injection needs --sim "),
-            None => {}
-        }
+        let title = traffic_title(
+            &self.d.name,
+            self.sim.filter(|f| f.any()).map(|f| f.text.as_str()),
+            self.can_inject,
+            self.read_only,
+        );
         let block = Block::bordered().title(Span::styled(title, t.title()));
         let inner = block.inner(bottom);
         block.render(bottom, buf);
@@ -275,7 +290,30 @@ mod tests {
         );
         assert_eq!(
             trace_line(&e, now),
-            format!("-> -  0.012s  {:<48} S 0.5.", "53 20 30 2e 35 0d")
+            format!("->   0.012s ago  {:<48} S 0.5.", "53 20 30 2e 35 0d")
+        );
+    }
+
+    /// The traffic's time column was a bare `-  0.012s`, and in a replay the title
+    /// said "fault injection needs --sim" as if `--sim` would help.
+    #[test]
+    fn the_traffic_title_names_its_columns_and_what_injection_needs() {
+        let title = |sim, inject, read_only| traffic_title("gas", sim, inject, read_only);
+        assert_eq!(
+            title(None, true, false),
+            " gas raw traffic: dir, time ago, hex, text "
+        );
+        assert_eq!(
+            title(None, false, false),
+            " gas raw traffic: dir, time ago, hex, text — fault injection needs --sim "
+        );
+        assert_eq!(
+            title(None, false, true),
+            " gas raw traffic: dir, time ago, hex, text — replay: read-only "
+        );
+        assert_eq!(
+            title(Some("silent"), true, false),
+            " gas raw traffic: dir, time ago, hex, text — sim: silent "
         );
     }
 }

@@ -53,14 +53,22 @@ impl Header<'_> {
         } else {
             (" DISENGAGED ".to_string(), t.warn().patch(bar))
         };
-        // Engaged: who commands it; disengaged: why.
+        // Engaged: who commands it; disengaged: why. The gate keeps the reason it
+        // disengaged for; once the override that was it is cleared, the bar says so
+        // rather than show the driver still in charge.
         let who = match &s.gate.commander {
             Some(c) => format!("by {c}"),
             None => "nobody commands".to_string(),
         };
-        let why = match s.gate.engaged {
-            true => who.as_str(),
-            false => s.gate.reason.trim_start_matches("disengaged: "),
+        let reason = s.gate.reason.trim_start_matches("disengaged: ");
+        let cleared;
+        let why = if s.gate.engaged {
+            who.as_str()
+        } else if reason.starts_with("driver override on ") && s.gate.overridden.is_empty() {
+            cleared = format!("{reason}, cleared");
+            cleared.as_str()
+        } else {
+            reason
         };
         let title = format!(" ADRIVE {} ", s.vehicle);
         let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
@@ -245,6 +253,25 @@ mod tests {
         assert!(l.contains(" ENGAGED (by network"), "{l}");
         assert!(l.starts_with(" ADRIVE a vehicle"), "{l}");
         assert!(l.contains('…') && l.width() <= 80, "{l}");
+    }
+
+    /// After `C` cleared a driver's override the header still read `DISENGAGED
+    /// (driver override on steer)`, as if the driver still had the wheel.
+    #[test]
+    fn a_cleared_override_is_said_to_be_cleared() {
+        let mut m = model(false, "driver override on steer", "Alice");
+        m.snap.snap.gate.overridden = vec!["steer".into()];
+        let l = text(&Header { m: &m }.line(120));
+        assert!(
+            l.ends_with(" DISENGAGED (driver override on steer) "),
+            "{l}"
+        );
+        m.snap.snap.gate.overridden.clear();
+        let l = text(&Header { m: &m }.line(120));
+        assert!(
+            l.ends_with(" DISENGAGED (driver override on steer, cleared) "),
+            "{l}"
+        );
     }
 
     #[test]

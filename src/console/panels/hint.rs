@@ -2,8 +2,9 @@
 //! its error, or the name prompt and what it finds), and the hint bar, generated from
 //! the loaded keymap for the current mode.
 
+use crate::config::Role;
 use crate::console::find;
-use crate::console::keymap::{describe, Action, Binding, Key, Keymap, Mode};
+use crate::console::keymap::{describe, Action, Binding, Key, Keymap, Mode, Target};
 use crate::console::model::{Find, Model};
 use crate::console::theme::Theme;
 use crate::snapshot::Pairs;
@@ -52,7 +53,7 @@ pub fn grouped_first(
 ) -> Vec<(String, String, Action)> {
     let mut out: Vec<(String, String, Action)> = Vec::new();
     let bs: &[Binding] = map.bindings(mode);
-    for b in bs {
+    for b in bs.iter().filter(|b| available(b.run, roles)) {
         let Some(desc) = describe(&b.desc, roles) else {
             continue;
         };
@@ -71,6 +72,17 @@ pub fn grouped_first(
         _ => 3,
     });
     out
+}
+
+/// Whether the vehicle has what `action` acts on: `accel` exists only with a throttle
+/// and a brake bound (the keys for a single role are left out by [`describe`]).
+fn available(action: Action, roles: &Pairs<String>) -> bool {
+    match action {
+        Action::EditOf(Target::Accel) => [Role::Throttle, Role::Brake]
+            .iter()
+            .all(|r| roles.get(r.as_str()).is_some()),
+        _ => true,
+    }
 }
 
 pub struct HintBar<'a> {
@@ -190,5 +202,40 @@ impl Widget for &MessageLine<'_> {
             }
         };
         Paragraph::new(line).render(area, buf);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn bar(roles: &Pairs<String>, width: u16) -> String {
+        let map = Keymap::default_map();
+        let h = HintBar {
+            map: &map,
+            mode: Mode::Main,
+            theme: Theme::default(),
+            first: None,
+            roles,
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, width, 1));
+        (&h).render(buf.area, &mut buf);
+        (0..width).map(|x| buf[(x, 0)].symbol()).collect()
+    }
+
+    /// `adrive --only steer` (no throttle, no brake) offered `c accel`, a command the
+    /// vehicle does not have.
+    #[test]
+    fn the_hint_bar_offers_accel_only_with_throttle_and_brake_bound() {
+        let roles = |r: &[&str]| -> Pairs<String> {
+            r.iter().map(|r| (r.to_string(), r.to_string())).collect()
+        };
+        let steer_only = bar(&roles(&["steering"]), 200);
+        assert!(!steer_only.contains("accel"), "{steer_only}");
+        assert!(steer_only.contains("s steering"), "{steer_only}");
+        let brake_only = bar(&roles(&["steering", "brake"]), 200);
+        assert!(!brake_only.contains("accel"), "{brake_only}");
+        let both = bar(&roles(&["steering", "throttle", "brake"]), 200);
+        assert!(both.contains("c accel"), "{both}");
     }
 }

@@ -28,7 +28,9 @@ fn rejections(list: &[(String, u64)]) -> String {
 }
 
 impl NetworkPanel<'_> {
-    fn running(&self, n: &NetView) -> Vec<Line<'static>> {
+    /// The lines for a panel `width` columns wide: the command watchdog ends the first
+    /// line, or opens the second where the first has no room for it whole.
+    fn running(&self, n: &NetView, width: u16) -> Vec<Line<'static>> {
         let t = &self.theme;
         let l = |x: &'static str| Span::styled(x, t.label());
         // The commander's watchdog (a network sender's, ROS 2's, or the teleop deadman).
@@ -70,28 +72,39 @@ impl NetworkPanel<'_> {
             .iter()
             .map(|x| format!("{}{}", x.addr, if x.commanding { "*" } else { "" }))
             .collect();
+        let mut first = Line::from(vec![
+            Span::styled("NETWORK ", t.title()),
+            Span::raw(n.listen.to_string()),
+            l(" senders "),
+            Span::raw(n.senders.len().to_string()),
+        ]);
+        let mut second = Line::from(vec![
+            l("cmds "),
+            Span::raw(if cmds.is_empty() { "none".into() } else { cmds }),
+        ]);
+        let watchdog = [l(" watchdog "), wd];
+        let room = usize::from(width);
+        if first.width() + watchdog.iter().map(Span::width).sum::<usize>() <= room {
+            first.spans.extend(watchdog);
+        } else {
+            let [_, wd] = watchdog;
+            let mut spans = vec![l("watchdog "), wd, l("  ")];
+            spans.append(&mut second.spans);
+            second = Line::from(spans);
+        }
         vec![
-            Line::from(vec![
-                Span::styled("NETWORK ", t.title()),
-                Span::raw(n.listen.to_string()),
-                l(" senders "),
-                Span::raw(n.senders.len().to_string()),
-                l(" watchdog "),
-                wd,
-            ]),
-            Line::from(vec![
-                l("cmds "),
-                Span::raw(if cmds.is_empty() { "none".into() } else { cmds }),
-            ]),
+            first,
+            second,
             Line::from(vec![l("rejected "), Span::raw(rejections(&rejected))]),
             Line::from(vec![l("from "), Span::raw(senders.join(", "))]),
         ]
     }
 
-    pub fn lines(&self) -> Vec<Line<'static>> {
+    /// The lines for a panel `width` columns wide.
+    pub fn lines(&self, width: u16) -> Vec<Line<'static>> {
         let t = &self.theme;
         match &self.snap.net {
-            Some(n) => self.running(n),
+            Some(n) => self.running(n, width),
             None => {
                 let intake: Vec<(String, u64)> = self
                     .snap
@@ -117,7 +130,7 @@ impl NetworkPanel<'_> {
 
 impl Widget for &NetworkPanel<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        Paragraph::new(self.lines()).render(area, buf);
+        Paragraph::new(self.lines(area.width)).render(area, buf);
     }
 }
 
@@ -153,12 +166,11 @@ mod tests {
         );
     }
 
-    #[test]
-    fn with_a_listener_it_shows_its_figures() {
+    fn listening() -> Frame {
         let pairs = |v: &[(&str, u64)]| -> Pairs<u64> {
             v.iter().map(|(n, c)| (n.to_string(), *c)).collect()
         };
-        let snap = Frame {
+        Frame {
             snap: Snapshot {
                 net: Some(NetView {
                     listen: "127.0.0.1:7400".parse().unwrap(),
@@ -193,7 +205,12 @@ mod tests {
                 ..Snapshot::default()
             },
             ..Frame::default()
-        };
+        }
+    }
+
+    #[test]
+    fn with_a_listener_it_shows_its_figures() {
+        let snap = listening();
         let p = NetworkPanel {
             snap: &snap,
             theme: Theme::default(),
@@ -203,6 +220,26 @@ mod tests {
             [
                 "NETWORK 127.0.0.1:7400 senders 1 watchdog ok 40/500ms",
                 "cmds steer 12 gas 3",
+                "rejected disengaged 2",
+            ]
+        );
+    }
+
+    /// At 80 columns the panel is 40 wide, and its first line ended `senders 0
+    /// watchd`: the command watchdog was cut off. Where it does not fit it opens the
+    /// next line, whole.
+    #[test]
+    fn at_40_columns_the_watchdog_opens_the_next_line_whole() {
+        let snap = listening();
+        let p = NetworkPanel {
+            snap: &snap,
+            theme: Theme::default(),
+        };
+        assert_eq!(
+            text(&p, 40, 3),
+            [
+                "NETWORK 127.0.0.1:7400 senders 1",
+                "watchdog ok 40/500ms  cmds steer 12 gas",
                 "rejected disengaged 2",
             ]
         );

@@ -7,7 +7,9 @@
 //! with `compact`) plus, while there are faults or a recovery, a full-width strip
 //! under them ([`SupervisorStrip`]): one line for the recovery
 //! (`RECOVERY engine_stall 4/7 park (try 1/3) 2.1s  then starter › back in drive`)
-//! and one per fault — or all of them side by side when it has one line only. On a larger screen it is one taller panel.
+//! and one per fault (a fault too long for the width goes on over the next lines
+//! where there is room) — or all of them side by side when it has one line only. On a
+//! larger screen it is one taller panel.
 
 use super::wrap;
 use crate::console::controls::{secs, Frame};
@@ -130,17 +132,12 @@ impl SupervisorPanel<'_> {
         } else {
             Span::styled(n.to_string(), t.fault())
         };
-        vec![
-            self.first(),
-            Line::from(vec![
-                l("accel "),
-                self.accel(),
-                l("  faults "),
-                faults,
-                l("  recovery "),
-                recovery,
-            ]),
-        ]
+        let mut second = Vec::new();
+        if self.m.snap.gate.accel {
+            second.extend([l("accel "), self.accel(), l("  ")]);
+        }
+        second.extend([l("faults "), faults, l("  recovery "), recovery]);
+        vec![self.first(), Line::from(second)]
     }
 
     /// Everything, for a larger screen `width` columns wide.
@@ -148,20 +145,33 @@ impl SupervisorPanel<'_> {
         let (s, t) = (&self.m.snap, &self.m.theme);
         let sup = &s.supervisor;
         let l = |x: &'static str| Span::styled(x, t.label());
-        let mut first = self.first();
-        first.spans.extend([l("  accel "), self.accel()]);
+        let first = self.first();
+        // `accel` where the vehicle has it (throttle and brake bound): on the first
+        // line when it fits there, else on a line of its own.
+        let accel = s.gate.accel.then(|| [l("accel "), self.accel()]);
+        let accel_width = accel
+            .as_ref()
+            .map_or(0, |a| 2 + a.iter().map(Span::width).sum::<usize>());
+        let (first, accel_line) = match accel {
+            Some(a) if first.width() + accel_width <= usize::from(width) => {
+                let mut first = first;
+                first.spans.push(l("  "));
+                first.spans.extend(a);
+                (first, None)
+            }
+            a => (first, a.map(|a| Line::from(Vec::from(a)))),
+        };
         let why_style = if s.gate.engaged {
             Style::new()
         } else {
             t.warn()
         };
-        let mut out = vec![
-            first,
-            Line::from(vec![
-                l("why "),
-                Span::styled(s.gate.reason.clone(), why_style),
-            ]),
-        ];
+        let mut out = vec![first];
+        out.extend(accel_line);
+        out.push(Line::from(vec![
+            l("why "),
+            Span::styled(s.gate.reason.clone(), why_style),
+        ]));
         if !s.gate.engaged && !s.gate.blockers.is_empty() {
             out.push(Line::from(vec![
                 l("engage blocked: "),
@@ -260,10 +270,60 @@ impl SupervisorStrip<'_> {
     }
 }
 
+/// `line` in lines of at most `width` columns, broken between words, each after the
+/// first indented by `indent` columns: a fault's cause (a port's path) is read whole,
+/// not cut at the edge. A word wider than a line is left to be cut.
+fn wrap_words(line: Line<'static>, width: u16, indent: usize) -> Vec<Line<'static>> {
+    let width = width as usize;
+    if line.width() <= width || width <= indent {
+        return vec![line];
+    }
+    let mut out: Vec<Line<'static>> = Vec::new();
+    let mut current: Vec<Span<'static>> = Vec::new();
+    let (mut used, mut words) = (0, 0);
+    for span in line.spans {
+        let style = span.style;
+        for word in span.content.split_inclusive(' ') {
+            let bare = word.trim_end().chars().count();
+            if words > 0 && used + bare > width {
+                out.push(Line::from(std::mem::take(&mut current)));
+                current.push(Span::raw(" ".repeat(indent)));
+                (used, words) = (indent, 0);
+            }
+            current.push(Span::styled(word.to_string(), style));
+            used += word.chars().count();
+            words += 1;
+        }
+    }
+    out.push(Line::from(current));
+    out
+}
+
+impl SupervisorStrip<'_> {
+    /// [`SupervisorStrip::lines`] for `width` columns: a line too long for it goes on
+    /// over the next lines, under its text.
+    pub fn lines_in(&self, width: u16) -> Vec<Line<'static>> {
+        self.lines()
+            .into_iter()
+            .flat_map(|l| {
+                let indent = l.spans.first().map_or(0, |s| s.content.chars().count());
+                wrap_words(l, width, indent)
+            })
+            .collect()
+    }
+}
+
 impl Widget for &SupervisorStrip<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        let mut lines = self.lines();
         let n = area.height as usize;
+        // Wrapped where there is room for every line wrapped; else one line each, and
+        // what is left out counted in whole lines.
+        let wrapped = self.lines_in(area.width);
+        let mut lines = if wrapped.len() <= n {
+            wrapped
+        } else {
+            self.lines()
+        };
         if lines.len() > 1 && n == 1 {
             // One line for all (many devices on a small screen): side by side, as
             // many as the width shows.
@@ -292,6 +352,7 @@ mod tests {
     use super::*;
     use crate::snapshot::{FaultKind, FaultView, Snapshot, SupervisorView};
     use ratatui::style::Color;
+    use unicode_width::UnicodeWidthStr;
 
     fn sample() -> Frame {
         let supervisor = SupervisorView {
@@ -389,5 +450,66 @@ mod tests {
         );
         let park = &lines[1].spans[1];
         assert_eq!(park.style, t.warn().patch(t.cursor()));
+    }
+
+    fn model(accel: bool) -> Model {
+        use crate::console::controls::{capture, Sources};
+        use crate::console::keymap::Keymap;
+        use std::time::{Duration, Instant};
+        let now = Instant::now();
+        let mut frame = capture(
+            &crate::console::sample::gate(now),
+            &Sources::default(),
+            now,
+            None,
+        );
+        frame.snap.gate.accel = accel;
+        Model::new(
+            Keymap::default_map(),
+            Theme::default(),
+            frame,
+            Duration::from_secs(1),
+        )
+    }
+
+    fn texts(lines: &[Line]) -> Vec<String> {
+        lines
+            .iter()
+            .map(|l| l.spans.iter().map(|s| s.content.as_ref()).collect())
+            .collect()
+    }
+
+    /// With `--only steer` the panel is 40 columns wide and its first line ran on
+    /// into `… interlocks on  ac` beside the network panel, offering an `accel` the
+    /// vehicle did not have (no throttle and brake bound). `accel` shows only where
+    /// it exists, and where it does not fit the first line it takes a line of its own.
+    #[test]
+    fn accel_shows_only_where_it_exists_and_never_runs_off_the_panel() {
+        let without = model(false);
+        let p = SupervisorPanel {
+            m: &without,
+            cursor: false,
+            compact: false,
+        };
+        let full = texts(&p.full_lines(40));
+        assert!(full.iter().all(|l| !l.contains("accel")), "{full:#?}");
+        let compact = texts(&p.compact_lines());
+        assert!(compact.iter().all(|l| !l.contains("accel")), "{compact:#?}");
+        assert_eq!(compact[1], "faults none  recovery -");
+
+        let with = model(true);
+        let p = SupervisorPanel {
+            m: &with,
+            cursor: false,
+            compact: false,
+        };
+        let full = texts(&p.full_lines(40));
+        assert!(full.iter().all(|l| l.width() <= 40), "{full:#?}");
+        assert_eq!(full[0], "SUPERVISORY engaged 0 interlocks on");
+        assert_eq!(full[1], "accel -");
+        let wide = texts(&p.full_lines(60));
+        assert_eq!(wide[0], "SUPERVISORY engaged 0 interlocks on  accel -");
+        let compact = texts(&p.compact_lines());
+        assert_eq!(compact[1], "accel -  faults none  recovery -");
     }
 }
