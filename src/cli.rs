@@ -12,7 +12,7 @@ use crate::record::{self, Recorder};
 use crate::safety::{gate, Gate};
 use crate::sim::{Sim, SimEvent};
 use crate::vehicle::Vehicle;
-use crate::{console, driver, headless, logging};
+use crate::{console, driver, headless, logging, socket};
 use clap::{Args, CommandFactory, Parser, Subcommand};
 use std::io::{self, BufRead, Write};
 use std::net::SocketAddr;
@@ -50,6 +50,17 @@ pub enum Cmd {
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
+    /// The console on a running adrive (a service, or another console's session), over
+    /// its control socket: watching until it engages or takes command.
+    ///
+    /// Exit status: 0 the operator quit; 1 no adrive at the socket, or it went away;
+    /// 129 the terminal hung up.
+    Attach(AttachArgs),
+    /// One operator command to a running adrive over its control socket, for scripts
+    /// and for a person without a terminal.
+    ///
+    /// Exit status: 0 done; 1 refused, or no adrive at the socket; 3 no reply.
+    Ctl(CtlArgs),
     /// Play a recording in the console: pause, step, seek, speed; read-only.
     Replay(ReplayArgs),
     /// Recordings: `adrive record info FILE`.
@@ -122,6 +133,54 @@ pub struct RunArgs {
     /// file's `[ros2]`; built with the cargo feature `ros2`).
     #[arg(long)]
     pub ros2: bool,
+    /// The control socket consoles attach to (default: $RUNTIME_DIRECTORY/adrive.sock
+    /// under systemd, else $XDG_RUNTIME_DIR/adrive/adrive.sock, else
+    /// /tmp/adrive-UID/adrive.sock).
+    #[arg(long, value_name = "PATH")]
+    pub socket: Option<PathBuf>,
+}
+
+#[derive(Args, Debug, Clone, Default)]
+pub struct AttachArgs {
+    /// The running adrive's control socket (default: as `adrive --socket`'s).
+    #[arg(long, value_name = "PATH")]
+    pub socket: Option<PathBuf>,
+    /// Keymap TOML merged over the built-in one (default: ~/.config/adrive/keymap.toml if present).
+    #[arg(long, value_name = "FILE")]
+    pub keymap: Option<PathBuf>,
+    /// Teleop deadman of this console (100ms to 5s) [default: 1s].
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
+    pub deadman: Option<Duration>,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct CtlArgs {
+    /// What to do.
+    #[command(subcommand)]
+    pub what: CtlCmd,
+    /// The running adrive's control socket (default: as `adrive --socket`'s).
+    #[arg(long, value_name = "PATH", global = true)]
+    pub socket: Option<PathBuf>,
+}
+
+#[derive(Subcommand, Debug, Clone)]
+pub enum CtlCmd {
+    /// The vehicle now: the gate, who commands, every device (a table, or --json: the
+    /// snapshot).
+    Status {
+        #[arg(long)]
+        json: bool,
+    },
+    /// Engage, as an operator: the vehicle is held in the safe state, commanded by you,
+    /// until you release it (to a planner), stop or disengage it, or a console takes it.
+    Engage,
+    /// Stop: disengage, throttle 0, brake full. Never refused.
+    Stop,
+    /// Disengage into the stop state. Never refused.
+    Disengage,
+    /// Give command up: a planner picks the vehicle up by engaging within the watchdog
+    /// timeout, or it is stopped.
+    Release,
 }
 
 #[derive(Subcommand, Debug, Clone)]
@@ -239,6 +298,8 @@ pub fn main() -> i32 {
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
+        Some(Cmd::Attach(args)) => attach(args),
+        Some(Cmd::Ctl(args)) => ctl(args),
         Some(Cmd::Replay(args)) => replay(args),
         Some(Cmd::Record {
             command: RecordCmd::Info { file },
@@ -313,12 +374,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     };
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
-    let ring = (!args.headless).then(console::logring::LogRing::default);
-    let mut extra: Vec<logging::ExtraLayer> = Vec::new();
-    extra.extend(
-        ring.as_ref()
-            .map(|r| Box::new(r.layer()) as logging::ExtraLayer),
-    );
+    // The log pane's lines, for the embedded console and every attached one.
+    let ring = console::logring::LogRing::default();
+    let mut extra: Vec<logging::ExtraLayer> = vec![Box::new(ring.layer())];
     if recording.is_some() {
         extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));
     }
@@ -359,6 +417,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // configuration error (status 2), not a half-started vehicle.
     let net = Net::start(gate.clone(), vehicle.config.network.clone(), auth)?;
     let ros2 = ros2::start(args.ros2, &gate, &net, &vehicle.config)?;
+    let sources = console::controls::Sources {
+        logs: Some(ring),
+        net: Some(net.status().clone()),
+        sim: sim.clone(),
+    };
+    // A live socket (another adrive) stops here too, named; a stale one is replaced.
+    let socket_path = args
+        .socket
+        .clone()
+        .unwrap_or_else(socket::path::default_path);
+    let control = socket::Server::start(gate.clone(), sources.clone(), &socket_path)
+        .map_err(anyhow::Error::msg)?;
     let engine = Engine::start(gate.clone())?;
     let monitor = gate::Monitor::start(gate.clone())?;
     let (panic_in, panic_after) = match args.inject_panic.as_deref() {
@@ -382,11 +452,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let why = match keymap {
         None => headless::wait(&gate, &exits),
         Some(keymap) => {
-            let sources = console::controls::Sources {
-                logs: ring,
-                net: Some(net.status().clone()),
-                sim: sim.clone(),
-            };
             let opts = console::Options {
                 keymap,
                 deadman: args.deadman.unwrap_or(console::model::DEADMAN),
@@ -409,11 +474,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // engine command the safe state again and wait for its acknowledgement.
     net.close();
     ros2.close();
+    control.close();
     gate.disengage(&format!("stopping: {}", why.describe()));
     let net_figures = net.status().snapshot(&gate);
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
     stuck.extend(ros2.shutdown(Duration::from_millis(500)));
+    stuck.extend(control.shutdown(Duration::from_millis(500)));
     stuck.extend(monitor.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);
@@ -584,6 +651,68 @@ pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
         return ros2::watch(&args, &stop);
     }
     Ok(client::watch(args.from, args.json, args.count, &stop)?)
+}
+
+/// `adrive attach`: the console over a running adrive's control socket.
+pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
+    let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
+    console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
+    let path = args.socket.unwrap_or_else(socket::path::default_path);
+    let exits = exit::install()?;
+    let remote = match socket::client::Remote::attach(&path, |why| exit::request(Exit::Lost(why))) {
+        Ok(r) => r,
+        Err(e) => {
+            tell(io::stderr(), format_args!("adrive: {e}\n"));
+            return Ok(1);
+        }
+    };
+    let deadman = args.deadman.unwrap_or(console::model::DEADMAN);
+    let why = console::drive(&remote, &exits, keymap, deadman, None)?;
+    if let Exit::Lost(_) = why {
+        tell(io::stderr(), format_args!("adrive: {}\n", why.describe()));
+    }
+    Ok(exit::status(&why, true, true))
+}
+
+/// `adrive ctl`: one operator command over the control socket.
+pub fn ctl(args: CtlArgs) -> anyhow::Result<i32> {
+    use socket::client::{once, ClientError};
+    use socket::proto::{Answer, Op};
+    let path = args.socket.unwrap_or_else(socket::path::default_path);
+    let (op, json) = match args.what {
+        CtlCmd::Status { json } => (Op::Status, json),
+        CtlCmd::Engage => (Op::Engage, false),
+        CtlCmd::Stop => (Op::Stop, false),
+        CtlCmd::Disengage => (Op::Disengage, false),
+        CtlCmd::Release => (Op::Release, false),
+    };
+    let what = format!("{op:?}").to_lowercase();
+    let answer = match once(&path, op) {
+        Ok(a) => a,
+        Err(e) => {
+            tell(io::stderr(), format_args!("adrive: {e}\n"));
+            return Ok(if matches!(e, ClientError::NoReply(_)) {
+                3
+            } else {
+                1
+            });
+        }
+    };
+    let (text, code) = match answer {
+        Answer::Snapshot(snap) if json => (serde_json::to_string_pretty(&snap)?, 0),
+        Answer::Snapshot(snap) => (headless::status_table(&snap), 0),
+        Answer::Done(done) => (headless::done_words(&done), 0),
+        Answer::Refused(r) => {
+            tell(io::stderr(), format_args!("adrive: {what} refused: {r}\n"));
+            return Ok(1);
+        }
+        Answer::Error(e) => {
+            tell(io::stderr(), format_args!("adrive: {what}: {e}\n"));
+            return Ok(1);
+        }
+        other => (format!("{other:?}"), 0),
+    };
+    print_out(format!("{text}\n").as_bytes()).map(|_| code)
 }
 
 /// The ROS 2 interface when built in, and what `--ros2` says when it is not.

@@ -21,6 +21,8 @@ pub enum Exit {
     Panic(String),
     /// A device failed for good (a recovery procedure gave up).
     Fatal(String),
+    /// An attached console's adrive went away (it stopped, or the connection broke).
+    Lost(String),
 }
 
 impl Exit {
@@ -32,6 +34,7 @@ impl Exit {
             Exit::HangUp(_) => 128 + SIGHUP,
             Exit::Panic(_) => 101,
             Exit::Fatal(_) => 4,
+            Exit::Lost(_) => 1,
         }
     }
 
@@ -45,6 +48,7 @@ impl Exit {
             Exit::HangUp(why) => format!("terminal hung up ({why})"),
             Exit::Panic(m) => format!("panic: {m}"),
             Exit::Fatal(m) => format!("fatal device error: {m}"),
+            Exit::Lost(m) => format!("adrive went away: {m}"),
         }
     }
 }

@@ -167,3 +167,94 @@ pub fn record_summary(r: &RecordView) -> String {
     }
     s
 }
+
+/// The vehicle in a few lines, for `adrive ctl status`: the gate and who commands,
+/// the faults, then a line per device (its command, what it reports, its health).
+pub fn status_table(snap: &Snapshot) -> String {
+    let g = &snap.gate;
+    let mut out = String::new();
+    let gate = match (&g.engaged, &g.commander) {
+        (true, Some(c)) => format!("ENGAGED by {c}"),
+        (true, None) => "ENGAGED, nobody commands (handed over)".into(),
+        (false, _) => format!(
+            "DISENGAGED ({})",
+            g.reason.trim_start_matches("disengaged: ")
+        ),
+    };
+    let _ = writeln!(
+        out,
+        "{} · {gate} · interlocks {} · up {:.0} s",
+        snap.vehicle,
+        if g.interlocks { "on" } else { "OFF" },
+        snap.uptime_s
+    );
+    if !g.engaged && !g.blockers.is_empty() {
+        let _ = writeln!(out, "engaging is blocked: {}", g.blockers.join("; "));
+    }
+    for f in &snap.supervisor.faults {
+        let who = f
+            .device
+            .as_deref()
+            .map(|d| format!("{d} "))
+            .unwrap_or_default();
+        let _ = writeln!(out, "fault: {who}{} {}", f.kind, f.cause);
+    }
+    let w = snap
+        .devices
+        .iter()
+        .map(|d| d.name.len())
+        .max()
+        .unwrap_or(6)
+        .max(6);
+    let _ = writeln!(
+        out,
+        "{:<w$} {:>10} {:>10}  {:<8} reports",
+        "device", "commanded", "executed", "health"
+    );
+    let v = |x: &Option<crate::value::Value>| x.as_ref().map_or("-".into(), |v| v.to_string());
+    for d in &snap.devices {
+        let health = if d.health.missing {
+            "missing"
+        } else if d.health.faulty {
+            "FAULTY"
+        } else if d.stale {
+            "stale"
+        } else {
+            "ok"
+        };
+        let reports: Vec<String> = d
+            .readings
+            .iter()
+            .map(|(k, x)| format!("{k} {}", v(x)))
+            .collect();
+        let _ = writeln!(
+            out,
+            "{:<w$} {:>10} {:>10}  {:<8} {}",
+            d.name,
+            v(&d.commanded),
+            v(&d.executed),
+            health,
+            reports.join(", ")
+        );
+    }
+    out.trim_end().to_string()
+}
+
+/// What the intake did, in words, for `adrive ctl`.
+pub fn done_words(done: &crate::safety::Done) -> String {
+    use crate::safety::Done;
+    match done {
+        Done::Engaged => "engaged: you command the vehicle (it holds the safe state)".into(),
+        Done::Commanding => "you command the vehicle from now on".into(),
+        Done::Same => "nothing changed: you already command the vehicle".into(),
+        Done::Released => {
+            "released: the vehicle is stopped unless a source engages within the watchdog timeout"
+                .into()
+        }
+        Done::Disengaged(true) => "disengaged: the safe state is commanded".into(),
+        Done::Disengaged(false) => "the vehicle was not engaged".into(),
+        Done::Cleared(c) if c.is_empty() => "nothing to clear".into(),
+        Done::Cleared(c) => format!("cleared: {}", c.join(", ")),
+        Done::Commanded => "commanded".into(),
+    }
+}

@@ -7,7 +7,8 @@
 //! state; [`safety`] holds every rule and the engage gate; [`engine`] runs two threads
 //! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
 //! broadcasts state over UDP; `ros2` (cargo feature `ros2`) speaks ROS 2 and
-//! Autoware over Zenoh through the same intake; [`sim`] emulates the devices on real
+//! Autoware over Zenoh through the same intake; [`socket`] lets consoles attach to a
+//! running engine and operators command it once; [`sim`] emulates the devices on real
 //! pseudo-terminals; [`record`] keeps a run in an MCAP file; [`console`] is the
 //! operator's screen (and replays recordings) and [`cli`] puts it all together.
 
@@ -27,6 +28,7 @@ pub mod ros2;
 pub mod safety;
 pub mod sim;
 pub mod snapshot;
+pub mod socket;
 pub mod supervisor;
 pub mod threads;
 pub mod value;

@@ -48,6 +48,18 @@ impl Threads {
         Ok(())
     }
 
+    /// Join the threads that have ended, forgetting them (a server whose clients come
+    /// and go keeps only the live ones).
+    pub fn reap(&mut self) {
+        let (done, live): (Vec<_>, Vec<_>) = std::mem::take(&mut self.handles)
+            .into_iter()
+            .partition(|(_, h)| h.is_finished());
+        self.handles = live;
+        for (_, h) in done {
+            let _ = h.join();
+        }
+    }
+
     pub fn names(&self) -> Vec<&str> {
         self.handles.iter().map(|(n, _)| n.as_str()).collect()
     }

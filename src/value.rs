@@ -13,10 +13,18 @@ use std::str::FromStr;
 /// Where a command comes from: every command of every front end enters the one intake
 /// ([`crate::safety::intake`]) tagged with its source, and the vehicle is commanded by
 /// at most one of them at a time.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Source {
     /// The console of this process.
     Console,
+    /// A console attached over the control socket (`adrive attach`), numbered by its
+    /// connection (1, 2, …) for the life of the process.
+    Attached(u32),
+    /// An operator's one-shot command over the control socket (`adrive ctl`), by the
+    /// user id the socket vouches for: the same person's `engage` and `release` are one
+    /// source.
+    Operator(u32),
     /// A network sender, by address.
     Network(SocketAddr),
     /// The ROS 2 node (one actuation publisher at a time within it).
@@ -30,7 +38,7 @@ impl Source {
     /// A console, which may take command from any other source (with the operator's
     /// confirmation); the network and ROS 2 never take it from a console.
     pub fn is_console(self) -> bool {
-        matches!(self, Source::Console)
+        matches!(self, Source::Console | Source::Attached(_))
     }
 }
 
@@ -38,6 +46,8 @@ impl fmt::Display for Source {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Source::Console => f.write_str("console"),
+            Source::Attached(n) => write!(f, "console #{n}"),
+            Source::Operator(uid) => write!(f, "operator uid {uid}"),
             Source::Network(a) => write!(f, "{a}"),
             Source::Ros2 => f.write_str("ros2"),
             Source::Supervisor => f.write_str("supervisor"),
@@ -199,7 +209,8 @@ impl FromStr for Control {
 
 /// One command for one actuator. `Copy` and allocation-free: it travels from the
 /// socket to the serial write without touching the heap.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Command {
     /// A set point in a setpoint actuator's range.
     Set(f64),

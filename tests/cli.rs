@@ -28,6 +28,7 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
         .arg(&path)
         .arg("--log-dir")
         .arg(dir.path().join("log"))
+        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -50,6 +51,7 @@ fn headless_sim(dir: &std::path::Path) -> common::Reaped {
                 "--log-dir",
             ])
             .arg(dir)
+            .env("XDG_RUNTIME_DIR", dir)
             .env_remove("NO_COLOR")
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -106,6 +108,7 @@ fn only_runs_just_the_named_devices() {
                 "--log-dir",
             ])
             .arg(dir.path())
+            .env("XDG_RUNTIME_DIR", dir.path())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
@@ -357,6 +360,7 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
         let mut cmd = Process::new(BIN);
         cmd.args(["--sim", "--listen", "127.0.0.1:0", "--log-dir"])
             .arg(&log)
+            .env("XDG_RUNTIME_DIR", &log)
             .stdin(stdin)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
@@ -495,6 +499,7 @@ fn a_second_adrive_on_the_same_ports_is_refused_at_start_naming_the_holder() {
             .arg(&vehicle)
             .arg("--log-dir")
             .arg(dir.path().join(log))
+            .env("XDG_RUNTIME_DIR", dir.path().join(log))
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()

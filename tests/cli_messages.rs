@@ -29,7 +29,8 @@ fn adrive(args: &[&str], config: Option<&Path>, dir: &Scratch) -> Output {
     let mut cmd = Command::new(BIN);
     cmd.args(args)
         .arg("--log-dir")
-        .arg(dir.0.path().join("log"));
+        .arg(dir.0.path().join("log"))
+        .env("XDG_RUNTIME_DIR", dir.0.path().join("log"));
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
     }
@@ -188,6 +189,7 @@ fn two_roles_on_one_device_are_refused_at_the_second_binding_before_any_port_ope
             Command::new(BIN)
                 .args(["--headless", "--log-dir"])
                 .arg(dir.0.path().join("log"))
+                .env("XDG_RUNTIME_DIR", dir.0.path().join("log"))
                 .arg("--config")
                 .arg(&path)
                 .stdout(std::process::Stdio::null())

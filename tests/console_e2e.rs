@@ -47,6 +47,7 @@ impl Console {
             .args(["--listen", "127.0.0.1:0"])
             .arg("--log-dir")
             .arg(&log_dir)
+            .env("XDG_RUNTIME_DIR", &log_dir)
             .args(extra)
             .env("TERM", "xterm-256color")
             .env_remove("NO_COLOR");

@@ -102,6 +102,7 @@ fn the_binary_refuses_a_broken_keymap_before_starting() {
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_adrive"))
         .args(["--sim", "--log-dir"])
         .arg(&dir)
+        .env("XDG_RUNTIME_DIR", &dir)
         .arg("--keymap")
         .arg(&path)
         .output()

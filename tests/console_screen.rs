@@ -79,6 +79,7 @@ impl Fixture {
     }
     fn live(&self) -> Live<'_> {
         Live {
+            source: adrive::value::Source::Console,
             gate: &self.gate,
             sources: &self.sources,
         }

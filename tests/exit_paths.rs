@@ -79,7 +79,8 @@ impl Adrive {
         cmd.arg("--config")
             .arg(&config)
             .args(["--listen", &format!("127.0.0.1:{port}"), "--log-dir"])
-            .arg(dir.path().join("log"));
+            .arg(dir.path().join("log"))
+            .env("XDG_RUNTIME_DIR", dir.path().join("log"));
         (dir, port, cmd)
     }
 

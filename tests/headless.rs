@@ -45,6 +45,7 @@ fn headless_without_hardware_names_each_missing_port_once() {
             .arg(&vehicle)
             .arg("--log-dir")
             .arg(dir.path().join("log"))
+            .env("XDG_RUNTIME_DIR", dir.path().join("log"))
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()

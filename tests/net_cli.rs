@@ -173,6 +173,7 @@ fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
         .arg(&path)
         .arg("--log-dir")
         .arg(dir.path().join("log"))
+        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
@@ -185,6 +186,7 @@ fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
         .arg(busy.local_addr().unwrap().to_string())
         .arg("--log-dir")
         .arg(dir.path().join("log"))
+        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);

@@ -52,6 +52,7 @@ fn adrive(sim: &SimProcess, dir: &Path, port: u16, record_args: &[&str]) -> Proc
         .args(["--headless", "--listen", &format!("127.0.0.1:{port}")])
         .arg("--log-dir")
         .arg(dir.join("log"))
+        .env("XDG_RUNTIME_DIR", dir.join("log"))
         .args(record_args);
     cmd
 }

@@ -66,6 +66,7 @@ impl Vehicle {
             .arg(&path)
             .arg("--log-dir")
             .arg(dir.path().join("log"))
+            .env("XDG_RUNTIME_DIR", dir.path().join("log"))
             .env("RUST_LOG", "adrive=info")
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

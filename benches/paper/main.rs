@@ -731,7 +731,8 @@ fn section6_memory(dir: &tempfile::TempDir, r: &mut Results) {
         .arg("--listen")
         .arg("127.0.0.1:0")
         .arg("--log-dir")
-        .arg(dir.path().join("logs"));
+        .arg(dir.path().join("logs"))
+        .env("XDG_RUNTIME_DIR", dir.path().join("logs"));
     let (mut child, master) = pty::Master::spawn(&mut cmd, 100, 36, true);
     std::thread::sleep(Duration::from_secs(3));
     let (bin, libs, anon) = rig::rss_parts(child.id());
@@ -759,6 +760,7 @@ fn section7_console_output(dir: &tempfile::TempDir, secs: f64, r: &mut Results) 
         .args(["--listen", &format!("127.0.0.1:{port}")])
         .arg("--log-dir")
         .arg(dir.path().join("logs"))
+        .env("XDG_RUNTIME_DIR", dir.path().join("logs"))
         .env("TERM", "xterm-256color")
         .env_remove("NO_COLOR");
     let (mut child, master) = pty::Master::spawn(&mut cmd, 100, 30, true);

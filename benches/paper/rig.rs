@@ -255,6 +255,7 @@ impl Adrive {
             .arg(listen.to_string())
             .arg("--log-dir")
             .arg(dir.join("logs"))
+            .env("XDG_RUNTIME_DIR", dir.join("logs"))
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::null())

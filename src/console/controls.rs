@@ -27,7 +27,7 @@ use std::time::{Duration, Instant};
 use super::logring::{LogLine, LogRing};
 
 /// The faults switched on in one simulated device.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SimFaults {
     pub silent: bool,
     pub garbage: bool,
@@ -77,6 +77,9 @@ pub struct Frame {
     pub sim_vehicle: Option<String>,
     /// The faults injected into each simulated device, by device (`--sim` only).
     pub sim_faults: Vec<Option<SimFaults>>,
+    /// An attached console: the source it is to the intake (`console #2`), to tell
+    /// whether it commands or watches. `None` in the embedded console.
+    pub you: Option<String>,
 }
 
 impl std::ops::Deref for Frame {
@@ -199,7 +202,8 @@ fn fault_name(f: &FaultView) -> String {
 }
 
 /// Which thread of a device.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Thread {
     Status,
     Command,
@@ -257,10 +261,13 @@ pub struct Sources {
     pub sim: Option<Arc<Sim>>,
 }
 
-/// [`Controls`] over the real vehicle.
+/// [`Controls`] over the real vehicle, as one source: the embedded console
+/// ([`Source::Console`]), or an attached one ([`Source::Attached`], for the control
+/// socket, which serves each connection through its own `Live`).
 pub struct Live<'a> {
     pub gate: &'a Gate,
     pub sources: &'a Sources,
+    pub source: Source,
 }
 
 /// The simulated vehicle's state in words: `e-stop run · engine running · steer drive
@@ -329,6 +336,7 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
                 Some(f)
             })
             .collect(),
+        you: None,
         snap,
     }
 }
@@ -388,18 +396,27 @@ impl Controls for Live<'_> {
         self.ask(Ask::Hold).map(drop)
     }
     fn deadman(&self, armed: Option<Duration>) {
-        self.gate.deadman(Source::Console, armed, Instant::now());
+        self.gate.deadman(self.source, armed, Instant::now());
     }
     fn set_interlocks(&self, on: bool) -> Result<(), Refused> {
-        self.gate.set_interlocks(Source::Console, on)
+        self.gate.set_interlocks(self.source, on)
     }
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        self.gate.tune(self.source).map_err(|r| r.to_string())?;
         change_settings(&self.gate.vehicle, id, |c| c.status_period = d)
     }
     fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        self.gate.tune(self.source).map_err(|r| r.to_string())?;
         change_settings(&self.gate.vehicle, id, |c| c.command_timeout = d)
     }
     fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
+        if let Err(why) = self.gate.tune(self.source) {
+            tracing::warn!(
+                "{thread:?} thread switch from {} refused: {why}",
+                self.source
+            );
+            return;
+        }
         if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
             let flag = match thread {
                 Thread::Status => &dev.settings.status_enabled,
@@ -410,12 +427,18 @@ impl Controls for Live<'_> {
         }
     }
     fn wake(&self, id: DeviceId) {
+        if self.gate.tune(self.source).is_err() {
+            return;
+        }
         if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
             dev.slot.nudge();
         }
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         let sim = self.sources.sim.as_ref()?;
+        if let Err(why) = self.gate.tune(self.source) {
+            return Some(Err(why.to_string()));
+        }
         let done = sim.apply(line);
         match &done {
             Ok(what) => tracing::warn!("simulator, from the console: {what}"),
@@ -432,8 +455,8 @@ impl Controls for Live<'_> {
 }
 
 impl Live<'_> {
-    /// Into the one intake, as the console of this process.
-    fn ask(&self, ask: Ask) -> Result<Done, Refused> {
-        self.gate.admit(Source::Console, ask, Instant::now())
+    /// Into the one intake, as this console.
+    pub fn ask(&self, ask: Ask) -> Result<Done, Refused> {
+        self.gate.admit(self.source, ask, Instant::now())
     }
 }

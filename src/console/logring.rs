@@ -27,14 +27,15 @@ pub struct LogLine {
 /// The shared ring; clone it to hand out.
 #[derive(Clone)]
 pub struct LogRing {
-    inner: Arc<Mutex<VecDeque<LogLine>>>,
+    /// The lines kept, and how many were ever pushed.
+    inner: Arc<Mutex<(VecDeque<LogLine>, u64)>>,
     start: Instant,
 }
 
 impl Default for LogRing {
     fn default() -> Self {
         LogRing {
-            inner: Arc::new(Mutex::new(VecDeque::with_capacity(KEEP))),
+            inner: Arc::new(Mutex::new((VecDeque::with_capacity(KEEP), 0))),
             start: Instant::now(),
         }
     }
@@ -47,7 +48,9 @@ impl LogRing {
     }
 
     pub fn push(&self, level: Level, text: String) {
-        let mut q = self.inner.lock();
+        let mut g = self.inner.lock();
+        g.1 += 1;
+        let q = &mut g.0;
         if q.len() == KEEP {
             q.pop_front();
         }
@@ -60,7 +63,15 @@ impl LogRing {
 
     /// The lines kept, oldest first.
     pub fn recent(&self) -> Vec<LogLine> {
-        self.inner.lock().iter().cloned().collect()
+        self.inner.lock().0.iter().cloned().collect()
+    }
+
+    /// The lines pushed after the first `seen` (those still kept), and how many were
+    /// pushed in all: what an attached console has not been sent yet.
+    pub fn since(&self, seen: u64) -> (Vec<LogLine>, u64) {
+        let g = self.inner.lock();
+        let new = g.1.saturating_sub(seen).min(g.0.len() as u64) as usize;
+        (g.0.iter().skip(g.0.len() - new).cloned().collect(), g.1)
     }
 }
 
@@ -97,6 +108,25 @@ mod tests {
         assert_eq!(lines.len(), 2);
         assert_eq!(lines[0].text, "status: timeout device=steer");
         assert_eq!(lines[1].level, Level::ERROR);
+    }
+
+    #[test]
+    fn since_gives_only_the_lines_not_seen_yet() {
+        let ring = LogRing::default();
+        ring.push(Level::WARN, "a".into());
+        let (lines, seen) = ring.since(0);
+        assert_eq!((lines.len(), seen), (1, 1));
+        ring.push(Level::WARN, "b".into());
+        ring.push(Level::ERROR, "c".into());
+        let (lines, seen) = ring.since(seen);
+        let texts: Vec<_> = lines.iter().map(|l| l.text.as_str()).collect();
+        assert_eq!((texts, seen), (vec!["b", "c"], 3));
+        assert!(ring.since(seen).0.is_empty());
+        for i in 0..KEEP + 5 {
+            ring.push(Level::WARN, i.to_string());
+        }
+        // More than the ring keeps: what it still has.
+        assert_eq!(ring.since(seen).0.len(), KEEP);
     }
 
     #[test]

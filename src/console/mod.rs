@@ -133,12 +133,25 @@ pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::
     let live = Live {
         gate,
         sources: &opts.sources,
+        source: crate::value::Source::Console,
     };
+    drive(&live, exits, opts.keymap, opts.deadman, opts.panic_after)
+}
+
+/// The console's loop over any [`Controls`]: the embedded engine ([`run_with`]) or
+/// a running adrive's control socket (`adrive attach`).
+pub fn drive(
+    live: &dyn Controls,
+    exits: &Receiver<Exit>,
+    keymap: Keymap,
+    deadman: Duration,
+    panic_after: Option<Duration>,
+) -> std::io::Result<Exit> {
     let mut model = Model::new(
-        opts.keymap,
+        keymap,
         Theme::from_env(),
         live.frame(Instant::now(), None),
-        opts.deadman,
+        deadman,
     );
     let mut screen = terminal::enter()?;
     let stop = Arc::new(AtomicBool::new(false));
@@ -173,14 +186,14 @@ pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::
         let flow = match msg {
             Msg::Exit(why) => Flow::Exit(why),
             Msg::Tick => {
-                if opts.panic_after.is_some_and(|d| started.elapsed() >= d) {
+                if panic_after.is_some_and(|d| started.elapsed() >= d) {
                     panic!("injected panic (--inject-panic main)");
                 }
-                update::tick(&mut model, &live, start);
+                update::tick(&mut model, live, start);
                 Flow::Continue
             }
             Msg::Event(Event::Key(k)) => match key_to_action(&model.keymap, model.mode, &k) {
-                Some(a) => update::update(&mut model, a, &live, start),
+                Some(a) => update::update(&mut model, a, live, start),
                 None => Flow::Continue,
             },
             // A resize: the next draw adapts to the new size.

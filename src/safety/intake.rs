@@ -65,7 +65,8 @@ impl Ask {
 }
 
 /// Why the intake refused an ask. Nothing changed.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Refused {
     /// Ownership: another source commands, nobody does, …
     Owner(owner::Refusal),
@@ -89,7 +90,8 @@ impl std::fmt::Display for Refused {
 }
 
 /// What an admitted ask did.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Done {
     /// The command is on its way.
     Commanded,
@@ -147,6 +149,8 @@ impl Owner {
         self.last = now;
         self.frozen = false;
         self.handover = None;
+        // A deadman is the teleoperating console's own, armed by its next teleop key.
+        self.deadman = None;
     }
 
     fn nobody(&mut self) {
@@ -229,8 +233,6 @@ impl Gate {
                 self.engage(&by).map_err(Refused::Blocked)?;
                 o.commands(source, received);
                 o.tripped = false;
-                // A deadman is armed by the next teleop key, not by engaging.
-                o.deadman = None;
                 Ok(Done::Engaged)
             }
             Ask::Engage | Ask::Take => Ok(Done::Same),
@@ -296,25 +298,46 @@ impl Gate {
         }
     }
 
-    /// Arm (`Some`) or disarm the console's deadman — its watchdog while it
-    /// teleoperates. Arming also feeds it: a teleop key is a sign of life.
+    /// Arm (`Some`) or disarm the commanding console's deadman — its watchdog while it
+    /// teleoperates. Arming also feeds it: a teleop key is a sign of life. A console
+    /// that does not command has no deadman to arm (its teleop keys are refused).
     pub fn deadman(&self, source: Source, armed: Option<Duration>, now: Instant) {
-        if !source.is_console() {
-            return;
-        }
         let mut o = self.owner.lock();
-        o.deadman = armed;
-        if o.commander == Some(source) {
+        if source.is_console() && o.commander == Some(source) {
+            o.deadman = armed;
             o.last = now;
         }
+    }
+
+    /// A source went away for good (an attached console's connection closed: its
+    /// terminal closed, its SSH session dropped, its process killed). If it commands
+    /// the engaged vehicle, that is its watchdog: the safe state and disengage, now,
+    /// with `cause` as the reason. A source that did not command changes nothing.
+    /// Returns whether it tripped.
+    pub fn gone(&self, source: Source, cause: &str) -> bool {
+        let mut o = self.owner.lock();
+        if !self.is_engaged() || o.commander != Some(source) {
+            return false;
+        }
+        let cause = format!("{} went away ({cause})", Commander(source));
+        o.nobody();
+        o.deadman = None;
+        o.tripped = true;
+        o.last_trip = Some(cause.clone());
+        self.disengage(&format!("watchdog: {cause}"));
+        drop(o);
+        tracing::warn!("watchdog: {cause}; safe state commanded");
+        true
     }
 
     /// The commander's watchdog timeout (`None`: not watched).
     fn timeout(&self, o: &Owner, source: Source) -> Option<Duration> {
         match source {
             Source::Network(_) | Source::Ros2 => Some(self.vehicle.config.network.watchdog_timeout),
-            Source::Console => o.deadman,
-            Source::Supervisor => None,
+            Source::Console | Source::Attached(_) => o.deadman,
+            // An operator's one-shot `engage` moves nothing: it holds the vehicle as a
+            // console does outside teleop, until it is released, stopped or taken.
+            Source::Operator(_) | Source::Supervisor => None,
         }
     }
 
@@ -335,7 +358,7 @@ impl Gate {
                     return None;
                 }
                 match c {
-                    Source::Console => {
+                    Source::Console | Source::Attached(_) => {
                         format!("deadman: no teleop key for {:.1}s", t.as_secs_f64())
                     }
                     _ if o.frozen => format!(
@@ -380,6 +403,15 @@ impl Gate {
             Commander(source)
         );
         Ok(())
+    }
+
+    /// May `source` tune a device now (its delays, threads, a wake, a simulated
+    /// fault)? A console, when it commands or nobody does.
+    pub fn tune(&self, source: Source) -> Result<(), Refused> {
+        let o = self.owner.lock();
+        owner::decide(self.is_engaged(), o.commander, source, Act::Tune)
+            .map(drop)
+            .map_err(Refused::Owner)
     }
 
     /// Who commands, for the snapshot.

@@ -33,10 +33,14 @@ pub enum Act {
     Stop,
     /// Switch the interlocks (a console, with a confirmation).
     Interlocks,
+    /// Tune a device from a console: its delays, its threads on or off, a wake of its
+    /// command thread, a simulated fault.
+    Tune,
 }
 
 /// Why ownership refuses an act.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Refusal {
     /// Another source commands the engaged vehicle.
     Commander(Source),
@@ -73,6 +77,7 @@ impl std::fmt::Display for Commander {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self.0 {
             Source::Network(a) => write!(f, "network {a}"),
+            Source::Operator(uid) => write!(f, "operator (uid {uid}, adrive ctl)"),
             other => write!(f, "{other}"),
         }
     }
@@ -123,8 +128,8 @@ pub fn decide(
         Act::Take if !engaged => Err(Refusal::NotEngaged),
         Act::Take if mine => Ok(Outcome::Same),
         Act::Take => Ok(Outcome::Commands),
-        Act::Interlocks if !source.is_console() => Err(Refusal::NotAConsole),
-        Act::Interlocks => match commander {
+        Act::Interlocks | Act::Tune if !source.is_console() => Err(Refusal::NotAConsole),
+        Act::Interlocks | Act::Tune => match commander {
             Some(c) if c != source => Err(Refusal::Commander(c)),
             _ => Ok(Outcome::Same),
         },
@@ -146,6 +151,10 @@ pub fn markdown() -> String {
             Act::Interlocks,
             "interlocks on/off (console key `I`, confirmed)",
         ),
+        (
+            Act::Tune,
+            "a device's delays, threads on/off, wake (console)",
+        ),
     ];
     let states: [(&str, bool, Option<Source>); 4] = [
         ("disengaged", false, None),
@@ -162,7 +171,9 @@ pub fn markdown() -> String {
         Err(Refusal::Commander(c)) => format!("refused: {}", Refusal::Commander(c)),
         Err(e) => format!("refused: {e}"),
     };
-    let mut out = String::from("| the vehicle is | act | by a network sender or ROS 2 | by the console |\n|---|---|---|---|\n");
+    let mut out = String::from(
+        "| the vehicle is | act | by a network sender or ROS 2 | by the console | by another console (attached) | by an operator (`adrive ctl`) |\n|---|---|---|---|---|---|\n",
+    );
     for (state, engaged, commander) in states {
         for (act, name) in acts {
             // Ownership lets a command through to the gate, which refuses it while
@@ -172,9 +183,11 @@ pub fn markdown() -> String {
                 (_, _, r) => cell(r),
             };
             out.push_str(&format!(
-                "| {state} | {name} | {} | {} |\n",
+                "| {state} | {name} | {} | {} | {} | {} |\n",
                 say(decide(engaged, commander, planner, act)),
                 say(decide(engaged, commander, Source::Console, act)),
+                say(decide(engaged, commander, Source::Attached(2), act)),
+                say(decide(engaged, commander, Source::Operator(1000), act)),
             ));
         }
     }

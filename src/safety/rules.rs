@@ -13,7 +13,7 @@
 
 use crate::config::{Bindings, Role};
 use crate::value::{Command, Control, EstopState};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::fmt;
 
 /// Throttle or brake at or below this fraction of its range counts as released.
@@ -73,7 +73,7 @@ impl Default for Facts {
 }
 
 /// Why intake refused a command.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Reject {
     NoSuchDevice,

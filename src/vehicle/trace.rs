@@ -16,7 +16,8 @@ pub const CAPACITY: usize = 256;
 /// Bytes kept per entry; longer chunks are cut (and marked so).
 pub const CHUNK: usize = 64;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Dir {
     /// Host to device.
     Out,

@@ -65,6 +65,7 @@ impl Adrive {
             .arg(&path)
             .arg("--log-dir")
             .arg(dir.path().join("log"))
+            .env("XDG_RUNTIME_DIR", dir.path().join("log"))
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()

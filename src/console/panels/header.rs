@@ -3,7 +3,8 @@
 //! what an operator looks for, so it is always whole: a reason too long is shortened
 //! at a word, with "…" and every parenthesis it opened closed, never cut in the
 //! middle (at 100 columns it once read `DISENGAGED (gas is faulty (no reply within
-//! 100ms)`); a vehicle name too long gives way before the gate does.
+//! 100ms)`); a vehicle name too long gives way before the gate does. An attached
+//! console (`adrive attach`) also says whether it commands or watches.
 
 use crate::console::keymap::Mode;
 use crate::console::model::Model;
@@ -40,6 +41,18 @@ impl Header<'_> {
             },
             Span::styled("│", bar),
         ];
+        // An attached console says whether it commands or only watches.
+        if let Some(you) = &s.you {
+            if s.gate.engaged && s.gate.commander.as_deref() == Some(you.as_str()) {
+                rest.push(Span::styled(
+                    format!(" {you} COMMANDS "),
+                    t.good().patch(bar),
+                ));
+            } else {
+                rest.push(Span::styled(format!(" {you}: WATCHING "), bar));
+            }
+            rest.push(Span::styled("│", bar));
+        }
         let faults = s.devices.iter().filter(|d| s.red(d)).count();
         if faults > 0 {
             rest.push(Span::styled(

@@ -1,0 +1,361 @@
+//! The control socket's clients: [`Remote`], the [`Controls`] of `adrive attach` — the
+//! same console over a running adrive's frames and intake — and [`once`], one
+//! operator command for `adrive ctl`.
+//!
+//! A thread (`attach/in`) reads what the server sends: frames replace the latest one,
+//! replies wake the operation waiting for them. When the server goes away the console
+//! is told through `on_gone` and every waiting operation fails at once.
+
+use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, VERSION};
+use crate::console::controls::{Controls, Frame, Thread};
+use crate::console::logring::{LogLine, KEEP};
+use crate::safety::Refused;
+use crate::value::{Command, DeviceId};
+use crossbeam_channel::Sender;
+use parking_lot::Mutex;
+use std::collections::{HashMap, VecDeque};
+use std::io::{BufRead, BufReader, Write};
+use std::os::unix::net::UnixStream;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// How long an operation waits for its reply.
+pub const REPLY_WITHIN: Duration = Duration::from_secs(3);
+/// How long connecting waits for the welcome (and a console for its first frame).
+const HELLO_WITHIN: Duration = Duration::from_secs(5);
+
+/// Why a client could not do what it was asked.
+#[derive(Debug, thiserror::Error)]
+pub enum ClientError {
+    /// Nothing (or nothing that answers) at the path.
+    #[error("no adrive at {path}: {why} (is it running? its socket is given with --socket PATH)")]
+    Nobody { path: String, why: String },
+    /// The server said no, or went away.
+    #[error("{0}")]
+    Refused(String),
+    /// No reply in time.
+    #[error("no reply from adrive within {} s", .0.as_secs())]
+    NoReply(Duration),
+}
+
+fn connect(
+    path: &Path,
+    role: Role,
+) -> Result<(UnixStream, BufReader<UnixStream>, String), ClientError> {
+    let nobody = |e: std::io::Error| ClientError::Nobody {
+        path: path.display().to_string(),
+        why: e.to_string(),
+    };
+    let mut stream = UnixStream::connect(path).map_err(nobody)?;
+    stream
+        .set_read_timeout(Some(HELLO_WITHIN))
+        .map_err(nobody)?;
+    write_line(
+        &mut stream,
+        &Request {
+            id: 0,
+            op: Op::Hello {
+                role,
+                version: VERSION,
+            },
+        },
+    )
+    .map_err(nobody)?;
+    let mut reader = BufReader::new(stream.try_clone().map_err(nobody)?);
+    match read_msg(&mut reader).map_err(nobody)? {
+        Some(Msg::Welcome { source, .. }) => Ok((stream, reader, source)),
+        Some(Msg::Bye { why }) => Err(ClientError::Refused(why)),
+        Some(other) => Err(ClientError::Refused(format!(
+            "unexpected first message {other:?}"
+        ))),
+        None => Err(ClientError::Refused("adrive closed the connection".into())),
+    }
+}
+
+fn write_line(w: &mut impl Write, req: &Request) -> std::io::Result<()> {
+    let mut line = serde_json::to_vec(req)?;
+    line.push(b'\n');
+    w.write_all(&line)
+}
+
+/// The next message; `None` at the end of the stream.
+fn read_msg(r: &mut impl BufRead) -> std::io::Result<Option<Msg>> {
+    let mut line = String::new();
+    if r.read_line(&mut line)? == 0 {
+        return Ok(None);
+    }
+    serde_json::from_str(&line)
+        .map(Some)
+        .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))
+}
+
+/// One operator command (`adrive ctl`): connect, do `op`, return its answer.
+pub fn once(path: &Path, op: Op) -> Result<Answer, ClientError> {
+    let (mut stream, mut reader, _) = connect(path, Role::Once)?;
+    let gone = |e: std::io::Error| ClientError::Refused(format!("adrive went away: {e}"));
+    stream.set_read_timeout(Some(REPLY_WITHIN)).map_err(gone)?;
+    write_line(&mut stream, &Request { id: 1, op }).map_err(gone)?;
+    loop {
+        match read_msg(&mut reader) {
+            Ok(Some(Msg::Reply { id: 1, answer })) => return Ok(answer),
+            Ok(Some(_)) => continue,
+            Ok(None) => return Err(ClientError::Refused("adrive closed the connection".into())),
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                return Err(ClientError::NoReply(REPLY_WITHIN))
+            }
+            Err(e) => return Err(gone(e)),
+        }
+    }
+}
+
+/// What the reading thread shares with the console.
+struct Inbox {
+    /// The latest frame and when it arrived.
+    latest: Mutex<(WireFrame, Instant)>,
+    logs: Mutex<VecDeque<LogLine>>,
+    pending: Mutex<HashMap<u64, Sender<Answer>>>,
+    gone: Mutex<Option<String>>,
+}
+
+/// [`Controls`] over a running adrive's control socket.
+pub struct Remote {
+    /// The source this console is to the intake (`console #2`).
+    pub source: String,
+    writer: Mutex<UnixStream>,
+    inbox: Arc<Inbox>,
+    next: AtomicU64,
+    /// The bench device last asked for.
+    bench: Mutex<Option<Option<DeviceId>>>,
+}
+
+impl Remote {
+    /// Attach to the adrive at `path` as a console. `on_gone` is called once, from the
+    /// reading thread, if the connection ends.
+    pub fn attach(
+        path: &Path,
+        on_gone: impl FnOnce(String) + Send + 'static,
+    ) -> Result<Remote, ClientError> {
+        let (stream, mut reader, source) = connect(path, Role::Console)?;
+        let first = loop {
+            match read_msg(&mut reader) {
+                Ok(Some(Msg::Frame(f))) => break *f,
+                Ok(Some(_)) => continue,
+                Ok(None) => {
+                    return Err(ClientError::Refused("adrive closed the connection".into()))
+                }
+                Err(e) => return Err(ClientError::Refused(format!("no frame from adrive: {e}"))),
+            }
+        };
+        let _ = stream.set_read_timeout(None);
+        let inbox = Arc::new(Inbox {
+            latest: Mutex::new((WireFrame::default(), Instant::now())),
+            logs: Mutex::new(VecDeque::with_capacity(KEEP)),
+            pending: Mutex::new(HashMap::new()),
+            gone: Mutex::new(None),
+        });
+        inbox.take(first);
+        let i = inbox.clone();
+        std::thread::Builder::new()
+            .name("attach/in".into())
+            .spawn(move || {
+                let why = loop {
+                    match read_msg(&mut reader) {
+                        Ok(Some(Msg::Frame(f))) => i.take(*f),
+                        Ok(Some(Msg::Reply { id, answer })) => {
+                            if let Some(tx) = i.pending.lock().remove(&id) {
+                                let _ = tx.send(answer);
+                            }
+                        }
+                        Ok(Some(Msg::Bye { why })) => break why,
+                        Ok(Some(Msg::Welcome { .. })) => {}
+                        Ok(None) => break "adrive closed the connection".to_string(),
+                        Err(e) => break e.to_string(),
+                    }
+                };
+                *i.gone.lock() = Some(why.clone());
+                i.pending.lock().clear();
+                on_gone(why);
+            })
+            .map_err(|e| ClientError::Refused(e.to_string()))?;
+        Ok(Remote {
+            source,
+            writer: Mutex::new(stream),
+            inbox,
+            next: AtomicU64::new(1),
+            bench: Mutex::new(None),
+        })
+    }
+
+    /// Send `op` without waiting for its reply.
+    fn post(&self, op: Op) {
+        let id = self.next.fetch_add(1, Relaxed);
+        let _ = write_line(&mut *self.writer.lock(), &Request { id, op });
+    }
+
+    /// Do `op` and wait for its answer.
+    fn call(&self, op: Op) -> Result<Answer, String> {
+        if let Some(why) = self.inbox.gone.lock().clone() {
+            return Err(format!("adrive went away: {why}"));
+        }
+        let id = self.next.fetch_add(1, Relaxed);
+        let (tx, rx) = crossbeam_channel::bounded(1);
+        self.inbox.pending.lock().insert(id, tx);
+        if let Err(e) = write_line(&mut *self.writer.lock(), &Request { id, op }) {
+            self.inbox.pending.lock().remove(&id);
+            return Err(format!("adrive went away: {e}"));
+        }
+        rx.recv_timeout(REPLY_WITHIN).map_err(|_| {
+            self.inbox.pending.lock().remove(&id);
+            match self.inbox.gone.lock().clone() {
+                Some(why) => format!("adrive went away: {why}"),
+                None => ClientError::NoReply(REPLY_WITHIN).to_string(),
+            }
+        })
+    }
+
+    /// An operation the intake decides: refused with its reason, or done.
+    fn ask(&self, op: Op) -> Result<Answer, Refused> {
+        match self.call(op) {
+            Ok(Answer::Refused(r)) => Err(r),
+            Ok(Answer::Error(e)) | Err(e) => Err(Refused::Blocked(vec![e])),
+            Ok(a) => Ok(a),
+        }
+    }
+
+    fn unit(&self, op: Op) -> Result<(), String> {
+        match self.call(op)? {
+            Answer::Refused(r) => Err(r.to_string()),
+            Answer::Error(e) => Err(e),
+            _ => Ok(()),
+        }
+    }
+}
+
+impl Inbox {
+    fn take(&self, mut f: WireFrame) {
+        let mut logs = self.logs.lock();
+        for l in f.logs.drain(..) {
+            if logs.len() == KEEP {
+                logs.pop_front();
+            }
+            logs.push_back(l.line());
+        }
+        *self.latest.lock() = (f, Instant::now());
+    }
+}
+
+impl Controls for Remote {
+    fn frame(&self, _now: Instant, bench: Option<DeviceId>) -> Frame {
+        {
+            let mut asked = self.bench.lock();
+            if *asked != Some(bench) {
+                *asked = Some(bench);
+                self.post(Op::Bench {
+                    device: bench.map(|d| d.0),
+                });
+            }
+        }
+        let (f, at) = self.inbox.latest.lock().clone();
+        Frame {
+            logs: self.inbox.logs.lock().iter().cloned().collect(),
+            trace: f.trace.iter().map(|t| t.entry(at)).collect(),
+            buckets: f.buckets,
+            can_inject: f.can_inject,
+            read_only: false,
+            sim_vehicle: f.sim_vehicle,
+            sim_faults: f.sim_faults,
+            you: Some(self.source.clone()),
+            snap: f.snap,
+        }
+    }
+    fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
+        match self.call(Op::Parse {
+            device: id.0,
+            text: text.into(),
+        })? {
+            Answer::Command(c) => Ok(c),
+            Answer::Error(e) => Err(e),
+            other => Err(format!("unexpected answer {other:?}")),
+        }
+    }
+    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
+        self.ask(Op::Set {
+            device: id.0,
+            command,
+        })
+        .map(drop)
+    }
+    fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
+        self.ask(Op::Accel { accel }).map(drop)
+    }
+    fn engage(&self) -> Result<(), Refused> {
+        self.ask(Op::Engage).map(drop)
+    }
+    fn disengage(&self) {
+        let _ = self.ask(Op::Disengage);
+    }
+    fn stop(&self) {
+        let _ = self.ask(Op::Stop);
+    }
+    fn take(&self) -> Result<(), Refused> {
+        self.ask(Op::Take).map(drop)
+    }
+    fn release(&self) -> Result<(), Refused> {
+        self.ask(Op::Release).map(drop)
+    }
+    fn hold(&self) -> Result<(), Refused> {
+        self.ask(Op::Hold).map(drop)
+    }
+    fn deadman(&self, armed: Option<Duration>) {
+        self.post(Op::Deadman {
+            ms: armed.map(|d| d.as_millis() as u64),
+        });
+    }
+    fn set_interlocks(&self, on: bool) -> Result<(), Refused> {
+        self.ask(Op::Interlocks { on }).map(drop)
+    }
+    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        self.unit(Op::StatusPeriod {
+            device: id.0,
+            us: d.as_micros() as u64,
+        })
+    }
+    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
+        self.unit(Op::CommandTimeout {
+            device: id.0,
+            us: d.as_micros() as u64,
+        })
+    }
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
+        let _ = self.unit(Op::Enabled {
+            device: id.0,
+            thread,
+            on,
+        });
+    }
+    fn wake(&self, id: DeviceId) {
+        let _ = self.unit(Op::Wake { device: id.0 });
+    }
+    fn sim(&self, line: &str) -> Option<Result<String, String>> {
+        match self.call(Op::Sim { line: line.into() }) {
+            Ok(Answer::NoSim) => None,
+            Ok(Answer::Said(s)) => Some(Ok(s)),
+            Ok(Answer::Error(e)) | Err(e) => Some(Err(e)),
+            Ok(Answer::Refused(r)) => Some(Err(r.to_string())),
+            Ok(other) => Some(Err(format!("unexpected answer {other:?}"))),
+        }
+    }
+    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
+        match self.ask(Op::Clear)? {
+            Answer::Done(crate::safety::Done::Cleared(c)) => Ok(c),
+            _ => Ok(Vec::new()),
+        }
+    }
+}

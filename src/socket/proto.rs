@@ -1,0 +1,270 @@
+//! The control socket's messages: one JSON object per line, each way.
+//!
+//! A client opens with [`Op::Hello`] (a console, or one operator command); the server
+//! answers [`Msg::Welcome`] with the source the client is to the intake. A console then
+//! receives a [`Msg::Frame`] at the console's rate — the one [`Snapshot`] and what only
+//! a console shows — and sends the operator's operations as [`Request`]s, each answered
+//! by a [`Msg::Reply`] with the same `id`. Everything is the engine's own types
+//! (`Snapshot`, `Command`, `Refused`, `Done`), so an attached console shows and refuses
+//! exactly what the embedded one does.
+
+use crate::console::controls::{SimFaults, Thread};
+use crate::console::logring::LogLine;
+use crate::safety::{Done, Refused};
+use crate::snapshot::Snapshot;
+use crate::value::Command;
+use crate::vehicle::trace::{Dir, TraceEntry};
+use serde::{Deserialize, Serialize};
+use std::time::{Duration, Instant};
+
+/// The protocol's version; a client and a server of different versions refuse each
+/// other with a clear message.
+pub const VERSION: u32 = 1;
+
+/// What a client is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Role {
+    /// `adrive attach`: frames, and operations as an attached console.
+    Console,
+    /// `adrive ctl`: one operation as an operator, then gone (going away is not a
+    /// watchdog stop).
+    Once,
+}
+
+/// One operation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "op", rename_all = "snake_case")]
+pub enum Op {
+    Hello {
+        role: Role,
+        version: u32,
+    },
+    /// The device whose traffic and histogram the frames should carry (the bench view).
+    Bench {
+        device: Option<u16>,
+    },
+    /// A device's command from text, as its vehicle file defines it.
+    Parse {
+        device: u16,
+        text: String,
+    },
+    Set {
+        device: u16,
+        command: Command,
+    },
+    Accel {
+        accel: f64,
+    },
+    Engage,
+    Disengage,
+    Stop,
+    Take,
+    Release,
+    Hold,
+    Clear,
+    /// Arm (with its length) or disarm the teleop deadman.
+    Deadman {
+        ms: Option<u64>,
+    },
+    Interlocks {
+        on: bool,
+    },
+    StatusPeriod {
+        device: u16,
+        us: u64,
+    },
+    CommandTimeout {
+        device: u16,
+        us: u64,
+    },
+    Enabled {
+        device: u16,
+        thread: Thread,
+        on: bool,
+    },
+    Wake {
+        device: u16,
+    },
+    /// One line of the simulator's command language.
+    Sim {
+        line: String,
+    },
+    /// The snapshot, once.
+    Status,
+}
+
+/// An operation with the id its reply carries.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Request {
+    pub id: u64,
+    #[serde(flatten)]
+    pub op: Op,
+}
+
+/// What an operation came to.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Answer {
+    /// Done; nothing to say.
+    Ok,
+    /// What the intake did.
+    Done(Done),
+    Command(Command),
+    /// The simulator's answer.
+    Said(String),
+    /// No simulator in that process.
+    NoSim,
+    Snapshot(Box<Snapshot>),
+    /// The intake refused: nothing changed.
+    Refused(Refused),
+    /// Not done, and why (a value the vehicle file refuses, a malformed request).
+    Error(String),
+}
+
+/// From the server.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Msg {
+    /// The client is this source to the intake (`console #2`, `operator (uid 1000…)`).
+    Welcome {
+        version: u32,
+        source: String,
+    },
+    Frame(Box<WireFrame>),
+    Reply {
+        id: u64,
+        answer: Answer,
+    },
+    /// The server refuses the connection (another version), and why.
+    Bye {
+        why: String,
+    },
+}
+
+/// A console frame on the wire: [`crate::console::controls::Frame`] with times as ages.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct WireFrame {
+    pub snap: Snapshot,
+    /// Log lines not sent before.
+    pub logs: Vec<WireLog>,
+    pub trace: Vec<WireTrace>,
+    pub buckets: Vec<(f64, u64)>,
+    pub can_inject: bool,
+    pub sim_vehicle: Option<String>,
+    pub sim_faults: Vec<Option<SimFaults>>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WireLog {
+    pub secs: f64,
+    pub level: String,
+    pub text: String,
+}
+
+impl WireLog {
+    pub fn of(l: &LogLine) -> WireLog {
+        WireLog {
+            secs: l.secs,
+            level: l.level.to_string(),
+            text: l.text.clone(),
+        }
+    }
+
+    pub fn line(&self) -> LogLine {
+        LogLine {
+            secs: self.secs,
+            level: self.level.parse().unwrap_or(tracing::Level::WARN),
+            text: self.text.clone(),
+        }
+    }
+}
+
+/// A chunk of the bench device's traffic, with its age when the frame was captured.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WireTrace {
+    pub age_us: u64,
+    pub dir: Dir,
+    pub cut: bool,
+    pub bytes: Vec<u8>,
+}
+
+impl WireTrace {
+    pub fn of(e: &TraceEntry, now: Instant) -> WireTrace {
+        WireTrace {
+            age_us: now.saturating_duration_since(e.at).as_micros() as u64,
+            dir: e.dir,
+            cut: e.cut,
+            bytes: e.bytes().to_vec(),
+        }
+    }
+
+    /// The entry again, its age counted back from `now` (the frame's arrival).
+    pub fn entry(&self, now: Instant) -> TraceEntry {
+        let at = now
+            .checked_sub(Duration::from_micros(self.age_us))
+            .unwrap_or(now);
+        let mut e = TraceEntry::new(at, self.dir, &self.bytes);
+        e.cut |= self.cut;
+        e
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requests_and_replies_read_back_as_written() {
+        let reqs = [
+            Request {
+                id: 1,
+                op: Op::Hello {
+                    role: Role::Console,
+                    version: VERSION,
+                },
+            },
+            Request {
+                id: 2,
+                op: Op::Set {
+                    device: 0,
+                    command: Command::Set(0.25),
+                },
+            },
+            Request {
+                id: 3,
+                op: Op::Engage,
+            },
+        ];
+        for r in reqs {
+            let line = serde_json::to_string(&r).unwrap();
+            assert!(!line.contains('\n'));
+            assert_eq!(serde_json::from_str::<Request>(&line).unwrap(), r);
+        }
+        let line = r#"{"id":7,"op":"stop"}"#;
+        assert_eq!(
+            serde_json::from_str::<Request>(line).unwrap().op,
+            Op::Stop,
+            "a script can write a request by hand"
+        );
+        let reply = Msg::Reply {
+            id: 2,
+            answer: Answer::Refused(Refused::Owner(crate::safety::owner::Refusal::Commander(
+                crate::value::Source::Console,
+            ))),
+        };
+        let line = serde_json::to_string(&reply).unwrap();
+        assert_eq!(serde_json::from_str::<Msg>(&line).unwrap(), reply);
+    }
+
+    #[test]
+    fn a_trace_entry_keeps_its_bytes_and_age() {
+        let now = Instant::now();
+        let e = TraceEntry::new(now - Duration::from_millis(30), Dir::Out, b"! v 0.5\n");
+        let w = WireTrace::of(&e, now);
+        let back = w.entry(now);
+        assert_eq!(back.bytes(), e.bytes());
+        assert_eq!(back.dir, Dir::Out);
+        assert_eq!(now - back.at, Duration::from_millis(30));
+    }
+}

@@ -1,0 +1,441 @@
+//! adrive as a service with consoles that come and go, as people use it at the
+//! vehicle: the real binary headless on `adrive sim`'s devices, consoles attached with
+//! `adrive attach` on real pseudo-terminals (one drives, one watches), terminals closed
+//! the way an SSH session drops (the master side goes away), and `adrive ctl` for one
+//! operator command at a time. Screens are rebuilt with a terminal emulator; every
+//! wait has a generous deadline.
+
+mod common;
+
+use common::pty::Master;
+use common::simproc::{vehicle_file, SimProcess};
+use common::{lines, tempdir, wait_exit, DEADLINE};
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::mpsc::Receiver;
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_adrive");
+/// `adrive attach`'s default teleop deadman.
+const DEADMAN: Duration = Duration::from_secs(1);
+
+/// adrive headless (the service) with its control socket in a directory of its own.
+struct Service {
+    child: common::Reaped,
+    dir: tempfile::TempDir,
+    socket: PathBuf,
+    /// Its command listener.
+    listen: String,
+    log: Receiver<String>,
+}
+
+impl Service {
+    /// On `adrive sim`'s ports, or (`sim: None`) with `--sim`.
+    fn start(name: &str, sim: Option<&SimProcess>) -> Service {
+        let dir = tempdir(name);
+        let socket = dir.path().join("run/adrive.sock");
+        let mut cmd = Command::new(BIN);
+        match sim {
+            Some(sim) => cmd.arg("--config").arg(vehicle_file(dir.path(), sim, "")),
+            None => cmd.arg("--sim"),
+        };
+        let listen = format!("127.0.0.1:{}", common::free_port());
+        let mut child = cmd
+            .args(["--headless", "--listen", &listen, "--log-dir"])
+            .arg(dir.path().join("log"))
+            .arg("--socket")
+            .arg(&socket)
+            .env("XDG_RUNTIME_DIR", dir.path())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let log = lines(child.stderr.take().unwrap());
+        let svc = Service {
+            child: common::Reaped(child),
+            dir,
+            socket,
+            listen,
+            log,
+        };
+        svc.until("running headless");
+        svc
+    }
+
+    /// Wait for a log line containing `what`.
+    fn until(&self, what: &str) -> String {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let l = self
+                .log
+                .recv_timeout(end.saturating_duration_since(Instant::now()))
+                .unwrap_or_else(|_| panic!("adrive never logged {what:?}"));
+            if l.contains(what) {
+                return l;
+            }
+        }
+    }
+
+    fn ctl(&self, args: &[&str]) -> Output {
+        ctl(&self.socket, args)
+    }
+
+    /// `adrive send`, as a planner.
+    fn send(&self, words: &[&str]) -> Output {
+        Command::new(BIN)
+            .args(["send", "--to", &self.listen])
+            .args(words)
+            .output()
+            .unwrap()
+    }
+
+    /// The gate, as `adrive ctl status --json` reports it.
+    fn gate(&self) -> serde_json::Value {
+        let out = self.ctl(&["status", "--json"]);
+        assert!(out.status.success(), "{out:?}");
+        let snap: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        snap["gate"].clone()
+    }
+}
+
+fn ctl(socket: &Path, args: &[&str]) -> Output {
+    Command::new(BIN)
+        .arg("ctl")
+        .args(args)
+        .arg("--socket")
+        .arg(socket)
+        .output()
+        .unwrap()
+}
+
+/// `adrive attach` on a terminal of its own (its controlling terminal, as over SSH).
+struct Attached {
+    child: Child,
+    term: Master,
+}
+
+impl Attached {
+    fn start(socket: &Path) -> Attached {
+        let mut cmd = Command::new(BIN);
+        cmd.arg("attach")
+            .arg("--socket")
+            .arg(socket)
+            .env("TERM", "xterm-256color");
+        let (child, term) = Master::spawn(&mut cmd, 100, 30, true);
+        let a = Attached { child, term };
+        a.wait_for("every device", |s| {
+            ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
+                .iter()
+                .all(|d| s.contains(d))
+        });
+        a
+    }
+
+    fn screen(&self) -> String {
+        let nz = |n: u16| std::num::NonZeroU16::new(n).unwrap();
+        let mut p = vt100::Parser::new(nz(30), nz(100), 0);
+        p.process(&self.term.bytes());
+        p.screen().contents()
+    }
+
+    fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let s = self.screen();
+            if ok(&s) {
+                return s;
+            }
+            assert!(Instant::now() < end, "waited for {what}; screen:\n{s}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn keys(&mut self, k: &str) {
+        self.term.write(k.as_bytes());
+    }
+
+    /// `E`, `y`, until engaged (the devices may not all have reported yet).
+    fn engage(&mut self) {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            self.keys("E");
+            self.wait_for("the confirmation", |s| s.contains("Engage?"));
+            self.keys("y");
+            let s = self.wait_for("the engage outcome", |s| {
+                s.contains(" COMMANDS ") || s.contains("engage refused")
+            });
+            if s.contains(" COMMANDS ") {
+                return;
+            }
+            assert!(Instant::now() < end, "could not engage:\n{s}");
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// `s`, the value, Enter: the steering command.
+    fn steer(&mut self, value: &str) {
+        self.keys("s");
+        self.wait_for("the steering edit", |s| s.contains("edit steer command"));
+        self.keys(&format!("\x15{value}\r"));
+    }
+}
+
+impl Drop for Attached {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+#[test]
+fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_drop_is_its_watchdog(
+) {
+    let sim = SimProcess::start();
+    let svc = Service::start("attach-two", Some(&sim));
+    let mut watcher = Attached::start(&svc.socket);
+    let mut driver = Attached::start(&svc.socket);
+    for c in [&watcher, &driver] {
+        c.wait_for("watching", |s| s.contains("WATCHING"));
+    }
+
+    // One engages, steers and STOPs; the simulated devices receive it, the other sees it.
+    driver.engage();
+    let me = svc.gate()["commander"].as_str().unwrap().to_string();
+    assert!(me.starts_with("console #"), "{me}");
+    let mark = sim.mark();
+    driver.steer("0.5");
+    sim.wait_after(mark, &["steer", "<-", "0.500"]);
+    watcher.wait_for("the steering command", |s| {
+        s.contains("cmd 0.500") && s.contains(&format!("ENGAGED (by {me})"))
+    });
+    // The watcher cannot command: its steer is refused, and changes nothing.
+    watcher.steer("-0.5");
+    watcher.wait_for("the refusal", |s| s.contains(&format!("commanded by {me}")));
+    let mark = sim.mark();
+    driver.keys(" ");
+    sim.wait_after(mark, &["brake", "<-", "1.000"]);
+    watcher.wait_for("the stop", |s| {
+        s.contains("DISENGAGED (stop from console #")
+    });
+    assert_ne!(sim.last_command("steer").as_deref(), Some("-0.500"));
+
+    // Closing the watcher's terminal changes nothing: the driver still commands (a
+    // command after it is the sentinel).
+    driver.engage();
+    watcher.term.hang_up();
+    let status = wait_exit(&mut watcher.child);
+    assert!(
+        status.is_some(),
+        "the watcher did not end with its terminal"
+    );
+    svc.until("detached");
+    let mark = sim.mark();
+    driver.steer("0.3");
+    sim.wait_after(mark, &["steer", "<-", "0.300"]);
+    let gate = svc.gate();
+    assert_eq!(gate["engaged"], true, "{gate}");
+    assert_eq!(gate["commander"], me.as_str(), "{gate}");
+
+    // Closing the driver's terminal (the master goes away, as an SSH drop) brakes and
+    // disengages within its deadman; the service keeps running.
+    let mark = sim.mark();
+    let dropped = Instant::now();
+    driver.term.hang_up();
+    sim.wait_after(mark, &["brake", "<-", "1.000"]);
+    let took = dropped.elapsed();
+    assert!(
+        took < DEADMAN,
+        "the brake came {took:?} after the commander's terminal closed"
+    );
+    let gate = svc.gate();
+    assert_eq!(gate["engaged"], false, "{gate}");
+    let reason = gate["reason"].as_str().unwrap();
+    assert!(
+        reason.contains(&format!("{me} went away")),
+        "disengaged for another reason: {reason}"
+    );
+    let _ = wait_exit(&mut driver.child);
+    let mut svc = svc;
+    assert!(
+        svc.child.try_wait().unwrap().is_none(),
+        "the service stopped with its console"
+    );
+    // A console attaches again to the service that kept running.
+    let again = Attached::start(&svc.socket);
+    again.wait_for("the reason", |s| s.contains("went away"));
+}
+
+#[test]
+fn operator_commands_engage_release_stop_with_exit_statuses() {
+    let svc = Service::start("attach-ctl", None);
+    let out = svc.ctl(&["status"]);
+    assert!(out.status.success(), "{out:?}");
+    let table = String::from_utf8_lossy(&out.stdout);
+    for d in ["steer", "gas", "brake", "trans", "estop", "obd"] {
+        assert!(table.contains(d), "{table}");
+    }
+    // Engage as an operator (retrying while devices have not all reported).
+    let end = Instant::now() + DEADLINE;
+    let out = loop {
+        let out = svc.ctl(&["engage"]);
+        if out.status.success() || Instant::now() > end {
+            break out;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    assert!(out.status.success(), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("engaged"));
+    let gate = svc.gate();
+    assert!(
+        gate["commander"].as_str().unwrap().starts_with("operator"),
+        "{gate}"
+    );
+    // The operator's vehicle is not a planner's: its engage is refused (status 1).
+    let planner = svc.send(&["engage", "steer", "0.2"]);
+    assert!(
+        String::from_utf8_lossy(&planner.stdout).contains("commanded by operator"),
+        "{planner:?}"
+    );
+    // Release, then stop; stopping a stopped vehicle is no error.
+    let out = svc.ctl(&["release"]);
+    assert!(out.status.success(), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("released"));
+    let out = svc.ctl(&["release"]);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("release refused"));
+    let out = svc.ctl(&["stop"]);
+    assert!(out.status.success(), "{out:?}");
+    assert_eq!(svc.gate()["engaged"], false);
+    let out = svc.ctl(&["disengage"]);
+    assert!(out.status.success(), "{out:?}");
+    // Nothing at the socket: status 1, saying where it looked.
+    let nowhere = svc.dir.path().join("nobody.sock");
+    let out = ctl(&nowhere, &["status"]);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no adrive at") && err.contains("nobody.sock"),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_socket_is_0660_in_the_process_group_and_a_second_adrive_on_it_is_refused() {
+    let svc = Service::start("attach-socket", None);
+    let meta = std::fs::metadata(&svc.socket).unwrap();
+    assert_eq!(meta.permissions().mode() & 0o777, 0o660);
+    // SAFETY: getegid has no preconditions.
+    assert_eq!(meta.gid(), unsafe { libc::getegid() });
+    let out = Command::new(BIN)
+        .args([
+            "--sim",
+            "--headless",
+            "--listen",
+            "127.0.0.1:0",
+            "--log-dir",
+        ])
+        .arg(svc.dir.path().join("log2"))
+        .arg("--socket")
+        .arg(&svc.socket)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("in use by another adrive")
+            && err.contains(&format!("pid {}", svc.child.id())),
+        "{err}"
+    );
+    // The first is untouched.
+    assert!(svc.ctl(&["status"]).status.success());
+}
+
+/// Start adrive `args` with its socket at `socket`; once it listens, `end` it; the
+/// socket must be gone after.
+fn socket_removed_after(
+    name: &str,
+    extra: &[&str],
+    end: impl FnOnce(&mut Child, &mut Option<Master>),
+) {
+    let dir = tempdir(name);
+    let socket = dir.path().join("adrive.sock");
+    let mut cmd = Command::new(BIN);
+    cmd.args(["--sim", "--listen", "127.0.0.1:0", "--log-dir"])
+        .arg(dir.path().join("log"))
+        .arg("--socket")
+        .arg(&socket)
+        .args(extra)
+        .env("TERM", "xterm-256color");
+    let (mut child, mut term) = if extra.contains(&"--headless") {
+        let c = cmd
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        (c, None)
+    } else {
+        let (c, m) = Master::spawn(&mut cmd, 100, 30, true);
+        (c, Some(m))
+    };
+    common::wait_for("the socket", || ctl(&socket, &["status"]).status.success());
+    end(&mut child, &mut term);
+    let status = wait_exit(&mut child);
+    assert!(status.is_some(), "{name}: adrive did not exit");
+    assert!(!socket.exists(), "{name}: the socket was left behind");
+}
+
+#[test]
+fn the_socket_is_removed_on_every_exit_path_and_a_stale_one_is_replaced() {
+    for (name, sig) in [
+        ("sock-term", libc::SIGTERM),
+        ("sock-int", libc::SIGINT),
+        ("sock-hup", libc::SIGHUP),
+    ] {
+        socket_removed_after(name, &["--headless"], |c, _| {
+            common::signal(c, sig);
+        });
+    }
+    // A panic in a thread.
+    socket_removed_after(
+        "sock-panic",
+        &["--headless", "--inject-panic", "supervisor:300ms"],
+        |_, _| {},
+    );
+    // The embedded console: `q`, and its terminal closing.
+    socket_removed_after("sock-quit", &[], |_, t| t.as_mut().unwrap().write(b"q"));
+    socket_removed_after("sock-drop", &[], |_, t| t.as_mut().unwrap().hang_up());
+
+    // kill -9 leaves the socket behind; the next adrive replaces it.
+    let svc = Service::start("sock-stale", None);
+    let socket = svc.socket.clone();
+    let mut svc = svc;
+    common::signal(&svc.child, libc::SIGKILL);
+    let _ = wait_exit(&mut svc.child);
+    assert!(socket.exists(), "nothing stale to replace");
+    let out = ctl(&socket, &["status"]);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let mut cmd = Command::new(BIN);
+    let mut child = common::Reaped(
+        cmd.args([
+            "--sim",
+            "--headless",
+            "--listen",
+            "127.0.0.1:0",
+            "--log-dir",
+        ])
+        .arg(svc.dir.path().join("log"))
+        .arg("--socket")
+        .arg(&socket)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap(),
+    );
+    let log = lines(child.stderr.take().unwrap());
+    common::until(&log, "replaced a stale socket");
+    common::wait_for("the new socket", || {
+        ctl(&socket, &["status"]).status.success()
+    });
+}
