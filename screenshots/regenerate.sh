@@ -12,7 +12,8 @@
 #   NAME.txt   the same capture, escapes removed
 #   NAME.png   the .ansi rendered by render.py (Pillow, installed into a venv under
 #              target/screenshots-venv on first use)
-# Screens: main (engaged, steering commanded to 0.5), help, bench (gas, with its raw
+# Screens: main (engaged, steering commanded to 0.5), attach (a second console attached
+# to that run with `adrive attach`, watching), help, bench (gas, with its raw
 # traffic, delay histogram and the simulator's fault keys), recovery and
 # recovery-wide (an engine stall injected from the bench while in drive, captured while
 # the supervisor's engine_stall procedure runs, at 80×24 and at 120×40), fault
@@ -47,7 +48,7 @@ fi
 start() {
     while tmux has-session -t "$session" 2>/dev/null; do sleep 0.1; done
     tmux new-session -d -s "$session" -x 80 -y 24 \
-        "env TERM=xterm-256color target/release/adrive --sim --listen 127.0.0.1:0 --log-dir $logs $*"
+        "env TERM=xterm-256color target/release/adrive --sim --listen 127.0.0.1:0 --log-dir $logs --socket $logs/adrive.sock $*"
 }
 
 # Wait until the screen shows $1 ($2 tenths of a second at most, default 20 s).
@@ -104,6 +105,17 @@ alice() {
     wait_for "meas 0.500"
     sleep 1
     shot main
+
+    # A second console attached to this one's engine, watching.
+    tmux new-session -d -s "$session-attach" -x 80 -y 24 \
+        "env TERM=xterm-256color target/release/adrive attach --socket $logs/adrive.sock"
+    main=$session
+    session=$session-attach
+    wait_for "WATCHING"; wait_for "meas 0.500"
+    sleep 1
+    shot attach
+    keys q
+    session=$main
 
     keys '?'; wait_for "keys from the loaded keymap"
     shot help

@@ -83,9 +83,12 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     }
     assert!(out.contains("delay p99"), "{out}");
     // The rolling log file was flushed and tells the safe state was reached.
+    // The log files (the control socket's directory is beside them).
     let log: String = std::fs::read_dir(dir.path())
         .unwrap()
-        .map(|e| std::fs::read_to_string(e.unwrap().path()).unwrap())
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| std::fs::read_to_string(p).unwrap())
         .collect();
     assert!(log.contains("stopping: SIGTERM"), "{log}");
     assert!(log.contains("safe state acknowledged"), "{log}");

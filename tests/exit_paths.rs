@@ -122,9 +122,12 @@ impl Adrive {
     }
 
     fn log(&self) -> String {
+        // The log files (the control socket's directory is beside them).
         std::fs::read_dir(self.dir.path().join("log"))
             .unwrap()
-            .map(|e| std::fs::read_to_string(e.unwrap().path()).unwrap())
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.is_file())
+            .map(|p| std::fs::read_to_string(p).unwrap())
             .collect()
     }
 }

@@ -239,12 +239,96 @@ fn main() {
     if on("8") {
         section8_recording(&dir, secs);
     }
+    if on("10") {
+        section10_consoles(&dir, secs);
+    }
     if on("9") {
         for rule in ["priority", "paper"] {
             estimator::section9_estimator(rule, 20.0);
         }
     }
     summary(&r, &out);
+}
+
+/// Three actuators at 100 Hz each with 0, 1 and 4 consoles attached over the control
+/// socket, in turns: receipt → first byte and adrive's CPU. A console here is a client
+/// that says hello as `adrive attach` does and reads every frame, so the cost measured is
+/// the engine's (capturing, encoding and writing frames), not a terminal's.
+fn section10_consoles(dir: &tempfile::TempDir, secs: f64) {
+    use adrive::socket::proto::{Op, Request, Role, VERSION};
+    use std::io::{BufRead, Write};
+    println!(
+        "\n== 10. Consoles attached over the control socket, in turns: 3 actuators, 100 Hz each, {secs} s =="
+    );
+    println!(
+        "{}  cpu % of a core  frames read",
+        delay_columns("consoles", 10)
+    );
+    let names: Vec<String> = (0..3).map(|i| format!("a{i:02}")).collect();
+    let devices: Vec<String> = names.iter().map(|x| idle_actuator(x)).collect();
+    let sim_file = dir.path().join("con-sim.toml");
+    std::fs::write(&sim_file, vehicle("", &devices)).unwrap();
+    let sim = Sim::start(&sim_file);
+    let toml = sim.patch(&vehicle("", &devices));
+    let mut base = Vec::new();
+    for turn in 1..=2 {
+        for consoles in [0usize, 1, 4] {
+            let a = Adrive::start(dir.path(), "con", &toml);
+            let frames = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+            let clients: Vec<_> = (0..consoles)
+                .map(|_| {
+                    let mut s = std::os::unix::net::UnixStream::connect(&a.socket)
+                        .expect("the control socket");
+                    let hello = Request {
+                        id: 0,
+                        op: Op::Hello {
+                            role: Role::Console,
+                            version: VERSION,
+                        },
+                    };
+                    let mut line = serde_json::to_vec(&hello).unwrap();
+                    line.push(b'\n');
+                    s.write_all(&line).unwrap();
+                    let (r, n) = (s.try_clone().unwrap(), frames.clone());
+                    std::thread::spawn(move || {
+                        for l in std::io::BufReader::new(r).lines() {
+                            match l {
+                                Ok(l) if l.starts_with("{\"kind\":\"frame\"") => {
+                                    n.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                                }
+                                Ok(_) => {}
+                                Err(_) => return,
+                            }
+                        }
+                    });
+                    s
+                })
+                .collect();
+            let cpu0 = rig::cpu_time(a.pid());
+            let t0 = Instant::now();
+            let (_, floor) = with_floor(|| drive(&a, &names, 100.0, secs));
+            let cpu = (rig::cpu_time(a.pid()) - cpu0).as_secs_f64() / t0.elapsed().as_secs_f64();
+            let d = delay_of(&a.snapshot(), &names);
+            let read = frames.load(std::sync::atomic::Ordering::Relaxed);
+            drop(clients);
+            if consoles == 0 {
+                base.push(cpu);
+            }
+            let per = match consoles {
+                0 => String::new(),
+                n => format!(
+                    " ({:+.2} per console)",
+                    (cpu - base[turn - 1]) * 100.0 / n as f64
+                ),
+            };
+            println!(
+                "{}  {:>6.2}{per}  {read}",
+                delay_row(&format!("{consoles} #{turn}"), 10, &d, floor),
+                cpu * 100.0
+            );
+        }
+    }
+    println!("(p50: the median device's; p99: the worst device's; cpu: adrive's, all threads.)");
 }
 
 /// Three actuators at 100 Hz each, recording (raw traffic included) off and on in

@@ -199,6 +199,8 @@ impl Drop for Sim {
 pub struct Adrive {
     child: Child,
     pub listen: SocketAddr,
+    /// Its control socket (one per run: runs may overlap).
+    pub socket: PathBuf,
     planner: UdpSocket,
     broadcast: UdpSocket,
     _dir: PathBuf,
@@ -248,6 +250,9 @@ impl Adrive {
         };
         std::fs::write(&file, text).unwrap();
         let listen: SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+        static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let run = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let socket = dir.join("logs").join(format!("{name}-{run}.sock"));
         let child = Command::new(adrive())
             .args(["--headless", "--config"])
             .arg(&file)
@@ -255,7 +260,8 @@ impl Adrive {
             .arg(listen.to_string())
             .arg("--log-dir")
             .arg(dir.join("logs"))
-            .env("XDG_RUNTIME_DIR", dir.join("logs"))
+            .arg("--socket")
+            .arg(&socket)
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
@@ -270,6 +276,7 @@ impl Adrive {
         let a = Adrive {
             child,
             listen,
+            socket,
             planner,
             broadcast,
             _dir: dir.to_path_buf(),

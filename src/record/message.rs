@@ -115,11 +115,9 @@ pub struct Received {
 }
 
 impl Received {
+    /// The source as the intake names it (`console`, `network 127.0.0.1:5555`).
     pub fn source_text(source: Source) -> String {
-        match source {
-            Source::Network(a) => format!("network {a}"),
-            other => other.to_string(),
-        }
+        crate::safety::owner::Commander(source).to_string()
     }
 }
 
