@@ -163,9 +163,9 @@ impl Attached {
             self.wait_for("the confirmation", |s| s.contains("Engage?"));
             self.keys("y");
             let s = self.wait_for("the engage outcome", |s| {
-                s.contains(" COMMANDS ") || s.contains("engage refused")
+                s.contains(" COMMANDING ") || s.contains("engage refused")
             });
-            if s.contains(" COMMANDS ") {
+            if s.contains(" COMMANDING ") {
                 return;
             }
             assert!(Instant::now() < end, "could not engage:\n{s}");

@@ -44,12 +44,9 @@ impl Header<'_> {
         // An attached console says whether it commands or only watches.
         if let Some(you) = &s.you {
             if s.gate.engaged && s.gate.commander.as_deref() == Some(you.as_str()) {
-                rest.push(Span::styled(
-                    format!(" {you} COMMANDS "),
-                    t.good().patch(bar),
-                ));
+                rest.push(Span::styled(" COMMANDING ", t.good().patch(bar)));
             } else {
-                rest.push(Span::styled(format!(" {you}: WATCHING "), bar));
+                rest.push(Span::styled(" WATCHING ", bar));
             }
             rest.push(Span::styled("│", bar));
         }
