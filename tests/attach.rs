@@ -198,6 +198,12 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     for c in [&watcher, &driver] {
         c.wait_for("watching", |s| s.contains("WATCHING"));
     }
+    // The bench view draws the device's raw traffic and histogram from the stream.
+    watcher.keys("x");
+    watcher.wait_for("steer's raw traffic", |s| {
+        s.contains("steer raw traffic") && s.contains("->") && s.contains("<-")
+    });
+    watcher.keys("\x1b");
 
     // One engages, steers and STOPs; the simulated devices receive it, the other sees it.
     driver.engage();
@@ -261,9 +267,20 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
         svc.child.try_wait().unwrap().is_none(),
         "the service stopped with its console"
     );
-    // A console attaches again to the service that kept running.
-    let again = Attached::start(&svc.socket);
+    // A console attaches again to the service that kept running, and takes command from
+    // an operator who engaged with `adrive ctl` (a console outranks it, with a
+    // confirmation); the operator is refused from then on.
+    let mut again = Attached::start(&svc.socket);
     again.wait_for("the reason", |s| s.contains("went away"));
+    assert!(svc.ctl(&["engage"]).status.success());
+    again.wait_for("the operator commanding", |s| s.contains("ENGAGED (by operator"));
+    again.keys("A");
+    again.wait_for("the confirmation", |s| s.contains("Take command?"));
+    again.keys("y");
+    again.wait_for("command taken", |s| s.contains(" COMMANDING "));
+    let out = svc.ctl(&["release"]);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(svc.gate()["commander"].as_str().unwrap().starts_with("console #"));
 }
 
 #[test]

@@ -29,6 +29,8 @@ use std::time::{Duration, Instant};
 pub const WRITE_DEADLINE: Duration = Duration::from_secs(2);
 /// The longest request line read (a command is a few dozen bytes).
 const MAX_LINE: usize = 4096;
+/// The most clients at once; more are told so and closed.
+pub const MAX_CLIENTS: usize = 32;
 
 /// What every connection shares.
 struct Shared {
@@ -139,6 +141,15 @@ fn accept_loop(listener: UnixListener, s: &Arc<Shared>) {
 fn serve(stream: UnixStream, s: &Arc<Shared>) -> std::io::Result<()> {
     stream.set_nonblocking(false)?;
     stream.set_write_timeout(Some(WRITE_DEADLINE))?;
+    if s.open.lock().len() >= MAX_CLIENTS {
+        let mut line = serde_json::to_vec(&Msg::Bye {
+            why: format!("adrive serves {MAX_CLIENTS} clients at most; one must go first"),
+        })?;
+        line.push(b'\n');
+        let mut stream = stream;
+        let _ = stream.write_all(&line);
+        return Ok(());
+    }
     let peer = Peer::of(&stream)?;
     let n = s.next.fetch_add(1, Relaxed);
     s.open.lock().push((n, stream.try_clone()?));
