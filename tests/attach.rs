@@ -273,14 +273,19 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     let mut again = Attached::start(&svc.socket);
     again.wait_for("the reason", |s| s.contains("went away"));
     assert!(svc.ctl(&["engage"]).status.success());
-    again.wait_for("the operator commanding", |s| s.contains("ENGAGED (by operator"));
+    again.wait_for("the operator commanding", |s| {
+        s.contains("ENGAGED (by operator")
+    });
     again.keys("A");
     again.wait_for("the confirmation", |s| s.contains("Take command?"));
     again.keys("y");
     again.wait_for("command taken", |s| s.contains(" COMMANDING "));
     let out = svc.ctl(&["release"]);
     assert_eq!(out.status.code(), Some(1), "{out:?}");
-    assert!(svc.gate()["commander"].as_str().unwrap().starts_with("console #"));
+    assert!(svc.gate()["commander"]
+        .as_str()
+        .unwrap()
+        .starts_with("console #"));
 }
 
 #[test]

@@ -16,6 +16,7 @@
 
 mod estimator;
 mod floor;
+mod outside;
 mod plot;
 mod rig;
 
@@ -242,6 +243,9 @@ fn main() {
     if on("10") {
         section10_consoles(&dir, secs);
     }
+    if on("11") {
+        outside::section11_outside(&dir, secs);
+    }
     if on("9") {
         for rule in ["priority", "paper"] {
             estimator::section9_estimator(rule, 20.0);
@@ -250,13 +254,55 @@ fn main() {
     summary(&r, &out);
 }
 
+/// `n` consoles attached to `a` over its control socket: clients that say hello as
+/// `adrive attach` does and read every frame (counted).
+fn attach_consoles(
+    a: &Adrive,
+    n: usize,
+) -> (
+    Vec<std::os::unix::net::UnixStream>,
+    std::sync::Arc<std::sync::atomic::AtomicU64>,
+) {
+    use adrive::socket::proto::{Op, Request, Role, VERSION};
+    use std::io::{BufRead, Write};
+    let frames = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let clients = (0..n)
+        .map(|_| {
+            let mut s =
+                std::os::unix::net::UnixStream::connect(&a.socket).expect("the control socket");
+            let hello = Request {
+                id: 0,
+                op: Op::Hello {
+                    role: Role::Console,
+                    version: VERSION,
+                },
+            };
+            let mut line = serde_json::to_vec(&hello).unwrap();
+            line.push(b'\n');
+            s.write_all(&line).unwrap();
+            let (r, count) = (s.try_clone().unwrap(), frames.clone());
+            std::thread::spawn(move || {
+                for l in std::io::BufReader::new(r).lines() {
+                    match l {
+                        Ok(l) if l.starts_with("{\"kind\":\"frame\"") => {
+                            count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        }
+                        Ok(_) => {}
+                        Err(_) => return,
+                    }
+                }
+            });
+            s
+        })
+        .collect();
+    (clients, frames)
+}
+
 /// Three actuators at 100 Hz each with 0, 1 and 4 consoles attached over the control
 /// socket, in turns: receipt → first byte and adrive's CPU. A console here is a client
 /// that says hello as `adrive attach` does and reads every frame, so the cost measured is
 /// the engine's (capturing, encoding and writing frames), not a terminal's.
 fn section10_consoles(dir: &tempfile::TempDir, secs: f64) {
-    use adrive::socket::proto::{Op, Request, Role, VERSION};
-    use std::io::{BufRead, Write};
     println!(
         "\n== 10. Consoles attached over the control socket, in turns: 3 actuators, 100 Hz each, {secs} s =="
     );
@@ -274,36 +320,7 @@ fn section10_consoles(dir: &tempfile::TempDir, secs: f64) {
     for turn in 1..=2 {
         for consoles in [0usize, 1, 4] {
             let a = Adrive::start(dir.path(), "con", &toml);
-            let frames = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
-            let clients: Vec<_> = (0..consoles)
-                .map(|_| {
-                    let mut s = std::os::unix::net::UnixStream::connect(&a.socket)
-                        .expect("the control socket");
-                    let hello = Request {
-                        id: 0,
-                        op: Op::Hello {
-                            role: Role::Console,
-                            version: VERSION,
-                        },
-                    };
-                    let mut line = serde_json::to_vec(&hello).unwrap();
-                    line.push(b'\n');
-                    s.write_all(&line).unwrap();
-                    let (r, n) = (s.try_clone().unwrap(), frames.clone());
-                    std::thread::spawn(move || {
-                        for l in std::io::BufReader::new(r).lines() {
-                            match l {
-                                Ok(l) if l.starts_with("{\"kind\":\"frame\"") => {
-                                    n.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                                }
-                                Ok(_) => {}
-                                Err(_) => return,
-                            }
-                        }
-                    });
-                    s
-                })
-                .collect();
+            let (clients, frames) = attach_consoles(&a, consoles);
             let cpu0 = rig::cpu_time(a.pid());
             let t0 = Instant::now();
             let (_, floor) = with_floor(|| drive(&a, &names, 100.0, secs));
