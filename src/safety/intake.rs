@@ -124,6 +124,8 @@ pub(crate) struct Owner {
     /// The watchdog tripped and the vehicle was not engaged since.
     tripped: bool,
     last_trip: Option<String>,
+    /// The console that switched the interlocks off (they come back on when it goes).
+    interlocks_off_by: Option<Source>,
     /// Asks refused because another source commands (or nobody does).
     refused: u64,
     last_refused: Option<(Source, Ask, owner::Refusal)>,
@@ -139,6 +141,7 @@ impl Owner {
             handover: None,
             tripped: false,
             last_trip: None,
+            interlocks_off_by: None,
             refused: 0,
             last_refused: None,
         }
@@ -312,10 +315,20 @@ impl Gate {
     /// A source went away for good (an attached console's connection closed: its
     /// terminal closed, its SSH session dropped, its process killed). If it commands
     /// the engaged vehicle, that is its watchdog: the safe state and disengage, now,
-    /// with `cause` as the reason. A source that did not command changes nothing.
-    /// Returns whether it tripped.
+    /// with `cause` as the reason. Interlocks it switched off come back on: nobody who
+    /// stays chose to drive without them. A watcher changes nothing. Returns whether
+    /// the watchdog tripped.
     pub fn gone(&self, source: Source, cause: &str) -> bool {
         let mut o = self.owner.lock();
+        if o.interlocks_off_by == Some(source) {
+            o.interlocks_off_by = None;
+            self.interlocks
+                .store(true, std::sync::atomic::Ordering::Relaxed);
+            tracing::warn!(
+                "interlocks switched on again: {} that switched them off went away",
+                Commander(source)
+            );
+        }
         if !self.is_engaged() || o.commander != Some(source) {
             return false;
         }
@@ -392,11 +405,12 @@ impl Gate {
     /// Switch the interlocks — only from a console that commands the vehicle or may
     /// (nobody else commands), after its confirmation.
     pub fn set_interlocks(&self, source: Source, on: bool) -> Result<(), Refused> {
-        let o = self.owner.lock();
+        let mut o = self.owner.lock();
         let engaged = self.is_engaged();
         owner::decide(engaged, o.commander, source, Act::Interlocks).map_err(Refused::Owner)?;
         self.interlocks
             .store(on, std::sync::atomic::Ordering::Relaxed);
+        o.interlocks_off_by = (!on).then_some(source);
         tracing::warn!(
             "interlocks switched {} from the {}",
             if on { "on" } else { "off" },
@@ -544,6 +558,29 @@ mod tests {
     /// The commander's watchdog, over a clock of our own: a network commander quiet
     /// for `watchdog_timeout` disengages; the console's deadman only while armed; a
     /// release nobody picks up ends in the safe state too.
+    /// An attached console that commands and goes away (its SSH session dropped) is
+    /// its watchdog; the interlocks it switched off come back on; a watcher that goes
+    /// away changes nothing.
+    #[test]
+    fn a_commanding_console_that_goes_away_stops_the_vehicle_and_restores_the_interlocks() {
+        let t = Instant::now();
+        let g = sample::gate(t);
+        let (driver, watcher) = (Source::Attached(1), Source::Attached(2));
+        g.admit(driver, Ask::Engage, t).unwrap();
+        g.set_interlocks(driver, false).unwrap();
+        assert_eq!(
+            g.set_interlocks(watcher, true),
+            Err(Refused::Owner(owner::Refusal::Commander(driver)))
+        );
+        assert!(!g.gone(watcher, "its connection closed"));
+        assert!(g.is_engaged() && !g.interlocks_on());
+        assert!(g.gone(driver, "its connection closed"));
+        assert!(!g.is_engaged());
+        assert!(g.interlocks_on());
+        let why = g.command_view(t).watchdog.unwrap().last_trip.unwrap();
+        assert_eq!(why, "console #1 went away (its connection closed)");
+    }
+
     #[test]
     fn the_watchdog_is_the_commanders_with_its_own_timeout() {
         let g = sample::gate(Instant::now());
