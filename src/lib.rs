@@ -9,7 +9,8 @@
 //! broadcasts state over UDP; `ros2` (cargo feature `ros2`) speaks ROS 2 and
 //! Autoware over Zenoh through the same intake; [`sim`] emulates the devices on real
 //! pseudo-terminals; [`record`] keeps a run in an MCAP file; [`console`] is the
-//! operator's screen (and replays recordings) and [`cli`] puts it all together.
+//! operator's screen (and replays recordings) and [`cli`] puts it all together;
+//! [`service`] tells systemd how it goes.
 
 pub mod cli;
 pub mod config;
@@ -25,6 +26,7 @@ pub mod record;
 #[cfg(feature = "ros2")]
 pub mod ros2;
 pub mod safety;
+pub mod service;
 pub mod sim;
 pub mod snapshot;
 pub mod supervisor;
