@@ -1,0 +1,204 @@
+//! adrive under systemd, with a datagram socket standing in for the service manager's
+//! `NOTIFY_SOCKET`: the real binary, headless on the simulated vehicle, reports
+//! readiness, feeds the watchdog at half `WATCHDOG_USEC` only while every device thread
+//! runs, and reports stopping before its safe stop. And the unit file shipped in
+//! `dist/systemd/` is checked.
+
+mod common;
+
+use common::{free_port, lines, signal, tempdir, until, wait_exit, Reaped, DEADLINE};
+use std::os::unix::net::UnixDatagram;
+use std::path::Path;
+use std::process::{Command as Process, Stdio};
+use std::sync::mpsc::{self, Receiver};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_adrive");
+
+/// What the stand-in service manager received, and when.
+struct Manager {
+    rx: Receiver<(Instant, String)>,
+    seen: Vec<(Instant, String)>,
+}
+
+impl Manager {
+    /// Bind the socket at `path`.
+    fn bind(path: &Path) -> Manager {
+        let socket = UnixDatagram::bind(path).unwrap();
+        let (tx, rx) = mpsc::channel();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = socket.recv(&mut buf) {
+                let text = String::from_utf8_lossy(&buf[..n]).into_owned();
+                if tx.send((Instant::now(), text)).is_err() {
+                    break;
+                }
+            }
+        });
+        Manager {
+            rx,
+            seen: Vec::new(),
+        }
+    }
+
+    /// Wait for a datagram holding the line `line`; when it came.
+    fn until(&mut self, line: &str) -> Instant {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            let Ok((at, text)) = self.rx.recv_timeout(left) else {
+                panic!("no {line:?} from adrive; it sent:\n{:#?}", self.seen);
+            };
+            let hit = text.lines().any(|l| l == line);
+            self.seen.push((at, text));
+            if hit {
+                return at;
+            }
+        }
+    }
+
+    /// Everything received so far.
+    fn drain(&mut self) -> &[(Instant, String)] {
+        self.seen.extend(self.rx.try_iter());
+        &self.seen
+    }
+}
+
+/// Half of this is how often adrive must feed the watchdog.
+const WATCHDOG_USEC: u64 = 1_000_000;
+
+/// `adrive --sim --headless` as systemd starts it (`NOTIFY_SOCKET`, `WATCHDOG_USEC`,
+/// `WATCHDOG_PID` unset as for the main process), with `args`; its stderr's lines.
+fn start(dir: &Path, args: &[&str]) -> (Reaped, Receiver<String>) {
+    let mut child = Reaped(
+        Process::new(BIN)
+            .args(["--sim", "--headless", "--listen", "127.0.0.1:0"])
+            .args(["--broadcast-to", &format!("127.0.0.1:{}", free_port())])
+            .arg("--log-dir")
+            .arg(dir.join("log"))
+            .args(args)
+            .env("NOTIFY_SOCKET", dir.join("notify"))
+            .env("WATCHDOG_USEC", WATCHDOG_USEC.to_string())
+            .env_remove("WATCHDOG_PID")
+            // A control socket of its own, in this test's directory.
+            .env("XDG_RUNTIME_DIR", dir)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let err = lines(child.stderr.take().unwrap());
+    (child, err)
+}
+
+/// Started under systemd: `READY=1` once the engine runs, `WATCHDOG=1` every half
+/// `WATCHDOG_USEC` (never a gap systemd would count as a hang), and on SIGTERM —
+/// `systemctl stop` — `STOPPING=1`, then the safe state, then status 0.
+#[test]
+fn ready_watchdog_and_stopping_reach_the_service_manager() {
+    let dir = tempdir("service");
+    let mut manager = Manager::bind(&dir.path().join("notify"));
+    let (mut adrive, err) = start(dir.path(), &[]);
+    let ready = manager.until("READY=1");
+    let mut fed = Vec::new();
+    while fed.len() < 5 {
+        let at = manager.until("WATCHDOG=1");
+        if at > ready {
+            fed.push(at);
+        }
+    }
+    let half = Duration::from_micros(WATCHDOG_USEC / 2);
+    for pair in fed.windows(2) {
+        let gap = pair[1] - pair[0];
+        // At half the period (not at every supervisor turn), never near the whole.
+        assert!(
+            gap >= half - Duration::from_millis(50) && gap < 2 * half,
+            "WATCHDOG=1 every {gap:?}, expected about {half:?}"
+        );
+    }
+    assert!(signal(&adrive, libc::SIGTERM));
+    manager.until("STOPPING=1");
+    assert_eq!(wait_exit(&mut adrive), Some(0), "status after SIGTERM");
+    let said: Vec<String> = err.iter().collect();
+    let text = said.join("\n");
+    assert!(
+        text.contains("stopping: SIGTERM") && text.contains("safe state acknowledged"),
+        "a safe stop:\n{text}"
+    );
+    let sent = manager.drain();
+    let ready_status = sent
+        .iter()
+        .find(|(_, t)| t.contains("READY=1"))
+        .map(|(_, t)| t.as_str());
+    assert_eq!(ready_status, Some("READY=1\nSTATUS=running: 6 devices"));
+}
+
+/// A device thread that ends while adrive runs (here the steering's status thread
+/// returns, as a bug would make it): the watchdog is fed no more, so systemd restarts
+/// adrive; adrive says so once at ERROR; the steering is reported faulty meanwhile
+/// (its status is no longer fresh), and a stop is still a safe stop.
+#[test]
+fn the_watchdog_is_no_longer_fed_once_a_device_thread_ended() {
+    let dir = tempdir("service-dead");
+    let mut manager = Manager::bind(&dir.path().join("notify"));
+    let (mut adrive, err) = start(dir.path(), &["--inject-panic", "steer/status=return:2s"]);
+    manager.until("READY=1");
+    manager.until("WATCHDOG=1");
+    let mut said = until(&err, "device thread ended");
+    let ended = Instant::now();
+    // The supervisor still turns: it names the steering's fault, and goes on turning
+    // for several watchdog periods.
+    said.extend(until(&err, "fault: steer silent"));
+    let half = Duration::from_micros(WATCHDOG_USEC / 2);
+    let quiet_until = ended + 4 * half;
+    while Instant::now() < quiet_until {
+        if let Ok(l) = err.recv_timeout(quiet_until.saturating_duration_since(Instant::now())) {
+            said.push(l);
+        }
+    }
+    let text = said.join("\n");
+    let fed_after: Vec<_> = manager
+        .drain()
+        .iter()
+        .filter(|(at, t)| *at > ended && t.contains("WATCHDOG=1"))
+        .map(|(at, _)| *at - ended)
+        .collect();
+    assert!(
+        fed_after.is_empty(),
+        "WATCHDOG=1 after the thread ended (at {fed_after:?}):\n{text}"
+    );
+    let error_lines: Vec<_> = said
+        .iter()
+        .filter(|l| l.contains("device thread ended"))
+        .collect();
+    assert_eq!(error_lines.len(), 1, "said once:\n{text}");
+    assert!(
+        error_lines[0].contains("ERROR") && error_lines[0].contains("steer/status"),
+        "{}",
+        error_lines[0]
+    );
+    assert!(signal(&adrive, libc::SIGTERM));
+    manager.until("STOPPING=1");
+    assert_eq!(wait_exit(&mut adrive), Some(0), "status after SIGTERM");
+    let text: String = err.iter().collect::<Vec<_>>().join("\n");
+    assert!(text.contains("safe state acknowledged"), "{text}");
+}
+
+/// A device thread that panics: as any panic, adrive stops at once, safely — the
+/// service manager hears `STOPPING=1`, the safe state is acknowledged, and the status
+/// is 101, which `Restart=on-failure` restarts.
+#[test]
+fn a_panic_in_a_device_thread_is_a_safe_stop() {
+    let dir = tempdir("service-panic");
+    let mut manager = Manager::bind(&dir.path().join("notify"));
+    let (mut adrive, err) = start(dir.path(), &["--inject-panic", "steer/status:2s"]);
+    manager.until("READY=1");
+    manager.until("STOPPING=1");
+    assert_eq!(wait_exit(&mut adrive), Some(101), "status after a panic");
+    let text: String = err.iter().collect::<Vec<_>>().join("\n");
+    assert!(
+        text.contains("stopping: panic: thread steer/status")
+            && text.contains("safe state acknowledged"),
+        "{text}"
+    );
+}
