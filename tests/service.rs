@@ -202,3 +202,90 @@ fn a_panic_in_a_device_thread_is_a_safe_stop() {
         "{text}"
     );
 }
+
+/// Whether a journald listens here, as tracing-journald checks it, with `journalctl`
+/// to read it back.
+fn journald_here() -> bool {
+    let reachable = UnixDatagram::unbound()
+        .and_then(|s| s.send_to(&[], "/run/systemd/journal/socket"))
+        .is_ok();
+    reachable
+        && Process::new("journalctl")
+            .arg("--version")
+            .stdout(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+}
+
+/// Run by systemd with its stderr connected to the journal (`JOURNAL_STREAM` names
+/// stderr's device and inode): the log lines go to the journal with their fields as
+/// journal fields (`DEVICE=gas`), not as text on stderr. Where no journald listens,
+/// the lines stay on stderr (a journal that cannot be reached loses nothing).
+#[test]
+fn under_systemd_the_log_goes_to_the_journal_with_the_device_as_a_field() {
+    use std::os::unix::fs::MetadataExt;
+    let dir = tempdir("service-journal");
+    let mut manager = Manager::bind(&dir.path().join("notify"));
+    let err_path = dir.path().join("stderr");
+    let err_file = std::fs::File::create(&err_path).unwrap();
+    let meta = err_file.metadata().unwrap();
+    let mut adrive = Reaped(
+        Process::new(BIN)
+            .args(["--sim", "--headless", "--listen", "127.0.0.1:0"])
+            .args(["--broadcast-to", &format!("127.0.0.1:{}", free_port())])
+            .arg("--log-dir")
+            .arg(dir.path().join("log"))
+            .env("NOTIFY_SOCKET", dir.path().join("notify"))
+            .env("JOURNAL_STREAM", format!("{}:{}", meta.dev(), meta.ino()))
+            .env("XDG_RUNTIME_DIR", dir.path())
+            .stdout(Stdio::null())
+            .stderr(err_file)
+            .spawn()
+            .unwrap(),
+    );
+    manager.until("READY=1");
+    let pid = adrive.id().to_string();
+    let journal = journald_here();
+    if journal {
+        // The simulated gas pedal says it went safe a second after the start, with
+        // nothing commanded: a line with a device field.
+        let end = Instant::now() + DEADLINE;
+        let entry = loop {
+            let out = Process::new("journalctl")
+                .args([
+                    "--no-pager",
+                    "-o",
+                    "json",
+                    &format!("_PID={pid}"),
+                    "DEVICE=gas",
+                ])
+                .output()
+                .unwrap();
+            let text = String::from_utf8_lossy(&out.stdout).into_owned();
+            if let Some(line) = text.lines().next() {
+                break serde_json::from_str::<serde_json::Value>(line).unwrap();
+            }
+            assert!(
+                Instant::now() < end,
+                "no journal entry with DEVICE=gas from {pid}"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        assert_eq!(entry["SYSLOG_IDENTIFIER"], "adrive");
+        assert_eq!(entry["DEVICE"], "gas");
+        assert!(entry["MESSAGE"].as_str().is_some_and(|m| !m.is_empty()));
+        assert!(entry["PRIORITY"].as_str().is_some(), "{entry}");
+    }
+    assert!(signal(&adrive, libc::SIGTERM));
+    assert_eq!(wait_exit(&mut adrive), Some(0));
+    let stderr = std::fs::read_to_string(&err_path).unwrap();
+    if journal {
+        assert!(
+            !stderr.contains("engine started"),
+            "logged to stderr too, so twice in the journal:\n{stderr}"
+        );
+    } else {
+        eprintln!("no journald here: checked that the lines stay on stderr");
+        assert!(stderr.contains("engine started"), "{stderr}");
+    }
+}
