@@ -289,3 +289,190 @@ fn under_systemd_the_log_goes_to_the_journal_with_the_device_as_a_field() {
         assert!(stderr.contains("engine started"), "{stderr}");
     }
 }
+
+/// A systemd unit file's `[section]` → `key` → values (a key may repeat).
+type Unit = std::collections::BTreeMap<String, Vec<(String, String)>>;
+
+/// Parse a unit file as systemd reads it: sections, `Key=value`, `#`/`;` comments.
+fn parse_unit(text: &str) -> Unit {
+    let mut unit = Unit::new();
+    let mut section = String::new();
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with(';') {
+            continue;
+        }
+        assert!(
+            !line.ends_with('\\'),
+            "line {}: no continuations here",
+            n + 1
+        );
+        if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            section = name.to_string();
+            continue;
+        }
+        let (k, v) = line
+            .split_once('=')
+            .unwrap_or_else(|| panic!("line {}: expected Key=value: {line}", n + 1));
+        assert!(
+            !section.is_empty(),
+            "line {}: a key before any section",
+            n + 1
+        );
+        unit.entry(section.clone())
+            .or_default()
+            .push((k.trim().to_string(), v.trim().to_string()));
+    }
+    unit
+}
+
+fn key<'u>(unit: &'u Unit, section: &str, key: &str) -> &'u str {
+    let values: Vec<&str> = unit
+        .get(section)
+        .into_iter()
+        .flatten()
+        .filter(|(k, _)| k == key)
+        .map(|(_, v)| v.as_str())
+        .collect();
+    assert_eq!(values.len(), 1, "[{section}] {key}= once: {values:?}");
+    values[0]
+}
+
+fn dist(path: &str) -> String {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("dist")
+        .join(path);
+    std::fs::read_to_string(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+/// The units shipped in `dist/systemd/`: a notify service whose watchdog adrive can
+/// feed, stopped safely by SIGTERM within its stop timeout, restarted on failure, in
+/// the serial ports' group with its runtime directory for the control socket and an
+/// rtprio limit — and an ExecStart this adrive accepts.
+#[test]
+fn the_unit_files_say_what_the_service_needs() {
+    use adrive::cli::Cli;
+    use clap::{CommandFactory, Parser};
+    let duration = |s: &str| humantime::parse_duration(s).unwrap();
+    for (file, sim) in [
+        ("systemd/adrive.service", false),
+        ("systemd/adrive-sim.service", true),
+    ] {
+        let unit = parse_unit(&dist(file));
+        let s = "Service";
+        assert_eq!(key(&unit, s, "Type"), "notify", "{file}");
+        assert_eq!(key(&unit, s, "NotifyAccess"), "main", "{file}");
+        // Fed at half, by a supervisor turning at most every second.
+        let watchdog = duration(key(&unit, s, "WatchdogSec"));
+        assert!(watchdog >= Duration::from_secs(3), "{file}: {watchdog:?}");
+        assert_eq!(key(&unit, s, "WatchdogSignal"), "SIGTERM", "{file}");
+        assert_eq!(key(&unit, s, "KillSignal"), "SIGTERM", "{file}");
+        // The safe stop's own deadlines add up to about 6 s.
+        let stop = duration(key(&unit, s, "TimeoutStopSec"));
+        assert!(stop >= Duration::from_secs(8), "{file}: {stop:?}");
+        assert_eq!(key(&unit, s, "Restart"), "on-failure", "{file}");
+        assert_eq!(key(&unit, s, "User"), "adrive", "{file}");
+        assert_eq!(key(&unit, s, "Group"), "dialout", "{file}");
+        assert_eq!(key(&unit, s, "RuntimeDirectory"), "adrive", "{file}");
+        let rtprio: u32 = key(&unit, s, "LimitRTPRIO").parse().unwrap();
+        assert!((1..=99).contains(&rtprio), "{file}: LimitRTPRIO={rtprio}");
+        assert_eq!(key(&unit, "Install", "WantedBy"), "multi-user.target");
+        let exec: Vec<&str> = key(&unit, s, "ExecStart").split_whitespace().collect();
+        assert_eq!(exec[0], "/usr/local/bin/adrive", "{file}");
+        let has = |pair: &[&str]| exec.windows(pair.len()).any(|w| w == pair);
+        assert!(has(&["--headless"]), "{file}: {exec:?}");
+        assert!(
+            has(&["--socket", "/run/adrive/adrive.sock"]),
+            "{file}: {exec:?}"
+        );
+        match sim {
+            true => assert!(has(&["--sim"]), "{file}: {exec:?}"),
+            false => assert!(
+                has(&["--config", "/etc/adrive/vehicle.toml"]) && !has(&["--sim"]),
+                "{file}: {exec:?}"
+            ),
+        }
+        // The command line is one this adrive takes (`--socket` once it has it).
+        let knows_socket = Cli::command()
+            .get_arguments()
+            .any(|a| a.get_long() == Some("socket"));
+        let mut args: Vec<&str> = exec.clone();
+        if !knows_socket {
+            let at = args.iter().position(|a| *a == "--socket").unwrap();
+            args.drain(at..at + 2);
+        }
+        if let Err(e) = Cli::try_parse_from(&args) {
+            panic!("{file}: ExecStart: {e}");
+        }
+    }
+}
+
+/// `systemd-analyze verify` finds nothing to say about the units, where it is
+/// installed (with this build's adrive in place of /usr/local/bin/adrive).
+#[test]
+fn systemd_analyze_verifies_the_unit_files() {
+    let have = Process::new("systemd-analyze")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !have {
+        eprintln!("systemd-analyze is not installed: the parse test checks the units");
+        return;
+    }
+    let dir = tempdir("unit");
+    let mut paths = Vec::new();
+    for name in ["adrive.service", "adrive-sim.service"] {
+        let text = dist(&format!("systemd/{name}")).replace("/usr/local/bin/adrive", BIN);
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        paths.push(path);
+    }
+    let out = Process::new("systemd-analyze")
+        .args(["verify", "--man=no"])
+        .args(&paths)
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&out.stderr);
+    let about_ours: Vec<&str> = said
+        .lines()
+        .filter(|l| l.contains(dir.path().to_str().unwrap()) || l.contains("adrive"))
+        .collect();
+    assert!(
+        out.status.success() && about_ours.is_empty(),
+        "systemd-analyze verify:\n{said}"
+    );
+}
+
+/// The udev rule names each adapter under /dev/adrive/ by its serial number, in the
+/// service's group with mode 0660, and sets the FTDI latency timer to 1 ms.
+#[test]
+fn the_udev_rule_names_the_adapters_and_sets_the_latency_timer() {
+    let text = dist("udev/99-adrive.rules");
+    let rules: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty() && !l.starts_with('#'))
+        .collect();
+    let names: Vec<&str> = rules
+        .iter()
+        .filter(|r| r.contains("SYMLINK+="))
+        .copied()
+        .collect();
+    assert!(!names.is_empty());
+    for r in &names {
+        assert!(r.starts_with("SUBSYSTEM==\"tty\""), "{r}");
+        assert!(r.contains("ATTRS{serial}==\""), "{r}");
+        assert!(r.contains("SYMLINK+=\"adrive/"), "{r}");
+        assert!(
+            r.contains("GROUP=\"dialout\"") && r.contains("MODE=\"0660\""),
+            "{r}"
+        );
+    }
+    assert!(
+        rules.iter().any(|r| r.contains("SUBSYSTEM==\"usb-serial\"")
+            && r.contains("DRIVER==\"ftdi_sio\"")
+            && r.contains("ATTR{latency_timer}=\"1\"")),
+        "{text}"
+    );
+}
