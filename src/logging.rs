@@ -4,9 +4,11 @@
 //! the file when dropped, so every exit path keeps it alive until the very end.
 //!
 //! Run by systemd (its `JOURNAL_STREAM` names the stderr adrive has), the stderr lines
-//! go to the journal instead, each event with its fields as journal fields
-//! (`device=steer` as `DEVICE=steer`, so `journalctl -u adrive DEVICE=steer` finds a
-//! device's lines) and its level as the journal's priority.
+//! go to the journal instead ([`journal`]), each event with its fields as journal
+//! fields (`device=steer` as `DEVICE=steer`, so `journalctl -u adrive DEVICE=steer`
+//! finds a device's lines) and its level as the journal's priority.
+
+pub mod journal;
 
 use std::fmt::Write as _;
 use std::io::IsTerminal;
@@ -109,18 +111,13 @@ pub fn init_with(
 
 /// The journal, when standard error is the stream systemd connected to it; `None`
 /// elsewhere, or when journald cannot be reached (then stderr it is).
-fn journal() -> Option<tracing_journald::Layer> {
+fn journal() -> Option<journal::Journal> {
     let stream = std::env::var("JOURNAL_STREAM").ok()?;
     let stat = rustix::fs::fstat(std::io::stderr()).ok()?;
     if !is_stream(&stream, stat.st_dev, stat.st_ino) {
         return None;
     }
-    let layer = tracing_journald::layer().ok()?;
-    Some(
-        layer
-            .with_field_prefix(None)
-            .with_syslog_identifier("adrive".into()),
-    )
+    journal::Journal::at(Path::new(journal::SOCKET)).ok()
 }
 
 /// `JOURNAL_STREAM` (`DEVICE:INODE`, in decimal) names this device and inode: the
