@@ -273,8 +273,15 @@ fn under_systemd_the_log_goes_to_the_journal_with_the_device_as_a_field() {
         };
         assert_eq!(entry["SYSLOG_IDENTIFIER"], "adrive");
         assert_eq!(entry["DEVICE"], "gas");
-        assert!(entry["MESSAGE"].as_str().is_some_and(|m| !m.is_empty()));
-        assert!(entry["PRIORITY"].as_str().is_some(), "{entry}");
+        assert_eq!(entry["THREAD_NAME"], "sim/gas");
+        // The line as the log file has it, fields included, for `journalctl -u`.
+        assert!(
+            entry["MESSAGE"]
+                .as_str()
+                .is_some_and(|m| m.ends_with(" device=gas")),
+            "{entry}"
+        );
+        assert_eq!(entry["PRIORITY"], "6", "info");
     }
     assert!(signal(&adrive, libc::SIGTERM));
     assert_eq!(wait_exit(&mut adrive), Some(0));
