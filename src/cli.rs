@@ -410,7 +410,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             }
         }
     };
-    crate::service::stopping();
+    crate::service::stopping(&why.describe());
     tracing::info!("stopping: {}", why.describe());
     // No network command may follow the safe state: refuse datagrams, disengage (which
     // commands the safe state at once), stop the network and gate threads, then let the

@@ -85,9 +85,9 @@ pub fn ready(status: &str) {
     notify(&format!("READY=1\nSTATUS={status}"));
 }
 
-/// The stop has begun (the safe state comes next).
-pub fn stopping() {
-    notify("STOPPING=1");
+/// The stop has begun (the safe state comes next); `why` for `systemctl status`.
+pub fn stopping(why: &str) {
+    notify(&format!("STOPPING=1\nSTATUS=stopping: {why}"));
 }
 
 /// A line for `systemctl status`.
@@ -155,6 +155,7 @@ impl Watchdog {
                     None => "adrive must be restarted",
                 };
                 tracing::error!(thread = %name, "device thread ended: {effect}");
+                status(&format!("device thread {name} ended"));
                 self.told.push(name.to_string());
             }
         }

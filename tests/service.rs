@@ -118,6 +118,10 @@ fn ready_watchdog_and_stopping_reach_the_service_manager() {
     }
     assert!(signal(&adrive, libc::SIGTERM));
     manager.until("STOPPING=1");
+    assert_eq!(
+        manager.seen.last().unwrap().1,
+        "STOPPING=1\nSTATUS=stopping: SIGTERM"
+    );
     assert_eq!(wait_exit(&mut adrive), Some(0), "status after SIGTERM");
     let said: Vec<String> = err.iter().collect();
     let text = said.join("\n");
@@ -146,6 +150,8 @@ fn the_watchdog_is_no_longer_fed_once_a_device_thread_ended() {
     manager.until("WATCHDOG=1");
     let mut said = until(&err, "device thread ended");
     let ended = Instant::now();
+    // `systemctl status` says why.
+    manager.until("STATUS=device thread steer/status ended");
     // The supervisor still turns: it names the steering's fault, and goes on turning
     // for several watchdog periods.
     said.extend(until(&err, "fault: steer silent"));
