@@ -64,8 +64,9 @@ impl Manager {
     }
 }
 
-/// Half of this is how often adrive must feed the watchdog.
-const WATCHDOG_USEC: u64 = 1_000_000;
+/// Half of this is how often adrive must feed the watchdog. Two seconds: a gap as long
+/// is what systemd would take for a hang, and a loaded machine must not stall so long.
+const WATCHDOG_USEC: u64 = 2_000_000;
 
 /// `adrive --sim --headless` as systemd starts it (`NOTIFY_SOCKET`, `WATCHDOG_USEC`,
 /// `WATCHDOG_PID` unset as for the main process), with `args`; its stderr's lines.
@@ -101,7 +102,7 @@ fn ready_watchdog_and_stopping_reach_the_service_manager() {
     let (mut adrive, err) = start(dir.path(), &[]);
     let ready = manager.until("READY=1");
     let mut fed = Vec::new();
-    while fed.len() < 5 {
+    while fed.len() < 4 {
         let at = manager.until("WATCHDOG=1");
         if at > ready {
             fed.push(at);
@@ -156,7 +157,7 @@ fn the_watchdog_is_no_longer_fed_once_a_device_thread_ended() {
     // for several watchdog periods.
     said.extend(until(&err, "fault: steer silent"));
     let half = Duration::from_micros(WATCHDOG_USEC / 2);
-    let quiet_until = ended + 4 * half;
+    let quiet_until = ended + 3 * half;
     while Instant::now() < quiet_until {
         if let Ok(l) = err.recv_timeout(quiet_until.saturating_duration_since(Instant::now())) {
             said.push(l);
