@@ -388,6 +388,7 @@ fn the_unit_files_say_what_the_service_needs() {
         assert_eq!(key(&unit, s, "User"), "adrive", "{file}");
         assert_eq!(key(&unit, s, "Group"), "dialout", "{file}");
         assert_eq!(key(&unit, s, "RuntimeDirectory"), "adrive", "{file}");
+        assert_eq!(key(&unit, s, "StateDirectory"), "adrive", "{file}");
         let rtprio: u32 = key(&unit, s, "LimitRTPRIO").parse().unwrap();
         assert!((1..=99).contains(&rtprio), "{file}: LimitRTPRIO={rtprio}");
         assert_eq!(key(&unit, "Install", "WantedBy"), "multi-user.target");
