@@ -105,8 +105,9 @@ pub struct RunArgs {
     /// (100ms to 5s) [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
     pub deadman: Option<Duration>,
-    /// Fault injection for tests: make a thread panic once running, `main` or
-    /// `supervisor`, optionally after a delay (`supervisor:4s`).
+    /// Fault injection for tests: make a thread panic once running, `main`,
+    /// `supervisor` or a device's status thread (`steer/status`; `steer/status=return`
+    /// ends it quietly instead), optionally after a delay (`supervisor:4s`).
     #[arg(long, value_name = "THREAD[:DELAY]", hide = true)]
     pub inject_panic: Option<String>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
@@ -429,8 +430,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         .unwrap_or_else(socket::path::default_path);
     let control = socket::Server::start(gate.clone(), sources.clone(), &socket_path)
         .map_err(anyhow::Error::msg)?;
-    let engine = Engine::start(gate.clone())?;
-    let monitor = gate::Monitor::start(gate.clone())?;
     let (panic_in, panic_after) = match args.inject_panic.as_deref() {
         None => ("", Duration::ZERO),
         Some(spec) => match spec.split_once(':') {
@@ -438,9 +437,16 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             None => (spec, Duration::from_millis(1500)),
         },
     };
+    let engine = Engine::start_injected(gate.clone(), injected(panic_in, panic_after))?;
+    let monitor = gate::Monitor::start(gate.clone())?;
     let mut sup_cfg = vehicle.config.supervisor.clone();
     sup_cfg.panic_for_test = (panic_in == "supervisor").then_some(panic_after);
-    let supervisor = crate::supervisor::start(gate.clone(), sup_cfg, Box::new(exit::request))?;
+    let supervisor = crate::supervisor::start_watching(
+        gate.clone(),
+        sup_cfg,
+        Box::new(exit::request),
+        engine.liveness(),
+    )?;
     // Let the devices report first, so the unwinding really has a vehicle to stop; with
     // the console, it panics from its own loop, so the terminal is taken over then.
     let panic_main = panic_in == "main";
@@ -449,6 +455,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         panic!("injected panic (--inject-panic main)");
     }
     tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
+    service_ready(&engine);
     let why = match keymap {
         None => headless::wait(&gate, &exits),
         Some(keymap) => {
@@ -468,6 +475,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             }
         }
     };
+    crate::service::stopping(&why.describe());
     tracing::info!("stopping: {}", why.describe());
     // No network command may follow the safe state: refuse datagrams, disengage (which
     // commands the safe state at once), stop the network and gate threads, then let the
@@ -531,6 +539,36 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// Tell systemd (if it runs adrive) that adrive is ready, once every device thread
+/// runs.
+fn service_ready(engine: &Engine) {
+    let alive = engine.liveness();
+    let late = alive.wait_running(Instant::now() + Duration::from_secs(2));
+    if late.is_empty() {
+        let n = engine.vehicle().devices.len();
+        crate::service::ready(&format!("running: {n} devices"));
+    } else {
+        // Not ready: systemd's start timeout (or the watchdog) will tell.
+        tracing::error!(threads = ?late, "device threads not running 2 s after the start");
+    }
+}
+
+/// `--inject-panic DEVICE/status` (a panic) or `DEVICE/status=return` (the thread
+/// ends quietly): a fault for the engine to inject, for tests.
+fn injected(thread: &str, after: Duration) -> Option<crate::engine::Injected> {
+    let (thread, panic) = match thread.split_once('=') {
+        Some((t, "return")) => (t, false),
+        _ => (thread, true),
+    };
+    thread
+        .ends_with("/status")
+        .then(|| crate::engine::Injected {
+            thread: thread.to_string(),
+            after,
+            panic,
+        })
 }
 
 /// Open and lock every device's port, before anything starts: a port in use by another

@@ -10,7 +10,8 @@
 //! Autoware over Zenoh through the same intake; [`socket`] lets consoles attach to a
 //! running engine and operators command it once; [`sim`] emulates the devices on real
 //! pseudo-terminals; [`record`] keeps a run in an MCAP file; [`console`] is the
-//! operator's screen (and replays recordings) and [`cli`] puts it all together.
+//! operator's screen (and replays recordings) and [`cli`] puts it all together;
+//! [`service`] tells systemd how it goes.
 
 pub mod cli;
 pub mod config;
@@ -26,6 +27,7 @@ pub mod record;
 #[cfg(feature = "ros2")]
 pub mod ros2;
 pub mod safety;
+pub mod service;
 pub mod sim;
 pub mod snapshot;
 pub mod socket;

@@ -2,6 +2,13 @@
 //! plain text elsewhere), and always to a daily rolling file, plain text, through
 //! `tracing-appender`'s non-blocking writer. The returned guard flushes
 //! the file when dropped, so every exit path keeps it alive until the very end.
+//!
+//! Run by systemd (its `JOURNAL_STREAM` names the stderr adrive has), the stderr lines
+//! go to the journal instead ([`journal`]), each event with its fields as journal
+//! fields (`device=steer` as `DEVICE=steer`, so `journalctl -u adrive DEVICE=steer`
+//! finds a device's lines) and its level as the journal's priority.
+
+pub mod journal;
 
 use std::fmt::Write as _;
 use std::io::IsTerminal;
@@ -79,6 +86,9 @@ pub fn init_with(
         }
         None => (None, None),
     };
+    let journal_layer = stderr.then(journal).flatten();
+    let stderr = stderr && journal_layer.is_none();
+    let journal_layer = journal_layer.map(|l| l.with_filter(filter()));
     let stderr_layer = stderr.then(|| {
         let mut layer = fmt::layer()
             .with_writer(std::io::stderr)
@@ -94,8 +104,30 @@ pub fn init_with(
         .with(extra)
         .with(file_layer)
         .with(stderr_layer)
+        .with(journal_layer)
         .try_init();
     Ok(LogGuard { _file: guard })
+}
+
+/// The journal, when standard error is the stream systemd connected to it; `None`
+/// elsewhere, or when journald cannot be reached (then stderr it is).
+fn journal() -> Option<journal::Journal> {
+    let stream = std::env::var("JOURNAL_STREAM").ok()?;
+    let stat = rustix::fs::fstat(std::io::stderr()).ok()?;
+    if !is_stream(&stream, stat.st_dev, stat.st_ino) {
+        return None;
+    }
+    journal::Journal::at(Path::new(journal::SOCKET)).ok()
+}
+
+/// `JOURNAL_STREAM` (`DEVICE:INODE`, in decimal) names this device and inode: the
+/// documented check (`systemd.exec(5)`) that stderr still is the stream systemd
+/// connected to the journal, and not a file or terminal a child was given since.
+fn is_stream(var: &str, dev: u64, ino: u64) -> bool {
+    let Some((d, i)) = var.trim().split_once(':') else {
+        return false;
+    };
+    d.parse() == Ok(dev) && i.parse() == Ok(ino)
 }
 
 /// Log at most `per_second` lines a second; count the rest and say how many were left
@@ -237,6 +269,17 @@ impl Visit for EventText {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_journal_stream_is_stderr_only_when_device_and_inode_match() {
+        assert!(is_stream("25:123456", 25, 123456));
+        assert!(is_stream("25:123456\n", 25, 123456));
+        assert!(!is_stream("25:123457", 25, 123456));
+        assert!(!is_stream("26:123456", 25, 123456));
+        for bad in ["", "25", "25:", ":123456", "x:y", "25:123456:7"] {
+            assert!(!is_stream(bad, 25, 123456), "{bad:?}");
+        }
+    }
 
     /// A device failing twice a second for two minutes: logged when it starts, then
     /// once a minute with the count of the minute; a change of words is logged at once;

@@ -1,8 +1,11 @@
 //! Threads, named and stoppable: a stop signal sleeping threads wake up for, a set of
-//! named threads joined with a deadline (naming any that did not stop), and [`every`],
-//! the one periodic loop every periodic thread uses.
+//! named threads joined with a deadline (naming any that did not stop), whether each
+//! still runs ([`Liveness`], which the service watchdog is fed by), and [`every`], the
+//! one periodic loop every periodic thread uses.
 
 use parking_lot::{Condvar, Mutex};
+use std::sync::atomic::{AtomicU8, Ordering};
+use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -35,6 +38,24 @@ impl StopSignal {
 #[derive(Default)]
 pub struct Threads {
     handles: Vec<(String, JoinHandle<()>)>,
+    states: Vec<(String, Arc<AtomicU8>)>,
+}
+
+/// A thread spawned, not yet running its work.
+const SPAWNED: u8 = 0;
+/// A thread running its work.
+const RUNNING: u8 = 1;
+/// A thread whose work returned or panicked.
+const ENDED: u8 = 2;
+
+/// Marks its thread ended when dropped: when the work returns, and while a panic
+/// unwinds it.
+struct EndMark(Arc<AtomicU8>);
+
+impl Drop for EndMark {
+    fn drop(&mut self) {
+        self.0.store(ENDED, Ordering::Release);
+    }
 }
 
 impl Threads {
@@ -43,7 +64,16 @@ impl Threads {
         name: String,
         f: impl FnOnce() + Send + 'static,
     ) -> std::io::Result<()> {
-        let h = std::thread::Builder::new().name(name.clone()).spawn(f)?;
+        let state = Arc::new(AtomicU8::new(SPAWNED));
+        let mark = EndMark(state.clone());
+        let h = std::thread::Builder::new()
+            .name(name.clone())
+            .spawn(move || {
+                mark.0.store(RUNNING, Ordering::Release);
+                f();
+                drop(mark);
+            })?;
+        self.states.push((name.clone(), state));
         self.handles.push((name, h));
         Ok(())
     }
@@ -55,9 +85,15 @@ impl Threads {
             .into_iter()
             .partition(|(_, h)| h.is_finished());
         self.handles = live;
-        for (_, h) in done {
+        for (name, h) in done {
             let _ = h.join();
+            self.states.retain(|(n, _)| *n != name);
         }
+    }
+
+    /// Whether each thread runs, readable from other threads while these run.
+    pub fn liveness(&self) -> Liveness {
+        Liveness(self.states.clone().into())
     }
 
     pub fn names(&self) -> Vec<&str> {
@@ -85,6 +121,46 @@ impl Threads {
     }
 }
 
+/// Whether each of a set of threads has started its work and whether it has ended
+/// (returned or panicked), by name.
+#[derive(Clone, Default)]
+pub struct Liveness(Arc<[(String, Arc<AtomicU8>)]>);
+
+impl Liveness {
+    /// The names of the threads whose work has ended.
+    pub fn ended(&self) -> Vec<&str> {
+        self.names_in(ENDED)
+    }
+
+    /// Every thread has started its work and none has ended.
+    pub fn all_running(&self) -> bool {
+        self.0
+            .iter()
+            .all(|(_, s)| s.load(Ordering::Acquire) == RUNNING)
+    }
+
+    /// Wait until every thread has started its work, at most until `deadline`; the
+    /// names of those still not running (not yet started, or already ended).
+    pub fn wait_running(&self, deadline: Instant) -> Vec<&str> {
+        while !self.all_running() && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        self.0
+            .iter()
+            .filter(|(_, s)| s.load(Ordering::Acquire) != RUNNING)
+            .map(|(n, _)| n.as_str())
+            .collect()
+    }
+
+    fn names_in(&self, state: u8) -> Vec<&str> {
+        self.0
+            .iter()
+            .filter(|(_, s)| s.load(Ordering::Acquire) == state)
+            .map(|(n, _)| n.as_str())
+            .collect()
+    }
+}
+
 /// Run `tick` every `period` until `stop`; a turn that overruns its period is logged
 /// and the next one starts at once (no burst of catch-up turns).
 pub fn every(period: Duration, stop: &StopSignal, mut tick: impl FnMut()) {
@@ -107,5 +183,43 @@ pub fn every(period: Duration, stop: &StopSignal, mut tick: impl FnMut()) {
                 "turn took {took:?} (period {period:?})"
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The service watchdog stops being fed when a device thread ends: a thread that
+    /// returns and one that panics are both seen as ended; one that waits is running.
+    #[test]
+    fn a_thread_that_returns_or_panics_is_seen_ended_one_that_waits_is_running() {
+        let stop = Arc::new(StopSignal::default());
+        let mut threads = Threads::default();
+        let s = stop.clone();
+        threads
+            .spawn("waits".into(), move || {
+                s.sleep_until(Instant::now() + Duration::from_secs(60));
+            })
+            .unwrap();
+        let alive = threads.liveness();
+        assert!(alive
+            .wait_running(Instant::now() + Duration::from_secs(10))
+            .is_empty());
+        assert!(alive.ended().is_empty());
+        threads.spawn("returns".into(), || {}).unwrap();
+        threads
+            .spawn("panics".into(), || panic!("injected in a test"))
+            .unwrap();
+        let alive = threads.liveness();
+        let end = Instant::now() + Duration::from_secs(10);
+        while alive.ended().len() < 2 && Instant::now() < end {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(alive.ended(), ["returns", "panics"]);
+        assert!(!alive.all_running());
+        stop.stop();
+        threads.join(Instant::now() + Duration::from_secs(10));
+        assert_eq!(alive.ended(), ["waits", "returns", "panics"]);
     }
 }

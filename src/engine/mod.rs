@@ -18,7 +18,9 @@
 //!   port held, reads the reply and keeps the books as for its own.
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
-//! [`Engine::shutdown`] joins them with a deadline and names any that did not stop.
+//! [`Engine::shutdown`] joins them with a deadline and names any that did not stop;
+//! [`Engine::liveness`] tells whether each still runs (the service watchdog is fed
+//! only while all do).
 //! Command threads run where the vehicle file's [`placement`] puts the command path.
 
 pub mod placement;
@@ -27,7 +29,7 @@ pub mod polling;
 
 use crate::config::PortRule;
 use crate::safety::{Gate, WireStep};
-use crate::threads::{StopSignal, Threads};
+use crate::threads::{Liveness, StopSignal, Threads};
 use crate::vehicle::port::PortGuard;
 use crate::vehicle::slot::{Pending, Wake};
 use crate::vehicle::stats::Stats;
@@ -44,17 +46,36 @@ pub struct Engine {
     stopped: bool,
 }
 
+/// Fault injection for tests (`--inject-panic steer/status:3s`): a device's status
+/// thread panics, or ends as if it had returned by mistake, once running this long.
+#[derive(Clone, Debug)]
+pub struct Injected {
+    /// The thread, `<device>/status`.
+    pub thread: String,
+    pub after: Duration,
+    /// Panic (else return quietly).
+    pub panic: bool,
+}
+
 impl Engine {
     /// Start the status thread of every device and the command thread of every actuator.
     pub fn start(gate: Arc<Gate>) -> std::io::Result<Engine> {
+        Engine::start_injected(gate, None)
+    }
+
+    /// [`Engine::start`], with a fault injected into one thread.
+    pub fn start_injected(gate: Arc<Gate>, inject: Option<Injected>) -> std::io::Result<Engine> {
         let stop = Arc::new(StopSignal::default());
         let mut threads = Threads::default();
         let vehicle = gate.vehicle.clone();
         for i in 0..vehicle.devices.len() {
             let name = vehicle.devices[i].name().to_string();
             let (v, s) = (vehicle.clone(), stop.clone());
-            threads.spawn(format!("{name}/status"), move || {
-                status_loop(&v.devices[i], &s)
+            let thread = format!("{name}/status");
+            let fault = inject.clone().filter(|f| f.thread == thread);
+            threads.spawn(thread, move || {
+                let fault = fault.map(|f| (Instant::now() + f.after, f.panic));
+                status_loop(&v.devices[i], &s, fault)
             })?;
             if vehicle.devices[i].is_actuator() {
                 let g = gate.clone();
@@ -82,6 +103,11 @@ impl Engine {
 
     pub fn thread_names(&self) -> Vec<&str> {
         self.threads.names()
+    }
+
+    /// Whether each device thread runs.
+    pub fn liveness(&self) -> Liveness {
+        self.threads.liveness()
     }
 
     /// Bring the vehicle to the safe state, then stop and join every thread.
@@ -120,13 +146,21 @@ impl Drop for Engine {
     }
 }
 
-fn status_loop(d: &Device, stop: &StopSignal) {
+/// `fault`: when to end, and whether by a panic (`--inject-panic`, tests only).
+fn status_loop(d: &Device, stop: &StopSignal, fault: Option<(Instant, bool)>) {
     let mut next = Instant::now();
     // The first poll is due at once.
     let mut last_attempt: Option<Instant> = None;
     let mut schedule = polling::Schedule::default();
     loop {
         if !stop.sleep_until(next) {
+            return;
+        }
+        if let Some((_, panic)) = fault.filter(|&(at, _)| Instant::now() >= at) {
+            if panic {
+                panic!("injected panic (--inject-panic {}/status)", d.name());
+            }
+            tracing::warn!(device = %d.name(), "status thread ends (--inject-panic, quietly)");
             return;
         }
         let period = d.settings.status_period();

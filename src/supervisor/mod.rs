@@ -11,6 +11,10 @@
 //! The gate monitor ([`crate::safety::gate`]) disengages within milliseconds on an
 //! e-stop or a faulty device; the supervisor works at its own, slower period on
 //! diagnosis and recovery.
+//!
+//! Under systemd, the supervisor thread also feeds the service watchdog after each
+//! turn, only while every device thread runs ([`crate::service::Watchdog`]): a device
+//! thread that ended, or a supervisor that no longer turns, gets adrive restarted.
 
 pub mod recovery;
 
@@ -19,7 +23,7 @@ use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::exit::Exit;
 use crate::safety::Gate;
 use crate::snapshot::{DeviceView, FaultKind, Snapshot};
-use crate::threads::{StopSignal, Threads};
+use crate::threads::{Liveness, StopSignal, Threads};
 use crate::value::{Kind, Value};
 use crate::vehicle::supervision::Fault;
 use recovery::{Procedure, Progress};
@@ -621,6 +625,17 @@ pub struct Running {
 
 /// Start the supervisor thread at `cfg.period`.
 pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io::Result<Running> {
+    start_watching(gate, cfg, exit, Liveness::default())
+}
+
+/// [`start`], feeding the service watchdog while every thread of `watched` (the
+/// engine's, [`crate::engine::Engine::liveness`]) runs.
+pub fn start_watching(
+    gate: Arc<Gate>,
+    cfg: SupervisorConfig,
+    exit: ExitSink,
+    watched: Liveness,
+) -> std::io::Result<Running> {
     let stop = Arc::new(StopSignal::default());
     let mut threads = Threads::default();
     let s = stop.clone();
@@ -628,11 +643,13 @@ pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io:
         let period = cfg.period;
         let panic_at = cfg.panic_for_test.map(|d| Instant::now() + d);
         let mut sup = Supervisor::new(cfg, exit);
+        let mut watchdog = crate::service::Watchdog::new(watched);
         crate::threads::every(period, &s, || {
             if panic_at.is_some_and(|t| Instant::now() >= t) {
                 panic!("injected panic (--inject-panic supervisor)");
             }
             sup.tick(&gate, Instant::now());
+            watchdog.turn(Instant::now());
         })
     })?;
     Ok(Running { stop, threads })

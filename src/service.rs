@@ -1,0 +1,258 @@
+//! adrive under systemd: the notify protocol (`sd_notify(3)`) that tells the service
+//! manager when adrive is ready (`READY=1`), that it is still sound (`WATCHDOG=1`), what
+//! it is doing (`STATUS=…`) and that it is stopping (`STOPPING=1`).
+//!
+//! It exists so that `systemctl start adrive` returns once every device thread runs,
+//! and so that systemd restarts adrive when it is no longer sound: the supervisor feeds
+//! the watchdog ([`Watchdog`]) only while every device thread is alive, so a thread
+//! that ended — or a supervisor that hangs — stops the feeding, and systemd stops and
+//! restarts the service after `WatchdogSec`.
+//!
+//! Each notification is one datagram to the socket named by `NOTIFY_SOCKET`: a path,
+//! or an abstract socket written `@name` (which the `sd-notify` crate does not reach,
+//! hence these few lines over a `UnixDatagram`). Without `NOTIFY_SOCKET` — adrive not
+//! run by systemd — every call here does nothing.
+
+use crate::threads::Liveness;
+use std::ffi::OsStr;
+use std::os::unix::ffi::OsStrExt;
+use std::os::unix::net::{SocketAddr, UnixDatagram};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+/// Where notifications go: the service manager's socket.
+pub struct Notifier {
+    socket: UnixDatagram,
+    to: SocketAddr,
+    /// A failed send was logged (once: the manager may be gone for good).
+    warned: AtomicBool,
+}
+
+impl Notifier {
+    /// The socket `NOTIFY_SOCKET` names (`/run/systemd/notify`, or `@name` for an
+    /// abstract one); `None` when the variable is unset or names neither.
+    pub fn at(var: &OsStr) -> Option<Notifier> {
+        let to = address(var)?;
+        let socket = UnixDatagram::unbound().ok()?;
+        Some(Notifier {
+            socket,
+            to,
+            warned: AtomicBool::new(false),
+        })
+    }
+
+    /// Send `state`, newline-separated `KEY=VALUE` assignments, in one datagram.
+    pub fn send(&self, state: &str) {
+        if let Err(e) = self.socket.send_to_addr(state.as_bytes(), &self.to) {
+            if !self.warned.swap(true, Ordering::Relaxed) {
+                tracing::warn!("service manager notification failed (NOTIFY_SOCKET): {e}");
+            }
+        }
+    }
+}
+
+/// The address `NOTIFY_SOCKET` names: a path starting with `/`, or an abstract
+/// socket starting with `@`.
+fn address(var: &OsStr) -> Option<SocketAddr> {
+    match var.as_bytes() {
+        [b'/', ..] => SocketAddr::from_pathname(var).ok(),
+        [b'@', name @ ..] if !name.is_empty() => {
+            use std::os::linux::net::SocketAddrExt;
+            SocketAddr::from_abstract_name(name).ok()
+        }
+        _ => None,
+    }
+}
+
+/// The service manager, read from the environment once.
+fn manager() -> Option<&'static Notifier> {
+    static MANAGER: OnceLock<Option<Notifier>> = OnceLock::new();
+    MANAGER
+        .get_or_init(|| std::env::var_os("NOTIFY_SOCKET").and_then(|v| Notifier::at(&v)))
+        .as_ref()
+}
+
+fn notify(state: &str) {
+    if let Some(m) = manager() {
+        m.send(state);
+    }
+}
+
+/// Startup is finished: every device thread runs. `status` is shown by
+/// `systemctl status`.
+pub fn ready(status: &str) {
+    notify(&format!("READY=1\nSTATUS={status}"));
+}
+
+/// The stop has begun (the safe state comes next); `why` for `systemctl status`.
+pub fn stopping(why: &str) {
+    notify(&format!("STOPPING=1\nSTATUS=stopping: {why}"));
+}
+
+/// A line for `systemctl status`.
+pub fn status(text: &str) {
+    notify(&format!("STATUS={text}"));
+}
+
+/// Tell the service manager adrive is still sound.
+pub fn feed() {
+    notify("WATCHDOG=1");
+}
+
+/// How often to feed the watchdog: half of `WATCHDOG_USEC`, as `sd_watchdog_enabled(3)`
+/// advises; `None` when systemd keeps no watchdog on this process (no `WATCHDOG_USEC`,
+/// or `WATCHDOG_PID` names another process).
+pub fn watchdog_period() -> Option<Duration> {
+    let usec = std::env::var("WATCHDOG_USEC").ok();
+    let pid = std::env::var("WATCHDOG_PID").ok();
+    watchdog_every(usec.as_deref(), pid.as_deref(), std::process::id())
+}
+
+fn watchdog_every(usec: Option<&str>, pid: Option<&str>, me: u32) -> Option<Duration> {
+    let usec: u64 = usec?.trim().parse().ok().filter(|&u| u > 0)?;
+    if let Some(pid) = pid {
+        if pid.trim().parse::<u32>().ok()? != me {
+            return None;
+        }
+    }
+    Some(Duration::from_micros(usec) / 2)
+}
+
+/// The service watchdog as the supervisor feeds it, once a turn: `WATCHDOG=1` every
+/// half `WATCHDOG_USEC`, and only while every thread it watches (the engine's device
+/// threads) runs. A thread that ended is logged once, at ERROR.
+pub struct Watchdog {
+    every: Option<Duration>,
+    fed: Option<Instant>,
+    threads: Liveness,
+    told: Vec<String>,
+}
+
+impl Watchdog {
+    /// Watch `threads`, feeding at [`watchdog_period`].
+    pub fn new(threads: Liveness) -> Watchdog {
+        Watchdog::every(watchdog_period(), threads)
+    }
+
+    /// Watch `threads`, feeding every `every` (`None`: never, only watch).
+    pub fn every(every: Option<Duration>, threads: Liveness) -> Watchdog {
+        Watchdog {
+            every,
+            fed: None,
+            threads,
+            told: Vec::new(),
+        }
+    }
+
+    /// One supervisor turn at `now`; whether the watchdog was fed.
+    pub fn turn(&mut self, now: Instant) -> bool {
+        let ended = self.threads.ended();
+        for name in &ended {
+            if !self.told.iter().any(|t| t == name) {
+                let effect = match self.every {
+                    Some(_) => "the service watchdog is no longer fed: systemd will restart adrive",
+                    None => "adrive must be restarted",
+                };
+                tracing::error!(thread = %name, "device thread ended: {effect}");
+                status(&format!("device thread {name} ended"));
+                self.told.push(name.to_string());
+            }
+        }
+        let Some(every) = self.every else {
+            return false;
+        };
+        let due = self
+            .fed
+            .is_none_or(|t| now.saturating_duration_since(t) >= every);
+        if !ended.is_empty() || !due {
+            return false;
+        }
+        feed();
+        self.fed = Some(now);
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::threads::{StopSignal, Threads};
+    use std::sync::Arc;
+
+    #[test]
+    fn notify_socket_names_a_path_or_an_abstract_socket() {
+        let path = address(OsStr::new("/run/systemd/notify")).unwrap();
+        assert_eq!(
+            path.as_pathname(),
+            Some(std::path::Path::new("/run/systemd/notify"))
+        );
+        use std::os::linux::net::SocketAddrExt;
+        let abs = address(OsStr::new("@adrive/notify")).unwrap();
+        assert_eq!(abs.as_abstract_name(), Some(&b"adrive/notify"[..]));
+        for other in ["", "@", "relative/path", "vsock:2:1234"] {
+            assert!(address(OsStr::new(other)).is_none(), "{other:?}");
+        }
+    }
+
+    /// systemd runs its managers in containers with an abstract `NOTIFY_SOCKET`:
+    /// a notification reaches a socket bound there, as one datagram.
+    #[test]
+    fn a_notification_reaches_an_abstract_socket() {
+        use std::os::linux::net::SocketAddrExt;
+        let name = format!("adrive-test-notify-{}", std::process::id());
+        let listener =
+            UnixDatagram::bind_addr(&SocketAddr::from_abstract_name(name.as_bytes()).unwrap())
+                .unwrap();
+        listener
+            .set_read_timeout(Some(Duration::from_secs(10)))
+            .unwrap();
+        let n = Notifier::at(OsStr::new(&format!("@{name}"))).unwrap();
+        n.send("READY=1\nSTATUS=running");
+        let mut buf = [0; 256];
+        let got = listener.recv(&mut buf).unwrap();
+        assert_eq!(&buf[..got], b"READY=1\nSTATUS=running");
+    }
+
+    #[test]
+    fn the_watchdog_is_fed_at_half_its_period_and_only_for_this_process() {
+        let half = Some(Duration::from_secs(5));
+        assert_eq!(watchdog_every(Some("10000000"), None, 7), half);
+        assert_eq!(watchdog_every(Some("10000000"), Some("7"), 7), half);
+        assert_eq!(watchdog_every(Some("10000000"), Some("8"), 7), None);
+        assert_eq!(watchdog_every(Some("10000000"), Some("x"), 7), None);
+        assert_eq!(watchdog_every(Some("0"), None, 7), None);
+        assert_eq!(watchdog_every(Some("soon"), None, 7), None);
+        assert_eq!(watchdog_every(None, Some("7"), 7), None);
+    }
+
+    /// Fed once a period while every thread runs; never again once one has ended.
+    #[test]
+    fn the_watchdog_is_fed_only_while_every_thread_runs() {
+        let stop = Arc::new(StopSignal::default());
+        let mut threads = Threads::default();
+        let s = stop.clone();
+        threads
+            .spawn("steer/status".into(), move || {
+                s.sleep_until(Instant::now() + Duration::from_secs(60));
+            })
+            .unwrap();
+        let alive = threads.liveness();
+        assert!(alive
+            .wait_running(Instant::now() + Duration::from_secs(10))
+            .is_empty());
+        let every = Duration::from_millis(500);
+        let mut w = Watchdog::every(Some(every), alive.clone());
+        let t0 = Instant::now();
+        assert!(w.turn(t0), "fed at the first turn");
+        assert!(!w.turn(t0 + every / 2), "not before its period");
+        assert!(w.turn(t0 + every), "fed again a period later");
+        stop.stop();
+        threads.join(Instant::now() + Duration::from_secs(10));
+        assert_eq!(alive.ended(), ["steer/status"]);
+        for k in 2..6 {
+            assert!(!w.turn(t0 + every * k), "fed after the thread ended");
+        }
+        assert_eq!(w.told, ["steer/status"], "said once");
+    }
+}
