@@ -8,7 +8,8 @@
 //! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
 //! broadcasts state over UDP; `ros2` (cargo feature `ros2`) speaks ROS 2 and
 //! Autoware over Zenoh through the same intake; [`sim`] emulates the devices on real
-//! pseudo-terminals; [`record`] keeps a run in an MCAP file; [`console`] is the
+//! pseudo-terminals; [`record`] keeps a run in an MCAP file, and
+//! [`foxglove`] serves it live to Foxglove and Lichtblick; [`console`] is the
 //! operator's screen (and replays recordings) and [`cli`] puts it all together.
 
 pub mod cli;
@@ -17,6 +18,7 @@ pub mod console;
 pub mod driver;
 pub mod engine;
 pub mod exit;
+pub mod foxglove;
 pub mod headless;
 pub mod logging;
 pub mod net;
