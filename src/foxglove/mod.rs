@@ -544,3 +544,89 @@ impl Server {
         }));
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use serde_json::Value;
+
+    /// Every message path in `layout`: plots', state transitions', raw messages' and
+    /// the log panel's topic.
+    fn paths(layout: &Value) -> Vec<String> {
+        let mut out = Vec::new();
+        for panel in layout["configById"].as_object().unwrap().values() {
+            for p in panel["paths"].as_array().into_iter().flatten() {
+                out.push(p["value"].as_str().unwrap().to_string());
+            }
+            for key in ["topicPath", "topicToRender"] {
+                out.extend(panel[key].as_str().map(str::to_string));
+            }
+        }
+        out
+    }
+
+    /// The schema of `field` inside `schema`, through arrays and nullable variants.
+    fn field<'a>(schema: &'a Value, name: &str) -> Option<&'a Value> {
+        let direct = schema["properties"].get(name);
+        let items = schema["items"]["properties"].get(name);
+        let variants = ["anyOf", "oneOf"]
+            .iter()
+            .flat_map(|k| schema[k].as_array().into_iter().flatten())
+            .find_map(|s| field(s, name));
+        direct.or(items).or(variants)
+    }
+
+    /// The shipped layout names only channels and fields that Alice's live view
+    /// advertises, and every setpoint device of Alice's has its command, measured and
+    /// estimated position plotted. (No viewer runs here: this is what is checked.)
+    #[test]
+    fn the_shipped_layout_plots_what_alice_advertises() {
+        let text = include_str!("../../docs/foxglove-layout.json");
+        let layout: Value = serde_json::from_str(text).expect("the layout is JSON");
+        let alice = crate::config::VehicleConfig::alice();
+        let devices = &alice.devices;
+        let schemas: HashMap<String, Value> = Topic::channels(devices, false)
+            .into_iter()
+            .map(|t| {
+                let (_, s) = t.schema(devices);
+                (t.name(devices), serde_json::from_slice(&s).unwrap())
+            })
+            .collect();
+        let all = paths(&layout);
+        for path in &all {
+            let (topic, rest) = path.split_once('.').unwrap_or((path, ""));
+            let schema = schemas
+                .get(topic)
+                .unwrap_or_else(|| panic!("{path}: no channel {topic}"));
+            let mut at = schema;
+            for step in rest.split('.').filter(|s| !s.is_empty()) {
+                let (name, filter) = match step.split_once('[') {
+                    Some((n, f)) => (n, Some(f)),
+                    None => (step, None),
+                };
+                if let Some(f) = filter.and_then(|f| f.split_once("{name==\"")) {
+                    let device = f.1.trim_end_matches("\"}");
+                    assert!(alice.device(device).is_some(), "{path}: no device {device}");
+                }
+                at = field(at, name).unwrap_or_else(|| panic!("{path}: no field {name}"));
+            }
+        }
+        for d in devices
+            .iter()
+            .filter(|d| d.kind == crate::value::Kind::Setpoint)
+        {
+            for want in [
+                format!("/{}/command.value", d.name),
+                format!("/{}/reading.position", d.name),
+                format!(
+                    "/snapshot.devices[:]{{name==\"{}\"}}.estimate.position",
+                    d.name
+                ),
+            ] {
+                assert!(all.contains(&want), "the layout plots {want}");
+            }
+        }
+        assert!(all.iter().any(|p| p.starts_with("/snapshot.gate.engaged")));
+        assert!(all.contains(&"/log".to_string()) && all.contains(&"/faults".to_string()));
+    }
+}
