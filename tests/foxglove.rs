@@ -117,15 +117,25 @@ fn a_third_party_viewer_reads_live_messages_valid_under_the_advertised_schemas_w
     // must get at once, with nothing new on that channel.
     let _planner = Planner::start(&a.listen);
     broadcast_until(&rx, "engaged", |s| s.gate.engaged);
-    for subprotocol in ["foxglove.sdk.v1", "foxglove.websocket.v1"] {
-        let out = Process::new(python())
-            .arg(concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/tests/support/foxglove_viewer.py"
-            ))
-            .args([&format!("ws://{addr}"), subprotocol, "/steer/reading", "5"])
-            .output()
-            .unwrap();
+    // Two viewers at once, one under each subprotocol name.
+    let viewers: Vec<_> = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+        .into_iter()
+        .map(|subprotocol| {
+            let child = Process::new(python())
+                .arg(concat!(
+                    env!("CARGO_MANIFEST_DIR"),
+                    "/tests/support/foxglove_viewer.py"
+                ))
+                .args([&format!("ws://{addr}"), subprotocol, "/steer/reading", "5"])
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap();
+            (subprotocol, child)
+        })
+        .collect();
+    for (subprotocol, child) in viewers {
+        let out = child.wait_with_output().unwrap();
         assert!(
             out.status.success(),
             "the viewer with {subprotocol}:\n{}{}",
