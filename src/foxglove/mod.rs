@@ -49,6 +49,9 @@ pub const MAX_VIEWERS: usize = 16;
 /// What a viewer's socket buffers in the kernel: a stalled viewer costs at most this
 /// and its queue.
 const SEND_BUFFER: usize = 256 * 1024;
+/// Client messages read from one viewer in one turn, and `status` replies it may have
+/// waiting: a client that floods is served no faster, and costs no more memory.
+const CLIENT_MESSAGES: usize = 64;
 /// A handshake not done by then is dropped.
 const HANDSHAKE: Duration = Duration::from_secs(5);
 /// The WebSocket subprotocol header.
@@ -422,9 +425,9 @@ impl Server {
         }
     }
 
-    /// Everything viewer `i` has sent.
+    /// What viewer `i` has sent (at most [`CLIENT_MESSAGES`] a turn).
     fn read(&mut self, i: usize) {
-        loop {
+        for _ in 0..CLIENT_MESSAGES {
             let text = match self.viewers[i].ws.read() {
                 Ok(Message::Text(t)) => t.to_string(),
                 Ok(Message::Binary(_)) => {
@@ -463,8 +466,10 @@ impl Server {
 
     fn tell(&mut self, i: usize, level: u8, message: &str) {
         let v = &mut self.viewers[i];
-        v.control
-            .push_back(Message::text(proto::status(level, message)));
+        if v.control.len() < CLIENT_MESSAGES {
+            v.control
+                .push_back(Message::text(proto::status(level, message)));
+        }
     }
 
     /// Subscribe viewer `i` to `channel` as `sub`, and send it the channel's latest
