@@ -134,6 +134,10 @@ pub struct RunArgs {
     /// file's `[ros2]`; built with the cargo feature `ros2`).
     #[arg(long)]
     pub ros2: bool,
+    /// Serve a read-only live view to Foxglove or Lichtblick (Foxglove WebSocket
+    /// protocol) on ADDR [default: 127.0.0.1:8765; port 0: any free port, logged].
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::foxglove::DEFAULT_ADDR)]
+    pub foxglove: Option<SocketAddr>,
     /// The control socket consoles attach to (default: $RUNTIME_DIRECTORY/adrive.sock
     /// under systemd, else $XDG_RUNTIME_DIR/adrive/adrive.sock, else
     /// /tmp/adrive-UID/adrive.sock).
@@ -378,7 +382,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // The log pane's lines, for the embedded console and every attached one.
     let ring = console::logring::LogRing::default();
     let mut extra: Vec<logging::ExtraLayer> = vec![Box::new(ring.layer())];
-    if recording.is_some() {
+    if recording.is_some() || args.foxglove.is_some() {
         extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));
     }
     let log = logging::init_with(args.headless, Some(&log_dir), extra)?;
@@ -409,6 +413,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         Some(opts) => {
             Some(Recorder::start(&vehicle, opts).map_err(|e| anyhow::anyhow!("record: {e}"))?)
         }
+        None => None,
+    };
+    let live = match args.foxglove {
+        Some(addr) => Some(crate::foxglove::Foxglove::start(&vehicle, addr)?),
         None => None,
     };
     let gate = Arc::new(Gate::new(vehicle.clone()));
@@ -495,6 +503,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // After the engine: the safe state's commands are in the recording.
     if let Some(r) = recorder {
         stuck.extend(r.shutdown(Duration::from_secs(2)));
+    }
+    if let Some(f) = live {
+        stuck.extend(f.shutdown(Duration::from_millis(500)));
     }
     if safe {
         tracing::info!(

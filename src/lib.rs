@@ -9,9 +9,9 @@
 //! broadcasts state over UDP; `ros2` (cargo feature `ros2`) speaks ROS 2 and
 //! Autoware over Zenoh through the same intake; [`socket`] lets consoles attach to a
 //! running engine and operators command it once; [`sim`] emulates the devices on real
-//! pseudo-terminals; [`record`] keeps a run in an MCAP file; [`console`] is the
-//! operator's screen (and replays recordings) and [`cli`] puts it all together;
-//! [`service`] tells systemd how it goes.
+//! pseudo-terminals; [`record`] keeps a run in an MCAP file, and [`foxglove`] serves it
+//! live to Foxglove and Lichtblick; [`console`] is the operator's screen (and replays
+//! recordings) and [`cli`] puts it all together; [`service`] tells systemd how it goes.
 
 pub mod cli;
 pub mod config;
@@ -19,6 +19,7 @@ pub mod console;
 pub mod driver;
 pub mod engine;
 pub mod exit;
+pub mod foxglove;
 pub mod headless;
 pub mod logging;
 pub mod net;

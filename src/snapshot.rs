@@ -453,6 +453,9 @@ pub struct NetView {
     /// Network commands accepted, per device (and `accel`).
     pub commands: Pairs<u64>,
     pub rejected: Rejections,
+    /// The live view for Foxglove / Lichtblick, when `--foxglove` serves one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub foxglove: Option<LiveView>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -511,6 +514,32 @@ pub struct RecordView {
     pub dropped: u64,
     /// Why recording stopped; the vehicle runs on.
     pub error: Option<String>,
+}
+
+/// The live view (`--foxglove`): where it listens and who watches. A viewer that reads
+/// too slowly loses messages, counted here; the vehicle never waits for one.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct LiveView {
+    pub listen: SocketAddr,
+    /// Connected viewers, in the order they came.
+    pub viewers: Vec<ViewerView>,
+    /// Messages dropped for every viewer so far, those gone included.
+    pub dropped: u64,
+    /// Events the live view itself fell behind on (its tap channel was full).
+    pub tap_dropped: u64,
+}
+
+/// One connected viewer.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct ViewerView {
+    pub addr: SocketAddr,
+    /// The WebSocket subprotocol it speaks (`foxglove.sdk.v1`, `foxglove.websocket.v1`).
+    pub subprotocol: String,
+    /// Channels it subscribes to.
+    pub subscriptions: u32,
+    /// Messages sent to it, and dropped because it read too slowly.
+    pub sent: u64,
+    pub dropped: u64,
 }
 
 /// Named values in order, written as a JSON object (`{"steer": 3, "gas": 0}`) and read

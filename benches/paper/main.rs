@@ -12,13 +12,16 @@
 //! command rate (Fig. 4); 4 the cued-command stall under each port rule, with the
 //! effective bandwidth; 5 the findings of the command-path review; 6 memory; 7 the
 //! console's output to its terminal; 8 the command delay with recording off and on; 9
-//! fixed against adaptive polling, the paper's open problem ([`estimator`]).
+//! fixed against adaptive polling, the paper's open problem ([`estimator`]); 10 the
+//! command delay and adrive's CPU with the Foxglove live view off, on with no viewer,
+//! and with two viewers subscribed to everything ([`viewer`]).
 
 mod estimator;
 mod floor;
 mod outside;
 mod plot;
 mod rig;
+mod viewer;
 
 use adrive::snapshot::{LatencySummary, Snapshot};
 use floor::{quantile, Cpus, Floor, Then};
@@ -240,16 +243,19 @@ fn main() {
     if on("8") {
         section8_recording(&dir, secs);
     }
-    if on("10") {
-        section10_consoles(&dir, secs);
-    }
-    if on("11") {
-        outside::section11_outside(&dir, secs);
-    }
     if on("9") {
         for rule in ["priority", "paper"] {
             estimator::section9_estimator(rule, 20.0);
         }
+    }
+    if on("10") {
+        section10_foxglove(&dir, secs);
+    }
+    if on("11") {
+        outside::section11_outside(&dir, secs);
+    }
+    if on("12") {
+        section12_consoles(&dir, secs);
     }
     summary(&r, &out);
 }
@@ -302,9 +308,9 @@ fn attach_consoles(
 /// socket, in turns: receipt → first byte and adrive's CPU. A console here is a client
 /// that says hello as `adrive attach` does and reads every frame, so the cost measured is
 /// the engine's (capturing, encoding and writing frames), not a terminal's.
-fn section10_consoles(dir: &tempfile::TempDir, secs: f64) {
+fn section12_consoles(dir: &tempfile::TempDir, secs: f64) {
     println!(
-        "\n== 10. Consoles attached over the control socket, in turns: 3 actuators, 100 Hz each, {secs} s =="
+        "\n== 12. Consoles attached over the control socket, in turns: 3 actuators, 100 Hz each, {secs} s =="
     );
     println!(
         "{}  cpu % of a core  frames read",
@@ -387,6 +393,73 @@ fn section8_recording(dir: &tempfile::TempDir, secs: f64) {
         }
     }
     println!("(p50: the median device's; p99: the worst device's; mean: over every command.)");
+}
+
+/// Three actuators at 100 Hz each, the live view off, on with no viewer, and on with
+/// two viewers subscribed to every channel, in turns: a viewer must cost the command
+/// path nothing measurable. CPU: adrive's, all threads, over the window.
+fn section10_foxglove(dir: &tempfile::TempDir, secs: f64) {
+    println!(
+        "\n== 10. The Foxglove live view: 3 actuators, 100 Hz each, off / no viewer / two viewers on every channel, {secs} s =="
+    );
+    println!(
+        "{}  adrive CPU  viewers received",
+        delay_columns("live view", 12)
+    );
+    let names: Vec<String> = (0..3).map(|i| format!("a{i:02}")).collect();
+    let devices: Vec<String> = names.iter().map(|x| idle_actuator(x)).collect();
+    let sim_file = dir.path().join("fox-sim.toml");
+    std::fs::write(&sim_file, vehicle("", &devices)).unwrap();
+    let sim = Sim::start(&sim_file);
+    let toml = sim.patch(&vehicle("", &devices));
+    for turn in 1..=2 {
+        for viewers in [None, Some(0), Some(2)] {
+            let port = viewer::free_tcp_port();
+            let addr = format!("127.0.0.1:{port}");
+            let args: &[&str] = match viewers {
+                None => &[],
+                Some(_) => &["--foxglove", &addr],
+            };
+            let a = Adrive::start_with(dir.path(), "fox", &toml, args);
+            let watching: Vec<viewer::Viewer> = (0..viewers.unwrap_or(0))
+                .map(|_| viewer::Viewer::start(addr.parse().unwrap()))
+                .collect();
+            let cpu0 = rig::cpu_time(a.pid());
+            let t0 = Instant::now();
+            let (_, floor) = with_floor(|| drive(&a, &names, 100.0, secs));
+            let cpu = (rig::cpu_time(a.pid()) - cpu0).as_secs_f64() / t0.elapsed().as_secs_f64();
+            let snap = a.snapshot();
+            let d = delay_of(&snap, &names);
+            let received: Vec<String> =
+                watching.into_iter().map(|v| v.stop().to_string()).collect();
+            let dropped = snap
+                .net
+                .as_ref()
+                .and_then(|n| n.foxglove.as_ref())
+                .map_or(0, |f| f.dropped + f.tap_dropped);
+            let label = match viewers {
+                None => format!("off {turn}"),
+                Some(0) => format!("no viewer {turn}"),
+                Some(n) => format!("{n} viewers {turn}"),
+            };
+            println!(
+                "{}  {:>9.1}%  {}{}",
+                delay_row(&label, 12, &d, floor),
+                cpu * 100.0,
+                if received.is_empty() {
+                    "-".into()
+                } else {
+                    received.join(" + ")
+                },
+                if dropped > 0 {
+                    format!(" ({dropped} dropped)")
+                } else {
+                    String::new()
+                }
+            );
+        }
+    }
+    println!("(p50: the median device's; p99: the worst device's; CPU: adrive's, every thread, % of one core.)");
 }
 
 fn section0_floor() {

@@ -301,6 +301,7 @@ impl NetStatus {
                         .collect(),
                 ),
             },
+            foxglove: gate.vehicle.tap.live(),
         }
     }
 }

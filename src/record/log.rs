@@ -40,7 +40,7 @@ mod tests {
     #[test]
     fn info_and_above_reach_the_tap() {
         let tap = Arc::new(Tap::default());
-        let rx = tap.open(false).unwrap();
+        let rx = tap.open(false).unwrap().rx;
         let sub = tracing_subscriber::registry().with(TapLayer { tap: tap.clone() });
         tracing::subscriber::with_default(sub, || {
             tracing::debug!("not this");

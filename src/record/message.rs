@@ -8,11 +8,13 @@
 use crate::config::{DeviceConfig, ReadingKind};
 use crate::snapshot::{FaultKind, Snapshot};
 use crate::value::{Command, DeviceId, Reading};
-use crate::vehicle::tap::Source;
+use crate::vehicle::tap::{Asked, Event, GateChange, Source};
 use crate::vehicle::trace::TraceEntry;
+use crate::vehicle::Vehicle;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Map, Value};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// The MCAP profile: none of the well-known ones (JSON messages need none).
 pub const PROFILE: &str = "";
@@ -64,6 +66,31 @@ impl Topic {
             Topic::Reading(id) => format!("/{}/reading", dev(id)),
             Topic::Raw(id) => format!("/{}/raw", dev(id)),
         }
+    }
+
+    /// Every channel a run of `devices` can have, in the order a viewer lists them: the
+    /// vehicle's, then each device's (a command channel for an actuator only), then
+    /// raw traffic when it is taken. `/record` is the recorder's own and not here.
+    pub fn channels(devices: &[DeviceConfig], raw: bool) -> Vec<Topic> {
+        let mut all = vec![
+            Topic::Snapshot,
+            Topic::Commands,
+            Topic::Gate,
+            Topic::Faults,
+            Topic::Supervisor,
+            Topic::Log,
+        ];
+        for (i, d) in devices.iter().enumerate() {
+            let id = DeviceId(i as u16);
+            if d.is_actuator() {
+                all.push(Topic::Command(id));
+            }
+            all.push(Topic::Reading(id));
+            if raw {
+                all.push(Topic::Raw(id));
+            }
+        }
+        all
     }
 
     /// The schema's name and its JSON Schema text.
@@ -375,6 +402,192 @@ pub fn error_word(code: u32) -> &'static str {
         5 => "io",
         _ => "error",
     }
+}
+
+/// The channel an event of the tap goes to.
+pub fn topic(ev: &Event) -> Topic {
+    match ev {
+        Event::Snapshot { .. } => Topic::Snapshot,
+        Event::Received { .. } | Event::Refused { .. } => Topic::Commands,
+        Event::Written { device, .. } => Topic::Command(*device),
+        Event::Polled { device, .. } => Topic::Reading(*device),
+        Event::Raw { device, .. } => Topic::Raw(*device),
+        Event::Gate { .. } => Topic::Gate,
+        Event::Fault { .. } => Topic::Faults,
+        Event::Note { .. } => Topic::Supervisor,
+        Event::Log { .. } => Topic::Log,
+    }
+}
+
+/// One event of the tap as its channel, its time (wall-clock ns) and its JSON message:
+/// what the recorder writes and the live view sends, made in this one place.
+pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
+    match ev {
+        Event::Snapshot { at, json } => (Topic::Snapshot, c.ns(at), json),
+        Event::Received {
+            at,
+            source,
+            asked,
+            refused,
+        } => {
+            let (device, command, value) = match asked {
+                Asked::Device(id, cmd) => {
+                    let d = &v.device(id).config;
+                    let (value, text) = Written::of(d, cmd);
+                    (d.name.clone(), text, value)
+                }
+                Asked::Accel(a) => ("accel".to_string(), format!("{a:.3}"), Some(a)),
+            };
+            let m = Received {
+                source: Received::source_text(source),
+                device: Some(device),
+                command: Some(command),
+                value,
+                accepted: refused.is_none(),
+                reason: refused.map(str::to_string),
+            };
+            json(Topic::Commands, c.ns(at), &m)
+        }
+        Event::Refused { at, from, reason } => {
+            let m = Received {
+                source: format!("network {from}"),
+                device: None,
+                command: None,
+                value: None,
+                accepted: false,
+                reason: Some(reason.to_string()),
+            };
+            json(Topic::Commands, c.ns(at), &m)
+        }
+        Event::Written {
+            device,
+            command,
+            received,
+            first,
+            done,
+            fresh,
+            error,
+        } => {
+            let (value, text) = Written::of(&v.device(device).config, command);
+            let m = Written {
+                value,
+                command: text,
+                fresh,
+                ok: error == 0,
+                error: (error != 0).then(|| error_word(error).to_string()),
+                delay_us: first
+                    .filter(|_| fresh)
+                    .map(|f| us(f.saturating_duration_since(received))),
+                txn_us: first.map(|f| us(done.saturating_duration_since(f))),
+            };
+            json(Topic::Command(device), c.ns(first.unwrap_or(done)), &m)
+        }
+        Event::Polled {
+            device,
+            first,
+            done,
+            reading,
+            error,
+        } => {
+            let m = reading_message(
+                &v.device(device).config,
+                reading.as_ref(),
+                (error != 0).then(|| error_word(error)),
+                first.map(|f| us(done.saturating_duration_since(f))),
+            );
+            json(Topic::Reading(device), c.ns(done), &m)
+        }
+        Event::Raw { device, entry } => {
+            json(Topic::Raw(device), c.ns(entry.at), &RawMsg::of(&entry))
+        }
+        Event::Gate { at, change, reason } => {
+            let m = GateMsg {
+                event: match change {
+                    GateChange::Engaged => "engaged",
+                    GateChange::Disengaged => "disengaged",
+                    GateChange::EngageRefused => "engage_refused",
+                }
+                .into(),
+                engaged: change == GateChange::Engaged,
+                reason,
+            };
+            json(Topic::Gate, c.ns(at), &m)
+        }
+        Event::Fault {
+            at,
+            raised,
+            kind,
+            device,
+            cause,
+        } => {
+            let m = FaultMsg {
+                event: if raised { "raised" } else { "cleared" }.into(),
+                kind,
+                device,
+                cause,
+            };
+            json(Topic::Faults, c.ns(at), &m)
+        }
+        Event::Note { at, text } => json(Topic::Supervisor, c.ns(at), &NoteMsg { text }),
+        Event::Log {
+            at,
+            level,
+            target,
+            file,
+            line,
+            text,
+        } => {
+            let ns = wall_ns(at);
+            let m = LogMsg {
+                timestamp: Time::of_ns(ns),
+                level: LogMsg::level_of(level),
+                message: text,
+                name: target.to_string(),
+                file: file.unwrap_or_default().to_string(),
+                line: line.unwrap_or_default(),
+            };
+            json(Topic::Log, ns, &m)
+        }
+    }
+}
+
+fn json(topic: Topic, at: u64, value: &impl Serialize) -> (Topic, u64, Vec<u8>) {
+    let data = serde_json::to_vec(value).expect("a message of plain fields serializes");
+    (topic, at, data)
+}
+
+/// Wall-clock nanoseconds of the instants events carry, from one reading of both clocks.
+#[derive(Clone, Copy)]
+pub struct Clock {
+    at: Instant,
+    wall_ns: u64,
+}
+
+impl Clock {
+    pub fn now() -> Clock {
+        Clock {
+            at: Instant::now(),
+            wall_ns: wall_ns(SystemTime::now()),
+        }
+    }
+
+    pub fn ns(&self, t: Instant) -> u64 {
+        match t.checked_duration_since(self.at) {
+            Some(d) => self.wall_ns + d.as_nanos() as u64,
+            None => self
+                .wall_ns
+                .saturating_sub(self.at.duration_since(t).as_nanos() as u64),
+        }
+    }
+}
+
+pub fn wall_ns(t: SystemTime) -> u64 {
+    t.duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+fn us(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e6
 }
 
 #[cfg(test)]

@@ -98,11 +98,12 @@ impl Recorder {
         // like a full disk does, not kill the process that drives the vehicle.
         // SAFETY: setting a signal's disposition to "ignore".
         unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
-        let out = writer::Output::open(vehicle.clone(), opts.target)?;
-        let rx = vehicle
-            .tap
-            .open(opts.raw)
-            .ok_or_else(|| std::io::Error::other("this vehicle is already being recorded"))?;
+        let mut out = writer::Output::open(vehicle.clone(), opts.target)?;
+        let tapped = vehicle.tap.open(opts.raw).ok_or_else(|| {
+            std::io::Error::other("this vehicle's tap has no room for a recorder")
+        })?;
+        out.tapped(tapped.reader);
+        let rx = tapped.rx;
         tracing::info!(file = %out.path().display(), raw = opts.raw, "recording");
         let stop = Arc::new(StopSignal::default());
         let mut threads = Threads::default();

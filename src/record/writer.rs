@@ -4,14 +4,11 @@
 //! write error stops recording — logged once, kept in the snapshot — and never
 //! reaches the vehicle.
 
-use super::message::{
-    self, error_word, FaultMsg, GateMsg, LogMsg, NoteMsg, RawMsg, Received, RecordMsg, Topic,
-    Written,
-};
+use super::message::{self, Clock, RecordMsg, Topic};
 use super::{Target, CHUNK_EVERY, DRAIN};
 use crate::snapshot::RecordView;
 use crate::threads::StopSignal;
-use crate::vehicle::tap::{Asked, Event, GateChange, CAPACITY};
+use crate::vehicle::tap::{Event, ReaderId, CAPACITY};
 use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
 use mcap::records::MessageHeader;
@@ -21,43 +18,9 @@ use std::fs::File;
 use std::io::{self, BufWriter};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Instant, SystemTime};
 
 type McapWriter = mcap::Writer<NoSeek<BufWriter<File>>>;
-
-/// Wall-clock nanoseconds of the instants events carry.
-#[derive(Clone, Copy)]
-struct Clock {
-    at: Instant,
-    wall_ns: u64,
-}
-
-impl Clock {
-    fn now() -> Clock {
-        Clock {
-            at: Instant::now(),
-            wall_ns: wall_ns(SystemTime::now()),
-        }
-    }
-
-    fn ns(&self, t: Instant) -> u64 {
-        match t.checked_duration_since(self.at) {
-            Some(d) => self.wall_ns + d.as_nanos() as u64,
-            None => self
-                .wall_ns
-                .saturating_sub(self.at.duration_since(t).as_nanos() as u64),
-        }
-    }
-}
-
-fn wall_ns(t: SystemTime) -> u64 {
-    t.duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_nanos() as u64)
-}
-
-fn us(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e6
-}
 
 /// One open file.
 struct File1 {
@@ -83,6 +46,8 @@ pub(super) struct Output {
     sequence: u32,
     /// The drops already said.
     dropped_said: u64,
+    /// The recorder's reader of the vehicle's tap, once it is tapped.
+    reader: Option<ReaderId>,
 }
 
 impl Output {
@@ -98,10 +63,28 @@ impl Output {
             messages: 0,
             sequence: 0,
             dropped_said: 0,
+            reader: None,
         };
         out.next_file()?;
         out.publish(None);
         Ok(out)
+    }
+
+    /// Reading the tap as `reader` from now on.
+    pub(super) fn tapped(&mut self, reader: ReaderId) {
+        self.reader = Some(reader);
+    }
+
+    /// Events the tap left out of this recording.
+    fn dropped(&self) -> u64 {
+        self.reader.map_or(0, |r| self.vehicle.tap.dropped(r))
+    }
+
+    /// Stop tapping for this recording.
+    fn untap(&self) {
+        if let Some(r) = self.reader {
+            self.vehicle.tap.close(r);
+        }
     }
 
     pub(super) fn path(&self) -> &Path {
@@ -202,143 +185,16 @@ impl Output {
         self.write(topic, at, &data)
     }
 
-    /// Turn one event into its message.
+    /// Write one event as its message.
     fn event(&mut self, ev: Event) -> io::Result<()> {
-        let v = self.vehicle.clone();
-        let c = self.clock;
-        match ev {
-            Event::Snapshot { at, json } => self.write(Topic::Snapshot, c.ns(at), &json),
-            Event::Received {
-                at,
-                source,
-                asked,
-                refused,
-            } => {
-                let (device, command, value) = match asked {
-                    Asked::Device(id, cmd) => {
-                        let d = &v.device(id).config;
-                        let (value, text) = Written::of(d, cmd);
-                        (d.name.clone(), text, value)
-                    }
-                    Asked::Accel(a) => ("accel".to_string(), format!("{a:.3}"), Some(a)),
-                };
-                let m = Received {
-                    source: Received::source_text(source),
-                    device: Some(device),
-                    command: Some(command),
-                    value,
-                    accepted: refused.is_none(),
-                    reason: refused.map(str::to_string),
-                };
-                self.json(Topic::Commands, c.ns(at), &m)
-            }
-            Event::Refused { at, from, reason } => {
-                let m = Received {
-                    source: format!("network {from}"),
-                    device: None,
-                    command: None,
-                    value: None,
-                    accepted: false,
-                    reason: Some(reason.to_string()),
-                };
-                self.json(Topic::Commands, c.ns(at), &m)
-            }
-            Event::Written {
-                device,
-                command,
-                received,
-                first,
-                done,
-                fresh,
-                error,
-            } => {
-                let (value, text) = Written::of(&v.device(device).config, command);
-                let m = Written {
-                    value,
-                    command: text,
-                    fresh,
-                    ok: error == 0,
-                    error: (error != 0).then(|| error_word(error).to_string()),
-                    delay_us: first
-                        .filter(|_| fresh)
-                        .map(|f| us(f.saturating_duration_since(received))),
-                    txn_us: first.map(|f| us(done.saturating_duration_since(f))),
-                };
-                self.json(Topic::Command(device), c.ns(first.unwrap_or(done)), &m)
-            }
-            Event::Polled {
-                device,
-                first,
-                done,
-                reading,
-                error,
-            } => {
-                let m = message::reading_message(
-                    &v.device(device).config,
-                    reading.as_ref(),
-                    (error != 0).then(|| error_word(error)),
-                    first.map(|f| us(done.saturating_duration_since(f))),
-                );
-                self.json(Topic::Reading(device), c.ns(done), &m)
-            }
-            Event::Raw { device, entry } => {
-                self.json(Topic::Raw(device), c.ns(entry.at), &RawMsg::of(&entry))
-            }
-            Event::Gate { at, change, reason } => {
-                let m = GateMsg {
-                    event: match change {
-                        GateChange::Engaged => "engaged",
-                        GateChange::Disengaged => "disengaged",
-                        GateChange::EngageRefused => "engage_refused",
-                    }
-                    .into(),
-                    engaged: change == GateChange::Engaged,
-                    reason,
-                };
-                self.json(Topic::Gate, c.ns(at), &m)
-            }
-            Event::Fault {
-                at,
-                raised,
-                kind,
-                device,
-                cause,
-            } => {
-                let m = FaultMsg {
-                    event: if raised { "raised" } else { "cleared" }.into(),
-                    kind,
-                    device,
-                    cause,
-                };
-                self.json(Topic::Faults, c.ns(at), &m)
-            }
-            Event::Note { at, text } => self.json(Topic::Supervisor, c.ns(at), &NoteMsg { text }),
-            Event::Log {
-                at,
-                level,
-                target,
-                file,
-                line,
-                text,
-            } => {
-                let ns = wall_ns(at);
-                let m = LogMsg {
-                    timestamp: message::Time::of_ns(ns),
-                    level: LogMsg::level_of(level),
-                    message: text,
-                    name: target.to_string(),
-                    file: file.unwrap_or_default().to_string(),
-                    line: line.unwrap_or_default(),
-                };
-                self.json(Topic::Log, ns, &m)
-            }
-        }
+        let (topic, at, data) = message::encode(&self.vehicle, &self.clock, ev);
+        self.write(topic, at, &data)
     }
 
     /// Close the chunk, flush it to the disk, say how it goes, and roll to a new file
     /// when this one is big or old enough.
     fn checkpoint(&mut self) -> io::Result<()> {
-        let dropped = self.vehicle.tap.dropped();
+        let dropped = self.dropped();
         let bytes = self.bytes();
         let m = RecordMsg {
             messages: self.messages,
@@ -387,7 +243,7 @@ impl Output {
             file: self.last.display().to_string(),
             bytes: self.bytes(),
             messages: self.messages,
-            dropped: self.vehicle.tap.dropped(),
+            dropped: self.dropped(),
             error,
         }));
     }
@@ -520,18 +376,18 @@ pub(super) fn run(mut out: Output, rx: &Receiver<Event>, stop: &StopSignal) {
             tracing::info!(
             file = %out.last.display(),
             messages = out.messages,
-            dropped = out.vehicle.tap.dropped(),
+            dropped = out.dropped(),
             "recording finished"
             )
         }
         Err(e) => fail(&mut out, &e),
     }
-    out.vehicle.tap.close();
+    out.untap();
 }
 
 /// Writing failed: stop recording, loudly; the vehicle runs on.
 fn fail(out: &mut Output, e: &io::Error) {
-    out.vehicle.tap.close();
+    out.untap();
     let file = out.last.display().to_string();
     let what = if e.to_string().starts_with(&file) {
         e.to_string()

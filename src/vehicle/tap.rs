@@ -1,28 +1,33 @@
-//! The recording tap: where the engine, the gate, the network intake, the console and
-//! the supervisor hand what happens to the recorder ([`crate::record`]) without ever
-//! waiting for it.
+//! The tap: where the engine, the gate, the network intake, the console and the
+//! supervisor hand what happens to its readers — the recorder ([`crate::record`]) and
+//! the live view ([`crate::foxglove`]) — without ever waiting for them.
 //!
-//! Off (no recording), a hook costs one atomic load. On, it builds a plain [`Event`] —
-//! `Copy` data on the command path, no heap — and `try_send`s it into a bounded
-//! channel that the recorder's thread drains on its own schedule (it polls; it never
-//! parks on the channel, so a send never has to wake it). A full channel drops the
-//! event and counts the drop: the recording may lose an event, the vehicle never waits
-//! for a disk. Once the recorder stops (its file could not be written), the tap turns
-//! itself off.
+//! Off (no reader), a hook costs one atomic load. On, it builds a plain [`Event`] —
+//! `Copy` data on the command path, no heap — and `try_send`s it into each reader's
+//! bounded channel, which that reader's thread drains on its own schedule (it polls; it
+//! never parks on the channel, so a send never has to wake it). A second reader gets a
+//! clone: a copy for the command path's events, which own no heap. A full channel
+//! drops the event for that reader and counts the drop: a reader may lose an event,
+//! the vehicle never waits for a disk or a viewer. A reader that stops (the recorder's
+//! file could not be written) closes its own channel; the tap turns itself off when no
+//! reader is left.
 
 use super::trace::TraceEntry;
-use crate::snapshot::{FaultKind, RecordView};
+use crate::snapshot::{FaultKind, LiveView, RecordView};
 use crate::value::{Command, DeviceId, Reading};
 use crossbeam_channel::{Receiver, Sender, TrySendError};
 use parking_lot::Mutex;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering::Relaxed};
 use std::sync::OnceLock;
 use std::time::{Instant, SystemTime};
 
-/// Events the channel holds before it drops: a second of a busy vehicle at 20 ms per
-/// drain is a few hundred; this leaves room for a recorder held up by a slow disk.
+/// Events a reader's channel holds before it drops: a second of a busy vehicle at 20 ms
+/// per drain is a few hundred; this leaves room for a recorder held up by a slow disk.
 pub const CAPACITY: usize = 8 * 1024;
+
+/// Readers a tap takes: the recorder and the live view, and room for one more.
+pub const READERS: usize = 3;
 
 pub use crate::value::Source;
 
@@ -110,62 +115,128 @@ pub enum Event {
     Snapshot { at: Instant, json: Vec<u8> },
 }
 
+/// One reader's channel, its own switch and its own drops.
+struct Reader {
+    tx: Sender<Event>,
+    on: AtomicBool,
+    raw: bool,
+    dropped: AtomicU64,
+}
+
+/// A reader of the tap: its events, and its handle to close it and count its drops.
+pub struct Tapped {
+    pub rx: Receiver<Event>,
+    pub reader: ReaderId,
+}
+
+/// Which of a tap's readers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ReaderId(usize);
+
 /// The tap of one vehicle.
 #[derive(Default)]
 pub struct Tap {
-    tx: OnceLock<Sender<Event>>,
-    on: AtomicBool,
-    raw: AtomicBool,
-    dropped: AtomicU64,
+    readers: [OnceLock<Reader>; READERS],
+    /// Readers open, and those of them that take raw traffic.
+    open: AtomicUsize,
+    raw: AtomicUsize,
     /// What the recorder says of itself, for the snapshot.
     status: Mutex<Option<RecordView>>,
+    /// What the live view says of itself, for the snapshot.
+    live: Mutex<Option<LiveView>>,
 }
 
 impl Tap {
-    /// Start tapping: events go into the returned receiver from now on. `raw`: raw
-    /// serial traffic too. A tap opens once.
-    pub fn open(&self, raw: bool) -> Option<Receiver<Event>> {
+    /// Add a reader: events go into its channel from now on. `raw`: raw serial traffic
+    /// too. `None` when the tap has all the readers it takes.
+    pub fn open(&self, raw: bool) -> Option<Tapped> {
         let (tx, rx) = crossbeam_channel::bounded(CAPACITY);
-        self.tx.set(tx).ok()?;
-        self.raw.store(raw, Relaxed);
-        self.on.store(true, Relaxed);
-        Some(rx)
+        let mut reader = Reader {
+            tx,
+            on: AtomicBool::new(true),
+            raw,
+            dropped: AtomicU64::new(0),
+        };
+        let mut at = None;
+        for (i, slot) in self.readers.iter().enumerate() {
+            match slot.set(reader) {
+                Ok(()) => {
+                    at = Some(i);
+                    break;
+                }
+                Err(r) => reader = r,
+            }
+        }
+        let i = at?;
+        if raw {
+            self.raw.fetch_add(1, Relaxed);
+        }
+        self.open.fetch_add(1, Relaxed);
+        Some(Tapped {
+            rx,
+            reader: ReaderId(i),
+        })
     }
 
-    /// Stop tapping (the recorder stopped); hooks cost one load again.
-    pub fn close(&self) {
-        self.on.store(false, Relaxed);
-        self.raw.store(false, Relaxed);
+    /// Stop one reader (the recorder stopped); with none left, hooks cost one load again.
+    pub fn close(&self, reader: ReaderId) {
+        let Some(r) = self.readers[reader.0].get() else {
+            return;
+        };
+        if r.on.swap(false, Relaxed) {
+            if r.raw {
+                self.raw.fetch_sub(1, Relaxed);
+            }
+            self.open.fetch_sub(1, Relaxed);
+        }
     }
 
     pub fn is_on(&self) -> bool {
-        self.on.load(Relaxed)
+        self.open.load(Relaxed) > 0
     }
 
     /// Raw serial traffic is asked for.
     pub fn wants_raw(&self) -> bool {
-        self.raw.load(Relaxed)
+        self.raw.load(Relaxed) > 0
     }
 
-    /// Hand an event over, built only while tapping; never blocks.
+    /// Hand an event over to every reader, built only while tapping; never blocks.
     #[inline]
     pub fn send(&self, event: impl FnOnce() -> Event) {
         if !self.is_on() {
             return;
         }
-        let Some(tx) = self.tx.get() else { return };
-        match tx.try_send(event()) {
-            Ok(()) => {}
-            Err(TrySendError::Full(_)) => {
-                self.dropped.fetch_add(1, Relaxed);
+        let event = event();
+        let raw = matches!(event, Event::Raw { .. });
+        let mut to = self
+            .readers
+            .iter()
+            .enumerate()
+            .filter_map(|(i, slot)| Some((i, slot.get()?)))
+            .filter(|(_, r)| r.on.load(Relaxed) && (r.raw || !raw));
+        let mut next = to.next();
+        let mut event = Some(event);
+        while let Some((i, r)) = next {
+            next = to.next();
+            let e = match next {
+                Some(_) => event.clone(),
+                None => event.take(),
+            };
+            match r.tx.try_send(e.expect("an event for each reader")) {
+                Ok(()) => {}
+                Err(TrySendError::Full(_)) => {
+                    r.dropped.fetch_add(1, Relaxed);
+                }
+                Err(TrySendError::Disconnected(_)) => self.close(ReaderId(i)),
             }
-            Err(TrySendError::Disconnected(_)) => self.close(),
         }
     }
 
-    /// Events dropped because the channel was full.
-    pub fn dropped(&self) -> u64 {
-        self.dropped.load(Relaxed)
+    /// Events dropped for `reader` because its channel was full.
+    pub fn dropped(&self, reader: ReaderId) -> u64 {
+        self.readers[reader.0]
+            .get()
+            .map_or(0, |r| r.dropped.load(Relaxed))
     }
 
     /// The recorder's own account, for the snapshot.
@@ -175,6 +246,15 @@ impl Tap {
 
     pub fn status(&self) -> Option<RecordView> {
         self.status.lock().clone()
+    }
+
+    /// The live view's own account, for the snapshot's network part.
+    pub fn set_live(&self, view: Option<LiveView>) {
+        *self.live.lock() = view;
+    }
+
+    pub fn live(&self) -> Option<LiveView> {
+        self.live.lock().clone()
     }
 }
 
@@ -193,21 +273,52 @@ mod tests {
     fn a_closed_tap_builds_nothing() {
         let tap = Tap::default();
         tap.send(|| panic!("built while off"));
-        let rx = tap.open(false).unwrap();
+        let t = tap.open(false).unwrap();
         tap.send(note);
-        assert_eq!(rx.len(), 1);
-        tap.close();
+        assert_eq!(t.rx.len(), 1);
+        tap.close(t.reader);
         tap.send(|| panic!("built after close"));
     }
 
     #[test]
     fn a_full_tap_drops_and_counts_instead_of_waiting() {
         let tap = Tap::default();
-        let rx = tap.open(false).unwrap();
+        let t = tap.open(false).unwrap();
         for _ in 0..CAPACITY + 5 {
             tap.send(note);
         }
-        assert_eq!(rx.len(), CAPACITY);
-        assert_eq!(tap.dropped(), 5);
+        assert_eq!(t.rx.len(), CAPACITY);
+        assert_eq!(tap.dropped(t.reader), 5);
+    }
+
+    #[test]
+    fn each_reader_gets_every_event_and_drops_on_its_own() {
+        let tap = Tap::default();
+        let slow = tap.open(false).unwrap();
+        let fast = tap.open(true).unwrap();
+        for _ in 0..CAPACITY + 5 {
+            tap.send(note);
+            let _ = fast.rx.try_recv().expect("the other reader's event");
+        }
+        assert_eq!(slow.rx.len(), CAPACITY);
+        assert_eq!(tap.dropped(slow.reader), 5);
+        assert_eq!(tap.dropped(fast.reader), 0);
+        // Raw traffic goes to the reader that asked for it only.
+        assert!(tap.wants_raw());
+        let raw = || Event::Raw {
+            device: DeviceId(0),
+            entry: TraceEntry::new(Instant::now(), super::super::trace::Dir::Out, b"x"),
+        };
+        let _ = slow.rx.try_iter().count();
+        tap.send(raw);
+        assert!(slow.rx.is_empty());
+        assert_eq!(fast.rx.len(), 1);
+        // One reader stopping leaves the other tapped.
+        tap.close(fast.reader);
+        assert!(!tap.wants_raw());
+        tap.send(note);
+        assert_eq!(slow.rx.len(), 1);
+        tap.close(slow.reader);
+        assert!(!tap.is_on());
     }
 }

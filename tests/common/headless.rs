@@ -49,6 +49,12 @@ pub struct Adrive {
 impl Adrive {
     /// Start `vehicle` (a vehicle file's text) with `network_extra` in its `[network]`.
     pub fn start(tag: &str, vehicle: &str, network_extra: &str) -> Adrive {
+        Adrive::start_with(tag, vehicle, network_extra, &[])
+    }
+
+    /// [`Adrive::start`] with more arguments (`--foxglove 127.0.0.1:0`); its runtime
+    /// directory (`XDG_RUNTIME_DIR`) is its own temporary directory.
+    pub fn start_with(tag: &str, vehicle: &str, network_extra: &str, args: &[&str]) -> Adrive {
         let dir = tempdir(tag);
         let (listen, broadcast) = (
             format!("127.0.0.1:{}", free_port()),
@@ -65,7 +71,8 @@ impl Adrive {
             .arg(&path)
             .arg("--log-dir")
             .arg(dir.path().join("log"))
-            .env("XDG_RUNTIME_DIR", dir.path().join("log"))
+            .args(args)
+            .env("XDG_RUNTIME_DIR", dir.path())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
             .spawn()

@@ -1,14 +1,15 @@
 //! The network panel: listen address, senders, commands per device, rejections by
 //! reason and the command watchdog, from the snapshot's network part when the
-//! listener runs;
+//! listener runs, and the live view's viewers and the messages they lost (`--foxglove`);
 //! "not running" otherwise (with the intake's own rejections, which the console's
 //! commands count in too).
 
 use crate::console::controls::Frame;
 use crate::console::theme::Theme;
-use crate::snapshot::{NetView, WatchdogState};
+use crate::snapshot::{LiveView, NetView, WatchdogState};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
+use ratatui::style::Style;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
 
@@ -92,12 +93,36 @@ impl NetworkPanel<'_> {
             spans.append(&mut second.spans);
             second = Line::from(spans);
         }
-        vec![
+        let mut lines = vec![
             first,
             second,
             Line::from(vec![l("rejected "), Span::raw(rejections(&rejected))]),
-            Line::from(vec![l("from "), Span::raw(senders.join(", "))]),
-        ]
+        ];
+        lines.extend(n.foxglove.as_ref().map(|f| self.live(f)));
+        lines.push(Line::from(vec![l("from "), Span::raw(senders.join(", "))]));
+        lines
+    }
+
+    /// The live view: where, how many watch, and the messages they lost (a viewer
+    /// reading too slowly; the vehicle never waits for one).
+    fn live(&self, f: &LiveView) -> Line<'static> {
+        let t = &self.theme;
+        let dropped = f.dropped + f.tap_dropped;
+        Line::from(vec![
+            Span::styled("foxglove ", t.label()),
+            Span::raw(f.listen.to_string()),
+            Span::styled(" viewers ", t.label()),
+            Span::raw(f.viewers.len().to_string()),
+            Span::styled(" dropped ", t.label()),
+            Span::styled(
+                dropped.to_string(),
+                if dropped > 0 {
+                    t.warn()
+                } else {
+                    Style::default()
+                },
+            ),
+        ])
     }
 
     /// The lines for a panel `width` columns wide.
@@ -192,6 +217,7 @@ mod tests {
                         intake: pairs(&[("disengaged", 2), ("gas_estop", 0)]),
                         ..Rejections::default()
                     },
+                    foxglove: None,
                 }),
                 gate: crate::snapshot::GateView {
                     watchdog: Some(WatchdogView {
@@ -243,5 +269,35 @@ mod tests {
                 "rejected disengaged 2",
             ]
         );
+    }
+
+    #[test]
+    fn a_live_view_shows_its_viewers_and_what_they_lost() {
+        let mut snap = listening();
+        let net = snap.snap.net.as_mut().unwrap();
+        net.foxglove = Some(LiveView {
+            listen: "127.0.0.1:8765".parse().unwrap(),
+            viewers: vec![crate::snapshot::ViewerView {
+                addr: "127.0.0.1:5001".parse().unwrap(),
+                subprotocol: "foxglove.sdk.v1".into(),
+                subscriptions: 3,
+                sent: 900,
+                dropped: 12,
+            }],
+            dropped: 12,
+            tap_dropped: 0,
+        });
+        let p = NetworkPanel {
+            snap: &snap,
+            theme: Theme::default(),
+        };
+        assert_eq!(
+            text(&p, 60, 5)[3],
+            "foxglove 127.0.0.1:8765 viewers 1 dropped 12"
+        );
+        let mut buf = Buffer::empty(Rect::new(0, 0, 60, 5));
+        (&p).render(buf.area, &mut buf);
+        let at = "foxglove 127.0.0.1:8765 viewers 1 dropped ".len() as u16;
+        assert_eq!(buf[(at, 3)].style().fg, Theme::default().warn().fg);
     }
 }
