@@ -66,15 +66,19 @@ fn fmt_us(v: Option<f64>) -> String {
     }
 }
 
-/// The per-device summary printed on exit.
-pub fn summary(snap: &Snapshot) -> String {
-    let w = snap
-        .devices
+/// The width of the device column: the longest name, at least six.
+fn name_width(snap: &Snapshot) -> usize {
+    snap.devices
         .iter()
         .map(|d| d.name.len())
         .max()
         .unwrap_or(6)
-        .max(6);
+        .max(6)
+}
+
+/// The per-device summary printed on exit.
+pub fn summary(snap: &Snapshot) -> String {
+    let w = name_width(snap);
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -199,13 +203,7 @@ pub fn status_table(snap: &Snapshot) -> String {
             .unwrap_or_default();
         let _ = writeln!(out, "fault: {who}{} {}", f.kind, f.cause);
     }
-    let w = snap
-        .devices
-        .iter()
-        .map(|d| d.name.len())
-        .max()
-        .unwrap_or(6)
-        .max(6);
+    let w = name_width(snap);
     let _ = writeln!(
         out,
         "{:<w$} {:>10} {:>10}  {:<8} reports",

@@ -332,7 +332,14 @@ impl Gate {
         if !self.is_engaged() || o.commander != Some(source) {
             return false;
         }
-        let cause = format!("{} went away ({cause})", Commander(source));
+        self.trip(o, format!("{} went away ({cause})", Commander(source)));
+        true
+    }
+
+    /// The commander's watchdog trips for `cause`: nobody commands, the safe state, and
+    /// disengaged — under the intake lock, so no command slips in between the decision
+    /// and the safe state.
+    fn trip(&self, mut o: parking_lot::MutexGuard<'_, Owner>, cause: String) {
         o.nobody();
         o.deadman = None;
         o.tripped = true;
@@ -340,7 +347,6 @@ impl Gate {
         self.disengage(&format!("watchdog: {cause}"));
         drop(o);
         tracing::warn!("watchdog: {cause}; safe state commanded");
-        true
     }
 
     /// The commander's watchdog timeout (`None`: not watched).
@@ -391,14 +397,7 @@ impl Gate {
             }
             _ => return None,
         };
-        o.nobody();
-        o.deadman = None;
-        o.tripped = true;
-        o.last_trip = Some(cause.clone());
-        // Under the lock: no command slips in between the decision and the safe state.
-        self.disengage(&format!("watchdog: {cause}"));
-        drop(o);
-        tracing::warn!("watchdog: {cause}; safe state commanded");
+        self.trip(o, cause.clone());
         Some(cause)
     }
 
