@@ -270,8 +270,12 @@ impl Gate {
                 self.store(s, Command::Set(p), Instant::now());
             }
         }
-        *self.reason.lock() = format!("engaged by {by}");
+        // The reason and the state change together: a reader of both (the snapshot)
+        // never sees one without the other.
+        let mut reason = self.reason.lock();
+        *reason = format!("engaged by {by}");
         self.engaged.store(true, SeqCst);
+        drop(reason);
         tracing::info!(by, "engaged");
         self.tap_gate(GateChange::Engaged, || format!("engaged by {by}"));
         Ok(())
@@ -291,8 +295,12 @@ impl Gate {
     }
 
     fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
+        // The reason and the state change together (see `engage`): whoever sees the
+        // vehicle disengaged and then asks why reads this reason, never the last engage's.
+        let mut why = self.reason.lock();
         let was = self.engaged.swap(false, SeqCst);
-        *self.reason.lock() = format!("disengaged: {reason}");
+        *why = format!("disengaged: {reason}");
+        drop(why);
         let now = Instant::now();
         for (id, c) in state {
             self.store(self.vehicle.device(id), c, now);
