@@ -389,6 +389,13 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     for w in keymap.iter().flat_map(|k| k.warnings()) {
         tracing::warn!("keymap: {w}");
     }
+    // A live control socket (another adrive) stops here, before anything is driven or
+    // simulated, named; a stale one is replaced.
+    let socket_path = args
+        .socket
+        .clone()
+        .unwrap_or_else(socket::path::default_path);
+    let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
         s.patch(&mut config);
@@ -431,12 +438,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         net: Some(net.status().clone()),
         sim: sim.clone(),
     };
-    // A live socket (another adrive) stops here too, named; a stale one is replaced.
-    let socket_path = args
-        .socket
-        .clone()
-        .unwrap_or_else(socket::path::default_path);
-    let control = socket::Server::start(gate.clone(), sources.clone(), &socket_path)
+    let control = socket::Server::start(gate.clone(), sources.clone(), claimed)
         .map_err(anyhow::Error::msg)?;
     let (panic_in, panic_after) = match args.inject_panic.as_deref() {
         None => ("", Duration::ZERO),

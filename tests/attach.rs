@@ -436,6 +436,14 @@ fn the_socket_is_removed_on_every_exit_path_and_a_stale_one_is_replaced() {
     common::signal(&svc.child, libc::SIGKILL);
     let _ = wait_exit(&mut svc.child);
     assert!(socket.exists(), "nothing stale to replace");
+    // Its simulator's directory of port links is left behind too (nothing runs after
+    // SIGKILL): the test's to remove.
+    let killed = format!("adrive-sim-{}-", svc.child.id());
+    for left in common::sim_dirs(&std::env::temp_dir()) {
+        if left.starts_with(&killed) {
+            std::fs::remove_dir_all(std::env::temp_dir().join(left)).unwrap();
+        }
+    }
     let out = ctl(&socket, &["status"]);
     assert_eq!(out.status.code(), Some(1), "{out:?}");
     let mut cmd = Command::new(BIN);

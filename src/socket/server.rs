@@ -10,7 +10,7 @@
 //! source's watchdog ([`Gate::gone`]: the safe state, disengaged); a watcher changes
 //! nothing.
 
-use super::path::{self, Claim, Peer};
+use super::path::{Claim, Peer};
 use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, WireLog, WireTrace, VERSION};
 use crate::console::controls::{capture, Controls, Live, Sources};
 use crate::console::TICK;
@@ -55,10 +55,14 @@ pub struct Server {
 }
 
 impl Server {
-    /// Claim `path` and serve it. A live socket at the path (another adrive) is an
-    /// error naming it.
-    pub fn start(gate: Arc<Gate>, sources: Sources, path: &Path) -> Result<Server, String> {
-        let (listener, claim) = path::bind(path)?;
+    /// Serve the socket claimed with [`super::path::bind`] (claimed before anything starts,
+    /// so that a live socket — another adrive — stops a run before it drives anything).
+    pub fn start(
+        gate: Arc<Gate>,
+        sources: Sources,
+        (listener, claim): (UnixListener, Claim),
+    ) -> Result<Server, String> {
+        let path = claim.path.clone();
         listener
             .set_nonblocking(true)
             .map_err(|e| format!("control socket: {e}"))?;
@@ -80,7 +84,7 @@ impl Server {
         Ok(Server {
             shared,
             accept,
-            path: path.to_path_buf(),
+            path,
             _claim: claim,
         })
     }
