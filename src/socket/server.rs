@@ -105,13 +105,26 @@ impl Server {
 
     /// Close, join every thread within `deadline`, remove the socket file; the names of
     /// threads that did not stop.
-    pub fn shutdown(self, deadline: Duration) -> Vec<String> {
+    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.stop(deadline)
+    }
+
+    fn stop(&mut self, deadline: Duration) -> Vec<String> {
         self.close();
         let until = Instant::now() + deadline;
-        let mut stuck = self.accept.join(until);
+        let mut stuck = std::mem::take(&mut self.accept).join(until);
         let threads = std::mem::take(&mut *self.shared.threads.lock());
         stuck.extend(threads.join(until));
         stuck
+    }
+}
+
+/// On a way out that skips [`Server::shutdown`] (a panic unwinding the main thread),
+/// the clients' threads still end before what they hold goes: the simulator among
+/// them, whose directory of port links is removed only when it is dropped.
+impl Drop for Server {
+    fn drop(&mut self) {
+        self.stop(Duration::from_millis(500));
     }
 }
 
