@@ -4,7 +4,7 @@
 //! the client's `subscribe` / `unsubscribe`. Pure functions over text and bytes.
 
 use serde::Deserialize;
-use serde_json::json;
+use serde_json::{json, Value};
 
 /// The subprotocol names in use: current Foxglove asks for the first; Lichtblick
 /// before its #819 and many bridges for the second. The wire format is the same.
@@ -125,6 +125,171 @@ pub fn parse(text: &str) -> Result<ClientOp, String> {
         )),
         Op::Unsubscribe { subscription_ids } => Ok(ClientOp::Unsubscribe(subscription_ids)),
     }
+}
+
+/// A schema as viewers read it. Foxglove's and Lichtblick's JSON Schema reader takes a
+/// subset — one plain `type` per field, or a `oneOf` of numeric constants — and drops a
+/// channel whose schema has anything else (`"Failed to parse channel schema"`), so
+/// every plot of it stays empty. This rewrites the schemas adrive generates into that
+/// subset: a nullable `["number", "null"]` is `"number"` (a union of scalars, the
+/// widest: `string`, else `number`), a nullable `anyOf` is its one alternative, and an
+/// enum of strings is a `string`. Nulls do not reach a viewer ([`without_nulls`]), so
+/// every message still validates against what is advertised.
+pub fn viewer_schema(s: &Value) -> Value {
+    let Some(obj) = s.as_object() else {
+        return match s {
+            Value::Array(a) => Value::Array(a.iter().map(viewer_schema).collect()),
+            other => other.clone(),
+        };
+    };
+    let mut o = obj.clone();
+    if let Some(Value::Array(types)) = o.get("type") {
+        let t: Vec<&str> = types
+            .iter()
+            .filter_map(Value::as_str)
+            .filter(|t| *t != "null")
+            .collect();
+        let one = if t.contains(&"string") {
+            "string"
+        } else {
+            t.first().copied().unwrap_or("string")
+        };
+        o.insert("type".into(), Value::from(one));
+    }
+    for k in ["anyOf", "oneOf"] {
+        let Some(Value::Array(alts)) = o.get(k) else {
+            continue;
+        };
+        let alts: Vec<Value> = alts
+            .iter()
+            .map(viewer_schema)
+            .filter(|a| a["type"] != "null")
+            .collect();
+        // An alternative the viewer is not told of: neither is it of the whole.
+        if alts.iter().any(Value::is_null) {
+            return Value::Null;
+        }
+        let scalar = |a: &Value| {
+            matches!(
+                a["type"].as_str(),
+                Some("boolean" | "number" | "integer" | "string")
+            )
+        };
+        if k == "oneOf" && alts.iter().all(|a| a["const"].is_number()) {
+            o.insert(k.into(), Value::Array(alts));
+        } else if alts
+            .iter()
+            .all(|a| a["const"].is_string() || a["enum"].is_array())
+        {
+            o.remove(k);
+            o.insert("type".into(), Value::from("string"));
+        } else if alts.len() > 1 && alts.iter().all(scalar) {
+            // A value that is a flag, a number or a word by turns (a command in the
+            // snapshot): no one type says it, so the viewer is not told of it (the
+            // per-device channels carry the same as numbers).
+            return Value::Null;
+        } else if alts.len() == 1 {
+            o.remove(k);
+            if let Value::Object(a) = &alts[0] {
+                for (key, v) in a {
+                    o.insert(key.clone(), v.clone());
+                }
+            }
+        }
+    }
+    if let Some(Value::Object(props)) = o.get("properties") {
+        let p: serde_json::Map<String, Value> = props
+            .iter()
+            .map(|(n, v)| (n.clone(), viewer_schema(v)))
+            .filter(|(_, v)| !v.is_null())
+            .collect();
+        if let Some(Value::Array(req)) = o.get("required") {
+            let req: Vec<Value> = req
+                .iter()
+                .filter(|r| r.as_str().is_some_and(|r| p.contains_key(r)))
+                .cloned()
+                .collect();
+            o.insert("required".into(), Value::Array(req));
+        }
+        o.insert("properties".into(), Value::Object(p));
+    }
+    if let Some(items) = o.get("items") {
+        let items = viewer_schema(items);
+        o.insert("items".into(), items);
+    }
+    Value::Object(o)
+}
+
+/// A message as viewers get it: every member whose value is null left out (a viewer
+/// shows nothing for it either way), so that it validates against [`viewer_schema`].
+pub fn without_nulls(payload: &[u8]) -> Vec<u8> {
+    fn strip(v: &mut Value) {
+        match v {
+            Value::Object(m) => {
+                m.retain(|_, x| !x.is_null());
+                m.values_mut().for_each(strip);
+            }
+            Value::Array(a) => a.iter_mut().for_each(strip),
+            _ => {}
+        }
+    }
+    match serde_json::from_slice::<Value>(payload) {
+        Ok(mut v) => {
+            strip(&mut v);
+            serde_json::to_vec(&v).unwrap_or_else(|_| payload.to_vec())
+        }
+        Err(_) => payload.to_vec(),
+    }
+}
+
+/// Why Foxglove's and Lichtblick's JSON Schema reader (`parseJsonSchema` in their
+/// `mcap-support`) would refuse `schema`, field by field, as it reads it; empty when it
+/// takes it. The rules are that reader's, written again for the tests.
+pub fn viewer_refuses(schema: &Value) -> Vec<String> {
+    fn object(s: &Value, path: &str, out: &mut Vec<String>) {
+        if s["type"] != "object" {
+            out.push(format!("{path}: expected type object, got {}", s["type"]));
+            return;
+        }
+        let Some(props) = s["properties"].as_object() else {
+            return;
+        };
+        for (name, f) in props {
+            let at = if path.is_empty() {
+                name.clone()
+            } else {
+                format!("{path}.{name}")
+            };
+            if let Some(alts) = f["oneOf"].as_array() {
+                if !alts.iter().all(|a| a["const"].is_number()) {
+                    out.push(format!("{at}: oneOf alternatives must have number values"));
+                }
+                continue;
+            }
+            match f["type"].as_str() {
+                Some("boolean" | "number" | "integer") => {}
+                Some("string") => {
+                    if !(f["contentEncoding"].is_null() || f["contentEncoding"] == "base64") {
+                        out.push(format!("{at}: unsupported contentEncoding"));
+                    }
+                }
+                Some("object") => object(f, &at, out),
+                Some("array") => match f["items"]["type"].as_str() {
+                    Some("boolean" | "number" | "integer") => {}
+                    Some("string") if f["items"]["contentEncoding"].is_null() => {}
+                    Some("object") => object(&f["items"], &at, out),
+                    _ => out.push(format!(
+                        "{at}: unsupported array item type {}",
+                        f["items"]["type"]
+                    )),
+                },
+                _ => out.push(format!("{at}: unsupported type {}", f["type"])),
+            }
+        }
+    }
+    let mut out = Vec::new();
+    object(schema, "", &mut out);
+    out
 }
 
 #[cfg(test)]
