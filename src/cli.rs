@@ -6,10 +6,10 @@
 
 use crate::config::{self, VehicleConfig};
 use crate::engine::Engine;
+use crate::engine::Gate;
 use crate::exit::{self, Exit};
 use crate::net::{auth::Auth, client, Net};
 use crate::record::{self, Recorder};
-use crate::safety::{gate, Gate};
 use crate::sim::{Sim, SimEvent};
 use crate::vehicle::Vehicle;
 use crate::{console, driver, headless, logging, socket};
@@ -448,7 +448,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         },
     };
     let engine = Engine::start_injected(gate.clone(), injected(panic_in, panic_after))?;
-    let monitor = gate::Monitor::start(gate.clone())?;
+    let monitor = crate::engine::monitor::Monitor::start(gate.clone())?;
     let mut sup_cfg = vehicle.config.supervisor.clone();
     sup_cfg.panic_for_test = (panic_in == "supervisor").then_some(panic_after);
     let supervisor = crate::supervisor::start_watching(
@@ -770,8 +770,8 @@ pub fn ctl(args: CtlArgs) -> anyhow::Result<i32> {
 mod ros2 {
     use super::WatchArgs;
     use crate::config::VehicleConfig;
+    use crate::engine::Gate;
     use crate::net::Net;
-    use crate::safety::Gate;
     use std::sync::atomic::AtomicBool;
     use std::sync::Arc;
     use std::time::Duration;

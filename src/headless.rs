@@ -2,8 +2,8 @@
 //! line of figures per device now and then, waits for a way out, and on the way out
 //! prints a per-device summary.
 
+use crate::engine::Gate;
 use crate::exit::Exit;
-use crate::safety::Gate;
 use crate::snapshot::{NetView, RecordView, Snapshot};
 use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
@@ -16,8 +16,8 @@ pub const REPORT_EVERY: Duration = Duration::from_secs(10);
 /// Run until an exit arrives; returns it.
 pub fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
     tracing::info!(
-        vehicle = %gate.vehicle.name,
-        devices = gate.vehicle.devices.len(),
+        vehicle = %gate.vehicle().name,
+        devices = gate.vehicle().devices.len(),
         "running headless; SIGINT or SIGTERM stops safely"
     );
     let tick = crossbeam_channel::tick(REPORT_EVERY);

@@ -13,7 +13,7 @@ use adrive::console::model::{Field, Model, DEADMAN};
 use adrive::console::sample;
 use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
-use adrive::safety::Gate;
+use adrive::engine::Gate;
 use adrive::vehicle::trace::Dir;
 use adrive::vehicle::Vehicle;
 use ratatui::backend::TestBackend;

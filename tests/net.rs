@@ -50,7 +50,7 @@ impl NetRig {
         let network = c.network.clone();
         let mut rig = Rig::with_config(c);
         // As in `adrive run`: the monitor also runs the commander's watchdog.
-        rig.monitor = Some(adrive::safety::gate::Monitor::start(rig.gate.clone()).unwrap());
+        rig.monitor = Some(adrive::engine::monitor::Monitor::start(rig.gate.clone()).unwrap());
         let net = Net::start(rig.gate.clone(), network, auth).expect("net starts");
         NetRig {
             net: Some(net),

@@ -69,9 +69,9 @@ fn parse_verify_and_count_do_not_allocate() {
 /// repeated `engage` of a planner (which is not answered): no allocation.
 #[test]
 fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
+    use adrive::engine::Gate;
     use adrive::net::intake::Intake;
     use adrive::net::NetStatus;
-    use adrive::safety::Gate;
     use adrive::value::{Command, Reading};
     use adrive::vehicle::{Cached, Vehicle};
     use std::sync::atomic::AtomicBool;

@@ -188,7 +188,7 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
 /// gone once the adapter answers.
 #[test]
 fn an_elm327_searching_the_protocols_is_named_as_such_by_the_engage_gate() {
-    use adrive::safety::Gate;
+    use adrive::engine::Gate;
     use adrive::vehicle::Vehicle;
     use serialport::SerialPort;
     use std::io::{Read, Write};

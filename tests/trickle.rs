@@ -12,7 +12,7 @@ mod common;
 use adrive::config;
 use adrive::driver;
 use adrive::engine::Engine;
-use adrive::safety::Gate;
+use adrive::engine::Gate;
 use adrive::value::Command;
 use adrive::vehicle::Vehicle;
 use common::DEADLINE;

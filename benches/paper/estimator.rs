@@ -6,7 +6,7 @@
 use adrive::config;
 use adrive::driver;
 use adrive::engine::Engine;
-use adrive::safety::Gate;
+use adrive::engine::Gate;
 use adrive::sim::Sim;
 use adrive::value::Command;
 use adrive::vehicle::{Device, Vehicle};

@@ -13,8 +13,9 @@
 //!
 //! [`update`]: super::update::update
 
+use crate::engine::Gate;
 use crate::net::NetStatus;
-use crate::safety::{Ask, Done, Gate, Refused};
+use crate::safety::{Ask, Done, Refused};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::Source;
@@ -299,7 +300,7 @@ fn sim_vehicle(sim: &Sim, device: Option<&str>) -> String {
 
 /// Capture a frame of the vehicle behind `gate` as of `now`.
 pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<DeviceId>) -> Frame {
-    let v = &gate.vehicle;
+    let v = &gate.vehicle();
     let mut snap = gate.snapshot_at(0, now);
     snap.net = sources.net.as_ref().map(|n| n.snapshot(gate));
     let bench_dev = bench.and_then(|id| v.devices.get(id.index()));
@@ -366,7 +367,7 @@ impl Controls for Live<'_> {
         capture(self.gate, self.sources, now, bench)
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
-        match self.gate.vehicle.devices.get(id.index()) {
+        match self.gate.vehicle().devices.get(id.index()) {
             Some(d) => d.config.parse_command(text),
             None => Err("no such device".into()),
         }
@@ -403,11 +404,11 @@ impl Controls for Live<'_> {
     }
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
         self.gate.tune(self.source).map_err(|r| r.to_string())?;
-        change_settings(&self.gate.vehicle, id, |c| c.status_period = d)
+        change_settings(self.gate.vehicle(), id, |c| c.status_period = d)
     }
     fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
         self.gate.tune(self.source).map_err(|r| r.to_string())?;
-        change_settings(&self.gate.vehicle, id, |c| c.command_timeout = d)
+        change_settings(self.gate.vehicle(), id, |c| c.command_timeout = d)
     }
     fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
         if let Err(why) = self.gate.tune(self.source) {
@@ -417,7 +418,7 @@ impl Controls for Live<'_> {
             );
             return;
         }
-        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
+        if let Some(dev) = self.gate.vehicle().devices.get(id.index()) {
             let flag = match thread {
                 Thread::Status => &dev.settings.status_enabled,
                 Thread::Command => &dev.settings.command_enabled,
@@ -430,7 +431,7 @@ impl Controls for Live<'_> {
         if self.gate.tune(self.source).is_err() {
             return;
         }
-        if let Some(dev) = self.gate.vehicle.devices.get(id.index()) {
+        if let Some(dev) = self.gate.vehicle().devices.get(id.index()) {
             dev.slot.nudge();
         }
     }

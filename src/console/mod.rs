@@ -31,8 +31,8 @@ pub mod trail;
 pub mod update;
 pub mod view;
 
+use crate::engine::Gate;
 use crate::exit::Exit;
-use crate::safety::Gate;
 use controls::{Controls, Live, Sources};
 use crossbeam_channel::{select, Receiver};
 use crossterm::event::{self, Event};

@@ -2,7 +2,7 @@
 //! ports: for the console's tests, snapshots and the fault screenshot.
 
 use crate::config::{SupervisorConfig, VehicleConfig};
-use crate::safety::Gate;
+use crate::engine::Gate;
 use crate::snapshot::FaultKind;
 use crate::snapshot::RecoveryView;
 use crate::value::Reading;

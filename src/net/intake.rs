@@ -20,8 +20,9 @@ use super::auth::Auth;
 use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary};
 use super::status::{Inner, NetStatus, Refusal};
 use crate::config::NetworkConfig;
+use crate::engine::Gate;
 use crate::logging::RateLimit;
-use crate::safety::{Ask, Done, Gate, Refused};
+use crate::safety::{Ask, Done, Refused};
 use crate::value::Source;
 use crate::vehicle::tap::Event;
 use arrayvec::ArrayString;
@@ -155,7 +156,7 @@ impl Intake {
             }
         }
         let mut out = Outcome::new();
-        let vocab = Vocabulary::of(&self.gate.vehicle.config);
+        let vocab = Vocabulary::of(&self.gate.vehicle().config);
         let d = match parse(bytes, &vocab) {
             Ok(d) => d,
             Err(e) => {
@@ -214,7 +215,7 @@ impl Intake {
         let st = self.status.clone();
         let mut fx = Effects::default();
         let gate = self.gate.clone();
-        let vocab = Vocabulary::of(&gate.vehicle.config);
+        let vocab = Vocabulary::of(&gate.vehicle().config);
         let source = Source::Network(from);
         for c in &d.commands {
             let ask = match *c {
@@ -280,7 +281,7 @@ impl Intake {
                     if matches!(c, NetCommand::Engage | NetCommand::Release) {
                         out.gate = true;
                     }
-                    gate.vehicle.tap.send(|| Event::Refused {
+                    gate.vehicle().tap.send(|| Event::Refused {
                         at: received,
                         from,
                         reason: Refusal::OtherCommander.as_str(),
@@ -363,7 +364,7 @@ impl Intake {
         let s = inner.get(i);
         s.rejected += 1;
         let from = s.addr;
-        self.gate.vehicle.tap.send(|| Event::Refused {
+        self.gate.vehicle().tap.send(|| Event::Refused {
             at: Instant::now(),
             from,
             reason: r.as_str(),

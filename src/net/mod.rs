@@ -29,8 +29,8 @@ pub mod status;
 pub use crate::config::NetworkConfig;
 pub use status::{NetStatus, Refusal};
 
+use crate::engine::Gate;
 use crate::logging::Repeats;
-use crate::safety::Gate;
 use crate::snapshot::Snapshot;
 use crate::threads::{StopSignal, Threads};
 use auth::Auth;
@@ -65,7 +65,7 @@ impl Net {
         let local = socket.local_addr()?;
         let out = broadcast_socket(&config)?;
         let names = gate
-            .vehicle
+            .vehicle()
             .devices
             .iter()
             .map(|d| d.name().to_string())
@@ -83,7 +83,7 @@ impl Net {
             closing.clone(),
         );
         let s = stop.clone();
-        let placement = gate.vehicle.config.vehicle.placement.clone();
+        let placement = gate.vehicle().config.vehicle.placement.clone();
         threads.spawn("net/listen".into(), move || {
             crate::engine::placement::apply(&placement);
             listen_loop(&socket, &mut intake, &s)
@@ -357,7 +357,7 @@ fn broadcast_loop(
             }
         };
         // A recording keeps the snapshot whole, however many parts it went out in.
-        gate.vehicle
+        gate.vehicle()
             .tap
             .send(|| crate::vehicle::tap::Event::Snapshot {
                 at: Instant::now(),

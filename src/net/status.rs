@@ -247,7 +247,7 @@ impl NetStatus {
 
     /// A plain copy of everything, for the snapshot, as of what `gate` says now: which
     /// sender commands, and whose command has ended (latched).
-    pub fn snapshot(&self, gate: &safety::Gate) -> NetView {
+    pub fn snapshot(&self, gate: &crate::engine::Gate) -> NetView {
         let now = Instant::now();
         let ms = |d: Duration| d.as_secs_f64() * 1e3;
         let commander = super::commanding(gate);
@@ -301,7 +301,7 @@ impl NetStatus {
                         .collect(),
                 ),
             },
-            foxglove: gate.vehicle.tap.live(),
+            foxglove: gate.vehicle().tap.live(),
         }
     }
 }

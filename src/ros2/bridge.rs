@@ -1,6 +1,6 @@
 //! What Autoware's messages mean on this vehicle, as pure functions: a command message
 //! becomes typed [`Ask`]s for the one intake every source goes through
-//! ([`crate::safety::Gate::admit`]: one commander, the watchdog, ranges, the
+//! ([`crate::engine::Gate::admit`]: one commander, the watchdog, ranges, the
 //! interlocks, the engage gate), and the [`Snapshot`] becomes the reports. Which device is
 //! which comes from the vehicle's role bindings (steering, throttle, brake, gear, speed)
 //! and from `[ros2]` for turn indicators and hazard lights.

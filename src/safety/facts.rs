@@ -4,8 +4,8 @@
 
 use super::rules::{Facts, Plays};
 use crate::config::Bindings;
+use crate::engine::slot::WireState;
 use crate::value::Command;
-use crate::vehicle::slot::WireState;
 use crate::vehicle::{Device, Vehicle};
 
 /// A set point as a fraction of its device's range top.

@@ -11,12 +11,16 @@
 //! - anyone allowed to send may always **stop** or **disengage** it; then nobody
 //!   commands.
 //!
-//! [`decide`] says what an act leads to given who commands now; the intake
-//! ([`super::intake`]) applies it under one lock, so that no command slips between a
-//! decision and a change of hands. The guide's table (docs/safety.md) of these rules is
+//! [`decide`] says what an act leads to given who commands now; [`Owner`] is who
+//! commands and the commander's watchdog; the engine's intake
+//! ([`crate::engine::Gate::admit`]) applies the decision under the one lock around
+//! `Owner`, so that no command slips between a decision and a change of hands. The guide's table (docs/safety.md) of these rules is
 //! [`markdown`], checked by a test.
 
+use super::ask::Ask;
+use crate::snapshot::WatchdogView;
 use crate::value::Source;
+use std::time::{Duration, Instant};
 
 /// What a source does, as far as ownership goes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -192,6 +196,68 @@ pub fn markdown() -> String {
         }
     }
     out
+}
+
+/// Who commands and the commander's watchdog, under the gate's one intake lock.
+#[derive(Debug)]
+pub struct Owner {
+    pub(crate) commander: Option<Source>,
+    /// The commander's last admitted ask (what its watchdog watches).
+    pub(crate) last: Instant,
+    /// The commander's stream is alive but frozen (a rolling counter that stopped).
+    pub(crate) frozen: bool,
+    /// The console's deadman while it teleoperates (its watchdog); `None`: not watched.
+    pub(crate) deadman: Option<Duration>,
+    /// Released by this source; the handover ends at this instant.
+    pub(crate) handover: Option<(Source, Instant)>,
+    /// The watchdog tripped and the vehicle was not engaged since.
+    pub(crate) tripped: bool,
+    pub(crate) last_trip: Option<String>,
+    /// The console that switched the interlocks off (they come back on when it goes).
+    pub(crate) interlocks_off_by: Option<Source>,
+    /// Asks refused because another source commands (or nobody does).
+    pub(crate) refused: u64,
+    pub(crate) last_refused: Option<(Source, Ask, Refusal)>,
+}
+
+impl Owner {
+    pub fn new(now: Instant) -> Owner {
+        Owner {
+            commander: None,
+            last: now,
+            frozen: false,
+            deadman: None,
+            handover: None,
+            tripped: false,
+            last_trip: None,
+            interlocks_off_by: None,
+            refused: 0,
+            last_refused: None,
+        }
+    }
+
+    pub(crate) fn commands(&mut self, source: Source, now: Instant) {
+        self.commander = Some(source);
+        self.last = now;
+        self.frozen = false;
+        self.handover = None;
+        // A deadman is the teleoperating console's own, armed by its next teleop key.
+        self.deadman = None;
+    }
+
+    pub(crate) fn nobody(&mut self) {
+        self.commander = None;
+        self.handover = None;
+    }
+}
+
+/// What the snapshot shows of who commands.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CommandView {
+    pub commander: Option<String>,
+    pub watchdog: Option<WatchdogView>,
+    pub refused: u64,
+    pub last_refused: Option<String>,
 }
 
 #[cfg(test)]

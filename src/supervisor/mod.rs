@@ -20,8 +20,8 @@ pub mod recovery;
 
 use crate::config::roles::ReadingRef;
 use crate::config::{SupervisorConfig, VehicleConfig};
+use crate::engine::Gate;
 use crate::exit::Exit;
-use crate::safety::Gate;
 use crate::snapshot::{DeviceView, FaultKind, Snapshot};
 use crate::threads::{Liveness, StopSignal, Threads};
 use crate::value::{Kind, Value};
@@ -409,7 +409,7 @@ pub fn disengages(kind: FaultKind) -> bool {
 
 /// The procedure a fault calls for, if any (and if the vehicle has what it needs).
 pub fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> Option<Procedure> {
-    let v = &gate.vehicle;
+    let v = &gate.vehicle();
     let b = v.bindings();
     let device = f.device.as_deref().and_then(|n| v.find(n)).map(|d| d.id);
     match (f.kind, device) {
@@ -460,7 +460,7 @@ impl Supervisor {
 
     /// One turn: detect, report, act.
     pub fn tick(&mut self, gate: &Gate, now: Instant) {
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         let board = &v.supervision;
         let before = board.faults();
         let snap = gate.snapshot(0);
@@ -601,8 +601,8 @@ impl Supervisor {
         if let Some((name, f)) = waiting.filter(|_| name != self.waiting) {
             let msg = format!("recovery {name} waits for engage: {}", f.describe());
             tracing::warn!("{msg}");
-            gate.vehicle.supervision.note(msg.clone());
-            gate.vehicle.supervision.set_outcome(msg);
+            gate.vehicle().supervision.note(msg.clone());
+            gate.vehicle().supervision.set_outcome(msg);
         }
         self.waiting = name;
     }
@@ -613,7 +613,7 @@ impl Supervisor {
                 .insert(p.name().to_string(), now + self.cfg.step_timeout);
         }
         gate.set_recovering(&[]);
-        gate.vehicle.supervision.set_recovery(None);
+        gate.vehicle().supervision.set_recovery(None);
     }
 }
 
@@ -673,7 +673,7 @@ mod tests {
     #[test]
     fn a_silent_device_without_an_error_has_no_empty_cause() {
         let gate = sample::gate(Instant::now());
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         let steer = v.find("steer").expect("alice steers");
         let answered = steer.started + Duration::from_millis(100);
         steer.record_ok(answered);
@@ -707,7 +707,7 @@ mod tests {
     fn a_brake_alternating_faster_than_the_turns_is_neither_pushed_nor_stuck() {
         let t0 = Instant::now();
         let gate = sample::gate(t0);
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
         let turns = |span: Option<[f64; 2]>| {
             let mut mem = Memory::new(t0);
@@ -759,7 +759,7 @@ mod tests {
     fn a_port_back_after_a_disconnect_gets_its_status_max_age_before_silent_or_error_rate() {
         let t0 = Instant::now();
         let gate = sample::gate(t0);
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
         // Steer (status_max_age 250 ms), turn by turn every 50 ms: answering up to 1 s,
         // then its transactions fail; `unplugged` (500 ms later, for 3 s) its port is
@@ -832,7 +832,7 @@ mod tests {
     fn a_port_that_cannot_be_opened_at_start_is_disconnected_not_silent() {
         let t0 = Instant::now();
         let gate = sample::gate(t0);
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
         let mut mem = Memory::new(t0);
         let now = t0 + Duration::from_secs(2);
@@ -868,7 +868,7 @@ mod tests {
         let ring = crate::console::logring::LogRing::default();
         let sub = tracing_subscriber::registry().with(ring.layer());
         let gate = sample::gate(Instant::now());
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         let set = |device: &str, i: usize, x: f64| {
             v.find(device)
                 .expect("an alice device")

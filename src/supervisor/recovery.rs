@@ -23,7 +23,8 @@
 
 use crate::config::roles::ReadingRef;
 use crate::config::SupervisorConfig;
-use crate::safety::{rules, Gate};
+use crate::engine::Gate;
+use crate::safety::rules;
 use crate::snapshot::RecoveryView;
 use crate::value::{Command, Control, DeviceId};
 use crate::vehicle::Vehicle;
@@ -76,7 +77,7 @@ impl Step {
 
     /// Issue the step's command.
     fn begin(&self, gate: &Gate) {
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         match self {
             Step::Send {
                 device, command, ..
@@ -131,7 +132,7 @@ impl Step {
 
     /// The step moves an actuator (as opposed to waiting or commanding the safe state).
     pub fn moves(&self, gate: &Gate) -> bool {
-        let safe = crate::safety::safe::state(&gate.vehicle.config);
+        let safe = crate::safety::safe::state(&gate.vehicle().config);
         match self {
             Step::Send {
                 device, command, ..
@@ -327,7 +328,7 @@ impl Procedure {
 
     /// Move the procedure on as far as the vehicle allows now.
     pub fn advance(&mut self, gate: &Gate, now: Instant) -> Progress {
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         gate.set_recovering(&self.takes);
         loop {
             let Some(step) = self.steps.get(self.step) else {
@@ -395,7 +396,7 @@ mod tests {
     fn only_the_safe_state_and_waiting_count_as_not_moving() {
         let cfg = SupervisorConfig::default();
         let gate = crate::console::sample::gate(Instant::now());
-        let v = &gate.vehicle;
+        let v = &gate.vehicle();
         let b = v.bindings();
         let drive = b.gear.as_ref().expect("gear").forward[0];
         let stall = Procedure::engine_stall(v, drive, &cfg).expect("alice has it all");

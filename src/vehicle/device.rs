@@ -4,13 +4,13 @@
 //! [`Vehicle`](super::Vehicle); readers only ever read the cache.
 
 use super::estimate::{Correction, Estimate, Estimator};
-use super::port::{Conn, Opener, Port, PortHealth};
-use super::slot::CommandSlot;
 use super::stats::Stats;
 use super::tap::{Event, Tap};
 use super::trace::Trace;
 use crate::config::{DeviceConfig, Role, Violation};
 use crate::driver::DriverError;
+use crate::engine::port::{Conn, Opener, Port, PortHealth};
+use crate::engine::slot::CommandSlot;
 use crate::value::{Command, DeviceId, Kind, Reading};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};

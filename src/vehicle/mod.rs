@@ -10,11 +10,9 @@
 //!   board; [`tap`]: where everything that happens is handed to a recording;
 //!   [`fast`]: a command written to an idle port by the thread that admitted it.
 
+pub mod capture;
 pub mod device;
 pub mod estimate;
-pub mod fast;
-pub mod port;
-pub mod slot;
 pub mod stats;
 pub mod supervision;
 pub mod tap;
@@ -24,9 +22,9 @@ pub use device::{error_code, Cached, Device, Health, Settings, FAULT_AFTER};
 
 use crate::config::roles::ReadingRef;
 use crate::config::{Bindings, DeviceConfig, Role, VehicleConfig};
+use crate::engine::port::Opener;
 use crate::snapshot::{self, DeviceView, Pairs};
 use crate::value::{DeviceId, EstopState};
-use port::Opener;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::Instant;

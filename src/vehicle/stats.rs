@@ -146,7 +146,7 @@ pub struct Stats {
     /// Commands replaced by a newer one before they reached the wire.
     pub superseded: AtomicU64,
     /// Commands the thread that admitted them wrote to the idle port itself (the fast
-    /// path, [`crate::vehicle::fast`]); kept for tests and benchmarks, not broadcast.
+    /// path, [`crate::engine::fast`]); kept for tests and benchmarks, not broadcast.
     pub fast: AtomicU64,
     /// Last command sent again after `command_timeout` (or a manual wake).
     pub resent: AtomicU64,

@@ -9,7 +9,7 @@ pub mod simproc;
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;
 use adrive::engine::Engine;
-use adrive::safety::{gate, Gate};
+use adrive::engine::Gate;
 use adrive::sim::{Sim, SimEvent};
 use adrive::value::{Command, DeviceId};
 use adrive::vehicle::{Device, Vehicle};
@@ -37,7 +37,7 @@ pub struct Rig {
     pub events: Receiver<SimEvent>,
     /// With [`Rig::supervised`]: the gate monitor, the supervisor, and where the
     /// supervisor asks the process to end.
-    pub monitor: Option<gate::Monitor>,
+    pub monitor: Option<adrive::engine::monitor::Monitor>,
     pub supervisor: Option<adrive::supervisor::Running>,
     pub exits: Option<Receiver<adrive::exit::Exit>>,
 }
@@ -76,7 +76,7 @@ impl Rig {
         let mut rig = Rig::start(toml);
         let (tx, rx) = crossbeam_channel::unbounded();
         let cfg = rig.vehicle.config.supervisor.clone();
-        rig.monitor = Some(gate::Monitor::start(rig.gate.clone()).unwrap());
+        rig.monitor = Some(adrive::engine::monitor::Monitor::start(rig.gate.clone()).unwrap());
         rig.supervisor = Some(
             adrive::supervisor::start(
                 rig.gate.clone(),

@@ -426,7 +426,7 @@ mod tests {
         let now = Instant::now();
         let g = sample::gate(now);
         if faulty {
-            sample::make_faulty(&g.vehicle, name, now);
+            sample::make_faulty(g.vehicle(), name, now);
         }
         let f = capture(&g, &Sources::default(), now, None);
         let id = f.id_of(name).unwrap();

@@ -15,7 +15,7 @@ use std::cell::RefCell;
 struct Fake {
     /// The sample vehicle (not started): its configuration, and the real checks of
     /// a console setting edit.
-    gate: std::sync::Arc<crate::safety::Gate>,
+    gate: std::sync::Arc<crate::engine::Gate>,
     snap: Frame,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
@@ -55,7 +55,7 @@ impl Fake {
         self.calls.borrow().clone()
     }
     fn name(&self, id: DeviceId) -> &str {
-        &self.gate.vehicle.config.devices[id.index()].name
+        &self.gate.vehicle().config.devices[id.index()].name
     }
     /// A device of the sample in the frame, by name, to change what the console sees.
     fn device(&mut self, name: &str) -> &mut DeviceView {
@@ -79,10 +79,10 @@ impl Controls for Fake {
         self.snap.clone()
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
-        self.gate.vehicle.config.devices[id.index()].parse_command(text)
+        self.gate.vehicle().config.devices[id.index()].parse_command(text)
     }
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
-        let d = &self.gate.vehicle.config.devices[id.index()];
+        let d = &self.gate.vehicle().config.devices[id.index()];
         self.log(format!("submit {} {}", d.name, d.command_text(command)));
         self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
     }
@@ -120,12 +120,12 @@ impl Controls for Fake {
         Ok(())
     }
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        change_settings(&self.gate.vehicle, id, |c| c.status_period = d)?;
+        change_settings(self.gate.vehicle(), id, |c| c.status_period = d)?;
         self.log(format!("st delay {} {d:?}", self.name(id)));
         Ok(())
     }
     fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        change_settings(&self.gate.vehicle, id, |c| c.command_timeout = d)?;
+        change_settings(self.gate.vehicle(), id, |c| c.command_timeout = d)?;
         self.log(format!("cm delay {} {d:?}", self.name(id)));
         Ok(())
     }
@@ -298,7 +298,7 @@ fn a_status_period_the_vehicle_file_would_refuse_is_refused_in_place() {
     let err = m.edit.as_ref().unwrap().error.clone().unwrap();
     assert!(err.contains("status_period: expected a duration"), "{err}");
     assert!(f.calls().is_empty(), "nothing changed: {:?}", f.calls());
-    let steer = f.gate.vehicle.find("steer").unwrap();
+    let steer = f.gate.vehicle().find("steer").unwrap();
     assert_eq!(steer.settings.status_period(), Duration::from_millis(50));
     // A value the file takes goes through.
     press(&mut m, &f, &["<C-u>", "2", "0", "0", "<Enter>"], now);

@@ -3,7 +3,7 @@
 //! It holds at most one pending command — never a queue. A command that arrives while
 //! another is still pending replaces it, and the replaced one is counted as superseded.
 //!
-//! On the fast path ([`crate::vehicle::fast`]) the thread that admitted a command
+//! On the fast path ([`crate::engine::fast`]) the thread that admitted a command
 //! [claims](CommandSlot::claim) the slot of an idle command thread, writes the request
 //! itself and [hands the transaction over](CommandSlot::hand_over): the command thread
 //! wakes to a [`Wake::Handed`] and reads the reply. While a claim stands, the command
@@ -24,7 +24,7 @@ pub struct Pending {
 }
 
 /// A command whose request another thread already wrote to the port, which it left
-/// held ([`crate::vehicle::port::PortGuard::hand_over`]): the command thread reads the
+/// held ([`crate::engine::port::PortGuard::hand_over`]): the command thread reads the
 /// reply and does the bookkeeping.
 #[derive(Debug)]
 pub struct Handover {

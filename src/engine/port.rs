@@ -22,7 +22,7 @@
 
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
-use crate::vehicle::slot::CommandSlot;
+use crate::engine::slot::CommandSlot;
 use crate::vehicle::trace::{Dir, Trace};
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::io::{self, Read, Write};

@@ -12,7 +12,7 @@
 //! the port without waiting, writes the request, and
 //! [hands the transaction over](super::slot::CommandSlot::hand_over) with the port still held. The
 //! command thread, woken after the first byte is out, reads the reply and does the
-//! bookkeeping as for any command ([`crate::vehicle::port::Port::resume`]), then
+//! bookkeeping as for any command ([`crate::engine::port::Port::resume`]), then
 //! releases the port.
 //!
 //! Anything else and the path is the ordinary one: the paper's port rule (first come,
@@ -24,13 +24,13 @@
 //! cannot go out after all is queued for the command thread in the same step.
 
 use super::slot::{Handover, Pending};
-use super::Device;
 use crate::value::Command;
+use crate::vehicle::Device;
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::Instant;
 
 /// Whether `d`'s configuration allows the fast path at all (the port's own rule is
-/// the port's to apply: [`crate::vehicle::port::Port::try_acquire_idle`]).
+/// the port's to apply: [`crate::engine::port::Port::try_acquire_idle`]).
 pub fn allowed(d: &Device) -> bool {
     d.is_actuator() && d.config.min_command_interval.is_none()
 }
@@ -75,7 +75,7 @@ pub fn send(
     };
     let (sent, first) = port.send_command(command);
     if sent.is_ok() {
-        super::stats::Stats::bump(&d.stats.fast);
+        crate::vehicle::stats::Stats::bump(&d.stats.fast);
     }
     port.hand_over();
     std::mem::forget(claim);
@@ -101,7 +101,7 @@ impl Drop for Claim<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vehicle::slot::{CommandSlot, Wake};
+    use crate::engine::slot::{CommandSlot, Wake};
     use std::sync::Arc;
     use std::time::Duration;
 

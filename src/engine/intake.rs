@@ -1,182 +1,40 @@
-//! The one intake below every front end. The console, the network listener and the
-//! ROS 2 node turn what they receive into an [`Ask`] tagged with its [`Source`] and
-//! hand it to [`Gate::admit`]; what comes back is the outcome each turns into its
-//! reply, log line or message. No front end decides who commands, and none formats
-//! text for another.
+//! The one intake below every front end. The console, attached consoles, the network
+//! listener, ROS 2 and `adrive ctl` turn what they receive into an [`Ask`] tagged with
+//! its [`Source`] and hand it to [`Gate::admit`]; what comes back is the outcome each
+//! turns into its reply, log line or message. No front end decides who commands, and
+//! none formats text for another.
 //!
-//! `admit` applies, in order and under one lock:
+//! `admit` applies, in order and under one lock (safety's [`Owner`]):
 //! 1. **ownership** ([`owner::decide`]): at most one source commands the engaged
 //!    vehicle; command changes hands only explicitly (engage, release, a console's
 //!    take); stopping is never refused. A command from a source that does not command
 //!    is refused naming the commander, logged at WARN, counted and shown;
 //! 2. **the commander's watchdog**: every admitted ask of the commander feeds it;
-//!    [`Gate::watch`] (on `gate/monitor`) brings the vehicle to the safe state and
-//!    disengages it when it goes quiet — the network's `watchdog_timeout` for a network
-//!    sender or ROS 2, the teleop deadman for a console while it teleoperates. One rule,
-//!    one timeout per source;
-//! 3. **the interlocks and the engage gate**: [`Gate::submit`] and [`Gate::submit_accel`],
-//!    which admit a command (a compound one as a whole) or change nothing.
+//!    [`Gate::watch`] (on `gate/monitor`: [`super::monitor`]) brings the vehicle to the
+//!    safe state and disengages it when it goes quiet — the network's
+//!    `watchdog_timeout` for a network sender or ROS 2, the teleop deadman for a console
+//!    while it teleoperates. One rule, one timeout per source;
+//! 3. **the interlocks and the engage gate**: [`Gate::submit`] and [`Gate::submit_accel`]
+//!    ([`super::dispatch`]), which admit a command (a compound one as a whole) or change
+//!    nothing.
 //!
 //! The lock is held across the store, so no command of a previous commander lands after
 //! command changed hands. The accepted path does not touch the heap.
 
-use super::owner::{self, Act, Commander, Outcome};
-use super::{Gate, Reject};
+use super::Gate;
+use crate::safety::owner::{self, Act, CommandView, Commander, Outcome, Owner};
+use crate::safety::{Ask, Done, Refused, Reject};
 use crate::snapshot::{WatchdogState, WatchdogView};
-use crate::value::{Command, DeviceId, Source};
+use crate::value::Source;
 use crate::vehicle::tap::{Asked, Event};
 use std::time::{Duration, Instant};
-
-/// What a source asks of the vehicle.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Ask {
-    /// Engage a disengaged vehicle, or pick up one handed over; command it.
-    Engage,
-    /// Disengage into the stop state (the manual state while a driver has taken over).
-    Disengage,
-    /// The operator's STOP: disengage, throttle 0, brake full (always).
-    Stop,
-    /// Give command up: the vehicle stays engaged for the handover.
-    Release,
-    /// Take command from whoever has it (a console, after its confirmation).
-    Take,
-    /// Clear the latched driver overrides (moves nothing).
-    Clear,
-    /// Hold: the safe state (throttle 0, brake full), staying engaged — a console
-    /// leaving teleop.
-    Hold,
-    /// A command for one device.
-    Set(DeviceId, Command),
-    /// The virtual `accel` (−1 … 1): throttle and brake, as a whole.
-    Accel(f64),
-}
-
-impl Ask {
-    fn act(self) -> Option<Act> {
-        Some(match self {
-            Ask::Engage => Act::Engage,
-            Ask::Disengage | Ask::Stop => Act::Stop,
-            Ask::Release => Act::Release,
-            Ask::Take => Act::Take,
-            Ask::Set(..) | Ask::Accel(_) | Ask::Hold => Act::Command,
-            Ask::Clear => return None,
-        })
-    }
-}
-
-/// Why the intake refused an ask. Nothing changed.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Refused {
-    /// Ownership: another source commands, nobody does, …
-    Owner(owner::Refusal),
-    /// The value or an interlock (counted by reason).
-    Rule(Reject),
-    /// Engaging is blocked right now (a faulty device, the e-stop…).
-    Blocked(Vec<String>),
-    /// An override cannot be cleared yet: the driver's hand is still on.
-    Clear(String),
-}
-
-impl std::fmt::Display for Refused {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            Refused::Owner(r) => write!(f, "{r}"),
-            Refused::Rule(r) => write!(f, "{r}"),
-            Refused::Blocked(why) => write!(f, "{}", why.join("; ")),
-            Refused::Clear(why) => f.write_str(why),
-        }
-    }
-}
-
-/// What an admitted ask did.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Done {
-    /// The command is on its way.
-    Commanded,
-    /// Engaged; the source commands.
-    Engaged,
-    /// The source commands the engaged vehicle from now on (taken or picked up).
-    Commanding,
-    /// Nothing changed (the commander repeating `engage`, a console taking what it has).
-    Same,
-    /// Command given up; the vehicle stays engaged for the handover.
-    Released,
-    /// Disengaged (`true`: it was engaged).
-    Disengaged(bool),
-    /// The cleared overrides (empty: there was nothing to clear).
-    Cleared(Vec<String>),
-}
-
-/// Who commands and the commander's watchdog, under the gate's one intake lock.
-#[derive(Debug)]
-pub(crate) struct Owner {
-    commander: Option<Source>,
-    /// The commander's last admitted ask (what its watchdog watches).
-    last: Instant,
-    /// The commander's stream is alive but frozen (a rolling counter that stopped).
-    frozen: bool,
-    /// The console's deadman while it teleoperates (its watchdog); `None`: not watched.
-    deadman: Option<Duration>,
-    /// Released by this source; the handover ends at this instant.
-    handover: Option<(Source, Instant)>,
-    /// The watchdog tripped and the vehicle was not engaged since.
-    tripped: bool,
-    last_trip: Option<String>,
-    /// The console that switched the interlocks off (they come back on when it goes).
-    interlocks_off_by: Option<Source>,
-    /// Asks refused because another source commands (or nobody does).
-    refused: u64,
-    last_refused: Option<(Source, Ask, owner::Refusal)>,
-}
-
-impl Owner {
-    pub(crate) fn new(now: Instant) -> Owner {
-        Owner {
-            commander: None,
-            last: now,
-            frozen: false,
-            deadman: None,
-            handover: None,
-            tripped: false,
-            last_trip: None,
-            interlocks_off_by: None,
-            refused: 0,
-            last_refused: None,
-        }
-    }
-
-    fn commands(&mut self, source: Source, now: Instant) {
-        self.commander = Some(source);
-        self.last = now;
-        self.frozen = false;
-        self.handover = None;
-        // A deadman is the teleoperating console's own, armed by its next teleop key.
-        self.deadman = None;
-    }
-
-    fn nobody(&mut self) {
-        self.commander = None;
-        self.handover = None;
-    }
-}
-
-/// What the snapshot shows of who commands.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct CommandView {
-    pub commander: Option<String>,
-    pub watchdog: Option<WatchdogView>,
-    pub refused: u64,
-    pub last_refused: Option<String>,
-}
 
 impl Gate {
     /// The one intake: `ask` from `source`, received at `received` (socket read, key
     /// press). Ownership, the commander's watchdog, then the interlocks and the engage
     /// gate; a refused ask changes nothing.
     pub fn admit(&self, source: Source, ask: Ask, received: Instant) -> Result<Done, Refused> {
-        let mut o = self.owner.lock();
+        let mut o = self.state().owner();
         let engaged = self.is_engaged();
         if !engaged {
             o.nobody();
@@ -197,7 +55,7 @@ impl Gate {
                         _ => None,
                     };
                     if let Some(asked) = asked {
-                        self.vehicle.tap.send(|| Event::Received {
+                        self.vehicle().tap.send(|| Event::Received {
                             at: received,
                             source,
                             asked,
@@ -240,7 +98,7 @@ impl Gate {
             }
             Ask::Engage | Ask::Take => Ok(Done::Same),
             Ask::Release => {
-                let handover = self.vehicle.config.network.watchdog_timeout;
+                let handover = self.vehicle().config.network.watchdog_timeout;
                 o.nobody();
                 o.handover = Some((source, received + handover));
                 tracing::warn!(
@@ -287,7 +145,7 @@ impl Gate {
 
     /// The source commanding the engaged vehicle, if any.
     pub fn commander(&self) -> Option<Source> {
-        let o = self.owner.lock();
+        let o = self.state().owner();
         o.commander.filter(|_| self.is_engaged())
     }
 
@@ -295,7 +153,7 @@ impl Gate {
     /// advancing): nothing it sends is valid, and its watchdog keeps counting; the
     /// trip then says why.
     pub fn frozen(&self, source: Source) {
-        let mut o = self.owner.lock();
+        let mut o = self.state().owner();
         if o.commander == Some(source) {
             o.frozen = true;
         }
@@ -305,7 +163,7 @@ impl Gate {
     /// teleoperates. Arming also feeds it: a teleop key is a sign of life. A console
     /// that does not command has no deadman to arm (its teleop keys are refused).
     pub fn deadman(&self, source: Source, armed: Option<Duration>, now: Instant) {
-        let mut o = self.owner.lock();
+        let mut o = self.state().owner();
         if source.is_console() && o.commander == Some(source) {
             o.deadman = armed;
             o.last = now;
@@ -319,11 +177,10 @@ impl Gate {
     /// stays chose to drive without them. A watcher changes nothing. Returns whether
     /// the watchdog tripped.
     pub fn gone(&self, source: Source, cause: &str) -> bool {
-        let mut o = self.owner.lock();
+        let mut o = self.state().owner();
         if o.interlocks_off_by == Some(source) {
             o.interlocks_off_by = None;
-            self.interlocks
-                .store(true, std::sync::atomic::Ordering::Relaxed);
+            self.state().set_interlocks(true);
             tracing::warn!(
                 "interlocks switched on again: {} that switched them off went away",
                 Commander(source)
@@ -352,7 +209,9 @@ impl Gate {
     /// The commander's watchdog timeout (`None`: not watched).
     fn timeout(&self, o: &Owner, source: Source) -> Option<Duration> {
         match source {
-            Source::Network(_) | Source::Ros2 => Some(self.vehicle.config.network.watchdog_timeout),
+            Source::Network(_) | Source::Ros2 => {
+                Some(self.vehicle().config.network.watchdog_timeout)
+            }
             Source::Console | Source::Attached(_) => o.deadman,
             // An operator's one-shot `engage` moves nothing: it holds the vehicle as a
             // console does outside teleop, until it is released, stopped or taken.
@@ -364,7 +223,7 @@ impl Gate {
     /// handover nobody picked up, brings the vehicle to the safe state and disengages
     /// it. Returns the cause when it did.
     pub fn watch(&self, now: Instant) -> Option<String> {
-        let mut o = self.owner.lock();
+        let mut o = self.state().owner();
         if !self.is_engaged() {
             o.nobody();
             return None;
@@ -404,11 +263,10 @@ impl Gate {
     /// Switch the interlocks — only from a console that commands the vehicle or may
     /// (nobody else commands), after its confirmation.
     pub fn set_interlocks(&self, source: Source, on: bool) -> Result<(), Refused> {
-        let mut o = self.owner.lock();
+        let mut o = self.state().owner();
         let engaged = self.is_engaged();
         owner::decide(engaged, o.commander, source, Act::Interlocks).map_err(Refused::Owner)?;
-        self.interlocks
-            .store(on, std::sync::atomic::Ordering::Relaxed);
+        self.state().set_interlocks(on);
         o.interlocks_off_by = (!on).then_some(source);
         tracing::warn!(
             "interlocks switched {} from the {}",
@@ -421,7 +279,7 @@ impl Gate {
     /// May `source` tune a device now (its delays, threads, a wake, a simulated
     /// fault)? A console, when it commands or nobody does.
     pub fn tune(&self, source: Source) -> Result<(), Refused> {
-        let o = self.owner.lock();
+        let o = self.state().owner();
         owner::decide(self.is_engaged(), o.commander, source, Act::Tune)
             .map(drop)
             .map_err(Refused::Owner)
@@ -429,11 +287,11 @@ impl Gate {
 
     /// Who commands, for the snapshot.
     pub(crate) fn command_view(&self, now: Instant) -> CommandView {
-        let o = self.owner.lock();
+        let o = self.state().owner();
         let engaged = self.is_engaged();
         let commander = o.commander.filter(|_| engaged);
         let name = |s: Source| match s {
-            Source::Ros2 => format!("ros2 {}", self.vehicle.config.ros2.namespace),
+            Source::Ros2 => format!("ros2 {}", self.vehicle().config.ros2.namespace),
             other => Commander(other).to_string(),
         };
         let timeout = commander.and_then(|c| self.timeout(&o, c));
@@ -443,7 +301,7 @@ impl Gate {
             (true, Some(_)) => WatchdogState::Armed,
             (true, None) => WatchdogState::Idle,
         };
-        let shown_timeout = timeout.unwrap_or(self.vehicle.config.network.watchdog_timeout);
+        let shown_timeout = timeout.unwrap_or(self.vehicle().config.network.watchdog_timeout);
         CommandView {
             commander: commander.map(name),
             watchdog: Some(WatchdogView {
@@ -463,7 +321,7 @@ impl Gate {
     /// An ask in words: `steer 0.500`, `accel 0.3`, `engage`.
     pub fn ask_text(&self, ask: Ask) -> String {
         match ask {
-            Ask::Set(id, c) => match self.vehicle.devices.get(id.index()) {
+            Ask::Set(id, c) => match self.vehicle().devices.get(id.index()) {
                 Some(d) => format!("{} {}", d.name(), d.config.command_text(c)),
                 None => format!("{c:?}"),
             },
@@ -473,7 +331,7 @@ impl Gate {
     }
 
     fn refused_by_owner(&self, source: Source, ask: Ask, r: owner::Refusal, at: Instant) {
-        if self.reject_log.lock().allow(at) {
+        if self.state().log_allowed(at) {
             tracing::warn!(
                 "refused {} from {}: {r}",
                 self.ask_text(ask),
@@ -487,7 +345,8 @@ impl Gate {
 mod tests {
     use super::*;
     use crate::console::sample;
-    use crate::vehicle::slot::WireState;
+    use crate::engine::slot::WireState;
+    use crate::value::{Command, DeviceId};
     use proptest::prelude::*;
     use std::net::{Ipv4Addr, SocketAddr};
 
@@ -496,11 +355,11 @@ mod tests {
     }
 
     fn slots(g: &Gate) -> Vec<WireState> {
-        g.vehicle.devices.iter().map(|d| d.slot.wire()).collect()
+        g.vehicle().devices.iter().map(|d| d.slot.wire()).collect()
     }
 
     fn id(g: &Gate, name: &str) -> DeviceId {
-        g.vehicle.find(name).unwrap().id
+        g.vehicle().find(name).unwrap().id
     }
 
     /// The incident of the walk: engage at the console, then one `steer 0.5` from the
@@ -544,7 +403,7 @@ mod tests {
         let g = sample::gate(Instant::now());
         let t = Instant::now();
         g.admit(Source::Console, Ask::Engage, t).unwrap();
-        let brake = g.vehicle.find("brake").unwrap();
+        let brake = g.vehicle().find("brake").unwrap();
         assert_eq!(brake.slot.wire().latest(), Some(Command::Set(1.0)));
         let before = slots(&g);
         assert_eq!(
@@ -584,7 +443,7 @@ mod tests {
     fn the_watchdog_is_the_commanders_with_its_own_timeout() {
         let g = sample::gate(Instant::now());
         let t0 = Instant::now();
-        let timeout = g.vehicle.config.network.watchdog_timeout;
+        let timeout = g.vehicle().config.network.watchdog_timeout;
         g.admit(net(1), Ask::Engage, t0).unwrap();
         assert_eq!(g.watch(t0 + timeout / 2), None);
         let why = g.watch(t0 + timeout).expect("tripped");

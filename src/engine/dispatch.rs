@@ -1,0 +1,497 @@
+//! Dispatch: what an admitted command does to the devices. A command that passed the
+//! intake ([`super::intake`]) goes on the wire from the admitting thread when its port
+//! is idle ([`super::fast`]), else into the device's slot for its command thread
+//! ([`super::slot`], [`super::command`]). Engaging, disengaging, an operator's STOP, a
+//! driver's override and every way out store the safe (or manual) state the same way.
+//! Right before a command goes out its command thread asks [`Gate::check_wire`]; a wait
+//! it asks for ([`Gate::wait_for`]) happens here, without the port held.
+
+use super::fast::{self, Sent};
+use super::Gate;
+use crate::config::Role;
+use crate::safety::{facts, gate::check_value, rules, Plays, Reject, Verdict, Wait};
+use crate::value::{Command, DeviceId};
+use crate::vehicle::stats::Stats;
+use crate::vehicle::tap::{Asked, GateChange, Source};
+use crate::vehicle::Device;
+use std::time::{Duration, Instant};
+
+/// What the command thread does with its command, by the wire check.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum WireStep {
+    Send(Command),
+    Drop,
+    Wait(Wait),
+}
+
+/// A command thread that waits at the wire for another device's command waits at most
+/// two of that device's reply timeouts (the transaction on its wire, then this one) and
+/// this much more.
+const WIRE_SLACK: Duration = Duration::from_millis(50);
+
+/// When a wait at the wire for `d` gives up.
+fn wire_deadline(d: &Device) -> Instant {
+    Instant::now() + d.config.reply_timeout * 2 + WIRE_SLACK
+}
+
+impl Gate {
+    /// A driver took `device` over (`why`: the supervisor's `override`): latch it and
+    /// hand the vehicle to the driver — disengaged, in the manual state (throttle and
+    /// brake released, the steering no longer commanded). Already latched: nothing.
+    pub fn take_over(&self, device: &str, why: &str) {
+        if !self.state().latch_override(device) {
+            return;
+        }
+        tracing::warn!(device, "driver override: {why}");
+        self.leave_to_the_driver();
+        self.disengage(&format!("driver override on {device}"));
+    }
+
+    /// Nothing is resent to a device the manual state does not command (the steering
+    /// in the driver's hands): its pending command is dropped and its resend forgotten.
+    fn leave_to_the_driver(&self) {
+        let v = self.vehicle();
+        let manual = crate::safety::safe::manual(&v.config);
+        for d in v.devices.iter().filter(|d| d.is_actuator()) {
+            if !manual.iter().any(|(id, _)| *id == d.id) {
+                d.slot.reset(None);
+            }
+        }
+    }
+
+    /// Clear the latched overrides, unless a driver's hand is still on one of them
+    /// (the supervisor still names its `override`). Returns what was cleared, or why
+    /// not.
+    pub fn clear_overrides(&self) -> Result<Vec<String>, String> {
+        let still: Vec<String> = self
+            .vehicle()
+            .supervision
+            .faults()
+            .into_iter()
+            .filter(|f| f.kind == crate::snapshot::FaultKind::Override)
+            .filter_map(|f| f.device)
+            .collect();
+        let cleared = self.state().clear_overrides(&still)?;
+        if !cleared.is_empty() {
+            tracing::info!("override cleared: {}", cleared.join(", "));
+        }
+        Ok(cleared)
+    }
+
+    /// Engage: accept commands from now on. Refused while anything blocks it. Every
+    /// command slot is reset first so nothing resends a stale set point: the safe
+    /// state (throttle 0, brake full), steering held where it is, the rest left as
+    /// they are.
+    pub fn engage(&self, by: &str) -> Result<(), Vec<String>> {
+        let blockers = self.blockers();
+        if !blockers.is_empty() {
+            tracing::warn!(by, "engage refused: {}", blockers.join("; "));
+            self.tap_gate(GateChange::EngageRefused, || {
+                format!("{by}: {}", blockers.join("; "))
+            });
+            return Err(blockers);
+        }
+        let v = self.vehicle();
+        for d in v.devices.iter().filter(|d| d.is_actuator()) {
+            d.slot.reset(None);
+        }
+        self.command_safe_state();
+        if let Some(s) = v.bound(Role::Steering) {
+            if let Some(p) = s.config.reading("position").and_then(|i| s.reading(i)) {
+                self.store(s, Command::Set(p), Instant::now());
+            }
+        }
+        self.state().set_engaged(by);
+        tracing::info!(by, "engaged");
+        self.tap_gate(GateChange::Engaged, || format!("engaged by {by}"));
+        Ok(())
+    }
+
+    /// Disengage and command the safe state. Returns false if it was not engaged.
+    pub fn disengage(&self, reason: &str) -> bool {
+        self.disengage_into(reason, self.state().stop_state(&self.vehicle().config))
+    }
+
+    /// An operator's STOP: disengage into the full safe state — throttle 0, brake full
+    /// — even while a driver has taken over. Only the stops adrive makes on its own
+    /// (a fault, the watchdog, an exit) leave a driver's vehicle in the manual state;
+    /// a person pressing STOP has decided to brake.
+    pub fn stop(&self, reason: &str) -> bool {
+        self.disengage_into(reason, crate::safety::safe::state(&self.vehicle().config))
+    }
+
+    fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
+        let was = self.state().set_disengaged(reason);
+        let now = Instant::now();
+        for (id, c) in state {
+            self.store(self.vehicle().device(id), c, now);
+        }
+        if was {
+            tracing::warn!("disengaged: {reason}");
+            self.tap_gate(GateChange::Disengaged, || format!("disengaged: {reason}"));
+        }
+        was
+    }
+
+    /// Command intake for one device, past ownership: the gate and the interlocks
+    /// ([`crate::safety::GateState::check`]), then on its way. `received` is when the
+    /// command was born (socket read, key press). A rejected command never reaches the
+    /// slot.
+    pub fn submit(&self, id: DeviceId, command: Command, received: Instant) -> Result<(), Reject> {
+        let Some(d) = self.vehicle().devices.get(id.index()) else {
+            return Err(self.reject(None, Some(command), Reject::NoSuchDevice));
+        };
+        if let Err(why) = self.state().check(self.vehicle(), d, command) {
+            return Err(self.reject(Some(d), Some(command), why));
+        }
+        self.dispatch(d, command, received);
+        // A disengage that raced this command (it checks the gate, then stores): the
+        // safe state must be the last word.
+        if !self.is_engaged() {
+            self.command_safe_state();
+        }
+        Ok(())
+    }
+
+    /// Intake by device name (the console and tools).
+    pub fn submit_named(
+        &self,
+        name: &str,
+        command: Command,
+        received: Instant,
+    ) -> Result<(), Reject> {
+        match self.vehicle().find(name) {
+            Some(d) => self.submit(d.id, command, received),
+            None => Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
+        }
+    }
+
+    /// An admitted command on its way: written from this thread when its port is idle
+    /// and the wire check says send exactly it ([`fast`]) — the command thread then
+    /// only reads the reply — else stored for the command thread.
+    fn dispatch(&self, d: &Device, command: Command, received: Instant) {
+        Stats::bump(&d.stats.received);
+        match fast::send(d, command, received, || {
+            self.is_engaged()
+                && matches!(
+                    self.state().wire_verdict(self.vehicle(), d, command, false),
+                    Verdict::Send(_)
+                )
+        }) {
+            Sent::Written | Sent::Queued { superseded: false } => {}
+            Sent::Queued { superseded: true } => Stats::bump(&d.stats.superseded),
+            Sent::NotTaken => queue(d, command, received),
+        }
+    }
+
+    /// Store a command for `d`'s command thread, past the interlocks (the safe state,
+    /// the supervisor's own commands).
+    fn store(&self, d: &Device, command: Command, received: Instant) {
+        Stats::bump(&d.stats.received);
+        queue(d, command, received);
+    }
+
+    /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
+    /// throttle, negative is brake; it never applies both. It is admitted or refused as
+    /// a whole ([`rules::check_accel`]): a refused `accel` leaves both slots exactly as
+    /// they were. Going from braking to throttle, the release is stored and the
+    /// throttle with it: the throttle's command thread holds it back until the release
+    /// has reached the brake ([`Wait::BrakeReleased`]), so one `accel` is enough. While
+    /// a shift is under way the brake holds and positive `accel` waits. Needs throttle
+    /// and brake bound.
+    pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
+        let v = self.vehicle();
+        let b = v.bindings();
+        let (Some(tid), Some(bid)) = (b.throttle, b.brake) else {
+            return Err(self.reject(None, None, Reject::NoSuchDevice));
+        };
+        let (t, br) = (v.device(tid), v.device(bid));
+        let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
+        let top = |d: &Device| d.config.range[1];
+        let parts = [
+            (br, Command::Set(brake * top(br))),
+            (t, Command::Set(throttle * top(t))),
+        ];
+        for (d, c) in parts {
+            let why = if !a.is_finite() {
+                Err(Reject::NotFinite)
+            } else if !(-1.0..=1.0).contains(&a) {
+                Err(Reject::OutOfRange)
+            } else {
+                check_value(d, c)
+            };
+            if let Err(why) = why {
+                return Err(self.reject(Some(d), Some(c), why));
+            }
+        }
+        if !self.is_engaged() {
+            return Err(self.reject(Some(t), None, Reject::Disengaged));
+        }
+        if self.is_recovering(tid) || self.is_recovering(bid) {
+            return Err(self.reject(Some(t), None, Reject::Recovering));
+        }
+        if self.interlocks_on() {
+            let both = Plays {
+                throttle: true,
+                brake: true,
+                ..Plays::default()
+            };
+            let facts = facts::gather(v, both);
+            if a > 0.0 && facts.shifting {
+                tracing::debug!("accel {a}: the brake holds until the shift is through");
+                return Ok(());
+            }
+            if let Err(why) = rules::check_accel(&facts, self.rules(), a) {
+                let at = if why.needs().first() == Some(&Role::Brake) {
+                    br
+                } else {
+                    t
+                };
+                return Err(self.reject(Some(at), None, why));
+            }
+        }
+        // Both parts pass: the brake's first (a release the throttle follows, or the
+        // throttle's release before braking), then the other.
+        let (first, second) = if a > 0.0 {
+            (parts[0], parts[1])
+        } else {
+            (parts[1], parts[0])
+        };
+        self.dispatch(first.0, first.1, received);
+        self.dispatch(second.0, second.1, received);
+        if !self.is_engaged() {
+            self.command_safe_state();
+        }
+        Ok(())
+    }
+
+    /// The supervisor's own commands: past the gate and the intake interlocks (the
+    /// wire-level checks still apply).
+    pub fn supervise(&self, id: DeviceId, command: Command) {
+        let now = Instant::now();
+        self.store(self.vehicle().device(id), command, now);
+        self.tap_received(Source::Supervisor, Asked::Device(id, command), now, Ok(()));
+    }
+
+    /// The wire check for the command `d`'s thread has in flight: send it (or what
+    /// to send instead), drop it, or first wait for another device — which the
+    /// command thread does with [`Gate::wait_for`], without holding its port, and then
+    /// asks again with `waited` set (braking then goes out regardless).
+    pub fn check_wire(&self, d: &Device, command: Command, waited: bool) -> WireStep {
+        match self
+            .state()
+            .wire_verdict(self.vehicle(), d, command, waited)
+        {
+            Verdict::Send(_) => WireStep::Send(command),
+            Verdict::Replace(c, why) => {
+                self.reject(Some(d), Some(command), why);
+                // The rules replace with "released": the bottom of the range.
+                WireStep::Send(match c {
+                    Command::Set(_) => Command::Set(d.config.range[0]),
+                    other => other,
+                })
+            }
+            Verdict::Drop(why) => {
+                self.reject(Some(d), Some(command), why);
+                WireStep::Drop
+            }
+            Verdict::Wait(w) => WireStep::Wait(w),
+        }
+    }
+
+    /// Do what a [`WireStep::Wait`] asks, bounded by two reply timeouts of the device
+    /// waited for.
+    pub fn wait_for(&self, w: Wait) {
+        let v = self.vehicle();
+        let b = v.bindings();
+        match w {
+            Wait::ThrottleReleased => {
+                let Some(t) = b.throttle.map(|id| v.device(id)) else {
+                    return;
+                };
+                let wire = t.slot.wire();
+                let going = [wire.pending, wire.flight]
+                    .into_iter()
+                    .flatten()
+                    .filter_map(Command::set_point)
+                    .any(|x| facts::share(t, x) > rules::RELEASED);
+                if going {
+                    self.store(t, Command::Set(t.config.range[0]), Instant::now());
+                }
+                t.slot
+                    .wait_wire(|w| facts::released_on_wire(t, w), wire_deadline(t));
+            }
+            Wait::BrakeReleased => {
+                let Some(br) = b.brake.map(|id| v.device(id)) else {
+                    return;
+                };
+                br.slot.wait_wire(
+                    |w| facts::released_on_wire(br, w) || facts::brake_applied_again(br, w),
+                    wire_deadline(br),
+                );
+            }
+            Wait::ShiftOut => {
+                let Some(g) = b.gear.as_ref().map(|g| v.device(g.device)) else {
+                    return;
+                };
+                g.slot.wait_wire(
+                    |w| w.pending.or(w.flight).is_none_or(|c| Some(c) == w.sent),
+                    wire_deadline(g),
+                );
+            }
+        }
+    }
+
+    /// Command the safe state to every actuator there is, bypassing the interlocks
+    /// (the safe state is always allowed) — the manual state while a driver has taken
+    /// over.
+    pub fn command_safe_state(&self) {
+        let now = Instant::now();
+        if !self.overridden().is_empty() {
+            // A command that raced the override (checked before it, stored after its
+            // reset) must not be left to resend to the driver's device.
+            self.leave_to_the_driver();
+        }
+        for (id, c) in self.state().stop_state(&self.vehicle().config) {
+            self.store(self.vehicle().device(id), c, now);
+        }
+    }
+
+    /// Wait until every reachable device acknowledged its part of the safe state.
+    /// Returns false if one did not by the deadline.
+    pub fn wait_safe(&self, deadline: Instant) -> bool {
+        let mut ok = true;
+        for (id, want) in self.state().stop_state(&self.vehicle().config) {
+            let d = self.vehicle().device(id);
+            if !d.slot.wait_executed(|c| c == want, deadline) {
+                tracing::error!(device = %d.name(), "did not acknowledge the safe state");
+                ok = false;
+            }
+        }
+        ok
+    }
+}
+
+/// Into the slot, for the command thread.
+fn queue(d: &Device, command: Command, received: Instant) {
+    if d.slot.submit(command, received) {
+        Stats::bump(&d.stats.superseded);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::console::sample;
+    use std::sync::Arc;
+
+    /// Alice's sample with the brake sent full and its release waiting in its slot.
+    fn releasing() -> Arc<Gate> {
+        let gate = sample::gate(Instant::now());
+        let brake = gate.vehicle().find("brake").unwrap();
+        brake.slot.fly(Command::Set(1.0));
+        brake.slot.finish(Command::Set(1.0), true);
+        brake.slot.submit(Command::Set(0.0), Instant::now());
+        gate
+    }
+
+    /// Throttle behind a release waits for it a bounded time — two brake reply timeouts
+    /// and a little — and, the release not landed, goes out as 0.
+    #[test]
+    fn throttle_behind_a_release_that_never_lands_goes_out_as_zero() {
+        let gate = releasing();
+        let (gas, brake) = (
+            gate.vehicle().find("gas").unwrap(),
+            gate.vehicle().find("brake").unwrap(),
+        );
+        let throttle = Command::Set(0.3);
+        assert_eq!(
+            gate.check_wire(gas, throttle, false),
+            WireStep::Wait(Wait::BrakeReleased)
+        );
+        let t = Instant::now();
+        gate.wait_for(Wait::BrakeReleased);
+        assert!(t.elapsed() >= brake.config.reply_timeout * 2 + WIRE_SLACK);
+        assert_eq!(
+            gate.check_wire(gas, throttle, true),
+            WireStep::Send(Command::Set(0.0))
+        );
+    }
+
+    /// The incident: a planner repeats `trans drive` in every datagram (the README's own
+    /// example does). In drive, with the repeat pending in the gearbox's slot, a brake
+    /// release waited up to 450 ms at the wire for that slot to drain although no
+    /// shift was under way; brake commands executed per second halved. A gear command
+    /// that repeats the last one sent is not a shift: the release goes out at once,
+    /// from intake to the wire. (A real shift still holds it: the test after this.)
+    #[test]
+    fn a_repeated_trans_drive_does_not_hold_a_brake_release() {
+        let gate = sample::gate(Instant::now());
+        let v = &gate.vehicle();
+        let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
+        let drive = Command::State(trans.config.state_index("drive").unwrap());
+        // In drive: shifted, acknowledged, and reported by a status taken after that.
+        trans.slot.fly(drive);
+        trans.slot.finish(drive, true);
+        *trans.cache.lock() = crate::vehicle::Cached {
+            reading: {
+                let mut r = crate::value::Reading::default();
+                r.set(0, 3.0);
+                r
+            },
+            at: Some(Instant::now()),
+        };
+        gate.engage("test").unwrap();
+        // The planner's datagram: `trans drive` again, and the brake released.
+        gate.submit(trans.id, drive, Instant::now()).unwrap();
+        let release = Command::Set(0.0);
+        assert_eq!(gate.submit(brake.id, release, Instant::now()), Ok(()));
+        assert_eq!(
+            gate.check_wire(brake, release, false),
+            WireStep::Send(release),
+            "the release must not wait for the repeated gear command"
+        );
+    }
+
+    /// A real shift on its way (a gear other than the last one sent) still keeps the
+    /// brake on until it is out.
+    #[test]
+    fn a_shift_on_its_way_holds_a_brake_release() {
+        let gate = sample::gate(Instant::now());
+        let v = &gate.vehicle();
+        let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
+        let drive = Command::State(trans.config.state_index("drive").unwrap());
+        trans.slot.submit(drive, Instant::now());
+        assert_eq!(
+            gate.check_wire(brake, Command::Set(0.0), false),
+            WireStep::Wait(Wait::ShiftOut)
+        );
+    }
+
+    /// The release lands while the throttle waits: the throttle goes out as it is.
+    #[test]
+    fn throttle_behind_a_release_that_lands_goes_out() {
+        let gate = releasing();
+        let (gas, brake) = (
+            gate.vehicle().find("gas").unwrap(),
+            gate.vehicle().find("brake").unwrap(),
+        );
+        let throttle = Command::Set(0.3);
+        assert_eq!(
+            gate.check_wire(gas, throttle, false),
+            WireStep::Wait(Wait::BrakeReleased)
+        );
+        std::thread::scope(|s| {
+            s.spawn(|| {
+                brake.slot.take_newer().expect("the release");
+                brake.slot.fly(Command::Set(0.0));
+                brake.slot.finish(Command::Set(0.0), true);
+            });
+            gate.wait_for(Wait::BrakeReleased);
+        });
+        assert_eq!(
+            gate.check_wire(gas, throttle, true),
+            WireStep::Send(throttle)
+        );
+    }
+}

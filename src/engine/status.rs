@@ -1,0 +1,69 @@
+//! A device's status thread: poll it every `status_period` (or, with adaptive polling,
+//! when the estimate needs it: [`super::polling`]), store the reading in the cache and
+//! the estimator, and count. Readers (network, console, supervisor) only ever read
+//! what this thread stored. The poll takes the port under the port's rule
+//! ([`super::port`]): it yields to a waiting command unless it is overdue.
+
+use crate::threads::StopSignal;
+use crate::vehicle::stats::Stats;
+use crate::vehicle::{Cached, Device};
+use std::sync::atomic::Ordering::Relaxed;
+use std::time::Instant;
+
+/// `fault`: when to end, and whether by a panic (`--inject-panic`, tests only).
+pub(crate) fn status_loop(d: &Device, stop: &StopSignal, fault: Option<(Instant, bool)>) {
+    let mut next = Instant::now();
+    // The first poll is due at once.
+    let mut last_attempt: Option<Instant> = None;
+    let mut schedule = super::polling::Schedule::default();
+    loop {
+        if !stop.sleep_until(next) {
+            return;
+        }
+        if let Some((_, panic)) = fault.filter(|&(at, _)| Instant::now() >= at) {
+            if panic {
+                panic!("injected panic (--inject-panic {}/status)", d.name());
+            }
+            tracing::warn!(device = %d.name(), "status thread ends (--inject-panic, quietly)");
+            return;
+        }
+        let period = d.settings.status_period();
+        next = (next + period).max(Instant::now());
+        if !d.settings.status_enabled.load(Relaxed) || !schedule.due(d, Instant::now()) {
+            continue;
+        }
+        let overdue_at = last_attempt.map_or_else(Instant::now, |t| t + d.config.status_max_age);
+        let Some(mut port) = d.port.acquire_status(overdue_at, &d.slot) else {
+            return;
+        };
+        let started = Instant::now();
+        schedule.start(d, started);
+        let (result, first) = port.transact(|drv, link| drv.poll(link));
+        let done = Instant::now();
+        drop(port);
+        d.tap_polled(first, done, result.as_ref());
+        last_attempt = Some(started);
+        Stats::bump(&d.stats.polls);
+        if let Some(first) = first {
+            d.stats.status_txn.record(done - first);
+        }
+        match result {
+            Ok(reading) => {
+                *d.cache.lock() = Cached {
+                    reading,
+                    at: Some(done),
+                };
+                let correction = d.estimate_reading(&reading, done);
+                schedule.finish(correction.is_some_and(|c| c.surprise));
+                d.health.status_error.store(0, Relaxed);
+                d.record_ok(done);
+            }
+            Err(e) => {
+                Stats::bump(&d.stats.status_errors);
+                d.record_error(&e, false);
+                // Nothing learnt: try again at the next wake-up.
+                schedule.finish(true);
+            }
+        }
+    }
+}

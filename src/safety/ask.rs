@@ -1,0 +1,91 @@
+//! What a source asks of the vehicle, and what comes back: the intake's vocabulary.
+//! Every front end (the console, attached consoles, the network, ROS 2, `adrive ctl`)
+//! turns what it receives into an [`Ask`] tagged with its [`crate::value::Source`];
+//! the engine's intake ([`crate::engine::Gate::admit`]) answers with [`Done`] or
+//! [`Refused`], which each front end turns into its reply, log line or message.
+
+use super::owner::{self, Act};
+use super::Reject;
+use crate::value::{Command, DeviceId};
+
+/// What a source asks of the vehicle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Ask {
+    /// Engage a disengaged vehicle, or pick up one handed over; command it.
+    Engage,
+    /// Disengage into the stop state (the manual state while a driver has taken over).
+    Disengage,
+    /// The operator's STOP: disengage, throttle 0, brake full (always).
+    Stop,
+    /// Give command up: the vehicle stays engaged for the handover.
+    Release,
+    /// Take command from whoever has it (a console, after its confirmation).
+    Take,
+    /// Clear the latched driver overrides (moves nothing).
+    Clear,
+    /// Hold: the safe state (throttle 0, brake full), staying engaged — a console
+    /// leaving teleop.
+    Hold,
+    /// A command for one device.
+    Set(DeviceId, Command),
+    /// The virtual `accel` (−1 … 1): throttle and brake, as a whole.
+    Accel(f64),
+}
+
+impl Ask {
+    pub(crate) fn act(self) -> Option<Act> {
+        Some(match self {
+            Ask::Engage => Act::Engage,
+            Ask::Disengage | Ask::Stop => Act::Stop,
+            Ask::Release => Act::Release,
+            Ask::Take => Act::Take,
+            Ask::Set(..) | Ask::Accel(_) | Ask::Hold => Act::Command,
+            Ask::Clear => return None,
+        })
+    }
+}
+
+/// Why the intake refused an ask. Nothing changed.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Refused {
+    /// Ownership: another source commands, nobody does, …
+    Owner(owner::Refusal),
+    /// The value or an interlock (counted by reason).
+    Rule(Reject),
+    /// Engaging is blocked right now (a faulty device, the e-stop…).
+    Blocked(Vec<String>),
+    /// An override cannot be cleared yet: the driver's hand is still on.
+    Clear(String),
+}
+
+impl std::fmt::Display for Refused {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Refused::Owner(r) => write!(f, "{r}"),
+            Refused::Rule(r) => write!(f, "{r}"),
+            Refused::Blocked(why) => write!(f, "{}", why.join("; ")),
+            Refused::Clear(why) => f.write_str(why),
+        }
+    }
+}
+
+/// What an admitted ask did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Done {
+    /// The command is on its way.
+    Commanded,
+    /// Engaged; the source commands.
+    Engaged,
+    /// The source commands the engaged vehicle from now on (taken or picked up).
+    Commanding,
+    /// Nothing changed (the commander repeating `engage`, a console taking what it has).
+    Same,
+    /// Command given up; the vehicle stays engaged for the handover.
+    Released,
+    /// Disengaged (`true`: it was engaged).
+    Disengaged(bool),
+    /// The cleared overrides (empty: there was nothing to clear).
+    Cleared(Vec<String>),
+}
