@@ -431,8 +431,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let exits = exit::install()?;
     // The command socket is bound before any device is driven: a busy port is a
     // configuration error (status 2), not a half-started vehicle.
-    let net = Net::start(gate.clone(), vehicle.config.network.clone(), auth)?;
-    let ros2 = ros2::start(args.ros2, &gate, &net, &vehicle.config)?;
+    let net = Net::start(gate.clone(), vehicle.config().network.clone(), auth)?;
+    let ros2 = ros2::start(args.ros2, &gate, &net, vehicle.config())?;
     let sources = console::controls::Sources {
         logs: Some(ring),
         net: Some(net.status().clone()),
@@ -449,7 +449,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     };
     let engine = Engine::start_injected(gate.clone(), injected(panic_in, panic_after))?;
     let monitor = crate::engine::monitor::Monitor::start(gate.clone())?;
-    let mut sup_cfg = vehicle.config.supervisor.clone();
+    let mut sup_cfg = vehicle.config().supervisor.clone();
     sup_cfg.panic_for_test = (panic_in == "supervisor").then_some(panic_after);
     let supervisor = crate::supervisor::start_watching(
         gate.clone(),
@@ -517,8 +517,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     drop(sim);
     if args.headless {
-        for d in &vehicle.devices {
-            d.stats.refresh();
+        for d in vehicle.devices() {
+            d.stats().refresh();
         }
         tell(
             io::stdout(),
@@ -528,7 +528,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
                 headless::net_summary(&net_figures, &gate.view(Instant::now()))
             ),
         );
-        if let Some(r) = vehicle.tap.status() {
+        if let Some(r) = vehicle.tap().status() {
             tell(
                 io::stdout(),
                 format_args!("{}\n", headless::record_summary(&r)),
@@ -560,7 +560,7 @@ fn service_ready(engine: &Engine) {
     let alive = engine.liveness();
     let late = alive.wait_running(Instant::now() + Duration::from_secs(2));
     if late.is_empty() {
-        let n = engine.vehicle().devices.len();
+        let n = engine.vehicle().devices().len();
         crate::service::ready(&format!("running: {n} devices"));
     } else {
         // Not ready: systemd's start timeout (or the watchdog) will tell.

@@ -16,8 +16,8 @@ pub const REPORT_EVERY: Duration = Duration::from_secs(10);
 /// Run until an exit arrives; returns it.
 pub fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
     tracing::info!(
-        vehicle = %gate.vehicle().name,
-        devices = gate.vehicle().devices.len(),
+        vehicle = %gate.vehicle().name(),
+        devices = gate.vehicle().devices().len(),
         "running headless; SIGINT or SIGTERM stops safely"
     );
     let tick = crossbeam_channel::tick(REPORT_EVERY);
@@ -44,11 +44,11 @@ pub fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
 
 /// The safe state in words, for the log: `gas 0.000, brake 1.000`.
 pub fn safe_state_words(vehicle: &Vehicle) -> String {
-    let words: Vec<String> = crate::safety::safe::state(&vehicle.config)
+    let words: Vec<String> = crate::safety::safe::state(vehicle.config())
         .into_iter()
         .map(|(id, c)| {
             let d = vehicle.device(id);
-            format!("{} {}", d.name(), d.config.command_text(c))
+            format!("{} {}", d.name(), d.config().command_text(c))
         })
         .collect();
     if words.is_empty() {

@@ -218,12 +218,12 @@ fn help_is_generated_from_the_keymap() {
 fn bench_view_with_traffic() {
     let f = fixture(false);
     let d = f.vehicle.find("gas").unwrap();
-    d.trace
+    d.trace()
         .record(Dir::Out, &[0x01, 0x03, 0x00, 0x00, 0x00, 0x02]);
-    d.trace.record(Dir::In, b"\x01\x03\x04OK\x00\x00");
+    d.trace().record(Dir::In, b"\x01\x03\x04OK\x00\x00");
     let mut m = f.model(Theme::default());
     f.act(&mut m, &[Action::Right, Action::Bench]);
-    assert_eq!(m.bench, d.id);
+    assert_eq!(m.bench, d.id());
     let b = render(&m, 80, 24);
     snapshot("bench_80x24", &text(&b));
     find(&b, "01 03 00 00 00 02");
@@ -684,7 +684,7 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
     use adrive::snapshot::EstimateView;
     use adrive::value::Value;
     let f = fixture(false);
-    let gas = f.vehicle.find("gas").unwrap().id;
+    let gas = f.vehicle.find("gas").unwrap().id();
     let mut m = f.model(Theme::default());
     f.act(&mut m, &[Action::Right, Action::Bench]);
     assert_eq!(m.bench, gas);
@@ -736,7 +736,7 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
 fn a_long_fault_cause_wraps_and_keeps_the_path_whole() {
     const PATH: &str = "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A50285BI-if00-port0";
     let f = fixture_with(|v, now| {
-        v.supervision
+        v.supervision()
             .set_faults(vec![adrive::vehicle::supervision::Fault {
                 kind: adrive::snapshot::FaultKind::Disconnected,
                 device: Some("steer".into()),

@@ -39,7 +39,7 @@ fn push_until_named(rig: &Rig, device: &str, to: f64) -> Duration {
     rig.sim.apply(&format!("override {device} {to}")).unwrap();
     wait_for(&format!("override on {device}"), || {
         rig.vehicle
-            .supervision
+            .supervision()
             .has(FaultKind::Override, Some(device))
     });
     t.elapsed()
@@ -51,7 +51,7 @@ fn in_manual(rig: &Rig) {
     for pedal in ["gas", "brake"] {
         let d = rig.device(pedal);
         wait_for(&format!("{pedal} released"), || {
-            d.slot.executed() == Some(set(0.0))
+            d.slot().executed() == Some(set(0.0))
         });
     }
 }
@@ -92,7 +92,7 @@ fn detected_handed_over_and_cleared(device: &str, to: f64) {
     rig.sim.apply(&format!("override {device} off")).unwrap();
     wait_for("the hand to be off", || {
         !rig.vehicle
-            .supervision
+            .supervision()
             .has(FaultKind::Override, Some(device))
     });
     assert_eq!(rig.gate.clear_overrides(), Ok(vec![device.to_string()]));
@@ -187,13 +187,13 @@ fn an_operator_stop_during_an_override_brakes_while_adrive_s_own_stops_do_not() 
     // A stop of adrive's own while the override is latched: what the brake will have
     // next is still the released brake.
     rig.gate.disengage("test: a stop of adrive's own");
-    assert_eq!(rig.device("brake").slot.latest(), Some(set(0.0)));
+    assert_eq!(rig.device("brake").slot().latest(), Some(set(0.0)));
     rig.gate.stop("test: operator STOP");
-    assert_eq!(rig.device("brake").slot.latest(), Some(set(1.0)));
+    assert_eq!(rig.device("brake").slot().latest(), Some(set(1.0)));
     for (pedal, want) in [("gas", 0.0), ("brake", 1.0)] {
         let d = rig.device(pedal);
         wait_for(&format!("{pedal} at {want}"), || {
-            d.slot.executed() == Some(set(want))
+            d.slot().executed() == Some(set(want))
         });
     }
     assert!(!rig.gate.is_engaged());

@@ -27,14 +27,14 @@ fn commands_at_twice_the_execution_rate_keep_only_the_latest() {
     rig.engage();
     let steer = rig.device("steer");
     wait_for("the engage hold to execute", || {
-        steer.stats.executed.load(Relaxed) == 1
+        steer.stats().executed.load(Relaxed) == 1
     });
     rig.received();
 
     let t = Instant::now();
     rig.gate.submit(rig.id("steer"), set(0.1), t).unwrap();
     wait_for("the first command on the wire", || {
-        steer.slot.last() == Some(set(0.1))
+        steer.slot().last() == Some(set(0.1))
     });
     rig.gate
         .submit(rig.id("steer"), set(0.2), Instant::now())
@@ -42,7 +42,7 @@ fn commands_at_twice_the_execution_rate_keep_only_the_latest() {
     let third = Instant::now();
     rig.gate.submit(rig.id("steer"), set(0.3), third).unwrap();
     wait_for("the third command to execute", || {
-        steer.slot.executed() == Some(set(0.3))
+        steer.slot().executed() == Some(set(0.3))
     });
 
     let got: Vec<Command> = rig.received().iter().map(|e| e.command).collect();
@@ -51,7 +51,7 @@ fn commands_at_twice_the_execution_rate_keep_only_the_latest() {
         vec![set(0.1), set(0.3)],
         "the device got the first and the latest"
     );
-    let s = steer.stats.snapshot();
+    let s = steer.stats().snapshot();
     assert_eq!((s.received, s.executed, s.superseded), (4, 3, 1));
     // The third waited only for the rest of the first transaction on the wire.
     let max = s.command_delay.max_us.unwrap();
@@ -66,19 +66,19 @@ fn the_last_command_is_resent_after_command_timeout() {
     rig.gate
         .submit(rig.id("steer"), set(-0.4), Instant::now())
         .unwrap();
-    wait_for("three resends", || steer.stats.resent.load(Relaxed) >= 3);
+    wait_for("three resends", || steer.stats().resent.load(Relaxed) >= 3);
     let got: Vec<Command> = rig.received().iter().map(|e| e.command).collect();
     let resends = got.iter().rev().take_while(|c| **c == set(-0.4)).count();
     assert!(resends >= 4, "device received {got:?}");
     // Resends do not count as fresh commands.
-    assert_eq!(steer.stats.received.load(Relaxed), 2);
+    assert_eq!(steer.stats().received.load(Relaxed), 2);
 }
 
 #[test]
 fn a_sensor_has_only_a_status_thread() {
     let rig = Rig::start(ALICE_TOML);
     let names = rig.engine.as_ref().unwrap().thread_names();
-    for d in &rig.vehicle.devices {
+    for d in rig.vehicle.devices() {
         let r = d.name();
         assert!(names.contains(&format!("{r}/status").as_str()), "{names:?}");
         assert_eq!(
@@ -99,7 +99,7 @@ fn readers_see_the_cache_without_waiting_for_the_port() {
     ));
     let steer = rig.device("steer");
     wait_for("a first reading", || steer.cached().at.is_some());
-    let polls = steer.stats.polls.load(Relaxed);
+    let polls = steer.stats().polls.load(Relaxed);
     // The status thread is now in its next 400 ms poll.
     let t = Instant::now();
     for _ in 0..1000 {
@@ -111,7 +111,7 @@ fn readers_see_the_cache_without_waiting_for_the_port() {
         t.elapsed()
     );
     assert_eq!(
-        steer.stats.polls.load(Relaxed),
+        steer.stats().polls.load(Relaxed),
         polls,
         "reading the cache polled"
     );
@@ -138,7 +138,7 @@ fn max_delay_under_100hz_commands(port_rule: &str) -> f64 {
         i += 1;
         std::thread::sleep(Duration::from_millis(10));
     }
-    let s = steer.stats.snapshot();
+    let s = steer.stats().snapshot();
     assert!(s.polls >= 3, "status polls kept happening: {}", s.polls);
     let status_txn = s.status_txn.p50_us.unwrap() / 1000.0;
     assert!(
@@ -192,7 +192,7 @@ fn status_is_polled_within_max_age_under_a_command_flood() {
         worst < Duration::from_millis(300 + 50 + 20 + 150),
         "status went {worst:?} stale"
     );
-    let s = steer.stats.snapshot();
+    let s = steer.stats().snapshot();
     assert!(s.executed > 20, "commands flowed: {}", s.executed);
 }
 
@@ -208,9 +208,9 @@ fn a_silent_device_counts_errors_and_the_others_keep_flowing() {
     let gas = rig.device("gas");
     wait_for("gas to be marked faulty", || gas.is_faulty());
     wait_for("status errors to be counted", || {
-        gas.stats.status_errors.load(Relaxed) >= 3
+        gas.stats().status_errors.load(Relaxed) >= 3
     });
-    assert_eq!(gas.health.status_error.load(Relaxed), 1, "timeout code");
+    assert_eq!(gas.health().status_error.load(Relaxed), 1, "timeout code");
 
     let steer = rig.device("steer");
     for v in [0.2, -0.2, 0.5] {
@@ -218,7 +218,7 @@ fn a_silent_device_counts_errors_and_the_others_keep_flowing() {
             .submit(rig.id("steer"), set(v), Instant::now())
             .unwrap();
         wait_for("steering to execute", || {
-            steer.slot.executed() == Some(set(v))
+            steer.slot().executed() == Some(set(v))
         });
     }
     assert!(!steer.is_faulty());
@@ -238,7 +238,9 @@ fn interlocks_reject_and_never_send() {
     rig.engage();
     let gas = rig.device("gas");
     let brake = rig.device("brake");
-    wait_for("the safe state", || brake.slot.executed() == Some(set(1.0)));
+    wait_for("the safe state", || {
+        brake.slot().executed() == Some(set(1.0))
+    });
 
     // Gas while braking.
     assert_eq!(
@@ -247,7 +249,9 @@ fn interlocks_reject_and_never_send() {
     );
     // Gas in park.
     rig.gate.submit(rig.id("brake"), set(0.0), now()).unwrap();
-    wait_for("brake released", || brake.slot.executed() == Some(set(0.0)));
+    wait_for("brake released", || {
+        brake.slot().executed() == Some(set(0.0))
+    });
     assert_eq!(
         rig.gate.submit(rig.id("gas"), set(0.3), now()),
         Err(Reject::GasNotInGear)
@@ -261,7 +265,9 @@ fn interlocks_reject_and_never_send() {
 
     // Get moving properly: brake, shift, release, gas.
     rig.gate.submit(rig.id("brake"), set(1.0), now()).unwrap();
-    wait_for("brake applied", || brake.slot.executed() == Some(set(1.0)));
+    wait_for("brake applied", || {
+        brake.slot().executed() == Some(set(1.0))
+    });
     rig.gate
         .submit(rig.id("trans"), rig.state("trans", "drive"), now())
         .unwrap();
@@ -270,7 +276,9 @@ fn interlocks_reject_and_never_send() {
         trans.cached().reading.get(0) == Some(3.0)
     });
     rig.gate.submit(rig.id("brake"), set(0.0), now()).unwrap();
-    wait_for("brake released", || brake.slot.executed() == Some(set(0.0)));
+    wait_for("brake released", || {
+        brake.slot().executed() == Some(set(0.0))
+    });
     rig.gate.submit(rig.id("gas"), set(0.6), now()).unwrap();
     wait_for("the vehicle to move", || {
         rig.reading("obd", "speed").unwrap_or(0.0) > 0.5
@@ -289,7 +297,7 @@ fn interlocks_reject_and_never_send() {
     assert_eq!(counts[&Reject::GasNotInGear], 1);
     assert_eq!(counts[&Reject::ShiftWithoutBrake], 1);
     assert_eq!(counts[&Reject::ShiftWhileMoving], 1);
-    assert_eq!(gas.stats.rejected.load(Relaxed), 2);
+    assert_eq!(gas.stats().rejected.load(Relaxed), 2);
 
     let sent = rig.received();
     assert!(!sent
@@ -309,8 +317,8 @@ fn disengaged_commands_are_counted_and_not_executed() {
         rig.gate.submit(rig.id("steer"), set(0.5), Instant::now()),
         Err(Reject::Disengaged)
     );
-    assert_eq!(steer.stats.rejected.load(Relaxed), 1);
-    assert_eq!(steer.slot.latest(), None);
+    assert_eq!(steer.stats().rejected.load(Relaxed), 1);
+    assert_eq!(steer.slot().latest(), None);
 }
 
 /// Alice engaged (gas 0, brake full) and in drive.
@@ -318,7 +326,9 @@ fn alice_in_drive() -> Rig {
     let rig = Rig::start(ALICE_TOML);
     rig.engage();
     let brake = rig.device("brake");
-    wait_for("the safe state", || brake.slot.executed() == Some(set(1.0)));
+    wait_for("the safe state", || {
+        brake.slot().executed() == Some(set(1.0))
+    });
     rig.gate
         .submit(rig.id("trans"), rig.state("trans", "drive"), Instant::now())
         .unwrap();
@@ -336,8 +346,8 @@ fn one_accel_from_full_brake_gives_gas_once_the_brake_is_released() {
     rig.received();
     rig.gate.submit_accel(0.3, Instant::now()).unwrap();
     let gas = rig.device("gas");
-    wait_for("gas", || gas.slot.executed() == Some(set(0.3)));
-    assert_eq!(rig.device("brake").slot.executed(), Some(set(0.0)));
+    wait_for("gas", || gas.slot().executed() == Some(set(0.3)));
+    assert_eq!(rig.device("brake").slot().executed(), Some(set(0.0)));
     let mut got = rig.received();
     got.sort_by_key(|e| e.at);
     let order: Vec<(&str, Command)> = got
@@ -365,10 +375,10 @@ fn accel_never_applies_gas_and_brake_together() {
     let brake = rig.device("brake");
     rig.gate.submit_accel(0.4, Instant::now()).unwrap();
     let gas = rig.device("gas");
-    wait_for("gas", || gas.slot.executed() == Some(set(0.4)));
+    wait_for("gas", || gas.slot().executed() == Some(set(0.4)));
     rig.gate.submit_accel(-0.7, Instant::now()).unwrap();
-    wait_for("brake", || brake.slot.executed() == Some(set(0.7)));
-    assert_eq!(gas.slot.executed(), Some(set(0.0)));
+    wait_for("brake", || brake.slot().executed() == Some(set(0.7)));
+    assert_eq!(gas.slot().executed(), Some(set(0.0)));
     assert_eq!(
         rig.gate.submit_accel(1.5, Instant::now()),
         Err(Reject::OutOfRange)

@@ -25,10 +25,10 @@ fn adaptive_steer() -> String {
 
 /// When the next poll of `d` completes (seen by its counter).
 fn next_poll(d: &Device) -> Instant {
-    let n = d.stats.polls.load(Relaxed);
+    let n = d.stats().polls.load(Relaxed);
     let end = Instant::now() + DEADLINE;
     loop {
-        if d.stats.polls.load(Relaxed) > n {
+        if d.stats().polls.load(Relaxed) > n {
             return Instant::now();
         }
         assert!(
@@ -72,11 +72,11 @@ fn adaptive_polling_stretches_under_a_steady_command() {
     let steer = settled(&rig);
     stretched_interval(steer);
     // Over a second of steady command, far fewer polls than a fixed 50 ms period.
-    let (start, polls) = (next_poll(steer), steer.stats.polls.load(Relaxed));
+    let (start, polls) = (next_poll(steer), steer.stats().polls.load(Relaxed));
     wait_for("a second to pass", || {
         start.elapsed() >= Duration::from_secs(1)
     });
-    let n = steer.stats.polls.load(Relaxed) - polls;
+    let n = steer.stats().polls.load(Relaxed) - polls;
     assert!(n <= 10, "{n} polls in a second (fixed polling makes 20)");
     // The estimate stays within its tolerance of the device meanwhile.
     let e = steer.estimate(Instant::now()).unwrap();

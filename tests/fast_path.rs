@@ -21,7 +21,7 @@ fn engaged(rig: &Rig) -> &Device {
     rig.engage();
     let steer = rig.device("steer");
     wait_for("the engage hold to execute", || {
-        steer.stats.executed.load(Relaxed) == 1
+        steer.stats().executed.load(Relaxed) == 1
     });
     rig.received();
     steer
@@ -30,16 +30,18 @@ fn engaged(rig: &Rig) -> &Device {
 /// Submit `command` when the command thread sleeps in its slot; true if it went out
 /// by the fast path.
 fn submit_when_idle(rig: &Rig, steer: &Device, command: Command) -> bool {
-    wait_for("the command thread to sleep", || steer.slot.is_idle());
-    let fast = steer.stats.fast.load(Relaxed);
-    rig.gate.submit(steer.id, command, Instant::now()).unwrap();
-    steer.stats.fast.load(Relaxed) > fast
+    wait_for("the command thread to sleep", || steer.slot().is_idle());
+    let fast = steer.stats().fast.load(Relaxed);
+    rig.gate
+        .submit(steer.id(), command, Instant::now())
+        .unwrap();
+    steer.stats().fast.load(Relaxed) > fast
 }
 
 /// The bytes the host wrote last, per the device's trace.
 fn last_written(steer: &Device) -> Vec<u8> {
     steer
-        .trace
+        .trace()
         .entries()
         .iter()
         .rev()
@@ -60,25 +62,25 @@ fn a_command_on_an_idle_port_is_on_the_wire_when_intake_returns_and_counted_once
     // could have woken.
     assert_eq!(last_written(steer), b"! 0.300\n");
     wait_for("the reply to be read", || {
-        steer.slot.executed() == Some(set(0.3))
+        steer.slot().executed() == Some(set(0.3))
     });
     // A second command as a barrier: whatever the first transaction counted is in.
     assert!(submit_when_idle(&rig, steer, set(-0.2)));
     wait_for("the second to execute", || {
-        steer.slot.executed() == Some(set(-0.2))
+        steer.slot().executed() == Some(set(-0.2))
     });
     let got: Vec<Command> = rig.received().iter().map(|e| e.command).collect();
     assert_eq!(got, vec![set(0.3), set(-0.2)], "each went out once");
-    steer.stats.refresh();
-    let s = steer.stats.snapshot();
+    steer.stats().refresh();
+    let s = steer.stats().snapshot();
     assert_eq!((s.received, s.executed, s.command_errors), (3, 3, 0));
-    assert_eq!(steer.stats.fast.load(Relaxed), 2);
+    assert_eq!(steer.stats().fast.load(Relaxed), 2);
     assert_eq!(
         s.command_delay.count, 3,
         "every fresh command's delay, once"
     );
     assert_eq!(s.command_txn.count, 3);
-    assert_eq!(steer.slot.wire().flight, None, "nothing left in flight");
+    assert_eq!(steer.slot().wire().flight, None, "nothing left in flight");
 }
 
 /// The port stays held from the request to its reply: a status thread that wants the
@@ -99,17 +101,17 @@ fn a_status_poll_never_comes_between_a_fast_request_and_its_reply() {
         assert!(v < 0.5, "no command found the port idle");
         let fast = submit_when_idle(&rig, steer, set(v));
         wait_for("the command to execute", || {
-            steer.slot.executed() == Some(set(v))
+            steer.slot().executed() == Some(set(v))
         });
         if fast {
             break;
         }
     }
-    let polls = steer.stats.polls.load(Relaxed);
+    let polls = steer.stats().polls.load(Relaxed);
     wait_for("polls to go on after the reply", || {
-        steer.stats.polls.load(Relaxed) > polls + 2
+        steer.stats().polls.load(Relaxed) > polls + 2
     });
-    let entries = steer.trace.entries();
+    let entries = steer.trace().entries();
     let request = format!("! {v:.3}\n");
     let at = entries
         .iter()
@@ -128,7 +130,7 @@ fn a_status_poll_never_comes_between_a_fast_request_and_its_reply() {
         entries[at + 1 + reply.len()].bytes().ends_with(b"ok\n"),
         "the reply follows the request"
     );
-    assert_eq!(steer.stats.command_errors.load(Relaxed), 0);
+    assert_eq!(steer.stats().command_errors.load(Relaxed), 0);
 }
 
 /// With the paper's rate cap, or the paper's port rule (first come, first served),
@@ -147,11 +149,11 @@ fn a_rate_cap_or_the_paper_rule_keeps_the_ordinary_path() {
                 "{extra}: fast path taken"
             );
             wait_for("the command to execute", || {
-                steer.slot.executed() == Some(set(v))
+                steer.slot().executed() == Some(set(v))
             });
         }
-        assert_eq!(steer.stats.fast.load(Relaxed), 0, "{extra}");
-        assert_eq!(steer.stats.executed.load(Relaxed), 4, "{extra}");
+        assert_eq!(steer.stats().fast.load(Relaxed), 0, "{extra}");
+        assert_eq!(steer.stats().executed.load(Relaxed), 4, "{extra}");
     }
 }
 
@@ -171,25 +173,35 @@ fn a_timed_out_fast_path_transaction_is_counted_and_the_next_goes_out() {
     faults.silent.store(true, Relaxed);
     assert!(submit_when_idle(&rig, steer, set(0.4)));
     wait_for("the timeout to be counted", || {
-        steer.stats.command_errors.load(Relaxed) == 1
+        steer.stats().command_errors.load(Relaxed) == 1
     });
-    assert_eq!(steer.health.command_error.load(Relaxed), 1, "timeout code");
-    assert_ne!(steer.slot.executed(), Some(set(0.4)), "never acknowledged");
+    assert_eq!(
+        steer.health().command_error.load(Relaxed),
+        1,
+        "timeout code"
+    );
+    assert_ne!(
+        steer.slot().executed(),
+        Some(set(0.4)),
+        "never acknowledged"
+    );
     faults.silent.store(false, Relaxed);
     assert!(
         !submit_when_idle(&rig, steer, set(-0.4)),
         "after a failed transaction, the command thread's"
     );
     wait_for("the next to execute", || {
-        steer.slot.executed() == Some(set(-0.4))
+        steer.slot().executed() == Some(set(-0.4))
     });
-    assert_eq!(steer.stats.command_errors.load(Relaxed), 1);
-    assert_eq!(steer.health.command_error.load(Relaxed), 0);
-    assert_eq!(steer.stats.executed.load(Relaxed), 2);
+    assert_eq!(steer.stats().command_errors.load(Relaxed), 1);
+    assert_eq!(steer.health().command_error.load(Relaxed), 0);
+    assert_eq!(steer.stats().executed.load(Relaxed), 2);
     assert!(
         submit_when_idle(&rig, steer, set(0.2)),
         "the fast path again"
     );
-    wait_for("it to execute", || steer.slot.executed() == Some(set(0.2)));
-    assert_eq!(steer.stats.executed.load(Relaxed), 3);
+    wait_for("it to execute", || {
+        steer.slot().executed() == Some(set(0.2))
+    });
+    assert_eq!(steer.stats().executed.load(Relaxed), 3);
 }

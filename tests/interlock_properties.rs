@@ -239,7 +239,7 @@ fn run(b: Bound, ops: &[Op]) -> Vec<String> {
     common::wait_for("gas", || {
         let _ = g.submit_accel(0.3, Instant::now());
         std::thread::sleep(Duration::from_millis(5));
-        gas.slot.executed() == Some(Command::Set(0.3))
+        gas.slot().executed() == Some(Command::Set(0.3))
     });
     let mut paused: Vec<(Instant, Option<Instant>)> = Vec::new();
     for op in ops {

@@ -38,7 +38,7 @@ fn a_silent_device_reopened_again_and_again_is_logged_once() {
     wait_for("steer to report", || steer.cached().at.is_some());
     rig.sim.faults("steer").unwrap().silent.store(true, Relaxed);
     wait_for("its port reopened four times", || {
-        steer.port_health.opens.load(Relaxed) >= 5
+        steer.port_health().opens.load(Relaxed) >= 5
     });
     let lines = kept.0.lock().clone();
     let count = |what: &str| lines.iter().filter(|l| l.contains(what)).count();

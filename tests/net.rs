@@ -177,7 +177,7 @@ const SENTINEL_REPLY: &str = "rejected: line 1: out_of_range";
 
 /// How many commands reached `device`'s slot so far: the only way to it.
 fn stored(n: &NetRig, device: &str) -> u64 {
-    n.rig.device(device).stats.received.load(Relaxed)
+    n.rig.device(device).stats().received.load(Relaxed)
 }
 
 fn set(v: f64) -> Command {
@@ -227,8 +227,8 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
     );
     // The receipt → first byte delay is measured from the socket read.
     let d = n.rig.device("steer");
-    d.stats.refresh();
-    let delay = d.stats.snapshot().command_delay;
+    d.stats().refresh();
+    let delay = d.stats().snapshot().command_delay;
     assert!(
         delay.count >= 1 && delay.max_us.unwrap() < 100_000.0,
         "{delay:?}"
@@ -249,7 +249,7 @@ fn disengaged_commands_are_counted_and_not_executed() {
     let status = n.net().status();
     assert_eq!(status.intake_rejections(Intake::Disengaged), 2);
     let steer = n.rig.device("steer");
-    assert_eq!(steer.stats.rejected.load(Relaxed), 1);
+    assert_eq!(steer.stats().rejected.load(Relaxed), 1);
     // It never entered the slot, the only way to the device.
     assert_eq!(stored(&n, "steer"), 0);
     let snap = n.snap();
@@ -336,31 +336,31 @@ fn engage_resets_stale_set_points_and_repeating_it_does_not() {
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
     a.send_seq("steer 0.8");
     wait_for("steer 0.8 on the wire", || {
-        steer.slot.executed() == Some(set(0.8))
+        steer.slot().executed() == Some(set(0.8))
     });
     // The wheel needs ~0.8 s to get there; disengage on the way.
     assert_eq!(a.ask(b"disengage"), "ok disengaged\n");
-    assert_eq!(steer.slot.latest(), Some(set(0.8)), "the stale set point");
+    assert_eq!(steer.slot().latest(), Some(set(0.8)), "the stale set point");
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
-    let held = steer.slot.latest().unwrap().as_f64();
+    let held = steer.slot().latest().unwrap().as_f64();
     assert!(held < 0.8, "engage kept the stale set point {held}");
     // (The slot reads empty for an instant while its command thread takes it.)
     wait_for("gas 0 and brake full", || {
-        n.rig.device("gas").slot.latest() == Some(set(0.0))
-            && n.rig.device("brake").slot.latest() == Some(set(1.0))
+        n.rig.device("gas").slot().latest() == Some(set(0.0))
+            && n.rig.device("brake").slot().latest() == Some(set(1.0))
     });
 
     // A planner repeats `engage` in every datagram: nothing is reset again, and the
     // repeats are not answered (a rejected sentinel's reply is the first to come back).
     a.send_seq("engage\nsteer -0.5");
-    wait_for("steer -0.5", || steer.slot.executed() == Some(set(-0.5)));
+    wait_for("steer -0.5", || steer.slot().executed() == Some(set(-0.5)));
     let gate = n.rig.gate.reason();
     std::thread::sleep(Duration::from_millis(25));
     for _ in 0..3 {
         a.send_seq("engage");
     }
     assert!(a.first_reply_after(b"engage").starts_with(SENTINEL_REPLY));
-    assert_eq!(steer.slot.latest(), Some(set(-0.5)));
+    assert_eq!(steer.slot().latest(), Some(set(-0.5)));
     assert_eq!(n.rig.gate.reason(), gate);
 }
 
@@ -424,7 +424,7 @@ fn braking_at_0_2(
     let stop = Arc::new(AtomicBool::new(false));
     let h = feed(a, "accel -0.2", stop.clone());
     let brake = n.rig.device("brake");
-    wait_for("brake 0.2", || brake.slot.executed() == Some(set(0.2)));
+    wait_for("brake 0.2", || brake.slot().executed() == Some(set(0.2)));
     std::thread::sleep(Duration::from_millis(400));
     assert!(n.rig.gate.is_engaged(), "the steady sender kept it engaged");
     (stop, h, addr)
@@ -444,7 +444,7 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
     wait_for("the watchdog to disengage", || !n.rig.gate.is_engaged());
     let brake = n.rig.device("brake");
     wait_for("the brake to acknowledge full", || {
-        brake.slot.executed() == Some(set(1.0))
+        brake.slot().executed() == Some(set(1.0))
     });
     let got = n.events_since(last);
     let full = got
@@ -457,7 +457,7 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
         "brake on {after:?} after the last command"
     );
     assert!(after >= TIMEOUT, "tripped early, after {after:?}");
-    assert_eq!(n.rig.device("gas").slot.executed(), Some(set(0.0)));
+    assert_eq!(n.rig.device("gas").slot().executed(), Some(set(0.0)));
     assert_eq!(n.watchdog().state, WatchdogState::Tripped);
     let why = n.watchdog().last_trip.unwrap();
     assert!(
@@ -496,7 +496,7 @@ fn a_frozen_rolling_counter_trips_the_watchdog() {
     );
     let brake = n.rig.device("brake");
     wait_for("the brake to acknowledge full", || {
-        brake.slot.executed() == Some(set(1.0))
+        brake.slot().executed() == Some(set(1.0))
     });
     let snap = n.snap();
     let why = n.watchdog().last_trip.unwrap();
@@ -633,7 +633,7 @@ fn garbage_of_every_kind_is_rejected_counted_and_harmless() {
     let n = NetRig::start(long_watchdog);
     n.ready();
     let a = n.client();
-    let polls = n.rig.device("steer").stats.polls.load(Relaxed);
+    let polls = n.rig.device("steer").stats().polls.load(Relaxed);
     let cases: &[(&[u8], &str)] = &[
         (b"", "empty"),
         (&[b'#'; 5000], "oversized"),
@@ -661,12 +661,12 @@ fn garbage_of_every_kind_is_rejected_counted_and_harmless() {
     assert_eq!(snap.rejected.get("not_finite"), 2);
     // The listener still works and nothing moved.
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
-    assert!(n.rig.vehicle.devices.iter().all(|d| !d.is_faulty()));
+    assert!(n.rig.vehicle.devices().iter().all(|d| !d.is_faulty()));
     wait_for("status polls to go on", || {
-        n.rig.device("steer").stats.polls.load(Relaxed) > polls + 5
+        n.rig.device("steer").stats().polls.load(Relaxed) > polls + 5
     });
     assert_eq!(
-        n.rig.device("steer").stats.received.load(Relaxed),
+        n.rig.device("steer").stats().received.load(Relaxed),
         1,
         "only the engage hold"
     );
@@ -707,7 +707,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         })
     };
     let steer = n.rig.device("steer");
-    let before = steer.stats.snapshot();
+    let before = steer.stats().snapshot();
     let start = Instant::now();
     let mut i = 0;
     let mut slowest_read = Duration::ZERO;
@@ -720,7 +720,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         i += 1;
         let t = Instant::now();
         let _ = n.snap();
-        for d in &n.rig.vehicle.devices {
+        for d in n.rig.vehicle.devices() {
             let _ = d.cached();
         }
         slowest_read = slowest_read.max(t.elapsed());
@@ -732,7 +732,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         n.rig.gate.is_engaged(),
         "the watchdog tripped under the flood"
     );
-    let got = steer.stats.snapshot().received - before.received;
+    let got = steer.stats().snapshot().received - before.received;
     assert!(
         got as f64 >= i as f64 * 0.95,
         "{got} of {i} commands got through a flood of {flooded}"
@@ -747,8 +747,8 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         slowest_read < Duration::from_millis(50),
         "a reader waited {slowest_read:?}"
     );
-    steer.stats.refresh();
-    let delay = steer.stats.snapshot().command_delay;
+    steer.stats().refresh();
+    let delay = steer.stats().snapshot().command_delay;
     assert!(delay.p99_us.unwrap() < 60_000.0, "{delay:?}");
     let brake = n.rig.device("brake");
     assert!(brake.cached().age().unwrap() < Duration::from_millis(600));
@@ -762,7 +762,7 @@ fn the_gate_monitor_disengages_on_estop_pause_and_on_a_fault() {
     let mut a = n.client();
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
     a.send_seq("accel -0.3");
-    wait_for("brake 0.3", || brake.slot.executed() == Some(set(0.3)));
+    wait_for("brake 0.3", || brake.slot().executed() == Some(set(0.3)));
     n.rig.sim.set_estop(EstopState::Pause);
     wait_for("disengaged by the e-stop", || !n.rig.gate.is_engaged());
     assert!(
@@ -770,7 +770,7 @@ fn the_gate_monitor_disengages_on_estop_pause_and_on_a_fault() {
         "{}",
         n.rig.gate.reason()
     );
-    wait_for("brake full", || brake.slot.executed() == Some(set(1.0)));
+    wait_for("brake full", || brake.slot().executed() == Some(set(1.0)));
     // The commander was disengaged against its will: it must drop `engage` first.
     let reply = a.ask(b"engage");
     assert!(reply.contains("disengaged: e-stop is in pause"), "{reply}");
@@ -804,7 +804,7 @@ fn the_gate_monitor_disengages_on_estop_pause_and_on_a_fault() {
 fn a_latched_override_blocks_engage_until_the_network_clears_it_with_the_hand_off() {
     let n = NetRig::start(long_watchdog);
     n.ready();
-    let board = &n.rig.vehicle.supervision;
+    let board = &n.rig.vehicle.supervision();
     let hand = adrive::vehicle::supervision::Fault {
         kind: adrive::snapshot::FaultKind::Override,
         device: Some("steer".into()),
@@ -849,7 +849,9 @@ fn a_rejected_accel_in_neutral_leaves_the_brake_applied() {
     let a = n.client();
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
     let brake = n.rig.device("brake");
-    wait_for("the brake full", || brake.slot.executed() == Some(set(1.0)));
+    wait_for("the brake full", || {
+        brake.slot().executed() == Some(set(1.0))
+    });
     a.send(b"trans neutral");
     // Until the shift is through the brake holds and accel waits (no reply); then it
     // is refused.
@@ -885,5 +887,5 @@ fn a_rejected_accel_in_neutral_leaves_the_brake_applied() {
         .filter(|e| e.name == "brake" && e.command != set(1.0))
         .collect();
     assert!(released.is_empty(), "the brake was released: {released:?}");
-    assert_eq!(brake.slot.wire().latest(), Some(set(1.0)));
+    assert_eq!(brake.slot().wire().latest(), Some(set(1.0)));
 }

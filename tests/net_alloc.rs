@@ -84,22 +84,22 @@ fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
         Box::new(|| Err(std::io::Error::other("no port in this test")))
     }));
     // Every device has "reported": the vehicle may engage (no engine runs here).
-    for d in &vehicle.devices {
+    for d in vehicle.devices() {
         let mut reading = Reading::default();
-        for i in 0..d.config.readings.len() {
+        for i in 0..d.config().readings.len() {
             reading.set(i, 0.0);
         }
         if d.name() == "estop" {
             reading.set(0, 2.0); // run
         }
-        *d.cache.lock() = Cached {
+        d.store(Cached {
             reading,
             at: Some(Instant::now()),
-        };
+        });
     }
     let gate = Arc::new(Gate::new(vehicle.clone()));
     let names = vehicle
-        .devices
+        .devices()
         .iter()
         .map(|d| d.name().to_string())
         .collect();
@@ -132,7 +132,7 @@ fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
     assert_eq!(n, 0, "the listener path allocated {n} times");
     assert!(gate.is_engaged());
     assert_eq!(
-        vehicle.find("steer").unwrap().slot.latest(),
+        vehicle.find("steer").unwrap().slot().latest(),
         Some(Command::Set(-0.1))
     );
     assert!(

@@ -92,23 +92,23 @@ fn fault_is_counted_and_isolated(victim: &str, fault: &str, kind: u32) {
     let d = rig.device(victim);
     rig.sim.apply(&format!("{fault} {victim} on")).unwrap();
     wait_for("the fault to be counted", || {
-        d.stats.status_errors.load(Relaxed) >= 3
+        d.stats().status_errors.load(Relaxed) >= 3
     });
     wait_for("the device to be marked faulty", || d.is_faulty());
-    assert_eq!(d.health.status_error.load(Relaxed), kind, "{fault}");
+    assert_eq!(d.health().status_error.load(Relaxed), kind, "{fault}");
     assert!(d.cached().age().unwrap() > Duration::ZERO);
 
     let steer = rig.device("steer");
-    let before = steer.stats.executed.load(Relaxed);
+    let before = steer.stats().executed.load(Relaxed);
     for v in [0.3, -0.3] {
         rig.gate
             .submit(rig.id("steer"), Command::Set(v), Instant::now())
             .unwrap();
         wait_for("steering to execute", || {
-            steer.slot.executed() == Some(Command::Set(v))
+            steer.slot().executed() == Some(Command::Set(v))
         });
     }
-    assert!(steer.stats.executed.load(Relaxed) >= before + 2);
+    assert!(steer.stats().executed.load(Relaxed) >= before + 2);
     assert!(!steer.is_faulty());
 
     rig.sim.apply(&format!("clear {victim}")).unwrap();
@@ -134,11 +134,13 @@ fn silence_is_counted_as_timeouts() {
 fn a_slow_device_shows_in_its_transaction_times() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
     let gas = rig.device("gas");
-    wait_for("a few polls", || gas.stats.polls.load(Relaxed) >= 3);
+    wait_for("a few polls", || gas.stats().polls.load(Relaxed) >= 3);
     rig.sim.apply("slow gas 50").unwrap();
-    let polls = gas.stats.polls.load(Relaxed);
-    wait_for("slow polls", || gas.stats.polls.load(Relaxed) >= polls + 10);
-    let s = gas.stats.snapshot().status_txn;
+    let polls = gas.stats().polls.load(Relaxed);
+    wait_for("slow polls", || {
+        gas.stats().polls.load(Relaxed) >= polls + 10
+    });
+    let s = gas.stats().snapshot().status_txn;
     assert!(s.max_us.unwrap() > 50_000.0, "{s:?}");
     assert!(!gas.is_faulty(), "slow but within its reply timeout");
 }
@@ -151,24 +153,24 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
     let rig = Rig::start(adrive::config::ALICE_TOML);
     rig.engage();
     let brake = rig.device("brake");
-    assert_eq!(brake.port_health.opens.load(Relaxed), 1);
+    assert_eq!(brake.port_health().opens.load(Relaxed), 1);
     rig.sim
         .faults("brake")
         .unwrap()
         .vanish(Duration::from_millis(1500));
     wait_for("the brake to be marked faulty", || brake.is_faulty());
-    assert!(!brake.health.connected.load(Relaxed));
+    assert!(!brake.health().connected.load(Relaxed));
 
     let steer = rig.device("steer");
     rig.gate
         .submit(rig.id("steer"), Command::Set(0.4), Instant::now())
         .unwrap();
     wait_for("steering meanwhile", || {
-        steer.slot.executed() == Some(Command::Set(0.4))
+        steer.slot().executed() == Some(Command::Set(0.4))
     });
 
     wait_for("the brake to come back", || {
-        brake.port_health.opens.load(Relaxed) >= 2 && !brake.is_faulty()
+        brake.port_health().opens.load(Relaxed) >= 2 && !brake.is_faulty()
     });
     let port = rig.sim.ports.iter().find(|p| p.name == "brake").unwrap();
     // A new pseudo-terminal (the kernel may reuse the number, as with ttyUSBn).
@@ -177,7 +179,7 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
         .submit(rig.id("brake"), Command::Set(0.8), Instant::now())
         .unwrap();
     wait_for("the brake to take commands again", || {
-        brake.slot.executed() == Some(Command::Set(0.8))
+        brake.slot().executed() == Some(Command::Set(0.8))
     });
 }
 

@@ -25,7 +25,7 @@ fn alice(supervisor: &str) -> String {
 fn fault_within(rig: &Rig, kind: FaultKind, device: Option<&str>, bound: Duration) -> String {
     let t = Instant::now();
     wait_for(&format!("{kind} on {device:?}"), || {
-        rig.vehicle.supervision.has(kind, device)
+        rig.vehicle.supervision().has(kind, device)
     });
     let took = t.elapsed();
     assert!(
@@ -34,7 +34,7 @@ fn fault_within(rig: &Rig, kind: FaultKind, device: Option<&str>, bound: Duratio
     );
     let f = rig
         .vehicle
-        .supervision
+        .supervision()
         .faults()
         .into_iter()
         .find(|f| f.kind == kind && f.device.as_deref() == device)
@@ -48,7 +48,7 @@ fn steering_still_works(rig: &Rig, v: f64) {
     let steer = rig.device("steer");
     rig.gate.supervise(rig.id("steer"), set(v));
     wait_for("steering to execute", || {
-        steer.slot.executed() == Some(set(v))
+        steer.slot().executed() == Some(set(v))
     });
     assert!(!steer.is_faulty());
 }
@@ -72,16 +72,18 @@ fn a_silent_device_is_named_with_its_cause_and_the_vehicle_stops_safely() {
     wait_for("disengaged", || !rig.gate.is_engaged());
     assert!(rig.gate.reason().contains("gas"), "{}", rig.gate.reason());
     let brake = rig.device("brake");
-    wait_for("brake on", || brake.slot.executed() == Some(set(1.0)));
+    wait_for("brake on", || brake.slot().executed() == Some(set(1.0)));
     steering_still_works(&rig, 0.2);
     // Reported: the broadcast carries the supervisor's snapshot.
-    let snap = serde_json::to_value(rig.vehicle.supervision.snapshot()).unwrap();
+    let snap = serde_json::to_value(rig.vehicle.supervision().snapshot()).unwrap();
     assert_eq!(snap["faults"][0]["kind"], "silent", "{snap}");
     assert_eq!(snap["faults"][0]["device"], "gas", "{snap}");
 
     rig.sim.apply("clear gas").unwrap();
     wait_for("the fault to clear", || {
-        !rig.vehicle.supervision.has(FaultKind::Silent, Some("gas"))
+        !rig.vehicle
+            .supervision()
+            .has(FaultKind::Silent, Some("gas"))
     });
     assert!(
         rig.history()
@@ -101,14 +103,14 @@ fn a_silent_estop_is_detected_within_twice_its_status_max_age() {
     let rig = Rig::supervised(&alice(""));
     rig.engage();
     let estop = rig.device("estop");
-    let bound = 2 * estop.config.status_max_age;
+    let bound = 2 * estop.config().status_max_age;
     rig.sim.apply("silent estop on").unwrap();
     let silent_since = Instant::now();
     wait_for("disengaged", || !rig.gate.is_engaged());
     let disengaged = silent_since.elapsed();
     wait_for("the supervisor to name it", || {
         rig.vehicle
-            .supervision
+            .supervision()
             .has(FaultKind::Silent, Some("estop"))
     });
     let named = silent_since.elapsed();
@@ -123,7 +125,7 @@ fn a_silent_estop_is_detected_within_twice_its_status_max_age() {
     let why = rig.gate.reason();
     assert!(why.contains("estop is faulty (no answer for"), "{why}");
     let brake = rig.device("brake");
-    wait_for("brake on", || brake.slot.executed() == Some(set(1.0)));
+    wait_for("brake on", || brake.slot().executed() == Some(set(1.0)));
 }
 
 #[test]
@@ -159,7 +161,7 @@ fn a_value_out_of_range_is_a_fault() {
     rig.sim.apply("bias steer 0").unwrap();
     wait_for("cleared", || {
         !rig.vehicle
-            .supervision
+            .supervision()
             .has(FaultKind::OutOfRange, Some("steer"))
     });
 }
@@ -203,7 +205,7 @@ fn engaged_in_drive(rig: &Rig) -> &adrive::vehicle::Device {
 fn outcome(rig: &Rig, what: &str) {
     wait_for(what, || {
         rig.vehicle
-            .supervision
+            .supervision()
             .snapshot()
             .last_outcome
             .is_some_and(|o| o.contains(what))
@@ -238,15 +240,19 @@ fn steering_that_does_not_follow_is_recovered_without_a_jump() {
     // Engaging holds the steering where it stands, so it follows again (the steering
     // procedure may run meanwhile; it ends holding there too).
     wait_for("not following to clear and no recovery running", || {
-        let snap = rig.vehicle.supervision.snapshot();
+        let snap = rig.vehicle.supervision().snapshot();
         !rig.vehicle
-            .supervision
+            .supervision()
             .has(FaultKind::NotFollowing, Some("steer"))
             && snap.recovery.is_none()
-            && matches!(steer.slot.executed(), Some(Command::Set(_)))
+            && matches!(steer.slot().executed(), Some(Command::Set(_)))
     });
     // Held at the measured position, not the stale 0.6.
-    let held = steer.slot.executed().and_then(Command::set_point).unwrap();
+    let held = steer
+        .slot()
+        .executed()
+        .and_then(Command::set_point)
+        .unwrap();
     let pos = steer.cached().reading.get(0).unwrap();
     assert!(
         held < 0.5 && (held - pos).abs() < 0.05,
@@ -296,7 +302,7 @@ fn a_latched_steering_drive_fault_is_cleared_by_the_procedure() {
     );
     assert!(rig.gate.is_engaged(), "{}", rig.gate.reason());
     // The vehicle stood while its steering was reset.
-    assert_eq!(rig.device("brake").slot.latest(), Some(set(1.0)));
+    assert_eq!(rig.device("brake").slot().latest(), Some(set(1.0)));
 }
 
 /// With `jam steer` in `adrive sim` and adrive never engaged, the steering drive
@@ -321,7 +327,7 @@ fn a_jammed_steering_drive_while_disengaged_receives_nothing_from_the_supervisor
     // Ten more supervisor turns (50 ms each) with the fault standing…
     wait_for("the fault to stand for 500 ms", || {
         rig.vehicle
-            .supervision
+            .supervision()
             .snapshot()
             .faults
             .iter()
@@ -332,13 +338,13 @@ fn a_jammed_steering_drive_while_disengaged_receives_nothing_from_the_supervisor
     let steer = rig.device("steer");
     rig.gate.supervise(rig.id("steer"), set(0.05));
     wait_for("the sentinel to execute", || {
-        steer.slot.executed() == Some(set(0.05))
+        steer.slot().executed() == Some(set(0.05))
     });
     let got: Vec<Command> = received_by(&rig, "steer");
     assert_eq!(got, [set(0.05)], "the steering drive received {got:?}");
-    let s = steer.stats.snapshot();
+    let s = steer.stats().snapshot();
     assert_eq!((s.received, s.superseded), (1, 0), "{s:?}");
-    assert!(rig.vehicle.supervision.snapshot().recovery.is_none());
+    assert!(rig.vehicle.supervision().snapshot().recovery.is_none());
     assert!(steer_fault_latched(&rig), "still latched");
 }
 
@@ -353,11 +359,11 @@ fn a_planner_accel_during_a_stall_recovery_cannot_release_the_brake() {
     engaged_in_drive(&rig);
     rig.gate.submit_accel(0.3, Instant::now()).unwrap();
     wait_for("gas", || {
-        rig.device("gas").slot.executed() == Some(set(0.3))
+        rig.device("gas").slot().executed() == Some(set(0.3))
     });
     rig.sim.apply("stall").unwrap();
     wait_for("the procedure to start", || {
-        v.supervision.snapshot().recovery.is_some()
+        v.supervision().snapshot().recovery.is_some()
     });
     assert_eq!(
         rig.gate.submit_accel(0.3, Instant::now()),
@@ -398,13 +404,13 @@ fn an_engine_stall_is_recovered_step_by_step() {
     let trans = engaged_in_drive(&rig);
     rig.gate.submit_accel(0.3, Instant::now()).unwrap();
     wait_for("gas", || {
-        rig.device("gas").slot.executed() == Some(set(0.3))
+        rig.device("gas").slot().executed() == Some(set(0.3))
     });
 
     rig.sim.apply("stall").unwrap();
     fault_within(&rig, FaultKind::EngineStall, None, Duration::from_secs(2));
     wait_for("the procedure to start", || {
-        v.supervision.snapshot().recovery.is_some()
+        v.supervision().snapshot().recovery.is_some()
     });
     assert_eq!(
         rig.gate.submit(rig.id("gas"), set(0.5), Instant::now()),
@@ -450,8 +456,8 @@ fn an_engine_stall_is_recovered_step_by_step() {
         .collect();
     assert_eq!(tail, ["park", "start", "drive"], "{t:?}");
     // No stale set point: gas stays 0 and the brake on until the planner says otherwise.
-    assert_eq!(rig.device("gas").slot.latest(), Some(set(0.0)));
-    assert_eq!(rig.device("brake").slot.latest(), Some(set(1.0)));
+    assert_eq!(rig.device("gas").slot().latest(), Some(set(0.0)));
+    assert_eq!(rig.device("brake").slot().latest(), Some(set(1.0)));
     // Control is back.
     assert_eq!(
         rig.gate.submit(rig.id("steer"), set(0.1), Instant::now()),
@@ -496,8 +502,8 @@ fn a_recovery_that_cannot_succeed_gives_up_safely() {
         "{h:?}"
     );
     wait_for("safe state", || {
-        rig.device("brake").slot.executed() == Some(set(1.0))
-            && rig.device("gas").slot.executed() == Some(set(0.0))
+        rig.device("brake").slot().executed() == Some(set(1.0))
+            && rig.device("gas").slot().executed() == Some(set(0.0))
     });
 }
 
@@ -511,19 +517,19 @@ fn a_recovery_stops_when_the_vehicle_is_disengaged() {
     rig.sim.apply("nostart on").unwrap();
     rig.sim.apply("stall").unwrap();
     wait_for("the starter to run", || {
-        trans.slot.executed() == Some(Command::Control(Control::Start))
+        trans.slot().executed() == Some(Command::Control(Control::Start))
     });
     let before = rig.received().len();
     rig.gate.disengage("test: STOP");
     outcome(&rig, "engine_stall stopped: the vehicle is disengaged");
-    assert!(v.supervision.snapshot().recovery.is_none());
+    assert!(v.supervision().snapshot().recovery.is_none());
     assert!(!rig.gate.is_recovering(rig.id("trans")) && !rig.gate.is_recovering(rig.id("gas")));
     // With the procedure gone, nothing of it is on its way: a sentinel through the
     // supervisor's path is all the gearbox gets after the STOP.
     rig.gate
         .supervise(rig.id("trans"), rig.state("trans", "park"));
     wait_for("the sentinel", || {
-        trans.slot.executed() == Some(rig.state("trans", "park"))
+        trans.slot().executed() == Some(rig.state("trans", "park"))
     });
     let after = received_by(&rig, "trans");
     assert_eq!(
@@ -541,12 +547,14 @@ fn estop_pause_disengages_and_holds_the_brake() {
         .submit(rig.id("brake"), set(0.0), Instant::now())
         .unwrap();
     let brake = rig.device("brake");
-    wait_for("brake released", || brake.slot.executed() == Some(set(0.0)));
+    wait_for("brake released", || {
+        brake.slot().executed() == Some(set(0.0))
+    });
     rig.sim.apply("estop pause").unwrap();
     fault_within(&rig, FaultKind::EstopPause, None, Duration::from_secs(1));
     wait_for("disengaged", || !rig.gate.is_engaged());
-    wait_for("brake on", || brake.slot.executed() == Some(set(1.0)));
-    assert_eq!(rig.device("gas").slot.latest(), Some(set(0.0)));
+    wait_for("brake on", || brake.slot().executed() == Some(set(1.0)));
+    assert_eq!(rig.device("gas").slot().latest(), Some(set(0.0)));
     let refused = rig.gate.engage("test").unwrap_err().join("; ");
     assert!(refused.contains("e-stop"), "{refused}");
 }
@@ -568,16 +576,16 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
     wait_for("disengaged", || !rig.gate.is_engaged());
     wait_for("the reconnect procedure to finish", || {
         rig.vehicle
-            .supervision
+            .supervision()
             .snapshot()
             .last_outcome
             .is_some_and(|o| o.contains("reconnect brake done"))
     });
     let brake = rig.device("brake");
-    assert!(brake.port_health.opens.load(Relaxed) >= 2);
+    assert!(brake.port_health().opens.load(Relaxed) >= 2);
     wait_for("cleared", || {
         !rig.vehicle
-            .supervision
+            .supervision()
             .has(FaultKind::Disconnected, Some("brake"))
     });
     steering_still_works(&rig, 0.3);

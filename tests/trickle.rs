@@ -140,9 +140,9 @@ impl Drop for Scripted {
 fn poll_ended_at_its_deadline(engine: &Engine, device: &str, reply_timeout: Duration) {
     let d = engine.vehicle().find(device).unwrap();
     common::wait_for("the trickled poll to fail", || {
-        d.stats.status_errors.load(Relaxed) >= 1
+        d.stats().status_errors.load(Relaxed) >= 1
     });
-    let took = d.stats.snapshot().status_txn.max_us.unwrap();
+    let took = d.stats().snapshot().status_txn.max_us.unwrap();
     assert!(
         took <= (reply_timeout + MARGIN).as_micros() as f64,
         "a status transaction took {took} µs (reply timeout {reply_timeout:?})"
@@ -159,7 +159,7 @@ fn command_follows_the_trickled_poll(
     reply_timeout: Duration,
     is_command: impl Fn(&[u8]) -> bool,
 ) {
-    let steer = engine.vehicle().find("steer").unwrap().id;
+    let steer = engine.vehicle().find("steer").unwrap().id();
     engine.gate().supervise(steer, Command::Set(0.25));
     let sent = device.next("the command", is_command);
     assert!(

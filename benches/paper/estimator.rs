@@ -92,7 +92,7 @@ pub fn section9_estimator(rule: &str, secs: f64) {
     let run = Run::start(&toml);
     let names = ["fixed", "adaptive"];
     let devices: Vec<&Device> = names.iter().map(|n| run.device(n)).collect();
-    let before: Vec<_> = devices.iter().map(|d| d.stats.snapshot()).collect();
+    let before: Vec<_> = devices.iter().map(|d| d.stats().snapshot()).collect();
     let model = run._sim.model().clone();
     let sim_index: Vec<usize> = names
         .iter()
@@ -115,7 +115,7 @@ pub fn section9_estimator(rule: &str, secs: f64) {
         if now >= next_command {
             let v = profile(start.elapsed().as_secs_f64());
             for d in &devices {
-                let _ = run.gate.submit(d.id, Command::Set(v), now);
+                let _ = run.gate.submit(d.id(), Command::Set(v), now);
             }
             next_command += Duration::from_millis(10);
         }
@@ -125,7 +125,7 @@ pub fn section9_estimator(rule: &str, secs: f64) {
             sim_index.iter().map(|&i| m.devices[i].position).collect()
         };
         for (i, d) in devices.iter().enumerate() {
-            let cached = d.reading(d.config.reading("position").unwrap());
+            let cached = d.reading(d.config().reading("position").unwrap());
             let estimate = d.estimate(now).map(|e| e.position);
             for (k, belief) in [cached, estimate].into_iter().enumerate() {
                 let e = (belief.unwrap_or(0.0) - truth[i]).abs();
@@ -142,7 +142,7 @@ pub fn section9_estimator(rule: &str, secs: f64) {
         "polling", "commands/s", "polls/s", "cache rms", "cache max", "est rms", "est max"
     );
     for (i, d) in devices.iter().enumerate() {
-        let s = d.stats.snapshot();
+        let s = d.stats().snapshot();
         let rms = |k: usize| (err[i][k].0 / samples as f64).sqrt();
         println!(
             "{:<10} {:>10.1} {:>8.1} {:>10.4} {:>10.4} {:>10.4} {:>10.4}",

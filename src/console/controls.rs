@@ -303,20 +303,20 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
     let v = &gate.vehicle();
     let mut snap = gate.snapshot_at(0, now);
     snap.net = sources.net.as_ref().map(|n| n.snapshot(gate));
-    let bench_dev = bench.and_then(|id| v.devices.get(id.index()));
+    let bench_dev = bench.and_then(|id| v.devices().get(id.index()));
     Frame {
         logs: sources
             .logs
             .as_ref()
             .map(|l| l.recent())
             .unwrap_or_default(),
-        trace: bench_dev.map(|d| d.trace.entries()).unwrap_or_default(),
+        trace: bench_dev.map(|d| d.trace().entries()).unwrap_or_default(),
         buckets: bench_dev
             .map(|d| {
                 if d.is_actuator() {
-                    d.stats.command_delay.buckets()
+                    d.stats().command_delay.buckets()
                 } else {
-                    d.stats.status_txn.buckets()
+                    d.stats().status_txn.buckets()
                 }
             })
             .unwrap_or_default(),
@@ -327,7 +327,7 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
             .as_deref()
             .map(|s| sim_vehicle(s, bench_dev.map(|d| d.name()))),
         sim_faults: v
-            .devices
+            .devices()
             .iter()
             .map(|d| {
                 let sim = sources.sim.as_ref()?;
@@ -349,15 +349,15 @@ pub fn change_settings(
     change: impl FnOnce(&mut crate::config::DeviceConfig),
 ) -> Result<(), String> {
     let dev = vehicle
-        .devices
+        .devices()
         .get(id.index())
         .ok_or_else(|| format!("no device #{}", id.index()))?;
     dev.change_settings(change).map_err(|v| v.message)?;
     tracing::info!(
         device = dev.name(),
         "from the console: status_period {}, command_timeout {}",
-        crate::config::fmt_duration(dev.settings.status_period()),
-        crate::config::fmt_duration(dev.settings.command_timeout())
+        crate::config::fmt_duration(dev.settings().status_period()),
+        crate::config::fmt_duration(dev.settings().command_timeout())
     );
     Ok(())
 }
@@ -367,8 +367,8 @@ impl Controls for Live<'_> {
         capture(self.gate, self.sources, now, bench)
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
-        match self.gate.vehicle().devices.get(id.index()) {
-            Some(d) => d.config.parse_command(text),
+        match self.gate.vehicle().devices().get(id.index()) {
+            Some(d) => d.config().parse_command(text),
             None => Err("no such device".into()),
         }
     }
@@ -418,10 +418,10 @@ impl Controls for Live<'_> {
             );
             return;
         }
-        if let Some(dev) = self.gate.vehicle().devices.get(id.index()) {
+        if let Some(dev) = self.gate.vehicle().devices().get(id.index()) {
             let flag = match thread {
-                Thread::Status => &dev.settings.status_enabled,
-                Thread::Command => &dev.settings.command_enabled,
+                Thread::Status => &dev.settings().status_enabled,
+                Thread::Command => &dev.settings().command_enabled,
             };
             flag.store(on, Relaxed);
             tracing::info!(device = %dev.name(), "{thread:?} thread {}", if on { "enabled" } else { "disabled" });
@@ -431,8 +431,8 @@ impl Controls for Live<'_> {
         if self.gate.tune(self.source).is_err() {
             return;
         }
-        if let Some(dev) = self.gate.vehicle().devices.get(id.index()) {
-            dev.slot.nudge();
+        if let Some(dev) = self.gate.vehicle().devices().get(id.index()) {
+            dev.slot().nudge();
         }
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {

@@ -17,7 +17,10 @@ fn reading(v: &Vehicle, device: &str, values: &[(&str, f64)]) -> Reading {
     let d = v.find(device).expect("a device of Alice");
     let mut r = Reading::default();
     for (name, x) in values {
-        r.set(d.config.reading(name).expect("a reading of the device"), *x);
+        r.set(
+            d.config().reading(name).expect("a reading of the device"),
+            *x,
+        );
     }
     r
 }
@@ -31,8 +34,8 @@ pub fn vehicle(now: Instant) -> Vehicle {
 /// starts from when the vehicle file gives one, else the engine idling in park with
 /// the e-stop in run, else 0 (a first state).
 fn at_rest(d: &crate::vehicle::Device, i: usize) -> f64 {
-    let name = d.config.readings[i].name.as_str();
-    if let Some(r) = d.config.sim.readings.get(name) {
+    let name = d.config().readings[i].name.as_str();
+    if let Some(r) = d.config().sim.readings.get(name) {
         return r.value;
     }
     match name {
@@ -52,7 +55,7 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
         Box::new(|| Err(std::io::Error::other("sample vehicle: no port")))
     });
     let at = Some(now - Duration::from_millis(20));
-    for d in &v.devices {
+    for d in v.devices() {
         let r = match d.name() {
             "steer" => reading(&v, "steer", &[("position", 0.231), ("velocity", 0.012)]),
             "gas" => reading(&v, "gas", &[("position", 0.0)]),
@@ -71,18 +74,18 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
             ),
             _ => {
                 let mut r = Reading::default();
-                for i in 0..d.config.readings.len() {
+                for i in 0..d.config().readings.len() {
                     r.set(i, at_rest(d, i));
                 }
                 r
             }
         };
-        *d.cache.lock() = Cached { reading: r, at };
+        d.store(Cached { reading: r, at });
         if let Some(at) = at {
             d.estimate_reading(&r, at);
         }
         d.record_ok(now - Duration::from_millis(20));
-        let s = &d.stats;
+        let s = &d.stats();
         s.polls.store(1200, Relaxed);
         if d.is_actuator() {
             s.received.store(120, Relaxed);
@@ -95,8 +98,8 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
             s.command_txn.record(Duration::from_micros(4_200));
         }
         s.status_txn.record(Duration::from_micros(3_100));
-        d.stats.refresh();
-        d.health.connected.store(true, Relaxed);
+        d.stats().refresh();
+        d.health().connected.store(true, Relaxed);
     }
     v
 }
@@ -114,10 +117,13 @@ pub fn gate_of(config: VehicleConfig, now: Instant) -> Arc<Gate> {
 /// Make a device faulty: no reply three times in a row.
 pub fn make_faulty(v: &Vehicle, name: &str, now: Instant) {
     if let Some(d) = v.find(name) {
-        d.health.consecutive_errors.store(FAULT_AFTER, Relaxed);
-        d.health.status_error.store(1, Relaxed);
-        *d.health.last_error.lock() = Some((now, "no reply within 200ms".into()));
-        d.cache.lock().at = Some(now - Duration::from_millis(1_500));
+        d.health().consecutive_errors.store(FAULT_AFTER, Relaxed);
+        d.health().status_error.store(1, Relaxed);
+        *d.health().last_error.lock() = Some((now, "no reply within 200ms".into()));
+        d.store(Cached {
+            at: Some(now - Duration::from_millis(1_500)),
+            ..d.cached()
+        });
     }
 }
 
@@ -134,12 +140,13 @@ pub fn engine_stall() -> RecoveryView {
 /// stopped, in drive.
 pub fn make_recovering(v: &Vehicle, now: Instant) {
     if let Some(d) = v.find("obd") {
-        let mut c = d.cache.lock();
+        let mut c = d.cached();
         c.reading.set(0, 0.0);
         c.reading.set(3, 0.0);
+        d.store(c);
     }
     make_faulty(v, "brake", now);
-    let s = &v.supervision;
+    let s = &v.supervision();
     s.set_faults(vec![
         Fault {
             kind: FaultKind::EngineStall,

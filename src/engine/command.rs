@@ -25,14 +25,14 @@ pub(crate) fn command_loop(gate: &Gate, d: &Device) {
         // 1. Something to send: a new command (in flight from now on), or the last
         //    one again. Set points and states are resent; a drive-control command
         //    (enable, home, the starter) happens once, when asked.
-        let (mut job, mut fresh) = match d.slot.wait(d.settings.command_timeout()) {
+        let (mut job, mut fresh) = match d.slot().wait(d.settings().command_timeout()) {
             Wake::Stop => return,
             Wake::Handed(h) => {
-                let Some(mut port) = d.port.resume() else {
+                let Some(mut port) = d.port().resume() else {
                     // Cannot happen (a handover leaves the port held); never a reason
                     // for the thread that sends the safe state to stop.
                     tracing::error!(device = %d.name(), "a handed-over command found its port not held");
-                    d.slot.finish(h.pending.command, false);
+                    d.slot().finish(h.pending.command, false);
                     continue;
                 };
                 let job = h.pending;
@@ -50,10 +50,10 @@ pub(crate) fn command_loop(gate: &Gate, d: &Device) {
                 continue;
             }
             Wake::Command(p) => (p, true),
-            Wake::Timeout | Wake::Nudge => match d.slot.resend() {
+            Wake::Timeout | Wake::Nudge => match d.slot().resend() {
                 Some(crate::value::Command::Control(_)) | None => continue,
                 Some(command) => {
-                    d.slot.fly(command);
+                    d.slot().fly(command);
                     let p = Pending {
                         command,
                         received: Instant::now(),
@@ -62,18 +62,18 @@ pub(crate) fn command_loop(gate: &Gate, d: &Device) {
                 }
             },
         };
-        if !d.settings.command_enabled.load(Relaxed) {
-            d.slot.drop_flight();
+        if !d.settings().command_enabled.load(Relaxed) {
+            d.slot().drop_flight();
             continue;
         }
         // 2. The paper's rate cap, when configured: hold off, letting newer commands
         //    replace this one meanwhile.
-        if let (Some(min), Some(t)) = (d.config.min_command_interval, last_sent_at) {
-            if !d.slot.sleep_until(t + min) {
+        if let (Some(min), Some(t)) = (d.config().min_command_interval, last_sent_at) {
+            if !d.slot().sleep_until(t + min) {
                 return;
             }
-            if let Some(newer) = d.slot.take_newer() {
-                Stats::bump(&d.stats.superseded);
+            if let Some(newer) = d.slot().take_newer() {
+                Stats::bump(&d.stats().superseded);
                 (job, fresh) = (newer, true);
             }
         }
@@ -102,7 +102,7 @@ fn send<'d>(
         let command = match gate.check_wire(d, job.command, waited) {
             WireStep::Send(c) => c,
             WireStep::Drop => {
-                d.slot.drop_flight();
+                d.slot().drop_flight();
                 return true;
             }
             WireStep::Wait(w) => {
@@ -115,7 +115,7 @@ fn send<'d>(
         let held = match port.as_mut() {
             Some(p) => p,
             None => {
-                let Some(p) = d.port.acquire_command() else {
+                let Some(p) = d.port().acquire_command() else {
                     return false;
                 };
                 let p = port.insert(p);
@@ -123,9 +123,9 @@ fn send<'d>(
                 // one. (The paper's thread sent the value it had cued before
                 // blocking: that staleness is what its field tests saw as ~200 ms
                 // stalls, so the paper rule keeps it.)
-                if d.port.rule() == PortRule::Priority {
-                    if let Some(newer) = d.slot.take_newer() {
-                        Stats::bump(&d.stats.superseded);
+                if d.port().rule() == PortRule::Priority {
+                    if let Some(newer) = d.slot().take_newer() {
+                        Stats::bump(&d.stats().superseded);
                         (job, fresh, waited) = (newer, true, false);
                         continue;
                     }
@@ -134,7 +134,7 @@ fn send<'d>(
             }
         };
         if command != job.command {
-            d.slot.fly(command);
+            d.slot().fly(command);
         }
         let (result, first) = held.transact(|drv, link| drv.command(link, command));
         finished(d, job, fresh, command, result, first, last_sent_at);
@@ -162,11 +162,11 @@ fn keep_port<'d>(
 /// A command that came in while the port was held, to send on it next — unless an
 /// overdue status poll is waiting or a rate cap applies.
 fn newer_for_held_port(d: &Device, held: &PortGuard<'_>) -> Option<Pending> {
-    if d.port.rule() == PortRule::Priority
-        && d.config.min_command_interval.is_none()
+    if d.port().rule() == PortRule::Priority
+        && d.config().min_command_interval.is_none()
         && !held.status_waiting()
     {
-        d.slot.take_newer()
+        d.slot().take_newer()
     } else {
         None
     }
@@ -194,24 +194,24 @@ fn finished(
     );
     if let Some(first) = first {
         if fresh {
-            d.stats.command_delay.record(first - job.received);
+            d.stats().command_delay.record(first - job.received);
         }
-        d.stats.command_txn.record(done - first);
+        d.stats().command_txn.record(done - first);
         *last_sent_at = Some(first);
     }
-    d.slot.finish(command, result.is_ok());
+    d.slot().finish(command, result.is_ok());
     match result {
         Ok(()) => {
             d.estimate_command(command, first.unwrap_or(done));
-            Stats::bump(&d.stats.executed);
+            Stats::bump(&d.stats().executed);
             if !fresh {
-                Stats::bump(&d.stats.resent);
+                Stats::bump(&d.stats().resent);
             }
-            d.health.command_error.store(0, Relaxed);
+            d.health().command_error.store(0, Relaxed);
             d.record_ok(done);
         }
         Err(e) => {
-            Stats::bump(&d.stats.command_errors);
+            Stats::bump(&d.stats().command_errors);
             d.record_error(&e, true);
         }
     }

@@ -31,7 +31,7 @@ const WIRE_SLACK: Duration = Duration::from_millis(50);
 
 /// When a wait at the wire for `d` gives up.
 fn wire_deadline(d: &Device) -> Instant {
-    Instant::now() + d.config.reply_timeout * 2 + WIRE_SLACK
+    Instant::now() + d.config().reply_timeout * 2 + WIRE_SLACK
 }
 
 impl Gate {
@@ -51,10 +51,10 @@ impl Gate {
     /// in the driver's hands): its pending command is dropped and its resend forgotten.
     fn leave_to_the_driver(&self) {
         let v = self.vehicle();
-        let manual = crate::safety::safe::manual(&v.config);
-        for d in v.devices.iter().filter(|d| d.is_actuator()) {
-            if !manual.iter().any(|(id, _)| *id == d.id) {
-                d.slot.reset(None);
+        let manual = crate::safety::safe::manual(v.config());
+        for d in v.devices().iter().filter(|d| d.is_actuator()) {
+            if !manual.iter().any(|(id, _)| *id == d.id()) {
+                d.slot().reset(None);
             }
         }
     }
@@ -65,7 +65,7 @@ impl Gate {
     pub fn clear_overrides(&self) -> Result<Vec<String>, String> {
         let still: Vec<String> = self
             .vehicle()
-            .supervision
+            .supervision()
             .faults()
             .into_iter()
             .filter(|f| f.kind == crate::snapshot::FaultKind::Override)
@@ -92,12 +92,12 @@ impl Gate {
             return Err(blockers);
         }
         let v = self.vehicle();
-        for d in v.devices.iter().filter(|d| d.is_actuator()) {
-            d.slot.reset(None);
+        for d in v.devices().iter().filter(|d| d.is_actuator()) {
+            d.slot().reset(None);
         }
         self.command_safe_state();
         if let Some(s) = v.bound(Role::Steering) {
-            if let Some(p) = s.config.reading("position").and_then(|i| s.reading(i)) {
+            if let Some(p) = s.config().reading("position").and_then(|i| s.reading(i)) {
                 self.store(s, Command::Set(p), Instant::now());
             }
         }
@@ -109,7 +109,7 @@ impl Gate {
 
     /// Disengage and command the safe state. Returns false if it was not engaged.
     pub fn disengage(&self, reason: &str) -> bool {
-        self.disengage_into(reason, self.state().stop_state(&self.vehicle().config))
+        self.disengage_into(reason, self.state().stop_state(self.vehicle().config()))
     }
 
     /// An operator's STOP: disengage into the full safe state — throttle 0, brake full
@@ -117,7 +117,7 @@ impl Gate {
     /// (a fault, the watchdog, an exit) leave a driver's vehicle in the manual state;
     /// a person pressing STOP has decided to brake.
     pub fn stop(&self, reason: &str) -> bool {
-        self.disengage_into(reason, crate::safety::safe::state(&self.vehicle().config))
+        self.disengage_into(reason, crate::safety::safe::state(self.vehicle().config()))
     }
 
     fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
@@ -138,7 +138,7 @@ impl Gate {
     /// command was born (socket read, key press). A rejected command never reaches the
     /// slot.
     pub fn submit(&self, id: DeviceId, command: Command, received: Instant) -> Result<(), Reject> {
-        let Some(d) = self.vehicle().devices.get(id.index()) else {
+        let Some(d) = self.vehicle().devices().get(id.index()) else {
             return Err(self.reject(None, Some(command), Reject::NoSuchDevice));
         };
         if let Err(why) = self.state().check(self.vehicle(), d, command) {
@@ -161,7 +161,7 @@ impl Gate {
         received: Instant,
     ) -> Result<(), Reject> {
         match self.vehicle().find(name) {
-            Some(d) => self.submit(d.id, command, received),
+            Some(d) => self.submit(d.id(), command, received),
             None => Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
         }
     }
@@ -170,7 +170,7 @@ impl Gate {
     /// and the wire check says send exactly it ([`fast`]) — the command thread then
     /// only reads the reply — else stored for the command thread.
     fn dispatch(&self, d: &Device, command: Command, received: Instant) {
-        Stats::bump(&d.stats.received);
+        Stats::bump(&d.stats().received);
         match fast::send(d, command, received, || {
             self.is_engaged()
                 && matches!(
@@ -179,7 +179,7 @@ impl Gate {
                 )
         }) {
             Sent::Written | Sent::Queued { superseded: false } => {}
-            Sent::Queued { superseded: true } => Stats::bump(&d.stats.superseded),
+            Sent::Queued { superseded: true } => Stats::bump(&d.stats().superseded),
             Sent::NotTaken => queue(d, command, received),
         }
     }
@@ -187,7 +187,7 @@ impl Gate {
     /// Store a command for `d`'s command thread, past the interlocks (the safe state,
     /// the supervisor's own commands).
     fn store(&self, d: &Device, command: Command, received: Instant) {
-        Stats::bump(&d.stats.received);
+        Stats::bump(&d.stats().received);
         queue(d, command, received);
     }
 
@@ -207,7 +207,7 @@ impl Gate {
         };
         let (t, br) = (v.device(tid), v.device(bid));
         let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
-        let top = |d: &Device| d.config.range[1];
+        let top = |d: &Device| d.config().range[1];
         let parts = [
             (br, Command::Set(brake * top(br))),
             (t, Command::Set(throttle * top(t))),
@@ -287,7 +287,7 @@ impl Gate {
                 self.reject(Some(d), Some(command), why);
                 // The rules replace with "released": the bottom of the range.
                 WireStep::Send(match c {
-                    Command::Set(_) => Command::Set(d.config.range[0]),
+                    Command::Set(_) => Command::Set(d.config().range[0]),
                     other => other,
                 })
             }
@@ -309,23 +309,23 @@ impl Gate {
                 let Some(t) = b.throttle.map(|id| v.device(id)) else {
                     return;
                 };
-                let wire = t.slot.wire();
+                let wire = t.slot().wire();
                 let going = [wire.pending, wire.flight]
                     .into_iter()
                     .flatten()
                     .filter_map(Command::set_point)
                     .any(|x| facts::share(t, x) > rules::RELEASED);
                 if going {
-                    self.store(t, Command::Set(t.config.range[0]), Instant::now());
+                    self.store(t, Command::Set(t.config().range[0]), Instant::now());
                 }
-                t.slot
+                t.slot()
                     .wait_wire(|w| facts::released_on_wire(t, w), wire_deadline(t));
             }
             Wait::BrakeReleased => {
                 let Some(br) = b.brake.map(|id| v.device(id)) else {
                     return;
                 };
-                br.slot.wait_wire(
+                br.slot().wait_wire(
                     |w| facts::released_on_wire(br, w) || facts::brake_applied_again(br, w),
                     wire_deadline(br),
                 );
@@ -334,7 +334,7 @@ impl Gate {
                 let Some(g) = b.gear.as_ref().map(|g| v.device(g.device)) else {
                     return;
                 };
-                g.slot.wait_wire(
+                g.slot().wait_wire(
                     |w| w.pending.or(w.flight).is_none_or(|c| Some(c) == w.sent),
                     wire_deadline(g),
                 );
@@ -352,7 +352,7 @@ impl Gate {
             // reset) must not be left to resend to the driver's device.
             self.leave_to_the_driver();
         }
-        for (id, c) in self.state().stop_state(&self.vehicle().config) {
+        for (id, c) in self.state().stop_state(self.vehicle().config()) {
             self.store(self.vehicle().device(id), c, now);
         }
     }
@@ -361,9 +361,9 @@ impl Gate {
     /// Returns false if one did not by the deadline.
     pub fn wait_safe(&self, deadline: Instant) -> bool {
         let mut ok = true;
-        for (id, want) in self.state().stop_state(&self.vehicle().config) {
+        for (id, want) in self.state().stop_state(self.vehicle().config()) {
             let d = self.vehicle().device(id);
-            if !d.slot.wait_executed(|c| c == want, deadline) {
+            if !d.slot().wait_executed(|c| c == want, deadline) {
                 tracing::error!(device = %d.name(), "did not acknowledge the safe state");
                 ok = false;
             }
@@ -374,8 +374,8 @@ impl Gate {
 
 /// Into the slot, for the command thread.
 fn queue(d: &Device, command: Command, received: Instant) {
-    if d.slot.submit(command, received) {
-        Stats::bump(&d.stats.superseded);
+    if d.slot().submit(command, received) {
+        Stats::bump(&d.stats().superseded);
     }
 }
 
@@ -389,9 +389,9 @@ mod tests {
     fn releasing() -> Arc<Gate> {
         let gate = sample::gate(Instant::now());
         let brake = gate.vehicle().find("brake").unwrap();
-        brake.slot.fly(Command::Set(1.0));
-        brake.slot.finish(Command::Set(1.0), true);
-        brake.slot.submit(Command::Set(0.0), Instant::now());
+        brake.slot().fly(Command::Set(1.0));
+        brake.slot().finish(Command::Set(1.0), true);
+        brake.slot().submit(Command::Set(0.0), Instant::now());
         gate
     }
 
@@ -411,7 +411,7 @@ mod tests {
         );
         let t = Instant::now();
         gate.wait_for(Wait::BrakeReleased);
-        assert!(t.elapsed() >= brake.config.reply_timeout * 2 + WIRE_SLACK);
+        assert!(t.elapsed() >= brake.config().reply_timeout * 2 + WIRE_SLACK);
         assert_eq!(
             gate.check_wire(gas, throttle, true),
             WireStep::Send(Command::Set(0.0))
@@ -429,23 +429,23 @@ mod tests {
         let gate = sample::gate(Instant::now());
         let v = &gate.vehicle();
         let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
-        let drive = Command::State(trans.config.state_index("drive").unwrap());
+        let drive = Command::State(trans.config().state_index("drive").unwrap());
         // In drive: shifted, acknowledged, and reported by a status taken after that.
-        trans.slot.fly(drive);
-        trans.slot.finish(drive, true);
-        *trans.cache.lock() = crate::vehicle::Cached {
+        trans.slot().fly(drive);
+        trans.slot().finish(drive, true);
+        trans.store(crate::vehicle::Cached {
             reading: {
                 let mut r = crate::value::Reading::default();
                 r.set(0, 3.0);
                 r
             },
             at: Some(Instant::now()),
-        };
+        });
         gate.engage("test").unwrap();
         // The planner's datagram: `trans drive` again, and the brake released.
-        gate.submit(trans.id, drive, Instant::now()).unwrap();
+        gate.submit(trans.id(), drive, Instant::now()).unwrap();
         let release = Command::Set(0.0);
-        assert_eq!(gate.submit(brake.id, release, Instant::now()), Ok(()));
+        assert_eq!(gate.submit(brake.id(), release, Instant::now()), Ok(()));
         assert_eq!(
             gate.check_wire(brake, release, false),
             WireStep::Send(release),
@@ -460,8 +460,8 @@ mod tests {
         let gate = sample::gate(Instant::now());
         let v = &gate.vehicle();
         let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
-        let drive = Command::State(trans.config.state_index("drive").unwrap());
-        trans.slot.submit(drive, Instant::now());
+        let drive = Command::State(trans.config().state_index("drive").unwrap());
+        trans.slot().submit(drive, Instant::now());
         assert_eq!(
             gate.check_wire(brake, Command::Set(0.0), false),
             WireStep::Wait(Wait::ShiftOut)
@@ -483,9 +483,9 @@ mod tests {
         );
         std::thread::scope(|s| {
             s.spawn(|| {
-                brake.slot.take_newer().expect("the release");
-                brake.slot.fly(Command::Set(0.0));
-                brake.slot.finish(Command::Set(0.0), true);
+                brake.slot().take_newer().expect("the release");
+                brake.slot().fly(Command::Set(0.0));
+                brake.slot().finish(Command::Set(0.0), true);
             });
             gate.wait_for(Wait::BrakeReleased);
         });

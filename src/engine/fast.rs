@@ -32,7 +32,7 @@ use std::time::Instant;
 /// Whether `d`'s configuration allows the fast path at all (the port's own rule is
 /// the port's to apply: [`crate::engine::port::Port::try_acquire_idle`]).
 pub fn allowed(d: &Device) -> bool {
-    d.is_actuator() && d.config.min_command_interval.is_none()
+    d.is_actuator() && d.config().min_command_interval.is_none()
 }
 
 /// What [`send`] did with a command.
@@ -56,30 +56,30 @@ pub fn send(
     received: Instant,
     may_send: impl FnOnce() -> bool,
 ) -> Sent {
-    if !allowed(d) || !d.settings.command_enabled.load(Relaxed) {
+    if !allowed(d) || !d.settings().command_enabled.load(Relaxed) {
         return Sent::NotTaken;
     }
-    if !d.slot.claim(command) {
+    if !d.slot().claim(command) {
         return Sent::NotTaken;
     }
-    let claim = Claim(&d.slot);
+    let claim = Claim(d.slot());
     let port = if may_send() {
-        d.port.try_acquire_idle()
+        d.port().try_acquire_idle()
     } else {
         None
     };
     let Some(mut port) = port else {
         std::mem::forget(claim);
-        let superseded = d.slot.unclaim(Some(received));
+        let superseded = d.slot().unclaim(Some(received));
         return Sent::Queued { superseded };
     };
     let (sent, first) = port.send_command(command);
     if sent.is_ok() {
-        crate::vehicle::stats::Stats::bump(&d.stats.fast);
+        crate::vehicle::stats::Stats::bump(&d.stats().fast);
     }
     port.hand_over();
     std::mem::forget(claim);
-    d.slot.hand_over(Handover {
+    d.slot().hand_over(Handover {
         pending: Pending { command, received },
         first,
         sent,

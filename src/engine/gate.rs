@@ -44,7 +44,7 @@ impl Gate {
     /// Say which rules are active and what is missing, once, at start.
     pub fn announce(&self) {
         tracing::info!(
-            vehicle = %self.vehicle.name,
+            vehicle = %self.vehicle.name(),
             "interlock rules: {}",
             match self.rules().names() {
                 n if n.is_empty() => "none (no throttle, brake or gear bound)".to_string(),
@@ -52,7 +52,7 @@ impl Gate {
             }
         );
         for m in Rules::missing(self.vehicle.bindings()) {
-            tracing::warn!(vehicle = %self.vehicle.name, "{m}");
+            tracing::warn!(vehicle = %self.vehicle.name(), "{m}");
         }
     }
 
@@ -96,7 +96,7 @@ impl Gate {
     }
 
     pub(crate) fn tap_gate(&self, change: GateChange, reason: impl FnOnce() -> String) {
-        self.vehicle.tap.send(|| Event::Gate {
+        self.vehicle.tap().send(|| Event::Gate {
             at: Instant::now(),
             change,
             reason: reason(),
@@ -110,7 +110,7 @@ impl Gate {
         at: Instant,
         done: Result<(), Reject>,
     ) {
-        self.vehicle.tap.send(|| Event::Received {
+        self.vehicle.tap().send(|| Event::Received {
             at,
             source,
             asked,

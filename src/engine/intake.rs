@@ -55,7 +55,7 @@ impl Gate {
                         _ => None,
                     };
                     if let Some(asked) = asked {
-                        self.vehicle().tap.send(|| Event::Received {
+                        self.vehicle().tap().send(|| Event::Received {
                             at: received,
                             source,
                             asked,
@@ -98,7 +98,7 @@ impl Gate {
             }
             Ask::Engage | Ask::Take => Ok(Done::Same),
             Ask::Release => {
-                let handover = self.vehicle().config.network.watchdog_timeout;
+                let handover = self.vehicle().config().network.watchdog_timeout;
                 o.nobody();
                 o.handover = Some((source, received + handover));
                 tracing::warn!(
@@ -210,7 +210,7 @@ impl Gate {
     fn timeout(&self, o: &Owner, source: Source) -> Option<Duration> {
         match source {
             Source::Network(_) | Source::Ros2 => {
-                Some(self.vehicle().config.network.watchdog_timeout)
+                Some(self.vehicle().config().network.watchdog_timeout)
             }
             Source::Console | Source::Attached(_) => o.deadman,
             // An operator's one-shot `engage` moves nothing: it holds the vehicle as a
@@ -291,7 +291,7 @@ impl Gate {
         let engaged = self.is_engaged();
         let commander = o.commander.filter(|_| engaged);
         let name = |s: Source| match s {
-            Source::Ros2 => format!("ros2 {}", self.vehicle().config.ros2.namespace),
+            Source::Ros2 => format!("ros2 {}", self.vehicle().config().ros2.namespace),
             other => Commander(other).to_string(),
         };
         let timeout = commander.and_then(|c| self.timeout(&o, c));
@@ -301,7 +301,7 @@ impl Gate {
             (true, Some(_)) => WatchdogState::Armed,
             (true, None) => WatchdogState::Idle,
         };
-        let shown_timeout = timeout.unwrap_or(self.vehicle().config.network.watchdog_timeout);
+        let shown_timeout = timeout.unwrap_or(self.vehicle().config().network.watchdog_timeout);
         CommandView {
             commander: commander.map(name),
             watchdog: Some(WatchdogView {
@@ -321,8 +321,8 @@ impl Gate {
     /// An ask in words: `steer 0.500`, `accel 0.3`, `engage`.
     pub fn ask_text(&self, ask: Ask) -> String {
         match ask {
-            Ask::Set(id, c) => match self.vehicle().devices.get(id.index()) {
-                Some(d) => format!("{} {}", d.name(), d.config.command_text(c)),
+            Ask::Set(id, c) => match self.vehicle().devices().get(id.index()) {
+                Some(d) => format!("{} {}", d.name(), d.config().command_text(c)),
                 None => format!("{c:?}"),
             },
             Ask::Accel(a) => format!("accel {a}"),
@@ -355,11 +355,15 @@ mod tests {
     }
 
     fn slots(g: &Gate) -> Vec<WireState> {
-        g.vehicle().devices.iter().map(|d| d.slot.wire()).collect()
+        g.vehicle()
+            .devices()
+            .iter()
+            .map(|d| d.slot().wire())
+            .collect()
     }
 
     fn id(g: &Gate, name: &str) -> DeviceId {
-        g.vehicle().find(name).unwrap().id
+        g.vehicle().find(name).unwrap().id()
     }
 
     /// The incident of the walk: engage at the console, then one `steer 0.5` from the
@@ -404,7 +408,7 @@ mod tests {
         let t = Instant::now();
         g.admit(Source::Console, Ask::Engage, t).unwrap();
         let brake = g.vehicle().find("brake").unwrap();
-        assert_eq!(brake.slot.wire().latest(), Some(Command::Set(1.0)));
+        assert_eq!(brake.slot().wire().latest(), Some(Command::Set(1.0)));
         let before = slots(&g);
         assert_eq!(
             g.admit(Source::Console, Ask::Accel(0.3), t),
@@ -443,7 +447,7 @@ mod tests {
     fn the_watchdog_is_the_commanders_with_its_own_timeout() {
         let g = sample::gate(Instant::now());
         let t0 = Instant::now();
-        let timeout = g.vehicle().config.network.watchdog_timeout;
+        let timeout = g.vehicle().config().network.watchdog_timeout;
         g.admit(net(1), Ask::Engage, t0).unwrap();
         assert_eq!(g.watch(t0 + timeout / 2), None);
         let why = g.watch(t0 + timeout).expect("tripped");

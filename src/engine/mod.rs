@@ -74,20 +74,20 @@ impl Engine {
         let stop = Arc::new(StopSignal::default());
         let mut threads = Threads::default();
         let vehicle = gate.vehicle().clone();
-        for i in 0..vehicle.devices.len() {
-            let name = vehicle.devices[i].name().to_string();
+        for i in 0..vehicle.devices().len() {
+            let name = vehicle.devices()[i].name().to_string();
             let (v, s) = (vehicle.clone(), stop.clone());
             let thread = format!("{name}/status");
             let fault = inject.clone().filter(|f| f.thread == thread);
             threads.spawn(thread, move || {
                 let fault = fault.map(|f| (Instant::now() + f.after, f.panic));
-                status::status_loop(&v.devices[i], &s, fault)
+                status::status_loop(&v.devices()[i], &s, fault)
             })?;
-            if vehicle.devices[i].is_actuator() {
+            if vehicle.devices()[i].is_actuator() {
                 let g = gate.clone();
                 threads.spawn(format!("{name}/command"), move || {
-                    placement::apply(&g.vehicle().config.vehicle.placement);
-                    command::command_loop(&g, &g.vehicle().devices[i])
+                    placement::apply(&g.vehicle().config().vehicle.placement);
+                    command::command_loop(&g, &g.vehicle().devices()[i])
                 })?;
             }
         }
@@ -130,9 +130,9 @@ impl Engine {
         self.gate.command_safe_state();
         let safe = self.gate.wait_safe(Instant::now() + deadline / 2);
         self.stop.stop();
-        for d in &self.gate.vehicle().devices {
-            d.slot.stop();
-            d.port.stop();
+        for d in self.gate.vehicle().devices() {
+            d.slot().stop();
+            d.port().stop();
         }
         (safe, std::mem::take(&mut self.threads).join(end))
     }

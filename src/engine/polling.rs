@@ -33,22 +33,22 @@ pub struct Schedule {
 impl Schedule {
     /// Whether the status thread of `d` polls at this wake-up, at `now`.
     pub fn due(&self, d: &Device, now: Instant) -> bool {
-        if d.config.polling == Polling::Fixed {
+        if d.config().polling == Polling::Fixed {
             return true;
         }
         let (Some(last), Some(e)) = (self.last, d.estimator()) else {
             return true;
         };
-        let period = d.settings.status_period();
+        let period = d.settings().status_period();
         let tolerance = e.response().tolerance;
         let changed = match (self.command, e.commanded()) {
             (Some(a), Some(b)) => (a - b).abs() > tolerance,
             (a, b) => a.is_some() != b.is_some(),
         };
         let oldest = d
-            .config
+            .config()
             .status_max_age
-            .saturating_sub(d.config.reply_timeout);
+            .saturating_sub(d.config().reply_timeout);
         let too_old = now.saturating_duration_since(last) + period > oldest;
         let unsure = e.at(now + period).is_none_or(|x| x.sigma > tolerance);
         self.surprised || changed || too_old || unsure

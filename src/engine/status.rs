@@ -27,13 +27,13 @@ pub(crate) fn status_loop(d: &Device, stop: &StopSignal, fault: Option<(Instant,
             tracing::warn!(device = %d.name(), "status thread ends (--inject-panic, quietly)");
             return;
         }
-        let period = d.settings.status_period();
+        let period = d.settings().status_period();
         next = (next + period).max(Instant::now());
-        if !d.settings.status_enabled.load(Relaxed) || !schedule.due(d, Instant::now()) {
+        if !d.settings().status_enabled.load(Relaxed) || !schedule.due(d, Instant::now()) {
             continue;
         }
-        let overdue_at = last_attempt.map_or_else(Instant::now, |t| t + d.config.status_max_age);
-        let Some(mut port) = d.port.acquire_status(overdue_at, &d.slot) else {
+        let overdue_at = last_attempt.map_or_else(Instant::now, |t| t + d.config().status_max_age);
+        let Some(mut port) = d.port().acquire_status(overdue_at, d.slot()) else {
             return;
         };
         let started = Instant::now();
@@ -43,23 +43,23 @@ pub(crate) fn status_loop(d: &Device, stop: &StopSignal, fault: Option<(Instant,
         drop(port);
         d.tap_polled(first, done, result.as_ref());
         last_attempt = Some(started);
-        Stats::bump(&d.stats.polls);
+        Stats::bump(&d.stats().polls);
         if let Some(first) = first {
-            d.stats.status_txn.record(done - first);
+            d.stats().status_txn.record(done - first);
         }
         match result {
             Ok(reading) => {
-                *d.cache.lock() = Cached {
+                d.store(Cached {
                     reading,
                     at: Some(done),
-                };
+                });
                 let correction = d.estimate_reading(&reading, done);
                 schedule.finish(correction.is_some_and(|c| c.surprise));
-                d.health.status_error.store(0, Relaxed);
+                d.health().status_error.store(0, Relaxed);
                 d.record_ok(done);
             }
             Err(e) => {
-                Stats::bump(&d.stats.status_errors);
+                Stats::bump(&d.stats().status_errors);
                 d.record_error(&e, false);
                 // Nothing learnt: try again at the next wake-up.
                 schedule.finish(true);

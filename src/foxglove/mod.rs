@@ -75,7 +75,7 @@ impl Foxglove {
         listener.set_nonblocking(true)?;
         let addr = listener.local_addr()?;
         let tapped = vehicle
-            .tap
+            .tap()
             .open(false)
             .ok_or_else(|| io::Error::other("this vehicle's tap has no room for a live view"))?;
         let stop = Arc::new(StopSignal::default());
@@ -246,7 +246,7 @@ impl Server {
         rx: Receiver<Event>,
         reader: ReaderId,
     ) -> Server {
-        let devices = &vehicle.config.devices;
+        let devices = &vehicle.config().devices;
         let topics = Topic::channels(devices, false);
         let named: Vec<(String, String, String)> = topics
             .iter()
@@ -275,7 +275,7 @@ impl Server {
         let info = proto::server_info(
             &format!("adrive {}", env!("CARGO_PKG_VERSION")),
             &session,
-            &vehicle.name,
+            vehicle.name(),
         );
         let ids = topics
             .iter()
@@ -319,7 +319,7 @@ impl Server {
             let _ = v.ws.close(None);
             let _ = v.ws.flush();
         }
-        self.vehicle.tap.close(self.reader);
+        self.vehicle.tap().close(self.reader);
         self.publish();
     }
 
@@ -545,11 +545,11 @@ impl Server {
             })
             .collect();
         let dropped = self.dropped_gone + viewers.iter().map(|v| v.dropped).sum::<u64>();
-        self.vehicle.tap.set_live(Some(LiveView {
+        self.vehicle.tap().set_live(Some(LiveView {
             listen: self.addr,
             viewers,
             dropped,
-            tap_dropped: self.vehicle.tap.dropped(self.reader),
+            tap_dropped: self.vehicle.tap().dropped(self.reader),
         }));
     }
 }

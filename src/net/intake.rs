@@ -156,7 +156,7 @@ impl Intake {
             }
         }
         let mut out = Outcome::new();
-        let vocab = Vocabulary::of(&self.gate.vehicle().config);
+        let vocab = Vocabulary::of(self.gate.vehicle().config());
         let d = match parse(bytes, &vocab) {
             Ok(d) => d,
             Err(e) => {
@@ -215,7 +215,7 @@ impl Intake {
         let st = self.status.clone();
         let mut fx = Effects::default();
         let gate = self.gate.clone();
-        let vocab = Vocabulary::of(&gate.vehicle().config);
+        let vocab = Vocabulary::of(gate.vehicle().config());
         let source = Source::Network(from);
         for c in &d.commands {
             let ask = match *c {
@@ -281,7 +281,7 @@ impl Intake {
                     if matches!(c, NetCommand::Engage | NetCommand::Release) {
                         out.gate = true;
                     }
-                    gate.vehicle().tap.send(|| Event::Refused {
+                    gate.vehicle().tap().send(|| Event::Refused {
                         at: received,
                         from,
                         reason: Refusal::OtherCommander.as_str(),
@@ -364,7 +364,7 @@ impl Intake {
         let s = inner.get(i);
         s.rejected += 1;
         let from = s.addr;
-        self.gate.vehicle().tap.send(|| Event::Refused {
+        self.gate.vehicle().tap().send(|| Event::Refused {
             at: Instant::now(),
             from,
             reason: r.as_str(),

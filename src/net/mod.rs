@@ -66,7 +66,7 @@ impl Net {
         let out = broadcast_socket(&config)?;
         let names = gate
             .vehicle()
-            .devices
+            .devices()
             .iter()
             .map(|d| d.name().to_string())
             .collect();
@@ -83,7 +83,7 @@ impl Net {
             closing.clone(),
         );
         let s = stop.clone();
-        let placement = gate.vehicle().config.vehicle.placement.clone();
+        let placement = gate.vehicle().config().vehicle.placement.clone();
         threads.spawn("net/listen".into(), move || {
             crate::engine::placement::apply(&placement);
             listen_loop(&socket, &mut intake, &s)
@@ -358,7 +358,7 @@ fn broadcast_loop(
         };
         // A recording keeps the snapshot whole, however many parts it went out in.
         gate.vehicle()
-            .tap
+            .tap()
             .send(|| crate::vehicle::tap::Event::Snapshot {
                 at: Instant::now(),
                 json: match datagrams.as_slice() {

@@ -301,7 +301,7 @@ impl NetStatus {
                         .collect(),
                 ),
             },
-            foxglove: gate.vehicle().tap.live(),
+            foxglove: gate.vehicle().tap().live(),
         }
     }
 }

@@ -432,7 +432,7 @@ pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
         } => {
             let (device, command, value) = match asked {
                 Asked::Device(id, cmd) => {
-                    let d = &v.device(id).config;
+                    let d = &v.device(id).config();
                     let (value, text) = Written::of(d, cmd);
                     (d.name.clone(), text, value)
                 }
@@ -468,7 +468,7 @@ pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
             fresh,
             error,
         } => {
-            let (value, text) = Written::of(&v.device(device).config, command);
+            let (value, text) = Written::of(v.device(device).config(), command);
             let m = Written {
                 value,
                 command: text,
@@ -490,7 +490,7 @@ pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
             error,
         } => {
             let m = reading_message(
-                &v.device(device).config,
+                v.device(device).config(),
                 reading.as_ref(),
                 (error != 0).then(|| error_word(error)),
                 first.map(|f| us(done.saturating_duration_since(f))),

@@ -99,7 +99,7 @@ impl Recorder {
         // SAFETY: setting a signal's disposition to "ignore".
         unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
         let mut out = writer::Output::open(vehicle.clone(), opts.target)?;
-        let tapped = vehicle.tap.open(opts.raw).ok_or_else(|| {
+        let tapped = vehicle.tap().open(opts.raw).ok_or_else(|| {
             std::io::Error::other("this vehicle's tap has no room for a recorder")
         })?;
         out.tapped(tapped.reader);

@@ -77,13 +77,13 @@ impl Output {
 
     /// Events the tap left out of this recording.
     fn dropped(&self) -> u64 {
-        self.reader.map_or(0, |r| self.vehicle.tap.dropped(r))
+        self.reader.map_or(0, |r| self.vehicle.tap().dropped(r))
     }
 
     /// Stop tapping for this recording.
     fn untap(&self) {
         if let Some(r) = self.reader {
-            self.vehicle.tap.close(r);
+            self.vehicle.tap().close(r);
         }
     }
 
@@ -100,7 +100,7 @@ impl Output {
             Target::File(p) => p.clone(),
             Target::Dir { dir, .. } => {
                 std::fs::create_dir_all(dir).map_err(|e| with_path(dir, e))?;
-                fresh_name(dir, &self.vehicle.name)
+                fresh_name(dir, self.vehicle.name())
             }
         };
         let file = File::create(&path).map_err(|e| with_path(&path, e))?;
@@ -116,8 +116,8 @@ impl Output {
             .map_err(|e| with_path(&path, mcap_io(e)))?;
         let started = humantime::format_rfc3339_millis(SystemTime::now()).to_string();
         let metadata = BTreeMap::from([
-            ("vehicle".to_string(), self.vehicle.name.clone()),
-            ("config".to_string(), self.vehicle.config.source.clone()),
+            ("vehicle".to_string(), self.vehicle.name().to_string()),
+            ("config".to_string(), self.vehicle.config().source.clone()),
             ("adrive".to_string(), env!("CARGO_PKG_VERSION").to_string()),
             ("started".to_string(), started),
         ]);
@@ -136,14 +136,14 @@ impl Output {
             opened: Instant::now(),
         });
         if let Target::Dir { dir, keep, .. } = &self.target {
-            prune(dir, &self.vehicle.name, *keep, &self.last);
+            prune(dir, self.vehicle.name(), *keep, &self.last);
         }
         Ok(())
     }
 
     /// Write one message on `topic` at `at` (wall-clock ns).
     fn write(&mut self, topic: Topic, at: u64, data: &[u8]) -> io::Result<()> {
-        let devices = &self.vehicle.config.devices;
+        let devices = &self.vehicle.config().devices;
         let f = self.file.as_mut().expect("a file is open while recording");
         let id = match f.channels.get(&topic) {
             Some(id) => *id,
@@ -239,7 +239,7 @@ impl Output {
 
     /// Put the recorder's account in the snapshot.
     fn publish(&self, error: Option<String>) {
-        self.vehicle.tap.set_status(Some(RecordView {
+        self.vehicle.tap().set_status(Some(RecordView {
             file: self.last.display().to_string(),
             bytes: self.bytes(),
             messages: self.messages,

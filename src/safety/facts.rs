@@ -10,7 +10,7 @@ use crate::vehicle::{Device, Vehicle};
 
 /// A set point as a fraction of its device's range top.
 fn fraction(d: &Device, v: f64) -> f64 {
-    let hi = d.config.range[1];
+    let hi = d.config().range[1];
     if hi > 0.0 {
         v / hi
     } else {
@@ -32,11 +32,11 @@ fn extremes(d: &Device, values: impl Iterator<Item = f64>) -> Option<(f64, f64)>
 /// releases it.
 fn brake(v: &Vehicle, b: &Bindings) -> Option<(f64, f64, bool)> {
     let d = v.device(b.brake?);
-    let w = d.slot.wire();
+    let w = d.slot().wire();
     let releasing = releases(d, w.latest());
     extremes(d, w.set_points())
         .or_else(|| {
-            let p = d.reading(d.config.reading("position")?)?;
+            let p = d.reading(d.config().reading("position")?)?;
             Some((fraction(d, p), fraction(d, p)))
         })
         .map(|(lo, hi)| (lo, hi, releasing))
@@ -58,11 +58,11 @@ fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
     };
     let d = v.device(g.device);
     let reported = d
-        .config
+        .config()
         .reading("state")
         .and_then(|i| d.reading(i))
         .map(|x| x as u8);
-    let w = d.slot.wire();
+    let w = d.slot().wire();
     let shifting = match w.latest() {
         Some(Command::State(s)) => {
             let status_after_ack = match (w.acked_at, d.cached().at) {
@@ -117,7 +117,7 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
     if plays.throttle || plays.gear {
         if let Some(id) = b.brake {
             let d = v.device(id);
-            let w = d.slot.wire();
+            let w = d.slot().wire();
             let on_wire = [w.pending, w.flight, w.sent]
                 .into_iter()
                 .flatten()
@@ -130,11 +130,11 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
     if plays.brake {
         if let Some(id) = b.throttle {
             let d = v.device(id);
-            let w = d.slot.wire();
+            let w = d.slot().wire();
             f.throttle_released = released_on_wire(d, &w);
         }
         if let Some(g) = &b.gear {
-            let w = v.device(g.device).slot.wire();
+            let w = v.device(g.device).slot().wire();
             // A gear command not on the wire yet (whatever the gearbox reports: it may be
             // passing through that gear).
             f.shift_on_its_way =

@@ -28,13 +28,13 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
             "{d} is in the driver's hands (override): clear it once the driver has let go"
         ));
     }
-    for d in &v.devices {
+    for d in v.devices() {
         if let Some(fault) = d.fault() {
             why.push(format!("{} is faulty ({fault})", d.name()));
         } else if d.cached().at.is_none() {
             // An ELM327 that opened has its first answer coming: it searches protocols.
-            let opened = d.port_health.opens.load(Relaxed) > 0;
-            why.push(match d.config.driver {
+            let opened = d.port_health().opens.load(Relaxed) > 0;
+            why.push(match d.config().driver {
                 DriverKind::Elm327 if opened => elm327::searching(d.name()),
                 _ => format!("{} has not reported yet", d.name()),
             });
@@ -52,13 +52,13 @@ pub fn check_value(d: &Device, command: Command) -> Result<(), Reject> {
     match (d.kind(), command) {
         (Kind::Sensor, _) => Err(Reject::NotAnActuator),
         (_, Command::Control(_)) => Ok(()),
-        (Kind::State, Command::State(s)) if (s as usize) < d.config.states.len() => Ok(()),
+        (Kind::State, Command::State(s)) if (s as usize) < d.config().states.len() => Ok(()),
         (Kind::State, Command::State(_)) => Err(Reject::OutOfRange),
         (Kind::Setpoint, Command::Set(v)) => {
             if !v.is_finite() {
                 return Err(Reject::NotFinite);
             }
-            let [lo, hi] = d.config.range;
+            let [lo, hi] = d.config().range;
             if v < lo || v > hi {
                 return Err(Reject::OutOfRange);
             }
@@ -106,16 +106,16 @@ impl GateState {
         GateState {
             rules: Rules::active(vehicle.bindings()),
             plays: vehicle
-                .devices
+                .devices()
                 .iter()
-                .map(|d| Plays::of(&d.roles))
+                .map(|d| Plays::of(d.roles()))
                 .collect(),
             interlocks: AtomicBool::new(true),
             owner: Mutex::new(Owner::new(Instant::now())),
             engaged: AtomicBool::new(false),
             reason: Mutex::new("not engaged yet".into()),
             recovering: vehicle
-                .devices
+                .devices()
                 .iter()
                 .map(|_| AtomicBool::new(false))
                 .collect(),
@@ -176,7 +176,7 @@ impl GateState {
     pub fn reject(&self, device: Option<&Device>, command: Option<Command>, why: Reject) -> Reject {
         self.rejections[why.index()].fetch_add(1, Relaxed);
         if let Some(d) = device {
-            crate::vehicle::stats::Stats::bump(&d.stats.rejected);
+            crate::vehicle::stats::Stats::bump(&d.stats().rejected);
         }
         if !self.log_allowed(Instant::now()) {
             return why;
@@ -184,7 +184,7 @@ impl GateState {
         tracing::info!(
             device = device.map(|d| d.name()).unwrap_or("-"),
             command = match (device, command) {
-                (Some(d), Some(c)) => d.config.command_text(c),
+                (Some(d), Some(c)) => d.config().command_text(c),
                 (None, Some(c)) => format!("{c:?}"),
                 _ => String::new(),
             },
@@ -274,10 +274,10 @@ impl GateState {
         if !self.is_engaged() {
             return Err(Reject::Disengaged);
         }
-        if self.is_recovering(d.id) {
+        if self.is_recovering(d.id()) {
             return Err(Reject::Recovering);
         }
-        let plays = self.plays[d.id.index()];
+        let plays = self.plays[d.id().index()];
         if !plays.is_free() && self.interlocks_on() {
             let facts = facts::gather(v, plays);
             rules::check(&facts, self.rules, plays, scaled(d, command))?;
@@ -288,7 +288,7 @@ impl GateState {
     /// The wire check's verdict on `command` for `d`, counting nothing: [`wire::verdict`]
     /// over what the other devices have on their way, or `Send` when no rule applies.
     pub fn wire_verdict(&self, v: &Vehicle, d: &Device, command: Command, waited: bool) -> Verdict {
-        let plays = self.plays[d.id.index()];
+        let plays = self.plays[d.id().index()];
         if plays.is_free() || !self.interlocks_on() {
             return Verdict::Send(command);
         }

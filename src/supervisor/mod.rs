@@ -411,13 +411,13 @@ pub fn disengages(kind: FaultKind) -> bool {
 pub fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> Option<Procedure> {
     let v = &gate.vehicle();
     let b = v.bindings();
-    let device = f.device.as_deref().and_then(|n| v.find(n)).map(|d| d.id);
+    let device = f.device.as_deref().and_then(|n| v.find(n)).map(|d| d.id());
     match (f.kind, device) {
         (FaultKind::EngineStall, _) => {
             let g = b.gear.as_ref()?;
             let d = v.device(g.device);
             let now = d
-                .config
+                .config()
                 .reading("state")
                 .and_then(|i| d.reading(i))
                 .map(|x| x as u8);
@@ -461,10 +461,10 @@ impl Supervisor {
     /// One turn: detect, report, act.
     pub fn tick(&mut self, gate: &Gate, now: Instant) {
         let v = &gate.vehicle();
-        let board = &v.supervision;
+        let board = &v.supervision();
         let before = board.faults();
         let snap = gate.snapshot(0);
-        let faults = detect(&snap, &v.config, &self.cfg, &mut self.memory, &before, now);
+        let faults = detect(&snap, v.config(), &self.cfg, &mut self.memory, &before, now);
         let among = |list: &[Fault], f: &Fault| {
             list.iter()
                 .any(|g| g.kind == f.kind && g.device == f.device)
@@ -601,8 +601,8 @@ impl Supervisor {
         if let Some((name, f)) = waiting.filter(|_| name != self.waiting) {
             let msg = format!("recovery {name} waits for engage: {}", f.describe());
             tracing::warn!("{msg}");
-            gate.vehicle().supervision.note(msg.clone());
-            gate.vehicle().supervision.set_outcome(msg);
+            gate.vehicle().supervision().note(msg.clone());
+            gate.vehicle().supervision().set_outcome(msg);
         }
         self.waiting = name;
     }
@@ -613,7 +613,7 @@ impl Supervisor {
                 .insert(p.name().to_string(), now + self.cfg.step_timeout);
         }
         gate.set_recovering(&[]);
-        gate.vehicle().supervision.set_recovery(None);
+        gate.vehicle().supervision().set_recovery(None);
     }
 }
 
@@ -675,7 +675,7 @@ mod tests {
         let gate = sample::gate(Instant::now());
         let v = &gate.vehicle();
         let steer = v.find("steer").expect("alice steers");
-        let answered = steer.started + Duration::from_millis(100);
+        let answered = steer.started() + Duration::from_millis(100);
         steer.record_ok(answered);
         // It answered, and not since: 2 s later it is silent.
         let now = answered + Duration::from_secs(2);
@@ -688,11 +688,11 @@ mod tests {
         };
         let mut mem = Memory::new(answered);
         let snap = gate.snapshot_at(0, now);
-        let f = silent(detect(&snap, &v.config, &sup, &mut mem, &[], now));
+        let f = silent(detect(&snap, v.config(), &sup, &mut mem, &[], now));
         assert_eq!(f.cause, "no answer for 2000 ms (max 250 ms)");
-        *steer.health.last_error.lock() = Some((now, "timeout".into()));
+        *steer.health().last_error.lock() = Some((now, "timeout".into()));
         let snap = gate.snapshot_at(0, now);
-        let f = silent(detect(&snap, &v.config, &sup, &mut mem, &[], now));
+        let f = silent(detect(&snap, v.config(), &sup, &mut mem, &[], now));
         assert!(f.cause.ends_with("(max 250 ms): timeout"), "{f:?}");
     }
 
@@ -728,7 +728,7 @@ mod tests {
                 if let Some(e) = b.estimate.as_mut() {
                     e.position = pos;
                 }
-                faults = detect(&snap, &v.config, &sup, &mut mem, &faults, now);
+                faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
                 named.extend(
                     faults
                         .iter()
@@ -789,7 +789,7 @@ mod tests {
                 d.health.opens = if ms < reopened { 1 } else { 2 };
                 d.health.last_error = (!ok).then(|| "no reply within 100ms".into());
                 d.health.last_error_age_ms = (!ok).then_some(10.0);
-                faults = detect(&snap, &v.config, &sup, &mut mem, &faults, now);
+                faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
                 named.extend(
                     faults
                         .iter()
@@ -845,7 +845,7 @@ mod tests {
         d.health.last_error =
             Some("port: cannot open /dev/ttyUSB7: No such file or directory".into());
         d.health.last_error_age_ms = Some(5.0);
-        let faults = detect(&snap, &v.config, &sup, &mut mem, &[], now);
+        let faults = detect(&snap, v.config(), &sup, &mut mem, &[], now);
         let steer: Vec<&Fault> = faults
             .iter()
             .filter(|f| f.device.as_deref() == Some("steer"))
@@ -870,12 +870,10 @@ mod tests {
         let gate = sample::gate(Instant::now());
         let v = &gate.vehicle();
         let set = |device: &str, i: usize, x: f64| {
-            v.find(device)
-                .expect("an alice device")
-                .cache
-                .lock()
-                .reading
-                .set(i, x);
+            let d = v.find(device).expect("an alice device");
+            let mut c = d.cached();
+            c.reading.set(i, x);
+            d.store(c);
         };
         set("steer", 0, 5.0); // position, far outside -1…1
         set("obd", 0, 0.0); // rpm: the engine stopped …

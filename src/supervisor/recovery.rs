@@ -89,7 +89,11 @@ impl Step {
             Step::Home(d) => gate.supervise(*d, Command::Control(Control::Home)),
             Step::Hold(d) => {
                 let dev = v.device(*d);
-                if let Some(p) = dev.config.reading("position").and_then(|i| dev.reading(i)) {
+                if let Some(p) = dev
+                    .config()
+                    .reading("position")
+                    .and_then(|i| dev.reading(i))
+                {
                     gate.supervise(*d, Command::Set(p));
                 }
             }
@@ -103,25 +107,25 @@ impl Step {
         match self {
             Step::Send {
                 device, command, ..
-            } => v.device(*device).slot.executed() == Some(*command),
+            } => v.device(*device).slot().executed() == Some(*command),
             Step::WaitStopped(speed) => {
                 speed.is_none_or(|r| v.reading(r).is_none_or(|s| s.abs() < rules::STOPPED))
             }
             Step::Shift { device, state, .. } => {
                 let d = v.device(*device);
                 fresh(*device)
-                    && d.config.reading("state").and_then(|i| d.reading(i)) == Some(*state as f64)
+                    && d.config().reading("state").and_then(|i| d.reading(i)) == Some(*state as f64)
             }
             Step::Start { running, .. } => {
                 fresh(running.device) && v.reading(*running).is_some_and(|x| x != 0.0)
             }
             Step::Home(d) => {
                 let dev = v.device(*d);
-                dev.slot.executed() == Some(Command::Control(Control::Home))
+                dev.slot().executed() == Some(Command::Control(Control::Home))
                     && fresh(*d)
                     && dev.cached().reading.fault == 0
             }
-            Step::Hold(d) => matches!(v.device(*d).slot.executed(), Some(Command::Set(_))),
+            Step::Hold(d) => matches!(v.device(*d).slot().executed(), Some(Command::Set(_))),
             Step::Release => true,
             Step::Reopen(d, _) => {
                 let dev = v.device(*d);
@@ -132,7 +136,7 @@ impl Step {
 
     /// The step moves an actuator (as opposed to waiting or commanding the safe state).
     pub fn moves(&self, gate: &Gate) -> bool {
-        let safe = crate::safety::safe::state(&gate.vehicle().config);
+        let safe = crate::safety::safe::state(gate.vehicle().config());
         match self {
             Step::Send {
                 device, command, ..
@@ -147,7 +151,7 @@ impl Step {
 /// safe state ([`crate::safety::safe::state`]).
 fn stand_still(v: &Vehicle) -> Vec<Step> {
     let b = v.bindings();
-    crate::safety::safe::state(&v.config)
+    crate::safety::safe::state(v.config())
         .into_iter()
         .filter(|(d, _)| [b.throttle, b.brake].contains(&Some(*d)))
         .map(|(device, command)| {
@@ -222,7 +226,7 @@ impl Procedure {
         );
         let state = |s: u8| {
             v.device(g.device)
-                .config
+                .config()
                 .state_name(s)
                 .unwrap_or("?")
                 .to_string()
@@ -346,7 +350,7 @@ impl Procedure {
                         self.attempt,
                         self.attempts
                     );
-                    v.supervision.note(format!(
+                    v.supervision().note(format!(
                         "{} {}/{}: {}",
                         self.name,
                         self.step + 1,
@@ -376,7 +380,7 @@ impl Procedure {
                     ));
                 }
                 tracing::warn!("recovery {}: {why}; trying again", self.name);
-                v.supervision
+                v.supervision()
                     .note(format!("{}: {why}; try {}", self.name, self.attempt + 1));
                 self.attempt += 1;
                 self.step = 0;

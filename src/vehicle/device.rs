@@ -106,27 +106,27 @@ impl Settings {
 
 /// One device of the vehicle.
 pub struct Device {
-    pub id: DeviceId,
-    pub config: DeviceConfig,
+    id: DeviceId,
+    config: DeviceConfig,
     /// The safety roles it plays (from the vehicle's bindings).
-    pub roles: Vec<Role>,
-    pub slot: CommandSlot,
-    pub port: Port,
-    pub cache: Mutex<Cached>,
-    pub stats: Stats,
-    pub settings: Settings,
-    pub health: Health,
+    roles: Vec<Role>,
+    slot: CommandSlot,
+    port: Port,
+    cache: Mutex<Cached>,
+    stats: Stats,
+    settings: Settings,
+    health: Health,
     /// Raw traffic on the port.
-    pub trace: Arc<Trace>,
+    trace: Arc<Trace>,
     /// Times the port was opened, and whether it is missing.
-    pub port_health: Arc<PortHealth>,
+    port_health: Arc<PortHealth>,
     /// When the device was set up (the engine starts right after).
-    pub started: Instant,
+    started: Instant,
     /// The state estimator of a setpoint device with a declared response, and the
     /// index of the `position` reading it is corrected by.
     estimator: Option<(Mutex<Estimator>, usize)>,
     /// The vehicle's recording tap.
-    pub tap: Arc<Tap>,
+    tap: Arc<Tap>,
 }
 
 impl Device {
@@ -218,6 +218,68 @@ impl Device {
         self.settings.set_status_period(c.status_period);
         self.settings.set_command_timeout(c.command_timeout);
         Ok(())
+    }
+
+    pub fn id(&self) -> DeviceId {
+        self.id
+    }
+
+    /// The device as the vehicle file describes it (checked).
+    pub fn config(&self) -> &DeviceConfig {
+        &self.config
+    }
+
+    /// The safety roles it plays (from the vehicle's bindings).
+    pub fn roles(&self) -> &[Role] {
+        &self.roles
+    }
+
+    /// Its command slot: the latest command, in flight, sent and acknowledged.
+    pub fn slot(&self) -> &CommandSlot {
+        &self.slot
+    }
+
+    /// Its port, under the port's rule.
+    pub fn port(&self) -> &Port {
+        &self.port
+    }
+
+    pub fn stats(&self) -> &Stats {
+        &self.stats
+    }
+
+    /// What the console may change while it runs (delays, threads on and off).
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    pub fn health(&self) -> &Health {
+        &self.health
+    }
+
+    /// Raw traffic on the port.
+    pub fn trace(&self) -> &Arc<Trace> {
+        &self.trace
+    }
+
+    /// Times the port was opened, and whether it is missing.
+    pub fn port_health(&self) -> &PortHealth {
+        &self.port_health
+    }
+
+    /// When the device was set up (the engine starts right after).
+    pub fn started(&self) -> Instant {
+        self.started
+    }
+
+    /// The vehicle's recording tap.
+    pub fn tap(&self) -> &Tap {
+        &self.tap
+    }
+
+    /// Store what a status poll read (the status thread; test fixtures).
+    pub fn store(&self, cached: Cached) {
+        *self.cache.lock() = cached;
     }
 
     pub fn name(&self) -> &str {

@@ -32,14 +32,14 @@ use tap::Tap;
 
 /// The whole vehicle.
 pub struct Vehicle {
-    pub name: String,
-    pub config: VehicleConfig,
-    pub devices: Vec<Device>,
+    name: String,
+    config: VehicleConfig,
+    devices: Vec<Device>,
     /// What the supervisor sees: faults and the recovery in progress.
-    pub supervision: Arc<supervision::Board>,
+    supervision: Arc<supervision::Board>,
     /// Where a recording taps the run (off unless one runs).
-    pub tap: Arc<Tap>,
-    pub started: Instant,
+    tap: Arc<Tap>,
+    started: Instant,
 }
 
 impl Vehicle {
@@ -73,6 +73,35 @@ impl Vehicle {
             tap,
             started: Instant::now(),
         }
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The vehicle file, checked.
+    pub fn config(&self) -> &VehicleConfig {
+        &self.config
+    }
+
+    /// Every device, in the vehicle file's order (a [`DeviceId`] indexes it).
+    pub fn devices(&self) -> &[Device] {
+        &self.devices
+    }
+
+    /// What the supervisor sees: faults and the recovery in progress.
+    pub fn supervision(&self) -> &Arc<supervision::Board> {
+        &self.supervision
+    }
+
+    /// Where a recording taps the run (off unless one runs).
+    pub fn tap(&self) -> &Arc<Tap> {
+        &self.tap
+    }
+
+    /// When the vehicle was set up.
+    pub fn started(&self) -> Instant {
+        self.started
     }
 
     pub fn bindings(&self) -> &Bindings {
@@ -123,7 +152,7 @@ impl Vehicle {
             format!(
                 "{}.{}",
                 name(r.device),
-                self.device(r.device).config.readings[r.reading].name
+                self.device(r.device).config().readings[r.reading].name
             )
         };
         Role::ALL
@@ -149,14 +178,14 @@ fn ms(d: std::time::Duration) -> f64 {
 /// points since `since`.
 fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
     let c = d.cached();
-    let cfg = &d.config;
-    let s = d.stats.snapshot();
+    let cfg = &d.config();
+    let s = d.stats().snapshot();
     let age = c.at.map(|t| now.saturating_duration_since(t));
     let value = |cmd| cfg.command_value(cmd);
     DeviceView {
         name: cfg.name.clone(),
         kind: cfg.kind,
-        roles: d.roles.iter().map(|r| r.as_str().to_string()).collect(),
+        roles: d.roles().iter().map(|r| r.as_str().to_string()).collect(),
         range: (cfg.kind == crate::value::Kind::Setpoint).then_some(cfg.range),
         units: cfg.units.clone(),
         states: cfg.states.clone(),
@@ -177,31 +206,31 @@ fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
             .map(|r| (r.name.clone(), r.units.clone()))
             .collect(),
         fault: c.reading.fault,
-        commanded: d.slot.latest().map(value),
-        executed: d.slot.executed().map(value),
-        executed_span: d.slot.acked_span(since),
+        commanded: d.slot().latest().map(value),
+        executed: d.slot().executed().map(value),
+        executed_span: d.slot().acked_span(since),
         status_age_ms: age.map(ms),
         stale: age.is_none_or(|a| a > cfg.status_max_age),
         health: snapshot::Health {
             faulty: d.is_faulty(),
-            connected: d.health.connected.load(Relaxed),
-            missing: d.port_health.missing.load(Relaxed),
-            opens: d.port_health.opens.load(Relaxed),
-            status_error: d.health.status_error.load(Relaxed),
-            command_error: d.health.command_error.load(Relaxed),
-            last_error: d.health.last_error(),
+            connected: d.health().connected.load(Relaxed),
+            missing: d.port_health().missing.load(Relaxed),
+            opens: d.port_health().opens.load(Relaxed),
+            status_error: d.health().status_error.load(Relaxed),
+            command_error: d.health().command_error.load(Relaxed),
+            last_error: d.health().last_error(),
             last_error_age_ms: d
-                .health
+                .health()
                 .last_error_at()
                 .map(|t| ms(now.saturating_duration_since(t))),
             quiet_ms: d.quiet_for(now).map(ms),
         },
         settings: snapshot::Settings {
-            status_period_ms: ms(d.settings.status_period()),
-            command_timeout_ms: ms(d.settings.command_timeout()),
+            status_period_ms: ms(d.settings().status_period()),
+            command_timeout_ms: ms(d.settings().command_timeout()),
             status_max_age_ms: ms(cfg.status_max_age),
-            status_on: d.settings.status_enabled.load(Relaxed),
-            command_on: d.settings.command_enabled.load(Relaxed),
+            status_on: d.settings().status_enabled.load(Relaxed),
+            command_on: d.settings().command_enabled.load(Relaxed),
             polling: cfg.polling.as_str().to_string(),
         },
         counters: snapshot::Counters {
@@ -213,7 +242,7 @@ fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
             command_errors: s.command_errors,
             polls: s.polls,
             status_errors: s.status_errors,
-            reconnects: d.port_health.opens.load(Relaxed).saturating_sub(1),
+            reconnects: d.port_health().opens.load(Relaxed).saturating_sub(1),
         },
         delay_us: s.command_delay,
         command_txn_us: s.command_txn,

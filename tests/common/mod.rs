@@ -75,7 +75,7 @@ impl Rig {
     pub fn supervised(toml: &str) -> Rig {
         let mut rig = Rig::start(toml);
         let (tx, rx) = crossbeam_channel::unbounded();
-        let cfg = rig.vehicle.config.supervisor.clone();
+        let cfg = rig.vehicle.config().supervisor.clone();
         rig.monitor = Some(adrive::engine::monitor::Monitor::start(rig.gate.clone()).unwrap());
         rig.supervisor = Some(
             adrive::supervisor::start(
@@ -93,7 +93,7 @@ impl Rig {
 
     /// The supervisor's history so far.
     pub fn history(&self) -> Vec<String> {
-        self.vehicle.supervision.snapshot().history
+        self.vehicle.supervision().snapshot().history
     }
 
     /// Wait for every device to report, then engage.
@@ -115,7 +115,7 @@ impl Rig {
     }
 
     pub fn id(&self, name: &str) -> DeviceId {
-        self.device(name).id
+        self.device(name).id()
     }
 
     /// Intake of a command to a device by name, as the network or console would.
@@ -127,7 +127,7 @@ impl Rig {
     pub fn state(&self, name: &str, state: &str) -> Command {
         Command::State(
             self.device(name)
-                .config
+                .config()
                 .state_index(state)
                 .expect("a state"),
         )
@@ -136,7 +136,7 @@ impl Rig {
     /// A reading of a device's cache by reading name (`None` before it reported).
     pub fn reading(&self, name: &str, reading: &str) -> Option<f64> {
         let d = self.device(name);
-        d.reading(d.config.reading(reading)?)
+        d.reading(d.config().reading(reading)?)
     }
 }
 

@@ -55,7 +55,7 @@ impl Fake {
         self.calls.borrow().clone()
     }
     fn name(&self, id: DeviceId) -> &str {
-        &self.gate.vehicle().config.devices[id.index()].name
+        &self.gate.vehicle().config().devices[id.index()].name
     }
     /// A device of the sample in the frame, by name, to change what the console sees.
     fn device(&mut self, name: &str) -> &mut DeviceView {
@@ -79,10 +79,10 @@ impl Controls for Fake {
         self.snap.clone()
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
-        self.gate.vehicle().config.devices[id.index()].parse_command(text)
+        self.gate.vehicle().config().devices[id.index()].parse_command(text)
     }
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
-        let d = &self.gate.vehicle().config.devices[id.index()];
+        let d = &self.gate.vehicle().config().devices[id.index()];
         self.log(format!("submit {} {}", d.name, d.command_text(command)));
         self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
     }
@@ -299,12 +299,12 @@ fn a_status_period_the_vehicle_file_would_refuse_is_refused_in_place() {
     assert!(err.contains("status_period: expected a duration"), "{err}");
     assert!(f.calls().is_empty(), "nothing changed: {:?}", f.calls());
     let steer = f.gate.vehicle().find("steer").unwrap();
-    assert_eq!(steer.settings.status_period(), Duration::from_millis(50));
+    assert_eq!(steer.settings().status_period(), Duration::from_millis(50));
     // A value the file takes goes through.
     press(&mut m, &f, &["<C-u>", "2", "0", "0", "<Enter>"], now);
     assert_eq!(m.mode, Mode::Main);
     assert_eq!(f.calls(), ["st delay steer 200ms"]);
-    assert_eq!(steer.settings.status_period(), Duration::from_millis(200));
+    assert_eq!(steer.settings().status_period(), Duration::from_millis(200));
     // cm delay: the simulated gas's own watchdog (1s) must outlast the resend.
     press(&mut m, &f, &["j", "l", "<Enter>", "2", "s", "<Enter>"], now);
     let err = m.edit.as_ref().unwrap().error.clone().unwrap();
