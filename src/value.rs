@@ -11,7 +11,7 @@ use std::net::SocketAddr;
 use std::str::FromStr;
 
 /// Where a command comes from: every command of every front end enters the one intake
-/// ([`crate::safety::intake`]) tagged with its source, and the vehicle is commanded by
+/// ([`crate::engine::intake`]) tagged with its source, and the vehicle is commanded by
 /// at most one of them at a time.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

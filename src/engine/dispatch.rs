@@ -171,13 +171,7 @@ impl Gate {
     /// only reads the reply — else stored for the command thread.
     fn dispatch(&self, d: &Device, command: Command, received: Instant) {
         Stats::bump(&d.stats().received);
-        match fast::send(d, command, received, || {
-            self.is_engaged()
-                && matches!(
-                    self.state().wire_verdict(self.vehicle(), d, command, false),
-                    Verdict::Send(_)
-                )
-        }) {
+        match fast::send(self, d, command, received) {
             Sent::Written | Sent::Queued { superseded: false } => {}
             Sent::Queued { superseded: true } => Stats::bump(&d.stats().superseded),
             Sent::NotTaken => queue(d, command, received),

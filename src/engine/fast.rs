@@ -8,7 +8,7 @@
 //! waits, the command thread sleeps in its slot with nothing in flight — the admitting
 //! thread can write the request itself: it [claims](super::slot::CommandSlot::claim) the slot (the
 //! command is in flight from then on, as if the command thread had taken it), asks the
-//! caller's check (the safety rules' wire check: it must say send *this* command), takes
+//! safety rules' wire check (it must say send *this* command), takes
 //! the port without waiting, writes the request, and
 //! [hands the transaction over](super::slot::CommandSlot::hand_over) with the port still held. The
 //! command thread, woken after the first byte is out, reads the reply and does the
@@ -24,6 +24,8 @@
 //! cannot go out after all is queued for the command thread in the same step.
 
 use super::slot::{Handover, Pending};
+use super::Gate;
+use crate::safety::Verdict;
 use crate::value::Command;
 use crate::vehicle::Device;
 use std::sync::atomic::Ordering::Relaxed;
@@ -49,13 +51,9 @@ pub enum Sent {
 }
 
 /// Write `command`, received at `received`, to `d`'s port now if the port is idle and
-/// `may_send` agrees (asked with the command already in flight).
-pub fn send(
-    d: &Device,
-    command: Command,
-    received: Instant,
-    may_send: impl FnOnce() -> bool,
-) -> Sent {
+/// the wire check says send exactly it (asked with the command already in flight, so
+/// that what it sees of the other devices cannot change under it).
+pub fn send(gate: &Gate, d: &Device, command: Command, received: Instant) -> Sent {
     if !allowed(d) || !d.settings().command_enabled.load(Relaxed) {
         return Sent::NotTaken;
     }
@@ -63,7 +61,12 @@ pub fn send(
         return Sent::NotTaken;
     }
     let claim = Claim(d.slot());
-    let port = if may_send() {
+    let may_send = gate.is_engaged()
+        && matches!(
+            gate.state().wire_verdict(gate.vehicle(), d, command, false),
+            Verdict::Send(_)
+        );
+    let port = if may_send {
         d.port().try_acquire_idle()
     } else {
         None

@@ -1,40 +1,50 @@
-//! The engine: two threads per actuator, one per sensor, over the shared
-//! [`Vehicle`].
+//! The engine: the command path's machinery, and the threads that run it — two per
+//! actuator, one per sensor, over the shared [`Vehicle`]. The command path, from a
+//! front end to the serial write, reads in this folder in this order:
 //!
-//! - The **status thread** polls its device every `status_period` (or, with adaptive
-//!   polling, when the estimate needs it: [`polling`]) and stores the reading in the
-//!   cache and the estimator. Readers (network, console, supervisor) only read them.
-//! - The **command thread** sleeps on its slot ([`crate::engine::slot`]) until a
-//!   command arrives, then sends
-//!   the latest one at once; with nothing new for `command_timeout` it sends the last
-//!   one again. Commands are never queued.
-//! - Both share the device's port ([`crate::engine::port`]) under adrive's priority
-//!   rule (or the paper's).
-//! - Right before a command goes out, the command thread asks the safety rules'
-//!   wire check ([`Gate::check_wire`]); a wait it asks for (braking waits for the
-//!   throttle's release to go out) happens without the port held.
-//! - A command that found its port idle was written by the thread that admitted it
-//!   ([`crate::engine::fast`]): the command thread wakes to the transaction with the
-//!   port held, reads the reply and keeps the books as for its own.
+//! 1. [`intake`]: every front end (console, attached consoles, the network, ROS 2,
+//!    `adrive ctl`) hands an [`Ask`](crate::safety::Ask) with its source to
+//!    [`Gate::admit`], which applies the ownership rule and the commander's watchdog
+//!    under one lock.
+//! 2. [`dispatch`]: the interlocks and the engage gate decide
+//!    ([`GateState::check`](crate::safety::GateState::check), pure rules in
+//!    [`crate::safety`]); an admitted command goes on its way — and so does every safe
+//!    state, on every path that stops the vehicle.
+//! 3. [`fast`]: a command for an idle port is written from the admitting thread, after
+//!    the wire check; the command thread only reads the reply.
+//! 4. [`slot`]: otherwise the command waits in the device's slot, latest wins — never a
+//!    queue — and wakes the command thread.
+//! 5. [`command`] (the command thread): takes the newest command (or resends the last
+//!    one every `command_timeout`), asks the wire check ([`Gate::check_wire`]; a wait
+//!    for another device happens without the port held), takes the port, sends.
+//! 6. [`port`]: the port's rule between a device's two threads (a waiting command
+//!    first, an overdue poll still runs), and the open port itself: the
+//!    [`crate::driver`] writes the request, and the first byte is timed.
+//!
+//! Beside it: [`status`] (the status thread polls every `status_period`, or when the
+//! estimate needs it: [`polling`], and stores the reading; readers only read it),
+//! [`monitor`] (`gate/monitor`: blockers and the commander's watchdog, every 10 ms) and
+//! [`placement`] (which CPUs the command path runs on). The gate's state and every
+//! decision live in [`crate::safety`]; the devices' state in [`crate::vehicle`]. The
+//! device carries its [`port`] and [`slot`]: those two are leaves, importing only the
+//! driver, the configuration and the device's trace.
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
 //! [`Engine::shutdown`] joins them with a deadline and names any that did not stop;
 //! [`Engine::liveness`] tells whether each still runs (the service watchdog is fed
-//! only while all do).
-//! Command threads run where the vehicle file's [`placement`] puts the command path.
+//! only while all do). docs/architecture.md draws it.
 
-mod command;
+pub mod command;
 pub mod dispatch;
 pub mod fast;
 mod gate;
 pub mod intake;
 pub mod monitor;
 pub mod placement;
-
 pub mod polling;
 pub mod port;
 pub mod slot;
-mod status;
+pub mod status;
 
 pub use dispatch::WireStep;
 pub use gate::Gate;

@@ -1,14 +1,14 @@
 //! The vehicle structure (the paper's "vehicle struct"): every device with its
-//! configuration, cached state, command slot, port and statistics, and what the
-//! supervisor sees. It holds state and produces the devices' part of the
-//! [`Snapshot`](crate::snapshot::Snapshot); it has no policy — the safety rules that
-//! decide what may reach a slot live in [`crate::safety`].
+//! configuration, cached state and statistics, and what the supervisor sees — the
+//! vehicle's state, and how it is captured into one
+//! [`Snapshot`](crate::snapshot::Snapshot). It has no policy and no machinery: the rules
+//! that decide what may reach a device live in [`crate::safety`], the threads, slots and
+//! ports that carry a command to it in [`crate::engine`].
 //!
-//! - [`device`]: one device; [`estimate`]: its state estimator; [`slot`]: its latest-wins command slot; [`port`]: its
-//!   shared port and the rule by which its two threads take turns; [`stats`]: its
-//!   always-on figures; [`trace`]: its raw traffic; [`supervision`]: the supervisor's
-//!   board; [`tap`]: where everything that happens is handed to a recording;
-//!   [`fast`]: a command written to an idle port by the thread that admitted it.
+//! - [`device`]: one device (it carries the engine's slot and port for it);
+//!   [`estimate`]: its state estimator; [`stats`]: its always-on figures; [`trace`]: its
+//!   raw traffic; [`supervision`]: the supervisor's board; [`tap`]: where everything
+//!   that happens is handed to a recording; [`capture`]: the one snapshot.
 
 pub mod capture;
 pub mod device;
