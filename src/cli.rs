@@ -380,7 +380,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
     // The log pane's lines, for the embedded console and every attached one.
-    let ring = console::logring::LogRing::default();
+    let ring = crate::logging::ring::LogRing::default();
     let mut extra: Vec<logging::ExtraLayer> = vec![Box::new(ring.layer())];
     if recording.is_some() || args.foxglove.is_some() {
         extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));

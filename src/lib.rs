@@ -33,6 +33,10 @@ pub mod sim;
 pub mod snapshot;
 pub mod socket;
 pub mod supervisor;
+/// Fixtures for tests: public (and hidden from the docs) because the screen tests in
+/// `tests/console_screen.rs` build their vehicles with it, as the unit tests do.
+#[doc(hidden)]
+pub mod testkit;
 pub mod threads;
 pub mod value;
 pub mod vehicle;

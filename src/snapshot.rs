@@ -684,7 +684,7 @@ mod tests {
     #[test]
     fn a_large_snapshot_goes_in_parts_and_joins_back() {
         let now = std::time::Instant::now();
-        let mut snap = crate::console::sample::gate(now).snapshot(7);
+        let mut snap = crate::testkit::gate(now).snapshot(7);
         let one = snap.devices[0].clone();
         snap.devices = (0..64)
             .map(|i| DeviceView {

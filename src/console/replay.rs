@@ -9,7 +9,7 @@
 
 use super::controls::{Controls, Frame, Thread};
 use super::keymap::{key_to_action, Action, Keymap, Mode};
-use super::logring::LogLine;
+use crate::logging::ring::LogLine;
 use super::model::Model;
 use super::theme::Theme;
 use super::update::{self, Flow};
@@ -36,7 +36,7 @@ pub const SPEEDS: [f64; 9] = [0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 /// `[` and `]` seek this far; `{` and `}` a minute.
 pub const SEEK: Duration = Duration::from_secs(10);
 /// Log lines the replayed log pane holds, as the live one does.
-const LOG_KEEP: usize = super::logring::KEEP;
+const LOG_KEEP: usize = crate::logging::ring::KEEP;
 
 /// A recording loaded for playing, and where the play is.
 pub struct Player {

@@ -578,10 +578,8 @@ mod tests {
             }
             assert!(raw_refused > 0, "the check finds nothing to refuse");
         }
-        let snap = serde_json::to_vec(
-            &crate::console::sample::gate(std::time::Instant::now()).snapshot(0),
-        )
-        .unwrap();
+        let snap = serde_json::to_vec(&crate::testkit::gate(std::time::Instant::now()).snapshot(0))
+            .unwrap();
         let stripped: Value = serde_json::from_slice(&proto::without_nulls(&snap)).unwrap();
         assert!(!stripped.to_string().contains("null"), "{stripped}");
     }

@@ -484,7 +484,7 @@ mod tests {
     /// with their units.
     #[test]
     fn a_broadcast_is_one_line_for_a_person() {
-        let snap = crate::console::sample::gate(Instant::now()).snapshot(0);
+        let snap = crate::testkit::gate(Instant::now()).snapshot(0);
         let l = human_line(&snap);
         assert!(l.contains("disengaged watchdog off"), "{l}");
         assert!(

@@ -486,7 +486,7 @@ impl Gate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::sample;
+    use crate::testkit as sample;
     use crate::vehicle::slot::WireState;
     use proptest::prelude::*;
     use std::net::{Ipv4Addr, SocketAddr};

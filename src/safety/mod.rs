@@ -691,7 +691,7 @@ impl Gate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::sample;
+    use crate::testkit as sample;
 
     /// Alice's sample with the brake sent full and its release waiting in its slot.
     fn releasing() -> Arc<Gate> {

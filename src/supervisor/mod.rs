@@ -665,14 +665,14 @@ impl Running {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::sample;
+    use crate::testkit;
 
     /// The console once set a status period longer than `status_max_age`: the device
     /// answered every poll, so it had no last error, and its `silent` fault was logged
     /// as `… (max 250 ms): ` with an empty cause.
     #[test]
     fn a_silent_device_without_an_error_has_no_empty_cause() {
-        let gate = sample::gate(Instant::now());
+        let gate = testkit::gate(Instant::now());
         let v = &gate.vehicle;
         let steer = v.find("steer").expect("alice steers");
         let answered = steer.started + Duration::from_millis(100);
@@ -706,7 +706,7 @@ mod tests {
     #[test]
     fn a_brake_alternating_faster_than_the_turns_is_neither_pushed_nor_stuck() {
         let t0 = Instant::now();
-        let gate = sample::gate(t0);
+        let gate = testkit::gate(t0);
         let v = &gate.vehicle;
         let sup = SupervisorConfig::default();
         let turns = |span: Option<[f64; 2]>| {
@@ -758,7 +758,7 @@ mod tests {
     #[test]
     fn a_port_back_after_a_disconnect_gets_its_status_max_age_before_silent_or_error_rate() {
         let t0 = Instant::now();
-        let gate = sample::gate(t0);
+        let gate = testkit::gate(t0);
         let v = &gate.vehicle;
         let sup = SupervisorConfig::default();
         // Steer (status_max_age 250 ms), turn by turn every 50 ms: answering up to 1 s,
@@ -831,7 +831,7 @@ mod tests {
     #[test]
     fn a_port_that_cannot_be_opened_at_start_is_disconnected_not_silent() {
         let t0 = Instant::now();
-        let gate = sample::gate(t0);
+        let gate = testkit::gate(t0);
         let v = &gate.vehicle;
         let sup = SupervisorConfig::default();
         let mut mem = Memory::new(t0);
@@ -865,9 +865,9 @@ mod tests {
     #[test]
     fn a_fault_log_line_names_its_device_plainly() {
         use tracing_subscriber::layer::SubscriberExt;
-        let ring = crate::console::logring::LogRing::default();
+        let ring = crate::logging::ring::LogRing::default();
         let sub = tracing_subscriber::registry().with(ring.layer());
-        let gate = sample::gate(Instant::now());
+        let gate = testkit::gate(Instant::now());
         let v = &gate.vehicle;
         let set = |device: &str, i: usize, x: f64| {
             v.find(device)

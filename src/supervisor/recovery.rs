@@ -394,7 +394,7 @@ mod tests {
     #[test]
     fn only_the_safe_state_and_waiting_count_as_not_moving() {
         let cfg = SupervisorConfig::default();
-        let gate = crate::console::sample::gate(Instant::now());
+        let gate = crate::testkit::gate(Instant::now());
         let v = &gate.vehicle;
         let b = v.bindings();
         let drive = b.gear.as_ref().expect("gear").forward[0];

@@ -418,15 +418,15 @@ impl Widget for &DevicePanel<'_> {
 mod tests {
     use super::*;
     use crate::console::controls::{capture, Sources};
-    use crate::console::sample;
+    use crate::testkit;
     use ratatui::style::{Color, Modifier};
     use std::time::Instant;
 
     fn snap_of(name: &str, faulty: bool) -> (DeviceId, DeviceView) {
         let now = Instant::now();
-        let g = sample::gate(now);
+        let g = testkit::gate(now);
         if faulty {
-            sample::make_faulty(&g.vehicle, name, now);
+            testkit::make_faulty(&g.vehicle, name, now);
         }
         let f = capture(&g, &Sources::default(), now, None);
         let id = f.id_of(name).unwrap();

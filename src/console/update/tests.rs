@@ -4,7 +4,7 @@ use super::*;
 use crate::config::VehicleConfig;
 use crate::console::controls::{capture, change_settings, Frame, Sources};
 use crate::console::keymap::{key_to_action, Keymap};
-use crate::console::sample;
+use crate::testkit;
 use crate::console::theme::Theme;
 use crate::safety::{Refused, Reject};
 use crossterm::event::{KeyEvent, KeyModifiers};
@@ -37,7 +37,7 @@ impl Fake {
     }
     fn of(config: VehicleConfig) -> Fake {
         let now = Instant::now();
-        let g = sample::gate_of(config, now);
+        let g = testkit::gate_of(config, now);
         Fake {
             snap: capture(&g, &Sources::default(), now, None),
             gate: g,
