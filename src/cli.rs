@@ -471,7 +471,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         Some(keymap) => {
             let opts = console::Options {
                 keymap,
-                deadman: args.deadman.unwrap_or(console::model::DEADMAN),
+                deadman: args.deadman.unwrap_or(config::limits::DEADMAN_DEFAULT),
                 sources,
                 panic_after: panic_main.then_some(panic_after),
             };
@@ -717,7 +717,7 @@ pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
             return Ok(1);
         }
     };
-    let deadman = args.deadman.unwrap_or(console::model::DEADMAN);
+    let deadman = args.deadman.unwrap_or(config::limits::DEADMAN_DEFAULT);
     let why = console::drive(&remote, &exits, keymap, deadman, None)?;
     if let Exit::Lost(_) = why {
         tell(io::stderr(), format_args!("adrive: {}\n", why.describe()));

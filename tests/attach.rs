@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 /// `adrive attach`'s default teleop deadman.
-const DEADMAN: Duration = Duration::from_secs(1);
+const DEADMAN: Duration = adrive::config::limits::DEADMAN_DEFAULT;
 
 /// adrive headless (the service) with its control socket in a directory of its own.
 struct Service {

@@ -4,16 +4,17 @@
 //! (`vehicles/tractor.toml`) for the screen with many devices, driven by keys through
 //! the keymap: real structures, no threads.
 
+use adrive::config::limits::DEADMAN_DEFAULT as DEADMAN;
 use adrive::config::Role;
 use adrive::console::controls::Live;
 use adrive::console::controls::{capture, Sources};
 use adrive::console::keymap::{key_to_action, Action, Key, Keymap, Mode};
-use adrive::logging::ring::LogRing;
-use adrive::console::model::{Field, Model, DEADMAN};
-use adrive::testkit;
+use adrive::console::model::{Field, Model};
 use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
+use adrive::logging::ring::LogRing;
 use adrive::safety::Gate;
+use adrive::testkit;
 use adrive::vehicle::trace::Dir;
 use adrive::vehicle::Vehicle;
 use ratatui::backend::TestBackend;

@@ -63,7 +63,7 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             keymap: Keymap::default_map(),
-            deadman: model::DEADMAN,
+            deadman: crate::config::limits::DEADMAN_DEFAULT,
             sources: Sources::default(),
             panic_after: None,
         }

@@ -9,11 +9,11 @@
 
 use super::controls::{Controls, Frame, Thread};
 use super::keymap::{key_to_action, Action, Keymap, Mode};
-use crate::logging::ring::LogLine;
 use super::model::Model;
 use super::theme::Theme;
 use super::update::{self, Flow};
 use crate::exit::Exit;
+use crate::logging::ring::LogLine;
 use crate::net::BROADCAST_MAX;
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
@@ -497,7 +497,12 @@ pub fn run(
 ) -> std::io::Result<Exit> {
     let now = Instant::now();
     let first = player.frame(now, None);
-    let mut model = Model::new(keymap, Theme::from_env(), first, super::model::DEADMAN);
+    let mut model = Model::new(
+        keymap,
+        Theme::from_env(),
+        first,
+        crate::config::limits::DEADMAN_DEFAULT,
+    );
     if let Some(b) = &broadcast {
         b.send(player.json());
     }
