@@ -242,7 +242,12 @@ impl DeviceView {
 
     /// The position of a setpoint actuator.
     pub fn position(&self) -> Option<f64> {
-        self.number("position")
+        self.number(crate::config::device::POSITION)
+    }
+
+    /// The state a state actuator reports, by name.
+    pub fn state(&self) -> Option<&str> {
+        self.reading(crate::config::device::STATE)?.as_str()
     }
 }
 

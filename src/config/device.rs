@@ -136,10 +136,17 @@ pub struct WellKnown {
     pub what: &'static str,
 }
 
+/// The reading a setpoint actuator reports where it is by (its estimate's, the held
+/// steering's, the brake's): see [`DeviceConfig::position`].
+pub const POSITION: &str = "position";
+/// The reading a state actuator reports its state by (the gear's): see
+/// [`DeviceConfig::state`].
+pub const STATE: &str = "state";
+
 /// The readings adrive knows by name. Any other reading needs its `units`.
 pub const WELL_KNOWN: [WellKnown; 12] = [
     WellKnown {
-        name: "position",
+        name: POSITION,
         units: "",
         flag: false,
         line_key: "pos",
@@ -163,7 +170,7 @@ pub const WELL_KNOWN: [WellKnown; 12] = [
         what: "brake line pressure",
     },
     WellKnown {
-        name: "state",
+        name: STATE,
         units: "",
         flag: false,
         line_key: "state",
@@ -383,6 +390,17 @@ impl DeviceConfig {
     /// The index of a reading by name.
     pub fn reading(&self, name: &str) -> Option<usize> {
         self.readings.iter().position(|r| r.name == name)
+    }
+
+    /// The index of its [`POSITION`] reading (every setpoint actuator has one).
+    pub fn position(&self) -> Option<usize> {
+        self.reading(POSITION)
+    }
+
+    /// The index of its [`STATE`] reading (a state actuator's, unless it names its
+    /// readings otherwise).
+    pub fn state(&self) -> Option<usize> {
+        self.reading(STATE)
     }
 
     /// The state index of a word: a state's name or an alias, any case.
@@ -666,12 +684,12 @@ impl RawDevice {
             }
             None => match kind {
                 Kind::Setpoint => vec![ReadingSpec {
-                    name: "position".into(),
+                    name: POSITION.into(),
                     units: self.units.clone().unwrap_or_default(),
                     kind: ReadingKind::Number,
                 }],
                 Kind::State => vec![ReadingSpec {
-                    name: "state".into(),
+                    name: STATE.into(),
                     units: String::new(),
                     kind: ReadingKind::States(states.clone()),
                 }],
@@ -693,7 +711,7 @@ impl RawDevice {
                 ),
             ));
         }
-        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == "position") {
+        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == POSITION) {
             return Err((
                 at_name,
                 format!("{name}: a setpoint device reports its `position` (add it to readings)"),
@@ -859,7 +877,7 @@ fn reading_spec(
         ReadingKind::States(s)
     } else if flag || known.is_some_and(|k| k.flag) {
         ReadingKind::Flag
-    } else if name == "state" {
+    } else if name == STATE {
         if kind != Kind::State {
             return Err(format!(
                 "{device}: reading state: give its states (state = {{ name = \"state\", states = [..] }})"

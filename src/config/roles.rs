@@ -514,7 +514,7 @@ pub(super) fn bind(
     if let Some(r) = reading(
         Role::Estop,
         &raw.estop,
-        &["estop", "state"],
+        &["estop", super::device::STATE],
         &estop_kind,
         "a state reading with disable, pause and run",
     )? {

@@ -458,7 +458,7 @@ fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal
             )));
         };
         let default = match reading.as_str() {
-            "position" => scale,
+            super::device::POSITION => scale,
             "velocity" => Scale {
                 offset: 0.0,
                 ..scale

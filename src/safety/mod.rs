@@ -266,7 +266,7 @@ impl Gate {
         }
         self.command_safe_state();
         if let Some(s) = self.vehicle.bound(Role::Steering) {
-            if let Some(p) = s.config.reading("position").and_then(|i| s.reading(i)) {
+            if let Some(p) = s.config.position().and_then(|i| s.reading(i)) {
                 self.store(s, Command::Set(p), Instant::now());
             }
         }

@@ -135,7 +135,7 @@ pub fn detect(
     let running = b.engine_running.and_then(|r| reading(snap, cfg, r));
     let gear = b.gear.as_ref().and_then(|g| {
         let d = &cfg.devices[g.device.index()];
-        let v = snap.device(&d.name)?.reading("state")?.as_str()?;
+        let v = snap.device(&d.name)?.state()?;
         let s = d.state_index(v)?;
         g.drives(s).then(|| v.to_string())
     });
@@ -416,11 +416,7 @@ pub fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> Option<P
         (FaultKind::EngineStall, _) => {
             let g = b.gear.as_ref()?;
             let d = v.device(g.device);
-            let now = d
-                .config
-                .reading("state")
-                .and_then(|i| d.reading(i))
-                .map(|x| x as u8);
+            let now = d.config.state().and_then(|i| d.reading(i)).map(|x| x as u8);
             let gear = now
                 .filter(|s| g.drives(*s))
                 .or_else(|| g.forward.first().copied())?;
@@ -665,6 +661,7 @@ impl Running {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::device::POSITION;
     use crate::testkit;
 
     /// The console once set a status period longer than `status_max_age`: the device
@@ -718,7 +715,7 @@ mod tests {
                 let mut snap = gate.snapshot_at(0, now);
                 let b = snap.devices.iter_mut().find(|d| d.name == "brake").unwrap();
                 let pos = 0.35 - 0.05 * f64::from(k % 2);
-                if let Some((_, x)) = b.readings.0.iter_mut().find(|(n, _)| n == "position") {
+                if let Some((_, x)) = b.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
                     *x = Some(Value::Number(pos));
                 }
                 b.status_age_ms = Some(5.0);

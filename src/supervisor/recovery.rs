@@ -88,7 +88,7 @@ impl Step {
             Step::Home(d) => gate.supervise(*d, Command::Control(Control::Home)),
             Step::Hold(d) => {
                 let dev = v.device(*d);
-                if let Some(p) = dev.config.reading("position").and_then(|i| dev.reading(i)) {
+                if let Some(p) = dev.config.position().and_then(|i| dev.reading(i)) {
                     gate.supervise(*d, Command::Set(p));
                 }
             }
@@ -108,8 +108,7 @@ impl Step {
             }
             Step::Shift { device, state, .. } => {
                 let d = v.device(*device);
-                fresh(*device)
-                    && d.config.reading("state").and_then(|i| d.reading(i)) == Some(*state as f64)
+                fresh(*device) && d.config.state().and_then(|i| d.reading(i)) == Some(*state as f64)
             }
             Step::Start { running, .. } => {
                 fresh(running.device) && v.reading(*running).is_some_and(|x| x != 0.0)

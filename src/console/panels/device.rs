@@ -297,7 +297,7 @@ impl<'a> DevicePanel<'a> {
                 readings.spans.push(Span::raw("  "));
                 readings.spans.extend(est);
             } else {
-                let meas = fmt_value(d.readings.get("position").and_then(Option::as_ref));
+                let meas = fmt_value(d.reading(crate::config::device::POSITION));
                 let mut line = vec![l("meas "), Span::raw(meas), Span::raw("  ")];
                 line.extend(est);
                 // The drift (units a second its command does not explain), where it fits.

@@ -4,9 +4,9 @@ use super::*;
 use crate::config::VehicleConfig;
 use crate::console::controls::{capture, change_settings, Frame, Sources};
 use crate::console::keymap::{key_to_action, Keymap};
-use crate::testkit;
 use crate::console::theme::Theme;
 use crate::safety::{Refused, Reject};
+use crate::testkit;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
 
@@ -850,7 +850,7 @@ fn the_override_key_pushes_the_bench_device_toward_its_far_end_and_again_lets_go
         if d.name == "brake" || d.name == "gas" {
             let at = if d.name == "brake" { 1.0 } else { 0.0 };
             for (n, v) in d.readings.0.iter_mut() {
-                if n == "position" {
+                if n == crate::config::device::POSITION {
                     *v = Some(Value::Number(at));
                 }
             }
