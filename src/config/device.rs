@@ -578,145 +578,21 @@ impl RawDevice {
         let name = self.name.into_inner();
         check_name("device", &name).map_err(|m| (at_name, m))?;
         let kind = *self.kind.get_ref();
-        let at_kind = self.kind.span().start;
-        let driver = *self.driver.get_ref();
         let at_driver = self.driver.span().start;
+        let of = Of {
+            name: &name,
+            kind,
+            at_name,
+            at_kind: self.kind.span().start,
+        };
 
         // What it takes.
-        let range = match (kind, &self.range) {
-            (Kind::Setpoint, None) => {
-                return Err((
-                    at_kind,
-                    format!("{name}: a setpoint device needs `range = [min, max]`"),
-                ))
-            }
-            (Kind::Setpoint, Some(r)) => {
-                let v = r.get_ref();
-                match v.as_slice() {
-                    [lo, hi] if lo.is_finite() && hi.is_finite() && lo < hi => [*lo, *hi],
-                    _ => {
-                        return Err((
-                            r.span().start,
-                            format!(
-                                "{name}: range: expected [min, max], two finite numbers with min < max (got {v:?})"
-                            ),
-                        ))
-                    }
-                }
-            }
-            (_, Some(r)) => {
-                return Err((
-                    r.span().start,
-                    format!("{name}: range is for setpoint devices ({name} is a {kind})"),
-                ))
-            }
-            (_, None) => [0.0, 0.0],
-        };
-        let states = match (kind, self.states) {
-            (Kind::State, None) => {
-                return Err((
-                    at_kind,
-                    format!("{name}: a state device needs `states = [\"…\", …]`"),
-                ))
-            }
-            (Kind::State, Some(s)) => {
-                let at = s.span().start;
-                let list = s.into_inner();
-                check_states(&name, &list).map_err(|m| (at, m))?;
-                list
-            }
-            (_, Some(s)) => {
-                return Err((
-                    s.span().start,
-                    format!("{name}: states are for state devices ({name} is a {kind})"),
-                ))
-            }
-            (_, None) => Vec::new(),
-        };
-        let mut aliases = Vec::new();
-        if let Some(a) = self.aliases {
-            let at = a.span().start;
-            if kind != Kind::State {
-                return Err((at, format!("{name}: aliases are for state devices")));
-            }
-            for (word, target) in a.into_inner() {
-                let Some(target) = target.as_str() else {
-                    return Err((
-                        at,
-                        format!("{name}: aliases: {word} = expected a state name in quotes"),
-                    ));
-                };
-                let Some(i) = states.iter().position(|s| s == target) else {
-                    return Err((
-                        at,
-                        format!(
-                            "{name}: aliases: {word} = {target:?} is not a state (states: {})",
-                            states.join(", ")
-                        ),
-                    ));
-                };
-                if states.iter().any(|s| s.eq_ignore_ascii_case(&word)) {
-                    return Err((at, format!("{name}: aliases: {word:?} is already a state")));
-                }
-                aliases.push((word, i as u8));
-            }
-        }
+        let range = of.range(self.range.as_ref())?;
+        let states = of.states(self.states)?;
+        let aliases = of.aliases(&states, self.aliases)?;
 
         // What it reports.
-        let readings = match self.readings {
-            Some(r) => {
-                let at = r.span().start;
-                let list = r.into_inner();
-                if list.is_empty() {
-                    return Err((at, format!("{name}: readings: expected at least one")));
-                }
-                let mut out: Vec<ReadingSpec> = Vec::new();
-                for item in list {
-                    let at = item.span().start;
-                    let spec = reading_spec(&name, kind, &states, item.into_inner())
-                        .map_err(|m| (at, m))?;
-                    if out.iter().any(|o| o.name == spec.name) {
-                        return Err((at, format!("{name}: reading {} is listed twice", spec.name)));
-                    }
-                    out.push(spec);
-                }
-                out
-            }
-            None => match kind {
-                Kind::Setpoint => vec![ReadingSpec {
-                    name: POSITION.into(),
-                    units: self.units.clone().unwrap_or_default(),
-                    kind: ReadingKind::Number,
-                }],
-                Kind::State => vec![ReadingSpec {
-                    name: STATE.into(),
-                    units: String::new(),
-                    kind: ReadingKind::States(states.clone()),
-                }],
-                Kind::Sensor => {
-                    return Err((
-                        at_kind,
-                        format!("{name}: a sensor needs `readings = [\"…\", …]` (what it reports)"),
-                    ))
-                }
-            },
-        };
-        if readings.len() > crate::value::MAX_READINGS {
-            return Err((
-                at_name,
-                format!(
-                    "{name}: at most {} readings a device (got {})",
-                    crate::value::MAX_READINGS,
-                    readings.len()
-                ),
-            ));
-        }
-        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == POSITION) {
-            return Err((
-                at_name,
-                format!("{name}: a setpoint device reports its `position` (add it to readings)"),
-            ));
-        }
+        let readings = of.readings(&states, self.readings, self.units.as_deref())?;
         let units = self.units.unwrap_or_default();
         if kind != Kind::Setpoint && !units.is_empty() {
             return Err((
@@ -724,42 +600,13 @@ impl RawDevice {
                 format!("{name}: units are for setpoint devices (readings carry their own)"),
             ));
         }
-
-        let response = match self.response {
-            None => None,
-            Some(r) => {
-                let at = r.span().start;
-                if kind != Kind::Setpoint {
-                    return Err((
-                        at,
-                        format!(
-                            "{name}: [device.response] is for setpoint devices ({name} is a {kind}): {}",
-                            limits::RESPONSE_ON_SETPOINTS.text
-                        ),
-                    ));
-                }
-                Some(r.into_inner().resolve(&name, range).map_err(|m| (at, m))?)
-            }
-        };
-        let polling = match self.polling {
-            None => Polling::Fixed,
-            Some(p) => {
-                if *p.get_ref() == Polling::Adaptive && response.is_none() {
-                    return Err((
-                        p.span().start,
-                        format!(
-                            "{name}: polling = \"adaptive\" needs a [device.response] (how the real device answers its command: the estimate adaptive polling polls by)"
-                        ),
-                    ));
-                }
-                p.into_inner()
-            }
-        };
+        let response = of.response(range, self.response)?;
+        let polling = of.polling(response.is_some(), self.polling)?;
 
         let partial = DeviceConfig {
             name: name.clone(),
             kind,
-            driver,
+            driver: *self.driver.get_ref(),
             port: String::new(),
             baud: self.baud,
             status_period: self.status_period,
@@ -794,6 +641,214 @@ impl RawDevice {
             wire,
             ..partial
         })
+    }
+}
+
+/// The device being checked, for the checks of its keys: its name and kind, and where
+/// they are written (a refusal about a missing key points there).
+struct Of<'a> {
+    name: &'a str,
+    kind: Kind,
+    at_name: usize,
+    at_kind: usize,
+}
+
+impl Of<'_> {
+    /// `range`: a setpoint device's `[min, max]`; `[0, 0]` for the others.
+    fn range(&self, range: Option<&Spanned<Vec<f64>>>) -> Result<[f64; 2], Refusal> {
+        let (name, kind) = (self.name, self.kind);
+        match (kind, range) {
+            (Kind::Setpoint, None) => Err((
+                self.at_kind,
+                format!("{name}: a setpoint device needs `range = [min, max]`"),
+            )),
+            (Kind::Setpoint, Some(r)) => {
+                let v = r.get_ref();
+                match v.as_slice() {
+                    [lo, hi] if lo.is_finite() && hi.is_finite() && lo < hi => Ok([*lo, *hi]),
+                    _ => Err((
+                        r.span().start,
+                        format!(
+                            "{name}: range: expected [min, max], two finite numbers with min < max (got {v:?})"
+                        ),
+                    )),
+                }
+            }
+            (_, Some(r)) => Err((
+                r.span().start,
+                format!("{name}: range is for setpoint devices ({name} is a {kind})"),
+            )),
+            (_, None) => Ok([0.0, 0.0]),
+        }
+    }
+
+    /// `states`: a state device's, in order.
+    fn states(&self, states: Option<Spanned<Vec<String>>>) -> Result<Vec<String>, Refusal> {
+        let (name, kind) = (self.name, self.kind);
+        match (kind, states) {
+            (Kind::State, None) => Err((
+                self.at_kind,
+                format!("{name}: a state device needs `states = [\"…\", …]`"),
+            )),
+            (Kind::State, Some(s)) => {
+                let at = s.span().start;
+                let list = s.into_inner();
+                check_states(name, &list).map_err(|m| (at, m))?;
+                Ok(list)
+            }
+            (_, Some(s)) => Err((
+                s.span().start,
+                format!("{name}: states are for state devices ({name} is a {kind})"),
+            )),
+            (_, None) => Ok(Vec::new()),
+        }
+    }
+
+    /// `aliases`: other words for a state device's states.
+    fn aliases(
+        &self,
+        states: &[String],
+        aliases: Option<Spanned<toml::Table>>,
+    ) -> Result<Vec<(String, u8)>, Refusal> {
+        let name = self.name;
+        let mut out = Vec::new();
+        let Some(a) = aliases else { return Ok(out) };
+        let at = a.span().start;
+        if self.kind != Kind::State {
+            return Err((at, format!("{name}: aliases are for state devices")));
+        }
+        for (word, target) in a.into_inner() {
+            let Some(target) = target.as_str() else {
+                return Err((
+                    at,
+                    format!("{name}: aliases: {word} = expected a state name in quotes"),
+                ));
+            };
+            let Some(i) = states.iter().position(|s| s == target) else {
+                return Err((
+                    at,
+                    format!(
+                        "{name}: aliases: {word} = {target:?} is not a state (states: {})",
+                        states.join(", ")
+                    ),
+                ));
+            };
+            if states.iter().any(|s| s.eq_ignore_ascii_case(&word)) {
+                return Err((at, format!("{name}: aliases: {word:?} is already a state")));
+            }
+            out.push((word, i as u8));
+        }
+        Ok(out)
+    }
+
+    /// `readings`, or without it the one a setpoint or state device reports by
+    /// default (its [`POSITION`] in `units`, its [`STATE`]).
+    fn readings(
+        &self,
+        states: &[String],
+        readings: Option<Spanned<Vec<Spanned<toml::Value>>>>,
+        units: Option<&str>,
+    ) -> Result<Vec<ReadingSpec>, Refusal> {
+        let (name, kind, at_name) = (self.name, self.kind, self.at_name);
+        let readings = match readings {
+            Some(r) => {
+                let at = r.span().start;
+                let list = r.into_inner();
+                if list.is_empty() {
+                    return Err((at, format!("{name}: readings: expected at least one")));
+                }
+                let mut out: Vec<ReadingSpec> = Vec::new();
+                for item in list {
+                    let at = item.span().start;
+                    let spec =
+                        reading_spec(name, kind, states, item.into_inner()).map_err(|m| (at, m))?;
+                    if out.iter().any(|o| o.name == spec.name) {
+                        return Err((at, format!("{name}: reading {} is listed twice", spec.name)));
+                    }
+                    out.push(spec);
+                }
+                out
+            }
+            None => match kind {
+                Kind::Setpoint => vec![ReadingSpec {
+                    name: POSITION.into(),
+                    units: units.unwrap_or_default().to_string(),
+                    kind: ReadingKind::Number,
+                }],
+                Kind::State => vec![ReadingSpec {
+                    name: STATE.into(),
+                    units: String::new(),
+                    kind: ReadingKind::States(states.to_vec()),
+                }],
+                Kind::Sensor => {
+                    return Err((
+                        self.at_kind,
+                        format!("{name}: a sensor needs `readings = [\"…\", …]` (what it reports)"),
+                    ))
+                }
+            },
+        };
+        if readings.len() > crate::value::MAX_READINGS {
+            return Err((
+                at_name,
+                format!(
+                    "{name}: at most {} readings a device (got {})",
+                    crate::value::MAX_READINGS,
+                    readings.len()
+                ),
+            ));
+        }
+        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == POSITION) {
+            return Err((
+                at_name,
+                format!("{name}: a setpoint device reports its `position` (add it to readings)"),
+            ));
+        }
+        Ok(readings)
+    }
+
+    /// `[device.response]`: how a setpoint device answers its command.
+    fn response(
+        &self,
+        range: [f64; 2],
+        response: Option<Spanned<RawResponse>>,
+    ) -> Result<Option<Response>, Refusal> {
+        let (name, kind) = (self.name, self.kind);
+        let Some(r) = response else { return Ok(None) };
+        let at = r.span().start;
+        if kind != Kind::Setpoint {
+            return Err((
+                at,
+                format!(
+                    "{name}: [device.response] is for setpoint devices ({name} is a {kind}): {}",
+                    limits::RESPONSE_ON_SETPOINTS.text
+                ),
+            ));
+        }
+        Ok(Some(
+            r.into_inner().resolve(name, range).map_err(|m| (at, m))?,
+        ))
+    }
+
+    /// `polling`: adaptive only with a response to estimate by.
+    fn polling(
+        &self,
+        has_response: bool,
+        polling: Option<Spanned<Polling>>,
+    ) -> Result<Polling, Refusal> {
+        let name = self.name;
+        let Some(p) = polling else {
+            return Ok(Polling::Fixed);
+        };
+        if *p.get_ref() == Polling::Adaptive && !has_response {
+            return Err((
+                p.span().start,
+                format!(
+                    "{name}: polling = \"adaptive\" needs a [device.response] (how the real device answers its command: the estimate adaptive polling polls by)"
+                ),
+            ));
+        }
+        Ok(p.into_inner())
     }
 }
 
