@@ -296,10 +296,10 @@ pub fn main() -> i32 {
         Some(Cmd::Run(args)) => run(args),
         Some(Cmd::Sim(args)) => sim(args),
         Some(Cmd::Ports) => {
-            let ports = crate::ports::scan(Path::new("/sys"), Path::new("/dev"));
-            let ptys = crate::ports::pseudo_terminals(Path::new("/dev"));
-            let sims = crate::ports::simulated(&std::env::temp_dir(), Path::new("/proc"));
-            print_out(crate::ports::report(&ports, &ptys, &sims).as_bytes())
+            let ports = crate::port_list::scan(Path::new("/sys"), Path::new("/dev"));
+            let ptys = crate::port_list::pseudo_terminals(Path::new("/dev"));
+            let sims = crate::port_list::simulated(&std::env::temp_dir(), Path::new("/proc"));
+            print_out(crate::port_list::report(&ports, &ptys, &sims).as_bytes())
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),

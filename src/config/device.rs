@@ -1,12 +1,12 @@
 //! One device of a vehicle file: its free name, its kind (setpoint, state or sensor),
 //! what it takes (a range with units, or a list of named states), what it reports
 //! (named readings with units), how often it is polled, and how its protocol maps all
-//! of that to the wire ([`super::wire`]). The raw TOML form is turned into a checked
+//! of that to the wire ([`super::protocol_map`]). The raw TOML form is turned into a checked
 //! [`DeviceConfig`] here; every refusal says what was expected.
 
 use super::limits::{self, Violation};
+use super::protocol_map::{self, Wire};
 use super::response::{self, Polling, RawResponse, Response};
-use super::wire::{self, Wire};
 use super::{duration, opt_duration, SimConfig};
 use crate::value::{Command, Kind};
 use serde::Deserialize;
@@ -534,9 +534,9 @@ pub(super) struct RawDevice {
     #[serde(default)]
     sim: SimConfig,
     #[serde(default)]
-    modbus: Option<Spanned<wire::RawModbus>>,
+    modbus: Option<Spanned<protocol_map::RawModbus>>,
     #[serde(default)]
-    line: Option<Spanned<wire::RawLine>>,
+    line: Option<Spanned<protocol_map::RawLine>>,
     #[serde(default)]
     response: Option<Spanned<RawResponse>>,
     #[serde(default)]
@@ -633,7 +633,7 @@ impl RawDevice {
                 Some(safe_value(&partial, s.get_ref()).map_err(|m| (at, m))?)
             }
         };
-        let wire = wire::resolve(&partial, at_driver, self.modbus, self.line)?;
+        let wire = protocol_map::resolve(&partial, at_driver, self.modbus, self.line)?;
         let port = self.port.map(Spanned::into_inner).unwrap_or_default();
         Ok(DeviceConfig {
             port,

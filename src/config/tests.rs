@@ -307,7 +307,7 @@ fn a_modbus_device_needs_its_table_and_a_sensible_map() {
         "{modbus}\n[device.modbus]\nslave = 7\nregisters = {{ target = 0, position = 0 }}\n"
     );
     match &parse(&ok, "v.toml").unwrap().devices[0].wire {
-        wire::Wire::Modbus(m) => assert_eq!(m.slave, 7),
+        protocol_map::Wire::Modbus(m) => assert_eq!(m.slave, 7),
         other => panic!("{other:?}"),
     }
     let typo = ok.replace("position = 0", "postion = 0");

@@ -11,7 +11,7 @@
 //! to repeat the last command.
 
 use super::device::{Plant, Reply, Responder};
-use crate::config::wire::ElmMap;
+use crate::config::protocol_map::ElmMap;
 use crate::driver::elm327::proto::{Pid, MODE_CURRENT, MODE_CURRENT_REPLY};
 use crate::value::Reading;
 use std::time::Duration;
