@@ -24,7 +24,7 @@ pub mod read;
 mod writer;
 
 use crate::config::VehicleConfig;
-use crate::threads::{StopSignal, Threads};
+use crate::threads::Owner;
 use crate::vehicle::Vehicle;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -86,8 +86,9 @@ impl Options {
 
 /// The running recorder.
 pub struct Recorder {
-    stop: Arc<StopSignal>,
-    threads: Threads,
+    /// Dropped without [`Recorder::shutdown`] (a panic unwinding): told to finish the
+    /// file, not waited for.
+    threads: Owner,
 }
 
 impl Recorder {
@@ -105,25 +106,14 @@ impl Recorder {
         out.tapped(tapped.reader);
         let rx = tapped.rx;
         tracing::info!(file = %out.path().display(), raw = opts.raw, "recording");
-        let stop = Arc::new(StopSignal::default());
-        let mut threads = Threads::default();
-        let s = stop.clone();
-        threads.spawn("record/write".into(), move || writer::run(out, &rx, &s))?;
-        Ok(Recorder { stop, threads })
+        let mut threads = Owner::default();
+        threads.spawn("record/write", move |stop| writer::run(out, &rx, stop))?;
+        Ok(Recorder { threads })
     }
 
     /// Write what is left, finish the file (its index and summary) and stop. Returns
     /// the names of threads that did not stop.
     pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
-        self.stop.stop();
-        std::mem::take(&mut self.threads).join(Instant::now() + deadline)
-    }
-}
-
-impl Drop for Recorder {
-    /// Dropped without [`Recorder::shutdown`] (a panic unwinding): told to finish the
-    /// file, not waited for.
-    fn drop(&mut self) {
-        self.stop.stop();
+        self.threads.stop(Instant::now() + deadline)
     }
 }

@@ -23,7 +23,7 @@ use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::exit::Exit;
 use crate::safety::Gate;
 use crate::snapshot::{DeviceView, FaultKind, Snapshot};
-use crate::threads::{Liveness, StopSignal, Threads};
+use crate::threads::{Liveness, Owner};
 use crate::value::{Kind, Value};
 use crate::vehicle::supervision::Fault;
 use recovery::{Procedure, Progress};
@@ -615,8 +615,7 @@ impl Supervisor {
 
 /// The supervisor thread, `supervisor`.
 pub struct Running {
-    stop: Arc<StopSignal>,
-    threads: Threads,
+    threads: Owner,
 }
 
 /// Start the supervisor thread at `cfg.period`.
@@ -632,15 +631,13 @@ pub fn start_watching(
     exit: ExitSink,
     watched: Liveness,
 ) -> std::io::Result<Running> {
-    let stop = Arc::new(StopSignal::default());
-    let mut threads = Threads::default();
-    let s = stop.clone();
-    threads.spawn("supervisor".into(), move || {
+    let mut threads = Owner::default();
+    threads.spawn("supervisor", move |stop| {
         let period = cfg.period;
         let panic_at = cfg.panic_for_test.map(|d| Instant::now() + d);
         let mut sup = Supervisor::new(cfg, exit);
         let mut watchdog = crate::service::Watchdog::new(watched);
-        crate::threads::every(period, &s, || {
+        crate::threads::every(period, stop, || {
             if panic_at.is_some_and(|t| Instant::now() >= t) {
                 panic!("injected panic (--inject-panic supervisor)");
             }
@@ -648,13 +645,12 @@ pub fn start_watching(
             watchdog.turn(Instant::now());
         })
     })?;
-    Ok(Running { stop, threads })
+    Ok(Running { threads })
 }
 
 impl Running {
-    pub fn shutdown(self, deadline: Duration) -> Vec<String> {
-        self.stop.stop();
-        self.threads.join(Instant::now() + deadline)
+    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.threads.stop(Instant::now() + deadline)
     }
 }
 
