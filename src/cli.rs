@@ -595,7 +595,7 @@ fn open_ports(
     for d in &config.devices {
         match driver::open_serial(&d.port, d.baud, d.reply_timeout) {
             Ok(link) => {
-                opened.insert(d.name.to_string(), link);
+                opened.insert(d.name.clone(), link);
             }
             Err(e) if e.kind() == io::ErrorKind::ResourceBusy => {
                 anyhow::bail!(

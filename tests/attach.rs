@@ -342,6 +342,7 @@ fn operator_commands_engage_release_stop_with_exit_statuses() {
     );
 }
 
+#[allow(unsafe_code)]
 #[test]
 fn the_socket_is_0660_in_the_process_group_and_a_second_adrive_on_it_is_refused() {
     let svc = Service::start("attach-socket", None);

@@ -690,7 +690,7 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
     f.act(&mut m, &[Action::Right, Action::Bench]);
     assert_eq!(m.bench, gas);
     // What ten seconds of ticks would have fed it, a sample each 100 ms.
-    m.trail = Default::default();
+    m.trail = adrive::console::trail::Trail::default();
     let mut d = m.snap.at(gas).unwrap().clone();
     for k in 0..=100u32 {
         let t = k as f64 / 10.0;
@@ -698,7 +698,7 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
         let at = (if t < 5.0 { 0.0 } else { (t - 5.0) * 0.4 }).min(0.6);
         let est = (if t < 5.2 { 0.0 } else { (t - 5.2) * 0.4 }).min(0.6);
         d.commanded = Some(Value::Number(cmd));
-        for (name, v) in d.readings.0.iter_mut() {
+        for (name, v) in &mut d.readings.0 {
             if name == "position" {
                 *v = Some(Value::Number(at));
             }

@@ -622,7 +622,7 @@ impl RawDevice {
             readings,
             safe: None,
             sim: self.sim,
-            wire: Wire::Line(Default::default()),
+            wire: Wire::Line(protocol_map::LineMap::default()),
             response,
             polling,
         };
@@ -882,9 +882,8 @@ fn reading_spec(
     let (name, units, rstates, flag) = match v {
         toml::Value::String(n) => (n, None, None, false),
         toml::Value::Table(mut t) => {
-            let name = match t.remove("name") {
-                Some(toml::Value::String(n)) => n,
-                _ => return Err(format!("{device}: readings: {form}")),
+            let Some(toml::Value::String(name)) = t.remove("name") else {
+                return Err(format!("{device}: readings: {form}"));
             };
             let units = match t.remove("units") {
                 None => None,

@@ -771,8 +771,7 @@ fn a_declared_response_is_checked_where_it_is_written() {
     assert!(e.contains("sometimes") && e.contains("adaptive"), "{e}");
 
     let on_a_state = format!(
-        "{}\n[[device]]\nname = \"trans\"\nkind = \"state\"\nstates = [\"park\", \"drive\"]\ndriver = \"line\"\nport = \"/dev/ttyUSB1\"\n[device.response]\nrate = 1.0\n",
-        BASE
+        "{BASE}\n[[device]]\nname = \"trans\"\nkind = \"state\"\nstates = [\"park\", \"drive\"]\ndriver = \"line\"\nport = \"/dev/ttyUSB1\"\n[device.response]\nrate = 1.0\n"
     );
     let e = error(&on_a_state);
     assert!(

@@ -163,10 +163,13 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         return Ok(status::USAGE);
     }
     let period = Duration::from_secs_f64(1.0 / rate);
+    #[allow(unsafe_code)]
     // Wake within a microsecond of when asked, not the default 50 µs later: at
     // 10,000 a second that is half a period.
     // SAFETY: PR_SET_TIMERSLACK takes a number of nanoseconds and touches nothing else.
-    unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000) };
+    unsafe {
+        libc::prctl(libc::PR_SET_TIMERSLACK, 1000)
+    };
     socket.set_nonblocking(true)?;
     let start = Instant::now();
     let mut next = start;

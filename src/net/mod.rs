@@ -178,6 +178,7 @@ struct Batch {
 }
 
 impl Batch {
+    #[allow(unsafe_code)]
     fn new() -> Box<Batch> {
         // SAFETY: all-zero bytes are valid for every field (plain bytes and integers).
         unsafe { Box::new(std::mem::zeroed()) }
@@ -192,6 +193,7 @@ impl Batch {
             iov_base: self.bufs[i].as_mut_ptr().cast(),
             iov_len: self.bufs[i].len(),
         });
+        #[allow(unsafe_code)]
         // SAFETY: an all-zero mmsghdr is a valid empty header; the pointers set below
         // stay valid for the call (they point into `self` and `iov`).
         let mut msgs: [libc::mmsghdr; BATCH] = unsafe { std::mem::zeroed() };
@@ -201,6 +203,7 @@ impl Batch {
             m.msg_hdr.msg_iov = &mut iov[i];
             m.msg_hdr.msg_iovlen = 1;
         }
+        #[allow(unsafe_code)]
         // SAFETY: `msgs` holds BATCH valid headers; the kernel writes within them.
         let n = unsafe {
             libc::recvmmsg(
@@ -236,12 +239,14 @@ impl Batch {
 fn sender(a: &libc::sockaddr_storage) -> Option<SocketAddr> {
     match i32::from(a.ss_family) {
         libc::AF_INET => {
+            #[allow(unsafe_code)]
             // SAFETY: the family says the storage holds a sockaddr_in.
             let v4 = unsafe { &*(a as *const libc::sockaddr_storage).cast::<libc::sockaddr_in>() };
             let ip = Ipv4Addr::from(u32::from_be(v4.sin_addr.s_addr));
             Some(SocketAddr::from((ip, u16::from_be(v4.sin_port))))
         }
         libc::AF_INET6 => {
+            #[allow(unsafe_code)]
             // SAFETY: the family says the storage holds a sockaddr_in6.
             let v6 = unsafe { &*(a as *const libc::sockaddr_storage).cast::<libc::sockaddr_in6>() };
             let ip = Ipv6Addr::from(v6.sin6_addr.s6_addr);

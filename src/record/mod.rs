@@ -95,10 +95,13 @@ impl Recorder {
     /// Open the first file and start recording what `vehicle`'s tap sees. A file that
     /// cannot be created is an error here, before anything runs.
     pub fn start(vehicle: &Arc<Vehicle>, opts: Options) -> std::io::Result<Recorder> {
+        #[allow(unsafe_code)]
         // A file size limit (`ulimit -f`, a service's LimitFSIZE) must fail a write
         // like a full disk does, not kill the process that drives the vehicle.
         // SAFETY: setting a signal's disposition to "ignore".
-        unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
+        unsafe {
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN)
+        };
         let mut out = writer::Output::open(vehicle.clone(), opts.target)?;
         let tapped = vehicle.tap.open(opts.raw).ok_or_else(|| {
             std::io::Error::other("this vehicle's tap has no room for a recorder")

@@ -249,7 +249,7 @@ impl Responder for Elm327Emulator {
             out.push_str(self.eol());
         }
         // The adapter ignores spaces, control characters and case.
-        let mut cmd: String = String::from_utf8_lossy(raw)
+        let mut cmd = String::from_utf8_lossy(raw)
             .chars()
             .filter(|c| c.is_ascii_graphic())
             .collect::<String>()

@@ -51,7 +51,7 @@ fn step_spans(r: &RecoveryView, t: &Theme) -> Vec<Span<'static>> {
         .iter()
         .enumerate()
         .map(|(i, s)| {
-            use std::cmp::Ordering::*;
+            use std::cmp::Ordering::{Equal, Greater, Less};
             match i.cmp(&r.step) {
                 Less => Span::styled(format!("✓ {s}"), t.good()),
                 Equal => Span::styled(format!("▶ {s}"), t.warn().patch(t.cursor())),

@@ -45,7 +45,7 @@ impl Fake {
             refuse: None,
             engage: Ok(()),
             simulated: false,
-            deadman: Default::default(),
+            deadman: std::cell::Cell::default(),
         }
     }
     fn log(&self, s: String) {
@@ -849,7 +849,7 @@ fn the_override_key_pushes_the_bench_device_toward_its_far_end_and_again_lets_go
     for d in &mut f.snap.snap.devices {
         if d.name == "brake" || d.name == "gas" {
             let at = if d.name == "brake" { 1.0 } else { 0.0 };
-            for (n, v) in d.readings.0.iter_mut() {
+            for (n, v) in &mut d.readings.0 {
                 if n == crate::config::device::POSITION {
                     *v = Some(Value::Number(at));
                 }
