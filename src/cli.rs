@@ -296,10 +296,10 @@ pub fn main() -> i32 {
         Some(Cmd::Run(args)) => run(args),
         Some(Cmd::Sim(args)) => sim(args),
         Some(Cmd::Ports) => {
-            let ports = crate::ports::scan(Path::new("/sys"), Path::new("/dev"));
-            let ptys = crate::ports::pseudo_terminals(Path::new("/dev"));
-            let sims = crate::ports::simulated(&std::env::temp_dir(), Path::new("/proc"));
-            print_out(crate::ports::report(&ports, &ptys, &sims).as_bytes())
+            let ports = crate::port_list::scan(Path::new("/sys"), Path::new("/dev"));
+            let ptys = crate::port_list::pseudo_terminals(Path::new("/dev"));
+            let sims = crate::port_list::simulated(&std::env::temp_dir(), Path::new("/proc"));
+            print_out(crate::port_list::report(&ports, &ptys, &sims).as_bytes())
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
@@ -380,7 +380,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
     // The log pane's lines, for the embedded console and every attached one.
-    let ring = console::logring::LogRing::default();
+    let ring = crate::logging::ring::LogRing::default();
     let mut extra: Vec<logging::ExtraLayer> = vec![Box::new(ring.layer())];
     if recording.is_some() || args.foxglove.is_some() {
         extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));
@@ -471,7 +471,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         Some(keymap) => {
             let opts = console::Options {
                 keymap,
-                deadman: args.deadman.unwrap_or(console::model::DEADMAN),
+                deadman: args.deadman.unwrap_or(config::limits::DEADMAN_DEFAULT),
                 sources,
                 panic_after: panic_main.then_some(panic_after),
             };
@@ -595,7 +595,7 @@ fn open_ports(
     for d in &config.devices {
         match driver::open_serial(&d.port, d.baud, d.reply_timeout) {
             Ok(link) => {
-                opened.insert(d.name.to_string(), link);
+                opened.insert(d.name.clone(), link);
             }
             Err(e) if e.kind() == io::ErrorKind::ResourceBusy => {
                 anyhow::bail!(
@@ -717,7 +717,7 @@ pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
             return Ok(1);
         }
     };
-    let deadman = args.deadman.unwrap_or(console::model::DEADMAN);
+    let deadman = args.deadman.unwrap_or(config::limits::DEADMAN_DEFAULT);
     let why = console::drive(&remote, &exits, keymap, deadman, None)?;
     if let Exit::Lost(_) = why {
         tell(io::stderr(), format_args!("adrive: {}\n", why.describe()));

@@ -11,7 +11,8 @@
 //! running engine and operators command it once; [`sim`] emulates the devices on real
 //! pseudo-terminals; [`record`] keeps a run in an MCAP file, and [`foxglove`] serves it
 //! live to Foxglove and Lichtblick; [`console`] is the operator's screen (and replays
-//! recordings) and [`cli`] puts it all together; [`service`] tells systemd how it goes.
+//! recordings), [`port_list`] lists the serial ports (`adrive ports`) and [`cli`] puts
+//! it all together; [`service`] tells systemd how it goes.
 
 pub mod cli;
 pub mod config;
@@ -23,7 +24,7 @@ pub mod foxglove;
 pub mod headless;
 pub mod logging;
 pub mod net;
-pub mod ports;
+pub mod port_list;
 pub mod record;
 #[cfg(feature = "ros2")]
 pub mod ros2;
@@ -33,6 +34,10 @@ pub mod sim;
 pub mod snapshot;
 pub mod socket;
 pub mod supervisor;
+/// Fixtures for tests: public (and hidden from the docs) because the screen tests in
+/// `tests/console_screen.rs` build their vehicles with it, as the unit tests do.
+#[doc(hidden)]
+pub mod testkit;
 pub mod threads;
 pub mod value;
 pub mod vehicle;

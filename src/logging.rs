@@ -9,6 +9,7 @@
 //! finds a device's lines) and its level as the journal's priority.
 
 pub mod journal;
+pub mod ring;
 
 use std::fmt::Write as _;
 use std::io::IsTerminal;

@@ -242,7 +242,12 @@ impl DeviceView {
 
     /// The position of a setpoint actuator.
     pub fn position(&self) -> Option<f64> {
-        self.number("position")
+        self.number(crate::config::device::POSITION)
+    }
+
+    /// The state a state actuator reports, by name.
+    pub fn state(&self) -> Option<&str> {
+        self.reading(crate::config::device::STATE)?.as_str()
     }
 }
 
@@ -684,7 +689,7 @@ mod tests {
     #[test]
     fn a_large_snapshot_goes_in_parts_and_joins_back() {
         let now = std::time::Instant::now();
-        let mut snap = crate::console::sample::gate(now).snapshot(7);
+        let mut snap = crate::testkit::gate(now).snapshot(7);
         let one = snap.devices[0].clone();
         snap.devices = (0..64)
             .map(|i| DeviceView {

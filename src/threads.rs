@@ -1,7 +1,8 @@
 //! Threads, named and stoppable: a stop signal sleeping threads wake up for, a set of
 //! named threads joined with a deadline (naming any that did not stop), whether each
-//! still runs ([`Liveness`], which the service watchdog is fed by), and [`every`], the
-//! one periodic loop every periodic thread uses.
+//! still runs ([`Liveness`], which the service watchdog is fed by), [`Owner`], the
+//! one way a part that runs threads stops them, and [`every`], the one periodic loop
+//! every periodic thread uses.
 
 use parking_lot::{Condvar, Mutex};
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -121,6 +122,64 @@ impl Threads {
     }
 }
 
+/// The threads of one part (the network, the recorder, the supervisor, …) and the stop
+/// signal they watch: what every thread owner holds. [`Owner::stop`] signals, joins
+/// with a deadline and names the threads that did not end; an owner dropped without
+/// it (a panic unwinding, an error before the part was up) signals its threads and
+/// does not wait for them.
+#[derive(Default)]
+pub struct Owner {
+    signal: Arc<StopSignal>,
+    threads: Threads,
+}
+
+impl Owner {
+    /// An owner whose threads watch `signal`, shared with others that stop them too.
+    pub fn watching(signal: Arc<StopSignal>) -> Owner {
+        Owner {
+            signal,
+            threads: Threads::default(),
+        }
+    }
+
+    /// Start a named thread; `f` is handed the stop signal to watch.
+    pub fn spawn(
+        &mut self,
+        name: impl Into<String>,
+        f: impl FnOnce(&StopSignal) + Send + 'static,
+    ) -> std::io::Result<()> {
+        let signal = self.signal.clone();
+        self.threads.spawn(name.into(), move || f(&signal))
+    }
+
+    /// The stop signal its threads watch.
+    pub fn signal(&self) -> &Arc<StopSignal> {
+        &self.signal
+    }
+
+    pub fn names(&self) -> Vec<&str> {
+        self.threads.names()
+    }
+
+    /// Whether each thread runs.
+    pub fn liveness(&self) -> Liveness {
+        self.threads.liveness()
+    }
+
+    /// Tell the threads to stop and join them, waiting at most until `deadline`; the
+    /// names of those that did not end (logged). A second call finds none left.
+    pub fn stop(&mut self, deadline: Instant) -> Vec<String> {
+        self.signal.stop();
+        std::mem::take(&mut self.threads).join(deadline)
+    }
+}
+
+impl Drop for Owner {
+    fn drop(&mut self) {
+        self.signal.stop();
+    }
+}
+
 /// Whether each of a set of threads has started its work and whether it has ended
 /// (returned or panicked), by name.
 #[derive(Clone, Default)]
@@ -189,6 +248,53 @@ pub fn every(period: Duration, stop: &StopSignal, mut tick: impl FnMut()) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every part's shutdown: its threads are told to stop and joined; one that does
+    /// not end by the deadline is named, not waited for; an owner dropped without
+    /// stopping still tells its threads to stop.
+    #[test]
+    fn an_owner_stops_its_threads_and_names_those_that_did_not_end() {
+        let mut owner = Owner::default();
+        owner
+            .spawn("waits", |stop| {
+                stop.sleep_until(Instant::now() + Duration::from_secs(60));
+            })
+            .unwrap();
+        let (release, held) = std::sync::mpsc::channel::<()>();
+        owner
+            .spawn("deaf", move |_| {
+                let _ = held.recv();
+            })
+            .unwrap();
+        assert_eq!(owner.names(), ["waits", "deaf"]);
+        let t = Instant::now();
+        let stuck = owner.stop(Instant::now() + Duration::from_millis(300));
+        assert_eq!(stuck, ["deaf"]);
+        assert!(t.elapsed() < Duration::from_secs(30), "the deadline held");
+        assert!(
+            owner.stop(Instant::now()).is_empty(),
+            "nothing left to join"
+        );
+        drop(release);
+
+        let signal = {
+            let mut dropped = Owner::default();
+            let (tx, ended) = std::sync::mpsc::channel();
+            dropped
+                .spawn("waits", move |stop| {
+                    stop.sleep_until(Instant::now() + Duration::from_secs(60));
+                    let _ = tx.send(());
+                })
+                .unwrap();
+            let signal = dropped.signal().clone();
+            drop(dropped);
+            ended
+                .recv_timeout(Duration::from_secs(30))
+                .expect("a dropped owner's thread is told to stop");
+            signal
+        };
+        assert!(signal.is_stopped());
+    }
 
     /// The service watchdog stops being fed when a device thread ends: a thread that
     /// returns and one that panics are both seen as ended; one that waits is running.

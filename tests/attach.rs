@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 /// `adrive attach`'s default teleop deadman.
-const DEADMAN: Duration = Duration::from_secs(1);
+const DEADMAN: Duration = adrive::config::limits::DEADMAN_DEFAULT;
 
 /// adrive headless (the service) with its control socket in a directory of its own.
 struct Service {
@@ -342,6 +342,7 @@ fn operator_commands_engage_release_stop_with_exit_statuses() {
     );
 }
 
+#[allow(unsafe_code)]
 #[test]
 fn the_socket_is_0660_in_the_process_group_and_a_second_adrive_on_it_is_refused() {
     let svc = Service::start("attach-socket", None);

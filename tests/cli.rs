@@ -350,6 +350,7 @@ fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
 /// `ESC[?1049l` and exited 101, as after a panic. Without a terminal on both standard
 /// input and output the console is refused before anything starts: no log, no engine,
 /// a message pointing to `--headless` and `ssh -t`, status 2, no escape codes.
+#[allow(unsafe_code)]
 #[test]
 fn the_console_without_a_terminal_is_refused_before_anything_starts() {
     use std::os::unix::process::CommandExt;

@@ -154,10 +154,12 @@ fn a_byte_that_is_not_utf8_names_its_line() {
 
 /// How a pseudo-terminal is set up: changed by anything that opens it as a serial
 /// port (raw mode, the baud rate).
+#[allow(unsafe_code)]
 fn termios(port: &serialport::TTYPort) -> [libc::tcflag_t; 4] {
     use std::os::fd::AsRawFd;
-    // SAFETY: a zeroed termios is a valid out-parameter; the fd is open.
+    // SAFETY: a zeroed termios is a valid out-parameter.
     let mut t: libc::termios = unsafe { std::mem::zeroed() };
+    // SAFETY: tcgetattr fills the struct from a terminal fd that is open.
     assert_eq!(unsafe { libc::tcgetattr(port.as_raw_fd(), &mut t) }, 0);
     [t.c_iflag, t.c_oflag, t.c_cflag, t.c_lflag]
 }

@@ -100,6 +100,7 @@ impl Console {
     }
 
     /// Resize the terminal as a terminal window does: the kernel signals SIGWINCH.
+    #[allow(unsafe_code)]
     fn resize(&self, cols: u16, rows: u16) {
         let ws = libc::winsize {
             ws_row: rows,
@@ -139,9 +140,11 @@ impl Console {
     }
 
     /// Raw mode is off again: canonical input and echo, as a shell expects.
+    #[allow(unsafe_code)]
     fn cooked(&self) -> bool {
-        // SAFETY: tcgetattr fills the struct from a valid terminal fd.
+        // SAFETY: a zeroed termios is a valid out-parameter.
         let mut t: libc::termios = unsafe { std::mem::zeroed() };
+        // SAFETY: tcgetattr fills the struct from a valid terminal fd.
         let r = unsafe { libc::tcgetattr(self.slave.as_raw_fd(), &mut t) };
         assert_eq!(r, 0);
         t.c_lflag & libc::ICANON != 0 && t.c_lflag & libc::ECHO != 0
@@ -252,6 +255,7 @@ fn ctrl_c_stops_safely_and_restores_the_terminal() {
     assert!(log.contains("safe state acknowledged"), "{log}");
 }
 
+#[allow(unsafe_code)]
 #[test]
 fn sigterm_stops_safely_and_restores_the_terminal() {
     let mut c = Console::start("term", &[]);
@@ -267,6 +271,7 @@ fn sigterm_stops_safely_and_restores_the_terminal() {
 
 /// An SSH session dropping: SIGHUP ends the run as a hang-up (status 129), the safe
 /// state first, then the terminal as it was.
+#[allow(unsafe_code)]
 #[test]
 fn sighup_stops_safely_and_restores_the_terminal() {
     let mut c = Console::start("hup", &[]);

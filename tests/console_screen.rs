@@ -4,16 +4,17 @@
 //! (`vehicles/tractor.toml`) for the screen with many devices, driven by keys through
 //! the keymap: real structures, no threads.
 
+use adrive::config::limits::DEADMAN_DEFAULT as DEADMAN;
 use adrive::config::Role;
 use adrive::console::controls::Live;
 use adrive::console::controls::{capture, Sources};
 use adrive::console::keymap::{key_to_action, Action, Key, Keymap, Mode};
-use adrive::console::logring::LogRing;
-use adrive::console::model::{Field, Model, DEADMAN};
-use adrive::console::sample;
+use adrive::console::model::{Field, Model};
 use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
 use adrive::engine::Gate;
+use adrive::logging::ring::LogRing;
+use adrive::testkit;
 use adrive::vehicle::trace::Dir;
 use adrive::vehicle::Vehicle;
 use ratatui::backend::TestBackend;
@@ -33,7 +34,7 @@ struct Fixture {
 fn fixture(faulty: bool) -> Fixture {
     fixture_with(|v, now| {
         if faulty {
-            sample::make_faulty(v, "steer", now);
+            testkit::make_faulty(v, "steer", now);
         }
     })
 }
@@ -52,7 +53,7 @@ fn tractor(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
 
 fn fixture_of(config: adrive::config::VehicleConfig, setup: impl Fn(&Vehicle, Instant)) -> Fixture {
     let now = Instant::now();
-    let vehicle = Arc::new(sample::vehicle_of(config, now));
+    let vehicle = Arc::new(testkit::vehicle_of(config, now));
     setup(&vehicle, now);
     let logs = LogRing::default();
     logs.push(
@@ -325,7 +326,7 @@ fn a_small_terminal_gets_a_message_not_a_crash() {
 
 #[test]
 fn a_recovery_in_progress_and_the_faults_at_80x24() {
-    let f = fixture_with(sample::make_recovering);
+    let f = fixture_with(testkit::make_recovering);
     let b = render(&f.model(Theme::default()), 80, 24);
     let screen = text(&b);
     snapshot("recovery_80x24", &screen);
@@ -356,7 +357,7 @@ fn a_recovery_in_progress_and_the_faults_at_80x24() {
 
 #[test]
 fn a_recovery_in_progress_and_the_faults_at_120x40() {
-    let f = fixture_with(sample::make_recovering);
+    let f = fixture_with(testkit::make_recovering);
     let b = render(&f.model(Theme::default()), 120, 40);
     snapshot("recovery_120x40", &text(&b));
     // Each step shown, the current one highlighted.
@@ -418,7 +419,7 @@ fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
 
 #[test]
 fn the_bench_shows_the_supervisors_strip_too() {
-    let f = fixture_with(sample::make_recovering);
+    let f = fixture_with(testkit::make_recovering);
     let mut m = f.model(Theme::default());
     f.act(&mut m, &[Action::Bench]);
     let b = render(&m, 80, 24);
@@ -433,7 +434,7 @@ fn the_bench_shows_the_supervisors_strip_too() {
 /// The reason is shortened at a word instead, with "…" and its parentheses closed.
 #[test]
 fn the_header_at_100_columns_shortens_the_reason_and_closes_it() {
-    let f = fixture_with(|v, now| sample::make_faulty(v, "gas", now));
+    let f = fixture_with(|v, now| testkit::make_faulty(v, "gas", now));
     f.gate.disengage("gas is faulty (no reply within 100ms)");
     let mut m = f.model(Theme::default());
     f.act(&mut m, &[Action::Bench]);
@@ -460,8 +461,8 @@ fn line(b: &Buffer, y: u16) -> String {
 #[test]
 fn thirty_two_devices_at_80x24_each_have_a_row_and_faulty_ones_are_red() {
     let f = tractor(|v, now| {
-        sample::make_faulty(v, "hitch", now);
-        sample::make_faulty(v, "gnss", now);
+        testkit::make_faulty(v, "hitch", now);
+        testkit::make_faulty(v, "gnss", now);
     });
     let m = f.model(Theme::default());
     let b = render(&m, 80, 24);
@@ -689,7 +690,7 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
     f.act(&mut m, &[Action::Right, Action::Bench]);
     assert_eq!(m.bench, gas);
     // What ten seconds of ticks would have fed it, a sample each 100 ms.
-    m.trail = Default::default();
+    m.trail = adrive::console::trail::Trail::default();
     let mut d = m.snap.at(gas).unwrap().clone();
     for k in 0..=100u32 {
         let t = k as f64 / 10.0;
@@ -697,7 +698,7 @@ fn the_bench_charts_measured_estimate_and_command_through_a_step() {
         let at = (if t < 5.0 { 0.0 } else { (t - 5.0) * 0.4 }).min(0.6);
         let est = (if t < 5.2 { 0.0 } else { (t - 5.2) * 0.4 }).min(0.6);
         d.commanded = Some(Value::Number(cmd));
-        for (name, v) in d.readings.0.iter_mut() {
+        for (name, v) in &mut d.readings.0 {
             if name == "position" {
                 *v = Some(Value::Number(at));
             }

@@ -51,10 +51,10 @@ fn commands_at_twice_the_execution_rate_keep_only_the_latest() {
         vec![set(0.1), set(0.3)],
         "the device got the first and the latest"
     );
-    let s = steer.stats().snapshot();
+    let s = steer.stats().counters();
     assert_eq!((s.received, s.executed, s.superseded), (4, 3, 1));
     // The third waited only for the rest of the first transaction on the wire.
-    let max = s.command_delay.max_us.unwrap();
+    let max = steer.stats().command_delay.summary().max_us.unwrap();
     assert!(max < 150_000.0 + 100_000.0, "third command waited {max} µs");
 }
 
@@ -138,14 +138,14 @@ fn max_delay_under_100hz_commands(port_rule: &str) -> f64 {
         i += 1;
         std::thread::sleep(Duration::from_millis(10));
     }
-    let s = steer.stats().snapshot();
+    let s = steer.stats().counters();
     assert!(s.polls >= 3, "status polls kept happening: {}", s.polls);
-    let status_txn = s.status_txn.p50_us.unwrap() / 1000.0;
+    let status_txn = steer.stats().status_txn.summary().p50_us.unwrap() / 1000.0;
     assert!(
         status_txn > 90.0,
         "status transactions take {status_txn} ms"
     );
-    s.command_delay.max_us.unwrap() / 1000.0
+    steer.stats().command_delay.summary().max_us.unwrap() / 1000.0
 }
 
 /// Regression for the paper's cued-command stall: with status polls of 100 ms and
@@ -192,7 +192,7 @@ fn status_is_polled_within_max_age_under_a_command_flood() {
         worst < Duration::from_millis(300 + 50 + 20 + 150),
         "status went {worst:?} stale"
     );
-    let s = steer.stats().snapshot();
+    let s = steer.stats().counters();
     assert!(s.executed > 20, "commands flowed: {}", s.executed);
 }
 

@@ -101,6 +101,7 @@ impl Adrive {
             .unwrap()
     }
 
+    #[allow(unsafe_code)]
     fn signal(&self, sig: i32) {
         // SAFETY: kill(2) on our own child.
         assert_eq!(unsafe { libc::kill(self.child.id() as i32, sig) }, 0);

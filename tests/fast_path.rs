@@ -72,14 +72,15 @@ fn a_command_on_an_idle_port_is_on_the_wire_when_intake_returns_and_counted_once
     let got: Vec<Command> = rig.received().iter().map(|e| e.command).collect();
     assert_eq!(got, vec![set(0.3), set(-0.2)], "each went out once");
     steer.stats().refresh();
-    let s = steer.stats().snapshot();
+    let s = steer.stats().counters();
     assert_eq!((s.received, s.executed, s.command_errors), (3, 3, 0));
     assert_eq!(steer.stats().fast.load(Relaxed), 2);
     assert_eq!(
-        s.command_delay.count, 3,
+        steer.stats().command_delay.summary().count,
+        3,
         "every fresh command's delay, once"
     );
-    assert_eq!(s.command_txn.count, 3);
+    assert_eq!(steer.stats().command_txn.summary().count, 3);
     assert_eq!(steer.slot().wire().flight, None, "nothing left in flight");
 }
 

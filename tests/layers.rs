@@ -11,8 +11,8 @@ use std::path::{Path, PathBuf};
 /// The core, bottom first: a module may import those before it (and itself).
 const CORE: &[&str] = &[
     "value",
-    "snapshot",
     "config",
+    "snapshot",
     "driver",
     "vehicle",
     "safety",
@@ -63,7 +63,12 @@ fn files(dir: &Path, out: &mut Vec<PathBuf>) {
 /// The top-level module a file of `src/` belongs to.
 fn module(path: &Path) -> String {
     let rel = path.strip_prefix("src").unwrap();
-    let first = rel.components().next().unwrap().as_os_str().to_string_lossy();
+    let first = rel
+        .components()
+        .next()
+        .unwrap()
+        .as_os_str()
+        .to_string_lossy();
     first.trim_end_matches(".rs").to_string()
 }
 
@@ -91,7 +96,12 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
     std::env::set_current_dir(env!("CARGO_MANIFEST_DIR")).unwrap();
     let mut all = Vec::new();
     files(Path::new("src"), &mut all);
-    assert!(all.len() > 50, "read {} files under {}", all.len(), src.display());
+    assert!(
+        all.len() > 50,
+        "read {} files under {}",
+        all.len(),
+        src.display()
+    );
     let mut wrong = Vec::new();
     for f in &all {
         let m = module(f);
@@ -103,7 +113,9 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
             let target = path.split("::").nth(1).unwrap_or("");
             let file = f.display().to_string();
             if FRONT.contains(&target) {
-                wrong.push(format!("{file}:{line}: the core imports a front end: {path}"));
+                wrong.push(format!(
+                    "{file}:{line}: the core imports a front end: {path}"
+                ));
                 continue;
             }
             let Some(to) = CORE.iter().position(|c| *c == target) else {
@@ -117,5 +129,9 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
             }
         }
     }
-    assert!(wrong.is_empty(), "imports pointing up:\n{}", wrong.join("\n"));
+    assert!(
+        wrong.is_empty(),
+        "imports pointing up:\n{}",
+        wrong.join("\n")
+    );
 }

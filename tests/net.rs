@@ -228,7 +228,7 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
     // The receipt → first byte delay is measured from the socket read.
     let d = n.rig.device("steer");
     d.stats().refresh();
-    let delay = d.stats().snapshot().command_delay;
+    let delay = d.stats().command_delay.summary();
     assert!(
         delay.count >= 1 && delay.max_us.unwrap() < 100_000.0,
         "{delay:?}"
@@ -707,7 +707,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         })
     };
     let steer = n.rig.device("steer");
-    let before = steer.stats().snapshot();
+    let before = steer.stats().counters();
     let start = Instant::now();
     let mut i = 0;
     let mut slowest_read = Duration::ZERO;
@@ -732,7 +732,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         n.rig.gate.is_engaged(),
         "the watchdog tripped under the flood"
     );
-    let got = steer.stats().snapshot().received - before.received;
+    let got = steer.stats().counters().received - before.received;
     assert!(
         got as f64 >= i as f64 * 0.95,
         "{got} of {i} commands got through a flood of {flooded}"
@@ -748,7 +748,7 @@ fn a_flood_from_one_sender_does_not_hold_up_the_commander() {
         "a reader waited {slowest_read:?}"
     );
     steer.stats().refresh();
-    let delay = steer.stats().snapshot().command_delay;
+    let delay = steer.stats().command_delay.summary();
     assert!(delay.p99_us.unwrap() < 60_000.0, "{delay:?}");
     let brake = n.rig.device("brake");
     assert!(brake.cached().age().unwrap() < Duration::from_millis(600));

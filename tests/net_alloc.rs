@@ -14,12 +14,16 @@ thread_local! {
     static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
 }
 
+#[allow(unsafe_code)]
+// SAFETY: every call is handed on to the system allocator unchanged.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
+        // SAFETY: the caller keeps `alloc`'s contract, which is System's.
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: the caller keeps `dealloc`'s contract: `ptr` came from System.
         unsafe { System.dealloc(ptr, layout) }
     }
 }
@@ -42,7 +46,6 @@ fn parse_verify_and_count_do_not_allocate() {
     let counts = RejectCounts::new();
     let alice = VehicleConfig::alice();
     let vocab = Vocabulary::of(&alice);
-    #[allow(clippy::result_large_err)]
     let parse = |b: &[u8]| parse(b, &vocab);
 
     let n = allocations_in(|| {

@@ -8,7 +8,7 @@ mod common;
 #[path = "support/python_env.rs"]
 mod python_env;
 
-use adrive::config::wire::{Field, ModbusMap, Wire};
+use adrive::config::protocol_map::{Field, ModbusMap, Wire};
 use adrive::driver::modbus::ModbusDriver;
 use adrive::driver::{Driver, DriverError};
 use adrive::value::Command;

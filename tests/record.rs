@@ -568,6 +568,7 @@ fn kill_9_mid_recording_leaves_a_file_readable_up_to_its_last_chunk() {
     assert!(Player::load(&rec).is_ok(), "it replays");
 }
 
+#[allow(unsafe_code)]
 #[test]
 fn a_full_disk_stops_the_recording_not_the_vehicle() {
     // A file size limit fails writes past it as a full disk does (EFBIG for ENOSPC);

@@ -342,7 +342,7 @@ fn a_jammed_steering_drive_while_disengaged_receives_nothing_from_the_supervisor
     });
     let got: Vec<Command> = received_by(&rig, "steer");
     assert_eq!(got, [set(0.05)], "the steering drive received {got:?}");
-    let s = steer.stats().snapshot();
+    let s = steer.stats().counters();
     assert_eq!((s.received, s.superseded), (1, 0), "{s:?}");
     assert!(rig.vehicle.supervision().snapshot().recovery.is_none());
     assert!(steer_fault_latched(&rig), "still latched");

@@ -92,7 +92,7 @@ pub fn section9_estimator(rule: &str, secs: f64) {
     let run = Run::start(&toml);
     let names = ["fixed", "adaptive"];
     let devices: Vec<&Device> = names.iter().map(|n| run.device(n)).collect();
-    let before: Vec<_> = devices.iter().map(|d| d.stats().snapshot()).collect();
+    let before: Vec<_> = devices.iter().map(|d| d.stats().counters()).collect();
     let model = run._sim.model().clone();
     let sim_index: Vec<usize> = names
         .iter()
@@ -142,7 +142,7 @@ pub fn section9_estimator(rule: &str, secs: f64) {
         "polling", "commands/s", "polls/s", "cache rms", "cache max", "est rms", "est max"
     );
     for (i, d) in devices.iter().enumerate() {
-        let s = d.stats().snapshot();
+        let s = d.stats().counters();
         let rms = |k: usize| (err[i][k].0 / samples as f64).sqrt();
         println!(
             "{:<10} {:>10.1} {:>8.1} {:>10.4} {:>10.4} {:>10.4} {:>10.4}",

@@ -33,6 +33,7 @@ pub enum Then {
 
 /// A raw pseudo-terminal whose master side is drained by a thread of its own; the
 /// slave to write to.
+#[allow(unsafe_code)]
 fn pty() -> std::fs::File {
     use std::io::Read;
     let (master, slave) = crate::common::pty::openpty(80, 24);
@@ -62,6 +63,7 @@ pub struct Floor {
     pair: Arc<(Mutex<Option<Instant>>, Condvar)>,
 }
 
+#[allow(unsafe_code)]
 fn pin(cpu: usize) {
     // SAFETY: a zeroed cpu_set_t is empty; CPU_SET stays within it.
     unsafe {

@@ -56,6 +56,7 @@ fn vehicle(head: &str, devices: &[String]) -> String {
 }
 
 /// Set the planner's thread to wake within a microsecond of when asked.
+#[allow(unsafe_code)]
 fn precise_timers() {
     // SAFETY: PR_SET_TIMERSLACK takes nanoseconds and touches nothing else.
     unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000) };
@@ -707,6 +708,7 @@ fn section3_fig4(dir: &tempfile::TempDir, secs: f64, out: &Path, r: &mut Results
 /// The CPU floor of taking datagrams at all: a thread that only receives them (one
 /// `recv` each, as adrive's listener does when they do not queue) at `rate` a second
 /// from `adrive send`. Returns (datagrams a second, % of a core).
+#[allow(unsafe_code)]
 fn bare_receiver(rate: f64, secs: f64) -> (f64, f64) {
     let rx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
     rx.set_read_timeout(Some(Duration::from_millis(300)))
@@ -714,8 +716,9 @@ fn bare_receiver(rate: f64, secs: f64) -> (f64, f64) {
     let to = rx.local_addr().unwrap();
     let counter = std::thread::spawn(move || {
         let thread_cpu = || {
-            // SAFETY: getrusage fills the struct we hand it.
+            // SAFETY: an all-zero rusage is a valid out-parameter.
             let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+            // SAFETY: getrusage fills the struct we hand it.
             unsafe { libc::getrusage(libc::RUSAGE_THREAD, &mut u) };
             let t = |v: libc::timeval| Duration::new(v.tv_sec as u64, v.tv_usec as u32 * 1000);
             t(u.ru_utime) + t(u.ru_stime)
@@ -870,6 +873,7 @@ fn section5_findings(dir: &tempfile::TempDir, secs: f64) {
     println!("d) this bench: Fig. 4 drives four actuators (Alice's steer, gas, brake, trans) and prints µs");
 }
 
+#[allow(unsafe_code)]
 fn section6_memory(dir: &tempfile::TempDir, r: &mut Results) {
     println!("\n== 6. Memory: peak resident set (the paper: under 4 MB) ==");
     let me = std::env::current_exe().unwrap();
@@ -924,6 +928,7 @@ fn section6_memory(dir: &tempfile::TempDir, r: &mut Results) {
 /// What the console costs a terminal (an SSH session over a slow link): bytes a second
 /// it writes on a 100×30 terminal, idle, and with the steering moving at 10 Hz (a
 /// planner alternating `steer 0.3` / `steer -0.3`).
+#[allow(unsafe_code)]
 fn section7_console_output(dir: &tempfile::TempDir, secs: f64, r: &mut Results) {
     println!(
         "\n== 7. The console's output on a 100×30 terminal (`adrive --sim`), {secs} s each =="

@@ -35,6 +35,7 @@ struct DeviceEnd {
 
 impl DeviceEnd {
     /// `answer`: reply to the host (adrive) as the device; a relay gets no replies.
+    #[allow(unsafe_code)]
     fn open(answer: bool) -> DeviceEnd {
         let (master, slave) = openpty(80, 24);
         raw(&slave);
@@ -97,6 +98,7 @@ impl DeviceEnd {
 }
 
 /// The slave side raw, as a serial port is opened.
+#[allow(unsafe_code)]
 fn raw(fd: &OwnedFd) {
     // SAFETY: tcgetattr fills the struct; cfmakeraw and tcsetattr read it.
     unsafe {

@@ -84,6 +84,7 @@ pub fn status_kb(pid: u32, field: &str) -> u64 {
 }
 
 /// The peak resident set of a command run to its end, kB (from `wait4`'s usage).
+#[allow(unsafe_code)]
 pub fn peak_kb_of(cmd: &mut Command) -> u64 {
     #[expect(clippy::zombie_processes, reason = "reaped by wait4 below")]
     let child = cmd

@@ -1,12 +1,12 @@
 //! One device of a vehicle file: its free name, its kind (setpoint, state or sensor),
 //! what it takes (a range with units, or a list of named states), what it reports
 //! (named readings with units), how often it is polled, and how its protocol maps all
-//! of that to the wire ([`super::wire`]). The raw TOML form is turned into a checked
+//! of that to the wire ([`super::protocol_map`]). The raw TOML form is turned into a checked
 //! [`DeviceConfig`] here; every refusal says what was expected.
 
 use super::limits::{self, Violation};
+use super::protocol_map::{self, Wire};
 use super::response::{self, Polling, RawResponse, Response};
-use super::wire::{self, Wire};
 use super::{duration, opt_duration, SimConfig};
 use crate::value::{Command, Kind};
 use serde::Deserialize;
@@ -136,10 +136,17 @@ pub struct WellKnown {
     pub what: &'static str,
 }
 
+/// The reading a setpoint actuator reports where it is by (its estimate's, the held
+/// steering's, the brake's): see [`DeviceConfig::position`].
+pub const POSITION: &str = "position";
+/// The reading a state actuator reports its state by (the gear's): see
+/// [`DeviceConfig::state`].
+pub const STATE: &str = "state";
+
 /// The readings adrive knows by name. Any other reading needs its `units`.
 pub const WELL_KNOWN: [WellKnown; 12] = [
     WellKnown {
-        name: "position",
+        name: POSITION,
         units: "",
         flag: false,
         line_key: "pos",
@@ -163,7 +170,7 @@ pub const WELL_KNOWN: [WellKnown; 12] = [
         what: "brake line pressure",
     },
     WellKnown {
-        name: "state",
+        name: STATE,
         units: "",
         flag: false,
         line_key: "state",
@@ -385,6 +392,17 @@ impl DeviceConfig {
         self.readings.iter().position(|r| r.name == name)
     }
 
+    /// The index of its [`POSITION`] reading (every setpoint actuator has one).
+    pub fn position(&self) -> Option<usize> {
+        self.reading(POSITION)
+    }
+
+    /// The index of its [`STATE`] reading (a state actuator's, unless it names its
+    /// readings otherwise).
+    pub fn state(&self) -> Option<usize> {
+        self.reading(STATE)
+    }
+
     /// The state index of a word: a state's name or an alias, any case.
     pub fn state_index(&self, word: &str) -> Option<u8> {
         self.states
@@ -516,9 +534,9 @@ pub(super) struct RawDevice {
     #[serde(default)]
     sim: SimConfig,
     #[serde(default)]
-    modbus: Option<Spanned<wire::RawModbus>>,
+    modbus: Option<Spanned<protocol_map::RawModbus>>,
     #[serde(default)]
-    line: Option<Spanned<wire::RawLine>>,
+    line: Option<Spanned<protocol_map::RawLine>>,
     #[serde(default)]
     response: Option<Spanned<RawResponse>>,
     #[serde(default)]
@@ -560,145 +578,21 @@ impl RawDevice {
         let name = self.name.into_inner();
         check_name("device", &name).map_err(|m| (at_name, m))?;
         let kind = *self.kind.get_ref();
-        let at_kind = self.kind.span().start;
-        let driver = *self.driver.get_ref();
         let at_driver = self.driver.span().start;
+        let of = Of {
+            name: &name,
+            kind,
+            at_name,
+            at_kind: self.kind.span().start,
+        };
 
         // What it takes.
-        let range = match (kind, &self.range) {
-            (Kind::Setpoint, None) => {
-                return Err((
-                    at_kind,
-                    format!("{name}: a setpoint device needs `range = [min, max]`"),
-                ))
-            }
-            (Kind::Setpoint, Some(r)) => {
-                let v = r.get_ref();
-                match v.as_slice() {
-                    [lo, hi] if lo.is_finite() && hi.is_finite() && lo < hi => [*lo, *hi],
-                    _ => {
-                        return Err((
-                            r.span().start,
-                            format!(
-                                "{name}: range: expected [min, max], two finite numbers with min < max (got {v:?})"
-                            ),
-                        ))
-                    }
-                }
-            }
-            (_, Some(r)) => {
-                return Err((
-                    r.span().start,
-                    format!("{name}: range is for setpoint devices ({name} is a {kind})"),
-                ))
-            }
-            (_, None) => [0.0, 0.0],
-        };
-        let states = match (kind, self.states) {
-            (Kind::State, None) => {
-                return Err((
-                    at_kind,
-                    format!("{name}: a state device needs `states = [\"…\", …]`"),
-                ))
-            }
-            (Kind::State, Some(s)) => {
-                let at = s.span().start;
-                let list = s.into_inner();
-                check_states(&name, &list).map_err(|m| (at, m))?;
-                list
-            }
-            (_, Some(s)) => {
-                return Err((
-                    s.span().start,
-                    format!("{name}: states are for state devices ({name} is a {kind})"),
-                ))
-            }
-            (_, None) => Vec::new(),
-        };
-        let mut aliases = Vec::new();
-        if let Some(a) = self.aliases {
-            let at = a.span().start;
-            if kind != Kind::State {
-                return Err((at, format!("{name}: aliases are for state devices")));
-            }
-            for (word, target) in a.into_inner() {
-                let Some(target) = target.as_str() else {
-                    return Err((
-                        at,
-                        format!("{name}: aliases: {word} = expected a state name in quotes"),
-                    ));
-                };
-                let Some(i) = states.iter().position(|s| s == target) else {
-                    return Err((
-                        at,
-                        format!(
-                            "{name}: aliases: {word} = {target:?} is not a state (states: {})",
-                            states.join(", ")
-                        ),
-                    ));
-                };
-                if states.iter().any(|s| s.eq_ignore_ascii_case(&word)) {
-                    return Err((at, format!("{name}: aliases: {word:?} is already a state")));
-                }
-                aliases.push((word, i as u8));
-            }
-        }
+        let range = of.range(self.range.as_ref())?;
+        let states = of.states(self.states)?;
+        let aliases = of.aliases(&states, self.aliases)?;
 
         // What it reports.
-        let readings = match self.readings {
-            Some(r) => {
-                let at = r.span().start;
-                let list = r.into_inner();
-                if list.is_empty() {
-                    return Err((at, format!("{name}: readings: expected at least one")));
-                }
-                let mut out: Vec<ReadingSpec> = Vec::new();
-                for item in list {
-                    let at = item.span().start;
-                    let spec = reading_spec(&name, kind, &states, item.into_inner())
-                        .map_err(|m| (at, m))?;
-                    if out.iter().any(|o| o.name == spec.name) {
-                        return Err((at, format!("{name}: reading {} is listed twice", spec.name)));
-                    }
-                    out.push(spec);
-                }
-                out
-            }
-            None => match kind {
-                Kind::Setpoint => vec![ReadingSpec {
-                    name: "position".into(),
-                    units: self.units.clone().unwrap_or_default(),
-                    kind: ReadingKind::Number,
-                }],
-                Kind::State => vec![ReadingSpec {
-                    name: "state".into(),
-                    units: String::new(),
-                    kind: ReadingKind::States(states.clone()),
-                }],
-                Kind::Sensor => {
-                    return Err((
-                        at_kind,
-                        format!("{name}: a sensor needs `readings = [\"…\", …]` (what it reports)"),
-                    ))
-                }
-            },
-        };
-        if readings.len() > crate::value::MAX_READINGS {
-            return Err((
-                at_name,
-                format!(
-                    "{name}: at most {} readings a device (got {})",
-                    crate::value::MAX_READINGS,
-                    readings.len()
-                ),
-            ));
-        }
-        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == "position") {
-            return Err((
-                at_name,
-                format!("{name}: a setpoint device reports its `position` (add it to readings)"),
-            ));
-        }
+        let readings = of.readings(&states, self.readings, self.units.as_deref())?;
         let units = self.units.unwrap_or_default();
         if kind != Kind::Setpoint && !units.is_empty() {
             return Err((
@@ -706,42 +600,13 @@ impl RawDevice {
                 format!("{name}: units are for setpoint devices (readings carry their own)"),
             ));
         }
-
-        let response = match self.response {
-            None => None,
-            Some(r) => {
-                let at = r.span().start;
-                if kind != Kind::Setpoint {
-                    return Err((
-                        at,
-                        format!(
-                            "{name}: [device.response] is for setpoint devices ({name} is a {kind}): {}",
-                            limits::RESPONSE_ON_SETPOINTS.text
-                        ),
-                    ));
-                }
-                Some(r.into_inner().resolve(&name, range).map_err(|m| (at, m))?)
-            }
-        };
-        let polling = match self.polling {
-            None => Polling::Fixed,
-            Some(p) => {
-                if *p.get_ref() == Polling::Adaptive && response.is_none() {
-                    return Err((
-                        p.span().start,
-                        format!(
-                            "{name}: polling = \"adaptive\" needs a [device.response] (how the real device answers its command: the estimate adaptive polling polls by)"
-                        ),
-                    ));
-                }
-                p.into_inner()
-            }
-        };
+        let response = of.response(range, self.response)?;
+        let polling = of.polling(response.is_some(), self.polling)?;
 
         let partial = DeviceConfig {
             name: name.clone(),
             kind,
-            driver,
+            driver: *self.driver.get_ref(),
             port: String::new(),
             baud: self.baud,
             status_period: self.status_period,
@@ -757,7 +622,7 @@ impl RawDevice {
             readings,
             safe: None,
             sim: self.sim,
-            wire: Wire::Line(Default::default()),
+            wire: Wire::Line(protocol_map::LineMap::default()),
             response,
             polling,
         };
@@ -768,7 +633,7 @@ impl RawDevice {
                 Some(safe_value(&partial, s.get_ref()).map_err(|m| (at, m))?)
             }
         };
-        let wire = wire::resolve(&partial, at_driver, self.modbus, self.line)?;
+        let wire = protocol_map::resolve(&partial, at_driver, self.modbus, self.line)?;
         let port = self.port.map(Spanned::into_inner).unwrap_or_default();
         Ok(DeviceConfig {
             port,
@@ -776,6 +641,214 @@ impl RawDevice {
             wire,
             ..partial
         })
+    }
+}
+
+/// The device being checked, for the checks of its keys: its name and kind, and where
+/// they are written (a refusal about a missing key points there).
+struct Of<'a> {
+    name: &'a str,
+    kind: Kind,
+    at_name: usize,
+    at_kind: usize,
+}
+
+impl Of<'_> {
+    /// `range`: a setpoint device's `[min, max]`; `[0, 0]` for the others.
+    fn range(&self, range: Option<&Spanned<Vec<f64>>>) -> Result<[f64; 2], Refusal> {
+        let (name, kind) = (self.name, self.kind);
+        match (kind, range) {
+            (Kind::Setpoint, None) => Err((
+                self.at_kind,
+                format!("{name}: a setpoint device needs `range = [min, max]`"),
+            )),
+            (Kind::Setpoint, Some(r)) => {
+                let v = r.get_ref();
+                match v.as_slice() {
+                    [lo, hi] if lo.is_finite() && hi.is_finite() && lo < hi => Ok([*lo, *hi]),
+                    _ => Err((
+                        r.span().start,
+                        format!(
+                            "{name}: range: expected [min, max], two finite numbers with min < max (got {v:?})"
+                        ),
+                    )),
+                }
+            }
+            (_, Some(r)) => Err((
+                r.span().start,
+                format!("{name}: range is for setpoint devices ({name} is a {kind})"),
+            )),
+            (_, None) => Ok([0.0, 0.0]),
+        }
+    }
+
+    /// `states`: a state device's, in order.
+    fn states(&self, states: Option<Spanned<Vec<String>>>) -> Result<Vec<String>, Refusal> {
+        let (name, kind) = (self.name, self.kind);
+        match (kind, states) {
+            (Kind::State, None) => Err((
+                self.at_kind,
+                format!("{name}: a state device needs `states = [\"…\", …]`"),
+            )),
+            (Kind::State, Some(s)) => {
+                let at = s.span().start;
+                let list = s.into_inner();
+                check_states(name, &list).map_err(|m| (at, m))?;
+                Ok(list)
+            }
+            (_, Some(s)) => Err((
+                s.span().start,
+                format!("{name}: states are for state devices ({name} is a {kind})"),
+            )),
+            (_, None) => Ok(Vec::new()),
+        }
+    }
+
+    /// `aliases`: other words for a state device's states.
+    fn aliases(
+        &self,
+        states: &[String],
+        aliases: Option<Spanned<toml::Table>>,
+    ) -> Result<Vec<(String, u8)>, Refusal> {
+        let name = self.name;
+        let mut out = Vec::new();
+        let Some(a) = aliases else { return Ok(out) };
+        let at = a.span().start;
+        if self.kind != Kind::State {
+            return Err((at, format!("{name}: aliases are for state devices")));
+        }
+        for (word, target) in a.into_inner() {
+            let Some(target) = target.as_str() else {
+                return Err((
+                    at,
+                    format!("{name}: aliases: {word} = expected a state name in quotes"),
+                ));
+            };
+            let Some(i) = states.iter().position(|s| s == target) else {
+                return Err((
+                    at,
+                    format!(
+                        "{name}: aliases: {word} = {target:?} is not a state (states: {})",
+                        states.join(", ")
+                    ),
+                ));
+            };
+            if states.iter().any(|s| s.eq_ignore_ascii_case(&word)) {
+                return Err((at, format!("{name}: aliases: {word:?} is already a state")));
+            }
+            out.push((word, i as u8));
+        }
+        Ok(out)
+    }
+
+    /// `readings`, or without it the one a setpoint or state device reports by
+    /// default (its [`POSITION`] in `units`, its [`STATE`]).
+    fn readings(
+        &self,
+        states: &[String],
+        readings: Option<Spanned<Vec<Spanned<toml::Value>>>>,
+        units: Option<&str>,
+    ) -> Result<Vec<ReadingSpec>, Refusal> {
+        let (name, kind, at_name) = (self.name, self.kind, self.at_name);
+        let readings = match readings {
+            Some(r) => {
+                let at = r.span().start;
+                let list = r.into_inner();
+                if list.is_empty() {
+                    return Err((at, format!("{name}: readings: expected at least one")));
+                }
+                let mut out: Vec<ReadingSpec> = Vec::new();
+                for item in list {
+                    let at = item.span().start;
+                    let spec =
+                        reading_spec(name, kind, states, item.into_inner()).map_err(|m| (at, m))?;
+                    if out.iter().any(|o| o.name == spec.name) {
+                        return Err((at, format!("{name}: reading {} is listed twice", spec.name)));
+                    }
+                    out.push(spec);
+                }
+                out
+            }
+            None => match kind {
+                Kind::Setpoint => vec![ReadingSpec {
+                    name: POSITION.into(),
+                    units: units.unwrap_or_default().to_string(),
+                    kind: ReadingKind::Number,
+                }],
+                Kind::State => vec![ReadingSpec {
+                    name: STATE.into(),
+                    units: String::new(),
+                    kind: ReadingKind::States(states.to_vec()),
+                }],
+                Kind::Sensor => {
+                    return Err((
+                        self.at_kind,
+                        format!("{name}: a sensor needs `readings = [\"…\", …]` (what it reports)"),
+                    ))
+                }
+            },
+        };
+        if readings.len() > crate::value::MAX_READINGS {
+            return Err((
+                at_name,
+                format!(
+                    "{name}: at most {} readings a device (got {})",
+                    crate::value::MAX_READINGS,
+                    readings.len()
+                ),
+            ));
+        }
+        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == POSITION) {
+            return Err((
+                at_name,
+                format!("{name}: a setpoint device reports its `position` (add it to readings)"),
+            ));
+        }
+        Ok(readings)
+    }
+
+    /// `[device.response]`: how a setpoint device answers its command.
+    fn response(
+        &self,
+        range: [f64; 2],
+        response: Option<Spanned<RawResponse>>,
+    ) -> Result<Option<Response>, Refusal> {
+        let (name, kind) = (self.name, self.kind);
+        let Some(r) = response else { return Ok(None) };
+        let at = r.span().start;
+        if kind != Kind::Setpoint {
+            return Err((
+                at,
+                format!(
+                    "{name}: [device.response] is for setpoint devices ({name} is a {kind}): {}",
+                    limits::RESPONSE_ON_SETPOINTS.text
+                ),
+            ));
+        }
+        Ok(Some(
+            r.into_inner().resolve(name, range).map_err(|m| (at, m))?,
+        ))
+    }
+
+    /// `polling`: adaptive only with a response to estimate by.
+    fn polling(
+        &self,
+        has_response: bool,
+        polling: Option<Spanned<Polling>>,
+    ) -> Result<Polling, Refusal> {
+        let name = self.name;
+        let Some(p) = polling else {
+            return Ok(Polling::Fixed);
+        };
+        if *p.get_ref() == Polling::Adaptive && !has_response {
+            return Err((
+                p.span().start,
+                format!(
+                    "{name}: polling = \"adaptive\" needs a [device.response] (how the real device answers its command: the estimate adaptive polling polls by)"
+                ),
+            ));
+        }
+        Ok(p.into_inner())
     }
 }
 
@@ -809,9 +882,8 @@ fn reading_spec(
     let (name, units, rstates, flag) = match v {
         toml::Value::String(n) => (n, None, None, false),
         toml::Value::Table(mut t) => {
-            let name = match t.remove("name") {
-                Some(toml::Value::String(n)) => n,
-                _ => return Err(format!("{device}: readings: {form}")),
+            let Some(toml::Value::String(name)) = t.remove("name") else {
+                return Err(format!("{device}: readings: {form}"));
             };
             let units = match t.remove("units") {
                 None => None,
@@ -859,7 +931,7 @@ fn reading_spec(
         ReadingKind::States(s)
     } else if flag || known.is_some_and(|k| k.flag) {
         ReadingKind::Flag
-    } else if name == "state" {
+    } else if name == STATE {
         if kind != Kind::State {
             return Err(format!(
                 "{device}: reading state: give its states (state = {{ name = \"state\", states = [..] }})"

@@ -180,7 +180,7 @@ impl<'a> Document<'a> {
             }
         }
         if let Some(DeValue::Array(devices)) = root.get("device").map(|v| v.get_ref()) {
-            for d in devices.iter() {
+            for d in devices {
                 let Some(t) = d.get_ref().as_table() else {
                     continue;
                 };

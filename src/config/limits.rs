@@ -398,6 +398,9 @@ pub const DEADMAN: Limit<Duration> = Limit {
     default: Some(s(1)),
     why: "teleop: no teleop key this long, gas 0 and brake full",
 };
+/// The teleop deadman when `--deadman` is not given: [`DEADMAN`]'s default. Longer than
+/// a terminal's key-repeat delay (typically 250–660 ms), so holding a key never trips it.
+pub const DEADMAN_DEFAULT: Duration = DEADMAN.default.unwrap();
 
 /// A rule between keys of one section.
 #[derive(Debug)]
@@ -650,7 +653,7 @@ mod tests {
             e,
             "expected a duration (\"250ms\", \"2s\") from 100ms to 5s, got 0s"
         );
-        assert_eq!(DEADMAN.default, Some(crate::console::model::DEADMAN));
+        assert!(DEADMAN_DEFAULT > ms(660), "longer than a key-repeat delay");
         assert_eq!(parse_deadman("1500ms"), Ok(ms(1500)));
         assert!(parse_deadman("1h").is_err());
         assert!(parse_deadman("soon").unwrap_err().contains("250ms"));

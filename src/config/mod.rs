@@ -5,7 +5,7 @@
 //! feed bytes, and every error names the file, the line and what was expected.
 //!
 //! - [`device`]: one device, its kind, states and readings;
-//! - [`wire`]: how each protocol maps a device to the wire;
+//! - [`protocol_map`]: how each protocol maps a device to the wire;
 //! - [`roles`]: the safety roles, bound to devices and readings;
 //! - [`response`]: how a setpoint actuator answers its command (the estimator's model);
 //! - [`limits`]: the sane range of every safety-relevant value, in one table;
@@ -18,11 +18,11 @@ pub mod document;
 pub mod limits;
 pub mod network;
 pub mod placement;
+pub mod protocol_map;
 pub mod record;
 pub mod response;
 pub mod roles;
 pub mod ros2;
-pub mod wire;
 
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};

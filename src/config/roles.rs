@@ -276,7 +276,44 @@ pub(super) fn bind(
     devices: &[DeviceConfig],
     line: &dyn Fn(usize) -> usize,
 ) -> Result<Bindings, Refusal> {
-    let find = |s: &Spanned<String>| -> Result<(DeviceId, Option<usize>), Refusal> {
+    let to = Binder { devices };
+    to.check_sharing(&raw, line)?;
+    let mut b = Bindings {
+        steering: to.actuator(Role::Steering, &raw.steering, Kind::Setpoint)?,
+        throttle: to.actuator(Role::Throttle, &raw.throttle, Kind::Setpoint)?,
+        brake: to.actuator(Role::Brake, &raw.brake, Kind::Setpoint)?,
+        ..Bindings::default()
+    };
+    to.check_released_at_zero(&raw, &b)?;
+    b.gear = to.gear(&raw, gear)?;
+    b.estop = to.estop(&raw.estop)?;
+    b.speed = to.reading(
+        Role::Speed,
+        &raw.speed,
+        &["speed"],
+        &|k| *k == ReadingKind::Number,
+        "a number reading (m/s)",
+    )?;
+    b.engine_running = to.reading(
+        Role::EngineRunning,
+        &raw.engine_running,
+        &["running"],
+        &|k| matches!(k, ReadingKind::Flag | ReadingKind::Number),
+        "a flag reading",
+    )?;
+    b.starter = to.starter(&raw.starter)?;
+    Ok(b)
+}
+
+/// The devices that bindings name, and the checks of one binding each.
+struct Binder<'a> {
+    devices: &'a [DeviceConfig],
+}
+
+impl Binder<'_> {
+    /// The device `"device"` or `"device.reading"` names, and the reading's index.
+    fn find(&self, s: &Spanned<String>) -> Result<(DeviceId, Option<usize>), Refusal> {
+        let devices = self.devices;
         let at = s.span().start;
         let text = s.get_ref();
         let (dev, reading) = match text.split_once('.') {
@@ -314,14 +351,52 @@ pub(super) fn bind(
             })?),
         };
         Ok((DeviceId(i as u16), reading))
-    };
-    let actuator = |role: Role,
-                    s: &Option<Spanned<String>>,
-                    want: Kind|
-     -> Result<Option<DeviceId>, Refusal> {
+    }
+
+    /// One device, two roles: only the pairs of SHARED. Checked first, in the order the
+    /// file writes them, so the refusal names the second binding and quotes both.
+    fn check_sharing(&self, raw: &RawRoles, line: &dyn Fn(usize) -> usize) -> Result<(), Refusal> {
+        let mut written: Vec<(Role, &Spanned<String>)> = Role::ALL
+            .into_iter()
+            .filter_map(|r| raw.get(r).map(|s| (r, s)))
+            .collect();
+        written.sort_by_key(|(_, s)| s.span().start);
+        let mut seen: Vec<(Role, &Spanned<String>, DeviceId)> = Vec::new();
+        for (role, s) in written {
+            let (id, _) = self.find(s)?;
+            if let Some((first, f, _)) = seen
+                .iter()
+                .find(|(r, _, d)| *d == id && r.shares_with(role).is_none())
+            {
+                return Err((
+                    s.span().start,
+                    format!(
+                        "roles: {role} = {:?} (line {}) and {first} = {:?} (line {}) are one device, {}: \
+                         a device plays one role, except {}",
+                        s.get_ref(),
+                        line(s.span().start),
+                        f.get_ref(),
+                        line(f.span().start),
+                        self.devices[id.index()].name,
+                        shared_pairs()
+                    ),
+                ));
+            }
+            seen.push((role, s, id));
+        }
+        Ok(())
+    }
+
+    /// An actuator role: a whole device of kind `want`.
+    fn actuator(
+        &self,
+        role: Role,
+        s: &Option<Spanned<String>>,
+        want: Kind,
+    ) -> Result<Option<DeviceId>, Refusal> {
         let Some(s) = s else { return Ok(None) };
-        let (id, reading) = find(s)?;
-        let d = &devices[id.index()];
+        let (id, reading) = self.find(s)?;
+        let d = &self.devices[id.index()];
         let at = s.span().start;
         if reading.is_some() {
             return Err((
@@ -342,16 +417,21 @@ pub(super) fn bind(
             ));
         }
         Ok(Some(id))
-    };
-    let reading = |role: Role,
-                   s: &Option<Spanned<String>>,
-                   default: &[&str],
-                   ok: &dyn Fn(&ReadingKind) -> bool,
-                   want: &str|
-     -> Result<Option<ReadingRef>, Refusal> {
+    }
+
+    /// A reading role: `"device.reading"`, or a device whose reading is one of
+    /// `default`; its kind must pass `ok` (`want` says what that is).
+    fn reading(
+        &self,
+        role: Role,
+        s: &Option<Spanned<String>>,
+        default: &[&str],
+        ok: &dyn Fn(&ReadingKind) -> bool,
+        want: &str,
+    ) -> Result<Option<ReadingRef>, Refusal> {
         let Some(s) = s else { return Ok(None) };
-        let (id, r) = find(s)?;
-        let d = &devices[id.index()];
+        let (id, r) = self.find(s)?;
+        let d = &self.devices[id.index()];
         let at = s.span().start;
         let r = match r {
             Some(r) => r,
@@ -378,64 +458,46 @@ pub(super) fn bind(
             device: id,
             reading: r,
         }))
-    };
-
-    // One device, two roles: only the pairs of SHARED. Checked first, in the order the
-    // file writes them, so the refusal names the second binding and quotes both.
-    let mut written: Vec<(Role, &Spanned<String>)> = Role::ALL
-        .into_iter()
-        .filter_map(|r| raw.get(r).map(|s| (r, s)))
-        .collect();
-    written.sort_by_key(|(_, s)| s.span().start);
-    let mut seen: Vec<(Role, &Spanned<String>, DeviceId)> = Vec::new();
-    for (role, s) in written {
-        let (id, _) = find(s)?;
-        if let Some((first, f, _)) = seen
-            .iter()
-            .find(|(r, _, d)| *d == id && r.shares_with(role).is_none())
-        {
-            return Err((
-                s.span().start,
-                format!(
-                    "roles: {role} = {:?} (line {}) and {first} = {:?} (line {}) are one device, {}: \
-                     a device plays one role, except {}",
-                    s.get_ref(),
-                    line(s.span().start),
-                    f.get_ref(),
-                    line(f.span().start),
-                    devices[id.index()].name,
-                    shared_pairs()
-                ),
-            ));
-        }
-        seen.push((role, s, id));
     }
 
-    let mut b = Bindings {
-        steering: actuator(Role::Steering, &raw.steering, Kind::Setpoint)?,
-        throttle: actuator(Role::Throttle, &raw.throttle, Kind::Setpoint)?,
-        brake: actuator(Role::Brake, &raw.brake, Kind::Setpoint)?,
-        ..Bindings::default()
-    };
-    for (role, id) in [(Role::Throttle, b.throttle), (Role::Brake, b.brake)] {
-        if let (Some(id), Some(s)) = (id, raw.get(role)) {
-            let [lo, _] = devices[id.index()].range;
-            if lo != 0.0 {
-                return Err((
-                    s.span().start,
-                    format!(
-                        "roles: {role} {}: its range must start at 0 (released), got [{lo}, …]",
-                        devices[id.index()].name
-                    ),
-                ));
+    /// The throttle and the brake are released at 0: their ranges start there.
+    fn check_released_at_zero(&self, raw: &RawRoles, b: &Bindings) -> Result<(), Refusal> {
+        for (role, id) in [(Role::Throttle, b.throttle), (Role::Brake, b.brake)] {
+            if let (Some(id), Some(s)) = (id, raw.get(role)) {
+                let [lo, _] = self.devices[id.index()].range;
+                if lo != 0.0 {
+                    return Err((
+                        s.span().start,
+                        format!(
+                            "roles: {role} {}: its range must start at 0 (released), got [{lo}, …]",
+                            self.devices[id.index()].name
+                        ),
+                    ));
+                }
             }
         }
+        Ok(())
     }
-    if let (Some(g), Some(s)) = (
-        actuator(Role::Gear, &raw.gear, Kind::State)?,
-        raw.get(Role::Gear),
-    ) {
-        let d = &devices[g.index()];
+
+    /// The gear role and its `[vehicle.gear]` table: both or neither.
+    fn gear(
+        &self,
+        raw: &RawRoles,
+        gear: Option<Spanned<RawGear>>,
+    ) -> Result<Option<GearBinding>, Refusal> {
+        let (Some(g), Some(s)) = (
+            self.actuator(Role::Gear, &raw.gear, Kind::State)?,
+            raw.get(Role::Gear),
+        ) else {
+            return match gear {
+                Some(g) => Err((
+                    g.span().start,
+                    "vehicle.gear goes with a gear binding in [vehicle.roles]".into(),
+                )),
+                None => Ok(None),
+            };
+        };
+        let d = &self.devices[g.index()];
         let at = s.span().start;
         let Some(spec) = gear else {
             return Err((
@@ -493,61 +555,52 @@ pub(super) fn bind(
                 "vehicle.gear: park must be a state that does not drive".into(),
             ));
         }
-        b.gear = Some(GearBinding {
+        Ok(Some(GearBinding {
             device: g,
             forward,
             reverse,
             park,
-        });
-    } else if let Some(g) = gear {
-        return Err((
-            g.span().start,
-            "vehicle.gear goes with a gear binding in [vehicle.roles]".into(),
-        ));
+        }))
     }
-    let estop_kind = |k: &ReadingKind| match k {
-        ReadingKind::States(s) => EstopState::ALL
-            .iter()
-            .all(|e| s.iter().any(|x| x == e.as_str())),
-        _ => false,
-    };
-    if let Some(r) = reading(
-        Role::Estop,
-        &raw.estop,
-        &["estop", "state"],
-        &estop_kind,
-        "a state reading with disable, pause and run",
-    )? {
-        let ReadingKind::States(s) = &devices[r.device.index()].readings[r.reading].kind else {
+
+    /// The e-stop role: a state reading with disable, pause and run.
+    fn estop(&self, s: &Option<Spanned<String>>) -> Result<Option<EstopBinding>, Refusal> {
+        let estop_kind = |k: &ReadingKind| match k {
+            ReadingKind::States(s) => EstopState::ALL
+                .iter()
+                .all(|e| s.iter().any(|x| x == e.as_str())),
+            _ => false,
+        };
+        let Some(r) = self.reading(
+            Role::Estop,
+            s,
+            &["estop", super::device::STATE],
+            &estop_kind,
+            "a state reading with disable, pause and run",
+        )?
+        else {
+            return Ok(None);
+        };
+        let ReadingKind::States(s) = &self.devices[r.device.index()].readings[r.reading].kind
+        else {
             unreachable!("checked above")
         };
         let idx = |e: EstopState| s.iter().position(|x| x == e.as_str()).expect("checked") as u8;
-        b.estop = Some(EstopBinding {
+        Ok(Some(EstopBinding {
             at: r,
             states: [
                 idx(EstopState::Disable),
                 idx(EstopState::Pause),
                 idx(EstopState::Run),
             ],
-        });
+        }))
     }
-    b.speed = reading(
-        Role::Speed,
-        &raw.speed,
-        &["speed"],
-        &|k| *k == ReadingKind::Number,
-        "a number reading (m/s)",
-    )?;
-    b.engine_running = reading(
-        Role::EngineRunning,
-        &raw.engine_running,
-        &["running"],
-        &|k| matches!(k, ReadingKind::Flag | ReadingKind::Number),
-        "a flag reading",
-    )?;
-    if let Some(s) = &raw.starter {
-        let (id, r) = find(s)?;
-        let d = &devices[id.index()];
+
+    /// The starter role: an actuator that takes the start control.
+    fn starter(&self, s: &Option<Spanned<String>>) -> Result<Option<DeviceId>, Refusal> {
+        let Some(s) = s else { return Ok(None) };
+        let (id, r) = self.find(s)?;
+        let d = &self.devices[id.index()];
         if r.is_some() || !d.is_actuator() {
             return Err((
                 s.span().start,
@@ -557,7 +610,6 @@ pub(super) fn bind(
                 ),
             ));
         }
-        b.starter = Some(id);
+        Ok(Some(id))
     }
-    Ok(b)
 }

@@ -307,7 +307,7 @@ fn a_modbus_device_needs_its_table_and_a_sensible_map() {
         "{modbus}\n[device.modbus]\nslave = 7\nregisters = {{ target = 0, position = 0 }}\n"
     );
     match &parse(&ok, "v.toml").unwrap().devices[0].wire {
-        wire::Wire::Modbus(m) => assert_eq!(m.slave, 7),
+        protocol_map::Wire::Modbus(m) => assert_eq!(m.slave, 7),
         other => panic!("{other:?}"),
     }
     let typo = ok.replace("position = 0", "postion = 0");
@@ -771,8 +771,7 @@ fn a_declared_response_is_checked_where_it_is_written() {
     assert!(e.contains("sometimes") && e.contains("adaptive"), "{e}");
 
     let on_a_state = format!(
-        "{}\n[[device]]\nname = \"trans\"\nkind = \"state\"\nstates = [\"park\", \"drive\"]\ndriver = \"line\"\nport = \"/dev/ttyUSB1\"\n[device.response]\nrate = 1.0\n",
-        BASE
+        "{BASE}\n[[device]]\nname = \"trans\"\nkind = \"state\"\nstates = [\"park\", \"drive\"]\ndriver = \"line\"\nport = \"/dev/ttyUSB1\"\n[device.response]\nrate = 1.0\n"
     );
     let e = error(&on_a_state);
     assert!(

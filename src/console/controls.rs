@@ -25,7 +25,7 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use super::logring::{LogLine, LogRing};
+use crate::logging::ring::{LogLine, LogRing};
 
 /// The faults switched on in one simulated device.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -20,11 +20,9 @@ pub mod controls;
 pub mod find;
 pub mod keymap;
 pub mod layout;
-pub mod logring;
 pub mod model;
 pub mod panels;
 pub mod replay;
-pub mod sample;
 pub mod terminal;
 pub mod theme;
 pub mod trail;
@@ -65,7 +63,7 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             keymap: Keymap::default_map(),
-            deadman: model::DEADMAN,
+            deadman: crate::config::limits::DEADMAN_DEFAULT,
             sources: Sources::default(),
             panic_after: None,
         }

@@ -13,9 +13,6 @@ use crate::value::DeviceId;
 use ratatui::layout::Rect;
 use std::time::{Duration, Instant};
 
-/// Default teleop deadman: no teleop key for this long → gas 0, brake full. Longer than
-/// a terminal's key-repeat delay (typically 250–660 ms), so holding a key never trips it.
-pub const DEADMAN: Duration = Duration::from_millis(1000);
 /// How long `e` waits for the steering drive to acknowledge its home command.
 pub const HOME_WAIT: Duration = Duration::from_secs(3);
 /// Teleop steps per key.

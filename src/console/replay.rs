@@ -9,11 +9,11 @@
 
 use super::controls::{Controls, Frame, Thread};
 use super::keymap::{key_to_action, Action, Keymap, Mode};
-use super::logring::LogLine;
 use super::model::Model;
 use super::theme::Theme;
 use super::update::{self, Flow};
 use crate::exit::Exit;
+use crate::logging::ring::LogLine;
 use crate::net::BROADCAST_MAX;
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
@@ -36,7 +36,7 @@ pub const SPEEDS: [f64; 9] = [0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 /// `[` and `]` seek this far; `{` and `}` a minute.
 pub const SEEK: Duration = Duration::from_secs(10);
 /// Log lines the replayed log pane holds, as the live one does.
-const LOG_KEEP: usize = super::logring::KEEP;
+const LOG_KEEP: usize = crate::logging::ring::KEEP;
 
 /// A recording loaded for playing, and where the play is.
 pub struct Player {
@@ -497,7 +497,12 @@ pub fn run(
 ) -> std::io::Result<Exit> {
     let now = Instant::now();
     let first = player.frame(now, None);
-    let mut model = Model::new(keymap, Theme::from_env(), first, super::model::DEADMAN);
+    let mut model = Model::new(
+        keymap,
+        Theme::from_env(),
+        first,
+        crate::config::limits::DEADMAN_DEFAULT,
+    );
     if let Some(b) = &broadcast {
         b.send(player.json());
     }

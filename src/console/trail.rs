@@ -78,10 +78,10 @@ impl Trail {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::sample;
+    use crate::testkit;
 
     fn gas(now: Instant) -> DeviceView {
-        let gate = sample::gate(now);
+        let gate = testkit::gate(now);
         let snap = gate.snapshot_at(0, now);
         snap.devices
             .into_iter()

@@ -21,7 +21,7 @@
 //! in `\n`; a `\r` before it is ignored.
 
 use super::{read_until, send_request, Deadline, Driver, DriverError, Link};
-use crate::config::wire::LineMap;
+use crate::config::protocol_map::LineMap;
 use crate::value::{Command, Control, Reading};
 use std::io::Write;
 use std::time::Duration;
@@ -279,7 +279,7 @@ impl Driver for LineDriver {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::wire::Wire;
+    use crate::config::protocol_map::Wire;
     use crate::driver::mock::{rx, tx, MockLink, Step};
 
     fn map(device: &str) -> LineMap {

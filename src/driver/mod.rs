@@ -246,7 +246,7 @@ pub fn send_request(
 
 /// Build the driver a device's configuration asks for.
 pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
-    use crate::config::wire::Wire;
+    use crate::config::protocol_map::Wire;
     match &config.wire {
         Wire::Modbus(m) => Box::new(modbus::ModbusDriver::new(
             m.clone(),

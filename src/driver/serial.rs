@@ -32,6 +32,7 @@ impl SerialLink {
     /// Take over a port `serialport` opened and configured.
     pub fn new(port: TTYPort, timeout: Duration) -> io::Result<SerialLink> {
         let fd = port.as_raw_fd();
+        #[allow(unsafe_code)]
         // SAFETY: the descriptor is open for as long as `port` lives, and it does here.
         let fd = unsafe { BorrowedFd::borrow_raw(fd) };
         let flags = rustix::fs::fcntl_getfl(fd)?;
@@ -39,6 +40,7 @@ impl SerialLink {
         Ok(SerialLink { port, timeout })
     }
 
+    #[allow(unsafe_code)]
     fn fd(&self) -> BorrowedFd<'_> {
         // SAFETY: as in `new`.
         unsafe { BorrowedFd::borrow_raw(self.port.as_raw_fd()) }

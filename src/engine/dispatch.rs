@@ -97,7 +97,7 @@ impl Gate {
         }
         self.command_safe_state();
         if let Some(s) = v.bound(Role::Steering) {
-            if let Some(p) = s.config().reading("position").and_then(|i| s.reading(i)) {
+            if let Some(p) = s.config().position().and_then(|i| s.reading(i)) {
                 self.store(s, Command::Set(p), Instant::now());
             }
         }
@@ -376,7 +376,7 @@ fn queue(d: &Device, command: Command, received: Instant) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::sample;
+    use crate::testkit as sample;
     use std::sync::Arc;
 
     /// Alice's sample with the brake sent full and its release waiting in its slot.

@@ -344,8 +344,8 @@ impl Gate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::sample;
     use crate::engine::slot::WireState;
+    use crate::testkit as sample;
     use crate::value::{Command, DeviceId};
     use proptest::prelude::*;
     use std::net::{Ipv4Addr, SocketAddr};

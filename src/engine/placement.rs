@@ -53,6 +53,7 @@ pub fn apply(p: &Placement) -> Applied {
 }
 
 fn pin(cpus: &[usize]) -> Result<(), String> {
+    #[allow(unsafe_code)]
     // SAFETY: a zeroed cpu_set_t is the empty set; CPU_SET stays within it for numbers
     // below CPU_SETSIZE, which the vehicle file's check guarantees.
     let r = unsafe {
@@ -75,6 +76,7 @@ fn fifo(priority: u64) -> Result<(), String> {
     let param = libc::sched_param {
         sched_priority: priority as i32,
     };
+    #[allow(unsafe_code)]
     // SAFETY: sched_setscheduler reads the parameter we hand it; 0 is this thread.
     let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
     if r == 0 {
@@ -89,6 +91,7 @@ mod tests {
     use super::*;
 
     /// The current thread's CPUs.
+    #[allow(unsafe_code)]
     fn allowed() -> Vec<usize> {
         // SAFETY: sched_getaffinity fills the set we hand it.
         unsafe {
@@ -130,6 +133,7 @@ mod tests {
     /// With the privilege the thread runs under SCHED_FIFO; without it the refusal comes
     /// back (and is logged), and the thread runs on at normal priority.
     #[test]
+    #[allow(unsafe_code)]
     fn a_realtime_priority_is_taken_or_refused_with_a_reason() {
         let (a, policy) = std::thread::spawn(|| {
             let a = apply(&Placement {

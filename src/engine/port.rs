@@ -718,7 +718,7 @@ mod tests {
         )
         .wire
         {
-            crate::config::wire::Wire::Line(m) => m,
+            crate::config::protocol_map::Wire::Line(m) => m,
             other => panic!("{other:?}"),
         };
         let driver = Box::new(LineDriver::new(map, Duration::from_millis(50)));

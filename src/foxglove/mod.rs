@@ -23,7 +23,7 @@ pub mod proto;
 
 use crate::record::message::{self, Clock, Topic};
 use crate::snapshot::{LiveView, ViewerView};
-use crate::threads::{StopSignal, Threads};
+use crate::threads::{Owner, StopSignal};
 use crate::vehicle::tap::{Event, ReaderId, CAPACITY};
 use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
@@ -60,8 +60,8 @@ const PROTOCOL_HEADER: &str = "Sec-WebSocket-Protocol";
 
 /// The running live view.
 pub struct Foxglove {
-    stop: Arc<StopSignal>,
-    threads: Threads,
+    /// Dropped without [`Foxglove::shutdown`] (a panic unwinding): told to stop.
+    threads: Owner,
     addr: SocketAddr,
 }
 
@@ -78,18 +78,13 @@ impl Foxglove {
             .tap()
             .open(false)
             .ok_or_else(|| io::Error::other("this vehicle's tap has no room for a live view"))?;
-        let stop = Arc::new(StopSignal::default());
-        let mut threads = Threads::default();
-        let (s, v) = (stop.clone(), vehicle.clone());
-        threads.spawn("foxglove/serve".into(), move || {
-            Server::new(v, listener, addr, tapped.rx, tapped.reader).run(&s)
+        let mut threads = Owner::default();
+        let v = vehicle.clone();
+        threads.spawn("foxglove/serve", move |stop| {
+            Server::new(v, listener, addr, tapped.rx, tapped.reader).run(stop)
         })?;
         tracing::info!("foxglove: live view at ws://{addr} (read-only)");
-        Ok(Foxglove {
-            stop,
-            threads,
-            addr,
-        })
+        Ok(Foxglove { threads, addr })
     }
 
     /// The address it listens on.
@@ -99,15 +94,7 @@ impl Foxglove {
 
     /// Close every viewer and stop; the names of threads that did not stop.
     pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
-        self.stop.stop();
-        std::mem::take(&mut self.threads).join(Instant::now() + deadline)
-    }
-}
-
-impl Drop for Foxglove {
-    /// Dropped without [`Foxglove::shutdown`] (a panic unwinding): told to stop.
-    fn drop(&mut self) {
-        self.stop.stop();
+        self.threads.stop(Instant::now() + deadline)
     }
 }
 
@@ -578,10 +565,8 @@ mod tests {
             }
             assert!(raw_refused > 0, "the check finds nothing to refuse");
         }
-        let snap = serde_json::to_vec(
-            &crate::console::sample::gate(std::time::Instant::now()).snapshot(0),
-        )
-        .unwrap();
+        let snap = serde_json::to_vec(&crate::testkit::gate(std::time::Instant::now()).snapshot(0))
+            .unwrap();
         let stripped: Value = serde_json::from_slice(&proto::without_nulls(&snap)).unwrap();
         assert!(!stripped.to_string().contains("null"), "{stripped}");
     }

@@ -159,7 +159,6 @@ mod tests {
     use crate::net::proto::{NetCommand, Vocabulary};
     use crate::value::{Command, DeviceId};
 
-    #[allow(clippy::result_large_err)]
     fn parse(bytes: &[u8]) -> Result<crate::net::proto::Datagram, crate::net::proto::ParseError> {
         let alice = crate::config::VehicleConfig::alice();
         crate::net::proto::parse(bytes, &Vocabulary::of(&alice))

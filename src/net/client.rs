@@ -163,10 +163,13 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
         return Ok(status::USAGE);
     }
     let period = Duration::from_secs_f64(1.0 / rate);
+    #[allow(unsafe_code)]
     // Wake within a microsecond of when asked, not the default 50 µs later: at
     // 10,000 a second that is half a period.
     // SAFETY: PR_SET_TIMERSLACK takes a number of nanoseconds and touches nothing else.
-    unsafe { libc::prctl(libc::PR_SET_TIMERSLACK, 1000) };
+    unsafe {
+        libc::prctl(libc::PR_SET_TIMERSLACK, 1000)
+    };
     socket.set_nonblocking(true)?;
     let start = Instant::now();
     let mut next = start;
@@ -484,7 +487,7 @@ mod tests {
     /// with their units.
     #[test]
     fn a_broadcast_is_one_line_for_a_person() {
-        let snap = crate::console::sample::gate(Instant::now()).snapshot(0);
+        let snap = crate::testkit::gate(Instant::now()).snapshot(0);
         let l = human_line(&snap);
         assert!(l.contains("disengaged watchdog off"), "{l}");
         assert!(

@@ -136,7 +136,7 @@ impl Intake {
     /// Step 1, under the lock: sender table, grammar, key, counter. Returns the
     /// sender's slot, the datagram, and who commands now; or the reply to a rejection.
     // The reply is inline (no heap on the command path).
-    #[allow(clippy::type_complexity, clippy::result_large_err)]
+    #[allow(clippy::type_complexity)]
     fn admit(
         &mut self,
         bytes: &[u8],

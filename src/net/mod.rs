@@ -32,7 +32,7 @@ pub use status::{NetStatus, Refusal};
 use crate::engine::Gate;
 use crate::logging::Repeats;
 use crate::snapshot::Snapshot;
-use crate::threads::{StopSignal, Threads};
+use crate::threads::{Owner, StopSignal};
 use auth::Auth;
 use intake::Intake;
 use socket2::{Domain, Protocol, Socket, Type};
@@ -51,9 +51,8 @@ const RECV_BUFFER: usize = 1 << 20;
 /// The running network threads.
 pub struct Net {
     status: Arc<NetStatus>,
-    stop: Arc<StopSignal>,
     closing: Arc<AtomicBool>,
-    threads: Threads,
+    threads: Owner,
 }
 
 impl Net {
@@ -71,9 +70,8 @@ impl Net {
             .map(|d| d.name().to_string())
             .collect();
         let status = Arc::new(NetStatus::new(local, config.watchdog_timeout, names));
-        let stop = Arc::new(StopSignal::default());
         let closing = Arc::new(AtomicBool::new(false));
-        let mut threads = Threads::default();
+        let mut threads = Owner::default();
 
         let mut intake = Intake::new(
             gate.clone(),
@@ -82,17 +80,16 @@ impl Net {
             status.clone(),
             closing.clone(),
         );
-        let s = stop.clone();
         let placement = gate.vehicle().config().vehicle.placement.clone();
-        threads.spawn("net/listen".into(), move || {
+        threads.spawn("net/listen", move |stop| {
             crate::engine::placement::apply(&placement);
-            listen_loop(&socket, &mut intake, &s)
+            listen_loop(&socket, &mut intake, stop)
         })?;
 
-        let (g, st, s) = (gate.clone(), status.clone(), stop.clone());
+        let (g, st) = (gate.clone(), status.clone());
         let (dest, period) = (config.broadcast_to.clone(), config.broadcast_period());
-        threads.spawn("net/broadcast".into(), move || {
-            broadcast_loop(&out, &dest, period, &g, &st, &s)
+        threads.spawn("net/broadcast", move |stop| {
+            broadcast_loop(&out, &dest, period, &g, &st, stop)
         })?;
 
         tracing::info!(
@@ -105,7 +102,6 @@ impl Net {
         );
         Ok(Net {
             status,
-            stop,
             closing,
             threads,
         })
@@ -132,16 +128,15 @@ impl Net {
     /// Stop and join the threads; returns the names of those that did not stop.
     pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.close();
-        self.stop.stop();
-        std::mem::take(&mut self.threads).join(Instant::now() + deadline)
+        self.threads.stop(Instant::now() + deadline)
     }
 }
 
 impl Drop for Net {
-    /// Dropped without [`Net::shutdown`]: the threads are told to stop, not joined.
+    /// Dropped without [`Net::shutdown`]: datagrams refused; the threads are told to
+    /// stop (by their [`Owner`]), not joined.
     fn drop(&mut self) {
         self.close();
-        self.stop.stop();
     }
 }
 
@@ -183,6 +178,7 @@ struct Batch {
 }
 
 impl Batch {
+    #[allow(unsafe_code)]
     fn new() -> Box<Batch> {
         // SAFETY: all-zero bytes are valid for every field (plain bytes and integers).
         unsafe { Box::new(std::mem::zeroed()) }
@@ -197,6 +193,7 @@ impl Batch {
             iov_base: self.bufs[i].as_mut_ptr().cast(),
             iov_len: self.bufs[i].len(),
         });
+        #[allow(unsafe_code)]
         // SAFETY: an all-zero mmsghdr is a valid empty header; the pointers set below
         // stay valid for the call (they point into `self` and `iov`).
         let mut msgs: [libc::mmsghdr; BATCH] = unsafe { std::mem::zeroed() };
@@ -206,6 +203,7 @@ impl Batch {
             m.msg_hdr.msg_iov = &mut iov[i];
             m.msg_hdr.msg_iovlen = 1;
         }
+        #[allow(unsafe_code)]
         // SAFETY: `msgs` holds BATCH valid headers; the kernel writes within them.
         let n = unsafe {
             libc::recvmmsg(
@@ -241,12 +239,14 @@ impl Batch {
 fn sender(a: &libc::sockaddr_storage) -> Option<SocketAddr> {
     match i32::from(a.ss_family) {
         libc::AF_INET => {
+            #[allow(unsafe_code)]
             // SAFETY: the family says the storage holds a sockaddr_in.
             let v4 = unsafe { &*(a as *const libc::sockaddr_storage).cast::<libc::sockaddr_in>() };
             let ip = Ipv4Addr::from(u32::from_be(v4.sin_addr.s_addr));
             Some(SocketAddr::from((ip, u16::from_be(v4.sin_port))))
         }
         libc::AF_INET6 => {
+            #[allow(unsafe_code)]
             // SAFETY: the family says the storage holds a sockaddr_in6.
             let v6 = unsafe { &*(a as *const libc::sockaddr_storage).cast::<libc::sockaddr_in6>() };
             let ip = Ipv6Addr::from(v6.sin6_addr.s6_addr);

@@ -80,10 +80,6 @@
 //! the offending word for a person (`line 2: out_of_range: steer takes -1 to 1 (got
 //! "1.5")`). [`RejectCounts`] counts them without locks.
 
-// A rejection carries what was expected inline (a device's name, range or states):
-// 160 bytes on the stack, because the command path must not touch the heap.
-#![allow(clippy::result_large_err)]
-
 use crate::config::DeviceConfig;
 use crate::value::{Command, DeviceId, Kind};
 use arrayvec::{ArrayString, ArrayVec};

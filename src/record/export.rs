@@ -206,7 +206,7 @@ mod tests {
             [
                 ("devices.steer.commanded".to_string(), "0.25".to_string()),
                 ("devices.steer.name".into(), "steer".into()),
-                ("devices.gas.commanded".into(), "".into()),
+                ("devices.gas.commanded".into(), String::new()),
                 ("devices.gas.name".into(), "gas".into()),
                 ("gate.blockers".into(), "a; b".into()),
                 ("gate.engaged".into(), "true".into()),

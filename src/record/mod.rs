@@ -24,7 +24,7 @@ pub mod read;
 mod writer;
 
 use crate::config::VehicleConfig;
-use crate::threads::{StopSignal, Threads};
+use crate::threads::Owner;
 use crate::vehicle::Vehicle;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -86,18 +86,22 @@ impl Options {
 
 /// The running recorder.
 pub struct Recorder {
-    stop: Arc<StopSignal>,
-    threads: Threads,
+    /// Dropped without [`Recorder::shutdown`] (a panic unwinding): told to finish the
+    /// file, not waited for.
+    threads: Owner,
 }
 
 impl Recorder {
     /// Open the first file and start recording what `vehicle`'s tap sees. A file that
     /// cannot be created is an error here, before anything runs.
     pub fn start(vehicle: &Arc<Vehicle>, opts: Options) -> std::io::Result<Recorder> {
+        #[allow(unsafe_code)]
         // A file size limit (`ulimit -f`, a service's LimitFSIZE) must fail a write
         // like a full disk does, not kill the process that drives the vehicle.
         // SAFETY: setting a signal's disposition to "ignore".
-        unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
+        unsafe {
+            libc::signal(libc::SIGXFSZ, libc::SIG_IGN)
+        };
         let mut out = writer::Output::open(vehicle.clone(), opts.target)?;
         let tapped = vehicle.tap().open(opts.raw).ok_or_else(|| {
             std::io::Error::other("this vehicle's tap has no room for a recorder")
@@ -105,25 +109,14 @@ impl Recorder {
         out.tapped(tapped.reader);
         let rx = tapped.rx;
         tracing::info!(file = %out.path().display(), raw = opts.raw, "recording");
-        let stop = Arc::new(StopSignal::default());
-        let mut threads = Threads::default();
-        let s = stop.clone();
-        threads.spawn("record/write".into(), move || writer::run(out, &rx, &s))?;
-        Ok(Recorder { stop, threads })
+        let mut threads = Owner::default();
+        threads.spawn("record/write", move |stop| writer::run(out, &rx, stop))?;
+        Ok(Recorder { threads })
     }
 
     /// Write what is left, finish the file (its index and summary) and stop. Returns
     /// the names of threads that did not stop.
     pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
-        self.stop.stop();
-        std::mem::take(&mut self.threads).join(Instant::now() + deadline)
-    }
-}
-
-impl Drop for Recorder {
-    /// Dropped without [`Recorder::shutdown`] (a panic unwinding): told to finish the
-    /// file, not waited for.
-    fn drop(&mut self) {
-        self.stop.stop();
+        self.threads.stop(Instant::now() + deadline)
     }
 }

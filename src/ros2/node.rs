@@ -25,7 +25,7 @@ use crate::logging::RateLimit;
 use crate::net::proto::Reject;
 use crate::net::{NetStatus, Refusal};
 use crate::safety::{Ask, Done, Refused};
-use crate::threads::{StopSignal, Threads};
+use crate::threads::{Owner, StopSignal};
 use crate::value::Source;
 use crossbeam_channel::{Receiver, Sender};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
@@ -134,9 +134,8 @@ impl Publisher {
 /// The running node.
 pub struct Node {
     session: zenoh::Session,
-    stop: Arc<StopSignal>,
     closing: Arc<AtomicBool>,
-    threads: Threads,
+    threads: Owner,
     namespace: String,
     /// Liveliness tokens and subscriptions live as long as the node.
     _keep: Vec<Box<dyn std::any::Any + Send>>,
@@ -314,9 +313,8 @@ impl Node {
         let keep = std::mem::take(&mut g.keep);
         drop(g);
 
-        let stop = Arc::new(StopSignal::default());
         let closing = Arc::new(AtomicBool::new(false));
-        let mut threads = Threads::default();
+        let mut threads = Owner::default();
         // The allow-list and the key are the UDP listener's; Zenoh has its own access
         // control and transport security. Engaging follows `allow_engage`, as for UDP.
         let mut commands = Commands {
@@ -330,14 +328,12 @@ impl Node {
             pending: Vec::new(),
             log: RateLimit::new(10),
         };
-        let s = stop.clone();
-        threads.spawn("ros2/intake".into(), move || commands.run(&rx, &s))?;
-        let s = stop.clone();
+        threads.spawn("ros2/intake", move |stop| commands.run(&rx, stop))?;
         let period = Duration::from_secs_f64(1.0 / c.report_rate);
         let per_diag = (c.report_rate.round() as u64).max(1);
-        threads.spawn("ros2/report".into(), move || {
+        threads.spawn("ros2/report", move |stop| {
             let mut tick = 0u64;
-            crate::threads::every(period, &s, || {
+            crate::threads::every(period, stop, || {
                 let snap = gate.snapshot(tick);
                 reports.publish(&map, &snap, tick.is_multiple_of(per_diag));
                 tick += 1;
@@ -355,7 +351,6 @@ impl Node {
         );
         Ok(Node {
             session,
-            stop,
             closing,
             threads,
             namespace,
@@ -381,8 +376,7 @@ impl Node {
     /// of the threads that did not stop.
     pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.close();
-        self.stop.stop();
-        let stuck = std::mem::take(&mut self.threads).join(Instant::now() + deadline);
+        let stuck = self.threads.stop(Instant::now() + deadline);
         self._keep.clear();
         if let Err(e) = self.session.close().wait() {
             tracing::debug!("ros2: closing the session: {e}");

@@ -36,7 +36,7 @@ fn brake(v: &Vehicle, b: &Bindings) -> Option<(f64, f64, bool)> {
     let releasing = releases(d, w.latest());
     extremes(d, w.set_points())
         .or_else(|| {
-            let p = d.reading(d.config().reading("position")?)?;
+            let p = d.reading(d.config().position()?)?;
             Some((fraction(d, p), fraction(d, p)))
         })
         .map(|(lo, hi)| (lo, hi, releasing))
@@ -59,7 +59,7 @@ fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
     let d = v.device(g.device);
     let reported = d
         .config()
-        .reading("state")
+        .state()
         .and_then(|i| d.reading(i))
         .map(|x| x as u8);
     let w = d.slot().wire();

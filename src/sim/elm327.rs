@@ -11,7 +11,7 @@
 //! to repeat the last command.
 
 use super::device::{Plant, Reply, Responder};
-use crate::config::wire::ElmMap;
+use crate::config::protocol_map::ElmMap;
 use crate::driver::elm327::proto::{Pid, MODE_CURRENT, MODE_CURRENT_REPLY};
 use crate::value::Reading;
 use std::time::Duration;
@@ -249,7 +249,7 @@ impl Responder for Elm327Emulator {
             out.push_str(self.eol());
         }
         // The adapter ignores spaces, control characters and case.
-        let mut cmd: String = String::from_utf8_lossy(raw)
+        let mut cmd = String::from_utf8_lossy(raw)
             .chars()
             .filter(|c| c.is_ascii_graphic())
             .collect::<String>()

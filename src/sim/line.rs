@@ -1,7 +1,7 @@
 //! Device side of the adrive ASCII line protocol (see [`crate::driver::line`]).
 
 use super::device::{Plant, Reply, Responder};
-use crate::config::wire::LineMap;
+use crate::config::protocol_map::LineMap;
 use crate::driver::line::{decode_request, encode_status, Request, MAX_LINE};
 
 /// A line-protocol device with the device's keys and words.

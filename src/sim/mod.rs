@@ -21,7 +21,7 @@ pub mod model;
 #[cfg(test)]
 pub(crate) mod test_serve;
 
-use crate::config::wire::Wire;
+use crate::config::protocol_map::Wire;
 use crate::config::{DeviceConfig, VehicleConfig};
 use crate::value::{Command, DeviceId, EstopState, Kind, Reading};
 use commands::SimCommand;

@@ -11,7 +11,7 @@
 //! dropped without a word; a broadcast (id 0) write is applied, never answered.
 
 use super::device::{Plant, Reply, Responder};
-use crate::config::wire::{Field, ModbusMap, RegisterKind};
+use crate::config::protocol_map::{Field, ModbusMap, RegisterKind};
 use crate::config::ReadingKind;
 use crate::driver::modbus::proto::{self, Exception, Incoming, Request, Response};
 use crate::value::{Command, Reading};

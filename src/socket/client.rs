@@ -8,7 +8,7 @@
 
 use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, VERSION};
 use crate::console::controls::{Controls, Frame, Thread};
-use crate::console::logring::{LogLine, KEEP};
+use crate::logging::ring::{LogLine, KEEP};
 use crate::safety::Refused;
 use crate::value::{Command, DeviceId};
 use crossbeam_channel::Sender;

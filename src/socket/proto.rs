@@ -9,7 +9,7 @@
 //! exactly what the embedded one does.
 
 use crate::console::controls::{SimFaults, Thread};
-use crate::console::logring::LogLine;
+use crate::logging::ring::LogLine;
 use crate::safety::{Done, Refused};
 use crate::snapshot::Snapshot;
 use crate::value::Command;

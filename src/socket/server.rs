@@ -16,7 +16,7 @@ use crate::console::controls::{capture, Controls, Live, Sources};
 use crate::console::TICK;
 use crate::engine::Gate;
 use crate::safety::Ask;
-use crate::threads::{StopSignal, Threads};
+use crate::threads::{Owner, StopSignal, Threads};
 use crate::value::{DeviceId, Source};
 use parking_lot::Mutex;
 use std::io::{BufRead, BufReader, Write};
@@ -37,7 +37,7 @@ pub const MAX_CLIENTS: usize = 32;
 struct Shared {
     gate: Arc<Gate>,
     sources: Sources,
-    stop: StopSignal,
+    stop: Arc<StopSignal>,
     /// Refuse every operation from now on (the process is stopping).
     closed: AtomicBool,
     next: AtomicU32,
@@ -49,7 +49,7 @@ struct Shared {
 /// The running control socket.
 pub struct Server {
     shared: Arc<Shared>,
-    accept: Threads,
+    accept: Owner,
     path: PathBuf,
     /// Removes the socket file when the server goes.
     _claim: Claim,
@@ -67,19 +67,19 @@ impl Server {
         listener
             .set_nonblocking(true)
             .map_err(|e| format!("control socket: {e}"))?;
+        let mut accept = Owner::default();
         let shared = Arc::new(Shared {
             gate,
             sources,
-            stop: StopSignal::default(),
+            stop: accept.signal().clone(),
             closed: AtomicBool::new(false),
             next: AtomicU32::new(1),
             open: Mutex::new(Vec::new()),
             threads: Mutex::new(Threads::default()),
         });
-        let mut accept = Threads::default();
         let s = shared.clone();
         accept
-            .spawn("socket/accept".into(), move || accept_loop(listener, &s))
+            .spawn("socket/accept", move |_| accept_loop(listener, &s))
             .map_err(|e| format!("control socket: {e}"))?;
         tracing::info!("control socket at {}", path.display());
         Ok(Server {
@@ -113,7 +113,7 @@ impl Server {
     fn stop(&mut self, deadline: Duration) -> Vec<String> {
         self.close();
         let until = Instant::now() + deadline;
-        let mut stuck = std::mem::take(&mut self.accept).join(until);
+        let mut stuck = self.accept.stop(until);
         let threads = std::mem::take(&mut *self.shared.threads.lock());
         stuck.extend(threads.join(until));
         stuck

@@ -23,7 +23,7 @@ use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::engine::Gate;
 use crate::exit::Exit;
 use crate::snapshot::{DeviceView, FaultKind, Snapshot};
-use crate::threads::{Liveness, StopSignal, Threads};
+use crate::threads::{Liveness, Owner};
 use crate::value::{Kind, Value};
 use crate::vehicle::supervision::Fault;
 use recovery::{Procedure, Progress};
@@ -135,7 +135,7 @@ pub fn detect(
     let running = b.engine_running.and_then(|r| reading(snap, cfg, r));
     let gear = b.gear.as_ref().and_then(|g| {
         let d = &cfg.devices[g.device.index()];
-        let v = snap.device(&d.name)?.reading("state")?.as_str()?;
+        let v = snap.device(&d.name)?.state()?;
         let s = d.state_index(v)?;
         g.drives(s).then(|| v.to_string())
     });
@@ -418,7 +418,7 @@ pub fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> Option<P
             let d = v.device(g.device);
             let now = d
                 .config()
-                .reading("state")
+                .state()
                 .and_then(|i| d.reading(i))
                 .map(|x| x as u8);
             let gear = now
@@ -619,8 +619,7 @@ impl Supervisor {
 
 /// The supervisor thread, `supervisor`.
 pub struct Running {
-    stop: Arc<StopSignal>,
-    threads: Threads,
+    threads: Owner,
 }
 
 /// Start the supervisor thread at `cfg.period`.
@@ -636,15 +635,13 @@ pub fn start_watching(
     exit: ExitSink,
     watched: Liveness,
 ) -> std::io::Result<Running> {
-    let stop = Arc::new(StopSignal::default());
-    let mut threads = Threads::default();
-    let s = stop.clone();
-    threads.spawn("supervisor".into(), move || {
+    let mut threads = Owner::default();
+    threads.spawn("supervisor", move |stop| {
         let period = cfg.period;
         let panic_at = cfg.panic_for_test.map(|d| Instant::now() + d);
         let mut sup = Supervisor::new(cfg, exit);
         let mut watchdog = crate::service::Watchdog::new(watched);
-        crate::threads::every(period, &s, || {
+        crate::threads::every(period, stop, || {
             if panic_at.is_some_and(|t| Instant::now() >= t) {
                 panic!("injected panic (--inject-panic supervisor)");
             }
@@ -652,27 +649,27 @@ pub fn start_watching(
             watchdog.turn(Instant::now());
         })
     })?;
-    Ok(Running { stop, threads })
+    Ok(Running { threads })
 }
 
 impl Running {
-    pub fn shutdown(self, deadline: Duration) -> Vec<String> {
-        self.stop.stop();
-        self.threads.join(Instant::now() + deadline)
+    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.threads.stop(Instant::now() + deadline)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::sample;
+    use crate::config::device::POSITION;
+    use crate::testkit;
 
     /// The console once set a status period longer than `status_max_age`: the device
     /// answered every poll, so it had no last error, and its `silent` fault was logged
     /// as `… (max 250 ms): ` with an empty cause.
     #[test]
     fn a_silent_device_without_an_error_has_no_empty_cause() {
-        let gate = sample::gate(Instant::now());
+        let gate = testkit::gate(Instant::now());
         let v = &gate.vehicle();
         let steer = v.find("steer").expect("alice steers");
         let answered = steer.started() + Duration::from_millis(100);
@@ -706,7 +703,7 @@ mod tests {
     #[test]
     fn a_brake_alternating_faster_than_the_turns_is_neither_pushed_nor_stuck() {
         let t0 = Instant::now();
-        let gate = sample::gate(t0);
+        let gate = testkit::gate(t0);
         let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
         let turns = |span: Option<[f64; 2]>| {
@@ -718,7 +715,7 @@ mod tests {
                 let mut snap = gate.snapshot_at(0, now);
                 let b = snap.devices.iter_mut().find(|d| d.name == "brake").unwrap();
                 let pos = 0.35 - 0.05 * f64::from(k % 2);
-                if let Some((_, x)) = b.readings.0.iter_mut().find(|(n, _)| n == "position") {
+                if let Some((_, x)) = b.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
                     *x = Some(Value::Number(pos));
                 }
                 b.status_age_ms = Some(5.0);
@@ -758,7 +755,7 @@ mod tests {
     #[test]
     fn a_port_back_after_a_disconnect_gets_its_status_max_age_before_silent_or_error_rate() {
         let t0 = Instant::now();
-        let gate = sample::gate(t0);
+        let gate = testkit::gate(t0);
         let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
         // Steer (status_max_age 250 ms), turn by turn every 50 ms: answering up to 1 s,
@@ -831,7 +828,7 @@ mod tests {
     #[test]
     fn a_port_that_cannot_be_opened_at_start_is_disconnected_not_silent() {
         let t0 = Instant::now();
-        let gate = sample::gate(t0);
+        let gate = testkit::gate(t0);
         let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
         let mut mem = Memory::new(t0);
@@ -865,9 +862,9 @@ mod tests {
     #[test]
     fn a_fault_log_line_names_its_device_plainly() {
         use tracing_subscriber::layer::SubscriberExt;
-        let ring = crate::console::logring::LogRing::default();
+        let ring = crate::logging::ring::LogRing::default();
         let sub = tracing_subscriber::registry().with(ring.layer());
-        let gate = sample::gate(Instant::now());
+        let gate = testkit::gate(Instant::now());
         let v = &gate.vehicle();
         let set = |device: &str, i: usize, x: f64| {
             let d = v.find(device).expect("an alice device");

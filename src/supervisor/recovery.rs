@@ -89,11 +89,7 @@ impl Step {
             Step::Home(d) => gate.supervise(*d, Command::Control(Control::Home)),
             Step::Hold(d) => {
                 let dev = v.device(*d);
-                if let Some(p) = dev
-                    .config()
-                    .reading("position")
-                    .and_then(|i| dev.reading(i))
-                {
+                if let Some(p) = dev.config().position().and_then(|i| dev.reading(i)) {
                     gate.supervise(*d, Command::Set(p));
                 }
             }
@@ -114,7 +110,7 @@ impl Step {
             Step::Shift { device, state, .. } => {
                 let d = v.device(*device);
                 fresh(*device)
-                    && d.config().reading("state").and_then(|i| d.reading(i)) == Some(*state as f64)
+                    && d.config().state().and_then(|i| d.reading(i)) == Some(*state as f64)
             }
             Step::Start { running, .. } => {
                 fresh(running.device) && v.reading(*running).is_some_and(|x| x != 0.0)
@@ -399,7 +395,7 @@ mod tests {
     #[test]
     fn only_the_safe_state_and_waiting_count_as_not_moving() {
         let cfg = SupervisorConfig::default();
-        let gate = crate::console::sample::gate(Instant::now());
+        let gate = crate::testkit::gate(Instant::now());
         let v = &gate.vehicle();
         let b = v.bindings();
         let drive = b.gear.as_ref().expect("gear").forward[0];

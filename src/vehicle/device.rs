@@ -142,7 +142,7 @@ impl Device {
         let port_health = Arc::new(PortHealth::default());
         let estimator = config
             .response
-            .zip(config.reading("position"))
+            .zip(config.position())
             .map(|(r, i)| (Mutex::new(Estimator::new(r, config.range)), i));
         Device {
             estimator,

@@ -179,7 +179,7 @@ fn ms(d: std::time::Duration) -> f64 {
 fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
     let c = d.cached();
     let cfg = &d.config();
-    let s = d.stats().snapshot();
+    let s = &d.stats();
     let age = c.at.map(|t| now.saturating_duration_since(t));
     let value = |cmd| cfg.command_value(cmd);
     DeviceView {
@@ -234,19 +234,12 @@ fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
             polling: cfg.polling.as_str().to_string(),
         },
         counters: snapshot::Counters {
-            received: s.received,
-            executed: s.executed,
-            superseded: s.superseded,
-            resent: s.resent,
-            rejected: s.rejected,
-            command_errors: s.command_errors,
-            polls: s.polls,
-            status_errors: s.status_errors,
             reconnects: d.port_health().opens.load(Relaxed).saturating_sub(1),
+            ..s.counters()
         },
-        delay_us: s.command_delay,
-        command_txn_us: s.command_txn,
-        status_txn_us: s.status_txn,
+        delay_us: s.command_delay.summary(),
+        command_txn_us: s.command_txn.summary(),
+        status_txn_us: s.status_txn.summary(),
         estimate: d.estimate(now).map(|e| snapshot::EstimateView {
             position: e.position,
             sigma: e.sigma,

@@ -5,7 +5,7 @@
 //! when new samples arrived and the last one is older than [`SUMMARY_EVERY`] — a
 //! snapshot never copies a whole histogram on every tick.
 
-pub use crate::snapshot::LatencySummary;
+pub use crate::snapshot::{Counters, LatencySummary};
 use histogram::{AtomicHistogram, Histogram};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
@@ -163,22 +163,6 @@ pub struct Stats {
     pub status_txn: Latency,
 }
 
-/// A copy of a device's figures.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct StatsSnapshot {
-    pub received: u64,
-    pub executed: u64,
-    pub superseded: u64,
-    pub resent: u64,
-    pub rejected: u64,
-    pub command_errors: u64,
-    pub polls: u64,
-    pub status_errors: u64,
-    pub command_delay: LatencySummary,
-    pub command_txn: LatencySummary,
-    pub status_txn: LatencySummary,
-}
-
 impl Stats {
     pub fn bump(counter: &AtomicU64) {
         counter.fetch_add(1, Relaxed);
@@ -192,8 +176,10 @@ impl Stats {
         self.status_txn.summary_now();
     }
 
-    pub fn snapshot(&self) -> StatsSnapshot {
-        StatsSnapshot {
+    /// The counters as they are now, as the snapshot carries them. `reconnects` is
+    /// the port's figure, not kept here: 0 (the vehicle's view fills it in).
+    pub fn counters(&self) -> Counters {
+        Counters {
             received: self.received.load(Relaxed),
             executed: self.executed.load(Relaxed),
             superseded: self.superseded.load(Relaxed),
@@ -202,9 +188,7 @@ impl Stats {
             command_errors: self.command_errors.load(Relaxed),
             polls: self.polls.load(Relaxed),
             status_errors: self.status_errors.load(Relaxed),
-            command_delay: self.command_delay.summary(),
-            command_txn: self.command_txn.summary(),
-            status_txn: self.status_txn.summary(),
+            reconnects: 0,
         }
     }
 }

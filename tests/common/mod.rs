@@ -215,6 +215,7 @@ pub fn until(rx: &std::sync::mpsc::Receiver<String>, pattern: &str) -> Vec<Strin
 }
 
 /// Send `sig` to a child process; false if it is already gone.
+#[allow(unsafe_code)]
 pub fn signal(child: &std::process::Child, sig: i32) -> bool {
     // SAFETY: plain kill(2) on our own child.
     unsafe { libc::kill(child.id() as i32, sig) == 0 }

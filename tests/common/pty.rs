@@ -13,6 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 /// Open a pseudo-terminal of the given size: (master, slave).
+#[allow(unsafe_code)]
 pub fn openpty(cols: u16, rows: u16) -> (OwnedFd, OwnedFd) {
     let (mut m, mut s) = (0, 0);
     let ws = libc::winsize {
@@ -26,11 +27,10 @@ pub fn openpty(cols: u16, rows: u16) -> (OwnedFd, OwnedFd) {
     assert_eq!(r, 0, "openpty: {}", std::io::Error::last_os_error());
     for fd in [m, s] {
         // A program started on the slave must not inherit the master, or closing ours
-        // would not hang the terminal up. SAFETY: setting a flag on a fd we own.
-        assert_eq!(
-            unsafe { libc::fcntl(fd, libc::F_SETFD, libc::FD_CLOEXEC) },
-            0
-        );
+        // would not hang the terminal up.
+        // SAFETY: setting a flag on a fd we own.
+        let r = unsafe { libc::fcntl(fd, libc::F_SETFD, libc::FD_CLOEXEC) };
+        assert_eq!(r, 0);
     }
     // SAFETY: both fds were just opened and are owned by nobody else.
     unsafe { (OwnedFd::from_raw_fd(m), OwnedFd::from_raw_fd(s)) }
@@ -40,6 +40,7 @@ pub fn openpty(cols: u16, rows: u16) -> (OwnedFd, OwnedFd) {
 /// own. `controlling`: the slave becomes its controlling terminal (as in an SSH
 /// session), so the kernel sends it SIGHUP when the master closes; without, nothing
 /// but the dead terminal itself tells it.
+#[allow(unsafe_code)]
 pub fn attach(cmd: &mut Command, slave: &OwnedFd, controlling: bool) {
     let io = |fd: &OwnedFd| Stdio::from(fd.try_clone().unwrap());
     cmd.stdin(io(slave)).stdout(io(slave)).stderr(io(slave));
@@ -116,6 +117,7 @@ impl Drop for Master {
 
 /// Keep what the program writes, so it never blocks on a full terminal, until told
 /// to close; the master is dropped (closed) on return.
+#[allow(unsafe_code)]
 fn read_until_closed(mut master: File, out: &Mutex<Vec<u8>>, close: &AtomicBool) {
     let mut buf = [0u8; 4096];
     while !close.load(Ordering::Relaxed) {

@@ -297,7 +297,7 @@ impl<'a> DevicePanel<'a> {
                 readings.spans.push(Span::raw("  "));
                 readings.spans.extend(est);
             } else {
-                let meas = fmt_value(d.readings.get("position").and_then(Option::as_ref));
+                let meas = fmt_value(d.reading(crate::config::device::POSITION));
                 let mut line = vec![l("meas "), Span::raw(meas), Span::raw("  ")];
                 line.extend(est);
                 // The drift (units a second its command does not explain), where it fits.
@@ -418,15 +418,15 @@ impl Widget for &DevicePanel<'_> {
 mod tests {
     use super::*;
     use crate::console::controls::{capture, Sources};
-    use crate::console::sample;
+    use crate::testkit;
     use ratatui::style::{Color, Modifier};
     use std::time::Instant;
 
     fn snap_of(name: &str, faulty: bool) -> (DeviceId, DeviceView) {
         let now = Instant::now();
-        let g = sample::gate(now);
+        let g = testkit::gate(now);
         if faulty {
-            sample::make_faulty(g.vehicle(), name, now);
+            testkit::make_faulty(g.vehicle(), name, now);
         }
         let f = capture(&g, &Sources::default(), now, None);
         let id = f.id_of(name).unwrap();

@@ -162,9 +162,9 @@ mod tests {
     use super::*;
     use crate::console::controls::{capture, Sources};
     use crate::console::keymap::Keymap;
-    use crate::console::sample;
     use crate::console::theme::Theme;
     use crate::console::view::MIN_WIDTH;
+    use crate::testkit;
     use std::time::{Duration, Instant};
 
     const REASON: &str = "gate: gas is faulty (no reply within 100ms); brake is faulty \
@@ -172,7 +172,7 @@ mod tests {
 
     fn model(engaged: bool, reason: &str, vehicle: &str) -> Model {
         let now = Instant::now();
-        let mut frame = capture(&sample::gate(now), &Sources::default(), now, None);
+        let mut frame = capture(&testkit::gate(now), &Sources::default(), now, None);
         frame.snap.devices[1].health.faulty = true;
         frame.snap.gate.engaged = engaged;
         frame.snap.gate.reason = format!("disengaged: {reason}");

@@ -1,7 +1,7 @@
 //! The log pane: the most recent warnings and errors, newest at the bottom.
 
-use crate::console::logring::LogLine;
 use crate::console::theme::Theme;
+use crate::logging::ring::LogLine;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};

@@ -51,7 +51,7 @@ fn step_spans(r: &RecoveryView, t: &Theme) -> Vec<Span<'static>> {
         .iter()
         .enumerate()
         .map(|(i, s)| {
-            use std::cmp::Ordering::*;
+            use std::cmp::Ordering::{Equal, Greater, Less};
             match i.cmp(&r.step) {
                 Less => Span::styled(format!("✓ {s}"), t.good()),
                 Equal => Span::styled(format!("▶ {s}"), t.warn().patch(t.cursor())),
@@ -373,7 +373,7 @@ mod tests {
             recovery: Some(RecoveryView {
                 step: 3,
                 elapsed_ms: 2_140.0,
-                ..crate::console::sample::engine_stall()
+                ..crate::testkit::engine_stall()
             }),
             last_outcome: None,
             history: Vec::new(),
@@ -457,12 +457,7 @@ mod tests {
         use crate::console::keymap::Keymap;
         use std::time::{Duration, Instant};
         let now = Instant::now();
-        let mut frame = capture(
-            &crate::console::sample::gate(now),
-            &Sources::default(),
-            now,
-            None,
-        );
+        let mut frame = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
         frame.snap.gate.accel = accel;
         Model::new(
             Keymap::default_map(),

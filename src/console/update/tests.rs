@@ -4,9 +4,9 @@ use super::*;
 use crate::config::VehicleConfig;
 use crate::console::controls::{capture, change_settings, Frame, Sources};
 use crate::console::keymap::{key_to_action, Keymap};
-use crate::console::sample;
 use crate::console::theme::Theme;
 use crate::safety::{Refused, Reject};
+use crate::testkit;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
 
@@ -37,7 +37,7 @@ impl Fake {
     }
     fn of(config: VehicleConfig) -> Fake {
         let now = Instant::now();
-        let g = sample::gate_of(config, now);
+        let g = testkit::gate_of(config, now);
         Fake {
             snap: capture(&g, &Sources::default(), now, None),
             gate: g,
@@ -45,7 +45,7 @@ impl Fake {
             refuse: None,
             engage: Ok(()),
             simulated: false,
-            deadman: Default::default(),
+            deadman: std::cell::Cell::default(),
         }
     }
     fn log(&self, s: String) {
@@ -849,8 +849,8 @@ fn the_override_key_pushes_the_bench_device_toward_its_far_end_and_again_lets_go
     for d in &mut f.snap.snap.devices {
         if d.name == "brake" || d.name == "gas" {
             let at = if d.name == "brake" { 1.0 } else { 0.0 };
-            for (n, v) in d.readings.0.iter_mut() {
-                if n == "position" {
+            for (n, v) in &mut d.readings.0 {
+                if n == crate::config::device::POSITION {
                     *v = Some(Value::Number(at));
                 }
             }

@@ -20,7 +20,7 @@ pub mod proto;
 
 use self::proto::{ElmError, Pid};
 use super::{read_until, send_request, Driver, DriverError, Link};
-use crate::config::wire::ElmMap;
+use crate::config::protocol_map::ElmMap;
 use crate::value::{Command, Reading};
 use std::time::Duration;
 

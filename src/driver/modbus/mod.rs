@@ -9,12 +9,12 @@ pub mod proto;
 
 use self::proto::{FrameError, Request, Response};
 use super::{read_some, send_request, Deadline, Driver, DriverError, Link};
-use crate::config::wire::{Block, Field, ModbusMap, RegisterKind};
+use crate::config::protocol_map::{Block, Field, ModbusMap, RegisterKind};
 use crate::config::ReadingKind;
 use crate::value::{Command, Reading};
 use std::time::{Duration, Instant};
 
-pub use crate::config::wire::to_register;
+pub use crate::config::protocol_map::to_register;
 
 /// Host side of a Modbus RTU actuator.
 pub struct ModbusDriver {
@@ -265,7 +265,7 @@ pub(crate) mod tests {
     use super::*;
     use crate::driver::mock::{rx, tx, MockLink, Step};
 
-    use crate::config::wire::{Scale, Wire};
+    use crate::config::protocol_map::{Scale, Wire};
 
     const T: Duration = Duration::from_millis(50);
 

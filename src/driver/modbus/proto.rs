@@ -580,7 +580,7 @@ mod tests {
                 values: vec![0x000A, 0x0102],
             },
         );
-        assert_eq!(&f[..11], &hex("11 10 00 01 00 02 04 00 0A 01 02")[..]);
+        assert_eq!(&f[..11], &*hex("11 10 00 01 00 02 04 00 0A 01 02"));
         assert!(crc_ok(&f));
         assert_eq!(
             encode_request(1, &Request::ReadInput { addr: 8, count: 1 })[..6],

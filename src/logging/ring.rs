@@ -1,5 +1,7 @@
 //! The log pane's source: a `tracing` layer that keeps the last warnings and errors in
-//! a small ring the console reads each tick. It sits beside the file and stderr layers
+//! a small ring the console (and an attached console, through the socket) reads each
+//! tick; it lives with the logging, below the console, so that core tests can read
+//! what a user would see logged. It sits beside the file and stderr layers
 //! (see [`crate::logging::init_with`]) and never blocks for long: one short lock per
 //! warning.
 

@@ -371,67 +371,11 @@ fn reg(v: &toml::Value) -> Option<u16> {
 fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal> {
     let name = &d.name;
     let raw = raw.into_inner();
-    let at_slave = raw.slave.span().start;
-    let slave = *raw.slave.get_ref();
-    // The one rule for a slave id is the limits table's.
-    let limit = &super::limits::MODBUS_SLAVE;
-    let slave = u64::try_from(slave)
-        .map_err(|_| {
-            limit.violation(format!(
-                "{}: expected {}, got {slave}",
-                limit.name(),
-                limit.expected()
-            ))
-        })
-        .and_then(|s| limit.check(s))
-        .map_err(|v| (at_slave, format!("{name}: {}", v.message)))? as u8;
+    let slave = modbus_slave(name, &raw.slave)?;
     let at = raw.registers.span().start;
     let bad = |m: String| (at, format!("{name}: modbus.registers: {m}"));
-    let mut target = None;
-    let mut control = None;
-    let mut status = None;
-    let mut fault_mask = 0xFFFFu16;
-    let mut table = RegisterKind::Input;
-    let mut scale = Scale::ONE;
-    let mut readings: Vec<(String, toml::Value)> = Vec::new();
-    for (key, v) in raw.registers.into_inner() {
-        let addr = || {
-            reg(&v).ok_or_else(|| {
-                bad(format!(
-                    "{key}: expected a register address from 0 to 65535"
-                ))
-            })
-        };
-        match key.as_str() {
-            "target" => target = Some(addr()?),
-            "control" => control = Some(addr()?),
-            "status" => status = Some(addr()?),
-            "fault_mask" => fault_mask = addr()?,
-            "table" | "position_kind" => {
-                table = match v.as_str() {
-                    Some("input") => RegisterKind::Input,
-                    Some("holding") => RegisterKind::Holding,
-                    _ => return Err(bad(format!("{key}: expected \"input\" or \"holding\""))),
-                }
-            }
-            "scale" => {
-                scale.scale = number(&v)
-                    .filter(|s| *s != 0.0)
-                    .ok_or_else(|| bad("scale: expected a finite number other than 0".into()))?
-            }
-            "offset" => {
-                scale.offset =
-                    number(&v).ok_or_else(|| bad("offset: expected a finite number".into()))?
-            }
-            "signed" => {
-                scale.signed = v
-                    .as_bool()
-                    .ok_or_else(|| bad("signed: expected true or false".into()))?
-            }
-            _ => readings.push((key, v)),
-        }
-    }
-    match (d.kind, target) {
+    let r = Registers::parse(raw.registers.into_inner(), &bad)?;
+    match (d.kind, r.target) {
         (Kind::Sensor, Some(_)) => {
             return Err(bad(
                 "target: a sensor takes no commands; remove target".into()
@@ -450,62 +394,189 @@ fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal
         _ => {}
     }
     let mut fields: Vec<(u16, Field)> = Vec::new();
-    for (reading, v) in readings {
-        let Some(index) = d.reading(&reading) else {
-            return Err(bad(format!(
-                "unknown key {reading:?}: expected target, control, status, fault_mask, table, scale, offset, signed, or one of its readings ({})",
-                reading_names(d)
-            )));
-        };
-        let default = match reading.as_str() {
-            "position" => scale,
-            "velocity" => Scale {
-                offset: 0.0,
-                ..scale
-            },
-            _ => Scale {
-                signed: scale.signed,
-                ..Scale::ONE
-            },
-        };
-        let (addr, s) = match &v {
-            toml::Value::Integer(_) => (
-                reg(&v).ok_or_else(|| {
-                    bad(format!(
-                        "{reading}: expected a register address from 0 to 65535"
-                    ))
-                })?,
-                default,
-            ),
-            toml::Value::Table(t) => {
-                let mut s = default;
-                let mut addr = None;
-                for (k, x) in t {
-                    match k.as_str() {
-                        "register" => addr = reg(x),
-                        "scale" => s.scale = number(x).filter(|s| *s != 0.0).ok_or_else(|| bad(format!("{reading}.scale: expected a finite number other than 0")))?,
-                        "offset" => s.offset = number(x).ok_or_else(|| bad(format!("{reading}.offset: expected a finite number")))?,
-                        "signed" => s.signed = x.as_bool().ok_or_else(|| bad(format!("{reading}.signed: expected true or false")))?,
-                        other => return Err(bad(format!("{reading}: unknown key {other:?}; expected register, scale, offset, signed"))),
-                    }
-                }
-                (
-                    addr.ok_or_else(|| bad(format!("{reading}: expected {{ register = N, scale = …, offset = …, signed = … }}")))?,
-                    s,
-                )
-            }
-            _ => {
-                return Err(bad(format!(
-                    "{reading}: expected a register address or {{ register = N, scale = … }}"
-                )))
-            }
-        };
-        fields.push((addr, Field::Reading { index, scale: s }));
+    for (reading, v) in &r.readings {
+        fields.push(reading_field(d, reading, v, r.scale, &bad)?);
     }
-    if let Some(s) = status {
+    if let Some(s) = r.status {
         fields.push((s, Field::Status));
     }
     fields.sort_by_key(|(a, _)| *a);
+    check_fields(d, &fields, &bad)?;
+    let codes = modbus_codes(d, raw.codes, at)?;
+    let kinds = d.readings.iter().map(|r| r.kind.clone()).collect();
+    let own_states = d
+        .readings
+        .iter()
+        .map(|r| d.kind == Kind::State && r.kind == ReadingKind::States(d.states.clone()))
+        .collect();
+    Ok(Wire::Modbus(ModbusMap {
+        slave,
+        target: r.target,
+        control: r.control,
+        table: r.table,
+        fields,
+        fault_mask: r.fault_mask,
+        scale: r.scale,
+        codes,
+        kinds,
+        own_states,
+    }))
+}
+
+/// `modbus.slave`, within the limits table's range (the one rule for a slave id).
+fn modbus_slave(name: &str, slave: &Spanned<i64>) -> Result<u8, Refusal> {
+    let at_slave = slave.span().start;
+    let slave = *slave.get_ref();
+    let limit = &super::limits::MODBUS_SLAVE;
+    let slave = u64::try_from(slave)
+        .map_err(|_| {
+            limit.violation(format!(
+                "{}: expected {}, got {slave}",
+                limit.name(),
+                limit.expected()
+            ))
+        })
+        .and_then(|s| limit.check(s))
+        .map_err(|v| (at_slave, format!("{name}: {}", v.message)))? as u8;
+    Ok(slave)
+}
+
+/// `modbus.registers` as written: the device's own registers and defaults, and the
+/// keys left over (its readings, checked against the device after).
+struct Registers {
+    target: Option<u16>,
+    control: Option<u16>,
+    status: Option<u16>,
+    fault_mask: u16,
+    table: RegisterKind,
+    scale: Scale,
+    readings: Vec<(String, toml::Value)>,
+}
+
+impl Registers {
+    fn parse(table: toml::Table, bad: &dyn Fn(String) -> Refusal) -> Result<Registers, Refusal> {
+        let mut r = Registers {
+            target: None,
+            control: None,
+            status: None,
+            fault_mask: 0xFFFF,
+            table: RegisterKind::Input,
+            scale: Scale::ONE,
+            readings: Vec::new(),
+        };
+        for (key, v) in table {
+            let addr = || {
+                reg(&v).ok_or_else(|| {
+                    bad(format!(
+                        "{key}: expected a register address from 0 to 65535"
+                    ))
+                })
+            };
+            match key.as_str() {
+                "target" => r.target = Some(addr()?),
+                "control" => r.control = Some(addr()?),
+                "status" => r.status = Some(addr()?),
+                "fault_mask" => r.fault_mask = addr()?,
+                "table" | "position_kind" => {
+                    r.table = match v.as_str() {
+                        Some("input") => RegisterKind::Input,
+                        Some("holding") => RegisterKind::Holding,
+                        _ => return Err(bad(format!("{key}: expected \"input\" or \"holding\""))),
+                    }
+                }
+                "scale" => {
+                    r.scale.scale = number(&v)
+                        .filter(|s| *s != 0.0)
+                        .ok_or_else(|| bad("scale: expected a finite number other than 0".into()))?
+                }
+                "offset" => {
+                    r.scale.offset =
+                        number(&v).ok_or_else(|| bad("offset: expected a finite number".into()))?
+                }
+                "signed" => {
+                    r.scale.signed = v
+                        .as_bool()
+                        .ok_or_else(|| bad("signed: expected true or false".into()))?
+                }
+                _ => r.readings.push((key, v)),
+            }
+        }
+        Ok(r)
+    }
+}
+
+/// One reading's register: an address, or `{ register = N, scale = … }` over the
+/// reading's default scale (the device's for its position and velocity).
+fn reading_field(
+    d: &DeviceConfig,
+    reading: &str,
+    v: &toml::Value,
+    scale: Scale,
+    bad: &dyn Fn(String) -> Refusal,
+) -> Result<(u16, Field), Refusal> {
+    let Some(index) = d.reading(reading) else {
+        return Err(bad(format!(
+            "unknown key {reading:?}: expected target, control, status, fault_mask, table, scale, offset, signed, or one of its readings ({})",
+            reading_names(d)
+        )));
+    };
+    let default = match reading {
+        super::device::POSITION => scale,
+        "velocity" => Scale {
+            offset: 0.0,
+            ..scale
+        },
+        _ => Scale {
+            signed: scale.signed,
+            ..Scale::ONE
+        },
+    };
+    let (addr, s) = match v {
+        toml::Value::Integer(_) => (
+            reg(v).ok_or_else(|| {
+                bad(format!(
+                    "{reading}: expected a register address from 0 to 65535"
+                ))
+            })?,
+            default,
+        ),
+        toml::Value::Table(t) => {
+            let mut s = default;
+            let mut addr = None;
+            for (k, x) in t {
+                match k.as_str() {
+                    "register" => addr = reg(x),
+                    "scale" => s.scale = number(x).filter(|s| *s != 0.0).ok_or_else(|| bad(format!("{reading}.scale: expected a finite number other than 0")))?,
+                    "offset" => s.offset = number(x).ok_or_else(|| bad(format!("{reading}.offset: expected a finite number")))?,
+                    "signed" => s.signed = x.as_bool().ok_or_else(|| bad(format!("{reading}.signed: expected true or false")))?,
+                    other => return Err(bad(format!("{reading}: unknown key {other:?}; expected register, scale, offset, signed"))),
+                }
+            }
+            (
+                addr.ok_or_else(|| {
+                    bad(format!(
+                        "{reading}: expected {{ register = N, scale = …, offset = …, signed = … }}"
+                    ))
+                })?,
+                s,
+            )
+        }
+        _ => {
+            return Err(bad(format!(
+                "{reading}: expected a register address or {{ register = N, scale = … }}"
+            )))
+        }
+    };
+    Ok((addr, Field::Reading { index, scale: s }))
+}
+
+/// The feedback fields, sorted by address: no two share a register, and every
+/// reading has one.
+fn check_fields(
+    d: &DeviceConfig,
+    fields: &[(u16, Field)],
+    bad: &dyn Fn(String) -> Refusal,
+) -> Result<(), Refusal> {
     for w in fields.windows(2) {
         if w[0].0 == w[1].0 {
             return Err(bad(format!(
@@ -525,21 +596,30 @@ fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal
             )));
         }
     }
-    let codes = match (d.kind, raw.codes) {
-        (Kind::State, None) => {
-            return Err((
-                at,
-                format!(
-                    "{name}: modbus.codes: expected the code of each state, e.g. codes = {{ {} }}",
-                    d.states
-                        .iter()
-                        .enumerate()
-                        .map(|(i, s)| format!("{s} = {i}"))
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                ),
-            ))
-        }
+    Ok(())
+}
+
+/// `modbus.codes`: a state device's code for each of its states, each once; no other
+/// device has them.
+fn modbus_codes(
+    d: &DeviceConfig,
+    codes: Option<Spanned<toml::Table>>,
+    at: usize,
+) -> Result<Vec<u16>, Refusal> {
+    let name = &d.name;
+    match (d.kind, codes) {
+        (Kind::State, None) => Err((
+            at,
+            format!(
+                "{name}: modbus.codes: expected the code of each state, e.g. codes = {{ {} }}",
+                d.states
+                    .iter()
+                    .enumerate()
+                    .map(|(i, s)| format!("{s} = {i}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )),
         (Kind::State, Some(c)) => {
             let at = c.span().start;
             let mut codes: Vec<Option<u16>> = vec![None; d.states.len()];
@@ -573,34 +653,14 @@ fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal
                 }
                 out.push(c);
             }
-            out
+            Ok(out)
         }
-        (_, Some(c)) => {
-            return Err((
-                c.span().start,
-                format!("{name}: modbus.codes are for state devices"),
-            ))
-        }
-        (_, None) => Vec::new(),
-    };
-    let kinds = d.readings.iter().map(|r| r.kind.clone()).collect();
-    let own_states = d
-        .readings
-        .iter()
-        .map(|r| d.kind == Kind::State && r.kind == ReadingKind::States(d.states.clone()))
-        .collect();
-    Ok(Wire::Modbus(ModbusMap {
-        slave,
-        target,
-        control,
-        table,
-        fields,
-        fault_mask,
-        scale,
-        codes,
-        kinds,
-        own_states,
-    }))
+        (_, Some(c)) => Err((
+            c.span().start,
+            format!("{name}: modbus.codes are for state devices"),
+        )),
+        (_, None) => Ok(Vec::new()),
+    }
 }
 
 fn number(v: &toml::Value) -> Option<f64> {

@@ -1,5 +1,7 @@
-//! A vehicle at rest with plausible readings and figures, built without threads or
-//! ports: for the console's tests, snapshots and the fault screenshot.
+//! The crate's test kit: a vehicle at rest with plausible readings and figures, built
+//! without threads or ports, for the tests of every layer (safety, snapshot,
+//! supervisor, the front ends), the console's screen snapshots and its fault
+//! screenshot. It sits below the layers that use it and imports only the core.
 
 use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::engine::Gate;
