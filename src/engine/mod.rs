@@ -49,7 +49,7 @@ pub mod status;
 pub use dispatch::WireStep;
 pub use gate::Gate;
 
-use crate::threads::{Liveness, StopSignal, Threads};
+use crate::threads::{Liveness, Owner};
 use crate::vehicle::Vehicle;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -57,8 +57,7 @@ use std::time::{Duration, Instant};
 /// The running engine.
 pub struct Engine {
     gate: Arc<Gate>,
-    stop: Arc<StopSignal>,
-    threads: Threads,
+    threads: Owner,
     stopped: bool,
 }
 
@@ -81,21 +80,21 @@ impl Engine {
 
     /// [`Engine::start`], with a fault injected into one thread.
     pub fn start_injected(gate: Arc<Gate>, inject: Option<Injected>) -> std::io::Result<Engine> {
-        let stop = Arc::new(StopSignal::default());
-        let mut threads = Threads::default();
+        let mut threads = Owner::default();
         let vehicle = gate.vehicle().clone();
         for i in 0..vehicle.devices().len() {
             let name = vehicle.devices()[i].name().to_string();
-            let (v, s) = (vehicle.clone(), stop.clone());
+            let v = vehicle.clone();
             let thread = format!("{name}/status");
             let fault = inject.clone().filter(|f| f.thread == thread);
-            threads.spawn(thread, move || {
+            threads.spawn(thread, move |stop| {
                 let fault = fault.map(|f| (Instant::now() + f.after, f.panic));
-                status::status_loop(&v.devices()[i], &s, fault)
+                status::status_loop(&v.devices()[i], stop, fault)
             })?;
             if vehicle.devices()[i].is_actuator() {
                 let g = gate.clone();
-                threads.spawn(format!("{name}/command"), move || {
+                // The command thread stops when its slot does (it sleeps there).
+                threads.spawn(format!("{name}/command"), move |_| {
                     placement::apply(&g.vehicle().config().vehicle.placement);
                     command::command_loop(&g, &g.vehicle().devices()[i])
                 })?;
@@ -103,7 +102,6 @@ impl Engine {
         }
         Ok(Engine {
             gate,
-            stop,
             threads,
             stopped: false,
         })
@@ -139,12 +137,12 @@ impl Engine {
         self.gate.disengage("stopping");
         self.gate.command_safe_state();
         let safe = self.gate.wait_safe(Instant::now() + deadline / 2);
-        self.stop.stop();
+        self.threads.signal().stop();
         for d in self.gate.vehicle().devices() {
             d.slot().stop();
             d.port().stop();
         }
-        (safe, std::mem::take(&mut self.threads).join(end))
+        (safe, self.threads.stop(end))
     }
 }
 

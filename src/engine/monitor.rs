@@ -5,7 +5,7 @@
 //! it bounds how late a silent device, the e-stop first of all, is acted on.
 
 use super::Gate;
-use crate::threads::{StopSignal, Threads};
+use crate::threads::Owner;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -14,17 +14,14 @@ pub const EVERY: Duration = Duration::from_millis(10);
 
 /// The running monitor.
 pub struct Monitor {
-    stop: Arc<StopSignal>,
-    threads: Threads,
+    threads: Owner,
 }
 
 impl Monitor {
     pub fn start(gate: Arc<Gate>) -> std::io::Result<Monitor> {
-        let stop = Arc::new(StopSignal::default());
-        let mut threads = Threads::default();
-        let s = stop.clone();
-        threads.spawn("gate/monitor".into(), move || {
-            crate::threads::every(EVERY, &s, || {
+        let mut threads = Owner::default();
+        threads.spawn("gate/monitor", move |stop| {
+            crate::threads::every(EVERY, stop, || {
                 gate.watch(Instant::now());
                 if gate.is_engaged() {
                     if let Some(why) = gate.blockers().into_iter().next() {
@@ -33,12 +30,11 @@ impl Monitor {
                 }
             })
         })?;
-        Ok(Monitor { stop, threads })
+        Ok(Monitor { threads })
     }
 
     /// Stop and join; returns the thread's name if it did not stop.
-    pub fn shutdown(self, deadline: Duration) -> Vec<String> {
-        self.stop.stop();
-        self.threads.join(Instant::now() + deadline)
+    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.threads.stop(Instant::now() + deadline)
     }
 }
