@@ -24,6 +24,7 @@ pub mod headless;
 pub mod logging;
 pub mod net;
 pub mod ports;
+pub mod probe;
 pub mod record;
 #[cfg(feature = "ros2")]
 pub mod ros2;

@@ -411,6 +411,7 @@ impl Gate {
     /// send exactly it, write it from this thread ([`crate::vehicle::fast`]): the
     /// command thread then only reads the reply.
     fn admit_checked(&self, d: &Device, command: Command, received: Instant) {
+        crate::probe::stamp(crate::probe::Step::Checked);
         crate::vehicle::stats::Stats::bump(&d.stats.received);
         use crate::vehicle::fast::{self, Sent};
         match fast::send(d, command, received, || {

@@ -74,6 +74,7 @@ pub fn send(
         return Sent::Queued { superseded };
     };
     let (sent, first) = port.send_command(command);
+    crate::probe::stamp(crate::probe::Step::FastWritten);
     if sent.is_ok() {
         super::stats::Stats::bump(&d.stats.fast);
     }
