@@ -263,60 +263,125 @@ fn figures(d: &[Duration]) -> (f64, f64, f64) {
     (quantile(d, 0.5), quantile(d, 0.99), max)
 }
 
-/// A bare relay: one thread, `recv` → write `! v\n` to its port. Its samples, and the
-/// steps of each: (sendto → recv returned, recv → write returned, write → read).
-fn relay(sent: u64) -> (Vec<Sample>, Steps) {
-    let end = DeviceEnd::open(Proto::Line, false);
+/// The environment variable that makes the bench binary a relay process instead
+/// ([`relay_process`]): the pseudo-terminal to write to.
+pub const RELAY: &str = "ADRIVE_BENCH_RELAY";
+
+/// The bench binary run as a bare relay, a process of its own as adrive is: one
+/// thread, `recv` → write `! v\n` to its port (`v`: what follows the datagram's first
+/// space). Prints its UDP port first; on a one-byte datagram, prints its own stamps of
+/// each datagram since the last such (`recv` returned, write returned, ns) and `end`;
+/// on a two-byte one, ends.
+pub fn relay_process(path: &str) {
     let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let to = rx.local_addr().unwrap();
+    println!("{}", rx.local_addr().unwrap().port());
     let mut port = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
-        .open(&end.path)
+        .open(path)
         .unwrap();
-    let relay = std::thread::Builder::new()
-        .name("relay".into())
-        .spawn(move || {
-            let mut buf = [0u8; 256];
-            let mut out = Vec::with_capacity(64);
-            let mut stamps = Vec::with_capacity(4096);
-            while let Ok(n) = rx.recv(&mut buf) {
-                let received = mono_ns();
-                if n == 1 {
-                    break;
-                }
-                let text = &buf[..n];
-                let v = text.strip_prefix(b"steer ").unwrap_or(text);
-                out.clear();
-                out.extend_from_slice(b"! ");
-                out.extend_from_slice(v);
-                let _ = port.write_all(&out);
-                let written = mono_ns();
-                stamps.push((received, written));
+    let mut buf = [0u8; 256];
+    let mut out = Vec::with_capacity(64);
+    let mut stamps: Vec<(u64, u64)> = Vec::with_capacity(1 << 16);
+    while let Ok(n) = rx.recv(&mut buf) {
+        let received = mono_ns();
+        if n <= 2 {
+            let mut text = String::new();
+            for (r, w) in stamps.drain(..) {
+                text.push_str(&format!("{r} {w}\n"));
             }
-            stamps
-        })
-        .unwrap();
-    let tx = UdpSocket::bind("127.0.0.1:0").unwrap();
-    tx.connect(to).unwrap();
-    let names = ["steer".to_string()];
-    let d = measure(&names, &[(0, &end)], sent, |t| {
-        let _ = tx.send(t.as_bytes());
-    })
-    .remove(0);
-    let _ = tx.send(b"x");
-    // Its own stamps of each datagram: `recv` returned, write returned.
-    let stamps: Vec<(u64, u64)> = relay.join().unwrap();
-    // Datagram k is the k-th the relay read (one at a time, 10 ms apart).
-    let mut steps = Steps::default();
-    for s in &d {
-        if let Some(&(received, written)) = stamps.iter().find(|r| r.0 >= s.sent) {
-            steps.push(0, received.saturating_sub(s.sent));
-            steps.push(3, written.saturating_sub(received));
-            steps.push(5, s.seen.saturating_sub(written));
+            println!("{text}end");
+            if n == 2 {
+                return;
+            }
+            continue;
+        }
+        let text = &buf[..n];
+        let v = match text.iter().position(|&b| b == b' ') {
+            Some(i) => &text[i + 1..],
+            None => text,
+        };
+        out.clear();
+        out.extend_from_slice(b"! ");
+        out.extend_from_slice(v);
+        let _ = port.write_all(&out);
+        let written = mono_ns();
+        stamps.push((received, written));
+    }
+}
+
+/// A bare relay process ([`relay_process`]) and the device end it writes to, measured
+/// in the same window as adrive, its datagrams between adrive's.
+struct Relay {
+    end: DeviceEnd,
+    tx: UdpSocket,
+    child: std::process::Child,
+    out: std::io::BufReader<std::process::ChildStdout>,
+}
+
+impl Relay {
+    fn start() -> Relay {
+        use std::io::BufRead;
+        let end = DeviceEnd::open(Proto::Line, false);
+        let mut child = std::process::Command::new(std::env::current_exe().unwrap())
+            .env(RELAY, &end.path)
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        out.read_line(&mut line).unwrap();
+        let tx = UdpSocket::bind("127.0.0.1:0").unwrap();
+        tx.connect(("127.0.0.1", line.trim().parse::<u16>().unwrap()))
+            .unwrap();
+        Relay {
+            end,
+            tx,
+            child,
+            out,
         }
     }
-    (d, steps)
+
+    fn send(&self, text: &str) {
+        let _ = self.tx.send(text.as_bytes());
+    }
+
+    /// Start a window: forget what the device end saw.
+    fn clear(&self) {
+        self.end.seen.lock().unwrap().clear();
+    }
+
+    /// The steps of the window's samples, from the relay's own stamps.
+    fn steps(&mut self, samples: &[Sample]) -> Steps {
+        use std::io::BufRead;
+        let _ = self.tx.send(b"x");
+        let mut stamps = Vec::new();
+        let mut line = String::new();
+        while self.out.read_line(&mut line).is_ok_and(|n| n > 0) && line.trim() != "end" {
+            let mut w = line.split_whitespace().map(|x| x.parse::<u64>().ok());
+            if let (Some(Some(r)), Some(Some(w))) = (w.next(), w.next()) {
+                stamps.push((r, w));
+            }
+            line.clear();
+        }
+        let mut steps = Steps::default();
+        for s in samples {
+            let i = stamps.partition_point(|r: &(u64, u64)| r.0 < s.sent);
+            if let Some(&(received, written)) = stamps.get(i) {
+                steps.push(0, received.saturating_sub(s.sent));
+                steps.push(3, written.saturating_sub(received));
+                steps.push(5, s.seen.saturating_sub(written));
+            }
+        }
+        steps
+    }
+}
+
+impl Drop for Relay {
+    fn drop(&mut self) {
+        let _ = self.tx.send(b"xx");
+        let _ = self.child.wait();
+    }
 }
 
 /// The steps of the way from outside, as [`STEPS`] lists them: each step's durations.
@@ -467,14 +532,27 @@ impl Row {
 }
 
 /// One row's result: the measured devices' samples, adrive's own figure (p50, p99) for
-/// the first of them, and the steps of its way.
+/// the first of them, and the steps of its way; the relay's, measured in the same
+/// window.
 struct Measured {
     samples: Vec<Vec<Sample>>,
     own: (f64, f64),
     steps: Steps,
+    relay: Vec<Sample>,
+    relay_steps: Steps,
 }
 
-fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64) -> Measured {
+impl Measured {
+    /// (p50, p99, max) of the first device and of the relay.
+    fn first(&self) -> (f64, f64, f64) {
+        figures(&totals(&self.samples[0]))
+    }
+    fn relay(&self) -> (f64, f64, f64) {
+        figures(&totals(&self.relay))
+    }
+}
+
+fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64, relay: &mut Relay) -> Measured {
     let first = DeviceEnd::open(row.proto, true);
     let last = row.last_too.then(|| DeviceEnd::open(row.proto, true));
     let mut names = vec!["steer".to_string()];
@@ -521,7 +599,19 @@ fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64) -> Measured {
     if let Some(l) = &last {
         measured.push((names.len() - 1, l));
     }
-    let samples = measure(&names, &measured, sent, |t| a.send(t));
+    // The relay's datagrams go between adrive's, in the same window.
+    names.push("relay".into());
+    measured.push((names.len() - 1, &relay.end));
+    relay.clear();
+    let mut samples = measure(&names, &measured, sent, |t| {
+        if t.starts_with("relay ") {
+            relay.send(t)
+        } else {
+            a.send(t)
+        }
+    });
+    let relay_samples = samples.pop().unwrap_or_default();
+    let relay_steps = relay.steps(&relay_samples);
     let steps = Steps::of(&samples[0], &probe_file);
     let snap = a.snapshot();
     let own = snap
@@ -539,6 +629,8 @@ fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64) -> Measured {
         samples,
         own,
         steps,
+        relay: relay_samples,
+        relay_steps,
     }
 }
 
@@ -618,19 +710,31 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     if !cfg!(feature = "ros2") {
         rows[7].skip = Some("not built: cargo bench --bench paper --features ros2");
     }
-    // Per round: the relay, then each row.
-    let mut relays = Vec::new();
-    let mut results: Vec<Vec<Measured>> = rows.iter().map(|_| Vec::new()).collect();
-    for _round in 0..2 {
-        relays.push(relay(sent));
-        for (row, out) in rows.iter().zip(&mut results) {
-            if row.skip.is_none() {
-                out.push(adrive_row(dir.path(), &sims, row, sent));
+    // `ADRIVE_BENCH_ROWS=0,4`: just those rows (while working on one).
+    if let Ok(only) = std::env::var("ADRIVE_BENCH_ROWS") {
+        let keep: Vec<usize> = only
+            .split(',')
+            .filter_map(|x| x.trim().parse().ok())
+            .collect();
+        for (i, row) in rows.iter_mut().enumerate() {
+            if !keep.contains(&i) && row.skip.is_none() {
+                row.skip = Some("not run (ADRIVE_BENCH_ROWS)");
             }
         }
     }
+    // Two rounds; in each, every row with the relay in its own window.
+    let mut relay = Relay::start();
+    let mut results: Vec<Vec<Measured>> = rows.iter().map(|_| Vec::new()).collect();
+    for _round in 0..2 {
+        for (row, out) in rows.iter().zip(&mut results) {
+            if row.skip.is_none() {
+                out.push(adrive_row(dir.path(), &sims, row, sent, &mut relay));
+            }
+        }
+    }
+    drop(relay);
     println!(
-        "{:<38} {:>5} {:>8} {:>8} {:>8} {:>7} {:>7} {:>9}  {:>13}",
+        "{:<36} {:>5} {:>8} {:>8} {:>8} {:>7} {:>7} {:>8}  {:>13}",
         "row (round)",
         "seen",
         "p50 µs",
@@ -641,33 +745,28 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
         "p50/row",
         "own p50/p99"
     );
-    let relay_figures: Vec<(f64, f64, f64)> =
-        relays.iter().map(|(s, _)| figures(&totals(s))).collect();
-    for (round, (s, _)) in relays.iter().enumerate() {
-        let (p50, p99, max) = relay_figures[round];
-        println!(
-            "{:<38} {:>5} {p50:>8.1} {p99:>8.1} {max:>8.1}",
-            format!("bare relay ({})", round + 1),
-            s.len()
-        );
-    }
-    // Each row's better round: the lower p50 against its round's relay.
+    // Each row's better round: the lower p50 against the relay of its window.
     let best: Vec<Option<usize>> = results
         .iter()
         .map(|r| {
             (0..r.len()).min_by(|&a, &b| {
-                let q = |i: usize| figures(&totals(&r[i].samples[0])).0 / relay_figures[i].0;
+                let q = |i: usize| r[i].first().0 / r[i].relay().0;
                 q(a).total_cmp(&q(b))
             })
         })
         .collect();
     for (i, row) in rows.iter().enumerate() {
         let Some(round) = best[i] else {
-            println!("{:<38} {}", row.label, row.skip.unwrap_or("not run"));
+            println!("{:<36} {}", row.label, row.skip.unwrap_or("not run"));
             continue;
         };
         let m = &results[i][round];
-        let (rp50, rp99, _) = relay_figures[round];
+        let (rp50, rp99, rmax) = m.relay();
+        println!(
+            "{:<36} {:>5} {rp50:>8.1} {rp99:>8.1} {rmax:>8.1}",
+            format!("bare relay ({})", round + 1),
+            m.relay.len()
+        );
         for (k, s) in m.samples.iter().enumerate() {
             let d = totals(s);
             let (p50, p99, max) = figures(&d);
@@ -677,11 +776,8 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
                 format!("  … last device ({})", round + 1)
             };
             let against = match (k, row.against.and_then(|j| Some((j, best[j]?)))) {
-                (0, Some((j, r))) => format!(
-                    "{:>8.2}×",
-                    p50 / figures(&totals(&results[j][r].samples[0])).0
-                ),
-                (1, _) => format!("{:>8.2}×", p50 / figures(&totals(&m.samples[0])).0),
+                (0, Some((j, r))) => format!("{:.2}×", p50 / results[j][r].first().0),
+                (1, _) => format!("{:.2}×", p50 / m.first().0),
                 _ => String::new(),
             };
             let own = if k == 0 {
@@ -690,19 +786,19 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
                 String::new()
             };
             println!(
-                "{label:<38} {:>5} {p50:>8.1} {p99:>8.1} {max:>8.1} {:>6.2}× {:>6.2}× {against:>9}  {own:>13}",
+                "{label:<36} {:>5} {p50:>8.1} {p99:>8.1} {max:>8.1} {:>6.2}× {:>6.2}× {against:>8}  {own:>13}",
                 d.len(),
                 p50 / rp50,
                 p99 / rp99,
             );
         }
     }
-    println!("(rl: the bare relay of the same round; p50/row: against the one-device row (the last device: against the first); own: adrive's displayed delay, receipt → first byte, for the same commands.)");
+    println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row, or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
     println!("\nWhere the time goes, p50 and p99 µs of each step (stamps: the planner's sendto and the device's read here, adrive's probe inside):");
     if let Some(r) = best[0] {
-        let (s, steps) = &relays[r];
-        steps.print(&format!("bare relay ({})", r + 1), &totals(s));
         let m = &results[0][r];
+        m.relay_steps
+            .print(&format!("bare relay ({})", r + 1), &totals(&m.relay));
         m.steps.print(
             &format!("adrive, one device, line ({})", r + 1),
             &totals(&m.samples[0]),
