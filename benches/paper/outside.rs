@@ -734,7 +734,7 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     }
     drop(relay);
     println!(
-        "{:<36} {:>5} {:>8} {:>8} {:>8} {:>7} {:>7} {:>8}  {:>13}",
+        "{:<36} {:>5} {:>8} {:>8} {:>8} {:>7} {:>7} {:>15}  {:>13}",
         "row (round)",
         "seen",
         "p50 µs",
@@ -776,7 +776,16 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
                 format!("  … last device ({})", round + 1)
             };
             let against = match (k, row.against.and_then(|j| Some((j, best[j]?)))) {
-                (0, Some((j, r))) => format!("{:.2}×", p50 / results[j][r].first().0),
+                // Raw, and with each window's relay taken out (the machine's load
+                // moves both figures of a window together).
+                (0, Some((j, r))) => {
+                    let base = &results[j][r];
+                    format!(
+                        "{:.2}× ({:.2}×)",
+                        p50 / base.first().0,
+                        (p50 / rp50) / (base.first().0 / base.relay().0)
+                    )
+                }
                 (1, _) => format!("{:.2}×", p50 / m.first().0),
                 _ => String::new(),
             };
@@ -786,14 +795,14 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
                 String::new()
             };
             println!(
-                "{label:<36} {:>5} {p50:>8.1} {p99:>8.1} {max:>8.1} {:>6.2}× {:>6.2}× {against:>8}  {own:>13}",
+                "{label:<36} {:>5} {p50:>8.1} {p99:>8.1} {max:>8.1} {:>6.2}× {:>6.2}× {against:>15}  {own:>13}",
                 d.len(),
                 p50 / rp50,
                 p99 / rp99,
             );
         }
     }
-    println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row, or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
+    println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row (in brackets: each row's p50/rl against the one-device row's), or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
     println!("\nWhere the time goes, p50 and p99 µs of each step (stamps: the planner's sendto and the device's read here, adrive's probe inside):");
     if let Some(r) = best[0] {
         let m = &results[0][r];
