@@ -76,23 +76,39 @@ pub fn mono_ns() -> u64 {
 /// that cannot be mapped leaves it off, with a warning.
 pub fn init() {
     INIT.get_or_init(|| {
-        let Some(path) = std::env::var_os(ENV) else {
-            return;
-        };
-        match map(std::path::Path::new(&path)) {
-            Ok(words) => {
-                let probe = Box::new(Probe {
-                    words,
-                    current: AtomicUsize::new(0),
-                    base: Instant::now(),
-                    base_ns: mono_ns(),
-                });
-                PROBE.store(Box::into_raw(probe), Relaxed);
-                tracing::info!(file = %path.to_string_lossy(), "command path probe on");
-            }
-            Err(e) => tracing::warn!("{ENV}={}: {e}; the probe stays off", path.to_string_lossy()),
+        if let Some(path) = std::env::var_os(ENV) {
+            start(std::path::Path::new(&path));
         }
     });
+}
+
+/// Turn the probe on, stamping into `path` (created, or reused as it is). Once on, it
+/// stays on with its first file.
+pub fn start(path: &std::path::Path) {
+    if probe().is_some() {
+        return;
+    }
+    match map(path) {
+        Ok(words) => {
+            let probe = Box::new(Probe {
+                words,
+                current: AtomicUsize::new(0),
+                base: Instant::now(),
+                base_ns: mono_ns(),
+            });
+            let p = Box::into_raw(probe);
+            if PROBE
+                .compare_exchange(std::ptr::null_mut(), p, Relaxed, Relaxed)
+                .is_err()
+            {
+                // SAFETY: `p` came from Box::into_raw above and was never shared.
+                drop(unsafe { Box::from_raw(p) });
+                return;
+            }
+            tracing::info!(file = %path.display(), "command path probe on");
+        }
+        Err(e) => tracing::warn!("{ENV}={}: {e}; the probe stays off", path.display()),
+    }
 }
 
 fn map(path: &std::path::Path) -> std::io::Result<&'static [AtomicU64]> {
@@ -205,6 +221,46 @@ pub fn read(path: &std::path::Path) -> std::io::Result<Vec<[u64; STAMPS]>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A datagram's steps come back from the file as the benchmark reads them: its
+    /// read, its checks, and its first byte (stamped from the command's bookkeeping,
+    /// by its `received`), in order, in the clock the benchmark's own stamps use.
+    #[test]
+    fn a_datagrams_steps_are_read_back_from_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("probe");
+        start(&file);
+        // Other tests' listeners in this process stamp too once the probe is on: a
+        // datagram of theirs between two stamps of this one moves the current record.
+        // One clean pass of the steps is what is asserted.
+        let order = [
+            Step::Received,
+            Step::Parsed,
+            Step::Checked,
+            Step::FirstByte,
+            Step::Handled,
+        ];
+        let clean = (0..50).find_map(|_| {
+            let before = mono_ns();
+            let received = Instant::now();
+            datagram(received);
+            stamp(Step::Parsed);
+            stamp(Step::Checked);
+            first_byte(received, Instant::now());
+            stamp(Step::Handled);
+            let after = mono_ns();
+            let at = probe().unwrap().ns(received);
+            let r = *read(&file)
+                .unwrap()
+                .iter()
+                .find(|r| r[Step::Received as usize] == at)?;
+            let ordered = order
+                .windows(2)
+                .all(|w| r[w[0] as usize] <= r[w[1] as usize]);
+            (ordered && before <= r[0] && r[Step::Handled as usize] <= after).then_some(r)
+        });
+        assert!(clean.is_some(), "no datagram's steps read back in order");
+    }
 
     /// An `Instant` and the nanoseconds it is stamped as agree with the clock another
     /// process reads (the benchmark compares them with its own `sendto` times).
