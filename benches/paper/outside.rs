@@ -683,7 +683,7 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
         Row {
             others: 62,
             last_too: true,
-            ..Row::new("64 actuators at 100 Hz each: first")
+            ..Row::new("64 actuators at 100 Hz: first")
         },
         Row {
             args: vec!["--record".into(), rec.clone(), "--record-raw".into()],
