@@ -13,7 +13,9 @@
 //! network starts): then every stamp is a few relaxed stores into that file, mapped
 //! shared, which the benchmark reads while adrive runs. Off, a stamp is one load of a
 //! pointer that is null. Nothing here allocates, locks or makes a system call on the
-//! path.
+//! path. The listener's datagram is the record a stamp lands on: a command another
+//! source (a console, ROS 2) admits meanwhile stamps the same record, so figures are
+//! taken with the planner the only source, as the benchmark does.
 
 use std::sync::atomic::{AtomicPtr, AtomicU64, AtomicUsize, Ordering::Relaxed};
 use std::sync::OnceLock;
@@ -40,7 +42,8 @@ pub enum Step {
     /// The one intake's checks done for a set point: ownership, value, interlocks;
     /// next, the fast path's wire check and write, or the slot.
     Checked = 2,
-    /// The fast path's write returned (the listener wrote the request itself).
+    /// The fast path's send returned (the listener wrote the request itself), the raw
+    /// trace of its bytes recorded.
     FastWritten = 3,
     /// The first byte of the command's request was written, on either path (the
     /// stamp adrive's own delay figure ends at), taken from the command's bookkeeping.

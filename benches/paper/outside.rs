@@ -398,7 +398,7 @@ const STEPS: [&str; 7] = [
     "the network's checks: sender, grammar, key, counter",
     "the one intake: ownership, value, interlocks",
     "fast path (wire check, port, write) or slot + command thread, to the write",
-    "  (of which the write itself, on the fast path)",
+    "  (fast path: to its send returning, the trace included; a preempted write shows here)",
     "write → first byte read at the device (pty delivery, reader's wake)",
     "after the write, the listener busy until it reads again",
 ];
