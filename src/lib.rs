@@ -25,6 +25,7 @@ pub mod headless;
 pub mod logging;
 pub mod net;
 pub mod port_list;
+pub mod probe;
 pub mod record;
 #[cfg(feature = "ros2")]
 pub mod ros2;

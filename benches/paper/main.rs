@@ -14,7 +14,9 @@
 //! console's output to its terminal; 8 the command delay with recording off and on; 9
 //! fixed against adaptive polling, the paper's open problem ([`estimator`]); 10 the
 //! command delay and adrive's CPU with the Foxglove live view off, on with no viewer,
-//! and with two viewers subscribed to everything ([`viewer`]).
+//! and with two viewers subscribed to everything ([`viewer`]); 11 the command path from
+//! outside — a planner's `sendto` to the first byte at the device — beside a bare relay
+//! in the same window, row by row, with its steps ([`outside`]); 12 attached consoles.
 
 mod estimator;
 mod floor;
@@ -195,6 +197,10 @@ struct Results {
 const IDLE: &str = "ADRIVE_BENCH_IDLE_THREADS";
 
 fn main() {
+    if let Ok(port) = std::env::var(outside::RELAY) {
+        outside::relay_process(&port);
+        return;
+    }
     if std::env::var_os(IDLE).is_some() {
         let idle =
             (0..20).map(|_| std::thread::spawn(|| std::thread::sleep(Duration::from_millis(200))));

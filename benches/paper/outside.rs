@@ -1,17 +1,29 @@
 //! Section 11: the command path seen from outside, as a user measures it — a planner's
 //! `sendto` → the command's first byte readable at the device's end of its port — beside
 //! the least any program can do, a bare relay (one thread, `recv` → write) onto the
-//! same kind of pseudo-terminal, in the same run.
+//! same kind of pseudo-terminal, in the same round.
 //!
-//! The measured device (`steer`, the line protocol) is a pseudo-terminal whose master
-//! this process holds: it answers `?` with the last commanded position and `! v` with
-//! `ok`, and takes the time each `! v` line's first byte is read. Every datagram carries
-//! a distinct value, matched to the first line that carries it.
+//! A measured device is a pseudo-terminal whose master this process holds: on the line
+//! protocol it answers `?` with the last commanded position and `! v` with `ok`; on
+//! Modbus RTU it answers as a slave, with the crate's own frame encode/decode. Each
+//! request's first byte is timed as it is read. Every datagram to a measured device
+//! carries a distinct value, matched to the first request that carries it.
+//!
+//! Rows run in two rounds, each round with its own relay; each row shows its better
+//! round (the lower p50 against that round's relay). adrive runs with its probe on
+//! ([`adrive::probe`]), so the one-device row's total is broken into its steps under
+//! the table, beside the relay's.
+
+// The device ends and the relay are pseudo-terminals and raw sockets driven through
+// libc; each block says why it is sound.
+#![allow(unsafe_code)]
 
 use super::common::pty::openpty;
 use super::floor::quantile;
 use super::rig::{Adrive, Sim};
-use super::{idle_actuator, vehicle};
+use super::{attach_consoles, idle_actuator, vehicle, viewer};
+use adrive::driver::modbus::proto::{self, Incoming, Request, Response};
+use adrive::probe::{self, mono_ns, Step};
 use std::collections::HashMap;
 use std::fs::File;
 use std::io::{Read, Write};
@@ -19,24 +31,36 @@ use std::net::UdpSocket;
 use std::os::fd::{AsRawFd, OwnedFd};
 use std::path::Path;
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
-/// Datagrams a row sends, at [`RATE`].
-const SENT: u64 = 1600;
 const RATE: f64 = 100.0;
 
-/// The device's end of a pseudo-terminal: every `! v` line's first byte, timed.
+/// Datagrams per measured device in a row: two of the section's windows' worth.
+fn sent_per_row(secs: f64) -> u64 {
+    ((secs * RATE * 2.0) as u64).clamp(300, 999)
+}
+
+/// The protocol a measured device speaks.
+#[derive(Clone, Copy, PartialEq)]
+enum Proto {
+    Line,
+    Modbus,
+}
+
+/// Modbus scale of the measured device: the value's three decimals as a register.
+const SCALE: f64 = 0.001;
+
+/// The device's end of a pseudo-terminal: every command request's first byte, timed.
 struct DeviceEnd {
     path: String,
-    /// Value text → when its line's first byte was read.
-    seen: Arc<Mutex<HashMap<String, Instant>>>,
+    /// Value text → when its request's first byte was read (ns, `CLOCK_MONOTONIC`).
+    seen: Arc<Mutex<HashMap<String, u64>>>,
     _slave: OwnedFd,
 }
 
 impl DeviceEnd {
     /// `answer`: reply to the host (adrive) as the device; a relay gets no replies.
-    #[allow(unsafe_code)]
-    fn open(answer: bool) -> DeviceEnd {
+    fn open(proto: Proto, answer: bool) -> DeviceEnd {
         let (master, slave) = openpty(80, 24);
         raw(&slave);
         let mut buf = [0u8; 128];
@@ -47,52 +71,110 @@ impl DeviceEnd {
         let path = String::from_utf8_lossy(&buf[..n]).into_owned();
         let seen = Arc::new(Mutex::new(HashMap::new()));
         let s = seen.clone();
-        let mut m = File::from(master);
+        let m = File::from(master);
         std::thread::Builder::new()
             .name("device-end".into())
-            .spawn(move || {
-                let mut w = m.try_clone().unwrap();
-                let (mut line, mut started) = (Vec::new(), None::<Instant>);
-                let mut pos = String::from("0.000");
-                let mut chunk = [0u8; 256];
-                while let Ok(n) = m.read(&mut chunk) {
-                    if n == 0 {
-                        return;
-                    }
-                    let at = Instant::now();
-                    for &b in &chunk[..n] {
-                        if line.is_empty() {
-                            started = Some(at);
-                        }
-                        if b != b'\n' && b != b'\r' {
-                            line.push(b);
-                            continue;
-                        }
-                        if line.is_empty() {
-                            continue;
-                        }
-                        let text = String::from_utf8_lossy(&line).into_owned();
-                        line.clear();
-                        if let Some(v) = text.strip_prefix("! ") {
-                            s.lock()
-                                .unwrap()
-                                .entry(v.to_string())
-                                .or_insert(started.unwrap());
-                            pos = v.to_string();
-                            if answer {
-                                let _ = w.write_all(b"ok\n");
-                            }
-                        } else if text == "?" && answer {
-                            let _ = w.write_all(format!("= pos={pos}\n").as_bytes());
-                        }
-                    }
-                }
+            .spawn(move || match proto {
+                Proto::Line => line_end(m, &s, answer),
+                Proto::Modbus => modbus_end(m, &s),
             })
             .unwrap();
         DeviceEnd {
             path,
             seen,
             _slave: slave,
+        }
+    }
+}
+
+fn line_end(mut m: File, seen: &Mutex<HashMap<String, u64>>, answer: bool) {
+    let mut w = m.try_clone().unwrap();
+    let (mut line, mut started) = (Vec::new(), 0u64);
+    let mut pos = String::from("0.000");
+    let mut chunk = [0u8; 256];
+    while let Ok(n) = m.read(&mut chunk) {
+        if n == 0 {
+            return;
+        }
+        let at = mono_ns();
+        for &b in &chunk[..n] {
+            if line.is_empty() {
+                started = at;
+            }
+            if b != b'\n' && b != b'\r' {
+                line.push(b);
+                continue;
+            }
+            if line.is_empty() {
+                continue;
+            }
+            let text = String::from_utf8_lossy(&line).into_owned();
+            line.clear();
+            if let Some(v) = text.strip_prefix("! ") {
+                seen.lock().unwrap().entry(v.to_string()).or_insert(started);
+                pos = v.to_string();
+                if answer {
+                    let _ = w.write_all(b"ok\n");
+                }
+            } else if text == "?" && answer {
+                let _ = w.write_all(format!("= pos={pos}\n").as_bytes());
+            }
+        }
+    }
+}
+
+/// A Modbus RTU slave (id 1): writes to register 0 are the commands; input registers
+/// 0 and 1 are the position and a clear status word.
+fn modbus_end(mut m: File, seen: &Mutex<HashMap<String, u64>>) {
+    let mut w = m.try_clone().unwrap();
+    let (mut buf, mut started) = (Vec::new(), 0u64);
+    let mut pos = 0u16;
+    let mut chunk = [0u8; 256];
+    while let Ok(n) = m.read(&mut chunk) {
+        if n == 0 {
+            return;
+        }
+        if buf.is_empty() {
+            started = mono_ns();
+        }
+        buf.extend_from_slice(&chunk[..n]);
+        loop {
+            match proto::decode_request(&buf) {
+                Incoming::Incomplete => break,
+                Incoming::Request { request, len, .. } => {
+                    let reply = match request {
+                        Request::WriteSingle { addr, value } => {
+                            let v = value as i16 as f64 * SCALE;
+                            seen.lock()
+                                .unwrap()
+                                .entry(format!("{v:.3}"))
+                                .or_insert(started);
+                            pos = value;
+                            Response::WriteSingle { addr, value }
+                        }
+                        Request::ReadInput { count, .. } | Request::ReadHolding { count, .. } => {
+                            let mut regs = vec![0u16; count as usize];
+                            if let Some(r) = regs.first_mut() {
+                                *r = pos;
+                            }
+                            Response::ReadInput(regs)
+                        }
+                        Request::WriteMultiple { addr, values } => Response::WriteMultiple {
+                            addr,
+                            count: values.len() as u16,
+                        },
+                    };
+                    let _ = w.write_all(&proto::encode_response(1, &reply));
+                    buf.drain(..len);
+                }
+                Incoming::Refuse { len, .. } | Incoming::Garbage { len, .. } => {
+                    buf.drain(..len.max(1));
+                }
+            }
+            if buf.is_empty() {
+                break;
+            }
+            started = mono_ns();
         }
     }
 }
@@ -114,36 +196,70 @@ fn value(i: u64) -> String {
     format!("{:.3}", (i % 1000) as f64 / 1000.0 - 0.5)
 }
 
-/// Send [`SENT`] datagrams at [`RATE`] with `send`, timing each `sendto`; then the
-/// delays to the first byte at `end`, sorted.
-fn measure(end: &DeviceEnd, mut send: impl FnMut(&str)) -> Vec<Duration> {
+/// One measured datagram: when it was sent and when its first byte was read (ns).
+#[derive(Clone, Copy)]
+struct Sample {
+    sent: u64,
+    seen: u64,
+}
+
+/// Send `sent` rounds at [`RATE`]: in each, one datagram to every device of `names`,
+/// spread evenly over the period (independent controllers); those to the `measured`
+/// devices (index into `names`, their ends) are timed. Returns each measured device's
+/// samples, in the order sent.
+fn measure(
+    names: &[String],
+    measured: &[(usize, &DeviceEnd)],
+    sent: u64,
+    mut send: impl FnMut(&str),
+) -> Vec<Vec<Sample>> {
     super::precise_timers();
-    let step = Duration::from_secs_f64(1.0 / RATE);
-    let mut sent: Vec<(String, Instant)> = Vec::with_capacity(SENT as usize);
-    let start = Instant::now();
-    for i in 0..SENT {
-        let next = start + step * i as u32;
-        if let Some(d) = next.checked_duration_since(Instant::now()) {
-            std::thread::sleep(d);
-        }
+    let step = Duration::from_secs_f64(1.0 / RATE / names.len() as f64);
+    let mut sends: Vec<Vec<(String, u64)>> = measured.iter().map(|_| Vec::new()).collect();
+    let start = std::time::Instant::now();
+    let mut k = 0u32;
+    for i in 0..sent {
         let v = value(i);
-        let text = format!("steer {v}\n");
-        let t0 = Instant::now();
-        send(&text);
-        sent.push((v, t0));
-        // A value comes again after 1000 datagrams: match the earlier one first.
-        if i % 1000 == 999 {
-            std::thread::sleep(Duration::from_millis(50));
+        for (j, name) in names.iter().enumerate() {
+            let next = start + step * k;
+            k += 1;
+            if let Some(d) = next.checked_duration_since(std::time::Instant::now()) {
+                std::thread::sleep(d);
+            }
+            let text = format!("{name} {v}\n");
+            let t0 = mono_ns();
+            send(&text);
+            if let Some(m) = measured.iter().position(|(x, _)| *x == j) {
+                sends[m].push((v.clone(), t0));
+            }
         }
     }
     std::thread::sleep(Duration::from_millis(200));
-    let seen = end.seen.lock().unwrap();
-    let mut d: Vec<Duration> = sent
+    measured
         .iter()
-        .filter_map(|(v, t0)| seen.get(v).map(|t| t.saturating_duration_since(*t0)))
-        .collect();
+        .zip(sends)
+        .map(|((_, end), sends)| {
+            let seen = end.seen.lock().unwrap();
+            sends
+                .into_iter()
+                .filter_map(|(v, t0)| seen.get(&v).map(|&t| Sample { sent: t0, seen: t }))
+                .collect()
+        })
+        .collect()
+}
+
+/// Sorted durations.
+fn sorted(mut d: Vec<Duration>) -> Vec<Duration> {
     d.sort();
     d
+}
+
+fn totals(s: &[Sample]) -> Vec<Duration> {
+    sorted(
+        s.iter()
+            .map(|x| Duration::from_nanos(x.seen.saturating_sub(x.sent)))
+            .collect(),
+    )
 }
 
 /// p50, p99, max µs.
@@ -152,69 +268,356 @@ fn figures(d: &[Duration]) -> (f64, f64, f64) {
     (quantile(d, 0.5), quantile(d, 0.99), max)
 }
 
-/// A bare relay: one thread, `recv` → write `! v\n` to its port.
-fn relay() -> Vec<Duration> {
-    let end = DeviceEnd::open(false);
+/// The environment variable that makes the bench binary a relay process instead
+/// ([`relay_process`]): the pseudo-terminal to write to.
+pub const RELAY: &str = "ADRIVE_BENCH_RELAY";
+
+/// The bench binary run as a bare relay, a process of its own as adrive is: one
+/// thread, `recv` → write `! v\n` to its port (`v`: what follows the datagram's first
+/// space). Prints its UDP port first; on a one-byte datagram, prints its own stamps of
+/// each datagram since the last such (`recv` returned, write returned, ns) and `end`;
+/// on a two-byte one, ends.
+pub fn relay_process(path: &str) {
     let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let to = rx.local_addr().unwrap();
+    println!("{}", rx.local_addr().unwrap().port());
     let mut port = std::fs::OpenOptions::new()
         .read(true)
         .write(true)
-        .open(&end.path)
+        .open(path)
         .unwrap();
-    std::thread::Builder::new()
-        .name("relay".into())
-        .spawn(move || {
-            let mut buf = [0u8; 256];
-            let mut out = Vec::with_capacity(64);
-            while let Ok(n) = rx.recv(&mut buf) {
-                if n == 1 {
-                    return;
-                }
-                let text = &buf[..n];
-                let v = text.strip_prefix(b"steer ").unwrap_or(text);
-                out.clear();
-                out.extend_from_slice(b"! ");
-                out.extend_from_slice(v);
-                let _ = port.write_all(&out);
+    let mut buf = [0u8; 256];
+    let mut out = Vec::with_capacity(64);
+    let mut stamps: Vec<(u64, u64)> = Vec::with_capacity(1 << 16);
+    while let Ok(n) = rx.recv(&mut buf) {
+        let received = mono_ns();
+        if n <= 2 {
+            let mut text = String::new();
+            for (r, w) in stamps.drain(..) {
+                text.push_str(&format!("{r} {w}\n"));
             }
-        })
-        .unwrap();
-    let tx = UdpSocket::bind("127.0.0.1:0").unwrap();
-    tx.connect(to).unwrap();
-    let d = measure(&end, |t| {
-        let _ = tx.send(t.as_bytes());
-    });
-    let _ = tx.send(b"x");
-    d
+            println!("{text}end");
+            if n == 2 {
+                return;
+            }
+            continue;
+        }
+        let text = &buf[..n];
+        let v = match text.iter().position(|&b| b == b' ') {
+            Some(i) => &text[i + 1..],
+            None => text,
+        };
+        out.clear();
+        out.extend_from_slice(b"! ");
+        out.extend_from_slice(v);
+        let _ = port.write_all(&out);
+        let written = mono_ns();
+        stamps.push((received, written));
+    }
 }
 
-/// One row of adrive: `steer` on the measured pseudo-terminal, with `others` more
-/// devices on `adrive sim`'s ports, and `args`; `consoles` attached. Its delays and its
-/// own figure for the same commands (receipt → first byte p50, p99).
-fn adrive_row(
-    dir: &Path,
-    sim: Option<&Sim>,
-    others: &[String],
-    args: &[&str],
-    consoles: usize,
-) -> (Vec<Duration>, (f64, f64)) {
-    let end = DeviceEnd::open(true);
-    let steer = format!(
-        "[[device]]\nname = \"steer\"\nkind = \"setpoint\"\ndriver = \"line\"\nport = \"{}\"\nrange = [-1.0, 1.0]\nreadings = [\"position\"]\nstatus_period = \"50ms\"\n",
-        end.path
-    );
-    let mut devices: Vec<String> = others.iter().map(|n| idle_actuator(n)).collect();
-    devices.insert(0, steer.clone());
-    let mut toml = vehicle("", &devices);
-    if let Some(sim) = sim {
-        // The simulator's ports for the others; the measured device keeps its own.
-        let rest = vehicle("", &devices[1..]);
-        toml = format!("{}\n{steer}", sim.patch(&rest));
+/// A bare relay process ([`relay_process`]) and the device end it writes to, measured
+/// in the same window as adrive, its datagrams between adrive's.
+struct Relay {
+    end: DeviceEnd,
+    tx: UdpSocket,
+    child: std::process::Child,
+    out: std::io::BufReader<std::process::ChildStdout>,
+}
+
+impl Relay {
+    fn start() -> Relay {
+        use std::io::BufRead;
+        let end = DeviceEnd::open(Proto::Line, false);
+        let mut child = std::process::Command::new(std::env::current_exe().unwrap())
+            .env(RELAY, &end.path)
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+        let mut line = String::new();
+        out.read_line(&mut line).unwrap();
+        let tx = UdpSocket::bind("127.0.0.1:0").unwrap();
+        tx.connect(("127.0.0.1", line.trim().parse::<u16>().unwrap()))
+            .unwrap();
+        Relay {
+            end,
+            tx,
+            child,
+            out,
+        }
     }
-    let a = Adrive::start_with(dir, "outside", &toml, args);
-    let _clients = super::attach_consoles(&a, consoles);
-    let d = measure(&end, |t| a.send(t));
+
+    fn send(&self, text: &str) {
+        let _ = self.tx.send(text.as_bytes());
+    }
+
+    /// Start a window: forget what the device end saw.
+    fn clear(&self) {
+        self.end.seen.lock().unwrap().clear();
+    }
+
+    /// The steps of the window's samples, from the relay's own stamps.
+    fn steps(&mut self, samples: &[Sample]) -> Steps {
+        use std::io::BufRead;
+        let _ = self.tx.send(b"x");
+        let mut stamps = Vec::new();
+        let mut line = String::new();
+        while self.out.read_line(&mut line).is_ok_and(|n| n > 0) && line.trim() != "end" {
+            let mut w = line.split_whitespace().map(|x| x.parse::<u64>().ok());
+            if let (Some(Some(r)), Some(Some(w))) = (w.next(), w.next()) {
+                stamps.push((r, w));
+            }
+            line.clear();
+        }
+        let mut steps = Steps::default();
+        for s in samples {
+            let i = stamps.partition_point(|r: &(u64, u64)| r.0 < s.sent);
+            if let Some(&(received, written)) = stamps.get(i) {
+                steps.push(0, received.saturating_sub(s.sent));
+                steps.push(3, written.saturating_sub(received));
+                steps.push(5, s.seen.saturating_sub(written));
+            }
+        }
+        steps
+    }
+}
+
+impl Drop for Relay {
+    fn drop(&mut self) {
+        let _ = self.tx.send(b"xx");
+        let _ = self.child.wait();
+    }
+}
+
+/// The steps of the way from outside, as [`STEPS`] lists them: each step's durations.
+#[derive(Default)]
+struct Steps {
+    d: [Vec<Duration>; 7],
+    fast: usize,
+    matched: usize,
+}
+
+/// What each step of [`Steps`] is.
+const STEPS: [&str; 7] = [
+    "sendto → the listener's read returns (loopback UDP, the listener's wake)",
+    "the network's checks: sender, grammar, key, counter",
+    "the one intake: ownership, value, interlocks",
+    "fast path (wire check, port, write) or slot + command thread, to the write",
+    "  (fast path: to its send returning, the trace included; a preempted write shows here)",
+    "write → first byte read at the device (pty delivery, reader's wake)",
+    "after the write, the listener busy until it reads again",
+];
+
+impl Steps {
+    fn push(&mut self, i: usize, ns: u64) {
+        self.d[i].push(Duration::from_nanos(ns));
+    }
+
+    /// adrive's steps, from its probe file and the samples of the measured device.
+    fn of(samples: &[Sample], probe_file: &Path) -> Steps {
+        let mut records = probe::read(probe_file).unwrap_or_default();
+        records.retain(|r| r[Step::Received as usize] != 0);
+        records.sort_by_key(|r| r[Step::Received as usize]);
+        let mut s = Steps::default();
+        for x in samples {
+            let i = records.partition_point(|r| r[Step::Received as usize] < x.sent);
+            let Some(r) = records.get(i) else { continue };
+            let at = |st: Step| r[st as usize];
+            let (rcv, parsed, checked) = (at(Step::Received), at(Step::Parsed), at(Step::Checked));
+            let (fast, first, handled) = (
+                at(Step::FastWritten),
+                at(Step::FirstByte),
+                at(Step::Handled),
+            );
+            // Not this datagram's record (a probe record from another sender), or not
+            // all of its way stamped.
+            if rcv > x.seen || parsed == 0 || checked == 0 || first == 0 {
+                continue;
+            }
+            s.matched += 1;
+            s.push(0, rcv.saturating_sub(x.sent));
+            s.push(1, parsed.saturating_sub(rcv));
+            s.push(2, checked.saturating_sub(parsed));
+            s.push(3, first.saturating_sub(checked));
+            if fast != 0 {
+                s.fast += 1;
+                s.push(4, fast.saturating_sub(checked));
+            }
+            s.push(5, x.seen.saturating_sub(first));
+            if handled != 0 {
+                s.push(6, handled.saturating_sub(first));
+            }
+        }
+        s
+    }
+
+    fn print(&self, label: &str, total: &[Duration]) {
+        println!("   {label}: {} datagrams", total.len());
+        let p = |d: &[Duration], q| quantile(&sorted(d.to_vec()), q);
+        let mut sum = 0.0;
+        for (i, what) in STEPS.iter().enumerate() {
+            if self.d[i].is_empty() {
+                continue;
+            }
+            let p50 = p(&self.d[i], 0.5);
+            if i != 4 && i != 6 {
+                sum += p50;
+            }
+            println!("     {what:<76} {p50:>7.1} {:>8.1}", p(&self.d[i], 0.99));
+        }
+        println!(
+            "     {:<76} {sum:>7.1}   (the total's p50: {:.1})",
+            "sum of the steps' p50",
+            quantile(total, 0.5)
+        );
+        if self.matched > 0 {
+            println!(
+                "     ({} of {} matched to their probe records; {} on the fast path)",
+                self.matched,
+                total.len(),
+                self.fast
+            );
+        }
+    }
+}
+
+/// A measured device's table in a vehicle file.
+fn measured_device(name: &str, proto: Proto, path: &str) -> String {
+    let head = format!(
+        "[[device]]\nname = \"{name}\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\nport = \"{path}\"\nbaud = 115200\nstatus_period = \"50ms\"\nreadings = [\"position\"]\n"
+    );
+    match proto {
+        Proto::Line => format!("{head}driver = \"line\"\n"),
+        Proto::Modbus => format!(
+            "{head}driver = \"modbus\"\n[device.modbus]\nslave = 1\nregisters = {{ target = 0, position = 0, status = 1, table = \"input\", fault_mask = 0x00FF, scale = {SCALE}, signed = true }}\n"
+        ),
+    }
+}
+
+/// An actuator on `adrive sim` polled every 50 ms (status ~2 ms at 115200 baud).
+fn polling_actuator(name: &str) -> String {
+    idle_actuator(name)
+        .replace("status_period = \"1s\"", "status_period = \"50ms\"")
+        .replace("status_max_age = \"2s\"", "status_max_age = \"250ms\"")
+}
+
+/// What a row runs: its devices, and what is on beside them.
+struct Row {
+    label: &'static str,
+    proto: Proto,
+    /// Devices on `adrive sim` besides the measured ones, and whether they poll at 20 Hz.
+    others: usize,
+    polling: bool,
+    /// The last device is measured too (Fig. 3 from outside: last against first).
+    last_too: bool,
+    args: Vec<String>,
+    consoles: usize,
+    viewers: usize,
+    /// Compared with this row (a feature's cost), by index.
+    against: Option<usize>,
+    /// Not run, and why.
+    skip: Option<&'static str>,
+}
+
+impl Row {
+    fn new(label: &'static str) -> Row {
+        Row {
+            label,
+            proto: Proto::Line,
+            others: 0,
+            polling: false,
+            last_too: false,
+            args: Vec::new(),
+            consoles: 0,
+            viewers: 0,
+            against: None,
+            skip: None,
+        }
+    }
+}
+
+/// One row's result: the measured devices' samples, adrive's own figure (p50, p99) for
+/// the first of them, and the steps of its way; the relay's, measured in the same
+/// window.
+struct Measured {
+    samples: Vec<Vec<Sample>>,
+    own: (f64, f64),
+    steps: Steps,
+    relay: Vec<Sample>,
+    relay_steps: Steps,
+}
+
+impl Measured {
+    /// (p50, p99, max) of the first device and of the relay.
+    fn first(&self) -> (f64, f64, f64) {
+        figures(&totals(&self.samples[0]))
+    }
+    fn relay(&self) -> (f64, f64, f64) {
+        figures(&totals(&self.relay))
+    }
+}
+
+fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64, relay: &mut Relay) -> Measured {
+    let first = DeviceEnd::open(row.proto, true);
+    let last = row.last_too.then(|| DeviceEnd::open(row.proto, true));
+    let mut names = vec!["steer".to_string()];
+    let mut devices = vec![measured_device("steer", row.proto, &first.path)];
+    let (sim, others) = if row.polling {
+        (&sims.polling, &sims.polling_names)
+    } else {
+        (&sims.idle, &sims.idle_names)
+    };
+    let others = &others[..row.others];
+    let rest: Vec<String> = others
+        .iter()
+        .map(|n| {
+            if row.polling {
+                polling_actuator(n)
+            } else {
+                idle_actuator(n)
+            }
+        })
+        .collect();
+    names.extend(others.iter().cloned());
+    let mut toml = vehicle("", &devices);
+    if !rest.is_empty() {
+        toml.push_str(&sim.as_ref().expect("a simulator").patch(&rest.concat()));
+    }
+    if let Some(l) = &last {
+        names.push("last".into());
+        devices.push(measured_device("last", row.proto, &l.path));
+        toml.push_str(&devices[1]);
+    }
+    // adrive inherits ADRIVE_PROBE, set for the section.
+    let probe_file = dir.join("outside.probe");
+    let _ = std::fs::remove_file(&probe_file);
+    let args: Vec<&str> = row.args.iter().map(String::as_str).collect();
+    let a = Adrive::start_with(dir, "outside", &toml, &args);
+    let _clients = attach_consoles(&a, row.consoles);
+    let _viewers: Vec<viewer::Viewer> = (0..row.viewers)
+        .map(|_| {
+            let at = row.args.iter().position(|x| x == "--foxglove").unwrap() + 1;
+            viewer::Viewer::start(row.args[at].parse().unwrap())
+        })
+        .collect();
+    let mut measured = vec![(0, &first)];
+    if let Some(l) = &last {
+        measured.push((names.len() - 1, l));
+    }
+    // The relay's datagrams go between adrive's, in the same window.
+    names.push("relay".into());
+    measured.push((names.len() - 1, &relay.end));
+    relay.clear();
+    let mut samples = measure(&names, &measured, sent, |t| {
+        if t.starts_with("relay ") {
+            relay.send(t)
+        } else {
+            a.send(t)
+        }
+    });
+    let relay_samples = samples.pop().unwrap_or_default();
+    let relay_steps = relay.steps(&relay_samples);
+    let steps = Steps::of(&samples[0], &probe_file);
     let snap = a.snapshot();
     let own = snap
         .device("steer")
@@ -225,65 +628,273 @@ fn adrive_row(
             )
         })
         .unwrap_or((f64::NAN, f64::NAN));
-    (d, own)
+    drop(a);
+    let _ = std::fs::remove_file(&probe_file);
+    Measured {
+        samples,
+        own,
+        steps,
+        relay: relay_samples,
+        relay_steps,
+    }
 }
 
-pub fn section11_outside(dir: &tempfile::TempDir, _secs: f64) {
+/// The simulators the rows share: idle actuators (polled once a second) and polling
+/// ones (20 Hz), started once for the section.
+struct Sims {
+    idle: Option<Sim>,
+    idle_names: Vec<String>,
+    polling: Option<Sim>,
+    polling_names: Vec<String>,
+}
+
+pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
+    let sent = sent_per_row(secs);
+    std::env::set_var(probe::ENV, dir.path().join("outside.probe"));
     println!(
-        "\n== 11. From outside: a planner's sendto → the first byte at the device, beside a bare relay; {SENT} datagrams at {RATE} Hz per row =="
+        "\n== 11. From outside: a planner's sendto → the first byte at the device, beside a bare relay; {sent} datagrams per device at {RATE} Hz per row, best of two rounds =="
     );
+    let idle_names: Vec<String> = (0..62).map(|i| format!("a{i:02}")).collect();
+    let polling_names: Vec<String> = (0..9).map(|i| format!("p{i:02}")).collect();
+    let start = |names: &[String], dev: fn(&str) -> String, file: &str| {
+        let f = dir.path().join(file);
+        let devices: Vec<String> = names.iter().map(|n| dev(n)).collect();
+        std::fs::write(&f, vehicle("", &devices)).unwrap();
+        Some(Sim::start(&f))
+    };
+    let sims = Sims {
+        idle: start(&idle_names, idle_actuator, "outside-idle.toml"),
+        polling: start(&polling_names, polling_actuator, "outside-polling.toml"),
+        idle_names,
+        polling_names,
+    };
+    let rec = dir
+        .path()
+        .join("outside.mcap")
+        .to_string_lossy()
+        .into_owned();
+    let fox = format!("127.0.0.1:{}", viewer::free_tcp_port());
+    let mut rows = [
+        Row::new("one device, line"),
+        Row {
+            proto: Proto::Modbus,
+            ..Row::new("one device, Modbus RTU")
+        },
+        Row {
+            others: 9,
+            polling: true,
+            ..Row::new("+ 9 devices polling at 20 Hz")
+        },
+        Row {
+            others: 62,
+            last_too: true,
+            ..Row::new("64 actuators at 100 Hz: first")
+        },
+        Row {
+            args: vec!["--record".into(), rec.clone(), "--record-raw".into()],
+            against: Some(0),
+            ..Row::new("one device, recording")
+        },
+        Row {
+            consoles: 1,
+            against: Some(0),
+            ..Row::new("one device, a console attached")
+        },
+        Row {
+            args: vec!["--foxglove".into(), fox],
+            viewers: 1,
+            against: Some(0),
+            ..Row::new("one device, a live viewer")
+        },
+        Row {
+            args: vec!["--ros2".into()],
+            against: Some(0),
+            ..Row::new("one device, ROS 2 on")
+        },
+    ];
+    if !cfg!(feature = "ros2") {
+        rows[7].skip = Some("not built: cargo bench --bench paper --features ros2");
+    }
+    // `ADRIVE_BENCH_ROWS=0,4`: just those rows (while working on one).
+    if let Ok(only) = std::env::var("ADRIVE_BENCH_ROWS") {
+        let keep: Vec<usize> = only
+            .split(',')
+            .filter_map(|x| x.trim().parse().ok())
+            .collect();
+        for (i, row) in rows.iter_mut().enumerate() {
+            if !keep.contains(&i) && row.skip.is_none() {
+                row.skip = Some("not run (ADRIVE_BENCH_ROWS)");
+            }
+        }
+    }
+    // Two rounds; in each, every row with the relay in its own window.
+    let mut relay = Relay::start();
+    let mut results: Vec<Vec<Measured>> = rows.iter().map(|_| Vec::new()).collect();
+    for _round in 0..2 {
+        for (row, out) in rows.iter().zip(&mut results) {
+            if row.skip.is_none() {
+                out.push(adrive_row(dir.path(), &sims, row, sent, &mut relay));
+            }
+        }
+    }
+    drop(relay);
     println!(
-        "{:<34} {:>6} {:>8} {:>8} {:>8} {:>7} {:>7}   {:>14}",
-        "row", "seen", "p50 µs", "p99 µs", "max µs", "p50/rl", "p99/rl", "own p50/p99 µs"
+        "{:<36} {:>5} {:>8} {:>8} {:>8} {:>7} {:>7} {:>15}  {:>13}",
+        "row (round)",
+        "seen",
+        "p50 µs",
+        "p99 µs",
+        "max µs",
+        "p50/rl",
+        "p99/rl",
+        "p50/row",
+        "own p50/p99"
     );
-    let others: Vec<String> = (0..9).map(|i| format!("a{i:02}")).collect();
-    let sim_file = dir.path().join("outside-sim.toml");
-    std::fs::write(
-        &sim_file,
-        vehicle(
-            "",
-            &others.iter().map(|n| idle_actuator(n)).collect::<Vec<_>>(),
-        ),
-    )
-    .unwrap();
-    let sim = Sim::start(&sim_file);
-    let rec = dir.path().join("outside.mcap");
-    let rec = rec.to_string_lossy();
-    for round in 1..=2 {
-        let r = relay();
-        let (rp50, rp99, rmax) = figures(&r);
+    // Each row's better round: the lower p50 against the relay of its window.
+    let best: Vec<Option<usize>> = results
+        .iter()
+        .map(|r| {
+            (0..r.len()).min_by(|&a, &b| {
+                let q = |i: usize| r[i].first().0 / r[i].relay().0;
+                q(a).total_cmp(&q(b))
+            })
+        })
+        .collect();
+    for (i, row) in rows.iter().enumerate() {
+        let Some(round) = best[i] else {
+            println!("{:<36} {}", row.label, row.skip.unwrap_or("not run"));
+            continue;
+        };
+        let m = &results[i][round];
+        let (rp50, rp99, rmax) = m.relay();
         println!(
-            "{:<34} {:>6} {rp50:>8.1} {rp99:>8.1} {rmax:>8.1} {:>6.2}× {:>6.2}×",
-            format!("bare relay #{round}"),
-            r.len(),
-            1.0,
-            1.0
+            "{:<36} {:>5} {rp50:>8.1} {rp99:>8.1} {rmax:>8.1}",
+            format!("bare relay ({})", round + 1),
+            m.relay.len()
         );
-        let rows: [(&str, bool, &[&str], usize); 4] = [
-            ("adrive, one device (line)", false, &[], 0),
-            ("adrive, + 9 devices polling", true, &[], 0),
-            (
-                "adrive, + 9 polling, recording",
-                true,
-                &["--record", &rec],
-                0,
-            ),
-            ("adrive, + 9 polling, 1 console", true, &[], 1),
-        ];
-        for (label, polling, args, consoles) in rows {
-            let o: &[String] = if polling { &others } else { &[] };
-            let (d, own) = adrive_row(dir.path(), polling.then_some(&sim), o, args, consoles);
+        for (k, s) in m.samples.iter().enumerate() {
+            let d = totals(s);
             let (p50, p99, max) = figures(&d);
+            let label = if k == 0 {
+                format!("{} ({})", row.label, round + 1)
+            } else {
+                format!("  … last device ({})", round + 1)
+            };
+            let against = match (k, row.against.and_then(|j| Some((j, best[j]?)))) {
+                // Raw, and with each window's relay taken out (the machine's load
+                // moves both figures of a window together).
+                (0, Some((j, r))) => {
+                    let base = &results[j][r];
+                    format!(
+                        "{:.2}× ({:.2}×)",
+                        p50 / base.first().0,
+                        (p50 / rp50) / (base.first().0 / base.relay().0)
+                    )
+                }
+                (1, _) => format!("{:.2}×", p50 / m.first().0),
+                _ => String::new(),
+            };
+            let own = if k == 0 {
+                format!("{:.1} / {:.1}", m.own.0, m.own.1)
+            } else {
+                String::new()
+            };
             println!(
-                "{:<34} {:>6} {p50:>8.1} {p99:>8.1} {max:>8.1} {:>6.2}× {:>6.2}×   {:>6.1} / {:<6.1}",
-                format!("{label} #{round}"),
+                "{label:<36} {:>5} {p50:>8.1} {p99:>8.1} {max:>8.1} {:>6.2}× {:>6.2}× {against:>15}  {own:>13}",
                 d.len(),
                 p50 / rp50,
                 p99 / rp99,
-                own.0,
-                own.1
             );
         }
     }
-    println!("(rl: the bare relay of the same round; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
+    println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row (in brackets: each row's p50/rl against the one-device row's), or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
+    println!("\nWhere the time goes, p50 and p99 µs of each step (stamps: the planner's sendto and the device's read here, adrive's probe inside):");
+    if let Some(r) = best[0] {
+        let m = &results[0][r];
+        m.relay_steps
+            .print(&format!("bare relay ({})", r + 1), &totals(&m.relay));
+        m.steps.print(
+            &format!("adrive, one device, line ({})", r + 1),
+            &totals(&m.samples[0]),
+        );
+    }
+    println!("(the relay has no checks: its `recv` → write is on the fourth line.)");
+    let (hot, cold) = intake_hot_and_cold();
+    println!(
+        "the network's checks and the intake of one `steer` datagram, timed in this process: {:.2} µs hot (datagram after datagram), {:.2} µs cold (one every 10 ms, as above)",
+        hot as f64 / 1000.0,
+        cold as f64 / 1000.0
+    );
+    std::env::remove_var(probe::ENV);
+}
+
+/// The network's checks and the one intake for `steer v` (ports closed, so the command
+/// ends in its slot), timed in this process: hot, datagram after datagram, and cold,
+/// one every 10 ms as a planner at 100 Hz sends them — what the steps cost when their
+/// code and data are in the caches, and when they were evicted meanwhile. p50 ns each.
+fn intake_hot_and_cold() -> (u64, u64) {
+    use adrive::config::VehicleConfig;
+    use adrive::engine::Gate;
+    use adrive::net::intake::Intake;
+    use adrive::net::NetStatus;
+    use adrive::value::Reading;
+    use adrive::vehicle::{Cached, Vehicle};
+    use std::sync::atomic::AtomicBool;
+    use std::time::Instant;
+
+    let config = VehicleConfig::alice();
+    let network = config.network.clone();
+    let vehicle = Arc::new(Vehicle::new(config, |_| {
+        Box::new(|| Err(std::io::Error::other("no port here")))
+    }));
+    for d in vehicle.devices() {
+        let mut reading = Reading::default();
+        for i in 0..d.config().readings.len() {
+            reading.set(i, 0.0);
+        }
+        if d.name() == "estop" {
+            reading.set(0, 2.0); // run
+        }
+        d.store(Cached {
+            reading,
+            at: Some(Instant::now()),
+        });
+    }
+    let gate = Arc::new(Gate::new(vehicle.clone()));
+    let names = vehicle
+        .devices()
+        .iter()
+        .map(|d| d.name().to_string())
+        .collect();
+    let status = Arc::new(NetStatus::new(
+        network.listen,
+        network.watchdog_timeout,
+        names,
+    ));
+    let mut intake = Intake::new(
+        gate,
+        network,
+        None,
+        status,
+        Arc::new(AtomicBool::new(false)),
+    );
+    let from = "127.0.0.1:40000".parse().unwrap();
+    let _ = intake.handle(b"engage\n", from, Instant::now());
+    let mut time = |n: u64, gap: Duration| {
+        let mut d: Vec<u64> = (0..n)
+            .map(|k| {
+                std::thread::sleep(gap);
+                let text = format!("steer {}\n", value(k));
+                let t = Instant::now();
+                let _ = intake.handle(text.as_bytes(), from, t);
+                t.elapsed().as_nanos() as u64
+            })
+            .collect();
+        d.sort_unstable();
+        d[d.len() / 2]
+    };
+    (
+        time(2000, Duration::ZERO),
+        time(200, Duration::from_millis(10)),
+    )
 }

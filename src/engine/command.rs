@@ -195,6 +195,7 @@ fn finished(
     if let Some(first) = first {
         if fresh {
             d.stats().command_delay.record(first - job.received);
+            crate::probe::first_byte(job.received, first);
         }
         d.stats().command_txn.record(done - first);
         *last_sent_at = Some(first);

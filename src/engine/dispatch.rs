@@ -170,6 +170,7 @@ impl Gate {
     /// and the wire check says send exactly it ([`fast`]) — the command thread then
     /// only reads the reply — else stored for the command thread.
     fn dispatch(&self, d: &Device, command: Command, received: Instant) {
+        crate::probe::stamp(crate::probe::Step::Checked);
         Stats::bump(&d.stats().received);
         match fast::send(self, d, command, received) {
             Sent::Written | Sent::Queued { superseded: false } => {}

@@ -77,6 +77,7 @@ pub fn send(gate: &Gate, d: &Device, command: Command, received: Instant) -> Sen
         return Sent::Queued { superseded };
     };
     let (sent, first) = port.send_command(command);
+    crate::probe::stamp(crate::probe::Step::FastWritten);
     if sent.is_ok() {
         crate::vehicle::stats::Stats::bump(&d.stats().fast);
     }

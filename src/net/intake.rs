@@ -128,6 +128,7 @@ impl Intake {
             Ok(admitted) => admitted,
             Err(reply) => return reply,
         };
+        crate::probe::stamp(crate::probe::Step::Parsed);
         let mut out = Outcome::new();
         let effects = self.apply(&d, from, received, &mut out);
         self.record(i, from, effects, out, received)

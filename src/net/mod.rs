@@ -80,6 +80,7 @@ impl Net {
             status.clone(),
             closing.clone(),
         );
+        crate::probe::init();
         let placement = gate.vehicle().config().vehicle.placement.clone();
         threads.spawn("net/listen", move |stop| {
             crate::engine::placement::apply(&placement);
@@ -291,9 +292,11 @@ fn listen_loop(socket: &UdpSocket, intake: &mut Intake, stop: &StopSignal) {
                     let Some((bytes, from)) = batch.get(i) else {
                         continue;
                     };
+                    crate::probe::datagram(received);
                     if let Some(reply) = intake.handle(bytes, from, received) {
                         let _ = socket.send_to(reply.as_bytes(), from);
                     }
+                    crate::probe::stamp(crate::probe::Step::Handled);
                 }
                 // A full batch leaves more queued: read on at once, never fall behind.
                 not_before = pace.read(last_read, &status).filter(|_| n < BATCH);
