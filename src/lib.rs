@@ -13,6 +13,7 @@
 //! live to Foxglove and Lichtblick; [`console`] is the operator's screen (and replays
 //! recordings) and [`cli`] puts it all together; [`service`] tells systemd how it goes.
 
+pub mod can;
 pub mod cli;
 pub mod config;
 pub mod console;
