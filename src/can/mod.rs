@@ -108,6 +108,16 @@ impl Frame {
         }
     }
 
+    /// The data bytes, to fill in (a rolling counter, a checksum); empty for a remote
+    /// request.
+    pub fn data_mut(&mut self) -> &mut [u8] {
+        if self.remote {
+            &mut []
+        } else {
+            &mut self.data[..self.len as usize]
+        }
+    }
+
     /// The data length code: the number of data bytes, or the length a remote request
     /// asks for.
     pub fn len(&self) -> usize {
