@@ -1079,6 +1079,114 @@ SIG_VALTYPE_ 114 request : 1;
         assert!(Sequence::new(m, Some("count"), None).is_err());
     }
 
+    fn oscc() -> Database {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.dbc");
+        Database::load(&path).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    fn physical(db: &Database, f: &Frame) -> Vec<(String, f64)> {
+        values(db.by_id(f.id()).expect("a known message"), f)
+    }
+
+    #[test]
+    fn oscc_requests_are_the_c_structures_bytes() {
+        let db = oscc();
+        let brake = db.message("BRAKE_COMMAND").unwrap();
+        assert_eq!(brake.id(), Id::Standard(0x72));
+        // oscc_brake_command_s { magic = 05 CC, float pedal_command = 0.5, reserved }.
+        let f = brake.encode(&[("pedal_command", 0.5)]).unwrap();
+        assert_eq!(f.data(), &[0x05, 0xCC, 0x00, 0x00, 0x00, 0x3F, 0x00, 0x00]);
+        let steer = db.message("STEERING_COMMAND").unwrap();
+        let f = steer.encode(&[("torque_command", -0.25)]).unwrap();
+        assert_eq!(f.id(), Id::Standard(0x82));
+        assert_eq!(f.data(), &[0x05, 0xCC, 0x00, 0x00, 0x80, 0xBE, 0x00, 0x00]);
+        assert!(steer.encode(&[("torque_command", -1.01)]).is_err());
+        let throttle = db.message("THROTTLE_COMMAND").unwrap();
+        assert_eq!(throttle.id(), Id::Standard(0x92));
+        assert!(
+            throttle.encode(&[("torque_request", -0.1)]).is_err(),
+            "no negative throttle"
+        );
+        for (name, id) in [
+            ("BRAKE_ENABLE", 0x70),
+            ("BRAKE_DISABLE", 0x71),
+            ("STEERING_ENABLE", 0x80),
+            ("STEERING_DISABLE", 0x81),
+            ("THROTTLE_ENABLE", 0x90),
+            ("THROTTLE_DISABLE", 0x91),
+        ] {
+            let m = db.message(name).unwrap();
+            let f = m.encode(&[]).unwrap();
+            assert_eq!(f.id(), Id::Standard(id), "{name}");
+            assert_eq!(f.data(), &[0x05, 0xCC, 0, 0, 0, 0, 0, 0], "{name}");
+        }
+    }
+
+    #[test]
+    fn oscc_reports_and_faults_decode_by_name_at_50_hz() {
+        let db = oscc();
+        for name in ["BRAKE_REPORT", "STEERING_REPORT", "THROTTLE_REPORT"] {
+            let m = db.message(name).unwrap();
+            assert_eq!(m.cycle(), Some(Duration::from_millis(20)), "{name}");
+        }
+        // oscc_throttle_report_s: enabled, operator_override, dtcs = override.
+        let f = frame(0x93, &[0x05, 0xCC, 0x01, 0x01, 0x02, 0x00, 0x00, 0x00]);
+        let m = db.by_id(f.id()).unwrap();
+        assert_eq!(m.name(), "THROTTLE_REPORT");
+        let got = physical(&db, &f);
+        assert_eq!(
+            got[2..],
+            [
+                ("enabled".into(), 1.0),
+                ("operator_override".into(), 1.0),
+                ("dtcs".into(), 2.0)
+            ]
+        );
+        assert_eq!(
+            m.signal("dtcs").unwrap().flag_names(2),
+            vec!["OPERATOR_OVERRIDE"]
+        );
+        // oscc_fault_report_s from the steering module: uint32 origin 1, dtcs 1.
+        let f = frame(0xAF, &[0x05, 0xCC, 0x01, 0x00, 0x00, 0x00, 0x01, 0x00]);
+        let m = db.by_id(f.id()).unwrap();
+        let origin = m.signal("fault_origin_id").unwrap();
+        assert_eq!(
+            origin.value_name(origin.raw(f.data()).unwrap() as i64),
+            Some("STEERING")
+        );
+        let dtcs = m.signal("dtcs").unwrap();
+        assert_eq!(
+            dtcs.flag_names(dtcs.raw(f.data()).unwrap()),
+            vec!["INVALID_SENSOR_VAL"]
+        );
+    }
+
+    #[test]
+    fn the_kia_souls_own_messages_decode_as_osccs_api_does() {
+        let db = oscc();
+        // Front left raw 0x140 with noise in the high nibble of its second byte (the API
+        // keeps the low nibble): 320 / 32 = 10 km/h; rear right raw 0xFFF.
+        let f = frame(0x4B0, &[0x40, 0xF1, 0x00, 0x00, 0x20, 0x00, 0xFF, 0x0F]);
+        assert_eq!(
+            physical(&db, &f),
+            vec![
+                ("wheel_speed_front_left".into(), 10.0),
+                ("wheel_speed_front_right".into(), 0.0),
+                ("wheel_speed_rear_left".into(), 1.0),
+                ("wheel_speed_rear_right".into(), 4095.0 / 32.0),
+            ]
+        );
+        // 100 tenths of a degree, negated as get_steering_wheel_angle does.
+        let f = frame(0x2B0, &[0x64, 0x00, 0, 0, 0, 0, 0, 0]);
+        assert_eq!(
+            physical(&db, &f),
+            vec![("steering_wheel_angle".into(), -10.0)]
+        );
+        let f = frame(0x220, &[0, 0, 0, 0, 0x2C, 0xF1, 0, 0]);
+        let got = physical(&db, &f);
+        assert!((got[0].1 - 30.0).abs() < 1e-9, "{got:?}");
+    }
+
     fn error_of(text: &str) -> String {
         Database::parse(text, "vehicles/kit.dbc")
             .unwrap_err()
