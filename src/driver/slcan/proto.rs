@@ -728,7 +728,7 @@ mod tests {
             evs in proptest::collection::vec(any_event(), 0..20),
             cuts in proptest::collection::vec(any::<usize>(), 0..12),
         ) {
-            let bytes: Vec<u8> = evs.iter().flat_map(|e| encode_event(e)).collect();
+            let bytes: Vec<u8> = evs.iter().flat_map(encode_event).collect();
             prop_assert_eq!(&split_decode::<FromAdapter>(&bytes, &cuts), &evs);
         }
 
@@ -737,7 +737,7 @@ mod tests {
             cmds in proptest::collection::vec(any_command(), 0..20),
             cuts in proptest::collection::vec(any::<usize>(), 0..12),
         ) {
-            let bytes: Vec<u8> = cmds.iter().flat_map(|c| encode_command(c)).collect();
+            let bytes: Vec<u8> = cmds.iter().flat_map(encode_command).collect();
             let want: Vec<_> = cmds.into_iter().map(Ok).collect();
             prop_assert_eq!(split_decode::<FromHost>(&bytes, &cuts), want);
         }
