@@ -4,9 +4,9 @@
 //! cantools and adrive's DBC module, and they must agree on every signal; the frames
 //! python-can sends must enable, command and disable the kit. A second test has cantools
 //! decode random frames of every layout a DBC can write (`tests/support/layouts.dbc`)
-//! and adrive decode them too. The tests provide their own
-//! Python environment (pinned python-can, cantools, pyserial) as the other peer tests
-//! do, and fails loudly — never skips — when that is impossible.
+//! and adrive decode them too. The tests provide their own Python environment (pinned
+//! python-can, cantools, pyserial) as the other peer tests do, and fail loudly — never
+//! skip — when that is impossible.
 
 mod common;
 #[path = "support/python_env.rs"]

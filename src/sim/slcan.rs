@@ -210,7 +210,7 @@ impl<N: BusNode> SlcanPort<N> {
 mod tests {
     use super::*;
     use crate::can::Id;
-    use crate::driver::slcan::proto::{encode_command, FromAdapter};
+    use crate::driver::slcan::proto::{bring_up, encode_command, FromAdapter};
 
     fn events(bytes: &[u8]) -> Vec<Event> {
         let mut d = Decoder::<FromAdapter>::new();
@@ -243,6 +243,25 @@ mod tests {
         );
         assert_eq!(send(&mut a, b"C\rS4\r").0, vec![Event::Ok; 2]);
         assert_eq!(a.bitrate(), Some(Bitrate::K125));
+    }
+
+    #[test]
+    fn bring_up_joins_the_bus_from_a_fresh_adapter_and_from_one_left_open() {
+        let bytes: Vec<u8> = bring_up(Bitrate::K500, true)
+            .iter()
+            .flat_map(encode_command)
+            .collect();
+        let mut fresh = Adapter::new(Instant::now());
+        assert_eq!(send(&mut fresh, &bytes).0, vec![Event::Ok; 4]);
+        assert!(fresh.is_open());
+        let mut left_open = Adapter::new(Instant::now());
+        send(&mut left_open, b"S4\rO\r");
+        assert_eq!(send(&mut left_open, &bytes).0, vec![Event::Ok; 4]);
+        assert_eq!(left_open.bitrate(), Some(Bitrate::K500));
+        // Without the close, an adapter left open refuses the bitrate.
+        let mut again = Adapter::new(Instant::now());
+        send(&mut again, b"S4\rO\r");
+        assert_eq!(send(&mut again, &bytes[2..]).0[0], Event::Refused);
     }
 
     #[test]

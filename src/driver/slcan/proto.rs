@@ -286,6 +286,19 @@ fn parse_frame(line: &[u8], timestamps: bool) -> Option<(Frame, Option<u16>)> {
     }
 }
 
+/// The commands that bring an adapter onto the bus at `bitrate` whatever state a
+/// previous run left it in: close first (an adapter left open refuses a bitrate), then
+/// the bitrate, timestamps on or off, open. Each is answered CR; a BEL for any but the
+/// first means the adapter cannot join the bus that way.
+pub fn bring_up(bitrate: Bitrate, timestamps: bool) -> [Command; 4] {
+    [
+        Command::Close,
+        Command::Bitrate(bitrate),
+        Command::Timestamps(timestamps),
+        Command::Open,
+    ]
+}
+
 /// The bytes of a command, CR included.
 pub fn encode_command(command: &Command) -> Line {
     let mut line = Line::new();
