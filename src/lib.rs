@@ -2,7 +2,8 @@
 //!
 //! The crate reads like the design, from the bottom up: [`value`] is what devices
 //! speak, [`config`] describes a vehicle — devices by name and kind, and the safety
-//! roles bound to them — and [`driver`] speaks each protocol. [`snapshot`] is the one
+//! roles bound to them — [`can`] is CAN frames and the DBC files that give them
+//! meaning, and [`driver`] speaks each protocol. [`snapshot`] is the one
 //! state type every reader shares; [`vehicle`] holds the devices and their cached
 //! state; [`safety`] holds every rule and the engage gate; [`engine`] runs two threads
 //! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
@@ -14,6 +15,7 @@
 //! recordings), [`port_list`] lists the serial ports (`adrive ports`) and [`cli`] puts
 //! it all together; [`service`] tells systemd how it goes.
 
+pub mod can;
 pub mod cli;
 pub mod config;
 pub mod console;

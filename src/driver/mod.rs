@@ -17,6 +17,7 @@ pub mod lock;
 mod mock;
 pub mod modbus;
 pub mod serial;
+pub mod slcan;
 
 use crate::value::{Command, Reading};
 use std::io::{self, Read, Write};

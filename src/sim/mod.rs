@@ -18,6 +18,8 @@ pub mod firmware;
 pub mod line;
 pub mod modbus;
 pub mod model;
+pub mod oscc;
+pub mod slcan;
 #[cfg(test)]
 pub(crate) mod test_serve;
 
