@@ -109,7 +109,7 @@ pub struct RunArgs {
     /// `supervisor` or a device's status thread (`steer/status`; `steer/status=return`
     /// ends it quietly instead), optionally after a delay (`supervisor:4s`).
     #[arg(long, value_name = "THREAD[:DELAY]", hide = true)]
-    pub inject_panic: Option<String>,
+    pub(crate) inject_panic: Option<String>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
@@ -129,7 +129,7 @@ pub struct RunArgs {
     pub record: Option<PathBuf>,
     /// Record the raw serial traffic of every device too.
     #[arg(long)]
-    pub record_raw: bool,
+    pub(crate) record_raw: bool,
     /// Join the ROS 2 graph over Zenoh as an Autoware vehicle interface (the vehicle
     /// file's `[ros2]`; built with the cargo feature `ros2`).
     #[arg(long)]
@@ -931,12 +931,12 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
 }
 
 /// Bytes as text, with non-printable bytes escaped.
-pub fn printable(bytes: &[u8]) -> String {
+pub(crate) fn printable(bytes: &[u8]) -> String {
     bytes.escape_ascii().to_string()
 }
 
 /// `adrive record info`: what a recording holds.
-pub fn record_info(file: &Path) -> anyhow::Result<i32> {
+pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
     let rec = record::read::Recording::open(file)?;
     tell(io::stdout(), format_args!("{}", record::info::report(&rec)));
     Ok(0)

@@ -54,7 +54,7 @@ impl Exit {
 }
 
 /// The status of a run whose safe state was not acknowledged.
-pub const UNSAFE: i32 = 3;
+pub(crate) const UNSAFE: i32 = 3;
 
 /// The process status once the run has stopped: `why`'s own, unless the stop went
 /// wrong. A safe state that was not acknowledged (`safe` false) is the worst news

@@ -11,7 +11,7 @@ use std::fmt::Write;
 use std::time::Duration;
 
 /// How often the figures are logged.
-pub const REPORT_EVERY: Duration = Duration::from_secs(10);
+pub(crate) const REPORT_EVERY: Duration = Duration::from_secs(10);
 
 /// Run until an exit arrives; returns it.
 pub fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
@@ -43,7 +43,7 @@ pub fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
 }
 
 /// The safe state in words, for the log: `gas 0.000, brake 1.000`.
-pub fn safe_state_words(vehicle: &Vehicle) -> String {
+pub(crate) fn safe_state_words(vehicle: &Vehicle) -> String {
     let words: Vec<String> = crate::safety::safe::state(vehicle.config())
         .into_iter()
         .map(|(id, c)| {
@@ -125,7 +125,7 @@ pub fn summary(snap: &Snapshot) -> String {
 }
 
 /// One line of network figures for the summary printed on exit.
-pub fn net_summary(n: &NetView, gate: &crate::snapshot::GateView) -> String {
+pub(crate) fn net_summary(n: &NetView, gate: &crate::snapshot::GateView) -> String {
     let mut out = format!(
         "network {}: {} datagrams, {} accepted",
         n.listen, n.datagrams, n.accepted
@@ -152,7 +152,7 @@ pub fn net_summary(n: &NetView, gate: &crate::snapshot::GateView) -> String {
 
 /// The recording in one line: `recorded 1234 messages (2.1 MB) to FILE`, the events
 /// left out, or why recording stopped.
-pub fn record_summary(r: &RecordView) -> String {
+pub(crate) fn record_summary(r: &RecordView) -> String {
     let mut s = format!(
         "recorded {} messages ({}) to {}",
         r.messages,
@@ -174,7 +174,7 @@ pub fn record_summary(r: &RecordView) -> String {
 
 /// The vehicle in a few lines, for `adrive ctl status`: the gate and who commands,
 /// the faults, then a line per device (its command, what it reports, its health).
-pub fn status_table(snap: &Snapshot) -> String {
+pub(crate) fn status_table(snap: &Snapshot) -> String {
     let g = &snap.gate;
     let mut out = String::new();
     let gate = match (&g.engaged, &g.commander) {
@@ -239,7 +239,7 @@ pub fn status_table(snap: &Snapshot) -> String {
 }
 
 /// What the intake did, in words, for `adrive ctl`.
-pub fn done_words(done: &crate::safety::Done) -> String {
+pub(crate) fn done_words(done: &crate::safety::Done) -> String {
     use crate::safety::Done;
     match done {
         Done::Engaged => "engaged: you command the vehicle (it holds the safe state)".into(),

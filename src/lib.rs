@@ -26,7 +26,7 @@ pub mod foxglove;
 pub mod headless;
 pub mod logging;
 pub mod net;
-pub mod port_list;
+pub(crate) mod port_list;
 pub mod probe;
 pub mod record;
 #[cfg(feature = "ros2")]

@@ -40,25 +40,25 @@ where
 }
 
 /// Log lines queued for the file writer at most.
-pub const LOG_QUEUE: usize = 4096;
+pub(crate) const LOG_QUEUE: usize = 4096;
 
 /// Keeps the log file writer alive; dropping it flushes the file.
-pub struct LogGuard {
+pub(crate) struct LogGuard {
     _file: Option<WorkerGuard>,
 }
 
 /// Start logging. `stderr`: also log to standard error (headless, subcommands).
 /// `dir`: where the rolling log file `adrive.log.YYYY-MM-DD` goes.
-pub fn init(stderr: bool, dir: Option<&Path>) -> std::io::Result<LogGuard> {
+pub(crate) fn init(stderr: bool, dir: Option<&Path>) -> std::io::Result<LogGuard> {
     init_with(stderr, dir, Vec::new())
 }
 
 /// A layer added beside the file and stderr layers (e.g. the console's log pane).
-pub type ExtraLayer = Box<dyn Layer<Registry> + Send + Sync>;
+pub(crate) type ExtraLayer = Box<dyn Layer<Registry> + Send + Sync>;
 
 /// [`init`] with extra layers (the console's log pane, a recording) that see every
 /// event, unfiltered.
-pub fn init_with(
+pub(crate) fn init_with(
     stderr: bool,
     dir: Option<&Path>,
     extra: Vec<ExtraLayer>,
@@ -133,7 +133,7 @@ fn is_stream(var: &str, dev: u64, ino: u64) -> bool {
 
 /// Log at most `per_second` lines a second; count the rest and say how many were left
 /// out when the next second opens.
-pub struct RateLimit {
+pub(crate) struct RateLimit {
     per_second: u32,
     window: Instant,
     logged: u32,
@@ -174,7 +174,7 @@ impl RateLimit {
 }
 
 /// How often a condition that lasts is logged again.
-pub const REPEAT_EVERY: Duration = Duration::from_secs(60);
+pub(crate) const REPEAT_EVERY: Duration = Duration::from_secs(60);
 
 /// A condition that repeats — a device failing every poll, a port reopened again and
 /// again, a broadcast that cannot be sent — logged once when it starts or changes, then

@@ -14,17 +14,17 @@ use std::path::{Path, PathBuf};
 
 /// USB identity of an adapter.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Usb {
-    pub vid: String,
+pub(crate) struct Usb {
+    pub(crate) vid: String,
     pub pid: String,
-    pub manufacturer: Option<String>,
+    pub(crate) manufacturer: Option<String>,
     pub product: Option<String>,
     pub serial: Option<String>,
 }
 
 /// One port.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct PortInfo {
+pub(crate) struct PortInfo {
     /// `/dev/ttyUSB0`.
     pub path: PathBuf,
     /// Links in `/dev/serial/by-id` that point at it.
@@ -32,12 +32,12 @@ pub struct PortInfo {
     pub driver: Option<String>,
     pub usb: Option<Usb>,
     /// The USB serial driver's latency timer, ms.
-    pub latency_timer_ms: Option<u32>,
+    pub(crate) latency_timer_ms: Option<u32>,
 }
 
 impl PortInfo {
     /// The latency timer is above 1 ms.
-    pub fn slow_latency(&self) -> bool {
+    pub(crate) fn slow_latency(&self) -> bool {
         self.latency_timer_ms.is_some_and(|ms| ms > 1)
     }
 }
@@ -51,7 +51,7 @@ fn read(dir: &Path, file: &str) -> Option<String> {
 
 /// Serial hardware ports under `sys` (normally `/sys`) with device nodes under `dev`
 /// (normally `/dev`).
-pub fn scan(sys: &Path, dev: &Path) -> Vec<PortInfo> {
+pub(crate) fn scan(sys: &Path, dev: &Path) -> Vec<PortInfo> {
     let by_id: Vec<(PathBuf, PathBuf)> = fs::read_dir(dev.join("serial/by-id"))
         .into_iter()
         .flatten()
@@ -140,7 +140,7 @@ fn normalize(p: &Path) -> PathBuf {
 }
 
 /// Pseudo-terminals under `dev/pts`.
-pub fn pseudo_terminals(dev: &Path) -> Vec<PathBuf> {
+pub(crate) fn pseudo_terminals(dev: &Path) -> Vec<PathBuf> {
     let mut v: Vec<PathBuf> = fs::read_dir(dev.join("pts"))
         .into_iter()
         .flatten()
@@ -159,7 +159,7 @@ pub fn pseudo_terminals(dev: &Path) -> Vec<PathBuf> {
 /// A simulated device's pseudo-terminal, found through the link `adrive sim` keeps to
 /// it (`$TMPDIR/adrive-sim-PID-N/steer`, see [`crate::sim`]).
 #[derive(Clone, Debug, PartialEq)]
-pub struct SimLink {
+pub(crate) struct SimLink {
     /// `/dev/pts/5`.
     pub pty: PathBuf,
     /// The link a vehicle file names: `/tmp/adrive-sim-1234-0/steer`.

@@ -29,11 +29,11 @@ use std::time::Instant;
 pub const ENV: &str = "ADRIVE_PROBE";
 
 /// Records the file holds (a ring: the newest overwrite the oldest).
-pub const RECORDS: usize = 8192;
+pub(crate) const RECORDS: usize = 8192;
 /// Stamps per record.
-pub const STAMPS: usize = 8;
+pub(crate) const STAMPS: usize = 8;
 /// The file's size: a header record (its first word: records started), then the ring.
-pub const BYTES: usize = (RECORDS + 1) * STAMPS * 8;
+pub(crate) const BYTES: usize = (RECORDS + 1) * STAMPS * 8;
 
 /// A step of one datagram's way, the index of its stamp in a record.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -81,7 +81,7 @@ pub fn mono_ns() -> u64 {
 
 /// Turn the probe on if [`ENV`] names a file (once; later calls do nothing). A file
 /// that cannot be mapped leaves it off, with a warning.
-pub fn init() {
+pub(crate) fn init() {
     INIT.get_or_init(|| {
         if let Some(path) = std::env::var_os(ENV) {
             start(std::path::Path::new(&path));
@@ -193,7 +193,7 @@ pub fn stamp(step: Step) {
 /// A command received at `received` had its first byte written at `first` (from the
 /// command's bookkeeping, on whichever thread): stamped on its datagram's record.
 #[inline]
-pub fn first_byte(received: Instant, first: Instant) {
+pub(crate) fn first_byte(received: Instant, first: Instant) {
     if let Some(p) = probe() {
         let at = p.ns(received);
         let newest = p.current.load(Relaxed);

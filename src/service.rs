@@ -22,7 +22,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// Where notifications go: the service manager's socket.
-pub struct Notifier {
+pub(crate) struct Notifier {
     socket: UnixDatagram,
     to: SocketAddr,
     /// A failed send was logged (once: the manager may be gone for good).
@@ -103,7 +103,7 @@ pub fn feed() {
 /// How often to feed the watchdog: half of `WATCHDOG_USEC`, as `sd_watchdog_enabled(3)`
 /// advises; `None` when systemd keeps no watchdog on this process (no `WATCHDOG_USEC`,
 /// or `WATCHDOG_PID` names another process).
-pub fn watchdog_period() -> Option<Duration> {
+pub(crate) fn watchdog_period() -> Option<Duration> {
     let usec = std::env::var("WATCHDOG_USEC").ok();
     let pid = std::env::var("WATCHDOG_PID").ok();
     watchdog_every(usec.as_deref(), pid.as_deref(), std::process::id())

@@ -25,8 +25,8 @@ pub struct Snapshot {
     /// Counts broadcasts from 0; a gap means a lost datagram.
     pub seq: u64,
     /// Wall clock, milliseconds since the Unix epoch.
-    pub time_ms: u64,
-    pub uptime_s: f64,
+    pub(crate) time_ms: u64,
+    pub(crate) uptime_s: f64,
     pub gate: GateView,
     /// Every device, in the vehicle file's order.
     pub devices: Vec<DeviceView>,
@@ -157,7 +157,7 @@ pub struct GateView {
     /// The last of them, in words: `refused steer 0.500 from network 127.0.0.1:5555:
     /// commanded by console`.
     #[serde(default)]
-    pub last_refused: Option<String>,
+    pub(crate) last_refused: Option<String>,
 }
 
 /// One device.
@@ -191,7 +191,7 @@ pub struct DeviceView {
     /// last two supervisor periods (the last one always included) — everything its
     /// commands can have driven it toward since the supervisor last looked.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub executed_span: Option<[f64; 2]>,
+    pub(crate) executed_span: Option<[f64; 2]>,
     /// Age of the cached reading, ms (null before the first good poll).
     pub status_age_ms: Option<f64>,
     /// The reading is older than the device's `status_max_age` (or there is none).
@@ -204,7 +204,7 @@ pub struct DeviceView {
     /// One command transaction, µs.
     pub command_txn_us: LatencySummary,
     /// One status transaction, µs.
-    pub status_txn_us: LatencySummary,
+    pub(crate) status_txn_us: LatencySummary,
     /// What the estimator believes now, for a setpoint device with a declared
     /// response (null without one, or before its first reading).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -265,24 +265,24 @@ pub struct Health {
     /// 3 refused, 4 unsupported, 5 I/O).
     pub status_error: u32,
     pub command_error: u32,
-    pub last_error: Option<String>,
+    pub(crate) last_error: Option<String>,
     /// Age of `last_error`, ms.
     #[serde(default)]
-    pub last_error_age_ms: Option<f64>,
+    pub(crate) last_error_age_ms: Option<f64>,
     /// Time since the device last answered (a good status or an acknowledged
     /// command), ms; null before its first answer. Past `status_max_age` it is silent.
     #[serde(default)]
-    pub quiet_ms: Option<f64>,
+    pub(crate) quiet_ms: Option<f64>,
 }
 
 /// What the console may change while running.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct Settings {
-    pub status_period_ms: f64,
-    pub command_timeout_ms: f64,
-    pub status_max_age_ms: f64,
-    pub status_on: bool,
-    pub command_on: bool,
+    pub(crate) status_period_ms: f64,
+    pub(crate) command_timeout_ms: f64,
+    pub(crate) status_max_age_ms: f64,
+    pub(crate) status_on: bool,
+    pub(crate) command_on: bool,
     /// How status polls are scheduled: `fixed` (every `status_period_ms`) or
     /// `adaptive` (by the estimate, from `status_period_ms` to `status_max_age_ms`).
     #[serde(default)]
@@ -305,7 +305,7 @@ pub struct Counters {
     pub polls: u64,
     pub status_errors: u64,
     /// Times the port was reopened after the first open.
-    pub reconnects: u64,
+    pub(crate) reconnects: u64,
 }
 
 /// Figures of one latency histogram, in microseconds.
@@ -398,7 +398,7 @@ pub struct RecoveryView {
     /// This try, from 1, and how many are allowed.
     pub attempt: u32,
     pub attempts: u32,
-    pub elapsed_ms: f64,
+    pub(crate) elapsed_ms: f64,
 }
 
 impl RecoveryView {
@@ -466,9 +466,9 @@ pub struct NetView {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct WatchdogView {
     pub state: WatchdogState,
-    pub timeout_ms: f64,
+    pub(crate) timeout_ms: f64,
     /// Time since the commander's last valid datagram.
-    pub last_command_age_ms: Option<f64>,
+    pub(crate) last_command_age_ms: Option<f64>,
     /// Why it last tripped.
     pub last_trip: Option<String>,
 }

@@ -112,7 +112,7 @@ pub fn gate(now: Instant) -> Arc<Gate> {
 }
 
 /// A sample vehicle of `config` behind its gate.
-pub fn gate_of(config: VehicleConfig, now: Instant) -> Arc<Gate> {
+pub(crate) fn gate_of(config: VehicleConfig, now: Instant) -> Arc<Gate> {
     Arc::new(Gate::new(Arc::new(vehicle_of(config, now))))
 }
 

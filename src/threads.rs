@@ -22,11 +22,11 @@ impl StopSignal {
         *self.stopped.lock() = true;
         self.cv.notify_all();
     }
-    pub fn is_stopped(&self) -> bool {
+    pub(crate) fn is_stopped(&self) -> bool {
         *self.stopped.lock()
     }
     /// Sleep until `until`; false if stopped meanwhile.
-    pub fn sleep_until(&self, until: Instant) -> bool {
+    pub(crate) fn sleep_until(&self, until: Instant) -> bool {
         let mut s = self.stopped.lock();
         while !*s && Instant::now() < until {
             self.cv.wait_until(&mut s, until);
@@ -37,7 +37,7 @@ impl StopSignal {
 
 /// Named threads with a stop signal, joined with a deadline.
 #[derive(Default)]
-pub struct Threads {
+pub(crate) struct Threads {
     handles: Vec<(String, JoinHandle<()>)>,
     states: Vec<(String, Arc<AtomicU8>)>,
 }
@@ -81,7 +81,7 @@ impl Threads {
 
     /// Join the threads that have ended, forgetting them (a server whose clients come
     /// and go keeps only the live ones).
-    pub fn reap(&mut self) {
+    pub(crate) fn reap(&mut self) {
         let (done, live): (Vec<_>, Vec<_>) = std::mem::take(&mut self.handles)
             .into_iter()
             .partition(|(_, h)| h.is_finished());
@@ -93,7 +93,7 @@ impl Threads {
     }
 
     /// Whether each thread runs, readable from other threads while these run.
-    pub fn liveness(&self) -> Liveness {
+    pub(crate) fn liveness(&self) -> Liveness {
         Liveness(self.states.clone().into())
     }
 
@@ -162,7 +162,7 @@ impl Owner {
     }
 
     /// Whether each thread runs.
-    pub fn liveness(&self) -> Liveness {
+    pub(crate) fn liveness(&self) -> Liveness {
         self.threads.liveness()
     }
 
@@ -192,7 +192,7 @@ impl Liveness {
     }
 
     /// Every thread has started its work and none has ended.
-    pub fn all_running(&self) -> bool {
+    pub(crate) fn all_running(&self) -> bool {
         self.0
             .iter()
             .all(|(_, s)| s.load(Ordering::Acquire) == RUNNING)
@@ -200,7 +200,7 @@ impl Liveness {
 
     /// Wait until every thread has started its work, at most until `deadline`; the
     /// names of those still not running (not yet started, or already ended).
-    pub fn wait_running(&self, deadline: Instant) -> Vec<&str> {
+    pub(crate) fn wait_running(&self, deadline: Instant) -> Vec<&str> {
         while !self.all_running() && Instant::now() < deadline {
             std::thread::sleep(Duration::from_millis(1));
         }

@@ -37,7 +37,7 @@ pub enum Source {
 impl Source {
     /// A console, which may take command from any other source (with the operator's
     /// confirmation); the network and ROS 2 never take it from a console.
-    pub fn is_console(self) -> bool {
+    pub(crate) fn is_console(self) -> bool {
         matches!(self, Source::Console | Source::Attached(_))
     }
 }
@@ -184,7 +184,7 @@ impl Control {
         }
     }
 
-    pub fn from_code(code: u16) -> Option<Control> {
+    pub(crate) fn from_code(code: u16) -> Option<Control> {
         Control::ALL.into_iter().find(|c| c.code() == code)
     }
 }
@@ -248,7 +248,7 @@ impl Command {
 }
 
 /// The most readings one device reports.
-pub const MAX_READINGS: usize = 16;
+pub(crate) const MAX_READINGS: usize = 16;
 
 /// What a device last reported: one value per reading the device declares, by the
 /// reading's index in its configuration (numbers as they are, flags as 0 or 1, states

@@ -1,5 +1,5 @@
 //! The crate's layers, as docs/architecture.md draws them, checked in the source: the
-//! core (value, config, driver, vehicle, safety, engine, snapshot, supervisor) never
+//! core (value, can, config, driver, vehicle, safety, engine, snapshot, supervisor) never
 //! imports a front end (console, net, ros2, record, socket, foxglove, headless, cli,
 //! sim), tests included, and inside the core every import points down the order
 //! below. Doc links are not imports; the few parts a lower layer carries from a higher
@@ -11,6 +11,7 @@ use std::path::{Path, PathBuf};
 /// The core, bottom first: a module may import those before it (and itself).
 const CORE: &[&str] = &[
     "value",
+    "can",
     "config",
     "snapshot",
     "driver",

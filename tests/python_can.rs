@@ -257,7 +257,7 @@ fn cantools_and_adrive_agree_on_every_layout_a_dbc_can_write() {
             if message.name() == "MOTOROLA" {
                 want[7] &= !1;
             }
-            assert_eq!(back.data(), &want[..], "{} {frame}", message.name());
+            assert_eq!(back.data(), &*want, "{} {frame}", message.name());
         }
         frames += 1;
     }

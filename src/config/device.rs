@@ -14,7 +14,7 @@ use std::time::Duration;
 use toml::Spanned;
 
 /// Words of the command grammar that cannot name a device.
-pub const RESERVED: [&str; 9] = [
+pub(crate) const RESERVED: [&str; 9] = [
     "accel",
     "engage",
     "disengage",
@@ -27,10 +27,10 @@ pub const RESERVED: [&str; 9] = [
 ];
 
 /// The longest device or reading name.
-pub const MAX_NAME: usize = 32;
+pub(crate) const MAX_NAME: usize = 32;
 
 /// Check a device or reading name: `[a-z][a-z0-9_]*`, at most [`MAX_NAME`] characters.
-pub fn check_name(what: &str, name: &str) -> Result<(), String> {
+pub(crate) fn check_name(what: &str, name: &str) -> Result<(), String> {
     let mut chars = name.chars();
     let ok = chars.next().is_some_and(|c| c.is_ascii_lowercase())
         && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_')
@@ -103,14 +103,6 @@ pub struct ReadingSpec {
 }
 
 impl ReadingSpec {
-    /// The state's name of a value of a state reading.
-    pub fn state_name(&self, v: f64) -> Option<&str> {
-        match &self.kind {
-            ReadingKind::States(s) => s.get(v as usize).map(String::as_str),
-            _ => None,
-        }
-    }
-
     /// The value for people and JSON.
     pub fn value(&self, v: f64) -> crate::value::Value {
         use crate::value::Value;
@@ -125,26 +117,28 @@ impl ReadingSpec {
 }
 
 /// A well-known reading: its default units and kind, so a vehicle file can just name it.
-pub struct WellKnown {
+pub(crate) struct WellKnown {
     pub name: &'static str,
     pub units: &'static str,
     pub flag: bool,
     /// The key in the line protocol's status reply.
-    pub line_key: &'static str,
+    pub(crate) line_key: &'static str,
     /// Decimals shown on screen.
     pub decimals: usize,
+    /// What it is, for the guide's table (read by its test).
+    #[cfg_attr(not(test), allow(dead_code))]
     pub what: &'static str,
 }
 
 /// The reading a setpoint actuator reports where it is by (its estimate's, the held
 /// steering's, the brake's): see [`DeviceConfig::position`].
-pub const POSITION: &str = "position";
+pub(crate) const POSITION: &str = "position";
 /// The reading a state actuator reports its state by (the gear's): see
 /// [`DeviceConfig::state`].
-pub const STATE: &str = "state";
+pub(crate) const STATE: &str = "state";
 
 /// The readings adrive knows by name. Any other reading needs its `units`.
-pub const WELL_KNOWN: [WellKnown; 12] = [
+pub(crate) const WELL_KNOWN: [WellKnown; 12] = [
     WellKnown {
         name: POSITION,
         units: "",
@@ -243,12 +237,13 @@ pub const WELL_KNOWN: [WellKnown; 12] = [
     },
 ];
 
-pub fn well_known(name: &str) -> Option<&'static WellKnown> {
+pub(crate) fn well_known(name: &str) -> Option<&'static WellKnown> {
     WELL_KNOWN.iter().find(|w| w.name == name)
 }
 
 /// The guide's table (docs/vehicles.md) of the well-known readings.
-pub fn well_known_markdown() -> String {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn well_known_markdown() -> String {
     let mut out = String::from("| reading | units | line protocol key | |\n|---|---|---|---|\n");
     for w in &WELL_KNOWN {
         let units = match (w.units, w.flag) {
@@ -292,7 +287,7 @@ pub struct DeviceConfig {
     /// A state actuator's states, in order.
     pub states: Vec<String>,
     /// Other words for states (`d` for `drive`, the paper's `1`), by state index.
-    pub aliases: Vec<(String, u8)>,
+    pub(crate) aliases: Vec<(String, u8)>,
     /// What it reports, by index (the index of a value in a [`crate::value::Reading`]).
     pub readings: Vec<ReadingSpec>,
     /// What this device is commanded when the vehicle goes to its safe state (beyond
@@ -312,7 +307,7 @@ impl DeviceConfig {
     /// Every limit and rule of one device, as the loader applies them to a vehicle
     /// file and the console to its in-place edits (`port` aside: see
     /// [`super::VehicleConfig::check_ports`]).
-    pub fn check_limits(&self) -> Result<(), Violation> {
+    pub(crate) fn check_limits(&self) -> Result<(), Violation> {
         use limits::*;
         BAUD.check(u64::from(self.baud))?;
         STATUS_PERIOD.check(self.status_period)?;
@@ -372,16 +367,6 @@ impl DeviceConfig {
         self.kind.is_actuator()
     }
 
-    /// The device takes drive-control commands (`disable`, `enable`, `home`…): the line
-    /// protocol always, Modbus with a `control` register.
-    pub fn takes_controls(&self) -> bool {
-        match &self.wire {
-            Wire::Line(_) => true,
-            Wire::Modbus(m) => m.control.is_some(),
-            Wire::Elm327(_) => false,
-        }
-    }
-
     /// The command value domain of a setpoint actuator.
     pub fn range(&self) -> [f64; 2] {
         self.range
@@ -418,12 +403,12 @@ impl DeviceConfig {
     }
 
     /// A state's name by index.
-    pub fn state_name(&self, i: u8) -> Option<&str> {
+    pub(crate) fn state_name(&self, i: u8) -> Option<&str> {
         self.states.get(i as usize).map(String::as_str)
     }
 
     /// A command as people and JSON write it.
-    pub fn command_value(&self, c: Command) -> crate::value::Value {
+    pub(crate) fn command_value(&self, c: Command) -> crate::value::Value {
         use crate::value::Value;
         match c {
             Command::Set(v) => Value::Number(v),
@@ -436,7 +421,7 @@ impl DeviceConfig {
     }
 
     /// A command in words: `0.250`, `drive`, `home`.
-    pub fn command_text(&self, c: Command) -> String {
+    pub(crate) fn command_text(&self, c: Command) -> String {
         match c {
             Command::Set(v) => format!("{v:.3}"),
             other => self.command_value(other).to_string(),
@@ -446,7 +431,7 @@ impl DeviceConfig {
     /// Read a command from a word, as the network and the console take it: a number
     /// for a setpoint actuator (finite, inside the range), a state or alias for a
     /// state actuator. The error says what was expected.
-    pub fn parse_command(&self, word: &str) -> Result<Command, String> {
+    pub(crate) fn parse_command(&self, word: &str) -> Result<Command, String> {
         match self.kind {
             Kind::Setpoint => {
                 let [lo, hi] = self.range;

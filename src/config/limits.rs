@@ -163,7 +163,7 @@ impl<T: Bounded> Limit<T> {
     }
 
     /// The default; for keys that always have one.
-    pub fn default_value(&self) -> T {
+    pub(crate) fn default_value(&self) -> T {
         match self.default {
             Some(v) => v,
             None => panic!("a limit without a default"),
@@ -190,7 +190,7 @@ pub const BAUD: Limit<u64> = Limit {
     default: Some(9600),
     why: "bits per second of the serial line",
 };
-pub const STATUS_PERIOD: Limit<Duration> = Limit {
+pub(crate) const STATUS_PERIOD: Limit<Duration> = Limit {
     section: Device,
     key: "status_period",
     min: ms(1),
@@ -198,7 +198,7 @@ pub const STATUS_PERIOD: Limit<Duration> = Limit {
     default: Some(ms(100)),
     why: "how often the status thread polls",
 };
-pub const STATUS_MAX_AGE: Limit<Duration> = Limit {
+pub(crate) const STATUS_MAX_AGE: Limit<Duration> = Limit {
     section: Device,
     key: "status_max_age",
     min: ms(1),
@@ -206,7 +206,7 @@ pub const STATUS_MAX_AGE: Limit<Duration> = Limit {
     default: Some(ms(500)),
     why: "a status at least this often, even under a command flood; older is stale, and no status for long is `silent`",
 };
-pub const COMMAND_TIMEOUT: Limit<Duration> = Limit {
+pub(crate) const COMMAND_TIMEOUT: Limit<Duration> = Limit {
     section: Device,
     key: "command_timeout",
     min: ms(1),
@@ -214,7 +214,7 @@ pub const COMMAND_TIMEOUT: Limit<Duration> = Limit {
     default: Some(ms(250)),
     why: "the last command is sent again after this long without a new one",
 };
-pub const REPLY_TIMEOUT: Limit<Duration> = Limit {
+pub(crate) const REPLY_TIMEOUT: Limit<Duration> = Limit {
     section: Device,
     key: "reply_timeout",
     min: ms(1),
@@ -222,7 +222,7 @@ pub const REPLY_TIMEOUT: Limit<Duration> = Limit {
     default: Some(ms(200)),
     why: "the longest a transaction waits for the device (except an ELM327's first request, its protocol search: up to 10 s)",
 };
-pub const MIN_COMMAND_INTERVAL: Limit<Duration> = Limit {
+pub(crate) const MIN_COMMAND_INTERVAL: Limit<Duration> = Limit {
     section: Device,
     key: "min_command_interval",
     min: ms(1),
@@ -230,7 +230,7 @@ pub const MIN_COMMAND_INTERVAL: Limit<Duration> = Limit {
     default: None,
     why: "the paper's rate cap (off when not written); longer would hold back a brake command",
 };
-pub const SIM_TURNAROUND: Limit<Duration> = Limit {
+pub(crate) const SIM_TURNAROUND: Limit<Duration> = Limit {
     section: DeviceSim,
     key: "turnaround",
     min: ms(0),
@@ -238,7 +238,7 @@ pub const SIM_TURNAROUND: Limit<Duration> = Limit {
     default: Some(ms(2)),
     why: "the simulated device's time to start answering",
 };
-pub const SIM_POLL_DELAY: Limit<Duration> = Limit {
+pub(crate) const SIM_POLL_DELAY: Limit<Duration> = Limit {
     section: DeviceSim,
     key: "poll_delay",
     min: ms(0),
@@ -246,7 +246,7 @@ pub const SIM_POLL_DELAY: Limit<Duration> = Limit {
     default: Some(ms(0)),
     why: "extra time a simulated status request takes",
 };
-pub const SIM_COMMAND_DELAY: Limit<Duration> = Limit {
+pub(crate) const SIM_COMMAND_DELAY: Limit<Duration> = Limit {
     section: DeviceSim,
     key: "command_delay",
     min: ms(0),
@@ -254,7 +254,7 @@ pub const SIM_COMMAND_DELAY: Limit<Duration> = Limit {
     default: Some(ms(0)),
     why: "extra time a simulated command takes",
 };
-pub const SIM_WATCHDOG: Limit<Duration> = Limit {
+pub(crate) const SIM_WATCHDOG: Limit<Duration> = Limit {
     section: DeviceSim,
     key: "watchdog",
     min: ms(10),
@@ -262,7 +262,7 @@ pub const SIM_WATCHDOG: Limit<Duration> = Limit {
     default: None,
     why: "the simulated actuator's own watchdog (off when not written): gas 0, brake full",
 };
-pub const MODBUS_SLAVE: Limit<u64> = Limit {
+pub(crate) const MODBUS_SLAVE: Limit<u64> = Limit {
     section: DeviceModbus,
     key: "slave",
     min: 1,
@@ -270,7 +270,7 @@ pub const MODBUS_SLAVE: Limit<u64> = Limit {
     default: None,
     why: "a Modbus RTU unit address, required (0 is broadcast, 248–255 reserved)",
 };
-pub const RESPONSE_LAG: Limit<Duration> = Limit {
+pub(crate) const RESPONSE_LAG: Limit<Duration> = Limit {
     section: DeviceResponse,
     key: "lag",
     min: ms(1),
@@ -286,7 +286,7 @@ pub const OVERRIDE_TIME: Limit<Duration> = Limit {
     default: Some(ms(300)),
     why: "moved `override_threshold` away from its command this long, the device is in a driver's hands (`override`)",
 };
-pub const WATCHDOG_TIMEOUT: Limit<Duration> = Limit {
+pub(crate) const WATCHDOG_TIMEOUT: Limit<Duration> = Limit {
     section: Network,
     key: "watchdog_timeout",
     min: ms(10),
@@ -294,7 +294,7 @@ pub const WATCHDOG_TIMEOUT: Limit<Duration> = Limit {
     default: Some(ms(500)),
     why: "no valid network command this long: safe state, disengage",
 };
-pub const BROADCAST_RATE: Limit<f64> = Limit {
+pub(crate) const BROADCAST_RATE: Limit<f64> = Limit {
     section: Network,
     key: "broadcast_rate",
     min: 0.1,
@@ -302,7 +302,7 @@ pub const BROADCAST_RATE: Limit<f64> = Limit {
     default: Some(10.0),
     why: "state broadcasts a second",
 };
-pub const MULTICAST_TTL: Limit<u64> = Limit {
+pub(crate) const MULTICAST_TTL: Limit<u64> = Limit {
     section: Network,
     key: "multicast_ttl",
     min: 0,
@@ -310,7 +310,7 @@ pub const MULTICAST_TTL: Limit<u64> = Limit {
     default: Some(1),
     why: "IP time-to-live of multicast broadcasts (1: this subnet)",
 };
-pub const REPORT_RATE: Limit<f64> = Limit {
+pub(crate) const REPORT_RATE: Limit<f64> = Limit {
     section: Ros2,
     key: "report_rate",
     min: 1.0,
@@ -318,7 +318,7 @@ pub const REPORT_RATE: Limit<f64> = Limit {
     default: Some(30.0),
     why: "ROS 2 vehicle reports a second (Autoware's control wants them fresh)",
 };
-pub const SUPERVISOR_PERIOD: Limit<Duration> = Limit {
+pub(crate) const SUPERVISOR_PERIOD: Limit<Duration> = Limit {
     section: Supervisor,
     key: "period",
     min: ms(10),
@@ -326,7 +326,7 @@ pub const SUPERVISOR_PERIOD: Limit<Duration> = Limit {
     default: Some(ms(100)),
     why: "how often the supervisor looks (the paper's was 1 s)",
 };
-pub const ERROR_RATE: Limit<f64> = Limit {
+pub(crate) const ERROR_RATE: Limit<f64> = Limit {
     section: Supervisor,
     key: "error_rate",
     min: 0.01,
@@ -334,7 +334,7 @@ pub const ERROR_RATE: Limit<f64> = Limit {
     default: Some(0.5),
     why: "failed transactions above this fraction are a fault; 1 or more never would be",
 };
-pub const ERROR_WINDOW: Limit<Duration> = Limit {
+pub(crate) const ERROR_WINDOW: Limit<Duration> = Limit {
     section: Supervisor,
     key: "error_window",
     min: ms(100),
@@ -342,7 +342,7 @@ pub const ERROR_WINDOW: Limit<Duration> = Limit {
     default: Some(s(2)),
     why: "the window `error_rate` is measured over",
 };
-pub const FOLLOW_TOLERANCE: Limit<f64> = Limit {
+pub(crate) const FOLLOW_TOLERANCE: Limit<f64> = Limit {
     section: Supervisor,
     key: "follow_tolerance",
     min: 0.01,
@@ -350,7 +350,7 @@ pub const FOLLOW_TOLERANCE: Limit<f64> = Limit {
     default: Some(0.1),
     why: "a device without a declared response, measured further than this fraction of its range from its command …",
 };
-pub const FOLLOW_TIME: Limit<Duration> = Limit {
+pub(crate) const FOLLOW_TIME: Limit<Duration> = Limit {
     section: Supervisor,
     key: "follow_time",
     min: ms(100),
@@ -358,7 +358,7 @@ pub const FOLLOW_TIME: Limit<Duration> = Limit {
     default: Some(ms(2500)),
     why: "… for longer than this is `not_following`",
 };
-pub const STALL_TIME: Limit<Duration> = Limit {
+pub(crate) const STALL_TIME: Limit<Duration> = Limit {
     section: Supervisor,
     key: "stall_time",
     min: ms(100),
@@ -366,7 +366,7 @@ pub const STALL_TIME: Limit<Duration> = Limit {
     default: Some(ms(500)),
     why: "a device with a declared response that makes no headway toward its command this long is `not_following`",
 };
-pub const RANGE_MARGIN: Limit<f64> = Limit {
+pub(crate) const RANGE_MARGIN: Limit<f64> = Limit {
     section: Supervisor,
     key: "range_margin",
     min: 0.0,
@@ -374,7 +374,7 @@ pub const RANGE_MARGIN: Limit<f64> = Limit {
     default: Some(0.05),
     why: "reported positions may stray this fraction of the range outside it",
 };
-pub const ATTEMPTS: Limit<u64> = Limit {
+pub(crate) const ATTEMPTS: Limit<u64> = Limit {
     section: Supervisor,
     key: "attempts",
     min: 1,
@@ -382,7 +382,7 @@ pub const ATTEMPTS: Limit<u64> = Limit {
     default: Some(3),
     why: "tries of a recovery procedure before it gives up",
 };
-pub const STEP_TIMEOUT: Limit<Duration> = Limit {
+pub(crate) const STEP_TIMEOUT: Limit<Duration> = Limit {
     section: Supervisor,
     key: "step_timeout",
     min: ms(100),
@@ -404,7 +404,9 @@ pub const DEADMAN_DEFAULT: Duration = DEADMAN.default.unwrap();
 
 /// A rule between keys of one section.
 #[derive(Debug)]
-pub struct Rule {
+pub(crate) struct Rule {
+    /// Where the guide's table lists it (read by its test).
+    #[cfg_attr(not(test), allow(dead_code))]
     pub section: Section,
     /// The rule as the guide and the error say it.
     pub text: &'static str,
@@ -421,31 +423,33 @@ impl Rule {
     }
 }
 
-pub const MAX_AGE_COVERS_PERIOD: Rule = Rule {
+pub(crate) const MAX_AGE_COVERS_PERIOD: Rule = Rule {
     section: Device,
     text: "`status_max_age` at least `status_period`",
 };
-pub const REPLY_WITHIN_MAX_AGE: Rule = Rule {
+pub(crate) const REPLY_WITHIN_MAX_AGE: Rule = Rule {
     section: Device,
     text: "`reply_timeout` at most `status_max_age` (a device is not judged silent while a reply may still come)",
 };
-pub const RANGE_FORM: Rule = Rule {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) const RANGE_FORM: Rule = Rule {
     section: Device,
     text: "`range` on every setpoint device, as `[min, max]`: two finite numbers, min < max; a throttle's and a brake's start at 0 (released)",
 };
-pub const RESPONSE_IN_UNITS: Rule = Rule {
+pub(crate) const RESPONSE_IN_UNITS: Rule = Rule {
     section: DeviceResponse,
     text: "`rate`, `noise`, `tolerance`, `deadband` and `override_threshold` (by default a tenth of the range) in the device's units, above 0: `rate` at most 1000 ranges a second, the others below the width of its range, `tolerance` above `noise`",
 };
-pub const RESPONSE_ON_SETPOINTS: Rule = Rule {
+pub(crate) const RESPONSE_ON_SETPOINTS: Rule = Rule {
     section: Device,
     text: "`[device.response]` only on setpoint devices; `polling = \"adaptive\"` only with a `[device.response]` (the estimate it polls by)",
 };
-pub const PORT_NAMED: Rule = Rule {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) const PORT_NAMED: Rule = Rule {
     section: Device,
     text: "a `port` path on every device, unless it is simulated (`--sim`, `adrive sim`)",
 };
-pub const WATCHDOG_OUTLASTS_RESEND: Rule = Rule {
+pub(crate) const WATCHDOG_OUTLASTS_RESEND: Rule = Rule {
     section: DeviceSim,
     text: "`watchdog` longer than the device's `command_timeout` (which keeps a live adrive resending)",
 };
@@ -528,7 +532,8 @@ pub fn find(section: Section, key: &str) -> Option<&'static dyn Row> {
 }
 
 /// Every rule, in the guide's order.
-pub static RULES: &[&Rule] = &[
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) static RULES: &[&Rule] = &[
     &MAX_AGE_COVERS_PERIOD,
     &REPLY_WITHIN_MAX_AGE,
     &RANGE_FORM,
@@ -539,7 +544,8 @@ pub static RULES: &[&Rule] = &[
 ];
 
 /// The guide's table (docs/vehicles.md) of limits and list of rules, as Markdown.
-pub fn markdown() -> String {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn markdown() -> String {
     let mut out = String::from("| section | key | accepted | default | |\n|---|---|---|---|---|\n");
     for row in ALL {
         out.push_str(&format!("| {} |\n", row.cells().join(" | ")));
@@ -552,7 +558,7 @@ pub fn markdown() -> String {
 }
 
 /// `--deadman DURATION`: a duration within [`DEADMAN`] (clap names the option).
-pub fn parse_deadman(text: &str) -> Result<Duration, String> {
+pub(crate) fn parse_deadman(text: &str) -> Result<Duration, String> {
     let d = crate::config::parse_duration(text)?;
     if DEADMAN.check(d).is_err() {
         return Err(format!(

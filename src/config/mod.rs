@@ -42,7 +42,7 @@ use toml::Spanned;
 /// The built-in vehicle, as shipped in `vehicles/alice.toml`.
 pub const ALICE_TOML: &str = include_str!("../../vehicles/alice.toml");
 /// The name errors in the built-in vehicle are reported under.
-pub const ALICE_PATH: &str = "vehicles/alice.toml";
+pub(crate) const ALICE_PATH: &str = "vehicles/alice.toml";
 
 /// A configuration error: `file:line: message` (`file: message` without a line, when
 /// the file cannot be read at all).
@@ -75,12 +75,12 @@ pub struct SimReading {
     pub noise: f64,
     /// Ramp from `value` to this over `ramp_time`, then stay.
     #[serde(default)]
-    pub ramp_to: Option<f64>,
+    pub(crate) ramp_to: Option<f64>,
     #[serde(default = "default_ramp", deserialize_with = "duration")]
-    pub ramp_time: Duration,
+    pub(crate) ramp_time: Duration,
     /// Report the device's position times this instead.
     #[serde(default)]
-    pub per_position: Option<f64>,
+    pub(crate) per_position: Option<f64>,
 }
 
 fn default_ramp() -> Duration {
@@ -93,7 +93,7 @@ fn default_ramp() -> Duration {
 pub struct SimConfig {
     /// Time the device takes to start answering once a request is complete.
     #[serde(default = "default_turnaround", deserialize_with = "duration")]
-    pub turnaround: Duration,
+    pub(crate) turnaround: Duration,
     /// Extra processing time for a status request (a slow device).
     #[serde(default, deserialize_with = "duration")]
     pub poll_delay: Duration,
@@ -161,10 +161,10 @@ pub struct SupervisorConfig {
     /// is at fault.
     pub error_rate: f64,
     #[serde(deserialize_with = "duration")]
-    pub error_window: Duration,
+    pub(crate) error_window: Duration,
     /// A device without a declared response, measured further than this fraction of
     /// its range from its command …
-    pub follow_tolerance: f64,
+    pub(crate) follow_tolerance: f64,
     /// … for longer than this is "not following".
     #[serde(deserialize_with = "duration")]
     pub follow_time: Duration,
@@ -173,7 +173,7 @@ pub struct SupervisorConfig {
     #[serde(deserialize_with = "duration")]
     pub stall_time: Duration,
     /// Reported positions may stray this fraction of the range outside it.
-    pub range_margin: f64,
+    pub(crate) range_margin: f64,
     /// Tries of a recovery procedure before it gives up.
     pub attempts: u32,
     /// Time a recovery step may take.
@@ -181,10 +181,10 @@ pub struct SupervisorConfig {
     pub step_timeout: Duration,
     /// A procedure that gives up is a fatal device error: end the process (status 4)
     /// after the safe state, so a service manager can act.
-    pub exit_on_give_up: bool,
+    pub(crate) exit_on_give_up: bool,
     /// Fault injection for tests (`--inject-panic supervisor:DELAY`).
     #[serde(skip)]
-    pub panic_for_test: Option<Duration>,
+    pub(crate) panic_for_test: Option<Duration>,
 }
 
 impl Default for SupervisorConfig {
@@ -246,12 +246,12 @@ pub struct VehicleConfig {
 impl VehicleConfig {
     /// A violation found after loading, inside `owner` (`device.steer`, `network`), as
     /// an error at the line of the key it blames.
-    pub fn refuse(&self, owner: &str, v: Violation) -> ConfigError {
+    pub(crate) fn refuse(&self, owner: &str, v: Violation) -> ConfigError {
         refuse(&self.source, &self.lines, owner, v)
     }
 
     /// Every device that is not simulated needs a port to open.
-    pub fn check_ports(&self) -> Result<(), ConfigError> {
+    pub(crate) fn check_ports(&self) -> Result<(), ConfigError> {
         for d in &self.devices {
             if d.port.trim().is_empty() {
                 let v = Violation {
@@ -274,7 +274,7 @@ impl VehicleConfig {
     }
 
     /// A path the vehicle file names, relative to the file's directory.
-    pub fn relative(&self, file: &Path) -> std::path::PathBuf {
+    pub(crate) fn relative(&self, file: &Path) -> std::path::PathBuf {
         match Path::new(&self.source).parent() {
             Some(dir) if file.is_relative() => dir.join(file),
             _ => file.to_path_buf(),
@@ -293,7 +293,7 @@ impl VehicleConfig {
 
     /// Keep only the named devices (`--only`); bindings to the others are dropped.
     /// Every name must exist.
-    pub fn retain_only(&mut self, only: &[String]) -> Result<(), String> {
+    pub(crate) fn retain_only(&mut self, only: &[String]) -> Result<(), String> {
         if only.is_empty() {
             return Ok(());
         }

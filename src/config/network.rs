@@ -12,11 +12,11 @@ use std::str::FromStr;
 use std::time::Duration;
 
 /// The command listener's default address (the paper's "Skynet key" 47576).
-pub const DEFAULT_LISTEN: &str = "127.0.0.1:47576";
+pub(crate) const DEFAULT_LISTEN: &str = "127.0.0.1:47576";
 /// Where the state broadcast goes by default.
-pub const DEFAULT_BROADCAST: &str = "127.0.0.1:47577";
+pub(crate) const DEFAULT_BROADCAST: &str = "127.0.0.1:47577";
 /// The listener's port when `--listen` names only an address.
-pub const DEFAULT_PORT: u16 = 47576;
+pub(crate) const DEFAULT_PORT: u16 = 47576;
 
 /// `[network]`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -79,7 +79,7 @@ impl NetworkConfig {
     }
 
     /// The time between two state broadcasts.
-    pub fn broadcast_period(&self) -> Duration {
+    pub(crate) fn broadcast_period(&self) -> Duration {
         Duration::from_secs_f64(1.0 / self.broadcast_rate)
     }
 }
@@ -161,7 +161,7 @@ fn destinations<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<SocketAddr>, D::E
 }
 
 /// `--listen ADDR`: `ip:port`, or an IP alone for the default port.
-pub fn parse_listen(s: &str) -> Result<SocketAddr, String> {
+pub(crate) fn parse_listen(s: &str) -> Result<SocketAddr, String> {
     s.parse::<SocketAddr>()
         .or_else(|_| {
             s.parse::<IpAddr>()

@@ -13,9 +13,9 @@ use super::limits::Violation;
 use serde::Deserialize;
 
 /// The highest `SCHED_FIFO` priority Linux has.
-pub const MAX_PRIORITY: u64 = 99;
+pub(crate) const MAX_PRIORITY: u64 = 99;
 /// CPUs a pinning may name: 0 to this, exclusive (glibc's `CPU_SETSIZE`).
-pub const MAX_CPUS: usize = 1024;
+pub(crate) const MAX_CPUS: usize = 1024;
 
 /// Where the command path runs.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -55,7 +55,8 @@ impl Placement {
     }
 
     /// Nothing asked: the kernel's defaults.
-    pub fn is_default(&self) -> bool {
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn is_default(&self) -> bool {
         self == &Placement::default()
     }
 }

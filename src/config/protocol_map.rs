@@ -26,9 +26,9 @@ pub struct LineMap {
     /// `state` reading).
     pub words: Vec<String>,
     /// For each reading, the words of its states (empty for numbers and flags).
-    pub reading_words: Vec<Vec<String>>,
+    pub(crate) reading_words: Vec<Vec<String>>,
     /// Which readings are flags (written 1 or 0).
-    pub flags: Vec<bool>,
+    pub(crate) flags: Vec<bool>,
 }
 
 /// `[device.line]` as written.
@@ -56,12 +56,12 @@ pub enum RegisterKind {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Scale {
     pub scale: f64,
-    pub offset: f64,
+    pub(crate) offset: f64,
     pub signed: bool,
 }
 
 impl Scale {
-    pub const ONE: Scale = Scale {
+    pub(crate) const ONE: Scale = Scale {
         scale: 1.0,
         offset: 0.0,
         signed: false,
@@ -88,7 +88,7 @@ impl Scale {
 
     /// The raw form of `value`, clamped into the register (device side: a reading
     /// outside what the register holds reads as its end).
-    pub fn raw_clamped(&self, value: f64) -> u16 {
+    pub(crate) fn raw_clamped(&self, value: f64) -> u16 {
         let x = (value - self.offset) / self.scale;
         let x = if self.signed {
             x.clamp(i16::MIN as f64, i16::MAX as f64)
@@ -150,19 +150,19 @@ pub struct ModbusMap {
 
 /// A run of contiguous registers read in one transaction.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Block {
+pub(crate) struct Block {
     pub start: u16,
     /// Indices into [`ModbusMap::fields`].
     pub fields: Vec<usize>,
 }
 
 /// The most registers one read asks for (a Modbus limit).
-pub const MAX_READ: usize = 125;
+pub(crate) const MAX_READ: usize = 125;
 
 impl ModbusMap {
     /// The reads a poll makes: each run of adjacent feedback registers is one read
     /// (a device may refuse a read that spans an unmapped hole, so holes split runs).
-    pub fn read_plan(&self) -> Vec<Block> {
+    pub(crate) fn read_plan(&self) -> Vec<Block> {
         let mut blocks: Vec<Block> = Vec::new();
         for (i, (addr, _)) in self.fields.iter().enumerate() {
             match blocks.last_mut() {
@@ -182,12 +182,12 @@ impl ModbusMap {
     }
 
     /// The feedback field at `addr`, if any.
-    pub fn field_at(&self, addr: u16) -> Option<&Field> {
+    pub(crate) fn field_at(&self, addr: u16) -> Option<&Field> {
         self.fields.iter().find(|(a, _)| *a == addr).map(|(_, f)| f)
     }
 
     /// The state index a code stands for.
-    pub fn state_of_code(&self, code: u16) -> Option<u8> {
+    pub(crate) fn state_of_code(&self, code: u16) -> Option<u8> {
         self.codes.iter().position(|c| *c == code).map(|i| i as u8)
     }
 }
@@ -212,7 +212,7 @@ pub struct ElmMap {
 }
 
 /// The readings an ELM327 can report.
-pub const ELM327_READINGS: [&str; 4] = ["rpm", "speed", "coolant", "running"];
+pub(crate) const ELM327_READINGS: [&str; 4] = ["rpm", "speed", "coolant", "running"];
 
 /// Check and build the wire mapping of `d` (whose wire field is not filled yet).
 pub(super) fn resolve(

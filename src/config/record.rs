@@ -10,9 +10,9 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 /// The smallest file worth rolling to: a few seconds of a busy vehicle.
-pub const MIN_ROLL_SIZE: u64 = 1_000_000;
+pub(crate) const MIN_ROLL_SIZE: u64 = 1_000_000;
 /// The shortest age worth rolling at.
-pub const MIN_ROLL_AGE: Duration = Duration::from_secs(10);
+pub(crate) const MIN_ROLL_AGE: Duration = Duration::from_secs(10);
 
 /// `[record]`.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -22,10 +22,10 @@ pub struct RecordConfig {
     pub dir: PathBuf,
     /// Start a new file once this one holds this many bytes.
     #[serde(default = "default_roll_size", deserialize_with = "size")]
-    pub roll_size: u64,
+    pub(crate) roll_size: u64,
     /// Start a new file once this one is this old.
     #[serde(default = "default_roll_age", deserialize_with = "super::duration")]
-    pub roll_age: Duration,
+    pub(crate) roll_age: Duration,
     /// Keep at most this many files of this vehicle in `dir`, deleting the oldest
     /// (0: keep every file).
     #[serde(default)]
@@ -81,7 +81,7 @@ impl RecordConfig {
 }
 
 /// A size written as `"100 MB"`, `"512KiB"`, `"1 GiB"` (or a number of bytes).
-pub fn parse_size(s: &str) -> Result<u64, String> {
+pub(crate) fn parse_size(s: &str) -> Result<u64, String> {
     s.trim()
         .parse::<bytesize::ByteSize>()
         .map(|b| b.as_u64())

@@ -47,7 +47,7 @@ pub enum Motion {
 /// The declared response of one setpoint actuator, in its units.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Response {
-    pub motion: Motion,
+    pub(crate) motion: Motion,
     /// One standard deviation of a reading.
     pub noise: f64,
     /// Adaptive polling polls before the estimate's σ passes this; a reading further
@@ -55,7 +55,7 @@ pub struct Response {
     pub tolerance: f64,
     /// Within this of its command the device is there (end stops, a drive's own
     /// dead band).
-    pub deadband: f64,
+    pub(crate) deadband: f64,
     /// Moved this far in a way its command cannot explain (away from its command) …
     pub override_threshold: f64,
     /// … for longer than this, the device is in a driver's hands: `override`.
@@ -65,7 +65,7 @@ pub struct Response {
 impl Response {
     /// How far toward its command a device that starts `gap` away gets in `elapsed`,
     /// answering as declared.
-    pub fn progress(&self, gap: f64, elapsed: Duration) -> f64 {
+    pub(crate) fn progress(&self, gap: f64, elapsed: Duration) -> f64 {
         let gap = gap.abs();
         match self.motion {
             Motion::Rate(r) => (r * elapsed.as_secs_f64()).min(gap),
@@ -75,10 +75,10 @@ impl Response {
 }
 
 /// Defaults, as fractions of the range's width.
-pub const NOISE_SHARE: f64 = 0.001;
-pub const TOLERANCE_SHARE: f64 = 0.01;
-pub const DEADBAND_SHARE: f64 = 0.01;
-pub const OVERRIDE_SHARE: f64 = 0.1;
+pub(crate) const NOISE_SHARE: f64 = 0.001;
+pub(crate) const TOLERANCE_SHARE: f64 = 0.01;
+pub(crate) const DEADBAND_SHARE: f64 = 0.01;
+pub(crate) const OVERRIDE_SHARE: f64 = 0.1;
 
 /// `[device.response]` as written.
 #[derive(Clone, Debug, Default, PartialEq, Deserialize)]

@@ -62,7 +62,7 @@ impl Role {
     }
 
     /// Older names still understood (keymaps written for Alice's device names).
-    pub fn from_word(w: &str) -> Option<Role> {
+    pub(crate) fn from_word(w: &str) -> Option<Role> {
         match w {
             "steer" => Some(Role::Steering),
             "gas" => Some(Role::Throttle),
@@ -75,7 +75,7 @@ impl Role {
 /// The pairs of roles one device may play, each with the reason it may; every other
 /// pair on one device is refused ([`Role::shares_with`]). The guide's table
 /// (docs/vehicles.md) is generated from this one ([`sharing_markdown`]).
-pub const SHARED: [(Role, Role, &str); 2] = [
+pub(crate) const SHARED: [(Role, Role, &str); 2] = [
     (
         Role::Gear,
         Role::Starter,
@@ -90,7 +90,7 @@ pub const SHARED: [(Role, Role, &str); 2] = [
 
 impl Role {
     /// Why `self` and `other` may be bound to one device; `None`: they may not.
-    pub fn shares_with(self, other: Role) -> Option<&'static str> {
+    pub(crate) fn shares_with(self, other: Role) -> Option<&'static str> {
         SHARED
             .iter()
             .find(|(a, b, _)| [*a, *b] == [self, other] || [*b, *a] == [self, other])
@@ -99,7 +99,8 @@ impl Role {
 }
 
 /// The guide's table (docs/vehicles.md) of the roles that may share a device.
-pub fn sharing_markdown() -> String {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn sharing_markdown() -> String {
     let mut out = String::from("| roles | may share one device because |\n|---|---|\n");
     for (a, b, why) in SHARED {
         out.push_str(&format!("| `{a}`, `{b}` | {why} |\n"));
@@ -144,10 +145,6 @@ impl GearBinding {
     /// A state in which the engine drives the wheels.
     pub fn drives(&self, state: u8) -> bool {
         self.forward.contains(&state) || self.reverse.contains(&state)
-    }
-
-    pub fn is_reverse(&self, state: u8) -> bool {
-        self.reverse.contains(&state)
     }
 }
 
@@ -209,19 +206,19 @@ impl Bindings {
         }
     }
 
-    pub fn is_bound(&self, role: Role) -> bool {
+    pub(crate) fn is_bound(&self, role: Role) -> bool {
         self.device(role).is_some()
     }
 
     /// The roles an actuator plays (commands to it are checked by their rules).
-    pub fn roles_of(&self, d: DeviceId) -> impl Iterator<Item = Role> + '_ {
+    pub(crate) fn roles_of(&self, d: DeviceId) -> impl Iterator<Item = Role> + '_ {
         Role::ALL
             .into_iter()
             .filter(move |r| self.actuator(*r) == Some(d))
     }
 
     /// `accel` exists when throttle and brake are bound.
-    pub fn has_accel(&self) -> bool {
+    pub(crate) fn has_accel(&self) -> bool {
         self.throttle.is_some() && self.brake.is_some()
     }
 }

@@ -9,11 +9,11 @@ use super::limits::{self, Violation};
 use serde::Deserialize;
 
 /// The router an rmw_zenoh session connects to by default.
-pub const DEFAULT_CONNECT: &str = "tcp/localhost:7447";
+pub(crate) const DEFAULT_CONNECT: &str = "tcp/localhost:7447";
 /// Where an rmw_zenoh session listens by default (any free port, this host only).
-pub const DEFAULT_LISTEN: &str = "tcp/localhost:0";
+pub(crate) const DEFAULT_LISTEN: &str = "tcp/localhost:0";
 /// The highest ROS domain id (ROS_DOMAIN_ID) ROS 2 allows.
-pub const MAX_DOMAIN_ID: u32 = 232;
+pub(crate) const MAX_DOMAIN_ID: u32 = 232;
 
 /// How the Zenoh session takes part in the network.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
@@ -40,7 +40,7 @@ impl Mode {
 #[serde(deny_unknown_fields, default)]
 pub struct Ros2Config {
     /// The ROS domain (ROS_DOMAIN_ID): graphs of different domains never meet.
-    pub domain_id: u32,
+    pub(crate) domain_id: u32,
     /// The namespace of every topic adrive publishes and subscribes to, `/alice`; `/`
     /// for none. Empty: `/<vehicle name in lower case>`.
     pub namespace: String,
@@ -51,18 +51,18 @@ pub struct Ros2Config {
     pub listen: Vec<String>,
     /// Discover peers on the local network by UDP multicast (off, as in rmw_zenoh:
     /// discovery goes through the router).
-    pub multicast_scouting: bool,
+    pub(crate) multicast_scouting: bool,
     /// Reports (steering, velocity, gear, …) published a second.
-    pub report_rate: f64,
+    pub(crate) report_rate: f64,
     /// Radians of tire angle per unit of the steering device, for the steering report;
     /// negative when the device's positive is to the right (ROS turns left positive).
     pub tire_angle_per_unit: f64,
     /// A state device with the states `off`, `left` and `right` that the turn
     /// indicator commands drive (none: the vehicle has none).
-    pub turn_indicators: Option<String>,
+    pub(crate) turn_indicators: Option<String>,
     /// A state device with the states `off` and `on` that the hazard light commands
     /// drive (none: the vehicle has none).
-    pub hazard_lights: Option<String>,
+    pub(crate) hazard_lights: Option<String>,
 }
 
 impl Default for Ros2Config {
@@ -83,14 +83,15 @@ impl Default for Ros2Config {
 }
 
 /// The states a turn-indicator device must have, and a hazard-light device.
-pub const TURN_STATES: [&str; 3] = ["off", "left", "right"];
-pub const HAZARD_STATES: [&str; 2] = ["off", "on"];
+pub(crate) const TURN_STATES: [&str; 3] = ["off", "left", "right"];
+pub(crate) const HAZARD_STATES: [&str; 2] = ["off", "on"];
 
 impl Ros2Config {
     /// The namespace in use: the one written, else `/<vehicle name in lower case>`
     /// (characters ROS names do not take become `_`). Always starts with `/`, never
     /// ends with one (except `/` itself).
-    pub fn namespace_for(&self, vehicle: &str) -> String {
+    #[cfg_attr(not(feature = "ros2"), allow(dead_code))]
+    pub(crate) fn namespace_for(&self, vehicle: &str) -> String {
         let raw = if self.namespace.is_empty() {
             let name: String = vehicle
                 .to_lowercase()

@@ -69,18 +69,18 @@ pub struct Frame {
     pub trace: Vec<TraceEntry>,
     /// The bench device's histogram (receipt → first byte for an actuator, the status
     /// transaction for a sensor): (upper edge µs, count).
-    pub buckets: Vec<(f64, u64)>,
+    pub(crate) buckets: Vec<(f64, u64)>,
     /// Fault injection is available (the devices are simulated in this process).
     pub can_inject: bool,
     /// A replay: nothing can be sent.
-    pub read_only: bool,
+    pub(crate) read_only: bool,
     /// The simulated vehicle's own state (e-stop, engine, the bench device's drive).
     pub sim_vehicle: Option<String>,
     /// The faults injected into each simulated device, by device (`--sim` only).
     pub sim_faults: Vec<Option<SimFaults>>,
     /// An attached console: the source it is to the intake (`console #2`), to tell
     /// whether it commands or watches. `None` in the embedded console.
-    pub you: Option<String>,
+    pub(crate) you: Option<String>,
 }
 
 impl std::ops::Deref for Frame {
@@ -106,7 +106,7 @@ impl Frame {
     }
 
     /// The device bound to a role.
-    pub fn bound_id(&self, role: crate::config::Role) -> Option<DeviceId> {
+    pub(crate) fn bound_id(&self, role: crate::config::Role) -> Option<DeviceId> {
         self.snap
             .bound(role.as_str())
             .and_then(|d| self.id_of(&d.name))
@@ -132,7 +132,7 @@ impl Frame {
 
     /// One line per device in the driver's hands: latched, and whether the hand is
     /// still on it.
-    pub fn override_texts(&self) -> Vec<String> {
+    pub(crate) fn override_texts(&self) -> Vec<String> {
         self.snap
             .devices
             .iter()
@@ -151,14 +151,14 @@ impl Frame {
             .collect()
     }
 
-    pub fn sim_of(&self, id: DeviceId) -> Option<&SimFaults> {
+    pub(crate) fn sim_of(&self, id: DeviceId) -> Option<&SimFaults> {
         self.sim_faults.get(id.index()).and_then(Option::as_ref)
     }
 
     /// Every fault to show, in words: the supervisor's (`steer silent 1.5s no status
     /// for …`), then any device the engine marks faulty that the supervisor has not
     /// named yet (`steer faulty: no reply within 200ms`; it notices at its next turn).
-    pub fn fault_texts(&self) -> Vec<String> {
+    pub(crate) fn fault_texts(&self) -> Vec<String> {
         let sup = &self.snap.supervisor;
         let mut out: Vec<String> = sup
             .faults
@@ -184,7 +184,7 @@ impl Frame {
 
     /// How many lines the supervisor has to show under a small screen's panels: the
     /// recovery in progress, then one per fault.
-    pub fn strip_len(&self) -> usize {
+    pub(crate) fn strip_len(&self) -> usize {
         usize::from(self.snap.supervisor.recovery.is_some()) + self.fault_texts().len()
     }
 }
@@ -343,7 +343,7 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
 }
 
 /// A console edit of a device's settings, checked as the vehicle file is, and logged.
-pub fn change_settings(
+pub(crate) fn change_settings(
     vehicle: &crate::vehicle::Vehicle,
     id: DeviceId,
     change: impl FnOnce(&mut crate::config::DeviceConfig),

@@ -22,9 +22,9 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 /// The compiled-in keymap.
-pub const DEFAULT_TOML: &str = include_str!("../../keymaps/default.toml");
+pub(crate) const DEFAULT_TOML: &str = include_str!("../../keymaps/default.toml");
 /// The name errors in the compiled-in keymap are reported under.
-pub const DEFAULT_PATH: &str = "keymaps/default.toml";
+pub(crate) const DEFAULT_PATH: &str = "keymaps/default.toml";
 
 /// One key: a code plus modifiers. Written `g`, `G`, `?`, `<C-c>`, `<Up>`, `<Space>`,
 /// `<Enter>`, `<Esc>`, `<A-x>`, `<S-Tab>`, `<F1>`, `<lt>` (a literal `<`).
@@ -32,7 +32,7 @@ pub const DEFAULT_PATH: &str = "keymaps/default.toml";
 pub struct Key {
     pub code: KeyCode,
     pub ctrl: bool,
-    pub alt: bool,
+    pub(crate) alt: bool,
     pub shift: bool,
 }
 
@@ -57,7 +57,7 @@ const NAMED: &[(&str, KeyCode)] = &[
 ];
 
 /// The expected form of a key, for error messages.
-pub const KEY_FORM: &str = "a single character (g, G, ?) or <Name> with Name one of \
+pub(crate) const KEY_FORM: &str = "a single character (g, G, ?) or <Name> with Name one of \
 Enter, Esc, Tab, BackTab, Backspace, Delete, Insert, Home, End, PageUp, PageDown, Up, \
 Down, Left, Right, Space, lt, F1…F12 or a character, optionally after C- (Ctrl), A- (Alt), \
 S- (Shift), e.g. <C-c>";
@@ -83,7 +83,7 @@ impl Key {
 
     /// The key of a terminal event. A shifted character arrives as its capital (or
     /// its symbol), so Shift is dropped for characters; `<S-Tab>` is `BackTab`.
-    pub fn from_event(e: &KeyEvent) -> Key {
+    pub(crate) fn from_event(e: &KeyEvent) -> Key {
         let m = e.modifiers;
         let is_char = matches!(e.code, KeyCode::Char(_) | KeyCode::BackTab);
         Key {
@@ -249,7 +249,8 @@ impl fmt::Display for Mode {
 }
 
 /// The roles that bind an actuator, which keys may name.
-pub const ACTUATOR_ROLES: [Role; 4] = [Role::Steering, Role::Throttle, Role::Brake, Role::Gear];
+pub(crate) const ACTUATOR_ROLES: [Role; 4] =
+    [Role::Steering, Role::Throttle, Role::Brake, Role::Gear];
 
 /// What a field edit (or a shortcut that starts one) is about.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -361,12 +362,12 @@ pub enum SimAction {
 }
 
 /// How late a "slow" simulated device replies.
-pub const SIM_SLOW: std::time::Duration = std::time::Duration::from_millis(150);
+pub(crate) const SIM_SLOW: std::time::Duration = std::time::Duration::from_millis(150);
 /// How long a "vanished" simulated device stays away.
-pub const SIM_VANISH: std::time::Duration = std::time::Duration::from_millis(2000);
+pub(crate) const SIM_VANISH: std::time::Duration = std::time::Duration::from_millis(2000);
 
 /// The valid `run` values, for error messages.
-pub const ACTION_FORM: &str = "quit, help, back, up, down, left, right, edit, \
+pub(crate) const ACTION_FORM: &str = "quit, help, back, up, down, left, right, edit, \
 edit steering|throttle|brake|gear|accel (also steer, gas, trans), commit, cancel, \
 backspace, clear, wake, wake steering|throttle|brake|gear, \
 wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
@@ -685,7 +686,7 @@ impl Keymap {
     /// What `adrive` runs with: `--keymap FILE` if given, else the user's
     /// `$XDG_CONFIG_HOME/adrive/keymap.toml` (or `~/.config/adrive/keymap.toml`) if it
     /// exists, merged over the default.
-    pub fn for_run(flag: Option<&Path>) -> Result<Keymap, KeymapError> {
+    pub(crate) fn for_run(flag: Option<&Path>) -> Result<Keymap, KeymapError> {
         match flag.map(Path::to_path_buf).or_else(user_keymap_path) {
             Some(p) if flag.is_some() || p.exists() => Keymap::load(&p),
             _ => Ok(Keymap::default_map()),
@@ -713,7 +714,7 @@ impl Keymap {
 }
 
 /// The user's keymap file location.
-pub fn user_keymap_path() -> Option<PathBuf> {
+pub(crate) fn user_keymap_path() -> Option<PathBuf> {
     std::env::var_os("XDG_CONFIG_HOME")
         .filter(|v| !v.is_empty())
         .map(PathBuf::from)

@@ -15,18 +15,18 @@
 use ratatui::layout::{Constraint, Layout, Rect};
 
 /// A device panel's height on a small screen: the title and five lines.
-pub const PANEL: u16 = 6;
+pub(crate) const PANEL: u16 = 6;
 /// A bordered device panel's height on a large screen: its border and nine lines, the
 /// last the measured value beside the estimate.
-pub const BIG_PANEL: u16 = 11;
+pub(crate) const BIG_PANEL: u16 = 11;
 /// The width of one column of the device list.
-pub const LIST_COL: u16 = 40;
+pub(crate) const LIST_COL: u16 = 40;
 /// The supervisory lines (or teleop's) under the devices on a small screen.
-pub const HEAD: u16 = 2;
+pub(crate) const HEAD: u16 = 2;
 /// The fewest lines the panels' window keeps under the list.
-pub const MIN_WINDOW: u16 = 1;
+pub(crate) const MIN_WINDOW: u16 = 1;
 /// The most lines the supervisor's strip takes.
-pub const MAX_STRIP: u16 = 4;
+pub(crate) const MAX_STRIP: u16 = 4;
 /// The smallest screen the console draws (80×24, less a tmux status line and one).
 pub const MIN_WIDTH: u16 = 80;
 pub const MIN_HEIGHT: u16 = 22;
@@ -45,7 +45,7 @@ pub fn split(area: Rect) -> [Rect; 4] {
 }
 
 /// Columns of the grid of device panels: two, three from 120 columns.
-pub fn grid_cols(width: u16) -> u16 {
+pub(crate) fn grid_cols(width: u16) -> u16 {
     if width >= 120 {
         3
     } else {
@@ -68,25 +68,26 @@ pub struct Many {
     /// The list: a header line, then `rows` lines of `cols` devices each (column by
     /// column), from device `first`.
     pub list: Rect,
-    pub list_cols: u16,
-    pub list_rows: u16,
-    pub list_first: usize,
+    pub(crate) list_cols: u16,
+    pub(crate) list_rows: u16,
+    pub(crate) list_first: usize,
     /// The panels' window: `cols` panels a row, `per_page` devices from device
     /// `first`; or, when `packed`, the device `first` alone across the window.
     pub window: Rect,
     pub cols: u16,
-    pub per_page: usize,
+    pub(crate) per_page: usize,
     pub first: usize,
     pub packed: bool,
     /// Everything under the window: teleop or the supervisory lines, the supervisor's
     /// strip (`strip_h` lines) and the log.
     pub below: Rect,
-    pub strip_h: u16,
+    pub(crate) strip_h: u16,
 }
 
 impl Many {
     /// How many devices the list shows at once.
-    pub fn list_page(&self) -> usize {
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn list_page(&self) -> usize {
         usize::from(self.list_rows) * usize::from(self.list_cols)
     }
 }

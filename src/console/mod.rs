@@ -45,18 +45,18 @@ use theme::Theme;
 use update::Flow;
 
 /// The console's refresh period.
-pub const TICK: Duration = Duration::from_millis(100);
+pub(crate) const TICK: Duration = Duration::from_millis(100);
 /// A loop turn longer than this is logged.
 const TURN_BUDGET: Duration = Duration::from_millis(50);
 
 /// How the console runs.
-pub struct Options {
+pub(crate) struct Options {
     pub keymap: Keymap,
     pub deadman: Duration,
     pub sources: Sources,
     /// Fault injection for tests (`--inject-panic main`): the console's loop panics
     /// this long after it starts, with the terminal in its hands.
-    pub panic_after: Option<Duration>,
+    pub(crate) panic_after: Option<Duration>,
 }
 
 impl Default for Options {
@@ -127,7 +127,11 @@ pub(crate) fn spawn_reader(
 /// terminal is restored before this returns; a terminal that dies (it cannot be
 /// drawn on, or its input hung up) ends the console with [`Exit::HangUp`], and the
 /// caller brings the vehicle to the safe state as for SIGHUP.
-pub fn run_with(gate: &Gate, exits: &Receiver<Exit>, opts: Options) -> std::io::Result<Exit> {
+pub(crate) fn run_with(
+    gate: &Gate,
+    exits: &Receiver<Exit>,
+    opts: Options,
+) -> std::io::Result<Exit> {
     let live = Live {
         gate,
         sources: &opts.sources,

@@ -14,11 +14,11 @@ use ratatui::layout::Rect;
 use std::time::{Duration, Instant};
 
 /// How long `e` waits for the steering drive to acknowledge its home command.
-pub const HOME_WAIT: Duration = Duration::from_secs(3);
+pub(crate) const HOME_WAIT: Duration = Duration::from_secs(3);
 /// Teleop steps per key.
-pub const STEER_STEP: f64 = 0.05;
-pub const GAS_STEP: f64 = 0.1;
-pub const BRAKE_STEP: f64 = 0.25;
+pub(crate) const STEER_STEP: f64 = 0.05;
+pub(crate) const GAS_STEP: f64 = 0.1;
+pub(crate) const BRAKE_STEP: f64 = 0.25;
 
 /// A field the cursor can stand on (the Sparrow screen's editable entries).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -106,9 +106,9 @@ pub struct Edit {
 pub struct Find {
     pub query: String,
     /// Where the cursor was when the prompt opened: cancelling goes back there.
-    pub from_cursor: usize,
+    pub(crate) from_cursor: usize,
     /// The device on the bench when the prompt opened.
-    pub from_bench: DeviceId,
+    pub(crate) from_bench: DeviceId,
 }
 
 /// A question waiting for yes or no.
@@ -152,7 +152,7 @@ pub struct Teleop {
     pub accel: f64,
     pub deadman: Duration,
     /// The last teleop key; `None` until the first one (the deadman is idle).
-    pub last_key: Option<Instant>,
+    pub(crate) last_key: Option<Instant>,
     pub tripped: bool,
 }
 
@@ -197,7 +197,7 @@ pub struct Model {
     pub theme: Theme,
     pub mode: Mode,
     /// Where `back`/`cancel` returns to from edit, confirm and help.
-    pub back_to: Mode,
+    pub(crate) back_to: Mode,
     pub snap: Frame,
     /// Index into [`Model::fields`].
     pub cursor: usize,
@@ -209,25 +209,25 @@ pub struct Model {
     pub bench: DeviceId,
     /// Its last seconds, for the bench chart (fed by each tick on the bench).
     pub trail: Trail,
-    pub help_scroll: u16,
+    pub(crate) help_scroll: u16,
     /// The last accel the console sent.
     pub accel: Option<f64>,
     /// The time of the last tick or key (the view's "now").
     pub now: Instant,
     /// `e` sent steering a home command at this time; once the drive acknowledges
     /// it, the console commands it to hold where it stopped.
-    pub steer_reset: Option<Instant>,
+    pub(crate) steer_reset: Option<Instant>,
     /// The supervisor's last recovery outcome already shown as a message.
-    pub outcome_seen: Option<String>,
+    pub(crate) outcome_seen: Option<String>,
     /// How many asks of other sources the intake had refused at the last tick (a new
     /// one is shown as a message).
-    pub refused_seen: u64,
+    pub(crate) refused_seen: u64,
     /// The terminal's size at the last draw: what a page of devices is worked out from.
     pub screen: Rect,
     /// The name prompt, while it is open.
     pub find: Option<Find>,
     /// The last name looked for, which the next and previous match keys look for again.
-    pub last_find: Option<String>,
+    pub(crate) last_find: Option<String>,
 }
 
 impl Model {
@@ -280,7 +280,7 @@ impl Model {
             .unwrap_or(Field::Accel)
     }
 
-    pub fn select(&mut self, field: Field) -> bool {
+    pub(crate) fn select(&mut self, field: Field) -> bool {
         match self.fields().iter().position(|f| *f == field) {
             Some(i) => {
                 self.cursor = i;
@@ -300,7 +300,7 @@ impl Model {
 
     /// The device the name prompt and the match keys move: the bench's on the bench,
     /// else the one under the cursor.
-    pub fn found_device(&self) -> usize {
+    pub(crate) fn found_device(&self) -> usize {
         if self.in_bench() {
             self.bench.index()
         } else {
@@ -309,7 +309,7 @@ impl Model {
     }
 
     /// How the main screen lays the devices out in `body`.
-    pub fn layout_in(&self, body: Rect) -> Devices {
+    pub(crate) fn layout_in(&self, body: Rect) -> Devices {
         layout::devices(
             self.snap.devices.len(),
             body,
@@ -334,7 +334,7 @@ impl Model {
 
     /// Put the cursor on device `id`'s first field (its command, a sensor's
     /// `st delay`).
-    pub fn select_device(&mut self, id: DeviceId) -> bool {
+    pub(crate) fn select_device(&mut self, id: DeviceId) -> bool {
         match self.snap.at(id).map(|d| Field::of(id, d)[0]) {
             Some(f) => self.select(f),
             None => false,
@@ -342,7 +342,7 @@ impl Model {
     }
 
     /// Move the cursor to the neighbouring device (`step` ±1), same kind of field.
-    pub fn move_device(&mut self, step: isize) {
+    pub(crate) fn move_device(&mut self, step: isize) {
         let here = self.field();
         let mut stops: Vec<Option<DeviceId>> = (0..self.snap.devices.len())
             .map(|i| Some(DeviceId(i as u16)))
@@ -377,12 +377,12 @@ impl Model {
     }
 
     /// The device the bench shows, if it is in the vehicle.
-    pub fn bench_device(&self) -> Option<&DeviceView> {
+    pub(crate) fn bench_device(&self) -> Option<&DeviceView> {
         self.snap.at(self.bench)
     }
 
     /// Whether the bench view is on screen (possibly under a dialog).
-    pub fn in_bench(&self) -> bool {
+    pub(crate) fn in_bench(&self) -> bool {
         self.mode == Mode::Bench
             || (matches!(
                 self.mode,
@@ -391,7 +391,7 @@ impl Model {
     }
 
     /// Whether the teleop view is on screen (possibly under a dialog).
-    pub fn in_teleop(&self) -> bool {
+    pub(crate) fn in_teleop(&self) -> bool {
         self.mode == Mode::Teleop
             || (matches!(self.mode, Mode::Help | Mode::Confirm) && self.back_to == Mode::Teleop)
     }

@@ -32,9 +32,9 @@ use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant, UNIX_EPOCH};
 
 /// Speeds the player steps through with `-` and `+`.
-pub const SPEEDS: [f64; 9] = [0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+pub(crate) const SPEEDS: [f64; 9] = [0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 /// `[` and `]` seek this far; `{` and `}` a minute.
-pub const SEEK: Duration = Duration::from_secs(10);
+pub(crate) const SEEK: Duration = Duration::from_secs(10);
 /// Log lines the replayed log pane holds, as the live one does.
 const LOG_KEEP: usize = crate::logging::ring::KEEP;
 
@@ -137,7 +137,7 @@ impl Player {
         self.pos
     }
 
-    pub fn is_playing(&self) -> bool {
+    pub(crate) fn is_playing(&self) -> bool {
         self.playing
     }
 
@@ -171,7 +171,7 @@ impl Player {
 
     /// Move the play on to `now`; returns the snapshots passed (to broadcast), the
     /// one now shown last. At the end the play pauses.
-    pub fn advance(&mut self, now: Instant) -> std::ops::Range<usize> {
+    pub(crate) fn advance(&mut self, now: Instant) -> std::ops::Range<usize> {
         if !self.playing {
             return self.pos..self.pos;
         }
@@ -189,7 +189,7 @@ impl Player {
     }
 
     /// Pause, or play on from here (from the start when at the end).
-    pub fn toggle(&mut self, now: Instant) {
+    pub(crate) fn toggle(&mut self, now: Instant) {
         if !self.playing && self.pos + 1 == self.frames.len() {
             self.pos = 0;
         }
@@ -205,7 +205,7 @@ impl Player {
     }
 
     /// Go `by` seconds on (or back): to the last snapshot at or before that time.
-    pub fn seek(&mut self, by: f64, now: Instant) {
+    pub(crate) fn seek(&mut self, by: f64, now: Instant) {
         let target = (self.time() as f64 + by * 1e9).max(0.0) as u64;
         self.pos = match self.frames.partition_point(|(t, _)| *t <= target) {
             0 => 0,
@@ -307,7 +307,7 @@ impl Player {
 
 /// The console's [`Controls`] over a recording: frames from the [`Player`], every
 /// change refused.
-pub struct Replay<'a> {
+pub(crate) struct Replay<'a> {
     pub player: &'a Player,
 }
 
@@ -376,7 +376,7 @@ pub enum Key {
 }
 
 /// The replay key `k` is, if any.
-pub fn replay_key(k: &KeyEvent) -> Option<Key> {
+pub(crate) fn replay_key(k: &KeyEvent) -> Option<Key> {
     if k.kind == KeyEventKind::Release || k.modifiers.contains(KeyModifiers::CONTROL) {
         return None;
     }

@@ -43,10 +43,10 @@ use std::time::Duration;
 
 /// How long the input thread lets crossterm look for more events once the keys
 /// waiting are parsed (its `use-dev-tty` source reads nothing with a zero timeout).
-pub const DRAIN: Duration = Duration::from_millis(1);
+pub(crate) const DRAIN: Duration = Duration::from_millis(1);
 
 /// The ratatui terminal the console draws on.
-pub type Term = ratatui::Terminal<CrosstermBackend<Output>>;
+pub(crate) type Term = ratatui::Terminal<CrosstermBackend<Output>>;
 
 /// Raw mode and the alternate screen are on (set by [`enter`], cleared by [`restore`]).
 static ENTERED: AtomicBool = AtomicBool::new(false);
@@ -90,7 +90,7 @@ impl Write for Output {
 /// be a terminal. Checked before anything starts, so that `adrive < /dev/null` or
 /// `ssh host adrive` (no `-t`: no terminal) is refused with a way forward instead of
 /// starting the engine and failing inside crossterm.
-pub fn check_standard_streams() -> Result<(), String> {
+pub(crate) fn check_standard_streams() -> Result<(), String> {
     let which = match (io::stdin().is_terminal(), io::stdout().is_terminal()) {
         (true, true) => return Ok(()),
         (false, false) => "standard input and output are not one",
@@ -105,14 +105,14 @@ pub fn check_standard_streams() -> Result<(), String> {
 
 /// The terminal in the console's hands: raw mode and the alternate screen until it
 /// is dropped, on every way out, unwinding included.
-pub struct Screen {
+pub(crate) struct Screen {
     pub terminal: Term,
     dead: Arc<AtomicBool>,
 }
 
 impl Screen {
     /// A write to the terminal failed: it is gone.
-    pub fn is_dead(&self) -> bool {
+    pub(crate) fn is_dead(&self) -> bool {
         self.dead.load(SeqCst)
     }
 }
@@ -131,7 +131,7 @@ impl Drop for Screen {
 /// Take the terminal over: raw mode, the alternate screen, and a panic hook (once)
 /// that puts it back before the panic is reported, so the message lands on the normal
 /// screen.
-pub fn enter() -> io::Result<Screen> {
+pub(crate) fn enter() -> io::Result<Screen> {
     PANIC_HOOK.call_once(|| {
         let previous = std::panic::take_hook();
         std::panic::set_hook(Box::new(move |info| {
@@ -191,7 +191,7 @@ pub enum Input {
 
 /// The terminal the keys come from: the one crossterm reads, standard input when it
 /// is a terminal, else `/dev/tty`.
-pub struct Keyboard {
+pub(crate) struct Keyboard {
     tty: Option<OwnedFd>,
 }
 

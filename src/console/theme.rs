@@ -18,7 +18,7 @@ impl Default for Theme {
 
 impl Theme {
     /// Colour unless `NO_COLOR` is set to a non-empty value (no-color.org).
-    pub fn from_env() -> Theme {
+    pub(crate) fn from_env() -> Theme {
         Theme {
             color: std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty()),
         }
@@ -54,7 +54,7 @@ impl Theme {
         self.fg(Color::Green)
     }
 
-    pub fn warn(&self) -> Style {
+    pub(crate) fn warn(&self) -> Style {
         self.fg(Color::Yellow).add_modifier(Modifier::BOLD)
     }
 
@@ -78,7 +78,7 @@ impl Theme {
     }
 
     /// A field being edited.
-    pub fn editing(&self) -> Style {
+    pub(crate) fn editing(&self) -> Style {
         self.fg(Color::Yellow)
             .add_modifier(Modifier::UNDERLINED | Modifier::BOLD)
     }

@@ -10,7 +10,7 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 /// How far back the chart looks.
-pub const WINDOW: Duration = Duration::from_secs(10);
+pub(crate) const WINDOW: Duration = Duration::from_secs(10);
 
 /// One instant of one device, in its units (`None`: not known then).
 #[derive(Clone, Copy, Debug, PartialEq)]

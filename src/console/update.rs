@@ -241,7 +241,7 @@ fn current_text(m: &Model, f: Field) -> String {
 }
 
 /// A duration as the console writes it: whole milliseconds.
-pub fn fmt_ms(d: Duration) -> String {
+pub(crate) fn fmt_ms(d: Duration) -> String {
     format!("{}ms", d.as_millis())
 }
 
@@ -650,7 +650,7 @@ fn follow_steer_reset(m: &mut Model, c: &dyn Controls, now: Instant) {
 }
 
 /// The simulator line a bench key means for device `id`, from the faults it has now.
-pub fn sim_line(m: &Model, what: SimAction, id: DeviceId) -> String {
+pub(crate) fn sim_line(m: &Model, what: SimAction, id: DeviceId) -> String {
     let f = m.snap.sim_of(id).cloned().unwrap_or_default();
     let name = name_of(m, id);
     let on = |b: bool| if b { "off" } else { "on" };

@@ -27,13 +27,13 @@ use std::io::Write;
 use std::time::Duration;
 
 /// Longest line either side sends.
-pub const MAX_LINE: usize = 128;
+pub(crate) const MAX_LINE: usize = 128;
 /// The status request.
-pub const POLL: &[u8] = b"?\n";
+pub(crate) const POLL: &[u8] = b"?\n";
 
 /// Encode a command into `out` (no allocation); returns the length. A state goes out
 /// as its word.
-pub fn encode_command(command: Command, map: &LineMap, out: &mut [u8; 48]) -> usize {
+pub(crate) fn encode_command(command: Command, map: &LineMap, out: &mut [u8; 48]) -> usize {
     let mut cursor = std::io::Cursor::new(&mut out[..]);
     // 48 bytes always hold "! " + a word of at most 24 bytes or a 3-decimal number in
     // −1e6…1e6.
@@ -100,7 +100,7 @@ fn trim_line(line: &[u8]) -> &[u8] {
 }
 
 /// Decode a status reply line (`= k=v …`) by the device's keys.
-pub fn decode_status(line: &[u8], map: &LineMap) -> Result<Reading, String> {
+pub(crate) fn decode_status(line: &[u8], map: &LineMap) -> Result<Reading, String> {
     let text = std::str::from_utf8(trim_line(line)).map_err(|_| "not ASCII".to_string())?;
     let rest = text
         .strip_prefix('=')
@@ -145,7 +145,7 @@ pub fn decode_status(line: &[u8], map: &LineMap) -> Result<Reading, String> {
 }
 
 /// Encode a status reply (device side).
-pub fn encode_status(r: &Reading, map: &LineMap) -> Vec<u8> {
+pub(crate) fn encode_status(r: &Reading, map: &LineMap) -> Vec<u8> {
     let mut s = String::from("=");
     for (i, v) in r.values() {
         let (Some(key), Some(words)) = (map.keys.get(i), map.reading_words.get(i)) else {
@@ -198,7 +198,7 @@ pub fn decode_request(line: &[u8], map: &LineMap) -> Result<Request, String> {
 }
 
 /// Decode the reply to a command.
-pub fn decode_ack(line: &[u8]) -> Result<(), DriverError> {
+pub(crate) fn decode_ack(line: &[u8]) -> Result<(), DriverError> {
     let l = trim_line(line);
     if l == b"ok" {
         Ok(())
@@ -215,7 +215,7 @@ pub fn decode_ack(line: &[u8]) -> Result<(), DriverError> {
 }
 
 /// Host side of the line protocol.
-pub struct LineDriver {
+pub(crate) struct LineDriver {
     map: LineMap,
     reply_timeout: Duration,
     buf: Vec<u8>,

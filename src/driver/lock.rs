@@ -35,7 +35,7 @@ fn name(proc: &Path, pid: u32) -> String {
 }
 
 /// The other process (pid, name) holding an advisory lock on `path`, by `proc`/locks.
-pub fn locker(path: &Path, proc: &Path) -> Option<(u32, String)> {
+pub(crate) fn locker(path: &Path, proc: &Path) -> Option<(u32, String)> {
     let meta = std::fs::metadata(path).ok()?;
     let me = std::process::id();
     let id = format!(
@@ -55,7 +55,7 @@ pub fn locker(path: &Path, proc: &Path) -> Option<(u32, String)> {
 }
 
 /// Another process (pid, name) that has `path` open, by `proc`/*/fd.
-pub fn holder(path: &Path, proc: &Path) -> Option<(u32, String)> {
+pub(crate) fn holder(path: &Path, proc: &Path) -> Option<(u32, String)> {
     let me = std::process::id();
     let target: PathBuf = std::fs::canonicalize(path).ok()?;
     std::fs::read_dir(proc).ok()?.flatten().find_map(|e| {

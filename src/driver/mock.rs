@@ -31,14 +31,14 @@ pub fn rx(bytes: impl AsRef<[u8]>) -> Step {
 
 /// The scripted link. Written bytes are matched against the script as they arrive.
 #[derive(Debug)]
-pub struct MockLink {
+pub(crate) struct MockLink {
     script: VecDeque<Step>,
     /// Bytes of the current `Tx` step already written.
     written: usize,
     /// Last timeout the driver set, for tests that check it.
     pub timeout: Option<Duration>,
     /// How often the driver discarded pending input.
-    pub discards: usize,
+    pub(crate) discards: usize,
 }
 
 impl MockLink {

@@ -74,7 +74,7 @@ pub enum DriverError {
 
 impl DriverError {
     /// True when the port itself is gone (USB unplugged, pty closed): reopen it.
-    pub fn is_disconnect(&self) -> bool {
+    pub(crate) fn is_disconnect(&self) -> bool {
         match self {
             DriverError::Io(e) => !matches!(
                 e.kind(),
@@ -147,7 +147,7 @@ pub trait Driver: Send {
 /// holds the port no longer than a silent one. (A per-read timeout would not do: each
 /// byte would start the wait afresh.)
 #[derive(Clone, Copy, Debug)]
-pub struct Deadline {
+pub(crate) struct Deadline {
     at: Instant,
     budget: Duration,
 }
@@ -163,7 +163,7 @@ impl Deadline {
     }
 
     /// The time left, or the timeout error once it has passed.
-    pub fn remaining(&self) -> Result<Duration, DriverError> {
+    pub(crate) fn remaining(&self) -> Result<Duration, DriverError> {
         let left = self.at.saturating_duration_since(Instant::now());
         if left.is_zero() {
             Err(self.expired())
@@ -173,12 +173,12 @@ impl Deadline {
     }
 
     /// The error of an exchange that reached its deadline.
-    pub fn expired(&self) -> DriverError {
+    pub(crate) fn expired(&self) -> DriverError {
         DriverError::Timeout(self.budget)
     }
 
     /// Let the link block no longer than the time left (before a write or a read).
-    pub fn arm(&self, link: &mut dyn Link) -> Result<(), DriverError> {
+    pub(crate) fn arm(&self, link: &mut dyn Link) -> Result<(), DriverError> {
         link.set_timeout(self.remaining()?)?;
         Ok(())
     }
@@ -187,7 +187,7 @@ impl Deadline {
 /// One read of at most `buf.len()` bytes that waits no longer than `deadline` allows.
 /// Returns how many bytes arrived (at least one); the deadline passing is
 /// [`DriverError::Timeout`], the port closing is an I/O error.
-pub fn read_some(
+pub(crate) fn read_some(
     link: &mut dyn Link,
     buf: &mut [u8],
     deadline: &Deadline,
@@ -206,7 +206,7 @@ pub fn read_some(
 
 /// Read from `link` until `terminator` arrives (included in `buf`), the reply grows past
 /// `max` bytes, or `deadline` passes.
-pub fn read_until(
+pub(crate) fn read_until(
     link: &mut dyn Link,
     buf: &mut Vec<u8>,
     terminator: u8,
@@ -232,7 +232,7 @@ pub fn read_until(
 /// first (the engine's port makes that a no-op after a clean transaction), and the
 /// reply (read with [`read_until`] or [`read_some`]) must be complete `reply_timeout`
 /// after the request went out.
-pub fn send_request(
+pub(crate) fn send_request(
     link: &mut dyn Link,
     request: &[u8],
     reply_timeout: Duration,

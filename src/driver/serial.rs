@@ -23,7 +23,7 @@ use std::os::fd::{AsFd, AsRawFd, BorrowedFd};
 use std::time::Duration;
 
 /// An open serial port (or pseudo-terminal), non-blocking underneath.
-pub struct SerialLink {
+pub(crate) struct SerialLink {
     port: TTYPort,
     timeout: Duration,
 }

@@ -153,19 +153,6 @@ impl Gate {
         Ok(())
     }
 
-    /// Intake by device name (the console and tools).
-    pub fn submit_named(
-        &self,
-        name: &str,
-        command: Command,
-        received: Instant,
-    ) -> Result<(), Reject> {
-        match self.vehicle().find(name) {
-            Some(d) => self.submit(d.id(), command, received),
-            None => Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
-        }
-    }
-
     /// An admitted command on its way: written from this thread when its port is idle
     /// and the wire check says send exactly it ([`fast`]) — the command thread then
     /// only reads the reply — else stored for the command thread.
@@ -272,7 +259,7 @@ impl Gate {
     /// to send instead), drop it, or first wait for another device — which the
     /// command thread does with [`Gate::wait_for`], without holding its port, and then
     /// asks again with `waited` set (braking then goes out regardless).
-    pub fn check_wire(&self, d: &Device, command: Command, waited: bool) -> WireStep {
+    pub(crate) fn check_wire(&self, d: &Device, command: Command, waited: bool) -> WireStep {
         match self
             .state()
             .wire_verdict(self.vehicle(), d, command, waited)
@@ -340,7 +327,7 @@ impl Gate {
     /// Command the safe state to every actuator there is, bypassing the interlocks
     /// (the safe state is always allowed) — the manual state while a driver has taken
     /// over.
-    pub fn command_safe_state(&self) {
+    pub(crate) fn command_safe_state(&self) {
         let now = Instant::now();
         if !self.overridden().is_empty() {
             // A command that raced the override (checked before it, stored after its

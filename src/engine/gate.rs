@@ -42,7 +42,7 @@ impl Gate {
     }
 
     /// Say which rules are active and what is missing, once, at start.
-    pub fn announce(&self) {
+    pub(crate) fn announce(&self) {
         tracing::info!(
             vehicle = %self.vehicle.name(),
             "interlock rules: {}",
@@ -62,7 +62,7 @@ impl Gate {
     }
 
     /// The interlock rules are on.
-    pub fn interlocks_on(&self) -> bool {
+    pub(crate) fn interlocks_on(&self) -> bool {
         self.state.interlocks_on()
     }
 
@@ -87,7 +87,7 @@ impl Gate {
 
     /// A recovery procedure takes these devices over (intake refuses them) or, with an
     /// empty list, hands everything back.
-    pub fn set_recovering(&self, ids: &[crate::value::DeviceId]) {
+    pub(crate) fn set_recovering(&self, ids: &[crate::value::DeviceId]) {
         self.state.set_recovering(ids)
     }
 

@@ -262,7 +262,7 @@ impl Gate {
 
     /// Switch the interlocks — only from a console that commands the vehicle or may
     /// (nobody else commands), after its confirmation.
-    pub fn set_interlocks(&self, source: Source, on: bool) -> Result<(), Refused> {
+    pub(crate) fn set_interlocks(&self, source: Source, on: bool) -> Result<(), Refused> {
         let mut o = self.state().owner();
         let engaged = self.is_engaged();
         owner::decide(engaged, o.commander, source, Act::Interlocks).map_err(Refused::Owner)?;
@@ -278,7 +278,7 @@ impl Gate {
 
     /// May `source` tune a device now (its delays, threads, a wake, a simulated
     /// fault)? A console, when it commands or nobody does.
-    pub fn tune(&self, source: Source) -> Result<(), Refused> {
+    pub(crate) fn tune(&self, source: Source) -> Result<(), Refused> {
         let o = self.state().owner();
         owner::decide(self.is_engaged(), o.commander, source, Act::Tune)
             .map(drop)
@@ -319,7 +319,7 @@ impl Gate {
     }
 
     /// An ask in words: `steer 0.500`, `accel 0.3`, `engage`.
-    pub fn ask_text(&self, ask: Ask) -> String {
+    pub(crate) fn ask_text(&self, ask: Ask) -> String {
         match ask {
             Ask::Set(id, c) => match self.vehicle().devices().get(id.index()) {
                 Some(d) => format!("{} {}", d.name(), d.config().command_text(c)),

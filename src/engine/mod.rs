@@ -35,7 +35,7 @@
 //! only while all do). docs/architecture.md draws it.
 
 pub mod command;
-pub mod dispatch;
+pub(crate) mod dispatch;
 pub mod fast;
 mod gate;
 pub mod intake;
@@ -64,7 +64,7 @@ pub struct Engine {
 /// Fault injection for tests (`--inject-panic steer/status:3s`): a device's status
 /// thread panics, or ends as if it had returned by mistake, once running this long.
 #[derive(Clone, Debug)]
-pub struct Injected {
+pub(crate) struct Injected {
     /// The thread, `<device>/status`.
     pub thread: String,
     pub after: Duration,
@@ -79,7 +79,10 @@ impl Engine {
     }
 
     /// [`Engine::start`], with a fault injected into one thread.
-    pub fn start_injected(gate: Arc<Gate>, inject: Option<Injected>) -> std::io::Result<Engine> {
+    pub(crate) fn start_injected(
+        gate: Arc<Gate>,
+        inject: Option<Injected>,
+    ) -> std::io::Result<Engine> {
         let mut threads = Owner::default();
         let vehicle = gate.vehicle().clone();
         for i in 0..vehicle.devices().len() {
@@ -120,7 +123,7 @@ impl Engine {
     }
 
     /// Whether each device thread runs.
-    pub fn liveness(&self) -> Liveness {
+    pub(crate) fn liveness(&self) -> Liveness {
         self.threads.liveness()
     }
 

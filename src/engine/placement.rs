@@ -18,7 +18,7 @@ static WARNED_CPUS: AtomicBool = AtomicBool::new(false);
 #[derive(Debug, PartialEq, Eq)]
 pub struct Applied {
     pub pinned: Result<(), String>,
-    pub realtime: Result<(), String>,
+    pub(crate) realtime: Result<(), String>,
 }
 
 /// Place the calling thread. Refusals are logged once and returned, never fatal.

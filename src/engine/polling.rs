@@ -21,7 +21,7 @@ use std::time::Instant;
 
 /// What an adaptive status thread remembers of its last poll.
 #[derive(Clone, Copy, Debug, Default)]
-pub struct Schedule {
+pub(crate) struct Schedule {
     /// When the last poll started.
     last: Option<Instant>,
     /// The command the estimator moved to when the last poll ended.

@@ -40,13 +40,13 @@ pub struct PortHealth {
 }
 
 /// Opens a device's port (a serial port, a pseudo-terminal, a test double).
-pub type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
+pub(crate) type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
 
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
 const BACKOFF_MAX: Duration = Duration::from_secs(5);
 /// After this many failed transactions in a row the port is closed and reopened, and
 /// the driver's `open` runs again (it un-wedges adapters such as the ELM327).
-pub const REOPEN_AFTER: u32 = 5;
+pub(crate) const REOPEN_AFTER: u32 = 5;
 
 #[derive(Default)]
 struct Arb {
@@ -73,7 +73,7 @@ pub struct Port {
 }
 
 /// The port, held by one thread for one or more transactions.
-pub struct PortGuard<'a> {
+pub(crate) struct PortGuard<'a> {
     port: &'a Port,
     conn: Option<MutexGuard<'a, Conn>>,
 }
@@ -114,7 +114,7 @@ impl Port {
     }
 
     /// Take the port for a command. `None` once stopped.
-    pub fn acquire_command(&self) -> Option<PortGuard<'_>> {
+    pub(crate) fn acquire_command(&self) -> Option<PortGuard<'_>> {
         let mut a = self.arb.lock();
         match self.rule {
             PortRule::Paper => self.wait_ticket(&mut a),
@@ -134,7 +134,7 @@ impl Port {
     /// device's driver can write a request now without waiting. Never under the paper's
     /// rule (first come, first served: no command may jump the queue). `None`
     /// otherwise; it never blocks.
-    pub fn try_acquire_idle(&self) -> Option<PortGuard<'_>> {
+    pub(crate) fn try_acquire_idle(&self) -> Option<PortGuard<'_>> {
         if self.rule != PortRule::Priority {
             return None;
         }
@@ -158,7 +158,7 @@ impl Port {
 
     /// Take back the port a [`PortGuard::hand_over`] left held, in the thread that is to
     /// finish its transaction. `None` if nothing was handed over.
-    pub fn resume(&self) -> Option<PortGuard<'_>> {
+    pub(crate) fn resume(&self) -> Option<PortGuard<'_>> {
         let mut a = self.arb.lock();
         if !a.handed {
             return None;
@@ -174,7 +174,11 @@ impl Port {
 
     /// Take the port for a status poll, yielding to commands until `overdue_at`.
     /// `None` once stopped.
-    pub fn acquire_status(&self, overdue_at: Instant, slot: &CommandSlot) -> Option<PortGuard<'_>> {
+    pub(crate) fn acquire_status(
+        &self,
+        overdue_at: Instant,
+        slot: &CommandSlot,
+    ) -> Option<PortGuard<'_>> {
         let mut a = self.arb.lock();
         match self.rule {
             PortRule::Paper => self.wait_ticket(&mut a),
@@ -209,7 +213,7 @@ impl Port {
 
 impl PortGuard<'_> {
     /// Run one transaction; returns its result and when its first byte was written.
-    pub fn transact<T>(
+    pub(crate) fn transact<T>(
         &mut self,
         f: impl FnOnce(&mut dyn Driver, &mut dyn Link) -> Result<T, DriverError>,
     ) -> (Result<T, DriverError>, Option<Instant>) {
@@ -222,7 +226,7 @@ impl PortGuard<'_> {
     /// next) counts a failed half as a failed transaction; after a good one,
     /// [`PortGuard::finish_command`] must follow on this port, in this thread or — after
     /// [`PortGuard::hand_over`] — in the one that resumes it.
-    pub fn send_command(
+    pub(crate) fn send_command(
         &mut self,
         command: crate::value::Command,
     ) -> (Result<(), DriverError>, Option<Instant>) {
@@ -231,13 +235,13 @@ impl PortGuard<'_> {
 
     /// Read and check the reply to the request [`PortGuard::send_command`] wrote: the
     /// second half, which ends the transaction.
-    pub fn finish_command(&mut self) -> Result<(), DriverError> {
+    pub(crate) fn finish_command(&mut self) -> Result<(), DriverError> {
         self.conn.as_mut().expect("held").finish_half()
     }
 
     /// Leave the port held — `busy`, so no status poll and no other command can take it
     /// — while this thread lets go of it, for the thread that calls [`Port::resume`].
-    pub fn hand_over(mut self) {
+    pub(crate) fn hand_over(mut self) {
         drop(self.conn.take());
         self.port.arb.lock().handed = true;
         // Not dropped: the port stays busy until the resumed guard is.
@@ -245,12 +249,8 @@ impl PortGuard<'_> {
     }
 
     /// An overdue status poll is waiting: let it have the port next.
-    pub fn status_waiting(&self) -> bool {
+    pub(crate) fn status_waiting(&self) -> bool {
         self.port.arb.lock().status_urgent
-    }
-
-    pub fn is_connected(&self) -> bool {
-        self.conn.as_ref().expect("held").link.is_some()
     }
 }
 

@@ -62,10 +62,10 @@ pub struct WireState {
     /// or not).
     pub sent: Option<Command>,
     /// The last command the device acknowledged.
-    pub acked: Option<Command>,
+    pub(crate) acked: Option<Command>,
     /// When the device first acknowledged `acked` (a resend of it does not move this):
     /// a status taken after it reports the command's effect.
-    pub acked_at: Option<Instant>,
+    pub(crate) acked_at: Option<Instant>,
 }
 
 impl WireState {
@@ -78,7 +78,7 @@ impl WireState {
     }
 
     /// The set points among [`WireState::values`].
-    pub fn set_points(&self) -> impl Iterator<Item = f64> {
+    pub(crate) fn set_points(&self) -> impl Iterator<Item = f64> {
         self.values().filter_map(Command::set_point)
     }
 
@@ -121,7 +121,7 @@ struct State {
 
 /// How many acknowledged set points [`CommandSlot::acked_span`] looks back over at most
 /// (a third of a second of commands at 100 Hz).
-pub const RECENT: usize = 32;
+pub(crate) const RECENT: usize = 32;
 
 impl State {
     /// See [`CommandSlot::is_idle`].
@@ -162,7 +162,7 @@ impl CommandSlot {
     }
 
     /// Wake the command thread without a new command (it resends the last one).
-    pub fn nudge(&self) {
+    pub(crate) fn nudge(&self) {
         self.state.lock().nudged = true;
         self.cv.notify_all();
     }
@@ -224,7 +224,7 @@ impl CommandSlot {
     /// [`CommandSlot::wait`] with nothing pending and nothing in flight. `command` is in
     /// flight from here on (the wire check of the other devices sees it); the claim ends
     /// with [`CommandSlot::hand_over`] or [`CommandSlot::unclaim`].
-    pub fn claim(&self, command: Command) -> bool {
+    pub(crate) fn claim(&self, command: Command) -> bool {
         let mut s = self.state.lock();
         if s.stopped || !s.idle() {
             return false;
@@ -240,7 +240,7 @@ impl CommandSlot {
 
     /// The claimed command's request went out (or failed to): wake the command thread
     /// to finish its transaction.
-    pub fn hand_over(&self, h: Handover) {
+    pub(crate) fn hand_over(&self, h: Handover) {
         let mut s = self.state.lock();
         debug_assert!(matches!(s.fast, Fast::Claimed { .. }));
         s.fast = Fast::Handed(h);
@@ -253,7 +253,7 @@ impl CommandSlot {
     /// command thread, as if it had been submitted — unless one stored meanwhile (a
     /// safe state) is pending already, which stands: then returns true, the claimed one
     /// superseded. Without, the slot is as before the claim.
-    pub fn unclaim(&self, requeue: Option<Instant>) -> bool {
+    pub(crate) fn unclaim(&self, requeue: Option<Instant>) -> bool {
         let mut s = self.state.lock();
         let Fast::Claimed { command, before } = std::mem::take(&mut s.fast) else {
             debug_assert!(false, "unclaimed without a claim");
@@ -280,20 +280,20 @@ impl CommandSlot {
     }
 
     /// A command waits for the port: pending, or claimed by the fast path.
-    pub fn has_pending(&self) -> bool {
+    pub(crate) fn has_pending(&self) -> bool {
         let s = self.state.lock();
         s.wire.pending.is_some() || matches!(s.fast, Fast::Claimed { .. })
     }
 
     /// Take a command that arrived after the thread woke (while it waited for the port),
     /// so the newest one goes out instead.
-    pub fn take_newer(&self) -> Option<Pending> {
+    pub(crate) fn take_newer(&self) -> Option<Pending> {
         self.state.lock().take()
     }
 
     /// Sleep until `until` unless stopped; a new command may arrive meanwhile and stays
     /// pending. Returns false when stopped.
-    pub fn sleep_until(&self, until: Instant) -> bool {
+    pub(crate) fn sleep_until(&self, until: Instant) -> bool {
         let mut s = self.state.lock();
         while !s.stopped && Instant::now() < until {
             self.cv.wait_until(&mut s, until);
@@ -311,7 +311,7 @@ impl CommandSlot {
     }
 
     /// The command in flight did not go out after all (the wire check dropped it).
-    pub fn drop_flight(&self) {
+    pub(crate) fn drop_flight(&self) {
         let mut s = self.state.lock();
         s.wire.flight = None;
         s.resend = s.wire.sent;
@@ -345,7 +345,7 @@ impl CommandSlot {
     /// The lowest and highest set point acknowledged since `since` (of the last
     /// [`RECENT`]), the last one always included: every command that can have driven
     /// the device meanwhile. `None` before the first.
-    pub fn acked_span(&self, since: Instant) -> Option<[f64; 2]> {
+    pub(crate) fn acked_span(&self, since: Instant) -> Option<[f64; 2]> {
         let s = self.state.lock();
         let (_, last) = *s.recent.back()?;
         let span = s
@@ -357,7 +357,7 @@ impl CommandSlot {
     }
 
     /// What the command thread sends again when nothing new arrives.
-    pub fn resend(&self) -> Option<Command> {
+    pub(crate) fn resend(&self) -> Option<Command> {
         self.state.lock().resend
     }
 
@@ -368,7 +368,7 @@ impl CommandSlot {
 
     /// Wait until `done` holds for the wire state or the deadline passes; returns
     /// whether it held.
-    pub fn wait_wire(&self, done: impl Fn(&WireState) -> bool, deadline: Instant) -> bool {
+    pub(crate) fn wait_wire(&self, done: impl Fn(&WireState) -> bool, deadline: Instant) -> bool {
         let mut s = self.state.lock();
         loop {
             if done(&s.wire) {
@@ -396,7 +396,7 @@ impl CommandSlot {
     }
 
     /// Wait until the device acknowledged a command matching `done`, or the deadline.
-    pub fn wait_executed(&self, done: impl Fn(Command) -> bool, deadline: Instant) -> bool {
+    pub(crate) fn wait_executed(&self, done: impl Fn(Command) -> bool, deadline: Instant) -> bool {
         self.wait_wire(|w| w.acked.is_some_and(&done), deadline)
     }
 

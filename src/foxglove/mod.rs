@@ -40,13 +40,13 @@ use tungstenite::http::{HeaderValue, StatusCode};
 use tungstenite::{Message, WebSocket};
 
 /// Where `--foxglove` listens when given no address: loopback, Foxglove's usual port.
-pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
+pub(crate) const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 /// How often the thread takes what the tap holds (and at most how long it sleeps).
-pub const TURN: Duration = Duration::from_millis(20);
+pub(crate) const TURN: Duration = Duration::from_millis(20);
 /// Messages a viewer's queue holds; past it the oldest is dropped (and counted).
-pub const QUEUE: usize = 1024;
+pub(crate) const QUEUE: usize = 1024;
 /// Viewers served at once; one more is refused.
-pub const MAX_VIEWERS: usize = 16;
+pub(crate) const MAX_VIEWERS: usize = 16;
 /// What a viewer's socket buffers in the kernel: a stalled viewer costs at most this
 /// and its queue.
 const SEND_BUFFER: usize = 256 * 1024;

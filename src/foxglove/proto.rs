@@ -8,14 +8,14 @@ use serde_json::{json, Value};
 
 /// The subprotocol names in use: current Foxglove asks for the first; Lichtblick
 /// before its #819 and many bridges for the second. The wire format is the same.
-pub const SUBPROTOCOLS: [&str; 2] = ["foxglove.sdk.v1", "foxglove.websocket.v1"];
+pub(crate) const SUBPROTOCOLS: [&str; 2] = ["foxglove.sdk.v1", "foxglove.websocket.v1"];
 
 /// Binary opcode of message data.
-pub const MESSAGE_DATA: u8 = 1;
+pub(crate) const MESSAGE_DATA: u8 = 1;
 
 /// The subprotocol to answer with: the first one the client offers that this server
 /// speaks. `offered`: the values of its `Sec-WebSocket-Protocol` headers.
-pub fn choose<'a>(offered: impl IntoIterator<Item = &'a str>) -> Option<&'static str> {
+pub(crate) fn choose<'a>(offered: impl IntoIterator<Item = &'a str>) -> Option<&'static str> {
     offered
         .into_iter()
         .flat_map(|v| v.split(','))
@@ -25,7 +25,7 @@ pub fn choose<'a>(offered: impl IntoIterator<Item = &'a str>) -> Option<&'static
 
 /// `serverInfo`: no capability at all — no client publishing, services, parameters,
 /// time or assets: the live view only shows.
-pub fn server_info(name: &str, session: &str, vehicle: &str) -> String {
+pub(crate) fn server_info(name: &str, session: &str, vehicle: &str) -> String {
     json!({
         "op": "serverInfo",
         "name": name,
@@ -40,7 +40,7 @@ pub fn server_info(name: &str, session: &str, vehicle: &str) -> String {
 pub struct Channel<'a> {
     pub id: u32,
     pub topic: &'a str,
-    pub schema_name: &'a str,
+    pub(crate) schema_name: &'a str,
     /// The JSON Schema, as text.
     pub schema: &'a str,
 }
@@ -70,7 +70,7 @@ pub fn status(level: u8, message: &str) -> String {
 
 /// Message data: opcode 1, the subscription id (u32 LE), the log time (u64 ns LE), the
 /// payload.
-pub fn message_data(subscription: u32, log_time_ns: u64, payload: &[u8]) -> Vec<u8> {
+pub(crate) fn message_data(subscription: u32, log_time_ns: u64, payload: &[u8]) -> Vec<u8> {
     let mut b = Vec::with_capacity(13 + payload.len());
     b.push(MESSAGE_DATA);
     b.extend_from_slice(&subscription.to_le_bytes());
@@ -135,7 +135,7 @@ pub fn parse(text: &str) -> Result<ClientOp, String> {
 /// widest: `string`, else `number`), a nullable `anyOf` is its one alternative, and an
 /// enum of strings is a `string`. Nulls do not reach a viewer ([`without_nulls`]), so
 /// every message still validates against what is advertised.
-pub fn viewer_schema(s: &Value) -> Value {
+pub(crate) fn viewer_schema(s: &Value) -> Value {
     let Some(obj) = s.as_object() else {
         return match s {
             Value::Array(a) => Value::Array(a.iter().map(viewer_schema).collect()),
@@ -222,7 +222,7 @@ pub fn viewer_schema(s: &Value) -> Value {
 
 /// A message as viewers get it: every member whose value is null left out (a viewer
 /// shows nothing for it either way), so that it validates against [`viewer_schema`].
-pub fn without_nulls(payload: &[u8]) -> Vec<u8> {
+pub(crate) fn without_nulls(payload: &[u8]) -> Vec<u8> {
     fn strip(v: &mut Value) {
         match v {
             Value::Object(m) => {
@@ -245,7 +245,8 @@ pub fn without_nulls(payload: &[u8]) -> Vec<u8> {
 /// Why Foxglove's and Lichtblick's JSON Schema reader (`parseJsonSchema` in their
 /// `mcap-support`) would refuse `schema`, field by field, as it reads it; empty when it
 /// takes it. The rules are that reader's, written again for the tests.
-pub fn viewer_refuses(schema: &Value) -> Vec<String> {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn viewer_refuses(schema: &Value) -> Vec<String> {
     fn object(s: &Value, path: &str, out: &mut Vec<String>) {
         if s["type"] != "object" {
             out.push(format!("{path}: expected type object, got {}", s["type"]));

@@ -18,10 +18,10 @@ use tracing::{Event, Level, Subscriber};
 use tracing_subscriber::layer::Context;
 
 /// Where journald listens for native messages.
-pub const SOCKET: &str = "/run/systemd/journal/socket";
+pub(crate) const SOCKET: &str = "/run/systemd/journal/socket";
 
 /// A `tracing` layer writing each event to the journal.
-pub struct Journal {
+pub(crate) struct Journal {
     socket: UnixDatagram,
     to: PathBuf,
 }

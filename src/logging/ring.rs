@@ -15,7 +15,7 @@ use tracing_subscriber::layer::Context;
 use tracing_subscriber::Layer;
 
 /// How many lines the ring keeps.
-pub const KEEP: usize = 200;
+pub(crate) const KEEP: usize = 200;
 
 /// One warning or error.
 #[derive(Clone, Debug, PartialEq)]
@@ -64,7 +64,7 @@ impl LogRing {
     }
 
     /// The lines kept, oldest first.
-    pub fn recent(&self) -> Vec<LogLine> {
+    pub(crate) fn recent(&self) -> Vec<LogLine> {
         self.inner.lock().0.iter().cloned().collect()
     }
 

@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 type HmacSha256 = Hmac<Sha256>;
 
 /// The shortest key accepted, in bytes.
-pub const MIN_KEY_LEN: usize = 16;
+pub(crate) const MIN_KEY_LEN: usize = 16;
 
 /// A shared key, ready to check and sign datagrams. Only the keyed HMAC state is kept,
 /// and `Debug` never prints it.
@@ -64,7 +64,7 @@ impl Auth {
     }
 
     /// A key written as hex digits (e.g. from a `--key-hex` option).
-    pub fn from_hex(hex: &str) -> Result<Auth, KeyError> {
+    pub(crate) fn from_hex(hex: &str) -> Result<Auth, KeyError> {
         let digits = hex.trim().as_bytes();
         if !digits.len().is_multiple_of(2) {
             return Err(KeyError::BadHex);
@@ -79,7 +79,7 @@ impl Auth {
 
     /// A key from the contents of a key file: its text without surrounding whitespace,
     /// or `hex:` and hex digits for a key of raw bytes.
-    pub fn from_key_file(contents: &[u8]) -> Result<Auth, KeyError> {
+    pub(crate) fn from_key_file(contents: &[u8]) -> Result<Auth, KeyError> {
         let text = contents.trim_ascii();
         match text.strip_prefix(b"hex:") {
             Some(hex) => Auth::from_hex(std::str::from_utf8(hex).map_err(|_| KeyError::BadHex)?),

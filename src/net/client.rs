@@ -15,11 +15,11 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// How long a one-shot `send` waits for a reply that may not come (an accepted command
 /// is not answered).
-pub const REPLY_WAIT: Duration = Duration::from_millis(200);
+pub(crate) const REPLY_WAIT: Duration = Duration::from_millis(200);
 /// How long `send` waits for the reply to `engage` or `disengage`, which adrive always
 /// answers unless the datagram was dropped (a sender not on the allow list,
 /// `replies = false`, a lost datagram).
-pub const EXPECTED_REPLY_WAIT: Duration = Duration::from_secs(1);
+pub(crate) const EXPECTED_REPLY_WAIT: Duration = Duration::from_secs(1);
 
 /// `adrive send`'s exit statuses.
 pub mod status {
@@ -27,18 +27,18 @@ pub mod status {
     pub const OK: i32 = 0;
     /// Something was refused, or nothing listens at the address (with `--rate`: the
     /// last datagram found nothing listening).
-    pub const REFUSED: i32 = 1;
+    pub(crate) const REFUSED: i32 = 1;
     /// A bad command line.
-    pub const USAGE: i32 = 2;
+    pub(crate) const USAGE: i32 = 2;
     /// `engage` or `disengage` got no reply: whether it was applied is unknown.
-    pub const NO_REPLY: i32 = 3;
+    pub(crate) const NO_REPLY: i32 = 3;
 }
 
 /// Command-line words to protocol lines: `engage`, `disengage`, `release` and `clear` stand alone, every
 /// other line is a name and a value, so `engage trans drive accel 0.3` and
 /// `'trans drive' 'accel 0.3'` both work whatever the vehicle's devices are called.
 /// A `;` or newline inside an argument also ends a line.
-pub fn lines_from_words(words: &[String]) -> String {
+pub(crate) fn lines_from_words(words: &[String]) -> String {
     let mut lines: Vec<Vec<String>> = Vec::new();
     let alone = |w: &str| {
         ["engage", "disengage", "release", "clear"]
@@ -307,7 +307,7 @@ pub fn refused(reply: &str) -> bool {
 
 /// A socket that receives the state broadcast sent to `from` (a unicast address of
 /// this host, or a multicast group, joined on every interface).
-pub fn watch_socket(from: SocketAddr) -> io::Result<UdpSocket> {
+pub(crate) fn watch_socket(from: SocketAddr) -> io::Result<UdpSocket> {
     let s = Socket::new(Domain::for_address(from), Type::DGRAM, Some(Protocol::UDP))?;
     // Several watchers of one multicast group on one host.
     s.set_reuse_address(true)?;
@@ -408,7 +408,7 @@ fn value(v: Option<&Value>) -> String {
 
 /// One snapshot as one line for a person: each actuator as commanded/measured, each
 /// sensor's readings.
-pub fn human_line(v: &Snapshot) -> String {
+pub(crate) fn human_line(v: &Snapshot) -> String {
     let mut l = String::new();
     let _ = write!(
         l,

@@ -36,9 +36,9 @@ use std::time::{Duration, Instant};
 pub type Reply = ArrayString<512>;
 
 /// At most this often a reply goes to one sender.
-pub const REPLY_EVERY: Duration = Duration::from_millis(20);
+pub(crate) const REPLY_EVERY: Duration = Duration::from_millis(20);
 /// At most this many replies a second in all.
-pub const REPLY_BUDGET: u32 = 500;
+pub(crate) const REPLY_BUDGET: u32 = 500;
 
 /// The listener's decisions. Owned by the listener thread.
 pub struct Intake {

@@ -22,7 +22,7 @@ pub mod client;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod intake;
-pub mod pace;
+pub(crate) mod pace;
 pub mod proto;
 pub mod status;
 
@@ -37,7 +37,7 @@ use auth::Auth;
 use intake::Intake;
 use socket2::{Domain, Protocol, Socket, Type};
 use std::io;
-use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr, UdpSocket};
+use std::net::{Ipv4Addr, Ipv6Addr, SocketAddr, UdpSocket};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -150,7 +150,7 @@ fn bind_command_socket(addr: SocketAddr) -> io::Result<UdpSocket> {
 }
 
 /// The socket the state broadcast goes out of (multicast settings from `config`).
-pub fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
+pub(crate) fn broadcast_socket(config: &NetworkConfig) -> io::Result<UdpSocket> {
     let v6 = config.broadcast_to.first().is_some_and(SocketAddr::is_ipv6);
     let any: SocketAddr = if v6 {
         (Ipv6Addr::UNSPECIFIED, 0).into()
@@ -336,7 +336,7 @@ pub fn snapshot(gate: &Gate, status: &NetStatus, seq: u64) -> Snapshot {
 /// The largest state broadcast datagram: a snapshot larger than this (a vehicle of
 /// many devices) goes out in parts ([`Snapshot::datagrams`]) that `adrive watch`
 /// joins. Alice's snapshot fits in one.
-pub const BROADCAST_MAX: usize = 16 * 1024;
+pub(crate) const BROADCAST_MAX: usize = 16 * 1024;
 
 fn broadcast_loop(
     socket: &UdpSocket,
@@ -383,9 +383,4 @@ fn broadcast_loop(
             }
         }
     });
-}
-
-/// Is this a multicast group?
-pub fn is_multicast(ip: IpAddr) -> bool {
-    ip.is_multicast()
 }

@@ -22,18 +22,18 @@ use super::status::NetStatus;
 use std::time::{Duration, Instant};
 
 /// Commands a second to one device from which the listener paces its reads.
-pub const FLOOD_PER_DEVICE: u64 = 500;
+pub(crate) const FLOOD_PER_DEVICE: u64 = 500;
 /// Datagrams a second that command no device (rejected, refused, replies to nothing)
 /// from which the listener paces its reads.
-pub const FLOOD_IDLE: u64 = 2000;
+pub(crate) const FLOOD_IDLE: u64 = 2000;
 /// The shortest time between two reads while flooded.
-pub const FLOOD_GAP: Duration = Duration::from_millis(2);
+pub(crate) const FLOOD_GAP: Duration = Duration::from_millis(2);
 /// The window over which the rates are counted.
 const WINDOW: Duration = Duration::from_millis(20);
 
 /// The listener's pacing state: the intake's counters at the start of the window.
 #[derive(Debug)]
-pub struct Pace {
+pub(crate) struct Pace {
     window_start: Instant,
     /// Datagrams, and commands to each device (accel last), so far.
     datagrams: u64,
@@ -80,6 +80,7 @@ impl Pace {
     }
 
     /// Whether reads are paced now.
+    #[cfg_attr(not(test), allow(dead_code))]
     pub fn flooded(&self) -> bool {
         self.flooded
     }

@@ -93,7 +93,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 pub const MAX_DATAGRAM: usize = 1024;
 
 /// The most commands one datagram may carry; more is `too_many_commands`.
-pub const MAX_COMMANDS: usize = 16;
+pub(crate) const MAX_COMMANDS: usize = 16;
 
 /// One thing a datagram asks of adrive.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -124,7 +124,7 @@ pub struct Vocabulary<'a> {
 }
 
 /// The device id an open vocabulary gives every device.
-pub const UNKNOWN: DeviceId = DeviceId(u16::MAX);
+pub(crate) const UNKNOWN: DeviceId = DeviceId(u16::MAX);
 
 impl<'a> Vocabulary<'a> {
     pub fn new(devices: &'a [DeviceConfig], accel: bool) -> Vocabulary<'a> {
@@ -251,7 +251,8 @@ pub struct Datagram {
 
 impl Datagram {
     /// The signed part of `bytes`, which must be the bytes this datagram was parsed from.
-    pub fn signed_bytes<'a>(&self, bytes: &'a [u8]) -> &'a [u8] {
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn signed_bytes<'a>(&self, bytes: &'a [u8]) -> &'a [u8] {
         bytes.get(self.signed.clone()).unwrap_or(&[])
     }
 }
@@ -319,7 +320,7 @@ impl Reject {
     ];
 
     /// The number of reasons.
-    pub const COUNT: usize = Reject::ALL.len();
+    pub(crate) const COUNT: usize = Reject::ALL.len();
 
     /// The stable name, for counters and logs.
     pub fn as_str(self) -> &'static str {
@@ -394,7 +395,7 @@ pub struct ParseError {
 }
 
 /// What was expected, in words, inline (no heap).
-pub type Expected = ArrayString<120>;
+pub(crate) type Expected = ArrayString<120>;
 
 fn expected(text: &str) -> Expected {
     let mut e = Expected::new();

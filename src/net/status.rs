@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 /// The most senders remembered; the least recently seen one (never the commander)
 /// makes room for a new one.
-pub const MAX_SENDERS: usize = 16;
+pub(crate) const MAX_SENDERS: usize = 16;
 
 /// Why the listener refused a well-formed, authentic datagram (or one of its commands).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -78,7 +78,7 @@ impl Refusal {
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Sender {
     pub addr: SocketAddr,
-    pub last_seen: Instant,
+    pub(crate) last_seen: Instant,
     pub datagrams: u64,
     pub accepted: u64,
     pub rejected: u64,
@@ -89,7 +89,7 @@ pub(crate) struct Sender {
     /// Disengaged against its will; its `engage` is refused until it sends a datagram
     /// without one (or stays quiet for the watchdog timeout).
     pub latched: bool,
-    pub last_reply: Option<Instant>,
+    pub(crate) last_reply: Option<Instant>,
 }
 
 impl Sender {
@@ -115,7 +115,7 @@ pub(crate) struct Inner {
     /// who commands; this remembers whose command ended, to latch it).
     pub commanding: Option<SocketAddr>,
     /// With a key: the last `seq` accepted (replay protection is per key).
-    pub keyed_seq: Option<u64>,
+    pub(crate) keyed_seq: Option<u64>,
     /// Global reply budget: (window start, replies in it).
     pub replies: (Instant, u32),
 }
@@ -164,7 +164,7 @@ pub struct NetStatus {
     pub watchdog_timeout: Duration,
     pub(crate) inner: Mutex<Inner>,
     /// Datagrams rejected whole, by reason (grammar, authentication, counter).
-    pub rejects: RejectCounts,
+    pub(crate) rejects: RejectCounts,
     intake: [AtomicU64; safety::Reject::ALL.len()],
     refused: [AtomicU64; Refusal::ALL.len()],
     /// Network commands accepted, by device.

@@ -11,11 +11,11 @@ use std::time::{Duration, UNIX_EPOCH};
 
 /// What [`report`] found, for tests and the report itself.
 #[derive(Debug, Default)]
-pub struct Info {
+pub(crate) struct Info {
     /// Topic → (schema, messages), in the order first seen.
     pub channels: Vec<(String, String, u64)>,
-    pub first_ns: Option<u64>,
-    pub last_ns: Option<u64>,
+    pub(crate) first_ns: Option<u64>,
+    pub(crate) last_ns: Option<u64>,
     pub received: u64,
     /// Refused commands by reason.
     pub refused: BTreeMap<String, u64>,
@@ -28,7 +28,7 @@ pub struct Info {
 }
 
 /// Read every message of `rec` and sum it up.
-pub fn gather(rec: &Recording) -> Info {
+pub(crate) fn gather(rec: &Recording) -> Info {
     let mut i = Info::default();
     let mut timeline: Vec<(u64, String)> = Vec::new();
     let why = rec.for_each(|m| {
@@ -153,7 +153,7 @@ pub fn report(rec: &Recording) -> String {
 
 /// The events one a line, a run of the same event (an engage refused ten times a
 /// second while a device has not reported) on one line with its count and its end.
-pub fn timeline(events: &[(f64, String)]) -> Vec<String> {
+pub(crate) fn timeline(events: &[(f64, String)]) -> Vec<String> {
     events
         .chunk_by(|a, b| a.1 == b.1)
         .map(|run| {

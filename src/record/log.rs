@@ -11,8 +11,8 @@ use tracing_subscriber::layer::Context;
 use tracing_subscriber::Layer;
 
 /// The layer; made before the vehicle, with the tap the vehicle will use.
-pub struct TapLayer {
-    pub tap: Arc<Tap>,
+pub(crate) struct TapLayer {
+    pub(crate) tap: Arc<Tap>,
 }
 
 impl<S: Subscriber> Layer<S> for TapLayer {

@@ -17,12 +17,12 @@ use serde_json::{json, Map, Value};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// The MCAP profile: none of the well-known ones (JSON messages need none).
-pub const PROFILE: &str = "";
+pub(crate) const PROFILE: &str = "";
 /// The schema encoding and message encoding of every channel.
-pub const SCHEMA_ENCODING: &str = "jsonschema";
-pub const MESSAGE_ENCODING: &str = "json";
+pub(crate) const SCHEMA_ENCODING: &str = "jsonschema";
+pub(crate) const MESSAGE_ENCODING: &str = "json";
 /// The name of the metadata record that says what recorded the file.
-pub const METADATA: &str = "adrive";
+pub(crate) const METADATA: &str = "adrive";
 
 /// One channel of a recording.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -118,7 +118,7 @@ impl Topic {
 }
 
 /// The JSON Schema of `T`, every subschema inlined (readers need not follow `$ref`).
-pub fn schema_of<T: JsonSchema>() -> Value {
+pub(crate) fn schema_of<T: JsonSchema>() -> Value {
     let generator = schemars::generate::SchemaSettings::draft07()
         .with(|s| s.inline_subschemas = true)
         .into_generator();
@@ -143,7 +143,7 @@ pub struct Received {
 
 impl Received {
     /// The source as the intake names it (`console`, `network 127.0.0.1:5555`).
-    pub fn source_text(source: Source) -> String {
+    pub(crate) fn source_text(source: Source) -> String {
         crate::safety::owner::Commander(source).to_string()
     }
 }
@@ -165,7 +165,7 @@ pub struct Written {
     /// Receipt to first byte written, µs (new commands only).
     pub delay_us: Option<f64>,
     /// First byte to the device's answer, µs.
-    pub txn_us: Option<f64>,
+    pub(crate) txn_us: Option<f64>,
 }
 
 impl Written {
@@ -177,7 +177,7 @@ impl Written {
 
 /// `/gate`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
-pub struct GateMsg {
+pub(crate) struct GateMsg {
     /// `engaged`, `disengaged` or `engage_refused`.
     pub event: String,
     /// Engaged after this.
@@ -187,7 +187,7 @@ pub struct GateMsg {
 
 /// `/faults`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
-pub struct FaultMsg {
+pub(crate) struct FaultMsg {
     /// `raised` or `cleared`.
     pub event: String,
     pub kind: FaultKind,
@@ -197,13 +197,13 @@ pub struct FaultMsg {
 
 /// `/supervisor`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
-pub struct NoteMsg {
+pub(crate) struct NoteMsg {
     pub text: String,
 }
 
 /// `/DEVICE/raw`: one chunk of bytes on the port.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
-pub struct RawMsg {
+pub(crate) struct RawMsg {
     /// `out` (to the device) or `in`.
     pub dir: String,
     /// The bytes in hex, `01 03 00 00`.
@@ -238,7 +238,7 @@ impl RawMsg {
 
 /// `/record`: the recorder's figures.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
-pub struct RecordMsg {
+pub(crate) struct RecordMsg {
     /// Messages written so far, every file of this run.
     pub messages: u64,
     /// Events left out so far because the recorder fell behind.
@@ -249,8 +249,8 @@ pub struct RecordMsg {
 
 /// `/log`, in Foxglove's `foxglove.Log` form, so its Log panel shows it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct LogMsg {
-    pub timestamp: Time,
+pub(crate) struct LogMsg {
+    pub(crate) timestamp: Time,
     /// 1 debug, 2 info, 3 warning, 4 error (Foxglove's `LogLevel`).
     pub level: u8,
     pub message: String,
@@ -264,11 +264,11 @@ pub struct LogMsg {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Time {
     pub sec: u64,
-    pub nsec: u32,
+    pub(crate) nsec: u32,
 }
 
 impl Time {
-    pub fn of_ns(ns: u64) -> Time {
+    pub(crate) fn of_ns(ns: u64) -> Time {
         Time {
             sec: ns / 1_000_000_000,
             nsec: (ns % 1_000_000_000) as u32,
@@ -277,7 +277,7 @@ impl Time {
 }
 
 impl LogMsg {
-    pub fn level_of(level: tracing::Level) -> u8 {
+    pub(crate) fn level_of(level: tracing::Level) -> u8 {
         match level {
             tracing::Level::TRACE | tracing::Level::DEBUG => 1,
             tracing::Level::INFO => 2,
@@ -328,7 +328,7 @@ const READING_FIELDS: [&str; 4] = ["ok", "error", "fault", "txn_us"];
 
 /// `/DEVICE/reading`'s schema: the device's readings by name, with their types and
 /// units, then whether the poll succeeded.
-pub fn reading_schema(d: &DeviceConfig) -> Value {
+pub(crate) fn reading_schema(d: &DeviceConfig) -> Value {
     let mut props = Map::new();
     props.insert(
         "ok".into(),
@@ -371,7 +371,7 @@ pub fn reading_schema(d: &DeviceConfig) -> Value {
 
 /// One reading message: each of the device's readings by name (null when not
 /// reported), and the poll's outcome.
-pub fn reading_message(
+pub(crate) fn reading_message(
     d: &DeviceConfig,
     reading: Option<&Reading>,
     error: Option<&str>,
@@ -393,7 +393,7 @@ pub fn reading_message(
 }
 
 /// The paper's error codes in words.
-pub fn error_word(code: u32) -> &'static str {
+pub(crate) fn error_word(code: u32) -> &'static str {
     match code {
         1 => "timeout",
         2 => "garbled",
@@ -581,7 +581,7 @@ impl Clock {
     }
 }
 
-pub fn wall_ns(t: SystemTime) -> u64 {
+pub(crate) fn wall_ns(t: SystemTime) -> u64 {
     t.duration_since(UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as u64)
 }

@@ -31,9 +31,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// How often the recorder takes what the tap holds.
-pub const DRAIN: Duration = Duration::from_millis(20);
+pub(crate) const DRAIN: Duration = Duration::from_millis(20);
 /// How often a chunk is closed, flushed and synced: what a cut-off recording loses.
-pub const CHUNK_EVERY: Duration = Duration::from_secs(1);
+pub(crate) const CHUNK_EVERY: Duration = Duration::from_secs(1);
 
 /// Where a recording goes.
 #[derive(Clone, Debug, PartialEq)]
@@ -52,7 +52,7 @@ pub enum Target {
 
 /// What to record, where.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Options {
+pub(crate) struct Options {
     pub target: Target,
     /// The raw serial traffic too.
     pub raw: bool,
@@ -85,7 +85,7 @@ impl Options {
 }
 
 /// The running recorder.
-pub struct Recorder {
+pub(crate) struct Recorder {
     /// Dropped without [`Recorder::shutdown`] (a panic unwinding): told to finish the
     /// file, not waited for.
     threads: Owner,

@@ -27,7 +27,7 @@ pub struct Message<'a> {
     pub topic: &'a str,
     pub schema: &'a str,
     /// Wall-clock nanoseconds since the Unix epoch.
-    pub log_time: u64,
+    pub(crate) log_time: u64,
     pub data: &'a [u8],
 }
 

@@ -13,7 +13,7 @@ use crate::value::{Command, DeviceId};
 use std::fmt;
 
 /// The asks one actuation message becomes: steering, then the pedals.
-pub type Asks = arrayvec::ArrayVec<Ask, 3>;
+pub(crate) type Asks = arrayvec::ArrayVec<Ask, 3>;
 
 /// A state device commanded by Autoware codes: its id and the states by code.
 #[derive(Clone, Debug, PartialEq)]
@@ -38,7 +38,7 @@ struct GearMap {
 
 /// The vehicle as the bridge sees it: device names by what Autoware commands.
 #[derive(Clone, Debug, PartialEq)]
-pub struct VehicleMap {
+pub(crate) struct VehicleMap {
     steering: Option<String>,
     /// Throttle and brake, with the top of their ranges.
     throttle: Option<(String, f64)>,
@@ -61,7 +61,7 @@ pub struct VehicleMap {
 
 /// A command message that does not apply to this vehicle, and why.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Unmapped {
+pub(crate) enum Unmapped {
     /// The vehicle has no device for it (no gear, no turn indicators…).
     NoDevice(&'static str),
     /// A code the message type does not define, or one that asks for nothing.
@@ -167,11 +167,11 @@ impl VehicleMap {
         }
     }
 
-    pub fn has_turn_indicators(&self) -> bool {
+    pub(crate) fn has_turn_indicators(&self) -> bool {
         self.turn_indicators.is_some()
     }
 
-    pub fn has_hazard_lights(&self) -> bool {
+    pub(crate) fn has_hazard_lights(&self) -> bool {
         self.hazard_lights.is_some()
     }
 
@@ -222,7 +222,7 @@ impl VehicleMap {
     }
 
     /// A turn indicators command as an ask; `None` for `NO_COMMAND`.
-    pub fn turn_indicators(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
+    pub(crate) fn turn_indicators(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
         if code == lights::NO_COMMAND {
             return Ok(None);
         }
@@ -230,7 +230,7 @@ impl VehicleMap {
     }
 
     /// A hazard lights command as an ask; `None` for `NO_COMMAND`.
-    pub fn hazard_lights(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
+    pub(crate) fn hazard_lights(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
         if code == lights::NO_COMMAND {
             return Ok(None);
         }
@@ -337,14 +337,14 @@ impl VehicleMap {
 
 /// The reports of one instant.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Reports {
+pub(crate) struct Reports {
     pub steering: Option<msgs::SteeringReport>,
     pub velocity: Option<msgs::VelocityReport>,
     pub gear: Option<msgs::GearReport>,
-    pub control_mode: msgs::ControlModeReport,
+    pub(crate) control_mode: msgs::ControlModeReport,
     pub actuation: msgs::ActuationStatusStamped,
-    pub turn_indicators: Option<msgs::TurnIndicatorsReport>,
-    pub hazard_lights: Option<msgs::HazardLightsReport>,
+    pub(crate) turn_indicators: Option<msgs::TurnIndicatorsReport>,
+    pub(crate) hazard_lights: Option<msgs::HazardLightsReport>,
 }
 
 /// The vehicle's health as `diagnostic_msgs`: the gate, then one status per device

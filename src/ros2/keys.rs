@@ -16,17 +16,17 @@
 use std::fmt;
 
 /// The prefix of every ROS 2 liveliness token.
-pub const ADMIN_SPACE: &str = "@ros2_lv";
+pub(crate) const ADMIN_SPACE: &str = "@ros2_lv";
 /// The length of a GID.
-pub const GID_LEN: usize = 16;
+pub(crate) const GID_LEN: usize = 16;
 /// The length of an attachment.
-pub const ATTACHMENT_LEN: usize = 8 + 8 + 1 + GID_LEN;
+pub(crate) const ATTACHMENT_LEN: usize = 8 + 8 + 1 + GID_LEN;
 /// A default QoS (reliable, volatile, keep last 10), as rmw_zenoh writes it: each
 /// policy left empty when it is the default.
 pub const DEFAULT_QOS: &str = "::,:,:,:,,";
 
 /// A publisher's (or client's) id in the ROS graph.
-pub type Gid = [u8; GID_LEN];
+pub(crate) type Gid = [u8; GID_LEN];
 
 /// What a liveliness token announces.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -73,7 +73,7 @@ pub struct TypeInfo {
 
 impl TypeInfo {
     /// The name as DDS declares it: `autoware_vehicle_msgs::msg::dds_::SteeringReport_`.
-    pub fn dds_name(&self) -> String {
+    pub(crate) fn dds_name(&self) -> String {
         let mut parts: Vec<&str> = self.name.split('/').collect();
         let last = parts.pop().unwrap_or_default();
         format!("{}::dds_::{last}_", parts.join("::"))
@@ -81,12 +81,12 @@ impl TypeInfo {
 }
 
 /// `/` → `%`, as rmw_zenoh mangles names inside a token.
-pub fn mangle(name: &str) -> String {
+pub(crate) fn mangle(name: &str) -> String {
     name.replace('/', "%")
 }
 
 /// `%` → `/`.
-pub fn demangle(name: &str) -> String {
+pub(crate) fn demangle(name: &str) -> String {
     name.replace('%', "/")
 }
 
@@ -160,16 +160,16 @@ pub fn token(
 
 /// A token read back: which node, which entity, on which topic.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Token {
+pub(crate) struct Token {
     pub node: NodeInfo,
-    pub entity_id: u32,
-    pub entity: Entity,
+    pub(crate) entity_id: u32,
+    pub(crate) entity: Entity,
     /// The topic or service (demangled), its DDS type and hash.
     pub topic: Option<(String, String, String)>,
 }
 
 /// Parse a liveliness token's key expression; None when it is not one.
-pub fn parse_token(key: &str) -> Option<Token> {
+pub(crate) fn parse_token(key: &str) -> Option<Token> {
     let parts: Vec<&str> = key.split('/').collect();
     if parts.len() < 9 || parts[0] != ADMIN_SPACE || parts.iter().any(|p| p.is_empty()) {
         return None;
@@ -257,7 +257,7 @@ impl Attachment {
 }
 
 /// Nanoseconds since the Unix epoch, now.
-pub fn now_ns() -> i64 {
+pub(crate) fn now_ns() -> i64 {
     std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as i64)

@@ -10,7 +10,7 @@
 //! - [`node`]: the Zenoh session and the node's two threads;
 //! - [`watch`]: `adrive watch --ros2`, every vehicle on the network, following one.
 
-pub mod bridge;
+pub(crate) mod bridge;
 pub mod keys;
 pub mod msgs;
 pub mod node;

@@ -45,7 +45,7 @@ pub struct Time {
 
 impl Time {
     /// From nanoseconds since the Unix epoch.
-    pub fn from_ns(ns: i64) -> Time {
+    pub(crate) fn from_ns(ns: i64) -> Time {
         Time {
             sec: ns.div_euclid(1_000_000_000) as i32,
             nanosec: ns.rem_euclid(1_000_000_000) as u32,
@@ -56,7 +56,7 @@ impl Time {
         Time::from_ns(super::keys::now_ns())
     }
 
-    pub fn is_zero(&self) -> bool {
+    pub(crate) fn is_zero(&self) -> bool {
         self.sec == 0 && self.nanosec == 0
     }
 }
@@ -97,15 +97,15 @@ message!(
 /// Gear codes of `GearCommand` and `GearReport`.
 pub mod gear {
     pub const NONE: u8 = 0;
-    pub const NEUTRAL: u8 = 1;
+    pub(crate) const NEUTRAL: u8 = 1;
     pub const DRIVE: u8 = 2;
     /// `DRIVE_18`, the last forward gear.
-    pub const DRIVE_18: u8 = 19;
+    pub(crate) const DRIVE_18: u8 = 19;
     pub const REVERSE: u8 = 20;
-    pub const REVERSE_2: u8 = 21;
-    pub const PARK: u8 = 22;
-    pub const LOW: u8 = 23;
-    pub const LOW_2: u8 = 24;
+    pub(crate) const REVERSE_2: u8 = 21;
+    pub(crate) const PARK: u8 = 22;
+    pub(crate) const LOW: u8 = 23;
+    pub(crate) const LOW_2: u8 = 24;
 }
 
 /// `autoware_vehicle_msgs/msg/GearCommand`.
@@ -134,10 +134,10 @@ message!(
 
 /// Modes of `ControlModeReport` and `ControlModeCommand`.
 pub mod mode {
-    pub const NO_COMMAND: u8 = 0;
+    pub(crate) const NO_COMMAND: u8 = 0;
     pub const AUTONOMOUS: u8 = 1;
-    pub const MANUAL: u8 = 4;
-    pub const NOT_READY: u8 = 6;
+    pub(crate) const MANUAL: u8 = 4;
+    pub(crate) const NOT_READY: u8 = 6;
 }
 
 /// `autoware_vehicle_msgs/msg/ControlModeReport`.
@@ -154,7 +154,7 @@ message!(
 
 /// Codes of the turn indicator and hazard light commands and reports.
 pub mod lights {
-    pub const NO_COMMAND: u8 = 0;
+    pub(crate) const NO_COMMAND: u8 = 0;
     pub const DISABLE: u8 = 1;
     /// Turn indicators: left; hazard lights: on (`ENABLE`).
     pub const ENABLE_LEFT: u8 = 2;
@@ -283,7 +283,7 @@ pub mod level {
     pub const OK: u8 = 0;
     pub const WARN: u8 = 1;
     pub const ERROR: u8 = 2;
-    pub const STALE: u8 = 3;
+    pub(crate) const STALE: u8 = 3;
 }
 
 /// `diagnostic_msgs/msg/DiagnosticStatus`.

@@ -34,7 +34,7 @@ use std::time::{Duration, Instant};
 use zenoh::Wait;
 
 /// The node's name in the graph.
-pub const NODE_NAME: &str = "adrive";
+pub(crate) const NODE_NAME: &str = "adrive";
 
 /// The topics and service of Autoware's vehicle interface, relative to the namespace.
 pub mod topics {
@@ -43,7 +43,7 @@ pub mod topics {
     pub const TURN_INDICATORS_CMD: &str = "control/command/turn_indicators_cmd";
     pub const HAZARD_LIGHTS_CMD: &str = "control/command/hazard_lights_cmd";
     pub const EMERGENCY_CMD: &str = "control/command/emergency_cmd";
-    pub const CONTROL_MODE_REQUEST: &str = "control/control_mode_request";
+    pub(crate) const CONTROL_MODE_REQUEST: &str = "control/control_mode_request";
     pub const STEERING_STATUS: &str = "vehicle/status/steering_status";
     pub const VELOCITY_STATUS: &str = "vehicle/status/velocity_status";
     pub const GEAR_STATUS: &str = "vehicle/status/gear_status";
@@ -55,7 +55,7 @@ pub mod topics {
 }
 
 /// The Zenoh session's settings from `[ros2]`.
-pub fn zenoh_config(c: &Ros2Config) -> anyhow::Result<zenoh::Config> {
+pub(crate) fn zenoh_config(c: &Ros2Config) -> anyhow::Result<zenoh::Config> {
     let mut z = zenoh::Config::default();
     let json = |v: &dyn erased::Json| v.json();
     let set = |z: &mut zenoh::Config, key: &str, value: String| {
@@ -75,7 +75,7 @@ pub fn zenoh_config(c: &Ros2Config) -> anyhow::Result<zenoh::Config> {
 
 mod erased {
     /// A value as JSON, for the Zenoh configuration.
-    pub trait Json {
+    pub(crate) trait Json {
         fn json(&self) -> String;
     }
     impl<T: serde::Serialize> Json for T {

@@ -79,7 +79,7 @@ fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
 }
 
 /// Facts for an intake check of a command to a device that plays `plays`.
-pub fn gather(v: &Vehicle, plays: Plays) -> Facts {
+pub(crate) fn gather(v: &Vehicle, plays: Plays) -> Facts {
     if plays.is_free() {
         return Facts::default();
     }
@@ -111,7 +111,7 @@ pub fn gather(v: &Vehicle, plays: Plays) -> Facts {
 }
 
 /// Facts for the wire check of a command to a device that plays `plays`.
-pub fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
+pub(crate) fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
     let b = v.bindings();
     let mut f = Facts::default();
     if plays.throttle || plays.gear {
@@ -154,7 +154,7 @@ pub fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
 
 /// A pedal (throttle or brake) has nothing above released pending, in flight or last
 /// sent.
-pub fn released_on_wire(d: &Device, w: &WireState) -> bool {
+pub(crate) fn released_on_wire(d: &Device, w: &WireState) -> bool {
     [w.pending, w.flight, w.sent]
         .into_iter()
         .flatten()
@@ -168,7 +168,7 @@ pub fn share(d: &Device, v: f64) -> f64 {
 }
 
 /// The brake's newest command (pending, else in flight) applies it.
-pub fn brake_applied_again(d: &Device, w: &WireState) -> bool {
+pub(crate) fn brake_applied_again(d: &Device, w: &WireState) -> bool {
     w.pending
         .or(w.flight)
         .and_then(Command::set_point)

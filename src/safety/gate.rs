@@ -48,7 +48,7 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
 
 /// Check a command for a device: it must be an actuator, the value of its kind and
 /// inside its range. (Intake's first half; no state involved.)
-pub fn check_value(d: &Device, command: Command) -> Result<(), Reject> {
+pub(crate) fn check_value(d: &Device, command: Command) -> Result<(), Reject> {
     match (d.kind(), command) {
         (Kind::Sensor, _) => Err(Reject::NotAnActuator),
         (_, Command::Control(_)) => Ok(()),
@@ -136,12 +136,12 @@ impl GateState {
     }
 
     /// The interlock rules are on.
-    pub fn interlocks_on(&self) -> bool {
+    pub(crate) fn interlocks_on(&self) -> bool {
         self.interlocks.load(Relaxed)
     }
 
     /// Switch the interlocks (the intake decides who may: [`super::owner`]).
-    pub fn set_interlocks(&self, on: bool) {
+    pub(crate) fn set_interlocks(&self, on: bool) {
         self.interlocks.store(on, Relaxed);
     }
 
@@ -156,7 +156,7 @@ impl GateState {
 
     /// Engaged by `by`. The reason and the state change together: a reader of both
     /// (the snapshot) never sees one without the other.
-    pub fn set_engaged(&self, by: &str) {
+    pub(crate) fn set_engaged(&self, by: &str) {
         let mut reason = self.reason.lock();
         *reason = format!("engaged by {by}");
         self.engaged.store(true, SeqCst);
@@ -165,7 +165,7 @@ impl GateState {
     /// Disengaged for `reason`; returns whether it was engaged. The reason and the
     /// state change together: whoever sees the vehicle disengaged and then asks why
     /// reads this reason, never the last engage's.
-    pub fn set_disengaged(&self, reason: &str) -> bool {
+    pub(crate) fn set_disengaged(&self, reason: &str) -> bool {
         let mut why = self.reason.lock();
         let was = self.engaged.swap(false, SeqCst);
         *why = format!("disengaged: {reason}");
@@ -173,7 +173,12 @@ impl GateState {
     }
 
     /// Count (and log, at most 10 a second) a rejection of `command` for `device`.
-    pub fn reject(&self, device: Option<&Device>, command: Option<Command>, why: Reject) -> Reject {
+    pub(crate) fn reject(
+        &self,
+        device: Option<&Device>,
+        command: Option<Command>,
+        why: Reject,
+    ) -> Reject {
         self.rejections[why.index()].fetch_add(1, Relaxed);
         if let Some(d) = device {
             crate::vehicle::stats::Stats::bump(&d.stats().rejected);
@@ -194,7 +199,7 @@ impl GateState {
     }
 
     /// Whether a refusal at `at` may be logged (at most 10 a second).
-    pub fn log_allowed(&self, at: Instant) -> bool {
+    pub(crate) fn log_allowed(&self, at: Instant) -> bool {
         self.reject_log.lock().allow(at)
     }
 
@@ -217,7 +222,7 @@ impl GateState {
     }
 
     /// Latch a driver's override of `device`; false if it was latched already.
-    pub fn latch_override(&self, device: &str) -> bool {
+    pub(crate) fn latch_override(&self, device: &str) -> bool {
         let mut o = self.overridden.lock();
         if o.iter().any(|d| d == device) {
             return false;
@@ -247,7 +252,7 @@ impl GateState {
 
     /// What the vehicle is commanded when it must stop: the safe state, or the manual
     /// state while a driver has taken over (one rule for every path that stops it).
-    pub fn stop_state(&self, config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
+    pub(crate) fn stop_state(&self, config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
         if self.overridden.lock().is_empty() {
             safe::state(config)
         } else {
@@ -257,7 +262,7 @@ impl GateState {
 
     /// A recovery procedure takes these devices over (intake refuses them) or, with an
     /// empty list, hands everything back.
-    pub fn set_recovering(&self, ids: &[DeviceId]) {
+    pub(crate) fn set_recovering(&self, ids: &[DeviceId]) {
         for (i, r) in self.recovering.iter().enumerate() {
             r.store(ids.contains(&DeviceId(i as u16)), Relaxed);
         }
@@ -287,7 +292,13 @@ impl GateState {
 
     /// The wire check's verdict on `command` for `d`, counting nothing: [`wire::verdict`]
     /// over what the other devices have on their way, or `Send` when no rule applies.
-    pub fn wire_verdict(&self, v: &Vehicle, d: &Device, command: Command, waited: bool) -> Verdict {
+    pub(crate) fn wire_verdict(
+        &self,
+        v: &Vehicle,
+        d: &Device,
+        command: Command,
+        waited: bool,
+    ) -> Verdict {
         let plays = self.plays[d.id().index()];
         if plays.is_free() || !self.interlocks_on() {
             return Verdict::Send(command);

@@ -24,7 +24,7 @@ use std::time::{Duration, Instant};
 
 /// What a source does, as far as ownership goes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Act {
+pub(crate) enum Act {
     /// Engage (or take a vehicle handed over).
     Engage,
     /// Command a device (or `accel`).
@@ -75,7 +75,7 @@ impl std::fmt::Display for Refusal {
 
 /// A commander as people read it: `console`, `network 127.0.0.1:5555`, `ros2`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Commander(pub Source);
+pub(crate) struct Commander(pub Source);
 
 impl std::fmt::Display for Commander {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -89,7 +89,7 @@ impl std::fmt::Display for Commander {
 
 /// What an allowed act does to who commands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Outcome {
+pub(crate) enum Outcome {
     /// Who commands stays as it is (the commander's own command or repeat).
     Same,
     /// The source engages a disengaged vehicle and commands it.
@@ -105,7 +105,7 @@ pub enum Outcome {
 
 /// The ownership rule: what `act` by `source` leads to, when the vehicle is `engaged`
 /// and `commander` commands it (meaningful only while engaged).
-pub fn decide(
+pub(crate) fn decide(
     engaged: bool,
     commander: Option<Source>,
     source: Source,
@@ -141,7 +141,8 @@ pub fn decide(
 }
 
 /// The guide's table (docs/safety.md) of who may do what, from [`decide`] itself.
-pub fn markdown() -> String {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn markdown() -> String {
     use std::net::{IpAddr, Ipv4Addr, SocketAddr};
     let planner = Source::Network(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 5555));
     let other = Source::Network(SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 6666));
@@ -253,11 +254,11 @@ impl Owner {
 
 /// What the snapshot shows of who commands.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct CommandView {
+pub(crate) struct CommandView {
     pub commander: Option<String>,
     pub watchdog: Option<WatchdogView>,
     pub refused: u64,
-    pub last_refused: Option<String>,
+    pub(crate) last_refused: Option<String>,
 }
 
 #[cfg(test)]

@@ -31,27 +31,27 @@ pub const STOPPED: f64 = 0.1;
 pub struct Facts {
     /// Highest brake value pending, in flight, sent or acknowledged (None: unknown);
     /// at the wire, pending, in flight or last sent.
-    pub brake_high: Option<f64>,
+    pub(crate) brake_high: Option<f64>,
     /// Lowest brake value pending, in flight, sent or acknowledged.
-    pub brake_low: Option<f64>,
+    pub(crate) brake_low: Option<f64>,
     /// The brake's newest command releases it: throttle may follow, held back at the
     /// wire until the release has reached the brake ([`super::wire::Wait::BrakeReleased`]).
-    pub brake_releasing: bool,
+    pub(crate) brake_releasing: bool,
     /// The gear reported, as a state of the gear device.
     pub gear: Option<u8>,
     /// The reported gear drives the wheels.
-    pub in_gear: bool,
+    pub(crate) in_gear: bool,
     pub running: Option<bool>,
     pub speed: Option<f64>,
     pub estop: Option<EstopState>,
     /// A shift is commanded and the gearbox does not report that gear yet.
-    pub shifting: bool,
+    pub(crate) shifting: bool,
     /// At the wire: the throttle has nothing above released pending, in flight or
     /// last sent.
-    pub throttle_released: bool,
+    pub(crate) throttle_released: bool,
     /// At the wire: a gear command is pending or in flight for the gearbox that is not
     /// the last one sent.
-    pub shift_on_its_way: bool,
+    pub(crate) shift_on_its_way: bool,
 }
 
 impl Default for Facts {
@@ -115,7 +115,7 @@ impl Reject {
     ];
 
     /// The interlock rules among the reasons.
-    pub const RULES: [Reject; 9] = [
+    pub(crate) const RULES: [Reject; 9] = [
         Reject::GasWhileBraking,
         Reject::GasNotInGear,
         Reject::GasEngineOff,
@@ -146,11 +146,6 @@ impl Reject {
             Reject::Disengaged => "disengaged",
             Reject::Recovering => "recovering",
         }
-    }
-
-    /// True for the safety rules (as opposed to malformed commands).
-    pub fn is_interlock(self) -> bool {
-        Reject::RULES.contains(&self)
     }
 
     pub fn index(self) -> usize {
@@ -281,7 +276,7 @@ impl Plays {
     }
 
     /// No rule looks at this device's commands.
-    pub fn is_free(self) -> bool {
+    pub(crate) fn is_free(self) -> bool {
         self == Plays::default()
     }
 }
@@ -290,7 +285,7 @@ impl Plays {
 /// `rule` given `f`? Intake ([`check`]) and the wire ([`super::wire::verdict`]) both ask
 /// this; only what each does about a broken rule differs (intake refuses; the wire
 /// waits, replaces or drops). A reason that is not an interlock breaks nothing.
-pub fn breaks(rule: Reject, f: &Facts, plays: Plays, command: Command) -> bool {
+pub(crate) fn breaks(rule: Reject, f: &Facts, plays: Plays, command: Command) -> bool {
     let gas = |v: f64| plays.throttle && v > RELEASED;
     let shift = |g: u8| plays.gear && Some(g) != f.gear;
     match (rule, command) {
@@ -350,7 +345,7 @@ pub const BRAKE: Plays = Plays {
 /// neither is stored. Going from braking to throttle, the brake's release is checked
 /// first, and the throttle then as following that release (which the wire holds it
 /// behind). `f` holds the facts of both pedals.
-pub fn check_accel(f: &Facts, rules: Rules, a: f64) -> Result<(), Reject> {
+pub(crate) fn check_accel(f: &Facts, rules: Rules, a: f64) -> Result<(), Reject> {
     let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
     check(f, rules, BRAKE, Command::Set(brake))?;
     let behind_the_release = Facts {
@@ -362,7 +357,8 @@ pub fn check_accel(f: &Facts, rules: Rules, a: f64) -> Result<(), Reject> {
 
 /// The guide's table (docs/vehicles.md) of the interlock rules: each with the roles it needs bound and
 /// what it refuses.
-pub fn markdown() -> String {
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn markdown() -> String {
     let mut out = String::from("| rule | applies when bound | refuses |\n|---|---|---|\n");
     for r in Reject::RULES {
         let needs: Vec<String> = r

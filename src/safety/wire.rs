@@ -44,7 +44,13 @@ pub enum Wait {
 /// a rule of [`breaks`], the same function intake asks; the waits are the wire's own
 /// ordering of two pedals' threads (braking first has the throttle released, a release
 /// or a throttle waits for what is on its way), never a refusal.
-pub fn verdict(f: &Facts, rules: Rules, plays: Plays, command: Command, waited: bool) -> Verdict {
+pub(crate) fn verdict(
+    f: &Facts,
+    rules: Rules,
+    plays: Plays,
+    command: Command,
+    waited: bool,
+) -> Verdict {
     let broken = |r: Reject, f: &Facts| rules.has(r) && breaks(r, f, plays, command);
     match command {
         Command::Set(v) if plays.throttle && v > RELEASED => {

@@ -23,7 +23,7 @@ pub type Devices = [(String, Kind)];
 
 /// One argument of a command.
 #[derive(Clone, Copy, Debug)]
-pub enum Arg {
+pub(crate) enum Arg {
     /// A device of the vehicle.
     Device(Which),
     /// `on` or `off` (also `1`/`0`, `true`/`false`).
@@ -138,7 +138,7 @@ pub enum SimCommand {
 }
 
 /// One entry of the table.
-pub struct Verb {
+pub(crate) struct Verb {
     pub name: &'static str,
     pub args: &'static [Arg],
     /// What it does, for help.
@@ -161,7 +161,7 @@ impl Verb {
 }
 
 /// The arguments of one line, in the verb's order (checked against its table entry).
-pub struct Values(Vec<Value>);
+pub(crate) struct Values(Vec<Value>);
 
 impl Values {
     fn device(&self, i: usize) -> DeviceId {
@@ -207,7 +207,7 @@ const ANY: Arg = Arg::Device(Which::Any);
 const SETPOINT: Arg = Arg::Device(Which::Setpoint);
 
 /// Every command the simulator takes.
-pub const VERBS: &[Verb] = &[
+pub(crate) const VERBS: &[Verb] = &[
     Verb {
         name: "estop",
         args: &[Arg::Estop],

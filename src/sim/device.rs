@@ -8,7 +8,7 @@ use crate::value::{Command, Reading};
 use std::time::Duration;
 
 /// What a simulated device can be asked and told, in adrive's value domain.
-pub trait Plant {
+pub(crate) trait Plant {
     /// The device's current state.
     fn reading(&mut self) -> Reading;
     /// Apply a command; `Err` is the device's refusal, in words.
@@ -19,7 +19,7 @@ pub trait Plant {
 #[derive(Debug, Default, PartialEq)]
 pub struct Reply {
     /// Bytes of the input that made up this request (and are now done with).
-    pub consumed: usize,
+    pub(crate) consumed: usize,
     /// Bytes to send back; empty for no reply (e.g. a broadcast, or a frame ignored).
     pub bytes: Vec<u8>,
     /// Extra processing time on top of the protocol's turnaround (e.g. an ELM327's
@@ -28,7 +28,7 @@ pub struct Reply {
 }
 
 /// A device protocol, device side.
-pub trait Responder: Send {
+pub(crate) trait Responder: Send {
     /// Look at the bytes received so far. `None`: no complete request yet, wait for
     /// more. `Some(reply)`: one request was handled.
     fn respond(&mut self, input: &[u8], plant: &mut dyn Plant) -> Option<Reply>;

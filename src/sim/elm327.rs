@@ -17,21 +17,21 @@ use crate::value::Reading;
 use std::time::Duration;
 
 /// The identification line.
-pub const BANNER: &str = "ELM327 v1.5";
+pub(crate) const BANNER: &str = "ELM327 v1.5";
 /// How long `ATZ` takes before the banner.
-pub const RESET_TIME: Duration = Duration::from_secs(1);
+pub(crate) const RESET_TIME: Duration = Duration::from_secs(1);
 /// How long a protocol search takes.
-pub const SEARCH_TIME: Duration = Duration::from_millis(300);
+pub(crate) const SEARCH_TIME: Duration = Duration::from_millis(300);
 /// How long the car's ECU takes to answer a PID.
-pub const ECU_TIME: Duration = Duration::from_millis(40);
+pub(crate) const ECU_TIME: Duration = Duration::from_millis(40);
 /// How long the adapter waits for a silent car before `NO DATA` (ATST default).
-pub const NO_DATA_TIME: Duration = Duration::from_millis(200);
+pub(crate) const NO_DATA_TIME: Duration = Duration::from_millis(200);
 /// Longest command line before the adapter gives up on it.
 const MAX_LINE: usize = 64;
 
 /// The device side of an ELM327.
 #[derive(Clone, Debug)]
-pub struct Elm327Emulator {
+pub(crate) struct Elm327Emulator {
     echo: bool,
     linefeeds: bool,
     headers: bool,
@@ -60,7 +60,8 @@ impl Elm327Emulator {
     }
 
     /// Let a second ECU answer rpm and speed requests too.
-    pub fn with_second_ecu(mut self, on: bool) -> Elm327Emulator {
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn with_second_ecu(mut self, on: bool) -> Elm327Emulator {
         self.second_ecu = on;
         self
     }

@@ -40,7 +40,7 @@ impl Watchdog {
 
     /// True once, when `now` is past the limit since the last command; the device then
     /// goes to its safe state. It trips again only after being fed.
-    pub fn expired(&mut self, now: Instant) -> bool {
+    pub(crate) fn expired(&mut self, now: Instant) -> bool {
         let Some(limit) = self.limit else {
             return false;
         };

@@ -5,7 +5,7 @@ use crate::config::protocol_map::LineMap;
 use crate::driver::line::{decode_request, encode_status, Request, MAX_LINE};
 
 /// A line-protocol device with the device's keys and words.
-pub struct LineDevice(pub LineMap);
+pub(crate) struct LineDevice(pub LineMap);
 
 impl Responder for LineDevice {
     fn respond(&mut self, input: &[u8], plant: &mut dyn Plant) -> Option<Reply> {

@@ -14,7 +14,7 @@
 pub mod commands;
 pub mod device;
 pub mod elm327;
-pub mod firmware;
+pub(crate) mod firmware;
 pub mod line;
 pub mod modbus;
 pub mod model;
@@ -268,7 +268,7 @@ impl Sim {
     }
 
     /// Events lost because their bounded receiver was full.
-    pub fn dropped_events(&self) -> u64 {
+    pub(crate) fn dropped_events(&self) -> u64 {
         self.events.dropped.load(Relaxed)
     }
 

@@ -17,7 +17,7 @@ use crate::driver::modbus::proto::{self, Exception, Incoming, Request, Response}
 use crate::value::{Command, Reading};
 
 /// The device side of a Modbus device.
-pub struct ModbusSlave {
+pub(crate) struct ModbusSlave {
     id: u8,
     map: ModbusMap,
     /// Raw contents of the target register: the last set point or state code written.

@@ -19,10 +19,10 @@ const GAS_ACCEL: f64 = 3.0;
 /// Full-brake deceleration, m/s².
 const BRAKE_DECEL: f64 = 8.0;
 /// How long the starter cranks before the engine catches.
-pub const CRANK_TIME: Duration = Duration::from_millis(800);
+pub(crate) const CRANK_TIME: Duration = Duration::from_millis(800);
 /// A drive's status bits: its fault latch, and its power stage off (informational).
-pub const DRIVE_FAULT: u16 = 0x0001;
-pub const DRIVE_DISABLED: u16 = 0x0100;
+pub(crate) const DRIVE_FAULT: u16 = 0x0001;
+pub(crate) const DRIVE_DISABLED: u16 = 0x0100;
 
 /// Where a simulated reading comes from.
 #[derive(Clone, Debug, PartialEq)]
@@ -124,7 +124,7 @@ pub struct Model {
     pub estop: EstopState,
     cranking: Option<Instant>,
     /// Fault injection: the starter turns but the engine never catches.
-    pub start_fails: bool,
+    pub(crate) start_fails: bool,
     /// A small deterministic noise source.
     noise: u64,
     started: Instant,
@@ -253,7 +253,7 @@ impl Model {
         &self.devices[id.index()]
     }
 
-    pub fn device_mut(&mut self, id: DeviceId) -> &mut SimDevice {
+    pub(crate) fn device_mut(&mut self, id: DeviceId) -> &mut SimDevice {
         &mut self.devices[id.index()]
     }
 
@@ -361,14 +361,14 @@ impl Model {
     }
 
     /// Fault injection: a driver's hand pushes a drive toward `to` (`None`: lets go).
-    pub fn set_override(&mut self, id: DeviceId, to: Option<f64>) {
+    pub(crate) fn set_override(&mut self, id: DeviceId, to: Option<f64>) {
         self.step();
         self.device_mut(id).hand = to;
     }
 
     /// The device's own watchdog tripped: no command frame for too long. It goes to
     /// its safe value by itself.
-    pub fn watchdog_trip(&mut self, id: DeviceId) -> Option<Command> {
+    pub(crate) fn watchdog_trip(&mut self, id: DeviceId) -> Option<Command> {
         self.step();
         let safe = self.device(id).safe?;
         let d = self.device_mut(id);

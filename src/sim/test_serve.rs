@@ -13,11 +13,11 @@ use std::time::Duration;
 
 /// A plant that reports a fixed reading and records every command.
 #[derive(Clone, Debug, Default)]
-pub struct TestPlant {
+pub(crate) struct TestPlant {
     pub reading: Reading,
     pub commands: Vec<Command>,
     /// When set, every command is refused with this reason.
-    pub refuse: Option<String>,
+    pub(crate) refuse: Option<String>,
 }
 
 impl Plant for TestPlant {
@@ -37,7 +37,7 @@ impl Plant for TestPlant {
 }
 
 /// A responder being served; `stop` ends the loop and hands the plant back.
-pub struct Served<P> {
+pub(crate) struct Served<P> {
     stop: Arc<AtomicBool>,
     handle: JoinHandle<P>,
 }
@@ -51,7 +51,7 @@ impl<P> Served<P> {
 
 /// Serve `responder` in front of `plant` on a new pseudo-terminal; returns the loop
 /// and the other end, for the driver.
-pub fn serve_pty<R, P>(mut responder: R, mut plant: P) -> (Served<P>, TTYPort)
+pub(crate) fn serve_pty<R, P>(mut responder: R, mut plant: P) -> (Served<P>, TTYPort)
 where
     R: Responder + 'static,
     P: Plant + Send + 'static,

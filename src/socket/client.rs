@@ -22,7 +22,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// How long an operation waits for its reply.
-pub const REPLY_WITHIN: Duration = Duration::from_secs(3);
+pub(crate) const REPLY_WITHIN: Duration = Duration::from_secs(3);
 /// How long connecting waits for the welcome (and a console for its first frame).
 const HELLO_WITHIN: Duration = Duration::from_secs(5);
 
@@ -125,7 +125,7 @@ struct Inbox {
 }
 
 /// [`Controls`] over a running adrive's control socket.
-pub struct Remote {
+pub(crate) struct Remote {
     /// The source this console is to the intake (`console #2`).
     pub source: String,
     writer: Mutex<UnixStream>,

@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 pub const FILE: &str = "adrive.sock";
 
 /// The default socket path, from the environment (see the module doc).
-pub fn default_path() -> PathBuf {
+pub(crate) fn default_path() -> PathBuf {
     let var = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
     if let Some(dirs) = var("RUNTIME_DIRECTORY") {
         // systemd lists several directories separated by `:`; adrive asks for one.
@@ -44,9 +44,9 @@ pub fn default_path() -> PathBuf {
 
 /// Who is at the other end of a Unix socket, as the kernel says.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Peer {
+pub(crate) struct Peer {
     pub pid: u32,
-    pub uid: u32,
+    pub(crate) uid: u32,
 }
 
 impl Peer {

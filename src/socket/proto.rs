@@ -125,7 +125,7 @@ pub enum Answer {
 /// From the server.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
-pub enum Msg {
+pub(crate) enum Msg {
     /// The client is this source to the intake (`console #2`, `operator (uid 1000…)`).
     Welcome {
         version: u32,
@@ -144,19 +144,19 @@ pub enum Msg {
 
 /// A console frame on the wire: [`crate::console::controls::Frame`] with times as ages.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct WireFrame {
+pub(crate) struct WireFrame {
     pub snap: Snapshot,
     /// Log lines not sent before.
     pub logs: Vec<WireLog>,
     pub trace: Vec<WireTrace>,
-    pub buckets: Vec<(f64, u64)>,
+    pub(crate) buckets: Vec<(f64, u64)>,
     pub can_inject: bool,
     pub sim_vehicle: Option<String>,
     pub sim_faults: Vec<Option<SimFaults>>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct WireLog {
+pub(crate) struct WireLog {
     pub secs: f64,
     pub level: String,
     pub text: String,
@@ -182,8 +182,8 @@ impl WireLog {
 
 /// A chunk of the bench device's traffic, with its age when the frame was captured.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct WireTrace {
-    pub age_us: u64,
+pub(crate) struct WireTrace {
+    pub(crate) age_us: u64,
     pub dir: Dir,
     pub cut: bool,
     pub bytes: Vec<u8>,

@@ -27,11 +27,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// A client that does not take a frame within this long is dropped.
-pub const WRITE_DEADLINE: Duration = Duration::from_secs(2);
+pub(crate) const WRITE_DEADLINE: Duration = Duration::from_secs(2);
 /// The longest request line read (a command is a few dozen bytes).
 const MAX_LINE: usize = 4096;
 /// The most clients at once; more are told so and closed.
-pub const MAX_CLIENTS: usize = 32;
+pub(crate) const MAX_CLIENTS: usize = 32;
 
 /// What every connection shares.
 struct Shared {

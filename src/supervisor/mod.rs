@@ -32,11 +32,11 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// Where the supervisor sends a request to end the process (a fatal device error).
-pub type ExitSink = Box<dyn Fn(Exit) + Send>;
+pub(crate) type ExitSink = Box<dyn Fn(Exit) + Send>;
 
 /// Per-device memory between turns.
 #[derive(Default)]
-pub struct Track {
+pub(crate) struct Track {
     /// (time, attempts, errors) samples over the error window.
     window: Vec<(Instant, u64, u64)>,
     /// Since when the measured value is away from the command.
@@ -408,7 +408,7 @@ pub fn disengages(kind: FaultKind) -> bool {
 }
 
 /// The procedure a fault calls for, if any (and if the vehicle has what it needs).
-pub fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> Option<Procedure> {
+pub(crate) fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> Option<Procedure> {
     let v = &gate.vehicle();
     let b = v.bindings();
     let device = f.device.as_deref().and_then(|n| v.find(n)).map(|d| d.id());
@@ -435,7 +435,7 @@ pub fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> Option<P
 }
 
 /// The supervisor's state between turns: memory, current procedure, cool-downs.
-pub struct Supervisor {
+pub(crate) struct Supervisor {
     cfg: SupervisorConfig,
     memory: Memory,
     procedure: Option<Procedure>,
@@ -629,7 +629,7 @@ pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io:
 
 /// [`start`], feeding the service watchdog while every thread of `watched` (the
 /// engine's, [`crate::engine::Engine::liveness`]) runs.
-pub fn start_watching(
+pub(crate) fn start_watching(
     gate: Arc<Gate>,
     cfg: SupervisorConfig,
     exit: ExitSink,

@@ -167,7 +167,7 @@ fn stand_still(v: &Vehicle) -> Vec<Step> {
 
 /// How a turn of a procedure went.
 #[derive(Debug, PartialEq)]
-pub enum Progress {
+pub(crate) enum Progress {
     Running,
     Done,
     GaveUp(String),
@@ -175,7 +175,7 @@ pub enum Progress {
 
 /// A procedure in progress.
 #[derive(Debug)]
-pub struct Procedure {
+pub(crate) struct Procedure {
     name: String,
     steps: Vec<Step>,
     /// Devices whose intake is refused while it runs.
@@ -294,6 +294,7 @@ impl Procedure {
         &self.name
     }
 
+    #[cfg_attr(not(test), allow(dead_code))]
     pub fn steps(&self) -> &[Step] {
         &self.steps
     }
@@ -307,7 +308,7 @@ impl Procedure {
     /// its own, so one that moves an actuator runs only while the vehicle is engaged
     /// (engaging is the permission to move it). One that moves nothing — reconnect —
     /// always may.
-    pub fn may_run(&self, gate: &Gate) -> bool {
+    pub(crate) fn may_run(&self, gate: &Gate) -> bool {
         !self.moves(gate) || gate.is_engaged()
     }
 
@@ -327,7 +328,7 @@ impl Procedure {
     }
 
     /// Move the procedure on as far as the vehicle allows now.
-    pub fn advance(&mut self, gate: &Gate, now: Instant) -> Progress {
+    pub(crate) fn advance(&mut self, gate: &Gate, now: Instant) -> Progress {
         let v = &gate.vehicle();
         gate.set_recovering(&self.takes);
         loop {

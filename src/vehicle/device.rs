@@ -50,9 +50,9 @@ pub fn error_code(e: &DriverError) -> u32 {
 pub struct Health {
     pub status_error: AtomicU32,
     pub command_error: AtomicU32,
-    pub consecutive_errors: AtomicU32,
+    pub(crate) consecutive_errors: AtomicU32,
     pub connected: AtomicBool,
-    pub last_error: Mutex<Option<(Instant, String)>>,
+    pub(crate) last_error: Mutex<Option<(Instant, String)>>,
     /// When the device last answered (a good status or an acknowledged command), in
     /// nanoseconds after [`Device::started`] plus one; 0 before its first answer.
     answered_ns: AtomicU64,
@@ -61,12 +61,12 @@ pub struct Health {
 }
 
 impl Health {
-    pub fn last_error(&self) -> Option<String> {
+    pub(crate) fn last_error(&self) -> Option<String> {
         self.last_error.lock().as_ref().map(|(_, m)| m.clone())
     }
 
     /// When the last error happened.
-    pub fn last_error_at(&self) -> Option<Instant> {
+    pub(crate) fn last_error_at(&self) -> Option<Instant> {
         self.last_error.lock().as_ref().map(|(t, _)| *t)
     }
 }
@@ -75,8 +75,8 @@ impl Health {
 pub struct Settings {
     status_period_us: AtomicU64,
     command_timeout_us: AtomicU64,
-    pub status_enabled: AtomicBool,
-    pub command_enabled: AtomicBool,
+    pub(crate) status_enabled: AtomicBool,
+    pub(crate) command_enabled: AtomicBool,
 }
 
 impl Settings {
@@ -169,7 +169,7 @@ impl Device {
     /// wire check), received at `received`, its first byte at `first`, answered at
     /// `done`. Heap-free; one atomic load when nothing records.
     #[inline]
-    pub fn tap_written(
+    pub(crate) fn tap_written(
         &self,
         command: crate::value::Command,
         received: Instant,
@@ -191,7 +191,7 @@ impl Device {
 
     /// Tap a status transaction for a recording: the reading, or the error.
     #[inline]
-    pub fn tap_polled(
+    pub(crate) fn tap_polled(
         &self,
         first: Option<Instant>,
         done: Instant,
@@ -209,7 +209,10 @@ impl Device {
     /// Change the settings the console edits in place (`st delay`, `cm delay`): the
     /// device's configuration with the change must pass the very checks a vehicle file
     /// does ([`DeviceConfig::check_limits`]), or nothing changes.
-    pub fn change_settings(&self, change: impl FnOnce(&mut DeviceConfig)) -> Result<(), Violation> {
+    pub(crate) fn change_settings(
+        &self,
+        change: impl FnOnce(&mut DeviceConfig),
+    ) -> Result<(), Violation> {
         let mut c = self.config.clone();
         c.status_period = self.settings.status_period();
         c.command_timeout = self.settings.command_timeout();
@@ -270,11 +273,6 @@ impl Device {
     /// When the device was set up (the engine starts right after).
     pub fn started(&self) -> Instant {
         self.started
-    }
-
-    /// The vehicle's recording tap.
-    pub fn tap(&self) -> &Tap {
-        &self.tap
     }
 
     /// Store what a status poll read (the status thread; test fixtures).
@@ -354,7 +352,7 @@ impl Device {
 
     /// How long since the device last answered — a good status or an acknowledged
     /// command; `None` before its first answer.
-    pub fn quiet_for(&self, now: Instant) -> Option<Duration> {
+    pub(crate) fn quiet_for(&self, now: Instant) -> Option<Duration> {
         match self.health.answered_ns.load(Relaxed) {
             0 => None,
             ns => Some(now.saturating_duration_since(self.started + Duration::from_nanos(ns - 1))),
@@ -374,7 +372,7 @@ impl Device {
     }
 
     /// Quiet this long, the device counts as silent.
-    pub fn is_silent_after(&self, quiet: Duration) -> bool {
+    pub(crate) fn is_silent_after(&self, quiet: Duration) -> bool {
         quiet > self.config.status_max_age && self.settings.status_enabled.load(Relaxed)
     }
 

@@ -18,7 +18,7 @@
 //! readers only ever predict from a copy, so they never disturb the filter.
 
 use crate::config::{Motion, Response};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// Share of a predicted move that may be wrong (a declared rate or lag is not exact).
 const MODEL_ERROR: f64 = 0.1;
@@ -41,7 +41,7 @@ pub struct Estimate {
     /// The velocity the command does not explain, units a second.
     pub drift: f64,
     /// One standard deviation of the drift.
-    pub drift_sigma: f64,
+    pub(crate) drift_sigma: f64,
     /// The command the device is moving to (the last it acknowledged).
     pub command: Option<f64>,
 }
@@ -50,9 +50,9 @@ pub struct Estimate {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Correction {
     /// Reading minus prediction.
-    pub innovation: f64,
+    pub(crate) innovation: f64,
     /// Its predicted standard deviation.
-    pub innovation_sigma: f64,
+    pub(crate) innovation_sigma: f64,
     /// The reading was far outside the prediction.
     pub surprise: bool,
 }
@@ -160,7 +160,8 @@ impl Estimator {
 
     /// The first instant after `from` (and no later than `until`) at which σ passes the
     /// tolerance, if it does by then.
-    pub fn sigma_passes_tolerance(&self, from: Instant, until: Instant) -> Option<Instant> {
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn sigma_passes_tolerance(&self, from: Instant, until: Instant) -> Option<Instant> {
         let tol = self.response.tolerance;
         let passed = |t: Instant| self.at(t).is_some_and(|e| e.sigma > tol);
         if !passed(until) {
@@ -168,7 +169,7 @@ impl Estimator {
         }
         // σ grows monotonically between readings: bisect to a millisecond.
         let (mut lo, mut hi) = (from, until);
-        while hi - lo > Duration::from_millis(1) {
+        while hi - lo > std::time::Duration::from_millis(1) {
             let mid = lo + (hi - lo) / 2;
             if passed(mid) {
                 hi = mid;

@@ -15,7 +15,7 @@ pub mod device;
 pub mod estimate;
 pub mod stats;
 pub mod supervision;
-pub mod tap;
+pub(crate) mod tap;
 pub mod trace;
 
 pub use device::{error_code, Cached, Device, Health, Settings, FAULT_AFTER};
@@ -50,7 +50,7 @@ impl Vehicle {
 
     /// [`Vehicle::new`] with a tap made beforehand (the log's recording layer holds it
     /// from the start).
-    pub fn with_tap(
+    pub(crate) fn with_tap(
         config: VehicleConfig,
         mut open: impl FnMut(&DeviceConfig) -> Opener,
         tap: Arc<Tap>,
@@ -95,7 +95,7 @@ impl Vehicle {
     }
 
     /// Where a recording taps the run (off unless one runs).
-    pub fn tap(&self) -> &Arc<Tap> {
+    pub(crate) fn tap(&self) -> &Arc<Tap> {
         &self.tap
     }
 
@@ -136,7 +136,7 @@ impl Vehicle {
     }
 
     /// The devices' part of the snapshot, ages as of `now`.
-    pub fn device_views(&self, now: Instant) -> Vec<DeviceView> {
+    pub(crate) fn device_views(&self, now: Instant) -> Vec<DeviceView> {
         let since = now.checked_sub(2 * self.config.supervisor.period);
         self.devices
             .iter()
@@ -145,7 +145,7 @@ impl Vehicle {
     }
 
     /// The role bindings in words: role → device or device.reading.
-    pub fn role_names(&self) -> Pairs<String> {
+    pub(crate) fn role_names(&self) -> Pairs<String> {
         let b = &self.config.roles;
         let name = |id: DeviceId| self.device(id).name().to_string();
         let reading = |r: ReadingRef| {

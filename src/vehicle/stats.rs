@@ -16,7 +16,7 @@ const GROUPING_POWER: u8 = 6;
 const MAX_VALUE_POWER: u8 = 35;
 
 /// A summary is recomputed at most this often.
-pub const SUMMARY_EVERY: Duration = Duration::from_millis(200);
+pub(crate) const SUMMARY_EVERY: Duration = Duration::from_millis(200);
 
 /// A latency histogram in nanoseconds.
 pub struct Latency {
@@ -86,7 +86,7 @@ impl Latency {
     }
 
     /// The summary now, however recent the last one (tests, the exit summary).
-    pub fn summary_now(&self) -> LatencySummary {
+    pub(crate) fn summary_now(&self) -> LatencySummary {
         let mut c = self.cache.lock();
         c.summary = self.compute();
         c.count = self.count();
@@ -126,7 +126,7 @@ impl Latency {
     }
 
     /// The non-empty buckets as (upper edge in µs, count), for plots.
-    pub fn buckets(&self) -> Vec<(f64, u64)> {
+    pub(crate) fn buckets(&self) -> Vec<(f64, u64)> {
         self.hist
             .load()
             .iter()
@@ -164,7 +164,7 @@ pub struct Stats {
 }
 
 impl Stats {
-    pub fn bump(counter: &AtomicU64) {
+    pub(crate) fn bump(counter: &AtomicU64) {
         counter.fetch_add(1, Relaxed);
     }
 

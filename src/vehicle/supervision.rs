@@ -39,7 +39,7 @@ struct Inner {
 }
 
 /// Lines of history kept.
-pub const HISTORY: usize = 32;
+pub(crate) const HISTORY: usize = 32;
 
 /// The supervisor's board: what it publishes for everyone, a recording included
 /// (every fault raised and cleared, every line of history).
@@ -112,7 +112,7 @@ impl Board {
         }
     }
 
-    pub fn set_recovery(&self, view: Option<RecoveryView>) {
+    pub(crate) fn set_recovery(&self, view: Option<RecoveryView>) {
         let mut i = self.inner.lock();
         i.recovery = match (view, i.recovery.take()) {
             (Some(v), Some((_, started))) => Some((v, started)),
@@ -133,7 +133,7 @@ impl Board {
         i.history.push_back(line);
     }
 
-    pub fn set_outcome(&self, outcome: String) {
+    pub(crate) fn set_outcome(&self, outcome: String) {
         self.inner.lock().last_outcome = Some(outcome);
     }
 }

@@ -24,10 +24,10 @@ use std::time::{Instant, SystemTime};
 
 /// Events a reader's channel holds before it drops: a second of a busy vehicle at 20 ms
 /// per drain is a few hundred; this leaves room for a recorder held up by a slow disk.
-pub const CAPACITY: usize = 8 * 1024;
+pub(crate) const CAPACITY: usize = 8 * 1024;
 
 /// Readers a tap takes: the recorder and the live view, and room for one more.
-pub const READERS: usize = 3;
+pub(crate) const READERS: usize = 3;
 
 pub use crate::value::Source;
 
@@ -191,12 +191,12 @@ impl Tap {
         }
     }
 
-    pub fn is_on(&self) -> bool {
+    pub(crate) fn is_on(&self) -> bool {
         self.open.load(Relaxed) > 0
     }
 
     /// Raw serial traffic is asked for.
-    pub fn wants_raw(&self) -> bool {
+    pub(crate) fn wants_raw(&self) -> bool {
         self.raw.load(Relaxed) > 0
     }
 
@@ -240,7 +240,7 @@ impl Tap {
     }
 
     /// The recorder's own account, for the snapshot.
-    pub fn set_status(&self, view: Option<RecordView>) {
+    pub(crate) fn set_status(&self, view: Option<RecordView>) {
         *self.status.lock() = view;
     }
 
@@ -249,7 +249,7 @@ impl Tap {
     }
 
     /// The live view's own account, for the snapshot's network part.
-    pub fn set_live(&self, view: Option<LiveView>) {
+    pub(crate) fn set_live(&self, view: Option<LiveView>) {
         *self.live.lock() = view;
     }
 

@@ -12,9 +12,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 /// Entries kept per device.
-pub const CAPACITY: usize = 256;
+pub(crate) const CAPACITY: usize = 256;
 /// Bytes kept per entry; longer chunks are cut (and marked so).
-pub const CHUNK: usize = 64;
+pub(crate) const CHUNK: usize = 64;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -26,7 +26,7 @@ pub enum Dir {
 }
 
 impl Dir {
-    pub fn arrow(self) -> &'static str {
+    pub(crate) fn arrow(self) -> &'static str {
         match self {
             Dir::Out => "->",
             Dir::In => "<-",
@@ -120,7 +120,7 @@ impl Trace {
     }
 
     /// Hand every chunk to a recording's tap too, while it asks for raw traffic.
-    pub fn tapped(mut self, device: DeviceId, tap: Arc<Tap>) -> Trace {
+    pub(crate) fn tapped(mut self, device: DeviceId, tap: Arc<Tap>) -> Trace {
         self.tap = Some((device, tap));
         self
     }

@@ -26,7 +26,7 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::{Bar, BarChart, BarGroup, Block, Borders, Paragraph, Widget};
 use std::time::Instant;
 
-pub struct BenchView<'a> {
+pub(crate) struct BenchView<'a> {
     pub id: DeviceId,
     pub d: &'a DeviceView,
     /// Faulty to the engine or the supervisor.
@@ -36,14 +36,14 @@ pub struct BenchView<'a> {
     /// The faults injected into its simulated device.
     pub sim: Option<&'a SimFaults>,
     /// Its histogram: (upper edge µs, count).
-    pub buckets: &'a [(f64, u64)],
+    pub(crate) buckets: &'a [(f64, u64)],
     pub trace: &'a [TraceEntry],
     pub theme: Theme,
     pub edit: Option<&'a Edit>,
     pub now: Instant,
     pub can_inject: bool,
     /// A replay: nothing can be sent, faults included.
-    pub read_only: bool,
+    pub(crate) read_only: bool,
     /// The simulated vehicle's state in words (`--sim` only).
     pub sim_vehicle: Option<&'a str>,
     /// For the fault keys' legend.
@@ -91,7 +91,7 @@ impl BenchView<'_> {
 
 /// Histogram buckets (upper edge µs, count) regrouped by powers of two of µs:
 /// (upper edge µs, count), from the lowest to the highest non-empty bin.
-pub fn log2_bins(buckets: &[(f64, u64)]) -> Vec<(f64, u64)> {
+pub(crate) fn log2_bins(buckets: &[(f64, u64)]) -> Vec<(f64, u64)> {
     let mut bins: Vec<(f64, u64)> = Vec::new();
     for &(edge, n) in buckets {
         let k = edge.max(1.0).log2().ceil() as i32;
@@ -116,7 +116,7 @@ pub fn log2_bins(buckets: &[(f64, u64)]) -> Vec<(f64, u64)> {
 }
 
 /// One trace line: direction, time before now, hex, ASCII.
-pub fn trace_line(e: &TraceEntry, now: Instant) -> String {
+pub(crate) fn trace_line(e: &TraceEntry, now: Instant) -> String {
     let ago = now.saturating_duration_since(e.at).as_secs_f64();
     format!(
         "{} {ago:>7.3}s ago  {:<48} {}",

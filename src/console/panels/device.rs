@@ -23,7 +23,7 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Paragraph, Widget};
 use std::time::Duration;
 
-pub struct DevicePanel<'a> {
+pub(crate) struct DevicePanel<'a> {
     pub id: DeviceId,
     pub d: &'a DeviceView,
     /// Faulty to the engine or the supervisor: drawn red.
@@ -37,11 +37,11 @@ pub struct DevicePanel<'a> {
     pub cursor: Option<Field>,
     pub edit: Option<&'a Edit>,
     /// Draw a border (larger screens).
-    pub bordered: bool,
+    pub(crate) bordered: bool,
 }
 
 /// A number as a panel shows it: 3 decimals below 10, 1 below 1000, none above.
-pub fn fmt_num(v: f64) -> String {
+pub(crate) fn fmt_num(v: f64) -> String {
     let a = v.abs();
     if a < 10.0 {
         format!("{v:.3}")
@@ -53,7 +53,7 @@ pub fn fmt_num(v: f64) -> String {
 }
 
 /// A value as a panel shows it (flags as 1 or 0, as on the paper's screen).
-pub fn fmt_value(v: Option<&Value>) -> String {
+pub(crate) fn fmt_value(v: Option<&Value>) -> String {
     match v {
         None => "-".into(),
         Some(Value::Number(x)) => fmt_num(*x),
@@ -64,7 +64,7 @@ pub fn fmt_value(v: Option<&Value>) -> String {
 
 /// A reading's value: a well-known reading with its usual decimals (`700` rpm,
 /// `0.00` m/s), any other as [`fmt_value`].
-pub fn fmt_reading(name: &str, v: Option<&Value>) -> String {
+pub(crate) fn fmt_reading(name: &str, v: Option<&Value>) -> String {
     match (v, crate::config::device::well_known(name)) {
         (Some(Value::Number(x)), Some(w)) => format!("{x:.*}", w.decimals),
         _ => fmt_value(v),
@@ -231,7 +231,7 @@ impl<'a> DevicePanel<'a> {
     }
 
     /// Every line under the title, most important first.
-    pub fn details(&self, width: u16) -> Vec<Line<'a>> {
+    pub(crate) fn details(&self, width: u16) -> Vec<Line<'a>> {
         let (d, t) = (self.d, &self.theme);
         let r = self.id;
         let l = |s: &'static str| Span::styled(s, t.label());

@@ -9,7 +9,7 @@ use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Clear, Paragraph, Widget, Wrap};
 
-pub struct Dialog<'a> {
+pub(crate) struct Dialog<'a> {
     pub ask: Ask,
     pub map: &'a Keymap,
     pub theme: Theme,

@@ -113,7 +113,7 @@ impl Widget for &Header<'_> {
 /// `text` in at most `max` columns: whole when it fits; else its longest prefix that
 /// ends at a word, then "…", then a ")" for each parenthesis the prefix left open;
 /// empty when not even "…" fits.
-pub fn shorten(text: &str, max: usize) -> String {
+pub(crate) fn shorten(text: &str, max: usize) -> String {
     if text.width() <= max {
         return text.to_string();
     }

@@ -9,10 +9,10 @@ use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Clear, Paragraph, Widget};
 
-pub struct HelpPanel<'a> {
+pub(crate) struct HelpPanel<'a> {
     pub map: &'a Keymap,
     pub theme: Theme,
-    pub scroll: u16,
+    pub(crate) scroll: u16,
     /// The vehicle's role bindings, for the keys' descriptions.
     pub roles: &'a crate::snapshot::Pairs<String>,
 }

@@ -16,7 +16,7 @@ use ratatui::widgets::{Paragraph, Widget};
 use std::time::Duration;
 
 /// How long an outcome message stays.
-pub const MESSAGE_FOR: Duration = Duration::from_secs(8);
+pub(crate) const MESSAGE_FOR: Duration = Duration::from_secs(8);
 
 /// A key as the hint bar writes it: arrows as arrows, the rest as in keymaps.
 pub fn short(k: Key) -> String {
@@ -40,12 +40,16 @@ pub fn short(k: Key) -> String {
 /// The bindings of `mode` grouped by action, in file order, help and quit first, with
 /// their descriptions for this vehicle's `roles` ([`describe`]; a key for a role the
 /// vehicle lacks is left out).
-pub fn grouped(map: &Keymap, mode: Mode, roles: &Pairs<String>) -> Vec<(String, String, Action)> {
+pub(crate) fn grouped(
+    map: &Keymap,
+    mode: Mode,
+    roles: &Pairs<String>,
+) -> Vec<(String, String, Action)> {
     grouped_first(map, mode, None, roles)
 }
 
 /// [`grouped`], with `first` (when bound) right after help and quit.
-pub fn grouped_first(
+pub(crate) fn grouped_first(
     map: &Keymap,
     mode: Mode,
     first: Option<Action>,
@@ -85,7 +89,7 @@ fn available(action: Action, roles: &Pairs<String>) -> bool {
     }
 }
 
-pub struct HintBar<'a> {
+pub(crate) struct HintBar<'a> {
     pub map: &'a Keymap,
     pub mode: Mode,
     pub theme: Theme,
@@ -113,7 +117,7 @@ impl Widget for &HintBar<'_> {
     }
 }
 
-pub struct MessageLine<'a> {
+pub(crate) struct MessageLine<'a> {
     pub m: &'a Model,
 }
 

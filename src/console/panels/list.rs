@@ -33,7 +33,7 @@ const VALUE_MAX: usize = 9;
 /// The narrowest name column.
 const NAME_MIN: usize = 4;
 
-pub struct DeviceList<'a> {
+pub(crate) struct DeviceList<'a> {
     pub snap: &'a Frame,
     pub theme: Theme,
     /// Columns and lines of devices, from device `first`, column by column.

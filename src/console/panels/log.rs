@@ -8,7 +8,7 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
 use tracing::Level;
 
-pub struct LogPanel<'a> {
+pub(crate) struct LogPanel<'a> {
     pub lines: &'a [LogLine],
     pub theme: Theme,
 }

@@ -6,7 +6,7 @@
 
 pub mod bench;
 pub mod device;
-pub mod dialog;
+pub(crate) mod dialog;
 pub mod header;
 pub mod help;
 pub mod hint;
@@ -22,7 +22,7 @@ use ratatui::text::{Line, Span};
 use std::time::Duration;
 
 /// A latency in µs as `26µs`, `1.2ms`, `1.50s`, or `-` when there is none.
-pub fn fmt_us(v: Option<f64>) -> String {
+pub(crate) fn fmt_us(v: Option<f64>) -> String {
     match v {
         None => "-".into(),
         Some(us) if us < 1000.0 => format!("{us:.0}µs"),
@@ -32,7 +32,7 @@ pub fn fmt_us(v: Option<f64>) -> String {
 }
 
 /// An age as `20ms` or `1.5s`.
-pub fn fmt_age(d: Option<Duration>) -> String {
+pub(crate) fn fmt_age(d: Option<Duration>) -> String {
     match d {
         None => "never".into(),
         Some(d) if d < Duration::from_secs(10) && d.as_millis() < 1000 => {
@@ -42,23 +42,22 @@ pub fn fmt_age(d: Option<Duration>) -> String {
     }
 }
 
-/// A number with 3 decimals, or `-`.
-pub fn fmt_f(v: Option<f64>) -> String {
-    v.map(|v| format!("{v:.3}")).unwrap_or_else(|| "-".into())
-}
-
 pub fn label<'a>(text: &'a str, style: Style) -> Span<'a> {
     Span::styled(text, style)
 }
 
 /// Lay groups of spans (a group is never split) out in lines of at most `width`
 /// columns, two spaces apart, each line starting with `indent`.
-pub fn wrap<'a>(groups: Vec<Vec<Span<'a>>>, width: u16, indent: &'static str) -> Vec<Line<'a>> {
+pub(crate) fn wrap<'a>(
+    groups: Vec<Vec<Span<'a>>>,
+    width: u16,
+    indent: &'static str,
+) -> Vec<Line<'a>> {
     pack(groups, width, indent).0
 }
 
 /// [`wrap`], also saying on which line each group landed.
-pub fn pack<'a>(
+pub(crate) fn pack<'a>(
     groups: Vec<Vec<Span<'a>>>,
     width: u16,
     indent: &'static str,

@@ -13,7 +13,7 @@ use ratatui::style::Style;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
 
-pub struct NetworkPanel<'a> {
+pub(crate) struct NetworkPanel<'a> {
     pub snap: &'a Frame,
     pub theme: Theme,
 }

@@ -22,7 +22,7 @@ use ratatui::style::Style;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
 
-pub struct SupervisorPanel<'a> {
+pub(crate) struct SupervisorPanel<'a> {
     pub m: &'a Model,
     pub cursor: bool,
     /// Two lines only (the strip shows faults and recovery).
@@ -111,7 +111,7 @@ impl SupervisorPanel<'_> {
 
     /// The two lines of a small screen: state, then accel, how many faults and the
     /// recovery step (the strip under them has the details).
-    pub fn compact_lines(&self) -> Vec<Line<'static>> {
+    pub(crate) fn compact_lines(&self) -> Vec<Line<'static>> {
         let (sup, t) = (&self.m.snap.supervisor, &self.m.theme);
         let l = |x: &'static str| Span::styled(x, t.label());
         let recovery = match &sup.recovery {
@@ -141,7 +141,7 @@ impl SupervisorPanel<'_> {
     }
 
     /// Everything, for a larger screen `width` columns wide.
-    pub fn full_lines(&self, width: u16) -> Vec<Line<'static>> {
+    pub(crate) fn full_lines(&self, width: u16) -> Vec<Line<'static>> {
         let (s, t) = (&self.m.snap, &self.m.theme);
         let sup = &s.supervisor;
         let l = |x: &'static str| Span::styled(x, t.label());
@@ -228,7 +228,7 @@ impl Widget for &SupervisorPanel<'_> {
 
 /// The full-width lines of a small screen while the supervisor has something to
 /// show: the recovery in progress, then one line per fault (as many as fit).
-pub struct SupervisorStrip<'a> {
+pub(crate) struct SupervisorStrip<'a> {
     pub snap: &'a Frame,
     pub theme: Theme,
 }
@@ -302,7 +302,7 @@ fn wrap_words(line: Line<'static>, width: u16, indent: usize) -> Vec<Line<'stati
 impl SupervisorStrip<'_> {
     /// [`SupervisorStrip::lines`] for `width` columns: a line too long for it goes on
     /// over the next lines, under its text.
-    pub fn lines_in(&self, width: u16) -> Vec<Line<'static>> {
+    pub(crate) fn lines_in(&self, width: u16) -> Vec<Line<'static>> {
         self.lines()
             .into_iter()
             .flat_map(|l| {

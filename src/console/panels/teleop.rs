@@ -9,14 +9,14 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
 use std::time::Instant;
 
-pub struct TeleopPanel<'a> {
+pub(crate) struct TeleopPanel<'a> {
     pub t: &'a Teleop,
     pub now: Instant,
     pub theme: Theme,
 }
 
 /// A gauge of `v` in −1…1, `width` cells, centre marked.
-pub fn gauge(v: f64, width: usize) -> String {
+pub(crate) fn gauge(v: f64, width: usize) -> String {
     let w = width.max(3) | 1;
     let mid = w / 2;
     let at = (((v.clamp(-1.0, 1.0) + 1.0) / 2.0) * (w - 1) as f64).round() as usize;

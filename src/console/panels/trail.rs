@@ -16,11 +16,11 @@ use ratatui::widgets::{Axis, Block, Chart, Dataset, GraphType, Widget};
 use std::time::Instant;
 
 /// The fewest rows the chart is drawn in (its border, axes and a few rows of plot).
-pub const CHART_MIN: u16 = 8;
+pub(crate) const CHART_MIN: u16 = 8;
 /// The most rows it takes.
-pub const CHART_MAX: u16 = 16;
+pub(crate) const CHART_MAX: u16 = 16;
 
-pub struct TrailChart<'a> {
+pub(crate) struct TrailChart<'a> {
     pub id: DeviceId,
     pub d: &'a DeviceView,
     pub trail: &'a Trail,

@@ -25,9 +25,9 @@ use crate::value::{Command, Reading};
 use std::time::Duration;
 
 /// How long `ATZ` may take to answer with its banner and prompt.
-pub const RESET_TIMEOUT: Duration = Duration::from_millis(1500);
+pub(crate) const RESET_TIMEOUT: Duration = Duration::from_millis(1500);
 /// How long the first OBD request after `open` may take (protocol search).
-pub const SEARCH_TIMEOUT: Duration = Duration::from_secs(10);
+pub(crate) const SEARCH_TIMEOUT: Duration = Duration::from_secs(10);
 /// Why an opened adapter has not reported yet (an engage blocker): its first request
 /// searches the car's protocols, for up to [`SEARCH_TIMEOUT`].
 pub fn searching(device: &str) -> String {
@@ -38,10 +38,10 @@ pub fn searching(device: &str) -> String {
 }
 
 /// Coolant temperature is read on one poll in this many.
-pub const COOLANT_EVERY: u64 = 10;
+pub(crate) const COOLANT_EVERY: u64 = 10;
 /// Above this engine speed the engine counts as running (a cranking starter turns it
 /// at 150–250 rpm; a warm idle is 600–900).
-pub const RUNNING_RPM: f64 = 300.0;
+pub(crate) const RUNNING_RPM: f64 = 300.0;
 /// Longest reply accepted before the prompt.
 const MAX_REPLY: usize = 1024;
 
@@ -49,7 +49,7 @@ const MAX_REPLY: usize = 1024;
 pub const INIT: [&str; 4] = ["ATE0", "ATL0", "ATH0", "ATSP0"];
 
 /// Host side of an ELM327 OBD-II adapter.
-pub struct Elm327Driver {
+pub(crate) struct Elm327Driver {
     map: ElmMap,
     reply_timeout: Duration,
     searched: bool,
@@ -73,7 +73,8 @@ impl Elm327Driver {
     }
 
     /// The adapter's identification from the last reset, e.g. `ELM327 v1.5`.
-    pub fn banner(&self) -> Option<&str> {
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn banner(&self) -> Option<&str> {
         self.banner.as_deref()
     }
 

@@ -14,15 +14,15 @@
 use std::fmt;
 
 /// The prompt that ends every reply: the adapter is ready for the next command.
-pub const PROMPT: u8 = b'>';
+pub(crate) const PROMPT: u8 = b'>';
 /// Mode 01: current powertrain data.
-pub const MODE_CURRENT: u8 = 0x01;
+pub(crate) const MODE_CURRENT: u8 = 0x01;
 /// Mode 01 replies start with 0x40 + 0x01.
-pub const MODE_CURRENT_REPLY: u8 = 0x41;
+pub(crate) const MODE_CURRENT_REPLY: u8 = 0x41;
 
 /// The OBD-II PIDs adrive reads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Pid {
+pub(crate) enum Pid {
     /// 0x05: engine coolant temperature, A − 40 °C.
     Coolant,
     /// 0x0C: engine speed, (256 A + B) / 4 rpm.
@@ -42,12 +42,12 @@ impl Pid {
         }
     }
 
-    pub fn from_code(code: u8) -> Option<Pid> {
+    pub(crate) fn from_code(code: u8) -> Option<Pid> {
         Pid::ALL.into_iter().find(|p| p.code() == code)
     }
 
     /// Data bytes in the answer.
-    pub fn data_len(self) -> usize {
+    pub(crate) fn data_len(self) -> usize {
         match self {
             Pid::Rpm => 2,
             Pid::Coolant | Pid::Speed => 1,
@@ -94,7 +94,7 @@ impl fmt::Display for Pid {
 
 /// What an ELM327 reply can say besides data.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-pub enum ElmError {
+pub(crate) enum ElmError {
     /// No ECU answered within the adapter's timeout (often: PID not supported).
     #[error("NO DATA")]
     NoData,
@@ -144,7 +144,7 @@ fn is_echo(line: &str, command: &str) -> bool {
 
 /// The lines that carry the answer: the echo, `SEARCHING...` and `BUS INIT: ...OK`
 /// removed; an error word, if the adapter said one, as an error.
-pub fn answer_lines(reply: &[u8], command: &str) -> Result<Vec<String>, ElmError> {
+pub(crate) fn answer_lines(reply: &[u8], command: &str) -> Result<Vec<String>, ElmError> {
     let mut out = Vec::new();
     for (i, line) in lines(reply).into_iter().enumerate() {
         let upper = line.to_ascii_uppercase();
@@ -179,7 +179,7 @@ pub fn answer_lines(reply: &[u8], command: &str) -> Result<Vec<String>, ElmError
 /// Hex bytes of a data line, spaced (`41 0C 1A F8`) or not (`410C1AF8`). A token of
 /// odd length starts with an 11-bit CAN header (`7E8`, or `7E804410C...` with spaces
 /// off), kept whole as one value.
-pub fn hex_tokens(line: &str) -> Option<Vec<u16>> {
+pub(crate) fn hex_tokens(line: &str) -> Option<Vec<u16>> {
     let mut out = Vec::new();
     for token in line.split_whitespace() {
         let mut token = token;
@@ -208,7 +208,7 @@ fn pid_data(tokens: &[u16], pid: Pid) -> Option<Vec<u8>> {
 }
 
 /// Parse the reply to a `01 <pid>` request, by the multi-ECU rule of this module.
-pub fn parse_pid(reply: &[u8], pid: Pid) -> Result<f64, ElmError> {
+pub(crate) fn parse_pid(reply: &[u8], pid: Pid) -> Result<f64, ElmError> {
     let request = pid.request();
     let lines = answer_lines(reply, request.trim_end())?;
     let mut first = None;
@@ -233,7 +233,7 @@ pub fn parse_pid(reply: &[u8], pid: Pid) -> Result<f64, ElmError> {
 }
 
 /// Parse the reply to an AT command that answers `OK`.
-pub fn parse_ok(reply: &[u8], command: &str) -> Result<(), ElmError> {
+pub(crate) fn parse_ok(reply: &[u8], command: &str) -> Result<(), ElmError> {
     let lines = answer_lines(reply, command)?;
     if lines.iter().any(|l| l.eq_ignore_ascii_case("OK")) {
         Ok(())
@@ -246,7 +246,7 @@ pub fn parse_ok(reply: &[u8], command: &str) -> Result<(), ElmError> {
 }
 
 /// The identification line in the reply to `ATZ` or `ATI`, e.g. `ELM327 v1.5`.
-pub fn parse_banner(reply: &[u8]) -> Result<String, ElmError> {
+pub(crate) fn parse_banner(reply: &[u8]) -> Result<String, ElmError> {
     lines(reply)
         .into_iter()
         .find(|l| l.to_ascii_uppercase().contains("ELM327"))

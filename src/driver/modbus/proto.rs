@@ -19,33 +19,33 @@ use std::fmt;
 use std::time::Duration;
 
 /// Function 03: read holding registers.
-pub const READ_HOLDING: u8 = 0x03;
+pub(crate) const READ_HOLDING: u8 = 0x03;
 /// Function 04: read input registers.
-pub const READ_INPUT: u8 = 0x04;
+pub(crate) const READ_INPUT: u8 = 0x04;
 /// Function 06: write a single holding register.
-pub const WRITE_SINGLE: u8 = 0x06;
+pub(crate) const WRITE_SINGLE: u8 = 0x06;
 /// Function 16: write multiple holding registers.
-pub const WRITE_MULTIPLE: u8 = 0x10;
+pub(crate) const WRITE_MULTIPLE: u8 = 0x10;
 /// Set in the function code of an exception reply.
-pub const EXCEPTION_BIT: u8 = 0x80;
+pub(crate) const EXCEPTION_BIT: u8 = 0x80;
 /// Slave id 0 addresses every slave; nobody answers it.
-pub const BROADCAST: u8 = 0;
+pub(crate) const BROADCAST: u8 = 0;
 /// Most registers one read may ask for (spec: 125).
-pub const MAX_READ: u16 = 125;
+pub(crate) const MAX_READ: u16 = 125;
 /// Most registers one write multiple may carry (spec: 123).
-pub const MAX_WRITE: u16 = 123;
+pub(crate) const MAX_WRITE: u16 = 123;
 /// Longest RTU frame (spec: 256 bytes).
-pub const MAX_FRAME: usize = 256;
+pub(crate) const MAX_FRAME: usize = 256;
 
 const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_MODBUS);
 
 /// CRC-16/MODBUS of `bytes`. On the wire it goes low byte first.
-pub fn crc16(bytes: &[u8]) -> u16 {
+pub(crate) fn crc16(bytes: &[u8]) -> u16 {
     CRC16.checksum(bytes)
 }
 
 /// Append the CRC of `frame` to it, low byte first.
-pub fn push_crc(frame: &mut Vec<u8>) {
+pub(crate) fn push_crc(frame: &mut Vec<u8>) {
     let crc = crc16(frame);
     frame.extend_from_slice(&crc.to_le_bytes());
 }
@@ -54,7 +54,7 @@ pub fn push_crc(frame: &mut Vec<u8>) {
 pub type Frame = arrayvec::ArrayVec<u8, MAX_FRAME>;
 
 /// True when the last two bytes of `frame` are the CRC of the rest.
-pub fn crc_ok(frame: &[u8]) -> bool {
+pub(crate) fn crc_ok(frame: &[u8]) -> bool {
     frame.len() >= 4 && {
         let (body, tail) = frame.split_at(frame.len() - 2);
         crc16(body).to_le_bytes() == [tail[0], tail[1]]
@@ -63,7 +63,7 @@ pub fn crc_ok(frame: &[u8]) -> bool {
 
 /// The silence that separates two frames: 3.5 character times of 11 bits at `baud`,
 /// and a fixed 1.75 ms above 19200 baud (Serial Line V1.02, 2.5.1.1).
-pub fn frame_gap(baud: u32) -> Duration {
+pub(crate) fn frame_gap(baud: u32) -> Duration {
     if baud > 19_200 || baud == 0 {
         Duration::from_micros(1750)
     } else {
@@ -102,7 +102,7 @@ impl Exception {
         }
     }
 
-    pub fn from_code(code: u8) -> Exception {
+    pub(crate) fn from_code(code: u8) -> Exception {
         match code {
             0x01 => Exception::IllegalFunction,
             0x02 => Exception::IllegalDataAddress,
@@ -150,7 +150,7 @@ pub enum Request {
 }
 
 impl Request {
-    pub fn function(&self) -> u8 {
+    pub(crate) fn function(&self) -> u8 {
         match self {
             Request::ReadHolding { .. } => READ_HOLDING,
             Request::ReadInput { .. } => READ_INPUT,
@@ -179,7 +179,7 @@ pub enum Response {
 
 /// Why a frame was not accepted.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-pub enum FrameError {
+pub(crate) enum FrameError {
     #[error("truncated frame: {got} of {needed} bytes")]
     Truncated { needed: usize, got: usize },
     #[error("bad CRC: frame carries {received:#06x}, computed {computed:#06x}")]
@@ -206,7 +206,7 @@ fn be(bytes: &[u8], at: usize) -> u16 {
 }
 
 /// The complete RTU frame of a request to `slave`, on the stack.
-pub fn encode_request(slave: u8, request: &Request) -> Frame {
+pub(crate) fn encode_request(slave: u8, request: &Request) -> Frame {
     let mut f = Frame::new();
     f.push(slave);
     f.push(request.function());
@@ -238,7 +238,7 @@ pub fn encode_request(slave: u8, request: &Request) -> Frame {
 /// How long the response frame that starts with `head` is, in bytes, once its first
 /// three bytes are known (slave id, function, and byte count or first address byte).
 /// `Ok(None)`: fewer than three bytes yet.
-pub fn response_len(head: &[u8]) -> Result<Option<usize>, FrameError> {
+pub(crate) fn response_len(head: &[u8]) -> Result<Option<usize>, FrameError> {
     if head.len() < 3 {
         return Ok(None);
     }
@@ -277,7 +277,11 @@ fn check_envelope(slave: u8, frame: &[u8], min: usize) -> Result<(), FrameError>
 /// Decode the complete response `frame` to `request` sent to `slave`. The CRC is checked
 /// first (a corrupted id byte is a CRC error, not another slave), then the slave id, the
 /// function code, the byte count and, for writes, the echo.
-pub fn decode_response(slave: u8, request: &Request, frame: &[u8]) -> Result<Response, FrameError> {
+pub(crate) fn decode_response(
+    slave: u8,
+    request: &Request,
+    frame: &[u8],
+) -> Result<Response, FrameError> {
     check_envelope(slave, frame, 5)?;
     let function = frame[1];
     if function == request.function() | EXCEPTION_BIT {
@@ -509,7 +513,7 @@ pub fn encode_response(slave: u8, response: &Response) -> Vec<u8> {
 }
 
 /// The complete RTU frame of an exception reply from `slave` to `function`.
-pub fn encode_exception(slave: u8, function: u8, exception: Exception) -> Vec<u8> {
+pub(crate) fn encode_exception(slave: u8, function: u8, exception: Exception) -> Vec<u8> {
     let mut f = vec![slave, function | EXCEPTION_BIT, exception.code()];
     push_crc(&mut f);
     f

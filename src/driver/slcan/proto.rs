@@ -567,7 +567,7 @@ mod tests {
             ),
         ];
         for (command, bytes) in cases {
-            assert_eq!(&encode_command(&command)[..], bytes, "{command:?}");
+            assert_eq!(&*encode_command(&command), bytes, "{command:?}");
             assert_eq!(commands(bytes), vec![Ok(command)]);
         }
     }
@@ -576,11 +576,11 @@ mod tests {
     fn extended_and_remote_frames() {
         let ext = Frame::new(Id::Extended(0x18DA_F110), &[0x02, 0x01, 0x0D]).unwrap();
         let bytes = encode_command(&Command::Transmit(ext));
-        assert_eq!(&bytes[..], b"T18DAF110302010D\r");
+        assert_eq!(&*bytes, b"T18DAF110302010D\r");
         let r = Frame::remote(Id::Standard(0x7DF), 8).unwrap();
-        assert_eq!(&encode_command(&Command::Transmit(r))[..], b"r7DF8\r");
+        assert_eq!(&*encode_command(&Command::Transmit(r)), b"r7DF8\r");
         let rx = Frame::remote(Id::Extended(0x100), 0).unwrap();
-        assert_eq!(&encode_command(&Command::Transmit(rx))[..], b"R000001000\r");
+        assert_eq!(&*encode_command(&Command::Transmit(rx)), b"R000001000\r");
         assert_eq!(
             events(b"r7DF8\rR0000010001234\r"),
             vec![

@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::config::{Motion, Response};
+use std::time::Duration;
 
 /// A reproducible noise source (xorshift, Box–Muller).
 struct Noise(u64);
