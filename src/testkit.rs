@@ -32,6 +32,29 @@ pub fn vehicle(now: Instant) -> Vehicle {
     vehicle_of(VehicleConfig::alice(), now)
 }
 
+/// A vehicle of `config` with no ports, every reading 0 (the e-stop in run), each
+/// device having reported just now: it may engage, and nothing in it moves (the
+/// allocation test and the benchmark's in-process intake run on it).
+pub fn vehicle_zeroed(config: VehicleConfig) -> Vehicle {
+    let v = Vehicle::new(config, |_| {
+        Box::new(|| Err(std::io::Error::other("test kit: no port")))
+    });
+    for d in v.devices() {
+        let mut reading = Reading::default();
+        for i in 0..d.config().readings.len() {
+            reading.set(i, 0.0);
+        }
+        if d.name() == "estop" {
+            reading.set(0, 2.0); // run
+        }
+        d.store(Cached {
+            reading,
+            at: Some(Instant::now()),
+        });
+    }
+    v
+}
+
 /// A reading of a device other than Alice's, at rest: the value its simulator
 /// starts from when the vehicle file gives one, else the engine idling in park with
 /// the e-stop in run, else 0 (a first state).

@@ -75,31 +75,15 @@ fn the_listener_path_of_an_accepted_datagram_does_not_allocate() {
     use adrive::engine::Gate;
     use adrive::net::intake::Intake;
     use adrive::net::NetStatus;
-    use adrive::value::{Command, Reading};
-    use adrive::vehicle::{Cached, Vehicle};
+    use adrive::value::Command;
     use std::sync::atomic::AtomicBool;
     use std::sync::Arc;
     use std::time::Instant;
 
     let config = VehicleConfig::alice();
     let network = config.network.clone();
-    let vehicle = Arc::new(Vehicle::new(config, |_| {
-        Box::new(|| Err(std::io::Error::other("no port in this test")))
-    }));
     // Every device has "reported": the vehicle may engage (no engine runs here).
-    for d in vehicle.devices() {
-        let mut reading = Reading::default();
-        for i in 0..d.config().readings.len() {
-            reading.set(i, 0.0);
-        }
-        if d.name() == "estop" {
-            reading.set(0, 2.0); // run
-        }
-        d.store(Cached {
-            reading,
-            at: Some(Instant::now()),
-        });
-    }
+    let vehicle = Arc::new(adrive::testkit::vehicle_zeroed(config));
     let gate = Arc::new(Gate::new(vehicle.clone()));
     let names = vehicle
         .devices()

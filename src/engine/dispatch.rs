@@ -377,11 +377,8 @@ mod tests {
         gate
     }
 
-    /// Throttle behind a release waits for it a bounded time — two brake reply timeouts
-    /// and a little — and, the release not landed, goes out as 0.
-    #[test]
-    fn throttle_behind_a_release_that_never_lands_goes_out_as_zero() {
-        let gate = releasing();
+    /// Gas and brake, and a throttle command the wire check holds behind the release.
+    fn throttle_behind_the_release(gate: &Gate) -> (&Device, &Device, Command) {
         let (gas, brake) = (
             gate.vehicle().find("gas").unwrap(),
             gate.vehicle().find("brake").unwrap(),
@@ -391,6 +388,15 @@ mod tests {
             gate.check_wire(gas, throttle, false),
             WireStep::Wait(Wait::BrakeReleased)
         );
+        (gas, brake, throttle)
+    }
+
+    /// Throttle behind a release waits for it a bounded time — two brake reply timeouts
+    /// and a little — and, the release not landed, goes out as 0.
+    #[test]
+    fn throttle_behind_a_release_that_never_lands_goes_out_as_zero() {
+        let gate = releasing();
+        let (gas, brake, throttle) = throttle_behind_the_release(&gate);
         let t = Instant::now();
         gate.wait_for(Wait::BrakeReleased);
         assert!(t.elapsed() >= brake.config().reply_timeout * 2 + WIRE_SLACK);
@@ -454,15 +460,7 @@ mod tests {
     #[test]
     fn throttle_behind_a_release_that_lands_goes_out() {
         let gate = releasing();
-        let (gas, brake) = (
-            gate.vehicle().find("gas").unwrap(),
-            gate.vehicle().find("brake").unwrap(),
-        );
-        let throttle = Command::Set(0.3);
-        assert_eq!(
-            gate.check_wire(gas, throttle, false),
-            WireStep::Wait(Wait::BrakeReleased)
-        );
+        let (gas, brake, throttle) = throttle_behind_the_release(&gate);
         std::thread::scope(|s| {
             s.spawn(|| {
                 brake.slot().take_newer().expect("the release");
