@@ -592,7 +592,12 @@ fn open_ports(
     config: &VehicleConfig,
 ) -> anyhow::Result<std::collections::HashMap<String, Box<dyn driver::Link>>> {
     let mut opened = std::collections::HashMap::new();
-    for d in &config.devices {
+    // A device on a CAN bus has no port of its own: its bus's reader opens the adapter.
+    for d in config
+        .devices
+        .iter()
+        .filter(|d| d.driver != crate::config::device::DriverKind::Can)
+    {
         match driver::open_serial(&d.port, d.baud, d.reply_timeout) {
             Ok(link) => {
                 opened.insert(d.name.clone(), link);

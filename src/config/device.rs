@@ -71,6 +71,8 @@ pub enum DriverKind {
     Modbus,
     /// An ELM327 OBD-II adapter.
     Elm327,
+    /// A device on a CAN bus (a `[[bus]]` of the file), described by its DBC.
+    Can,
 }
 
 impl DriverKind {
@@ -79,6 +81,7 @@ impl DriverKind {
             DriverKind::Line => "line",
             DriverKind::Modbus => "modbus",
             DriverKind::Elm327 => "elm327",
+            DriverKind::Can => "can",
         }
     }
 }
@@ -138,7 +141,7 @@ pub(crate) const POSITION: &str = "position";
 pub(crate) const STATE: &str = "state";
 
 /// The readings adrive knows by name. Any other reading needs its `units`.
-pub(crate) const WELL_KNOWN: [WellKnown; 12] = [
+pub(crate) const WELL_KNOWN: [WellKnown; 14] = [
     WellKnown {
         name: POSITION,
         units: "",
@@ -210,6 +213,22 @@ pub(crate) const WELL_KNOWN: [WellKnown; 12] = [
         line_key: "run",
         decimals: 0,
         what: "the engine runs (1) or not (0)",
+    },
+    WellKnown {
+        name: super::can::ENABLED,
+        units: "",
+        flag: true,
+        line_key: "en",
+        decimals: 0,
+        what: "a kit's module reports itself enabled (1) or not (0)",
+    },
+    WellKnown {
+        name: super::can::OVERRIDE,
+        units: "",
+        flag: true,
+        line_key: "ovr",
+        decimals: 0,
+        what: "a kit's module reports the driver's override (1) or not (0)",
     },
     WellKnown {
         name: "voltage",
@@ -377,6 +396,15 @@ impl DeviceConfig {
         self.readings.iter().position(|r| r.name == name)
     }
 
+    /// Its place on a CAN bus, when it is a kit's module that follows the gate (it has
+    /// enable or disable messages).
+    pub fn kit(&self) -> Option<&super::can::CanMap> {
+        match &self.wire {
+            Wire::Can(m) if m.is_kit() => Some(m),
+            _ => None,
+        }
+    }
+
     /// The index of its [`POSITION`] reading (every setpoint actuator has one).
     pub fn position(&self) -> Option<usize> {
         self.reading(POSITION)
@@ -526,6 +554,10 @@ pub(super) struct RawDevice {
     response: Option<Spanned<RawResponse>>,
     #[serde(default)]
     polling: Option<Spanned<Polling>>,
+    #[serde(default)]
+    bus: Option<Spanned<String>>,
+    #[serde(default)]
+    can: Option<Spanned<super::can::RawCan>>,
 }
 
 fn default_baud() -> u32 {
@@ -558,7 +590,7 @@ impl RawDevice {
     }
 
     /// Check everything about the device on its own; `sim` says the port is not needed.
-    pub(super) fn check(self) -> Result<DeviceConfig, Refusal> {
+    pub(super) fn check(self, buses: &[super::can::BusConfig]) -> Result<DeviceConfig, Refusal> {
         let at_name = self.name.span().start;
         let name = self.name.into_inner();
         check_name("device", &name).map_err(|m| (at_name, m))?;
@@ -577,7 +609,13 @@ impl RawDevice {
         let aliases = of.aliases(&states, self.aliases)?;
 
         // What it reports.
-        let readings = of.readings(&states, self.readings, self.units.as_deref())?;
+        let driver = *self.driver.get_ref();
+        let readings = of.readings(
+            &states,
+            self.readings,
+            self.units.as_deref(),
+            driver == DriverKind::Can,
+        )?;
         let units = self.units.unwrap_or_default();
         if kind != Kind::Setpoint && !units.is_empty() {
             return Err((
@@ -591,7 +629,7 @@ impl RawDevice {
         let partial = DeviceConfig {
             name: name.clone(),
             kind,
-            driver: *self.driver.get_ref(),
+            driver,
             port: String::new(),
             baud: self.baud,
             status_period: self.status_period,
@@ -618,8 +656,38 @@ impl RawDevice {
                 Some(safe_value(&partial, s.get_ref()).map_err(|m| (at, m))?)
             }
         };
-        let wire = protocol_map::resolve(&partial, at_driver, self.modbus, self.line)?;
-        let port = self.port.map(Spanned::into_inner).unwrap_or_default();
+        let (wire, port) = if driver == DriverKind::Can {
+            if let Some(p) = &self.port {
+                return Err((
+                    p.span().start,
+                    format!("{name}: a CAN device has no port of its own (its bus has)"),
+                ));
+            }
+            if let Some(m) = &self.modbus {
+                return Err((
+                    m.span().start,
+                    format!("{name}: a [device.modbus] table goes with driver = \"modbus\" only"),
+                ));
+            }
+            let map = super::can::resolve(&partial, at_driver, self.bus, self.can, buses)?;
+            let port = buses[map.bus].port.clone();
+            (Wire::Can(map), port)
+        } else {
+            if let Some(b) = &self.bus {
+                return Err((
+                    b.span().start,
+                    format!("{name}: `bus` goes with driver = \"can\" only"),
+                ));
+            }
+            if let Some(c) = &self.can {
+                return Err((
+                    c.span().start,
+                    format!("{name}: a [device.can] table goes with driver = \"can\" only"),
+                ));
+            }
+            let wire = protocol_map::resolve(&partial, at_driver, self.modbus, self.line)?;
+            (wire, self.port.map(Spanned::into_inner).unwrap_or_default())
+        };
         Ok(DeviceConfig {
             port,
             safe,
@@ -733,6 +801,7 @@ impl Of<'_> {
         states: &[String],
         readings: Option<Spanned<Vec<Spanned<toml::Value>>>>,
         units: Option<&str>,
+        can: bool,
     ) -> Result<Vec<ReadingSpec>, Refusal> {
         let (name, kind, at_name) = (self.name, self.kind, self.at_name);
         let readings = match readings {
@@ -783,7 +852,9 @@ impl Of<'_> {
                 ),
             ));
         }
-        if kind == Kind::Setpoint && !readings.iter().any(|r| r.name == POSITION) {
+        // A kit on a CAN bus may report no position (OSCC's modules report only whether
+        // they are enabled, overridden and faulted).
+        if kind == Kind::Setpoint && !can && !readings.iter().any(|r| r.name == POSITION) {
             return Err((
                 at_name,
                 format!("{name}: a setpoint device reports its `position` (add it to readings)"),

@@ -15,8 +15,9 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 6] = [
+const TABLES: [&str; 7] = [
     "vehicle",
+    "bus",
     "network",
     "supervisor",
     "record",
@@ -24,9 +25,11 @@ const TABLES: [&str; 6] = [
     "device",
 ];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
-const DEVICE_TABLES: [&str; 6] = ["sim", "modbus", "line", "response", "aliases", "readings"];
+const DEVICE_TABLES: [&str; 7] = [
+    "sim", "modbus", "line", "can", "response", "aliases", "readings",
+];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [[device]] (with [device.sim], [device.modbus], [device.line], [device.response])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -306,6 +309,9 @@ fn suggest(written: &str) -> Option<String> {
         "[record]",
         "[ros2]",
         "[[device]]",
+        "[[bus]]",
+        "[bus.sim]",
+        "[device.can]",
         "[device.sim]",
         "[device.modbus]",
         "[device.line]",

@@ -13,6 +13,7 @@
 //! - [`document`]: where each key sits in the file, so that a check made after typing
 //!   still names its line.
 
+pub mod can;
 pub mod device;
 pub mod document;
 pub mod limits;
@@ -231,6 +232,8 @@ pub struct VehicleConfig {
     pub roles: Bindings,
     pub supervisor: SupervisorConfig,
     pub devices: Vec<DeviceConfig>,
+    /// `[[bus]]`: the CAN buses the devices with `driver = "can"` are on.
+    pub buses: Vec<can::BusConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
     /// `[record]`: record every run (none: only with `--record`).
@@ -374,6 +377,8 @@ struct Raw {
     #[serde(default)]
     supervisor: SupervisorConfig,
     #[serde(default)]
+    bus: Vec<can::RawBus>,
+    #[serde(default)]
     device: Vec<Spanned<device::RawDevice>>,
     #[serde(default)]
     network: Option<NetworkConfig>,
@@ -398,6 +403,14 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     let doc = Document::parse(text, path)?;
     let raw: Raw = toml::from_str(text).map_err(|e| doc.type_error(e.span(), e.message()))?;
     let lines = doc.lines();
+    let mut buses: Vec<can::BusConfig> = Vec::new();
+    for b in raw.bus {
+        let bus = b.check(path).map_err(|(o, m)| doc.error_at(o, m))?;
+        if buses.iter().any(|o| o.name == bus.name) {
+            return Err(doc.error_at(0, format!("bus {} is defined twice", bus.name)));
+        }
+        buses.push(bus);
+    }
     let mut devices: Vec<DeviceConfig> = Vec::new();
     for spanned in raw.device {
         let at = spanned.span().start;
@@ -412,7 +425,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
             ));
         }
         let d = raw_device
-            .check()
+            .check(&buses)
             .map_err(|(o, m)| doc.error_at(o.max(at), m))?;
         let owner = format!("device.{}", d.name);
         d.check_limits()
@@ -461,6 +474,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         roles,
         supervisor: raw.supervisor,
         devices,
+        buses,
         network,
         record: raw.record,
         ros2,

@@ -247,8 +247,23 @@ pub(crate) fn send_request(
 
 /// Build the driver a device's configuration asks for.
 pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
+    build_on(config, &[])
+}
+
+/// [`build`], with the vehicle's buses for a device on a CAN bus.
+pub fn build_on(
+    config: &crate::config::DeviceConfig,
+    buses: &[std::sync::Arc<slcan::Bus>],
+) -> Box<dyn Driver> {
     use crate::config::protocol_map::Wire;
     match &config.wire {
+        Wire::Can(m) => Box::new(slcan::CanDriver::new(
+            m.clone(),
+            buses
+                .get(m.bus)
+                .expect("a CAN device's driver is built with its bus")
+                .clone(),
+        )),
         Wire::Modbus(m) => Box::new(modbus::ModbusDriver::new(
             m.clone(),
             config.baud,

@@ -40,6 +40,16 @@ impl SerialLink {
         Ok(SerialLink { port, timeout })
     }
 
+    /// A second handle on the same open port (a CAN bus: one thread reads every
+    /// frame while the devices' command threads write).
+    pub fn try_clone(&self) -> io::Result<SerialLink> {
+        let port = self.port.try_clone_native().map_err(io::Error::from)?;
+        Ok(SerialLink {
+            port,
+            timeout: self.timeout,
+        })
+    }
+
     #[allow(unsafe_code)]
     fn fd(&self) -> BorrowedFd<'_> {
         // SAFETY: as in `new`.

@@ -95,7 +95,10 @@ impl Gate {
         for d in v.devices().iter().filter(|d| d.is_actuator()) {
             d.slot().reset(None);
         }
+        // Kits enable after the safe command, never before it.
+        v.set_kits_engaged(true);
         self.command_safe_state();
+        self.kits_follow(true, &self.state().stop_state(v.config()));
         if let Some(s) = v.bound(Role::Steering) {
             if let Some(p) = s.config().position().and_then(|i| s.reading(i)) {
                 self.store(s, Command::Set(p), Instant::now());
@@ -122,15 +125,39 @@ impl Gate {
 
     fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
         let was = self.state().set_disengaged(reason);
+        // Kits disable after the safe command.
+        self.vehicle().set_kits_engaged(false);
         let now = Instant::now();
-        for (id, c) in state {
+        for &(id, c) in &state {
             self.store(self.vehicle().device(id), c, now);
         }
+        self.kits_follow(false, &state);
         if was {
             tracing::warn!("disengaged: {reason}");
             self.tap_gate(GateChange::Disengaged, || format!("disengaged: {reason}"));
         }
         was
+    }
+
+    /// The kit devices on a CAN bus that `state` does not command get their enable
+    /// (`engaged`) or disable message on their own; the others send it after their
+    /// command ([`crate::driver::slcan::CanDriver`]).
+    fn kits_follow(&self, engaged: bool, state: &[(DeviceId, Command)]) {
+        let v = self.vehicle();
+        if v.buses().is_empty() {
+            return;
+        }
+        let now = Instant::now();
+        let control = Command::Control(if engaged {
+            crate::value::Control::Enable
+        } else {
+            crate::value::Control::Disable
+        });
+        for d in v.devices().iter().filter(|d| d.config().kit().is_some()) {
+            if !state.iter().any(|(id, _)| *id == d.id()) {
+                self.store(d, control, now);
+            }
+        }
     }
 
     /// Command intake for one device, past ownership: the gate and the interlocks

@@ -34,6 +34,7 @@
 //! [`Engine::liveness`] tells whether each still runs (the service watchdog is fed
 //! only while all do). docs/architecture.md draws it.
 
+pub mod bus;
 pub mod command;
 pub(crate) mod dispatch;
 pub mod fast;
@@ -85,15 +86,29 @@ impl Engine {
     ) -> std::io::Result<Engine> {
         let mut threads = Owner::default();
         let vehicle = gate.vehicle().clone();
+        for b in 0..vehicle.buses().len() {
+            let v = vehicle.clone();
+            let name = v.buses()[b].name().to_string();
+            threads.spawn(format!("bus/{name}"), move |stop| {
+                bus::reader_loop(&v, b, stop)
+            })?;
+        }
         for i in 0..vehicle.devices().len() {
             let name = vehicle.devices()[i].name().to_string();
             let v = vehicle.clone();
             let thread = format!("{name}/status");
             let fault = inject.clone().filter(|f| f.thread == thread);
-            threads.spawn(thread, move |stop| {
-                let fault = fault.map(|f| (Instant::now() + f.after, f.panic));
-                status::status_loop(&v.devices()[i], stop, fault)
-            })?;
+            // A device on a CAN bus is read by its bus's reader.
+            let on_bus = matches!(
+                v.devices()[i].config().wire,
+                crate::config::protocol_map::Wire::Can(_)
+            );
+            if !on_bus {
+                threads.spawn(thread, move |stop| {
+                    let fault = fault.map(|f| (Instant::now() + f.after, f.panic));
+                    status::status_loop(&v.devices()[i], stop, fault)
+                })?;
+            }
             if vehicle.devices()[i].is_actuator() {
                 let g = gate.clone();
                 // The command thread stops when its slot does (it sleeps there).

@@ -168,6 +168,7 @@ fn responder_for(c: &DeviceConfig) -> Box<dyn Responder> {
         Wire::Modbus(m) => Box::new(modbus::ModbusSlave::new(m.clone())),
         Wire::Elm327(m) => Box::new(elm327::Elm327Emulator::new(m.clone())),
         Wire::Line(m) => Box::new(line::LineDevice(m.clone())),
+        Wire::Can(_) => unreachable!("a device on a CAN bus is simulated behind its bus's adapter"),
     }
 }
 
@@ -231,6 +232,9 @@ impl Sim {
         let mut ports = Vec::new();
         let mut threads = Vec::new();
         for (i, c) in config.devices.iter().enumerate() {
+            if matches!(c.wire, Wire::Can(_)) {
+                continue;
+            }
             let link = dir.join(c.name.as_str());
             let (master, slave, pty) = bring_up(&link)?;
             let port = SimPort {

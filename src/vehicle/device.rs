@@ -136,8 +136,9 @@ impl Device {
         roles: Vec<Role>,
         opener: Opener,
         tap: Arc<Tap>,
+        buses: &[Arc<crate::driver::slcan::Bus>],
     ) -> Device {
-        let driver = crate::driver::build(&config);
+        let driver = crate::driver::build_on(&config, buses);
         let trace = Arc::new(Trace::new(config.name.as_str()).tapped(id, tap.clone()));
         let port_health = Arc::new(PortHealth::default());
         let estimator = config

@@ -20,8 +20,10 @@ pub mod trace;
 
 pub use device::{error_code, Cached, Device, Health, Settings, FAULT_AFTER};
 
+use crate::config::protocol_map::Wire;
 use crate::config::roles::ReadingRef;
 use crate::config::{Bindings, DeviceConfig, Role, VehicleConfig};
+use crate::driver::slcan::Bus;
 use crate::engine::port::Opener;
 use crate::snapshot::{self, DeviceView, Pairs};
 use crate::value::{DeviceId, EstopState};
@@ -35,6 +37,8 @@ pub struct Vehicle {
     name: String,
     config: VehicleConfig,
     devices: Vec<Device>,
+    /// The CAN buses, by index in the configuration's.
+    buses: Vec<Arc<Bus>>,
     /// What the supervisor sees: faults and the recovery in progress.
     supervision: Arc<supervision::Board>,
     /// Where a recording taps the run (off unless one runs).
@@ -55,6 +59,11 @@ impl Vehicle {
         mut open: impl FnMut(&DeviceConfig) -> Opener,
         tap: Arc<Tap>,
     ) -> Vehicle {
+        let buses: Vec<Arc<Bus>> = config
+            .buses
+            .iter()
+            .map(|b| Arc::new(Bus::new(b.clone())))
+            .collect();
         let devices = config
             .devices
             .iter()
@@ -62,13 +71,22 @@ impl Vehicle {
             .map(|(i, c)| {
                 let id = DeviceId(i as u16);
                 let roles = config.roles.roles_of(id).collect();
-                Device::new(id, c.clone(), roles, open(c), tap.clone())
+                // A device on a CAN bus opens its bus's write half, not a port.
+                let opener: Opener = match &c.wire {
+                    Wire::Can(m) => {
+                        let bus = buses[m.bus].clone();
+                        Box::new(move || bus.link())
+                    }
+                    _ => open(c),
+                };
+                Device::new(id, c.clone(), roles, opener, tap.clone(), &buses)
             })
             .collect();
         Vehicle {
             name: config.vehicle.name.clone(),
             config,
             devices,
+            buses,
             supervision: Arc::new(supervision::Board::new(tap.clone())),
             tap,
             started: Instant::now(),
@@ -87,6 +105,19 @@ impl Vehicle {
     /// Every device, in the vehicle file's order (a [`DeviceId`] indexes it).
     pub fn devices(&self) -> &[Device] {
         &self.devices
+    }
+
+    /// The CAN buses, in the vehicle file's order.
+    pub fn buses(&self) -> &[Arc<Bus>] {
+        &self.buses
+    }
+
+    /// Tell every bus whether the vehicle is engaged (kit devices enable after their
+    /// next command, or disable after each).
+    pub(crate) fn set_kits_engaged(&self, on: bool) {
+        for b in &self.buses {
+            b.set_engaged(on);
+        }
     }
 
     /// What the supervisor sees: faults and the recovery in progress.

@@ -1,6 +1,407 @@
 //! CAN buses behind serial-line adapters that speak SLCAN (the Lawicel protocol): one
-//! port carries every frame of a bus. [`proto`] is the protocol on bytes alone; the link
-//! that opens the adapter, sets its bitrate and reads the bus for many devices comes
-//! with the engine's bus reader.
+//! port carries every frame of a bus, for every device on it. [`proto`] is the protocol
+//! on bytes alone. Here:
+//!
+//! - [`Bus`]: one adapter, shared. The engine's bus reader (`engine::bus`) opens it,
+//!   brings it onto the bus, reads every frame and hands each to the devices that
+//!   listen to its identifier; while it is up, the bus lends its write half to the
+//!   devices' command threads, one whole frame at a time.
+//! - [`BusLink`]: what a CAN device's port opens — the bus's write half. A device's
+//!   command thread takes its port under adrive's port rule as for any device, and its
+//!   writes go to the adapter under the bus's lock, so frames never interleave.
+//! - [`CanDriver`]: a device on the bus. A command is one frame of the device's command
+//!   message, encoded by the DBC (its rolling counter and checksum filled in); the
+//!   adapter's acknowledgement comes to the reader, not to the writer, so a command is
+//!   done once the frame is with the adapter. A kit device follows the gate: while the
+//!   vehicle is engaged its enable message follows its first command (the safe
+//!   command engage sends), and while it is not, its disable message follows every
+//!   command (the safe state's) — the kit is never left enabled by adrive.
+//!
+//! The link is pluggable: another way onto a bus (SocketCAN) needs only its own
+//! [`BusPort`] opener and reader.
 
 pub mod proto;
+
+use crate::can::dbc::Sequence;
+use crate::can::{Frame, Id};
+use crate::config::can::{BusConfig, CanMap};
+use crate::driver::{Driver, DriverError, Link};
+use crate::value::{Command, Control, Reading};
+use parking_lot::Mutex;
+use proto::Bitrate;
+use std::collections::BTreeMap;
+use std::io::{self, Read, Write};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// The two halves of an open adapter port: the reader's and the writers'.
+pub type BusPort = (Box<dyn Link>, Box<dyn Link>);
+
+/// Opens a bus's adapter port (a serial port, a pseudo-terminal, a test's).
+pub type BusOpener = Box<dyn FnMut() -> io::Result<BusPort> + Send>;
+
+/// Open an adapter's serial port by path, as two handles on one open port.
+pub fn open_serial_pair(path: &str, timeout: Duration) -> io::Result<BusPort> {
+    let named = |e: io::Error| io::Error::new(e.kind(), format!("cannot open {path}: {e}"));
+    let port = serialport::new(path, 115_200)
+        .timeout(timeout)
+        .open_native()
+        .map_err(|e| named(super::lock::explain(path, e.into())))?;
+    let reader = super::serial::SerialLink::new(port, timeout).map_err(named)?;
+    let writer = reader.try_clone().map_err(named)?;
+    Ok((Box::new(reader), Box::new(writer)))
+}
+
+/// Counters of one bus.
+#[derive(Default, Debug)]
+pub struct BusStats {
+    /// Frames received from the bus.
+    pub received: AtomicU64,
+    /// Frames handed to the adapter.
+    pub sent: AtomicU64,
+    /// Frames the adapter took for transmission (`z`/`Z`).
+    pub acked: AtomicU64,
+    /// Commands the adapter refused (BEL).
+    pub refused: AtomicU64,
+    /// Lines that were none of SLCAN's.
+    pub garbled: AtomicU64,
+    /// Times the adapter was brought onto the bus.
+    pub opens: AtomicU64,
+}
+
+/// The last frame of one identifier, as the bench view shows it.
+#[derive(Clone, Copy, Debug)]
+pub struct Seen {
+    pub frame: Frame,
+    pub at: Instant,
+    /// Frames of this identifier so far.
+    pub count: u64,
+    /// Whether adrive sent it (else the bus did).
+    pub sent: bool,
+}
+
+/// One CAN bus: its adapter, shared by the devices on it.
+pub struct Bus {
+    config: BusConfig,
+    /// The write half, while the adapter is on the bus.
+    writer: Mutex<Option<Box<dyn Link>>>,
+    /// Why the adapter is not on the bus (for the devices' ports and the console).
+    down: Mutex<Option<String>>,
+    /// The adapter's status flags said the bus is in error (bus off, error passive).
+    bus_error: Mutex<Option<String>>,
+    /// The vehicle is engaged: kit devices are to be enabled.
+    engaged: AtomicBool,
+    /// The last frame of each identifier, sent or received.
+    seen: Mutex<BTreeMap<Id, Seen>>,
+    pub stats: BusStats,
+}
+
+impl Bus {
+    pub fn new(config: BusConfig) -> Bus {
+        Bus {
+            config,
+            writer: Mutex::new(None),
+            down: Mutex::new(Some("adapter not opened yet".into())),
+            bus_error: Mutex::new(None),
+            engaged: AtomicBool::new(false),
+            seen: Mutex::new(BTreeMap::new()),
+            stats: BusStats::default(),
+        }
+    }
+
+    pub fn config(&self) -> &BusConfig {
+        &self.config
+    }
+
+    pub fn name(&self) -> &str {
+        &self.config.name
+    }
+
+    pub fn bitrate(&self) -> Bitrate {
+        self.config.bitrate
+    }
+
+    /// Whether kit devices are to be enabled: set by the gate, before the commands of
+    /// an engage or a disengage are stored, so the driver sends them in order.
+    pub fn set_engaged(&self, on: bool) {
+        self.engaged.store(on, Relaxed);
+    }
+
+    pub fn engaged(&self) -> bool {
+        self.engaged.load(Relaxed)
+    }
+
+    /// The adapter is on the bus: lend its write half to the devices.
+    pub fn up(&self, writer: Box<dyn Link>) {
+        *self.writer.lock() = Some(writer);
+        *self.down.lock() = None;
+        self.stats.opens.fetch_add(1, Relaxed);
+    }
+
+    /// The adapter is gone (or never came): take the write half back.
+    pub fn go_down(&self, why: String) {
+        *self.writer.lock() = None;
+        *self.down.lock() = Some(why);
+    }
+
+    /// Why the adapter is not on the bus, or `None` while it is.
+    pub fn down_reason(&self) -> Option<String> {
+        self.down.lock().clone()
+    }
+
+    /// The adapter's flags say the bus is in error: why, or `None`.
+    pub fn bus_error(&self) -> Option<String> {
+        self.bus_error.lock().clone()
+    }
+
+    pub fn set_bus_error(&self, why: Option<String>) {
+        *self.bus_error.lock() = why;
+    }
+
+    /// Write bytes to the adapter (whole commands), under the bus's lock.
+    fn write(&self, bytes: &[u8]) -> io::Result<()> {
+        let mut w = self.writer.lock();
+        let Some(link) = w.as_mut() else {
+            return Err(io::Error::new(
+                io::ErrorKind::NotConnected,
+                self.down_reason()
+                    .unwrap_or_else(|| "adapter closed".into()),
+            ));
+        };
+        match link.write_all(bytes) {
+            Ok(()) => Ok(()),
+            Err(e) => {
+                // The reader sees the same port fail and reopens it.
+                *w = None;
+                Err(e)
+            }
+        }
+    }
+
+    /// Send one frame (counted and kept for the bench view).
+    pub fn send(&self, frame: &Frame) -> io::Result<()> {
+        let line = proto::encode_command(&proto::Command::Transmit(*frame));
+        self.write(&line)?;
+        self.stats.sent.fetch_add(1, Relaxed);
+        self.note(frame, Instant::now(), true);
+        Ok(())
+    }
+
+    /// Send one adapter command that is not a frame (`F`, a status request).
+    pub fn ask(&self, command: proto::Command) -> io::Result<()> {
+        self.write(&proto::encode_command(&command))
+    }
+
+    /// Keep a frame seen on the bus.
+    pub fn note(&self, frame: &Frame, at: Instant, sent: bool) {
+        let mut seen = self.seen.lock();
+        let e = seen.entry(frame.id()).or_insert(Seen {
+            frame: *frame,
+            at,
+            count: 0,
+            sent,
+        });
+        e.frame = *frame;
+        e.at = at;
+        e.count += 1;
+        e.sent = sent;
+    }
+
+    /// The last frame of every identifier seen, by identifier.
+    pub fn seen(&self) -> Vec<Seen> {
+        self.seen.lock().values().copied().collect()
+    }
+
+    /// What a CAN device's port opens: the write half, while the adapter is up.
+    pub fn link(self: &Arc<Self>) -> io::Result<Box<dyn Link>> {
+        if let Some(why) = self.down_reason() {
+            return Err(io::Error::new(io::ErrorKind::NotConnected, why));
+        }
+        Ok(Box::new(BusLink { bus: self.clone() }))
+    }
+}
+
+/// A CAN device's port: writes go to its bus's adapter; nothing is read here (the
+/// bus reader reads for every device).
+pub struct BusLink {
+    bus: Arc<Bus>,
+}
+
+impl Read for BusLink {
+    fn read(&mut self, _: &mut [u8]) -> io::Result<usize> {
+        Err(io::ErrorKind::TimedOut.into())
+    }
+}
+
+impl Write for BusLink {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.bus.write(buf)?;
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+impl Link for BusLink {
+    fn set_timeout(&mut self, _: Duration) -> io::Result<()> {
+        Ok(())
+    }
+    fn discard_input(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
+
+/// A device on a CAN bus.
+pub struct CanDriver {
+    map: CanMap,
+    bus: Arc<Bus>,
+    sequence: Option<Sequence>,
+    /// The enable message went out since the vehicle was last not engaged.
+    enabled_sent: bool,
+}
+
+impl CanDriver {
+    pub fn new(map: CanMap, bus: Arc<Bus>) -> CanDriver {
+        CanDriver {
+            sequence: map.sequence.clone(),
+            map,
+            bus,
+            enabled_sent: false,
+        }
+    }
+
+    /// The frame of a command.
+    pub fn encode(&mut self, command: Command) -> Result<Frame, DriverError> {
+        let c = self
+            .map
+            .command
+            .as_ref()
+            .ok_or_else(|| DriverError::Unsupported(format!("{command:?}: a sensor")))?;
+        let value = match command {
+            Command::Set(v) => v,
+            Command::State(s) => f64::from(s),
+            Command::Control(_) => unreachable!("controls are not command frames"),
+        };
+        let m = self.map.dbc.by_id(c.message).expect("checked at load");
+        let mut frame = m
+            .encode(&[(c.signal.as_str(), value / c.scale)])
+            .map_err(|e| DriverError::Unsupported(e.to_string()))?;
+        if let Some(s) = &mut self.sequence {
+            s.stamp(&mut frame);
+        }
+        Ok(frame)
+    }
+
+    /// The frame of the enable or disable message (every signal at its start value:
+    /// the kit's magic bytes).
+    fn control_frame(&self, id: Id) -> Frame {
+        let m = self.map.dbc.by_id(id).expect("checked at load");
+        m.encode(&[]).expect("start values fit")
+    }
+
+    fn send(&self, frame: &Frame, link: &mut dyn Link) -> Result<(), DriverError> {
+        let line = proto::encode_command(&proto::Command::Transmit(*frame));
+        link.write_all(&line)?;
+        self.bus.stats.sent.fetch_add(1, Relaxed);
+        self.bus.note(frame, Instant::now(), true);
+        Ok(())
+    }
+
+    /// After a command: the enable message once the vehicle is engaged, the disable
+    /// message every time it is not.
+    fn follow_gate(&mut self, link: &mut dyn Link) -> Result<(), DriverError> {
+        if self.bus.engaged() {
+            if let (Some(id), false) = (self.map.enable, self.enabled_sent) {
+                self.send(&self.control_frame(id), link)?;
+                self.enabled_sent = true;
+            }
+        } else {
+            self.enabled_sent = false;
+            if let Some(id) = self.map.disable {
+                self.send(&self.control_frame(id), link)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Driver for CanDriver {
+    fn poll(&mut self, _: &mut dyn Link) -> Result<Reading, DriverError> {
+        Err(DriverError::Unsupported(
+            "a CAN device is not polled: its bus reader stores what it reports".into(),
+        ))
+    }
+
+    fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        self.send_command(link, command)
+    }
+
+    fn sends_at_once(&self) -> bool {
+        true
+    }
+
+    fn send_command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        match command {
+            Command::Control(Control::Enable) => {
+                let id = self.map.enable.ok_or_else(|| {
+                    DriverError::Unsupported("enable: this device has no enable message".into())
+                })?;
+                if !self.bus.engaged() {
+                    return Err(DriverError::Refused(
+                        "enable: the vehicle is not engaged".into(),
+                    ));
+                }
+                self.send(&self.control_frame(id), link)?;
+                self.enabled_sent = true;
+                Ok(())
+            }
+            Command::Control(Control::Disable) => {
+                let id = self.map.disable.ok_or_else(|| {
+                    DriverError::Unsupported("disable: this device has no disable message".into())
+                })?;
+                self.enabled_sent = false;
+                self.send(&self.control_frame(id), link)
+            }
+            Command::Control(c) => Err(DriverError::Unsupported(format!(
+                "{}: not a CAN device's",
+                c.as_str()
+            ))),
+            _ => {
+                let frame = self.encode(command)?;
+                self.send(&frame, link)?;
+                self.follow_gate(link)
+            }
+        }
+    }
+
+    fn finish_command(&mut self, _: &mut dyn Link) -> Result<(), DriverError> {
+        // The adapter's acknowledgement goes to the bus reader.
+        Ok(())
+    }
+}
+
+/// The readings a device's frames carry: decode `frame` into `into` for `map`. Returns
+/// whether the frame carried anything of the device's.
+pub fn decode_into(map: &CanMap, frame: &Frame, into: &mut Reading) -> bool {
+    let mut any = false;
+    let Some(m) = map.dbc.by_id(frame.id()) else {
+        return false;
+    };
+    for (i, r) in map.readings.iter().enumerate() {
+        if r.message == frame.id() {
+            if let Some(v) = m.signal(&r.signal).and_then(|s| s.decode(frame.data())) {
+                into.set(i, v * r.scale);
+                any = true;
+            }
+        }
+    }
+    if let Some(f) = map.faults.as_ref().filter(|f| f.message == frame.id()) {
+        if let Some(raw) = m.signal(&f.signal).and_then(|s| s.raw(frame.data())) {
+            into.fault = raw as u16;
+            any = true;
+        }
+    }
+    any
+}

@@ -1,0 +1,410 @@
+//! CAN buses and the devices on them. A `[[bus]]` is one serial-line CAN adapter (its
+//! port, the bus bitrate) and the DBC file that describes the messages on that bus; a
+//! device with `driver = "can"` names its bus and, in `[device.can]`, the DBC messages
+//! and signals that command it, enable and disable it, and carry each of its readings.
+//! Everything is looked up in the DBC here, once: a misspelt message or signal is a
+//! vehicle-file error at its line, never a silent frame on the bus.
+
+use super::device::{DeviceConfig, ReadingKind, Refusal};
+use crate::can::dbc::{Checksum, Database, Message, Sequence};
+use crate::can::Id;
+use crate::driver::slcan::proto::Bitrate;
+use crate::value::Kind;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::sync::Arc;
+use std::time::Duration;
+use toml::Spanned;
+
+/// The reading a kit reports itself enabled by (a flag): while engaged, 0 is a fault.
+pub const ENABLED: &str = "enabled";
+/// The reading a kit reports its operator override by (a flag): adrive's driver
+/// override, beside the estimator's.
+pub const OVERRIDE: &str = "override";
+
+/// One CAN bus, checked.
+#[derive(Clone, Debug)]
+pub struct BusConfig {
+    /// Its free name (devices name it in `bus = "…"`).
+    pub name: String,
+    /// The adapter's serial port.
+    pub port: String,
+    pub bitrate: Bitrate,
+    /// The messages on the bus.
+    pub dbc: Arc<Database>,
+    /// The simulated kit behind the adapter under `--sim`.
+    pub sim: BusSim,
+}
+
+impl PartialEq for BusConfig {
+    fn eq(&self, o: &BusConfig) -> bool {
+        self.name == o.name
+            && self.port == o.port
+            && self.bitrate == o.bitrate
+            && self.dbc.path() == o.dbc.path()
+            && self.sim == o.sim
+    }
+}
+
+/// `[bus.sim]`: the simulated kit.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BusSim {
+    /// The modules' firmware watchdog: a module that hears no command this long
+    /// disables itself. None: the module never times out (OSCC v1.2.4).
+    #[serde(default, deserialize_with = "super::opt_duration")]
+    pub watchdog: Option<Duration>,
+}
+
+/// `[[bus]]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawBus {
+    name: Spanned<String>,
+    #[serde(default)]
+    port: String,
+    #[serde(default = "default_bitrate")]
+    bitrate: Spanned<u32>,
+    dbc: Spanned<String>,
+    #[serde(default)]
+    sim: BusSim,
+}
+
+fn default_bitrate() -> Spanned<u32> {
+    Spanned::new(0..0, 500_000)
+}
+
+impl RawBus {
+    /// Check the bus and load its DBC, relative to the vehicle file at `source`.
+    pub(super) fn check(self, source: &str) -> Result<BusConfig, Refusal> {
+        let at = self.name.span().start;
+        let name = self.name.into_inner();
+        super::device::check_name("bus", &name).map_err(|m| (at, m))?;
+        let bps = *self.bitrate.get_ref();
+        let bitrate = Bitrate::from_bits_per_second(bps).ok_or_else(|| {
+            let rates: Vec<String> = Bitrate::ALL
+                .iter()
+                .map(|b| b.bits_per_second().to_string())
+                .collect();
+            (
+                self.bitrate.span().start.max(at),
+                format!(
+                    "bus {name}: bitrate {bps}: expected one of the adapter's rates ({})",
+                    rates.join(", ")
+                ),
+            )
+        })?;
+        let at_dbc = self.dbc.span().start;
+        let written = self.dbc.into_inner();
+        let path = Path::new(source)
+            .parent()
+            .unwrap_or(Path::new(""))
+            .join(&written);
+        let dbc = Database::load(&path).map_err(|e| (at_dbc, format!("bus {name}: dbc: {e}")))?;
+        Ok(BusConfig {
+            name,
+            port: self.port,
+            bitrate,
+            dbc: Arc::new(dbc),
+            sim: self.sim,
+        })
+    }
+}
+
+/// One signal of one message, and how a reading is made of it (value × scale).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SignalRef {
+    pub message: Id,
+    pub signal: String,
+    pub scale: f64,
+}
+
+/// A device's place on its bus, checked against the DBC.
+#[derive(Clone, Debug)]
+pub struct CanMap {
+    /// Its bus, by index in the vehicle's buses.
+    pub bus: usize,
+    pub dbc: Arc<Database>,
+    /// The message and signal that carry its command (actuators).
+    pub command: Option<SignalRef>,
+    /// The rolling counter and checksum adrive fills in, in the command message.
+    pub sequence: Option<Sequence>,
+    /// Sent to enable the device when the vehicle is engaged (after the safe command).
+    pub enable: Option<Id>,
+    /// Sent after the safe command whenever the vehicle is not engaged.
+    pub disable: Option<Id>,
+    /// Each reading's signal, by reading index.
+    pub readings: Vec<SignalRef>,
+    /// The signal of its fault codes (named by the DBC's value table).
+    pub faults: Option<SignalRef>,
+}
+
+impl PartialEq for CanMap {
+    fn eq(&self, o: &CanMap) -> bool {
+        self.bus == o.bus
+            && self.dbc.path() == o.dbc.path()
+            && self.command == o.command
+            && self.enable == o.enable
+            && self.disable == o.disable
+            && self.readings == o.readings
+            && self.faults == o.faults
+    }
+}
+
+impl CanMap {
+    /// Every identifier this device listens to (its readings' and faults' messages).
+    pub fn listens(&self) -> impl Iterator<Item = Id> + '_ {
+        self.readings
+            .iter()
+            .chain(self.faults.as_ref())
+            .map(|s| s.message)
+    }
+
+    /// Whether the device follows the gate (it has enable or disable messages).
+    pub fn is_kit(&self) -> bool {
+        self.enable.is_some() || self.disable.is_some()
+    }
+
+    /// The message the command signal is in.
+    pub fn command_message(&self) -> Option<&Message> {
+        self.command
+            .as_ref()
+            .and_then(|c| self.dbc.by_id(c.message))
+    }
+
+    /// The names of the fault codes set in `raw` (by the DBC's value table, as bits).
+    pub fn fault_names(&self, raw: u16) -> Vec<String> {
+        let Some(f) = &self.faults else {
+            return Vec::new();
+        };
+        self.dbc
+            .by_id(f.message)
+            .and_then(|m| m.signal(&f.signal))
+            .map(|s| s.flag_names(u64::from(raw)))
+            .unwrap_or_default()
+    }
+}
+
+/// A reading's signal as written: `"MESSAGE.signal"` or `{ signal = "…", scale = … }`.
+#[derive(Deserialize)]
+#[serde(untagged)]
+pub(super) enum RawSignal {
+    Name(String),
+    Scaled {
+        signal: String,
+        #[serde(default = "one")]
+        scale: f64,
+    },
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// `[device.sequence]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawSequence {
+    #[serde(default)]
+    counter: Option<String>,
+    #[serde(default)]
+    checksum: Option<String>,
+    /// `xor8` or `sum8`.
+    #[serde(default)]
+    checksum_kind: Option<String>,
+}
+
+/// `[device.can]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct RawCan {
+    #[serde(default)]
+    command: Option<String>,
+    #[serde(default)]
+    enable: Option<String>,
+    #[serde(default)]
+    disable: Option<String>,
+    #[serde(default)]
+    faults: Option<String>,
+    #[serde(default)]
+    readings: BTreeMap<String, RawSignal>,
+    #[serde(default)]
+    sequence: Option<RawSequence>,
+}
+
+/// Resolve a CAN device's `[device.can]` against its bus's DBC.
+pub(super) fn resolve(
+    d: &DeviceConfig,
+    at: usize,
+    bus: Option<Spanned<String>>,
+    can: Option<Spanned<RawCan>>,
+    buses: &[BusConfig],
+) -> Result<CanMap, Refusal> {
+    let name = &d.name;
+    let Some(bus) = bus else {
+        return Err((
+            at,
+            format!("{name}: a CAN device names its bus (`bus = \"…\"`, a [[bus]] of the file)"),
+        ));
+    };
+    let at_bus = bus.span().start;
+    let Some(index) = buses.iter().position(|b| &b.name == bus.get_ref()) else {
+        let known: Vec<&str> = buses.iter().map(|b| b.name.as_str()).collect();
+        return Err((
+            at_bus,
+            format!(
+                "{name}: bus {:?} is not a [[bus]] of the file (buses: {})",
+                bus.get_ref(),
+                if known.is_empty() {
+                    "none".to_string()
+                } else {
+                    known.join(", ")
+                }
+            ),
+        ));
+    };
+    let Some(can) = can else {
+        return Err((at, format!("{name}: a CAN device needs [device.can]: its command, readings and enable/disable messages")));
+    };
+    let at_can = can.span().start;
+    let raw = can.into_inner();
+    let db = &buses[index].dbc;
+    let refuse = |m: String| (at_can, format!("{name}: can: {m}"));
+    let signal = |what: &str, text: &str, scale: f64| -> Result<SignalRef, Refusal> {
+        let Some((m, s)) = text.split_once('.') else {
+            return Err(refuse(format!(
+                "{what} = {text:?}: expected \"MESSAGE.signal\""
+            )));
+        };
+        let message = db
+            .message_named(m)
+            .map_err(|e| refuse(format!("{what}: {}", e.message)))?;
+        let sig = message
+            .signal_named(s)
+            .map_err(|e| refuse(format!("{what}: {e}")))?;
+        if !(scale.is_finite() && scale != 0.0) {
+            return Err(refuse(format!(
+                "{what}: scale: expected a finite number other than 0"
+            )));
+        }
+        let _ = sig;
+        Ok(SignalRef {
+            message: message.id(),
+            signal: s.to_string(),
+            scale,
+        })
+    };
+    let message = |what: &str, text: &str| -> Result<Id, Refusal> {
+        db.message_named(text)
+            .map(|m| m.id())
+            .map_err(|e| refuse(format!("{what}: {}", e.message)))
+    };
+    let command = match (&raw.command, d.kind) {
+        (Some(c), Kind::Setpoint | Kind::State) => {
+            let r = signal("command", c, 1.0)?;
+            let sig = db
+                .by_id(r.message)
+                .and_then(|m| m.signal(&r.signal))
+                .expect("found");
+            if let (Kind::Setpoint, Some((lo, hi))) = (d.kind, sig.range()) {
+                if d.range[0] < lo || d.range[1] > hi {
+                    return Err(refuse(format!(
+                        "command = {c:?}: the device's range [{}, {}] is outside the signal's [{lo}, {hi}]",
+                        d.range[0], d.range[1]
+                    )));
+                }
+            }
+            Some(r)
+        }
+        (None, Kind::Setpoint | Kind::State) => {
+            return Err(refuse(
+                "an actuator needs `command = \"MESSAGE.signal\"`".into(),
+            ))
+        }
+        (Some(_), Kind::Sensor) => return Err(refuse("a sensor takes no command".into())),
+        (None, Kind::Sensor) => None,
+    };
+    let sequence = match (&raw.sequence, &command) {
+        (None, _) => None,
+        (Some(_), None) => return Err(refuse("sequence: only a command message has one".into())),
+        (Some(s), Some(c)) => {
+            let m = db.by_id(c.message).expect("found");
+            let kind = match s.checksum_kind.as_deref() {
+                None | Some("xor8") => Checksum::Xor8,
+                Some("sum8") => Checksum::Sum8,
+                Some(k) => {
+                    return Err(refuse(format!(
+                        "sequence.checksum_kind = {k:?}: expected \"xor8\" or \"sum8\""
+                    )))
+                }
+            };
+            Some(
+                Sequence::new(
+                    m,
+                    s.counter.as_deref(),
+                    s.checksum.as_deref().map(|n| (n, kind)),
+                )
+                .map_err(|e| refuse(format!("sequence: {e}")))?,
+            )
+        }
+    };
+    let enable = raw
+        .enable
+        .as_deref()
+        .map(|m| message("enable", m))
+        .transpose()?;
+    let disable = raw
+        .disable
+        .as_deref()
+        .map(|m| message("disable", m))
+        .transpose()?;
+    if (enable.is_some() || disable.is_some()) && d.kind == Kind::Sensor {
+        return Err(refuse("enable/disable: a sensor is not enabled".into()));
+    }
+    let faults = raw
+        .faults
+        .as_deref()
+        .map(|f| signal("faults", f, 1.0))
+        .transpose()?;
+    let mut readings = Vec::new();
+    for spec in &d.readings {
+        let Some(w) = raw.readings.get(&spec.name) else {
+            return Err(refuse(format!(
+                "readings: {} has no signal (write `{} = \"MESSAGE.signal\"`)",
+                spec.name, spec.name
+            )));
+        };
+        let (text, scale) = match w {
+            RawSignal::Name(t) => (t.as_str(), 1.0),
+            RawSignal::Scaled { signal, scale } => (signal.as_str(), *scale),
+        };
+        readings.push(signal(&format!("readings.{}", spec.name), text, scale)?);
+        if matches!(spec.name.as_str(), ENABLED | OVERRIDE) && spec.kind != ReadingKind::Flag {
+            return Err(refuse(format!(
+                "readings: {} is the kit's flag: declare it as a flag",
+                spec.name
+            )));
+        }
+    }
+    if let Some(extra) = raw.readings.keys().find(|k| d.reading(k).is_none()) {
+        return Err(refuse(format!(
+            "readings: {extra} is not one of the device's readings ({})",
+            d.readings
+                .iter()
+                .map(|r| r.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    Ok(CanMap {
+        bus: index,
+        dbc: db.clone(),
+        command,
+        sequence,
+        enable,
+        disable,
+        readings,
+        faults,
+    })
+}

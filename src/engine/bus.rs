@@ -1,0 +1,249 @@
+//! A CAN bus's reader: the status thread of every device on the bus at once. On a bus
+//! the devices do not wait to be polled — a kit's modules report at their own rate —
+//! so one thread per bus (`bus/<name>`) opens the adapter, brings it onto the bus
+//! ([`proto::bring_up`]), reads every frame and stores each device's readings from the
+//! frames that carry them, by identifier. While the adapter is up it lends its write
+//! half to the devices' command threads ([`Bus::up`]); they write under adrive's port
+//! rule, as for any device.
+//!
+//! The adapter's answers come here too: `z`/`Z` (a frame taken for transmission) are
+//! counted; a BEL (a frame refused) and status flags that say the bus is in error (asked
+//! for every [`STATUS_EVERY`]) are an error of every device on the bus, which then
+//! hears nothing and is silent to the supervisor, with the adapter's words as the
+//! cause. A port that fails is closed and reopened with backoff, as any device's.
+
+use crate::config::protocol_map::Wire;
+use crate::driver::slcan::proto::{self, Decoder, Event, FromAdapter, StatusFlags};
+use crate::driver::slcan::{decode_into, Bus, BusPort};
+use crate::driver::{read_some, Deadline, DriverError, Link};
+use crate::threads::StopSignal;
+use crate::value::Reading;
+use crate::vehicle::{Cached, Device, Vehicle};
+use std::sync::atomic::Ordering::Relaxed;
+use std::time::{Duration, Instant};
+
+/// How often the adapter is asked for its status flags.
+pub const STATUS_EVERY: Duration = Duration::from_millis(500);
+/// How long each bring-up command may take to be answered.
+const ANSWER_WITHIN: Duration = Duration::from_millis(500);
+const BACKOFF_MIN: Duration = Duration::from_millis(100);
+const BACKOFF_MAX: Duration = Duration::from_secs(5);
+
+/// The devices on bus `index`, by their index in the vehicle.
+fn devices_on(v: &Vehicle, index: usize) -> Vec<usize> {
+    v.devices()
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| matches!(&d.config().wire, Wire::Can(m) if m.bus == index))
+        .map(|(i, _)| i)
+        .collect()
+}
+
+/// Run bus `index` of the vehicle until stopped.
+pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
+    let bus = &v.buses()[index];
+    let on = devices_on(v, index);
+    let mut backoff = BACKOFF_MIN;
+    let mut readings: Vec<Reading> = vec![Reading::default(); on.len()];
+    loop {
+        if stop.is_stopped() {
+            bus.go_down("stopped".into());
+            return;
+        }
+        let path = bus.config().port.clone();
+        let opened = crate::driver::slcan::open_serial_pair(&path, ANSWER_WITHIN)
+            .and_then(|port| bring_up(bus, port));
+        let mut reader = match opened {
+            Ok(r) => {
+                backoff = BACKOFF_MIN;
+                for &i in &on {
+                    v.devices()[i].port_health().missing.store(false, Relaxed);
+                }
+                tracing::info!(bus = bus.name(), port = %path, "adapter on the bus at {} bit/s", bus.bitrate().bits_per_second());
+                r
+            }
+            Err(e) => {
+                let why = e.to_string();
+                bus.go_down(why.clone());
+                for &i in &on {
+                    let d = &v.devices()[i];
+                    d.port_health().missing.store(true, Relaxed);
+                    d.record_error(
+                        &DriverError::Io(std::io::Error::new(e.kind(), why.clone())),
+                        false,
+                    );
+                }
+                if !stop.sleep_until(Instant::now() + backoff) {
+                    return;
+                }
+                backoff = (backoff * 2).min(BACKOFF_MAX);
+                continue;
+            }
+        };
+        let why = read(v, bus, &on, &mut readings, reader.as_mut(), stop);
+        bus.go_down(why.clone());
+        if stop.is_stopped() {
+            return;
+        }
+        tracing::warn!(bus = bus.name(), "adapter lost: {why}");
+        for &i in &on {
+            let e = std::io::Error::new(
+                std::io::ErrorKind::BrokenPipe,
+                format!("bus {}: {why}", bus.name()),
+            );
+            v.devices()[i].record_error(&DriverError::Io(e), false);
+        }
+    }
+}
+
+/// Bring the adapter onto the bus; its write half goes to the bus, its read half is
+/// returned.
+fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box<dyn Link>> {
+    let mut decoder = Decoder::<FromAdapter>::new();
+    for (n, c) in proto::bring_up(bus.bitrate(), false).iter().enumerate() {
+        writer.write_all(&proto::encode_command(c))?;
+        let deadline = Deadline::after(ANSWER_WITHIN);
+        let answer = loop {
+            if let Some(e) = decoder.next() {
+                match e {
+                    // A frame from a bus already open: not the answer.
+                    Event::Received { .. } | Event::Sent { .. } => continue,
+                    e => break e,
+                }
+            }
+            let mut buf = [0u8; 64];
+            match read_some(reader.as_mut(), &mut buf, &deadline) {
+                Ok(k) => decoder.push(&buf[..k]),
+                Err(DriverError::Io(e)) => return Err(e),
+                Err(e) => {
+                    return Err(std::io::Error::new(
+                        std::io::ErrorKind::TimedOut,
+                        format!("adapter did not answer {:?}: {e}", c),
+                    ))
+                }
+            }
+        };
+        // Closing an adapter that was closed is refused; anything else must be done.
+        if answer != Event::Ok && n > 0 {
+            return Err(std::io::Error::other(format!(
+                "adapter refused {:?} ({answer:?}): not an SLCAN adapter, or not at this bitrate",
+                c
+            )));
+        }
+    }
+    bus.up(writer);
+    Ok(reader)
+}
+
+/// Read the bus until the port fails or the thread is stopped; returns why it ended.
+fn read(
+    v: &Vehicle,
+    bus: &Bus,
+    on: &[usize],
+    readings: &mut [Reading],
+    reader: &mut dyn Link,
+    stop: &StopSignal,
+) -> String {
+    let mut decoder = Decoder::<FromAdapter>::new();
+    let mut buf = [0u8; 256];
+    let mut next_status = Instant::now() + STATUS_EVERY;
+    let each = |f: &dyn Fn(&Device)| {
+        for &i in on {
+            f(&v.devices()[i]);
+        }
+    };
+    loop {
+        if stop.is_stopped() {
+            return "stopped".into();
+        }
+        let now = Instant::now();
+        if now >= next_status {
+            next_status = now + STATUS_EVERY;
+            if let Err(e) = bus.ask(proto::Command::Status) {
+                return e.to_string();
+            }
+        }
+        let deadline = Deadline::after(
+            next_status
+                .saturating_duration_since(now)
+                .max(Duration::from_millis(1)),
+        );
+        match read_some(reader, &mut buf, &deadline) {
+            Ok(k) => decoder.push(&buf[..k]),
+            Err(DriverError::Timeout(_)) => continue,
+            Err(e) => return e.to_string(),
+        }
+        let at = Instant::now();
+        while let Some(event) = decoder.next() {
+            match event {
+                Event::Received { frame, .. } => {
+                    bus.stats.received.fetch_add(1, Relaxed);
+                    bus.note(&frame, at, false);
+                    for (k, &i) in on.iter().enumerate() {
+                        let d = &v.devices()[i];
+                        let Wire::Can(map) = &d.config().wire else {
+                            continue;
+                        };
+                        if decode_into(map, &frame, &mut readings[k]) {
+                            store(d, readings[k], at);
+                        }
+                    }
+                }
+                Event::Sent { .. } => {
+                    bus.stats.acked.fetch_add(1, Relaxed);
+                }
+                Event::Refused => {
+                    bus.stats.refused.fetch_add(1, Relaxed);
+                    let why = bus
+                        .bus_error()
+                        .unwrap_or_else(|| "the adapter refused a frame (BEL)".into());
+                    each(&|d| d.record_error(&DriverError::Refused(why.clone()), true));
+                }
+                Event::Status(flags) => status(bus, flags, &each),
+                Event::Garbled(_) => {
+                    bus.stats.garbled.fetch_add(1, Relaxed);
+                }
+                Event::Ok | Event::Version(_) | Event::Serial(_) => {}
+            }
+        }
+    }
+}
+
+/// The adapter's status flags: a bus in error is an error of every device on it.
+fn status(bus: &Bus, flags: StatusFlags, each: &dyn Fn(&dyn Fn(&Device))) {
+    let serious = StatusFlags(
+        flags.0
+            & (StatusFlags::BUS_ERROR
+                | StatusFlags::ERROR_PASSIVE
+                | StatusFlags::ARBITRATION_LOST
+                | StatusFlags::DATA_OVERRUN),
+    );
+    if serious.any() {
+        let why = format!(
+            "bus {}: adapter reports {}",
+            bus.name(),
+            serious.names().collect::<Vec<_>>().join(", ")
+        );
+        if bus.bus_error().as_deref() != Some(why.as_str()) {
+            tracing::warn!("{why}");
+        }
+        bus.set_bus_error(Some(why.clone()));
+        each(&|d| d.record_error(&DriverError::Refused(why.clone()), false));
+    } else if bus.bus_error().is_some() {
+        tracing::info!(bus = bus.name(), "bus error cleared");
+        bus.set_bus_error(None);
+    }
+}
+
+/// What a device's frames said, as its status thread would store a poll.
+fn store(d: &Device, reading: Reading, at: Instant) {
+    crate::vehicle::stats::Stats::bump(&d.stats().polls);
+    d.store(Cached {
+        reading,
+        at: Some(at),
+    });
+    d.estimate_reading(&reading, at);
+    d.health().status_error.store(0, Relaxed);
+    d.record_ok(at);
+    d.tap_polled(Some(at), at, Ok(&reading));
+}
