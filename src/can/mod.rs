@@ -172,6 +172,64 @@ impl fmt::Display for Frame {
     }
 }
 
+/// The standard CAN bitrates, as serial-line adapters number them (`S0` … `S8`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Bitrate {
+    K10,
+    K20,
+    K50,
+    K100,
+    K125,
+    K250,
+    K500,
+    K800,
+    M1,
+}
+
+impl Bitrate {
+    pub const ALL: [Bitrate; 9] = [
+        Bitrate::K10,
+        Bitrate::K20,
+        Bitrate::K50,
+        Bitrate::K100,
+        Bitrate::K125,
+        Bitrate::K250,
+        Bitrate::K500,
+        Bitrate::K800,
+        Bitrate::M1,
+    ];
+
+    /// The digit after `S`.
+    pub fn code(self) -> u8 {
+        Bitrate::ALL.iter().position(|&b| b == self).unwrap_or(0) as u8
+    }
+
+    pub fn from_code(code: u8) -> Option<Bitrate> {
+        Bitrate::ALL.get(code as usize).copied()
+    }
+
+    pub fn bits_per_second(self) -> u32 {
+        match self {
+            Bitrate::K10 => 10_000,
+            Bitrate::K20 => 20_000,
+            Bitrate::K50 => 50_000,
+            Bitrate::K100 => 100_000,
+            Bitrate::K125 => 125_000,
+            Bitrate::K250 => 250_000,
+            Bitrate::K500 => 500_000,
+            Bitrate::K800 => 800_000,
+            Bitrate::M1 => 1_000_000,
+        }
+    }
+
+    /// The standard bitrate of exactly `bps` bits per second (a vehicle file's `500000`).
+    pub fn from_bits_per_second(bps: u32) -> Option<Bitrate> {
+        Bitrate::ALL
+            .into_iter()
+            .find(|b| b.bits_per_second() == bps)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

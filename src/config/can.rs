@@ -7,8 +7,7 @@
 
 use super::device::{DeviceConfig, ReadingKind, Refusal};
 use crate::can::dbc::{Checksum, Database, Message, Sequence};
-use crate::can::Id;
-use crate::driver::slcan::proto::Bitrate;
+use crate::can::{Bitrate, Id};
 use crate::value::Kind;
 use serde::Deserialize;
 use std::collections::BTreeMap;
@@ -220,15 +219,15 @@ pub(super) struct RawSequence {
 #[serde(deny_unknown_fields)]
 pub(super) struct RawCan {
     #[serde(default)]
-    command: Option<String>,
+    command: Option<Spanned<String>>,
     #[serde(default)]
-    enable: Option<String>,
+    enable: Option<Spanned<String>>,
     #[serde(default)]
-    disable: Option<String>,
+    disable: Option<Spanned<String>>,
     #[serde(default)]
-    faults: Option<String>,
+    faults: Option<Spanned<String>>,
     #[serde(default)]
-    readings: BTreeMap<String, RawSignal>,
+    readings: BTreeMap<String, Spanned<RawSignal>>,
     #[serde(default)]
     sequence: Option<RawSequence>,
 }
@@ -270,8 +269,10 @@ pub(super) fn resolve(
     let at_can = can.span().start;
     let raw = can.into_inner();
     let db = &buses[index].dbc;
-    let refuse = |m: String| (at_can, format!("{name}: can: {m}"));
-    let signal = |what: &str, text: &str, scale: f64| -> Result<SignalRef, Refusal> {
+    let refuse_at = |at: usize, m: String| (at.max(at_can), format!("{name}: can: {m}"));
+    let refuse = |m: String| refuse_at(at_can, m);
+    let signal = |what: &str, at: usize, text: &str, scale: f64| -> Result<SignalRef, Refusal> {
+        let refuse = |m: String| refuse_at(at, m);
         let Some((m, s)) = text.split_once('.') else {
             return Err(refuse(format!(
                 "{what} = {text:?}: expected \"MESSAGE.signal\""
@@ -295,21 +296,22 @@ pub(super) fn resolve(
             scale,
         })
     };
-    let message = |what: &str, text: &str| -> Result<Id, Refusal> {
-        db.message_named(text)
+    let message = |what: &str, text: &Spanned<String>| -> Result<Id, Refusal> {
+        db.message_named(text.get_ref())
             .map(|m| m.id())
-            .map_err(|e| refuse(format!("{what}: {}", e.message)))
+            .map_err(|e| refuse_at(text.span().start, format!("{what}: {}", e.message)))
     };
     let command = match (&raw.command, d.kind) {
-        (Some(c), Kind::Setpoint | Kind::State) => {
-            let r = signal("command", c, 1.0)?;
+        (Some(spanned), Kind::Setpoint | Kind::State) => {
+            let c = spanned.get_ref();
+            let r = signal("command", spanned.span().start, c, 1.0)?;
             let sig = db
                 .by_id(r.message)
                 .and_then(|m| m.signal(&r.signal))
                 .expect("found");
             if let (Kind::Setpoint, Some((lo, hi))) = (d.kind, sig.range()) {
                 if d.range[0] < lo || d.range[1] > hi {
-                    return Err(refuse(format!(
+                    return Err(refuse_at(spanned.span().start, format!(
                         "command = {c:?}: the device's range [{}, {}] is outside the signal's [{lo}, {hi}]",
                         d.range[0], d.range[1]
                     )));
@@ -351,12 +353,12 @@ pub(super) fn resolve(
     };
     let enable = raw
         .enable
-        .as_deref()
+        .as_ref()
         .map(|m| message("enable", m))
         .transpose()?;
     let disable = raw
         .disable
-        .as_deref()
+        .as_ref()
         .map(|m| message("disable", m))
         .transpose()?;
     if (enable.is_some() || disable.is_some()) && d.kind == Kind::Sensor {
@@ -364,8 +366,8 @@ pub(super) fn resolve(
     }
     let faults = raw
         .faults
-        .as_deref()
-        .map(|f| signal("faults", f, 1.0))
+        .as_ref()
+        .map(|f| signal("faults", f.span().start, f.get_ref(), 1.0))
         .transpose()?;
     let mut readings = Vec::new();
     for spec in &d.readings {
@@ -375,11 +377,12 @@ pub(super) fn resolve(
                 spec.name, spec.name
             )));
         };
-        let (text, scale) = match w {
+        let at = w.span().start;
+        let (text, scale) = match w.get_ref() {
             RawSignal::Name(t) => (t.as_str(), 1.0),
             RawSignal::Scaled { signal, scale } => (signal.as_str(), *scale),
         };
-        readings.push(signal(&format!("readings.{}", spec.name), text, scale)?);
+        readings.push(signal(&format!("readings.{}", spec.name), at, text, scale)?);
         if matches!(spec.name.as_str(), ENABLED | OVERRIDE) && spec.kind != ReadingKind::Flag {
             return Err(refuse(format!(
                 "readings: {} is the kit's flag: declare it as a flag",
@@ -407,4 +410,185 @@ pub(super) fn resolve(
         readings,
         faults,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::config::protocol_map::Wire;
+    use crate::config::{load, parse};
+    use std::path::Path;
+
+    /// A vehicle file beside vehicles/oscc.dbc (the DBC is found relative to it).
+    fn path() -> String {
+        format!("{}/vehicles/test.toml", env!("CARGO_MANIFEST_DIR"))
+    }
+
+    const HEAD: &str = r#"[vehicle]
+name = "kit"
+[[bus]]
+name = "kit"
+port = "/dev/ttyACM0"
+dbc = "oscc.dbc"
+"#;
+
+    fn steer(can: &str) -> String {
+        format!(
+            r#"{HEAD}
+[[device]]
+name = "steer"
+kind = "setpoint"
+range = [-1.0, 1.0]
+driver = "can"
+bus = "kit"
+readings = ["enabled", "override"]
+reply_timeout = "50ms"
+[device.can]
+{can}
+"#
+        )
+    }
+
+    const GOOD: &str = r#"command = "STEERING_COMMAND.torque_command"
+enable = "STEERING_ENABLE"
+disable = "STEERING_DISABLE"
+faults = "STEERING_REPORT.dtcs"
+readings = { enabled = "STEERING_REPORT.enabled", override = "STEERING_REPORT.operator_override" }"#;
+
+    fn error(text: &str) -> String {
+        parse(text, &path()).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn the_oscc_vehicle_loads_with_its_bus_and_four_devices_on_it() {
+        let v = load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml")).unwrap();
+        assert_eq!(v.buses.len(), 1);
+        assert_eq!(v.buses[0].bitrate.bits_per_second(), 500_000);
+        let names: Vec<&str> = v.devices.iter().map(|d| d.name.as_str()).collect();
+        assert_eq!(names, ["steer", "gas", "brake", "car"]);
+        for d in &v.devices {
+            assert_eq!(d.port, v.buses[0].port, "{}: the bus's port", d.name);
+            assert!(matches!(d.wire, Wire::Can(_)));
+        }
+        let kits: Vec<&str> = v
+            .devices
+            .iter()
+            .filter(|d| d.kit().is_some())
+            .map(|d| d.name.as_str())
+            .collect();
+        assert_eq!(kits, ["steer", "gas", "brake"]);
+        let brake = v.device("brake").unwrap().kit().unwrap();
+        assert_eq!(brake.command.as_ref().unwrap().message.raw(), 0x72);
+        assert_eq!(brake.enable.unwrap().raw(), 0x70);
+        assert_eq!(brake.disable.unwrap().raw(), 0x71);
+        assert_eq!(
+            brake.fault_names(0b11),
+            ["INVALID_SENSOR_VAL", "OPERATOR_OVERRIDE"]
+        );
+        // Road speed in m/s from km/h on the bus.
+        let Wire::Can(car) = &v.device("car").unwrap().wire else {
+            unreachable!()
+        };
+        assert!((car.readings[0].scale - 1.0 / 3.6).abs() < 1e-6);
+        assert!(v.roles.speed.is_some());
+    }
+
+    #[test]
+    fn a_good_kit_device_parses() {
+        parse(&steer(GOOD), &path()).unwrap();
+    }
+
+    #[test]
+    fn a_misspelt_message_is_refused_at_its_device_with_the_messages_there_are() {
+        let e = error(&steer(&GOOD.replace("STEERING_ENABLE", "STEERING_ENABEL")));
+        assert!(e.contains("test.toml:18:"), "{e}");
+        assert!(e.contains("enable: no message \"STEERING_ENABEL\""), "{e}");
+        assert!(e.contains("STEERING_ENABLE"), "names the messages: {e}");
+    }
+
+    #[test]
+    fn a_misspelt_signal_is_refused() {
+        let e = error(&steer(&GOOD.replace("torque_command", "torque")));
+        assert!(e.contains("command:") && e.contains("torque"), "{e}");
+    }
+
+    #[test]
+    fn a_reading_without_its_signal_is_refused_with_the_form_expected() {
+        let e = error(&steer(
+            &GOOD.replace(", override = \"STEERING_REPORT.operator_override\"", ""),
+        ));
+        assert!(
+            e.contains("readings: override has no signal (write `override = \"MESSAGE.signal\"`)"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_range_wider_than_the_signal_is_refused_never_clamped() {
+        let e = error(&steer(GOOD).replace("range = [-1.0, 1.0]", "range = [-2.0, 2.0]"));
+        assert!(e.contains("outside the signal's [-1, 1]"), "{e}");
+    }
+
+    #[test]
+    fn an_unknown_bus_is_refused_with_the_buses_there_are() {
+        let e = error(&steer(GOOD).replace("bus = \"kit\"", "bus = \"kitt\""));
+        assert!(
+            e.contains("bus \"kitt\" is not a [[bus]] of the file (buses: kit)"),
+            "{e}"
+        );
+        assert!(e.contains("test.toml:13:"), "at the bus key: {e}");
+    }
+
+    #[test]
+    fn a_bitrate_the_adapter_cannot_do_is_refused_with_those_it_can() {
+        let e = error(
+            &steer(GOOD).replace("dbc = \"oscc.dbc\"", "dbc = \"oscc.dbc\"\nbitrate = 400000"),
+        );
+        assert!(
+            e.contains("bitrate 400000: expected one of the adapter's rates"),
+            "{e}"
+        );
+        assert!(e.contains("500000"), "{e}");
+    }
+
+    #[test]
+    fn a_dbc_that_is_missing_or_broken_is_named_with_its_own_line() {
+        let e = error(&steer(GOOD).replace("oscc.dbc", "nowhere.dbc"));
+        assert!(
+            e.contains("test.toml:6:") && e.contains("nowhere.dbc"),
+            "{e}"
+        );
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("bad.dbc"),
+            "VERSION \"\"\n\nBO_ 112 X: 8 A\n SG_ a : 0|8@1+ (1,0 [0|1] \"\" B\n",
+        )
+        .unwrap();
+        let at = dir.path().join("v.toml");
+        let e = parse(
+            &steer(GOOD).replace("oscc.dbc", "bad.dbc"),
+            at.to_str().unwrap(),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("bad.dbc:4:"), "the DBC's file and line: {e}");
+    }
+
+    #[test]
+    fn a_sensor_takes_no_command_and_an_actuator_needs_one() {
+        let e = error(&steer(
+            &GOOD.replace("command = \"STEERING_COMMAND.torque_command\"\n", ""),
+        ));
+        assert!(
+            e.contains("an actuator needs `command = \"MESSAGE.signal\"`"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn can_keys_on_a_serial_device_are_refused() {
+        let e = error(&format!(
+            "{HEAD}\n[[device]]\nname = \"x\"\nkind = \"sensor\"\ndriver = \"line\"\nport = \"/dev/x\"\nbus = \"kit\"\nreadings = [\"speed\"]\n"
+        ));
+        assert!(e.contains("`bus` goes with driver = \"can\" only"), "{e}");
+    }
 }

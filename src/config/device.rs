@@ -671,7 +671,7 @@ impl RawDevice {
             }
             let map = super::can::resolve(&partial, at_driver, self.bus, self.can, buses)?;
             let port = buses[map.bus].port.clone();
-            (Wire::Can(map), port)
+            (Wire::Can(Box::new(map)), port)
         } else {
             if let Some(b) = &self.bus {
                 return Err((

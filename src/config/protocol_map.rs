@@ -15,7 +15,7 @@ pub enum Wire {
     Line(LineMap),
     Modbus(ModbusMap),
     Elm327(ElmMap),
-    Can(super::can::CanMap),
+    Can(Box<super::can::CanMap>),
 }
 
 /// The adrive line protocol: status keys by reading, words by state.

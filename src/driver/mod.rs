@@ -258,7 +258,7 @@ pub fn build_on(
     use crate::config::protocol_map::Wire;
     match &config.wire {
         Wire::Can(m) => Box::new(slcan::CanDriver::new(
-            m.clone(),
+            (**m).clone(),
             buses
                 .get(m.bus)
                 .expect("a CAN device's driver is built with its bus")

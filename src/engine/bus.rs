@@ -118,7 +118,7 @@ fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box
                 Err(e) => {
                     return Err(std::io::Error::new(
                         std::io::ErrorKind::TimedOut,
-                        format!("adapter did not answer {:?}: {e}", c),
+                        format!("adapter did not answer {c:?}: {e}"),
                     ))
                 }
             }
@@ -126,8 +126,7 @@ fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box
         // Closing an adapter that was closed is refused; anything else must be done.
         if answer != Event::Ok && n > 0 {
             return Err(std::io::Error::other(format!(
-                "adapter refused {:?} ({answer:?}): not an SLCAN adapter, or not at this bitrate",
-                c
+                "adapter refused {c:?} ({answer:?}): not an SLCAN adapter, or not at this bitrate"
             )));
         }
     }
@@ -199,7 +198,11 @@ fn read(
                         .unwrap_or_else(|| "the adapter refused a frame (BEL)".into());
                     each(&|d| d.record_error(&DriverError::Refused(why.clone()), true));
                 }
-                Event::Status(flags) => status(bus, flags, &each),
+                Event::Status(flags) => {
+                    if let Some(why) = status(bus, flags) {
+                        each(&|d| d.record_error(&DriverError::Refused(why.clone()), false));
+                    }
+                }
                 Event::Garbled(_) => {
                     bus.stats.garbled.fetch_add(1, Relaxed);
                 }
@@ -209,8 +212,9 @@ fn read(
     }
 }
 
-/// The adapter's status flags: a bus in error is an error of every device on it.
-fn status(bus: &Bus, flags: StatusFlags, each: &dyn Fn(&dyn Fn(&Device))) {
+/// The adapter's status flags: a bus in error is an error of every device on it (the
+/// words returned).
+fn status(bus: &Bus, flags: StatusFlags) -> Option<String> {
     let serious = StatusFlags(
         flags.0
             & (StatusFlags::BUS_ERROR
@@ -228,11 +232,13 @@ fn status(bus: &Bus, flags: StatusFlags, each: &dyn Fn(&dyn Fn(&Device))) {
             tracing::warn!("{why}");
         }
         bus.set_bus_error(Some(why.clone()));
-        each(&|d| d.record_error(&DriverError::Refused(why.clone()), false));
-    } else if bus.bus_error().is_some() {
+        return Some(why);
+    }
+    if bus.bus_error().is_some() {
         tracing::info!(bus = bus.name(), "bus error cleared");
         bus.set_bus_error(None);
     }
+    None
 }
 
 /// What a device's frames said, as its status thread would store a poll.

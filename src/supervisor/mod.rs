@@ -16,6 +16,7 @@
 //! turn, only while every device thread runs ([`crate::service::Watchdog`]): a device
 //! thread that ended, or a supervisor that no longer turns, gets adrive restarted.
 
+mod kit;
 pub mod recovery;
 
 use crate::config::roles::ReadingRef;
@@ -88,6 +89,8 @@ const HEADWAY: f64 = 0.25;
 pub struct Memory {
     tracks: HashMap<String, Track>,
     started: Instant,
+    /// Since when the vehicle is engaged (as the snapshots saw it).
+    engaged_since: Option<Instant>,
 }
 
 impl Memory {
@@ -95,6 +98,7 @@ impl Memory {
         Memory {
             tracks: HashMap::new(),
             started,
+            engaged_since: None,
         }
     }
 }
@@ -128,8 +132,18 @@ pub fn detect(
             since,
         });
     };
+    mem.engaged_since = match (snap.gate.engaged, mem.engaged_since) {
+        (false, _) => None,
+        (true, since) => Some(since.unwrap_or(now)),
+    };
+    let engaged_for = mem.engaged_since.map(|t| now - t);
     for (d, c) in snap.devices.iter().zip(&cfg.devices) {
         device_faults(d, c, sup, mem, previous, now, &mut raise);
+        if d.status_age_ms
+            .is_some_and(|a| Duration::from_secs_f64(a / 1e3) <= c.status_max_age + c.reply_timeout)
+        {
+            kit::faults(d, c, engaged_for, &mut raise);
+        }
     }
     let b = &cfg.roles;
     let running = b.engine_running.and_then(|r| reading(snap, cfg, r));
@@ -260,7 +274,8 @@ fn device_faults(
         track.unexplained_since = None;
         return;
     }
-    if d.fault != 0 {
+    // A kit's fault codes are judged with what else it says of itself (`kit`).
+    if d.fault != 0 && c.kit().is_none() {
         raise(
             FaultKind::DeviceFault,
             who,
@@ -426,7 +441,10 @@ pub(crate) fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> O
                 .or_else(|| g.forward.first().copied())?;
             Procedure::engine_stall(v, gear, cfg)
         }
-        (FaultKind::NotFollowing | FaultKind::DeviceFault, Some(id)) if b.steering == Some(id) => {
+        // A kit's module is not homed nor re-enabled by adrive while disengaged.
+        (FaultKind::NotFollowing | FaultKind::DeviceFault, Some(id))
+            if b.steering == Some(id) && v.device(id).config().kit().is_none() =>
+        {
             Procedure::steering(v, cfg)
         }
         (FaultKind::Disconnected, Some(id)) => Some(Procedure::reconnect(v, id, cfg)),

@@ -179,15 +179,6 @@ impl Bus {
         }
     }
 
-    /// Send one frame (counted and kept for the bench view).
-    pub fn send(&self, frame: &Frame) -> io::Result<()> {
-        let line = proto::encode_command(&proto::Command::Transmit(*frame));
-        self.write(&line)?;
-        self.stats.sent.fetch_add(1, Relaxed);
-        self.note(frame, Instant::now(), true);
-        Ok(())
-    }
-
     /// Send one adapter command that is not a frame (`F`, a status request).
     pub fn ask(&self, command: proto::Command) -> io::Result<()> {
         self.write(&proto::encode_command(&command))

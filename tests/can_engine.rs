@@ -1,0 +1,381 @@
+//! The engine on a CAN bus: adrive's bus reader and command threads against a strict
+//! SLCAN adapter with the OSCC kit behind it, on a real pseudo-terminal. What the kit
+//! hears is logged frame by frame, so the order of enable, command and disable — what a
+//! kit's safety depends on — is asserted as the adapter saw it.
+
+mod common;
+
+use adrive::can::dbc::Database;
+use adrive::can::Frame;
+use adrive::config::VehicleConfig;
+use adrive::driver::slcan::proto::{Command as Slcan, Decoder, FromHost};
+use adrive::engine::{Engine, Gate};
+use adrive::sim::oscc::{Kit, Module};
+use adrive::sim::slcan::SlcanPort;
+use adrive::value::Command;
+use adrive::vehicle::Vehicle;
+use common::wait_for;
+use parking_lot::Mutex;
+use serialport::{SerialPort, TTYPort};
+use std::io::{Read, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// The adapter's end: the kit, every frame the host sent (in order, with when), and a
+/// switch that makes the adapter refuse (a bus fault).
+struct Adapter {
+    port: Mutex<SlcanPort<Kit>>,
+    heard: Mutex<Vec<(Instant, Frame)>>,
+    stop: AtomicBool,
+}
+
+impl Adapter {
+    fn start(mut master: TTYPort, db: &Database) -> Arc<Adapter> {
+        let now = Instant::now();
+        let a = Arc::new(Adapter {
+            port: Mutex::new(SlcanPort::new(Kit::new(db, None, now).unwrap(), now)),
+            heard: Mutex::new(Vec::new()),
+            stop: AtomicBool::new(false),
+        });
+        let me = a.clone();
+        master.set_timeout(Duration::from_millis(2)).unwrap();
+        std::thread::spawn(move || {
+            let mut decoder = Decoder::<FromHost>::new();
+            let mut buf = [0u8; 256];
+            let mut out = Vec::new();
+            while !me.stop.load(Relaxed) {
+                let now = Instant::now();
+                match master.read(&mut buf) {
+                    Ok(n) if n > 0 => {
+                        decoder.push(&buf[..n]);
+                        while let Some(c) = decoder.next() {
+                            if let Ok(Slcan::Transmit(f)) = c {
+                                me.heard.lock().push((now, f));
+                            }
+                        }
+                        me.port.lock().input(&buf[..n], now, &mut out);
+                    }
+                    Ok(_) => return,
+                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
+                    Err(_) => return,
+                }
+                me.port.lock().tick(Instant::now(), &mut out);
+                if !out.is_empty() && master.write_all(&out).is_err() {
+                    return;
+                }
+                out.clear();
+            }
+        });
+        a
+    }
+
+    fn enabled(&self, m: Module) -> bool {
+        self.port.lock().node.state(m).enabled
+    }
+
+    /// Where the log of what the kit heard stands now.
+    fn mark(&self) -> usize {
+        self.heard.lock().len()
+    }
+
+    /// The identifiers the kit heard, in order, from `mark` on.
+    fn ids_since(&self, mark: usize) -> Vec<(u32, Frame)> {
+        self.heard.lock()[mark..]
+            .iter()
+            .map(|(_, f)| (f.id().raw(), *f))
+            .collect()
+    }
+}
+
+impl Drop for Adapter {
+    fn drop(&mut self) {
+        self.stop.store(true, Relaxed);
+    }
+}
+
+struct Rig {
+    adapter: Arc<Adapter>,
+    gate: Arc<Gate>,
+    engine: Option<Engine>,
+    supervisor: Option<(
+        adrive::engine::monitor::Monitor,
+        adrive::supervisor::Running,
+    )>,
+    _slave: TTYPort,
+}
+
+impl Rig {
+    fn start() -> Rig {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut config = adrive::config::load(&root.join("vehicles/oscc.toml")).unwrap();
+        let (master, slave) = TTYPort::pair().unwrap();
+        let path = slave.name().unwrap();
+        point_at(&mut config, &path);
+        let db = config.buses[0].dbc.clone();
+        let adapter = Adapter::start(master, &db);
+        let vehicle = Arc::new(Vehicle::new(config, |_| {
+            Box::new(|| Err(std::io::ErrorKind::NotFound.into()))
+        }));
+        let gate = Arc::new(Gate::new(vehicle));
+        let engine = Engine::start(gate.clone()).unwrap();
+        let rig = Rig {
+            adapter,
+            gate,
+            engine: Some(engine),
+            supervisor: None,
+            _slave: slave,
+        };
+        wait_for("every device on the bus to report", || {
+            rig.gate
+                .vehicle()
+                .devices()
+                .iter()
+                .all(|d| d.cached().at.is_some())
+        });
+        rig
+    }
+
+    /// With the gate monitor and the supervisor running as in `adrive run`.
+    fn supervised() -> Rig {
+        let mut rig = Rig::start();
+        let cfg = rig.gate.vehicle().config().supervisor.clone();
+        let monitor = adrive::engine::monitor::Monitor::start(rig.gate.clone()).unwrap();
+        let sup = adrive::supervisor::start(rig.gate.clone(), cfg, Box::new(|_| {})).unwrap();
+        rig.supervisor = Some((monitor, sup));
+        rig
+    }
+
+    fn faults(&self) -> Vec<String> {
+        self.gate
+            .vehicle()
+            .supervision()
+            .faults()
+            .iter()
+            .map(|f| {
+                format!(
+                    "{} {:?}: {}",
+                    f.device.as_deref().unwrap_or("-"),
+                    f.kind,
+                    f.cause
+                )
+            })
+            .collect()
+    }
+
+    fn reading(&self, device: &str, reading: &str) -> Option<f64> {
+        let d = self.gate.vehicle().find(device).unwrap();
+        d.reading(d.config().reading(reading)?)
+    }
+}
+
+impl Drop for Rig {
+    fn drop(&mut self) {
+        if let Some(e) = self.engine.take() {
+            e.shutdown(Duration::from_secs(2));
+        }
+    }
+}
+
+fn point_at(config: &mut VehicleConfig, path: &str) {
+    config.buses[0].port = path.to_string();
+    for d in &mut config.devices {
+        d.port = path.to_string();
+    }
+}
+
+/// The float request of a command frame (bytes 2..6, little-endian, as the DBC says).
+fn request(f: &Frame) -> f32 {
+    f32::from_le_bytes(f.data()[2..6].try_into().unwrap())
+}
+
+const MODULES: [(Module, u32); 3] = [
+    (Module::Brake, 0x70),
+    (Module::Steering, 0x80),
+    (Module::Throttle, 0x90),
+];
+
+#[test]
+fn the_bus_reader_stores_each_device_s_readings_from_the_kit_s_reports() {
+    let rig = Rig::start();
+    for d in ["steer", "gas", "brake"] {
+        assert_eq!(
+            rig.reading(d, "enabled"),
+            Some(0.0),
+            "{d} is disabled at power-up"
+        );
+        assert_eq!(rig.reading(d, "override"), Some(0.0));
+    }
+    rig.adapter.port.lock().node.set_speed(36.0);
+    wait_for("the wheel speed as the speed role's m/s", || {
+        rig.reading("car", "speed")
+            .is_some_and(|v| (v - 10.0).abs() < 0.05)
+    });
+    let bus = &rig.gate.vehicle().buses()[0];
+    assert!(bus.stats.received.load(Relaxed) > 0);
+    assert!(bus.down_reason().is_none(), "the adapter is on the bus");
+}
+
+#[test]
+fn engage_enables_each_module_after_its_safe_command_and_disengage_disables_it_after_the_safe_command(
+) {
+    let rig = Rig::start();
+    let before = rig.adapter.mark();
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled", || {
+        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+    });
+    let heard = rig.adapter.ids_since(before);
+    for (m, base) in MODULES {
+        let (enable, command) = (base, base + 2);
+        let first_enable = heard.iter().position(|(id, _)| *id == enable).unwrap();
+        let commands: Vec<f32> = heard[..first_enable]
+            .iter()
+            .filter(|(id, _)| *id == command)
+            .map(|(_, f)| request(f))
+            .collect();
+        let safe = if m == Module::Brake { 1.0 } else { 0.0 };
+        assert!(
+            !commands.is_empty() && commands.iter().all(|&v| v == safe),
+            "{m}: only its safe command ({safe}) before its enable: {commands:?}"
+        );
+    }
+    // Commands reach the kit while engaged.
+    let v = rig.gate.vehicle();
+    let steer = v.find("steer").unwrap().id();
+    rig.gate
+        .submit(steer, Command::Set(0.3), Instant::now())
+        .unwrap();
+    wait_for("the steering request", || {
+        (rig.adapter.port.lock().node.state(Module::Steering).request - 0.3).abs() < 1e-6
+    });
+
+    let before = rig.adapter.mark();
+    rig.gate.disengage("test");
+    wait_for("every module disabled", || {
+        MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m))
+    });
+    let heard = rig.adapter.ids_since(before);
+    for (m, base) in MODULES {
+        let (disable, command) = (base + 1, base + 2);
+        let first_disable = heard.iter().position(|(id, _)| *id == disable).unwrap();
+        let safe = if m == Module::Brake { 1.0 } else { 0.0 };
+        let last_command = heard[..first_disable]
+            .iter()
+            .rev()
+            .find(|(id, _)| *id == command)
+            .map(|(_, f)| request(f));
+        assert_eq!(
+            last_command,
+            Some(safe),
+            "{m}: its safe command, then disable"
+        );
+    }
+    // While disengaged the safe state is resent, each time followed by the disable.
+    let t = rig.adapter.mark();
+    wait_for("two resends of the safe state", || {
+        rig.adapter
+            .ids_since(t)
+            .iter()
+            .filter(|(id, _)| *id == 0x71)
+            .count()
+            >= 2
+    });
+    assert!(MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m)));
+}
+
+#[test]
+fn a_kit_that_is_never_engaged_is_never_enabled() {
+    let rig = Rig::start();
+    let v = rig.gate.vehicle();
+    // Refused at intake while disengaged: nothing reaches the wire.
+    assert!(rig
+        .gate
+        .submit(
+            v.find("gas").unwrap().id(),
+            Command::Set(0.5),
+            Instant::now()
+        )
+        .is_err());
+    // A sentinel: the shutdown's safe state reaches the kit, and still no enable.
+    let e = {
+        let mut r = rig;
+        let engine = r.engine.take().unwrap();
+        let (safe, stuck) = engine.shutdown(Duration::from_secs(2));
+        assert!(safe && stuck.is_empty(), "{safe} {stuck:?}");
+        r
+    };
+    let heard = e.adapter.ids_since(0);
+    assert!(
+        heard.iter().any(|(id, _)| *id == 0x71),
+        "the brake's disable went out"
+    );
+    for (_, base) in MODULES {
+        assert!(
+            !heard.iter().any(|(id, _)| *id == base),
+            "no enable of 0x{base:02x} ever: {:?}",
+            heard.iter().map(|(id, _)| *id).collect::<Vec<_>>()
+        );
+    }
+}
+
+#[test]
+fn the_kit_s_own_override_hands_the_vehicle_to_the_driver_and_disables_every_module() {
+    let rig = Rig::supervised();
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled", || {
+        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+    });
+    // The driver turns the wheel: OSCC's steering module disables itself and says so.
+    rig.adapter
+        .port
+        .lock()
+        .node
+        .set_override(Module::Steering, true, Instant::now());
+    wait_for("the driver's override", || {
+        rig.gate.overridden() == ["steer"] && !rig.gate.is_engaged()
+    });
+    assert!(
+        rig.faults()
+            .iter()
+            .any(|f| f.contains("steer Override: the kit reports the driver's override")),
+        "{:?}",
+        rig.faults()
+    );
+    // adrive never brakes against the driver, and leaves no module enabled.
+    wait_for("every module disabled", || {
+        MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m))
+    });
+    let kit = rig.adapter.port.lock().node.state(Module::Brake);
+    assert_eq!(kit.request, 0.0, "the manual state releases the brake");
+}
+
+#[test]
+fn a_module_that_faults_while_engaged_disengages_the_vehicle_naming_its_fault_code() {
+    let rig = Rig::supervised();
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled", || {
+        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+    });
+    rig.adapter
+        .port
+        .lock()
+        .node
+        .inject_fault(Module::Brake, "INVALID_SENSOR_VAL", Instant::now())
+        .unwrap();
+    wait_for("the fault to disengage the vehicle", || {
+        !rig.gate.is_engaged()
+    });
+    let faults = rig.faults();
+    assert!(
+        faults
+            .iter()
+            .any(|f| f.starts_with("brake DeviceFault: the kit reports")
+                && f.contains("INVALID_SENSOR_VAL")),
+        "by name: {faults:?}"
+    );
+    wait_for("every module disabled", || {
+        MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m))
+    });
+}
