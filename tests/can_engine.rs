@@ -32,10 +32,10 @@ struct Adapter {
 }
 
 impl Adapter {
-    fn start(mut master: TTYPort, db: &Database) -> Arc<Adapter> {
+    fn start(mut master: TTYPort, db: &Database, watchdog: Option<Duration>) -> Arc<Adapter> {
         let now = Instant::now();
         let a = Arc::new(Adapter {
-            port: Mutex::new(SlcanPort::new(Kit::new(db, None, now).unwrap(), now)),
+            port: Mutex::new(SlcanPort::new(Kit::new(db, watchdog, now).unwrap(), now)),
             heard: Mutex::new(Vec::new()),
             stop: AtomicBool::new(false),
         });
@@ -108,13 +108,18 @@ struct Rig {
 
 impl Rig {
     fn start() -> Rig {
+        Rig::with_watchdog(None)
+    }
+
+    /// The kit's modules disabling themselves after `watchdog` without a command.
+    fn with_watchdog(watchdog: Option<Duration>) -> Rig {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let mut config = adrive::config::load(&root.join("vehicles/oscc.toml")).unwrap();
         let (master, slave) = TTYPort::pair().unwrap();
         let path = slave.name().unwrap();
         point_at(&mut config, &path);
         let db = config.buses[0].dbc.clone();
-        let adapter = Adapter::start(master, &db);
+        let adapter = Adapter::start(master, &db, watchdog);
         let vehicle = Arc::new(Vehicle::new(config, |_| {
             Box::new(|| Err(std::io::ErrorKind::NotFound.into()))
         }));
@@ -377,5 +382,48 @@ fn a_module_that_faults_while_engaged_disengages_the_vehicle_naming_its_fault_co
     );
     wait_for("every module disabled", || {
         MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m))
+    });
+}
+
+#[test]
+fn resends_keep_a_kit_s_watchdog_fed_while_engaged_with_no_new_command() {
+    // The modules disable themselves after 150 ms without a command; adrive resends
+    // every command_timeout (50 ms).
+    let rig = Rig::with_watchdog(Some(Duration::from_millis(150)));
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled", || {
+        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+    });
+    let mark = rig.adapter.mark();
+    wait_for("a second of resends (20 steering commands)", || {
+        rig.adapter
+            .ids_since(mark)
+            .iter()
+            .filter(|(id, _)| *id == 0x82)
+            .count()
+            >= 20
+    });
+    for (m, _) in MODULES {
+        assert!(rig.adapter.enabled(m), "{m} still enabled");
+    }
+    assert!(rig.gate.is_engaged());
+}
+
+#[test]
+fn a_bus_fault_is_a_fault_of_every_device_on_the_bus_in_the_adapter_s_words() {
+    let rig = Rig::supervised();
+    rig.adapter.port.lock().adapter.set_bus_fault(true);
+    wait_for("every device on the bus faulted", || {
+        let f = rig.faults();
+        ["steer", "gas", "brake", "car"].iter().all(|d| {
+            f.iter()
+                .any(|x| x.starts_with(&format!("{d} ")) && x.contains("bus error"))
+        })
+    });
+    // Engage is refused while the bus is down.
+    assert!(rig.gate.engage("test").is_err());
+    rig.adapter.port.lock().adapter.set_bus_fault(false);
+    wait_for("the faults to clear once the bus is back", || {
+        rig.faults().is_empty()
     });
 }
