@@ -16,8 +16,10 @@
 //! command delay and adrive's CPU with the Foxglove live view off, on with no viewer,
 //! and with two viewers subscribed to everything ([`viewer`]); 11 the command path from
 //! outside — a planner's `sendto` to the first byte at the device — beside a bare relay
-//! in the same window, row by row, with its steps ([`outside`]); 12 attached consoles.
+//! in the same window, row by row, with its steps ([`outside`]); 12 attached consoles;
+//! 13 a CAN bus: 1 … 16 actuators on one SLCAN adapter ([`can`]).
 
+mod can;
 mod estimator;
 mod floor;
 mod outside;
@@ -263,6 +265,9 @@ fn main() {
     }
     if on("12") {
         section12_consoles(&dir, secs);
+    }
+    if on("13") {
+        can::section13_can(&dir, secs);
     }
     summary(&r, &out);
 }
