@@ -13,7 +13,7 @@
 
 use crate::{delay_columns, delay_of, delay_row, drive, vehicle, with_floor};
 use adrive::can::{Frame, Id};
-use adrive::driver::slcan::proto::{encode_event, Command, Decoder, Event, FromHost};
+use adrive::driver::slcan::proto::{encode_event, Command, Decoder, Event, FromHost, StatusFlags};
 use parking_lot::Mutex;
 use serialport::{SerialPort, TTYPort};
 use std::io::{Read, Write};
@@ -118,7 +118,7 @@ impl Adapter {
                             open = false;
                             Event::Ok
                         }
-                        Ok(Command::Status) => Event::Status(Default::default()),
+                        Ok(Command::Status) => Event::Status(StatusFlags::default()),
                         Ok(_) => Event::Ok,
                         Err(_) => Event::Refused,
                     };
@@ -179,8 +179,8 @@ pub fn section13_can(dir: &tempfile::TempDir, secs: f64) {
         let names: Vec<String> = (0..n).map(|i| format!("c{i:02}")).collect();
         let a =
             crate::rig::Adrive::start(dir.path(), &format!("can-{n}"), &vehicle(&head, &devices));
-        let before = std::mem::take(&mut *adapter.seen.lock());
-        drop(before);
+        // Count from the planner's first command (the bring-up and engage before it).
+        *adapter.seen.lock() = Seen::default();
         let t = Instant::now();
         let (_, floor) = with_floor(|| drive(&a, &names, 100.0, secs));
         let took = t.elapsed().as_secs_f64();
