@@ -61,6 +61,9 @@ impl Adapter {
                     Err(e) if e.kind() == std::io::ErrorKind::TimedOut => {}
                     Err(_) => return,
                 }
+                if me.stop.load(Relaxed) {
+                    return;
+                }
                 me.port.lock().tick(Instant::now(), &mut out);
                 if !out.is_empty() && master.write_all(&out).is_err() {
                     return;
@@ -96,14 +99,16 @@ impl Drop for Adapter {
 }
 
 struct Rig {
-    adapter: Arc<Adapter>,
+    /// The adapter's port is reached through this link, as `/dev/serial/by-id/…`.
+    link: tempfile::TempDir,
+    adapter: Mutex<Arc<Adapter>>,
     gate: Arc<Gate>,
     engine: Option<Engine>,
     supervisor: Option<(
         adrive::engine::monitor::Monitor,
         adrive::supervisor::Running,
     )>,
-    _slave: TTYPort,
+    _slave: Mutex<TTYPort>,
 }
 
 impl Rig {
@@ -116,21 +121,24 @@ impl Rig {
         let root = Path::new(env!("CARGO_MANIFEST_DIR"));
         let mut config = adrive::config::load(&root.join("vehicles/oscc.toml")).unwrap();
         let (master, slave) = TTYPort::pair().unwrap();
-        let path = slave.name().unwrap();
-        point_at(&mut config, &path);
+        let link = common::tempdir("can-engine");
+        let path = link.path().join("adapter");
+        std::os::unix::fs::symlink(slave.name().unwrap(), &path).unwrap();
+        point_at(&mut config, path.to_str().unwrap());
         let db = config.buses[0].dbc.clone();
-        let adapter = Adapter::start(master, &db, watchdog);
+        let adapter = Mutex::new(Adapter::start(master, &db, watchdog));
         let vehicle = Arc::new(Vehicle::new(config, |_| {
             Box::new(|| Err(std::io::ErrorKind::NotFound.into()))
         }));
         let gate = Arc::new(Gate::new(vehicle));
         let engine = Engine::start(gate.clone()).unwrap();
         let rig = Rig {
+            link,
             adapter,
             gate,
             engine: Some(engine),
             supervisor: None,
-            _slave: slave,
+            _slave: Mutex::new(slave),
         };
         wait_for("every device on the bus to report", || {
             rig.gate
@@ -167,6 +175,26 @@ impl Rig {
                 )
             })
             .collect()
+    }
+
+    fn adapter(&self) -> Arc<Adapter> {
+        self.adapter.lock().clone()
+    }
+
+    /// Unplug the adapter: its port closes and its path goes.
+    fn unplug(&self) {
+        self.adapter().stop.store(true, Relaxed);
+        std::fs::remove_file(self.link.path().join("adapter")).unwrap();
+    }
+
+    /// Plug a new adapter in behind the same path.
+    fn plug(&self) {
+        let (master, slave) = TTYPort::pair().unwrap();
+        std::os::unix::fs::symlink(slave.name().unwrap(), self.link.path().join("adapter"))
+            .unwrap();
+        let db = self.gate.vehicle().config().buses[0].dbc.clone();
+        *self.adapter.lock() = Adapter::start(master, &db, None);
+        *self._slave.lock() = slave;
     }
 
     fn reading(&self, device: &str, reading: &str) -> Option<f64> {
@@ -212,7 +240,7 @@ fn the_bus_reader_stores_each_device_s_readings_from_the_kit_s_reports() {
         );
         assert_eq!(rig.reading(d, "override"), Some(0.0));
     }
-    rig.adapter.port.lock().node.set_speed(36.0);
+    rig.adapter().port.lock().node.set_speed(36.0);
     wait_for("the wheel speed as the speed role's m/s", || {
         rig.reading("car", "speed")
             .is_some_and(|v| (v - 10.0).abs() < 0.05)
@@ -226,12 +254,12 @@ fn the_bus_reader_stores_each_device_s_readings_from_the_kit_s_reports() {
 fn engage_enables_each_module_after_its_safe_command_and_disengage_disables_it_after_the_safe_command(
 ) {
     let rig = Rig::start();
-    let before = rig.adapter.mark();
+    let before = rig.adapter().mark();
     rig.gate.engage("test").unwrap();
     wait_for("every module enabled", || {
-        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+        MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
     });
-    let heard = rig.adapter.ids_since(before);
+    let heard = rig.adapter().ids_since(before);
     for (m, base) in MODULES {
         let (enable, command) = (base, base + 2);
         let first_enable = heard.iter().position(|(id, _)| *id == enable).unwrap();
@@ -253,15 +281,23 @@ fn engage_enables_each_module_after_its_safe_command_and_disengage_disables_it_a
         .submit(steer, Command::Set(0.3), Instant::now())
         .unwrap();
     wait_for("the steering request", || {
-        (rig.adapter.port.lock().node.state(Module::Steering).request - 0.3).abs() < 1e-6
+        (rig.adapter()
+            .port
+            .lock()
+            .node
+            .state(Module::Steering)
+            .request
+            - 0.3)
+            .abs()
+            < 1e-6
     });
 
-    let before = rig.adapter.mark();
+    let before = rig.adapter().mark();
     rig.gate.disengage("test");
     wait_for("every module disabled", || {
-        MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m))
+        MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
     });
-    let heard = rig.adapter.ids_since(before);
+    let heard = rig.adapter().ids_since(before);
     for (m, base) in MODULES {
         let (disable, command) = (base + 1, base + 2);
         let first_disable = heard.iter().position(|(id, _)| *id == disable).unwrap();
@@ -278,16 +314,16 @@ fn engage_enables_each_module_after_its_safe_command_and_disengage_disables_it_a
         );
     }
     // While disengaged the safe state is resent, each time followed by the disable.
-    let t = rig.adapter.mark();
+    let t = rig.adapter().mark();
     wait_for("two resends of the safe state", || {
-        rig.adapter
+        rig.adapter()
             .ids_since(t)
             .iter()
             .filter(|(id, _)| *id == 0x71)
             .count()
             >= 2
     });
-    assert!(MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m)));
+    assert!(MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m)));
 }
 
 #[test]
@@ -311,7 +347,7 @@ fn a_kit_that_is_never_engaged_is_never_enabled() {
         assert!(safe && stuck.is_empty(), "{safe} {stuck:?}");
         r
     };
-    let heard = e.adapter.ids_since(0);
+    let heard = e.adapter().ids_since(0);
     assert!(
         heard.iter().any(|(id, _)| *id == 0x71),
         "the brake's disable went out"
@@ -330,10 +366,10 @@ fn the_kit_s_own_override_hands_the_vehicle_to_the_driver_and_disables_every_mod
     let rig = Rig::supervised();
     rig.gate.engage("test").unwrap();
     wait_for("every module enabled", || {
-        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+        MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
     });
     // The driver turns the wheel: OSCC's steering module disables itself and says so.
-    rig.adapter
+    rig.adapter()
         .port
         .lock()
         .node
@@ -350,9 +386,9 @@ fn the_kit_s_own_override_hands_the_vehicle_to_the_driver_and_disables_every_mod
     );
     // adrive never brakes against the driver, and leaves no module enabled.
     wait_for("every module disabled", || {
-        MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m))
+        MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
     });
-    let kit = rig.adapter.port.lock().node.state(Module::Brake);
+    let kit = rig.adapter().port.lock().node.state(Module::Brake);
     assert_eq!(kit.request, 0.0, "the manual state releases the brake");
 }
 
@@ -361,9 +397,9 @@ fn a_module_that_faults_while_engaged_disengages_the_vehicle_naming_its_fault_co
     let rig = Rig::supervised();
     rig.gate.engage("test").unwrap();
     wait_for("every module enabled", || {
-        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+        MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
     });
-    rig.adapter
+    rig.adapter()
         .port
         .lock()
         .node
@@ -381,7 +417,7 @@ fn a_module_that_faults_while_engaged_disengages_the_vehicle_naming_its_fault_co
         "by name: {faults:?}"
     );
     wait_for("every module disabled", || {
-        MODULES.iter().all(|(m, _)| !rig.adapter.enabled(*m))
+        MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
     });
 }
 
@@ -392,11 +428,11 @@ fn resends_keep_a_kit_s_watchdog_fed_while_engaged_with_no_new_command() {
     let rig = Rig::with_watchdog(Some(Duration::from_millis(150)));
     rig.gate.engage("test").unwrap();
     wait_for("every module enabled", || {
-        MODULES.iter().all(|(m, _)| rig.adapter.enabled(*m))
+        MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
     });
-    let mark = rig.adapter.mark();
+    let mark = rig.adapter().mark();
     wait_for("a second of resends (20 steering commands)", || {
-        rig.adapter
+        rig.adapter()
             .ids_since(mark)
             .iter()
             .filter(|(id, _)| *id == 0x82)
@@ -404,7 +440,7 @@ fn resends_keep_a_kit_s_watchdog_fed_while_engaged_with_no_new_command() {
             >= 20
     });
     for (m, _) in MODULES {
-        assert!(rig.adapter.enabled(m), "{m} still enabled");
+        assert!(rig.adapter().enabled(m), "{m} still enabled");
     }
     assert!(rig.gate.is_engaged());
 }
@@ -412,7 +448,7 @@ fn resends_keep_a_kit_s_watchdog_fed_while_engaged_with_no_new_command() {
 #[test]
 fn a_bus_fault_is_a_fault_of_every_device_on_the_bus_in_the_adapter_s_words() {
     let rig = Rig::supervised();
-    rig.adapter.port.lock().adapter.set_bus_fault(true);
+    rig.adapter().port.lock().adapter.set_bus_fault(true);
     wait_for("every device on the bus faulted", || {
         let f = rig.faults();
         ["steer", "gas", "brake", "car"].iter().all(|d| {
@@ -422,8 +458,37 @@ fn a_bus_fault_is_a_fault_of_every_device_on_the_bus_in_the_adapter_s_words() {
     });
     // Engage is refused while the bus is down.
     assert!(rig.gate.engage("test").is_err());
-    rig.adapter.port.lock().adapter.set_bus_fault(false);
+    rig.adapter().port.lock().adapter.set_bus_fault(false);
     wait_for("the faults to clear once the bus is back", || {
         rig.faults().is_empty()
+    });
+}
+
+#[test]
+fn an_adapter_unplugged_faults_every_device_on_its_bus_and_is_found_again_behind_its_path() {
+    let rig = Rig::supervised();
+    rig.unplug();
+    wait_for("every device on the bus disconnected or silent", || {
+        let f = rig.faults();
+        ["steer", "gas", "brake", "car"]
+            .iter()
+            .all(|d| f.iter().any(|x| x.starts_with(&format!("{d} "))))
+    });
+    assert!(
+        rig.gate.engage("test").is_err(),
+        "no engage without the bus"
+    );
+    rig.plug();
+    wait_for("the faults to clear once the adapter is back", || {
+        rig.faults().is_empty()
+    });
+    let bus = &rig.gate.vehicle().buses()[0];
+    assert!(
+        bus.stats.opens.load(Relaxed) >= 2,
+        "brought onto the bus again"
+    );
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled on the new adapter", || {
+        MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
     });
 }

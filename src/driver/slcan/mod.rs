@@ -204,11 +204,11 @@ impl Bus {
         self.seen.lock().values().copied().collect()
     }
 
-    /// What a CAN device's port opens: the write half, while the adapter is up.
+    /// What a CAN device's port opens: the bus's write half. It always opens: while
+    /// the adapter is not on the bus the device's commands are refused with the bus's
+    /// reason ([`CanDriver`]), and they flow again the moment the bus reader brings the
+    /// adapter back — no backoff of the device's own.
     pub fn link(self: &Arc<Self>) -> io::Result<Box<dyn Link>> {
-        if let Some(why) = self.down_reason() {
-            return Err(io::Error::new(io::ErrorKind::NotConnected, why));
-        }
         Ok(Box::new(BusLink { bus: self.clone() }))
     }
 }
@@ -334,6 +334,14 @@ impl Driver for CanDriver {
     }
 
     fn send_command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
+        if let Some(why) = self.bus.down_reason() {
+            // Not the device's port failing: the bus's reader reopens the adapter.
+            self.enabled_sent = false;
+            return Err(DriverError::Refused(format!(
+                "bus {} is down: {why}",
+                self.bus.name()
+            )));
+        }
         match command {
             Command::Control(Control::Enable) => {
                 let id = self.map.enable.ok_or_else(|| {
