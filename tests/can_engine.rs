@@ -152,7 +152,11 @@ impl Rig {
 
     /// With the gate monitor and the supervisor running as in `adrive run`.
     fn supervised() -> Rig {
-        let mut rig = Rig::start();
+        Rig::supervised_with_watchdog(None)
+    }
+
+    fn supervised_with_watchdog(watchdog: Option<Duration>) -> Rig {
+        let mut rig = Rig::with_watchdog(watchdog);
         let cfg = rig.gate.vehicle().config().supervisor.clone();
         let monitor = adrive::engine::monitor::Monitor::start(rig.gate.clone()).unwrap();
         let sup = adrive::supervisor::start(rig.gate.clone(), cfg, Box::new(|_| {})).unwrap();
@@ -388,8 +392,16 @@ fn the_kit_s_own_override_hands_the_vehicle_to_the_driver_and_disables_every_mod
     wait_for("every module disabled", || {
         MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
     });
-    let kit = rig.adapter().port.lock().node.state(Module::Brake);
-    assert_eq!(kit.request, 0.0, "the manual state releases the brake");
+    // The last brake command before its last disable releases it: adrive never brakes
+    // against the driver.
+    let heard = rig.adapter().ids_since(0);
+    let last_disable = heard.iter().rposition(|(id, _)| *id == 0x71).unwrap();
+    let last_command = heard[..last_disable]
+        .iter()
+        .rev()
+        .find(|(id, _)| *id == 0x72)
+        .map(|(_, f)| request(f));
+    assert_eq!(last_command, Some(0.0), "the manual state releases the brake");
 }
 
 #[test]
@@ -490,5 +502,36 @@ fn an_adapter_unplugged_faults_every_device_on_its_bus_and_is_found_again_behind
     rig.gate.engage("test").unwrap();
     wait_for("every module enabled on the new adapter", || {
         MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
+    });
+}
+
+#[test]
+fn a_module_that_disables_itself_while_engaged_is_a_fault_that_disengages() {
+    let rig = Rig::supervised();
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled", || {
+        MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
+    });
+    // The throttle module resets (it hears a disable from elsewhere on the bus): no
+    // fault code, just disabled.
+    let db = rig.gate.vehicle().config().buses[0].dbc.clone();
+    let disable = db.message("THROTTLE_DISABLE").unwrap().encode(&[]).unwrap();
+    {
+        use adrive::sim::slcan::BusNode;
+        let a = rig.adapter();
+        a.port.lock().node.receive(&disable, Instant::now());
+    }
+    wait_for("the throttle's fault to disengage the vehicle", || {
+        !rig.gate.is_engaged()
+    });
+    let faults = rig.faults();
+    assert!(
+        faults
+            .iter()
+            .any(|f| f.starts_with("gas DeviceFault: the kit reports gas disabled while engaged")),
+        "{faults:?}"
+    );
+    wait_for("the other modules disabled by adrive", || {
+        !rig.adapter().enabled(Module::Brake) && !rig.adapter().enabled(Module::Steering)
     });
 }
