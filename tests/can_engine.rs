@@ -401,7 +401,11 @@ fn the_kit_s_own_override_hands_the_vehicle_to_the_driver_and_disables_every_mod
         .rev()
         .find(|(id, _)| *id == 0x72)
         .map(|(_, f)| request(f));
-    assert_eq!(last_command, Some(0.0), "the manual state releases the brake");
+    assert_eq!(
+        last_command,
+        Some(0.0),
+        "the manual state releases the brake"
+    );
 }
 
 #[test]

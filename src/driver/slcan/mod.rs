@@ -404,3 +404,178 @@ pub fn decode_into(map: &CanMap, frame: &Frame, into: &mut Reading) -> bool {
     }
     any
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::protocol_map::Wire;
+    use crate::driver::mock::{tx, MockLink};
+
+    const DBC: &str = r#"VERSION ""
+
+NS_ :
+
+BS_:
+
+BU_: HOST KIT
+
+BO_ 256 CMD: 8 HOST
+ SG_ request : 0|16@1- (0.001,0) [-1|1] "" KIT
+ SG_ counter : 48|4@1+ (1,0) [0|15] "" KIT
+ SG_ checksum : 56|8@1+ (1,0) [0|255] "" KIT
+
+BO_ 257 ON: 2 HOST
+ SG_ magic : 0|16@1+ (1,0) [0|65535] "" KIT
+
+BO_ 258 OFF: 2 HOST
+ SG_ magic : 0|16@1+ (1,0) [0|65535] "" KIT
+
+BO_ 512 REP: 8 KIT
+ SG_ enabled : 0|8@1+ (1,0) [0|1] "" HOST
+ SG_ dtcs : 8|8@1+ (1,0) [0|3] "" HOST
+
+BA_DEF_ SG_ "GenSigStartValue" INT 0 65535;
+BA_DEF_DEF_ "GenSigStartValue" 0;
+BA_ "GenSigStartValue" SG_ 257 magic 52429;
+BA_ "GenSigStartValue" SG_ 258 magic 52429;
+VAL_ 512 dtcs 1 "STUCK" 2 "HOT" ;
+"#;
+
+    /// A driver for a kit module on its own bus, with the bus up.
+    fn driver(dir: &tempfile::TempDir) -> CanDriver {
+        std::fs::write(dir.path().join("kit.dbc"), DBC).unwrap();
+        let text = r#"[vehicle]
+name = "t"
+[[bus]]
+name = "kit"
+port = "/dev/null"
+dbc = "kit.dbc"
+[[device]]
+name = "wheel"
+kind = "setpoint"
+range = [-1.0, 1.0]
+driver = "can"
+bus = "kit"
+readings = ["enabled"]
+reply_timeout = "50ms"
+[device.can]
+command = "CMD.request"
+enable = "ON"
+disable = "OFF"
+faults = "REP.dtcs"
+readings = { enabled = "REP.enabled" }
+sequence = { counter = "counter", checksum = "checksum", checksum_kind = "xor8" }
+"#;
+        let path = dir.path().join("v.toml");
+        let v = crate::config::parse(text, path.to_str().unwrap()).unwrap();
+        let Wire::Can(map) = &v.devices[0].wire else {
+            unreachable!()
+        };
+        let bus = Arc::new(Bus::new(v.buses[0].clone()));
+        bus.up(Box::new(MockLink::new(vec![])));
+        CanDriver::new((**map).clone(), bus)
+    }
+
+    /// The SLCAN line of a standard frame.
+    fn line(id: u16, data: &[u8]) -> Vec<u8> {
+        let f = Frame::new(Id::standard(id).unwrap(), data).unwrap();
+        proto::encode_command(&proto::Command::Transmit(f)).to_vec()
+    }
+
+    /// A command frame: request × 1000 as i16, counter, checksum (XOR of the rest).
+    fn command(request: i16, counter: u8) -> Vec<u8> {
+        let r = request.to_le_bytes();
+        let mut d = [r[0], r[1], 0, 0, 0, 0, counter, 0];
+        d[7] = d.iter().fold(0, |a, b| a ^ b);
+        line(0x100, &d)
+    }
+
+    #[test]
+    fn every_command_frame_carries_the_next_counter_and_its_checksum() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = driver(&dir);
+        d.bus.set_engaged(true);
+        let mut link = MockLink::new(vec![
+            tx(command(250, 0)),
+            tx(line(0x101, &[0xCD, 0xCC])),
+            tx(command(-500, 1)),
+        ]);
+        d.send_command(&mut link, Command::Set(0.25)).unwrap();
+        d.send_command(&mut link, Command::Set(-0.5)).unwrap();
+    }
+
+    #[test]
+    fn a_kit_is_enabled_once_after_its_first_command_while_engaged_and_disabled_after_every_one_while_not(
+    ) {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = driver(&dir);
+        let off = line(0x102, &[0xCD, 0xCC]);
+        let on = line(0x101, &[0xCD, 0xCC]);
+        let mut link = MockLink::new(vec![
+            tx(command(0, 0)),
+            tx(off.clone()),
+            tx(command(0, 1)),
+            tx(off.clone()),
+        ]);
+        d.send_command(&mut link, Command::Set(0.0)).unwrap();
+        d.send_command(&mut link, Command::Set(0.0)).unwrap();
+        drop(link);
+        d.bus.set_engaged(true);
+        let mut link = MockLink::new(vec![tx(command(0, 2)), tx(on), tx(command(100, 3))]);
+        d.send_command(&mut link, Command::Set(0.0)).unwrap();
+        d.send_command(&mut link, Command::Set(0.1)).unwrap();
+        drop(link);
+        d.bus.set_engaged(false);
+        let mut link = MockLink::new(vec![tx(command(0, 4)), tx(off)]);
+        d.send_command(&mut link, Command::Set(0.0)).unwrap();
+    }
+
+    #[test]
+    fn an_enable_is_refused_while_the_vehicle_is_not_engaged() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = driver(&dir);
+        let mut link = MockLink::new(vec![]);
+        let e = d
+            .send_command(&mut link, Command::Control(Control::Enable))
+            .unwrap_err();
+        assert!(matches!(e, DriverError::Refused(_)), "{e}");
+    }
+
+    #[test]
+    fn a_command_out_of_the_signal_s_range_is_refused_never_clamped() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = driver(&dir);
+        let mut link = MockLink::new(vec![]);
+        let e = d.send_command(&mut link, Command::Set(1.5)).unwrap_err();
+        assert!(e.to_string().contains("outside its range"), "{e}");
+    }
+
+    #[test]
+    fn while_the_bus_is_down_commands_are_refused_with_its_reason() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = driver(&dir);
+        d.bus
+            .go_down("cannot open /dev/ttyACM0: No such file or directory".into());
+        let mut link = MockLink::new(vec![]);
+        let e = d.send_command(&mut link, Command::Set(0.0)).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("bus kit is down: cannot open /dev/ttyACM0"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn readings_and_fault_codes_come_from_the_frames_that_carry_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = driver(&dir);
+        let mut r = Reading::default();
+        let other = Frame::new(Id::standard(0x300).unwrap(), &[1; 8]).unwrap();
+        assert!(!decode_into(&d.map, &other, &mut r));
+        let rep = Frame::new(Id::standard(0x200).unwrap(), &[1, 2, 0, 0, 0, 0, 0, 0]).unwrap();
+        assert!(decode_into(&d.map, &rep, &mut r));
+        assert_eq!(r.get(0), Some(1.0));
+        assert_eq!(r.fault, 2);
+        assert_eq!(d.map.fault_names(r.fault), ["HOT"]);
+    }
+}
