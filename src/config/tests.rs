@@ -804,6 +804,35 @@ fn a_device_without_a_port_is_refused_outside_sim_at_its_line() {
 }
 
 #[test]
+fn two_devices_on_one_serial_port_are_refused_at_the_second_s_port() {
+    let two = format!(
+        "{BASE}\n[[device]]\nname = \"horn\"\nkind = \"state\"\nstates = [\"off\", \"on\"]\ndriver = \"line\"\nport = \"/dev/ttyUSB0\"\n"
+    );
+    let e = parse(&two, "v.toml")
+        .unwrap()
+        .check_ports()
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.starts_with(
+            "v.toml:33: horn: port: /dev/ttyUSB0 is brake's port too: a serial port has one device"
+        ),
+        "{e}"
+    );
+    // The horn on a port of its own.
+    let at = two.rfind("/dev/ttyUSB0").unwrap();
+    let apart = format!(
+        "{}/dev/ttyUSB1{}",
+        &two[..at],
+        &two[at + "/dev/ttyUSB0".len()..]
+    );
+    assert!(
+        parse(&apart, "v.toml").unwrap().check_ports().is_ok(),
+        "{apart}"
+    );
+}
+
+#[test]
 fn the_console_s_status_period_goes_through_the_same_rule() {
     let d = &parse(BASE, "v.toml").unwrap().devices[0];
     let mut edited = d.clone();
