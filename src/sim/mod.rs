@@ -232,17 +232,7 @@ impl Sim {
             tx: events,
             dropped: Arc::default(),
         };
-        let dir = std::env::temp_dir().join(format!(
-            "adrive-sim-{}-{}",
-            std::process::id(),
-            SIM_COUNT.fetch_add(1, Relaxed)
-        ));
-        std::fs::create_dir_all(&dir)?;
-        let model = Arc::new(Mutex::new(Model::new(config)));
-        let stop = Arc::new(AtomicBool::new(false));
-        let mut ports = Vec::new();
-        let mut threads = Vec::new();
-        let mut buses = Vec::new();
+        // A bus the simulator cannot serve is refused before anything starts.
         let mut kits = Vec::new();
         for (i, b) in config.buses.iter().enumerate() {
             if let Some(d) = config
@@ -255,7 +245,37 @@ impl Sim {
                     b.name, d.name
                 )));
             }
-            let kit = bus::SimKit::new(config, i, Instant::now())?;
+            kits.push(bus::SimKit::new(config, i, Instant::now())?);
+        }
+        let dir = std::env::temp_dir().join(format!(
+            "adrive-sim-{}-{}",
+            std::process::id(),
+            SIM_COUNT.fetch_add(1, Relaxed)
+        ));
+        std::fs::create_dir_all(&dir)?;
+        let model = Arc::new(Mutex::new(Model::new(config)));
+        let stop = Arc::new(AtomicBool::new(false));
+        // From here on, a port that cannot come up drops `sim`: its threads stop and
+        // its directory goes.
+        let mut sim = Sim {
+            ports: Vec::new(),
+            buses: Vec::new(),
+            kits: kits.clone(),
+            bus_of: config
+                .devices
+                .iter()
+                .map(|d| match &d.wire {
+                    Wire::Can(m) => Some(m.bus),
+                    _ => None,
+                })
+                .collect(),
+            dir: dir.clone(),
+            model: model.clone(),
+            stop: stop.clone(),
+            threads: Vec::new(),
+            events: events.clone(),
+        };
+        for (b, kit) in config.buses.iter().zip(kits) {
             let link = dir.join(b.name.as_str());
             let (master, slave, pty) = bring_up(&link)?;
             let port = SimPort {
@@ -268,7 +288,7 @@ impl Sim {
             let served = bus::ServedBus {
                 config: b.clone(),
                 link,
-                kit: kit.clone(),
+                kit,
                 model: model.clone(),
                 stop: stop.clone(),
                 faults: port.faults.clone(),
@@ -279,9 +299,8 @@ impl Sim {
             let h = std::thread::Builder::new()
                 .name(format!("sim/{}", b.name))
                 .spawn(move || served.run(master, slave))?;
-            threads.push(h);
-            buses.push(port);
-            kits.push(kit);
+            sim.threads.push(h);
+            sim.buses.push(port);
         }
         for (i, c) in config.devices.iter().enumerate() {
             if matches!(c.wire, Wire::Can(_)) {
@@ -310,27 +329,10 @@ impl Sim {
             let h = std::thread::Builder::new()
                 .name(format!("sim/{}", c.name))
                 .spawn(move || dev.run(master, slave))?;
-            threads.push(h);
-            ports.push(port);
+            sim.threads.push(h);
+            sim.ports.push(port);
         }
-        Ok(Sim {
-            ports,
-            buses,
-            kits,
-            bus_of: config
-                .devices
-                .iter()
-                .map(|d| match &d.wire {
-                    Wire::Can(m) => Some(m.bus),
-                    _ => None,
-                })
-                .collect(),
-            dir,
-            model,
-            stop,
-            threads,
-            events,
-        })
+        Ok(sim)
     }
 
     /// Events lost because their bounded receiver was full.
