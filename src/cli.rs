@@ -872,6 +872,7 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let width = sim
         .ports
         .iter()
+        .chain(&sim.buses)
         .map(|p| p.name.len())
         .max()
         .unwrap_or(6)
@@ -885,6 +886,22 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             p.pty.lock(),
             d.driver.as_str(),
             d.baud
+        );
+    }
+    for (i, p) in sim.buses.iter().enumerate() {
+        let on: Vec<&str> = config
+            .devices
+            .iter()
+            .filter(|d| matches!(&d.wire, config::protocol_map::Wire::Can(m) if m.bus == i))
+            .map(|d| d.name.as_str())
+            .collect();
+        println!(
+            "{:<width$} {}  -> {}  (slcan, {} bit/s: an OSCC kit with {})",
+            p.name,
+            p.path,
+            p.pty.lock(),
+            config.buses[i].bitrate.bits_per_second(),
+            on.join(", ")
         );
     }
     println!("type `help` for the faults and events it takes (`silent gas on`, `estop pause`, …); Ctrl-C stops");

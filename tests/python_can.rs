@@ -1,6 +1,7 @@
-//! Interoperability: the simulated SLCAN adapter and OSCC kit against python-can (its
-//! `slcan` interface, on a real pseudo-terminal) with cantools encoding and decoding
-//! from the same `vehicles/oscc.dbc`. Every frame the kit sends is decoded by both
+//! Interoperability: the simulated SLCAN adapter and OSCC kit of the real `adrive sim
+//! --config vehicles/oscc.toml` against python-can (its `slcan` interface, on the
+//! adapter's pseudo-terminal as `adrive sim` prints it) with cantools encoding and
+//! decoding from the same `vehicles/oscc.dbc`. Every frame the kit sends is decoded by both
 //! cantools and adrive's DBC module, and they must agree on every signal; the frames
 //! python-can sends must enable, command and disable the kit. A second test has cantools
 //! decode random frames of every layout a DBC can write (`tests/support/layouts.dbc`)
@@ -14,17 +15,13 @@ mod python_env;
 
 use adrive::can::dbc::Database;
 use adrive::can::{Frame, Id};
-use adrive::sim::oscc::{Kit, Module};
-use adrive::sim::slcan::SlcanPort;
+use common::simproc::SimProcess;
 use common::DEADLINE;
-use parking_lot::Mutex;
-use serialport::{SerialPort, TTYPort};
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 use std::process::{Command as Process, Stdio};
-use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
-use std::sync::{mpsc, Arc, OnceLock};
-use std::time::{Duration, Instant};
+use std::sync::{mpsc, OnceLock};
+use std::time::Instant;
 
 const PYTHON_CAN: &str = "python-can==4.6.1";
 const CANTOOLS: &str = "cantools==45.1.0";
@@ -45,53 +42,19 @@ fn dbc_path() -> String {
     concat!(env!("CARGO_MANIFEST_DIR"), "/vehicles/oscc.dbc").to_string()
 }
 
-/// The simulated adapter and kit served on the master end of a pseudo-terminal, as
-/// the simulator's port loop will: read what the host sends, let the bus run, write
-/// back, never waiting past the kit's next report.
-fn serve(
-    mut device: TTYPort,
-    port: Arc<Mutex<SlcanPort<Kit>>>,
-    stop: Arc<AtomicBool>,
-) -> std::thread::JoinHandle<()> {
-    std::thread::Builder::new()
-        .name("test/slcan".into())
-        .spawn(move || {
-            let mut chunk = [0u8; 256];
-            let mut out = Vec::new();
-            while !stop.load(Relaxed) {
-                let wait = port.lock().wait(Instant::now());
-                let _ = device
-                    .set_timeout(wait.clamp(Duration::from_millis(1), Duration::from_millis(5)));
-                let n = match device.read(&mut chunk) {
-                    Ok(n) => n,
-                    Err(e) if e.kind() == std::io::ErrorKind::TimedOut => 0,
-                    Err(_) => return,
-                };
-                out.clear();
-                {
-                    let mut p = port.lock();
-                    let now = Instant::now();
-                    p.input(&chunk[..n], now, &mut out);
-                    p.tick(now, &mut out);
-                }
-                if !out.is_empty() && device.write_all(&out).is_err() {
-                    return;
-                }
-            }
-        })
-        .expect("spawn the port loop")
-}
-
 #[test]
 fn python_can_and_cantools_drive_the_simulated_oscc_kit_and_agree_on_every_frame() {
     let db = Database::load(Path::new(&dbc_path())).unwrap_or_else(|e| panic!("{e}"));
-    let (device, host_end) = TTYPort::pair().expect("a pseudo-terminal pair");
-    let path = host_end.name().expect("the pty's path");
-    let kit = Kit::new(&db, None, Instant::now()).unwrap();
-    let port = Arc::new(Mutex::new(SlcanPort::new(kit, Instant::now())));
-    port.lock().node.set_speed(18.0);
-    let stop = Arc::new(AtomicBool::new(false));
-    let server = serve(device, port.clone(), stop.clone());
+    // The real `adrive sim` with the OSCC vehicle: its one port is the bus's adapter.
+    let sim = SimProcess::start_with(
+        &[
+            "--config",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/vehicles/oscc.toml"),
+        ],
+        1,
+    );
+    let path = sim.paths[0].clone();
+    assert!(path.ends_with("/kit"), "the bus's adapter: {path}");
 
     let mut child = Process::new(python())
         .arg(concat!(
@@ -124,8 +87,6 @@ fn python_can_and_cantools_drive_the_simulated_oscc_kit_and_agree_on_every_frame
     let status = child.wait().expect("the peer ends");
     let mut stderr = String::new();
     let _ = child.stderr.take().unwrap().read_to_string(&mut stderr);
-    stop.store(true, Relaxed);
-    server.join().expect("the port loop");
     assert!(
         status.success() && seen.last().map(String::as_str) == Some("DONE"),
         "the python-can peer failed ({status}):\n{stderr}\nlast lines: {:?}",
@@ -159,6 +120,8 @@ fn python_can_and_cantools_drive_the_simulated_oscc_kit_and_agree_on_every_frame
         "STEERING_REPORT",
         "THROTTLE_REPORT",
         "KIA_SOUL_WHEEL_SPEED",
+        "KIA_SOUL_STEERING_WHEEL_ANGLE",
+        "KIA_SOUL_BRAKE_PRESSURE",
     ] {
         assert!(
             names.get(name).is_some_and(|&n| n >= 10),
@@ -166,23 +129,12 @@ fn python_can_and_cantools_drive_the_simulated_oscc_kit_and_agree_on_every_frame
         );
     }
 
-    // And the frames cantools encoded did what they say to the kit.
-    let mut p = port.lock();
-    let notes: Vec<(Module, String)> = p
-        .node
-        .take_notes()
-        .into_iter()
-        .map(|n| (n.module, n.what))
-        .collect();
-    assert_eq!(
-        notes,
-        vec![
-            (Module::Throttle, "enabled".to_string()),
-            (Module::Throttle, "disabled".to_string())
-        ]
-    );
-    assert_eq!(p.node.state(Module::Throttle).request, 0.25);
-    drop(host_end);
+    // And the frames cantools encoded did what they say to the kit, as the simulator
+    // printed it: the throttle module enabled, the gas at 0.25, the module disabled.
+    let (_, mark) = sim.wait_after(0, &["gas", "throttle module: enabled"]);
+    let (_, mark) = sim.wait_after(mark, &["gas", "<-", "0.250"]);
+    sim.wait_after(mark, &["gas", "throttle module: disabled"]);
+    sim.stop();
 }
 
 /// The bytes of a JSON frame line's `data`, and its identifier.

@@ -4,7 +4,9 @@
 //! and what it does. Parsing reads the table, so an error names the form expected, and
 //! `help` prints the same table, so the two cannot drift apart. Devices are named as
 //! the vehicle file names them; a command for a drive (`jam`, `stuck`, `bias`, `override`) applies
-//! to setpoint devices.
+//! to setpoint devices. A CAN bus is named as its `[[bus]]` is: its adapter is a port
+//! like a device's (`vanish kit 2s`), the bus itself can fail (`bus kit off`), and the
+//! kit's modules behind it take the operator's override and fault codes by name.
 
 use crate::value::{DeviceId, EstopState, Kind};
 use std::fmt::Write as _;
@@ -16,26 +18,100 @@ pub enum Which {
     Any,
     /// A setpoint device (a drive with a position).
     Setpoint,
+    /// A device that a simulated kit's module drives (on a CAN bus).
+    Module,
 }
 
 /// The devices of the simulated vehicle: name and kind, by id.
 pub type Devices = [(String, Kind)];
+
+/// Everything a command may name: the vehicle's devices, which of them are on a CAN
+/// bus (and so have no port of their own) and which a simulated kit's module drives,
+/// and the simulated buses.
+#[derive(Clone, Debug, Default)]
+pub struct Names {
+    /// Name and kind, by device id.
+    pub devices: Vec<(String, Kind)>,
+    /// The bus each device is on, by device id (`None`: it has its own port).
+    pub bus_of: Vec<Option<usize>>,
+    /// The devices a simulated kit's module drives.
+    pub modules: Vec<DeviceId>,
+    /// The simulated buses, by index.
+    pub buses: Vec<String>,
+}
+
+impl Names {
+    /// A vehicle without CAN buses.
+    pub fn of_devices(devices: Vec<(String, Kind)>) -> Names {
+        Names {
+            bus_of: vec![None; devices.len()],
+            devices,
+            ..Names::default()
+        }
+    }
+
+    fn ports(&self) -> String {
+        let mut v: Vec<&str> = self
+            .devices
+            .iter()
+            .zip(&self.bus_of)
+            .filter(|(_, b)| b.is_none())
+            .map(|((n, _), _)| n.as_str())
+            .collect();
+        v.extend(self.buses.iter().map(String::as_str));
+        v.join(", ")
+    }
+
+    fn modules(&self) -> String {
+        let v: Vec<&str> = self
+            .modules
+            .iter()
+            .map(|id| self.devices[id.index()].0.as_str())
+            .collect();
+        if v.is_empty() {
+            "none in this vehicle".into()
+        } else {
+            v.join(", ")
+        }
+    }
+
+    fn buses(&self) -> String {
+        if self.buses.is_empty() {
+            "none in this vehicle".into()
+        } else {
+            self.buses.join(", ")
+        }
+    }
+}
+
+/// A port that faults apply to: a device's own, or a bus's adapter.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Port {
+    Device(DeviceId),
+    Bus(usize),
+}
 
 /// One argument of a command.
 #[derive(Clone, Copy, Debug)]
 pub(crate) enum Arg {
     /// A device of the vehicle.
     Device(Which),
+    /// A device with its own port, or a bus (its adapter's port).
+    Port,
+    /// A simulated CAN bus.
+    Bus,
+    /// A fault code by the name the DBC's value table gives it.
+    Dtc,
     /// `on` or `off` (also `1`/`0`, `true`/`false`).
     OnOff,
-    /// Milliseconds: `80` or `80ms`.
+    /// Milliseconds: `80`, `80ms` or `2s`.
     Millis,
     /// A finite number.
     Number(&'static str),
     /// An e-stop state.
     Estop,
-    /// A finite number, or `off`.
-    NumberOrOff(&'static str),
+    /// A finite number, `on` or `off`.
+    NumberOrOnOff(&'static str),
 }
 
 impl Arg {
@@ -44,27 +120,67 @@ impl Arg {
         match self {
             Arg::Device(Which::Any) => "DEVICE".into(),
             Arg::Device(Which::Setpoint) => "SETPOINT".into(),
+            Arg::Device(Which::Module) => "MODULE".into(),
+            Arg::Port => "PORT".into(),
+            Arg::Bus => "BUS".into(),
+            Arg::Dtc => "DTC".into(),
             Arg::OnOff => "on|off".into(),
             Arg::Millis => "MS".into(),
             Arg::Number(name) => (*name).into(),
             Arg::Estop => "pause|run|disable".into(),
-            Arg::NumberOrOff(name) => format!("{name}|off"),
+            Arg::NumberOrOnOff(name) => format!("{name}|on|off"),
         }
     }
 
-    fn parse(&self, word: &str, devices: &Devices) -> Result<Value, String> {
+    fn parse(&self, word: &str, names: &Names) -> Result<Value, String> {
+        let devices = &*names.devices;
         match self {
+            Arg::Device(Which::Module) => {
+                let id = Arg::Device(Which::Any).parse(word, names)?;
+                if !names.modules.iter().any(|m| Value::Device(*m) == id) {
+                    return Err(format!(
+                        "{word} is not driven by a simulated kit's module (those are {})",
+                        names.modules()
+                    ));
+                }
+                Ok(id)
+            }
+            Arg::Port => {
+                if let Some(b) = names.buses.iter().position(|b| b == word) {
+                    return Ok(Value::Port(Port::Bus(b)));
+                }
+                let Some(i) = devices.iter().position(|(n, _)| n == word) else {
+                    return Err(format!(
+                        "unknown device or bus {word:?}; the ports are {}",
+                        names.ports()
+                    ));
+                };
+                match names.bus_of.get(i).copied().flatten() {
+                    None => Ok(Value::Port(Port::Device(DeviceId(i as u16)))),
+                    Some(b) => Err(format!(
+                        "{word} has no port of its own: it is on bus {}, whose adapter is the port",
+                        names.buses[b]
+                    )),
+                }
+            }
+            Arg::Bus => names
+                .buses
+                .iter()
+                .position(|b| b == word)
+                .map(Value::Bus)
+                .ok_or_else(|| format!("unknown bus {word:?}; the buses are {}", names.buses())),
+            Arg::Dtc => Ok(Value::Word(word.to_ascii_uppercase())),
             Arg::Device(which) => {
                 let Some(i) = devices.iter().position(|(n, _)| n == word) else {
                     return Err(format!(
                         "unknown device {word:?}; the devices are {}",
-                        names(devices, Which::Any)
+                        list(devices, Which::Any)
                     ));
                 };
                 if *which == Which::Setpoint && devices[i].1 != Kind::Setpoint {
                     return Err(format!(
                         "it applies to setpoint devices ({}), not {word} (a {})",
-                        names(devices, Which::Setpoint),
+                        list(devices, Which::Setpoint),
                         devices[i].1
                     ));
                 }
@@ -75,12 +191,21 @@ impl Arg {
                 "off" | "0" | "false" => Ok(Value::On(false)),
                 _ => Err(format!("expected on or off, got {word:?}")),
             },
-            Arg::Millis => word
-                .strip_suffix("ms")
-                .unwrap_or(word)
-                .parse()
-                .map(Value::Millis)
-                .map_err(|_| format!("expected milliseconds (80 or 80ms), got {word:?}")),
+            Arg::Millis => {
+                let (number, per) = match word.strip_suffix("ms") {
+                    Some(n) => (n, 1),
+                    None => match word.strip_suffix('s') {
+                        Some(n) => (n, 1000),
+                        None => (word, 1),
+                    },
+                };
+                number
+                    .parse::<u64>()
+                    .ok()
+                    .and_then(|n| n.checked_mul(per))
+                    .map(Value::Millis)
+                    .ok_or_else(|| format!("expected milliseconds (80, 80ms or 2s), got {word:?}"))
+            }
             Arg::Number(name) => word
                 .parse::<f64>()
                 .ok()
@@ -88,16 +213,17 @@ impl Arg {
                 .map(Value::Number)
                 .ok_or_else(|| format!("{name} is a number, got {word:?}")),
             Arg::Estop => word.parse().map(Value::Estop),
-            Arg::NumberOrOff(_) if word == "off" => Ok(Value::Off),
-            Arg::NumberOrOff(name) => Arg::Number(name)
-                .parse(word, devices)
-                .map_err(|e| format!("{e} or off")),
+            Arg::NumberOrOnOff(_) if word == "on" => Ok(Value::On(true)),
+            Arg::NumberOrOnOff(_) if word == "off" => Ok(Value::Off),
+            Arg::NumberOrOnOff(name) => Arg::Number(name)
+                .parse(word, names)
+                .map_err(|e| format!("{e}, on or off")),
         }
     }
 }
 
 /// The devices an argument may name, for messages.
-fn names(devices: &Devices, which: Which) -> String {
+fn list(devices: &Devices, which: Which) -> String {
     devices
         .iter()
         .filter(|(_, k)| which == Which::Any || *k == Kind::Setpoint)
@@ -107,9 +233,12 @@ fn names(devices: &Devices, which: Which) -> String {
 }
 
 /// A parsed argument.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum Value {
     Device(DeviceId),
+    Port(Port),
+    Bus(usize),
+    Word(String),
     On(bool),
     Millis(u64),
     Number(f64),
@@ -118,7 +247,7 @@ pub enum Value {
 }
 
 /// One command of the language, parsed.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum SimCommand {
     Estop(EstopState),
     Stall,
@@ -126,14 +255,21 @@ pub enum SimCommand {
     Jam(DeviceId),
     Stuck(DeviceId, bool),
     Bias(DeviceId, f64),
-    /// A driver's hand pushes the device toward the position (`None`: lets go).
+    /// A driver's hand pushes the device toward the position (`None`: lets go); on a
+    /// kit's module, its operator override goes on with it (off with `None`).
     Override(DeviceId, Option<f64>),
-    Silent(DeviceId, bool),
-    Garbage(DeviceId, bool),
-    Corrupt(DeviceId, bool),
-    Slow(DeviceId, u64),
-    Vanish(DeviceId, u64),
-    Clear(DeviceId),
+    /// A kit's module: the operator overrides it (`true`) or lets go.
+    KitOverride(DeviceId, bool),
+    /// A kit's module latches the fault code named.
+    Fault(DeviceId, String),
+    /// A bus is well (`true`) or in error (`false`).
+    Bus(usize, bool),
+    Silent(Port, bool),
+    Garbage(Port, bool),
+    Corrupt(Port, bool),
+    Slow(Port, u64),
+    Vanish(Port, u64),
+    Clear(Port),
     Help,
 }
 
@@ -167,44 +303,62 @@ impl Values {
     fn device(&self, i: usize) -> DeviceId {
         match self.0[i] {
             Value::Device(r) => r,
-            v => unreachable!("the table says argument {i} is a device, got {v:?}"),
+            ref v => unreachable!("the table says argument {i} is a device, got {v:?}"),
+        }
+    }
+    fn port(&self, i: usize) -> Port {
+        match self.0[i] {
+            Value::Port(p) => p,
+            ref v => unreachable!("the table says argument {i} is a port, got {v:?}"),
+        }
+    }
+    fn bus(&self, i: usize) -> usize {
+        match self.0[i] {
+            Value::Bus(b) => b,
+            ref v => unreachable!("the table says argument {i} is a bus, got {v:?}"),
+        }
+    }
+    fn word(&self, i: usize) -> String {
+        match &self.0[i] {
+            Value::Word(w) => w.clone(),
+            v => unreachable!("the table says argument {i} is a word, got {v:?}"),
         }
     }
     fn on(&self, i: usize) -> bool {
         match self.0[i] {
             Value::On(b) => b,
-            v => unreachable!("the table says argument {i} is on|off, got {v:?}"),
+            ref v => unreachable!("the table says argument {i} is on|off, got {v:?}"),
         }
     }
     fn ms(&self, i: usize) -> u64 {
         match self.0[i] {
             Value::Millis(ms) => ms,
-            v => unreachable!("the table says argument {i} is milliseconds, got {v:?}"),
+            ref v => unreachable!("the table says argument {i} is milliseconds, got {v:?}"),
         }
     }
     fn number(&self, i: usize) -> f64 {
         match self.0[i] {
             Value::Number(x) => x,
-            v => unreachable!("the table says argument {i} is a number, got {v:?}"),
+            ref v => unreachable!("the table says argument {i} is a number, got {v:?}"),
         }
     }
     fn number_or_off(&self, i: usize) -> Option<f64> {
         match self.0[i] {
             Value::Number(x) => Some(x),
             Value::Off => None,
-            v => unreachable!("the table says argument {i} is a number or off, got {v:?}"),
+            ref v => unreachable!("the table says argument {i} is a number or off, got {v:?}"),
         }
     }
     fn estop(&self, i: usize) -> EstopState {
         match self.0[i] {
             Value::Estop(s) => s,
-            v => unreachable!("the table says argument {i} is an e-stop state, got {v:?}"),
+            ref v => unreachable!("the table says argument {i} is an e-stop state, got {v:?}"),
         }
     }
 }
 
-const ANY: Arg = Arg::Device(Which::Any);
 const SETPOINT: Arg = Arg::Device(Which::Setpoint);
+const MODULE: Arg = Arg::Device(Which::Module);
 
 /// Every command the simulator takes.
 pub(crate) const VERBS: &[Verb] = &[
@@ -231,46 +385,46 @@ pub(crate) const VERBS: &[Verb] = &[
     },
     Verb {
         name: "silent",
-        args: &[ANY, Arg::OnOff],
-        does: "the device stops answering",
+        args: &[Arg::Port, Arg::OnOff],
+        does: "the device (or a bus's adapter) stops answering",
         example: "silent gas on",
-        build: |v| SimCommand::Silent(v.device(0), v.on(1)),
+        build: |v| SimCommand::Silent(v.port(0), v.on(1)),
     },
     Verb {
         name: "garbage",
-        args: &[ANY, Arg::OnOff],
+        args: &[Arg::Port, Arg::OnOff],
         does: "the device answers noise",
         example: "garbage steer on",
-        build: |v| SimCommand::Garbage(v.device(0), v.on(1)),
+        build: |v| SimCommand::Garbage(v.port(0), v.on(1)),
     },
     Verb {
         name: "corrupt",
-        args: &[ANY, Arg::OnOff],
+        args: &[Arg::Port, Arg::OnOff],
         does: "flip a bit in every reply (bad CRC or checksum)",
         example: "corrupt brake on",
-        build: |v| SimCommand::Corrupt(v.device(0), v.on(1)),
+        build: |v| SimCommand::Corrupt(v.port(0), v.on(1)),
     },
     Verb {
         name: "slow",
-        args: &[ANY, Arg::Millis],
+        args: &[Arg::Port, Arg::Millis],
         does: "answer MS later (0 clears)",
         example: "slow trans 80",
-        build: |v| SimCommand::Slow(v.device(0), v.ms(1)),
+        build: |v| SimCommand::Slow(v.port(0), v.ms(1)),
     },
     Verb {
         name: "vanish",
-        args: &[ANY, Arg::Millis],
+        args: &[Arg::Port, Arg::Millis],
         does:
             "close the port and remove its link (a USB unplug); back after MS behind the same link",
-        example: "vanish obd 2000",
-        build: |v| SimCommand::Vanish(v.device(0), v.ms(1)),
+        example: "vanish obd 2s",
+        build: |v| SimCommand::Vanish(v.port(0), v.ms(1)),
     },
     Verb {
         name: "clear",
-        args: &[ANY],
-        does: "clear the device's port faults (silent, garbage, corrupt, slow)",
+        args: &[Arg::Port],
+        does: "clear the port's faults (silent, garbage, corrupt, slow)",
         example: "clear gas",
-        build: |v| SimCommand::Clear(v.device(0)),
+        build: |v| SimCommand::Clear(v.port(0)),
     },
     Verb {
         name: "jam",
@@ -295,10 +449,27 @@ pub(crate) const VERBS: &[Verb] = &[
     },
     Verb {
         name: "override",
-        args: &[SETPOINT, Arg::NumberOrOff("X")],
-        does: "a driver's hand pushes the device toward X, stronger than its drive (off: lets go)",
+        args: &[SETPOINT, Arg::NumberOrOnOff("X")],
+        does: "a driver's hand pushes the device toward X, stronger than its drive (off: lets go); a kit's module also reports the operator's override (on: just that)",
         example: "override steer 0.5",
-        build: |v| SimCommand::Override(v.device(0), v.number_or_off(1)),
+        build: |v| match v.0[1] {
+            Value::On(_) => SimCommand::KitOverride(v.device(0), true),
+            _ => SimCommand::Override(v.device(0), v.number_or_off(1)),
+        },
+    },
+    Verb {
+        name: "fault",
+        args: &[MODULE, Arg::Dtc],
+        does: "a kit's module latches the fault code DTC (by its DBC name), disables itself and reports it",
+        example: "fault brake INVALID_SENSOR_VAL",
+        build: |v| SimCommand::Fault(v.device(0), v.word(1)),
+    },
+    Verb {
+        name: "bus",
+        args: &[Arg::Bus, Arg::OnOff],
+        does: "off: the bus is in error (bus-off); its adapter refuses frames, delivers none, and its status says bus error",
+        example: "bus kit off",
+        build: |v| SimCommand::Bus(v.bus(0), v.on(1)),
     },
     Verb {
         name: "help",
@@ -311,7 +482,7 @@ pub(crate) const VERBS: &[Verb] = &[
 
 /// Parse one line against the vehicle's devices. An error says what was wrong and the
 /// form expected.
-pub fn parse(line: &str, devices: &Devices) -> Result<SimCommand, String> {
+pub fn parse(line: &str, names: &Names) -> Result<SimCommand, String> {
     let lower = line.trim().to_ascii_lowercase();
     let words: Vec<&str> = lower.split_whitespace().collect();
     let Some((&name, args)) = words.split_first() else {
@@ -337,24 +508,35 @@ pub fn parse(line: &str, devices: &Devices) -> Result<SimCommand, String> {
         .args
         .iter()
         .zip(args)
-        .map(|(a, w)| a.parse(w, devices))
+        .map(|(a, w)| a.parse(w, names))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| format!("{name}: {e}; the form is {}", form()))?;
     Ok((verb.build)(&Values(values)))
 }
 
-/// The table as help text: one line per command, then the vehicle's devices.
-pub fn help(devices: &Devices) -> String {
+/// The table as help text: one line per command, then what each argument may name.
+pub fn help(names: &Names) -> String {
+    let devices = &*names.devices;
     let width = VERBS.iter().map(|v| v.form().len()).max().unwrap_or(0);
     let mut s = String::new();
     for v in VERBS {
         let _ = writeln!(s, "  {:<width$}  {}", v.form(), v.does);
     }
-    let _ = writeln!(s, "  DEVICE is one of {}", names(devices, Which::Any));
+    let _ = writeln!(s, "  SETPOINT is one of {}", list(devices, Which::Setpoint));
     let _ = writeln!(
         s,
-        "  SETPOINT is one of {}",
-        names(devices, Which::Setpoint)
+        "  PORT is a device with its own port or a bus: {}",
+        names.ports()
+    );
+    let _ = writeln!(s, "  BUS is one of {}", names.buses());
+    let _ = writeln!(
+        s,
+        "  MODULE is a device a kit's module drives: {}",
+        names.modules()
+    );
+    let _ = writeln!(
+        s,
+        "  DTC is a fault code of the module's report, as its DBC names it"
     );
     s
 }
@@ -363,31 +545,64 @@ pub fn help(devices: &Devices) -> String {
 mod tests {
     use super::*;
 
-    /// Alice's devices.
-    fn alice() -> Vec<(String, Kind)> {
-        crate::config::VehicleConfig::alice()
-            .devices
-            .iter()
-            .map(|d| (d.name.clone(), d.kind))
-            .collect()
+    /// Alice's devices, each on its own port.
+    fn alice() -> Names {
+        Names::of_devices(
+            crate::config::VehicleConfig::alice()
+                .devices
+                .iter()
+                .map(|d| (d.name.clone(), d.kind))
+                .collect(),
+        )
+    }
+
+    /// The OSCC Kia Soul: three kit modules and the car, all on bus `kit`.
+    fn oscc() -> Names {
+        let devices = ["steer", "gas", "brake"]
+            .map(|n| (n.to_string(), Kind::Setpoint))
+            .into_iter()
+            .chain([("car".to_string(), Kind::Sensor)])
+            .collect();
+        Names {
+            devices,
+            bus_of: vec![Some(0); 4],
+            modules: vec![DeviceId(0), DeviceId(1), DeviceId(2)],
+            buses: vec!["kit".into()],
+        }
     }
 
     fn p(line: &str) -> Result<SimCommand, String> {
         parse(line, &alice())
     }
 
+    fn k(line: &str) -> Result<SimCommand, String> {
+        parse(line, &oscc())
+    }
+
     const STEER: DeviceId = DeviceId(0);
     const GAS: DeviceId = DeviceId(1);
+    const BRAKE: DeviceId = DeviceId(2);
 
     #[test]
     fn every_example_in_the_table_parses_with_its_own_verb() {
         for v in VERBS {
-            let parsed = p(v.example).unwrap_or_else(|e| panic!("{}: {e}", v.example));
-            let again = p(&v.example.to_uppercase()).unwrap();
+            let parsed = p(v.example)
+                .or_else(|_| k(v.example))
+                .unwrap_or_else(|e| panic!("{}: {e}", v.example));
+            let again = p(&v.example.to_uppercase())
+                .or_else(|_| k(&v.example.to_uppercase()))
+                .unwrap();
             assert_eq!(parsed, again, "keywords are case-insensitive");
         }
         assert_eq!(p("bias gas -0.25"), Ok(SimCommand::Bias(GAS, -0.25)));
-        assert_eq!(p("slow steer 80ms"), Ok(SimCommand::Slow(STEER, 80)));
+        assert_eq!(
+            p("slow steer 80ms"),
+            Ok(SimCommand::Slow(Port::Device(STEER), 80))
+        );
+        assert_eq!(
+            p("vanish steer 2s"),
+            Ok(SimCommand::Vanish(Port::Device(STEER), 2000))
+        );
         assert_eq!(p("stuck gas on"), Ok(SimCommand::Stuck(GAS, true)));
         assert_eq!(p("override gas off"), Ok(SimCommand::Override(GAS, None)));
         assert_eq!(
@@ -395,7 +610,48 @@ mod tests {
             Ok(SimCommand::Override(STEER, Some(-0.5)))
         );
         let e = p("override steer hard").unwrap_err();
-        assert!(e.contains("X is a number, got \"hard\" or off"), "{e}");
+        assert!(e.contains("X is a number, got \"hard\", on or off"), "{e}");
+    }
+
+    #[test]
+    fn a_kits_bus_and_modules_take_their_own_commands() {
+        assert_eq!(
+            k("override steer on"),
+            Ok(SimCommand::KitOverride(STEER, true))
+        );
+        assert_eq!(
+            k("override steer off"),
+            Ok(SimCommand::Override(STEER, None))
+        );
+        assert_eq!(
+            k("fault brake invalid_sensor_val"),
+            Ok(SimCommand::Fault(BRAKE, "INVALID_SENSOR_VAL".into()))
+        );
+        assert_eq!(k("bus kit off"), Ok(SimCommand::Bus(0, false)));
+        assert_eq!(
+            k("vanish kit 2s"),
+            Ok(SimCommand::Vanish(Port::Bus(0), 2000))
+        );
+        assert_eq!(
+            k("silent kit on"),
+            Ok(SimCommand::Silent(Port::Bus(0), true))
+        );
+        let e = k("silent steer on").unwrap_err();
+        assert!(
+            e.contains("steer has no port of its own: it is on bus kit, whose adapter is the port"),
+            "{e}"
+        );
+        let e = k("fault car INVALID_SENSOR_VAL").unwrap_err();
+        assert!(
+            e.contains(
+                "car is not driven by a simulated kit's module (those are steer, gas, brake)"
+            ),
+            "{e}"
+        );
+        let e = k("bus can2 off").unwrap_err();
+        assert!(e.contains("unknown bus \"can2\"; the buses are kit"), "{e}");
+        let e = p("bus kit off").unwrap_err();
+        assert!(e.contains("the buses are none in this vehicle"), "{e}");
     }
 
     /// The incident: `stuck gas on` was refused with a message that did not say
@@ -419,7 +675,7 @@ mod tests {
         assert!(e.contains("help"), "{e}");
         let e = p("silent gas").unwrap_err();
         assert!(
-            e.contains("silent takes 2 arguments: `silent DEVICE on|off`"),
+            e.contains("silent takes 2 arguments: `silent PORT on|off`"),
             "{e}"
         );
         let e = p("silent gas maybe").unwrap_err();
@@ -431,6 +687,13 @@ mod tests {
         let e = p("estop stop").unwrap_err();
         assert!(e.contains("pause"), "{e}");
         let e = p("silent wiper on").unwrap_err();
+        assert!(
+            e.contains(
+                "unknown device or bus \"wiper\"; the ports are steer, gas, brake, trans, estop, obd"
+            ),
+            "{e}"
+        );
+        let e = p("stuck wiper on").unwrap_err();
         assert!(
             e.contains(
                 "unknown device \"wiper\"; the devices are steer, gas, brake, trans, estop, obd"
@@ -446,8 +709,19 @@ mod tests {
             assert!(h.contains(&v.form()), "help lacks {}:\n{h}", v.form());
         }
         assert!(h.contains("stuck SETPOINT on|off"), "{h}");
-        assert!(h.contains("silent DEVICE on|off"), "{h}");
-        assert!(h.contains("override SETPOINT X|off"), "{h}");
+        assert!(h.contains("silent PORT on|off"), "{h}");
+        assert!(h.contains("override SETPOINT X|on|off"), "{h}");
         assert!(h.contains("SETPOINT is one of steer, gas, brake"), "{h}");
+        let h = help(&oscc());
+        assert!(h.contains("fault MODULE DTC"), "{h}");
+        assert!(h.contains("bus BUS on|off"), "{h}");
+        assert!(
+            h.contains("PORT is a device with its own port or a bus: kit"),
+            "{h}"
+        );
+        assert!(
+            h.contains("MODULE is a device a kit's module drives: steer, gas, brake"),
+            "{h}"
+        );
     }
 }

@@ -10,7 +10,11 @@
 //! to its current pseudo-terminal, just as `/dev/serial/by-id/…` points at the current
 //! `ttyUSBn`: when a device "vanishes" its pseudo-terminal closes and the link goes;
 //! when it comes back it does so on a new pseudo-terminal behind the same link.
+//!
+//! A CAN bus is one port for many devices: each `[[bus]]` is one simulated SLCAN
+//! adapter behind a link named after the bus, with the bus's kit behind it ([`bus`]).
 
+pub(crate) mod bus;
 pub mod commands;
 pub mod device;
 pub mod elm327;
@@ -26,7 +30,7 @@ pub(crate) mod test_serve;
 use crate::config::protocol_map::Wire;
 use crate::config::{DeviceConfig, VehicleConfig};
 use crate::value::{Command, DeviceId, EstopState, Kind, Reading};
-use commands::SimCommand;
+use commands::{Names, Port, SimCommand};
 use crossbeam_channel::Sender;
 use device::{Plant, Responder};
 use firmware::Watchdog;
@@ -150,7 +154,14 @@ pub struct SimPort {
 
 /// The running simulator.
 pub struct Sim {
+    /// The devices' own ports.
     pub ports: Vec<SimPort>,
+    /// One adapter per CAN bus, named after the bus.
+    pub buses: Vec<SimPort>,
+    /// The kit behind each bus's adapter, by bus index.
+    kits: Vec<bus::SimKit>,
+    /// The bus each device is on, by device id (`None`: its own port).
+    bus_of: Vec<Option<usize>>,
     dir: PathBuf,
     model: Arc<Mutex<Model>>,
     stop: Arc<AtomicBool>,
@@ -221,6 +232,21 @@ impl Sim {
             tx: events,
             dropped: Arc::default(),
         };
+        // A bus the simulator cannot serve is refused before anything starts.
+        let mut kits = Vec::new();
+        for (i, b) in config.buses.iter().enumerate() {
+            if let Some(d) = config
+                .devices
+                .iter()
+                .find(|d| d.name == b.name && !matches!(d.wire, Wire::Can(_)))
+            {
+                return Err(std::io::Error::other(format!(
+                    "bus {} and device {} would share one link in the simulator: rename one",
+                    b.name, d.name
+                )));
+            }
+            kits.push(bus::SimKit::new(config, i, Instant::now())?);
+        }
         let dir = std::env::temp_dir().join(format!(
             "adrive-sim-{}-{}",
             std::process::id(),
@@ -229,8 +255,53 @@ impl Sim {
         std::fs::create_dir_all(&dir)?;
         let model = Arc::new(Mutex::new(Model::new(config)));
         let stop = Arc::new(AtomicBool::new(false));
-        let mut ports = Vec::new();
-        let mut threads = Vec::new();
+        // From here on, a port that cannot come up drops `sim`: its threads stop and
+        // its directory goes.
+        let mut sim = Sim {
+            ports: Vec::new(),
+            buses: Vec::new(),
+            kits: kits.clone(),
+            bus_of: config
+                .devices
+                .iter()
+                .map(|d| match &d.wire {
+                    Wire::Can(m) => Some(m.bus),
+                    _ => None,
+                })
+                .collect(),
+            dir: dir.clone(),
+            model: model.clone(),
+            stop: stop.clone(),
+            threads: Vec::new(),
+            events: events.clone(),
+        };
+        for (b, kit) in config.buses.iter().zip(kits) {
+            let link = dir.join(b.name.as_str());
+            let (master, slave, pty) = bring_up(&link)?;
+            let port = SimPort {
+                name: b.name.clone(),
+                path: link.display().to_string(),
+                pty: Arc::new(Mutex::new(pty)),
+                faults: Arc::new(Faults::default()),
+                lives: Arc::new(AtomicU32::new(1)),
+            };
+            let served = bus::ServedBus {
+                config: b.clone(),
+                link,
+                kit,
+                model: model.clone(),
+                stop: stop.clone(),
+                faults: port.faults.clone(),
+                pty: port.pty.clone(),
+                lives: port.lives.clone(),
+                events: events.clone(),
+            };
+            let h = std::thread::Builder::new()
+                .name(format!("sim/{}", b.name))
+                .spawn(move || served.run(master, slave))?;
+            sim.threads.push(h);
+            sim.buses.push(port);
+        }
         for (i, c) in config.devices.iter().enumerate() {
             if matches!(c.wire, Wire::Can(_)) {
                 continue;
@@ -258,17 +329,10 @@ impl Sim {
             let h = std::thread::Builder::new()
                 .name(format!("sim/{}", c.name))
                 .spawn(move || dev.run(master, slave))?;
-            threads.push(h);
-            ports.push(port);
+            sim.threads.push(h);
+            sim.ports.push(port);
         }
-        Ok(Sim {
-            ports,
-            dir,
-            model,
-            stop,
-            threads,
-            events,
-        })
+        Ok(sim)
     }
 
     /// Events lost because their bounded receiver was full.
@@ -285,6 +349,25 @@ impl Sim {
         self.port(name).map(|p| p.path.as_str())
     }
 
+    /// The stable path of a bus's adapter.
+    pub fn bus_path(&self, name: &str) -> Option<&str> {
+        self.buses
+            .iter()
+            .find(|p| p.name == name)
+            .map(|p| p.path.as_str())
+    }
+
+    /// A bus's adapter and kit, for tests: `f` runs with the kit locked.
+    pub fn with_kit<R>(
+        &self,
+        bus: &str,
+        f: impl FnOnce(&mut slcan::SlcanPort<oscc::Kit>) -> R,
+    ) -> Option<R> {
+        let i = self.buses.iter().position(|p| p.name == bus)?;
+        let mut port = self.kits[i].port.lock();
+        Some(f(&mut port))
+    }
+
     pub fn faults(&self, name: &str) -> Option<&Arc<Faults>> {
         self.port(name).map(|p| &p.faults)
     }
@@ -298,35 +381,110 @@ impl Sim {
         self.model.lock().estop = state;
     }
 
-    /// Point every device of `config` at its simulated port.
+    /// Point every device of `config` at its simulated port, and every bus at its
+    /// simulated adapter.
     pub fn patch(&self, config: &mut VehicleConfig) {
         for d in &mut config.devices {
             if let Some(p) = self.path(&d.name) {
                 d.port = p.to_string();
             }
         }
+        for b in &mut config.buses {
+            if let Some(p) = self.bus_path(&b.name) {
+                b.port = p.to_string();
+            }
+        }
+    }
+
+    /// What the simulator's commands may name.
+    fn names(&self) -> Names {
+        let m = self.model.lock();
+        let devices = m.devices.iter().map(|d| (d.name.clone(), d.kind)).collect();
+        Names {
+            devices,
+            bus_of: self.bus_of.clone(),
+            modules: {
+                let mut v: Vec<DeviceId> = self
+                    .kits
+                    .iter()
+                    .flat_map(|k| k.bindings.iter().map(|b| b.device))
+                    .collect();
+                v.sort_unstable_by_key(|d| d.index());
+                v
+            },
+            buses: self.buses.iter().map(|p| p.name.clone()).collect(),
+        }
+    }
+
+    /// The kit and module that move `id`.
+    fn module(&self, id: DeviceId) -> Option<(&bus::SimKit, oscc::Module)> {
+        self.kits
+            .iter()
+            .find_map(|k| k.module_of(id).map(|m| (k, m)))
     }
 
     /// Apply one line of the simulator's little command language
     /// ([`commands::VERBS`]; used by `adrive sim` on its standard input, `--fault` and
     /// the console's bench keys). Returns what was done (for `help`, the table).
     pub fn apply(&self, line: &str) -> Result<String, String> {
-        let devices: Vec<(String, Kind)> = {
-            let m = self.model.lock();
-            m.devices.iter().map(|d| (d.name.clone(), d.kind)).collect()
-        };
-        let name = |id: DeviceId| devices[id.index()].0.clone();
-        let port_fault = |id: DeviceId, what: &str, set: &dyn Fn(&Faults)| {
-            let n = name(id);
-            set(&self.port(&n).expect("every device has a port").faults);
-            Ok(format!("{n}: {what}"))
+        let names = self.names();
+        let name = |id: DeviceId| names.devices[id.index()].0.clone();
+        let port_fault = |port: Port, what: &str, set: &dyn Fn(&Faults)| {
+            let p = match port {
+                Port::Device(id) => self.port(&name(id)).expect("parsed as a device's port"),
+                Port::Bus(i) => &self.buses[i],
+            };
+            set(&p.faults);
+            Ok(format!("{}: {what}", p.name))
         };
         let on_off = |on: bool| if on { "on" } else { "off" };
-        match commands::parse(line, &devices)? {
-            SimCommand::Help => Ok(format!(
-                "commands:\n{}",
-                commands::help(&devices).trim_end()
+        let kit_override = |id: DeviceId, on: bool| {
+            match self.module(id) {
+            Some((kit, module)) => {
+                kit.port
+                    .lock()
+                    .node
+                    .set_override(module, on, Instant::now());
+                Ok(format!(
+                    "{}: the {module} module's operator override {}",
+                    name(id),
+                    on_off(on)
+                ))
+            }
+            None => Err(format!(
+                "{} is not driven by a kit's module: give the position a hand pushes it toward (`override {} 0.5`)",
+                name(id),
+                name(id)
             )),
+        }
+        };
+        match commands::parse(line, &names)? {
+            SimCommand::Help => Ok(format!("commands:\n{}", commands::help(&names).trim_end())),
+            SimCommand::KitOverride(id, on) => kit_override(id, on),
+            SimCommand::Fault(id, dtc) => {
+                let (kit, module) = self
+                    .module(id)
+                    .ok_or_else(|| format!("{} is not driven by a kit's module", name(id)))?;
+                kit.port
+                    .lock()
+                    .node
+                    .inject_fault(module, &dtc, Instant::now())?;
+                Ok(format!(
+                    "{}: the {module} module latched {dtc} and disabled itself",
+                    name(id)
+                ))
+            }
+            SimCommand::Bus(i, on) => {
+                self.kits[i].bus_fault.store(!on, Relaxed);
+                Ok(if on {
+                    format!("bus {} is well again", names.buses[i])
+                } else {
+                    format!(
+                        "bus {} in error: its adapter refuses frames, delivers none, and its status says bus error",
+                        names.buses[i]
+                    )
+                })
+            }
             SimCommand::Estop(s) => {
                 self.set_estop(s);
                 Ok(format!("estop is now {s}"))
@@ -360,6 +518,9 @@ impl Sim {
             }
             SimCommand::Override(id, to) => {
                 self.model.lock().set_override(id, to);
+                if self.module(id).is_some() {
+                    kit_override(id, to.is_some())?;
+                }
                 Ok(match to {
                     Some(x) => format!("{}: a hand pushes it toward {x}", name(id)),
                     None => format!("{}: the hand lets go", name(id)),

@@ -31,8 +31,13 @@ use std::time::{Duration, Instant};
 pub const MAGIC: [u8; 2] = [0x05, 0xCC];
 /// The report period when the DBC gives no cycle time (OSCC's 50 Hz).
 pub const REPORT_PERIOD: Duration = Duration::from_millis(20);
-/// How often the vehicle's wheel speed message goes out.
+/// How often the vehicle's own messages (wheel speed, steering wheel angle, brake
+/// pressure) go out.
 pub const WHEEL_SPEED_PERIOD: Duration = Duration::from_millis(20);
+/// The vehicle's own messages the kit's DBC carries, beside the wheel speed: each is
+/// sent when the DBC has it.
+pub const STEERING_WHEEL_ANGLE: &str = "KIA_SOUL_STEERING_WHEEL_ANGLE";
+pub const BRAKE_PRESSURE: &str = "KIA_SOUL_BRAKE_PRESSURE";
 
 /// One of the kit's modules.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -119,13 +124,18 @@ struct Unit {
     next_report: Instant,
 }
 
-/// The simulated kit, and the vehicle's own wheel speed message.
+/// The simulated kit, and the vehicle's own messages: wheel speed (always), steering
+/// wheel angle and brake pressure (when the DBC has them).
 pub struct Kit {
     units: Vec<Unit>,
     fault: Message,
     wheel: Message,
+    angle: Option<Message>,
+    pressure: Option<Message>,
     next_wheel: Instant,
     speed_kmh: f64,
+    angle_deg: f64,
+    pressure_bar: f64,
     faults_due: Vec<Module>,
     notes: Vec<Note>,
 }
@@ -167,8 +177,12 @@ impl Kit {
             units,
             fault: db.message_named("FAULT_REPORT")?.clone(),
             wheel: db.message_named("KIA_SOUL_WHEEL_SPEED")?.clone(),
+            angle: db.message(STEERING_WHEEL_ANGLE).cloned(),
+            pressure: db.message(BRAKE_PRESSURE).cloned(),
             next_wheel: now,
             speed_kmh: 0.0,
+            angle_deg: 0.0,
+            pressure_bar: 0.0,
             faults_due: Vec::new(),
             notes: Vec::new(),
         })
@@ -204,6 +218,25 @@ impl Kit {
         self.speed_kmh = kmh;
     }
 
+    /// The steering wheel's angle in degrees, for its message.
+    pub fn set_steering_angle(&mut self, deg: f64) {
+        self.angle_deg = deg;
+    }
+
+    /// The brake master cylinder's pressure in bar, for its message.
+    pub fn set_brake_pressure(&mut self, bar: f64) {
+        self.pressure_bar = bar;
+    }
+
+    /// The identifier of a module's command message.
+    pub fn command_id(&self, module: Module) -> Id {
+        self.units
+            .iter()
+            .find(|u| u.module == module)
+            .map(|u| u.command.id())
+            .expect("every module has a unit")
+    }
+
     /// The operator starts (`true`) or stops overriding `module`. Starting disables an
     /// enabled module, sets its override flag and fault code, and sends a fault report.
     pub fn set_override(&mut self, module: Module, on: bool, now: Instant) {
@@ -227,7 +260,12 @@ impl Kit {
             .report
             .signal("dtcs")
             .ok_or_else(|| format!("{} has no dtcs signal", u.report.name()))?;
-        let raw = dtcs.value_of(dtc).ok_or_else(|| {
+        let raw = dtcs
+            .values()
+            .iter()
+            .find(|(_, n)| n.eq_ignore_ascii_case(dtc))
+            .map(|(raw, _)| *raw);
+        let raw = raw.ok_or_else(|| {
             let names: Vec<&str> = dtcs.values().iter().map(|(_, n)| n.as_str()).collect();
             format!(
                 "no fault code {dtc:?} for the {module} ({})",
@@ -251,6 +289,19 @@ impl Kit {
             ])
             .expect("a report carries its own state")
     }
+}
+
+/// `message` with every signal set to `value`, held within the signal's range.
+fn every_signal(message: &Message, value: f64) -> Option<Frame> {
+    let values: Vec<(&str, f64)> = message
+        .signals()
+        .iter()
+        .map(|s| {
+            let (lo, hi) = s.range().unwrap_or((f64::MIN, f64::MAX));
+            (s.name(), value.clamp(lo, hi))
+        })
+        .collect();
+    message.encode(&values).ok()
 }
 
 /// The bit of the fault code named `name` in a report's `dtcs` (0 if the DBC lacks it).
@@ -343,11 +394,12 @@ impl BusNode for Kit {
             }
         }
         if now >= self.next_wheel {
-            let v = self.speed_kmh.clamp(0.0, 127.0);
-            let values: Vec<(&str, f64)> =
-                self.wheel.signals().iter().map(|s| (s.name(), v)).collect();
-            if let Ok(f) = self.wheel.encode(&values) {
-                bus.push(f);
+            bus.extend(every_signal(&self.wheel, self.speed_kmh.max(0.0)));
+            if let Some(m) = &self.angle {
+                bus.extend(every_signal(m, self.angle_deg));
+            }
+            if let Some(m) = &self.pressure {
+                bus.extend(every_signal(m, self.pressure_bar));
             }
             self.next_wheel += WHEEL_SPEED_PERIOD;
             if self.next_wheel <= now {
@@ -459,6 +511,8 @@ mod tests {
     fn each_module_reports_at_50_hz_and_the_car_its_wheel_speed() {
         let mut b = Bench::new(None);
         b.port.node.set_speed(36.0);
+        b.port.node.set_steering_angle(-90.0);
+        b.port.node.set_brake_pressure(42.5);
         let frames = b.run(0, 100);
         for module in Module::ALL {
             let id =
@@ -471,9 +525,24 @@ mod tests {
         let wheel = b.db.message("KIA_SOUL_WHEEL_SPEED").unwrap();
         let f = frames.iter().find(|f| f.id() == wheel.id()).unwrap();
         assert!(wheel.decode(f).all(|(_, v)| v == 36.0), "{f}");
+        for (name, want) in [(STEERING_WHEEL_ANGLE, -90.0), (BRAKE_PRESSURE, 42.5)] {
+            let m = b.db.message(name).unwrap();
+            let sent: Vec<&Frame> = frames.iter().filter(|f| f.id() == m.id()).collect();
+            assert_eq!(sent.len(), 6, "{name}: at 0, 20, … 100 ms");
+            assert!(
+                m.decode(sent[0]).all(|(_, v)| (v - want).abs() < 1e-9),
+                "{name}: {}",
+                sent[0]
+            );
+        }
+        let own = [
+            wheel.id(),
+            b.db.message(STEERING_WHEEL_ANGLE).unwrap().id(),
+            b.db.message(BRAKE_PRESSURE).unwrap().id(),
+        ];
         assert!(frames
             .iter()
-            .all(|f| f.data()[..2] == MAGIC || f.id() == wheel.id()));
+            .all(|f| f.data()[..2] == MAGIC || own.contains(&f.id())));
     }
 
     #[test]

@@ -181,23 +181,32 @@ impl<N: BusNode> SlcanPort<N> {
     }
 
     /// Bytes from the host at `now`; what goes back to the host is appended to
-    /// `to_host` (the answers, in order).
-    pub fn input(&mut self, bytes: &[u8], now: Instant, to_host: &mut Vec<u8>) {
+    /// `to_host` (the answers, in order). Returns the frames the host put on the bus.
+    pub fn input(&mut self, bytes: &[u8], now: Instant, to_host: &mut Vec<u8>) -> &[Frame] {
         self.bus.clear();
         self.adapter.receive(bytes, to_host, &mut self.bus);
         for frame in &self.bus {
             self.node.receive(frame, now);
         }
+        &self.bus
     }
 
     /// Let the bus run to `now`: the frames its nodes send reach the host through the
     /// adapter.
     pub fn tick(&mut self, now: Instant, to_host: &mut Vec<u8>) {
-        self.bus.clear();
-        self.node.tick(now, &mut self.bus);
+        self.poll(now);
         for frame in &self.bus {
             self.adapter.deliver(frame, now, to_host);
         }
+    }
+
+    /// Let the bus's nodes run to `now` and return the frames they send, for a port
+    /// loop that hands each to the host ([`Adapter::deliver`]) once its wire time has
+    /// passed; [`SlcanPort::tick`] hands them over at once.
+    pub fn poll(&mut self, now: Instant) -> &[Frame] {
+        self.bus.clear();
+        self.node.tick(now, &mut self.bus);
+        &self.bus
     }
 
     /// How long the port loop may wait for input before [`SlcanPort::tick`] is due.

@@ -23,9 +23,16 @@ pub struct SimProcess {
 }
 
 impl SimProcess {
+    /// `adrive sim` with the built-in Alice (six ports).
     pub fn start() -> SimProcess {
+        SimProcess::start_with(&[], 6)
+    }
+
+    /// `adrive sim ARGS…`, which prints `ports` port lines first.
+    pub fn start_with(args: &[&str], ports: usize) -> SimProcess {
         let mut child = Process::new(BIN)
             .arg("sim")
+            .args(args)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -49,7 +56,7 @@ impl SimProcess {
             new,
             paths: Vec::new(),
         };
-        for _ in 0..6 {
+        for _ in 0..ports {
             let l = sim.next_line();
             sim.paths
                 .push(l.split_whitespace().nth(1).unwrap().to_string());
