@@ -396,6 +396,12 @@ impl DeviceConfig {
         self.readings.iter().position(|r| r.name == name)
     }
 
+    /// Whether it is on a CAN bus (its bus's reader stores what it reports; what it is
+    /// sent is not an answer).
+    pub fn on_bus(&self) -> bool {
+        matches!(self.wire, Wire::Can(_))
+    }
+
     /// Its place on a CAN bus, when it is a kit's module that follows the gate (it has
     /// enable or disable messages).
     pub fn kit(&self) -> Option<&super::can::CanMap> {

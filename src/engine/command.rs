@@ -209,7 +209,11 @@ fn finished(
                 Stats::bump(&d.stats().resent);
             }
             d.health().command_error.store(0, Relaxed);
-            d.record_ok(done);
+            // A frame handed to a CAN adapter is no answer from the module: only its
+            // reports are (the bus reader's).
+            if !d.config().on_bus() {
+                d.record_ok(done);
+            }
         }
         Err(e) => {
             Stats::bump(&d.stats().command_errors);

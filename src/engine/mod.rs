@@ -99,11 +99,7 @@ impl Engine {
             let thread = format!("{name}/status");
             let fault = inject.clone().filter(|f| f.thread == thread);
             // A device on a CAN bus is read by its bus's reader.
-            let on_bus = matches!(
-                v.devices()[i].config().wire,
-                crate::config::protocol_map::Wire::Can(_)
-            );
-            if !on_bus {
+            if !v.devices()[i].config().on_bus() {
                 threads.spawn(thread, move |stop| {
                     let fault = fault.map(|f| (Instant::now() + f.after, f.panic));
                     status::status_loop(&v.devices()[i], stop, fault)
