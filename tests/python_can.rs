@@ -9,13 +9,12 @@
 //! skip — when that is impossible.
 
 mod common;
-#[path = "support/python_env.rs"]
-mod python_env;
 
 use adrive::can::dbc::Database;
 use adrive::can::{Frame, Id};
 use adrive::sim::oscc::{Kit, Module};
 use adrive::sim::slcan::SlcanPort;
+use common::python_can::python;
 use common::DEADLINE;
 use parking_lot::Mutex;
 use serialport::{SerialPort, TTYPort};
@@ -23,23 +22,8 @@ use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
 use std::process::{Command as Process, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
-use std::sync::{mpsc, Arc, OnceLock};
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
-
-const PYTHON_CAN: &str = "python-can==4.6.1";
-const CANTOOLS: &str = "cantools==45.1.0";
-const PYSERIAL: &str = "pyserial==3.5";
-
-fn python() -> &'static str {
-    static PYTHON: OnceLock<String> = OnceLock::new();
-    PYTHON.get_or_init(|| {
-        python_env::python(
-            "python-can-venv",
-            &[PYTHON_CAN, CANTOOLS, PYSERIAL],
-            "can, cantools, serial",
-        )
-    })
-}
 
 fn dbc_path() -> String {
     concat!(env!("CARGO_MANIFEST_DIR"), "/vehicles/oscc.dbc").to_string()

@@ -4,6 +4,7 @@
 
 pub mod headless;
 pub mod pty;
+pub mod python_can;
 pub mod simproc;
 
 use adrive::config::{self, VehicleConfig};
