@@ -10,10 +10,14 @@
 //! error: every device on it is faulted and no module is ever enabled.
 
 mod common;
+#[path = "support/python_can_env.rs"]
+mod python_can_env;
+#[path = "support/python_env.rs"]
+mod python_env;
 
 use common::headless::{Watch, BIN};
-use common::python_can::python;
 use common::{free_port, lines, tempdir, wait_exit, Reaped, DEADLINE};
+use python_can_env::python;
 use serde_json::Value;
 use std::io::Write;
 use std::net::UdpSocket;
@@ -35,16 +39,18 @@ struct Peer {
     out: Receiver<String>,
     err: Arc<Mutex<Vec<String>>>,
     port: String,
+    /// Status requests the adapter answered, as far as read.
+    statuses: u64,
 }
 
 impl Peer {
-    fn start(mode: &str) -> Peer {
+    fn start() -> Peer {
         let mut child = Process::new(python())
             .arg(concat!(
                 env!("CARGO_MANIFEST_DIR"),
                 "/tests/support/slcan_adapter_peer.py"
             ))
-            .args([&dbc_path(), mode, SAFE])
+            .args([&dbc_path(), SAFE])
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -59,6 +65,7 @@ impl Peer {
             out,
             err,
             port: String::new(),
+            statuses: 0,
         };
         let first = peer.until("the adapter's port", |v| v.get("port").is_some());
         peer.port = first["port"].as_str().unwrap().to_string();
@@ -76,11 +83,26 @@ impl Peer {
                     self.err.lock().unwrap().join("\n")
                 );
             };
-            let v: Value = serde_json::from_str(&line)
-                .unwrap_or_else(|e| panic!("the Python adapter wrote {line:?}: {e}"));
+            let v = self.read(&line);
             if want(&v) {
                 return v;
             }
+        }
+    }
+
+    fn read(&mut self, line: &str) -> Value {
+        let v: Value = serde_json::from_str(line)
+            .unwrap_or_else(|e| panic!("the Python adapter wrote {line:?}: {e}"));
+        if let Some(n) = v["status"].as_u64() {
+            self.statuses = n;
+        }
+        v
+    }
+
+    /// Read what the script said so far.
+    fn drain(&mut self) {
+        while let Ok(line) = self.out.try_recv() {
+            self.read(&line);
         }
     }
 
@@ -170,7 +192,8 @@ struct Adrive {
     listen: String,
     broadcast: String,
     log: Arc<Mutex<Vec<String>>>,
-    dir: tempfile::TempDir,
+    /// Its vehicle file, log and socket; removed when the test ends.
+    _dir: tempfile::TempDir,
 }
 
 impl Adrive {
@@ -198,7 +221,7 @@ impl Adrive {
             listen,
             broadcast,
             log,
-            dir,
+            _dir: dir,
         }
     }
 
@@ -241,7 +264,7 @@ fn num(v: &Value, key: &str) -> f64 {
 
 #[test]
 fn adrive_drives_a_python_slcan_adapter_and_every_frame_follows_the_dbc_and_the_gate() {
-    let mut peer = Peer::start("strict");
+    let mut peer = Peer::start();
     let adrive = Adrive::start("can-peer", &peer.port);
     let watch = Watch::start(&adrive.broadcast);
     watch.until_complete("every device reporting", |s| {
@@ -297,8 +320,6 @@ fn adrive_drives_a_python_slcan_adapter_and_every_frame_follows_the_dbc_and_the_
     let mut figures = Vec::new();
     for (m, value) in set {
         let v = &verdict["modules"][m];
-        let safe: Value = serde_json::from_str::<Value>(SAFE).unwrap()[m].clone();
-        let safe = safe.as_f64().unwrap();
         // Before the engage (adrive sends nothing at start, so perhaps nothing): only
         // the safe command, each followed by the disable message; never the enable
         // message.
@@ -368,4 +389,133 @@ fn adrive_drives_a_python_slcan_adapter_and_every_frame_follows_the_dbc_and_the_
         ));
     }
     println!("{}", figures.join("\n"));
+}
+
+#[test]
+fn a_bus_in_error_faults_every_device_on_it_and_no_module_is_enabled_while_the_adapter_refuses() {
+    let mut peer = Peer::start();
+    let adrive = Adrive::start("can-peer-refuse", &peer.port);
+    let watch = Watch::start(&adrive.broadcast);
+    let healthy = |s: &adrive::snapshot::Snapshot| {
+        let mut missing = s.gate.blockers.clone();
+        for d in &s.devices {
+            if d.stale || d.health.faulty {
+                missing.push(format!("{}: stale or faulty", d.name));
+            }
+        }
+        missing
+    };
+    watch.until_complete("every device reporting", healthy);
+    let planner = adrive.planner();
+    send(&adrive, &planner, "engage\n", Some("engaged"));
+    peer.each_module("ENABLE", &[], 1);
+    send(&adrive, &planner, "brake 0\ngas 0.2\nsteer 0.3\n", None);
+    let set = [("BRAKE", 0.0), ("THROTTLE", 0.2), ("STEERING", 0.3)];
+    peer.each_module("COMMAND", &set, 2);
+
+    // The bus goes into error: nothing heard, every frame refused, "bus error" flags.
+    peer.mark("refuse");
+    peer.say("MODE refuse");
+    peer.until("the bus in error", |v| v["mode"] == "refuse");
+    // Every device on the bus faulted with the adapter's words, the vehicle
+    // disengaged; and so in every broadcast from then on while the adapter refuses.
+    let faulted = |s: &adrive::snapshot::Snapshot| -> Vec<String> {
+        let mut wrong = Vec::new();
+        if s.gate.engaged {
+            wrong.push("engaged".to_string());
+        }
+        for d in &s.devices {
+            let named = s.gate.blockers.iter().any(|b| {
+                b.starts_with(&format!("{} is faulty", d.name))
+                    && b.contains("adapter reports bus error")
+            });
+            if !d.health.faulty || !named {
+                wrong.push(format!("{} not faulted by the adapter", d.name));
+            }
+            // The supervisor names the fault, with the adapter's words.
+            let supervised = s.supervisor.faults.iter().any(|f| {
+                f.device.as_deref() == Some(d.name.as_str())
+                    && f.cause.contains("adapter reports bus error")
+            });
+            if !supervised {
+                wrong.push(format!("{}: no fault of the supervisor's", d.name));
+            }
+        }
+        wrong
+    };
+    let first = watch.until_complete("every device faulted by the adapter", faulted);
+    println!(
+        "faults: {:?}; gate: {}",
+        first
+            .supervisor
+            .faults
+            .iter()
+            .map(|f| f.describe())
+            .collect::<Vec<_>>(),
+        first.gate.reason
+    );
+    let mut flickers = Vec::new();
+    for _ in 0..20 {
+        let (s, _) = watch.until("a broadcast", |_| true);
+        let wrong = faulted(&s);
+        if !wrong.is_empty() {
+            flickers.push(format!("seq {}: {}", s.seq, wrong.join(", ")));
+        }
+    }
+    assert!(
+        flickers.is_empty(),
+        "while the adapter refuses: {flickers:#?}"
+    );
+    // Engage is refused while the adapter refuses, naming the devices.
+    send(&adrive, &planner, "engage\n", Some("refused engage"));
+    // Three more status requests answered "bus error": still faulted, still refused.
+    peer.drain();
+    let asked = peer.statuses;
+    peer.until("three more status requests", |v| {
+        v["status"].as_u64().is_some_and(|n| n >= asked + 3)
+    });
+    send(&adrive, &planner, "engage\n", Some("refused engage"));
+
+    // The bus heals: the devices report again, and an engage enables the modules
+    // after their safe command once more.
+    peer.mark("heal");
+    peer.say("MODE strict");
+    peer.until("the bus healed", |v| v["mode"] == "strict");
+    watch.until_complete("every device reporting again", healthy);
+    send(&adrive, &planner, "engage\n", Some("engaged"));
+    peer.each_module("ENABLE", &[], 1);
+    // Two resends of the safe state engaged (adrive replies to one sender at most
+    // every 20 ms).
+    let safe = [("BRAKE", 1.0), ("THROTTLE", 0.0), ("STEERING", 0.0)];
+    peer.each_module("COMMAND", &safe, 2);
+    send(&adrive, &planner, "disengage\n", Some("disengaged"));
+    peer.each_module("DISABLE", &[], 1);
+    common::signal(&adrive.child, libc::SIGTERM);
+    let mut child = adrive.child;
+    assert_eq!(wait_exit(&mut child), Some(0), "adrive stops cleanly");
+    drop(child);
+
+    let verdict = peer.verdict();
+    let report = format!("the adapter's verdict: {verdict:#}");
+    assert_eq!(verdict["problems"], serde_json::json!([]), "{report}");
+    assert!(
+        verdict["refused"].as_u64() > Some(0),
+        "frames refused: {report}"
+    );
+    for m in MODULES {
+        let after = |mark: &str, kind: &str| verdict["after"][mark][m][kind].as_u64().unwrap();
+        // While the adapter refused: the safe command and the disable message (refused
+        // too), never the enable message.
+        assert_eq!(
+            after("refuse", "ENABLE") - after("heal", "ENABLE"),
+            0,
+            "{m}: {report}"
+        );
+        assert!(
+            after("refuse", "DISABLE") > after("heal", "DISABLE"),
+            "{m}: the disable message tried: {report}"
+        );
+        assert_eq!(after("heal", "ENABLE"), 1, "{m}: {report}");
+        assert_eq!(verdict["modules"][m]["last"], "DISABLE", "{m}: {report}");
+    }
 }

@@ -9,14 +9,18 @@
 //! skip — when that is impossible.
 
 mod common;
+#[path = "support/python_can_env.rs"]
+mod python_can_env;
+#[path = "support/python_env.rs"]
+mod python_env;
 
 use adrive::can::dbc::Database;
 use adrive::can::{Frame, Id};
 use adrive::sim::oscc::{Kit, Module};
 use adrive::sim::slcan::SlcanPort;
-use common::python_can::python;
 use common::DEADLINE;
 use parking_lot::Mutex;
+use python_can_env::python;
 use serialport::{SerialPort, TTYPort};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;

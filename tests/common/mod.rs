@@ -4,7 +4,6 @@
 
 pub mod headless;
 pub mod pty;
-pub mod python_can;
 pub mod simproc;
 
 use adrive::config::{self, VehicleConfig};

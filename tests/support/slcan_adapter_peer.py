@@ -1,16 +1,18 @@
 """A strict SLCAN (Lawicel) adapter with an OSCC kit behind it, on a pseudo-terminal,
 for adrive to drive: every frame adrive sends is decoded by cantools against the DBC.
 
-    slcan_adapter_peer.py DBC MODE SAFE_JSON
+    slcan_adapter_peer.py DBC SAFE_JSON
 
-MODE is "strict" (a healthy adapter on a healthy bus) or "refuse" (a bus in error: the
-adapter refuses every frame with BEL and its status flags say "bus error"). SAFE_JSON
-names each module's safe command ({"BRAKE": 1.0, ...}).
+SAFE_JSON names each module's safe command ({"BRAKE": 1.0, ...}). The adapter starts
+healthy on a healthy bus; "MODE refuse" on standard input puts the bus in error: the
+adapter passes nothing on from the bus, refuses every frame with BEL and its status
+flags say "bus error" (0x80); "MODE strict" heals it.
 
 Standard output, one JSON object a line: first {"port": PATH} (the end adrive opens),
-then {"frame": ...} for each frame adrive sends, {"marked": NAME} for each "MARK NAME"
-read on standard input, {"status": N} for each status request, and after "END" on
-standard input, {"verdict": ...}: what adrive did, per module, for the test to judge.
+then {"frame": ...} for each frame adrive sends, {"status": N} for the Nth status
+request, {"marked": NAME} for each "MARK NAME"
+and {"mode": MODE} for each "MODE MODE" read on standard input, and after "END" there,
+{"verdict": ...}: what adrive did, per module, for the test to judge.
 
 The adapter answers as a real one does: CR for a command it takes, BEL for one it
 refuses (closing a closed channel, a frame while closed, anything unknown); `z` CR for
@@ -29,7 +31,7 @@ import tty
 
 import cantools
 
-DBC, MODE, SAFE = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
+DBC, SAFE = sys.argv[1], json.loads(sys.argv[2])
 MODULES = sorted(SAFE)
 REPORT_EVERY = 0.020
 db = cantools.database.load_file(DBC)
@@ -50,6 +52,7 @@ tty.setraw(slave)
 emit({"port": os.ttyname(slave)})
 
 state = {
+    "mode": "strict",
     "open": False,
     "bitrate": None,
     "enabled": {m: 0 for m in MODULES},
@@ -59,6 +62,7 @@ marks = {}
 problems = []  # the adapter protocol broken, or a frame the DBC does not describe
 names = {}
 statuses = [0]
+refused = [0]
 stop = threading.Event()
 
 
@@ -72,6 +76,9 @@ def reader():
         if word[:1] == ["MARK"]:
             marks[word[1]] = now()
             emit({"marked": word[1]})
+        elif word[:1] == ["MODE"] and word[1] in ("strict", "refuse"):
+            state["mode"] = word[1]
+            emit({"mode": word[1]})
         elif word[:1] == ["END"]:
             break
     stop.set()
@@ -85,7 +92,7 @@ def problem(what):
         problems.append(what)
 
 
-def on_frame(line, t):
+def on_frame(line, t, taken):
     """A `t` frame from adrive: decode, check, note, follow the kit."""
     try:
         ident = int(line[1:4], 16)
@@ -124,8 +131,8 @@ def on_frame(line, t):
         (value,) = [v for k, v in signals.items() if not k.startswith("magic")]
     names[message.name] = names.get(message.name, 0) + 1
     frames.append((t, module, kind, value))
-    emit({"frame": message.name, "module": module, "kind": kind, "value": value})
-    if MODE == "strict":
+    emit({"frame": message.name, "module": module, "kind": kind, "value": value, "taken": taken})
+    if taken:
         if kind == "ENABLE":
             state["enabled"][module] = 1
         elif kind == "DISABLE":
@@ -161,13 +168,18 @@ def answer(line, t):
         return ok
     if c == b"F":
         statuses[0] += 1
-        return b"F80\r" if MODE == "refuse" else b"F00\r"
+        emit({"status": statuses[0]})
+        return b"F80\r" if state["mode"] == "refuse" else b"F00\r"
     if c == b"t":
         if not state["open"]:
             problem(f"a frame while the channel is closed: {line!r}")
             return bel
-        on_frame(line, t)
-        return bel if MODE == "refuse" else b"z\r"
+        taken = state["mode"] == "strict"
+        on_frame(line, t, taken)
+        if not taken:
+            refused[0] += 1
+            return bel
+        return b"z\r"
     problem(f"not an SLCAN command: {line!r}")
     return bel
 
@@ -245,7 +257,7 @@ while not stop.is_set():
         if now() > next_report:
             next_report = now() + REPORT_EVERY
         # A bus in error hears nothing; a closed channel passes nothing on.
-        if state["open"] and MODE == "strict":
+        if state["open"] and state["mode"] == "strict":
             write(reports())
 
 
@@ -264,13 +276,19 @@ def judge():
         "problems": problems,
         "names": names,
         "statuses": statuses[0],
+        "refused": refused[0],
+        # Each module's frames of each kind from each mark on.
+        "after": {
+            mark: {m: {k: sum(1 for f in frames if f[0] >= t and f[1] == m and f[2] == k) for k in ("COMMAND", "ENABLE", "DISABLE")} for m in MODULES}
+            for mark, t in marks.items()
+        },
         "marks": sorted(marks),
         "modules": {},
     }
     for m in MODULES:
         safe = SAFE[m]
         mine = [f for f in frames if f[1] == m]
-        v = {"frames": len(mine)}
+        v = {"frames": len(mine), "last": mine[-1][2] if mine else None}
         verdict["modules"][m] = v
         enables = [f for f in mine if f[2] == "ENABLE"]
         v["enables"] = len(enables)
@@ -333,7 +351,6 @@ def judge():
             for i, f in enumerate(settled)
             if f[2] == "COMMAND" and (i + 1 == len(settled) or settled[i + 1][2] != "DISABLE")
         )
-        v["last"] = mine[-1][2] if mine else None
     return verdict
 
 

@@ -1,15 +1,14 @@
 //! The Python of the CAN interoperability tests: python-can, cantools and pyserial at
 //! pinned versions, from the system or a virtual environment the tests build under
-//! `target/tmp/python-can-venv` ([`python_env`]), failing loudly when neither works.
+//! `target/tmp/python-can-venv` (`python_env`, which a test includes beside this),
+//! failing loudly when neither works.
 
-#[path = "../support/python_env.rs"]
-mod python_env;
-
+use crate::python_env;
 use std::sync::OnceLock;
 
-pub const PYTHON_CAN: &str = "python-can==4.6.1";
-pub const CANTOOLS: &str = "cantools==45.1.0";
-pub const PYSERIAL: &str = "pyserial==3.5";
+const PYTHON_CAN: &str = "python-can==4.6.1";
+const CANTOOLS: &str = "cantools==45.1.0";
+const PYSERIAL: &str = "pyserial==3.5";
 
 /// The interpreter, set up once per test binary.
 pub fn python() -> &'static str {
