@@ -82,10 +82,11 @@ impl Peer {
         loop {
             let left = end.saturating_duration_since(Instant::now());
             let Ok(line) = self.out.recv_timeout(left) else {
-                let log = self.adrive_log.lock().unwrap();
+                let err = self.err.lock().unwrap().join("\n");
+                let log = self.adrive_log.lock().unwrap().clone();
                 panic!(
-                    "the Python adapter: no {what}; it said on stderr:\n{}\nadrive's log:\n{}",
-                    self.err.lock().unwrap().join("\n"),
+                    "the Python adapter: no {what}; it said on stderr:\n{err}\n\
+                     adrive's log (the end):\n{}",
                     log[log.len().saturating_sub(60)..].join("\n")
                 );
             };

@@ -10,9 +10,10 @@ flags say "bus error" (0x80); "MODE strict" heals it.
 
 Standard output, one JSON object a line: first {"port": PATH} (the end adrive opens),
 then {"frame": ...} for each frame adrive sends, {"status": N} for the Nth status
-request, {"marked": NAME} for each "MARK NAME"
-and {"mode": MODE} for each "MODE MODE" read on standard input, and after "END" there,
-{"verdict": ...}: what adrive did, per module, for the test to judge.
+request, {"marked": NAME} for each "MARK NAME" and {"mode": MODE} for each "MODE MODE"
+read on standard input (a mark is the instant before the test asks adrive something),
+and after "END" there, {"verdict": ...}: what adrive did, per module and relative to
+the marks, for the test to judge.
 
 The adapter answers as a real one does: CR for a command it takes, BEL for one it
 refuses (closing a closed channel, a frame while closed, anything unknown); `z` CR for
