@@ -10,6 +10,8 @@
 //! skip — when that is impossible.
 
 mod common;
+#[path = "support/python_can_env.rs"]
+mod python_can_env;
 #[path = "support/python_env.rs"]
 mod python_env;
 
@@ -17,26 +19,12 @@ use adrive::can::dbc::Database;
 use adrive::can::{Frame, Id};
 use common::simproc::SimProcess;
 use common::DEADLINE;
+use python_can_env::python;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 use std::process::{Command as Process, Stdio};
-use std::sync::{mpsc, OnceLock};
+use std::sync::mpsc;
 use std::time::Instant;
-
-const PYTHON_CAN: &str = "python-can==4.6.1";
-const CANTOOLS: &str = "cantools==45.1.0";
-const PYSERIAL: &str = "pyserial==3.5";
-
-fn python() -> &'static str {
-    static PYTHON: OnceLock<String> = OnceLock::new();
-    PYTHON.get_or_init(|| {
-        python_env::python(
-            "python-can-venv",
-            &[PYTHON_CAN, CANTOOLS, PYSERIAL],
-            "can, cantools, serial",
-        )
-    })
-}
 
 fn dbc_path() -> String {
     concat!(env!("CARGO_MANIFEST_DIR"), "/vehicles/oscc.dbc").to_string()

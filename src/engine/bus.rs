@@ -190,9 +190,11 @@ fn read(
                 }
                 Event::Sent { .. } => {
                     bus.stats.acked.fetch_add(1, Relaxed);
+                    bus.set_refusing(false);
                 }
                 Event::Refused => {
                     bus.stats.refused.fetch_add(1, Relaxed);
+                    bus.set_refusing(true);
                     let why = bus
                         .bus_error()
                         .unwrap_or_else(|| "the adapter refused a frame (BEL)".into());

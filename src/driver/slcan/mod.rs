@@ -90,6 +90,9 @@ pub struct Bus {
     down: Mutex<Option<String>>,
     /// The adapter's status flags said the bus is in error (bus off, error passive).
     bus_error: Mutex<Option<String>>,
+    /// The adapter refused the last frame it was given (BEL): frames are not reaching
+    /// the bus.
+    refusing: AtomicBool,
     /// The vehicle is engaged: kit devices are to be enabled.
     engaged: AtomicBool,
     /// The last frame of each identifier, sent or received.
@@ -104,6 +107,7 @@ impl Bus {
             writer: Mutex::new(None),
             down: Mutex::new(Some("adapter not opened yet".into())),
             bus_error: Mutex::new(None),
+            refusing: AtomicBool::new(false),
             engaged: AtomicBool::new(false),
             seen: Mutex::new(BTreeMap::new()),
             stats: BusStats::default(),
@@ -136,6 +140,7 @@ impl Bus {
     pub fn up(&self, writer: Box<dyn Link>) {
         *self.writer.lock() = Some(writer);
         *self.down.lock() = None;
+        self.refusing.store(false, Relaxed);
         self.stats.opens.fetch_add(1, Relaxed);
     }
 
@@ -157,6 +162,19 @@ impl Bus {
 
     pub fn set_bus_error(&self, why: Option<String>) {
         *self.bus_error.lock() = why;
+    }
+
+    /// The adapter's answer to a frame: refused (BEL) or taken (`z`).
+    pub fn set_refusing(&self, refused: bool) {
+        self.refusing.store(refused, Relaxed);
+    }
+
+    /// While the adapter refuses frames (it refused the last one): why, in its words.
+    pub fn refusing(&self) -> Option<String> {
+        self.refusing.load(Relaxed).then(|| {
+            self.bus_error()
+                .unwrap_or_else(|| "the adapter refuses frames (BEL)".into())
+        })
     }
 
     /// Write bytes to the adapter (whole commands), under the bus's lock.
@@ -326,7 +344,8 @@ impl Driver for CanDriver {
     }
 
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
-        self.send_command(link, command)
+        self.send_command(link, command)?;
+        self.finish_command(link)
     }
 
     fn sends_at_once(&self) -> bool {
@@ -376,8 +395,14 @@ impl Driver for CanDriver {
     }
 
     fn finish_command(&mut self, _: &mut dyn Link) -> Result<(), DriverError> {
-        // The adapter's acknowledgement goes to the bus reader.
-        Ok(())
+        // The adapter's acknowledgement goes to the bus reader. While the adapter
+        // refuses frames (it answered the last one with BEL) they do not reach the
+        // bus: the command failed, and the device stays faulty until it takes frames
+        // again.
+        match self.bus.refusing() {
+            Some(why) => Err(DriverError::Refused(why)),
+            None => Ok(()),
+        }
     }
 }
 
