@@ -198,12 +198,19 @@ impl Rig {
 
     /// Plug a new adapter in behind the same path.
     fn plug(&self) {
+        self.plug_with(|_| {});
+    }
+
+    /// Plug a new adapter in behind the same path, its kit set up by `setup` first.
+    fn plug_with(&self, setup: impl FnOnce(&mut Kit)) {
         let (master, slave) = TTYPort::pair().unwrap();
-        std::os::unix::fs::symlink(slave.name().unwrap(), self.link.path().join("adapter"))
-            .unwrap();
         let db = self.gate.vehicle().config().buses[0].dbc.clone();
-        *self.adapter.lock() = Adapter::start(master, &db, None);
+        let a = Adapter::start(master, &db, None);
+        setup(&mut a.port.lock().node);
+        *self.adapter.lock() = a;
         *self._slave.lock() = slave;
+        let slave = self._slave.lock().name().unwrap();
+        std::os::unix::fs::symlink(slave, self.link.path().join("adapter")).unwrap();
     }
 
     fn reading(&self, device: &str, reading: &str) -> Option<f64> {
@@ -361,6 +368,14 @@ fn a_kit_that_is_never_engaged_is_never_enabled() {
         heard.iter().any(|(id, _)| *id == 0x71),
         "the brake's disable went out"
     );
+    // The first frames each module heard: its disable, at bring-up.
+    for (_, base) in MODULES {
+        let first = heard
+            .iter()
+            .find(|(id, _)| id & 0xF0 == base)
+            .map(|(id, _)| *id);
+        assert_eq!(first, Some(base + 1), "0x{base:02x}: disabled first of all");
+    }
     for (_, base) in MODULES {
         assert!(
             !heard.iter().any(|(id, _)| *id == base),
@@ -560,4 +575,27 @@ fn a_module_that_disables_itself_while_engaged_is_a_fault_that_disengages() {
     wait_for("the other modules disabled by adrive", || {
         !rig.adapter().enabled(Module::Brake) && !rig.adapter().enabled(Module::Steering)
     });
+}
+
+#[test]
+fn a_kit_left_enabled_is_disabled_as_soon_as_its_adapter_is_on_the_bus() {
+    let rig = Rig::start();
+    rig.unplug();
+    wait_for("the bus down", || {
+        rig.gate.vehicle().buses()[0].down_reason().is_some()
+    });
+    // Another program (or a killed adrive) left every module enabled.
+    let db = rig.gate.vehicle().config().buses[0].dbc.clone();
+    rig.plug_with(|kit| {
+        use adrive::sim::slcan::BusNode;
+        for name in ["BRAKE_ENABLE", "STEERING_ENABLE", "THROTTLE_ENABLE"] {
+            let f = db.message(name).unwrap().encode(&[]).unwrap();
+            kit.receive(&f, Instant::now());
+        }
+        assert!(kit.state(Module::Brake).enabled);
+    });
+    wait_for("every module disabled by adrive, never engaged", || {
+        MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
+    });
+    assert!(!rig.gate.is_engaged());
 }

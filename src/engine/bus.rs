@@ -60,6 +60,9 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
                     v.devices()[i].port_health().missing.store(false, Relaxed);
                 }
                 tracing::info!(bus = bus.name(), port = %path, "adapter on the bus at {} bit/s", bus.bitrate().bits_per_second());
+                if !bus.engaged() {
+                    disable_kits(v, bus, &on);
+                }
                 r
             }
             Err(e) => {
@@ -132,6 +135,28 @@ fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box
     }
     bus.up(writer);
     Ok(reader)
+}
+
+/// A kit a previous run left enabled (adrive killed, the adapter unplugged while
+/// engaged) is disabled as soon as the adapter is on the bus again and the vehicle is
+/// not engaged: its disable messages go out before anything else.
+fn disable_kits(v: &Vehicle, bus: &Bus, on: &[usize]) {
+    for &i in on {
+        let d = &v.devices()[i];
+        let Some(id) = d.config().kit().and_then(|k| k.disable) else {
+            continue;
+        };
+        let frame = bus
+            .config()
+            .dbc
+            .by_id(id)
+            .expect("checked at load")
+            .encode(&[])
+            .expect("start values fit");
+        if let Err(e) = bus.send(&frame) {
+            tracing::warn!(device = d.name(), "disable at bring-up: {e}");
+        }
+    }
 }
 
 /// Read the bus until the port fails or the thread is stopped; returns why it ended.

@@ -197,6 +197,15 @@ impl Bus {
         }
     }
 
+    /// Send one frame from the bus's own thread (not a device's command), counted and
+    /// kept for the bench view.
+    pub fn send(&self, frame: &Frame) -> io::Result<()> {
+        self.write(&proto::encode_command(&proto::Command::Transmit(*frame)))?;
+        self.stats.sent.fetch_add(1, Relaxed);
+        self.note(frame, Instant::now(), true);
+        Ok(())
+    }
+
     /// Send one adapter command that is not a frame (`F`, a status request).
     pub fn ask(&self, command: proto::Command) -> io::Result<()> {
         self.write(&proto::encode_command(&command))
