@@ -776,7 +776,7 @@ mod tests {
     }
 
     /// A vehicle of 64 devices is broadcast whole: in parts of at most the datagram
-    /// size, joined back into the very same snapshot.
+    /// size (the buses in the first only), joined back into the very same snapshot.
     #[test]
     fn a_large_snapshot_goes_in_parts_and_joins_back() {
         let now = std::time::Instant::now();
@@ -788,6 +788,21 @@ mod tests {
                 ..one.clone()
             })
             .collect();
+        snap.buses = vec![BusView {
+            name: "kit".into(),
+            frames: vec![FrameView {
+                id: "0x083".into(),
+                message: Some("STEERING_REPORT".into()),
+                sent: false,
+                count: 3,
+                age_ms: 12.0,
+                data: "05 CC 01 00 00 00 00 00".into(),
+                signals: [("enabled".to_string(), "ENABLED".to_string())]
+                    .into_iter()
+                    .collect(),
+            }],
+            ..BusView::default()
+        }];
         let max = 8 * 1024;
         let datagrams = snap.datagrams(max).unwrap();
         assert!(datagrams.len() > 1);
@@ -803,6 +818,12 @@ mod tests {
             assert!(
                 part.gate == snap.gate,
                 "every part says whether it is engaged"
+            );
+            let index = part.part.map(|p| p.index);
+            assert_eq!(
+                part.buses.is_empty(),
+                index != Some(0),
+                "the buses travel in part 0 only"
             );
             whole = asm.push(part);
         }

@@ -264,7 +264,10 @@ fn device_faults(
         raise(
             FaultKind::DeviceFault,
             who,
-            format!("status word reports faults 0x{:04x}", d.fault),
+            match d.faults.as_slice() {
+                [] => format!("status word reports faults 0x{:04x}", d.fault),
+                names => format!("reports faults {} (0x{:04x})", names.join(" "), d.fault),
+            },
         );
     }
     if c.kind != Kind::Setpoint {

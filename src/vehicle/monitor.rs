@@ -124,8 +124,7 @@ fn hex(f: &Frame) -> String {
 /// is a set of flags.
 fn is_bitfield(s: &Signal) -> bool {
     s.values().len() >= 2
-        && s
-            .values()
+        && s.values()
             .iter()
             .all(|&(v, _)| v > 0 && (v as u64).is_power_of_two())
 }
@@ -233,7 +232,11 @@ mod tests {
         bus.note(&brake, ago(5), false);
         let cmd = frame(&v, "STEERING_COMMAND", &[("torque_command", 0.25)]);
         bus.note(&cmd, ago(1), true);
-        let speed = frame(&v, "KIA_SOUL_WHEEL_SPEED", &[("wheel_speed_rear_left", 36.5)]);
+        let speed = frame(
+            &v,
+            "KIA_SOUL_WHEEL_SPEED",
+            &[("wheel_speed_rear_left", 36.5)],
+        );
         bus.note(&speed, ago(2), false);
         // The magic bytes are wrong: shown.
         let mut bad = frame(&v, "THROTTLE_REPORT", &[]);
@@ -251,12 +254,22 @@ mod tests {
         let ids: Vec<&str> = b.frames.iter().map(|f| f.id.as_str()).collect();
         assert_eq!(
             ids,
-            ["0x073", "0x082", "0x083", "0x093", "0x123", "0x4B0", "0x18DAF110x"]
+            [
+                "0x073",
+                "0x082",
+                "0x083",
+                "0x093",
+                "0x123",
+                "0x4B0",
+                "0x18DAF110x"
+            ]
         );
         let by = |id: &str| b.frames.iter().find(|f| f.id == id).unwrap();
         let signals = |id: &str| -> Vec<(String, String)> { by(id).signals.0.clone() };
         let pairs = |p: &[(&str, &str)]| -> Vec<(String, String)> {
-            p.iter().map(|(a, b)| (a.to_string(), b.to_string())).collect()
+            p.iter()
+                .map(|(a, b)| (a.to_string(), b.to_string()))
+                .collect()
         };
 
         let steer = by("0x083");
@@ -266,7 +279,11 @@ mod tests {
         assert_eq!(steer.data, "05 CC 01 00 00 00 00 00");
         assert_eq!(
             signals("0x083"),
-            pairs(&[("enabled", "ENABLED"), ("operator_override", "NONE"), ("dtcs", "0")])
+            pairs(&[
+                ("enabled", "ENABLED"),
+                ("operator_override", "NONE"),
+                ("dtcs", "0")
+            ])
         );
         assert_eq!(
             signals("0x073"),
@@ -279,7 +296,10 @@ mod tests {
         assert!(by("0x082").sent, "the command is adrive's");
         assert_eq!(signals("0x082"), pairs(&[("torque_command", "0.25")]));
         assert_eq!(signals("0x093")[0], ("magic_0".into(), "6".into()));
-        assert_eq!(signals("0x4B0")[2], ("wheel_speed_rear_left".into(), "36.5 km/h".into()));
+        assert_eq!(
+            signals("0x4B0")[2],
+            ("wheel_speed_rear_left".into(), "36.5 km/h".into())
+        );
         let u = by("0x123");
         assert_eq!((u.message.as_ref(), u.data.as_str()), (None, "01 02 AB"));
         assert!(u.signals.is_empty());
@@ -318,7 +338,10 @@ mod tests {
         assert!(json.contains(r#""faults":["OPERATOR_OVERRIDE"]"#), "{json}");
         // Not on a bus: no names, no bus, and nothing more in its JSON.
         let alice = capture(&crate::testkit::vehicle(now), now);
-        assert!(alice.devices.iter().all(|d| d.faults.is_empty() && d.bus.is_none()));
+        assert!(alice
+            .devices
+            .iter()
+            .all(|d| d.faults.is_empty() && d.bus.is_none()));
         assert!(alice.buses.is_empty());
         let json = serde_json::to_string(&alice.devices).unwrap();
         assert!(!json.contains("\"faults\"") && !json.contains("\"bus\""));
