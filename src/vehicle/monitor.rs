@@ -305,9 +305,22 @@ mod tests {
         assert!(u.signals.is_empty());
         assert_eq!(by("0x18DAF110x").data, "");
 
-        // Through JSON and back, as a broadcast carries it.
+        // Through JSON and back, as a broadcast carries it, and valid under the
+        // broadcast's schema.
         let back: Snapshot = serde_json::from_slice(&serde_json::to_vec(&snap).unwrap()).unwrap();
         assert_eq!(back.buses, snap.buses);
+        let schema: serde_json::Value = serde_json::from_str(include_str!(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/schemas/snapshot-3.json"
+        )))
+        .unwrap();
+        let json = serde_json::to_value(&snap).unwrap();
+        let errors: Vec<String> = jsonschema::validator_for(&schema)
+            .unwrap()
+            .iter_errors(&json)
+            .map(|e| format!("{e} at {}", e.instance_path()))
+            .collect();
+        assert!(errors.is_empty(), "{}", errors.join("\n"));
     }
 
     /// A device's kit fault codes by the DBC's names; none for a device without them.
