@@ -862,3 +862,45 @@ fn the_bench_of_a_can_module_says_why_its_bus_is_down() {
     assert_eq!(b[(x, y)].fg, Color::Red);
     find(&b, "no frames yet");
 }
+
+/// Under `--sim` at 100×30 (the simulator box takes four rows), the bus of a kit with
+/// six identifiers showed three and "… 3 more identifiers" above the device's own
+/// traffic box, which said only "no traffic yet". The bus comes first: the traffic
+/// keeps its rows only where every identifier keeps its line.
+#[test]
+fn the_bus_takes_the_traffics_rows_before_it_hides_an_identifier() {
+    let reports = |n: usize| {
+        move |v: &Vehicle, now: Instant| {
+            let bus = &v.buses()[0];
+            let dbc = bus.config().dbc.clone();
+            for m in dbc
+                .messages()
+                .iter()
+                .filter(|m| m.name().contains("REPORT"))
+                .take(n)
+            {
+                bus.note(&m.encode(&[]).unwrap(), now, false);
+            }
+            for i in 0..n.saturating_sub(4) {
+                let f = adrive::can::Frame::new(adrive::can::Id::Standard(0x300 + i as u16), &[1]);
+                bus.note(&f.unwrap(), now, false);
+            }
+        }
+    };
+    for (n, traffic) in [(2, true), (6, false)] {
+        let f = oscc(reports(n));
+        let mut m = f.model(Theme::default());
+        f.act(&mut m, &[Action::Bench]);
+        m.snap.can_inject = true;
+        let b = render(&m, 100, 30);
+        let screen = text(&b);
+        assert_eq!(
+            screen.contains("steer raw traffic"),
+            traffic,
+            "{n} ids:\n{screen}"
+        );
+        assert!(!screen.contains("more identifiers"), "{n} ids:\n{screen}");
+        let shown = screen.matches("<- 0x").count();
+        assert_eq!(shown, n, "{n} ids:\n{screen}");
+    }
+}

@@ -7,8 +7,8 @@
 //! Where the screen is tall enough, a setpoint device's measured position, estimate
 //! and command over the last seconds ([`TrailChart`]) above the traffic. A device on a
 //! CAN bus shows its bus instead ([`BusMonitor`]): every identifier's last frame
-//! decoded by the DBC, above its own traffic (the adapter lines it wrote) where there
-//! is room; it has a chart only when it reports a position.
+//! decoded by the DBC, above its own traffic (the adapter lines it wrote) where every
+//! identifier keeps a line; it has a chart only when it reports a position.
 
 use super::device::DevicePanel;
 use super::fmt_us;
@@ -65,8 +65,8 @@ pub(crate) struct BenchView<'a> {
 const SIM_BOX: u16 = 4;
 /// Rows the traffic keeps before the chart takes any: three lines and the border.
 const TRAFFIC_MIN: u16 = 5;
-/// Rows the bus monitor keeps before a CAN device's own traffic takes any: its state
-/// and four identifiers, and the border.
+/// Rows the bus monitor keeps at least before a CAN device's own traffic takes any:
+/// its state and four identifiers, and the border.
 const MONITOR_MIN: u16 = 7;
 
 impl BenchView<'_> {
@@ -173,8 +173,12 @@ impl Widget for &BenchView<'_> {
         let chart_h = if chart_h >= CHART_MIN { chart_h } else { 0 };
         let [chart, bottom] =
             Layout::vertical([Constraint::Length(chart_h), Constraint::Min(0)]).areas(bottom);
+        // The bus first: the device's own traffic below only where every identifier
+        // keeps its line above it.
         let monitor_h = match self.bus {
-            Some(_) if bottom.height >= MONITOR_MIN + TRAFFIC_MIN => bottom.height - TRAFFIC_MIN,
+            Some(b) if bottom.height >= BusMonitor::rows(b).max(MONITOR_MIN) + TRAFFIC_MIN => {
+                bottom.height - TRAFFIC_MIN
+            }
             Some(_) => bottom.height,
             None => 0,
         };

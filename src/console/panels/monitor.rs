@@ -32,6 +32,13 @@ pub(crate) struct BusMonitor<'a> {
 const INDENT: &str = "      ";
 
 impl<'a> BusMonitor<'a> {
+    /// The rows the box takes with a line for each identifier (the state on one line,
+    /// the count of those left out of the snapshot, the border).
+    pub(crate) fn rows(bus: &BusView) -> u16 {
+        let lines = 1 + bus.frames.len().max(1) + usize::from(bus.left_out > 0) + 2;
+        u16::try_from(lines).unwrap_or(u16::MAX)
+    }
+
     /// The box's title.
     pub(crate) fn title(&self) -> String {
         format!(
