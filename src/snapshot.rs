@@ -39,6 +39,11 @@ pub struct Snapshot {
     /// The recording, when one runs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub record: Option<RecordView>,
+    /// The CAN buses, in the vehicle file's order (absent on a vehicle without one):
+    /// each adapter's state and the last frame of every identifier on the bus, decoded
+    /// by its DBC.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub buses: Vec<BusView>,
     /// Which part of a broadcast this is, when the whole did not fit one datagram
     /// ([`Snapshot::datagrams`]); absent when it did.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -47,7 +52,8 @@ pub struct Snapshot {
 
 /// One part of a broadcast split over several datagrams: `index` of `count`, all with
 /// the same `seq`. Every part is a whole snapshot with a share of the devices (in
-/// order) and the gate and supervisor; the network part travels in part 0 only.
+/// order) and the gate and supervisor; the network part and the buses travel in part 0
+/// only.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 pub struct Part {
     pub index: u16,
@@ -78,6 +84,7 @@ impl Snapshot {
         let head = Snapshot {
             devices: Vec::new(),
             net: None,
+            buses: Vec::new(),
             part: Some(Part {
                 index: u16::MAX,
                 count: u16::MAX,
@@ -85,7 +92,7 @@ impl Snapshot {
             ..self.clone()
         };
         let room = max.saturating_sub(serde_json::to_vec(&head)?.len() + 1);
-        let net = serde_json::to_vec(&self.net)?.len();
+        let net = serde_json::to_vec(&self.net)?.len() + serde_json::to_vec(&self.buses)?.len();
         let mut shares: Vec<Vec<DeviceView>> = vec![Vec::new()];
         let mut used = net;
         for d in &self.devices {
@@ -106,6 +113,11 @@ impl Snapshot {
                 serde_json::to_vec(&Snapshot {
                     devices,
                     net: if i == 0 { self.net.clone() } else { None },
+                    buses: if i == 0 {
+                        self.buses.clone()
+                    } else {
+                        Vec::new()
+                    },
                     part: Some(Part {
                         index: i as u16,
                         count,
@@ -183,6 +195,13 @@ pub struct DeviceView {
     pub reading_units: Pairs<String>,
     /// Device-reported fault bits; 0 is good.
     pub fault: u16,
+    /// The names of the bits set in `fault`, for a device on a CAN bus whose DBC names
+    /// its fault codes (`OPERATOR_OVERRIDE`); empty otherwise.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub faults: Vec<String>,
+    /// The CAN bus it is on (a [`BusView`]'s name), for a device with `driver = "can"`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bus: Option<String>,
     /// The command the device will have next (pending or last sent).
     pub commanded: Option<Value>,
     /// The last command the device acknowledged.
@@ -506,6 +525,78 @@ impl Rejections {
     }
 }
 
+/// One CAN bus: its adapter and what it carries, as a bus monitor (`cantools monitor`)
+/// shows it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct BusView {
+    pub name: String,
+    /// The adapter's serial port.
+    pub port: String,
+    /// Bits a second.
+    pub bitrate: u32,
+    /// Why the adapter is not on the bus (not opened yet, unplugged); null while it is.
+    pub down: Option<String>,
+    /// The adapter's status flags say the bus is in error (bus off, error passive).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bus_error: Option<String>,
+    pub counters: BusCounters,
+    /// The last frame of each identifier seen, sent or received, by identifier (at
+    /// most [`BusView::MAX_FRAMES`]: the most recent ones).
+    pub frames: Vec<FrameView>,
+    /// Identifiers seen but left out of `frames` (the oldest, past the cap).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub left_out: u64,
+}
+
+impl BusView {
+    /// The most identifiers a bus carries in the snapshot.
+    pub const MAX_FRAMES: usize = 64;
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
+}
+
+/// A bus's counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct BusCounters {
+    /// Frames received from the bus.
+    pub received: u64,
+    /// Frames adrive handed to the adapter.
+    pub sent: u64,
+    /// Frames the adapter took for transmission.
+    pub acked: u64,
+    /// Commands the adapter refused.
+    pub refused: u64,
+    /// Lines from the adapter that were none of SLCAN's.
+    pub garbled: u64,
+    /// Times the adapter was brought onto the bus.
+    pub opens: u64,
+}
+
+/// The last frame of one identifier, decoded by the bus's DBC.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct FrameView {
+    /// `0x083`; an extended identifier has eight digits and an `x`: `0x18DAF110x`.
+    pub id: String,
+    /// The DBC's message; null for an identifier the DBC does not know.
+    pub message: Option<String>,
+    /// adrive sent it (else it came from the bus).
+    pub sent: bool,
+    /// Frames of this identifier so far.
+    pub count: u64,
+    /// Time since the last one, ms.
+    pub age_ms: f64,
+    /// Its data bytes in hex (`05 CC 01 00 00 00 00 00`), or `remote [n]` for a
+    /// remote request.
+    pub data: String,
+    /// Its signals in words, in the message's order: a value with its unit
+    /// (`-12.5 deg`), a value table's name (`ENABLED`), a fault bitfield's names of the
+    /// bits set (`INVALID_SENSOR_VAL|OPERATOR_OVERRIDE`). A constant that holds its
+    /// value (a kit's magic bytes) is left out.
+    pub signals: Pairs<String>,
+}
+
 /// The recording of this run (`--record`, `[record]`).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct RecordView {
@@ -685,7 +776,7 @@ mod tests {
     }
 
     /// A vehicle of 64 devices is broadcast whole: in parts of at most the datagram
-    /// size, joined back into the very same snapshot.
+    /// size (the buses in the first only), joined back into the very same snapshot.
     #[test]
     fn a_large_snapshot_goes_in_parts_and_joins_back() {
         let now = std::time::Instant::now();
@@ -697,6 +788,21 @@ mod tests {
                 ..one.clone()
             })
             .collect();
+        snap.buses = vec![BusView {
+            name: "kit".into(),
+            frames: vec![FrameView {
+                id: "0x083".into(),
+                message: Some("STEERING_REPORT".into()),
+                sent: false,
+                count: 3,
+                age_ms: 12.0,
+                data: "05 CC 01 00 00 00 00 00".into(),
+                signals: [("enabled".to_string(), "ENABLED".to_string())]
+                    .into_iter()
+                    .collect(),
+            }],
+            ..BusView::default()
+        }];
         let max = 8 * 1024;
         let datagrams = snap.datagrams(max).unwrap();
         assert!(datagrams.len() > 1);
@@ -712,6 +818,12 @@ mod tests {
             assert!(
                 part.gate == snap.gate,
                 "every part says whether it is engaged"
+            );
+            let index = part.part.map(|p| p.index);
+            assert_eq!(
+                part.buses.is_empty(),
+                index != Some(0),
+                "the buses travel in part 0 only"
             );
             whole = asm.push(part);
         }

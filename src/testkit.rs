@@ -81,29 +81,30 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
     });
     let at = Some(now - Duration::from_millis(20));
     for d in v.devices() {
-        let r = match d.name() {
-            "steer" => reading(&v, "steer", &[("position", 0.231), ("velocity", 0.012)]),
-            "gas" => reading(&v, "gas", &[("position", 0.0)]),
-            "brake" => reading(&v, "brake", &[("position", 1.0), ("pressure", 80.0)]),
-            "trans" => reading(&v, "trans", &[("state", 0.0)]),
-            "estop" => reading(&v, "estop", &[("estop", 2.0)]),
-            "obd" => reading(
-                &v,
-                "obd",
-                &[
-                    ("rpm", 700.0),
-                    ("speed", 0.0),
-                    ("coolant", 85.0),
-                    ("running", 1.0),
-                ],
-            ),
-            _ => {
-                let mut r = Reading::default();
-                for i in 0..d.config().readings.len() {
-                    r.set(i, at_rest(d, i));
-                }
-                r
+        let alice: &[(&str, f64)] = match d.name() {
+            "steer" => &[("position", 0.231), ("velocity", 0.012)],
+            "gas" => &[("position", 0.0)],
+            "brake" => &[("position", 1.0), ("pressure", 80.0)],
+            "trans" => &[("state", 0.0)],
+            "estop" => &[("estop", 2.0)],
+            "obd" => &[
+                ("rpm", 700.0),
+                ("speed", 0.0),
+                ("coolant", 85.0),
+                ("running", 1.0),
+            ],
+            _ => &[],
+        };
+        // Alice's figures where the device is Alice's (a device of another vehicle may
+        // share a name and not her readings: OSCC's `steer` reports no position).
+        let r = if !alice.is_empty() && alice.iter().all(|(n, _)| d.config().reading(n).is_some()) {
+            reading(&v, d.name(), alice)
+        } else {
+            let mut r = Reading::default();
+            for i in 0..d.config().readings.len() {
+                r.set(i, at_rest(d, i));
             }
+            r
         };
         d.store(Cached { reading: r, at });
         if let Some(at) = at {

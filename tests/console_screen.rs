@@ -755,3 +755,152 @@ fn a_long_fault_cause_wraps_and_keeps_the_path_whole() {
         "the OS error too:\n{screen}"
     );
 }
+
+/// OSCC (`vehicles/oscc.toml`): kit modules on a CAN bus that report no position.
+fn oscc(setup: impl Fn(&Vehicle, Instant)) -> Fixture {
+    let config = adrive::config::load(std::path::Path::new("vehicles/oscc.toml"))
+        .expect("vehicles/oscc.toml loads");
+    fixture_of(config, setup)
+}
+
+/// The bus up (on a pseudo-terminal), a few frames on it, the brake reporting its
+/// operator-override fault code.
+fn busy_kit(v: &Vehicle, now: Instant) {
+    use adrive::can::{Frame, Id};
+    let bus = &v.buses()[0];
+    let (port, _other) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+    bus.up(Box::new(port));
+    let dbc = bus.config().dbc.clone();
+    let frame =
+        |name: &str, values: &[(&str, f64)]| dbc.message(name).unwrap().encode(values).unwrap();
+    let ago = |ms| now - Duration::from_millis(ms);
+    let report = frame("STEERING_REPORT", &[("enabled", 1.0)]);
+    for _ in 0..3 {
+        bus.note(&report, ago(12), false);
+    }
+    bus.note(
+        &frame("STEERING_COMMAND", &[("torque_command", 0.25)]),
+        ago(1),
+        true,
+    );
+    bus.note(&frame("BRAKE_REPORT", &[("dtcs", 2.0)]), ago(5), false);
+    bus.note(
+        &Frame::new(Id::Standard(0x123), &[1, 2, 0xAB]).unwrap(),
+        ago(40),
+        false,
+    );
+    let brake = v.find("brake").unwrap();
+    let mut c = brake.cached();
+    c.reading.fault = 2;
+    brake.store(c);
+}
+
+/// A kit's steering reports whether it is enabled and overridden, and no position: its
+/// panel shows the command and those flags, not a `meas` that would be its `enabled`
+/// flag; the brake's fault code by its DBC name, in red.
+#[test]
+fn can_kit_modules_on_the_main_screen_show_their_flags_and_fault_names() {
+    let f = oscc(busy_kit);
+    let b = render(&f.model(Theme::default()), 80, 24);
+    let screen = text(&b);
+    snapshot("oscc_main_80x24", &screen);
+    let (_, y) = find(&b, "STEER");
+    let title = line(&b, y);
+    assert!(title.contains("STEER -1…1 cmd -"), "{title}");
+    assert!(!title.contains("meas"), "{title}");
+    find(&b, "enabled 0  override 0");
+    let (x, y) = find(&b, "OPERATOR_OVERRIDE");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+}
+
+/// The bench of a module on a bus: every identifier's last frame decoded by the DBC,
+/// sorted by identifier, adrive's own marked `->`, an unknown one by its bytes.
+#[test]
+fn the_bench_of_a_can_module_shows_its_bus_decoded_like_cantools_monitor() {
+    let f = oscc(busy_kit);
+    let mut m = f.model(Theme::default());
+    f.act(&mut m, &[Action::Bench]);
+    assert_eq!(under_cursor(&m), "steer");
+    for (w, h) in [(80, 24), (100, 30)] {
+        let b = render(&m, w, h);
+        let screen = text(&b);
+        snapshot(&format!("oscc_bench_{w}x{h}"), &screen);
+        find(&b, "bus kit: last frame of each id");
+        find(&b, "up  500 kbit/s");
+        let at = |needle: &str| find(&b, needle).1;
+        let rows = [
+            at("<- 0x073 BRAKE_REPORT"),
+            at("-> 0x082 STEERING_COMMAND"),
+            at("<- 0x083 STEERING_REPORT"),
+        ];
+        assert!(
+            rows.windows(2).all(|r| r[0] < r[1]),
+            "by identifier:\n{screen}"
+        );
+        let report = line(&b, rows[2]);
+        assert!(report.contains("enabled: ENABLED"), "{report}");
+        if w == 100 {
+            find(&b, "operator_override: NONE  dtcs: 0  age 12ms ×3");
+            find(&b, "torque_command: 0.25  age 1ms ×1");
+            find(&b, "dtcs: OPERATOR_OVERRIDE");
+            find(&b, "<- 0x123 (unknown)  01 02 AB  age 40ms ×1");
+        }
+    }
+}
+
+/// Under `--sim` without a simulated adapter, or with the adapter unplugged: the bench
+/// says the bus is down and why, in red.
+#[test]
+fn the_bench_of_a_can_module_says_why_its_bus_is_down() {
+    let f = oscc(|v, _| {
+        v.buses()[0].go_down("cannot open /dev/ttyACM0: No such file or directory".into())
+    });
+    let mut m = f.model(Theme::default());
+    f.act(&mut m, &[Action::Bench]);
+    let b = render(&m, 80, 24);
+    let (x, y) = find(&b, "DOWN: cannot open /dev/ttyACM0");
+    assert_eq!(b[(x, y)].fg, Color::Red);
+    find(&b, "no frames yet");
+}
+
+/// Under `--sim` at 100×30 (the simulator box takes four rows), the bus of a kit with
+/// six identifiers showed three and "… 3 more identifiers" above the device's own
+/// traffic box, which said only "no traffic yet". The bus comes first: the traffic
+/// keeps its rows only where every identifier keeps its line.
+#[test]
+fn the_bus_takes_the_traffics_rows_before_it_hides_an_identifier() {
+    let reports = |n: usize| {
+        move |v: &Vehicle, now: Instant| {
+            let bus = &v.buses()[0];
+            let dbc = bus.config().dbc.clone();
+            for m in dbc
+                .messages()
+                .iter()
+                .filter(|m| m.name().contains("REPORT"))
+                .take(n)
+            {
+                bus.note(&m.encode(&[]).unwrap(), now, false);
+            }
+            for i in 0..n.saturating_sub(4) {
+                let f = adrive::can::Frame::new(adrive::can::Id::Standard(0x300 + i as u16), &[1]);
+                bus.note(&f.unwrap(), now, false);
+            }
+        }
+    };
+    for (n, traffic) in [(2, true), (6, false)] {
+        let f = oscc(reports(n));
+        let mut m = f.model(Theme::default());
+        f.act(&mut m, &[Action::Bench]);
+        m.snap.can_inject = true;
+        let b = render(&m, 100, 30);
+        let screen = text(&b);
+        assert_eq!(
+            screen.contains("steer raw traffic"),
+            traffic,
+            "{n} ids:\n{screen}"
+        );
+        assert!(!screen.contains("more identifiers"), "{n} ids:\n{screen}");
+        let shown = screen.matches("<- 0x").count();
+        assert_eq!(shown, n, "{n} ids:\n{screen}");
+    }
+}

@@ -162,6 +162,10 @@ impl Signal {
     pub fn mux(&self) -> Mux {
         self.mux
     }
+    /// How much one raw step is worth (raw × factor + offset).
+    pub fn factor(&self) -> f64 {
+        self.factor
+    }
     /// The physical range the file gives, if any.
     pub fn range(&self) -> Option<(f64, f64)> {
         self.range

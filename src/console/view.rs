@@ -303,6 +303,10 @@ impl Widget for &Model {
                     map: &self.keymap,
                     roles: &self.snap.gate.roles,
                     trail: &self.trail,
+                    bus: d
+                        .bus
+                        .as_deref()
+                        .and_then(|b| self.snap.buses.iter().find(|x| x.name == b)),
                 };
                 (&v).render(body, buf);
             }

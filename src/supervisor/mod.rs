@@ -279,7 +279,10 @@ fn device_faults(
         raise(
             FaultKind::DeviceFault,
             who,
-            format!("status word reports faults 0x{:04x}", d.fault),
+            match d.faults.as_slice() {
+                [] => format!("status word reports faults 0x{:04x}", d.fault),
+                names => format!("reports faults {} (0x{:04x})", names.join(" "), d.fault),
+            },
         );
     }
     if c.kind != Kind::Setpoint {
@@ -916,5 +919,36 @@ mod tests {
                 .all(|l| !l.contains("Some(") && !l.contains("None")),
             "{lines:#?}"
         );
+    }
+
+    /// A kit's fault codes by the DBC's names in the fault the console and the log show,
+    /// beside the status word; a device without names keeps the word alone.
+    #[test]
+    fn a_device_fault_names_the_kits_fault_codes() {
+        let now = Instant::now();
+        let gate = testkit::gate(now);
+        let v = &gate.vehicle();
+        let mut snap = gate.snapshot_at(0, now);
+        for d in snap
+            .devices
+            .iter_mut()
+            .filter(|d| d.name == "steer" || d.name == "gas")
+        {
+            d.fault = 2;
+            d.status_age_ms = Some(5.0);
+        }
+        let steer = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+        steer.faults = vec!["OPERATOR_OVERRIDE".into()];
+        let sup = SupervisorConfig::default();
+        let faults = detect(&snap, v.config(), &sup, &mut Memory::new(now), &[], now);
+        let cause = |name: &str| {
+            faults
+                .iter()
+                .find(|f| f.kind == FaultKind::DeviceFault && f.device.as_deref() == Some(name))
+                .map(|f| f.cause.clone())
+                .unwrap_or_else(|| panic!("{name} device_fault: {faults:?}"))
+        };
+        assert_eq!(cause("steer"), "reports faults OPERATOR_OVERRIDE (0x0002)");
+        assert_eq!(cause("gas"), "status word reports faults 0x0002");
     }
 }

@@ -1,7 +1,7 @@
 //! How the vehicle is captured into one [`Snapshot`]: the devices' views, the
-//! supervisor's faults and the recording's state, with the gate's part handed in by the
-//! engine. The broadcast, the console, headless, attached consoles, the recorder, the
-//! live view and ROS 2 all read this one value.
+//! supervisor's faults, the recording's state and the CAN buses' monitor, with the
+//! gate's part handed in by the engine. The broadcast, the console, headless, attached
+//! consoles, the recorder, the live view and ROS 2 all read this one value.
 
 use super::Vehicle;
 use crate::snapshot::{GateView, Pairs, Snapshot, SCHEMA};
@@ -31,6 +31,7 @@ pub fn snapshot(
         rejections,
         net: None,
         record: v.tap.status(),
+        buses: super::monitor::bus_views(v, now),
         part: None,
     }
 }

@@ -8,11 +8,13 @@
 //! - [`device`]: one device (it carries the engine's slot and port for it);
 //!   [`estimate`]: its state estimator; [`stats`]: its always-on figures; [`trace`]: its
 //!   raw traffic; [`supervision`]: the supervisor's board; [`tap`]: where everything
-//!   that happens is handed to a recording; [`capture`]: the one snapshot.
+//!   that happens is handed to a recording; [`capture`]: the one snapshot;
+//!   [`monitor`]: each CAN bus's frames, decoded, as the snapshot carries them.
 
 pub mod capture;
 pub mod device;
 pub mod estimate;
+pub(crate) mod monitor;
 pub mod stats;
 pub mod supervision;
 pub(crate) mod tap;
@@ -171,7 +173,7 @@ impl Vehicle {
         let since = now.checked_sub(2 * self.config.supervisor.period);
         self.devices
             .iter()
-            .map(|d| view(d, now, since.unwrap_or(now)))
+            .map(|d| view(d, &self.buses, now, since.unwrap_or(now)))
             .collect()
     }
 
@@ -206,8 +208,8 @@ fn ms(d: std::time::Duration) -> f64 {
 }
 
 /// One device as the snapshot carries it, ages as of `now`; its acknowledged set
-/// points since `since`.
-fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
+/// points since `since`; a CAN device's bus by name and its fault codes by the DBC's.
+fn view(d: &Device, buses: &[Arc<Bus>], now: Instant, since: Instant) -> DeviceView {
     let c = d.cached();
     let cfg = &d.config();
     let s = &d.stats();
@@ -237,6 +239,14 @@ fn view(d: &Device, now: Instant, since: Instant) -> DeviceView {
             .map(|r| (r.name.clone(), r.units.clone()))
             .collect(),
         fault: c.reading.fault,
+        faults: match &cfg.wire {
+            Wire::Can(m) if c.at.is_some() => m.fault_names(c.reading.fault),
+            _ => Vec::new(),
+        },
+        bus: match &cfg.wire {
+            Wire::Can(m) => buses.get(m.bus).map(|b| b.name().to_string()),
+            _ => None,
+        },
         commanded: d.slot().latest().map(value),
         executed: d.slot().executed().map(value),
         executed_span: d.slot().acked_span(since),

@@ -5,19 +5,24 @@
 //! `--sim`, a simulator box between them: the faults injected into this device, the
 //! simulated e-stop, engine and steering drive, and the fault keys (from the keymap).
 //! Where the screen is tall enough, a setpoint device's measured position, estimate
-//! and command over the last seconds ([`TrailChart`]) above the traffic.
+//! and command over the last seconds ([`TrailChart`]) above the traffic. A device on a
+//! CAN bus shows its bus instead ([`BusMonitor`]): every identifier's last frame
+//! decoded by the DBC, above its own traffic (the adapter lines it wrote) where every
+//! identifier keeps a line; it has a chart only when it reports a position.
 
 use super::device::DevicePanel;
 use super::fmt_us;
 use super::hint::grouped;
+use super::monitor::BusMonitor;
 use super::trail::{TrailChart, CHART_MAX, CHART_MIN};
 use super::wrap;
+use crate::config::device::POSITION;
 use crate::console::controls::SimFaults;
 use crate::console::keymap::{Action, Keymap, Mode};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::trail::Trail;
-use crate::snapshot::DeviceView;
+use crate::snapshot::{BusView, DeviceView};
 use crate::value::DeviceId;
 use crate::vehicle::trace::TraceEntry;
 use ratatui::buffer::Buffer;
@@ -52,12 +57,17 @@ pub(crate) struct BenchView<'a> {
     pub roles: &'a crate::snapshot::Pairs<String>,
     /// The device's last seconds, for the chart.
     pub trail: &'a Trail,
+    /// The CAN bus it is on.
+    pub(crate) bus: Option<&'a BusView>,
 }
 
 /// Rows the simulator box takes.
 const SIM_BOX: u16 = 4;
 /// Rows the traffic keeps before the chart takes any: three lines and the border.
 const TRAFFIC_MIN: u16 = 5;
+/// Rows the bus monitor keeps at least before a CAN device's own traffic takes any:
+/// its state and four identifiers, and the border.
+const MONITOR_MIN: u16 = 7;
 
 impl BenchView<'_> {
     /// The simulator box: this device's faults, the simulated vehicle, the keys.
@@ -151,7 +161,11 @@ impl Widget for &BenchView<'_> {
         .areas(area);
         // The chart of a setpoint device where the traffic leaves it room; else it
         // gives way and the panels keep their lines.
-        let chart_h = if self.d.range.is_some() {
+        // A CAN device without a position has nothing to chart but its command: the
+        // bus has the room.
+        let has_chart = self.d.range.is_some()
+            && (self.bus.is_none() || self.d.readings.get(POSITION).is_some());
+        let chart_h = if has_chart {
             bottom.height.saturating_sub(TRAFFIC_MIN).min(CHART_MAX)
         } else {
             0
@@ -159,6 +173,21 @@ impl Widget for &BenchView<'_> {
         let chart_h = if chart_h >= CHART_MIN { chart_h } else { 0 };
         let [chart, bottom] =
             Layout::vertical([Constraint::Length(chart_h), Constraint::Min(0)]).areas(bottom);
+        // The bus first: the device's own traffic below only where every identifier
+        // keeps its line above it.
+        let monitor_h = match self.bus {
+            Some(b) if bottom.height >= BusMonitor::rows(b).max(MONITOR_MIN) + TRAFFIC_MIN => {
+                bottom.height - TRAFFIC_MIN
+            }
+            Some(_) => bottom.height,
+            None => 0,
+        };
+        let [monitor, bottom] =
+            Layout::vertical([Constraint::Length(monitor_h), Constraint::Min(0)]).areas(bottom);
+        if let Some(bus) = self.bus {
+            let m = BusMonitor { bus, theme: *t };
+            (&m).render(monitor, buf);
+        }
         if chart.height > 0 {
             let c = TrailChart {
                 id: self.id,
@@ -238,6 +267,9 @@ impl Widget for &BenchView<'_> {
             self.can_inject,
             self.read_only,
         );
+        if bottom.height == 0 {
+            return;
+        }
         let block = Block::bordered().title(Span::styled(title, t.title()));
         let inner = block.inner(bottom);
         block.render(bottom, buf);

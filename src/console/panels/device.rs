@@ -1,7 +1,7 @@
 //! One device, laid out like a quarter of the paper's Figure 2: name, range, commanded
 //! and measured value; `st delay` / `cm delay`; thread flags and error codes with the
 //! status age; the device's own fields, with the estimated position (`est ± σ`) beside
-//! the measured one where the line has room; receipt → first-byte delay p50/p99/max;
+//! the measured one where the line has room; a CAN kit's fault codes by name; receipt → first-byte delay p50/p99/max;
 //! counters; and, where the estimate did not fit beside the readings, `meas` and
 //! `est ± σ` (and the drift its command does not explain) on a line of their own, last,
 //! so that a small panel loses it before any counter. Editable fields show the cursor
@@ -10,6 +10,7 @@
 //! ([`DevicePanel::packed`]).
 
 use super::{fmt_age, fmt_us, pack};
+use crate::config::device::POSITION;
 use crate::console::controls::SimFaults;
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
@@ -109,9 +110,16 @@ pub fn domain(d: &DeviceView) -> String {
     }
 }
 
-/// The measured value: an actuator's first reading; a sensor's first, with its units.
+/// The measured value: a setpoint actuator's position (`-` when it reports none, as a
+/// CAN kit's module may not); a state actuator's first reading; a sensor's first, with
+/// its units.
 pub fn measured(d: &DeviceView) -> String {
-    let Some((name, v)) = d.readings.0.first() else {
+    let first = if d.kind == Kind::Setpoint {
+        d.readings.0.iter().find(|(n, _)| n == POSITION)
+    } else {
+        d.readings.0.first()
+    };
+    let Some((name, v)) = first else {
         return "-".into();
     };
     let text = fmt_reading(name, v.as_ref());
@@ -162,11 +170,15 @@ impl<'a> DevicePanel<'a> {
                 fmt_value(d.commanded.as_ref()),
                 Style::new(),
             ));
-            spans.push(Span::styled(" meas ", t.label()));
+            // A kit's module that reports no position has no measured value to show.
+            if d.kind != Kind::Setpoint || d.readings.get(POSITION).is_some() {
+                spans.push(Span::styled(" meas ", t.label()));
+                spans.push(Span::styled(measured(d), meas_style));
+            }
         } else {
             spans.push(Span::styled("  ", t.label()));
+            spans.push(Span::styled(measured(d), meas_style));
         }
-        spans.push(Span::styled(measured(d), meas_style));
         if self.red {
             spans.push(Span::styled(" FAULT", t.fault()));
         }
@@ -309,6 +321,13 @@ impl<'a> DevicePanel<'a> {
             }
         }
         out.push(readings);
+        // A CAN kit's fault codes, by the DBC's names.
+        if !d.faults.is_empty() {
+            out.push(Line::from(vec![
+                l("faults "),
+                Span::styled(d.faults.join(" "), t.fault()),
+            ]));
+        }
         let s = &d.counters;
         let lat = |name: &'static str, x: &LatencySummary| {
             Line::from(vec![

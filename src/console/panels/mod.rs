@@ -12,6 +12,7 @@ pub mod help;
 pub mod hint;
 pub mod list;
 pub mod log;
+pub(crate) mod monitor;
 pub mod network;
 pub mod supervisor;
 pub mod teleop;
