@@ -20,6 +20,7 @@ use serialport::TTYPort;
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::path::Path;
+use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -291,6 +292,27 @@ fn a_bus_in_error_refuses_frames_delivers_none_and_says_so_in_its_status() {
     host.until("reports again", |h| h.last.contains_key("BRAKE_REPORT"));
     host.write(b"F\rF\r");
     assert_eq!(host.answers(2)[1], Event::Status(StatusFlags(0)));
+
+    // The adapter's port faults are the port faults of every device on the bus.
+    let done = sim.apply("silent kit on").unwrap();
+    assert_eq!(done, "kit: silent on");
+    assert!(sim.faults("steer").unwrap().silent.load(Relaxed));
+    // What was on its way before is read, then nothing more comes.
+    let settle = Instant::now() + Duration::from_millis(100);
+    while Instant::now() < settle {
+        host.pump();
+    }
+    host.answers.clear();
+    host.last.clear();
+    host.write(b"V\r");
+    let quiet = Instant::now() + Duration::from_millis(200);
+    while Instant::now() < quiet {
+        host.pump();
+    }
+    assert!(host.answers.is_empty() && host.last.is_empty());
+    sim.apply("clear kit").unwrap();
+    host.write(b"V\r");
+    assert_eq!(host.answers(1), vec![Event::Version(*b"1013")]);
 }
 
 #[test]
