@@ -139,7 +139,7 @@ impl Arg {
                 let id = Arg::Device(Which::Any).parse(word, names)?;
                 if !names.modules.iter().any(|m| Value::Device(*m) == id) {
                     return Err(format!(
-                        "{word} is not driven by a simulated kit's module (those are {})",
+                        "{word} is not driven by a simulated kit's module (kit modules: {})",
                         names.modules()
                     ));
                 }
@@ -644,7 +644,7 @@ mod tests {
         let e = k("fault car INVALID_SENSOR_VAL").unwrap_err();
         assert!(
             e.contains(
-                "car is not driven by a simulated kit's module (those are steer, gas, brake)"
+                "car is not driven by a simulated kit's module (kit modules: steer, gas, brake)"
             ),
             "{e}"
         );
