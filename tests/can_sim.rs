@@ -293,8 +293,9 @@ fn a_bus_in_error_refuses_frames_delivers_none_and_says_so_in_its_status() {
     host.write(b"F\rF\r");
     assert_eq!(host.answers(2)[1], Event::Status(StatusFlags(0)));
 
-    // The adapter's port faults are the port faults of every device on the bus.
-    let done = sim.apply("silent kit on").unwrap();
+    // The adapter's port faults are the port faults of every device on the bus, named
+    // by the bus or by any device on it.
+    let done = sim.apply("silent steer on").unwrap();
     assert_eq!(done, "kit: silent on");
     assert!(sim.faults("steer").unwrap().silent.load(Relaxed));
     // What was on its way before is read, then nothing more comes.
