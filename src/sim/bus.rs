@@ -50,6 +50,8 @@ const TURN: Duration = Duration::from_millis(5);
 #[derive(Clone, Debug)]
 pub(crate) struct Binding {
     pub module: Module,
+    /// The module's command message.
+    pub command: crate::can::Id,
     pub device: DeviceId,
     pub config: DeviceConfig,
 }
@@ -85,6 +87,7 @@ impl SimKit {
                 })?;
                 Some(Binding {
                     module,
+                    command: id,
                     device: DeviceId(i as u16),
                     config: c.clone(),
                 })
@@ -326,8 +329,7 @@ impl ServedBus {
                 let _ = self.model.lock().command(b.device, Command::Set(want));
                 *last = Some(want);
             }
-            let id = self.kit.port.lock().node.command_id(b.module);
-            for f in sent.iter().filter(|f| f.id() == id && s.enabled) {
+            for f in sent.iter().filter(|f| f.id() == b.command && s.enabled) {
                 let command = Command::Set(s.request);
                 self.events.emit(SimEvent {
                     device: b.device,
