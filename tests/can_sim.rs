@@ -20,6 +20,7 @@ use serialport::TTYPort;
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::path::Path;
+use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -291,6 +292,28 @@ fn a_bus_in_error_refuses_frames_delivers_none_and_says_so_in_its_status() {
     host.until("reports again", |h| h.last.contains_key("BRAKE_REPORT"));
     host.write(b"F\rF\r");
     assert_eq!(host.answers(2)[1], Event::Status(StatusFlags(0)));
+
+    // The adapter's port faults are the port faults of every device on the bus, named
+    // by the bus or by any device on it.
+    let done = sim.apply("silent steer on").unwrap();
+    assert_eq!(done, "kit: silent on");
+    assert!(sim.faults("steer").unwrap().silent.load(Relaxed));
+    // What was on its way before is read, then nothing more comes.
+    let settle = Instant::now() + Duration::from_millis(100);
+    while Instant::now() < settle {
+        host.pump();
+    }
+    host.answers.clear();
+    host.last.clear();
+    host.write(b"V\r");
+    let quiet = Instant::now() + Duration::from_millis(200);
+    while Instant::now() < quiet {
+        host.pump();
+    }
+    assert!(host.answers.is_empty() && host.last.is_empty());
+    sim.apply("clear kit").unwrap();
+    host.write(b"V\r");
+    assert_eq!(host.answers(1), vec![Event::Version(*b"1013")]);
 }
 
 #[test]
@@ -352,4 +375,62 @@ readings = { a = "SHORT.w" }
         "{e}"
     );
     assert!(e.contains("BRAKE_COMMAND"), "{e}");
+}
+
+/// The whole way: the real `adrive --sim --headless` on vehicles/oscc.toml, a planner
+/// (`adrive send --rate 20`) engaging and commanding, and `adrive watch --json`
+/// reading the kit's reports back through the engine's bus reader. The engage enables
+/// the modules, their requests move the simulated vehicle, and the vehicle's messages
+/// (steering wheel angle, wheel speed for the `speed` role) come back; when the
+/// planner stops, the watchdog's safe state disables the modules.
+#[test]
+fn a_planner_drives_the_simulated_oscc_kit_through_adrive_and_the_modules_follow() {
+    use common::headless::{Adrive, Watch, BIN};
+    let manifest = env!("CARGO_MANIFEST_DIR");
+    let text = std::fs::read_to_string(format!("{manifest}/vehicles/oscc.toml"))
+        .unwrap()
+        .replace("[network]\nallow_engage = true\n", "")
+        .replace(
+            "dbc = \"oscc.dbc\"",
+            &format!("dbc = \"{manifest}/vehicles/oscc.dbc\""),
+        );
+    let adrive = Adrive::start("oscc", &text, "");
+    let watch = Watch::start(&adrive.broadcast);
+    let kit = ["steer", "gas", "brake"];
+    let enabled = |s: &adrive::snapshot::Snapshot, name: &str| {
+        s.device(name).and_then(|d| d.number("enabled"))
+    };
+    watch.until("the kit disabled and the car standing", |s| {
+        kit.iter().all(|d| enabled(s, d) == Some(0.0))
+            && s.device("car").and_then(|d| d.number("speed")) == Some(0.0)
+    });
+
+    let mut planner = std::process::Command::new(BIN)
+        .args(["send", "--to", &adrive.listen, "--rate", "20"])
+        .args(["engage", "steer 0.3", "gas 0.4", "brake 0"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let (s, _) = watch.until(
+        "engaged, every module enabled, the wheel at 162°, the car rolling",
+        |s| {
+            s.gate.engaged
+                && kit.iter().all(|d| enabled(s, d) == Some(1.0))
+                && s.device("steer")
+                    .and_then(|d| d.number("angle"))
+                    .is_some_and(|a| (a - 0.3 * 540.0).abs() < 0.5)
+                && s.device("car")
+                    .and_then(|d| d.number("speed"))
+                    .is_some_and(|v| v > 0.5)
+        },
+    );
+    assert_eq!(s.device("gas").unwrap().number("override"), Some(0.0));
+    assert_eq!(s.device("brake").unwrap().number("pressure"), Some(0.0));
+
+    // The planner stops: the watchdog's safe state, then every module disabled.
+    common::stop(&mut planner);
+    watch.until("disengaged and every module disabled", |s| {
+        !s.gate.engaged && kit.iter().all(|d| enabled(s, d) == Some(0.0))
+    });
 }

@@ -188,11 +188,13 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
     // applies to.
     let stdin = child.stdin.as_mut().unwrap();
     writeln!(stdin, "help").unwrap();
-    let help = until(&out, "SETPOINT is one of").join("\n");
+    let help = until(&out, "DTC is a fault code").join("\n");
     assert!(help.contains("stuck SETPOINT on|off"), "{help}");
-    assert!(help.contains("override SETPOINT X|off"), "{help}");
+    assert!(help.contains("override SETPOINT X|on|off"), "{help}");
     assert!(
-        help.contains("DEVICE is one of steer, estop\n  SETPOINT is one of steer"),
+        help.contains(
+            "SETPOINT is one of steer\n  PORT is a device or a bus (a device on a bus: its bus's adapter): steer, estop"
+        ),
         "{help}"
     );
     writeln!(stdin, "stuck estop on").unwrap();

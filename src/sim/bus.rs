@@ -50,6 +50,8 @@ const TURN: Duration = Duration::from_millis(5);
 #[derive(Clone, Debug)]
 pub(crate) struct Binding {
     pub module: Module,
+    /// The module's command message.
+    pub command: crate::can::Id,
     pub device: DeviceId,
     pub config: DeviceConfig,
 }
@@ -85,6 +87,7 @@ impl SimKit {
                 })?;
                 Some(Binding {
                     module,
+                    command: id,
                     device: DeviceId(i as u16),
                     config: c.clone(),
                 })
@@ -326,8 +329,7 @@ impl ServedBus {
                 let _ = self.model.lock().command(b.device, Command::Set(want));
                 *last = Some(want);
             }
-            let id = self.kit.port.lock().node.command_id(b.module);
-            for f in sent.iter().filter(|f| f.id() == id && s.enabled) {
+            for f in sent.iter().filter(|f| f.id() == b.command && s.enabled) {
                 let command = Command::Set(s.request);
                 self.events.emit(SimEvent {
                     device: b.device,
@@ -390,5 +392,41 @@ impl ServedBus {
         let _ = master.set_timeout(Duration::from_millis(1));
         let _ = master.write_all(out);
         let _ = master.flush();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::can::Id;
+
+    #[test]
+    fn frames_share_the_bus_one_after_another_at_its_bitrate() {
+        let t0 = Instant::now();
+        let mut wire = Timeline::new(500_000, t0);
+        let full = Frame::new(Id::Standard(0x73), &[0; 8]).unwrap();
+        // 111 bits at 2 µs each; the second waits for the first.
+        assert_eq!(wire.put(&full, t0), t0 + Duration::from_micros(222));
+        assert_eq!(wire.put(&full, t0), t0 + Duration::from_micros(444));
+        // A frame after the bus went quiet starts when it is put.
+        let later = t0 + Duration::from_millis(20);
+        assert_eq!(wire.put(&full, later), later + Duration::from_micros(222));
+    }
+
+    #[test]
+    fn an_operator_override_on_a_device_without_a_kit_asks_for_a_position() {
+        let sim = super::super::Sim::start(&VehicleConfig::alice(), None).unwrap();
+        let e = sim.apply("override gas on").unwrap_err();
+        assert_eq!(
+            e,
+            "gas is not driven by a kit's module: give the position a hand pushes it toward (`override gas 0.5`)"
+        );
+        let e = sim.apply("fault gas INVALID_SENSOR_VAL").unwrap_err();
+        assert!(
+            e.contains(
+                "gas is not driven by a simulated kit's module (kit modules: none in this vehicle)"
+            ),
+            "{e}"
+        );
     }
 }

@@ -51,13 +51,7 @@ impl Names {
     }
 
     fn ports(&self) -> String {
-        let mut v: Vec<&str> = self
-            .devices
-            .iter()
-            .zip(&self.bus_of)
-            .filter(|(_, b)| b.is_none())
-            .map(|((n, _), _)| n.as_str())
-            .collect();
+        let mut v: Vec<&str> = self.devices.iter().map(|(n, _)| n.as_str()).collect();
         v.extend(self.buses.iter().map(String::as_str));
         v.join(", ")
     }
@@ -96,7 +90,7 @@ pub enum Port {
 pub(crate) enum Arg {
     /// A device of the vehicle.
     Device(Which),
-    /// A device with its own port, or a bus (its adapter's port).
+    /// A device's port, or a bus's: a device on a bus has its bus adapter's.
     Port,
     /// A simulated CAN bus.
     Bus,
@@ -139,7 +133,7 @@ impl Arg {
                 let id = Arg::Device(Which::Any).parse(word, names)?;
                 if !names.modules.iter().any(|m| Value::Device(*m) == id) {
                     return Err(format!(
-                        "{word} is not driven by a simulated kit's module (those are {})",
+                        "{word} is not driven by a simulated kit's module (kit modules: {})",
                         names.modules()
                     ));
                 }
@@ -155,13 +149,11 @@ impl Arg {
                         names.ports()
                     ));
                 };
-                match names.bus_of.get(i).copied().flatten() {
-                    None => Ok(Value::Port(Port::Device(DeviceId(i as u16)))),
-                    Some(b) => Err(format!(
-                        "{word} has no port of its own: it is on bus {}, whose adapter is the port",
-                        names.buses[b]
-                    )),
-                }
+                // A device on a bus has no port of its own: its port is the adapter's.
+                Ok(Value::Port(match names.bus_of.get(i).copied().flatten() {
+                    None => Port::Device(DeviceId(i as u16)),
+                    Some(b) => Port::Bus(b),
+                }))
             }
             Arg::Bus => names
                 .buses
@@ -525,7 +517,7 @@ pub fn help(names: &Names) -> String {
     let _ = writeln!(s, "  SETPOINT is one of {}", list(devices, Which::Setpoint));
     let _ = writeln!(
         s,
-        "  PORT is a device with its own port or a bus: {}",
+        "  PORT is a device or a bus (a device on a bus: its bus's adapter): {}",
         names.ports()
     );
     let _ = writeln!(s, "  BUS is one of {}", names.buses());
@@ -636,15 +628,15 @@ mod tests {
             k("silent kit on"),
             Ok(SimCommand::Silent(Port::Bus(0), true))
         );
-        let e = k("silent steer on").unwrap_err();
-        assert!(
-            e.contains("steer has no port of its own: it is on bus kit, whose adapter is the port"),
-            "{e}"
+        assert_eq!(
+            k("silent steer on"),
+            Ok(SimCommand::Silent(Port::Bus(0), true)),
+            "a device on a bus: its bus's adapter"
         );
         let e = k("fault car INVALID_SENSOR_VAL").unwrap_err();
         assert!(
             e.contains(
-                "car is not driven by a simulated kit's module (those are steer, gas, brake)"
+                "car is not driven by a simulated kit's module (kit modules: steer, gas, brake)"
             ),
             "{e}"
         );
@@ -716,7 +708,7 @@ mod tests {
         assert!(h.contains("fault MODULE DTC"), "{h}");
         assert!(h.contains("bus BUS on|off"), "{h}");
         assert!(
-            h.contains("PORT is a device with its own port or a bus: kit"),
+            h.contains("PORT is a device or a bus (a device on a bus: its bus's adapter): steer, gas, brake, car, kit"),
             "{h}"
         );
         assert!(

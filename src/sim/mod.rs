@@ -368,8 +368,15 @@ impl Sim {
         Some(f(&mut port))
     }
 
+    /// The faults of a device's port: its own, or for a device on a CAN bus, its bus
+    /// adapter's.
     pub fn faults(&self, name: &str) -> Option<&Arc<Faults>> {
-        self.port(name).map(|p| &p.faults)
+        if let Some(p) = self.port(name) {
+            return Some(&p.faults);
+        }
+        let id = self.model.lock().find(name)?;
+        let bus = self.bus_of.get(id.index()).copied().flatten()?;
+        self.buses.get(bus).map(|p| &p.faults)
     }
 
     /// The simulated vehicle, for tests and the console's bench view.
