@@ -5,6 +5,7 @@
 #   screenshots/regenerate.sh alice    Alice's screens only
 #   screenshots/regenerate.sh many     the many-devices screen only
 #   screenshots/regenerate.sh cart     the cart's screen only
+#   screenshots/regenerate.sh oscc     the OSCC kit's screens only
 #
 # Needs tmux and python3 (with venv). It builds adrive (release, as the README runs it), runs it with --sim in a
 # detached 80×24 tmux session, drives it with keys, and saves for each screen:
@@ -20,14 +21,16 @@
 # (steering silenced with the bench's sim key: the supervisor's silent fault in red); many (the tractor's 32
 # devices, vehicles/tractor.toml, engaged with a few commanded, and the name prompt
 # open); cart (vehicles/cart.toml, engaged, in forward, steering and a turn signal
-# commanded).
+# commanded); oscc and oscc-bench (vehicles/oscc.toml: the OSCC kit's modules on a CAN
+# bus, engaged with a little steering torque; then the steering's bench at 100×30, the
+# bus's frames decoded by the DBC).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 what=${1:-all}
 case "$what" in
-    all | alice | many | cart) ;;
+    all | alice | many | cart | oscc) ;;
     *)
-        echo "usage: $0 [alice|many|cart]" >&2
+        echo "usage: $0 [alice|many|cart|oscc]" >&2
         exit 2
         ;;
 esac
@@ -202,9 +205,31 @@ cart() {
     keys q
 }
 
+# The OSCC kit on its CAN bus: the modules on the main screen, enabled by the engage,
+# the steering given a little torque; then the steering's bench, the bus decoded.
+oscc() {
+    start --config vehicles/oscc.toml
+    wait_for "CAR"
+    engage
+    wait_for "enabled 1"
+    keys s; wait_for "edit steer command"
+    keys C-u; keys -l 0.3; keys Enter
+    wait_for "angle 162"
+    sleep 1
+    shot oscc
+    tmux resize-window -t "$session" -x 100 -y 30
+    keys x; wait_for "bus kit"
+    sleep 1.5
+    shot oscc-bench
+    tmux resize-window -t "$session" -x 80 -y 24
+    keys Escape; wait_for "CAR"
+    keys q
+}
+
 case "$what" in
     alice) alice ;;
     many) many ;;
     cart) cart ;;
-    all) alice; many; cart ;;
+    oscc) oscc ;;
+    all) alice; many; cart; oscc ;;
 esac
