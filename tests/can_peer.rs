@@ -205,7 +205,10 @@ fn vehicle(port: &str, listen: &str, broadcast: &str) -> String {
         })
         .collect();
     assert_eq!(
-        lines.iter().filter(|l| l.starts_with("status_max_age")).count(),
+        lines
+            .iter()
+            .filter(|l| l.starts_with("status_max_age"))
+            .count(),
         4,
         "vehicles/oscc.toml gives each of its four devices a status_max_age"
     );
