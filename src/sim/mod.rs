@@ -152,6 +152,19 @@ pub struct SimPort {
     pub lives: Arc<AtomicU32>,
 }
 
+impl SimPort {
+    /// The port of `name`, up for the first time behind `link` on `pty`.
+    fn new(name: &str, link: &Path, pty: String) -> SimPort {
+        SimPort {
+            name: name.to_string(),
+            path: link.display().to_string(),
+            pty: Arc::new(Mutex::new(pty)),
+            faults: Arc::new(Faults::default()),
+            lives: Arc::new(AtomicU32::new(1)),
+        }
+    }
+}
+
 /// The running simulator.
 pub struct Sim {
     /// The devices' own ports.
@@ -278,13 +291,7 @@ impl Sim {
         for (b, kit) in config.buses.iter().zip(kits) {
             let link = dir.join(b.name.as_str());
             let (master, slave, pty) = bring_up(&link)?;
-            let port = SimPort {
-                name: b.name.clone(),
-                path: link.display().to_string(),
-                pty: Arc::new(Mutex::new(pty)),
-                faults: Arc::new(Faults::default()),
-                lives: Arc::new(AtomicU32::new(1)),
-            };
+            let port = SimPort::new(&b.name, &link, pty);
             let served = bus::ServedBus {
                 config: b.clone(),
                 link,
@@ -308,13 +315,7 @@ impl Sim {
             }
             let link = dir.join(c.name.as_str());
             let (master, slave, pty) = bring_up(&link)?;
-            let port = SimPort {
-                name: c.name.clone(),
-                path: link.display().to_string(),
-                pty: Arc::new(Mutex::new(pty)),
-                faults: Arc::new(Faults::default()),
-                lives: Arc::new(AtomicU32::new(1)),
-            };
+            let port = SimPort::new(&c.name, &link, pty);
             let dev = Served {
                 id: DeviceId(i as u16),
                 config: c.clone(),
