@@ -93,6 +93,9 @@ pub struct Bus {
     /// The adapter refused the last frame it was given (BEL): frames are not reaching
     /// the bus.
     refusing: AtomicBool,
+    /// The adapter is on the bus (what `down` says, read without its lock on the
+    /// command path).
+    is_up: AtomicBool,
     /// The vehicle is engaged: kit devices are to be enabled.
     engaged: AtomicBool,
     /// The last frame of each identifier, sent or received.
@@ -108,6 +111,7 @@ impl Bus {
             down: Mutex::new(Some("adapter not opened yet".into())),
             bus_error: Mutex::new(None),
             refusing: AtomicBool::new(false),
+            is_up: AtomicBool::new(false),
             engaged: AtomicBool::new(false),
             seen: Mutex::new(BTreeMap::new()),
             stats: BusStats::default(),
@@ -140,12 +144,14 @@ impl Bus {
     pub fn up(&self, writer: Box<dyn Link>) {
         *self.writer.lock() = Some(writer);
         *self.down.lock() = None;
+        self.is_up.store(true, Relaxed);
         self.refusing.store(false, Relaxed);
         self.stats.opens.fetch_add(1, Relaxed);
     }
 
     /// The adapter is gone (or never came): take the write half back.
     pub fn go_down(&self, why: String) {
+        self.is_up.store(false, Relaxed);
         *self.writer.lock() = None;
         *self.down.lock() = Some(why);
     }
@@ -201,9 +207,14 @@ impl Bus {
     /// kept for the bench view.
     pub fn send(&self, frame: &Frame) -> io::Result<()> {
         self.write(&proto::encode_command(&proto::Command::Transmit(*frame)))?;
+        self.sent(frame);
+        Ok(())
+    }
+
+    /// A frame adrive handed to the adapter: counted and kept for the bench view.
+    fn sent(&self, frame: &Frame) {
         self.stats.sent.fetch_add(1, Relaxed);
         self.note(frame, Instant::now(), true);
-        Ok(())
     }
 
     /// Send one adapter command that is not a frame (`F`, a status request).
@@ -322,8 +333,7 @@ impl CanDriver {
     fn send(&self, frame: &Frame, link: &mut dyn Link) -> Result<(), DriverError> {
         let line = proto::encode_command(&proto::Command::Transmit(*frame));
         link.write_all(&line)?;
-        self.bus.stats.sent.fetch_add(1, Relaxed);
-        self.bus.note(frame, Instant::now(), true);
+        self.bus.sent(frame);
         Ok(())
     }
 
@@ -362,7 +372,11 @@ impl Driver for CanDriver {
     }
 
     fn send_command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError> {
-        if let Some(why) = self.bus.down_reason() {
+        if !self.bus.is_up.load(Relaxed) {
+            let why = self
+                .bus
+                .down_reason()
+                .unwrap_or_else(|| "adapter closed".into());
             // Not the device's port failing: the bus's reader reopens the adapter.
             self.enabled_sent = false;
             return Err(DriverError::Refused(format!(
