@@ -44,7 +44,8 @@ impl Gate {
         }
         tracing::warn!(device, "driver override: {why}");
         self.leave_to_the_driver();
-        self.disengage(&format!("driver override on {device}"));
+        let state = self.state().stop_state(self.vehicle().config());
+        self.disengage_with(|g| g.set_disengaged_by_override(device), state);
     }
 
     /// Nothing is resent to a device the manual state does not command (the steering
@@ -124,7 +125,16 @@ impl Gate {
     }
 
     fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
-        let was = self.state().set_disengaged(reason);
+        self.disengage_with(|g| g.set_disengaged(reason), state)
+    }
+
+    /// Disengage (`set` records why, in the gate's state) into `state`.
+    fn disengage_with(
+        &self,
+        set: impl FnOnce(&crate::safety::GateState) -> bool,
+        state: Vec<(DeviceId, Command)>,
+    ) -> bool {
+        let was = set(self.state());
         // Kits disable after the safe command.
         self.vehicle().set_kits_engaged(false);
         let now = Instant::now();
@@ -133,8 +143,9 @@ impl Gate {
         }
         self.kits_follow(false, &state);
         if was {
-            tracing::warn!("disengaged: {reason}");
-            self.tap_gate(GateChange::Disengaged, || format!("disengaged: {reason}"));
+            let reason = self.reason();
+            tracing::warn!("{reason}");
+            self.tap_gate(GateChange::Disengaged, || reason);
         }
         was
     }
