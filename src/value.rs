@@ -126,6 +126,11 @@ pub enum EstopState {
 impl EstopState {
     pub const ALL: [EstopState; 3] = [EstopState::Disable, EstopState::Pause, EstopState::Run];
 
+    /// Pause or disable: the e-stop holds the vehicle (its rule: brake full, gas 0).
+    pub fn halts(self) -> bool {
+        self != EstopState::Run
+    }
+
     pub fn as_str(self) -> &'static str {
         match self {
             EstopState::Disable => "disable",

@@ -11,7 +11,7 @@ use super::owner::Owner;
 use super::rules::{self, Plays, Reject, Rules};
 use super::safe;
 use super::wire::{self, Verdict};
-use crate::config::{DriverKind, Role, VehicleConfig};
+use crate::config::{DriverKind, Role};
 use crate::driver::elm327;
 use crate::logging::RateLimit;
 use crate::value::{Command, DeviceId, EstopState, Kind};
@@ -287,11 +287,14 @@ impl GateState {
 
     /// What the vehicle is commanded when it must stop: the safe state, or the manual
     /// state while a driver has taken over (one rule for every path that stops it).
-    pub(crate) fn stop_state(&self, config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
-        if self.overridden.lock().is_empty() {
-            safe::state(config)
+    /// While the e-stop is in pause or disable its rule holds — brake full, gas 0 —
+    /// over a driver's too: a person stopped the vehicle, as with an operator's STOP.
+    pub(crate) fn stop_state(&self, v: &Vehicle) -> Vec<(DeviceId, Command)> {
+        let halted = v.estop().is_some_and(EstopState::halts);
+        if halted || self.overridden.lock().is_empty() {
+            safe::state(v.config())
         } else {
-            safe::manual(config)
+            safe::manual(v.config())
         }
     }
 
