@@ -211,6 +211,11 @@ pub struct DeviceView {
     /// commands can have driven it toward since the supervisor last looked.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub(crate) executed_span: Option<[f64; 2]>,
+    /// A set point device: how long ago it last acknowledged a set point (a resend
+    /// included), ms; null before the first. A device with a watchdog of its own goes
+    /// to its safe value by itself once this passes that watchdog.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(crate) executed_age_ms: Option<f64>,
     /// Age of the cached reading, ms (null before the first good poll).
     pub status_age_ms: Option<f64>,
     /// The reading is older than the device's `status_max_age` (or there is none).
