@@ -709,3 +709,138 @@ fn the_bench_of_a_can_kit_module_shows_its_bus() {
     let status = c.wait_exit();
     assert!(status.success(), "{status:?}\n{}", c.log());
 }
+
+/// `adrive ctl` on the console's control socket; its standard output.
+fn ctl(c: &Console, args: &[&str]) -> String {
+    let out = Command::new(BIN)
+        .arg("ctl")
+        .args(args)
+        .arg("--socket")
+        .arg(c.log_dir.join("adrive").join("adrive.sock"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "ctl {args:?}: {out:?}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The snapshot as `adrive ctl status --json` reports it.
+fn status(c: &Console) -> serde_json::Value {
+    serde_json::from_str(&ctl(c, &["status", "--json"])).unwrap()
+}
+
+/// A device's number in a JSON snapshot: `commanded`, `executed`, or a reading.
+fn number(snap: &serde_json::Value, device: &str, what: &str) -> Option<f64> {
+    let d = snap["devices"]
+        .as_array()?
+        .iter()
+        .find(|d| d["name"] == device)?;
+    d[what].as_f64().or_else(|| d["readings"][what].as_f64())
+}
+
+/// The override faults in a JSON snapshot.
+fn overrides(snap: &serde_json::Value) -> Vec<String> {
+    snap["supervisor"]["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["kind"] == "override")
+        .map(|f| f.to_string())
+        .collect()
+}
+
+/// The incident, on the real binary: a driver's hand on the steering, let go, the
+/// override cleared (the brake then in the manual state, commanded 0); then the
+/// e-stop paused. The brake went full by the actuator's own watchdog (the wire refused
+/// the release the e-stop forbids, so nothing reached it), and the supervisor named it
+/// "driver override on brake", latched it, and the gate's reason said so. Now the
+/// e-stop's rule commands the brake full, the e-stop is the reason, and no override is
+/// named or latched. Before that, after the clear, the console, `adrive ctl status`
+/// (its table and its JSON) and the broadcast say the same reason: the override
+/// cleared.
+#[test]
+fn an_e_stop_pause_after_a_cleared_override_is_named_as_the_e_stop() {
+    use common::headless::{with_network, Watch};
+    let port = common::free_port();
+    let dir = common::tempdir("estop-cause");
+    let file = dir.path().join("alice.toml");
+    let vehicle = with_network(
+        adrive::config::ALICE_TOML,
+        "127.0.0.1:0",
+        &format!("127.0.0.1:{port}"),
+        "",
+    );
+    std::fs::write(&file, vehicle).unwrap();
+    let watch = Watch::start(&format!("127.0.0.1:{port}"));
+    let mut c = Console::start("estop-cause", &["--config", file.to_str().unwrap()]);
+    c.engage();
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("steer raw traffic"));
+    c.keys("o");
+    c.wait_for("the override", |s| {
+        s.contains("DISENGAGED (driver override on steer)") && s.contains("driver's hand on it")
+    });
+    c.keys("o");
+    c.wait_for("the hand off", |s| {
+        s.contains("let go: clear to engage again")
+    });
+    c.keys("C");
+    c.wait_for("the override cleared", |s| {
+        s.contains("override cleared on steer")
+            && s.contains("DISENGAGED (driver override on steer, cleared)")
+    });
+    // One reason for every reader.
+    let said = "disengaged: driver override on steer, cleared";
+    assert_eq!(status(&c)["gate"]["reason"], said);
+    let table = ctl(&c, &["status"]);
+    assert!(
+        table.contains("DISENGAGED (driver override on steer, cleared)"),
+        "{table}"
+    );
+    watch.until(said, |s| s.gate.reason == said);
+
+    c.keys("p");
+    c.wait_for("the e-stop", |s| {
+        s.contains("FAULT estop_pause") && s.contains("DISENGAGED (e-stop is in pause)")
+    });
+    // The brake goes full by adrive's command, the e-stop's rule.
+    let start = Instant::now();
+    let applied = loop {
+        let snap = status(&c);
+        assert!(overrides(&snap).is_empty(), "{snap:#}");
+        if number(&snap, "brake", "position").is_some_and(|p| p > 0.95) {
+            break snap;
+        }
+        assert!(
+            start.elapsed() < DEADLINE,
+            "the brake never applied: {snap:#}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(
+        number(&applied, "brake", "commanded"),
+        Some(1.0),
+        "{applied:#}"
+    );
+    // The old judgement named it within the actuator's own watchdog (1 s) and the
+    // override time (300 ms) of the pause; watch the vehicle's own clock pass 2 s more
+    // with the brake held full, and no override named or latched at any turn.
+    let from = applied["uptime_s"].as_f64().unwrap();
+    loop {
+        let snap = status(&c);
+        assert!(overrides(&snap).is_empty(), "{snap:#}");
+        assert!(snap["gate"]["overridden"].is_null(), "{snap:#}");
+        assert_eq!(snap["gate"]["reason"], "disengaged: e-stop is in pause");
+        assert_eq!(number(&snap, "brake", "executed"), Some(1.0), "{snap:#}");
+        if snap["uptime_s"].as_f64().unwrap() > from + 2.0 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let s = c.screen();
+    assert!(!s.contains("OVERRIDE"), "{s}");
+    let table = ctl(&c, &["status"]);
+    assert!(table.contains("DISENGAGED (e-stop is in pause)"), "{table}");
+    assert!(!table.contains("override"), "{table}");
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}

@@ -63,22 +63,16 @@ impl Header<'_> {
         } else {
             (" DISENGAGED ".to_string(), t.warn().patch(bar))
         };
-        // Engaged: who commands it; disengaged: why. The gate keeps the reason it
-        // disengaged for; once the override that was it is cleared, the bar says so
-        // rather than show the driver still in charge.
+        // Engaged: who commands it; disengaged: why, in the gate's own words (the
+        // same the broadcast and `adrive ctl status` carry).
         let who = match &s.gate.commander {
             Some(c) => format!("by {c}"),
             None => "nobody commands".to_string(),
         };
-        let reason = s.gate.reason.trim_start_matches("disengaged: ");
-        let cleared;
         let why = if s.gate.engaged {
             who.as_str()
-        } else if reason.starts_with("driver override on ") && s.gate.overridden.is_empty() {
-            cleared = format!("{reason}, cleared");
-            cleared.as_str()
         } else {
-            reason
+            s.gate.reason.trim_start_matches("disengaged: ")
         };
         let title = format!(" ADRIVE {} ", s.vehicle);
         let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
@@ -266,18 +260,25 @@ mod tests {
     }
 
     /// After `C` cleared a driver's override the header still read `DISENGAGED
-    /// (driver override on steer)`, as if the driver still had the wheel.
+    /// (driver override on steer)`, as if the driver still had the wheel. The header
+    /// shows the gate's reason, which says the override is cleared.
     #[test]
     fn a_cleared_override_is_said_to_be_cleared() {
-        let mut m = model(false, "driver override on steer", "Alice");
-        m.snap.snap.gate.overridden = vec!["steer".into()];
-        let l = text(&Header { m: &m }.line(120));
+        let now = Instant::now();
+        let gate = testkit::gate(now);
+        let mut m = model(false, "", "Alice");
+        let header = |m: &mut Model| {
+            m.snap.snap.gate = gate.view(Instant::now());
+            text(&Header { m }.line(120))
+        };
+        gate.take_over("steer", "a driver's hand");
+        let l = header(&mut m);
         assert!(
             l.ends_with(" DISENGAGED (driver override on steer) "),
             "{l}"
         );
-        m.snap.snap.gate.overridden.clear();
-        let l = text(&Header { m: &m }.line(120));
+        gate.clear_overrides().expect("no hand is on it");
+        let l = header(&mut m);
         assert!(
             l.ends_with(" DISENGAGED (driver override on steer, cleared) "),
             "{l}"
