@@ -21,6 +21,7 @@ pub mod info;
 pub mod log;
 pub mod message;
 pub mod read;
+pub(crate) mod schema;
 mod writer;
 
 use crate::config::VehicleConfig;

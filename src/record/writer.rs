@@ -143,12 +143,12 @@ impl Output {
 
     /// Write one message on `topic` at `at` (wall-clock ns).
     fn write(&mut self, topic: Topic, at: u64, data: &[u8]) -> io::Result<()> {
-        let devices = &self.vehicle.config().devices;
+        let config = self.vehicle.config();
         let f = self.file.as_mut().expect("a file is open while recording");
         let id = match f.channels.get(&topic) {
             Some(id) => *id,
             None => {
-                let (name, schema) = topic.schema(devices);
+                let (name, schema) = topic.schema(config);
                 let schema_id = f
                     .writer
                     .add_schema(&name, message::SCHEMA_ENCODING, &schema)
@@ -157,7 +157,7 @@ impl Output {
                     .writer
                     .add_channel(
                         schema_id,
-                        &topic.name(devices),
+                        &topic.name(&config.devices),
                         message::MESSAGE_ENCODING,
                         &BTreeMap::new(),
                     )
