@@ -3,7 +3,7 @@
 //! reader Studio uses; `tests/support/foxglove_studio/`) and runs, under Node.js, its
 //! `parseChannel` and `parseJsonSchema` — the strictest of the viewers' JSON Schema
 //! readers, which drops a whole channel on a schema it does not take — over every
-//! channel of a real recording and every channel the
+//! channel of a real recording (finished, and cut by `kill -9`) and every channel the
 //! live view advertises, and deserializes every message with what it returns. The
 //! guide's "a Plot panel with `/steer/command.value` against `/steer/reading.position`,
 //! with no configuration" holds only if every channel survives.
@@ -140,6 +140,23 @@ fn foxglove_studio_opens_every_channel_of_a_real_recording_and_plots_a_command_a
         "string"
     );
     assert_eq!(field(&v, "/log", "foxglove.Log", "level"), "uint32");
+}
+
+#[test]
+fn foxglove_studio_reads_every_channel_of_a_recording_cut_by_kill_9() {
+    let dir = common::tempdir("studio-cut");
+    let file = dir.path().join("cut.mcap");
+    let a = recorded_drive("studio-cut", &file);
+    common::wait_for("two whole chunks", || {
+        Recording::open(&file).is_ok_and(|r| r.chunks >= 2)
+    });
+    common::signal(&a.child, libc::SIGKILL);
+    drop(a);
+    let v = studio("mcap", &file);
+    assert_eq!(v["how"], "streamed", "no index: read from the start");
+    assert_eq!(v["stream_error"], Value::Null, "{v}");
+    assert_eq!(v["stream_done"], true, "it reads to the file's end: {v}");
+    assert_eq!(every_channel_taken(&v), ours(&file));
 }
 
 /// A viewer of the live view: the advertisement, and a few messages of each channel
