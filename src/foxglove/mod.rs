@@ -98,11 +98,29 @@ impl Foxglove {
 }
 
 /// The handshake's callback: answer with the subprotocol the client offers, or refuse
-/// with the names this server speaks (a viewer fails silently on a mismatch).
-struct Negotiate(Arc<Mutex<Option<&'static str>>>);
+/// with the names this server speaks (a viewer fails silently on a mismatch); when
+/// [`MAX_VIEWERS`] are served already, refuse with 503 naming the limit.
+struct Negotiate {
+    chosen: Arc<Mutex<Option<&'static str>>>,
+    full: bool,
+}
+
+/// What a viewer past [`MAX_VIEWERS`] is told.
+fn full_answer() -> ErrorResponse {
+    let mut e = ErrorResponse::new(Some(format!(
+        "adrive's live view serves at most {MAX_VIEWERS} viewers at once; one must leave first\n"
+    )));
+    *e.status_mut() = StatusCode::SERVICE_UNAVAILABLE;
+    e.headers_mut()
+        .insert("Retry-After", HeaderValue::from_static("5"));
+    e
+}
 
 impl Callback for Negotiate {
     fn on_request(self, req: &Request, mut resp: Response) -> Result<Response, ErrorResponse> {
+        if self.full {
+            return Err(full_answer());
+        }
         let offered = req
             .headers()
             .get_all(PROTOCOL_HEADER)
@@ -112,7 +130,7 @@ impl Callback for Negotiate {
             Some(p) => {
                 resp.headers_mut()
                     .insert(PROTOCOL_HEADER, HeaderValue::from_static(p));
-                *self.0.lock() = Some(p);
+                *self.chosen.lock() = Some(p);
                 Ok(resp)
             }
             None => {
@@ -134,6 +152,8 @@ struct Pending {
     chosen: Arc<Mutex<Option<&'static str>>>,
     addr: SocketAddr,
     since: Instant,
+    /// Past the limit: its handshake is only read to be answered 503.
+    refused: bool,
 }
 
 /// One connected viewer.
@@ -343,8 +363,13 @@ impl Server {
                     return;
                 }
             };
-            if self.viewers.len() + self.pending.len() >= MAX_VIEWERS {
-                tracing::warn!("foxglove: {addr} refused: {MAX_VIEWERS} viewers already");
+            let refusing = self.pending.iter().filter(|p| p.refused).count();
+            let full = self.viewers.len() + self.pending.len() - refusing >= MAX_VIEWERS;
+            if full && refusing >= MAX_VIEWERS {
+                // A flood: past the limit and as many being answered already.
+                tracing::debug!(
+                    "foxglove: {addr} closed: {MAX_VIEWERS} viewers and {refusing} refused already"
+                );
                 continue;
             }
             let setup = stream
@@ -356,20 +381,31 @@ impl Server {
                 continue;
             }
             let chosen = Arc::new(Mutex::new(None));
-            let r = tungstenite::accept_hdr(stream, Negotiate(chosen.clone()));
-            self.handshaken(r, chosen, addr, Instant::now());
+            let negotiate = Negotiate {
+                chosen: chosen.clone(),
+                full,
+            };
+            let r = tungstenite::accept_hdr(stream, negotiate);
+            self.handshaken(r, chosen, addr, Instant::now(), full);
         }
     }
 
     /// Carry on with each handshake the socket has answered.
     fn handshakes(&mut self) {
-        for p in std::mem::take(&mut self.pending) {
+        for mut p in std::mem::take(&mut self.pending) {
             if p.since.elapsed() > HANDSHAKE {
                 tracing::debug!("foxglove: {}: no handshake in {HANDSHAKE:?}", p.addr);
+                // Told why, in HTTP, before the connection closes.
+                let answer = format!(
+                    "HTTP/1.1 408 Request Timeout\r\nConnection: close\r\nContent-Type: text/plain\r\n\r\n\
+                     adrive's live view waits {} s at most for a WebSocket handshake\n",
+                    HANDSHAKE.as_secs()
+                );
+                let _ = io::Write::write_all(p.mid.get_mut().get_mut(), answer.as_bytes());
                 continue;
             }
             let r = p.mid.handshake();
-            self.handshaken(r, p.chosen, p.addr, p.since);
+            self.handshaken(r, p.chosen, p.addr, p.since, p.refused);
         }
     }
 
@@ -379,6 +415,7 @@ impl Server {
         chosen: Arc<Mutex<Option<&'static str>>>,
         addr: SocketAddr,
         since: Instant,
+        refused: bool,
     ) {
         match r {
             Ok(ws) => {
@@ -405,7 +442,11 @@ impl Server {
                 chosen,
                 addr,
                 since,
+                refused,
             }),
+            Err(HandshakeError::Failure(_)) if refused => {
+                tracing::warn!("foxglove: {addr} refused (503): {MAX_VIEWERS} viewers already")
+            }
             Err(HandshakeError::Failure(e)) => {
                 tracing::warn!("foxglove: {addr}: handshake refused: {e}")
             }
