@@ -151,7 +151,17 @@ fn foxglove_studio_reads_every_channel_of_a_recording_cut_by_kill_9() {
         Recording::open(&file).is_ok_and(|r| r.chunks >= 2)
     });
     common::signal(&a.child, libc::SIGKILL);
+    let pid = a.child.id();
     drop(a);
+    // Killed, it could not remove its simulated devices' directory: the test does.
+    for e in std::fs::read_dir(std::env::temp_dir()).unwrap().flatten() {
+        if e.file_name()
+            .to_string_lossy()
+            .starts_with(&format!("adrive-sim-{pid}-"))
+        {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
     let v = studio("mcap", &file);
     assert_eq!(v["how"], "streamed", "no index: read from the start");
     assert_eq!(v["stream_error"], Value::Null, "{v}");
