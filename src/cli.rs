@@ -63,7 +63,7 @@ pub enum Cmd {
     Ctl(CtlArgs),
     /// Play a recording in the console: pause, step, seek, speed; read-only.
     Replay(ReplayArgs),
-    /// Recordings: `adrive record info FILE`.
+    /// Recordings: `adrive record info FILE`, `adrive record repair FILE`.
     Record {
         #[command(subcommand)]
         command: RecordCmd,
@@ -196,6 +196,16 @@ pub enum RecordCmd {
         /// The recording (.mcap).
         file: PathBuf,
     },
+    /// Write a finished copy (summary and index) of a recording that was not finished
+    /// (killed, a power loss, cut inside a chunk): every message that can be read.
+    /// Next to it as NAME.repaired.mcap, or to --out; never over an existing file.
+    Repair {
+        /// The recording (.mcap).
+        file: PathBuf,
+        /// Where to write the copy [default: NAME.repaired.mcap beside FILE].
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
+    },
 }
 
 #[derive(Args, Debug, Clone)]
@@ -309,6 +319,9 @@ pub fn main() -> i32 {
         Some(Cmd::Record {
             command: RecordCmd::Info { file },
         }) => record_info(&file),
+        Some(Cmd::Record {
+            command: RecordCmd::Repair { file, out },
+        }) => record_repair(&file, out.as_deref()),
         Some(Cmd::Export(args)) => export(args),
         Some(Cmd::Completions { shell }) => {
             // Into memory first: clap_complete panics when its writer fails.
@@ -961,6 +974,32 @@ pub(crate) fn printable(bytes: &[u8]) -> String {
 pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
     let rec = record::read::Recording::open(file)?;
     tell(io::stdout(), format_args!("{}", record::info::report(&rec)));
+    Ok(0)
+}
+
+/// `adrive record repair`: a finished copy of a recording that was not finished.
+pub(crate) fn record_repair(file: &Path, out: Option<&Path>) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(file)?;
+    let state = record::info::state(&rec, None);
+    if rec.complete && !rec.writing {
+        tell(
+            io::stdout(),
+            format_args!("{}: {state}: nothing to repair\n", file.display()),
+        );
+        return Ok(0);
+    }
+    let out = out.map_or_else(|| record::repair::beside(file), Path::to_path_buf);
+    let r = record::repair::repair(&rec, &out, &state)?;
+    tell(
+        io::stdout(),
+        format_args!(
+            "{}: {state}\nwrote {}: {} messages on {} channels, finished (summary and index)\n",
+            file.display(),
+            r.out.display(),
+            r.messages,
+            r.channels
+        ),
+    );
     Ok(0)
 }
 

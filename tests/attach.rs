@@ -470,3 +470,35 @@ fn the_socket_is_removed_on_every_exit_path_and_a_stale_one_is_replaced() {
         ctl(&socket, &["status"]).status.success()
     });
 }
+
+/// A client past the control socket's limits had its connection closed with no word:
+/// past 32 clients `adrive ctl` is told the limit, and so is a client whose request
+/// line is too long.
+#[test]
+fn clients_past_the_control_socket_s_limits_are_told_the_limit() {
+    use std::io::{BufRead, BufReader, Write};
+    use std::os::unix::net::UnixStream;
+    let svc = Service::start("attach-full", None);
+    // A line longer than any request: told so, then closed.
+    let mut long = UnixStream::connect(&svc.socket).unwrap();
+    long.set_read_timeout(Some(DEADLINE)).unwrap();
+    long.write_all(&[b'x'; 5000]).unwrap();
+    let mut bye = String::new();
+    BufReader::new(&long).read_line(&mut bye).unwrap();
+    assert!(
+        bye.contains("bye") && bye.contains("at most 4096 bytes"),
+        "{bye}"
+    );
+    // 32 clients that only stay connected: the 33rd, a real `adrive ctl`, is told.
+    let held: Vec<UnixStream> = (0..32)
+        .map(|_| UnixStream::connect(&svc.socket).unwrap())
+        .collect();
+    let out = svc.ctl(&["status"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("32 clients at most"), "{err}");
+    drop(held);
+    common::wait_for("a client served again", || {
+        svc.ctl(&["status"]).status.success()
+    });
+}

@@ -18,7 +18,6 @@ use crate::net::BROADCAST_MAX;
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
 use crate::safety::Refused;
-use crate::snapshot::Snapshot;
 use crate::value::{Command, DeviceId};
 use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
 use crossbeam_channel::{select, Receiver};
@@ -254,7 +253,7 @@ impl Player {
     /// it, and the bench device's raw traffic up to it (ages as of `now`).
     pub fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
         let t = self.time();
-        let snap: Snapshot = serde_json::from_slice(self.json()).unwrap_or_default();
+        let snap = crate::record::message::recorded_snapshot(self.json()).unwrap_or_default();
         let upto = self.logs.partition_point(|(at, _)| *at <= t);
         let logs = self.logs[upto.saturating_sub(LOG_KEEP)..upto]
             .iter()
@@ -447,12 +446,8 @@ impl Broadcast {
     /// Send one recorded snapshot, in parts when it does not fit one datagram, as the
     /// live broadcast does.
     pub fn send(&self, json: &[u8]) {
-        let parts = match json.len() <= BROADCAST_MAX {
-            true => Ok(vec![json.to_vec()]),
-            false => {
-                serde_json::from_slice::<Snapshot>(json).and_then(|s| s.datagrams(BROADCAST_MAX))
-            }
-        };
+        let parts = crate::record::message::recorded_snapshot(json)
+            .and_then(|s| s.datagrams(BROADCAST_MAX));
         let parts = match parts {
             Ok(p) => p,
             Err(e) => return tracing::warn!("replay broadcast: a recorded snapshot: {e}"),
@@ -593,6 +588,7 @@ pub fn headless(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::snapshot::Snapshot;
 
     fn player(times_ms: &[u64]) -> Player {
         let frames = times_ms

@@ -52,7 +52,7 @@ fn connect(
     stream
         .set_read_timeout(Some(HELLO_WITHIN))
         .map_err(nobody)?;
-    write_line(
+    let hello = write_line(
         &mut stream,
         &Request {
             id: 0,
@@ -61,10 +61,17 @@ fn connect(
                 version: VERSION,
             },
         },
-    )
-    .map_err(nobody)?;
+    );
     let mut reader = BufReader::new(stream.try_clone().map_err(nobody)?);
-    match read_msg(&mut reader).map_err(nobody)? {
+    // A server past its limit says why and closes at once, maybe before the hello
+    // is written: what it said is read even then.
+    let first = read_msg(&mut reader);
+    if let Err(e) = hello {
+        if !matches!(first, Ok(Some(Msg::Bye { .. }))) {
+            return Err(nobody(e));
+        }
+    }
+    match first.map_err(nobody)? {
         Some(Msg::Welcome { source, .. }) => Ok((stream, reader, source)),
         Some(Msg::Bye { why }) => Err(ClientError::Refused(why)),
         Some(other) => Err(ClientError::Refused(format!(

@@ -28,7 +28,8 @@ use std::time::{Duration, Instant};
 
 /// A client that does not take a frame within this long is dropped.
 pub(crate) const WRITE_DEADLINE: Duration = Duration::from_secs(2);
-/// The longest request line read (a command is a few dozen bytes).
+/// The longest request line read (a command is a few dozen bytes); a longer one is
+/// told so and closed.
 const MAX_LINE: usize = 4096;
 /// The most clients at once; more are told so and closed.
 pub(crate) const MAX_CLIENTS: usize = 32;
@@ -240,7 +241,14 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
         line.clear();
         match std::io::Read::take(&mut reader, MAX_LINE as u64).read_line(&mut line) {
             Ok(0) => break "its connection closed".to_string(),
-            Ok(_) if !line.ends_with('\n') => break "it sent a line too long".into(),
+            Ok(_) if !line.ends_with('\n') => {
+                let _ = c.send(&Msg::Bye {
+                    why: format!(
+                        "a request line is at most {MAX_LINE} bytes, and this one is longer"
+                    ),
+                });
+                break format!("it sent a line longer than {MAX_LINE} bytes");
+            }
             Ok(_) => {}
             Err(e) => break format!("its connection failed: {e}"),
         }
