@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod device;
 pub(crate) mod dialog;
+pub(crate) mod fit;
 pub mod header;
 pub mod help;
 pub mod hint;
