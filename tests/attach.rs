@@ -288,6 +288,56 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
         .starts_with("console #"));
 }
 
+/// `adrive attach` runs the same console loop over the control socket, and obeys the
+/// same rule: below 80×22 only STOP and quit act, every other key is refused on the
+/// small screen and nothing reaches the vehicle (read back with `adrive ctl`); grown
+/// again, the keys act again.
+#[test]
+fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit() {
+    let svc = Service::start("attach-small", None);
+    let mut c = Attached::start(&svc.socket);
+    c.engage();
+    c.term.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("s0.7\r");
+    c.wait_for("the edit refused", |s| {
+        s.contains("edit refused: the window is 60×20")
+    });
+    let snap = svc.ctl(&["status", "--json"]);
+    let snap: serde_json::Value = serde_json::from_slice(&snap.stdout).unwrap();
+    let steer = snap["devices"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|d| d["name"] == "steer")
+        .unwrap();
+    assert_ne!(steer["commanded"], serde_json::json!(0.7), "{steer}");
+    assert_eq!(
+        snap["gate"]["engaged"], true,
+        "still engaged by this console"
+    );
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("STOP: disengaged"));
+    assert_eq!(svc.gate()["engaged"], false);
+    c.keys("E");
+    c.wait_for("engage refused", |s| s.contains("engage refused"));
+    c.keys("yx");
+    c.wait_for("the bench refused", |s| s.contains("bench refused"));
+    assert_eq!(svc.gate()["engaged"], false);
+    c.term.resize(100, 30);
+    c.wait_for("the screen again", |s| {
+        s.contains("STEER") && !s.contains("at least")
+    });
+    c.engage();
+    assert_eq!(svc.gate()["engaged"], true);
+    c.term.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("q");
+    assert_eq!(wait_exit(&mut c.child), Some(0));
+    // A commanding console that quits is its watchdog: the safe state, disengaged.
+    common::wait_for("the vehicle disengaged", || svc.gate()["engaged"] == false);
+}
+
 #[test]
 fn operator_commands_engage_release_stop_with_exit_statuses() {
     let svc = Service::start("attach-ctl", None);

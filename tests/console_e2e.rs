@@ -48,6 +48,7 @@ impl Console {
             .arg("--log-dir")
             .arg(&log_dir)
             .env("XDG_RUNTIME_DIR", &log_dir)
+            .env_remove("RUNTIME_DIRECTORY")
             .args(extra)
             .env("TERM", "xterm-256color")
             .env_remove("NO_COLOR");
@@ -154,6 +155,30 @@ impl Console {
     fn steer_position(screen: &str) -> Option<f64> {
         let at = screen.find("position ")? + "position ".len();
         screen[at..].split_whitespace().next()?.parse().ok()
+    }
+
+    /// The vehicle as `adrive ctl status --json` reports it over the control socket:
+    /// what the engine did, whatever the screen shows.
+    fn status(&self) -> serde_json::Value {
+        let out = Command::new(BIN)
+            .args(["ctl", "status", "--json", "--socket"])
+            .arg(self.log_dir.join("adrive/adrive.sock"))
+            .output()
+            .expect("adrive ctl runs");
+        assert!(out.status.success(), "{out:?}");
+        serde_json::from_slice(&out.stdout).expect("a snapshot")
+    }
+
+    /// Device `name`'s command as the engine has it (`null` before any).
+    fn commanded(&self, name: &str) -> serde_json::Value {
+        let snap = self.status();
+        let d = snap["devices"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["name"] == name)
+            .unwrap_or_else(|| panic!("no {name} in {snap}"));
+        d["commanded"].clone()
     }
 
     /// Engage, retrying while devices have not all reported yet.
@@ -442,6 +467,91 @@ fn a_resize_redraws_and_a_small_window_gets_a_message() {
     c.wait_for("the screen again", |s| {
         s.contains("STEER") && !s.contains("at least")
     });
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// The defect: in a window smaller than 80×22 the console drew only "needs 80×22",
+/// yet every key still acted — `E` `y` engaged and `s 0.7 Enter` moved the steering
+/// with nothing on the screen. Below the minimum size only STOP and quit act; every
+/// other key is refused in words on the small screen, and nothing reaches the vehicle
+/// (read back over the control socket). Grown again, the keys act again.
+#[test]
+fn a_window_below_the_minimum_size_drives_nothing_but_stop_and_quit() {
+    let mut c = Console::start("small", &[]);
+    c.engage();
+    c.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    // Engaged: a steering command would be taken. Refused, with the reason on screen.
+    c.keys("s0.7\r");
+    c.wait_for("the edit refused", |s| {
+        s.contains("edit refused: the window is 60×20")
+    });
+    assert_ne!(
+        c.commanded("steer"),
+        serde_json::json!(0.7),
+        "the steering moved"
+    );
+    // STOP acts, on the small screen too.
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("STOP: disengaged"));
+    let gate = c.status()["gate"].clone();
+    assert_eq!(gate["engaged"], false, "{gate}");
+    assert!(
+        gate["reason"]
+            .as_str()
+            .unwrap()
+            .contains("stop from console"),
+        "{gate}"
+    );
+    // `E` `y` engages nothing; `x` after them is the sentinel that both were read.
+    c.keys("E");
+    c.wait_for("engage refused", |s| s.contains("engage refused"));
+    c.keys("yx");
+    c.wait_for("the bench refused", |s| s.contains("bench refused"));
+    assert_eq!(c.status()["gate"]["engaged"], false);
+    // Grown again, the same keys act.
+    c.resize(COLS, ROWS);
+    c.wait_for("the screen again", |s| {
+        s.contains("STEER") && !s.contains("at least")
+    });
+    c.engage_now();
+    assert_eq!(c.status()["gate"]["engaged"], true);
+    // `q` quits from the small screen, the safe state first.
+    c.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let log = c.log();
+    assert!(log.contains("stopping: operator quit"), "{log}");
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
+/// A question asked at full size cannot be answered once the window shrinks below
+/// the minimum: the dialog is no longer on the screen. Grown again, it is, and `y`
+/// answers it.
+#[test]
+fn a_question_cannot_be_answered_once_the_window_hides_it() {
+    let mut c = Console::start("small-dialog", &[]);
+    c.wait_for("the main screen", |s| s.contains("│ MAIN │"));
+    // Every device has reported: nothing but the screen stands in the way of engaging.
+    common::wait_for("every device to report", || {
+        c.status()["gate"]["blockers"] == serde_json::json!([])
+    });
+    c.keys("E");
+    c.wait_for("the confirmation", |s| s.contains("Engage?"));
+    c.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("y");
+    c.wait_for("the answer refused", |s| {
+        s.contains("yes refused: the window is 60×20")
+    });
+    assert_eq!(c.status()["gate"]["engaged"], false, "answered unseen");
+    c.resize(COLS, ROWS);
+    c.wait_for("the question again", |s| s.contains("Engage?"));
+    c.keys("y");
+    c.wait_for("engaged", |s| s.contains("│ ENGAGED"));
+    assert_eq!(c.status()["gate"]["engaged"], true);
     c.keys("q");
     assert!(c.wait_exit().success());
 }

@@ -6,6 +6,7 @@
 use super::controls::Frame;
 use super::keymap::{Keymap, Mode};
 use super::layout::{self, Devices};
+use super::sight::Drawn;
 use super::theme::Theme;
 use super::trail::Trail;
 use crate::snapshot::DeviceView;
@@ -228,6 +229,8 @@ pub struct Model {
     pub find: Option<Find>,
     /// The last name looked for, which the next and previous match keys look for again.
     pub(crate) last_find: Option<String>,
+    /// What the last frame showed: what keys may act on ([`check`](super::sight::check)).
+    pub drawn: Drawn,
 }
 
 impl Model {
@@ -254,6 +257,7 @@ impl Model {
             screen: Rect::new(0, 0, layout::MIN_WIDTH, 24),
             find: None,
             last_find: None,
+            drawn: Drawn::default(),
             snap,
         }
     }

@@ -5,6 +5,7 @@
 use super::controls::{Controls, Thread};
 use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
 use super::model::{Ask, Edit, Field, Model, BRAKE_STEP, GAS_STEP, HOME_WAIT, STEER_STEP};
+use super::sight;
 use crate::config::Role;
 use crate::exit::Exit;
 use crate::snapshot::DeviceView;
@@ -76,9 +77,16 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     }
 }
 
-/// Apply one action.
+/// Apply one action — unless its target was not on the last frame drawn
+/// ([`sight::check`]): then it is refused, and the operator told.
 pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow {
     m.now = now;
+    if let Err(why) = sight::check(m, a) {
+        let text = sight::refusal(a, &why);
+        tracing::info!("console: {text}");
+        m.say(text, true);
+        return Flow::Continue;
+    }
     match a {
         Action::Interrupt => return Flow::Exit(Exit::Signal(libc::SIGINT)),
         Action::Quit => return Flow::Exit(Exit::Quit),

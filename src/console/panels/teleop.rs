@@ -1,12 +1,13 @@
 //! The teleop panel: set points, a steering gauge and the deadman, impossible to miss.
 
+use super::fit::Fitted;
 use crate::console::model::{Deadman, Teleop};
 use crate::console::theme::Theme;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Modifier;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Paragraph, Widget};
+use ratatui::widgets::Widget;
 use std::time::Instant;
 
 pub(crate) struct TeleopPanel<'a> {
@@ -70,9 +71,21 @@ impl TeleopPanel<'_> {
     }
 }
 
+impl TeleopPanel<'_> {
+    /// Draw the bar in `area`; whether both its lines were drawn whole (what the
+    /// teleop keys act on, and the deadman).
+    pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> bool {
+        let lines = self.lines();
+        let whole = lines.len() <= usize::from(area.height)
+            && lines.iter().all(|l| l.width() <= usize::from(area.width));
+        Fitted(lines).render(area, buf);
+        whole
+    }
+}
+
 impl Widget for &TeleopPanel<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        Paragraph::new(self.lines()).render(area, buf);
+        self.render_seen(area, buf);
     }
 }
 
@@ -85,5 +98,28 @@ mod tests {
         assert_eq!(gauge(0.0, 7), "───●───");
         assert_eq!(gauge(-1.0, 7), "●──┼───");
         assert_eq!(gauge(1.0, 7), "───┼──●");
+    }
+
+    /// The bar in too narrow a room is cut at a word with a mark, and is not said to
+    /// be drawn whole: the teleop keys are then refused.
+    #[test]
+    fn a_bar_without_room_is_cut_with_a_mark_and_not_whole() {
+        let t = Teleop::new(std::time::Duration::from_secs(1));
+        let p = TeleopPanel {
+            t: &t,
+            now: Instant::now(),
+            theme: Theme::default(),
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 30, 2));
+        assert!(!p.render_seen(buf.area, &mut buf));
+        let row: String = (0..30).map(|x| buf[(x, 0)].symbol()).collect();
+        assert_eq!(row, "TELEOP steer +0.00…           ");
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 2));
+        assert!(p.render_seen(buf.area, &mut buf));
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 1));
+        assert!(
+            !p.render_seen(buf.area, &mut buf),
+            "the deadman's line is cut off"
+        );
     }
 }

@@ -3,7 +3,7 @@
 use super::*;
 use crate::config::VehicleConfig;
 use crate::console::controls::{capture, change_settings, Frame, Sources};
-use crate::console::keymap::{key_to_action, Keymap};
+use crate::console::keymap::Keymap;
 use crate::console::theme::Theme;
 use crate::safety::{Refused, Reject};
 use crate::testkit;
@@ -148,6 +148,13 @@ impl Controls for Fake {
     }
 }
 
+/// Draw `m` at its screen size, keeping what the frame showed (as the console's loop).
+fn draw(m: &mut Model) -> ratatui::buffer::Buffer {
+    let mut buf = ratatui::buffer::Buffer::empty(m.screen);
+    m.drawn = crate::console::view::draw(m, m.screen, &mut buf);
+    buf
+}
+
 fn model(f: &Fake) -> Model {
     Model::new(
         Keymap::default_map(),
@@ -168,7 +175,9 @@ fn press(m: &mut Model, f: &Fake, keys: &[&str], now: Instant) -> Flow {
             KeyModifiers::NONE
         };
         let ev = KeyEvent::new(key.code, mods);
-        if let Some(a) = key_to_action(&m.keymap, m.mode, &ev) {
+        // As the console's loop: the key acts on what the frame before it showed.
+        draw(m);
+        if let Some(a) = crate::console::sight::key(m, &ev) {
             flow = update(m, a, f, now);
         }
     }
