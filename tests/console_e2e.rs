@@ -556,6 +556,65 @@ fn a_question_cannot_be_answered_once_the_window_hides_it() {
     assert!(c.wait_exit().success());
 }
 
+/// Every row of `screen` that reaches the right edge ends in a border or the mark of a
+/// cut (`…`, or the `)` that closes it): nothing is cut off silently.
+fn assert_cuts_marked(screen: &str) {
+    for (y, row) in screen.lines().enumerate() {
+        let chars: Vec<char> = row.trim_end().chars().collect();
+        if chars.len() < usize::from(COLS) {
+            continue;
+        }
+        let last = chars[usize::from(COLS) - 1];
+        assert!(
+            "…)│┐┘┤─".contains(last),
+            "row {y} is cut without a mark:\n{row}\n\n{screen}"
+        );
+    }
+}
+
+/// The defect: on the bench at 100×30 with simulator faults on, the panel's title and
+/// the fault strip were cut mid-word at the edge, and a keymap's warning was cut at
+/// 100 columns in the log pane. Cut at a word, marked with `…`.
+#[test]
+fn at_100x30_text_cut_to_fit_is_marked_on_the_main_screen_and_the_bench() {
+    let dir = common::tempdir("e2e-cut");
+    let keymap = dir.path().join("my.toml");
+    std::fs::write(
+        &keymap,
+        "[main]\nkeymap = [\n    { on = \"<Space>\", run = \"none\" },\n]\n",
+    )
+    .unwrap();
+    let mut c = Console::start("cut", &["--keymap", keymap.to_str().unwrap()]);
+    let s = c.wait_for("the keymap's warning", |s| {
+        s.contains("has no STOP key left") && s.contains("OBD")
+    });
+    let warning = s
+        .lines()
+        .find(|l| l.contains("has no STOP key left"))
+        .unwrap();
+    assert!(warning.ends_with('…'), "{warning}");
+    assert_cuts_marked(&s);
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("steer raw traffic"));
+    c.keys("l");
+    c.wait_for("slow", |s| s.contains("faults slow 150ms"));
+    c.keys("c");
+    c.wait_for("corrupt", |s| s.contains("faults corrupt, slow 150ms"));
+    c.keys("s");
+    let s = c.wait_for("the faults and the strip", |s| {
+        s.contains("faults silent, corrupt, slow 150ms") && s.contains("FAULT steer")
+    });
+    let title = s.lines().find(|l| l.starts_with("┌STEER")).unwrap();
+    assert!(title.contains(" FAULT sim…─"), "{title}");
+    assert_cuts_marked(&s);
+    c.keys("x");
+    c.wait_for("the faults cleared", |s| s.contains("faults none"));
+    c.keys("\x1b");
+    c.wait_for("the main screen", |s| s.contains("│ MAIN │"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
 /// Incident: after the window was resized, quitting left the console's top lines in
 /// the terminal's scrollback: tmux, leaving an alternate screen that has grown, shrinks
 /// it back to the old size first and pushes its top lines into the history, unless
