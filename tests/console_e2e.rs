@@ -834,19 +834,38 @@ fn a_network_sender_does_not_steer_the_consoles_vehicle_until_the_operator_relea
 }
 
 /// The walk's second incident, from teleop: in park with the brake on, the up key
-/// (`accel 0.10`) was refused and yet released the brake. A refused accel changes
-/// nothing: the brake stays commanded full.
+/// (`accel 0.10`) was refused and yet released the brake; then the bar showed
+/// `accel +0.10 gas` while the message line said it was refused. Teleop starts from
+/// what the vehicle was told (the brake full: up releases it first), a refused accel
+/// changes nothing, and the bar shows what was applied. The same from the main
+/// screen's accel: refused, the brake stays full.
 #[test]
-fn a_refused_teleop_accel_in_park_leaves_the_brake_applied() {
+fn a_refused_teleop_accel_in_park_leaves_the_bar_and_the_brake_as_applied() {
     let mut c = Console::start("park", &[]);
     c.engage();
     c.wait_for("the brake full", |s| s.contains("BRAKE 0…1 cmd 1.000"));
     c.keys("d");
-    c.wait_for("teleop", |s| s.contains("DEADMAN"));
+    c.wait_for("teleop from the brake applied", |s| {
+        s.contains("DEADMAN") && s.contains("accel -1.00 brake")
+    });
+    c.keys("w");
+    c.wait_for("the brake released", |s| {
+        s.contains("teleop: steer") && s.contains("accel +0.00 coast")
+    });
     c.keys("w");
     let s = c.wait_for("the refusal", |s| s.contains("refused: accel 0.10"));
+    assert!(s.contains("accel +0.00 coast"), "the bar shows gas:\n{s}");
+    assert!(!s.contains("+0.10 gas"), "the bar shows gas:\n{s}");
+    assert!(s.contains("GAS 0…1 cmd 0.000"), "gas was given:\n{s}");
+    // Leave teleop (the brake full again), then ask gas from the main screen.
+    c.keys("\x1b");
+    c.wait_for("the brake full again", |s| {
+        s.contains("left teleop") && s.contains("BRAKE 0…1 cmd 1.000")
+    });
+    c.keys("c\x150.1\r");
+    let s = c.wait_for("the refusal", |s| s.contains("accel 0.100 refused"));
     assert!(
-        s.contains("BRAKE 0…1 cmd 1.000"),
+        s.contains("BRAKE 0…1 cmd 1.000") && s.contains("accel -1.000"),
         "the brake was released:\n{s}"
     );
     c.keys("q");

@@ -329,8 +329,12 @@ impl Controls for Replay<'_> {
     fn engage(&self) -> Result<(), Refused> {
         Err(read_only())
     }
-    fn disengage(&self) {}
-    fn stop(&self) {}
+    fn disengage(&self) -> Result<(), Refused> {
+        Err(read_only())
+    }
+    fn stop(&self) -> Result<(), Refused> {
+        Err(read_only())
+    }
     fn take(&self) -> Result<(), Refused> {
         Err(read_only())
     }
@@ -350,8 +354,12 @@ impl Controls for Replay<'_> {
     fn set_command_timeout(&self, _: DeviceId, _: Duration) -> Result<(), String> {
         Err(READ_ONLY.into())
     }
-    fn set_enabled(&self, _: DeviceId, _: Thread, _: bool) {}
-    fn wake(&self, _: DeviceId) {}
+    fn set_enabled(&self, _: DeviceId, _: Thread, _: bool) -> Result<(), String> {
+        Err(READ_ONLY.into())
+    }
+    fn wake(&self, _: DeviceId) -> Result<(), String> {
+        Err(READ_ONLY.into())
+    }
     fn sim(&self, _: &str) -> Option<Result<String, String>> {
         Some(Err(READ_ONLY.into()))
     }

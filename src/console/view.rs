@@ -123,10 +123,13 @@ impl Model {
 
     fn render_teleop(&self, area: Rect, buf: &mut Buffer, seen: &mut Drawn) {
         if area.height > 0 {
+            let g = &self.snap.gate;
+            let me = self.snap.you.as_deref().unwrap_or("console");
             let p = TeleopPanel {
                 t: &self.teleop,
                 now: self.now,
                 theme: self.theme,
+                commands: g.engaged && g.commander.as_deref() == Some(me),
             };
             seen.teleop = p.render_seen(area, buf);
         }

@@ -298,11 +298,11 @@ impl Controls for Remote {
     fn engage(&self) -> Result<(), Refused> {
         self.ask(Op::Engage).map(drop)
     }
-    fn disengage(&self) {
-        let _ = self.ask(Op::Disengage);
+    fn disengage(&self) -> Result<(), Refused> {
+        self.ask(Op::Disengage).map(drop)
     }
-    fn stop(&self) {
-        let _ = self.ask(Op::Stop);
+    fn stop(&self) -> Result<(), Refused> {
+        self.ask(Op::Stop).map(drop)
     }
     fn take(&self) -> Result<(), Refused> {
         self.ask(Op::Take).map(drop)
@@ -333,15 +333,15 @@ impl Controls for Remote {
             us: d.as_micros() as u64,
         })
     }
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
-        let _ = self.unit(Op::Enabled {
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String> {
+        self.unit(Op::Enabled {
             device: id.0,
             thread,
             on,
-        });
+        })
     }
-    fn wake(&self, id: DeviceId) {
-        let _ = self.unit(Op::Wake { device: id.0 });
+    fn wake(&self, id: DeviceId) -> Result<(), String> {
+        self.unit(Op::Wake { device: id.0 })
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         match self.call(Op::Sim { line: line.into() }) {

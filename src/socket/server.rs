@@ -374,17 +374,11 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
             unit(live.set_command_timeout(DeviceId(device), Duration::from_micros(us)))
         }
         Op::Enabled { device, thread, on } => match s.gate.tune(source) {
-            Ok(()) => {
-                live.set_enabled(DeviceId(device), thread, on);
-                Answer::Ok
-            }
+            Ok(()) => unit(live.set_enabled(DeviceId(device), thread, on)),
             Err(r) => Answer::Refused(r),
         },
         Op::Wake { device } => match s.gate.tune(source) {
-            Ok(()) => {
-                live.wake(DeviceId(device));
-                Answer::Ok
-            }
+            Ok(()) => unit(live.wake(DeviceId(device))),
             Err(r) => Answer::Refused(r),
         },
         Op::Sim { line } => match live.sim(&line) {

@@ -14,6 +14,8 @@ pub(crate) struct TeleopPanel<'a> {
     pub t: &'a Teleop,
     pub now: Instant,
     pub theme: Theme,
+    /// This console commands the engaged vehicle: its keys arm the intake's deadman.
+    pub commands: bool,
 }
 
 /// A gauge of `v` in −1…1, `width` cells, centre marked.
@@ -48,9 +50,14 @@ impl TeleopPanel<'_> {
                 ),
                 th.label(),
             ),
-            Deadman::Armed { left } => Span::styled(
+            Deadman::Armed { left } if self.commands => Span::styled(
                 format!("DEADMAN ARMED {:.1}s left", left.as_secs_f64()),
                 th.good().add_modifier(Modifier::BOLD),
+            ),
+            // The intake arms the deadman of the console that commands only.
+            Deadman::Armed { .. } => Span::styled(
+                "DEADMAN not armed: this console does not command (E engages)",
+                th.warn(),
             ),
             Deadman::Tripped => Span::styled(
                 "DEADMAN TRIPPED: gas 0, brake full, disengaged (E engages)",
@@ -109,6 +116,7 @@ mod tests {
             t: &t,
             now: Instant::now(),
             theme: Theme::default(),
+            commands: true,
         };
         let mut buf = Buffer::empty(Rect::new(0, 0, 30, 2));
         assert!(!p.render_seen(buf.area, &mut buf));
@@ -120,6 +128,33 @@ mod tests {
         assert!(
             !p.render_seen(buf.area, &mut buf),
             "the deadman's line is cut off"
+        );
+    }
+
+    /// A teleop key arms the intake's deadman only for the console that commands: the
+    /// bar does not say ARMED for one that does not.
+    #[test]
+    fn the_deadman_is_armed_only_for_the_console_that_commands() {
+        let now = Instant::now();
+        let mut t = Teleop::new(std::time::Duration::from_secs(1));
+        t.last_key = Some(now);
+        let text = |commands| {
+            let p = TeleopPanel {
+                t: &t,
+                now,
+                theme: Theme::default(),
+                commands,
+            };
+            let l = &p.lines()[1];
+            l.spans
+                .iter()
+                .map(|s| s.content.to_string())
+                .collect::<String>()
+        };
+        assert_eq!(text(true), "DEADMAN ARMED 1.0s left");
+        assert_eq!(
+            text(false),
+            "DEADMAN not armed: this console does not command (E engages)"
         );
     }
 }
