@@ -338,6 +338,75 @@ fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit()
     common::wait_for("the vehicle disengaged", || svc.gate()["engaged"] == false);
 }
 
+/// The defect: a commanding `adrive attach` frozen (SIGSTOP, as Ctrl-Z or a frozen
+/// session does) and resumed: adrive dropped it after about 4 s saying it "went away
+/// (its connection closed)", and the console said "adrive went away" though adrive
+/// still ran. Both ends say what happened: adrive, that the console stopped reading,
+/// for how long, and that it dropped it (the vehicle stopped first: its watchdog); the
+/// console, once it runs again, that adrive dropped it and why.
+#[test]
+fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
+    let svc = Service::start("attach-frozen", None);
+    let mut c = Attached::start(&svc.socket);
+    c.engage();
+    assert!(common::signal(&c.child, libc::SIGSTOP));
+    let line = svc.until("stopped reading for");
+    assert!(
+        line.contains("console #") && line.contains(": dropped"),
+        "{line}"
+    );
+    let gate = svc.gate();
+    assert_eq!(gate["engaged"], false, "{gate}");
+    let reason = gate["reason"].as_str().unwrap();
+    assert!(
+        reason.contains("stopped reading for") && reason.contains(": dropped"),
+        "{reason}"
+    );
+    assert!(!reason.contains("went away"), "{reason}");
+    // Resumed, the console reads what was sent, then adrive's word.
+    assert!(common::signal(&c.child, libc::SIGCONT));
+    assert_eq!(wait_exit(&mut c.child), Some(1));
+    let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
+    assert!(
+        text.contains("adrive dropped this console: it stopped reading for"),
+        "{text}"
+    );
+    assert!(!text.contains("went away"), "{text}");
+    assert!(svc.ctl(&["status"]).status.success(), "adrive still runs");
+}
+
+/// An attached console says how its adrive ended: stopping (adrive's own word), or
+/// gone without a word (killed: nothing answers at its socket any more).
+#[test]
+fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
+    let mut svc = Service::start("attach-ends", None);
+    let mut c = Attached::start(&svc.socket);
+    common::signal(&svc.child, libc::SIGTERM);
+    assert_eq!(wait_exit(&mut c.child), Some(1));
+    let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
+    assert!(text.contains("adrive: adrive is stopping"), "{text}");
+    let _ = wait_exit(&mut svc.child);
+
+    let mut svc = Service::start("attach-killed", None);
+    let mut c = Attached::start(&svc.socket);
+    common::signal(&svc.child, libc::SIGKILL);
+    let _ = wait_exit(&mut svc.child);
+    assert_eq!(wait_exit(&mut c.child), Some(1));
+    let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
+    assert!(
+        text.contains("adrive went away (the connection closed); nothing answers at its socket"),
+        "{text}"
+    );
+    // Its simulator's directory of port links is left behind (nothing runs after
+    // SIGKILL): the test's to remove.
+    let killed = format!("adrive-sim-{}-", svc.child.id());
+    for left in common::sim_dirs(&std::env::temp_dir()) {
+        if left.starts_with(&killed) {
+            std::fs::remove_dir_all(std::env::temp_dir().join(left)).unwrap();
+        }
+    }
+}
+
 #[test]
 fn operator_commands_engage_release_stop_with_exit_statuses() {
     let svc = Service::start("attach-ctl", None);
