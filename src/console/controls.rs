@@ -123,13 +123,9 @@ impl Frame {
             let v = d.commanded.as_ref()?.as_f64()?;
             (top > 0.0).then(|| v / top)
         };
-        if self
-            .snap
-            .bound(crate::config::Role::Throttle.as_str())
-            .is_none()
-        {
-            return None;
-        }
+        // Both bound, or the vehicle has no accel.
+        self.snap.bound(crate::config::Role::Throttle.as_str())?;
+        self.snap.bound(crate::config::Role::Brake.as_str())?;
         let a = match (
             part(crate::config::Role::Throttle),
             part(crate::config::Role::Brake),

@@ -10,9 +10,10 @@
 //! [`update`](super::update::update) applies an action, an action whose target the
 //! last frame did not show is refused, and [`refusal`] says so in words the operator
 //! reads where they look — on the small screen too. A STOP is never refused, nor is
-//! quitting. Leaving what is open (an edit, a question, the name prompt, help, a
-//! view) is allowed whenever the console is drawn: it changes nothing the operator
-//! cannot see. The embedded console and `adrive attach` run the same loop
+//! quitting. A dialog or the name prompt not drawn takes nothing else, not even `Esc`
+//! (and the prompt takes no character that would push what is typed off its line);
+//! leaving anything else that is open (an edit, help, a view) is allowed whenever the
+//! console is drawn: it changes nothing the operator cannot see. The embedded console and `adrive attach` run the same loop
 //! ([`drive`](super::drive)), so both obey it.
 //!
 //! Below the minimum size the small screen names the main screen's STOP and quit keys,
@@ -26,6 +27,7 @@ use crate::config::Role;
 use crate::value::DeviceId;
 use crossterm::event::KeyEvent;
 use std::fmt;
+use unicode_width::{UnicodeWidthChar, UnicodeWidthStr};
 
 /// What the last frame showed the operator.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -148,22 +150,29 @@ pub fn check(m: &Model, a: Action) -> Result<(), Unseen> {
     match a {
         Action::Stop | Action::Quit | Action::Interrupt => return Ok(()),
         _ if !d.console => return Err(Unseen::Small { size: d.size }),
-        // Leaving what is open changes nothing the operator cannot see.
-        Action::Back | Action::Cancel => return Ok(()),
         _ => {}
     }
     match (m.mode, a) {
-        (Mode::Confirm, Action::Confirm) => {
-            seen(m.ask.is_some() && d.dialog == m.ask, Unseen::Dialog)
+        // A question or the name prompt not drawn takes no answer at all, not even no.
+        (Mode::Confirm, _) => seen(m.ask.is_some() && d.dialog == m.ask, Unseen::Dialog),
+        // A character that would push what is typed off the prompt's line is not
+        // taken either: the prompt stays on the screen.
+        (Mode::Find, Action::Input(c)) => {
+            let typed = m.find.as_ref().map_or(0, |f| f.query.width());
+            seen(
+                d.prompt && typed + 2 + c.width().unwrap_or(1) <= usize::from(d.size.0),
+                Unseen::Prompt,
+            )
         }
-        // Typing and applying need the field with what is typed (the prompt with the
-        // name typed); deleting only shortens it.
+        (Mode::Find, _) => seen(d.prompt, Unseen::Prompt),
+        // Leaving what is open changes nothing the operator cannot see.
+        (_, Action::Back | Action::Cancel) => Ok(()),
+        // Typing and applying need the field with what is typed; deleting only
+        // shortens it.
         (Mode::Edit, Action::Input(_) | Action::Commit) => match &m.edit {
             Some(e) => field(e.field),
             None => Ok(()),
         },
-        (Mode::Find, Action::Backspace | Action::Clear) => Ok(()),
-        (Mode::Find, _) => seen(d.prompt, Unseen::Prompt),
         (Mode::Help, _) => seen(d.help, Unseen::Help),
         (
             Mode::Teleop,
@@ -317,11 +326,12 @@ mod tests {
         // The question changed since the frame: the one drawn is not the one asked.
         m.ask = Some(Ask::Interlocks(false));
         assert_eq!(check(&m, Action::Confirm), Err(Unseen::Dialog));
-        // A dialog the frame did not show whole.
+        // A dialog the frame did not show whole takes no answer, not even no.
         m.ask = Some(Ask::Engage);
         m.drawn.dialog = None;
         assert_eq!(check(&m, Action::Confirm), Err(Unseen::Dialog));
-        assert_eq!(check(&m, Action::Cancel), Ok(()), "no is always an answer");
+        assert_eq!(check(&m, Action::Cancel), Err(Unseen::Dialog));
+        assert_eq!(check(&m, Action::Stop), Ok(()));
     }
 
     #[test]
@@ -473,22 +483,42 @@ keymap = [
         }
     }
 
-    /// A name typed past the prompt's line takes no more characters; deleting does.
+    /// The name prompt takes keys only while drawn, and no character that would
+    /// push what is typed off its line.
     #[test]
-    fn the_name_prompt_takes_characters_only_while_drawn() {
+    fn the_name_prompt_takes_keys_only_while_drawn() {
         let mut m = model();
         m.back_to = Mode::Main;
         m.mode = Mode::Find;
-        m.find = Some(crate::console::model::Find {
-            query: "x".repeat(90),
-            from_cursor: 0,
-            from_bench: DeviceId(0),
-        });
-        draw(&mut m, 80, 24);
-        assert_eq!(check(&m, Action::Input('y')), Err(Unseen::Prompt));
-        assert_eq!(check(&m, Action::Backspace), Ok(()));
-        m.find.as_mut().unwrap().query = "st".into();
+        let typed = |m: &mut Model, q: String| {
+            m.find = Some(crate::console::model::Find {
+                query: q,
+                from_cursor: 0,
+                from_bench: DeviceId(0),
+            })
+        };
+        typed(&mut m, "st".into());
         draw(&mut m, 80, 24);
         assert_eq!(check(&m, Action::Input('e')), Ok(()));
+        // `/` and the caret take two columns: 78 typed fill the line.
+        typed(&mut m, "x".repeat(78));
+        draw(&mut m, 80, 24);
+        assert!(m.drawn.prompt);
+        assert_eq!(check(&m, Action::Input('y')), Err(Unseen::Prompt));
+        assert_eq!(check(&m, Action::Backspace), Ok(()));
+        typed(&mut m, "x".repeat(77));
+        draw(&mut m, 80, 24);
+        assert_eq!(check(&m, Action::Input('y')), Ok(()));
+        // Not drawn: nothing but STOP and quit, not even Esc.
+        m.drawn.prompt = false;
+        for a in [
+            Action::Input('y'),
+            Action::Backspace,
+            Action::Cancel,
+            Action::Commit,
+        ] {
+            assert_eq!(check(&m, a), Err(Unseen::Prompt), "{a}");
+        }
+        assert_eq!(check(&m, Action::Stop), Ok(()));
     }
 }
