@@ -406,6 +406,60 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
     }
 }
 
+/// `adrive attach` without a terminal (`ssh host adrive attach`, no `-t`) gave the
+/// embedded console's advice (`ssh -t HOST adrive`, `--headless`) and exited before
+/// looking for an adrive. It says first when nothing is there to attach to (status 1,
+/// as `adrive ctl`); with an adrive there, what applies to attach: `ssh -t HOST adrive
+/// attach`, or `adrive ctl status` for a one-shot look (status 2).
+#[allow(unsafe_code)]
+#[test]
+fn attach_without_a_terminal_says_whether_there_is_an_adrive_and_what_applies() {
+    use std::os::unix::process::CommandExt;
+    let run = |socket: &std::path::Path| {
+        let mut cmd = Process::new(BIN);
+        cmd.arg("attach")
+            .arg("--socket")
+            .arg(socket)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        // No controlling terminal, as under `ssh host adrive attach`.
+        // SAFETY: setsid is async-signal-safe.
+        unsafe {
+            cmd.pre_exec(|| {
+                libc::setsid();
+                Ok(())
+            });
+        }
+        let out = cmd.output().unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let dir = tempdir("cli-attach-notty");
+    let nobody = dir.path().join("nobody.sock");
+    let (status, err) = run(&nobody);
+    assert_eq!(status, Some(1), "{err}");
+    assert!(
+        err.contains("no adrive at") && err.contains("nobody.sock"),
+        "{err}"
+    );
+    assert!(!err.contains("needs a terminal"), "{err}");
+    let adrive =
+        common::headless::Adrive::start("cli-attach-notty", adrive::config::ALICE_TOML, "");
+    let socket = adrive.dir.path().join("adrive/adrive.sock");
+    let (status, err) = run(&socket);
+    assert_eq!(status, Some(2), "{err}");
+    assert!(
+        err.contains("needs a terminal")
+            && err.contains("`ssh -t HOST adrive attach`")
+            && err.contains("`adrive ctl status`"),
+        "{err}"
+    );
+    assert!(!err.contains("--headless"), "{err}");
+}
+
 /// The incident: `adrive completions bash | head -1` panicked inside clap_complete
 /// (status 101); `adrive manpage | head` and `adrive watch | head -2` printed "Broken
 /// pipe (os error 32)" and exited 2. A standard output closed by its reader ends them
