@@ -7,7 +7,9 @@
 //! so that a small panel loses it before any counter. Editable fields show the cursor
 //! and an edit in progress in place. In a window too short for it (many devices on a
 //! small screen), the same panel is packed side by side into the lines there are
-//! ([`DevicePanel::packed`]).
+//! ([`DevicePanel::packed_seen`]). A line too long for the panel is cut at a word with
+//! `…`, and drawing says which of the editable fields were drawn whole (what keys may
+//! then act on).
 
 use super::{fit, fmt_age, fmt_us, pack};
 use crate::config::device::POSITION;
