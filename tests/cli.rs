@@ -347,15 +347,28 @@ fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
     assert!(!text.contains('\x1b'), "colour escapes in:\n{text:?}");
 }
 
+/// No controlling terminal for `cmd`, as under `ssh host adrive` (no `-t`): the program
+/// must not find one through /dev/tty either (nor take over the terminal running the
+/// tests).
+#[allow(unsafe_code)]
+fn without_terminal(cmd: &mut Process) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: setsid is async-signal-safe.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::setsid();
+            Ok(())
+        });
+    }
+}
+
 /// The incident: `adrive --sim < /dev/null`, or `ssh host adrive` without `-t`, started
 /// the engine, then printed "console: No such device or address" and a stray
 /// `ESC[?1049l` and exited 101, as after a panic. Without a terminal on both standard
 /// input and output the console is refused before anything starts: no log, no engine,
 /// a message pointing to `--headless` and `ssh -t`, status 2, no escape codes.
-#[allow(unsafe_code)]
 #[test]
 fn the_console_without_a_terminal_is_refused_before_anything_starts() {
-    use std::os::unix::process::CommandExt;
     let (_master, slave) = common::pty::openpty(80, 24);
     // Standard input closed; then a terminal on standard input but a pipe on standard
     // output (`adrive | less`).
@@ -370,15 +383,7 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
             .stdin(stdin)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        // No controlling terminal, as under `ssh host adrive`: the program must not
-        // find one through /dev/tty either (nor take over the terminal running the tests).
-        // SAFETY: setsid is async-signal-safe.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::setsid();
-                Ok(())
-            });
-        }
+        without_terminal(&mut cmd);
         let child = common::Reaped(cmd.spawn().unwrap());
         let out = {
             let mut c = child;
@@ -411,10 +416,8 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
 /// looking for an adrive. It says first when nothing is there to attach to (status 1,
 /// as `adrive ctl`); with an adrive there, what applies to attach: `ssh -t HOST adrive
 /// attach`, or `adrive ctl status` for a one-shot look (status 2).
-#[allow(unsafe_code)]
 #[test]
 fn attach_without_a_terminal_says_whether_there_is_an_adrive_and_what_applies() {
-    use std::os::unix::process::CommandExt;
     let run = |socket: &std::path::Path| {
         let mut cmd = Process::new(BIN);
         cmd.arg("attach")
@@ -423,14 +426,7 @@ fn attach_without_a_terminal_says_whether_there_is_an_adrive_and_what_applies() 
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        // No controlling terminal, as under `ssh host adrive attach`.
-        // SAFETY: setsid is async-signal-safe.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::setsid();
-                Ok(())
-            });
-        }
+        without_terminal(&mut cmd);
         let out = cmd.output().unwrap();
         (
             out.status.code(),
