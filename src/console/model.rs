@@ -145,7 +145,8 @@ pub struct Message {
     pub at: Instant,
 }
 
-/// Teleop: set points driven by keys, with a deadman.
+/// Teleop: set points driven by keys, with a deadman. `steer` and `accel` are what
+/// the intake accepted (the bar shows them); a key asks for the next step from them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Teleop {
     pub steer: f64,
@@ -211,7 +212,8 @@ pub struct Model {
     /// Its last seconds, for the bench chart (fed by each tick on the bench).
     pub trail: Trail,
     pub(crate) help_scroll: u16,
-    /// The last accel the console sent.
+    /// The accel applied while engaged: the throttle and brake the intake accepted, as
+    /// one value (the console's last accepted accel until the next snapshot shows it).
     pub accel: Option<f64>,
     /// The time of the last tick or key (the view's "now").
     pub now: Instant,
