@@ -380,7 +380,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         None
     } else {
         let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
-        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
+        console::terminal::check_standard_streams(console::terminal::RUN_WITHOUT)
+            .map_err(anyhow::Error::msg)?;
         Some(keymap)
     };
     // A port another adrive (or program) holds stops here too: each port is opened
@@ -725,8 +726,17 @@ pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
 /// `adrive attach`: the console over a running adrive's control socket.
 pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
     let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
-    console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
     let path = args.socket.unwrap_or_else(socket::path::default_path);
+    if let Err(no_terminal) =
+        console::terminal::check_standard_streams(console::terminal::ATTACH_WITHOUT)
+    {
+        // Nothing to attach to is the first thing to know; a terminal, the next.
+        if let Err(e) = socket::client::probe(&path) {
+            tell(io::stderr(), format_args!("adrive: {e}\n"));
+            return Ok(1);
+        }
+        return Err(anyhow::Error::msg(no_terminal));
+    }
     let exits = exit::install()?;
     let remote = match socket::client::Remote::attach(&path, |why| exit::request(Exit::Lost(why))) {
         Ok(r) => r,
@@ -1039,7 +1049,8 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
         None
     } else {
         let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
-        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
+        console::terminal::check_standard_streams(console::terminal::REPLAY_WITHOUT)
+            .map_err(anyhow::Error::msg)?;
         Some(keymap)
     };
     let broadcast = match args.broadcast.is_empty() {

@@ -347,15 +347,28 @@ fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
     assert!(!text.contains('\x1b'), "colour escapes in:\n{text:?}");
 }
 
+/// No controlling terminal for `cmd`, as under `ssh host adrive` (no `-t`): the program
+/// must not find one through /dev/tty either (nor take over the terminal running the
+/// tests).
+#[allow(unsafe_code)]
+fn without_terminal(cmd: &mut Process) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: setsid is async-signal-safe.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::setsid();
+            Ok(())
+        });
+    }
+}
+
 /// The incident: `adrive --sim < /dev/null`, or `ssh host adrive` without `-t`, started
 /// the engine, then printed "console: No such device or address" and a stray
 /// `ESC[?1049l` and exited 101, as after a panic. Without a terminal on both standard
 /// input and output the console is refused before anything starts: no log, no engine,
 /// a message pointing to `--headless` and `ssh -t`, status 2, no escape codes.
-#[allow(unsafe_code)]
 #[test]
 fn the_console_without_a_terminal_is_refused_before_anything_starts() {
-    use std::os::unix::process::CommandExt;
     let (_master, slave) = common::pty::openpty(80, 24);
     // Standard input closed; then a terminal on standard input but a pipe on standard
     // output (`adrive | less`).
@@ -370,15 +383,7 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
             .stdin(stdin)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        // No controlling terminal, as under `ssh host adrive`: the program must not
-        // find one through /dev/tty either (nor take over the terminal running the tests).
-        // SAFETY: setsid is async-signal-safe.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::setsid();
-                Ok(())
-            });
-        }
+        without_terminal(&mut cmd);
         let child = common::Reaped(cmd.spawn().unwrap());
         let out = {
             let mut c = child;
@@ -404,6 +409,51 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
         // Nothing started: not even the log.
         assert!(!log.exists(), "case {i}: a log was written");
     }
+}
+
+/// `adrive attach` without a terminal (`ssh host adrive attach`, no `-t`) gave the
+/// embedded console's advice (`ssh -t HOST adrive`, `--headless`) and exited before
+/// looking for an adrive. It says first when nothing is there to attach to (status 1,
+/// as `adrive ctl`); with an adrive there, what applies to attach: `ssh -t HOST adrive
+/// attach`, or `adrive ctl status` for a one-shot look (status 2).
+#[test]
+fn attach_without_a_terminal_says_whether_there_is_an_adrive_and_what_applies() {
+    let run = |socket: &std::path::Path| {
+        let mut cmd = Process::new(BIN);
+        cmd.arg("attach")
+            .arg("--socket")
+            .arg(socket)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        without_terminal(&mut cmd);
+        let out = cmd.output().unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let dir = tempdir("cli-attach-notty");
+    let nobody = dir.path().join("nobody.sock");
+    let (status, err) = run(&nobody);
+    assert_eq!(status, Some(1), "{err}");
+    assert!(
+        err.contains("no adrive at") && err.contains("nobody.sock"),
+        "{err}"
+    );
+    assert!(!err.contains("needs a terminal"), "{err}");
+    let adrive =
+        common::headless::Adrive::start("cli-attach-notty", adrive::config::ALICE_TOML, "");
+    let socket = adrive.dir.path().join("adrive/adrive.sock");
+    let (status, err) = run(&socket);
+    assert_eq!(status, Some(2), "{err}");
+    assert!(
+        err.contains("needs a terminal")
+            && err.contains("`ssh -t HOST adrive attach`")
+            && err.contains("`adrive ctl status`"),
+        "{err}"
+    );
+    assert!(!err.contains("--headless"), "{err}");
 }
 
 /// The incident: `adrive completions bash | head -1` panicked inside clap_complete
