@@ -15,13 +15,14 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 7] = [
+const TABLES: [&str; 8] = [
     "vehicle",
     "bus",
     "network",
     "supervisor",
     "record",
     "ros2",
+    "teleop",
     "device",
 ];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
@@ -29,7 +30,7 @@ const DEVICE_TABLES: [&str; 7] = [
     "sim", "modbus", "line", "can", "response", "aliases", "readings",
 ];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [teleop], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -253,7 +254,7 @@ impl<'a> Document<'a> {
 pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
-        [section @ ("network" | "supervisor" | "record" | "ros2"), ..] => format!("[{section}] "),
+        [section @ ("network" | "supervisor" | "record" | "ros2" | "teleop"), ..] => format!("[{section}] "),
         _ => String::new(),
     }
 }
@@ -267,6 +268,7 @@ fn limit_of(path: &str) -> Option<&'static dyn limits::Row> {
         ["network", key] => (Section::Network, key),
         ["supervisor", key] => (Section::Supervisor, key),
         ["ros2", key] => (Section::Ros2, key),
+        ["teleop", key] => (Section::Teleop, key),
         ["device", _, key] => (Section::Device, key),
         ["device", _, "sim", key] => (Section::DeviceSim, key),
         ["device", _, "modbus", key] => (Section::DeviceModbus, key),
@@ -308,6 +310,7 @@ fn suggest(written: &str) -> Option<String> {
         "[supervisor]",
         "[record]",
         "[ros2]",
+        "[teleop]",
         "[[device]]",
         "[[bus]]",
         "[bus.sim]",

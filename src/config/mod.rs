@@ -10,6 +10,7 @@
 //! - [`response`]: how a setpoint actuator answers its command (the estimator's model);
 //! - [`limits`]: the sane range of every safety-relevant value, in one table;
 //! - [`record`]: `[record]`, recording every run into rolling files;
+//! - [`teleop`]: `[teleop]`, what hold-to-drive teleop commands while a key is held;
 //! - [`document`]: where each key sits in the file, so that a check made after typing
 //!   still names its line.
 
@@ -24,6 +25,7 @@ pub mod record;
 pub mod response;
 pub mod roles;
 pub mod ros2;
+pub mod teleop;
 
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
@@ -33,6 +35,7 @@ pub use record::RecordConfig;
 pub use response::{Motion, Polling, Response};
 pub use roles::{Bindings, Role};
 pub use ros2::Ros2Config;
+pub use teleop::TeleopConfig;
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -240,6 +243,8 @@ pub struct VehicleConfig {
     pub record: Option<RecordConfig>,
     /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
     pub ros2: Ros2Config,
+    /// `[teleop]`: what hold-to-drive teleop commands while a key is held.
+    pub teleop: TeleopConfig,
     /// Where it was loaded from (for messages).
     pub source: String,
     /// The line of every key in that file, for errors found after loading.
@@ -426,6 +431,8 @@ struct Raw {
     #[serde(default)]
     record: Option<RecordConfig>,
     ros2: Option<Ros2Config>,
+    #[serde(default)]
+    teleop: TeleopConfig,
 }
 
 /// Load a vehicle from a file.
@@ -507,6 +514,9 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     let ros2 = raw.ros2.unwrap_or_default();
     ros2.check(&devices)
         .map_err(|v| refuse(path, &lines, "ros2", v))?;
+    raw.teleop
+        .check()
+        .map_err(|v| refuse(path, &lines, "teleop", v))?;
     Ok(VehicleConfig {
         vehicle: VehicleSettings {
             name: raw.vehicle.name,
@@ -519,6 +529,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         network,
         record: raw.record,
         ros2,
+        teleop: raw.teleop,
         source: path.to_string(),
         lines,
     })
