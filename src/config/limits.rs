@@ -182,8 +182,7 @@ const fn s(n: u64) -> Duration {
 }
 
 use Section::{
-    CommandLine, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2, Supervisor,
-    Teleop,
+    CommandLine, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2, Supervisor, Teleop,
 };
 
 pub const BAUD: Limit<u64> = Limit {

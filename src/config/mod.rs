@@ -35,12 +35,12 @@ pub use record::RecordConfig;
 pub use response::{Motion, Polling, Response};
 pub use roles::{Bindings, Role};
 pub use ros2::Ros2Config;
-pub use teleop::TeleopConfig;
 use serde::{Deserialize, Deserializer};
 use std::collections::BTreeMap;
 use std::fmt;
 use std::path::Path;
 use std::time::Duration;
+pub use teleop::TeleopConfig;
 use toml::Spanned;
 
 /// The built-in vehicle, as shipped in `vehicles/alice.toml`.

@@ -15,7 +15,7 @@
 
 use crate::engine::Gate;
 use crate::net::NetStatus;
-use crate::safety::{Ask, Done, Refused};
+use crate::safety::{Ask, Done, Held, Refused};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::Source;
@@ -256,6 +256,12 @@ pub trait Controls {
     /// A command through the one intake, as the console's.
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused>;
     fn submit_accel(&self, accel: f64) -> Result<(), Refused>;
+    /// The accel while a key is held ([`Ask::Held`]): gas lasts `lease` from now
+    /// unless renewed, then the engine commands `release` (never gas) on its own.
+    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused>;
+    /// The key is still held: the running lease lasts `lease` from now. `Ok(false)`
+    /// when it had run out (the engine ended the gas; only a new press gives it again).
+    fn renew(&self, lease: Duration) -> Result<bool, Refused>;
     fn engage(&self) -> Result<(), Refused>;
     /// Disengage: never refused by the intake; `Err` when it could not be asked (an
     /// attached console whose adrive did not answer).
@@ -419,6 +425,17 @@ impl Controls for Live<'_> {
     }
     fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
         self.ask(Ask::Accel(accel)).map(drop)
+    }
+    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
+        self.ask(Ask::Held(Held {
+            accel,
+            lease,
+            release,
+        }))
+        .map(drop)
+    }
+    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
+        self.ask(Ask::Renew(lease)).map(|d| d == Done::Commanded)
     }
     fn engage(&self) -> Result<(), Refused> {
         self.ask(Ask::Engage).map(drop)

@@ -325,6 +325,12 @@ impl Controls for Replay<'_> {
     fn submit_accel(&self, _: f64) -> Result<(), Refused> {
         Err(read_only())
     }
+    fn submit_held(&self, _: f64, _: Duration, _: f64) -> Result<(), Refused> {
+        Err(read_only())
+    }
+    fn renew(&self, _: Duration) -> Result<bool, Refused> {
+        Err(read_only())
+    }
     fn engage(&self) -> Result<(), Refused> {
         Err(read_only())
     }

@@ -209,6 +209,8 @@ pub struct Owner {
     pub(crate) frozen: bool,
     /// The console's deadman while it teleoperates (its watchdog); `None`: not watched.
     pub(crate) deadman: Option<Duration>,
+    /// Gas held on a lease by the commander ([`super::lease`]); `None`: none.
+    pub(crate) lease: Option<super::lease::Lease>,
     /// Released by this source; the handover ends at this instant.
     pub(crate) handover: Option<(Source, Instant)>,
     /// The watchdog tripped and the vehicle was not engaged since.
@@ -228,6 +230,7 @@ impl Owner {
             last: now,
             frozen: false,
             deadman: None,
+            lease: None,
             handover: None,
             tripped: false,
             last_trip: None,
@@ -244,11 +247,13 @@ impl Owner {
         self.handover = None;
         // A deadman is the teleoperating console's own, armed by its next teleop key.
         self.deadman = None;
+        self.lease = None;
     }
 
     pub(crate) fn nobody(&mut self) {
         self.commander = None;
         self.handover = None;
+        self.lease = None;
     }
 }
 

@@ -93,6 +93,17 @@ impl Controls for Fake {
         self.log(format!("accel {accel}"));
         self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
     }
+    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
+        self.log(format!(
+            "held {accel} for {}ms then {release}",
+            lease.as_millis()
+        ));
+        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
+    }
+    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
+        self.log(format!("renew {}ms", lease.as_millis()));
+        self.refuse.map_or(Ok(true), |r| Err(Refused::Rule(r)))
+    }
     fn engage(&self) -> Result<(), Refused> {
         self.log("engage".into());
         self.engage.clone()
