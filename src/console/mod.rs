@@ -20,6 +20,7 @@
 
 pub mod controls;
 pub mod find;
+pub mod hold;
 pub mod keymap;
 pub mod layout;
 pub mod model;
