@@ -81,6 +81,8 @@ pub struct Frame {
     /// An attached console: the source it is to the intake (`console #2`), to tell
     /// whether it commands or watches. `None` in the embedded console.
     pub(crate) you: Option<String>,
+    /// The vehicle file's `[teleop]`: what teleop starts from.
+    pub teleop: crate::config::TeleopConfig,
 }
 
 impl std::ops::Deref for Frame {
@@ -386,6 +388,7 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
             })
             .collect(),
         you: None,
+        teleop: v.config().teleop,
         snap,
     }
 }

@@ -201,10 +201,7 @@ pub fn drive(
                 update::tick(&mut model, live, start);
                 Flow::Continue
             }
-            Msg::Event(Event::Key(k)) => match sight::key(&model, &k) {
-                Some(a) => update::update(&mut model, a, live, start),
-                None => Flow::Continue,
-            },
+            Msg::Event(Event::Key(k)) => update::key(&mut model, &k, start, live, start),
             // A resize: the next draw adapts to the new size.
             Msg::Event(_) => Flow::Continue,
             Msg::Gone(why) => Flow::Exit(Exit::HangUp(format!("input: {why}"))),

@@ -284,6 +284,7 @@ impl Player {
             sim_vehicle: None,
             sim_faults: vec![None; n],
             you: None,
+            teleop: Default::default(),
         }
     }
 

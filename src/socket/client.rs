@@ -324,6 +324,7 @@ impl Controls for Remote {
             sim_vehicle: f.sim_vehicle,
             sim_faults: f.sim_faults,
             you: Some(self.source.clone()),
+            teleop: f.teleop,
             snap: f.snap,
         }
     }

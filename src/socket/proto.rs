@@ -164,6 +164,9 @@ pub(crate) struct WireFrame {
     pub can_inject: bool,
     pub sim_vehicle: Option<String>,
     pub sim_faults: Vec<Option<SimFaults>>,
+    /// The vehicle file's `[teleop]`.
+    #[serde(default)]
+    pub teleop: crate::config::TeleopConfig,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

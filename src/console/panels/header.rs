@@ -4,7 +4,9 @@
 //! at a word, with "…" and every parenthesis it opened closed, never cut in the
 //! middle (at 100 columns it once read `DISENGAGED (gas is faulty (no reply within
 //! 100ms)`); a vehicle name too long gives way before the gate does. An attached
-//! console (`adrive attach`) also says whether it commands or watches.
+//! console (`adrive attach`) also says whether it commands or watches, and how its own
+//! terminal's keys drive teleop (`keys hold`, `keys repeat ≤100ms`, `keys step`): the
+//! operator's terminal, not the vehicle's.
 
 use super::fit::shorten;
 use crate::console::keymap::Mode;
@@ -49,6 +51,13 @@ impl Header<'_> {
             } else {
                 rest.push(Span::styled(" WATCHING ", bar));
             }
+            rest.push(Span::styled("│", bar));
+            let keys = crate::console::panels::teleop::drive_label(
+                self.m.drive(),
+                &self.m.repeat.figures(),
+                false,
+            );
+            rest.push(Span::styled(format!(" keys {keys} "), bar));
             rest.push(Span::styled("│", bar));
         }
         let faults = s.devices.iter().filter(|d| s.red(d)).count();
@@ -238,5 +247,22 @@ mod tests {
             l.ends_with(" DISENGAGED (driver override on steer, cleared) "),
             "{l}"
         );
+    }
+
+    /// An attached console's header says how its own terminal's keys drive teleop:
+    /// the operator's terminal, whatever the vehicle's gives.
+    #[test]
+    fn an_attached_console_names_how_its_own_keys_drive() {
+        let mut m = model(true, "", "Alice");
+        assert!(!text(&Header { m: &m }.line(120)).contains(" keys "));
+        m.snap.you = Some("console #1".into());
+        let l = text(&Header { m: &m }.line(120));
+        assert!(l.contains("│ WATCHING │ keys repeat ≤150ms │"), "{l}");
+        m.releases = true;
+        let l = text(&Header { m: &m }.line(120));
+        assert!(l.contains("│ keys hold │"), "{l}");
+        m.teleop.forced_step = true;
+        let l = text(&Header { m: &m }.line(80));
+        assert!(l.contains("│ keys step │"), "{l}");
     }
 }
