@@ -6,14 +6,12 @@
 mod common;
 
 use common::pty::{attach, openpty};
+use common::terminal_player::{Play, Player};
 use common::DEADLINE;
-use std::fs::File;
-use std::io::{Read, Write};
 use std::os::fd::AsRawFd;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
@@ -23,9 +21,9 @@ const ROWS: u16 = 30;
 /// The console in a pseudo-terminal, with everything it wrote so far.
 struct Console {
     child: Child,
-    master: File,
+    /// The terminal, played (it answers what adrive asks of it).
+    term: Player,
     slave: OwnedFd,
-    out: Arc<Mutex<Vec<u8>>>,
     log_dir: PathBuf,
     /// The terminal's columns and rows.
     size: (u16, u16),
@@ -37,6 +35,11 @@ impl Console {
     }
 
     fn start_sized(name: &str, extra: &[&str], size: (u16, u16)) -> Console {
+        Console::start_playing(name, extra, size, Play::default())
+    }
+
+    /// The console on a terminal that plays `play` (see tests/common/terminal_player.rs).
+    fn start_playing(name: &str, extra: &[&str], size: (u16, u16), play: Play) -> Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
@@ -49,35 +52,25 @@ impl Console {
             .arg(&log_dir)
             .env("XDG_RUNTIME_DIR", &log_dir)
             .env_remove("RUNTIME_DIRECTORY")
+            .env_remove("TMUX")
+            .env_remove("STY")
             .args(extra)
             .env("TERM", "xterm-256color")
             .env_remove("NO_COLOR");
         attach(&mut cmd, &slave, true);
         let child = cmd.spawn().expect("start adrive");
-        let master = File::from(master);
-        let out = Arc::new(Mutex::new(Vec::new()));
-        let (mut r, o) = (master.try_clone().unwrap(), out.clone());
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 4096];
-            while let Ok(n) = r.read(&mut buf) {
-                if n == 0 {
-                    break;
-                }
-                o.lock().unwrap().extend_from_slice(&buf[..n]);
-            }
-        });
+        let term = Player::start(master, play);
         Console {
             child,
-            master,
+            term,
             slave,
-            out,
             log_dir,
             size,
         }
     }
 
     fn bytes(&self) -> Vec<u8> {
-        self.out.lock().unwrap().clone()
+        self.term.bytes()
     }
 
     /// The screen as the terminal shows it now.
@@ -101,21 +94,12 @@ impl Console {
     }
 
     /// Resize the terminal as a terminal window does: the kernel signals SIGWINCH.
-    #[allow(unsafe_code)]
     fn resize(&self, cols: u16, rows: u16) {
-        let ws = libc::winsize {
-            ws_row: rows,
-            ws_col: cols,
-            ws_xpixel: 0,
-            ws_ypixel: 0,
-        };
-        // SAFETY: TIOCSWINSZ reads the struct.
-        unsafe { libc::ioctl(self.master.as_raw_fd(), libc::TIOCSWINSZ as _, &ws) };
+        self.term.resize(cols, rows);
     }
 
     fn keys(&mut self, k: &str) {
-        self.master.write_all(k.as_bytes()).unwrap();
-        self.master.flush().unwrap();
+        self.term.write(k.as_bytes());
     }
 
     fn wait_exit(&mut self) -> ExitStatus {
