@@ -17,6 +17,7 @@ pub mod can;
 pub mod device;
 pub mod document;
 pub mod limits;
+pub mod console;
 pub mod network;
 pub mod placement;
 pub mod protocol_map;
@@ -28,6 +29,7 @@ pub mod ros2;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
+pub use console::ConsoleConfig;
 pub use network::NetworkConfig;
 pub use record::RecordConfig;
 pub use response::{Motion, Polling, Response};
@@ -236,6 +238,8 @@ pub struct VehicleConfig {
     pub buses: Vec<can::BusConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
+    /// `[console]`: what a commanding console must keep proving.
+    pub console: ConsoleConfig,
     /// `[record]`: record every run (none: only with `--record`).
     pub record: Option<RecordConfig>,
     /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
@@ -424,6 +428,8 @@ struct Raw {
     #[serde(default)]
     network: Option<NetworkConfig>,
     #[serde(default)]
+    console: Option<ConsoleConfig>,
+    #[serde(default)]
     record: Option<RecordConfig>,
     ros2: Option<Ros2Config>,
 }
@@ -501,6 +507,10 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     network
         .check()
         .map_err(|v| refuse(path, &lines, "network", v))?;
+    let console = raw.console.unwrap_or_default();
+    console
+        .check()
+        .map_err(|v| refuse(path, &lines, "console", v))?;
     if let Some(r) = &raw.record {
         r.check().map_err(|v| refuse(path, &lines, "record", v))?;
     }
@@ -517,6 +527,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         devices,
         buses,
         network,
+        console,
         record: raw.record,
         ros2,
         source: path.to_string(),
