@@ -9,6 +9,7 @@ mod common;
 
 use common::pty::Master;
 use common::simproc::{vehicle_file, SimProcess};
+use common::terminal_player::{Answer, Play};
 use common::{lines, tempdir, wait_exit, DEADLINE};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
@@ -117,12 +118,19 @@ struct Attached {
 
 impl Attached {
     fn start(socket: &Path) -> Attached {
+        Attached::start_playing(socket, Play::default())
+    }
+
+    /// On a terminal that plays `play` (tests/common/terminal_player.rs).
+    fn start_playing(socket: &Path, play: Play) -> Attached {
         let mut cmd = Command::new(BIN);
         cmd.arg("attach")
             .arg("--socket")
             .arg(socket)
-            .env("TERM", "xterm-256color");
-        let (child, term) = Master::spawn(&mut cmd, 100, 30, true);
+            .env("TERM", "xterm-256color")
+            .env_remove("TMUX")
+            .env_remove("STY");
+        let (child, term) = Master::spawn_playing(&mut cmd, 100, 30, true, play);
         let a = Attached { child, term };
         a.wait_for("every device", |s| {
             ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
@@ -244,19 +252,18 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     assert_eq!(gate["commander"], me.as_str(), "{gate}");
 
     // Closing the driver's terminal (the master goes away, as an SSH drop) brakes and
-    // disengages within its deadman; the service keeps running.
-    let mark = sim.mark();
+    // disengages within its deadman; the service keeps running. (The brake holds 1.000
+    // while engaged and resends it: its line alone says nothing; the gate does.)
     let dropped = Instant::now();
     driver.term.hang_up();
-    sim.wait_after(mark, &["brake", "<-", "1.000"]);
-    let took = dropped.elapsed();
+    let (took, reason) = svc.wait_disengaged(dropped);
     assert!(
         took < DEADMAN,
-        "the brake came {took:?} after the commander's terminal closed"
+        "the safe state came {took:?} after the commander's terminal closed"
     );
-    let gate = svc.gate();
-    assert_eq!(gate["engaged"], false, "{gate}");
-    let reason = gate["reason"].as_str().unwrap();
+    let mark = sim.mark();
+    sim.wait_after(mark, &["brake", "<-", "1.000"]);
+    assert_eq!(sim.last_command("gas").as_deref(), Some("0.000"));
     assert!(
         reason.contains(&format!("{me} went away")),
         "disengaged for another reason: {reason}"
@@ -355,11 +362,13 @@ fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
         line.contains("console #") && line.contains(": dropped"),
         "{line}"
     );
+    // The vehicle stopped first: a frozen console's terminal answers nothing, and its
+    // link's watchdog is shorter than adrive's patience with a client not reading.
     let gate = svc.gate();
     assert_eq!(gate["engaged"], false, "{gate}");
     let reason = gate["reason"].as_str().unwrap();
     assert!(
-        reason.contains("stopped reading for") && reason.contains(": dropped"),
+        reason.contains("its terminal stopped answering for"),
         "{reason}"
     );
     assert!(!reason.contains("went away"), "{reason}");
@@ -627,4 +636,113 @@ fn clients_past_the_control_socket_s_limits_are_told_the_limit() {
     common::wait_for("a client served again", || {
         svc.ctl(&["status"]).status.success()
     });
+}
+
+/// The bound a commanding console's terminal must answer within (the vehicle file's
+/// `[console] terminal_timeout`, by default).
+const TERMINAL_TIMEOUT: Duration = Duration::from_secs(1);
+
+impl Service {
+    /// Wait until the gate disengages; how long after `from` it was seen, and why.
+    fn wait_disengaged(&self, from: Instant) -> (Duration, String) {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let g = self.gate();
+            if g["engaged"] != true {
+                return (from.elapsed(), g["reason"].as_str().unwrap_or("").into());
+            }
+            assert!(Instant::now() < end, "still engaged after {DEADLINE:?}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Engaged, for `d`, checked all along.
+    fn stays_engaged(&self, d: Duration) {
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            let g = self.gate();
+            assert_eq!(g["engaged"], true, "disengaged: {}", g["reason"]);
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+/// The incident as reported: `ssh -t vehicle adrive attach`, engaged, then the
+/// operator's session froze — its terminal stopped answering and reading. A watcher's
+/// terminal freezing first changes nothing; the commander's brings the safe state
+/// within the bound, said as such in the gate's reason and the log; the commander who
+/// comes back, and a console attaching afterwards, read why.
+#[test]
+fn an_attached_commander_whose_terminal_freezes_stops_the_vehicle_and_a_watcher_never_does() {
+    let svc = Service::start("attach-stall", None);
+    let watcher = Attached::start(&svc.socket);
+    let mut driver = Attached::start(&svc.socket);
+    driver.engage();
+    // The watcher's terminal freezes: command is held, well past the bound.
+    watcher.term.stop_reading();
+    svc.stays_engaged(TERMINAL_TIMEOUT * 3);
+    assert!(
+        driver.term.cursor_answers() > 4,
+        "the commander's terminal answered"
+    );
+    assert_eq!(
+        watcher.term.cursor_requests(),
+        0,
+        "a watcher asks its terminal nothing"
+    );
+    let stalled = Instant::now();
+    driver.term.stop_reading();
+    let (after, why) = svc.wait_disengaged(stalled);
+    assert!(
+        why.contains("watchdog: console #2: its terminal stopped answering for 1."),
+        "{why}"
+    );
+    assert!(
+        after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
+        "the safe state came {after:?} after the stall"
+    );
+    svc.until("watchdog: console #2: its terminal stopped answering for 1.");
+    // The commander comes back: its screen says why.
+    driver.term.set(|p| p.reading = true);
+    driver.wait_for("why", |s| s.contains("stopped answering"));
+    // So does a console that attaches afterwards.
+    let later = Attached::start(&svc.socket);
+    later.wait_for("why", |s| s.contains("stopped answering"));
+}
+
+/// The client itself frozen (its process stopped, as a laptop asleep stops ssh): its
+/// proofs stop, and so does the vehicle, within the bound.
+#[test]
+fn a_frozen_attach_client_stops_the_vehicle_within_the_bound() {
+    let svc = Service::start("attach-frozen", None);
+    let mut driver = Attached::start(&svc.socket);
+    driver.engage();
+    svc.stays_engaged(TERMINAL_TIMEOUT * 2);
+    let frozen = Instant::now();
+    assert!(common::signal(&driver.child, libc::SIGSTOP));
+    let (after, why) = svc.wait_disengaged(frozen);
+    assert!(common::signal(&driver.child, libc::SIGCONT));
+    assert!(
+        why.contains("console #1: its terminal stopped answering for 1."),
+        "{why}"
+    );
+    assert!(
+        after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
+        "the safe state came {after:?} after the freeze"
+    );
+}
+
+/// A slow but live link through `adrive attach`: answers 300 ms late keep command for
+/// a minute — the bound runs from the last answer.
+#[test]
+fn an_attached_console_on_a_slow_but_live_link_keeps_command_for_a_minute() {
+    let svc = Service::start("attach-slow", None);
+    let play = Play {
+        cursor: Answer::After(Duration::from_millis(300)),
+        ..Play::default()
+    };
+    let mut driver = Attached::start_playing(&svc.socket, play);
+    driver.engage();
+    svc.stays_engaged(Duration::from_secs(60));
+    assert!(driver.term.cursor_answers() > 150);
 }

@@ -6,14 +6,12 @@
 mod common;
 
 use common::pty::{attach, openpty};
+use common::terminal_player::{Answer, Key, Kind, Play, Player};
 use common::DEADLINE;
-use std::fs::File;
-use std::io::{Read, Write};
 use std::os::fd::AsRawFd;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
@@ -23,9 +21,9 @@ const ROWS: u16 = 30;
 /// The console in a pseudo-terminal, with everything it wrote so far.
 struct Console {
     child: Child,
-    master: File,
+    /// The terminal, played (it answers what adrive asks of it).
+    term: Player,
     slave: OwnedFd,
-    out: Arc<Mutex<Vec<u8>>>,
     log_dir: PathBuf,
     /// The terminal's columns and rows.
     size: (u16, u16),
@@ -37,6 +35,22 @@ impl Console {
     }
 
     fn start_sized(name: &str, extra: &[&str], size: (u16, u16)) -> Console {
+        Console::start_playing(name, extra, size, Play::default())
+    }
+
+    /// The console on a terminal that plays `play` (see tests/common/terminal_player.rs).
+    fn start_playing(name: &str, extra: &[&str], size: (u16, u16), play: Play) -> Console {
+        Console::start_in(name, extra, size, play, &[])
+    }
+
+    /// The same, with `env` in its environment.
+    fn start_in(
+        name: &str,
+        extra: &[&str],
+        size: (u16, u16),
+        play: Play,
+        env: &[(&str, &str)],
+    ) -> Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
@@ -49,35 +63,26 @@ impl Console {
             .arg(&log_dir)
             .env("XDG_RUNTIME_DIR", &log_dir)
             .env_remove("RUNTIME_DIRECTORY")
+            .env_remove("TMUX")
+            .env_remove("STY")
             .args(extra)
             .env("TERM", "xterm-256color")
-            .env_remove("NO_COLOR");
+            .env_remove("NO_COLOR")
+            .envs(env.iter().copied());
         attach(&mut cmd, &slave, true);
         let child = cmd.spawn().expect("start adrive");
-        let master = File::from(master);
-        let out = Arc::new(Mutex::new(Vec::new()));
-        let (mut r, o) = (master.try_clone().unwrap(), out.clone());
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 4096];
-            while let Ok(n) = r.read(&mut buf) {
-                if n == 0 {
-                    break;
-                }
-                o.lock().unwrap().extend_from_slice(&buf[..n]);
-            }
-        });
+        let term = Player::start(master, play);
         Console {
             child,
-            master,
+            term,
             slave,
-            out,
             log_dir,
             size,
         }
     }
 
     fn bytes(&self) -> Vec<u8> {
-        self.out.lock().unwrap().clone()
+        self.term.bytes()
     }
 
     /// The screen as the terminal shows it now.
@@ -101,21 +106,12 @@ impl Console {
     }
 
     /// Resize the terminal as a terminal window does: the kernel signals SIGWINCH.
-    #[allow(unsafe_code)]
     fn resize(&self, cols: u16, rows: u16) {
-        let ws = libc::winsize {
-            ws_row: rows,
-            ws_col: cols,
-            ws_xpixel: 0,
-            ws_ypixel: 0,
-        };
-        // SAFETY: TIOCSWINSZ reads the struct.
-        unsafe { libc::ioctl(self.master.as_raw_fd(), libc::TIOCSWINSZ as _, &ws) };
+        self.term.resize(cols, rows);
     }
 
     fn keys(&mut self, k: &str) {
-        self.master.write_all(k.as_bytes()).unwrap();
-        self.master.flush().unwrap();
+        self.term.write(k.as_bytes());
     }
 
     fn wait_exit(&mut self) -> ExitStatus {
@@ -1031,4 +1027,250 @@ fn an_e_stop_pause_after_a_cleared_override_is_named_as_the_e_stop() {
     assert!(!table.contains("override"), "{table}");
     c.keys("q");
     assert!(c.wait_exit().success());
+}
+
+/// The gate as `adrive ctl status --json` has it: engaged, and why not.
+fn gate(c: &Console) -> (bool, String) {
+    let g = status(c)["gate"].clone();
+    (
+        g["engaged"] == true,
+        g["reason"].as_str().unwrap_or("").to_string(),
+    )
+}
+
+/// Wait until the gate disengages; how long after `from` it was seen, and why.
+fn wait_disengaged(c: &Console, from: Instant) -> (Duration, String) {
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let (engaged, why) = gate(c);
+        if !engaged {
+            return (from.elapsed(), why);
+        }
+        assert!(Instant::now() < end, "still engaged after {DEADLINE:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The bound a commanding console's terminal must answer within (the vehicle file's
+/// `[console] terminal_timeout`, by default).
+const TERMINAL_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// The incident, embedded: the operator engaged over SSH, then the session froze — the
+/// terminal stopped answering and stopped reading. While it answered, the vehicle
+/// stayed engaged well past the bound; once it stopped, the safe state came within the
+/// bound (from the last answer), with words that say why; and the console, whose
+/// terminal no longer takes what it writes (window resizes filled the pseudo-terminal),
+/// still ends on SIGTERM, safely.
+#[allow(unsafe_code)]
+#[test]
+fn a_terminal_that_stops_answering_stops_the_vehicle_within_the_bound() {
+    let mut c = Console::start("stall", &[]);
+    c.engage();
+    let asked = c.term.cursor_requests();
+    // Answered, command is held for three bounds.
+    let held = Instant::now() + TERMINAL_TIMEOUT * 3;
+    while Instant::now() < held {
+        assert!(gate(&c).0, "disengaged while the terminal answered");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(
+        c.term.cursor_requests() > asked + 4,
+        "the console asked every few hundred ms"
+    );
+    let answered = c.term.cursor_answers();
+    let stalled = Instant::now();
+    c.term.stop_reading();
+    // Full redraws the terminal does not read: the pseudo-terminal's buffer fills.
+    for i in 0..12u16 {
+        c.resize(100 + i % 2 * 20, 30 + i % 2 * 10);
+        std::thread::sleep(Duration::from_millis(30));
+    }
+    let (after, why) = wait_disengaged(&c, stalled);
+    assert!(
+        why.contains("watchdog: console: its terminal stopped answering for 1."),
+        "{why}"
+    );
+    assert!(
+        after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
+        "the safe state came {after:?} after the stall"
+    );
+    assert_eq!(
+        c.term.cursor_answers(),
+        answered,
+        "it answered nothing since"
+    );
+    let log = c.log();
+    assert!(
+        log.contains("watchdog: console: its terminal stopped answering for 1."),
+        "{log}"
+    );
+    // The loop is not stuck on the terminal that stopped reading.
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(c.child.id() as i32, libc::SIGTERM) };
+    let status = c.wait_exit();
+    assert!(status.success(), "{status:?}");
+    assert!(c.log().contains("safe state acknowledged"));
+}
+
+/// A slow but live link: every answer comes 300 ms after its request. The bound is
+/// measured from the last answer, not from a schedule, so command is held — here for
+/// a minute — and the console keeps drawing.
+#[test]
+fn a_slow_but_live_terminal_keeps_command_for_a_minute() {
+    let play = Play {
+        cursor: Answer::After(Duration::from_millis(300)),
+        ..Play::default()
+    };
+    let mut c = Console::start_playing("slow", &[], (COLS, ROWS), play);
+    c.engage();
+    let until = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < until {
+        let (engaged, why) = gate(&c);
+        assert!(engaged, "disengaged on a slow but live link: {why}");
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    assert!(c.term.cursor_answers() > 150, "{}", c.term.cursor_answers());
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("DISENGAGED"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// A console that does not command asks nothing: the check costs nothing until the
+/// console commands, and then it asks at once.
+#[test]
+fn a_console_asks_only_while_it_commands() {
+    let mut c = Console::start("quiet", &[]);
+    c.wait_for("the main screen", |s| {
+        s.contains("STEER") && s.contains("OBD")
+    });
+    common::wait_for("every device to report", || {
+        status(&c)["gate"]["blockers"]
+            .as_array()
+            .is_some_and(Vec::is_empty)
+    });
+    c.keys("E");
+    c.wait_for("the confirmation", |s| s.contains("Engage?"));
+    assert_eq!(c.term.cursor_requests(), 0, "asked before commanding");
+    c.keys("y");
+    c.wait_for("engaged", |s| s.contains("│ ENGAGED"));
+    c.wait_for("a request", |_| c.term.cursor_requests() > 0);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// The kitty keyboard protocol's push, in the bytes: `CSI > 3 u`.
+fn pushed(bytes: &[u8]) -> bool {
+    bytes.windows(5).any(|w| w == b"\x1b[>3u")
+}
+
+/// The pop comes before the alternate screen is left (each screen has its own stack).
+fn popped_before_leaving(bytes: &[u8]) -> bool {
+    let pop = bytes.windows(4).rposition(|w| w == b"\x1b[<u");
+    let leave = bytes.windows(8).rposition(|w| w == b"\x1b[?1049l");
+    matches!((pop, leave), (Some(p), Some(l)) if p < l)
+}
+
+/// A terminal that speaks the kitty keyboard protocol is asked for releases (flags 3
+/// pushed) and left in the legacy encoding on every way out: quit, SIGHUP, a panic.
+#[allow(unsafe_code)]
+#[test]
+fn the_kitty_flags_are_pushed_where_supported_and_popped_on_every_way_out() {
+    for (how, extra) in [
+        ("quit", &[][..]),
+        ("hup", &[][..]),
+        ("panic", &["--inject-panic", "main"][..]),
+    ] {
+        let mut c =
+            Console::start_playing(&format!("kitty-{how}"), extra, (COLS, ROWS), Play::kitty());
+        c.wait_for("the main screen", |s| s.contains("STEER"));
+        c.wait_for("the flags pushed", |_| c.term.kitty_flags() == 3);
+        let status = match how {
+            "quit" => {
+                // A press reported in the protocol's own encoding is a key as before.
+                c.term.kitty(Key::Char('q'), Kind::Press);
+                c.wait_exit()
+            }
+            "hup" => {
+                // SAFETY: signalling our own child.
+                unsafe { libc::kill(c.child.id() as i32, libc::SIGHUP) };
+                c.wait_exit()
+            }
+            _ => c.wait_exit(),
+        };
+        let bytes = c.bytes();
+        assert!(pushed(&bytes), "{how}");
+        assert_eq!(
+            c.term.kitty_flags(),
+            0,
+            "{how}: the terminal was left in the protocol"
+        );
+        assert!(popped_before_leaving(&bytes), "{how}");
+        assert!(c.cooked(), "{how}");
+        assert!(!status.success() || how == "quit", "{how}: {status:?}");
+        assert!(c.log().contains("safe state acknowledged"), "{how}");
+    }
+}
+
+/// A legacy terminal (no flags answer) is never pushed into the protocol, and one that
+/// answers nothing at all does not hold the console up: it starts, presses only.
+#[test]
+fn a_terminal_without_the_protocol_or_without_answers_gets_presses_only() {
+    for (name, play) in [("legacy", Play::default()), ("silent", Play::silent())] {
+        let mut c = Console::start_playing(name, &[], (COLS, ROWS), play);
+        c.wait_for("the main screen", |s| s.contains("STEER"));
+        let end = Instant::now() + DEADLINE;
+        while !c
+            .log()
+            .contains("console: the terminal reports presses only")
+        {
+            assert!(Instant::now() < end, "{name}: {}", c.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        c.keys("q");
+        assert!(c.wait_exit().success());
+        assert!(!pushed(&c.bytes()), "{name}");
+    }
+}
+
+/// A commanding console's terminal closed (the SSH session dropped): no terminal is
+/// left to pop flags on or answer; the way out is the hang-up's, safe and prompt.
+#[test]
+fn a_closed_terminal_in_the_protocol_stops_safely() {
+    let mut c = Console::start_playing("kitty-closed", &[], (COLS, ROWS), Play::kitty());
+    c.engage();
+    c.wait_for("the flags pushed", |_| c.term.kitty_flags() == 3);
+    c.term.hang_up();
+    let status = c.wait_exit();
+    assert_eq!(status.code(), Some(129), "{status:?}");
+    let log = c.log();
+    assert!(log.contains("safe state acknowledged"), "{log}");
+    assert!(!log.contains("panicked"), "{log}");
+}
+
+/// Inside tmux on the vehicle, tmux answers for the operator's terminal: the console
+/// does not probe for the kitty protocol (tmux drops releases), says `link unchecked`
+/// in its header, and still asks its round trips (tmux itself may stop).
+#[test]
+fn inside_tmux_the_header_says_the_link_is_unchecked() {
+    let mut c = Console::start_in(
+        "tmux",
+        &[],
+        (COLS, ROWS),
+        Play::kitty(),
+        &[("TMUX", "/tmp/tmux-0/default,1234,0")],
+    );
+    c.wait_for("link unchecked", |s| s.contains("link unchecked"));
+    assert!(
+        !c.term
+            .asked()
+            .iter()
+            .any(|(_, a)| *a == common::terminal_player::Asked::Flags),
+        "probed for the kitty protocol inside tmux"
+    );
+    c.engage();
+    c.wait_for("a request", |_| c.term.cursor_requests() > 0);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    assert!(!pushed(&c.bytes()));
 }

@@ -15,6 +15,7 @@
 //!   still names its line.
 
 pub mod can;
+pub mod console;
 pub mod device;
 pub mod document;
 pub mod limits;
@@ -27,6 +28,7 @@ pub mod roles;
 pub mod ros2;
 pub mod teleop;
 
+pub use console::ConsoleConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
@@ -239,6 +241,8 @@ pub struct VehicleConfig {
     pub buses: Vec<can::BusConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
+    /// `[console]`: what a commanding console must keep proving.
+    pub console: ConsoleConfig,
     /// `[record]`: record every run (none: only with `--record`).
     pub record: Option<RecordConfig>,
     /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
@@ -429,6 +433,8 @@ struct Raw {
     #[serde(default)]
     network: Option<NetworkConfig>,
     #[serde(default)]
+    console: Option<ConsoleConfig>,
+    #[serde(default)]
     record: Option<RecordConfig>,
     ros2: Option<Ros2Config>,
     #[serde(default)]
@@ -508,6 +514,10 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     network
         .check()
         .map_err(|v| refuse(path, &lines, "network", v))?;
+    let console = raw.console.unwrap_or_default();
+    console
+        .check()
+        .map_err(|v| refuse(path, &lines, "console", v))?;
     if let Some(r) = &raw.record {
         r.check().map_err(|v| refuse(path, &lines, "record", v))?;
     }
@@ -527,6 +537,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         devices,
         buses,
         network,
+        console,
         record: raw.record,
         ros2,
         teleop: raw.teleop,

@@ -287,15 +287,26 @@ pub struct Model {
     pub(crate) last_find: Option<String>,
     /// What the last frame showed: what keys may act on ([`check`](super::sight::check)).
     pub drawn: Drawn,
-    /// The terminal reports key releases (the kitty keyboard protocol): teleop holds
-    /// while a key is pressed. Else presses only: holds follow the key repeat.
-    pub releases: bool,
     /// The terminal's key repeat, learnt from what arrives.
     pub repeat: KeyRepeat,
     /// The last key events, oldest first (help's key-event viewer).
     pub keys: VecDeque<SeenKey>,
     /// Help shows the key-event viewer.
     pub(crate) key_viewer: bool,
+    /// The console's own terminal: what it reports of the keys, and whether the
+    /// liveness check can see the operator's link.
+    pub terminal: TerminalView,
+}
+
+/// What the console knows of its own terminal (set by the console's loop).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TerminalView {
+    /// What its keys report, once the probe ended (`None` before).
+    pub keyboard: Option<super::input::Keyboard>,
+    /// A terminal multiplexer on this machine answers for the operator's terminal
+    /// (`tmux`, `screen`): the round trip reaches it, not the operator — the header
+    /// says "link unchecked".
+    pub multiplexer: Option<&'static str>,
 }
 
 impl Model {
@@ -326,18 +337,25 @@ impl Model {
             find: None,
             last_find: None,
             drawn: Drawn::default(),
-            releases: false,
             repeat: KeyRepeat::default(),
             keys: VecDeque::with_capacity(SEEN_KEYS),
             key_viewer: false,
+            terminal: TerminalView::default(),
             snap,
         }
+    }
+
+    /// The terminal reports key releases (the kitty keyboard protocol): teleop holds
+    /// while a key is pressed. Else (presses only, or not known yet) holds follow the
+    /// key repeat.
+    pub fn releases(&self) -> bool {
+        self.terminal.keyboard == Some(super::input::Keyboard::Releases)
     }
 
     /// How teleop reads its keys: step when the operator chose it, hold where the
     /// terminal reports releases, else repeat.
     pub fn drive(&self) -> Drive {
-        match (self.teleop.forced_step, self.releases) {
+        match (self.teleop.forced_step, self.releases()) {
             (true, _) => Drive::Step,
             (false, true) => Drive::Hold,
             (false, false) => Drive::Repeat,

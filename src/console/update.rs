@@ -119,6 +119,15 @@ pub fn key(m: &mut Model, e: &KeyEvent, at: Instant, c: &dyn Controls, now: Inst
     }
 }
 
+/// The console found what its terminal reports of the keys (at start, or upgraded by
+/// a late answer); teleop read them `before`: if the mode changed, keys held the old
+/// way are let go, and teleop reads them the new way from here.
+pub fn keyboard(m: &mut Model, before: super::hold::Drive, c: &dyn Controls, now: Instant) {
+    if m.drive() != before {
+        teleop::switched(m, c, now);
+    }
+}
+
 /// Apply one action — unless its target was not on the last frame drawn
 /// ([`sight::check`]): then it is refused, and the operator told.
 pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow {

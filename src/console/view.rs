@@ -393,7 +393,7 @@ pub fn draw(m: &Model, area: Rect, buf: &mut Buffer) -> Drawn {
                 roles: &m.snap.gate.roles,
                 events: m.key_viewer.then(|| KeyEvents {
                     seen: &m.keys,
-                    releases: m.releases,
+                    releases: m.releases(),
                     drive: m.drive(),
                     figures: m.repeat.figures(),
                 }),

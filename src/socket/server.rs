@@ -441,6 +441,13 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
             });
             continue;
         };
+        // A console's proof that its operator is there: fed at once, never answered.
+        if req.op == Op::Answered {
+            if source.is_console() {
+                s.gate.answered(source, Instant::now());
+            }
+            continue;
+        }
         let answer = answer(s, c, source, req.op);
         if let Err(ending) = c.send(&Msg::Reply { id: req.id, answer }) {
             break ending;
@@ -481,6 +488,7 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
     let console = source.is_console();
     match op {
         Op::Hello { .. } => Answer::Error("already said hello".into()),
+        Op::Answered => Answer::Ok,
         Op::Engage => ask(Ask::Engage),
         Op::Disengage => ask(Ask::Disengage),
         Op::Stop => ask(Ask::Stop),

@@ -5,6 +5,7 @@
 pub mod headless;
 pub mod pty;
 pub mod simproc;
+pub mod terminal_player;
 
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;

@@ -6,7 +6,9 @@
 //! 100ms)`); a vehicle name too long gives way before the gate does. An attached
 //! console (`adrive attach`) also says whether it commands or watches, and how its own
 //! terminal's keys drive teleop (`keys hold`, `keys repeat ≤100ms`, `keys step`): the
-//! operator's terminal, not the vehicle's.
+//! operator's terminal, not the vehicle's. A console inside tmux or screen on this
+//! machine says `link unchecked`: the multiplexer, not the operator's terminal, answers
+//! the liveness check.
 
 use super::fit::shorten;
 use crate::console::keymap::Mode;
@@ -58,6 +60,12 @@ impl Header<'_> {
                 false,
             );
             rest.push(Span::styled(format!(" keys {keys} "), bar));
+            rest.push(Span::styled("│", bar));
+        }
+        // A multiplexer on this machine answers the liveness check's round trips for
+        // the operator's terminal: the check cannot see the link (docs/console.md).
+        if self.m.terminal.multiplexer.is_some() {
+            rest.push(Span::styled(" link unchecked ", t.warn().patch(bar)));
             rest.push(Span::styled("│", bar));
         }
         let faults = s.devices.iter().filter(|d| s.red(d)).count();
@@ -145,6 +153,18 @@ mod tests {
 
     fn text(l: &Line) -> String {
         l.spans.iter().map(|s| s.content.as_ref()).collect()
+    }
+
+    /// Inside tmux on the vehicle, the round trip reaches tmux, not the operator: the
+    /// header says the link is unchecked, and only then.
+    #[test]
+    fn under_a_multiplexer_the_link_is_said_to_be_unchecked() {
+        let mut m = model(true, "", "Alice");
+        assert!(!text(&Header { m: &m }.line(100)).contains("link unchecked"));
+        m.terminal.multiplexer = Some("tmux");
+        let l = text(&Header { m: &m }.line(100));
+        assert!(l.contains("│ link unchecked │"), "{l}");
+        assert!(l.contains(" ENGAGED "), "{l}");
     }
 
     #[test]
@@ -258,7 +278,7 @@ mod tests {
         m.snap.you = Some("console #1".into());
         let l = text(&Header { m: &m }.line(120));
         assert!(l.contains("│ WATCHING │ keys repeat ≤150ms │"), "{l}");
-        m.releases = true;
+        m.terminal.keyboard = Some(crate::console::input::Keyboard::Releases);
         let l = text(&Header { m: &m }.line(120));
         assert!(l.contains("│ keys hold │"), "{l}");
         m.teleop.forced_step = true;

@@ -431,15 +431,24 @@ pub(super) fn action(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
     }
 }
 
-/// Step mode on (every key a step) or off (back to what the terminal gives). Keys held
-/// are let go first: the pedals go to the hold level.
+/// Step mode on (every key a step) or off (back to what the terminal gives).
 fn step_mode(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.teleop.forced_step = !m.teleop.forced_step;
+    switched(m, c, now);
+}
+
+/// The mode changed (step forced or undone, the terminal found to report releases):
+/// keys held are let go first, as they were read the old way — the pedals go to the
+/// hold level — and the bar's message says the new mode.
+pub(super) fn switched(m: &mut Model, c: &dyn Controls, now: Instant) {
     let had = !m.teleop.holds.is_empty();
     m.teleop.holds.clear();
     m.teleop.steer_from = None;
     if had {
         pedals(m, c, now);
+    }
+    if m.mode != Mode::Teleop {
+        return;
     }
     let text = match m.drive() {
         Drive::Step => "teleop: step — each key a step, the deadman brakes".to_string(),

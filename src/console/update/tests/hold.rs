@@ -4,6 +4,7 @@
 
 use super::*;
 use crate::console::hold::Drive;
+use crate::console::input::Keyboard;
 use crossterm::event::KeyEventKind::{self, Press, Release, Repeat};
 
 fn ms(n: u64) -> Duration {
@@ -25,7 +26,10 @@ fn ev(m: &mut Model, f: &Fake, key: &str, kind: KeyEventKind, at: Instant) -> Fl
 fn teleop(f: &Fake, releases: bool, learnt: Option<(u64, u64)>, t: Instant) -> Model {
     let mut m = model(f);
     m.screen = ratatui::layout::Rect::new(0, 0, 100, 30);
-    m.releases = releases;
+    m.terminal.keyboard = Some(match releases {
+        true => Keyboard::Releases,
+        false => Keyboard::PressesOnly,
+    });
     if let Some((delay, interval)) = learnt {
         let code = crossterm::event::KeyCode::Char('x');
         m.repeat.see(code, Press, t);
