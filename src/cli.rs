@@ -110,6 +110,11 @@ pub struct RunArgs {
     /// ends it quietly instead), optionally after a delay (`supervisor:4s`).
     #[arg(long, value_name = "THREAD[:DELAY]", hide = true)]
     pub(crate) inject_panic: Option<String>,
+    /// Fault injection for tests: make an engine thread (`steer/status`, `brake/command`,
+    /// `bus/kit`, `gate/monitor`, `supervisor`) block in a system call once, AFTER its
+    /// start, for FOR (`steer/status:2s:5s`), as a port stuck in the kernel would.
+    #[arg(long, value_name = "THREAD:AFTER:FOR", hide = true)]
+    pub(crate) inject_hang: Option<String>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
@@ -447,6 +452,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             None => (spec, Duration::from_millis(1500)),
         },
     };
+    if let Some(hang) = args.inject_hang.as_deref() {
+        crate::threads::inject_hang(parse_hang(hang).map_err(anyhow::Error::msg)?);
+    }
     let engine = Engine::start_injected(gate.clone(), injected(panic_in, panic_after))?;
     let monitor = crate::engine::monitor::Monitor::start(gate.clone())?;
     let mut sup_cfg = vehicle.config().supervisor.clone();
@@ -455,7 +463,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         gate.clone(),
         sup_cfg,
         Box::new(exit::request),
-        engine.liveness(),
+        engine.liveness().with(&monitor.liveness()),
     )?;
     // Let the devices report first, so the unwinding really has a vehicle to stop; with
     // the console, it panics from its own loop, so the terminal is taken over then.
@@ -566,6 +574,21 @@ fn service_ready(engine: &Engine) {
         // Not ready: systemd's start timeout (or the watchdog) will tell.
         tracing::error!(threads = ?late, "device threads not running 2 s after the start");
     }
+}
+
+/// `--inject-hang THREAD:AFTER:FOR`.
+fn parse_hang(text: &str) -> Result<crate::threads::HangSpec, String> {
+    let mut parts = text.rsplitn(3, ':');
+    let (Some(hang), Some(after), Some(thread)) = (parts.next(), parts.next(), parts.next()) else {
+        return Err(format!(
+            "expected THREAD:AFTER:FOR (steer/status:2s:5s), got {text:?}"
+        ));
+    };
+    Ok(crate::threads::HangSpec {
+        thread: thread.to_string(),
+        after: config::parse_duration(after)?,
+        hang: config::parse_duration(hang)?,
+    })
 }
 
 /// `--inject-panic DEVICE/status` (a panic) or `DEVICE/status=return` (the thread

@@ -447,6 +447,33 @@ pub struct SupervisorView {
     pub last_outcome: Option<String>,
     /// Recent steps and outcomes, newest last.
     pub history: Vec<String>,
+    /// Engine threads that have not turned their loop within their bound (a thread
+    /// stuck in a system call): the service watchdog is not fed, engage is refused.
+    #[serde(default)]
+    pub stalled: Vec<StallView>,
+}
+
+/// An engine thread past its bound.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct StallView {
+    /// `steer/status`, `brake/command`, `bus/kit`, `gate/monitor`, `supervisor`.
+    pub thread: String,
+    /// Since its last turn, ms.
+    pub quiet_ms: f64,
+    /// When it was to turn again, ms after that turn: its bound.
+    pub bound_ms: f64,
+}
+
+impl StallView {
+    /// `steer/status has not turned its loop for 1.4 s (bound 0.45 s)`
+    pub fn describe(&self) -> String {
+        format!(
+            "{} has not turned its loop for {:.1} s (bound {:.2} s)",
+            self.thread,
+            self.quiet_ms / 1e3,
+            self.bound_ms / 1e3
+        )
+    }
 }
 
 /// The commander's watchdog, as shown to people.

@@ -114,6 +114,12 @@ pub trait Driver: Send {
     }
     /// Ask the device for its state.
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError>;
+    /// The longest one transaction may hold the port: [`Driver::open`] after a reopen,
+    /// then the longest of a poll and a command. Every exchange ends at its deadline, so
+    /// this follows from the device's reply timeouts; it bounds how long a device's
+    /// thread may legitimately be inside the driver (its liveness bound,
+    /// [`crate::threads::Beat`]).
+    fn longest(&self) -> Duration;
     /// Send one command and wait for the device's acknowledgement.
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError>;
     /// Whether [`Driver::send_command`] would write its request now, without waiting

@@ -11,12 +11,16 @@
 //! for every [`STATUS_EVERY`]) are an error of every device on the bus, which then
 //! hears nothing and is silent to the supervisor, with the adapter's words as the
 //! cause. A port that fails is closed and reopened with backoff, as any device's.
+//!
+//! At every turn it proves its progress ([`Beat`]): a read turn within
+//! [`STATUS_EVERY`] and a write, an open and bring-up within the adapter's answers, a
+//! backoff within itself.
 
 use crate::config::protocol_map::Wire;
 use crate::driver::slcan::proto::{self, Decoder, Event, FromAdapter, StatusFlags};
-use crate::driver::slcan::{decode_into, Bus, BusPort};
+use crate::driver::slcan::{decode_into, Bus, BusPort, ANSWER_WITHIN};
 use crate::driver::{read_some, Deadline, DriverError, Link};
-use crate::threads::StopSignal;
+use crate::threads::{Beat, StopSignal};
 use crate::value::Reading;
 use crate::vehicle::{Cached, Device, Vehicle};
 use std::sync::atomic::Ordering::Relaxed;
@@ -24,10 +28,13 @@ use std::time::{Duration, Instant};
 
 /// How often the adapter is asked for its status flags.
 pub const STATUS_EVERY: Duration = Duration::from_millis(500);
-/// How long each bring-up command may take to be answered.
-const ANSWER_WITHIN: Duration = Duration::from_millis(500);
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
-const BACKOFF_MAX: Duration = Duration::from_secs(5);
+pub(crate) const BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// The reader's first turn is due within this (it turns at once, then says its own
+/// bound for each open, backoff and read).
+pub(crate) const TURN: Duration = Duration::from_secs(10);
+/// A read turn: a status request written, then a read until the next is due.
+const READ_TURN: Duration = STATUS_EVERY.saturating_add(ANSWER_WITHIN);
 
 /// The devices on bus `index`, by their index in the vehicle.
 fn devices_on(v: &Vehicle, index: usize) -> Vec<usize> {
@@ -40,12 +47,16 @@ fn devices_on(v: &Vehicle, index: usize) -> Vec<usize> {
 }
 
 /// Run bus `index` of the vehicle until stopped.
-pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
+pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal, beat: &Beat) {
     let bus = &v.buses()[index];
     let on = devices_on(v, index);
     let mut backoff = BACKOFF_MIN;
     let mut readings: Vec<Reading> = vec![Reading::default(); on.len()];
+    // An open and the bring-up: a write and an answer per command, the kits' disables.
+    let opening =
+        ANSWER_WITHIN * (proto::bring_up(bus.bitrate(), false).len() + on.len() + 2) as u32;
     loop {
+        beat.turn(opening);
         if stop.is_stopped() {
             bus.go_down("stopped".into());
             return;
@@ -76,6 +87,7 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
                         false,
                     );
                 }
+                beat.turn(backoff);
                 if !stop.sleep_until(Instant::now() + backoff) {
                     return;
                 }
@@ -83,7 +95,7 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
                 continue;
             }
         };
-        let why = read(v, bus, &on, &mut readings, reader.as_mut(), stop);
+        let why = read(v, bus, &on, &mut readings, reader.as_mut(), stop, beat);
         bus.go_down(why.clone());
         if stop.is_stopped() {
             return;
@@ -167,6 +179,7 @@ fn read(
     readings: &mut [Reading],
     reader: &mut dyn Link,
     stop: &StopSignal,
+    beat: &Beat,
 ) -> String {
     let mut decoder = Decoder::<FromAdapter>::new();
     let mut buf = [0u8; 256];
@@ -177,6 +190,7 @@ fn read(
         }
     };
     loop {
+        beat.turn(READ_TURN);
         if stop.is_stopped() {
             return "stopped".into();
         }

@@ -34,6 +34,15 @@ fn wire_deadline(d: &Device) -> Instant {
     Instant::now() + d.config().reply_timeout * 2 + WIRE_SLACK
 }
 
+/// The longest a command may wait at the wire for another device ([`Gate::wait_for`]).
+pub(crate) fn longest_wire_wait(v: &crate::vehicle::Vehicle) -> Duration {
+    v.devices()
+        .iter()
+        .map(|d| d.config().reply_timeout * 2 + WIRE_SLACK)
+        .max()
+        .unwrap_or_default()
+}
+
 impl Gate {
     /// A driver took `device` over (`why`: the supervisor's `override`): latch it and
     /// hand the vehicle to the driver — disengaged, in the manual state (throttle and

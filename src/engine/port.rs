@@ -67,6 +67,8 @@ struct Arb {
 /// The arbiter of one device's port.
 pub struct Port {
     rule: PortRule,
+    /// The longest one transaction may hold it ([`Driver::longest`]).
+    longest: Duration,
     arb: Mutex<Arb>,
     cv: Condvar,
     conn: Mutex<Conn>,
@@ -82,6 +84,7 @@ impl Port {
     pub fn new(rule: PortRule, conn: Conn) -> Port {
         Port {
             rule,
+            longest: conn.driver.longest(),
             arb: Mutex::new(Arb::default()),
             cv: Condvar::new(),
             conn: Mutex::new(conn),
@@ -90,6 +93,12 @@ impl Port {
 
     pub fn rule(&self) -> PortRule {
         self.rule
+    }
+
+    /// The longest one transaction may hold the port: a thread waiting for it waits no
+    /// longer than this for the holder.
+    pub fn longest(&self) -> Duration {
+        self.longest
     }
 
     fn take(&self, mut a: MutexGuard<'_, Arb>) -> Option<PortGuard<'_>> {

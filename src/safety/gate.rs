@@ -43,6 +43,9 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     if let Some(s @ (EstopState::Pause | EstopState::Disable)) = v.estop() {
         why.push(format!("e-stop is in {s}"));
     }
+    for s in v.supervision().stalled() {
+        why.push(format!("thread {}", s.describe()));
+    }
     why
 }
 

@@ -12,9 +12,11 @@
 //! e-stop or a faulty device; the supervisor works at its own, slower period on
 //! diagnosis and recovery.
 //!
-//! Under systemd, the supervisor thread also feeds the service watchdog after each
-//! turn, only while every device thread runs ([`crate::service::Watchdog`]): a device
-//! thread that ended, or a supervisor that no longer turns, gets adrive restarted.
+//! Beside it runs the `service/watchdog` thread ([`start_watching`]): it feeds systemd's
+//! watchdog ([`crate::service::Watchdog`]) only while every engine thread — the
+//! devices', the buses', the gate monitor and the supervisor itself — turns its loop
+//! within its bound: a thread that ended or stalls is named, refuses engage and gets
+//! adrive restarted.
 
 mod kit;
 pub mod recovery;
@@ -638,18 +640,26 @@ impl Supervisor {
     }
 }
 
-/// The supervisor thread, `supervisor`.
+/// The supervisor thread, `supervisor`, and the service watchdog's, `service/watchdog`.
 pub struct Running {
     threads: Owner,
 }
+
+/// How often the service watchdog looks at the threads' heartbeats.
+const WATCHDOG_EVERY: Duration = Duration::from_millis(100);
 
 /// Start the supervisor thread at `cfg.period`.
 pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io::Result<Running> {
     start_watching(gate, cfg, exit, Liveness::default())
 }
 
-/// [`start`], feeding the service watchdog while every thread of `watched` (the
-/// engine's, [`crate::engine::Engine::liveness`]) runs.
+/// [`start`], and the `service/watchdog` thread: it feeds the service watchdog while
+/// every thread of `watched` (the engine's, [`crate::engine::Engine::liveness`], and
+/// the gate monitor's) and the supervisor itself runs and turns its loop within its
+/// bound. A thread that stalls is named in the log, to systemd and in the snapshot
+/// (`supervisor.stalled`); engage is refused while it is stalled
+/// ([`crate::safety::gate::blockers`]), and an engaged vehicle is disengaged at once —
+/// the gate monitor may be the thread that stalled.
 pub(crate) fn start_watching(
     gate: Arc<Gate>,
     cfg: SupervisorConfig,
@@ -657,17 +667,30 @@ pub(crate) fn start_watching(
     watched: Liveness,
 ) -> std::io::Result<Running> {
     let mut threads = Owner::default();
-    threads.spawn("supervisor", move |stop| {
-        let period = cfg.period;
+    let g = gate.clone();
+    let period = cfg.period;
+    threads.spawn_beating("supervisor", period, move |stop, beat| {
         let panic_at = cfg.panic_for_test.map(|d| Instant::now() + d);
         let mut sup = Supervisor::new(cfg, exit);
-        let mut watchdog = crate::service::Watchdog::new(watched);
         crate::threads::every(period, stop, || {
+            beat.turn(period);
             if panic_at.is_some_and(|t| Instant::now() >= t) {
                 panic!("injected panic (--inject-panic supervisor)");
             }
-            sup.tick(&gate, Instant::now());
-            watchdog.turn(Instant::now());
+            sup.tick(&g, Instant::now());
+        })
+    })?;
+    let watched = watched.with(&threads.liveness());
+    threads.spawn("service/watchdog", move |stop| {
+        let mut watchdog = crate::service::Watchdog::new(watched);
+        crate::threads::every(WATCHDOG_EVERY, stop, || {
+            let turn = watchdog.turn(Instant::now());
+            if turn.changed {
+                gate.vehicle().supervision().set_stalled(&turn.stalled);
+            }
+            if let (Some(s), true) = (turn.new.first(), gate.is_engaged()) {
+                gate.disengage(&format!("stalled: {}", s.describe()));
+            }
         })
     })?;
     Ok(Running { threads })

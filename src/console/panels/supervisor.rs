@@ -377,6 +377,7 @@ mod tests {
             }),
             last_outcome: None,
             history: Vec::new(),
+            ..SupervisorView::default()
         };
         Frame {
             snap: Snapshot {
