@@ -39,6 +39,50 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     assert!(!dir.path().join("log").exists());
 }
 
+/// One port spelled two ways — a `/dev/serial/by-id/…`-style link and its target — once
+/// passed as two, and both devices opened it. The real binary refuses the file before
+/// anything starts, at the second one's port, naming the first with its line.
+#[test]
+fn one_port_spelled_two_ways_is_refused_at_the_second_s_line_before_anything_starts() {
+    let dir = tempdir("cli-ports");
+    let tty = dir.path().join("ttyUSB0");
+    std::fs::write(&tty, "").unwrap();
+    let link = dir.path().join("usb-FTDI_brake-if00-port0");
+    std::os::unix::fs::symlink(&tty, &link).unwrap();
+    let path = dir.path().join("vehicle.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"brake\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\ndriver = \"line\"\nport = \"{}\"\n\n[[device]]\nname = \"horn\"\nkind = \"state\"\nstates = [\"off\", \"on\"]\ndriver = \"line\"\nport = \"{}\"\n",
+            link.display(),
+            tty.display()
+        ),
+    )
+    .unwrap();
+    let out = Process::new(BIN)
+        .args(["--headless", "--config"])
+        .arg(&path)
+        .arg("--log-dir")
+        .arg(dir.path().join("log"))
+        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    let canonical = std::fs::canonicalize(&tty).unwrap();
+    assert!(
+        err.contains(&format!(
+            "{p}:16: horn: port: {} is brake's port, {}, by another name (both are {}) ({p}:9): a serial port has one device",
+            tty.display(),
+            link.display(),
+            canonical.display(),
+            p = path.display()
+        )),
+        "{err}"
+    );
+    assert!(!dir.path().join("log").exists(), "it started");
+}
+
 /// `adrive --sim --headless` logging into `dir`, its output and error piped.
 fn headless_sim(dir: &std::path::Path) -> common::Reaped {
     common::Reaped(

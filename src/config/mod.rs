@@ -19,6 +19,7 @@ pub mod document;
 pub mod limits;
 pub mod network;
 pub mod placement;
+pub(crate) mod ports;
 pub mod protocol_map;
 pub mod record;
 pub mod response;
@@ -251,65 +252,6 @@ impl VehicleConfig {
     /// an error at the line of the key it blames.
     pub(crate) fn refuse(&self, owner: &str, v: Violation) -> ConfigError {
         refuse(&self.source, &self.lines, owner, v)
-    }
-
-    /// Every device that is not simulated needs a port to open, of its own: two
-    /// devices on one serial port would fight over it (devices that share a wire are on
-    /// a CAN `[[bus]]`, whose adapter's port is the bus's).
-    pub(crate) fn check_ports(&self) -> Result<(), ConfigError> {
-        use device::DriverKind::Can;
-        for b in &self.buses {
-            if b.port.trim().is_empty() {
-                let v = Violation {
-                    paths: vec!["port".into()],
-                    message: format!(
-                        "port: expected the path of the SLCAN adapter's serial port \
-                         (\"/dev/ttyACM0\", \"/dev/serial/by-id/…\"), got {:?}; without \
-                         hardware, run with --sim",
-                        b.port
-                    ),
-                };
-                return Err(self.refuse(&format!("bus {}", b.name), v));
-            }
-        }
-        for (i, d) in self.devices.iter().enumerate() {
-            if d.driver == Can {
-                continue;
-            }
-            let owner = format!("device.{}", d.name);
-            let refuse = |message: String| {
-                self.refuse(
-                    &owner,
-                    Violation {
-                        paths: vec!["port".into()],
-                        message,
-                    },
-                )
-            };
-            if d.port.trim().is_empty() {
-                return Err(refuse(format!(
-                    "port: expected the path of a serial port (\"/dev/ttyUSB0\", \
-                     \"/dev/serial/by-id/…\"), got {:?}; without hardware, run with --sim",
-                    d.port
-                )));
-            }
-            if let Some(o) = self.devices[..i]
-                .iter()
-                .find(|o| o.driver != Can && o.port == d.port)
-            {
-                return Err(refuse(format!(
-                    "port: {} is {}'s port too: a serial port has one device",
-                    d.port, o.name
-                )));
-            }
-            if let Some(b) = self.buses.iter().find(|b| b.port == d.port) {
-                return Err(refuse(format!(
-                    "port: {} is the adapter of bus {}: a device on it is `driver = \"can\"`, `bus = \"{}\"`",
-                    d.port, b.name, b.name
-                )));
-            }
-        }
-        Ok(())
     }
 
     /// The built-in simulated Alice.
