@@ -14,6 +14,18 @@ use std::time::Duration;
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
+/// `adrive --headless --config vehicle`, logging into `dir/log`, to its end.
+fn headless_on(dir: &std::path::Path, vehicle: &std::path::Path) -> std::process::Output {
+    Process::new(BIN)
+        .args(["--headless", "--config"])
+        .arg(vehicle)
+        .arg("--log-dir")
+        .arg(dir.join("log"))
+        .env("XDG_RUNTIME_DIR", dir.join("log"))
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     let dir = tempdir("cli");
@@ -23,14 +35,7 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
         "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"steer\"\ndriver = \"modbsu\"\nport = \"/dev/ttyUSB0\"\n",
     )
     .unwrap();
-    let out = Process::new(BIN)
-        .args(["--headless", "--config"])
-        .arg(&path)
-        .arg("--log-dir")
-        .arg(dir.path().join("log"))
-        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
-        .output()
-        .unwrap();
+    let out = headless_on(dir.path(), &path);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains(&format!("{}:6: ", path.display())), "{err}");
@@ -59,14 +64,7 @@ fn one_port_spelled_two_ways_is_refused_at_the_second_s_line_before_anything_sta
         ),
     )
     .unwrap();
-    let out = Process::new(BIN)
-        .args(["--headless", "--config"])
-        .arg(&path)
-        .arg("--log-dir")
-        .arg(dir.path().join("log"))
-        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
-        .output()
-        .unwrap();
+    let out = headless_on(dir.path(), &path);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     let canonical = std::fs::canonicalize(&tty).unwrap();
