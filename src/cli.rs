@@ -34,6 +34,8 @@ pub struct Cli {
     pub run: RunArgs,
 }
 
+// Parsed once per process: the size of its largest variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 pub enum Cmd {
     /// Run the engine with the console (the default).
@@ -105,6 +107,12 @@ pub struct RunArgs {
     /// (100ms to 5s) [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
     pub deadman: Option<Duration>,
+    /// End the run (status 4, after the safe state) once a device has been gone this
+    /// long, or a recovery procedure gave up after trying this long (1s to 1 day;
+    /// default: never: adrive keeps the vehicle safe and waits for the device), instead
+    /// of the vehicle file's `[supervisor]` give_up_after.
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_give_up_after)]
+    pub give_up_after: Option<Duration>,
     /// Fault injection for tests: make a thread panic once running, `main`,
     /// `supervisor` or a device's status thread (`steer/status`; `steer/status=return`
     /// ends it quietly instead), optionally after a delay (`supervisor:4s`).
@@ -361,6 +369,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     if let Some(addr) = args.listen {
         config.network.listen = addr;
+    }
+    if let Some(d) = args.give_up_after {
+        config.supervisor.give_up_after = Some(d);
     }
     if !args.broadcast_to.is_empty() {
         config.network.broadcast_to = args.broadcast_to.clone();

@@ -104,6 +104,11 @@ pub fn status(text: &str) {
     notify(&format!("STATUS={text}"));
 }
 
+/// `systemctl status` back to the line [`ready`] said: all is well again.
+pub fn running() {
+    status(RUNNING.get().map_or("running", String::as_str));
+}
+
 /// Tell the service manager adrive is still sound.
 pub fn feed() {
     notify("WATCHDOG=1");
@@ -208,7 +213,7 @@ impl Watchdog {
             tracing::warn!(thread = %s.thread, "{} turns its loop again{again}", s.thread);
         }
         if !resumed.is_empty() && stalled.is_empty() && ended.is_empty() {
-            status(RUNNING.get().map_or("running", String::as_str));
+            running();
         }
         let changed = !new.is_empty() || !resumed.is_empty();
         self.stalled = stalled.clone();

@@ -451,6 +451,41 @@ pub struct SupervisorView {
     /// stuck in a system call): the service watchdog is not fed, engage is refused.
     #[serde(default)]
     pub stalled: Vec<StallView>,
+    /// Devices gone (unplugged, or never there) that adrive keeps reopening: what it
+    /// waits for. A device gone never ends the run.
+    #[serde(default)]
+    pub waiting: Vec<WaitingView>,
+}
+
+/// A device gone, and what adrive does about it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct WaitingView {
+    pub device: String,
+    /// The port it is reopened on (a bus's adapter, for a device on a CAN bus).
+    pub port: String,
+    /// Why the last open failed: `No such file or directory`.
+    pub error: String,
+    /// Since it went, ms.
+    pub gone_ms: f64,
+    /// How long after a failed open it is tried again, ms (its backoff, up to 5 s).
+    pub retry_ms: f64,
+    /// The rules act on it (it is bound to a role): engage is refused while it is
+    /// gone. Else it is shown, and holds nothing up.
+    pub needed: bool,
+}
+
+impl WaitingView {
+    /// `waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s`
+    pub fn describe(&self) -> String {
+        let every = std::time::Duration::from_millis(self.retry_ms.max(1.0) as u64);
+        format!(
+            "waiting for {} on {}: {}, retrying every {}",
+            self.device,
+            self.port,
+            self.error,
+            humantime::format_duration(every)
+        )
+    }
 }
 
 /// An engine thread past its bound.

@@ -181,9 +181,14 @@ pub struct SupervisorConfig {
     /// Time a recovery step may take.
     #[serde(deserialize_with = "duration")]
     pub step_timeout: Duration,
-    /// A procedure that gives up is a fatal device error: end the process (status 4)
-    /// after the safe state, so a service manager can act.
-    pub(crate) exit_on_give_up: bool,
+    /// End the run (status 4, after the safe state) once a device has been gone this
+    /// long, or a recovery procedure gave up after trying this long. `None` (the
+    /// default): never — adrive keeps the vehicle safe and waits.
+    #[serde(deserialize_with = "opt_duration")]
+    pub give_up_after: Option<Duration>,
+    /// The key this one replaced, refused with a word on what to write instead.
+    #[serde(rename = "exit_on_give_up")]
+    pub(crate) old_exit_on_give_up: Option<toml::Value>,
     /// Fault injection for tests (`--inject-panic supervisor:DELAY`).
     #[serde(skip)]
     pub(crate) panic_for_test: Option<Duration>,
@@ -202,7 +207,8 @@ impl Default for SupervisorConfig {
             range_margin: RANGE_MARGIN.default_value(),
             attempts: ATTEMPTS.default_value() as u32,
             step_timeout: STEP_TIMEOUT.default_value(),
-            exit_on_give_up: true,
+            give_up_after: None,
+            old_exit_on_give_up: None,
             panic_for_test: None,
         }
     }
@@ -221,6 +227,19 @@ impl SupervisorConfig {
         RANGE_MARGIN.check(self.range_margin)?;
         ATTEMPTS.check(u64::from(self.attempts))?;
         STEP_TIMEOUT.check(self.step_timeout)?;
+        if let Some(d) = self.give_up_after {
+            GIVE_UP_AFTER.check(d)?;
+        }
+        if self.old_exit_on_give_up.is_some() {
+            return Err(Violation {
+                paths: vec!["exit_on_give_up".into()],
+                message: "exit_on_give_up: no longer a key: adrive keeps running while a \
+                          device is gone or a recovery has given up; to end the run \
+                          instead, write give_up_after = \"30s\" (or run with \
+                          --give-up-after 30s)"
+                    .into(),
+            });
+        }
         Ok(())
     }
 }

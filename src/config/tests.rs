@@ -555,6 +555,24 @@ const ABSURD: &[Absurd] = &[
         says: &["[supervisor] step_timeout:", "from 100ms to 30s"],
     },
     Absurd {
+        incident: "a service that gives up on a device before it could be replugged",
+        replace: "# supervisor",
+        with: "give_up_after = \"0s\"",
+        at: "give_up_after",
+        says: &["[supervisor] give_up_after:", "from 1s to 86400s"],
+    },
+    Absurd {
+        incident: "the key that made a recovery giving up end the run",
+        replace: "# supervisor",
+        with: "exit_on_give_up = true",
+        at: "exit_on_give_up",
+        says: &[
+            "[supervisor] exit_on_give_up: no longer a key",
+            "adrive keeps running while a device is gone",
+            "give_up_after = \"30s\"",
+        ],
+    },
+    Absurd {
         incident: "modbus broadcast address as slave",
         replace: "slave = 3",
         with: "slave = 0",
@@ -967,6 +985,20 @@ fn a_bus_s_adapter_port_is_compared_with_every_other_bus_and_device() {
     assert!(
         e.ends_with("a CAN adapter's port is its bus's alone"),
         "{e}"
+    );
+}
+
+/// A device gone never ends the run unless the operator says so.
+#[test]
+fn give_up_after_is_off_unless_the_file_says_it() {
+    assert_eq!(
+        parse(BASE, "v.toml").unwrap().supervisor.give_up_after,
+        None
+    );
+    let set = BASE.replace("# supervisor", "give_up_after = \"2m\"");
+    assert_eq!(
+        parse(&set, "v.toml").unwrap().supervisor.give_up_after,
+        Some(Duration::from_secs(120))
     );
 }
 

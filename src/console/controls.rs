@@ -167,11 +167,21 @@ impl Frame {
             .iter()
             .map(|s| format!("STALLED {}", s.describe()))
             .collect();
+        // A device gone says what adrive waits for (`waiting for horn on /dev/ttyUSB3:
+        // No such file or directory, retrying every 5s`).
         out.extend(
             sup.faults
                 .iter()
                 .filter(|f| f.kind != FaultKind::Override)
-                .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause)),
+                .map(|f| {
+                    let waiting = sup.waiting.iter().find(|w| {
+                        f.kind == FaultKind::Disconnected && f.device.as_ref() == Some(&w.device)
+                    });
+                    match waiting {
+                        Some(w) => format!("{} {} {}", fault_name(f), secs(f.age_ms), w.describe()),
+                        None => format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause),
+                    }
+                }),
         );
         for d in self.snap.devices.iter().filter(|d| d.health.faulty) {
             if !sup

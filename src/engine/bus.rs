@@ -82,6 +82,9 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal, beat: &B
                 for &i in &on {
                     let d = &v.devices()[i];
                     d.port_health().missing.store(true, Relaxed);
+                    d.port_health()
+                        .retry_ms
+                        .store(backoff.as_millis() as u64, Relaxed);
                     d.record_error(
                         &DriverError::Io(std::io::Error::new(e.kind(), why.clone())),
                         false,

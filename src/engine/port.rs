@@ -13,7 +13,9 @@
 //! stays available ([`PortRule::Paper`]) so the difference can be shown.
 //!
 //! The [`Conn`] behind the arbiter owns the driver and the open port: it opens the port
-//! lazily, reopens it with exponential backoff after a disconnect, and timestamps the
+//! lazily, reopens it with exponential backoff after a disconnect (capped at
+//! [`BACKOFF_MAX`], for as long as adrive runs: a device gone never ends the run), and
+//! timestamps the
 //! first byte of every transaction the moment the kernel has taken it. It also decides
 //! when input nobody asked for may be waiting: only after a transaction that failed or
 //! timed out (a late reply may follow) or a fresh open. After a clean transaction the
@@ -37,13 +39,17 @@ pub struct PortHealth {
     pub opens: AtomicU64,
     /// The last attempt to open it failed: the port is gone (unplugged, wrong path).
     pub missing: AtomicBool,
+    /// While it is gone: how long after a failed open it is tried again, ms (the
+    /// backoff, doubling up to its cap).
+    pub retry_ms: AtomicU64,
 }
 
 /// Opens a device's port (a serial port, a pseudo-terminal, a test double).
 pub(crate) type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
 
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
-const BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// The longest wait between two tries to open a port that is gone.
+pub const BACKOFF_MAX: Duration = Duration::from_secs(5);
 /// After this many failed transactions in a row the port is closed and reopened, and
 /// the driver's `open` runs again (it un-wedges adapters such as the ELM327).
 pub(crate) const REOPEN_AFTER: u32 = 5;
@@ -322,6 +328,9 @@ impl Conn {
         self.link = None;
         self.announce_open = true;
         self.next_open = Instant::now() + self.backoff;
+        self.health
+            .retry_ms
+            .store(self.backoff.as_millis() as u64, Relaxed);
         self.backoff = (self.backoff * 2).min(BACKOFF_MAX);
     }
 

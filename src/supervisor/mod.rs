@@ -2,7 +2,10 @@
 //! the snapshot, names each fault with its cause and time, reports it (console, state
 //! broadcast, log), and runs recovery procedures as explicit state machines
 //! ([`recovery`]). A procedure that gives up leaves the vehicle in the safe state,
-//! disengaged, and — as a fatal device error — asks the process to end.
+//! disengaged. A device gone is waited for, said plainly ([`waiting`]). Neither ends
+//! the run: only the operator's `give_up_after` makes a device gone that long, or a
+//! recovery that gave up after trying that long, a fatal device error that asks the
+//! process to end.
 //!
 //! The detectors ([`detect`]) are pure functions of a [`Snapshot`], the vehicle's
 //! configuration and what the detector remembers between turns; they reach the
@@ -20,6 +23,7 @@
 
 mod kit;
 pub mod recovery;
+mod waiting;
 
 use crate::config::roles::ReadingRef;
 use crate::config::{SupervisorConfig, VehicleConfig};
@@ -452,9 +456,17 @@ pub(crate) fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> O
         {
             Procedure::steering(v, cfg)
         }
-        (FaultKind::Disconnected, Some(id)) => Some(Procedure::reconnect(v, id, cfg)),
         _ => None,
     }
+}
+
+/// `2.1 s, longer than give_up_after (2s)`
+fn over(d: Duration, limit: Duration) -> String {
+    format!(
+        "{:.1} s, longer than give_up_after ({})",
+        d.as_secs_f64(),
+        crate::config::limits::fmt_duration(limit)
+    )
 }
 
 /// The supervisor's state between turns: memory, current procedure, cool-downs.
@@ -466,7 +478,14 @@ pub(crate) struct Supervisor {
     waiting: Option<String>,
     /// A procedure of this name may not start again before this time.
     cooldown: HashMap<String, Instant>,
+    /// Since when each procedure has been trying, by name: from its first start until
+    /// it is done (it runs again after giving up, at the next engage).
+    trying_since: HashMap<String, Instant>,
+    /// The devices gone.
+    gone: waiting::Waiting,
     exit: ExitSink,
+    /// The run was asked to end (`give_up_after`): asked once.
+    ended: bool,
 }
 
 impl Supervisor {
@@ -477,7 +496,10 @@ impl Supervisor {
             procedure: None,
             waiting: None,
             cooldown: HashMap::new(),
+            trying_since: HashMap::new(),
+            gone: waiting::Waiting::default(),
             exit,
+            ended: false,
         }
     }
 
@@ -508,6 +530,7 @@ impl Supervisor {
             }
         }
         board.set_faults(faults.clone());
+        board.set_waiting(self.gone.turn(v, &faults, now));
         for f in faults.iter().filter(|f| f.kind == FaultKind::Override) {
             if let Some(device) = f.device.as_deref() {
                 gate.take_over(device, &f.describe());
@@ -542,7 +565,17 @@ impl Supervisor {
                         procedure_for(f, gate, &self.cfg).is_some_and(|q| q.name() == p.name())
                     })
             };
-            if let Some(f) = faults.iter().find(|f| disengages(f.kind) && !dealt_with(f)) {
+            // A device the rules do not act on (a horn) is shown, never a reason to stop.
+            let needed = |f: &Fault| {
+                f.device
+                    .as_deref()
+                    .and_then(|n| v.find(n))
+                    .is_none_or(|d| crate::safety::gate::needed(v, d))
+            };
+            if let Some(f) = faults
+                .iter()
+                .find(|f| disengages(f.kind) && needed(f) && !dealt_with(f))
+            {
                 gate.disengage(&format!("supervisor: {}", f.describe()));
             }
         }
@@ -551,6 +584,7 @@ impl Supervisor {
                 tracing::warn!("recovery {} started for {}", p.name(), f.describe());
                 board.note(format!("recovery {} started: {}", p.name(), f.describe()));
                 self.waiting = None;
+                self.trying_since.entry(p.name().to_string()).or_insert(now);
                 self.procedure = Some(p);
             }
             _ => {}
@@ -572,22 +606,55 @@ impl Supervisor {
                     tracing::info!("{msg}");
                     board.note(msg.clone());
                     board.set_outcome(msg);
+                    self.trying_since.remove(p.name());
                     self.finish(gate, now);
                 }
                 Progress::GaveUp(why) => {
                     let msg = format!("recovery {} gave up: {why}", p.name());
-                    tracing::error!("{msg}");
+                    tracing::error!("{msg}; it runs again from the top at the next engage");
                     board.note(msg.clone());
                     board.set_outcome(msg.clone());
                     gate.command_safe_state();
                     gate.disengage(&msg);
-                    self.finish(gate, now);
-                    if self.cfg.exit_on_give_up {
-                        (self.exit)(Exit::Fatal(msg));
+                    let tried = self
+                        .trying_since
+                        .get(p.name())
+                        .map_or(Duration::ZERO, |t| now - *t);
+                    let give_up = self.cfg.give_up_after.filter(|limit| tried >= *limit);
+                    if let Some(limit) = give_up {
+                        self.end(gate, format!("{msg}, trying for {}", over(tried, limit)));
                     }
+                    self.finish(gate, now);
                 }
             }
         }
+        if let Some(why) = self.gone_too_long(&faults, now) {
+            self.end(gate, why);
+        }
+    }
+
+    /// End the run, as the operator asked (`give_up_after`): the safe state, then the
+    /// request to end (once).
+    fn end(&mut self, gate: &Gate, why: String) {
+        if !std::mem::replace(&mut self.ended, true) {
+            tracing::error!("giving up: {why}");
+            gate.command_safe_state();
+            gate.disengage(&format!("giving up: {why}"));
+            (self.exit)(Exit::Fatal(why));
+        }
+    }
+
+    /// Why the run is to end now, if the operator asked for that (`give_up_after`): a
+    /// device gone that long. `None` without `give_up_after`: a device gone never ends
+    /// the run.
+    fn gone_too_long(&self, faults: &[Fault], now: Instant) -> Option<String> {
+        let limit = self.cfg.give_up_after?;
+        let (device, gone) = self.gone.longest(now).filter(|(_, d)| *d >= limit)?;
+        let cause = faults
+            .iter()
+            .find(|f| f.kind == FaultKind::Disconnected && f.device.as_deref() == Some(device))
+            .map_or_else(String::new, |f| format!(": {}", f.cause));
+        Some(format!("{device} gone for {}{cause}", over(gone, limit)))
     }
 
     /// The procedure to start now, and the fault it is for: the first fault whose
@@ -898,7 +965,10 @@ mod tests {
             "cannot open /dev/ttyUSB7: No such file or directory"
         );
         let f = &steer[0];
-        assert!(procedure_for(f, &gate, &sup).is_some_and(|p| p.name() == "reconnect steer"));
+        assert!(
+            procedure_for(f, &gate, &sup).is_none(),
+            "a device gone is waited for, not recovered"
+        );
     }
 
     /// A fault's log line, in the console's log pane and the log file, named its device

@@ -340,13 +340,14 @@ impl Device {
     /// Why the device is faulty, if it is: its last error after [`FAULT_AFTER`] failed
     /// transactions in a row, or its silence ([`Device::silence`]).
     pub fn fault(&self) -> Option<String> {
-        // A bus whose adapter is gone: every device on it at once, without waiting for
-        // errors to add up (its reader tries the adapter only as often as its backoff).
-        if self.config.on_bus() && self.port_health.missing.load(Relaxed) {
+        // A port that is gone (a bus's adapter: every device on it at once), without
+        // waiting for errors to add up: the engine tries it again only as often as its
+        // backoff allows, and engage must not slip in meanwhile.
+        if self.port_health.missing.load(Relaxed) {
             return Some(
                 self.health
                     .last_error()
-                    .unwrap_or_else(|| "bus down".into()),
+                    .unwrap_or_else(|| "port gone".into()),
             );
         }
         if self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER {

@@ -4,7 +4,9 @@
 //! broadcast and tests. Held in the [`Vehicle`](super::Vehicle), like every other state.
 
 use super::tap::{Event, Tap};
-pub use crate::snapshot::{FaultKind, FaultView, RecoveryView, StallView, SupervisorView};
+pub use crate::snapshot::{
+    FaultKind, FaultView, RecoveryView, StallView, SupervisorView, WaitingView,
+};
 use parking_lot::Mutex;
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -34,6 +36,8 @@ impl Fault {
 struct Inner {
     /// Stalled engine threads: name, time since its last turn when seen, bound, seen at.
     stalled: Vec<(String, Duration, Duration, Instant)>,
+    /// Devices gone, as the supervisor last said.
+    waiting: Vec<WaitingView>,
     faults: Vec<Fault>,
     recovery: Option<(RecoveryView, Instant)>,
     last_outcome: Option<String>,
@@ -80,7 +84,13 @@ impl Board {
             last_outcome: i.last_outcome.clone(),
             history: i.history.iter().cloned().collect(),
             stalled: stalled(&i, now),
+            waiting: i.waiting.clone(),
         }
+    }
+
+    /// The devices gone, and what adrive does about each (the supervisor's words).
+    pub(crate) fn set_waiting(&self, waiting: Vec<WaitingView>) {
+        self.inner.lock().waiting = waiting;
     }
 
     /// The engine threads that are stalled now (the service watchdog's finding).
