@@ -628,6 +628,50 @@ fn a_vanished_device_is_waited_for_and_back_when_its_port_is() {
     assert!(after.is_empty(), "{after:?}\n{history:#?}");
 }
 
+/// The incident: a Modbus drive answering later than its reply timeout had its late
+/// reply taken as the answer to the next request about half the time — the panel
+/// showed a fresh age, and only `error_rate` fired. The simulated steering answers 120
+/// ms after each request (its reply timeout is 100 ms): every late reply is drained,
+/// none is taken as another request's answer — its reading is never refreshed while it
+/// is slow — and it is named silent, slower than its reply timeout. Fast again, it
+/// answers again.
+#[test]
+fn a_drive_slower_than_its_reply_timeout_is_named_slow_and_no_reply_is_taken_for_another() {
+    let rig = Rig::supervised(&alice(""));
+    let steer = rig.device("steer");
+    wait_for("steer answering", || steer.cached().at.is_some());
+    rig.sim.apply("slow steer 120").unwrap();
+    let slow = |rig: &Rig| {
+        rig.vehicle
+            .supervision()
+            .faults()
+            .into_iter()
+            .find(|f| f.kind == FaultKind::Silent && f.device.as_deref() == Some("steer"))
+            .filter(|f| f.cause.contains("slower than its reply_timeout"))
+    };
+    wait_for("steer named silent and slow", || slow(&rig).is_some());
+    // From here, poll after poll, no reply is taken.
+    let read_at = steer.cached().at;
+    let polls = steer.stats().polls.load(Relaxed);
+    wait_for("twenty more polls", || {
+        steer.stats().polls.load(Relaxed) >= polls + 20
+    });
+    assert_eq!(
+        steer.cached().at,
+        read_at,
+        "a late reply was taken for another request's answer"
+    );
+    let cause = slow(&rig).expect("still silent").cause;
+    assert!(cause.contains("no answer for"), "{cause}");
+    rig.sim.apply("slow steer 0").unwrap();
+    wait_for("steer answering again", || steer.cached().at != read_at);
+    wait_for("silent cleared", || {
+        !rig.vehicle
+            .supervision()
+            .has(FaultKind::Silent, Some("steer"))
+    });
+}
+
 /// With a declared response the stuck motor is judged by the estimate: no headway for
 /// `stall_time` (500 ms), not a fixed tolerance for `follow_time` (2.5 s).
 #[test]

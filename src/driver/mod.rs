@@ -64,6 +64,11 @@ pub enum DriverError {
     /// The device answered in its protocol that it refuses (Modbus exception, `?`, `err`).
     #[error("device refused: {0}")]
     Refused(String),
+    /// No reply within the reply timeout, and the reply to the request before came after
+    /// its own deadline (dropped, never taken for this one's): the device answers slower
+    /// than its reply timeout.
+    #[error("no reply within {within:?}; the reply before came {late:?} after its deadline (dropped): slower than its reply_timeout")]
+    Late { within: Duration, late: Duration },
     /// The command cannot be expressed for this device (e.g. a gear sent to steering).
     #[error("unsupported command: {0}")]
     Unsupported(String),
@@ -88,6 +93,7 @@ impl DriverError {
     pub fn kind(&self) -> &'static str {
         match self {
             DriverError::Timeout(_) => "timeout",
+            DriverError::Late { .. } => "late",
             DriverError::Garbled(_) => "garbled",
             DriverError::Refused(_) => "refused",
             DriverError::Unsupported(_) => "unsupported",

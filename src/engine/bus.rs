@@ -117,6 +117,7 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal, beat: &B
 /// Bring the adapter onto the bus; its write half goes to the bus, its read half is
 /// returned.
 fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box<dyn Link>> {
+    drain(reader.as_mut());
     let mut decoder = Decoder::<FromAdapter>::new();
     for (n, c) in proto::bring_up(bus.bitrate(), false).iter().enumerate() {
         writer.write_all(&proto::encode_command(c))?;
@@ -150,6 +151,26 @@ fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box
     }
     bus.up(writer);
     Ok(reader)
+}
+
+/// How long the adapter's line must be quiet before the bring-up's first command.
+const QUIET: Duration = Duration::from_millis(50);
+
+/// Before the bring-up asks anything: read and drop what the adapter sends unasked — the
+/// late answer of an earlier try (never to be taken for an answer of this one), the
+/// frames of a bus left open — until the line has been quiet for [`QUIET`], at most
+/// [`ANSWER_WITHIN`] (a bus left open is never quiet; its frames are no answer, and the
+/// decoder skips them).
+fn drain(reader: &mut dyn Link) {
+    let end = Instant::now() + ANSWER_WITHIN;
+    let mut buf = [0u8; 256];
+    loop {
+        let quiet = Deadline::after(QUIET.min(end.saturating_duration_since(Instant::now())));
+        match read_some(reader, &mut buf, &quiet) {
+            Ok(_) if Instant::now() < end => {}
+            _ => return,
+        }
+    }
 }
 
 /// A kit a previous run left enabled (adrive killed, the adapter unplugged while
@@ -296,4 +317,53 @@ fn store(d: &Device, reading: Reading, at: Instant) {
     d.health().status_error.store(0, Relaxed);
     d.record_ok(at);
     d.tap_polled(Some(at), at, Ok(&reading));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::driver::serial::SerialLink;
+    use serialport::TTYPort;
+    use std::io::{Read, Write};
+
+    /// The class of a late reply taken for the next request's: the late answer of an
+    /// earlier try at bringing the adapter up (a `\r`, "done") waits on the line. Taken
+    /// for the answer to `C`, it would shift every answer by one — `C`'s own `\r` read as
+    /// "the bitrate is set" — and the adapter's refusal of the bitrate would be blamed
+    /// on the next command. Drained first, the refusal is the bitrate's.
+    #[test]
+    fn a_late_answer_of_an_earlier_try_is_no_answer_of_the_bring_up() {
+        let v = crate::config::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml"),
+        )
+        .unwrap();
+        let bus = Bus::new(v.buses[0].clone());
+        let (mut adapter, host) = TTYPort::pair().expect("a pseudo-terminal pair");
+        adapter.set_timeout(Duration::from_millis(20)).unwrap();
+        // The late answer, there before anything is asked.
+        adapter.write_all(b"\r").unwrap();
+        let served = std::thread::spawn(move || {
+            // `C` is done; the bitrate is refused (BEL).
+            let mut answered = 0;
+            let mut b = [0u8; 1];
+            let end = Instant::now() + Duration::from_secs(20);
+            while answered < 2 && Instant::now() < end {
+                if let Ok(1) = adapter.read(&mut b) {
+                    if b[0] == b'\r' {
+                        let answer: &[u8] = if answered == 0 { b"\r" } else { b"\x07" };
+                        adapter.write_all(answer).unwrap();
+                        answered += 1;
+                    }
+                }
+            }
+            adapter
+        });
+        let reader = SerialLink::new(host, ANSWER_WITHIN).unwrap();
+        let writer = reader.try_clone().unwrap();
+        let e = bring_up(&bus, (Box::new(reader), Box::new(writer)))
+            .err()
+            .expect("the adapter refuses the bitrate");
+        assert!(e.to_string().contains("adapter refused Bitrate"), "{e}");
+        drop(served.join().unwrap());
+    }
 }

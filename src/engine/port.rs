@@ -21,6 +21,22 @@
 //! timed out (a late reply may follow) or a fresh open. After a clean transaction the
 //! reply was read to its end, so the driver's discard before the next request is
 //! skipped — one system call less between a command and the wire.
+//!
+//! **A late reply is never taken for the next request's answer.** A device that
+//! answers after the deadline of a request would have its reply read as the answer to
+//! the next one — the same shape when both are polls — and look healthy while it is
+//! slow. So after an exchange that ended at its deadline (no reply, or one cut short),
+//! the next transaction first drains the line ([`Conn::drain`]): it reads and drops
+//! whatever arrives until the line has been quiet for a while — as long as the device's
+//! silence rule affords ([`drain_quiet`]: up to a whole reply timeout), or, once the
+//! device has been seen answering late, as late as it answered and a quarter of a reply
+//! timeout more (up to two) — and only then sends. A transaction that then misses its
+//! own deadline says the device is slow ([`DriverError::Late`]). The drain never costs
+//! a device that lost one request more than its `status_max_age` leaves after its
+//! period and one reply timeout, so one lost frame never makes it silent. (Requests of different
+//! shapes are also told apart by each driver: a Modbus reply must echo its request's
+//! function, byte count or written value, a line-protocol ack is no status line, an
+//! ELM327 reply names its PID.)
 
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
@@ -73,7 +89,8 @@ struct Arb {
 /// The arbiter of one device's port.
 pub struct Port {
     rule: PortRule,
-    /// The longest one transaction may hold it ([`Driver::longest`]).
+    /// The longest one transaction may hold it: the drain after a missed reply, then the
+    /// driver's longest ([`Driver::longest`]).
     longest: Duration,
     arb: Mutex<Arb>,
     cv: Condvar,
@@ -90,7 +107,7 @@ impl Port {
     pub fn new(rule: PortRule, conn: Conn) -> Port {
         Port {
             rule,
-            longest: conn.driver.longest(),
+            longest: conn.longest_drain() + conn.driver.longest(),
             arb: Mutex::new(Arb::default()),
             cv: Condvar::new(),
             conn: Mutex::new(conn),
@@ -299,6 +316,17 @@ pub struct Conn {
     /// The next open is to be logged ("port reopened"): after a disconnect, or after
     /// a reopen that was logged.
     announce_open: bool,
+    /// The device's reply timeout: what the drain after a missed reply is measured in.
+    reply_timeout: Duration,
+    /// How long the line must be quiet after a missed reply ([`drain_quiet`]).
+    quiet_base: Duration,
+    /// An exchange ended at its deadline without its whole reply, at this time: the
+    /// device may still be answering it, so the next transaction drains first.
+    missed: Option<Instant>,
+    /// How long after its deadline the latest late reply came.
+    seen_late: Duration,
+    /// How late the reply this transaction's drain dropped came (for its error).
+    dropped: Option<Duration>,
 }
 
 impl Conn {
@@ -307,6 +335,7 @@ impl Conn {
         opener: Opener,
         trace: Arc<Trace>,
         health: Arc<PortHealth>,
+        config: &crate::config::DeviceConfig,
     ) -> Conn {
         Conn {
             driver,
@@ -321,11 +350,91 @@ impl Conn {
             open_error: None,
             reopens: crate::logging::Repeats::default(),
             announce_open: false,
+            reply_timeout: config.reply_timeout,
+            quiet_base: drain_quiet(config),
+            missed: None,
+            seen_late: Duration::ZERO,
+            dropped: None,
+        }
+    }
+
+    /// How long the line must be quiet after a missed reply before the next request:
+    /// [`drain_quiet`], or — once the device has been seen answering late — as late as
+    /// it answered and a quarter of a reply timeout more, up to two reply timeouts.
+    fn quiet(&self) -> Duration {
+        self.quiet_base
+            .max(self.seen_late + self.reply_timeout / 4)
+            .min(self.reply_timeout * 2)
+    }
+
+    /// The longest a drain may take: twice the longest quiet.
+    fn longest_drain(&self) -> Duration {
+        self.reply_timeout * 4
+    }
+
+    /// After a missed reply: read and drop what the device still sends until the line
+    /// has been quiet for [`Conn::quiet`] since the missed deadline or the last byte
+    /// (at most twice that in all, so a babbling device cannot hold the port), noting
+    /// how late the first byte came. Every byte goes to the device's trace.
+    fn drain(&mut self) {
+        self.dropped = None;
+        let Some(missed) = self.missed.take() else {
+            return;
+        };
+        let quiet = self.quiet();
+        let Some(link) = self.link.as_mut() else {
+            return;
+        };
+        let cap = missed + quiet * 2;
+        let mut until = missed + quiet;
+        let mut buf = [0u8; 64];
+        loop {
+            let now = Instant::now();
+            // One look at what is already there, then wait out the quiet.
+            let wait = until.min(cap).saturating_duration_since(now);
+            if link
+                .set_timeout(wait.max(Duration::from_millis(1)))
+                .is_err()
+            {
+                return;
+            }
+            match link.read(&mut buf) {
+                Ok(n) if n > 0 => {
+                    let at = Instant::now();
+                    self.trace.record(Dir::In, &buf[..n]);
+                    if self.dropped.is_none() {
+                        let late = at.saturating_duration_since(missed);
+                        self.dropped = Some(late);
+                        self.seen_late = self.seen_late.max(late);
+                    }
+                    until = at + quiet;
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
+                // Closed or failing: the transaction will see.
+                _ => return,
+            }
+            if Instant::now() >= until.min(cap) {
+                return;
+            }
+        }
+    }
+
+    /// This transaction's result, saying so when it missed its deadline after the drain
+    /// dropped a late reply: the device is slower than its reply timeout.
+    fn with_late<T>(&self, r: Result<T, DriverError>) -> Result<T, DriverError> {
+        match (r, self.dropped) {
+            (Err(DriverError::Timeout(within)), Some(late)) => {
+                Err(DriverError::Late { within, late })
+            }
+            (r, _) => r,
         }
     }
 
     fn fail_open(&mut self) {
         self.link = None;
+        // A device gone: what it was answering is gone with it.
+        self.missed = None;
         self.announce_open = true;
         self.next_open = Instant::now() + self.backoff;
         self.health
@@ -386,7 +495,9 @@ impl Conn {
             // open, which `ensure_open` accounted for).
             return (Err(e), None);
         }
+        self.drain();
         let (r, first) = self.run(f);
+        let r = self.with_late(r);
         self.settle(&r);
         (r, first)
     }
@@ -408,7 +519,9 @@ impl Conn {
         if let Err(e) = self.ensure_open() {
             return (Err(e), None);
         }
+        self.drain();
         let (r, first) = self.run(|drv, link| drv.send_command(link, command));
+        let r = self.with_late(r);
         if r.is_err() {
             self.settle(&r);
         } else {
@@ -426,6 +539,7 @@ impl Conn {
             return Err(DriverError::Io(io::ErrorKind::NotConnected.into()));
         }
         let (r, _) = self.run(|drv, link| drv.finish_command(link));
+        let r = self.with_late(r);
         self.settle(&r);
         r
     }
@@ -463,6 +577,13 @@ impl Conn {
             }
             Err(e) => {
                 self.failures += 1;
+                // Ended at its deadline, or cut short: the device may still be sending.
+                if matches!(
+                    e,
+                    DriverError::Timeout(_) | DriverError::Late { .. } | DriverError::Garbled(_)
+                ) {
+                    self.missed = Some(Instant::now());
+                }
                 if e.is_disconnect() {
                     self.fail_open();
                 } else if self.failures >= REOPEN_AFTER {
@@ -482,6 +603,19 @@ impl Conn {
             }
         }
     }
+}
+
+/// How long the line must be quiet after a missed reply before a device's next
+/// request: a whole reply timeout, unless its silence rule cannot afford it. After one
+/// lost request the device's last answer is at most a status period older than that
+/// request; its deadline, this quiet and the next answer (a quarter of a reply timeout
+/// allowed for it) must come within `status_max_age`, or one lost frame would make it
+/// silent. Never less than a quarter of a reply timeout.
+pub(crate) fn drain_quiet(c: &crate::config::DeviceConfig) -> Duration {
+    let t = c.reply_timeout;
+    c.status_max_age
+        .saturating_sub(c.status_period + t + t / 4)
+        .clamp(t / 4, t)
 }
 
 /// A link that notes when the first byte of a transaction was taken by the port and
@@ -706,6 +840,91 @@ mod tests {
         assert_eq!(conn.health.opens.load(Relaxed), 1);
     }
 
+    /// The incident: a device answering later than its reply timeout had its late reply
+    /// read as the answer to the next request about half the time, so it looked
+    /// healthy. Over a real pseudo-terminal, a line device that answers its n-th request
+    /// with `pos=n` (so a reply names the request it answers), one at a time, first 20
+    /// ms after the deadline: no poll succeeds while it is that slow, the failures say
+    /// it is slower than its reply timeout, and once it is fast again every reply taken
+    /// is its own request's.
+    #[test]
+    fn a_late_reply_is_drained_never_taken_for_the_next_request_s() {
+        use crate::config::protocol_map::Wire;
+        use serialport::TTYPort;
+        use std::sync::atomic::AtomicU64;
+        let config = crate::config::one_device(
+            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"50ms\"\nstatus_max_age = \"500ms\"",
+        );
+        let Wire::Line(map) = config.wire.clone() else {
+            panic!("a line device")
+        };
+        let (mut device, host) = TTYPort::pair().expect("a pseudo-terminal pair");
+        device.set_timeout(Duration::from_millis(20)).unwrap();
+        // How late it answers, ms after a request arrives; u64::MAX stops it.
+        let slow = Arc::new(AtomicU64::new(70));
+        let s = slow.clone();
+        let served = std::thread::spawn(move || {
+            let (mut n, mut line) = (0u64, Vec::new());
+            let mut b = [0u8; 1];
+            while s.load(Relaxed) != u64::MAX {
+                match device.read(&mut b) {
+                    Ok(1) if b[0] == b'\n' => {
+                        n += 1;
+                        line.clear();
+                        std::thread::sleep(Duration::from_millis(s.load(Relaxed)));
+                        let _ = device.write_all(format!("= pos={n}\n").as_bytes());
+                    }
+                    Ok(_) => line.push(b[0]),
+                    Err(_) => {}
+                }
+            }
+        });
+        // Opened again by its path after failed transactions, as a serial port is.
+        let path = serialport::SerialPort::name(&host).expect("a pty's path");
+        let mut host = Some(host);
+        let opener: Opener = Box::new(move || match host.take() {
+            Some(h) => Ok(Box::new(h) as Box<dyn Link>),
+            None => crate::driver::open_serial(&path, 115_200, Duration::from_millis(50)),
+        });
+        let driver = Box::new(LineDriver::new(map, config.reply_timeout));
+        let mut conn = Conn::new(
+            driver,
+            opener,
+            Arc::new(Trace::new("d")),
+            Arc::default(),
+            &config,
+        );
+        let mut poll = || conn.transact(|drv, link| drv.poll(link)).0;
+        let mut late = 0;
+        for k in 1..=12 {
+            match poll() {
+                Ok(r) => panic!(
+                    "poll {k} took {:?}, the answer to another request",
+                    r.get(0)
+                ),
+                Err(DriverError::Late { .. }) => late += 1,
+                Err(DriverError::Timeout(_)) => {}
+                Err(e) => panic!("poll {k}: {e}"),
+            }
+        }
+        assert!(late >= 10, "named slow: {late} of 12");
+        // Fast again: each reply taken is its own request's (the device has answered k
+        // requests when the host's k-th is done).
+        slow.store(1, Relaxed);
+        let mut k = 12;
+        let mut good = 0;
+        while good < 5 {
+            k += 1;
+            assert!(k < 40, "never answered in time again");
+            if let Ok(r) = poll() {
+                assert_eq!(r.get(0), Some(k as f64), "poll {k} took another's answer");
+                good += 1;
+            }
+        }
+        slow.store(u64::MAX, Relaxed);
+        served.join().unwrap();
+    }
+
     /// Under the paper's rule a command never jumps the queue for the port.
     #[test]
     fn the_paper_rule_never_gives_the_port_at_once() {
@@ -731,16 +950,21 @@ mod tests {
         });
         let opener: Opener =
             Box::new(move || Ok(Box::new(device.take().expect("opened once")) as Box<dyn Link>));
-        let map = match crate::config::one_device(
-            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"",
-        )
-        .wire
-        {
-            crate::config::protocol_map::Wire::Line(m) => m,
+        let config = crate::config::one_device(
+            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"50ms\"",
+        );
+        let map = match &config.wire {
+            crate::config::protocol_map::Wire::Line(m) => m.clone(),
             other => panic!("{other:?}"),
         };
         let driver = Box::new(LineDriver::new(map, Duration::from_millis(50)));
-        let conn = Conn::new(driver, opener, Arc::new(Trace::new("d")), Arc::default());
+        let conn = Conn::new(
+            driver,
+            opener,
+            Arc::new(Trace::new("d")),
+            Arc::default(),
+            &config,
+        );
         (conn, discards)
     }
 }

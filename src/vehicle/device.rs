@@ -37,7 +37,7 @@ impl Cached {
 /// Error codes shown per thread, as on the paper's screen: 0 is good, ≥ 1 is bad.
 pub fn error_code(e: &DriverError) -> u32 {
     match e {
-        DriverError::Timeout(_) => 1,
+        DriverError::Timeout(_) | DriverError::Late { .. } => 1,
         DriverError::Garbled(_) => 2,
         DriverError::Refused(_) => 3,
         DriverError::Unsupported(_) => 4,
@@ -151,7 +151,7 @@ impl Device {
             roles,
             port: Port::new(
                 config.port_rule,
-                Conn::new(driver, opener, trace.clone(), port_health.clone()),
+                Conn::new(driver, opener, trace.clone(), port_health.clone(), &config),
             ),
             port_health,
             trace,
