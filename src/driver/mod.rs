@@ -64,10 +64,10 @@ pub enum DriverError {
     /// The device answered in its protocol that it refuses (Modbus exception, `?`, `err`).
     #[error("device refused: {0}")]
     Refused(String),
-    /// No reply within the reply timeout, and the reply to the request before came after
-    /// its own deadline (dropped, never taken for this one's): the device answers slower
-    /// than its reply timeout.
-    #[error("no reply within {within:?}; the reply before came {late:?} after its deadline (dropped): slower than its reply_timeout")]
+    /// No reply within the reply timeout; it came later, `late` after the deadline, and
+    /// was dropped (never taken for the next request's answer): the device answers
+    /// slower than its reply timeout.
+    #[error("no reply within {within:?}: it came {late:?} later and was dropped (slower than its reply_timeout)")]
     Late { within: Duration, late: Duration },
     /// The command cannot be expressed for this device (e.g. a gear sent to steering).
     #[error("unsupported command: {0}")]

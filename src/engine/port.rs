@@ -25,13 +25,15 @@
 //! **A late reply is never taken for the next request's answer.** A device that
 //! answers after the deadline of a request would have its reply read as the answer to
 //! the next one — the same shape when both are polls — and look healthy while it is
-//! slow. So after an exchange that ended at its deadline (no reply, or one cut short),
-//! the next transaction first drains the line ([`Conn::drain`]): it reads and drops
-//! whatever arrives until the line has been quiet for a while — as long as the device's
-//! silence rule affords ([`drain_quiet`]: up to a whole reply timeout), or, once the
-//! device has been seen answering late, as late as it answered and a quarter of a reply
-//! timeout more (up to two) — and only then sends. A transaction that then misses its
-//! own deadline says the device is slow ([`DriverError::Late`]). The drain never costs
+//! slow. So an exchange that ends at its deadline with nothing heard — its whole reply
+//! may still come — drains the line before the port is let go ([`Conn::drain`]): it
+//! reads and drops whatever arrives until the line has been quiet for a while — as long
+//! as the device's silence rule affords ([`drain_quiet`]: up to a whole reply timeout),
+//! or, once the device has been seen answering late, as late as it answered and a
+//! quarter of a reply timeout more (up to two). A reply that came meanwhile says the
+//! device is slow ([`DriverError::Late`]). A reply begun and cut short, or a device that
+//! trickles, leaves only a tail, which the next reply's framing refuses: there the port
+//! is let go at once. The drain never costs
 //! a device that lost one request more than its `status_max_age` leaves after its
 //! period and one reply timeout, so one lost frame never makes it silent. (Requests of different
 //! shapes are also told apart by each driver: a Modbus reply must echo its request's
@@ -320,13 +322,11 @@ pub struct Conn {
     reply_timeout: Duration,
     /// How long the line must be quiet after a missed reply ([`drain_quiet`]).
     quiet_base: Duration,
-    /// An exchange ended at its deadline without its whole reply, at this time: the
-    /// device may still be answering it, so the next transaction drains first.
-    missed: Option<Instant>,
     /// How long after its deadline the latest late reply came.
     seen_late: Duration,
-    /// How late the reply this transaction's drain dropped came (for its error).
-    dropped: Option<Duration>,
+    /// The last exchange heard something after its request (a reply begun, a
+    /// trickle): a miss then leaves no whole late reply to come.
+    heard: bool,
 }
 
 impl Conn {
@@ -352,9 +352,8 @@ impl Conn {
             announce_open: false,
             reply_timeout: config.reply_timeout,
             quiet_base: drain_quiet(config),
-            missed: None,
             seen_late: Duration::ZERO,
-            dropped: None,
+            heard: false,
         }
     }
 
@@ -372,69 +371,63 @@ impl Conn {
         self.reply_timeout * 4
     }
 
-    /// After a missed reply: read and drop what the device still sends until the line
-    /// has been quiet for [`Conn::quiet`] since the missed deadline or the last byte
-    /// (at most twice that in all, so a babbling device cannot hold the port), noting
-    /// how late the first byte came. Every byte goes to the device's trace.
-    fn drain(&mut self) {
-        self.dropped = None;
-        let Some(missed) = self.missed.take() else {
-            return;
-        };
+    /// A transaction that missed its deadline with nothing heard: its whole reply may
+    /// still come. Before the port is let go, read and drop what the device still sends
+    /// until the line has been quiet for [`Conn::quiet`] since the deadline or the last
+    /// byte (at most twice that in all, so a babbling device cannot hold the port);
+    /// every byte goes to the device's trace. Returns how late the reply came, if it
+    /// did. Done here, by the thread that missed, before it lets the port go: a
+    /// command's own transaction never drains between its wire check and its write.
+    fn drain(&mut self) -> Option<Duration> {
+        let missed = Instant::now();
         let quiet = self.quiet();
-        let Some(link) = self.link.as_mut() else {
-            return;
-        };
+        let link = self.link.as_mut()?;
         let cap = missed + quiet * 2;
         let mut until = missed + quiet;
+        let mut late = None;
         let mut buf = [0u8; 64];
-        loop {
-            let now = Instant::now();
-            // One look at what is already there, then wait out the quiet.
-            let wait = until.min(cap).saturating_duration_since(now);
+        while Instant::now() < until.min(cap) {
+            let wait = until.min(cap).saturating_duration_since(Instant::now());
             if link
                 .set_timeout(wait.max(Duration::from_millis(1)))
                 .is_err()
             {
-                return;
+                break;
             }
             match link.read(&mut buf) {
                 Ok(n) if n > 0 => {
                     let at = Instant::now();
                     self.trace.record(Dir::In, &buf[..n]);
-                    if self.dropped.is_none() {
-                        let late = at.saturating_duration_since(missed);
-                        self.dropped = Some(late);
-                        self.seen_late = self.seen_late.max(late);
-                    }
+                    late.get_or_insert(at.saturating_duration_since(missed));
                     until = at + quiet;
                 }
-                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
                 Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
-                // Closed or failing: the transaction will see.
-                _ => return,
-            }
-            if Instant::now() >= until.min(cap) {
-                return;
+                // Closed or failing: the next transaction will see.
+                _ => break,
             }
         }
+        if let Some(l) = late {
+            self.seen_late = self.seen_late.max(l);
+        }
+        late
     }
 
-    /// This transaction's result, saying so when it missed its deadline after the drain
-    /// dropped a late reply: the device is slower than its reply timeout.
-    fn with_late<T>(&self, r: Result<T, DriverError>) -> Result<T, DriverError> {
-        match (r, self.dropped) {
-            (Err(DriverError::Timeout(within)), Some(late)) => {
-                Err(DriverError::Late { within, late })
-            }
-            (r, _) => r,
+    /// The result of an exchange that ended with `r`: one that missed its deadline with
+    /// nothing heard is drained ([`Conn::drain`]), and says so when its reply came late
+    /// — the device is slower than its reply timeout.
+    fn drained<T>(&mut self, r: Result<T, DriverError>) -> Result<T, DriverError> {
+        match r {
+            Err(DriverError::Timeout(within)) if !self.heard => match self.drain() {
+                Some(late) => Err(DriverError::Late { within, late }),
+                None => Err(DriverError::Timeout(within)),
+            },
+            r => r,
         }
     }
 
     fn fail_open(&mut self) {
         self.link = None;
-        // A device gone: what it was answering is gone with it.
-        self.missed = None;
         self.announce_open = true;
         self.next_open = Instant::now() + self.backoff;
         self.health
@@ -471,6 +464,7 @@ impl Conn {
             first_write: None,
             trace: &self.trace,
             clean: false,
+            heard: false,
         };
         self.clean = false;
         if let Err(e) = self.driver.open(&mut traced) {
@@ -495,9 +489,8 @@ impl Conn {
             // open, which `ensure_open` accounted for).
             return (Err(e), None);
         }
-        self.drain();
         let (r, first) = self.run(f);
-        let r = self.with_late(r);
+        let r = self.drained(r);
         self.settle(&r);
         (r, first)
     }
@@ -519,9 +512,7 @@ impl Conn {
         if let Err(e) = self.ensure_open() {
             return (Err(e), None);
         }
-        self.drain();
         let (r, first) = self.run(|drv, link| drv.send_command(link, command));
-        let r = self.with_late(r);
         if r.is_err() {
             self.settle(&r);
         } else {
@@ -539,7 +530,7 @@ impl Conn {
             return Err(DriverError::Io(io::ErrorKind::NotConnected.into()));
         }
         let (r, _) = self.run(|drv, link| drv.finish_command(link));
-        let r = self.with_late(r);
+        let r = self.drained(r);
         self.settle(&r);
         r
     }
@@ -561,9 +552,12 @@ impl Conn {
             first_write: None,
             trace: &self.trace,
             clean: self.clean,
+            heard: false,
         };
         let r = f(self.driver.as_mut(), &mut stamped);
-        (r, stamped.first_write)
+        let (first, heard) = (stamped.first_write, stamped.heard);
+        self.heard = heard;
+        (r, first)
     }
 
     /// Account for a transaction that ended with `r`: what to discard before the next
@@ -577,13 +571,6 @@ impl Conn {
             }
             Err(e) => {
                 self.failures += 1;
-                // Ended at its deadline, or cut short: the device may still be sending.
-                if matches!(
-                    e,
-                    DriverError::Timeout(_) | DriverError::Late { .. } | DriverError::Garbled(_)
-                ) {
-                    self.missed = Some(Instant::now());
-                }
                 if e.is_disconnect() {
                     self.fail_open();
                 } else if self.failures >= REOPEN_AFTER {
@@ -628,12 +615,15 @@ struct Stamped<'a> {
     /// one before its request) has nothing to do. A later one — a driver that read
     /// garbage mid-reply — still discards.
     clean: bool,
+    /// A byte came since the last request was written.
+    heard: bool,
 }
 
 impl Read for Stamped<'_> {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         let n = self.inner.read(buf)?;
         self.trace.record(Dir::In, &buf[..n]);
+        self.heard |= n > 0;
         Ok(n)
     }
 }
@@ -644,6 +634,9 @@ impl Write for Stamped<'_> {
         // Stamped once the kernel has the first byte, not before the call.
         if self.first_write.is_none() && n > 0 {
             self.first_write = Some(Instant::now());
+        }
+        if n > 0 {
+            self.heard = false;
         }
         self.trace.record(Dir::Out, &buf[..n]);
         Ok(n)
