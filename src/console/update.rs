@@ -110,13 +110,15 @@ pub fn key(m: &mut Model, e: &KeyEvent, at: Instant, c: &dyn Controls, now: Inst
         at,
     });
     m.repeat.see(e.code, e.kind, at);
-    if teleop::key(m, e, at, c, now) {
-        return Flow::Continue;
-    }
-    match sight::key(m, e) {
-        Some(a) => update(m, a, c, now),
-        None => Flow::Continue,
-    }
+    let flow = match teleop::key(m, e, at, c, now) {
+        true => Flow::Continue,
+        false => match sight::key(m, e) {
+            Some(a) => update(m, a, c, now),
+            None => Flow::Continue,
+        },
+    };
+    teleop::held_only_in_teleop(m, c, now);
+    flow
 }
 
 /// The console found what its terminal reports of the keys (at start, or upgraded by

@@ -86,11 +86,30 @@ pub(super) fn key(
 ) -> bool {
     let drive = m.drive();
     let f = m.repeat.figures();
-    if drive == Drive::Hold && e.kind != KeyEventKind::Release {
-        // Any key's event shows the terminal still sends, and no release came for the
-        // keys held.
+    // Any key's event shows the terminal still sends, and no release came for the keys
+    // held: they are kept, and the engine's lease with them at once.
+    let kept =
+        drive == Drive::Hold && e.kind != KeyEventKind::Release && !m.teleop.holds.is_empty();
+    if kept {
         m.teleop.holds.alive(&f, e.kind, at);
     }
+    let taken = hold_event(m, e, at, c, now, drive);
+    if kept && !taken {
+        pedals(m, c, now);
+    }
+    taken
+}
+
+/// [`key`]'s part for the hold keys: whether the event was one of theirs.
+fn hold_event(
+    m: &mut Model,
+    e: &KeyEvent,
+    at: Instant,
+    c: &dyn Controls,
+    now: Instant,
+    drive: Drive,
+) -> bool {
+    let f = m.repeat.figures();
     if e.kind == KeyEventKind::Release {
         if !m.teleop.holds.all().any(|h| h.code == e.code) {
             return false;
@@ -438,15 +457,10 @@ fn step_mode(m: &mut Model, c: &dyn Controls, now: Instant) {
 }
 
 /// The mode changed (step forced or undone, the terminal found to report releases):
-/// keys held are let go first, as they were read the old way — the pedals go to the
-/// hold level — and the bar's message says the new mode.
+/// keys held are let go first, as they were read the old way, and the bar's message
+/// says the new mode.
 pub(super) fn switched(m: &mut Model, c: &dyn Controls, now: Instant) {
-    let had = !m.teleop.holds.is_empty();
-    m.teleop.holds.clear();
-    m.teleop.steer_from = None;
-    if had {
-        pedals(m, c, now);
-    }
+    let_go_all(m, c, now);
     if m.mode != Mode::Teleop {
         return;
     }
@@ -455,6 +469,26 @@ pub(super) fn switched(m: &mut Model, c: &dyn Controls, now: Instant) {
         d => format!("teleop: {} — hold the keys to drive", d.as_str()),
     };
     m.say(text, false);
+}
+
+/// Keys hold only on teleop's own screen: once another covers it (help, a question)
+/// or it was left, every key held lets go, as at its release.
+pub(super) fn held_only_in_teleop(m: &mut Model, c: &dyn Controls, now: Instant) {
+    if m.mode != Mode::Teleop {
+        let_go_all(m, c, now);
+    }
+}
+
+/// Every key held lets go: the steering stays where it got to, the pedals go to the
+/// hold level.
+fn let_go_all(m: &mut Model, c: &dyn Controls, now: Instant) {
+    if m.teleop.holds.is_empty() {
+        return;
+    }
+    steer_to(m, c, now);
+    m.teleop.holds.clear();
+    m.teleop.steer_from = None;
+    pedals(m, c, now);
 }
 
 /// Leave teleop: gas 0, brake full, staying engaged — if the console commands.

@@ -248,6 +248,7 @@ fn level_keys_change_what_a_held_key_asks_within_the_limits() {
         new_calls(&f),
         [
             "held 0.2 for 530ms then -0.3",
+            "renew 530ms",
             "held 0.25 for 530ms then -0.3"
         ]
     );
@@ -288,28 +289,35 @@ fn step_mode_is_forced_and_undone_by_its_key() {
     ev(&mut m, &f, "<Up>", Release, t + ms(30));
     assert_eq!(
         new_calls(&f),
-        ["held 0.2 for 530ms then -0.3", "accel -0.3", "accel 0"]
+        [
+            "held 0.2 for 530ms then -0.3",
+            "renew 530ms",
+            "accel -0.3",
+            "accel 0"
+        ]
     );
     assert!(screen_text(&mut m).contains("TELEOP step"));
     press(&mut m, &f, &["m"], t + ms(40));
     assert_eq!(m.drive(), Drive::Hold);
 }
 
-/// A release always lets go, in help too (letting go is never refused); and a key the
-/// operator cannot see (help over the bar) holds nothing.
+/// Keys hold only on teleop's screen: help over the bar lets every key go at once (the
+/// release that follows finds nothing held), and a key the operator cannot see holds
+/// nothing.
 #[test]
-fn a_release_lets_go_whatever_is_on_the_screen() {
+fn help_over_the_bar_lets_go_and_an_unseen_key_holds_nothing() {
     let f = Fake::new();
     let t = Instant::now();
     let mut m = teleop(&f, true, Some((500, 30)), t);
     ev(&mut m, &f, "<Up>", Press, t);
-    press(&mut m, &f, &["?"], t + ms(50));
+    assert_eq!(new_calls(&f), ["held 0.2 for 530ms then -0.3"]);
+    ev(&mut m, &f, "?", Press, t + ms(50));
     assert_eq!(m.mode, Mode::Help);
+    let calls = new_calls(&f);
+    assert_eq!(calls.last().unwrap(), "accel -0.3", "{calls:?}");
+    assert!(m.teleop.holds.is_empty());
     ev(&mut m, &f, "<Up>", Release, t + ms(100));
-    assert_eq!(
-        new_calls(&f),
-        ["held 0.2 for 530ms then -0.3", "accel -0.3"]
-    );
+    assert_eq!(new_calls(&f), Vec::<String>::new());
     press(&mut m, &f, &["<Esc>"], t + ms(150));
     m.screen = ratatui::layout::Rect::new(0, 0, 30, 30);
     ev(&mut m, &f, "<Up>", Press, t + ms(200));
@@ -320,6 +328,29 @@ fn a_release_lets_go_whatever_is_on_the_screen() {
         "{}",
         msg.text
     );
+}
+
+/// Hold mode: another key's events (any key: the terminal repeats only the last key
+/// pressed) keep a key held whose release has not come, and renew the engine's lease at
+/// once — not at the next tick, after the lease ran out.
+#[test]
+fn another_key_s_events_keep_a_hold_and_its_lease() {
+    let f = Fake::new();
+    let t = Instant::now();
+    let mut m = teleop(&f, true, Some((500, 30)), t);
+    ev(&mut m, &f, "<Up>", Press, t);
+    ev(&mut m, &f, "x", Press, t + ms(300));
+    for i in 0..10 {
+        ev(&mut m, &f, "x", Repeat, t + ms(800 + 30 * i));
+    }
+    assert_eq!(
+        new_calls(&f)[..3],
+        ["held 0.2 for 530ms then -0.3", "renew 530ms", "renew 60ms"]
+    );
+    tick(&mut m, &f, t + ms(1100));
+    assert_eq!(new_calls(&f), Vec::<String>::new(), "no drop, no new ask");
+    ev(&mut m, &f, "<Up>", Release, t + ms(1110));
+    assert_eq!(new_calls(&f), ["accel -0.3"]);
 }
 
 /// Refused gas holds nothing (only a new press asks again); a lease the engine ended
