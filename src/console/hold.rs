@@ -181,7 +181,9 @@ impl KeyRepeat {
     }
 
     /// Take the run's figures once it looks like a key repeat: a first delay, then at
-    /// least two steady intervals no longer than the delay.
+    /// least two intervals no longer than the delay, steady but for the odd one a busy
+    /// machine or link delayed or packed (three in four within half and twice their
+    /// median). Only the steady ones are learnt.
     fn learn(&mut self) {
         let Some(r) = self.run.as_mut() else { return };
         let Some(first) = r.first else { return };
@@ -189,10 +191,8 @@ impl KeyRepeat {
             return;
         }
         let interval = median(&r.gaps);
-        let steady = r
-            .gaps
-            .iter()
-            .all(|g| *g >= interval / 2 && *g <= interval * 2);
+        let in_band = |g: &Duration| *g >= interval / 2 && *g <= interval * 2;
+        let steady = r.gaps.iter().filter(|g| in_band(g)).count() * 4 >= r.gaps.len() * 3;
         let plausible = (MIN_INTERVAL..=MAX_INTERVAL).contains(&interval)
             && first >= interval
             && first <= MAX_DELAY;
@@ -209,7 +209,7 @@ impl KeyRepeat {
             self.firsts.push_back(first);
             &r.gaps[..]
         };
-        for g in new {
+        for g in new.iter().filter(|g| in_band(g)) {
             if self.gaps.len() == KEEP_GAPS {
                 self.gaps.pop_front();
             }
@@ -454,6 +454,24 @@ mod tests {
                 learnt: true
             }
         );
+    }
+
+    /// A busy machine or link delays a repeat now and then and packs the next behind
+    /// it: the key repeat is still learnt, from the steady intervals alone.
+    #[test]
+    fn a_key_repeat_with_a_late_and_a_packed_repeat_is_learnt() {
+        let (mut r, t, code) = (KeyRepeat::default(), Instant::now(), KeyCode::Up);
+        r.see(code, Press, t);
+        // The first repeat on time, the second 25 ms late and the third read 5 ms
+        // after it, then steady.
+        let mut at = 300;
+        for gap in [0, 55, 5, 30, 30, 30, 30, 30] {
+            at += gap;
+            r.see(code, Press, t + ms(at));
+        }
+        let f = r.figures();
+        assert!(f.learnt);
+        assert_eq!((f.delay, f.interval), (ms(300), ms(30)));
     }
 
     /// Taps are not a key repeat: slower than one, or the same gap from the start.
