@@ -8,9 +8,9 @@
 mod common;
 
 use common::pty::Master;
-use common::terminal_player::{Answer, Play};
 use common::simproc::{vehicle_file, SimProcess};
-use common::{lines, tempdir, wait_exit, DEADLINE};
+use common::terminal_player::{Answer, Play};
+use common::{engage_answered, lines, tempdir, wait_exit, DEADLINE};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -170,10 +170,11 @@ impl Attached {
             self.keys("E");
             self.wait_for("the confirmation", |s| s.contains("Engage?"));
             self.keys("y");
-            let s = self.wait_for("the engage outcome", |s| {
-                s.contains(" COMMANDING ") || s.contains("engage refused")
-            });
-            if s.contains(" COMMANDING ") {
+            // The outcome of this `y`: the frame that closed the question says it (a
+            // refusal still on the screen from the last try is not it).
+            let s = self.wait_for("the engage outcome", engage_answered);
+            if s.contains("engaged: the console commands") {
+                self.wait_for("the header", |s| s.contains(" COMMANDING "));
                 return;
             }
             assert!(Instant::now() < end, "could not engage:\n{s}");
@@ -681,7 +682,10 @@ fn an_attached_commander_whose_terminal_freezes_stops_the_vehicle_and_a_watcher_
     // The watcher's terminal freezes: command is held, well past the bound.
     watcher.term.stop_reading();
     svc.stays_engaged(TERMINAL_TIMEOUT * 3);
-    assert!(driver.term.cursor_answers() > 4, "the commander's terminal answered");
+    assert!(
+        driver.term.cursor_answers() > 4,
+        "the commander's terminal answered"
+    );
     assert_eq!(
         watcher.term.cursor_requests(),
         0,

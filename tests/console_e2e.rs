@@ -7,7 +7,7 @@ mod common;
 
 use common::pty::{attach, openpty};
 use common::terminal_player::{Answer, Key, Kind, Play, Player};
-use common::DEADLINE;
+use common::{engage_answered, DEADLINE};
 use std::os::fd::AsRawFd;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
@@ -192,10 +192,11 @@ impl Console {
             self.keys("E");
             self.wait_for("the confirmation", |s| s.contains("Engage?"));
             self.keys("y");
-            let s = self.wait_for("the engage outcome", |s| {
-                s.contains("│ ENGAGED") || s.contains("engage refused")
-            });
-            if s.contains("│ ENGAGED") {
+            // The outcome of this `y`: the frame that closed the question says it (a
+            // refusal still on the screen from the last try is not it).
+            let s = self.wait_for("the engage outcome", engage_answered);
+            if s.contains("engaged: the console commands") {
+                self.wait_for("the header", |s| s.contains("│ ENGAGED"));
                 return;
             }
             assert!(Instant::now() < end, "could not engage:\n{s}");
@@ -1032,7 +1033,10 @@ fn an_e_stop_pause_after_a_cleared_override_is_named_as_the_e_stop() {
 /// The gate as `adrive ctl status --json` has it: engaged, and why not.
 fn gate(c: &Console) -> (bool, String) {
     let g = status(c)["gate"].clone();
-    (g["engaged"] == true, g["reason"].as_str().unwrap_or("").to_string())
+    (
+        g["engaged"] == true,
+        g["reason"].as_str().unwrap_or("").to_string(),
+    )
 }
 
 /// Wait until the gate disengages; how long after `from` it was seen, and why.
@@ -1091,7 +1095,11 @@ fn a_terminal_that_stops_answering_stops_the_vehicle_within_the_bound() {
         after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
         "the safe state came {after:?} after the stall"
     );
-    assert_eq!(c.term.cursor_answers(), answered, "it answered nothing since");
+    assert_eq!(
+        c.term.cursor_answers(),
+        answered,
+        "it answered nothing since"
+    );
     let log = c.log();
     assert!(
         log.contains("watchdog: console: its terminal stopped answering for 1."),
@@ -1134,7 +1142,9 @@ fn a_slow_but_live_terminal_keeps_command_for_a_minute() {
 #[test]
 fn a_console_asks_only_while_it_commands() {
     let mut c = Console::start("quiet", &[]);
-    c.wait_for("the main screen", |s| s.contains("STEER") && s.contains("OBD"));
+    c.wait_for("the main screen", |s| {
+        s.contains("STEER") && s.contains("OBD")
+    });
     common::wait_for("every device to report", || {
         status(&c)["gate"]["blockers"]
             .as_array()
@@ -1172,12 +1182,8 @@ fn the_kitty_flags_are_pushed_where_supported_and_popped_on_every_way_out() {
         ("hup", &[][..]),
         ("panic", &["--inject-panic", "main"][..]),
     ] {
-        let mut c = Console::start_playing(
-            &format!("kitty-{how}"),
-            extra,
-            (COLS, ROWS),
-            Play::kitty(),
-        );
+        let mut c =
+            Console::start_playing(&format!("kitty-{how}"), extra, (COLS, ROWS), Play::kitty());
         c.wait_for("the main screen", |s| s.contains("STEER"));
         c.wait_for("the flags pushed", |_| c.term.kitty_flags() == 3);
         let status = match how {
@@ -1195,7 +1201,11 @@ fn the_kitty_flags_are_pushed_where_supported_and_popped_on_every_way_out() {
         };
         let bytes = c.bytes();
         assert!(pushed(&bytes), "{how}");
-        assert_eq!(c.term.kitty_flags(), 0, "{how}: the terminal was left in the protocol");
+        assert_eq!(
+            c.term.kitty_flags(),
+            0,
+            "{how}: the terminal was left in the protocol"
+        );
         assert!(popped_before_leaving(&bytes), "{how}");
         assert!(c.cooked(), "{how}");
         assert!(!status.success() || how == "quit", "{how}: {status:?}");
@@ -1211,7 +1221,10 @@ fn a_terminal_without_the_protocol_or_without_answers_gets_presses_only() {
         let mut c = Console::start_playing(name, &[], (COLS, ROWS), play);
         c.wait_for("the main screen", |s| s.contains("STEER"));
         let end = Instant::now() + DEADLINE;
-        while !c.log().contains("console: the terminal reports presses only") {
+        while !c
+            .log()
+            .contains("console: the terminal reports presses only")
+        {
             assert!(Instant::now() < end, "{name}: {}", c.log());
             std::thread::sleep(Duration::from_millis(20));
         }

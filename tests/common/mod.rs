@@ -30,6 +30,15 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
     }
 }
 
+/// A console's screen once its engage question was answered: the question gone, and
+/// what its answer did said (`engaged: …` or `engage refused: …`). Waiting for the
+/// refusal alone read a refusal left on the screen by an earlier try as this one's,
+/// and the next `E` `y` then landed on whatever the test did next.
+pub fn engage_answered(screen: &str) -> bool {
+    !screen.contains("Engage?")
+        && (screen.contains("engaged: the console commands") || screen.contains("engage refused"))
+}
+
 pub struct Rig {
     pub sim: Sim,
     pub vehicle: Arc<Vehicle>,
