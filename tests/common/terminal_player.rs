@@ -173,8 +173,10 @@ struct Shared {
     out: Mutex<Vec<u8>>,
     play: Mutex<Play>,
     asked: Mutex<Vec<(Instant, Asked)>>,
-    /// Cursor position reports written.
+    /// Cursor position reports scheduled (written, or to be at their time).
     answered: Mutex<usize>,
+    /// When the last cursor position report was written.
+    last_answer: Mutex<Option<Instant>>,
     /// The kitty protocol's stack of flags (the top applies).
     stack: Mutex<Vec<u32>>,
     close: AtomicBool,
@@ -277,6 +279,11 @@ impl Player {
     /// How many cursor position reports the terminal sent so far.
     pub fn cursor_answers(&self) -> usize {
         *self.shared.answered.lock().unwrap()
+    }
+
+    /// When the terminal last wrote a cursor position report.
+    pub fn last_answer(&self) -> Option<Instant> {
+        *self.shared.last_answer.lock().unwrap()
     }
 
     /// The kitty protocol's flags in force now (0: the legacy encoding).
@@ -437,6 +444,9 @@ fn play_until_closed(mut master: File, s: &Shared, keys: &Mutex<File>) {
             let (_, bytes) = due.pop_front().unwrap();
             if keys.lock().unwrap().write_all(&bytes).is_err() {
                 return;
+            }
+            if bytes.ends_with(b"R") {
+                *s.last_answer.lock().unwrap() = Some(Instant::now());
             }
         }
         let reading = s.play.lock().unwrap().reading;
