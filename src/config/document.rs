@@ -254,7 +254,9 @@ impl<'a> Document<'a> {
 pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
-        [section @ ("network" | "console" | "supervisor" | "record" | "ros2"), ..] => format!("[{section}] "),
+        [section @ ("network" | "console" | "supervisor" | "record" | "ros2"), ..] => {
+            format!("[{section}] ")
+        }
         _ => String::new(),
     }
 }

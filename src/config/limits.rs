@@ -182,7 +182,8 @@ const fn s(n: u64) -> Duration {
 }
 
 use Section::{
-    CommandLine, Console, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2, Supervisor,
+    CommandLine, Console, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2,
+    Supervisor,
 };
 
 pub const BAUD: Limit<u64> = Limit {

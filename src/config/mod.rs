@@ -14,10 +14,10 @@
 //!   still names its line.
 
 pub mod can;
+pub mod console;
 pub mod device;
 pub mod document;
 pub mod limits;
-pub mod console;
 pub mod network;
 pub mod placement;
 pub mod protocol_map;
@@ -26,10 +26,10 @@ pub mod response;
 pub mod roles;
 pub mod ros2;
 
+pub use console::ConsoleConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
-pub use console::ConsoleConfig;
 pub use network::NetworkConfig;
 pub use record::RecordConfig;
 pub use response::{Motion, Polling, Response};

@@ -8,6 +8,7 @@
 //! past drive.
 
 use super::controls::{Controls, Frame, Thread};
+use super::input::Input;
 use super::keymap::{Action, Keymap, Mode};
 use super::model::Model;
 use super::theme::Theme;
@@ -21,7 +22,6 @@ use crate::safety::Refused;
 use crate::value::{Command, DeviceId};
 use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
 use crossbeam_channel::{select, Receiver};
-use super::input::Input;
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Layout, Rect};

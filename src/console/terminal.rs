@@ -166,7 +166,6 @@ impl Output {
         CUT.store(!self.pending.is_empty(), SeqCst);
         Ok(())
     }
-
 }
 
 impl Write for Output {

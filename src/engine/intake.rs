@@ -559,7 +559,10 @@ mod tests {
         g.admit(watcher, Ask::Engage, t2).unwrap();
         assert_eq!(g.watch(t2 + bound / 2), None);
         g.answered(driver, t2 + bound / 2);
-        assert!(g.watch(t2 + bound).is_some(), "another console's answers are not its own");
+        assert!(
+            g.watch(t2 + bound).is_some(),
+            "another console's answers are not its own"
+        );
     }
 
     #[derive(Clone, Copy, Debug)]

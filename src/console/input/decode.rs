@@ -223,14 +223,19 @@ pub(crate) fn crossterm_key(k: terminput::KeyEvent) -> Option<KeyEvent> {
     let mut state = KeyEventState::NONE;
     for (t, c) in [
         (terminput::KeyEventState::KEYPAD, KeyEventState::KEYPAD),
-        (terminput::KeyEventState::CAPS_LOCK, KeyEventState::CAPS_LOCK),
+        (
+            terminput::KeyEventState::CAPS_LOCK,
+            KeyEventState::CAPS_LOCK,
+        ),
         (terminput::KeyEventState::NUM_LOCK, KeyEventState::NUM_LOCK),
     ] {
         if k.state.contains(t) {
             state |= c;
         }
     }
-    Some(KeyEvent::new_with_kind_and_state(code, modifiers, kind, state))
+    Some(KeyEvent::new_with_kind_and_state(
+        code, modifiers, kind, state,
+    ))
 }
 
 fn media(m: terminput::MediaKeyCode) -> MediaKeyCode {
@@ -252,7 +257,10 @@ fn media(m: terminput::MediaKeyCode) -> MediaKeyCode {
     }
 }
 
-fn modifier(m: terminput::ModifierKeyCode, d: terminput::ModifierDirection) -> Option<ModifierKeyCode> {
+fn modifier(
+    m: terminput::ModifierKeyCode,
+    d: terminput::ModifierDirection,
+) -> Option<ModifierKeyCode> {
     use terminput::ModifierDirection::{Left, Right, Unknown};
     use terminput::ModifierKeyCode as T;
     Some(match (m, d) {

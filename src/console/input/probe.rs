@@ -165,7 +165,10 @@ mod tests {
         );
         assert_eq!(multiplexer(env(&[("TERM", "tmux-256color")])), Some("tmux"));
         assert_eq!(multiplexer(env(&[("STY", "123.pts-0")])), Some("screen"));
-        assert_eq!(multiplexer(env(&[("TERM", "screen.xterm")])), Some("screen"));
+        assert_eq!(
+            multiplexer(env(&[("TERM", "screen.xterm")])),
+            Some("screen")
+        );
         assert_eq!(multiplexer(env(&[("TERM", "xterm-kitty")])), None);
         assert_eq!(multiplexer(env(&[("TMUX", "")])), None);
     }
