@@ -34,6 +34,8 @@ pub struct Cli {
     pub run: RunArgs,
 }
 
+// Parsed once per process: the size of its largest variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 pub enum Cmd {
     /// Run the engine with the console (the default).
@@ -110,11 +112,22 @@ pub struct RunArgs {
     /// (500ms to 10s) [default: the vehicle file's `[console]` terminal_timeout, 1s].
     #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_terminal_timeout)]
     pub terminal_timeout: Option<Duration>,
+    /// End the run (status 4, after the safe state) once a device has been gone this
+    /// long, or a recovery procedure gave up after trying this long (1s to 1 day;
+    /// default: never: adrive keeps the vehicle safe and waits for the device), instead
+    /// of the vehicle file's `[supervisor]` give_up_after.
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_give_up_after)]
+    pub give_up_after: Option<Duration>,
     /// Fault injection for tests: make a thread panic once running, `main`,
     /// `supervisor` or a device's status thread (`steer/status`; `steer/status=return`
     /// ends it quietly instead), optionally after a delay (`supervisor:4s`).
     #[arg(long, value_name = "THREAD[:DELAY]", hide = true)]
     pub(crate) inject_panic: Option<String>,
+    /// Fault injection for tests: make an engine thread (`steer/status`, `brake/command`,
+    /// `bus/kit`, `gate/monitor`, `supervisor`) block in a system call once, AFTER its
+    /// start, for FOR (`steer/status:2s:5s`), as a port stuck in the kernel would.
+    #[arg(long, value_name = "THREAD:AFTER:FOR", hide = true)]
+    pub(crate) inject_hang: Option<String>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
@@ -378,6 +391,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     if let Some(addr) = args.listen {
         config.network.listen = addr;
     }
+    if let Some(d) = args.give_up_after {
+        config.supervisor.give_up_after = Some(d);
+    }
     if !args.broadcast_to.is_empty() {
         config.network.broadcast_to = args.broadcast_to.clone();
     }
@@ -469,6 +485,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             None => (spec, Duration::from_millis(1500)),
         },
     };
+    if let Some(hang) = args.inject_hang.as_deref() {
+        crate::threads::inject_hang(parse_hang(hang).map_err(anyhow::Error::msg)?);
+    }
     let engine = Engine::start_injected(gate.clone(), injected(panic_in, panic_after))?;
     let monitor = crate::engine::monitor::Monitor::start(gate.clone())?;
     let mut sup_cfg = vehicle.config().supervisor.clone();
@@ -477,7 +496,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         gate.clone(),
         sup_cfg,
         Box::new(exit::request),
-        engine.liveness(),
+        engine.liveness().with(&monitor.liveness()),
     )?;
     // Let the devices report first, so the unwinding really has a vehicle to stop; with
     // the console, it panics from its own loop, so the terminal is taken over then.
@@ -588,6 +607,21 @@ fn service_ready(engine: &Engine) {
         // Not ready: systemd's start timeout (or the watchdog) will tell.
         tracing::error!(threads = ?late, "device threads not running 2 s after the start");
     }
+}
+
+/// `--inject-hang THREAD:AFTER:FOR`.
+fn parse_hang(text: &str) -> Result<crate::threads::HangSpec, String> {
+    let mut parts = text.rsplitn(3, ':');
+    let (Some(hang), Some(after), Some(thread)) = (parts.next(), parts.next(), parts.next()) else {
+        return Err(format!(
+            "expected THREAD:AFTER:FOR (steer/status:2s:5s), got {text:?}"
+        ));
+    };
+    Ok(crate::threads::HangSpec {
+        thread: thread.to_string(),
+        after: config::parse_duration(after)?,
+        hang: config::parse_duration(hang)?,
+    })
 }
 
 /// `--inject-panic DEVICE/status` (a panic) or `DEVICE/status=return` (the thread

@@ -452,6 +452,68 @@ pub struct SupervisorView {
     pub last_outcome: Option<String>,
     /// Recent steps and outcomes, newest last.
     pub history: Vec<String>,
+    /// Engine threads that have not turned their loop within their bound (a thread
+    /// stuck in a system call): the service watchdog is not fed, engage is refused.
+    #[serde(default)]
+    pub stalled: Vec<StallView>,
+    /// Devices gone (unplugged, or never there) that adrive keeps reopening: what it
+    /// waits for. A device gone never ends the run.
+    #[serde(default)]
+    pub waiting: Vec<WaitingView>,
+}
+
+/// A device gone, and what adrive does about it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct WaitingView {
+    pub device: String,
+    /// The port it is reopened on (a bus's adapter, for a device on a CAN bus).
+    pub port: String,
+    /// Why the last open failed: `No such file or directory`.
+    pub error: String,
+    /// Since it went, ms.
+    pub gone_ms: f64,
+    /// How long after a failed open it is tried again, ms (its backoff, up to 5 s).
+    pub retry_ms: f64,
+    /// The rules act on it (it is bound to a role): engage is refused while it is
+    /// gone. Else it is shown, and holds nothing up.
+    pub needed: bool,
+}
+
+impl WaitingView {
+    /// `waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s`
+    pub fn describe(&self) -> String {
+        let every = std::time::Duration::from_millis(self.retry_ms.max(1.0) as u64);
+        format!(
+            "waiting for {} on {}: {}, retrying every {}",
+            self.device,
+            self.port,
+            self.error,
+            humantime::format_duration(every)
+        )
+    }
+}
+
+/// An engine thread past its bound.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct StallView {
+    /// `steer/status`, `brake/command`, `bus/kit`, `gate/monitor`, `supervisor`.
+    pub thread: String,
+    /// Since its last turn, ms.
+    pub quiet_ms: f64,
+    /// When it was to turn again, ms after that turn: its bound.
+    pub bound_ms: f64,
+}
+
+impl StallView {
+    /// `steer/status has not turned its loop for 1.4 s (bound 0.45 s)`
+    pub fn describe(&self) -> String {
+        format!(
+            "{} has not turned its loop for {:.1} s (bound {:.2} s)",
+            self.thread,
+            self.quiet_ms / 1e3,
+            self.bound_ms / 1e3
+        )
+    }
 }
 
 /// The commander's watchdog, as shown to people.

@@ -14,6 +14,18 @@ use std::time::Duration;
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
+/// `adrive --headless --config vehicle`, logging into `dir/log`, to its end.
+fn headless_on(dir: &std::path::Path, vehicle: &std::path::Path) -> std::process::Output {
+    Process::new(BIN)
+        .args(["--headless", "--config"])
+        .arg(vehicle)
+        .arg("--log-dir")
+        .arg(dir.join("log"))
+        .env("XDG_RUNTIME_DIR", dir.join("log"))
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     let dir = tempdir("cli");
@@ -23,20 +35,50 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
         "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"steer\"\ndriver = \"modbsu\"\nport = \"/dev/ttyUSB0\"\n",
     )
     .unwrap();
-    let out = Process::new(BIN)
-        .args(["--headless", "--config"])
-        .arg(&path)
-        .arg("--log-dir")
-        .arg(dir.path().join("log"))
-        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
-        .output()
-        .unwrap();
+    let out = headless_on(dir.path(), &path);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains(&format!("{}:6: ", path.display())), "{err}");
     assert!(err.contains("modbsu") && err.contains("line"), "{err}");
     // It stopped before starting anything: no log was even written.
     assert!(!dir.path().join("log").exists());
+}
+
+/// One port spelled two ways — a `/dev/serial/by-id/…`-style link and its target — once
+/// passed as two, and both devices opened it. The real binary refuses the file before
+/// anything starts, at the second one's port, naming the first with its line.
+#[test]
+fn one_port_spelled_two_ways_is_refused_at_the_second_s_line_before_anything_starts() {
+    let dir = tempdir("cli-ports");
+    let tty = dir.path().join("ttyUSB0");
+    std::fs::write(&tty, "").unwrap();
+    let link = dir.path().join("usb-FTDI_brake-if00-port0");
+    std::os::unix::fs::symlink(&tty, &link).unwrap();
+    let path = dir.path().join("vehicle.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"brake\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\ndriver = \"line\"\nport = \"{}\"\n\n[[device]]\nname = \"horn\"\nkind = \"state\"\nstates = [\"off\", \"on\"]\ndriver = \"line\"\nport = \"{}\"\n",
+            link.display(),
+            tty.display()
+        ),
+    )
+    .unwrap();
+    let out = headless_on(dir.path(), &path);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    let canonical = std::fs::canonicalize(&tty).unwrap();
+    assert!(
+        err.contains(&format!(
+            "{p}:16: horn: port: {} is brake's port, {}, by another name (both are {}) ({p}:9): a serial port has one device",
+            tty.display(),
+            link.display(),
+            canonical.display(),
+            p = path.display()
+        )),
+        "{err}"
+    );
+    assert!(!dir.path().join("log").exists(), "it started");
 }
 
 /// `adrive --sim --headless` logging into `dir`, its output and error piped.

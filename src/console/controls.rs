@@ -198,17 +198,34 @@ impl Frame {
         self.sim_faults.get(id.index()).and_then(Option::as_ref)
     }
 
-    /// Every fault to show, in words: the supervisor's (`steer silent 1.5s no status
-    /// for …`), then any device the engine marks faulty that the supervisor has not
+    /// Every fault to show, in words: an engine thread that stalled (`STALLED
+    /// steer/status has not turned its loop for 1.4 s …`), the supervisor's faults
+    /// (`steer silent 1.5s no status for …`), then any device the engine marks faulty that the supervisor has not
     /// named yet (`steer faulty: no reply within 200ms`; it notices at its next turn).
     pub(crate) fn fault_texts(&self) -> Vec<String> {
         let sup = &self.snap.supervisor;
+        // A stuck engine thread first: nothing it serves can be trusted.
         let mut out: Vec<String> = sup
-            .faults
+            .stalled
             .iter()
-            .filter(|f| f.kind != FaultKind::Override)
-            .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
+            .map(|s| format!("STALLED {}", s.describe()))
             .collect();
+        // A device gone says what adrive waits for (`waiting for horn on /dev/ttyUSB3:
+        // No such file or directory, retrying every 5s`).
+        out.extend(
+            sup.faults
+                .iter()
+                .filter(|f| f.kind != FaultKind::Override)
+                .map(|f| {
+                    let waiting = sup.waiting.iter().find(|w| {
+                        f.kind == FaultKind::Disconnected && f.device.as_ref() == Some(&w.device)
+                    });
+                    match waiting {
+                        Some(w) => format!("{} {} {}", fault_name(f), secs(f.age_ms), w.describe()),
+                        None => format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause),
+                    }
+                }),
+        );
         for d in self.snap.devices.iter().filter(|d| d.health.faulty) {
             if !sup
                 .faults

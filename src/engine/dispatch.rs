@@ -34,6 +34,15 @@ fn wire_deadline(d: &Device) -> Instant {
     Instant::now() + d.config().reply_timeout * 2 + WIRE_SLACK
 }
 
+/// The longest a command may wait at the wire for another device ([`Gate::wait_for`]).
+pub(crate) fn longest_wire_wait(v: &crate::vehicle::Vehicle) -> Duration {
+    v.devices()
+        .iter()
+        .map(|d| d.config().reply_timeout * 2 + WIRE_SLACK)
+        .max()
+        .unwrap_or_default()
+}
+
 impl Gate {
     /// A driver took `device` over (`why`: the supervisor's `override`): latch it and
     /// hand the vehicle to the driver — disengaged, in the manual state (throttle and
@@ -387,14 +396,22 @@ impl Gate {
     }
 
     /// Wait until every reachable device acknowledged its part of the safe state.
-    /// Returns false if one did not by the deadline.
+    /// Returns false if one the rules act on ([`crate::safety::gate::needed`]) did not
+    /// by the deadline.
     pub fn wait_safe(&self, deadline: Instant) -> bool {
         let mut ok = true;
         for (id, want) in self.state().stop_state(self.vehicle()) {
             let d = self.vehicle().device(id);
-            if !d.slot().wait_executed(|c| c == want, deadline) {
+            if d.slot().wait_executed(|c| c == want, deadline) {
+                continue;
+            }
+            // A device the rules do not act on (a horn) says nothing of whether the
+            // vehicle may still move.
+            if crate::safety::gate::needed(self.vehicle(), d) {
                 tracing::error!(device = %d.name(), "did not acknowledge the safe state");
                 ok = false;
+            } else {
+                tracing::warn!(device = %d.name(), "did not acknowledge its safe state (it holds up nothing)");
             }
         }
         ok

@@ -25,9 +25,10 @@ pub struct Monitor {
 impl Monitor {
     pub fn start(gate: Arc<Gate>) -> std::io::Result<Monitor> {
         let mut threads = Owner::default();
-        threads.spawn("gate/monitor", move |stop| {
+        threads.spawn_beating("gate/monitor", EVERY, move |stop, beat| {
             let mut halted = false;
             crate::threads::every(EVERY, stop, || {
+                beat.turn(EVERY);
                 gate.watch(Instant::now());
                 let engaged = gate.is_engaged();
                 if engaged {
@@ -45,6 +46,11 @@ impl Monitor {
             })
         })?;
         Ok(Monitor { threads })
+    }
+
+    /// Whether the monitor runs and turns every [`EVERY`].
+    pub(crate) fn liveness(&self) -> crate::threads::Liveness {
+        self.threads.liveness()
     }
 
     /// Stop and join; returns the thread's name if it did not stop.

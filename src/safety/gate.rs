@@ -20,6 +20,18 @@ use parking_lot::{Mutex, MutexGuard};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
 use std::time::Instant;
 
+/// Whether engaging needs `d`: the rules act on it (it is bound to a role — steering,
+/// throttle, brake, gear, e-stop, speed, engine running, starter), so the vehicle is not
+/// engaged without it. A device bound to no role (a horn, turn signals, a battery
+/// monitor) is shown when it is faulty or gone, and never refuses nor ends an
+/// engagement: it cannot make the vehicle unsafe, and a vehicle that would wait for its
+/// horn is a vehicle that cannot be driven.
+pub fn needed(v: &Vehicle, d: &Device) -> bool {
+    Role::ALL
+        .into_iter()
+        .any(|r| v.bindings().device(r) == Some(d.id()))
+}
+
 /// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
 pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     let mut why = Vec::new();
@@ -28,7 +40,7 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
             "{d} is in the driver's hands (override): clear it once the driver has let go"
         ));
     }
-    for d in v.devices() {
+    for d in v.devices().iter().filter(|d| needed(v, d)) {
         if let Some(fault) = d.fault() {
             why.push(format!("{} is faulty ({fault})", d.name()));
         } else if d.cached().at.is_none() {
@@ -42,6 +54,9 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     }
     if let Some(s @ (EstopState::Pause | EstopState::Disable)) = v.estop() {
         why.push(format!("e-stop is in {s}"));
+    }
+    for s in v.supervision().stalled() {
+        why.push(format!("thread {}", s.describe()));
     }
     why
 }

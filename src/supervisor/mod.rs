@@ -2,7 +2,10 @@
 //! the snapshot, names each fault with its cause and time, reports it (console, state
 //! broadcast, log), and runs recovery procedures as explicit state machines
 //! ([`recovery`]). A procedure that gives up leaves the vehicle in the safe state,
-//! disengaged, and — as a fatal device error — asks the process to end.
+//! disengaged. A device gone is waited for, said plainly ([`waiting`]). Neither ends
+//! the run: only the operator's `give_up_after` makes a device gone that long, or a
+//! recovery that gave up after trying that long, a fatal device error that asks the
+//! process to end.
 //!
 //! The detectors ([`detect`]) are pure functions of a [`Snapshot`], the vehicle's
 //! configuration and what the detector remembers between turns; they reach the
@@ -12,13 +15,16 @@
 //! e-stop or a faulty device; the supervisor works at its own, slower period on
 //! diagnosis and recovery.
 //!
-//! Under systemd, the supervisor thread also feeds the service watchdog after each
-//! turn, only while every device thread runs ([`crate::service::Watchdog`]): a device
-//! thread that ended, or a supervisor that no longer turns, gets adrive restarted.
+//! Beside it runs the `service/watchdog` thread ([`start_watching`]): it feeds systemd's
+//! watchdog ([`crate::service::Watchdog`]) only while every engine thread — the
+//! devices', the buses', the gate monitor and the supervisor itself — turns its loop
+//! within its bound: a thread that ended or stalls is named, refuses engage and gets
+//! adrive restarted.
 
 pub mod causes;
 mod kit;
 pub mod recovery;
+mod waiting;
 
 use crate::config::roles::ReadingRef;
 use crate::config::{SupervisorConfig, VehicleConfig};
@@ -479,9 +485,17 @@ pub(crate) fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> O
         {
             Procedure::steering(v, cfg)
         }
-        (FaultKind::Disconnected, Some(id)) => Some(Procedure::reconnect(v, id, cfg)),
         _ => None,
     }
+}
+
+/// `2.1 s, longer than give_up_after (2s)`
+fn over(d: Duration, limit: Duration) -> String {
+    format!(
+        "{:.1} s, longer than give_up_after ({})",
+        d.as_secs_f64(),
+        crate::config::limits::fmt_duration(limit)
+    )
 }
 
 /// The supervisor's state between turns: memory, current procedure, cool-downs.
@@ -493,7 +507,14 @@ pub(crate) struct Supervisor {
     waiting: Option<String>,
     /// A procedure of this name may not start again before this time.
     cooldown: HashMap<String, Instant>,
+    /// Since when each procedure has been trying, by name: from its first start until
+    /// it is done (it runs again after giving up, at the next engage).
+    trying_since: HashMap<String, Instant>,
+    /// The devices gone.
+    gone: waiting::Waiting,
     exit: ExitSink,
+    /// The run was asked to end (`give_up_after`): asked once.
+    ended: bool,
 }
 
 impl Supervisor {
@@ -504,7 +525,10 @@ impl Supervisor {
             procedure: None,
             waiting: None,
             cooldown: HashMap::new(),
+            trying_since: HashMap::new(),
+            gone: waiting::Waiting::default(),
             exit,
+            ended: false,
         }
     }
 
@@ -535,6 +559,7 @@ impl Supervisor {
             }
         }
         board.set_faults(faults.clone());
+        board.set_waiting(self.gone.turn(v, &faults, now));
         for f in faults.iter().filter(|f| f.kind == FaultKind::Override) {
             if let Some(device) = f.device.as_deref() {
                 gate.take_over(device, &f.describe());
@@ -569,7 +594,17 @@ impl Supervisor {
                         procedure_for(f, gate, &self.cfg).is_some_and(|q| q.name() == p.name())
                     })
             };
-            if let Some(f) = faults.iter().find(|f| disengages(f.kind) && !dealt_with(f)) {
+            // A device the rules do not act on (a horn) is shown, never a reason to stop.
+            let needed = |f: &Fault| {
+                f.device
+                    .as_deref()
+                    .and_then(|n| v.find(n))
+                    .is_none_or(|d| crate::safety::gate::needed(v, d))
+            };
+            if let Some(f) = faults
+                .iter()
+                .find(|f| disengages(f.kind) && needed(f) && !dealt_with(f))
+            {
                 gate.disengage(&format!("supervisor: {}", f.describe()));
             }
         }
@@ -578,6 +613,7 @@ impl Supervisor {
                 tracing::warn!("recovery {} started for {}", p.name(), f.describe());
                 board.note(format!("recovery {} started: {}", p.name(), f.describe()));
                 self.waiting = None;
+                self.trying_since.entry(p.name().to_string()).or_insert(now);
                 self.procedure = Some(p);
             }
             _ => {}
@@ -599,22 +635,55 @@ impl Supervisor {
                     tracing::info!("{msg}");
                     board.note(msg.clone());
                     board.set_outcome(msg);
+                    self.trying_since.remove(p.name());
                     self.finish(gate, now);
                 }
                 Progress::GaveUp(why) => {
                     let msg = format!("recovery {} gave up: {why}", p.name());
-                    tracing::error!("{msg}");
+                    tracing::error!("{msg}; it runs again from the top at the next engage");
                     board.note(msg.clone());
                     board.set_outcome(msg.clone());
                     gate.command_safe_state();
                     gate.disengage(&msg);
-                    self.finish(gate, now);
-                    if self.cfg.exit_on_give_up {
-                        (self.exit)(Exit::Fatal(msg));
+                    let tried = self
+                        .trying_since
+                        .get(p.name())
+                        .map_or(Duration::ZERO, |t| now - *t);
+                    let give_up = self.cfg.give_up_after.filter(|limit| tried >= *limit);
+                    if let Some(limit) = give_up {
+                        self.end(gate, format!("{msg}, trying for {}", over(tried, limit)));
                     }
+                    self.finish(gate, now);
                 }
             }
         }
+        if let Some(why) = self.gone_too_long(&faults, now) {
+            self.end(gate, why);
+        }
+    }
+
+    /// End the run, as the operator asked (`give_up_after`): the safe state, then the
+    /// request to end (once).
+    fn end(&mut self, gate: &Gate, why: String) {
+        if !std::mem::replace(&mut self.ended, true) {
+            tracing::error!("giving up: {why}");
+            gate.command_safe_state();
+            gate.disengage(&format!("giving up: {why}"));
+            (self.exit)(Exit::Fatal(why));
+        }
+    }
+
+    /// Why the run is to end now, if the operator asked for that (`give_up_after`): a
+    /// device gone that long. `None` without `give_up_after`: a device gone never ends
+    /// the run.
+    fn gone_too_long(&self, faults: &[Fault], now: Instant) -> Option<String> {
+        let limit = self.cfg.give_up_after?;
+        let (device, gone) = self.gone.longest(now).filter(|(_, d)| *d >= limit)?;
+        let cause = faults
+            .iter()
+            .find(|f| f.kind == FaultKind::Disconnected && f.device.as_deref() == Some(device))
+            .map_or_else(String::new, |f| format!(": {}", f.cause));
+        Some(format!("{device} gone for {}{cause}", over(gone, limit)))
     }
 
     /// The procedure to start now, and the fault it is for: the first fault whose
@@ -667,18 +736,26 @@ impl Supervisor {
     }
 }
 
-/// The supervisor thread, `supervisor`.
+/// The supervisor thread, `supervisor`, and the service watchdog's, `service/watchdog`.
 pub struct Running {
     threads: Owner,
 }
+
+/// How often the service watchdog looks at the threads' heartbeats.
+const WATCHDOG_EVERY: Duration = Duration::from_millis(100);
 
 /// Start the supervisor thread at `cfg.period`.
 pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io::Result<Running> {
     start_watching(gate, cfg, exit, Liveness::default())
 }
 
-/// [`start`], feeding the service watchdog while every thread of `watched` (the
-/// engine's, [`crate::engine::Engine::liveness`]) runs.
+/// [`start`], and the `service/watchdog` thread: it feeds the service watchdog while
+/// every thread of `watched` (the engine's, [`crate::engine::Engine::liveness`], and
+/// the gate monitor's) and the supervisor itself runs and turns its loop within its
+/// bound. A thread that stalls is named in the log, to systemd and in the snapshot
+/// (`supervisor.stalled`); engage is refused while it is stalled
+/// ([`crate::safety::gate::blockers`]), and an engaged vehicle is disengaged at once —
+/// the gate monitor may be the thread that stalled.
 pub(crate) fn start_watching(
     gate: Arc<Gate>,
     cfg: SupervisorConfig,
@@ -686,17 +763,30 @@ pub(crate) fn start_watching(
     watched: Liveness,
 ) -> std::io::Result<Running> {
     let mut threads = Owner::default();
-    threads.spawn("supervisor", move |stop| {
-        let period = cfg.period;
+    let g = gate.clone();
+    let period = cfg.period;
+    threads.spawn_beating("supervisor", period, move |stop, beat| {
         let panic_at = cfg.panic_for_test.map(|d| Instant::now() + d);
         let mut sup = Supervisor::new(cfg, exit);
-        let mut watchdog = crate::service::Watchdog::new(watched);
         crate::threads::every(period, stop, || {
+            beat.turn(period);
             if panic_at.is_some_and(|t| Instant::now() >= t) {
                 panic!("injected panic (--inject-panic supervisor)");
             }
-            sup.tick(&gate, Instant::now());
-            watchdog.turn(Instant::now());
+            sup.tick(&g, Instant::now());
+        })
+    })?;
+    let watched = watched.with(&threads.liveness());
+    threads.spawn("service/watchdog", move |stop| {
+        let mut watchdog = crate::service::Watchdog::new(watched);
+        crate::threads::every(WATCHDOG_EVERY, stop, || {
+            let turn = watchdog.turn(Instant::now());
+            if turn.changed {
+                gate.vehicle().supervision().set_stalled(&turn.stalled);
+            }
+            if let (Some(s), true) = (turn.new.first(), gate.is_engaged()) {
+                gate.disengage(&format!("stalled: {}", s.describe()));
+            }
         })
     })?;
     Ok(Running { threads })
@@ -1086,7 +1176,10 @@ mod tests {
             "cannot open /dev/ttyUSB7: No such file or directory"
         );
         let f = &steer[0];
-        assert!(procedure_for(f, &gate, &sup).is_some_and(|p| p.name() == "reconnect steer"));
+        assert!(
+            procedure_for(f, &gate, &sup).is_none(),
+            "a device gone is waited for, not recovered"
+        );
     }
 
     /// A fault's log line, in the console's log pane and the log file, named its device

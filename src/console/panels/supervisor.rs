@@ -400,6 +400,7 @@ mod tests {
             }),
             last_outcome: None,
             history: Vec::new(),
+            ..SupervisorView::default()
         };
         Frame {
             snap: Snapshot {
@@ -451,6 +452,51 @@ mod tests {
         // Too little room: the last line says how many are left out.
         let b = render(&|a, buf| (&s).render(a, buf), 80, 2);
         assert_eq!(row(&b, 1), "… 2 more (a larger terminal shows them all)");
+    }
+
+    /// A stuck engine thread comes first; a device gone says what adrive waits for, in
+    /// red like any fault.
+    #[test]
+    fn the_strip_shows_a_stalled_thread_first_and_what_a_gone_device_waits_for() {
+        use crate::snapshot::{StallView, WaitingView};
+        let mut snap = sample();
+        let sup = &mut snap.snap.supervisor;
+        sup.recovery = None;
+        sup.faults = vec![FaultView {
+            kind: FaultKind::Disconnected,
+            device: Some("horn".into()),
+            cause: "cannot open /dev/ttyUSB3: No such file or directory".into(),
+            age_ms: 25_300.0,
+        }];
+        sup.waiting = vec![WaitingView {
+            device: "horn".into(),
+            port: "/dev/ttyUSB3".into(),
+            error: "No such file or directory".into(),
+            gone_ms: 25_300.0,
+            retry_ms: 5_000.0,
+            needed: false,
+        }];
+        sup.stalled = vec![StallView {
+            thread: "steer/status".into(),
+            quiet_ms: 1_400.0,
+            bound_ms: 100.0,
+        }];
+        let s = SupervisorStrip {
+            snap: &snap,
+            theme: Theme::default(),
+        };
+        let b = render(&|a, buf| (&s).render(a, buf), 120, 2);
+        assert_eq!(
+            row(&b, 0),
+            "FAULT STALLED steer/status has not turned its loop for 1.4 s (bound 0.10 s)"
+        );
+        assert_eq!(
+            row(&b, 1),
+            "FAULT horn disconnected 25.3s waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s"
+        );
+        for y in [0, 1] {
+            assert_eq!(b[(0, y)].fg, Color::Red);
+        }
     }
 
     #[test]
