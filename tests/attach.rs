@@ -9,7 +9,7 @@ mod common;
 
 use common::pty::Master;
 use common::simproc::{vehicle_file, SimProcess};
-use common::terminal_player::{Answer, Play};
+use common::terminal_player::{Answer, Play, Player};
 use common::{engage_answered, lines, tempdir, wait_exit, DEADLINE};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
@@ -28,12 +28,24 @@ struct Service {
     socket: PathBuf,
     /// Its command listener.
     listen: String,
+    /// Where its state broadcast goes.
+    broadcast: std::net::UdpSocket,
     log: Receiver<String>,
 }
 
 impl Service {
     /// On `adrive sim`'s ports, or (`sim: None`) with `--sim`.
     fn start(name: &str, sim: Option<&SimProcess>) -> Service {
+        Service::start_on(name, sim, false)
+    }
+
+    /// With `--sim` on [`common::tolerant_alice`], for tests that hold the vehicle
+    /// engaged for seconds.
+    fn start_tolerant(name: &str) -> Service {
+        Service::start_on(name, None, true)
+    }
+
+    fn start_on(name: &str, sim: Option<&SimProcess>, tolerant: bool) -> Service {
         let dir = tempdir(name);
         let socket = dir.path().join("run/adrive.sock");
         let mut cmd = Command::new(BIN);
@@ -41,9 +53,18 @@ impl Service {
             Some(sim) => cmd.arg("--config").arg(vehicle_file(dir.path(), sim, "")),
             None => cmd.arg("--sim"),
         };
+        if tolerant {
+            cmd.arg("--config").arg(common::tolerant_alice(dir.path()));
+        }
         let listen = format!("127.0.0.1:{}", common::free_port());
+        let broadcast = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        broadcast
+            .set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        let to = broadcast.local_addr().unwrap().to_string();
         let mut child = cmd
-            .args(["--headless", "--listen", &listen, "--log-dir"])
+            .args(["--headless", "--broadcast-to", &to])
+            .args(["--listen", &listen, "--log-dir"])
             .arg(dir.path().join("log"))
             .arg("--socket")
             .arg(&socket)
@@ -58,6 +79,7 @@ impl Service {
             dir,
             socket,
             listen,
+            broadcast,
             log,
         };
         svc.until("running headless");
@@ -657,6 +679,26 @@ impl Service {
         }
     }
 
+    /// Read the state broadcast until a snapshot's gate satisfies `want`; that gate.
+    fn broadcast_until(
+        &self,
+        what: &str,
+        want: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        let end = Instant::now() + DEADLINE;
+        let mut buf = vec![0u8; 65536];
+        loop {
+            assert!(Instant::now() < end, "no broadcast with {what}");
+            let Ok(n) = self.broadcast.recv(&mut buf) else {
+                continue;
+            };
+            let snap: serde_json::Value = serde_json::from_slice(&buf[..n]).expect("a snapshot");
+            if want(&snap["gate"]) {
+                return snap["gate"].clone();
+            }
+        }
+    }
+
     /// Engaged, for `d`, checked all along.
     fn stays_engaged(&self, d: Duration) {
         let end = Instant::now() + d;
@@ -669,18 +711,32 @@ impl Service {
 }
 
 /// The incident as reported: `ssh -t vehicle adrive attach`, engaged, then the
-/// operator's session froze — its terminal stopped answering and reading. A watcher's
-/// terminal freezing first changes nothing; the commander's brings the safe state
-/// within the bound, said as such in the gate's reason and the log; the commander who
-/// comes back, and a console attaching afterwards, read why.
+/// operator's session froze — its terminal stopped reading (and so answering) what the
+/// console writes. A watcher's terminal freezing first changes nothing; the
+/// commander's brings the safe state within the bound, said as such in the gate's
+/// reason, the log and the state broadcast; the commander who comes back, and a
+/// console attaching afterwards, read why.
 #[test]
-fn an_attached_commander_whose_terminal_freezes_stops_the_vehicle_and_a_watcher_never_does() {
-    let svc = Service::start("attach-stall", None);
+fn an_attached_commander_whose_terminal_stops_reading_stops_the_vehicle_and_a_watcher_never_does() {
+    commander_stalls("attach-stall", Player::stop_reading);
+}
+
+/// The same with a terminal that still reads what the console draws but answers no
+/// round trip any more (the way back is what stalled).
+#[test]
+fn an_attached_commander_whose_terminal_stops_answering_stops_the_vehicle() {
+    commander_stalls("attach-mute", Player::stop_answering);
+}
+
+/// A watcher and a commander attached; the watcher's terminal stalls as `stall` says,
+/// then the commander's.
+fn commander_stalls(name: &str, stall: fn(&Player)) {
+    let svc = Service::start_tolerant(name);
     let watcher = Attached::start(&svc.socket);
     let mut driver = Attached::start(&svc.socket);
     driver.engage();
-    // The watcher's terminal freezes: command is held, well past the bound.
-    watcher.term.stop_reading();
+    // The watcher's terminal stalls: command is held, well past the bound.
+    stall(&watcher.term);
     svc.stays_engaged(TERMINAL_TIMEOUT * 3);
     assert!(
         driver.term.cursor_answers() > 4,
@@ -692,8 +748,9 @@ fn an_attached_commander_whose_terminal_freezes_stops_the_vehicle_and_a_watcher_
         "a watcher asks its terminal nothing"
     );
     let stalled = Instant::now();
-    driver.term.stop_reading();
+    stall(&driver.term);
     let (after, why) = svc.wait_disengaged(stalled);
+    // The engine's own measure of the silence when it acted: the bound, and its tick.
     assert!(
         why.contains("watchdog: console #2: its terminal stopped answering for 1."),
         "{why}"
@@ -703,19 +760,32 @@ fn an_attached_commander_whose_terminal_freezes_stops_the_vehicle_and_a_watcher_
         "the safe state came {after:?} after the stall"
     );
     svc.until("watchdog: console #2: its terminal stopped answering for 1.");
+    // The state broadcast says it (read on from the datagrams queued since the start).
+    svc.broadcast_until("the reason", |g| {
+        g["engaged"] == false
+            && g["reason"]
+                .as_str()
+                .is_some_and(|r| r.contains("console #2: its terminal stopped answering"))
+    });
     // The commander comes back: its screen says why.
-    driver.term.set(|p| p.reading = true);
+    driver.term.set(|p| {
+        p.reading = true;
+        p.cursor = Answer::Now;
+    });
     driver.wait_for("why", |s| s.contains("stopped answering"));
     // So does a console that attaches afterwards.
     let later = Attached::start(&svc.socket);
     later.wait_for("why", |s| s.contains("stopped answering"));
+    // And the watcher was never dropped: it reads on once its terminal does.
+    watcher.term.set(|p| p.reading = true);
+    watcher.wait_for("why", |s| s.contains("stopped answering"));
 }
 
 /// The client itself frozen (its process stopped, as a laptop asleep stops ssh): its
 /// proofs stop, and so does the vehicle, within the bound.
 #[test]
 fn a_frozen_attach_client_stops_the_vehicle_within_the_bound() {
-    let svc = Service::start("attach-frozen", None);
+    let svc = Service::start_tolerant("attach-frozen-proof");
     let mut driver = Attached::start(&svc.socket);
     driver.engage();
     svc.stays_engaged(TERMINAL_TIMEOUT * 2);
@@ -737,7 +807,7 @@ fn a_frozen_attach_client_stops_the_vehicle_within_the_bound() {
 /// a minute — the bound runs from the last answer.
 #[test]
 fn an_attached_console_on_a_slow_but_live_link_keeps_command_for_a_minute() {
-    let svc = Service::start("attach-slow", None);
+    let svc = Service::start_tolerant("attach-slow");
     let play = Play {
         cursor: Answer::After(Duration::from_millis(300)),
         ..Play::default()

@@ -17,6 +17,8 @@ use std::time::{Duration, Instant};
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 const COLS: u16 = 100;
 const ROWS: u16 = 30;
+/// In `extra`: the vehicle file [`common::tolerant_alice`] writes.
+const TOLERANT: &str = "<tolerant alice>";
 
 /// The console in a pseudo-terminal, with everything it wrote so far.
 struct Console {
@@ -43,6 +45,12 @@ impl Console {
         Console::start_in(name, extra, size, play, &[])
     }
 
+    /// On [`common::tolerant_alice`] (`--config`), for tests that hold the vehicle
+    /// engaged for seconds.
+    fn start_tolerant(name: &str, play: Play) -> Console {
+        Console::start_in(name, &["--config", TOLERANT], (COLS, ROWS), play, &[])
+    }
+
     /// The same, with `env` in its environment.
     fn start_in(
         name: &str,
@@ -54,6 +62,18 @@ impl Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
+        std::fs::create_dir_all(&log_dir).unwrap();
+        // Where `extra` names the tolerant vehicle, it is written in the log directory.
+        let tolerant = extra
+            .contains(&TOLERANT)
+            .then(|| common::tolerant_alice(&log_dir));
+        let extra: Vec<&str> = extra
+            .iter()
+            .map(|a| match (*a, &tolerant) {
+                (TOLERANT, Some(file)) => file.to_str().unwrap(),
+                (a, _) => a,
+            })
+            .collect();
         let (master, slave) = openpty(size.0, size.1);
         let mut cmd = Command::new(BIN);
         cmd.arg("--sim")
@@ -897,15 +917,24 @@ fn the_bench_of_a_can_kit_module_shows_its_bus() {
 
 /// `adrive ctl` on the console's control socket; its standard output.
 fn ctl(c: &Console, args: &[&str]) -> String {
-    let out = Command::new(BIN)
+    let out = ctl_output(c, args);
+    assert!(out.status.success(), "ctl {args:?}: {out:?}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// `adrive ctl ARGS` on the console's adrive succeeded.
+fn ctl_ok(c: &Console, args: &[&str]) -> bool {
+    ctl_output(c, args).status.success()
+}
+
+fn ctl_output(c: &Console, args: &[&str]) -> std::process::Output {
+    Command::new(BIN)
         .arg("ctl")
         .args(args)
         .arg("--socket")
         .arg(c.log_dir.join("adrive").join("adrive.sock"))
         .output()
-        .unwrap();
-    assert!(out.status.success(), "ctl {args:?}: {out:?}");
-    String::from_utf8(out.stdout).unwrap()
+        .unwrap()
 }
 
 /// The snapshot as `adrive ctl status --json` reports it.
@@ -1057,15 +1086,40 @@ fn wait_disengaged(c: &Console, from: Instant) -> (Duration, String) {
 const TERMINAL_TIMEOUT: Duration = Duration::from_secs(1);
 
 /// The incident, embedded: the operator engaged over SSH, then the session froze — the
-/// terminal stopped answering and stopped reading. While it answered, the vehicle
-/// stayed engaged well past the bound; once it stopped, the safe state came within the
-/// bound (from the last answer), with words that say why; and the console, whose
-/// terminal no longer takes what it writes (window resizes filled the pseudo-terminal),
-/// still ends on SIGTERM, safely.
-#[allow(unsafe_code)]
+/// terminal stopped reading (and so answering). While it answered, the vehicle stayed
+/// engaged well past the bound; once it stopped, the safe state came within the bound
+/// (from the last answer), with words that say why; the operator who comes back reads
+/// why; and the console, whose terminal no longer takes what it writes (window resizes
+/// filled the pseudo-terminal), still ends on SIGTERM, safely.
+#[test]
+fn a_terminal_that_stops_reading_stops_the_vehicle_within_the_bound() {
+    let mut c = commander_stalls("stall", Player::stop_reading);
+    // Frozen again, its pseudo-terminal full: the loop is not stuck on it.
+    c.term.stop_reading();
+    for i in 0..12u16 {
+        c.resize(100 + i % 2 * 20, 30 + i % 2 * 10);
+        std::thread::sleep(Duration::from_millis(30));
+    }
+    assert!(common::signal(&c.child, libc::SIGTERM));
+    let status = c.wait_exit();
+    assert!(status.success(), "{status:?}");
+    assert!(c.log().contains("safe state acknowledged"));
+}
+
+/// The same with a terminal that still reads what the console draws but answers no
+/// round trip any more (the way back is what stalled).
 #[test]
 fn a_terminal_that_stops_answering_stops_the_vehicle_within_the_bound() {
-    let mut c = Console::start("stall", &[]);
+    let mut c = commander_stalls("mute", Player::stop_answering);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// Engage, hold command for three bounds while the terminal answers, stall it as
+/// `stall` says: the safe state within the bound, said in the gate's reason and the
+/// log; then the terminal comes back and the screen says why.
+fn commander_stalls(name: &str, stall: fn(&Player)) -> Console {
+    let mut c = Console::start_tolerant(name, Play::default());
     c.engage();
     let asked = c.term.cursor_requests();
     // Answered, command is held for three bounds.
@@ -1080,13 +1134,9 @@ fn a_terminal_that_stops_answering_stops_the_vehicle_within_the_bound() {
     );
     let answered = c.term.cursor_answers();
     let stalled = Instant::now();
-    c.term.stop_reading();
-    // Full redraws the terminal does not read: the pseudo-terminal's buffer fills.
-    for i in 0..12u16 {
-        c.resize(100 + i % 2 * 20, 30 + i % 2 * 10);
-        std::thread::sleep(Duration::from_millis(30));
-    }
+    stall(&c.term);
     let (after, why) = wait_disengaged(&c, stalled);
+    // The engine's own measure of the silence when it acted: the bound, and its tick.
     assert!(
         why.contains("watchdog: console: its terminal stopped answering for 1."),
         "{why}"
@@ -1105,12 +1155,41 @@ fn a_terminal_that_stops_answering_stops_the_vehicle_within_the_bound() {
         log.contains("watchdog: console: its terminal stopped answering for 1."),
         "{log}"
     );
-    // The loop is not stuck on the terminal that stopped reading.
-    // SAFETY: signalling our own child.
-    unsafe { libc::kill(c.child.id() as i32, libc::SIGTERM) };
-    let status = c.wait_exit();
-    assert!(status.success(), "{status:?}");
-    assert!(c.log().contains("safe state acknowledged"));
+    // The operator comes back: the screen says why, and nobody moved the vehicle.
+    c.term.set(|p| {
+        p.reading = true;
+        p.cursor = Answer::Now;
+    });
+    c.wait_for("why", |s| s.contains("stopped answering"));
+    assert!(!gate(&c).0, "engaged again by itself");
+    c
+}
+
+/// A console that watches (the operator commands through `adrive ctl`) asks its
+/// terminal nothing, and its terminal stalling stops nothing.
+#[test]
+fn a_watching_console_whose_terminal_stalls_never_stops_the_vehicle() {
+    let c = Console::start_tolerant("watch-stall", Play::default());
+    c.wait_for("the main screen", |s| {
+        s.contains("STEER") && s.contains("OBD")
+    });
+    let end = Instant::now() + DEADLINE;
+    while !ctl_ok(&c, &["engage"]) {
+        assert!(Instant::now() < end, "could not engage: {}", gate(&c).1);
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    c.wait_for("the operator commanding", |s| {
+        s.contains("ENGAGED (by operator")
+    });
+    c.term.stop_reading();
+    let held = Instant::now() + TERMINAL_TIMEOUT * 3;
+    while Instant::now() < held {
+        let (engaged, why) = gate(&c);
+        assert!(engaged, "a watcher's terminal stopped the vehicle: {why}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(c.term.cursor_requests(), 0, "a watcher asked its terminal");
+    ctl(&c, &["stop"]);
 }
 
 /// A slow but live link: every answer comes 300 ms after its request. The bound is
@@ -1122,7 +1201,7 @@ fn a_slow_but_live_terminal_keeps_command_for_a_minute() {
         cursor: Answer::After(Duration::from_millis(300)),
         ..Play::default()
     };
-    let mut c = Console::start_playing("slow", &[], (COLS, ROWS), play);
+    let mut c = Console::start_tolerant("slow", play);
     c.engage();
     let until = Instant::now() + Duration::from_secs(60);
     while Instant::now() < until {

@@ -21,7 +21,7 @@ use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::{AsRawFd, OwnedFd};
 use std::process::{Child, Command};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -173,13 +173,15 @@ struct Shared {
     out: Mutex<Vec<u8>>,
     play: Mutex<Play>,
     asked: Mutex<Vec<(Instant, Asked)>>,
-    /// Cursor position reports scheduled (written, or to be at their time).
+    /// Cursor position reports written.
     answered: Mutex<usize>,
     /// When the last cursor position report was written.
     last_answer: Mutex<Option<Instant>>,
     /// The kitty protocol's stack of flags (the top applies).
     stack: Mutex<Vec<u32>>,
     close: AtomicBool,
+    /// The reading thread's turns, for [`Player::set`] to wait on.
+    turns: AtomicU64,
 }
 
 /// The master side of a pseudo-terminal, playing a terminal (see the module's doc).
@@ -244,9 +246,18 @@ impl Player {
         self.shared.out.lock().unwrap().len()
     }
 
-    /// Change how the terminal plays from now on.
+    /// Change how the terminal plays from now on: once this returns, the reading
+    /// thread plays the change (a turn it was in when the change came has ended), and
+    /// answers it was to write late are dropped when it no longer answers them.
     pub fn set(&self, change: impl FnOnce(&mut Play)) {
         change(&mut self.shared.play.lock().unwrap());
+        let turn = self.shared.turns.load(Ordering::SeqCst);
+        while self.shared.turns.load(Ordering::SeqCst) < turn + 2
+            && !self.shared.close.load(Ordering::Relaxed)
+            && self.reader.as_ref().is_some_and(|r| !r.is_finished())
+        {
+            std::thread::sleep(Duration::from_millis(1));
+        }
     }
 
     /// Stop answering the cursor position and the device attributes; keep reading.
@@ -276,7 +287,7 @@ impl Player {
             .count()
     }
 
-    /// How many cursor position reports the terminal sent so far.
+    /// How many cursor position reports the terminal wrote so far.
     pub fn cursor_answers(&self) -> usize {
         *self.shared.answered.lock().unwrap()
     }
@@ -439,17 +450,29 @@ fn play_until_closed(mut master: File, s: &Shared, keys: &Mutex<File>) {
     // Answers to write, each at its time.
     let mut due: VecDeque<(Instant, Vec<u8>)> = VecDeque::new();
     while !s.close.load(Ordering::Relaxed) {
+        s.turns.fetch_add(1, Ordering::SeqCst);
         let now = Instant::now();
+        let play = s.play.lock().unwrap().clone();
+        // A terminal that stalled writes nothing it was still to write.
+        due.retain(|(_, bytes)| {
+            play.reading
+                && match bytes.last() {
+                    Some(b'R') => play.cursor != Answer::Never,
+                    Some(b'c') => play.attributes != Answer::Never,
+                    _ => true,
+                }
+        });
         while due.front().is_some_and(|(t, _)| *t <= now) {
             let (_, bytes) = due.pop_front().unwrap();
             if keys.lock().unwrap().write_all(&bytes).is_err() {
                 return;
             }
             if bytes.ends_with(b"R") {
+                *s.answered.lock().unwrap() += 1;
                 *s.last_answer.lock().unwrap() = Some(Instant::now());
             }
         }
-        let reading = s.play.lock().unwrap().reading;
+        let reading = play.reading;
         let wait = due
             .front()
             .map(|(t, _)| t.saturating_duration_since(now).as_millis() as i32)
@@ -487,12 +510,7 @@ fn play_until_closed(mut master: File, s: &Shared, keys: &Mutex<File>) {
                 }
                 Asked::Flags => (Answer::Never, Vec::new()),
                 Asked::Attributes => (play.attributes, b"\x1b[?62;22c".to_vec()),
-                Asked::Cursor => {
-                    if play.cursor != Answer::Never {
-                        *s.answered.lock().unwrap() += 1;
-                    }
-                    (play.cursor, b"\x1b[1;1R".to_vec())
-                }
+                Asked::Cursor => (play.cursor, b"\x1b[1;1R".to_vec()),
                 Asked::Push(f) => {
                     if play.kitty {
                         s.stack.lock().unwrap().push(f);
