@@ -1252,12 +1252,14 @@ fn popped_before_leaving(bytes: &[u8]) -> bool {
 }
 
 /// A terminal that speaks the kitty keyboard protocol is asked for releases (flags 3
-/// pushed) and left in the legacy encoding on every way out: quit, SIGHUP, a panic.
+/// pushed) and left in the legacy encoding on every way out: quit, SIGTERM, SIGHUP, a
+/// panic.
 #[allow(unsafe_code)]
 #[test]
 fn the_kitty_flags_are_pushed_where_supported_and_popped_on_every_way_out() {
     for (how, extra) in [
         ("quit", &[][..]),
+        ("term", &[][..]),
         ("hup", &[][..]),
         ("panic", &["--inject-panic", "main"][..]),
     ] {
@@ -1269,6 +1271,10 @@ fn the_kitty_flags_are_pushed_where_supported_and_popped_on_every_way_out() {
             "quit" => {
                 // A press reported in the protocol's own encoding is a key as before.
                 c.term.kitty(Key::Char('q'), Kind::Press);
+                c.wait_exit()
+            }
+            "term" => {
+                assert!(common::signal(&c.child, libc::SIGTERM));
                 c.wait_exit()
             }
             "hup" => {
@@ -1287,7 +1293,11 @@ fn the_kitty_flags_are_pushed_where_supported_and_popped_on_every_way_out() {
         );
         assert!(popped_before_leaving(&bytes), "{how}");
         assert!(c.cooked(), "{how}");
-        assert!(!status.success() || how == "quit", "{how}: {status:?}");
+        assert_eq!(
+            status.success(),
+            how == "quit" || how == "term",
+            "{how}: {status:?}"
+        );
         assert!(c.log().contains("safe state acknowledged"), "{how}");
     }
 }
@@ -1353,4 +1363,155 @@ fn inside_tmux_the_header_says_the_link_is_unchecked() {
     c.keys("q");
     assert!(c.wait_exit().success());
     assert!(!pushed(&c.bytes()));
+}
+
+/// A real tmux server of the test's own (its socket in `dir`, where the console's
+/// control socket and log go too), killed when dropped.
+struct Tmux {
+    dir: tempfile::TempDir,
+}
+
+impl Tmux {
+    /// `cmd` in a new detached session, its log in `dir`/log.
+    fn start(dir: tempfile::TempDir, cmd: &[&str]) -> Tmux {
+        let t = Tmux { dir };
+        let out = t
+            .tmux()
+            .args(["new-session", "-d", "-x", "100", "-y", "30", "-s", "adrive"])
+            .args(cmd)
+            .env("XDG_RUNTIME_DIR", t.dir.path())
+            .env_remove("TMUX")
+            .env_remove("RUNTIME_DIRECTORY")
+            .output()
+            .expect("tmux is needed for this test (apt-get install tmux)");
+        assert!(out.status.success(), "tmux new-session: {out:?}");
+        t
+    }
+
+    fn tmux(&self) -> Command {
+        let mut c = Command::new("tmux");
+        c.arg("-S")
+            .arg(self.dir.path().join("tmux.sock"))
+            .args(["-f", "/dev/null"]);
+        c
+    }
+
+    /// The pane as tmux shows it.
+    fn screen(&self) -> String {
+        let out = self
+            .tmux()
+            .args(["capture-pane", "-p", "-t", "adrive"])
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+
+    fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let s = self.screen();
+            if ok(&s) {
+                return s;
+            }
+            assert!(Instant::now() < end, "waited for {what}; pane:\n{s}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn keys(&self, k: &str) {
+        let out = self
+            .tmux()
+            .args(["send-keys", "-t", "adrive", k])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+    }
+
+    fn ctl(&self, args: &[&str]) -> std::process::Output {
+        Command::new(BIN)
+            .arg("ctl")
+            .args(args)
+            .arg("--socket")
+            .arg(self.dir.path().join("adrive").join("adrive.sock"))
+            .output()
+            .unwrap()
+    }
+
+    fn engaged(&self) -> bool {
+        let out = self.ctl(&["status", "--json"]);
+        let snap: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_default();
+        snap["gate"]["engaged"] == true
+    }
+}
+
+impl Drop for Tmux {
+    fn drop(&mut self) {
+        let _ = self.tmux().arg("kill-server").output();
+        // The console, its terminal gone, stops safely; its log says so.
+        let log = self.dir.path().join("log");
+        let end = Instant::now() + DEADLINE;
+        while Instant::now() < end {
+            let done = std::fs::read_dir(&log).into_iter().flatten().any(|e| {
+                std::fs::read_to_string(e.unwrap().path())
+                    .is_ok_and(|l| l.contains("safe state acknowledged"))
+            });
+            if done {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+/// Inside a real tmux on the vehicle, with no client attached at all — nobody sees the
+/// console — tmux answers the round trips itself: the check cannot see the operator's
+/// link there, and the header says so (`link unchecked`), found from tmux's own
+/// environment.
+#[test]
+fn inside_a_real_tmux_the_round_trip_is_answered_by_tmux_and_the_header_says_link_unchecked() {
+    let dir = common::tempdir("tmux");
+    let vehicle = common::tolerant_alice(dir.path());
+    let log = dir.path().join("log");
+    let t = Tmux::start(
+        dir,
+        &[
+            BIN,
+            "--sim",
+            "--config",
+            vehicle.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+            "--log-dir",
+            log.to_str().unwrap(),
+        ],
+    );
+    t.wait_for("the console", |s| s.contains("STEER") && s.contains("OBD"));
+    assert!(t.screen().contains("link unchecked"), "{}", t.screen());
+    let end = Instant::now() + DEADLINE;
+    loop {
+        t.keys("E");
+        t.wait_for("the question", |s| s.contains("Engage?"));
+        t.keys("y");
+        let s = t.wait_for("the answer", engage_answered);
+        if s.contains("engaged: the console commands") {
+            break;
+        }
+        assert!(Instant::now() < end, "could not engage:\n{s}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    // Detached, nobody at any terminal: tmux answers, command is held.
+    let held = Instant::now() + TERMINAL_TIMEOUT * 3;
+    while Instant::now() < held {
+        assert!(t.engaged(), "disengaged:\n{}", t.screen());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let s = t.screen();
+    assert!(s.contains("link unchecked") && s.contains("ENGAGED"), "{s}");
+    assert!(
+        std::fs::read_dir(&log)
+            .unwrap()
+            .any(|e| std::fs::read_to_string(e.unwrap().path())
+                .is_ok_and(|l| l.contains("inside tmux, which answers for the terminal"))),
+        "the log says why the link is not checked"
+    );
 }
