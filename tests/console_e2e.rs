@@ -249,8 +249,8 @@ impl Console {
 
 impl Drop for Console {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        // SIGTERM first: the simulator in the console removes its directory of links.
+        common::stop(&mut self.child);
         let _ = std::fs::remove_dir_all(&self.log_dir);
     }
 }
@@ -1169,7 +1169,7 @@ fn commander_stalls(name: &str, stall: fn(&Player)) -> Console {
 /// terminal nothing, and its terminal stalling stops nothing.
 #[test]
 fn a_watching_console_whose_terminal_stalls_never_stops_the_vehicle() {
-    let c = Console::start_tolerant("watch-stall", Play::default());
+    let mut c = Console::start_tolerant("watch-stall", Play::default());
     c.wait_for("the main screen", |s| {
         s.contains("STEER") && s.contains("OBD")
     });
@@ -1190,6 +1190,9 @@ fn a_watching_console_whose_terminal_stalls_never_stops_the_vehicle() {
     }
     assert_eq!(c.term.cursor_requests(), 0, "a watcher asked its terminal");
     ctl(&c, &["stop"]);
+    c.term.set(|p| p.reading = true);
+    c.keys("q");
+    assert!(c.wait_exit().success());
 }
 
 /// A slow but live link: every answer comes 300 ms after its request. The bound is
