@@ -212,6 +212,16 @@ impl Attached {
     }
 }
 
+impl Attached {
+    /// Wait for `adrive attach` to exit; its status, once the terminal read all it
+    /// wrote (its last words come after it left the screen).
+    fn wait_exit(&mut self) -> Option<i32> {
+        let status = wait_exit(&mut self.child);
+        self.term.read_to_end();
+        status
+    }
+}
+
 impl Drop for Attached {
     fn drop(&mut self) {
         let _ = self.child.kill();
@@ -261,7 +271,7 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     // command after it is the sentinel).
     driver.engage();
     watcher.term.hang_up();
-    let status = wait_exit(&mut watcher.child);
+    let status = watcher.wait_exit();
     assert!(
         status.is_some(),
         "the watcher did not end with its terminal"
@@ -291,7 +301,7 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
         reason.contains(&format!("{me} went away")),
         "disengaged for another reason: {reason}"
     );
-    let _ = wait_exit(&mut driver.child);
+    let _ = driver.wait_exit();
     let mut svc = svc;
     assert!(
         svc.child.try_wait().unwrap().is_none(),
@@ -363,7 +373,7 @@ fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit()
     c.term.resize(60, 20);
     c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
     c.keys("q");
-    assert_eq!(wait_exit(&mut c.child), Some(0));
+    assert_eq!(c.wait_exit(), Some(0));
     // A commanding console that quits is its watchdog: the safe state, disengaged.
     common::wait_for("the vehicle disengaged", || svc.gate()["engaged"] == false);
 }
@@ -397,7 +407,7 @@ fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
     assert!(!reason.contains("went away"), "{reason}");
     // Resumed, the console reads what was sent, then adrive's word.
     assert!(common::signal(&c.child, libc::SIGCONT));
-    assert_eq!(wait_exit(&mut c.child), Some(1));
+    assert_eq!(c.wait_exit(), Some(1));
     let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
     assert!(
         text.contains("adrive dropped this console: it stopped reading for"),
@@ -414,7 +424,7 @@ fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
     let mut svc = Service::start("attach-ends", None);
     let mut c = Attached::start(&svc.socket);
     common::signal(&svc.child, libc::SIGTERM);
-    assert_eq!(wait_exit(&mut c.child), Some(1));
+    assert_eq!(c.wait_exit(), Some(1));
     let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
     assert!(text.contains("adrive: adrive is stopping"), "{text}");
     let _ = wait_exit(&mut svc.child);
@@ -423,7 +433,7 @@ fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
     let mut c = Attached::start(&svc.socket);
     common::signal(&svc.child, libc::SIGKILL);
     let _ = wait_exit(&mut svc.child);
-    assert_eq!(wait_exit(&mut c.child), Some(1));
+    assert_eq!(c.wait_exit(), Some(1));
     let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
     assert!(
         text.contains("adrive went away (the connection closed); nothing answers at its socket"),

@@ -134,10 +134,12 @@ impl Console {
         self.term.write(k.as_bytes());
     }
 
+    /// Wait for adrive to exit; its status, once the terminal read all it wrote.
     fn wait_exit(&mut self) -> ExitStatus {
         let end = Instant::now() + DEADLINE;
         loop {
             if let Some(s) = self.child.try_wait().unwrap() {
+                self.term.read_to_end();
                 return s;
             }
             if Instant::now() > end {

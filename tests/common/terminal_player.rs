@@ -241,6 +241,39 @@ impl Player {
         self.shared.out.lock().unwrap().clone()
     }
 
+    /// Read everything the program wrote before this call: once nothing waits unread
+    /// on the terminal and the reading thread took two turns since (or it ended at the
+    /// hang-up). For a program that has exited, [`Player::bytes`] is then all it wrote:
+    /// its last words (said after it left the screen) were read late otherwise.
+    #[allow(unsafe_code)]
+    pub fn read_to_end(&self) {
+        let end = Instant::now() + super::DEADLINE;
+        let finished = || self.reader.as_ref().is_none_or(|r| r.is_finished());
+        loop {
+            let mut unread: libc::c_int = 0;
+            if let Some(keys) = &self.keys {
+                let fd = keys.lock().unwrap().as_raw_fd();
+                // SAFETY: FIONREAD writes an int; the descriptor is the open master.
+                if unsafe { libc::ioctl(fd, libc::FIONREAD, &mut unread) } != 0 {
+                    unread = 0;
+                }
+            }
+            if unread == 0 || finished() {
+                break;
+            }
+            assert!(
+                Instant::now() < end,
+                "the terminal never read {unread} bytes"
+            );
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let turn = self.shared.turns.load(Ordering::SeqCst);
+        while self.shared.turns.load(Ordering::SeqCst) < turn + 2 && !finished() {
+            assert!(Instant::now() < end, "the terminal player stopped turning");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
     /// How many bytes the program wrote so far (that the terminal read).
     pub fn len(&self) -> usize {
         self.shared.out.lock().unwrap().len()
