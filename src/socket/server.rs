@@ -385,6 +385,8 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
             Ok(0) => break Ending::Closed,
             Ok(_) if !line.ends_with('\n') => break Ending::TooLong,
             Ok(_) => {}
+            // A client that ends with frames it never read resets its end: it closed.
+            Err(e) if e.kind() == ErrorKind::ConnectionReset => break Ending::Closed,
             Err(e) => break Ending::Failed(e.to_string()),
         }
         // Dropped (it stopped reading): what it sends after is not done.

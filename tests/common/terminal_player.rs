@@ -21,7 +21,7 @@ use std::fs::File;
 use std::io::{Read, Write};
 use std::os::fd::{AsRawFd, OwnedFd};
 use std::process::{Child, Command};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -175,9 +175,13 @@ struct Shared {
     asked: Mutex<Vec<(Instant, Asked)>>,
     /// Cursor position reports written.
     answered: Mutex<usize>,
+    /// When the last cursor position report was written.
+    last_answer: Mutex<Option<Instant>>,
     /// The kitty protocol's stack of flags (the top applies).
     stack: Mutex<Vec<u32>>,
     close: AtomicBool,
+    /// The reading thread's turns, for [`Player::set`] to wait on.
+    turns: AtomicU64,
 }
 
 /// The master side of a pseudo-terminal, playing a terminal (see the module's doc).
@@ -237,14 +241,56 @@ impl Player {
         self.shared.out.lock().unwrap().clone()
     }
 
+    /// Read everything the program wrote before this call: once nothing waits unread
+    /// on the terminal and the reading thread took two turns since (or it ended at the
+    /// hang-up). For a program that has exited, [`Player::bytes`] is then all it wrote:
+    /// its last words (said after it left the screen) were read late otherwise.
+    #[allow(unsafe_code)]
+    pub fn read_to_end(&self) {
+        let end = Instant::now() + super::DEADLINE;
+        let finished = || self.reader.as_ref().is_none_or(|r| r.is_finished());
+        loop {
+            let mut unread: libc::c_int = 0;
+            if let Some(keys) = &self.keys {
+                let fd = keys.lock().unwrap().as_raw_fd();
+                // SAFETY: FIONREAD writes an int; the descriptor is the open master.
+                if unsafe { libc::ioctl(fd, libc::FIONREAD, &mut unread) } != 0 {
+                    unread = 0;
+                }
+            }
+            if unread == 0 || finished() {
+                break;
+            }
+            assert!(
+                Instant::now() < end,
+                "the terminal never read {unread} bytes"
+            );
+            std::thread::sleep(Duration::from_millis(2));
+        }
+        let turn = self.shared.turns.load(Ordering::SeqCst);
+        while self.shared.turns.load(Ordering::SeqCst) < turn + 2 && !finished() {
+            assert!(Instant::now() < end, "the terminal player stopped turning");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+
     /// How many bytes the program wrote so far (that the terminal read).
     pub fn len(&self) -> usize {
         self.shared.out.lock().unwrap().len()
     }
 
-    /// Change how the terminal plays from now on.
+    /// Change how the terminal plays from now on: once this returns, the reading
+    /// thread plays the change (a turn it was in when the change came has ended), and
+    /// answers it was to write late are dropped when it no longer answers them.
     pub fn set(&self, change: impl FnOnce(&mut Play)) {
         change(&mut self.shared.play.lock().unwrap());
+        let turn = self.shared.turns.load(Ordering::SeqCst);
+        while self.shared.turns.load(Ordering::SeqCst) < turn + 2
+            && !self.shared.close.load(Ordering::Relaxed)
+            && self.reader.as_ref().is_some_and(|r| !r.is_finished())
+        {
+            std::thread::sleep(Duration::from_millis(1));
+        }
     }
 
     /// Stop answering the cursor position and the device attributes; keep reading.
@@ -274,9 +320,14 @@ impl Player {
             .count()
     }
 
-    /// How many cursor position reports the terminal sent so far.
+    /// How many cursor position reports the terminal wrote so far.
     pub fn cursor_answers(&self) -> usize {
         *self.shared.answered.lock().unwrap()
+    }
+
+    /// When the terminal last wrote a cursor position report.
+    pub fn last_answer(&self) -> Option<Instant> {
+        *self.shared.last_answer.lock().unwrap()
     }
 
     /// The kitty protocol's flags in force now (0: the legacy encoding).
@@ -432,14 +483,29 @@ fn play_until_closed(mut master: File, s: &Shared, keys: &Mutex<File>) {
     // Answers to write, each at its time.
     let mut due: VecDeque<(Instant, Vec<u8>)> = VecDeque::new();
     while !s.close.load(Ordering::Relaxed) {
+        s.turns.fetch_add(1, Ordering::SeqCst);
         let now = Instant::now();
+        let play = s.play.lock().unwrap().clone();
+        // A terminal that stalled writes nothing it was still to write.
+        due.retain(|(_, bytes)| {
+            play.reading
+                && match bytes.last() {
+                    Some(b'R') => play.cursor != Answer::Never,
+                    Some(b'c') => play.attributes != Answer::Never,
+                    _ => true,
+                }
+        });
         while due.front().is_some_and(|(t, _)| *t <= now) {
             let (_, bytes) = due.pop_front().unwrap();
             if keys.lock().unwrap().write_all(&bytes).is_err() {
                 return;
             }
+            if bytes.ends_with(b"R") {
+                *s.answered.lock().unwrap() += 1;
+                *s.last_answer.lock().unwrap() = Some(Instant::now());
+            }
         }
-        let reading = s.play.lock().unwrap().reading;
+        let reading = play.reading;
         let wait = due
             .front()
             .map(|(t, _)| t.saturating_duration_since(now).as_millis() as i32)
@@ -477,12 +543,7 @@ fn play_until_closed(mut master: File, s: &Shared, keys: &Mutex<File>) {
                 }
                 Asked::Flags => (Answer::Never, Vec::new()),
                 Asked::Attributes => (play.attributes, b"\x1b[?62;22c".to_vec()),
-                Asked::Cursor => {
-                    if play.cursor != Answer::Never {
-                        *s.answered.lock().unwrap() += 1;
-                    }
-                    (play.cursor, b"\x1b[1;1R".to_vec())
-                }
+                Asked::Cursor => (play.cursor, b"\x1b[1;1R".to_vec()),
                 Asked::Push(f) => {
                     if play.kitty {
                         s.stack.lock().unwrap().push(f);

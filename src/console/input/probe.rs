@@ -136,6 +136,8 @@ mod tests {
     /// come late upgrade the verdict.
     #[test]
     fn silence_is_presses_only_after_the_wait_and_a_late_answer_upgrades() {
+        // crossterm's own probe waits up to 2 s; this one costs a start-up ~100 ms at most.
+        assert!(WAIT <= Duration::from_millis(100), "{WAIT:?}");
         let t = Instant::now();
         let mut p = Probe::sent(t);
         assert_eq!(p.deadline(), Some(t + WAIT));
