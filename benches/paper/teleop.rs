@@ -487,7 +487,7 @@ pub fn section15_teleop(dir: &tempfile::TempDir, holds: usize) {
     );
     super::precise_timers();
     println!(
-        "{:<34} {:>6} {:>9} {:>9} {:>9} {:>9} {:>7} {:>7} {:>6}",
+        "{:<38} {:>6} {:>9} {:>9} {:>9} {:>9} {:>7} {:>7} {:>6}",
         "row", "holds", "p50 ms", "p99 ms", "max ms", "goal ms", "gassed", "drops", "left"
     );
     let rows = [
@@ -518,7 +518,7 @@ pub fn section15_teleop(dir: &tempfile::TempDir, holds: usize) {
                 Via::Attach => format!("attach, {label}"),
             };
             println!(
-                "{label:<34} {:>6} {:>9} {:>9} {:>9} {:>9.0} {:>7} {:>7} {:>6}",
+                "{label:<38} {:>6} {:>9} {:>9} {:>9} {:>9.0} {:>7} {:>7} {:>6}",
                 f.stops.len(),
                 ms(quantile(&f.stops, 0.5)),
                 ms(quantile(&f.stops, 0.99)),
