@@ -107,6 +107,11 @@ pub struct RunArgs {
     /// (100ms to 5s) [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
     pub deadman: Option<Duration>,
+    /// A console that commands and whose terminal answers no round trip for this long
+    /// (a stalled SSH link, a frozen client) stops the vehicle, embedded or attached
+    /// (500ms to 10s) [default: the vehicle file's `[console]` terminal_timeout, 1s].
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_terminal_timeout)]
+    pub terminal_timeout: Option<Duration>,
     /// End the run (status 4, after the safe state) once a device has been gone this
     /// long, or a recovery procedure gave up after trying this long (1s to 1 day;
     /// default: never: adrive keeps the vehicle safe and waits for the device), instead
@@ -379,6 +384,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut config = load(&args.config, &args.only)?;
     if !args.sim {
         config.check_ports()?;
+    }
+    if let Some(d) = args.terminal_timeout {
+        config.console.terminal_timeout = d;
     }
     if let Some(addr) = args.listen {
         config.network.listen = addr;

@@ -9,7 +9,8 @@ mod common;
 
 use common::pty::Master;
 use common::simproc::{vehicle_file, SimProcess};
-use common::{lines, tempdir, wait_exit, DEADLINE};
+use common::terminal_player::{Answer, Play, Player};
+use common::{engage_answered, lines, tempdir, wait_exit, DEADLINE};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -27,12 +28,24 @@ struct Service {
     socket: PathBuf,
     /// Its command listener.
     listen: String,
+    /// Where its state broadcast goes.
+    broadcast: std::net::UdpSocket,
     log: Receiver<String>,
 }
 
 impl Service {
     /// On `adrive sim`'s ports, or (`sim: None`) with `--sim`.
     fn start(name: &str, sim: Option<&SimProcess>) -> Service {
+        Service::start_on(name, sim, false)
+    }
+
+    /// With `--sim` on [`common::tolerant_alice`], for tests that hold the vehicle
+    /// engaged for seconds.
+    fn start_tolerant(name: &str) -> Service {
+        Service::start_on(name, None, true)
+    }
+
+    fn start_on(name: &str, sim: Option<&SimProcess>, tolerant: bool) -> Service {
         let dir = tempdir(name);
         let socket = dir.path().join("run/adrive.sock");
         let mut cmd = Command::new(BIN);
@@ -40,9 +53,18 @@ impl Service {
             Some(sim) => cmd.arg("--config").arg(vehicle_file(dir.path(), sim, "")),
             None => cmd.arg("--sim"),
         };
+        if tolerant {
+            cmd.arg("--config").arg(common::tolerant_alice(dir.path()));
+        }
         let listen = format!("127.0.0.1:{}", common::free_port());
+        let broadcast = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        broadcast
+            .set_read_timeout(Some(Duration::from_millis(200)))
+            .unwrap();
+        let to = broadcast.local_addr().unwrap().to_string();
         let mut child = cmd
-            .args(["--headless", "--listen", &listen, "--log-dir"])
+            .args(["--headless", "--broadcast-to", &to])
+            .args(["--listen", &listen, "--log-dir"])
             .arg(dir.path().join("log"))
             .arg("--socket")
             .arg(&socket)
@@ -57,6 +79,7 @@ impl Service {
             dir,
             socket,
             listen,
+            broadcast,
             log,
         };
         svc.until("running headless");
@@ -117,12 +140,19 @@ struct Attached {
 
 impl Attached {
     fn start(socket: &Path) -> Attached {
+        Attached::start_playing(socket, Play::default())
+    }
+
+    /// On a terminal that plays `play` (tests/common/terminal_player.rs).
+    fn start_playing(socket: &Path, play: Play) -> Attached {
         let mut cmd = Command::new(BIN);
         cmd.arg("attach")
             .arg("--socket")
             .arg(socket)
-            .env("TERM", "xterm-256color");
-        let (child, term) = Master::spawn(&mut cmd, 100, 30, true);
+            .env("TERM", "xterm-256color")
+            .env_remove("TMUX")
+            .env_remove("STY");
+        let (child, term) = Master::spawn_playing(&mut cmd, 100, 30, true, play);
         let a = Attached { child, term };
         a.wait_for("every device", |s| {
             ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
@@ -162,10 +192,11 @@ impl Attached {
             self.keys("E");
             self.wait_for("the confirmation", |s| s.contains("Engage?"));
             self.keys("y");
-            let s = self.wait_for("the engage outcome", |s| {
-                s.contains(" COMMANDING ") || s.contains("engage refused")
-            });
-            if s.contains(" COMMANDING ") {
+            // The outcome of this `y`: the frame that closed the question says it (a
+            // refusal still on the screen from the last try is not it).
+            let s = self.wait_for("the engage outcome", engage_answered);
+            if s.contains("engaged: the console commands") {
+                self.wait_for("the header", |s| s.contains(" COMMANDING "));
                 return;
             }
             assert!(Instant::now() < end, "could not engage:\n{s}");
@@ -178,6 +209,16 @@ impl Attached {
         self.keys("s");
         self.wait_for("the steering edit", |s| s.contains("edit steer command"));
         self.keys(&format!("\x15{value}\r"));
+    }
+}
+
+impl Attached {
+    /// Wait for `adrive attach` to exit; its status, once the terminal read all it
+    /// wrote (its last words come after it left the screen).
+    fn wait_exit(&mut self) -> Option<i32> {
+        let status = wait_exit(&mut self.child);
+        self.term.read_to_end();
+        status
     }
 }
 
@@ -230,7 +271,7 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     // command after it is the sentinel).
     driver.engage();
     watcher.term.hang_up();
-    let status = wait_exit(&mut watcher.child);
+    let status = watcher.wait_exit();
     assert!(
         status.is_some(),
         "the watcher did not end with its terminal"
@@ -260,6 +301,7 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
         took < DEADMAN,
         "the brake came {took:?} after the commander's terminal closed"
     );
+    assert_eq!(sim.last_command("gas").as_deref(), Some("0.000"));
     let gate = svc.gate();
     assert_eq!(gate["engaged"], false, "{gate}");
     let reason = gate["reason"].as_str().unwrap();
@@ -267,7 +309,7 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
         reason.contains(&format!("{me} went away")),
         "disengaged for another reason: {reason}"
     );
-    let _ = wait_exit(&mut driver.child);
+    let _ = driver.wait_exit();
     let mut svc = svc;
     assert!(
         svc.child.try_wait().unwrap().is_none(),
@@ -339,7 +381,7 @@ fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit()
     c.term.resize(60, 20);
     c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
     c.keys("q");
-    assert_eq!(wait_exit(&mut c.child), Some(0));
+    assert_eq!(c.wait_exit(), Some(0));
     // A commanding console that quits is its watchdog: the safe state, disengaged.
     common::wait_for("the vehicle disengaged", || svc.gate()["engaged"] == false);
 }
@@ -361,17 +403,19 @@ fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
         line.contains("console #") && line.contains(": dropped"),
         "{line}"
     );
+    // The vehicle stopped first: a frozen console's terminal answers nothing, and its
+    // link's watchdog is shorter than adrive's patience with a client not reading.
     let gate = svc.gate();
     assert_eq!(gate["engaged"], false, "{gate}");
     let reason = gate["reason"].as_str().unwrap();
     assert!(
-        reason.contains("stopped reading for") && reason.contains(": dropped"),
+        reason.contains("its terminal stopped answering for"),
         "{reason}"
     );
     assert!(!reason.contains("went away"), "{reason}");
     // Resumed, the console reads what was sent, then adrive's word.
     assert!(common::signal(&c.child, libc::SIGCONT));
-    assert_eq!(wait_exit(&mut c.child), Some(1));
+    assert_eq!(c.wait_exit(), Some(1));
     let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
     assert!(
         text.contains("adrive dropped this console: it stopped reading for"),
@@ -388,7 +432,7 @@ fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
     let mut svc = Service::start("attach-ends", None);
     let mut c = Attached::start(&svc.socket);
     common::signal(&svc.child, libc::SIGTERM);
-    assert_eq!(wait_exit(&mut c.child), Some(1));
+    assert_eq!(c.wait_exit(), Some(1));
     let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
     assert!(text.contains("adrive: adrive is stopping"), "{text}");
     let _ = wait_exit(&mut svc.child);
@@ -397,7 +441,7 @@ fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
     let mut c = Attached::start(&svc.socket);
     common::signal(&svc.child, libc::SIGKILL);
     let _ = wait_exit(&mut svc.child);
-    assert_eq!(wait_exit(&mut c.child), Some(1));
+    assert_eq!(c.wait_exit(), Some(1));
     let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
     assert!(
         text.contains("adrive went away (the connection closed); nothing answers at its socket"),
@@ -633,4 +677,161 @@ fn clients_past_the_control_socket_s_limits_are_told_the_limit() {
     common::wait_for("a client served again", || {
         svc.ctl(&["status"]).status.success()
     });
+}
+
+/// The bound a commanding console's terminal must answer within (the vehicle file's
+/// `[console] terminal_timeout`, by default).
+const TERMINAL_TIMEOUT: Duration = Duration::from_secs(1);
+
+impl Service {
+    /// Wait until the gate disengages; how long after `from` it was seen, and why.
+    fn wait_disengaged(&self, from: Instant) -> (Duration, String) {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let g = self.gate();
+            if g["engaged"] != true {
+                return (from.elapsed(), g["reason"].as_str().unwrap_or("").into());
+            }
+            assert!(Instant::now() < end, "still engaged after {DEADLINE:?}");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Read the state broadcast until a snapshot's gate satisfies `want`; that gate.
+    fn broadcast_until(
+        &self,
+        what: &str,
+        want: impl Fn(&serde_json::Value) -> bool,
+    ) -> serde_json::Value {
+        let end = Instant::now() + DEADLINE;
+        let mut buf = vec![0u8; 65536];
+        loop {
+            assert!(Instant::now() < end, "no broadcast with {what}");
+            let Ok(n) = self.broadcast.recv(&mut buf) else {
+                continue;
+            };
+            let snap: serde_json::Value = serde_json::from_slice(&buf[..n]).expect("a snapshot");
+            if want(&snap["gate"]) {
+                return snap["gate"].clone();
+            }
+        }
+    }
+
+    /// Engaged, for `d`, checked all along.
+    fn stays_engaged(&self, d: Duration) {
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            let g = self.gate();
+            assert_eq!(g["engaged"], true, "disengaged: {}", g["reason"]);
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+/// The incident as reported: `ssh -t vehicle adrive attach`, engaged, then the
+/// operator's session froze — its terminal stopped reading (and so answering) what the
+/// console writes. A watcher's terminal freezing first changes nothing; the
+/// commander's brings the safe state within the bound, said as such in the gate's
+/// reason, the log and the state broadcast; the commander who comes back, and a
+/// console attaching afterwards, read why.
+#[test]
+fn an_attached_commander_whose_terminal_stops_reading_stops_the_vehicle_and_a_watcher_never_does() {
+    commander_stalls("attach-stall", Player::stop_reading);
+}
+
+/// The same with a terminal that still reads what the console draws but answers no
+/// round trip any more (the way back is what stalled).
+#[test]
+fn an_attached_commander_whose_terminal_stops_answering_stops_the_vehicle() {
+    commander_stalls("attach-mute", Player::stop_answering);
+}
+
+/// A watcher and a commander attached; the watcher's terminal stalls as `stall` says,
+/// then the commander's.
+fn commander_stalls(name: &str, stall: fn(&Player)) {
+    let svc = Service::start_tolerant(name);
+    let watcher = Attached::start(&svc.socket);
+    let mut driver = Attached::start(&svc.socket);
+    driver.engage();
+    // The watcher's terminal stalls: command is held, well past the bound.
+    stall(&watcher.term);
+    svc.stays_engaged(TERMINAL_TIMEOUT * 3);
+    assert!(
+        driver.term.cursor_answers() > 4,
+        "the commander's terminal answered"
+    );
+    assert_eq!(
+        watcher.term.cursor_requests(),
+        0,
+        "a watcher asks its terminal nothing"
+    );
+    let stalled = Instant::now();
+    stall(&driver.term);
+    let (after, why) = svc.wait_disengaged(stalled);
+    // The engine's own measure of the silence when it acted: the bound, and its tick.
+    assert!(
+        why.contains("watchdog: console #2: its terminal stopped answering for 1."),
+        "{why}"
+    );
+    assert!(
+        after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
+        "the safe state came {after:?} after the stall"
+    );
+    svc.until("watchdog: console #2: its terminal stopped answering for 1.");
+    // The state broadcast says it (read on from the datagrams queued since the start).
+    svc.broadcast_until("the reason", |g| {
+        g["engaged"] == false
+            && g["reason"]
+                .as_str()
+                .is_some_and(|r| r.contains("console #2: its terminal stopped answering"))
+    });
+    // The commander comes back: its screen says why.
+    driver.term.set(|p| {
+        p.reading = true;
+        p.cursor = Answer::Now;
+    });
+    driver.wait_for("why", |s| s.contains("stopped answering"));
+    // So does a console that attaches afterwards.
+    let later = Attached::start(&svc.socket);
+    later.wait_for("why", |s| s.contains("stopped answering"));
+    // And the watcher was never dropped: it reads on once its terminal does.
+    watcher.term.set(|p| p.reading = true);
+    watcher.wait_for("why", |s| s.contains("stopped answering"));
+}
+
+/// The client itself frozen (its process stopped, as a laptop asleep stops ssh): its
+/// proofs stop, and so does the vehicle, within the bound.
+#[test]
+fn a_frozen_attach_client_stops_the_vehicle_within_the_bound() {
+    let svc = Service::start_tolerant("attach-frozen-proof");
+    let mut driver = Attached::start(&svc.socket);
+    driver.engage();
+    svc.stays_engaged(TERMINAL_TIMEOUT * 2);
+    let frozen = Instant::now();
+    assert!(common::signal(&driver.child, libc::SIGSTOP));
+    let (after, why) = svc.wait_disengaged(frozen);
+    assert!(common::signal(&driver.child, libc::SIGCONT));
+    assert!(
+        why.contains("console #1: its terminal stopped answering for 1."),
+        "{why}"
+    );
+    assert!(
+        after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
+        "the safe state came {after:?} after the freeze"
+    );
+}
+
+/// A slow but live link through `adrive attach`: answers 300 ms late keep command for
+/// a minute — the bound runs from the last answer.
+#[test]
+fn an_attached_console_on_a_slow_but_live_link_keeps_command_for_a_minute() {
+    let svc = Service::start_tolerant("attach-slow");
+    let play = Play {
+        cursor: Answer::After(Duration::from_millis(300)),
+        ..Play::default()
+    };
+    let mut driver = Attached::start_playing(&svc.socket, play);
+    driver.engage();
+    svc.stays_engaged(Duration::from_secs(60));
+    assert!(driver.term.cursor_answers() > 150);
 }

@@ -6,26 +6,26 @@
 mod common;
 
 use common::pty::{attach, openpty};
-use common::DEADLINE;
-use std::fs::File;
-use std::io::{Read, Write};
+use common::terminal_player::{Answer, Key, Kind, Play, Player};
+use common::{engage_answered, DEADLINE};
 use std::os::fd::AsRawFd;
 use std::os::fd::OwnedFd;
 use std::path::PathBuf;
 use std::process::{Child, Command, ExitStatus};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 const COLS: u16 = 100;
 const ROWS: u16 = 30;
+/// In `extra`: the vehicle file [`common::tolerant_alice`] writes.
+const TOLERANT: &str = "<tolerant alice>";
 
 /// The console in a pseudo-terminal, with everything it wrote so far.
 struct Console {
     child: Child,
-    master: File,
+    /// The terminal, played (it answers what adrive asks of it).
+    term: Player,
     slave: OwnedFd,
-    out: Arc<Mutex<Vec<u8>>>,
     log_dir: PathBuf,
     /// The terminal's columns and rows.
     size: (u16, u16),
@@ -37,9 +37,43 @@ impl Console {
     }
 
     fn start_sized(name: &str, extra: &[&str], size: (u16, u16)) -> Console {
+        Console::start_playing(name, extra, size, Play::default())
+    }
+
+    /// The console on a terminal that plays `play` (see tests/common/terminal_player.rs).
+    fn start_playing(name: &str, extra: &[&str], size: (u16, u16), play: Play) -> Console {
+        Console::start_in(name, extra, size, play, &[])
+    }
+
+    /// On [`common::tolerant_alice`] (`--config`), for tests that hold the vehicle
+    /// engaged for seconds.
+    fn start_tolerant(name: &str, play: Play) -> Console {
+        Console::start_in(name, &["--config", TOLERANT], (COLS, ROWS), play, &[])
+    }
+
+    /// The same, with `env` in its environment.
+    fn start_in(
+        name: &str,
+        extra: &[&str],
+        size: (u16, u16),
+        play: Play,
+        env: &[(&str, &str)],
+    ) -> Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
+        std::fs::create_dir_all(&log_dir).unwrap();
+        // Where `extra` names the tolerant vehicle, it is written in the log directory.
+        let tolerant = extra
+            .contains(&TOLERANT)
+            .then(|| common::tolerant_alice(&log_dir));
+        let extra: Vec<&str> = extra
+            .iter()
+            .map(|a| match (*a, &tolerant) {
+                (TOLERANT, Some(file)) => file.to_str().unwrap(),
+                (a, _) => a,
+            })
+            .collect();
         let (master, slave) = openpty(size.0, size.1);
         let mut cmd = Command::new(BIN);
         cmd.arg("--sim")
@@ -49,35 +83,26 @@ impl Console {
             .arg(&log_dir)
             .env("XDG_RUNTIME_DIR", &log_dir)
             .env_remove("RUNTIME_DIRECTORY")
+            .env_remove("TMUX")
+            .env_remove("STY")
             .args(extra)
             .env("TERM", "xterm-256color")
-            .env_remove("NO_COLOR");
+            .env_remove("NO_COLOR")
+            .envs(env.iter().copied());
         attach(&mut cmd, &slave, true);
         let child = cmd.spawn().expect("start adrive");
-        let master = File::from(master);
-        let out = Arc::new(Mutex::new(Vec::new()));
-        let (mut r, o) = (master.try_clone().unwrap(), out.clone());
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 4096];
-            while let Ok(n) = r.read(&mut buf) {
-                if n == 0 {
-                    break;
-                }
-                o.lock().unwrap().extend_from_slice(&buf[..n]);
-            }
-        });
+        let term = Player::start(master, play);
         Console {
             child,
-            master,
+            term,
             slave,
-            out,
             log_dir,
             size,
         }
     }
 
     fn bytes(&self) -> Vec<u8> {
-        self.out.lock().unwrap().clone()
+        self.term.bytes()
     }
 
     /// The screen as the terminal shows it now.
@@ -101,27 +126,20 @@ impl Console {
     }
 
     /// Resize the terminal as a terminal window does: the kernel signals SIGWINCH.
-    #[allow(unsafe_code)]
     fn resize(&self, cols: u16, rows: u16) {
-        let ws = libc::winsize {
-            ws_row: rows,
-            ws_col: cols,
-            ws_xpixel: 0,
-            ws_ypixel: 0,
-        };
-        // SAFETY: TIOCSWINSZ reads the struct.
-        unsafe { libc::ioctl(self.master.as_raw_fd(), libc::TIOCSWINSZ as _, &ws) };
+        self.term.resize(cols, rows);
     }
 
     fn keys(&mut self, k: &str) {
-        self.master.write_all(k.as_bytes()).unwrap();
-        self.master.flush().unwrap();
+        self.term.write(k.as_bytes());
     }
 
+    /// Wait for adrive to exit; its status, once the terminal read all it wrote.
     fn wait_exit(&mut self) -> ExitStatus {
         let end = Instant::now() + DEADLINE;
         loop {
             if let Some(s) = self.child.try_wait().unwrap() {
+                self.term.read_to_end();
                 return s;
             }
             if Instant::now() > end {
@@ -196,10 +214,11 @@ impl Console {
             self.keys("E");
             self.wait_for("the confirmation", |s| s.contains("Engage?"));
             self.keys("y");
-            let s = self.wait_for("the engage outcome", |s| {
-                s.contains("│ ENGAGED") || s.contains("engage refused")
-            });
-            if s.contains("│ ENGAGED") {
+            // The outcome of this `y`: the frame that closed the question says it (a
+            // refusal still on the screen from the last try is not it).
+            let s = self.wait_for("the engage outcome", engage_answered);
+            if s.contains("engaged: the console commands") {
+                self.wait_for("the header", |s| s.contains("│ ENGAGED"));
                 return;
             }
             assert!(Instant::now() < end, "could not engage:\n{s}");
@@ -232,8 +251,8 @@ impl Console {
 
 impl Drop for Console {
     fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        // SIGTERM first: the simulator in the console removes its directory of links.
+        common::stop(&mut self.child);
         let _ = std::fs::remove_dir_all(&self.log_dir);
     }
 }
@@ -900,15 +919,24 @@ fn the_bench_of_a_can_kit_module_shows_its_bus() {
 
 /// `adrive ctl` on the console's control socket; its standard output.
 fn ctl(c: &Console, args: &[&str]) -> String {
-    let out = Command::new(BIN)
+    let out = ctl_output(c, args);
+    assert!(out.status.success(), "ctl {args:?}: {out:?}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// `adrive ctl ARGS` on the console's adrive succeeded.
+fn ctl_ok(c: &Console, args: &[&str]) -> bool {
+    ctl_output(c, args).status.success()
+}
+
+fn ctl_output(c: &Console, args: &[&str]) -> std::process::Output {
+    Command::new(BIN)
         .arg("ctl")
         .args(args)
         .arg("--socket")
         .arg(c.log_dir.join("adrive").join("adrive.sock"))
         .output()
-        .unwrap();
-    assert!(out.status.success(), "ctl {args:?}: {out:?}");
-    String::from_utf8(out.stdout).unwrap()
+        .unwrap()
 }
 
 /// The snapshot as `adrive ctl status --json` reports it.
@@ -1031,4 +1059,464 @@ fn an_e_stop_pause_after_a_cleared_override_is_named_as_the_e_stop() {
     assert!(!table.contains("override"), "{table}");
     c.keys("q");
     assert!(c.wait_exit().success());
+}
+
+/// The gate as `adrive ctl status --json` has it: engaged, and why not.
+fn gate(c: &Console) -> (bool, String) {
+    let g = status(c)["gate"].clone();
+    (
+        g["engaged"] == true,
+        g["reason"].as_str().unwrap_or("").to_string(),
+    )
+}
+
+/// Wait until the gate disengages; how long after `from` it was seen, and why.
+fn wait_disengaged(c: &Console, from: Instant) -> (Duration, String) {
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let (engaged, why) = gate(c);
+        if !engaged {
+            return (from.elapsed(), why);
+        }
+        assert!(Instant::now() < end, "still engaged after {DEADLINE:?}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The bound a commanding console's terminal must answer within (the vehicle file's
+/// `[console] terminal_timeout`, by default).
+const TERMINAL_TIMEOUT: Duration = Duration::from_secs(1);
+
+/// The incident, embedded: the operator engaged over SSH, then the session froze — the
+/// terminal stopped reading (and so answering). While it answered, the vehicle stayed
+/// engaged well past the bound; once it stopped, the safe state came within the bound
+/// (from the last answer), with words that say why; the operator who comes back reads
+/// why; and the console, whose terminal no longer takes what it writes (window resizes
+/// filled the pseudo-terminal), still ends on SIGTERM, safely.
+#[test]
+fn a_terminal_that_stops_reading_stops_the_vehicle_within_the_bound() {
+    let mut c = commander_stalls("stall", Player::stop_reading);
+    // Frozen again, its pseudo-terminal full: the loop is not stuck on it.
+    c.term.stop_reading();
+    for i in 0..12u16 {
+        c.resize(100 + i % 2 * 20, 30 + i % 2 * 10);
+        std::thread::sleep(Duration::from_millis(30));
+    }
+    assert!(common::signal(&c.child, libc::SIGTERM));
+    let status = c.wait_exit();
+    assert!(status.success(), "{status:?}");
+    assert!(c.log().contains("safe state acknowledged"));
+}
+
+/// The same with a terminal that still reads what the console draws but answers no
+/// round trip any more (the way back is what stalled).
+#[test]
+fn a_terminal_that_stops_answering_stops_the_vehicle_within_the_bound() {
+    let mut c = commander_stalls("mute", Player::stop_answering);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// Engage, hold command for three bounds while the terminal answers, stall it as
+/// `stall` says: the safe state within the bound, said in the gate's reason and the
+/// log; then the terminal comes back and the screen says why.
+fn commander_stalls(name: &str, stall: fn(&Player)) -> Console {
+    let mut c = Console::start_tolerant(name, Play::default());
+    c.engage();
+    let asked = c.term.cursor_requests();
+    // Answered, command is held for three bounds.
+    let held = Instant::now() + TERMINAL_TIMEOUT * 3;
+    while Instant::now() < held {
+        assert!(gate(&c).0, "disengaged while the terminal answered");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(
+        c.term.cursor_requests() > asked + 4,
+        "the console asked every few hundred ms"
+    );
+    let answered = c.term.cursor_answers();
+    let stalled = Instant::now();
+    stall(&c.term);
+    let (after, why) = wait_disengaged(&c, stalled);
+    // The engine's own measure of the silence when it acted: the bound, and its tick.
+    assert!(
+        why.contains("watchdog: console: its terminal stopped answering for 1."),
+        "{why}"
+    );
+    assert!(
+        after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
+        "the safe state came {after:?} after the stall"
+    );
+    assert_eq!(
+        c.term.cursor_answers(),
+        answered,
+        "it answered nothing since"
+    );
+    let log = c.log();
+    assert!(
+        log.contains("watchdog: console: its terminal stopped answering for 1."),
+        "{log}"
+    );
+    // The operator comes back: the screen says why, and nobody moved the vehicle.
+    c.term.set(|p| {
+        p.reading = true;
+        p.cursor = Answer::Now;
+    });
+    c.wait_for("why", |s| s.contains("stopped answering"));
+    assert!(!gate(&c).0, "engaged again by itself");
+    c
+}
+
+/// A console that watches (the operator commands through `adrive ctl`) asks its
+/// terminal nothing, and its terminal stalling stops nothing.
+#[test]
+fn a_watching_console_whose_terminal_stalls_never_stops_the_vehicle() {
+    let mut c = Console::start_tolerant("watch-stall", Play::default());
+    c.wait_for("the main screen", |s| {
+        s.contains("STEER") && s.contains("OBD")
+    });
+    let end = Instant::now() + DEADLINE;
+    while !ctl_ok(&c, &["engage"]) {
+        assert!(Instant::now() < end, "could not engage: {}", gate(&c).1);
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    c.wait_for("the operator commanding", |s| {
+        s.contains("ENGAGED (by operator")
+    });
+    c.term.stop_reading();
+    let held = Instant::now() + TERMINAL_TIMEOUT * 3;
+    while Instant::now() < held {
+        let (engaged, why) = gate(&c);
+        assert!(engaged, "a watcher's terminal stopped the vehicle: {why}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_eq!(c.term.cursor_requests(), 0, "a watcher asked its terminal");
+    ctl(&c, &["stop"]);
+    c.term.set(|p| p.reading = true);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// A slow but live link: every answer comes 300 ms after its request. The bound is
+/// measured from the last answer, not from a schedule, so command is held — here for
+/// a minute — and the console keeps drawing.
+#[test]
+fn a_slow_but_live_terminal_keeps_command_for_a_minute() {
+    let play = Play {
+        cursor: Answer::After(Duration::from_millis(300)),
+        ..Play::default()
+    };
+    let mut c = Console::start_tolerant("slow", play);
+    c.engage();
+    let until = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < until {
+        let (engaged, why) = gate(&c);
+        assert!(engaged, "disengaged on a slow but live link: {why}");
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    assert!(c.term.cursor_answers() > 150, "{}", c.term.cursor_answers());
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("DISENGAGED"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// A console that does not command asks nothing: the check costs nothing until the
+/// console commands, and then it asks at once.
+#[test]
+fn a_console_asks_only_while_it_commands() {
+    let mut c = Console::start("quiet", &[]);
+    c.wait_for("the main screen", |s| {
+        s.contains("STEER") && s.contains("OBD")
+    });
+    common::wait_for("every device to report", || {
+        status(&c)["gate"]["blockers"]
+            .as_array()
+            .is_some_and(Vec::is_empty)
+    });
+    c.keys("E");
+    c.wait_for("the confirmation", |s| s.contains("Engage?"));
+    assert_eq!(c.term.cursor_requests(), 0, "asked before commanding");
+    c.keys("y");
+    c.wait_for("engaged", |s| s.contains("│ ENGAGED"));
+    c.wait_for("a request", |_| c.term.cursor_requests() > 0);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// The kitty keyboard protocol's push, in the bytes: `CSI > 3 u`.
+fn pushed(bytes: &[u8]) -> bool {
+    bytes.windows(5).any(|w| w == b"\x1b[>3u")
+}
+
+/// The pop comes before the alternate screen is left (each screen has its own stack).
+fn popped_before_leaving(bytes: &[u8]) -> bool {
+    let pop = bytes.windows(4).rposition(|w| w == b"\x1b[<u");
+    let leave = bytes.windows(8).rposition(|w| w == b"\x1b[?1049l");
+    matches!((pop, leave), (Some(p), Some(l)) if p < l)
+}
+
+/// A terminal that speaks the kitty keyboard protocol is asked for releases (flags 3
+/// pushed) and left in the legacy encoding on every way out: quit, SIGTERM, SIGHUP, a
+/// panic.
+#[allow(unsafe_code)]
+#[test]
+fn the_kitty_flags_are_pushed_where_supported_and_popped_on_every_way_out() {
+    for (how, extra) in [
+        ("quit", &[][..]),
+        ("term", &[][..]),
+        ("hup", &[][..]),
+        ("panic", &["--inject-panic", "main"][..]),
+    ] {
+        let mut c =
+            Console::start_playing(&format!("kitty-{how}"), extra, (COLS, ROWS), Play::kitty());
+        c.wait_for("the main screen", |s| s.contains("STEER"));
+        c.wait_for("the flags pushed", |_| c.term.kitty_flags() == 3);
+        let status = match how {
+            "quit" => {
+                // A press reported in the protocol's own encoding is a key as before.
+                c.term.kitty(Key::Char('q'), Kind::Press);
+                c.wait_exit()
+            }
+            "term" => {
+                assert!(common::signal(&c.child, libc::SIGTERM));
+                c.wait_exit()
+            }
+            "hup" => {
+                // SAFETY: signalling our own child.
+                unsafe { libc::kill(c.child.id() as i32, libc::SIGHUP) };
+                c.wait_exit()
+            }
+            _ => c.wait_exit(),
+        };
+        let bytes = c.bytes();
+        assert!(pushed(&bytes), "{how}");
+        assert_eq!(
+            c.term.kitty_flags(),
+            0,
+            "{how}: the terminal was left in the protocol"
+        );
+        assert!(popped_before_leaving(&bytes), "{how}");
+        assert!(c.cooked(), "{how}");
+        assert_eq!(
+            status.success(),
+            how == "quit" || how == "term",
+            "{how}: {status:?}"
+        );
+        assert!(c.log().contains("safe state acknowledged"), "{how}");
+    }
+}
+
+/// A legacy terminal (no flags answer) is never pushed into the protocol, and one that
+/// answers nothing at all does not hold the console up: it starts, presses only.
+#[test]
+fn a_terminal_without_the_protocol_or_without_answers_gets_presses_only() {
+    for (name, play) in [("legacy", Play::default()), ("silent", Play::silent())] {
+        let mut c = Console::start_playing(name, &[], (COLS, ROWS), play);
+        c.wait_for("the main screen", |s| s.contains("STEER"));
+        let end = Instant::now() + DEADLINE;
+        while !c
+            .log()
+            .contains("console: the terminal reports presses only")
+        {
+            assert!(Instant::now() < end, "{name}: {}", c.log());
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        c.keys("q");
+        assert!(c.wait_exit().success());
+        assert!(!pushed(&c.bytes()), "{name}");
+    }
+}
+
+/// A commanding console's terminal closed (the SSH session dropped): no terminal is
+/// left to pop flags on or answer; the way out is the hang-up's, safe and prompt.
+#[test]
+fn a_closed_terminal_in_the_protocol_stops_safely() {
+    let mut c = Console::start_playing("kitty-closed", &[], (COLS, ROWS), Play::kitty());
+    c.engage();
+    c.wait_for("the flags pushed", |_| c.term.kitty_flags() == 3);
+    c.term.hang_up();
+    let status = c.wait_exit();
+    assert_eq!(status.code(), Some(129), "{status:?}");
+    let log = c.log();
+    assert!(log.contains("safe state acknowledged"), "{log}");
+    assert!(!log.contains("panicked"), "{log}");
+}
+
+/// Inside tmux on the vehicle, tmux answers for the operator's terminal: the console
+/// does not probe for the kitty protocol (tmux drops releases), says `link unchecked`
+/// in its header, and still asks its round trips (tmux itself may stop).
+#[test]
+fn inside_tmux_the_header_says_the_link_is_unchecked() {
+    let mut c = Console::start_in(
+        "tmux",
+        &[],
+        (COLS, ROWS),
+        Play::kitty(),
+        &[("TMUX", "/tmp/tmux-0/default,1234,0")],
+    );
+    c.wait_for("link unchecked", |s| s.contains("link unchecked"));
+    assert!(
+        !c.term
+            .asked()
+            .iter()
+            .any(|(_, a)| *a == common::terminal_player::Asked::Flags),
+        "probed for the kitty protocol inside tmux"
+    );
+    c.engage();
+    c.wait_for("a request", |_| c.term.cursor_requests() > 0);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    assert!(!pushed(&c.bytes()));
+}
+
+/// A real tmux server of the test's own (its socket in `dir`, where the console's
+/// control socket and log go too), killed when dropped.
+struct Tmux {
+    dir: tempfile::TempDir,
+}
+
+impl Tmux {
+    /// `cmd` in a new detached session, its log in `dir`/log.
+    fn start(dir: tempfile::TempDir, cmd: &[&str]) -> Tmux {
+        let t = Tmux { dir };
+        let out = t
+            .tmux()
+            .args(["new-session", "-d", "-x", "100", "-y", "30", "-s", "adrive"])
+            .args(cmd)
+            .env("XDG_RUNTIME_DIR", t.dir.path())
+            .env_remove("TMUX")
+            .env_remove("RUNTIME_DIRECTORY")
+            .output()
+            .expect("tmux is needed for this test (apt-get install tmux)");
+        assert!(out.status.success(), "tmux new-session: {out:?}");
+        t
+    }
+
+    fn tmux(&self) -> Command {
+        let mut c = Command::new("tmux");
+        c.arg("-S")
+            .arg(self.dir.path().join("tmux.sock"))
+            .args(["-f", "/dev/null"]);
+        c
+    }
+
+    /// The pane as tmux shows it.
+    fn screen(&self) -> String {
+        let out = self
+            .tmux()
+            .args(["capture-pane", "-p", "-t", "adrive"])
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+
+    fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
+        let end = Instant::now() + DEADLINE;
+        loop {
+            let s = self.screen();
+            if ok(&s) {
+                return s;
+            }
+            assert!(Instant::now() < end, "waited for {what}; pane:\n{s}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn keys(&self, k: &str) {
+        let out = self
+            .tmux()
+            .args(["send-keys", "-t", "adrive", k])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{out:?}");
+    }
+
+    fn ctl(&self, args: &[&str]) -> std::process::Output {
+        Command::new(BIN)
+            .arg("ctl")
+            .args(args)
+            .arg("--socket")
+            .arg(self.dir.path().join("adrive").join("adrive.sock"))
+            .output()
+            .unwrap()
+    }
+
+    fn engaged(&self) -> bool {
+        let out = self.ctl(&["status", "--json"]);
+        let snap: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap_or_default();
+        snap["gate"]["engaged"] == true
+    }
+}
+
+impl Drop for Tmux {
+    fn drop(&mut self) {
+        let _ = self.tmux().arg("kill-server").output();
+        // The console, its terminal gone, stops safely; its log says so.
+        let log = self.dir.path().join("log");
+        let end = Instant::now() + DEADLINE;
+        while Instant::now() < end {
+            let done = std::fs::read_dir(&log).into_iter().flatten().any(|e| {
+                std::fs::read_to_string(e.unwrap().path())
+                    .is_ok_and(|l| l.contains("safe state acknowledged"))
+            });
+            if done {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+}
+
+/// Inside a real tmux on the vehicle, with no client attached at all — nobody sees the
+/// console — tmux answers the round trips itself: the check cannot see the operator's
+/// link there, and the header says so (`link unchecked`), found from tmux's own
+/// environment.
+#[test]
+fn inside_a_real_tmux_the_round_trip_is_answered_by_tmux_and_the_header_says_link_unchecked() {
+    let dir = common::tempdir("tmux");
+    let vehicle = common::tolerant_alice(dir.path());
+    let log = dir.path().join("log");
+    let t = Tmux::start(
+        dir,
+        &[
+            BIN,
+            "--sim",
+            "--config",
+            vehicle.to_str().unwrap(),
+            "--listen",
+            "127.0.0.1:0",
+            "--log-dir",
+            log.to_str().unwrap(),
+        ],
+    );
+    t.wait_for("the console", |s| s.contains("STEER") && s.contains("OBD"));
+    assert!(t.screen().contains("link unchecked"), "{}", t.screen());
+    let end = Instant::now() + DEADLINE;
+    loop {
+        t.keys("E");
+        t.wait_for("the question", |s| s.contains("Engage?"));
+        t.keys("y");
+        let s = t.wait_for("the answer", engage_answered);
+        if s.contains("engaged: the console commands") {
+            break;
+        }
+        assert!(Instant::now() < end, "could not engage:\n{s}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    // Detached, nobody at any terminal: tmux answers, command is held.
+    let held = Instant::now() + TERMINAL_TIMEOUT * 3;
+    while Instant::now() < held {
+        assert!(t.engaged(), "disengaged:\n{}", t.screen());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let s = t.screen();
+    assert!(s.contains("link unchecked") && s.contains("ENGAGED"), "{s}");
+    assert!(
+        std::fs::read_dir(&log)
+            .unwrap()
+            .any(|e| std::fs::read_to_string(e.unwrap().path())
+                .is_ok_and(|l| l.contains("inside tmux, which answers for the terminal"))),
+        "the log says why the link is not checked"
+    );
 }

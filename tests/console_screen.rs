@@ -253,7 +253,9 @@ fn teleop_shows_the_deadman() {
     // disengaged), and the console shows it reversed in red. Five seconds after the
     // fixture's readings, not after the clock reads now: the estimate's σ on the
     // screen grows with that time, and the test's own run time must not change it.
+    // The console's terminal answered its round trips all along: only keys stopped.
     let later = f.now + Duration::from_secs(5);
+    f.gate.answered(adrive::value::Source::Console, later);
     let why = f.gate.watch(later).expect("the deadman trips");
     assert!(why.starts_with("deadman"), "{why}");
     assert!(!f.gate.is_engaged());

@@ -17,11 +17,14 @@
 //! and with two viewers subscribed to everything ([`viewer`]); 11 the command path from
 //! outside — a planner's `sendto` to the first byte at the device — beside a bare relay
 //! in the same window, row by row, with its steps ([`outside`]); 12 attached consoles;
-//! 13 a CAN bus: 1 … 16 actuators on one SLCAN adapter ([`can`]).
+//! 13 a CAN bus: 1 … 16 actuators on one SLCAN adapter ([`can`]); 14 a commanding
+//! console whose terminal stalls: the stall → the safe state at the device, and what
+//! the liveness check costs ([`liveness`]).
 
 mod can;
 mod estimator;
 mod floor;
+mod liveness;
 mod outside;
 mod plot;
 mod rig;
@@ -268,6 +271,9 @@ fn main() {
     }
     if on("13") {
         can::section13_can(&dir, secs);
+    }
+    if on("14") {
+        liveness::section14_terminal_stall(&dir, 100, secs);
     }
     summary(&r, &out);
 }

@@ -15,10 +15,11 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 7] = [
+const TABLES: [&str; 8] = [
     "vehicle",
     "bus",
     "network",
+    "console",
     "supervisor",
     "record",
     "ros2",
@@ -29,7 +30,7 @@ const DEVICE_TABLES: [&str; 7] = [
     "sim", "modbus", "line", "can", "response", "aliases", "readings",
 ];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [supervisor], [record], [ros2], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [console], [supervisor], [record], [ros2], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -254,7 +255,9 @@ pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
         ["bus", name, ..] => format!("bus {name}: "),
-        [section @ ("network" | "supervisor" | "record" | "ros2"), ..] => format!("[{section}] "),
+        [section @ ("network" | "console" | "supervisor" | "record" | "ros2"), ..] => {
+            format!("[{section}] ")
+        }
         _ => String::new(),
     }
 }
@@ -266,6 +269,7 @@ fn limit_of(path: &str) -> Option<&'static dyn limits::Row> {
     let parts: Vec<&str> = path.split('.').collect();
     let (section, key) = match parts[..] {
         ["network", key] => (Section::Network, key),
+        ["console", key] => (Section::Console, key),
         ["supervisor", key] => (Section::Supervisor, key),
         ["ros2", key] => (Section::Ros2, key),
         ["device", _, key] => (Section::Device, key),

@@ -24,6 +24,8 @@ pub enum Section {
     /// `[device.response]`: how the real device answers its command.
     DeviceResponse,
     Network,
+    /// `[console]`: a commanding console.
+    Console,
     Supervisor,
     /// `[ros2]`: the ROS 2 / Autoware interface.
     Ros2,
@@ -40,6 +42,7 @@ impl Section {
             Section::DeviceModbus => "[device.modbus]",
             Section::DeviceResponse => "[device.response]",
             Section::Network => "[network]",
+            Section::Console => "[console]",
             Section::Supervisor => "[supervisor]",
             Section::Ros2 => "[ros2]",
             Section::CommandLine => "adrive run",
@@ -179,7 +182,8 @@ const fn s(n: u64) -> Duration {
 }
 
 use Section::{
-    CommandLine, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2, Supervisor,
+    CommandLine, Console, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2,
+    Supervisor,
 };
 
 pub const BAUD: Limit<u64> = Limit {
@@ -293,6 +297,16 @@ pub(crate) const WATCHDOG_TIMEOUT: Limit<Duration> = Limit {
     max: s(2),
     default: Some(ms(500)),
     why: "no valid network command this long: safe state, disengage",
+};
+/// Longer than two of a commanding console's round trips (it asks every 250 ms) and a
+/// slow link's answer; at most what a moving vehicle may go unseen.
+pub(crate) const TERMINAL_TIMEOUT: Limit<Duration> = Limit {
+    section: Console,
+    key: "terminal_timeout",
+    min: ms(500),
+    max: s(10),
+    default: Some(s(1)),
+    why: "a commanding console's terminal answers no round trip this long: safe state, disengage",
 };
 pub(crate) const BROADCAST_RATE: Limit<f64> = Limit {
     section: Network,
@@ -519,6 +533,7 @@ pub static ALL: &[&dyn Row] = &[
     &WATCHDOG_TIMEOUT,
     &BROADCAST_RATE,
     &MULTICAST_TTL,
+    &TERMINAL_TIMEOUT,
     &REPORT_RATE,
     &SUPERVISOR_PERIOD,
     &ERROR_RATE,
@@ -583,6 +598,12 @@ fn parse_within(limit: &Limit<Duration>, text: &str) -> Result<Duration, String>
         ));
     }
     Ok(d)
+}
+
+/// `--terminal-timeout DURATION`: a duration within [`TERMINAL_TIMEOUT`] (clap names
+/// the option).
+pub(crate) fn parse_terminal_timeout(text: &str) -> Result<Duration, String> {
+    parse_within(&TERMINAL_TIMEOUT, text)
 }
 
 /// `--deadman DURATION`: a duration within [`DEADMAN`] (clap names the option).

@@ -14,6 +14,7 @@
 //!   still names its line.
 
 pub mod can;
+pub mod console;
 pub mod device;
 pub mod document;
 pub mod limits;
@@ -26,6 +27,7 @@ pub mod response;
 pub mod roles;
 pub mod ros2;
 
+pub use console::ConsoleConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
 pub use limits::{fmt_duration, Violation};
@@ -256,6 +258,8 @@ pub struct VehicleConfig {
     pub buses: Vec<can::BusConfig>,
     /// `[network]`: the command listener, watchdog and state broadcast.
     pub network: NetworkConfig,
+    /// `[console]`: what a commanding console must keep proving.
+    pub console: ConsoleConfig,
     /// `[record]`: record every run (none: only with `--record`).
     pub record: Option<RecordConfig>,
     /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
@@ -385,6 +389,8 @@ struct Raw {
     #[serde(default)]
     network: Option<NetworkConfig>,
     #[serde(default)]
+    console: Option<ConsoleConfig>,
+    #[serde(default)]
     record: Option<RecordConfig>,
     ros2: Option<Ros2Config>,
 }
@@ -462,6 +468,10 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     network
         .check()
         .map_err(|v| refuse(path, &lines, "network", v))?;
+    let console = raw.console.unwrap_or_default();
+    console
+        .check()
+        .map_err(|v| refuse(path, &lines, "console", v))?;
     if let Some(r) = &raw.record {
         r.check().map_err(|v| refuse(path, &lines, "record", v))?;
     }
@@ -478,6 +488,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         devices,
         buses,
         network,
+        console,
         record: raw.record,
         ros2,
         source: path.to_string(),

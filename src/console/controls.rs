@@ -139,6 +139,13 @@ impl Frame {
         Some((a * 1000.0).round() / 1000.0 + 0.0)
     }
 
+    /// This console commands the engaged vehicle (the embedded console is `console`,
+    /// an attached one the source it was welcomed as).
+    pub(crate) fn commands(&self) -> bool {
+        let you = self.you.as_deref().unwrap_or("console");
+        self.snap.gate.engaged && self.snap.gate.commander.as_deref() == Some(you)
+    }
+
     /// The steering's command as the intake accepted it.
     pub(crate) fn steering(&self) -> Option<f64> {
         self.snap
@@ -310,6 +317,9 @@ pub trait Controls {
     /// Clear the latched driver overrides ([`Gate::clear_overrides`], as the network's
     /// `clear`): what was cleared, or why not (the driver's hand still on).
     fn clear_overrides(&self) -> Result<Vec<String>, Refused>;
+    /// The console's terminal answered a round trip of its liveness check, read at
+    /// `at`: a proof that the operator still sees the vehicle ([`Gate::answered`]).
+    fn answered(&self, at: Instant);
 }
 
 /// The console's sources beyond the vehicle.
@@ -511,6 +521,9 @@ impl Controls for Live<'_> {
             Done::Cleared(c) => Ok(c),
             _ => Ok(Vec::new()),
         }
+    }
+    fn answered(&self, at: Instant) {
+        self.gate.answered(self.source, at);
     }
 }
 

@@ -12,14 +12,19 @@
 //!   and a window of full panels that pages), for the view and for paging alike;
 //!   [`find`]: a device by its name, for the name prompt; [`trail`]: the bench
 //!   device's last seconds, for the bench chart.
-//! - [`run`]: the loop — one `select!` over terminal events (read on their own
-//!   thread), a 10 Hz tick and the exits channel (signals, panics). ratatui's diffing
-//!   sends only changed cells; [`terminal`] leaves the terminal as it was on every way
-//!   out, and turns a terminal that died (an SSH session dropping) into a hang-up.
+//! - [`run`]: the loop — one `select!` over the terminal's input ([`input`]: keys,
+//!   sizes and answers, read on their own thread), a 10 Hz tick and the exits channel
+//!   (signals, panics). ratatui's diffing sends only changed cells; [`terminal`] never
+//!   blocks on a terminal that stopped reading, leaves the terminal as it was on every
+//!   way out, and turns a terminal that died (an SSH session dropping) into a hang-up.
+//!   While the console commands, it proves its operator is there: the terminal answers
+//!   a round trip every few hundred milliseconds ([`input::link`]), and the engine
+//!   stops the vehicle when the answers stop.
 //! - [`replay`]: the same console playing a recording, read-only.
 
 pub mod controls;
 pub mod find;
+pub mod input;
 pub mod keymap;
 pub mod layout;
 pub mod model;
@@ -36,14 +41,15 @@ use crate::engine::Gate;
 use crate::exit::Exit;
 use controls::{Controls, Live, Sources};
 use crossbeam_channel::{select, Receiver};
-use crossterm::event::{self, Event};
+use input::link::{self, RoundTrips};
+use input::probe::{self, Probe};
+use input::{Input, Keyboard};
 use keymap::Keymap;
 use model::Model;
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use terminal::Keyboard;
 use theme::Theme;
 use update::Flow;
 
@@ -79,53 +85,6 @@ pub fn run(gate: &Gate, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
     run_with(gate, exits, Options::default())
 }
 
-/// What the input thread delivers.
-pub(crate) enum Input {
-    Event(Event),
-    /// The terminal is gone; the cause.
-    Closed(String),
-}
-
-/// Read terminal events on a thread of their own until `stop`, so the loop can
-/// `select!` over them. crossterm reads only bytes that [`Keyboard::wait`] saw
-/// waiting; a terminal that hung up is reported once and the thread ends.
-pub(crate) fn spawn_reader(
-    stop: Arc<AtomicBool>,
-) -> std::io::Result<(Receiver<Input>, JoinHandle<()>)> {
-    let keyboard = Keyboard::open()?;
-    let (tx, rx) = crossbeam_channel::bounded(256);
-    let h = std::thread::Builder::new()
-        .name("console/input".into())
-        .spawn(move || {
-            let closed = |why: String| {
-                let _ = tx.send(Input::Closed(why));
-            };
-            while !stop.load(Relaxed) {
-                match keyboard.wait(TICK) {
-                    terminal::Input::Idle => continue,
-                    terminal::Input::Closed(why) => return closed(why),
-                    terminal::Input::Pending => {}
-                }
-                // Everything crossterm has parsed from the bytes waiting. Its event
-                // source does not read at all with a zero timeout, hence the short one.
-                loop {
-                    match event::poll(terminal::DRAIN)
-                        .and_then(|ready| ready.then(event::read).transpose())
-                    {
-                        Ok(Some(ev)) => {
-                            if tx.send(Input::Event(ev)).is_err() {
-                                return;
-                            }
-                        }
-                        Ok(None) => break,
-                        Err(e) => return closed(e.to_string()),
-                    }
-                }
-            }
-        })?;
-    Ok((rx, h))
-}
-
 /// Run the console until the operator quits (`q`, Ctrl-C) or an exit arrives. The
 /// terminal is restored before this returns; a terminal that dies (it cannot be
 /// drawn on, or its input hung up) ends the console with [`Exit::HangUp`], and the
@@ -141,6 +100,45 @@ pub(crate) fn run_with(
         source: crate::value::Source::Console,
     };
     drive(&live, exits, opts.keymap, opts.deadman, opts.panic_after)
+}
+
+/// Start reading the terminal: under a terminal multiplexer on this machine, knowing
+/// it reports presses only and that the liveness check cannot see past it; elsewhere
+/// after asking whether it reports releases (console/input/probe.rs).
+pub(crate) fn start_input(
+    screen: &mut terminal::Screen,
+    model: &mut Model,
+    stop: Arc<AtomicBool>,
+) -> std::io::Result<(Receiver<Input>, JoinHandle<()>)> {
+    let mux = probe::multiplexer(|k| std::env::var(k).ok());
+    model.terminal.multiplexer = mux;
+    let now = Instant::now();
+    let probe = match mux {
+        Some(m) => {
+            tracing::info!(
+                "console: inside {m}, which answers for the terminal: keys are presses only, and the link to the operator is not checked"
+            );
+            Probe::known(Keyboard::PressesOnly, now)
+        }
+        None => {
+            screen.send(probe::QUERY)?;
+            Probe::sent(now)
+        }
+    };
+    input::spawn(stop, probe)
+}
+
+/// The probe found what the terminal reports: where it reports releases, ask for them.
+fn keyboard_found(screen: &mut terminal::Screen, model: &mut Model, k: Keyboard) {
+    if model.terminal.keyboard != Some(k) {
+        tracing::info!("console: the terminal reports {}", k.describe());
+    }
+    model.terminal.keyboard = Some(k);
+    if k == Keyboard::Releases {
+        if let Err(e) = screen.push_keyboard() {
+            tracing::debug!("kitty keyboard flags not pushed: {e}");
+        }
+    }
 }
 
 /// The console's loop over any [`Controls`]: the embedded engine ([`run_with`]) or
@@ -160,34 +158,46 @@ pub fn drive(
     );
     let mut screen = terminal::enter()?;
     let stop = Arc::new(AtomicBool::new(false));
-    let (events, reader) = spawn_reader(stop.clone())?;
+    let (events, reader) = start_input(&mut screen, &mut model, stop.clone())?;
     let ticker = crossbeam_channel::tick(TICK);
     let started = Instant::now();
+    let mut trips = RoundTrips::default();
     let why = loop {
-        // The size drawn at is the one the next key pages with, and what the frame
-        // showed is what the next key may act on.
-        let mut drawn = None;
-        if let Err(e) = screen.terminal.draw(|f| {
-            model.screen = f.area();
-            drawn = Some(view::draw(&model, f.area(), f.buffer_mut()));
-        }) {
-            break Exit::HangUp(format!("cannot draw: {e}"));
+        // Draw only once the terminal took the last frame: one that reads slowly, or
+        // stopped reading, never blocks the loop (console/terminal.rs).
+        let ready = match screen.ready() {
+            Ok(r) => r,
+            Err(e) => break Exit::HangUp(format!("cannot draw: {e}")),
+        };
+        if ready {
+            // The size drawn at is the one the next key pages with, and what the frame
+            // showed is what the next key may act on.
+            let mut drawn = None;
+            if let Err(e) = screen.terminal.draw(|f| {
+                model.screen = f.area();
+                drawn = Some(view::draw(&model, f.area(), f.buffer_mut()));
+            }) {
+                break Exit::HangUp(format!("cannot draw: {e}"));
+            }
+            model.drawn = drawn.unwrap_or_default();
+            // The liveness check's request, after the frame it proves was read.
+            if trips.due(model.snap.commands(), Instant::now()) {
+                if let Err(e) = screen.send(link::ASK) {
+                    break Exit::HangUp(format!("cannot write: {e}"));
+                }
+            }
         }
-        model.drawn = drawn.unwrap_or_default();
         enum Msg {
             Exit(Exit),
             Tick,
-            Event(Event),
-            Gone(String),
+            Input(Input),
         }
         let msg = select! {
             recv(exits) -> why => Msg::Exit(why.unwrap_or(Exit::Quit)),
             recv(ticker) -> _ => Msg::Tick,
-            recv(events) -> input => match input {
-                Ok(Input::Event(ev)) => Msg::Event(ev),
-                Ok(Input::Closed(why)) => Msg::Gone(why),
-                Err(_) => Msg::Gone("input thread ended".into()),
-            },
+            recv(events) -> input => Msg::Input(
+                input.unwrap_or_else(|_| Input::Closed("input thread ended".into())),
+            ),
         };
         // Measure the turn from here: the wait is not work.
         let start = Instant::now();
@@ -200,13 +210,23 @@ pub fn drive(
                 update::tick(&mut model, live, start);
                 Flow::Continue
             }
-            Msg::Event(Event::Key(k)) => match sight::key(&model, &k) {
+            Msg::Input(Input::Key(k, _at)) => match sight::key(&model, &k) {
                 Some(a) => update::update(&mut model, a, live, start),
                 None => Flow::Continue,
             },
             // A resize: the next draw adapts to the new size.
-            Msg::Event(_) => Flow::Continue,
-            Msg::Gone(why) => Flow::Exit(Exit::HangUp(format!("input: {why}"))),
+            Msg::Input(Input::Resize(..)) => Flow::Continue,
+            Msg::Input(Input::Keyboard(k)) => {
+                keyboard_found(&mut screen, &mut model, k);
+                Flow::Continue
+            }
+            Msg::Input(Input::Answer(at)) => {
+                if trips.answered() {
+                    live.answered(at);
+                }
+                Flow::Continue
+            }
+            Msg::Input(Input::Closed(why)) => Flow::Exit(Exit::HangUp(format!("input: {why}"))),
         };
         let took = start.elapsed();
         if took > TURN_BUDGET {

@@ -233,6 +233,20 @@ pub struct Model {
     pub(crate) last_find: Option<String>,
     /// What the last frame showed: what keys may act on ([`check`](super::sight::check)).
     pub drawn: Drawn,
+    /// The console's own terminal: what it reports of the keys, and whether the
+    /// liveness check can see the operator's link.
+    pub terminal: TerminalView,
+}
+
+/// What the console knows of its own terminal (set by the console's loop).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TerminalView {
+    /// What its keys report, once the probe ended (`None` before).
+    pub keyboard: Option<super::input::Keyboard>,
+    /// A terminal multiplexer on this machine answers for the operator's terminal
+    /// (`tmux`, `screen`): the round trip reaches it, not the operator — the header
+    /// says "link unchecked".
+    pub multiplexer: Option<&'static str>,
 }
 
 impl Model {
@@ -260,6 +274,7 @@ impl Model {
             find: None,
             last_find: None,
             drawn: Drawn::default(),
+            terminal: TerminalView::default(),
             snap,
         }
     }

@@ -8,6 +8,7 @@
 //! past drive.
 
 use super::controls::{Controls, Frame, Thread};
+use super::input::Input;
 use super::keymap::{Action, Keymap, Mode};
 use super::model::Model;
 use super::theme::Theme;
@@ -21,7 +22,7 @@ use crate::safety::Refused;
 use crate::value::{Command, DeviceId};
 use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
 use crossbeam_channel::{select, Receiver};
-use crossterm::event::{Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
+use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Layout, Rect};
 use ratatui::text::{Line, Span};
@@ -365,6 +366,8 @@ impl Controls for Replay<'_> {
     fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
         Err(read_only())
     }
+    /// A recording commands nothing: no link to prove.
+    fn answered(&self, _at: Instant) {}
 }
 
 /// Every change is refused in a replay: nothing is sent.
@@ -513,32 +516,45 @@ pub fn run(
     }
     let mut screen = super::terminal::enter()?;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    let (events, reader) = super::spawn_reader(stop.clone())?;
+    let (events, reader) = super::start_input(&mut screen, &mut model, stop.clone())?;
     let ticker = crossbeam_channel::tick(super::TICK);
     let why = loop {
-        let view = Screen {
-            model: &model,
-            bar: player.bar(),
-        };
-        let mut drawn = None;
-        if let Err(e) = screen
-            .terminal
-            .draw(|f| drawn = Some(view.draw(f.area(), f.buffer_mut())))
-        {
-            break Exit::HangUp(format!("cannot draw: {e}"));
+        // Draw only once the terminal took the last frame (console/terminal.rs).
+        match screen.ready() {
+            Err(e) => break Exit::HangUp(format!("cannot draw: {e}")),
+            Ok(false) => {}
+            Ok(true) => {
+                let view = Screen {
+                    model: &model,
+                    bar: player.bar(),
+                };
+                let mut drawn = None;
+                if let Err(e) = screen
+                    .terminal
+                    .draw(|f| drawn = Some(view.draw(f.area(), f.buffer_mut())))
+                {
+                    break Exit::HangUp(format!("cannot draw: {e}"));
+                }
+                model.drawn = drawn.unwrap_or_default();
+            }
         }
-        model.drawn = drawn.unwrap_or_default();
         let msg = select! {
             recv(exits) -> why => break why.unwrap_or(Exit::Quit),
             recv(ticker) -> _ => None,
             recv(events) -> input => match input {
-                Ok(super::Input::Event(ev)) => Some(ev),
-                Ok(super::Input::Closed(why)) => break Exit::HangUp(format!("input: {why}")),
+                Ok(Input::Key(k, _)) => Some(k),
+                // Nothing to push: a replay has no teleop (releases are ignored).
+                Ok(Input::Keyboard(k)) => {
+                    model.terminal.keyboard = Some(k);
+                    None
+                }
+                Ok(Input::Resize(..) | Input::Answer(_)) => None,
+                Ok(Input::Closed(why)) => break Exit::HangUp(format!("input: {why}")),
                 Err(_) => break Exit::HangUp("input thread ended".into()),
             },
         };
         let now = Instant::now();
-        if let Some(Event::Key(k)) = msg {
+        if let Some(k) = msg {
             if let Some(key) = replay_key(&k).filter(|_| model.mode != Mode::Help) {
                 apply(&mut player, key, now);
                 if let Some(b) = &broadcast {

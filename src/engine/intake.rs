@@ -13,7 +13,9 @@
 //!    [`Gate::watch`] (on `gate/monitor`: [`super::monitor`]) brings the vehicle to the
 //!    safe state and disengages it when it goes quiet — the network's
 //!    `watchdog_timeout` for a network sender or ROS 2, the teleop deadman for a console
-//!    while it teleoperates. One rule, one timeout per source;
+//!    while it teleoperates. One rule, one timeout per source. A commanding console
+//!    also proves its operator is there: its terminal's answers to round trips
+//!    ([`Gate::answered`]) must not stop for `[console] terminal_timeout`;
 //! 3. **the interlocks and the engage gate**: [`Gate::submit`] and [`Gate::submit_accel`]
 //!    ([`super::dispatch`]), which admit a command (a compound one as a whole) or change
 //!    nothing.
@@ -170,6 +172,29 @@ impl Gate {
         }
     }
 
+    /// A console's terminal answered a round trip of its liveness check at `at` (read
+    /// then by the embedded console; arrived then over the control socket from an
+    /// attached one). A commanding console's link's watchdog is fed
+    /// ([`owner::terminal_silent`]); a watcher's answers change nothing.
+    pub fn answered(&self, source: Source, at: Instant) {
+        let mut o = self.state().owner();
+        if source.is_console() && o.commander == Some(source) {
+            o.answered = o.answered.max(at);
+        }
+    }
+
+    /// The commanding console's terminal stopped answering for its bound (the vehicle
+    /// file's `[console] terminal_timeout`): the cause, in words.
+    fn link_lost(&self, o: &Owner, now: Instant) -> Option<String> {
+        let bound = self.vehicle().config().console.terminal_timeout;
+        let quiet = owner::terminal_silent(o, bound, now)?;
+        Some(format!(
+            "{}: its terminal stopped answering for {:.1} s",
+            Commander(o.commander?),
+            quiet.as_secs_f64()
+        ))
+    }
+
     /// A source went away for good (an attached console's connection closed: its
     /// terminal closed, its SSH session dropped, its process killed; or it was
     /// dropped). If it commands the engaged vehicle, that is its watchdog: the safe
@@ -228,6 +253,10 @@ impl Gate {
         if !self.is_engaged() {
             o.nobody();
             return None;
+        }
+        if let Some(cause) = self.link_lost(&o, now) {
+            self.trip(o, cause.clone());
+            return Some(cause);
         }
         let cause = match (o.commander, o.handover) {
             (Some(c), _) => {
@@ -455,22 +484,31 @@ mod tests {
         assert!(why.contains("no valid command from network"), "{why}");
         assert!(!g.is_engaged());
         assert_eq!(g.view(t0).watchdog.unwrap().state, WatchdogState::Tripped);
-        // The console outside teleop is not watched; its deadman is, once armed.
+        // The console outside teleop has no deadman, only its terminal's answers to
+        // watch; its deadman too, once armed.
         let t1 = t0 + timeout * 2;
+        let alive = |t: Instant| g.answered(Source::Console, t);
         g.admit(Source::Console, Ask::Engage, t1).unwrap();
-        assert_eq!(g.watch(t1 + Duration::from_secs(60)), None);
+        for s in 1..=60 {
+            alive(t1 + Duration::from_secs(s) - Duration::from_millis(100));
+            assert_eq!(g.watch(t1 + Duration::from_secs(s)), None);
+        }
         let deadman = Duration::from_millis(1000);
         let t2 = t1 + Duration::from_secs(60);
         g.deadman(Source::Console, Some(deadman), t2);
+        alive(t2 + deadman / 2);
         assert_eq!(g.watch(t2 + deadman / 2), None);
         g.deadman(Source::Console, Some(deadman), t2 + deadman / 2);
+        alive(t2 + deadman);
         assert_eq!(g.watch(t2 + deadman), None, "a key fed it");
+        alive(t2 + deadman * 2);
         let why = g.watch(t2 + deadman * 2).expect("tripped");
         assert!(why.starts_with("deadman"), "{why}");
         assert!(!g.is_engaged());
         // Engaged again, the deadman waits for the next teleop key.
         let t4 = t2 + deadman * 2;
         g.admit(Source::Console, Ask::Engage, t4).unwrap();
+        alive(t4 + deadman * 2);
         assert_eq!(g.watch(t4 + deadman * 2), None, "idle until a key");
         g.admit(Source::Console, Ask::Disengage, t4).unwrap();
         // A release nobody picks up.
@@ -482,6 +520,49 @@ mod tests {
         let why = g.watch(t3 + timeout).expect("ended");
         assert!(why.contains("released by console"), "{why}");
         assert!(!g.is_engaged());
+    }
+
+    /// The incident: over SSH, `adrive attach` engaged, then the operator's ssh client
+    /// froze; the vehicle stayed engaged, holding its last commands, for the whole 90 s
+    /// watched. A commanding console whose terminal stops answering is a watchdog stop
+    /// within the bound, said in words; a watcher's silence changes nothing; answers
+    /// keep command however long the drive.
+    #[test]
+    fn a_commanding_console_whose_terminal_stops_answering_stops_the_vehicle() {
+        let t = Instant::now();
+        let g = sample::gate(t);
+        let bound = g.vehicle().config().console.terminal_timeout;
+        let (driver, watcher) = (Source::Attached(1), Source::Attached(2));
+        g.admit(driver, Ask::Engage, t).unwrap();
+        // Live answers 300 ms apart for a minute: command held.
+        let mut now = t;
+        for _ in 0..200 {
+            now += Duration::from_millis(300);
+            g.answered(driver, now);
+            assert_eq!(g.watch(now + Duration::from_millis(10)), None);
+        }
+        // A watcher that never answers changes nothing.
+        assert_eq!(g.commander(), Some(driver));
+        // The driver's terminal stops answering.
+        assert_eq!(g.watch(now + bound - Duration::from_millis(10)), None);
+        let why = g.watch(now + bound).expect("tripped");
+        assert_eq!(why, "console #1: its terminal stopped answering for 1.0 s");
+        assert!(!g.is_engaged());
+        let v = g.view(now);
+        assert_eq!(v.watchdog.as_ref().unwrap().state, WatchdogState::Tripped);
+        assert_eq!(v.watchdog.unwrap().last_trip.as_deref(), Some(why.as_str()));
+        // Late answers of the old commander do not engage anything.
+        g.answered(driver, now + bound * 2);
+        assert_eq!(g.commander(), None);
+        // The watcher engages: its clock starts at its engage.
+        let t2 = now + bound * 3;
+        g.admit(watcher, Ask::Engage, t2).unwrap();
+        assert_eq!(g.watch(t2 + bound / 2), None);
+        g.answered(driver, t2 + bound / 2);
+        assert!(
+            g.watch(t2 + bound).is_some(),
+            "another console's answers are not its own"
+        );
     }
 
     #[derive(Clone, Copy, Debug)]

@@ -209,6 +209,9 @@ pub struct Owner {
     pub(crate) frozen: bool,
     /// The console's deadman while it teleoperates (its watchdog); `None`: not watched.
     pub(crate) deadman: Option<Duration>,
+    /// A commanding console's terminal last answered a round trip then (or it took
+    /// command then): its link's watchdog ([`terminal_silent`]).
+    pub(crate) answered: Instant,
     /// Released by this source; the handover ends at this instant.
     pub(crate) handover: Option<(Source, Instant)>,
     /// The watchdog tripped and the vehicle was not engaged since.
@@ -228,6 +231,7 @@ impl Owner {
             last: now,
             frozen: false,
             deadman: None,
+            answered: now,
             handover: None,
             tripped: false,
             last_trip: None,
@@ -244,12 +248,28 @@ impl Owner {
         self.handover = None;
         // A deadman is the teleoperating console's own, armed by its next teleop key.
         self.deadman = None;
+        // A console's link is proved from here on.
+        self.answered = now;
     }
 
     pub(crate) fn nobody(&mut self) {
         self.commander = None;
         self.handover = None;
     }
+}
+
+/// The link's watchdog of a commanding console: a terminal answers a round trip by
+/// itself, so while its answers come the operator sees the vehicle and can reach it.
+/// How long the commanding console's terminal has not answered (measured from the
+/// last answer, or from when it took command — never from a schedule of requests),
+/// once that reaches `bound`; `None` while it answers, or when the commander is no
+/// console.
+pub(crate) fn terminal_silent(o: &Owner, bound: Duration, now: Instant) -> Option<Duration> {
+    if !o.commander?.is_console() {
+        return None;
+    }
+    let quiet = now.saturating_duration_since(o.answered);
+    (quiet >= bound).then_some(quiet)
 }
 
 /// What the snapshot shows of who commands.
@@ -354,6 +374,34 @@ mod tests {
             readme.contains(&table),
             "docs/safety.md must contain, verbatim, the table of who commands:\n{table}"
         );
+    }
+
+    /// A console's link is measured from its last answer: a slow but live terminal
+    /// keeps command however late each answer is within the bound; silence past it
+    /// does not; a network commander has no terminal.
+    #[test]
+    fn a_commanding_consoles_terminal_must_keep_answering() {
+        let t = Instant::now();
+        let bound = Duration::from_millis(1000);
+        let mut o = Owner::new(t);
+        o.commands(Source::Attached(1), t);
+        assert_eq!(terminal_silent(&o, bound, t + bound / 2), None);
+        for i in 1..=200u32 {
+            // Answers 300 ms apart: late, but live.
+            o.answered = t + Duration::from_millis(300) * i;
+            let now = o.answered + Duration::from_millis(299);
+            assert_eq!(terminal_silent(&o, bound, now), None);
+        }
+        let last = o.answered;
+        assert_eq!(
+            terminal_silent(&o, bound, last + bound),
+            Some(bound),
+            "silent for the bound"
+        );
+        o.commands(net(1), last + bound);
+        assert_eq!(terminal_silent(&o, bound, last + bound * 5), None);
+        o.nobody();
+        assert_eq!(terminal_silent(&o, bound, last + bound * 5), None);
     }
 
     #[test]

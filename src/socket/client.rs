@@ -410,4 +410,9 @@ impl Controls for Remote {
             _ => Ok(Vec::new()),
         }
     }
+    /// A proof goes to adrive at once; adrive takes its arrival as the proof's time
+    /// (the two clocks are not the same), and answers nothing.
+    fn answered(&self, _at: Instant) {
+        self.post(Op::Answered);
+    }
 }

@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 /// The protocol's version; a client and a server of different versions refuse each
 /// other with a clear message.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// What a client is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -92,6 +92,9 @@ pub enum Op {
     },
     /// The snapshot, once.
     Status,
+    /// The console's terminal answered a round trip of the liveness check just now
+    /// (its operator still sees the vehicle). Not answered.
+    Answered,
 }
 
 /// An operation with the id its reply carries.

@@ -385,6 +385,8 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
             Ok(0) => break Ending::Closed,
             Ok(_) if !line.ends_with('\n') => break Ending::TooLong,
             Ok(_) => {}
+            // A client that ends with frames it never read resets its end: it closed.
+            Err(e) if e.kind() == ErrorKind::ConnectionReset => break Ending::Closed,
             Err(e) => break Ending::Failed(e.to_string()),
         }
         // Dropped (it stopped reading): what it sends after is not done.
@@ -441,6 +443,13 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
             });
             continue;
         };
+        // A console's proof that its operator is there: fed at once, never answered.
+        if req.op == Op::Answered {
+            if source.is_console() {
+                s.gate.answered(source, Instant::now());
+            }
+            continue;
+        }
         let answer = answer(s, c, source, req.op);
         if let Err(ending) = c.send(&Msg::Reply { id: req.id, answer }) {
             break ending;
@@ -481,6 +490,7 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
     let console = source.is_console();
     match op {
         Op::Hello { .. } => Answer::Error("already said hello".into()),
+        Op::Answered => Answer::Ok,
         Op::Engage => ask(Ask::Engage),
         Op::Disengage => ask(Ask::Disengage),
         Op::Stop => ask(Ask::Stop),

@@ -5,6 +5,7 @@
 pub mod headless;
 pub mod pty;
 pub mod simproc;
+pub mod terminal_player;
 
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;
@@ -27,6 +28,37 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
         assert!(Instant::now() < end, "timed out waiting for {what}");
         std::thread::sleep(Duration::from_millis(2));
     }
+}
+
+/// A console's screen once its engage question was answered: the question gone, and
+/// what its answer did said (`engaged: …` or `engage refused: …`). Waiting for the
+/// refusal alone read a refusal left on the screen by an earlier try as this one's,
+/// and the next `E` `y` then landed on whatever the test did next.
+pub fn engage_answered(screen: &str) -> bool {
+    !screen.contains("Engage?")
+        && (screen.contains("engaged: the console commands") || screen.contains("engage refused"))
+}
+
+/// Alice for `--sim --config`, her devices' readings allowed to be 2 s old and their
+/// replies 1 s late. For tests that hold the vehicle engaged for seconds to prove
+/// something other than device timing: the machine they run on is shared and stalls
+/// now and then (a stall of 300 ms froze every process at once), and Alice's own
+/// deadlines (200 ms for the e-stop) then rightly find a device faulty and disengage.
+pub fn tolerant_alice(dir: &std::path::Path) -> std::path::PathBuf {
+    let mut text = String::new();
+    for line in config::ALICE_TOML.lines() {
+        if line.starts_with("status_max_age = ") {
+            text.push_str("status_max_age = \"2s\"\n");
+        } else if line.starts_with("reply_timeout = ") {
+            text.push_str("reply_timeout = \"1s\"\n");
+        } else {
+            text.push_str(line);
+            text.push('\n');
+        }
+    }
+    let path = dir.join("tolerant-alice.toml");
+    std::fs::write(&path, text).unwrap();
+    path
 }
 
 pub struct Rig {

@@ -4,7 +4,9 @@
 //! at a word, with "…" and every parenthesis it opened closed, never cut in the
 //! middle (at 100 columns it once read `DISENGAGED (gas is faulty (no reply within
 //! 100ms)`); a vehicle name too long gives way before the gate does. An attached
-//! console (`adrive attach`) also says whether it commands or watches.
+//! console (`adrive attach`) also says whether it commands or watches, and a console
+//! inside tmux or screen on this machine says `link unchecked`: the multiplexer, not
+//! the operator's terminal, answers the liveness check.
 
 use super::fit::shorten;
 use crate::console::keymap::Mode;
@@ -49,6 +51,12 @@ impl Header<'_> {
             } else {
                 rest.push(Span::styled(" WATCHING ", bar));
             }
+            rest.push(Span::styled("│", bar));
+        }
+        // A multiplexer on this machine answers the liveness check's round trips for
+        // the operator's terminal: the check cannot see the link (docs/console.md).
+        if self.m.terminal.multiplexer.is_some() {
+            rest.push(Span::styled(" link unchecked ", t.warn().patch(bar)));
             rest.push(Span::styled("│", bar));
         }
         let faults = s.devices.iter().filter(|d| s.red(d)).count();
@@ -136,6 +144,18 @@ mod tests {
 
     fn text(l: &Line) -> String {
         l.spans.iter().map(|s| s.content.as_ref()).collect()
+    }
+
+    /// Inside tmux on the vehicle, the round trip reaches tmux, not the operator: the
+    /// header says the link is unchecked, and only then.
+    #[test]
+    fn under_a_multiplexer_the_link_is_said_to_be_unchecked() {
+        let mut m = model(true, "", "Alice");
+        assert!(!text(&Header { m: &m }.line(100)).contains("link unchecked"));
+        m.terminal.multiplexer = Some("tmux");
+        let l = text(&Header { m: &m }.line(100));
+        assert!(l.contains("│ link unchecked │"), "{l}");
+        assert!(l.contains(" ENGAGED "), "{l}");
     }
 
     #[test]

@@ -153,6 +153,9 @@ impl Controls for Fake {
         self.log("clear overrides".into());
         self.gate.clear_overrides().map_err(Refused::Clear)
     }
+    fn answered(&self, _at: Instant) {
+        self.log("answered".into());
+    }
 }
 
 /// Draw `m` at its screen size, keeping what the frame showed (as the console's loop).
