@@ -15,7 +15,7 @@ use adrive::console::update::{tick, update};
 use adrive::engine::Gate;
 use adrive::logging::ring::LogRing;
 use adrive::testkit;
-use adrive::vehicle::trace::Dir;
+use adrive::port::trace::Dir;
 use adrive::vehicle::Vehicle;
 use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;

@@ -6,7 +6,7 @@
 mod common;
 
 use adrive::value::Command;
-use adrive::vehicle::trace::Dir;
+use adrive::port::trace::Dir;
 use adrive::vehicle::Device;
 use common::{steer_only, wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;

@@ -20,7 +20,7 @@ use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::Source;
 use crate::value::{Command, DeviceId};
-use crate::vehicle::trace::TraceEntry;
+use crate::port::trace::TraceEntry;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};

@@ -19,7 +19,7 @@ use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
 use crate::safety::Refused;
 use crate::value::{Command, DeviceId};
-use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
+use crate::port::trace::{Dir, TraceEntry, CAPACITY};
 use crossbeam_channel::{select, Receiver};
 use crossterm::event::{Event, KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use ratatui::buffer::Buffer;

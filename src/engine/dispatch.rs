@@ -1,7 +1,7 @@
 //! Dispatch: what an admitted command does to the devices. A command that passed the
 //! intake ([`super::intake`]) goes on the wire from the admitting thread when its port
 //! is idle ([`super::fast`]), else into the device's slot for its command thread
-//! ([`super::slot`], [`super::command`]). Engaging, disengaging, an operator's STOP, a
+//! ([`crate::port::slot`], [`super::command`]). Engaging, disengaging, an operator's STOP, a
 //! driver's override and every way out store the safe (or manual) state the same way.
 //! Right before a command goes out its command thread asks [`Gate::check_wire`]; a wait
 //! it asks for ([`Gate::wait_for`]) happens here, without the port held.

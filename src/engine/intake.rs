@@ -345,7 +345,7 @@ impl Gate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::slot::WireState;
+    use crate::port::slot::WireState;
     use crate::testkit as sample;
     use crate::value::{Command, DeviceId};
     use proptest::prelude::*;

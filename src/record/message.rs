@@ -10,7 +10,7 @@ use crate::config::{DeviceConfig, ReadingKind, VehicleConfig};
 use crate::snapshot::{FaultKind, Snapshot};
 use crate::value::{Command, DeviceId, Reading};
 use crate::vehicle::tap::{Asked, Event, GateChange, Source};
-use crate::vehicle::trace::TraceEntry;
+use crate::port::trace::{Dir, TraceEntry};
 use crate::vehicle::Vehicle;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -230,8 +230,8 @@ impl RawMsg {
     pub fn of(e: &TraceEntry) -> RawMsg {
         RawMsg {
             dir: match e.dir {
-                crate::vehicle::trace::Dir::Out => "out".into(),
-                crate::vehicle::trace::Dir::In => "in".into(),
+                Dir::Out => "out".into(),
+                Dir::In => "in".into(),
             },
             hex: e.hex().trim_end_matches(" …").to_string(),
             text: e.ascii(),

@@ -4,7 +4,7 @@
 
 use super::rules::{Facts, Plays};
 use crate::config::Bindings;
-use crate::engine::slot::WireState;
+use crate::port::slot::WireState;
 use crate::value::Command;
 use crate::vehicle::{Device, Vehicle};
 

@@ -11,11 +11,10 @@ use super::owner::Owner;
 use super::rules::{self, Plays, Reject, Rules};
 use super::safe;
 use super::wire::{self, Verdict};
-use crate::config::{DriverKind, Role};
-use crate::driver::elm327;
+use crate::config::Role;
 use crate::logging::RateLimit;
 use crate::value::{Command, DeviceId, EstopState, Kind};
-use crate::vehicle::{Device, Vehicle};
+use crate::vehicle::{Device, Unreported, Vehicle};
 use parking_lot::{Mutex, MutexGuard};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
 use std::time::Instant;
@@ -43,12 +42,14 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     for d in v.devices().iter().filter(|d| needed(v, d)) {
         if let Some(fault) = d.fault() {
             why.push(format!("{} is faulty ({fault})", d.name()));
-        } else if d.cached().at.is_none() {
-            // An ELM327 that opened has its first answer coming: it searches protocols.
-            let opened = d.port_health().opens.load(Relaxed) > 0;
-            why.push(match d.config().driver {
-                DriverKind::Elm327 if opened => elm327::searching(d.name()),
-                _ => format!("{} has not reported yet", d.name()),
+        } else if let Some(u) = d.unreported() {
+            why.push(match u {
+                Unreported::SearchingProtocols(up_to) => format!(
+                    "{}: the adapter is searching the car's protocols, up to {} s",
+                    d.name(),
+                    up_to.as_secs()
+                ),
+                Unreported::NotYet => format!("{} has not reported yet", d.name()),
             });
         }
     }

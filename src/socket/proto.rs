@@ -13,7 +13,7 @@ use crate::logging::ring::LogLine;
 use crate::safety::{Done, Refused};
 use crate::snapshot::Snapshot;
 use crate::value::Command;
-use crate::vehicle::trace::{Dir, TraceEntry};
+use crate::port::trace::{Dir, TraceEntry};
 use serde::{Deserialize, Serialize};
 use std::time::{Duration, Instant};
 

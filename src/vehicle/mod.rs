@@ -2,12 +2,13 @@
 //! configuration, cached state and statistics, and what the supervisor sees — the
 //! vehicle's state, and how it is captured into one
 //! [`Snapshot`](crate::snapshot::Snapshot). It has no policy and no machinery: the rules
-//! that decide what may reach a device live in [`crate::safety`], the threads, slots and
-//! ports that carry a command to it in [`crate::engine`].
+//! that decide what may reach a device live in [`crate::safety`], the threads that carry
+//! a command to it in [`crate::engine`], the port, slot and trace each device holds
+//! below it, in [`crate::port`].
 //!
-//! - [`device`]: one device (it carries the engine's slot and port for it);
-//!   [`estimate`]: its state estimator; [`stats`]: its always-on figures; [`trace`]: its
-//!   raw traffic; [`supervision`]: the supervisor's board; [`tap`]: where everything
+//! - [`device`]: one device (it holds its port, slot and trace: [`crate::port`]);
+//!   [`estimate`]: its state estimator; [`stats`]: its always-on figures;
+//!   [`supervision`]: the supervisor's board; [`tap`]: where everything
 //!   that happens is handed to a recording; [`capture`]: the one snapshot;
 //!   [`monitor`]: each CAN bus's frames, decoded, as the snapshot carries them.
 
@@ -18,15 +19,14 @@ pub(crate) mod monitor;
 pub mod stats;
 pub mod supervision;
 pub(crate) mod tap;
-pub mod trace;
 
-pub use device::{error_code, Cached, Device, Health, Settings, FAULT_AFTER};
+pub use device::{error_code, Cached, Device, Health, Settings, Unreported, FAULT_AFTER};
 
 use crate::config::protocol_map::Wire;
 use crate::config::roles::ReadingRef;
 use crate::config::{Bindings, DeviceConfig, Role, VehicleConfig};
 use crate::driver::slcan::Bus;
-use crate::engine::port::Opener;
+use crate::port::Opener;
 use crate::snapshot::{self, DeviceView, Pairs};
 use crate::value::{DeviceId, EstopState};
 use std::sync::atomic::Ordering::Relaxed;

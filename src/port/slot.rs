@@ -24,7 +24,7 @@ pub struct Pending {
 }
 
 /// A command whose request another thread already wrote to the port, which it left
-/// held ([`crate::engine::port::PortGuard::hand_over`]): the command thread reads the
+/// held ([`super::PortGuard::hand_over`]): the command thread reads the
 /// reply and does the bookkeeping.
 #[derive(Debug)]
 pub struct Handover {
