@@ -23,6 +23,14 @@ pub const SHIFT_BRAKE: f64 = 0.3;
 /// Below this speed (m/s) the vehicle counts as stopped.
 pub const STOPPED: f64 = 0.1;
 
+/// The vehicle is stopped: its speed is known and below [`STOPPED`]. An unknown speed
+/// (the sensor has not reported, or reports nothing) is moving. The one meaning of
+/// "stopped" for the shift rule ([`Reject::ShiftWhileMoving`]) and for the recovery
+/// step that waits for it (`crate::supervisor::recovery`).
+pub fn stopped(speed: Option<f64>) -> bool {
+    speed.is_some_and(|s| s.abs() < STOPPED)
+}
+
 /// What the interlocks know of the vehicle, at intake ([`super::facts::gather`]) or at
 /// the wire ([`super::facts::gather_wire`]): one type, so that both checks ask the same
 /// rule functions ([`breaks`]). Throttle and brake values are fractions of their
@@ -304,7 +312,7 @@ pub(crate) fn breaks(rule: Reject, f: &Facts, plays: Plays, command: Command) ->
             plays.brake && v < SHIFT_BRAKE && f.shifting
         }
         (Reject::ShiftWhileMoving, Command::State(g)) => {
-            shift(g) && !f.speed.is_some_and(|s| s.abs() < STOPPED)
+            shift(g) && !stopped(f.speed)
         }
         (Reject::ShiftWithoutBrake, Command::State(g)) => {
             shift(g) && !f.brake_low.is_some_and(|b| b >= SHIFT_BRAKE)
