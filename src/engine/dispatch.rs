@@ -106,7 +106,7 @@ impl Gate {
             d.slot().reset(None);
         }
         // Kits enable after the safe command, never before it.
-        v.set_kits_engaged(true);
+        self.state().engaging();
         self.command_safe_state();
         self.kits_follow(true, &self.state().stop_state(v));
         if let Some(s) = v.bound(Role::Steering) {
@@ -143,9 +143,8 @@ impl Gate {
         set: impl FnOnce(&crate::safety::GateState) -> bool,
         state: Vec<(DeviceId, Command)>,
     ) -> bool {
+        // Kits disable with it ([`GateState::engaging`]), after the safe command.
         let was = set(self.state());
-        // Kits disable after the safe command.
-        self.vehicle().set_kits_engaged(false);
         let now = Instant::now();
         for &(id, c) in &state {
             self.store(self.vehicle().device(id), c, now);
@@ -518,6 +517,33 @@ mod tests {
             gate.check_wire(brake, Command::Set(0.0), false),
             WireStep::Wait(Wait::ShiftOut)
         );
+    }
+
+    /// A kit is enabled only while the vehicle is engaged: the one switch the buses'
+    /// kits follow is the gate's, on through an engage and off with every way out of
+    /// it (disengage, STOP, a driver's override).
+    #[test]
+    fn the_kits_switch_follows_the_gate() {
+        let gate = sample::gate(Instant::now());
+        let kits = gate.vehicle().kits().clone();
+        assert!(!kits.enabled(), "off before any engage");
+        let ways_out: [&dyn Fn(&Gate); 3] = [
+            &|g| {
+                g.disengage("test");
+            },
+            &|g| {
+                g.stop("test");
+            },
+            &|g| g.take_over("steer", "test"),
+        ];
+        for out in ways_out {
+            gate.engage("test").unwrap();
+            assert!(kits.enabled(), "on while engaged");
+            out(&gate);
+            assert!(!gate.is_engaged());
+            assert!(!kits.enabled(), "off once disengaged");
+            let _ = gate.clear_overrides();
+        }
     }
 
     /// The release lands while the throttle waits: the throttle goes out as it is.

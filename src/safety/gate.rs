@@ -12,11 +12,13 @@ use super::rules::{self, Plays, Reject, Rules};
 use super::safe;
 use super::wire::{self, Verdict};
 use crate::config::Role;
+use crate::driver::slcan::Kits;
 use crate::logging::RateLimit;
 use crate::value::{Command, DeviceId, EstopState, Kind};
 use crate::vehicle::{Device, Unreported, Vehicle};
 use parking_lot::{Mutex, MutexGuard};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Whether engaging needs `d`: the rules act on it (it is bound to a role — steering,
@@ -29,6 +31,14 @@ pub fn needed(v: &Vehicle, d: &Device) -> bool {
     Role::ALL
         .into_iter()
         .any(|r| v.bindings().device(r) == Some(d.id()))
+}
+
+/// Whether a remote source (a network sender, the ROS 2 node) may ask to engage: where
+/// the vehicle file lets the network engage (`allow_engage`), or when the vehicle is
+/// engaged already — picking up a vehicle a console engaged and released engages
+/// nothing, and who may pick it up is ownership's to decide ([`super::owner`]).
+pub fn remote_may_engage(allow_engage: bool, engaged: bool) -> bool {
+    allow_engage || engaged
 }
 
 /// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
@@ -122,6 +132,10 @@ pub struct GateState {
     /// Who commands, and the commander's watchdog: the intake's one lock.
     owner: Mutex<Owner>,
     engaged: AtomicBool,
+    /// The vehicle's kit switch ([`Kits`]): a kit is enabled only while the vehicle is
+    /// engaged — on from the start of an engage ([`GateState::engaging`]), off with the
+    /// disengage, in the same step as `engaged`.
+    kits: Arc<Kits>,
     /// Why the vehicle is (dis)engaged, rendered by [`GateState::reason`].
     reason: Mutex<Reason>,
     /// Devices a recovery procedure has taken over: intake refuses them.
@@ -145,6 +159,7 @@ impl GateState {
             interlocks: AtomicBool::new(true),
             owner: Mutex::new(Owner::new(Instant::now())),
             engaged: AtomicBool::new(false),
+            kits: vehicle.kits().clone(),
             reason: Mutex::new(Reason::said("not engaged yet")),
             recovering: vehicle
                 .devices()
@@ -192,6 +207,13 @@ impl GateState {
         }
     }
 
+    /// An engage begins: the kits may be enabled from now on, each once its safe
+    /// command has gone out (a kit is enabled only while the vehicle is engaged, and
+    /// never before the command it will act on).
+    pub(crate) fn engaging(&self) {
+        self.kits.set(true);
+    }
+
     /// Engaged by `by`. The reason and the state change together: a reader of both
     /// (the snapshot) never sees one without the other.
     pub(crate) fn set_engaged(&self, by: &str) {
@@ -219,6 +241,8 @@ impl GateState {
     fn disengaged_for(&self, reason: Reason) -> bool {
         let mut why = self.reason.lock();
         let was = self.engaged.swap(false, SeqCst);
+        // Kits disable with the vehicle, before the stop's commands are stored.
+        self.kits.set(false);
         *why = reason;
         was
     }

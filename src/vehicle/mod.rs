@@ -25,7 +25,7 @@ pub use device::{error_code, Cached, Device, Health, Settings, Unreported, FAULT
 use crate::config::protocol_map::Wire;
 use crate::config::roles::ReadingRef;
 use crate::config::{Bindings, DeviceConfig, Role, VehicleConfig};
-use crate::driver::slcan::Bus;
+use crate::driver::slcan::{Bus, Kits};
 use crate::port::Opener;
 use crate::snapshot::{self, DeviceView, Pairs};
 use crate::value::{DeviceId, EstopState};
@@ -41,6 +41,8 @@ pub struct Vehicle {
     devices: Vec<Device>,
     /// The CAN buses, by index in the configuration's.
     buses: Vec<Arc<Bus>>,
+    /// Whether the kits on the buses are to be enabled (set by the gate).
+    kits: Arc<Kits>,
     /// What the supervisor sees: faults and the recovery in progress.
     supervision: Arc<supervision::Board>,
     /// Where a recording taps the run (off unless one runs).
@@ -61,10 +63,11 @@ impl Vehicle {
         mut open: impl FnMut(&DeviceConfig) -> Opener,
         tap: Arc<Tap>,
     ) -> Vehicle {
+        let kits = Arc::<Kits>::default();
         let buses: Vec<Arc<Bus>> = config
             .buses
             .iter()
-            .map(|b| Arc::new(Bus::new(b.clone())))
+            .map(|b| Arc::new(Bus::new(b.clone(), kits.clone())))
             .collect();
         let devices = config
             .devices
@@ -89,6 +92,7 @@ impl Vehicle {
             config,
             devices,
             buses,
+            kits,
             supervision: Arc::new(supervision::Board::new(tap.clone())),
             tap,
             started: Instant::now(),
@@ -114,12 +118,9 @@ impl Vehicle {
         &self.buses
     }
 
-    /// Tell every bus whether the vehicle is engaged (kit devices enable after their
-    /// next command, or disable after each).
-    pub(crate) fn set_kits_engaged(&self, on: bool) {
-        for b in &self.buses {
-            b.set_engaged(on);
-        }
+    /// The switch every bus's kit devices follow (the gate's to set).
+    pub fn kits(&self) -> &Arc<Kits> {
+        &self.kits
     }
 
     /// What the supervisor sees: faults and the recovery in progress.
