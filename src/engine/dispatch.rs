@@ -310,14 +310,10 @@ impl Gate {
             .state()
             .wire_verdict(self.vehicle(), d, command, waited)
         {
-            Verdict::Send(_) => WireStep::Send(command),
+            Verdict::Send(c) => WireStep::Send(c),
             Verdict::Replace(c, why) => {
                 self.reject(Some(d), Some(command), why);
-                // The rules replace with "released": the bottom of the range.
-                WireStep::Send(match c {
-                    Command::Set(_) => Command::Set(d.config().range[0]),
-                    other => other,
-                })
+                WireStep::Send(c)
             }
             Verdict::Drop(why) => {
                 self.reject(Some(d), Some(command), why);
@@ -327,47 +323,19 @@ impl Gate {
         }
     }
 
-    /// Do what a [`WireStep::Wait`] asks, bounded by two reply timeouts of the device
-    /// waited for.
+    /// Do what a [`WireStep::Wait`] asks ([`facts::awaited`]: first the throttle's
+    /// release, where that is what it waits for), bounded by two reply timeouts of the
+    /// device waited for.
     pub fn wait_for(&self, w: Wait) {
-        let v = self.vehicle();
-        let b = v.bindings();
-        match w {
-            Wait::ThrottleReleased => {
-                let Some(t) = b.throttle.map(|id| v.device(id)) else {
-                    return;
-                };
-                let wire = t.slot().wire();
-                let going = [wire.pending, wire.flight]
-                    .into_iter()
-                    .flatten()
-                    .filter_map(Command::set_point)
-                    .any(|x| facts::share(t, x) > rules::RELEASED);
-                if going {
-                    self.store(t, Command::Set(t.config().range[0]), Instant::now());
-                }
-                t.slot()
-                    .wait_wire(|w| facts::released_on_wire(t, w), wire_deadline(t));
-            }
-            Wait::BrakeReleased => {
-                let Some(br) = b.brake.map(|id| v.device(id)) else {
-                    return;
-                };
-                br.slot().wait_wire(
-                    |w| facts::released_on_wire(br, w) || facts::brake_applied_again(br, w),
-                    wire_deadline(br),
-                );
-            }
-            Wait::ShiftOut => {
-                let Some(g) = b.gear.as_ref().map(|g| v.device(g.device)) else {
-                    return;
-                };
-                g.slot().wait_wire(
-                    |w| w.pending.or(w.flight).is_none_or(|c| Some(c) == w.sent),
-                    wire_deadline(g),
-                );
-            }
+        let Some(a) = facts::awaited(self.vehicle(), w) else {
+            return;
+        };
+        if let Some(c) = a.first {
+            self.store(a.device, c, Instant::now());
         }
+        a.device
+            .slot()
+            .wait_wire(|s| (a.over)(a.device, s), wire_deadline(a.device));
     }
 
     /// Command the safe state to every actuator there is, bypassing the interlocks

@@ -2,20 +2,16 @@
 //! and only what the command at hand needs: a command to a device no rule looks at
 //! gathers nothing, and each fact locks one slot or one cache once.
 
-use super::rules::{Facts, Plays};
-use crate::config::Bindings;
+use super::rules::{Facts, Plays, RELEASED};
+use super::wire::Wait;
+use crate::config::{Bindings, DeviceConfig};
 use crate::port::slot::WireState;
 use crate::value::Command;
 use crate::vehicle::{Device, Vehicle};
 
 /// A set point as a fraction of its device's range top.
 fn fraction(d: &Device, v: f64) -> f64 {
-    let hi = d.config().range[1];
-    if hi > 0.0 {
-        v / hi
-    } else {
-        v
-    }
+    share(d.config(), v)
 }
 
 fn extremes(d: &Device, values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
@@ -45,7 +41,16 @@ fn brake(v: &Vehicle, b: &Bindings) -> Option<(f64, f64, bool)> {
 /// `c` is a set point of `d` at or below released.
 fn releases(d: &Device, c: Option<Command>) -> bool {
     c.and_then(Command::set_point)
-        .is_some_and(|x| fraction(d, x) <= super::rules::RELEASED)
+        .is_some_and(|x| fraction(d, x) <= RELEASED)
+}
+
+/// Every set point of a pedal (throttle or brake) among `cs` is at or below released:
+/// the one meaning of a pedal released on the wire.
+fn all_released(d: &Device, cs: impl IntoIterator<Item = Option<Command>>) -> bool {
+    cs.into_iter()
+        .flatten()
+        .filter_map(Command::set_point)
+        .all(|x| fraction(d, x) <= RELEASED)
 }
 
 /// The gear reported, whether it drives, and whether a shift is under way: a gear
@@ -135,10 +140,7 @@ pub(crate) fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
         }
         if let Some(g) = &b.gear {
             let w = v.device(g.device).slot().wire();
-            // A gear command not on the wire yet (whatever the gearbox reports: it may be
-            // passing through that gear).
-            f.shift_on_its_way =
-                matches!(w.pending.or(w.flight), Some(c @ Command::State(_)) if w.sent != Some(c));
+            f.shift_on_its_way = shift_on_its_way(&w);
         }
     }
     if plays.throttle || plays.brake {
@@ -155,22 +157,69 @@ pub(crate) fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
 /// A pedal (throttle or brake) has nothing above released pending, in flight or last
 /// sent.
 pub(crate) fn released_on_wire(d: &Device, w: &WireState) -> bool {
-    [w.pending, w.flight, w.sent]
-        .into_iter()
-        .flatten()
-        .filter_map(Command::set_point)
-        .all(|x| fraction(d, x) <= super::rules::RELEASED)
+    all_released(d, [w.pending, w.flight, w.sent])
+}
+
+/// A gear command not on the wire yet: pending or in flight, and not the last one sent
+/// (whatever the gearbox reports: it may be passing through that gear).
+fn shift_on_its_way(w: &WireState) -> bool {
+    matches!(w.pending.or(w.flight), Some(c @ Command::State(_)) if w.sent != Some(c))
 }
 
 /// A set point of `d` as a fraction of its range top (the rules' scale).
-pub fn share(d: &Device, v: f64) -> f64 {
-    fraction(d, v)
+pub fn share(d: &DeviceConfig, v: f64) -> f64 {
+    let hi = d.range[1];
+    if hi > 0.0 {
+        v / hi
+    } else {
+        v
+    }
+}
+
+/// The command that releases a pedal: the bottom of its range. What the wire sends in
+/// place of throttle it refuses, and what it has the throttle commanded before braking.
+pub(crate) fn release(d: &DeviceConfig) -> Command {
+    Command::Set(d.range[0])
 }
 
 /// The brake's newest command (pending, else in flight) applies it.
-pub(crate) fn brake_applied_again(d: &Device, w: &WireState) -> bool {
-    w.pending
-        .or(w.flight)
-        .and_then(Command::set_point)
-        .is_some_and(|x| fraction(d, x) > super::rules::RELEASED)
+fn brake_applied_again(d: &Device, w: &WireState) -> bool {
+    !all_released(d, [w.pending.or(w.flight)])
+}
+
+/// What a command thread does for a [`Wait`] the wire check asked for: which device it
+/// waits for, what it first commands that device, and when the wait is over.
+pub(crate) struct Awaited<'a> {
+    pub device: &'a Device,
+    /// Commanded before the wait: the throttle's release, when throttle above released
+    /// is still on its way to it.
+    pub first: Option<Command>,
+    /// The wait is over when this holds of the device's wire.
+    pub over: fn(&Device, &WireState) -> bool,
+}
+
+/// What waiting for `w` means on `v` (`None`: the device waited for is not bound).
+pub(crate) fn awaited(v: &Vehicle, w: Wait) -> Option<Awaited<'_>> {
+    let b = v.bindings();
+    Some(match w {
+        Wait::ThrottleReleased => {
+            let t = v.device(b.throttle?);
+            let wire = t.slot().wire();
+            Awaited {
+                device: t,
+                first: (!all_released(t, [wire.pending, wire.flight])).then(|| release(t.config())),
+                over: released_on_wire,
+            }
+        }
+        Wait::BrakeReleased => Awaited {
+            device: v.device(b.brake?),
+            first: None,
+            over: |d, w| released_on_wire(d, w) || brake_applied_again(d, w),
+        },
+        Wait::ShiftOut => Awaited {
+            device: v.device(b.gear.as_ref()?.device),
+            first: None,
+            over: |_, w| !shift_on_its_way(w),
+        },
+    })
 }

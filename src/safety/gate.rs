@@ -99,7 +99,7 @@ pub(crate) fn check_value(d: &Device, command: Command) -> Result<(), Reject> {
 pub fn scaled(d: &Device, command: Command) -> Command {
     match command {
         Command::Set(v) if d.plays(Role::Throttle) || d.plays(Role::Brake) => {
-            Command::Set(facts::share(d, v))
+            Command::Set(facts::share(d.config(), v))
         }
         other => other,
     }
@@ -382,6 +382,13 @@ impl GateState {
             return Verdict::Send(command);
         }
         let f = facts::gather_wire(v, plays);
-        wire::verdict(&f, self.rules, plays, scaled(d, command), waited)
+        match wire::verdict(&f, self.rules, plays, scaled(d, command), waited) {
+            // The rules replace with "released": the bottom of the range.
+            Verdict::Replace(Command::Set(_), why) => {
+                Verdict::Replace(facts::release(d.config()), why)
+            }
+            Verdict::Send(_) => Verdict::Send(command),
+            other => other,
+        }
     }
 }

@@ -10,7 +10,7 @@
 //! and acts. A wait happens before the command thread takes its port, so no port is
 //! held while another device is awaited.
 
-use super::rules::{breaks, Facts, Plays, Reject, Rules, RELEASED, SHIFT_BRAKE};
+use super::rules::{breaks, Facts, Plays, Reject, Rules, RELEASED};
 use crate::value::Command;
 
 /// What the command thread does with its command.
@@ -78,11 +78,16 @@ pub(crate) fn verdict(
             {
                 Verdict::Wait(Wait::ThrottleReleased)
             } else if !waited
-                && rules.has(Reject::BrakeReleaseShifting)
-                && v < SHIFT_BRAKE
-                && f.shift_on_its_way
+                && broken(
+                    Reject::BrakeReleaseShifting,
+                    &Facts {
+                        shifting: f.shift_on_its_way,
+                        ..*f
+                    },
+                )
             {
-                // A shift on its way keeps the brake on until it is out.
+                // A shift on its way keeps the brake on until it is out: the rule of
+                // intake, over the shift the wire sees.
                 Verdict::Wait(Wait::ShiftOut)
             } else if broken(Reject::BrakeReleaseEstop, f) {
                 // The e-stop paused between intake and the wire: the release (and the
