@@ -259,9 +259,12 @@ fn drive(s: &mut BTreeMap<&'static str, String>) {
     sim.wait_after(started, &["trans", "<-", "drive"]);
     let out = planner.wait_with_output().unwrap();
     let replies = String::from_utf8_lossy(&out.stdout).to_string();
+    // The engage, and the first `accel` refused while the gearbox shifts.
+    let engaged = pick(&replies, |l| l.contains("ok engaged"));
+    let shifting = pick(&replies, |l| l.contains("accel_while_shifting"));
     s.insert(
         "send-reply",
-        pick(&replies, |l| l.contains("ok engaged")).join("\n"),
+        [&engaged[..1], &shifting[..1]].concat().join("\n"),
     );
     let stopped = sim.mark();
     sim.wait_after(stopped, &["brake", "<-", "1.000"]);

@@ -9,7 +9,8 @@
 use super::fast::{self, Sent};
 use super::Gate;
 use crate::config::Role;
-use crate::safety::{facts, gate::check_value, rules, Plays, Reject, Verdict, Wait};
+use crate::safety::accel::{Pedal, Plan};
+use crate::safety::{facts, Reject, Seen, Verdict, Wait};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::stats::Stats;
 use crate::vehicle::tap::{Asked, GateChange, Source};
@@ -184,11 +185,25 @@ impl Gate {
     /// command was born (socket read, key press). A rejected command never reaches the
     /// slot.
     pub fn submit(&self, id: DeviceId, command: Command, received: Instant) -> Result<(), Reject> {
+        self.submit_seen(id, command, received).0
+    }
+
+    /// [`Gate::submit`], and what its decision saw (for the recording).
+    pub(crate) fn submit_seen(
+        &self,
+        id: DeviceId,
+        command: Command,
+        received: Instant,
+    ) -> (Result<(), Reject>, Option<Seen>) {
         let Some(d) = self.vehicle().devices().get(id.index()) else {
-            return Err(self.reject(None, Some(command), Reject::NoSuchDevice));
+            return (
+                Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
+                None,
+            );
         };
-        if let Err(why) = self.state().check(self.vehicle(), d, command) {
-            return Err(self.reject(Some(d), Some(command), why));
+        let (done, seen) = self.state().decided(self.vehicle(), d, command);
+        if let Err(why) = done {
+            return (Err(self.reject(Some(d), Some(command), why)), Some(seen));
         }
         self.dispatch(d, command, received);
         // A disengage that raced this command (it checks the gate, then stores): the
@@ -196,7 +211,7 @@ impl Gate {
         if !self.is_engaged() {
             self.command_safe_state();
         }
-        Ok(())
+        (Ok(()), Some(seen))
     }
 
     /// An admitted command on its way: written from this thread when its port is idle
@@ -220,77 +235,47 @@ impl Gate {
     }
 
     /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
-    /// throttle, negative is brake; it never applies both. It is admitted or refused as
-    /// a whole ([`rules::check_accel`]): a refused `accel` leaves both slots exactly as
-    /// they were. Going from braking to throttle, the release is stored and the
-    /// throttle with it: the throttle's command thread holds it back until the release
-    /// has reached the brake ([`Wait::BrakeReleased`]), so one `accel` is enough. While
-    /// a shift is under way the brake holds and positive `accel` waits. Needs throttle
-    /// and brake bound.
+    /// throttle, negative is brake; it never applies both. Safety decides it as a whole
+    /// ([`crate::safety::accel`]): refused, both slots stay exactly as they were;
+    /// admitted, its plan goes out, the brake's release first when throttle follows it.
+    /// Needs throttle and brake bound.
     pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
+        self.submit_accel_seen(a, received).0
+    }
+
+    /// [`Gate::submit_accel`], and what its decision saw (for the recording).
+    pub(crate) fn submit_accel_seen(
+        &self,
+        a: f64,
+        received: Instant,
+    ) -> (Result<(), Reject>, Option<Seen>) {
         let v = self.vehicle();
+        let Some((done, seen)) = self.state().decided_accel(v, a) else {
+            return (Err(self.reject(None, None, Reject::NoSuchDevice)), None);
+        };
         let b = v.bindings();
-        let (Some(tid), Some(bid)) = (b.throttle, b.brake) else {
-            return Err(self.reject(None, None, Reject::NoSuchDevice));
+        let pedal = |p: Pedal| match p {
+            Pedal::Throttle => b.throttle.map(|id| v.device(id)),
+            Pedal::Brake => b.brake.map(|id| v.device(id)),
         };
-        let (t, br) = (v.device(tid), v.device(bid));
-        let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
-        let top = |d: &Device| d.config().range[1];
-        let parts = [
-            (br, Command::Set(brake * top(br))),
-            (t, Command::Set(throttle * top(t))),
-        ];
-        for (d, c) in parts {
-            let why = if !a.is_finite() {
-                Err(Reject::NotFinite)
-            } else if !(-1.0..=1.0).contains(&a) {
-                Err(Reject::OutOfRange)
-            } else {
-                check_value(d, c)
-            };
-            if let Err(why) = why {
-                return Err(self.reject(Some(d), Some(c), why));
+        let plan = match done {
+            Ok(plan) => plan,
+            Err(r) => {
+                if r.why == Reject::AccelWhileShifting {
+                    tracing::debug!("accel {a}: the brake holds until the shift is through");
+                }
+                return (Err(self.reject(pedal(r.at), r.command, r.why)), Some(seen));
             }
-        }
-        if !self.is_engaged() {
-            return Err(self.reject(Some(t), None, Reject::Disengaged));
-        }
-        if self.is_recovering(tid) || self.is_recovering(bid) {
-            return Err(self.reject(Some(t), None, Reject::Recovering));
-        }
-        if self.interlocks_on() {
-            let both = Plays {
-                throttle: true,
-                brake: true,
-                ..Plays::default()
-            };
-            let facts = facts::gather(v, both);
-            if a > 0.0 && facts.shifting {
-                tracing::debug!("accel {a}: the brake holds until the shift is through");
-                return Ok(());
-            }
-            if let Err(why) = rules::check_accel(&facts, self.rules(), a) {
-                let at = if why.needs().first() == Some(&Role::Brake) {
-                    br
-                } else {
-                    t
-                };
-                return Err(self.reject(Some(at), None, why));
-            }
-        }
-        // Both parts pass: the brake's first (a release the throttle follows, or the
-        // throttle's release before braking), then the other.
-        let (first, second) = if a > 0.0 {
-            (parts[0], parts[1])
-        } else {
-            (parts[1], parts[0])
         };
-        self.dispatch(first.0, first.1, received);
-        self.dispatch(second.0, second.1, received);
+        for (p, share) in plan.order() {
+            if let Some(d) = pedal(p) {
+                self.dispatch(d, Plan::command(d.config(), share), received);
+            }
+        }
         if !self.is_engaged() {
             self.command_safe_state();
         }
-        Ok(())
+        (Ok(()), Some(seen))
     }
 
     /// The supervisor's own commands: past the gate and the intake interlocks (the
@@ -298,7 +283,13 @@ impl Gate {
     pub fn supervise(&self, id: DeviceId, command: Command) {
         let now = Instant::now();
         self.store(self.vehicle().device(id), command, now);
-        self.tap_received(Source::Supervisor, Asked::Device(id, command), now, Ok(()));
+        self.tap_received(
+            Source::Supervisor,
+            Asked::Device(id, command),
+            now,
+            Ok(()),
+            None,
+        );
     }
 
     /// The wire check for the command `d`'s thread has in flight: send it (or what

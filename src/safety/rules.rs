@@ -12,6 +12,7 @@
 //! unit- and property-tested without threads.
 
 use crate::config::{Bindings, Role};
+pub use crate::vehicle::seen::Facts;
 use crate::value::{Command, Control, EstopState};
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -29,55 +30,6 @@ pub const STOPPED: f64 = 0.1;
 /// step that waits for it (`crate::supervisor::recovery`).
 pub fn stopped(speed: Option<f64>) -> bool {
     speed.is_some_and(|s| s.abs() < STOPPED)
-}
-
-/// What the interlocks know of the vehicle, at intake ([`super::facts::gather`]) or at
-/// the wire ([`super::facts::gather_wire`]): one type, so that both checks ask the same
-/// rule functions ([`breaks`]). Throttle and brake values are fractions of their
-/// range's top (0 released … 1 full), whatever the devices' units.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Facts {
-    /// Highest brake value pending, in flight, sent or acknowledged (None: unknown);
-    /// at the wire, pending, in flight or last sent.
-    pub(crate) brake_high: Option<f64>,
-    /// Lowest brake value pending, in flight, sent or acknowledged.
-    pub(crate) brake_low: Option<f64>,
-    /// The brake's newest command releases it: throttle may follow, held back at the
-    /// wire until the release has reached the brake ([`super::wire::Wait::BrakeReleased`]).
-    pub(crate) brake_releasing: bool,
-    /// The gear reported, as a state of the gear device.
-    pub gear: Option<u8>,
-    /// The reported gear drives the wheels.
-    pub(crate) in_gear: bool,
-    pub running: Option<bool>,
-    pub speed: Option<f64>,
-    pub estop: Option<EstopState>,
-    /// A shift is commanded and the gearbox does not report that gear yet.
-    pub(crate) shifting: bool,
-    /// At the wire: the throttle has nothing above released pending, in flight or
-    /// last sent.
-    pub(crate) throttle_released: bool,
-    /// At the wire: a gear command is pending or in flight for the gearbox that is not
-    /// the last one sent.
-    pub(crate) shift_on_its_way: bool,
-}
-
-impl Default for Facts {
-    fn default() -> Facts {
-        Facts {
-            brake_high: None,
-            brake_low: None,
-            brake_releasing: false,
-            gear: None,
-            in_gear: false,
-            running: None,
-            speed: None,
-            estop: None,
-            shifting: false,
-            throttle_released: true,
-            shift_on_its_way: false,
-        }
-    }
 }
 
 /// Why intake refused a command.
@@ -100,10 +52,11 @@ pub enum Reject {
     StartInGear,
     Disengaged,
     Recovering,
+    AccelWhileShifting,
 }
 
 impl Reject {
-    pub const ALL: [Reject; 16] = [
+    pub const ALL: [Reject; 17] = [
         Reject::NoSuchDevice,
         Reject::NotAnActuator,
         Reject::WrongKind,
@@ -120,6 +73,7 @@ impl Reject {
         Reject::StartInGear,
         Reject::Disengaged,
         Reject::Recovering,
+        Reject::AccelWhileShifting,
     ];
 
     /// The interlock rules among the reasons.
@@ -153,6 +107,7 @@ impl Reject {
             Reject::StartInGear => "start_in_gear",
             Reject::Disengaged => "disengaged",
             Reject::Recovering => "recovering",
+            Reject::AccelWhileShifting => "accel_while_shifting",
         }
     }
 
@@ -196,6 +151,9 @@ impl fmt::Display for Reject {
             Reject::StartInGear => "the starter runs only out of gear",
             Reject::Disengaged => "adrive is disengaged",
             Reject::Recovering => "a recovery procedure has the vehicle",
+            Reject::AccelWhileShifting => {
+                "no throttle until the shift is through (the brake stays on)"
+            }
         })
     }
 }
@@ -332,35 +290,6 @@ pub fn check(facts: &Facts, rules: Rules, plays: Plays, command: Command) -> Res
         Some(r) => Err(r),
         None => Ok(()),
     }
-}
-
-/// The throttle's and the brake's roles, for [`check_accel`].
-pub const THROTTLE: Plays = Plays {
-    throttle: true,
-    brake: false,
-    gear: false,
-    starter: false,
-};
-pub const BRAKE: Plays = Plays {
-    throttle: false,
-    brake: true,
-    gear: false,
-    starter: false,
-};
-
-/// The virtual `accel` command (−1 … 1, as fractions of the pedals' ranges) checked as
-/// a whole: both of its parts — throttle and brake — pass, or it is refused and
-/// neither is stored. Going from braking to throttle, the brake's release is checked
-/// first, and the throttle then as following that release (which the wire holds it
-/// behind). `f` holds the facts of both pedals.
-pub(crate) fn check_accel(f: &Facts, rules: Rules, a: f64) -> Result<(), Reject> {
-    let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
-    check(f, rules, BRAKE, Command::Set(brake))?;
-    let behind_the_release = Facts {
-        brake_releasing: f.brake_releasing || brake <= RELEASED,
-        ..*f
-    };
-    check(&behind_the_release, rules, THROTTLE, Command::Set(throttle))
 }
 
 /// The guide's table (docs/vehicles.md) of the interlock rules: each with the roles it needs bound and

@@ -7,8 +7,8 @@
 //! below it, in [`crate::port`].
 //!
 //! - [`device`]: one device (it holds its port, slot and trace: [`crate::port`]);
-//!   [`estimate`]: its state estimator; [`stats`]: its always-on figures;
-//!   [`supervision`]: the supervisor's board; [`tap`]: where everything
+//!   [`estimate`]: its state estimator; [`stats`]: its always-on figures; [`seen`]: what
+//!   a decision of the intake saw; [`supervision`]: the supervisor's board; [`tap`]: where everything
 //!   that happens is handed to a recording; [`capture`]: the one snapshot;
 //!   [`monitor`]: each CAN bus's frames, decoded, as the snapshot carries them.
 
@@ -16,6 +16,7 @@ pub mod capture;
 pub mod device;
 pub mod estimate;
 pub(crate) mod monitor;
+pub mod seen;
 pub mod stats;
 pub mod supervision;
 pub(crate) mod tap;

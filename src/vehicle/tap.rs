@@ -53,12 +53,14 @@ pub enum GateChange {
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub enum Event {
-    /// A command reached intake: accepted, or refused with the reason's code.
+    /// A command reached intake: accepted, or refused with the reason's code; and what
+    /// the decision saw (`None`: ownership refused it, or the supervisor's own).
     Received {
         at: Instant,
         source: Source,
         asked: Asked,
         refused: Option<&'static str>,
+        seen: Option<super::seen::Seen>,
     },
     /// A datagram refused whole (grammar, key, counter, allow-list), by reason code.
     Refused {
