@@ -244,7 +244,13 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     assert_eq!(gate["commander"], me.as_str(), "{gate}");
 
     // Closing the driver's terminal (the master goes away, as an SSH drop) brakes and
-    // disengages within its deadman; the service keeps running.
+    // disengages within its deadman; the service keeps running. The brake is first set
+    // apart from full, so that the full brake waited for is the drop's, not a resend.
+    let mark = sim.mark();
+    driver.keys("b");
+    driver.wait_for("the brake edit", |s| s.contains("edit brake command"));
+    driver.keys("\x150.2\r");
+    sim.wait_after(mark, &["brake", "<-", "0.200"]);
     let mark = sim.mark();
     let dropped = Instant::now();
     driver.term.hang_up();
