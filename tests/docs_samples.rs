@@ -374,7 +374,11 @@ fn drive(s: &mut BTreeMap<&'static str, String>) {
 fn replay_check(s: &mut BTreeMap<&'static str, String>) {
     let dir = common::tempdir("docs-check");
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    std::fs::copy(root.join("tests/drives/alice.mcap"), dir.path().join("drive.mcap")).unwrap();
+    std::fs::copy(
+        root.join("tests/drives/alice.mcap"),
+        dir.path().join("drive.mcap"),
+    )
+    .unwrap();
     let alice = std::fs::read_to_string(root.join("vehicles/alice.toml")).unwrap();
     std::fs::write(dir.path().join("vehicle.toml"), &alice).unwrap();
     std::fs::write(
@@ -391,7 +395,11 @@ fn replay_check(s: &mut BTreeMap<&'static str, String>) {
             .unwrap();
         assert_eq!(out.status.code(), Some(status), "{out:?}");
         lines.push(format!("$ adrive replay drive.mcap --check {vehicle}"));
-        lines.extend(String::from_utf8_lossy(&out.stdout).lines().map(str::to_string));
+        lines.extend(
+            String::from_utf8_lossy(&out.stdout)
+                .lines()
+                .map(str::to_string),
+        );
     }
     s.insert("replay-check", lines.join("\n"));
 }

@@ -80,10 +80,14 @@ fn imports(text: &str) -> Vec<(usize, String)> {
 /// has none.
 fn tests_from(text: &str) -> Option<usize> {
     let lines: Vec<&str> = text.lines().collect();
-    lines.windows(2).position(|w| {
-        w[0].trim() == "#[cfg(test)]" && w[1].starts_with("mod ") && w[1].trim_end().ends_with('{')
-    })
-    .map(|i| i + 1)
+    lines
+        .windows(2)
+        .position(|w| {
+            w[0].trim() == "#[cfg(test)]"
+                && w[1].starts_with("mod ")
+                && w[1].trim_end().ends_with('{')
+        })
+        .map(|i| i + 1)
 }
 
 /// The files only tests compile: those of modules declared `#[cfg(test)] mod NAME;`.
@@ -176,7 +180,8 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
 /// `#[cfg(test)]` module, and a file declared `#[cfg(test)] mod NAME;` is all tests.
 #[test]
 fn tests_are_told_from_code() {
-    let text = "use crate::value::Command;\n\n#[cfg(test)]\nmod tests {\n    use crate::testkit;\n}\n";
+    let text =
+        "use crate::value::Command;\n\n#[cfg(test)]\nmod tests {\n    use crate::testkit;\n}\n";
     assert_eq!(tests_from(text), Some(3));
     assert_eq!(tests_from("#[cfg(test)]\nmod tests;\n"), None);
     let here = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");

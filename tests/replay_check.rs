@@ -135,7 +135,11 @@ fn every_recorded_drive_is_decided_again_as_it_was_under_its_own_vehicle_file() 
         let size = std::fs::metadata(&file)
             .unwrap_or_else(|e| panic!("{}: {e} (UPDATE_DRIVES=1 records it)", file.display()))
             .len();
-        assert!(size < 100_000, "{}: {size} bytes: keep the corpus small", file.display());
+        assert!(
+            size < 100_000,
+            "{}: {size} bytes: keep the corpus small",
+            file.display()
+        );
         let (status, out) = check(&file, &root().join(d.vehicle));
         let first = out.lines().next().unwrap_or_default();
         assert!(
@@ -162,8 +166,11 @@ fn a_changed_limit_lists_the_decisions_it_would_change() {
     let narrow = dir.path().join("narrow.toml");
     let alice = std::fs::read_to_string(root().join("vehicles/alice.toml")).unwrap();
     assert!(alice.contains("range = [-1.0, 1.0]"));
-    std::fs::write(&narrow, alice.replacen("range = [-1.0, 1.0]", "range = [-0.4, 0.4]", 1))
-        .unwrap();
+    std::fs::write(
+        &narrow,
+        alice.replacen("range = [-1.0, 1.0]", "range = [-0.4, 0.4]", 1),
+    )
+    .unwrap();
     let (status, out) = check(&corpus("alice"), &narrow);
     assert_eq!(status, 1, "{out}");
     let listed: Vec<&str> = out.lines().filter(|l| l.contains(" s  ")).collect();

@@ -10,10 +10,10 @@
 //! next is due within [`turn_bound`]. A thread asleep on its slot legitimately waits up
 //! to `command_timeout`.
 
-use crate::port::slot::{Pending, Wake};
-use crate::port::PortGuard;
 use super::{Gate, WireStep};
 use crate::config::PortRule;
+use crate::port::slot::{Pending, Wake};
+use crate::port::PortGuard;
 use crate::threads::Beat;
 use crate::vehicle::stats::Stats;
 use crate::vehicle::Device;

@@ -23,8 +23,8 @@
 //! that admits every command must not wait on one device). A claimed command that
 //! cannot go out after all is queued for the command thread in the same step.
 
-use crate::port::slot::{Handover, Pending};
 use super::Gate;
+use crate::port::slot::{Handover, Pending};
 use crate::safety::Verdict;
 use crate::value::Command;
 use crate::vehicle::Device;

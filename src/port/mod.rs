@@ -47,10 +47,10 @@
 //! function, byte count or written value, a line-protocol ack is no status line, an
 //! ELM327 reply names its PID.)
 
-use crate::config::PortRule;
-use crate::driver::{Driver, DriverError, Link};
 use self::slot::CommandSlot;
 use self::trace::{Dir, Trace};
+use crate::config::PortRule;
+use crate::driver::{Driver, DriverError, Link};
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::io::{self, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};

@@ -84,7 +84,9 @@ impl Report {
             ));
         }
         if let Some(why) = &self.cut {
-            out.push_str(&format!("(the file is read up to where it is cut: {why})\n"));
+            out.push_str(&format!(
+                "(the file is read up to where it is cut: {why})\n"
+            ));
         }
         for d in &self.differ {
             let then = match &d.then {
@@ -243,13 +245,20 @@ mod tests {
             Err(Reject::NoSuchDevice)
         );
         assert_eq!(
-            decide_again(&alice, rules, "trans", "drive", Some(3.0), engaged(Some(Facts {
-                speed: Some(0.0),
-                brake_low: Some(1.0),
-                brake_high: Some(1.0),
-                gear: Some(0),
-                ..Facts::default()
-            }))),
+            decide_again(
+                &alice,
+                rules,
+                "trans",
+                "drive",
+                Some(3.0),
+                engaged(Some(Facts {
+                    speed: Some(0.0),
+                    brake_low: Some(1.0),
+                    brake_high: Some(1.0),
+                    gear: Some(0),
+                    ..Facts::default()
+                }))
+            ),
             Ok(())
         );
         assert_eq!(

@@ -7,11 +7,11 @@
 
 use super::schema::{self, schema_of};
 use crate::config::{DeviceConfig, ReadingKind, VehicleConfig};
+use crate::port::trace::{Dir, TraceEntry};
 use crate::snapshot::{FaultKind, Snapshot};
 use crate::value::{Command, DeviceId, Reading};
 use crate::vehicle::seen::Seen;
 use crate::vehicle::tap::{Asked, Event, GateChange, Source};
-use crate::port::trace::{Dir, TraceEntry};
 use crate::vehicle::Vehicle;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};

@@ -12,8 +12,8 @@
 //! unit- and property-tested without threads.
 
 use crate::config::{Bindings, Role};
-pub use crate::vehicle::seen::Facts;
 use crate::value::{Command, Control, EstopState};
+pub use crate::vehicle::seen::Facts;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -269,9 +269,7 @@ pub(crate) fn breaks(rule: Reject, f: &Facts, plays: Plays, command: Command) ->
         (Reject::BrakeReleaseShifting, Command::Set(v)) => {
             plays.brake && v < SHIFT_BRAKE && f.shifting
         }
-        (Reject::ShiftWhileMoving, Command::State(g)) => {
-            shift(g) && !stopped(f.speed)
-        }
+        (Reject::ShiftWhileMoving, Command::State(g)) => shift(g) && !stopped(f.speed),
         (Reject::ShiftWithoutBrake, Command::State(g)) => {
             shift(g) && !f.brake_low.is_some_and(|b| b >= SHIFT_BRAKE)
         }
