@@ -478,6 +478,53 @@ mod tests {
         );
     }
 
+    /// Braking first has the throttle released: a throttle command still on its way
+    /// when the brake's thread waits for it is replaced by the throttle's release — it
+    /// never reaches the wire — and the wait is over at once, not at its bound.
+    #[test]
+    fn braking_first_has_a_throttle_on_its_way_released() {
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        let (gas, brake) = (v.find("gas").unwrap(), v.find("brake").unwrap());
+        gas.slot().submit(Command::Set(0.4), Instant::now());
+        assert_eq!(
+            gate.check_wire(brake, Command::Set(1.0), false),
+            WireStep::Wait(Wait::ThrottleReleased)
+        );
+        let t = Instant::now();
+        gate.wait_for(Wait::ThrottleReleased);
+        assert_eq!(gas.slot().wire().pending, Some(Command::Set(0.0)));
+        assert!(
+            t.elapsed() < gas.config().reply_timeout * 2,
+            "released at once; the wait did not run to its bound"
+        );
+    }
+
+    /// A brake release held behind a shift waits until the gear command has gone out,
+    /// and no longer.
+    #[test]
+    fn a_release_behind_a_shift_waits_until_the_shift_is_out() {
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        let trans = v.find("trans").unwrap();
+        let drive = Command::State(trans.config().state_index("drive").unwrap());
+        trans.slot().submit(drive, Instant::now());
+        let t = Instant::now();
+        std::thread::scope(|s| {
+            // The gearbox's command thread sends the shift.
+            s.spawn(|| {
+                let p = trans.slot().take_newer().expect("the shift");
+                trans.slot().finish(p.command, true);
+            });
+            gate.wait_for(Wait::ShiftOut);
+        });
+        assert_eq!(trans.slot().sent(), Some(drive));
+        assert!(
+            t.elapsed() < trans.config().reply_timeout * 2,
+            "over once the shift was out, not at the wait's bound"
+        );
+    }
+
     /// A kit is enabled only while the vehicle is engaged: the one switch the buses'
     /// kits follow is the gate's, on through an engage and off with every way out of
     /// it (disengage, STOP, a driver's override).
