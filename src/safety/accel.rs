@@ -22,20 +22,6 @@ pub enum Pedal {
     Brake,
 }
 
-/// The throttle's and the brake's roles, for the rules.
-const THROTTLE: Plays = Plays {
-    throttle: true,
-    brake: false,
-    gear: false,
-    starter: false,
-};
-const BRAKE: Plays = Plays {
-    throttle: false,
-    brake: true,
-    gear: false,
-    starter: false,
-};
-
 /// Both pedals: the facts an `accel` is decided over.
 pub(crate) const PEDALS: Plays = Plays {
     throttle: true,
@@ -140,7 +126,8 @@ pub(crate) fn interlocks(f: &Facts, rules: Rules, a: f64) -> Result<(), Refusal>
     if plan.throttle > 0.0 && f.shifting && rules.has(Reject::BrakeReleaseShifting) {
         return Err(refused(Reject::AccelWhileShifting, Pedal::Throttle));
     }
-    check(f, rules, BRAKE, Command::Set(plan.brake)).map_err(|r| refused(r, Pedal::Brake))?;
+    check(f, rules, Plays::BRAKE, Command::Set(plan.brake))
+        .map_err(|r| refused(r, Pedal::Brake))?;
     let behind_the_release = Facts {
         brake_releasing: f.brake_releasing || plan.brake <= RELEASED,
         ..*f
@@ -148,7 +135,7 @@ pub(crate) fn interlocks(f: &Facts, rules: Rules, a: f64) -> Result<(), Refusal>
     check(
         &behind_the_release,
         rules,
-        THROTTLE,
+        Plays::THROTTLE,
         Command::Set(plan.throttle),
     )
     .map_err(|r| refused(r, Pedal::Throttle))

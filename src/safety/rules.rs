@@ -232,6 +232,28 @@ pub struct Plays {
 }
 
 impl Plays {
+    /// A throttle's commands.
+    pub const THROTTLE: Plays = Plays {
+        throttle: true,
+        brake: false,
+        gear: false,
+        starter: false,
+    };
+    /// A brake's commands.
+    pub const BRAKE: Plays = Plays {
+        throttle: false,
+        brake: true,
+        gear: false,
+        starter: false,
+    };
+    /// A gearbox's commands.
+    pub const GEAR: Plays = Plays {
+        throttle: false,
+        brake: false,
+        gear: true,
+        starter: false,
+    };
+
     pub fn of(roles: &[Role]) -> Plays {
         Plays {
             throttle: roles.contains(&Role::Throttle),
@@ -316,6 +338,12 @@ mod tests {
     use super::*;
 
     const DRIVE: u8 = 3;
+
+    /// A gearbox that is also the starter (Alice's `trans`).
+    const TRANS: Plays = Plays {
+        starter: true,
+        ..Plays::GEAR
+    };
     const PARK: u8 = 0;
 
     fn driving() -> Facts {
@@ -333,32 +361,16 @@ mod tests {
         }
     }
 
-    const GAS: Plays = Plays {
-        throttle: true,
-        brake: false,
-        gear: false,
-        starter: false,
-    };
-    const BRAKE: Plays = Plays {
-        throttle: false,
-        brake: true,
-        gear: false,
-        starter: false,
-    };
-    const TRANS: Plays = Plays {
-        throttle: false,
-        brake: false,
-        gear: true,
-        starter: true,
-    };
-
     fn check_all(f: &Facts, plays: Plays, c: Command) -> Result<(), Reject> {
         check(f, Rules::ALL, plays, c)
     }
 
     #[test]
     fn gas_passes_when_everything_allows_it() {
-        assert_eq!(check_all(&driving(), GAS, Command::Set(0.5)), Ok(()));
+        assert_eq!(
+            check_all(&driving(), Plays::THROTTLE, Command::Set(0.5)),
+            Ok(())
+        );
     }
 
     #[test]
@@ -368,17 +380,20 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, GAS, Command::Set(0.3)),
+            check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasWhileBraking)
         );
         // Releasing the gas is always allowed.
-        assert_eq!(check_all(&f, GAS, Command::Set(0.0)), Ok(()));
+        assert_eq!(check_all(&f, Plays::THROTTLE, Command::Set(0.0)), Ok(()));
         // With a release on its way the gas may follow it (the wire holds it back).
         let releasing = Facts {
             brake_releasing: true,
             ..f
         };
-        assert_eq!(check_all(&releasing, GAS, Command::Set(0.3)), Ok(()));
+        assert_eq!(
+            check_all(&releasing, Plays::THROTTLE, Command::Set(0.3)),
+            Ok(())
+        );
         // The other rules still apply.
         let in_park = Facts {
             gear: Some(PARK),
@@ -386,7 +401,7 @@ mod tests {
             ..releasing
         };
         assert_eq!(
-            check_all(&in_park, GAS, Command::Set(0.3)),
+            check_all(&in_park, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasNotInGear)
         );
     }
@@ -399,7 +414,7 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, GAS, Command::Set(0.3)),
+            check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasNotInGear)
         );
     }
@@ -411,12 +426,15 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, GAS, Command::Set(0.3)),
+            check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasEngineOff)
         );
         for estop in [Some(EstopState::Pause), Some(EstopState::Disable), None] {
             let f = Facts { estop, ..driving() };
-            assert_eq!(check_all(&f, GAS, Command::Set(0.3)), Err(Reject::GasEstop));
+            assert_eq!(
+                check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
+                Err(Reject::GasEstop)
+            );
         }
     }
 
@@ -456,10 +474,10 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, BRAKE, Command::Set(0.0)),
+            check_all(&f, Plays::BRAKE, Command::Set(0.0)),
             Err(Reject::BrakeReleaseShifting)
         );
-        assert_eq!(check_all(&f, BRAKE, Command::Set(0.5)), Ok(()));
+        assert_eq!(check_all(&f, Plays::BRAKE, Command::Set(0.5)), Ok(()));
     }
 
     #[test]
@@ -469,10 +487,10 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, BRAKE, Command::Set(0.2)),
+            check_all(&f, Plays::BRAKE, Command::Set(0.2)),
             Err(Reject::BrakeReleaseEstop)
         );
-        assert_eq!(check_all(&f, BRAKE, Command::Set(1.0)), Ok(()));
+        assert_eq!(check_all(&f, Plays::BRAKE, Command::Set(1.0)), Ok(()));
     }
 
     #[test]
@@ -494,7 +512,10 @@ mod tests {
             estop: None,
             ..driving()
         };
-        assert_eq!(check(&parked, rules, GAS, Command::Set(0.5)), Ok(()));
+        assert_eq!(
+            check(&parked, rules, Plays::THROTTLE, Command::Set(0.5)),
+            Ok(())
+        );
         assert_eq!(rules.names(), vec!["gas_while_braking"]);
         assert!(Rules::missing(&b)
             .iter()

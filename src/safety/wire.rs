@@ -116,25 +116,6 @@ mod tests {
     use super::*;
     use crate::value::EstopState;
 
-    const GAS: Plays = Plays {
-        throttle: true,
-        brake: false,
-        gear: false,
-        starter: false,
-    };
-    const BRAKE: Plays = Plays {
-        throttle: false,
-        brake: true,
-        gear: false,
-        starter: false,
-    };
-    const GEAR: Plays = Plays {
-        throttle: false,
-        brake: false,
-        gear: true,
-        starter: false,
-    };
-
     fn calm() -> Facts {
         Facts {
             brake_high: Some(0.0),
@@ -153,11 +134,17 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), false),
+            verdict(&f, Rules::ALL, Plays::THROTTLE, Command::Set(0.4), false),
             Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking)
         );
         assert_eq!(
-            verdict(&calm(), Rules::ALL, GAS, Command::Set(0.4), false),
+            verdict(
+                &calm(),
+                Rules::ALL,
+                Plays::THROTTLE,
+                Command::Set(0.4),
+                false
+            ),
             Verdict::Send(Command::Set(0.4))
         );
     }
@@ -170,11 +157,11 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), false),
+            verdict(&f, Rules::ALL, Plays::THROTTLE, Command::Set(0.4), false),
             Verdict::Wait(Wait::BrakeReleased)
         );
         assert_eq!(
-            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), true),
+            verdict(&f, Rules::ALL, Plays::THROTTLE, Command::Set(0.4), true),
             Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking),
             "the release did not land: no throttle"
         );
@@ -187,11 +174,11 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&f, Rules::ALL, BRAKE, Command::Set(1.0), false),
+            verdict(&f, Rules::ALL, Plays::BRAKE, Command::Set(1.0), false),
             Verdict::Wait(Wait::ThrottleReleased)
         );
         assert_eq!(
-            verdict(&f, Rules::ALL, BRAKE, Command::Set(1.0), true),
+            verdict(&f, Rules::ALL, Plays::BRAKE, Command::Set(1.0), true),
             Verdict::Send(Command::Set(1.0))
         );
     }
@@ -203,11 +190,17 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&shifting, Rules::ALL, BRAKE, Command::Set(0.0), false),
+            verdict(
+                &shifting,
+                Rules::ALL,
+                Plays::BRAKE,
+                Command::Set(0.0),
+                false
+            ),
             Verdict::Wait(Wait::ShiftOut)
         );
         assert_eq!(
-            verdict(&calm(), Rules::ALL, BRAKE, Command::Set(0.0), false),
+            verdict(&calm(), Rules::ALL, Plays::BRAKE, Command::Set(0.0), false),
             Verdict::Send(Command::Set(0.0)),
             "a no-op shift holds nothing"
         );
@@ -222,7 +215,7 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&moving, Rules::ALL, GEAR, Command::State(0), false),
+            verdict(&moving, Rules::ALL, Plays::GEAR, Command::State(0), false),
             Verdict::Drop(Reject::ShiftWhileMoving)
         );
         let releasing = Facts {
@@ -231,7 +224,13 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&releasing, Rules::ALL, GEAR, Command::State(0), false),
+            verdict(
+                &releasing,
+                Rules::ALL,
+                Plays::GEAR,
+                Command::State(0),
+                false
+            ),
             Verdict::Drop(Reject::ShiftWithoutBrake)
         );
     }
