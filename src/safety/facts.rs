@@ -53,10 +53,15 @@ fn all_released(d: &Device, cs: impl IntoIterator<Item = Option<Command>>) -> bo
         .all(|x| fraction(d, x) <= RELEASED)
 }
 
-/// The gear reported, whether it drives, and whether a shift is under way: a gear
-/// commanded that the gearbox has not yet acknowledged and then reported in a status
-/// taken after that. (A gearbox passing through neutral reports neutral mid-shift: a
-/// status from before the command says nothing about it.)
+/// The gear the gearbox is in, whether it drives, and whether a shift is under way.
+///
+/// What the gearbox reports counts only once it answers for the last gear command it
+/// was sent: that command acknowledged — since any other was sent — and the gear
+/// reported by a status taken after that. Until then the gear is unknown, so any gear
+/// command is a shift and the brake stays on: a gearbox passing through neutral
+/// reports neutral mid-shift, and one that went silent after a new gear was sent still
+/// reports the old one. A shift is under way while the newest gear command (pending,
+/// in flight or last sent) is not the gear known.
 fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
     let Some(g) = &b.gear else {
         return (None, false, false);
@@ -68,19 +73,24 @@ fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
         .and_then(|i| d.reading(i))
         .map(|x| x as u8);
     let w = d.slot().wire();
-    let shifting = match w.latest() {
-        Some(Command::State(s)) => {
+    let settled = match w.flight.or(w.sent) {
+        Some(c @ Command::State(_)) => {
             let status_after_ack = match (w.acked_at, d.cached().at) {
                 (Some(acked), Some(status)) => status > acked,
                 _ => false,
             };
-            let through =
-                w.acked == Some(Command::State(s)) && status_after_ack && reported == Some(s);
-            !through
+            w.sent == Some(c) && w.acked == Some(c) && status_after_ack
         }
+        // Nothing sent to it yet, or a control (the starter): what it reports is what
+        // it is in.
+        _ => true,
+    };
+    let known = reported.filter(|_| settled);
+    let shifting = match w.latest() {
+        Some(Command::State(s)) => known != Some(s),
         _ => false,
     };
-    (reported, reported.is_some_and(|s| g.drives(s)), shifting)
+    (known, known.is_some_and(|s| g.drives(s)), shifting)
 }
 
 /// Facts for an intake check of a command to a device that plays `plays`.
@@ -222,4 +232,68 @@ pub(crate) fn awaited(v: &Vehicle, w: Wait) -> Option<Awaited<'_>> {
             over: |_, w| !shift_on_its_way(w),
         },
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::value::Reading;
+    use crate::vehicle::Cached;
+    use std::time::Instant;
+
+    /// The gearbox reports `state` in a status taken now.
+    fn reports(d: &Device, state: f64) {
+        let mut r = Reading::default();
+        r.set(0, state);
+        d.store(Cached {
+            reading: r,
+            at: Some(Instant::now()),
+        });
+    }
+
+    /// The incident: in drive (acknowledged, reported), reverse went out and the
+    /// gearbox fell silent before it answered; `drive` again, pending, was taken for
+    /// drive reached — the old acknowledgement and the old report — so a brake release
+    /// passed intake while the gearbox was on its way to reverse, and at the wire the
+    /// shift back to drive was no shift (the stale report said drive) and went out
+    /// with the brake released. What the gearbox reports counts only once it answered
+    /// for the last gear it was sent.
+    #[test]
+    fn a_report_from_before_another_gear_went_out_is_not_the_gear() {
+        let gate = crate::testkit::gate(Instant::now());
+        let v = gate.vehicle();
+        let trans = v.find("trans").unwrap();
+        let state = |w: &str| Command::State(trans.config().state_index(w).unwrap());
+        let (drive, reverse) = (state("drive"), state("reverse"));
+        // In drive: acknowledged, then reported.
+        trans.slot().fly(drive);
+        trans.slot().finish(drive, true);
+        reports(trans, 3.0);
+        let f = gather(v, Plays::BRAKE);
+        assert_eq!((f.gear, f.shifting), (Some(3), false), "in drive");
+        // Reverse goes out and is not answered; drive again, pending.
+        trans.slot().fly(reverse);
+        trans.slot().finish(reverse, false);
+        trans.slot().submit(drive, Instant::now());
+        let f = gather(v, Plays::BRAKE);
+        assert_eq!((f.gear, f.shifting), (None, true), "on its way somewhere");
+        let f = gather_wire(v, Plays::GEAR);
+        assert_eq!(f.gear, None, "at the wire too: drive again is a shift");
+        // Drive goes out and is acknowledged: a report from before says nothing yet …
+        trans.slot().fly(drive);
+        trans.slot().finish(drive, true);
+        assert!(
+            gather(v, Plays::BRAKE).shifting,
+            "acknowledged, not yet reported"
+        );
+        // … a report after it does.
+        reports(trans, 3.0);
+        let f = gather(v, Plays::BRAKE);
+        assert_eq!((f.gear, f.in_gear, f.shifting), (Some(3), true, false));
+        // A resend of drive changes nothing.
+        trans.slot().fly(drive);
+        assert!(!gather(v, Plays::BRAKE).shifting, "a resend in flight");
+        trans.slot().finish(drive, true);
+        assert!(!gather(v, Plays::BRAKE).shifting, "a resend acknowledged");
+    }
 }
