@@ -243,6 +243,11 @@ pub struct ReplayArgs {
     /// Keymap TOML merged over the built-in one, as for `adrive run`.
     #[arg(long, value_name = "FILE")]
     pub keymap: Option<PathBuf>,
+    /// Play nothing: decide every command the recording received again under this
+    /// vehicle file's rules and limits, and list each decision that would differ
+    /// (exit status 1 when any does, 0 when none).
+    #[arg(long, value_name = "VEHICLE.toml", conflicts_with_all = ["broadcast", "headless", "speed", "keymap"])]
+    pub check: Option<PathBuf>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -1079,6 +1084,20 @@ pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
 /// `adrive replay FILE`: the console plays a recording (or, headless, broadcasts it).
 pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
     let rec = record::read::Recording::open(&args.file)?;
+    if let Some(vehicle) = &args.check {
+        let config = config::load(vehicle)?;
+        let report = record::check::check(&rec, &config);
+        // The status tells the outcome, read or not (`| head`).
+        let _ = io::stdout().write_all(
+            report
+                .render(
+                    &args.file.display().to_string(),
+                    &vehicle.display().to_string(),
+                )
+                .as_bytes(),
+        );
+        return Ok(report.status());
+    }
     let mut player = console::replay::Player::load(&rec).map_err(anyhow::Error::msg)?;
     drop(rec);
     if let Some(x) = args.speed {

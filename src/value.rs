@@ -115,7 +115,7 @@ impl fmt::Display for Kind {
 /// The DARPA e-stop states: `disable` ends the run, `pause` must bring the vehicle
 /// to a stop and hold it, `run` lets it drive. A device bound to the `estop` role
 /// reports a state reading that has these three among its states.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum EstopState {
     Disable,

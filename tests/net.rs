@@ -302,6 +302,30 @@ fn engage_is_refused_while_a_device_is_faulty_and_the_reasons_come_back() {
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
 }
 
+/// While a shift is under way the brake stays on, so positive `accel` sends nothing.
+/// A planner was told nothing of it (an accepted command gets no reply) and could not
+/// know its throttle did not go out; the reply now says so, in its own word, and the
+/// throttle goes once the shift is through.
+#[test]
+fn accel_during_a_shift_is_refused_in_its_own_words() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let mut a = n.client();
+    assert_eq!(
+        a.ask(b"engage\ntrans drive\naccel 0.3"),
+        "ok engaged\nrejected accel 0.3: accel_while_shifting: no throttle until the shift \
+         is through (the brake stays on)\n"
+    );
+    let trans = n.rig.device("trans");
+    wait_for("drive", || trans.cached().reading.get(0) == Some(3.0));
+    let gas = n.rig.device("gas");
+    wait_for("the throttle, the shift through", || {
+        a.send_seq("accel 0.3");
+        std::thread::sleep(Duration::from_millis(20));
+        gas.slot().executed() == Some(set(0.3))
+    });
+}
+
 #[test]
 fn network_engage_is_refused_when_the_vehicle_file_does_not_allow_it() {
     let n = NetRig::start(|c| c.allow_engage = false);

@@ -15,12 +15,12 @@
 
 use crate::engine::Gate;
 use crate::net::NetStatus;
+use crate::port::trace::TraceEntry;
 use crate::safety::{Ask, Done, Refused};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::Source;
 use crate::value::{Command, DeviceId};
-use crate::vehicle::trace::TraceEntry;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};

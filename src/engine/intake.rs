@@ -62,6 +62,7 @@ impl Gate {
                             source,
                             asked,
                             refused: Some("other_commander"),
+                            seen: None,
                         });
                     }
                     return Err(Refused::Owner(r));
@@ -71,13 +72,13 @@ impl Gate {
         let mine = o.commander == Some(source);
         let done = match ask {
             Ask::Set(id, c) => {
-                let done = self.submit(id, c, received);
-                self.tap_received(source, Asked::Device(id, c), received, done);
+                let (done, seen) = self.submit_seen(id, c, received);
+                self.tap_received(source, Asked::Device(id, c), received, done, seen);
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
             Ask::Accel(a) => {
-                let done = self.submit_accel(a, received);
-                self.tap_received(source, Asked::Accel(a), received, done);
+                let (done, seen) = self.submit_accel_seen(a, received);
+                self.tap_received(source, Asked::Accel(a), received, done, seen);
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
             // Taken by a console, or picked up after a release.
@@ -374,7 +375,7 @@ impl Gate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::slot::WireState;
+    use crate::port::slot::WireState;
     use crate::testkit as sample;
     use crate::value::{Command, DeviceId};
     use proptest::prelude::*;

@@ -22,6 +22,7 @@ use super::status::{Inner, NetStatus, Refusal};
 use crate::config::NetworkConfig;
 use crate::engine::Gate;
 use crate::logging::RateLimit;
+use crate::safety::gate::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
 use crate::value::Source;
 use crate::vehicle::tap::Event;
@@ -317,7 +318,7 @@ impl Intake {
     /// own refusal (the vehicle file does not allow it; the sender is latched).
     fn may_engage(&self, from: SocketAddr) -> Option<Refusal> {
         // Picking up a vehicle a console engaged and released engages nothing.
-        if !self.config.allow_engage && !self.gate.is_engaged() {
+        if !remote_may_engage(self.config.allow_engage, self.gate.is_engaged()) {
             return Some(Refusal::EngageNotAllowed);
         }
         let latched = self

@@ -23,9 +23,9 @@ use crate::console::keymap::{Action, Keymap, Mode, SimAction};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::trail::Trail;
+use crate::port::trace::TraceEntry;
 use crate::snapshot::{BusView, DeviceView};
 use crate::value::DeviceId;
-use crate::vehicle::trace::TraceEntry;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Direction, Layout, Rect};
 use ratatui::text::{Line, Span};
@@ -369,7 +369,7 @@ mod tests {
         let now = Instant::now();
         let e = TraceEntry::new(
             now - Duration::from_millis(12),
-            crate::vehicle::trace::Dir::Out,
+            crate::port::trace::Dir::Out,
             b"S 0.5\r",
         );
         assert_eq!(
@@ -427,7 +427,7 @@ mod tests {
         let map = Keymap::default_map();
         let trace = [TraceEntry::new(
             now,
-            crate::vehicle::trace::Dir::Out,
+            crate::port::trace::Dir::Out,
             b"a reply far too long for any traffic box, thirty-two bytes and more\r",
         )];
         let trail = Trail::default();

@@ -1,3 +1,10 @@
+//! What carries one device's bytes and commands, below the vehicle that holds it: its
+//! port, shared under the port's rule (here), its latest-wins command slot ([`slot`])
+//! and the trace of its traffic ([`trace`]). A layer of its own: it imports the driver,
+//! the configuration and the values only, so the vehicle holds a device's port and
+//! slot, and safety reads what a slot has on its way, without reaching up into the
+//! engine, whose threads drive them (`crate::engine`).
+//!
 //! The shared port of one device and the rule by which its two threads take turns.
 //!
 //! The paper's Adrive guarded the port with a plain mutex. Field testing found
@@ -40,15 +47,18 @@
 //! function, byte count or written value, a line-protocol ack is no status line, an
 //! ELM327 reply names its PID.)
 
+use self::slot::CommandSlot;
+use self::trace::{Dir, Trace};
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
-use crate::engine::slot::CommandSlot;
-use crate::vehicle::trace::{Dir, Trace};
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::io::{self, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+pub mod slot;
+pub mod trace;
 
 /// What readers may know of a device's port without touching it.
 #[derive(Default, Debug)]
