@@ -111,7 +111,8 @@ pub struct SimEvent {
     pub command: Command,
     /// The raw request bytes; empty when the device acted on its own.
     pub request: Vec<u8>,
-    /// Why, when the device acted on its own (its watchdog).
+    /// What the device did on its own (its watchdog, a kit module's firmware), in
+    /// words: then `command` is where it stands, not something it received.
     pub note: Option<String>,
     /// The command in words (`0.250`, `drive`, `home`).
     pub text: String,
@@ -598,7 +599,7 @@ impl Served {
     /// whether the link is up or gone (a real actuator's microcontroller keeps running
     /// when its USB link drops); while the link is up, requests are served.
     fn run(self, master: TTYPort, slave: TTYPort) {
-        let mut watchdog = Watchdog::new(self.config.sim.watchdog, Instant::now());
+        let mut watchdog = Watchdog::new(self.config.sim.watchdog);
         let mut link = Link::Up(Box::new(self.up(master, slave)));
         while !self.stop.load(Relaxed) {
             if watchdog.expired(Instant::now()) {
@@ -652,7 +653,8 @@ impl Served {
     }
 
     /// The watchdog tripped: the device goes to its safe value by itself (gas to 0,
-    /// brake on).
+    /// brake on); a device without one (the steering) holds where it is, and nothing
+    /// happened to tell.
     fn watchdog_trip(&self, limit: Duration) {
         let c = &self.config;
         let (speed, safe) = {
@@ -660,8 +662,16 @@ impl Served {
             let safe = m.watchdog_trip(self.id);
             (m.velocity, safe)
         };
-        tracing::info!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
-        let Some(safe) = safe else { return };
+        let Some(safe) = safe else {
+            tracing::debug!(device = %c.name, "simulated device watchdog: no command for {limit:?}; no safe value, it holds");
+            return;
+        };
+        let text = c.command_text(safe);
+        let note = format!(
+            "device watchdog: no command for {}; went to {text} by itself",
+            humantime::format_duration(limit)
+        );
+        tracing::info!(device = %c.name, "simulated {note}");
         self.events.emit(SimEvent {
             speed,
             state_before: None,
@@ -669,12 +679,9 @@ impl Served {
             name: c.name.clone(),
             at: Instant::now(),
             command: safe,
-            text: c.command_text(safe),
+            text,
             request: Vec::new(),
-            note: Some(format!(
-                "device watchdog: no command for {}",
-                humantime::format_duration(limit)
-            )),
+            note: Some(note),
         });
     }
 

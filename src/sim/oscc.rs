@@ -169,7 +169,7 @@ impl Kit {
                 report,
                 state: ModuleState::default(),
                 overriding: false,
-                watchdog: Watchdog::new(watchdog, now),
+                watchdog: Watchdog::new(watchdog),
                 next_report: now,
             });
         }
