@@ -252,8 +252,9 @@ pub enum SimCommand {
     Override(DeviceId, Option<f64>),
     /// A kit's module: the operator overrides it (`true`) or lets go.
     KitOverride(DeviceId, bool),
-    /// A kit's module latches the fault code named.
-    Fault(DeviceId, String),
+    /// A kit's module: the condition behind the fault code named holds (`true`) or
+    /// ends.
+    Fault(DeviceId, String, bool),
     /// A bus is well (`true`) or in error (`false`).
     Bus(usize, bool),
     Silent(Port, bool),
@@ -451,10 +452,10 @@ pub(crate) const VERBS: &[Verb] = &[
     },
     Verb {
         name: "fault",
-        args: &[MODULE, Arg::Dtc],
-        does: "a kit's module latches the fault code DTC (by its DBC name), disables itself and reports it",
-        example: "fault brake INVALID_SENSOR_VAL",
-        build: |v| SimCommand::Fault(v.device(0), v.word(1)),
+        args: &[MODULE, Arg::Dtc, Arg::OnOff],
+        does: "the condition behind a kit module's fault code DTC (by its DBC name) holds: INVALID_SENSOR_VAL its sensor reads grounded; the module disables itself and reports the code while it holds, and clears it once off",
+        example: "fault brake INVALID_SENSOR_VAL on",
+        build: |v| SimCommand::Fault(v.device(0), v.word(1), v.on(2)),
     },
     Verb {
         name: "bus",
@@ -616,8 +617,12 @@ mod tests {
             Ok(SimCommand::Override(STEER, None))
         );
         assert_eq!(
-            k("fault brake invalid_sensor_val"),
-            Ok(SimCommand::Fault(BRAKE, "INVALID_SENSOR_VAL".into()))
+            k("fault brake invalid_sensor_val on"),
+            Ok(SimCommand::Fault(BRAKE, "INVALID_SENSOR_VAL".into(), true))
+        );
+        assert_eq!(
+            k("fault brake INVALID_SENSOR_VAL off"),
+            Ok(SimCommand::Fault(BRAKE, "INVALID_SENSOR_VAL".into(), false))
         );
         assert_eq!(k("bus kit off"), Ok(SimCommand::Bus(0, false)));
         assert_eq!(
@@ -633,7 +638,7 @@ mod tests {
             Ok(SimCommand::Silent(Port::Bus(0), true)),
             "a device on a bus: its bus's adapter"
         );
-        let e = k("fault car INVALID_SENSOR_VAL").unwrap_err();
+        let e = k("fault car INVALID_SENSOR_VAL on").unwrap_err();
         assert!(
             e.contains(
                 "car is not driven by a simulated kit's module (kit modules: steer, gas, brake)"
@@ -705,7 +710,7 @@ mod tests {
         assert!(h.contains("override SETPOINT X|on|off"), "{h}");
         assert!(h.contains("SETPOINT is one of steer, gas, brake"), "{h}");
         let h = help(&oscc());
-        assert!(h.contains("fault MODULE DTC"), "{h}");
+        assert!(h.contains("fault MODULE DTC on|off"), "{h}");
         assert!(h.contains("bus BUS on|off"), "{h}");
         assert!(
             h.contains("PORT is a device or a bus (a device on a bus: its bus's adapter): steer, gas, brake, car, kit"),

@@ -470,18 +470,26 @@ impl Sim {
         match commands::parse(line, &names)? {
             SimCommand::Help => Ok(format!("commands:\n{}", commands::help(&names).trim_end())),
             SimCommand::KitOverride(id, on) => kit_override(id, on),
-            SimCommand::Fault(id, dtc) => {
+            SimCommand::Fault(id, dtc, on) => {
                 let (kit, module) = self
                     .module(id)
                     .ok_or_else(|| format!("{} is not driven by a kit's module", name(id)))?;
                 kit.port
                     .lock()
                     .node
-                    .inject_fault(module, &dtc, Instant::now())?;
-                Ok(format!(
-                    "{}: the {module} module latched {dtc} and disabled itself",
-                    name(id)
-                ))
+                    .set_fault(module, &dtc, on, Instant::now())?;
+                Ok(if on {
+                    format!(
+                        "{}: the {module} module's {dtc} condition holds: it disables itself and reports {dtc} until `fault {} {dtc} off`",
+                        name(id),
+                        name(id)
+                    )
+                } else {
+                    format!(
+                        "{}: the {module} module's {dtc} condition ended: it clears its fault codes",
+                        name(id)
+                    )
+                })
             }
             SimCommand::Bus(i, on) => {
                 self.kits[i].bus_fault.store(!on, Relaxed);
