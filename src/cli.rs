@@ -854,7 +854,9 @@ mod ros2 {
 /// that they are counted and said, never kept (its memory stays flat).
 const SIM_BACKLOG: usize = 4096;
 
-/// `adrive sim`: the simulated devices alone.
+/// `adrive sim`: the simulated devices alone. Everything it prints goes through one
+/// writer: a standard output closed by its reader (`adrive sim | head`) ends it
+/// quietly, its links removed.
 pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let config = load(&args.config, &args.only)?;
     let (tx, mut rx) = crossbeam_channel::bounded::<SimEvent>(SIM_BACKLOG);
@@ -864,11 +866,17 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
         // receiver is always ready, and selecting on it would spin a core.
         rx = crossbeam_channel::never();
     }
+    // Applied before any port is printed, so no host sees the device without them;
+    // confirmed below, as the same line typed is.
+    let mut applied = Vec::new();
     for f in &args.fault {
-        sim.apply(f)
-            .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?;
+        applied.push(
+            sim.apply(f)
+                .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?,
+        );
     }
     let exits = exit::install()?;
+    let mut out = io::stdout().lock();
     let width = sim
         .ports
         .iter()
@@ -879,14 +887,15 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
         .max(6);
     for p in &sim.ports {
         let d = config.device(&p.name).expect("simulated from the config");
-        println!(
+        writeln!(
+            out,
             "{:<width$} {}  -> {}  ({}, {} baud)",
             p.name,
             p.path,
             p.pty.lock(),
-            d.driver.as_str(),
+            d.driver,
             d.baud
-        );
+        )?;
     }
     for (i, p) in sim.buses.iter().enumerate() {
         let on: Vec<&str> = config
@@ -895,16 +904,21 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             .filter(|d| matches!(&d.wire, config::protocol_map::Wire::Can(m) if m.bus == i))
             .map(|d| d.name.as_str())
             .collect();
-        println!(
-            "{:<width$} {}  -> {}  (slcan, {} bit/s: an OSCC kit with {})",
+        writeln!(
+            out,
+            "{:<width$} {}  -> {}  ({}, {} bit/s: an OSCC kit with {})",
             p.name,
             p.path,
             p.pty.lock(),
+            crate::config::device::DriverKind::Can,
             config.buses[i].bitrate.bits_per_second(),
             on.join(", ")
-        );
+        )?;
     }
-    println!("type `help` for the faults and events it takes (`silent gas on`, `estop pause`, …); Ctrl-C stops");
+    for done in &applied {
+        writeln!(out, "{done}")?;
+    }
+    writeln!(out, "type `help` for the faults and events it takes (`silent gas on`, `estop pause`, …); Ctrl-C stops")?;
     let (lines_tx, mut lines) = crossbeam_channel::unbounded::<String>();
     std::thread::Builder::new()
         .name("sim/stdin".into())
@@ -923,22 +937,27 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             recv(rx) -> ev => if let Ok(ev) = ev {
                 let now = sim.dropped_events();
                 if now > dropped {
-                    println!("… {} commands not shown: the output was too slow", now - dropped);
+                    writeln!(out, "… {} commands not shown: the output was too slow", now - dropped)?;
                     dropped = now;
                 }
-                println!(
-                    "{:>9.3}s {:<width$} <- {:<10} {}",
-                    ev.at.duration_since(start).as_secs_f64(),
-                    ev.name,
-                    ev.text,
-                    ev.note.clone().unwrap_or_else(|| printable(&ev.request))
-                );
+                let at = ev.at.duration_since(start).as_secs_f64();
+                match &ev.note {
+                    // The device acted on its own: nothing arrived.
+                    Some(note) => writeln!(out, "{at:>9.3}s {:<width$}    {note}", ev.name)?,
+                    None => writeln!(
+                        out,
+                        "{at:>9.3}s {:<width$} <- {:<10} {}",
+                        ev.name,
+                        ev.text,
+                        printable(&ev.request)
+                    )?,
+                }
             },
             recv(lines) -> line => match line {
                 Ok(line) if line.trim().is_empty() => {}
                 Ok(line) => match sim.apply(&line) {
-                    Ok(done) => println!("{done}"),
-                    Err(e) => println!("error: {e}"),
+                    Ok(done) => writeln!(out, "{done}")?,
+                    Err(e) => writeln!(out, "error: {e}")?,
                 },
                 // Standard input closed (`< /dev/null`, a service): keep serving and
                 // printing until a signal.

@@ -545,3 +545,74 @@ fn a_second_adrive_on_the_same_ports_is_refused_at_start_naming_the_holder() {
     drop(first);
     sim.stop();
 }
+
+/// The incident: every `adrive sim` printed `gas <- 0.000  device watchdog: no command
+/// for 1s` a second after its start, as if a command had arrived, though nothing had
+/// talked to it; and a `--fault` given at start was applied without a word, where the
+/// same line typed is confirmed. Now a device that never heard a command stays quiet,
+/// one that did and then heard nothing says what it did by itself (no arrow: nothing
+/// arrived), and each `--fault` is confirmed as typed.
+#[test]
+fn sim_says_only_what_happened_at_start_and_confirms_each_fault_given() {
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args(["sim", "--only", "gas", "--fault", "slow gas 20"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let out = lines(child.stdout.take().unwrap());
+    let mut seen = until(&out, "Ctrl-C stops");
+    assert!(
+        seen.iter().any(|l| l == "gas: slow 20 ms"),
+        "the --fault is confirmed: {seen:#?}"
+    );
+    let path = seen[0].split_whitespace().nth(1).unwrap().to_string();
+    // Longer than its watchdog (1 s) with no command, then one command: the sentinel.
+    std::thread::sleep(Duration::from_millis(1500));
+    let alice = VehicleConfig::alice();
+    let gas = alice.device("gas").unwrap();
+    let mut link = driver::open_serial(&path, gas.baud, Duration::from_secs(2)).unwrap();
+    driver::build(gas)
+        .command(link.as_mut(), Command::Set(0.3))
+        .unwrap();
+    let before = until(&out, "<- 0.300");
+    assert_eq!(
+        before.len(),
+        1,
+        "nothing before the first command: {before:#?}"
+    );
+    // Then silence: its watchdog trips once, a second after that command.
+    seen = until(&out, "device watchdog");
+    let trip = seen.last().unwrap();
+    assert!(
+        trip.contains("gas") && trip.contains("no command for 1s; went to 0.000 by itself"),
+        "{trip}"
+    );
+    assert!(!trip.contains("<-"), "nothing arrived: {trip}");
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), Some(0));
+}
+
+/// A headless run on the simulated vehicle logs no device watchdog: adrive talks to
+/// every device it drives, and a device never commanded has nothing to time out.
+#[test]
+fn headless_sim_logs_no_device_watchdog_while_it_runs() {
+    let dir = tempdir("cli-watchdog");
+    let mut child = headless_sim(dir.path());
+    let err = lines(child.stderr.take().unwrap());
+    let mut seen = until(&err, "running headless");
+    // Past every simulated device's watchdog (1 s), then the sentinel: the stop.
+    std::thread::sleep(Duration::from_millis(2500));
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), Some(0));
+    seen.extend(err.iter());
+    let text = seen.join("\n");
+    assert!(text.contains("stopping: SIGINT"), "{text}");
+    assert!(
+        !text.contains("watchdog: no command") && !text.contains("going safe"),
+        "{text}"
+    );
+}

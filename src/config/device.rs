@@ -76,6 +76,7 @@ pub enum DriverKind {
 }
 
 impl DriverKind {
+    /// Its name in a vehicle file (`driver = "modbus"`).
     pub fn as_str(self) -> &'static str {
         match self {
             DriverKind::Line => "line",
@@ -83,6 +84,24 @@ impl DriverKind {
             DriverKind::Elm327 => "elm327",
             DriverKind::Can => "can",
         }
+    }
+
+    /// The protocol's name for a person, the one every output and the guide use: what
+    /// adrive speaks on the port (a CAN device's port is its bus's SLCAN adapter).
+    pub fn display_name(self) -> &'static str {
+        match self {
+            DriverKind::Line => "line",
+            DriverKind::Modbus => "Modbus",
+            DriverKind::Elm327 => "ELM327",
+            DriverKind::Can => "SLCAN",
+        }
+    }
+}
+
+/// [`DriverKind::display_name`].
+impl std::fmt::Display for DriverKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.display_name())
     }
 }
 
