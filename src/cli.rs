@@ -918,7 +918,23 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     for done in &applied {
         writeln!(out, "{done}")?;
     }
-    writeln!(out, "type `help` for the faults and events it takes (`silent gas on`, `estop pause`, …); Ctrl-C stops")?;
+    // Examples this vehicle takes: a port of its own, and its e-stop when it has one.
+    let mut examples: Vec<String> = sim
+        .ports
+        .iter()
+        .chain(&sim.buses)
+        .take(1)
+        .map(|p| format!("`silent {} on`", p.name))
+        .collect();
+    if sim.names().has.estop {
+        examples.push("`estop pause`".into());
+    }
+    examples.push("…".into());
+    writeln!(
+        out,
+        "type `help` for the faults and events it takes ({}); Ctrl-C stops",
+        examples.join(", ")
+    )?;
     let (lines_tx, mut lines) = crossbeam_channel::unbounded::<String>();
     std::thread::Builder::new()
         .name("sim/stdin".into())

@@ -57,7 +57,7 @@ impl fmt::Display for Source {
 
 /// A device's place in its vehicle (the vehicle file's order, from 0). Cheap to copy
 /// and to compare; names are for people and the wire.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub struct DeviceId(pub u16);
 
 impl DeviceId {

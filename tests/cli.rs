@@ -616,3 +616,52 @@ fn headless_sim_logs_no_device_watchdog_while_it_runs() {
         "{text}"
     );
 }
+
+/// The incident: `adrive sim --config vehicles/oscc.toml` answered `estop pause` with
+/// "estop is now pause" and `stall` with "engine stalled", though nothing of that
+/// vehicle reads an e-stop or the engine. Each is refused with what is missing, typed
+/// or given as `--fault`, and `help` lists them apart.
+#[test]
+fn sim_refuses_faults_of_what_the_vehicle_does_not_have() {
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args(["sim", "--config", "vehicles/oscc.toml"])
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let out = lines(child.stdout.take().unwrap());
+    let seen = until(&out, "Ctrl-C stops");
+    assert!(!seen.last().unwrap().contains("estop"), "{seen:#?}");
+    let stdin = child.stdin.as_mut().unwrap();
+    for line in ["estop pause", "stall", "nostart on", "jam steer", "bias gas 0.2"] {
+        writeln!(stdin, "{line}").unwrap();
+    }
+    writeln!(stdin, "help").unwrap();
+    let text = until(&out, "DTC is a fault code").join("\n");
+    for refusal in [
+        "error: estop: no e-stop is bound on this vehicle (no device reads an e-stop state)",
+        "error: stall: no device of this vehicle reports the engine (its rpm, or whether it runs)",
+        "error: nostart: no device of this vehicle reports the engine",
+        "error: jam: steer is driven by a kit's module on bus kit, which has no drive fault latch",
+        "error: bias: nothing reports gas's position on this vehicle",
+        "  not on this vehicle: estop (no e-stop is bound",
+    ] {
+        assert!(text.contains(refusal), "{refusal}:\n{text}");
+    }
+    assert!(!text.contains("estop is now") && !text.contains("engine stalled"), "{text}");
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), Some(0));
+
+    let bad = Process::new(BIN)
+        .args(["sim", "--config", "vehicles/oscc.toml", "--fault", "estop pause"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("--fault \"estop pause\": estop: no e-stop is bound"), "{err}");
+}

@@ -709,3 +709,39 @@ fn the_bench_of_a_can_kit_module_shows_its_bus() {
     let status = c.wait_exit();
     assert!(status.success(), "{status:?}\n{}", c.log());
 }
+
+/// The incident: on the OSCC kit, which has no e-stop and reports no engine, the bench
+/// offered `p` (e-stop pause), `K` (engine stall) and `J` (jam), each answered success,
+/// and the simulator box then showed `e-stop pause · ENGINE STOPPED`, states that do not
+/// exist. The box offers only the keys the simulator takes on this vehicle, shows only
+/// what the vehicle has (the module's state), and each such key is refused with what
+/// is missing.
+#[test]
+fn the_bench_of_a_can_kit_offers_only_the_faults_the_vehicle_has() {
+    let mut c = Console::start("can-sim-keys", &["--config", "vehicles/oscc.toml"]);
+    c.wait_for("the kit's modules", |s| s.contains("STEER") && s.contains("CAR"));
+    c.keys("x");
+    let s = c.wait_for("the steering's bench with its simulator box", |s| {
+        s.contains("steering module disabled") && s.contains("driver's hand")
+    });
+    for absent in ["e-stop", "engine", "jam steering"] {
+        assert!(!s.contains(absent), "{absent} shown:\n{s}");
+    }
+    c.keys("p");
+    c.wait_for("the e-stop key refused", |s| {
+        s.contains("sim: estop: no e-stop is bound on this vehicle")
+    });
+    c.keys("K");
+    c.wait_for("the stall key refused", |s| {
+        s.contains("sim: stall: no device of this vehicle reports the engine")
+    });
+    c.keys("J");
+    c.wait_for("the jam key refused", |s| {
+        s.contains("sim: jam: steer is driven by a kit's module")
+    });
+    c.keys("\x1b");
+    c.wait_for("the main screen", |s| s.contains("│ MAIN │"));
+    c.keys("q");
+    let status = c.wait_exit();
+    assert!(status.success(), "{status:?}\n{}", c.log());
+}

@@ -361,6 +361,24 @@ pub enum SimAction {
     Override,
 }
 
+impl SimAction {
+    /// Every action a bench key may do.
+    pub const ALL: [SimAction; 12] = [
+        SimAction::Silent,
+        SimAction::Garbage,
+        SimAction::Corrupt,
+        SimAction::Slow,
+        SimAction::Vanish,
+        SimAction::Clear,
+        SimAction::Stall,
+        SimAction::Jam,
+        SimAction::Estop(EstopState::Pause),
+        SimAction::Estop(EstopState::Run),
+        SimAction::Estop(EstopState::Disable),
+        SimAction::Override,
+    ];
+}
+
 /// How late a "slow" simulated device replies.
 pub(crate) const SIM_SLOW: std::time::Duration = std::time::Duration::from_millis(150);
 /// How long a "vanished" simulated device stays away.

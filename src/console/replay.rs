@@ -284,6 +284,7 @@ impl Player {
             read_only: true,
             sim_vehicle: None,
             sim_faults: vec![None; n],
+            sim_names: None,
             you: None,
         }
     }

@@ -43,6 +43,21 @@ struct Grid {
 }
 
 impl Model {
+    /// The simulator keys the bench device's simulator would refuse: what they act on
+    /// is not in this vehicle (an e-stop, an engine, a drive of its own).
+    fn sim_refused(&self) -> Vec<crate::console::keymap::SimAction> {
+        let Some(names) = &self.snap.sim_names else {
+            return Vec::new();
+        };
+        crate::console::keymap::SimAction::ALL
+            .into_iter()
+            .filter(|&a| {
+                let line = crate::console::update::sim_line(self, a, self.bench);
+                crate::sim::commands::parse(&line, names).is_err()
+            })
+            .collect()
+    }
+
     /// Device `i`'s panel as the main screen shows it.
     fn panel(&self, i: usize, bordered: bool) -> Option<DevicePanel<'_>> {
         let id = DeviceId(i as u16);
@@ -307,6 +322,7 @@ impl Widget for &Model {
                         .bus
                         .as_deref()
                         .and_then(|b| self.snap.buses.iter().find(|x| x.name == b)),
+                    refused: self.sim_refused(),
                 };
                 (&v).render(body, buf);
             }

@@ -295,7 +295,7 @@ impl ServedBus {
     }
 
     /// The model's road speed (m/s), steering wheel angle (degrees) and brake pressure
-    /// (bar), now.
+    /// (bar), now: each position as its sensor reports it (a `bias` slips it).
     fn vehicle(&self) -> (f64, f64, f64) {
         let mut m = self.model.lock();
         m.step();
@@ -304,7 +304,10 @@ impl ServedBus {
                 .bindings
                 .iter()
                 .find(|b| b.module == module)
-                .map_or(0.0, |b| m.device(b.device).position)
+                .map_or(0.0, |b| {
+                    let d = m.device(b.device);
+                    d.position + d.bias
+                })
         };
         (
             m.velocity.abs(),

@@ -405,24 +405,70 @@ impl Sim {
         }
     }
 
-    /// What the simulator's commands may name.
-    fn names(&self) -> Names {
+    /// What the simulator's commands may name, and what of the vehicle they act on
+    /// shows: a device on its own port serves the model's readings; a device on a bus
+    /// shows what its kit's messages carry.
+    pub fn names(&self) -> Names {
         let m = self.model.lock();
-        let devices = m.devices.iter().map(|d| (d.name.clone(), d.kind)).collect();
+        let devices: Vec<(String, Kind)> =
+            m.devices.iter().map(|d| (d.name.clone(), d.kind)).collect();
+        let own = |i: usize| self.bus_of.get(i).copied().flatten().is_none();
+        let shown = |what: model::Shown| {
+            (0..devices.len()).any(|i| own(i) && m.shows(DeviceId(i as u16), what))
+        };
+        let mut modules: Vec<DeviceId> = self
+            .kits
+            .iter()
+            .flat_map(|k| k.bindings.iter().map(|b| b.device))
+            .collect();
+        modules.sort_unstable_by_key(|d| d.index());
+        let positions = (0..devices.len())
+            .map(|i| DeviceId(i as u16))
+            .filter(|&id| devices[id.index()].1 == Kind::Setpoint)
+            .filter(|&id| {
+                if own(id.index()) {
+                    return m.shows(id, model::Shown::Position);
+                }
+                self.module(id)
+                    .is_some_and(|(kit, module)| kit.port.lock().node.reports_position(module))
+            })
+            .collect();
+        let has = commands::Has {
+            estop: shown(model::Shown::Estop),
+            engine: shown(model::Shown::Engine),
+            starter: m.starter().is_some_and(|id| own(id.index())),
+            positions,
+        };
         Names {
             devices,
             bus_of: self.bus_of.clone(),
-            modules: {
-                let mut v: Vec<DeviceId> = self
-                    .kits
-                    .iter()
-                    .flat_map(|k| k.bindings.iter().map(|b| b.device))
-                    .collect();
-                v.sort_unstable_by_key(|d| d.index());
-                v
-            },
+            modules,
             buses: self.buses.iter().map(|p| p.name.clone()).collect(),
+            has,
         }
+    }
+
+    /// The state of the kit's module that moves device `name`, in words, for the
+    /// console's bench: `steering module enabled`, `brake module disabled, operator
+    /// override · INVALID_SENSOR_VAL held` (`None`: no kit's module moves it).
+    pub fn module_state(&self, name: &str) -> Option<String> {
+        let id = self.model.lock().find(name)?;
+        let (kit, module) = self.module(id)?;
+        let port = kit.port.lock();
+        let s = port.node.state(module);
+        let mut out = format!(
+            "{module} module {}",
+            if s.enabled { "enabled" } else { "disabled" }
+        );
+        if s.operator_override {
+            out.push_str(", operator override");
+        }
+        for dtc in port.node.fault_names(module) {
+            if port.node.fault_held(module, &dtc) == Some(true) {
+                out.push_str(&format!(" · {dtc} held"));
+            }
+        }
+        Some(out)
     }
 
     /// The kit and module that move `id`.

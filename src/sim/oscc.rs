@@ -321,6 +321,16 @@ impl Kit {
         self.pressure_bar = bar;
     }
 
+    /// Whether the vehicle's own messages carry the position `module` moves: the
+    /// steering wheel angle, the brake pressure (none for the throttle).
+    pub fn reports_position(&self, module: Module) -> bool {
+        match module {
+            Module::Steering => self.angle.is_some(),
+            Module::Brake => self.pressure.is_some(),
+            Module::Throttle => false,
+        }
+    }
+
     /// The identifier of a module's command message.
     pub fn command_id(&self, module: Module) -> Id {
         self.units

@@ -271,6 +271,7 @@ impl Controls for Remote {
             read_only: false,
             sim_vehicle: f.sim_vehicle,
             sim_faults: f.sim_faults,
+            sim_names: f.sim_names,
             you: Some(self.source.clone()),
             snap: f.snap,
         }

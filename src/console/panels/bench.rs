@@ -18,7 +18,7 @@ use super::trail::{TrailChart, CHART_MAX, CHART_MIN};
 use super::wrap;
 use crate::config::device::POSITION;
 use crate::console::controls::SimFaults;
-use crate::console::keymap::{Action, Keymap, Mode};
+use crate::console::keymap::{Action, Keymap, Mode, SimAction};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::trail::Trail;
@@ -59,6 +59,9 @@ pub(crate) struct BenchView<'a> {
     pub trail: &'a Trail,
     /// The CAN bus it is on.
     pub(crate) bus: Option<&'a BusView>,
+    /// The simulator keys whose line the simulator would refuse here (what they act on
+    /// is not in this vehicle): not offered.
+    pub(crate) refused: Vec<SimAction>,
 }
 
 /// Rows the simulator box takes.
@@ -87,7 +90,7 @@ impl BenchView<'_> {
         }
         let keys = grouped(self.map, Mode::Bench, self.roles)
             .into_iter()
-            .filter(|(_, _, a)| matches!(a, Action::Sim(_)))
+            .filter(|(_, _, a)| matches!(a, Action::Sim(s) if !self.refused.contains(s)))
             .map(|(k, desc, _)| {
                 let desc = desc.trim_start_matches("sim: ").trim_end_matches(" on/off");
                 vec![Span::styled(k, t.key()), Span::raw(format!(" {desc}"))]
