@@ -149,11 +149,14 @@ fn only_runs_just_the_named_devices() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("wiper"));
 }
 
-#[test]
-fn sim_prints_port_paths_and_each_command_a_device_receives() {
+/// `adrive sim ARGS` from the crate's directory, its standard input a pipe; the lines
+/// it prints.
+fn sim_process(args: &[&str]) -> (common::Reaped, std::sync::mpsc::Receiver<String>) {
     let mut child = common::Reaped(
         Process::new(BIN)
-            .args(["sim", "--only", "steer,estop"])
+            .arg("sim")
+            .args(args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -161,6 +164,12 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
             .unwrap(),
     );
     let out = lines(child.stdout.take().unwrap());
+    (child, out)
+}
+
+#[test]
+fn sim_prints_port_paths_and_each_command_a_device_receives() {
+    let (mut child, out) = sim_process(&["--only", "steer,estop"]);
     let first = until(&out, "steer");
     let path = first
         .last()
@@ -290,16 +299,7 @@ fn sim_removes_its_directory_of_links_when_signalled() {
 
 #[test]
 fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
-    let mut child = common::Reaped(
-        Process::new(BIN)
-            .args(["sim", "--only", "steer", "--fault", "silent steer on"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let out = lines(child.stdout.take().unwrap());
+    let (mut child, out) = sim_process(&["--only", "steer", "--fault", "silent steer on"]);
     let path = until(&out, "steer")
         .last()
         .unwrap()
@@ -554,16 +554,7 @@ fn a_second_adrive_on_the_same_ports_is_refused_at_start_naming_the_holder() {
 /// arrived), and each `--fault` is confirmed as typed.
 #[test]
 fn sim_says_only_what_happened_at_start_and_confirms_each_fault_given() {
-    let mut child = common::Reaped(
-        Process::new(BIN)
-            .args(["sim", "--only", "gas", "--fault", "slow gas 20"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let out = lines(child.stdout.take().unwrap());
+    let (mut child, out) = sim_process(&["--only", "gas", "--fault", "slow gas 20"]);
     let mut seen = until(&out, "Ctrl-C stops");
     assert!(
         seen.iter().any(|l| l == "gas: slow 20 ms"),
@@ -623,21 +614,17 @@ fn headless_sim_logs_no_device_watchdog_while_it_runs() {
 /// or given as `--fault`, and `help` lists them apart.
 #[test]
 fn sim_refuses_faults_of_what_the_vehicle_does_not_have() {
-    let mut child = common::Reaped(
-        Process::new(BIN)
-            .args(["sim", "--config", "vehicles/oscc.toml"])
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let out = lines(child.stdout.take().unwrap());
+    let (mut child, out) = sim_process(&["--config", "vehicles/oscc.toml"]);
     let seen = until(&out, "Ctrl-C stops");
     assert!(!seen.last().unwrap().contains("estop"), "{seen:#?}");
     let stdin = child.stdin.as_mut().unwrap();
-    for line in ["estop pause", "stall", "nostart on", "jam steer", "bias gas 0.2"] {
+    for line in [
+        "estop pause",
+        "stall",
+        "nostart on",
+        "jam steer",
+        "bias gas 0.2",
+    ] {
         writeln!(stdin, "{line}").unwrap();
     }
     writeln!(stdin, "help").unwrap();
@@ -652,16 +639,28 @@ fn sim_refuses_faults_of_what_the_vehicle_does_not_have() {
     ] {
         assert!(text.contains(refusal), "{refusal}:\n{text}");
     }
-    assert!(!text.contains("estop is now") && !text.contains("engine stalled"), "{text}");
+    assert!(
+        !text.contains("estop is now") && !text.contains("engine stalled"),
+        "{text}"
+    );
     signal(&child, libc::SIGINT);
     assert_eq!(wait_exit(&mut child), Some(0));
 
     let bad = Process::new(BIN)
-        .args(["sim", "--config", "vehicles/oscc.toml", "--fault", "estop pause"])
+        .args([
+            "sim",
+            "--config",
+            "vehicles/oscc.toml",
+            "--fault",
+            "estop pause",
+        ])
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .output()
         .unwrap();
     assert_eq!(bad.status.code(), Some(2));
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(err.contains("--fault \"estop pause\": estop: no e-stop is bound"), "{err}");
+    assert!(
+        err.contains("--fault \"estop pause\": estop: no e-stop is bound"),
+        "{err}"
+    );
 }
