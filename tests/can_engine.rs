@@ -645,9 +645,18 @@ fn the_kit_clears_its_override_and_its_sensor_fault_itself_and_the_vehicle_engag
             .unwrap()
     });
     wait_for("the brake to report no fault code", || {
-        rig.gate.vehicle().find("brake").unwrap().cached().reading.fault == 0
+        rig.gate
+            .vehicle()
+            .find("brake")
+            .unwrap()
+            .cached()
+            .reading
+            .fault
+            == 0
     });
-    wait_for("the engage to be accepted", || rig.gate.engage("test").is_ok());
+    wait_for("the engage to be accepted", || {
+        rig.gate.engage("test").is_ok()
+    });
     wait_for("every module enabled again", || all_enabled(&rig));
     // Engaged and enabled for ten more brake reports: nothing faults it again.
     let mark = rig.adapter().mark();

@@ -719,7 +719,9 @@ fn the_bench_of_a_can_kit_module_shows_its_bus() {
 #[test]
 fn the_bench_of_a_can_kit_offers_only_the_faults_the_vehicle_has() {
     let mut c = Console::start("can-sim-keys", &["--config", "vehicles/oscc.toml"]);
-    c.wait_for("the kit's modules", |s| s.contains("STEER") && s.contains("CAR"));
+    c.wait_for("the kit's modules", |s| {
+        s.contains("STEER") && s.contains("CAR")
+    });
     c.keys("x");
     let s = c.wait_for("the steering's bench with its simulator box", |s| {
         s.contains("steering module disabled") && s.contains("driver's hand")

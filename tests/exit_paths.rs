@@ -343,7 +343,10 @@ fn kill_9_leaves_the_vehicle_braked_by_the_device_watchdogs() {
     assert!(gas.contains("no command for 1s"), "{gas}");
     assert!(brake.contains("no command for 1s"), "{brake}");
     // The device acted on its own: nothing arrived.
-    assert!(!gas.contains("<-") && !brake.contains("<-"), "{gas}\n{brake}");
+    assert!(
+        !gas.contains("<-") && !brake.contains("<-"),
+        "{gas}\n{brake}"
+    );
     let _ = planner.kill();
     let _ = planner.wait();
 }

@@ -440,9 +440,15 @@ mod tests {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml");
         let config = crate::config::load(&path).unwrap();
         let sim = super::super::Sim::start(&config, None).unwrap();
-        let dtcs = || sim.with_kit("kit", |p| p.node.state(Module::Brake).dtcs).unwrap();
+        let dtcs = || {
+            sim.with_kit("kit", |p| p.node.state(Module::Brake).dtcs)
+                .unwrap()
+        };
         let done = sim.apply("fault brake INVALID_SENSOR_VAL on").unwrap();
-        assert!(done.contains("until `fault brake INVALID_SENSOR_VAL off`"), "{done}");
+        assert!(
+            done.contains("until `fault brake INVALID_SENSOR_VAL off`"),
+            "{done}"
+        );
         // A disabled module with no code does not look: it sees the grounded sensor
         // once enabled.
         sim.with_kit("kit", |p| {

@@ -812,7 +812,10 @@ mod tests {
             ..alice()
         };
         let e = parse("nostart on", &no_starter).unwrap_err();
-        assert_eq!(e, "nostart: no starter is bound on this vehicle (the starter role)");
+        assert_eq!(
+            e,
+            "nostart: no starter is bound on this vehicle (the starter role)"
+        );
         assert_eq!(p("stall"), Ok(SimCommand::Stall));
 
         let h = help(&oscc());

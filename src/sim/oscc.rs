@@ -461,7 +461,10 @@ impl Kit {
             .and_then(|s| s.value_of(module.prefix()))
             .unwrap_or(0) as f64;
         self.fault
-            .encode(&[("fault_origin_id", origin), ("dtcs", f64::from(u.state.dtcs))])
+            .encode(&[
+                ("fault_origin_id", origin),
+                ("dtcs", f64::from(u.state.dtcs)),
+            ])
             .ok()
     }
 
@@ -524,11 +527,7 @@ impl BusNode for Kit {
         let module = u.module;
         if id == u.enable {
             if u.state.operator_override {
-                self.note(
-                    module,
-                    now,
-                    "enable refused: the operator overrides".into(),
-                );
+                self.note(module, now, "enable refused: the operator overrides".into());
             } else if !u.state.enabled {
                 u.state.enabled = true;
                 u.watchdog.feed(now);
@@ -939,7 +938,12 @@ mod tests {
         );
         b.port
             .node
-            .set_fault(Module::Steering, "INVALID_SENSOR_VAL", false, b.t0 + 2001 * MS)
+            .set_fault(
+                Module::Steering,
+                "INVALID_SENSOR_VAL",
+                false,
+                b.t0 + 2001 * MS,
+            )
             .unwrap();
         let frames = b.run(2001, 2030);
         assert_eq!(b.report(&frames, Module::Steering), (0.0, 0.0, vec![]));
