@@ -757,7 +757,7 @@ pub fn ctl(args: CtlArgs) -> anyhow::Result<i32> {
     let (text, code) = match answer {
         Answer::Snapshot(snap) if json => (serde_json::to_string_pretty(&snap)?, 0),
         Answer::Snapshot(snap) => (headless::status_table(&snap), 0),
-        Answer::Done(done) => (headless::done_words(&done), 0),
+        Answer::Done(done) => (done.to_string(), 0),
         Answer::Refused(r) => {
             tell(io::stderr(), format_args!("adrive: {what} refused: {r}\n"));
             return Ok(1);

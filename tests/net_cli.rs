@@ -249,3 +249,30 @@ fn send_to_nothing_listening_exits_1_once_or_at_a_rate() {
         "{help}"
     );
 }
+
+/// The incident: on a disengaged vehicle `adrive send disengage` answered "ok
+/// disengaged" and `adrive ctl disengage` "the vehicle was not engaged". Every front end
+/// gives the one answer of what the intake did (the network after `ok `).
+#[test]
+fn disengage_gets_the_same_answer_from_the_network_and_from_ctl() {
+    let adrive = Adrive::start("one-answer", ALICE_TOML, "");
+    let socket = adrive.dir.path().join("adrive/adrive.sock");
+    let ctl = |what: &str| {
+        let out = Process::new(BIN)
+            .args(["ctl", what, "--socket"])
+            .arg(&socket)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+        )
+    };
+    let net = |what: &str| String::from_utf8_lossy(&adrive.send(&[what]).stdout).into_owned();
+    assert_eq!(net("disengage"), "ok already disengaged\n");
+    assert_eq!(ctl("disengage"), (Some(0), "already disengaged\n".into()));
+    common::wait_for("ctl engage to be accepted", || ctl("engage").0 == Some(0));
+    assert_eq!(net("disengage"), "ok disengaged\n");
+    common::wait_for("ctl engage to be accepted", || ctl("engage").0 == Some(0));
+    assert_eq!(ctl("disengage"), (Some(0), "disengaged\n".into()));
+}

@@ -223,8 +223,11 @@ pub trait Controls {
     /// A command through the one intake, as the console's.
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused>;
     fn submit_accel(&self, accel: f64) -> Result<(), Refused>;
-    fn engage(&self) -> Result<(), Refused>;
-    fn disengage(&self);
+    /// Engage, as the console: what it did ([`Done`]'s words are the answer every
+    /// front end gives).
+    fn engage(&self) -> Result<Done, Refused>;
+    /// Disengage: what it did (never refused by the gate).
+    fn disengage(&self) -> Result<Done, Refused>;
     /// The operator's STOP: disengage, throttle 0, brake full — even while a driver
     /// has taken over ([`Gate::stop`]). Never refused.
     fn stop(&self);
@@ -393,11 +396,11 @@ impl Controls for Live<'_> {
     fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
         self.ask(Ask::Accel(accel)).map(drop)
     }
-    fn engage(&self) -> Result<(), Refused> {
-        self.ask(Ask::Engage).map(drop)
+    fn engage(&self) -> Result<Done, Refused> {
+        self.ask(Ask::Engage)
     }
-    fn disengage(&self) {
-        let _ = self.ask(Ask::Disengage);
+    fn disengage(&self) -> Result<Done, Refused> {
+        self.ask(Ask::Disengage)
     }
     fn stop(&self) {
         let _ = self.ask(Ask::Stop);

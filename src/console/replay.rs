@@ -17,7 +17,7 @@ use crate::logging::ring::LogLine;
 use crate::net::BROADCAST_MAX;
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
-use crate::safety::Refused;
+use crate::safety::{Done, Refused};
 use crate::snapshot::Snapshot;
 use crate::value::{Command, DeviceId};
 use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
@@ -327,10 +327,12 @@ impl Controls for Replay<'_> {
     fn submit_accel(&self, _: f64) -> Result<(), Refused> {
         Err(read_only())
     }
-    fn engage(&self) -> Result<(), Refused> {
+    fn engage(&self) -> Result<Done, Refused> {
         Err(read_only())
     }
-    fn disengage(&self) {}
+    fn disengage(&self) -> Result<Done, Refused> {
+        Err(read_only())
+    }
     fn stop(&self) {}
     fn take(&self) -> Result<(), Refused> {
         Err(read_only())

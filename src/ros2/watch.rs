@@ -9,6 +9,7 @@ use super::msgs::{self, gear, mode, Message};
 use super::node::topics;
 use crate::config::ros2::{Mode, Ros2Config};
 use std::collections::BTreeSet;
+use std::io::Write as _;
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::time::{Duration, Instant};
 use zenoh::sample::SampleKind;
@@ -100,11 +101,14 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
         })
         .wait()
         .map_err(|e| anyhow::anyhow!("liveliness subscription: {e}"))?;
-    println!(
+    // A standard output closed by its reader (`| head`) ends the watch quietly.
+    let mut out = std::io::stdout().lock();
+    writeln!(
+        out,
         "watching ROS 2 domain {} through {} for vehicles (Ctrl-C stops)",
         opts.domain,
         opts.connect.join(", ")
-    );
+    )?;
     let mut seen = BTreeSet::new();
     let mut followed: Option<String> = None;
     let mut subs = Vec::new();
@@ -126,15 +130,20 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
                     continue;
                 };
                 if alive && seen.insert(ns.clone()) {
-                    println!("vehicle {ns}  (node {}, zid {})", t.node.fqn(), t.node.zid);
+                    writeln!(
+                        out,
+                        "vehicle {ns}  (node {}, zid {})",
+                        t.node.fqn(),
+                        t.node.zid
+                    )?;
                     let wanted = opts.namespace.as_deref().is_none_or(|w| w == ns);
                     if followed.is_none() && wanted {
-                        println!("following {ns}");
+                        writeln!(out, "following {ns}")?;
                         subs = follow(&session, opts.domain, &ns, &tx)?;
                         followed = Some(ns);
                     }
                 } else if !alive && seen.remove(&ns) {
-                    println!("gone {ns}");
+                    writeln!(out, "gone {ns}")?;
                 }
             }
             Ok(Event::Report(topic, bytes)) => match topic {
@@ -146,7 +155,7 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => {
                 next += EVERY;
                 if let Some(ns) = &followed {
-                    println!("{}", latest.line(ns));
+                    writeln!(out, "{}", latest.line(ns))?;
                     lines += 1;
                     if opts.count.is_some_and(|n| lines >= n) {
                         break;
