@@ -322,3 +322,20 @@ fn ros2_without_the_feature_says_how_to_build_it() {
         "{err}"
     );
 }
+
+/// The incident: `adrive send bogus-verb 1` said "the devices are  (got …)", an empty
+/// list, and the keywords it offered left out `release` and `clear`.
+#[test]
+fn send_with_a_word_that_is_no_device_nor_keyword_says_what_a_line_is() {
+    let out = Command::new(BIN)
+        .args(["send", "bogus-verb", "1"])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("unknown_verb: a line is a device (lowercase letters, digits and _) and a value, separated by a space (steer 0.2), or accel, engage, disengage, release, clear, seq or tag (got \"bogus-verb\")"),
+        "{err}"
+    );
+    assert!(!err.contains("are  ") && !err.contains("()"), "{err}");
+}

@@ -13,18 +13,15 @@ use serde::Deserialize;
 use std::time::Duration;
 use toml::Spanned;
 
-/// Words of the command grammar that cannot name a device.
-pub(crate) const RESERVED: [&str; 9] = [
-    "accel",
-    "engage",
-    "disengage",
-    "clear",
-    "seq",
-    "tag",
-    "all",
-    "help",
-    "none",
-];
+/// Words of the console's and the simulator's commands that cannot name a device,
+/// beside the protocol's keywords ([`crate::value::Keyword`]).
+const RESERVED: [&str; 3] = ["all", "help", "none"];
+
+/// A word that cannot name a device: a keyword of the command protocol, or one of
+/// [`RESERVED`].
+fn reserved(name: &str) -> bool {
+    crate::value::Keyword::from_word(name).is_some() || RESERVED.contains(&name)
+}
 
 /// The longest device or reading name.
 pub(crate) const MAX_NAME: usize = 32;
@@ -40,10 +37,15 @@ pub(crate) fn check_name(what: &str, name: &str) -> Result<(), String> {
             "{what} {name:?}: expected a name of lowercase letters, digits and _, starting with a letter, at most {MAX_NAME} characters (e.g. \"steer\", \"turn_signal\")"
         ));
     }
-    if RESERVED.contains(&name) {
+    if reserved(name) {
+        let mut words: Vec<&str> = crate::value::Keyword::ALL
+            .iter()
+            .map(|k| k.word())
+            .collect();
+        words.extend(RESERVED);
         return Err(format!(
             "{what} {name:?} is a word of the command grammar; choose another name (reserved: {})",
-            RESERVED.join(", ")
+            words.join(", ")
         ));
     }
     Ok(())
