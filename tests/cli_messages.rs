@@ -339,3 +339,53 @@ fn send_with_a_word_that_is_no_device_nor_keyword_says_what_a_line_is() {
     );
     assert!(!err.contains("are  ") && !err.contains("()"), "{err}");
 }
+
+/// The incident: a vehicle named with an escape sequence was accepted, and the escape
+/// reached the terminal in every log line. It is refused at its line, escaped.
+#[test]
+fn a_vehicle_name_with_an_escape_sequence_is_refused_at_its_line() {
+    let dir = Scratch::new();
+    let v = dir.file(
+        "v.toml",
+        VEHICLE.replace("name = \"bench\"", "name = \"bench\\u001b[2J\""),
+    );
+    let out = adrive(&["--sim", "--headless"], Some(&v), &dir);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}:2: vehicle name \"bench\\u{{1b}}[2J\": expected printable text on one line",
+            v.display()
+        )),
+        "{err}"
+    );
+    assert!(!err.contains('\x1b'), "{err:?}");
+}
+
+/// The incident: an empty DBC file was reported as `no message "STEERING_COMMAND" (it
+/// has )`. It is refused as a DBC error, at the file and line, saying it has no
+/// messages.
+#[test]
+fn an_empty_dbc_is_refused_saying_it_has_no_messages() {
+    let dir = Scratch::new();
+    let oscc =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml"))
+            .unwrap();
+    let v = dir.file("oscc.toml", oscc);
+    let dbc = dir.file("oscc.dbc", "");
+    let out = Command::new(BIN)
+        .args(["sim", "--config"])
+        .arg(&v)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "bus kit: dbc: {}:1: the file has no messages",
+            dbc.display()
+        )),
+        "{err}"
+    );
+    assert!(!err.contains("(it has )"), "{err}");
+}

@@ -23,6 +23,34 @@ fn reserved(name: &str) -> bool {
     crate::value::Keyword::from_word(name).is_some() || RESERVED.contains(&name)
 }
 
+/// The longest free-text name (a vehicle's name, units, a key's description).
+pub(crate) const MAX_TEXT: usize = 64;
+
+/// A free-text name a person wrote (a vehicle's name, a device's units, a key's
+/// description), which adrive prints in its logs and on the terminal: printable text on
+/// one line, at most [`MAX_TEXT`] characters, and not blank unless `blank` allows it. A
+/// control character would split a log line (a newline) or reach the terminal (an
+/// escape sequence); a blank name shows as nothing.
+pub(crate) fn check_text(what: &str, text: &str, blank: bool) -> Result<(), String> {
+    let form = || {
+        format!(
+            "expected printable text on one line{}, at most {MAX_TEXT} characters",
+            if blank { "" } else { ", not blank" }
+        )
+    };
+    if let Some(c) = text.chars().find(|c| c.is_control()) {
+        return Err(format!(
+            "{what} {text:?}: {} ({:?} is a control character)",
+            form(),
+            c
+        ));
+    }
+    if (!blank && text.trim().is_empty()) || text.chars().count() > MAX_TEXT {
+        return Err(format!("{what} {text:?}: {}", form()));
+    }
+    Ok(())
+}
+
 /// The longest device or reading name.
 pub(crate) const MAX_NAME: usize = 32;
 
@@ -644,6 +672,7 @@ impl RawDevice {
             driver == DriverKind::Can,
         )?;
         let units = self.units.unwrap_or_default();
+        check_text("units", &units, true).map_err(|m| (at_name, format!("{name}: {m}")))?;
         if kind != Kind::Setpoint && !units.is_empty() {
             return Err((
                 at_name,
@@ -798,6 +827,12 @@ impl Of<'_> {
             return Err((at, format!("{name}: aliases are for state devices")));
         }
         for (word, target) in a.into_inner() {
+            if word.is_empty() || word.chars().any(|c| c.is_control() || c.is_whitespace()) {
+                return Err((
+                    at,
+                    format!("{name}: aliases: {word:?}: expected one word of printable characters (a command's value is one word)"),
+                ));
+            }
             let Some(target) = target.as_str() else {
                 return Err((
                     at,
@@ -1041,6 +1076,8 @@ fn reading_spec(
         }
         (None, None) => String::new(),
     };
+    check_text(&format!("reading {name}: units"), &units, true)
+        .map_err(|m| format!("{device}: {m}"))?;
     Ok(ReadingSpec {
         name,
         units,

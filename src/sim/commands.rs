@@ -65,28 +65,20 @@ impl Names {
     fn ports(&self) -> String {
         let mut v: Vec<&str> = self.devices.iter().map(|(n, _)| n.as_str()).collect();
         v.extend(self.buses.iter().map(String::as_str));
-        v.join(", ")
+        or_none(v)
     }
 
     fn modules(&self) -> String {
-        let v: Vec<&str> = self
-            .modules
-            .iter()
-            .map(|id| self.devices[id.index()].0.as_str())
-            .collect();
-        if v.is_empty() {
-            "none in this vehicle".into()
-        } else {
-            v.join(", ")
-        }
+        or_none(
+            self.modules
+                .iter()
+                .map(|id| self.devices[id.index()].0.as_str())
+                .collect(),
+        )
     }
 
     fn buses(&self) -> String {
-        if self.buses.is_empty() {
-            "none in this vehicle".into()
-        } else {
-            self.buses.join(", ")
-        }
+        or_none(self.buses.iter().map(String::as_str).collect())
     }
 }
 
@@ -228,12 +220,22 @@ impl Arg {
 
 /// The devices an argument may name, for messages.
 fn list(devices: &Devices, which: Which) -> String {
-    devices
-        .iter()
-        .filter(|(_, k)| which == Which::Any || *k == Kind::Setpoint)
-        .map(|(n, _)| n.as_str())
-        .collect::<Vec<_>>()
-        .join(", ")
+    or_none(
+        devices
+            .iter()
+            .filter(|(_, k)| which == Which::Any || *k == Kind::Setpoint)
+            .map(|(n, _)| n.as_str())
+            .collect(),
+    )
+}
+
+/// Names for a message, or that there are none: never an empty list.
+fn or_none(names: Vec<&str>) -> String {
+    if names.is_empty() {
+        "none in this vehicle".into()
+    } else {
+        names.join(", ")
+    }
 }
 
 /// A parsed argument.
@@ -827,6 +829,22 @@ mod tests {
             "{h}"
         );
         assert!(!help(&alice()).contains("not on this vehicle"));
+    }
+
+    /// A list of devices in a message is never empty.
+    #[test]
+    fn a_vehicle_without_setpoint_devices_says_so() {
+        let sensors = Names {
+            devices: vec![("obd".into(), Kind::Sensor)],
+            bus_of: vec![None],
+            ..Names::default()
+        };
+        let e = parse("stuck obd on", &sensors).unwrap_err();
+        assert!(
+            e.contains("it applies to setpoint devices (none in this vehicle), not obd (a sensor)"),
+            "{e}"
+        );
+        assert!(help(&sensors).contains("SETPOINT is one of none in this vehicle"));
     }
 
     /// The incident: `stuck gas on` was refused with a message that did not say
