@@ -120,7 +120,7 @@ pub struct RunArgs {
     /// Where the state broadcast goes, instead of the vehicle file's `[network]`
     /// broadcast_to (repeatable, or comma-separated; default 127.0.0.1:47577): a
     /// second adrive on one host needs its own.
-    #[arg(long, value_name = "ADDR", value_delimiter = ',')]
+    #[arg(long, value_name = "ADDR", value_delimiter = ',', value_parser = config::network::parse_destination)]
     pub broadcast_to: Vec<SocketAddr>,
     /// Record this run into an MCAP file (Foxglove opens it), or into rolling files in
     /// a directory (an existing one, or a path ending in `/`); default: the vehicle
@@ -136,7 +136,7 @@ pub struct RunArgs {
     pub ros2: bool,
     /// Serve a read-only live view to Foxglove or Lichtblick (Foxglove WebSocket
     /// protocol) on ADDR [default: 127.0.0.1:8765; port 0: any free port, logged].
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::foxglove::DEFAULT_ADDR)]
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::foxglove::DEFAULT_ADDR, value_parser = config::network::parse_serve)]
     pub foxglove: Option<SocketAddr>,
     /// The control socket consoles attach to (default: $RUNTIME_DIRECTORY/adrive.sock
     /// under systemd, else $XDG_RUNTIME_DIR/adrive/adrive.sock, else
@@ -204,7 +204,7 @@ pub struct ReplayArgs {
     pub file: PathBuf,
     /// Also send each snapshot played as the state broadcast, to ADDR (repeatable;
     /// default 127.0.0.1:47577), so other tools can be tested against a past drive.
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = config::network::DEFAULT_BROADCAST)]
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = config::network::DEFAULT_BROADCAST, value_parser = config::network::parse_destination)]
     pub broadcast: Vec<SocketAddr>,
     /// No console: play through once (with --broadcast), then exit.
     #[arg(long, requires = "broadcast")]
@@ -231,8 +231,8 @@ pub struct SendArgs {
     /// Commands, e.g. `steer 0.2`, `engage trans drive accel 0.3`: each verb starts a line.
     #[arg(required = true, value_name = "COMMAND", allow_hyphen_values = true)]
     pub words: Vec<String>,
-    /// The adrive to send to.
-    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_LISTEN)]
+    /// The adrive to send to: its `--listen` address (IP:PORT or HOST:PORT).
+    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_LISTEN, value_parser = config::network::parse_peer)]
     pub to: SocketAddr,
     /// Repeat the datagram this many times a second, with a rolling `seq`, until
     /// interrupted (as a planner would).
@@ -251,8 +251,9 @@ pub struct WatchArgs {
     /// Print each broadcast as it came: one JSON object per line.
     #[arg(long)]
     pub json: bool,
-    /// The address the broadcast is sent to: this host's, or a multicast group.
-    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_BROADCAST)]
+    /// The address the broadcast is sent to (the vehicle file's `[network]`
+    /// broadcast_to): this host's, or a multicast group.
+    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_BROADCAST, value_parser = config::network::parse_destination)]
     pub from: SocketAddr,
     /// Stop after this many broadcasts (with --ros2: report lines).
     #[arg(long, value_name = "N")]
@@ -684,6 +685,55 @@ fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
 
 /// `adrive send`: commands in one datagram, once or at a rate.
 pub fn send(args: SendArgs) -> anyhow::Result<i32> {
+    // The commands take every word after the first (a value may start with `-`), so
+    // options written after them (`adrive send steer 0.2 --to HOST:PORT`) arrive among
+    // them: take them out and read them as options.
+    let send = Cli::command();
+    let options: Vec<String> = send
+        .find_subcommand("send")
+        .expect("send is a subcommand")
+        .get_arguments()
+        .filter_map(|a| a.get_long())
+        .map(|l| format!("--{l}"))
+        .collect();
+    let is_option = |w: &str| {
+        options
+            .iter()
+            .any(|o| w.split('=').next() == Some(o.as_str()))
+    };
+    if args.words.iter().any(|w| is_option(w)) {
+        let mut argv: Vec<String> = vec!["adrive".into(), "send".into()];
+        let mut rest = Vec::new();
+        let mut words = args.words.iter();
+        while let Some(w) = words.next() {
+            if is_option(w) {
+                argv.push(w.clone());
+                if !w.contains('=') {
+                    argv.extend(words.next().cloned());
+                }
+            } else {
+                rest.push(w.clone());
+            }
+        }
+        argv.push("--".into());
+        argv.extend(rest);
+        return match Cli::try_parse_from(&argv) {
+            Ok(Cli {
+                command: Some(Cmd::Send(args)),
+                ..
+            }) => send_parsed(args),
+            Ok(_) => unreachable!("parsed as send"),
+            Err(e) => {
+                let _ = e.print();
+                Ok(client::status::USAGE)
+            }
+        };
+    }
+    send_parsed(args)
+}
+
+/// [`send`], its options read.
+fn send_parsed(args: SendArgs) -> anyhow::Result<i32> {
     let auth = match args.key.as_deref() {
         Some(key) => Some(Auth::load(key).map_err(|e| anyhow::anyhow!("--key {e}"))?),
         None => None,

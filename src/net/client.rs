@@ -332,8 +332,17 @@ pub fn watch(
     count: Option<u64>,
     stop: &AtomicBool,
 ) -> io::Result<i32> {
-    let socket =
-        watch_socket(from).map_err(|e| io::Error::new(e.kind(), format!("{from}: {e}")))?;
+    let socket = watch_socket(from).map_err(|e| {
+        let why = crate::config::network::bind_error(
+            "--from",
+            from,
+            "--from is where the broadcast is sent to (the watched adrive's [network] \
+             broadcast_to or --broadcast-to): an address of this host or a multicast group; \
+             to watch an adrive on another host, have it broadcast to this one",
+            &e,
+        );
+        io::Error::new(e.kind(), why)
+    })?;
     socket.set_read_timeout(Some(Duration::from_millis(200)))?;
     if !json {
         eprintln!(
