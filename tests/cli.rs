@@ -664,3 +664,57 @@ fn sim_refuses_faults_of_what_the_vehicle_does_not_have() {
         "{err}"
     );
 }
+
+/// The incident: `adrive sim` printed `(modbus, 115200 baud)` where the guide shows
+/// `(Modbus, 115200 baud)`. Each protocol has one display name: what the binary prints
+/// for Alice's devices and the OSCC kit's adapter, and what every sample of those lines
+/// in the guide shows.
+#[test]
+fn sim_names_each_protocol_as_the_guide_does() {
+    let mut shown = std::collections::BTreeSet::new();
+    for args in [&[][..], &["--config", "vehicles/oscc.toml"][..]] {
+        let (mut child, out) = sim_process(args);
+        for line in until(&out, "Ctrl-C stops") {
+            if let Some((_, rest)) = line.split_once("  (") {
+                shown.insert(rest.split(',').next().unwrap().to_string());
+            }
+        }
+        signal(&child, libc::SIGINT);
+        assert_eq!(wait_exit(&mut child), Some(0));
+    }
+    let want: std::collections::BTreeSet<String> = ["ELM327", "Modbus", "SLCAN", "line"]
+        .map(String::from)
+        .into();
+    assert_eq!(shown, want);
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut pages: Vec<_> = std::fs::read_dir(root.join("docs"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "md"))
+        .collect();
+    pages.push(root.join("README.md"));
+    let mut samples = 0;
+    for page in pages {
+        let text = std::fs::read_to_string(&page).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            let Some((_, rest)) = line.split_once("-> /dev/pts/") else {
+                continue;
+            };
+            let Some((_, named)) = rest.split_once("  (") else {
+                continue;
+            };
+            samples += 1;
+            let name = named.split(',').next().unwrap();
+            assert!(
+                shown.contains(name),
+                "{}:{}: `{name}` is not how adrive sim names a protocol ({shown:?})",
+                page.display(),
+                n + 1
+            );
+        }
+    }
+    assert!(
+        samples >= 3,
+        "the guide's samples of adrive sim's lines were found"
+    );
+}
