@@ -12,7 +12,7 @@ use crate::net::{auth::Auth, client, Net};
 use crate::record::{self, Recorder};
 use crate::sim::{Sim, SimEvent};
 use crate::vehicle::Vehicle;
-use crate::{console, driver, headless, logging, socket};
+use crate::{console, driver, headless, logging, paths, socket};
 use clap::{Args, CommandFactory, Parser, Subcommand};
 use std::io::{self, BufRead, Write};
 use std::net::SocketAddr;
@@ -378,6 +378,22 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     } else {
         open_ports(&config)?
     };
+    // Every path given is what it must be before anything starts: the log's directory,
+    // the recording's file (or directory of rolling files), the control socket's place.
+    paths::create_dir("--log-dir", &log_dir).map_err(anyhow::Error::msg)?;
+    if let Some(p) = &args.record {
+        if p.is_dir() || p.as_os_str().to_string_lossy().ends_with('/') {
+            paths::check_dir_possible("--record", p)
+        } else {
+            paths::check_new_file("--record", p)
+        }
+        .map_err(anyhow::Error::msg)?;
+    }
+    let socket_path = args
+        .socket
+        .clone()
+        .unwrap_or_else(socket::path::default_path);
+    paths::check_place("--socket", &socket_path).map_err(anyhow::Error::msg)?;
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
     // The log pane's lines, for the embedded console and every attached one.
@@ -392,10 +408,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     // A live control socket (another adrive) stops here, before anything is driven or
     // simulated, named; a stale one is replaced.
-    let socket_path = args
-        .socket
-        .clone()
-        .unwrap_or_else(socket::path::default_path);
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
@@ -664,10 +676,13 @@ pub fn manpage(dir: Option<&Path>, out: &mut dyn std::io::Write) -> anyhow::Resu
     let cmd = Cli::command().disable_help_subcommand(true);
     match dir {
         Some(dir) => {
-            std::fs::create_dir_all(dir)
-                .and_then(|()| clap_mangen::generate_to(cmd, dir))
+            paths::create_dir("manpage --dir", dir).map_err(anyhow::Error::msg)?;
+            clap_mangen::generate_to(cmd, dir)
                 .map_err(|e| anyhow::anyhow!("manpage --dir {}: {e}", dir.display()))?;
-            eprintln!("adrive manpage: wrote the pages to {}", dir.display());
+            tell(
+                io::stderr(),
+                format_args!("adrive manpage: wrote the pages to {}\n", dir.display()),
+            );
         }
         None => clap_mangen::Man::new(cmd).render(out)?,
     }
@@ -735,7 +750,10 @@ pub fn send(args: SendArgs) -> anyhow::Result<i32> {
 /// [`send`], its options read.
 fn send_parsed(args: SendArgs) -> anyhow::Result<i32> {
     let auth = match args.key.as_deref() {
-        Some(key) => Some(Auth::load(key).map_err(|e| anyhow::anyhow!("--key {e}"))?),
+        Some(key) => {
+            paths::check_file("--key", key).map_err(anyhow::Error::msg)?;
+            Some(Auth::load(key).map_err(|e| anyhow::anyhow!("--key {e}"))?)
+        }
         None => None,
     };
     let body = client::lines_from_words(&args.words);
@@ -1044,6 +1062,7 @@ pub(crate) fn printable(bytes: &[u8]) -> String {
 
 /// `adrive record info`: what a recording holds.
 pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
+    paths::check_file("", file).map_err(anyhow::Error::msg)?;
     let rec = record::read::Recording::open(file)?;
     tell(io::stdout(), format_args!("{}", record::info::report(&rec)));
     Ok(0)
@@ -1051,7 +1070,9 @@ pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
 
 /// `adrive export FILE --csv DIR`: one CSV per channel.
 pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
+    paths::check_file("", &args.file).map_err(anyhow::Error::msg)?;
     let rec = record::read::Recording::open(&args.file)?;
+    paths::create_dir("--csv", &args.csv).map_err(anyhow::Error::msg)?;
     for (path, rows) in record::export::csv(&rec, &args.csv)? {
         tell(
             io::stdout(),
@@ -1072,6 +1093,7 @@ pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
 
 /// `adrive replay FILE`: the console plays a recording (or, headless, broadcasts it).
 pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
+    paths::check_file("", &args.file).map_err(anyhow::Error::msg)?;
     let rec = record::read::Recording::open(&args.file)?;
     let mut player = console::replay::Player::load(&rec).map_err(anyhow::Error::msg)?;
     drop(rec);

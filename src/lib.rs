@@ -26,6 +26,7 @@ pub mod foxglove;
 pub mod headless;
 pub mod logging;
 pub mod net;
+pub mod paths;
 pub(crate) mod port_list;
 pub mod probe;
 pub mod record;

@@ -481,7 +481,7 @@ impl Database {
         let bytes = std::fs::read(path).map_err(|e| DbcError {
             path: name.clone(),
             line: 0,
-            message: format!("cannot read: {e}"),
+            message: crate::paths::cannot_read(path, &e),
         })?;
         let text = String::from_utf8(bytes).map_err(|e| {
             let at = e.utf8_error().valid_up_to();
@@ -1244,7 +1244,7 @@ SIG_VALTYPE_ 114 request : 1;
             Database::load(Path::new("/nonexistent/kit.dbc"))
                 .unwrap_err()
                 .to_string(),
-            "/nonexistent/kit.dbc: cannot read: No such file or directory (os error 2)"
+            "/nonexistent/kit.dbc: cannot read: no such file: /nonexistent does not exist"
         );
         assert_eq!(
             db().message_named("BRAKE").unwrap_err().to_string(),

@@ -430,7 +430,7 @@ pub fn load(path: &Path) -> Result<VehicleConfig, ConfigError> {
     let bytes = std::fs::read(path).map_err(|e| ConfigError {
         path: name.clone(),
         line: 0,
-        message: format!("cannot read: {e}"),
+        message: crate::paths::cannot_read(path, &e),
     })?;
     parse(document::utf8(&bytes, &name)?, &name)
 }

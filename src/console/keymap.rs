@@ -691,7 +691,7 @@ impl Keymap {
         let text = std::fs::read_to_string(path).map_err(|e| KeymapError {
             path: name.clone(),
             line: 0,
-            message: format!("cannot read: {e}"),
+            message: crate::paths::cannot_read(path, &e),
         })?;
         let mut map = Keymap::default_map();
         map.merge(Keymap::parse(&text, &name)?);
