@@ -381,11 +381,16 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // Every path given is what it must be before anything starts: the log's directory,
     // the recording's file (or directory of rolling files), the control socket's place.
     paths::create_dir("--log-dir", &log_dir).map_err(anyhow::Error::msg)?;
-    if let Some(p) = &args.record {
-        if p.is_dir() || p.as_os_str().to_string_lossy().ends_with('/') {
-            paths::check_dir_possible("--record", p)
+    let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
+    if let Some(r) = &recording {
+        let what = if args.record.is_some() {
+            "--record"
         } else {
-            paths::check_new_file("--record", p)
+            "[record] dir"
+        };
+        match &r.target {
+            record::Target::File(p) => paths::check_new_file(what, p),
+            record::Target::Dir { dir, .. } => paths::check_dir_possible(what, dir),
         }
         .map_err(anyhow::Error::msg)?;
     }
@@ -394,7 +399,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         .clone()
         .unwrap_or_else(socket::path::default_path);
     paths::check_place("--socket", &socket_path).map_err(anyhow::Error::msg)?;
-    let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
     // The log pane's lines, for the embedded console and every attached one.
     let ring = crate::logging::ring::LogRing::default();
@@ -660,6 +664,13 @@ fn network_key(config: &VehicleConfig) -> anyhow::Result<Option<Auth>> {
         return Ok(None);
     };
     let path = config.relative(file);
+    if let Err(why) = paths::check_file("", &path) {
+        let v = config::Violation {
+            paths: vec!["key_file".into()],
+            message: format!("key_file: {why}"),
+        };
+        return Err(config.refuse("network", v).into());
+    }
     let auth = Auth::load(&path).map_err(|e| {
         let v = config::Violation {
             paths: vec!["key_file".into()],

@@ -357,6 +357,34 @@ fn every_path_argument_says_what_is_wrong_with_it() {
             format!("--socket {socket}: {f} is a file, not a directory"),
         ),
     ];
+    // The same of the paths a vehicle file names.
+    let vehicle = dir.path().join("v.toml");
+    std::fs::write(
+        &vehicle,
+        "[vehicle]\nname = \"bench\"\n\n[network]\nkey_file = \".\"\n\n[[device]]\nname = \"steer\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\n",
+    )
+    .unwrap();
+    let v = vehicle.display().to_string();
+    let in_file = std::fs::read_to_string(&vehicle).unwrap().replace(
+        "[network]\nkey_file = \".\"\n",
+        "[record]\ndir = \"afile/rec\"\n",
+    );
+    let recorded = dir.path().join("r.toml");
+    std::fs::write(&recorded, in_file).unwrap();
+    let r = recorded.display().to_string();
+    let cases: Vec<(Vec<&str>, String)> = cases
+        .into_iter()
+        .chain([
+            (
+                vec!["--sim", "--headless", "--config", &v],
+                format!("{v}:5: [network] key_file: {d}/.: it is a directory, not a file"),
+            ),
+            (
+                vec!["--sim", "--headless", "--config", &r],
+                format!("[record] dir {f}/rec: {f} is a file, not a directory"),
+            ),
+        ])
+        .collect();
     for (args, want) in cases {
         let (status, err) = run(&args);
         assert_eq!(status, Some(2), "{args:?}: {err}");
