@@ -64,21 +64,17 @@ impl Around {
         let listen = format!("127.0.0.1:{}", free_port());
         let broadcast = format!("127.0.0.1:{}", free_port());
         let socket = dir.path().join("fixture.sock");
-        let mut adrive = Reaped(
-            Process::new(BIN)
-                .args(["--sim", "--headless", "--listen", &listen])
-                .args(["--broadcast-to", &broadcast, "--socket"])
-                .arg(&socket)
-                .arg("--log-dir")
-                .arg(dir.path().join("fixture-log"))
-                .env("XDG_RUNTIME_DIR", dir.path())
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap(),
+        let (adrive, _, err) = common::headless_sim(
+            dir.path(),
+            &[
+                "--listen",
+                &listen,
+                "--broadcast-to",
+                &broadcast,
+                "--socket",
+                &socket.display().to_string(),
+            ],
         );
-        let err = lines(adrive.stderr.take().unwrap());
-        until(&err, "running headless");
         std::thread::spawn(move || for _ in err {});
         let recording = dir.path().join("run.mcap");
         Around {
@@ -394,22 +390,17 @@ fn every_path_argument_says_what_is_wrong_with_it() {
 
     // export --csv onto a file, with a real recording.
     let recording = dir.path().join("r.mcap");
-    let mut adrive = Reaped(
-        Process::new(BIN)
-            .args(["--sim", "--headless", "--listen", "127.0.0.1:0"])
-            .args(["--broadcast-to", &format!("127.0.0.1:{}", free_port())])
-            .arg("--record")
-            .arg(&recording)
-            .arg("--log-dir")
-            .arg(dir.path().join("log"))
-            .env("XDG_RUNTIME_DIR", dir.path())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
+    let (mut adrive, _, _) = common::headless_sim(
+        dir.path(),
+        &[
+            "--listen",
+            "127.0.0.1:0",
+            "--broadcast-to",
+            &format!("127.0.0.1:{}", free_port()),
+            "--record",
+            &recording.display().to_string(),
+        ],
     );
-    let err = lines(adrive.stderr.take().unwrap());
-    until(&err, "running headless");
     signal(&adrive, libc::SIGTERM);
     assert_eq!(wait_exit(&mut adrive), Some(0));
     let r = recording.display().to_string();

@@ -308,20 +308,15 @@ fn address_flags_take_host_names_and_say_what_they_are_for() {
 
     // A headless adrive listening on a host name.
     let dir = tempdir("listen-host");
-    let mut child = common::Reaped(
-        Process::new(BIN)
-            .args(["--sim", "--headless", "--listen", "localhost:0"])
-            .args(["--broadcast-to", &format!("localhost:{}", free_port())])
-            .arg("--log-dir")
-            .arg(dir.path())
-            .env("XDG_RUNTIME_DIR", dir.path())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
+    let (mut child, seen, _) = common::headless_sim(
+        dir.path(),
+        &[
+            "--listen",
+            "localhost:0",
+            "--broadcast-to",
+            &format!("localhost:{}", free_port()),
+        ],
     );
-    let err = lines(child.stderr.take().unwrap());
-    let seen = common::until(&err, "running headless");
     assert!(
         seen.iter()
             .any(|l| l.contains("network up listen=127.0.0.1:")),

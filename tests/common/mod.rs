@@ -303,3 +303,27 @@ pub fn sim_dirs(dir: &std::path::Path) -> Vec<String> {
         })
         .unwrap_or_default()
 }
+
+/// `adrive --sim --headless ARGS`, its runtime directory and its log in `dir`, once it
+/// says it runs: the child and what it has said so far (its standard error keeps being
+/// read into the receiver).
+pub fn headless_sim(
+    dir: &std::path::Path,
+    args: &[&str],
+) -> (Reaped, Vec<String>, std::sync::mpsc::Receiver<String>) {
+    let mut child = Reaped(
+        std::process::Command::new(env!("CARGO_BIN_EXE_adrive"))
+            .args(["--sim", "--headless"])
+            .args(args)
+            .arg("--log-dir")
+            .arg(dir.join("log"))
+            .env("XDG_RUNTIME_DIR", dir)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let err = lines(child.stderr.take().unwrap());
+    let seen = until(&err, "running headless");
+    (child, seen, err)
+}
