@@ -34,6 +34,8 @@ pub struct Cli {
     pub run: RunArgs,
 }
 
+// Parsed once per process: the size of its largest variant costs nothing.
+#[allow(clippy::large_enum_variant)]
 #[derive(Subcommand, Debug)]
 pub enum Cmd {
     /// Run the engine with the console (the default).
@@ -63,7 +65,7 @@ pub enum Cmd {
     Ctl(CtlArgs),
     /// Play a recording in the console: pause, step, seek, speed; read-only.
     Replay(ReplayArgs),
-    /// Recordings: `adrive record info FILE`.
+    /// Recordings: `adrive record info FILE`, `adrive record repair FILE`.
     Record {
         #[command(subcommand)]
         command: RecordCmd,
@@ -105,11 +107,22 @@ pub struct RunArgs {
     /// (100ms to 5s) [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
     pub deadman: Option<Duration>,
+    /// End the run (status 4, after the safe state) once a device has been gone this
+    /// long, or a recovery procedure gave up after trying this long (1s to 1 day;
+    /// default: never: adrive keeps the vehicle safe and waits for the device), instead
+    /// of the vehicle file's `[supervisor]` give_up_after.
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_give_up_after)]
+    pub give_up_after: Option<Duration>,
     /// Fault injection for tests: make a thread panic once running, `main`,
     /// `supervisor` or a device's status thread (`steer/status`; `steer/status=return`
     /// ends it quietly instead), optionally after a delay (`supervisor:4s`).
     #[arg(long, value_name = "THREAD[:DELAY]", hide = true)]
     pub(crate) inject_panic: Option<String>,
+    /// Fault injection for tests: make an engine thread (`steer/status`, `brake/command`,
+    /// `bus/kit`, `gate/monitor`, `supervisor`) block in a system call once, AFTER its
+    /// start, for FOR (`steer/status:2s:5s`), as a port stuck in the kernel would.
+    #[arg(long, value_name = "THREAD:AFTER:FOR", hide = true)]
+    pub(crate) inject_hang: Option<String>,
     /// Directory of the rolling log file (default: $XDG_STATE_HOME/adrive or ~/.local/state/adrive).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
@@ -195,6 +208,16 @@ pub enum RecordCmd {
     Info {
         /// The recording (.mcap).
         file: PathBuf,
+    },
+    /// Write a finished copy (summary and index) of a recording that was not finished
+    /// (killed, a power loss, cut inside a chunk): every message that can be read.
+    /// Next to it as NAME.repaired.mcap, or to --out; never over an existing file.
+    Repair {
+        /// The recording (.mcap).
+        file: PathBuf,
+        /// Where to write the copy [default: NAME.repaired.mcap beside FILE].
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
     },
 }
 
@@ -310,6 +333,9 @@ pub fn main() -> i32 {
         Some(Cmd::Record {
             command: RecordCmd::Info { file },
         }) => record_info(&file),
+        Some(Cmd::Record {
+            command: RecordCmd::Repair { file, out },
+        }) => record_repair(&file, out.as_deref()),
         Some(Cmd::Export(args)) => export(args),
         Some(Cmd::Completions { shell }) => {
             // Into memory first: clap_complete panics when its writer fails.
@@ -358,6 +384,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     if let Some(addr) = args.listen {
         config.network.listen = addr;
     }
+    if let Some(d) = args.give_up_after {
+        config.supervisor.give_up_after = Some(d);
+    }
     if !args.broadcast_to.is_empty() {
         config.network.broadcast_to = args.broadcast_to.clone();
     }
@@ -368,7 +397,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         None
     } else {
         let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
-        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
+        console::terminal::check_standard_streams(console::terminal::RUN_WITHOUT)
+            .map_err(anyhow::Error::msg)?;
         Some(keymap)
     };
     // A port another adrive (or program) holds stops here too: each port is opened
@@ -464,6 +494,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             None => (spec, Duration::from_millis(1500)),
         },
     };
+    if let Some(hang) = args.inject_hang.as_deref() {
+        crate::threads::inject_hang(parse_hang(hang).map_err(anyhow::Error::msg)?);
+    }
     let engine = Engine::start_injected(gate.clone(), injected(panic_in, panic_after))?;
     let monitor = crate::engine::monitor::Monitor::start(gate.clone())?;
     let mut sup_cfg = vehicle.config().supervisor.clone();
@@ -472,7 +505,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         gate.clone(),
         sup_cfg,
         Box::new(exit::request),
-        engine.liveness(),
+        engine.liveness().with(&monitor.liveness()),
     )?;
     // Let the devices report first, so the unwinding really has a vehicle to stop; with
     // the console, it panics from its own loop, so the terminal is taken over then.
@@ -583,6 +616,21 @@ fn service_ready(engine: &Engine) {
         // Not ready: systemd's start timeout (or the watchdog) will tell.
         tracing::error!(threads = ?late, "device threads not running 2 s after the start");
     }
+}
+
+/// `--inject-hang THREAD:AFTER:FOR`.
+fn parse_hang(text: &str) -> Result<crate::threads::HangSpec, String> {
+    let mut parts = text.rsplitn(3, ':');
+    let (Some(hang), Some(after), Some(thread)) = (parts.next(), parts.next(), parts.next()) else {
+        return Err(format!(
+            "expected THREAD:AFTER:FOR (steer/status:2s:5s), got {text:?}"
+        ));
+    };
+    Ok(crate::threads::HangSpec {
+        thread: thread.to_string(),
+        after: config::parse_duration(after)?,
+        hang: config::parse_duration(hang)?,
+    })
 }
 
 /// `--inject-panic DEVICE/status` (a panic) or `DEVICE/status=return` (the thread
@@ -791,8 +839,17 @@ pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
 /// `adrive attach`: the console over a running adrive's control socket.
 pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
     let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
-    console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
     let path = args.socket.unwrap_or_else(socket::path::default_path);
+    if let Err(no_terminal) =
+        console::terminal::check_standard_streams(console::terminal::ATTACH_WITHOUT)
+    {
+        // Nothing to attach to is the first thing to know; a terminal, the next.
+        if let Err(e) = socket::client::probe(&path) {
+            tell(io::stderr(), format_args!("adrive: {e}\n"));
+            return Ok(1);
+        }
+        return Err(anyhow::Error::msg(no_terminal));
+    }
     let exits = exit::install()?;
     let remote = match socket::client::Remote::attach(&path, |why| exit::request(Exit::Lost(why))) {
         Ok(r) => r,
@@ -1079,6 +1136,32 @@ pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
     Ok(0)
 }
 
+/// `adrive record repair`: a finished copy of a recording that was not finished.
+pub(crate) fn record_repair(file: &Path, out: Option<&Path>) -> anyhow::Result<i32> {
+    let rec = record::read::Recording::open(file)?;
+    let state = record::info::state(&rec, None);
+    if rec.complete && !rec.writing {
+        tell(
+            io::stdout(),
+            format_args!("{}: {state}: nothing to repair\n", file.display()),
+        );
+        return Ok(0);
+    }
+    let out = out.map_or_else(|| record::repair::beside(file), Path::to_path_buf);
+    let r = record::repair::repair(&rec, &out, &state)?;
+    tell(
+        io::stdout(),
+        format_args!(
+            "{}: {state}\nwrote {}: {} messages on {} channels, finished (summary and index)\n",
+            file.display(),
+            r.out.display(),
+            r.messages,
+            r.channels
+        ),
+    );
+    Ok(0)
+}
+
 /// `adrive export FILE --csv DIR`: one CSV per channel.
 pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
     paths::check_file("", &args.file).map_err(anyhow::Error::msg)?;
@@ -1118,7 +1201,8 @@ pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
         None
     } else {
         let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
-        console::terminal::check_standard_streams().map_err(anyhow::Error::msg)?;
+        console::terminal::check_standard_streams(console::terminal::REPLAY_WITHOUT)
+            .map_err(anyhow::Error::msg)?;
         Some(keymap)
     };
     let broadcast = match args.broadcast.is_empty() {

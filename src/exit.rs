@@ -21,7 +21,8 @@ pub enum Exit {
     Panic(String),
     /// A device failed for good (a recovery procedure gave up).
     Fatal(String),
-    /// An attached console's adrive went away (it stopped, or the connection broke).
+    /// An attached console's connection to adrive ended: adrive stopped, went away, or
+    /// dropped it (in words, as far as the console knows).
     Lost(String),
 }
 
@@ -48,7 +49,7 @@ impl Exit {
             Exit::HangUp(why) => format!("terminal hung up ({why})"),
             Exit::Panic(m) => format!("panic: {m}"),
             Exit::Fatal(m) => format!("fatal device error: {m}"),
-            Exit::Lost(m) => format!("adrive went away: {m}"),
+            Exit::Lost(m) => m.clone(),
         }
     }
 }

@@ -3,17 +3,21 @@
 //! it is doing (`STATUS=…`) and that it is stopping (`STOPPING=1`).
 //!
 //! It exists so that `systemctl start adrive` returns once every device thread runs,
-//! and so that systemd restarts adrive when it is no longer sound: the supervisor feeds
-//! the watchdog ([`Watchdog`]) only while every device thread is alive, so a thread
-//! that ended — or a supervisor that hangs — stops the feeding, and systemd stops and
-//! restarts the service after `WatchdogSec`.
+//! and so that systemd restarts adrive when it is no longer sound: the service watchdog
+//! thread feeds the watchdog ([`Watchdog`]) only while every engine thread makes
+//! progress — each device's status and command threads, each bus reader, the gate
+//! monitor and the supervisor turn their loops within their bounds
+//! ([`crate::threads::Liveness`]) — so a thread that ended or is stuck (in a system
+//! call, on a lock) stops the feeding, said with its name, and systemd stops and
+//! restarts the service after `WatchdogSec`. A stuck thread that turns again makes the
+//! feeding resume.
 //!
 //! Each notification is one datagram to the socket named by `NOTIFY_SOCKET`: a path,
 //! or an abstract socket written `@name` (which the `sd-notify` crate does not reach,
 //! hence these few lines over a `UnixDatagram`). Without `NOTIFY_SOCKET` — adrive not
 //! run by systemd — every call here does nothing.
 
-use crate::threads::Liveness;
+use crate::threads::{Liveness, Stall};
 use std::ffi::OsStr;
 use std::os::unix::ffi::OsStrExt;
 use std::os::unix::net::{SocketAddr, UnixDatagram};
@@ -79,9 +83,14 @@ fn notify(state: &str) {
     }
 }
 
+/// The status line while all is well, as [`ready`] said it (said again once a stalled
+/// thread turns again).
+static RUNNING: OnceLock<String> = OnceLock::new();
+
 /// Startup is finished: every device thread runs. `status` is shown by
 /// `systemctl status`.
 pub fn ready(status: &str) {
+    let _ = RUNNING.set(status.to_string());
     notify(&format!("READY=1\nSTATUS={status}"));
 }
 
@@ -93,6 +102,11 @@ pub fn stopping(why: &str) {
 /// A line for `systemctl status`.
 pub fn status(text: &str) {
     notify(&format!("STATUS={text}"));
+}
+
+/// `systemctl status` back to the line [`ready`] said: all is well again.
+pub fn running() {
+    status(RUNNING.get().map_or("running", String::as_str));
 }
 
 /// Tell the service manager adrive is still sound.
@@ -119,14 +133,31 @@ fn watchdog_every(usec: Option<&str>, pid: Option<&str>, me: u32) -> Option<Dura
     Some(Duration::from_micros(usec) / 2)
 }
 
-/// The service watchdog as the supervisor feeds it, once a turn: `WATCHDOG=1` every
-/// half `WATCHDOG_USEC`, and only while every thread it watches (the engine's device
-/// threads) runs. A thread that ended is logged once, at ERROR.
+/// The service watchdog, turned by the `service/watchdog` thread: `WATCHDOG=1` every
+/// half `WATCHDOG_USEC`, and only while every thread it watches runs and turns its loop
+/// within its bound. A thread that ended is logged once, at ERROR; a thread that
+/// stalls is logged at ERROR when it stalls (`STATUS=` says which) and at WARN when it
+/// turns again, and the feeding resumes.
 pub struct Watchdog {
     every: Option<Duration>,
     fed: Option<Instant>,
     threads: Liveness,
     told: Vec<String>,
+    /// The threads stalled at the last turn.
+    stalled: Vec<Stall>,
+}
+
+/// What one turn of the [`Watchdog`] found.
+#[derive(Debug, Default, PartialEq)]
+pub struct Turn {
+    /// `WATCHDOG=1` was sent.
+    pub fed: bool,
+    /// The threads stalled now.
+    pub stalled: Vec<Stall>,
+    /// Of those, the ones that stalled since the last turn.
+    pub new: Vec<Stall>,
+    /// The set of stalled threads is not the last turn's.
+    pub changed: bool,
 }
 
 impl Watchdog {
@@ -142,35 +173,69 @@ impl Watchdog {
             fed: None,
             threads,
             told: Vec::new(),
+            stalled: Vec::new(),
         }
     }
 
-    /// One supervisor turn at `now`; whether the watchdog was fed.
-    pub fn turn(&mut self, now: Instant) -> bool {
+    /// One turn at `now`: what it found, and whether the watchdog was fed.
+    pub fn turn(&mut self, now: Instant) -> Turn {
+        let effect = match self.every {
+            Some(_) => {
+                "the service watchdog is no longer fed: systemd will stop and restart adrive"
+            }
+            None => "adrive must be restarted",
+        };
         let ended = self.threads.ended();
         for name in &ended {
             if !self.told.iter().any(|t| t == name) {
-                let effect = match self.every {
-                    Some(_) => "the service watchdog is no longer fed: systemd will restart adrive",
-                    None => "adrive must be restarted",
-                };
-                tracing::error!(thread = %name, "device thread ended: {effect}");
-                status(&format!("device thread {name} ended"));
+                tracing::error!(thread = %name, "thread ended: {effect}");
+                status(&format!("thread {name} ended"));
                 self.told.push(name.to_string());
             }
         }
-        let Some(every) = self.every else {
-            return false;
-        };
-        let due = self
-            .fed
-            .is_none_or(|t| now.saturating_duration_since(t) >= every);
-        if !ended.is_empty() || !due {
-            return false;
+        let stalled = self.threads.stalled(now);
+        let was = |s: &Stall| self.stalled.iter().any(|t| t.thread == s.thread);
+        let new: Vec<Stall> = stalled.iter().filter(|s| !was(s)).cloned().collect();
+        for s in &new {
+            tracing::error!(thread = %s.thread, "stalled: {}; {effect}", s.describe());
+            status(&format!("stalled: {}", s.describe()));
         }
-        feed();
-        self.fed = Some(now);
-        true
+        let resumed: Vec<&Stall> = self
+            .stalled
+            .iter()
+            .filter(|t| !stalled.iter().any(|s| s.thread == t.thread))
+            .collect();
+        for s in &resumed {
+            let again = match (self.every, stalled.is_empty() && ended.is_empty()) {
+                (Some(_), true) => ": the service watchdog is fed again",
+                _ => "",
+            };
+            tracing::warn!(thread = %s.thread, "{} turns its loop again{again}", s.thread);
+        }
+        if !resumed.is_empty() && stalled.is_empty() && ended.is_empty() {
+            running();
+        }
+        let changed = !new.is_empty() || !resumed.is_empty();
+        self.stalled = stalled.clone();
+        let fed = match self.every {
+            Some(every) if ended.is_empty() && stalled.is_empty() => {
+                let due = self
+                    .fed
+                    .is_none_or(|t| now.saturating_duration_since(t) >= every);
+                if due {
+                    feed();
+                    self.fed = Some(now);
+                }
+                due
+            }
+            _ => false,
+        };
+        Turn {
+            fed,
+            stalled,
+            new,
+            changed,
+        }
     }
 }
 
@@ -244,15 +309,72 @@ mod tests {
         let every = Duration::from_millis(500);
         let mut w = Watchdog::every(Some(every), alive.clone());
         let t0 = Instant::now();
-        assert!(w.turn(t0), "fed at the first turn");
-        assert!(!w.turn(t0 + every / 2), "not before its period");
-        assert!(w.turn(t0 + every), "fed again a period later");
+        assert!(w.turn(t0).fed, "fed at the first turn");
+        assert!(!w.turn(t0 + every / 2).fed, "not before its period");
+        assert!(w.turn(t0 + every).fed, "fed again a period later");
         stop.stop();
         threads.join(Instant::now() + Duration::from_secs(10));
         assert_eq!(alive.ended(), ["steer/status"]);
         for k in 2..6 {
-            assert!(!w.turn(t0 + every * k), "fed after the thread ended");
+            assert!(!w.turn(t0 + every * k).fed, "fed after the thread ended");
         }
         assert_eq!(w.told, ["steer/status"], "said once");
+    }
+
+    /// Liveness is progress: a thread that runs but does not turn its loop within its
+    /// bound (and the grace) stops the feeding, named; once it turns again the feeding
+    /// resumes at once.
+    #[test]
+    fn the_watchdog_is_not_fed_while_a_thread_is_past_its_bound_and_is_once_it_turns() {
+        use crate::threads::{Owner, STALL_GRACE};
+        let bound = Duration::from_millis(200);
+        let mut owner = Owner::default();
+        let (turn, turns) = std::sync::mpsc::channel::<Duration>();
+        let (turned, done) = std::sync::mpsc::channel::<Instant>();
+        owner
+            .spawn_beating("brake/command", bound, move |_, beat| {
+                // Turns when told, with the bound it is told, as a loop stuck in a
+                // system call would when the call returns.
+                while let Ok(within) = turns.recv() {
+                    beat.turn(within);
+                    let _ = turned.send(Instant::now());
+                }
+            })
+            .unwrap();
+        let alive = owner.liveness();
+        assert!(alive
+            .wait_running(Instant::now() + Duration::from_secs(10))
+            .is_empty());
+        // It turns between `before` and `t0`.
+        let before = Instant::now();
+        turn.send(bound).unwrap();
+        let t0 = done.recv_timeout(Duration::from_secs(10)).unwrap();
+        let every = Duration::from_millis(100);
+        let mut w = Watchdog::every(Some(every), alive);
+        let first = w.turn(t0);
+        assert!(first.fed && first.stalled.is_empty());
+        // Within its bound and the grace: still fed.
+        let fed = (before + bound + STALL_GRACE).max(t0 + every);
+        assert!(w.turn(fed).fed);
+        // Past them: not fed, and named once.
+        let late = t0 + bound + STALL_GRACE + Duration::from_millis(1);
+        let stalled = w.turn(late);
+        assert!(!stalled.fed);
+        assert_eq!(stalled.new.len(), 1);
+        assert_eq!(stalled.new[0].thread, "brake/command");
+        assert_eq!(stalled.new[0].bound, bound);
+        assert!(stalled.changed);
+        let still = w.turn(late + every);
+        assert!(!still.fed && !still.changed && still.new.is_empty());
+        assert_eq!(still.stalled.len(), 1);
+        // It turns again (with a bound that covers the turns below): fed at the next
+        // turn, a period after the last feed, with no wait for another.
+        turn.send(Duration::from_secs(60)).unwrap();
+        done.recv_timeout(Duration::from_secs(10)).unwrap();
+        let back = w.turn(fed + every);
+        assert!(
+            back.fed && back.changed && back.stalled.is_empty(),
+            "{back:?}"
+        );
     }
 }

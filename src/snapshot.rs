@@ -211,6 +211,11 @@ pub struct DeviceView {
     /// commands can have driven it toward since the supervisor last looked.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub(crate) executed_span: Option<[f64; 2]>,
+    /// A set point device: how long ago it last acknowledged a set point (a resend
+    /// included), ms; null before the first. A device with a watchdog of its own goes
+    /// to its safe value by itself once this passes that watchdog.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(crate) executed_age_ms: Option<f64>,
     /// Age of the cached reading, ms (null before the first good poll).
     pub status_age_ms: Option<f64>,
     /// The reading is older than the device's `status_max_age` (or there is none).
@@ -447,6 +452,68 @@ pub struct SupervisorView {
     pub last_outcome: Option<String>,
     /// Recent steps and outcomes, newest last.
     pub history: Vec<String>,
+    /// Engine threads that have not turned their loop within their bound (a thread
+    /// stuck in a system call): the service watchdog is not fed, engage is refused.
+    #[serde(default)]
+    pub stalled: Vec<StallView>,
+    /// Devices gone (unplugged, or never there) that adrive keeps reopening: what it
+    /// waits for. A device gone never ends the run.
+    #[serde(default)]
+    pub waiting: Vec<WaitingView>,
+}
+
+/// A device gone, and what adrive does about it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct WaitingView {
+    pub device: String,
+    /// The port it is reopened on (a bus's adapter, for a device on a CAN bus).
+    pub port: String,
+    /// Why the last open failed: `No such file or directory`.
+    pub error: String,
+    /// Since it went, ms.
+    pub gone_ms: f64,
+    /// How long after a failed open it is tried again, ms (its backoff, up to 5 s).
+    pub retry_ms: f64,
+    /// The rules act on it (it is bound to a role): engage is refused while it is
+    /// gone. Else it is shown, and holds nothing up.
+    pub needed: bool,
+}
+
+impl WaitingView {
+    /// `waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s`
+    pub fn describe(&self) -> String {
+        let every = std::time::Duration::from_millis(self.retry_ms.max(1.0) as u64);
+        format!(
+            "waiting for {} on {}: {}, retrying every {}",
+            self.device,
+            self.port,
+            self.error,
+            humantime::format_duration(every)
+        )
+    }
+}
+
+/// An engine thread past its bound.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct StallView {
+    /// `steer/status`, `brake/command`, `bus/kit`, `gate/monitor`, `supervisor`.
+    pub thread: String,
+    /// Since its last turn, ms.
+    pub quiet_ms: f64,
+    /// When it was to turn again, ms after that turn: its bound.
+    pub bound_ms: f64,
+}
+
+impl StallView {
+    /// `steer/status has not turned its loop for 1.4 s (bound 0.45 s)`
+    pub fn describe(&self) -> String {
+        format!(
+            "{} has not turned its loop for {:.1} s (bound {:.2} s)",
+            self.thread,
+            self.quiet_ms / 1e3,
+            self.bound_ms / 1e3
+        )
+    }
 }
 
 /// The commander's watchdog, as shown to people.
@@ -760,6 +827,56 @@ impl Assembler {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every number anywhere in `v`, none subnormal.
+    fn assert_no_subnormal(v: &serde_json::Value, at: &str) {
+        match v {
+            serde_json::Value::Number(n) => {
+                let x = n.as_f64().unwrap_or(0.0);
+                assert!(!x.is_subnormal(), "{at}: {x:e}");
+            }
+            serde_json::Value::Array(a) => a.iter().for_each(|x| assert_no_subnormal(x, at)),
+            serde_json::Value::Object(o) => o
+                .iter()
+                .for_each(|(k, x)| assert_no_subnormal(x, &format!("{at}.{k}"))),
+            _ => {}
+        }
+    }
+
+    /// The incident: the gas estimate's velocity and drift read 1.5e-323 in the
+    /// broadcast after a minute idle. Gas and brake settle on 0 and are polled every
+    /// 100 ms for three minutes; the snapshot taken every second holds no subnormal
+    /// number.
+    #[test]
+    fn minutes_idle_put_no_subnormal_number_in_the_snapshot() {
+        let t0 = std::time::Instant::now();
+        let gate = crate::testkit::gate(t0);
+        let v = gate.vehicle();
+        let pedals = ["gas", "brake"].map(|n| v.find(n).expect("alice's pedals"));
+        for d in pedals {
+            d.estimate_command(crate::value::Command::Set(0.0), t0);
+        }
+        for k in 0..1_800u32 {
+            let t = t0 + std::time::Duration::from_millis(100 * u64::from(k));
+            for d in pedals {
+                let mut r = d.cached().reading;
+                let i = d.config().position().expect("a setpoint device");
+                r.set(
+                    i,
+                    if k < 10 {
+                        0.8 * 0.3f64.powi(k as i32)
+                    } else {
+                        0.0
+                    },
+                );
+                d.estimate_reading(&r, t);
+            }
+            if k % 10 == 5 {
+                let json = serde_json::to_value(gate.snapshot_at(0, t)).unwrap();
+                assert_no_subnormal(&json, &format!("snapshot after {} s", k / 10));
+            }
+        }
+    }
 
     #[test]
     fn pairs_keep_their_order_through_json() {

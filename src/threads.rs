@@ -1,12 +1,21 @@
 //! Threads, named and stoppable: a stop signal sleeping threads wake up for, a set of
 //! named threads joined with a deadline (naming any that did not stop), whether each
-//! still runs ([`Liveness`], which the service watchdog is fed by), [`Owner`], the
-//! one way a part that runs threads stops them, and [`every`], the one periodic loop
-//! every periodic thread uses.
+//! still makes progress ([`Liveness`], which the service watchdog is fed by), [`Owner`],
+//! the one way a part that runs threads stops them, and [`every`], the one periodic
+//! loop every periodic thread uses.
+//!
+//! **Liveness means progress.** A thread that has not ended may still be stuck — in a
+//! system call on a port that never returns, on a lock — and a stuck status or command
+//! thread leaves a device unread or uncommanded while everything else looks alive. So
+//! each engine thread proves it turns its loop: at every turn it says, through its
+//! [`Beat`] (two atomic stores: no lock, nothing allocated, so the command thread can
+//! afford it), by when it will turn again — a bound it works out from its own period
+//! and timeouts. A thread past that bound by more than [`STALL_GRACE`] is stalled
+//! ([`Liveness::stalled`]) until it turns again.
 
 use parking_lot::{Condvar, Mutex};
-use std::sync::atomic::{AtomicU8, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
+use std::sync::{Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
@@ -39,7 +48,16 @@ impl StopSignal {
 #[derive(Default)]
 pub(crate) struct Threads {
     handles: Vec<(String, JoinHandle<()>)>,
-    states: Vec<(String, Arc<AtomicU8>)>,
+    states: Vec<Watched>,
+}
+
+/// One thread as [`Liveness`] sees it: its name, whether it runs, and its heartbeat if
+/// it keeps one.
+#[derive(Clone)]
+struct Watched {
+    name: String,
+    state: Arc<AtomicU8>,
+    heart: Option<Arc<Heart>>,
 }
 
 /// A thread spawned, not yet running its work.
@@ -65,6 +83,16 @@ impl Threads {
         name: String,
         f: impl FnOnce() + Send + 'static,
     ) -> std::io::Result<()> {
+        self.spawn_with(name, None, f)
+    }
+
+    /// [`Threads::spawn`], the thread keeping `heart` (its first bound counts from now).
+    fn spawn_with(
+        &mut self,
+        name: String,
+        heart: Option<Arc<Heart>>,
+        f: impl FnOnce() + Send + 'static,
+    ) -> std::io::Result<()> {
         let state = Arc::new(AtomicU8::new(SPAWNED));
         let mark = EndMark(state.clone());
         let h = std::thread::Builder::new()
@@ -74,7 +102,11 @@ impl Threads {
                 f();
                 drop(mark);
             })?;
-        self.states.push((name.clone(), state));
+        self.states.push(Watched {
+            name: name.clone(),
+            state,
+            heart,
+        });
         self.handles.push((name, h));
         Ok(())
     }
@@ -88,11 +120,11 @@ impl Threads {
         self.handles = live;
         for (name, h) in done {
             let _ = h.join();
-            self.states.retain(|(n, _)| *n != name);
+            self.states.retain(|w| w.name != name);
         }
     }
 
-    /// Whether each thread runs, readable from other threads while these run.
+    /// Whether each thread runs and turns, readable from other threads while these run.
     pub(crate) fn liveness(&self) -> Liveness {
         Liveness(self.states.clone().into())
     }
@@ -152,6 +184,23 @@ impl Owner {
         self.threads.spawn(name.into(), move || f(&signal))
     }
 
+    /// Start a named thread that proves its progress: `f` is handed the stop signal and
+    /// its [`Beat`], and must turn it at every turn of its loop; its first turn is due
+    /// `first` after now (its start-up: opening a port, a first transaction).
+    pub fn spawn_beating(
+        &mut self,
+        name: impl Into<String>,
+        first: Duration,
+        f: impl FnOnce(&StopSignal, &Beat) + Send + 'static,
+    ) -> std::io::Result<()> {
+        let name = name.into();
+        let heart = Arc::new(Heart::new(&name, first));
+        let beat = Beat(heart.clone());
+        let signal = self.signal.clone();
+        self.threads
+            .spawn_with(name, Some(heart), move || f(&signal, &beat))
+    }
+
     /// The stop signal its threads watch.
     pub fn signal(&self) -> &Arc<StopSignal> {
         &self.signal
@@ -180,10 +229,33 @@ impl Drop for Owner {
     }
 }
 
-/// Whether each of a set of threads has started its work and whether it has ended
-/// (returned or panicked), by name.
+/// Whether each of a set of threads has started its work, whether it has ended
+/// (returned or panicked), and — for a thread that keeps a heartbeat — whether it still
+/// turns its loop, by name.
 #[derive(Clone, Default)]
-pub struct Liveness(Arc<[(String, Arc<AtomicU8>)]>);
+pub struct Liveness(Arc<[Watched]>);
+
+/// A thread that has not turned its loop within its bound (and [`STALL_GRACE`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Stall {
+    pub thread: String,
+    /// Since its last turn.
+    pub quiet: Duration,
+    /// The bound it gave at that turn: when it was to turn again.
+    pub bound: Duration,
+}
+
+impl Stall {
+    /// `steer/status has not turned its loop for 1.4 s (bound 0.45 s)`
+    pub fn describe(&self) -> String {
+        format!(
+            "{} has not turned its loop for {:.1} s (bound {:.2} s)",
+            self.thread,
+            self.quiet.as_secs_f64(),
+            self.bound.as_secs_f64()
+        )
+    }
+}
 
 impl Liveness {
     /// The names of the threads whose work has ended.
@@ -191,11 +263,33 @@ impl Liveness {
         self.names_in(ENDED)
     }
 
+    /// The threads, running and keeping a heartbeat, that are past their bound by more
+    /// than [`STALL_GRACE`] at `now`.
+    pub fn stalled(&self, now: Instant) -> Vec<Stall> {
+        self.0
+            .iter()
+            .filter(|w| w.state.load(Ordering::Acquire) == RUNNING)
+            .filter_map(|w| {
+                let heart = w.heart.as_ref()?;
+                heart.stalled(now).map(|(quiet, bound)| Stall {
+                    thread: w.name.clone(),
+                    quiet,
+                    bound,
+                })
+            })
+            .collect()
+    }
+
+    /// These threads and `other`'s, watched as one set.
+    pub(crate) fn with(&self, other: &Liveness) -> Liveness {
+        Liveness(self.0.iter().chain(other.0.iter()).cloned().collect())
+    }
+
     /// Every thread has started its work and none has ended.
     pub(crate) fn all_running(&self) -> bool {
         self.0
             .iter()
-            .all(|(_, s)| s.load(Ordering::Acquire) == RUNNING)
+            .all(|w| w.state.load(Ordering::Acquire) == RUNNING)
     }
 
     /// Wait until every thread has started its work, at most until `deadline`; the
@@ -206,17 +300,134 @@ impl Liveness {
         }
         self.0
             .iter()
-            .filter(|(_, s)| s.load(Ordering::Acquire) != RUNNING)
-            .map(|(n, _)| n.as_str())
+            .filter(|w| w.state.load(Ordering::Acquire) != RUNNING)
+            .map(|w| w.name.as_str())
             .collect()
     }
 
     fn names_in(&self, state: u8) -> Vec<&str> {
         self.0
             .iter()
-            .filter(|(_, s)| s.load(Ordering::Acquire) == state)
-            .map(|(n, _)| n.as_str())
+            .filter(|w| w.state.load(Ordering::Acquire) == state)
+            .map(|w| w.name.as_str())
             .collect()
+    }
+}
+
+/// How far past its own bound a thread may be before it counts as stalled: the
+/// scheduling noise of a loaded machine (a runnable thread waits its turn for a CPU),
+/// never a hang. A thread's bound already holds every wait its loop may legitimately
+/// make.
+pub const STALL_GRACE: Duration = Duration::from_millis(500);
+
+/// The time origin of heartbeats: an [`Instant`] as nanoseconds in an atomic.
+fn epoch() -> Instant {
+    static EPOCH: OnceLock<Instant> = OnceLock::new();
+    *EPOCH.get_or_init(Instant::now)
+}
+
+fn nanos(t: Instant) -> u64 {
+    t.saturating_duration_since(epoch()).as_nanos() as u64
+}
+
+/// A thread's heartbeat: when it last turned its loop and by when it said it would turn
+/// again. Written by its thread only, read by anyone.
+struct Heart {
+    /// The last turn, ns since [`epoch`].
+    at: AtomicU64,
+    /// The next turn is due by then, ns since [`epoch`]: what the thread is judged by.
+    due: AtomicU64,
+    /// A hang injected for a test (`--inject-hang`).
+    hang: Option<Hang>,
+}
+
+impl Heart {
+    fn new(name: &str, first: Duration) -> Heart {
+        let now = Instant::now();
+        Heart {
+            at: AtomicU64::new(nanos(now)),
+            due: AtomicU64::new(nanos(now + first)),
+            hang: HANG
+                .get()
+                .filter(|h| h.thread == name)
+                .map(|h| Hang::new(now + h.after, h.hang)),
+        }
+    }
+
+    /// How long since the last turn and the bound given then, if the thread is past
+    /// that bound by more than [`STALL_GRACE`] at `now`.
+    fn stalled(&self, now: Instant) -> Option<(Duration, Duration)> {
+        let due = self.due.load(Ordering::Acquire);
+        let now = nanos(now);
+        if now <= due.saturating_add(STALL_GRACE.as_nanos() as u64) {
+            return None;
+        }
+        let at = self.at.load(Ordering::Relaxed).min(due);
+        Some((
+            Duration::from_nanos(now - at),
+            Duration::from_nanos(due - at),
+        ))
+    }
+}
+
+/// The thread's own side of its heartbeat (handed to it by [`Owner::spawn_beating`]).
+pub struct Beat(Arc<Heart>);
+
+impl Beat {
+    /// The thread turns its loop now and will turn it again within `within`: the longest
+    /// its next wait and the work after it may legitimately take, from its own period
+    /// and timeouts. Two atomic stores; no lock, nothing allocated.
+    pub fn turn(&self, within: Duration) {
+        if let Some(h) = &self.0.hang {
+            h.maybe();
+        }
+        let now = Instant::now();
+        self.0.at.store(nanos(now), Ordering::Relaxed);
+        self.0.due.store(nanos(now + within), Ordering::Release);
+    }
+}
+
+/// Fault injection for tests (`--inject-hang THREAD:AFTER:FOR`): one thread blocks in a
+/// system call, once, `after` its start, for `hang` — as a port stuck in the kernel
+/// would hold it — then carries on.
+#[derive(Clone, Debug)]
+pub(crate) struct HangSpec {
+    pub thread: String,
+    pub after: Duration,
+    pub hang: Duration,
+}
+
+static HANG: OnceLock<HangSpec> = OnceLock::new();
+
+/// Make the thread named `spec.thread` hang once (for tests; before the threads start).
+pub(crate) fn inject_hang(spec: HangSpec) {
+    let _ = HANG.set(spec);
+}
+
+struct Hang {
+    at: Instant,
+    hang: Duration,
+    done: AtomicBool,
+}
+
+impl Hang {
+    fn new(at: Instant, hang: Duration) -> Hang {
+        Hang {
+            at,
+            hang,
+            done: AtomicBool::new(false),
+        }
+    }
+
+    fn maybe(&self) {
+        if Instant::now() < self.at || self.done.swap(true, Ordering::Relaxed) {
+            return;
+        }
+        let name = std::thread::current().name().unwrap_or("?").to_string();
+        tracing::warn!(thread = %name, "injected hang: blocking in a system call for {:?} (--inject-hang)", self.hang);
+        // A real system call (clock_nanosleep), as a read or write stuck in the kernel.
+        std::thread::sleep(self.hang);
+        tracing::warn!(thread = %name, "injected hang over");
     }
 }
 

@@ -10,6 +10,19 @@ use std::fmt;
 use std::net::SocketAddr;
 use std::str::FromStr;
 
+/// `x`, or 0 where it is subnormal. A filter, an integrator or a decay that settles
+/// toward 0 (a lag closing on its command, a Kalman state whose innovations vanish)
+/// walks down through the subnormal numbers, which are slow to compute with and mean
+/// nothing to a reader (`1.5e-323` in a snapshot); each such state is flushed with this
+/// after every step.
+pub(crate) fn flush_subnormal(x: f64) -> f64 {
+    if x.is_subnormal() {
+        0.0
+    } else {
+        x
+    }
+}
+
 /// Where a command comes from: every command of every front end enters the one intake
 /// ([`crate::engine::intake`]) tagged with its source, and the vehicle is commanded by
 /// at most one of them at a time.
@@ -188,6 +201,11 @@ pub enum EstopState {
 
 impl EstopState {
     pub const ALL: [EstopState; 3] = [EstopState::Disable, EstopState::Pause, EstopState::Run];
+
+    /// Pause or disable: the e-stop holds the vehicle (its rule: brake full, gas 0).
+    pub fn halts(self) -> bool {
+        self != EstopState::Run
+    }
 
     pub fn as_str(self) -> &'static str {
         match self {

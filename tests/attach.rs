@@ -288,6 +288,125 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
         .starts_with("console #"));
 }
 
+/// `adrive attach` runs the same console loop over the control socket, and obeys the
+/// same rule: below 80×22 only STOP and quit act, every other key is refused on the
+/// small screen and nothing reaches the vehicle (read back with `adrive ctl`); grown
+/// again, the keys act again.
+#[test]
+fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit() {
+    let svc = Service::start("attach-small", None);
+    let mut c = Attached::start(&svc.socket);
+    c.engage();
+    c.term.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("s0.7\r");
+    c.wait_for("the edit refused", |s| {
+        s.contains("edit refused: the window is 60×20")
+    });
+    let snap = svc.ctl(&["status", "--json"]);
+    let snap: serde_json::Value = serde_json::from_slice(&snap.stdout).unwrap();
+    let steer = snap["devices"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|d| d["name"] == "steer")
+        .unwrap();
+    assert_ne!(steer["commanded"], serde_json::json!(0.7), "{steer}");
+    assert_eq!(
+        snap["gate"]["engaged"], true,
+        "still engaged by this console"
+    );
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("STOP: disengaged"));
+    assert_eq!(svc.gate()["engaged"], false);
+    c.keys("E");
+    c.wait_for("engage refused", |s| s.contains("engage refused"));
+    c.keys("yx");
+    c.wait_for("the bench refused", |s| s.contains("bench refused"));
+    assert_eq!(svc.gate()["engaged"], false);
+    c.term.resize(100, 30);
+    c.wait_for("the screen again", |s| {
+        s.contains("STEER") && !s.contains("at least")
+    });
+    c.engage();
+    assert_eq!(svc.gate()["engaged"], true);
+    c.term.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("q");
+    assert_eq!(wait_exit(&mut c.child), Some(0));
+    // A commanding console that quits is its watchdog: the safe state, disengaged.
+    common::wait_for("the vehicle disengaged", || svc.gate()["engaged"] == false);
+}
+
+/// The defect: a commanding `adrive attach` frozen (SIGSTOP, as Ctrl-Z or a frozen
+/// session does) and resumed: adrive dropped it after about 4 s saying it "went away
+/// (its connection closed)", and the console said "adrive went away" though adrive
+/// still ran. Both ends say what happened: adrive, that the console stopped reading,
+/// for how long, and that it dropped it (the vehicle stopped first: its watchdog); the
+/// console, once it runs again, that adrive dropped it and why.
+#[test]
+fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
+    let svc = Service::start("attach-frozen", None);
+    let mut c = Attached::start(&svc.socket);
+    c.engage();
+    assert!(common::signal(&c.child, libc::SIGSTOP));
+    let line = svc.until("stopped reading for");
+    assert!(
+        line.contains("console #") && line.contains(": dropped"),
+        "{line}"
+    );
+    let gate = svc.gate();
+    assert_eq!(gate["engaged"], false, "{gate}");
+    let reason = gate["reason"].as_str().unwrap();
+    assert!(
+        reason.contains("stopped reading for") && reason.contains(": dropped"),
+        "{reason}"
+    );
+    assert!(!reason.contains("went away"), "{reason}");
+    // Resumed, the console reads what was sent, then adrive's word.
+    assert!(common::signal(&c.child, libc::SIGCONT));
+    assert_eq!(wait_exit(&mut c.child), Some(1));
+    let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
+    assert!(
+        text.contains("adrive dropped this console: it stopped reading for"),
+        "{text}"
+    );
+    assert!(!text.contains("went away"), "{text}");
+    assert!(svc.ctl(&["status"]).status.success(), "adrive still runs");
+}
+
+/// An attached console says how its adrive ended: stopping (adrive's own word), or
+/// gone without a word (killed: nothing answers at its socket any more).
+#[test]
+fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
+    let mut svc = Service::start("attach-ends", None);
+    let mut c = Attached::start(&svc.socket);
+    common::signal(&svc.child, libc::SIGTERM);
+    assert_eq!(wait_exit(&mut c.child), Some(1));
+    let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
+    assert!(text.contains("adrive: adrive is stopping"), "{text}");
+    let _ = wait_exit(&mut svc.child);
+
+    let mut svc = Service::start("attach-killed", None);
+    let mut c = Attached::start(&svc.socket);
+    common::signal(&svc.child, libc::SIGKILL);
+    let _ = wait_exit(&mut svc.child);
+    assert_eq!(wait_exit(&mut c.child), Some(1));
+    let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
+    assert!(
+        text.contains("adrive went away (the connection closed); nothing answers at its socket"),
+        "{text}"
+    );
+    // Its simulator's directory of port links is left behind (nothing runs after
+    // SIGKILL): the test's to remove.
+    let killed = format!("adrive-sim-{}-", svc.child.id());
+    for left in common::sim_dirs(&std::env::temp_dir()) {
+        if left.starts_with(&killed) {
+            std::fs::remove_dir_all(std::env::temp_dir().join(left)).unwrap();
+        }
+    }
+}
+
 #[test]
 fn operator_commands_engage_release_stop_with_exit_statuses() {
     let svc = Service::start("attach-ctl", None);
@@ -468,5 +587,44 @@ fn the_socket_is_removed_on_every_exit_path_and_a_stale_one_is_replaced() {
     common::until(&log, "replaced a stale socket");
     common::wait_for("the new socket", || {
         ctl(&socket, &["status"]).status.success()
+    });
+}
+
+/// A client past the control socket's limits had its connection closed with no word:
+/// past 32 clients `adrive ctl` is told the limit, and so is a client whose request
+/// line is too long.
+#[test]
+fn clients_past_the_control_socket_s_limits_are_told_the_limit() {
+    use std::io::{BufRead, BufReader, Write};
+    use std::os::unix::net::UnixStream;
+    let svc = Service::start("attach-full", None);
+    // A line longer than any request: told so, then closed.
+    let mut long = UnixStream::connect(&svc.socket).unwrap();
+    long.set_read_timeout(Some(DEADLINE)).unwrap();
+    long.write_all(&[b'x'; 5000]).unwrap();
+    // The farewell starts a line of its own (after a line break), whatever came before.
+    let mut bye = String::new();
+    let mut lines = BufReader::new(&long);
+    while bye.trim().is_empty() {
+        bye.clear();
+        if lines.read_line(&mut bye).unwrap() == 0 {
+            break;
+        }
+    }
+    assert!(
+        bye.contains("bye") && bye.contains("at most 4096 bytes"),
+        "{bye}"
+    );
+    // 32 clients that only stay connected: the 33rd, a real `adrive ctl`, is told.
+    let held: Vec<UnixStream> = (0..32)
+        .map(|_| UnixStream::connect(&svc.socket).unwrap())
+        .collect();
+    let out = svc.ctl(&["status"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("32 clients at most"), "{err}");
+    drop(held);
+    common::wait_for("a client served again", || {
+        svc.ctl(&["status"]).status.success()
     });
 }

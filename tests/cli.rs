@@ -14,6 +14,18 @@ use std::time::Duration;
 
 const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
+/// `adrive --headless --config vehicle`, logging into `dir/log`, to its end.
+fn headless_on(dir: &std::path::Path, vehicle: &std::path::Path) -> std::process::Output {
+    Process::new(BIN)
+        .args(["--headless", "--config"])
+        .arg(vehicle)
+        .arg("--log-dir")
+        .arg(dir.join("log"))
+        .env("XDG_RUNTIME_DIR", dir.join("log"))
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
     let dir = tempdir("cli");
@@ -23,20 +35,50 @@ fn a_malformed_config_names_file_and_line_and_exits_nonzero() {
         "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"steer\"\ndriver = \"modbsu\"\nport = \"/dev/ttyUSB0\"\n",
     )
     .unwrap();
-    let out = Process::new(BIN)
-        .args(["--headless", "--config"])
-        .arg(&path)
-        .arg("--log-dir")
-        .arg(dir.path().join("log"))
-        .env("XDG_RUNTIME_DIR", dir.path().join("log"))
-        .output()
-        .unwrap();
+    let out = headless_on(dir.path(), &path);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(err.contains(&format!("{}:6: ", path.display())), "{err}");
     assert!(err.contains("modbsu") && err.contains("line"), "{err}");
     // It stopped before starting anything: no log was even written.
     assert!(!dir.path().join("log").exists());
+}
+
+/// One port spelled two ways — a `/dev/serial/by-id/…`-style link and its target — once
+/// passed as two, and both devices opened it. The real binary refuses the file before
+/// anything starts, at the second one's port, naming the first with its line.
+#[test]
+fn one_port_spelled_two_ways_is_refused_at_the_second_s_line_before_anything_starts() {
+    let dir = tempdir("cli-ports");
+    let tty = dir.path().join("ttyUSB0");
+    std::fs::write(&tty, "").unwrap();
+    let link = dir.path().join("usb-FTDI_brake-if00-port0");
+    std::os::unix::fs::symlink(&tty, &link).unwrap();
+    let path = dir.path().join("vehicle.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "[vehicle]\nname = \"x\"\n\n[[device]]\nname = \"brake\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\ndriver = \"line\"\nport = \"{}\"\n\n[[device]]\nname = \"horn\"\nkind = \"state\"\nstates = [\"off\", \"on\"]\ndriver = \"line\"\nport = \"{}\"\n",
+            link.display(),
+            tty.display()
+        ),
+    )
+    .unwrap();
+    let out = headless_on(dir.path(), &path);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    let canonical = std::fs::canonicalize(&tty).unwrap();
+    assert!(
+        err.contains(&format!(
+            "{p}:16: horn: port: {} is brake's port, {}, by another name (both are {}) ({p}:9): a serial port has one device",
+            tty.display(),
+            link.display(),
+            canonical.display(),
+            p = path.display()
+        )),
+        "{err}"
+    );
+    assert!(!dir.path().join("log").exists(), "it started");
 }
 
 /// `adrive --sim --headless` logging into `dir`, its output and error piped.
@@ -347,15 +389,28 @@ fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
     assert!(!text.contains('\x1b'), "colour escapes in:\n{text:?}");
 }
 
+/// No controlling terminal for `cmd`, as under `ssh host adrive` (no `-t`): the program
+/// must not find one through /dev/tty either (nor take over the terminal running the
+/// tests).
+#[allow(unsafe_code)]
+fn without_terminal(cmd: &mut Process) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: setsid is async-signal-safe.
+    unsafe {
+        cmd.pre_exec(|| {
+            libc::setsid();
+            Ok(())
+        });
+    }
+}
+
 /// The incident: `adrive --sim < /dev/null`, or `ssh host adrive` without `-t`, started
 /// the engine, then printed "console: No such device or address" and a stray
 /// `ESC[?1049l` and exited 101, as after a panic. Without a terminal on both standard
 /// input and output the console is refused before anything starts: no log, no engine,
 /// a message pointing to `--headless` and `ssh -t`, status 2, no escape codes.
-#[allow(unsafe_code)]
 #[test]
 fn the_console_without_a_terminal_is_refused_before_anything_starts() {
-    use std::os::unix::process::CommandExt;
     let (_master, slave) = common::pty::openpty(80, 24);
     // Standard input closed; then a terminal on standard input but a pipe on standard
     // output (`adrive | less`).
@@ -370,15 +425,7 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
             .stdin(stdin)
             .stdout(Stdio::piped())
             .stderr(Stdio::piped());
-        // No controlling terminal, as under `ssh host adrive`: the program must not
-        // find one through /dev/tty either (nor take over the terminal running the tests).
-        // SAFETY: setsid is async-signal-safe.
-        unsafe {
-            cmd.pre_exec(|| {
-                libc::setsid();
-                Ok(())
-            });
-        }
+        without_terminal(&mut cmd);
         let child = common::Reaped(cmd.spawn().unwrap());
         let out = {
             let mut c = child;
@@ -404,6 +451,51 @@ fn the_console_without_a_terminal_is_refused_before_anything_starts() {
         // Nothing started: not even the log.
         assert!(!log.exists(), "case {i}: a log was written");
     }
+}
+
+/// `adrive attach` without a terminal (`ssh host adrive attach`, no `-t`) gave the
+/// embedded console's advice (`ssh -t HOST adrive`, `--headless`) and exited before
+/// looking for an adrive. It says first when nothing is there to attach to (status 1,
+/// as `adrive ctl`); with an adrive there, what applies to attach: `ssh -t HOST adrive
+/// attach`, or `adrive ctl status` for a one-shot look (status 2).
+#[test]
+fn attach_without_a_terminal_says_whether_there_is_an_adrive_and_what_applies() {
+    let run = |socket: &std::path::Path| {
+        let mut cmd = Process::new(BIN);
+        cmd.arg("attach")
+            .arg("--socket")
+            .arg(socket)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        without_terminal(&mut cmd);
+        let out = cmd.output().unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let dir = tempdir("cli-attach-notty");
+    let nobody = dir.path().join("nobody.sock");
+    let (status, err) = run(&nobody);
+    assert_eq!(status, Some(1), "{err}");
+    assert!(
+        err.contains("no adrive at") && err.contains("nobody.sock"),
+        "{err}"
+    );
+    assert!(!err.contains("needs a terminal"), "{err}");
+    let adrive =
+        common::headless::Adrive::start("cli-attach-notty", adrive::config::ALICE_TOML, "");
+    let socket = adrive.dir.path().join("adrive/adrive.sock");
+    let (status, err) = run(&socket);
+    assert_eq!(status, Some(2), "{err}");
+    assert!(
+        err.contains("needs a terminal")
+            && err.contains("`ssh -t HOST adrive attach`")
+            && err.contains("`adrive ctl status`"),
+        "{err}"
+    );
+    assert!(!err.contains("--headless"), "{err}");
 }
 
 /// The incident: with `adrive sim` running, `adrive ports` listed `/dev/pts/*` without

@@ -48,6 +48,7 @@ impl Console {
             .arg("--log-dir")
             .arg(&log_dir)
             .env("XDG_RUNTIME_DIR", &log_dir)
+            .env_remove("RUNTIME_DIRECTORY")
             .args(extra)
             .env("TERM", "xterm-256color")
             .env_remove("NO_COLOR");
@@ -154,6 +155,30 @@ impl Console {
     fn steer_position(screen: &str) -> Option<f64> {
         let at = screen.find("position ")? + "position ".len();
         screen[at..].split_whitespace().next()?.parse().ok()
+    }
+
+    /// The vehicle as `adrive ctl status --json` reports it over the control socket:
+    /// what the engine did, whatever the screen shows.
+    fn status(&self) -> serde_json::Value {
+        let out = Command::new(BIN)
+            .args(["ctl", "status", "--json", "--socket"])
+            .arg(self.log_dir.join("adrive/adrive.sock"))
+            .output()
+            .expect("adrive ctl runs");
+        assert!(out.status.success(), "{out:?}");
+        serde_json::from_slice(&out.stdout).expect("a snapshot")
+    }
+
+    /// Device `name`'s command as the engine has it (`null` before any).
+    fn commanded(&self, name: &str) -> serde_json::Value {
+        let snap = self.status();
+        let d = snap["devices"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["name"] == name)
+            .unwrap_or_else(|| panic!("no {name} in {snap}"));
+        d["commanded"].clone()
     }
 
     /// Engage, retrying while devices have not all reported yet.
@@ -446,6 +471,150 @@ fn a_resize_redraws_and_a_small_window_gets_a_message() {
     assert!(c.wait_exit().success());
 }
 
+/// The defect: in a window smaller than 80×22 the console drew only "needs 80×22",
+/// yet every key still acted — `E` `y` engaged and `s 0.7 Enter` moved the steering
+/// with nothing on the screen. Below the minimum size only STOP and quit act; every
+/// other key is refused in words on the small screen, and nothing reaches the vehicle
+/// (read back over the control socket). Grown again, the keys act again.
+#[test]
+fn a_window_below_the_minimum_size_drives_nothing_but_stop_and_quit() {
+    let mut c = Console::start("small", &[]);
+    c.engage();
+    c.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    // Engaged: a steering command would be taken. Refused, with the reason on screen.
+    c.keys("s0.7\r");
+    c.wait_for("the edit refused", |s| {
+        s.contains("edit refused: the window is 60×20")
+    });
+    assert_ne!(
+        c.commanded("steer"),
+        serde_json::json!(0.7),
+        "the steering moved"
+    );
+    // STOP acts, on the small screen too.
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("STOP: disengaged"));
+    let gate = c.status()["gate"].clone();
+    assert_eq!(gate["engaged"], false, "{gate}");
+    assert!(
+        gate["reason"]
+            .as_str()
+            .unwrap()
+            .contains("stop from console"),
+        "{gate}"
+    );
+    // `E` `y` engages nothing; `x` after them is the sentinel that both were read.
+    c.keys("E");
+    c.wait_for("engage refused", |s| s.contains("engage refused"));
+    c.keys("yx");
+    c.wait_for("the bench refused", |s| s.contains("bench refused"));
+    assert_eq!(c.status()["gate"]["engaged"], false);
+    // Grown again, the same keys act.
+    c.resize(COLS, ROWS);
+    c.wait_for("the screen again", |s| {
+        s.contains("STEER") && !s.contains("at least")
+    });
+    c.engage_now();
+    assert_eq!(c.status()["gate"]["engaged"], true);
+    // `q` quits from the small screen, the safe state first.
+    c.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let log = c.log();
+    assert!(log.contains("stopping: operator quit"), "{log}");
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
+/// A question asked at full size cannot be answered once the window shrinks below
+/// the minimum: the dialog is no longer on the screen. Grown again, it is, and `y`
+/// answers it.
+#[test]
+fn a_question_cannot_be_answered_once_the_window_hides_it() {
+    let mut c = Console::start("small-dialog", &[]);
+    c.wait_for("the main screen", |s| s.contains("│ MAIN │"));
+    // Every device has reported: nothing but the screen stands in the way of engaging.
+    common::wait_for("every device to report", || {
+        c.status()["gate"]["blockers"] == serde_json::json!([])
+    });
+    c.keys("E");
+    c.wait_for("the confirmation", |s| s.contains("Engage?"));
+    c.resize(60, 20);
+    c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
+    c.keys("y");
+    c.wait_for("the answer refused", |s| {
+        s.contains("yes refused: the window is 60×20")
+    });
+    assert_eq!(c.status()["gate"]["engaged"], false, "answered unseen");
+    c.resize(COLS, ROWS);
+    c.wait_for("the question again", |s| s.contains("Engage?"));
+    c.keys("y");
+    c.wait_for("engaged", |s| s.contains("│ ENGAGED"));
+    assert_eq!(c.status()["gate"]["engaged"], true);
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
+/// Every row of `screen` that reaches the right edge ends in a border or the mark of a
+/// cut (`…`, or the `)` that closes it): nothing is cut off silently.
+fn assert_cuts_marked(screen: &str) {
+    for (y, row) in screen.lines().enumerate() {
+        let chars: Vec<char> = row.trim_end().chars().collect();
+        if chars.len() < usize::from(COLS) {
+            continue;
+        }
+        let last = chars[usize::from(COLS) - 1];
+        assert!(
+            "…)│┐┘┤─".contains(last),
+            "row {y} is cut without a mark:\n{row}\n\n{screen}"
+        );
+    }
+}
+
+/// The defect: on the bench at 100×30 with simulator faults on, the panel's title and
+/// the fault strip were cut mid-word at the edge, and a keymap's warning was cut at
+/// 100 columns in the log pane. Cut at a word, marked with `…`.
+#[test]
+fn at_100x30_text_cut_to_fit_is_marked_on_the_main_screen_and_the_bench() {
+    let dir = common::tempdir("e2e-cut");
+    let keymap = dir.path().join("my.toml");
+    std::fs::write(
+        &keymap,
+        "[main]\nkeymap = [\n    { on = \"<Space>\", run = \"none\" },\n]\n",
+    )
+    .unwrap();
+    let mut c = Console::start("cut", &["--keymap", keymap.to_str().unwrap()]);
+    // The warning starts with the keymap's path, in the temporary directory: how much
+    // of the rest fits depends on that.
+    let s = c.wait_for("the keymap's warning", |s| {
+        s.contains("WARN  keymap:") && s.contains("OBD")
+    });
+    let warning = s.lines().find(|l| l.contains("WARN  keymap:")).unwrap();
+    let warning = warning.trim_end();
+    assert!(warning.ends_with('…'), "{warning}");
+    assert_cuts_marked(&s);
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("steer raw traffic"));
+    c.keys("l");
+    c.wait_for("slow", |s| s.contains("faults slow 150ms"));
+    c.keys("c");
+    c.wait_for("corrupt", |s| s.contains("faults corrupt, slow 150ms"));
+    c.keys("s");
+    let s = c.wait_for("the faults and the strip", |s| {
+        s.contains("faults silent, corrupt, slow 150ms") && s.contains("FAULT steer")
+    });
+    let title = s.lines().find(|l| l.starts_with("┌STEER")).unwrap();
+    assert!(title.contains(" FAULT sim…─"), "{title}");
+    assert_cuts_marked(&s);
+    c.keys("x");
+    c.wait_for("the faults cleared", |s| s.contains("faults none"));
+    c.keys("\x1b");
+    c.wait_for("the main screen", |s| s.contains("│ MAIN │"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
 /// Incident: after the window was resized, quitting left the console's top lines in
 /// the terminal's scrollback: tmux, leaving an alternate screen that has grown, shrinks
 /// it back to the old size first and pushes its top lines into the history, unless
@@ -665,19 +834,38 @@ fn a_network_sender_does_not_steer_the_consoles_vehicle_until_the_operator_relea
 }
 
 /// The walk's second incident, from teleop: in park with the brake on, the up key
-/// (`accel 0.10`) was refused and yet released the brake. A refused accel changes
-/// nothing: the brake stays commanded full.
+/// (`accel 0.10`) was refused and yet released the brake; then the bar showed
+/// `accel +0.10 gas` while the message line said it was refused. Teleop starts from
+/// what the vehicle was told (the brake full: up releases it first), a refused accel
+/// changes nothing, and the bar shows what was applied. The same from the main
+/// screen's accel: refused, the brake stays full.
 #[test]
-fn a_refused_teleop_accel_in_park_leaves_the_brake_applied() {
+fn a_refused_teleop_accel_in_park_leaves_the_bar_and_the_brake_as_applied() {
     let mut c = Console::start("park", &[]);
     c.engage();
     c.wait_for("the brake full", |s| s.contains("BRAKE 0…1 cmd 1.000"));
     c.keys("d");
-    c.wait_for("teleop", |s| s.contains("DEADMAN"));
+    c.wait_for("teleop from the brake applied", |s| {
+        s.contains("DEADMAN") && s.contains("accel -1.00 brake")
+    });
+    c.keys("w");
+    c.wait_for("the brake released", |s| {
+        s.contains("teleop: steer") && s.contains("accel +0.00 coast")
+    });
     c.keys("w");
     let s = c.wait_for("the refusal", |s| s.contains("refused: accel 0.10"));
+    assert!(s.contains("accel +0.00 coast"), "the bar shows gas:\n{s}");
+    assert!(!s.contains("+0.10 gas"), "the bar shows gas:\n{s}");
+    assert!(s.contains("GAS 0…1 cmd 0.000"), "gas was given:\n{s}");
+    // Leave teleop (the brake full again), then ask gas from the main screen.
+    c.keys("\x1b");
+    c.wait_for("the brake full again", |s| {
+        s.contains("left teleop") && s.contains("BRAKE 0…1 cmd 1.000")
+    });
+    c.keys("c\x150.1\r");
+    let s = c.wait_for("the refusal", |s| s.contains("accel 0.100 refused"));
     assert!(
-        s.contains("BRAKE 0…1 cmd 1.000"),
+        s.contains("BRAKE 0…1 cmd 1.000") && s.contains("accel -1.000"),
         "the brake was released:\n{s}"
     );
     c.keys("q");
@@ -746,4 +934,139 @@ fn the_bench_of_a_can_kit_offers_only_the_faults_the_vehicle_has() {
     c.keys("q");
     let status = c.wait_exit();
     assert!(status.success(), "{status:?}\n{}", c.log());
+}
+
+/// `adrive ctl` on the console's control socket; its standard output.
+fn ctl(c: &Console, args: &[&str]) -> String {
+    let out = Command::new(BIN)
+        .arg("ctl")
+        .args(args)
+        .arg("--socket")
+        .arg(c.log_dir.join("adrive").join("adrive.sock"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "ctl {args:?}: {out:?}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The snapshot as `adrive ctl status --json` reports it.
+fn status(c: &Console) -> serde_json::Value {
+    serde_json::from_str(&ctl(c, &["status", "--json"])).unwrap()
+}
+
+/// A device's number in a JSON snapshot: `commanded`, `executed`, or a reading.
+fn number(snap: &serde_json::Value, device: &str, what: &str) -> Option<f64> {
+    let d = snap["devices"]
+        .as_array()?
+        .iter()
+        .find(|d| d["name"] == device)?;
+    d[what].as_f64().or_else(|| d["readings"][what].as_f64())
+}
+
+/// The override faults in a JSON snapshot.
+fn overrides(snap: &serde_json::Value) -> Vec<String> {
+    snap["supervisor"]["faults"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["kind"] == "override")
+        .map(|f| f.to_string())
+        .collect()
+}
+
+/// The incident, on the real binary: a driver's hand on the steering, let go, the
+/// override cleared (the brake then in the manual state, commanded 0); then the
+/// e-stop paused. The brake went full by the actuator's own watchdog (the wire refused
+/// the release the e-stop forbids, so nothing reached it), and the supervisor named it
+/// "driver override on brake", latched it, and the gate's reason said so. Now the
+/// e-stop's rule commands the brake full, the e-stop is the reason, and no override is
+/// named or latched. Before that, after the clear, the console, `adrive ctl status`
+/// (its table and its JSON) and the broadcast say the same reason: the override
+/// cleared.
+#[test]
+fn an_e_stop_pause_after_a_cleared_override_is_named_as_the_e_stop() {
+    use common::headless::{with_network, Watch};
+    let port = common::free_port();
+    let dir = common::tempdir("estop-cause");
+    let file = dir.path().join("alice.toml");
+    let vehicle = with_network(
+        adrive::config::ALICE_TOML,
+        "127.0.0.1:0",
+        &format!("127.0.0.1:{port}"),
+        "",
+    );
+    std::fs::write(&file, vehicle).unwrap();
+    let watch = Watch::start(&format!("127.0.0.1:{port}"));
+    let mut c = Console::start("estop-cause", &["--config", file.to_str().unwrap()]);
+    c.engage();
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("steer raw traffic"));
+    c.keys("o");
+    c.wait_for("the override", |s| {
+        s.contains("DISENGAGED (driver override on steer)") && s.contains("driver's hand on it")
+    });
+    c.keys("o");
+    c.wait_for("the hand off", |s| {
+        s.contains("let go: clear to engage again")
+    });
+    c.keys("C");
+    c.wait_for("the override cleared", |s| {
+        s.contains("override cleared on steer")
+            && s.contains("DISENGAGED (driver override on steer, cleared)")
+    });
+    // One reason for every reader.
+    let said = "disengaged: driver override on steer, cleared";
+    assert_eq!(status(&c)["gate"]["reason"], said);
+    let table = ctl(&c, &["status"]);
+    assert!(
+        table.contains("DISENGAGED (driver override on steer, cleared)"),
+        "{table}"
+    );
+    watch.until(said, |s| s.gate.reason == said);
+
+    c.keys("p");
+    c.wait_for("the e-stop", |s| {
+        s.contains("FAULT estop_pause") && s.contains("DISENGAGED (e-stop is in pause)")
+    });
+    // The brake goes full by adrive's command, the e-stop's rule.
+    let start = Instant::now();
+    let applied = loop {
+        let snap = status(&c);
+        assert!(overrides(&snap).is_empty(), "{snap:#}");
+        if number(&snap, "brake", "position").is_some_and(|p| p > 0.95) {
+            break snap;
+        }
+        assert!(
+            start.elapsed() < DEADLINE,
+            "the brake never applied: {snap:#}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(
+        number(&applied, "brake", "commanded"),
+        Some(1.0),
+        "{applied:#}"
+    );
+    // The old judgement named it within the actuator's own watchdog (1 s) and the
+    // override time (300 ms) of the pause; watch the vehicle's own clock pass 2 s more
+    // with the brake held full, and no override named or latched at any turn.
+    let from = applied["uptime_s"].as_f64().unwrap();
+    loop {
+        let snap = status(&c);
+        assert!(overrides(&snap).is_empty(), "{snap:#}");
+        assert!(snap["gate"]["overridden"].is_null(), "{snap:#}");
+        assert_eq!(snap["gate"]["reason"], "disengaged: e-stop is in pause");
+        assert_eq!(number(&snap, "brake", "executed"), Some(1.0), "{snap:#}");
+        if snap["uptime_s"].as_f64().unwrap() > from + 2.0 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let s = c.screen();
+    assert!(!s.contains("OVERRIDE"), "{s}");
+    let table = ctl(&c, &["status"]);
+    assert!(table.contains("DISENGAGED (e-stop is in pause)"), "{table}");
+    assert!(!table.contains("override"), "{table}");
+    c.keys("q");
+    assert!(c.wait_exit().success());
 }

@@ -8,7 +8,7 @@ use adrive::config::limits::DEADMAN_DEFAULT as DEADMAN;
 use adrive::config::Role;
 use adrive::console::controls::Live;
 use adrive::console::controls::{capture, Sources};
-use adrive::console::keymap::{key_to_action, Action, Key, Keymap, Mode};
+use adrive::console::keymap::{Action, Key, Keymap, Mode};
 use adrive::console::model::{Field, Model};
 use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
@@ -87,6 +87,8 @@ impl Fixture {
     }
     fn act(&self, m: &mut Model, actions: &[Action]) {
         for a in actions {
+            // As the console's loop: an action acts on what the frame before it showed.
+            drawn(m);
             update(m, *a, &self.live(), self.now);
         }
         tick(m, &self.live(), self.now);
@@ -102,12 +104,20 @@ impl Fixture {
                 mods |= crossterm::event::KeyModifiers::CONTROL;
             }
             let ev = crossterm::event::KeyEvent::new(key.code, mods);
-            if let Some(a) = key_to_action(&m.keymap, m.mode, &ev) {
+            drawn(m);
+            if let Some(a) = adrive::console::sight::key(m, &ev) {
                 update(m, a, &self.live(), self.now);
             }
         }
         render(m, w, h)
     }
+}
+
+/// Draw `m` at its screen size, keeping what the frame showed (what the next key may
+/// act on), as the console's loop does.
+fn drawn(m: &mut Model) {
+    let mut buf = Buffer::empty(m.screen);
+    m.drawn = adrive::console::view::draw(m, m.screen, &mut buf);
 }
 
 /// Every key of a word, to type it.

@@ -249,7 +249,7 @@ fn a_fatal_device_error_stops_safely() {
     ends_safely(
         "fatal",
         &[],
-        "attempts = 1\nstep_timeout = \"1s\"",
+        "attempts = 1\nstep_timeout = \"1s\"\ngive_up_after = \"1s\"",
         |sim, _| {
             sim.say("nostart on");
             sim.say("stall");
@@ -259,14 +259,14 @@ fn a_fatal_device_error_stops_safely() {
     );
 }
 
-/// The brake vanishes for good while the vehicle drives: its `reconnect` recovery gives
-/// up (a fatal device error, 4) and the safe state cannot be acknowledged (3). The
-/// status must say the worse, 3: the vehicle may still be moving. It once said 4.
+/// The brake vanishes for good while the vehicle drives, on a service told to give up
+/// (`--give-up-after 2s`): a fatal device error, 4, and the safe state cannot be acknowledged
+/// (3). The status must say the worse, 3: the vehicle may still be moving. It once said
+/// 4.
 #[test]
 fn a_recovery_that_gives_up_without_the_safe_state_acknowledged_exits_3() {
     let mut sim = SimProcess::start();
-    let supervisor = "attempts = 1\nstep_timeout = \"1s\"";
-    let mut adrive = Adrive::start("unsafe-fatal", &sim, &[], supervisor);
+    let mut adrive = Adrive::start("unsafe-fatal", &sim, &["--give-up-after", "2s"], "");
     let mut planner = drive(&sim, &adrive);
     sim.say("vanish brake 600000");
     let status = adrive.wait_status();
@@ -275,7 +275,7 @@ fn a_recovery_that_gives_up_without_the_safe_state_acknowledged_exits_3() {
     let log = adrive.log();
     assert_eq!(status.code(), Some(3), "{status}; log:\n{log}");
     assert!(
-        log.contains("stopping: fatal device error: recovery reconnect brake gave up"),
+        log.contains("stopping: fatal device error: brake gone for"),
         "{log}"
     );
     assert!(log.contains("safe state was NOT acknowledged"), "{log}");

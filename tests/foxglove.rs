@@ -305,3 +305,61 @@ fn a_viewer_that_stops_reading_loses_messages_and_never_delays_a_command() {
     .unwrap();
     assert!(still.dropped >= v.dropped);
 }
+
+/// A viewer's WebSocket handshake with the live view, as a client library makes it.
+fn handshake(addr: SocketAddr) -> Result<tungstenite::WebSocket<TcpStream>, tungstenite::Error> {
+    let stream = TcpStream::connect(addr).unwrap();
+    stream.set_read_timeout(Some(DEADLINE)).unwrap();
+    let mut req = format!("ws://{addr}").into_client_request().unwrap();
+    req.headers_mut()
+        .insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    tungstenite::client::client(req, stream)
+        .map(|(ws, _)| ws)
+        .map_err(|e| match e {
+            tungstenite::HandshakeError::Failure(e) => e,
+            tungstenite::HandshakeError::Interrupted(_) => unreachable!("a blocking socket"),
+        })
+}
+
+/// A viewer past the limit had its connection closed with no answer: it is answered
+/// HTTP 503 naming the limit, and served once another has left.
+#[test]
+fn a_viewer_past_the_limit_is_answered_503_naming_it() {
+    let a = Adrive::start_with(
+        "foxglove-full",
+        adrive::config::ALICE_TOML,
+        "",
+        &["--foxglove", "127.0.0.1:0"],
+    );
+    let addr = live_addr(&a.startup);
+    let mut viewers: Vec<_> = (0..16)
+        .map(|i| handshake(addr).unwrap_or_else(|e| panic!("viewer {i}: {e}")))
+        .collect();
+    match handshake(addr) {
+        Err(tungstenite::Error::Http(resp)) => {
+            assert_eq!(resp.status().as_u16(), 503);
+            let body = String::from_utf8_lossy(resp.body().as_deref().unwrap_or_default());
+            assert!(
+                body.contains("at most 16 viewers at once"),
+                "the 503 names the limit: {body}"
+            );
+        }
+        other => panic!("a 17th viewer: {:?}", other.map(|_| "connected")),
+    }
+    // One leaves: the next is served.
+    let mut gone = viewers.pop().unwrap();
+    gone.close(None).unwrap();
+    while gone.read().is_ok() {}
+    drop(gone);
+    let end = Instant::now() + DEADLINE;
+    loop {
+        match handshake(addr) {
+            Ok(_) => break,
+            Err(tungstenite::Error::Http(r)) if r.status().as_u16() == 503 => {
+                assert!(Instant::now() < end, "still full after one left");
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => panic!("{e}"),
+        }
+    }
+}

@@ -220,6 +220,37 @@ fn send_says_when_an_engage_got_no_reply_and_exits_3() {
 /// The incident: `adrive send --rate 20 steer 0.1` to an address where nothing listens
 /// exited 0 (3 with `engage`), while one-shot `send` exits 1 as docs/network.md says. Once
 /// or at a rate, nothing listening is status 1, and it is said.
+/// A sender at a rate whose adrive stops said "nothing is listening (yet)", as if it
+/// had never been there. It says what it knows: adrive replied before and nothing
+/// listens any more.
+#[test]
+fn a_sender_whose_adrive_stops_says_it_replied_before() {
+    let mut adrive = Adrive::start("send-gone", ALICE_TOML, "");
+    let mut sender = common::Reaped(
+        Process::new(BIN)
+            .args(["send", "--to", &adrive.listen, "--rate", "50", "disengage"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let replies = lines(sender.stdout.take().unwrap());
+    let said = lines(sender.stderr.take().unwrap());
+    common::until(&replies, "ok");
+    signal(&adrive.child, libc::SIGTERM);
+    common::wait_exit(&mut adrive.child);
+    let seen = common::until(&said, "nothing is listening");
+    let last = seen.last().unwrap();
+    assert!(
+        last.contains(&format!(
+            "nothing is listening at {} any more (it replied before)",
+            adrive.listen
+        )),
+        "{seen:?}"
+    );
+    signal(&sender, libc::SIGINT);
+}
+
 #[test]
 fn send_to_nothing_listening_exits_1_once_or_at_a_rate() {
     // Nothing listens on a port just freed.

@@ -186,8 +186,8 @@ fn a_port_that_disappears_comes_back_behind_the_same_path() {
 /// The first OBD answer may take 10 s (an ELM327 searches the car's protocols after it
 /// is opened), and meanwhile the engage gate said only "obd has not reported yet". The
 /// test plays the adapter on a real pseudo-terminal: it answers the reset and settings,
-/// then holds its first answer as a search does; the blocker says why it waits, and is
-/// gone once the adapter answers.
+/// then holds its first answer as a search does; the blocker says why it waits (the
+/// speed is read from it: engaging needs it), and is gone once the adapter answers.
 #[test]
 fn an_elm327_searching_the_protocols_is_named_as_such_by_the_engage_gate() {
     use adrive::engine::Gate;
@@ -199,7 +199,8 @@ fn an_elm327_searching_the_protocols_is_named_as_such_by_the_engage_gate() {
     let (mut adapter, port) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
     adapter.set_timeout(common::DEADLINE).unwrap();
     let toml = format!(
-        "[vehicle]\nname = \"obd only\"\n[[device]]\nname = \"obd\"\nkind = \"sensor\"\n\
+        "[vehicle]\nname = \"obd only\"\n[vehicle.roles]\nspeed = \"obd.speed\"\n\
+         [[device]]\nname = \"obd\"\nkind = \"sensor\"\n\
          readings = [\"rpm\", \"speed\"]\ndriver = \"elm327\"\nport = \"{}\"\nbaud = 38400\n\
          status_period = \"10s\"\nstatus_max_age = \"10s\"\nreply_timeout = \"500ms\"\n",
         port.name().unwrap()

@@ -4,15 +4,16 @@
 //! `record info`, `export --csv`, the console's replay and `replay --broadcast` read it;
 //! the third-party Python `mcap` reader decodes every message and checks it against its
 //! channel's JSON Schema. And the ways a recording fails: `kill -9` mid-recording
-//! leaves a file readable up to its last chunk; a full disk (a file size limit, as
-//! `ulimit -f` sets) stops the recording, visibly, and never the vehicle.
+//! leaves a file every reader reads up to its last chunk, and `record repair` makes a
+//! finished copy of it (or of a file cut inside a chunk); a full disk (a file size
+//! limit, as `ulimit -f` sets) stops the recording, visibly, and never the vehicle.
 
 mod common;
 #[path = "support/python_env.rs"]
 mod python_env;
 
 use adrive::console::replay::Player;
-use adrive::record::read::Recording;
+use adrive::record::read::{Ending, Recording};
 use adrive::snapshot::Snapshot;
 use common::pty::Master;
 use common::simproc::{vehicle_file, SimProcess};
@@ -530,9 +531,53 @@ fn wait_chunks(file: &Path, chunks: usize) {
     });
 }
 
-#[test]
-fn kill_9_mid_recording_leaves_a_file_readable_up_to_its_last_chunk() {
-    let dir = common::tempdir("kill9");
+/// The third-party Python `mcap` reader's verdict on `file`, read the ordinary way
+/// (`make_reader(f).iter_messages()`) or, with `nonseeking`, from the start only.
+fn python_reads(file: &Path, how: &str) -> Value {
+    let out = Process::new(python())
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/tests/support/mcap_ordinary.py"
+        ))
+        .arg(file)
+        .arg(how)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("its JSON report")
+}
+
+/// Messages per channel, as adrive reads `file`.
+fn counts(file: &Path) -> Value {
+    let rec = Recording::open(file).unwrap();
+    let mut n: BTreeMap<String, u64> = BTreeMap::new();
+    rec.for_each(|m| *n.entry(m.topic.to_string()).or_default() += 1);
+    serde_json::to_value(n).unwrap()
+}
+
+fn record_cmd(args: &[&str], file: &Path) -> (bool, String) {
+    let out = Process::new(BIN)
+        .arg("record")
+        .args(args)
+        .arg(file)
+        .output()
+        .unwrap();
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (out.status.success(), text)
+}
+
+/// A recording of a drive, its recorder killed with `kill -9` once `chunks` whole
+/// chunks are written, and the directory it is in.
+fn killed(tag: &str, chunks: usize) -> (tempfile::TempDir, PathBuf) {
+    let dir = common::tempdir(tag);
     let file = dir.path().join("cut.mcap");
     let sim = SimProcess::start();
     let port = free_port();
@@ -547,25 +592,115 @@ fn kill_9_mid_recording_leaves_a_file_readable_up_to_its_last_chunk() {
     wait_listening(port);
     let _p = planner(port, 1000);
     sim.wait_for(&["gas", "<-", "0.300"]);
-    wait_chunks(&file, 3);
+    wait_chunks(&file, chunks);
+    // Being written: said so, not taken for a file cut off.
+    let (ok, info) = record_cmd(&["info"], &file);
+    assert!(
+        ok && info.contains("being written by a running adrive"),
+        "{info}"
+    );
+    assert!(
+        !info.contains("CUT OFF") && !info.contains("NOT FINISHED"),
+        "{info}"
+    );
     common::signal(&a, libc::SIGKILL);
     assert_eq!(common::wait_exit(&mut a), None, "killed");
+    (dir, file)
+}
+
+/// `kill -9` mid-recording leaves a whole file without an index: the ordinary reader
+/// of Python `mcap` reads every message adrive reads (it failed with no message before,
+/// as it looked for the footer at the end), `record info` says it was not finished, and
+/// `record repair` writes a finished copy beside it, never over an existing file.
+#[test]
+fn kill_9_mid_recording_leaves_a_file_every_mcap_reader_reads() {
+    let (_dir, file) = killed("kill9", 3);
     let rec = Recording::open(&file).expect("still an MCAP file");
-    assert!(!rec.complete && rec.cut.is_some(), "no summary: cut off");
+    assert_eq!(rec.ending, Ending::Checkpoint, "{:?}", rec.cut);
+    assert!(!rec.complete && !rec.writing);
     let t = by_topic(&rec);
     assert!(t["/snapshot"].len() >= 10, "snapshots up to the cut");
     assert!(
         t["/gas/command"].iter().any(|c| c["value"] == 0.3),
         "the drive is there"
     );
-    let info = Process::new(BIN)
-        .args(["record", "info"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&info.stdout);
-    assert!(info.status.success() && text.contains("CUT OFF"), "{text}");
+    let theirs = python_reads(&file, "make_reader");
+    assert_eq!(theirs["error"], Value::Null, "{theirs}");
+    assert_eq!(theirs["summary"], false, "{theirs}");
+    assert_eq!(
+        theirs["counts"],
+        counts(&file),
+        "every message, as adrive reads it"
+    );
+    let (ok, info) = record_cmd(&["info"], &file);
+    assert!(ok && info.contains("NOT FINISHED"), "{info}");
+    assert!(info.contains("every MCAP reader reads it"), "{info}");
     assert!(Player::load(&rec).is_ok(), "it replays");
+    // A finished copy beside it, with its index.
+    let (ok, said) = record_cmd(&["repair"], &file);
+    let copy = file.with_file_name("cut.repaired.mcap");
+    assert!(ok && said.contains(&copy.display().to_string()), "{said}");
+    let repaired = python_reads(&copy, "make_reader");
+    assert_eq!(repaired["summary"], true, "{repaired}");
+    assert!(repaired["chunk_indexes"].as_u64() >= Some(1), "{repaired}");
+    assert_eq!(repaired["counts"], theirs["counts"]);
+    let back = Recording::open(&copy).unwrap();
+    assert!(back.complete, "{:?}", back.ending);
+    assert!(back.metadata["repaired_from"].contains("cut.mcap"));
+    assert_eq!(back.metadata["vehicle"], "Alice");
+    // Never over an existing file.
+    let before = std::fs::read(&copy).unwrap();
+    let (ok, said) = record_cmd(&["repair"], &file);
+    assert!(!ok && said.contains("is not overwritten"), "{said}");
+    assert_eq!(std::fs::read(&copy).unwrap(), before);
+    let (ok, said) = record_cmd(&["repair", "--out", copy.to_str().unwrap()], &file);
+    assert!(!ok && said.contains("is not overwritten"), "{said}");
+}
+
+/// A file cut inside a chunk (a power loss mid-write; here the same killed recording
+/// cut in the middle of its last chunk): the ordinary Python reader refuses it — it
+/// looks for the footer at the end — and only its reader from the start gets the whole
+/// chunks; `record info` says so and names `record repair`, whose copy every reader
+/// reads.
+#[test]
+fn a_file_cut_inside_a_chunk_is_repaired_into_one_every_reader_reads() {
+    let (_dir, file) = killed("cut-chunk", 3);
+    let whole = Recording::open(&file).unwrap();
+    let len = whole.size();
+    // Into the last chunk: past the ending (50 bytes) and the message indexes after
+    // the chunk, until one whole chunk fewer reads.
+    let bytes = std::fs::read(&file).unwrap();
+    let mut cut = len - 50;
+    let rec = loop {
+        cut -= 64;
+        std::fs::write(&file, &bytes[..cut as usize]).unwrap();
+        let rec = Recording::open(&file).unwrap();
+        if rec.chunks < whole.chunks {
+            break rec;
+        }
+    };
+    assert!(matches!(rec.ending, Ending::Cut(_)), "{:?}", rec.ending);
+    assert_eq!(rec.chunks, whole.chunks - 1);
+    let ordinary = python_reads(&file, "make_reader");
+    assert!(ordinary["error"].is_string(), "{ordinary}");
+    let from_start = python_reads(&file, "nonseeking");
+    assert!(from_start["messages"].as_u64() > Some(0), "{from_start}");
+    let (ok, info) = record_cmd(&["info"], &file);
+    assert!(
+        ok && info.contains("CUT OFF") && info.contains("record repair"),
+        "{info}"
+    );
+    let out = file.with_file_name("elsewhere.mcap");
+    let (ok, said) = record_cmd(&["repair", "--out", out.to_str().unwrap()], &file);
+    assert!(ok, "{said}");
+    let repaired = python_reads(&out, "make_reader");
+    assert_eq!(repaired["error"], Value::Null, "{repaired}");
+    assert_eq!(
+        repaired["counts"],
+        counts(&file),
+        "every whole chunk's message"
+    );
+    assert_eq!(repaired["messages"], from_start["messages"]);
 }
 
 #[allow(unsafe_code)]
@@ -614,9 +749,13 @@ fn a_full_disk_stops_the_recording_not_the_vehicle() {
     std::io::Read::read_to_string(&mut { stdout }, &mut summary).unwrap();
     assert!(summary.contains("recording stopped"), "{summary}");
     assert!(std::fs::metadata(&file).unwrap().len() <= LIMIT);
+    // Ended at its last whole chunk, which every reader reads.
     let rec = Recording::open(&file).expect("what was written is MCAP");
-    assert!(rec.chunks >= 1 && rec.cut.is_some(), "cut at the limit");
+    assert!(rec.chunks >= 1, "{:?}", rec.ending);
+    assert_eq!(rec.ending, Ending::Checkpoint, "ended at the limit");
     assert!(!by_topic(&rec)["/snapshot"].is_empty());
+    let theirs = python_reads(&file, "make_reader");
+    assert_eq!(theirs["counts"], counts(&file), "{theirs}");
 }
 
 #[test]

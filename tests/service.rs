@@ -1,8 +1,8 @@
 //! adrive under systemd, with a datagram socket standing in for the service manager's
 //! `NOTIFY_SOCKET`: the real binary, headless on the simulated vehicle, reports
-//! readiness, feeds the watchdog at half `WATCHDOG_USEC` only while every device thread
-//! runs, and reports stopping before its safe stop. And the unit file shipped in
-//! `dist/systemd/` is checked.
+//! readiness, feeds the watchdog at half `WATCHDOG_USEC` only while every engine thread
+//! runs and turns its loop within its bound, and reports stopping before its safe stop.
+//! And the unit file shipped in `dist/systemd/` is checked.
 
 mod common;
 
@@ -43,16 +43,25 @@ impl Manager {
 
     /// Wait for a datagram holding the line `line`; when it came.
     fn until(&mut self, line: &str) -> Instant {
+        self.until_starting(line).0
+    }
+
+    /// Wait for a datagram holding a line that starts with `start`; when it came, and
+    /// that line.
+    fn until_starting(&mut self, start: &str) -> (Instant, String) {
         let end = Instant::now() + DEADLINE;
         loop {
             let left = end.saturating_duration_since(Instant::now());
             let Ok((at, text)) = self.rx.recv_timeout(left) else {
-                panic!("no {line:?} from adrive; it sent:\n{:#?}", self.seen);
+                panic!("no {start:?} from adrive; it sent:\n{:#?}", self.seen);
             };
-            let hit = text.lines().any(|l| l == line);
+            let hit = text
+                .lines()
+                .find(|l| l.starts_with(start))
+                .map(String::from);
             self.seen.push((at, text));
-            if hit {
-                return at;
+            if let Some(line) = hit {
+                return (at, line);
             }
         }
     }
@@ -149,10 +158,10 @@ fn the_watchdog_is_no_longer_fed_once_a_device_thread_ended() {
     let (mut adrive, err) = start(dir.path(), &["--inject-panic", "steer/status=return:2s"]);
     manager.until("READY=1");
     manager.until("WATCHDOG=1");
-    let mut said = until(&err, "device thread ended");
+    let mut said = until(&err, "thread ended");
     let ended = Instant::now();
     // `systemctl status` says why.
-    manager.until("STATUS=device thread steer/status ended");
+    manager.until("STATUS=thread steer/status ended");
     // The supervisor still turns: it names the steering's fault, and goes on turning
     // for several watchdog periods.
     said.extend(until(&err, "fault: steer silent"));
@@ -174,10 +183,7 @@ fn the_watchdog_is_no_longer_fed_once_a_device_thread_ended() {
         fed_after.is_empty(),
         "WATCHDOG=1 after the thread ended (at {fed_after:?}):\n{text}"
     );
-    let error_lines: Vec<_> = said
-        .iter()
-        .filter(|l| l.contains("device thread ended"))
-        .collect();
+    let error_lines: Vec<_> = said.iter().filter(|l| l.contains("thread ended")).collect();
     assert_eq!(error_lines.len(), 1, "said once:\n{text}");
     assert!(
         error_lines[0].contains("ERROR") && error_lines[0].contains("steer/status"),
@@ -189,6 +195,100 @@ fn the_watchdog_is_no_longer_fed_once_a_device_thread_ended() {
     assert_eq!(wait_exit(&mut adrive), Some(0), "status after SIGTERM");
     let text: String = err.iter().collect::<Vec<_>>().join("\n");
     assert!(text.contains("safe state acknowledged"), "{text}");
+}
+
+/// The incident: a device's status thread stuck in a system call (strace's
+/// `delay_enter`) was named silent within 0.6 s, yet `WATCHDOG=1` kept arriving for as
+/// long as it hung — the watchdog only asked whether threads had ended. Liveness is
+/// progress: the steering's status thread blocks in a system call with its port held
+/// (`--inject-hang`), and within its bound (one transaction) and the grace the feeding
+/// stops, `systemctl status` and the log (ERROR) name the thread, the snapshot carries
+/// it and engage is refused; for the rest of the hang — longer than `WATCHDOG_USEC`, so
+/// systemd would act — nothing feeds the watchdog. Once the thread turns again the log
+/// says so and the feeding resumes.
+#[test]
+fn the_watchdog_is_not_fed_while_a_device_thread_is_stuck_in_a_system_call() {
+    let dir = tempdir("service-stuck");
+    let mut manager = Manager::bind(&dir.path().join("notify"));
+    let hang = Duration::from_secs(5);
+    let (mut adrive, err) = start(
+        dir.path(),
+        &[
+            "--inject-hang",
+            &format!("steer/status:2s:{}s", hang.as_secs()),
+        ],
+    );
+    manager.until("READY=1");
+    manager.until("WATCHDOG=1");
+    let mut said = until(&err, "injected hang: blocking in a system call");
+    let hung = Instant::now();
+    let (stalled_at, status) = manager.until_starting("STATUS=stalled: ");
+    assert!(
+        status.starts_with("STATUS=stalled: steer/status has not turned its loop for "),
+        "{status}"
+    );
+    // Within the thread's bound (a Modbus poll at 100 ms), the grace (500 ms) and the
+    // watchdog's look (100 ms), with room for a loaded machine: well inside the hang.
+    assert!(
+        stalled_at - hung < Duration::from_secs(3),
+        "named {:?} after the hang began",
+        stalled_at - hung
+    );
+    // The snapshot says it, and engage is refused for it.
+    let ctl = Process::new(BIN)
+        .args(["ctl", "status", "--json"])
+        .env("XDG_RUNTIME_DIR", dir.path())
+        .output()
+        .unwrap();
+    let snap: serde_json::Value = serde_json::from_slice(&ctl.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&ctl.stdout)));
+    assert_eq!(
+        snap["supervisor"]["stalled"][0]["thread"], "steer/status",
+        "{snap}"
+    );
+    let blockers = snap["gate"]["blockers"].to_string();
+    assert!(
+        blockers.contains("thread steer/status has not turned its loop"),
+        "{blockers}"
+    );
+    said.extend(until(&err, "turns its loop again"));
+    let text = said.join("\n");
+    let stalled_lines: Vec<_> = said.iter().filter(|l| l.contains("stalled: ")).collect();
+    assert_eq!(stalled_lines.len(), 1, "said once:\n{text}");
+    assert!(
+        stalled_lines[0].contains("ERROR") && stalled_lines[0].contains("steer/status"),
+        "{text}"
+    );
+    assert!(text.contains("the service watchdog is fed again"), "{text}");
+    // `systemctl status` is back to running, and the watchdog fed again.
+    manager.until("STATUS=running: 6 devices");
+    let resumed = manager.until("WATCHDOG=1");
+    let sent = manager.drain().to_vec();
+    let fed: Vec<Instant> = sent
+        .iter()
+        .filter(|(_, t)| t.contains("WATCHDOG=1"))
+        .map(|(at, _)| *at)
+        .collect();
+    // Nothing between the stall and the resume (the datagrams arrive in order) …
+    let during: Vec<_> = fed
+        .iter()
+        .filter(|at| **at > stalled_at && **at < resumed)
+        .collect();
+    assert!(during.is_empty(), "WATCHDOG=1 while stalled: {during:?}");
+    // … and the gap is one systemd would have acted on.
+    let last_before = fed
+        .iter()
+        .filter(|at| **at < stalled_at)
+        .max()
+        .expect("fed before the stall");
+    assert!(
+        resumed - *last_before > Duration::from_micros(WATCHDOG_USEC),
+        "the feeding stopped for {:?} only",
+        resumed - *last_before
+    );
+    assert!(signal(&adrive, libc::SIGTERM));
+    manager.until("STOPPING=1");
+    assert_eq!(wait_exit(&mut adrive), Some(0), "status after SIGTERM");
 }
 
 /// A device thread that panics: as any panic, adrive stops at once, safely — the

@@ -466,45 +466,67 @@ fn an_engine_stall_is_recovered_step_by_step() {
 }
 
 /// When the starter never catches, the procedure tries its configured number of times,
-/// then gives up: safe state, disengaged, and a fatal device error asks the process
-/// to end.
+/// then gives up: safe state, disengaged — and the run goes on: a later engage finds
+/// the stall again and the procedure runs again from the top. Only when the operator
+/// asked for it (`give_up_after`) is a recovery that gave up a fatal device error that
+/// asks the process to end.
 #[test]
 fn a_recovery_that_cannot_succeed_gives_up_safely() {
-    let rig = Rig::supervised(&alice("attempts = 2\nstep_timeout = \"1500ms\""));
-    engaged_in_drive(&rig);
-    rig.sim.apply("nostart on").unwrap();
-    rig.sim.apply("stall").unwrap();
-    let exit = rig
-        .exits
-        .as_ref()
-        .unwrap()
-        .recv_timeout(common::DEADLINE)
-        .expect("the supervisor asks the process to end");
-    match exit {
-        Exit::Fatal(why) => assert!(
-            why.contains("engine_stall gave up") && why.contains("try 2/2"),
-            "{why}"
-        ),
-        other => panic!("expected a fatal device error, got {other:?}"),
+    for give_up in [false, true] {
+        let extra = if give_up {
+            "\ngive_up_after = \"1s\""
+        } else {
+            ""
+        };
+        let rig = Rig::supervised(&alice(&format!(
+            "attempts = 2\nstep_timeout = \"1500ms\"{extra}"
+        )));
+        engaged_in_drive(&rig);
+        rig.sim.apply("nostart on").unwrap();
+        rig.sim.apply("stall").unwrap();
+        outcome(&rig, "engine_stall gave up");
+        assert!(!rig.gate.is_engaged());
+        assert!(
+            rig.gate.reason().contains("gave up"),
+            "{}",
+            rig.gate.reason()
+        );
+        let h = rig.history();
+        assert_eq!(
+            h.iter()
+                .filter(|l| l.contains("engine_stall 5/7: starter"))
+                .count(),
+            2,
+            "{h:?}"
+        );
+        wait_for("safe state", || {
+            rig.device("brake").slot().executed() == Some(set(1.0))
+                && rig.device("gas").slot().executed() == Some(set(0.0))
+        });
+        let exits = rig.exits.as_ref().unwrap();
+        if give_up {
+            match exits.recv_timeout(common::DEADLINE) {
+                Ok(Exit::Fatal(why)) => assert!(
+                    why.contains("engine_stall gave up")
+                        && why.contains("try 2/2")
+                        && why.contains("longer than give_up_after (1s)"),
+                    "{why}"
+                ),
+                other => panic!("expected a fatal device error, got {other:?}"),
+            }
+            continue;
+        }
+        // Engaged again and back in drive with the engine still stopped: the procedure
+        // runs again, from the top — the run went on.
+        let running = || rig.vehicle.supervision().snapshot().recovery.is_some();
+        assert!(!running());
+        engaged_in_drive(&rig);
+        wait_for("the procedure to run again", running);
+        assert!(
+            exits.try_recv().is_err(),
+            "a recovery that gave up ended the run"
+        );
     }
-    assert!(!rig.gate.is_engaged());
-    assert!(
-        rig.gate.reason().contains("gave up"),
-        "{}",
-        rig.gate.reason()
-    );
-    let h = rig.history();
-    assert_eq!(
-        h.iter()
-            .filter(|l| l.contains("engine_stall 5/7: starter"))
-            .count(),
-        2,
-        "{h:?}"
-    );
-    wait_for("safe state", || {
-        rig.device("brake").slot().executed() == Some(set(1.0))
-            && rig.device("gas").slot().executed() == Some(set(0.0))
-    });
 }
 
 /// A procedure that moves actuators stops the moment the vehicle disengages (here the
@@ -560,7 +582,7 @@ fn estop_pause_disengages_and_holds_the_brake() {
 }
 
 #[test]
-fn a_vanished_device_is_reconnected_by_its_procedure() {
+fn a_vanished_device_is_waited_for_and_back_when_its_port_is() {
     let rig = Rig::supervised(&alice(""));
     rig.engage();
     rig.sim
@@ -574,12 +596,12 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
         Duration::from_secs(2),
     );
     wait_for("disengaged", || !rig.gate.is_engaged());
-    wait_for("the reconnect procedure to finish", || {
+    wait_for("the brake back", || {
         rig.vehicle
             .supervision()
             .snapshot()
             .last_outcome
-            .is_some_and(|o| o.contains("reconnect brake done"))
+            .is_some_and(|o| o.contains("brake is back on"))
     });
     let brake = rig.device("brake");
     assert!(brake.port_health().opens.load(Relaxed) >= 2);
@@ -590,8 +612,8 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
     });
     steering_still_works(&rig, 0.3);
     // Back on its port, it had its own status_max_age to answer: it was not named
-    // silent or failing the moment the port reopened (false faults beside "reconnect
-    // brake done", cleared a moment later, as once).
+    // silent or failing the moment the port reopened (false faults beside "brake is
+    // back", cleared a moment later, as once).
     let history = rig.history();
     let gone = history
         .iter()
@@ -604,6 +626,50 @@ fn a_vanished_device_is_reconnected_by_its_procedure() {
         })
         .collect();
     assert!(after.is_empty(), "{after:?}\n{history:#?}");
+}
+
+/// The incident: a Modbus drive answering later than its reply timeout had its late
+/// reply taken as the answer to the next request about half the time — the panel
+/// showed a fresh age, and only `error_rate` fired. The simulated steering answers 120
+/// ms after each request (its reply timeout is 100 ms): every late reply is drained,
+/// none is taken as another request's answer — its reading is never refreshed while it
+/// is slow — and it is named silent, slower than its reply timeout. Fast again, it
+/// answers again.
+#[test]
+fn a_drive_slower_than_its_reply_timeout_is_named_slow_and_no_reply_is_taken_for_another() {
+    let rig = Rig::supervised(&alice(""));
+    let steer = rig.device("steer");
+    wait_for("steer answering", || steer.cached().at.is_some());
+    rig.sim.apply("slow steer 120").unwrap();
+    let slow = |rig: &Rig| {
+        rig.vehicle
+            .supervision()
+            .faults()
+            .into_iter()
+            .find(|f| f.kind == FaultKind::Silent && f.device.as_deref() == Some("steer"))
+            .filter(|f| f.cause.contains("slower than its reply_timeout"))
+    };
+    wait_for("steer named silent and slow", || slow(&rig).is_some());
+    // From here, poll after poll, no reply is taken.
+    let read_at = steer.cached().at;
+    let polls = steer.stats().polls.load(Relaxed);
+    wait_for("twenty more polls", || {
+        steer.stats().polls.load(Relaxed) >= polls + 20
+    });
+    assert_eq!(
+        steer.cached().at,
+        read_at,
+        "a late reply was taken for another request's answer"
+    );
+    let cause = slow(&rig).expect("still silent").cause;
+    assert!(cause.contains("no answer for"), "{cause}");
+    rig.sim.apply("slow steer 0").unwrap();
+    wait_for("steer answering again", || steer.cached().at != read_at);
+    wait_for("silent cleared", || {
+        !rig.vehicle
+            .supervision()
+            .has(FaultKind::Silent, Some("steer"))
+    });
 }
 
 /// With a declared response the stuck motor is judged by the estimate: no headway for

@@ -213,7 +213,7 @@ impl<'a> Document<'a> {
             self.push(&path, k, v);
             match v.get_ref() {
                 DeValue::Table(t) => self.walk(t, &format!("{path}.")),
-                DeValue::Array(items) if path == "device" => {
+                DeValue::Array(items) if path == "device" || path == "bus" => {
                     for (i, item) in items.iter().enumerate() {
                         let Some(t) = item.get_ref().as_table() else {
                             continue;
@@ -222,8 +222,8 @@ impl<'a> Document<'a> {
                             .get("name")
                             .and_then(|n| n.get_ref().as_str())
                             .map_or_else(|| i.to_string(), str::to_string);
-                        let path = format!("device.{name}");
-                        // The `[[device]]` header (or the inline table) of this device.
+                        let path = format!("{path}.{name}");
+                        // The `[[device]]` (`[[bus]]`) header, or the inline table.
                         let line = self.line(item.span().start);
                         self.keys.push(Key {
                             path: path.clone(),
@@ -253,6 +253,7 @@ impl<'a> Document<'a> {
 pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
+        ["bus", name, ..] => format!("bus {name}: "),
         [section @ ("network" | "supervisor" | "record" | "ros2"), ..] => format!("[{section}] "),
         _ => String::new(),
     }

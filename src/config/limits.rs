@@ -390,6 +390,14 @@ pub(crate) const STEP_TIMEOUT: Limit<Duration> = Limit {
     default: Some(s(4)),
     why: "the time a recovery step may take",
 };
+pub(crate) const GIVE_UP_AFTER: Limit<Duration> = Limit {
+    section: Supervisor,
+    key: "give_up_after",
+    min: s(1),
+    max: s(86_400),
+    default: None,
+    why: "off: adrive never ends the run because of a device. Set (or `--give-up-after`): a device gone this long, or a recovery that gave up after trying this long, ends the run (status 4, after the safe state)",
+};
 pub const DEADMAN: Limit<Duration> = Limit {
     section: CommandLine,
     key: "deadman",
@@ -521,6 +529,7 @@ pub static ALL: &[&dyn Row] = &[
     &RANGE_MARGIN,
     &ATTEMPTS,
     &STEP_TIMEOUT,
+    &GIVE_UP_AFTER,
     &DEADMAN,
 ];
 
@@ -557,17 +566,28 @@ pub(crate) fn markdown() -> String {
     out
 }
 
-/// `--deadman DURATION`: a duration within [`DEADMAN`] (clap names the option).
-pub(crate) fn parse_deadman(text: &str) -> Result<Duration, String> {
+/// `--give-up-after DURATION`: a duration within [`GIVE_UP_AFTER`] (clap names the
+/// option).
+pub(crate) fn parse_give_up_after(text: &str) -> Result<Duration, String> {
+    parse_within(&GIVE_UP_AFTER, text)
+}
+
+/// A command-line duration held to `limit` (clap names the option).
+fn parse_within(limit: &Limit<Duration>, text: &str) -> Result<Duration, String> {
     let d = crate::config::parse_duration(text)?;
-    if DEADMAN.check(d).is_err() {
+    if limit.check(d).is_err() {
         return Err(format!(
             "expected {}, got {}",
-            DEADMAN.expected(),
+            limit.expected(),
             fmt_duration(d)
         ));
     }
     Ok(d)
+}
+
+/// `--deadman DURATION`: a duration within [`DEADMAN`] (clap names the option).
+pub(crate) fn parse_deadman(text: &str) -> Result<Duration, String> {
+    parse_within(&DEADMAN, text)
 }
 
 impl fmt::Display for Section {
@@ -637,6 +657,7 @@ mod tests {
             &RESPONSE_LAG,
             &OVERRIDE_TIME,
             &STEP_TIMEOUT,
+            &GIVE_UP_AFTER,
             &DEADMAN,
         ] {
             ok(l);
@@ -663,6 +684,16 @@ mod tests {
         assert_eq!(parse_deadman("1500ms"), Ok(ms(1500)));
         assert!(parse_deadman("1h").is_err());
         assert!(parse_deadman("soon").unwrap_err().contains("250ms"));
+    }
+
+    #[test]
+    fn give_up_after_on_the_command_line_is_held_to_its_limit() {
+        assert_eq!(parse_give_up_after("30s"), Ok(s(30)));
+        assert_eq!(
+            parse_give_up_after("500ms").unwrap_err(),
+            "expected a duration (\"250ms\", \"2s\") from 1s to 86400s, got 500ms"
+        );
+        assert!(parse_give_up_after("2days").is_err());
     }
 
     /// The guide's table (docs/vehicles.md) is this module's, so the documented ranges cannot drift.

@@ -19,6 +19,7 @@ pub mod document;
 pub mod limits;
 pub mod network;
 pub mod placement;
+pub(crate) mod ports;
 pub mod protocol_map;
 pub mod record;
 pub mod response;
@@ -180,9 +181,14 @@ pub struct SupervisorConfig {
     /// Time a recovery step may take.
     #[serde(deserialize_with = "duration")]
     pub step_timeout: Duration,
-    /// A procedure that gives up is a fatal device error: end the process (status 4)
-    /// after the safe state, so a service manager can act.
-    pub(crate) exit_on_give_up: bool,
+    /// End the run (status 4, after the safe state) once a device has been gone this
+    /// long, or a recovery procedure gave up after trying this long. `None` (the
+    /// default): never — adrive keeps the vehicle safe and waits.
+    #[serde(deserialize_with = "opt_duration")]
+    pub give_up_after: Option<Duration>,
+    /// The key this one replaced, refused with a word on what to write instead.
+    #[serde(rename = "exit_on_give_up")]
+    pub(crate) old_exit_on_give_up: Option<toml::Value>,
     /// Fault injection for tests (`--inject-panic supervisor:DELAY`).
     #[serde(skip)]
     pub(crate) panic_for_test: Option<Duration>,
@@ -201,7 +207,8 @@ impl Default for SupervisorConfig {
             range_margin: RANGE_MARGIN.default_value(),
             attempts: ATTEMPTS.default_value() as u32,
             step_timeout: STEP_TIMEOUT.default_value(),
-            exit_on_give_up: true,
+            give_up_after: None,
+            old_exit_on_give_up: None,
             panic_for_test: None,
         }
     }
@@ -220,6 +227,19 @@ impl SupervisorConfig {
         RANGE_MARGIN.check(self.range_margin)?;
         ATTEMPTS.check(u64::from(self.attempts))?;
         STEP_TIMEOUT.check(self.step_timeout)?;
+        if let Some(d) = self.give_up_after {
+            GIVE_UP_AFTER.check(d)?;
+        }
+        if self.old_exit_on_give_up.is_some() {
+            return Err(Violation {
+                paths: vec!["exit_on_give_up".into()],
+                message: "exit_on_give_up: no longer a key: adrive keeps running while a \
+                          device is gone or a recovery has given up; to end the run \
+                          instead, write give_up_after = \"30s\" (or run with \
+                          --give-up-after 30s)"
+                    .into(),
+            });
+        }
         Ok(())
     }
 }
@@ -251,65 +271,6 @@ impl VehicleConfig {
     /// an error at the line of the key it blames.
     pub(crate) fn refuse(&self, owner: &str, v: Violation) -> ConfigError {
         refuse(&self.source, &self.lines, owner, v)
-    }
-
-    /// Every device that is not simulated needs a port to open, of its own: two
-    /// devices on one serial port would fight over it (devices that share a wire are on
-    /// a CAN `[[bus]]`, whose adapter's port is the bus's).
-    pub(crate) fn check_ports(&self) -> Result<(), ConfigError> {
-        use device::DriverKind::Can;
-        for b in &self.buses {
-            if b.port.trim().is_empty() {
-                let v = Violation {
-                    paths: vec!["port".into()],
-                    message: format!(
-                        "port: expected the path of the SLCAN adapter's serial port \
-                         (\"/dev/ttyACM0\", \"/dev/serial/by-id/…\"), got {:?}; without \
-                         hardware, run with --sim",
-                        b.port
-                    ),
-                };
-                return Err(self.refuse(&format!("bus {}", b.name), v));
-            }
-        }
-        for (i, d) in self.devices.iter().enumerate() {
-            if d.driver == Can {
-                continue;
-            }
-            let owner = format!("device.{}", d.name);
-            let refuse = |message: String| {
-                self.refuse(
-                    &owner,
-                    Violation {
-                        paths: vec!["port".into()],
-                        message,
-                    },
-                )
-            };
-            if d.port.trim().is_empty() {
-                return Err(refuse(format!(
-                    "port: expected the path of a serial port (\"/dev/ttyUSB0\", \
-                     \"/dev/serial/by-id/…\"), got {:?}; without hardware, run with --sim",
-                    d.port
-                )));
-            }
-            if let Some(o) = self.devices[..i]
-                .iter()
-                .find(|o| o.driver != Can && o.port == d.port)
-            {
-                return Err(refuse(format!(
-                    "port: {} is {}'s port too: a serial port has one device",
-                    d.port, o.name
-                )));
-            }
-            if let Some(b) = self.buses.iter().find(|b| b.port == d.port) {
-                return Err(refuse(format!(
-                    "port: {} is the adapter of bus {}: a device on it is `driver = \"can\"`, `bus = \"{}\"`",
-                    d.port, b.name, b.name
-                )));
-            }
-        }
-        Ok(())
     }
 
     /// The built-in simulated Alice.

@@ -625,6 +625,24 @@ const ABSURD: &[Absurd] = &[
         says: &["[supervisor] step_timeout:", "from 100ms to 30s"],
     },
     Absurd {
+        incident: "a service that gives up on a device before it could be replugged",
+        replace: "# supervisor",
+        with: "give_up_after = \"0s\"",
+        at: "give_up_after",
+        says: &["[supervisor] give_up_after:", "from 1s to 86400s"],
+    },
+    Absurd {
+        incident: "the key that made a recovery giving up end the run",
+        replace: "# supervisor",
+        with: "exit_on_give_up = true",
+        at: "exit_on_give_up",
+        says: &[
+            "[supervisor] exit_on_give_up: no longer a key",
+            "adrive keeps running while a device is gone",
+            "give_up_after = \"30s\"",
+        ],
+    },
+    Absurd {
         incident: "modbus broadcast address as slave",
         replace: "slave = 3",
         with: "slave = 0",
@@ -885,7 +903,7 @@ fn two_devices_on_one_serial_port_are_refused_at_the_second_s_port() {
         .to_string();
     assert!(
         e.starts_with(
-            "v.toml:33: horn: port: /dev/ttyUSB0 is brake's port too: a serial port has one device"
+            "v.toml:33: horn: port: /dev/ttyUSB0 is brake's port too (v.toml:17): a serial port has one device"
         ),
         "{e}"
     );
@@ -899,6 +917,158 @@ fn two_devices_on_one_serial_port_are_refused_at_the_second_s_port() {
     assert!(
         parse(&apart, "v.toml").unwrap().check_ports().is_ok(),
         "{apart}"
+    );
+}
+
+/// Where each spelling of a port goes, in a vehicle file: the brake's at line 17, the
+/// horn's (after it) at line 33.
+fn brake_and_horn(brake: &str, horn: &str) -> String {
+    let base = BASE.replace("/dev/ttyUSB0", brake);
+    format!(
+        "{base}\n[[device]]\nname = \"horn\"\nkind = \"state\"\nstates = [\"off\", \"on\"]\ndriver = \"line\"\nport = \"{horn}\"\n"
+    )
+}
+
+/// The incident: `/dev/x` and `/dev/./x`, or a `/dev/serial/by-id/…` link and its
+/// target, passed as two ports, and both devices opened one. Ports are compared by what
+/// they resolve to — real files, links and device files here — and a port not plugged
+/// in yet by its path made normal; the second is refused at its line, naming the first
+/// with its own.
+#[test]
+fn two_spellings_of_one_port_are_refused_at_the_second_naming_the_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().display().to_string();
+    std::fs::write(dir.path().join("ttyUSB0"), "").unwrap();
+    std::fs::write(dir.path().join("ttyUSB1"), "").unwrap();
+    std::fs::create_dir(dir.path().join("by-id")).unwrap();
+    let link = format!("{d}/by-id/usb-FTDI_brake-if00-port0");
+    std::os::unix::fs::symlink(format!("{d}/ttyUSB0"), &link).unwrap();
+    let null = format!("{d}/null");
+    std::os::unix::fs::symlink("/dev/null", &null).unwrap();
+    let one = [
+        (format!("{d}/ttyUSB0"), format!("{d}/./ttyUSB0")),
+        (format!("{d}/ttyUSB0"), format!("{d}//ttyUSB0")),
+        (format!("{d}/ttyUSB0"), format!("{d}/by-id/../ttyUSB0")),
+        (link.clone(), format!("{d}/ttyUSB0")),
+        (format!("{d}/ttyUSB0"), link.clone()),
+        // Not plugged in yet.
+        (format!("{d}/ttyUSB7"), format!("{d}/./ttyUSB7")),
+        (
+            format!("{d}/gone/ttyUSB7"),
+            format!("{d}/gone/x/../ttyUSB7"),
+        ),
+        // Device files: one device number.
+        ("/dev/null".to_string(), null.clone()),
+        ("/dev/null".to_string(), "/dev/./null".to_string()),
+    ];
+    for (brake, horn) in &one {
+        let v = parse(&brake_and_horn(brake, horn), "v.toml").unwrap();
+        let e = v.check_ports().unwrap_err().to_string();
+        assert!(
+            e.starts_with(&format!(
+                "v.toml:33: horn: port: {horn} is brake's port, {brake}, by another name (both are "
+            )),
+            "{brake} and {horn}: {e}"
+        );
+        assert!(
+            e.ends_with(") (v.toml:17): a serial port has one device"),
+            "{e}"
+        );
+    }
+    let two = [
+        (format!("{d}/ttyUSB0"), format!("{d}/ttyUSB1")),
+        (link, format!("{d}/ttyUSB1")),
+        (format!("{d}/ttyUSB7"), format!("{d}/ttyUSB8")),
+        ("/dev/null".to_string(), "/dev/zero".to_string()),
+        (null, "/dev/zero".to_string()),
+    ];
+    for (brake, horn) in &two {
+        let v = parse(&brake_and_horn(brake, horn), "v.toml").unwrap();
+        assert!(v.check_ports().is_ok(), "{brake} and {horn}");
+    }
+}
+
+/// Two `[[bus]]` tables on one adapter once both started their reader on it; a device
+/// and a bus on one port fight as two devices would. Every mix is refused at the second
+/// one's port, naming the first.
+#[test]
+fn a_bus_s_adapter_port_is_compared_with_every_other_bus_and_device() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path().display().to_string();
+    std::fs::write(dir.path().join("ttyACM0"), "").unwrap();
+    let link = format!("{d}/adapter");
+    std::os::unix::fs::symlink(format!("{d}/ttyACM0"), &link).unwrap();
+    let bus = |name: &str, port: &str| {
+        format!("[[bus]]\nname = \"{name}\"\nport = \"{port}\"\ndbc = \"oscc.dbc\"\n")
+    };
+    let horn = |port: &str| {
+        format!("[[device]]\nname = \"horn\"\nkind = \"state\"\nstates = [\"off\", \"on\"]\ndriver = \"line\"\nport = \"{port}\"\n")
+    };
+    // The DBC is found beside the vehicle file.
+    let path = format!("{}/vehicles/test.toml", env!("CARGO_MANIFEST_DIR"));
+    let refused = |body: String| {
+        let text = format!("[vehicle]\nname = \"kit\"\n{body}");
+        parse(&text, &path)
+            .unwrap()
+            .check_ports()
+            .unwrap_err()
+            .to_string()
+    };
+    // Two buses: the second's port (line 10) names the first (line 5).
+    let e = refused(format!(
+        "{}\n{}",
+        bus("kit", &format!("{d}/ttyACM0")),
+        bus("kat", &link)
+    ));
+    assert!(
+        e.starts_with(&format!(
+            "{path}:10: bus kat: port: {link} is the adapter of bus kit, {d}/ttyACM0, by another name (both are "
+        )),
+        "{e}"
+    );
+    assert!(
+        e.ends_with(&format!(
+            " ({path}:5): one adapter is one bus: its devices go on one [[bus]]"
+        )),
+        "{e}"
+    );
+    // A bus, then a device on its port.
+    let e = refused(format!("{}{}", bus("kit", &link), horn(&link)));
+    assert!(
+        e.starts_with(&format!(
+            "{path}:12: horn: port: {link} is the adapter of bus kit too ({path}:5): a device on the bus is `driver = \"can\"`, `bus = \"kit\"`"
+        )),
+        "{e}"
+    );
+    // A device, then a bus on its port.
+    let e = refused(format!(
+        "{}{}",
+        horn(&format!("{d}/./ttyACM0")),
+        bus("kit", &link)
+    ));
+    assert!(
+        e.starts_with(&format!(
+            "{path}:11: bus kit: port: {link} is horn's port, {d}/./ttyACM0, by another name"
+        )),
+        "{e}"
+    );
+    assert!(
+        e.ends_with("a CAN adapter's port is its bus's alone"),
+        "{e}"
+    );
+}
+
+/// A device gone never ends the run unless the operator says so.
+#[test]
+fn give_up_after_is_off_unless_the_file_says_it() {
+    assert_eq!(
+        parse(BASE, "v.toml").unwrap().supervisor.give_up_after,
+        None
+    );
+    let set = BASE.replace("# supervisor", "give_up_after = \"2m\"");
+    assert_eq!(
+        parse(&set, "v.toml").unwrap().supervisor.give_up_after,
+        Some(Duration::from_secs(120))
     );
 }
 

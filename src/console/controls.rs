@@ -115,6 +115,42 @@ impl Frame {
             .and_then(|d| self.id_of(&d.name))
     }
 
+    /// The throttle and brake as the intake accepted them, as the one `accel` value
+    /// the console and teleop command them with (−1 full brake … 1 full throttle; the
+    /// inverse of the intake's split): what the vehicle was told, not what the console
+    /// asked. `None` without both bound, or before either was commanded.
+    pub(crate) fn accel(&self) -> Option<f64> {
+        let part = |role: crate::config::Role| {
+            let d = self.snap.bound(role.as_str())?;
+            let top = d.range?[1];
+            let v = d.commanded.as_ref()?.as_f64()?;
+            (top > 0.0).then(|| v / top)
+        };
+        // Both bound, or the vehicle has no accel.
+        self.snap.bound(crate::config::Role::Throttle.as_str())?;
+        self.snap.bound(crate::config::Role::Brake.as_str())?;
+        let a = match (
+            part(crate::config::Role::Throttle),
+            part(crate::config::Role::Brake),
+        ) {
+            (Some(gas), _) if gas > 0.0 => gas,
+            (_, Some(brake)) => -brake,
+            (Some(gas), None) => gas,
+            (None, None) => return None,
+        };
+        // Three decimals, as the console asks; never −0.
+        Some((a * 1000.0).round() / 1000.0 + 0.0)
+    }
+
+    /// The steering's command as the intake accepted it.
+    pub(crate) fn steering(&self) -> Option<f64> {
+        self.snap
+            .bound(crate::config::Role::Steering.as_str())?
+            .commanded
+            .as_ref()?
+            .as_f64()
+    }
+
     /// Red on screen: faulty to the engine (no replies) or to the supervisor (any
     /// fault it names this device in).
     pub fn red(&self, d: &DeviceView) -> bool {
@@ -158,17 +194,34 @@ impl Frame {
         self.sim_faults.get(id.index()).and_then(Option::as_ref)
     }
 
-    /// Every fault to show, in words: the supervisor's (`steer silent 1.5s no status
-    /// for …`), then any device the engine marks faulty that the supervisor has not
+    /// Every fault to show, in words: an engine thread that stalled (`STALLED
+    /// steer/status has not turned its loop for 1.4 s …`), the supervisor's faults
+    /// (`steer silent 1.5s no status for …`), then any device the engine marks faulty that the supervisor has not
     /// named yet (`steer faulty: no reply within 200ms`; it notices at its next turn).
     pub(crate) fn fault_texts(&self) -> Vec<String> {
         let sup = &self.snap.supervisor;
+        // A stuck engine thread first: nothing it serves can be trusted.
         let mut out: Vec<String> = sup
-            .faults
+            .stalled
             .iter()
-            .filter(|f| f.kind != FaultKind::Override)
-            .map(|f| format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause))
+            .map(|s| format!("STALLED {}", s.describe()))
             .collect();
+        // A device gone says what adrive waits for (`waiting for horn on /dev/ttyUSB3:
+        // No such file or directory, retrying every 5s`).
+        out.extend(
+            sup.faults
+                .iter()
+                .filter(|f| f.kind != FaultKind::Override)
+                .map(|f| {
+                    let waiting = sup.waiting.iter().find(|w| {
+                        f.kind == FaultKind::Disconnected && f.device.as_ref() == Some(&w.device)
+                    });
+                    match waiting {
+                        Some(w) => format!("{} {} {}", fault_name(f), secs(f.age_ms), w.describe()),
+                        None => format!("{} {} {}", fault_name(f), secs(f.age_ms), f.cause),
+                    }
+                }),
+        );
         for d in self.snap.devices.iter().filter(|d| d.health.faulty) {
             if !sup
                 .faults
@@ -226,11 +279,13 @@ pub trait Controls {
     /// Engage, as the console: what it did ([`Done`]'s words are the answer every
     /// front end gives).
     fn engage(&self) -> Result<Done, Refused>;
-    /// Disengage: what it did (never refused by the gate).
+    /// Disengage: what it did. Never refused by the intake; `Err` when it could not be
+    /// asked (an attached console whose adrive did not answer).
     fn disengage(&self) -> Result<Done, Refused>;
     /// The operator's STOP: disengage, throttle 0, brake full — even while a driver
-    /// has taken over ([`Gate::stop`]). Never refused.
-    fn stop(&self);
+    /// has taken over ([`Gate::stop`]). Never refused by the intake; `Err` when it
+    /// could not be asked (an attached console whose adrive did not answer).
+    fn stop(&self) -> Result<(), Refused>;
     /// Take command from whoever commands the engaged vehicle (after the operator's
     /// confirmation).
     fn take(&self) -> Result<(), Refused>;
@@ -247,9 +302,12 @@ pub trait Controls {
     fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String>;
     /// Refused, with the reason, when the vehicle file would refuse the value.
     fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String>;
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool);
-    /// Wake a command thread (broadcast its condition variable).
-    fn wake(&self, id: DeviceId);
+    /// Switch a thread on or off; refused, with the reason, for a console that does
+    /// not command.
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String>;
+    /// Wake a command thread (broadcast its condition variable); refused, with the
+    /// reason, for a console that does not command.
+    fn wake(&self, id: DeviceId) -> Result<(), String>;
     /// One line of the simulator's command language ([`Sim::apply`]), e.g.
     /// `silent gas on`, `stall`, `estop pause`; `None` when the devices are not
     /// simulated in this process.
@@ -402,8 +460,8 @@ impl Controls for Live<'_> {
     fn disengage(&self) -> Result<Done, Refused> {
         self.ask(Ask::Disengage)
     }
-    fn stop(&self) {
-        let _ = self.ask(Ask::Stop);
+    fn stop(&self) -> Result<(), Refused> {
+        self.ask(Ask::Stop).map(drop)
     }
     fn take(&self) -> Result<(), Refused> {
         self.ask(Ask::Take).map(drop)
@@ -428,13 +486,13 @@ impl Controls for Live<'_> {
         self.gate.tune(self.source).map_err(|r| r.to_string())?;
         change_settings(self.gate.vehicle(), id, |c| c.command_timeout = d)
     }
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String> {
         if let Err(why) = self.gate.tune(self.source) {
             tracing::warn!(
                 "{thread:?} thread switch from {} refused: {why}",
                 self.source
             );
-            return;
+            return Err(why.to_string());
         }
         if let Some(dev) = self.gate.vehicle().devices().get(id.index()) {
             let flag = match thread {
@@ -444,14 +502,14 @@ impl Controls for Live<'_> {
             flag.store(on, Relaxed);
             tracing::info!(device = %dev.name(), "{thread:?} thread {}", if on { "enabled" } else { "disabled" });
         }
+        Ok(())
     }
-    fn wake(&self, id: DeviceId) {
-        if self.gate.tune(self.source).is_err() {
-            return;
-        }
+    fn wake(&self, id: DeviceId) -> Result<(), String> {
+        self.gate.tune(self.source).map_err(|why| why.to_string())?;
         if let Some(dev) = self.gate.vehicle().devices().get(id.index()) {
             dev.slot().nudge();
         }
+        Ok(())
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         let sim = self.sources.sim.as_ref()?;

@@ -6,6 +6,8 @@
 //! - [`model`]: the state; [`update`]: the only code that changes it, through the
 //!   [`controls::Controls`] trait (the engine, or a fake in tests).
 //! - [`view`] and [`panels`]: `impl Widget for &Model`, free of side effects;
+//!   [`view::draw`] also says what the frame showed, and [`sight`] is the rule that no
+//!   key acts on what the last frame did not show (STOP and quit always act);
 //!   [`layout`]: where the devices go (a panel each, or with many devices a row each
 //!   and a window of full panels that pages), for the view and for paging alike;
 //!   [`find`]: a device by its name, for the name prompt; [`trail`]: the bench
@@ -23,6 +25,7 @@ pub mod layout;
 pub mod model;
 pub mod panels;
 pub mod replay;
+pub mod sight;
 pub mod terminal;
 pub mod theme;
 pub mod trail;
@@ -34,7 +37,7 @@ use crate::exit::Exit;
 use controls::{Controls, Live, Sources};
 use crossbeam_channel::{select, Receiver};
 use crossterm::event::{self, Event};
-use keymap::{key_to_action, Keymap};
+use keymap::Keymap;
 use model::Model;
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::sync::Arc;
@@ -161,13 +164,16 @@ pub fn drive(
     let ticker = crossbeam_channel::tick(TICK);
     let started = Instant::now();
     let why = loop {
-        // The size drawn at is the one the next key pages with.
+        // The size drawn at is the one the next key pages with, and what the frame
+        // showed is what the next key may act on.
+        let mut drawn = None;
         if let Err(e) = screen.terminal.draw(|f| {
             model.screen = f.area();
-            f.render_widget(&model, f.area())
+            drawn = Some(view::draw(&model, f.area(), f.buffer_mut()));
         }) {
             break Exit::HangUp(format!("cannot draw: {e}"));
         }
+        model.drawn = drawn.unwrap_or_default();
         enum Msg {
             Exit(Exit),
             Tick,
@@ -194,7 +200,7 @@ pub fn drive(
                 update::tick(&mut model, live, start);
                 Flow::Continue
             }
-            Msg::Event(Event::Key(k)) => match key_to_action(&model.keymap, model.mode, &k) {
+            Msg::Event(Event::Key(k)) => match sight::key(&model, &k) {
                 Some(a) => update::update(&mut model, a, live, start),
                 None => Flow::Continue,
             },

@@ -6,6 +6,7 @@
 use super::controls::Frame;
 use super::keymap::{Keymap, Mode};
 use super::layout::{self, Devices};
+use super::sight::Drawn;
 use super::theme::Theme;
 use super::trail::Trail;
 use crate::snapshot::DeviceView;
@@ -144,7 +145,8 @@ pub struct Message {
     pub at: Instant,
 }
 
-/// Teleop: set points driven by keys, with a deadman.
+/// Teleop: set points driven by keys, with a deadman. `steer` and `accel` are what
+/// the intake accepted (the bar shows them); a key asks for the next step from them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Teleop {
     pub steer: f64,
@@ -210,7 +212,8 @@ pub struct Model {
     /// Its last seconds, for the bench chart (fed by each tick on the bench).
     pub trail: Trail,
     pub(crate) help_scroll: u16,
-    /// The last accel the console sent.
+    /// The accel applied while engaged: the throttle and brake the intake accepted, as
+    /// one value (the console's last accepted accel until the next snapshot shows it).
     pub accel: Option<f64>,
     /// The time of the last tick or key (the view's "now").
     pub now: Instant,
@@ -228,6 +231,8 @@ pub struct Model {
     pub find: Option<Find>,
     /// The last name looked for, which the next and previous match keys look for again.
     pub(crate) last_find: Option<String>,
+    /// What the last frame showed: what keys may act on ([`check`](super::sight::check)).
+    pub drawn: Drawn,
 }
 
 impl Model {
@@ -254,6 +259,7 @@ impl Model {
             screen: Rect::new(0, 0, layout::MIN_WIDTH, 24),
             find: None,
             last_find: None,
+            drawn: Drawn::default(),
             snap,
         }
     }

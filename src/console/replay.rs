@@ -8,7 +8,7 @@
 //! past drive.
 
 use super::controls::{Controls, Frame, Thread};
-use super::keymap::{key_to_action, Action, Keymap, Mode};
+use super::keymap::{Action, Keymap, Mode};
 use super::model::Model;
 use super::theme::Theme;
 use super::update::{self, Flow};
@@ -18,7 +18,6 @@ use crate::net::BROADCAST_MAX;
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
 use crate::safety::{Done, Refused};
-use crate::snapshot::Snapshot;
 use crate::value::{Command, DeviceId};
 use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
 use crossbeam_channel::{select, Receiver};
@@ -254,7 +253,7 @@ impl Player {
     /// it, and the bench device's raw traffic up to it (ages as of `now`).
     pub fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
         let t = self.time();
-        let snap: Snapshot = serde_json::from_slice(self.json()).unwrap_or_default();
+        let snap = crate::record::message::recorded_snapshot(self.json()).unwrap_or_default();
         let upto = self.logs.partition_point(|(at, _)| *at <= t);
         let logs = self.logs[upto.saturating_sub(LOG_KEEP)..upto]
             .iter()
@@ -333,7 +332,9 @@ impl Controls for Replay<'_> {
     fn disengage(&self) -> Result<Done, Refused> {
         Err(read_only())
     }
-    fn stop(&self) {}
+    fn stop(&self) -> Result<(), Refused> {
+        Err(read_only())
+    }
     fn take(&self) -> Result<(), Refused> {
         Err(read_only())
     }
@@ -353,8 +354,12 @@ impl Controls for Replay<'_> {
     fn set_command_timeout(&self, _: DeviceId, _: Duration) -> Result<(), String> {
         Err(READ_ONLY.into())
     }
-    fn set_enabled(&self, _: DeviceId, _: Thread, _: bool) {}
-    fn wake(&self, _: DeviceId) {}
+    fn set_enabled(&self, _: DeviceId, _: Thread, _: bool) -> Result<(), String> {
+        Err(READ_ONLY.into())
+    }
+    fn wake(&self, _: DeviceId) -> Result<(), String> {
+        Err(READ_ONLY.into())
+    }
     fn sim(&self, _: &str) -> Option<Result<String, String>> {
         Some(Err(READ_ONLY.into()))
     }
@@ -450,12 +455,8 @@ impl Broadcast {
     /// Send one recorded snapshot, in parts when it does not fit one datagram, as the
     /// live broadcast does.
     pub fn send(&self, json: &[u8]) {
-        let parts = match json.len() <= BROADCAST_MAX {
-            true => Ok(vec![json.to_vec()]),
-            false => {
-                serde_json::from_slice::<Snapshot>(json).and_then(|s| s.datagrams(BROADCAST_MAX))
-            }
-        };
+        let parts = crate::record::message::recorded_snapshot(json)
+            .and_then(|s| s.datagrams(BROADCAST_MAX));
         let parts = match parts {
             Ok(p) => p,
             Err(e) => return tracing::warn!("replay broadcast: a recorded snapshot: {e}"),
@@ -476,16 +477,18 @@ struct Screen<'a> {
     bar: String,
 }
 
-impl Widget for &Screen<'_> {
-    fn render(self, area: Rect, buf: &mut Buffer) {
+impl Screen<'_> {
+    /// Draw the replay's line and the console under it; what the console showed.
+    fn draw(&self, area: Rect, buf: &mut Buffer) -> super::sight::Drawn {
         let [top, rest] = Layout::vertical([Constraint::Length(1), Constraint::Min(0)]).areas(area);
         let style = self.model.theme.bar().patch(self.model.theme.warn());
+        let bar = super::panels::fit::shorten(&self.bar, usize::from(top.width));
         Paragraph::new(Line::from(Span::styled(
-            format!("{:<width$}", self.bar, width = top.width as usize),
+            format!("{bar:<width$}", width = top.width as usize),
             style,
         )))
         .render(top, buf);
-        self.model.render(rest, buf);
+        super::view::draw(self.model, rest, buf)
     }
 }
 
@@ -518,9 +521,14 @@ pub fn run(
             model: &model,
             bar: player.bar(),
         };
-        if let Err(e) = screen.terminal.draw(|f| f.render_widget(&view, f.area())) {
+        let mut drawn = None;
+        if let Err(e) = screen
+            .terminal
+            .draw(|f| drawn = Some(view.draw(f.area(), f.buffer_mut())))
+        {
             break Exit::HangUp(format!("cannot draw: {e}"));
         }
+        model.drawn = drawn.unwrap_or_default();
         let msg = select! {
             recv(exits) -> why => break why.unwrap_or(Exit::Quit),
             recv(ticker) -> _ => None,
@@ -537,7 +545,7 @@ pub fn run(
                 if let Some(b) = &broadcast {
                     b.send(player.json());
                 }
-            } else if let Some(a) = key_to_action(&model.keymap, model.mode, &k) {
+            } else if let Some(a) = super::sight::key(&model, &k) {
                 if looks(a, model.mode) {
                     let replay = Replay { player: &player };
                     if let Flow::Exit(why) = update::update(&mut model, a, &replay, now) {
@@ -596,6 +604,7 @@ pub fn headless(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::snapshot::Snapshot;
 
     fn player(times_ms: &[u64]) -> Player {
         let frames = times_ms
@@ -676,5 +685,31 @@ mod tests {
         assert!(!looks(Action::Edit, Mode::Main));
         let space = KeyEvent::new(KeyCode::Char(' '), KeyModifiers::NONE);
         assert_eq!(replay_key(&space), Some(Key::Toggle));
+    }
+
+    /// The replay's line at 80 columns ran off the screen mid-word: it is cut at a
+    /// word with `…`, and the console under it is drawn (its keys act on it).
+    #[test]
+    fn the_replay_line_is_cut_with_a_mark_and_the_console_drawn_under_it() {
+        let p = player(&[0, 100]);
+        let model = Model::new(
+            Keymap::default_map(),
+            Theme::default(),
+            p.frame(Instant::now(), None),
+            crate::config::limits::DEADMAN_DEFAULT,
+        );
+        let view = Screen {
+            model: &model,
+            bar: p.bar(),
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 24));
+        let drawn = view.draw(buf.area, &mut buf);
+        let top: String = (0..80).map(|x| buf[(x, 0)].symbol()).collect();
+        assert!(
+            top.starts_with(" REPLAY t.mcap ❚❚ ×1 0.0/0.1 s 1/2 "),
+            "{top}"
+        );
+        assert!(top.trim_end().ends_with('…'), "{top}");
+        assert!(drawn.console, "80×23 under the replay's line");
     }
 }

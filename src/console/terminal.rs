@@ -86,11 +86,23 @@ impl Write for Output {
     }
 }
 
+/// How to go on without a terminal, for each program that opens the console.
+pub(crate) const RUN_WITHOUT: &str =
+    "over SSH give it one with `ssh -t HOST adrive`, or run without a console: \
+     `adrive --headless`";
+pub(crate) const ATTACH_WITHOUT: &str =
+    "over SSH give it one with `ssh -t HOST adrive attach`; for a one-shot look without \
+     a terminal, `adrive ctl status` (`adrive ctl stop` stops)";
+pub(crate) const REPLAY_WITHOUT: &str =
+    "over SSH give it one with `ssh -t HOST adrive replay FILE`, or play it without a \
+     console: `adrive replay FILE --headless --broadcast ADDR`";
+
 /// The console draws on standard output and reads keys from standard input: both must
 /// be a terminal. Checked before anything starts, so that `adrive < /dev/null` or
-/// `ssh host adrive` (no `-t`: no terminal) is refused with a way forward instead of
-/// starting the engine and failing inside crossterm.
-pub(crate) fn check_standard_streams() -> Result<(), String> {
+/// `ssh host adrive` (no `-t`: no terminal) is refused with the way forward for that
+/// program (`without`: [`RUN_WITHOUT`], [`ATTACH_WITHOUT`], [`REPLAY_WITHOUT`])
+/// instead of starting the engine and failing inside crossterm.
+pub(crate) fn check_standard_streams(without: &str) -> Result<(), String> {
     let which = match (io::stdin().is_terminal(), io::stdout().is_terminal()) {
         (true, true) => return Ok(()),
         (false, false) => "standard input and output are not one",
@@ -98,8 +110,7 @@ pub(crate) fn check_standard_streams() -> Result<(), String> {
         (true, false) => "standard output is not one",
     };
     Err(format!(
-        "the console needs a terminal, and {which}; over SSH give it one with \
-         `ssh -t HOST adrive`, or run without a console: `adrive --headless`"
+        "the console needs a terminal, and {which}; {without}"
     ))
 }
 

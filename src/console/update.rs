@@ -5,6 +5,7 @@
 use super::controls::{Controls, Thread};
 use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
 use super::model::{Ask, Edit, Field, Model, BRAKE_STEP, GAS_STEP, HOME_WAIT, STEER_STEP};
+use super::sight;
 use crate::config::Role;
 use crate::exit::Exit;
 use crate::snapshot::DeviceView;
@@ -68,17 +69,36 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
             true,
         );
     }
-    // The accel shown is the one sent while engaged: once disengaged (STOP, `D`, the
-    // gate, the watchdog, the supervisor) the vehicle has gas 0 and the brake full,
-    // whatever the console sent before.
-    if !m.snap.gate.engaged {
-        m.accel = None;
+    // What the vehicle was told, not what the console asked: the accel shown (while
+    // engaged: once disengaged — STOP, `D`, the gate, the watchdog, the supervisor —
+    // the vehicle has gas 0 and the brake full, whatever the console sent before) and
+    // the teleop bar follow the commands the intake accepted, whoever sent them.
+    let applied = m.snap.accel();
+    m.accel = if m.snap.gate.engaged {
+        applied.or(m.accel)
+    } else {
+        None
+    };
+    if m.in_teleop() {
+        if let Some(a) = applied {
+            m.teleop.accel = a;
+        }
+        if let Some(s) = m.snap.steering() {
+            m.teleop.steer = s;
+        }
     }
 }
 
-/// Apply one action.
+/// Apply one action — unless its target was not on the last frame drawn
+/// ([`sight::check`]): then it is refused, and the operator told.
 pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow {
     m.now = now;
+    if let Err(why) = sight::check(m, a) {
+        let text = sight::refusal(a, &why);
+        tracing::info!("console: {text}");
+        m.say(text, true);
+        return Flow::Continue;
+    }
     match a {
         Action::Interrupt => return Flow::Exit(Exit::Signal(libc::SIGINT)),
         Action::Quit => return Flow::Exit(Exit::Quit),
@@ -120,9 +140,11 @@ fn ask(m: &mut Model, q: Ask) {
 fn wake(m: &mut Model, c: &dyn Controls, id: DeviceId) {
     match m.snap.at(id) {
         Some(d) if d.is_actuator() => {
-            c.wake(id);
             let name = d.name.clone();
-            m.say(format!("woke the {name} command thread"), false);
+            match c.wake(id) {
+                Ok(()) => m.say(format!("woke the {name} command thread"), false),
+                Err(why) => m.say(format!("wake {name} refused: {why}"), true),
+            }
         }
         Some(d) => {
             let name = d.name.clone();
@@ -198,10 +220,11 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
                 .filter(|(_, d)| d.is_actuator())
                 .map(|(i, _)| DeviceId(i as u16))
                 .collect();
-            for id in &ids {
-                c.wake(*id);
+            let refused: Vec<String> = ids.iter().filter_map(|id| c.wake(*id).err()).collect();
+            match refused.first() {
+                None => m.say(format!("woke {} command threads", ids.len()), false),
+                Some(why) => m.say(format!("wake all refused: {why}"), true),
             }
-            m.say(format!("woke {} command threads", ids.len()), false);
         }
         Action::ResetSteering => reset_steering(m, c),
         Action::Engage => ask(m, Ask::Engage),
@@ -413,8 +436,11 @@ fn run_apply(m: &mut Model, c: &dyn Controls, field: Field, apply: Apply) -> Res
             m.say(format!("{fname} = {}", fmt_ms(d)), false);
         }
         Apply::Enable(r, t, on) => {
-            c.set_enabled(r, t, on);
-            m.say(format!("{fname} {}", if on { "on" } else { "off" }), false);
+            let word = if on { "on" } else { "off" };
+            match c.set_enabled(r, t, on) {
+                Ok(()) => m.say(format!("{fname} {word}"), false),
+                Err(why) => m.say(format!("{fname} {word} refused: {why}"), true),
+            }
         }
     }
     Ok(())
@@ -432,7 +458,7 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
                 },
                 Some(Ask::Disengage) => match c.disengage() {
                     Ok(done) => m.say(done.to_string(), false),
-                    Err(why) => m.say(format!("disengage refused: {why}"), true),
+                    Err(why) => m.say(format!("disengage not done: {why}"), true),
                 },
                 Some(Ask::Take) => match c.take() {
                     Ok(()) => m.say("the console commands the vehicle", false),
@@ -454,15 +480,19 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
     }
 }
 
+/// Teleop starts from what the vehicle was told: the steering's command (where it has
+/// none, where it is) and the throttle and brake as one accel.
 fn enter_teleop(m: &mut Model) {
     let steer = m.snap.bound("steering");
-    let at = steer
-        .and_then(|d| d.position())
-        .or(steer.and_then(|d| d.commanded.as_ref().and_then(Value::as_f64)))
+    let at = m
+        .snap
+        .steering()
+        .or(steer.and_then(|d| d.position()))
         .unwrap_or(0.0);
     let deadman = m.teleop.deadman;
     m.teleop = super::model::Teleop::new(deadman);
     m.teleop.steer = at;
+    m.teleop.accel = m.snap.accel().unwrap_or(0.0);
     m.mode = Mode::Teleop;
     m.say(
         format!(
@@ -473,65 +503,83 @@ fn enter_teleop(m: &mut Model) {
     );
 }
 
+/// A teleop key: the next set point from the one applied, asked of the intake; the bar
+/// takes what the intake accepted, and a refusal leaves it where it was.
 fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
-    let t = &mut m.teleop;
-    let (steer0, accel0) = (t.steer, t.accel);
+    let t = &m.teleop;
+    let (mut steer, mut accel) = (t.steer, t.accel);
     match a {
-        Action::SteerLeft => t.steer = (t.steer - STEER_STEP).max(-1.0),
-        Action::SteerRight => t.steer = (t.steer + STEER_STEP).min(1.0),
-        Action::Center => t.steer = 0.0,
-        Action::AccelUp if t.accel < 0.0 => t.accel = 0.0,
-        Action::AccelUp => t.accel = (t.accel + GAS_STEP).min(1.0),
-        Action::AccelDown if t.accel > 0.0 => t.accel = 0.0,
-        Action::AccelDown => t.accel = (t.accel - BRAKE_STEP).max(-1.0),
-        Action::FullBrake => t.accel = -1.0,
+        Action::SteerLeft => steer = (steer - STEER_STEP).max(-1.0),
+        Action::SteerRight => steer = (steer + STEER_STEP).min(1.0),
+        Action::Center => steer = 0.0,
+        Action::AccelUp if accel < 0.0 => accel = 0.0,
+        Action::AccelUp => accel = (accel + GAS_STEP).min(1.0),
+        Action::AccelDown if accel > 0.0 => accel = 0.0,
+        Action::AccelDown => accel = (accel - BRAKE_STEP).max(-1.0),
+        Action::FullBrake => accel = -1.0,
         Action::Engage => return ask(m, Ask::Engage),
         Action::TakeCommand => return take(m),
         Action::ClearOverride => return clear_override(m, c),
         Action::Back | Action::Cancel => {
             // Gas 0, brake full, staying engaged — if the console commands.
-            let _ = c.hold();
+            let held = c.hold();
             c.deadman(None);
             m.teleop.last_key = None;
             m.teleop.tripped = false;
-            m.accel = Some(-1.0);
             m.mode = Mode::Main;
-            m.say("left teleop: gas 0, brake full", false);
+            match held {
+                Ok(()) => {
+                    m.accel = Some(-1.0);
+                    m.say("left teleop: gas 0, brake full", false);
+                }
+                Err(why) => m.say(format!("left teleop; the brake not applied: {why}"), true),
+            }
             return;
         }
         _ => return,
     }
     // Any teleop key re-arms the deadman (and feeds it).
+    let t = &mut m.teleop;
     t.last_key = Some(now);
     t.tripped = false;
     c.deadman(Some(t.deadman));
-    t.steer = (t.steer * 1000.0).round() / 1000.0;
-    t.accel = (t.accel * 1000.0).round() / 1000.0;
-    let (steer, accel) = (t.steer, t.accel);
+    let steer = (steer * 1000.0).round() / 1000.0;
+    let accel = (accel * 1000.0).round() / 1000.0;
     let mut refused = Vec::new();
-    if steer != steer0 || a == Action::Center {
+    if steer != t.steer || a == Action::Center {
         match m.snap.bound_id(Role::Steering) {
-            Some(id) => {
-                if let Err(why) = c.submit(id, Command::Set(steer)) {
-                    refused.push(format!("steer {steer:.2}: {why}"));
-                }
-            }
+            Some(id) => match c.submit(id, Command::Set(steer)) {
+                Ok(()) => m.teleop.steer = steer,
+                Err(why) => refused.push(format!("steer {steer:.2}: {why}")),
+            },
             None => refused.push("steer: no steering bound".into()),
         }
     }
-    if accel != accel0 || matches!(a, Action::AccelUp | Action::AccelDown | Action::FullBrake) {
+    if accel != m.teleop.accel
+        || matches!(a, Action::AccelUp | Action::AccelDown | Action::FullBrake)
+    {
         match c.submit_accel(accel) {
-            Ok(()) => m.accel = Some(accel),
+            Ok(()) => {
+                m.teleop.accel = accel;
+                m.accel = Some(accel);
+            }
             Err(why) => refused.push(format!("accel {accel:.2}: {why}")),
         }
     }
+    let (steer, accel) = (m.teleop.steer, m.teleop.accel);
     if refused.is_empty() {
         m.say(
             format!("teleop: steer {steer:+.2} accel {accel:+.2}"),
             false,
         );
     } else {
-        m.say(format!("refused: {}", refused.join("; ")), true);
+        m.say(
+            format!(
+                "refused: {}; still steer {steer:+.2} accel {accel:+.2}",
+                refused.join("; ")
+            ),
+            true,
+        );
     }
 }
 
@@ -539,7 +587,7 @@ fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
 /// half done (an edit, a question, the name prompt) is dropped. Teleop stays, its brake full and its
 /// deadman idle until the next key.
 fn stop(m: &mut Model, c: &dyn Controls) {
-    c.stop();
+    let done = c.stop();
     if matches!(m.mode, Mode::Edit | Mode::Confirm | Mode::Find) {
         m.edit = None;
         m.ask = None;
@@ -548,11 +596,19 @@ fn stop(m: &mut Model, c: &dyn Controls) {
     }
     if m.mode == Mode::Teleop {
         c.deadman(None);
-        m.teleop.accel = -1.0;
         m.teleop.last_key = None;
         m.teleop.tripped = false;
     }
-    m.say("STOP: disengaged, gas 0, brake full", true);
+    match done {
+        Ok(()) => {
+            if m.mode == Mode::Teleop {
+                m.teleop.accel = -1.0;
+            }
+            m.say("STOP: disengaged, gas 0, brake full", true)
+        }
+        // Only an attached console's adrive can fail to take it: say so, loudly.
+        Err(why) => m.say(format!("STOP NOT CONFIRMED: {why}"), true),
+    }
 }
 
 fn bench(m: &mut Model, a: Action, c: &dyn Controls) {

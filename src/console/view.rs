@@ -1,7 +1,9 @@
-//! The whole screen, drawn from the [`Model`] alone (`impl Widget for &Model`): a top
-//! bar, the devices, the supervisory and network panels (or teleop), the log pane,
-//! the outcome line and the hint bar; the bench view instead of the devices; help and
-//! confirmation over it. Below the minimum size it says so instead.
+//! The whole screen, drawn from the [`Model`] alone ([`draw`], and `impl Widget for
+//! &Model`): a top bar, the devices, the supervisory and network panels (or teleop),
+//! the log pane, the outcome line and the hint bar; the bench view instead of the
+//! devices; help and confirmation over it. Below the minimum size it says so instead,
+//! with the keys that still act and the outcome of the last one. [`draw`] also says
+//! what the frame showed ([`Drawn`]): what keys may act on ([`sight`](super::sight)).
 //!
 //! The devices are laid out as [`layout`] says: a panel each in a grid
 //! (two columns at 80×24, three from 120 columns, bordered with more figures when
@@ -15,17 +17,20 @@ use super::model::Model;
 use super::panels::bench::BenchView;
 use super::panels::device::DevicePanel;
 use super::panels::dialog::Dialog;
+use super::panels::fit;
 use super::panels::header::Header;
 use super::panels::help::HelpPanel;
-use super::panels::hint::{HintBar, MessageLine};
+use super::panels::hint::{key_name, HintBar, MessageLine, MESSAGE_FOR};
 use super::panels::list::DeviceList;
 use super::panels::log::LogPanel;
 use super::panels::network::NetworkPanel;
 use super::panels::supervisor::{SupervisorPanel, SupervisorStrip};
 use super::panels::teleop::TeleopPanel;
+use super::sight::Drawn;
 use crate::value::DeviceId;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Layout, Rect};
+use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget, Wrap};
 use std::ops::Range;
 
@@ -76,7 +81,7 @@ impl Model {
     }
 
     /// The panels of devices `ids` in `g`, row by row.
-    fn render_grid(&self, g: &Grid, ids: Range<usize>, buf: &mut Buffer) {
+    fn render_grid(&self, g: &Grid, ids: Range<usize>, buf: &mut Buffer, seen: &mut Drawn) {
         let col_w = g.area.width / g.cols;
         let first = ids.start;
         for i in ids {
@@ -97,26 +102,33 @@ impl Model {
             }
             .intersection(g.area);
             if let Some(p) = self.panel(i, g.bordered) {
-                (&p).render(area, buf);
+                let shown = p.render_seen(area, buf);
+                if shown.name {
+                    seen.devices.push(DeviceId(i as u16));
+                }
+                seen.fields.extend(shown.fields);
             }
         }
     }
 
     /// The supervisory and network panels side by side.
-    fn render_lower(&self, sup: &SupervisorPanel, lower: Rect, buf: &mut Buffer) {
+    fn render_lower(&self, sup: &SupervisorPanel, lower: Rect, buf: &mut Buffer, seen: &mut Drawn) {
         if lower.height == 0 {
             return;
         }
         let [left, right] =
             Layout::horizontal([Constraint::Percentage(50), Constraint::Percentage(50)])
                 .areas(lower);
-        sup.render(
+        let accel = sup.render_seen(
             Rect {
                 width: left.width.saturating_sub(1),
                 ..left
             },
             buf,
         );
+        if accel {
+            seen.fields.push(crate::console::model::Field::Accel);
+        }
         let net = NetworkPanel {
             snap: &self.snap,
             theme: self.theme,
@@ -124,14 +136,17 @@ impl Model {
         (&net).render(right, buf);
     }
 
-    fn render_teleop(&self, area: Rect, buf: &mut Buffer) {
+    fn render_teleop(&self, area: Rect, buf: &mut Buffer, seen: &mut Drawn) {
         if area.height > 0 {
+            let g = &self.snap.gate;
+            let me = self.snap.you.as_deref().unwrap_or("console");
             let p = TeleopPanel {
                 t: &self.teleop,
                 now: self.now,
                 theme: self.theme,
+                commands: g.engaged && g.commander.as_deref() == Some(me),
             };
-            (&p).render(area, buf);
+            seen.teleop = p.render_seen(area, buf);
         }
     }
 
@@ -152,15 +167,23 @@ impl Model {
         }
     }
 
-    fn render_main(&self, body: Rect, buf: &mut Buffer) {
+    fn render_main(&self, body: Rect, buf: &mut Buffer, seen: &mut Drawn) {
         match self.layout_in(body) {
-            Devices::Panels { cols, rows, big } => self.render_panels(body, cols, rows, big, buf),
-            Devices::Many(l) => self.render_many(&l, buf),
+            Devices::Panels { cols, rows, big } => {
+                self.render_panels(body, (cols, rows, big), buf, seen)
+            }
+            Devices::Many(l) => self.render_many(&l, buf, seen),
         }
     }
 
     /// A panel for every device (Alice at 80×24).
-    fn render_panels(&self, body: Rect, cols: u16, rows: u16, big: bool, buf: &mut Buffer) {
+    fn render_panels(
+        &self,
+        body: Rect,
+        (cols, rows, big): (u16, u16, bool),
+        buf: &mut Buffer,
+        seen: &mut Drawn,
+    ) {
         let sup = SupervisorPanel {
             m: self,
             cursor: !self.in_teleop(),
@@ -205,9 +228,9 @@ impl Model {
             panel_h,
             bordered: big,
         };
-        self.render_grid(&g, 0..self.snap.devices.len(), buf);
-        self.render_teleop(teleop_area, buf);
-        self.render_lower(&sup, lower, buf);
+        self.render_grid(&g, 0..self.snap.devices.len(), buf, seen);
+        self.render_teleop(teleop_area, buf, seen);
+        self.render_lower(&sup, lower, buf, seen);
         if strip_area.height > 0 {
             (&strip).render(strip_area, buf);
         }
@@ -215,7 +238,7 @@ impl Model {
     }
 
     /// A row for every device and a window of full panels (many devices).
-    fn render_many(&self, l: &Many, buf: &mut Buffer) {
+    fn render_many(&self, l: &Many, buf: &mut Buffer, seen: &mut Drawn) {
         let teleop = self.in_teleop();
         let names = self.snap.devices.iter().map(|d| d.name.as_str());
         let found = match (&self.find, self.mode) {
@@ -232,11 +255,14 @@ impl Model {
             edit: self.edit.as_ref(),
             found: &found,
         };
-        (&list).render(l.list, buf);
+        let (rows, fields) = list.render_seen(l.list, buf);
+        seen.devices.extend(rows);
+        seen.fields.extend(fields);
         if l.packed {
             if let Some(p) = self.panel(l.first, false) {
-                let lines = p.packed(l.window.width, l.window.height);
+                let (lines, shown) = p.packed_seen(l.window.width, l.window.height);
                 Paragraph::new(lines).render(l.window, buf);
+                seen.fields.extend(shown.fields);
             }
         } else {
             let g = Grid {
@@ -246,7 +272,7 @@ impl Model {
                 bordered: false,
             };
             let n = self.snap.devices.len();
-            self.render_grid(&g, l.first..(l.first + l.per_page).min(n), buf);
+            self.render_grid(&g, l.first..(l.first + l.per_page).min(n), buf, seen);
         }
         let sup = SupervisorPanel {
             m: self,
@@ -261,8 +287,8 @@ impl Model {
             Constraint::Min(0),
         ])
         .areas(l.below);
-        self.render_teleop(teleop_area, buf);
-        self.render_lower(&sup, lower, buf);
+        self.render_teleop(teleop_area, buf, seen);
+        self.render_lower(&sup, lower, buf, seen);
         if strip_area.height > 0 {
             (&self.strip()).render(strip_area, buf);
         }
@@ -270,103 +296,155 @@ impl Model {
     }
 }
 
-fn too_small(area: Rect, buf: &mut Buffer) {
-    let text = format!(
-        "adrive needs a terminal of at least {MIN_WIDTH}×{MIN_HEIGHT}; this one is {}×{}. \
-         Enlarge the window (the engine keeps running; q quits).",
+/// The screen below the minimum size: the last outcome (a key refused, the STOP
+/// done), the size needed, the keys that still act, and the gate — each cut to the
+/// width, wrapped, readable at 40×10.
+fn too_small(m: &Model, area: Rect, buf: &mut Buffer) {
+    let t = &m.theme;
+    let key = |a| key_name(&m.keymap, Mode::Main, a);
+    let mut lines = Vec::new();
+    if let Some(msg) = m
+        .message
+        .as_ref()
+        .filter(|x| m.now.saturating_duration_since(x.at) < MESSAGE_FOR)
+    {
+        let style = if msg.bad { t.fault() } else { t.good() };
+        lines.push(Line::from(Span::styled(msg.text.clone(), style)));
+    }
+    lines.push(Line::from(format!(
+        "adrive needs a terminal of at least {MIN_WIDTH}×{MIN_HEIGHT}; this one is {}×{}.",
         area.width, area.height
-    );
-    Paragraph::new(text)
+    )));
+    lines.push(Line::from(format!(
+        "Enlarge the window: until then only {} (STOP) and {} (quit) act; the engine \
+         keeps running.",
+        key(Action::Stop),
+        key(Action::Quit)
+    )));
+    let g = &m.snap.gate;
+    let gate = if g.engaged {
+        let who = g.commander.as_deref().unwrap_or("nobody");
+        Span::styled(format!("ENGAGED (by {who})"), t.good())
+    } else {
+        let why = g.reason.trim_start_matches("disengaged: ");
+        Span::styled(format!("DISENGAGED ({why})"), t.warn())
+    };
+    lines.push(fit::line(Line::from(gate), area.width));
+    Paragraph::new(lines)
         .wrap(Wrap { trim: true })
         .render(area, buf);
 }
 
+/// Draw the whole screen of `m` into `buf` and say what the frame showed.
+pub fn draw(m: &Model, area: Rect, buf: &mut Buffer) -> Drawn {
+    let mut seen = Drawn {
+        size: (area.width, area.height),
+        ..Drawn::default()
+    };
+    if area.width < MIN_WIDTH || area.height < MIN_HEIGHT {
+        too_small(m, area, buf);
+        return seen;
+    }
+    seen.console = true;
+    let [header, body, msg, hint] = layout::split(area);
+    (&Header { m }).render(header, buf);
+    if m.in_bench() {
+        // The supervisor's strip under the bench, so an injected fault's effect
+        // shows where it was injected.
+        let strip = m.strip();
+        let room = body.height.saturating_sub(BENCH_MIN);
+        let strip_h = (strip.lines_in(body.width).len() as u16).min(3).min(room);
+        let [body, strip_area] =
+            Layout::vertical([Constraint::Min(0), Constraint::Length(strip_h)]).areas(body);
+        if strip_h > 0 {
+            (&strip).render(strip_area, buf);
+        }
+        if let Some(d) = m.bench_device() {
+            let v = BenchView {
+                id: m.bench,
+                d,
+                red: m.snap.red(d),
+                overridden: m.snap.overridden(d),
+                sim: m.snap.sim_of(m.bench),
+                buckets: &m.snap.buckets,
+                trace: &m.snap.trace,
+                theme: m.theme,
+                edit: m.edit.as_ref(),
+                now: m.now,
+                can_inject: m.snap.can_inject,
+                read_only: m.snap.read_only,
+                sim_vehicle: m.snap.sim_vehicle.as_deref(),
+                map: &m.keymap,
+                roles: &m.snap.gate.roles,
+                trail: &m.trail,
+                bus: d
+                    .bus
+                    .as_deref()
+                    .and_then(|b| m.snap.buses.iter().find(|x| x.name == b)),
+                refused: m.sim_refused(),
+            };
+            let shown = v.render_seen(body, buf);
+            if shown.panel.name {
+                seen.devices.push(m.bench);
+            }
+            seen.fields.extend(shown.panel.fields);
+            seen.sim_keys = shown.sim_keys;
+        }
+    } else {
+        m.render_main(body, buf, &mut seen);
+    }
+    match m.mode {
+        Mode::Help => {
+            let h = HelpPanel {
+                map: &m.keymap,
+                theme: m.theme,
+                scroll: m.help_scroll,
+                roles: &m.snap.gate.roles,
+            };
+            (&h).render(body, buf);
+            seen.covered();
+            seen.help = body.height > 2 && body.width > 2;
+        }
+        Mode::Confirm => {
+            if let Some(ask) = m.ask {
+                let d = Dialog {
+                    ask,
+                    map: &m.keymap,
+                    theme: m.theme,
+                };
+                let whole = d.render_seen(body, buf);
+                seen.covered();
+                seen.dialog = whole.then_some(ask);
+            }
+        }
+        _ => {}
+    }
+    let line = MessageLine { m };
+    // The prompt's line: what is typed, with its caret, whole.
+    seen.prompt = m.mode == Mode::Find && line.prompt_fits(area.width);
+    if msg.height > 0 {
+        (&line).render(msg, buf);
+    } else if matches!(m.mode, Mode::Edit | Mode::Find) || line.urgent() {
+        // No room for both: the edit's (or the prompt's) line wins over the hints, as
+        // does a refusal or a fault just said.
+        (&line).render(hint, buf);
+        return seen;
+    }
+    // With many devices, the name prompt's key is the first hint.
+    let many = !m.in_bench() && matches!(m.layout_in(body), Devices::Many(_));
+    let h = HintBar {
+        map: &m.keymap,
+        mode: m.mode,
+        theme: m.theme,
+        first: many.then_some(Action::Find),
+        roles: &m.snap.gate.roles,
+    };
+    (&h).render(hint, buf);
+    seen
+}
+
 impl Widget for &Model {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        if area.width < MIN_WIDTH || area.height < MIN_HEIGHT {
-            too_small(area, buf);
-            return;
-        }
-        let [header, body, msg, hint] = layout::split(area);
-        (&Header { m: self }).render(header, buf);
-        if self.in_bench() {
-            // The supervisor's strip under the bench, so an injected fault's effect
-            // shows where it was injected.
-            let strip = self.strip();
-            let room = body.height.saturating_sub(BENCH_MIN);
-            let strip_h = (strip.lines_in(body.width).len() as u16).min(3).min(room);
-            let [body, strip_area] =
-                Layout::vertical([Constraint::Min(0), Constraint::Length(strip_h)]).areas(body);
-            if strip_h > 0 {
-                (&strip).render(strip_area, buf);
-            }
-            if let Some(d) = self.bench_device() {
-                let v = BenchView {
-                    id: self.bench,
-                    d,
-                    red: self.snap.red(d),
-                    overridden: self.snap.overridden(d),
-                    sim: self.snap.sim_of(self.bench),
-                    buckets: &self.snap.buckets,
-                    trace: &self.snap.trace,
-                    theme: self.theme,
-                    edit: self.edit.as_ref(),
-                    now: self.now,
-                    can_inject: self.snap.can_inject,
-                    read_only: self.snap.read_only,
-                    sim_vehicle: self.snap.sim_vehicle.as_deref(),
-                    map: &self.keymap,
-                    roles: &self.snap.gate.roles,
-                    trail: &self.trail,
-                    bus: d
-                        .bus
-                        .as_deref()
-                        .and_then(|b| self.snap.buses.iter().find(|x| x.name == b)),
-                    refused: self.sim_refused(),
-                };
-                (&v).render(body, buf);
-            }
-        } else {
-            self.render_main(body, buf);
-        }
-        match self.mode {
-            Mode::Help => {
-                let h = HelpPanel {
-                    map: &self.keymap,
-                    theme: self.theme,
-                    scroll: self.help_scroll,
-                    roles: &self.snap.gate.roles,
-                };
-                (&h).render(body, buf);
-            }
-            Mode::Confirm => {
-                if let Some(ask) = self.ask {
-                    let d = Dialog {
-                        ask,
-                        map: &self.keymap,
-                        theme: self.theme,
-                    };
-                    (&d).render(body, buf);
-                }
-            }
-            _ => {}
-        }
-        if msg.height > 0 {
-            (&MessageLine { m: self }).render(msg, buf);
-        } else if matches!(self.mode, Mode::Edit | Mode::Find) {
-            // No room for both: the edit's (or the prompt's) line wins over the hints.
-            (&MessageLine { m: self }).render(hint, buf);
-            return;
-        }
-        // With many devices, the name prompt's key is the first hint.
-        let many = !self.in_bench() && matches!(self.layout_in(body), Devices::Many(_));
-        let h = HintBar {
-            map: &self.keymap,
-            mode: self.mode,
-            theme: self.theme,
-            first: many.then_some(Action::Find),
-            roles: &self.snap.gate.roles,
-        };
-        (&h).render(hint, buf);
+        draw(self, area, buf);
     }
 }

@@ -244,6 +244,10 @@ impl LineDriver {
 }
 
 impl Driver for LineDriver {
+    fn longest(&self) -> Duration {
+        self.reply_timeout
+    }
+
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError> {
         self.transact(link, POLL)?;
         decode_status(&self.buf, &self.map).map_err(DriverError::Garbled)

@@ -64,6 +64,11 @@ pub enum DriverError {
     /// The device answered in its protocol that it refuses (Modbus exception, `?`, `err`).
     #[error("device refused: {0}")]
     Refused(String),
+    /// No reply within the reply timeout; it came later, `late` after the deadline, and
+    /// was dropped (never taken for the next request's answer): the device answers
+    /// slower than its reply timeout.
+    #[error("no reply within {within:?}: it came {late:?} later and was dropped (slower than its reply_timeout)")]
+    Late { within: Duration, late: Duration },
     /// The command cannot be expressed for this device (e.g. a gear sent to steering).
     #[error("unsupported command: {0}")]
     Unsupported(String),
@@ -88,6 +93,7 @@ impl DriverError {
     pub fn kind(&self) -> &'static str {
         match self {
             DriverError::Timeout(_) => "timeout",
+            DriverError::Late { .. } => "late",
             DriverError::Garbled(_) => "garbled",
             DriverError::Refused(_) => "refused",
             DriverError::Unsupported(_) => "unsupported",
@@ -114,6 +120,12 @@ pub trait Driver: Send {
     }
     /// Ask the device for its state.
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError>;
+    /// The longest one transaction may hold the port: [`Driver::open`] after a reopen,
+    /// then the longest of a poll and a command. Every exchange ends at its deadline, so
+    /// this follows from the device's reply timeouts; it bounds how long a device's
+    /// thread may legitimately be inside the driver (its liveness bound,
+    /// [`crate::threads::Beat`]).
+    fn longest(&self) -> Duration;
     /// Send one command and wait for the device's acknowledgement.
     fn command(&mut self, link: &mut dyn Link, command: Command) -> Result<(), DriverError>;
     /// Whether [`Driver::send_command`] would write its request now, without waiting

@@ -11,12 +11,16 @@
 //! for every [`STATUS_EVERY`]) are an error of every device on the bus, which then
 //! hears nothing and is silent to the supervisor, with the adapter's words as the
 //! cause. A port that fails is closed and reopened with backoff, as any device's.
+//!
+//! At every turn it proves its progress ([`Beat`]): a read turn within
+//! [`STATUS_EVERY`] and a write, an open and bring-up within the adapter's answers, a
+//! backoff within itself.
 
 use crate::config::protocol_map::Wire;
 use crate::driver::slcan::proto::{self, Decoder, Event, FromAdapter, StatusFlags};
-use crate::driver::slcan::{decode_into, Bus, BusPort};
+use crate::driver::slcan::{decode_into, Bus, BusPort, ANSWER_WITHIN};
 use crate::driver::{read_some, Deadline, DriverError, Link};
-use crate::threads::StopSignal;
+use crate::threads::{Beat, StopSignal};
 use crate::value::Reading;
 use crate::vehicle::{Cached, Device, Vehicle};
 use std::sync::atomic::Ordering::Relaxed;
@@ -24,10 +28,13 @@ use std::time::{Duration, Instant};
 
 /// How often the adapter is asked for its status flags.
 pub const STATUS_EVERY: Duration = Duration::from_millis(500);
-/// How long each bring-up command may take to be answered.
-const ANSWER_WITHIN: Duration = Duration::from_millis(500);
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
-const BACKOFF_MAX: Duration = Duration::from_secs(5);
+pub(crate) const BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// The reader's first turn is due within this (it turns at once, then says its own
+/// bound for each open, backoff and read).
+pub(crate) const TURN: Duration = Duration::from_secs(10);
+/// A read turn: a status request written, then a read until the next is due.
+const READ_TURN: Duration = STATUS_EVERY.saturating_add(ANSWER_WITHIN);
 
 /// The devices on bus `index`, by their index in the vehicle.
 fn devices_on(v: &Vehicle, index: usize) -> Vec<usize> {
@@ -40,12 +47,16 @@ fn devices_on(v: &Vehicle, index: usize) -> Vec<usize> {
 }
 
 /// Run bus `index` of the vehicle until stopped.
-pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
+pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal, beat: &Beat) {
     let bus = &v.buses()[index];
     let on = devices_on(v, index);
     let mut backoff = BACKOFF_MIN;
     let mut readings: Vec<Reading> = vec![Reading::default(); on.len()];
+    // An open and the bring-up: a write and an answer per command, the kits' disables.
+    let opening =
+        ANSWER_WITHIN * (proto::bring_up(bus.bitrate(), false).len() + on.len() + 2) as u32;
     loop {
+        beat.turn(opening);
         if stop.is_stopped() {
             bus.go_down("stopped".into());
             return;
@@ -71,11 +82,15 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
                 for &i in &on {
                     let d = &v.devices()[i];
                     d.port_health().missing.store(true, Relaxed);
+                    d.port_health()
+                        .retry_ms
+                        .store(backoff.as_millis() as u64, Relaxed);
                     d.record_error(
                         &DriverError::Io(std::io::Error::new(e.kind(), why.clone())),
                         false,
                     );
                 }
+                beat.turn(backoff);
                 if !stop.sleep_until(Instant::now() + backoff) {
                     return;
                 }
@@ -83,7 +98,7 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
                 continue;
             }
         };
-        let why = read(v, bus, &on, &mut readings, reader.as_mut(), stop);
+        let why = read(v, bus, &on, &mut readings, reader.as_mut(), stop, beat);
         bus.go_down(why.clone());
         if stop.is_stopped() {
             return;
@@ -102,6 +117,7 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal) {
 /// Bring the adapter onto the bus; its write half goes to the bus, its read half is
 /// returned.
 fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box<dyn Link>> {
+    drain(reader.as_mut());
     let mut decoder = Decoder::<FromAdapter>::new();
     for (n, c) in proto::bring_up(bus.bitrate(), false).iter().enumerate() {
         writer.write_all(&proto::encode_command(c))?;
@@ -137,6 +153,26 @@ fn bring_up(bus: &Bus, (mut reader, mut writer): BusPort) -> std::io::Result<Box
     Ok(reader)
 }
 
+/// How long the adapter's line must be quiet before the bring-up's first command.
+const QUIET: Duration = Duration::from_millis(50);
+
+/// Before the bring-up asks anything: read and drop what the adapter sends unasked — the
+/// late answer of an earlier try (never to be taken for an answer of this one), the
+/// frames of a bus left open — until the line has been quiet for [`QUIET`], at most
+/// [`ANSWER_WITHIN`] (a bus left open is never quiet; its frames are no answer, and the
+/// decoder skips them).
+fn drain(reader: &mut dyn Link) {
+    let end = Instant::now() + ANSWER_WITHIN;
+    let mut buf = [0u8; 256];
+    loop {
+        let quiet = Deadline::after(QUIET.min(end.saturating_duration_since(Instant::now())));
+        match read_some(reader, &mut buf, &quiet) {
+            Ok(_) if Instant::now() < end => {}
+            _ => return,
+        }
+    }
+}
+
 /// A kit a previous run left enabled (adrive killed, the adapter unplugged while
 /// engaged) is disabled as soon as the adapter is on the bus again and the vehicle is
 /// not engaged: its disable messages go out before anything else.
@@ -167,6 +203,7 @@ fn read(
     readings: &mut [Reading],
     reader: &mut dyn Link,
     stop: &StopSignal,
+    beat: &Beat,
 ) -> String {
     let mut decoder = Decoder::<FromAdapter>::new();
     let mut buf = [0u8; 256];
@@ -177,6 +214,7 @@ fn read(
         }
     };
     loop {
+        beat.turn(READ_TURN);
         if stop.is_stopped() {
             return "stopped".into();
         }
@@ -279,4 +317,53 @@ fn store(d: &Device, reading: Reading, at: Instant) {
     d.health().status_error.store(0, Relaxed);
     d.record_ok(at);
     d.tap_polled(Some(at), at, Ok(&reading));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::driver::serial::SerialLink;
+    use serialport::TTYPort;
+    use std::io::{Read, Write};
+
+    /// The class of a late reply taken for the next request's: the late answer of an
+    /// earlier try at bringing the adapter up (a `\r`, "done") waits on the line. Taken
+    /// for the answer to `C`, it would shift every answer by one — `C`'s own `\r` read as
+    /// "the bitrate is set" — and the adapter's refusal of the bitrate would be blamed
+    /// on the next command. Drained first, the refusal is the bitrate's.
+    #[test]
+    fn a_late_answer_of_an_earlier_try_is_no_answer_of_the_bring_up() {
+        let v = crate::config::load(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml"),
+        )
+        .unwrap();
+        let bus = Bus::new(v.buses[0].clone());
+        let (mut adapter, host) = TTYPort::pair().expect("a pseudo-terminal pair");
+        adapter.set_timeout(Duration::from_millis(20)).unwrap();
+        // The late answer, there before anything is asked.
+        adapter.write_all(b"\r").unwrap();
+        let served = std::thread::spawn(move || {
+            // `C` is done; the bitrate is refused (BEL).
+            let mut answered = 0;
+            let mut b = [0u8; 1];
+            let end = Instant::now() + Duration::from_secs(20);
+            while answered < 2 && Instant::now() < end {
+                if let Ok(1) = adapter.read(&mut b) {
+                    if b[0] == b'\r' {
+                        let answer: &[u8] = if answered == 0 { b"\r" } else { b"\x07" };
+                        adapter.write_all(answer).unwrap();
+                        answered += 1;
+                    }
+                }
+            }
+            adapter
+        });
+        let reader = SerialLink::new(host, ANSWER_WITHIN).unwrap();
+        let writer = reader.try_clone().unwrap();
+        let e = bring_up(&bus, (Box::new(reader), Box::new(writer)))
+            .err()
+            .expect("the adapter refuses the bitrate");
+        assert!(e.to_string().contains("adapter refused Bitrate"), "{e}");
+        drop(served.join().unwrap());
+    }
 }

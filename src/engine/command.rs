@@ -5,23 +5,57 @@
 //! again. Commands are never queued: a newer one replaces one not yet sent. A command
 //! the admitting thread already wrote ([`super::fast`]) arrives with the port held: the
 //! thread reads its reply and keeps the books as for its own.
+//!
+//! At every turn, and after every transaction, it proves its progress ([`Beat`]): the
+//! next is due within [`turn_bound`]. A thread asleep on its slot legitimately waits up
+//! to `command_timeout`.
 
 use super::port::PortGuard;
 use super::slot::{Pending, Wake};
 use super::{Gate, WireStep};
 use crate::config::PortRule;
+use crate::threads::Beat;
 use crate::vehicle::stats::Stats;
 use crate::vehicle::Device;
 use std::sync::atomic::Ordering::Relaxed;
-use std::time::Instant;
+use std::time::{Duration, Instant};
+
+/// How long a turn of `d`'s command thread may take: its sleep on the slot (a resend is
+/// due every `command_timeout`; a command the admitting thread is writing meanwhile
+/// is one transaction), the paper's rate cap, a wait at the wire for another device
+/// (`wire_wait`), the wait for the port (a poll on the wire) and its own transaction.
+pub(crate) fn turn_bound(d: &Device, wire_wait: Duration) -> Duration {
+    d.settings().command_timeout()
+        + d.config().min_command_interval.unwrap_or_default()
+        + wire_wait
+        + d.port().longest() * 3
+}
+
+/// What the command thread's beat needs: the beat, and the vehicle's longest wait at
+/// the wire.
+struct Pulse<'b> {
+    beat: &'b Beat,
+    wire_wait: Duration,
+}
+
+impl Pulse<'_> {
+    fn turn(&self, d: &Device) {
+        self.beat.turn(turn_bound(d, self.wire_wait));
+    }
+}
 
 /// One actuator's command thread: wait for a command (or the resend timeout), have
 /// it checked at the wire, take the port, send the newest command, keep the port for
 /// a newer one that arrived meanwhile. A command the admitting thread already wrote
 /// ([`crate::engine::fast`]) arrives with the port held: the thread reads its reply.
-pub(crate) fn command_loop(gate: &Gate, d: &Device) {
+pub(crate) fn command_loop(gate: &Gate, d: &Device, beat: &Beat) {
     let mut last_sent_at: Option<Instant> = None;
+    let pulse = Pulse {
+        beat,
+        wire_wait: super::dispatch::longest_wire_wait(gate.vehicle()),
+    };
     loop {
+        pulse.turn(d);
         // 1. Something to send: a new command (in flight from now on), or the last
         //    one again. Set points and states are resent; a drive-control command
         //    (enable, home, the starter) happens once, when asked.
@@ -46,7 +80,7 @@ pub(crate) fn command_loop(gate: &Gate, d: &Device) {
                     h.first,
                     &mut last_sent_at,
                 );
-                keep_port(gate, d, port, &mut last_sent_at);
+                keep_port(gate, d, port, &mut last_sent_at, &pulse);
                 continue;
             }
             Wake::Command(p) => (p, true),
@@ -77,7 +111,7 @@ pub(crate) fn command_loop(gate: &Gate, d: &Device) {
                 (job, fresh) = (newer, true);
             }
         }
-        if !send(gate, d, job, fresh, None, &mut last_sent_at) {
+        if !send(gate, d, job, fresh, None, &mut last_sent_at, &pulse) {
             return;
         }
     }
@@ -96,6 +130,7 @@ fn send<'d>(
     mut fresh: bool,
     mut port: Option<PortGuard<'d>>,
     last_sent_at: &mut Option<Instant>,
+    pulse: &Pulse<'_>,
 ) -> bool {
     let mut waited = false;
     loop {
@@ -138,6 +173,7 @@ fn send<'d>(
         }
         let (result, first) = held.transact(|drv, link| drv.command(link, command));
         finished(d, job, fresh, command, result, first, last_sent_at);
+        pulse.turn(d);
         // Keep the port for a command that came in meanwhile.
         match newer_for_held_port(d, held) {
             Some(next) => (job, fresh, waited) = (next, true, false),
@@ -153,9 +189,10 @@ fn keep_port<'d>(
     d: &'d Device,
     port: PortGuard<'d>,
     last_sent_at: &mut Option<Instant>,
+    pulse: &Pulse<'_>,
 ) {
     if let Some(next) = newer_for_held_port(d, &port) {
-        send(gate, d, next, true, Some(port), last_sent_at);
+        send(gate, d, next, true, Some(port), last_sent_at, pulse);
     }
 }
 

@@ -34,6 +34,15 @@ fn wire_deadline(d: &Device) -> Instant {
     Instant::now() + d.config().reply_timeout * 2 + WIRE_SLACK
 }
 
+/// The longest a command may wait at the wire for another device ([`Gate::wait_for`]).
+pub(crate) fn longest_wire_wait(v: &crate::vehicle::Vehicle) -> Duration {
+    v.devices()
+        .iter()
+        .map(|d| d.config().reply_timeout * 2 + WIRE_SLACK)
+        .max()
+        .unwrap_or_default()
+}
+
 impl Gate {
     /// A driver took `device` over (`why`: the supervisor's `override`): latch it and
     /// hand the vehicle to the driver — disengaged, in the manual state (throttle and
@@ -44,7 +53,8 @@ impl Gate {
         }
         tracing::warn!(device, "driver override: {why}");
         self.leave_to_the_driver();
-        self.disengage(&format!("driver override on {device}"));
+        let state = self.state().stop_state(self.vehicle());
+        self.disengage_with(|g| g.set_disengaged_by_override(device), state);
     }
 
     /// Nothing is resent to a device the manual state does not command (the steering
@@ -98,7 +108,7 @@ impl Gate {
         // Kits enable after the safe command, never before it.
         v.set_kits_engaged(true);
         self.command_safe_state();
-        self.kits_follow(true, &self.state().stop_state(v.config()));
+        self.kits_follow(true, &self.state().stop_state(v));
         if let Some(s) = v.bound(Role::Steering) {
             if let Some(p) = s.config().position().and_then(|i| s.reading(i)) {
                 self.store(s, Command::Set(p), Instant::now());
@@ -112,7 +122,7 @@ impl Gate {
 
     /// Disengage and command the safe state. Returns false if it was not engaged.
     pub fn disengage(&self, reason: &str) -> bool {
-        self.disengage_into(reason, self.state().stop_state(self.vehicle().config()))
+        self.disengage_into(reason, self.state().stop_state(self.vehicle()))
     }
 
     /// An operator's STOP: disengage into the full safe state — throttle 0, brake full
@@ -124,7 +134,16 @@ impl Gate {
     }
 
     fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
-        let was = self.state().set_disengaged(reason);
+        self.disengage_with(|g| g.set_disengaged(reason), state)
+    }
+
+    /// Disengage (`set` records why, in the gate's state) into `state`.
+    fn disengage_with(
+        &self,
+        set: impl FnOnce(&crate::safety::GateState) -> bool,
+        state: Vec<(DeviceId, Command)>,
+    ) -> bool {
+        let was = set(self.state());
         // Kits disable after the safe command.
         self.vehicle().set_kits_engaged(false);
         let now = Instant::now();
@@ -133,8 +152,9 @@ impl Gate {
         }
         self.kits_follow(false, &state);
         if was {
-            tracing::warn!("disengaged: {reason}");
-            self.tap_gate(GateChange::Disengaged, || format!("disengaged: {reason}"));
+            let reason = self.reason();
+            tracing::warn!("{reason}");
+            self.tap_gate(GateChange::Disengaged, || reason);
         }
         was
     }
@@ -361,20 +381,37 @@ impl Gate {
             // reset) must not be left to resend to the driver's device.
             self.leave_to_the_driver();
         }
-        for (id, c) in self.state().stop_state(self.vehicle().config()) {
+        for (id, c) in self.state().stop_state(self.vehicle()) {
             self.store(self.vehicle().device(id), c, now);
         }
     }
 
+    /// The e-stop went to pause or disable while disengaged: its rule is commanded
+    /// (the safe state: [`GateState::stop_state`](crate::safety::GateState)), and the
+    /// e-stop is why the vehicle is disengaged now.
+    pub(crate) fn follow_estop(&self) {
+        let e = self.vehicle().estop().map_or("?", |e| e.as_str());
+        tracing::warn!("e-stop in {e}: brake and gas by the e-stop's rule");
+        self.disengage(&format!("e-stop is in {e}"));
+    }
+
     /// Wait until every reachable device acknowledged its part of the safe state.
-    /// Returns false if one did not by the deadline.
+    /// Returns false if one the rules act on ([`crate::safety::gate::needed`]) did not
+    /// by the deadline.
     pub fn wait_safe(&self, deadline: Instant) -> bool {
         let mut ok = true;
-        for (id, want) in self.state().stop_state(self.vehicle().config()) {
+        for (id, want) in self.state().stop_state(self.vehicle()) {
             let d = self.vehicle().device(id);
-            if !d.slot().wait_executed(|c| c == want, deadline) {
+            if d.slot().wait_executed(|c| c == want, deadline) {
+                continue;
+            }
+            // A device the rules do not act on (a horn) says nothing of whether the
+            // vehicle may still move.
+            if crate::safety::gate::needed(self.vehicle(), d) {
                 tracing::error!(device = %d.name(), "did not acknowledge the safe state");
                 ok = false;
+            } else {
+                tracing::warn!(device = %d.name(), "did not acknowledge its safe state (it holds up nothing)");
             }
         }
         ok

@@ -171,9 +171,10 @@ impl Gate {
     }
 
     /// A source went away for good (an attached console's connection closed: its
-    /// terminal closed, its SSH session dropped, its process killed). If it commands
-    /// the engaged vehicle, that is its watchdog: the safe state and disengage, now,
-    /// with `cause` as the reason. Interlocks it switched off come back on: nobody who
+    /// terminal closed, its SSH session dropped, its process killed; or it was
+    /// dropped). If it commands the engaged vehicle, that is its watchdog: the safe
+    /// state and disengage, now, the reason its name and `cause`, what it did (`went
+    /// away (its connection closed)`, `stopped reading for 4.1 s: dropped`). Interlocks it switched off come back on: nobody who
     /// stays chose to drive without them. A watcher changes nothing. Returns whether
     /// the watchdog tripped.
     pub fn gone(&self, source: Source, cause: &str) -> bool {
@@ -182,14 +183,14 @@ impl Gate {
             o.interlocks_off_by = None;
             self.state().set_interlocks(true);
             tracing::warn!(
-                "interlocks switched on again: {} that switched them off went away",
+                "interlocks switched on again: {} that switched them off {cause}",
                 Commander(source)
             );
         }
         if !self.is_engaged() || o.commander != Some(source) {
             return false;
         }
-        self.trip(o, format!("{} went away ({cause})", Commander(source)));
+        self.trip(o, format!("{} {cause}", Commander(source)));
         true
     }
 
@@ -434,9 +435,9 @@ mod tests {
             g.set_interlocks(watcher, true),
             Err(Refused::Owner(owner::Refusal::Commander(driver)))
         );
-        assert!(!g.gone(watcher, "its connection closed"));
+        assert!(!g.gone(watcher, "went away (its connection closed)"));
         assert!(g.is_engaged() && !g.interlocks_on());
-        assert!(g.gone(driver, "its connection closed"));
+        assert!(g.gone(driver, "went away (its connection closed)"));
         assert!(!g.is_engaged());
         assert!(g.interlocks_on());
         let why = g.command_view(t).watchdog.unwrap().last_trip.unwrap();

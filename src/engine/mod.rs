@@ -31,8 +31,9 @@
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
 //! [`Engine::shutdown`] joins them with a deadline and names any that did not stop;
-//! [`Engine::liveness`] tells whether each still runs (the service watchdog is fed
-//! only while all do). docs/architecture.md draws it.
+//! [`Engine::liveness`] tells whether each still runs and turns its loop within its
+//! bound (the service watchdog is fed only while all do). docs/architecture.md draws
+//! it.
 
 pub mod bus;
 pub mod command;
@@ -89,8 +90,8 @@ impl Engine {
         for b in 0..vehicle.buses().len() {
             let v = vehicle.clone();
             let name = v.buses()[b].name().to_string();
-            threads.spawn(format!("bus/{name}"), move |stop| {
-                bus::reader_loop(&v, b, stop)
+            threads.spawn_beating(format!("bus/{name}"), bus::TURN, move |stop, beat| {
+                bus::reader_loop(&v, b, stop, beat)
             })?;
         }
         for i in 0..vehicle.devices().len() {
@@ -99,18 +100,20 @@ impl Engine {
             let thread = format!("{name}/status");
             let fault = inject.clone().filter(|f| f.thread == thread);
             // A device on a CAN bus is read by its bus's reader.
-            if !v.devices()[i].config().on_bus() {
-                threads.spawn(thread, move |stop| {
+            let d = &vehicle.devices()[i];
+            if !d.config().on_bus() {
+                threads.spawn_beating(thread, status::turn_bound(d), move |stop, beat| {
                     let fault = fault.map(|f| (Instant::now() + f.after, f.panic));
-                    status::status_loop(&v.devices()[i], stop, fault)
+                    status::status_loop(&v.devices()[i], stop, beat, fault)
                 })?;
             }
-            if vehicle.devices()[i].is_actuator() {
+            if d.is_actuator() {
                 let g = gate.clone();
+                let first = command::turn_bound(d, dispatch::longest_wire_wait(&vehicle));
                 // The command thread stops when its slot does (it sleeps there).
-                threads.spawn(format!("{name}/command"), move |_| {
+                threads.spawn_beating(format!("{name}/command"), first, move |_, beat| {
                     placement::apply(&g.vehicle().config().vehicle.placement);
-                    command::command_loop(&g, &g.vehicle().devices()[i])
+                    command::command_loop(&g, &g.vehicle().devices()[i], beat)
                 })?;
             }
         }
@@ -133,7 +136,7 @@ impl Engine {
         self.threads.names()
     }
 
-    /// Whether each device thread runs.
+    /// Whether each device thread runs and turns its loop within its bound.
     pub(crate) fn liveness(&self) -> Liveness {
         self.threads.liveness()
     }

@@ -2,10 +2,15 @@
 //! as [`crate::safety::gate::blockers`] is not empty — a faulty or silent device, the
 //! e-stop in pause or disable — whoever engaged it (console or network), and runs the
 //! commander's watchdog ([`Gate::watch`]) at the same period. Looking every [`EVERY`],
-//! it bounds how late a silent device, the e-stop first of all, is acted on.
+//! it bounds how late a silent device, the e-stop first of all, is acted on. The
+//! e-stop's rule (brake full, gas 0) holds whether the vehicle was engaged or not: an
+//! e-stop that pauses a disengaged vehicle gets the safe state commanded too, so that
+//! the brake is applied by adrive's command, said as such, never by the actuator's own
+//! watchdog against a released command that the wire refuses to send.
 
 use super::Gate;
 use crate::threads::Owner;
+use crate::value::EstopState;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -20,17 +25,32 @@ pub struct Monitor {
 impl Monitor {
     pub fn start(gate: Arc<Gate>) -> std::io::Result<Monitor> {
         let mut threads = Owner::default();
-        threads.spawn("gate/monitor", move |stop| {
+        threads.spawn_beating("gate/monitor", EVERY, move |stop, beat| {
+            let mut halted = false;
             crate::threads::every(EVERY, stop, || {
+                beat.turn(EVERY);
                 gate.watch(Instant::now());
-                if gate.is_engaged() {
+                let engaged = gate.is_engaged();
+                if engaged {
                     if let Some(why) = gate.blockers().into_iter().next() {
                         gate.disengage(&why);
                     }
                 }
+                // The e-stop's rule holds a disengaged vehicle too: brake full, gas 0
+                // (an engaged one got it with its disengage).
+                let now_halted = gate.vehicle().estop().is_some_and(EstopState::halts);
+                if now_halted && !halted && !engaged {
+                    gate.follow_estop();
+                }
+                halted = now_halted;
             })
         })?;
         Ok(Monitor { threads })
+    }
+
+    /// Whether the monitor runs and turns every [`EVERY`].
+    pub(crate) fn liveness(&self) -> crate::threads::Liveness {
+        self.threads.liveness()
     }
 
     /// Stop and join; returns the thread's name if it did not stop.

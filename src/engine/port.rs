@@ -13,12 +13,32 @@
 //! stays available ([`PortRule::Paper`]) so the difference can be shown.
 //!
 //! The [`Conn`] behind the arbiter owns the driver and the open port: it opens the port
-//! lazily, reopens it with exponential backoff after a disconnect, and timestamps the
+//! lazily, reopens it with exponential backoff after a disconnect (capped at
+//! [`BACKOFF_MAX`], for as long as adrive runs: a device gone never ends the run), and
+//! timestamps the
 //! first byte of every transaction the moment the kernel has taken it. It also decides
 //! when input nobody asked for may be waiting: only after a transaction that failed or
 //! timed out (a late reply may follow) or a fresh open. After a clean transaction the
 //! reply was read to its end, so the driver's discard before the next request is
 //! skipped — one system call less between a command and the wire.
+//!
+//! **A late reply is never taken for the next request's answer.** A device that
+//! answers after the deadline of a request would have its reply read as the answer to
+//! the next one — the same shape when both are polls — and look healthy while it is
+//! slow. So an exchange that ends at its deadline with nothing heard — its whole reply
+//! may still come — drains the line before the port is let go ([`Conn::drain`]): it
+//! reads and drops whatever arrives until the line has been quiet for a while — as long
+//! as the device's silence rule affords ([`drain_quiet`]: up to a whole reply timeout),
+//! or, once the device has been seen answering late, as late as it answered and a
+//! quarter of a reply timeout more (up to two). A reply that came meanwhile says the
+//! device is slow ([`DriverError::Late`]). A reply begun and cut short, or a device that
+//! trickles, leaves only a tail, which the next reply's framing refuses: there the port
+//! is let go at once. The drain never costs
+//! a device that lost one request more than its `status_max_age` leaves after its
+//! period and one reply timeout, so one lost frame never makes it silent. (Requests of different
+//! shapes are also told apart by each driver: a Modbus reply must echo its request's
+//! function, byte count or written value, a line-protocol ack is no status line, an
+//! ELM327 reply names its PID.)
 
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
@@ -37,13 +57,17 @@ pub struct PortHealth {
     pub opens: AtomicU64,
     /// The last attempt to open it failed: the port is gone (unplugged, wrong path).
     pub missing: AtomicBool,
+    /// While it is gone: how long after a failed open it is tried again, ms (the
+    /// backoff, doubling up to its cap).
+    pub retry_ms: AtomicU64,
 }
 
 /// Opens a device's port (a serial port, a pseudo-terminal, a test double).
 pub(crate) type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
 
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
-const BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// The longest wait between two tries to open a port that is gone.
+pub const BACKOFF_MAX: Duration = Duration::from_secs(5);
 /// After this many failed transactions in a row the port is closed and reopened, and
 /// the driver's `open` runs again (it un-wedges adapters such as the ELM327).
 pub(crate) const REOPEN_AFTER: u32 = 5;
@@ -67,6 +91,9 @@ struct Arb {
 /// The arbiter of one device's port.
 pub struct Port {
     rule: PortRule,
+    /// The longest one transaction may hold it: the drain after a missed reply, then the
+    /// driver's longest ([`Driver::longest`]).
+    longest: Duration,
     arb: Mutex<Arb>,
     cv: Condvar,
     conn: Mutex<Conn>,
@@ -82,6 +109,7 @@ impl Port {
     pub fn new(rule: PortRule, conn: Conn) -> Port {
         Port {
             rule,
+            longest: conn.longest_drain() + conn.driver.longest(),
             arb: Mutex::new(Arb::default()),
             cv: Condvar::new(),
             conn: Mutex::new(conn),
@@ -90,6 +118,12 @@ impl Port {
 
     pub fn rule(&self) -> PortRule {
         self.rule
+    }
+
+    /// The longest one transaction may hold the port: a thread waiting for it waits no
+    /// longer than this for the holder.
+    pub fn longest(&self) -> Duration {
+        self.longest
     }
 
     fn take(&self, mut a: MutexGuard<'_, Arb>) -> Option<PortGuard<'_>> {
@@ -284,6 +318,15 @@ pub struct Conn {
     /// The next open is to be logged ("port reopened"): after a disconnect, or after
     /// a reopen that was logged.
     announce_open: bool,
+    /// The device's reply timeout: what the drain after a missed reply is measured in.
+    reply_timeout: Duration,
+    /// How long the line must be quiet after a missed reply ([`drain_quiet`]).
+    quiet_base: Duration,
+    /// How long after its deadline the latest late reply came.
+    seen_late: Duration,
+    /// The last exchange heard something after its request (a reply begun, a
+    /// trickle): a miss then leaves no whole late reply to come.
+    heard: bool,
 }
 
 impl Conn {
@@ -292,6 +335,7 @@ impl Conn {
         opener: Opener,
         trace: Arc<Trace>,
         health: Arc<PortHealth>,
+        config: &crate::config::DeviceConfig,
     ) -> Conn {
         Conn {
             driver,
@@ -306,6 +350,79 @@ impl Conn {
             open_error: None,
             reopens: crate::logging::Repeats::default(),
             announce_open: false,
+            reply_timeout: config.reply_timeout,
+            quiet_base: drain_quiet(config),
+            seen_late: Duration::ZERO,
+            heard: false,
+        }
+    }
+
+    /// How long the line must be quiet after a missed reply before the next request:
+    /// [`drain_quiet`], or — once the device has been seen answering late — as late as
+    /// it answered and a quarter of a reply timeout more, up to two reply timeouts.
+    fn quiet(&self) -> Duration {
+        self.quiet_base
+            .max(self.seen_late + self.reply_timeout / 4)
+            .min(self.reply_timeout * 2)
+    }
+
+    /// The longest a drain may take: twice the longest quiet.
+    fn longest_drain(&self) -> Duration {
+        self.reply_timeout * 4
+    }
+
+    /// A transaction that missed its deadline with nothing heard: its whole reply may
+    /// still come. Before the port is let go, read and drop what the device still sends
+    /// until the line has been quiet for [`Conn::quiet`] since the deadline or the last
+    /// byte (at most twice that in all, so a babbling device cannot hold the port);
+    /// every byte goes to the device's trace. Returns how late the reply came, if it
+    /// did. Done here, by the thread that missed, before it lets the port go: a
+    /// command's own transaction never drains between its wire check and its write.
+    fn drain(&mut self) -> Option<Duration> {
+        let missed = Instant::now();
+        let quiet = self.quiet();
+        let link = self.link.as_mut()?;
+        let cap = missed + quiet * 2;
+        let mut until = missed + quiet;
+        let mut late = None;
+        let mut buf = [0u8; 64];
+        while Instant::now() < until.min(cap) {
+            let wait = until.min(cap).saturating_duration_since(Instant::now());
+            if link
+                .set_timeout(wait.max(Duration::from_millis(1)))
+                .is_err()
+            {
+                break;
+            }
+            match link.read(&mut buf) {
+                Ok(n) if n > 0 => {
+                    let at = Instant::now();
+                    self.trace.record(Dir::In, &buf[..n]);
+                    late.get_or_insert(at.saturating_duration_since(missed));
+                    until = at + quiet;
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
+                // Closed or failing: the next transaction will see.
+                _ => break,
+            }
+        }
+        if let Some(l) = late {
+            self.seen_late = self.seen_late.max(l);
+        }
+        late
+    }
+
+    /// The result of an exchange that ended with `r`: one that missed its deadline with
+    /// nothing heard is drained ([`Conn::drain`]), and says so when its reply came late
+    /// — the device is slower than its reply timeout.
+    fn drained<T>(&mut self, r: Result<T, DriverError>) -> Result<T, DriverError> {
+        match r {
+            Err(DriverError::Timeout(within)) if !self.heard => match self.drain() {
+                Some(late) => Err(DriverError::Late { within, late }),
+                None => Err(DriverError::Timeout(within)),
+            },
+            r => r,
         }
     }
 
@@ -313,6 +430,9 @@ impl Conn {
         self.link = None;
         self.announce_open = true;
         self.next_open = Instant::now() + self.backoff;
+        self.health
+            .retry_ms
+            .store(self.backoff.as_millis() as u64, Relaxed);
         self.backoff = (self.backoff * 2).min(BACKOFF_MAX);
     }
 
@@ -344,6 +464,7 @@ impl Conn {
             first_write: None,
             trace: &self.trace,
             clean: false,
+            heard: false,
         };
         self.clean = false;
         if let Err(e) = self.driver.open(&mut traced) {
@@ -369,6 +490,7 @@ impl Conn {
             return (Err(e), None);
         }
         let (r, first) = self.run(f);
+        let r = self.drained(r);
         self.settle(&r);
         (r, first)
     }
@@ -408,6 +530,7 @@ impl Conn {
             return Err(DriverError::Io(io::ErrorKind::NotConnected.into()));
         }
         let (r, _) = self.run(|drv, link| drv.finish_command(link));
+        let r = self.drained(r);
         self.settle(&r);
         r
     }
@@ -429,9 +552,12 @@ impl Conn {
             first_write: None,
             trace: &self.trace,
             clean: self.clean,
+            heard: false,
         };
         let r = f(self.driver.as_mut(), &mut stamped);
-        (r, stamped.first_write)
+        let (first, heard) = (stamped.first_write, stamped.heard);
+        self.heard = heard;
+        (r, first)
     }
 
     /// Account for a transaction that ended with `r`: what to discard before the next
@@ -466,6 +592,19 @@ impl Conn {
     }
 }
 
+/// How long the line must be quiet after a missed reply before a device's next
+/// request: a whole reply timeout, unless its silence rule cannot afford it. After one
+/// lost request the device's last answer is at most a status period older than that
+/// request; its deadline, this quiet and the next answer (a quarter of a reply timeout
+/// allowed for it) must come within `status_max_age`, or one lost frame would make it
+/// silent. Never less than a quarter of a reply timeout.
+pub(crate) fn drain_quiet(c: &crate::config::DeviceConfig) -> Duration {
+    let t = c.reply_timeout;
+    c.status_max_age
+        .saturating_sub(c.status_period + t + t / 4)
+        .clamp(t / 4, t)
+}
+
 /// A link that notes when the first byte of a transaction was taken by the port and
 /// records the traffic in the device's trace.
 struct Stamped<'a> {
@@ -476,12 +615,15 @@ struct Stamped<'a> {
     /// one before its request) has nothing to do. A later one — a driver that read
     /// garbage mid-reply — still discards.
     clean: bool,
+    /// A byte came since the last request was written.
+    heard: bool,
 }
 
 impl Read for Stamped<'_> {
     fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
         let n = self.inner.read(buf)?;
         self.trace.record(Dir::In, &buf[..n]);
+        self.heard |= n > 0;
         Ok(n)
     }
 }
@@ -492,6 +634,9 @@ impl Write for Stamped<'_> {
         // Stamped once the kernel has the first byte, not before the call.
         if self.first_write.is_none() && n > 0 {
             self.first_write = Some(Instant::now());
+        }
+        if n > 0 {
+            self.heard = false;
         }
         self.trace.record(Dir::Out, &buf[..n]);
         Ok(n)
@@ -688,6 +833,91 @@ mod tests {
         assert_eq!(conn.health.opens.load(Relaxed), 1);
     }
 
+    /// The incident: a device answering later than its reply timeout had its late reply
+    /// read as the answer to the next request about half the time, so it looked
+    /// healthy. Over a real pseudo-terminal, a line device that answers its n-th request
+    /// with `pos=n` (so a reply names the request it answers), one at a time, first 20
+    /// ms after the deadline: no poll succeeds while it is that slow, the failures say
+    /// it is slower than its reply timeout, and once it is fast again every reply taken
+    /// is its own request's.
+    #[test]
+    fn a_late_reply_is_drained_never_taken_for_the_next_request_s() {
+        use crate::config::protocol_map::Wire;
+        use serialport::TTYPort;
+        use std::sync::atomic::AtomicU64;
+        let config = crate::config::one_device(
+            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"50ms\"\nstatus_max_age = \"500ms\"",
+        );
+        let Wire::Line(map) = config.wire.clone() else {
+            panic!("a line device")
+        };
+        let (mut device, host) = TTYPort::pair().expect("a pseudo-terminal pair");
+        device.set_timeout(Duration::from_millis(20)).unwrap();
+        // How late it answers, ms after a request arrives; u64::MAX stops it.
+        let slow = Arc::new(AtomicU64::new(70));
+        let s = slow.clone();
+        let served = std::thread::spawn(move || {
+            let (mut n, mut line) = (0u64, Vec::new());
+            let mut b = [0u8; 1];
+            while s.load(Relaxed) != u64::MAX {
+                match device.read(&mut b) {
+                    Ok(1) if b[0] == b'\n' => {
+                        n += 1;
+                        line.clear();
+                        std::thread::sleep(Duration::from_millis(s.load(Relaxed)));
+                        let _ = device.write_all(format!("= pos={n}\n").as_bytes());
+                    }
+                    Ok(_) => line.push(b[0]),
+                    Err(_) => {}
+                }
+            }
+        });
+        // Opened again by its path after failed transactions, as a serial port is.
+        let path = serialport::SerialPort::name(&host).expect("a pty's path");
+        let mut host = Some(host);
+        let opener: Opener = Box::new(move || match host.take() {
+            Some(h) => Ok(Box::new(h) as Box<dyn Link>),
+            None => crate::driver::open_serial(&path, 115_200, Duration::from_millis(50)),
+        });
+        let driver = Box::new(LineDriver::new(map, config.reply_timeout));
+        let mut conn = Conn::new(
+            driver,
+            opener,
+            Arc::new(Trace::new("d")),
+            Arc::default(),
+            &config,
+        );
+        let mut poll = || conn.transact(|drv, link| drv.poll(link)).0;
+        let mut late = 0;
+        for k in 1..=12 {
+            match poll() {
+                Ok(r) => panic!(
+                    "poll {k} took {:?}, the answer to another request",
+                    r.get(0)
+                ),
+                Err(DriverError::Late { .. }) => late += 1,
+                Err(DriverError::Timeout(_)) => {}
+                Err(e) => panic!("poll {k}: {e}"),
+            }
+        }
+        assert!(late >= 10, "named slow: {late} of 12");
+        // Fast again: each reply taken is its own request's (the device has answered k
+        // requests when the host's k-th is done).
+        slow.store(1, Relaxed);
+        let mut k = 12;
+        let mut good = 0;
+        while good < 5 {
+            k += 1;
+            assert!(k < 40, "never answered in time again");
+            if let Ok(r) = poll() {
+                assert_eq!(r.get(0), Some(k as f64), "poll {k} took another's answer");
+                good += 1;
+            }
+        }
+        slow.store(u64::MAX, Relaxed);
+        served.join().unwrap();
+    }
+
     /// Under the paper's rule a command never jumps the queue for the port.
     #[test]
     fn the_paper_rule_never_gives_the_port_at_once() {
@@ -713,16 +943,21 @@ mod tests {
         });
         let opener: Opener =
             Box::new(move || Ok(Box::new(device.take().expect("opened once")) as Box<dyn Link>));
-        let map = match crate::config::one_device(
-            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"",
-        )
-        .wire
-        {
-            crate::config::protocol_map::Wire::Line(m) => m,
+        let config = crate::config::one_device(
+            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"50ms\"",
+        );
+        let map = match &config.wire {
+            crate::config::protocol_map::Wire::Line(m) => m.clone(),
             other => panic!("{other:?}"),
         };
         let driver = Box::new(LineDriver::new(map, Duration::from_millis(50)));
-        let conn = Conn::new(driver, opener, Arc::new(Trace::new("d")), Arc::default());
+        let conn = Conn::new(
+            driver,
+            opener,
+            Arc::new(Trace::new("d")),
+            Arc::default(),
+            &config,
+        );
         (conn, discards)
     }
 }

@@ -343,17 +343,25 @@ impl CommandSlot {
     }
 
     /// The lowest and highest set point acknowledged since `since` (of the last
-    /// [`RECENT`]), the last one always included: every command that can have driven
-    /// the device meanwhile. `None` before the first.
+    /// [`RECENT`]), the one in force at `since` and the last always included: every
+    /// command that can have driven the device meanwhile. `None` before the first.
     pub(crate) fn acked_span(&self, since: Instant) -> Option<[f64; 2]> {
         let s = self.state.lock();
         let (_, last) = *s.recent.back()?;
+        // The last acknowledged at or before `since` still drove it then.
+        let from = s.recent.iter().rposition(|(t, _)| *t <= since).unwrap_or(0);
         let span = s
             .recent
             .iter()
-            .filter(|(t, _)| *t >= since)
+            .skip(from)
             .fold([last, last], |[lo, hi], &(_, v)| [lo.min(v), hi.max(v)]);
         Some(span)
+    }
+
+    /// When the device last acknowledged a set point (a resend included): a device
+    /// with a watchdog of its own acts by itself once this is too long ago.
+    pub(crate) fn acked_last_at(&self) -> Option<Instant> {
+        self.state.lock().recent.back().map(|(t, _)| *t)
     }
 
     /// What the command thread sends again when nothing new arrives.
@@ -427,6 +435,29 @@ impl CommandSlot {
 mod tests {
     use super::*;
     use std::sync::Arc;
+
+    /// A reading is judged against the commands that were driving the device when it
+    /// was taken: the set point acknowledged before `since` and still in force then is
+    /// part of the span, not only those after it. (The brake held full by the safe
+    /// state, then released by the manual state: a reading taken just before the
+    /// release was once compared with the release alone.)
+    #[test]
+    fn the_span_holds_the_set_point_in_force_at_its_start() {
+        let slot = CommandSlot::default();
+        let ack = |v: f64| {
+            slot.fly(Command::Set(v));
+            slot.finish(Command::Set(v), true);
+        };
+        ack(1.0);
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        let since = Instant::now();
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        ack(0.0);
+        assert_eq!(slot.acked_span(since), Some([0.0, 1.0]));
+        assert_eq!(slot.acked_span(Instant::now()), Some([0.0, 0.0]));
+        let last = slot.acked_last_at().expect("acknowledged");
+        assert!(last > since);
+    }
 
     #[test]
     fn a_newer_command_replaces_a_pending_one() {

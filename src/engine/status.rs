@@ -3,20 +3,44 @@
 //! the estimator, and count. Readers (network, console, supervisor) only ever read
 //! what this thread stored. The poll takes the port under the port's rule
 //! ([`super::port`]): it yields to a waiting command unless it is overdue.
+//!
+//! At every turn it proves its progress ([`Beat`]): the next turn is due within its
+//! period, its wait for the port ([`turn_bound`]) and a transaction; once it holds the
+//! port, within one transaction ([`super::port::Port::longest`]).
 
-use crate::threads::StopSignal;
+use crate::threads::{Beat, StopSignal};
 use crate::vehicle::stats::Stats;
 use crate::vehicle::{Cached, Device};
 use std::sync::atomic::Ordering::Relaxed;
-use std::time::Instant;
+use std::time::{Duration, Instant};
+
+/// How long a turn of `d`'s status thread may take: its sleep (the status period), its
+/// wait for the port (an overdue poll waits no longer than `status_max_age` for
+/// commands, then for the one transaction on the wire — a sensor has no command
+/// thread), and its own poll.
+pub(crate) fn turn_bound(d: &Device) -> Duration {
+    let txn = d.port().longest();
+    let commands = if d.is_actuator() {
+        d.config().status_max_age + txn
+    } else {
+        Duration::ZERO
+    };
+    d.settings().status_period() + commands + txn
+}
 
 /// `fault`: when to end, and whether by a panic (`--inject-panic`, tests only).
-pub(crate) fn status_loop(d: &Device, stop: &StopSignal, fault: Option<(Instant, bool)>) {
+pub(crate) fn status_loop(
+    d: &Device,
+    stop: &StopSignal,
+    beat: &Beat,
+    fault: Option<(Instant, bool)>,
+) {
     let mut next = Instant::now();
     // The first poll is due at once.
     let mut last_attempt: Option<Instant> = None;
     let mut schedule = super::polling::Schedule::default();
     loop {
+        beat.turn(turn_bound(d));
         if !stop.sleep_until(next) {
             return;
         }
@@ -36,6 +60,7 @@ pub(crate) fn status_loop(d: &Device, stop: &StopSignal, fault: Option<(Instant,
         let Some(mut port) = d.port().acquire_status(overdue_at, d.slot()) else {
             return;
         };
+        beat.turn(d.port().longest());
         let started = Instant::now();
         schedule.start(d, started);
         let (result, first) = port.transact(|drv, link| drv.poll(link));

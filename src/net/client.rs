@@ -208,6 +208,9 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
             }
             match socket.recv(&mut buf) {
                 Ok(n) => {
+                    if unreachable {
+                        eprintln!("adrive send: {} replies again", opts.to);
+                    }
                     unreachable = false;
                     refused_last = false;
                     replied = true;
@@ -227,7 +230,14 @@ pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32
                 Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
                     refused_last = true;
                     if !unreachable {
-                        eprintln!("adrive send: nothing is listening at {} (yet)", opts.to);
+                        // What is known: its port refuses now; and whether it replied
+                        // before (then it stopped, or moved), or never did.
+                        let when = if replied {
+                            "any more (it replied before)"
+                        } else {
+                            "(yet)"
+                        };
+                        eprintln!("adrive send: nothing is listening at {} {when}", opts.to);
                         unreachable = true;
                     }
                     std::thread::sleep(left.min(Duration::from_millis(5)));

@@ -1,10 +1,10 @@
 //! `adrive record info FILE`: what a recording holds — who recorded it, when and for
 //! how long, each channel with its message count, the commands received and refused,
 //! engage and disengage, every fault, what the recorder left out — and whether the
-//! file was finished or cut off.
+//! file was finished, is being written, or was cut off ([`state`]).
 
 use super::message::{FaultMsg, GateMsg, Received, RecordMsg};
-use super::read::Recording;
+use super::read::{Ending, Recording};
 use std::collections::BTreeMap;
 use std::fmt::Write;
 use std::time::{Duration, UNIX_EPOCH};
@@ -91,10 +91,7 @@ fn rfc3339(ns: u64) -> String {
 pub fn report(rec: &Recording) -> String {
     let i = gather(rec);
     let mut s = String::new();
-    let state = match &i.cut {
-        None => format!("complete, {} chunks", rec.chunks),
-        Some(why) => format!("CUT OFF ({why}); readable up to its last whole chunk"),
-    };
+    let state = state(rec, i.cut.as_deref());
     let _ = writeln!(
         s,
         "{}: {}, {state}",
@@ -149,6 +146,34 @@ pub fn report(rec: &Recording) -> String {
         }
     }
     s
+}
+
+/// How the file ends, in words: finished, being written, stopped without being
+/// finished, or cut inside a chunk — with what reads it.
+pub(crate) fn state(rec: &Recording, cut: Option<&str>) -> String {
+    let n = rec.chunks;
+    let repair = format!("`adrive record repair {}`", rec.path.display());
+    if rec.writing {
+        return format!(
+            "being written by a running adrive (it holds the file's lock), {n} chunks so far"
+        );
+    }
+    let cut = cut.or(match &rec.ending {
+        Ending::Cut(why) => Some(why.as_str()),
+        _ => None,
+    });
+    match cut {
+        None if rec.ending == Ending::Finished => format!("complete, {n} chunks"),
+        None => format!(
+            "NOT FINISHED, {n} chunks: no summary (adrive stopped without finishing it: \
+             kill -9, a power loss; or another machine is writing it); every MCAP reader \
+             reads it; {repair} adds the index"
+        ),
+        Some(why) => format!(
+            "CUT OFF ({why}); readable up to its last whole chunk by adrive and by \
+             readers that read from the start; {repair} writes a whole copy"
+        ),
+    }
 }
 
 /// The events one a line, a run of the same event (an engage refused ten times a

@@ -5,7 +5,8 @@
 //! reading name), so a plot of `/steer/command.value` against
 //! `/steer/reading.position` needs no configuration.
 
-use crate::config::{DeviceConfig, ReadingKind};
+use super::schema::{self, schema_of};
+use crate::config::{DeviceConfig, ReadingKind, VehicleConfig};
 use crate::snapshot::{FaultKind, Snapshot};
 use crate::value::{Command, DeviceId, Reading};
 use crate::vehicle::tap::{Asked, Event, GateChange, Source};
@@ -93,36 +94,47 @@ impl Topic {
         all
     }
 
-    /// The schema's name and its JSON Schema text.
-    pub fn schema(self, devices: &[DeviceConfig]) -> (String, Vec<u8>) {
-        let (name, schema) = match self {
-            Topic::Snapshot => ("adrive.Snapshot".to_string(), schema_of::<Snapshot>()),
-            Topic::Commands => ("adrive.Received".into(), schema_of::<Received>()),
-            Topic::Gate => ("adrive.Gate".into(), schema_of::<GateMsg>()),
-            Topic::Faults => ("adrive.Fault".into(), schema_of::<FaultMsg>()),
-            Topic::Supervisor => ("adrive.Note".into(), schema_of::<NoteMsg>()),
-            Topic::Log => ("foxglove.Log".into(), foxglove_log_schema()),
-            Topic::Record => ("adrive.RecordStatus".into(), schema_of::<RecordMsg>()),
-            Topic::Command(_) => ("adrive.Written".into(), schema_of::<Written>()),
-            Topic::Reading(id) => {
-                let d = &devices[id.index()];
-                (format!("adrive.{}.Reading", d.name), reading_schema(d))
-            }
-            Topic::Raw(_) => ("adrive.Raw".into(), schema_of::<RawMsg>()),
-        };
+    /// The schema's name and its JSON Schema text, as the viewers read it
+    /// ([`schema::readable`]): the one schema of this channel, recorded or live.
+    pub fn schema(self, config: &VehicleConfig) -> (String, Vec<u8>) {
+        let s = schema::readable(&self.generated(config), &schema::Keys::of(config));
         (
-            name,
-            serde_json::to_vec(&schema).expect("a schema serializes"),
+            self.schema_name(&config.devices),
+            serde_json::to_vec(&s).expect("a schema serializes"),
         )
     }
-}
 
-/// The JSON Schema of `T`, every subschema inlined (readers need not follow `$ref`).
-pub(crate) fn schema_of<T: JsonSchema>() -> Value {
-    let generator = schemars::generate::SchemaSettings::draft07()
-        .with(|s| s.inline_subschemas = true)
-        .into_generator();
-    generator.into_root_schema_for::<T>().to_value()
+    /// The schema's name.
+    pub fn schema_name(self, devices: &[DeviceConfig]) -> String {
+        match self {
+            Topic::Snapshot => "adrive.Snapshot".into(),
+            Topic::Commands => "adrive.Received".into(),
+            Topic::Gate => "adrive.Gate".into(),
+            Topic::Faults => "adrive.Fault".into(),
+            Topic::Supervisor => "adrive.Note".into(),
+            Topic::Log => "foxglove.Log".into(),
+            Topic::Record => "adrive.RecordStatus".into(),
+            Topic::Command(_) => "adrive.Written".into(),
+            Topic::Reading(id) => format!("adrive.{}.Reading", devices[id.index()].name),
+            Topic::Raw(_) => "adrive.Raw".into(),
+        }
+    }
+
+    /// The JSON Schema of the channel's type as generated, before [`schema::readable`].
+    pub(crate) fn generated(self, config: &VehicleConfig) -> Value {
+        match self {
+            Topic::Snapshot => schema_of::<Snapshot>(),
+            Topic::Commands => schema_of::<Received>(),
+            Topic::Gate => schema_of::<GateMsg>(),
+            Topic::Faults => schema_of::<FaultMsg>(),
+            Topic::Supervisor => schema_of::<NoteMsg>(),
+            Topic::Log => foxglove_log_schema(),
+            Topic::Record => schema_of::<RecordMsg>(),
+            Topic::Command(_) => schema_of::<Written>(),
+            Topic::Reading(id) => reading_schema(&config.devices[id.index()]),
+            Topic::Raw(_) => schema_of::<RawMsg>(),
+        }
+    }
 }
 
 /// `/commands`: a command received, or a datagram refused whole.
@@ -327,7 +339,7 @@ fn foxglove_log_schema() -> Value {
 const READING_FIELDS: [&str; 4] = ["ok", "error", "fault", "txn_us"];
 
 /// `/DEVICE/reading`'s schema: the device's readings by name, with their types and
-/// units, then whether the poll succeeded.
+/// units, then whether the poll succeeded. A reading not reported is absent.
 pub(crate) fn reading_schema(d: &DeviceConfig) -> Value {
     let mut props = Map::new();
     props.insert(
@@ -336,25 +348,21 @@ pub(crate) fn reading_schema(d: &DeviceConfig) -> Value {
     );
     props.insert(
         "error".into(),
-        json!({ "type": ["string", "null"], "description": "timeout, garbled, refused, unsupported or io" }),
+        json!({ "type": "string", "description": "timeout, garbled, refused, unsupported or io; absent when it succeeded" }),
     );
     props.insert(
         "fault".into(),
-        json!({ "type": ["integer", "null"], "description": "device-reported fault bits; 0 is good" }),
+        json!({ "type": "integer", "description": "device-reported fault bits; 0 is good" }),
     );
     props.insert(
         "txn_us".into(),
-        json!({ "type": ["number", "null"], "description": "the status transaction, µs" }),
+        json!({ "type": "number", "description": "the status transaction, µs" }),
     );
     for r in &d.readings {
-        let mut s = match &r.kind {
-            ReadingKind::Number => json!({ "type": ["number", "null"] }),
-            ReadingKind::Flag => json!({ "type": ["boolean", "null"] }),
-            ReadingKind::States(states) => json!({
-                "type": ["string", "number", "null"],
-                "description": format!("one of {}", states.join(", ")),
-            }),
-        };
+        let mut s = json!({ "type": schema::reading_type(&r.kind) });
+        if let ReadingKind::States(states) = &r.kind {
+            s["description"] = json!(format!("one of {}", states.join(", ")));
+        }
         if !r.units.is_empty() {
             s["description"] = json!(r.units);
         }
@@ -386,10 +394,34 @@ pub(crate) fn reading_message(
         if READING_FIELDS.contains(&r.name.as_str()) {
             continue;
         }
-        let v = reading.and_then(|x| x.get(i)).map(|v| r.value(v));
+        // A state by its name; one the device has no name for, by its number in words.
+        let v = reading
+            .and_then(|x| x.get(i))
+            .map(|v| match (&r.kind, r.value(v)) {
+                (ReadingKind::States(_), crate::value::Value::Number(n)) => json!(n.to_string()),
+                (_, v) => json!(v),
+            });
         m.insert(r.name.clone(), json!(v));
     }
     Value::Object(m)
+}
+
+/// A recorded `/snapshot` message back as the snapshot it was: a recording leaves null
+/// members out ([`schema::without_nulls`]), so a reading not reported yet comes back
+/// as null, every device's readings in the order of its `reading_units`, as broadcast.
+pub fn recorded_snapshot(json: &[u8]) -> serde_json::Result<Snapshot> {
+    let mut s: Snapshot = serde_json::from_slice(json)?;
+    for d in &mut s.devices {
+        let mut readings = std::mem::take(&mut d.readings).0;
+        let mut all: Vec<(String, Option<crate::value::Value>)> = Vec::new();
+        for (name, _) in d.reading_units.iter() {
+            let i = readings.iter().position(|(n, _)| n == name);
+            all.push((name.to_string(), i.and_then(|i| readings.remove(i).1)));
+        }
+        all.extend(readings);
+        d.readings = crate::snapshot::Pairs(all);
+    }
+    Ok(s)
 }
 
 /// The paper's error codes in words.
@@ -423,7 +455,7 @@ pub fn topic(ev: &Event) -> Topic {
 /// what the recorder writes and the live view sends, made in this one place.
 pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
     match ev {
-        Event::Snapshot { at, json } => (Topic::Snapshot, c.ns(at), json),
+        Event::Snapshot { at, json } => (Topic::Snapshot, c.ns(at), schema::without_nulls(&json)),
         Event::Received {
             at,
             source,
@@ -553,7 +585,7 @@ pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
 
 fn json(topic: Topic, at: u64, value: &impl Serialize) -> (Topic, u64, Vec<u8>) {
     let data = serde_json::to_vec(value).expect("a message of plain fields serializes");
-    (topic, at, data)
+    (topic, at, schema::without_nulls(&data))
 }
 
 /// Wall-clock nanoseconds of the instants events carry, from one reading of both clocks.
@@ -602,12 +634,42 @@ mod tests {
             Topic::Commands,
             Topic::Command(DeviceId(0)),
         ] {
-            let (_, bytes) = t.schema(&alice.devices);
+            let (_, bytes) = t.schema(&alice);
             let text = String::from_utf8(bytes).unwrap();
             assert!(!text.contains("$ref"), "{text}");
             let v: Value = serde_json::from_str(&text).unwrap();
             assert_eq!(v["type"], "object", "{text}");
         }
+    }
+
+    /// A recording leaves nulls out, for the viewers; replay gets back the snapshot
+    /// as broadcast, readings not reported yet included, in their order.
+    #[test]
+    fn a_recorded_snapshot_reads_back_as_broadcast() {
+        let mut snap = crate::testkit::gate(Instant::now()).snapshot(3);
+        let d = &mut snap.devices[0];
+        d.readings = [
+            ("position", None),
+            ("velocity", Some(crate::value::Value::Number(0.5))),
+        ]
+        .into_iter()
+        .map(|(n, v)| (n.to_string(), v))
+        .collect();
+        d.reading_units = [("position", "rad"), ("velocity", "rad/s")]
+            .into_iter()
+            .map(|(n, u)| (n.to_string(), u.to_string()))
+            .collect();
+        let json = serde_json::to_vec(&snap).unwrap();
+        let recorded = schema::without_nulls(&json);
+        assert!(!String::from_utf8_lossy(&recorded).contains("null"));
+        let sent: Snapshot = serde_json::from_slice(&json).unwrap();
+        let back = recorded_snapshot(&recorded).unwrap();
+        assert!(
+            back == sent,
+            "{}\n{}",
+            serde_json::to_string(&back).unwrap(),
+            serde_json::to_string(&sent).unwrap()
+        );
     }
 
     #[test]

@@ -7,20 +7,23 @@
 //! The vehicle's [`Tap`](crate::vehicle::tap::Tap) feeds the recorder without locks
 //! and never waits for it; the recorder's thread (`record/write`) drains it every
 //! [`DRAIN`], writes, and closes a
-//! compressed chunk every [`CHUNK_EVERY`], flushed and synced to the disk: a recording
-//! cut off by `kill -9` or a power loss reads up to its last chunk ([`read`]). When the
+//! compressed chunk every [`CHUNK_EVERY`], written and synced to the disk with an
+//! ending after it that makes the file whole at every instant: a recording cut off by
+//! `kill -9` or a power loss reads up to its last chunk with every MCAP reader. When the
 //! file cannot be written (a full disk), recording stops with an error in the log and
 //! in the snapshot; the vehicle runs on.
 //!
-//! [`read`] reads a recording back (a cut-off one too); [`info`] and [`export`] are
-//! `adrive record info` and `adrive export`; the console replays it
-//! (`crate::console::replay`).
+//! [`read`] reads a recording back (a cut-off one too); [`info`], [`repair`] and
+//! [`export`] are `adrive record info`, `adrive record repair` and `adrive export`; the
+//! console replays it (`crate::console::replay`).
 
 pub mod export;
 pub mod info;
 pub mod log;
 pub mod message;
 pub mod read;
+pub mod repair;
+pub(crate) mod schema;
 mod writer;
 
 use crate::config::VehicleConfig;

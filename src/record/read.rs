@@ -1,12 +1,27 @@
-//! Reading a recording back, for `record info`, `export` and replay: what recorded
-//! it, its channels, and its messages in the order they were written. A recording
-//! cut off by `kill -9` or a power loss has no summary and may end inside a chunk;
-//! it reads up to its last whole chunk and says where and why it ends.
+//! Reading a recording back, for `record info`, `export`, `repair` and replay: what
+//! recorded it, its channels, and its messages in the order they were written. A file
+//! ends one of three ways ([`Ending`]): finished, with its summary and index; at a
+//! checkpoint, with a footer and no summary (adrive ends every chunk so while it
+//! writes: the file of a run that is still recording, or that was killed); or inside a
+//! chunk, cut while it was written (a power loss, a file from before adrive ended
+//! each chunk, a copy taken mid-write). Each reads up to its last whole chunk.
 
 use mcap::read::Options as ReadOptions;
 use mcap::records::Record;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+
+/// How a recording's file ends.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Ending {
+    /// Finished: its summary and index are there.
+    Finished,
+    /// At a checkpoint: whole, with no summary; every MCAP reader reads it from the
+    /// start. Still being written, or its writer stopped without finishing it.
+    Checkpoint,
+    /// Inside a chunk, after `chunks` whole ones: why it cannot be read further.
+    Cut(String),
+}
 
 /// A recording, in memory.
 pub struct Recording {
@@ -16,10 +31,15 @@ pub struct Recording {
     pub metadata: BTreeMap<String, String>,
     /// Whole chunks in the file.
     pub chunks: usize,
+    pub ending: Ending,
     /// The file was finished (its summary and footer are there).
     pub complete: bool,
-    /// Where the readable part ends early, and why (a cut-off recording).
+    /// Where the readable part ends early, and why (a file cut inside a chunk).
     pub cut: Option<String>,
+    /// A running adrive is writing it (it holds the file's lock). Only a process on
+    /// this machine can be seen so: a file written by another machine (a network
+    /// file system, a copy) is not.
+    pub writing: bool,
 }
 
 /// One message.
@@ -47,44 +67,66 @@ impl Recording {
             path: path.display().to_string(),
             message,
         };
-        let bytes = std::fs::read(path).map_err(|e| fail(format!("cannot read: {e}")))?;
+        let file = std::fs::File::open(path).map_err(|e| fail(format!("cannot read: {e}")))?;
+        let writing = matches!(
+            rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockShared),
+            Err(e) if e == rustix::io::Errno::WOULDBLOCK
+        );
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut &file, &mut bytes)
+            .map_err(|e| fail(format!("cannot read: {e}")))?;
+        drop(file);
         if !bytes.starts_with(mcap::MAGIC) {
             return Err(fail("not an MCAP file (no MCAP magic at its start)".into()));
         }
-        let mut r = Recording {
-            path: path.to_path_buf(),
-            bytes,
-            metadata: BTreeMap::new(),
-            chunks: 0,
-            complete: false,
-            cut: None,
-        };
-        let records = mcap::read::LinearReader::new_with_options(
-            &r.bytes,
-            ReadOptions::IgnoreEndMagic.into(),
-        )
-        .map_err(|e| fail(e.to_string()))?;
+        let records =
+            mcap::read::LinearReader::new_with_options(&bytes, ReadOptions::IgnoreEndMagic.into())
+                .map_err(|e| fail(e.to_string()))?;
         let mut metadata = BTreeMap::new();
-        let (mut chunks, mut complete, mut cut) = (0, false, None);
+        let (mut chunks, mut ending) = (0, None);
         for record in records {
             match record {
                 Ok(Record::Chunk { .. }) => chunks += 1,
                 Ok(Record::Metadata(m)) if m.name == super::message::METADATA => {
                     metadata = m.metadata
                 }
-                Ok(Record::Footer(_)) => complete = true,
+                Ok(Record::Footer(f)) => {
+                    ending = Some(match f.summary_start {
+                        0 => Ending::Checkpoint,
+                        _ => Ending::Finished,
+                    })
+                }
                 Ok(_) => {}
                 Err(e) => {
-                    cut = Some(format!("ends after chunk {chunks}: {e}"));
+                    ending = Some(Ending::Cut(format!(
+                        "ends inside chunk {}: {e}",
+                        chunks + 1
+                    )));
                     break;
                 }
             }
         }
-        if !complete && cut.is_none() {
-            cut = Some(format!("ends after chunk {chunks} without its summary"));
-        }
-        (r.metadata, r.chunks, r.complete, r.cut) = (metadata, chunks, complete, cut);
-        Ok(r)
+        let ending = ending.unwrap_or_else(|| {
+            Ending::Cut(format!("ends after chunk {chunks} without its footer"))
+        });
+        Ok(Recording {
+            path: path.to_path_buf(),
+            bytes,
+            metadata,
+            chunks,
+            complete: ending == Ending::Finished,
+            cut: match &ending {
+                Ending::Cut(why) => Some(why.clone()),
+                _ => None,
+            },
+            ending,
+            writing,
+        })
+    }
+
+    /// The file's bytes.
+    pub(crate) fn data(&self) -> &[u8] {
+        &self.bytes
     }
 
     /// Bytes in the file.

@@ -1,8 +1,22 @@
 //! The recorder's thread and its files: events from the tap turned into MCAP messages,
-//! a chunk closed, flushed and synced every [`CHUNK_EVERY`], a new file when the
+//! a chunk closed, written and synced every [`CHUNK_EVERY`], a new file when the
 //! current one is big or old enough (rolling), the oldest beyond `keep` deleted. Any
 //! write error stops recording — logged once, kept in the snapshot — and never
 //! reaches the vehicle.
+//!
+//! **Every MCAP reader reads a file at every instant.** A reader opens an MCAP file at
+//! its end: the footer says where the summary (the index) is, and a reader that finds
+//! no footer gives up (Python `mcap`'s `make_reader`, Foxglove's indexed reader) or
+//! reads what it can and fails at the end. The specification lets a file have no
+//! summary: a footer whose `summary_start` is 0 tells a reader to read the data section
+//! from the start. So each chunk is written with such an ending after it — a Data End
+//! record, that footer and the closing magic ([`TAIL`]) — in one write, at the end of
+//! the data, and the next chunk's write starts over that ending. A run killed by
+//! `kill -9` or a power loss leaves a whole file without an index, which every reader
+//! reads to its last chunk; the finished file has its summary and index as usual.
+//! While a file is written its recorder holds an exclusive lock on it (`flock`), which
+//! the system drops when the process ends however it ends: `adrive record info` tells a
+//! file being written from one cut off by it.
 
 use super::message::{self, Clock, RecordMsg, Topic};
 use super::{Target, CHUNK_EVERY, DRAIN};
@@ -13,24 +27,86 @@ use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
 use mcap::records::MessageHeader;
 use mcap::write::{Metadata, NoSeek};
+use parking_lot::Mutex;
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
-use std::io::{self, BufWriter};
+use std::io::{self, Write};
+use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Instant, SystemTime};
 
-type McapWriter = mcap::Writer<NoSeek<BufWriter<File>>>;
+type McapWriter = mcap::Writer<NoSeek<Pending>>;
+
+/// What ends the file after each chunk (MCAP specification, "Data End", "Footer"): a
+/// Data End record (opcode 0x0F, its length 4, a data section CRC of 0: not computed),
+/// a Footer (opcode 0x02, its length 20, `summary_start` 0: no summary, so a reader
+/// reads the data section from the start; `summary_offset_start` 0; `summary_crc` 0)
+/// and the closing magic.
+pub(crate) const TAIL: [u8; 50] = tail();
+
+const fn tail() -> [u8; 50] {
+    let mut t = [0u8; 50];
+    t[0] = mcap::records::op::DATA_END;
+    t[1] = 4;
+    t[13] = mcap::records::op::FOOTER;
+    t[14] = 20;
+    let mut i = 0;
+    while i < 8 {
+        t[42 + i] = mcap::MAGIC[i];
+        i += 1;
+    }
+    t
+}
+
+/// What the MCAP writer has written and the file not yet: handed to the file in one
+/// write at each checkpoint.
+#[derive(Clone, Default)]
+struct Pending(Arc<Mutex<Vec<u8>>>);
+
+impl Write for Pending {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        self.0.lock().extend_from_slice(buf);
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        Ok(())
+    }
+}
 
 /// One open file.
 struct File1 {
     path: PathBuf,
     writer: McapWriter,
-    /// The same file, for `sync_data` and its size.
-    sync: File,
+    pending: Pending,
+    /// The file, written at offsets; locked while it is written.
+    file: File,
+    /// Bytes of data in the file: where its ending ([`TAIL`]) starts.
+    end: u64,
     /// Channel ids in this file.
     channels: HashMap<Topic, u16>,
     opened: Instant,
+}
+
+impl File1 {
+    /// Write what the MCAP writer has written, with the ending after it, in one write.
+    fn commit(&mut self) -> io::Result<()> {
+        let mut buf = std::mem::take(&mut *self.pending.0.lock());
+        let data = buf.len() as u64;
+        buf.extend_from_slice(&TAIL);
+        self.file.write_all_at(&buf, self.end)?;
+        self.end += data;
+        Ok(())
+    }
+
+    /// After a failed write: the file back to its data up to the last commit and the
+    /// ending, so that it reads as it did then.
+    fn restore(&self) -> io::Result<()> {
+        self.file.set_len(self.end + TAIL.len() as u64)?;
+        self.file.write_all_at(&TAIL, self.end)?;
+        self.file.sync_data()
+    }
 }
 
 /// Where the recording goes now.
@@ -104,15 +180,19 @@ impl Output {
             }
         };
         let file = File::create(&path).map_err(|e| with_path(&path, e))?;
-        let sync = file.try_clone().map_err(|e| with_path(&path, e))?;
+        rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockExclusive)
+            .map_err(|e| with_path(&path, io::Error::from(e)))?;
         let opts = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Zstd))
             .compression_threads(0)
+            // A chunk is closed at each checkpoint only, and written whole there.
+            .chunk_size(None)
             .profile(message::PROFILE)
             .library(format!("adrive {}", env!("CARGO_PKG_VERSION")))
             .disable_seeking(true);
+        let pending = Pending::default();
         let mut writer = opts
-            .create(NoSeek::new(BufWriter::with_capacity(1 << 16, file)))
+            .create(NoSeek::new(pending.clone()))
             .map_err(|e| with_path(&path, mcap_io(e)))?;
         let started = humantime::format_rfc3339_millis(SystemTime::now()).to_string();
         let metadata = BTreeMap::from([
@@ -127,14 +207,19 @@ impl Output {
                 metadata,
             })
             .map_err(|e| with_path(&path, mcap_io(e)))?;
-        self.last = path.clone();
-        self.file = Some(File1 {
-            path,
+        let mut f = File1 {
+            path: path.clone(),
             writer,
-            sync,
+            pending,
+            file,
+            end: 0,
             channels: HashMap::new(),
             opened: Instant::now(),
-        });
+        };
+        // Readable from its first instant: the header, what recorded it, the ending.
+        f.commit().map_err(|e| with_path(&path, e))?;
+        self.last = path;
+        self.file = Some(f);
         if let Target::Dir { dir, keep, .. } = &self.target {
             prune(dir, self.vehicle.name(), *keep, &self.last);
         }
@@ -143,12 +228,12 @@ impl Output {
 
     /// Write one message on `topic` at `at` (wall-clock ns).
     fn write(&mut self, topic: Topic, at: u64, data: &[u8]) -> io::Result<()> {
-        let devices = &self.vehicle.config().devices;
+        let config = self.vehicle.config();
         let f = self.file.as_mut().expect("a file is open while recording");
         let id = match f.channels.get(&topic) {
             Some(id) => *id,
             None => {
-                let (name, schema) = topic.schema(devices);
+                let (name, schema) = topic.schema(config);
                 let schema_id = f
                     .writer
                     .add_schema(&name, message::SCHEMA_ENCODING, &schema)
@@ -157,7 +242,7 @@ impl Output {
                     .writer
                     .add_channel(
                         schema_id,
-                        &topic.name(devices),
+                        &topic.name(&config.devices),
                         message::MESSAGE_ENCODING,
                         &BTreeMap::new(),
                     )
@@ -205,7 +290,8 @@ impl Output {
         self.json(Topic::Record, now, &m)?;
         let f = self.file.as_mut().expect("open");
         f.writer.flush().map_err(mcap_io)?;
-        f.sync.sync_data()?;
+        f.commit()?;
+        f.file.sync_data()?;
         if dropped > self.dropped_said {
             tracing::warn!(
                 "recording: {} events left out, the recorder fell behind (the vehicle did not wait)",
@@ -232,7 +318,7 @@ impl Output {
     /// The size of the file being written (or of the last, once finished).
     fn bytes(&self) -> u64 {
         match &self.file {
-            Some(f) => f.sync.metadata().map_or(0, |m| m.len()),
+            Some(f) => f.file.metadata().map_or(0, |m| m.len()),
             None => self.last_bytes,
         }
     }
@@ -255,15 +341,40 @@ impl Output {
         }
         Ok(())
     }
+
+    /// Recording failed: leave the file as it was at its last checkpoint, which every
+    /// reader reads. (It is not finished: its index would name the chunk that failed.)
+    fn abandon(&mut self) {
+        if let Some(f) = self.file.take() {
+            match f.restore() {
+                Ok(()) => self.last_bytes = f.end + TAIL.len() as u64,
+                Err(e) => tracing::warn!(
+                    "recording: {}: cannot end it at its last chunk: {e}",
+                    f.path.display()
+                ),
+            }
+        }
+    }
 }
 
-/// Write a file's index, summary and footer; its final size.
+/// Write a file's index, summary and footer; its final size. The lock goes with the
+/// file. A write that fails leaves the file as it was at its last checkpoint.
 fn finish(mut f: File1) -> io::Result<u64> {
     f.writer
         .finish()
         .map_err(|e| with_path(&f.path, mcap_io(e)))?;
-    f.sync.sync_data().map_err(|e| with_path(&f.path, e))?;
-    Ok(f.sync.metadata().map_or(0, |m| m.len()))
+    let rest = std::mem::take(&mut *f.pending.0.lock());
+    let size = f.end + rest.len() as u64;
+    let written = f
+        .file
+        .write_all_at(&rest, f.end)
+        .and_then(|()| f.file.set_len(size))
+        .and_then(|()| f.file.sync_data());
+    if let Err(e) = written {
+        let _ = f.restore();
+        return Err(with_path(&f.path, e));
+    }
+    Ok(size)
 }
 
 fn mcap_io(e: mcap::McapError) -> io::Error {
@@ -397,8 +508,8 @@ fn fail(out: &mut Output, e: &io::Error) {
     let msg = format!("recording stopped: {what}; the vehicle runs on");
     tracing::error!("{msg}");
     out.publish(Some(msg));
-    // What was written up to the last chunk stays readable; try to finish it.
-    let _ = out.close();
+    // What was written up to the last chunk stays readable, to every reader.
+    out.abandon();
 }
 
 #[cfg(test)]

@@ -143,7 +143,12 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
                         followed = Some(ns);
                     }
                 } else if !alive && seen.remove(&ns) {
-                    writeln!(out, "gone {ns}")?;
+                    // The token is withdrawn when the node stops and when the network
+                    // to it breaks: this end cannot tell which.
+                    writeln!(
+                        out,
+                        "gone {ns}: its node left the graph (it stopped, or the network to it broke)"
+                    )?;
                 }
             }
             Ok(Event::Report(topic, bytes)) => match topic {
@@ -154,7 +159,8 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
             },
             Err(crossbeam_channel::RecvTimeoutError::Timeout) => {
                 next += EVERY;
-                if let Some(ns) = &followed {
+                // While it is gone, its last reports are not printed as if current.
+                if let Some(ns) = followed.as_ref().filter(|ns| seen.contains(*ns)) {
                     writeln!(out, "{}", latest.line(ns))?;
                     lines += 1;
                     if opts.count.is_some_and(|n| lines >= n) {

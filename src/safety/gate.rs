@@ -11,7 +11,7 @@ use super::owner::Owner;
 use super::rules::{self, Plays, Reject, Rules};
 use super::safe;
 use super::wire::{self, Verdict};
-use crate::config::{DriverKind, Role, VehicleConfig};
+use crate::config::{DriverKind, Role};
 use crate::driver::elm327;
 use crate::logging::RateLimit;
 use crate::value::{Command, DeviceId, EstopState, Kind};
@@ -19,6 +19,18 @@ use crate::vehicle::{Device, Vehicle};
 use parking_lot::{Mutex, MutexGuard};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
 use std::time::Instant;
+
+/// Whether engaging needs `d`: the rules act on it (it is bound to a role — steering,
+/// throttle, brake, gear, e-stop, speed, engine running, starter), so the vehicle is not
+/// engaged without it. A device bound to no role (a horn, turn signals, a battery
+/// monitor) is shown when it is faulty or gone, and never refuses nor ends an
+/// engagement: it cannot make the vehicle unsafe, and a vehicle that would wait for its
+/// horn is a vehicle that cannot be driven.
+pub fn needed(v: &Vehicle, d: &Device) -> bool {
+    Role::ALL
+        .into_iter()
+        .any(|r| v.bindings().device(r) == Some(d.id()))
+}
 
 /// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
 pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
@@ -28,7 +40,7 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
             "{d} is in the driver's hands (override): clear it once the driver has let go"
         ));
     }
-    for d in v.devices() {
+    for d in v.devices().iter().filter(|d| needed(v, d)) {
         if let Some(fault) = d.fault() {
             why.push(format!("{} is faulty ({fault})", d.name()));
         } else if d.cached().at.is_none() {
@@ -42,6 +54,9 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     }
     if let Some(s @ (EstopState::Pause | EstopState::Disable)) = v.estop() {
         why.push(format!("e-stop is in {s}"));
+    }
+    for s in v.supervision().stalled() {
+        why.push(format!("thread {}", s.describe()));
     }
     why
 }
@@ -79,6 +94,22 @@ pub fn scaled(d: &Device, command: Command) -> Command {
     }
 }
 
+/// Why the vehicle is (dis)engaged: the words, and the device whose driver's override
+/// it was (the words then say whether that override is still latched).
+struct Reason {
+    words: String,
+    overridden: Option<String>,
+}
+
+impl Reason {
+    fn said(words: &str) -> Reason {
+        Reason {
+            words: words.to_string(),
+            overridden: None,
+        }
+    }
+}
+
 /// The engage gate's state over one vehicle.
 pub struct GateState {
     rules: Rules,
@@ -90,8 +121,8 @@ pub struct GateState {
     /// Who commands, and the commander's watchdog: the intake's one lock.
     owner: Mutex<Owner>,
     engaged: AtomicBool,
-    /// Why the vehicle is (dis)engaged, for the console and the broadcast.
-    reason: Mutex<String>,
+    /// Why the vehicle is (dis)engaged, rendered by [`GateState::reason`].
+    reason: Mutex<Reason>,
     /// Devices a recovery procedure has taken over: intake refuses them.
     recovering: Vec<AtomicBool>,
     /// Devices a driver has taken over (latched `override`), by name, in order.
@@ -113,7 +144,7 @@ impl GateState {
             interlocks: AtomicBool::new(true),
             owner: Mutex::new(Owner::new(Instant::now())),
             engaged: AtomicBool::new(false),
-            reason: Mutex::new("not engaged yet".into()),
+            reason: Mutex::new(Reason::said("not engaged yet")),
             recovering: vehicle
                 .devices()
                 .iter()
@@ -149,16 +180,22 @@ impl GateState {
         self.engaged.load(SeqCst)
     }
 
-    /// Why the vehicle is engaged or not.
+    /// Why the vehicle is engaged or not, in the words every reader shows — the
+    /// snapshot (the broadcast, `adrive ctl status`, consoles, recordings), the
+    /// network's answers and the logs: the one place they are rendered.
     pub fn reason(&self) -> String {
-        self.reason.lock().clone()
+        let r = self.reason.lock();
+        match &r.overridden {
+            Some(d) if !self.overridden.lock().contains(d) => format!("{}, cleared", r.words),
+            _ => r.words.clone(),
+        }
     }
 
     /// Engaged by `by`. The reason and the state change together: a reader of both
     /// (the snapshot) never sees one without the other.
     pub(crate) fn set_engaged(&self, by: &str) {
         let mut reason = self.reason.lock();
-        *reason = format!("engaged by {by}");
+        *reason = Reason::said(&format!("engaged by {by}"));
         self.engaged.store(true, SeqCst);
     }
 
@@ -166,9 +203,22 @@ impl GateState {
     /// state change together: whoever sees the vehicle disengaged and then asks why
     /// reads this reason, never the last engage's.
     pub(crate) fn set_disengaged(&self, reason: &str) -> bool {
+        self.disengaged_for(Reason::said(&format!("disengaged: {reason}")))
+    }
+
+    /// Disengaged because a driver took `device` over: said so while the override is
+    /// latched, and said to be cleared once it is ([`GateState::reason`]).
+    pub(crate) fn set_disengaged_by_override(&self, device: &str) -> bool {
+        self.disengaged_for(Reason {
+            words: format!("disengaged: driver override on {device}"),
+            overridden: Some(device.to_string()),
+        })
+    }
+
+    fn disengaged_for(&self, reason: Reason) -> bool {
         let mut why = self.reason.lock();
         let was = self.engaged.swap(false, SeqCst);
-        *why = format!("disengaged: {reason}");
+        *why = reason;
         was
     }
 
@@ -252,11 +302,14 @@ impl GateState {
 
     /// What the vehicle is commanded when it must stop: the safe state, or the manual
     /// state while a driver has taken over (one rule for every path that stops it).
-    pub(crate) fn stop_state(&self, config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
-        if self.overridden.lock().is_empty() {
-            safe::state(config)
+    /// While the e-stop is in pause or disable its rule holds — brake full, gas 0 —
+    /// over a driver's too: a person stopped the vehicle, as with an operator's STOP.
+    pub(crate) fn stop_state(&self, v: &Vehicle) -> Vec<(DeviceId, Command)> {
+        let halted = v.estop().is_some_and(EstopState::halts);
+        if halted || self.overridden.lock().is_empty() {
+            safe::state(v.config())
         } else {
-            safe::manual(config)
+            safe::manual(v.config())
         }
     }
 

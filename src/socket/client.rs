@@ -3,8 +3,11 @@
 //! operator command for `adrive ctl`.
 //!
 //! A thread (`attach/in`) reads what the server sends: frames replace the latest one,
-//! replies wake the operation waiting for them. When the server goes away the console
-//! is told through `on_gone` and every waiting operation fails at once.
+//! replies wake the operation waiting for them. When the connection ends the console
+//! is told through `on_gone`, and every waiting operation fails at once, with what is
+//! known of who ended it: adrive's own word where it said why (`Bye`: it dropped this
+//! console, it is stopping); else whether adrive still answers at its socket (it
+//! closed this connection) or not (it went away).
 
 use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, VERSION};
 use crate::console::controls::{Controls, Frame, Thread};
@@ -32,7 +35,7 @@ pub enum ClientError {
     /// Nothing (or nothing that answers) at the path.
     #[error("no adrive at {path}: {why} (is it running? its socket is given with --socket PATH)")]
     Nobody { path: String, why: String },
-    /// The server said no, or went away.
+    /// The server said no, or the connection ended (how, in words).
     #[error("{0}")]
     Refused(String),
     /// No reply in time.
@@ -52,7 +55,7 @@ fn connect(
     stream
         .set_read_timeout(Some(HELLO_WITHIN))
         .map_err(nobody)?;
-    write_line(
+    let hello = write_line(
         &mut stream,
         &Request {
             id: 0,
@@ -61,16 +64,42 @@ fn connect(
                 version: VERSION,
             },
         },
-    )
-    .map_err(nobody)?;
+    );
     let mut reader = BufReader::new(stream.try_clone().map_err(nobody)?);
-    match read_msg(&mut reader).map_err(nobody)? {
+    // A server past its limit says why and closes at once, maybe before the hello
+    // is written: what it said is read even then.
+    let first = read_msg(&mut reader);
+    if let Err(e) = hello {
+        if !matches!(first, Ok(Some(Msg::Bye { .. }))) {
+            return Err(nobody(e));
+        }
+    }
+    match first.map_err(nobody)? {
         Some(Msg::Welcome { source, .. }) => Ok((stream, reader, source)),
         Some(Msg::Bye { why }) => Err(ClientError::Refused(why)),
         Some(other) => Err(ClientError::Refused(format!(
             "unexpected first message {other:?}"
         ))),
-        None => Err(ClientError::Refused("adrive closed the connection".into())),
+        None => Err(ClientError::Refused(
+            "adrive closed the connection before it welcomed this client".into(),
+        )),
+    }
+}
+
+/// Whether an adrive answers at `path` (without attaching to it).
+pub fn probe(path: &Path) -> Result<(), ClientError> {
+    connect(path, Role::Once).map(drop)
+}
+
+/// Why a connection ended that adrive closed without a word (`what`: how it ended
+/// here): whether adrive still answers at `path` tells which end it was.
+fn ended_without_word(path: &Path, what: &str) -> String {
+    match probe(path) {
+        Ok(()) => format!(
+            "adrive closed this console's connection without saying why ({what}); it still \
+             runs (`adrive ctl status` shows it)"
+        ),
+        Err(e) => format!("adrive went away ({what}); nothing answers at its socket now: {e}"),
     }
 }
 
@@ -80,11 +109,18 @@ fn write_line(w: &mut impl Write, req: &Request) -> std::io::Result<()> {
     w.write_all(&line)
 }
 
-/// The next message; `None` at the end of the stream.
+/// The next message; `None` at the end of the stream. Blank lines are skipped (adrive
+/// starts its last word on a line of its own).
 fn read_msg(r: &mut impl BufRead) -> std::io::Result<Option<Msg>> {
     let mut line = String::new();
-    if r.read_line(&mut line)? == 0 {
-        return Ok(None);
+    loop {
+        line.clear();
+        if r.read_line(&mut line)? == 0 {
+            return Ok(None);
+        }
+        if !line.trim().is_empty() {
+            break;
+        }
     }
     serde_json::from_str(&line)
         .map(Some)
@@ -94,14 +130,21 @@ fn read_msg(r: &mut impl BufRead) -> std::io::Result<Option<Msg>> {
 /// One operator command (`adrive ctl`): connect, do `op`, return its answer.
 pub fn once(path: &Path, op: Op) -> Result<Answer, ClientError> {
     let (mut stream, mut reader, _) = connect(path, Role::Once)?;
-    let gone = |e: std::io::Error| ClientError::Refused(format!("adrive went away: {e}"));
+    let gone =
+        |e: std::io::Error| ClientError::Refused(format!("the connection to adrive failed: {e}"));
     stream.set_read_timeout(Some(REPLY_WITHIN)).map_err(gone)?;
     write_line(&mut stream, &Request { id: 1, op }).map_err(gone)?;
     loop {
         match read_msg(&mut reader) {
             Ok(Some(Msg::Reply { id: 1, answer })) => return Ok(answer),
+            Ok(Some(Msg::Bye { why })) => return Err(ClientError::Refused(why)),
             Ok(Some(_)) => continue,
-            Ok(None) => return Err(ClientError::Refused("adrive closed the connection".into())),
+            Ok(None) => {
+                return Err(ClientError::Refused(ended_without_word(
+                    path,
+                    "the connection closed before an answer",
+                )))
+            }
             Err(e)
                 if matches!(
                     e.kind(),
@@ -148,7 +191,10 @@ impl Remote {
                 Ok(Some(Msg::Frame(f))) => break *f,
                 Ok(Some(_)) => continue,
                 Ok(None) => {
-                    return Err(ClientError::Refused("adrive closed the connection".into()))
+                    return Err(ClientError::Refused(ended_without_word(
+                        path,
+                        "the connection closed before the first frame",
+                    )))
                 }
                 Err(e) => return Err(ClientError::Refused(format!("no frame from adrive: {e}"))),
             }
@@ -162,6 +208,7 @@ impl Remote {
         });
         inbox.take(first);
         let i = inbox.clone();
+        let path = path.to_path_buf();
         std::thread::Builder::new()
             .name("attach/in".into())
             .spawn(move || {
@@ -175,8 +222,13 @@ impl Remote {
                         }
                         Ok(Some(Msg::Bye { why })) => break why,
                         Ok(Some(Msg::Welcome { .. })) => {}
-                        Ok(None) => break "adrive closed the connection".to_string(),
-                        Err(e) => break e.to_string(),
+                        // A frame cut short where adrive dropped this console: its
+                        // word follows on a line of its own.
+                        Err(e) if e.kind() == std::io::ErrorKind::InvalidData => {}
+                        Ok(None) => break ended_without_word(&path, "the connection closed"),
+                        Err(e) => {
+                            break ended_without_word(&path, &format!("the connection failed: {e}"))
+                        }
                     }
                 };
                 *i.gone.lock() = Some(why.clone());
@@ -202,19 +254,19 @@ impl Remote {
     /// Do `op` and wait for its answer.
     fn call(&self, op: Op) -> Result<Answer, String> {
         if let Some(why) = self.inbox.gone.lock().clone() {
-            return Err(format!("adrive went away: {why}"));
+            return Err(why);
         }
         let id = self.next.fetch_add(1, Relaxed);
         let (tx, rx) = crossbeam_channel::bounded(1);
         self.inbox.pending.lock().insert(id, tx);
         if let Err(e) = write_line(&mut *self.writer.lock(), &Request { id, op }) {
             self.inbox.pending.lock().remove(&id);
-            return Err(format!("adrive went away: {e}"));
+            return Err(format!("the connection to adrive failed: {e}"));
         }
         rx.recv_timeout(REPLY_WITHIN).map_err(|_| {
             self.inbox.pending.lock().remove(&id);
             match self.inbox.gone.lock().clone() {
-                Some(why) => format!("adrive went away: {why}"),
+                Some(why) => why,
                 None => ClientError::NoReply(REPLY_WITHIN).to_string(),
             }
         })
@@ -312,8 +364,8 @@ impl Controls for Remote {
     fn disengage(&self) -> Result<Done, Refused> {
         self.done(Op::Disengage)
     }
-    fn stop(&self) {
-        let _ = self.ask(Op::Stop);
+    fn stop(&self) -> Result<(), Refused> {
+        self.ask(Op::Stop).map(drop)
     }
     fn take(&self) -> Result<(), Refused> {
         self.ask(Op::Take).map(drop)
@@ -344,15 +396,15 @@ impl Controls for Remote {
             us: d.as_micros() as u64,
         })
     }
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
-        let _ = self.unit(Op::Enabled {
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String> {
+        self.unit(Op::Enabled {
             device: id.0,
             thread,
             on,
-        });
+        })
     }
-    fn wake(&self, id: DeviceId) {
-        let _ = self.unit(Op::Wake { device: id.0 });
+    fn wake(&self, id: DeviceId) -> Result<(), String> {
+        self.unit(Op::Wake { device: id.0 })
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         match self.call(Op::Sim { line: line.into() }) {

@@ -136,7 +136,7 @@ pub(crate) enum Msg {
         id: u64,
         answer: Answer,
     },
-    /// The server refuses the connection (another version), and why.
+    /// The server refuses the connection (another version, a limit), and why.
     Bye {
         why: String,
     },

@@ -4,11 +4,18 @@
 //!
 //! Nothing here holds the engine: a frame is captured from the cache as the embedded
 //! console captures its own, and written by the client's own thread with a write
-//! deadline, so a client that stops reading (a frozen SSH session) costs its own
-//! threads a blocked write, then its connection. When a connection ends, for any
-//! reason, the source is gone: a console that commanded the engaged vehicle is that
-//! source's watchdog ([`Gate::gone`]: the safe state, disengaged); a watcher changes
-//! nothing.
+//! deadline, so a client that stops reading (a frozen SSH session, a process stopped
+//! with Ctrl-Z) costs its own threads a blocked write, then its connection. When a
+//! connection ends, for any reason, the source is gone: a console that commanded the
+//! engaged vehicle is that source's watchdog ([`Gate::gone`]: the safe state,
+//! disengaged); a watcher changes nothing.
+//!
+//! Every ending is named for what adrive knows of it ([`Ending`]): the client closed
+//! its connection, or adrive dropped it — it stopped reading for so long (measured
+//! from the last time everything sent had been read), it sent what adrive does not
+//! take, adrive is stopping. Where adrive ended it, the client is told why
+//! (`Bye`): at once, or — a client that stopped reading — once it reads again, within
+//! [`BYE_GRACE`]; from then on nothing it sends is done.
 
 use super::path::{Claim, Peer};
 use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, WireLog, WireTrace, VERSION};
@@ -19,7 +26,7 @@ use crate::safety::Ask;
 use crate::threads::{Owner, StopSignal, Threads};
 use crate::value::{DeviceId, Source};
 use parking_lot::Mutex;
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, ErrorKind, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering::Relaxed};
@@ -28,6 +35,8 @@ use std::time::{Duration, Instant};
 
 /// A client that does not take a frame within this long is dropped.
 pub(crate) const WRITE_DEADLINE: Duration = Duration::from_secs(2);
+/// How long a dropped client that stopped reading has to read again and be told why.
+const BYE_GRACE: Duration = Duration::from_secs(60);
 /// The longest request line read (a command is a few dozen bytes).
 const MAX_LINE: usize = 4096;
 /// The most clients at once; more are told so and closed.
@@ -95,11 +104,16 @@ impl Server {
     }
 
     /// Refuse every operation and end every connection (the process is stopping: no
-    /// command may follow the safe state).
+    /// command may follow the safe state). Each client that takes it at once is told.
     pub fn close(&self) {
         self.shared.closed.store(true, Relaxed);
         self.shared.stop.stop();
         for (_, c) in self.shared.open.lock().drain(..) {
+            if let Some(Ok(line)) = Ending::Stopping.told().map(|t| bye_line(&t)) {
+                // Never wait on a client here: one that does not take it is not told.
+                let _ = c.set_nonblocking(true);
+                let _ = (&c).write_all(&line);
+            }
             let _ = c.shutdown(std::net::Shutdown::Both);
         }
     }
@@ -160,10 +174,9 @@ fn serve(stream: UnixStream, s: &Arc<Shared>) -> std::io::Result<()> {
     stream.set_nonblocking(false)?;
     stream.set_write_timeout(Some(WRITE_DEADLINE))?;
     if s.open.lock().len() >= MAX_CLIENTS {
-        let mut line = serde_json::to_vec(&Msg::Bye {
-            why: format!("adrive serves {MAX_CLIENTS} clients at most; one must go first"),
-        })?;
-        line.push(b'\n');
+        let line = bye_line(&format!(
+            "adrive serves {MAX_CLIENTS} clients at most; one must go first"
+        ))?;
         let mut stream = stream;
         let _ = stream.write_all(&line);
         return Ok(());
@@ -182,6 +195,8 @@ fn serve(stream: UnixStream, s: &Arc<Shared>) -> std::io::Result<()> {
         role: Mutex::new(None),
         seen_logs: Mutex::new(0),
         ended: AtomicBool::new(false),
+        drained: Mutex::new(Instant::now()),
+        departed: AtomicBool::new(false),
     });
     let (s2, c2) = (s.clone(), conn.clone());
     s.threads
@@ -206,6 +221,85 @@ struct Conn {
     seen_logs: Mutex<u64>,
     /// Its reading thread ended: so do its frames.
     ended: AtomicBool,
+    /// When everything sent to it had last been read.
+    drained: Mutex<Instant>,
+    /// Its source is gone ([`depart`]): nothing it sends is done any more.
+    departed: AtomicBool,
+}
+
+/// How a client's connection ended, as far as adrive knows.
+#[derive(Clone, Debug, PartialEq)]
+enum Ending {
+    /// The client closed it: its process ended, its terminal closed, its SSH session
+    /// dropped.
+    Closed,
+    /// It stopped reading (a frozen session, a stopped process): nothing read for this
+    /// long, and adrive dropped it.
+    StoppedReading(Duration),
+    /// It sent a request line longer than adrive reads.
+    TooLong,
+    /// It speaks another version of the protocol.
+    Version,
+    /// The connection failed under adrive (the error).
+    Failed(String),
+    /// adrive is stopping.
+    Stopping,
+}
+
+impl Ending {
+    /// What its source did, after its name: the log's words and the gate's reason
+    /// (`console #2 stopped reading for 4.1 s: dropped`).
+    fn did(&self) -> String {
+        match self {
+            Ending::Closed => "went away (its connection closed)".into(),
+            Ending::StoppedReading(d) => {
+                format!("stopped reading for {:.1} s: dropped", d.as_secs_f64())
+            }
+            Ending::TooLong => "sent a line too long: dropped".into(),
+            Ending::Version => "speaks another protocol version: dropped".into(),
+            Ending::Failed(e) => format!("lost its connection ({e})"),
+            Ending::Stopping => "adrive is stopping".into(),
+        }
+    }
+
+    /// What the client is told, where adrive ended the connection.
+    fn told(&self) -> Option<String> {
+        Some(match self {
+            Ending::StoppedReading(d) => format!(
+                "adrive dropped this console: it stopped reading for {:.1} s (a console \
+                 must take what adrive sends within {} s)",
+                d.as_secs_f64(),
+                WRITE_DEADLINE.as_secs()
+            ),
+            Ending::TooLong => {
+                format!(
+                    "adrive dropped this client: a request line is at most {MAX_LINE} bytes, and it sent a longer one"
+                )
+            }
+            Ending::Stopping => "adrive is stopping".into(),
+            // The client ended it, or was told already (its version).
+            Ending::Closed | Ending::Version | Ending::Failed(_) => return None,
+        })
+    }
+}
+
+/// A `Bye` as it goes on the wire: after a line break, so that it starts a line of its
+/// own even after a frame cut short.
+fn bye_line(why: &str) -> std::io::Result<Vec<u8>> {
+    let mut line = vec![b'\n'];
+    serde_json::to_writer(&mut line, &Msg::Bye { why: why.into() })?;
+    line.push(b'\n');
+    Ok(line)
+}
+
+/// How many bytes sent on `stream` its reader has not read yet (`SIOCOUTQ`).
+#[allow(unsafe_code)]
+fn unread(stream: &UnixStream) -> Option<usize> {
+    use std::os::fd::AsRawFd;
+    let mut n: libc::c_int = 0;
+    // SAFETY: TIOCOUTQ (SIOCOUTQ) writes one int for a valid socket fd.
+    let r = unsafe { libc::ioctl(stream.as_raw_fd(), libc::TIOCOUTQ as _, &mut n) };
+    (r == 0).then(|| usize::try_from(n).unwrap_or(0))
 }
 
 impl Conn {
@@ -220,29 +314,82 @@ impl Conn {
         }
     }
 
-    /// Send one message; a client that does not take it in time is cut off.
-    fn send(&self, msg: &Msg) -> std::io::Result<()> {
-        let mut line = serde_json::to_vec(msg)?;
+    /// Send one message; `Err` with how the connection ended when it cannot be.
+    fn send(&self, msg: &Msg) -> Result<(), Ending> {
+        let mut line = serde_json::to_vec(msg).map_err(|e| Ending::Failed(e.to_string()))?;
         line.push(b'\n');
         let mut w = self.writer.lock();
-        let r = w.write_all(&line);
-        if r.is_err() {
-            let _ = w.shutdown(std::net::Shutdown::Both);
+        match w.write_all(&line) {
+            Ok(()) => {
+                if unread(&w) == Some(0) {
+                    *self.drained.lock() = Instant::now();
+                }
+                Ok(())
+            }
+            Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => {
+                Err(Ending::StoppedReading(self.drained.lock().elapsed()))
+            }
+            Err(e) if matches!(e.kind(), ErrorKind::BrokenPipe | ErrorKind::ConnectionReset) => {
+                Err(Ending::Closed)
+            }
+            Err(e) => Err(Ending::Failed(e.to_string())),
         }
-        r
+    }
+
+    /// Tell the client why adrive ends its connection, within `grace` (one that stopped
+    /// reading may read again), then close it.
+    fn farewell(&self, ending: &Ending, grace: Duration) {
+        let w = self.writer.lock();
+        if let Some(Ok(line)) = ending.told().map(|t| bye_line(&t)) {
+            let _ = w.set_write_timeout(Some(grace));
+            let _ = (&*w).write_all(&line);
+        }
+        let _ = w.shutdown(std::net::Shutdown::Both);
+    }
+}
+
+/// The client's source is gone, for `ending` (once, whoever notices first): a
+/// console that commanded the engaged vehicle is its watchdog; the log says what
+/// happened.
+fn depart(s: &Shared, c: &Conn, ending: &Ending) {
+    if c.departed.swap(true, Relaxed) {
+        return;
+    }
+    c.ended.store(true, Relaxed);
+    let console = *c.role.lock() == Some(Role::Console);
+    let Some(source) = c.source().filter(|_| console) else {
+        return;
+    };
+    let who = crate::safety::owner::Commander(source);
+    // A stopping process ends every connection, and brings the vehicle to the safe
+    // state itself, with its reason.
+    if s.closed.load(Relaxed) {
+        tracing::info!("{who} detached: {}", Ending::Stopping.did());
+        return;
+    }
+    if s.gate.gone(source, &ending.did()) {
+        return;
+    }
+    match ending {
+        Ending::Closed | Ending::Stopping => tracing::info!("{who} detached: {}", ending.did()),
+        _ => tracing::warn!("{who} detached: {}", ending.did()),
     }
 }
 
 fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
     let mut reader = BufReader::new(stream);
     let mut line = String::new();
-    let why = loop {
+    let ending = loop {
         line.clear();
         match std::io::Read::take(&mut reader, MAX_LINE as u64).read_line(&mut line) {
-            Ok(0) => break "its connection closed".to_string(),
-            Ok(_) if !line.ends_with('\n') => break "it sent a line too long".into(),
+            Ok(0) => break Ending::Closed,
+            Ok(_) if !line.ends_with('\n') => break Ending::TooLong,
             Ok(_) => {}
-            Err(e) => break format!("its connection failed: {e}"),
+            Err(e) => break Ending::Failed(e.to_string()),
+        }
+        // Dropped (it stopped reading): what it sends after is not done.
+        if c.departed.load(Relaxed) {
+            return finish(s, c, &Ending::Closed);
         }
         let req: Request = match serde_json::from_str(&line) {
             Ok(r) => r,
@@ -255,7 +402,7 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
             }
         };
         if s.closed.load(Relaxed) {
-            break "adrive is stopping".into();
+            break Ending::Stopping;
         }
         if let Op::Hello { role, version } = req.op {
             if version != VERSION {
@@ -265,7 +412,7 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
                          use the same adrive version on both ends"
                     ),
                 });
-                break "another protocol version".into();
+                break Ending::Version;
             }
             let source = c.source_as(role);
             if role == Role::Console {
@@ -280,8 +427,8 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
                 version: VERSION,
                 source: crate::safety::owner::Commander(source).to_string(),
             };
-            if c.send(&welcome).is_err() {
-                break "its connection failed".into();
+            if let Err(ending) = c.send(&welcome) {
+                break ending;
             }
             // Frames after the welcome.
             *c.role.lock() = Some(role);
@@ -295,24 +442,24 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
             continue;
         };
         let answer = answer(s, c, source, req.op);
-        if c.send(&Msg::Reply { id: req.id, answer }).is_err() {
-            break "it stopped reading".into();
+        if let Err(ending) = c.send(&Msg::Reply { id: req.id, answer }) {
+            break ending;
         }
     };
-    // Its frames stop too.
-    c.ended.store(true, Relaxed);
-    let _ = c.writer.lock().shutdown(std::net::Shutdown::Both);
-    s.open.lock().retain(|(n, _)| *n != c.n);
-    // A stopping process brings the vehicle to the safe state itself, with its reason.
-    let stopping = s.closed.load(Relaxed);
-    if let Some(source) = c.source().filter(|_| *c.role.lock() == Some(Role::Console)) {
-        if stopping || !s.gate.gone(source, &why) {
-            tracing::info!(
-                "{} detached ({why})",
-                crate::safety::owner::Commander(source)
-            );
+    finish(s, c, &ending);
+}
+
+/// The reading side is done: the source departs (if it has not), the client is told
+/// why where adrive ended it, and the connection closes.
+fn finish(s: &Shared, c: &Conn, ending: &Ending) {
+    depart(s, c, ending);
+    match ending {
+        Ending::TooLong | Ending::Stopping => c.farewell(ending, WRITE_DEADLINE),
+        _ => {
+            let _ = c.writer.lock().shutdown(std::net::Shutdown::Both);
         }
     }
+    s.open.lock().retain(|(n, _)| *n != c.n);
 }
 
 /// What one operation comes to, done as `source` through the same [`Live`] controls
@@ -374,17 +521,11 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
             unit(live.set_command_timeout(DeviceId(device), Duration::from_micros(us)))
         }
         Op::Enabled { device, thread, on } => match s.gate.tune(source) {
-            Ok(()) => {
-                live.set_enabled(DeviceId(device), thread, on);
-                Answer::Ok
-            }
+            Ok(()) => unit(live.set_enabled(DeviceId(device), thread, on)),
             Err(r) => Answer::Refused(r),
         },
         Op::Wake { device } => match s.gate.tune(source) {
-            Ok(()) => {
-                live.wake(DeviceId(device));
-                Answer::Ok
-            }
+            Ok(()) => unit(live.wake(DeviceId(device))),
             Err(r) => Answer::Refused(r),
         },
         Op::Sim { line } => match live.sim(&line) {
@@ -414,7 +555,14 @@ fn frame_loop(s: &Shared, c: &Conn) {
         if *c.role.lock() != Some(Role::Console) {
             continue;
         }
-        if c.send(&Msg::Frame(Box::new(frame(s, c, now)))).is_err() {
+        if let Err(ending) = c.send(&Msg::Frame(Box::new(frame(s, c, now)))) {
+            // The vehicle first; then, if it reads again, the client is told why.
+            depart(s, c, &ending);
+            if matches!(ending, Ending::StoppedReading(_)) {
+                c.farewell(&ending, BYE_GRACE);
+            } else {
+                let _ = c.writer.lock().shutdown(std::net::Shutdown::Both);
+            }
             return;
         }
     }

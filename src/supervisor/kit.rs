@@ -4,7 +4,10 @@
 //! on every safe state ([`crate::driver::slcan::CanDriver`]). Here:
 //!
 //! - the kit's own override flag is a driver's override, beside the estimator's: the
-//!   vehicle goes to the driver ([`FaultKind::Override`]);
+//!   vehicle goes to the driver ([`FaultKind::Override`]). The module keeps the flag
+//!   until it is enabled again, so the flag names the override once — until the gate
+//!   has latched it — and not again: after that it is a memory of the override, not a
+//!   hand on the controls, and must not keep the operator from clearing it;
 //! - a module that reports itself disabled while the vehicle has been engaged longer
 //!   than it takes to enable it — it disabled itself: a fault code, its watchdog, an
 //!   override the flag missed — is a device fault, and so are its fault codes while
@@ -20,22 +23,36 @@ use crate::snapshot::{DeviceView, FaultKind};
 use crate::value::Value;
 use std::time::Duration;
 
-/// Judge one kit device; `engaged_for`: how long the vehicle has been engaged.
+/// Judge one kit device; `engaged_for`: how long the vehicle has been engaged;
+/// `latched`: the gate holds a driver's override of it; `handled`: the memory of
+/// whether the flag now raised has been handed to the driver.
 pub(super) fn faults(
     d: &DeviceView,
     c: &DeviceConfig,
     engaged_for: Option<Duration>,
+    latched: bool,
+    handled: &mut bool,
     raise: &mut impl FnMut(FaultKind, Option<&str>, String),
 ) {
     let Some(kit) = c.kit() else { return };
     let who = Some(d.name.as_str());
-    if d.reading(OVERRIDE) == Some(&Value::Flag(true)) {
-        raise(
-            FaultKind::Override,
-            who,
-            "the kit reports the driver's override".into(),
-        );
-        return;
+    match d.reading(OVERRIDE) {
+        Some(Value::Flag(true)) => {
+            // The module keeps the flag until its next enable: once the gate latched
+            // the override it stands for, the flag says nothing of a hand still on
+            // (clearing it is the operator's, engaging re-enables and clears it).
+            *handled |= latched;
+            if !*handled {
+                raise(
+                    FaultKind::Override,
+                    who,
+                    "the kit reports the driver's override".into(),
+                );
+                return;
+            }
+        }
+        Some(Value::Flag(false)) => *handled = false,
+        _ => {}
     }
     let Some(engaged_for) = engaged_for else {
         return;

@@ -2,7 +2,10 @@
 //! the snapshot, names each fault with its cause and time, reports it (console, state
 //! broadcast, log), and runs recovery procedures as explicit state machines
 //! ([`recovery`]). A procedure that gives up leaves the vehicle in the safe state,
-//! disengaged, and — as a fatal device error — asks the process to end.
+//! disengaged. A device gone is waited for, said plainly ([`waiting`]). Neither ends
+//! the run: only the operator's `give_up_after` makes a device gone that long, or a
+//! recovery that gave up after trying that long, a fatal device error that asks the
+//! process to end.
 //!
 //! The detectors ([`detect`]) are pure functions of a [`Snapshot`], the vehicle's
 //! configuration and what the detector remembers between turns; they reach the
@@ -12,12 +15,16 @@
 //! e-stop or a faulty device; the supervisor works at its own, slower period on
 //! diagnosis and recovery.
 //!
-//! Under systemd, the supervisor thread also feeds the service watchdog after each
-//! turn, only while every device thread runs ([`crate::service::Watchdog`]): a device
-//! thread that ended, or a supervisor that no longer turns, gets adrive restarted.
+//! Beside it runs the `service/watchdog` thread ([`start_watching`]): it feeds systemd's
+//! watchdog ([`crate::service::Watchdog`]) only while every engine thread — the
+//! devices', the buses', the gate monitor and the supervisor itself — turns its loop
+//! within its bound: a thread that ended or stalls is named, refuses engage and gets
+//! adrive restarted.
 
+pub mod causes;
 mod kit;
 pub mod recovery;
+mod waiting;
 
 use crate::config::roles::ReadingRef;
 use crate::config::{SupervisorConfig, VehicleConfig};
@@ -51,6 +58,10 @@ pub(crate) struct Track {
     /// from it.
     explained: Option<(f64, Instant)>,
     unexplained_since: Option<Instant>,
+    /// A kit's override flag has been handed to the driver (latched by the gate) since
+    /// it was raised: the module keeps the flag until its next enable, so it no longer
+    /// tells whether a hand is still on.
+    kit_flag_handled: bool,
     /// The port's open count at the last turn, and whether it has been seen gone
     /// (missing) since it was last opened.
     opens: u64,
@@ -138,11 +149,21 @@ pub fn detect(
     };
     let engaged_for = mem.engaged_since.map(|t| now - t);
     for (d, c) in snap.devices.iter().zip(&cfg.devices) {
-        device_faults(d, c, sup, mem, previous, now, &mut raise);
+        let pushes = causes::pushes(snap, cfg, d, c);
+        device_faults(d, c, &pushes, sup, mem, previous, now, &mut raise);
         if d.status_age_ms
             .is_some_and(|a| Duration::from_secs_f64(a / 1e3) <= c.status_max_age + c.reply_timeout)
         {
-            kit::faults(d, c, engaged_for, &mut raise);
+            let track = mem.tracks.entry(d.name.clone()).or_default();
+            let latched = snap.gate.overridden.contains(&d.name);
+            kit::faults(
+                d,
+                c,
+                engaged_for,
+                latched,
+                &mut track.kit_flag_handled,
+                &mut raise,
+            );
         }
     }
     let b = &cfg.roles;
@@ -175,9 +196,14 @@ pub fn detect(
     out
 }
 
+/// One device's faults. A set point device is judged against `pushes`, every known
+/// cause that can be moving it ([`causes`]): what they explain is neither a driver's
+/// override nor a failure to follow.
+#[allow(clippy::too_many_arguments)]
 fn device_faults(
     d: &DeviceView,
     c: &crate::config::DeviceConfig,
+    pushes: &[causes::Push],
     sup: &SupervisorConfig,
     mem: &mut Memory,
     previous: &[Fault],
@@ -301,11 +327,12 @@ fn device_faults(
         );
     }
     if let (Some(r), Some(&Value::Number(cmd))) = (c.response, d.executed.as_ref()) {
-        // Every set point acknowledged since the last turn may have driven it: a
-        // controller alternating two set points faster than this turn comes must not
-        // look like a hand pushing toward the one not seen.
-        let span = d.executed_span.unwrap_or([cmd, cmd]);
-        let unexplained = unexplained(track, &r, c.range, pos, span, now);
+        // Every set point acknowledged since the last turn (and since its reading) may
+        // have driven it — a controller alternating two set points faster than this
+        // turn comes must not look like a hand pushing toward the one not seen — and so
+        // may every other known cause: the e-stop, its own watchdog.
+        let span = causes::hull(pushes).unwrap_or([cmd, cmd]);
+        let unexplained = unexplained(track, &r, c.range, pos, pushes, span, now);
         // Once named, an override lasts until the device is back at its command: a
         // hand that holds still explains itself no better than a stuck motor would.
         let named = previous
@@ -345,8 +372,9 @@ fn device_faults(
         (c.response, d.estimate, d.executed.as_ref())
     {
         // By the estimate: no headway toward the commands for `stall_time` (inside the
-        // span of those acknowledged since the last turn, it is where they drive it).
-        let span = d.executed_span.unwrap_or([cmd, cmd]);
+        // span of those acknowledged since the last turn, or where another known cause
+        // holds it, it is where they drive it).
+        let span = causes::hull(pushes).unwrap_or([cmd, cmd]);
         let gap = (span[0] - e.position).max(e.position - span[1]).max(0.0);
         match track.headway {
             _ if gap <= r.deadband => track.headway = None,
@@ -371,7 +399,9 @@ fn device_faults(
             _ => track.headway = Some((span, now, gap)),
         }
     } else if let Some(Value::Number(cmd)) = d.executed {
-        if (pos - cmd).abs() > sup.follow_tolerance * (hi - lo) {
+        let [from, to] = causes::hull(pushes).unwrap_or([cmd, cmd]);
+        let off = (from - pos).max(pos - to).max(0.0);
+        if off > sup.follow_tolerance * (hi - lo) {
             let since = *track.away_since.get_or_insert(now);
             if now - since > sup.follow_time {
                 raise(
@@ -389,18 +419,20 @@ fn device_faults(
     }
 }
 
-/// How far the reading `pos` is from where the commands — every set point in `span`,
-/// the lowest and highest acknowledged since the last turn — can have taken the device
-/// since that turn: 0 for a device that follows as declared, lags behind (a slow or
-/// stuck motor), or rests at an end stop; the distance it was pushed for a device that
-/// moved away from its commands or faster than its response allows (a driver's hand).
-/// What is explained follows the readings; what is not stays put, so a hand that
-/// pushes and holds keeps the distance.
+/// How far the reading `pos` is from where the known causes (`pushes`, [`causes`]) can
+/// have taken the device since the last turn: adrive's commands — every set point in
+/// `span` — at its declared response, any other cause (the e-stop, its own watchdog:
+/// not the actuator's motor) at any speed. 0 for a device that follows as declared,
+/// lags behind (a slow or stuck motor), rests at an end stop or is moved by a known
+/// cause; the distance it was pushed for a device that moved away from all of them or
+/// faster than its response allows (a driver's hand). What is explained follows the
+/// readings; what is not stays put, so a hand that pushes and holds keeps the distance.
 fn unexplained(
     track: &mut Track,
     r: &crate::config::Response,
     range: [f64; 2],
     pos: f64,
+    pushes: &[causes::Push],
     span: [f64; 2],
     now: Instant,
 ) -> f64 {
@@ -411,7 +443,10 @@ fn unexplained(
     let dt = (now - at).mul_f64(EXPLAIN_SLACK);
     let toward = |cmd: f64| from + r.progress(cmd - from, dt).copysign(cmd - from);
     let [min, max] = range;
-    let (lo, hi) = (toward(span[0]).min(from), toward(span[1]).max(from));
+    let (mut lo, mut hi) = (toward(span[0]).min(from), toward(span[1]).max(from));
+    for p in pushes.iter().filter(|p| p.cause != causes::Cause::Command) {
+        (lo, hi) = (lo.min(p.toward[0]), hi.max(p.toward[1]));
+    }
     let explained = pos.clamp(lo.max(min), hi.min(max).max(lo.max(min)));
     track.explained = Some((explained, now));
     // A reading's own scatter and the dead band explain themselves, but never move
@@ -450,9 +485,17 @@ pub(crate) fn procedure_for(f: &Fault, gate: &Gate, cfg: &SupervisorConfig) -> O
         {
             Procedure::steering(v, cfg)
         }
-        (FaultKind::Disconnected, Some(id)) => Some(Procedure::reconnect(v, id, cfg)),
         _ => None,
     }
+}
+
+/// `2.1 s, longer than give_up_after (2s)`
+fn over(d: Duration, limit: Duration) -> String {
+    format!(
+        "{:.1} s, longer than give_up_after ({})",
+        d.as_secs_f64(),
+        crate::config::limits::fmt_duration(limit)
+    )
 }
 
 /// The supervisor's state between turns: memory, current procedure, cool-downs.
@@ -464,7 +507,14 @@ pub(crate) struct Supervisor {
     waiting: Option<String>,
     /// A procedure of this name may not start again before this time.
     cooldown: HashMap<String, Instant>,
+    /// Since when each procedure has been trying, by name: from its first start until
+    /// it is done (it runs again after giving up, at the next engage).
+    trying_since: HashMap<String, Instant>,
+    /// The devices gone.
+    gone: waiting::Waiting,
     exit: ExitSink,
+    /// The run was asked to end (`give_up_after`): asked once.
+    ended: bool,
 }
 
 impl Supervisor {
@@ -475,7 +525,10 @@ impl Supervisor {
             procedure: None,
             waiting: None,
             cooldown: HashMap::new(),
+            trying_since: HashMap::new(),
+            gone: waiting::Waiting::default(),
             exit,
+            ended: false,
         }
     }
 
@@ -506,6 +559,7 @@ impl Supervisor {
             }
         }
         board.set_faults(faults.clone());
+        board.set_waiting(self.gone.turn(v, &faults, now));
         for f in faults.iter().filter(|f| f.kind == FaultKind::Override) {
             if let Some(device) = f.device.as_deref() {
                 gate.take_over(device, &f.describe());
@@ -540,7 +594,17 @@ impl Supervisor {
                         procedure_for(f, gate, &self.cfg).is_some_and(|q| q.name() == p.name())
                     })
             };
-            if let Some(f) = faults.iter().find(|f| disengages(f.kind) && !dealt_with(f)) {
+            // A device the rules do not act on (a horn) is shown, never a reason to stop.
+            let needed = |f: &Fault| {
+                f.device
+                    .as_deref()
+                    .and_then(|n| v.find(n))
+                    .is_none_or(|d| crate::safety::gate::needed(v, d))
+            };
+            if let Some(f) = faults
+                .iter()
+                .find(|f| disengages(f.kind) && needed(f) && !dealt_with(f))
+            {
                 gate.disengage(&format!("supervisor: {}", f.describe()));
             }
         }
@@ -549,6 +613,7 @@ impl Supervisor {
                 tracing::warn!("recovery {} started for {}", p.name(), f.describe());
                 board.note(format!("recovery {} started: {}", p.name(), f.describe()));
                 self.waiting = None;
+                self.trying_since.entry(p.name().to_string()).or_insert(now);
                 self.procedure = Some(p);
             }
             _ => {}
@@ -570,22 +635,55 @@ impl Supervisor {
                     tracing::info!("{msg}");
                     board.note(msg.clone());
                     board.set_outcome(msg);
+                    self.trying_since.remove(p.name());
                     self.finish(gate, now);
                 }
                 Progress::GaveUp(why) => {
                     let msg = format!("recovery {} gave up: {why}", p.name());
-                    tracing::error!("{msg}");
+                    tracing::error!("{msg}; it runs again from the top at the next engage");
                     board.note(msg.clone());
                     board.set_outcome(msg.clone());
                     gate.command_safe_state();
                     gate.disengage(&msg);
-                    self.finish(gate, now);
-                    if self.cfg.exit_on_give_up {
-                        (self.exit)(Exit::Fatal(msg));
+                    let tried = self
+                        .trying_since
+                        .get(p.name())
+                        .map_or(Duration::ZERO, |t| now - *t);
+                    let give_up = self.cfg.give_up_after.filter(|limit| tried >= *limit);
+                    if let Some(limit) = give_up {
+                        self.end(gate, format!("{msg}, trying for {}", over(tried, limit)));
                     }
+                    self.finish(gate, now);
                 }
             }
         }
+        if let Some(why) = self.gone_too_long(&faults, now) {
+            self.end(gate, why);
+        }
+    }
+
+    /// End the run, as the operator asked (`give_up_after`): the safe state, then the
+    /// request to end (once).
+    fn end(&mut self, gate: &Gate, why: String) {
+        if !std::mem::replace(&mut self.ended, true) {
+            tracing::error!("giving up: {why}");
+            gate.command_safe_state();
+            gate.disengage(&format!("giving up: {why}"));
+            (self.exit)(Exit::Fatal(why));
+        }
+    }
+
+    /// Why the run is to end now, if the operator asked for that (`give_up_after`): a
+    /// device gone that long. `None` without `give_up_after`: a device gone never ends
+    /// the run.
+    fn gone_too_long(&self, faults: &[Fault], now: Instant) -> Option<String> {
+        let limit = self.cfg.give_up_after?;
+        let (device, gone) = self.gone.longest(now).filter(|(_, d)| *d >= limit)?;
+        let cause = faults
+            .iter()
+            .find(|f| f.kind == FaultKind::Disconnected && f.device.as_deref() == Some(device))
+            .map_or_else(String::new, |f| format!(": {}", f.cause));
+        Some(format!("{device} gone for {}{cause}", over(gone, limit)))
     }
 
     /// The procedure to start now, and the fault it is for: the first fault whose
@@ -638,18 +736,26 @@ impl Supervisor {
     }
 }
 
-/// The supervisor thread, `supervisor`.
+/// The supervisor thread, `supervisor`, and the service watchdog's, `service/watchdog`.
 pub struct Running {
     threads: Owner,
 }
+
+/// How often the service watchdog looks at the threads' heartbeats.
+const WATCHDOG_EVERY: Duration = Duration::from_millis(100);
 
 /// Start the supervisor thread at `cfg.period`.
 pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io::Result<Running> {
     start_watching(gate, cfg, exit, Liveness::default())
 }
 
-/// [`start`], feeding the service watchdog while every thread of `watched` (the
-/// engine's, [`crate::engine::Engine::liveness`]) runs.
+/// [`start`], and the `service/watchdog` thread: it feeds the service watchdog while
+/// every thread of `watched` (the engine's, [`crate::engine::Engine::liveness`], and
+/// the gate monitor's) and the supervisor itself runs and turns its loop within its
+/// bound. A thread that stalls is named in the log, to systemd and in the snapshot
+/// (`supervisor.stalled`); engage is refused while it is stalled
+/// ([`crate::safety::gate::blockers`]), and an engaged vehicle is disengaged at once —
+/// the gate monitor may be the thread that stalled.
 pub(crate) fn start_watching(
     gate: Arc<Gate>,
     cfg: SupervisorConfig,
@@ -657,17 +763,30 @@ pub(crate) fn start_watching(
     watched: Liveness,
 ) -> std::io::Result<Running> {
     let mut threads = Owner::default();
-    threads.spawn("supervisor", move |stop| {
-        let period = cfg.period;
+    let g = gate.clone();
+    let period = cfg.period;
+    threads.spawn_beating("supervisor", period, move |stop, beat| {
         let panic_at = cfg.panic_for_test.map(|d| Instant::now() + d);
         let mut sup = Supervisor::new(cfg, exit);
-        let mut watchdog = crate::service::Watchdog::new(watched);
         crate::threads::every(period, stop, || {
+            beat.turn(period);
             if panic_at.is_some_and(|t| Instant::now() >= t) {
                 panic!("injected panic (--inject-panic supervisor)");
             }
-            sup.tick(&gate, Instant::now());
-            watchdog.turn(Instant::now());
+            sup.tick(&g, Instant::now());
+        })
+    })?;
+    let watched = watched.with(&threads.liveness());
+    threads.spawn("service/watchdog", move |stop| {
+        let mut watchdog = crate::service::Watchdog::new(watched);
+        crate::threads::every(WATCHDOG_EVERY, stop, || {
+            let turn = watchdog.turn(Instant::now());
+            if turn.changed {
+                gate.vehicle().supervision().set_stalled(&turn.stalled);
+            }
+            if let (Some(s), true) = (turn.new.first(), gate.is_engaged()) {
+                gate.disengage(&format!("stalled: {}", s.describe()));
+            }
         })
     })?;
     Ok(Running { threads })
@@ -684,6 +803,188 @@ mod tests {
     use super::*;
     use crate::config::device::POSITION;
     use crate::testkit;
+
+    /// Where the world takes `device` of Alice when `cause` acts on it, or `None`
+    /// where that cause does not move it — written here from what Alice's devices do,
+    /// not from [`causes::pushes`]: the e-stop's rule and the pedals' own watchdogs
+    /// release the gas and apply the brake; the steering has neither.
+    fn world(cause: causes::Cause, device: &str, commanded: f64) -> Option<f64> {
+        use causes::Cause::*;
+        match (cause, device) {
+            (Command, _) => Some(commanded),
+            (Estop | OwnWatchdog, "gas") => Some(0.0),
+            (Estop | OwnWatchdog, "brake") => Some(1.0),
+            _ => None,
+        }
+    }
+
+    /// Run the supervisor's turns (every 50 ms) over Alice while `cause` moves
+    /// `device` from `start` to where it takes it, `speed` a share of the range a
+    /// turn (1: at once); adrive has `commanded` it (acknowledged, then resent
+    /// unless the cause is its silence). Returns the overrides and failures to follow
+    /// named for it.
+    fn judged(
+        cause: causes::Cause,
+        device: &str,
+        start: f64,
+        commanded: f64,
+        speed: f64,
+    ) -> Vec<(u32, FaultKind)> {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let target = world(cause, device, commanded).expect("a cause that moves it");
+        let [lo, hi] = v.find(device).unwrap().config().range;
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let mut named = Vec::new();
+        let mut pos = start;
+        for k in 0..60u32 {
+            let now = t0 + Duration::from_millis(50 * u64::from(k));
+            let mut snap = gate.snapshot_at(0, now);
+            if cause == causes::Cause::Estop {
+                let e = snap.devices.iter_mut().find(|d| d.name == "estop").unwrap();
+                if let Some((_, x)) = e.readings.0.iter_mut().find(|(n, _)| n == "estop") {
+                    *x = Some(Value::Text("pause".into()));
+                }
+            }
+            let d = snap.devices.iter_mut().find(|d| d.name == device).unwrap();
+            if k > 0 {
+                let step = speed * (hi - lo);
+                pos += (target - pos).clamp(-step, step);
+            }
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos));
+            }
+            d.status_age_ms = Some(5.0);
+            d.stale = false;
+            d.executed = Some(Value::Number(commanded));
+            d.commanded = Some(Value::Number(commanded));
+            d.executed_span = Some([commanded, commanded]);
+            // Silent for 2 s already when its own watchdog acts; resent every 250 ms
+            // otherwise.
+            d.executed_age_ms = Some(if cause == causes::Cause::OwnWatchdog {
+                2000.0 + 50.0 * f64::from(k)
+            } else {
+                f64::from(k % 5) * 50.0
+            });
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos;
+            }
+            faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
+            named.extend(
+                faults
+                    .iter()
+                    .filter(|f| f.device.as_deref() == Some(device))
+                    .map(|f| (k, f.kind))
+                    .filter(|(_, k)| matches!(k, FaultKind::Override | FaultKind::NotFollowing)),
+            );
+        }
+        named
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// A fault is named after its cause: an actuator moved by a known cause — the
+        /// e-stop, its own watchdog, adrive's command (a stop's safe or manual state,
+        /// a recovery step) — at any speed the cause has, from anywhere, is never a
+        /// driver's override nor an actuator that does not follow. Every cause × every
+        /// set point actuator of Alice.
+        #[test]
+        fn an_actuator_moved_by_a_known_cause_is_never_an_override(
+            cause in proptest::sample::select(causes::Cause::ALL.to_vec()),
+            device in proptest::sample::select(vec!["steer", "gas", "brake"]),
+            start in 0.0..1.0f64,
+            commanded in 0.0..1.0f64,
+            speed in proptest::sample::select(vec![0.02f64, 0.1, 0.5, 1.0]),
+        ) {
+            proptest::prop_assume!(world(cause, device, commanded).is_some());
+            // adrive's own command moves it no faster than it answers (1/s, or an 80 ms
+            // lag: most of the way in a 50 ms turn).
+            let speed = if cause == causes::Cause::Command { speed.min(0.05) } else { speed };
+            let named = judged(cause, device, start, commanded, speed);
+            proptest::prop_assert!(named.is_empty(), "{cause:?} on {device}: {named:?}");
+        }
+    }
+
+    /// The incident, at the detector: after an override on the steering was cleared,
+    /// the brake was in the manual state (commanded 0) when the e-stop paused and the
+    /// brake went full; it was named "driver override on brake". A foot on the same
+    /// brake with the e-stop in run still is one.
+    #[test]
+    fn the_brake_applied_under_an_e_stop_pause_is_no_override_a_foot_still_is() {
+        let named = judged(causes::Cause::Estop, "brake", 0.0, 0.0, 1.0);
+        assert!(named.is_empty(), "{named:?}");
+        // The same move with no known cause behind it: a driver's foot.
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        for k in 0..20u64 {
+            let now = t0 + Duration::from_millis(50 * k);
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "brake").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(if k == 0 { 0.0 } else { 1.0 }));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(0.0));
+            d.executed_span = Some([0.0, 0.0]);
+            d.executed_age_ms = Some(10.0);
+            faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
+        }
+        assert!(
+            faults
+                .iter()
+                .any(|f| f.kind == FaultKind::Override && f.device.as_deref() == Some("brake")),
+            "{faults:?}"
+        );
+    }
+
+    /// OSCC keeps a module's override flag until the module is enabled again, and
+    /// adrive enables no module while disengaged: the flag, once the gate had latched
+    /// the override, kept the supervisor naming it, so the operator could never clear
+    /// it (clearing is refused while a hand is named on) nor engage to clear the flag.
+    /// The flag names the override until the gate latches it, then no more; a flag
+    /// raised again after the next enable names it again.
+    #[test]
+    fn a_kit_s_latched_override_flag_names_the_override_once_not_forever() {
+        let now = Instant::now();
+        let config = crate::config::parse(
+            include_str!("../../vehicles/oscc.toml"),
+            "vehicles/oscc.toml",
+        )
+        .expect("the OSCC vehicle parses");
+        let gate = testkit::gate_of(config, now);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(now);
+        let mut turn = |flag: bool| {
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == "override") {
+                *x = Some(Value::Flag(flag));
+            }
+            d.status_age_ms = Some(5.0);
+            let faults = detect(&snap, v.config(), &sup, &mut mem, &[], now);
+            let named = faults
+                .iter()
+                .any(|f| f.kind == FaultKind::Override && f.device.as_deref() == Some("steer"));
+            if named {
+                gate.take_over("steer", "the kit's flag");
+            }
+            named
+        };
+        assert!(turn(true), "the flag raised: the driver's override");
+        assert!(!turn(true), "latched: the flag is a memory now");
+        assert_eq!(gate.clear_overrides(), Ok(vec!["steer".to_string()]));
+        assert!(!turn(true), "cleared, the module still keeps its flag");
+        assert!(!turn(false), "enabled again: the flag is down");
+        assert!(turn(true), "raised again: a new override");
+    }
 
     /// The console once set a status period longer than `status_max_age`: the device
     /// answered every poll, so it had no last error, and its `silent` fault was logged
@@ -875,7 +1176,10 @@ mod tests {
             "cannot open /dev/ttyUSB7: No such file or directory"
         );
         let f = &steer[0];
-        assert!(procedure_for(f, &gate, &sup).is_some_and(|p| p.name() == "reconnect steer"));
+        assert!(
+            procedure_for(f, &gate, &sup).is_none(),
+            "a device gone is waited for, not recovered"
+        );
     }
 
     /// A fault's log line, in the console's log pane and the log file, named its device

@@ -14,8 +14,13 @@
 //!   servo drive's fault latch clears on that cycle), home, hold where it is. Throttle
 //!   and brake stay taken until it is done: the vehicle stands while its steering is
 //!   reset.
-//! - **reconnect**: a vanished device; the engine reopens its port with backoff, the
-//!   procedure waits for it to answer again.
+//!
+//! A device gone is no procedure: the engine reopens its port for as long as adrive
+//! runs, and the supervisor says what it waits for ([`super::waiting`]).
+//!
+//! A procedure that gives up leaves the vehicle in the safe state, disengaged; the fault
+//! stays named, and the procedure runs again from the top at the next engage. It ends
+//! the run only when the operator asked for that (`give_up_after`).
 //!
 //! A procedure that moves an actuator ([`Procedure::moves`]: anything beyond the safe
 //! state of gas 0 and brake full) runs only while the vehicle is engaged; the
@@ -58,8 +63,6 @@ pub enum Step {
     Hold(DeviceId),
     /// Hand the pedals back (nothing to do: the brake stays until commanded).
     Release,
-    /// Wait until a device's port is open again and it reported.
-    Reopen(DeviceId, String),
 }
 
 impl Step {
@@ -71,7 +74,6 @@ impl Step {
             Step::Home(_) => "home".into(),
             Step::Hold(_) => "hold position".into(),
             Step::Release => "release".into(),
-            Step::Reopen(_, name) => format!("reopen {name}"),
         }
     }
 
@@ -93,7 +95,7 @@ impl Step {
                     gate.supervise(*d, Command::Set(p));
                 }
             }
-            Step::WaitStopped(_) | Step::Release | Step::Reopen(..) => {}
+            Step::WaitStopped(_) | Step::Release => {}
         }
     }
 
@@ -123,10 +125,6 @@ impl Step {
             }
             Step::Hold(d) => matches!(v.device(*d).slot().executed(), Some(Command::Set(_))),
             Step::Release => true,
-            Step::Reopen(d, _) => {
-                let dev = v.device(*d);
-                !dev.is_faulty() && fresh(*d)
-            }
         }
     }
 
@@ -138,7 +136,7 @@ impl Step {
                 device, command, ..
             } => !safe.contains(&(*device, *command)),
             Step::Shift { .. } | Step::Start { .. } | Step::Home(_) | Step::Hold(_) => true,
-            Step::WaitStopped(_) | Step::Release | Step::Reopen(..) => false,
+            Step::WaitStopped(_) | Step::Release => false,
         }
     }
 }
@@ -279,17 +277,6 @@ impl Procedure {
         Some(Procedure::new("steering", steps, takes, cfg))
     }
 
-    /// A vanished device: wait for the engine to reopen it and for it to answer.
-    pub fn reconnect(v: &Vehicle, id: DeviceId, cfg: &SupervisorConfig) -> Procedure {
-        let name = v.device(id).name().to_string();
-        Procedure::new(
-            &format!("reconnect {name}"),
-            vec![Step::Reopen(id, name)],
-            vec![],
-            cfg,
-        )
-    }
-
     pub fn name(&self) -> &str {
         &self.name
     }
@@ -306,8 +293,7 @@ impl Procedure {
 
     /// The rule for every procedure: a disengaged vehicle is never moved by adrive on
     /// its own, so one that moves an actuator runs only while the vehicle is engaged
-    /// (engaging is the permission to move it). One that moves nothing — reconnect —
-    /// always may.
+    /// (engaging is the permission to move it). One that moves nothing always may.
     pub(crate) fn may_run(&self, gate: &Gate) -> bool {
         !self.moves(gate) || gate.is_engaged()
     }
@@ -404,8 +390,6 @@ mod tests {
         assert!(stall.moves(&gate));
         let steering = Procedure::steering(v, &cfg).expect("steering bound");
         assert!(steering.moves(&gate));
-        let brake = b.brake.expect("brake");
-        assert!(!Procedure::reconnect(v, brake, &cfg).moves(&gate));
         let names = |p: &Procedure, moving: bool| -> Vec<String> {
             p.steps()
                 .iter()

@@ -37,7 +37,7 @@ impl Cached {
 /// Error codes shown per thread, as on the paper's screen: 0 is good, ≥ 1 is bad.
 pub fn error_code(e: &DriverError) -> u32 {
     match e {
-        DriverError::Timeout(_) => 1,
+        DriverError::Timeout(_) | DriverError::Late { .. } => 1,
         DriverError::Garbled(_) => 2,
         DriverError::Refused(_) => 3,
         DriverError::Unsupported(_) => 4,
@@ -151,7 +151,7 @@ impl Device {
             roles,
             port: Port::new(
                 config.port_rule,
-                Conn::new(driver, opener, trace.clone(), port_health.clone()),
+                Conn::new(driver, opener, trace.clone(), port_health.clone(), &config),
             ),
             port_health,
             trace,
@@ -340,13 +340,14 @@ impl Device {
     /// Why the device is faulty, if it is: its last error after [`FAULT_AFTER`] failed
     /// transactions in a row, or its silence ([`Device::silence`]).
     pub fn fault(&self) -> Option<String> {
-        // A bus whose adapter is gone: every device on it at once, without waiting for
-        // errors to add up (its reader tries the adapter only as often as its backoff).
-        if self.config.on_bus() && self.port_health.missing.load(Relaxed) {
+        // A port that is gone (a bus's adapter: every device on it at once), without
+        // waiting for errors to add up: the engine tries it again only as often as its
+        // backoff allows, and engage must not slip in meanwhile.
+        if self.port_health.missing.load(Relaxed) {
             return Some(
                 self.health
                     .last_error()
-                    .unwrap_or_else(|| "bus down".into()),
+                    .unwrap_or_else(|| "port gone".into()),
             );
         }
         if self.health.consecutive_errors.load(Relaxed) >= FAULT_AFTER {

@@ -18,6 +18,7 @@
 //! readers only ever predict from a copy, so they never disturb the filter.
 
 use crate::config::{Motion, Response};
+use crate::value::flush_subnormal;
 use std::time::Instant;
 
 /// Share of a predicted move that may be wrong (a declared rate or lag is not exact).
@@ -130,6 +131,7 @@ impl Estimator {
             [(1.0 - k[0]) * p[0][0], (1.0 - k[0]) * p[0][1]],
             [p[1][0] - k[1] * p[0][0], p[1][1] - k[1] * p[0][1]],
         ];
+        self.flush();
         let innovation_sigma = s.sqrt();
         Correction {
             innovation,
@@ -150,7 +152,7 @@ impl Estimator {
         let model = e.model_velocity(e.x[0]);
         Some(Estimate {
             position: e.x[0],
-            velocity: model + e.x[1],
+            velocity: flush_subnormal(model + e.x[1]),
             sigma: e.p[0][0].max(0.0).sqrt(),
             drift: e.x[1],
             drift_sigma: e.p[1][1].max(0.0).sqrt(),
@@ -243,6 +245,14 @@ impl Estimator {
         n[1][0] += q * dt * dt / 2.0;
         n[1][1] += q * dt;
         self.p = n;
+        self.flush();
+    }
+
+    /// A state that settles toward 0 (a lag closing on its command, a drift whose
+    /// innovations vanish) stops at 0 rather than walking down the subnormal numbers.
+    fn flush(&mut self) {
+        self.x = self.x.map(flush_subnormal);
+        self.p = self.p.map(|row| row.map(flush_subnormal));
     }
 }
 

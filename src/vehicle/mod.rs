@@ -168,12 +168,21 @@ impl Vehicle {
         self.reading(e.at).map(|v| e.state(v))
     }
 
-    /// The devices' part of the snapshot, ages as of `now`.
+    /// The devices' part of the snapshot, ages as of `now`. A device's acknowledged set
+    /// points reach back over two supervisor periods, and further to its reading's
+    /// time: a reading is judged against the commands that were driving it when it was
+    /// taken, never only against one that came after it.
     pub(crate) fn device_views(&self, now: Instant) -> Vec<DeviceView> {
-        let since = now.checked_sub(2 * self.config.supervisor.period);
+        let turns = now.checked_sub(2 * self.config.supervisor.period);
         self.devices
             .iter()
-            .map(|d| view(d, &self.buses, now, since.unwrap_or(now)))
+            .map(|d| {
+                let since = match (turns, d.cached().at) {
+                    (Some(t), Some(read)) => t.min(read),
+                    (t, read) => t.or(read).unwrap_or(now),
+                };
+                view(d, &self.buses, now, since)
+            })
             .collect()
     }
 
@@ -250,6 +259,10 @@ fn view(d: &Device, buses: &[Arc<Bus>], now: Instant, since: Instant) -> DeviceV
         commanded: d.slot().latest().map(value),
         executed: d.slot().executed().map(value),
         executed_span: d.slot().acked_span(since),
+        executed_age_ms: d
+            .slot()
+            .acked_last_at()
+            .map(|t| ms(now.saturating_duration_since(t))),
         status_age_ms: age.map(ms),
         stale: age.is_none_or(|a| a > cfg.status_max_age),
         health: snapshot::Health {

@@ -4,7 +4,9 @@
 //! broadcast and tests. Held in the [`Vehicle`](super::Vehicle), like every other state.
 
 use super::tap::{Event, Tap};
-pub use crate::snapshot::{FaultKind, FaultView, RecoveryView, SupervisorView};
+pub use crate::snapshot::{
+    FaultKind, FaultView, RecoveryView, StallView, SupervisorView, WaitingView,
+};
 use parking_lot::Mutex;
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -32,6 +34,10 @@ impl Fault {
 
 #[derive(Default)]
 struct Inner {
+    /// Stalled engine threads: name, time since its last turn when seen, bound, seen at.
+    stalled: Vec<(String, Duration, Duration, Instant)>,
+    /// Devices gone, as the supervisor last said.
+    waiting: Vec<WaitingView>,
     faults: Vec<Fault>,
     recovery: Option<(RecoveryView, Instant)>,
     last_outcome: Option<String>,
@@ -77,7 +83,28 @@ impl Board {
             }),
             last_outcome: i.last_outcome.clone(),
             history: i.history.iter().cloned().collect(),
+            stalled: stalled(&i, now),
+            waiting: i.waiting.clone(),
         }
+    }
+
+    /// The devices gone, and what adrive does about each (the supervisor's words).
+    pub(crate) fn set_waiting(&self, waiting: Vec<WaitingView>) {
+        self.inner.lock().waiting = waiting;
+    }
+
+    /// The engine threads that are stalled now (the service watchdog's finding).
+    pub fn stalled(&self) -> Vec<StallView> {
+        stalled(&self.inner.lock(), Instant::now())
+    }
+
+    /// The engine threads found stalled (empty: every thread turns).
+    pub(crate) fn set_stalled(&self, now: &[crate::threads::Stall]) {
+        let at = Instant::now();
+        self.inner.lock().stalled = now
+            .iter()
+            .map(|s| (s.thread.clone(), s.quiet, s.bound, at))
+            .collect();
     }
 
     pub fn faults(&self) -> Vec<Fault> {
@@ -136,6 +163,17 @@ impl Board {
     pub(crate) fn set_outcome(&self, outcome: String) {
         self.inner.lock().last_outcome = Some(outcome);
     }
+}
+
+fn stalled(i: &Inner, now: Instant) -> Vec<StallView> {
+    i.stalled
+        .iter()
+        .map(|(thread, quiet, bound, at)| StallView {
+            thread: thread.clone(),
+            quiet_ms: ms(*quiet + now.saturating_duration_since(*at)),
+            bound_ms: ms(*bound),
+        })
+        .collect()
 }
 
 fn ms(d: Duration) -> f64 {

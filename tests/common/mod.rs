@@ -197,7 +197,17 @@ pub fn lines(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc::Re
 
 /// Read lines until one contains `pattern`; returns every line read.
 pub fn until(rx: &std::sync::mpsc::Receiver<String>, pattern: &str) -> Vec<String> {
-    let end = Instant::now() + DEADLINE;
+    until_within(rx, pattern, DEADLINE)
+}
+
+/// [`until`], waiting up to `within` (for an event known to come later than
+/// [`DEADLINE`]).
+pub fn until_within(
+    rx: &std::sync::mpsc::Receiver<String>,
+    pattern: &str,
+    within: Duration,
+) -> Vec<String> {
+    let end = Instant::now() + within;
     let mut seen = Vec::new();
     loop {
         let left = end.saturating_duration_since(Instant::now());

@@ -99,6 +99,22 @@ impl Master {
             .expect("typing");
     }
 
+    /// Resize the terminal as a terminal window does: the kernel signals SIGWINCH to
+    /// the program on it.
+    #[allow(unsafe_code)]
+    pub fn resize(&self, cols: u16, rows: u16) {
+        let keys = self.keys.as_ref().expect("the terminal is open");
+        let ws = libc::winsize {
+            ws_row: rows,
+            ws_col: cols,
+            ws_xpixel: 0,
+            ws_ypixel: 0,
+        };
+        // SAFETY: TIOCSWINSZ reads the struct from a valid terminal fd.
+        let r = unsafe { libc::ioctl(keys.as_raw_fd(), libc::TIOCSWINSZ as _, &ws) };
+        assert_eq!(r, 0, "TIOCSWINSZ: {}", std::io::Error::last_os_error());
+    }
+
     /// Close the master side (every descriptor of it): the terminal hangs up.
     pub fn hang_up(&mut self) {
         self.keys = None;

@@ -64,6 +64,12 @@ impl SimProcess {
         sim
     }
 
+    /// Every line it printed so far.
+    #[allow(dead_code)]
+    pub fn lines(&self) -> Vec<String> {
+        self.lines.lock().unwrap().clone()
+    }
+
     pub fn next_line(&self) -> String {
         self.new
             .recv_timeout(DEADLINE)

@@ -10,12 +10,13 @@
 //! decoded by the DBC, above its own traffic (the adapter lines it wrote) where every
 //! identifier keeps a line; it has a chart only when it reports a position.
 
-use super::device::DevicePanel;
+use super::device::{DevicePanel, Seen};
+use super::fit;
 use super::fmt_us;
 use super::hint::grouped;
 use super::monitor::BusMonitor;
+use super::pack;
 use super::trail::{TrailChart, CHART_MAX, CHART_MIN};
-use super::wrap;
 use crate::config::device::POSITION;
 use crate::console::controls::SimFaults;
 use crate::console::keymap::{Action, Keymap, Mode, SimAction};
@@ -72,9 +73,18 @@ const TRAFFIC_MIN: u16 = 5;
 /// its state and four identifiers, and the border.
 const MONITOR_MIN: u16 = 7;
 
+/// What of the bench was drawn: the device's panel, and the simulator's fault keys
+/// in their box (`None` where there is no box: the devices are not simulated here).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct BenchSeen {
+    pub panel: Seen,
+    pub sim_keys: Option<Vec<SimAction>>,
+}
+
 impl BenchView<'_> {
-    /// The simulator box: this device's faults, the simulated vehicle, the keys.
-    fn sim_lines(&self, width: u16) -> Vec<Line<'static>> {
+    /// The simulator box: this device's faults, the simulated vehicle, the keys; and
+    /// which line (the first is the faults') and columns each fault key takes.
+    fn sim_lines(&self, width: u16) -> (Vec<Line<'static>>, Vec<(SimAction, usize, usize)>) {
         let t = &self.theme;
         let faults = self.sim.filter(|f| f.any());
         let mut first = vec![
@@ -88,17 +98,33 @@ impl BenchView<'_> {
             first.push(Span::styled(" · ", t.label()));
             first.push(Span::raw(v.to_string()));
         }
-        let keys = grouped(self.map, Mode::Bench, self.roles)
+        let mut sims = Vec::new();
+        let keys: Vec<Vec<Span>> = grouped(self.map, Mode::Bench, self.roles)
             .into_iter()
-            .filter(|(_, _, a)| matches!(a, Action::Sim(s) if !self.refused.contains(s)))
-            .map(|(k, desc, _)| {
+            .filter_map(|(k, desc, a)| match a {
+                Action::Sim(s) if !self.refused.contains(&s) => Some((k, desc, s)),
+                _ => None,
+            })
+            .map(|(k, desc, s)| {
+                sims.push(s);
                 let desc = desc.trim_start_matches("sim: ").trim_end_matches(" on/off");
                 vec![Span::styled(k, t.key()), Span::raw(format!(" {desc}"))]
             })
             .collect();
+        let widths: Vec<usize> = keys
+            .iter()
+            .map(|g| g.iter().map(Span::width).sum())
+            .collect();
+        let (lines, at) = pack(keys, width, "");
         let mut out = vec![Line::from(first)];
-        out.extend(wrap(keys, width, ""));
-        out
+        out.extend(lines);
+        let spots = sims
+            .into_iter()
+            .zip(at)
+            .zip(widths)
+            .map(|((s, (line, col)), w)| (s, line + 1, col + w))
+            .collect();
+        (out, spots)
     }
 }
 
@@ -154,7 +180,16 @@ fn traffic_title(name: &str, sim: Option<&str>, can_inject: bool, read_only: boo
 
 impl Widget for &BenchView<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
+        self.render_seen(area, buf);
+    }
+}
+
+impl BenchView<'_> {
+    /// Draw the bench in `area`, every line and title cut to its room, and say what of
+    /// it was drawn.
+    pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> BenchSeen {
         let t = &self.theme;
+        let mut seen = BenchSeen::default();
         let sim_h = if self.can_inject { SIM_BOX } else { 0 };
         let [top, sim, bottom] = Layout::vertical([
             Constraint::Length(11),
@@ -201,17 +236,32 @@ impl Widget for &BenchView<'_> {
             };
             (&c).render(chart, buf);
         }
-        if sim.height > 0 {
+        if self.can_inject {
             let block = Block::new().borders(Borders::TOP).title(Span::styled(
-                format!(
-                    " simulator: {} and the vehicle (on/off keys toggle) ",
-                    self.d.name
+                fit::title(
+                    &format!(
+                        " simulator: {} and the vehicle (on/off keys toggle) ",
+                        self.d.name
+                    ),
+                    sim.width,
                 ),
                 t.title(),
             ));
             let inner = block.inner(sim);
             block.render(sim, buf);
-            Paragraph::new(self.sim_lines(inner.width)).render(inner, buf);
+            let (lines, spots) = self.sim_lines(inner.width);
+            let kept: Vec<usize> = lines.iter().map(|l| fit::kept(l, inner.width)).collect();
+            seen.sim_keys = Some(
+                spots
+                    .into_iter()
+                    .filter(|&(_, line, end)| {
+                        line < usize::from(inner.height)
+                            && kept.get(line).is_some_and(|&k| end <= k)
+                    })
+                    .map(|(s, _, _)| s)
+                    .collect(),
+            );
+            fit::Fitted(lines).render(inner, buf);
         }
         let [left, right] = Layout::horizontal([Constraint::Length(46), Constraint::Min(20)])
             .direction(Direction::Horizontal)
@@ -227,7 +277,7 @@ impl Widget for &BenchView<'_> {
             edit: self.edit,
             bordered: true,
         };
-        (&panel).render(left, buf);
+        seen.panel = panel.render_seen(left, buf);
 
         let bins = log2_bins(self.buckets);
         let what = if self.d.is_actuator() {
@@ -235,7 +285,7 @@ impl Widget for &BenchView<'_> {
         } else {
             " status transaction "
         };
-        let block = Block::bordered().title(Span::styled(what, t.title()));
+        let block = Block::bordered().title(Span::styled(fit::title(what, right.width), t.title()));
         if bins.is_empty() {
             let inner = block.inner(right);
             block.render(right, buf);
@@ -271,9 +321,10 @@ impl Widget for &BenchView<'_> {
             self.read_only,
         );
         if bottom.height == 0 {
-            return;
+            return seen;
         }
-        let block = Block::bordered().title(Span::styled(title, t.title()));
+        let block =
+            Block::bordered().title(Span::styled(fit::title(&title, bottom.width), t.title()));
         let inner = block.inner(bottom);
         block.render(bottom, buf);
         let lines: Vec<Line> = if self.trace.is_empty() {
@@ -288,7 +339,8 @@ impl Widget for &BenchView<'_> {
                 .map(|e| Line::from(trace_line(e, self.now)))
                 .collect()
         };
-        Paragraph::new(lines).render(inner, buf);
+        fit::Fitted(lines).render(inner, buf);
+        seen
     }
 }
 
@@ -349,6 +401,106 @@ mod tests {
         assert_eq!(
             title(Some("silent"), true, false),
             " gas raw traffic: dir, time ago, hex, text — sim: silent "
+        );
+    }
+
+    fn rows(buf: &Buffer) -> Vec<String> {
+        (0..buf.area.height)
+            .map(|y| (0..buf.area.width).map(|x| buf[(x, y)].symbol()).collect())
+            .collect()
+    }
+
+    /// Incident: on the bench at 100×30 with simulator faults on, titles and the
+    /// simulator's lines were cut mid-word at the edge. Every title and line is whole
+    /// or cut at a word with `…`; the fault keys not drawn are not said to be.
+    #[test]
+    fn with_faults_on_every_title_and_line_is_whole_or_cut_with_a_mark() {
+        use crate::console::controls::{capture, Sources};
+        let now = Instant::now();
+        let f = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
+        let id = f.id_of("steer").unwrap();
+        let faults = SimFaults {
+            silent: true,
+            corrupt: true,
+            slow_ms: 150,
+            hand: Some(1.0),
+            text: "silent, corrupt, slow 150ms".into(),
+            ..SimFaults::default()
+        };
+        let map = Keymap::default_map();
+        let trace = [TraceEntry::new(
+            now,
+            crate::vehicle::trace::Dir::Out,
+            b"a reply far too long for any traffic box, thirty-two bytes and more\r",
+        )];
+        let trail = Trail::default();
+        let vehicle = "e-stop run · engine running · steer drive ok · a hand pushes it toward 1";
+        let view = |roles| BenchView {
+            id,
+            d: f.at(id).unwrap(),
+            red: true,
+            overridden: true,
+            sim: Some(&faults),
+            buckets: &[],
+            trace: &trace,
+            theme: Theme::default(),
+            edit: None,
+            now,
+            can_inject: true,
+            read_only: false,
+            sim_vehicle: Some(vehicle),
+            map: &map,
+            roles,
+            trail: &trail,
+            bus: None,
+            refused: Vec::new(),
+        };
+        let roles = f.snap.gate.roles.clone();
+        let v = view(&roles);
+        let mut buf = Buffer::empty(Rect::new(0, 0, 100, 26));
+        let seen = v.render_seen(buf.area, &mut buf);
+        let r = rows(&buf);
+        assert!(
+            r[0].starts_with("┌STEER -1…1 cmd - meas 0.231 FAULT OVERRIDE…─"),
+            "{}",
+            r[0]
+        );
+        assert!(
+            r[11].starts_with(" simulator: steer and the vehicle (on/off keys toggle) ─"),
+            "{}",
+            r[11]
+        );
+        assert_eq!(
+            r[12].trim_end(),
+            "faults silent, corrupt, slow 150ms · e-stop run · engine running · steer drive ok · a hand pushes…"
+        );
+        assert!(
+            r[15].starts_with("┌ steer raw traffic: dir, time ago, hex, text — sim: silent, corrupt, slow 150ms ─"),
+            "{}",
+            r[15]
+        );
+        assert!(r[16].ends_with(" 6e…│"), "{}", r[16]);
+        assert_eq!(seen.sim_keys.as_ref().map(Vec::len), Some(11), "{seen:?}");
+        assert!(seen.panel.name);
+        // At 60 columns the traffic's title is cut at a word, and the keys on a third
+        // line of the simulator box are not drawn.
+        let mut buf = Buffer::empty(Rect::new(0, 0, 60, 26));
+        let seen = v.render_seen(buf.area, &mut buf);
+        let r = rows(&buf);
+        assert_eq!(
+            r[11],
+            " simulator: steer and the vehicle (on/off keys toggle) ─────"
+        );
+        assert!(
+            r[15].starts_with("┌ steer raw traffic: dir, time ago, hex, text — sim… ─"),
+            "{}",
+            r[15]
+        );
+        let keys = seen.sim_keys.unwrap();
+        assert!(keys.contains(&SimAction::Silent), "{keys:?}");
+        assert!(
+            !keys.contains(&SimAction::Estop(crate::value::EstopState::Run)),
+            "{keys:?}"
         );
     }
 }

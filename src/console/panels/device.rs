@@ -7,9 +7,11 @@
 //! so that a small panel loses it before any counter. Editable fields show the cursor
 //! and an edit in progress in place. In a window too short for it (many devices on a
 //! small screen), the same panel is packed side by side into the lines there are
-//! ([`DevicePanel::packed`]).
+//! ([`DevicePanel::packed_seen`]). A line too long for the panel is cut at a word with
+//! `…`, and drawing says which of the editable fields were drawn whole (what keys may
+//! then act on).
 
-use super::{fmt_age, fmt_us, pack};
+use super::{fit, fmt_age, fmt_us, pack};
 use crate::config::device::POSITION;
 use crate::console::controls::SimFaults;
 use crate::console::model::{Edit, Field};
@@ -21,7 +23,7 @@ use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Block, Paragraph, Widget};
+use ratatui::widgets::{Block, Widget};
 use std::time::Duration;
 
 pub(crate) struct DevicePanel<'a> {
@@ -153,9 +155,10 @@ impl<'a> DevicePanel<'a> {
         Span::styled(text, base)
     }
 
-    /// The title line.
-    pub fn title(&self) -> Line<'a> {
+    /// The title line, and where the command sits on it (an actuator's).
+    fn title_marked(&self) -> (Line<'a>, Vec<Spot>) {
         let (d, t) = (self.d, &self.theme);
+        let mut spots = Vec::new();
         let name_style = if self.red { t.fault() } else { t.title() };
         let mut spans = vec![Span::styled(d.name.to_uppercase(), name_style)];
         let range = domain(d);
@@ -165,6 +168,7 @@ impl<'a> DevicePanel<'a> {
         let meas_style = if d.stale { t.stale() } else { Style::new() };
         if d.is_actuator() {
             spans.push(Span::styled(" cmd ", t.label()));
+            spots.push(Spot::new(Field::Command(self.id), 0, spans.len()));
             spans.push(self.field(
                 Field::Command(self.id),
                 fmt_value(d.commanded.as_ref()),
@@ -188,7 +192,7 @@ impl<'a> DevicePanel<'a> {
         if let Some(f) = self.sim.filter(|f| f.any()) {
             spans.push(Span::styled(format!(" sim: {}", f.text), t.warn()));
         }
-        Line::from(spans)
+        (Line::from(spans), spots)
     }
 
     fn code(&self, code: u32) -> Span<'a> {
@@ -242,24 +246,26 @@ impl<'a> DevicePanel<'a> {
         Line::from(spans)
     }
 
-    /// Every line under the title, most important first.
-    pub(crate) fn details(&self, width: u16) -> Vec<Line<'a>> {
+    /// Every line under the title, most important first, and where the editable
+    /// fields sit on them (their lines counted from the first detail line).
+    fn details_marked(&self, width: u16) -> (Vec<Line<'a>>, Vec<Spot>) {
         let (d, t) = (self.d, &self.theme);
         let r = self.id;
         let l = |s: &'static str| Span::styled(s, t.label());
         let ms = |x: f64| fmt_ms(Duration::from_secs_f64(x / 1e3));
         let mut out = Vec::new();
+        let mut spots = Vec::new();
         // st delay / cm delay
-        let mut delays = vec![
-            l("st delay "),
-            self.field(
-                Field::StDelay(r),
-                ms(d.settings.status_period_ms),
-                Style::new(),
-            ),
-        ];
+        let mut delays = vec![l("st delay ")];
+        spots.push(Spot::new(Field::StDelay(r), 0, delays.len()));
+        delays.push(self.field(
+            Field::StDelay(r),
+            ms(d.settings.status_period_ms),
+            Style::new(),
+        ));
         if d.is_actuator() {
             delays.push(l("  cm delay "));
+            spots.push(Spot::new(Field::CmDelay(r), 0, delays.len()));
             delays.push(self.field(
                 Field::CmDelay(r),
                 ms(d.settings.command_timeout_ms),
@@ -271,15 +277,17 @@ impl<'a> DevicePanel<'a> {
         }
         out.push(Line::from(delays));
         // thread flags, error codes, age
-        let mut flags = vec![
-            l("status "),
+        let mut flags = vec![l("status ")];
+        spots.push(Spot::new(Field::StatusOn(r), 1, flags.len()));
+        flags.extend([
             self.flag(Field::StatusOn(r), d.settings.status_on),
             l(" e"),
             self.code(d.health.status_error),
-        ];
+        ]);
         if d.is_actuator() {
+            flags.push(l("  command "));
+            spots.push(Spot::new(Field::CommandOn(r), 1, flags.len()));
             flags.extend([
-                l("  command "),
                 self.flag(Field::CommandOn(r), d.settings.command_on),
                 l(" e"),
                 self.code(d.health.command_error),
@@ -383,18 +391,31 @@ impl<'a> DevicePanel<'a> {
             ]));
         }
         out.extend(own_line);
-        out
+        (out, spots)
     }
 }
 
 impl<'a> DevicePanel<'a> {
     /// The whole panel in `height` lines of `width` columns: the title and each line
-    /// under it side by side, two spaces apart, in the panel's order. When the field
-    /// under the cursor (or being edited) would fall below, the first lines give way.
-    pub fn packed(&self, width: u16, height: u16) -> Vec<Line<'a>> {
-        let mut groups = vec![self.title().spans];
-        groups.extend(self.details(width).into_iter().map(|l| l.spans));
-        let (mut lines, at) = pack(groups, width, "");
+    /// under it side by side, two spaces apart, in the panel's order, each cut to the
+    /// width; and what of the panel those lines show. When the field under the cursor
+    /// (or being edited) would fall below, the first lines give way.
+    pub(crate) fn packed_seen(&self, width: u16, height: u16) -> (Vec<Line<'a>>, Seen) {
+        let (title, mut spots) = self.title_marked();
+        let (details, more) = self.details_marked(width);
+        // Each line of the panel is a group; its fields' lines become group numbers.
+        spots.extend(more.into_iter().map(|s| Spot {
+            line: s.line + 1,
+            ..s
+        }));
+        let name_w = title.spans.first().map_or(0, Span::width);
+        let mut groups = vec![title.spans];
+        groups.extend(details.into_iter().map(|l| l.spans));
+        let widths: Vec<Vec<usize>> = groups
+            .iter()
+            .map(|g| g.iter().map(Span::width).collect())
+            .collect();
+        let (lines, at) = pack(groups, width, "");
         // The groups holding editable fields: the title (the command), the delays,
         // the thread flags.
         let group = match self.edit.map(|e| e.field).or(self.cursor) {
@@ -405,31 +426,118 @@ impl<'a> DevicePanel<'a> {
             },
             _ => 0,
         };
-        let line = at.get(group).copied().unwrap_or(0);
+        let line = at.get(group).map_or(0, |a| a.0);
         let skip = (line + 1).saturating_sub(usize::from(height.max(1)));
-        lines.drain(..skip.min(lines.len()));
-        lines.truncate(usize::from(height));
-        lines
+        let mut lines: Vec<Line> = lines
+            .into_iter()
+            .skip(skip)
+            .take(usize::from(height))
+            .collect();
+        let kept: Vec<usize> = lines.iter().map(|l| fit::kept(l, width)).collect();
+        lines = lines.into_iter().map(|l| fit::line(l, width)).collect();
+        // Where a group's span ends: the group's line and start, plus its spans.
+        let shown = |group: usize, span: usize| {
+            let Some(&(line, col)) = at.get(group) else {
+                return false;
+            };
+            let end = col + widths[group][..=span].iter().sum::<usize>();
+            line >= skip && kept.get(line - skip).is_some_and(|&k| end <= k)
+        };
+        let seen = Seen {
+            name: shown(0, 0) && name_w > 0,
+            fields: spots
+                .iter()
+                .filter(|s| shown(s.line, s.span))
+                .map(|s| s.field)
+                .collect(),
+        };
+        (lines, seen)
     }
-}
 
-impl Widget for &DevicePanel<'_> {
-    fn render(self, area: Rect, buf: &mut Buffer) {
-        if self.bordered {
+    /// Draw the panel in `area`, each line cut to its width, and say what of it was
+    /// drawn: the device's name, the editable fields whole.
+    pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> Seen {
+        let (title, title_spots) = self.title_marked();
+        // The title's room and the details' area.
+        let (title_w, inner) = if self.bordered {
             let border = if self.red {
                 self.theme.fault()
             } else {
                 self.theme.label()
             };
-            let block = Block::bordered().border_style(border).title(self.title());
+            let title_w = area.width.saturating_sub(2);
+            let block = Block::bordered()
+                .border_style(border)
+                .title(fit::line(title.clone(), title_w));
             let inner = block.inner(area);
             block.render(area, buf);
-            Paragraph::new(self.details(inner.width)).render(inner, buf);
+            (title_w, inner)
         } else {
-            let mut lines = vec![self.title()];
-            lines.extend(self.details(area.width));
-            Paragraph::new(lines).render(area, buf);
+            if area.height > 0 {
+                let first = Rect { height: 1, ..area };
+                fit::Fitted(vec![title.clone()]).render(first, buf);
+            }
+            let inner = Rect {
+                y: area.y + 1.min(area.height),
+                height: area.height.saturating_sub(1),
+                ..area
+            };
+            (area.width, inner)
+        };
+        let (details, spots) = self.details_marked(inner.width);
+        let title_kept = fit::kept(&title, title_w);
+        let ends = |l: &Line, span: usize| l.spans[..=span].iter().map(Span::width).sum::<usize>();
+        let mut seen = Seen {
+            name: area.height > 0 && title.spans.first().is_some_and(|n| n.width() <= title_kept),
+            fields: Vec::new(),
+        };
+        if area.height > 0 {
+            seen.fields.extend(
+                title_spots
+                    .iter()
+                    .filter(|s| ends(&title, s.span) <= title_kept)
+                    .map(|s| s.field),
+            );
         }
+        for s in &spots {
+            let shown = s.line < usize::from(inner.height)
+                && details
+                    .get(s.line)
+                    .is_some_and(|l| ends(l, s.span) <= fit::kept(l, inner.width));
+            if shown {
+                seen.fields.push(s.field);
+            }
+        }
+        fit::Fitted(details).render(inner, buf);
+        seen
+    }
+}
+
+/// Where an editable field sits in a panel: its line and its span on that line.
+#[derive(Clone, Copy, Debug)]
+struct Spot {
+    field: Field,
+    line: usize,
+    span: usize,
+}
+
+impl Spot {
+    fn new(field: Field, line: usize, span: usize) -> Spot {
+        Spot { field, line, span }
+    }
+}
+
+/// What of a device's panel was drawn: its name, and its editable fields whole (the
+/// value, or an edit with its caret).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct Seen {
+    pub name: bool,
+    pub fields: Vec<Field>,
+}
+
+impl Widget for &DevicePanel<'_> {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        self.render_seen(area, buf);
     }
 }
 
@@ -440,6 +548,7 @@ mod tests {
     use crate::testkit;
     use ratatui::style::{Color, Modifier};
     use std::time::Instant;
+    use unicode_width::UnicodeWidthStr;
 
     fn snap_of(name: &str, faulty: bool) -> (DeviceId, DeviceView) {
         let now = Instant::now();
@@ -595,5 +704,86 @@ mod tests {
         assert_eq!(line.trim_end(), "st delay 100ms  cm delay 300▏");
         assert!(buf[(9, 1)].modifier.contains(Modifier::REVERSED));
         assert!(buf[(25, 1)].modifier.contains(Modifier::UNDERLINED));
+    }
+
+    fn row(buf: &Buffer, y: u16) -> String {
+        (0..buf.area.width)
+            .map(|x| buf[(x, y)].symbol().to_string())
+            .collect::<String>()
+    }
+
+    /// On the bench at 100×30 with simulator faults on, a panel's title ended
+    /// `… FAULT s`: cut mid-word, nothing to say more was there. A line too long for
+    /// its panel is cut at a word and marked, bordered or not; a field cut off is not
+    /// said to be drawn.
+    #[test]
+    fn a_line_too_long_for_the_panel_is_cut_at_a_word_with_a_mark() {
+        let (id, d) = snap_of("steer", true);
+        let faults = SimFaults {
+            silent: true,
+            corrupt: true,
+            slow_ms: 150,
+            text: "silent, corrupt, slow 150ms".into(),
+            ..SimFaults::default()
+        };
+        let p = DevicePanel {
+            sim: Some(&faults),
+            bordered: true,
+            ..panel(id, &d)
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 46, 11));
+        let seen = p.render_seen(buf.area, &mut buf);
+        assert_eq!(
+            row(&buf, 0),
+            "┌STEER -1…1 cmd - meas 0.231 FAULT sim…──────┐"
+        );
+        assert!(seen.name && seen.fields.contains(&Field::Command(id)));
+        let p = DevicePanel {
+            bordered: false,
+            ..p
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 30, 6));
+        let seen = p.render_seen(buf.area, &mut buf);
+        assert_eq!(row(&buf, 0), "STEER -1…1 cmd - meas 0.231…  ");
+        assert!(seen.fields.contains(&Field::Command(id)));
+        // `st delay 50ms  cm delay 250ms` in 20 columns: cm delay is cut off; two
+        // lines leave the thread flags out.
+        let mut buf = Buffer::empty(Rect::new(0, 0, 20, 2));
+        let seen = p.render_seen(buf.area, &mut buf);
+        assert_eq!(row(&buf, 1), "st delay 50ms  cm…  ");
+        assert!(seen.fields.contains(&Field::StDelay(id)));
+        assert!(!seen.fields.contains(&Field::CmDelay(id)), "{seen:?}");
+        assert!(!seen.fields.contains(&Field::StatusOn(id)), "{seen:?}");
+    }
+
+    /// Packed into the lines there are (many devices on a small screen), each line is
+    /// cut with a mark, and only the fields on those lines count as drawn.
+    #[test]
+    fn a_packed_panel_cuts_its_lines_and_says_which_fields_it_shows() {
+        let (id, d) = snap_of("steer", false);
+        let p = DevicePanel {
+            cursor: Some(Field::Command(id)),
+            ..panel(id, &d)
+        };
+        let (lines, seen) = p.packed_seen(36, 2);
+        let text: Vec<String> = lines
+            .iter()
+            .map(|l| l.spans.iter().map(|s| s.content.as_ref()).collect())
+            .collect();
+        assert_eq!(text.len(), 2, "{text:?}");
+        assert!(text.iter().all(|l| l.width() <= 36), "{text:?}");
+        assert!(
+            seen.name && seen.fields.contains(&Field::Command(id)),
+            "{seen:?}"
+        );
+        assert!(!seen.fields.contains(&Field::CommandOn(id)), "{seen:?}");
+        // The cursor on the thread flags: the first lines give way to them.
+        let p = DevicePanel {
+            cursor: Some(Field::CommandOn(id)),
+            ..p
+        };
+        let (_, seen) = p.packed_seen(36, 1);
+        assert!(!seen.name, "{seen:?}");
+        assert!(seen.fields.contains(&Field::StatusOn(id)), "{seen:?}");
     }
 }

@@ -1,5 +1,6 @@
 //! The confirmation dialog: the question and its answers, from the keymap.
 
+use super::fit;
 use super::hint::short;
 use crate::console::keymap::{Action, Keymap, Mode};
 use crate::console::model::Ask;
@@ -7,7 +8,8 @@ use crate::console::theme::Theme;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Block, Clear, Paragraph, Widget, Wrap};
+use ratatui::widgets::{Block, Clear, Widget};
+use unicode_width::UnicodeWidthStr;
 
 pub(crate) struct Dialog<'a> {
     pub ask: Ask,
@@ -26,6 +28,14 @@ fn keys(map: &Keymap, a: Action) -> String {
 
 impl Widget for &Dialog<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
+        self.render_seen(area, buf);
+    }
+}
+
+impl Dialog<'_> {
+    /// Draw the dialog centred in `area`; whether its question and its answers were
+    /// drawn whole (what may then be answered).
+    pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> bool {
         let w = area.width.min(60);
         let h = area.height.min(6);
         let r = Rect {
@@ -44,18 +54,87 @@ impl Widget for &Dialog<'_> {
             .title(Span::styled(" confirm ", style));
         let inner = block.inner(r);
         block.render(r, buf);
-        let lines = vec![
-            Line::from(Span::styled(self.ask.question(), style)),
-            Line::default(),
-            Line::from(vec![
-                Span::styled(keys(self.map, Action::Confirm), self.theme.key()),
-                Span::raw(" yes   "),
-                Span::styled(keys(self.map, Action::Cancel), self.theme.key()),
-                Span::raw(" no"),
-            ]),
-        ];
-        Paragraph::new(lines)
-            .wrap(Wrap { trim: true })
-            .render(inner, buf);
+        let answers = Line::from(vec![
+            Span::styled(keys(self.map, Action::Confirm), self.theme.key()),
+            Span::raw(" yes   "),
+            Span::styled(keys(self.map, Action::Cancel), self.theme.key()),
+            Span::raw(" no"),
+        ]);
+        let mut question = wrapped(self.ask.question(), inner.width);
+        let whole = question.len() + 2 <= usize::from(inner.height)
+            && answers.width() <= usize::from(inner.width)
+            && question
+                .iter()
+                .all(|l| l.width() <= usize::from(inner.width));
+        // Rows too few for the whole question: what is left out is marked.
+        let rows = usize::from(inner.height.saturating_sub(2)).max(1);
+        if question.len() > rows {
+            question.truncate(rows);
+            if let Some(last) = question.last_mut() {
+                last.push_str(fit::MARK);
+            }
+        }
+        let mut lines: Vec<Line> = question
+            .into_iter()
+            .map(|l| Line::from(Span::styled(l, style)))
+            .collect();
+        lines.push(Line::default());
+        lines.push(answers);
+        fit::Fitted(lines).render(inner, buf);
+        whole
+    }
+}
+
+/// `text` in lines of at most `width` columns, broken between words (a word longer
+/// than a line stands alone on its line, to be cut).
+fn wrapped(text: &str, width: u16) -> Vec<String> {
+    let mut out: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in text.split_whitespace() {
+        if !line.is_empty() && line.width() + 1 + word.width() > usize::from(width) {
+            out.push(std::mem::take(&mut line));
+        }
+        if !line.is_empty() {
+            line.push(' ');
+        }
+        line.push_str(word);
+    }
+    if !line.is_empty() {
+        out.push(line);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rows(buf: &Buffer) -> Vec<String> {
+        (0..buf.area.height)
+            .map(|y| (0..buf.area.width).map(|x| buf[(x, y)].symbol()).collect())
+            .collect()
+    }
+
+    /// A dialog is answered only when drawn whole: its question and its answers. In
+    /// too small a room it is cut, each line marked, and not whole.
+    #[test]
+    fn a_dialog_says_whether_it_was_drawn_whole() {
+        let map = Keymap::default_map();
+        let d = Dialog {
+            ask: Ask::Take,
+            map: &map,
+            theme: Theme::default(),
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 20));
+        assert!(d.render_seen(buf.area, &mut buf));
+        let text = rows(&buf).join("\n");
+        assert!(
+            text.contains("Take command? The source commanding now is refused from"),
+            "{text}"
+        );
+        assert!(text.contains("y yes   n/Esc no"), "{text}");
+        let mut buf = Buffer::empty(Rect::new(0, 0, 24, 5));
+        assert!(!d.render_seen(buf.area, &mut buf));
+        assert_eq!(rows(&buf)[1], "│Take command? The…    │");
     }
 }

@@ -6,6 +6,7 @@
 //! 100ms)`); a vehicle name too long gives way before the gate does. An attached
 //! console (`adrive attach`) also says whether it commands or watches.
 
+use super::fit::shorten;
 use crate::console::keymap::Mode;
 use crate::console::model::Model;
 use ratatui::buffer::Buffer;
@@ -63,22 +64,16 @@ impl Header<'_> {
         } else {
             (" DISENGAGED ".to_string(), t.warn().patch(bar))
         };
-        // Engaged: who commands it; disengaged: why. The gate keeps the reason it
-        // disengaged for; once the override that was it is cleared, the bar says so
-        // rather than show the driver still in charge.
+        // Engaged: who commands it; disengaged: why, in the gate's own words (the
+        // same the broadcast and `adrive ctl status` carry).
         let who = match &s.gate.commander {
             Some(c) => format!("by {c}"),
             None => "nobody commands".to_string(),
         };
-        let reason = s.gate.reason.trim_start_matches("disengaged: ");
-        let cleared;
         let why = if s.gate.engaged {
             who.as_str()
-        } else if reason.starts_with("driver override on ") && s.gate.overridden.is_empty() {
-            cleared = format!("{reason}, cleared");
-            cleared.as_str()
         } else {
-            reason
+            s.gate.reason.trim_start_matches("disengaged: ")
         };
         let title = format!(" ADRIVE {} ", s.vehicle);
         let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
@@ -110,58 +105,12 @@ impl Widget for &Header<'_> {
     }
 }
 
-/// `text` in at most `max` columns: whole when it fits; else its longest prefix that
-/// ends at a word, then "…", then a ")" for each parenthesis the prefix left open;
-/// empty when not even "…" fits.
-pub(crate) fn shorten(text: &str, max: usize) -> String {
-    if text.width() <= max {
-        return text.to_string();
-    }
-    // The longest prefix (in characters) whose shortened form fits.
-    let fits = |p: &str| p.width() + 1 + open_parens(p) <= max;
-    let mut end = 0;
-    for (i, c) in text.char_indices() {
-        let next = i + c.len_utf8();
-        if !fits(&text[..next]) {
-            break;
-        }
-        end = next;
-    }
-    let mut prefix = &text[..end];
-    // Back to the end of a word (words are what spaces separate) when the cut fell
-    // inside one; a first word too long for the room is cut where it must be.
-    let inside_word = text[end..]
-        .chars()
-        .next()
-        .is_some_and(|c| !c.is_whitespace())
-        && prefix.chars().last().is_some_and(|c| !c.is_whitespace());
-    if inside_word {
-        if let Some(at) = prefix.rfind(char::is_whitespace) {
-            prefix = &prefix[..at];
-        }
-    }
-    // Nothing dangling before the "…": a space, an opening parenthesis, a separator.
-    let prefix = prefix.trim_end_matches([' ', '(', ';', ',', ':']);
-    if max == 0 {
-        return String::new();
-    }
-    format!("{prefix}…{}", ")".repeat(open_parens(prefix)))
-}
-
-/// How many parentheses `s` leaves open.
-fn open_parens(s: &str) -> usize {
-    s.chars().fold(0usize, |depth, c| match c {
-        '(' => depth + 1,
-        ')' => depth.saturating_sub(1),
-        _ => depth,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::console::controls::{capture, Sources};
     use crate::console::keymap::Keymap;
+    use crate::console::panels::fit::open_parens;
     use crate::console::theme::Theme;
     use crate::console::view::MIN_WIDTH;
     use crate::testkit;
@@ -266,34 +215,28 @@ mod tests {
     }
 
     /// After `C` cleared a driver's override the header still read `DISENGAGED
-    /// (driver override on steer)`, as if the driver still had the wheel.
+    /// (driver override on steer)`, as if the driver still had the wheel. The header
+    /// shows the gate's reason, which says the override is cleared.
     #[test]
     fn a_cleared_override_is_said_to_be_cleared() {
-        let mut m = model(false, "driver override on steer", "Alice");
-        m.snap.snap.gate.overridden = vec!["steer".into()];
-        let l = text(&Header { m: &m }.line(120));
+        let now = Instant::now();
+        let gate = testkit::gate(now);
+        let mut m = model(false, "", "Alice");
+        let header = |m: &mut Model| {
+            m.snap.snap.gate = gate.view(Instant::now());
+            text(&Header { m }.line(120))
+        };
+        gate.take_over("steer", "a driver's hand");
+        let l = header(&mut m);
         assert!(
             l.ends_with(" DISENGAGED (driver override on steer) "),
             "{l}"
         );
-        m.snap.snap.gate.overridden.clear();
-        let l = text(&Header { m: &m }.line(120));
+        gate.clear_overrides().expect("no hand is on it");
+        let l = header(&mut m);
         assert!(
             l.ends_with(" DISENGAGED (driver override on steer, cleared) "),
             "{l}"
         );
-    }
-
-    #[test]
-    fn shorten_cuts_at_words_and_closes_parentheses() {
-        let s = "gas is faulty (no reply within 100ms)";
-        assert_eq!(shorten(s, 100), s);
-        assert_eq!(shorten(s, 20), "gas is faulty (no…)");
-        assert_eq!(shorten(s, 16), "gas is faulty…");
-        assert_eq!(shorten(s, 4), "gas…");
-        assert_eq!(shorten(s, 3), "ga…");
-        assert_eq!(shorten(s, 1), "…");
-        assert_eq!(shorten(s, 0), "");
-        assert_eq!(shorten("a (b (c d e f g) h)", 12), "a (b (c d…))");
     }
 }

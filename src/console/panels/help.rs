@@ -1,13 +1,14 @@
 //! The help overlay, generated from the loaded keymap: every mode's bindings with
 //! key, description and action name.
 
+use super::fit::{self, Fitted};
 use super::hint::short;
 use crate::console::keymap::{describe, Keymap, Mode};
 use crate::console::theme::Theme;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Block, Clear, Paragraph, Widget};
+use ratatui::widgets::{Block, Clear, Widget};
 
 pub(crate) struct HelpPanel<'a> {
     pub map: &'a Keymap,
@@ -68,10 +69,10 @@ impl Widget for &HelpPanel<'_> {
         Clear.render(area, buf);
         let block = Block::bordered()
             .title(Span::styled(
-                " help — keys from the loaded keymap ",
+                fit::title(" help — keys from the loaded keymap ", area.width),
                 self.theme.title(),
             ))
-            .title_bottom(" ↑↓ scroll  Esc close ");
+            .title_bottom(fit::title(" ↑↓ scroll  Esc close ", area.width));
         let inner = block.inner(area);
         block.render(area, buf);
         let lines = self.lines();
@@ -83,14 +84,14 @@ impl Widget for &HelpPanel<'_> {
             let skip = self.scroll.min(max) as usize;
             let left: Vec<Line> = lines.iter().skip(skip).take(rows).cloned().collect();
             let right: Vec<Line> = lines.iter().skip(skip + rows).take(rows).cloned().collect();
-            Paragraph::new(left).render(
+            Fitted(left).render(
                 Rect {
                     width: half,
                     ..inner
                 },
                 buf,
             );
-            Paragraph::new(right).render(
+            Fitted(right).render(
                 Rect {
                     x: inner.x + half,
                     width: inner.width - half,
@@ -99,9 +100,39 @@ impl Widget for &HelpPanel<'_> {
                 buf,
             );
         } else {
-            Paragraph::new(lines)
-                .scroll((self.scroll.min(max), 0))
-                .render(inner, buf);
+            let skip = usize::from(self.scroll.min(max));
+            Fitted(lines.into_iter().skip(skip).collect()).render(inner, buf);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// At 60 columns the last line of help ran off the box: cut at a word, marked.
+    #[test]
+    fn a_help_line_without_room_is_cut_with_a_mark() {
+        let map = Keymap::default_map();
+        let roles = crate::snapshot::Pairs::default();
+        let h = HelpPanel {
+            map: &map,
+            theme: Theme::default(),
+            scroll: u16::MAX,
+            roles: &roles,
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 50, 8));
+        (&h).render(buf.area, &mut buf);
+        let rows: Vec<String> = (0..8)
+            .map(|y| (0..50).map(|x| buf[(x, y)].symbol()).collect())
+            .collect();
+        assert_eq!(
+            rows[6],
+            "│  <C-c>      stop adrive (safe state first…)    │"
+        );
+        assert_eq!(
+            rows[0],
+            "┌ help — keys from the loaded keymap ────────────┐"
+        );
     }
 }

@@ -2,6 +2,7 @@
 //! its error, or the name prompt and what it finds), and the hint bar, generated from
 //! the loaded keymap for the current mode.
 
+use super::fit::Fitted;
 use crate::config::Role;
 use crate::console::find;
 use crate::console::keymap::{describe, Action, Binding, Key, Keymap, Mode, Target};
@@ -14,6 +15,7 @@ use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
 use std::time::Duration;
+use unicode_width::UnicodeWidthStr;
 
 /// How long an outcome message stays.
 pub(crate) const MESSAGE_FOR: Duration = Duration::from_secs(8);
@@ -35,6 +37,14 @@ pub fn short(k: Key) -> String {
             }
         }
     }
+}
+
+/// The first key bound to `action` in `mode` as the hint bar writes it; `?` when none
+/// is.
+pub(crate) fn key_name(map: &Keymap, mode: Mode, action: Action) -> String {
+    map.key_for(mode, action)
+        .map(short)
+        .unwrap_or_else(|| "?".into())
 }
 
 /// The bindings of `mode` grouped by action, in file order, help and quit first, with
@@ -125,12 +135,7 @@ pub(crate) struct MessageLine<'a> {
 /// matches in the vehicle's order) and its keys; red when nothing matches.
 fn prompt(m: &Model, f: &Find) -> Line<'static> {
     let t = &m.theme;
-    let k = |a| {
-        m.keymap
-            .key_for(Mode::Find, a)
-            .map(short)
-            .unwrap_or_else(|| "?".into())
-    };
+    let k = |a| key_name(&m.keymap, Mode::Find, a);
     let names = m.snap.devices.iter().map(|d| d.name.as_str());
     let found = find::matches(names, &f.query);
     let mut spans = vec![Span::styled(format!("/{}▏", f.query), t.editing())];
@@ -168,6 +173,25 @@ fn prompt(m: &Model, f: &Find) -> Line<'static> {
     Line::from(spans)
 }
 
+impl MessageLine<'_> {
+    /// The name prompt's query and caret fit `width` columns.
+    pub(crate) fn prompt_fits(&self, width: u16) -> bool {
+        self.m
+            .find
+            .as_ref()
+            .is_some_and(|f| format!("/{}▏", f.query).width() <= usize::from(width))
+    }
+
+    /// A refusal or a fault said just now: worth the hint bar's line where there is no
+    /// line of its own (80×22).
+    pub(crate) fn urgent(&self) -> bool {
+        let m = self.m;
+        m.message
+            .as_ref()
+            .is_some_and(|x| x.bad && m.now.saturating_duration_since(x.at) < MESSAGE_FOR)
+    }
+}
+
 impl Widget for &MessageLine<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
         let (m, t) = (self.m, &self.m.theme);
@@ -180,12 +204,7 @@ impl Widget for &MessageLine<'_> {
                     Span::styled(err.clone(), t.fault()),
                 ]),
                 None => {
-                    let k = |a| {
-                        m.keymap
-                            .key_for(Mode::Edit, a)
-                            .map(short)
-                            .unwrap_or_else(|| "?".into())
-                    };
+                    let k = |a| key_name(&m.keymap, Mode::Edit, a);
                     Line::from(vec![
                         Span::styled(format!("edit {}: ", e.field.name(&m.snap)), t.editing()),
                         Span::raw(format!(
@@ -205,7 +224,7 @@ impl Widget for &MessageLine<'_> {
                 _ => Line::default(),
             }
         };
-        Paragraph::new(line).render(area, buf);
+        Fitted(vec![line]).render(area, buf);
     }
 }
 
@@ -241,5 +260,32 @@ mod tests {
         assert!(!brake_only.contains("accel"), "{brake_only}");
         let both = bar(&roles(&["steering", "throttle", "brake"]), 200);
         assert!(both.contains("c accel"), "{both}");
+    }
+
+    /// An outcome longer than the line is cut at a word, marked, in its colour.
+    #[test]
+    fn a_message_without_room_is_cut_with_a_mark() {
+        use crate::console::controls::{capture, Sources};
+        let now = std::time::Instant::now();
+        let frame = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
+        let mut m = Model::new(
+            Keymap::default_map(),
+            Theme::default(),
+            frame,
+            Duration::from_secs(1),
+        );
+        m.now = now;
+        m.say(
+            "refused: steer 0.50: commanded by network 127.0.0.1:5555 (release it there first)",
+            true,
+        );
+        let mut buf = Buffer::empty(Rect::new(0, 0, 60, 1));
+        (&MessageLine { m: &m }).render(buf.area, &mut buf);
+        let row: String = (0..60).map(|x| buf[(x, 0)].symbol()).collect();
+        assert_eq!(
+            row,
+            "refused: steer 0.50: commanded by network 127.0.0.1:5555…   "
+        );
+        assert_eq!(buf[(56, 0)].fg, ratatui::style::Color::Red, "the mark too");
     }
 }

@@ -184,6 +184,16 @@ impl DeviceList<'_> {
 
 impl Widget for &DeviceList<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
+        self.render_seen(area, buf);
+    }
+}
+
+impl DeviceList<'_> {
+    /// Draw the list in `area`; the devices whose rows were drawn, and the command
+    /// fields on them (an actuator's command, or its edit, is in its row).
+    pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> (Vec<DeviceId>, Vec<Field>) {
+        let mut rows = Vec::new();
+        let mut fields = Vec::new();
         let devices = &self.snap.devices;
         let cols = self.cols.max(1);
         let col_w = area.width / cols;
@@ -213,11 +223,20 @@ impl Widget for &DeviceList<'_> {
             for r in 0..self.rows {
                 let i = self.first + usize::from(c) * usize::from(self.rows) + usize::from(r);
                 let Some(d) = devices.get(i) else { break };
-                lines.push(Line::from(self.row(DeviceId(i as u16), d, w, total)));
+                let id = DeviceId(i as u16);
+                // Its line (after the header) is in the area, and the column has room.
+                if 1 + r < area.height && total > 0 && x < area.x + area.width {
+                    rows.push(id);
+                    if d.is_actuator() {
+                        fields.push(Field::Command(id));
+                    }
+                }
+                lines.push(Line::from(self.row(id, d, w, total)));
             }
             let at = Rect { x, width, ..area };
             Paragraph::new(lines).render(at.intersection(area), buf);
         }
+        (rows, fields)
     }
 }
 

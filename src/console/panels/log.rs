@@ -1,11 +1,13 @@
-//! The log pane: the most recent warnings and errors, newest at the bottom.
+//! The log pane: the most recent warnings and errors, newest at the bottom, each
+//! line cut to the width at a word with `…`.
 
+use super::fit::Fitted;
 use crate::console::theme::Theme;
 use crate::logging::ring::LogLine;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Paragraph, Widget};
+use ratatui::widgets::Widget;
 use tracing::Level;
 
 pub(crate) struct LogPanel<'a> {
@@ -36,6 +38,34 @@ impl Widget for &LogPanel<'_> {
                 })
                 .collect()
         };
-        Paragraph::new(lines).render(area, buf);
+        Fitted(lines).render(area, buf);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A keymap's warning was cut at 100 columns, mid-word: cut at a word, marked.
+    #[test]
+    fn a_warning_too_long_for_the_pane_is_cut_at_a_word_with_a_mark() {
+        let lines = [LogLine {
+            secs: 12.1,
+            level: Level::WARN,
+            text: "my.toml:3: [main] has no STOP key left: this record takes <Space> \
+                   away from stop; expected run = \"stop\" on some key in every mode"
+                .into(),
+        }];
+        let p = LogPanel {
+            lines: &lines,
+            theme: Theme::default(),
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 100, 1));
+        (&p).render(buf.area, &mut buf);
+        let row: String = (0..100).map(|x| buf[(x, 0)].symbol()).collect();
+        assert_eq!(
+            row.trim_end(),
+            "   12.1s WARN  my.toml:3: [main] has no STOP key left: this record takes <Space> away from stop…"
+        );
     }
 }

@@ -7,6 +7,7 @@
 pub mod bench;
 pub mod device;
 pub(crate) mod dialog;
+pub(crate) mod fit;
 pub mod header;
 pub mod help;
 pub mod hint;
@@ -57,12 +58,12 @@ pub(crate) fn wrap<'a>(
     pack(groups, width, indent).0
 }
 
-/// [`wrap`], also saying on which line each group landed.
+/// [`wrap`], also saying where each group landed: its line and the column it starts at.
 pub(crate) fn pack<'a>(
     groups: Vec<Vec<Span<'a>>>,
     width: u16,
     indent: &'static str,
-) -> (Vec<Line<'a>>, Vec<usize>) {
+) -> (Vec<Line<'a>>, Vec<(usize, usize)>) {
     let width = width as usize;
     let start = indent.chars().count();
     let mut out = Vec::new();
@@ -70,7 +71,7 @@ pub(crate) fn pack<'a>(
     let mut line: Vec<Span> = vec![Span::raw(indent)];
     let mut used = start;
     for g in groups {
-        let w: usize = g.iter().map(|s| s.content.chars().count()).sum();
+        let w: usize = g.iter().map(Span::width).sum();
         if line.len() > 1 && used + 2 + w > width {
             out.push(Line::from(std::mem::take(&mut line)));
             line.push(Span::raw(indent));
@@ -80,9 +81,9 @@ pub(crate) fn pack<'a>(
             line.push(Span::raw("  "));
             used += 2;
         }
+        at.push((out.len(), used));
         used += w;
         line.extend(g);
-        at.push(out.len());
     }
     if line.len() > 1 {
         out.push(Line::from(line));

@@ -13,14 +13,14 @@
 //! and those below the box (or past the snapshot's cap) are counted on its last line. Drawn from the snapshot's
 //! [`BusView`] alone, so an attached console shows the same.
 
-use super::{fmt_age, wrap};
+use super::{fit, fmt_age, wrap};
 use crate::console::theme::Theme;
 use crate::snapshot::{BusView, FrameView};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Block, Paragraph, Widget};
+use ratatui::widgets::{Block, Widget};
 use std::time::Duration;
 
 pub(crate) struct BusMonitor<'a> {
@@ -215,40 +215,16 @@ fn one_line<'a>(groups: Vec<Vec<Span<'a>>>, width: u16) -> Line<'a> {
         }
         spans.extend(g);
     }
-    cut(Line::from(spans), usize::from(width))
-}
-
-/// A line cut to `width` columns, its last one `…` when anything was cut.
-fn cut(line: Line<'_>, width: usize) -> Line<'_> {
-    if line.width() <= width {
-        return line;
-    }
-    let mut left = width.saturating_sub(1);
-    let mut spans = Vec::new();
-    for s in line.spans {
-        if left == 0 {
-            break;
-        }
-        let n = s.content.chars().count();
-        if n <= left {
-            left -= n;
-            spans.push(s);
-        } else {
-            let text: String = s.content.chars().take(left).collect();
-            spans.push(Span::styled(text, s.style));
-            left = 0;
-        }
-    }
-    spans.push(Span::raw("…"));
-    Line::from(spans)
+    fit::line(Line::from(spans), width)
 }
 
 impl Widget for &BusMonitor<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        let block = Block::bordered().title(Span::styled(self.title(), self.theme.title()));
+        let title = fit::title(&self.title(), area.width);
+        let block = Block::bordered().title(Span::styled(title, self.theme.title()));
         let inner = block.inner(area);
         block.render(area, buf);
-        Paragraph::new(self.lines(inner.width, inner.height)).render(inner, buf);
+        fit::Fitted(self.lines(inner.width, inner.height)).render(inner, buf);
     }
 }
 
@@ -305,7 +281,7 @@ mod tests {
         assert!(lines[0].ends_with('…'), "{lines:#?}");
         assert_eq!(
             lines[1],
-            "<- 0x070 MESSAGE_70  enabled: ENABLED  operator_override: N…"
+            "<- 0x070 MESSAGE_70  enabled: ENABLED  operator_override…"
         );
         assert_eq!(lines[4].get(..9), Some("<- 0x073 "));
         // 12 - 4 shown, and 3 past the snapshot's cap.

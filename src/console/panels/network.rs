@@ -4,6 +4,7 @@
 //! "not running" otherwise (with the intake's own rejections, which the console's
 //! commands count in too).
 
+use super::fit::Fitted;
 use crate::console::controls::Frame;
 use crate::console::theme::Theme;
 use crate::snapshot::{LiveView, NetView, WatchdogState};
@@ -11,7 +12,7 @@ use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Paragraph, Widget};
+use ratatui::widgets::Widget;
 
 pub(crate) struct NetworkPanel<'a> {
     pub snap: &'a Frame,
@@ -155,7 +156,7 @@ impl NetworkPanel<'_> {
 
 impl Widget for &NetworkPanel<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        Paragraph::new(self.lines(area.width)).render(area, buf);
+        Fitted(self.lines(area.width)).render(area, buf);
     }
 }
 
@@ -253,7 +254,7 @@ mod tests {
 
     /// At 80 columns the panel is 40 wide, and its first line ended `senders 0
     /// watchd`: the command watchdog was cut off. Where it does not fit it opens the
-    /// next line, whole.
+    /// next line, whole; what does not fit after it is cut at a word with `…`.
     #[test]
     fn at_40_columns_the_watchdog_opens_the_next_line_whole() {
         let snap = listening();
@@ -265,7 +266,7 @@ mod tests {
             text(&p, 40, 3),
             [
                 "NETWORK 127.0.0.1:7400 senders 1",
-                "watchdog ok 40/500ms  cmds steer 12 gas",
+                "watchdog ok 40/500ms  cmds steer 12 gas…",
                 "rejected disengaged 2",
             ]
         );

@@ -11,7 +11,7 @@
 //! where there is room) — or all of them side by side when it has one line only. On a
 //! larger screen it is one taller panel.
 
-use super::wrap;
+use super::{fit, wrap};
 use crate::console::controls::{secs, Frame};
 use crate::console::model::{Field, Model};
 use crate::console::theme::Theme;
@@ -20,7 +20,7 @@ use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Style;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Paragraph, Widget};
+use ratatui::widgets::Widget;
 
 pub(crate) struct SupervisorPanel<'a> {
     pub m: &'a Model,
@@ -215,14 +215,37 @@ impl SupervisorPanel<'_> {
     }
 }
 
-impl Widget for &SupervisorPanel<'_> {
-    fn render(self, area: Rect, buf: &mut Buffer) {
+impl SupervisorPanel<'_> {
+    /// Draw the panel in `area`, each line cut to its width; whether the accel value
+    /// (or its edit) was drawn whole.
+    pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> bool {
         let lines = if self.compact {
             self.compact_lines()
         } else {
             self.full_lines(area.width)
         };
-        Paragraph::new(lines).render(area, buf);
+        let accel = self.accel().content.into_owned();
+        // The accel value is the span after its label.
+        let shown = lines.iter().take(usize::from(area.height)).any(|l| {
+            let mut end = 0;
+            let mut label = false;
+            for s in &l.spans {
+                end += s.width();
+                if label && s.content == accel {
+                    return end <= fit::kept(l, area.width);
+                }
+                label = s.content == "accel ";
+            }
+            false
+        });
+        fit::Fitted(lines).render(area, buf);
+        self.m.snap.gate.accel && shown
+    }
+}
+
+impl Widget for &SupervisorPanel<'_> {
+    fn render(self, area: Rect, buf: &mut Buffer) {
+        self.render_seen(area, buf);
     }
 }
 
@@ -343,7 +366,7 @@ impl Widget for &SupervisorStrip<'_> {
                 self.theme.fault(),
             )));
         }
-        Paragraph::new(lines).render(area, buf);
+        fit::Fitted(lines).render(area, buf);
     }
 }
 
@@ -377,6 +400,7 @@ mod tests {
             }),
             last_outcome: None,
             history: Vec::new(),
+            ..SupervisorView::default()
         };
         Frame {
             snap: Snapshot {
@@ -411,7 +435,7 @@ mod tests {
         let b = render(&|a, buf| (&s).render(a, buf), 80, 3);
         assert_eq!(
             row(&b, 0),
-            "RECOVERY engine_stall 4/7 park (try 1/3) 2.1s  then starter › back in drive › re"
+            "RECOVERY engine_stall 4/7 park (try 1/3) 2.1s  then starter › back in drive…"
         );
         assert_eq!(
             row(&b, 1),
@@ -428,6 +452,51 @@ mod tests {
         // Too little room: the last line says how many are left out.
         let b = render(&|a, buf| (&s).render(a, buf), 80, 2);
         assert_eq!(row(&b, 1), "… 2 more (a larger terminal shows them all)");
+    }
+
+    /// A stuck engine thread comes first; a device gone says what adrive waits for, in
+    /// red like any fault.
+    #[test]
+    fn the_strip_shows_a_stalled_thread_first_and_what_a_gone_device_waits_for() {
+        use crate::snapshot::{StallView, WaitingView};
+        let mut snap = sample();
+        let sup = &mut snap.snap.supervisor;
+        sup.recovery = None;
+        sup.faults = vec![FaultView {
+            kind: FaultKind::Disconnected,
+            device: Some("horn".into()),
+            cause: "cannot open /dev/ttyUSB3: No such file or directory".into(),
+            age_ms: 25_300.0,
+        }];
+        sup.waiting = vec![WaitingView {
+            device: "horn".into(),
+            port: "/dev/ttyUSB3".into(),
+            error: "No such file or directory".into(),
+            gone_ms: 25_300.0,
+            retry_ms: 5_000.0,
+            needed: false,
+        }];
+        sup.stalled = vec![StallView {
+            thread: "steer/status".into(),
+            quiet_ms: 1_400.0,
+            bound_ms: 100.0,
+        }];
+        let s = SupervisorStrip {
+            snap: &snap,
+            theme: Theme::default(),
+        };
+        let b = render(&|a, buf| (&s).render(a, buf), 120, 2);
+        assert_eq!(
+            row(&b, 0),
+            "FAULT STALLED steer/status has not turned its loop for 1.4 s (bound 0.10 s)"
+        );
+        assert_eq!(
+            row(&b, 1),
+            "FAULT horn disconnected 25.3s waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s"
+        );
+        for y in [0, 1] {
+            assert_eq!(b[(0, y)].fg, Color::Red);
+        }
     }
 
     #[test]
@@ -506,5 +575,25 @@ mod tests {
         assert_eq!(wide[0], "SUPERVISORY engaged 0 interlocks on  accel -");
         let compact = texts(&p.compact_lines());
         assert_eq!(compact[1], "accel -  faults none  recovery -");
+    }
+
+    /// A reason longer than the panel is cut at a word, marked, its parentheses
+    /// closed; accel is said to be drawn only where it is.
+    #[test]
+    fn a_line_without_room_is_cut_with_a_mark_and_accel_is_seen_where_drawn() {
+        let mut m = model(true);
+        m.snap.snap.gate.reason =
+            "disengaged: gas is faulty (no reply within 100ms); brake is faulty".into();
+        let p = SupervisorPanel {
+            m: &m,
+            cursor: true,
+            compact: false,
+        };
+        let mut buf = render(&|a, b| assert!(p.render_seen(a, b)), 40, 6);
+        assert_eq!(row(&buf, 2), "why disengaged: gas is faulty (no…)");
+        // Compact, on one line: accel is not on the screen.
+        let p = SupervisorPanel { compact: true, ..p };
+        buf = render(&|a, b| assert!(!p.render_seen(a, b)), 40, 1);
+        assert_eq!(row(&buf, 0), "SUPERVISORY engaged 0 interlocks on");
     }
 }

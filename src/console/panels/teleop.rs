@@ -1,18 +1,21 @@
 //! The teleop panel: set points, a steering gauge and the deadman, impossible to miss.
 
+use super::fit::Fitted;
 use crate::console::model::{Deadman, Teleop};
 use crate::console::theme::Theme;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::style::Modifier;
 use ratatui::text::{Line, Span};
-use ratatui::widgets::{Paragraph, Widget};
+use ratatui::widgets::Widget;
 use std::time::Instant;
 
 pub(crate) struct TeleopPanel<'a> {
     pub t: &'a Teleop,
     pub now: Instant,
     pub theme: Theme,
+    /// This console commands the engaged vehicle: its keys arm the intake's deadman.
+    pub commands: bool,
 }
 
 /// A gauge of `v` in −1…1, `width` cells, centre marked.
@@ -47,9 +50,14 @@ impl TeleopPanel<'_> {
                 ),
                 th.label(),
             ),
-            Deadman::Armed { left } => Span::styled(
+            Deadman::Armed { left } if self.commands => Span::styled(
                 format!("DEADMAN ARMED {:.1}s left", left.as_secs_f64()),
                 th.good().add_modifier(Modifier::BOLD),
+            ),
+            // The intake arms the deadman of the console that commands only.
+            Deadman::Armed { .. } => Span::styled(
+                "DEADMAN not armed: this console does not command (E engages)",
+                th.warn(),
             ),
             Deadman::Tripped => Span::styled(
                 "DEADMAN TRIPPED: gas 0, brake full, disengaged (E engages)",
@@ -70,9 +78,21 @@ impl TeleopPanel<'_> {
     }
 }
 
+impl TeleopPanel<'_> {
+    /// Draw the bar in `area`; whether both its lines were drawn whole (what the
+    /// teleop keys act on, and the deadman).
+    pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> bool {
+        let lines = self.lines();
+        let whole = lines.len() <= usize::from(area.height)
+            && lines.iter().all(|l| l.width() <= usize::from(area.width));
+        Fitted(lines).render(area, buf);
+        whole
+    }
+}
+
 impl Widget for &TeleopPanel<'_> {
     fn render(self, area: Rect, buf: &mut Buffer) {
-        Paragraph::new(self.lines()).render(area, buf);
+        self.render_seen(area, buf);
     }
 }
 
@@ -85,5 +105,56 @@ mod tests {
         assert_eq!(gauge(0.0, 7), "───●───");
         assert_eq!(gauge(-1.0, 7), "●──┼───");
         assert_eq!(gauge(1.0, 7), "───┼──●");
+    }
+
+    /// The bar in too narrow a room is cut at a word with a mark, and is not said to
+    /// be drawn whole: the teleop keys are then refused.
+    #[test]
+    fn a_bar_without_room_is_cut_with_a_mark_and_not_whole() {
+        let t = Teleop::new(std::time::Duration::from_secs(1));
+        let p = TeleopPanel {
+            t: &t,
+            now: Instant::now(),
+            theme: Theme::default(),
+            commands: true,
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 30, 2));
+        assert!(!p.render_seen(buf.area, &mut buf));
+        let row: String = (0..30).map(|x| buf[(x, 0)].symbol()).collect();
+        assert_eq!(row, "TELEOP steer +0.00…           ");
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 2));
+        assert!(p.render_seen(buf.area, &mut buf));
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 1));
+        assert!(
+            !p.render_seen(buf.area, &mut buf),
+            "the deadman's line is cut off"
+        );
+    }
+
+    /// A teleop key arms the intake's deadman only for the console that commands: the
+    /// bar does not say ARMED for one that does not.
+    #[test]
+    fn the_deadman_is_armed_only_for_the_console_that_commands() {
+        let now = Instant::now();
+        let mut t = Teleop::new(std::time::Duration::from_secs(1));
+        t.last_key = Some(now);
+        let text = |commands| {
+            let p = TeleopPanel {
+                t: &t,
+                now,
+                theme: Theme::default(),
+                commands,
+            };
+            let l = &p.lines()[1];
+            l.spans
+                .iter()
+                .map(|s| s.content.to_string())
+                .collect::<String>()
+        };
+        assert_eq!(text(true), "DEADMAN ARMED 1.0s left");
+        assert_eq!(
+            text(false),
+            "DEADMAN not armed: this console does not command (E engages)"
+        );
     }
 }

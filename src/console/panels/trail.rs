@@ -4,6 +4,7 @@
 //! it and the estimator tracking both read at a glance, where the numbers of the
 //! device panel show only the present.
 
+use super::fit;
 use crate::console::theme::Theme;
 use crate::console::trail::{Sample, Trail, WINDOW};
 use crate::snapshot::DeviceView;
@@ -93,7 +94,7 @@ impl Widget for &TrailChart<'_> {
             y_axis = y_axis.title(Span::styled(self.d.units.as_str(), t.label()));
         }
         Chart::new(datasets)
-            .block(Block::bordered().title(Span::styled(title, t.title())))
+            .block(Block::bordered().title(Span::styled(fit::title(&title, area.width), t.title())))
             .x_axis(
                 Axis::default()
                     .style(t.label())
@@ -112,5 +113,32 @@ impl Widget for &TrailChart<'_> {
             .legend_position(Some(ratatui::widgets::LegendPosition::TopLeft))
             .hidden_legend_constraints((Constraint::Percentage(50), Constraint::Percentage(100)))
             .render(area, buf);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::console::controls::{capture, Sources};
+
+    /// The chart's title in a narrow box is cut at a word with a mark, inside its
+    /// corners.
+    #[test]
+    fn a_title_without_room_is_cut_with_a_mark() {
+        let now = Instant::now();
+        let f = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
+        let id = f.id_of("steer").unwrap();
+        let trail = Trail::default();
+        let c = TrailChart {
+            id,
+            d: f.at(id).unwrap(),
+            trail: &trail,
+            now,
+            theme: Theme::default(),
+        };
+        let mut buf = Buffer::empty(Rect::new(0, 0, 24, 6));
+        (&c).render(buf.area, &mut buf);
+        let row: String = (0..24).map(|x| buf[(x, 0)].symbol()).collect();
+        assert_eq!(row, "┌ steer over the last… ┐");
     }
 }

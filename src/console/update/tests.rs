@@ -3,7 +3,7 @@
 use super::*;
 use crate::config::VehicleConfig;
 use crate::console::controls::{capture, change_settings, Frame, Sources};
-use crate::console::keymap::{key_to_action, Keymap};
+use crate::console::keymap::Keymap;
 use crate::console::theme::Theme;
 use crate::safety::{Done, Refused, Reject};
 use crate::testkit;
@@ -19,6 +19,8 @@ struct Fake {
     snap: Frame,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
+    /// An attached console's adrive that no longer answers: even STOP is not taken.
+    gone: bool,
     engage: Result<(), Refused>,
     /// The devices are simulated: `sim` lines are taken.
     simulated: bool,
@@ -43,6 +45,7 @@ impl Fake {
             gate: g,
             calls: RefCell::default(),
             refuse: None,
+            gone: false,
             engage: Ok(()),
             simulated: false,
             deadman: std::cell::Cell::default(),
@@ -96,10 +99,11 @@ impl Controls for Fake {
     }
     fn disengage(&self) -> Result<Done, Refused> {
         self.log("disengage".into());
-        Ok(Done::Disengaged(true))
+        self.reached().map(|()| Done::Disengaged(true))
     }
-    fn stop(&self) {
+    fn stop(&self) -> Result<(), Refused> {
         self.log("stop".into());
+        self.reached()
     }
     fn take(&self) -> Result<(), Refused> {
         self.log("take".into());
@@ -111,7 +115,7 @@ impl Controls for Fake {
     }
     fn hold(&self) -> Result<(), Refused> {
         self.log("hold".into());
-        Ok(())
+        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
     }
     fn deadman(&self, armed: Option<Duration>) {
         self.deadman.set(armed);
@@ -130,11 +134,13 @@ impl Controls for Fake {
         self.log(format!("cm delay {} {d:?}", self.name(id)));
         Ok(())
     }
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) {
+    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String> {
         self.log(format!("enable {} {thread:?} {on}", self.name(id)));
+        self.refuse.map_or(Ok(()), |r| Err(r.to_string()))
     }
-    fn wake(&self, id: DeviceId) {
+    fn wake(&self, id: DeviceId) -> Result<(), String> {
         self.log(format!("wake {}", self.name(id)));
+        self.refuse.map_or(Ok(()), |r| Err(r.to_string()))
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         if !self.simulated {
@@ -146,6 +152,25 @@ impl Controls for Fake {
     fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
         self.log("clear overrides".into());
         self.gate.clear_overrides().map_err(Refused::Clear)
+    }
+}
+
+/// Draw `m` at its screen size, keeping what the frame showed (as the console's loop).
+fn draw(m: &mut Model) -> ratatui::buffer::Buffer {
+    let mut buf = ratatui::buffer::Buffer::empty(m.screen);
+    m.drawn = crate::console::view::draw(m, m.screen, &mut buf);
+    buf
+}
+
+impl Fake {
+    /// Whether an ask reached the engine at all.
+    fn reached(&self) -> Result<(), Refused> {
+        match self.gone {
+            true => Err(Refused::Blocked(vec![
+                "adrive went away: its connection closed".into(),
+            ])),
+            false => Ok(()),
+        }
     }
 }
 
@@ -169,7 +194,9 @@ fn press(m: &mut Model, f: &Fake, keys: &[&str], now: Instant) -> Flow {
             KeyModifiers::NONE
         };
         let ev = KeyEvent::new(key.code, mods);
-        if let Some(a) = key_to_action(&m.keymap, m.mode, &ev) {
+        // As the console's loop: the key acts on what the frame before it showed.
+        draw(m);
+        if let Some(a) = crate::console::sight::key(m, &ev) {
             flow = update(m, a, f, now);
         }
     }
@@ -899,4 +926,120 @@ fn the_clear_key_clears_a_latched_override_through_the_gate_from_main_teleop_and
         f.calls().iter().filter(|c| *c == "clear overrides").count(),
         4
     );
+}
+
+/// The defect: in teleop in park, `Up` showed `accel +0.10 gas` in the bar while the
+/// message line said it was refused. The bar shows what the intake accepted: a refused
+/// key leaves it where it was, and teleop starts from what the vehicle was told (the
+/// brake full after engaging), not from an invented coast.
+#[test]
+fn the_teleop_bar_shows_what_was_applied_never_what_was_refused() {
+    let mut f = Fake::new();
+    f.device("brake").commanded = Some(Value::Number(1.0));
+    f.device("gas").commanded = Some(Value::Number(0.0));
+    f.snap.snap.gate.engaged = true;
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["d"], now);
+    assert_eq!((m.teleop.steer, m.teleop.accel), (0.231, -1.0));
+    // Up from braking releases first (accepted); up again asks for gas: refused.
+    press(&mut m, &f, &["<Up>"], now);
+    assert_eq!(m.teleop.accel, 0.0);
+    f.refuse = Some(Reject::Disengaged);
+    press(&mut m, &f, &["<Up>", "<Right>"], now);
+    assert_eq!(f.calls()[1..], ["accel 0.1", "submit steer 0.281"]);
+    assert_eq!(
+        (m.teleop.steer, m.teleop.accel),
+        (0.231, 0.0),
+        "nothing applied"
+    );
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.contains("refused: steer 0.28"),
+        "{}",
+        msg.text
+    );
+    assert!(
+        msg.text.ends_with("still steer +0.23 accel +0.00"),
+        "{}",
+        msg.text
+    );
+    let screen = draw(&mut m);
+    let bar: String = (0..screen.area.height)
+        .map(|y| {
+            (0..screen.area.width)
+                .map(|x| screen[(x, y)].symbol())
+                .collect::<String>()
+        })
+        .find(|l| l.starts_with("TELEOP"))
+        .unwrap();
+    assert!(
+        bar.contains("steer +0.23") && bar.contains("accel +0.00 coast"),
+        "{bar}"
+    );
+    // Whoever commands it, the bar follows what the vehicle was told.
+    f.device("brake").commanded = Some(Value::Number(0.0));
+    f.device("gas").commanded = Some(Value::Number(0.2));
+    f.device("steer").commanded = Some(Value::Number(-0.1));
+    tick(&mut m, &f, now);
+    assert_eq!((m.teleop.steer, m.teleop.accel), (-0.1, 0.2));
+    assert_eq!(m.accel, Some(0.2), "the supervisory panel's accel too");
+}
+
+/// Waking a command thread, switching a thread and leaving teleop said they were done
+/// when the intake refused them (a console that does not command): each says what
+/// happened.
+#[test]
+fn a_refused_wake_switch_or_hold_says_so() {
+    let mut f = Fake::new();
+    f.refuse = Some(Reject::Disengaged);
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["w"], now);
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.starts_with("wake steer refused"),
+        "{}",
+        msg.text
+    );
+    press(&mut m, &f, &["W"], now);
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.starts_with("wake all refused"),
+        "{}",
+        msg.text
+    );
+    press(&mut m, &f, &["j", "j", "j", "<Enter>", "0", "<Enter>"], now);
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.starts_with("steer status thread off refused"),
+        "{}",
+        msg.text
+    );
+    press(&mut m, &f, &["d", "<Esc>"], now);
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.starts_with("left teleop; the brake not applied"),
+        "{}",
+        msg.text
+    );
+    assert_eq!(m.accel, None, "no brake shown that was not applied");
+}
+
+/// An attached console whose adrive stopped answering: STOP is not said to be done.
+#[test]
+fn a_stop_that_did_not_reach_the_engine_is_not_said_to_be_done() {
+    let mut f = Fake::new();
+    f.gone = true;
+    let mut m = model(&f);
+    press(&mut m, &f, &["<Space>"], Instant::now());
+    let msg = m.message.clone().unwrap();
+    assert!(
+        msg.bad && msg.text.starts_with("STOP NOT CONFIRMED: adrive went away"),
+        "{}",
+        msg.text
+    );
+    press(&mut m, &f, &["D", "y"], Instant::now());
+    let msg = m.message.clone().unwrap();
+    assert!(msg.text.starts_with("disengage not done"), "{}", msg.text);
 }

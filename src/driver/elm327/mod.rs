@@ -113,6 +113,15 @@ fn elm_error(what: &str, e: ElmError) -> DriverError {
 }
 
 impl Driver for Elm327Driver {
+    fn longest(&self) -> Duration {
+        // A reopen (the reset, the settings), then a poll whose first request searches
+        // the car's protocols and whose others are answered in the reply timeout.
+        RESET_TIMEOUT
+            + self.reply_timeout * INIT.len() as u32
+            + SEARCH_TIMEOUT
+            + self.reply_timeout * 2
+    }
+
     fn open(&mut self, link: &mut dyn Link) -> Result<(), DriverError> {
         self.searched = false;
         self.polls = 0;

@@ -140,6 +140,11 @@ impl ModbusDriver {
 }
 
 impl Driver for ModbusDriver {
+    fn longest(&self) -> Duration {
+        // A poll: one exchange per register block, each after the inter-frame silence.
+        (self.gap + self.reply_timeout) * self.plan.len().max(1) as u32
+    }
+
     fn poll(&mut self, link: &mut dyn Link) -> Result<Reading, DriverError> {
         let mut reading = Reading::default();
         for bi in 0..self.plan.len() {

@@ -41,6 +41,9 @@ pub type BusPort = (Box<dyn Link>, Box<dyn Link>);
 /// Opens a bus's adapter port (a serial port, a pseudo-terminal, a test's).
 pub type BusOpener = Box<dyn FnMut() -> io::Result<BusPort> + Send>;
 
+/// How long the adapter may take to answer a command (and its port to take a write).
+pub const ANSWER_WITHIN: Duration = Duration::from_millis(500);
+
 /// Open an adapter's serial port by path, as two handles on one open port.
 pub fn open_serial_pair(path: &str, timeout: Duration) -> io::Result<BusPort> {
     let named = |e: io::Error| io::Error::new(e.kind(), format!("cannot open {path}: {e}"));
@@ -356,6 +359,12 @@ impl CanDriver {
 }
 
 impl Driver for CanDriver {
+    fn longest(&self) -> Duration {
+        // A command's frame and the enable or disable after it, each written within
+        // the adapter port's timeout.
+        ANSWER_WITHIN * 2
+    }
+
     fn poll(&mut self, _: &mut dyn Link) -> Result<Reading, DriverError> {
         Err(DriverError::Unsupported(
             "a CAN device is not polled: its bus reader stores what it reports".into(),

@@ -220,3 +220,50 @@ fn a_push_away_from_the_command_shows_as_drift_and_surprises() {
         "the first readings of the push are surprises"
     );
 }
+
+/// Every number of an estimate (what the snapshot carries), none subnormal.
+fn assert_normal(e: &Estimate, when: &str) {
+    for (name, x) in [
+        ("position", e.position),
+        ("velocity", e.velocity),
+        ("sigma", e.sigma),
+        ("drift", e.drift),
+        ("drift_sigma", e.drift_sigma),
+    ] {
+        assert!(!x.is_subnormal(), "{name} {x:e} {when}");
+    }
+}
+
+/// The incident: the gas estimate showed velocity and drift of 1.5e-323 after a minute
+/// idle, and a 100 s recording held 502 subnormal numbers. A lag closing on 0 and a
+/// drift whose innovations vanish decay geometrically; the filter stops them at 0.
+/// Ten idle minutes, polled every 100 ms, the estimate read at every poll and between.
+#[test]
+fn ten_idle_minutes_leave_no_subnormal_number_in_the_estimate() {
+    for (r, range) in [(lag(), [0.0, 1.0]), (rate(), [-1.0, 1.0])] {
+        let t0 = Instant::now();
+        let mut e = Estimator::new(r, range);
+        e.correct(0.6, t0);
+        e.command(0.0, t0);
+        for k in 1..=6_000u32 {
+            let t = t0 + Duration::from_millis(100 * u64::from(k));
+            // The device settles on its command as declared; an idle sensor reads 0.
+            let reading = if k < 10 {
+                0.6 * 0.3f64.powi(k as i32)
+            } else {
+                0.0
+            };
+            e.correct(reading, t);
+            for (at, what) in [(t, "at a poll"), (t + Duration::from_millis(50), "between")] {
+                let est = e.at(at).expect("a reading was taken");
+                assert_normal(&est, &format!("{what}, {} s idle ({r:?})", k / 10));
+            }
+        }
+        let last = e.at(t0 + Duration::from_secs(600)).unwrap();
+        assert_eq!(last.position, 0.0, "{r:?}");
+        assert!(
+            last.velocity.abs() < 1e-12 && last.drift.abs() < 1e-12,
+            "{last:?}"
+        );
+    }
+}
