@@ -1138,6 +1138,10 @@ pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
 
 /// `adrive record repair`: a finished copy of a recording that was not finished.
 pub(crate) fn record_repair(file: &Path, out: Option<&Path>) -> anyhow::Result<i32> {
+    paths::check_file("", file).map_err(anyhow::Error::msg)?;
+    if let Some(out) = out {
+        paths::check_new_file("--out", out).map_err(anyhow::Error::msg)?;
+    }
     let rec = record::read::Recording::open(file)?;
     let state = record::info::state(&rec, None);
     if rec.complete && !rec.writing {

@@ -177,6 +177,10 @@ impl Around {
                 ["record", "info"] => {
                     How::Prints(s(&["record", "info", &recording]), First::Nothing)
                 }
+                // A finished recording: it says there is nothing to repair.
+                ["record", "repair"] => {
+                    How::Prints(s(&["record", "repair", &recording]), First::Nothing)
+                }
                 ["export"] => How::Prints(
                     s(&["export", &recording, "--csv", &self.path("csv")]),
                     First::Nothing,
@@ -323,6 +327,14 @@ fn every_path_argument_says_what_is_wrong_with_it() {
         (
             vec!["record", "info", &d],
             format!("{d}: it is a directory, not a file"),
+        ),
+        (
+            vec!["record", "repair", &d],
+            format!("{d}: it is a directory, not a file"),
+        ),
+        (
+            vec!["record", "repair", &f, "--out", &record],
+            format!("--out {record}: {f} is a file, not a directory"),
         ),
         (
             vec!["export", &d, "--csv", &under],
