@@ -388,6 +388,9 @@ pub fn draw(m: &Model, area: Rect, buf: &mut Buffer) -> Drawn {
                 seen.devices.push(m.bench);
             }
             seen.fields.extend(shown.panel.fields);
+            if shown.sim_keys.is_some() {
+                seen.sim_absent = v.refused;
+            }
             seen.sim_keys = shown.sim_keys;
         }
     } else {
