@@ -48,13 +48,33 @@ fn releases(d: &Device, c: Option<Command>) -> bool {
         .is_some_and(|x| fraction(d, x) <= super::rules::RELEASED)
 }
 
-/// The gear reported, whether it drives, and whether a shift is under way: a gear
-/// commanded that the gearbox has not yet acknowledged and then reported in a status
-/// taken after that. (A gearbox passing through neutral reports neutral mid-shift: a
-/// status from before the command says nothing about it.)
-fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
+/// What the gearbox is doing, as its slot and its cache say.
+struct Gearbox {
+    /// The gear reported.
+    reported: Option<u8>,
+    /// The reported gear drives the wheels.
+    drives: bool,
+    /// A shift is under way ([`Facts::shifting`]).
+    shifting: bool,
+    /// Where a command sent or in flight takes it ([`Facts::bound_for`]).
+    bound_for: [Option<u8>; 2],
+}
+
+/// The gear reported, whether it drives, whether a shift is under way, and where the
+/// commands already on their way take the gearbox. A gear command is *through* once the
+/// gearbox acknowledged it and then reported that gear in a status taken after that (a
+/// gearbox passing through neutral reports neutral mid-shift: a status from before the
+/// command says nothing about it). A shift is under way while the newest gear command,
+/// or one in flight behind it, is not through: a command to the gear reported, pending
+/// behind a shift still on the wire, hides nothing.
+fn gear(v: &Vehicle, b: &Bindings) -> Gearbox {
     let Some(g) = &b.gear else {
-        return (None, false, false);
+        return Gearbox {
+            reported: None,
+            drives: false,
+            shifting: false,
+            bound_for: [None; 2],
+        };
     };
     let d = v.device(g.device);
     let reported = d
@@ -63,19 +83,34 @@ fn gear(v: &Vehicle, b: &Bindings) -> (Option<u8>, bool, bool) {
         .and_then(|i| d.reading(i))
         .map(|x| x as u8);
     let w = d.slot().wire();
-    let shifting = match w.latest() {
-        Some(Command::State(s)) => {
-            let status_after_ack = match (w.acked_at, d.cached().at) {
-                (Some(acked), Some(status)) => status > acked,
-                _ => false,
-            };
-            let through =
-                w.acked == Some(Command::State(s)) && status_after_ack && reported == Some(s);
-            !through
-        }
+    let status_after_ack = match (w.acked_at, d.cached().at) {
+        (Some(acked), Some(status)) => status > acked,
         _ => false,
     };
-    (reported, reported.is_some_and(|s| g.drives(s)), shifting)
+    let through =
+        |s: u8| w.acked == Some(Command::State(s)) && status_after_ack && reported == Some(s);
+    let not_through = |c: Option<Command>| match c {
+        Some(Command::State(s)) if !through(s) => Some(s),
+        _ => None,
+    };
+    let shifting = not_through(w.latest()).is_some() || not_through(w.flight).is_some();
+    let sent = not_through(w.sent);
+    let flight = not_through(w.flight).filter(|&s| Some(s) != sent);
+    Gearbox {
+        reported,
+        drives: reported.is_some_and(|s| g.drives(s)),
+        shifting,
+        bound_for: [sent, flight],
+    }
+}
+
+/// A gear command is pending or in flight for the gearbox that is not the last one
+/// sent: a shift on its way, which keeps the brake on until it is out.
+pub(crate) fn shift_on_its_way(w: &WireState) -> bool {
+    [w.pending, w.flight]
+        .into_iter()
+        .flatten()
+        .any(|c| matches!(c, Command::State(_)) && w.sent != Some(c))
 }
 
 /// Facts for an intake check of a command to a device that plays `plays`.
@@ -93,7 +128,9 @@ pub(crate) fn gather(v: &Vehicle, plays: Plays) -> Facts {
         }
     }
     if plays.throttle || plays.brake || plays.gear || plays.starter {
-        (f.gear, f.in_gear, f.shifting) = gear(v, b);
+        let g = gear(v, b);
+        (f.gear, f.in_gear, f.shifting, f.bound_for) =
+            (g.reported, g.drives, g.shifting, g.bound_for);
     }
     if plays.throttle {
         f.running = b
@@ -137,16 +174,15 @@ pub(crate) fn gather_wire(v: &Vehicle, plays: Plays) -> Facts {
             let w = v.device(g.device).slot().wire();
             // A gear command not on the wire yet (whatever the gearbox reports: it may be
             // passing through that gear).
-            f.shift_on_its_way =
-                matches!(w.pending.or(w.flight), Some(c @ Command::State(_)) if w.sent != Some(c));
+            f.shift_on_its_way = shift_on_its_way(&w);
         }
     }
     if plays.throttle || plays.brake {
         f.estop = v.estop();
     }
     if plays.gear {
-        let (gear, _, _) = gear(v, b);
-        f.gear = gear;
+        let g = gear(v, b);
+        (f.gear, f.bound_for) = (g.reported, g.bound_for);
         f.speed = b.speed.and_then(|r| v.reading(r));
     }
     f

@@ -44,8 +44,13 @@ pub struct Facts {
     pub running: Option<bool>,
     pub speed: Option<f64>,
     pub estop: Option<EstopState>,
-    /// A shift is commanded and the gearbox does not report that gear yet.
+    /// A shift is commanded and the gearbox does not report that gear yet: the newest
+    /// gear command, or one in flight behind it.
     pub(crate) shifting: bool,
+    /// The gears the gearbox has been sent, or has in flight, and does not report yet
+    /// (each at most once): it is on its way there, so a command to any other gear is a
+    /// shift, even to the gear it still reports.
+    pub(crate) bound_for: [Option<u8>; 2],
     /// At the wire: the throttle has nothing above released pending, in flight or
     /// last sent.
     pub(crate) throttle_released: bool,
@@ -66,6 +71,7 @@ impl Default for Facts {
             speed: None,
             estop: None,
             shifting: false,
+            bound_for: [None; 2],
             throttle_released: true,
             shift_on_its_way: false,
         }
@@ -287,7 +293,9 @@ impl Plays {
 /// waits, replaces or drops). A reason that is not an interlock breaks nothing.
 pub(crate) fn breaks(rule: Reject, f: &Facts, plays: Plays, command: Command) -> bool {
     let gas = |v: f64| plays.throttle && v > RELEASED;
-    let shift = |g: u8| plays.gear && Some(g) != f.gear;
+    // A gear other than the one reported, or than one the gearbox is on its way to.
+    let shift =
+        |g: u8| plays.gear && (Some(g) != f.gear || f.bound_for.iter().flatten().any(|&b| b != g));
     match (rule, command) {
         (Reject::GasWhileBraking, Command::Set(v)) => {
             gas(v) && f.brake_high.is_some_and(|b| b > RELEASED) && !f.brake_releasing
