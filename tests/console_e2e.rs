@@ -40,6 +40,9 @@ impl Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
+        // The simulator's links too: a console killed by a failing test cannot remove
+        // them, and the log directory goes with the test.
+        std::fs::create_dir_all(&log_dir).unwrap();
         let (master, slave) = openpty(size.0, size.1);
         let mut cmd = Command::new(BIN);
         cmd.arg("--sim")
@@ -48,6 +51,7 @@ impl Console {
             .arg("--log-dir")
             .arg(&log_dir)
             .env("XDG_RUNTIME_DIR", &log_dir)
+            .env("TMPDIR", &log_dir)
             .env_remove("RUNTIME_DIRECTORY")
             .args(extra)
             .env("TERM", "xterm-256color")
