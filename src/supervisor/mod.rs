@@ -954,7 +954,7 @@ mod tests {
         );
     }
 
-    /// OSCC keeps a module's override flag until the module is enabled again, and
+    /// A kit's module may keep its override flag until it is enabled again, and
     /// adrive enables no module while disengaged: the flag, once the gate had latched
     /// the override, kept the supervisor naming it, so the operator could never clear
     /// it (clearing is refused while a hand is named on) nor engage to clear the flag.
