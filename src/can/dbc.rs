@@ -133,6 +133,8 @@ pub struct Signal {
     /// The value table: raw value and name.
     values: Vec<(i64, String)>,
     line: usize,
+    /// The line of its value table (`VAL_`), or its own line without one.
+    values_line: usize,
 }
 
 fn mask(size: u16) -> u64 {
@@ -177,6 +179,10 @@ impl Signal {
     /// The value table, raw value and name.
     pub fn values(&self) -> &[(i64, String)] {
         &self.values
+    }
+    /// The line of the DBC file that gives its value table (`VAL_`), or its own line.
+    pub fn values_line(&self) -> usize {
+        self.values_line
     }
 
     /// The bit positions of the signal, least significant bit first, as the DBC numbers
@@ -648,6 +654,7 @@ impl Database {
                         .map(|d| (d.id, d.description.clone()))
                         .collect(),
                     line: sline,
+                    values_line: lines.values(m.id.raw(), &s.name).unwrap_or(sline),
                 };
                 let fits = u16::try_from(s.start_bit).ok().filter(|&b| b < 64 * 8);
                 signal.start_bit =
@@ -772,6 +779,9 @@ fn line_containing(text: &str, needle: &str) -> usize {
 struct Lines {
     /// Per message: its identifier as written, its line, and its signals' lines.
     messages: Vec<Entry>,
+    /// Each value table (`VAL_ ID SIGNAL …`): the identifier and signal it names, and
+    /// its line.
+    values: Vec<(u32, String, usize)>,
 }
 
 /// A message's identifier as written, its line, and its signals' names and lines.
@@ -780,10 +790,20 @@ type Entry = (u32, usize, Vec<(String, usize)>);
 impl Lines {
     fn of(text: &str) -> Lines {
         let mut messages: Vec<Entry> = Vec::new();
+        let mut values = Vec::new();
         let mut open = false;
         for (i, line) in text.lines().enumerate() {
             let mut words = line.split_whitespace();
             match words.next() {
+                Some("VAL_") => {
+                    open = false;
+                    if let (Some(id), Some(signal)) = (
+                        words.next().and_then(|w| w.parse::<u32>().ok()),
+                        words.next(),
+                    ) {
+                        values.push((id, signal.to_string(), i + 1));
+                    }
+                }
                 Some("BO_") => {
                     let id = words.next().and_then(|w| w.parse::<u32>().ok());
                     open = id.is_some();
@@ -800,7 +820,15 @@ impl Lines {
                 None => {}
             }
         }
-        Lines { messages }
+        Lines { messages, values }
+    }
+
+    /// The line of the value table of signal `name` of the message `raw`.
+    fn values(&self, raw: u32, name: &str) -> Option<usize> {
+        self.values
+            .iter()
+            .find(|(id, signal, _)| *id == raw && signal == name)
+            .map(|v| v.2)
     }
 
     /// The `index`th message of the file (the parser keeps file order), if its
