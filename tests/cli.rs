@@ -16,14 +16,14 @@ const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
 /// `adrive --headless --config vehicle`, logging into `dir/log`, to its end.
 fn headless_on(dir: &std::path::Path, vehicle: &std::path::Path) -> std::process::Output {
-    Process::new(BIN)
-        .args(["--headless", "--config"])
-        .arg(vehicle)
-        .arg("--log-dir")
-        .arg(dir.join("log"))
-        .env("XDG_RUNTIME_DIR", dir.join("log"))
-        .output()
-        .unwrap()
+    common::output_within(
+        Process::new(BIN)
+            .args(["--headless", "--config"])
+            .arg(vehicle)
+            .arg("--log-dir")
+            .arg(dir.join("log"))
+            .env("XDG_RUNTIME_DIR", dir.join("log")),
+    )
 }
 
 #[test]
@@ -183,10 +183,8 @@ fn only_runs_just_the_named_devices() {
         .collect();
     assert_eq!(devices, ["steer", "obd"], "{out}");
 
-    let bad = Process::new(BIN)
-        .args(["--sim", "--headless", "--only", "wiper"])
-        .output()
-        .unwrap();
+    let bad =
+        common::output_within(Process::new(BIN).args(["--sim", "--headless", "--only", "wiper"]));
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("wiper"));
 }
@@ -360,10 +358,7 @@ fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
     signal(&child, libc::SIGINT);
     assert_eq!(wait_exit(&mut child), Some(0));
 
-    let bad = Process::new(BIN)
-        .args(["sim", "--fault", "wobble gas on"])
-        .output()
-        .unwrap();
+    let bad = common::output_within(Process::new(BIN).args(["sim", "--fault", "wobble gas on"]));
     assert_eq!(bad.status.code(), Some(2));
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(err.contains("unknown command \"wobble\""), "{err}");
@@ -685,17 +680,17 @@ fn sim_refuses_faults_of_what_the_vehicle_does_not_have() {
     signal(&child, libc::SIGINT);
     assert_eq!(wait_exit(&mut child), Some(0));
 
-    let bad = Process::new(BIN)
-        .args([
-            "sim",
-            "--config",
-            "vehicles/oscc.toml",
-            "--fault",
-            "estop pause",
-        ])
-        .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .output()
-        .unwrap();
+    let bad = common::output_within(
+        Process::new(BIN)
+            .args([
+                "sim",
+                "--config",
+                "vehicles/oscc.toml",
+                "--fault",
+                "estop pause",
+            ])
+            .current_dir(env!("CARGO_MANIFEST_DIR")),
+    );
     assert_eq!(bad.status.code(), Some(2));
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(

@@ -34,7 +34,7 @@ fn adrive(args: &[&str], config: Option<&Path>, dir: &Scratch) -> Output {
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
     }
-    cmd.output().unwrap()
+    common::output_within(&mut cmd)
 }
 
 fn stderr(out: &Output) -> String {
@@ -373,11 +373,7 @@ fn an_empty_dbc_is_refused_saying_it_has_no_messages() {
             .unwrap();
     let v = dir.file("oscc.toml", oscc);
     let dbc = dir.file("oscc.dbc", "");
-    let out = Command::new(BIN)
-        .args(["sim", "--config"])
-        .arg(&v)
-        .output()
-        .unwrap();
+    let out = common::output_within(Command::new(BIN).args(["sim", "--config"]).arg(&v));
     let err = stderr(&out);
     assert_eq!(out.status.code(), Some(2), "{err}");
     assert!(

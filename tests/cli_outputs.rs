@@ -301,12 +301,11 @@ fn every_path_argument_says_what_is_wrong_with_it() {
     let f = file.display().to_string();
     let d = dir.path().display().to_string();
     let run = |args: &[&str]| {
-        let out = Process::new(BIN)
-            .args(args)
-            .env("XDG_RUNTIME_DIR", dir.path())
-            .stdin(Stdio::null())
-            .output()
-            .unwrap();
+        let out = common::output_within(
+            Process::new(BIN)
+                .args(args)
+                .env("XDG_RUNTIME_DIR", dir.path()),
+        );
         (
             out.status.code(),
             String::from_utf8_lossy(&out.stderr).into_owned(),

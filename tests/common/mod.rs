@@ -231,6 +231,54 @@ pub fn signal(child: &std::process::Child, sig: i32) -> bool {
     unsafe { libc::kill(child.id() as i32, sig) == 0 }
 }
 
+/// What `cmd` printed and how it ended, as [`std::process::Command::output`] gives it,
+/// within the deadline: a program that should have ended by itself (a refusal before
+/// anything starts) and runs on instead is stopped, and the test fails saying what it
+/// printed, rather than waiting for ever.
+pub fn output_within(cmd: &mut std::process::Command) -> std::process::Output {
+    use std::io::Read;
+    use std::process::Stdio;
+    let mut child = Reaped(
+        cmd.stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let read = |mut from: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut all = Vec::new();
+            let _ = from.read_to_end(&mut all);
+            all
+        })
+    };
+    let stdout = read(Box::new(child.stdout.take().unwrap()));
+    let stderr = read(Box::new(child.stderr.take().unwrap()));
+    let end = Instant::now() + DEADLINE;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if Instant::now() >= end {
+            stop(&mut child.0);
+            let said = |t: std::thread::JoinHandle<Vec<u8>>| {
+                String::from_utf8_lossy(&t.join().unwrap()).into_owned()
+            };
+            panic!(
+                "{cmd:?} still ran after {DEADLINE:?}; it printed:\n{}\n{}",
+                said(stdout),
+                said(stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    std::process::Output {
+        status,
+        stdout: stdout.join().unwrap(),
+        stderr: stderr.join().unwrap(),
+    }
+}
+
 /// Wait for a child to exit; its status code (`None` when a signal ended it).
 pub fn wait_exit(child: &mut std::process::Child) -> Option<i32> {
     let end = Instant::now() + DEADLINE;
