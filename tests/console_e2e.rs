@@ -260,6 +260,18 @@ fn keys_engage_and_steer_and_q_leaves_the_terminal_and_vehicle_safe() {
         Console::steer_position(s).is_some_and(|p| p > 0.45)
     });
     assert!(s.contains("meas 0.5") || s.contains("meas 0.4"), "{s}");
+    // Disengage, and again: the second is answered as the network and `adrive ctl`
+    // answer it.
+    c.keys("D");
+    c.wait_for("the confirmation", |s| s.contains("Disengage?"));
+    c.keys("y");
+    c.wait_for("disengaged", |s| s.contains("DISENGAGED"));
+    c.keys("D");
+    c.wait_for("the confirmation", |s| s.contains("Disengage?"));
+    c.keys("y");
+    c.wait_for("the same answer as every front end's", |s| {
+        s.contains("already disengaged")
+    });
     c.keys("q");
     let status = c.wait_exit();
     assert!(status.success(), "{status:?}");
