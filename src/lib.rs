@@ -27,6 +27,7 @@ pub mod foxglove;
 pub mod headless;
 pub mod logging;
 pub mod net;
+pub mod paths;
 pub mod port;
 pub(crate) mod port_list;
 pub mod probe;

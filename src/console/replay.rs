@@ -19,7 +19,7 @@ use crate::net::BROADCAST_MAX;
 use crate::port::trace::{Dir, TraceEntry, CAPACITY};
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
-use crate::safety::Refused;
+use crate::safety::{Done, Refused};
 use crate::value::{Command, DeviceId};
 use crossbeam_channel::{select, Receiver};
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
@@ -284,6 +284,7 @@ impl Player {
             read_only: true,
             sim_vehicle: None,
             sim_faults: vec![None; n],
+            sim_names: None,
             you: None,
         }
     }
@@ -326,10 +327,10 @@ impl Controls for Replay<'_> {
     fn submit_accel(&self, _: f64) -> Result<(), Refused> {
         Err(read_only())
     }
-    fn engage(&self) -> Result<(), Refused> {
+    fn engage(&self) -> Result<Done, Refused> {
         Err(read_only())
     }
-    fn disengage(&self) -> Result<(), Refused> {
+    fn disengage(&self) -> Result<Done, Refused> {
         Err(read_only())
     }
     fn stop(&self) -> Result<(), Refused> {

@@ -428,19 +428,12 @@ mod tests {
         );
     }
 
-    /// The incident: a planner repeats `trans drive` in every datagram (the README's own
-    /// example does). In drive, with the repeat pending in the gearbox's slot, a brake
-    /// release waited up to 450 ms at the wire for that slot to drain although no
-    /// shift was under way; brake commands executed per second halved. A gear command
-    /// that repeats the last one sent is not a shift: the release goes out at once,
-    /// from intake to the wire. (A real shift still holds it: the test after this.)
-    #[test]
-    fn a_repeated_trans_drive_does_not_hold_a_brake_release() {
-        let gate = sample::gate(Instant::now());
-        let v = &gate.vehicle();
+    /// Alice's sample engaged in drive (shifted, acknowledged, and reported by a status
+    /// taken after that): its gearbox, its brake and the drive command.
+    fn in_drive(gate: &Gate) -> (&Device, &Device, Command) {
+        let v = gate.vehicle();
         let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
         let drive = Command::State(trans.config().state_index("drive").unwrap());
-        // In drive: shifted, acknowledged, and reported by a status taken after that.
         trans.slot().fly(drive);
         trans.slot().finish(drive, true);
         trans.store(crate::vehicle::Cached {
@@ -452,6 +445,19 @@ mod tests {
             at: Some(Instant::now()),
         });
         gate.engage("test").unwrap();
+        (trans, brake, drive)
+    }
+
+    /// The incident: a planner repeats `trans drive` in every datagram (the README's own
+    /// example does). In drive, with the repeat pending in the gearbox's slot, a brake
+    /// release waited up to 450 ms at the wire for that slot to drain although no
+    /// shift was under way; brake commands executed per second halved. A gear command
+    /// that repeats the last one sent is not a shift: the release goes out at once,
+    /// from intake to the wire. (A real shift still holds it: the test after this.)
+    #[test]
+    fn a_repeated_trans_drive_does_not_hold_a_brake_release() {
+        let gate = sample::gate(Instant::now());
+        let (trans, brake, drive) = in_drive(&gate);
         // The planner's datagram: `trans drive` again, and the brake released.
         gate.submit(trans.id(), drive, Instant::now()).unwrap();
         let release = Command::Set(0.0);
@@ -550,6 +556,45 @@ mod tests {
             assert!(!kits.enabled(), "off once disengaged");
             let _ = gate.clear_overrides();
         }
+    }
+
+    /// The incident (the interlock property, on a loaded machine): in drive, braked, a
+    /// shift to reverse was on the wire and `trans drive` pending behind it; the
+    /// pending command, the gear reported, hid the shift in flight. An `accel` then
+    /// released the brake at once, and `drive` went out after it with the brake at 0:
+    /// a command to the gear reported was no shift, though the gearbox was on its way
+    /// to reverse. Every gear command on its way counts: the `accel` waits for the
+    /// shift, a release waits for it at the wire, and `drive` behind `reverse` is a
+    /// shift that needs the brake.
+    #[test]
+    fn a_shift_in_flight_behind_a_command_to_the_gear_reported_is_still_a_shift() {
+        let gate = sample::gate(Instant::now());
+        let (trans, brake, drive) = in_drive(&gate);
+        let reverse = Command::State(trans.config().state_index("reverse").unwrap());
+        brake.slot().fly(Command::Set(0.8));
+        brake.slot().finish(Command::Set(0.8), true);
+        // `reverse` written (in flight), `drive` pending behind it.
+        trans.slot().fly(reverse);
+        trans.slot().submit(drive, Instant::now());
+        let before = brake.slot().wire();
+        assert_eq!(gate.submit_accel(0.4, Instant::now()), Ok(()));
+        assert_eq!(brake.slot().wire(), before, "the accel held the brake");
+        assert_eq!(
+            gate.submit(brake.id(), Command::Set(0.0), Instant::now()),
+            Err(Reject::BrakeReleaseShifting)
+        );
+        assert_eq!(
+            gate.check_wire(brake, Command::Set(0.0), false),
+            WireStep::Wait(Wait::ShiftOut)
+        );
+        // `reverse` went out; had the brake been released meanwhile, `drive` is dropped.
+        trans.slot().finish(reverse, true);
+        brake.slot().fly(Command::Set(0.0));
+        brake.slot().finish(Command::Set(0.0), true);
+        brake.slot().reset(None);
+        assert_eq!(trans.slot().take_newer().map(|p| p.command), Some(drive));
+        trans.slot().fly(drive);
+        assert_eq!(gate.check_wire(trans, drive, false), WireStep::Drop);
     }
 
     /// The release lands while the throttle waits: the throttle goes out as it is.

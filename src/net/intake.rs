@@ -250,28 +250,11 @@ impl Intake {
                     NetCommand::Set(id, _) => st.count_command(id),
                     _ => st.count_accel(),
                 },
-                Ok(Done::Engaged | Done::Commanding) => {
-                    out.gate = true;
-                    out.line(format_args!("ok engaged"));
-                }
                 Ok(Done::Same) => {}
-                Ok(Done::Released) => {
-                    fx.let_go = true;
+                Ok(done) => {
+                    fx.let_go |= matches!(done, Done::Released | Done::Disengaged(_));
                     out.gate = true;
-                    out.line(format_args!("ok released"));
-                }
-                Ok(Done::Disengaged(_)) => {
-                    fx.let_go = true;
-                    out.gate = true;
-                    out.line(format_args!("ok disengaged"));
-                }
-                Ok(Done::Cleared(c)) => {
-                    out.gate = true;
-                    if c.is_empty() {
-                        out.line(format_args!("ok nothing to clear"));
-                    } else {
-                        out.line(format_args!("ok cleared override on {}", c.join(", ")));
-                    }
+                    out.line(format_args!("ok {done}"));
                 }
                 Err(Refused::Owner(r)) => {
                     if !fx.refused_other {

@@ -847,7 +847,7 @@ mod tests {
     /// read as the answer to the next request about half the time, so it looked
     /// healthy. Over a real pseudo-terminal, a line device that answers its n-th request
     /// with `pos=n` (so a reply names the request it answers), one at a time, first 20
-    /// ms after the deadline: no poll succeeds while it is that slow, the failures say
+    /// ms after the deadline: no poll takes another request's answer, the failures say
     /// it is slower than its reply timeout, and once it is fast again every reply taken
     /// is its own request's.
     #[test]
@@ -898,9 +898,12 @@ mod tests {
             &config,
         );
         let mut poll = || conn.transact(|drv, link| drv.poll(link)).0;
-        let mut late = 0;
+        let (mut late, mut own) = (0, 0);
         for k in 1..=12 {
             match poll() {
+                // A host itself scheduled later than the reply (a loaded machine) finds
+                // it waiting: its own request's answer, which it may take.
+                Ok(r) if r.get(0) == Some(k as f64) => own += 1,
                 Ok(r) => panic!(
                     "poll {k} took {:?}, the answer to another request",
                     r.get(0)
@@ -910,7 +913,10 @@ mod tests {
                 Err(e) => panic!("poll {k}: {e}"),
             }
         }
-        assert!(late >= 10, "named slow: {late} of 12");
+        assert!(
+            late + own >= 10,
+            "named slow: {late} of 12 ({own} taken late by a late host)"
+        );
         // Fast again: each reply taken is its own request's (the device has answered k
         // requests when the host's k-th is done).
         slow.store(1, Relaxed);

@@ -482,8 +482,10 @@ impl Commands {
             return false;
         }
         match self.gate.admit(Source::Ros2, ask, at) {
-            Ok(Done::Engaged | Done::Commanding | Done::Disengaged(true) | Done::Released) => {
-                tracing::info!("ros2: {} done", self.gate.ask_text(ask));
+            Ok(
+                done @ (Done::Engaged | Done::Commanding | Done::Disengaged(_) | Done::Released),
+            ) => {
+                tracing::info!("ros2: {}: {done}", self.gate.ask_text(ask));
                 true
             }
             Ok(_) => true,

@@ -156,6 +156,8 @@ pub(crate) struct WireFrame {
     pub can_inject: bool,
     pub sim_vehicle: Option<String>,
     pub sim_faults: Vec<Option<SimFaults>>,
+    #[serde(default)]
+    pub sim_names: Option<crate::sim::commands::Names>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

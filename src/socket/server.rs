@@ -597,6 +597,7 @@ fn frame(s: &Shared, c: &Conn, now: Instant) -> WireFrame {
         can_inject: f.can_inject,
         sim_vehicle: f.sim_vehicle,
         sim_faults: f.sim_faults,
+        sim_names: f.sim_names,
         snap: f.snap,
     }
 }

@@ -901,10 +901,19 @@ mod tests {
             speed in proptest::sample::select(vec![0.05f64, 0.1, 0.5, 1.0]),
         ) {
             proptest::prop_assume!(world(cause, device, commanded).is_some());
-            // adrive's own command moves it as its response says (a share of 0.05 of
-            // its range a turn: 1/s, or within an 80 ms lag's promise); one slower than
-            // its response is rightly not following, and one faster is not the command.
-            let speed = if cause == causes::Cause::Command { 0.05 } else { speed };
+            // Where adrive's command drives it the same way as the cause does (the cause
+            // is that command, or the e-stop or its own watchdog pushes it where adrive
+            // commanded it too), it moves at least as its response says: the steering
+            // at its rate (1/s: 0.05 a turn, faster is a hand), the pedals at least that
+            // fast (an 80 ms lag goes most of the way in a 50 ms turn). Slower, it does
+            // not follow adrive's command, which is what that detector is for.
+            let toward = world(cause, device, commanded).unwrap_or(commanded);
+            let with_command = (commanded - start) * (toward - start) > 0.0;
+            let speed = match (cause, device) {
+                (causes::Cause::Command, "steer") => 0.05,
+                _ if with_command => speed.max(0.05),
+                _ => speed,
+            };
             let named = judged(cause, device, start, commanded, speed);
             proptest::prop_assert!(named.is_empty(), "{cause:?} on {device}: {named:?}");
         }
@@ -946,7 +955,7 @@ mod tests {
         );
     }
 
-    /// OSCC keeps a module's override flag until the module is enabled again, and
+    /// A kit's module may keep its override flag until it is enabled again, and
     /// adrive enables no module while disengaged: the flag, once the gate had latched
     /// the override, kept the supervisor naming it, so the operator could never clear
     /// it (clearing is refused while a hand is named on) nor engage to clear the flag.

@@ -263,6 +263,54 @@ pub fn signal(child: &std::process::Child, sig: i32) -> bool {
     unsafe { libc::kill(child.id() as i32, sig) == 0 }
 }
 
+/// What `cmd` printed and how it ended, as [`std::process::Command::output`] gives it,
+/// within the deadline: a program that should have ended by itself (a refusal before
+/// anything starts) and runs on instead is stopped, and the test fails saying what it
+/// printed, rather than waiting for ever.
+pub fn output_within(cmd: &mut std::process::Command) -> std::process::Output {
+    use std::io::Read;
+    use std::process::Stdio;
+    let mut child = Reaped(
+        cmd.stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let read = |mut from: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut all = Vec::new();
+            let _ = from.read_to_end(&mut all);
+            all
+        })
+    };
+    let stdout = read(Box::new(child.stdout.take().unwrap()));
+    let stderr = read(Box::new(child.stderr.take().unwrap()));
+    let end = Instant::now() + DEADLINE;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if Instant::now() >= end {
+            stop(&mut child.0);
+            let said = |t: std::thread::JoinHandle<Vec<u8>>| {
+                String::from_utf8_lossy(&t.join().unwrap()).into_owned()
+            };
+            panic!(
+                "{cmd:?} still ran after {DEADLINE:?}; it printed:\n{}\n{}",
+                said(stdout),
+                said(stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    std::process::Output {
+        status,
+        stdout: stdout.join().unwrap(),
+        stderr: stderr.join().unwrap(),
+    }
+}
+
 /// Wait for a child to exit; its status code (`None` when a signal ended it).
 pub fn wait_exit(child: &mut std::process::Child) -> Option<i32> {
     let end = Instant::now() + DEADLINE;
@@ -344,4 +392,28 @@ pub fn sim_dirs(dir: &std::path::Path) -> Vec<String> {
                 .collect()
         })
         .unwrap_or_default()
+}
+
+/// `adrive --sim --headless ARGS`, its runtime directory and its log in `dir`, once it
+/// says it runs: the child and what it has said so far (its standard error keeps being
+/// read into the receiver).
+pub fn headless_sim(
+    dir: &std::path::Path,
+    args: &[&str],
+) -> (Reaped, Vec<String>, std::sync::mpsc::Receiver<String>) {
+    let mut child = Reaped(
+        std::process::Command::new(env!("CARGO_BIN_EXE_adrive"))
+            .args(["--sim", "--headless"])
+            .args(args)
+            .arg("--log-dir")
+            .arg(dir.join("log"))
+            .env("XDG_RUNTIME_DIR", dir)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let err = lines(child.stderr.take().unwrap());
+    let seen = until(&err, "running headless");
+    (child, seen, err)
 }

@@ -60,6 +60,9 @@ pub(crate) struct BenchView<'a> {
     pub trail: &'a Trail,
     /// The CAN bus it is on.
     pub(crate) bus: Option<&'a BusView>,
+    /// The simulator keys whose line the simulator would refuse here (what they act on
+    /// is not in this vehicle): not offered.
+    pub(crate) refused: Vec<SimAction>,
 }
 
 /// Rows the simulator box takes.
@@ -99,7 +102,7 @@ impl BenchView<'_> {
         let keys: Vec<Vec<Span>> = grouped(self.map, Mode::Bench, self.roles)
             .into_iter()
             .filter_map(|(k, desc, a)| match a {
-                Action::Sim(s) => Some((k, desc, s)),
+                Action::Sim(s) if !self.refused.contains(&s) => Some((k, desc, s)),
                 _ => None,
             })
             .map(|(k, desc, s)| {
@@ -450,6 +453,7 @@ mod tests {
             roles,
             trail: &trail,
             bus: None,
+            refused: Vec::new(),
         };
         let roles = f.snap.gate.roles.clone();
         let v = view(&roles);
