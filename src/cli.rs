@@ -12,7 +12,7 @@ use crate::net::{auth::Auth, client, Net};
 use crate::record::{self, Recorder};
 use crate::sim::{Sim, SimEvent};
 use crate::vehicle::Vehicle;
-use crate::{console, driver, headless, logging, socket};
+use crate::{console, driver, headless, logging, paths, socket};
 use clap::{Args, CommandFactory, Parser, Subcommand};
 use std::io::{self, BufRead, Write};
 use std::net::SocketAddr;
@@ -138,7 +138,7 @@ pub struct RunArgs {
     /// Where the state broadcast goes, instead of the vehicle file's `[network]`
     /// broadcast_to (repeatable, or comma-separated; default 127.0.0.1:47577): a
     /// second adrive on one host needs its own.
-    #[arg(long, value_name = "ADDR", value_delimiter = ',')]
+    #[arg(long, value_name = "ADDR", value_delimiter = ',', value_parser = config::network::parse_destination)]
     pub broadcast_to: Vec<SocketAddr>,
     /// Record this run into an MCAP file (Foxglove opens it), or into rolling files in
     /// a directory (an existing one, or a path ending in `/`); default: the vehicle
@@ -154,7 +154,7 @@ pub struct RunArgs {
     pub ros2: bool,
     /// Serve a read-only live view to Foxglove or Lichtblick (Foxglove WebSocket
     /// protocol) on ADDR [default: 127.0.0.1:8765; port 0: any free port, logged].
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::foxglove::DEFAULT_ADDR)]
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::foxglove::DEFAULT_ADDR, value_parser = config::network::parse_serve)]
     pub foxglove: Option<SocketAddr>,
     /// The control socket consoles attach to (default: $RUNTIME_DIRECTORY/adrive.sock
     /// under systemd, else $XDG_RUNTIME_DIR/adrive/adrive.sock, else
@@ -232,7 +232,7 @@ pub struct ReplayArgs {
     pub file: PathBuf,
     /// Also send each snapshot played as the state broadcast, to ADDR (repeatable;
     /// default 127.0.0.1:47577), so other tools can be tested against a past drive.
-    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = config::network::DEFAULT_BROADCAST)]
+    #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = config::network::DEFAULT_BROADCAST, value_parser = config::network::parse_destination)]
     pub broadcast: Vec<SocketAddr>,
     /// No console: play through once (with --broadcast), then exit.
     #[arg(long, requires = "broadcast")]
@@ -243,6 +243,11 @@ pub struct ReplayArgs {
     /// Keymap TOML merged over the built-in one, as for `adrive run`.
     #[arg(long, value_name = "FILE")]
     pub keymap: Option<PathBuf>,
+    /// Play nothing: decide every command the recording received again under this
+    /// vehicle file's rules and limits, and list each decision that would differ
+    /// (exit status 1 when any does, 0 when none).
+    #[arg(long, value_name = "VEHICLE.toml", conflicts_with_all = ["broadcast", "headless", "speed", "keymap"])]
+    pub check: Option<PathBuf>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -259,8 +264,8 @@ pub struct SendArgs {
     /// Commands, e.g. `steer 0.2`, `engage trans drive accel 0.3`: each verb starts a line.
     #[arg(required = true, value_name = "COMMAND", allow_hyphen_values = true)]
     pub words: Vec<String>,
-    /// The adrive to send to.
-    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_LISTEN)]
+    /// The adrive to send to: its `--listen` address (IP:PORT or HOST:PORT).
+    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_LISTEN, value_parser = config::network::parse_peer)]
     pub to: SocketAddr,
     /// Repeat the datagram this many times a second, with a rolling `seq`, until
     /// interrupted (as a planner would).
@@ -279,8 +284,9 @@ pub struct WatchArgs {
     /// Print each broadcast as it came: one JSON object per line.
     #[arg(long)]
     pub json: bool,
-    /// The address the broadcast is sent to: this host's, or a multicast group.
-    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_BROADCAST)]
+    /// The address the broadcast is sent to (the vehicle file's `[network]`
+    /// broadcast_to): this host's, or a multicast group.
+    #[arg(long, value_name = "ADDR", default_value = config::network::DEFAULT_BROADCAST, value_parser = config::network::parse_destination)]
     pub from: SocketAddr,
     /// Stop after this many broadcasts (with --ros2: report lines).
     #[arg(long, value_name = "N")]
@@ -415,7 +421,27 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     } else {
         open_ports(&config)?
     };
+    // Every path given is what it must be before anything starts: the log's directory,
+    // the recording's file (or directory of rolling files), the control socket's place.
+    paths::create_dir("--log-dir", &log_dir).map_err(anyhow::Error::msg)?;
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
+    if let Some(r) = &recording {
+        let what = if args.record.is_some() {
+            "--record"
+        } else {
+            "[record] dir"
+        };
+        match &r.target {
+            record::Target::File(p) => paths::check_new_file(what, p),
+            record::Target::Dir { dir, .. } => paths::check_dir_possible(what, dir),
+        }
+        .map_err(anyhow::Error::msg)?;
+    }
+    let socket_path = args
+        .socket
+        .clone()
+        .unwrap_or_else(socket::path::default_path);
+    paths::check_place("--socket", &socket_path).map_err(anyhow::Error::msg)?;
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
     // The log pane's lines, for the embedded console and every attached one.
     let ring = crate::logging::ring::LogRing::default();
@@ -429,10 +455,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     }
     // A live control socket (another adrive) stops here, before anything is driven or
     // simulated, named; a stale one is replaced.
-    let socket_path = args
-        .socket
-        .clone()
-        .unwrap_or_else(socket::path::default_path);
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
@@ -703,6 +725,13 @@ fn network_key(config: &VehicleConfig) -> anyhow::Result<Option<Auth>> {
         return Ok(None);
     };
     let path = config.relative(file);
+    if let Err(why) = paths::check_file("", &path) {
+        let v = config::Violation {
+            paths: vec!["key_file".into()],
+            message: format!("key_file: {why}"),
+        };
+        return Err(config.refuse("network", v).into());
+    }
     let auth = Auth::load(&path).map_err(|e| {
         let v = config::Violation {
             paths: vec!["key_file".into()],
@@ -719,10 +748,13 @@ pub fn manpage(dir: Option<&Path>, out: &mut dyn std::io::Write) -> anyhow::Resu
     let cmd = Cli::command().disable_help_subcommand(true);
     match dir {
         Some(dir) => {
-            std::fs::create_dir_all(dir)
-                .and_then(|()| clap_mangen::generate_to(cmd, dir))
+            paths::create_dir("manpage --dir", dir).map_err(anyhow::Error::msg)?;
+            clap_mangen::generate_to(cmd, dir)
                 .map_err(|e| anyhow::anyhow!("manpage --dir {}: {e}", dir.display()))?;
-            eprintln!("adrive manpage: wrote the pages to {}", dir.display());
+            tell(
+                io::stderr(),
+                format_args!("adrive manpage: wrote the pages to {}\n", dir.display()),
+            );
         }
         None => clap_mangen::Man::new(cmd).render(out)?,
     }
@@ -740,8 +772,60 @@ fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
 
 /// `adrive send`: commands in one datagram, once or at a rate.
 pub fn send(args: SendArgs) -> anyhow::Result<i32> {
+    // The commands take every word after the first (a value may start with `-`), so
+    // options written after them (`adrive send steer 0.2 --to HOST:PORT`) arrive among
+    // them: take them out and read them as options.
+    let send = Cli::command();
+    let options: Vec<String> = send
+        .find_subcommand("send")
+        .expect("send is a subcommand")
+        .get_arguments()
+        .filter_map(|a| a.get_long())
+        .map(|l| format!("--{l}"))
+        .collect();
+    let is_option = |w: &str| {
+        options
+            .iter()
+            .any(|o| w.split('=').next() == Some(o.as_str()))
+    };
+    if args.words.iter().any(|w| is_option(w)) {
+        let mut argv: Vec<String> = vec!["adrive".into(), "send".into()];
+        let mut rest = Vec::new();
+        let mut words = args.words.iter();
+        while let Some(w) = words.next() {
+            if is_option(w) {
+                argv.push(w.clone());
+                if !w.contains('=') {
+                    argv.extend(words.next().cloned());
+                }
+            } else {
+                rest.push(w.clone());
+            }
+        }
+        argv.push("--".into());
+        argv.extend(rest);
+        return match Cli::try_parse_from(&argv) {
+            Ok(Cli {
+                command: Some(Cmd::Send(args)),
+                ..
+            }) => send_parsed(args),
+            Ok(_) => unreachable!("parsed as send"),
+            Err(e) => {
+                let _ = e.print();
+                Ok(client::status::USAGE)
+            }
+        };
+    }
+    send_parsed(args)
+}
+
+/// [`send`], its options read.
+fn send_parsed(args: SendArgs) -> anyhow::Result<i32> {
     let auth = match args.key.as_deref() {
-        Some(key) => Some(Auth::load(key).map_err(|e| anyhow::anyhow!("--key {e}"))?),
+        Some(key) => {
+            paths::check_file("--key", key).map_err(anyhow::Error::msg)?;
+            Some(Auth::load(key).map_err(|e| anyhow::anyhow!("--key {e}"))?)
+        }
         None => None,
     };
     let body = client::lines_from_words(&args.words);
@@ -822,7 +906,7 @@ pub fn ctl(args: CtlArgs) -> anyhow::Result<i32> {
     let (text, code) = match answer {
         Answer::Snapshot(snap) if json => (serde_json::to_string_pretty(&snap)?, 0),
         Answer::Snapshot(snap) => (headless::status_table(&snap), 0),
-        Answer::Done(done) => (headless::done_words(&done), 0),
+        Answer::Done(done) => (done.to_string(), 0),
         Answer::Refused(r) => {
             tell(io::stderr(), format_args!("adrive: {what} refused: {r}\n"));
             return Ok(1);
@@ -919,7 +1003,9 @@ mod ros2 {
 /// that they are counted and said, never kept (its memory stays flat).
 const SIM_BACKLOG: usize = 4096;
 
-/// `adrive sim`: the simulated devices alone.
+/// `adrive sim`: the simulated devices alone. Everything it prints goes through one
+/// writer: a standard output closed by its reader (`adrive sim | head`) ends it
+/// quietly, its links removed.
 pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     let config = load(&args.config, &args.only)?;
     let (tx, mut rx) = crossbeam_channel::bounded::<SimEvent>(SIM_BACKLOG);
@@ -929,11 +1015,17 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
         // receiver is always ready, and selecting on it would spin a core.
         rx = crossbeam_channel::never();
     }
+    // Applied before any port is printed, so no host sees the device without them;
+    // confirmed below, as the same line typed is.
+    let mut applied = Vec::new();
     for f in &args.fault {
-        sim.apply(f)
-            .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?;
+        applied.push(
+            sim.apply(f)
+                .map_err(|e| anyhow::anyhow!("--fault {f:?}: {e}"))?,
+        );
     }
     let exits = exit::install()?;
+    let mut out = io::stdout().lock();
     let width = sim
         .ports
         .iter()
@@ -944,14 +1036,15 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
         .max(6);
     for p in &sim.ports {
         let d = config.device(&p.name).expect("simulated from the config");
-        println!(
+        writeln!(
+            out,
             "{:<width$} {}  -> {}  ({}, {} baud)",
             p.name,
             p.path,
             p.pty.lock(),
-            d.driver.as_str(),
+            d.driver,
             d.baud
-        );
+        )?;
     }
     for (i, p) in sim.buses.iter().enumerate() {
         let on: Vec<&str> = config
@@ -960,16 +1053,37 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             .filter(|d| matches!(&d.wire, config::protocol_map::Wire::Can(m) if m.bus == i))
             .map(|d| d.name.as_str())
             .collect();
-        println!(
-            "{:<width$} {}  -> {}  (slcan, {} bit/s: an OSCC kit with {})",
+        writeln!(
+            out,
+            "{:<width$} {}  -> {}  ({}, {} bit/s: an OSCC kit with {})",
             p.name,
             p.path,
             p.pty.lock(),
+            crate::config::device::DriverKind::Can,
             config.buses[i].bitrate.bits_per_second(),
             on.join(", ")
-        );
+        )?;
     }
-    println!("type `help` for the faults and events it takes (`silent gas on`, `estop pause`, …); Ctrl-C stops");
+    for done in &applied {
+        writeln!(out, "{done}")?;
+    }
+    // Examples this vehicle takes: a port of its own, and its e-stop when it has one.
+    let mut examples: Vec<String> = sim
+        .ports
+        .iter()
+        .chain(&sim.buses)
+        .take(1)
+        .map(|p| format!("`silent {} on`", p.name))
+        .collect();
+    if sim.names().has.estop {
+        examples.push("`estop pause`".into());
+    }
+    examples.push("…".into());
+    writeln!(
+        out,
+        "type `help` for the faults and events it takes ({}); Ctrl-C stops",
+        examples.join(", ")
+    )?;
     let (lines_tx, mut lines) = crossbeam_channel::unbounded::<String>();
     std::thread::Builder::new()
         .name("sim/stdin".into())
@@ -988,22 +1102,27 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
             recv(rx) -> ev => if let Ok(ev) = ev {
                 let now = sim.dropped_events();
                 if now > dropped {
-                    println!("… {} commands not shown: the output was too slow", now - dropped);
+                    writeln!(out, "… {} commands not shown: the output was too slow", now - dropped)?;
                     dropped = now;
                 }
-                println!(
-                    "{:>9.3}s {:<width$} <- {:<10} {}",
-                    ev.at.duration_since(start).as_secs_f64(),
-                    ev.name,
-                    ev.text,
-                    ev.note.clone().unwrap_or_else(|| printable(&ev.request))
-                );
+                let at = ev.at.duration_since(start).as_secs_f64();
+                match &ev.note {
+                    // The device acted on its own: nothing arrived.
+                    Some(note) => writeln!(out, "{at:>9.3}s {:<width$}    {note}", ev.name)?,
+                    None => writeln!(
+                        out,
+                        "{at:>9.3}s {:<width$} <- {:<10} {}",
+                        ev.name,
+                        ev.text,
+                        printable(&ev.request)
+                    )?,
+                }
             },
             recv(lines) -> line => match line {
                 Ok(line) if line.trim().is_empty() => {}
                 Ok(line) => match sim.apply(&line) {
-                    Ok(done) => println!("{done}"),
-                    Err(e) => println!("error: {e}"),
+                    Ok(done) => writeln!(out, "{done}")?,
+                    Err(e) => writeln!(out, "error: {e}")?,
                 },
                 // Standard input closed (`< /dev/null`, a service): keep serving and
                 // printing until a signal.
@@ -1024,6 +1143,7 @@ pub(crate) fn printable(bytes: &[u8]) -> String {
 
 /// `adrive record info`: what a recording holds.
 pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
+    paths::check_file("", file).map_err(anyhow::Error::msg)?;
     let rec = record::read::Recording::open(file)?;
     tell(io::stdout(), format_args!("{}", record::info::report(&rec)));
     Ok(0)
@@ -1031,6 +1151,10 @@ pub(crate) fn record_info(file: &Path) -> anyhow::Result<i32> {
 
 /// `adrive record repair`: a finished copy of a recording that was not finished.
 pub(crate) fn record_repair(file: &Path, out: Option<&Path>) -> anyhow::Result<i32> {
+    paths::check_file("", file).map_err(anyhow::Error::msg)?;
+    if let Some(out) = out {
+        paths::check_new_file("--out", out).map_err(anyhow::Error::msg)?;
+    }
     let rec = record::read::Recording::open(file)?;
     let state = record::info::state(&rec, None);
     if rec.complete && !rec.writing {
@@ -1057,7 +1181,9 @@ pub(crate) fn record_repair(file: &Path, out: Option<&Path>) -> anyhow::Result<i
 
 /// `adrive export FILE --csv DIR`: one CSV per channel.
 pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
+    paths::check_file("", &args.file).map_err(anyhow::Error::msg)?;
     let rec = record::read::Recording::open(&args.file)?;
+    paths::create_dir("--csv", &args.csv).map_err(anyhow::Error::msg)?;
     for (path, rows) in record::export::csv(&rec, &args.csv)? {
         tell(
             io::stdout(),
@@ -1078,7 +1204,22 @@ pub fn export(args: ExportArgs) -> anyhow::Result<i32> {
 
 /// `adrive replay FILE`: the console plays a recording (or, headless, broadcasts it).
 pub fn replay(args: ReplayArgs) -> anyhow::Result<i32> {
+    paths::check_file("", &args.file).map_err(anyhow::Error::msg)?;
     let rec = record::read::Recording::open(&args.file)?;
+    if let Some(vehicle) = &args.check {
+        let config = config::load(vehicle)?;
+        let report = record::check::check(&rec, &config);
+        // The status tells the outcome, read or not (`| head`).
+        let _ = io::stdout().write_all(
+            report
+                .render(
+                    &args.file.display().to_string(),
+                    &vehicle.display().to_string(),
+                )
+                .as_bytes(),
+        );
+        return Ok(report.status());
+    }
     let mut player = console::replay::Player::load(&rec).map_err(anyhow::Error::msg)?;
     drop(rec);
     if let Some(x) = args.speed {

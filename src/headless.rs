@@ -237,22 +237,3 @@ pub(crate) fn status_table(snap: &Snapshot) -> String {
     }
     out.trim_end().to_string()
 }
-
-/// What the intake did, in words, for `adrive ctl`.
-pub(crate) fn done_words(done: &crate::safety::Done) -> String {
-    use crate::safety::Done;
-    match done {
-        Done::Engaged => "engaged: you command the vehicle (it holds the safe state)".into(),
-        Done::Commanding => "you command the vehicle from now on".into(),
-        Done::Same => "nothing changed: you already command the vehicle".into(),
-        Done::Released => {
-            "released: the vehicle is stopped unless a source engages within the watchdog timeout"
-                .into()
-        }
-        Done::Disengaged(true) => "disengaged: the safe state is commanded".into(),
-        Done::Disengaged(false) => "the vehicle was not engaged".into(),
-        Done::Cleared(c) if c.is_empty() => "nothing to clear".into(),
-        Done::Cleared(c) => format!("cleared: {}", c.join(", ")),
-        Done::Commanded => "commanded".into(),
-    }
-}

@@ -3,7 +3,8 @@
 //! The crate reads like the design, from the bottom up: [`value`] is what devices
 //! speak, [`config`] describes a vehicle — devices by name and kind, and the safety
 //! roles bound to them — [`can`] is CAN frames and the DBC files that give them
-//! meaning, and [`driver`] speaks each protocol. [`snapshot`] is the one
+//! meaning, and [`driver`] speaks each protocol; [`port`] is what carries one device's
+//! bytes and commands (its port, command slot and trace). [`snapshot`] is the one
 //! state type every reader shares; [`vehicle`] holds the devices and their cached
 //! state; [`safety`] holds every rule and the engage gate; [`engine`] runs two threads
 //! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
@@ -26,6 +27,8 @@ pub mod foxglove;
 pub mod headless;
 pub mod logging;
 pub mod net;
+pub mod paths;
+pub mod port;
 pub(crate) mod port_list;
 pub mod probe;
 pub mod record;

@@ -70,12 +70,88 @@ impl fmt::Display for Source {
 
 /// A device's place in its vehicle (the vehicle file's order, from 0). Cheap to copy
 /// and to compare; names are for people and the wire.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
 pub struct DeviceId(pub u16);
 
 impl DeviceId {
     pub fn index(self) -> usize {
         self.0 as usize
+    }
+}
+
+/// The keywords of the command protocol (docs/network.md): the one list that the
+/// protocol's parser, `adrive send`'s splitting of words into lines, their messages and
+/// the names a device may not take are all read from. Every other first word of a line
+/// names a device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Keyword {
+    Accel,
+    Engage,
+    Disengage,
+    Release,
+    Clear,
+    Seq,
+    Tag,
+}
+
+impl Keyword {
+    /// Every keyword, in the order messages list them.
+    pub const ALL: [Keyword; 7] = [
+        Keyword::Accel,
+        Keyword::Engage,
+        Keyword::Disengage,
+        Keyword::Release,
+        Keyword::Clear,
+        Keyword::Seq,
+        Keyword::Tag,
+    ];
+
+    /// Its word on the wire.
+    pub fn word(self) -> &'static str {
+        match self {
+            Keyword::Accel => "accel",
+            Keyword::Engage => "engage",
+            Keyword::Disengage => "disengage",
+            Keyword::Release => "release",
+            Keyword::Clear => "clear",
+            Keyword::Seq => "seq",
+            Keyword::Tag => "tag",
+        }
+    }
+
+    /// The keyword `word` is (case-insensitive).
+    pub fn from_word(word: &str) -> Option<Keyword> {
+        Keyword::ALL
+            .into_iter()
+            .find(|k| k.word().eq_ignore_ascii_case(word))
+    }
+
+    /// It takes a value on its line (`accel 0.3`, `seq 17`); the others stand alone.
+    pub fn takes_value(self) -> bool {
+        matches!(self, Keyword::Accel | Keyword::Seq | Keyword::Tag)
+    }
+
+    /// A header of the datagram rather than a command.
+    pub fn is_header(self) -> bool {
+        matches!(self, Keyword::Seq | Keyword::Tag)
+    }
+
+    /// The words of those for which `which` holds, for a person: `engage, disengage,
+    /// release and clear`, with `last` (`and`, `or`) before the last one. Written into
+    /// `out` without allocating.
+    pub fn list(
+        which: impl Fn(Keyword) -> bool,
+        last: &str,
+        out: &mut impl fmt::Write,
+    ) -> fmt::Result {
+        let n = Keyword::ALL.iter().filter(|k| which(**k)).count();
+        for (i, k) in Keyword::ALL.into_iter().filter(|k| which(*k)).enumerate() {
+            if i > 0 {
+                out.write_str(if i + 1 == n { last } else { ", " })?;
+            }
+            out.write_str(k.word())?;
+        }
+        Ok(())
     }
 }
 
@@ -115,7 +191,7 @@ impl fmt::Display for Kind {
 /// The DARPA e-stop states: `disable` ends the run, `pause` must bring the vehicle
 /// to a stop and hold it, `run` lets it drive. A device bound to the `estop` role
 /// reports a state reading that has these three among its states.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum EstopState {
     Disable,

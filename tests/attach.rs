@@ -195,7 +195,7 @@ impl Attached {
             // The outcome of this `y`: the frame that closed the question says it (a
             // refusal still on the screen from the last try is not it).
             let s = self.wait_for("the engage outcome", engage_answered);
-            if s.contains("engaged: the console commands") {
+            if common::engaged(&s) {
                 self.wait_for("the header", |s| s.contains(" COMMANDING "));
                 return;
             }
@@ -285,18 +285,26 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     assert_eq!(gate["commander"], me.as_str(), "{gate}");
 
     // Closing the driver's terminal (the master goes away, as an SSH drop) brakes and
-    // disengages within its deadman; the service keeps running. (The brake holds 1.000
-    // while engaged and resends it: its line alone says nothing; the gate does.)
+    // disengages within its deadman; the service keeps running. The brake is first set
+    // apart from full, so that the full brake waited for is the drop's, not a resend.
+    let mark = sim.mark();
+    driver.keys("b");
+    driver.wait_for("the brake edit", |s| s.contains("edit brake command"));
+    driver.keys("\x150.2\r");
+    sim.wait_after(mark, &["brake", "<-", "0.200"]);
+    let mark = sim.mark();
     let dropped = Instant::now();
     driver.term.hang_up();
-    let (took, reason) = svc.wait_disengaged(dropped);
+    sim.wait_after(mark, &["brake", "<-", "1.000"]);
+    let took = dropped.elapsed();
     assert!(
         took < DEADMAN,
-        "the safe state came {took:?} after the commander's terminal closed"
+        "the brake came {took:?} after the commander's terminal closed"
     );
-    let mark = sim.mark();
-    sim.wait_after(mark, &["brake", "<-", "1.000"]);
     assert_eq!(sim.last_command("gas").as_deref(), Some("0.000"));
+    let gate = svc.gate();
+    assert_eq!(gate["engaged"], false, "{gate}");
+    let reason = gate["reason"].as_str().unwrap();
     assert!(
         reason.contains(&format!("{me} went away")),
         "disengaged for another reason: {reason}"

@@ -439,7 +439,7 @@ fn a_module_that_faults_while_engaged_disengages_the_vehicle_naming_its_fault_co
         .port
         .lock()
         .node
-        .inject_fault(Module::Brake, "INVALID_SENSOR_VAL", Instant::now())
+        .set_fault(Module::Brake, "INVALID_SENSOR_VAL", true, Instant::now())
         .unwrap();
     wait_for("the fault to disengage the vehicle", || {
         !rig.gate.is_engaged()
@@ -598,4 +598,76 @@ fn a_kit_left_enabled_is_disabled_as_soon_as_its_adapter_is_on_the_bus() {
         MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
     });
     assert!(!rig.gate.is_engaged());
+}
+
+/// The incident: on the OSCC kit, after the driver let go of the wheel the module kept
+/// reporting its override flag, so `C` (clear) was refused with "the driver is still
+/// moving steer" for ever and engage with it, even after restarting adrive. OSCC's
+/// firmware clears the flag and the code on the first turn the driver no longer
+/// overrides; a sensor fault clears the same way once the sensor reads valid again.
+#[test]
+fn the_kit_clears_its_override_and_its_sensor_fault_itself_and_the_vehicle_engages_again() {
+    let rig = Rig::supervised();
+    let all_enabled = |rig: &Rig| MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m));
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled", || all_enabled(&rig));
+    let kit = |f: &dyn Fn(&mut Kit)| f(&mut rig.adapter().port.lock().node);
+    kit(&|k| k.set_override(Module::Steering, true, Instant::now()));
+    wait_for("the driver's override", || {
+        rig.gate.overridden() == ["steer"] && !rig.gate.is_engaged()
+    });
+    assert!(rig.gate.clear_overrides().is_err(), "the hand is still on");
+    kit(&|k| k.set_override(Module::Steering, false, Instant::now()));
+    wait_for("the kit to report the override gone", || {
+        rig.reading("steer", "override") == Some(0.0)
+    });
+    wait_for("the clear to be accepted", || {
+        rig.gate.clear_overrides() == Ok(vec!["steer".to_string()])
+    });
+    rig.gate.engage("test").unwrap();
+    wait_for("every module enabled again", || all_enabled(&rig));
+
+    // The brake's pedal sensor reads grounded: the module faults, the vehicle stops.
+    kit(&|k| {
+        k.set_fault(Module::Brake, "INVALID_SENSOR_VAL", true, Instant::now())
+            .unwrap()
+    });
+    wait_for("the sensor fault to disengage the vehicle", || {
+        !rig.gate.is_engaged()
+            && rig
+                .faults()
+                .iter()
+                .any(|f| f.contains("INVALID_SENSOR_VAL"))
+    });
+    // It reads valid again: the module clears its code, and nobody else has to.
+    kit(&|k| {
+        k.set_fault(Module::Brake, "INVALID_SENSOR_VAL", false, Instant::now())
+            .unwrap()
+    });
+    wait_for("the brake to report no fault code", || {
+        rig.gate
+            .vehicle()
+            .find("brake")
+            .unwrap()
+            .cached()
+            .reading
+            .fault
+            == 0
+    });
+    wait_for("the engage to be accepted", || {
+        rig.gate.engage("test").is_ok()
+    });
+    wait_for("every module enabled again", || all_enabled(&rig));
+    // Engaged and enabled for ten more brake reports: nothing faults it again.
+    let mark = rig.adapter().mark();
+    wait_for("ten commands to the brake while engaged", || {
+        rig.adapter()
+            .ids_since(mark)
+            .iter()
+            .filter(|(id, _)| *id == 0x72)
+            .count()
+            >= 10
+    });
+    assert!(rig.gate.is_engaged(), "{:?}", rig.faults());
+    assert!(all_enabled(&rig));
 }

@@ -218,12 +218,25 @@ fn a_host_on_the_simulated_adapter_enables_and_commands_the_kit_and_the_vehicle_
     host.until("steering still disabled", |h| {
         h.signal("STEERING_REPORT", "enabled") == Some(0.0)
     });
+    // The driver lets go: the module clears its flag and its code by itself.
     sim.apply("override steer off").unwrap();
+    host.until("the steering's override cleared by the module", |h| {
+        h.signal("STEERING_REPORT", "operator_override") == Some(0.0)
+            && h.signal("STEERING_REPORT", "dtcs") == Some(0.0)
+    });
 
-    // A fault code by its DBC name.
-    let done = sim.apply("fault gas INVALID_SENSOR_VAL").unwrap();
+    // The steering's fault report disabled the throttle too, as OSCC's firmware does.
+    host.until("the throttle disabled by the fault report", |h| {
+        h.signal("THROTTLE_REPORT", "enabled") == Some(0.0)
+    });
+    host.send("THROTTLE_ENABLE", &[]);
+    host.until("the throttle enabled again", |h| {
+        h.signal("THROTTLE_REPORT", "enabled") == Some(1.0)
+    });
+    // The condition behind a fault code, by its DBC name.
+    let done = sim.apply("fault gas INVALID_SENSOR_VAL on").unwrap();
     assert!(
-        done.contains("throttle module latched INVALID_SENSOR_VAL"),
+        done.contains("throttle module's INVALID_SENSOR_VAL condition holds"),
         "{done}"
     );
     host.until("throttle faulted", |h| {
@@ -231,7 +244,11 @@ fn a_host_on_the_simulated_adapter_enables_and_commands_the_kit_and_the_vehicle_
             && h.signal("THROTTLE_REPORT", "dtcs") == Some(1.0)
     });
     common::wait_for("the throttle to close", || position(&sim, "gas") == 0.0);
-    let e = sim.apply("fault gas OVERHEAT").unwrap_err();
+    sim.apply("fault gas INVALID_SENSOR_VAL off").unwrap();
+    host.until("the throttle's code cleared by the module", |h| {
+        h.signal("THROTTLE_REPORT", "dtcs") == Some(0.0)
+    });
+    let e = sim.apply("fault gas OVERHEAT on").unwrap_err();
     assert!(e.contains("INVALID_SENSOR_VAL, OPERATOR_OVERRIDE"), "{e}");
 
     // The brake: its pressure on the bus.

@@ -16,14 +16,14 @@ const BIN: &str = env!("CARGO_BIN_EXE_adrive");
 
 /// `adrive --headless --config vehicle`, logging into `dir/log`, to its end.
 fn headless_on(dir: &std::path::Path, vehicle: &std::path::Path) -> std::process::Output {
-    Process::new(BIN)
-        .args(["--headless", "--config"])
-        .arg(vehicle)
-        .arg("--log-dir")
-        .arg(dir.join("log"))
-        .env("XDG_RUNTIME_DIR", dir.join("log"))
-        .output()
-        .unwrap()
+    common::output_within(
+        Process::new(BIN)
+            .args(["--headless", "--config"])
+            .arg(vehicle)
+            .arg("--log-dir")
+            .arg(dir.join("log"))
+            .env("XDG_RUNTIME_DIR", dir.join("log")),
+    )
 }
 
 #[test]
@@ -183,19 +183,20 @@ fn only_runs_just_the_named_devices() {
         .collect();
     assert_eq!(devices, ["steer", "obd"], "{out}");
 
-    let bad = Process::new(BIN)
-        .args(["--sim", "--headless", "--only", "wiper"])
-        .output()
-        .unwrap();
+    let bad =
+        common::output_within(Process::new(BIN).args(["--sim", "--headless", "--only", "wiper"]));
     assert_eq!(bad.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("wiper"));
 }
 
-#[test]
-fn sim_prints_port_paths_and_each_command_a_device_receives() {
+/// `adrive sim ARGS` from the crate's directory, its standard input a pipe; the lines
+/// it prints.
+fn sim_process(args: &[&str]) -> (common::Reaped, std::sync::mpsc::Receiver<String>) {
     let mut child = common::Reaped(
         Process::new(BIN)
-            .args(["sim", "--only", "steer,estop"])
+            .arg("sim")
+            .args(args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -203,6 +204,12 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
             .unwrap(),
     );
     let out = lines(child.stdout.take().unwrap());
+    (child, out)
+}
+
+#[test]
+fn sim_prints_port_paths_and_each_command_a_device_receives() {
+    let (mut child, out) = sim_process(&["--only", "steer,estop"]);
     let first = until(&out, "steer");
     let path = first
         .last()
@@ -332,16 +339,7 @@ fn sim_removes_its_directory_of_links_when_signalled() {
 
 #[test]
 fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
-    let mut child = common::Reaped(
-        Process::new(BIN)
-            .args(["sim", "--only", "steer", "--fault", "silent steer on"])
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let out = lines(child.stdout.take().unwrap());
+    let (mut child, out) = sim_process(&["--only", "steer", "--fault", "silent steer on"]);
     let path = until(&out, "steer")
         .last()
         .unwrap()
@@ -360,10 +358,7 @@ fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
     signal(&child, libc::SIGINT);
     assert_eq!(wait_exit(&mut child), Some(0));
 
-    let bad = Process::new(BIN)
-        .args(["sim", "--fault", "wobble gas on"])
-        .output()
-        .unwrap();
+    let bad = common::output_within(Process::new(BIN).args(["sim", "--fault", "wobble gas on"]));
     assert_eq!(bad.status.code(), Some(2));
     let err = String::from_utf8_lossy(&bad.stderr);
     assert!(err.contains("unknown command \"wobble\""), "{err}");
@@ -498,59 +493,6 @@ fn attach_without_a_terminal_says_whether_there_is_an_adrive_and_what_applies() 
     assert!(!err.contains("--headless"), "{err}");
 }
 
-/// The incident: `adrive completions bash | head -1` panicked inside clap_complete
-/// (status 101); `adrive manpage | head` and `adrive watch | head -2` printed "Broken
-/// pipe (os error 32)" and exited 2. A standard output closed by its reader ends them
-/// quietly with status 0, as Unix tools do. The reader here is gone before the first
-/// write, so every write fails, whatever the pipe's buffer holds.
-#[test]
-fn a_closed_standard_output_ends_quietly_with_status_0() {
-    let port = common::free_port();
-    let from = format!("127.0.0.1:{port}");
-    let cases: [&[&str]; 4] = [
-        &["completions", "bash"],
-        &["manpage"],
-        &["ports"],
-        &["watch", "--from", &from],
-    ];
-    for args in cases {
-        let (reader, writer) = std::io::pipe().unwrap();
-        drop(reader);
-        let mut child = common::Reaped(
-            Process::new(BIN)
-                .args(args)
-                .stdin(Stdio::null())
-                .stdout(writer)
-                .stderr(Stdio::piped())
-                .spawn()
-                .unwrap(),
-        );
-        let err = child.stderr.take().unwrap();
-        let err = std::thread::spawn(move || {
-            let mut s = String::new();
-            let _ = { err }.read_to_string(&mut s);
-            s
-        });
-        if args[0] == "watch" {
-            // Something to print: datagrams until it has gone.
-            let tx = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
-            let end = std::time::Instant::now() + common::DEADLINE;
-            while matches!(child.try_wait(), Ok(None)) && std::time::Instant::now() < end {
-                let _ = tx.send_to(b"not a snapshot", &from);
-                std::thread::sleep(Duration::from_millis(20));
-            }
-        }
-        let status = wait_exit(&mut child);
-        let err = err.join().unwrap();
-        let err: String = err
-            .lines()
-            .filter(|l| !l.starts_with("adrive watch: listening"))
-            .collect();
-        assert_eq!(status, Some(0), "{args:?}: {err}");
-        assert_eq!(err, "", "{args:?}");
-    }
-}
-
 /// The incident: with `adrive sim` running, `adrive ports` listed `/dev/pts/*` without
 /// saying which simulated device each is. Each of its pseudo-terminals is named by the
 /// device it simulates, with the simulator's process and the link a vehicle file names.
@@ -636,4 +578,177 @@ fn a_second_adrive_on_the_same_ports_is_refused_at_start_naming_the_holder() {
     assert!(matches!(first.try_wait(), Ok(None)));
     drop(first);
     sim.stop();
+}
+
+/// The incident: every `adrive sim` printed `gas <- 0.000  device watchdog: no command
+/// for 1s` a second after its start, as if a command had arrived, though nothing had
+/// talked to it; and a `--fault` given at start was applied without a word, where the
+/// same line typed is confirmed. Now a device that never heard a command stays quiet,
+/// one that did and then heard nothing says what it did by itself (no arrow: nothing
+/// arrived), and each `--fault` is confirmed as typed.
+#[test]
+fn sim_says_only_what_happened_at_start_and_confirms_each_fault_given() {
+    let (mut child, out) = sim_process(&["--only", "gas", "--fault", "slow gas 20"]);
+    let mut seen = until(&out, "Ctrl-C stops");
+    assert!(
+        seen.iter().any(|l| l == "gas: slow 20 ms"),
+        "the --fault is confirmed: {seen:#?}"
+    );
+    let path = seen[0].split_whitespace().nth(1).unwrap().to_string();
+    // Longer than its watchdog (1 s) with no command, then one command: the sentinel.
+    std::thread::sleep(Duration::from_millis(1500));
+    let alice = VehicleConfig::alice();
+    let gas = alice.device("gas").unwrap();
+    let mut link = driver::open_serial(&path, gas.baud, Duration::from_secs(2)).unwrap();
+    driver::build(gas)
+        .command(link.as_mut(), Command::Set(0.3))
+        .unwrap();
+    let before = until(&out, "<- 0.300");
+    assert_eq!(
+        before.len(),
+        1,
+        "nothing before the first command: {before:#?}"
+    );
+    // Then silence: its watchdog trips once, a second after that command.
+    seen = until(&out, "device watchdog");
+    let trip = seen.last().unwrap();
+    assert!(
+        trip.contains("gas") && trip.contains("no command for 1s; went to 0.000 by itself"),
+        "{trip}"
+    );
+    assert!(!trip.contains("<-"), "nothing arrived: {trip}");
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), Some(0));
+}
+
+/// A headless run on the simulated vehicle logs no device watchdog: adrive talks to
+/// every device it drives, and a device never commanded has nothing to time out.
+#[test]
+fn headless_sim_logs_no_device_watchdog_while_it_runs() {
+    let dir = tempdir("cli-watchdog");
+    let mut child = headless_sim(dir.path());
+    let err = lines(child.stderr.take().unwrap());
+    let mut seen = until(&err, "running headless");
+    // Past every simulated device's watchdog (1 s), then the sentinel: the stop.
+    std::thread::sleep(Duration::from_millis(2500));
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), Some(0));
+    seen.extend(err.iter());
+    let text = seen.join("\n");
+    assert!(text.contains("stopping: SIGINT"), "{text}");
+    assert!(
+        !text.contains("watchdog: no command") && !text.contains("going safe"),
+        "{text}"
+    );
+}
+
+/// The incident: `adrive sim --config vehicles/oscc.toml` answered `estop pause` with
+/// "estop is now pause" and `stall` with "engine stalled", though nothing of that
+/// vehicle reads an e-stop or the engine. Each is refused with what is missing, typed
+/// or given as `--fault`, and `help` lists them apart.
+#[test]
+fn sim_refuses_faults_of_what_the_vehicle_does_not_have() {
+    let (mut child, out) = sim_process(&["--config", "vehicles/oscc.toml"]);
+    let seen = until(&out, "Ctrl-C stops");
+    assert!(!seen.last().unwrap().contains("estop"), "{seen:#?}");
+    let stdin = child.stdin.as_mut().unwrap();
+    for line in [
+        "estop pause",
+        "stall",
+        "nostart on",
+        "jam steer",
+        "bias gas 0.2",
+    ] {
+        writeln!(stdin, "{line}").unwrap();
+    }
+    writeln!(stdin, "help").unwrap();
+    let text = until(&out, "DTC is a fault code").join("\n");
+    for refusal in [
+        "error: estop: no e-stop is bound on this vehicle (no device reads an e-stop state)",
+        "error: stall: no device of this vehicle reports the engine (its rpm, or whether it runs)",
+        "error: nostart: no device of this vehicle reports the engine",
+        "error: jam: steer is driven by a kit's module on bus kit, which has no drive fault latch",
+        "error: bias: nothing reports gas's position on this vehicle",
+        "  not on this vehicle: estop (no e-stop is bound",
+    ] {
+        assert!(text.contains(refusal), "{refusal}:\n{text}");
+    }
+    assert!(
+        !text.contains("estop is now") && !text.contains("engine stalled"),
+        "{text}"
+    );
+    signal(&child, libc::SIGINT);
+    assert_eq!(wait_exit(&mut child), Some(0));
+
+    let bad = common::output_within(
+        Process::new(BIN)
+            .args([
+                "sim",
+                "--config",
+                "vehicles/oscc.toml",
+                "--fault",
+                "estop pause",
+            ])
+            .current_dir(env!("CARGO_MANIFEST_DIR")),
+    );
+    assert_eq!(bad.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        err.contains("--fault \"estop pause\": estop: no e-stop is bound"),
+        "{err}"
+    );
+}
+
+/// The incident: `adrive sim` printed `(modbus, 115200 baud)` where the guide shows
+/// `(Modbus, 115200 baud)`. Each protocol has one display name: what the binary prints
+/// for Alice's devices and the OSCC kit's adapter, and what every sample of those lines
+/// in the guide shows.
+#[test]
+fn sim_names_each_protocol_as_the_guide_does() {
+    let mut shown = std::collections::BTreeSet::new();
+    for args in [&[][..], &["--config", "vehicles/oscc.toml"][..]] {
+        let (mut child, out) = sim_process(args);
+        for line in until(&out, "Ctrl-C stops") {
+            if let Some((_, rest)) = line.split_once("  (") {
+                shown.insert(rest.split(',').next().unwrap().to_string());
+            }
+        }
+        signal(&child, libc::SIGINT);
+        assert_eq!(wait_exit(&mut child), Some(0));
+    }
+    let want: std::collections::BTreeSet<String> = ["ELM327", "Modbus", "SLCAN", "line"]
+        .map(String::from)
+        .into();
+    assert_eq!(shown, want);
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut pages: Vec<_> = std::fs::read_dir(root.join("docs"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|x| x == "md"))
+        .collect();
+    pages.push(root.join("README.md"));
+    let mut samples = 0;
+    for page in pages {
+        let text = std::fs::read_to_string(&page).unwrap();
+        for (n, line) in text.lines().enumerate() {
+            let Some((_, rest)) = line.split_once("-> /dev/pts/") else {
+                continue;
+            };
+            let Some((_, named)) = rest.split_once("  (") else {
+                continue;
+            };
+            samples += 1;
+            let name = named.split(',').next().unwrap();
+            assert!(
+                shown.contains(name),
+                "{}:{}: `{name}` is not how adrive sim names a protocol ({shown:?})",
+                page.display(),
+                n + 1
+            );
+        }
+    }
+    assert!(
+        samples >= 3,
+        "the guide's samples of adrive sim's lines were found"
+    );
 }

@@ -34,7 +34,7 @@ fn adrive(args: &[&str], config: Option<&Path>, dir: &Scratch) -> Output {
     if let Some(c) = config {
         cmd.arg("--config").arg(c);
     }
-    cmd.output().unwrap()
+    common::output_within(&mut cmd)
 }
 
 fn stderr(out: &Output) -> String {
@@ -88,7 +88,7 @@ fn a_device_without_a_port_is_refused_outside_sim() {
 }
 
 /// A missing `key_file` named the key's path but not the vehicle file's line, and
-/// printed the OS error twice.
+/// printed the OS error twice: it names both, and says what is wrong once.
 #[test]
 fn a_missing_key_file_names_the_vehicle_file_line_and_the_os_error_once() {
     let dir = Scratch::new();
@@ -102,13 +102,13 @@ fn a_missing_key_file_names_the_vehicle_file_line_and_the_os_error_once() {
     let key = dir.0.path().join("missing.key");
     assert!(
         err.contains(&format!(
-            "{}:5: [network] key_file: {}: No such file or directory (os error 2)",
+            "{}:5: [network] key_file: {}: no such file",
             path.display(),
             key.display()
         )),
         "{err}"
     );
-    assert_eq!(err.matches("os error").count(), 1, "{err}");
+    assert_eq!(err.matches("no such file").count(), 1, "{err}");
 }
 
 /// `adrive send --key short.key` said why twice.
@@ -321,4 +321,67 @@ fn ros2_without_the_feature_says_how_to_build_it() {
             && err.contains("cargo build --release --features ros2"),
         "{err}"
     );
+}
+
+/// The incident: `adrive send bogus-verb 1` said "the devices are  (got …)", an empty
+/// list, and the keywords it offered left out `release` and `clear`.
+#[test]
+fn send_with_a_word_that_is_no_device_nor_keyword_says_what_a_line_is() {
+    let out = Command::new(BIN)
+        .args(["send", "bogus-verb", "1"])
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("unknown_verb: a line is a device (lowercase letters, digits and _) and a value, separated by a space (steer 0.2), or accel, engage, disengage, release, clear, seq or tag (got \"bogus-verb\")"),
+        "{err}"
+    );
+    assert!(!err.contains("are  ") && !err.contains("()"), "{err}");
+}
+
+/// The incident: a vehicle named with an escape sequence was accepted, and the escape
+/// reached the terminal in every log line. It is refused at its line, escaped.
+#[test]
+fn a_vehicle_name_with_an_escape_sequence_is_refused_at_its_line() {
+    let dir = Scratch::new();
+    let v = dir.file(
+        "v.toml",
+        VEHICLE.replace("name = \"bench\"", "name = \"bench\\u001b[2J\""),
+    );
+    let out = adrive(&["--sim", "--headless"], Some(&v), &dir);
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "{}:2: vehicle name \"bench\\u{{1b}}[2J\": expected printable text on one line",
+            v.display()
+        )),
+        "{err}"
+    );
+    assert!(!err.contains('\x1b'), "{err:?}");
+}
+
+/// The incident: an empty DBC file was reported as `no message "STEERING_COMMAND" (it
+/// has )`. It is refused as a DBC error, at the file and line, saying it has no
+/// messages.
+#[test]
+fn an_empty_dbc_is_refused_saying_it_has_no_messages() {
+    let dir = Scratch::new();
+    let oscc =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml"))
+            .unwrap();
+    let v = dir.file("oscc.toml", oscc);
+    let dbc = dir.file("oscc.dbc", "");
+    let out = common::output_within(Command::new(BIN).args(["sim", "--config"]).arg(&v));
+    let err = stderr(&out);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "bus kit: dbc: {}:1: the file has no messages",
+            dbc.display()
+        )),
+        "{err}"
+    );
+    assert!(!err.contains("(it has )"), "{err}");
 }

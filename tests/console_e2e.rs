@@ -82,6 +82,7 @@ impl Console {
             .arg("--log-dir")
             .arg(&log_dir)
             .env("XDG_RUNTIME_DIR", &log_dir)
+            .env("TMPDIR", &log_dir)
             .env_remove("RUNTIME_DIRECTORY")
             .env_remove("TMUX")
             .env_remove("STY")
@@ -217,7 +218,7 @@ impl Console {
             // The outcome of this `y`: the frame that closed the question says it (a
             // refusal still on the screen from the last try is not it).
             let s = self.wait_for("the engage outcome", engage_answered);
-            if s.contains("engaged: the console commands") {
+            if common::engaged(&s) {
                 self.wait_for("the header", |s| s.contains("│ ENGAGED"));
                 return;
             }
@@ -275,6 +276,18 @@ fn keys_engage_and_steer_and_q_leaves_the_terminal_and_vehicle_safe() {
         Console::steer_position(s).is_some_and(|p| p > 0.45)
     });
     assert!(s.contains("meas 0.5") || s.contains("meas 0.4"), "{s}");
+    // Disengage, and again: the second is answered as the network and `adrive ctl`
+    // answer it.
+    c.keys("D");
+    c.wait_for("the confirmation", |s| s.contains("Disengage?"));
+    c.keys("y");
+    c.wait_for("disengaged", |s| s.contains("DISENGAGED"));
+    c.keys("D");
+    c.wait_for("the confirmation", |s| s.contains("Disengage?"));
+    c.keys("y");
+    c.wait_for("the same answer as every front end's", |s| {
+        s.contains("already disengaged")
+    });
     c.keys("q");
     let status = c.wait_exit();
     assert!(status.success(), "{status:?}");
@@ -917,6 +930,44 @@ fn the_bench_of_a_can_kit_module_shows_its_bus() {
     assert!(status.success(), "{status:?}\n{}", c.log());
 }
 
+/// The incident: on the OSCC kit, which has no e-stop and reports no engine, the bench
+/// offered `p` (e-stop pause), `K` (engine stall) and `J` (jam), each answered success,
+/// and the simulator box then showed `e-stop pause · ENGINE STOPPED`, states that do not
+/// exist. The box offers only the keys the simulator takes on this vehicle, shows only
+/// what the vehicle has (the module's state), and each such key is refused with what
+/// is missing.
+#[test]
+fn the_bench_of_a_can_kit_offers_only_the_faults_the_vehicle_has() {
+    let mut c = Console::start("can-sim-keys", &["--config", "vehicles/oscc.toml"]);
+    c.wait_for("the kit's modules", |s| {
+        s.contains("STEER") && s.contains("CAR")
+    });
+    c.keys("x");
+    let s = c.wait_for("the steering's bench with its simulator box", |s| {
+        s.contains("steering module disabled") && s.contains("driver's hand")
+    });
+    for absent in ["e-stop", "engine", "jam steering"] {
+        assert!(!s.contains(absent), "{absent} shown:\n{s}");
+    }
+    c.keys("p");
+    c.wait_for("the e-stop key refused", |s| {
+        s.contains("sim: estop: no e-stop is bound on this vehicle")
+    });
+    c.keys("K");
+    c.wait_for("the stall key refused", |s| {
+        s.contains("sim: stall: no device of this vehicle reports the engine")
+    });
+    c.keys("J");
+    c.wait_for("the jam key refused", |s| {
+        s.contains("sim: jam: steer is driven by a kit's module")
+    });
+    c.keys("\x1b");
+    c.wait_for("the main screen", |s| s.contains("│ MAIN │"));
+    c.keys("q");
+    let status = c.wait_exit();
+    assert!(status.success(), "{status:?}\n{}", c.log());
+}
+
 /// `adrive ctl` on the console's control socket; its standard output.
 fn ctl(c: &Console, args: &[&str]) -> String {
     let out = ctl_output(c, args);
@@ -1498,7 +1549,7 @@ fn inside_a_real_tmux_the_round_trip_is_answered_by_tmux_and_the_header_says_lin
         t.wait_for("the question", |s| s.contains("Engage?"));
         t.keys("y");
         let s = t.wait_for("the answer", engage_answered);
-        if s.contains("engaged: the console commands") {
+        if common::engaged(&s) {
             break;
         }
         assert!(Instant::now() < end, "could not engage:\n{s}");

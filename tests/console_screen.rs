@@ -14,8 +14,8 @@ use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
 use adrive::engine::Gate;
 use adrive::logging::ring::LogRing;
+use adrive::port::trace::Dir;
 use adrive::testkit;
-use adrive::vehicle::trace::Dir;
 use adrive::vehicle::Vehicle;
 use ratatui::backend::TestBackend;
 use ratatui::buffer::Buffer;
@@ -253,7 +253,9 @@ fn teleop_shows_the_deadman() {
     // disengaged), and the console shows it reversed in red. Five seconds after the
     // fixture's readings, not after the clock reads now: the estimate's σ on the
     // screen grows with that time, and the test's own run time must not change it.
+    // The console's terminal answered its round trips all along: only keys stopped.
     let later = f.now + Duration::from_secs(5);
+    f.gate.answered(adrive::value::Source::Console, later);
     let why = f.gate.watch(later).expect("the deadman trips");
     assert!(why.starts_with("deadman"), "{why}");
     assert!(!f.gate.is_engaged());

@@ -118,6 +118,7 @@ fn mask(text: &str) -> String {
 fn generate() -> BTreeMap<&'static str, String> {
     let mut s = BTreeMap::new();
     drive(&mut s);
+    replay_check(&mut s);
     cart_start(&mut s);
     config_errors(&mut s);
     s
@@ -259,9 +260,12 @@ fn drive(s: &mut BTreeMap<&'static str, String>) {
     sim.wait_after(started, &["trans", "<-", "drive"]);
     let out = planner.wait_with_output().unwrap();
     let replies = String::from_utf8_lossy(&out.stdout).to_string();
+    // The engage, and the first `accel` refused while the gearbox shifts.
+    let engaged = pick(&replies, |l| l.contains("ok engaged"));
+    let shifting = pick(&replies, |l| l.contains("accel_while_shifting"));
     s.insert(
         "send-reply",
-        pick(&replies, |l| l.contains("ok engaged")).join("\n"),
+        [&engaged[..1], &shifting[..1]].concat().join("\n"),
     );
     let stopped = sim.mark();
     sim.wait_after(stopped, &["brake", "<-", "1.000"]);
@@ -362,6 +366,42 @@ fn drive(s: &mut BTreeMap<&'static str, String>) {
         .join("\n"),
     );
     sim.stop();
+}
+
+/// `adrive replay --check` on a drive of the test corpus (`tests/drives/alice.mcap`, see
+/// `tests/replay_check.rs`), beside its vehicle file and a copy whose steering is
+/// narrowed, as a user runs it.
+fn replay_check(s: &mut BTreeMap<&'static str, String>) {
+    let dir = common::tempdir("docs-check");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    std::fs::copy(
+        root.join("tests/drives/alice.mcap"),
+        dir.path().join("drive.mcap"),
+    )
+    .unwrap();
+    let alice = std::fs::read_to_string(root.join("vehicles/alice.toml")).unwrap();
+    std::fs::write(dir.path().join("vehicle.toml"), &alice).unwrap();
+    std::fs::write(
+        dir.path().join("narrow.toml"),
+        alice.replacen("range = [-1.0, 1.0]", "range = [-0.4, 0.4]", 1),
+    )
+    .unwrap();
+    let mut lines = Vec::new();
+    for (vehicle, status) in [("vehicle.toml", 0), ("narrow.toml", 1)] {
+        let out = Process::new(BIN)
+            .args(["replay", "drive.mcap", "--check", vehicle])
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        assert_eq!(out.status.code(), Some(status), "{out:?}");
+        lines.push(format!("$ adrive replay drive.mcap --check {vehicle}"));
+        lines.extend(
+            String::from_utf8_lossy(&out.stdout)
+                .lines()
+                .map(str::to_string),
+        );
+    }
+    s.insert("replay-check", lines.join("\n"));
 }
 
 /// One of `adrive sim`'s port lines, with the temporary directory as `/tmp`.

@@ -338,10 +338,15 @@ fn kill_9_leaves_the_vehicle_braked_by_the_device_watchdogs() {
     let mut planner = drive(&sim, &adrive);
     adrive.signal(libc::SIGKILL);
     assert_eq!(adrive.wait(), None, "killed by a signal");
-    let gas = sim.wait_for(&["gas", "<-", "0.000", "device watchdog"]);
-    let brake = sim.wait_for(&["brake", "<-", "1.000", "device watchdog"]);
+    let gas = sim.wait_for(&["gas", "device watchdog", "went to 0.000"]);
+    let brake = sim.wait_for(&["brake", "device watchdog", "went to 1.000"]);
     assert!(gas.contains("no command for 1s"), "{gas}");
     assert!(brake.contains("no command for 1s"), "{brake}");
+    // The device acted on its own: nothing arrived.
+    assert!(
+        !gas.contains("<-") && !brake.contains("<-"),
+        "{gas}\n{brake}"
+    );
     let _ = planner.kill();
     let _ = planner.wait();
 }

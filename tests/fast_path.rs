@@ -5,8 +5,8 @@
 
 mod common;
 
+use adrive::port::trace::Dir;
 use adrive::value::Command;
-use adrive::vehicle::trace::Dir;
 use adrive::vehicle::Device;
 use common::{steer_only, wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;

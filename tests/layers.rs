@@ -1,9 +1,12 @@
 //! The crate's layers, as docs/architecture.md draws them, checked in the source: the
-//! core (value, can, config, driver, vehicle, safety, engine, snapshot, supervisor) never
-//! imports a front end (console, net, ros2, record, socket, foxglove, headless, cli,
-//! sim), tests included, and inside the core every import points down the order
-//! below. Doc links are not imports; the few parts a lower layer carries from a higher
-//! one are listed in [`CARRIED`], each with its reason.
+//! core (value, can, config, snapshot, driver, port, vehicle, safety, engine,
+//! supervisor, and the test kit at its top) never imports a front end (console, net,
+//! ros2, record, socket, foxglove, headless, cli, sim), tests included, and inside the
+//! core every import points down the order below — with no exception. Doc links are
+//! not imports. A module's tests (its `#[cfg(test)]` module, or a file only tests
+//! compile) are checked like its code, except that they may use the test kit: the
+//! vehicle at rest that every layer's tests share, which builds the whole core and so
+//! sits at its top, where no code but a test reaches it.
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -15,39 +18,20 @@ const CORE: &[&str] = &[
     "config",
     "snapshot",
     "driver",
+    "port",
     "vehicle",
     "safety",
     "engine",
     "supervisor",
+    "testkit",
 ];
+
+/// The fixtures of every layer's tests, at the top of the core.
+const TESTKIT: &str = "testkit";
 
 /// Front ends and tools: the core never imports them.
 const FRONT: &[&str] = &[
     "console", "net", "ros2", "record", "socket", "foxglove", "headless", "cli", "sim",
-];
-
-/// Imports up the order that are by design: (file, path imported, why).
-const CARRIED: &[(&str, &str, &str)] = &[
-    (
-        "src/vehicle/device.rs",
-        "crate::engine::port",
-        "a device carries its port (the engine's leaf: driver, config, trace only)",
-    ),
-    (
-        "src/vehicle/device.rs",
-        "crate::engine::slot",
-        "a device carries its command slot (the engine's leaf: value and driver only)",
-    ),
-    (
-        "src/vehicle/mod.rs",
-        "crate::engine::port",
-        "the vehicle is built with each device's port opener",
-    ),
-    (
-        "src/safety/facts.rs",
-        "crate::engine::slot",
-        "the wire check reads what each slot has on its way (its WireState)",
-    ),
 ];
 
 fn files(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -91,6 +75,49 @@ fn imports(text: &str) -> Vec<(usize, String)> {
     out
 }
 
+/// Where the tests of `text` begin: the first line of a `#[cfg(test)]` module written
+/// inline (`mod tests {`), which by the crate's habit closes the file; `None` when it
+/// has none.
+fn tests_from(text: &str) -> Option<usize> {
+    let lines: Vec<&str> = text.lines().collect();
+    lines
+        .windows(2)
+        .position(|w| {
+            w[0].trim() == "#[cfg(test)]"
+                && w[1].starts_with("mod ")
+                && w[1].trim_end().ends_with('{')
+        })
+        .map(|i| i + 1)
+}
+
+/// The files only tests compile: those of modules declared `#[cfg(test)] mod NAME;`.
+fn test_files(all: &[PathBuf]) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for f in all {
+        let text = fs::read_to_string(f).unwrap();
+        let lines: Vec<&str> = text.lines().collect();
+        for w in lines.windows(2) {
+            let Some(name) = w[1]
+                .trim()
+                .strip_prefix("mod ")
+                .and_then(|m| m.strip_suffix(';'))
+            else {
+                continue;
+            };
+            if w[0].trim() != "#[cfg(test)]" {
+                continue;
+            }
+            // `a/mod.rs` or `a.rs` declares `a/NAME.rs`.
+            let dir = match f.file_name().and_then(|n| n.to_str()) {
+                Some("mod.rs" | "lib.rs") => f.parent().unwrap().to_path_buf(),
+                _ => f.with_extension(""),
+            };
+            out.push(dir.join(format!("{name}.rs")));
+        }
+    }
+    out
+}
+
 #[test]
 fn the_core_never_imports_a_front_end_and_imports_point_down() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
@@ -103,13 +130,25 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
         all.len(),
         src.display()
     );
+    let tests_only = test_files(&all);
+    assert!(
+        tests_only.iter().all(|f| all.contains(f)),
+        "test modules declared and not found: {tests_only:?}"
+    );
     let mut wrong = Vec::new();
+    let mut seen = std::collections::BTreeSet::new();
     for f in &all {
         let m = module(f);
         let Some(rank) = CORE.iter().position(|c| *c == m) else {
             continue;
         };
+        seen.insert(m.clone());
         let text = fs::read_to_string(f).unwrap();
+        let tests = if tests_only.contains(f) {
+            Some(0)
+        } else {
+            tests_from(&text)
+        };
         for (line, path) in imports(&text) {
             let target = path.split("::").nth(1).unwrap_or("");
             let file = f.display().to_string();
@@ -122,17 +161,35 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
             let Some(to) = CORE.iter().position(|c| *c == target) else {
                 continue;
             };
-            let carried = CARRIED
-                .iter()
-                .any(|(cf, cp, _)| *cf == file && path.starts_with(cp));
-            if to > rank && !carried {
+            let in_tests = tests.is_some_and(|t| line > t);
+            if to > rank && !(in_tests && target == TESTKIT) {
                 wrong.push(format!("{file}:{line}: {m} imports {path}, above it"));
             }
         }
     }
+    let missing: Vec<&&str> = CORE.iter().filter(|c| !seen.contains(**c)).collect();
+    assert!(missing.is_empty(), "no source for {missing:?}");
     assert!(
         wrong.is_empty(),
         "imports pointing up:\n{}",
         wrong.join("\n")
+    );
+}
+
+/// The test's own reading of the source: a module's tests start at its inline
+/// `#[cfg(test)]` module, and a file declared `#[cfg(test)] mod NAME;` is all tests.
+#[test]
+fn tests_are_told_from_code() {
+    let text =
+        "use crate::value::Command;\n\n#[cfg(test)]\nmod tests {\n    use crate::testkit;\n}\n";
+    assert_eq!(tests_from(text), Some(3));
+    assert_eq!(tests_from("#[cfg(test)]\nmod tests;\n"), None);
+    let here = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut all = Vec::new();
+    files(&here, &mut all);
+    let t = test_files(&all);
+    assert!(
+        t.iter().any(|f| f.ends_with("console/update/tests.rs")),
+        "{t:?}"
     );
 }

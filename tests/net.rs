@@ -46,6 +46,12 @@ impl NetRig {
         c.network.listen = "127.0.0.1:0".parse().unwrap();
         c.network.broadcast_to = vec![broadcast.local_addr().unwrap()];
         c.network.broadcast_rate = 50.0;
+        // These tests are about the network, not the devices' timing: a machine loaded
+        // by other builds must not make a device look silent (Alice's steering allows
+        // 250 ms) and refuse an engage.
+        for d in &mut c.devices {
+            d.status_max_age = d.status_max_age.max(Duration::from_secs(1));
+        }
         tweak(&mut c.network);
         let network = c.network.clone();
         let mut rig = Rig::with_config(c);
@@ -300,6 +306,30 @@ fn engage_is_refused_while_a_device_is_faulty_and_the_reasons_come_back() {
         .store(false, Relaxed);
     wait_for("gas to recover", || !gas.is_faulty());
     assert_eq!(a.ask(b"engage"), "ok engaged\n");
+}
+
+/// While a shift is under way the brake stays on, so positive `accel` sends nothing.
+/// A planner was told nothing of it (an accepted command gets no reply) and could not
+/// know its throttle did not go out; the reply now says so, in its own word, and the
+/// throttle goes once the shift is through.
+#[test]
+fn accel_during_a_shift_is_refused_in_its_own_words() {
+    let n = NetRig::start(long_watchdog);
+    n.ready();
+    let mut a = n.client();
+    assert_eq!(
+        a.ask(b"engage\ntrans drive\naccel 0.3"),
+        "ok engaged\nrejected accel 0.3: accel_while_shifting: no throttle until the shift \
+         is through (the brake stays on)\n"
+    );
+    let trans = n.rig.device("trans");
+    wait_for("drive", || trans.cached().reading.get(0) == Some(3.0));
+    let gas = n.rig.device("gas");
+    wait_for("the throttle, the shift through", || {
+        a.send_seq("accel 0.3");
+        std::thread::sleep(Duration::from_millis(20));
+        gas.slot().executed() == Some(set(0.3))
+    });
 }
 
 #[test]

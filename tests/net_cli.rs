@@ -280,3 +280,99 @@ fn send_to_nothing_listening_exits_1_once_or_at_a_rate() {
         "{help}"
     );
 }
+
+/// The incident: on a disengaged vehicle `adrive send disengage` answered "ok
+/// disengaged" and `adrive ctl disengage` "the vehicle was not engaged". Every front end
+/// gives the one answer of what the intake did (the network after `ok `).
+#[test]
+fn disengage_gets_the_same_answer_from_the_network_and_from_ctl() {
+    let adrive = Adrive::start("one-answer", ALICE_TOML, "");
+    let socket = adrive.dir.path().join("adrive/adrive.sock");
+    let ctl = |what: &str| {
+        let out = Process::new(BIN)
+            .args(["ctl", what, "--socket"])
+            .arg(&socket)
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+        )
+    };
+    let net = |what: &str| String::from_utf8_lossy(&adrive.send(&[what]).stdout).into_owned();
+    assert_eq!(net("disengage"), "ok already disengaged\n");
+    assert_eq!(ctl("disengage"), (Some(0), "already disengaged\n".into()));
+    common::wait_for("ctl engage to be accepted", || ctl("engage").0 == Some(0));
+    assert_eq!(net("disengage"), "ok disengaged\n");
+    common::wait_for("ctl engage to be accepted", || ctl("engage").0 == Some(0));
+    assert_eq!(ctl("disengage"), (Some(0), "disengaged\n".into()));
+}
+
+/// The incident: `--to localhost:47576` and `--listen localhost:…` were refused as
+/// "invalid socket address syntax", and `watch --from` an address of another host said
+/// only "os error 99". Every flag that takes an address takes a host name, and a bind
+/// that cannot happen says what the flag is for.
+#[test]
+fn address_flags_take_host_names_and_say_what_they_are_for() {
+    let adrive = Adrive::start("host-names", ALICE_TOML, "");
+    let port = adrive.listen.rsplit_once(':').unwrap().1.to_string();
+    let to = format!("localhost:{port}");
+    let out = Process::new(BIN)
+        .args(["send", "--to", &to, "disengage"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout),
+        "ok already disengaged\n"
+    );
+    // Options after the commands, as `adrive send NAME VALUE --to ADDR`.
+    let out = Process::new(BIN)
+        .args(["send", "disengage", "--to", &to])
+        .output()
+        .unwrap();
+    assert_eq!(
+        String::from_utf8_lossy(&out.stdout),
+        "ok already disengaged\n",
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+
+    // A headless adrive listening on a host name.
+    let dir = tempdir("listen-host");
+    let (mut child, seen, _) = common::headless_sim(
+        dir.path(),
+        &[
+            "--listen",
+            "localhost:0",
+            "--broadcast-to",
+            &format!("localhost:{}", free_port()),
+        ],
+    );
+    assert!(
+        seen.iter()
+            .any(|l| l.contains("network up listen=127.0.0.1:")),
+        "{seen:#?}"
+    );
+    signal(&child, libc::SIGTERM);
+    assert_eq!(common::wait_exit(&mut child), Some(0));
+
+    // Not an address of this host (TEST-NET-1): what --from is.
+    let out = Process::new(BIN)
+        .args(["watch", "--from", "192.0.2.1:47577"])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{e}");
+    assert!(
+        e.contains("--from 192.0.2.1:47577: 192.0.2.1 is not an address of this host; --from is where the broadcast is sent to"),
+        "{e}"
+    );
+    assert!(!e.contains("os error"), "{e}");
+    let out = Process::new(BIN)
+        .args(["send", "--to", "no-such-host.invalid:1", "disengage"])
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{e}");
+    assert!(e.contains("\"no-such-host.invalid\": no such host"), "{e}");
+}

@@ -67,13 +67,13 @@ pub enum EncodeError {
         signal: String,
         value: f64,
     },
-    #[error("{message} has no signal {signal:?} (it has {have})")]
+    #[error("{message} has no signal {signal:?} ({have})")]
     NoSuchSignal {
         message: String,
         signal: String,
         have: String,
     },
-    #[error("{message}.{signal} has no value named {name:?} (it has {have})")]
+    #[error("{message}.{signal} has no value named {name:?} ({have})")]
     NoSuchValue {
         message: String,
         signal: String,
@@ -133,6 +133,8 @@ pub struct Signal {
     /// The value table: raw value and name.
     values: Vec<(i64, String)>,
     line: usize,
+    /// The line of its value table (`VAL_`), or its own line without one.
+    values_line: usize,
 }
 
 fn mask(size: u16) -> u64 {
@@ -177,6 +179,10 @@ impl Signal {
     /// The value table, raw value and name.
     pub fn values(&self) -> &[(i64, String)] {
         &self.values
+    }
+    /// The line of the DBC file that gives its value table (`VAL_`), or its own line.
+    pub fn values_line(&self) -> usize {
+        self.values_line
     }
 
     /// The bit positions of the signal, least significant bit first, as the DBC numbers
@@ -407,8 +413,7 @@ impl Message {
     }
 
     fn signal_list(&self) -> String {
-        let names: Vec<&str> = self.signals.iter().map(|s| s.name.as_str()).collect();
-        names.join(", ")
+        it_has(self.signals.iter().map(|s| s.name.as_str()), "no signals")
     }
 
     /// The signals present in `frame` with their physical values: every plain signal,
@@ -461,12 +466,7 @@ impl Message {
             message: self.name.clone(),
             signal: signal.to_string(),
             name: name.to_string(),
-            have: s
-                .values
-                .iter()
-                .map(|(_, n)| n.as_str())
-                .collect::<Vec<_>>()
-                .join(", "),
+            have: it_has(s.values.iter().map(|(_, n)| n.as_str()), "no value table"),
         })?;
         s.set_raw(raw as u64 & mask(s.size), frame.data_mut());
         Ok(())
@@ -487,7 +487,7 @@ impl Database {
         let bytes = std::fs::read(path).map_err(|e| DbcError {
             path: name.clone(),
             line: 0,
-            message: format!("cannot read: {e}"),
+            message: crate::paths::cannot_read(path, &e),
         })?;
         let text = String::from_utf8(bytes).map_err(|e| {
             let at = e.utf8_error().valid_up_to();
@@ -538,6 +538,15 @@ impl Database {
                 err(line, said)
             }
         })?;
+        if dbc.messages.is_empty() {
+            // Nothing a vehicle file could map a device to.
+            return Err(err(
+                text.lines().count().max(1),
+                "the file has no messages: a DBC describes each with a BO_ line and its \
+                 signals with SG_ lines (e.g. `BO_ 112 BRAKE_COMMAND: 8 BRAKE`)"
+                    .into(),
+            ));
+        }
         let lines = Lines::of(text);
         let mut messages = Vec::new();
         for (index, m) in dbc.messages.iter().enumerate() {
@@ -645,6 +654,7 @@ impl Database {
                         .map(|d| (d.id, d.description.clone()))
                         .collect(),
                     line: sline,
+                    values_line: lines.values(m.id.raw(), &s.name).unwrap_or(sline),
                 };
                 let fits = u16::try_from(s.start_bit).ok().filter(|&b| b < 64 * 8);
                 signal.start_bit =
@@ -722,14 +732,25 @@ impl Database {
     /// The message named `name`, or an error naming the file and listing its messages
     /// (for a vehicle file that maps a device to a message).
     pub fn message_named(&self, name: &str) -> Result<&Message, DbcError> {
-        self.message(name).ok_or_else(|| {
-            let names: Vec<&str> = self.messages.iter().map(|m| m.name.as_str()).collect();
-            DbcError {
-                path: self.path.clone(),
-                line: 0,
-                message: format!("no message {name:?} (it has {})", names.join(", ")),
-            }
+        self.message(name).ok_or_else(|| DbcError {
+            path: self.path.clone(),
+            line: 0,
+            message: format!(
+                "no message {name:?} ({})",
+                it_has(self.messages.iter().map(|m| m.name.as_str()), "no messages")
+            ),
         })
+    }
+}
+
+/// `it has a, b, c` for a list of names, or `it has {none}` (`no signals`) when there
+/// is none: a message never ends in an empty list.
+fn it_has<'a>(names: impl Iterator<Item = &'a str>, none: &str) -> String {
+    let names: Vec<&str> = names.collect();
+    if names.is_empty() {
+        format!("it has {none}")
+    } else {
+        format!("it has {}", names.join(", "))
     }
 }
 
@@ -758,6 +779,9 @@ fn line_containing(text: &str, needle: &str) -> usize {
 struct Lines {
     /// Per message: its identifier as written, its line, and its signals' lines.
     messages: Vec<Entry>,
+    /// Each value table (`VAL_ ID SIGNAL …`): the identifier and signal it names, and
+    /// its line.
+    values: Vec<(u32, String, usize)>,
 }
 
 /// A message's identifier as written, its line, and its signals' names and lines.
@@ -766,10 +790,20 @@ type Entry = (u32, usize, Vec<(String, usize)>);
 impl Lines {
     fn of(text: &str) -> Lines {
         let mut messages: Vec<Entry> = Vec::new();
+        let mut values = Vec::new();
         let mut open = false;
         for (i, line) in text.lines().enumerate() {
             let mut words = line.split_whitespace();
             match words.next() {
+                Some("VAL_") => {
+                    open = false;
+                    if let (Some(id), Some(signal)) = (
+                        words.next().and_then(|w| w.parse::<u32>().ok()),
+                        words.next(),
+                    ) {
+                        values.push((id, signal.to_string(), i + 1));
+                    }
+                }
                 Some("BO_") => {
                     let id = words.next().and_then(|w| w.parse::<u32>().ok());
                     open = id.is_some();
@@ -786,7 +820,15 @@ impl Lines {
                 None => {}
             }
         }
-        Lines { messages }
+        Lines { messages, values }
+    }
+
+    /// The line of the value table of signal `name` of the message `raw`.
+    fn values(&self, raw: u32, name: &str) -> Option<usize> {
+        self.values
+            .iter()
+            .find(|(id, signal, _)| *id == raw && signal == name)
+            .map(|v| v.2)
     }
 
     /// The `index`th message of the file (the parser keeps file order), if its
@@ -1230,11 +1272,40 @@ SIG_VALTYPE_ 114 request : 1;
             Database::load(Path::new("/nonexistent/kit.dbc"))
                 .unwrap_err()
                 .to_string(),
-            "/nonexistent/kit.dbc: cannot read: No such file or directory (os error 2)"
+            "/nonexistent/kit.dbc: cannot read: no such file: /nonexistent does not exist"
         );
         assert_eq!(
             db().message_named("BRAKE").unwrap_err().to_string(),
             "test.dbc: no message \"BRAKE\" (it has MIXED, COMMAND, REPORT, EXT_MUX)"
+        );
+    }
+
+    /// The incident: an empty DBC file was reported as `no message "STEERING_COMMAND"
+    /// (it has )`. A file without messages is refused at its end, as other DBC errors
+    /// are, and no list the messages give is ever empty.
+    #[test]
+    fn a_dbc_without_messages_is_refused_and_no_list_is_empty() {
+        assert_eq!(
+            error_of(""),
+            "vehicles/kit.dbc:1: the file has no messages: a DBC describes each with a BO_ line and its signals with SG_ lines (e.g. `BO_ 112 BRAKE_COMMAND: 8 BRAKE`)"
+        );
+        assert!(error_of("VERSION \"\"\n\nBU_: KIT\n")
+            .starts_with("vehicles/kit.dbc:3: the file has no messages"));
+        let db = Database::parse(
+            "VERSION \"\"\n\nBU_: KIT\nBO_ 112 EMPTY: 8 KIT\nBO_ 113 ONE: 8 KIT\n SG_ s : 0|8@1+ (1,0) [0|255] \"\" KIT\n",
+            "t.dbc",
+        )
+        .unwrap();
+        let empty = db.message("EMPTY").unwrap();
+        assert_eq!(
+            empty.signal_named("s").unwrap_err().to_string(),
+            "EMPTY has no signal \"s\" (it has no signals)"
+        );
+        let one = db.message("ONE").unwrap();
+        let mut f = one.encode(&[]).unwrap();
+        assert_eq!(
+            one.set_named(&mut f, "s", "ON").unwrap_err().to_string(),
+            "ONE.s has no value named \"ON\" (it has no value table)"
         );
     }
 }

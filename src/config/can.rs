@@ -101,6 +101,7 @@ impl RawBus {
             .unwrap_or(Path::new(""))
             .join(&written);
         let dbc = Database::load(&path).map_err(|e| (at_dbc, format!("bus {name}: dbc: {e}")))?;
+        check_texts(&dbc).map_err(|e| (at_dbc, format!("bus {name}: dbc: {e}")))?;
         Ok(BusConfig {
             name,
             port: self.port,
@@ -109,6 +110,30 @@ impl RawBus {
             sim: self.sim,
         })
     }
+}
+
+/// The texts of a DBC file that adrive shows (the console's bus monitor, the snapshot,
+/// the logs): each signal's unit and the names of its value table are free text, held
+/// to the rule every name a person wrote is held to ([`super::device::check_text`]).
+fn check_texts(dbc: &Database) -> Result<(), String> {
+    for m in dbc.messages() {
+        for s in m.signals() {
+            let at = |line: usize, what: String| {
+                format!(
+                    "{}:{line}: signal {}.{}: {what}",
+                    dbc.path(),
+                    m.name(),
+                    s.name()
+                )
+            };
+            super::device::check_text("unit", s.unit(), true).map_err(|e| at(s.line(), e))?;
+            for (raw, value) in s.values() {
+                super::device::check_text(&format!("value {raw}"), value, false)
+                    .map_err(|e| at(s.values_line(), e))?;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// One signal of one message, and how a reading is made of it (value × scale).
@@ -571,6 +596,45 @@ readings = { enabled = "STEERING_REPORT.enabled", override = "STEERING_REPORT.op
         .unwrap_err()
         .to_string();
         assert!(e.contains("bad.dbc:4:"), "the DBC's file and line: {e}");
+    }
+
+    /// A DBC's units and value names are shown (the bus monitor, the snapshot, the
+    /// logs) as a vehicle file's names are: a control character in one (an escape
+    /// sequence, a newline) is refused at the DBC's line, as a vehicle name is.
+    #[test]
+    fn a_dbc_s_texts_with_a_control_character_are_refused_at_their_line() {
+        let oscc = include_str!("../../vehicles/oscc.dbc");
+        let dir = tempfile::tempdir().unwrap();
+        let at = dir.path().join("v.toml");
+        let refused = |dbc: String| {
+            std::fs::write(dir.path().join("kit.dbc"), dbc).unwrap();
+            parse(
+                &steer(GOOD).replace("oscc.dbc", "kit.dbc"),
+                at.to_str().unwrap(),
+            )
+            .unwrap_err()
+            .to_string()
+        };
+        let line_of = |needle: &str| oscc.lines().position(|l| l.contains(needle)).unwrap() + 1;
+        let table = "VAL_ 131 enabled 0 \"DISABLED\"";
+        let e = refused(oscc.replace(table, "VAL_ 131 enabled 0 \"DIS\u{1b}[2JABLED\""));
+        assert!(
+            e.contains(&format!(
+                "kit.dbc:{}: signal STEERING_REPORT.enabled: value 0 \"DIS\\u{{1b}}[2JABLED\": expected printable text on one line",
+                line_of(table)
+            )),
+            "{e}"
+        );
+        let unit = "\"km/h\"";
+        let e = refused(oscc.replacen(unit, "\"km\nh\"", 1));
+        assert!(
+            e.contains(&format!(
+                "kit.dbc:{}: signal KIA_SOUL_WHEEL_SPEED.wheel_speed_front_left: unit \"km\\nh\"",
+                line_of(unit)
+            )),
+            "{e}"
+        );
+        assert!(!e.contains('\n') && !e.contains('\x1b'), "{e:?}");
     }
 
     #[test]

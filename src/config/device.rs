@@ -13,18 +13,43 @@ use serde::Deserialize;
 use std::time::Duration;
 use toml::Spanned;
 
-/// Words of the command grammar that cannot name a device.
-pub(crate) const RESERVED: [&str; 9] = [
-    "accel",
-    "engage",
-    "disengage",
-    "clear",
-    "seq",
-    "tag",
-    "all",
-    "help",
-    "none",
-];
+/// Words of the console's and the simulator's commands that cannot name a device,
+/// beside the protocol's keywords ([`crate::value::Keyword`]).
+const RESERVED: [&str; 3] = ["all", "help", "none"];
+
+/// A word that cannot name a device: a keyword of the command protocol, or one of
+/// [`RESERVED`].
+fn reserved(name: &str) -> bool {
+    crate::value::Keyword::from_word(name).is_some() || RESERVED.contains(&name)
+}
+
+/// The longest free-text name (a vehicle's name, units, a key's description).
+pub(crate) const MAX_TEXT: usize = 64;
+
+/// A free-text name a person wrote (a vehicle's name, a device's units, a key's
+/// description), which adrive prints in its logs and on the terminal: printable text on
+/// one line, at most [`MAX_TEXT`] characters, and not blank unless `blank` allows it. A
+/// control character would split a log line (a newline) or reach the terminal (an
+/// escape sequence); a blank name shows as nothing.
+pub(crate) fn check_text(what: &str, text: &str, blank: bool) -> Result<(), String> {
+    let form = || {
+        format!(
+            "expected printable text on one line{}, at most {MAX_TEXT} characters",
+            if blank { "" } else { ", not blank" }
+        )
+    };
+    if let Some(c) = text.chars().find(|c| c.is_control()) {
+        return Err(format!(
+            "{what} {text:?}: {} ({:?} is a control character)",
+            form(),
+            c
+        ));
+    }
+    if (!blank && text.trim().is_empty()) || text.chars().count() > MAX_TEXT {
+        return Err(format!("{what} {text:?}: {}", form()));
+    }
+    Ok(())
+}
 
 /// The longest device or reading name.
 pub(crate) const MAX_NAME: usize = 32;
@@ -40,10 +65,15 @@ pub(crate) fn check_name(what: &str, name: &str) -> Result<(), String> {
             "{what} {name:?}: expected a name of lowercase letters, digits and _, starting with a letter, at most {MAX_NAME} characters (e.g. \"steer\", \"turn_signal\")"
         ));
     }
-    if RESERVED.contains(&name) {
+    if reserved(name) {
+        let mut words: Vec<&str> = crate::value::Keyword::ALL
+            .iter()
+            .map(|k| k.word())
+            .collect();
+        words.extend(RESERVED);
         return Err(format!(
             "{what} {name:?} is a word of the command grammar; choose another name (reserved: {})",
-            RESERVED.join(", ")
+            words.join(", ")
         ));
     }
     Ok(())
@@ -76,6 +106,7 @@ pub enum DriverKind {
 }
 
 impl DriverKind {
+    /// Its name in a vehicle file (`driver = "modbus"`).
     pub fn as_str(self) -> &'static str {
         match self {
             DriverKind::Line => "line",
@@ -83,6 +114,24 @@ impl DriverKind {
             DriverKind::Elm327 => "elm327",
             DriverKind::Can => "can",
         }
+    }
+
+    /// The protocol's name for a person, the one every output and the guide use: what
+    /// adrive speaks on the port (a CAN device's port is its bus's SLCAN adapter).
+    pub fn display_name(self) -> &'static str {
+        match self {
+            DriverKind::Line => "line",
+            DriverKind::Modbus => "Modbus",
+            DriverKind::Elm327 => "ELM327",
+            DriverKind::Can => "SLCAN",
+        }
+    }
+}
+
+/// [`DriverKind::display_name`].
+impl std::fmt::Display for DriverKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.display_name())
     }
 }
 
@@ -623,6 +672,7 @@ impl RawDevice {
             driver == DriverKind::Can,
         )?;
         let units = self.units.unwrap_or_default();
+        check_text("units", &units, true).map_err(|m| (at_name, format!("{name}: {m}")))?;
         if kind != Kind::Setpoint && !units.is_empty() {
             return Err((
                 at_name,
@@ -777,6 +827,12 @@ impl Of<'_> {
             return Err((at, format!("{name}: aliases are for state devices")));
         }
         for (word, target) in a.into_inner() {
+            if word.is_empty() || word.chars().any(|c| c.is_control() || c.is_whitespace()) {
+                return Err((
+                    at,
+                    format!("{name}: aliases: {word:?}: expected one word of printable characters (a command's value is one word)"),
+                ));
+            }
             let Some(target) = target.as_str() else {
                 return Err((
                     at,
@@ -1020,6 +1076,8 @@ fn reading_spec(
         }
         (None, None) => String::new(),
     };
+    check_text(&format!("reading {name}: units"), &units, true)
+        .map_err(|m| format!("{device}: {m}"))?;
     Ok(ReadingSpec {
         name,
         units,

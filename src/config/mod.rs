@@ -314,12 +314,8 @@ impl VehicleConfig {
         for n in only {
             if self.device(n).is_none() {
                 return Err(format!(
-                    "--only {n}: no such device (devices: {})",
-                    self.devices
-                        .iter()
-                        .map(|d| d.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
+                    "--only {n}: no such device ({})",
+                    device_list(&self.devices)
                 ));
             }
         }
@@ -370,7 +366,7 @@ impl VehicleConfig {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct RawVehicle {
-    name: String,
+    name: Spanned<String>,
     #[serde(default)]
     roles: Option<roles::RawRoles>,
     #[serde(default)]
@@ -408,7 +404,7 @@ pub fn load(path: &Path) -> Result<VehicleConfig, ConfigError> {
     let bytes = std::fs::read(path).map_err(|e| ConfigError {
         path: name.clone(),
         line: 0,
-        message: format!("cannot read: {e}"),
+        message: crate::paths::cannot_read(path, &e),
     })?;
     parse(document::utf8(&bytes, &name)?, &name)
 }
@@ -418,6 +414,9 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     let doc = Document::parse(text, path)?;
     let raw: Raw = toml::from_str(text).map_err(|e| doc.type_error(e.span(), e.message()))?;
     let lines = doc.lines();
+    let name_at = raw.vehicle.name.span().start;
+    let name = raw.vehicle.name.into_inner();
+    device::check_text("vehicle name", &name, false).map_err(|m| doc.error_at(name_at, m))?;
     let mut buses: Vec<can::BusConfig> = Vec::new();
     for b in raw.bus {
         let bus = b.check(path).map_err(|(o, m)| doc.error_at(o, m))?;
@@ -489,10 +488,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         .check()
         .map_err(|v| refuse(path, &lines, "teleop", v))?;
     Ok(VehicleConfig {
-        vehicle: VehicleSettings {
-            name: raw.vehicle.name,
-            placement,
-        },
+        vehicle: VehicleSettings { name, placement },
         roles,
         supervisor: raw.supervisor,
         devices,
@@ -505,6 +501,16 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         source: path.to_string(),
         lines,
     })
+}
+
+/// The devices of a file for a message: `devices: steer, gas`, or that it has none
+/// (never an empty list).
+pub(crate) fn device_list(devices: &[DeviceConfig]) -> String {
+    if devices.is_empty() {
+        return "the file has no [[device]]".into();
+    }
+    let names: Vec<&str> = devices.iter().map(|d| d.name.as_str()).collect();
+    format!("devices: {}", names.join(", "))
 }
 
 /// A violation inside `owner` (`device.steer`, `network`, `supervisor`) of the file at

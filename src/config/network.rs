@@ -116,12 +116,20 @@ impl FromStr for Allow {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
         let s = s.trim();
-        s.parse::<SocketAddr>()
-            .map(Allow::Addr)
-            .or_else(|_| s.parse::<IpAddr>().map(Allow::Ip))
-            .map_err(|_| {
-                format!("expected an IP address (\"10.0.0.5\") or address:port (\"10.0.0.5:9000\"), got {s:?}")
-            })
+        if let Ok(a) = s.parse::<SocketAddr>() {
+            return Ok(Allow::Addr(a));
+        }
+        if let Ok(ip) = s.parse::<IpAddr>() {
+            return Ok(Allow::Ip(ip));
+        }
+        let form = "expected an IP address or host (\"10.0.0.5\", \"planner.local\") or \
+                    address:port (\"10.0.0.5:9000\")";
+        match s.rsplit_once(':') {
+            Some((host, port)) if port.parse::<u16>().is_ok() => {
+                resolve(host, port.parse().unwrap_or(0), form).map(Allow::Addr)
+            }
+            _ => resolve(s, 0, form).map(|a| Allow::Ip(a.ip())),
+        }
     }
 }
 
@@ -149,30 +157,123 @@ fn listen<'de, D: Deserializer<'de>>(d: D) -> Result<SocketAddr, D::Error> {
 fn destinations<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<SocketAddr>, D::Error> {
     Vec::<String>::deserialize(d)?
         .iter()
-        .map(|s| {
-            s.trim().parse::<SocketAddr>().map_err(|_| {
-                serde::de::Error::custom(format!(
-                    "expected ADDRESS:PORT, a unicast address or a multicast group \
-                     (\"127.0.0.1:47577\", \"239.255.0.1:47577\"), got {s:?}"
-                ))
-            })
-        })
+        .map(|s| parse_destination(s).map_err(serde::de::Error::custom))
         .collect()
 }
 
-/// `--listen ADDR`: `ip:port`, or an IP alone for the default port.
+/// The one reading of an address a person writes, for every flag and key that takes
+/// one: `IP:PORT` (`127.0.0.1:47576`, `[::1]:47576`) or `HOST:PORT` (`localhost:47576`,
+/// resolved now, an IPv4 address preferred); with `default_port`, an IP or a host alone
+/// too. `form` says what is expected, for the error.
+fn parse_addr(s: &str, default_port: Option<u16>, form: &str) -> Result<SocketAddr, String> {
+    let s = s.trim();
+    if let Ok(a) = s.parse::<SocketAddr>() {
+        return Ok(a);
+    }
+    if let (Ok(ip), Some(port)) = (s.parse::<IpAddr>(), default_port) {
+        return Ok(SocketAddr::new(ip, port));
+    }
+    match s.rsplit_once(':') {
+        Some((host, port)) if !host.is_empty() && !host.contains(':') => {
+            let port = port
+                .parse::<u16>()
+                .map_err(|_| format!("{form}, got {s:?}: the port {port:?} is not 0 to 65535"))?;
+            resolve(host, port, form)
+        }
+        None if !s.is_empty() => match default_port {
+            Some(port) => resolve(s, port, form),
+            None => Err(format!("{form}, got {s:?}: give the port")),
+        },
+        _ => Err(format!("{form}, got {s:?}")),
+    }
+}
+
+/// `host`'s address (an IPv4 one if it has any) with `port`. Only a host name is looked
+/// up (letters, digits, `-` and `.`, with a letter): `10.0.0` is a mistyped address,
+/// not a name.
+fn resolve(host: &str, port: u16, form: &str) -> Result<SocketAddr, String> {
+    use std::net::ToSocketAddrs;
+    let name = host
+        .chars()
+        .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '.')
+        && host.chars().any(|c| c.is_ascii_alphabetic())
+        && !host.starts_with(['-', '.']);
+    if !name {
+        return Err(format!("{form}, got {host:?}"));
+    }
+    let found: Vec<SocketAddr> = (host, port)
+        .to_socket_addrs()
+        .map_err(|e| format!("{form}, got {host:?}: no such host ({e})"))?
+        .collect();
+    found
+        .iter()
+        .find(|a| a.is_ipv4())
+        .or(found.first())
+        .copied()
+        .ok_or_else(|| format!("{form}, got {host:?}: the host has no address"))
+}
+
+/// `--listen ADDR`, `[network] listen`: where this adrive takes commands.
 pub(crate) fn parse_listen(s: &str) -> Result<SocketAddr, String> {
-    s.parse::<SocketAddr>()
-        .or_else(|_| {
-            s.parse::<IpAddr>()
-                .map(|ip| SocketAddr::new(ip, DEFAULT_PORT))
-        })
-        .map_err(|_| {
-            format!(
-                "expected IP:PORT or an IP alone for port {DEFAULT_PORT} \
-                 (\"127.0.0.1:{DEFAULT_PORT}\", \"0.0.0.0\"), got {s:?}"
-            )
-        })
+    parse_addr(
+        s,
+        Some(DEFAULT_PORT),
+        &format!(
+            "expected IP:PORT or HOST:PORT, or an IP or host alone for port {DEFAULT_PORT} \
+             (\"127.0.0.1:{DEFAULT_PORT}\", \"localhost:{DEFAULT_PORT}\", \"0.0.0.0\")"
+        ),
+    )
+}
+
+/// An address another program listens on or a broadcast goes to (`send --to`,
+/// `watch --from`, `--broadcast-to`, `[network] broadcast_to`, `replay --broadcast`,
+/// `--foxglove`): `IP:PORT` or `HOST:PORT`, or a multicast group.
+pub(crate) fn parse_destination(s: &str) -> Result<SocketAddr, String> {
+    parse_addr(
+        s,
+        None,
+        "expected IP:PORT or HOST:PORT, a unicast address or a multicast group \
+         (\"127.0.0.1:47577\", \"localhost:47577\", \"239.255.0.1:47577\")",
+    )
+}
+
+/// `adrive send --to`: where an adrive takes commands (its `--listen`).
+pub(crate) fn parse_peer(s: &str) -> Result<SocketAddr, String> {
+    parse_addr(
+        s,
+        None,
+        "expected the adrive's --listen address, IP:PORT or HOST:PORT \
+         (\"127.0.0.1:47576\", \"localhost:47576\")",
+    )
+}
+
+/// `--foxglove ADDR`: where this adrive serves the live view.
+pub(crate) fn parse_serve(s: &str) -> Result<SocketAddr, String> {
+    parse_addr(
+        s,
+        None,
+        "expected an address of this host, IP:PORT or HOST:PORT \
+         (\"127.0.0.1:8765\", \"localhost:8765\", port 0: any free port)",
+    )
+}
+
+/// Why binding `addr` failed, for a person: `what` names the flag or key (`--listen`),
+/// `means` what it is for. An address that is not this host's (os error 99) is the
+/// usual mistake: the flag wants an address of this host.
+pub(crate) fn bind_error(what: &str, addr: SocketAddr, means: &str, e: &std::io::Error) -> String {
+    match e.kind() {
+        std::io::ErrorKind::AddrNotAvailable => format!(
+            "{what} {addr}: {} is not an address of this host; {means}",
+            addr.ip()
+        ),
+        std::io::ErrorKind::AddrInUse => format!(
+            "{what} {addr}: the port is in use by another program (another adrive?); {means}"
+        ),
+        std::io::ErrorKind::PermissionDenied => {
+            format!("{what} {addr}: permission denied (ports below 1024 need privileges); {means}")
+        }
+        _ => format!("{what} {addr}: {e}"),
+    }
 }
 
 #[cfg(test)]
@@ -218,7 +319,55 @@ mod tests {
             parse_listen("10.0.0.1:9").unwrap().to_string(),
             "10.0.0.1:9"
         );
-        assert!(parse_listen("anywhere").is_err());
+        assert!(parse_listen("anywhere.invalid").is_err());
+    }
+
+    /// The incident: `--to localhost:47576` and `--listen localhost:…` were refused as
+    /// "invalid socket address syntax". Every flag and key that takes an address reads
+    /// it the one way: a host name is looked up.
+    #[test]
+    fn a_host_name_is_resolved_wherever_an_address_is_taken() {
+        let local: SocketAddr = "127.0.0.1:47576".parse().unwrap();
+        assert_eq!(parse_listen("localhost:47576"), Ok(local));
+        assert_eq!(parse_listen("localhost"), Ok(local));
+        assert_eq!(
+            parse_destination("localhost:47577").unwrap().to_string(),
+            "127.0.0.1:47577"
+        );
+        assert_eq!(
+            "localhost".parse::<Allow>(),
+            Ok(Allow::Ip("127.0.0.1".parse().unwrap()))
+        );
+        assert_eq!(
+            "localhost:9000".parse::<Allow>(),
+            Ok(Allow::Addr("127.0.0.1:9000".parse().unwrap()))
+        );
+        let e = parse_destination("localhost").unwrap_err();
+        assert!(e.ends_with("got \"localhost\": give the port"), "{e}");
+        let e = parse_destination("localhost:http").unwrap_err();
+        assert!(e.contains("the port \"http\" is not 0 to 65535"), "{e}");
+        let e = parse_destination("10.0.0:5").unwrap_err();
+        assert!(e.starts_with("expected IP:PORT or HOST:PORT"), "{e}");
+        let e = parse_listen("no-such-host.invalid:1").unwrap_err();
+        assert!(e.contains("\"no-such-host.invalid\": no such host"), "{e}");
+        let vehicle = crate::config::parse(
+            "[vehicle]\nname = \"x\"\n[network]\nlisten = \"localhost:9\"\nbroadcast_to = [\"localhost:10\"]\nallow = [\"localhost\"]\n",
+            "v.toml",
+        )
+        .unwrap();
+        assert_eq!(vehicle.network.listen.to_string(), "127.0.0.1:9");
+        assert_eq!(vehicle.network.broadcast_to[0].to_string(), "127.0.0.1:10");
+        assert!(vehicle.network.allows("127.0.0.1:5".parse().unwrap()));
+    }
+
+    #[test]
+    fn a_bind_error_says_what_the_address_is_for() {
+        let addr: SocketAddr = "10.9.9.9:47577".parse().unwrap();
+        let e = std::io::Error::from(std::io::ErrorKind::AddrNotAvailable);
+        assert_eq!(
+            bind_error("--from", addr, "it is where the broadcast is sent to", &e),
+            "--from 10.9.9.9:47577: 10.9.9.9 is not an address of this host; it is where the broadcast is sent to"
+        );
     }
 
     #[test]
@@ -237,7 +386,7 @@ mod tests {
         );
         let e = err("broadcast_to = [\"127.0.0.1\"]\n");
         assert!(
-            e.starts_with("v.toml:5: [network] broadcast_to: expected ADDRESS:PORT"),
+            e.starts_with("v.toml:5: [network] broadcast_to: expected IP:PORT or HOST:PORT"),
             "{e}"
         );
         let e = err("allow = [\"10.0.0\"]\n");

@@ -321,12 +321,8 @@ impl Binder<'_> {
             return Err((
                 at,
                 format!(
-                    "roles: no device named {dev:?} (devices: {})",
-                    devices
-                        .iter()
-                        .map(|d| d.name.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
+                    "roles: no device named {dev:?} ({})",
+                    super::device_list(devices)
                 ),
             ));
         };

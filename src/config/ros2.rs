@@ -180,12 +180,16 @@ impl Ros2Config {
                 .filter(|s| d.state_index(s).is_none())
                 .collect();
             if !d.is_actuator() || !missing.is_empty() {
+                let why = if missing.is_empty() {
+                    format!("it is a {}", d.kind)
+                } else {
+                    format!("missing: {}", missing.join(", "))
+                };
                 return bad(
                     key,
                     format!(
-                        "{name} must be a state device with the states {} (missing: {})",
-                        states.join(", "),
-                        missing.join(", ")
+                        "{name} must be a state device with the states {} ({why})",
+                        states.join(", ")
                     ),
                 );
             }

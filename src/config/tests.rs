@@ -105,6 +105,76 @@ fn a_bad_name_or_an_unknown_field_is_refused() {
     assert!(e.contains("prot"), "{e}");
 }
 
+/// The incident: a vehicle named with a newline or an escape sequence, or with
+/// nothing, was accepted, and the headless log's lines split or the escape reached the
+/// terminal. Every free-text name in a vehicle file is refused as a device name is: at
+/// its line, the text quoted with its control characters escaped.
+#[test]
+fn a_free_text_name_with_a_control_character_or_blank_is_refused_at_its_line() {
+    for bad in ["two\\nlines", "red\\u001b[31m", "", "   ", &"x".repeat(65)] {
+        let e = error(&GOOD.replace("name = \"bench\"", &format!("name = \"{bad}\"")));
+        assert_eq!(line(&e), 3, "{e}");
+        assert!(
+            e.contains("vehicle name")
+                && e.contains(
+                    "expected printable text on one line, not blank, at most 64 characters"
+                ),
+            "{e}"
+        );
+        assert!(!e.contains('\x1b') && !e.contains('\n'), "{e:?}");
+    }
+    let e = error(&GOOD.replace("name = \"bench\"", "name = \"a\\u001b[2J\""));
+    assert!(e.contains("('\\u{1b}' is a control character)"), "{e}");
+    // Units, of a setpoint device and of a reading.
+    let e = error(&GOOD.replace(
+        "range = [-1.0, 1.0]",
+        "range = [-1.0, 1.0]\nunits = \"deg\\r\"",
+    ));
+    assert_eq!(line(&e), 6, "{e}");
+    assert!(e.contains("steer: units \"deg\\r\""), "{e}");
+    let sensor = format!(
+        "{GOOD}\n[[device]]\nname = \"bms\"\nkind = \"sensor\"\nreadings = [{{ name = \"volts\", units = \"V\\u0007\" }}]\ndriver = \"line\"\n"
+    );
+    let e = error(&sensor);
+    assert!(e.contains("bms: reading volts: units \"V\\u{7}\""), "{e}");
+    // An alias is one word a command can carry.
+    let state = format!(
+        "{GOOD}\n[[device]]\nname = \"trans\"\nkind = \"state\"\nstates = [\"park\", \"drive\"]\naliases = {{ \"d rive\" = \"drive\" }}\ndriver = \"line\"\n"
+    );
+    let e = error(&state);
+    assert!(
+        e.contains("trans: aliases: \"d rive\": expected one word"),
+        "{e}"
+    );
+    // What a vehicle file may write is still allowed.
+    let ok = parse(
+        &GOOD.replace("\"bench\"", "\"OSCC Kia Soul (°C, 2 m/s²)\""),
+        "v.toml",
+    )
+    .unwrap();
+    assert_eq!(ok.vehicle.name, "OSCC Kia Soul (°C, 2 m/s²)");
+}
+
+/// A list of names in a message is never empty: a file without devices says so.
+#[test]
+fn a_file_without_devices_says_so_where_a_message_lists_them() {
+    let mut bare = parse("[vehicle]\nname = \"x\"\n", "v.toml").unwrap();
+    assert_eq!(
+        bare.retain_only(&["steer".to_string()]).unwrap_err(),
+        "--only steer: no such device (the file has no [[device]])"
+    );
+    let e = error("[vehicle]\nname = \"x\"\n[vehicle.roles]\nsteering = \"steer\"\n");
+    assert!(
+        e.ends_with("roles: no device named \"steer\" (the file has no [[device]])"),
+        "{e}"
+    );
+    let mut good = parse(GOOD, "v.toml").unwrap();
+    assert_eq!(
+        good.retain_only(&["gas".to_string()]).unwrap_err(),
+        "--only gas: no such device (devices: steer)"
+    );
+}
+
 #[test]
 fn a_duplicate_name_points_at_the_second() {
     let twice = format!(

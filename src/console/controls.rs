@@ -15,12 +15,12 @@
 
 use crate::engine::Gate;
 use crate::net::NetStatus;
+use crate::port::trace::TraceEntry;
 use crate::safety::{Ask, Done, Held, Refused};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::Source;
 use crate::value::{Command, DeviceId};
-use crate::vehicle::trace::TraceEntry;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -78,6 +78,9 @@ pub struct Frame {
     pub sim_vehicle: Option<String>,
     /// The faults injected into each simulated device, by device (`--sim` only).
     pub sim_faults: Vec<Option<SimFaults>>,
+    /// What the simulator's commands may name and what the vehicle has for them
+    /// (`--sim` only): a bench key the simulator would refuse is not offered.
+    pub sim_names: Option<crate::sim::commands::Names>,
     /// An attached console: the source it is to the intake (`console #2`), to tell
     /// whether it commands or watches. `None` in the embedded console.
     pub(crate) you: Option<String>,
@@ -288,10 +291,12 @@ pub trait Controls {
     /// The key is still held: the running lease lasts `lease` from now. `Ok(false)`
     /// when it had run out (the engine ended the gas; only a new press gives it again).
     fn renew(&self, lease: Duration) -> Result<bool, Refused>;
-    fn engage(&self) -> Result<(), Refused>;
-    /// Disengage: never refused by the intake; `Err` when it could not be asked (an
-    /// attached console whose adrive did not answer).
-    fn disengage(&self) -> Result<(), Refused>;
+    /// Engage, as the console: what it did ([`Done`]'s words are the answer every
+    /// front end gives).
+    fn engage(&self) -> Result<Done, Refused>;
+    /// Disengage: what it did. Never refused by the intake; `Err` when it could not be
+    /// asked (an attached console whose adrive did not answer).
+    fn disengage(&self) -> Result<Done, Refused>;
     /// The operator's STOP: disengage, throttle 0, brake full — even while a driver
     /// has taken over ([`Gate::stop`]). Never refused by the intake; `Err` when it
     /// could not be asked (an attached console whose adrive did not answer).
@@ -348,31 +353,42 @@ pub struct Live<'a> {
     pub source: Source,
 }
 
-/// The simulated vehicle's state in words: `e-stop run · engine running · steer drive
-/// ok` (the drive of `device`, when it is a setpoint actuator).
-fn sim_vehicle(sim: &Sim, device: Option<&str>) -> String {
+/// The simulated vehicle's state in words, only what the vehicle has: `e-stop run ·
+/// engine running · steer drive ok` (the drive of `device`, when it is a setpoint
+/// actuator; for a kit's module, the module: `steering module enabled`).
+fn sim_vehicle(sim: &Sim, device: Option<&str>) -> Option<String> {
+    let has = sim.names().has;
+    let module = device.and_then(|n| sim.module_state(n));
+    let mut parts = Vec::new();
     let m = sim.model().lock();
-    let engine = if m.running {
-        "engine running"
-    } else {
-        "ENGINE STOPPED"
-    };
-    let mut out = format!("e-stop {} · {engine}", m.estop);
+    if has.estop {
+        parts.insert(0, format!("e-stop {}", m.estop));
+    }
+    if has.engine {
+        let engine = if m.running {
+            "engine running"
+        } else {
+            "ENGINE STOPPED"
+        };
+        parts.insert(usize::from(has.estop), engine.to_string());
+    }
     if let Some(d) = device.and_then(|n| m.find(n)).map(|id| m.device(id)) {
-        if d.kind == crate::value::Kind::Setpoint {
+        if let Some(module) = module {
+            parts.push(module);
+        } else if d.kind == crate::value::Kind::Setpoint {
             let drive = match (d.fault_latched, d.enabled, d.stuck) {
                 (true, _, _) => "FAULT LATCHED",
                 (false, false, _) => "disabled",
                 (false, true, true) => "stuck",
                 (false, true, false) => "ok",
             };
-            out.push_str(&format!(" · {} drive {drive}", d.name));
-            if let Some(x) = d.hand {
-                out.push_str(&format!(" · a hand pushes it toward {x}"));
-            }
+            parts.push(format!("{} drive {drive}", d.name));
+        }
+        if let Some(x) = d.hand {
+            parts.push(format!("a hand pushes it toward {x}"));
         }
     }
-    out
+    (!parts.is_empty()).then(|| parts.join(" · "))
 }
 
 /// Capture a frame of the vehicle behind `gate` as of `now`.
@@ -402,7 +418,8 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
         sim_vehicle: sources
             .sim
             .as_deref()
-            .map(|s| sim_vehicle(s, bench_dev.map(|d| d.name()))),
+            .and_then(|s| sim_vehicle(s, bench_dev.map(|d| d.name()))),
+        sim_names: sources.sim.as_deref().map(Sim::names),
         sim_faults: v
             .devices()
             .iter()
@@ -467,11 +484,11 @@ impl Controls for Live<'_> {
     fn renew(&self, lease: Duration) -> Result<bool, Refused> {
         self.ask(Ask::Renew(lease)).map(|d| d == Done::Commanded)
     }
-    fn engage(&self) -> Result<(), Refused> {
-        self.ask(Ask::Engage).map(drop)
+    fn engage(&self) -> Result<Done, Refused> {
+        self.ask(Ask::Engage)
     }
-    fn disengage(&self) -> Result<(), Refused> {
-        self.ask(Ask::Disengage).map(drop)
+    fn disengage(&self) -> Result<Done, Refused> {
+        self.ask(Ask::Disengage)
     }
     fn stop(&self) -> Result<(), Refused> {
         self.ask(Ask::Stop).map(drop)

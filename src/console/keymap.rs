@@ -380,6 +380,24 @@ pub enum SimAction {
     Override,
 }
 
+impl SimAction {
+    /// Every action a bench key may do.
+    pub const ALL: [SimAction; 12] = [
+        SimAction::Silent,
+        SimAction::Garbage,
+        SimAction::Corrupt,
+        SimAction::Slow,
+        SimAction::Vanish,
+        SimAction::Clear,
+        SimAction::Stall,
+        SimAction::Jam,
+        SimAction::Estop(EstopState::Pause),
+        SimAction::Estop(EstopState::Run),
+        SimAction::Estop(EstopState::Disable),
+        SimAction::Override,
+    ];
+}
+
 /// How late a "slow" simulated device replies.
 pub(crate) const SIM_SLOW: std::time::Duration = std::time::Duration::from_millis(150);
 /// How long a "vanished" simulated device stays away.
@@ -636,6 +654,9 @@ impl Keymap {
                     .get_ref()
                     .parse()
                     .map_err(|m| err(rec.run.span().start, m))?;
+                // A description is drawn on the terminal: printable text on one line.
+                crate::config::device::check_text("desc", &rec.desc, true)
+                    .map_err(|m| err(rec.on.span().start, m))?;
                 if modes[i].iter().any(|b| b.on == on) {
                     return Err(err(
                         rec.on.span().start,
@@ -701,7 +722,7 @@ impl Keymap {
         let text = std::fs::read_to_string(path).map_err(|e| KeymapError {
             path: name.clone(),
             line: 0,
-            message: format!("cannot read: {e}"),
+            message: crate::paths::cannot_read(path, &e),
         })?;
         let mut map = Keymap::default_map();
         map.merge(Keymap::parse(&text, &name)?);
@@ -947,6 +968,22 @@ mod tests {
         let text = "[main]\nkeymap = [\n  { on = \"g\", rn = \"quit\" },\n]\n";
         let e = Keymap::parse(text, "my.toml").unwrap_err();
         assert_eq!(e.line, 3, "{e}");
+
+        // A description reaches the terminal: an escape sequence or a newline in it
+        // is refused at its record.
+        for desc in ["\\u001b[2Jgone", "two\\nlines"] {
+            let text = format!(
+                "[main]\nkeymap = [\n  {{ on = \"g\", run = \"quit\", desc = \"{desc}\" }},\n]\n"
+            );
+            let e = Keymap::parse(&text, "my.toml").unwrap_err();
+            assert_eq!(e.line, 3, "{e}");
+            assert!(
+                e.message.contains("desc")
+                    && e.message.contains("expected printable text on one line"),
+                "{e}"
+            );
+            assert!(!e.to_string().contains('\x1b'), "{e:?}");
+        }
     }
 
     #[test]

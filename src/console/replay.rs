@@ -16,11 +16,11 @@ use super::update::{self, Flow};
 use crate::exit::Exit;
 use crate::logging::ring::LogLine;
 use crate::net::BROADCAST_MAX;
+use crate::port::trace::{Dir, TraceEntry, CAPACITY};
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
-use crate::safety::Refused;
+use crate::safety::{Done, Refused};
 use crate::value::{Command, DeviceId};
-use crate::vehicle::trace::{Dir, TraceEntry, CAPACITY};
 use crossbeam_channel::{select, Receiver};
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
 use ratatui::buffer::Buffer;
@@ -284,6 +284,7 @@ impl Player {
             read_only: true,
             sim_vehicle: None,
             sim_faults: vec![None; n],
+            sim_names: None,
             you: None,
             teleop: Default::default(),
         }
@@ -333,10 +334,10 @@ impl Controls for Replay<'_> {
     fn renew(&self, _: Duration) -> Result<bool, Refused> {
         Err(read_only())
     }
-    fn engage(&self) -> Result<(), Refused> {
+    fn engage(&self) -> Result<Done, Refused> {
         Err(read_only())
     }
-    fn disengage(&self) -> Result<(), Refused> {
+    fn disengage(&self) -> Result<Done, Refused> {
         Err(read_only())
     }
     fn stop(&self) -> Result<(), Refused> {

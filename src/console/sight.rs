@@ -53,6 +53,10 @@ pub struct Drawn {
     /// The bench's simulator box: the fault keys drawn in it. `None` where there is
     /// no box (the devices are not simulated here: the keys only say so).
     pub sim_keys: Option<Vec<SimAction>>,
+    /// The fault keys the box leaves out because this vehicle lacks what they act on
+    /// (an e-stop, an engine): nothing is hidden, and the simulator refuses each,
+    /// saying what is missing.
+    pub sim_absent: Vec<SimAction>,
 }
 
 impl Drawn {
@@ -64,6 +68,7 @@ impl Drawn {
         self.teleop = false;
         self.teleop_levels = false;
         self.sim_keys = None;
+        self.sim_absent.clear();
     }
 }
 
@@ -196,7 +201,12 @@ pub fn check(m: &Model, a: Action) -> Result<(), Unseen> {
         (Mode::Main, Action::ResetSteering) => device(m.snap.bound_id(Role::Steering)),
         (Mode::Bench, Action::Edit | Action::Wake(_)) => device(Some(m.bench)),
         (Mode::Bench, Action::Sim(s)) => match &d.sim_keys {
-            Some(keys) => seen(keys.contains(&s), Unseen::SimKey),
+            // A key the vehicle has no use for is answered by the simulator's
+            // refusal, which says what is missing.
+            Some(keys) => seen(
+                keys.contains(&s) || d.sim_absent.contains(&s),
+                Unseen::SimKey,
+            ),
             None => Ok(()),
         },
         _ => Ok(()),

@@ -495,11 +495,11 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
             m.mode = m.back_to;
             match q {
                 Some(Ask::Engage) => match c.engage() {
-                    Ok(()) => m.say("engaged: the console commands", false),
+                    Ok(done) => m.say(done.to_string(), false),
                     Err(why) => m.say(format!("engage refused: {why}"), true),
                 },
                 Some(Ask::Disengage) => match c.disengage() {
-                    Ok(()) => m.say("disengaged: gas 0, brake full", false),
+                    Ok(done) => m.say(done.to_string(), false),
                     Err(why) => m.say(format!("disengage not done: {why}"), true),
                 },
                 Some(Ask::Take) => match c.take() {

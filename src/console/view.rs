@@ -48,6 +48,21 @@ struct Grid {
 }
 
 impl Model {
+    /// The simulator keys the bench device's simulator would refuse: what they act on
+    /// is not in this vehicle (an e-stop, an engine, a drive of its own).
+    fn sim_refused(&self) -> Vec<crate::console::keymap::SimAction> {
+        let Some(names) = &self.snap.sim_names else {
+            return Vec::new();
+        };
+        crate::console::keymap::SimAction::ALL
+            .into_iter()
+            .filter(|&a| {
+                let line = crate::console::update::sim_line(self, a, self.bench);
+                crate::sim::commands::parse(&line, names).is_err()
+            })
+            .collect()
+    }
+
     /// Device `i`'s panel as the main screen shows it.
     fn panel(&self, i: usize, bordered: bool) -> Option<DevicePanel<'_>> {
         let id = DeviceId(i as u16);
@@ -373,12 +388,16 @@ pub fn draw(m: &Model, area: Rect, buf: &mut Buffer) -> Drawn {
                     .bus
                     .as_deref()
                     .and_then(|b| m.snap.buses.iter().find(|x| x.name == b)),
+                refused: m.sim_refused(),
             };
             let shown = v.render_seen(body, buf);
             if shown.panel.name {
                 seen.devices.push(m.bench);
             }
             seen.fields.extend(shown.panel.fields);
+            if shown.sim_keys.is_some() {
+                seen.sim_absent = v.refused;
+            }
             seen.sim_keys = shown.sim_keys;
         }
     } else {

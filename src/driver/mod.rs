@@ -257,6 +257,16 @@ pub(crate) fn send_request(
     Ok(deadline)
 }
 
+/// How long a device of this driver may take to give its first answer after its port
+/// opened because it searches the car's protocols first (an ELM327 adapter), if it
+/// does: such a device that has not reported yet is searching, not silent.
+pub fn protocol_search(kind: crate::config::DriverKind) -> Option<Duration> {
+    match kind {
+        crate::config::DriverKind::Elm327 => Some(elm327::SEARCH_TIMEOUT),
+        _ => None,
+    }
+}
+
 /// Build the driver a device's configuration asks for.
 pub fn build(config: &crate::config::DeviceConfig) -> Box<dyn Driver> {
     build_on(config, &[])

@@ -12,7 +12,7 @@
 //! - reads after a poll for input with the time left (the reply is rarely there yet);
 //! - flushes nothing (the kernel drains its buffer by itself; the reply comes after);
 //! - discards pending input with `tcflush` when the driver asks (the port itself
-//!   decides when that is needed: see [`crate::engine::port`]).
+//!   decides when that is needed: see [`crate::port`]).
 
 use super::Link;
 use rustix::event::{PollFd, PollFlags, Timespec};

@@ -71,7 +71,7 @@ pub(crate) fn reader_loop(v: &Vehicle, index: usize, stop: &StopSignal, beat: &B
                     v.devices()[i].port_health().missing.store(false, Relaxed);
                 }
                 tracing::info!(bus = bus.name(), port = %path, "adapter on the bus at {} bit/s", bus.bitrate().bits_per_second());
-                if !bus.engaged() {
+                if !bus.kits_enabled() {
                     disable_kits(v, bus, &on);
                 }
                 r
@@ -337,7 +337,7 @@ mod tests {
             &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml"),
         )
         .unwrap();
-        let bus = Bus::new(v.buses[0].clone());
+        let bus = Bus::new(v.buses[0].clone(), std::sync::Arc::default());
         let (mut adapter, host) = TTYPort::pair().expect("a pseudo-terminal pair");
         adapter.set_timeout(Duration::from_millis(20)).unwrap();
         // The late answer, there before anything is asked.

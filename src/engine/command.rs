@@ -1,6 +1,6 @@
 //! An actuator's command thread: the paper's design, kept. It sleeps on the device's
-//! slot ([`super::slot`]) until a command arrives, has it checked at the wire
-//! ([`crate::engine::Gate::check_wire`]), takes the port ([`super::port`]) and sends the
+//! slot ([`crate::port::slot`]) until a command arrives, has it checked at the wire
+//! ([`crate::engine::Gate::check_wire`]), takes the port ([`crate::port`]) and sends the
 //! newest command at once; with nothing new for `command_timeout` it sends the last one
 //! again. Commands are never queued: a newer one replaces one not yet sent. A command
 //! the admitting thread already wrote ([`super::fast`]) arrives with the port held: the
@@ -10,10 +10,10 @@
 //! next is due within [`turn_bound`]. A thread asleep on its slot legitimately waits up
 //! to `command_timeout`.
 
-use super::port::PortGuard;
-use super::slot::{Pending, Wake};
 use super::{Gate, WireStep};
 use crate::config::PortRule;
+use crate::port::slot::{Pending, Wake};
+use crate::port::PortGuard;
 use crate::threads::Beat;
 use crate::vehicle::stats::Stats;
 use crate::vehicle::Device;

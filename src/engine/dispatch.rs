@@ -1,7 +1,7 @@
 //! Dispatch: what an admitted command does to the devices. A command that passed the
 //! intake ([`super::intake`]) goes on the wire from the admitting thread when its port
 //! is idle ([`super::fast`]), else into the device's slot for its command thread
-//! ([`super::slot`], [`super::command`]). Engaging, disengaging, an operator's STOP, a
+//! ([`crate::port::slot`], [`super::command`]). Engaging, disengaging, an operator's STOP, a
 //! driver's override and every way out store the safe (or manual) state the same way.
 //! Right before a command goes out its command thread asks [`Gate::check_wire`]; a wait
 //! it asks for ([`Gate::wait_for`]) happens here, without the port held.
@@ -9,7 +9,8 @@
 use super::fast::{self, Sent};
 use super::Gate;
 use crate::config::Role;
-use crate::safety::{facts, gate::check_value, rules, Plays, Reject, Verdict, Wait};
+use crate::safety::accel::{Pedal, Plan};
+use crate::safety::{facts, Reject, Seen, Verdict, Wait};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::stats::Stats;
 use crate::vehicle::tap::{Asked, GateChange, Source};
@@ -106,7 +107,7 @@ impl Gate {
             d.slot().reset(None);
         }
         // Kits enable after the safe command, never before it.
-        v.set_kits_engaged(true);
+        self.state().engaging();
         self.command_safe_state();
         self.kits_follow(true, &self.state().stop_state(v));
         if let Some(s) = v.bound(Role::Steering) {
@@ -143,9 +144,8 @@ impl Gate {
         set: impl FnOnce(&crate::safety::GateState) -> bool,
         state: Vec<(DeviceId, Command)>,
     ) -> bool {
+        // Kits disable with it ([`GateState::engaging`]), after the safe command.
         let was = set(self.state());
-        // Kits disable after the safe command.
-        self.vehicle().set_kits_engaged(false);
         let now = Instant::now();
         for &(id, c) in &state {
             self.store(self.vehicle().device(id), c, now);
@@ -185,11 +185,25 @@ impl Gate {
     /// command was born (socket read, key press). A rejected command never reaches the
     /// slot.
     pub fn submit(&self, id: DeviceId, command: Command, received: Instant) -> Result<(), Reject> {
+        self.submit_seen(id, command, received).0
+    }
+
+    /// [`Gate::submit`], and what its decision saw (for the recording).
+    pub(crate) fn submit_seen(
+        &self,
+        id: DeviceId,
+        command: Command,
+        received: Instant,
+    ) -> (Result<(), Reject>, Option<Seen>) {
         let Some(d) = self.vehicle().devices().get(id.index()) else {
-            return Err(self.reject(None, Some(command), Reject::NoSuchDevice));
+            return (
+                Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
+                None,
+            );
         };
-        if let Err(why) = self.state().check(self.vehicle(), d, command) {
-            return Err(self.reject(Some(d), Some(command), why));
+        let (done, seen) = self.state().decided(self.vehicle(), d, command);
+        if let Err(why) = done {
+            return (Err(self.reject(Some(d), Some(command), why)), Some(seen));
         }
         self.dispatch(d, command, received);
         // A disengage that raced this command (it checks the gate, then stores): the
@@ -197,7 +211,7 @@ impl Gate {
         if !self.is_engaged() {
             self.command_safe_state();
         }
-        Ok(())
+        (Ok(()), Some(seen))
     }
 
     /// An admitted command on its way: written from this thread when its port is idle
@@ -221,77 +235,47 @@ impl Gate {
     }
 
     /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
-    /// throttle, negative is brake; it never applies both. It is admitted or refused as
-    /// a whole ([`rules::check_accel`]): a refused `accel` leaves both slots exactly as
-    /// they were. Going from braking to throttle, the release is stored and the
-    /// throttle with it: the throttle's command thread holds it back until the release
-    /// has reached the brake ([`Wait::BrakeReleased`]), so one `accel` is enough. While
-    /// a shift is under way the brake holds and positive `accel` waits. Needs throttle
-    /// and brake bound.
+    /// throttle, negative is brake; it never applies both. Safety decides it as a whole
+    /// ([`crate::safety::accel`]): refused, both slots stay exactly as they were;
+    /// admitted, its plan goes out, the brake's release first when throttle follows it.
+    /// Needs throttle and brake bound.
     pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
+        self.submit_accel_seen(a, received).0
+    }
+
+    /// [`Gate::submit_accel`], and what its decision saw (for the recording).
+    pub(crate) fn submit_accel_seen(
+        &self,
+        a: f64,
+        received: Instant,
+    ) -> (Result<(), Reject>, Option<Seen>) {
         let v = self.vehicle();
+        let Some((done, seen)) = self.state().decided_accel(v, a) else {
+            return (Err(self.reject(None, None, Reject::NoSuchDevice)), None);
+        };
         let b = v.bindings();
-        let (Some(tid), Some(bid)) = (b.throttle, b.brake) else {
-            return Err(self.reject(None, None, Reject::NoSuchDevice));
+        let pedal = |p: Pedal| match p {
+            Pedal::Throttle => b.throttle.map(|id| v.device(id)),
+            Pedal::Brake => b.brake.map(|id| v.device(id)),
         };
-        let (t, br) = (v.device(tid), v.device(bid));
-        let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
-        let top = |d: &Device| d.config().range[1];
-        let parts = [
-            (br, Command::Set(brake * top(br))),
-            (t, Command::Set(throttle * top(t))),
-        ];
-        for (d, c) in parts {
-            let why = if !a.is_finite() {
-                Err(Reject::NotFinite)
-            } else if !(-1.0..=1.0).contains(&a) {
-                Err(Reject::OutOfRange)
-            } else {
-                check_value(d, c)
-            };
-            if let Err(why) = why {
-                return Err(self.reject(Some(d), Some(c), why));
+        let plan = match done {
+            Ok(plan) => plan,
+            Err(r) => {
+                if r.why == Reject::AccelWhileShifting {
+                    tracing::debug!("accel {a}: the brake holds until the shift is through");
+                }
+                return (Err(self.reject(pedal(r.at), r.command, r.why)), Some(seen));
             }
-        }
-        if !self.is_engaged() {
-            return Err(self.reject(Some(t), None, Reject::Disengaged));
-        }
-        if self.is_recovering(tid) || self.is_recovering(bid) {
-            return Err(self.reject(Some(t), None, Reject::Recovering));
-        }
-        if self.interlocks_on() {
-            let both = Plays {
-                throttle: true,
-                brake: true,
-                ..Plays::default()
-            };
-            let facts = facts::gather(v, both);
-            if a > 0.0 && facts.shifting {
-                tracing::debug!("accel {a}: the brake holds until the shift is through");
-                return Ok(());
-            }
-            if let Err(why) = rules::check_accel(&facts, self.rules(), a) {
-                let at = if why.needs().first() == Some(&Role::Brake) {
-                    br
-                } else {
-                    t
-                };
-                return Err(self.reject(Some(at), None, why));
-            }
-        }
-        // Both parts pass: the brake's first (a release the throttle follows, or the
-        // throttle's release before braking), then the other.
-        let (first, second) = if a > 0.0 {
-            (parts[0], parts[1])
-        } else {
-            (parts[1], parts[0])
         };
-        self.dispatch(first.0, first.1, received);
-        self.dispatch(second.0, second.1, received);
+        for (p, share) in plan.order() {
+            if let Some(d) = pedal(p) {
+                self.dispatch(d, Plan::command(d.config(), share), received);
+            }
+        }
         if !self.is_engaged() {
             self.command_safe_state();
         }
-        Ok(())
+        (Ok(()), Some(seen))
     }
 
     /// The supervisor's own commands: past the gate and the intake interlocks (the
@@ -299,7 +283,13 @@ impl Gate {
     pub fn supervise(&self, id: DeviceId, command: Command) {
         let now = Instant::now();
         self.store(self.vehicle().device(id), command, now);
-        self.tap_received(Source::Supervisor, Asked::Device(id, command), now, Ok(()));
+        self.tap_received(
+            Source::Supervisor,
+            Asked::Device(id, command),
+            now,
+            Ok(()),
+            None,
+        );
     }
 
     /// The wire check for the command `d`'s thread has in flight: send it (or what
@@ -311,14 +301,10 @@ impl Gate {
             .state()
             .wire_verdict(self.vehicle(), d, command, waited)
         {
-            Verdict::Send(_) => WireStep::Send(command),
+            Verdict::Send(c) => WireStep::Send(c),
             Verdict::Replace(c, why) => {
                 self.reject(Some(d), Some(command), why);
-                // The rules replace with "released": the bottom of the range.
-                WireStep::Send(match c {
-                    Command::Set(_) => Command::Set(d.config().range[0]),
-                    other => other,
-                })
+                WireStep::Send(c)
             }
             Verdict::Drop(why) => {
                 self.reject(Some(d), Some(command), why);
@@ -328,47 +314,19 @@ impl Gate {
         }
     }
 
-    /// Do what a [`WireStep::Wait`] asks, bounded by two reply timeouts of the device
-    /// waited for.
+    /// Do what a [`WireStep::Wait`] asks ([`facts::awaited`]: first the throttle's
+    /// release, where that is what it waits for), bounded by two reply timeouts of the
+    /// device waited for.
     pub fn wait_for(&self, w: Wait) {
-        let v = self.vehicle();
-        let b = v.bindings();
-        match w {
-            Wait::ThrottleReleased => {
-                let Some(t) = b.throttle.map(|id| v.device(id)) else {
-                    return;
-                };
-                let wire = t.slot().wire();
-                let going = [wire.pending, wire.flight]
-                    .into_iter()
-                    .flatten()
-                    .filter_map(Command::set_point)
-                    .any(|x| facts::share(t, x) > rules::RELEASED);
-                if going {
-                    self.store(t, Command::Set(t.config().range[0]), Instant::now());
-                }
-                t.slot()
-                    .wait_wire(|w| facts::released_on_wire(t, w), wire_deadline(t));
-            }
-            Wait::BrakeReleased => {
-                let Some(br) = b.brake.map(|id| v.device(id)) else {
-                    return;
-                };
-                br.slot().wait_wire(
-                    |w| facts::released_on_wire(br, w) || facts::brake_applied_again(br, w),
-                    wire_deadline(br),
-                );
-            }
-            Wait::ShiftOut => {
-                let Some(g) = b.gear.as_ref().map(|g| v.device(g.device)) else {
-                    return;
-                };
-                g.slot().wait_wire(
-                    |w| w.pending.or(w.flight).is_none_or(|c| Some(c) == w.sent),
-                    wire_deadline(g),
-                );
-            }
+        let Some(a) = facts::awaited(self.vehicle(), w) else {
+            return;
+        };
+        if let Some(c) = a.first {
+            self.store(a.device, c, Instant::now());
         }
+        a.device
+            .slot()
+            .wait_wire(|s| (a.over)(a.device, s), wire_deadline(a.device));
     }
 
     /// Command the safe state to every actuator there is, bypassing the interlocks
@@ -470,19 +428,12 @@ mod tests {
         );
     }
 
-    /// The incident: a planner repeats `trans drive` in every datagram (the README's own
-    /// example does). In drive, with the repeat pending in the gearbox's slot, a brake
-    /// release waited up to 450 ms at the wire for that slot to drain although no
-    /// shift was under way; brake commands executed per second halved. A gear command
-    /// that repeats the last one sent is not a shift: the release goes out at once,
-    /// from intake to the wire. (A real shift still holds it: the test after this.)
-    #[test]
-    fn a_repeated_trans_drive_does_not_hold_a_brake_release() {
-        let gate = sample::gate(Instant::now());
-        let v = &gate.vehicle();
+    /// Alice's sample engaged in drive (shifted, acknowledged, and reported by a status
+    /// taken after that): its gearbox, its brake and the drive command.
+    fn in_drive(gate: &Gate) -> (&Device, &Device, Command) {
+        let v = gate.vehicle();
         let (trans, brake) = (v.find("trans").unwrap(), v.find("brake").unwrap());
         let drive = Command::State(trans.config().state_index("drive").unwrap());
-        // In drive: shifted, acknowledged, and reported by a status taken after that.
         trans.slot().fly(drive);
         trans.slot().finish(drive, true);
         trans.store(crate::vehicle::Cached {
@@ -494,6 +445,19 @@ mod tests {
             at: Some(Instant::now()),
         });
         gate.engage("test").unwrap();
+        (trans, brake, drive)
+    }
+
+    /// The incident: a planner repeats `trans drive` in every datagram (the README's own
+    /// example does). In drive, with the repeat pending in the gearbox's slot, a brake
+    /// release waited up to 450 ms at the wire for that slot to drain although no
+    /// shift was under way; brake commands executed per second halved. A gear command
+    /// that repeats the last one sent is not a shift: the release goes out at once,
+    /// from intake to the wire. (A real shift still holds it: the test after this.)
+    #[test]
+    fn a_repeated_trans_drive_does_not_hold_a_brake_release() {
+        let gate = sample::gate(Instant::now());
+        let (trans, brake, drive) = in_drive(&gate);
         // The planner's datagram: `trans drive` again, and the brake released.
         gate.submit(trans.id(), drive, Instant::now()).unwrap();
         let release = Command::Set(0.0);
@@ -518,6 +482,119 @@ mod tests {
             gate.check_wire(brake, Command::Set(0.0), false),
             WireStep::Wait(Wait::ShiftOut)
         );
+    }
+
+    /// Braking first has the throttle released: a throttle command still on its way
+    /// when the brake's thread waits for it is replaced by the throttle's release — it
+    /// never reaches the wire — and the wait is over at once, not at its bound.
+    #[test]
+    fn braking_first_has_a_throttle_on_its_way_released() {
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        let (gas, brake) = (v.find("gas").unwrap(), v.find("brake").unwrap());
+        gas.slot().submit(Command::Set(0.4), Instant::now());
+        assert_eq!(
+            gate.check_wire(brake, Command::Set(1.0), false),
+            WireStep::Wait(Wait::ThrottleReleased)
+        );
+        let t = Instant::now();
+        gate.wait_for(Wait::ThrottleReleased);
+        assert_eq!(gas.slot().wire().pending, Some(Command::Set(0.0)));
+        assert!(
+            t.elapsed() < gas.config().reply_timeout * 2,
+            "released at once; the wait did not run to its bound"
+        );
+    }
+
+    /// A brake release held behind a shift waits until the gear command has gone out,
+    /// and no longer.
+    #[test]
+    fn a_release_behind_a_shift_waits_until_the_shift_is_out() {
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        let trans = v.find("trans").unwrap();
+        let drive = Command::State(trans.config().state_index("drive").unwrap());
+        trans.slot().submit(drive, Instant::now());
+        let t = Instant::now();
+        std::thread::scope(|s| {
+            // The gearbox's command thread sends the shift.
+            s.spawn(|| {
+                let p = trans.slot().take_newer().expect("the shift");
+                trans.slot().finish(p.command, true);
+            });
+            gate.wait_for(Wait::ShiftOut);
+        });
+        assert_eq!(trans.slot().sent(), Some(drive));
+        assert!(
+            t.elapsed() < trans.config().reply_timeout * 2,
+            "over once the shift was out, not at the wait's bound"
+        );
+    }
+
+    /// A kit is enabled only while the vehicle is engaged: the one switch the buses'
+    /// kits follow is the gate's, on through an engage and off with every way out of
+    /// it (disengage, STOP, a driver's override).
+    #[test]
+    fn the_kits_switch_follows_the_gate() {
+        let gate = sample::gate(Instant::now());
+        let kits = gate.vehicle().kits().clone();
+        assert!(!kits.enabled(), "off before any engage");
+        let ways_out: [&dyn Fn(&Gate); 3] = [
+            &|g| {
+                g.disengage("test");
+            },
+            &|g| {
+                g.stop("test");
+            },
+            &|g| g.take_over("steer", "test"),
+        ];
+        for out in ways_out {
+            gate.engage("test").unwrap();
+            assert!(kits.enabled(), "on while engaged");
+            out(&gate);
+            assert!(!gate.is_engaged());
+            assert!(!kits.enabled(), "off once disengaged");
+            let _ = gate.clear_overrides();
+        }
+    }
+
+    /// The incident (the interlock property, on a loaded machine): in drive, braked, a
+    /// shift to reverse was on the wire and `trans drive` pending behind it; the
+    /// pending command, the gear reported, hid the shift in flight. An `accel` then
+    /// released the brake at once, and `drive` went out after it with the brake at 0:
+    /// a command to the gear reported was no shift, though the gearbox was on its way
+    /// to reverse. Every gear command on its way counts: the `accel` waits for the
+    /// shift, a release waits for it at the wire, and `drive` behind `reverse` is a
+    /// shift that needs the brake.
+    #[test]
+    fn a_shift_in_flight_behind_a_command_to_the_gear_reported_is_still_a_shift() {
+        let gate = sample::gate(Instant::now());
+        let (trans, brake, drive) = in_drive(&gate);
+        let reverse = Command::State(trans.config().state_index("reverse").unwrap());
+        brake.slot().fly(Command::Set(0.8));
+        brake.slot().finish(Command::Set(0.8), true);
+        // `reverse` written (in flight), `drive` pending behind it.
+        trans.slot().fly(reverse);
+        trans.slot().submit(drive, Instant::now());
+        let before = brake.slot().wire();
+        assert_eq!(gate.submit_accel(0.4, Instant::now()), Ok(()));
+        assert_eq!(brake.slot().wire(), before, "the accel held the brake");
+        assert_eq!(
+            gate.submit(brake.id(), Command::Set(0.0), Instant::now()),
+            Err(Reject::BrakeReleaseShifting)
+        );
+        assert_eq!(
+            gate.check_wire(brake, Command::Set(0.0), false),
+            WireStep::Wait(Wait::ShiftOut)
+        );
+        // `reverse` went out; had the brake been released meanwhile, `drive` is dropped.
+        trans.slot().finish(reverse, true);
+        brake.slot().fly(Command::Set(0.0));
+        brake.slot().finish(Command::Set(0.0), true);
+        brake.slot().reset(None);
+        assert_eq!(trans.slot().take_newer().map(|p| p.command), Some(drive));
+        trans.slot().fly(drive);
+        assert_eq!(gate.check_wire(trans, drive, false), WireStep::Drop);
     }
 
     /// The release lands while the throttle waits: the throttle goes out as it is.

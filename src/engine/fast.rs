@@ -6,13 +6,13 @@
 //! across CPUs) sits between a command's receipt and its first byte. When the port is
 //! idle — nobody holds it, no command thread is queued for it, no overdue status poll
 //! waits, the command thread sleeps in its slot with nothing in flight — the admitting
-//! thread can write the request itself: it [claims](super::slot::CommandSlot::claim) the slot (the
+//! thread can write the request itself: it [claims](crate::port::slot::CommandSlot::claim) the slot (the
 //! command is in flight from then on, as if the command thread had taken it), asks the
 //! safety rules' wire check (it must say send *this* command), takes
 //! the port without waiting, writes the request, and
-//! [hands the transaction over](super::slot::CommandSlot::hand_over) with the port still held. The
+//! [hands the transaction over](crate::port::slot::CommandSlot::hand_over) with the port still held. The
 //! command thread, woken after the first byte is out, reads the reply and does the
-//! bookkeeping as for any command ([`crate::engine::port::Port::resume`]), then
+//! bookkeeping as for any command ([`crate::port::Port::resume`]), then
 //! releases the port.
 //!
 //! Anything else and the path is the ordinary one: the paper's port rule (first come,
@@ -23,8 +23,8 @@
 //! that admits every command must not wait on one device). A claimed command that
 //! cannot go out after all is queued for the command thread in the same step.
 
-use super::slot::{Handover, Pending};
 use super::Gate;
+use crate::port::slot::{Handover, Pending};
 use crate::safety::Verdict;
 use crate::value::Command;
 use crate::vehicle::Device;
@@ -32,7 +32,7 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::time::Instant;
 
 /// Whether `d`'s configuration allows the fast path at all (the port's own rule is
-/// the port's to apply: [`crate::engine::port::Port::try_acquire_idle`]).
+/// the port's to apply: [`crate::port::Port::try_acquire_idle`]).
 pub fn allowed(d: &Device) -> bool {
     d.is_actuator() && d.config().min_command_interval.is_none()
 }
@@ -94,7 +94,7 @@ pub fn send(gate: &Gate, d: &Device, command: Command, received: Instant) -> Sen
 /// A claim on a slot, ended if the thread that holds it unwinds (a bug in a check or a
 /// driver must not leave the command thread waiting for a transaction that never
 /// comes: it would never send the safe state).
-struct Claim<'a>(&'a super::slot::CommandSlot);
+struct Claim<'a>(&'a crate::port::slot::CommandSlot);
 
 impl Drop for Claim<'_> {
     fn drop(&mut self) {
@@ -105,7 +105,7 @@ impl Drop for Claim<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::slot::{CommandSlot, Wake};
+    use crate::port::slot::{CommandSlot, Wake};
     use std::sync::Arc;
     use std::time::Duration;
 

@@ -4,7 +4,7 @@
 //! and the supervisor hold an `Arc<Gate>`; reading it (engaged, why, the snapshot)
 //! takes no device lock.
 
-use crate::safety::{GateState, Reject, Rules};
+use crate::safety::{GateState, Reject, Rules, Seen};
 use crate::snapshot::{GateView, Pairs, Snapshot};
 use crate::value::{Command, Source};
 use crate::vehicle::tap::{Asked, Event, GateChange};
@@ -109,12 +109,14 @@ impl Gate {
         asked: Asked,
         at: Instant,
         done: Result<(), Reject>,
+        seen: Option<Seen>,
     ) {
         self.vehicle.tap().send(|| Event::Received {
             at,
             source,
             asked,
             refused: done.err().map(Reject::as_str),
+            seen,
         });
     }
 

@@ -65,6 +65,7 @@ impl Gate {
                             source,
                             asked,
                             refused: Some("other_commander"),
+                            seen: None,
                         });
                     }
                     return Err(Refused::Owner(r));
@@ -74,8 +75,8 @@ impl Gate {
         let mine = o.commander == Some(source);
         let done = match ask {
             Ask::Set(id, c) => {
-                let done = self.submit(id, c, received);
-                self.tap_received(source, Asked::Device(id, c), received, done);
+                let (done, seen) = self.submit_seen(id, c, received);
+                self.tap_received(source, Asked::Device(id, c), received, done, seen);
                 if done.is_ok() && self.is_pedal(id) {
                     // A pedal commanded outright: no lease ends it later.
                     o.lease = None;
@@ -83,16 +84,16 @@ impl Gate {
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
             Ask::Accel(a) => {
-                let done = self.submit_accel(a, received);
-                self.tap_received(source, Asked::Accel(a), received, done);
+                let (done, seen) = self.submit_accel_seen(a, received);
+                self.tap_received(source, Asked::Accel(a), received, done, seen);
                 if done.is_ok() {
                     o.lease = None;
                 }
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
             Ask::Held(h) => {
-                let done = self.submit_accel(h.accel, received);
-                self.tap_received(source, Asked::Accel(h.accel), received, done);
+                let (done, seen) = self.submit_accel_seen(h.accel, received);
+                self.tap_received(source, Asked::Accel(h.accel), received, done, seen);
                 if done.is_ok() {
                     o.lease =
                         (h.accel > 0.0).then(|| Lease::new(source, received, h.lease, h.release));
@@ -406,7 +407,7 @@ impl Gate {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::engine::slot::WireState;
+    use crate::port::slot::WireState;
     use crate::testkit as sample;
     use crate::value::{Command, DeviceId};
     use proptest::prelude::*;

@@ -33,8 +33,8 @@ impl Gate {
             return false;
         }
         o.lease = None;
-        let done = self.submit_accel(lease.release, now);
-        self.tap_received(lease.source, Asked::Accel(lease.release), now, done);
+        let (done, seen) = self.submit_accel_seen(lease.release, now);
+        self.tap_received(lease.source, Asked::Accel(lease.release), now, done, seen);
         if let Err(why) = done {
             // The brake's level refused (a recovery holds the pedals, a rule): the
             // throttle goes to 0 regardless, as in the safe state.

@@ -12,13 +12,13 @@
 //!    state, on every path that stops the vehicle.
 //! 3. [`fast`]: a command for an idle port is written from the admitting thread, after
 //!    the wire check; the command thread only reads the reply.
-//! 4. [`slot`]: otherwise the command waits in the device's slot, latest wins — never a
-//!    queue — and wakes the command thread.
+//! 4. [`slot`](crate::port::slot): otherwise the command waits in the device's slot,
+//!    latest wins — never a queue — and wakes the command thread.
 //! 5. [`command`] (the command thread): takes the newest command (or resends the last
 //!    one every `command_timeout`), asks the wire check ([`Gate::check_wire`]; a wait
 //!    for another device happens without the port held), takes the port, sends.
-//! 6. [`port`]: the port's rule between a device's two threads (a waiting command
-//!    first, an overdue poll still runs), and the open port itself: the
+//! 6. [`port`](crate::port): the port's rule between a device's two threads (a waiting
+//!    command first, an overdue poll still runs), and the open port itself: the
 //!    [`crate::driver`] writes the request, and the first byte is timed.
 //!
 //! Beside it: [`status`] (the status thread polls every `status_period`, or when the
@@ -27,8 +27,8 @@
 //! held pedal's [`lease`], every 10 ms) and
 //! [`placement`] (which CPUs the command path runs on). The gate's state and every
 //! decision live in [`crate::safety`]; the devices' state in [`crate::vehicle`]. The
-//! device carries its [`port`] and [`slot`]: those two are leaves, importing only the
-//! driver, the configuration and the device's trace.
+//! port, the slot and the trace a device carries are a layer below the vehicle
+//! ([`crate::port`]): the engine's threads drive them.
 //!
 //! Every thread is named `<device>/status` or `<device>/command`, stops when told, and
 //! [`Engine::shutdown`] joins them with a deadline and names any that did not stop;
@@ -46,8 +46,6 @@ pub mod lease;
 pub mod monitor;
 pub mod placement;
 pub mod polling;
-pub mod port;
-pub mod slot;
 pub mod status;
 
 pub use dispatch::WireStep;

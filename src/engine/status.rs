@@ -2,11 +2,11 @@
 //! when the estimate needs it: [`super::polling`]), store the reading in the cache and
 //! the estimator, and count. Readers (network, console, supervisor) only ever read
 //! what this thread stored. The poll takes the port under the port's rule
-//! ([`super::port`]): it yields to a waiting command unless it is overdue.
+//! ([`crate::port`]): it yields to a waiting command unless it is overdue.
 //!
 //! At every turn it proves its progress ([`Beat`]): the next turn is due within its
 //! period, its wait for the port ([`turn_bound`]) and a transaction; once it holds the
-//! port, within one transaction ([`super::port::Port::longest`]).
+//! port, within one transaction ([`crate::port::Port::longest`]).
 
 use crate::threads::{Beat, StopSignal};
 use crate::vehicle::stats::Stats;

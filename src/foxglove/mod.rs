@@ -69,8 +69,15 @@ impl Foxglove {
     /// what `vehicle`'s tap sees. An address that cannot be bound is an error here,
     /// before anything is driven.
     pub fn start(vehicle: &Arc<Vehicle>, addr: SocketAddr) -> io::Result<Foxglove> {
-        let listener = TcpListener::bind(addr)
-            .map_err(|e| io::Error::new(e.kind(), format!("--foxglove {addr}: {e}")))?;
+        let listener = TcpListener::bind(addr).map_err(|e| {
+            let why = crate::config::network::bind_error(
+                "--foxglove",
+                addr,
+                "--foxglove is where this adrive serves the live view: an address of this host",
+                &e,
+            );
+            io::Error::new(e.kind(), why)
+        })?;
         listener.set_nonblocking(true)?;
         let addr = listener.local_addr()?;
         let tapped = vehicle

@@ -5,7 +5,7 @@
 use super::auth::Auth;
 use super::proto::{self, NetCommand, Vocabulary, MAX_DATAGRAM};
 use crate::snapshot::{Assembler, Snapshot};
-use crate::value::Value;
+use crate::value::{Keyword, Value};
 use socket2::{Domain, Protocol, Socket, Type};
 use std::fmt::Write as _;
 use std::io::{self, Write};
@@ -34,17 +34,14 @@ pub mod status {
     pub(crate) const NO_REPLY: i32 = 3;
 }
 
-/// Command-line words to protocol lines: `engage`, `disengage`, `release` and `clear` stand alone, every
+/// Command-line words to protocol lines: a keyword that takes no value (`engage`,
+/// `disengage`, `release`, `clear`: [`Keyword::takes_value`]) stands alone, every
 /// other line is a name and a value, so `engage trans drive accel 0.3` and
 /// `'trans drive' 'accel 0.3'` both work whatever the vehicle's devices are called.
 /// A `;` or newline inside an argument also ends a line.
 pub(crate) fn lines_from_words(words: &[String]) -> String {
     let mut lines: Vec<Vec<String>> = Vec::new();
-    let alone = |w: &str| {
-        ["engage", "disengage", "release", "clear"]
-            .iter()
-            .any(|k| k.eq_ignore_ascii_case(w))
-    };
+    let alone = |w: &str| Keyword::from_word(w).is_some_and(|k| !k.takes_value());
     for arg in words {
         for (k, part) in arg.split([';', '\n']).enumerate() {
             for (j, w) in part.split_whitespace().enumerate() {
@@ -345,8 +342,17 @@ pub fn watch(
     count: Option<u64>,
     stop: &AtomicBool,
 ) -> io::Result<i32> {
-    let socket =
-        watch_socket(from).map_err(|e| io::Error::new(e.kind(), format!("{from}: {e}")))?;
+    let socket = watch_socket(from).map_err(|e| {
+        let why = crate::config::network::bind_error(
+            "--from",
+            from,
+            "--from is where the broadcast is sent to (the watched adrive's [network] \
+             broadcast_to or --broadcast-to): an address of this host or a multicast group; \
+             to watch an adrive on another host, have it broadcast to this one",
+            &e,
+        );
+        io::Error::new(e.kind(), why)
+    })?;
     socket.set_read_timeout(Some(Duration::from_millis(200)))?;
     if !json {
         eprintln!(
@@ -491,6 +497,10 @@ mod tests {
         assert_eq!(words(&["steer 0.2", "GAS", "0"]), "steer 0.2\nGAS 0\n");
         assert_eq!(words(&["steer 0.2; brake 1"]), "steer 0.2\nbrake 1\n");
         assert_eq!(words(&["steer", "-0.25"]), "steer -0.25\n");
+        assert_eq!(
+            words(&["release", "clear", "engage"]),
+            "release\nclear\nengage\n"
+        );
     }
 
     /// `adrive watch`: each actuator as commanded/measured, each sensor's readings

@@ -22,6 +22,7 @@ use super::status::{Inner, NetStatus, Refusal};
 use crate::config::NetworkConfig;
 use crate::engine::Gate;
 use crate::logging::RateLimit;
+use crate::safety::gate::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
 use crate::value::Source;
 use crate::vehicle::tap::Event;
@@ -249,28 +250,11 @@ impl Intake {
                     NetCommand::Set(id, _) => st.count_command(id),
                     _ => st.count_accel(),
                 },
-                Ok(Done::Engaged | Done::Commanding) => {
-                    out.gate = true;
-                    out.line(format_args!("ok engaged"));
-                }
                 Ok(Done::Same) => {}
-                Ok(Done::Released) => {
-                    fx.let_go = true;
+                Ok(done) => {
+                    fx.let_go |= matches!(done, Done::Released | Done::Disengaged(_));
                     out.gate = true;
-                    out.line(format_args!("ok released"));
-                }
-                Ok(Done::Disengaged(_)) => {
-                    fx.let_go = true;
-                    out.gate = true;
-                    out.line(format_args!("ok disengaged"));
-                }
-                Ok(Done::Cleared(c)) => {
-                    out.gate = true;
-                    if c.is_empty() {
-                        out.line(format_args!("ok nothing to clear"));
-                    } else {
-                        out.line(format_args!("ok cleared override on {}", c.join(", ")));
-                    }
+                    out.line(format_args!("ok {done}"));
                 }
                 Err(Refused::Owner(r)) => {
                     if !fx.refused_other {
@@ -317,7 +301,7 @@ impl Intake {
     /// own refusal (the vehicle file does not allow it; the sender is latched).
     fn may_engage(&self, from: SocketAddr) -> Option<Refusal> {
         // Picking up a vehicle a console engaged and released engages nothing.
-        if !self.config.allow_engage && !self.gate.is_engaged() {
+        if !remote_may_engage(self.config.allow_engage, self.gate.is_engaged()) {
             return Some(Refusal::EngageNotAllowed);
         }
         let latched = self

@@ -59,8 +59,16 @@ impl Net {
     /// Bind the command socket and start `net/listen`, `net/broadcast` and
     /// `net/watchdog`. A bind error comes back before any thread starts.
     pub fn start(gate: Arc<Gate>, config: NetworkConfig, auth: Option<Auth>) -> io::Result<Net> {
-        let socket = bind_command_socket(config.listen)
-            .map_err(|e| io::Error::new(e.kind(), format!("listen on {}: {e}", config.listen)))?;
+        let socket = bind_command_socket(config.listen).map_err(|e| {
+            let why = crate::config::network::bind_error(
+                "listen on",
+                config.listen,
+                "--listen (or [network] listen) is where this adrive takes commands: an \
+                     address of this host (127.0.0.1, or 0.0.0.0 for every interface)",
+                &e,
+            );
+            io::Error::new(e.kind(), why)
+        })?;
         let local = socket.local_addr()?;
         let out = broadcast_socket(&config)?;
         let names = gate

@@ -81,6 +81,7 @@
 //! "1.5")`). [`RejectCounts`] counts them without locks.
 
 use crate::config::DeviceConfig;
+use crate::value::Keyword as Verb;
 use crate::value::{Command, DeviceId, Kind};
 use arrayvec::{ArrayString, ArrayVec};
 use std::fmt;
@@ -395,7 +396,7 @@ pub struct ParseError {
 }
 
 /// What was expected, in words, inline (no heap).
-pub(crate) type Expected = ArrayString<120>;
+pub(crate) type Expected = ArrayString<160>;
 
 fn expected(text: &str) -> Expected {
     let mut e = Expected::new();
@@ -611,13 +612,16 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
                 datagram.signed = 0..start;
                 None
             }
-            Some(Verb::Engage | Verb::Disengage | Verb::Release | Verb::Clear) if arg.is_some() => {
-                return Err(ParseError::new(
+            Some(k) if !k.takes_value() && arg.is_some() => {
+                let mut e = Expected::new();
+                let _ = Verb::list(|k| !k.takes_value(), " and ", &mut e);
+                let _ = e.try_push_str(" take no value");
+                return Err(ParseError::with(
                     Reject::BadSyntax,
                     line,
-                    "engage, disengage, release and clear take no value",
+                    e,
                     arg.unwrap_or(""),
-                ))
+                ));
             }
             Some(Verb::Engage) => Some(NetCommand::Engage),
             Some(Verb::Disengage) => Some(NetCommand::Disengage),
@@ -662,36 +666,6 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
     Ok(datagram)
 }
 
-/// The first word of a line, when it is a keyword.
-#[derive(Clone, Copy)]
-enum Verb {
-    Accel,
-    Engage,
-    Disengage,
-    Release,
-    Clear,
-    Seq,
-    Tag,
-}
-
-impl Verb {
-    fn from_word(word: &str) -> Option<Verb> {
-        const WORDS: [(&str, Verb); 7] = [
-            ("accel", Verb::Accel),
-            ("engage", Verb::Engage),
-            ("disengage", Verb::Disengage),
-            ("release", Verb::Release),
-            ("clear", Verb::Clear),
-            ("seq", Verb::Seq),
-            ("tag", Verb::Tag),
-        ];
-        WORDS
-            .into_iter()
-            .find(|(w, _)| w.eq_ignore_ascii_case(word))
-            .map(|(_, v)| v)
-    }
-}
-
 /// A line that names a device: `DEVICE VALUE`.
 fn device_line(
     vocab: &Vocabulary,
@@ -732,22 +706,30 @@ fn device_line(
             };
         }
         let mut e = Expected::new();
-        let reason = if extra.is_none() && arg.is_some_and(|a| vocab.looks_like_value(a)) {
+        let actuators = vocab.devices.iter().any(|d| d.is_actuator());
+        let reason = if !vocab.open
+            && actuators
+            && extra.is_none()
+            && arg.is_some_and(|a| vocab.looks_like_value(a))
+        {
             let _ = e.try_push_str("the devices are ");
             vocab.names(&mut e);
             Reject::UnknownDevice
         } else {
             if vocab.open {
-                // A client that does not know the vehicle has no devices to list.
+                // A client that does not know the vehicle has no devices to list: the
+                // word is no name a device may have.
                 let _ = e.try_push_str(
-                    "a line is a device and a value, separated by a space (steer 0.2)",
+                    "a line is a device (lowercase letters, digits and _) and a value, separated by a space (steer 0.2), or ",
                 );
-            } else {
+            } else if actuators {
                 let _ = e.try_push_str("a line is a device and a value (");
                 vocab.names(&mut e);
-                let _ = e.try_push_str(")");
+                let _ = e.try_push_str("), or ");
+            } else {
+                let _ = e.try_push_str("no device of this vehicle takes commands; a line is ");
             }
-            let _ = e.try_push_str(", accel, engage, disengage, seq or tag");
+            let _ = Verb::list(|_| true, " or ", &mut e);
             Reject::UnknownVerb
         };
         return Err(ParseError::with(reason, line, e, verb));
@@ -1138,6 +1120,48 @@ mod tests {
         );
     }
 
+    /// The incident: `adrive send bogus-verb 1` said "the devices are  (got …)" with
+    /// an empty list, and an unknown first word was told the keywords without `release`
+    /// and `clear`. The keywords come from the one list that defines them, and a list
+    /// that would be empty is not offered.
+    #[test]
+    fn an_unknown_first_word_is_told_every_keyword_and_no_empty_list() {
+        let every = "accel, engage, disengage, release, clear, seq or tag";
+        let e = super::parse(b"bogus-verb 1", &Vocabulary::open()).unwrap_err();
+        assert_eq!(e.reason, Reject::UnknownVerb);
+        assert_eq!(
+            e.to_string(),
+            format!("line 1: unknown_verb: a line is a device (lowercase letters, digits and _) and a value, separated by a space (steer 0.2), or {every} (got \"bogus-verb\")")
+        );
+        let e = parse(b"wobble on now").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!("line 1: unknown_verb: a line is a device and a value (steer, gas, brake and trans), or {every} (got \"wobble\")")
+        );
+        let sensors = crate::config::parse(
+            "[vehicle]\nname = \"s\"\n[[device]]\nname = \"obd\"\nkind = \"sensor\"\ndriver = \"line\"\nreadings = [\"rpm\"]\n",
+            "s.toml",
+        )
+        .unwrap();
+        let e = super::parse(b"stear 0.2", &Vocabulary::of(&sensors)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!("line 1: unknown_verb: no device of this vehicle takes commands; a line is {every} (got \"stear\")")
+        );
+        let e = parse(b"release now").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "line 1: bad_syntax: engage, disengage, release and clear take no value (got \"now\")"
+        );
+        for k in crate::value::Keyword::ALL {
+            assert!(
+                crate::config::device::check_name("device", k.word()).is_err(),
+                "a device may be named {}",
+                k.word()
+            );
+        }
+    }
+
     #[test]
     fn messages_quote_the_limits_in_force() {
         assert!(Reject::Oversized
@@ -1252,7 +1276,7 @@ mod tests {
         let s = e.to_string();
         assert!(!s.contains("()"), "{s}");
         assert!(
-            s.contains("a line is a device and a value, separated by a space (steer 0.2)"),
+            s.contains("and a value, separated by a space (steer 0.2)"),
             "{s}"
         );
     }

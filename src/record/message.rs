@@ -7,10 +7,11 @@
 
 use super::schema::{self, schema_of};
 use crate::config::{DeviceConfig, ReadingKind, VehicleConfig};
+use crate::port::trace::{Dir, TraceEntry};
 use crate::snapshot::{FaultKind, Snapshot};
 use crate::value::{Command, DeviceId, Reading};
+use crate::vehicle::seen::Seen;
 use crate::vehicle::tap::{Asked, Event, GateChange, Source};
-use crate::vehicle::trace::TraceEntry;
 use crate::vehicle::Vehicle;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -151,6 +152,12 @@ pub struct Received {
     pub accepted: bool,
     /// Why it was refused (`gas_while_braking`, `bad_tag`…).
     pub reason: Option<String>,
+    /// What the decision saw of the vehicle: the gate's state and the interlocks'
+    /// facts, for `adrive replay --check`. Absent where no rule decided: a command
+    /// refused because another source commands, the supervisor's own, a datagram
+    /// refused whole.
+    #[serde(default)]
+    pub seen: Option<Seen>,
 }
 
 impl Received {
@@ -230,8 +237,8 @@ impl RawMsg {
     pub fn of(e: &TraceEntry) -> RawMsg {
         RawMsg {
             dir: match e.dir {
-                crate::vehicle::trace::Dir::Out => "out".into(),
-                crate::vehicle::trace::Dir::In => "in".into(),
+                Dir::Out => "out".into(),
+                Dir::In => "in".into(),
             },
             hex: e.hex().trim_end_matches(" …").to_string(),
             text: e.ascii(),
@@ -461,6 +468,7 @@ pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
             source,
             asked,
             refused,
+            seen,
         } => {
             let (device, command, value) = match asked {
                 Asked::Device(id, cmd) => {
@@ -477,6 +485,7 @@ pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
                 value,
                 accepted: refused.is_none(),
                 reason: refused.map(str::to_string),
+                seen,
             };
             json(Topic::Commands, c.ns(at), &m)
         }
@@ -488,6 +497,7 @@ pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
                 value: None,
                 accepted: false,
                 reason: Some(reason.to_string()),
+                seen: None,
             };
             json(Topic::Commands, c.ns(at), &m)
         }

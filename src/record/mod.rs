@@ -15,8 +15,10 @@
 //!
 //! [`read`] reads a recording back (a cut-off one too); [`info`], [`repair`] and
 //! [`export`] are `adrive record info`, `adrive record repair` and `adrive export`; the
-//! console replays it (`crate::console::replay`).
+//! console replays it (`crate::console::replay`), and [`check`] decides every command
+//! it received again under another vehicle file (`adrive replay --check`).
 
+pub mod check;
 pub mod export;
 pub mod info;
 pub mod log;

@@ -24,6 +24,7 @@ use crate::engine::Gate;
 use crate::logging::RateLimit;
 use crate::net::proto::Reject;
 use crate::net::{NetStatus, Refusal};
+use crate::safety::gate::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
 use crate::threads::{Owner, StopSignal};
 use crate::value::Source;
@@ -470,7 +471,7 @@ impl Commands {
         if self.closing.load(Relaxed) {
             return false;
         }
-        if ask == Ask::Engage && !self.allow_engage && !self.gate.is_engaged() {
+        if ask == Ask::Engage && !remote_may_engage(self.allow_engage, self.gate.is_engaged()) {
             self.net.count_refusal(Refusal::EngageNotAllowed);
             if self.log.allow(at) {
                 tracing::warn!(
@@ -481,8 +482,10 @@ impl Commands {
             return false;
         }
         match self.gate.admit(Source::Ros2, ask, at) {
-            Ok(Done::Engaged | Done::Commanding | Done::Disengaged(true) | Done::Released) => {
-                tracing::info!("ros2: {} done", self.gate.ask_text(ask));
+            Ok(
+                done @ (Done::Engaged | Done::Commanding | Done::Disengaged(_) | Done::Released),
+            ) => {
+                tracing::info!("ros2: {}: {done}", self.gate.ask_text(ask));
                 true
             }
             Ok(_) => true,

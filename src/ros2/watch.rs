@@ -9,6 +9,7 @@ use super::msgs::{self, gear, mode, Message};
 use super::node::topics;
 use crate::config::ros2::{Mode, Ros2Config};
 use std::collections::BTreeSet;
+use std::io::Write as _;
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
 use std::time::{Duration, Instant};
 use zenoh::sample::SampleKind;
@@ -100,11 +101,14 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
         })
         .wait()
         .map_err(|e| anyhow::anyhow!("liveliness subscription: {e}"))?;
-    println!(
+    // A standard output closed by its reader (`| head`) ends the watch quietly.
+    let mut out = std::io::stdout().lock();
+    writeln!(
+        out,
         "watching ROS 2 domain {} through {} for vehicles (Ctrl-C stops)",
         opts.domain,
         opts.connect.join(", ")
-    );
+    )?;
     let mut seen = BTreeSet::new();
     let mut followed: Option<String> = None;
     let mut subs = Vec::new();
@@ -126,17 +130,25 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
                     continue;
                 };
                 if alive && seen.insert(ns.clone()) {
-                    println!("vehicle {ns}  (node {}, zid {})", t.node.fqn(), t.node.zid);
+                    writeln!(
+                        out,
+                        "vehicle {ns}  (node {}, zid {})",
+                        t.node.fqn(),
+                        t.node.zid
+                    )?;
                     let wanted = opts.namespace.as_deref().is_none_or(|w| w == ns);
                     if followed.is_none() && wanted {
-                        println!("following {ns}");
+                        writeln!(out, "following {ns}")?;
                         subs = follow(&session, opts.domain, &ns, &tx)?;
                         followed = Some(ns);
                     }
                 } else if !alive && seen.remove(&ns) {
                     // The token is withdrawn when the node stops and when the network
                     // to it breaks: this end cannot tell which.
-                    println!("gone {ns}: its node left the graph (it stopped, or the network to it broke)");
+                    writeln!(
+                        out,
+                        "gone {ns}: its node left the graph (it stopped, or the network to it broke)"
+                    )?;
                 }
             }
             Ok(Event::Report(topic, bytes)) => match topic {
@@ -149,7 +161,7 @@ pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
                 next += EVERY;
                 // While it is gone, its last reports are not printed as if current.
                 if let Some(ns) = followed.as_ref().filter(|ns| seen.contains(*ns)) {
-                    println!("{}", latest.line(ns));
+                    writeln!(out, "{}", latest.line(ns))?;
                     lines += 1;
                     if opts.count.is_some_and(|n| lines >= n) {
                         break;

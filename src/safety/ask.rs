@@ -107,3 +107,31 @@ pub enum Done {
     /// The cleared overrides (empty: there was nothing to clear).
     Cleared(Vec<String>),
 }
+
+/// What an admitted ask did, in words: the one answer every front end gives (the
+/// network's reply after `ok `, `adrive ctl`, the console's message line, ROS 2's
+/// log). A disengage on a vehicle that was not engaged still commands the safe state,
+/// and says it was `already disengaged`.
+impl std::fmt::Display for Done {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Done::Commanded => f.write_str("commanded"),
+            Done::Engaged | Done::Commanding => f.write_str("engaged"),
+            Done::Same => f.write_str("nothing changed"),
+            Done::Released => f.write_str("released"),
+            Done::Disengaged(true) => f.write_str("disengaged"),
+            Done::Disengaged(false) => f.write_str("already disengaged"),
+            Done::Cleared(c) if c.is_empty() => f.write_str("nothing to clear"),
+            Done::Cleared(c) => {
+                f.write_str("cleared override on ")?;
+                for (i, d) in c.iter().enumerate() {
+                    if i > 0 {
+                        f.write_str(", ")?;
+                    }
+                    f.write_str(d)?;
+                }
+                Ok(())
+            }
+        }
+    }
+}

@@ -6,18 +6,21 @@
 //! before one goes out — and none moves anything: the engine applies them
 //! ([`crate::engine::Gate`]).
 
+use super::accel::{self, Pedal, Plan};
 use super::facts;
 use super::owner::Owner;
 use super::rules::{self, Plays, Reject, Rules};
 use super::safe;
 use super::wire::{self, Verdict};
-use crate::config::{DriverKind, Role};
-use crate::driver::elm327;
+use crate::config::{DeviceConfig, Role};
+use crate::driver::slcan::Kits;
 use crate::logging::RateLimit;
 use crate::value::{Command, DeviceId, EstopState, Kind};
-use crate::vehicle::{Device, Vehicle};
+pub use crate::vehicle::seen::Seen;
+use crate::vehicle::{Device, Unreported, Vehicle};
 use parking_lot::{Mutex, MutexGuard};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed, Ordering::SeqCst};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// Whether engaging needs `d`: the rules act on it (it is bound to a role — steering,
@@ -32,6 +35,14 @@ pub fn needed(v: &Vehicle, d: &Device) -> bool {
         .any(|r| v.bindings().device(r) == Some(d.id()))
 }
 
+/// Whether a remote source (a network sender, the ROS 2 node) may ask to engage: where
+/// the vehicle file lets the network engage (`allow_engage`), or when the vehicle is
+/// engaged already — picking up a vehicle a console engaged and released engages
+/// nothing, and who may pick it up is ownership's to decide ([`super::owner`]).
+pub fn remote_may_engage(allow_engage: bool, engaged: bool) -> bool {
+    allow_engage || engaged
+}
+
 /// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
 pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     let mut why = Vec::new();
@@ -43,12 +54,14 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
     for d in v.devices().iter().filter(|d| needed(v, d)) {
         if let Some(fault) = d.fault() {
             why.push(format!("{} is faulty ({fault})", d.name()));
-        } else if d.cached().at.is_none() {
-            // An ELM327 that opened has its first answer coming: it searches protocols.
-            let opened = d.port_health().opens.load(Relaxed) > 0;
-            why.push(match d.config().driver {
-                DriverKind::Elm327 if opened => elm327::searching(d.name()),
-                _ => format!("{} has not reported yet", d.name()),
+        } else if let Some(u) = d.unreported() {
+            why.push(match u {
+                Unreported::SearchingProtocols(up_to) => format!(
+                    "{}: the adapter is searching the car's protocols, up to {} s",
+                    d.name(),
+                    up_to.as_secs()
+                ),
+                Unreported::NotYet => format!("{} has not reported yet", d.name()),
             });
         }
     }
@@ -63,17 +76,17 @@ pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
 
 /// Check a command for a device: it must be an actuator, the value of its kind and
 /// inside its range. (Intake's first half; no state involved.)
-pub(crate) fn check_value(d: &Device, command: Command) -> Result<(), Reject> {
-    match (d.kind(), command) {
+pub(crate) fn check_value(d: &DeviceConfig, command: Command) -> Result<(), Reject> {
+    match (d.kind, command) {
         (Kind::Sensor, _) => Err(Reject::NotAnActuator),
         (_, Command::Control(_)) => Ok(()),
-        (Kind::State, Command::State(s)) if (s as usize) < d.config().states.len() => Ok(()),
+        (Kind::State, Command::State(s)) if (s as usize) < d.states.len() => Ok(()),
         (Kind::State, Command::State(_)) => Err(Reject::OutOfRange),
         (Kind::Setpoint, Command::Set(v)) => {
             if !v.is_finite() {
                 return Err(Reject::NotFinite);
             }
-            let [lo, hi] = d.config().range;
+            let [lo, hi] = d.range;
             if v < lo || v > hi {
                 return Err(Reject::OutOfRange);
             }
@@ -85,13 +98,64 @@ pub(crate) fn check_value(d: &Device, command: Command) -> Result<(), Reject> {
 
 /// The command as the rules see it: throttle and brake set points as fractions of
 /// their range's top.
-pub fn scaled(d: &Device, command: Command) -> Command {
+pub fn scaled(d: &DeviceConfig, plays: Plays, command: Command) -> Command {
     match command {
-        Command::Set(v) if d.plays(Role::Throttle) || d.plays(Role::Brake) => {
-            Command::Set(facts::share(d, v))
-        }
+        Command::Set(v) if plays.throttle || plays.brake => Command::Set(facts::share(d, v)),
         other => other,
     }
+}
+
+/// The intake's decision on `command` for a device `d` of a vehicle file, whose
+/// commands are checked for the roles `plays`, under `rules`, given what it `seen`: its
+/// value, the gate, a recovery, then the interlocks. A pure function: the live intake
+/// ([`GateState::check`]) and `adrive replay --check` both decide with it.
+pub fn decide(
+    d: &DeviceConfig,
+    plays: Plays,
+    rules: Rules,
+    command: Command,
+    seen: &Seen,
+) -> Result<(), Reject> {
+    check_value(d, command)?;
+    if !seen.engaged {
+        return Err(Reject::Disengaged);
+    }
+    if seen.recovering {
+        return Err(Reject::Recovering);
+    }
+    if !plays.is_free() && seen.interlocks {
+        let facts = seen.facts.unwrap_or_default();
+        rules::check(&facts, rules, plays, scaled(d, plays, command))?;
+    }
+    Ok(())
+}
+
+/// The intake's decision on the virtual `accel` for these pedals (as [`decide`] for one
+/// device): its value, the gate, a recovery of either pedal, then the interlocks over
+/// both ([`accel::interlocks`]). Admitted, what it sends.
+pub fn decide_accel(
+    throttle: &DeviceConfig,
+    brake: &DeviceConfig,
+    rules: Rules,
+    a: f64,
+    seen: &Seen,
+) -> Result<Plan, accel::Refusal> {
+    accel::check_value(throttle, brake, a)?;
+    let refused = |why| accel::Refusal {
+        why,
+        at: Pedal::Throttle,
+        command: None,
+    };
+    if !seen.engaged {
+        return Err(refused(Reject::Disengaged));
+    }
+    if seen.recovering {
+        return Err(refused(Reject::Recovering));
+    }
+    if seen.interlocks {
+        accel::interlocks(&seen.facts.unwrap_or_default(), rules, a)?;
+    }
+    Ok(Plan::of(a))
 }
 
 /// Why the vehicle is (dis)engaged: the words, and the device whose driver's override
@@ -121,6 +185,10 @@ pub struct GateState {
     /// Who commands, and the commander's watchdog: the intake's one lock.
     owner: Mutex<Owner>,
     engaged: AtomicBool,
+    /// The vehicle's kit switch ([`Kits`]): a kit is enabled only while the vehicle is
+    /// engaged — on from the start of an engage ([`GateState::engaging`]), off with the
+    /// disengage, in the same step as `engaged`.
+    kits: Arc<Kits>,
     /// Why the vehicle is (dis)engaged, rendered by [`GateState::reason`].
     reason: Mutex<Reason>,
     /// Devices a recovery procedure has taken over: intake refuses them.
@@ -144,6 +212,7 @@ impl GateState {
             interlocks: AtomicBool::new(true),
             owner: Mutex::new(Owner::new(Instant::now())),
             engaged: AtomicBool::new(false),
+            kits: vehicle.kits().clone(),
             reason: Mutex::new(Reason::said("not engaged yet")),
             recovering: vehicle
                 .devices()
@@ -191,6 +260,13 @@ impl GateState {
         }
     }
 
+    /// An engage begins: the kits may be enabled from now on, each once its safe
+    /// command has gone out (a kit is enabled only while the vehicle is engaged, and
+    /// never before the command it will act on).
+    pub(crate) fn engaging(&self) {
+        self.kits.set(true);
+    }
+
     /// Engaged by `by`. The reason and the state change together: a reader of both
     /// (the snapshot) never sees one without the other.
     pub(crate) fn set_engaged(&self, by: &str) {
@@ -218,6 +294,8 @@ impl GateState {
     fn disengaged_for(&self, reason: Reason) -> bool {
         let mut why = self.reason.lock();
         let was = self.engaged.swap(false, SeqCst);
+        // Kits disable with the vehicle, before the stop's commands are stored.
+        self.kits.set(false);
         *why = reason;
         was
     }
@@ -328,19 +406,49 @@ impl GateState {
     /// The intake's decision on `command` for `d`: its value, the gate, a recovery,
     /// then the interlocks over what the vehicle is doing now.
     pub fn check(&self, v: &Vehicle, d: &Device, command: Command) -> Result<(), Reject> {
-        check_value(d, command)?;
-        if !self.is_engaged() {
-            return Err(Reject::Disengaged);
-        }
-        if self.is_recovering(d.id()) {
-            return Err(Reject::Recovering);
-        }
+        self.decided(v, d, command).0
+    }
+
+    /// [`GateState::check`], and what it saw ([`decide`]).
+    pub(crate) fn decided(
+        &self,
+        v: &Vehicle,
+        d: &Device,
+        command: Command,
+    ) -> (Result<(), Reject>, Seen) {
         let plays = self.plays[d.id().index()];
-        if !plays.is_free() && self.interlocks_on() {
-            let facts = facts::gather(v, plays);
-            rules::check(&facts, self.rules, plays, scaled(d, command))?;
+        let seen = self.seen(v, plays, self.is_recovering(d.id()));
+        (decide(d.config(), plays, self.rules, command, &seen), seen)
+    }
+
+    /// The intake's decision on the virtual `accel` (−1 … 1) for the bound pedals, and
+    /// what it saw ([`decide_accel`]); `None` where throttle and brake are not both
+    /// bound.
+    pub(crate) fn decided_accel(
+        &self,
+        v: &Vehicle,
+        a: f64,
+    ) -> Option<(Result<Plan, accel::Refusal>, Seen)> {
+        let b = v.bindings();
+        let (t, br) = (b.throttle?, b.brake?);
+        let recovering = self.is_recovering(t) || self.is_recovering(br);
+        let seen = self.seen(v, accel::PEDALS, recovering);
+        let (t, br) = (v.device(t).config(), v.device(br).config());
+        Some((decide_accel(t, br, self.rules, a, &seen), seen))
+    }
+
+    /// What a decision for a device that plays `plays` sees now: the gate's state and,
+    /// where the interlocks will look, their facts (gathered only then).
+    fn seen(&self, v: &Vehicle, plays: Plays, recovering: bool) -> Seen {
+        let engaged = self.is_engaged();
+        let interlocks = self.interlocks_on();
+        let look = engaged && !recovering && interlocks && !plays.is_free();
+        Seen {
+            engaged,
+            recovering,
+            interlocks,
+            facts: look.then(|| facts::gather(v, plays)),
         }
-        Ok(())
     }
 
     /// The wire check's verdict on `command` for `d`, counting nothing: [`wire::verdict`]
@@ -357,6 +465,12 @@ impl GateState {
             return Verdict::Send(command);
         }
         let f = facts::gather_wire(v, plays);
-        wire::verdict(&f, self.rules, plays, scaled(d, command), waited)
+        let c = d.config();
+        match wire::verdict(&f, self.rules, plays, scaled(c, plays, command), waited) {
+            // The rules replace with "released": the bottom of the range.
+            Verdict::Replace(Command::Set(_), why) => Verdict::Replace(facts::release(c), why),
+            Verdict::Send(_) => Verdict::Send(command),
+            other => other,
+        }
     }
 }

@@ -1,6 +1,7 @@
 //! Safety, in one place: the rules every command must pass, the gate's state and its
-//! decisions. The rules themselves are pure functions — [`rules::check`] at intake,
-//! [`wire::verdict`] right before a command goes out, [`gate::blockers`] for engaging
+//! decisions. The rules themselves are pure functions — [`rules::check`] at intake
+//! ([`gate::decide`] for one device, [`gate::decide_accel`] for `accel`, whose plan is
+//! [`accel`]'s), [`wire::verdict`] right before a command goes out, [`gate::blockers`] for engaging
 //! and the monitor, [`safe::state`] for the safe state and [`safe::manual`] for it while
 //! a driver has taken over, [`owner::decide`] for who commands, [`lease`] for gas that
 //! lasts only while its key is held — and act on roles bound in the vehicle file, never
@@ -15,6 +16,7 @@
 //! the vehicle: the engine ([`crate::engine::Gate`]) applies these decisions to the
 //! devices' slots and ports. The vehicle itself holds state and no policy.
 
+pub mod accel;
 pub mod ask;
 pub mod facts;
 pub mod gate;
@@ -25,6 +27,6 @@ pub mod safe;
 pub mod wire;
 
 pub use ask::{Ask, Done, Held, Refused};
-pub use gate::GateState;
+pub use gate::{GateState, Seen};
 pub use rules::{Facts, Plays, Reject, Rules};
 pub use wire::{Verdict, Wait};

@@ -13,6 +13,7 @@
 
 use crate::config::{Bindings, Role};
 use crate::value::{Command, Control, EstopState};
+pub use crate::vehicle::seen::Facts;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 
@@ -23,53 +24,12 @@ pub const SHIFT_BRAKE: f64 = 0.3;
 /// Below this speed (m/s) the vehicle counts as stopped.
 pub const STOPPED: f64 = 0.1;
 
-/// What the interlocks know of the vehicle, at intake ([`super::facts::gather`]) or at
-/// the wire ([`super::facts::gather_wire`]): one type, so that both checks ask the same
-/// rule functions ([`breaks`]). Throttle and brake values are fractions of their
-/// range's top (0 released … 1 full), whatever the devices' units.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Facts {
-    /// Highest brake value pending, in flight, sent or acknowledged (None: unknown);
-    /// at the wire, pending, in flight or last sent.
-    pub(crate) brake_high: Option<f64>,
-    /// Lowest brake value pending, in flight, sent or acknowledged.
-    pub(crate) brake_low: Option<f64>,
-    /// The brake's newest command releases it: throttle may follow, held back at the
-    /// wire until the release has reached the brake ([`super::wire::Wait::BrakeReleased`]).
-    pub(crate) brake_releasing: bool,
-    /// The gear reported, as a state of the gear device.
-    pub gear: Option<u8>,
-    /// The reported gear drives the wheels.
-    pub(crate) in_gear: bool,
-    pub running: Option<bool>,
-    pub speed: Option<f64>,
-    pub estop: Option<EstopState>,
-    /// A shift is commanded and the gearbox does not report that gear yet.
-    pub(crate) shifting: bool,
-    /// At the wire: the throttle has nothing above released pending, in flight or
-    /// last sent.
-    pub(crate) throttle_released: bool,
-    /// At the wire: a gear command is pending or in flight for the gearbox that is not
-    /// the last one sent.
-    pub(crate) shift_on_its_way: bool,
-}
-
-impl Default for Facts {
-    fn default() -> Facts {
-        Facts {
-            brake_high: None,
-            brake_low: None,
-            brake_releasing: false,
-            gear: None,
-            in_gear: false,
-            running: None,
-            speed: None,
-            estop: None,
-            shifting: false,
-            throttle_released: true,
-            shift_on_its_way: false,
-        }
-    }
+/// The vehicle is stopped: its speed is known and below [`STOPPED`]. An unknown speed
+/// (the sensor has not reported, or reports nothing) is moving. The one meaning of
+/// "stopped" for the shift rule ([`Reject::ShiftWhileMoving`]) and for the recovery
+/// step that waits for it (`crate::supervisor::recovery`).
+pub fn stopped(speed: Option<f64>) -> bool {
+    speed.is_some_and(|s| s.abs() < STOPPED)
 }
 
 /// Why intake refused a command.
@@ -92,10 +52,11 @@ pub enum Reject {
     StartInGear,
     Disengaged,
     Recovering,
+    AccelWhileShifting,
 }
 
 impl Reject {
-    pub const ALL: [Reject; 16] = [
+    pub const ALL: [Reject; 17] = [
         Reject::NoSuchDevice,
         Reject::NotAnActuator,
         Reject::WrongKind,
@@ -112,6 +73,7 @@ impl Reject {
         Reject::StartInGear,
         Reject::Disengaged,
         Reject::Recovering,
+        Reject::AccelWhileShifting,
     ];
 
     /// The interlock rules among the reasons.
@@ -145,6 +107,7 @@ impl Reject {
             Reject::StartInGear => "start_in_gear",
             Reject::Disengaged => "disengaged",
             Reject::Recovering => "recovering",
+            Reject::AccelWhileShifting => "accel_while_shifting",
         }
     }
 
@@ -188,6 +151,9 @@ impl fmt::Display for Reject {
             Reject::StartInGear => "the starter runs only out of gear",
             Reject::Disengaged => "adrive is disengaged",
             Reject::Recovering => "a recovery procedure has the vehicle",
+            Reject::AccelWhileShifting => {
+                "no throttle until the shift is through (the brake stays on)"
+            }
         })
     }
 }
@@ -266,6 +232,28 @@ pub struct Plays {
 }
 
 impl Plays {
+    /// A throttle's commands.
+    pub const THROTTLE: Plays = Plays {
+        throttle: true,
+        brake: false,
+        gear: false,
+        starter: false,
+    };
+    /// A brake's commands.
+    pub const BRAKE: Plays = Plays {
+        throttle: false,
+        brake: true,
+        gear: false,
+        starter: false,
+    };
+    /// A gearbox's commands.
+    pub const GEAR: Plays = Plays {
+        throttle: false,
+        brake: false,
+        gear: true,
+        starter: false,
+    };
+
     pub fn of(roles: &[Role]) -> Plays {
         Plays {
             throttle: roles.contains(&Role::Throttle),
@@ -303,9 +291,7 @@ pub(crate) fn breaks(rule: Reject, f: &Facts, plays: Plays, command: Command) ->
         (Reject::BrakeReleaseShifting, Command::Set(v)) => {
             plays.brake && v < SHIFT_BRAKE && f.shifting
         }
-        (Reject::ShiftWhileMoving, Command::State(g)) => {
-            shift(g) && !f.speed.is_some_and(|s| s.abs() < STOPPED)
-        }
+        (Reject::ShiftWhileMoving, Command::State(g)) => shift(g) && !stopped(f.speed),
         (Reject::ShiftWithoutBrake, Command::State(g)) => {
             shift(g) && !f.brake_low.is_some_and(|b| b >= SHIFT_BRAKE)
         }
@@ -324,35 +310,6 @@ pub fn check(facts: &Facts, rules: Rules, plays: Plays, command: Command) -> Res
         Some(r) => Err(r),
         None => Ok(()),
     }
-}
-
-/// The throttle's and the brake's roles, for [`check_accel`].
-pub const THROTTLE: Plays = Plays {
-    throttle: true,
-    brake: false,
-    gear: false,
-    starter: false,
-};
-pub const BRAKE: Plays = Plays {
-    throttle: false,
-    brake: true,
-    gear: false,
-    starter: false,
-};
-
-/// The virtual `accel` command (−1 … 1, as fractions of the pedals' ranges) checked as
-/// a whole: both of its parts — throttle and brake — pass, or it is refused and
-/// neither is stored. Going from braking to throttle, the brake's release is checked
-/// first, and the throttle then as following that release (which the wire holds it
-/// behind). `f` holds the facts of both pedals.
-pub(crate) fn check_accel(f: &Facts, rules: Rules, a: f64) -> Result<(), Reject> {
-    let (throttle, brake) = if a > 0.0 { (a, 0.0) } else { (0.0, -a) };
-    check(f, rules, BRAKE, Command::Set(brake))?;
-    let behind_the_release = Facts {
-        brake_releasing: f.brake_releasing || brake <= RELEASED,
-        ..*f
-    };
-    check(&behind_the_release, rules, THROTTLE, Command::Set(throttle))
 }
 
 /// The guide's table (docs/vehicles.md) of the interlock rules: each with the roles it needs bound and
@@ -381,6 +338,12 @@ mod tests {
     use super::*;
 
     const DRIVE: u8 = 3;
+
+    /// A gearbox that is also the starter (Alice's `trans`).
+    const TRANS: Plays = Plays {
+        starter: true,
+        ..Plays::GEAR
+    };
     const PARK: u8 = 0;
 
     fn driving() -> Facts {
@@ -398,32 +361,16 @@ mod tests {
         }
     }
 
-    const GAS: Plays = Plays {
-        throttle: true,
-        brake: false,
-        gear: false,
-        starter: false,
-    };
-    const BRAKE: Plays = Plays {
-        throttle: false,
-        brake: true,
-        gear: false,
-        starter: false,
-    };
-    const TRANS: Plays = Plays {
-        throttle: false,
-        brake: false,
-        gear: true,
-        starter: true,
-    };
-
     fn check_all(f: &Facts, plays: Plays, c: Command) -> Result<(), Reject> {
         check(f, Rules::ALL, plays, c)
     }
 
     #[test]
     fn gas_passes_when_everything_allows_it() {
-        assert_eq!(check_all(&driving(), GAS, Command::Set(0.5)), Ok(()));
+        assert_eq!(
+            check_all(&driving(), Plays::THROTTLE, Command::Set(0.5)),
+            Ok(())
+        );
     }
 
     #[test]
@@ -433,17 +380,20 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, GAS, Command::Set(0.3)),
+            check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasWhileBraking)
         );
         // Releasing the gas is always allowed.
-        assert_eq!(check_all(&f, GAS, Command::Set(0.0)), Ok(()));
+        assert_eq!(check_all(&f, Plays::THROTTLE, Command::Set(0.0)), Ok(()));
         // With a release on its way the gas may follow it (the wire holds it back).
         let releasing = Facts {
             brake_releasing: true,
             ..f
         };
-        assert_eq!(check_all(&releasing, GAS, Command::Set(0.3)), Ok(()));
+        assert_eq!(
+            check_all(&releasing, Plays::THROTTLE, Command::Set(0.3)),
+            Ok(())
+        );
         // The other rules still apply.
         let in_park = Facts {
             gear: Some(PARK),
@@ -451,7 +401,7 @@ mod tests {
             ..releasing
         };
         assert_eq!(
-            check_all(&in_park, GAS, Command::Set(0.3)),
+            check_all(&in_park, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasNotInGear)
         );
     }
@@ -464,7 +414,7 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, GAS, Command::Set(0.3)),
+            check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasNotInGear)
         );
     }
@@ -476,12 +426,15 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, GAS, Command::Set(0.3)),
+            check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
             Err(Reject::GasEngineOff)
         );
         for estop in [Some(EstopState::Pause), Some(EstopState::Disable), None] {
             let f = Facts { estop, ..driving() };
-            assert_eq!(check_all(&f, GAS, Command::Set(0.3)), Err(Reject::GasEstop));
+            assert_eq!(
+                check_all(&f, Plays::THROTTLE, Command::Set(0.3)),
+                Err(Reject::GasEstop)
+            );
         }
     }
 
@@ -521,10 +474,10 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, BRAKE, Command::Set(0.0)),
+            check_all(&f, Plays::BRAKE, Command::Set(0.0)),
             Err(Reject::BrakeReleaseShifting)
         );
-        assert_eq!(check_all(&f, BRAKE, Command::Set(0.5)), Ok(()));
+        assert_eq!(check_all(&f, Plays::BRAKE, Command::Set(0.5)), Ok(()));
     }
 
     #[test]
@@ -534,10 +487,10 @@ mod tests {
             ..driving()
         };
         assert_eq!(
-            check_all(&f, BRAKE, Command::Set(0.2)),
+            check_all(&f, Plays::BRAKE, Command::Set(0.2)),
             Err(Reject::BrakeReleaseEstop)
         );
-        assert_eq!(check_all(&f, BRAKE, Command::Set(1.0)), Ok(()));
+        assert_eq!(check_all(&f, Plays::BRAKE, Command::Set(1.0)), Ok(()));
     }
 
     #[test]
@@ -559,7 +512,10 @@ mod tests {
             estop: None,
             ..driving()
         };
-        assert_eq!(check(&parked, rules, GAS, Command::Set(0.5)), Ok(()));
+        assert_eq!(
+            check(&parked, rules, Plays::THROTTLE, Command::Set(0.5)),
+            Ok(())
+        );
         assert_eq!(rules.names(), vec!["gas_while_braking"]);
         assert!(Rules::missing(&b)
             .iter()

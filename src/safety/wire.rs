@@ -10,7 +10,7 @@
 //! and acts. A wait happens before the command thread takes its port, so no port is
 //! held while another device is awaited.
 
-use super::rules::{breaks, Facts, Plays, Reject, Rules, RELEASED, SHIFT_BRAKE};
+use super::rules::{breaks, Facts, Plays, Reject, Rules, RELEASED};
 use crate::value::Command;
 
 /// What the command thread does with its command.
@@ -78,11 +78,16 @@ pub(crate) fn verdict(
             {
                 Verdict::Wait(Wait::ThrottleReleased)
             } else if !waited
-                && rules.has(Reject::BrakeReleaseShifting)
-                && v < SHIFT_BRAKE
-                && f.shift_on_its_way
+                && broken(
+                    Reject::BrakeReleaseShifting,
+                    &Facts {
+                        shifting: f.shift_on_its_way,
+                        ..*f
+                    },
+                )
             {
-                // A shift on its way keeps the brake on until it is out.
+                // A shift on its way keeps the brake on until it is out: the rule of
+                // intake, over the shift the wire sees.
                 Verdict::Wait(Wait::ShiftOut)
             } else if broken(Reject::BrakeReleaseEstop, f) {
                 // The e-stop paused between intake and the wire: the release (and the
@@ -111,25 +116,6 @@ mod tests {
     use super::*;
     use crate::value::EstopState;
 
-    const GAS: Plays = Plays {
-        throttle: true,
-        brake: false,
-        gear: false,
-        starter: false,
-    };
-    const BRAKE: Plays = Plays {
-        throttle: false,
-        brake: true,
-        gear: false,
-        starter: false,
-    };
-    const GEAR: Plays = Plays {
-        throttle: false,
-        brake: false,
-        gear: true,
-        starter: false,
-    };
-
     fn calm() -> Facts {
         Facts {
             brake_high: Some(0.0),
@@ -148,11 +134,17 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), false),
+            verdict(&f, Rules::ALL, Plays::THROTTLE, Command::Set(0.4), false),
             Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking)
         );
         assert_eq!(
-            verdict(&calm(), Rules::ALL, GAS, Command::Set(0.4), false),
+            verdict(
+                &calm(),
+                Rules::ALL,
+                Plays::THROTTLE,
+                Command::Set(0.4),
+                false
+            ),
             Verdict::Send(Command::Set(0.4))
         );
     }
@@ -165,11 +157,11 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), false),
+            verdict(&f, Rules::ALL, Plays::THROTTLE, Command::Set(0.4), false),
             Verdict::Wait(Wait::BrakeReleased)
         );
         assert_eq!(
-            verdict(&f, Rules::ALL, GAS, Command::Set(0.4), true),
+            verdict(&f, Rules::ALL, Plays::THROTTLE, Command::Set(0.4), true),
             Verdict::Replace(Command::Set(0.0), Reject::GasWhileBraking),
             "the release did not land: no throttle"
         );
@@ -182,11 +174,11 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&f, Rules::ALL, BRAKE, Command::Set(1.0), false),
+            verdict(&f, Rules::ALL, Plays::BRAKE, Command::Set(1.0), false),
             Verdict::Wait(Wait::ThrottleReleased)
         );
         assert_eq!(
-            verdict(&f, Rules::ALL, BRAKE, Command::Set(1.0), true),
+            verdict(&f, Rules::ALL, Plays::BRAKE, Command::Set(1.0), true),
             Verdict::Send(Command::Set(1.0))
         );
     }
@@ -198,11 +190,17 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&shifting, Rules::ALL, BRAKE, Command::Set(0.0), false),
+            verdict(
+                &shifting,
+                Rules::ALL,
+                Plays::BRAKE,
+                Command::Set(0.0),
+                false
+            ),
             Verdict::Wait(Wait::ShiftOut)
         );
         assert_eq!(
-            verdict(&calm(), Rules::ALL, BRAKE, Command::Set(0.0), false),
+            verdict(&calm(), Rules::ALL, Plays::BRAKE, Command::Set(0.0), false),
             Verdict::Send(Command::Set(0.0)),
             "a no-op shift holds nothing"
         );
@@ -217,7 +215,7 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&moving, Rules::ALL, GEAR, Command::State(0), false),
+            verdict(&moving, Rules::ALL, Plays::GEAR, Command::State(0), false),
             Verdict::Drop(Reject::ShiftWhileMoving)
         );
         let releasing = Facts {
@@ -226,7 +224,13 @@ mod tests {
             ..calm()
         };
         assert_eq!(
-            verdict(&releasing, Rules::ALL, GEAR, Command::State(0), false),
+            verdict(
+                &releasing,
+                Rules::ALL,
+                Plays::GEAR,
+                Command::State(0),
+                false
+            ),
             Verdict::Drop(Reject::ShiftWithoutBrake)
         );
     }

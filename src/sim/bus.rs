@@ -295,7 +295,7 @@ impl ServedBus {
     }
 
     /// The model's road speed (m/s), steering wheel angle (degrees) and brake pressure
-    /// (bar), now.
+    /// (bar), now: each position as its sensor reports it (a `bias` slips it).
     fn vehicle(&self) -> (f64, f64, f64) {
         let mut m = self.model.lock();
         m.step();
@@ -304,7 +304,10 @@ impl ServedBus {
                 .bindings
                 .iter()
                 .find(|b| b.module == module)
-                .map_or(0.0, |b| m.device(b.device).position)
+                .map_or(0.0, |b| {
+                    let d = m.device(b.device);
+                    d.position + d.bias
+                })
         };
         (
             m.velocity.abs(),
@@ -421,12 +424,51 @@ mod tests {
             e,
             "gas is not driven by a kit's module: give the position a hand pushes it toward (`override gas 0.5`)"
         );
-        let e = sim.apply("fault gas INVALID_SENSOR_VAL").unwrap_err();
+        let e = sim.apply("fault gas INVALID_SENSOR_VAL on").unwrap_err();
         assert!(
             e.contains(
                 "gas is not driven by a simulated kit's module (kit modules: none in this vehicle)"
             ),
             "{e}"
         );
+    }
+
+    /// `fault MODULE DTC on` holds the condition behind the code; `off` ends it, and
+    /// the module clears the code by itself, as OSCC's firmware does.
+    #[test]
+    fn a_kit_modules_fault_holds_until_its_condition_is_switched_off() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("vehicles/oscc.toml");
+        let config = crate::config::load(&path).unwrap();
+        let sim = super::super::Sim::start(&config, None).unwrap();
+        let dtcs = || {
+            sim.with_kit("kit", |p| p.node.state(Module::Brake).dtcs)
+                .unwrap()
+        };
+        let done = sim.apply("fault brake INVALID_SENSOR_VAL on").unwrap();
+        assert!(
+            done.contains("until `fault brake INVALID_SENSOR_VAL off`"),
+            "{done}"
+        );
+        // A disabled module with no code does not look: it sees the grounded sensor
+        // once enabled.
+        sim.with_kit("kit", |p| {
+            let f = config.buses[0]
+                .dbc
+                .message("BRAKE_ENABLE")
+                .unwrap()
+                .encode(&[])
+                .unwrap();
+            super::super::slcan::BusNode::receive(&mut p.node, &f, Instant::now());
+        });
+        let end = Instant::now() + Duration::from_secs(20);
+        while dtcs() != 1 {
+            assert!(Instant::now() < end, "the brake never reported the fault");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        sim.apply("fault brake INVALID_SENSOR_VAL off").unwrap();
+        while dtcs() != 0 {
+            assert!(Instant::now() < end, "the brake never cleared its code");
+            std::thread::sleep(Duration::from_millis(5));
+        }
     }
 }

@@ -7,6 +7,11 @@
 //! to setpoint devices. A CAN bus is named as its `[[bus]]` is: its adapter is a port
 //! like a device's (`vanish kit 2s`), the bus itself can fail (`bus kit off`), and the
 //! kit's modules behind it take the operator's override and fault codes by name.
+//!
+//! A command that would act on something the vehicle does not have — `estop` without a
+//! device reading the e-stop, `stall` where nothing reports the engine, `jam` on a kit's
+//! module (it has no drive fault latch) — is refused with what is missing ([`Need`]),
+//! and `help` lists it apart, so nothing answers a success that changed nothing.
 
 use crate::value::{DeviceId, EstopState, Kind};
 use std::fmt::Write as _;
@@ -27,8 +32,8 @@ pub type Devices = [(String, Kind)];
 
 /// Everything a command may name: the vehicle's devices, which of them are on a CAN
 /// bus (and so have no port of their own) and which a simulated kit's module drives,
-/// and the simulated buses.
-#[derive(Clone, Debug, Default)]
+/// and the simulated buses; and what of the vehicle the commands act on shows.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Names {
     /// Name and kind, by device id.
     pub devices: Vec<(String, Kind)>,
@@ -38,43 +43,42 @@ pub struct Names {
     pub modules: Vec<DeviceId>,
     /// The simulated buses, by index.
     pub buses: Vec<String>,
+    /// What the simulated vehicle shows of what some commands act on.
+    pub has: Has,
+}
+
+/// What of the simulated vehicle some device shows, so that a command acting on it
+/// can be seen to: a reading on a device's own port, or a kit's message.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Has {
+    /// A device reads the e-stop's state.
+    pub estop: bool,
+    /// A device reports the engine (its rpm, or whether it runs).
+    pub engine: bool,
+    /// A device is bound to the starter role.
+    pub starter: bool,
+    /// The setpoint devices whose position something reports.
+    pub positions: Vec<DeviceId>,
 }
 
 impl Names {
-    /// A vehicle without CAN buses.
-    pub fn of_devices(devices: Vec<(String, Kind)>) -> Names {
-        Names {
-            bus_of: vec![None; devices.len()],
-            devices,
-            ..Names::default()
-        }
-    }
-
     fn ports(&self) -> String {
         let mut v: Vec<&str> = self.devices.iter().map(|(n, _)| n.as_str()).collect();
         v.extend(self.buses.iter().map(String::as_str));
-        v.join(", ")
+        or_none(v)
     }
 
     fn modules(&self) -> String {
-        let v: Vec<&str> = self
-            .modules
-            .iter()
-            .map(|id| self.devices[id.index()].0.as_str())
-            .collect();
-        if v.is_empty() {
-            "none in this vehicle".into()
-        } else {
-            v.join(", ")
-        }
+        or_none(
+            self.modules
+                .iter()
+                .map(|id| self.devices[id.index()].0.as_str())
+                .collect(),
+        )
     }
 
     fn buses(&self) -> String {
-        if self.buses.is_empty() {
-            "none in this vehicle".into()
-        } else {
-            self.buses.join(", ")
-        }
+        or_none(self.buses.iter().map(String::as_str).collect())
     }
 }
 
@@ -216,12 +220,22 @@ impl Arg {
 
 /// The devices an argument may name, for messages.
 fn list(devices: &Devices, which: Which) -> String {
-    devices
-        .iter()
-        .filter(|(_, k)| which == Which::Any || *k == Kind::Setpoint)
-        .map(|(n, _)| n.as_str())
-        .collect::<Vec<_>>()
-        .join(", ")
+    or_none(
+        devices
+            .iter()
+            .filter(|(_, k)| which == Which::Any || *k == Kind::Setpoint)
+            .map(|(n, _)| n.as_str())
+            .collect(),
+    )
+}
+
+/// Names for a message, or that there are none: never an empty list.
+fn or_none(names: Vec<&str>) -> String {
+    if names.is_empty() {
+        "none in this vehicle".into()
+    } else {
+        names.join(", ")
+    }
 }
 
 /// A parsed argument.
@@ -252,8 +266,9 @@ pub enum SimCommand {
     Override(DeviceId, Option<f64>),
     /// A kit's module: the operator overrides it (`true`) or lets go.
     KitOverride(DeviceId, bool),
-    /// A kit's module latches the fault code named.
-    Fault(DeviceId, String),
+    /// A kit's module: the condition behind the fault code named holds (`true`) or
+    /// ends.
+    Fault(DeviceId, String, bool),
     /// A bus is well (`true`) or in error (`false`).
     Bus(usize, bool),
     Silent(Port, bool),
@@ -273,7 +288,77 @@ pub(crate) struct Verb {
     pub does: &'static str,
     /// A line that uses it (help shows it; a test parses every one).
     pub example: &'static str,
+    /// What of the vehicle it acts on, which must exist.
+    pub needs: Need,
     build: fn(&Values) -> SimCommand,
+}
+
+/// What a command acts on beyond the devices its arguments name, which the vehicle
+/// must have for the command to do anything.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Need {
+    Nothing,
+    /// A device reading the e-stop.
+    Estop,
+    /// A device reporting the engine.
+    Engine,
+    /// A starter, and a device reporting the engine.
+    Starter,
+    /// The device of the first argument has a drive of its own (not a kit's module),
+    /// whose fault latch its status shows.
+    Drive,
+    /// Something reports the position of the device of the first argument.
+    Position,
+}
+
+impl Need {
+    /// Whether the vehicle has it, for the parsed arguments: else what is missing.
+    fn check(self, values: &Values, names: &Names) -> Result<(), String> {
+        let has = &names.has;
+        let name = |i: usize| names.devices[values.device(i).index()].0.as_str();
+        match self {
+            Need::Estop if !has.estop => {
+                Err("no e-stop is bound on this vehicle (no device reads an e-stop state)".into())
+            }
+            Need::Engine | Need::Starter if !has.engine => Err(
+                "no device of this vehicle reports the engine (its rpm, or whether it runs)".into(),
+            ),
+            Need::Starter if !has.starter => {
+                Err("no starter is bound on this vehicle (the starter role)".into())
+            }
+            Need::Drive => {
+                let id = values.device(0);
+                match names.bus_of.get(id.index()).copied().flatten() {
+                    None => Ok(()),
+                    Some(b) if names.modules.contains(&id) => Err(format!(
+                        "{} is driven by a kit's module on bus {}, which has no drive fault latch (`fault {} DTC on` holds a fault of its module)",
+                        name(0),
+                        names.buses.get(b).map_or("?", String::as_str),
+                        name(0)
+                    )),
+                    Some(b) => Err(format!(
+                        "{} is on bus {}, where the simulator drives no drive of its",
+                        name(0),
+                        names.buses.get(b).map_or("?", String::as_str)
+                    )),
+                }
+            }
+            Need::Position if !has.positions.contains(&values.device(0)) => Err(format!(
+                "nothing reports {}'s position on this vehicle",
+                name(0)
+            )),
+            _ => Ok(()),
+        }
+    }
+
+    /// What the vehicle lacks for it, when that does not depend on the arguments.
+    fn missing(self, names: &Names) -> Option<String> {
+        let none = Values(Vec::new());
+        match self {
+            Need::Estop | Need::Engine | Need::Starter => self.check(&none, names).err(),
+            _ => None,
+        }
+    }
 }
 
 impl Verb {
@@ -359,6 +444,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[Arg::Estop],
         does: "change the e-stop state",
         example: "estop pause",
+        needs: Need::Estop,
         build: |v| SimCommand::Estop(v.estop(0)),
     },
     Verb {
@@ -366,6 +452,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[],
         does: "the engine stalls",
         example: "stall",
+        needs: Need::Engine,
         build: |_| SimCommand::Stall,
     },
     Verb {
@@ -373,6 +460,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[Arg::OnOff],
         does: "the starter turns but the engine never catches",
         example: "nostart on",
+        needs: Need::Starter,
         build: |v| SimCommand::NoStart(v.on(0)),
     },
     Verb {
@@ -380,6 +468,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[Arg::Port, Arg::OnOff],
         does: "the device (or a bus's adapter) stops answering",
         example: "silent gas on",
+        needs: Need::Nothing,
         build: |v| SimCommand::Silent(v.port(0), v.on(1)),
     },
     Verb {
@@ -387,6 +476,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[Arg::Port, Arg::OnOff],
         does: "the device answers noise",
         example: "garbage steer on",
+        needs: Need::Nothing,
         build: |v| SimCommand::Garbage(v.port(0), v.on(1)),
     },
     Verb {
@@ -394,6 +484,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[Arg::Port, Arg::OnOff],
         does: "flip a bit in every reply (bad CRC or checksum)",
         example: "corrupt brake on",
+        needs: Need::Nothing,
         build: |v| SimCommand::Corrupt(v.port(0), v.on(1)),
     },
     Verb {
@@ -401,6 +492,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[Arg::Port, Arg::Millis],
         does: "answer MS later (0 clears)",
         example: "slow trans 80",
+        needs: Need::Nothing,
         build: |v| SimCommand::Slow(v.port(0), v.ms(1)),
     },
     Verb {
@@ -409,6 +501,7 @@ pub(crate) const VERBS: &[Verb] = &[
         does:
             "close the port and remove its link (a USB unplug); back after MS behind the same link",
         example: "vanish obd 2s",
+        needs: Need::Nothing,
         build: |v| SimCommand::Vanish(v.port(0), v.ms(1)),
     },
     Verb {
@@ -416,6 +509,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[Arg::Port],
         does: "clear the port's faults (silent, garbage, corrupt, slow)",
         example: "clear gas",
+        needs: Need::Nothing,
         build: |v| SimCommand::Clear(v.port(0)),
     },
     Verb {
@@ -423,6 +517,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[SETPOINT],
         does: "the drive latches a fault (bit 0x0001; disable → enable clears it)",
         example: "jam steer",
+        needs: Need::Drive,
         build: |v| SimCommand::Jam(v.device(0)),
     },
     Verb {
@@ -430,6 +525,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[SETPOINT, Arg::OnOff],
         does: "the motor stops moving and its drive does not notice",
         example: "stuck steer on",
+        needs: Need::Nothing,
         build: |v| SimCommand::Stuck(v.device(0), v.on(1)),
     },
     Verb {
@@ -437,6 +533,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[SETPOINT, Arg::Number("X")],
         does: "the device reports its position X off (a slipped sensor; 0 clears)",
         example: "bias steer 0.3",
+        needs: Need::Position,
         build: |v| SimCommand::Bias(v.device(0), v.number(1)),
     },
     Verb {
@@ -444,6 +541,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[SETPOINT, Arg::NumberOrOnOff("X")],
         does: "a driver's hand pushes the device toward X, stronger than its drive (off: lets go); a kit's module also reports the operator's override (on: just that)",
         example: "override steer 0.5",
+        needs: Need::Nothing,
         build: |v| match v.0[1] {
             Value::On(_) => SimCommand::KitOverride(v.device(0), true),
             _ => SimCommand::Override(v.device(0), v.number_or_off(1)),
@@ -451,16 +549,18 @@ pub(crate) const VERBS: &[Verb] = &[
     },
     Verb {
         name: "fault",
-        args: &[MODULE, Arg::Dtc],
-        does: "a kit's module latches the fault code DTC (by its DBC name), disables itself and reports it",
-        example: "fault brake INVALID_SENSOR_VAL",
-        build: |v| SimCommand::Fault(v.device(0), v.word(1)),
+        args: &[MODULE, Arg::Dtc, Arg::OnOff],
+        does: "the condition behind a kit module's fault code DTC (by its DBC name) holds: INVALID_SENSOR_VAL its sensor reads grounded; the module disables itself and reports the code while it holds, and clears it once off",
+        example: "fault brake INVALID_SENSOR_VAL on",
+        needs: Need::Nothing,
+        build: |v| SimCommand::Fault(v.device(0), v.word(1), v.on(2)),
     },
     Verb {
         name: "bus",
         args: &[Arg::Bus, Arg::OnOff],
         does: "off: the bus is in error (bus-off); its adapter refuses frames, delivers none, and its status says bus error",
         example: "bus kit off",
+        needs: Need::Nothing,
         build: |v| SimCommand::Bus(v.bus(0), v.on(1)),
     },
     Verb {
@@ -468,6 +568,7 @@ pub(crate) const VERBS: &[Verb] = &[
         args: &[],
         does: "this list",
         example: "help",
+        needs: Need::Nothing,
         build: |_| SimCommand::Help,
     },
 ];
@@ -503,7 +604,11 @@ pub fn parse(line: &str, names: &Names) -> Result<SimCommand, String> {
         .map(|(a, w)| a.parse(w, names))
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| format!("{name}: {e}; the form is {}", form()))?;
-    Ok((verb.build)(&Values(values)))
+    let values = Values(values);
+    verb.needs
+        .check(&values, names)
+        .map_err(|e| format!("{name}: {e}"))?;
+    Ok((verb.build)(&values))
 }
 
 /// The table as help text: one line per command, then what each argument may name.
@@ -511,8 +616,17 @@ pub fn help(names: &Names) -> String {
     let devices = &*names.devices;
     let width = VERBS.iter().map(|v| v.form().len()).max().unwrap_or(0);
     let mut s = String::new();
+    let mut absent = Vec::new();
     for v in VERBS {
-        let _ = writeln!(s, "  {:<width$}  {}", v.form(), v.does);
+        match v.needs.missing(names) {
+            None => {
+                let _ = writeln!(s, "  {:<width$}  {}", v.form(), v.does);
+            }
+            Some(why) => absent.push(format!("{} ({why})", v.name)),
+        }
+    }
+    if !absent.is_empty() {
+        let _ = writeln!(s, "  not on this vehicle: {}", absent.join("; "));
     }
     let _ = writeln!(s, "  SETPOINT is one of {}", list(devices, Which::Setpoint));
     let _ = writeln!(
@@ -537,15 +651,25 @@ pub fn help(names: &Names) -> String {
 mod tests {
     use super::*;
 
-    /// Alice's devices, each on its own port.
+    /// Alice's devices, each on its own port: the e-stop, the engine and a starter, and
+    /// the drives' positions, all reported.
     fn alice() -> Names {
-        Names::of_devices(
-            crate::config::VehicleConfig::alice()
-                .devices
-                .iter()
-                .map(|d| (d.name.clone(), d.kind))
-                .collect(),
-        )
+        let devices: Vec<(String, Kind)> = crate::config::VehicleConfig::alice()
+            .devices
+            .iter()
+            .map(|d| (d.name.clone(), d.kind))
+            .collect();
+        Names {
+            bus_of: vec![None; devices.len()],
+            has: Has {
+                estop: true,
+                engine: true,
+                starter: true,
+                positions: vec![STEER, GAS, BRAKE],
+            },
+            devices,
+            ..Names::default()
+        }
     }
 
     /// The OSCC Kia Soul: three kit modules and the car, all on bus `kit`.
@@ -560,6 +684,12 @@ mod tests {
             bus_of: vec![Some(0); 4],
             modules: vec![DeviceId(0), DeviceId(1), DeviceId(2)],
             buses: vec!["kit".into()],
+            // The steering wheel angle and the brake pressure are on the bus; nothing
+            // reads an e-stop or the engine.
+            has: Has {
+                positions: vec![STEER, BRAKE],
+                ..Has::default()
+            },
         }
     }
 
@@ -616,8 +746,12 @@ mod tests {
             Ok(SimCommand::Override(STEER, None))
         );
         assert_eq!(
-            k("fault brake invalid_sensor_val"),
-            Ok(SimCommand::Fault(BRAKE, "INVALID_SENSOR_VAL".into()))
+            k("fault brake invalid_sensor_val on"),
+            Ok(SimCommand::Fault(BRAKE, "INVALID_SENSOR_VAL".into(), true))
+        );
+        assert_eq!(
+            k("fault brake INVALID_SENSOR_VAL off"),
+            Ok(SimCommand::Fault(BRAKE, "INVALID_SENSOR_VAL".into(), false))
         );
         assert_eq!(k("bus kit off"), Ok(SimCommand::Bus(0, false)));
         assert_eq!(
@@ -633,7 +767,7 @@ mod tests {
             Ok(SimCommand::Silent(Port::Bus(0), true)),
             "a device on a bus: its bus's adapter"
         );
-        let e = k("fault car INVALID_SENSOR_VAL").unwrap_err();
+        let e = k("fault car INVALID_SENSOR_VAL on").unwrap_err();
         assert!(
             e.contains(
                 "car is not driven by a simulated kit's module (kit modules: steer, gas, brake)"
@@ -644,6 +778,73 @@ mod tests {
         assert!(e.contains("unknown bus \"can2\"; the buses are kit"), "{e}");
         let e = p("bus kit off").unwrap_err();
         assert!(e.contains("the buses are none in this vehicle"), "{e}");
+    }
+
+    /// The incident: on the OSCC kit, `estop pause` answered "estop is now pause" and
+    /// `stall` "engine stalled", though nothing of the vehicle reads an e-stop or the
+    /// engine, and the bench box then showed states that do not exist. A command is
+    /// refused with what the vehicle lacks for it, and `help` lists it apart.
+    #[test]
+    fn a_command_for_what_the_vehicle_does_not_have_says_what_is_missing() {
+        let e = k("estop pause").unwrap_err();
+        assert_eq!(
+            e,
+            "estop: no e-stop is bound on this vehicle (no device reads an e-stop state)"
+        );
+        let e = k("stall").unwrap_err();
+        assert_eq!(
+            e,
+            "stall: no device of this vehicle reports the engine (its rpm, or whether it runs)"
+        );
+        assert!(k("nostart on").unwrap_err().contains("reports the engine"));
+        let e = k("jam steer").unwrap_err();
+        assert_eq!(
+            e,
+            "jam: steer is driven by a kit's module on bus kit, which has no drive fault latch (`fault steer DTC on` holds a fault of its module)"
+        );
+        let e = k("bias gas 0.1").unwrap_err();
+        assert_eq!(e, "bias: nothing reports gas's position on this vehicle");
+        assert_eq!(k("bias steer 0.1"), Ok(SimCommand::Bias(STEER, 0.1)));
+        assert_eq!(k("stuck gas on"), Ok(SimCommand::Stuck(GAS, true)));
+        let no_starter = Names {
+            has: Has {
+                starter: false,
+                ..alice().has
+            },
+            ..alice()
+        };
+        let e = parse("nostart on", &no_starter).unwrap_err();
+        assert_eq!(
+            e,
+            "nostart: no starter is bound on this vehicle (the starter role)"
+        );
+        assert_eq!(p("stall"), Ok(SimCommand::Stall));
+
+        let h = help(&oscc());
+        for gone in ["estop pause|run|disable", "  stall ", "nostart on|off"] {
+            assert!(!h.contains(gone), "{gone} offered:\n{h}");
+        }
+        assert!(
+            h.contains("not on this vehicle: estop (no e-stop is bound on this vehicle (no device reads an e-stop state)); stall (no device"),
+            "{h}"
+        );
+        assert!(!help(&alice()).contains("not on this vehicle"));
+    }
+
+    /// A list of devices in a message is never empty.
+    #[test]
+    fn a_vehicle_without_setpoint_devices_says_so() {
+        let sensors = Names {
+            devices: vec![("obd".into(), Kind::Sensor)],
+            bus_of: vec![None],
+            ..Names::default()
+        };
+        let e = parse("stuck obd on", &sensors).unwrap_err();
+        assert!(
+            e.contains("it applies to setpoint devices (none in this vehicle), not obd (a sensor)"),
+            "{e}"
+        );
+        assert!(help(&sensors).contains("SETPOINT is one of none in this vehicle"));
     }
 
     /// The incident: `stuck gas on` was refused with a message that did not say
@@ -705,7 +906,7 @@ mod tests {
         assert!(h.contains("override SETPOINT X|on|off"), "{h}");
         assert!(h.contains("SETPOINT is one of steer, gas, brake"), "{h}");
         let h = help(&oscc());
-        assert!(h.contains("fault MODULE DTC"), "{h}");
+        assert!(h.contains("fault MODULE DTC on|off"), "{h}");
         assert!(h.contains("bus BUS on|off"), "{h}");
         assert!(
             h.contains("PORT is a device or a bus (a device on a bus: its bus's adapter): steer, gas, brake, car, kit"),

@@ -111,7 +111,8 @@ pub struct SimEvent {
     pub command: Command,
     /// The raw request bytes; empty when the device acted on its own.
     pub request: Vec<u8>,
-    /// Why, when the device acted on its own (its watchdog).
+    /// What the device did on its own (its watchdog, a kit module's firmware), in
+    /// words: then `command` is where it stands, not something it received.
     pub note: Option<String>,
     /// The command in words (`0.250`, `drive`, `home`).
     pub text: String,
@@ -404,24 +405,70 @@ impl Sim {
         }
     }
 
-    /// What the simulator's commands may name.
-    fn names(&self) -> Names {
+    /// What the simulator's commands may name, and what of the vehicle they act on
+    /// shows: a device on its own port serves the model's readings; a device on a bus
+    /// shows what its kit's messages carry.
+    pub fn names(&self) -> Names {
         let m = self.model.lock();
-        let devices = m.devices.iter().map(|d| (d.name.clone(), d.kind)).collect();
+        let devices: Vec<(String, Kind)> =
+            m.devices.iter().map(|d| (d.name.clone(), d.kind)).collect();
+        let own = |i: usize| self.bus_of.get(i).copied().flatten().is_none();
+        let shown = |what: model::Shown| {
+            (0..devices.len()).any(|i| own(i) && m.shows(DeviceId(i as u16), what))
+        };
+        let mut modules: Vec<DeviceId> = self
+            .kits
+            .iter()
+            .flat_map(|k| k.bindings.iter().map(|b| b.device))
+            .collect();
+        modules.sort_unstable_by_key(|d| d.index());
+        let positions = (0..devices.len())
+            .map(|i| DeviceId(i as u16))
+            .filter(|&id| devices[id.index()].1 == Kind::Setpoint)
+            .filter(|&id| {
+                if own(id.index()) {
+                    return m.shows(id, model::Shown::Position);
+                }
+                self.module(id)
+                    .is_some_and(|(kit, module)| kit.port.lock().node.reports_position(module))
+            })
+            .collect();
+        let has = commands::Has {
+            estop: shown(model::Shown::Estop),
+            engine: shown(model::Shown::Engine),
+            starter: m.starter().is_some_and(|id| own(id.index())),
+            positions,
+        };
         Names {
             devices,
             bus_of: self.bus_of.clone(),
-            modules: {
-                let mut v: Vec<DeviceId> = self
-                    .kits
-                    .iter()
-                    .flat_map(|k| k.bindings.iter().map(|b| b.device))
-                    .collect();
-                v.sort_unstable_by_key(|d| d.index());
-                v
-            },
+            modules,
             buses: self.buses.iter().map(|p| p.name.clone()).collect(),
+            has,
         }
+    }
+
+    /// The state of the kit's module that moves device `name`, in words, for the
+    /// console's bench: `steering module enabled`, `brake module disabled, operator
+    /// override · INVALID_SENSOR_VAL held` (`None`: no kit's module moves it).
+    pub fn module_state(&self, name: &str) -> Option<String> {
+        let id = self.model.lock().find(name)?;
+        let (kit, module) = self.module(id)?;
+        let port = kit.port.lock();
+        let s = port.node.state(module);
+        let mut out = format!(
+            "{module} module {}",
+            if s.enabled { "enabled" } else { "disabled" }
+        );
+        if s.operator_override {
+            out.push_str(", operator override");
+        }
+        for dtc in port.node.fault_names(module) {
+            if port.node.fault_held(module, &dtc) == Some(true) {
+                out.push_str(&format!(" · {dtc} held"));
+            }
+        }
+        Some(out)
     }
 
     /// The kit and module that move `id`.
@@ -469,18 +516,26 @@ impl Sim {
         match commands::parse(line, &names)? {
             SimCommand::Help => Ok(format!("commands:\n{}", commands::help(&names).trim_end())),
             SimCommand::KitOverride(id, on) => kit_override(id, on),
-            SimCommand::Fault(id, dtc) => {
+            SimCommand::Fault(id, dtc, on) => {
                 let (kit, module) = self
                     .module(id)
                     .ok_or_else(|| format!("{} is not driven by a kit's module", name(id)))?;
                 kit.port
                     .lock()
                     .node
-                    .inject_fault(module, &dtc, Instant::now())?;
-                Ok(format!(
-                    "{}: the {module} module latched {dtc} and disabled itself",
-                    name(id)
-                ))
+                    .set_fault(module, &dtc, on, Instant::now())?;
+                Ok(if on {
+                    format!(
+                        "{}: the {module} module's {dtc} condition holds: it disables itself and reports {dtc} until `fault {} {dtc} off`",
+                        name(id),
+                        name(id)
+                    )
+                } else {
+                    format!(
+                        "{}: the {module} module's {dtc} condition ended: it clears its fault codes",
+                        name(id)
+                    )
+                })
             }
             SimCommand::Bus(i, on) => {
                 self.kits[i].bus_fault.store(!on, Relaxed);
@@ -598,7 +653,7 @@ impl Served {
     /// whether the link is up or gone (a real actuator's microcontroller keeps running
     /// when its USB link drops); while the link is up, requests are served.
     fn run(self, master: TTYPort, slave: TTYPort) {
-        let mut watchdog = Watchdog::new(self.config.sim.watchdog, Instant::now());
+        let mut watchdog = Watchdog::new(self.config.sim.watchdog);
         let mut link = Link::Up(Box::new(self.up(master, slave)));
         while !self.stop.load(Relaxed) {
             if watchdog.expired(Instant::now()) {
@@ -652,7 +707,8 @@ impl Served {
     }
 
     /// The watchdog tripped: the device goes to its safe value by itself (gas to 0,
-    /// brake on).
+    /// brake on); a device without one (the steering) holds where it is, and nothing
+    /// happened to tell.
     fn watchdog_trip(&self, limit: Duration) {
         let c = &self.config;
         let (speed, safe) = {
@@ -660,8 +716,16 @@ impl Served {
             let safe = m.watchdog_trip(self.id);
             (m.velocity, safe)
         };
-        tracing::info!(device = %c.name, "simulated device watchdog: no command for {limit:?}, going safe");
-        let Some(safe) = safe else { return };
+        let Some(safe) = safe else {
+            tracing::debug!(device = %c.name, "simulated device watchdog: no command for {limit:?}; no safe value, it holds");
+            return;
+        };
+        let text = c.command_text(safe);
+        let note = format!(
+            "device watchdog: no command for {}; went to {text} by itself",
+            humantime::format_duration(limit)
+        );
+        tracing::info!(device = %c.name, "simulated {note}");
         self.events.emit(SimEvent {
             speed,
             state_before: None,
@@ -669,12 +733,9 @@ impl Served {
             name: c.name.clone(),
             at: Instant::now(),
             command: safe,
-            text: c.command_text(safe),
+            text,
             request: Vec::new(),
-            note: Some(format!(
-                "device watchdog: no command for {}",
-                humantime::format_duration(limit)
-            )),
+            note: Some(note),
         });
     }
 

@@ -24,6 +24,17 @@ pub(crate) const CRANK_TIME: Duration = Duration::from_millis(800);
 pub(crate) const DRIVE_FAULT: u16 = 0x0001;
 pub(crate) const DRIVE_DISABLED: u16 = 0x0100;
 
+/// What a device's readings may show of the simulated vehicle ([`Model::shows`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Shown {
+    /// The e-stop's state.
+    Estop,
+    /// The engine: its rpm, or whether it runs.
+    Engine,
+    /// The device's own position.
+    Position,
+}
+
 /// Where a simulated reading comes from.
 #[derive(Clone, Debug, PartialEq)]
 enum Source {
@@ -257,6 +268,21 @@ impl Model {
 
     pub(crate) fn device_mut(&mut self, id: DeviceId) -> &mut SimDevice {
         &mut self.devices[id.index()]
+    }
+
+    /// Whether device `id`'s readings, as the model serves them on its own port, show
+    /// `what`: what a simulated fault needs to be seen at all.
+    pub(crate) fn shows(&self, id: DeviceId, what: Shown) -> bool {
+        self.device(id).sources.iter().any(|s| match what {
+            Shown::Estop => matches!(s, Source::Estop(_)),
+            Shown::Engine => matches!(s, Source::Rpm | Source::Running),
+            Shown::Position => matches!(s, Source::Position),
+        })
+    }
+
+    /// The device bound to the starter role.
+    pub(crate) fn starter(&self) -> Option<DeviceId> {
+        self.roles.starter
     }
 
     /// The device bound to a role.

@@ -4,14 +4,24 @@
 //! (`vehicles/oscc.dbc`), so the simulator, adrive's drivers and third-party tools read
 //! the same layout.
 //!
-//! Each module does what OSCC's firmware does on the bus: it ignores a frame without
-//! the magic bytes 0x05 0xCC; `*_ENABLE` enables it, `*_DISABLE` disables it; a
-//! `*_COMMAND` while enabled sets its request; it reports at the report message's cycle
-//! time (50 Hz) whether it is enabled, overridden and its fault codes. An operator
-//! override (the driver turns the wheel or presses a pedal) or an injected fault
-//! disables the module and sends one `FAULT_REPORT` naming it. A module cannot be
-//! enabled while the operator still overrides it; enabling clears the override flag
-//! and its fault code.
+//! Each module does what OSCC's firmware (v1.2.4, `firmware/*/src/*_control.cpp`) does
+//! on the bus: it ignores a frame without the magic bytes 0x05 0xCC; `*_ENABLE` enables
+//! it unless its override flag is set, `*_DISABLE` disables it; a `*_COMMAND` while
+//! enabled sets its request; a `FAULT_REPORT` from another module disables it; it
+//! reports at the report message's cycle time (50 Hz) whether it is enabled, its
+//! override flag and its fault codes.
+//!
+//! Its faults follow the firmware's `check_for_faults`, which runs on every turn of the
+//! module's loop while it is enabled or holds a fault code. A condition — the driver
+//! overriding it, its sensor reading grounded (disconnected) — that holds for
+//! [`FAULT_HYSTERESIS`] (the steering's override: at once, through its filter) disables
+//! the module, sets the condition's fault code (and the override flag for an override)
+//! and sends a `FAULT_REPORT`. **When no condition holds any more, the next turn clears
+//! every fault code and the override flag**: the driver letting go of the wheel, or the
+//! sensor reading valid again, is the kit's own way back. A module that is disabled and
+//! holds no code does not look at all: a driver's hand on a disabled module is seen
+//! only once it is enabled. The simulator holds a condition on and off by name (its
+//! fault code's DBC name, [`Kit::set_fault`]; [`Kit::set_override`] for the driver).
 //!
 //! A firmware watchdog disables a module that hears no command for its timeout. OSCC
 //! v1.0 had one (`check_for_controller_command_timeout`), v1.2.4 has not; kits that
@@ -29,6 +39,12 @@ use std::time::{Duration, Instant};
 
 /// The first two bytes of every OSCC frame.
 pub const MAGIC: [u8; 2] = [0x05, 0xCC];
+/// How long a condition must hold before a module acts on it: OSCC's
+/// `FAULT_HYSTERESIS` for the Kia Soul (`api/include/vehicles/kia_soul_petrol.h`).
+pub const FAULT_HYSTERESIS: Duration = Duration::from_millis(100);
+/// The fault code of a driver's override, by its DBC name; it also sets the report's
+/// override flag.
+pub const OPERATOR_OVERRIDE: &str = "OPERATOR_OVERRIDE";
 /// The report period when the DBC gives no cycle time (OSCC's 50 Hz).
 pub const REPORT_PERIOD: Duration = Duration::from_millis(20);
 /// How often the vehicle's own messages (wheel speed, steering wheel angle, brake
@@ -93,8 +109,8 @@ impl FromStr for Module {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ModuleState {
     pub enabled: bool,
-    /// The override flag of its report (set when the operator overrode it, until the
-    /// next enable).
+    /// The override flag of its report: set when the firmware acts on the driver's
+    /// override, cleared on the first turn the driver no longer overrides it.
     pub operator_override: bool,
     /// Its fault codes (a bitfield: the DBC's value table names the bits).
     pub dtcs: u8,
@@ -110,6 +126,38 @@ pub struct Note {
     pub what: String,
 }
 
+/// The firmware's `condition_exceeded_duration`: since when a condition has held, as
+/// the module saw it on the turns it looked.
+#[derive(Clone, Copy, Debug, Default)]
+struct Hysteresis {
+    since: Option<Instant>,
+}
+
+impl Hysteresis {
+    /// Whether the condition, `active` now, has held for `max` (it starts counting on
+    /// the first turn it is seen; a turn without it starts again).
+    fn exceeded(&mut self, active: bool, max: Duration, now: Instant) -> bool {
+        if !active {
+            self.since = None;
+            return false;
+        }
+        now.saturating_duration_since(*self.since.get_or_insert(now)) >= max
+    }
+}
+
+/// One condition a module's firmware checks, named by its fault code.
+#[derive(Clone, Debug)]
+struct Condition {
+    /// Its fault code's bit in the report's `dtcs`, and its DBC name.
+    bit: u8,
+    name: String,
+    /// How long it must hold before the module acts.
+    hold: Duration,
+    /// It holds now (the driver's hand, a grounded sensor).
+    active: bool,
+    seen: Hysteresis,
+}
+
 struct Unit {
     module: Module,
     enable: Id,
@@ -118,10 +166,36 @@ struct Unit {
     report: Message,
     period: Duration,
     state: ModuleState,
-    /// The operator holds the wheel or a pedal right now.
-    overriding: bool,
+    /// The conditions its firmware checks, in the order it checks them (the sensor
+    /// before the driver, as `check_for_faults` does).
+    conditions: Vec<Condition>,
     watchdog: Watchdog,
     next_report: Instant,
+    /// While a fault holds, the firmware sends a fault report on every turn of its
+    /// loop; the simulator sends one a report period.
+    next_fault_report: Option<Instant>,
+}
+
+impl Unit {
+    fn condition(&mut self, name: &str) -> Result<&mut Condition, String> {
+        let module = self.module;
+        let names = self
+            .conditions
+            .iter()
+            .map(|c| c.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ");
+        self.conditions
+            .iter_mut()
+            .find(|c| c.name.eq_ignore_ascii_case(name))
+            .ok_or_else(|| {
+                if names.is_empty() {
+                    format!("the {module} module's report names no fault codes")
+                } else {
+                    format!("no fault code {name:?} for the {module} ({names})")
+                }
+            })
+    }
 }
 
 /// The simulated kit, and the vehicle's own messages: wheel speed (always), steering
@@ -136,7 +210,6 @@ pub struct Kit {
     speed_kmh: f64,
     angle_deg: f64,
     pressure_bar: f64,
-    faults_due: Vec<Module>,
     notes: Vec<Note>,
 }
 
@@ -160,6 +233,26 @@ impl Kit {
                 });
             }
             let report = db.message_named(&name("REPORT"))?.clone();
+            let mut conditions: Vec<Condition> = report
+                .signal("dtcs")
+                .map(|s| s.values().to_vec())
+                .unwrap_or_default()
+                .into_iter()
+                .filter(|(raw, _)| (1..=0xff).contains(raw))
+                .map(|(raw, name)| Condition {
+                    bit: raw as u8,
+                    // The steering filters the driver's torque and acts on it at once.
+                    hold: if module == Module::Steering && name == OPERATOR_OVERRIDE {
+                        Duration::ZERO
+                    } else {
+                        FAULT_HYSTERESIS
+                    },
+                    name,
+                    active: false,
+                    seen: Hysteresis::default(),
+                })
+                .collect();
+            conditions.sort_by_key(|c| c.bit);
             units.push(Unit {
                 module,
                 enable: db.message_named(&name("ENABLE"))?.id(),
@@ -168,9 +261,10 @@ impl Kit {
                 period: report.cycle().unwrap_or(REPORT_PERIOD),
                 report,
                 state: ModuleState::default(),
-                overriding: false,
-                watchdog: Watchdog::new(watchdog, now),
+                conditions,
+                watchdog: Watchdog::new(watchdog),
                 next_report: now,
+                next_fault_report: None,
             });
         }
         Ok(Kit {
@@ -183,7 +277,6 @@ impl Kit {
             speed_kmh: 0.0,
             angle_deg: 0.0,
             pressure_bar: 0.0,
-            faults_due: Vec::new(),
             notes: Vec::new(),
         })
     }
@@ -228,6 +321,16 @@ impl Kit {
         self.pressure_bar = bar;
     }
 
+    /// Whether the vehicle's own messages carry the position `module` moves: the
+    /// steering wheel angle, the brake pressure (none for the throttle).
+    pub fn reports_position(&self, module: Module) -> bool {
+        match module {
+            Module::Steering => self.angle.is_some(),
+            Module::Brake => self.pressure.is_some(),
+            Module::Throttle => false,
+        }
+    }
+
     /// The identifier of a module's command message.
     pub fn command_id(&self, module: Module) -> Id {
         self.units
@@ -237,46 +340,132 @@ impl Kit {
             .expect("every module has a unit")
     }
 
-    /// The operator starts (`true`) or stops overriding `module`. Starting disables an
-    /// enabled module, sets its override flag and fault code, and sends a fault report.
+    /// The driver starts (`true`) or stops overriding `module` (turning the wheel,
+    /// pressing a pedal): the condition of its `OPERATOR_OVERRIDE` code. The module acts
+    /// on it as its firmware does, on the next turns of its loop.
     pub fn set_override(&mut self, module: Module, on: bool, now: Instant) {
-        let u = self.unit(module);
-        u.overriding = on;
-        if on && u.state.enabled {
-            u.state.enabled = false;
+        // A DBC without the code has no override to hold.
+        let _ = self.set_fault(module, OPERATOR_OVERRIDE, on, now);
+    }
+
+    /// Hold (`true`) or end the condition behind the fault code named `dtc` (a name of
+    /// the report's `dtcs` value table): `INVALID_SENSOR_VAL` is the module's sensor
+    /// reading grounded, as a disconnected one does; `OPERATOR_OVERRIDE` the driver's
+    /// hand. While it holds, the module disables itself, sets the code and reports it;
+    /// once it ends, the module clears its codes on its next turn.
+    pub fn set_fault(
+        &mut self,
+        module: Module,
+        dtc: &str,
+        on: bool,
+        _now: Instant,
+    ) -> Result<(), String> {
+        self.unit(module).condition(dtc)?.active = on;
+        Ok(())
+    }
+
+    /// Whether the condition behind `dtc` holds on `module` (`None`: no such code).
+    pub fn fault_held(&self, module: Module, dtc: &str) -> Option<bool> {
+        self.units
+            .iter()
+            .find(|u| u.module == module)?
+            .conditions
+            .iter()
+            .find(|c| c.name.eq_ignore_ascii_case(dtc))
+            .map(|c| c.active)
+    }
+
+    /// The fault code names of `module`'s report, in the order its firmware checks them.
+    pub fn fault_names(&self, module: Module) -> Vec<String> {
+        self.units
+            .iter()
+            .find(|u| u.module == module)
+            .map(|u| u.conditions.iter().map(|c| c.name.clone()).collect())
+            .unwrap_or_default()
+    }
+
+    /// One turn of a module's `check_for_faults`, at `now`: whether it sends a fault
+    /// report.
+    fn check_for_faults(&mut self, i: usize, now: Instant) -> bool {
+        let u = &mut self.units[i];
+        if !u.state.enabled && u.state.dtcs == 0 {
+            return false;
+        }
+        // Every condition is looked at on every turn; the first that has held long
+        // enough acts.
+        let mut acting = None;
+        for (k, c) in u.conditions.iter_mut().enumerate() {
+            if c.seen.exceeded(c.active, c.hold, now) && acting.is_none() {
+                acting = Some(k);
+            }
+        }
+        let module = u.module;
+        let Some(k) = acting else {
+            u.next_fault_report = None;
+            if u.state.dtcs != 0 || u.state.operator_override {
+                let names = dtc_names(&u.report, u.state.dtcs);
+                u.state.dtcs = 0;
+                u.state.operator_override = false;
+                self.note(module, now, format!("{names} cleared: the condition ended"));
+            }
+            return false;
+        };
+        let c = &u.conditions[k];
+        let (bit, name, is_override) = (c.bit, c.name.clone(), c.name == OPERATOR_OVERRIDE);
+        let was_enabled = std::mem::replace(&mut u.state.enabled, false);
+        let new = u.state.dtcs & bit == 0;
+        u.state.dtcs |= bit;
+        if is_override {
             u.state.operator_override = true;
-            let bit = dtc_bit(&u.report, "OPERATOR_OVERRIDE");
-            u.state.dtcs |= bit;
-            self.faults_due.push(module);
-            self.note(module, now, "operator override: disabled".into());
+        }
+        let report = u.next_fault_report.is_none_or(|at| now >= at);
+        if report {
+            u.next_fault_report = Some(now + u.period);
+        }
+        if new || was_enabled {
+            let what = if is_override {
+                "operator override".to_string()
+            } else {
+                format!("fault {name}")
+            };
+            let disabled = if was_enabled { ": disabled" } else { "" };
+            self.note(module, now, format!("{what}{disabled}"));
+        }
+        report
+    }
+
+    /// Every module but `from` hears a fault report: each disables itself, as the
+    /// firmware's `process_fault_report` does.
+    fn hear_fault_report(&mut self, from: Option<Module>, now: Instant) {
+        for i in 0..self.units.len() {
+            let u = &mut self.units[i];
+            if Some(u.module) == from || !u.state.enabled {
+                continue;
+            }
+            u.state.enabled = false;
+            let module = u.module;
+            let why = match from {
+                Some(m) => format!("disabled: the {m} module's fault report"),
+                None => "disabled: a fault report".to_string(),
+            };
+            self.note(module, now, why);
         }
     }
 
-    /// Inject the fault code named `dtc` (a name of the report's `dtcs` value table):
-    /// the module disables itself and sends a fault report.
-    pub fn inject_fault(&mut self, module: Module, dtc: &str, now: Instant) -> Result<(), String> {
-        let u = self.unit(module);
-        let dtcs = u
-            .report
-            .signal("dtcs")
-            .ok_or_else(|| format!("{} has no dtcs signal", u.report.name()))?;
-        let raw = dtcs
-            .values()
-            .iter()
-            .find(|(_, n)| n.eq_ignore_ascii_case(dtc))
-            .map(|(raw, _)| *raw);
-        let raw = raw.ok_or_else(|| {
-            let names: Vec<&str> = dtcs.values().iter().map(|(_, n)| n.as_str()).collect();
-            format!(
-                "no fault code {dtc:?} for the {module} ({})",
-                names.join(", ")
-            )
-        })?;
-        u.state.dtcs |= raw as u8;
-        u.state.enabled = false;
-        self.faults_due.push(module);
-        self.note(module, now, format!("fault {dtc}: disabled"));
-        Ok(())
+    /// `module`'s fault report: its origin and its fault codes.
+    fn fault_report(&self, module: Module) -> Option<Frame> {
+        let u = self.units.iter().find(|u| u.module == module)?;
+        let origin = self
+            .fault
+            .signal("fault_origin_id")
+            .and_then(|s| s.value_of(module.prefix()))
+            .unwrap_or(0) as f64;
+        self.fault
+            .encode(&[
+                ("fault_origin_id", origin),
+                ("dtcs", f64::from(u.state.dtcs)),
+            ])
+            .ok()
     }
 
     fn report(u: &Unit) -> Frame {
@@ -304,12 +493,17 @@ fn every_signal(message: &Message, value: f64) -> Option<Frame> {
     message.encode(&values).ok()
 }
 
-/// The bit of the fault code named `name` in a report's `dtcs` (0 if the DBC lacks it).
-fn dtc_bit(report: &Message, name: &str) -> u8 {
-    report
+/// The names of the fault codes set in `dtcs`, for notes (`INVALID_SENSOR_VAL`).
+fn dtc_names(report: &Message, dtcs: u8) -> String {
+    let names = report
         .signal("dtcs")
-        .and_then(|s| s.value_of(name))
-        .unwrap_or(0) as u8
+        .map(|s| s.flag_names(u64::from(dtcs)))
+        .unwrap_or_default();
+    if names.is_empty() {
+        format!("fault codes 0x{dtcs:02x}")
+    } else {
+        names.join(", ")
+    }
 }
 
 impl BusNode for Kit {
@@ -318,6 +512,10 @@ impl BusNode for Kit {
             return;
         }
         let id = frame.id();
+        if id == self.fault.id() {
+            self.hear_fault_report(None, now);
+            return;
+        }
         let Some(i) = self
             .units
             .iter()
@@ -328,12 +526,10 @@ impl BusNode for Kit {
         let u = &mut self.units[i];
         let module = u.module;
         if id == u.enable {
-            if u.overriding {
+            if u.state.operator_override {
                 self.note(module, now, "enable refused: the operator overrides".into());
             } else if !u.state.enabled {
                 u.state.enabled = true;
-                u.state.operator_override = false;
-                u.state.dtcs &= !dtc_bit(&u.report, "OPERATOR_OVERRIDE");
                 u.watchdog.feed(now);
                 self.note(module, now, "enabled".into());
             }
@@ -368,6 +564,11 @@ impl BusNode for Kit {
                     format!("watchdog: no command for {limit:?}, disabled"),
                 );
             }
+            if self.check_for_faults(i, now) {
+                let module = self.units[i].module;
+                bus.extend(self.fault_report(module));
+                self.hear_fault_report(Some(module), now);
+            }
             let u = &mut self.units[i];
             if now >= u.next_report {
                 bus.push(Kit::report(u));
@@ -376,21 +577,6 @@ impl BusNode for Kit {
                     // Far behind (the port loop stalled): report from now on.
                     u.next_report = now + u.period;
                 }
-            }
-        }
-        for module in std::mem::take(&mut self.faults_due) {
-            let u = self.unit(module);
-            let dtcs = u.state.dtcs as f64;
-            let origin = self
-                .fault
-                .signal("fault_origin_id")
-                .and_then(|s| s.value_of(module.prefix()))
-                .unwrap_or(0) as f64;
-            if let Ok(f) = self
-                .fault
-                .encode(&[("fault_origin_id", origin), ("dtcs", dtcs)])
-            {
-                bus.push(f);
             }
         }
         if now >= self.next_wheel {
@@ -610,58 +796,160 @@ mod tests {
         assert_eq!(last.at, b.t0 + 361 * MS);
     }
 
+    /// The firmware's fault reports of `module` among `frames`.
+    fn fault_reports<'a>(b: &Bench, frames: &'a [Frame]) -> Vec<&'a Frame> {
+        let fault = b.db.message("FAULT_REPORT").unwrap();
+        frames.iter().filter(|f| f.id() == fault.id()).collect()
+    }
+
+    /// The incident: after `override steer on` then `off`, the simulated module kept
+    /// reporting the override for ever (it cleared only on an enable, which adrive
+    /// never sends while a module reports the driver's hand), so the override could
+    /// never be cleared and the vehicle never engaged again. OSCC's firmware clears it
+    /// on the first turn of `check_for_faults` after the driver lets go.
     #[test]
-    fn an_operator_override_disables_reports_and_blocks_enable_until_released() {
+    fn an_operator_override_disables_and_clears_itself_once_the_driver_lets_go() {
         let mut b = Bench::new(None);
         b.send(0, "BRAKE_ENABLE", &[]);
+        b.send(0, "THROTTLE_ENABLE", &[]);
         b.run(0, 5);
         b.port.node.set_override(Module::Brake, true, b.t0 + 6 * MS);
-        let frames = b.run(6, 20);
+        // A pedal override must hold for the firmware's hysteresis first.
+        b.run(6, 100);
+        assert!(b.port.node.state(Module::Brake).enabled, "before 100 ms");
+        let frames = b.run(101, 126);
         let (enabled, overridden, dtcs) = b.report(&frames, Module::Brake);
         assert_eq!((enabled, overridden), (0.0, 1.0));
         assert_eq!(dtcs, vec!["OPERATOR_OVERRIDE"]);
+        let reports = fault_reports(&b, &frames);
+        assert_eq!(reports.len(), 2, "one a report period while it holds");
         let fault = b.db.message("FAULT_REPORT").unwrap();
-        let reports: Vec<&Frame> = frames.iter().filter(|f| f.id() == fault.id()).collect();
-        assert_eq!(reports.len(), 1, "one fault report");
         let origin = fault.signal("fault_origin_id").unwrap();
         let raw = origin.raw(reports[0].data()).unwrap() as i64;
         assert_eq!(origin.value_name(raw), Some("BRAKE"));
+        // The throttle heard the brake's fault report and disabled itself.
+        assert!(!b.port.node.state(Module::Throttle).enabled);
         // Still held: enabling is refused.
-        b.send(21, "BRAKE_ENABLE", &[]);
+        b.send(127, "BRAKE_ENABLE", &[]);
         assert!(!b.port.node.state(Module::Brake).enabled);
+        // The driver lets go: the next turn clears the flag and the code, with no
+        // enable from anyone.
         b.port
             .node
-            .set_override(Module::Brake, false, b.t0 + 22 * MS);
-        b.send(23, "BRAKE_ENABLE", &[]);
-        let frames = b.run(21, 40);
+            .set_override(Module::Brake, false, b.t0 + 128 * MS);
+        let frames = b.run(128, 150);
+        assert_eq!(b.report(&frames, Module::Brake), (0.0, 0.0, vec![]));
+        assert!(fault_reports(&b, &frames[frames.len() / 2..]).is_empty());
+        b.send(151, "BRAKE_ENABLE", &[]);
+        let frames = b.run(151, 170);
         assert_eq!(b.report(&frames, Module::Brake), (1.0, 0.0, vec![]));
+        let notes: Vec<String> = b
+            .port
+            .node
+            .take_notes()
+            .into_iter()
+            .filter(|n| n.module == Module::Brake)
+            .map(|n| n.what)
+            .collect();
+        assert_eq!(
+            notes,
+            [
+                "enabled",
+                "operator override: disabled",
+                "enable refused: the operator overrides",
+                "OPERATOR_OVERRIDE cleared: the condition ended",
+                "enabled"
+            ]
+        );
     }
 
+    /// The steering module filters the driver's torque and acts on it at once.
     #[test]
-    fn a_fault_injected_by_name_disables_and_is_reported_by_name() {
+    fn the_steering_override_acts_at_once() {
         let mut b = Bench::new(None);
         b.send(0, "STEERING_ENABLE", &[]);
-        let e = b.port.node.inject_fault(Module::Steering, "OVERHEAT", b.t0);
+        b.port
+            .node
+            .set_override(Module::Steering, true, b.t0 + 2 * MS);
+        b.run(2, 3);
+        assert!(b.port.node.state(Module::Steering).operator_override);
+    }
+
+    /// A disabled module with no fault code does not check for faults: a hand on it is
+    /// seen once it is enabled, after the hysteresis.
+    #[test]
+    fn a_disabled_module_sees_the_drivers_hand_only_once_enabled() {
+        let mut b = Bench::new(None);
+        b.port.node.set_override(Module::Throttle, true, b.t0);
+        let frames = b.run(0, 300);
+        assert_eq!(b.report(&frames, Module::Throttle), (0.0, 0.0, vec![]));
+        b.send(301, "THROTTLE_ENABLE", &[]);
+        b.run(301, 400);
+        assert!(b.port.node.state(Module::Throttle).enabled);
+        let frames = b.run(401, 420);
+        assert_eq!(
+            b.report(&frames, Module::Throttle),
+            (0.0, 1.0, vec!["OPERATOR_OVERRIDE".to_string()])
+        );
+    }
+
+    /// The incident: `fault brake INVALID_SENSOR_VAL` latched for ever, with no way
+    /// back. The code is the firmware's verdict on a sensor reading grounded: it holds
+    /// while the sensor does, and clears on the first turn the sensor reads valid.
+    #[test]
+    fn a_sensor_fault_holds_while_the_sensor_reads_grounded_and_clears_when_it_reads_valid() {
+        let mut b = Bench::new(None);
+        b.send(0, "STEERING_ENABLE", &[]);
+        let e = b
+            .port
+            .node
+            .set_fault(Module::Steering, "OVERHEAT", true, b.t0);
         assert_eq!(
             e.unwrap_err(),
             "no fault code \"OVERHEAT\" for the steering (INVALID_SENSOR_VAL, OPERATOR_OVERRIDE)"
         );
         b.port
             .node
-            .inject_fault(Module::Steering, "INVALID_SENSOR_VAL", b.t0 + MS)
+            .set_fault(Module::Steering, "invalid_sensor_val", true, b.t0 + MS)
             .unwrap();
-        let frames = b.run(1, 20);
+        assert_eq!(
+            b.port
+                .node
+                .fault_held(Module::Steering, "INVALID_SENSOR_VAL"),
+            Some(true)
+        );
+        let frames = b.run(1, 120);
         assert_eq!(
             b.report(&frames, Module::Steering),
             (0.0, 0.0, vec!["INVALID_SENSOR_VAL".to_string()])
         );
         let fault = b.db.message("FAULT_REPORT").unwrap();
-        let f = frames.iter().find(|f| f.id() == fault.id()).unwrap();
+        let f = fault_reports(&b, &frames)[0];
         let got: Vec<(String, f64)> = fault.decode(f).map(|(s, v)| (s.name().into(), v)).collect();
         assert_eq!(
             got[2..],
             [("fault_origin_id".into(), 1.0), ("dtcs".into(), 1.0)]
         );
+        // Held: the code stays, disabled or not, long after.
+        let frames = b.run(121, 2000);
+        assert_eq!(
+            b.report(&frames, Module::Steering),
+            (0.0, 0.0, vec!["INVALID_SENSOR_VAL".to_string()])
+        );
+        b.port
+            .node
+            .set_fault(
+                Module::Steering,
+                "INVALID_SENSOR_VAL",
+                false,
+                b.t0 + 2001 * MS,
+            )
+            .unwrap();
+        let frames = b.run(2001, 2030);
+        assert_eq!(b.report(&frames, Module::Steering), (0.0, 0.0, vec![]));
+        b.send(2031, "STEERING_ENABLE", &[]);
+        let frames = b.run(2031, 2200);
+        assert_eq!(b.report(&frames, Module::Steering), (1.0, 0.0, vec![]));
     }
 
     #[test]

@@ -12,7 +12,7 @@
 use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, VERSION};
 use crate::console::controls::{Controls, Frame, Thread};
 use crate::logging::ring::{LogLine, KEEP};
-use crate::safety::Refused;
+use crate::safety::{Done, Refused};
 use crate::value::{Command, DeviceId};
 use crossbeam_channel::Sender;
 use parking_lot::Mutex;
@@ -281,6 +281,16 @@ impl Remote {
         }
     }
 
+    /// An ask whose answer is what it did.
+    fn done(&self, op: Op) -> Result<Done, Refused> {
+        match self.ask(op)? {
+            Answer::Done(d) => Ok(d),
+            other => Err(Refused::Blocked(vec![format!(
+                "unexpected answer {other:?}"
+            )])),
+        }
+    }
+
     fn unit(&self, op: Op) -> Result<(), String> {
         match self.call(op)? {
             Answer::Refused(r) => Err(r.to_string()),
@@ -323,6 +333,7 @@ impl Controls for Remote {
             read_only: false,
             sim_vehicle: f.sim_vehicle,
             sim_faults: f.sim_faults,
+            sim_names: f.sim_names,
             you: Some(self.source.clone()),
             teleop: f.teleop,
             snap: f.snap,
@@ -362,11 +373,11 @@ impl Controls for Remote {
         })
         .map(|a| a == Answer::Done(crate::safety::Done::Commanded))
     }
-    fn engage(&self) -> Result<(), Refused> {
-        self.ask(Op::Engage).map(drop)
+    fn engage(&self) -> Result<Done, Refused> {
+        self.done(Op::Engage)
     }
-    fn disengage(&self) -> Result<(), Refused> {
-        self.ask(Op::Disengage).map(drop)
+    fn disengage(&self) -> Result<Done, Refused> {
+        self.done(Op::Disengage)
     }
     fn stop(&self) -> Result<(), Refused> {
         self.ask(Op::Stop).map(drop)

@@ -10,10 +10,10 @@
 
 use crate::console::controls::{SimFaults, Thread};
 use crate::logging::ring::LogLine;
+use crate::port::trace::{Dir, TraceEntry};
 use crate::safety::{Done, Refused};
 use crate::snapshot::Snapshot;
 use crate::value::Command;
-use crate::vehicle::trace::{Dir, TraceEntry};
 use serde::{Deserialize, Serialize};
 use std::time::{Duration, Instant};
 
@@ -170,6 +170,8 @@ pub(crate) struct WireFrame {
     /// The vehicle file's `[teleop]`.
     #[serde(default)]
     pub teleop: crate::config::TeleopConfig,
+    #[serde(default)]
+    pub sim_names: Option<crate::sim::commands::Names>,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

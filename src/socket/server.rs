@@ -608,6 +608,7 @@ fn frame(s: &Shared, c: &Conn, now: Instant) -> WireFrame {
         sim_vehicle: f.sim_vehicle,
         sim_faults: f.sim_faults,
         teleop: f.teleop,
+        sim_names: f.sim_names,
         snap: f.snap,
     }
 }

@@ -4,18 +4,18 @@
 //! on every safe state ([`crate::driver::slcan::CanDriver`]). Here:
 //!
 //! - the kit's own override flag is a driver's override, beside the estimator's: the
-//!   vehicle goes to the driver ([`FaultKind::Override`]). The module keeps the flag
-//!   until it is enabled again, so the flag names the override once — until the gate
-//!   has latched it — and not again: after that it is a memory of the override, not a
-//!   hand on the controls, and must not keep the operator from clearing it;
+//!   vehicle goes to the driver ([`FaultKind::Override`]). The flag names the override
+//!   once — until the gate has latched it — and not again: a module that keeps it after
+//!   the driver let go (firmware that latches it until the next enable; OSCC's clears
+//!   it once the driver's torque drops) holds a memory of the override, not a hand on
+//!   the controls, and must not keep the operator from clearing it;
 //! - a module that reports itself disabled while the vehicle has been engaged longer
 //!   than it takes to enable it — it disabled itself: a fault code, its watchdog, an
 //!   override the flag missed — is a device fault, and so are its fault codes while
 //!   engaged, by their DBC names;
-//! - while disengaged a module is disabled by adrive, and the codes it latched (OSCC
-//!   keeps `OPERATOR_OVERRIDE` until it is enabled again) are shown by name but block
-//!   nothing: enabling clears them, and a module that cannot be enabled is caught by
-//!   the rule above.
+//! - while disengaged a module is disabled by adrive, and the codes it reports (while
+//!   their cause lasts, or latched until it is enabled again) are shown by name but
+//!   block nothing: a module that cannot be enabled is caught by the rule above.
 
 use crate::config::can::{ENABLED, OVERRIDE};
 use crate::config::DeviceConfig;
@@ -38,7 +38,7 @@ pub(super) fn faults(
     let who = Some(d.name.as_str());
     match d.reading(OVERRIDE) {
         Some(Value::Flag(true)) => {
-            // The module keeps the flag until its next enable: once the gate latched
+            // A module may keep the flag until its next enable: once the gate latched
             // the override it stands for, the flag says nothing of a hand still on
             // (clearing it is the operator's, engaging re-enables and clears it).
             *handled |= latched;

@@ -44,7 +44,10 @@ pub enum Step {
         command: Command,
         label: String,
     },
-    /// Wait until the vehicle stopped (done at once with no speed bound).
+    /// Wait until the vehicle stopped ([`rules::stopped`]: an unknown speed is moving,
+    /// so a silent speed sensor holds the step until it times out). Done at once on a
+    /// vehicle with no speed bound, which has no shift rule either: nothing there can
+    /// tell stopped from moving.
     WaitStopped(Option<ReadingRef>),
     /// Shift and wait until the gearbox reports the state in a fresh status.
     Shift {
@@ -106,9 +109,7 @@ impl Step {
             Step::Send {
                 device, command, ..
             } => v.device(*device).slot().executed() == Some(*command),
-            Step::WaitStopped(speed) => {
-                speed.is_none_or(|r| v.reading(r).is_none_or(|s| s.abs() < rules::STOPPED))
-            }
+            Step::WaitStopped(speed) => speed.is_none_or(|r| rules::stopped(v.reading(r))),
             Step::Shift { device, state, .. } => {
                 let d = v.device(*device);
                 fresh(*device)
@@ -378,6 +379,76 @@ impl Procedure {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::value::Reading;
+
+    /// Alice's OBD adapter with its speed reported as `speed` (`None`: not reported),
+    /// the engine stopped.
+    fn speed(v: &Vehicle, speed: Option<f64>) {
+        let obd = v.find("obd").expect("obd");
+        let mut r = Reading::default();
+        r.set(0, 0.0); // rpm
+        if let Some(s) = speed {
+            r.set(1, s);
+        }
+        r.set(2, 85.0); // coolant
+        r.set(3, 0.0); // running
+        obd.store(crate::vehicle::Cached {
+            reading: r,
+            at: Some(Instant::now()),
+        });
+    }
+
+    /// The incident this guards: the wait for stopped took an unknown speed for
+    /// stopped, where the shift rule takes it for moving, and the stall procedure went
+    /// on to shift into park. One meaning now: the step holds while the speed is
+    /// unknown, and the procedure gives up (safe state, disengaged) rather than go on.
+    #[test]
+    fn an_unknown_speed_is_moving_and_the_stall_procedure_never_shifts_on_it() {
+        let gate = crate::testkit::gate(Instant::now());
+        let v = gate.vehicle();
+        let wait = Step::WaitStopped(v.bindings().speed);
+        for (s, done) in [(None, false), (Some(3.0), false), (Some(0.0), true)] {
+            speed(v, s);
+            assert_eq!(wait.done(v, Instant::now()), done, "speed {s:?}");
+        }
+        assert!(
+            Step::WaitStopped(None).done(v, Instant::now()),
+            "no speed bound: nothing to wait for"
+        );
+
+        speed(v, None);
+        let cfg = SupervisorConfig {
+            attempts: 2,
+            step_timeout: Duration::from_millis(100),
+            ..SupervisorConfig::default()
+        };
+        let drive = v.bindings().gear.as_ref().expect("gear").forward[0];
+        let mut p = Procedure::engine_stall(v, drive, &cfg).expect("alice has it all");
+        let trans = v.find("trans").expect("trans");
+        let before = trans.slot().latest();
+        let t0 = Instant::now();
+        let mut outcome = Progress::Running;
+        for ms in (0..=400).step_by(10) {
+            outcome = p.advance(&gate, t0 + Duration::from_millis(ms));
+            // The pedals acknowledge what the procedure commands them.
+            for name in ["gas", "brake"] {
+                let d = v.find(name).expect("pedal");
+                if let Some(c) = d.slot().take_newer() {
+                    d.slot().fly(c.command);
+                    d.slot().finish(c.command, true);
+                }
+            }
+            assert!(p.view().step <= 2, "went past wait stopped: {:?}", p.view());
+            if outcome != Progress::Running {
+                break;
+            }
+        }
+        assert_eq!(trans.slot().latest(), before, "no shift was commanded");
+        assert!(
+            matches!(&outcome, Progress::GaveUp(why) if why.contains("wait stopped")),
+            "{outcome:?}"
+        );
+    }
 
     #[test]
     fn only_the_safe_state_and_waiting_count_as_not_moving() {

@@ -6,11 +6,11 @@
 use super::estimate::{Correction, Estimate, Estimator};
 use super::stats::Stats;
 use super::tap::{Event, Tap};
-use super::trace::Trace;
 use crate::config::{DeviceConfig, Role, Violation};
 use crate::driver::DriverError;
-use crate::engine::port::{Conn, Opener, Port, PortHealth};
-use crate::engine::slot::CommandSlot;
+use crate::port::slot::CommandSlot;
+use crate::port::trace::Trace;
+use crate::port::{Conn, Opener, Port, PortHealth};
 use crate::value::{Command, DeviceId, Kind, Reading};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering::Relaxed};
@@ -104,6 +104,17 @@ impl Settings {
     }
 }
 
+/// Why a device has no reading yet: a fact the engage gate says in words
+/// (`crate::safety::gate::blockers`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Unreported {
+    /// It has not reported yet.
+    NotYet,
+    /// Its port is open and its first answer comes once its adapter has searched the
+    /// car's protocols, which takes up to this long (an ELM327).
+    SearchingProtocols(Duration),
+}
+
 /// One device of the vehicle.
 pub struct Device {
     id: DeviceId,
@@ -139,7 +150,11 @@ impl Device {
         buses: &[Arc<crate::driver::slcan::Bus>],
     ) -> Device {
         let driver = crate::driver::build_on(&config, buses);
-        let trace = Arc::new(Trace::new(config.name.as_str()).tapped(id, tap.clone()));
+        let raw = Arc::new(super::tap::RawOf {
+            device: id,
+            tap: tap.clone(),
+        });
+        let trace = Arc::new(Trace::new(config.name.as_str()).tapped(raw));
         let port_health = Arc::new(PortHealth::default());
         let estimator = config
             .response
@@ -264,6 +279,18 @@ impl Device {
     /// Raw traffic on the port.
     pub fn trace(&self) -> &Arc<Trace> {
         &self.trace
+    }
+
+    /// Why the device has no reading yet (`None`: it has one).
+    pub fn unreported(&self) -> Option<Unreported> {
+        if self.cached().at.is_some() {
+            return None;
+        }
+        let opened = self.port_health.opens.load(Relaxed) > 0;
+        Some(match crate::driver::protocol_search(self.config.driver) {
+            Some(up_to) if opened => Unreported::SearchingProtocols(up_to),
+            _ => Unreported::NotYet,
+        })
     }
 
     /// Times the port was opened, and whether it is missing.

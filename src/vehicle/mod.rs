@@ -2,12 +2,13 @@
 //! configuration, cached state and statistics, and what the supervisor sees — the
 //! vehicle's state, and how it is captured into one
 //! [`Snapshot`](crate::snapshot::Snapshot). It has no policy and no machinery: the rules
-//! that decide what may reach a device live in [`crate::safety`], the threads, slots and
-//! ports that carry a command to it in [`crate::engine`].
+//! that decide what may reach a device live in [`crate::safety`], the threads that carry
+//! a command to it in [`crate::engine`], the port, slot and trace each device holds
+//! below it, in [`crate::port`].
 //!
-//! - [`device`]: one device (it carries the engine's slot and port for it);
-//!   [`estimate`]: its state estimator; [`stats`]: its always-on figures; [`trace`]: its
-//!   raw traffic; [`supervision`]: the supervisor's board; [`tap`]: where everything
+//! - [`device`]: one device (it holds its port, slot and trace: [`crate::port`]);
+//!   [`estimate`]: its state estimator; [`stats`]: its always-on figures; [`seen`]: what
+//!   a decision of the intake saw; [`supervision`]: the supervisor's board; [`tap`]: where everything
 //!   that happens is handed to a recording; [`capture`]: the one snapshot;
 //!   [`monitor`]: each CAN bus's frames, decoded, as the snapshot carries them.
 
@@ -15,18 +16,18 @@ pub mod capture;
 pub mod device;
 pub mod estimate;
 pub(crate) mod monitor;
+pub mod seen;
 pub mod stats;
 pub mod supervision;
 pub(crate) mod tap;
-pub mod trace;
 
-pub use device::{error_code, Cached, Device, Health, Settings, FAULT_AFTER};
+pub use device::{error_code, Cached, Device, Health, Settings, Unreported, FAULT_AFTER};
 
 use crate::config::protocol_map::Wire;
 use crate::config::roles::ReadingRef;
 use crate::config::{Bindings, DeviceConfig, Role, VehicleConfig};
-use crate::driver::slcan::Bus;
-use crate::engine::port::Opener;
+use crate::driver::slcan::{Bus, Kits};
+use crate::port::Opener;
 use crate::snapshot::{self, DeviceView, Pairs};
 use crate::value::{DeviceId, EstopState};
 use std::sync::atomic::Ordering::Relaxed;
@@ -41,6 +42,8 @@ pub struct Vehicle {
     devices: Vec<Device>,
     /// The CAN buses, by index in the configuration's.
     buses: Vec<Arc<Bus>>,
+    /// Whether the kits on the buses are to be enabled (set by the gate).
+    kits: Arc<Kits>,
     /// What the supervisor sees: faults and the recovery in progress.
     supervision: Arc<supervision::Board>,
     /// Where a recording taps the run (off unless one runs).
@@ -61,10 +64,11 @@ impl Vehicle {
         mut open: impl FnMut(&DeviceConfig) -> Opener,
         tap: Arc<Tap>,
     ) -> Vehicle {
+        let kits = Arc::<Kits>::default();
         let buses: Vec<Arc<Bus>> = config
             .buses
             .iter()
-            .map(|b| Arc::new(Bus::new(b.clone())))
+            .map(|b| Arc::new(Bus::new(b.clone(), kits.clone())))
             .collect();
         let devices = config
             .devices
@@ -89,6 +93,7 @@ impl Vehicle {
             config,
             devices,
             buses,
+            kits,
             supervision: Arc::new(supervision::Board::new(tap.clone())),
             tap,
             started: Instant::now(),
@@ -114,12 +119,9 @@ impl Vehicle {
         &self.buses
     }
 
-    /// Tell every bus whether the vehicle is engaged (kit devices enable after their
-    /// next command, or disable after each).
-    pub(crate) fn set_kits_engaged(&self, on: bool) {
-        for b in &self.buses {
-            b.set_engaged(on);
-        }
+    /// The switch every bus's kit devices follow (the gate's to set).
+    pub fn kits(&self) -> &Arc<Kits> {
+        &self.kits
     }
 
     /// What the supervisor sees: faults and the recovery in progress.

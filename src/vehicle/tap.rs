@@ -12,7 +12,7 @@
 //! file could not be written) closes its own channel; the tap turns itself off when no
 //! reader is left.
 
-use super::trace::TraceEntry;
+use crate::port::trace::{RawSink, TraceEntry};
 use crate::snapshot::{FaultKind, LiveView, RecordView};
 use crate::value::{Command, DeviceId, Reading};
 use crossbeam_channel::{Receiver, Sender, TrySendError};
@@ -53,12 +53,14 @@ pub enum GateChange {
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub enum Event {
-    /// A command reached intake: accepted, or refused with the reason's code.
+    /// A command reached intake: accepted, or refused with the reason's code; and what
+    /// the decision saw (`None`: ownership refused it, or the supervisor's own).
     Received {
         at: Instant,
         source: Source,
         asked: Asked,
         refused: Option<&'static str>,
+        seen: Option<super::seen::Seen>,
     },
     /// A datagram refused whole (grammar, key, counter, allow-list), by reason code.
     Refused {
@@ -113,6 +115,25 @@ pub enum Event {
     },
     /// The state snapshot as broadcast, JSON.
     Snapshot { at: Instant, json: Vec<u8> },
+}
+
+/// One device's raw traffic, from its trace ([`crate::port::trace`]) to the tap.
+pub(crate) struct RawOf {
+    pub device: DeviceId,
+    pub tap: std::sync::Arc<Tap>,
+}
+
+impl RawSink for RawOf {
+    fn wants(&self) -> bool {
+        self.tap.wants_raw()
+    }
+
+    fn chunk(&self, entry: TraceEntry) {
+        self.tap.send(|| Event::Raw {
+            device: self.device,
+            entry,
+        });
+    }
 }
 
 /// One reader's channel, its own switch and its own drops.
@@ -307,7 +328,7 @@ mod tests {
         assert!(tap.wants_raw());
         let raw = || Event::Raw {
             device: DeviceId(0),
-            entry: TraceEntry::new(Instant::now(), super::super::trace::Dir::Out, b"x"),
+            entry: TraceEntry::new(Instant::now(), crate::port::trace::Dir::Out, b"x"),
         };
         let _ = slow.rx.try_iter().count();
         tap.send(raw);

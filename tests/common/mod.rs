@@ -31,12 +31,27 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
 }
 
 /// A console's screen once its engage question was answered: the question gone, and
-/// what its answer did said (`engaged: …` or `engage refused: …`). Waiting for the
-/// refusal alone read a refusal left on the screen by an earlier try as this one's,
-/// and the next `E` `y` then landed on whatever the test did next.
+/// what its answer did said on the message line (`engaged`, as every front end says
+/// it, or `engage refused: …`). Waiting for the refusal alone read a refusal left on
+/// the screen by an earlier try as this one's, and the next `E` `y` then landed on
+/// whatever the test did next; a refusal is read on the message line, not in the log
+/// pane, which keeps earlier tries' refusals.
 pub fn engage_answered(screen: &str) -> bool {
     !screen.contains("Engage?")
-        && (screen.contains("engaged: the console commands") || screen.contains("engage refused"))
+        && said(screen, |l| {
+            l == "engaged" || l.starts_with("engage refused")
+        })
+}
+
+/// The console's message line says its engage engaged the vehicle.
+pub fn engaged(screen: &str) -> bool {
+    said(screen, |l| l == "engaged")
+}
+
+/// A line of the screen, trimmed, is what `what` looks for (the message line, whose
+/// text starts at the left edge, alone; a log line starts with its time).
+fn said(screen: &str, what: impl Fn(&str) -> bool) -> bool {
+    screen.lines().map(str::trim).any(what)
 }
 
 /// Alice for `--sim --config`, her devices' readings allowed to be 2 s old and their
@@ -263,6 +278,54 @@ pub fn signal(child: &std::process::Child, sig: i32) -> bool {
     unsafe { libc::kill(child.id() as i32, sig) == 0 }
 }
 
+/// What `cmd` printed and how it ended, as [`std::process::Command::output`] gives it,
+/// within the deadline: a program that should have ended by itself (a refusal before
+/// anything starts) and runs on instead is stopped, and the test fails saying what it
+/// printed, rather than waiting for ever.
+pub fn output_within(cmd: &mut std::process::Command) -> std::process::Output {
+    use std::io::Read;
+    use std::process::Stdio;
+    let mut child = Reaped(
+        cmd.stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let read = |mut from: Box<dyn Read + Send>| {
+        std::thread::spawn(move || {
+            let mut all = Vec::new();
+            let _ = from.read_to_end(&mut all);
+            all
+        })
+    };
+    let stdout = read(Box::new(child.stdout.take().unwrap()));
+    let stderr = read(Box::new(child.stderr.take().unwrap()));
+    let end = Instant::now() + DEADLINE;
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if Instant::now() >= end {
+            stop(&mut child.0);
+            let said = |t: std::thread::JoinHandle<Vec<u8>>| {
+                String::from_utf8_lossy(&t.join().unwrap()).into_owned()
+            };
+            panic!(
+                "{cmd:?} still ran after {DEADLINE:?}; it printed:\n{}\n{}",
+                said(stdout),
+                said(stderr)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    std::process::Output {
+        status,
+        stdout: stdout.join().unwrap(),
+        stderr: stderr.join().unwrap(),
+    }
+}
+
 /// Wait for a child to exit; its status code (`None` when a signal ended it).
 pub fn wait_exit(child: &mut std::process::Child) -> Option<i32> {
     let end = Instant::now() + DEADLINE;
@@ -344,4 +407,28 @@ pub fn sim_dirs(dir: &std::path::Path) -> Vec<String> {
                 .collect()
         })
         .unwrap_or_default()
+}
+
+/// `adrive --sim --headless ARGS`, its runtime directory and its log in `dir`, once it
+/// says it runs: the child and what it has said so far (its standard error keeps being
+/// read into the receiver).
+pub fn headless_sim(
+    dir: &std::path::Path,
+    args: &[&str],
+) -> (Reaped, Vec<String>, std::sync::mpsc::Receiver<String>) {
+    let mut child = Reaped(
+        std::process::Command::new(env!("CARGO_BIN_EXE_adrive"))
+            .args(["--sim", "--headless"])
+            .args(args)
+            .arg("--log-dir")
+            .arg(dir.join("log"))
+            .env("XDG_RUNTIME_DIR", dir)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let err = lines(child.stderr.take().unwrap());
+    let seen = until(&err, "running headless");
+    (child, seen, err)
 }

@@ -244,9 +244,13 @@ impl Player {
     /// Read everything the program wrote before this call: once nothing waits unread
     /// on the terminal and the reading thread took two turns since (or it ended at the
     /// hang-up). For a program that has exited, [`Player::bytes`] is then all it wrote:
-    /// its last words (said after it left the screen) were read late otherwise.
+    /// its last words (said after it left the screen) were read late otherwise. A
+    /// terminal that stopped reading reads nothing more: it returns at once.
     #[allow(unsafe_code)]
     pub fn read_to_end(&self) {
+        if !self.shared.play.lock().unwrap().reading {
+            return;
+        }
         let end = Instant::now() + super::DEADLINE;
         let finished = || self.reader.as_ref().is_none_or(|r| r.is_finished());
         loop {

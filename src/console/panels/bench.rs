@@ -23,9 +23,9 @@ use crate::console::keymap::{Action, Keymap, Mode, SimAction};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::trail::Trail;
+use crate::port::trace::TraceEntry;
 use crate::snapshot::{BusView, DeviceView};
 use crate::value::DeviceId;
-use crate::vehicle::trace::TraceEntry;
 use ratatui::buffer::Buffer;
 use ratatui::layout::{Constraint, Direction, Layout, Rect};
 use ratatui::text::{Line, Span};
@@ -60,6 +60,9 @@ pub(crate) struct BenchView<'a> {
     pub trail: &'a Trail,
     /// The CAN bus it is on.
     pub(crate) bus: Option<&'a BusView>,
+    /// The simulator keys whose line the simulator would refuse here (what they act on
+    /// is not in this vehicle): not offered.
+    pub(crate) refused: Vec<SimAction>,
 }
 
 /// Rows the simulator box takes.
@@ -99,7 +102,7 @@ impl BenchView<'_> {
         let keys: Vec<Vec<Span>> = grouped(self.map, Mode::Bench, self.roles)
             .into_iter()
             .filter_map(|(k, desc, a)| match a {
-                Action::Sim(s) => Some((k, desc, s)),
+                Action::Sim(s) if !self.refused.contains(&s) => Some((k, desc, s)),
                 _ => None,
             })
             .map(|(k, desc, s)| {
@@ -369,7 +372,7 @@ mod tests {
         let now = Instant::now();
         let e = TraceEntry::new(
             now - Duration::from_millis(12),
-            crate::vehicle::trace::Dir::Out,
+            crate::port::trace::Dir::Out,
             b"S 0.5\r",
         );
         assert_eq!(
@@ -427,7 +430,7 @@ mod tests {
         let map = Keymap::default_map();
         let trace = [TraceEntry::new(
             now,
-            crate::vehicle::trace::Dir::Out,
+            crate::port::trace::Dir::Out,
             b"a reply far too long for any traffic box, thirty-two bytes and more\r",
         )];
         let trail = Trail::default();
@@ -450,6 +453,7 @@ mod tests {
             roles,
             trail: &trail,
             bus: None,
+            refused: Vec::new(),
         };
         let roles = f.snap.gate.roles.clone();
         let v = view(&roles);

@@ -5,7 +5,7 @@ use crate::config::VehicleConfig;
 use crate::console::controls::{capture, change_settings, Frame, Sources};
 use crate::console::keymap::Keymap;
 use crate::console::theme::Theme;
-use crate::safety::{Refused, Reject};
+use crate::safety::{Done, Refused, Reject};
 use crate::testkit;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
@@ -110,13 +110,13 @@ impl Controls for Fake {
         self.refuse
             .map_or(Ok(!self.lease_ended.get()), |r| Err(Refused::Rule(r)))
     }
-    fn engage(&self) -> Result<(), Refused> {
+    fn engage(&self) -> Result<Done, Refused> {
         self.log("engage".into());
-        self.engage.clone()
+        self.engage.clone().map(|()| Done::Engaged)
     }
-    fn disengage(&self) -> Result<(), Refused> {
+    fn disengage(&self) -> Result<Done, Refused> {
         self.log("disengage".into());
-        self.reached()
+        self.reached().map(|()| Done::Disengaged(true))
     }
     fn stop(&self) -> Result<(), Refused> {
         self.log("stop".into());

@@ -26,16 +26,9 @@ use std::time::Duration;
 
 /// How long `ATZ` may take to answer with its banner and prompt.
 pub(crate) const RESET_TIMEOUT: Duration = Duration::from_millis(1500);
-/// How long the first OBD request after `open` may take (protocol search).
+/// How long the first OBD request after `open` may take: the adapter searches the
+/// car's protocols ([`super::protocol_search`]).
 pub(crate) const SEARCH_TIMEOUT: Duration = Duration::from_secs(10);
-/// Why an opened adapter has not reported yet (an engage blocker): its first request
-/// searches the car's protocols, for up to [`SEARCH_TIMEOUT`].
-pub fn searching(device: &str) -> String {
-    format!(
-        "{device}: the adapter is searching the car's protocols, up to {} s",
-        SEARCH_TIMEOUT.as_secs()
-    )
-}
 
 /// Coolant temperature is read on one poll in this many.
 pub(crate) const COOLANT_EVERY: u64 = 10;

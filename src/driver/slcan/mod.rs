@@ -12,10 +12,12 @@
 //! - [`CanDriver`]: a device on the bus. A command is one frame of the device's command
 //!   message, encoded by the DBC (its rolling counter and checksum filled in); the
 //!   adapter's acknowledgement comes to the reader, not to the writer, so a command is
-//!   done once the frame is with the adapter. A kit device follows the gate: while the
-//!   vehicle is engaged its enable message follows its first command (the safe
-//!   command engage sends), and while it is not, its disable message follows every
-//!   command (the safe state's) — the kit is never left enabled by adrive.
+//!   done once the frame is with the adapter. A kit device follows the gate's
+//!   [`Kits`] switch (a kit is enabled only while the vehicle is engaged: the gate
+//!   decides it, `crate::safety::GateState`, and nothing here keeps a copy): while it
+//!   is on, its enable message follows its first command (the safe command engage
+//!   sends), and while it is off, its disable message follows every command (the safe
+//!   state's) — the kit is never left enabled by adrive.
 //!
 //! The link is pluggable: another way onto a bus (SocketCAN) needs only its own
 //! [`BusPort`] opener and reader.
@@ -73,6 +75,25 @@ pub struct BusStats {
     pub opens: AtomicU64,
 }
 
+/// Whether the kits on the vehicle's buses are to be enabled: one switch for the
+/// vehicle, which every bus reads and the gate alone sets — on from the start of an
+/// engage (each kit's enable then follows its safe command), off with every disengage
+/// (`crate::safety::GateState`, where the rule is written).
+#[derive(Debug, Default)]
+pub struct Kits(AtomicBool);
+
+impl Kits {
+    /// The kits are to be enabled.
+    pub fn enabled(&self) -> bool {
+        self.0.load(Relaxed)
+    }
+
+    /// Set by the gate's state only.
+    pub(crate) fn set(&self, on: bool) {
+        self.0.store(on, Relaxed);
+    }
+}
+
 /// The last frame of one identifier, as the bench view shows it.
 #[derive(Clone, Copy, Debug)]
 pub struct Seen {
@@ -99,15 +120,15 @@ pub struct Bus {
     /// The adapter is on the bus (what `down` says, read without its lock on the
     /// command path).
     is_up: AtomicBool,
-    /// The vehicle is engaged: kit devices are to be enabled.
-    engaged: AtomicBool,
+    /// The vehicle's kit switch: kit devices are to be enabled.
+    kits: Arc<Kits>,
     /// The last frame of each identifier, sent or received.
     seen: Mutex<BTreeMap<Id, Seen>>,
     pub stats: BusStats,
 }
 
 impl Bus {
-    pub fn new(config: BusConfig) -> Bus {
+    pub fn new(config: BusConfig, kits: Arc<Kits>) -> Bus {
         Bus {
             config,
             writer: Mutex::new(None),
@@ -115,7 +136,7 @@ impl Bus {
             bus_error: Mutex::new(None),
             refusing: AtomicBool::new(false),
             is_up: AtomicBool::new(false),
-            engaged: AtomicBool::new(false),
+            kits,
             seen: Mutex::new(BTreeMap::new()),
             stats: BusStats::default(),
         }
@@ -133,14 +154,11 @@ impl Bus {
         self.config.bitrate
     }
 
-    /// Whether kit devices are to be enabled: set by the gate, before the commands of
-    /// an engage or a disengage are stored, so the driver sends them in order.
-    pub fn set_engaged(&self, on: bool) {
-        self.engaged.store(on, Relaxed);
-    }
-
-    pub fn engaged(&self) -> bool {
-        self.engaged.load(Relaxed)
+    /// Whether kit devices are to be enabled (the vehicle's [`Kits`] switch, which the
+    /// gate sets before the commands of an engage or a disengage are stored, so the
+    /// driver sends them in order).
+    pub fn kits_enabled(&self) -> bool {
+        self.kits.enabled()
     }
 
     /// The adapter is on the bus: lend its write half to the devices.
@@ -343,7 +361,7 @@ impl CanDriver {
     /// After a command: the enable message once the vehicle is engaged, the disable
     /// message every time it is not.
     fn follow_gate(&mut self, link: &mut dyn Link) -> Result<(), DriverError> {
-        if self.bus.engaged() {
+        if self.bus.kits_enabled() {
             if let (Some(id), false) = (self.map.enable, self.enabled_sent) {
                 self.send(&self.control_frame(id), link)?;
                 self.enabled_sent = true;
@@ -398,7 +416,7 @@ impl Driver for CanDriver {
                 let id = self.map.enable.ok_or_else(|| {
                     DriverError::Unsupported("enable: this device has no enable message".into())
                 })?;
-                if !self.bus.engaged() {
+                if !self.bus.kits_enabled() {
                     return Err(DriverError::Refused(
                         "enable: the vehicle is not engaged".into(),
                     ));
@@ -528,7 +546,7 @@ sequence = { counter = "counter", checksum = "checksum", checksum_kind = "xor8" 
         let Wire::Can(map) = &v.devices[0].wire else {
             unreachable!()
         };
-        let bus = Arc::new(Bus::new(v.buses[0].clone()));
+        let bus = Arc::new(Bus::new(v.buses[0].clone(), Arc::default()));
         bus.up(Box::new(MockLink::new(vec![])));
         CanDriver::new((**map).clone(), bus)
     }
@@ -551,7 +569,7 @@ sequence = { counter = "counter", checksum = "checksum", checksum_kind = "xor8" 
     fn every_command_frame_carries_the_next_counter_and_its_checksum() {
         let dir = tempfile::tempdir().unwrap();
         let mut d = driver(&dir);
-        d.bus.set_engaged(true);
+        d.bus.kits.set(true);
         let mut link = MockLink::new(vec![
             tx(command(250, 0)),
             tx(line(0x101, &[0xCD, 0xCC])),
@@ -577,12 +595,12 @@ sequence = { counter = "counter", checksum = "checksum", checksum_kind = "xor8" 
         d.send_command(&mut link, Command::Set(0.0)).unwrap();
         d.send_command(&mut link, Command::Set(0.0)).unwrap();
         drop(link);
-        d.bus.set_engaged(true);
+        d.bus.kits.set(true);
         let mut link = MockLink::new(vec![tx(command(0, 2)), tx(on), tx(command(100, 3))]);
         d.send_command(&mut link, Command::Set(0.0)).unwrap();
         d.send_command(&mut link, Command::Set(0.1)).unwrap();
         drop(link);
-        d.bus.set_engaged(false);
+        d.bus.kits.set(false);
         let mut link = MockLink::new(vec![tx(command(0, 4)), tx(off)]);
         d.send_command(&mut link, Command::Set(0.0)).unwrap();
     }

@@ -1,3 +1,10 @@
+//! What carries one device's bytes and commands, below the vehicle that holds it: its
+//! port, shared under the port's rule (here), its latest-wins command slot ([`slot`])
+//! and the trace of its traffic ([`trace`]). A layer of its own: it imports the driver,
+//! the configuration and the values only, so the vehicle holds a device's port and
+//! slot, and safety reads what a slot has on its way, without reaching up into the
+//! engine, whose threads drive them (`crate::engine`).
+//!
 //! The shared port of one device and the rule by which its two threads take turns.
 //!
 //! The paper's Adrive guarded the port with a plain mutex. Field testing found
@@ -40,15 +47,18 @@
 //! function, byte count or written value, a line-protocol ack is no status line, an
 //! ELM327 reply names its PID.)
 
+use self::slot::CommandSlot;
+use self::trace::{Dir, Trace};
 use crate::config::PortRule;
 use crate::driver::{Driver, DriverError, Link};
-use crate::engine::slot::CommandSlot;
-use crate::vehicle::trace::{Dir, Trace};
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::io::{self, Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
+
+pub mod slot;
+pub mod trace;
 
 /// What readers may know of a device's port without touching it.
 #[derive(Default, Debug)]
@@ -837,7 +847,7 @@ mod tests {
     /// read as the answer to the next request about half the time, so it looked
     /// healthy. Over a real pseudo-terminal, a line device that answers its n-th request
     /// with `pos=n` (so a reply names the request it answers), one at a time, first 20
-    /// ms after the deadline: no poll succeeds while it is that slow, the failures say
+    /// ms after the deadline: no poll takes another request's answer, the failures say
     /// it is slower than its reply timeout, and once it is fast again every reply taken
     /// is its own request's.
     #[test]
@@ -888,9 +898,12 @@ mod tests {
             &config,
         );
         let mut poll = || conn.transact(|drv, link| drv.poll(link)).0;
-        let mut late = 0;
+        let (mut late, mut own) = (0, 0);
         for k in 1..=12 {
             match poll() {
+                // A host itself scheduled later than the reply (a loaded machine) finds
+                // it waiting: its own request's answer, which it may take.
+                Ok(r) if r.get(0) == Some(k as f64) => own += 1,
                 Ok(r) => panic!(
                     "poll {k} took {:?}, the answer to another request",
                     r.get(0)
@@ -900,7 +913,10 @@ mod tests {
                 Err(e) => panic!("poll {k}: {e}"),
             }
         }
-        assert!(late >= 10, "named slow: {late} of 12");
+        assert!(
+            late + own >= 10,
+            "named slow: {late} of 12 ({own} taken late by a late host)"
+        );
         // Fast again: each reply taken is its own request's (the device has answered k
         // requests when the host's k-th is done).
         slow.store(1, Relaxed);

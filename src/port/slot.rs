@@ -24,7 +24,7 @@ pub struct Pending {
 }
 
 /// A command whose request another thread already wrote to the port, which it left
-/// held ([`crate::engine::port::PortGuard::hand_over`]): the command thread reads the
+/// held ([`super::PortGuard::hand_over`]): the command thread reads the
 /// reply and does the bookkeeping.
 #[derive(Debug)]
 pub struct Handover {
@@ -63,8 +63,9 @@ pub struct WireState {
     pub sent: Option<Command>,
     /// The last command the device acknowledged.
     pub(crate) acked: Option<Command>,
-    /// When the device first acknowledged `acked` (a resend of it does not move this):
-    /// a status taken after it reports the command's effect.
+    /// When the device first acknowledged `acked` since another command went out (a
+    /// resend of it does not move this): a status taken after it reports the command's
+    /// effect.
     pub(crate) acked_at: Option<Instant>,
 }
 
@@ -324,7 +325,7 @@ impl CommandSlot {
     pub fn finish(&self, command: Command, acked: bool) {
         let mut s = self.state.lock();
         s.wire.flight = None;
-        s.wire.sent = Some(command);
+        let before = s.wire.sent.replace(command);
         if acked {
             let now = Instant::now();
             if let Command::Set(v) = command {
@@ -333,7 +334,9 @@ impl CommandSlot {
                 }
                 s.recent.push_back((now, v));
             }
-            if s.wire.acked != Some(command) {
+            // A resend does not move it; the same command again after another one
+            // went out does: the device's state may have followed the other since.
+            if s.wire.acked != Some(command) || before != Some(command) {
                 s.wire.acked = Some(command);
                 s.wire.acked_at = Some(now);
             }

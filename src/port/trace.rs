@@ -4,8 +4,6 @@
 //! for that copy only; nothing allocates. At `RUST_LOG=adrive=trace` each chunk is also
 //! logged as hex and ASCII, and when a recording asks for raw traffic, tapped for it.
 
-use super::tap::{Event, Tap};
-use crate::value::DeviceId;
 use parking_lot::Mutex;
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -93,6 +91,16 @@ impl TraceEntry {
     }
 }
 
+/// Where a trace also hands its chunks while a recording asks for raw traffic: the
+/// vehicle's tap (`crate::vehicle::tap`), which sits above this layer and sees its own
+/// readers.
+pub trait RawSink: Send + Sync {
+    /// A recording asks for raw traffic now (a cheap check, made for every chunk).
+    fn wants(&self) -> bool;
+    /// One chunk of this device's traffic.
+    fn chunk(&self, entry: TraceEntry);
+}
+
 struct Ring {
     entries: Vec<TraceEntry>,
     next: usize,
@@ -103,7 +111,7 @@ struct Ring {
 pub struct Trace {
     device: String,
     ring: Mutex<Ring>,
-    tap: Option<(DeviceId, Arc<Tap>)>,
+    tap: Option<Arc<dyn RawSink>>,
 }
 
 impl Trace {
@@ -119,9 +127,9 @@ impl Trace {
         }
     }
 
-    /// Hand every chunk to a recording's tap too, while it asks for raw traffic.
-    pub(crate) fn tapped(mut self, device: DeviceId, tap: Arc<Tap>) -> Trace {
-        self.tap = Some((device, tap));
+    /// Hand every chunk to `sink` too, while it asks for raw traffic.
+    pub(crate) fn tapped(mut self, sink: Arc<dyn RawSink>) -> Trace {
+        self.tap = Some(sink);
         self
     }
 
@@ -145,11 +153,8 @@ impl Trace {
             }
             r.next = (r.next + 1) % CAPACITY;
         }
-        if let Some((device, tap)) = self.tap.as_ref().filter(|(_, t)| t.wants_raw()) {
-            tap.send(|| Event::Raw {
-                device: *device,
-                entry: e,
-            });
+        if let Some(sink) = self.tap.as_ref().filter(|t| t.wants()) {
+            sink.chunk(e);
         }
         tracing::trace!(
             device = %self.device,
