@@ -869,8 +869,9 @@ fn a_network_sender_does_not_steer_the_consoles_vehicle_until_the_operator_relea
 /// (`accel 0.10`) was refused and yet released the brake; then the bar showed
 /// `accel +0.10 gas` while the message line said it was refused. Teleop starts from
 /// what the vehicle was told (the brake full: up releases it first), a refused accel
-/// changes nothing, and the bar shows what was applied. The same from the main
-/// screen's accel: refused, the brake stays full.
+/// changes nothing, and the bar shows what was applied. The same held (the gas
+/// refused as a whole, the brake left full), in step mode (the incident's keys), and
+/// from the main screen's accel: refused, the brake stays full.
 #[test]
 fn a_refused_teleop_accel_in_park_leaves_the_bar_and_the_brake_as_applied() {
     let mut c = Console::start("park", &[]);
@@ -880,6 +881,15 @@ fn a_refused_teleop_accel_in_park_leaves_the_bar_and_the_brake_as_applied() {
     c.wait_for("teleop from the brake applied", |s| {
         s.contains("DEADMAN") && s.contains("accel -1.00 brake")
     });
+    c.keys("w");
+    let s = c.wait_for("the held gas refused", |s| s.contains("refused: gas 0.20"));
+    assert!(s.contains("accel -1.00 brake"), "the bar shows gas:\n{s}");
+    assert!(
+        s.contains("GAS 0…1 cmd 0.000") && s.contains("BRAKE 0…1 cmd 1.000"),
+        "the refused gas changed the pedals:\n{s}"
+    );
+    c.keys("m");
+    c.wait_for("step mode", |s| s.contains("TELEOP step"));
     c.keys("w");
     c.wait_for("the brake released", |s| {
         s.contains("teleop: steer") && s.contains("accel +0.00 coast")
