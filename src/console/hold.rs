@@ -207,7 +207,7 @@ impl KeyRepeat {
                 self.firsts.pop_front();
             }
             self.firsts.push_back(first);
-            &r.gaps[..]
+            &*r.gaps
         };
         for g in new.iter().filter(|g| in_band(g)) {
             if self.gaps.len() == KEEP_GAPS {

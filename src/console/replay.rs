@@ -286,7 +286,7 @@ impl Player {
             sim_faults: vec![None; n],
             sim_names: None,
             you: None,
-            teleop: Default::default(),
+            teleop: crate::config::TeleopConfig::default(),
         }
     }
 

@@ -157,14 +157,15 @@ fn hold_event(
             }
         }
         Did::Pressed => m.teleop.full_brake = false,
-        Did::Nothing if which == HoldKey::Gas && e.kind == KeyEventKind::Press => {
-            if m.teleop
-                .holds
-                .pedal
-                .is_some_and(|h| h.key == HoldKey::Brake)
-            {
-                m.say("teleop: no gas while the brake key is held", true);
-            }
+        Did::Nothing
+            if which == HoldKey::Gas
+                && e.kind == KeyEventKind::Press
+                && m.teleop
+                    .holds
+                    .pedal
+                    .is_some_and(|h| h.key == HoldKey::Brake) =>
+        {
+            m.say("teleop: no gas while the brake key is held", true);
         }
         _ => {}
     }
