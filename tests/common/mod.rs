@@ -36,7 +36,24 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
 /// and the next `E` `y` then landed on whatever the test did next.
 pub fn engage_answered(screen: &str) -> bool {
     !screen.contains("Engage?")
-        && (screen.contains("engaged: the console commands") || screen.contains("engage refused"))
+        && (engaged_said(screen) || said(screen).starts_with("engage refused"))
+}
+
+/// The console's message line (the row above the key hints) says the engage was done:
+/// `engaged`, every front end's one answer. The log pane may still show refusals of
+/// earlier tries; the message line is this answer's.
+pub fn engaged_said(screen: &str) -> bool {
+    said(screen) == "engaged"
+}
+
+/// The console's message line: the last row but one that is not blank.
+fn said(screen: &str) -> &str {
+    screen
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .rev()
+        .nth(1)
+        .map_or("", str::trim)
 }
 
 /// Alice for `--sim --config`, her devices' readings allowed to be 2 s old and their
