@@ -66,6 +66,9 @@ wait_for() {
     return 1
 }
 keys() { tmux send-keys -t "$session" "$@"; }
+# Esc alone: the console reads an Esc followed at once by a key as that key with Alt, as
+# a terminal sends it; the next key waits until the Esc was taken alone.
+esc() { keys Escape; sleep 0.3; }
 shot() {
     # One capture, so the text and the colours show the same instant.
     tmux capture-pane -p -e -t "$session" >"$out/$1.ansi"
@@ -123,12 +126,12 @@ alice() {
 
     keys '?'; wait_for "keys from the loaded keymap"
     shot help
-    keys Escape
+    esc
 
     keys l x; wait_for "GAS 0…1"; wait_for "raw traffic"
     sleep 1
     shot bench
-    keys Escape
+    esc
 
     # In drive, stall the engine from the bench, then watch the supervisor recover it.
     keys t; wait_for "edit trans command"
@@ -152,7 +155,7 @@ alice() {
 
     keys x; wait_for "raw traffic"
     keys K; wait_for "sim: engine stalled"
-    keys Escape
+    esc
     wait_for "RECOVERY engine_stall" 50
     sleep 0.2
     shot recovery

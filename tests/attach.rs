@@ -195,7 +195,7 @@ impl Attached {
             // The outcome of this `y`: the frame that closed the question says it (a
             // refusal still on the screen from the last try is not it).
             let s = self.wait_for("the engage outcome", engage_answered);
-            if common::engaged(&s) {
+            if common::engaged_said(&s) {
                 self.wait_for("the header", |s| s.contains(" COMMANDING "));
                 return;
             }

@@ -218,7 +218,7 @@ impl Console {
             // The outcome of this `y`: the frame that closed the question says it (a
             // refusal still on the screen from the last try is not it).
             let s = self.wait_for("the engage outcome", engage_answered);
-            if common::engaged(&s) {
+            if common::engaged_said(&s) {
                 self.wait_for("the header", |s| s.contains("│ ENGAGED"));
                 return;
             }
@@ -1559,7 +1559,7 @@ fn inside_a_real_tmux_the_round_trip_is_answered_by_tmux_and_the_header_says_lin
         t.wait_for("the question", |s| s.contains("Engage?"));
         t.keys("y");
         let s = t.wait_for("the answer", engage_answered);
-        if common::engaged(&s) {
+        if common::engaged_said(&s) {
             break;
         }
         assert!(Instant::now() < end, "could not engage:\n{s}");

@@ -149,7 +149,7 @@ impl Rig {
             // The outcome of this `y`: the frame that closed the question says it (a
             // refusal from an earlier try may still be in the log pane).
             let s = self.wait_for("the engage outcome", common::engage_answered);
-            if common::engaged(&s) {
+            if common::engaged_said(&s) {
                 break;
             }
             assert!(Instant::now() < end, "could not engage:\n{s}");
@@ -467,7 +467,7 @@ fn inside_tmux_a_hold_follows_the_learnt_key_repeat_and_a_tap_holds_briefly() {
         r.wait_for("the confirmation", |s| s.contains("Engage?"));
         r.keys("y");
         let s = r.wait_for("engaged again", common::engage_answered);
-        assert!(common::engaged(&s), "{s}");
+        assert!(common::engaged_said(&s), "{s}");
     }
     r.quit();
 }

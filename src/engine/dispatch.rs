@@ -563,8 +563,8 @@ mod tests {
     /// pending command, the gear reported, hid the shift in flight. An `accel` then
     /// released the brake at once, and `drive` went out after it with the brake at 0:
     /// a command to the gear reported was no shift, though the gearbox was on its way
-    /// to reverse. Every gear command on its way counts: the `accel` waits for the
-    /// shift, a release waits for it at the wire, and `drive` behind `reverse` is a
+    /// to reverse. Every gear command on its way counts: the `accel` is refused while
+    /// the shift is under way, a release waits for it at the wire, and `drive` behind `reverse` is a
     /// shift that needs the brake.
     #[test]
     fn a_shift_in_flight_behind_a_command_to_the_gear_reported_is_still_a_shift() {
@@ -577,7 +577,10 @@ mod tests {
         trans.slot().fly(reverse);
         trans.slot().submit(drive, Instant::now());
         let before = brake.slot().wire();
-        assert_eq!(gate.submit_accel(0.4, Instant::now()), Ok(()));
+        assert_eq!(
+            gate.submit_accel(0.4, Instant::now()),
+            Err(Reject::AccelWhileShifting)
+        );
         assert_eq!(brake.slot().wire(), before, "the accel held the brake");
         assert_eq!(
             gate.submit(brake.id(), Command::Set(0.0), Instant::now()),

@@ -171,9 +171,14 @@ pub(crate) fn released_on_wire(d: &Device, w: &WireState) -> bool {
 }
 
 /// A gear command not on the wire yet: pending or in flight, and not the last one sent
-/// (whatever the gearbox reports: it may be passing through that gear).
+/// (whatever the gearbox reports: it may be passing through that gear). Every one on
+/// its way counts, not only the newest: a command pending to the gear last sent does
+/// not hide a shift still in flight before it.
 fn shift_on_its_way(w: &WireState) -> bool {
-    matches!(w.pending.or(w.flight), Some(c @ Command::State(_)) if w.sent != Some(c))
+    [w.pending, w.flight]
+        .into_iter()
+        .flatten()
+        .any(|c| matches!(c, Command::State(_)) && w.sent != Some(c))
 }
 
 /// A set point of `d` as a fraction of its range top (the rules' scale).

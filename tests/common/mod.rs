@@ -38,20 +38,24 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
 /// pane, which keeps earlier tries' refusals.
 pub fn engage_answered(screen: &str) -> bool {
     !screen.contains("Engage?")
-        && said(screen, |l| {
-            l == "engaged" || l.starts_with("engage refused")
-        })
+        && (engaged_said(screen) || said(screen).starts_with("engage refused"))
 }
 
-/// The console's message line says its engage engaged the vehicle.
-pub fn engaged(screen: &str) -> bool {
-    said(screen, |l| l == "engaged")
+/// The console's message line (the row above the key hints) says the engage was done:
+/// `engaged`, every front end's one answer. The log pane may still show refusals of
+/// earlier tries; the message line is this answer's.
+pub fn engaged_said(screen: &str) -> bool {
+    said(screen) == "engaged"
 }
 
-/// A line of the screen, trimmed, is what `what` looks for (the message line, whose
-/// text starts at the left edge, alone; a log line starts with its time).
-fn said(screen: &str, what: impl Fn(&str) -> bool) -> bool {
-    screen.lines().map(str::trim).any(what)
+/// The console's message line: the last row but one that is not blank.
+fn said(screen: &str) -> &str {
+    screen
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .rev()
+        .nth(1)
+        .map_or("", str::trim)
 }
 
 /// Alice for `--sim --config`, her devices' readings allowed to be 2 s old and their
