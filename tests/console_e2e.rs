@@ -1228,6 +1228,31 @@ fn commander_stalls(name: &str, stall: fn(&Player)) -> Console {
     c
 }
 
+/// The terminal's answer to the liveness check arriving just after the operator's Esc
+/// (in one read: `ESC ESC [ 21 ; 76 R`), or cut by a pause longer than a lone Esc's
+/// wait (a slow SSH link): it is an answer, never keys. Read as keys, its `R` released
+/// command — in a real run, while the screenshots were taken — and the vehicle stopped.
+#[test]
+fn a_terminal_answer_beside_the_operators_esc_is_never_keys() {
+    let mut c = Console::start("esc-answer", &[]);
+    c.engage();
+    c.term.write(b"\x1b\x1b[21;76R");
+    c.term.write(b"\x1b[21;7");
+    std::thread::sleep(Duration::from_millis(200));
+    c.term.write(b"6R");
+    // A barrier: help opens once every byte before it was taken.
+    c.keys("?");
+    c.wait_for("help", |s| s.contains("keys from the loaded keymap"));
+    let (engaged, why) = gate(&c);
+    assert!(engaged, "the answer's bytes were keys: {why}");
+    let log = c.log();
+    assert!(!log.contains("released command"), "{log}");
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("DISENGAGED"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
 /// A console that watches (the operator commands through `adrive ctl`) asks its
 /// terminal nothing, and its terminal stalling stops nothing.
 #[test]
