@@ -14,7 +14,8 @@
 #   NAME.png   the .ansi rendered by render.py (Pillow, installed into a venv under
 #              target/screenshots-venv on first use)
 # Screens: main (engaged, steering commanded to 0.5), attach (a second console attached
-# to that run with `adrive attach`, watching), help, bench (gas, with its raw
+# to that run with `adrive attach`, watching), help, teleop (in drive, `↑` held as
+# tmux passes a key repeat: the bar's `repeat` mode), bench (gas, with its raw
 # traffic, delay histogram and the simulator's fault keys), recovery and
 # recovery-wide (an engine stall injected from the bench while in drive, captured while
 # the supervisor's engine_stall procedure runs, at 80×24 and at 120×40), fault
@@ -136,6 +137,22 @@ alice() {
     keys t; wait_for "edit trans command"
     keys C-u d Enter
     wait_for "state drive"
+
+    # Teleop in drive, `↑` held: tmux passes presses only, so the bar says `repeat`,
+    # with the bound learnt from a first hold (a 300 ms delay, then a repeat every
+    # 30 ms); captured while the second hold lasts.
+    keys d; wait_for "TELEOP repeat"
+    hold_up() { keys Up; sleep 0.3; for _ in $(seq "$1"); do keys Up; sleep 0.03; done; }
+    hold_up 20
+    sleep 0.4
+    hold_up 40 &
+    wait_for "held ↑" 20
+    sleep 0.3
+    shot teleop
+    wait
+    wait_for "the hold brake"
+    keys Escape; wait_for "left teleop"
+
     keys x; wait_for "raw traffic"
     keys K; wait_for "sim: engine stalled"
     esc

@@ -869,8 +869,9 @@ fn a_network_sender_does_not_steer_the_consoles_vehicle_until_the_operator_relea
 /// (`accel 0.10`) was refused and yet released the brake; then the bar showed
 /// `accel +0.10 gas` while the message line said it was refused. Teleop starts from
 /// what the vehicle was told (the brake full: up releases it first), a refused accel
-/// changes nothing, and the bar shows what was applied. The same from the main
-/// screen's accel: refused, the brake stays full.
+/// changes nothing, and the bar shows what was applied. The same held (the gas
+/// refused as a whole, the brake left full), in step mode (the incident's keys), and
+/// from the main screen's accel: refused, the brake stays full.
 #[test]
 fn a_refused_teleop_accel_in_park_leaves_the_bar_and_the_brake_as_applied() {
     let mut c = Console::start("park", &[]);
@@ -880,6 +881,15 @@ fn a_refused_teleop_accel_in_park_leaves_the_bar_and_the_brake_as_applied() {
     c.wait_for("teleop from the brake applied", |s| {
         s.contains("DEADMAN") && s.contains("accel -1.00 brake")
     });
+    c.keys("w");
+    let s = c.wait_for("the held gas refused", |s| s.contains("refused: gas 0.20"));
+    assert!(s.contains("accel -1.00 brake"), "the bar shows gas:\n{s}");
+    assert!(
+        s.contains("GAS 0…1 cmd 0.000") && s.contains("BRAKE 0…1 cmd 1.000"),
+        "the refused gas changed the pedals:\n{s}"
+    );
+    c.keys("m");
+    c.wait_for("step mode", |s| s.contains("TELEOP step"));
     c.keys("w");
     c.wait_for("the brake released", |s| {
         s.contains("teleop: steer") && s.contains("accel +0.00 coast")
@@ -1216,6 +1226,31 @@ fn commander_stalls(name: &str, stall: fn(&Player)) -> Console {
     c.wait_for("why", |s| s.contains("stopped answering"));
     assert!(!gate(&c).0, "engaged again by itself");
     c
+}
+
+/// The terminal's answer to the liveness check arriving just after the operator's Esc
+/// (in one read: `ESC ESC [ 21 ; 76 R`), or cut by a pause longer than a lone Esc's
+/// wait (a slow SSH link): it is an answer, never keys. Read as keys, its `R` released
+/// command — in a real run, while the screenshots were taken — and the vehicle stopped.
+#[test]
+fn a_terminal_answer_beside_the_operators_esc_is_never_keys() {
+    let mut c = Console::start("esc-answer", &[]);
+    c.engage();
+    c.term.write(b"\x1b\x1b[21;76R");
+    c.term.write(b"\x1b[21;7");
+    std::thread::sleep(Duration::from_millis(200));
+    c.term.write(b"6R");
+    // A barrier: help opens once every byte before it was taken.
+    c.keys("?");
+    c.wait_for("help", |s| s.contains("keys from the loaded keymap"));
+    let (engaged, why) = gate(&c);
+    assert!(engaged, "the answer's bytes were keys: {why}");
+    let log = c.log();
+    assert!(!log.contains("released command"), "{log}");
+    c.keys(" ");
+    c.wait_for("the stop", |s| s.contains("DISENGAGED"));
+    c.keys("q");
+    assert!(c.wait_exit().success());
 }
 
 /// A console that watches (the operator commands through `adrive ctl`) asks its

@@ -93,8 +93,9 @@ impl Fixture {
         }
         tick(m, &self.live(), self.now);
     }
-    /// Press keys, written as in a keymap (`/`, `<PageDown>`, `<Enter>`), through the
-    /// model's keymap, on a screen of `w`×`h`; then render it.
+    /// Press keys, written as in a keymap (`/`, `<PageDown>`, `<Enter>`), as the
+    /// console's loop takes them (teleop's holds, then the model's keymap), on a screen
+    /// of `w`×`h`; then render it.
     fn press(&self, m: &mut Model, keys: &[&str], (w, h): (u16, u16)) -> Buffer {
         m.screen = ratatui::layout::Rect::new(0, 0, w, h);
         for k in keys {
@@ -105,9 +106,7 @@ impl Fixture {
             }
             let ev = crossterm::event::KeyEvent::new(key.code, mods);
             drawn(m);
-            if let Some(a) = adrive::console::sight::key(m, &ev) {
-                update(m, a, &self.live(), self.now);
-            }
+            adrive::console::update::key(m, &ev, self.now, &self.live(), self.now);
         }
         render(m, w, h)
     }
@@ -247,8 +246,9 @@ fn teleop_shows_the_deadman() {
     f.act(&mut m, &[Action::Engage, Action::Confirm, Action::Teleop]);
     let b = render(&m, 80, 24);
     find(&b, "DEADMAN idle");
-    // A teleop key arms the deadman, the console's watchdog in the intake.
-    f.act(&mut m, &[Action::SteerRight]);
+    // A teleop key arms the deadman, the console's watchdog in the intake: `→` held
+    // for a key repeat's delay (its terminal reports presses only: `repeat`).
+    f.press(&mut m, &["<Right>"], (80, 24));
     // No key for longer than the deadman: the intake trips it (gas 0, brake full,
     // disengaged), and the console shows it reversed in red. Five seconds after the
     // fixture's readings, not after the clock reads now: the estimate's σ on the

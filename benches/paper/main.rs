@@ -19,7 +19,8 @@
 //! in the same window, row by row, with its steps ([`outside`]); 12 attached consoles;
 //! 13 a CAN bus: 1 … 16 actuators on one SLCAN adapter ([`can`]); 14 a commanding
 //! console whose terminal stalls: the stall → the safe state at the device, and what
-//! the liveness check costs ([`liveness`]).
+//! the liveness check costs ([`liveness`]); 15 hold-to-drive teleop: a key's release,
+//! or its repeats' end, → the throttle's 0 at the device ([`teleop`]).
 
 mod can;
 mod estimator;
@@ -28,6 +29,7 @@ mod liveness;
 mod outside;
 mod plot;
 mod rig;
+mod teleop;
 mod viewer;
 
 use adrive::snapshot::{LatencySummary, Snapshot};
@@ -44,6 +46,14 @@ fn secs() -> f64 {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(6.0)
+}
+
+/// Holds a row of section 15 measures (`ADRIVE_BENCH_HOLDS` to change).
+fn holds() -> usize {
+    std::env::var("ADRIVE_BENCH_HOLDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(1000)
 }
 
 /// A setpoint actuator on the line protocol at 115200 baud whose port is idle when a
@@ -274,6 +284,9 @@ fn main() {
     }
     if on("14") {
         liveness::section14_terminal_stall(&dir, 100, secs);
+    }
+    if on("15") {
+        teleop::section15_teleop(&dir, holds());
     }
     summary(&r, &out);
 }

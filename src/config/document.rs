@@ -15,7 +15,7 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 8] = [
+const TABLES: [&str; 9] = [
     "vehicle",
     "bus",
     "network",
@@ -23,6 +23,7 @@ const TABLES: [&str; 8] = [
     "supervisor",
     "record",
     "ros2",
+    "teleop",
     "device",
 ];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
@@ -30,7 +31,7 @@ const DEVICE_TABLES: [&str; 7] = [
     "sim", "modbus", "line", "can", "response", "aliases", "readings",
 ];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [console], [supervisor], [record], [ros2], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [console], [supervisor], [record], [ros2], [teleop], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -255,7 +256,7 @@ pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
         ["bus", name, ..] => format!("bus {name}: "),
-        [section @ ("network" | "console" | "supervisor" | "record" | "ros2"), ..] => {
+        [section @ ("network" | "console" | "supervisor" | "record" | "ros2" | "teleop"), ..] => {
             format!("[{section}] ")
         }
         _ => String::new(),
@@ -272,6 +273,7 @@ fn limit_of(path: &str) -> Option<&'static dyn limits::Row> {
         ["console", key] => (Section::Console, key),
         ["supervisor", key] => (Section::Supervisor, key),
         ["ros2", key] => (Section::Ros2, key),
+        ["teleop", key] => (Section::Teleop, key),
         ["device", _, key] => (Section::Device, key),
         ["device", _, "sim", key] => (Section::DeviceSim, key),
         ["device", _, "modbus", key] => (Section::DeviceModbus, key),
@@ -313,6 +315,7 @@ fn suggest(written: &str) -> Option<String> {
         "[supervisor]",
         "[record]",
         "[ros2]",
+        "[teleop]",
         "[[device]]",
         "[[bus]]",
         "[bus.sim]",

@@ -29,6 +29,8 @@ pub enum Section {
     Supervisor,
     /// `[ros2]`: the ROS 2 / Autoware interface.
     Ros2,
+    /// `[teleop]`: hold-to-drive teleop from the console.
+    Teleop,
     /// A command-line option of `adrive run`.
     CommandLine,
 }
@@ -45,6 +47,7 @@ impl Section {
             Section::Console => "[console]",
             Section::Supervisor => "[supervisor]",
             Section::Ros2 => "[ros2]",
+            Section::Teleop => "[teleop]",
             Section::CommandLine => "adrive run",
         }
     }
@@ -183,7 +186,7 @@ const fn s(n: u64) -> Duration {
 
 use Section::{
     CommandLine, Console, Device, DeviceModbus, DeviceResponse, DeviceSim, Network, Ros2,
-    Supervisor,
+    Supervisor, Teleop,
 };
 
 pub const BAUD: Limit<u64> = Limit {
@@ -412,6 +415,38 @@ pub(crate) const GIVE_UP_AFTER: Limit<Duration> = Limit {
     default: None,
     why: "off: adrive never ends the run because of a device. Set (or `--give-up-after`): a device gone this long, or a recovery that gave up after trying this long, ends the run (status 4, after the safe state)",
 };
+pub(crate) const TELEOP_GAS: Limit<f64> = Limit {
+    section: Teleop,
+    key: "gas",
+    min: 0.01,
+    max: 0.5,
+    default: Some(0.2),
+    why: "`↑` held: the throttle at this fraction of its range; a keyboard holds at most half",
+};
+pub(crate) const TELEOP_BRAKE: Limit<f64> = Limit {
+    section: Teleop,
+    key: "brake",
+    min: 0.05,
+    max: 1.0,
+    default: Some(0.6),
+    why: "`↓` held: the brake at this fraction of its range",
+};
+pub(crate) const TELEOP_HOLD: Limit<f64> = Limit {
+    section: Teleop,
+    key: "hold",
+    min: 0.0,
+    max: 1.0,
+    default: Some(0.3),
+    why: "no pedal key held: the brake at this (enough to hold the vehicle still; 0 lets it coast), never gas",
+};
+pub(crate) const TELEOP_STEER_RATE: Limit<f64> = Limit {
+    section: Teleop,
+    key: "steer_rate",
+    min: 0.05,
+    max: 2.0,
+    default: Some(0.5),
+    why: "`←`/`→` held: the steering command (−1 … 1) moves this much a second",
+};
 pub const DEADMAN: Limit<Duration> = Limit {
     section: CommandLine,
     key: "deadman",
@@ -470,6 +505,10 @@ pub(crate) const RESPONSE_ON_SETPOINTS: Rule = Rule {
 pub(crate) const PORT_NAMED: Rule = Rule {
     section: Device,
     text: "a `port` path on every device, unless it is simulated (`--sim`, `adrive sim`)",
+};
+pub(crate) const HOLD_BELOW_BRAKE: Rule = Rule {
+    section: Teleop,
+    text: "`hold` at most `brake` (`↓` brakes at least as hard as letting go)",
 };
 pub(crate) const WATCHDOG_OUTLASTS_RESEND: Rule = Rule {
     section: DeviceSim,
@@ -545,6 +584,10 @@ pub static ALL: &[&dyn Row] = &[
     &ATTEMPTS,
     &STEP_TIMEOUT,
     &GIVE_UP_AFTER,
+    &TELEOP_GAS,
+    &TELEOP_BRAKE,
+    &TELEOP_HOLD,
+    &TELEOP_STEER_RATE,
     &DEADMAN,
 ];
 
@@ -565,6 +608,7 @@ pub(crate) static RULES: &[&Rule] = &[
     &PORT_NAMED,
     &WATCHDOG_OUTLASTS_RESEND,
     &RESPONSE_IN_UNITS,
+    &HOLD_BELOW_BRAKE,
 ];
 
 /// The guide's table (docs/vehicles.md) of limits and list of rules, as Markdown.
@@ -689,6 +733,10 @@ mod tests {
             &ERROR_RATE,
             &FOLLOW_TOLERANCE,
             &RANGE_MARGIN,
+            &TELEOP_GAS,
+            &TELEOP_BRAKE,
+            &TELEOP_HOLD,
+            &TELEOP_STEER_RATE,
         ] {
             ok(l);
         }

@@ -10,6 +10,7 @@
 //! - [`response`]: how a setpoint actuator answers its command (the estimator's model);
 //! - [`limits`]: the sane range of every safety-relevant value, in one table;
 //! - [`record`]: `[record]`, recording every run into rolling files;
+//! - [`teleop`]: `[teleop]`, what hold-to-drive teleop commands while a key is held;
 //! - [`document`]: where each key sits in the file, so that a check made after typing
 //!   still names its line.
 
@@ -26,6 +27,7 @@ pub mod record;
 pub mod response;
 pub mod roles;
 pub mod ros2;
+pub mod teleop;
 
 pub use console::ConsoleConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
@@ -41,6 +43,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::Path;
 use std::time::Duration;
+pub use teleop::TeleopConfig;
 use toml::Spanned;
 
 /// The built-in vehicle, as shipped in `vehicles/alice.toml`.
@@ -264,6 +267,8 @@ pub struct VehicleConfig {
     pub record: Option<RecordConfig>,
     /// `[ros2]`: the ROS 2 / Autoware interface over Zenoh (`--ros2`).
     pub ros2: Ros2Config,
+    /// `[teleop]`: what hold-to-drive teleop commands while a key is held.
+    pub teleop: TeleopConfig,
     /// Where it was loaded from (for messages).
     pub source: String,
     /// The line of every key in that file, for errors found after loading.
@@ -389,6 +394,8 @@ struct Raw {
     #[serde(default)]
     record: Option<RecordConfig>,
     ros2: Option<Ros2Config>,
+    #[serde(default)]
+    teleop: TeleopConfig,
 }
 
 /// Load a vehicle from a file.
@@ -477,6 +484,9 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     let ros2 = raw.ros2.unwrap_or_default();
     ros2.check(&devices)
         .map_err(|v| refuse(path, &lines, "ros2", v))?;
+    raw.teleop
+        .check()
+        .map_err(|v| refuse(path, &lines, "teleop", v))?;
     Ok(VehicleConfig {
         vehicle: VehicleSettings { name, placement },
         roles,
@@ -487,6 +497,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         console,
         record: raw.record,
         ros2,
+        teleop: raw.teleop,
         source: path.to_string(),
         lines,
     })

@@ -67,6 +67,16 @@ fn defaults_fill_what_is_not_said() {
         "a setpoint device reports its position"
     );
     assert_eq!(v.roles, Bindings::default(), "nothing bound unless said");
+    assert_eq!(
+        v.teleop,
+        crate::config::TeleopConfig {
+            gas: 0.2,
+            brake: 0.6,
+            hold: 0.3,
+            steer_rate: 0.5
+        },
+        "teleop holds the vehicle still when no pedal key is held"
+    );
 }
 
 #[test]
@@ -484,6 +494,9 @@ registers = { target = 0, position = 0 }
 [device.response]
 lag = "80ms"
 # response
+
+[teleop]
+# teleop
 "#;
 
 /// One absurd value: where it goes, the line the error must name (the first line of
@@ -757,6 +770,27 @@ const ABSURD: &[Absurd] = &[
         says: &["[supervisor] stall_time:", "from 100ms to 10s", "got 0s"],
     },
     Absurd {
+        incident: "full throttle held from a keyboard",
+        replace: "# teleop",
+        with: "gas = 1.0",
+        at: "gas",
+        says: &["[teleop] gas:", "a number from 0.01 to 0.5", "got 1"],
+    },
+    Absurd {
+        incident: "a steering that never moves while its key is held",
+        replace: "# teleop",
+        with: "steer_rate = 0.0",
+        at: "steer_rate",
+        says: &["[teleop] steer_rate:", "a number from 0.05 to 2", "got 0"],
+    },
+    Absurd {
+        incident: "letting go of the brake key brakes harder than holding it",
+        replace: "# teleop",
+        with: "brake = 0.2\nhold = 0.5",
+        at: "hold",
+        says: &["[teleop] hold 0.5, brake 0.2: expected `hold` at most `brake`"],
+    },
+    Absurd {
         incident: "reply timeout past the max age",
         replace: "# device",
         with: "reply_timeout = \"2s\"",
@@ -903,7 +937,7 @@ fn two_devices_on_one_serial_port_are_refused_at_the_second_s_port() {
         .to_string();
     assert!(
         e.starts_with(
-            "v.toml:33: horn: port: /dev/ttyUSB0 is brake's port too (v.toml:17): a serial port has one device"
+            "v.toml:36: horn: port: /dev/ttyUSB0 is brake's port too (v.toml:17): a serial port has one device"
         ),
         "{e}"
     );
@@ -966,7 +1000,7 @@ fn two_spellings_of_one_port_are_refused_at_the_second_naming_the_first() {
         let e = v.check_ports().unwrap_err().to_string();
         assert!(
             e.starts_with(&format!(
-                "v.toml:33: horn: port: {horn} is brake's port, {brake}, by another name (both are "
+                "v.toml:36: horn: port: {horn} is brake's port, {brake}, by another name (both are "
             )),
             "{brake} and {horn}: {e}"
         );

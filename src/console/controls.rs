@@ -16,7 +16,7 @@
 use crate::engine::Gate;
 use crate::net::NetStatus;
 use crate::port::trace::TraceEntry;
-use crate::safety::{Ask, Done, Refused};
+use crate::safety::{Ask, Done, Held, Refused};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::Source;
@@ -84,6 +84,8 @@ pub struct Frame {
     /// An attached console: the source it is to the intake (`console #2`), to tell
     /// whether it commands or watches. `None` in the embedded console.
     pub(crate) you: Option<String>,
+    /// The vehicle file's `[teleop]`: what teleop starts from.
+    pub teleop: crate::config::TeleopConfig,
 }
 
 impl std::ops::Deref for Frame {
@@ -283,6 +285,12 @@ pub trait Controls {
     /// A command through the one intake, as the console's.
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused>;
     fn submit_accel(&self, accel: f64) -> Result<(), Refused>;
+    /// The accel while a key is held ([`Ask::Held`]): gas lasts `lease` from now
+    /// unless renewed, then the engine commands `release` (never gas) on its own.
+    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused>;
+    /// The key is still held: the running lease lasts `lease` from now. `Ok(false)`
+    /// when it had run out (the engine ended the gas; only a new press gives it again).
+    fn renew(&self, lease: Duration) -> Result<bool, Refused>;
     /// Engage, as the console: what it did ([`Done`]'s words are the answer every
     /// front end gives).
     fn engage(&self) -> Result<Done, Refused>;
@@ -424,6 +432,7 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
             })
             .collect(),
         you: None,
+        teleop: v.config().teleop,
         snap,
     }
 }
@@ -463,6 +472,17 @@ impl Controls for Live<'_> {
     }
     fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
         self.ask(Ask::Accel(accel)).map(drop)
+    }
+    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
+        self.ask(Ask::Held(Held {
+            accel,
+            lease,
+            release,
+        }))
+        .map(drop)
+    }
+    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
+        self.ask(Ask::Renew(lease)).map(|d| d == Done::Commanded)
     }
     fn engage(&self) -> Result<Done, Refused> {
         self.ask(Ask::Engage)

@@ -304,6 +304,12 @@ pub enum Action {
     AccelDown,
     FullBrake,
     Center,
+    /// A teleop setting one step up (`true`) or down.
+    Level(Knob, bool),
+    /// Teleop: step mode on or off (back to what the terminal gives).
+    StepMode,
+    /// Help: show or hide the last key events, with their kinds.
+    KeyEvents,
     Bench,
     NextDevice,
     PrevDevice,
@@ -332,6 +338,19 @@ pub enum Action {
     Input(char),
     /// Ctrl-C (always bound, not bindable).
     Interrupt,
+}
+
+/// A teleop setting that keys change (the vehicle file's `[teleop]`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Knob {
+    /// The throttle while its key is held.
+    Gas,
+    /// The brake while its key is held.
+    Brake,
+    /// The brake while no pedal key is held.
+    Hold,
+    /// How fast a held steering key moves the steering.
+    SteerRate,
 }
 
 /// What a bench key does to the simulator (`--sim` only). The first five act on the
@@ -389,7 +408,9 @@ pub(crate) const ACTION_FORM: &str = "quit, help, back, up, down, left, right, e
 edit steering|throttle|brake|gear|accel (also steer, gas, trans), commit, cancel, \
 backspace, clear, wake, wake steering|throttle|brake|gear, \
 wake all, reset_steering, engage, disengage, stop, interlocks, confirm, teleop, steer_left, \
-steer_right, accel_up, accel_down, full_brake, center, bench, next_device, prev_device, \
+steer_right, accel_up, accel_down, full_brake, center, gas_more, gas_less, brake_more, \
+brake_less, hold_more, hold_less, steer_faster, steer_slower, step_mode, key_events, bench, \
+next_device, prev_device, \
 page_down, page_up, find, find_next, find_prev, complete, clear_override, take_command, \
 release_command, \
 sim silent|garbage|corrupt|slow|vanish|clear|stall|jam|override, \
@@ -423,6 +444,16 @@ const SIMPLE: &[(&str, Action)] = &[
     ("accel_down", Action::AccelDown),
     ("full_brake", Action::FullBrake),
     ("center", Action::Center),
+    ("gas_more", Action::Level(Knob::Gas, true)),
+    ("gas_less", Action::Level(Knob::Gas, false)),
+    ("brake_more", Action::Level(Knob::Brake, true)),
+    ("brake_less", Action::Level(Knob::Brake, false)),
+    ("hold_more", Action::Level(Knob::Hold, true)),
+    ("hold_less", Action::Level(Knob::Hold, false)),
+    ("steer_faster", Action::Level(Knob::SteerRate, true)),
+    ("steer_slower", Action::Level(Knob::SteerRate, false)),
+    ("step_mode", Action::StepMode),
+    ("key_events", Action::KeyEvents),
     ("bench", Action::Bench),
     ("next_device", Action::NextDevice),
     ("prev_device", Action::PrevDevice),

@@ -12,7 +12,7 @@
 //!   and a window of full panels that pages), for the view and for paging alike;
 //!   [`find`]: a device by its name, for the name prompt; [`trail`]: the bench
 //!   device's last seconds, for the bench chart.
-//! - [`run`]: the loop — one `select!` over the terminal's input ([`input`]: keys,
+//! - [`run`]: the loop — one biased `select!` over the terminal's input ([`input`]: keys,
 //!   sizes and answers, read on their own thread), a 10 Hz tick and the exits channel
 //!   (signals, panics). ratatui's diffing sends only changed cells; [`terminal`] never
 //!   blocks on a terminal that stopped reading, leaves the terminal as it was on every
@@ -24,6 +24,7 @@
 
 pub mod controls;
 pub mod find;
+pub mod hold;
 pub mod input;
 pub mod keymap;
 pub mod layout;
@@ -40,7 +41,7 @@ pub mod view;
 use crate::engine::Gate;
 use crate::exit::Exit;
 use controls::{Controls, Live, Sources};
-use crossbeam_channel::{select, Receiver};
+use crossbeam_channel::{select_biased, Receiver};
 use input::link::{self, RoundTrips};
 use input::probe::{self, Probe};
 use input::{Input, Keyboard};
@@ -141,6 +142,27 @@ fn keyboard_found(screen: &mut terminal::Screen, model: &mut Model, k: Keyboard)
     }
 }
 
+/// What the console's loop handles in a turn.
+enum Msg {
+    Exit(Exit),
+    Tick,
+    Input(Input),
+}
+
+/// The next thing the loop handles: an exit first, then the terminal's input, then
+/// time. Input comes before time: a key repeat read before a teleop hold's end is
+/// handled before the tick that would end the hold for want of it — with a fair
+/// choice, a turn late by an interval lost a held key's gas mid-hold.
+fn next(exits: &Receiver<Exit>, events: &Receiver<Input>, ticker: &Receiver<Instant>) -> Msg {
+    select_biased! {
+        recv(exits) -> why => Msg::Exit(why.unwrap_or(Exit::Quit)),
+        recv(events) -> input => Msg::Input(
+            input.unwrap_or_else(|_| Input::Closed("input thread ended".into())),
+        ),
+        recv(ticker) -> _ => Msg::Tick,
+    }
+}
+
 /// The console's loop over any [`Controls`]: the embedded engine ([`run_with`]) or
 /// a running adrive's control socket (`adrive attach`).
 pub fn drive(
@@ -187,18 +209,7 @@ pub fn drive(
                 }
             }
         }
-        enum Msg {
-            Exit(Exit),
-            Tick,
-            Input(Input),
-        }
-        let msg = select! {
-            recv(exits) -> why => Msg::Exit(why.unwrap_or(Exit::Quit)),
-            recv(ticker) -> _ => Msg::Tick,
-            recv(events) -> input => Msg::Input(
-                input.unwrap_or_else(|_| Input::Closed("input thread ended".into())),
-            ),
-        };
+        let msg = next(exits, &events, &ticker);
         // Measure the turn from here: the wait is not work.
         let start = Instant::now();
         let flow = match msg {
@@ -210,14 +221,13 @@ pub fn drive(
                 update::tick(&mut model, live, start);
                 Flow::Continue
             }
-            Msg::Input(Input::Key(k, _at)) => match sight::key(&model, &k) {
-                Some(a) => update::update(&mut model, a, live, start),
-                None => Flow::Continue,
-            },
+            Msg::Input(Input::Key(k, at)) => update::key(&mut model, &k, at, live, start),
             // A resize: the next draw adapts to the new size.
             Msg::Input(Input::Resize(..)) => Flow::Continue,
             Msg::Input(Input::Keyboard(k)) => {
+                let before = model.drive();
                 keyboard_found(&mut screen, &mut model, k);
+                update::keyboard(&mut model, before, live, start);
                 Flow::Continue
             }
             Msg::Input(Input::Answer(at)) => {
@@ -243,4 +253,29 @@ pub fn drive(
         std::thread::sleep(Duration::from_millis(5));
     }
     Ok(why)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crossterm::event::{KeyCode, KeyEvent, KeyModifiers};
+
+    /// A key read before the tick is handled before it, every time: a held key's repeat
+    /// waiting behind a late turn keeps its hold.
+    #[test]
+    fn input_waiting_beside_a_tick_is_handled_first() {
+        let (_exit_tx, exits) = crossbeam_channel::unbounded::<Exit>();
+        let (key_tx, events) = crossbeam_channel::unbounded();
+        let (tick_tx, ticker) = crossbeam_channel::unbounded();
+        for _ in 0..200 {
+            tick_tx.send(Instant::now()).unwrap();
+            let k = KeyEvent::new(KeyCode::Up, KeyModifiers::NONE);
+            key_tx.send(Input::Key(k, Instant::now())).unwrap();
+            assert!(matches!(
+                next(&exits, &events, &ticker),
+                Msg::Input(Input::Key(..))
+            ));
+            assert!(matches!(next(&exits, &events, &ticker), Msg::Tick));
+        }
+    }
 }

@@ -4,19 +4,23 @@
 //! [`update`](super::update) changes it; the view only reads it.
 
 use super::controls::Frame;
+use super::hold::{Drive, Holds, KeyRepeat};
 use super::keymap::{Keymap, Mode};
 use super::layout::{self, Devices};
 use super::sight::Drawn;
 use super::theme::Theme;
 use super::trail::Trail;
+use crate::config::TeleopConfig;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
+use crossterm::event::{KeyCode, KeyEventKind, KeyModifiers};
 use ratatui::layout::Rect;
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 /// How long `e` waits for the steering drive to acknowledge its home command.
 pub(crate) const HOME_WAIT: Duration = Duration::from_secs(3);
-/// Teleop steps per key.
+/// Teleop steps per key, in step mode.
 pub(crate) const STEER_STEP: f64 = 0.05;
 pub(crate) const GAS_STEP: f64 = 0.1;
 pub(crate) const BRAKE_STEP: f64 = 0.25;
@@ -146,7 +150,8 @@ pub struct Message {
 }
 
 /// Teleop: set points driven by keys, with a deadman. `steer` and `accel` are what
-/// the intake accepted (the bar shows them); a key asks for the next step from them.
+/// the intake accepted (the bar shows them). In step mode a key asks for the next step
+/// from them; in hold and repeat modes the keys held ([`Holds`]) say what to ask.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Teleop {
     pub steer: f64,
@@ -156,6 +161,23 @@ pub struct Teleop {
     /// The last teleop key; `None` until the first one (the deadman is idle).
     pub(crate) last_key: Option<Instant>,
     pub tripped: bool,
+    /// What a held key commands: the vehicle file's `[teleop]`, then the operator's keys.
+    pub levels: TeleopConfig,
+    /// The operator chose step mode.
+    pub forced_step: bool,
+    /// The keys held.
+    pub holds: Holds,
+    /// A pedal key was pressed since teleop began: from then on the pedals follow the
+    /// keys held (until then nothing is asked for them).
+    pub(crate) pedal_keys: bool,
+    /// The accel the holds last had the intake accept.
+    pub(crate) asked: Option<f64>,
+    /// Until when the engine holds the gas: the lease last granted or renewed.
+    pub(crate) lease: Option<Instant>,
+    /// Full brake (its key) stands until the next pedal key.
+    pub(crate) full_brake: bool,
+    /// Where a held steering key moves the steering from, and when it was there.
+    pub(crate) steer_from: Option<(f64, Instant)>,
 }
 
 /// What the deadman is doing.
@@ -177,7 +199,26 @@ impl Teleop {
             deadman,
             last_key: None,
             tripped: false,
+            levels: TeleopConfig::default(),
+            forced_step: false,
+            holds: Holds::default(),
+            pedal_keys: false,
+            asked: None,
+            lease: None,
+            full_brake: false,
+            steer_from: None,
         }
+    }
+
+    /// Let every key go and forget what the holds asked: nothing more is commanded
+    /// until the next pedal key (a stop, the deadman, leaving teleop).
+    pub(crate) fn let_go(&mut self) {
+        self.holds.clear();
+        self.pedal_keys = false;
+        self.asked = None;
+        self.lease = None;
+        self.full_brake = false;
+        self.steer_from = None;
     }
 
     pub fn state(&self, now: Instant) -> Deadman {
@@ -192,6 +233,19 @@ impl Teleop {
         }
     }
 }
+
+/// A key event as the terminal sent it, for the key-event viewer (help).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SeenKey {
+    pub code: KeyCode,
+    pub modifiers: KeyModifiers,
+    pub kind: KeyEventKind,
+    /// When its bytes were read.
+    pub at: Instant,
+}
+
+/// How many key events the viewer keeps.
+pub(crate) const SEEN_KEYS: usize = 12;
 
 /// The whole console state.
 pub struct Model {
@@ -233,6 +287,12 @@ pub struct Model {
     pub(crate) last_find: Option<String>,
     /// What the last frame showed: what keys may act on ([`check`](super::sight::check)).
     pub drawn: Drawn,
+    /// The terminal's key repeat, learnt from what arrives.
+    pub repeat: KeyRepeat,
+    /// The last key events, oldest first (help's key-event viewer).
+    pub keys: VecDeque<SeenKey>,
+    /// Help shows the key-event viewer.
+    pub(crate) key_viewer: bool,
     /// The console's own terminal: what it reports of the keys, and whether the
     /// liveness check can see the operator's link.
     pub terminal: TerminalView,
@@ -261,7 +321,10 @@ impl Model {
             edit: None,
             ask: None,
             message: None,
-            teleop: Teleop::new(deadman),
+            teleop: Teleop {
+                levels: snap.teleop,
+                ..Teleop::new(deadman)
+            },
             bench,
             trail: Trail::default(),
             help_scroll: 0,
@@ -274,8 +337,28 @@ impl Model {
             find: None,
             last_find: None,
             drawn: Drawn::default(),
+            repeat: KeyRepeat::default(),
+            keys: VecDeque::with_capacity(SEEN_KEYS),
+            key_viewer: false,
             terminal: TerminalView::default(),
             snap,
+        }
+    }
+
+    /// The terminal reports key releases (the kitty keyboard protocol): teleop holds
+    /// while a key is pressed. Else (presses only, or not known yet) holds follow the
+    /// key repeat.
+    pub fn releases(&self) -> bool {
+        self.terminal.keyboard == Some(super::input::Keyboard::Releases)
+    }
+
+    /// How teleop reads its keys: step when the operator chose it, hold where the
+    /// terminal reports releases, else repeat.
+    pub fn drive(&self) -> Drive {
+        match (self.teleop.forced_step, self.releases()) {
+            (true, _) => Drive::Step,
+            (false, true) => Drive::Hold,
+            (false, false) => Drive::Repeat,
         }
     }
 

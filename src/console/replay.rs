@@ -286,6 +286,7 @@ impl Player {
             sim_faults: vec![None; n],
             sim_names: None,
             you: None,
+            teleop: crate::config::TeleopConfig::default(),
         }
     }
 
@@ -325,6 +326,12 @@ impl Controls for Replay<'_> {
         Err(read_only())
     }
     fn submit_accel(&self, _: f64) -> Result<(), Refused> {
+        Err(read_only())
+    }
+    fn submit_held(&self, _: f64, _: Duration, _: f64) -> Result<(), Refused> {
+        Err(read_only())
+    }
+    fn renew(&self, _: Duration) -> Result<bool, Refused> {
         Err(read_only())
     }
     fn engage(&self) -> Result<Done, Refused> {

@@ -44,6 +44,8 @@ pub struct Drawn {
     pub help: bool,
     /// The teleop bar, both its lines whole.
     pub teleop: bool,
+    /// The teleop levels (gas, brake, hold, steering rate), whole.
+    pub teleop_levels: bool,
     /// Editable fields whose value (or edit, with its caret) was drawn whole.
     pub fields: Vec<Field>,
     /// Devices whose name was drawn (a panel's title, a row of the list, the bench).
@@ -64,6 +66,7 @@ impl Drawn {
         self.fields.clear();
         self.devices.clear();
         self.teleop = false;
+        self.teleop_levels = false;
         self.sim_keys = None;
         self.sim_absent.clear();
     }
@@ -80,6 +83,7 @@ pub enum Unseen {
     Prompt,
     Help,
     Teleop,
+    TeleopLevels,
     /// An editable field, by name (`steer command`).
     Field(String),
     /// A device, by name.
@@ -102,6 +106,7 @@ impl fmt::Display for Unseen {
             Unseen::Prompt => "the name prompt",
             Unseen::Help => "help",
             Unseen::Teleop => "the teleop bar",
+            Unseen::TeleopLevels => "the teleop levels",
             Unseen::Field(name) | Unseen::Device(name) => name,
             Unseen::SimKey => "its key in the simulator box",
         };
@@ -186,8 +191,10 @@ pub fn check(m: &Model, a: Action) -> Result<(), Unseen> {
             | Action::AccelUp
             | Action::AccelDown
             | Action::FullBrake
-            | Action::Center,
+            | Action::Center
+            | Action::StepMode,
         ) => seen(d.teleop, Unseen::Teleop),
+        (Mode::Teleop, Action::Level(..)) => seen(d.teleop_levels, Unseen::TeleopLevels),
         (Mode::Main, Action::Edit) => field(m.field()),
         (Mode::Main, Action::Wake(None)) => device(m.field().device()),
         (Mode::Main, Action::Wake(Some(r))) => device(m.snap.bound_id(r)),
@@ -268,6 +275,9 @@ mod tests {
         Action::AccelDown,
         Action::FullBrake,
         Action::Center,
+        Action::Level(crate::console::keymap::Knob::Gas, true),
+        Action::StepMode,
+        Action::KeyEvents,
         Action::Bench,
         Action::NextDevice,
         Action::PrevDevice,

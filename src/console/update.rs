@@ -4,15 +4,17 @@
 
 use super::controls::{Controls, Thread};
 use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
-use super::model::{Ask, Edit, Field, Model, BRAKE_STEP, GAS_STEP, HOME_WAIT, STEER_STEP};
+use super::model::{Ask, Edit, Field, Model, SeenKey, HOME_WAIT, SEEN_KEYS};
 use super::sight;
 use crate::config::Role;
 use crate::exit::Exit;
 use crate::snapshot::DeviceView;
 use crate::value::{Command, Control, DeviceId, EstopState, Value};
+use crossterm::event::KeyEvent;
 use std::time::{Duration, Instant};
 
 mod find;
+mod teleop;
 
 /// What the loop does after an update.
 #[derive(Clone, Debug, PartialEq)]
@@ -24,7 +26,8 @@ pub enum Flow {
 
 /// Advance time: take a new snapshot (on the bench, its device's sample for the
 /// chart), follow up a steering reset, show a new
-/// recovery outcome, and run the deadman.
+/// recovery outcome, end teleop's holds whose key events stopped, and show what the
+/// deadman did.
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
     m.snap = c.frame(now, m.in_bench().then_some(m.bench));
@@ -58,6 +61,7 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
                 .is_some_and(|c| c.starts_with("deadman"))
     });
     if t.last_key.is_some() && !t.tripped && deadman_tripped {
+        t.let_go();
         t.tripped = true;
         t.accel = -1.0;
         m.accel = Some(-1.0);
@@ -86,6 +90,43 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
         if let Some(s) = m.snap.steering() {
             m.teleop.steer = s;
         }
+    }
+    teleop::tick(m, c, now);
+}
+
+/// A key event from the terminal, its bytes read at `at`: kept for the key-event
+/// viewer and taught to the key-repeat learner; a teleop hold key's press, repeat or
+/// release drives teleop's holds; anything else goes through the keymap to [`update`]
+/// (a release nowhere: a repeat acts as a press).
+pub fn key(m: &mut Model, e: &KeyEvent, at: Instant, c: &dyn Controls, now: Instant) -> Flow {
+    m.now = now;
+    if m.keys.len() == SEEN_KEYS {
+        m.keys.pop_front();
+    }
+    m.keys.push_back(SeenKey {
+        code: e.code,
+        modifiers: e.modifiers,
+        kind: e.kind,
+        at,
+    });
+    m.repeat.see(e.code, e.kind, at);
+    let flow = match teleop::key(m, e, at, c, now) {
+        true => Flow::Continue,
+        false => match sight::key(m, e) {
+            Some(a) => update(m, a, c, now),
+            None => Flow::Continue,
+        },
+    };
+    teleop::held_only_in_teleop(m, c, now);
+    flow
+}
+
+/// The console found what its terminal reports of the keys (at start, or upgraded by
+/// a late answer); teleop read them `before`: if the mode changed, keys held the old
+/// way are let go, and teleop reads them the new way from here.
+pub fn keyboard(m: &mut Model, before: super::hold::Drive, c: &dyn Controls, now: Instant) {
+    if m.drive() != before {
+        teleop::switched(m, c, now);
     }
 }
 
@@ -118,13 +159,14 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
         Mode::Main => main(m, a, c),
         Mode::Edit => edit(m, a, c),
         Mode::Confirm => confirm(m, a, c),
-        Mode::Teleop => teleop(m, a, c, now),
+        Mode::Teleop => teleop::action(m, a, c, now),
         Mode::Bench => bench(m, a, c),
         Mode::Find => find::prompt(m, a),
         Mode::Help => match a {
             Action::Up => m.help_scroll = m.help_scroll.saturating_sub(1),
             Action::Down => m.help_scroll = m.help_scroll.saturating_add(1),
             Action::Back | Action::Cancel | Action::Help => m.mode = m.back_to,
+            Action::KeyEvents => m.key_viewer = !m.key_viewer,
             _ => {}
         },
     }
@@ -233,7 +275,7 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::ClearOverride => clear_override(m, c),
         Action::TakeCommand => take(m),
         Action::ReleaseCommand => release(m, c),
-        Action::Teleop => enter_teleop(m),
+        Action::Teleop => teleop::enter(m),
         Action::Bench => {
             if let Some(r) = m.field().device() {
                 m.bench = r;
@@ -480,109 +522,6 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
     }
 }
 
-/// Teleop starts from what the vehicle was told: the steering's command (where it has
-/// none, where it is) and the throttle and brake as one accel.
-fn enter_teleop(m: &mut Model) {
-    let steer = m.snap.bound("steering");
-    let at = m
-        .snap
-        .steering()
-        .or(steer.and_then(|d| d.position()))
-        .unwrap_or(0.0);
-    let deadman = m.teleop.deadman;
-    m.teleop = super::model::Teleop::new(deadman);
-    m.teleop.steer = at;
-    m.teleop.accel = m.snap.accel().unwrap_or(0.0);
-    m.mode = Mode::Teleop;
-    m.say(
-        format!(
-            "teleop: steer and accel with the keys, full brake on its key; deadman {:.1}s",
-            deadman.as_secs_f64()
-        ),
-        false,
-    );
-}
-
-/// A teleop key: the next set point from the one applied, asked of the intake; the bar
-/// takes what the intake accepted, and a refusal leaves it where it was.
-fn teleop(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
-    let t = &m.teleop;
-    let (mut steer, mut accel) = (t.steer, t.accel);
-    match a {
-        Action::SteerLeft => steer = (steer - STEER_STEP).max(-1.0),
-        Action::SteerRight => steer = (steer + STEER_STEP).min(1.0),
-        Action::Center => steer = 0.0,
-        Action::AccelUp if accel < 0.0 => accel = 0.0,
-        Action::AccelUp => accel = (accel + GAS_STEP).min(1.0),
-        Action::AccelDown if accel > 0.0 => accel = 0.0,
-        Action::AccelDown => accel = (accel - BRAKE_STEP).max(-1.0),
-        Action::FullBrake => accel = -1.0,
-        Action::Engage => return ask(m, Ask::Engage),
-        Action::TakeCommand => return take(m),
-        Action::ClearOverride => return clear_override(m, c),
-        Action::Back | Action::Cancel => {
-            // Gas 0, brake full, staying engaged — if the console commands.
-            let held = c.hold();
-            c.deadman(None);
-            m.teleop.last_key = None;
-            m.teleop.tripped = false;
-            m.mode = Mode::Main;
-            match held {
-                Ok(()) => {
-                    m.accel = Some(-1.0);
-                    m.say("left teleop: gas 0, brake full", false);
-                }
-                Err(why) => m.say(format!("left teleop; the brake not applied: {why}"), true),
-            }
-            return;
-        }
-        _ => return,
-    }
-    // Any teleop key re-arms the deadman (and feeds it).
-    let t = &mut m.teleop;
-    t.last_key = Some(now);
-    t.tripped = false;
-    c.deadman(Some(t.deadman));
-    let steer = (steer * 1000.0).round() / 1000.0;
-    let accel = (accel * 1000.0).round() / 1000.0;
-    let mut refused = Vec::new();
-    if steer != t.steer || a == Action::Center {
-        match m.snap.bound_id(Role::Steering) {
-            Some(id) => match c.submit(id, Command::Set(steer)) {
-                Ok(()) => m.teleop.steer = steer,
-                Err(why) => refused.push(format!("steer {steer:.2}: {why}")),
-            },
-            None => refused.push("steer: no steering bound".into()),
-        }
-    }
-    if accel != m.teleop.accel
-        || matches!(a, Action::AccelUp | Action::AccelDown | Action::FullBrake)
-    {
-        match c.submit_accel(accel) {
-            Ok(()) => {
-                m.teleop.accel = accel;
-                m.accel = Some(accel);
-            }
-            Err(why) => refused.push(format!("accel {accel:.2}: {why}")),
-        }
-    }
-    let (steer, accel) = (m.teleop.steer, m.teleop.accel);
-    if refused.is_empty() {
-        m.say(
-            format!("teleop: steer {steer:+.2} accel {accel:+.2}"),
-            false,
-        );
-    } else {
-        m.say(
-            format!(
-                "refused: {}; still steer {steer:+.2} accel {accel:+.2}",
-                refused.join("; ")
-            ),
-            true,
-        );
-    }
-}
-
 /// The operator's stop, the same from every mode: no question asked, and whatever was
 /// half done (an edit, a question, the name prompt) is dropped. Teleop stays, its brake full and its
 /// deadman idle until the next key.
@@ -599,6 +538,8 @@ fn stop(m: &mut Model, c: &dyn Controls) {
         m.teleop.last_key = None;
         m.teleop.tripped = false;
     }
+    // Nothing held stays held past a STOP, in any mode.
+    m.teleop.let_go();
     match done {
         Ok(()) => {
             if m.mode == Mode::Teleop {

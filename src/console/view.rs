@@ -19,7 +19,7 @@ use super::panels::device::DevicePanel;
 use super::panels::dialog::Dialog;
 use super::panels::fit;
 use super::panels::header::Header;
-use super::panels::help::HelpPanel;
+use super::panels::help::{HelpPanel, KeyEvents};
 use super::panels::hint::{key_name, HintBar, MessageLine, MESSAGE_FOR};
 use super::panels::list::DeviceList;
 use super::panels::log::LogPanel;
@@ -145,8 +145,10 @@ impl Model {
                 now: self.now,
                 theme: self.theme,
                 commands: g.engaged && g.commander.as_deref() == Some(me),
+                drive: self.drive(),
+                figures: self.repeat.figures(),
             };
-            seen.teleop = p.render_seen(area, buf);
+            (seen.teleop, seen.teleop_levels) = p.render_seen(area, buf);
         }
     }
 
@@ -200,7 +202,12 @@ impl Model {
         let teleop = self.in_teleop();
         let grid_h = rows * panel_h;
         let rest = body.height.saturating_sub(grid_h);
-        let teleop_h = if teleop { HEAD } else { 0 };
+        // Teleop's bar takes a third line, for its levels, where there is one.
+        let teleop_h = match (teleop, rest > HEAD) {
+            (false, _) => 0,
+            (true, true) => HEAD + 1,
+            (true, false) => HEAD,
+        };
         // Small: teleop replaces the two supervisory lines; the strip goes under.
         // Large: the supervisory panel grows with what it shows, leaving the log 3.
         let (sup_h, strip_h) = if big {
@@ -403,6 +410,12 @@ pub fn draw(m: &Model, area: Rect, buf: &mut Buffer) -> Drawn {
                 theme: m.theme,
                 scroll: m.help_scroll,
                 roles: &m.snap.gate.roles,
+                events: m.key_viewer.then(|| KeyEvents {
+                    seen: &m.keys,
+                    releases: m.releases(),
+                    drive: m.drive(),
+                    figures: m.repeat.figures(),
+                }),
             };
             (&h).render(body, buf);
             seen.covered();

@@ -229,7 +229,7 @@ impl Gate {
 
     /// Store a command for `d`'s command thread, past the interlocks (the safe state,
     /// the supervisor's own commands).
-    fn store(&self, d: &Device, command: Command, received: Instant) {
+    pub(super) fn store(&self, d: &Device, command: Command, received: Instant) {
         Stats::bump(&d.stats().received);
         queue(d, command, received);
     }

@@ -18,14 +18,17 @@
 //!    ([`Gate::answered`]) must not stop for `[console] terminal_timeout`;
 //! 3. **the interlocks and the engage gate**: [`Gate::submit`] and [`Gate::submit_accel`]
 //!    ([`super::dispatch`]), which admit a command (a compound one as a whole) or change
-//!    nothing.
+//!    nothing. Gas from a held key ([`Ask::Held`]) is granted a lease beside who
+//!    commands, renewed by [`Ask::Renew`] and ended by the monitor ([`super::lease`]);
+//!    any other accel or pedal command, a hold, a stop or a change of hands drops it.
 //!
 //! The lock is held across the store, so no command of a previous commander lands after
 //! command changed hands. The accepted path does not touch the heap.
 
 use super::Gate;
+use crate::safety::lease::Lease;
 use crate::safety::owner::{self, Act, CommandView, Commander, Outcome, Owner};
-use crate::safety::{Ask, Done, Refused, Reject};
+use crate::safety::{Ask, Done, Held, Refused, Reject};
 use crate::snapshot::{WatchdogState, WatchdogView};
 use crate::value::Source;
 use crate::vehicle::tap::{Asked, Event};
@@ -53,7 +56,7 @@ impl Gate {
                     // A recording keeps it with its reason, as every refused command.
                     let asked = match ask {
                         Ask::Set(id, c) => Some(Asked::Device(id, c)),
-                        Ask::Accel(a) => Some(Asked::Accel(a)),
+                        Ask::Accel(a) | Ask::Held(Held { accel: a, .. }) => Some(Asked::Accel(a)),
                         _ => None,
                     };
                     if let Some(asked) = asked {
@@ -74,13 +77,39 @@ impl Gate {
             Ask::Set(id, c) => {
                 let (done, seen) = self.submit_seen(id, c, received);
                 self.tap_received(source, Asked::Device(id, c), received, done, seen);
+                if done.is_ok() && self.is_pedal(id) {
+                    // A pedal commanded outright: no lease ends it later.
+                    o.lease = None;
+                }
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
             Ask::Accel(a) => {
                 let (done, seen) = self.submit_accel_seen(a, received);
                 self.tap_received(source, Asked::Accel(a), received, done, seen);
+                if done.is_ok() {
+                    o.lease = None;
+                }
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
+            Ask::Held(h) => {
+                let (done, seen) = self.submit_accel_seen(h.accel, received);
+                self.tap_received(source, Asked::Accel(h.accel), received, done, seen);
+                if done.is_ok() {
+                    o.lease =
+                        (h.accel > 0.0).then(|| Lease::new(source, received, h.lease, h.release));
+                }
+                done.map(|()| Done::Commanded).map_err(Refused::Rule)
+            }
+            Ask::Renew(d) => Ok(
+                match o
+                    .lease
+                    .as_mut()
+                    .is_some_and(|l| l.renew(source, received, d))
+                {
+                    true => Done::Commanded,
+                    false => Done::Same,
+                },
+            ),
             // Taken by a console, or picked up after a release.
             Ask::Engage | Ask::Take if outcome == Outcome::Commands => {
                 let from = o.commander.or(o.handover.map(|(s, _)| s));
@@ -129,6 +158,7 @@ impl Gate {
                 }))
             }
             Ask::Hold if engaged => {
+                o.lease = None;
                 self.command_safe_state();
                 Ok(Done::Commanded)
             }
@@ -357,6 +387,8 @@ impl Gate {
                 None => format!("{c:?}"),
             },
             Ask::Accel(a) => format!("accel {a}"),
+            Ask::Held(h) => format!("accel {} (held {} ms)", h.accel, h.lease.as_millis()),
+            Ask::Renew(d) => format!("held for {} ms more", d.as_millis()),
             other => format!("{other:?}").to_lowercase(),
         }
     }
@@ -588,6 +620,12 @@ mod tests {
             (-1.2f64..1.2).prop_map(|v| Ask::Set(DeviceId(0), Command::Set(v))),
             (0.0f64..1.0).prop_map(|v| Ask::Set(DeviceId(2), Command::Set(v))),
             (-1.0f64..1.0).prop_map(Ask::Accel),
+            (-1.0f64..1.0, 0u64..800).prop_map(|(a, ms)| Ask::Held(Held {
+                accel: a,
+                lease: Duration::from_millis(ms),
+                release: -0.3,
+            })),
+            (0u64..800).prop_map(|ms| Ask::Renew(Duration::from_millis(ms))),
             (0u8..4).prop_map(|s| Ask::Set(DeviceId(3), Command::State(s))),
         ];
         prop_oneof![

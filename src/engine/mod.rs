@@ -23,7 +23,8 @@
 //!
 //! Beside it: [`status`] (the status thread polls every `status_period`, or when the
 //! estimate needs it: [`polling`], and stores the reading; readers only read it),
-//! [`monitor`] (`gate/monitor`: blockers and the commander's watchdog, every 10 ms) and
+//! [`monitor`] (`gate/monitor`: blockers, the commander's watchdog and the end of a
+//! held pedal's [`lease`], every 10 ms) and
 //! [`placement`] (which CPUs the command path runs on). The gate's state and every
 //! decision live in [`crate::safety`]; the devices' state in [`crate::vehicle`]. The
 //! port, the slot and the trace a device carries are a layer below the vehicle
@@ -41,6 +42,7 @@ pub(crate) mod dispatch;
 pub mod fast;
 mod gate;
 pub mod intake;
+pub mod lease;
 pub mod monitor;
 pub mod placement;
 pub mod polling;

@@ -1,7 +1,8 @@
 //! The gate's monitor thread (`gate/monitor`): it disengages an engaged vehicle as soon
 //! as [`crate::safety::gate::blockers`] is not empty — a faulty or silent device, the
 //! e-stop in pause or disable — whoever engaged it (console or network), and runs the
-//! commander's watchdog ([`Gate::watch`]) at the same period. Looking every [`EVERY`],
+//! commander's watchdog ([`Gate::watch`]) and ends a held pedal's lease that ran out
+//! ([`Gate::end_lease`]) at the same period. Looking every [`EVERY`],
 //! it bounds how late a silent device, the e-stop first of all, is acted on. The
 //! e-stop's rule (brake full, gas 0) holds whether the vehicle was engaged or not: an
 //! e-stop that pauses a disengaged vehicle gets the safe state commanded too, so that
@@ -29,7 +30,9 @@ impl Monitor {
             let mut halted = false;
             crate::threads::every(EVERY, stop, || {
                 beat.turn(EVERY);
-                gate.watch(Instant::now());
+                let now = Instant::now();
+                gate.end_lease(now);
+                gate.watch(now);
                 let engaged = gate.is_engaged();
                 if engaged {
                     if let Some(why) = gate.blockers().into_iter().next() {

@@ -7,6 +7,7 @@
 use super::owner::{self, Act};
 use super::Reject;
 use crate::value::{Command, DeviceId};
+use std::time::Duration;
 
 /// What a source asks of the vehicle.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -30,6 +31,23 @@ pub enum Ask {
     Set(DeviceId, Command),
     /// The virtual `accel` (−1 … 1): throttle and brake, as a whole.
     Accel(f64),
+    /// The virtual `accel` while a key is held: gas only on a lease
+    /// ([`super::lease`]) that the engine ends, whatever the console does.
+    Held(Held),
+    /// The key is still held: the running lease lasts this long from now. A lease that
+    /// ran out is not renewed ([`Done::Same`]).
+    Renew(Duration),
+}
+
+/// The accel of a held key ([`Ask::Held`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Held {
+    /// The accel now (−1 … 1).
+    pub accel: f64,
+    /// Gas (`accel` above 0) lasts this long from the ask's receipt unless renewed.
+    pub lease: Duration,
+    /// The accel when the lease runs out: never gas (the brake at its hold level).
+    pub release: f64,
 }
 
 impl Ask {
@@ -39,7 +57,7 @@ impl Ask {
             Ask::Disengage | Ask::Stop => Act::Stop,
             Ask::Release => Act::Release,
             Ask::Take => Act::Take,
-            Ask::Set(..) | Ask::Accel(_) | Ask::Hold => Act::Command,
+            Ask::Set(..) | Ask::Accel(_) | Ask::Held(_) | Ask::Renew(_) | Ask::Hold => Act::Command,
             Ask::Clear => return None,
         })
     }

@@ -3,8 +3,9 @@
 //! ([`gate::decide`] for one device, [`gate::decide_accel`] for `accel`, whose plan is
 //! [`accel`]'s), [`wire::verdict`] right before a command goes out, [`gate::blockers`] for engaging
 //! and the monitor, [`safe::state`] for the safe state and [`safe::manual`] for it while
-//! a driver has taken over, [`owner::decide`] for who commands — and act on roles bound
-//! in the vehicle file, never on device names.
+//! a driver has taken over, [`owner::decide`] for who commands, [`lease`] for gas that
+//! lasts only while its key is held — and act on roles bound in the vehicle file, never
+//! on device names.
 //!
 //! A driver's override is not a failure: the vehicle goes to the manual state (nothing
 //! braking against the driver), the override is latched, and engaging is refused until
@@ -19,12 +20,13 @@ pub mod accel;
 pub mod ask;
 pub mod facts;
 pub mod gate;
+pub mod lease;
 pub mod owner;
 pub mod rules;
 pub mod safe;
 pub mod wire;
 
-pub use ask::{Ask, Done, Refused};
+pub use ask::{Ask, Done, Held, Refused};
 pub use gate::{GateState, Seen};
 pub use rules::{Facts, Plays, Reject, Rules};
 pub use wire::{Verdict, Wait};

@@ -209,6 +209,8 @@ pub struct Owner {
     pub(crate) frozen: bool,
     /// The console's deadman while it teleoperates (its watchdog); `None`: not watched.
     pub(crate) deadman: Option<Duration>,
+    /// Gas held on a lease by the commander ([`super::lease`]); `None`: none.
+    pub(crate) lease: Option<super::lease::Lease>,
     /// A commanding console's terminal last answered a round trip then (or it took
     /// command then): its link's watchdog ([`terminal_silent`]).
     pub(crate) answered: Instant,
@@ -231,6 +233,7 @@ impl Owner {
             last: now,
             frozen: false,
             deadman: None,
+            lease: None,
             answered: now,
             handover: None,
             tripped: false,
@@ -248,6 +251,7 @@ impl Owner {
         self.handover = None;
         // A deadman is the teleoperating console's own, armed by its next teleop key.
         self.deadman = None;
+        self.lease = None;
         // A console's link is proved from here on.
         self.answered = now;
     }
@@ -255,6 +259,7 @@ impl Owner {
     pub(crate) fn nobody(&mut self) {
         self.commander = None;
         self.handover = None;
+        self.lease = None;
     }
 }
 

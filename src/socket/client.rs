@@ -335,6 +335,7 @@ impl Controls for Remote {
             sim_faults: f.sim_faults,
             sim_names: f.sim_names,
             you: Some(self.source.clone()),
+            teleop: f.teleop,
             snap: f.snap,
         }
     }
@@ -357,6 +358,20 @@ impl Controls for Remote {
     }
     fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
         self.ask(Op::Accel { accel }).map(drop)
+    }
+    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
+        self.ask(Op::Held {
+            accel,
+            lease_us: lease.as_micros() as u64,
+            release,
+        })
+        .map(drop)
+    }
+    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
+        self.ask(Op::Renew {
+            lease_us: lease.as_micros() as u64,
+        })
+        .map(|a| a == Answer::Done(crate::safety::Done::Commanded))
     }
     fn engage(&self) -> Result<Done, Refused> {
         self.done(Op::Engage)

@@ -56,6 +56,17 @@ pub enum Op {
     Accel {
         accel: f64,
     },
+    /// The accel while a key is held: gas on a lease of `lease_us` from receipt,
+    /// then `release` ([`crate::safety::Ask::Held`]).
+    Held {
+        accel: f64,
+        lease_us: u64,
+        release: f64,
+    },
+    /// The key is still held: the running lease lasts `lease_us` from receipt.
+    Renew {
+        lease_us: u64,
+    },
     Engage,
     Disengage,
     Stop,
@@ -156,6 +167,9 @@ pub(crate) struct WireFrame {
     pub can_inject: bool,
     pub sim_vehicle: Option<String>,
     pub sim_faults: Vec<Option<SimFaults>>,
+    /// The vehicle file's `[teleop]`.
+    #[serde(default)]
+    pub teleop: crate::config::TeleopConfig,
     #[serde(default)]
     pub sim_names: Option<crate::sim::commands::Names>,
 }
@@ -239,6 +253,18 @@ mod tests {
             Request {
                 id: 3,
                 op: Op::Engage,
+            },
+            Request {
+                id: 4,
+                op: Op::Held {
+                    accel: 0.2,
+                    lease_us: 533_000,
+                    release: -0.3,
+                },
+            },
+            Request {
+                id: 5,
+                op: Op::Renew { lease_us: 66_000 },
             },
         ];
         for r in reqs {

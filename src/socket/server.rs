@@ -508,6 +508,16 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
         Op::Clear => ask(Ask::Clear),
         Op::Set { device, command } => ask(Ask::Set(DeviceId(device), command)),
         Op::Accel { accel } => ask(Ask::Accel(accel)),
+        Op::Held {
+            accel,
+            lease_us,
+            release,
+        } => ask(Ask::Held(crate::safety::Held {
+            accel,
+            lease: Duration::from_micros(lease_us),
+            release,
+        })),
+        Op::Renew { lease_us } => ask(Ask::Renew(Duration::from_micros(lease_us))),
         Op::Bench { device } => {
             *c.bench.lock() = device.map(DeviceId);
             Answer::Ok
@@ -597,6 +607,7 @@ fn frame(s: &Shared, c: &Conn, now: Instant) -> WireFrame {
         can_inject: f.can_inject,
         sim_vehicle: f.sim_vehicle,
         sim_faults: f.sim_faults,
+        teleop: f.teleop,
         sim_names: f.sim_names,
         snap: f.snap,
     }

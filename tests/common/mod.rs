@@ -31,9 +31,11 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
 }
 
 /// A console's screen once its engage question was answered: the question gone, and
-/// what its answer did said (`engaged: …` or `engage refused: …`). Waiting for the
-/// refusal alone read a refusal left on the screen by an earlier try as this one's,
-/// and the next `E` `y` then landed on whatever the test did next.
+/// what its answer did said on the message line (`engaged`, as every front end says
+/// it, or `engage refused: …`). Waiting for the refusal alone read a refusal left on
+/// the screen by an earlier try as this one's, and the next `E` `y` then landed on
+/// whatever the test did next; a refusal is read on the message line, not in the log
+/// pane, which keeps earlier tries' refusals.
 pub fn engage_answered(screen: &str) -> bool {
     !screen.contains("Engage?")
         && (engaged_said(screen) || said(screen).starts_with("engage refused"))

@@ -80,8 +80,15 @@ pub(crate) fn frame(b: &[u8]) -> Frame {
             // SS3: one more byte (F1–F4, the arrows in application mode).
             Some(b'O') if b.len() < 3 => Frame::Incomplete,
             Some(b'O') => Frame::Whole(3),
-            // crossterm reads `ESC ESC` as one Esc.
-            Some(&ESC) => Frame::Whole(2),
+            Some(&ESC) => match b.get(2) {
+                None => Frame::Incomplete,
+                // The Esc key, and a sequence after it: the operator's Esc just before
+                // a terminal's reply (`ESC ESC [ 21 ; 76 R`). Taken as one Esc, the
+                // reply's `[ 21 ; 76 R` were keys — and `R` releases command.
+                Some(b'[' | b'O') => Frame::Whole(1),
+                // crossterm reads `ESC ESC` as one Esc.
+                Some(_) => Frame::Whole(2),
+            },
             // Alt and the key after it.
             Some(_) => match frame(&b[1..]) {
                 Frame::Whole(n) => Frame::Whole(n + 1),
@@ -162,7 +169,7 @@ pub(crate) fn token(seq: &[u8]) -> Option<Token> {
         return Some(Token::Reply(r));
     }
     // terminput says Alt+Esc; crossterm read it as Esc.
-    if seq == [ESC, ESC] {
+    if seq == [ESC, ESC] || seq == [ESC] {
         return Some(Token::Key(KeyEvent::new(KeyCode::Esc, KeyModifiers::NONE)));
     }
     match terminput::Event::parse_from(seq) {
@@ -286,13 +293,17 @@ fn modifier(
 #[derive(Debug, Default)]
 pub(crate) struct Decoder {
     buf: Vec<u8>,
+    /// What the last [`Decoder::flush`] took of a sequence cut short, from its last
+    /// `ESC`: a terminal's reply split by a pause longer than [`ESC_WAIT`] (a slow SSH
+    /// link) goes on in the next read, and is still the reply, not keys.
+    cut: Vec<u8>,
 }
 
 impl Decoder {
     /// Decode `bytes` after what was waiting; every whole token goes to `out`.
     pub fn feed(&mut self, bytes: &[u8], out: &mut Vec<Token>) {
         self.buf.extend_from_slice(bytes);
-        let mut at = 0;
+        let mut at = self.rest_of_a_cut_reply(out);
         while at < self.buf.len() {
             match frame(&self.buf[at..]) {
                 Frame::Incomplete => break,
@@ -306,6 +317,28 @@ impl Decoder {
         self.buf.drain(..at);
     }
 
+    /// How many bytes at the start of the buffer end a reply the last flush cut short
+    /// (the reply goes to `out`); 0 when they do not. Only two bytes or more count: an
+    /// operator's key arrives in a read of its own, and a lone `c`, `u` or `R` typed
+    /// after a cut is that key.
+    fn rest_of_a_cut_reply(&mut self, out: &mut Vec<Token>) -> usize {
+        let cut = std::mem::take(&mut self.cut);
+        if cut.is_empty() || self.buf.first() == Some(&ESC) {
+            return 0;
+        }
+        let joined = [cut.as_slice(), self.buf.as_slice()].concat();
+        let Frame::Whole(n) = frame(&joined) else {
+            return 0;
+        };
+        match reply(&joined[..n]) {
+            Some(r) if n >= cut.len() + 2 => {
+                out.push(Token::Reply(r));
+                n - cut.len()
+            }
+            _ => 0,
+        }
+    }
+
     /// Bytes are waiting for the rest of their sequence.
     pub fn waiting(&self) -> bool {
         !self.buf.is_empty()
@@ -316,8 +349,11 @@ impl Decoder {
     /// that key; a sequence cut short is dropped.
     pub fn flush(&mut self, out: &mut Vec<Token>) {
         let buf = std::mem::take(&mut self.buf);
+        if let Some(i) = buf.iter().rposition(|&b| b == ESC) {
+            self.cut = buf[i..].to_vec();
+        }
         let key = match buf.as_slice() {
-            [ESC] => Some(KeyEvent::new(KeyCode::Esc, KeyModifiers::NONE)),
+            [ESC] | [ESC, ESC] => Some(KeyEvent::new(KeyCode::Esc, KeyModifiers::NONE)),
             [ESC, c @ (b'[' | b'O')] => {
                 let c = char::from(*c);
                 let shift = if c.is_uppercase() {
@@ -521,6 +557,72 @@ mod tests {
         assert!(!d.waiting());
         // Alt-[ typed: ESC [ and nothing more.
         assert_eq!(decode(b"\x1b["), [key(KeyCode::Char('['), ALT)]);
+    }
+
+    /// The operator's Esc just before the terminal's reply, in one read or split
+    /// anywhere: the Esc key and the reply, never the reply's bytes as keys (its `R`
+    /// released command in a real run).
+    #[test]
+    fn an_esc_just_before_a_reply_is_the_esc_key_and_the_reply() {
+        let esc = key(KeyCode::Esc, NONE);
+        let all = b"\x1b\x1b[21;76R";
+        for cut in 0..=all.len() {
+            let mut d = Decoder::default();
+            let mut out = Vec::new();
+            d.feed(&all[..cut], &mut out);
+            d.feed(&all[cut..], &mut out);
+            d.flush(&mut out);
+            assert_eq!(out, [esc, Token::Reply(Reply::Cursor)], "cut at {cut}");
+        }
+        assert_eq!(
+            decode(b"\x1b\x1b[?1u"),
+            [esc, Token::Reply(Reply::Flags(1))]
+        );
+        assert_eq!(decode(b"\x1b\x1bOA"), [esc, key(KeyCode::Up, NONE)]);
+    }
+
+    /// A reply cut by a pause longer than ESC_WAIT (the terminal fell quiet mid-reply,
+    /// the flush took what had come): what comes after is still the reply, not keys.
+    #[test]
+    fn a_reply_cut_by_a_pause_is_never_keys() {
+        for reply in [&b"\x1b[21;76R"[..], b"\x1b[?62;22c", b"\x1b[?1u"] {
+            for with_esc in [false, true] {
+                let all = [if with_esc { &b"\x1b"[..] } else { b"" }, reply].concat();
+                for cut in 1..all.len() - 1 {
+                    let mut d = Decoder::default();
+                    let mut out = Vec::new();
+                    d.feed(&all[..cut], &mut out);
+                    d.flush(&mut out);
+                    d.feed(&all[cut..], &mut out);
+                    d.flush(&mut out);
+                    let keys: Vec<_> = out
+                        .iter()
+                        .filter_map(|t| match t {
+                            Token::Key(k) => Some(k.code),
+                            Token::Reply(_) => None,
+                        })
+                        .collect();
+                    // The flush may have taken a lone ESC as Esc or `ESC [` as Alt-[;
+                    // nothing of the reply's own is a key.
+                    assert!(
+                        keys.iter()
+                            .all(|c| matches!(c, KeyCode::Esc | KeyCode::Char('['))),
+                        "{all:?} cut at {cut}: {out:?}"
+                    );
+                    assert!(
+                        out.iter().any(|t| matches!(t, Token::Reply(_))),
+                        "{all:?} cut at {cut}: {out:?}"
+                    );
+                }
+            }
+        }
+        // A key typed after a cut is that key, even one that ends a reply.
+        let mut d = Decoder::default();
+        let mut out = Vec::new();
+        d.feed(b"\x1b[21;7", &mut out);
+        d.flush(&mut out);
+        d.feed(b"R", &mut out);
+        assert_eq!(out, [key(KeyCode::Char('R'), SHIFT)]);
     }
 
     #[test]

@@ -4,9 +4,12 @@
 //! at a word, with "…" and every parenthesis it opened closed, never cut in the
 //! middle (at 100 columns it once read `DISENGAGED (gas is faulty (no reply within
 //! 100ms)`); a vehicle name too long gives way before the gate does. An attached
-//! console (`adrive attach`) also says whether it commands or watches, and a console
-//! inside tmux or screen on this machine says `link unchecked`: the multiplexer, not
-//! the operator's terminal, answers the liveness check.
+//! console (`adrive attach`) also says whether it commands or watches, and how its own
+//! terminal's keys drive teleop (`keys hold`, `keys repeat ≤100ms`, `keys step`): the
+//! operator's terminal, not the vehicle's — where that leaves the gate's words whole
+//! (they come first: at 100 columns a long reason once lost its end to the keys). A console inside tmux or screen on this
+//! machine says `link unchecked`: the multiplexer, not the operator's terminal, answers
+//! the liveness check.
 
 use super::fit::shorten;
 use crate::console::keymap::Mode;
@@ -44,7 +47,9 @@ impl Header<'_> {
             },
             Span::styled("│", bar),
         ];
-        // An attached console says whether it commands or only watches.
+        // An attached console says whether it commands or only watches (and then, where
+        // there is room, how its terminal's keys drive).
+        let mut keys_at = None;
         if let Some(you) = &s.you {
             if s.gate.engaged && s.gate.commander.as_deref() == Some(you.as_str()) {
                 rest.push(Span::styled(" COMMANDING ", t.good().patch(bar)));
@@ -52,6 +57,7 @@ impl Header<'_> {
                 rest.push(Span::styled(" WATCHING ", bar));
             }
             rest.push(Span::styled("│", bar));
+            keys_at = Some(rest.len());
         }
         // A multiplexer on this machine answers the liveness check's round trips for
         // the operator's terminal: the check cannot see the link (docs/console.md).
@@ -84,10 +90,27 @@ impl Header<'_> {
             s.gate.reason.trim_start_matches("disengaged: ")
         };
         let title = format!(" ADRIVE {} ", s.vehicle);
-        let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
+        let mut fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
         let width = width as usize;
-        // A long vehicle name gives way to the reason, down to TITLE_MIN columns.
         let reason_wants = why.width() + 2;
+        // An attached console's own terminal's keys, where they leave the reason whole.
+        if let Some(at) = keys_at {
+            let keys = crate::console::panels::teleop::drive_label(
+                self.m.drive(),
+                &self.m.repeat.figures(),
+                false,
+            );
+            let keys = [
+                Span::styled(format!(" keys {keys} "), bar),
+                Span::styled("│", bar),
+            ];
+            let wants: usize = keys.iter().map(Span::width).sum();
+            if fixed + wants + reason_wants + title.width().min(TITLE_MIN) <= width {
+                fixed += wants;
+                rest.splice(at..at, keys);
+            }
+        }
+        // A long vehicle name gives way to the reason, down to TITLE_MIN columns.
         let title_room = width
             .saturating_sub(fixed + reason_wants)
             .max(title.width().min(TITLE_MIN));
@@ -256,6 +279,41 @@ mod tests {
         let l = header(&mut m);
         assert!(
             l.ends_with(" DISENGAGED (driver override on steer, cleared) "),
+            "{l}"
+        );
+    }
+
+    /// An attached console's header says how its own terminal's keys drive teleop:
+    /// the operator's terminal, whatever the vehicle's gives.
+    #[test]
+    fn an_attached_console_names_how_its_own_keys_drive() {
+        let mut m = model(true, "", "Alice");
+        assert!(!text(&Header { m: &m }.line(120)).contains(" keys "));
+        m.snap.you = Some("console #1".into());
+        let l = text(&Header { m: &m }.line(120));
+        assert!(l.contains("│ WATCHING │ keys repeat ≤150ms │"), "{l}");
+        m.terminal.keyboard = Some(crate::console::input::Keyboard::Releases);
+        let l = text(&Header { m: &m }.line(120));
+        assert!(l.contains("│ keys hold │"), "{l}");
+        m.teleop.forced_step = true;
+        let l = text(&Header { m: &m }.line(120));
+        assert!(l.contains("│ keys step │"), "{l}");
+    }
+
+    /// The gate's words come first: where the keys would cut the reason, they give way.
+    #[test]
+    fn an_attached_console_s_keys_give_way_to_the_gate_s_reason() {
+        let why = "stop from console #2";
+        let mut m = model(false, &format!("disengaged: {why}"), "Alice");
+        m.snap.you = Some("console #1".into());
+        let l = text(&Header { m: &m }.line(100));
+        assert!(l.contains(&format!("DISENGAGED ({why})")), "{l}");
+        assert!(!l.contains("keys"), "{l}");
+        let l = text(&Header { m: &m }.line(130));
+        assert!(
+            l.contains(&format!(
+                "│ WATCHING │ keys repeat ≤150ms │ 1 FAULTY │ DISENGAGED ({why})"
+            )),
             "{l}"
         );
     }

@@ -10,6 +10,8 @@ use crate::testkit;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
 
+mod hold;
+
 /// Records every call; refuses submits while `refuse` is set. Settings go through the
 /// sample vehicle's real checks.
 struct Fake {
@@ -26,6 +28,8 @@ struct Fake {
     simulated: bool,
     /// The teleop deadman as the console last armed it (`None`: disarmed).
     deadman: std::cell::Cell<Option<Duration>>,
+    /// The engine ended the held gas's lease: a renewal finds nothing to renew.
+    lease_ended: std::cell::Cell<bool>,
 }
 
 impl Fake {
@@ -49,6 +53,7 @@ impl Fake {
             engage: Ok(()),
             simulated: false,
             deadman: std::cell::Cell::default(),
+            lease_ended: std::cell::Cell::default(),
         }
     }
     fn log(&self, s: String) {
@@ -92,6 +97,18 @@ impl Controls for Fake {
     fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
         self.log(format!("accel {accel}"));
         self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
+    }
+    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
+        self.log(format!(
+            "held {accel} for {}ms then {release}",
+            lease.as_millis()
+        ));
+        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
+    }
+    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
+        self.log(format!("renew {}ms", lease.as_millis()));
+        self.refuse
+            .map_or(Ok(!self.lease_ended.get()), |r| Err(Refused::Rule(r)))
     }
     fn engage(&self) -> Result<Done, Refused> {
         self.log("engage".into());
@@ -199,9 +216,7 @@ fn press(m: &mut Model, f: &Fake, keys: &[&str], now: Instant) -> Flow {
         let ev = KeyEvent::new(key.code, mods);
         // As the console's loop: the key acts on what the frame before it showed.
         draw(m);
-        if let Some(a) = crate::console::sight::key(m, &ev) {
-            flow = update(m, a, f, now);
-        }
+        flow = super::key(m, &ev, now, f, now);
     }
     flow
 }
@@ -503,6 +518,7 @@ fn help_opens_over_any_mode_and_closes_back() {
 fn teleop_steps_steering_and_accel_and_b_brakes() {
     let f = Fake::new();
     let mut m = model(&f);
+    m.teleop.forced_step = true;
     let now = Instant::now();
     press(&mut m, &f, &["d"], now);
     assert_eq!(m.mode, Mode::Teleop);
@@ -539,6 +555,7 @@ fn teleop_steps_steering_and_accel_and_b_brakes() {
 fn teleop_keys_arm_the_deadman_and_the_console_shows_its_trip() {
     let mut f = Fake::new();
     let mut m = model(&f);
+    m.teleop.forced_step = true;
     let t0 = Instant::now();
     press(&mut m, &f, &["d"], t0);
     assert_eq!(f.deadman.get(), None, "no key yet: idle");
@@ -942,6 +959,7 @@ fn the_teleop_bar_shows_what_was_applied_never_what_was_refused() {
     f.device("gas").commanded = Some(Value::Number(0.0));
     f.snap.snap.gate.engaged = true;
     let mut m = model(&f);
+    m.teleop.forced_step = true;
     let now = Instant::now();
     press(&mut m, &f, &["d"], now);
     assert_eq!((m.teleop.steer, m.teleop.accel), (0.231, -1.0));
