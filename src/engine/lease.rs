@@ -6,7 +6,7 @@
 //! end or finds nothing to renew.
 
 use super::Gate;
-use crate::safety::owner::Commander;
+use crate::safety::owner::{Commander, LeaseTurn};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::tap::Asked;
 use std::time::Instant;
@@ -24,15 +24,9 @@ impl Gate {
     /// commanded the safe state). Returns whether a lease ended.
     pub fn end_lease(&self, now: Instant) -> bool {
         let mut o = self.state().owner();
-        let Some(lease) = o.lease else { return false };
-        if !self.is_engaged() || o.commander != Some(lease.source) {
-            o.lease = None;
+        let LeaseTurn::Ended(lease) = o.lease_turn(self.is_engaged(), now) else {
             return false;
-        }
-        if lease.runs(now) {
-            return false;
-        }
-        o.lease = None;
+        };
         let (done, seen) = self.submit_accel_seen(lease.release, now);
         self.tap_received(lease.source, Asked::Accel(lease.release), now, done, seen);
         if let Err(why) = done {
