@@ -5,7 +5,7 @@
 //! depends on none of them.
 //!
 //! [`SCHEMA`] is the broadcast's version: a field may be added without a new version;
-//! renaming or removing one bumps it. `schemas/snapshot-3.json` is its JSON Schema,
+//! renaming or removing one bumps it. `schemas/snapshot-4.json` is its JSON Schema,
 //! checked by a test against real broadcasts.
 
 use crate::value::{Kind, Value};
@@ -15,7 +15,7 @@ use std::fmt;
 use std::net::SocketAddr;
 
 /// The version of the snapshot's JSON form.
-pub const SCHEMA: u32 = 3;
+pub const SCHEMA: u32 = 4;
 
 /// The whole vehicle at one instant.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -448,8 +448,11 @@ impl RecoveryView {
 pub struct SupervisorView {
     pub faults: Vec<FaultView>,
     pub recovery: Option<RecoveryView>,
-    /// The last procedure's outcome, e.g. `engine_stall recovered in 2.3 s`.
+    /// The last procedure's outcome, in words, e.g. `recovery steering done in 0.9 s`.
     pub last_outcome: Option<String>,
+    /// The last procedure's outcome, as a type.
+    #[serde(default)]
+    pub outcome: Option<OutcomeKind>,
     /// Recent steps and outcomes, newest last.
     pub history: Vec<String>,
     /// Engine threads that have not turned their loop within their bound (a thread
@@ -460,6 +463,22 @@ pub struct SupervisorView {
     /// waits for. A device gone never ends the run.
     #[serde(default)]
     pub waiting: Vec<WaitingView>,
+}
+
+/// How the supervisor's last procedure ended (its words: `last_outcome`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum OutcomeKind {
+    /// A recovery procedure did its steps.
+    Done,
+    /// A recovery procedure gave up: the device stays faulty, the vehicle disengaged.
+    GaveUp,
+    /// A recovery stopped because the vehicle was disengaged.
+    Stopped,
+    /// A recovery waits for an engage to run.
+    Waits,
+    /// A device that was gone is back.
+    Back,
 }
 
 /// A device gone, and what adrive does about it.
@@ -555,8 +574,29 @@ pub struct WatchdogView {
     pub(crate) timeout_ms: f64,
     /// Time since the commander's last valid datagram.
     pub(crate) last_command_age_ms: Option<f64>,
-    /// Why it last tripped.
+    /// Why it last tripped, in words.
     pub last_trip: Option<String>,
+    /// Why it last tripped, as a type: the bound that ran out.
+    #[serde(default)]
+    pub trip: Option<TripKind>,
+}
+
+/// Which bound of the commander's watchdog ran out (its words: `last_trip`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum TripKind {
+    /// A commanding console's terminal stopped answering round trips.
+    Terminal,
+    /// A teleoperating console sent no teleop key for its deadman.
+    Deadman,
+    /// The commander's rolling counter stopped advancing.
+    Frozen,
+    /// No valid command from the commander for its timeout.
+    Silent,
+    /// Released, and nobody took command within the handover.
+    Handover,
+    /// The commanding console went away (its connection closed, dropped).
+    Gone,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -959,7 +999,7 @@ mod tests {
         assert!(!String::from_utf8_lossy(&one[0]).contains("\"part\""));
     }
 
-    /// `schemas/snapshot-3.json` is the JSON Schema of exactly this type (its field
+    /// `schemas/snapshot-4.json` is the JSON Schema of exactly this type (its field
     /// documentation included); `UPDATE_SCHEMA=1 cargo test --lib snapshot` rewrites it
     /// after a change. tests/schema.rs checks real broadcasts against the file.
     #[test]
@@ -974,7 +1014,7 @@ mod tests {
             format!("adrive state snapshot, schema {SCHEMA}").into(),
         );
         let text = serde_json::to_string_pretty(&schema).unwrap() + "\n";
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-3.json");
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-4.json");
         assert!(path.ends_with(&format!("snapshot-{SCHEMA}.json")));
         if std::env::var_os("UPDATE_SCHEMA").is_some() {
             std::fs::write(path, &text).unwrap();

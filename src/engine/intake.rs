@@ -302,6 +302,7 @@ impl Gate {
                 timeout_ms: shown_timeout.as_secs_f64() * 1e3,
                 last_command_age_ms: commander.map(|_| o.quiet(now).as_secs_f64() * 1e3),
                 last_trip: o.last_trip().map(Trip::to_string),
+                trip: o.last_trip().map(Trip::kind),
             }),
             refused,
             last_refused: last_refused

@@ -21,7 +21,7 @@
 //! [`markdown`], checked by a test.
 
 use super::ask::Ask;
-use crate::snapshot::{WatchdogState, WatchdogView};
+use crate::snapshot::{TripKind, WatchdogState, WatchdogView};
 use crate::value::Source;
 use std::time::{Duration, Instant};
 
@@ -265,6 +265,20 @@ impl std::fmt::Display for Trip {
                 )
             }
             Trip::Gone { commander, how } => write!(f, "{} {how}", Commander(*commander)),
+        }
+    }
+}
+
+impl Trip {
+    /// The cause without its particulars, for the snapshot.
+    pub fn kind(&self) -> TripKind {
+        match self {
+            Trip::Terminal { .. } => TripKind::Terminal,
+            Trip::Deadman { .. } => TripKind::Deadman,
+            Trip::Frozen { .. } => TripKind::Frozen,
+            Trip::Silent { .. } => TripKind::Silent,
+            Trip::Handover { .. } => TripKind::Handover,
+            Trip::Gone { .. } => TripKind::Gone,
         }
     }
 }
