@@ -8,7 +8,7 @@
 //! renaming or removing one bumps it. `schemas/snapshot-4.json` is its JSON Schema,
 //! checked by a test against real broadcasts.
 
-use crate::value::{Kind, Value};
+use crate::value::{EstopState, Kind, Value};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -141,8 +141,11 @@ pub struct GateView {
     /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
     /// "disengaged: watchdog: …").
     pub reason: String,
-    /// What would refuse an engage right now (empty: it may engage).
+    /// What would refuse an engage right now (empty: it may engage), in words.
     pub blockers: Vec<String>,
+    /// The same, as types: what blocks, and on which device or thread.
+    #[serde(default)]
+    pub blocked_by: Vec<Blocker>,
     /// The interlock rules are on.
     pub interlocks: bool,
     /// The rules active on this vehicle (those whose devices are bound).
@@ -532,6 +535,55 @@ impl StallView {
             self.quiet_ms / 1e3,
             self.bound_ms / 1e3
         )
+    }
+}
+
+/// What refuses an engage, and disengages an engaged vehicle: the cause as a type, its
+/// words in [`Display`](std::fmt::Display) (the snapshot's `blockers`, an engage's
+/// refusal, the disengage's reason).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Blocker {
+    /// A driver took the device over (a latched override), not cleared yet.
+    Overridden { device: String },
+    /// The device is faulty; `fault` is its own error.
+    Faulty { device: String, fault: String },
+    /// The device (an OBD adapter) is searching the car's protocols, up to `up_to_s`.
+    Searching { device: String, up_to_s: u64 },
+    /// The device has not reported yet.
+    NotReported { device: String },
+    /// The e-stop is in pause or disable.
+    Estop { state: EstopState },
+    /// An engine thread has not turned its loop within its bound.
+    Stalled { stall: StallView },
+}
+
+impl std::fmt::Display for Blocker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Blocker::Overridden { device } => write!(
+                f,
+                "{device} is in the driver's hands (override): clear it once the driver has let go"
+            ),
+            Blocker::Faulty { device, fault } => write!(f, "{device} is faulty ({fault})"),
+            Blocker::Searching { device, up_to_s } => write!(
+                f,
+                "{device}: the adapter is searching the car's protocols, up to {up_to_s} s"
+            ),
+            Blocker::NotReported { device } => write!(f, "{device} has not reported yet"),
+            Blocker::Estop { state } => write!(f, "e-stop is in {state}"),
+            Blocker::Stalled { stall } => write!(f, "thread {}", stall.describe()),
+        }
+    }
+}
+
+impl Blocker {
+    /// Blockers in words, one sentence: `steer is faulty (timeout); e-stop is in pause`.
+    pub fn said(all: &[Blocker]) -> String {
+        all.iter()
+            .map(Blocker::to_string)
+            .collect::<Vec<_>>()
+            .join("; ")
     }
 }
 
@@ -997,6 +1049,51 @@ mod tests {
         let one = snap.datagrams(max).unwrap();
         assert_eq!(one.len(), 1);
         assert!(!String::from_utf8_lossy(&one[0]).contains("\"part\""));
+    }
+
+    /// Each blocker's words, in one sentence: what the broadcast's `blockers`, an
+    /// engage's refusal and the disengage's reason say.
+    #[test]
+    fn blockers_say_what_blocks() {
+        let all = [
+            Blocker::Overridden {
+                device: "steer".into(),
+            },
+            Blocker::Faulty {
+                device: "gas".into(),
+                fault: "timeout".into(),
+            },
+            Blocker::Searching {
+                device: "obd".into(),
+                up_to_s: 10,
+            },
+            Blocker::NotReported {
+                device: "obd".into(),
+            },
+            Blocker::Estop {
+                state: EstopState::Pause,
+            },
+            Blocker::Stalled {
+                stall: StallView {
+                    thread: "steer/status".into(),
+                    quiet_ms: 1400.0,
+                    bound_ms: 450.0,
+                },
+            },
+        ];
+        assert_eq!(
+            Blocker::said(&all),
+            "steer is in the driver's hands (override): clear it once the driver has let go; \
+             gas is faulty (timeout); \
+             obd: the adapter is searching the car's protocols, up to 10 s; \
+             obd has not reported yet; e-stop is in pause; \
+             thread steer/status has not turned its loop for 1.4 s (bound 0.45 s)"
+        );
+        let json = serde_json::to_value(&all[1]).unwrap();
+        assert_eq!(
+            json,
+            serde_json::json!({"kind": "faulty", "device": "gas", "fault": "timeout"})
+        );
     }
 
     /// `schemas/snapshot-4.json` is the JSON Schema of exactly this type (its field

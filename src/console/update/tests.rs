@@ -186,9 +186,9 @@ impl Fake {
     /// Whether an ask reached the engine at all.
     fn reached(&self) -> Result<(), Refused> {
         match self.gone {
-            true => Err(Refused::Blocked(vec![
+            true => Err(Refused::Unanswered(
                 "adrive went away: its connection closed".into(),
-            ])),
+            )),
             false => Ok(()),
         }
     }
@@ -453,7 +453,10 @@ fn space_is_stop_in_every_mode() {
 #[test]
 fn a_refused_engage_says_why() {
     let mut f = Fake::new();
-    f.engage = Err(Refused::Blocked(vec!["steer is faulty (timeout)".into()]));
+    f.engage = Err(Refused::Blocked(vec![crate::snapshot::Blocker::Faulty {
+        device: "steer".into(),
+        fault: "timeout".into(),
+    }]));
     let mut m = model(&f);
     press(&mut m, &f, &["E", "y"], Instant::now());
     let msg = m.message.unwrap();
