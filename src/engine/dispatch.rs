@@ -1,5 +1,5 @@
 //! Dispatch: what an admitted command does to the devices. A command that passed the
-//! intake ([`super::intake`]) goes on the wire from the admitting thread when its port
+//! intake ([`super::admit`]) goes on the wire from the admitting thread when its port
 //! is idle ([`super::fast`]), else into the device's slot for its command thread
 //! ([`crate::port::slot`], [`super::command`]). Engaging, disengaging, an operator's STOP, a
 //! driver's override and every way out store the safe (or manual) state the same way.

@@ -1,5 +1,5 @@
 //! The engage gate as the rest of adrive holds it: the vehicle and the gate's state
-//! ([`GateState`]), with the intake ([`super::intake`]) and the dispatch
+//! ([`GateState`]), with the intake ([`super::admit`]) and the dispatch
 //! ([`super::dispatch`]) that apply safety's decisions to the devices. Every front end
 //! and the supervisor hold an `Arc<Gate>`; reading it (engaged, why, the snapshot)
 //! takes no device lock.

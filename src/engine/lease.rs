@@ -1,5 +1,5 @@
 //! The end of a held pedal's lease ([`crate::safety::lease`]): the intake grants and
-//! renews it ([`super::intake`]); the gate's monitor ([`super::monitor`]) calls
+//! renews it ([`super::admit`]); the gate's monitor ([`super::monitor`]) calls
 //! [`Gate::end_lease`] every turn, which ends a lease that ran out — throttle 0 and the
 //! brake at the lease's release level, through [`Gate::submit_accel`] (the accel rule,
 //! in its one place) — under the intake's lock, so a renewal either lands before the

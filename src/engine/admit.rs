@@ -1,4 +1,4 @@
-//! The one intake below every front end. The console, attached consoles, the network
+//! Admission: the one intake below every front end. The console, attached consoles, the network
 //! listener, ROS 2 and `adrive ctl` turn what they receive into an [`Ask`] tagged with
 //! its [`Source`] and hand it to [`Gate::admit`]; what comes back is the outcome each
 //! turns into its reply, log line or message. No front end decides who commands, and
