@@ -5,17 +5,17 @@
 //! depends on none of them.
 //!
 //! [`SCHEMA`] is the broadcast's version: a field may be added without a new version;
-//! renaming or removing one bumps it. `schemas/snapshot-3.json` is its JSON Schema,
+//! renaming or removing one bumps it. `schemas/snapshot-4.json` is its JSON Schema,
 //! checked by a test against real broadcasts.
 
-use crate::value::{Kind, Value};
+use crate::value::{EstopState, Kind, Value};
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 use std::fmt;
 use std::net::SocketAddr;
 
 /// The version of the snapshot's JSON form.
-pub const SCHEMA: u32 = 3;
+pub const SCHEMA: u32 = 4;
 
 /// The whole vehicle at one instant.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -141,8 +141,11 @@ pub struct GateView {
     /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
     /// "disengaged: watchdog: …").
     pub reason: String,
-    /// What would refuse an engage right now (empty: it may engage).
+    /// What would refuse an engage right now (empty: it may engage), in words.
     pub blockers: Vec<String>,
+    /// The same, as types: what blocks, and on which device or thread.
+    #[serde(default)]
+    pub blocked_by: Vec<Blocker>,
     /// The interlock rules are on.
     pub interlocks: bool,
     /// The rules active on this vehicle (those whose devices are bound).
@@ -448,8 +451,11 @@ impl RecoveryView {
 pub struct SupervisorView {
     pub faults: Vec<FaultView>,
     pub recovery: Option<RecoveryView>,
-    /// The last procedure's outcome, e.g. `engine_stall recovered in 2.3 s`.
+    /// The last procedure's outcome, in words, e.g. `recovery steering done in 0.9 s`.
     pub last_outcome: Option<String>,
+    /// The last procedure's outcome, as a type.
+    #[serde(default)]
+    pub outcome: Option<OutcomeKind>,
     /// Recent steps and outcomes, newest last.
     pub history: Vec<String>,
     /// Engine threads that have not turned their loop within their bound (a thread
@@ -460,6 +466,22 @@ pub struct SupervisorView {
     /// waits for. A device gone never ends the run.
     #[serde(default)]
     pub waiting: Vec<WaitingView>,
+}
+
+/// How the supervisor's last procedure ended (its words: `last_outcome`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum OutcomeKind {
+    /// A recovery procedure did its steps.
+    Done,
+    /// A recovery procedure gave up: the device stays faulty, the vehicle disengaged.
+    GaveUp,
+    /// A recovery stopped because the vehicle was disengaged.
+    Stopped,
+    /// A recovery waits for an engage to run.
+    Waits,
+    /// A device that was gone is back.
+    Back,
 }
 
 /// A device gone, and what adrive does about it.
@@ -516,6 +538,55 @@ impl StallView {
     }
 }
 
+/// What refuses an engage, and disengages an engaged vehicle: the cause as a type, its
+/// words in [`Display`](std::fmt::Display) (the snapshot's `blockers`, an engage's
+/// refusal, the disengage's reason).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Blocker {
+    /// A driver took the device over (a latched override), not cleared yet.
+    Overridden { device: String },
+    /// The device is faulty; `fault` is its own error.
+    Faulty { device: String, fault: String },
+    /// The device (an OBD adapter) is searching the car's protocols, up to `up_to_s`.
+    Searching { device: String, up_to_s: u64 },
+    /// The device has not reported yet.
+    NotReported { device: String },
+    /// The e-stop is in pause or disable.
+    Estop { state: EstopState },
+    /// An engine thread has not turned its loop within its bound.
+    Stalled { stall: StallView },
+}
+
+impl std::fmt::Display for Blocker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Blocker::Overridden { device } => write!(
+                f,
+                "{device} is in the driver's hands (override): clear it once the driver has let go"
+            ),
+            Blocker::Faulty { device, fault } => write!(f, "{device} is faulty ({fault})"),
+            Blocker::Searching { device, up_to_s } => write!(
+                f,
+                "{device}: the adapter is searching the car's protocols, up to {up_to_s} s"
+            ),
+            Blocker::NotReported { device } => write!(f, "{device} has not reported yet"),
+            Blocker::Estop { state } => write!(f, "e-stop is in {state}"),
+            Blocker::Stalled { stall } => write!(f, "thread {}", stall.describe()),
+        }
+    }
+}
+
+impl Blocker {
+    /// Blockers in words, one sentence: `steer is faulty (timeout); e-stop is in pause`.
+    pub fn said(all: &[Blocker]) -> String {
+        all.iter()
+            .map(Blocker::to_string)
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+}
+
 /// The commander's watchdog, as shown to people.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -555,8 +626,29 @@ pub struct WatchdogView {
     pub(crate) timeout_ms: f64,
     /// Time since the commander's last valid datagram.
     pub(crate) last_command_age_ms: Option<f64>,
-    /// Why it last tripped.
+    /// Why it last tripped, in words.
     pub last_trip: Option<String>,
+    /// Why it last tripped, as a type: the bound that ran out.
+    #[serde(default)]
+    pub trip: Option<TripKind>,
+}
+
+/// Which bound of the commander's watchdog ran out (its words: `last_trip`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum TripKind {
+    /// A commanding console's terminal stopped answering round trips.
+    Terminal,
+    /// A teleoperating console sent no teleop key for its deadman.
+    Deadman,
+    /// The commander's rolling counter stopped advancing.
+    Frozen,
+    /// No valid command from the commander for its timeout.
+    Silent,
+    /// Released, and nobody took command within the handover.
+    Handover,
+    /// The commanding console went away (its connection closed, dropped).
+    Gone,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
@@ -959,7 +1051,52 @@ mod tests {
         assert!(!String::from_utf8_lossy(&one[0]).contains("\"part\""));
     }
 
-    /// `schemas/snapshot-3.json` is the JSON Schema of exactly this type (its field
+    /// Each blocker's words, in one sentence: what the broadcast's `blockers`, an
+    /// engage's refusal and the disengage's reason say.
+    #[test]
+    fn blockers_say_what_blocks() {
+        let all = [
+            Blocker::Overridden {
+                device: "steer".into(),
+            },
+            Blocker::Faulty {
+                device: "gas".into(),
+                fault: "timeout".into(),
+            },
+            Blocker::Searching {
+                device: "obd".into(),
+                up_to_s: 10,
+            },
+            Blocker::NotReported {
+                device: "obd".into(),
+            },
+            Blocker::Estop {
+                state: EstopState::Pause,
+            },
+            Blocker::Stalled {
+                stall: StallView {
+                    thread: "steer/status".into(),
+                    quiet_ms: 1400.0,
+                    bound_ms: 450.0,
+                },
+            },
+        ];
+        assert_eq!(
+            Blocker::said(&all),
+            "steer is in the driver's hands (override): clear it once the driver has let go; \
+             gas is faulty (timeout); \
+             obd: the adapter is searching the car's protocols, up to 10 s; \
+             obd has not reported yet; e-stop is in pause; \
+             thread steer/status has not turned its loop for 1.4 s (bound 0.45 s)"
+        );
+        let json = serde_json::to_value(&all[1]).unwrap();
+        assert_eq!(
+            json,
+            serde_json::json!({"kind": "faulty", "device": "gas", "fault": "timeout"})
+        );
+    }
+
+    /// `schemas/snapshot-4.json` is the JSON Schema of exactly this type (its field
     /// documentation included); `UPDATE_SCHEMA=1 cargo test --lib snapshot` rewrites it
     /// after a change. tests/schema.rs checks real broadcasts against the file.
     #[test]
@@ -974,7 +1111,7 @@ mod tests {
             format!("adrive state snapshot, schema {SCHEMA}").into(),
         );
         let text = serde_json::to_string_pretty(&schema).unwrap() + "\n";
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-3.json");
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/schemas/snapshot-4.json");
         assert!(path.ends_with(&format!("snapshot-{SCHEMA}.json")));
         if std::env::var_os("UPDATE_SCHEMA").is_some() {
             std::fs::write(path, &text).unwrap();

@@ -192,5 +192,8 @@ pub fn make_recovering(v: &Vehicle, now: Instant) {
         elapsed_ms: 0.0,
         ..engine_stall()
     }));
-    s.set_outcome("recovery steering done in 0.9 s".into());
+    s.set_outcome(
+        crate::snapshot::OutcomeKind::Done,
+        "recovery steering done in 0.9 s".into(),
+    );
 }

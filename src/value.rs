@@ -24,7 +24,7 @@ pub(crate) fn flush_subnormal(x: f64) -> f64 {
 }
 
 /// Where a command comes from: every command of every front end enters the one intake
-/// ([`crate::engine::intake`]) tagged with its source, and the vehicle is commanded by
+/// ([`crate::engine::admit`]) tagged with its source, and the vehicle is commanded by
 /// at most one of them at a time.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -9,7 +9,7 @@
 mod common;
 
 use adrive::config::ALICE_TOML;
-use adrive::snapshot::FaultKind;
+use adrive::snapshot::{Blocker, FaultKind};
 use adrive::value::Command;
 use common::{wait_for, Rig};
 use std::time::{Duration, Instant};
@@ -82,7 +82,7 @@ fn detected_handed_over_and_cleared(device: &str, to: f64) {
     assert!(
         blockers
             .iter()
-            .any(|b| b.contains(&format!("{device} is in the driver's hands (override)"))),
+            .any(|b| matches!(b, Blocker::Overridden { device: d } if d == device)),
         "{blockers:?}"
     );
     let still = rig.gate.clear_overrides().unwrap_err();

@@ -211,7 +211,7 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
     let v = n.broadcast_until("steer executed -0.25", |v| {
         v.device("steer").and_then(|d| d.executed.clone()) == Some(Value::Number(-0.25))
     });
-    assert_eq!(v.schema, 3);
+    assert_eq!(v.schema, 4);
     assert!(v.gate.engaged);
     let net = v.net.as_ref().unwrap();
     assert_eq!(v.gate.commander, Some(format!("network {}", a.addr())));

@@ -7,6 +7,7 @@ mod common;
 use adrive::config::VehicleConfig;
 use adrive::driver::{self, DriverError};
 use adrive::sim::{wire_time, Sim};
+use adrive::snapshot::Blocker;
 use adrive::value::Command;
 use common::{wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;
@@ -225,7 +226,9 @@ fn an_elm327_searching_the_protocols_is_named_as_such_by_the_engage_gate() {
     assert_eq!(request(), "ATZ\r");
     assert_eq!(
         gate.blockers(),
-        ["obd has not reported yet"],
+        [Blocker::NotReported {
+            device: "obd".into()
+        }],
         "not open yet"
     );
     let mut answer = |text: &str| writer.write_all(text.as_bytes()).unwrap();
@@ -237,7 +240,11 @@ fn an_elm327_searching_the_protocols_is_named_as_such_by_the_engage_gate() {
     assert_eq!(request(), "010C\r");
     answer("SEARCHING...\r");
     wait_for("the blocker to say why obd waits", || {
-        gate.blockers() == ["obd: the adapter is searching the car's protocols, up to 10 s"]
+        gate.blockers()
+            == [Blocker::Searching {
+                device: "obd".into(),
+                up_to_s: 10,
+            }]
     });
     answer("41 0C 1A F8 \r\r>");
     assert_eq!(request(), "010D\r");

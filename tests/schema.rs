@@ -1,4 +1,4 @@
-//! `schemas/snapshot-3.json` against real broadcasts: the datagrams the real binary
+//! `schemas/snapshot-4.json` against real broadcasts: the datagrams the real binary
 //! sends, engaged and driven by a planner, for the built-in Alice and for the utility
 //! cart, each valid under the schema (checked by the `jsonschema` crate).
 
@@ -9,7 +9,7 @@ use common::DEADLINE;
 use std::net::UdpSocket;
 use std::time::Duration;
 
-const SCHEMA: &str = include_str!("../schemas/snapshot-3.json");
+const SCHEMA: &str = include_str!("../schemas/snapshot-4.json");
 
 /// Drive `vehicle` with `commands` from a planner and check `n` broadcasts.
 fn broadcasts_are_valid(tag: &str, vehicle: &str, commands: &str, n: usize) {
@@ -36,7 +36,7 @@ fn broadcasts_are_valid(tag: &str, vehicle: &str, commands: &str, n: usize) {
             "broadcast {i} of {tag}:\n{}",
             errors.join("\n")
         );
-        assert_eq!(v["schema"], 3);
+        assert_eq!(v["schema"], 4);
         engaged += usize::from(v["gate"]["engaged"] == true);
         std::thread::sleep(Duration::from_millis(20));
     }

@@ -380,7 +380,7 @@ impl Controls for Replay<'_> {
 
 /// Every change is refused in a replay: nothing is sent.
 fn read_only() -> Refused {
-    Refused::Blocked(vec![READ_ONLY.into()])
+    Refused::Unanswered(READ_ONLY.into())
 }
 
 /// The replay's own keys, before the keymap sees them.

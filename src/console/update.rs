@@ -41,7 +41,8 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     let outcome = m.snap.supervisor.last_outcome.clone();
     if outcome.is_some() && outcome != m.outcome_seen {
         let text = outcome.clone().unwrap_or_default();
-        m.say(format!("supervisor: {text}"), text.contains("gave up"));
+        let bad = m.snap.supervisor.outcome == Some(crate::snapshot::OutcomeKind::GaveUp);
+        m.say(format!("supervisor: {text}"), bad);
         m.outcome_seen = outcome;
     }
     // Someone else's command refused because of who commands: say it where the
@@ -56,9 +57,7 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     let t = &mut m.teleop;
     let deadman_tripped = m.snap.gate.watchdog.as_ref().is_some_and(|w| {
         w.state == crate::snapshot::WatchdogState::Tripped
-            && w.last_trip
-                .as_deref()
-                .is_some_and(|c| c.starts_with("deadman"))
+            && w.trip == Some(crate::snapshot::TripKind::Deadman)
     });
     if t.last_key.is_some() && !t.tripped && deadman_tripped {
         t.let_go();

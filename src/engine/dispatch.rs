@@ -1,5 +1,5 @@
 //! Dispatch: what an admitted command does to the devices. A command that passed the
-//! intake ([`super::intake`]) goes on the wire from the admitting thread when its port
+//! intake ([`super::admit`]) goes on the wire from the admitting thread when its port
 //! is idle ([`super::fast`]), else into the device's slot for its command thread
 //! ([`crate::port::slot`], [`super::command`]). Engaging, disengaging, an operator's STOP, a
 //! driver's override and every way out store the safe (or manual) state the same way.
@@ -11,6 +11,7 @@ use super::Gate;
 use crate::config::Role;
 use crate::safety::accel::{Pedal, Plan};
 use crate::safety::{facts, Reject, Seen, Verdict, Wait};
+use crate::snapshot::Blocker;
 use crate::value::{Command, DeviceId};
 use crate::vehicle::stats::Stats;
 use crate::vehicle::tap::{Asked, GateChange, Source};
@@ -93,13 +94,12 @@ impl Gate {
     /// command slot is reset first so nothing resends a stale set point: the safe
     /// state (throttle 0, brake full), steering held where it is, the rest left as
     /// they are.
-    pub fn engage(&self, by: &str) -> Result<(), Vec<String>> {
+    pub fn engage(&self, by: &str) -> Result<(), Vec<Blocker>> {
         let blockers = self.blockers();
         if !blockers.is_empty() {
-            tracing::warn!(by, "engage refused: {}", blockers.join("; "));
-            self.tap_gate(GateChange::EngageRefused, || {
-                format!("{by}: {}", blockers.join("; "))
-            });
+            let said = Blocker::said(&blockers);
+            tracing::warn!(by, "engage refused: {said}");
+            self.tap_gate(GateChange::EngageRefused, || format!("{by}: {said}"));
             return Err(blockers);
         }
         let v = self.vehicle();

@@ -1,11 +1,11 @@
 //! The engage gate as the rest of adrive holds it: the vehicle and the gate's state
-//! ([`GateState`]), with the intake ([`super::intake`]) and the dispatch
+//! ([`GateState`]), with the intake ([`super::admit`]) and the dispatch
 //! ([`super::dispatch`]) that apply safety's decisions to the devices. Every front end
 //! and the supervisor hold an `Arc<Gate>`; reading it (engaged, why, the snapshot)
 //! takes no device lock.
 
 use crate::safety::{GateState, Reject, Rules, Seen};
-use crate::snapshot::{GateView, Pairs, Snapshot};
+use crate::snapshot::{Blocker, GateView, Pairs, Snapshot};
 use crate::value::{Command, Source};
 use crate::vehicle::tap::{Asked, Event, GateChange};
 use crate::vehicle::{capture, Vehicle};
@@ -76,7 +76,7 @@ impl Gate {
     }
 
     /// Reasons engaging is refused right now (empty: it may engage).
-    pub fn blockers(&self) -> Vec<String> {
+    pub fn blockers(&self) -> Vec<Blocker> {
         self.state.blockers(&self.vehicle)
     }
 
@@ -134,6 +134,7 @@ impl Gate {
     pub fn view(&self, now: Instant) -> GateView {
         let b = self.vehicle.bindings();
         let who = self.command_view(now);
+        let blocked_by = self.blockers();
         GateView {
             commander: who.commander,
             watchdog: who.watchdog,
@@ -141,7 +142,8 @@ impl Gate {
             last_refused: who.last_refused,
             engaged: self.is_engaged(),
             reason: self.reason(),
-            blockers: self.blockers(),
+            blockers: blocked_by.iter().map(Blocker::to_string).collect(),
+            blocked_by,
             interlocks: self.interlocks_on(),
             rules: self
                 .rules()

@@ -1,12 +1,12 @@
 //! The end of a held pedal's lease ([`crate::safety::lease`]): the intake grants and
-//! renews it ([`super::intake`]); the gate's monitor ([`super::monitor`]) calls
+//! renews it ([`super::admit`]); the gate's monitor ([`super::monitor`]) calls
 //! [`Gate::end_lease`] every turn, which ends a lease that ran out — throttle 0 and the
 //! brake at the lease's release level, through [`Gate::submit_accel`] (the accel rule,
 //! in its one place) — under the intake's lock, so a renewal either lands before the
 //! end or finds nothing to renew.
 
 use super::Gate;
-use crate::safety::owner::Commander;
+use crate::safety::owner::{Commander, LeaseTurn};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::tap::Asked;
 use std::time::Instant;
@@ -24,15 +24,9 @@ impl Gate {
     /// commanded the safe state). Returns whether a lease ended.
     pub fn end_lease(&self, now: Instant) -> bool {
         let mut o = self.state().owner();
-        let Some(lease) = o.lease else { return false };
-        if !self.is_engaged() || o.commander != Some(lease.source) {
-            o.lease = None;
+        let LeaseTurn::Ended(lease) = o.lease_turn(self.is_engaged(), now) else {
             return false;
-        }
-        if lease.runs(now) {
-            return false;
-        }
-        o.lease = None;
+        };
         let (done, seen) = self.submit_accel_seen(lease.release, now);
         self.tap_received(lease.source, Asked::Accel(lease.release), now, done, seen);
         if let Err(why) = done {

@@ -2,7 +2,7 @@
 //! actuator, one per sensor, over the shared [`Vehicle`]. The command path, from a
 //! front end to the serial write, reads in this folder in this order:
 //!
-//! 1. [`intake`]: every front end (console, attached consoles, the network, ROS 2,
+//! 1. [`admit`]: every front end (console, attached consoles, the network, ROS 2,
 //!    `adrive ctl`) hands an [`Ask`](crate::safety::Ask) with its source to
 //!    [`Gate::admit`], which applies the ownership rule and the commander's watchdog
 //!    under one lock.
@@ -36,12 +36,12 @@
 //! bound (the service watchdog is fed only while all do). docs/architecture.md draws
 //! it.
 
+pub mod admit;
 pub mod bus;
 pub mod command;
 pub(crate) mod dispatch;
 pub mod fast;
 mod gate;
-pub mod intake;
 pub mod lease;
 pub mod monitor;
 pub mod placement;

@@ -36,7 +36,7 @@ impl Monitor {
                 let engaged = gate.is_engaged();
                 if engaged {
                     if let Some(why) = gate.blockers().into_iter().next() {
-                        gate.disengage(&why);
+                        gate.disengage(&why.to_string());
                     }
                 }
                 // The e-stop's rule holds a disengaged vehicle too: brake full, gas 0

@@ -24,6 +24,7 @@ use crate::engine::Gate;
 use crate::logging::RateLimit;
 use crate::safety::gate::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
+use crate::snapshot::Blocker;
 use crate::value::Source;
 use crate::vehicle::tap::Event;
 use arrayvec::ArrayString;
@@ -285,12 +286,18 @@ impl Intake {
                     st.count_refusal(Refusal::EngageBlocked);
                     out.refused = true;
                     out.gate = true;
-                    out.line(format_args!("refused engage: {}", why.join("; ")));
+                    out.line(format_args!("refused engage: {}", Blocker::said(&why)));
                 }
                 Err(Refused::Clear(why)) => {
                     out.refused = true;
                     out.gate = true;
                     out.line(format_args!("refused clear: {why}"));
+                }
+                // Only a client of the control socket or a replay says this; the
+                // intake itself never does.
+                Err(r @ Refused::Unanswered(_)) => {
+                    out.refused = true;
+                    out.line(format_args!("refused: {r}"));
                 }
             }
         }

@@ -23,7 +23,8 @@
 //! before the first message, so a viewer is told them when it subscribes. A value
 //! that is by turns a flag, a number and a word (the snapshot's `commanded`) has no
 //! one type; it is left out of the schema (the per-device channels carry it as a
-//! number). The messages leave their null members out ([`without_nulls`]): each
+//! number), and so are the gate's typed blockers (`blocked_by`, each kind with fields of
+//! its own; `blockers` has their words). The messages leave their null members out ([`without_nulls`]): each
 //! still validates against its schema.
 
 use crate::config::{ReadingKind, Role, VehicleConfig};
@@ -462,7 +463,10 @@ mod tests {
         paths(&raw, "", &mut before);
         paths(&shown, "", &mut after);
         let lost: Vec<&String> = before.iter().filter(|p| !after.contains(p)).collect();
-        assert_eq!(lost, ["devices.commanded", "devices.executed"]);
+        assert_eq!(
+            lost,
+            ["devices.commanded", "devices.executed", "gate.blocked_by"]
+        );
         let readings = &shown["properties"]["devices"]["items"]["properties"]["readings"];
         assert_eq!(readings["properties"]["pressure"]["type"], "number");
         let signals = &shown["properties"]["buses"]["items"]["properties"]["frames"]["items"]

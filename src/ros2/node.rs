@@ -494,7 +494,7 @@ impl Commands {
                     Refused::Owner(_) => self.net.count_refusal(Refusal::OtherCommander),
                     Refused::Rule(r) => self.net.count_intake(*r),
                     Refused::Blocked(_) => self.net.count_refusal(Refusal::EngageBlocked),
-                    Refused::Clear(_) => {}
+                    Refused::Clear(_) | Refused::Unanswered(_) => {}
                 }
                 if self.log.allow(at) {
                     tracing::warn!("ros2: refused {}: {why}", self.gate.ask_text(ask));

@@ -6,6 +6,7 @@
 
 use super::owner::{self, Act};
 use super::Reject;
+use crate::snapshot::Blocker;
 use crate::value::{Command, DeviceId};
 use std::time::Duration;
 
@@ -72,7 +73,10 @@ pub enum Refused {
     /// The value or an interlock (counted by reason).
     Rule(Reject),
     /// Engaging is blocked right now (a faulty device, the e-stop…).
-    Blocked(Vec<String>),
+    Blocked(Vec<Blocker>),
+    /// The ask never reached an intake that could decide it (adrive did not answer
+    /// over the control socket; a replay sends nothing).
+    Unanswered(String),
     /// An override cannot be cleared yet: the driver's hand is still on.
     Clear(String),
 }
@@ -82,7 +86,8 @@ impl std::fmt::Display for Refused {
         match self {
             Refused::Owner(r) => write!(f, "{r}"),
             Refused::Rule(r) => write!(f, "{r}"),
-            Refused::Blocked(why) => write!(f, "{}", why.join("; ")),
+            Refused::Blocked(why) => f.write_str(&Blocker::said(why)),
+            Refused::Unanswered(why) => f.write_str(why),
             Refused::Clear(why) => f.write_str(why),
         }
     }

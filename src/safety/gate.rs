@@ -15,6 +15,7 @@ use super::wire::{self, Verdict};
 use crate::config::{DeviceConfig, Role};
 use crate::driver::slcan::Kits;
 use crate::logging::RateLimit;
+use crate::snapshot::Blocker;
 use crate::value::{Command, DeviceId, EstopState, Kind};
 pub use crate::vehicle::seen::Seen;
 use crate::vehicle::{Device, Unreported, Vehicle};
@@ -44,32 +45,30 @@ pub fn remote_may_engage(allow_engage: bool, engaged: bool) -> bool {
 }
 
 /// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
-pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<String> {
-    let mut why = Vec::new();
-    for d in overridden {
-        why.push(format!(
-            "{d} is in the driver's hands (override): clear it once the driver has let go"
-        ));
-    }
+pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<Blocker> {
+    let mut why: Vec<Blocker> = overridden
+        .iter()
+        .map(|d| Blocker::Overridden { device: d.clone() })
+        .collect();
     for d in v.devices().iter().filter(|d| needed(v, d)) {
+        let device = d.name().to_string();
         if let Some(fault) = d.fault() {
-            why.push(format!("{} is faulty ({fault})", d.name()));
+            why.push(Blocker::Faulty { device, fault });
         } else if let Some(u) = d.unreported() {
             why.push(match u {
-                Unreported::SearchingProtocols(up_to) => format!(
-                    "{}: the adapter is searching the car's protocols, up to {} s",
-                    d.name(),
-                    up_to.as_secs()
-                ),
-                Unreported::NotYet => format!("{} has not reported yet", d.name()),
+                Unreported::SearchingProtocols(up_to) => Blocker::Searching {
+                    device,
+                    up_to_s: up_to.as_secs(),
+                },
+                Unreported::NotYet => Blocker::NotReported { device },
             });
         }
     }
-    if let Some(s @ (EstopState::Pause | EstopState::Disable)) = v.estop() {
-        why.push(format!("e-stop is in {s}"));
+    if let Some(state @ (EstopState::Pause | EstopState::Disable)) = v.estop() {
+        why.push(Blocker::Estop { state });
     }
-    for s in v.supervision().stalled() {
-        why.push(format!("thread {}", s.describe()));
+    for stall in v.supervision().stalled() {
+        why.push(Blocker::Stalled { stall });
     }
     why
 }
@@ -340,7 +339,7 @@ impl GateState {
     }
 
     /// Reasons engaging is refused right now (empty: it may engage).
-    pub fn blockers(&self, v: &Vehicle) -> Vec<String> {
+    pub fn blockers(&self, v: &Vehicle) -> Vec<Blocker> {
         blockers(v, &self.overridden.lock())
     }
 

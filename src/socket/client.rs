@@ -276,7 +276,7 @@ impl Remote {
     fn ask(&self, op: Op) -> Result<Answer, Refused> {
         match self.call(op) {
             Ok(Answer::Refused(r)) => Err(r),
-            Ok(Answer::Error(e)) | Err(e) => Err(Refused::Blocked(vec![e])),
+            Ok(Answer::Error(e)) | Err(e) => Err(Refused::Unanswered(e)),
             Ok(a) => Ok(a),
         }
     }
@@ -285,9 +285,7 @@ impl Remote {
     fn done(&self, op: Op) -> Result<Done, Refused> {
         match self.ask(op)? {
             Answer::Done(d) => Ok(d),
-            other => Err(Refused::Blocked(vec![format!(
-                "unexpected answer {other:?}"
-            )])),
+            other => Err(Refused::Unanswered(format!("unexpected answer {other:?}"))),
         }
     }
 

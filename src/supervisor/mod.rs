@@ -30,7 +30,7 @@ use crate::config::roles::ReadingRef;
 use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::engine::Gate;
 use crate::exit::Exit;
-use crate::snapshot::{DeviceView, FaultKind, Snapshot};
+use crate::snapshot::{DeviceView, FaultKind, OutcomeKind, Snapshot};
 use crate::threads::{Liveness, Owner};
 use crate::value::{Kind, Value};
 use crate::vehicle::supervision::Fault;
@@ -575,7 +575,7 @@ impl Supervisor {
             let msg = format!("recovery {} stopped: the vehicle is disengaged", p.name());
             tracing::warn!("{msg}");
             board.note(msg.clone());
-            board.set_outcome(msg);
+            board.set_outcome(OutcomeKind::Stopped, msg);
             gate.set_recovering(&[]);
             board.set_recovery(None);
         }
@@ -634,7 +634,7 @@ impl Supervisor {
                     );
                     tracing::info!("{msg}");
                     board.note(msg.clone());
-                    board.set_outcome(msg);
+                    board.set_outcome(OutcomeKind::Done, msg);
                     self.trying_since.remove(p.name());
                     self.finish(gate, now);
                 }
@@ -642,7 +642,7 @@ impl Supervisor {
                     let msg = format!("recovery {} gave up: {why}", p.name());
                     tracing::error!("{msg}; it runs again from the top at the next engage");
                     board.note(msg.clone());
-                    board.set_outcome(msg.clone());
+                    board.set_outcome(OutcomeKind::GaveUp, msg.clone());
                     gate.command_safe_state();
                     gate.disengage(&msg);
                     let tried = self
@@ -721,7 +721,9 @@ impl Supervisor {
             let msg = format!("recovery {name} waits for engage: {}", f.describe());
             tracing::warn!("{msg}");
             gate.vehicle().supervision().note(msg.clone());
-            gate.vehicle().supervision().set_outcome(msg);
+            gate.vehicle()
+                .supervision()
+                .set_outcome(OutcomeKind::Waits, msg);
         }
         self.waiting = name;
     }

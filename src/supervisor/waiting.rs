@@ -9,7 +9,7 @@
 //! and when each device is back. Ending the run instead is the operator's choice
 //! (`give_up_after`, [`Waiting::longest`]).
 
-use crate::snapshot::{FaultKind, WaitingView};
+use crate::snapshot::{FaultKind, OutcomeKind, WaitingView};
 use crate::vehicle::supervision::Fault;
 use crate::vehicle::Vehicle;
 use std::collections::BTreeMap;
@@ -59,7 +59,7 @@ impl Waiting {
             );
             tracing::info!(device = %name, "{msg}");
             board.note(msg.clone());
-            board.set_outcome(msg);
+            board.set_outcome(OutcomeKind::Back, msg);
             if self.gone.is_empty() {
                 crate::service::running();
             }

@@ -311,7 +311,7 @@ mod tests {
         assert_eq!(back.buses, snap.buses);
         let schema: serde_json::Value = serde_json::from_str(include_str!(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/schemas/snapshot-3.json"
+            "/schemas/snapshot-4.json"
         )))
         .unwrap();
         let json = serde_json::to_value(&snap).unwrap();

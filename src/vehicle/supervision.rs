@@ -5,7 +5,7 @@
 
 use super::tap::{Event, Tap};
 pub use crate::snapshot::{
-    FaultKind, FaultView, RecoveryView, StallView, SupervisorView, WaitingView,
+    FaultKind, FaultView, OutcomeKind, RecoveryView, StallView, SupervisorView, WaitingView,
 };
 use parking_lot::Mutex;
 use std::collections::VecDeque;
@@ -40,7 +40,7 @@ struct Inner {
     waiting: Vec<WaitingView>,
     faults: Vec<Fault>,
     recovery: Option<(RecoveryView, Instant)>,
-    last_outcome: Option<String>,
+    last_outcome: Option<(OutcomeKind, String)>,
     history: VecDeque<String>,
 }
 
@@ -81,7 +81,8 @@ impl Board {
                 elapsed_ms: ms(now - *started),
                 ..r.clone()
             }),
-            last_outcome: i.last_outcome.clone(),
+            last_outcome: i.last_outcome.as_ref().map(|(_, w)| w.clone()),
+            outcome: i.last_outcome.as_ref().map(|(k, _)| *k),
             history: i.history.iter().cloned().collect(),
             stalled: stalled(&i, now),
             waiting: i.waiting.clone(),
@@ -160,8 +161,9 @@ impl Board {
         i.history.push_back(line);
     }
 
-    pub(crate) fn set_outcome(&self, outcome: String) {
-        self.inner.lock().last_outcome = Some(outcome);
+    /// The last procedure ended as `kind`, said in `words`.
+    pub(crate) fn set_outcome(&self, kind: OutcomeKind, words: String) {
+        self.inner.lock().last_outcome = Some((kind, words));
     }
 }
 

@@ -226,6 +226,7 @@ mod tests {
                         timeout_ms: 500.0,
                         last_command_age_ms: Some(40.0),
                         last_trip: None,
+                        trip: None,
                     }),
                     ..Default::default()
                 },

@@ -204,7 +204,7 @@ impl SupervisorPanel<'_> {
             None => out.push(Line::from(vec![l("recovery "), Span::raw("-")])),
         }
         if let Some(o) = &sup.last_outcome {
-            let style = if o.contains("gave up") {
+            let style = if sup.outcome == Some(crate::snapshot::OutcomeKind::GaveUp) {
                 t.fault()
             } else {
                 Style::new()
@@ -575,6 +575,33 @@ mod tests {
         assert_eq!(wide[0], "SUPERVISORY engaged 0 interlocks on  accel -");
         let compact = texts(&p.compact_lines());
         assert_eq!(compact[1], "accel -  faults none  recovery -");
+    }
+
+    /// A recovery that gave up is red, whatever its words; any other outcome is not:
+    /// the panel reads the outcome's type.
+    #[test]
+    fn an_outcome_that_gave_up_is_red_by_its_type() {
+        use crate::snapshot::OutcomeKind;
+        let mut m = model(false);
+        let last = |m: &Model| {
+            let p = SupervisorPanel {
+                m,
+                cursor: false,
+                compact: false,
+            };
+            let lines = p.full_lines(80);
+            let line = lines.last().unwrap().clone();
+            (line.spans[1].content.to_string(), line.spans[1].style)
+        };
+        m.snap.snap.supervisor.last_outcome = Some("recovery steering: no more tries".into());
+        m.snap.snap.supervisor.outcome = Some(OutcomeKind::GaveUp);
+        let (text, style) = last(&m);
+        assert_eq!(text, "recovery steering: no more tries");
+        assert_eq!(style, m.theme.fault());
+        m.snap.snap.supervisor.last_outcome =
+            Some("recovery steering done, it gave up nothing".into());
+        m.snap.snap.supervisor.outcome = Some(OutcomeKind::Done);
+        assert_eq!(last(&m).1, Style::new());
     }
 
     /// A reason longer than the panel is cut at a word, marked, its parentheses

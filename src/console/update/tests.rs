@@ -186,9 +186,9 @@ impl Fake {
     /// Whether an ask reached the engine at all.
     fn reached(&self) -> Result<(), Refused> {
         match self.gone {
-            true => Err(Refused::Blocked(vec![
+            true => Err(Refused::Unanswered(
                 "adrive went away: its connection closed".into(),
-            ])),
+            )),
             false => Ok(()),
         }
     }
@@ -453,7 +453,10 @@ fn space_is_stop_in_every_mode() {
 #[test]
 fn a_refused_engage_says_why() {
     let mut f = Fake::new();
-    f.engage = Err(Refused::Blocked(vec!["steer is faulty (timeout)".into()]));
+    f.engage = Err(Refused::Blocked(vec![crate::snapshot::Blocker::Faulty {
+        device: "steer".into(),
+        fault: "timeout".into(),
+    }]));
     let mut m = model(&f);
     press(&mut m, &f, &["E", "y"], Instant::now());
     let msg = m.message.unwrap();
@@ -567,7 +570,9 @@ fn teleop_keys_arm_the_deadman_and_the_console_shows_its_trip() {
         state: crate::snapshot::WatchdogState::Tripped,
         timeout_ms: 500.0,
         last_command_age_ms: None,
-        last_trip: Some("deadman: no teleop key for 0.5s".into()),
+        // The console reads the cause's type, never its words.
+        last_trip: Some("no teleop key for 0.5s".into()),
+        trip: Some(crate::snapshot::TripKind::Deadman),
     });
     tick(&mut m, &f, t0 + Duration::from_millis(600));
     assert_eq!(m.teleop.state(m.now), super::super::model::Deadman::Tripped);
@@ -760,18 +765,22 @@ fn bench_fault_keys_drive_the_simulator_and_toggle_from_its_state() {
 
 #[test]
 fn a_recovery_outcome_is_said_once() {
+    use crate::snapshot::OutcomeKind;
     let mut f = Fake::new();
     let mut m = model(&f);
     let now = Instant::now();
     f.snap.snap.supervisor.last_outcome = Some("recovery engine_stall done in 6.1 s".into());
+    f.snap.snap.supervisor.outcome = Some(OutcomeKind::Done);
     tick(&mut m, &f, now);
     let msg = m.message.take().unwrap();
     assert_eq!(msg.text, "supervisor: recovery engine_stall done in 6.1 s");
     assert!(!msg.bad);
     tick(&mut m, &f, now);
     assert!(m.message.is_none(), "said once");
+    // Bad by the outcome's type, whatever its words.
     f.snap.snap.supervisor.last_outcome =
-        Some("recovery engine_stall gave up: step park did not complete".into());
+        Some("recovery engine_stall: step park did not complete".into());
+    f.snap.snap.supervisor.outcome = Some(OutcomeKind::GaveUp);
     tick(&mut m, &f, now);
     assert!(m.message.take().unwrap().bad);
 }

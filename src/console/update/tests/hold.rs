@@ -400,6 +400,7 @@ fn the_deadman_lets_every_key_go() {
         timeout_ms: 500.0,
         last_command_age_ms: None,
         last_trip: Some("deadman: no teleop key for 0.5s".into()),
+        trip: Some(crate::snapshot::TripKind::Deadman),
     });
     tick(&mut m, &f, t + ms(100));
     assert!(m.teleop.holds.is_empty() && m.teleop.asked.is_none());

@@ -1,4 +1,4 @@
-//! The one intake below every front end. The console, attached consoles, the network
+//! Admission: the one intake below every front end. The console, attached consoles, the network
 //! listener, ROS 2 and `adrive ctl` turn what they receive into an [`Ask`] tagged with
 //! its [`Source`] and hand it to [`Gate::admit`]; what comes back is the outcome each
 //! turns into its reply, log line or message. No front end decides who commands, and
@@ -27,9 +27,9 @@
 
 use super::Gate;
 use crate::safety::lease::Lease;
-use crate::safety::owner::{self, Act, CommandView, Commander, Outcome, Owner};
+use crate::safety::owner::{self, Act, Bounds, CommandView, Commander, Outcome, Owner, Trip};
 use crate::safety::{Ask, Done, Held, Refused, Reject};
-use crate::snapshot::{WatchdogState, WatchdogView};
+use crate::snapshot::WatchdogView;
 use crate::value::Source;
 use crate::vehicle::tap::{Asked, Event};
 use std::time::{Duration, Instant};
@@ -46,11 +46,10 @@ impl Gate {
         }
         let outcome = match ask.act() {
             None => Outcome::Same,
-            Some(act) => match owner::decide(engaged, o.commander, source, act) {
+            Some(act) => match o.decide(engaged, source, act) {
                 Ok(x) => x,
                 Err(r) => {
-                    o.refused += 1;
-                    o.last_refused = Some((source, ask, r));
+                    o.refuse(source, ask, r);
                     drop(o);
                     self.refused_by_owner(source, ask, r, received);
                     // A recording keeps it with its reason, as every refused command.
@@ -72,14 +71,14 @@ impl Gate {
                 }
             },
         };
-        let mine = o.commander == Some(source);
+        let mine = o.is(source);
         let done = match ask {
             Ask::Set(id, c) => {
                 let (done, seen) = self.submit_seen(id, c, received);
                 self.tap_received(source, Asked::Device(id, c), received, done, seen);
                 if done.is_ok() && self.is_pedal(id) {
                     // A pedal commanded outright: no lease ends it later.
-                    o.lease = None;
+                    o.lease(None);
                 }
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
@@ -87,7 +86,7 @@ impl Gate {
                 let (done, seen) = self.submit_accel_seen(a, received);
                 self.tap_received(source, Asked::Accel(a), received, done, seen);
                 if done.is_ok() {
-                    o.lease = None;
+                    o.lease(None);
                 }
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
@@ -95,25 +94,19 @@ impl Gate {
                 let (done, seen) = self.submit_accel_seen(h.accel, received);
                 self.tap_received(source, Asked::Accel(h.accel), received, done, seen);
                 if done.is_ok() {
-                    o.lease =
-                        (h.accel > 0.0).then(|| Lease::new(source, received, h.lease, h.release));
+                    o.lease(
+                        (h.accel > 0.0).then(|| Lease::new(source, received, h.lease, h.release)),
+                    );
                 }
                 done.map(|()| Done::Commanded).map_err(Refused::Rule)
             }
-            Ask::Renew(d) => Ok(
-                match o
-                    .lease
-                    .as_mut()
-                    .is_some_and(|l| l.renew(source, received, d))
-                {
-                    true => Done::Commanded,
-                    false => Done::Same,
-                },
-            ),
+            Ask::Renew(d) => Ok(match o.renew(source, received, d) {
+                true => Done::Commanded,
+                false => Done::Same,
+            }),
             // Taken by a console, or picked up after a release.
             Ask::Engage | Ask::Take if outcome == Outcome::Commands => {
-                let from = o.commander.or(o.handover.map(|(s, _)| s));
-                o.commands(source, received);
+                let from = o.commands(source, received);
                 tracing::warn!(
                     "{} takes command from {}",
                     Commander(source),
@@ -124,15 +117,13 @@ impl Gate {
             Ask::Engage if outcome == Outcome::Engages => {
                 let by = Commander(source).to_string();
                 self.engage(&by).map_err(Refused::Blocked)?;
-                o.commands(source, received);
-                o.tripped = false;
+                o.engages(source, received);
                 Ok(Done::Engaged)
             }
             Ask::Engage | Ask::Take => Ok(Done::Same),
             Ask::Release => {
                 let handover = self.vehicle().config().network.watchdog_timeout;
-                o.nobody();
-                o.handover = Some((source, received + handover));
+                o.releases(source, received, handover);
                 tracing::warn!(
                     "{} released command: the vehicle is stopped unless a source engages within {} ms",
                     Commander(source),
@@ -158,7 +149,7 @@ impl Gate {
                 }))
             }
             Ask::Hold if engaged => {
-                o.lease = None;
+                o.lease(None);
                 self.command_safe_state();
                 Ok(Done::Commanded)
             }
@@ -170,37 +161,28 @@ impl Gate {
         };
         if mine && done.is_ok() {
             // A sign of life from the commander, whatever it asked.
-            o.last = o.last.max(received);
-            o.frozen = false;
+            o.alive(received);
         }
         done
     }
 
     /// The source commanding the engaged vehicle, if any.
     pub fn commander(&self) -> Option<Source> {
-        let o = self.state().owner();
-        o.commander.filter(|_| self.is_engaged())
+        self.state().owner().commander(self.is_engaged())
     }
 
     /// The commander's stream is alive but frozen (a rolling counter that stopped
     /// advancing): nothing it sends is valid, and its watchdog keeps counting; the
     /// trip then says why.
     pub fn frozen(&self, source: Source) {
-        let mut o = self.state().owner();
-        if o.commander == Some(source) {
-            o.frozen = true;
-        }
+        self.state().owner().freeze(source);
     }
 
     /// Arm (`Some`) or disarm the commanding console's deadman — its watchdog while it
     /// teleoperates. Arming also feeds it: a teleop key is a sign of life. A console
     /// that does not command has no deadman to arm (its teleop keys are refused).
     pub fn deadman(&self, source: Source, armed: Option<Duration>, now: Instant) {
-        let mut o = self.state().owner();
-        if source.is_console() && o.commander == Some(source) {
-            o.deadman = armed;
-            o.last = now;
-        }
+        self.state().owner().deadman(source, armed, now);
     }
 
     /// A console's terminal answered a round trip of its liveness check at `at` (read
@@ -208,22 +190,7 @@ impl Gate {
     /// attached one). A commanding console's link's watchdog is fed
     /// ([`owner::terminal_silent`]); a watcher's answers change nothing.
     pub fn answered(&self, source: Source, at: Instant) {
-        let mut o = self.state().owner();
-        if source.is_console() && o.commander == Some(source) {
-            o.answered = o.answered.max(at);
-        }
-    }
-
-    /// The commanding console's terminal stopped answering for its bound (the vehicle
-    /// file's `[console] terminal_timeout`): the cause, in words.
-    fn link_lost(&self, o: &Owner, now: Instant) -> Option<String> {
-        let bound = self.vehicle().config().console.terminal_timeout;
-        let quiet = owner::terminal_silent(o, bound, now)?;
-        Some(format!(
-            "{}: its terminal stopped answering for {:.1} s",
-            Commander(o.commander?),
-            quiet.as_secs_f64()
-        ))
+        self.state().owner().answered(source, at);
     }
 
     /// A source went away for good (an attached console's connection closed: its
@@ -235,88 +202,56 @@ impl Gate {
     /// the watchdog tripped.
     pub fn gone(&self, source: Source, cause: &str) -> bool {
         let mut o = self.state().owner();
-        if o.interlocks_off_by == Some(source) {
-            o.interlocks_off_by = None;
+        let gone = o.gone(source, self.is_engaged());
+        if gone.interlocks_on {
             self.state().set_interlocks(true);
             tracing::warn!(
                 "interlocks switched on again: {} that switched them off {cause}",
                 Commander(source)
             );
         }
-        if !self.is_engaged() || o.commander != Some(source) {
-            return false;
+        if gone.trips {
+            self.trip(
+                o,
+                Trip::Gone {
+                    commander: source,
+                    how: cause.to_string(),
+                },
+            );
         }
-        self.trip(o, format!("{} {cause}", Commander(source)));
-        true
+        gone.trips
     }
 
     /// The commander's watchdog trips for `cause`: nobody commands, the safe state, and
     /// disengaged — under the intake lock, so no command slips in between the decision
     /// and the safe state.
-    fn trip(&self, mut o: parking_lot::MutexGuard<'_, Owner>, cause: String) {
-        o.nobody();
-        o.deadman = None;
-        o.tripped = true;
-        o.last_trip = Some(cause.clone());
-        self.disengage(&format!("watchdog: {cause}"));
+    fn trip(&self, mut o: parking_lot::MutexGuard<'_, Owner>, cause: Trip) {
+        let words = cause.to_string();
+        o.trip(cause);
+        self.disengage(&format!("watchdog: {words}"));
         drop(o);
-        tracing::warn!("watchdog: {cause}; safe state commanded");
+        tracing::warn!("watchdog: {words}; safe state commanded");
     }
 
-    /// The commander's watchdog timeout (`None`: not watched).
-    fn timeout(&self, o: &Owner, source: Source) -> Option<Duration> {
-        match source {
-            Source::Network(_) | Source::Ros2 => {
-                Some(self.vehicle().config().network.watchdog_timeout)
-            }
-            Source::Console | Source::Attached(_) => o.deadman,
-            // An operator's one-shot `engage` moves nothing: it holds the vehicle as a
-            // console does outside teleop, until it is released, stopped or taken.
-            Source::Operator(_) | Source::Supervisor => None,
+    /// The bounds of the commander's watchdog, from the vehicle file.
+    fn bounds(&self) -> Bounds {
+        let c = self.vehicle().config();
+        Bounds {
+            watchdog: c.network.watchdog_timeout,
+            terminal: c.console.terminal_timeout,
         }
     }
 
-    /// One watchdog turn (from `gate/monitor`): a commander quiet for its timeout, or a
-    /// handover nobody picked up, brings the vehicle to the safe state and disengages
-    /// it. Returns the cause when it did.
-    pub fn watch(&self, now: Instant) -> Option<String> {
+    /// One watchdog turn (from `gate/monitor`): a bound that ran out
+    /// ([`Owner::expired`]) brings the vehicle to the safe state and disengages it.
+    /// Returns the cause when it did.
+    pub fn watch(&self, now: Instant) -> Option<Trip> {
         let mut o = self.state().owner();
         if !self.is_engaged() {
             o.nobody();
             return None;
         }
-        if let Some(cause) = self.link_lost(&o, now) {
-            self.trip(o, cause.clone());
-            return Some(cause);
-        }
-        let cause = match (o.commander, o.handover) {
-            (Some(c), _) => {
-                let t = self.timeout(&o, c)?;
-                let quiet = now.saturating_duration_since(o.last);
-                if quiet < t {
-                    return None;
-                }
-                match c {
-                    Source::Console | Source::Attached(_) => {
-                        format!("deadman: no teleop key for {:.1}s", t.as_secs_f64())
-                    }
-                    _ if o.frozen => format!(
-                        "the rolling counter of {} stopped advancing for {} ms",
-                        Commander(c),
-                        quiet.as_millis()
-                    ),
-                    _ => format!(
-                        "no valid command from {} for {} ms",
-                        Commander(c),
-                        quiet.as_millis()
-                    ),
-                }
-            }
-            (None, Some((from, end))) if now >= end => {
-                format!("released by {} and nobody took command", Commander(from))
-            }
-            _ => return None,
-        };
+        let cause = o.expired(now, self.bounds())?;
         self.trip(o, cause.clone());
         Some(cause)
     }
@@ -326,9 +261,10 @@ impl Gate {
     pub(crate) fn set_interlocks(&self, source: Source, on: bool) -> Result<(), Refused> {
         let mut o = self.state().owner();
         let engaged = self.is_engaged();
-        owner::decide(engaged, o.commander, source, Act::Interlocks).map_err(Refused::Owner)?;
+        o.decide(engaged, source, Act::Interlocks)
+            .map_err(Refused::Owner)?;
         self.state().set_interlocks(on);
-        o.interlocks_off_by = (!on).then_some(source);
+        o.interlocks(source, on);
         tracing::warn!(
             "interlocks switched {} from the {}",
             if on { "on" } else { "off" },
@@ -341,7 +277,7 @@ impl Gate {
     /// fault)? A console, when it commands or nobody does.
     pub(crate) fn tune(&self, source: Source) -> Result<(), Refused> {
         let o = self.state().owner();
-        owner::decide(self.is_engaged(), o.commander, source, Act::Tune)
+        o.decide(self.is_engaged(), source, Act::Tune)
             .map(drop)
             .map_err(Refused::Owner)
     }
@@ -350,31 +286,26 @@ impl Gate {
     pub(crate) fn command_view(&self, now: Instant) -> CommandView {
         let o = self.state().owner();
         let engaged = self.is_engaged();
-        let commander = o.commander.filter(|_| engaged);
+        let commander = o.commander(engaged);
+        let (refused, last_refused) = o.refused();
         let name = |s: Source| match s {
             Source::Ros2 => format!("ros2 {}", self.vehicle().config().ros2.namespace),
             other => Commander(other).to_string(),
         };
-        let timeout = commander.and_then(|c| self.timeout(&o, c));
-        let state = match (engaged, timeout) {
-            (false, _) if o.tripped => WatchdogState::Tripped,
-            (false, _) => WatchdogState::Off,
-            (true, Some(_)) => WatchdogState::Armed,
-            (true, None) => WatchdogState::Idle,
-        };
+        let timeout = commander.and_then(|c| o.timeout(c, self.bounds()));
+        let state = o.watchdog_state(engaged, timeout);
         let shown_timeout = timeout.unwrap_or(self.vehicle().config().network.watchdog_timeout);
         CommandView {
             commander: commander.map(name),
             watchdog: Some(WatchdogView {
                 state,
                 timeout_ms: shown_timeout.as_secs_f64() * 1e3,
-                last_command_age_ms: commander
-                    .map(|_| now.saturating_duration_since(o.last).as_secs_f64() * 1e3),
-                last_trip: o.last_trip.clone(),
+                last_command_age_ms: commander.map(|_| o.quiet(now).as_secs_f64() * 1e3),
+                last_trip: o.last_trip().map(Trip::to_string),
+                trip: o.last_trip().map(Trip::kind),
             }),
-            refused: o.refused,
-            last_refused: o
-                .last_refused
+            refused,
+            last_refused: last_refused
                 .map(|(s, ask, r)| format!("refused {} from {}: {r}", self.ask_text(ask), name(s))),
         }
     }
@@ -408,6 +339,7 @@ impl Gate {
 mod tests {
     use super::*;
     use crate::port::slot::WireState;
+    use crate::snapshot::WatchdogState;
     use crate::testkit as sample;
     use crate::value::{Command, DeviceId};
     use proptest::prelude::*;
@@ -514,7 +446,17 @@ mod tests {
         g.admit(net(1), Ask::Engage, t0).unwrap();
         assert_eq!(g.watch(t0 + timeout / 2), None);
         let why = g.watch(t0 + timeout).expect("tripped");
-        assert!(why.contains("no valid command from network"), "{why}");
+        assert_eq!(
+            why,
+            Trip::Silent {
+                commander: net(1),
+                quiet: timeout
+            }
+        );
+        assert!(
+            why.to_string().starts_with("no valid command from network"),
+            "{why}"
+        );
         assert!(!g.is_engaged());
         assert_eq!(g.view(t0).watchdog.unwrap().state, WatchdogState::Tripped);
         // The console outside teleop has no deadman, only its terminal's answers to
@@ -536,7 +478,8 @@ mod tests {
         assert_eq!(g.watch(t2 + deadman), None, "a key fed it");
         alive(t2 + deadman * 2);
         let why = g.watch(t2 + deadman * 2).expect("tripped");
-        assert!(why.starts_with("deadman"), "{why}");
+        assert_eq!(why, Trip::Deadman { bound: deadman });
+        assert_eq!(why.to_string(), "deadman: no teleop key for 1.0s");
         assert!(!g.is_engaged());
         // Engaged again, the deadman waits for the next teleop key.
         let t4 = t2 + deadman * 2;
@@ -551,7 +494,16 @@ mod tests {
         g.admit(Source::Console, Ask::Release, t3).unwrap();
         assert!(g.is_engaged());
         let why = g.watch(t3 + timeout).expect("ended");
-        assert!(why.contains("released by console"), "{why}");
+        assert_eq!(
+            why,
+            Trip::Handover {
+                from: Source::Console
+            }
+        );
+        assert_eq!(
+            why.to_string(),
+            "released by console and nobody took command"
+        );
         assert!(!g.is_engaged());
     }
 
@@ -579,11 +531,17 @@ mod tests {
         // The driver's terminal stops answering.
         assert_eq!(g.watch(now + bound - Duration::from_millis(10)), None);
         let why = g.watch(now + bound).expect("tripped");
-        assert_eq!(why, "console #1: its terminal stopped answering for 1.0 s");
+        assert_eq!(
+            why.to_string(),
+            "console #1: its terminal stopped answering for 1.0 s"
+        );
         assert!(!g.is_engaged());
         let v = g.view(now);
         assert_eq!(v.watchdog.as_ref().unwrap().state, WatchdogState::Tripped);
-        assert_eq!(v.watchdog.unwrap().last_trip.as_deref(), Some(why.as_str()));
+        assert_eq!(
+            v.watchdog.unwrap().last_trip.as_deref(),
+            Some(why.to_string().as_str())
+        );
         // Late answers of the old commander do not engage anything.
         g.answered(driver, now + bound * 2);
         assert_eq!(g.commander(), None);
