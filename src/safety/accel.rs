@@ -175,6 +175,21 @@ mod tests {
         );
     }
 
+    /// A pedal's part is that fraction of its own range's top, whatever its units: half
+    /// an `accel` on a brake that reads 0 … 80 is 40.
+    #[test]
+    fn a_pedal_s_part_is_its_share_of_its_range_s_top() {
+        let mut brake = crate::config::VehicleConfig::alice()
+            .devices
+            .into_iter()
+            .find(|d| d.name == "brake")
+            .expect("Alice has a brake");
+        brake.range = [0.0, 80.0];
+        assert_eq!(Plan::command(&brake, 0.5), Command::Set(40.0));
+        assert_eq!(Plan::command(&brake, 1.0), Command::Set(80.0));
+        assert_eq!(check_value(&brake, &brake, -1.0), Ok(()));
+    }
+
     /// While a shift is under way, positive `accel` is refused with its own word, on the
     /// throttle; braking through the shift is allowed, releasing the brake is not.
     #[test]
