@@ -175,6 +175,53 @@ mod tests {
         );
     }
 
+    /// A pedal's part is that fraction of its own range's top, whatever its units: half
+    /// an `accel` on a brake that reads 0 … 80 is 40.
+    #[test]
+    fn a_pedal_s_part_is_its_share_of_its_range_s_top() {
+        let mut brake = crate::config::VehicleConfig::alice()
+            .devices
+            .into_iter()
+            .find(|d| d.name == "brake")
+            .expect("Alice has a brake");
+        brake.range = [0.0, 80.0];
+        assert_eq!(Plan::command(&brake, 0.5), Command::Set(40.0));
+        assert_eq!(Plan::command(&brake, 1.0), Command::Set(80.0));
+        assert_eq!(check_value(&brake, &brake, -1.0), Ok(()));
+    }
+
+    /// An `accel` is a finite number in −1 … 1, both ends included; anything else is
+    /// refused whole, named on the pedal checked first (the brake), with its part.
+    #[test]
+    fn an_accel_outside_minus_one_to_one_or_not_a_number_is_refused_whole() {
+        let alice = crate::config::VehicleConfig::alice();
+        let pedal = |name: &str| alice.devices.iter().find(|d| d.name == name).unwrap();
+        let (gas, brake) = (pedal("gas"), pedal("brake"));
+        for a in [-1.0, -0.5, 0.0, 0.5, 1.0] {
+            assert_eq!(check_value(gas, brake, a), Ok(()), "{a}");
+        }
+        assert_eq!(
+            check_value(gas, brake, 1.5),
+            Err(Refusal {
+                why: Reject::OutOfRange,
+                at: Pedal::Brake,
+                command: Some(Command::Set(0.0))
+            })
+        );
+        for (a, why) in [
+            (-1.01, Reject::OutOfRange),
+            (f64::NAN, Reject::NotFinite),
+            (f64::INFINITY, Reject::NotFinite),
+            (f64::NEG_INFINITY, Reject::NotFinite),
+        ] {
+            assert_eq!(
+                check_value(gas, brake, a).map_err(|r| r.why),
+                Err(why),
+                "{a}"
+            );
+        }
+    }
+
     /// While a shift is under way, positive `accel` is refused with its own word, on the
     /// throttle; braking through the shift is allowed, releasing the brake is not.
     #[test]

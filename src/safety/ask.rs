@@ -140,3 +140,31 @@ impl std::fmt::Display for Done {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The words every front end answers with: each outcome its own, the cleared
+    /// overrides listed once each, separated by commas.
+    #[test]
+    fn each_outcome_has_its_words_and_cleared_overrides_are_listed() {
+        let said = |d: Done| d.to_string();
+        assert_eq!(said(Done::Commanded), "commanded");
+        assert_eq!(said(Done::Engaged), "engaged");
+        assert_eq!(said(Done::Commanding), "engaged");
+        assert_eq!(said(Done::Same), "nothing changed");
+        assert_eq!(said(Done::Released), "released");
+        assert_eq!(said(Done::Disengaged(true)), "disengaged");
+        assert_eq!(said(Done::Disengaged(false)), "already disengaged");
+        assert_eq!(said(Done::Cleared(vec![])), "nothing to clear");
+        assert_eq!(
+            said(Done::Cleared(vec!["steer".into()])),
+            "cleared override on steer"
+        );
+        assert_eq!(
+            said(Done::Cleared(vec!["steer".into(), "brake".into()])),
+            "cleared override on steer, brake"
+        );
+    }
+}
