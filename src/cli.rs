@@ -493,7 +493,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // configuration error (status 2), not a half-started vehicle.
     let net = Net::start(gate.clone(), vehicle.config().network.clone(), auth)?;
     let ros2 = ros2::start(args.ros2, &gate, &net, vehicle.config())?;
-    let sources = console::controls::Sources {
+    let sources = crate::controls::Sources {
         logs: Some(ring),
         net: Some(net.status().clone()),
         sim: sim.clone(),

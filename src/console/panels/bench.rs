@@ -18,11 +18,11 @@ use super::monitor::BusMonitor;
 use super::pack;
 use super::trail::{TrailChart, CHART_MAX, CHART_MIN};
 use crate::config::device::POSITION;
-use crate::console::controls::SimFaults;
 use crate::console::keymap::{Action, Keymap, Mode, SimAction};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::trail::Trail;
+use crate::controls::SimFaults;
 use crate::port::trace::TraceEntry;
 use crate::snapshot::{BusView, DeviceView};
 use crate::value::DeviceId;
@@ -415,7 +415,7 @@ mod tests {
     /// or cut at a word with `…`; the fault keys not drawn are not said to be.
     #[test]
     fn with_faults_on_every_title_and_line_is_whole_or_cut_with_a_mark() {
-        use crate::console::controls::{capture, Sources};
+        use crate::controls::{capture, Sources};
         let now = Instant::now();
         let f = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
         let id = f.id_of("steer").unwrap();

@@ -265,7 +265,7 @@ mod tests {
     /// An outcome longer than the line is cut at a word, marked, in its colour.
     #[test]
     fn a_message_without_room_is_cut_with_a_mark() {
-        use crate::console::controls::{capture, Sources};
+        use crate::controls::{capture, Sources};
         let now = std::time::Instant::now();
         let frame = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
         let mut m = Model::new(
