@@ -119,12 +119,6 @@ impl Server {
         }
     }
 
-    /// Close, join every thread within `deadline`, remove the socket file; the names of
-    /// threads that did not stop.
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
-        self.stop(deadline)
-    }
-
     fn stop(&mut self, deadline: Duration) -> Vec<String> {
         self.close();
         let until = Instant::now() + deadline;
@@ -135,9 +129,18 @@ impl Server {
     }
 }
 
-/// On a way out that skips [`Server::shutdown`] (a panic unwinding the main thread),
-/// the clients' threads still end before what they hold goes: the simulator among
-/// them, whose directory of port links is removed only when it is dropped.
+impl crate::threads::Shutdown for Server {
+    /// Close, join every thread within `deadline`, remove the socket file; the names of
+    /// threads that did not stop.
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.stop(deadline)
+    }
+}
+
+/// On a way out that skips the shutdown ([`crate::threads::Shutdown`]: a panic
+/// unwinding the main thread), the clients' threads still end before what they hold
+/// goes: the simulator among them, whose directory of port links is removed only when
+/// it is dropped.
 impl Drop for Server {
     fn drop(&mut self) {
         self.stop(Duration::from_millis(500));
