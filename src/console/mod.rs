@@ -11,7 +11,7 @@
 //!   key acts on what the last frame did not show (STOP and quit always act);
 //!   [`layout`]: where the devices go (a panel each, or with many devices a row each
 //!   and a window of full panels that pages), for the view and for paging alike;
-//!   [`find`]: a device by its name, for the name prompt; [`trail`]: the bench
+//!   [`names`]: a device by its name, for the name prompt; [`trail`]: the bench
 //!   device's last seconds, for the bench chart.
 //! - [`run`]: the loop — one biased `select!` over the terminal's input ([`input`]: keys,
 //!   sizes and answers, read on their own thread), a 10 Hz tick and the exits channel
@@ -23,12 +23,12 @@
 //!   stops the vehicle when the answers stop.
 //! - [`replay`]: the same console playing a recording, read-only.
 
-pub mod find;
 pub mod hold;
 pub mod input;
 pub mod keymap;
 pub mod layout;
 pub mod model;
+pub mod names;
 pub mod panels;
 pub mod replay;
 pub mod sight;

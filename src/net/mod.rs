@@ -19,15 +19,15 @@
 pub mod auth;
 pub mod client;
 
+pub mod counters;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod intake;
 pub(crate) mod pace;
 pub mod proto;
-pub mod status;
 
 pub use crate::config::NetworkConfig;
-pub use status::{NetStatus, Refusal};
+pub use counters::{NetStatus, Refusal};
 
 use crate::engine::Gate;
 use crate::logging::Repeats;

@@ -10,13 +10,13 @@
 //! decoded by the DBC, above its own traffic (the adapter lines it wrote) where every
 //! identifier keeps a line; it has a chart only when it reports a position.
 
+use super::bus::BusMonitor;
+use super::chart::{TrailChart, CHART_MAX, CHART_MIN};
 use super::device::{DevicePanel, Seen};
 use super::fit;
 use super::fmt_us;
 use super::hint::grouped;
-use super::monitor::BusMonitor;
 use super::pack;
-use super::trail::{TrailChart, CHART_MAX, CHART_MIN};
 use crate::config::device::POSITION;
 use crate::console::keymap::{Action, Keymap, Mode, SimAction};
 use crate::console::model::{Edit, Field};
