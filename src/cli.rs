@@ -11,6 +11,7 @@ use crate::exit::{self, Exit};
 use crate::net::{auth::Auth, client, Net};
 use crate::record::{self, Recorder};
 use crate::sim::{Sim, SimEvent};
+use crate::threads::Shutdown;
 use crate::vehicle::Vehicle;
 use crate::{console, driver, headless, logging, paths, socket};
 use clap::{Args, CommandFactory, Parser, Subcommand};
@@ -493,7 +494,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // configuration error (status 2), not a half-started vehicle.
     let net = Net::start(gate.clone(), vehicle.config().network.clone(), auth)?;
     let ros2 = ros2::start(args.ros2, &gate, &net, vehicle.config())?;
-    let sources = console::controls::Sources {
+    let sources = crate::controls::Sources {
         logs: Some(ring),
         net: Some(net.status().clone()),
         sim: sim.clone(),
@@ -566,12 +567,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);
     // After the engine: the safe state's commands are in the recording.
-    if let Some(r) = recorder {
-        stuck.extend(r.shutdown(Duration::from_secs(2)));
-    }
-    if let Some(f) = live {
-        stuck.extend(f.shutdown(Duration::from_millis(500)));
-    }
+    stuck.extend(recorder.shutdown(Duration::from_secs(2)));
+    stuck.extend(live.shutdown(Duration::from_millis(500)));
     if safe {
         tracing::info!(
             "safe state acknowledged: {}",
@@ -970,9 +967,11 @@ mod ros2 {
                 n.close();
             }
         }
+    }
 
+    impl crate::threads::Shutdown for Running {
         /// Stop the node; the names of the threads that did not stop.
-        pub fn shutdown(self, deadline: Duration) -> Vec<String> {
+        fn shutdown(self, deadline: Duration) -> Vec<String> {
             #[cfg(feature = "ros2")]
             if let Some(n) = self.0 {
                 return n.shutdown(deadline);

@@ -13,13 +13,15 @@
 //! running engine and operators command it once; [`sim`] emulates the devices on real
 //! pseudo-terminals; [`record`] keeps a run in an MCAP file, and [`foxglove`] serves it
 //! live to Foxglove and Lichtblick; [`console`] is the operator's screen (and replays
-//! recordings), [`port_list`] lists the serial ports (`adrive ports`) and [`cli`] puts
+//! recordings), and [`controls`] the one interface it and attached consoles reach the
+//! vehicle through; [`port_list`] lists the serial ports (`adrive ports`) and [`cli`] puts
 //! it all together; [`service`] tells systemd how it goes.
 
 pub mod can;
 pub mod cli;
 pub mod config;
 pub mod console;
+pub mod controls;
 pub mod driver;
 pub mod engine;
 pub mod exit;

@@ -19,6 +19,25 @@ use std::sync::{Arc, OnceLock};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+/// A part of adrive that runs threads of its own (the network, the supervisor, the
+/// gate's monitor, the control socket, the recorder, the live view, ROS 2): told to
+/// shut down, it does what it must first (refuse new work, finish a file, close a
+/// session), stops its threads and joins them within `deadline`. Every part stops the
+/// same way, so the way out stops them one after the other and names, together, every
+/// thread that did not stop. The engine is not one: its way out commands the safe
+/// state first and says whether it was acknowledged ([`crate::engine::Engine::shutdown`]).
+pub trait Shutdown {
+    /// Stop within `deadline`; the names of the threads that did not stop.
+    fn shutdown(self, deadline: Duration) -> Vec<String>;
+}
+
+/// A part that may not run (a recording, the live view, ROS 2, each when asked for).
+impl<T: Shutdown> Shutdown for Option<T> {
+    fn shutdown(self, deadline: Duration) -> Vec<String> {
+        self.map(|p| p.shutdown(deadline)).unwrap_or_default()
+    }
+}
+
 /// A stop signal that sleeping threads wake up for.
 #[derive(Default)]
 pub struct StopSignal {

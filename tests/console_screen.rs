@@ -6,12 +6,12 @@
 
 use adrive::config::limits::DEADMAN_DEFAULT as DEADMAN;
 use adrive::config::Role;
-use adrive::console::controls::Live;
-use adrive::console::controls::{capture, Sources};
 use adrive::console::keymap::{Action, Key, Keymap, Mode};
 use adrive::console::model::{Field, Model};
 use adrive::console::theme::Theme;
 use adrive::console::update::{tick, update};
+use adrive::controls::Live;
+use adrive::controls::{capture, Sources};
 use adrive::engine::Gate;
 use adrive::logging::ring::LogRing;
 use adrive::port::trace::Dir;
@@ -390,7 +390,7 @@ fn a_recovery_in_progress_and_the_faults_at_120x40() {
 
 #[test]
 fn the_bench_under_sim_shows_the_devices_faults_and_the_fault_keys() {
-    use adrive::console::controls::SimFaults;
+    use adrive::controls::SimFaults;
     let f = fixture(false);
     let mut m = f.model(Theme::default());
     f.act(&mut m, &[Action::Bench]);

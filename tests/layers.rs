@@ -1,8 +1,13 @@
 //! The crate's layers, as docs/architecture.md draws them, checked in the source: the
 //! core (value, can, config, snapshot, driver, port, vehicle, safety, engine,
-//! supervisor, and the test kit at its top) never imports a front end (console, net,
-//! ros2, record, socket, foxglove, headless, cli, sim), tests included, and inside the
-//! core every import points down the order below — with no exception. Doc links are
+//! supervisor, and the test kit at its top) never imports a front end, tests included,
+//! and inside the core every import points down the order below — with no exception.
+//! Above the core, the front ends stand in layers of peers: the simulator and the
+//! network; the control interface the consoles share, the recorder, ROS 2, headless;
+//! the consoles (embedded and attached: `console`, `socket`) and the live view; the
+//! command line. A front end imports the core and the layers below its own, never a
+//! peer: the attached console's client and server reach the vehicle through
+//! `controls`, as the embedded console does, not through the console. Doc links are
 //! not imports. A module's tests (its `#[cfg(test)]` module, or a file only tests
 //! compile) are checked like its code, except that they may use the test kit: the
 //! vehicle at rest that every layer's tests share, which builds the whole core and so
@@ -29,10 +34,19 @@ const CORE: &[&str] = &[
 /// The fixtures of every layer's tests, at the top of the core.
 const TESTKIT: &str = "testkit";
 
-/// Front ends and tools: the core never imports them.
-const FRONT: &[&str] = &[
-    "console", "net", "ros2", "record", "socket", "foxglove", "headless", "cli", "sim",
+/// Front ends and tools, in layers of peers, bottom first: the core never imports
+/// them; each imports the core and the layers before its own, never one of its own.
+const FRONT: &[&[&str]] = &[
+    &["sim", "net"],
+    &["controls", "record", "ros2", "headless"],
+    &["console", "socket", "foxglove"],
+    &["cli"],
 ];
+
+/// The layer of a front end, bottom first.
+fn front_layer(m: &str) -> Option<usize> {
+    FRONT.iter().position(|layer| layer.contains(&m))
+}
 
 fn files(dir: &Path, out: &mut Vec<PathBuf>) {
     for e in fs::read_dir(dir).unwrap() {
@@ -139,9 +153,11 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
     let mut seen = std::collections::BTreeSet::new();
     for f in &all {
         let m = module(f);
-        let Some(rank) = CORE.iter().position(|c| *c == m) else {
+        let core = CORE.iter().position(|c| *c == m);
+        let front = front_layer(&m);
+        if core.is_none() && front.is_none() {
             continue;
-        };
+        }
         seen.insert(m.clone());
         let text = fs::read_to_string(f).unwrap();
         let tests = if tests_only.contains(f) {
@@ -152,22 +168,37 @@ fn the_core_never_imports_a_front_end_and_imports_point_down() {
         for (line, path) in imports(&text) {
             let target = path.split("::").nth(1).unwrap_or("");
             let file = f.display().to_string();
-            if FRONT.contains(&target) {
-                wrong.push(format!(
-                    "{file}:{line}: the core imports a front end: {path}"
-                ));
+            if target == m {
                 continue;
             }
-            let Some(to) = CORE.iter().position(|c| *c == target) else {
-                continue;
-            };
             let in_tests = tests.is_some_and(|t| line > t);
-            if to > rank && !(in_tests && target == TESTKIT) {
-                wrong.push(format!("{file}:{line}: {m} imports {path}, above it"));
+            match (core, front, front_layer(target)) {
+                (Some(_), _, Some(_)) => wrong.push(format!(
+                    "{file}:{line}: the core imports a front end: {path}"
+                )),
+                (Some(rank), _, None) => {
+                    let Some(to) = CORE.iter().position(|c| *c == target) else {
+                        continue;
+                    };
+                    if to > rank && !(in_tests && target == TESTKIT) {
+                        wrong.push(format!("{file}:{line}: {m} imports {path}, above it"));
+                    }
+                }
+                (None, Some(layer), Some(to)) if to == layer => wrong.push(format!(
+                    "{file}:{line}: {m} imports {path}, a front end of its own layer"
+                )),
+                (None, Some(layer), Some(to)) if to > layer => {
+                    wrong.push(format!("{file}:{line}: {m} imports {path}, above it"))
+                }
+                _ => {}
             }
         }
     }
-    let missing: Vec<&&str> = CORE.iter().filter(|c| !seen.contains(**c)).collect();
+    let missing: Vec<&&str> = CORE
+        .iter()
+        .chain(FRONT.iter().flat_map(|l| l.iter()))
+        .filter(|c| !seen.contains(**c))
+        .collect();
     assert!(missing.is_empty(), "no source for {missing:?}");
     assert!(
         wrong.is_empty(),

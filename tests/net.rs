@@ -9,6 +9,7 @@ use adrive::net::auth::Auth;
 use adrive::net::{Net, Refusal};
 use adrive::safety::Reject as Intake;
 use adrive::snapshot::{Snapshot, WatchdogState};
+use adrive::threads::Shutdown;
 use adrive::value::{Command, EstopState, Value};
 use common::{wait_for, Rig, DEADLINE};
 use std::net::{SocketAddr, UdpSocket};

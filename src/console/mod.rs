@@ -4,13 +4,14 @@
 //! - [`keymap`]: keys → [`Action`](keymap::Action)s per mode, from `keymaps/*.toml`;
 //!   [`keymap::key_to_action`] is the pure key handler.
 //! - [`model`]: the state; [`update`]: the only code that changes it, through the
-//!   [`controls::Controls`] trait (the engine, or a fake in tests).
+//!   [`Controls`] trait (the engine, an attached console's
+//!   adrive, a recording, or a fake in tests).
 //! - [`view`] and [`panels`]: `impl Widget for &Model`, free of side effects;
 //!   [`view::draw`] also says what the frame showed, and [`sight`] is the rule that no
 //!   key acts on what the last frame did not show (STOP and quit always act);
 //!   [`layout`]: where the devices go (a panel each, or with many devices a row each
 //!   and a window of full panels that pages), for the view and for paging alike;
-//!   [`find`]: a device by its name, for the name prompt; [`trail`]: the bench
+//!   [`names`]: a device by its name, for the name prompt; [`trail`]: the bench
 //!   device's last seconds, for the bench chart.
 //! - [`run`]: the loop — one biased `select!` over the terminal's input ([`input`]: keys,
 //!   sizes and answers, read on their own thread), a 10 Hz tick and the exits channel
@@ -22,13 +23,12 @@
 //!   stops the vehicle when the answers stop.
 //! - [`replay`]: the same console playing a recording, read-only.
 
-pub mod controls;
-pub mod find;
 pub mod hold;
 pub mod input;
 pub mod keymap;
 pub mod layout;
 pub mod model;
+pub mod names;
 pub mod panels;
 pub mod replay;
 pub mod sight;
@@ -38,9 +38,9 @@ pub mod trail;
 pub mod update;
 pub mod view;
 
+use crate::controls::{Controls, Live, Sources, TICK};
 use crate::engine::Gate;
 use crate::exit::Exit;
-use controls::{Controls, Live, Sources};
 use crossbeam_channel::{select_biased, Receiver};
 use input::link::{self, RoundTrips};
 use input::probe::{self, Probe};
@@ -54,8 +54,6 @@ use std::time::{Duration, Instant};
 use theme::Theme;
 use update::Flow;
 
-/// The console's refresh period.
-pub(crate) const TICK: Duration = Duration::from_millis(100);
 /// A loop turn longer than this is logged.
 const TURN_BUDGET: Duration = Duration::from_millis(50);
 

@@ -3,7 +3,6 @@
 //! the screen's size and the latest [`Frame`] of the vehicle. Only
 //! [`update`](super::update) changes it; the view only reads it.
 
-use super::controls::Frame;
 use super::hold::{Drive, Holds, KeyRepeat};
 use super::keymap::{Keymap, Mode};
 use super::layout::{self, Devices};
@@ -11,6 +10,7 @@ use super::sight::Drawn;
 use super::theme::Theme;
 use super::trail::Trail;
 use crate::config::TeleopConfig;
+use crate::controls::Frame;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
 use crossterm::event::{KeyCode, KeyEventKind, KeyModifiers};

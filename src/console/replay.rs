@@ -7,19 +7,19 @@
 //! is also sent as the state broadcast was, so other tools can be tested against a
 //! past drive.
 
-use super::controls::{Controls, Frame, Thread};
 use super::input::Input;
 use super::keymap::{Action, Keymap, Mode};
 use super::model::Model;
 use super::theme::Theme;
 use super::update::{self, Flow};
+use crate::controls::{Controls, Frame, Tune};
 use crate::exit::Exit;
 use crate::logging::ring::LogLine;
 use crate::net::BROADCAST_MAX;
 use crate::port::trace::{Dir, TraceEntry, CAPACITY};
 use crate::record::message::{LogMsg, RawMsg};
 use crate::record::read::Recording;
-use crate::safety::{Done, Refused};
+use crate::safety::{Ask, Done, Refused};
 use crate::value::{Command, DeviceId};
 use crossbeam_channel::{select, Receiver};
 use crossterm::event::{KeyCode, KeyEvent, KeyEventKind, KeyModifiers};
@@ -322,57 +322,18 @@ impl Controls for Replay<'_> {
     fn parse(&self, _: DeviceId, _: &str) -> Result<Command, String> {
         Err(READ_ONLY.into())
     }
-    fn submit(&self, _: DeviceId, _: Command) -> Result<(), Refused> {
+    fn ask(&self, _: Ask) -> Result<Done, Refused> {
         Err(read_only())
     }
-    fn submit_accel(&self, _: f64) -> Result<(), Refused> {
-        Err(read_only())
+    fn tune(&self, _: Tune) -> Result<(), String> {
+        Err(READ_ONLY.into())
     }
-    fn submit_held(&self, _: f64, _: Duration, _: f64) -> Result<(), Refused> {
-        Err(read_only())
-    }
-    fn renew(&self, _: Duration) -> Result<bool, Refused> {
-        Err(read_only())
-    }
-    fn engage(&self) -> Result<Done, Refused> {
-        Err(read_only())
-    }
-    fn disengage(&self) -> Result<Done, Refused> {
-        Err(read_only())
-    }
-    fn stop(&self) -> Result<(), Refused> {
-        Err(read_only())
-    }
-    fn take(&self) -> Result<(), Refused> {
-        Err(read_only())
-    }
-    fn release(&self) -> Result<(), Refused> {
-        Err(read_only())
-    }
-    fn hold(&self) -> Result<(), Refused> {
-        Err(read_only())
-    }
-    fn deadman(&self, _: Option<Duration>) {}
     fn set_interlocks(&self, _: bool) -> Result<(), Refused> {
         Err(read_only())
     }
-    fn set_status_period(&self, _: DeviceId, _: Duration) -> Result<(), String> {
-        Err(READ_ONLY.into())
-    }
-    fn set_command_timeout(&self, _: DeviceId, _: Duration) -> Result<(), String> {
-        Err(READ_ONLY.into())
-    }
-    fn set_enabled(&self, _: DeviceId, _: Thread, _: bool) -> Result<(), String> {
-        Err(READ_ONLY.into())
-    }
-    fn wake(&self, _: DeviceId) -> Result<(), String> {
-        Err(READ_ONLY.into())
-    }
+    fn deadman(&self, _: Option<Duration>) {}
     fn sim(&self, _: &str) -> Option<Result<String, String>> {
         Some(Err(READ_ONLY.into()))
-    }
-    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
-        Err(read_only())
     }
     /// A recording commands nothing: no link to prove.
     fn answered(&self, _at: Instant) {}
@@ -525,7 +486,7 @@ pub fn run(
     let mut screen = super::terminal::enter()?;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     let (events, reader) = super::start_input(&mut screen, &mut model, stop.clone())?;
-    let ticker = crossbeam_channel::tick(super::TICK);
+    let ticker = crossbeam_channel::tick(crate::controls::TICK);
     let why = loop {
         // Draw only once the terminal took the last frame (console/terminal.rs).
         match screen.ready() {
@@ -590,7 +551,7 @@ pub fn run(
     };
     stop.store(true, std::sync::atomic::Ordering::Relaxed);
     drop(screen);
-    let deadline = Instant::now() + 2 * super::TICK;
+    let deadline = Instant::now() + 2 * crate::controls::TICK;
     while !reader.is_finished() && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(5));
     }

@@ -216,9 +216,9 @@ pub fn check(m: &Model, a: Action) -> Result<(), Unseen> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::controls::{capture, Sources};
     use crate::console::keymap::Keymap;
     use crate::console::theme::Theme;
+    use crate::controls::{capture, Sources};
     use crossterm::event::{KeyCode, KeyModifiers};
     use ratatui::buffer::Buffer;
     use ratatui::layout::Rect;

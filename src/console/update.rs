@@ -2,11 +2,11 @@
 //! [`tick`] advances time (a fresh snapshot, the teleop deadman). Engine effects go
 //! through [`Controls`], so both are tested with a recording fake and no terminal.
 
-use super::controls::{Controls, Thread};
 use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
 use super::model::{Ask, Edit, Field, Model, SeenKey, HOME_WAIT, SEEN_KEYS};
 use super::sight;
 use crate::config::Role;
+use crate::controls::{Controls, Thread};
 use crate::exit::Exit;
 use crate::snapshot::DeviceView;
 use crate::value::{Command, Control, DeviceId, EstopState, Value};

@@ -10,10 +10,10 @@
 //! there is room) while they fit; with more devices, a one-line row each in a
 //! [`DeviceList`] and a window of full panels under it that pages.
 
-use super::find;
 use super::keymap::{Action, Mode};
 use super::layout::{self, Devices, Many, BIG_PANEL, HEAD, PANEL};
 use super::model::Model;
+use super::names;
 use super::panels::bench::BenchView;
 use super::panels::device::DevicePanel;
 use super::panels::dialog::Dialog;
@@ -249,7 +249,7 @@ impl Model {
         let teleop = self.in_teleop();
         let names = self.snap.devices.iter().map(|d| d.name.as_str());
         let found = match (&self.find, self.mode) {
-            (Some(f), Mode::Find) => find::matches(names, &f.query),
+            (Some(f), Mode::Find) => names::matches(names, &f.query),
             _ => Vec::new(),
         };
         let list = DeviceList {

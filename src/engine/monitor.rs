@@ -55,9 +55,11 @@ impl Monitor {
     pub(crate) fn liveness(&self) -> crate::threads::Liveness {
         self.threads.liveness()
     }
+}
 
+impl crate::threads::Shutdown for Monitor {
     /// Stop and join; returns the thread's name if it did not stop.
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.threads.stop(Instant::now() + deadline)
     }
 }

@@ -97,9 +97,11 @@ impl Foxglove {
     pub fn addr(&self) -> SocketAddr {
         self.addr
     }
+}
 
+impl crate::threads::Shutdown for Foxglove {
     /// Close every viewer and stop; the names of threads that did not stop.
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.threads.stop(Instant::now() + deadline)
     }
 }

@@ -17,8 +17,8 @@
 //! written into an inline [`Reply`] buffer. Only refusals are logged (rate-limited).
 
 use super::auth::Auth;
+use super::counters::{Inner, NetStatus, Refusal};
 use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary};
-use super::status::{Inner, NetStatus, Refusal};
 use crate::config::NetworkConfig;
 use crate::engine::Gate;
 use crate::logging::RateLimit;

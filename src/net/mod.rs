@@ -19,15 +19,15 @@
 pub mod auth;
 pub mod client;
 
+pub mod counters;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod intake;
 pub(crate) mod pace;
 pub mod proto;
-pub mod status;
 
 pub use crate::config::NetworkConfig;
-pub use status::{NetStatus, Refusal};
+pub use counters::{NetStatus, Refusal};
 
 use crate::engine::Gate;
 use crate::logging::Repeats;
@@ -133,19 +133,21 @@ impl Net {
     pub fn close(&self) {
         self.closing.store(true, Relaxed);
     }
-
-    /// Stop and join the threads; returns the names of those that did not stop.
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
-        self.close();
-        self.threads.stop(Instant::now() + deadline)
-    }
 }
 
 impl Drop for Net {
-    /// Dropped without [`Net::shutdown`]: datagrams refused; the threads are told to
-    /// stop (by their [`Owner`]), not joined.
+    /// Dropped without being shut down ([`crate::threads::Shutdown`]): datagrams
+    /// refused; the threads are told to stop (by their [`Owner`]), not joined.
     fn drop(&mut self) {
         self.close();
+    }
+}
+
+impl crate::threads::Shutdown for Net {
+    /// Stop and join the threads; returns the names of those that did not stop.
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.close();
+        self.threads.stop(Instant::now() + deadline)
     }
 }
 

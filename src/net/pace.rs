@@ -18,7 +18,7 @@
 //! read returned, the earliest they can have arrived, so the delay figures count the
 //! pause.
 
-use super::status::NetStatus;
+use super::counters::NetStatus;
 use std::time::{Duration, Instant};
 
 /// Commands a second to one device from which the listener paces its reads.

@@ -118,10 +118,12 @@ impl Recorder {
         threads.spawn("record/write", move |stop| writer::run(out, &rx, stop))?;
         Ok(Recorder { threads })
     }
+}
 
+impl crate::threads::Shutdown for Recorder {
     /// Write what is left, finish the file (its index and summary) and stop. Returns
     /// the names of threads that did not stop.
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.threads.stop(Instant::now() + deadline)
     }
 }

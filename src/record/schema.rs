@@ -121,7 +121,7 @@ impl Keys {
                 (
                     "net.rejected.refused",
                     named(
-                        &mut crate::net::status::Refusal::ALL
+                        &mut crate::net::counters::Refusal::ALL
                             .iter()
                             .map(|r| r.as_str().to_string()),
                         &count,

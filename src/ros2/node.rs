@@ -372,10 +372,12 @@ impl Node {
     pub fn close(&self) {
         self.closing.store(true, Relaxed);
     }
+}
 
+impl crate::threads::Shutdown for Node {
     /// Stop the threads, withdraw the tokens and close the session; returns the names
     /// of the threads that did not stop.
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.close();
         let stuck = self.threads.stop(Instant::now() + deadline);
         self._keep.clear();

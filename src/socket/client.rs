@@ -10,9 +10,9 @@
 //! closed this connection) or not (it went away).
 
 use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, VERSION};
-use crate::console::controls::{Controls, Frame, Thread};
+use crate::controls::{Controls, Frame, Tune};
 use crate::logging::ring::{LogLine, KEEP};
-use crate::safety::{Done, Refused};
+use crate::safety::{Ask, Done, Refused};
 use crate::value::{Command, DeviceId};
 use crossbeam_channel::Sender;
 use parking_lot::Mutex;
@@ -271,31 +271,6 @@ impl Remote {
             }
         })
     }
-
-    /// An operation the intake decides: refused with its reason, or done.
-    fn ask(&self, op: Op) -> Result<Answer, Refused> {
-        match self.call(op) {
-            Ok(Answer::Refused(r)) => Err(r),
-            Ok(Answer::Error(e)) | Err(e) => Err(Refused::Unanswered(e)),
-            Ok(a) => Ok(a),
-        }
-    }
-
-    /// An ask whose answer is what it did.
-    fn done(&self, op: Op) -> Result<Done, Refused> {
-        match self.ask(op)? {
-            Answer::Done(d) => Ok(d),
-            other => Err(Refused::Unanswered(format!("unexpected answer {other:?}"))),
-        }
-    }
-
-    fn unit(&self, op: Op) -> Result<(), String> {
-        match self.call(op)? {
-            Answer::Refused(r) => Err(r.to_string()),
-            Answer::Error(e) => Err(e),
-            _ => Ok(()),
-        }
-    }
 }
 
 impl Inbox {
@@ -347,77 +322,33 @@ impl Controls for Remote {
             other => Err(format!("unexpected answer {other:?}")),
         }
     }
-    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
-        self.ask(Op::Set {
-            device: id.0,
-            command,
-        })
-        .map(drop)
+    /// Refused with the intake's reason, or with why adrive could not be asked.
+    fn ask(&self, ask: Ask) -> Result<Done, Refused> {
+        match self.call(Op::of_ask(ask)) {
+            Ok(Answer::Done(d)) => Ok(d),
+            Ok(Answer::Refused(r)) => Err(r),
+            Ok(Answer::Error(e)) | Err(e) => Err(Refused::Unanswered(e)),
+            Ok(other) => Err(Refused::Unanswered(format!("unexpected answer {other:?}"))),
+        }
     }
-    fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
-        self.ask(Op::Accel { accel }).map(drop)
+    fn tune(&self, tune: Tune) -> Result<(), String> {
+        match self.call(Op::of_tune(tune))? {
+            Answer::Refused(r) => Err(r.to_string()),
+            Answer::Error(e) => Err(e),
+            _ => Ok(()),
+        }
     }
-    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
-        self.ask(Op::Held {
-            accel,
-            lease_us: lease.as_micros() as u64,
-            release,
-        })
-        .map(drop)
-    }
-    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
-        self.ask(Op::Renew {
-            lease_us: lease.as_micros() as u64,
-        })
-        .map(|a| a == Answer::Done(crate::safety::Done::Commanded))
-    }
-    fn engage(&self) -> Result<Done, Refused> {
-        self.done(Op::Engage)
-    }
-    fn disengage(&self) -> Result<Done, Refused> {
-        self.done(Op::Disengage)
-    }
-    fn stop(&self) -> Result<(), Refused> {
-        self.ask(Op::Stop).map(drop)
-    }
-    fn take(&self) -> Result<(), Refused> {
-        self.ask(Op::Take).map(drop)
-    }
-    fn release(&self) -> Result<(), Refused> {
-        self.ask(Op::Release).map(drop)
-    }
-    fn hold(&self) -> Result<(), Refused> {
-        self.ask(Op::Hold).map(drop)
+    fn set_interlocks(&self, on: bool) -> Result<(), Refused> {
+        match self.call(Op::Interlocks { on }) {
+            Ok(Answer::Refused(r)) => Err(r),
+            Ok(Answer::Error(e)) | Err(e) => Err(Refused::Unanswered(e)),
+            Ok(_) => Ok(()),
+        }
     }
     fn deadman(&self, armed: Option<Duration>) {
         self.post(Op::Deadman {
             ms: armed.map(|d| d.as_millis() as u64),
         });
-    }
-    fn set_interlocks(&self, on: bool) -> Result<(), Refused> {
-        self.ask(Op::Interlocks { on }).map(drop)
-    }
-    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        self.unit(Op::StatusPeriod {
-            device: id.0,
-            us: d.as_micros() as u64,
-        })
-    }
-    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        self.unit(Op::CommandTimeout {
-            device: id.0,
-            us: d.as_micros() as u64,
-        })
-    }
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String> {
-        self.unit(Op::Enabled {
-            device: id.0,
-            thread,
-            on,
-        })
-    }
-    fn wake(&self, id: DeviceId) -> Result<(), String> {
-        self.unit(Op::Wake { device: id.0 })
     }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         match self.call(Op::Sim { line: line.into() }) {
@@ -426,12 +357,6 @@ impl Controls for Remote {
             Ok(Answer::Error(e)) | Err(e) => Some(Err(e)),
             Ok(Answer::Refused(r)) => Some(Err(r.to_string())),
             Ok(other) => Some(Err(format!("unexpected answer {other:?}"))),
-        }
-    }
-    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
-        match self.ask(Op::Clear)? {
-            Answer::Done(crate::safety::Done::Cleared(c)) => Ok(c),
-            _ => Ok(Vec::new()),
         }
     }
     /// A proof goes to adrive at once; adrive takes its arrival as the proof's time

@@ -8,12 +8,12 @@
 //! (`Snapshot`, `Command`, `Refused`, `Done`), so an attached console shows and refuses
 //! exactly what the embedded one does.
 
-use crate::console::controls::{SimFaults, Thread};
+use crate::controls::{SimFaults, Thread, Tune};
 use crate::logging::ring::LogLine;
 use crate::port::trace::{Dir, TraceEntry};
-use crate::safety::{Done, Refused};
+use crate::safety::{Ask, Done, Held, Refused};
 use crate::snapshot::Snapshot;
-use crate::value::Command;
+use crate::value::{Command, DeviceId};
 use serde::{Deserialize, Serialize};
 use std::time::{Duration, Instant};
 
@@ -108,6 +108,95 @@ pub enum Op {
     Answered,
 }
 
+impl Op {
+    /// An ask of the intake as it goes on the wire.
+    pub(crate) fn of_ask(ask: Ask) -> Op {
+        match ask {
+            Ask::Engage => Op::Engage,
+            Ask::Disengage => Op::Disengage,
+            Ask::Stop => Op::Stop,
+            Ask::Release => Op::Release,
+            Ask::Take => Op::Take,
+            Ask::Clear => Op::Clear,
+            Ask::Hold => Op::Hold,
+            Ask::Set(id, command) => Op::Set {
+                device: id.0,
+                command,
+            },
+            Ask::Accel(accel) => Op::Accel { accel },
+            Ask::Held(h) => Op::Held {
+                accel: h.accel,
+                lease_us: h.lease.as_micros() as u64,
+                release: h.release,
+            },
+            Ask::Renew(lease) => Op::Renew {
+                lease_us: lease.as_micros() as u64,
+            },
+        }
+    }
+
+    /// The ask of the intake this operation is, if it is one.
+    pub(crate) fn ask(&self) -> Option<Ask> {
+        Some(match *self {
+            Op::Engage => Ask::Engage,
+            Op::Disengage => Ask::Disengage,
+            Op::Stop => Ask::Stop,
+            Op::Release => Ask::Release,
+            Op::Take => Ask::Take,
+            Op::Clear => Ask::Clear,
+            Op::Hold => Ask::Hold,
+            Op::Set { device, command } => Ask::Set(DeviceId(device), command),
+            Op::Accel { accel } => Ask::Accel(accel),
+            Op::Held {
+                accel,
+                lease_us,
+                release,
+            } => Ask::Held(Held {
+                accel,
+                lease: Duration::from_micros(lease_us),
+                release,
+            }),
+            Op::Renew { lease_us } => Ask::Renew(Duration::from_micros(lease_us)),
+            _ => return None,
+        })
+    }
+
+    /// A tuning as it goes on the wire.
+    pub(crate) fn of_tune(tune: Tune) -> Op {
+        match tune {
+            Tune::StatusPeriod(id, d) => Op::StatusPeriod {
+                device: id.0,
+                us: d.as_micros() as u64,
+            },
+            Tune::CommandTimeout(id, d) => Op::CommandTimeout {
+                device: id.0,
+                us: d.as_micros() as u64,
+            },
+            Tune::Enabled(id, thread, on) => Op::Enabled {
+                device: id.0,
+                thread,
+                on,
+            },
+            Tune::Wake(id) => Op::Wake { device: id.0 },
+        }
+    }
+
+    /// The tuning this operation is, if it is one.
+    pub(crate) fn tune(&self) -> Option<Tune> {
+        Some(match *self {
+            Op::StatusPeriod { device, us } => {
+                Tune::StatusPeriod(DeviceId(device), Duration::from_micros(us))
+            }
+            Op::CommandTimeout { device, us } => {
+                Tune::CommandTimeout(DeviceId(device), Duration::from_micros(us))
+            }
+            Op::Enabled { device, thread, on } => Tune::Enabled(DeviceId(device), thread, on),
+            Op::Wake { device } => Tune::Wake(DeviceId(device)),
+            _ => return None,
+        })
+    }
+}
+
 /// An operation with the id its reply carries.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Request {
@@ -156,7 +245,7 @@ pub(crate) enum Msg {
     },
 }
 
-/// A console frame on the wire: [`crate::console::controls::Frame`] with times as ages.
+/// A console frame on the wire: [`crate::controls::Frame`] with times as ages.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub(crate) struct WireFrame {
     pub snap: Snapshot,
@@ -286,6 +375,59 @@ mod tests {
         };
         let line = serde_json::to_string(&reply).unwrap();
         assert_eq!(serde_json::from_str::<Msg>(&line).unwrap(), reply);
+    }
+
+    /// Every ask and every tuning goes on the wire and comes back the same, and no
+    /// other operation reads as one.
+    #[test]
+    fn asks_and_tunings_cross_the_wire_unchanged() {
+        let id = DeviceId(3);
+        let asks = [
+            Ask::Engage,
+            Ask::Disengage,
+            Ask::Stop,
+            Ask::Release,
+            Ask::Take,
+            Ask::Clear,
+            Ask::Hold,
+            Ask::Set(id, Command::Set(0.25)),
+            Ask::Set(id, Command::State(2)),
+            Ask::Accel(-0.4),
+            Ask::Held(Held {
+                accel: 0.2,
+                lease: Duration::from_micros(533_000),
+                release: -0.3,
+            }),
+            Ask::Renew(Duration::from_micros(66_000)),
+        ];
+        for a in asks {
+            let line = serde_json::to_string(&Op::of_ask(a)).unwrap();
+            let back: Op = serde_json::from_str(&line).unwrap();
+            assert_eq!(back.ask(), Some(a), "{line}");
+            assert_eq!(back.tune(), None, "{line}");
+        }
+        let tunes = [
+            Tune::StatusPeriod(id, Duration::from_millis(20)),
+            Tune::CommandTimeout(id, Duration::from_micros(150_500)),
+            Tune::Enabled(id, Thread::Status, false),
+            Tune::Enabled(id, Thread::Command, true),
+            Tune::Wake(id),
+        ];
+        for t in tunes {
+            let line = serde_json::to_string(&Op::of_tune(t)).unwrap();
+            let back: Op = serde_json::from_str(&line).unwrap();
+            assert_eq!(back.tune(), Some(t), "{line}");
+            assert_eq!(back.ask(), None, "{line}");
+        }
+        for op in [
+            Op::Status,
+            Op::Answered,
+            Op::Bench { device: Some(1) },
+            Op::Interlocks { on: false },
+            Op::Deadman { ms: Some(500) },
+        ] {
+            assert_eq!((op.ask(), op.tune()), (None, None), "{op:?}");
+        }
     }
 
     #[test]

@@ -19,8 +19,7 @@
 
 use super::path::{Claim, Peer};
 use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, WireLog, WireTrace, VERSION};
-use crate::console::controls::{capture, Controls, Live, Sources};
-use crate::console::TICK;
+use crate::controls::{capture, Controls, Live, Sources, TICK};
 use crate::engine::Gate;
 use crate::safety::Ask;
 use crate::threads::{Owner, StopSignal, Threads};
@@ -39,6 +38,8 @@ pub(crate) const WRITE_DEADLINE: Duration = Duration::from_secs(2);
 const BYE_GRACE: Duration = Duration::from_secs(60);
 /// The longest request line read (a command is a few dozen bytes).
 const MAX_LINE: usize = 4096;
+/// What an operator's one-shot command is told when it asks what only a console may.
+const ONLY_CONSOLES: &str = "only an attached console may do this";
 /// The most clients at once; more are told so and closed.
 pub(crate) const MAX_CLIENTS: usize = 32;
 
@@ -118,12 +119,6 @@ impl Server {
         }
     }
 
-    /// Close, join every thread within `deadline`, remove the socket file; the names of
-    /// threads that did not stop.
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
-        self.stop(deadline)
-    }
-
     fn stop(&mut self, deadline: Duration) -> Vec<String> {
         self.close();
         let until = Instant::now() + deadline;
@@ -134,9 +129,18 @@ impl Server {
     }
 }
 
-/// On a way out that skips [`Server::shutdown`] (a panic unwinding the main thread),
-/// the clients' threads still end before what they hold goes: the simulator among
-/// them, whose directory of port links is removed only when it is dropped.
+impl crate::threads::Shutdown for Server {
+    /// Close, join every thread within `deadline`, remove the socket file; the names of
+    /// threads that did not stop.
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+        self.stop(deadline)
+    }
+}
+
+/// On a way out that skips the shutdown ([`crate::threads::Shutdown`]: a panic
+/// unwinding the main thread), the clients' threads still end before what they hold
+/// goes: the simulator among them, whose directory of port links is removed only when
+/// it is dropped.
 impl Drop for Server {
     fn drop(&mut self) {
         self.stop(Duration::from_millis(500));
@@ -479,45 +483,32 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
         sources: &s.sources,
         source,
     };
-    let ask = |a: Ask| match live.ask(a) {
-        Ok(done) => Answer::Done(done),
-        Err(r) => Answer::Refused(r),
-    };
     let unit = |r: Result<(), String>| match r {
         Ok(()) => Answer::Ok,
         Err(e) => Answer::Error(e),
     };
     let console = source.is_console();
+    if let Some(ask) = op.ask() {
+        // An operator's one-shot command only engages, stops, disengages and releases
+        // (and reads); the rest is a console's.
+        let once = matches!(ask, Ask::Engage | Ask::Disengage | Ask::Stop | Ask::Release);
+        if !console && !once {
+            return Answer::Error(ONLY_CONSOLES.into());
+        }
+        return match live.ask(ask) {
+            Ok(done) => Answer::Done(done),
+            Err(r) => Answer::Refused(r),
+        };
+    }
     match op {
         Op::Hello { .. } => Answer::Error("already said hello".into()),
         Op::Answered => Answer::Ok,
-        Op::Engage => ask(Ask::Engage),
-        Op::Disengage => ask(Ask::Disengage),
-        Op::Stop => ask(Ask::Stop),
-        Op::Release => ask(Ask::Release),
         Op::Status => {
             let mut snap = s.gate.snapshot(0);
             snap.net = s.sources.net.as_ref().map(|n| n.snapshot(&s.gate));
             Answer::Snapshot(Box::new(snap))
         }
-        // The rest is a console's: an operator's one-shot command only engages, stops,
-        // disengages, releases and reads.
-        _ if !console => Answer::Error("only an attached console may do this".into()),
-        Op::Take => ask(Ask::Take),
-        Op::Hold => ask(Ask::Hold),
-        Op::Clear => ask(Ask::Clear),
-        Op::Set { device, command } => ask(Ask::Set(DeviceId(device), command)),
-        Op::Accel { accel } => ask(Ask::Accel(accel)),
-        Op::Held {
-            accel,
-            lease_us,
-            release,
-        } => ask(Ask::Held(crate::safety::Held {
-            accel,
-            lease: Duration::from_micros(lease_us),
-            release,
-        })),
-        Op::Renew { lease_us } => ask(Ask::Renew(Duration::from_micros(lease_us))),
+        _ if !console => Answer::Error(ONLY_CONSOLES.into()),
         Op::Bench { device } => {
             *c.bench.lock() = device.map(DeviceId);
             Answer::Ok
@@ -534,24 +525,17 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
             Ok(()) => Answer::Ok,
             Err(r) => Answer::Refused(r),
         },
-        Op::StatusPeriod { device, us } => {
-            unit(live.set_status_period(DeviceId(device), Duration::from_micros(us)))
-        }
-        Op::CommandTimeout { device, us } => {
-            unit(live.set_command_timeout(DeviceId(device), Duration::from_micros(us)))
-        }
-        Op::Enabled { device, thread, on } => match s.gate.tune(source) {
-            Ok(()) => unit(live.set_enabled(DeviceId(device), thread, on)),
-            Err(r) => Answer::Refused(r),
-        },
-        Op::Wake { device } => match s.gate.tune(source) {
-            Ok(()) => unit(live.wake(DeviceId(device))),
-            Err(r) => Answer::Refused(r),
-        },
         Op::Sim { line } => match live.sim(&line) {
             None => Answer::NoSim,
             Some(Ok(said)) => Answer::Said(said),
             Some(Err(e)) => Answer::Error(e),
+        },
+        // The asks are answered above: what is left is a tuning. A console that may
+        // not tune is refused with the intake's reason.
+        op => match (op.tune(), s.gate.tune(source)) {
+            (Some(t), Ok(())) => unit(live.tune(t)),
+            (Some(_), Err(r)) => Answer::Refused(r),
+            (None, _) => Answer::Error(format!("{op:?}: not an operation")),
         },
     }
 }

@@ -794,8 +794,8 @@ pub(crate) fn start_watching(
     Ok(Running { threads })
 }
 
-impl Running {
-    pub fn shutdown(mut self, deadline: Duration) -> Vec<String> {
+impl crate::threads::Shutdown for Running {
+    fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         self.threads.stop(Instant::now() + deadline)
     }
 }

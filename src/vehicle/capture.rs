@@ -31,7 +31,7 @@ pub fn snapshot(
         rejections,
         net: None,
         record: v.tap.status(),
-        buses: super::monitor::bus_views(v, now),
+        buses: super::bus::bus_views(v, now),
         part: None,
     }
 }

@@ -10,12 +10,12 @@
 //!   [`estimate`]: its state estimator; [`stats`]: its always-on figures; [`seen`]: what
 //!   a decision of the intake saw; [`supervision`]: the supervisor's board; [`tap`]: where everything
 //!   that happens is handed to a recording; [`capture`]: the one snapshot;
-//!   [`monitor`]: each CAN bus's frames, decoded, as the snapshot carries them.
+//!   [`bus`]: each CAN bus's frames, decoded, as the snapshot carries them.
 
+pub(crate) mod bus;
 pub mod capture;
 pub mod device;
 pub mod estimate;
-pub(crate) mod monitor;
 pub mod seen;
 pub mod stats;
 pub mod supervision;

@@ -12,6 +12,7 @@ use adrive::driver;
 use adrive::engine::Engine;
 use adrive::engine::Gate;
 use adrive::sim::{Sim, SimEvent};
+use adrive::threads::Shutdown;
 use adrive::value::{Command, DeviceId};
 use adrive::vehicle::{Device, Vehicle};
 use crossbeam_channel::Receiver;

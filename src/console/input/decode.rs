@@ -11,7 +11,7 @@
 //! but does not take the replies (it reads a cursor report as F3) and does not say
 //! where a sequence ends. So [`Decoder`] frames the bytes itself:
 //!
-//! 1. **framing** ([`frame`]): where the next sequence ends, by ECMA-48's grammar — a
+//! 1. **framing** ([`sequence`]): where the next sequence ends, by ECMA-48's grammar — a
 //!    control sequence is `ESC [`, parameter bytes, intermediate bytes, one final
 //!    byte; `ESC O x` is one key; `ESC` before a key is Alt; a UTF-8 character is whole
 //!    or not yet. A sequence split across reads waits for its end; bytes that cannot
@@ -62,7 +62,7 @@ pub(crate) enum Token {
 
 /// Where the next sequence at the start of some bytes ends.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Frame {
+pub(crate) enum Sequence {
     /// Not whole yet: more bytes may complete it.
     Incomplete,
     /// A whole sequence of this many bytes.
@@ -72,28 +72,28 @@ pub(crate) enum Frame {
 }
 
 /// Where the sequence at the start of `b` (not empty) ends.
-pub(crate) fn frame(b: &[u8]) -> Frame {
+pub(crate) fn sequence(b: &[u8]) -> Sequence {
     match b[0] {
         ESC => match b.get(1) {
-            None => Frame::Incomplete,
+            None => Sequence::Incomplete,
             Some(b'[') => control_sequence(b),
             // SS3: one more byte (F1–F4, the arrows in application mode).
-            Some(b'O') if b.len() < 3 => Frame::Incomplete,
-            Some(b'O') => Frame::Whole(3),
+            Some(b'O') if b.len() < 3 => Sequence::Incomplete,
+            Some(b'O') => Sequence::Whole(3),
             Some(&ESC) => match b.get(2) {
-                None => Frame::Incomplete,
+                None => Sequence::Incomplete,
                 // The Esc key, and a sequence after it: the operator's Esc just before
                 // a terminal's reply (`ESC ESC [ 21 ; 76 R`). Taken as one Esc, the
                 // reply's `[ 21 ; 76 R` were keys — and `R` releases command.
-                Some(b'[' | b'O') => Frame::Whole(1),
+                Some(b'[' | b'O') => Sequence::Whole(1),
                 // crossterm reads `ESC ESC` as one Esc.
-                Some(_) => Frame::Whole(2),
+                Some(_) => Sequence::Whole(2),
             },
             // Alt and the key after it.
-            Some(_) => match frame(&b[1..]) {
-                Frame::Whole(n) => Frame::Whole(n + 1),
-                Frame::Incomplete => Frame::Incomplete,
-                Frame::Garbage(_) => Frame::Garbage(1),
+            Some(_) => match sequence(&b[1..]) {
+                Sequence::Whole(n) => Sequence::Whole(n + 1),
+                Sequence::Incomplete => Sequence::Incomplete,
+                Sequence::Garbage(_) => Sequence::Garbage(1),
             },
         },
         0x80..=0xff => {
@@ -101,31 +101,31 @@ pub(crate) fn frame(b: &[u8]) -> Frame {
                 0xc2..=0xdf => 2,
                 0xe0..=0xef => 3,
                 0xf0..=0xf4 => 4,
-                _ => return Frame::Garbage(1),
+                _ => return Sequence::Garbage(1),
             };
             // Every byte there so far must continue the character.
             if let Some(i) = (1..need.min(b.len())).find(|&i| b[i] & 0xc0 != 0x80) {
-                return Frame::Garbage(i);
+                return Sequence::Garbage(i);
             }
             if b.len() < need {
-                return Frame::Incomplete;
+                return Sequence::Incomplete;
             }
             match std::str::from_utf8(&b[..need]) {
-                Ok(_) => Frame::Whole(need),
-                Err(_) => Frame::Garbage(need),
+                Ok(_) => Sequence::Whole(need),
+                Err(_) => Sequence::Garbage(need),
             }
         }
-        _ => Frame::Whole(1),
+        _ => Sequence::Whole(1),
     }
 }
 
 /// `ESC [`, parameter bytes (0x30–0x3F), intermediate bytes (0x20–0x2F), a final byte
 /// (0x40–0x7E). The Linux console's F1–F5 are `ESC [ [ A`…`E`.
-fn control_sequence(b: &[u8]) -> Frame {
+fn control_sequence(b: &[u8]) -> Sequence {
     match b.get(2) {
-        None => return Frame::Incomplete,
-        Some(b'[') if b.len() < 4 => return Frame::Incomplete,
-        Some(b'[') => return Frame::Whole(4),
+        None => return Sequence::Incomplete,
+        Some(b'[') if b.len() < 4 => return Sequence::Incomplete,
+        Some(b'[') => return Sequence::Whole(4),
         Some(_) => {}
     }
     let mut i = 2;
@@ -133,12 +133,12 @@ fn control_sequence(b: &[u8]) -> Frame {
         i += 1;
     }
     match b.get(i) {
-        None if i >= LONGEST => Frame::Garbage(i),
-        None => Frame::Incomplete,
-        Some(0x40..=0x7e) => Frame::Whole(i + 1),
+        None if i >= LONGEST => Sequence::Garbage(i),
+        None => Sequence::Incomplete,
+        Some(0x40..=0x7e) => Sequence::Whole(i + 1),
         // A byte that cannot be in a control sequence (a control character, another
         // ESC): the sequence so far is broken, and that byte starts the next.
-        Some(_) => Frame::Garbage(i),
+        Some(_) => Sequence::Garbage(i),
     }
 }
 
@@ -305,10 +305,10 @@ impl Decoder {
         self.buf.extend_from_slice(bytes);
         let mut at = self.rest_of_a_cut_reply(out);
         while at < self.buf.len() {
-            match frame(&self.buf[at..]) {
-                Frame::Incomplete => break,
-                Frame::Garbage(n) => at += n,
-                Frame::Whole(n) => {
+            match sequence(&self.buf[at..]) {
+                Sequence::Incomplete => break,
+                Sequence::Garbage(n) => at += n,
+                Sequence::Whole(n) => {
                     out.extend(token(&self.buf[at..at + n]));
                     at += n;
                 }
@@ -327,7 +327,7 @@ impl Decoder {
             return 0;
         }
         let joined = [cut.as_slice(), self.buf.as_slice()].concat();
-        let Frame::Whole(n) = frame(&joined) else {
+        let Sequence::Whole(n) = sequence(&joined) else {
             return 0;
         };
         match reply(&joined[..n]) {

@@ -11,7 +11,7 @@
 //! ask. An answer counts only against a request the console made: the same bytes
 //! are Shift+F3 on a legacy terminal.
 //!
-//! [`Controls::answered`]: crate::console::controls::Controls::answered
+//! [`Controls::answered`]: crate::controls::Controls::answered
 
 use std::time::{Duration, Instant};
 

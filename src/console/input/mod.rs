@@ -25,7 +25,7 @@ pub mod decode;
 pub mod link;
 pub mod probe;
 
-use crate::console::TICK;
+use crate::controls::TICK;
 use crossbeam_channel::{Receiver, Sender};
 use decode::{Decoder, Reply, Token};
 use probe::Probe;

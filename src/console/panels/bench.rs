@@ -10,19 +10,19 @@
 //! decoded by the DBC, above its own traffic (the adapter lines it wrote) where every
 //! identifier keeps a line; it has a chart only when it reports a position.
 
+use super::bus::BusMonitor;
+use super::chart::{TrailChart, CHART_MAX, CHART_MIN};
 use super::device::{DevicePanel, Seen};
 use super::fit;
 use super::fmt_us;
 use super::hint::grouped;
-use super::monitor::BusMonitor;
 use super::pack;
-use super::trail::{TrailChart, CHART_MAX, CHART_MIN};
 use crate::config::device::POSITION;
-use crate::console::controls::SimFaults;
 use crate::console::keymap::{Action, Keymap, Mode, SimAction};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::trail::Trail;
+use crate::controls::SimFaults;
 use crate::port::trace::TraceEntry;
 use crate::snapshot::{BusView, DeviceView};
 use crate::value::DeviceId;
@@ -415,7 +415,7 @@ mod tests {
     /// or cut at a word with `…`; the fault keys not drawn are not said to be.
     #[test]
     fn with_faults_on_every_title_and_line_is_whole_or_cut_with_a_mark() {
-        use crate::console::controls::{capture, Sources};
+        use crate::controls::{capture, Sources};
         let now = Instant::now();
         let f = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
         let id = f.id_of("steer").unwrap();

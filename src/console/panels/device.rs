@@ -13,10 +13,10 @@
 
 use super::{fit, fmt_age, fmt_us, pack};
 use crate::config::device::POSITION;
-use crate::console::controls::SimFaults;
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
 use crate::console::update::fmt_ms;
+use crate::controls::SimFaults;
 use crate::snapshot::{DeviceView, LatencySummary};
 use crate::value::{DeviceId, Kind, Value};
 use ratatui::buffer::Buffer;
@@ -544,7 +544,7 @@ impl Widget for &DevicePanel<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::controls::{capture, Sources};
+    use crate::controls::{capture, Sources};
     use crate::testkit;
     use ratatui::style::{Color, Modifier};
     use std::time::Instant;

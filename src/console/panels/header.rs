@@ -139,11 +139,11 @@ impl Widget for &Header<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::controls::{capture, Sources};
     use crate::console::keymap::Keymap;
     use crate::console::panels::fit::open_parens;
     use crate::console::theme::Theme;
     use crate::console::view::MIN_WIDTH;
+    use crate::controls::{capture, Sources};
     use crate::testkit;
     use std::time::{Duration, Instant};
 

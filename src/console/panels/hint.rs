@@ -4,9 +4,9 @@
 
 use super::fit::Fitted;
 use crate::config::Role;
-use crate::console::find;
 use crate::console::keymap::{describe, Action, Binding, Key, Keymap, Mode, Target};
 use crate::console::model::{Find, Model};
+use crate::console::names;
 use crate::console::theme::Theme;
 use crate::snapshot::Pairs;
 use crossterm::event::KeyCode;
@@ -137,7 +137,7 @@ fn prompt(m: &Model, f: &Find) -> Line<'static> {
     let t = &m.theme;
     let k = |a| key_name(&m.keymap, Mode::Find, a);
     let names = m.snap.devices.iter().map(|d| d.name.as_str());
-    let found = find::matches(names, &f.query);
+    let found = names::matches(names, &f.query);
     let mut spans = vec![Span::styled(format!("/{}▏", f.query), t.editing())];
     match (found.is_empty(), f.query.is_empty()) {
         (true, true) => spans.push(Span::raw("  type a device's name")),
@@ -265,7 +265,7 @@ mod tests {
     /// An outcome longer than the line is cut at a word, marked, in its colour.
     #[test]
     fn a_message_without_room_is_cut_with_a_mark() {
-        use crate::console::controls::{capture, Sources};
+        use crate::controls::{capture, Sources};
         let now = std::time::Instant::now();
         let frame = capture(&crate::testkit::gate(now), &Sources::default(), now, None);
         let mut m = Model::new(

@@ -12,9 +12,9 @@
 
 use super::device::{age, fmt_value, measured};
 use super::{fmt_age, fmt_us};
-use crate::console::controls::Frame;
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
+use crate::controls::Frame;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
 use ratatui::buffer::Buffer;

@@ -5,6 +5,8 @@
 //! [`Model`]: super::model::Model
 
 pub mod bench;
+pub(crate) mod bus;
+pub mod chart;
 pub mod device;
 pub(crate) mod dialog;
 pub(crate) mod fit;
@@ -13,11 +15,9 @@ pub mod help;
 pub mod hint;
 pub mod list;
 pub mod log;
-pub(crate) mod monitor;
 pub mod network;
 pub mod supervisor;
 pub mod teleop;
-pub mod trail;
 
 use ratatui::style::Style;
 use ratatui::text::{Line, Span};

@@ -5,8 +5,8 @@
 //! commands count in too).
 
 use super::fit::Fitted;
-use crate::console::controls::Frame;
 use crate::console::theme::Theme;
+use crate::controls::Frame;
 use crate::snapshot::{LiveView, NetView, WatchdogState};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;

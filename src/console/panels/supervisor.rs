@@ -12,9 +12,9 @@
 //! larger screen it is one taller panel.
 
 use super::{fit, wrap};
-use crate::console::controls::{secs, Frame};
 use crate::console::model::{Field, Model};
 use crate::console::theme::Theme;
+use crate::controls::{secs, Frame};
 use crate::snapshot::RecoveryView;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
@@ -522,8 +522,8 @@ mod tests {
     }
 
     fn model(accel: bool) -> Model {
-        use crate::console::controls::{capture, Sources};
         use crate::console::keymap::Keymap;
+        use crate::controls::{capture, Sources};
         use std::time::{Duration, Instant};
         let now = Instant::now();
         let mut frame = capture(&crate::testkit::gate(now), &Sources::default(), now, None);

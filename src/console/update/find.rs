@@ -1,12 +1,12 @@
 //! The name prompt (`/`), on the main screen and the bench: every character typed
-//! puts the cursor (or the bench) on the best match at once ([`find::matches`]);
+//! puts the cursor (or the bench) on the best match at once ([`names::matches`]);
 //! completion, next and previous match while it is open; Enter keeps the device,
 //! Esc goes back to where the prompt was opened. Afterwards the next and previous
 //! match keys look for the same name again.
 
-use crate::console::find;
 use crate::console::keymap::{Action, Mode};
 use crate::console::model::{Find, Model};
+use crate::console::names;
 use crate::value::DeviceId;
 
 /// Open the prompt over the current mode.
@@ -27,7 +27,7 @@ fn names(m: &Model) -> Vec<String> {
 
 fn matches(m: &Model, query: &str) -> Vec<usize> {
     let names = names(m);
-    find::matches(names.iter().map(String::as_str), query)
+    names::matches(names.iter().map(String::as_str), query)
 }
 
 fn go(m: &mut Model, i: usize) {
@@ -58,7 +58,7 @@ fn follow(m: &mut Model) {
 /// prompt moves; false when none matches.
 fn step(m: &mut Model, query: &str, step: isize) -> bool {
     let found = matches(m, query);
-    match find::next(&found, m.found_device(), step) {
+    match names::next(&found, m.found_device(), step) {
         Some(i) => {
             go(m, i);
             true
@@ -89,7 +89,7 @@ pub(super) fn prompt(m: &mut Model, a: Action) {
         Action::Complete => {
             let names = names(m);
             if let Some(f) = m.find.as_mut() {
-                f.query = find::complete(names.iter().map(String::as_str), &f.query);
+                f.query = names::complete(names.iter().map(String::as_str), &f.query);
             }
             follow(m);
         }

@@ -2,10 +2,11 @@
 
 use super::*;
 use crate::config::VehicleConfig;
-use crate::console::controls::{capture, change_settings, Frame, Sources};
 use crate::console::keymap::Keymap;
 use crate::console::theme::Theme;
-use crate::safety::{Done, Refused, Reject};
+use crate::controls::live::change_settings;
+use crate::controls::{capture, Frame, Sources, Tune};
+use crate::safety::{self, Done, Refused, Reject};
 use crate::testkit;
 use crossterm::event::{KeyEvent, KeyModifiers};
 use std::cell::RefCell;
@@ -89,50 +90,89 @@ impl Controls for Fake {
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
         self.gate.vehicle().config().devices[id.index()].parse_command(text)
     }
-    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
-        let d = &self.gate.vehicle().config().devices[id.index()];
-        self.log(format!("submit {} {}", d.name, d.command_text(command)));
-        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
+    fn ask(&self, ask: safety::Ask) -> Result<Done, Refused> {
+        let refused = |done: Done| self.refuse.map_or(Ok(done), |r| Err(Refused::Rule(r)));
+        match ask {
+            safety::Ask::Set(id, command) => {
+                let d = &self.gate.vehicle().config().devices[id.index()];
+                self.log(format!("submit {} {}", d.name, d.command_text(command)));
+                refused(Done::Commanded)
+            }
+            safety::Ask::Accel(accel) => {
+                self.log(format!("accel {accel}"));
+                refused(Done::Commanded)
+            }
+            safety::Ask::Held(h) => {
+                self.log(format!(
+                    "held {} for {}ms then {}",
+                    h.accel,
+                    h.lease.as_millis(),
+                    h.release
+                ));
+                refused(Done::Commanded)
+            }
+            safety::Ask::Renew(lease) => {
+                self.log(format!("renew {}ms", lease.as_millis()));
+                refused(if self.lease_ended.get() {
+                    Done::Same
+                } else {
+                    Done::Commanded
+                })
+            }
+            safety::Ask::Engage => {
+                self.log("engage".into());
+                self.engage.clone().map(|()| Done::Engaged)
+            }
+            safety::Ask::Disengage => {
+                self.log("disengage".into());
+                self.reached().map(|()| Done::Disengaged(true))
+            }
+            safety::Ask::Stop => {
+                self.log("stop".into());
+                self.reached().map(|()| Done::Disengaged(true))
+            }
+            safety::Ask::Take => {
+                self.log("take".into());
+                Ok(Done::Commanding)
+            }
+            safety::Ask::Release => {
+                self.log("release".into());
+                Ok(Done::Released)
+            }
+            safety::Ask::Hold => {
+                self.log("hold".into());
+                refused(Done::Commanded)
+            }
+            safety::Ask::Clear => {
+                self.log("clear overrides".into());
+                self.gate
+                    .clear_overrides()
+                    .map(Done::Cleared)
+                    .map_err(Refused::Clear)
+            }
+        }
     }
-    fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
-        self.log(format!("accel {accel}"));
-        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
-    }
-    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
-        self.log(format!(
-            "held {accel} for {}ms then {release}",
-            lease.as_millis()
-        ));
-        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
-    }
-    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
-        self.log(format!("renew {}ms", lease.as_millis()));
-        self.refuse
-            .map_or(Ok(!self.lease_ended.get()), |r| Err(Refused::Rule(r)))
-    }
-    fn engage(&self) -> Result<Done, Refused> {
-        self.log("engage".into());
-        self.engage.clone().map(|()| Done::Engaged)
-    }
-    fn disengage(&self) -> Result<Done, Refused> {
-        self.log("disengage".into());
-        self.reached().map(|()| Done::Disengaged(true))
-    }
-    fn stop(&self) -> Result<(), Refused> {
-        self.log("stop".into());
-        self.reached()
-    }
-    fn take(&self) -> Result<(), Refused> {
-        self.log("take".into());
-        Ok(())
-    }
-    fn release(&self) -> Result<(), Refused> {
-        self.log("release".into());
-        Ok(())
-    }
-    fn hold(&self) -> Result<(), Refused> {
-        self.log("hold".into());
-        self.refuse.map_or(Ok(()), |r| Err(Refused::Rule(r)))
+    fn tune(&self, tune: Tune) -> Result<(), String> {
+        match tune {
+            Tune::StatusPeriod(id, d) => {
+                change_settings(self.gate.vehicle(), id, |c| c.status_period = d)?;
+                self.log(format!("st delay {} {d:?}", self.name(id)));
+                Ok(())
+            }
+            Tune::CommandTimeout(id, d) => {
+                change_settings(self.gate.vehicle(), id, |c| c.command_timeout = d)?;
+                self.log(format!("cm delay {} {d:?}", self.name(id)));
+                Ok(())
+            }
+            Tune::Enabled(id, thread, on) => {
+                self.log(format!("enable {} {thread:?} {on}", self.name(id)));
+                self.refuse.map_or(Ok(()), |r| Err(r.to_string()))
+            }
+            Tune::Wake(id) => {
+                self.log(format!("wake {}", self.name(id)));
+                self.refuse.map_or(Ok(()), |r| Err(r.to_string()))
+            }
+        }
     }
     fn deadman(&self, armed: Option<Duration>) {
         self.deadman.set(armed);
@@ -141,34 +181,12 @@ impl Controls for Fake {
         self.log(format!("interlocks {on}"));
         Ok(())
     }
-    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        change_settings(self.gate.vehicle(), id, |c| c.status_period = d)?;
-        self.log(format!("st delay {} {d:?}", self.name(id)));
-        Ok(())
-    }
-    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        change_settings(self.gate.vehicle(), id, |c| c.command_timeout = d)?;
-        self.log(format!("cm delay {} {d:?}", self.name(id)));
-        Ok(())
-    }
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String> {
-        self.log(format!("enable {} {thread:?} {on}", self.name(id)));
-        self.refuse.map_or(Ok(()), |r| Err(r.to_string()))
-    }
-    fn wake(&self, id: DeviceId) -> Result<(), String> {
-        self.log(format!("wake {}", self.name(id)));
-        self.refuse.map_or(Ok(()), |r| Err(r.to_string()))
-    }
     fn sim(&self, line: &str) -> Option<Result<String, String>> {
         if !self.simulated {
             return None;
         }
         self.log(format!("sim {line}"));
         Some(Ok(line.to_string()))
-    }
-    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
-        self.log("clear overrides".into());
-        self.gate.clear_overrides().map_err(Refused::Clear)
     }
     fn answered(&self, _at: Instant) {
         self.log("answered".into());
@@ -713,7 +731,7 @@ fn e_says_so_when_home_is_not_acknowledged_or_refused() {
 
 #[test]
 fn bench_fault_keys_drive_the_simulator_and_toggle_from_its_state() {
-    use crate::console::controls::SimFaults;
+    use crate::controls::SimFaults;
     let mut f = Fake::new();
     f.simulated = true;
     let mut m = model(&f);
@@ -899,7 +917,7 @@ fn page_keys_move_the_cursor_by_the_page_the_screen_shows() {
 
 #[test]
 fn the_override_key_pushes_the_bench_device_toward_its_far_end_and_again_lets_go() {
-    use crate::console::controls::SimFaults;
+    use crate::controls::SimFaults;
     let mut f = Fake::new();
     f.simulated = true;
     // The brake held full, the gas at rest: each pushed toward the other end.

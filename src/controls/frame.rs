@@ -1,31 +1,24 @@
-//! What the console reads from and does to the engine, behind one trait.
-//!
-//! [`Controls`] is the console's only door to the running vehicle: [`update`] takes a
-//! `&dyn Controls`, so it is tested with a recording fake and no threads. [`Live`] is
-//! the real one over the [`Gate`]. Reading goes through a [`Frame`]: the vehicle's
-//! one [`Snapshot`] plus what only the console shows (log lines, the bench device's
-//! traffic and histogram), captured once per tick, which the view draws without
-//! touching the engine.
+//! What a console draws, captured at one instant: a [`Frame`] — the vehicle's one
+//! [`Snapshot`] plus what only a console shows (log lines, the bench device's traffic
+//! and histogram, the simulator's state) — and [`capture`], which takes one from the
+//! engine's cache. The embedded console captures its own every tick; the control
+//! socket captures one per attached console and sends it over the wire; a replay makes
+//! them from a recording. The view draws a frame without touching the engine.
 //!
 //! The network panel shows the snapshot's network part when the listener runs and
-//! "not running" otherwise. Under `--sim` the console also holds the in-process
+//! "not running" otherwise. Under `--sim` a console also holds the in-process
 //! [`Sim`], so the bench view can inject faults through [`Sim::apply`].
-//!
-//! [`update`]: super::update::update
 
 use crate::engine::Gate;
+use crate::logging::ring::{LogLine, LogRing};
 use crate::net::NetStatus;
 use crate::port::trace::TraceEntry;
-use crate::safety::{Ask, Done, Held, Refused};
 use crate::sim::{Faults, Sim};
 use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
-use crate::value::Source;
-use crate::value::{Command, DeviceId};
+use crate::value::DeviceId;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
-
-use crate::logging::ring::{LogLine, LogRing};
+use std::time::Instant;
 
 /// The faults switched on in one simulated device.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -267,74 +260,6 @@ fn fault_name(f: &FaultView) -> String {
     }
 }
 
-/// Which thread of a device.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Thread {
-    Status,
-    Command,
-}
-
-/// What the console can do to the engine.
-pub trait Controls {
-    /// Capture what to draw; `bench` gets its histogram and trace filled in.
-    fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame;
-    /// Read a device's command from text, as the vehicle file defines it (a number in
-    /// range, a state or an alias).
-    fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String>;
-    /// A command through the one intake, as the console's.
-    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused>;
-    fn submit_accel(&self, accel: f64) -> Result<(), Refused>;
-    /// The accel while a key is held ([`Ask::Held`]): gas lasts `lease` from now
-    /// unless renewed, then the engine commands `release` (never gas) on its own.
-    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused>;
-    /// The key is still held: the running lease lasts `lease` from now. `Ok(false)`
-    /// when it had run out (the engine ended the gas; only a new press gives it again).
-    fn renew(&self, lease: Duration) -> Result<bool, Refused>;
-    /// Engage, as the console: what it did ([`Done`]'s words are the answer every
-    /// front end gives).
-    fn engage(&self) -> Result<Done, Refused>;
-    /// Disengage: what it did. Never refused by the intake; `Err` when it could not be
-    /// asked (an attached console whose adrive did not answer).
-    fn disengage(&self) -> Result<Done, Refused>;
-    /// The operator's STOP: disengage, throttle 0, brake full — even while a driver
-    /// has taken over ([`Gate::stop`]). Never refused by the intake; `Err` when it
-    /// could not be asked (an attached console whose adrive did not answer).
-    fn stop(&self) -> Result<(), Refused>;
-    /// Take command from whoever commands the engaged vehicle (after the operator's
-    /// confirmation).
-    fn take(&self) -> Result<(), Refused>;
-    /// Give command up (the vehicle stays engaged for the handover).
-    fn release(&self) -> Result<(), Refused>;
-    /// Hold: the safe state (throttle 0, brake full), staying engaged — when the
-    /// console commands.
-    fn hold(&self) -> Result<(), Refused>;
-    /// Arm (and feed: a teleop key) or disarm the teleop deadman, the console's
-    /// watchdog.
-    fn deadman(&self, armed: Option<Duration>);
-    fn set_interlocks(&self, on: bool) -> Result<(), Refused>;
-    /// Refused, with the reason, when the vehicle file would refuse the value.
-    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String>;
-    /// Refused, with the reason, when the vehicle file would refuse the value.
-    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String>;
-    /// Switch a thread on or off; refused, with the reason, for a console that does
-    /// not command.
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String>;
-    /// Wake a command thread (broadcast its condition variable); refused, with the
-    /// reason, for a console that does not command.
-    fn wake(&self, id: DeviceId) -> Result<(), String>;
-    /// One line of the simulator's command language ([`Sim::apply`]), e.g.
-    /// `silent gas on`, `stall`, `estop pause`; `None` when the devices are not
-    /// simulated in this process.
-    fn sim(&self, line: &str) -> Option<Result<String, String>>;
-    /// Clear the latched driver overrides ([`Gate::clear_overrides`], as the network's
-    /// `clear`): what was cleared, or why not (the driver's hand still on).
-    fn clear_overrides(&self) -> Result<Vec<String>, Refused>;
-    /// The console's terminal answered a round trip of its liveness check, read at
-    /// `at`: a proof that the operator still sees the vehicle ([`Gate::answered`]).
-    fn answered(&self, at: Instant);
-}
-
 /// The console's sources beyond the vehicle.
 #[derive(Clone, Default)]
 pub struct Sources {
@@ -342,15 +267,6 @@ pub struct Sources {
     pub logs: Option<LogRing>,
     /// The simulator, when the devices are simulated in this process (`--sim`).
     pub sim: Option<Arc<Sim>>,
-}
-
-/// [`Controls`] over the real vehicle, as one source: the embedded console
-/// ([`Source::Console`]), or an attached one ([`Source::Attached`], for the control
-/// socket, which serves each connection through its own `Live`).
-pub struct Live<'a> {
-    pub gate: &'a Gate,
-    pub sources: &'a Sources,
-    pub source: Source,
 }
 
 /// The simulated vehicle's state in words, only what the vehicle has: `e-stop run ·
@@ -434,139 +350,5 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
         you: None,
         teleop: v.config().teleop,
         snap,
-    }
-}
-
-/// A console edit of a device's settings, checked as the vehicle file is, and logged.
-pub(crate) fn change_settings(
-    vehicle: &crate::vehicle::Vehicle,
-    id: DeviceId,
-    change: impl FnOnce(&mut crate::config::DeviceConfig),
-) -> Result<(), String> {
-    let dev = vehicle
-        .devices()
-        .get(id.index())
-        .ok_or_else(|| format!("no device #{}", id.index()))?;
-    dev.change_settings(change).map_err(|v| v.message)?;
-    tracing::info!(
-        device = dev.name(),
-        "from the console: status_period {}, command_timeout {}",
-        crate::config::fmt_duration(dev.settings().status_period()),
-        crate::config::fmt_duration(dev.settings().command_timeout())
-    );
-    Ok(())
-}
-
-impl Controls for Live<'_> {
-    fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
-        capture(self.gate, self.sources, now, bench)
-    }
-    fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
-        match self.gate.vehicle().devices().get(id.index()) {
-            Some(d) => d.config().parse_command(text),
-            None => Err("no such device".into()),
-        }
-    }
-    fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {
-        self.ask(Ask::Set(id, command)).map(drop)
-    }
-    fn submit_accel(&self, accel: f64) -> Result<(), Refused> {
-        self.ask(Ask::Accel(accel)).map(drop)
-    }
-    fn submit_held(&self, accel: f64, lease: Duration, release: f64) -> Result<(), Refused> {
-        self.ask(Ask::Held(Held {
-            accel,
-            lease,
-            release,
-        }))
-        .map(drop)
-    }
-    fn renew(&self, lease: Duration) -> Result<bool, Refused> {
-        self.ask(Ask::Renew(lease)).map(|d| d == Done::Commanded)
-    }
-    fn engage(&self) -> Result<Done, Refused> {
-        self.ask(Ask::Engage)
-    }
-    fn disengage(&self) -> Result<Done, Refused> {
-        self.ask(Ask::Disengage)
-    }
-    fn stop(&self) -> Result<(), Refused> {
-        self.ask(Ask::Stop).map(drop)
-    }
-    fn take(&self) -> Result<(), Refused> {
-        self.ask(Ask::Take).map(drop)
-    }
-    fn release(&self) -> Result<(), Refused> {
-        self.ask(Ask::Release).map(drop)
-    }
-    fn hold(&self) -> Result<(), Refused> {
-        self.ask(Ask::Hold).map(drop)
-    }
-    fn deadman(&self, armed: Option<Duration>) {
-        self.gate.deadman(self.source, armed, Instant::now());
-    }
-    fn set_interlocks(&self, on: bool) -> Result<(), Refused> {
-        self.gate.set_interlocks(self.source, on)
-    }
-    fn set_status_period(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        self.gate.tune(self.source).map_err(|r| r.to_string())?;
-        change_settings(self.gate.vehicle(), id, |c| c.status_period = d)
-    }
-    fn set_command_timeout(&self, id: DeviceId, d: Duration) -> Result<(), String> {
-        self.gate.tune(self.source).map_err(|r| r.to_string())?;
-        change_settings(self.gate.vehicle(), id, |c| c.command_timeout = d)
-    }
-    fn set_enabled(&self, id: DeviceId, thread: Thread, on: bool) -> Result<(), String> {
-        if let Err(why) = self.gate.tune(self.source) {
-            tracing::warn!(
-                "{thread:?} thread switch from {} refused: {why}",
-                self.source
-            );
-            return Err(why.to_string());
-        }
-        if let Some(dev) = self.gate.vehicle().devices().get(id.index()) {
-            let flag = match thread {
-                Thread::Status => &dev.settings().status_enabled,
-                Thread::Command => &dev.settings().command_enabled,
-            };
-            flag.store(on, Relaxed);
-            tracing::info!(device = %dev.name(), "{thread:?} thread {}", if on { "enabled" } else { "disabled" });
-        }
-        Ok(())
-    }
-    fn wake(&self, id: DeviceId) -> Result<(), String> {
-        self.gate.tune(self.source).map_err(|why| why.to_string())?;
-        if let Some(dev) = self.gate.vehicle().devices().get(id.index()) {
-            dev.slot().nudge();
-        }
-        Ok(())
-    }
-    fn sim(&self, line: &str) -> Option<Result<String, String>> {
-        let sim = self.sources.sim.as_ref()?;
-        if let Err(why) = self.gate.tune(self.source) {
-            return Some(Err(why.to_string()));
-        }
-        let done = sim.apply(line);
-        match &done {
-            Ok(what) => tracing::warn!("simulator, from the console: {what}"),
-            Err(e) => tracing::info!("simulator refused {line:?}: {e}"),
-        }
-        Some(done)
-    }
-    fn clear_overrides(&self) -> Result<Vec<String>, Refused> {
-        match self.ask(Ask::Clear)? {
-            Done::Cleared(c) => Ok(c),
-            _ => Ok(Vec::new()),
-        }
-    }
-    fn answered(&self, at: Instant) {
-        self.gate.answered(self.source, at);
-    }
-}
-
-impl Live<'_> {
-    /// Into the one intake, as this console.
-    pub fn ask(&self, ask: Ask) -> Result<Done, Refused> {
-        self.gate.admit(self.source, ask, Instant::now())
     }
 }

@@ -119,7 +119,7 @@ impl Widget for &TrailChart<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::console::controls::{capture, Sources};
+    use crate::controls::{capture, Sources};
 
     /// The chart's title in a narrow box is cut at a word with a mark, inside its
     /// corners.
