@@ -171,12 +171,20 @@ impl Attached {
 
     fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
         let end = Instant::now() + DEADLINE;
+        let mut seen: Vec<String> = Vec::new();
         loop {
             let s = self.screen();
             if ok(&s) {
                 return s;
             }
-            assert!(Instant::now() < end, "waited for {what}; screen:\n{s}");
+            let l = common::said(&s).to_string();
+            if seen.last() != Some(&l) {
+                seen.push(l);
+            }
+            assert!(
+                Instant::now() < end,
+                "waited for {what}; said {seen:?}; screen:\n{s}"
+            );
             std::thread::sleep(Duration::from_millis(20));
         }
     }

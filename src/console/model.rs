@@ -147,7 +147,15 @@ pub struct Message {
     pub text: String,
     pub bad: bool,
     pub at: Instant,
+    /// The answer to the operator's own key (not news from elsewhere).
+    pub own: bool,
 }
+
+/// How long the answer to the operator's own key holds the message line against news
+/// from elsewhere (another source refused, the supervisor's outcome): the news came
+/// with a frame that may be older than the key, and an answer replaced before it was
+/// read is an answer lost. The news waits, then shows; the log pane has it at once.
+pub const ANSWER_HOLDS: std::time::Duration = std::time::Duration::from_millis(1500);
 
 /// Teleop: set points driven by keys, with a deadman. `steer` and `accel` are what
 /// the intake accepted (the bar shows them). In step mode a key asks for the next step
@@ -260,6 +268,8 @@ pub struct Model {
     pub edit: Option<Edit>,
     pub ask: Option<Ask>,
     pub message: Option<Message>,
+    /// News from elsewhere waiting for the operator's answer to be read ([`ANSWER_HOLDS`]).
+    pub(crate) news: Option<Message>,
     pub teleop: Teleop,
     /// The device the bench view shows.
     pub bench: DeviceId,
@@ -321,6 +331,7 @@ impl Model {
             edit: None,
             ask: None,
             message: None,
+            news: None,
             teleop: Teleop {
                 levels: snap.teleop,
                 ..Teleop::new(deadman)
@@ -472,12 +483,41 @@ impl Model {
         self.select(target);
     }
 
+    /// The answer to the operator's own key, on the message line at once.
     pub fn say(&mut self, text: impl Into<String>, bad: bool) {
         self.message = Some(Message {
             text: text.into(),
             bad,
             at: self.now,
+            own: true,
         });
+    }
+
+    /// News from elsewhere (another source refused, the supervisor's outcome): on the
+    /// message line at once, unless the operator's own answer is still fresh there —
+    /// then after it ([`ANSWER_HOLDS`]; the newest news wins).
+    pub fn tell(&mut self, text: impl Into<String>, bad: bool) {
+        self.news = Some(Message {
+            text: text.into(),
+            bad,
+            at: self.now,
+            own: false,
+        });
+        self.show_news();
+    }
+
+    /// The news waiting, once the operator's answer has held the line long enough.
+    pub(crate) fn show_news(&mut self) {
+        let holds = self
+            .message
+            .as_ref()
+            .is_some_and(|m| m.own && self.now.saturating_duration_since(m.at) < ANSWER_HOLDS);
+        if !holds {
+            if let Some(mut news) = self.news.take() {
+                news.at = self.now;
+                self.message = Some(news);
+            }
+        }
     }
 
     /// The device the bench shows, if it is in the vehicle.

@@ -30,6 +30,7 @@ pub enum Flow {
 /// deadman did.
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
+    m.show_news();
     m.snap = c.frame(now, m.in_bench().then_some(m.bench));
     if m.in_bench() {
         if let Some(d) = m.snap.at(m.bench) {
@@ -42,14 +43,14 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     if outcome.is_some() && outcome != m.outcome_seen {
         let text = outcome.clone().unwrap_or_default();
         let bad = m.snap.supervisor.outcome == Some(crate::snapshot::OutcomeKind::GaveUp);
-        m.say(format!("supervisor: {text}"), bad);
+        m.tell(format!("supervisor: {text}"), bad);
         m.outcome_seen = outcome;
     }
     // Someone else's command refused because of who commands: say it where the
     // operator looks (the log pane has it at WARN too).
     if m.snap.gate.refused > m.refused_seen {
         if let Some(text) = m.snap.gate.last_refused.clone() {
-            m.say(text, true);
+            m.tell(text, true);
         }
     }
     m.refused_seen = m.snap.gate.refused;

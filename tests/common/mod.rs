@@ -50,7 +50,7 @@ pub fn engaged_said(screen: &str) -> bool {
 }
 
 /// The console's message line: the last row but one that is not blank.
-fn said(screen: &str) -> &str {
+pub fn said(screen: &str) -> &str {
     screen
         .lines()
         .filter(|l| !l.trim().is_empty())

@@ -3,6 +3,7 @@
 use super::*;
 use crate::config::VehicleConfig;
 use crate::console::keymap::Keymap;
+use crate::console::model::ANSWER_HOLDS;
 use crate::console::theme::Theme;
 use crate::controls::live::change_settings;
 use crate::controls::{capture, Frame, Sources, Tune};
@@ -626,6 +627,44 @@ fn a_refused_attempt_of_another_source_shows_in_the_message_line() {
     m.message = None;
     tick(&mut m, &f, Instant::now());
     assert!(m.message.is_none(), "said once");
+}
+
+/// News that comes with a frame after the operator's key — another source's refusal
+/// from before it, the supervisor's outcome — never replaces the key's answer before
+/// it was read: it waits [`ANSWER_HOLDS`], then shows for its own full time.
+#[test]
+fn news_after_a_key_waits_for_its_answer_to_be_read() {
+    let mut f = Fake::new();
+    let mut m = model(&f);
+    let t0 = Instant::now();
+    press(&mut m, &f, &["E", "y"], t0);
+    assert_eq!(m.message.as_ref().unwrap().text, "engaged");
+    f.snap.snap.gate.refused = 1;
+    f.snap.snap.gate.last_refused =
+        Some("refused steer -0.500 from console #1: commanded by console #2".into());
+    let before = t0 + ANSWER_HOLDS - Duration::from_millis(1);
+    tick(&mut m, &f, t0 + Duration::from_millis(100));
+    tick(&mut m, &f, before);
+    assert_eq!(
+        m.message.as_ref().unwrap().text,
+        "engaged",
+        "the answer holds"
+    );
+    let shown = t0 + ANSWER_HOLDS;
+    tick(&mut m, &f, shown);
+    let msg = m.message.clone().unwrap();
+    assert_eq!(
+        msg.text,
+        "refused steer -0.500 from console #1: commanded by console #2"
+    );
+    assert_eq!(msg.at, shown, "the news shows for its own time");
+    tick(&mut m, &f, shown + Duration::from_millis(100));
+    assert_eq!(m.message, Some(msg), "said once");
+    // With no answer of the operator's on the line, news shows at once.
+    f.snap.snap.gate.refused = 2;
+    let later = shown + Duration::from_secs(1);
+    tick(&mut m, &f, later);
+    assert_eq!(m.message.as_ref().unwrap().at, later);
 }
 
 #[test]
