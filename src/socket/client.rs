@@ -115,8 +115,14 @@ fn read_msg(r: &mut impl BufRead) -> std::io::Result<Option<Msg>> {
     let mut line = String::new();
     loop {
         line.clear();
-        if r.read_line(&mut line)? == 0 {
-            return Ok(None);
+        match r.read_line(&mut line) {
+            Ok(0) => return Ok(None),
+            // adrive ended with this client's words unread (killed, say): the kernel
+            // resets the connection instead of closing it. To the client it is the
+            // same end, told in the same words.
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionReset => return Ok(None),
+            Err(e) => return Err(e),
+            Ok(_) => {}
         }
         if !line.trim().is_empty() {
             break;
@@ -363,5 +369,36 @@ impl Controls for Remote {
     /// (the two clocks are not the same), and answers nothing.
     fn answered(&self, _at: Instant) {
         self.post(Op::Answered);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// adrive gone with the client's last words unread resets the connection; the
+    /// client reads it as the end it is, not as a failure.
+    #[test]
+    fn an_end_with_the_clients_words_unread_is_an_end() {
+        for raw in [true, false] {
+            let (mut client, adrive) = UnixStream::pair().unwrap();
+            write_line(
+                &mut client,
+                &Request {
+                    id: 1,
+                    op: Op::Status,
+                },
+            )
+            .unwrap();
+            drop(adrive);
+            let mut reader = BufReader::new(client);
+            if raw {
+                // What the kernel does, so that the case below is the reset one.
+                let e = reader.read_line(&mut String::new()).unwrap_err();
+                assert_eq!(e.kind(), std::io::ErrorKind::ConnectionReset);
+            } else {
+                assert!(matches!(read_msg(&mut reader), Ok(None)));
+            }
+        }
     }
 }
