@@ -542,7 +542,10 @@ fn a_recovery_stops_when_the_vehicle_is_disengaged() {
         trans.slot().executed() == Some(Command::Control(Control::Start))
     });
     let before = rig.received().len();
-    rig.gate.disengage("test: STOP");
+    rig.gate
+        .disengage(adrive::snapshot::DisengageCause::Disengage {
+            by: "console".into(),
+        });
     outcome(&rig, "engine_stall stopped: the vehicle is disengaged");
     assert!(v.supervision().snapshot().recovery.is_none());
     assert!(!rig.gate.is_recovering(rig.id("trans")) && !rig.gate.is_recovering(rig.id("gas")));
