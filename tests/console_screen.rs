@@ -655,7 +655,16 @@ fn the_name_prompt_completes_walks_its_matches_and_stops_on_space() {
     assert_eq!((m.mode, m.find.as_ref()), (Mode::Main, None));
     find(&b, "STOP: disengaged");
     let gate = f.gate.snapshot_at(0, f.now).gate;
-    assert!(gate.reason.contains("stop from console"), "{}", gate.reason);
+    assert_eq!(
+        gate.cause,
+        adrive::snapshot::GateCause::Disengaged {
+            why: adrive::snapshot::DisengageCause::Stop {
+                by: "console".into()
+            }
+        },
+        "{}",
+        gate.reason
+    );
 }
 
 #[test]
