@@ -122,7 +122,10 @@ impl Gate {
         }
         self.state().set_engaged(by);
         tracing::info!(by, "engaged");
-        self.tap_gate(GateChange::Engaged, || format!("engaged by {by}"));
+        self.tap_gate(GateChange::Engaged, || {
+            let by = by.to_string();
+            crate::snapshot::GateCause::Engaged { by }.to_string()
+        });
         Ok(())
     }
 
