@@ -557,7 +557,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     net.close();
     ros2.close();
     control.close();
-    gate.disengage(&format!("stopping: {}", why.describe()));
+    gate.disengage(crate::snapshot::DisengageCause::Stopping {
+        why: Some(why.describe()),
+    });
     let net_figures = net.status().snapshot(&gate);
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));

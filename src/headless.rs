@@ -180,10 +180,7 @@ pub(crate) fn status_table(snap: &Snapshot) -> String {
     let gate = match (&g.engaged, &g.commander) {
         (true, Some(c)) => format!("ENGAGED by {c}"),
         (true, None) => "ENGAGED, nobody commands (handed over)".into(),
-        (false, _) => format!(
-            "DISENGAGED ({})",
-            g.reason.trim_start_matches("disengaged: ")
-        ),
+        (false, _) => format!("DISENGAGED ({})", g.cause.why()),
     };
     let _ = writeln!(
         out,

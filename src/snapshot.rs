@@ -139,8 +139,12 @@ impl Snapshot {
 pub struct GateView {
     pub engaged: bool,
     /// Why it is engaged or not ("engaged by network 127.0.0.1:40001",
-    /// "disengaged: watchdog: …").
+    /// "disengaged: watchdog: …"): the words of `cause`.
     pub reason: String,
+    /// The same, as a type: engaged and by whom, or each way it was disengaged with
+    /// its particulars.
+    #[serde(default)]
+    pub cause: GateCause,
     /// What would refuse an engage right now (empty: it may engage), in words.
     pub blockers: Vec<String>,
     /// The same, as types: what blocks, and on which device or thread.
@@ -584,6 +588,100 @@ impl Blocker {
             .map(Blocker::to_string)
             .collect::<Vec<_>>()
             .join("; ")
+    }
+}
+
+/// Why the vehicle is engaged or not: the gate's cause as a type (the snapshot's
+/// `gate.cause`), its words in [`Display`](fmt::Display) — the snapshot's `gate.reason`,
+/// the log's, a recording's and the network's — and nowhere else. Front ends match on
+/// the type; they show the words.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum GateCause {
+    /// Nothing has engaged the vehicle since adrive started.
+    #[default]
+    NotEngagedYet,
+    /// Engaged by `by`, named as `commander` names it (`console`, `console #2`,
+    /// `network 127.0.0.1:5555`, `ros2`).
+    Engaged { by: String },
+    /// Disengaged: `why`.
+    Disengaged { why: DisengageCause },
+}
+
+impl fmt::Display for GateCause {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            GateCause::NotEngagedYet => f.write_str("not engaged yet"),
+            GateCause::Engaged { by } => write!(f, "engaged by {by}"),
+            GateCause::Disengaged { why } => write!(f, "disengaged: {why}"),
+        }
+    }
+}
+
+impl GateCause {
+    /// The words without the state, for a front end that shows ENGAGED or DISENGAGED
+    /// itself: `stop from console #2`, `not engaged yet`, `engaged by console`.
+    pub fn why(&self) -> String {
+        match self {
+            GateCause::Disengaged { why } => why.to_string(),
+            other => other.to_string(),
+        }
+    }
+}
+
+/// Each way the vehicle is disengaged, or refused to stay engaged: the cause as a type
+/// with its particulars, its words in [`Display`](fmt::Display).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum DisengageCause {
+    /// A source asked to disengage (`by`, named as [`GateCause::Engaged`]'s).
+    Disengage { by: String },
+    /// A source asked to STOP: the full safe state, even in a driver's hands.
+    Stop { by: String },
+    /// The commander's watchdog tripped: which bound ran out, and what happened in
+    /// words (the same as `watchdog.last_trip`).
+    Watchdog { trip: TripKind, what: String },
+    /// A driver took `device` over (a latched override); `cleared` once the override
+    /// is cleared.
+    Override { device: String, cleared: bool },
+    /// What refuses an engage came up while engaged (the gate monitor's check), or the
+    /// e-stop went to pause or disable while disengaged.
+    Blocked { blocker: Blocker },
+    /// A fault the supervisor disengages for (as it was then).
+    Fault { fault: FaultView },
+    /// The recovery procedure `recovery` gave up, for `why`.
+    GaveUp { recovery: String, why: String },
+    /// The run ends, as the operator asked (`give_up_after`), for `why`.
+    GivingUp { why: String },
+    /// An engine thread stopped turning its loop (the service watchdog's check).
+    Stalled { stall: StallView },
+    /// adrive is stopping; `why`, when known, is what ends the run.
+    Stopping { why: Option<String> },
+}
+
+impl fmt::Display for DisengageCause {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            DisengageCause::Disengage { by } => write!(f, "disengage from {by}"),
+            DisengageCause::Stop { by } => write!(f, "stop from {by}"),
+            DisengageCause::Watchdog { what, .. } => write!(f, "watchdog: {what}"),
+            DisengageCause::Override { device, cleared } => {
+                write!(f, "driver override on {device}")?;
+                if *cleared {
+                    f.write_str(", cleared")?;
+                }
+                Ok(())
+            }
+            DisengageCause::Blocked { blocker } => write!(f, "{blocker}"),
+            DisengageCause::Fault { fault } => write!(f, "supervisor: {}", fault.describe()),
+            DisengageCause::GaveUp { recovery, why } => {
+                write!(f, "recovery {recovery} gave up: {why}")
+            }
+            DisengageCause::GivingUp { why } => write!(f, "giving up: {why}"),
+            DisengageCause::Stalled { stall } => write!(f, "stalled: {}", stall.describe()),
+            DisengageCause::Stopping { why: None } => f.write_str("stopping"),
+            DisengageCause::Stopping { why: Some(why) } => write!(f, "stopping: {why}"),
+        }
     }
 }
 
@@ -1049,6 +1147,182 @@ mod tests {
         let one = snap.datagrams(max).unwrap();
         assert_eq!(one.len(), 1);
         assert!(!String::from_utf8_lossy(&one[0]).contains("\"part\""));
+    }
+
+    /// Every way the vehicle is disengaged, with its particulars, its `kind` in the
+    /// snapshot's `gate.cause.why` and the words of `gate.reason`.
+    fn every_disengage() -> Vec<(DisengageCause, &'static str, &'static str)> {
+        let stall = StallView {
+            thread: "steer/status".into(),
+            quiet_ms: 1400.0,
+            bound_ms: 450.0,
+        };
+        let fault = FaultView {
+            kind: FaultKind::NotFollowing,
+            device: Some("steer".into()),
+            cause: "measured 0.02, commanded 0.50 for 2.6 s".into(),
+            age_ms: 12.0,
+        };
+        let all = vec![
+            (
+                DisengageCause::Disengage {
+                    by: "console #2".into(),
+                },
+                "disengage",
+                "disengage from console #2",
+            ),
+            (
+                DisengageCause::Stop {
+                    by: "network 127.0.0.1:5555".into(),
+                },
+                "stop",
+                "stop from network 127.0.0.1:5555",
+            ),
+            (
+                DisengageCause::Watchdog {
+                    trip: TripKind::Deadman,
+                    what: "deadman: no teleop key for 0.5s".into(),
+                },
+                "watchdog",
+                "watchdog: deadman: no teleop key for 0.5s",
+            ),
+            (
+                DisengageCause::Override {
+                    device: "steer".into(),
+                    cleared: false,
+                },
+                "override",
+                "driver override on steer",
+            ),
+            (
+                DisengageCause::Override {
+                    device: "steer".into(),
+                    cleared: true,
+                },
+                "override",
+                "driver override on steer, cleared",
+            ),
+            (
+                DisengageCause::Blocked {
+                    blocker: Blocker::Estop {
+                        state: EstopState::Pause,
+                    },
+                },
+                "blocked",
+                "e-stop is in pause",
+            ),
+            (
+                DisengageCause::Fault { fault },
+                "fault",
+                "supervisor: steer not_following: measured 0.02, commanded 0.50 for 2.6 s",
+            ),
+            (
+                DisengageCause::GaveUp {
+                    recovery: "steering".into(),
+                    why: "no more tries".into(),
+                },
+                "gave_up",
+                "recovery steering gave up: no more tries",
+            ),
+            (
+                DisengageCause::GivingUp {
+                    why: "horn gone for 30 s".into(),
+                },
+                "giving_up",
+                "giving up: horn gone for 30 s",
+            ),
+            (
+                DisengageCause::Stalled { stall },
+                "stalled",
+                "stalled: steer/status has not turned its loop for 1.4 s (bound 0.45 s)",
+            ),
+            (
+                DisengageCause::Stopping { why: None },
+                "stopping",
+                "stopping",
+            ),
+            (
+                DisengageCause::Stopping {
+                    why: Some("SIGTERM".into()),
+                },
+                "stopping",
+                "stopping: SIGTERM",
+            ),
+        ];
+        // A new way to disengage is added here, or this does not compile.
+        for (c, _, _) in &all {
+            match c {
+                DisengageCause::Disengage { .. }
+                | DisengageCause::Stop { .. }
+                | DisengageCause::Watchdog { .. }
+                | DisengageCause::Override { .. }
+                | DisengageCause::Blocked { .. }
+                | DisengageCause::Fault { .. }
+                | DisengageCause::GaveUp { .. }
+                | DisengageCause::GivingUp { .. }
+                | DisengageCause::Stalled { .. }
+                | DisengageCause::Stopping { .. } => {}
+            }
+        }
+        all
+    }
+
+    /// Each cause of the gate says its words (the snapshot's `reason`, rendered from
+    /// the cause alone), and travels in the snapshot's JSON as its `kind` with its
+    /// particulars: what a front end matches on, never the words.
+    #[test]
+    fn every_gate_cause_says_its_words_and_round_trips_by_kind() {
+        let mut causes = vec![
+            (
+                GateCause::NotEngagedYet,
+                "not_engaged_yet",
+                "not engaged yet",
+            ),
+            (
+                GateCause::Engaged {
+                    by: "console".into(),
+                },
+                "engaged",
+                "engaged by console",
+            ),
+        ];
+        let disengaged = every_disengage().into_iter().map(|(why, _, words)| {
+            let said: &'static str = format!("disengaged: {words}").leak();
+            (GateCause::Disengaged { why }, "disengaged", said)
+        });
+        causes.extend(disengaged);
+        for (cause, kind, words) in causes {
+            assert_eq!(cause.to_string(), words);
+            let gate = GateView {
+                reason: cause.to_string(),
+                cause: cause.clone(),
+                ..GateView::default()
+            };
+            let json = serde_json::to_value(&gate).unwrap();
+            assert_eq!(json["cause"]["kind"], kind, "{json}");
+            assert_eq!(json["reason"], words, "{json}");
+            let back: GateView = serde_json::from_value(json).unwrap();
+            assert_eq!(back.cause, cause);
+            let why = cause.why();
+            assert!(
+                words.ends_with(&why) && !why.starts_with("disengaged"),
+                "{why}"
+            );
+        }
+        for (why, kind, words) in every_disengage() {
+            assert_eq!(why.to_string(), words);
+            let cause = GateCause::Disengaged { why: why.clone() };
+            assert_eq!(cause.why(), words);
+            let json = serde_json::to_value(&cause).unwrap();
+            assert_eq!(json["why"]["kind"], kind, "{json}");
+        }
+        // A snapshot of before the cause (schema 4 as first broadcast) still reads.
+        let old: GateView = serde_json::from_value(serde_json::json!({
+            "engaged": false, "reason": "not engaged yet", "blockers": [],
+            "interlocks": true, "rules": [], "roles": {}, "accel": false
+        }))
+        .unwrap();
+        assert_eq!(old.cause, GateCause::NotEngagedYet);
     }
 
     /// Each blocker's words, in one sentence: what the broadcast's `blockers`, an

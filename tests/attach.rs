@@ -317,6 +317,12 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
         reason.contains(&format!("{me} went away")),
         "disengaged for another reason: {reason}"
     );
+    let why = &gate["cause"]["why"];
+    assert_eq!(
+        (why["kind"].as_str(), why["trip"].as_str()),
+        (Some("watchdog"), Some("gone")),
+        "{gate}"
+    );
     let _ = driver.wait_exit();
     let mut svc = svc;
     assert!(
@@ -419,6 +425,12 @@ fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
     assert!(
         reason.contains("its terminal stopped answering for"),
         "{reason}"
+    );
+    let why = &gate["cause"]["why"];
+    assert_eq!(
+        (why["kind"].as_str(), why["trip"].as_str()),
+        (Some("watchdog"), Some("terminal")),
+        "{gate}"
     );
     assert!(!reason.contains("went away"), "{reason}");
     // Resumed, the console reads what was sent, then adrive's word.

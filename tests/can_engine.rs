@@ -309,7 +309,10 @@ fn engage_enables_each_module_after_its_safe_command_and_disengage_disables_it_a
     });
 
     let before = rig.adapter().mark();
-    rig.gate.disengage("test");
+    rig.gate
+        .disengage(adrive::snapshot::DisengageCause::Disengage {
+            by: "console".into(),
+        });
     wait_for("every module disabled", || {
         MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
     });

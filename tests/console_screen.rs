@@ -450,7 +450,12 @@ fn the_bench_shows_the_supervisors_strip_too() {
 #[test]
 fn the_header_at_100_columns_shortens_the_reason_and_closes_it() {
     let f = fixture_with(|v, now| testkit::make_faulty(v, "gas", now));
-    f.gate.disengage("gas is faulty (no reply within 100ms)");
+    f.gate.disengage(adrive::snapshot::DisengageCause::Blocked {
+        blocker: adrive::snapshot::Blocker::Faulty {
+            device: "gas".into(),
+            fault: "no reply within 100ms".into(),
+        },
+    });
     let mut m = f.model(Theme::default());
     f.act(&mut m, &[Action::Bench]);
     let b = render(&m, 100, 30);
@@ -650,7 +655,16 @@ fn the_name_prompt_completes_walks_its_matches_and_stops_on_space() {
     assert_eq!((m.mode, m.find.as_ref()), (Mode::Main, None));
     find(&b, "STOP: disengaged");
     let gate = f.gate.snapshot_at(0, f.now).gate;
-    assert!(gate.reason.contains("stop from console"), "{}", gate.reason);
+    assert_eq!(
+        gate.cause,
+        adrive::snapshot::GateCause::Disengaged {
+            why: adrive::snapshot::DisengageCause::Stop {
+                by: "console".into()
+            }
+        },
+        "{}",
+        gate.reason
+    );
 }
 
 #[test]

@@ -186,9 +186,12 @@ fn an_operator_stop_during_an_override_brakes_while_adrive_s_own_stops_do_not() 
     in_manual(&rig);
     // A stop of adrive's own while the override is latched: what the brake will have
     // next is still the released brake.
-    rig.gate.disengage("test: a stop of adrive's own");
+    rig.gate
+        .disengage(adrive::snapshot::DisengageCause::Stopping { why: None });
     assert_eq!(rig.device("brake").slot().latest(), Some(set(0.0)));
-    rig.gate.stop("test: operator STOP");
+    rig.gate.stop(adrive::snapshot::DisengageCause::Stop {
+        by: "console".into(),
+    });
     assert_eq!(rig.device("brake").slot().latest(), Some(set(1.0)));
     for (pedal, want) in [("gas", 0.0), ("brake", 1.0)] {
         let d = rig.device(pedal);

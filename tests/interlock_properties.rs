@@ -278,7 +278,7 @@ fn run(b: Bound, ops: &[Op]) -> Vec<String> {
     for d in ["gas", "brake"] {
         rig.sim.faults(d).unwrap().silent.store(false, Relaxed);
     }
-    g.disengage("end of the case");
+    g.disengage(adrive::snapshot::DisengageCause::Stopping { why: None });
     assert!(
         g.wait_safe(Instant::now() + common::DEADLINE),
         "the safe state landed"

@@ -496,7 +496,15 @@ fn the_watchdog_brakes_and_disengages_when_commands_stop() {
         "{why}"
     );
     assert!(
-        n.rig.gate.reason().contains("watchdog"),
+        matches!(
+            n.rig.gate.cause(),
+            adrive::snapshot::GateCause::Disengaged {
+                why: adrive::snapshot::DisengageCause::Watchdog {
+                    trip: adrive::snapshot::TripKind::Silent,
+                    ..
+                }
+            }
+        ),
         "{}",
         n.rig.gate.reason()
     );

@@ -7,7 +7,7 @@ mod common;
 use adrive::config::ALICE_TOML;
 use adrive::exit::Exit;
 use adrive::safety::Reject;
-use adrive::snapshot::FaultKind;
+use adrive::snapshot::{DisengageCause, FaultKind, GateCause};
 use adrive::value::{Command, Control};
 use common::{wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;
@@ -486,10 +486,15 @@ fn a_recovery_that_cannot_succeed_gives_up_safely() {
         rig.sim.apply("stall").unwrap();
         outcome(&rig, "engine_stall gave up");
         assert!(!rig.gate.is_engaged());
+        // The procedure gave up, and then the run (give_up_after), whichever is last.
+        let why = match rig.gate.cause() {
+            GateCause::Disengaged { why } => why,
+            other => panic!("{other}"),
+        };
         assert!(
-            rig.gate.reason().contains("gave up"),
-            "{}",
-            rig.gate.reason()
+            matches!(&why, DisengageCause::GaveUp { recovery, .. } if recovery == "engine_stall")
+                || matches!(why, DisengageCause::GivingUp { .. }),
+            "{why}"
         );
         let h = rig.history();
         assert_eq!(
@@ -542,7 +547,10 @@ fn a_recovery_stops_when_the_vehicle_is_disengaged() {
         trans.slot().executed() == Some(Command::Control(Control::Start))
     });
     let before = rig.received().len();
-    rig.gate.disengage("test: STOP");
+    rig.gate
+        .disengage(adrive::snapshot::DisengageCause::Disengage {
+            by: "console".into(),
+        });
     outcome(&rig, "engine_stall stopped: the vehicle is disengaged");
     assert!(v.supervision().snapshot().recovery.is_none());
     assert!(!rig.gate.is_recovering(rig.id("trans")) && !rig.gate.is_recovering(rig.id("gas")));

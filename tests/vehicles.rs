@@ -101,7 +101,12 @@ fn the_utility_cart_drives_forward_and_the_watchdog_stops_it() {
     sender.join().unwrap();
     let (v, _) = watch.until("the watchdog to trip", |v| !v.gate.engaged);
     assert!(
-        v.gate.reason.starts_with("disengaged: watchdog"),
+        matches!(
+            v.gate.cause,
+            adrive::snapshot::GateCause::Disengaged {
+                why: adrive::snapshot::DisengageCause::Watchdog { .. }
+            }
+        ),
         "{}",
         v.gate.reason
     );

@@ -333,7 +333,7 @@ fn too_small(m: &Model, area: Rect, buf: &mut Buffer) {
         let who = g.commander.as_deref().unwrap_or("nobody");
         Span::styled(format!("ENGAGED (by {who})"), t.good())
     } else {
-        let why = g.reason.trim_start_matches("disengaged: ");
+        let why = g.cause.why();
         Span::styled(format!("DISENGAGED ({why})"), t.warn())
     };
     lines.push(fit::line(Line::from(gate), area.width));

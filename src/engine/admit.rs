@@ -29,7 +29,7 @@ use super::Gate;
 use crate::safety::lease::Lease;
 use crate::safety::owner::{self, Act, Bounds, CommandView, Commander, Outcome, Owner, Trip};
 use crate::safety::{Ask, Done, Held, Refused, Reject};
-use crate::snapshot::WatchdogView;
+use crate::snapshot::{DisengageCause, WatchdogView};
 use crate::value::Source;
 use crate::vehicle::tap::{Asked, Event};
 use std::time::{Duration, Instant};
@@ -133,19 +133,11 @@ impl Gate {
             }
             Ask::Disengage | Ask::Stop => {
                 o.nobody();
-                let why = format!(
-                    "{} from {}",
-                    if ask == Ask::Stop {
-                        "stop"
-                    } else {
-                        "disengage"
-                    },
-                    Commander(source)
-                );
+                let by = Commander(source).to_string();
                 Ok(Done::Disengaged(if ask == Ask::Stop {
-                    self.stop(&why)
+                    self.stop(DisengageCause::Stop { by })
                 } else {
-                    self.disengage(&why)
+                    self.disengage(DisengageCause::Disengage { by })
                 }))
             }
             Ask::Hold if engaged => {
@@ -227,8 +219,12 @@ impl Gate {
     /// and the safe state.
     fn trip(&self, mut o: parking_lot::MutexGuard<'_, Owner>, cause: Trip) {
         let words = cause.to_string();
+        let why = DisengageCause::Watchdog {
+            trip: cause.kind(),
+            what: words.clone(),
+        };
         o.trip(cause);
-        self.disengage(&format!("watchdog: {words}"));
+        self.disengage(why);
         drop(o);
         tracing::warn!("watchdog: {words}; safe state commanded");
     }

@@ -11,7 +11,7 @@ use super::Gate;
 use crate::config::Role;
 use crate::safety::accel::{Pedal, Plan};
 use crate::safety::{facts, Reject, Seen, Verdict, Wait};
-use crate::snapshot::Blocker;
+use crate::snapshot::{Blocker, DisengageCause};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::stats::Stats;
 use crate::vehicle::tap::{Asked, GateChange, Source};
@@ -56,7 +56,12 @@ impl Gate {
         tracing::warn!(device, "driver override: {why}");
         self.leave_to_the_driver();
         let state = self.state().stop_state(self.vehicle());
-        self.disengage_with(|g| g.set_disengaged_by_override(device), state);
+        // Said to be cleared once it is ([`crate::safety::GateState::cause`]).
+        let why = DisengageCause::Override {
+            device: device.to_string(),
+            cleared: false,
+        };
+        self.disengage_with(|g| g.set_disengaged(why), state);
     }
 
     /// Nothing is resent to a device the manual state does not command (the steering
@@ -117,25 +122,28 @@ impl Gate {
         }
         self.state().set_engaged(by);
         tracing::info!(by, "engaged");
-        self.tap_gate(GateChange::Engaged, || format!("engaged by {by}"));
+        self.tap_gate(GateChange::Engaged, || {
+            let by = by.to_string();
+            crate::snapshot::GateCause::Engaged { by }.to_string()
+        });
         Ok(())
     }
 
     /// Disengage and command the safe state. Returns false if it was not engaged.
-    pub fn disengage(&self, reason: &str) -> bool {
-        self.disengage_into(reason, self.state().stop_state(self.vehicle()))
+    pub fn disengage(&self, why: DisengageCause) -> bool {
+        self.disengage_into(why, self.state().stop_state(self.vehicle()))
     }
 
     /// An operator's STOP: disengage into the full safe state — throttle 0, brake full
     /// — even while a driver has taken over. Only the stops adrive makes on its own
     /// (a fault, the watchdog, an exit) leave a driver's vehicle in the manual state;
     /// a person pressing STOP has decided to brake.
-    pub fn stop(&self, reason: &str) -> bool {
-        self.disengage_into(reason, crate::safety::safe::state(self.vehicle().config()))
+    pub fn stop(&self, why: DisengageCause) -> bool {
+        self.disengage_into(why, crate::safety::safe::state(self.vehicle().config()))
     }
 
-    fn disengage_into(&self, reason: &str, state: Vec<(DeviceId, Command)>) -> bool {
-        self.disengage_with(|g| g.set_disengaged(reason), state)
+    fn disengage_into(&self, why: DisengageCause, state: Vec<(DeviceId, Command)>) -> bool {
+        self.disengage_with(|g| g.set_disengaged(why), state)
     }
 
     /// Disengage (`set` records why, in the gate's state) into `state`.
@@ -344,13 +352,14 @@ impl Gate {
         }
     }
 
-    /// The e-stop went to pause or disable while disengaged: its rule is commanded
+    /// The e-stop went to `state`, pause or disable, while disengaged: its rule is commanded
     /// (the safe state: [`GateState::stop_state`](crate::safety::GateState)), and the
     /// e-stop is why the vehicle is disengaged now.
-    pub(crate) fn follow_estop(&self) {
-        let e = self.vehicle().estop().map_or("?", |e| e.as_str());
-        tracing::warn!("e-stop in {e}: brake and gas by the e-stop's rule");
-        self.disengage(&format!("e-stop is in {e}"));
+    pub(crate) fn follow_estop(&self, state: crate::value::EstopState) {
+        tracing::warn!("e-stop in {state}: brake and gas by the e-stop's rule");
+        self.disengage(DisengageCause::Blocked {
+            blocker: Blocker::Estop { state },
+        });
     }
 
     /// Wait until every reachable device acknowledged its part of the safe state.
@@ -541,10 +550,10 @@ mod tests {
         assert!(!kits.enabled(), "off before any engage");
         let ways_out: [&dyn Fn(&Gate); 3] = [
             &|g| {
-                g.disengage("test");
+                g.disengage(DisengageCause::Disengage { by: "test".into() });
             },
             &|g| {
-                g.stop("test");
+                g.stop(DisengageCause::Stop { by: "test".into() });
             },
             &|g| g.take_over("steer", "test"),
         ];

@@ -5,7 +5,7 @@
 //! takes no device lock.
 
 use crate::safety::{GateState, Reject, Rules, Seen};
-use crate::snapshot::{Blocker, GateView, Pairs, Snapshot};
+use crate::snapshot::{Blocker, GateCause, GateView, Pairs, Snapshot};
 use crate::value::{Command, Source};
 use crate::vehicle::tap::{Asked, Event, GateChange};
 use crate::vehicle::{capture, Vehicle};
@@ -70,9 +70,14 @@ impl Gate {
         self.state.is_engaged()
     }
 
-    /// Why the vehicle is engaged or not.
+    /// Why the vehicle is engaged or not, in words.
     pub fn reason(&self) -> String {
         self.state.reason()
+    }
+
+    /// Why the vehicle is engaged or not, as a type.
+    pub fn cause(&self) -> GateCause {
+        self.state.cause()
     }
 
     /// Reasons engaging is refused right now (empty: it may engage).
@@ -135,13 +140,15 @@ impl Gate {
         let b = self.vehicle.bindings();
         let who = self.command_view(now);
         let blocked_by = self.blockers();
+        let cause = self.cause();
         GateView {
             commander: who.commander,
             watchdog: who.watchdog,
             refused: who.refused,
             last_refused: who.last_refused,
             engaged: self.is_engaged(),
-            reason: self.reason(),
+            reason: cause.to_string(),
+            cause,
             blockers: blocked_by.iter().map(Blocker::to_string).collect(),
             blocked_by,
             interlocks: self.interlocks_on(),

@@ -151,7 +151,8 @@ impl Engine {
         self.stopped = true;
         let end = Instant::now() + deadline;
         // Refuse every command from here on, then the safe state.
-        self.gate.disengage("stopping");
+        self.gate
+            .disengage(crate::snapshot::DisengageCause::Stopping { why: None });
         self.gate.command_safe_state();
         let safe = self.gate.wait_safe(Instant::now() + deadline / 2);
         self.threads.signal().stop();

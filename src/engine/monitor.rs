@@ -10,8 +10,8 @@
 //! watchdog against a released command that the wire refuses to send.
 
 use super::Gate;
+use crate::snapshot::DisengageCause;
 use crate::threads::Owner;
-use crate::value::EstopState;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -35,17 +35,17 @@ impl Monitor {
                 gate.watch(now);
                 let engaged = gate.is_engaged();
                 if engaged {
-                    if let Some(why) = gate.blockers().into_iter().next() {
-                        gate.disengage(&why.to_string());
+                    if let Some(blocker) = gate.blockers().into_iter().next() {
+                        gate.disengage(DisengageCause::Blocked { blocker });
                     }
                 }
                 // The e-stop's rule holds a disengaged vehicle too: brake full, gas 0
                 // (an engaged one got it with its disengage).
-                let now_halted = gate.vehicle().estop().is_some_and(EstopState::halts);
-                if now_halted && !halted && !engaged {
-                    gate.follow_estop();
+                let halting = gate.vehicle().estop().filter(|e| e.halts());
+                if let (Some(state), false, false) = (halting, halted, engaged) {
+                    gate.follow_estop(state);
                 }
-                halted = now_halted;
+                halted = halting.is_some();
             })
         })?;
         Ok(Monitor { threads })

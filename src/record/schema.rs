@@ -465,7 +465,12 @@ mod tests {
         let lost: Vec<&String> = before.iter().filter(|p| !after.contains(p)).collect();
         assert_eq!(
             lost,
-            ["devices.commanded", "devices.executed", "gate.blocked_by"]
+            [
+                "devices.commanded",
+                "devices.executed",
+                "gate.blocked_by",
+                "gate.cause"
+            ]
         );
         let readings = &shown["properties"]["devices"]["items"]["properties"]["readings"];
         assert_eq!(readings["properties"]["pressure"]["type"], "number");

@@ -276,7 +276,7 @@ impl VehicleMap {
         let steer = position(&self.steering);
         let mode = if snap.gate.engaged {
             mode::AUTONOMOUS
-        } else if !snap.gate.blockers.is_empty() {
+        } else if !snap.gate.blocked_by.is_empty() {
             mode::NOT_READY
         } else {
             mode::MANUAL

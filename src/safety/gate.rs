@@ -15,7 +15,7 @@ use super::wire::{self, Verdict};
 use crate::config::{DeviceConfig, Role};
 use crate::driver::slcan::Kits;
 use crate::logging::RateLimit;
-use crate::snapshot::Blocker;
+use crate::snapshot::{Blocker, DisengageCause, GateCause};
 use crate::value::{Command, DeviceId, EstopState, Kind};
 pub use crate::vehicle::seen::Seen;
 use crate::vehicle::{Device, Unreported, Vehicle};
@@ -157,22 +157,6 @@ pub fn decide_accel(
     Ok(Plan::of(a))
 }
 
-/// Why the vehicle is (dis)engaged: the words, and the device whose driver's override
-/// it was (the words then say whether that override is still latched).
-struct Reason {
-    words: String,
-    overridden: Option<String>,
-}
-
-impl Reason {
-    fn said(words: &str) -> Reason {
-        Reason {
-            words: words.to_string(),
-            overridden: None,
-        }
-    }
-}
-
 /// The engage gate's state over one vehicle.
 pub struct GateState {
     rules: Rules,
@@ -188,8 +172,8 @@ pub struct GateState {
     /// engaged — on from the start of an engage ([`GateState::engaging`]), off with the
     /// disengage, in the same step as `engaged`.
     kits: Arc<Kits>,
-    /// Why the vehicle is (dis)engaged, rendered by [`GateState::reason`].
-    reason: Mutex<Reason>,
+    /// Why the vehicle is (dis)engaged ([`GateState::cause`]).
+    cause: Mutex<GateCause>,
     /// Devices a recovery procedure has taken over: intake refuses them.
     recovering: Vec<AtomicBool>,
     /// Devices a driver has taken over (latched `override`), by name, in order.
@@ -212,7 +196,7 @@ impl GateState {
             owner: Mutex::new(Owner::new(Instant::now())),
             engaged: AtomicBool::new(false),
             kits: vehicle.kits().clone(),
-            reason: Mutex::new(Reason::said("not engaged yet")),
+            cause: Mutex::new(GateCause::NotEngagedYet),
             recovering: vehicle
                 .devices()
                 .iter()
@@ -248,15 +232,24 @@ impl GateState {
         self.engaged.load(SeqCst)
     }
 
+    /// Why the vehicle is engaged or not, as a type: a driver's override is said to be
+    /// cleared once it is no longer latched.
+    pub fn cause(&self) -> GateCause {
+        let mut cause = self.cause.lock().clone();
+        if let GateCause::Disengaged {
+            why: DisengageCause::Override { device, cleared },
+        } = &mut cause
+        {
+            *cleared = !self.overridden.lock().contains(device);
+        }
+        cause
+    }
+
     /// Why the vehicle is engaged or not, in the words every reader shows — the
     /// snapshot (the broadcast, `adrive ctl status`, consoles, recordings), the
-    /// network's answers and the logs: the one place they are rendered.
+    /// network's answers and the logs: [`GateCause`]'s.
     pub fn reason(&self) -> String {
-        let r = self.reason.lock();
-        match &r.overridden {
-            Some(d) if !self.overridden.lock().contains(d) => format!("{}, cleared", r.words),
-            _ => r.words.clone(),
-        }
+        self.cause().to_string()
     }
 
     /// An engage begins: the kits may be enabled from now on, each once its safe
@@ -266,36 +259,23 @@ impl GateState {
         self.kits.set(true);
     }
 
-    /// Engaged by `by`. The reason and the state change together: a reader of both
+    /// Engaged by `by`. The cause and the state change together: a reader of both
     /// (the snapshot) never sees one without the other.
     pub(crate) fn set_engaged(&self, by: &str) {
-        let mut reason = self.reason.lock();
-        *reason = Reason::said(&format!("engaged by {by}"));
+        let mut cause = self.cause.lock();
+        *cause = GateCause::Engaged { by: by.to_string() };
         self.engaged.store(true, SeqCst);
     }
 
-    /// Disengaged for `reason`; returns whether it was engaged. The reason and the
-    /// state change together: whoever sees the vehicle disengaged and then asks why
-    /// reads this reason, never the last engage's.
-    pub(crate) fn set_disengaged(&self, reason: &str) -> bool {
-        self.disengaged_for(Reason::said(&format!("disengaged: {reason}")))
-    }
-
-    /// Disengaged because a driver took `device` over: said so while the override is
-    /// latched, and said to be cleared once it is ([`GateState::reason`]).
-    pub(crate) fn set_disengaged_by_override(&self, device: &str) -> bool {
-        self.disengaged_for(Reason {
-            words: format!("disengaged: driver override on {device}"),
-            overridden: Some(device.to_string()),
-        })
-    }
-
-    fn disengaged_for(&self, reason: Reason) -> bool {
-        let mut why = self.reason.lock();
+    /// Disengaged for `why`; returns whether it was engaged. The cause and the state
+    /// change together: whoever sees the vehicle disengaged and then asks why reads
+    /// this cause, never the last engage's.
+    pub(crate) fn set_disengaged(&self, why: DisengageCause) -> bool {
+        let mut cause = self.cause.lock();
         let was = self.engaged.swap(false, SeqCst);
         // Kits disable with the vehicle, before the stop's commands are stored.
         self.kits.set(false);
-        *why = reason;
+        *cause = GateCause::Disengaged { why };
         was
     }
 

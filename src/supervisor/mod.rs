@@ -30,7 +30,7 @@ use crate::config::roles::ReadingRef;
 use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::engine::Gate;
 use crate::exit::Exit;
-use crate::snapshot::{DeviceView, FaultKind, OutcomeKind, Snapshot};
+use crate::snapshot::{DeviceView, DisengageCause, FaultKind, OutcomeKind, Snapshot};
 use crate::threads::{Liveness, Owner};
 use crate::value::{Kind, Value};
 use crate::vehicle::supervision::Fault;
@@ -605,7 +605,7 @@ impl Supervisor {
                 .iter()
                 .find(|f| disengages(f.kind) && needed(f) && !dealt_with(f))
             {
-                gate.disengage(&format!("supervisor: {}", f.describe()));
+                gate.disengage(DisengageCause::Fault { fault: f.view(now) });
             }
         }
         match start {
@@ -639,12 +639,16 @@ impl Supervisor {
                     self.finish(gate, now);
                 }
                 Progress::GaveUp(why) => {
-                    let msg = format!("recovery {} gave up: {why}", p.name());
+                    let cause = DisengageCause::GaveUp {
+                        recovery: p.name().to_string(),
+                        why,
+                    };
+                    let msg = cause.to_string();
                     tracing::error!("{msg}; it runs again from the top at the next engage");
                     board.note(msg.clone());
                     board.set_outcome(OutcomeKind::GaveUp, msg.clone());
                     gate.command_safe_state();
-                    gate.disengage(&msg);
+                    gate.disengage(cause);
                     let tried = self
                         .trying_since
                         .get(p.name())
@@ -668,7 +672,7 @@ impl Supervisor {
         if !std::mem::replace(&mut self.ended, true) {
             tracing::error!("giving up: {why}");
             gate.command_safe_state();
-            gate.disengage(&format!("giving up: {why}"));
+            gate.disengage(DisengageCause::GivingUp { why: why.clone() });
             (self.exit)(Exit::Fatal(why));
         }
     }
@@ -787,7 +791,12 @@ pub(crate) fn start_watching(
                 gate.vehicle().supervision().set_stalled(&turn.stalled);
             }
             if let (Some(s), true) = (turn.new.first(), gate.is_engaged()) {
-                gate.disengage(&format!("stalled: {}", s.describe()));
+                let stall = crate::snapshot::StallView {
+                    thread: s.thread.clone(),
+                    quiet_ms: s.quiet.as_secs_f64() * 1e3,
+                    bound_ms: s.bound.as_secs_f64() * 1e3,
+                };
+                gate.disengage(DisengageCause::Stalled { stall });
             }
         })
     })?;

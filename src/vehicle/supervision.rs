@@ -30,6 +30,16 @@ impl Fault {
             None => format!("{}: {}", self.kind, self.cause),
         }
     }
+
+    /// As the snapshot carries it, at `now`.
+    pub fn view(&self, now: Instant) -> FaultView {
+        FaultView {
+            kind: self.kind,
+            device: self.device.clone(),
+            cause: self.cause.clone(),
+            age_ms: ms(now - self.since),
+        }
+    }
 }
 
 #[derive(Default)]
@@ -67,16 +77,7 @@ impl Board {
         let i = self.inner.lock();
         let now = Instant::now();
         SupervisorView {
-            faults: i
-                .faults
-                .iter()
-                .map(|f| FaultView {
-                    kind: f.kind,
-                    device: f.device.clone(),
-                    cause: f.cause.clone(),
-                    age_ms: ms(now - f.since),
-                })
-                .collect(),
+            faults: i.faults.iter().map(|f| f.view(now)).collect(),
             recovery: i.recovery.as_ref().map(|(r, started)| RecoveryView {
                 elapsed_ms: ms(now - *started),
                 ..r.clone()

@@ -85,9 +85,9 @@ impl Header<'_> {
             None => "nobody commands".to_string(),
         };
         let why = if s.gate.engaged {
-            who.as_str()
+            who
         } else {
-            s.gate.reason.trim_start_matches("disengaged: ")
+            s.gate.cause.why()
         };
         let title = format!(" ADRIVE {} ", s.vehicle);
         let mut fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
@@ -118,7 +118,7 @@ impl Header<'_> {
         let room = width.saturating_sub(title.width() + fixed);
         // " ENGAGED " + "(by console)", " DISENGAGED " + "(" + reason + ")" (+ " " when
         // there is room): the words get what is left.
-        let gate = match shorten(why, room.saturating_sub(2)) {
+        let gate = match shorten(&why, room.saturating_sub(2)) {
             r if r.is_empty() => gate,
             r if r.width() + 2 < room => format!("{gate}({r}) "),
             r => format!("{gate}({r})"),
@@ -144,18 +144,43 @@ mod tests {
     use crate::console::theme::Theme;
     use crate::console::view::MIN_WIDTH;
     use crate::controls::{capture, Sources};
+    use crate::snapshot::{Blocker, DisengageCause, GateCause};
     use crate::testkit;
     use std::time::{Duration, Instant};
 
-    const REASON: &str = "gate: gas is faulty (no reply within 100ms); brake is faulty \
-                          (garbled reply (bad CRC)); e-stop is in pause";
+    /// A long cause, with parentheses inside parentheses.
+    fn long() -> DisengageCause {
+        DisengageCause::GivingUp {
+            why: "gas is faulty (no reply within 100ms); brake is faulty (garbled reply \
+                  (bad CRC)); e-stop is in pause"
+                .into(),
+        }
+    }
 
-    fn model(engaged: bool, reason: &str, vehicle: &str) -> Model {
+    fn stop(by: &str) -> DisengageCause {
+        DisengageCause::Stop { by: by.into() }
+    }
+
+    fn engaged(vehicle: &str) -> Model {
+        model(
+            GateCause::Engaged {
+                by: "console".into(),
+            },
+            vehicle,
+        )
+    }
+
+    fn disengaged(why: DisengageCause, vehicle: &str) -> Model {
+        model(GateCause::Disengaged { why }, vehicle)
+    }
+
+    fn model(cause: GateCause, vehicle: &str) -> Model {
         let now = Instant::now();
         let mut frame = capture(&testkit::gate(now), &Sources::default(), now, None);
         frame.snap.devices[1].health.faulty = true;
-        frame.snap.gate.engaged = engaged;
-        frame.snap.gate.reason = format!("disengaged: {reason}");
+        frame.snap.gate.engaged = matches!(cause, GateCause::Engaged { .. });
+        frame.snap.gate.reason = cause.to_string();
+        frame.snap.gate.cause = cause;
         frame.snap.vehicle = vehicle.to_string();
         Model::new(
             Keymap::default_map(),
@@ -173,7 +198,7 @@ mod tests {
     /// header says the link is unchecked, and only then.
     #[test]
     fn under_a_multiplexer_the_link_is_said_to_be_unchecked() {
-        let mut m = model(true, "", "Alice");
+        let mut m = engaged("Alice");
         assert!(!text(&Header { m: &m }.line(100)).contains("link unchecked"));
         m.terminal.multiplexer = Some("tmux");
         let l = text(&Header { m: &m }.line(100));
@@ -183,12 +208,9 @@ mod tests {
 
     #[test]
     fn a_short_reason_is_shown_whole() {
-        let m = model(false, "operator stop from the console", "Alice");
+        let m = disengaged(stop("console"), "Alice");
         let l = text(&Header { m: &m }.line(100));
-        assert!(
-            l.ends_with(" DISENGAGED (operator stop from the console) "),
-            "{l}"
-        );
+        assert!(l.ends_with(" DISENGAGED (stop from console) "), "{l}");
     }
 
     /// At 100 columns the header once ended `DISENGAGED (gas is faulty (no reply
@@ -200,7 +222,9 @@ mod tests {
             "Alice",
             "Alice, the 2005 Grand Challenge vehicle of Team Caltech",
         ] {
-            let m = model(false, REASON, vehicle);
+            let m = disengaged(long(), vehicle);
+            let reason = long().to_string();
+            let reason = reason.as_str();
             // Below MIN_WIDTH the console draws no header, only the size it needs.
             for width in MIN_WIDTH..=200u16 {
                 let l = text(&Header { m: &m }.line(width));
@@ -212,7 +236,7 @@ mod tests {
                     l.matches(')').count(),
                     "{width}: {l}"
                 );
-                if l.contains(REASON) {
+                if l.contains(reason) {
                     continue;
                 }
                 // Shortened: at a word, or to nothing but "…".
@@ -220,8 +244,8 @@ mod tests {
                     let cut = r.trim_end_matches([')', ' ']);
                     assert!(cut.ends_with('…'), "{width}: {l}");
                     let kept = cut.trim_end_matches('…');
-                    assert!(REASON.starts_with(kept), "{width}: {l}");
-                    let next = REASON[kept.len()..].chars().next().unwrap();
+                    assert!(reason.starts_with(kept), "{width}: {l}");
+                    let next = reason[kept.len()..].chars().next().unwrap();
                     let one_word = !kept.contains(' ');
                     assert!(
                         one_word || " (;,:".contains(next),
@@ -234,7 +258,11 @@ mod tests {
 
     #[test]
     fn at_100_columns_the_reason_is_shortened_not_cut() {
-        let mut m = model(false, "gas is faulty (no reply within 100ms)", "Alice");
+        let faulty = Blocker::Faulty {
+            device: "gas".into(),
+            fault: "no reply within 100ms".into(),
+        };
+        let mut m = disengaged(DisengageCause::Blocked { blocker: faulty }, "Alice");
         m.mode = Mode::Bench;
         let l = text(&Header { m: &m }.line(100));
         assert!(l.contains(" DISENGAGED (gas is faulty (no reply"), "{l}");
@@ -243,11 +271,7 @@ mod tests {
 
     #[test]
     fn engaged_names_who_commands_and_a_long_name_gives_way() {
-        let mut m = model(
-            true,
-            "",
-            "a vehicle with a name far too long for any header bar",
-        );
+        let mut m = engaged("a vehicle with a name far too long for any header bar");
         m.snap.snap.gate.commander = Some("network 127.0.0.1:5555".into());
         let l = text(&Header { m: &m }.line(100));
         assert!(l.ends_with(" ENGAGED (by network 127.0.0.1:5555) "), "{l}");
@@ -264,7 +288,7 @@ mod tests {
     fn a_cleared_override_is_said_to_be_cleared() {
         let now = Instant::now();
         let gate = testkit::gate(now);
-        let mut m = model(false, "", "Alice");
+        let mut m = disengaged(stop("console"), "Alice");
         let header = |m: &mut Model| {
             m.snap.snap.gate = gate.view(Instant::now());
             text(&Header { m }.line(120))
@@ -287,7 +311,7 @@ mod tests {
     /// the operator's terminal, whatever the vehicle's gives.
     #[test]
     fn an_attached_console_names_how_its_own_keys_drive() {
-        let mut m = model(true, "", "Alice");
+        let mut m = engaged("Alice");
         assert!(!text(&Header { m: &m }.line(120)).contains(" keys "));
         m.snap.you = Some("console #1".into());
         let l = text(&Header { m: &m }.line(120));
@@ -304,7 +328,7 @@ mod tests {
     #[test]
     fn an_attached_console_s_keys_give_way_to_the_gate_s_reason() {
         let why = "stop from console #2";
-        let mut m = model(false, &format!("disengaged: {why}"), "Alice");
+        let mut m = disengaged(stop("console #2"), "Alice");
         m.snap.you = Some("console #1".into());
         let l = text(&Header { m: &m }.line(100));
         assert!(l.contains(&format!("DISENGAGED ({why})")), "{l}");
