@@ -69,6 +69,34 @@ mod tests {
         );
     }
 
+    /// The cart's horn and signals have safe values of their own: they follow the
+    /// pedals. A pedal's own `safe` never stands beside its role's: the brake is
+    /// commanded once, full.
+    #[test]
+    fn the_devices_own_safe_values_follow_the_pedals_and_a_pedal_is_commanded_once() {
+        let brake = "name = \"brake\"            # hydraulic brake actuator, 0 … 1\n";
+        let text = include_str!("../../vehicles/cart.toml");
+        assert!(text.contains(brake));
+        let text = text.replace(brake, &format!("{brake}safe = 0.3\n"));
+        let cart = crate::config::parse(&text, "vehicles/cart.toml").unwrap();
+        let name = |id: DeviceId| cart.devices[id.index()].name.as_str();
+        let own = |n: &str| cart.devices.iter().find(|d| d.name == n).unwrap().safe;
+        assert_eq!(own("brake"), Some(Command::Set(0.3)));
+        let got: Vec<(&str, Command)> = state(&cart)
+            .into_iter()
+            .map(|(id, c)| (name(id), c))
+            .collect();
+        assert_eq!(
+            got,
+            vec![
+                ("throttle", Command::Set(0.0)),
+                ("brake", Command::Set(1.0)),
+                ("horn", own("horn").unwrap()),
+                ("signals", own("signals").unwrap()),
+            ]
+        );
+    }
+
     #[test]
     fn alice_s_manual_state_releases_gas_and_brake_and_leaves_the_steering_alone() {
         assert_eq!(
