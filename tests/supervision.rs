@@ -203,13 +203,19 @@ fn engaged_in_drive(rig: &Rig) -> &adrive::vehicle::Device {
 
 /// The outcome the supervisor shows contains `what`.
 fn outcome(rig: &Rig, what: &str) {
-    wait_for(what, || {
-        rig.vehicle
-            .supervision()
-            .snapshot()
-            .last_outcome
-            .is_some_and(|o| o.contains(what))
-    });
+    let end = std::time::Instant::now() + common::DEADLINE;
+    loop {
+        let s = rig.vehicle.supervision().snapshot();
+        if s.last_outcome.as_ref().is_some_and(|o| o.contains(what)) {
+            return;
+        }
+        assert!(
+            std::time::Instant::now() < end,
+            "timed out waiting for {what}: gate {}, supervisor {s:?}",
+            rig.gate.reason()
+        );
+        std::thread::sleep(Duration::from_millis(2));
+    }
 }
 
 /// A stuck steering motor whose drive does not notice: the command is not followed.

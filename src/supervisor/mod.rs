@@ -644,11 +644,13 @@ impl Supervisor {
                         why,
                     };
                     let msg = cause.to_string();
+                    // The vehicle safe first; then the outcome is told, so that whoever
+                    // reads it finds the vehicle already disengaged.
+                    gate.command_safe_state();
+                    gate.disengage(cause);
                     tracing::error!("{msg}; it runs again from the top at the next engage");
                     board.note(msg.clone());
                     board.set_outcome(OutcomeKind::GaveUp, msg.clone());
-                    gate.command_safe_state();
-                    gate.disengage(cause);
                     let tried = self
                         .trying_since
                         .get(p.name())
