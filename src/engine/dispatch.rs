@@ -354,7 +354,7 @@ impl Gate {
     }
 
     /// Wait until every reachable device acknowledged its part of the safe state.
-    /// Returns false if one the rules act on ([`crate::safety::gate::needed`]) did not
+    /// Returns false if one the rules act on ([`crate::safety::gate_state::needed`]) did not
     /// by the deadline.
     pub fn wait_safe(&self, deadline: Instant) -> bool {
         let mut ok = true;
@@ -365,7 +365,7 @@ impl Gate {
             }
             // A device the rules do not act on (a horn) says nothing of whether the
             // vehicle may still move.
-            if crate::safety::gate::needed(self.vehicle(), d) {
+            if crate::safety::gate_state::needed(self.vehicle(), d) {
                 tracing::error!(device = %d.name(), "did not acknowledge the safe state");
                 ok = false;
             } else {

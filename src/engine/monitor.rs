@@ -1,5 +1,5 @@
 //! The gate's monitor thread (`gate/monitor`): it disengages an engaged vehicle as soon
-//! as [`crate::safety::gate::blockers`] is not empty — a faulty or silent device, the
+//! as [`crate::safety::gate_state::blockers`] is not empty — a faulty or silent device, the
 //! e-stop in pause or disable — whoever engaged it (console or network), and runs the
 //! commander's watchdog ([`Gate::watch`]) and ends a held pedal's lease that ran out
 //! ([`Gate::end_lease`]) at the same period. Looking every [`EVERY`],

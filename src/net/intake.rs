@@ -22,7 +22,7 @@ use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary};
 use crate::config::NetworkConfig;
 use crate::engine::Gate;
 use crate::logging::RateLimit;
-use crate::safety::gate::remote_may_engage;
+use crate::safety::gate_state::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
 use crate::snapshot::Blocker;
 use crate::value::Source;

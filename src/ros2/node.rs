@@ -24,7 +24,7 @@ use crate::engine::Gate;
 use crate::logging::RateLimit;
 use crate::net::proto::Reject;
 use crate::net::{NetStatus, Refusal};
-use crate::safety::gate::remote_may_engage;
+use crate::safety::gate_state::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
 use crate::threads::{Owner, StopSignal};
 use crate::value::Source;

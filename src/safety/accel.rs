@@ -98,7 +98,7 @@ pub(crate) fn check_value(
         } else if !(-1.0..=1.0).contains(&a) {
             Err(Reject::OutOfRange)
         } else {
-            super::gate::check_value(d, c)
+            super::gate_state::check_value(d, c)
         };
         if let Err(why) = why {
             return Err(Refusal {

@@ -11,7 +11,7 @@
 //! configuration and what the detector remembers between turns; they reach the
 //! engine, the gearbox and the e-stop through the role bindings.
 //!
-//! The gate monitor ([`crate::safety::gate`]) disengages within milliseconds on an
+//! The gate monitor ([`crate::safety::gate_state`]) disengages within milliseconds on an
 //! e-stop or a faulty device; the supervisor works at its own, slower period on
 //! diagnosis and recovery.
 //!
@@ -599,7 +599,7 @@ impl Supervisor {
                 f.device
                     .as_deref()
                     .and_then(|n| v.find(n))
-                    .is_none_or(|d| crate::safety::gate::needed(v, d))
+                    .is_none_or(|d| crate::safety::gate_state::needed(v, d))
             };
             if let Some(f) = faults
                 .iter()
@@ -756,7 +756,7 @@ pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io:
 /// the gate monitor's) and the supervisor itself runs and turns its loop within its
 /// bound. A thread that stalls is named in the log, to systemd and in the snapshot
 /// (`supervisor.stalled`); engage is refused while it is stalled
-/// ([`crate::safety::gate::blockers`]), and an engaged vehicle is disengaged at once —
+/// ([`crate::safety::gate_state::blockers`]), and an engaged vehicle is disengaged at once —
 /// the gate monitor may be the thread that stalled.
 pub(crate) fn start_watching(
     gate: Arc<Gate>,
