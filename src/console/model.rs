@@ -1,6 +1,6 @@
 //! The console's state (the "model" of the Elm architecture): the mode, the cursor,
 //! an edit in progress, a pending question, the name prompt, teleop and bench state,
-//! the screen's size and the latest [`Frame`] of the vehicle. Only
+//! the screen's size and the latest [`Scene`] of the vehicle. Only
 //! [`update`](super::update) changes it; the view only reads it.
 
 use super::hold::{Drive, Holds, KeyRepeat};
@@ -10,7 +10,7 @@ use super::sight::Drawn;
 use super::theme::Theme;
 use super::trail::Trail;
 use crate::config::TeleopConfig;
-use crate::controls::Frame;
+use crate::controls::Scene;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
 use crossterm::event::{KeyCode, KeyEventKind, KeyModifiers};
@@ -55,7 +55,7 @@ impl Field {
     }
 
     /// The field in words, `steer cm delay`, with the device's name from `frame`.
-    pub fn name(self, frame: &Frame) -> String {
+    pub fn name(self, frame: &Scene) -> String {
         let n = |id: DeviceId| frame.at(id).map_or("?", |d| d.name.as_str()).to_string();
         match self {
             Field::Command(r) => format!("{} command", n(r)),
@@ -254,7 +254,7 @@ pub struct Model {
     pub mode: Mode,
     /// Where `back`/`cancel` returns to from edit, confirm and help.
     pub(crate) back_to: Mode,
-    pub snap: Frame,
+    pub snap: Scene,
     /// Index into [`Model::fields`].
     pub cursor: usize,
     pub edit: Option<Edit>,
@@ -310,7 +310,7 @@ pub struct TerminalView {
 }
 
 impl Model {
-    pub fn new(keymap: Keymap, theme: Theme, snap: Frame, deadman: Duration) -> Model {
+    pub fn new(keymap: Keymap, theme: Theme, snap: Scene, deadman: Duration) -> Model {
         let bench = DeviceId(0);
         Model {
             keymap,

@@ -30,7 +30,7 @@ pub enum Flow {
 /// deadman did.
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
-    m.snap = c.frame(now, m.in_bench().then_some(m.bench));
+    m.snap = c.scene(now, m.in_bench().then_some(m.bench));
     if m.in_bench() {
         if let Some(d) = m.snap.at(m.bench) {
             m.trail.push(m.bench, d, now);
@@ -751,7 +751,7 @@ fn sim(m: &mut Model, c: &dyn Controls, what: SimAction) {
                 _ => done.ends_with(" off") || done.ends_with(" 0"),
             };
             m.say(format!("sim: {done}"), !harmless);
-            m.snap = c.frame(m.now, Some(m.bench));
+            m.snap = c.scene(m.now, Some(m.bench));
         }
     }
 }

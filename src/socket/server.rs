@@ -18,7 +18,7 @@
 //! [`BYE_GRACE`]; from then on nothing it sends is done.
 
 use super::path::{Claim, Peer};
-use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, WireLog, WireTrace, VERSION};
+use super::proto::{Answer, Msg, Op, Request, Role, WireLog, WireScene, WireTrace, VERSION};
 use crate::controls::{capture, Controls, Live, Sources, TICK};
 use crate::engine::Gate;
 use crate::safety::Ask;
@@ -559,7 +559,7 @@ fn frame_loop(s: &Shared, c: &Conn) {
         if *c.role.lock() != Some(Role::Console) {
             continue;
         }
-        if let Err(ending) = c.send(&Msg::Frame(Box::new(frame(s, c, now)))) {
+        if let Err(ending) = c.send(&Msg::Frame(Box::new(scene(s, c, now)))) {
             // The vehicle first; then, if it reads again, the client is told why.
             depart(s, c, &ending);
             if matches!(ending, Ending::StoppedReading(_)) {
@@ -573,7 +573,7 @@ fn frame_loop(s: &Shared, c: &Conn) {
 }
 
 /// The frame for one console: its bench device's traffic, the log lines it has not had.
-fn frame(s: &Shared, c: &Conn, now: Instant) -> WireFrame {
+fn scene(s: &Shared, c: &Conn, now: Instant) -> WireScene {
     let f = capture(&s.gate, &s.sources, now, *c.bench.lock());
     let logs = match &s.sources.logs {
         Some(ring) => {
@@ -584,7 +584,7 @@ fn frame(s: &Shared, c: &Conn, now: Instant) -> WireFrame {
         }
         None => Vec::new(),
     };
-    WireFrame {
+    WireScene {
         logs,
         trace: f.trace.iter().map(|e| WireTrace::of(e, now)).collect(),
         buckets: f.buckets,

@@ -5,7 +5,7 @@ use crate::config::VehicleConfig;
 use crate::console::keymap::Keymap;
 use crate::console::theme::Theme;
 use crate::controls::live::change_settings;
-use crate::controls::{capture, Frame, Sources, Tune};
+use crate::controls::{capture, Scene, Sources, Tune};
 use crate::safety::{self, Done, Refused, Reject};
 use crate::testkit;
 use crossterm::event::{KeyEvent, KeyModifiers};
@@ -19,7 +19,7 @@ struct Fake {
     /// The sample vehicle (not started): its configuration, and the real checks of
     /// a console setting edit.
     gate: std::sync::Arc<crate::engine::Gate>,
-    snap: Frame,
+    snap: Scene,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
     /// An attached console's adrive that no longer answers: even STOP is not taken.
@@ -84,7 +84,7 @@ fn id(name: &str) -> DeviceId {
 }
 
 impl Controls for Fake {
-    fn frame(&self, _now: Instant, _bench: Option<DeviceId>) -> Frame {
+    fn scene(&self, _now: Instant, _bench: Option<DeviceId>) -> Scene {
         self.snap.clone()
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
