@@ -118,7 +118,7 @@ pub struct Find {
 
 /// A question waiting for yes or no.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Ask {
+pub enum Question {
     Engage,
     Disengage,
     /// Take command from whoever has it.
@@ -127,14 +127,14 @@ pub enum Ask {
     Interlocks(bool),
 }
 
-impl Ask {
-    pub fn question(self) -> &'static str {
+impl Question {
+    pub fn text(self) -> &'static str {
         match self {
-            Ask::Engage => "Engage? Commands will move the vehicle.",
-            Ask::Disengage => "Disengage? Gas 0, brake full, commands refused.",
-            Ask::Take => "Take command? The source commanding now is refused from then on.",
-            Ask::Interlocks(true) => "Turn the interlocks ON?",
-            Ask::Interlocks(false) => {
+            Question::Engage => "Engage? Commands will move the vehicle.",
+            Question::Disengage => "Disengage? Gas 0, brake full, commands refused.",
+            Question::Take => "Take command? The source commanding now is refused from then on.",
+            Question::Interlocks(true) => "Turn the interlocks ON?",
+            Question::Interlocks(false) => {
                 "Turn the interlocks OFF? Nothing will stop gas against the brake."
             }
         }
@@ -258,7 +258,7 @@ pub struct Model {
     /// Index into [`Model::fields`].
     pub cursor: usize,
     pub edit: Option<Edit>,
-    pub ask: Option<Ask>,
+    pub ask: Option<Question>,
     pub message: Option<Message>,
     pub teleop: Teleop,
     /// The device the bench view shows.

@@ -3,7 +3,7 @@
 //! through [`Controls`], so both are tested with a recording fake and no terminal.
 
 use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
-use super::model::{Ask, Edit, Field, Model, SeenKey, HOME_WAIT, SEEN_KEYS};
+use super::model::{Edit, Field, Model, Question, SeenKey, HOME_WAIT, SEEN_KEYS};
 use super::sight;
 use crate::config::Role;
 use crate::controls::{Controls, Thread};
@@ -172,7 +172,7 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
     Flow::Continue
 }
 
-fn ask(m: &mut Model, q: Ask) {
+fn ask(m: &mut Model, q: Question) {
     m.ask = Some(q);
     m.back_to = m.mode;
     m.mode = Mode::Confirm;
@@ -268,9 +268,9 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
             }
         }
         Action::ResetSteering => reset_steering(m, c),
-        Action::Engage => ask(m, Ask::Engage),
-        Action::Disengage => ask(m, Ask::Disengage),
-        Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.gate.interlocks)),
+        Action::Engage => ask(m, Question::Engage),
+        Action::Disengage => ask(m, Question::Disengage),
+        Action::Interlocks => ask(m, Question::Interlocks(!m.snap.gate.interlocks)),
         Action::ClearOverride => clear_override(m, c),
         Action::TakeCommand => take(m),
         Action::ReleaseCommand => release(m, c),
@@ -493,19 +493,19 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
             let q = m.ask.take();
             m.mode = m.back_to;
             match q {
-                Some(Ask::Engage) => match c.engage() {
+                Some(Question::Engage) => match c.engage() {
                     Ok(done) => m.say(done.to_string(), false),
                     Err(why) => m.say(format!("engage refused: {why}"), true),
                 },
-                Some(Ask::Disengage) => match c.disengage() {
+                Some(Question::Disengage) => match c.disengage() {
                     Ok(done) => m.say(done.to_string(), false),
                     Err(why) => m.say(format!("disengage not done: {why}"), true),
                 },
-                Some(Ask::Take) => match c.take() {
+                Some(Question::Take) => match c.take() {
                     Ok(()) => m.say("the console commands the vehicle", false),
                     Err(why) => m.say(format!("take command refused: {why}"), true),
                 },
-                Some(Ask::Interlocks(on)) => match c.set_interlocks(on) {
+                Some(Question::Interlocks(on)) => match c.set_interlocks(on) {
                     Ok(()) => m.say(format!("interlocks {}", if on { "ON" } else { "OFF" }), !on),
                     Err(why) => m.say(format!("interlocks refused: {why}"), true),
                 },
@@ -716,7 +716,7 @@ fn take(m: &mut Model) {
             true,
         ),
         Some("console") => m.say("the console already commands the vehicle", false),
-        _ => ask(m, Ask::Take),
+        _ => ask(m, Question::Take),
     }
 }
 

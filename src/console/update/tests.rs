@@ -404,7 +404,7 @@ fn engage_disengage_and_interlocks_ask_first() {
     let mut m = model(&f);
     let now = Instant::now();
     press(&mut m, &f, &["E"], now);
-    assert_eq!((m.mode, m.ask), (Mode::Confirm, Some(Ask::Engage)));
+    assert_eq!((m.mode, m.ask), (Mode::Confirm, Some(Question::Engage)));
     press(&mut m, &f, &["n"], now);
     assert_eq!(m.mode, Mode::Main);
     assert!(f.calls().is_empty());
