@@ -51,7 +51,7 @@ pub mod status;
 pub use dispatch::WireStep;
 pub use gate::Gate;
 
-use crate::threads::{Liveness, Owner};
+use crate::threads::{Group, Liveness};
 use crate::vehicle::Vehicle;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -59,7 +59,7 @@ use std::time::{Duration, Instant};
 /// The running engine.
 pub struct Engine {
     gate: Arc<Gate>,
-    threads: Owner,
+    threads: Group,
     stopped: bool,
 }
 
@@ -85,7 +85,7 @@ impl Engine {
         gate: Arc<Gate>,
         inject: Option<Injected>,
     ) -> std::io::Result<Engine> {
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         let vehicle = gate.vehicle().clone();
         for b in 0..vehicle.buses().len() {
             let v = vehicle.clone();

@@ -10,7 +10,7 @@
 //! watchdog against a released command that the wire refuses to send.
 
 use super::Gate;
-use crate::threads::Owner;
+use crate::threads::Group;
 use crate::value::EstopState;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -20,12 +20,12 @@ pub(crate) const EVERY: Duration = Duration::from_millis(10);
 
 /// The running monitor.
 pub struct Monitor {
-    threads: Owner,
+    threads: Group,
 }
 
 impl Monitor {
     pub fn start(gate: Arc<Gate>) -> std::io::Result<Monitor> {
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         threads.spawn_beating("gate/monitor", EVERY, move |stop, beat| {
             let mut halted = false;
             crate::threads::every(EVERY, stop, || {

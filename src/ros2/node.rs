@@ -26,7 +26,7 @@ use crate::net::proto::Reject;
 use crate::net::{NetStatus, Refusal};
 use crate::safety::gate_state::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
-use crate::threads::{Owner, StopSignal};
+use crate::threads::{Group, StopSignal};
 use crate::value::Source;
 use crossbeam_channel::{Receiver, Sender};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
@@ -136,7 +136,7 @@ impl Publisher {
 pub struct Node {
     session: zenoh::Session,
     closing: Arc<AtomicBool>,
-    threads: Owner,
+    threads: Group,
     namespace: String,
     /// Liveliness tokens and subscriptions live as long as the node.
     _keep: Vec<Box<dyn std::any::Any + Send>>,
@@ -315,7 +315,7 @@ impl Node {
         drop(g);
 
         let closing = Arc::new(AtomicBool::new(false));
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         // The allow-list and the key are the UDP listener's; Zenoh has its own access
         // control and transport security. Engaging follows `allow_engage`, as for UDP.
         let mut commands = Commands {

@@ -22,7 +22,7 @@ use super::proto::{Answer, Msg, Op, Request, Role, WireLog, WireScene, WireTrace
 use crate::controls::{capture, Controls, Live, Sources, TICK};
 use crate::engine::Gate;
 use crate::safety::Ask;
-use crate::threads::{Owner, StopSignal, Threads};
+use crate::threads::{Group, StopSignal, Threads};
 use crate::value::{DeviceId, Source};
 use parking_lot::Mutex;
 use std::io::{BufRead, BufReader, ErrorKind, Write};
@@ -59,7 +59,7 @@ struct Shared {
 /// The running control socket.
 pub struct Server {
     shared: Arc<Shared>,
-    accept: Owner,
+    accept: Group,
     path: PathBuf,
     /// Removes the socket file when the server goes.
     _claim: Claim,
@@ -77,7 +77,7 @@ impl Server {
         listener
             .set_nonblocking(true)
             .map_err(|e| format!("control socket: {e}"))?;
-        let mut accept = Owner::default();
+        let mut accept = Group::default();
         let shared = Arc::new(Shared {
             gate,
             sources,

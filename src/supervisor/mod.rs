@@ -31,7 +31,7 @@ use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::engine::Gate;
 use crate::exit::Exit;
 use crate::snapshot::{DeviceView, FaultKind, OutcomeKind, Snapshot};
-use crate::threads::{Liveness, Owner};
+use crate::threads::{Group, Liveness};
 use crate::value::{Kind, Value};
 use crate::vehicle::supervision::Fault;
 use recovery::{Procedure, Progress};
@@ -740,7 +740,7 @@ impl Supervisor {
 
 /// The supervisor thread, `supervisor`, and the service watchdog's, `service/watchdog`.
 pub struct Running {
-    threads: Owner,
+    threads: Group,
 }
 
 /// How often the service watchdog looks at the threads' heartbeats.
@@ -764,7 +764,7 @@ pub(crate) fn start_watching(
     exit: ExitSink,
     watched: Liveness,
 ) -> std::io::Result<Running> {
-    let mut threads = Owner::default();
+    let mut threads = Group::default();
     let g = gate.clone();
     let period = cfg.period;
     threads.spawn_beating("supervisor", period, move |stop, beat| {
