@@ -21,8 +21,10 @@
 //!    command first, an overdue poll still runs), and the open port itself: the
 //!    [`crate::driver`] writes the request, and the first byte is timed.
 //!
-//! Beside it: [`status`] (the status thread polls every `status_period`, or when the
-//! estimate needs it: [`polling`], and stores the reading; readers only read it),
+//! Beside it: [`engagement`] (engage, disengage, STOP, a driver's override: every way
+//! in and out, each storing the safe or manual state past the interlocks), [`status`]
+//! (the status thread polls every `status_period`, or when the estimate needs it:
+//! [`polling`], and stores the reading; readers only read it),
 //! [`monitor`] (`gate/monitor`: blockers, the commander's watchdog and the end of a
 //! held pedal's [`lease`], every 10 ms) and
 //! [`placement`] (which CPUs the command path runs on). The gate's state and every
@@ -40,6 +42,7 @@ pub mod admit;
 pub mod bus;
 pub mod command;
 pub(crate) mod dispatch;
+mod engagement;
 pub mod fast;
 mod gate;
 pub mod lease;
