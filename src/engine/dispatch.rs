@@ -9,8 +9,7 @@
 
 use super::fast::{self, Sent};
 use super::Gate;
-use crate::safety::accel::{Pedal, Plan};
-use crate::safety::{facts, Reject, Seen, Verdict, Wait};
+use crate::safety::{facts, Verdict, Wait};
 use crate::value::{Command, DeviceId};
 use crate::vehicle::stats::Stats;
 use crate::vehicle::tap::{Asked, Source};
@@ -45,44 +44,10 @@ pub(crate) fn longest_wire_wait(v: &crate::vehicle::Vehicle) -> Duration {
 }
 
 impl Gate {
-    /// Command intake for one device, past ownership: the gate and the interlocks
-    /// ([`crate::safety::GateState::check`]), then on its way. `received` is when the
-    /// command was born (socket read, key press). A rejected command never reaches the
-    /// slot.
-    pub fn submit(&self, id: DeviceId, command: Command, received: Instant) -> Result<(), Reject> {
-        self.submit_seen(id, command, received).0
-    }
-
-    /// [`Gate::submit`], and what its decision saw (for the recording).
-    pub(crate) fn submit_seen(
-        &self,
-        id: DeviceId,
-        command: Command,
-        received: Instant,
-    ) -> (Result<(), Reject>, Option<Seen>) {
-        let Some(d) = self.vehicle().devices().get(id.index()) else {
-            return (
-                Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
-                None,
-            );
-        };
-        let (done, seen) = self.state().decided(self.vehicle(), d, command);
-        if let Err(why) = done {
-            return (Err(self.reject(Some(d), Some(command), why)), Some(seen));
-        }
-        self.dispatch(d, command, received);
-        // A disengage that raced this command (it checks the gate, then stores): the
-        // safe state must be the last word.
-        if !self.is_engaged() {
-            self.command_safe_state();
-        }
-        (Ok(()), Some(seen))
-    }
-
     /// An admitted command on its way: written from this thread when its port is idle
     /// and the wire check says send exactly it ([`fast`]) — the command thread then
     /// only reads the reply — else stored for the command thread.
-    fn dispatch(&self, d: &Device, command: Command, received: Instant) {
+    pub(super) fn dispatch(&self, d: &Device, command: Command, received: Instant) {
         crate::probe::stamp(crate::probe::Step::Checked);
         Stats::bump(&d.stats().received);
         match fast::send(self, d, command, received) {
@@ -97,50 +62,6 @@ impl Gate {
     pub(super) fn store(&self, d: &Device, command: Command, received: Instant) {
         Stats::bump(&d.stats().received);
         queue(d, command, received);
-    }
-
-    /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
-    /// throttle, negative is brake; it never applies both. Safety decides it as a whole
-    /// ([`crate::safety::accel`]): refused, both slots stay exactly as they were;
-    /// admitted, its plan goes out, the brake's release first when throttle follows it.
-    /// Needs throttle and brake bound.
-    pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
-        self.submit_accel_seen(a, received).0
-    }
-
-    /// [`Gate::submit_accel`], and what its decision saw (for the recording).
-    pub(crate) fn submit_accel_seen(
-        &self,
-        a: f64,
-        received: Instant,
-    ) -> (Result<(), Reject>, Option<Seen>) {
-        let v = self.vehicle();
-        let Some((done, seen)) = self.state().decided_accel(v, a) else {
-            return (Err(self.reject(None, None, Reject::NoSuchDevice)), None);
-        };
-        let b = v.bindings();
-        let pedal = |p: Pedal| match p {
-            Pedal::Throttle => b.throttle.map(|id| v.device(id)),
-            Pedal::Brake => b.brake.map(|id| v.device(id)),
-        };
-        let plan = match done {
-            Ok(plan) => plan,
-            Err(r) => {
-                if r.why == Reject::AccelWhileShifting {
-                    tracing::debug!("accel {a}: the brake holds until the shift is through");
-                }
-                return (Err(self.reject(pedal(r.at), r.command, r.why)), Some(seen));
-            }
-        };
-        for (p, share) in plan.order() {
-            if let Some(d) = pedal(p) {
-                self.dispatch(d, Plan::command(d.config(), share), received);
-            }
-        }
-        if !self.is_engaged() {
-            self.command_safe_state();
-        }
-        (Ok(()), Some(seen))
     }
 
     /// The supervisor's own commands: past the gate and the intake interlocks (the
@@ -205,6 +126,7 @@ fn queue(d: &Device, command: Command, received: Instant) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::safety::Reject;
     use crate::testkit as sample;
     use std::sync::Arc;
 

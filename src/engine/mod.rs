@@ -5,10 +5,10 @@
 //! 1. [`admit`]: every front end (console, attached consoles, the network, ROS 2,
 //!    `adrive ctl`) hands an [`Ask`](crate::safety::Ask) with its source to
 //!    [`Gate::admit`], which applies the ownership rule and the commander's watchdog
-//!    under one lock.
-//! 2. [`dispatch`]: the interlocks and the engage gate decide
+//!    under one lock; then the interlocks and the engage gate decide
 //!    ([`GateState::check`](crate::safety::GateState::check), pure rules in
-//!    [`crate::safety`]); an admitted command goes on its way — and so does every safe
+//!    [`crate::safety`]).
+//! 2. [`dispatch`]: an admitted command goes on its way — and so does every safe
 //!    state, on every path that stops the vehicle.
 //! 3. [`fast`]: a command for an idle port is written from the admitting thread, after
 //!    the wire check; the command thread only reads the reply.
