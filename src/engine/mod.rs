@@ -51,7 +51,7 @@ pub mod placement;
 pub mod polling;
 pub mod status;
 
-pub use dispatch::WireStep;
+pub use command::WireStep;
 pub use gate::Gate;
 
 use crate::threads::{Group, Liveness};
@@ -112,7 +112,7 @@ impl Engine {
             }
             if d.is_actuator() {
                 let g = gate.clone();
-                let first = command::turn_bound(d, dispatch::longest_wire_wait(&vehicle));
+                let first = command::turn_bound(d, command::longest_wire_wait(&vehicle));
                 // The command thread stops when its slot does (it sleeps there).
                 threads.spawn_beating(format!("{name}/command"), first, move |_, beat| {
                     placement::apply(&g.vehicle().config().vehicle.placement);
