@@ -27,7 +27,7 @@ pub(crate) mod pace;
 pub mod proto;
 
 pub use crate::config::NetworkConfig;
-pub use counters::{NetStatus, Refusal};
+pub use counters::{NetRefusal, NetStatus};
 
 use crate::engine::Gate;
 use crate::logging::Repeats;
