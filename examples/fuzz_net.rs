@@ -11,7 +11,7 @@
 
 use adrive::net::auth::Auth;
 use adrive::net::fuzzing::{exercise, FUZZ_KEY};
-use adrive::net::proto::{RejectCounts, MAX_DATAGRAM};
+use adrive::net::proto::{BadDatagramCounts, MAX_DATAGRAM};
 use clap::Parser;
 use std::panic;
 use std::process::ExitCode;
@@ -122,7 +122,7 @@ fn main() -> ExitCode {
     let args = Args::parse();
     let mut rng = Rng(args.seed);
     let mut pool = seeds();
-    let counts = RejectCounts::new();
+    let counts = BadDatagramCounts::new();
     let mut accepted = 0u64;
     let mut input = Vec::with_capacity(2 * MAX_DATAGRAM);
     let started = Instant::now();

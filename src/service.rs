@@ -326,12 +326,12 @@ mod tests {
     /// resumes at once.
     #[test]
     fn the_watchdog_is_not_fed_while_a_thread_is_past_its_bound_and_is_once_it_turns() {
-        use crate::threads::{Owner, STALL_GRACE};
+        use crate::threads::{Group, STALL_GRACE};
         let bound = Duration::from_millis(200);
-        let mut owner = Owner::default();
+        let mut group = Group::default();
         let (turn, turns) = std::sync::mpsc::channel::<Duration>();
         let (turned, done) = std::sync::mpsc::channel::<Instant>();
-        owner
+        group
             .spawn_beating("brake/command", bound, move |_, beat| {
                 // Turns when told, with the bound it is told, as a loop stuck in a
                 // system call would when the call returns.
@@ -341,7 +341,7 @@ mod tests {
                 }
             })
             .unwrap();
-        let alive = owner.liveness();
+        let alive = group.liveness();
         assert!(alive
             .wait_running(Instant::now() + Duration::from_secs(10))
             .is_empty());

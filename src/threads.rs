@@ -1,6 +1,6 @@
 //! Threads, named and stoppable: a stop signal sleeping threads wake up for, a set of
 //! named threads joined with a deadline (naming any that did not stop), whether each
-//! still makes progress ([`Liveness`], which the service watchdog is fed by), [`Owner`],
+//! still makes progress ([`Liveness`], which the service watchdog is fed by), [`Group`],
 //! the one way a part that runs threads stops them, and [`every`], the one periodic
 //! loop every periodic thread uses.
 //!
@@ -174,20 +174,20 @@ impl Threads {
 }
 
 /// The threads of one part (the network, the recorder, the supervisor, …) and the stop
-/// signal they watch: what every thread owner holds. [`Owner::stop`] signals, joins
-/// with a deadline and names the threads that did not end; an owner dropped without
-/// it (a panic unwinding, an error before the part was up) signals its threads and
-/// does not wait for them.
+/// signal they watch, stopped together: what every part that starts threads holds.
+/// [`Group::stop`] signals, joins with a deadline and names the threads that did not
+/// end; a group dropped without it (a panic unwinding, an error before the part was
+/// up) signals its threads and does not wait for them.
 #[derive(Default)]
-pub struct Owner {
+pub struct Group {
     signal: Arc<StopSignal>,
     threads: Threads,
 }
 
-impl Owner {
-    /// An owner whose threads watch `signal`, shared with others that stop them too.
-    pub fn watching(signal: Arc<StopSignal>) -> Owner {
-        Owner {
+impl Group {
+    /// A group whose threads watch `signal`, shared with others that stop them too.
+    pub fn watching(signal: Arc<StopSignal>) -> Group {
+        Group {
             signal,
             threads: Threads::default(),
         }
@@ -242,7 +242,7 @@ impl Owner {
     }
 }
 
-impl Drop for Owner {
+impl Drop for Group {
     fn drop(&mut self) {
         self.signal.stop();
     }
@@ -389,7 +389,7 @@ impl Heart {
     }
 }
 
-/// The thread's own side of its heartbeat (handed to it by [`Owner::spawn_beating`]).
+/// The thread's own side of its heartbeat (handed to it by [`Group::spawn_beating`]).
 pub struct Beat(Arc<Heart>);
 
 impl Beat {
@@ -480,35 +480,35 @@ mod tests {
     use super::*;
 
     /// Every part's shutdown: its threads are told to stop and joined; one that does
-    /// not end by the deadline is named, not waited for; an owner dropped without
+    /// not end by the deadline is named, not waited for; a group dropped without
     /// stopping still tells its threads to stop.
     #[test]
-    fn an_owner_stops_its_threads_and_names_those_that_did_not_end() {
-        let mut owner = Owner::default();
-        owner
+    fn a_group_stops_its_threads_and_names_those_that_did_not_end() {
+        let mut group = Group::default();
+        group
             .spawn("waits", |stop| {
                 stop.sleep_until(Instant::now() + Duration::from_secs(60));
             })
             .unwrap();
         let (release, held) = std::sync::mpsc::channel::<()>();
-        owner
+        group
             .spawn("deaf", move |_| {
                 let _ = held.recv();
             })
             .unwrap();
-        assert_eq!(owner.names(), ["waits", "deaf"]);
+        assert_eq!(group.names(), ["waits", "deaf"]);
         let t = Instant::now();
-        let stuck = owner.stop(Instant::now() + Duration::from_millis(300));
+        let stuck = group.stop(Instant::now() + Duration::from_millis(300));
         assert_eq!(stuck, ["deaf"]);
         assert!(t.elapsed() < Duration::from_secs(30), "the deadline held");
         assert!(
-            owner.stop(Instant::now()).is_empty(),
+            group.stop(Instant::now()).is_empty(),
             "nothing left to join"
         );
         drop(release);
 
         let signal = {
-            let mut dropped = Owner::default();
+            let mut dropped = Group::default();
             let (tx, ended) = std::sync::mpsc::channel();
             dropped
                 .spawn("waits", move |stop| {
@@ -520,7 +520,7 @@ mod tests {
             drop(dropped);
             ended
                 .recv_timeout(Duration::from_secs(30))
-                .expect("a dropped owner's thread is told to stop");
+                .expect("a dropped group's thread is told to stop");
             signal
         };
         assert!(signal.is_stopped());

@@ -6,7 +6,7 @@ mod common;
 
 use adrive::config::{self, NetworkConfig};
 use adrive::net::auth::Auth;
-use adrive::net::{Net, Refusal};
+use adrive::net::{Net, NetRefusal};
 use adrive::safety::Reject as Intake;
 use adrive::snapshot::{Snapshot, WatchdogState};
 use adrive::threads::Shutdown;
@@ -292,7 +292,7 @@ fn engage_is_refused_while_a_device_is_faulty_and_the_reasons_come_back() {
         "{reply}"
     );
     assert!(!n.rig.gate.is_engaged());
-    assert_eq!(n.net().status().refusals(Refusal::EngageBlocked), 1);
+    assert_eq!(n.net().status().refusals(NetRefusal::EngageBlocked), 1);
     n.broadcast_until("the blocker in the broadcast", |v| {
         v.gate.blockers.iter().any(|s| s.contains("gas is faulty"))
             && v.faulty().count() > 0
@@ -577,7 +577,7 @@ fn a_second_sender_is_refused_while_another_commands() {
     assert!(b
         .ask(b"engage")
         .starts_with("refused engage: commanded by network"));
-    assert_eq!(n.net().status().refusals(Refusal::OtherCommander), 2);
+    assert_eq!(n.net().status().refusals(NetRefusal::OtherCommander), 2);
     assert_eq!(
         stored(&n, "steer"),
         before,
@@ -615,7 +615,7 @@ fn the_allow_list_refuses_other_senders_silently() {
     assert!(b.ask(SENTINEL).starts_with(SENTINEL_REPLY));
     assert_eq!(a.reply(Duration::from_millis(1)), None);
     assert!(!n.rig.gate.is_engaged());
-    assert_eq!(n.net().status().refusals(Refusal::NotOnAllowList), 1);
+    assert_eq!(n.net().status().refusals(NetRefusal::NotOnAllowList), 1);
 }
 
 const KEY: &[u8] = b"a shared key of at least 16 bytes";

@@ -4,7 +4,7 @@
 
 use adrive::config::VehicleConfig;
 use adrive::net::auth::Auth;
-use adrive::net::proto::{parse, Reject, RejectCounts, Vocabulary};
+use adrive::net::proto::{parse, BadDatagram, BadDatagramCounts, Vocabulary};
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
@@ -43,7 +43,7 @@ fn parse_verify_and_count_do_not_allocate() {
     let signed = auth.sign("engage\nsteer -0.25\ngas 0.3\ntrans drive\n", 12);
     let plain = b"seq 4\r\nsteer 0.2 # left\r\naccel -0.5\r\n";
     let bad = b"steer 0.2\nstear 0.3\n";
-    let counts = RejectCounts::new();
+    let counts = BadDatagramCounts::new();
     let alice = VehicleConfig::alice();
     let vocab = Vocabulary::of(&alice);
     let parse = |b: &[u8]| parse(b, &vocab);
@@ -54,15 +54,15 @@ fn parse_verify_and_count_do_not_allocate() {
         auth.verify(&d, signed.as_bytes(), Some(11)).unwrap();
         assert_eq!(
             auth.verify(&d, signed.as_bytes(), Some(12)),
-            Err(Reject::Replayed)
+            Err(BadDatagram::Replayed)
         );
 
         let d = parse(plain).unwrap();
-        assert_eq!(auth.verify(&d, plain, None), Err(Reject::MissingTag));
+        assert_eq!(auth.verify(&d, plain, None), Err(BadDatagram::MissingTag));
 
         let e = parse(bad).unwrap_err();
         counts.incr(e.reason);
-        assert_eq!(counts.get(Reject::UnknownDevice), 1);
+        assert_eq!(counts.get(BadDatagram::UnknownDevice), 1);
     });
     assert_eq!(n, 0, "the command path allocated {n} times");
 }

@@ -5,7 +5,7 @@
 //! Everything is looked up in the DBC here, once: a misspelt message or signal is a
 //! vehicle-file error at its line, never a silent frame on the bus.
 
-use super::device::{DeviceConfig, ReadingKind, Refusal};
+use super::device::{DeviceConfig, Mistake, ReadingKind};
 use crate::can::dbc::{Checksum, Database, Message, Sequence};
 use crate::can::{Bitrate, Id};
 use crate::value::Kind;
@@ -76,7 +76,7 @@ fn default_bitrate() -> Spanned<u32> {
 
 impl RawBus {
     /// Check the bus and load its DBC, relative to the vehicle file at `source`.
-    pub(super) fn check(self, source: &str) -> Result<BusConfig, Refusal> {
+    pub(super) fn check(self, source: &str) -> Result<BusConfig, Mistake> {
         let at = self.name.span().start;
         let name = self.name.into_inner();
         super::device::check_name("bus", &name).map_err(|m| (at, m))?;
@@ -264,7 +264,7 @@ pub(super) fn resolve(
     bus: Option<Spanned<String>>,
     can: Option<Spanned<RawCan>>,
     buses: &[BusConfig],
-) -> Result<CanMap, Refusal> {
+) -> Result<CanMap, Mistake> {
     let name = &d.name;
     let Some(bus) = bus else {
         return Err((
@@ -296,7 +296,7 @@ pub(super) fn resolve(
     let db = &buses[index].dbc;
     let refuse_at = |at: usize, m: String| (at.max(at_can), format!("{name}: can: {m}"));
     let refuse = |m: String| refuse_at(at_can, m);
-    let signal = |what: &str, at: usize, text: &str, scale: f64| -> Result<SignalRef, Refusal> {
+    let signal = |what: &str, at: usize, text: &str, scale: f64| -> Result<SignalRef, Mistake> {
         let refuse = |m: String| refuse_at(at, m);
         let Some((m, s)) = text.split_once('.') else {
             return Err(refuse(format!(
@@ -321,7 +321,7 @@ pub(super) fn resolve(
             scale,
         })
     };
-    let message = |what: &str, text: &Spanned<String>| -> Result<Id, Refusal> {
+    let message = |what: &str, text: &Spanned<String>| -> Result<Id, Mistake> {
         db.message_named(text.get_ref())
             .map(|m| m.id())
             .map_err(|e| refuse_at(text.span().start, format!("{what}: {}", e.message)))

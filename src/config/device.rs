@@ -631,8 +631,8 @@ fn default_reply_timeout() -> Duration {
     limits::REPLY_TIMEOUT.default_value()
 }
 
-/// A refusal and where it points (a byte offset into the file).
-pub(super) type Refusal = (usize, String);
+/// A mistake in the vehicle file and where it is (a byte offset into the file).
+pub(super) type Mistake = (usize, String);
 
 impl RawDevice {
     /// Where the device starts, for messages about it as a whole.
@@ -645,7 +645,7 @@ impl RawDevice {
     }
 
     /// Check everything about the device on its own; `sim` says the port is not needed.
-    pub(super) fn check(self, buses: &[super::can::BusConfig]) -> Result<DeviceConfig, Refusal> {
+    pub(super) fn check(self, buses: &[super::can::BusConfig]) -> Result<DeviceConfig, Mistake> {
         let at_name = self.name.span().start;
         let name = self.name.into_inner();
         check_name("device", &name).map_err(|m| (at_name, m))?;
@@ -764,7 +764,7 @@ struct Of<'a> {
 
 impl Of<'_> {
     /// `range`: a setpoint device's `[min, max]`; `[0, 0]` for the others.
-    fn range(&self, range: Option<&Spanned<Vec<f64>>>) -> Result<[f64; 2], Refusal> {
+    fn range(&self, range: Option<&Spanned<Vec<f64>>>) -> Result<[f64; 2], Mistake> {
         let (name, kind) = (self.name, self.kind);
         match (kind, range) {
             (Kind::Setpoint, None) => Err((
@@ -792,7 +792,7 @@ impl Of<'_> {
     }
 
     /// `states`: a state device's, in order.
-    fn states(&self, states: Option<Spanned<Vec<String>>>) -> Result<Vec<String>, Refusal> {
+    fn states(&self, states: Option<Spanned<Vec<String>>>) -> Result<Vec<String>, Mistake> {
         let (name, kind) = (self.name, self.kind);
         match (kind, states) {
             (Kind::State, None) => Err((
@@ -818,7 +818,7 @@ impl Of<'_> {
         &self,
         states: &[String],
         aliases: Option<Spanned<toml::Table>>,
-    ) -> Result<Vec<(String, u8)>, Refusal> {
+    ) -> Result<Vec<(String, u8)>, Mistake> {
         let name = self.name;
         let mut out = Vec::new();
         let Some(a) = aliases else { return Ok(out) };
@@ -864,7 +864,7 @@ impl Of<'_> {
         readings: Option<Spanned<Vec<Spanned<toml::Value>>>>,
         units: Option<&str>,
         can: bool,
-    ) -> Result<Vec<ReadingSpec>, Refusal> {
+    ) -> Result<Vec<ReadingSpec>, Mistake> {
         let (name, kind, at_name) = (self.name, self.kind, self.at_name);
         let readings = match readings {
             Some(r) => {
@@ -930,7 +930,7 @@ impl Of<'_> {
         &self,
         range: [f64; 2],
         response: Option<Spanned<RawResponse>>,
-    ) -> Result<Option<Response>, Refusal> {
+    ) -> Result<Option<Response>, Mistake> {
         let (name, kind) = (self.name, self.kind);
         let Some(r) = response else { return Ok(None) };
         let at = r.span().start;
@@ -953,7 +953,7 @@ impl Of<'_> {
         &self,
         has_response: bool,
         polling: Option<Spanned<Polling>>,
-    ) -> Result<Polling, Refusal> {
+    ) -> Result<Polling, Mistake> {
         let name = self.name;
         let Some(p) = polling else {
             return Ok(Polling::Fixed);

@@ -4,7 +4,7 @@
 //! drivers and the simulated devices are built from these checked maps, so the host
 //! side and the device side of a protocol always agree.
 
-use super::device::{DeviceConfig, DriverKind, ReadingKind, Refusal};
+use super::device::{DeviceConfig, DriverKind, Mistake, ReadingKind};
 use crate::value::Kind;
 use serde::Deserialize;
 use toml::Spanned;
@@ -221,7 +221,7 @@ pub(super) fn resolve(
     at_driver: usize,
     modbus: Option<Spanned<RawModbus>>,
     line: Option<Spanned<RawLine>>,
-) -> Result<Wire, Refusal> {
+) -> Result<Wire, Mistake> {
     let name = &d.name;
     match (d.driver, modbus, line) {
         (DriverKind::Modbus, Some(m), None) => modbus_map(d, m),
@@ -243,7 +243,7 @@ pub(super) fn resolve(
     }
 }
 
-fn line_map(d: &DeviceConfig, raw: Option<Spanned<RawLine>>) -> Result<Wire, Refusal> {
+fn line_map(d: &DeviceConfig, raw: Option<Spanned<RawLine>>) -> Result<Wire, Mistake> {
     let name = &d.name;
     let (at, raw) = match raw {
         Some(r) => (r.span().start, Some(r.into_inner())),
@@ -335,7 +335,7 @@ fn reading_names(d: &DeviceConfig) -> String {
         .join(", ")
 }
 
-fn elm_map(d: &DeviceConfig, at: usize) -> Result<Wire, Refusal> {
+fn elm_map(d: &DeviceConfig, at: usize) -> Result<Wire, Mistake> {
     let name = &d.name;
     if d.kind != Kind::Sensor {
         return Err((
@@ -369,7 +369,7 @@ fn reg(v: &toml::Value) -> Option<u16> {
     v.as_integer().and_then(|i| u16::try_from(i).ok())
 }
 
-fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal> {
+fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Mistake> {
     let name = &d.name;
     let raw = raw.into_inner();
     let slave = modbus_slave(name, &raw.slave)?;
@@ -425,7 +425,7 @@ fn modbus_map(d: &DeviceConfig, raw: Spanned<RawModbus>) -> Result<Wire, Refusal
 }
 
 /// `modbus.slave`, within the limits table's range (the one rule for a slave id).
-fn modbus_slave(name: &str, slave: &Spanned<i64>) -> Result<u8, Refusal> {
+fn modbus_slave(name: &str, slave: &Spanned<i64>) -> Result<u8, Mistake> {
     let at_slave = slave.span().start;
     let slave = *slave.get_ref();
     let limit = &super::limits::MODBUS_SLAVE;
@@ -455,7 +455,7 @@ struct Registers {
 }
 
 impl Registers {
-    fn parse(table: toml::Table, bad: &dyn Fn(String) -> Refusal) -> Result<Registers, Refusal> {
+    fn parse(table: toml::Table, bad: &dyn Fn(String) -> Mistake) -> Result<Registers, Mistake> {
         let mut r = Registers {
             target: None,
             control: None,
@@ -513,8 +513,8 @@ fn reading_field(
     reading: &str,
     v: &toml::Value,
     scale: Scale,
-    bad: &dyn Fn(String) -> Refusal,
-) -> Result<(u16, Field), Refusal> {
+    bad: &dyn Fn(String) -> Mistake,
+) -> Result<(u16, Field), Mistake> {
     let Some(index) = d.reading(reading) else {
         return Err(bad(format!(
             "unknown key {reading:?}: expected target, control, status, fault_mask, table, scale, offset, signed, or one of its readings ({})",
@@ -576,8 +576,8 @@ fn reading_field(
 fn check_fields(
     d: &DeviceConfig,
     fields: &[(u16, Field)],
-    bad: &dyn Fn(String) -> Refusal,
-) -> Result<(), Refusal> {
+    bad: &dyn Fn(String) -> Mistake,
+) -> Result<(), Mistake> {
     for w in fields.windows(2) {
         if w[0].0 == w[1].0 {
             return Err(bad(format!(
@@ -606,7 +606,7 @@ fn modbus_codes(
     d: &DeviceConfig,
     codes: Option<Spanned<toml::Table>>,
     at: usize,
-) -> Result<Vec<u16>, Refusal> {
+) -> Result<Vec<u16>, Mistake> {
     let name = &d.name;
     match (d.kind, codes) {
         (Kind::State, None) => Err((

@@ -9,7 +9,7 @@
 //! is refused at the line of its second binding (throttle and brake on one device
 //! would be released and applied by the same set point).
 
-use super::device::{DeviceConfig, ReadingKind, Refusal};
+use super::device::{DeviceConfig, Mistake, ReadingKind};
 use crate::value::{DeviceId, EstopState, Kind};
 use serde::Deserialize;
 use std::fmt;
@@ -272,7 +272,7 @@ pub(super) fn bind(
     gear: Option<Spanned<RawGear>>,
     devices: &[DeviceConfig],
     line: &dyn Fn(usize) -> usize,
-) -> Result<Bindings, Refusal> {
+) -> Result<Bindings, Mistake> {
     let to = Binder { devices };
     to.check_sharing(&raw, line)?;
     let mut b = Bindings {
@@ -309,7 +309,7 @@ struct Binder<'a> {
 
 impl Binder<'_> {
     /// The device `"device"` or `"device.reading"` names, and the reading's index.
-    fn find(&self, s: &Spanned<String>) -> Result<(DeviceId, Option<usize>), Refusal> {
+    fn find(&self, s: &Spanned<String>) -> Result<(DeviceId, Option<usize>), Mistake> {
         let devices = self.devices;
         let at = s.span().start;
         let text = s.get_ref();
@@ -348,7 +348,7 @@ impl Binder<'_> {
 
     /// One device, two roles: only the pairs of SHARED. Checked first, in the order the
     /// file writes them, so the refusal names the second binding and quotes both.
-    fn check_sharing(&self, raw: &RawRoles, line: &dyn Fn(usize) -> usize) -> Result<(), Refusal> {
+    fn check_sharing(&self, raw: &RawRoles, line: &dyn Fn(usize) -> usize) -> Result<(), Mistake> {
         let mut written: Vec<(Role, &Spanned<String>)> = Role::ALL
             .into_iter()
             .filter_map(|r| raw.get(r).map(|s| (r, s)))
@@ -386,7 +386,7 @@ impl Binder<'_> {
         role: Role,
         s: &Option<Spanned<String>>,
         want: Kind,
-    ) -> Result<Option<DeviceId>, Refusal> {
+    ) -> Result<Option<DeviceId>, Mistake> {
         let Some(s) = s else { return Ok(None) };
         let (id, reading) = self.find(s)?;
         let d = &self.devices[id.index()];
@@ -421,7 +421,7 @@ impl Binder<'_> {
         default: &[&str],
         ok: &dyn Fn(&ReadingKind) -> bool,
         want: &str,
-    ) -> Result<Option<ReadingRef>, Refusal> {
+    ) -> Result<Option<ReadingRef>, Mistake> {
         let Some(s) = s else { return Ok(None) };
         let (id, r) = self.find(s)?;
         let d = &self.devices[id.index()];
@@ -454,7 +454,7 @@ impl Binder<'_> {
     }
 
     /// The throttle and the brake are released at 0: their ranges start there.
-    fn check_released_at_zero(&self, raw: &RawRoles, b: &Bindings) -> Result<(), Refusal> {
+    fn check_released_at_zero(&self, raw: &RawRoles, b: &Bindings) -> Result<(), Mistake> {
         for (role, id) in [(Role::Throttle, b.throttle), (Role::Brake, b.brake)] {
             if let (Some(id), Some(s)) = (id, raw.get(role)) {
                 let [lo, _] = self.devices[id.index()].range;
@@ -477,7 +477,7 @@ impl Binder<'_> {
         &self,
         raw: &RawRoles,
         gear: Option<Spanned<RawGear>>,
-    ) -> Result<Option<GearBinding>, Refusal> {
+    ) -> Result<Option<GearBinding>, Mistake> {
         let (Some(g), Some(s)) = (
             self.actuator(Role::Gear, &raw.gear, Kind::State)?,
             raw.get(Role::Gear),
@@ -557,7 +557,7 @@ impl Binder<'_> {
     }
 
     /// The e-stop role: a state reading with disable, pause and run.
-    fn estop(&self, s: &Option<Spanned<String>>) -> Result<Option<EstopBinding>, Refusal> {
+    fn estop(&self, s: &Option<Spanned<String>>) -> Result<Option<EstopBinding>, Mistake> {
         let estop_kind = |k: &ReadingKind| match k {
             ReadingKind::States(s) => EstopState::ALL
                 .iter()
@@ -590,7 +590,7 @@ impl Binder<'_> {
     }
 
     /// The starter role: an actuator that takes the start control.
-    fn starter(&self, s: &Option<Spanned<String>>) -> Result<Option<DeviceId>, Refusal> {
+    fn starter(&self, s: &Option<Spanned<String>>) -> Result<Option<DeviceId>, Mistake> {
         let Some(s) = s else { return Ok(None) };
         let (id, r) = self.find(s)?;
         let d = &self.devices[id.index()];

@@ -173,7 +173,7 @@ pub fn drive(
     let mut model = Model::new(
         keymap,
         Theme::from_env(),
-        live.frame(Instant::now(), None),
+        live.scene(Instant::now(), None),
         deadman,
     );
     let mut screen = terminal::enter()?;

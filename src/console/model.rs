@@ -1,6 +1,6 @@
 //! The console's state (the "model" of the Elm architecture): the mode, the cursor,
 //! an edit in progress, a pending question, the name prompt, teleop and bench state,
-//! the screen's size and the latest [`Frame`] of the vehicle. Only
+//! the screen's size and the latest [`Scene`] of the vehicle. Only
 //! [`update`](super::update) changes it; the view only reads it.
 
 use super::hold::{Drive, Holds, KeyRepeat};
@@ -10,7 +10,7 @@ use super::sight::Drawn;
 use super::theme::Theme;
 use super::trail::Trail;
 use crate::config::TeleopConfig;
-use crate::controls::Frame;
+use crate::controls::Scene;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
 use crossterm::event::{KeyCode, KeyEventKind, KeyModifiers};
@@ -55,7 +55,7 @@ impl Field {
     }
 
     /// The field in words, `steer cm delay`, with the device's name from `frame`.
-    pub fn name(self, frame: &Frame) -> String {
+    pub fn name(self, frame: &Scene) -> String {
         let n = |id: DeviceId| frame.at(id).map_or("?", |d| d.name.as_str()).to_string();
         match self {
             Field::Command(r) => format!("{} command", n(r)),
@@ -118,7 +118,7 @@ pub struct Find {
 
 /// A question waiting for yes or no.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Ask {
+pub enum Question {
     Engage,
     Disengage,
     /// Take command from whoever has it.
@@ -127,14 +127,14 @@ pub enum Ask {
     Interlocks(bool),
 }
 
-impl Ask {
-    pub fn question(self) -> &'static str {
+impl Question {
+    pub fn text(self) -> &'static str {
         match self {
-            Ask::Engage => "Engage? Commands will move the vehicle.",
-            Ask::Disengage => "Disengage? Gas 0, brake full, commands refused.",
-            Ask::Take => "Take command? The source commanding now is refused from then on.",
-            Ask::Interlocks(true) => "Turn the interlocks ON?",
-            Ask::Interlocks(false) => {
+            Question::Engage => "Engage? Commands will move the vehicle.",
+            Question::Disengage => "Disengage? Gas 0, brake full, commands refused.",
+            Question::Take => "Take command? The source commanding now is refused from then on.",
+            Question::Interlocks(true) => "Turn the interlocks ON?",
+            Question::Interlocks(false) => {
                 "Turn the interlocks OFF? Nothing will stop gas against the brake."
             }
         }
@@ -262,11 +262,11 @@ pub struct Model {
     pub mode: Mode,
     /// Where `back`/`cancel` returns to from edit, confirm and help.
     pub(crate) back_to: Mode,
-    pub snap: Frame,
+    pub snap: Scene,
     /// Index into [`Model::fields`].
     pub cursor: usize,
     pub edit: Option<Edit>,
-    pub ask: Option<Ask>,
+    pub ask: Option<Question>,
     pub message: Option<Message>,
     /// News from elsewhere waiting for the operator's answer to be read ([`ANSWER_HOLDS`]).
     pub(crate) news: Option<Message>,
@@ -320,7 +320,7 @@ pub struct TerminalView {
 }
 
 impl Model {
-    pub fn new(keymap: Keymap, theme: Theme, snap: Frame, deadman: Duration) -> Model {
+    pub fn new(keymap: Keymap, theme: Theme, snap: Scene, deadman: Duration) -> Model {
         let bench = DeviceId(0);
         Model {
             keymap,

@@ -1,7 +1,7 @@
 //! `adrive replay FILE`: the console plays a recording. The [`Player`] holds the
 //! recorded snapshots, warnings and raw traffic and a clock (pause, step, seek,
 //! speed); [`Replay`] is a read-only [`Controls`] that hands the console the
-//! [`Frame`] of the moment played, so every panel is drawn by the same code as live —
+//! [`Scene`] of the moment played, so every panel is drawn by the same code as live —
 //! faults red, recovery steps, log lines. Only the keys that look around reach the
 //! console's update; nothing can be sent. With `--broadcast`, each snapshot played
 //! is also sent as the state broadcast was, so other tools can be tested against a
@@ -12,7 +12,7 @@ use super::keymap::{Action, Keymap, Mode};
 use super::model::Model;
 use super::theme::Theme;
 use super::update::{self, Flow};
-use crate::controls::{Controls, Frame, Tune};
+use crate::controls::{Controls, Scene, Tune};
 use crate::exit::Exit;
 use crate::logging::ring::LogLine;
 use crate::net::BROADCAST_MAX;
@@ -252,7 +252,7 @@ impl Player {
 
     /// The frame the console draws: the snapshot shown, the warnings and errors up to
     /// it, and the bench device's raw traffic up to it (ages as of `now`).
-    pub fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
+    pub fn scene(&self, now: Instant, bench: Option<DeviceId>) -> Scene {
         let t = self.time();
         let snap = crate::record::message::recorded_snapshot(self.json()).unwrap_or_default();
         let upto = self.logs.partition_point(|(at, _)| *at <= t);
@@ -275,7 +275,7 @@ impl Player {
             })
             .unwrap_or_default();
         let n = snap.devices.len();
-        Frame {
+        Scene {
             snap,
             logs,
             trace,
@@ -316,8 +316,8 @@ pub(crate) struct Replay<'a> {
 const READ_ONLY: &str = "replay: read-only, nothing can be sent";
 
 impl Controls for Replay<'_> {
-    fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
-        self.player.frame(now, bench)
+    fn scene(&self, now: Instant, bench: Option<DeviceId>) -> Scene {
+        self.player.scene(now, bench)
     }
     fn parse(&self, _: DeviceId, _: &str) -> Result<Command, String> {
         Err(READ_ONLY.into())
@@ -473,7 +473,7 @@ pub fn run(
     broadcast: Option<Broadcast>,
 ) -> std::io::Result<Exit> {
     let now = Instant::now();
-    let first = player.frame(now, None);
+    let first = player.scene(now, None);
     let mut model = Model::new(
         keymap,
         Theme::from_env(),
@@ -647,7 +647,7 @@ mod tests {
         assert_eq!(p.pos(), 0);
         p.jump(true, now);
         assert_eq!(p.pos(), 4);
-        assert_eq!(p.frame(now, None).seq, 4);
+        assert_eq!(p.scene(now, None).seq, 4);
     }
 
     /// A simulator key on the bench of a replay said "fault injection needs --sim",
@@ -657,7 +657,7 @@ mod tests {
         let p = player(&[0, 100]);
         let r = Replay { player: &p };
         assert_eq!(r.sim("silent steer on"), Some(Err(READ_ONLY.to_string())));
-        assert!(p.frame(Instant::now(), None).read_only);
+        assert!(p.scene(Instant::now(), None).read_only);
     }
 
     #[test]
@@ -679,7 +679,7 @@ mod tests {
         let model = Model::new(
             Keymap::default_map(),
             Theme::default(),
-            p.frame(Instant::now(), None),
+            p.scene(Instant::now(), None),
             crate::config::limits::DEADMAN_DEFAULT,
         );
         let view = Screen {

@@ -22,7 +22,7 @@
 
 use super::keymap::{key_to_action, Action, Mode, SimAction};
 use super::layout::{MIN_HEIGHT, MIN_WIDTH};
-use super::model::{Ask, Field, Model};
+use super::model::{Field, Model, Question};
 use crate::config::Role;
 use crate::value::DeviceId;
 use crossterm::event::KeyEvent;
@@ -37,7 +37,7 @@ pub struct Drawn {
     /// The console itself was drawn (the terminal was at least the minimum size).
     pub console: bool,
     /// The confirmation dialog: its question, drawn whole with its answers.
-    pub dialog: Option<Ask>,
+    pub dialog: Option<Question>,
     /// The name prompt, with what is typed.
     pub prompt: bool,
     /// The help overlay.
@@ -300,7 +300,7 @@ mod tests {
         let mut m = model();
         for mode in Mode::ALL {
             m.mode = mode;
-            m.ask = Some(Ask::Engage);
+            m.ask = Some(Question::Engage);
             draw(&mut m, 60, 20);
             assert!(!m.drawn.console);
             for &a in EVERY_ACTION.iter().chain(&[Action::Back, Action::Cancel]) {
@@ -339,15 +339,15 @@ mod tests {
         let mut m = model();
         m.back_to = Mode::Main;
         m.mode = Mode::Confirm;
-        m.ask = Some(Ask::Engage);
+        m.ask = Some(Question::Engage);
         draw(&mut m, 80, 24);
-        assert_eq!(m.drawn.dialog, Some(Ask::Engage));
+        assert_eq!(m.drawn.dialog, Some(Question::Engage));
         assert_eq!(check(&m, Action::Confirm), Ok(()));
         // The question changed since the frame: the one drawn is not the one asked.
-        m.ask = Some(Ask::Interlocks(false));
+        m.ask = Some(Question::Interlocks(false));
         assert_eq!(check(&m, Action::Confirm), Err(Unseen::Dialog));
         // A dialog the frame did not show whole takes no answer, not even no.
-        m.ask = Some(Ask::Engage);
+        m.ask = Some(Question::Engage);
         m.drawn.dialog = None;
         assert_eq!(check(&m, Action::Confirm), Err(Unseen::Dialog));
         assert_eq!(check(&m, Action::Cancel), Err(Unseen::Dialog));
@@ -469,11 +469,11 @@ keymap = [
         assert_eq!(check(&m, Action::Stop), Ok(()), "a STOP is never refused");
         assert_eq!(check(&m, Action::Back), Ok(()));
         // A dialog over teleop covers it.
-        m.ask = Some(Ask::Engage);
+        m.ask = Some(Question::Engage);
         m.back_to = Mode::Teleop;
         m.mode = Mode::Confirm;
         draw(&mut m, 80, 22);
-        assert!(!m.drawn.teleop && m.drawn.dialog == Some(Ask::Engage));
+        assert!(!m.drawn.teleop && m.drawn.dialog == Some(Question::Engage));
     }
 
     /// The tractor's 32 devices at 80×22: the device and the field under the cursor

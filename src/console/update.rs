@@ -3,7 +3,7 @@
 //! through [`Controls`], so both are tested with a recording fake and no terminal.
 
 use super::keymap::{Action, Mode, SimAction, Target, SIM_SLOW, SIM_VANISH};
-use super::model::{Ask, Edit, Field, Model, SeenKey, HOME_WAIT, SEEN_KEYS};
+use super::model::{Edit, Field, Model, Question, SeenKey, HOME_WAIT, SEEN_KEYS};
 use super::sight;
 use crate::config::Role;
 use crate::controls::{Controls, Thread};
@@ -31,7 +31,7 @@ pub enum Flow {
 pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     m.now = now;
     m.show_news();
-    m.snap = c.frame(now, m.in_bench().then_some(m.bench));
+    m.snap = c.scene(now, m.in_bench().then_some(m.bench));
     if m.in_bench() {
         if let Some(d) = m.snap.at(m.bench) {
             m.trail.push(m.bench, d, now);
@@ -173,7 +173,7 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
     Flow::Continue
 }
 
-fn ask(m: &mut Model, q: Ask) {
+fn ask(m: &mut Model, q: Question) {
     m.ask = Some(q);
     m.back_to = m.mode;
     m.mode = Mode::Confirm;
@@ -269,9 +269,9 @@ fn main(m: &mut Model, a: Action, c: &dyn Controls) {
             }
         }
         Action::ResetSteering => reset_steering(m, c),
-        Action::Engage => ask(m, Ask::Engage),
-        Action::Disengage => ask(m, Ask::Disengage),
-        Action::Interlocks => ask(m, Ask::Interlocks(!m.snap.gate.interlocks)),
+        Action::Engage => ask(m, Question::Engage),
+        Action::Disengage => ask(m, Question::Disengage),
+        Action::Interlocks => ask(m, Question::Interlocks(!m.snap.gate.interlocks)),
         Action::ClearOverride => clear_override(m, c),
         Action::TakeCommand => take(m),
         Action::ReleaseCommand => release(m, c),
@@ -494,19 +494,19 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
             let q = m.ask.take();
             m.mode = m.back_to;
             match q {
-                Some(Ask::Engage) => match c.engage() {
+                Some(Question::Engage) => match c.engage() {
                     Ok(done) => m.say(done.to_string(), false),
                     Err(why) => m.say(format!("engage refused: {why}"), true),
                 },
-                Some(Ask::Disengage) => match c.disengage() {
+                Some(Question::Disengage) => match c.disengage() {
                     Ok(done) => m.say(done.to_string(), false),
                     Err(why) => m.say(format!("disengage not done: {why}"), true),
                 },
-                Some(Ask::Take) => match c.take() {
+                Some(Question::Take) => match c.take() {
                     Ok(()) => m.say("the console commands the vehicle", false),
                     Err(why) => m.say(format!("take command refused: {why}"), true),
                 },
-                Some(Ask::Interlocks(on)) => match c.set_interlocks(on) {
+                Some(Question::Interlocks(on)) => match c.set_interlocks(on) {
                     Ok(()) => m.say(format!("interlocks {}", if on { "ON" } else { "OFF" }), !on),
                     Err(why) => m.say(format!("interlocks refused: {why}"), true),
                 },
@@ -717,7 +717,7 @@ fn take(m: &mut Model) {
             true,
         ),
         Some("console") => m.say("the console already commands the vehicle", false),
-        _ => ask(m, Ask::Take),
+        _ => ask(m, Question::Take),
     }
 }
 
@@ -752,7 +752,7 @@ fn sim(m: &mut Model, c: &dyn Controls, what: SimAction) {
                 _ => done.ends_with(" off") || done.ends_with(" 0"),
             };
             m.say(format!("sim: {done}"), !harmless);
-            m.snap = c.frame(m.now, Some(m.bench));
+            m.snap = c.scene(m.now, Some(m.bench));
         }
     }
 }

@@ -2,7 +2,7 @@
 //! and each console attached to the control socket, which the server serves through a
 //! `Live` of its own.
 
-use super::frame::{capture, Frame, Sources};
+use super::scene::{capture, Scene, Sources};
 use super::{Controls, Thread, Tune};
 use crate::engine::Gate;
 use crate::safety::{Ask, Done, Refused};
@@ -40,7 +40,7 @@ pub(crate) fn change_settings(
 }
 
 impl Controls for Live<'_> {
-    fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame {
+    fn scene(&self, now: Instant, bench: Option<DeviceId>) -> Scene {
         capture(self.gate, self.sources, now, bench)
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {

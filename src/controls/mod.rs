@@ -3,7 +3,7 @@
 //!
 //! [`Controls`] is a console's only door to the vehicle. It has three parts:
 //!
-//! - **frames** ([`frame`]): what to draw, captured at one instant;
+//! - **scenes** ([`scene`]): what to draw, captured at one instant;
 //! - **asks** ([`Ask`]): everything that goes through the one intake — a command,
 //!   engage, STOP, taking command — answered with [`Done`] or [`Refused`];
 //! - **tuning** ([`Tune`]): a device's settings and threads, as the bench changes them,
@@ -17,11 +17,11 @@
 //! fake of the console's tests. The console's `update` takes a `&dyn Controls`, so it
 //! is tested with no threads.
 
-pub mod frame;
 pub mod live;
+pub mod scene;
 
-pub use frame::{capture, secs, Frame, SimFaults, Sources};
 pub use live::Live;
+pub use scene::{capture, secs, Scene, SimFaults, Sources};
 
 use crate::safety::{Ask, Done, Held, Refused};
 use crate::value::{Command, DeviceId};
@@ -53,12 +53,12 @@ pub enum Tune {
 }
 
 /// What a console can do to the vehicle. An implementation gives the ways there (a
-/// frame, a command read from text, an ask through the intake, a tuning, the
+/// scene, a command read from text, an ask through the intake, a tuning, the
 /// interlocks' switch, the deadman, the simulator, the liveness check's answers); every
 /// other operation is written once below, over them.
 pub trait Controls {
     /// Capture what to draw; `bench` gets its histogram and trace filled in.
-    fn frame(&self, now: Instant, bench: Option<DeviceId>) -> Frame;
+    fn scene(&self, now: Instant, bench: Option<DeviceId>) -> Scene;
     /// Read a device's command from text, as the vehicle file defines it (a number in
     /// range, a state or an alias).
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String>;

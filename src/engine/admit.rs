@@ -16,9 +16,9 @@
 //!    while it teleoperates. One rule, one timeout per source. A commanding console
 //!    also proves its operator is there: its terminal's answers to round trips
 //!    ([`Gate::answered`]) must not stop for `[console] terminal_timeout`;
-//! 3. **the interlocks and the engage gate**: [`Gate::submit`] and [`Gate::submit_accel`]
-//!    ([`super::dispatch`]), which admit a command (a compound one as a whole) or change
-//!    nothing. Gas from a held key ([`Ask::Held`]) is granted a lease beside who
+//! 3. **the interlocks and the engage gate**: [`Gate::submit`] and [`Gate::submit_accel`],
+//!    which admit a command (a compound one as a whole) and send it on its way
+//!    ([`super::dispatch`]), or change nothing. Gas from a held key ([`Ask::Held`]) is granted a lease beside who
 //!    commands, renewed by [`Ask::Renew`] and ended by the monitor ([`super::lease`]);
 //!    any other accel or pedal command, a hold, a stop or a change of hands drops it.
 //!
@@ -26,11 +26,12 @@
 //! command changed hands. The accepted path does not touch the heap.
 
 use super::Gate;
+use crate::safety::accel::{Pedal, Plan};
 use crate::safety::lease::Lease;
 use crate::safety::owner::{self, Act, Bounds, CommandView, Commander, Outcome, Owner, Trip};
-use crate::safety::{Ask, Done, Held, Refused, Reject};
+use crate::safety::{Ask, Done, Held, Refused, Reject, Seen};
 use crate::snapshot::{DisengageCause, WatchdogView};
-use crate::value::Source;
+use crate::value::{Command, DeviceId, Source};
 use crate::vehicle::tap::{Asked, Event};
 use std::time::{Duration, Instant};
 
@@ -156,6 +157,84 @@ impl Gate {
             o.alive(received);
         }
         done
+    }
+
+    /// Command intake for one device, past ownership: the gate and the interlocks
+    /// ([`crate::safety::GateState::check`]), then on its way. `received` is when the
+    /// command was born (socket read, key press). A rejected command never reaches the
+    /// slot.
+    pub fn submit(&self, id: DeviceId, command: Command, received: Instant) -> Result<(), Reject> {
+        self.submit_seen(id, command, received).0
+    }
+
+    /// [`Gate::submit`], and what its decision saw (for the recording).
+    pub(crate) fn submit_seen(
+        &self,
+        id: DeviceId,
+        command: Command,
+        received: Instant,
+    ) -> (Result<(), Reject>, Option<Seen>) {
+        let Some(d) = self.vehicle().devices().get(id.index()) else {
+            return (
+                Err(self.reject(None, Some(command), Reject::NoSuchDevice)),
+                None,
+            );
+        };
+        let (done, seen) = self.state().decided(self.vehicle(), d, command);
+        if let Err(why) = done {
+            return (Err(self.reject(Some(d), Some(command), why)), Some(seen));
+        }
+        self.dispatch(d, command, received);
+        // A disengage that raced this command (it checks the gate, then stores): the
+        // safe state must be the last word.
+        if !self.is_engaged() {
+            self.command_safe_state();
+        }
+        (Ok(()), Some(seen))
+    }
+
+    /// The follower's virtual `accel` command, −1…1 of the pedals' ranges: positive is
+    /// throttle, negative is brake; it never applies both. Safety decides it as a whole
+    /// ([`crate::safety::accel`]): refused, both slots stay exactly as they were;
+    /// admitted, its plan goes out, the brake's release first when throttle follows it.
+    /// Needs throttle and brake bound.
+    pub fn submit_accel(&self, a: f64, received: Instant) -> Result<(), Reject> {
+        self.submit_accel_seen(a, received).0
+    }
+
+    /// [`Gate::submit_accel`], and what its decision saw (for the recording).
+    pub(crate) fn submit_accel_seen(
+        &self,
+        a: f64,
+        received: Instant,
+    ) -> (Result<(), Reject>, Option<Seen>) {
+        let v = self.vehicle();
+        let Some((done, seen)) = self.state().decided_accel(v, a) else {
+            return (Err(self.reject(None, None, Reject::NoSuchDevice)), None);
+        };
+        let b = v.bindings();
+        let pedal = |p: Pedal| match p {
+            Pedal::Throttle => b.throttle.map(|id| v.device(id)),
+            Pedal::Brake => b.brake.map(|id| v.device(id)),
+        };
+        let plan = match done {
+            Ok(plan) => plan,
+            Err(r) => {
+                if r.why == Reject::AccelWhileShifting {
+                    tracing::debug!("accel {a}: the brake holds until the shift is through");
+                }
+                return (Err(self.reject(pedal(r.at), r.command, r.why)), Some(seen));
+            }
+        };
+        for (p, share) in plan.order() {
+            if let Some(d) = pedal(p) {
+                self.dispatch(d, Plan::command(d.config(), share), received);
+            }
+        }
+        if !self.is_engaged() {
+            self.command_safe_state();
+        }
+        (Ok(()), Some(seen))
     }
 
     /// The source commanding the engaged vehicle, if any.

@@ -5,10 +5,10 @@
 //! 1. [`admit`]: every front end (console, attached consoles, the network, ROS 2,
 //!    `adrive ctl`) hands an [`Ask`](crate::safety::Ask) with its source to
 //!    [`Gate::admit`], which applies the ownership rule and the commander's watchdog
-//!    under one lock.
-//! 2. [`dispatch`]: the interlocks and the engage gate decide
+//!    under one lock; then the interlocks and the engage gate decide
 //!    ([`GateState::check`](crate::safety::GateState::check), pure rules in
-//!    [`crate::safety`]); an admitted command goes on its way — and so does every safe
+//!    [`crate::safety`]).
+//! 2. [`dispatch`]: an admitted command goes on its way — and so does every safe
 //!    state, on every path that stops the vehicle.
 //! 3. [`fast`]: a command for an idle port is written from the admitting thread, after
 //!    the wire check; the command thread only reads the reply.
@@ -21,8 +21,10 @@
 //!    command first, an overdue poll still runs), and the open port itself: the
 //!    [`crate::driver`] writes the request, and the first byte is timed.
 //!
-//! Beside it: [`status`] (the status thread polls every `status_period`, or when the
-//! estimate needs it: [`polling`], and stores the reading; readers only read it),
+//! Beside it: [`engagement`] (engage, disengage, STOP, a driver's override: every way
+//! in and out, each storing the safe or manual state past the interlocks), [`status`]
+//! (the status thread polls every `status_period`, or when the estimate needs it:
+//! [`polling`], and stores the reading; readers only read it),
 //! [`monitor`] (`gate/monitor`: blockers, the commander's watchdog and the end of a
 //! held pedal's [`lease`], every 10 ms) and
 //! [`placement`] (which CPUs the command path runs on). The gate's state and every
@@ -40,6 +42,7 @@ pub mod admit;
 pub mod bus;
 pub mod command;
 pub(crate) mod dispatch;
+mod engagement;
 pub mod fast;
 mod gate;
 pub mod lease;
@@ -48,10 +51,10 @@ pub mod placement;
 pub mod polling;
 pub mod status;
 
-pub use dispatch::WireStep;
+pub use command::WireStep;
 pub use gate::Gate;
 
-use crate::threads::{Liveness, Owner};
+use crate::threads::{Group, Liveness};
 use crate::vehicle::Vehicle;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -59,7 +62,7 @@ use std::time::{Duration, Instant};
 /// The running engine.
 pub struct Engine {
     gate: Arc<Gate>,
-    threads: Owner,
+    threads: Group,
     stopped: bool,
 }
 
@@ -85,7 +88,7 @@ impl Engine {
         gate: Arc<Gate>,
         inject: Option<Injected>,
     ) -> std::io::Result<Engine> {
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         let vehicle = gate.vehicle().clone();
         for b in 0..vehicle.buses().len() {
             let v = vehicle.clone();
@@ -109,7 +112,7 @@ impl Engine {
             }
             if d.is_actuator() {
                 let g = gate.clone();
-                let first = command::turn_bound(d, dispatch::longest_wire_wait(&vehicle));
+                let first = command::turn_bound(d, command::longest_wire_wait(&vehicle));
                 // The command thread stops when its slot does (it sleeps there).
                 threads.spawn_beating(format!("{name}/command"), first, move |_, beat| {
                     placement::apply(&g.vehicle().config().vehicle.placement);

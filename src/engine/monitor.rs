@@ -1,5 +1,5 @@
 //! The gate's monitor thread (`gate/monitor`): it disengages an engaged vehicle as soon
-//! as [`crate::safety::gate::blockers`] is not empty — a faulty or silent device, the
+//! as [`crate::safety::gate_state::blockers`] is not empty — a faulty or silent device, the
 //! e-stop in pause or disable — whoever engaged it (console or network), and runs the
 //! commander's watchdog ([`Gate::watch`]) and ends a held pedal's lease that ran out
 //! ([`Gate::end_lease`]) at the same period. Looking every [`EVERY`],
@@ -11,7 +11,7 @@
 
 use super::Gate;
 use crate::snapshot::DisengageCause;
-use crate::threads::Owner;
+use crate::threads::Group;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -20,12 +20,12 @@ pub(crate) const EVERY: Duration = Duration::from_millis(10);
 
 /// The running monitor.
 pub struct Monitor {
-    threads: Owner,
+    threads: Group,
 }
 
 impl Monitor {
     pub fn start(gate: Arc<Gate>) -> std::io::Result<Monitor> {
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         threads.spawn_beating("gate/monitor", EVERY, move |stop, beat| {
             let mut halted = false;
             crate::threads::every(EVERY, stop, || {

@@ -23,7 +23,7 @@ pub mod proto;
 
 use crate::record::message::{self, Clock, Topic};
 use crate::snapshot::{LiveView, ViewerView};
-use crate::threads::{Owner, StopSignal};
+use crate::threads::{Group, StopSignal};
 use crate::vehicle::tap::{Event, ReaderId, CAPACITY};
 use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
@@ -60,7 +60,7 @@ const PROTOCOL_HEADER: &str = "Sec-WebSocket-Protocol";
 /// The running live view.
 pub struct Foxglove {
     /// Dropped without [`Foxglove::shutdown`] (a panic unwinding): told to stop.
-    threads: Owner,
+    threads: Group,
     addr: SocketAddr,
 }
 
@@ -84,7 +84,7 @@ impl Foxglove {
             .tap()
             .open(false)
             .ok_or_else(|| io::Error::other("this vehicle's tap has no room for a live view"))?;
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         let v = vehicle.clone();
         threads.spawn("foxglove/serve", move |stop| {
             Server::new(v, listener, addr, tapped.rx, tapped.reader).run(stop)

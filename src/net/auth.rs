@@ -13,7 +13,7 @@
 //! it as `openssl dgst -sha256 -mac HMAC -macopt hexkey:HEX`. A key is at least
 //! [`MIN_KEY_LEN`] bytes: `openssl rand -hex 32 > adrive.key` makes a good one.
 
-use super::proto::{hex_digit, Datagram, Reject};
+use super::proto::{hex_digit, BadDatagram, Datagram};
 use hmac::{Hmac, Mac};
 use sha2::Sha256;
 use std::fmt::{self, Write as _};
@@ -115,15 +115,17 @@ impl Auth {
         datagram: &Datagram,
         bytes: &[u8],
         last_seq: Option<u64>,
-    ) -> Result<(), Reject> {
-        let tag = datagram.tag.ok_or(Reject::MissingTag)?;
-        let signed = bytes.get(datagram.signed.clone()).ok_or(Reject::BadTag)?;
+    ) -> Result<(), BadDatagram> {
+        let tag = datagram.tag.ok_or(BadDatagram::MissingTag)?;
+        let signed = bytes
+            .get(datagram.signed.clone())
+            .ok_or(BadDatagram::BadTag)?;
         let mut mac = self.mac.clone();
         mac.update(signed);
-        mac.verify_slice(&tag).map_err(|_| Reject::BadTag)?;
-        let seq = datagram.seq.ok_or(Reject::MissingSeq)?;
+        mac.verify_slice(&tag).map_err(|_| BadDatagram::BadTag)?;
+        let seq = datagram.seq.ok_or(BadDatagram::MissingSeq)?;
         if last_seq.is_some_and(|last| seq <= last) {
-            return Err(Reject::Replayed);
+            return Err(BadDatagram::Replayed);
         }
         Ok(())
     }
@@ -170,8 +172,8 @@ mod tests {
         Auth::from_key_bytes(KEY).unwrap()
     }
 
-    fn check(bytes: &[u8], last_seq: Option<u64>) -> Result<(), Reject> {
-        let d = parse(bytes).map_err(Reject::from)?;
+    fn check(bytes: &[u8], last_seq: Option<u64>) -> Result<(), BadDatagram> {
+        let d = parse(bytes).map_err(BadDatagram::from)?;
         auth().verify(&d, bytes, last_seq)
     }
 
@@ -229,7 +231,7 @@ mod tests {
             );
             if bytes[..i].ends_with(b"steer 0.") {
                 // `0.2` → `0.3`: still a good command, so only the tag catches it.
-                assert_eq!(got, Err(Reject::BadTag));
+                assert_eq!(got, Err(BadDatagram::BadTag));
             }
         }
     }
@@ -238,13 +240,16 @@ mod tests {
     fn wrong_key_is_bad_tag() {
         let other = Auth::from_key_bytes(b"another key of 16+ bytes").unwrap();
         let text = other.sign("steer 0.2", 1);
-        assert_eq!(check(text.as_bytes(), None), Err(Reject::BadTag));
+        assert_eq!(check(text.as_bytes(), None), Err(BadDatagram::BadTag));
     }
 
     #[test]
     fn unsigned_datagram_is_missing_tag() {
-        assert_eq!(check(b"seq 5\nsteer 0.2\n", None), Err(Reject::MissingTag));
-        assert_eq!(check(b"steer 0.2\n", None), Err(Reject::MissingTag));
+        assert_eq!(
+            check(b"seq 5\nsteer 0.2\n", None),
+            Err(BadDatagram::MissingTag)
+        );
+        assert_eq!(check(b"steer 0.2\n", None), Err(BadDatagram::MissingTag));
     }
 
     #[test]
@@ -256,14 +261,20 @@ mod tests {
             .map(|b| format!("{b:02x}"))
             .collect();
         text.push_str(&format!("tag {tag}\n"));
-        assert_eq!(check(text.as_bytes(), None), Err(Reject::MissingSeq));
+        assert_eq!(check(text.as_bytes(), None), Err(BadDatagram::MissingSeq));
     }
 
     #[test]
     fn replayed_or_older_seq_is_rejected() {
         let text = auth().sign("steer 0.2", 100);
-        assert_eq!(check(text.as_bytes(), Some(100)), Err(Reject::Replayed));
-        assert_eq!(check(text.as_bytes(), Some(101)), Err(Reject::Replayed));
+        assert_eq!(
+            check(text.as_bytes(), Some(100)),
+            Err(BadDatagram::Replayed)
+        );
+        assert_eq!(
+            check(text.as_bytes(), Some(101)),
+            Err(BadDatagram::Replayed)
+        );
         assert_eq!(check(text.as_bytes(), Some(99)), Ok(()));
         let zero = auth().sign("steer 0.2", 0);
         assert_eq!(check(zero.as_bytes(), None), Ok(()));
@@ -273,7 +284,7 @@ mod tests {
     fn bytes_that_do_not_match_the_datagram_are_bad_tag() {
         let text = auth().sign("steer 0.2", 3);
         let d = parse(text.as_bytes()).unwrap();
-        assert_eq!(auth().verify(&d, b"short", None), Err(Reject::BadTag));
+        assert_eq!(auth().verify(&d, b"short", None), Err(BadDatagram::BadTag));
     }
 
     #[test]

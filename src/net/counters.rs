@@ -4,7 +4,7 @@
 //! microseconds one datagram or one tick takes. [`NetStatus::snapshot`] copies it all
 //! into a plain [`NetView`]; readers never block the listener for longer.
 
-use super::proto::{Reject, RejectCounts};
+use super::proto::{BadDatagram, BadDatagramCounts};
 use crate::safety;
 use crate::snapshot::{NetView, Pairs, Rejections, SenderView};
 use crate::value::DeviceId;
@@ -19,7 +19,7 @@ pub(crate) const MAX_SENDERS: usize = 16;
 
 /// Why the listener refused a well-formed, authentic datagram (or one of its commands).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Refusal {
+pub enum NetRefusal {
     /// The sender is not on the `allow` list (no reply is sent).
     NotOnAllowList,
     /// Another sender is commanding the vehicle.
@@ -35,37 +35,37 @@ pub enum Refusal {
     Closing,
 }
 
-impl Refusal {
-    pub const ALL: [Refusal; 6] = [
-        Refusal::NotOnAllowList,
-        Refusal::OtherCommander,
-        Refusal::EngageNotAllowed,
-        Refusal::EngageBlocked,
-        Refusal::EngageLatched,
-        Refusal::Closing,
+impl NetRefusal {
+    pub const ALL: [NetRefusal; 6] = [
+        NetRefusal::NotOnAllowList,
+        NetRefusal::OtherCommander,
+        NetRefusal::EngageNotAllowed,
+        NetRefusal::EngageBlocked,
+        NetRefusal::EngageLatched,
+        NetRefusal::Closing,
     ];
 
     pub fn as_str(self) -> &'static str {
         match self {
-            Refusal::NotOnAllowList => "not_on_allow_list",
-            Refusal::OtherCommander => "other_commander",
-            Refusal::EngageNotAllowed => "engage_not_allowed",
-            Refusal::EngageBlocked => "engage_blocked",
-            Refusal::EngageLatched => "engage_latched",
-            Refusal::Closing => "closing",
+            NetRefusal::NotOnAllowList => "not_on_allow_list",
+            NetRefusal::OtherCommander => "other_commander",
+            NetRefusal::EngageNotAllowed => "engage_not_allowed",
+            NetRefusal::EngageBlocked => "engage_blocked",
+            NetRefusal::EngageLatched => "engage_latched",
+            NetRefusal::Closing => "closing",
         }
     }
 
     pub fn describe(self) -> &'static str {
         match self {
-            Refusal::NotOnAllowList => "the sender is not on the allow list",
-            Refusal::OtherCommander => "another sender is commanding the vehicle",
-            Refusal::EngageNotAllowed => "this vehicle does not allow engaging from the network",
-            Refusal::EngageBlocked => "engaging is blocked",
-            Refusal::EngageLatched => {
+            NetRefusal::NotOnAllowList => "the sender is not on the allow list",
+            NetRefusal::OtherCommander => "another sender is commanding the vehicle",
+            NetRefusal::EngageNotAllowed => "this vehicle does not allow engaging from the network",
+            NetRefusal::EngageBlocked => "engaging is blocked",
+            NetRefusal::EngageLatched => {
                 "disengaged while this sender commanded; send a datagram without engage first"
             }
-            Refusal::Closing => "adrive is shutting down",
+            NetRefusal::Closing => "adrive is shutting down",
         }
     }
 
@@ -164,9 +164,9 @@ pub struct NetStatus {
     pub watchdog_timeout: Duration,
     pub(crate) inner: Mutex<Inner>,
     /// Datagrams rejected whole, by reason (grammar, authentication, counter).
-    pub(crate) rejects: RejectCounts,
+    pub(crate) rejects: BadDatagramCounts,
     intake: [AtomicU64; safety::Reject::ALL.len()],
-    refused: [AtomicU64; Refusal::ALL.len()],
+    refused: [AtomicU64; NetRefusal::ALL.len()],
     /// Network commands accepted, by device.
     commands: Vec<AtomicU64>,
     /// The devices' names, by id.
@@ -188,7 +188,7 @@ impl NetStatus {
                 keyed_seq: None,
                 replies: (now, 0),
             }),
-            rejects: RejectCounts::new(),
+            rejects: BadDatagramCounts::new(),
             intake: Default::default(),
             refused: Default::default(),
             commands: devices.iter().map(|_| AtomicU64::new(0)).collect(),
@@ -205,13 +205,13 @@ impl NetStatus {
     pub(crate) fn count_accepted(&self) {
         self.accepted.fetch_add(1, Relaxed);
     }
-    pub(crate) fn count_reject(&self, r: Reject) {
+    pub(crate) fn count_reject(&self, r: BadDatagram) {
         self.rejects.incr(r);
     }
     pub(crate) fn count_intake(&self, r: safety::Reject) {
         self.intake[r.index()].fetch_add(1, Relaxed);
     }
-    pub(crate) fn count_refusal(&self, r: Refusal) {
+    pub(crate) fn count_refusal(&self, r: NetRefusal) {
         self.refused[r.index()].fetch_add(1, Relaxed);
     }
     pub(crate) fn count_command(&self, id: DeviceId) {
@@ -236,7 +236,7 @@ impl NetStatus {
     }
 
     /// Refusals of one kind so far.
-    pub fn refusals(&self, r: Refusal) -> u64 {
+    pub fn refusals(&self, r: NetRefusal) -> u64 {
         self.refused[r.index()].load(Relaxed)
     }
 
@@ -295,7 +295,7 @@ impl NetStatus {
                         .collect(),
                 ),
                 refused: named(
-                    Refusal::ALL
+                    NetRefusal::ALL
                         .iter()
                         .map(|r| (r.as_str(), self.refused[r.index()].load(Relaxed)))
                         .collect(),

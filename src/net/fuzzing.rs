@@ -4,7 +4,7 @@
 //! an accepted datagram breaks a promise the engine relies on. Not part of the API.
 
 use super::auth::Auth;
-use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary, MAX_COMMANDS};
+use super::proto::{parse, BadDatagram, Datagram, NetCommand, Vocabulary, MAX_COMMANDS};
 use crate::config::VehicleConfig;
 use crate::value::{Command, Kind};
 use std::sync::LazyLock;
@@ -66,7 +66,7 @@ pub const FUZZ_KEY: &[u8] = b"adrive fuzzing key, not a secret";
 /// Parses `bytes`, checks every invariant of an accepted datagram, runs
 /// [`Auth::verify`] on it, and returns what [`parse`] decided. Panics on a broken
 /// invariant; that panic is the fuzzers' finding.
-pub fn exercise(bytes: &[u8]) -> Result<Datagram, Reject> {
+pub fn exercise(bytes: &[u8]) -> Result<Datagram, BadDatagram> {
     let datagram = parse(bytes, &Vocabulary::of(&ALICE)).map_err(|e| {
         // The human message must render for any input.
         let _ = e.to_string();
@@ -79,11 +79,11 @@ pub fn exercise(bytes: &[u8]) -> Result<Datagram, Reject> {
             let seq = datagram.seq.expect("a verified datagram has a seq");
             assert_eq!(
                 auth.verify(&datagram, bytes, Some(seq)),
-                Err(Reject::Replayed)
+                Err(BadDatagram::Replayed)
             );
         }
-        Err(Reject::MissingTag) => assert!(datagram.tag.is_none()),
-        Err(Reject::BadTag | Reject::MissingSeq) => assert!(datagram.tag.is_some()),
+        Err(BadDatagram::MissingTag) => assert!(datagram.tag.is_none()),
+        Err(BadDatagram::BadTag | BadDatagram::MissingSeq) => assert!(datagram.tag.is_some()),
         Err(other) => panic!("verify gave {other:?}"),
     }
     Ok(datagram)

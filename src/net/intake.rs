@@ -17,12 +17,12 @@
 //! written into an inline [`Reply`] buffer. Only refusals are logged (rate-limited).
 
 use super::auth::Auth;
-use super::counters::{Inner, NetStatus, Refusal};
-use super::proto::{parse, Datagram, NetCommand, Reject, Vocabulary};
+use super::counters::{Inner, NetRefusal, NetStatus};
+use super::proto::{parse, BadDatagram, Datagram, NetCommand, Vocabulary};
 use crate::config::NetworkConfig;
 use crate::engine::Gate;
 use crate::logging::RateLimit;
-use crate::safety::gate::remote_may_engage;
+use crate::safety::gate_state::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
 use crate::snapshot::Blocker;
 use crate::value::Source;
@@ -116,14 +116,14 @@ impl Intake {
         let st = self.status.clone();
         st.count_datagram();
         if !self.config.allows(from) {
-            st.count_refusal(Refusal::NotOnAllowList);
+            st.count_refusal(NetRefusal::NotOnAllowList);
             if self.log.allow(received) {
-                tracing::warn!(%from, "refused datagram: {}", Refusal::NotOnAllowList.describe());
+                tracing::warn!(%from, "refused datagram: {}", NetRefusal::NotOnAllowList.describe());
             }
             return None;
         }
         if self.closing.load(Relaxed) {
-            st.count_refusal(Refusal::Closing);
+            st.count_refusal(NetRefusal::Closing);
             return None;
         }
         let (i, d) = match self.admit(bytes, from, received) {
@@ -190,7 +190,7 @@ impl Intake {
                 // the watchdog keeps counting.
                 inner.get(i).stale = true;
                 self.gate.frozen(Source::Network(from));
-                self.reject(&mut inner, i, Reject::Replayed);
+                self.reject(&mut inner, i, BadDatagram::Replayed);
                 if self.log.allow(received) {
                     tracing::warn!(%from, seq, "rejected datagram: the rolling counter did not advance");
                 }
@@ -229,7 +229,7 @@ impl Intake {
                         out.refused = true;
                         out.gate = true;
                         match why {
-                            Refusal::EngageLatched => out.line(format_args!(
+                            NetRefusal::EngageLatched => out.line(format_args!(
                                 "refused engage: {} ({})",
                                 why.describe(),
                                 gate.reason()
@@ -259,7 +259,7 @@ impl Intake {
                 }
                 Err(Refused::Owner(r)) => {
                     if !fx.refused_other {
-                        st.count_refusal(Refusal::OtherCommander);
+                        st.count_refusal(NetRefusal::OtherCommander);
                         out.line(format_args!("refused {}: {r}", vocab.line(c)));
                     }
                     out.refused = true;
@@ -270,7 +270,7 @@ impl Intake {
                     gate.vehicle().tap().send(|| Event::Refused {
                         at: received,
                         from,
-                        reason: Refusal::OtherCommander.as_str(),
+                        reason: NetRefusal::OtherCommander.as_str(),
                     });
                 }
                 Err(Refused::Rule(r)) => {
@@ -283,7 +283,7 @@ impl Intake {
                     ));
                 }
                 Err(Refused::Blocked(why)) => {
-                    st.count_refusal(Refusal::EngageBlocked);
+                    st.count_refusal(NetRefusal::EngageBlocked);
                     out.refused = true;
                     out.gate = true;
                     out.line(format_args!("refused engage: {}", Blocker::said(&why)));
@@ -306,10 +306,10 @@ impl Intake {
 
     /// Whether this sender's `engage` may go to the intake: `None`, or the network's
     /// own refusal (the vehicle file does not allow it; the sender is latched).
-    fn may_engage(&self, from: SocketAddr) -> Option<Refusal> {
+    fn may_engage(&self, from: SocketAddr) -> Option<NetRefusal> {
         // Picking up a vehicle a console engaged and released engages nothing.
         if !remote_may_engage(self.config.allow_engage, self.gate.is_engaged()) {
-            return Some(Refusal::EngageNotAllowed);
+            return Some(NetRefusal::EngageNotAllowed);
         }
         let latched = self
             .status
@@ -317,7 +317,7 @@ impl Intake {
             .lock()
             .find(from)
             .is_some_and(|s| s.latched);
-        (latched && !self.gate.is_engaged()).then_some(Refusal::EngageLatched)
+        (latched && !self.gate.is_engaged()).then_some(NetRefusal::EngageLatched)
     }
 
     /// Step 3, under the lock: the latch, counters, the reply.
@@ -351,7 +351,7 @@ impl Intake {
         self.reply(&mut inner, i, out, received)
     }
 
-    fn reject(&self, inner: &mut Inner, i: usize, r: Reject) {
+    fn reject(&self, inner: &mut Inner, i: usize, r: BadDatagram) {
         self.status.count_reject(r);
         let s = inner.get(i);
         s.rejected += 1;

@@ -27,12 +27,12 @@ pub(crate) mod pace;
 pub mod proto;
 
 pub use crate::config::NetworkConfig;
-pub use counters::{NetStatus, Refusal};
+pub use counters::{NetRefusal, NetStatus};
 
 use crate::engine::Gate;
 use crate::logging::Repeats;
 use crate::snapshot::Snapshot;
-use crate::threads::{Owner, StopSignal};
+use crate::threads::{Group, StopSignal};
 use auth::Auth;
 use intake::Intake;
 use socket2::{Domain, Protocol, Socket, Type};
@@ -52,7 +52,7 @@ const RECV_BUFFER: usize = 1 << 20;
 pub struct Net {
     status: Arc<NetStatus>,
     closing: Arc<AtomicBool>,
-    threads: Owner,
+    threads: Group,
 }
 
 impl Net {
@@ -79,7 +79,7 @@ impl Net {
             .collect();
         let status = Arc::new(NetStatus::new(local, config.watchdog_timeout, names));
         let closing = Arc::new(AtomicBool::new(false));
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
 
         let mut intake = Intake::new(
             gate.clone(),
@@ -137,7 +137,7 @@ impl Net {
 
 impl Drop for Net {
     /// Dropped without being shut down ([`crate::threads::Shutdown`]): datagrams
-    /// refused; the threads are told to stop (by their [`Owner`]), not joined.
+    /// refused; the threads are told to stop (by their [`Group`]), not joined.
     fn drop(&mut self) {
         self.close();
     }

@@ -75,10 +75,10 @@
 //!
 //! # Rejections
 //!
-//! Every rejected datagram has one [`Reject`] reason, with a stable snake_case name
-//! for counters and logs ([`Reject::as_str`]); [`ParseError`] adds the line number and
+//! Every rejected datagram has one [`BadDatagram`] reason, with a stable snake_case name
+//! for counters and logs ([`BadDatagram::as_str`]); [`ParseError`] adds the line number and
 //! the offending word for a person (`line 2: out_of_range: steer takes -1 to 1 (got
-//! "1.5")`). [`RejectCounts`] counts them without locks.
+//! "1.5")`). [`BadDatagramCounts`] counts them without locks.
 
 use crate::config::DeviceConfig;
 use crate::value::Keyword as Verb;
@@ -259,9 +259,9 @@ impl Datagram {
 }
 
 /// Why a datagram was rejected. Each reason has a stable snake_case name
-/// ([`Reject::as_str`]) used by counters, logs and the state broadcast.
+/// ([`BadDatagram::as_str`]) used by counters, logs and the state broadcast.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Reject {
+pub enum BadDatagram {
     /// No bytes, or no command (only blanks, comments or headers).
     Empty,
     /// Longer than [`MAX_DATAGRAM`].
@@ -298,55 +298,55 @@ pub enum Reject {
     Replayed,
 }
 
-impl Reject {
+impl BadDatagram {
     /// Every reason, in a fixed order: the index of a reason here is its counter slot.
-    pub const ALL: [Reject; 17] = [
-        Reject::Empty,
-        Reject::Oversized,
-        Reject::NotUtf8,
-        Reject::Binary,
-        Reject::BadSyntax,
-        Reject::UnknownVerb,
-        Reject::UnknownDevice,
-        Reject::NotAllowed,
-        Reject::BadValue,
-        Reject::NotFinite,
-        Reject::OutOfRange,
-        Reject::TooManyCommands,
-        Reject::BadHeader,
-        Reject::MissingSeq,
-        Reject::MissingTag,
-        Reject::BadTag,
-        Reject::Replayed,
+    pub const ALL: [BadDatagram; 17] = [
+        BadDatagram::Empty,
+        BadDatagram::Oversized,
+        BadDatagram::NotUtf8,
+        BadDatagram::Binary,
+        BadDatagram::BadSyntax,
+        BadDatagram::UnknownVerb,
+        BadDatagram::UnknownDevice,
+        BadDatagram::NotAllowed,
+        BadDatagram::BadValue,
+        BadDatagram::NotFinite,
+        BadDatagram::OutOfRange,
+        BadDatagram::TooManyCommands,
+        BadDatagram::BadHeader,
+        BadDatagram::MissingSeq,
+        BadDatagram::MissingTag,
+        BadDatagram::BadTag,
+        BadDatagram::Replayed,
     ];
 
     /// The number of reasons.
-    pub(crate) const COUNT: usize = Reject::ALL.len();
+    pub(crate) const COUNT: usize = BadDatagram::ALL.len();
 
     /// The stable name, for counters and logs.
     pub fn as_str(self) -> &'static str {
         match self {
-            Reject::Empty => "empty",
-            Reject::Oversized => "oversized",
-            Reject::NotUtf8 => "not_utf8",
-            Reject::Binary => "binary",
-            Reject::BadSyntax => "bad_syntax",
-            Reject::UnknownVerb => "unknown_verb",
-            Reject::UnknownDevice => "unknown_device",
-            Reject::NotAllowed => "not_allowed",
-            Reject::BadValue => "bad_value",
-            Reject::NotFinite => "not_finite",
-            Reject::OutOfRange => "out_of_range",
-            Reject::TooManyCommands => "too_many_commands",
-            Reject::BadHeader => "bad_header",
-            Reject::MissingSeq => "missing_seq",
-            Reject::MissingTag => "missing_tag",
-            Reject::BadTag => "bad_tag",
-            Reject::Replayed => "replayed",
+            BadDatagram::Empty => "empty",
+            BadDatagram::Oversized => "oversized",
+            BadDatagram::NotUtf8 => "not_utf8",
+            BadDatagram::Binary => "binary",
+            BadDatagram::BadSyntax => "bad_syntax",
+            BadDatagram::UnknownVerb => "unknown_verb",
+            BadDatagram::UnknownDevice => "unknown_device",
+            BadDatagram::NotAllowed => "not_allowed",
+            BadDatagram::BadValue => "bad_value",
+            BadDatagram::NotFinite => "not_finite",
+            BadDatagram::OutOfRange => "out_of_range",
+            BadDatagram::TooManyCommands => "too_many_commands",
+            BadDatagram::BadHeader => "bad_header",
+            BadDatagram::MissingSeq => "missing_seq",
+            BadDatagram::MissingTag => "missing_tag",
+            BadDatagram::BadTag => "bad_tag",
+            BadDatagram::Replayed => "replayed",
         }
     }
 
-    /// Its slot in [`Reject::ALL`].
+    /// Its slot in [`BadDatagram::ALL`].
     pub fn index(self) -> usize {
         self as usize
     }
@@ -354,41 +354,41 @@ impl Reject {
     /// A sentence for a person.
     pub fn describe(self) -> &'static str {
         match self {
-            Reject::Empty => "the datagram holds no command",
-            Reject::Oversized => "the datagram is over 1024 bytes",
-            Reject::NotUtf8 => "the datagram is not UTF-8 text",
-            Reject::Binary => "the datagram holds a control byte (binary data)",
-            Reject::BadSyntax => "a line has the wrong number of words",
-            Reject::UnknownVerb => "a line starts with no known command",
-            Reject::UnknownDevice => "a command names an unknown device",
-            Reject::NotAllowed => "a command is not allowed",
-            Reject::BadValue => "a value is not a number or one of the device's states",
-            Reject::NotFinite => "a value is NaN or infinite",
-            Reject::OutOfRange => "a value is out of range",
-            Reject::TooManyCommands => "the datagram holds more than 16 commands",
-            Reject::BadHeader => "a seq or tag line is malformed, repeated or misplaced",
-            Reject::MissingSeq => "the datagram has no seq line and a key is set",
-            Reject::MissingTag => "the datagram has no tag line and a key is set",
-            Reject::BadTag => "the tag does not match the key",
-            Reject::Replayed => "the seq is not greater than the last one accepted",
+            BadDatagram::Empty => "the datagram holds no command",
+            BadDatagram::Oversized => "the datagram is over 1024 bytes",
+            BadDatagram::NotUtf8 => "the datagram is not UTF-8 text",
+            BadDatagram::Binary => "the datagram holds a control byte (binary data)",
+            BadDatagram::BadSyntax => "a line has the wrong number of words",
+            BadDatagram::UnknownVerb => "a line starts with no known command",
+            BadDatagram::UnknownDevice => "a command names an unknown device",
+            BadDatagram::NotAllowed => "a command is not allowed",
+            BadDatagram::BadValue => "a value is not a number or one of the device's states",
+            BadDatagram::NotFinite => "a value is NaN or infinite",
+            BadDatagram::OutOfRange => "a value is out of range",
+            BadDatagram::TooManyCommands => "the datagram holds more than 16 commands",
+            BadDatagram::BadHeader => "a seq or tag line is malformed, repeated or misplaced",
+            BadDatagram::MissingSeq => "the datagram has no seq line and a key is set",
+            BadDatagram::MissingTag => "the datagram has no tag line and a key is set",
+            BadDatagram::BadTag => "the tag does not match the key",
+            BadDatagram::Replayed => "the seq is not greater than the last one accepted",
         }
     }
 }
 
-impl fmt::Display for Reject {
+impl fmt::Display for BadDatagram {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}: {}", self.as_str(), self.describe())
     }
 }
 
-impl std::error::Error for Reject {}
+impl std::error::Error for BadDatagram {}
 
 /// A rejection with where and why, for a person: `line 2: out_of_range: steer takes
 /// -1 to 1 (got "1.5")`. Built without allocating (the word is copied, truncated).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ParseError {
     /// The reason, for counters.
-    pub reason: Reject,
+    pub reason: BadDatagram,
     /// The 1-based line, when one line is at fault.
     pub line: Option<u32>,
     expected: Expected,
@@ -409,7 +409,7 @@ fn expected(text: &str) -> Expected {
 }
 
 impl ParseError {
-    fn new(reason: Reject, line: Option<u32>, what: &str, got: &str) -> Self {
+    fn new(reason: BadDatagram, line: Option<u32>, what: &str, got: &str) -> Self {
         ParseError {
             reason,
             line,
@@ -418,7 +418,7 @@ impl ParseError {
         }
     }
 
-    fn with(reason: Reject, line: Option<u32>, what: Expected, got: &str) -> Self {
+    fn with(reason: BadDatagram, line: Option<u32>, what: Expected, got: &str) -> Self {
         ParseError {
             reason,
             line,
@@ -433,8 +433,8 @@ impl ParseError {
     }
 }
 
-impl From<ParseError> for Reject {
-    fn from(e: ParseError) -> Reject {
+impl From<ParseError> for BadDatagram {
+    fn from(e: ParseError) -> BadDatagram {
         e.reason
     }
 }
@@ -494,7 +494,7 @@ impl Snippet {
 pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
     if bytes.is_empty() {
         return Err(ParseError::new(
-            Reject::Empty,
+            BadDatagram::Empty,
             None,
             "the datagram is empty",
             "",
@@ -502,7 +502,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
     }
     if bytes.len() > MAX_DATAGRAM {
         return Err(ParseError::new(
-            Reject::Oversized,
+            BadDatagram::Oversized,
             None,
             "a datagram holds at most 1024 bytes",
             "",
@@ -510,7 +510,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
     }
     if let Some(at) = bytes.iter().position(|&b| is_binary(b)) {
         return Err(ParseError::new(
-            Reject::Binary,
+            BadDatagram::Binary,
             Some(line_of(bytes, at)),
             "text only: control bytes other than tab and line endings are not allowed",
             "",
@@ -520,7 +520,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
         Ok(text) => text,
         Err(e) => {
             return Err(ParseError::new(
-                Reject::NotUtf8,
+                BadDatagram::NotUtf8,
                 Some(line_of(bytes, e.valid_up_to())),
                 "the datagram must be UTF-8 text",
                 "",
@@ -545,7 +545,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
         let line = Some(line_no);
         if datagram.tag.is_some() {
             return Err(ParseError::new(
-                Reject::BadHeader,
+                BadDatagram::BadHeader,
                 line,
                 "the tag line must be the last line",
                 raw,
@@ -554,7 +554,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
         let content = raw.strip_suffix('\r').unwrap_or(raw);
         if content.contains('\r') {
             return Err(ParseError::new(
-                Reject::Binary,
+                BadDatagram::Binary,
                 line,
                 "a carriage return may only end a line (CR LF)",
                 "",
@@ -570,8 +570,8 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
         let extra = words.next();
         let one_arg = |usage: &'static str| match (arg, extra) {
             (Some(a), None) => Ok(a),
-            (None, _) => Err(ParseError::new(Reject::BadSyntax, line, usage, verb)),
-            (Some(_), Some(x)) => Err(ParseError::new(Reject::BadSyntax, line, usage, x)),
+            (None, _) => Err(ParseError::new(BadDatagram::BadSyntax, line, usage, verb)),
+            (Some(_), Some(x)) => Err(ParseError::new(BadDatagram::BadSyntax, line, usage, x)),
         };
 
         let command = match Verb::from_word(verb) {
@@ -579,13 +579,13 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
                 let a =
                     one_arg("seq takes one counter (0 to 18446744073709551615)").map_err(|e| {
                         ParseError {
-                            reason: Reject::BadHeader,
+                            reason: BadDatagram::BadHeader,
                             ..e
                         }
                     })?;
                 if datagram.seq.is_some() {
                     return Err(ParseError::new(
-                        Reject::BadHeader,
+                        BadDatagram::BadHeader,
                         line,
                         "only one seq line is allowed",
                         a,
@@ -593,7 +593,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
                 }
                 datagram.seq = Some(parse_seq(a).ok_or_else(|| {
                     ParseError::new(
-                        Reject::BadHeader,
+                        BadDatagram::BadHeader,
                         line,
                         "seq takes a decimal counter from 0 to 18446744073709551615",
                         a,
@@ -603,11 +603,11 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
             }
             Some(Verb::Tag) => {
                 let a = one_arg("tag takes 64 hex digits").map_err(|e| ParseError {
-                    reason: Reject::BadHeader,
+                    reason: BadDatagram::BadHeader,
                     ..e
                 })?;
                 datagram.tag = Some(parse_hex32(a).ok_or_else(|| {
-                    ParseError::new(Reject::BadHeader, line, "tag takes 64 hex digits", a)
+                    ParseError::new(BadDatagram::BadHeader, line, "tag takes 64 hex digits", a)
                 })?);
                 datagram.signed = 0..start;
                 None
@@ -617,7 +617,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
                 let _ = Verb::list(|k| !k.takes_value(), " and ", &mut e);
                 let _ = e.try_push_str(" take no value");
                 return Err(ParseError::with(
-                    Reject::BadSyntax,
+                    BadDatagram::BadSyntax,
                     line,
                     e,
                     arg.unwrap_or(""),
@@ -629,7 +629,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
             Some(Verb::Clear) => Some(NetCommand::Clear),
             Some(Verb::Accel) if !vocab.accel => {
                 return Err(ParseError::new(
-                    Reject::UnknownVerb,
+                    BadDatagram::UnknownVerb,
                     line,
                     "this vehicle has no accel (it needs throttle and brake bound)",
                     verb,
@@ -646,7 +646,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
         if let Some(command) = command {
             if datagram.commands.try_push(command).is_err() {
                 return Err(ParseError::new(
-                    Reject::TooManyCommands,
+                    BadDatagram::TooManyCommands,
                     line,
                     "a datagram holds at most 16 commands",
                     "",
@@ -657,7 +657,7 @@ pub fn parse(bytes: &[u8], vocab: &Vocabulary) -> Result<Datagram, ParseError> {
     }
     if datagram.commands.is_empty() {
         return Err(ParseError::new(
-            Reject::Empty,
+            BadDatagram::Empty,
             None,
             "the datagram holds no command",
             "",
@@ -688,7 +688,7 @@ fn device_line(
                     let v = parse_f64(a);
                     if v.is_some_and(|v| !v.is_finite()) {
                         return Err(ParseError::new(
-                            Reject::NotFinite,
+                            BadDatagram::NotFinite,
                             line,
                             "a finite number",
                             a,
@@ -699,10 +699,18 @@ fn device_line(
                         v.map_or(Command::State(0), Command::Set),
                     ))
                 }
-                (None, _) => Err(ParseError::with(Reject::BadSyntax, line, usage(verb), verb)),
-                (Some(_), Some(x)) => {
-                    Err(ParseError::with(Reject::BadSyntax, line, usage(verb), x))
-                }
+                (None, _) => Err(ParseError::with(
+                    BadDatagram::BadSyntax,
+                    line,
+                    usage(verb),
+                    verb,
+                )),
+                (Some(_), Some(x)) => Err(ParseError::with(
+                    BadDatagram::BadSyntax,
+                    line,
+                    usage(verb),
+                    x,
+                )),
             };
         }
         let mut e = Expected::new();
@@ -714,7 +722,7 @@ fn device_line(
         {
             let _ = e.try_push_str("the devices are ");
             vocab.names(&mut e);
-            Reject::UnknownDevice
+            BadDatagram::UnknownDevice
         } else {
             if vocab.open {
                 // A client that does not know the vehicle has no devices to list: the
@@ -730,7 +738,7 @@ fn device_line(
                 let _ = e.try_push_str("no device of this vehicle takes commands; a line is ");
             }
             let _ = Verb::list(|_| true, " or ", &mut e);
-            Reject::UnknownVerb
+            BadDatagram::UnknownVerb
         };
         return Err(ParseError::with(reason, line, e, verb));
     };
@@ -738,21 +746,26 @@ fn device_line(
         (Some(a), None) => a,
         (None, _) => {
             return Err(ParseError::with(
-                Reject::BadSyntax,
+                BadDatagram::BadSyntax,
                 line,
                 usage(&d.name),
                 verb,
             ))
         }
         (Some(_), Some(x)) => {
-            return Err(ParseError::with(Reject::BadSyntax, line, usage(&d.name), x))
+            return Err(ParseError::with(
+                BadDatagram::BadSyntax,
+                line,
+                usage(&d.name),
+                x,
+            ))
         }
     };
     match d.kind {
         Kind::Sensor => {
             let mut e = Expected::new();
             let _ = write!(e, "{} is a sensor: it takes no commands", d.name);
-            Err(ParseError::with(Reject::NotAllowed, line, e, verb))
+            Err(ParseError::with(BadDatagram::NotAllowed, line, e, verb))
         }
         Kind::Setpoint => {
             let [lo, hi] = d.range;
@@ -780,9 +793,9 @@ fn device_line(
                 }
             }
             let reason = match parse_f64(a) {
-                Some(v) if !v.is_finite() => Reject::NotFinite,
-                Some(_) => Reject::OutOfRange,
-                None => Reject::BadValue,
+                Some(v) if !v.is_finite() => BadDatagram::NotFinite,
+                Some(_) => BadDatagram::OutOfRange,
+                None => BadDatagram::BadValue,
             };
             Err(ParseError::with(reason, line, e, a))
         }
@@ -818,7 +831,7 @@ fn number(
 ) -> Result<f64, ParseError> {
     let v = parse_f64(word).ok_or_else(|| {
         ParseError::new(
-            Reject::BadValue,
+            BadDatagram::BadValue,
             line,
             "a decimal number such as 0.25",
             word,
@@ -826,14 +839,19 @@ fn number(
     })?;
     if !v.is_finite() {
         return Err(ParseError::new(
-            Reject::NotFinite,
+            BadDatagram::NotFinite,
             line,
             "a finite number",
             word,
         ));
     }
     if !(lo..=hi).contains(&v) {
-        return Err(ParseError::with(Reject::OutOfRange, line, range(), word));
+        return Err(ParseError::with(
+            BadDatagram::OutOfRange,
+            line,
+            range(),
+            word,
+        ));
     }
     Ok(v)
 }
@@ -871,18 +889,18 @@ pub(crate) fn hex_digit(b: u8) -> Option<u8> {
 /// Rejected datagrams by reason, lock-free: the listener counts, the console and the
 /// state broadcast read.
 #[derive(Debug)]
-pub struct RejectCounts([AtomicU64; Reject::COUNT]);
+pub struct BadDatagramCounts([AtomicU64; BadDatagram::COUNT]);
 
-impl RejectCounts {
+impl BadDatagramCounts {
     pub const fn new() -> Self {
-        RejectCounts([const { AtomicU64::new(0) }; Reject::COUNT])
+        BadDatagramCounts([const { AtomicU64::new(0) }; BadDatagram::COUNT])
     }
 
-    pub fn incr(&self, reason: Reject) {
+    pub fn incr(&self, reason: BadDatagram) {
         self.0[reason.index()].fetch_add(1, Ordering::Relaxed);
     }
 
-    pub fn get(&self, reason: Reject) -> u64 {
+    pub fn get(&self, reason: BadDatagram) -> u64 {
         self.0[reason.index()].load(Ordering::Relaxed)
     }
 
@@ -891,13 +909,15 @@ impl RejectCounts {
         self.0.iter().map(|c| c.load(Ordering::Relaxed)).sum()
     }
 
-    /// `(name, count)` for every reason, in [`Reject::ALL`] order, zeros included.
+    /// `(name, count)` for every reason, in [`BadDatagram::ALL`] order, zeros included.
     pub fn iter(&self) -> impl Iterator<Item = (&'static str, u64)> + '_ {
-        Reject::ALL.into_iter().map(|r| (r.as_str(), self.get(r)))
+        BadDatagram::ALL
+            .into_iter()
+            .map(|r| (r.as_str(), self.get(r)))
     }
 }
 
-impl Default for RejectCounts {
+impl Default for BadDatagramCounts {
     fn default() -> Self {
         Self::new()
     }
@@ -923,7 +943,7 @@ mod tests {
         parse(text.as_bytes()).unwrap_or_else(|e| panic!("{text:?} rejected: {e}"))
     }
 
-    fn reason(bytes: &[u8]) -> Reject {
+    fn reason(bytes: &[u8]) -> BadDatagram {
         match parse(bytes) {
             Ok(d) => panic!("{:?} accepted as {d:?}", String::from_utf8_lossy(bytes)),
             Err(e) => e.reason,
@@ -994,9 +1014,9 @@ mod tests {
             let d = ok(&format!("trans {word}"));
             assert_eq!(d.commands.as_slice(), [state("trans", gear)], "{word}");
         }
-        assert_eq!(reason(b"trans 2"), Reject::OutOfRange);
-        assert_eq!(reason(b"trans sport"), Reject::BadValue);
-        assert_eq!(reason(b"trans nan"), Reject::NotFinite);
+        assert_eq!(reason(b"trans 2"), BadDatagram::OutOfRange);
+        assert_eq!(reason(b"trans sport"), BadDatagram::BadValue);
+        assert_eq!(reason(b"trans nan"), BadDatagram::NotFinite);
     }
 
     #[test]
@@ -1011,57 +1031,57 @@ mod tests {
             "brake -1",
             "accel 1.5",
         ] {
-            assert_eq!(reason(bad.as_bytes()), Reject::OutOfRange, "{bad}");
+            assert_eq!(reason(bad.as_bytes()), BadDatagram::OutOfRange, "{bad}");
         }
     }
 
     #[test]
     fn every_reject_reason_from_bytes() {
-        let cases: &[(&[u8], Reject)] = &[
-            (b"", Reject::Empty),
-            (b"\n# nothing to do\n  \n", Reject::Empty),
-            (b"seq 4\n", Reject::Empty),
-            (&[b' '; MAX_DATAGRAM + 1], Reject::Oversized),
-            (b"steer 0.\xff2", Reject::NotUtf8),
-            (b"\xc3\x28", Reject::NotUtf8),
-            (b"steer 0\x002", Reject::Binary),
-            (b"\x1b[A", Reject::Binary),
-            (b"steer 0.2\rgas 0", Reject::Binary),
-            (b"steer", Reject::BadSyntax),
-            (b"steer 0.1 0.2", Reject::BadSyntax),
-            (b"engage now", Reject::BadSyntax),
-            (b"hello", Reject::UnknownVerb),
-            (b"set steer 0.2", Reject::UnknownVerb),
-            (b"stear 0.2", Reject::UnknownDevice),
-            (b"gear drive", Reject::UnknownDevice),
-            (b"wiper 0.5", Reject::UnknownDevice),
-            (b"estop 1", Reject::NotAllowed),
-            (b"obd 0", Reject::NotAllowed),
-            (b"steer left", Reject::BadValue),
-            (b"gas 0x1", Reject::BadValue),
-            (b"steer NaN", Reject::NotFinite),
-            (b"gas inf", Reject::NotFinite),
-            (b"brake -infinity", Reject::NotFinite),
-            (b"accel 1e999", Reject::NotFinite),
-            (b"steer 1.5", Reject::OutOfRange),
-            (b"seq -1\nsteer 0", Reject::BadHeader),
-            (b"seq 1\nseq 2\nsteer 0", Reject::BadHeader),
-            (b"seq 18446744073709551616\nsteer 0", Reject::BadHeader),
-            (b"steer 0\ntag 00", Reject::BadHeader),
-            (b"steer 0\ntag abc", Reject::BadHeader),
+        let cases: &[(&[u8], BadDatagram)] = &[
+            (b"", BadDatagram::Empty),
+            (b"\n# nothing to do\n  \n", BadDatagram::Empty),
+            (b"seq 4\n", BadDatagram::Empty),
+            (&[b' '; MAX_DATAGRAM + 1], BadDatagram::Oversized),
+            (b"steer 0.\xff2", BadDatagram::NotUtf8),
+            (b"\xc3\x28", BadDatagram::NotUtf8),
+            (b"steer 0\x002", BadDatagram::Binary),
+            (b"\x1b[A", BadDatagram::Binary),
+            (b"steer 0.2\rgas 0", BadDatagram::Binary),
+            (b"steer", BadDatagram::BadSyntax),
+            (b"steer 0.1 0.2", BadDatagram::BadSyntax),
+            (b"engage now", BadDatagram::BadSyntax),
+            (b"hello", BadDatagram::UnknownVerb),
+            (b"set steer 0.2", BadDatagram::UnknownVerb),
+            (b"stear 0.2", BadDatagram::UnknownDevice),
+            (b"gear drive", BadDatagram::UnknownDevice),
+            (b"wiper 0.5", BadDatagram::UnknownDevice),
+            (b"estop 1", BadDatagram::NotAllowed),
+            (b"obd 0", BadDatagram::NotAllowed),
+            (b"steer left", BadDatagram::BadValue),
+            (b"gas 0x1", BadDatagram::BadValue),
+            (b"steer NaN", BadDatagram::NotFinite),
+            (b"gas inf", BadDatagram::NotFinite),
+            (b"brake -infinity", BadDatagram::NotFinite),
+            (b"accel 1e999", BadDatagram::NotFinite),
+            (b"steer 1.5", BadDatagram::OutOfRange),
+            (b"seq -1\nsteer 0", BadDatagram::BadHeader),
+            (b"seq 1\nseq 2\nsteer 0", BadDatagram::BadHeader),
+            (b"seq 18446744073709551616\nsteer 0", BadDatagram::BadHeader),
+            (b"steer 0\ntag 00", BadDatagram::BadHeader),
+            (b"steer 0\ntag abc", BadDatagram::BadHeader),
         ];
         for (bytes, want) in cases {
             assert_eq!(reason(bytes), *want, "{:?}", String::from_utf8_lossy(bytes));
         }
         let many = "gas 0\n".repeat(MAX_COMMANDS + 1);
-        assert_eq!(reason(many.as_bytes()), Reject::TooManyCommands);
+        assert_eq!(reason(many.as_bytes()), BadDatagram::TooManyCommands);
         ok(&"gas 0\n".repeat(MAX_COMMANDS));
     }
 
     #[test]
     fn one_bad_line_rejects_the_whole_datagram() {
         let err = parse(b"steer 0.2\ngas 0.3\nbrake 7\n").unwrap_err();
-        assert_eq!(err.reason, Reject::OutOfRange);
+        assert_eq!(err.reason, BadDatagram::OutOfRange);
         assert_eq!(err.line, Some(3));
     }
 
@@ -1094,7 +1114,7 @@ mod tests {
             format!("steer 0.2\ntag {tag}\n\n"),
             format!("steer 0.2\ntag {tag}\ntag {tag}"),
         ] {
-            assert_eq!(reason(text.as_bytes()), Reject::BadHeader, "{text:?}");
+            assert_eq!(reason(text.as_bytes()), BadDatagram::BadHeader, "{text:?}");
         }
     }
 
@@ -1128,7 +1148,7 @@ mod tests {
     fn an_unknown_first_word_is_told_every_keyword_and_no_empty_list() {
         let every = "accel, engage, disengage, release, clear, seq or tag";
         let e = super::parse(b"bogus-verb 1", &Vocabulary::open()).unwrap_err();
-        assert_eq!(e.reason, Reject::UnknownVerb);
+        assert_eq!(e.reason, BadDatagram::UnknownVerb);
         assert_eq!(
             e.to_string(),
             format!("line 1: unknown_verb: a line is a device (lowercase letters, digits and _) and a value, separated by a space (steer 0.2), or {every} (got \"bogus-verb\")")
@@ -1164,10 +1184,10 @@ mod tests {
 
     #[test]
     fn messages_quote_the_limits_in_force() {
-        assert!(Reject::Oversized
+        assert!(BadDatagram::Oversized
             .describe()
             .contains(&MAX_DATAGRAM.to_string()));
-        assert!(Reject::TooManyCommands
+        assert!(BadDatagram::TooManyCommands
             .describe()
             .contains(&MAX_COMMANDS.to_string()));
         let err = parse(&[b'#'; MAX_DATAGRAM + 1]).unwrap_err();
@@ -1176,14 +1196,14 @@ mod tests {
 
     #[test]
     fn reject_names_are_distinct_snake_case_and_indexed() {
-        for (i, r) in Reject::ALL.into_iter().enumerate() {
+        for (i, r) in BadDatagram::ALL.into_iter().enumerate() {
             assert_eq!(r.index(), i);
             assert!(r
                 .as_str()
                 .bytes()
                 .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_'));
             assert_eq!(
-                Reject::ALL
+                BadDatagram::ALL
                     .iter()
                     .filter(|o| o.as_str() == r.as_str())
                     .count(),
@@ -1194,15 +1214,15 @@ mod tests {
 
     #[test]
     fn reject_counts_by_reason() {
-        static COUNTS: RejectCounts = RejectCounts::new();
-        COUNTS.incr(Reject::BadTag);
-        COUNTS.incr(Reject::BadTag);
-        COUNTS.incr(Reject::Binary);
-        assert_eq!(COUNTS.get(Reject::BadTag), 2);
-        assert_eq!(COUNTS.get(Reject::Replayed), 0);
+        static COUNTS: BadDatagramCounts = BadDatagramCounts::new();
+        COUNTS.incr(BadDatagram::BadTag);
+        COUNTS.incr(BadDatagram::BadTag);
+        COUNTS.incr(BadDatagram::Binary);
+        assert_eq!(COUNTS.get(BadDatagram::BadTag), 2);
+        assert_eq!(COUNTS.get(BadDatagram::Replayed), 0);
         assert_eq!(COUNTS.total(), 3);
         let all: Vec<_> = COUNTS.iter().collect();
-        assert_eq!(all.len(), Reject::COUNT);
+        assert_eq!(all.len(), BadDatagram::COUNT);
         assert!(all.contains(&("bad_tag", 2)));
         assert!(all.contains(&("binary", 1)));
     }
@@ -1250,12 +1270,12 @@ mod tests {
             "line 1: out_of_range: wiper takes 0 to 100 (got \"101\")"
         );
         let e = super::parse(b"signal up", &v).unwrap_err();
-        assert_eq!(e.reason, Reject::BadValue);
+        assert_eq!(e.reason, BadDatagram::BadValue);
         assert!(e.to_string().contains("off, left, right, hazard"), "{e}");
         let e = super::parse(b"accel 0.1", &v).unwrap_err();
         assert_eq!(
             e.reason,
-            Reject::UnknownVerb,
+            BadDatagram::UnknownVerb,
             "no accel without throttle and brake"
         );
         // A client that does not know the vehicle checks the shape alone.
@@ -1264,7 +1284,7 @@ mod tests {
             super::parse(b"horn", &Vocabulary::open())
                 .unwrap_err()
                 .reason,
-            Reject::BadSyntax
+            BadDatagram::BadSyntax
         );
     }
 

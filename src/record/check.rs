@@ -2,7 +2,7 @@
 //! safety replay). Every command a recording received (`/commands`) carries what its
 //! decision saw of the vehicle — the gate's state and the interlocks' facts
 //! ([`crate::safety::Seen`]) — so the intake's pure decision
-//! ([`crate::safety::gate::decide`], [`crate::safety::gate::decide_accel`]) can take it
+//! ([`crate::safety::gate_state::decide`], [`crate::safety::gate_state::decide_accel`]) can take it
 //! again under another vehicle file's rules (the roles it binds) and limits (each
 //! device's range and states). Each decision that would now differ — accepted then and
 //! refused now, the other way round, or refused for another reason — is reported with
@@ -18,7 +18,7 @@
 use super::message::Received;
 use super::read::Recording;
 use crate::config::{DeviceConfig, VehicleConfig};
-use crate::safety::gate::{decide, decide_accel};
+use crate::safety::gate_state::{decide, decide_accel};
 use crate::safety::{Plays, Reject, Rules, Seen};
 use crate::value::{Command, Control, DeviceId, Kind};
 

@@ -29,7 +29,7 @@ pub(crate) mod schema;
 mod writer;
 
 use crate::config::VehicleConfig;
-use crate::threads::Owner;
+use crate::threads::Group;
 use crate::vehicle::Vehicle;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -93,7 +93,7 @@ impl Options {
 pub(crate) struct Recorder {
     /// Dropped without [`Recorder::shutdown`] (a panic unwinding): told to finish the
     /// file, not waited for.
-    threads: Owner,
+    threads: Group,
 }
 
 impl Recorder {
@@ -114,7 +114,7 @@ impl Recorder {
         out.tapped(tapped.reader);
         let rx = tapped.rx;
         tracing::info!(file = %out.path().display(), raw = opts.raw, "recording");
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         threads.spawn("record/write", move |stop| writer::run(out, &rx, stop))?;
         Ok(Recorder { threads })
     }

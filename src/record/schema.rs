@@ -111,7 +111,7 @@ impl Keys {
                 (
                     "net.rejected.datagram",
                     named(
-                        &mut crate::net::proto::Reject::ALL
+                        &mut crate::net::proto::BadDatagram::ALL
                             .iter()
                             .map(|r| r.as_str().to_string()),
                         &count,
@@ -121,7 +121,7 @@ impl Keys {
                 (
                     "net.rejected.refused",
                     named(
-                        &mut crate::net::counters::Refusal::ALL
+                        &mut crate::net::counters::NetRefusal::ALL
                             .iter()
                             .map(|r| r.as_str().to_string()),
                         &count,

@@ -22,11 +22,11 @@ use super::msgs::{self, mode, Message, Time};
 use crate::config::{Ros2Config, VehicleConfig};
 use crate::engine::Gate;
 use crate::logging::RateLimit;
-use crate::net::proto::Reject;
-use crate::net::{NetStatus, Refusal};
-use crate::safety::gate::remote_may_engage;
+use crate::net::proto::BadDatagram;
+use crate::net::{NetRefusal, NetStatus};
+use crate::safety::gate_state::remote_may_engage;
 use crate::safety::{Ask, Done, Refused};
-use crate::threads::{Owner, StopSignal};
+use crate::threads::{Group, StopSignal};
 use crate::value::Source;
 use crossbeam_channel::{Receiver, Sender};
 use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
@@ -136,7 +136,7 @@ impl Publisher {
 pub struct Node {
     session: zenoh::Session,
     closing: Arc<AtomicBool>,
-    threads: Owner,
+    threads: Group,
     namespace: String,
     /// Liveliness tokens and subscriptions live as long as the node.
     _keep: Vec<Box<dyn std::any::Any + Send>>,
@@ -315,7 +315,7 @@ impl Node {
         drop(g);
 
         let closing = Arc::new(AtomicBool::new(false));
-        let mut threads = Owner::default();
+        let mut threads = Group::default();
         // The allow-list and the key are the UDP listener's; Zenoh has its own access
         // control and transport security. Engaging follows `allow_engage`, as for UDP.
         let mut commands = Commands {
@@ -474,11 +474,11 @@ impl Commands {
             return false;
         }
         if ask == Ask::Engage && !remote_may_engage(self.allow_engage, self.gate.is_engaged()) {
-            self.net.count_refusal(Refusal::EngageNotAllowed);
+            self.net.count_refusal(NetRefusal::EngageNotAllowed);
             if self.log.allow(at) {
                 tracing::warn!(
                     "ros2: refused engage: {}",
-                    Refusal::EngageNotAllowed.describe()
+                    NetRefusal::EngageNotAllowed.describe()
                 );
             }
             return false;
@@ -493,9 +493,9 @@ impl Commands {
             Ok(_) => true,
             Err(why) => {
                 match &why {
-                    Refused::Owner(_) => self.net.count_refusal(Refusal::OtherCommander),
+                    Refused::Owner(_) => self.net.count_refusal(NetRefusal::OtherCommander),
                     Refused::Rule(r) => self.net.count_intake(*r),
-                    Refused::Blocked(_) => self.net.count_refusal(Refusal::EngageBlocked),
+                    Refused::Blocked(_) => self.net.count_refusal(NetRefusal::EngageBlocked),
                     Refused::Clear(_) | Refused::Unanswered(_) => {}
                 }
                 if self.log.allow(at) {
@@ -506,7 +506,7 @@ impl Commands {
         }
     }
 
-    fn reject(&mut self, r: Reject, what: &str, at: Instant) {
+    fn reject(&mut self, r: BadDatagram, what: &str, at: Instant) {
         self.net.count_reject(r);
         if self.log.allow(at) {
             tracing::warn!("ros2: rejected {what}: {}", r.describe());
@@ -530,15 +530,15 @@ impl Commands {
             Topic::Actuation => self.actuation(payload, attachment, at),
             Topic::Gear => match msgs::decode::<msgs::GearCommand>(payload) {
                 Ok(m) => unmapped(self.map.gear(m.command), self),
-                Err(e) => self.reject(Reject::BadSyntax, &e, at),
+                Err(e) => self.reject(BadDatagram::BadSyntax, &e, at),
             },
             Topic::TurnIndicators => match msgs::decode::<msgs::TurnIndicatorsCommand>(payload) {
                 Ok(m) => unmapped(self.map.turn_indicators(m.command), self),
-                Err(e) => self.reject(Reject::BadSyntax, &e, at),
+                Err(e) => self.reject(BadDatagram::BadSyntax, &e, at),
             },
             Topic::HazardLights => match msgs::decode::<msgs::HazardLightsCommand>(payload) {
                 Ok(m) => unmapped(self.map.hazard_lights(m.command), self),
-                Err(e) => self.reject(Reject::BadSyntax, &e, at),
+                Err(e) => self.reject(BadDatagram::BadSyntax, &e, at),
             },
             Topic::Emergency => match msgs::decode::<msgs::VehicleEmergencyStamped>(payload) {
                 Ok(m) if m.emergency => {
@@ -546,7 +546,7 @@ impl Commands {
                     self.submit(Ask::Disengage, at);
                 }
                 Ok(_) => {}
-                Err(e) => self.reject(Reject::BadSyntax, &e, at),
+                Err(e) => self.reject(BadDatagram::BadSyntax, &e, at),
             },
         }
     }
@@ -554,11 +554,11 @@ impl Commands {
     fn actuation(&mut self, payload: &[u8], attachment: Option<&[u8]>, at: Instant) {
         let m = match msgs::decode::<msgs::ActuationCommandStamped>(payload) {
             Ok(m) => m,
-            Err(e) => return self.reject(Reject::BadSyntax, &e, at),
+            Err(e) => return self.reject(BadDatagram::BadSyntax, &e, at),
         };
         let Some(att) = attachment.and_then(|a| Attachment::decode(a).ok()) else {
             return self.reject(
-                Reject::MissingSeq,
+                BadDatagram::MissingSeq,
                 "actuation without an rmw attachment",
                 at,
             );
@@ -568,11 +568,11 @@ impl Commands {
         }
         if let Some(c) = self.commander {
             if c != att.gid {
-                self.net.count_refusal(Refusal::OtherCommander);
+                self.net.count_refusal(NetRefusal::OtherCommander);
                 if self.log.allow(at) {
                     tracing::warn!(
                         "ros2: refused actuation: {} (another actuation publisher)",
-                        Refusal::OtherCommander.describe()
+                        NetRefusal::OtherCommander.describe()
                     );
                 }
                 return;
@@ -591,7 +591,7 @@ impl Commands {
             stamp: m.header.stamp,
         });
         if frozen {
-            self.net.count_reject(Reject::Replayed);
+            self.net.count_reject(BadDatagram::Replayed);
             self.gate.frozen(Source::Ros2);
             if self.log.allow(at) {
                 tracing::warn!("ros2: rejected actuation: its stamp stopped advancing");
@@ -637,7 +637,7 @@ impl Commands {
                 }
             },
             Err(e) => {
-                self.reject(Reject::BadSyntax, &e, at);
+                self.reject(BadDatagram::BadSyntax, &e, at);
                 false
             }
         };

@@ -73,7 +73,7 @@ impl Plan {
 
 /// Why an `accel` was refused, and which pedal's part it was (counted on that device).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Refusal {
+pub struct PedalReject {
     pub why: Reject,
     pub at: Pedal,
     /// The part refused, when it is the value that is.
@@ -86,7 +86,7 @@ pub(crate) fn check_value(
     throttle: &DeviceConfig,
     brake: &DeviceConfig,
     a: f64,
-) -> Result<(), Refusal> {
+) -> Result<(), PedalReject> {
     let plan = Plan::of(a);
     for (pedal, d, share) in [
         (Pedal::Brake, brake, plan.brake),
@@ -98,10 +98,10 @@ pub(crate) fn check_value(
         } else if !(-1.0..=1.0).contains(&a) {
             Err(Reject::OutOfRange)
         } else {
-            super::gate::check_value(d, c)
+            super::gate_state::check_value(d, c)
         };
         if let Err(why) = why {
-            return Err(Refusal {
+            return Err(PedalReject {
                 why,
                 at: pedal,
                 command: Some(c),
@@ -116,8 +116,8 @@ pub(crate) fn check_value(
 /// brake release would break [`Reject::BrakeReleaseShifting`]); otherwise the brake's
 /// part is checked first, and the throttle then as following that release (which the
 /// wire holds it behind).
-pub(crate) fn interlocks(f: &Facts, rules: Rules, a: f64) -> Result<(), Refusal> {
-    let refused = |why: Reject, at: Pedal| Refusal {
+pub(crate) fn interlocks(f: &Facts, rules: Rules, a: f64) -> Result<(), PedalReject> {
+    let refused = |why: Reject, at: Pedal| PedalReject {
         why,
         at,
         command: None,
@@ -202,7 +202,7 @@ mod tests {
         }
         assert_eq!(
             check_value(gas, brake, 1.5),
-            Err(Refusal {
+            Err(PedalReject {
                 why: Reject::OutOfRange,
                 at: Pedal::Brake,
                 command: Some(Command::Set(0.0))
@@ -235,7 +235,7 @@ mod tests {
         };
         assert_eq!(
             interlocks(&shifting, Rules::ALL, 0.3),
-            Err(Refusal {
+            Err(PedalReject {
                 why: Reject::AccelWhileShifting,
                 at: Pedal::Throttle,
                 command: None
@@ -272,7 +272,7 @@ mod tests {
         };
         assert_eq!(
             interlocks(&off, Rules::ALL, 0.3),
-            Err(Refusal {
+            Err(PedalReject {
                 why: Reject::GasEngineOff,
                 at: Pedal::Throttle,
                 command: None
@@ -284,7 +284,7 @@ mod tests {
         };
         assert_eq!(
             interlocks(&paused, Rules::ALL, -0.5),
-            Err(Refusal {
+            Err(PedalReject {
                 why: Reject::BrakeReleaseEstop,
                 at: Pedal::Brake,
                 command: None

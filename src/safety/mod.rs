@@ -1,7 +1,7 @@
 //! Safety, in one place: the rules every command must pass, the gate's state and its
 //! decisions. The rules themselves are pure functions — [`rules::check`] at intake
-//! ([`gate::decide`] for one device, [`gate::decide_accel`] for `accel`, whose plan is
-//! [`accel`]'s), [`wire::verdict`] right before a command goes out, [`gate::blockers`] for engaging
+//! ([`gate_state::decide`] for one device, [`gate_state::decide_accel`] for `accel`, whose plan is
+//! [`accel`]'s), [`wire::verdict`] right before a command goes out, [`gate_state::blockers`] for engaging
 //! and the monitor, [`safe::state`] for the safe state and [`safe::manual`] for it while
 //! a driver has taken over, [`owner::decide`] for who commands, [`lease`] for gas that
 //! lasts only while its key is held — and act on roles bound in the vehicle file, never
@@ -19,7 +19,7 @@
 pub mod accel;
 pub mod ask;
 pub mod facts;
-pub mod gate;
+pub mod gate_state;
 pub mod lease;
 pub mod owner;
 pub mod rules;
@@ -27,6 +27,6 @@ pub mod safe;
 pub mod wire;
 
 pub use ask::{Ask, Done, Held, Refused};
-pub use gate::{GateState, Seen};
+pub use gate_state::{GateState, Seen};
 pub use rules::{Facts, Plays, Reject, Rules};
 pub use wire::{Verdict, Wait};

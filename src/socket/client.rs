@@ -9,8 +9,8 @@
 //! console, it is stopping); else whether adrive still answers at its socket (it
 //! closed this connection) or not (it went away).
 
-use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, VERSION};
-use crate::controls::{Controls, Frame, Tune};
+use super::proto::{Answer, Msg, Op, Request, Role, WireScene, VERSION};
+use crate::controls::{Controls, Scene, Tune};
 use crate::logging::ring::{LogLine, KEEP};
 use crate::safety::{Ask, Done, Refused};
 use crate::value::{Command, DeviceId};
@@ -167,7 +167,7 @@ pub fn once(path: &Path, op: Op) -> Result<Answer, ClientError> {
 /// What the reading thread shares with the console.
 struct Inbox {
     /// The latest frame and when it arrived.
-    latest: Mutex<(WireFrame, Instant)>,
+    latest: Mutex<(WireScene, Instant)>,
     logs: Mutex<VecDeque<LogLine>>,
     pending: Mutex<HashMap<u64, Sender<Answer>>>,
     gone: Mutex<Option<String>>,
@@ -207,7 +207,7 @@ impl Remote {
         };
         let _ = stream.set_read_timeout(None);
         let inbox = Arc::new(Inbox {
-            latest: Mutex::new((WireFrame::default(), Instant::now())),
+            latest: Mutex::new((WireScene::default(), Instant::now())),
             logs: Mutex::new(VecDeque::with_capacity(KEEP)),
             pending: Mutex::new(HashMap::new()),
             gone: Mutex::new(None),
@@ -280,7 +280,7 @@ impl Remote {
 }
 
 impl Inbox {
-    fn take(&self, mut f: WireFrame) {
+    fn take(&self, mut f: WireScene) {
         let mut logs = self.logs.lock();
         for l in f.logs.drain(..) {
             if logs.len() == KEEP {
@@ -293,7 +293,7 @@ impl Inbox {
 }
 
 impl Controls for Remote {
-    fn frame(&self, _now: Instant, bench: Option<DeviceId>) -> Frame {
+    fn scene(&self, _now: Instant, bench: Option<DeviceId>) -> Scene {
         {
             let mut asked = self.bench.lock();
             if *asked != Some(bench) {
@@ -304,7 +304,7 @@ impl Controls for Remote {
             }
         }
         let (f, at) = self.inbox.latest.lock().clone();
-        Frame {
+        Scene {
             logs: self.inbox.logs.lock().iter().cloned().collect(),
             trace: f.trace.iter().map(|t| t.entry(at)).collect(),
             buckets: f.buckets,

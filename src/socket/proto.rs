@@ -234,7 +234,7 @@ pub(crate) enum Msg {
         version: u32,
         source: String,
     },
-    Frame(Box<WireFrame>),
+    Frame(Box<WireScene>),
     Reply {
         id: u64,
         answer: Answer,
@@ -245,9 +245,10 @@ pub(crate) enum Msg {
     },
 }
 
-/// A console frame on the wire: [`crate::controls::Frame`] with times as ages.
+/// A console's scene on the wire (the `frame` message): [`crate::controls::Scene`] with
+/// times as ages.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub(crate) struct WireFrame {
+pub(crate) struct WireScene {
     pub snap: Snapshot,
     /// Log lines not sent before.
     pub logs: Vec<WireLog>,

@@ -18,11 +18,11 @@
 //! [`BYE_GRACE`]; from then on nothing it sends is done.
 
 use super::path::{Claim, Peer};
-use super::proto::{Answer, Msg, Op, Request, Role, WireFrame, WireLog, WireTrace, VERSION};
+use super::proto::{Answer, Msg, Op, Request, Role, WireLog, WireScene, WireTrace, VERSION};
 use crate::controls::{capture, Controls, Live, Sources, TICK};
 use crate::engine::Gate;
 use crate::safety::Ask;
-use crate::threads::{Owner, StopSignal, Threads};
+use crate::threads::{Group, StopSignal, Threads};
 use crate::value::{DeviceId, Source};
 use parking_lot::Mutex;
 use std::io::{BufRead, BufReader, ErrorKind, Write};
@@ -59,7 +59,7 @@ struct Shared {
 /// The running control socket.
 pub struct Server {
     shared: Arc<Shared>,
-    accept: Owner,
+    accept: Group,
     path: PathBuf,
     /// Removes the socket file when the server goes.
     _claim: Claim,
@@ -77,7 +77,7 @@ impl Server {
         listener
             .set_nonblocking(true)
             .map_err(|e| format!("control socket: {e}"))?;
-        let mut accept = Owner::default();
+        let mut accept = Group::default();
         let shared = Arc::new(Shared {
             gate,
             sources,
@@ -559,7 +559,7 @@ fn frame_loop(s: &Shared, c: &Conn) {
         if *c.role.lock() != Some(Role::Console) {
             continue;
         }
-        if let Err(ending) = c.send(&Msg::Frame(Box::new(frame(s, c, now)))) {
+        if let Err(ending) = c.send(&Msg::Frame(Box::new(scene(s, c, now)))) {
             // The vehicle first; then, if it reads again, the client is told why.
             depart(s, c, &ending);
             if matches!(ending, Ending::StoppedReading(_)) {
@@ -573,7 +573,7 @@ fn frame_loop(s: &Shared, c: &Conn) {
 }
 
 /// The frame for one console: its bench device's traffic, the log lines it has not had.
-fn frame(s: &Shared, c: &Conn, now: Instant) -> WireFrame {
+fn scene(s: &Shared, c: &Conn, now: Instant) -> WireScene {
     let f = capture(&s.gate, &s.sources, now, *c.bench.lock());
     let logs = match &s.sources.logs {
         Some(ring) => {
@@ -584,7 +584,7 @@ fn frame(s: &Shared, c: &Conn, now: Instant) -> WireFrame {
         }
         None => Vec::new(),
     };
-    WireFrame {
+    WireScene {
         logs,
         trace: f.trace.iter().map(|e| WireTrace::of(e, now)).collect(),
         buckets: f.buckets,

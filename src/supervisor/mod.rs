@@ -11,7 +11,7 @@
 //! configuration and what the detector remembers between turns; they reach the
 //! engine, the gearbox and the e-stop through the role bindings.
 //!
-//! The gate monitor ([`crate::safety::gate`]) disengages within milliseconds on an
+//! The gate monitor ([`crate::safety::gate_state`]) disengages within milliseconds on an
 //! e-stop or a faulty device; the supervisor works at its own, slower period on
 //! diagnosis and recovery.
 //!
@@ -31,7 +31,7 @@ use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::engine::Gate;
 use crate::exit::Exit;
 use crate::snapshot::{DeviceView, DisengageCause, FaultKind, OutcomeKind, Snapshot};
-use crate::threads::{Liveness, Owner};
+use crate::threads::{Group, Liveness};
 use crate::value::{Kind, Value};
 use crate::vehicle::supervision::Fault;
 use recovery::{Procedure, Progress};
@@ -599,7 +599,7 @@ impl Supervisor {
                 f.device
                     .as_deref()
                     .and_then(|n| v.find(n))
-                    .is_none_or(|d| crate::safety::gate::needed(v, d))
+                    .is_none_or(|d| crate::safety::gate_state::needed(v, d))
             };
             if let Some(f) = faults
                 .iter()
@@ -746,7 +746,7 @@ impl Supervisor {
 
 /// The supervisor thread, `supervisor`, and the service watchdog's, `service/watchdog`.
 pub struct Running {
-    threads: Owner,
+    threads: Group,
 }
 
 /// How often the service watchdog looks at the threads' heartbeats.
@@ -762,7 +762,7 @@ pub fn start(gate: Arc<Gate>, cfg: SupervisorConfig, exit: ExitSink) -> std::io:
 /// the gate monitor's) and the supervisor itself runs and turns its loop within its
 /// bound. A thread that stalls is named in the log, to systemd and in the snapshot
 /// (`supervisor.stalled`); engage is refused while it is stalled
-/// ([`crate::safety::gate::blockers`]), and an engaged vehicle is disengaged at once —
+/// ([`crate::safety::gate_state::blockers`]), and an engaged vehicle is disengaged at once —
 /// the gate monitor may be the thread that stalled.
 pub(crate) fn start_watching(
     gate: Arc<Gate>,
@@ -770,7 +770,7 @@ pub(crate) fn start_watching(
     exit: ExitSink,
     watched: Liveness,
 ) -> std::io::Result<Running> {
-    let mut threads = Owner::default();
+    let mut threads = Group::default();
     let g = gate.clone();
     let period = cfg.period;
     threads.spawn_beating("supervisor", period, move |stop, beat| {

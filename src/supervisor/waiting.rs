@@ -1,7 +1,7 @@
 //! A device gone — unplugged, a wrong path, an adapter that vanished — never ends the
 //! run. The engine reopens its port with a capped backoff for as long as adrive runs (a
 //! bus's reader its adapter, [`crate::engine::bus`]); the vehicle is kept safe (a device
-//! the rules need refuses engage while it is gone, [`crate::safety::gate::needed`]);
+//! the rules need refuses engage while it is gone, [`crate::safety::gate_state::needed`]);
 //! every other device is polled and commanded as ever. What this part adds is words:
 //! what adrive waits for, said plainly in the log, the snapshot
 //! (`supervisor.waiting`) and the console —
@@ -77,9 +77,9 @@ impl Waiting {
                 error: g.error.clone(),
                 gone_ms: (now - g.since).as_secs_f64() * 1e3,
                 retry_ms: d.port_health().retry_ms.load(Relaxed) as f64,
-                needed: crate::safety::gate::needed(v, d),
+                needed: crate::safety::gate_state::needed(v, d),
             };
-            let effect = if crate::safety::gate::needed(v, d) {
+            let effect = if crate::safety::gate_state::needed(v, d) {
                 "engage is refused until it is back"
             } else {
                 "it holds up nothing"

@@ -105,7 +105,7 @@ impl Settings {
 }
 
 /// Why a device has no reading yet: a fact the engage gate says in words
-/// (`crate::safety::gate::blockers`).
+/// (`crate::safety::gate_state::blockers`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Unreported {
     /// It has not reported yet.

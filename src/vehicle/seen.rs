@@ -1,6 +1,6 @@
 //! What one decision of the intake saw of the vehicle: the gate's state and the
 //! interlocks' facts ([`Seen`], [`Facts`]). Safety gathers the facts
-//! (`crate::safety::facts`) and decides over them (`crate::safety::gate::decide`); the
+//! (`crate::safety::facts`) and decides over them (`crate::safety::gate_state::decide`); the
 //! types are plain data defined here, beside the tap that carries them to a recording
 //! with every command received, so that every layer from the vehicle up can hold them.
 
@@ -10,8 +10,8 @@ use serde::{Deserialize, Serialize};
 
 /// What the intake's decision on one ask saw of the vehicle, besides the vehicle file:
 /// the gate's state and, where the interlocks looked, their facts. With the vehicle
-/// file it is all a decision needs ([`crate::safety::gate::decide`],
-/// [`crate::safety::gate::decide_accel`]): a recording keeps it with every command
+/// file it is all a decision needs ([`crate::safety::gate_state::decide`],
+/// [`crate::safety::gate_state::decide_accel`]): a recording keeps it with every command
 /// received, and `adrive replay --check` decides each again, under another vehicle
 /// file's rules and limits, over what was seen then.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, JsonSchema)]

@@ -3,7 +3,7 @@
 use super::fit;
 use super::hint::short;
 use crate::console::keymap::{Action, Keymap, Mode};
-use crate::console::model::Ask;
+use crate::console::model::Question;
 use crate::console::theme::Theme;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
@@ -12,7 +12,7 @@ use ratatui::widgets::{Block, Clear, Widget};
 use unicode_width::UnicodeWidthStr;
 
 pub(crate) struct Dialog<'a> {
-    pub ask: Ask,
+    pub ask: Question,
     pub map: &'a Keymap,
     pub theme: Theme,
 }
@@ -46,7 +46,7 @@ impl Dialog<'_> {
         };
         Clear.render(r, buf);
         let style = match self.ask {
-            Ask::Interlocks(false) | Ask::Engage | Ask::Take => self.theme.warn(),
+            Question::Interlocks(false) | Question::Engage | Question::Take => self.theme.warn(),
             _ => self.theme.title(),
         };
         let block = Block::bordered()
@@ -60,7 +60,7 @@ impl Dialog<'_> {
             Span::styled(keys(self.map, Action::Cancel), self.theme.key()),
             Span::raw(" no"),
         ]);
-        let mut question = wrapped(self.ask.question(), inner.width);
+        let mut question = wrapped(self.ask.text(), inner.width);
         let whole = question.len() + 2 <= usize::from(inner.height)
             && answers.width() <= usize::from(inner.width)
             && question
@@ -121,7 +121,7 @@ mod tests {
     fn a_dialog_says_whether_it_was_drawn_whole() {
         let map = Keymap::default_map();
         let d = Dialog {
-            ask: Ask::Take,
+            ask: Question::Take,
             map: &map,
             theme: Theme::default(),
         };

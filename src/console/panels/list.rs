@@ -14,7 +14,7 @@ use super::device::{age, fmt_value, measured};
 use super::{fmt_age, fmt_us};
 use crate::console::model::{Edit, Field};
 use crate::console::theme::Theme;
-use crate::controls::Frame;
+use crate::controls::Scene;
 use crate::snapshot::DeviceView;
 use crate::value::DeviceId;
 use ratatui::buffer::Buffer;
@@ -34,7 +34,7 @@ const VALUE_MAX: usize = 9;
 const NAME_MIN: usize = 4;
 
 pub(crate) struct DeviceList<'a> {
-    pub snap: &'a Frame,
+    pub snap: &'a Scene,
     pub theme: Theme,
     /// Columns and lines of devices, from device `first`, column by column.
     pub cols: u16,

@@ -6,7 +6,7 @@
 
 use super::fit::Fitted;
 use crate::console::theme::Theme;
-use crate::controls::Frame;
+use crate::controls::Scene;
 use crate::snapshot::{LiveView, NetView, WatchdogState};
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
@@ -15,7 +15,7 @@ use ratatui::text::{Line, Span};
 use ratatui::widgets::Widget;
 
 pub(crate) struct NetworkPanel<'a> {
-    pub snap: &'a Frame,
+    pub snap: &'a Scene,
     pub theme: Theme,
 }
 
@@ -181,7 +181,7 @@ mod tests {
 
     #[test]
     fn without_a_listener_it_says_not_running() {
-        let snap = Frame::default();
+        let snap = Scene::default();
         let p = NetworkPanel {
             snap: &snap,
             theme: Theme::default(),
@@ -192,11 +192,11 @@ mod tests {
         );
     }
 
-    fn listening() -> Frame {
+    fn listening() -> Scene {
         let pairs = |v: &[(&str, u64)]| -> Pairs<u64> {
             v.iter().map(|(n, c)| (n.to_string(), *c)).collect()
         };
-        Frame {
+        Scene {
             snap: Snapshot {
                 net: Some(NetView {
                     listen: "127.0.0.1:7400".parse().unwrap(),
@@ -232,7 +232,7 @@ mod tests {
                 },
                 ..Snapshot::default()
             },
-            ..Frame::default()
+            ..Scene::default()
         }
     }
 

@@ -14,7 +14,7 @@
 use super::{fit, wrap};
 use crate::console::model::{Field, Model};
 use crate::console::theme::Theme;
-use crate::controls::{secs, Frame};
+use crate::controls::{secs, Scene};
 use crate::snapshot::RecoveryView;
 use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
@@ -252,7 +252,7 @@ impl Widget for &SupervisorPanel<'_> {
 /// The full-width lines of a small screen while the supervisor has something to
 /// show: the recovery in progress, then one line per fault (as many as fit).
 pub(crate) struct SupervisorStrip<'a> {
-    pub snap: &'a Frame,
+    pub snap: &'a Scene,
     pub theme: Theme,
 }
 
@@ -377,7 +377,7 @@ mod tests {
     use ratatui::style::Color;
     use unicode_width::UnicodeWidthStr;
 
-    fn sample() -> Frame {
+    fn sample() -> Scene {
         let supervisor = SupervisorView {
             faults: vec![
                 FaultView {
@@ -402,12 +402,12 @@ mod tests {
             history: Vec::new(),
             ..SupervisorView::default()
         };
-        Frame {
+        Scene {
             snap: Snapshot {
                 supervisor,
                 ..Snapshot::default()
             },
-            ..Frame::default()
+            ..Scene::default()
         }
     }
 

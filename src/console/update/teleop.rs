@@ -14,7 +14,7 @@ use super::{ask, clear_override, take, Controls};
 use crate::config::{limits, Role, TeleopConfig};
 use crate::console::hold::{Did, Drive, HoldKey};
 use crate::console::keymap::{Action, Knob, Mode};
-use crate::console::model::{Ask, Model, BRAKE_STEP, GAS_STEP, STEER_STEP};
+use crate::console::model::{Model, Question, BRAKE_STEP, GAS_STEP, STEER_STEP};
 use crate::console::sight;
 use crate::value::Command;
 use crossterm::event::{KeyEvent, KeyEventKind};
@@ -397,7 +397,7 @@ pub(super) fn action(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
         Action::FullBrake => accel = -1.0,
         Action::Level(k, up) => return level(m, c, k, up, now),
         Action::StepMode => return step_mode(m, c, now),
-        Action::Engage => return ask(m, Ask::Engage),
+        Action::Engage => return ask(m, Question::Engage),
         Action::TakeCommand => return take(m),
         Action::ClearOverride => return clear_override(m, c),
         Action::Back | Action::Cancel => return leave(m, c),

@@ -6,7 +6,7 @@ use crate::console::keymap::Keymap;
 use crate::console::model::ANSWER_HOLDS;
 use crate::console::theme::Theme;
 use crate::controls::live::change_settings;
-use crate::controls::{capture, Frame, Sources, Tune};
+use crate::controls::{capture, Scene, Sources, Tune};
 use crate::safety::{self, Done, Refused, Reject};
 use crate::testkit;
 use crossterm::event::{KeyEvent, KeyModifiers};
@@ -20,7 +20,7 @@ struct Fake {
     /// The sample vehicle (not started): its configuration, and the real checks of
     /// a console setting edit.
     gate: std::sync::Arc<crate::engine::Gate>,
-    snap: Frame,
+    snap: Scene,
     calls: RefCell<Vec<String>>,
     refuse: Option<Reject>,
     /// An attached console's adrive that no longer answers: even STOP is not taken.
@@ -85,7 +85,7 @@ fn id(name: &str) -> DeviceId {
 }
 
 impl Controls for Fake {
-    fn frame(&self, _now: Instant, _bench: Option<DeviceId>) -> Frame {
+    fn scene(&self, _now: Instant, _bench: Option<DeviceId>) -> Scene {
         self.snap.clone()
     }
     fn parse(&self, id: DeviceId, text: &str) -> Result<Command, String> {
@@ -405,7 +405,7 @@ fn engage_disengage_and_interlocks_ask_first() {
     let mut m = model(&f);
     let now = Instant::now();
     press(&mut m, &f, &["E"], now);
-    assert_eq!((m.mode, m.ask), (Mode::Confirm, Some(Ask::Engage)));
+    assert_eq!((m.mode, m.ask), (Mode::Confirm, Some(Question::Engage)));
     press(&mut m, &f, &["n"], now);
     assert_eq!(m.mode, Mode::Main);
     assert!(f.calls().is_empty());

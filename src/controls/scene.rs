@@ -1,9 +1,9 @@
-//! What a console draws, captured at one instant: a [`Frame`] — the vehicle's one
+//! What a console draws, captured at one instant: a [`Scene`] — the vehicle's one
 //! [`Snapshot`] plus what only a console shows (log lines, the bench device's traffic
 //! and histogram, the simulator's state) — and [`capture`], which takes one from the
 //! engine's cache. The embedded console captures its own every tick; the control
 //! socket captures one per attached console and sends it over the wire; a replay makes
-//! them from a recording. The view draws a frame without touching the engine.
+//! them from a recording. The view draws a scene without touching the engine.
 //!
 //! The network panel shows the snapshot's network part when the listener runs and
 //! "not running" otherwise. Under `--sim` a console also holds the in-process
@@ -53,9 +53,9 @@ impl SimFaults {
 }
 
 /// Everything the console draws, captured at one instant: the vehicle's one
-/// [`Snapshot`] (which `Frame` dereferences to) and what only the console shows.
+/// [`Snapshot`] (which `Scene` dereferences to) and what only the console shows.
 #[derive(Clone, Debug, Default)]
-pub struct Frame {
+pub struct Scene {
     pub snap: Snapshot,
     pub logs: Vec<LogLine>,
     /// Raw traffic of the bench device, oldest first.
@@ -81,14 +81,14 @@ pub struct Frame {
     pub teleop: crate::config::TeleopConfig,
 }
 
-impl std::ops::Deref for Frame {
+impl std::ops::Deref for Scene {
     type Target = Snapshot;
     fn deref(&self) -> &Snapshot {
         &self.snap
     }
 }
 
-impl Frame {
+impl Scene {
     /// A device by id (its place in the vehicle).
     pub fn at(&self, id: DeviceId) -> Option<&DeviceView> {
         self.snap.devices.get(id.index())
@@ -307,13 +307,13 @@ fn sim_vehicle(sim: &Sim, device: Option<&str>) -> Option<String> {
     (!parts.is_empty()).then(|| parts.join(" · "))
 }
 
-/// Capture a frame of the vehicle behind `gate` as of `now`.
-pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<DeviceId>) -> Frame {
+/// Capture a scene of the vehicle behind `gate` as of `now`.
+pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<DeviceId>) -> Scene {
     let v = &gate.vehicle();
     let mut snap = gate.snapshot_at(0, now);
     snap.net = sources.net.as_ref().map(|n| n.snapshot(gate));
     let bench_dev = bench.and_then(|id| v.devices().get(id.index()));
-    Frame {
+    Scene {
         logs: sources
             .logs
             .as_ref()

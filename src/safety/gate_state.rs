@@ -138,9 +138,9 @@ pub fn decide_accel(
     rules: Rules,
     a: f64,
     seen: &Seen,
-) -> Result<Plan, accel::Refusal> {
+) -> Result<Plan, accel::PedalReject> {
     accel::check_value(throttle, brake, a)?;
-    let refused = |why| accel::Refusal {
+    let refused = |why| accel::PedalReject {
         why,
         at: Pedal::Throttle,
         command: None,
@@ -407,7 +407,7 @@ impl GateState {
         &self,
         v: &Vehicle,
         a: f64,
-    ) -> Option<(Result<Plan, accel::Refusal>, Seen)> {
+    ) -> Option<(Result<Plan, accel::PedalReject>, Seen)> {
         let b = v.bindings();
         let (t, br) = (b.throttle?, b.brake?);
         let recovering = self.is_recovering(t) || self.is_recovering(br);

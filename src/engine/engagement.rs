@@ -1,0 +1,237 @@
+//! Engagement: every way in and out of it, in one place. Engaging (refused while
+//! anything blocks it), disengaging, an operator's STOP, a driver's override (and
+//! clearing it), and the e-stop's pause: each records why in the gate's state
+//! ([`crate::safety::GateState`]) and stores the safe (or manual) state in every
+//! actuator's slot, past the interlocks, the kits' switch following the gate. The
+//! decisions are safety's; this is where the engine carries them out.
+
+use super::Gate;
+use crate::config::Role;
+use crate::snapshot::{Blocker, DisengageCause};
+use crate::value::{Command, DeviceId};
+use crate::vehicle::tap::GateChange;
+use std::time::Instant;
+
+impl Gate {
+    /// A driver took `device` over (`why`: the supervisor's `override`): latch it and
+    /// hand the vehicle to the driver — disengaged, in the manual state (throttle and
+    /// brake released, the steering no longer commanded). Already latched: nothing.
+    pub fn take_over(&self, device: &str, why: &str) {
+        if !self.state().latch_override(device) {
+            return;
+        }
+        tracing::warn!(device, "driver override: {why}");
+        self.leave_to_the_driver();
+        let state = self.state().stop_state(self.vehicle());
+        // Said to be cleared once it is ([`crate::safety::GateState::cause`]).
+        let why = DisengageCause::Override {
+            device: device.to_string(),
+            cleared: false,
+        };
+        self.disengage_with(|g| g.set_disengaged(why), state);
+    }
+
+    /// Nothing is resent to a device the manual state does not command (the steering
+    /// in the driver's hands): its pending command is dropped and its resend forgotten.
+    fn leave_to_the_driver(&self) {
+        let v = self.vehicle();
+        let manual = crate::safety::safe::manual(v.config());
+        for d in v.devices().iter().filter(|d| d.is_actuator()) {
+            if !manual.iter().any(|(id, _)| *id == d.id()) {
+                d.slot().reset(None);
+            }
+        }
+    }
+
+    /// Clear the latched overrides, unless a driver's hand is still on one of them
+    /// (the supervisor still names its `override`). Returns what was cleared, or why
+    /// not.
+    pub fn clear_overrides(&self) -> Result<Vec<String>, String> {
+        let still: Vec<String> = self
+            .vehicle()
+            .supervision()
+            .faults()
+            .into_iter()
+            .filter(|f| f.kind == crate::snapshot::FaultKind::Override)
+            .filter_map(|f| f.device)
+            .collect();
+        let cleared = self.state().clear_overrides(&still)?;
+        if !cleared.is_empty() {
+            tracing::info!("override cleared: {}", cleared.join(", "));
+        }
+        Ok(cleared)
+    }
+
+    /// Engage: accept commands from now on. Refused while anything blocks it. Every
+    /// command slot is reset first so nothing resends a stale set point: the safe
+    /// state (throttle 0, brake full), steering held where it is, the rest left as
+    /// they are.
+    pub fn engage(&self, by: &str) -> Result<(), Vec<Blocker>> {
+        let blockers = self.blockers();
+        if !blockers.is_empty() {
+            let said = Blocker::said(&blockers);
+            tracing::warn!(by, "engage refused: {said}");
+            self.tap_gate(GateChange::EngageRefused, || format!("{by}: {said}"));
+            return Err(blockers);
+        }
+        let v = self.vehicle();
+        for d in v.devices().iter().filter(|d| d.is_actuator()) {
+            d.slot().reset(None);
+        }
+        // Kits enable after the safe command, never before it.
+        self.state().engaging();
+        self.command_safe_state();
+        self.kits_follow(true, &self.state().stop_state(v));
+        if let Some(s) = v.bound(Role::Steering) {
+            if let Some(p) = s.config().position().and_then(|i| s.reading(i)) {
+                self.store(s, Command::Set(p), Instant::now());
+            }
+        }
+        self.state().set_engaged(by);
+        tracing::info!(by, "engaged");
+        self.tap_gate(GateChange::Engaged, || {
+            let by = by.to_string();
+            crate::snapshot::GateCause::Engaged { by }.to_string()
+        });
+        Ok(())
+    }
+
+    /// Disengage and command the safe state. Returns false if it was not engaged.
+    pub fn disengage(&self, why: DisengageCause) -> bool {
+        self.disengage_into(why, self.state().stop_state(self.vehicle()))
+    }
+
+    /// An operator's STOP: disengage into the full safe state — throttle 0, brake full
+    /// — even while a driver has taken over. Only the stops adrive makes on its own
+    /// (a fault, the watchdog, an exit) leave a driver's vehicle in the manual state;
+    /// a person pressing STOP has decided to brake.
+    pub fn stop(&self, why: DisengageCause) -> bool {
+        self.disengage_into(why, crate::safety::safe::state(self.vehicle().config()))
+    }
+
+    fn disengage_into(&self, why: DisengageCause, state: Vec<(DeviceId, Command)>) -> bool {
+        self.disengage_with(|g| g.set_disengaged(why), state)
+    }
+
+    /// Disengage (`set` records why, in the gate's state) into `state`.
+    fn disengage_with(
+        &self,
+        set: impl FnOnce(&crate::safety::GateState) -> bool,
+        state: Vec<(DeviceId, Command)>,
+    ) -> bool {
+        // Kits disable with it ([`GateState::engaging`]), after the safe command.
+        let was = set(self.state());
+        let now = Instant::now();
+        for &(id, c) in &state {
+            self.store(self.vehicle().device(id), c, now);
+        }
+        self.kits_follow(false, &state);
+        if was {
+            let reason = self.reason();
+            tracing::warn!("{reason}");
+            self.tap_gate(GateChange::Disengaged, || reason);
+        }
+        was
+    }
+
+    /// The kit devices on a CAN bus that `state` does not command get their enable
+    /// (`engaged`) or disable message on their own; the others send it after their
+    /// command ([`crate::driver::slcan::CanDriver`]).
+    fn kits_follow(&self, engaged: bool, state: &[(DeviceId, Command)]) {
+        let v = self.vehicle();
+        if v.buses().is_empty() {
+            return;
+        }
+        let now = Instant::now();
+        let control = Command::Control(if engaged {
+            crate::value::Control::Enable
+        } else {
+            crate::value::Control::Disable
+        });
+        for d in v.devices().iter().filter(|d| d.config().kit().is_some()) {
+            if !state.iter().any(|(id, _)| *id == d.id()) {
+                self.store(d, control, now);
+            }
+        }
+    }
+
+    /// Command the safe state to every actuator there is, bypassing the interlocks
+    /// (the safe state is always allowed) — the manual state while a driver has taken
+    /// over.
+    pub(crate) fn command_safe_state(&self) {
+        let now = Instant::now();
+        if !self.overridden().is_empty() {
+            // A command that raced the override (checked before it, stored after its
+            // reset) must not be left to resend to the driver's device.
+            self.leave_to_the_driver();
+        }
+        for (id, c) in self.state().stop_state(self.vehicle()) {
+            self.store(self.vehicle().device(id), c, now);
+        }
+    }
+
+    /// The e-stop went to `state`, pause or disable, while disengaged: its rule is commanded
+    /// (the safe state: [`GateState::stop_state`](crate::safety::GateState)), and the
+    /// e-stop is why the vehicle is disengaged now.
+    pub(crate) fn follow_estop(&self, state: crate::value::EstopState) {
+        tracing::warn!("e-stop in {state}: brake and gas by the e-stop's rule");
+        self.disengage(DisengageCause::Blocked {
+            blocker: Blocker::Estop { state },
+        });
+    }
+
+    /// Wait until every reachable device acknowledged its part of the safe state.
+    /// Returns false if one the rules act on ([`crate::safety::gate_state::needed`]) did not
+    /// by the deadline.
+    pub fn wait_safe(&self, deadline: Instant) -> bool {
+        let mut ok = true;
+        for (id, want) in self.state().stop_state(self.vehicle()) {
+            let d = self.vehicle().device(id);
+            if d.slot().wait_executed(|c| c == want, deadline) {
+                continue;
+            }
+            // A device the rules do not act on (a horn) says nothing of whether the
+            // vehicle may still move.
+            if crate::safety::gate_state::needed(self.vehicle(), d) {
+                tracing::error!(device = %d.name(), "did not acknowledge the safe state");
+                ok = false;
+            } else {
+                tracing::warn!(device = %d.name(), "did not acknowledge its safe state (it holds up nothing)");
+            }
+        }
+        ok
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testkit as sample;
+
+    /// A kit is enabled only while the vehicle is engaged: the one switch the buses'
+    /// kits follow is the gate's, on through an engage and off with every way out of
+    /// it (disengage, STOP, a driver's override).
+    #[test]
+    fn the_kits_switch_follows_the_gate() {
+        let gate = sample::gate(Instant::now());
+        let kits = gate.vehicle().kits().clone();
+        assert!(!kits.enabled(), "off before any engage");
+        let ways_out: [&dyn Fn(&Gate); 3] = [
+            &|g| {
+                g.disengage(DisengageCause::Disengage { by: "test".into() });
+            },
+            &|g| {
+                g.stop(DisengageCause::Stop { by: "test".into() });
+            },
+            &|g| g.take_over("steer", "test"),
+        ];
+        for out in ways_out {
+            gate.engage("test").unwrap();
+            assert!(kits.enabled(), "on while engaged");
+            out(&gate);
+            assert!(!gate.is_engaged());
+            assert!(!kits.enabled(), "off once disengaged");
+            let _ = gate.clear_overrides();
+        }
+    }
+}
