@@ -167,6 +167,27 @@ mod tests {
         );
     }
 
+    /// A brake at exactly [`RELEASED`] is a release: it does not wait for the throttle.
+    /// Only a brake waits for the throttle: a steering command beside gas on its way
+    /// goes out at once.
+    #[test]
+    fn only_braking_waits_for_the_gas_released() {
+        let gas_on = Facts {
+            throttle_released: false,
+            ..calm()
+        };
+        let at = Command::Set(RELEASED);
+        assert_eq!(
+            verdict(&gas_on, Rules::ALL, Plays::BRAKE, at, false),
+            Verdict::Send(at)
+        );
+        let steer = Plays::of(&[crate::config::Role::Steering]);
+        assert_eq!(
+            verdict(&gas_on, Rules::ALL, steer, Command::Set(0.5), false),
+            Verdict::Send(Command::Set(0.5))
+        );
+    }
+
     #[test]
     fn braking_first_has_the_gas_released_and_is_never_refused() {
         let f = Facts {
