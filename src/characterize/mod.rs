@@ -202,8 +202,14 @@ impl<'a> Bench<'a> {
         }
         let set = d.reading(position).expect("checked");
         let range = d.config().range();
-        gate.admit(Source::Bench, Ask::Engage, Instant::now())
-            .map_err(|r| Ended(format!("engage refused: {r}")))?;
+        // Engaging waits for what blocks it to clear (a device's first reports), as
+        // long as the vehicle may take to report at all.
+        while let Err(r) = gate.admit(Source::Bench, Ask::Engage, Instant::now()) {
+            if Instant::now() > deadline || !matches!(r, safety::Refused::Blocked(_)) {
+                return Err(Ended(format!("engage refused: {r}")));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
         let now = Instant::now();
         let mut b = Bench {
             gate,
