@@ -694,15 +694,17 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
                 args.device
             );
         }
-        print!(
-            "characterize moves {} across its range on its own. Is it free to move, the vehicle stopped, in park, the brake held? [y/N] ",
-            args.device
+        tell(
+            io::stdout(),
+            format_args!(
+                "characterize moves {} across its range on its own. Is it free to move, the vehicle stopped, in park, the brake held? [y/N] ",
+                args.device
+            ),
         );
-        io::stdout().flush()?;
         let mut answer = String::new();
         io::stdin().read_line(&mut answer)?;
         if !matches!(answer.trim(), "y" | "Y" | "yes") {
-            println!("not confirmed: nothing moved");
+            tell(io::stdout(), format_args!("not confirmed: nothing moved\n"));
             return Ok(1);
         }
     }
@@ -753,14 +755,18 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         Box::new(exit::request),
         engine.liveness().with(&monitor.liveness()),
     )?;
-    println!(
-        "characterizing {} ({}): STOP with `adrive ctl stop`, or Ctrl-C",
-        args.device,
-        procedures
-            .iter()
-            .map(|p| format!("{p:?}").to_lowercase())
-            .collect::<Vec<_>>()
-            .join(", ")
+    // Standard output may be closed (`| head`): what it says must never end the run.
+    tell(
+        io::stdout(),
+        format_args!(
+            "characterizing {} ({}): STOP with `adrive ctl stop`, or Ctrl-C\n",
+            args.device,
+            procedures
+                .iter()
+                .map(|p| format!("{p:?}").to_lowercase())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
     );
     let result = crate::characterize::run(&gate, &exits, &args.device, &procedures);
     control.close();
@@ -784,24 +790,33 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
             if let Some(o) = summary.as_object_mut() {
                 o.remove("map");
             }
-            println!(
-                "{}\nwritten to {} in {:.1} s",
-                serde_json::to_string_pretty(&summary)?,
-                out.display(),
-                figures.took
+            tell(
+                io::stdout(),
+                format_args!(
+                    "{}\nwritten to {} in {:.1} s\n",
+                    serde_json::to_string_pretty(&summary)?,
+                    out.display(),
+                    figures.took
+                ),
             );
             0
         }
         Err(e) => {
-            eprintln!("adrive: characterize {}: {e}", args.device);
+            tell(
+                io::stderr(),
+                format_args!("adrive: characterize {}: {e}\n", args.device),
+            );
             1
         }
     };
-    println!(
-        "{} at {}; safe state {}acknowledged",
-        args.device,
-        at.map_or("?".into(), |p| p.to_string()),
-        if safe { "" } else { "NOT " }
+    tell(
+        io::stdout(),
+        format_args!(
+            "{} at {}; safe state {}acknowledged\n",
+            args.device,
+            at.map_or("?".into(), |p| p.to_string()),
+            if safe { "" } else { "NOT " }
+        ),
     );
     drop(log);
     Ok(if !safe || !stuck.is_empty() {
