@@ -193,6 +193,18 @@ pub fn mean_sd(v: &[f64]) -> Option<(f64, f64)> {
     Some((m, var.sqrt()))
 }
 
+/// The median (the mean of the middle two of an even count).
+pub fn median(v: &[f64]) -> Option<f64> {
+    let mut v = v.to_vec();
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(v[n / 2]),
+        _ => Some((v[n / 2 - 1] + v[n / 2]) / 2.0),
+    }
+}
+
 /// The static map of a sweep: each point's measured value approached from below and
 /// from above, averaged (the hysteresis cancels), and the line through them: (gain,
 /// offset).

@@ -75,11 +75,16 @@ pub struct Figures {
     pub samples: Vec<Sample>,
     /// How long it took, seconds.
     pub took: f64,
+    /// The command path's own delay during the run (receipt to first byte written):
+    /// its median and 99th percentile, and how many commands, as the engine kept them.
+    pub command_path: Option<crate::snapshot::LatencySummary>,
 }
 
 impl Figures {
+    /// The median over the steps: one step a stall of the machine distorted does not
+    /// move it.
     fn mean(v: &[StepFigures], f: impl Fn(&StepFigures) -> f64) -> Option<f64> {
-        analyze::mean_sd(&v.iter().map(f).collect::<Vec<_>>()).map(|(m, _)| m)
+        analyze::median(&v.iter().map(f).collect::<Vec<_>>())
     }
     pub fn rate_up(&self) -> Option<f64> {
         Self::mean(&self.up, |s| s.rate)
@@ -107,7 +112,7 @@ impl Figures {
     pub fn lag(&self) -> Option<f64> {
         let lags: Vec<f64> = self.all_steps().iter().filter_map(|s| s.lag).collect();
         (!lags.is_empty() && lags.len() == self.all_steps().len())
-            .then(|| analyze::mean_sd(&lags).map(|(m, _)| m))
+            .then(|| analyze::median(&lags))
             .flatten()
     }
 }
@@ -286,7 +291,14 @@ impl<'a> Bench<'a> {
         }
         let c = d.cached();
         if c.at != self.last_at {
-            if let (Some(at), Some(y)) = (c.at, c.reading.get(self.position)) {
+            // A reply after a gap of several polls (the machine stalled) was read
+            // before the stall, not when it came: its time is unknown, so it is left out.
+            let gap = match (c.at, self.last_at) {
+                (Some(a), Some(b)) => a.saturating_duration_since(b),
+                _ => Duration::ZERO,
+            };
+            let stalled = gap > d.settings().status_period() * 4 + Duration::from_millis(10);
+            if let (Some(at), Some(y), false) = (c.at, c.reading.get(self.position), stalled) {
                 // Taken about half a transaction before its reply was complete.
                 let txn = d.stats().status_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
                 let t = at.saturating_duration_since(self.started).as_secs_f64() - txn / 2.0;
@@ -540,7 +552,14 @@ pub fn run(
         }
     };
     f.took = started.elapsed().as_secs_f64();
+    let stats = gate.vehicle().device(bench_id(gate, device)?).stats();
+    stats.refresh();
+    f.command_path = Some(stats.command_delay.summary());
     Ok(f)
+}
+
+fn bench_id(gate: &Gate, device: &str) -> Result<DeviceId, Ended> {
+    check_device(gate, device).map(|(id, _)| id).map_err(Ended)
 }
 
 fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
@@ -558,7 +577,7 @@ fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
         Procedure::Delay,
         Procedure::Deadband,
     ]) {
-        b.steps(2, &mut f)?;
+        b.steps(3, &mut f)?;
     }
     if wants(&[Procedure::Deadband]) {
         f.deadband = Some(b.deadband()?);

@@ -146,6 +146,18 @@ pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
         ("offset", show(f.gain_offset.map(|g| g.1), u)),
         ("repeatability", show(f.repeatability, u)),
         ("noise (σ)", show(f.noise, u)),
+        (
+            "the command path's own delay, p50 / p99 (receipt to first byte)",
+            f.command_path.map_or("—".into(), |l| {
+                let ms = |x: Option<f64>| x.map_or("—".into(), |v| format!("{:.2}", v / 1e3));
+                format!(
+                    "{} / {} ms over {} commands",
+                    ms(l.p50_us),
+                    ms(l.p99_us),
+                    l.count
+                )
+            }),
+        ),
     ];
     for (k, v) in rows {
         let _ = writeln!(md, "| {k} | {v} |");

@@ -1,7 +1,8 @@
 //! When a bench procedure may move an actuator on its own (`adrive characterize`): a
 //! procedure steps and sweeps a device with nobody's hand on a key, so it runs only
-//! where that cannot move the vehicle — stopped, in park, with the brake held, each
-//! proven by the facts the interlocks read ([`Facts`]) — or on a bench where nothing
+//! where that cannot move the vehicle — stopped, in park, with the brake held (unless
+//! the brake is the device under test: park holds the vehicle then), each proven by the
+//! facts the interlocks read ([`Facts`]) — or on a bench where nothing
 //! but the device under test is bound to a role (`--only DEVICE`). Checked before the
 //! procedure starts and at every sample while it runs; a broken one ends it.
 
@@ -64,6 +65,10 @@ pub fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unready> {
     };
     if f.gear != Some(park) {
         return Err(Unready::NotInPark);
+    }
+    // The brake under test cannot also hold the vehicle: park does.
+    if b.brake == Some(device) {
+        return Ok(());
     }
     if b.brake.is_none() {
         return Err(Unready::Unproven(Role::Brake));
@@ -131,6 +136,22 @@ mod tests {
             ..still()
         };
         assert_eq!(ready(&b, steer, &unknown_brake), Err(Unready::BrakeNotHeld));
+    }
+
+    #[test]
+    fn the_brake_under_test_need_not_hold_the_vehicle_but_park_must() {
+        let (b, _) = alice();
+        let brake = b.brake.unwrap();
+        let released = Facts {
+            brake_low: Some(0.0),
+            ..still()
+        };
+        assert_eq!(ready(&b, brake, &released), Ok(()));
+        let drive = Facts {
+            gear: Some(3),
+            ..released
+        };
+        assert_eq!(ready(&b, brake, &drive), Err(Unready::NotInPark));
     }
 
     #[test]
