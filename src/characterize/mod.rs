@@ -1,7 +1,7 @@
 //! `adrive characterize DEVICE`: measure a setpoint actuator at the bench — its delay,
 //! slew rates, step response, deadband, backlash, static map, repeatability and noise —
 //! and write what it measured, with the `[device.sim]` that makes the simulator behave
-//! like it ([`write`]).
+//! like it ([`mod@write`]).
 //!
 //! It moves the device on its own, so it is safe by construction: it commands through
 //! the one intake as its own source ([`Source::Bench`]), engaged like any commander, so
@@ -52,6 +52,9 @@ impl Procedure {
         Procedure::Delay,
     ];
 }
+
+/// Points of a sweep, each (commanded, settled reading).
+pub type Settled = Vec<(f64, f64)>;
 
 /// Why a characterization ended before it was done.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -471,7 +474,7 @@ impl<'a> Bench<'a> {
     }
 
     /// Points up the range and back down, each settled: (commanded, measured) each way.
-    pub fn sweep(&mut self, points: usize) -> Result<(Vec<(f64, f64)>, Vec<(f64, f64)>), Ended> {
+    pub fn sweep(&mut self, points: usize) -> Result<(Settled, Settled), Ended> {
         let s = self.span();
         let at: Vec<f64> = (0..points)
             .map(|i| self.range[0] + s * (0.2 + 0.6 * i as f64 / (points - 1).max(1) as f64))
