@@ -64,6 +64,19 @@ pub enum Cmd {
     ///
     /// Exit status: 0 done; 1 refused, or no adrive at the socket; 3 no reply.
     Ctl(CtlArgs),
+    /// Measure a setpoint actuator at the bench — delay, slew rates, step response,
+    /// deadband, backlash, static map, repeatability, noise — and write its figures,
+    /// samples, a report and the `[device.sim]` that makes the simulator behave like it.
+    ///
+    /// It commands on its own, after the operator confirms, only while the vehicle is
+    /// stopped, in park, with the brake held (or on a bench where nothing else is
+    /// bound: --only DEVICE), and ends at once, the device safe, on STOP, a fault, an
+    /// override, a broken precondition or a signal.
+    ///
+    /// Exit status: 0 measured and written; 1 ended before it was done, or refused
+    /// (nothing written); 2 a bad command line or vehicle file; 3 the safe state was
+    /// not acknowledged.
+    Characterize(CharacterizeArgs),
     /// Play a recording in the console: pause, step, seek, speed; read-only.
     Replay(ReplayArgs),
     /// Recordings: `adrive record info FILE`, `adrive record repair FILE`.
@@ -175,6 +188,40 @@ pub struct AttachArgs {
     /// Teleop deadman of this console (100ms to 5s) [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman)]
     pub deadman: Option<Duration>,
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct CharacterizeArgs {
+    /// The setpoint actuator to measure (it must report a `position`).
+    #[arg(value_name = "DEVICE")]
+    pub device: String,
+    /// Vehicle TOML (default: the built-in simulated Alice).
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
+    /// Simulate every device on pseudo-terminals.
+    #[arg(long)]
+    pub sim: bool,
+    /// Run just these devices (repeatable, or comma-separated): the bench.
+    #[arg(long, value_name = "NAME", value_delimiter = ',')]
+    pub only: Vec<String>,
+    /// Where to write summary.json, samples.csv, sim.toml and report.md [default:
+    /// characterize-DEVICE].
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// The procedures to run (repeatable, or comma-separated) [default: all].
+    #[arg(long, value_name = "NAME", value_delimiter = ',', value_enum)]
+    pub procedure: Vec<crate::characterize::Procedure>,
+    /// Do not ask for confirmation (for scripts): the operator has made sure the
+    /// device may move.
+    #[arg(long)]
+    pub yes: bool,
+    /// The control socket (`adrive ctl stop` reaches the run there; default: as
+    /// `adrive --socket`'s).
+    #[arg(long, value_name = "PATH")]
+    pub socket: Option<PathBuf>,
+    /// Directory of the rolling log file (default: as `adrive --log-dir`'s).
+    #[arg(long, value_name = "DIR")]
+    pub log_dir: Option<PathBuf>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -340,6 +387,7 @@ pub fn main() -> i32 {
         Some(Cmd::Watch(args)) => watch(args),
         Some(Cmd::Attach(args)) => attach(args),
         Some(Cmd::Ctl(args)) => ctl(args),
+        Some(Cmd::Characterize(args)) => characterize(args),
         Some(Cmd::Replay(args)) => replay(args),
         Some(Cmd::Record {
             command: RecordCmd::Info { file },
@@ -614,6 +662,170 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
     Ok(code)
+}
+
+/// How often `adrive characterize` polls the device it measures, at most.
+const CHARACTERIZE_POLL: Duration = Duration::from_millis(5);
+
+/// `adrive characterize DEVICE`: the engine without a console or network, the
+/// procedures of [`crate::characterize`] as the one commander, then the safe state.
+pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
+    let mut config = load(&args.config, &args.only)?;
+    if !args.sim {
+        config.check_ports()?;
+    }
+    let Some(d) = config.devices.iter_mut().find(|d| d.name == args.device) else {
+        anyhow::bail!("no device {:?} in {}", args.device, config.source);
+    };
+    // Sample the device fast: the figures are read between its polls.
+    d.status_period = d.status_period.min(CHARACTERIZE_POLL);
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("characterize-{}", args.device)));
+    let procedures = if args.procedure.is_empty() {
+        crate::characterize::Procedure::ALL.to_vec()
+    } else {
+        args.procedure.clone()
+    };
+    if !args.yes {
+        use std::io::IsTerminal;
+        if !io::stdin().is_terminal() {
+            anyhow::bail!(
+                "characterize moves {} on its own: confirm on a terminal, or with --yes",
+                args.device
+            );
+        }
+        tell(
+            io::stdout(),
+            format_args!(
+                "characterize moves {} across its range on its own. Is it free to move, the vehicle stopped, in park, the brake held? [y/N] ",
+                args.device
+            ),
+        );
+        let mut answer = String::new();
+        io::stdin().read_line(&mut answer)?;
+        if !matches!(answer.trim(), "y" | "Y" | "yes") {
+            tell(io::stdout(), format_args!("not confirmed: nothing moved\n"));
+            return Ok(1);
+        }
+    }
+    let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
+    paths::create_dir("--log-dir", &log_dir).map_err(anyhow::Error::msg)?;
+    let socket_path = args
+        .socket
+        .clone()
+        .unwrap_or_else(socket::path::default_path);
+    paths::check_place("--socket", &socket_path).map_err(anyhow::Error::msg)?;
+    let mut opened = if args.sim {
+        std::collections::HashMap::new()
+    } else {
+        open_ports(&config)?
+    };
+    let log = logging::init_with(true, Some(&log_dir), Vec::new())?;
+    let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
+    let sim = if args.sim {
+        let s = Sim::start(&config, None)?;
+        s.patch(&mut config);
+        Some(Arc::new(s))
+    } else {
+        None
+    };
+    let vehicle = Arc::new(Vehicle::new(config, |c| {
+        let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+        let mut first = opened.remove(c.name.as_str());
+        Box::new(move || match first.take() {
+            Some(link) => Ok(link),
+            None => driver::open_serial(&path, baud, timeout),
+        })
+    }));
+    let gate = Arc::new(Gate::new(vehicle.clone()));
+    gate.announce();
+    let exits = exit::install()?;
+    let sources = crate::controls::Sources {
+        logs: None,
+        net: None,
+        sim: sim.clone(),
+    };
+    let control =
+        socket::Server::start(gate.clone(), sources, claimed).map_err(anyhow::Error::msg)?;
+    let engine = Engine::start(gate.clone())?;
+    let monitor = crate::engine::monitor::Monitor::start(gate.clone())?;
+    let supervisor = crate::supervisor::start_watching(
+        gate.clone(),
+        vehicle.config().supervisor.clone(),
+        Box::new(exit::request),
+        engine.liveness().with(&monitor.liveness()),
+    )?;
+    // Standard output may be closed (`| head`): what it says must never end the run.
+    tell(
+        io::stdout(),
+        format_args!(
+            "characterizing {} ({}): STOP with `adrive ctl stop`, or Ctrl-C\n",
+            args.device,
+            procedures
+                .iter()
+                .map(|p| format!("{p:?}").to_lowercase())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    );
+    let result = crate::characterize::run(&gate, &exits, &args.device, &procedures);
+    control.close();
+    gate.disengage("characterize: stopping");
+    let mut stuck = supervisor.shutdown(Duration::from_millis(500));
+    stuck.extend(control.shutdown(Duration::from_millis(500)));
+    stuck.extend(monitor.shutdown(Duration::from_millis(200)));
+    let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
+    stuck.extend(engine_stuck);
+    let at = vehicle
+        .devices()
+        .iter()
+        .find(|d| d.name() == args.device)
+        .and_then(|d| d.config().position().and_then(|i| d.reading(i)));
+    drop(sim);
+    let code = match result {
+        Ok(figures) => {
+            crate::characterize::write::all(&out, &figures)
+                .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
+            let mut summary = crate::characterize::write::summary(&figures);
+            if let Some(o) = summary.as_object_mut() {
+                o.remove("map");
+            }
+            tell(
+                io::stdout(),
+                format_args!(
+                    "{}\nwritten to {} in {:.1} s\n",
+                    serde_json::to_string_pretty(&summary)?,
+                    out.display(),
+                    figures.took
+                ),
+            );
+            0
+        }
+        Err(e) => {
+            tell(
+                io::stderr(),
+                format_args!("adrive: characterize {}: {e}\n", args.device),
+            );
+            1
+        }
+    };
+    tell(
+        io::stdout(),
+        format_args!(
+            "{} at {}; safe state {}acknowledged\n",
+            args.device,
+            at.map_or("?".into(), |p| p.to_string()),
+            if safe { "" } else { "NOT " }
+        ),
+    );
+    drop(log);
+    Ok(if !safe || !stuck.is_empty() {
+        exit::UNSAFE
+    } else {
+        code
+    })
 }
 
 /// Tell systemd (if it runs adrive) that adrive is ready, once every device thread

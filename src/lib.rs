@@ -18,6 +18,7 @@
 //! it all together; [`service`] tells systemd how it goes.
 
 pub mod can;
+pub mod characterize;
 pub mod cli;
 pub mod config;
 pub mod console;

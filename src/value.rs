@@ -45,6 +45,8 @@ pub enum Source {
     /// The supervisor's recovery procedures (past ownership: they act on a vehicle in
     /// trouble, and only on the devices they take over).
     Supervisor,
+    /// A bench procedure measuring one actuator (`adrive characterize`).
+    Bench,
 }
 
 impl Source {
@@ -64,6 +66,7 @@ impl fmt::Display for Source {
             Source::Network(a) => write!(f, "{a}"),
             Source::Ros2 => f.write_str("ros2"),
             Source::Supervisor => f.write_str("supervisor"),
+            Source::Bench => f.write_str("characterize"),
         }
     }
 }

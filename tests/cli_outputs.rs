@@ -147,6 +147,23 @@ impl Around {
                     )
                 }
                 ["sim"] => How::Prints(s(&["sim"]), First::Nothing),
+                ["characterize"] => How::Prints(
+                    s(&[
+                        "characterize",
+                        "steer",
+                        "--sim",
+                        "--yes",
+                        "--procedure",
+                        "sweep",
+                        "--out",
+                        &self.path("characterized"),
+                        "--socket",
+                        &self.path("characterize.sock"),
+                        "--log-dir",
+                        &self.path("characterize-log"),
+                    ]),
+                    First::Nothing,
+                ),
                 ["ports"] => How::Prints(s(&["ports"]), First::Nothing),
                 ["send"] => How::Prints(
                     s(&["send", "--to", &self.listen, "disengage"]),

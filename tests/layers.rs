@@ -38,7 +38,7 @@ const TESTKIT: &str = "testkit";
 /// them; each imports the core and the layers before its own, never one of its own.
 const FRONT: &[&[&str]] = &[
     &["sim", "net"],
-    &["controls", "record", "ros2", "headless"],
+    &["controls", "record", "ros2", "headless", "characterize"],
     &["console", "socket", "foxglove"],
     &["cli"],
 ];

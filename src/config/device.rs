@@ -391,6 +391,11 @@ impl DeviceConfig {
         if let Some(w) = self.sim.watchdog {
             SIM_WATCHDOG.check(w)?;
         }
+        if let Some(l) = self.sim.lag {
+            SIM_LAG.check(l)?;
+        }
+        SIM_DELAY.check(self.sim.delay)?;
+        self.check_sim_motion()?;
         if let Wire::Modbus(m) = &self.wire {
             MODBUS_SLAVE.check(u64::from(m.slave))?;
         }
@@ -427,6 +432,28 @@ impl DeviceConfig {
                     show(self.command_timeout)
                 ),
             ));
+        }
+        Ok(())
+    }
+
+    /// How the simulated setpoint actuator moves, in its units ([`SIM_IN_UNITS`]).
+    fn check_sim_motion(&self) -> Result<(), Violation> {
+        use limits::SIM_IN_UNITS;
+        let span = self.range[1] - self.range[0];
+        let setpoint = self.kind == Kind::Setpoint;
+        if let Some(r) = self.sim.rate {
+            if !(setpoint && r.is_finite() && r > 0.0 && r <= span * 1000.0) {
+                return Err(SIM_IN_UNITS.violation(&["sim.rate"], format!("sim.rate {r}")));
+            }
+        }
+        for (key, v) in [
+            ("sim.deadband", self.sim.deadband),
+            ("sim.backlash", self.sim.backlash),
+        ] {
+            let written = v != 0.0;
+            if written && !(setpoint && v.is_finite() && v > 0.0 && v <= span / 10.0) {
+                return Err(SIM_IN_UNITS.violation(&[key], format!("{key} {v}")));
+            }
         }
         Ok(())
     }

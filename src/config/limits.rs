@@ -269,6 +269,22 @@ pub(crate) const SIM_WATCHDOG: Limit<Duration> = Limit {
     default: None,
     why: "the simulated actuator's own watchdog (off when not written): gas 0, brake full",
 };
+pub(crate) const SIM_LAG: Limit<Duration> = Limit {
+    section: DeviceSim,
+    key: "lag",
+    min: ms(1),
+    max: s(10),
+    default: None,
+    why: "the simulated setpoint actuator follows its command with this first-order lag (off when not written)",
+};
+pub(crate) const SIM_DELAY: Limit<Duration> = Limit {
+    section: DeviceSim,
+    key: "delay",
+    min: ms(0),
+    max: s(1),
+    default: Some(ms(0)),
+    why: "the simulated setpoint actuator acts on a command this long after it arrives (transport delay)",
+};
 pub(crate) const MODBUS_SLAVE: Limit<u64> = Limit {
     section: DeviceModbus,
     key: "slave",
@@ -510,6 +526,10 @@ pub(crate) const HOLD_BELOW_BRAKE: Rule = Rule {
     section: Teleop,
     text: "`hold` at most `brake` (`↓` brakes at least as hard as letting go)",
 };
+pub(crate) const SIM_IN_UNITS: Rule = Rule {
+    section: DeviceSim,
+    text: "`rate`, `deadband` and `backlash` in the device's units, on setpoint devices only: `rate` above 0 and at most 1000 ranges a second, `deadband` and `backlash` from 0 to a tenth of its range",
+};
 pub(crate) const WATCHDOG_OUTLASTS_RESEND: Rule = Rule {
     section: DeviceSim,
     text: "`watchdog` longer than the device's `command_timeout` (which keeps a live adrive resending)",
@@ -566,6 +586,8 @@ pub static ALL: &[&dyn Row] = &[
     &SIM_POLL_DELAY,
     &SIM_COMMAND_DELAY,
     &SIM_WATCHDOG,
+    &SIM_LAG,
+    &SIM_DELAY,
     &MODBUS_SLAVE,
     &RESPONSE_LAG,
     &OVERRIDE_TIME,
@@ -607,6 +629,7 @@ pub(crate) static RULES: &[&Rule] = &[
     &RESPONSE_ON_SETPOINTS,
     &PORT_NAMED,
     &WATCHDOG_OUTLASTS_RESEND,
+    &SIM_IN_UNITS,
     &RESPONSE_IN_UNITS,
     &HOLD_BELOW_BRAKE,
 ];
@@ -714,6 +737,8 @@ mod tests {
             &SIM_POLL_DELAY,
             &SIM_COMMAND_DELAY,
             &SIM_WATCHDOG,
+            &SIM_LAG,
+            &SIM_DELAY,
             &WATCHDOG_TIMEOUT,
             &SUPERVISOR_PERIOD,
             &ERROR_WINDOW,

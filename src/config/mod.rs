@@ -114,9 +114,20 @@ pub struct SimConfig {
     /// A setpoint actuator moves toward its command at most this fast (units/s) …
     #[serde(default)]
     pub rate: Option<f64>,
-    /// … or follows it with this first-order lag (without either: at once).
+    /// … and follows it with this first-order lag (without either: at once; with
+    /// both, the lag's motion held to the rate) …
     #[serde(default, deserialize_with = "opt_duration")]
     pub lag: Option<Duration>,
+    /// … ignores a new command closer than this to the one it follows (units) …
+    #[serde(default)]
+    pub deadband: f64,
+    /// … has this much play where its motion reverses (units): it settles this much
+    /// lower approaching a point from below than from above …
+    #[serde(default)]
+    pub backlash: f64,
+    /// … and acts on each command only this long after it arrives (transport delay).
+    #[serde(default, deserialize_with = "duration")]
+    pub delay: Duration,
     /// A state actuator settles into a new state after this long …
     #[serde(default, deserialize_with = "duration")]
     pub settle: Duration,
@@ -138,6 +149,9 @@ impl Default for SimConfig {
             watchdog: None,
             rate: None,
             lag: None,
+            deadband: 0.0,
+            backlash: 0.0,
+            delay: limits::SIM_DELAY.default_value(),
             settle: Duration::ZERO,
             transit: None,
             readings: BTreeMap::new(),
@@ -542,11 +556,6 @@ fn check_sim(d: &DeviceConfig) -> Result<(), String> {
                 "{name}: sim.readings: {r:?} is not one of its readings"
             ));
         }
-    }
-    if d.sim.rate.is_some_and(|r| !(r.is_finite() && r > 0.0)) {
-        return Err(format!(
-            "{name}: sim.rate: expected units per second above 0"
-        ));
     }
     Ok(())
 }

@@ -3,7 +3,8 @@
 //! ([`gate_state::decide`] for one device, [`gate_state::decide_accel`] for `accel`, whose plan is
 //! [`accel`]'s), [`wire::verdict`] right before a command goes out, [`gate_state::blockers`] for engaging
 //! and the monitor, [`safe::state`] for the safe state and [`safe::manual`] for it while
-//! a driver has taken over, [`owner::decide`] for who commands, [`lease`] for gas that
+//! a driver has taken over, [`owner::decide`] for who commands, [`bench::ready`] for a
+//! bench procedure moving a device on its own, [`lease`] for gas that
 //! lasts only while its key is held — and act on roles bound in the vehicle file, never
 //! on device names.
 //!
@@ -18,6 +19,7 @@
 
 pub mod accel;
 pub mod ask;
+pub mod bench;
 pub mod facts;
 pub mod gate_state;
 pub mod lease;

@@ -467,7 +467,8 @@ impl Owner {
     /// teleoperates, none for an operator's one-shot `engage`.
     pub(crate) fn timeout(&self, source: Source, bounds: Bounds) -> Option<Duration> {
         match source {
-            Source::Network(_) | Source::Ros2 => Some(bounds.watchdog),
+            // A bench procedure commands on its own, as a planner does.
+            Source::Network(_) | Source::Ros2 | Source::Bench => Some(bounds.watchdog),
             Source::Console | Source::Attached(_) => self.deadman,
             // An operator's one-shot `engage` moves nothing: it holds the vehicle as a
             // console does outside teleop, until it is released, stopped or taken.

@@ -1,6 +1,8 @@
 //! The simulated vehicle behind every simulated device. Each device has its own
 //! simulated state from the vehicle file: a setpoint actuator moves toward its command
-//! at its `[device.sim] rate` or with its `lag`; a state actuator settles into a new
+//! at its `[device.sim] rate` and with its `lag`, after its transport `delay`, ignoring
+//! a change within its `deadband`, and with its `backlash` between its drive and what
+//! its position reading sees; a state actuator settles into a new
 //! state after `settle` (reporting `transit` meanwhile); a sensor's readings are
 //! constants, ramps or noise. The vehicle itself — speed, engine, rpm, coolant, the
 //! e-stop — works through the role bindings: the throttle's position drives, the
@@ -11,6 +13,7 @@
 
 use crate::config::{Bindings, ReadingKind, Role, SimReading, VehicleConfig};
 use crate::value::{flush_subnormal, Command, Control, DeviceId, EstopState, Kind, Reading};
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 const IDLE_RPM: f64 = 700.0;
@@ -56,12 +59,21 @@ pub struct SimDevice {
     pub name: String,
     pub kind: Kind,
     pub range: [f64; 2],
-    /// A setpoint actuator's position and command, and how fast it moved last step.
+    /// A setpoint actuator's position (what its reading sees, past the backlash), the
+    /// command its drive follows, and how fast it moved last step.
     pub position: f64,
     pub command: f64,
     pub velocity: f64,
+    /// Where its drive is: the position is this, give or take half the backlash.
+    drive: f64,
     rate: Option<f64>,
     lag: Option<f64>,
+    deadband: f64,
+    backlash: f64,
+    /// Transport delay, seconds.
+    delay: f64,
+    /// Set points received and not yet acted on, with the model time they take effect.
+    delayed: VecDeque<(f64, f64)>,
     /// A state actuator's state, and the state it is settling into (and when).
     pub state: u8,
     target: Option<(u8, Instant)>,
@@ -90,21 +102,62 @@ impl SimDevice {
         }
         let before = self.position;
         if let Some(to) = self.hand {
-            // Twice as fast as the drive, and never slower than a range a second.
+            // Twice as fast as the drive, and never slower than a range a second; the
+            // hand moves the whole linkage.
             let [lo, hi] = self.range;
             let r = self.rate.unwrap_or(0.0).max(hi - lo) * 2.0;
             self.position += (to.clamp(lo, hi) - self.position).clamp(-r * h, r * h);
+            self.drive = self.position;
         } else if self.enabled && !self.fault_latched && !self.stuck {
-            let err = self.command - self.position;
-            self.position += match (self.rate, self.lag) {
+            let err = self.command - self.drive;
+            self.drive += match (self.rate, self.lag) {
+                (r, Some(tau)) if tau > 0.0 => {
+                    let s = err * (1.0 - (-h / tau).exp());
+                    r.map_or(s, |r| s.clamp(-r * h, r * h))
+                }
                 (Some(r), _) => err.clamp(-r * h, r * h),
-                (None, Some(tau)) if tau > 0.0 => err * (1.0 - (-h / tau).exp()),
                 _ => err,
             };
+            // The reading follows the drive once the play is taken up.
+            let half = self.backlash / 2.0;
+            if self.drive - self.position > half {
+                self.position = self.drive - half;
+            } else if self.position - self.drive > half {
+                self.position = self.drive + half;
+            }
         }
         // A lag closing on 0 would walk down the subnormal numbers.
         self.position = flush_subnormal(self.position);
+        self.drive = flush_subnormal(self.drive);
         self.velocity = flush_subnormal((self.position - before) / h);
+    }
+
+    /// A set point reaches the drive: it follows it unless it is within its deadband
+    /// of the one it follows.
+    fn take(&mut self, v: f64) {
+        if (v - self.command).abs() >= self.deadband {
+            self.command = v;
+        }
+    }
+
+    /// A set point arrives at model time `now`: taken at once, or after the delay.
+    fn receive(&mut self, v: f64, now: f64) {
+        if self.delay > 0.0 {
+            self.delayed.push_back((now + self.delay, v));
+        } else {
+            self.take(v);
+        }
+    }
+
+    /// The set points whose delay is over at model time `now` reach the drive.
+    fn arrive(&mut self, now: f64) {
+        while let Some(&(due, v)) = self.delayed.front() {
+            if due > now + 1e-9 {
+                break;
+            }
+            self.delayed.pop_front();
+            self.take(v);
+        }
     }
 
     /// The state it reports now: mid-shift, its transit state (if it has one) or the
@@ -142,6 +195,8 @@ pub struct Model {
     noise: u64,
     started: Instant,
     last: Instant,
+    /// Seconds of model time advanced since it started (the clock of delayed commands).
+    clock: f64,
 }
 
 impl Model {
@@ -221,8 +276,13 @@ impl Model {
                     position: start,
                     command: start,
                     velocity: 0.0,
+                    drive: start,
                     rate: d.sim.rate,
                     lag: d.sim.lag.map(|l| l.as_secs_f64()),
+                    deadband: d.sim.deadband,
+                    backlash: d.sim.backlash,
+                    delay: d.sim.delay.as_secs_f64(),
+                    delayed: VecDeque::new(),
                     state,
                     target: None,
                     settle: d.sim.settle,
@@ -251,6 +311,7 @@ impl Model {
             noise: 0x2545_f491_4f6c_dd1d,
             started: now,
             last: now,
+            clock: 0.0,
         }
     }
 
@@ -323,12 +384,23 @@ impl Model {
         if dt <= 0.0 {
             return;
         }
-        // Integrate in small steps so large gaps stay stable.
+        // Integrate in small steps so large gaps stay stable, and end a step where a
+        // delayed command takes effect, so it acts at its time to the microsecond.
         let mut left = dt;
         while left > 0.0 {
-            let h = left.min(0.01);
+            let due = self
+                .devices
+                .iter()
+                .filter_map(|d| d.delayed.front().map(|x| x.0 - self.clock))
+                .fold(f64::INFINITY, f64::min);
+            let h = left.min(0.01).min(due.max(1e-6));
             self.advance(h);
+            self.clock += h;
             left -= h;
+            let now = self.clock;
+            for d in &mut self.devices {
+                d.arrive(now);
+            }
         }
         for d in &mut self.devices {
             if let Some((s, at)) = d.target {
@@ -404,7 +476,10 @@ impl Model {
         let safe = self.device(id).safe?;
         let d = self.device_mut(id);
         match safe {
-            Command::Set(v) => d.command = v,
+            Command::Set(v) => {
+                d.delayed.clear();
+                d.command = v;
+            }
             Command::State(s) => d.state = s,
             Command::Control(_) => {}
         }
@@ -494,7 +569,9 @@ impl Model {
         let d = &mut self.devices[id.index()];
         match (d.kind, command) {
             (Kind::Sensor, _) => return Err("a sensor takes no commands".into()),
-            (Kind::Setpoint, Command::Set(v)) => d.command = v.clamp(d.range[0], d.range[1]),
+            (Kind::Setpoint, Command::Set(v)) => {
+                d.receive(v.clamp(d.range[0], d.range[1]), self.clock)
+            }
             (Kind::State, Command::State(s)) => {
                 // Where it is heading: a new state starts a new shift (through its
                 // transit state, if it has one); the state it is in ends one early.
@@ -533,7 +610,8 @@ impl Model {
                 }
                 d.fault_latched = false;
                 d.enabled = true;
-                d.command = d.position;
+                d.delayed.clear();
+                d.command = d.drive;
             }
             (kind, other) => return Err(format!("a {kind} device cannot take {other:?}")),
         }
@@ -608,6 +686,88 @@ mod tests {
         assert!((s - 0.5).abs() < 0.02, "{s}");
         run_for(&mut m, 1.0);
         assert_eq!(m.device(id("steer")).position, 1.0);
+    }
+
+    /// Alice's steering with `[device.sim]` edited by `edit`.
+    fn steering(edit: impl Fn(&mut crate::config::SimConfig)) -> (Model, DeviceId) {
+        let mut cfg = VehicleConfig::alice();
+        let i = cfg.devices.iter().position(|d| d.name == "steer").unwrap();
+        edit(&mut cfg.devices[i].sim);
+        cfg.devices[i].check_limits().unwrap();
+        (Model::new(&cfg), DeviceId(i as u16))
+    }
+
+    fn at(m: &Model, s: DeviceId) -> f64 {
+        m.device(s).position
+    }
+
+    #[test]
+    fn a_change_within_the_deadband_does_not_move_it() {
+        let (mut m, s) = steering(|c| c.deadband = 0.1);
+        m.command(s, Command::Set(0.099)).unwrap();
+        run_for(&mut m, 1.0);
+        assert_eq!(at(&m, s), 0.0, "a step smaller than the deadband");
+        m.command(s, Command::Set(0.1)).unwrap();
+        run_for(&mut m, 1.0);
+        assert_eq!(at(&m, s), 0.1, "a step of the deadband moves it");
+        m.command(s, Command::Set(0.05)).unwrap();
+        run_for(&mut m, 1.0);
+        assert_eq!(at(&m, s), 0.1, "measured from the command it follows");
+        m.command(s, Command::Set(-0.3)).unwrap();
+        run_for(&mut m, 1.0);
+        assert_eq!(at(&m, s), -0.3);
+    }
+
+    #[test]
+    fn approached_from_below_and_from_above_it_settles_a_backlash_apart() {
+        let (mut m, s) = steering(|c| c.backlash = 0.04);
+        let settle_at = |m: &mut Model, via: f64| {
+            m.command(s, Command::Set(via)).unwrap();
+            run_for(m, 2.0);
+            m.command(s, Command::Set(0.2)).unwrap();
+            run_for(m, 2.0);
+            at(m, s)
+        };
+        let below = settle_at(&mut m, -0.5);
+        let above = settle_at(&mut m, 0.9);
+        assert!((below - 0.18).abs() < 1e-9, "{below}");
+        assert!((above - 0.22).abs() < 1e-9, "{above}");
+        // Reversing, the reading stays put until the play is taken up.
+        m.command(s, Command::Set(0.25)).unwrap();
+        run_for(&mut m, 0.035);
+        assert!((at(&m, s) - 0.22).abs() < 1e-9, "{}", at(&m, s));
+    }
+
+    #[test]
+    fn nothing_moves_before_the_transport_delay() {
+        let (mut m, s) = steering(|c| c.delay = Duration::from_millis(100));
+        m.command(s, Command::Set(1.0)).unwrap();
+        run_for(&mut m, 0.0995);
+        assert_eq!(at(&m, s), 0.0, "within the delay");
+        run_for(&mut m, 0.1005);
+        // A range a second for the 100 ms since the delay ran out.
+        assert!((at(&m, s) - 0.1).abs() < 1e-4, "{}", at(&m, s));
+        // Commands keep their order and their own delays.
+        m.command(s, Command::Set(-1.0)).unwrap();
+        run_for(&mut m, 0.05);
+        m.command(s, Command::Set(0.5)).unwrap();
+        run_for(&mut m, 0.06);
+        assert_eq!(m.device(s).command, -1.0);
+        run_for(&mut m, 0.05);
+        assert_eq!(m.device(s).command, 0.5);
+    }
+
+    #[test]
+    fn with_a_rate_and_a_lag_it_follows_the_lag_no_faster_than_the_rate() {
+        let (mut m, s) = steering(|c| c.lag = Some(Duration::from_millis(100)));
+        m.command(s, Command::Set(1.0)).unwrap();
+        run_for(&mut m, 0.2);
+        // Far from its command the rate holds it: a range a second.
+        assert!((at(&m, s) - 0.2).abs() < 1e-3, "{}", at(&m, s));
+        run_for(&mut m, 2.0);
+        // Close to it the lag: 0.1 away at 1/s is where the lag takes over, then e^-t/τ.
+        let left = 1.0 - at(&m, s);
+        assert!(left > 0.0 && left < 1e-6, "{left}");
     }
 
     #[test]

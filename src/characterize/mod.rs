@@ -1,0 +1,596 @@
+//! `adrive characterize DEVICE`: measure a setpoint actuator at the bench — its delay,
+//! slew rates, step response, deadband, backlash, static map, repeatability and noise —
+//! and write what it measured, with the `[device.sim]` that makes the simulator behave
+//! like it ([`mod@write`]).
+//!
+//! It moves the device on its own, so it is safe by construction: it commands through
+//! the one intake as its own source ([`Source::Bench`]), engaged like any commander, so
+//! every rule and the watchdog apply; it runs only while [`safety::bench::ready`] holds
+//! (stopped, in park, brake held, or a bench with nothing else bound), checked at every
+//! sample; it ends at once — disengaging, which commands the safe state — on STOP, a
+//! fault, an override (each disengages the vehicle, so it no longer commands), a broken
+//! precondition or a signal; it keeps its set points inside the device's range, a
+//! twentieth of it clear of each end; and when it is done it brings the device back to
+//! where it found it before it lets go. The figures are [`analyze`]'s, from the samples
+//! alone.
+
+pub mod analyze;
+pub mod write;
+
+use crate::engine::Gate;
+use crate::exit::Exit;
+use crate::safety::{self, Ask};
+use crate::value::{Command, DeviceId, Kind, Source};
+use analyze::{Sample, StepFigures};
+use crossbeam_channel::Receiver;
+use std::time::{Duration, Instant};
+
+/// One procedure of `--procedure`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Procedure {
+    /// Large steps up and down: rise, overshoot, settling (and rate, delay).
+    Step,
+    /// Points up the range and back down: the static map (gain, offset, table).
+    Sweep,
+    /// The smallest step that moves it.
+    Deadband,
+    /// Where it settles approaching a point from below and from above.
+    Backlash,
+    /// The slew rate each way.
+    Rate,
+    /// Command to first movement.
+    Delay,
+}
+
+impl Procedure {
+    pub const ALL: [Procedure; 6] = [
+        Procedure::Step,
+        Procedure::Sweep,
+        Procedure::Deadband,
+        Procedure::Backlash,
+        Procedure::Rate,
+        Procedure::Delay,
+    ];
+}
+
+/// Points of a sweep, each (commanded, settled reading).
+pub type Settled = Vec<(f64, f64)>;
+
+/// Why a characterization ended before it was done.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct Ended(pub String);
+
+/// What a characterization measured (`None`: not asked for, or not seen).
+#[derive(Clone, Debug, Default)]
+pub struct Figures {
+    pub device: String,
+    pub units: String,
+    pub range: [f64; 2],
+    pub up: Vec<StepFigures>,
+    pub down: Vec<StepFigures>,
+    pub deadband: Option<f64>,
+    pub backlash: Option<f64>,
+    pub map: Vec<[f64; 2]>,
+    pub gain_offset: Option<(f64, f64)>,
+    pub repeatability: Option<f64>,
+    pub noise: Option<f64>,
+    pub samples: Vec<Sample>,
+    /// How long it took, seconds.
+    pub took: f64,
+    /// The command path's own delay during the run (receipt to first byte written):
+    /// its median and 99th percentile, and how many commands, as the engine kept them.
+    pub command_path: Option<crate::snapshot::LatencySummary>,
+}
+
+impl Figures {
+    /// The median over the steps: one step a stall of the machine distorted does not
+    /// move it.
+    fn mean(v: &[StepFigures], f: impl Fn(&StepFigures) -> f64) -> Option<f64> {
+        analyze::median(&v.iter().map(f).collect::<Vec<_>>())
+    }
+    pub fn rate_up(&self) -> Option<f64> {
+        Self::mean(&self.up, |s| s.rate)
+    }
+    pub fn rate_down(&self) -> Option<f64> {
+        Self::mean(&self.down, |s| s.rate)
+    }
+    fn all_steps(&self) -> Vec<StepFigures> {
+        self.up.iter().chain(&self.down).copied().collect()
+    }
+    /// Seconds.
+    pub fn delay(&self) -> Option<f64> {
+        Self::mean(&self.all_steps(), |s| s.delay)
+    }
+    pub fn rise(&self) -> Option<f64> {
+        Self::mean(&self.all_steps(), |s| s.rise)
+    }
+    pub fn overshoot_pct(&self) -> Option<f64> {
+        Self::mean(&self.all_steps(), |s| s.overshoot_pct)
+    }
+    pub fn settle(&self) -> Option<f64> {
+        Self::mean(&self.all_steps(), |s| s.settle)
+    }
+    /// The tail's lag, where every step showed one.
+    pub fn lag(&self) -> Option<f64> {
+        let lags: Vec<f64> = self.all_steps().iter().filter_map(|s| s.lag).collect();
+        (!lags.is_empty() && lags.len() == self.all_steps().len())
+            .then(|| analyze::median(&lags))
+            .flatten()
+    }
+}
+
+/// How long a reading must stay within [`Bench::still`] to count as settled.
+const STILL_FOR: Duration = Duration::from_millis(200);
+/// The longest a move may take to start, and to settle.
+const START_WITHIN: Duration = Duration::from_secs(3);
+const SETTLE_WITHIN: Duration = Duration::from_secs(10);
+/// Resend the set point at least this often (the commander's watchdog).
+const RESEND: Duration = Duration::from_millis(100);
+/// Steps of a deadband search (halving the interval each).
+const DEADBAND_STEPS: usize = 11;
+
+/// A characterization in progress: the one commander of the engaged vehicle.
+pub struct Bench<'a> {
+    gate: &'a Gate,
+    exits: &'a Receiver<Exit>,
+    id: DeviceId,
+    position: usize,
+    range: [f64; 2],
+    started: Instant,
+    /// The set point in force, and when it was last sent.
+    set: f64,
+    sent: Instant,
+    last_at: Option<Instant>,
+    samples: Vec<Sample>,
+    /// A reading within this of another is the same position.
+    still: f64,
+    /// Once known: the delay and the lag, to wait for a move and a settling.
+    delay: Option<f64>,
+    lag: Option<f64>,
+    /// How far settled readings spread, per point and direction.
+    settled: Vec<(i64, bool, f64)>,
+    /// Deviations from the mean of settled windows.
+    residuals: Vec<f64>,
+}
+
+/// Whether `device` can be characterized here: a setpoint actuator with a position
+/// reading, on this vehicle.
+pub fn check_device(gate: &Gate, device: &str) -> Result<(DeviceId, usize), String> {
+    let v = gate.vehicle();
+    let d = v
+        .devices()
+        .iter()
+        .find(|d| d.name() == device)
+        .ok_or_else(|| format!("no device {device:?} in this vehicle"))?;
+    if d.kind() != Kind::Setpoint {
+        return Err(format!(
+            "{device} is a {} device: characterize measures a setpoint actuator",
+            d.kind()
+        ));
+    }
+    let position = d
+        .config()
+        .position()
+        .ok_or_else(|| format!("{device} reports no position to measure"))?;
+    Ok((d.id(), position))
+}
+
+impl<'a> Bench<'a> {
+    /// Engage as the bench's own source, once the vehicle is ready and the device
+    /// reports; `Err` says why not (nothing moved).
+    pub fn engage(
+        gate: &'a Gate,
+        exits: &'a Receiver<Exit>,
+        device: &str,
+    ) -> Result<Bench<'a>, Ended> {
+        let (id, position) = check_device(gate, device).map_err(Ended)?;
+        let v = gate.vehicle();
+        let d = v.device(id);
+        let deadline = Instant::now() + START_WITHIN;
+        while d.reading(position).is_none() || d.is_faulty() {
+            if Instant::now() > deadline {
+                return Err(Ended(format!(
+                    "{device} does not report its position: {}",
+                    d.fault().unwrap_or_else(|| "no reading yet".into())
+                )));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        // What proves the vehicle still comes from its other devices' first reports.
+        while let Err(u) = safety::bench::ready(
+            v.bindings(),
+            id,
+            &safety::facts::gather(v, safety::Plays::GEAR),
+        ) {
+            if Instant::now() > deadline {
+                return Err(Ended(format!("not ready: {u}")));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let set = d.reading(position).expect("checked");
+        let range = d.config().range();
+        // Engaging waits for what blocks it to clear (a device's first reports), as
+        // long as the vehicle may take to report at all.
+        while let Err(r) = gate.admit(Source::Bench, Ask::Engage, Instant::now()) {
+            if Instant::now() > deadline || !matches!(r, safety::Refused::Blocked(_)) {
+                return Err(Ended(format!("engage refused: {r}")));
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let now = Instant::now();
+        let mut b = Bench {
+            gate,
+            exits,
+            id,
+            position,
+            range,
+            started: now,
+            set,
+            sent: now - RESEND,
+            last_at: None,
+            samples: Vec::new(),
+            still: (range[1] - range[0]) * 1e-4,
+            delay: None,
+            lag: None,
+            settled: Vec::new(),
+            residuals: Vec::new(),
+        };
+        b.command(set)?;
+        Ok(b)
+    }
+
+    fn span(&self) -> f64 {
+        self.range[1] - self.range[0]
+    }
+
+    /// The travel the procedures stay within: a twentieth of the range clear of each end.
+    fn clamp(&self, v: f64) -> f64 {
+        let m = self.span() / 20.0;
+        v.clamp(self.range[0] + m, self.range[1] - m)
+    }
+
+    /// Send set point `v` through the intake; a refusal ends the run.
+    fn command(&mut self, v: f64) -> Result<(), Ended> {
+        let v = self.clamp(v);
+        let now = Instant::now();
+        self.gate
+            .admit(Source::Bench, Ask::Set(self.id, Command::Set(v)), now)
+            .map_err(|r| Ended(format!("refused: {r}")))?;
+        self.set = v;
+        self.sent = now;
+        Ok(())
+    }
+
+    /// Seconds since the start.
+    fn now(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    /// One turn: end at once on a signal, a disengage (STOP, a fault, an override, the
+    /// watchdog), a fault of the device or a broken precondition; keep the set point
+    /// alive; take a new reading, if one came.
+    fn tick(&mut self) -> Result<(), Ended> {
+        std::thread::sleep(Duration::from_millis(1));
+        if let Ok(why) = self.exits.try_recv() {
+            return Err(Ended(format!("stopped: {}", why.describe())));
+        }
+        if !self.gate.is_engaged() || self.gate.commander() != Some(Source::Bench) {
+            return Err(Ended(
+                "the vehicle was disengaged or taken (STOP, a fault, an override, the watchdog)"
+                    .into(),
+            ));
+        }
+        let v = self.gate.vehicle();
+        let d = v.device(self.id);
+        if let Some(f) = d.fault() {
+            return Err(Ended(format!("{}: {f}", d.name())));
+        }
+        let facts = safety::facts::gather(v, safety::Plays::GEAR);
+        safety::bench::ready(v.bindings(), self.id, &facts)
+            .map_err(|u| Ended(format!("precondition broken: {u}")))?;
+        if self.sent.elapsed() >= RESEND {
+            self.command(self.set)?;
+        }
+        let c = d.cached();
+        if c.at != self.last_at {
+            // A reply after a gap of several polls (the machine stalled) was read
+            // before the stall, not when it came: its time is unknown, so it is left out.
+            let gap = match (c.at, self.last_at) {
+                (Some(a), Some(b)) => a.saturating_duration_since(b),
+                _ => Duration::ZERO,
+            };
+            let stalled = gap > d.settings().status_period() * 4 + Duration::from_millis(10);
+            if let (Some(at), Some(y), false) = (c.at, c.reading.get(self.position), stalled) {
+                // Taken about half a transaction before its reply was complete.
+                let txn = d.stats().status_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
+                let t = at.saturating_duration_since(self.started).as_secs_f64() - txn / 2.0;
+                self.samples.push(Sample {
+                    t,
+                    commanded: self.set,
+                    measured: y,
+                });
+            }
+            self.last_at = c.at;
+        }
+        Ok(())
+    }
+
+    fn wait(&mut self, d: Duration) -> Result<(), Ended> {
+        let end = Instant::now() + d;
+        while Instant::now() < end {
+            self.tick()?;
+        }
+        Ok(())
+    }
+
+    fn last(&self) -> f64 {
+        self.samples.last().map_or(self.set, |s| s.measured)
+    }
+
+    /// Wait until the reading stays still for [`STILL_FOR`] (and a few lags more,
+    /// once the lag is known); the mean of its last 50 ms.
+    fn settle(&mut self) -> Result<f64, Ended> {
+        let deadline = Instant::now() + SETTLE_WITHIN;
+        let from = self.samples.len();
+        loop {
+            self.tick()?;
+            let now = self.now();
+            let window: Vec<f64> = self.samples[from..]
+                .iter()
+                .filter(|s| s.t >= now - STILL_FOR.as_secs_f64())
+                .map(|s| s.measured)
+                .collect();
+            let covered = self.samples[from..]
+                .first()
+                .is_some_and(|s| s.t <= now - STILL_FOR.as_secs_f64());
+            let (lo, hi) = window
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                    (a.min(x), b.max(x))
+                });
+            if covered && window.len() >= 3 && hi - lo <= self.still * 2.0 {
+                break;
+            }
+            if Instant::now() > deadline {
+                return Err(Ended(format!(
+                    "the device did not settle within {} s",
+                    SETTLE_WITHIN.as_secs()
+                )));
+            }
+        }
+        if let Some(l) = self.lag {
+            self.wait(Duration::from_secs_f64(4.0 * l))?;
+        }
+        let now = self.now();
+        let last: Vec<f64> = self
+            .samples
+            .iter()
+            .rev()
+            .take_while(|s| s.t >= now - 0.05)
+            .map(|s| s.measured)
+            .collect();
+        let (m, _) = analyze::mean_sd(&last).unwrap_or((self.last(), 0.0));
+        self.residuals.extend(last.iter().map(|x| x - m));
+        Ok(m)
+    }
+
+    /// Go to `v` (a move larger than any deadband) and settle there: the settled
+    /// reading, and the samples from the command on.
+    fn move_to(&mut self, v: f64) -> Result<(f64, f64, usize), Ended> {
+        let before = self.last();
+        let from = self.samples.len();
+        self.command(v)?;
+        let mut at = None;
+        let target = self.set;
+        let deadline = Instant::now() + START_WITHIN;
+        let moved = (target - before).abs() * 0.05;
+        while at.is_none() || (self.last() - before).abs() <= moved.max(self.still * 2.0) {
+            self.tick()?;
+            at = at.or_else(|| self.arrived(target));
+            if Instant::now() > deadline {
+                return Err(Ended(format!(
+                    "the device did not move toward {target} within {} s",
+                    START_WITHIN.as_secs()
+                )));
+            }
+        }
+        let y = self.settle()?;
+        self.settled
+            .push(((target * 1e6).round() as i64, target > before, y));
+        Ok((y, at.unwrap_or_default(), from))
+    }
+
+    /// When set point `target` reached the device, seconds since the start, once it
+    /// acknowledged it: about half a command transaction before the acknowledgement
+    /// was complete (as a reading is taken about half a status transaction before).
+    /// The delay measured from there is the device's own, without the command path's.
+    fn arrived(&self, target: f64) -> Option<f64> {
+        let d = self.gate.vehicle().device(self.id);
+        let w = d.slot().wire();
+        let acked = w
+            .acked_at
+            .filter(|_| w.acked == Some(Command::Set(target)))?;
+        let txn = d.stats().command_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
+        Some(acked.saturating_duration_since(self.started).as_secs_f64() - txn / 2.0)
+    }
+
+    /// Large steps up and down, each approached in its own direction (so the play is
+    /// taken up before it): the step figures each way, and where it settles.
+    pub fn steps(&mut self, reps: usize, f: &mut Figures) -> Result<(), Ended> {
+        let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
+        let (a, b, lead) = (m - 0.3 * s, m + 0.3 * s, 0.15 * s);
+        for _ in 0..reps {
+            self.move_to(a - lead)?;
+            let (start, _, _) = self.move_to(a)?;
+            let (end, at, from) = self.move_to(b)?;
+            if let Some(x) = analyze::step(&self.samples[from..], at, start, end) {
+                f.up.push(x);
+            }
+            self.move_to(b + lead)?;
+            let (start, _, _) = self.move_to(b)?;
+            let (end, at, from) = self.move_to(a)?;
+            if let Some(x) = analyze::step(&self.samples[from..], at, start, end) {
+                f.down.push(x);
+            }
+            self.delay = f.delay();
+            self.lag = f.lag();
+        }
+        Ok(())
+    }
+
+    /// The smallest step up that moves it, by halving: from a point approached from
+    /// below, a step either moves it (the point it follows is then the new one) or not.
+    pub fn deadband(&mut self) -> Result<f64, Ended> {
+        let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
+        let base0 = m - 0.35 * s;
+        self.move_to(base0 - 0.15 * s)?;
+        self.move_to(base0)?;
+        let mut base = self.set;
+        let (mut lo, mut hi) = (0.0, 0.12 * s);
+        let wait = self.delay.unwrap_or(0.1) + 5.0 * self.lag.unwrap_or(0.02) + 0.05;
+        for _ in 0..DEADBAND_STEPS {
+            let step = (lo + hi) / 2.0;
+            let before = self.last();
+            self.command(base + step)?;
+            let end = Instant::now() + Duration::from_secs_f64(wait);
+            let mut moved = false;
+            while Instant::now() < end {
+                self.tick()?;
+                if (self.last() - before).abs() > self.still * 4.0 {
+                    moved = true;
+                    break;
+                }
+            }
+            if moved {
+                self.settle()?;
+                base = self.set;
+                hi = step;
+            } else {
+                lo = step;
+            }
+        }
+        Ok(hi)
+    }
+
+    /// Points up the range and back down, each settled: (commanded, measured) each way.
+    pub fn sweep(&mut self, points: usize) -> Result<(Settled, Settled), Ended> {
+        let s = self.span();
+        let at: Vec<f64> = (0..points)
+            .map(|i| self.range[0] + s * (0.2 + 0.6 * i as f64 / (points - 1).max(1) as f64))
+            .collect();
+        self.move_to(self.range[0])?;
+        let mut up = Vec::new();
+        for &c in &at {
+            let (y, _, _) = self.move_to(c)?;
+            up.push((self.set, y));
+        }
+        self.move_to(self.range[1])?;
+        let mut down = Vec::new();
+        for &c in at.iter().rev() {
+            let (y, _, _) = self.move_to(c)?;
+            down.push((self.set, y));
+        }
+        Ok((up, down))
+    }
+
+    /// How far settled readings at one point, approached one way, spread (max − min).
+    fn repeatability(&self) -> Option<f64> {
+        let mut worst: Option<f64> = None;
+        for (i, (p, dir, _)) in self.settled.iter().enumerate() {
+            let same: Vec<f64> = self.settled[i..]
+                .iter()
+                .filter(|(q, d, _)| q == p && d == dir)
+                .map(|x| x.2)
+                .collect();
+            if same.len() > 1 {
+                let (lo, hi) = same
+                    .iter()
+                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                        (a.min(x), b.max(x))
+                    });
+                worst = Some(worst.map_or(hi - lo, |w: f64| w.max(hi - lo)));
+            }
+        }
+        worst
+    }
+
+    /// Bring the device back to where it was found, and let go (disengage: the safe
+    /// state).
+    fn finish(mut self, home: f64) -> Result<Vec<Sample>, Ended> {
+        self.command(home)?;
+        self.settle()?;
+        self.gate.disengage("characterize: done");
+        Ok(self.samples)
+    }
+}
+
+/// Run the procedures asked for on `device` of the engaged-and-ready vehicle behind
+/// `gate`; every way out of here but success has disengaged it (the safe state).
+pub fn run(
+    gate: &Gate,
+    exits: &Receiver<Exit>,
+    device: &str,
+    procedures: &[Procedure],
+) -> Result<Figures, Ended> {
+    let mut bench = Bench::engage(gate, exits, device)?;
+    let home = bench.set;
+    let result = measure(&mut bench, procedures);
+    let mut f = match result {
+        Ok(f) => f,
+        Err(e) => {
+            gate.disengage(&format!("characterize ended: {e}"));
+            return Err(e);
+        }
+    };
+    f.repeatability = bench.repeatability();
+    let (_, sd) = analyze::mean_sd(&bench.residuals).unwrap_or((0.0, 0.0));
+    f.noise = Some(sd);
+    let started = bench.started;
+    f.samples = match bench.finish(home) {
+        Ok(s) => s,
+        Err(e) => {
+            gate.disengage(&format!("characterize ended: {e}"));
+            return Err(e);
+        }
+    };
+    f.took = started.elapsed().as_secs_f64();
+    let stats = gate.vehicle().device(bench_id(gate, device)?).stats();
+    stats.refresh();
+    f.command_path = Some(stats.command_delay.summary());
+    Ok(f)
+}
+
+fn bench_id(gate: &Gate, device: &str) -> Result<DeviceId, Ended> {
+    check_device(gate, device).map(|(id, _)| id).map_err(Ended)
+}
+
+fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
+    let d = b.gate.vehicle().device(b.id);
+    let mut f = Figures {
+        device: d.name().to_string(),
+        units: d.config().units.clone(),
+        range: b.range,
+        ..Figures::default()
+    };
+    let wants = |p: &[Procedure]| p.iter().any(|x| procedures.contains(x));
+    if wants(&[
+        Procedure::Step,
+        Procedure::Rate,
+        Procedure::Delay,
+        Procedure::Deadband,
+    ]) {
+        b.steps(3, &mut f)?;
+    }
+    if wants(&[Procedure::Deadband]) {
+        f.deadband = Some(b.deadband()?);
+    }
+    if wants(&[Procedure::Sweep, Procedure::Backlash]) {
+        let (up, down) = b.sweep(5)?;
+        let (map, line) = analyze::static_map(&up, &down);
+        f.map = map;
+        f.gain_offset = line;
+        f.backlash = analyze::backlash(&up, &down);
+    }
+    Ok(f)
+}

@@ -1,0 +1,171 @@
+//! When a bench procedure may move an actuator on its own (`adrive characterize`): a
+//! procedure steps and sweeps a device with nobody's hand on a key, so it runs only
+//! where that cannot move the vehicle — stopped, in park, with the brake held (unless
+//! the brake is the device under test: park holds the vehicle then), each proven by the
+//! facts the interlocks read ([`Facts`]) — or on a bench where nothing
+//! but the device under test is bound to a role (`--only DEVICE`). Checked before the
+//! procedure starts and at every sample while it runs; a broken one ends it.
+
+use super::rules::{stopped, Facts, SHIFT_BRAKE};
+use crate::config::{Bindings, Role};
+use crate::value::DeviceId;
+use std::fmt;
+
+/// Why a bench procedure may not move its device now.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Unready {
+    /// The vehicle's speed is unknown or not below the rules' stopped.
+    Moving,
+    /// The gearbox does not report park.
+    NotInPark,
+    /// The brake is not held (at least the rules' shift brake).
+    BrakeNotHeld,
+    /// A role the proof needs is not bound (speed, gear with a park, brake).
+    Unproven(Role),
+}
+
+impl fmt::Display for Unready {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Unready::Moving => f.write_str("the vehicle is not known to be stopped"),
+            Unready::NotInPark => f.write_str("the gearbox is not in park"),
+            Unready::BrakeNotHeld => f.write_str("the brake is not held"),
+            Unready::Unproven(r) => write!(
+                f,
+                "no {r} bound to prove the vehicle still (bench: --only DEVICE)"
+            ),
+        }
+    }
+}
+
+/// Only `device` is bound to a role, or nothing is: a bench, where moving it moves
+/// nothing else.
+fn bench(b: &Bindings, device: DeviceId) -> bool {
+    Role::ALL
+        .iter()
+        .filter_map(|&r| b.device(r))
+        .all(|d| d == device)
+}
+
+/// May a bench procedure move `device` now, the vehicle's roles `b` and what the rules
+/// see `f` (gathered as for a gear command: brake, gear, speed)?
+pub fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unready> {
+    if bench(b, device) {
+        return Ok(());
+    }
+    if b.speed.is_none() {
+        return Err(Unready::Unproven(Role::Speed));
+    }
+    if !stopped(f.speed) {
+        return Err(Unready::Moving);
+    }
+    let park = b.gear.as_ref().and_then(|g| g.park);
+    let Some(park) = park else {
+        return Err(Unready::Unproven(Role::Gear));
+    };
+    if f.gear != Some(park) {
+        return Err(Unready::NotInPark);
+    }
+    // The brake under test cannot also hold the vehicle: park does.
+    if b.brake == Some(device) {
+        return Ok(());
+    }
+    if b.brake.is_none() {
+        return Err(Unready::Unproven(Role::Brake));
+    }
+    if !f.brake_low.is_some_and(|lo| lo >= SHIFT_BRAKE) {
+        return Err(Unready::BrakeNotHeld);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::VehicleConfig;
+
+    const PARK: u8 = 0;
+
+    fn alice() -> (Bindings, DeviceId) {
+        let c = VehicleConfig::alice();
+        let steer = DeviceId(c.devices.iter().position(|d| d.name == "steer").unwrap() as u16);
+        (c.roles, steer)
+    }
+
+    fn still() -> Facts {
+        Facts {
+            speed: Some(0.0),
+            gear: Some(PARK),
+            brake_low: Some(1.0),
+            brake_high: Some(1.0),
+            ..Facts::default()
+        }
+    }
+
+    #[test]
+    fn a_still_vehicle_in_park_with_the_brake_held_is_ready() {
+        let (b, steer) = alice();
+        assert_eq!(ready(&b, steer, &still()), Ok(()));
+    }
+
+    #[test]
+    fn moving_out_of_park_or_the_brake_let_go_each_refuse() {
+        let (b, steer) = alice();
+        let moving = Facts {
+            speed: Some(0.5),
+            ..still()
+        };
+        assert_eq!(ready(&b, steer, &moving), Err(Unready::Moving));
+        let unknown = Facts {
+            speed: None,
+            ..still()
+        };
+        assert_eq!(ready(&b, steer, &unknown), Err(Unready::Moving));
+        let drive = Facts {
+            gear: Some(3),
+            ..still()
+        };
+        assert_eq!(ready(&b, steer, &drive), Err(Unready::NotInPark));
+        let released = Facts {
+            brake_low: Some(SHIFT_BRAKE - 0.01),
+            ..still()
+        };
+        assert_eq!(ready(&b, steer, &released), Err(Unready::BrakeNotHeld));
+        let unknown_brake = Facts {
+            brake_low: None,
+            ..still()
+        };
+        assert_eq!(ready(&b, steer, &unknown_brake), Err(Unready::BrakeNotHeld));
+    }
+
+    #[test]
+    fn the_brake_under_test_need_not_hold_the_vehicle_but_park_must() {
+        let (b, _) = alice();
+        let brake = b.brake.unwrap();
+        let released = Facts {
+            brake_low: Some(0.0),
+            ..still()
+        };
+        assert_eq!(ready(&b, brake, &released), Ok(()));
+        let drive = Facts {
+            gear: Some(3),
+            ..released
+        };
+        assert_eq!(ready(&b, brake, &drive), Err(Unready::NotInPark));
+    }
+
+    #[test]
+    fn a_bench_with_only_the_device_bound_is_ready_and_a_vehicle_without_proof_is_not() {
+        let (b, steer) = alice();
+        let only = Bindings {
+            steering: Some(steer),
+            ..Bindings::default()
+        };
+        assert_eq!(ready(&only, steer, &Facts::default()), Ok(()));
+        let no_speed = Bindings { speed: None, ..b };
+        assert_eq!(
+            ready(&no_speed, steer, &still()),
+            Err(Unready::Unproven(Role::Speed))
+        );
+    }
+}
