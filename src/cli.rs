@@ -772,7 +772,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     );
     let result = crate::characterize::run(&gate, &exits, &args.device, &procedures);
     control.close();
-    gate.disengage("characterize: stopping");
+    gate.disengage(crate::snapshot::DisengageCause::Stopping { why: None });
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(control.shutdown(Duration::from_millis(500)));
     stuck.extend(monitor.shutdown(Duration::from_millis(200)));

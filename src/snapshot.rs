@@ -657,6 +657,9 @@ pub enum DisengageCause {
     Stalled { stall: StallView },
     /// adrive is stopping; `why`, when known, is what ends the run.
     Stopping { why: Option<String> },
+    /// `adrive characterize` let the device go: its run done, or `ended` early for
+    /// that reason (the device in its safe state).
+    Characterize { ended: Option<String> },
 }
 
 impl fmt::Display for DisengageCause {
@@ -681,6 +684,10 @@ impl fmt::Display for DisengageCause {
             DisengageCause::Stalled { stall } => write!(f, "stalled: {}", stall.describe()),
             DisengageCause::Stopping { why: None } => f.write_str("stopping"),
             DisengageCause::Stopping { why: Some(why) } => write!(f, "stopping: {why}"),
+            DisengageCause::Characterize { ended: None } => f.write_str("characterize done"),
+            DisengageCause::Characterize { ended: Some(why) } => {
+                write!(f, "characterize ended: {why}")
+            }
         }
     }
 }
@@ -1248,6 +1255,18 @@ mod tests {
                 "stopping",
                 "stopping: SIGTERM",
             ),
+            (
+                DisengageCause::Characterize { ended: None },
+                "characterize",
+                "characterize done",
+            ),
+            (
+                DisengageCause::Characterize {
+                    ended: Some("STOP".into()),
+                },
+                "characterize",
+                "characterize ended: STOP",
+            ),
         ];
         // A new way to disengage is added here, or this does not compile.
         for (c, _, _) in &all {
@@ -1261,7 +1280,8 @@ mod tests {
                 | DisengageCause::GaveUp { .. }
                 | DisengageCause::GivingUp { .. }
                 | DisengageCause::Stalled { .. }
-                | DisengageCause::Stopping { .. } => {}
+                | DisengageCause::Stopping { .. }
+                | DisengageCause::Characterize { .. } => {}
             }
         }
         all

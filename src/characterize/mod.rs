@@ -20,6 +20,7 @@ pub mod write;
 use crate::engine::Gate;
 use crate::exit::Exit;
 use crate::safety::{self, Ask};
+use crate::snapshot::DisengageCause;
 use crate::value::{Command, DeviceId, Kind, Source};
 use analyze::{Sample, StepFigures};
 use crossbeam_channel::Receiver;
@@ -520,7 +521,8 @@ impl<'a> Bench<'a> {
     fn finish(mut self, home: f64) -> Result<Vec<Sample>, Ended> {
         self.command(home)?;
         self.settle()?;
-        self.gate.disengage("characterize: done");
+        self.gate
+            .disengage(DisengageCause::Characterize { ended: None });
         Ok(self.samples)
     }
 }
@@ -539,7 +541,9 @@ pub fn run(
     let mut f = match result {
         Ok(f) => f,
         Err(e) => {
-            gate.disengage(&format!("characterize ended: {e}"));
+            gate.disengage(DisengageCause::Characterize {
+                ended: Some(e.to_string()),
+            });
             return Err(e);
         }
     };
@@ -550,7 +554,9 @@ pub fn run(
     f.samples = match bench.finish(home) {
         Ok(s) => s,
         Err(e) => {
-            gate.disengage(&format!("characterize ended: {e}"));
+            gate.disengage(DisengageCause::Characterize {
+                ended: Some(e.to_string()),
+            });
             return Err(e);
         }
     };
