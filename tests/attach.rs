@@ -163,30 +163,11 @@ impl Attached {
     }
 
     fn screen(&self) -> String {
-        let nz = |n: u16| std::num::NonZeroU16::new(n).unwrap();
-        let mut p = vt100::Parser::new(nz(30), nz(100), 0);
-        p.process(&self.term.bytes());
-        p.screen().contents()
+        common::screen_of(&self.term.bytes(), 100, 30)
     }
 
     fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
-        let end = Instant::now() + DEADLINE;
-        let mut seen: Vec<String> = Vec::new();
-        loop {
-            let s = self.screen();
-            if ok(&s) {
-                return s;
-            }
-            let l = common::said(&s).to_string();
-            if seen.last() != Some(&l) {
-                seen.push(l);
-            }
-            assert!(
-                Instant::now() < end,
-                "waited for {what}; said {seen:?}; screen:\n{s}"
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        common::wait_screen(what, Duration::from_millis(20), || self.screen(), ok)
     }
 
     fn keys(&mut self, k: &str) {

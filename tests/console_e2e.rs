@@ -108,22 +108,11 @@ impl Console {
 
     /// The screen as the terminal shows it now.
     fn screen(&self) -> String {
-        let nz = |n: u16| std::num::NonZeroU16::new(n).unwrap();
-        let mut p = vt100::Parser::new(nz(self.size.1), nz(self.size.0), 0);
-        p.process(&self.bytes());
-        p.screen().contents()
+        common::screen_of(&self.bytes(), self.size.0, self.size.1)
     }
 
     fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
-        let end = Instant::now() + DEADLINE;
-        loop {
-            let s = self.screen();
-            if ok(&s) {
-                return s;
-            }
-            assert!(Instant::now() < end, "waited 20 s for {what}; screen:\n{s}");
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        common::wait_screen(what, Duration::from_millis(20), || self.screen(), ok)
     }
 
     /// Resize the terminal as a terminal window does: the kernel signals SIGWINCH.
@@ -1498,15 +1487,7 @@ impl Tmux {
     }
 
     fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
-        let end = Instant::now() + DEADLINE;
-        loop {
-            let s = self.screen();
-            if ok(&s) {
-                return s;
-            }
-            assert!(Instant::now() < end, "waited for {what}; pane:\n{s}");
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        common::wait_screen(what, Duration::from_millis(50), || self.screen(), ok)
     }
 
     fn keys(&self, k: &str) {

@@ -284,22 +284,11 @@ impl Rig {
 
 /// The screen a played terminal shows now.
 fn screen(term: &Player) -> String {
-    let nz = |n: u16| std::num::NonZeroU16::new(n).unwrap();
-    let mut p = vt100::Parser::new(nz(ROWS), nz(COLS), 0);
-    p.process(&term.bytes());
-    p.screen().contents()
+    common::screen_of(&term.bytes(), COLS, ROWS)
 }
 
 fn wait_screen(term: &Player, what: &str, ok: impl Fn(&str) -> bool) -> String {
-    let end = Instant::now() + DEADLINE;
-    loop {
-        let s = screen(term);
-        if ok(&s) {
-            return s;
-        }
-        assert!(Instant::now() < end, "waited for {what}; screen:\n{s}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    common::wait_screen(what, Duration::from_millis(20), || screen(term), ok)
 }
 
 /// The vehicle file at `path`, its devices' readings allowed to be 2 s old and their

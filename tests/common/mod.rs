@@ -31,6 +31,42 @@ pub fn wait_for(what: &str, mut cond: impl FnMut() -> bool) {
     }
 }
 
+/// What a terminal of `cols` × `rows` shows once it has taken `bytes`.
+pub fn screen_of(bytes: &[u8], cols: u16, rows: u16) -> String {
+    let nz = |n: u16| std::num::NonZeroU16::new(n).unwrap();
+    let mut p = vt100::Parser::new(nz(rows), nz(cols), 0);
+    p.process(bytes);
+    p.screen().contents()
+}
+
+/// Wait until the screen `screen` reads (every `every`) satisfies `ok`. At the
+/// deadline, panic with what was waited for, every message line seen meanwhile (a
+/// message that came and went is most often the clue) and the last screen.
+pub fn wait_screen(
+    what: &str,
+    every: Duration,
+    screen: impl Fn() -> String,
+    ok: impl Fn(&str) -> bool,
+) -> String {
+    let end = Instant::now() + DEADLINE;
+    let mut seen: Vec<String> = Vec::new();
+    loop {
+        let s = screen();
+        if ok(&s) {
+            return s;
+        }
+        let line = said(&s).to_string();
+        if seen.last() != Some(&line) {
+            seen.push(line);
+        }
+        assert!(
+            Instant::now() < end,
+            "waited for {what}; said {seen:?}; screen:\n{s}"
+        );
+        std::thread::sleep(every);
+    }
+}
+
 /// A console's screen once its engage question was answered: the question gone, and
 /// what its answer did said on the message line (`engaged`, as every front end says
 /// it, or `engage refused: …`). Waiting for the refusal alone read a refusal left on
