@@ -225,8 +225,12 @@ fn steps_svg(f: &Figures, small: bool, units: &str) -> String {
 /// sweep's legs: the hysteresis loop) and `delay.svg` (the command path's delay
 /// histogram).
 pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
-    let show =
-        |x: Option<f64>, unit: &str| x.map_or("—".into(), |v| format!("{} {unit}", sig(v)));
+    // A rounding error of a zero figure (an overshoot of 2e-14 %) reads as 0.
+    let show = |x: Option<f64>, unit: &str| {
+        x.map_or("—".into(), |v| {
+            format!("{} {unit}", if v.abs() < 1e-9 { 0.0 } else { sig(v) })
+        })
+    };
     let u = if f.units.is_empty() {
         "units"
     } else {
@@ -445,6 +449,7 @@ mod tests {
             down: vec![step; 3],
             small_up: vec![StepFigures {
                 rise: 0.123,
+                overshoot_pct: 2.2e-14,
                 ..step
             }],
             small_down: vec![step],
@@ -484,9 +489,10 @@ mod tests {
         ] {
             assert!(md.contains(section), "{section}");
         }
+        assert!(md.contains("| small, up (1) |"), "{md}");
         assert!(
-            md.contains("| small, up (1) |") && md.contains("123 ms"),
-            "{md}"
+            md.contains("| 123 ms | 0 % |"),
+            "a zero overshoot reads 0:\n{md}"
         );
         let svg = |n: &str| &files.iter().find(|f| f.0 == n).unwrap().1;
         assert!(!svg("run.svg").contains("rad<&>") && svg("run.svg").contains("rad&lt;&amp;&gt;"));
