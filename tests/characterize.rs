@@ -135,10 +135,116 @@ fn characterize(dir: &Path, tag: &str, vehicle: &str) -> Run {
     ] {
         assert!(out.join(f).is_file(), "{f} written");
     }
+    // The report names each of its plots, and each is a well-formed SVG with its data.
+    let report = std::fs::read_to_string(out.join("report.md")).unwrap();
+    let samples = std::fs::read_to_string(out.join("samples.csv"))
+        .unwrap()
+        .lines()
+        .count()
+        - 1;
+    for (plot, lines) in [
+        ("run.svg", Some(vec![samples, samples])),
+        ("steps-large.svg", None),
+        ("steps-small.svg", None),
+        ("map.svg", Some(vec![5, 5, 5])),
+        ("delay.svg", Some(vec![])),
+    ] {
+        assert!(
+            report.contains(&format!("]({plot})")),
+            "{plot} in report.md"
+        );
+        let svg = std::fs::read_to_string(out.join(plot)).unwrap();
+        well_formed(&svg).unwrap_or_else(|e| panic!("{plot}: {e}\n{svg}"));
+        let points = polylines(&svg);
+        match lines {
+            Some(n) => assert_eq!(points, n, "{plot}: one line per series, every point"),
+            // Steps: 3 large (or 1 small) each way, a command and a reading each.
+            None => assert_eq!(
+                points.len(),
+                if plot.contains("large") { 12 } else { 4 },
+                "{plot}"
+            ),
+        }
+    }
+    let bars = std::fs::read_to_string(out.join("delay.svg"))
+        .unwrap()
+        .matches("<rect class=\"bar\"")
+        .count();
+    assert!(bars > 0, "the delay histogram has its buckets");
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     let sim = std::fs::read_to_string(out.join("sim.toml")).unwrap();
     Run { summary, sim, took }
+}
+
+/// The number of points of each polyline of `svg`.
+fn polylines(svg: &str) -> Vec<usize> {
+    svg.split("<polyline")
+        .skip(1)
+        .map(|l| {
+            let pts = l
+                .split("points=\"")
+                .nth(1)
+                .unwrap()
+                .split('"')
+                .next()
+                .unwrap();
+            pts.split_whitespace().count()
+        })
+        .collect()
+}
+
+/// Whether `xml` is well-formed as far as an SVG viewer cares: one root `<svg>`,
+/// every element closed in order, every attribute quoted, no bare `<` or `&` in text.
+fn well_formed(xml: &str) -> Result<(), String> {
+    let mut open: Vec<&str> = Vec::new();
+    let mut rest = xml.trim();
+    if !rest.starts_with("<svg") {
+        return Err("does not open with <svg".into());
+    }
+    let mut roots = 0;
+    while !rest.is_empty() {
+        let Some(lt) = rest.find('<') else {
+            check_text(rest)?;
+            break;
+        };
+        check_text(&rest[..lt])?;
+        let gt = rest[lt..].find('>').ok_or("a tag never closed")? + lt;
+        let tag = &rest[lt + 1..gt];
+        if let Some(name) = tag.strip_prefix('/') {
+            if open.pop() != Some(name.trim()) {
+                return Err(format!("</{name}> closes what is not open"));
+            }
+        } else {
+            if open.is_empty() {
+                roots += 1;
+            }
+            let name = tag.split_whitespace().next().ok_or("an empty tag")?;
+            if !tag.matches('"').count().is_multiple_of(2) || tag.contains('<') {
+                return Err(format!("an unquoted attribute in <{tag}>"));
+            }
+            if !tag.ends_with('/') {
+                open.push(name);
+            }
+        }
+        rest = &rest[gt + 1..];
+    }
+    if !open.is_empty() || roots != 1 {
+        return Err(format!("left open: {open:?}, roots: {roots}"));
+    }
+    Ok(())
+}
+
+fn check_text(text: &str) -> Result<(), String> {
+    let mut t = text;
+    while let Some(i) = t.find('&') {
+        let end = t[i..].find(';').ok_or("a bare &")?;
+        if !matches!(&t[i + 1..i + end], "amp" | "lt" | "gt" | "quot" | "apos") {
+            return Err(format!("an unknown entity {}", &t[i..=i + end]));
+        }
+        t = &t[i + end + 1..];
+    }
+    Ok(())
 }
 
 fn figure(run: &Run, key: &str) -> f64 {

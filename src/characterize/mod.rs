@@ -29,7 +29,8 @@ use std::time::{Duration, Instant};
 /// One procedure of `--procedure`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Procedure {
-    /// Large steps up and down: rise, overshoot, settling (and rate, delay).
+    /// Large steps up and down: rise, overshoot, settling (and rate, delay); then
+    /// small steps, whose figures the report shows beside the large ones'.
     Step,
     /// Points up the range and back down: the static map (gain, offset, table).
     Sweep,
@@ -82,6 +83,26 @@ pub struct Figures {
     /// The command path's own delay during the run (receipt to first byte written):
     /// its median and 99th percentile, and how many commands, as the engine kept them.
     pub command_path: Option<crate::snapshot::LatencySummary>,
+    /// Small steps each way (a tenth of the range, or twice the deadband if that is
+    /// more): the report shows their figures; `summary.json`'s are the large steps'.
+    pub small_up: Vec<StepFigures>,
+    pub small_down: Vec<StepFigures>,
+    /// Every step's samples, timed from its command's arrival, for the report's plots.
+    pub responses: Vec<Response>,
+    /// The sweep's settled points, up the range and back down (the hysteresis loop).
+    pub sweep: Option<(Settled, Settled)>,
+    /// The command path's delay histogram during the run: (bucket's upper end in µs,
+    /// commands in it), the non-empty buckets in order.
+    pub command_path_buckets: Vec<(f64, u64)>,
+}
+
+/// One step's response, for the report: each sample timed from the moment the step's
+/// command reached the device.
+#[derive(Clone, Debug, Default)]
+pub struct Response {
+    /// A small step (else a large one).
+    pub small: bool,
+    pub samples: Vec<Sample>,
 }
 
 impl Figures {
@@ -420,22 +441,60 @@ impl<'a> Bench<'a> {
     /// taken up before it): the step figures each way, and where it settles.
     pub fn steps(&mut self, reps: usize, f: &mut Figures) -> Result<(), Ended> {
         let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
-        let (a, b, lead) = (m - 0.3 * s, m + 0.3 * s, 0.15 * s);
         for _ in 0..reps {
-            self.move_to(a - lead)?;
-            let (start, _, _) = self.move_to(a)?;
-            let (end, at, from) = self.move_to(b)?;
-            if let Some(x) = analyze::step(&self.samples[from..], at, start, end) {
-                f.up.push(x);
-            }
-            self.move_to(b + lead)?;
-            let (start, _, _) = self.move_to(b)?;
-            let (end, at, from) = self.move_to(a)?;
-            if let Some(x) = analyze::step(&self.samples[from..], at, start, end) {
-                f.down.push(x);
-            }
+            self.step_pair(m - 0.3 * s, m + 0.3 * s, 0.15 * s, false, f)?;
             self.delay = f.delay();
             self.lag = f.lag();
+        }
+        Ok(())
+    }
+
+    /// Small steps up and down about the middle, each approached in its own direction:
+    /// a tenth of the range, or twice `deadband` if that is more (so each one moves it).
+    pub fn small_steps(
+        &mut self,
+        reps: usize,
+        deadband: Option<f64>,
+        f: &mut Figures,
+    ) -> Result<(), Ended> {
+        let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
+        let size = (0.1 * s).max(2.0 * deadband.unwrap_or(0.0)).min(0.3 * s);
+        for _ in 0..reps {
+            self.step_pair(m - size / 2.0, m + size / 2.0, 0.15 * s, true, f)?;
+        }
+        Ok(())
+    }
+
+    /// A step from `a` up to `b` and one from `b` down to `a`, each approached from
+    /// `lead` beyond its start; their figures and responses go into `f`.
+    fn step_pair(
+        &mut self,
+        a: f64,
+        b: f64,
+        lead: f64,
+        small: bool,
+        f: &mut Figures,
+    ) -> Result<(), Ended> {
+        for (from_, to, before) in [(a, b, a - lead), (b, a, b + lead)] {
+            self.move_to(before)?;
+            let (start, _, _) = self.move_to(from_)?;
+            let (end, at, from) = self.move_to(to)?;
+            let samples = &self.samples[from..];
+            if let Some(x) = analyze::step(samples, at, start, end) {
+                match (small, to > from_) {
+                    (false, true) => f.up.push(x),
+                    (false, false) => f.down.push(x),
+                    (true, true) => f.small_up.push(x),
+                    (true, false) => f.small_down.push(x),
+                }
+            }
+            f.responses.push(Response {
+                small,
+                samples: samples
+                    .iter()
+                    .map(|s| Sample { t: s.t - at, ..*s })
+                    .collect(),
+            });
         }
         Ok(())
     }
@@ -564,6 +623,7 @@ pub fn run(
     let stats = gate.vehicle().device(bench_id(gate, device)?).stats();
     stats.refresh();
     f.command_path = Some(stats.command_delay.summary());
+    f.command_path_buckets = stats.command_delay.buckets();
     Ok(f)
 }
 
@@ -597,6 +657,10 @@ fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
         f.map = map;
         f.gain_offset = line;
         f.backlash = analyze::backlash(&up, &down);
+        f.sweep = Some((up, down));
+    }
+    if wants(&[Procedure::Step]) {
+        b.small_steps(1, f.deadband, &mut f)?;
     }
     Ok(f)
 }

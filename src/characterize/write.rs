@@ -1,9 +1,11 @@
 //! What a characterization leaves in its directory: `summary.json` (one object of its
 //! figures), `samples.csv` (every reading with the command in force), `sim.toml` (the
 //! `[device.sim]` that makes the simulator behave like the measured device) and
-//! `report.md` (the figures in a table, and the run as an SVG plot).
+//! `report.md` (the figures in tables, and the plots as SVG: the run, the step
+//! responses, the sweep's hysteresis loop and the command path's delay histogram).
 
-use super::Figures;
+use super::{analyze, Figures};
+use analyze::StepFigures;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -74,11 +76,34 @@ pub fn samples_csv(f: &Figures) -> String {
     out
 }
 
-/// A small SVG of `series` (each a colour and its points), x and y scaled to fit.
-fn svg(series: &[(&str, Vec<(f64, f64)>)], x_label: &str, y_label: &str) -> String {
-    let (w, h, pad) = (640.0, 240.0, 30.0);
-    let pts = series.iter().flat_map(|s| s.1.iter());
-    let (x0, x1, y0, y1) = pts.fold(
+/// `text` safe inside an SVG's text or attribute (units come from a vehicle file).
+fn esc(text: &str) -> String {
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// The colours of the plots: the command, and the measured position moving up, down.
+const COMMAND: &str = "#999";
+const UP: &str = "#1f5fbf";
+const DOWN: &str = "#d9730d";
+
+/// A plot's frame: its size, and what it shows on each axis.
+struct Frame {
+    x_label: String,
+    y_label: String,
+    /// (colour, what it shows) for each kind of line.
+    legend: Vec<(&'static str, String)>,
+}
+
+const W: f64 = 640.0;
+const H: f64 = 240.0;
+const PAD: f64 = 30.0;
+
+/// The extent of `points`: (x0, x1, y0, y1).
+fn extent<'a>(points: impl Iterator<Item = &'a (f64, f64)>) -> (f64, f64, f64, f64) {
+    points.fold(
         (
             f64::INFINITY,
             f64::NEG_INFINITY,
@@ -86,17 +111,40 @@ fn svg(series: &[(&str, Vec<(f64, f64)>)], x_label: &str, y_label: &str) -> Stri
             f64::NEG_INFINITY,
         ),
         |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
-    );
-    let sx = |x: f64| pad + (x - x0) / (x1 - x0).max(1e-9) * (w - 2.0 * pad);
-    let sy = |y: f64| h - pad - (y - y0) / (y1 - y0).max(1e-9) * (h - 2.0 * pad);
+    )
+}
+
+/// The SVG's opening (size, background, axis labels with the extent, legend).
+fn open(frame: &Frame, (x0, x1, y0, y1): (f64, f64, f64, f64)) -> String {
     let mut out = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-size=\"11\">\n\
-         <rect width=\"{w}\" height=\"{h}\" fill=\"white\" stroke=\"#ccc\"/>\n\
-         <text x=\"{pad}\" y=\"14\">{y_label} ({y0:.3} … {y1:.3})</text>\n\
-         <text x=\"{}\" y=\"{}\" text-anchor=\"end\">{x_label} ({x0:.2} … {x1:.2})</text>\n",
-        w - pad,
-        h - 8.0
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{W}\" height=\"{H}\" font-size=\"11\">\n\
+         <rect width=\"{W}\" height=\"{H}\" fill=\"white\" stroke=\"#ccc\"/>\n\
+         <text x=\"{PAD}\" y=\"14\">{} ({y0:.3} … {y1:.3})</text>\n\
+         <text x=\"{}\" y=\"{}\" text-anchor=\"end\">{} ({x0:.2} … {x1:.2})</text>\n",
+        esc(&frame.y_label),
+        W - PAD,
+        H - 8.0,
+        esc(&frame.x_label),
     );
+    for (i, (colour, what)) in frame.legend.iter().enumerate() {
+        let _ = writeln!(
+            out,
+            "<text x=\"{}\" y=\"{}\" text-anchor=\"end\" fill=\"{colour}\">{}</text>",
+            W - PAD,
+            14.0 + 12.0 * i as f64,
+            esc(what)
+        );
+    }
+    out
+}
+
+/// A small SVG of `series` (each a colour and its points, one polyline each), x and y
+/// scaled to fit.
+fn svg(series: &[(&str, Vec<(f64, f64)>)], frame: &Frame) -> String {
+    let (x0, x1, y0, y1) = extent(series.iter().flat_map(|s| s.1.iter()));
+    let sx = |x: f64| PAD + (x - x0) / (x1 - x0).max(1e-9) * (W - 2.0 * PAD);
+    let sy = |y: f64| H - PAD - (y - y0) / (y1 - y0).max(1e-9) * (H - 2.0 * PAD);
+    let mut out = open(frame, (x0, x1, y0, y1));
     for (colour, points) in series {
         let line: Vec<String> = points
             .iter()
@@ -112,10 +160,77 @@ fn svg(series: &[(&str, Vec<(f64, f64)>)], x_label: &str, y_label: &str) -> Stri
     out
 }
 
-/// `report.md`: the figures, and the plots beside it (`run.svg`, `map.svg`).
+/// A histogram of `buckets` (each its upper end and its count), one bar each, on a
+/// logarithmic axis of the upper end.
+fn histogram(buckets: &[(f64, u64)], frame: &Frame) -> String {
+    let logs: Vec<(f64, f64)> = buckets
+        .iter()
+        .map(|&(end, n)| (end.max(1e-3).log10(), n as f64))
+        .collect();
+    let (x0, x1, _, y1) = extent(logs.iter());
+    let sx = |x: f64| PAD + (x - x0) / (x1 - x0).max(1e-9) * (W - 2.0 * PAD - 4.0);
+    let mut out = open(
+        frame,
+        (
+            buckets.first().map_or(0.0, |b| b.0),
+            buckets.last().map_or(0.0, |b| b.0),
+            0.0,
+            y1.max(0.0),
+        ),
+    );
+    for &(x, n) in &logs {
+        let h = n / y1.max(1.0) * (H - 2.0 * PAD);
+        let _ = writeln!(
+            out,
+            "<rect class=\"bar\" x=\"{:.1}\" y=\"{:.1}\" width=\"4\" height=\"{h:.1}\" fill=\"{UP}\"/>",
+            sx(x),
+            H - PAD - h
+        );
+    }
+    out.push_str("</svg>\n");
+    out
+}
+
+/// The step responses of one size overlaid: the command and the reading of each,
+/// against the time from the command's arrival.
+fn steps_svg(f: &Figures, small: bool, units: &str) -> String {
+    let mut series = Vec::new();
+    for r in f.responses.iter().filter(|r| r.small == small) {
+        let up = r.samples.last().map(|s| s.commanded) > r.samples.first().map(|s| s.measured);
+        series.push((
+            COMMAND,
+            r.samples.iter().map(|s| (s.t, s.commanded)).collect(),
+        ));
+        series.push((
+            if up { UP } else { DOWN },
+            r.samples.iter().map(|s| (s.t, s.measured)).collect(),
+        ));
+    }
+    svg(
+        &series,
+        &Frame {
+            x_label: "s from the command".into(),
+            y_label: units.into(),
+            legend: vec![
+                (COMMAND, "commanded".into()),
+                (UP, "measured, a step up".into()),
+                (DOWN, "measured, a step down".into()),
+            ],
+        },
+    )
+}
+
+/// `report.md`: the figures, and the plots beside it: `run.svg` (the whole run),
+/// `steps-large.svg` and `steps-small.svg` (the step responses), `map.svg` (the
+/// sweep's legs: the hysteresis loop) and `delay.svg` (the command path's delay
+/// histogram).
 pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
-    let show =
-        |x: Option<f64>, unit: &str| x.map_or("—".into(), |v| format!("{} {unit}", sig(v)));
+    // A rounding error of a zero figure (an overshoot of 2e-14 %) reads as 0.
+    let show = |x: Option<f64>, unit: &str| {
+        x.map_or("—".into(), |v| {
+            format!("{} {unit}", if v.abs() < 1e-9 { 0.0 } else { sig(v) })
+        })
+    };
     let u = if f.units.is_empty() {
         "units"
     } else {
@@ -166,26 +281,96 @@ pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
     let run = svg(
         &[
             (
-                "#999",
+                COMMAND,
                 f.samples.iter().map(|s| (s.t, s.commanded)).collect(),
             ),
-            (
-                "#1f5fbf",
-                f.samples.iter().map(|s| (s.t, s.measured)).collect(),
-            ),
+            (UP, f.samples.iter().map(|s| (s.t, s.measured)).collect()),
         ],
-        "s",
-        u,
+        &Frame {
+            x_label: "s".into(),
+            y_label: u.into(),
+            legend: vec![(COMMAND, "commanded".into()), (UP, "measured".into())],
+        },
     );
     let mut files = vec![("run.svg", run)];
-    if !f.map.is_empty() {
-        md.push_str("\n## The static map\n\nMeasured against commanded (the mean of both directions).\n\n![the map](map.svg)\n");
+    if !f.responses.is_empty() {
+        md.push_str(
+            "\n## Step responses\n\nEach step's command (grey) and measured position (blue up, \
+             orange down) against the time from the command's arrival at the device, overlaid; \
+             each figure is the median over the steps of its size and direction.\n\n\
+             | steps | delay | rate | rise 10–90 % | overshoot | settling to 2 % |\n|---|---|---|---|---|---|\n",
+        );
+        let sets = [
+            ("large, up", &f.up),
+            ("large, down", &f.down),
+            ("small, up", &f.small_up),
+            ("small, down", &f.small_down),
+        ];
+        for (what, v) in sets.into_iter().filter(|(_, v)| !v.is_empty()) {
+            let m =
+                |g: fn(&StepFigures) -> f64| analyze::median(&v.iter().map(g).collect::<Vec<_>>());
+            let _ = writeln!(
+                md,
+                "| {what} ({}) | {} | {} | {} | {} | {} |",
+                v.len(),
+                show(m(|s| s.delay * 1e3), "ms"),
+                show(m(|s| s.rate), &format!("{u}/s")),
+                show(m(|s| s.rise * 1e3), "ms"),
+                show(m(|s| s.overshoot_pct), "%"),
+                show(m(|s| s.settle * 1e3), "ms"),
+            );
+        }
+        for (small, name, what) in [
+            (false, "steps-large.svg", "large steps"),
+            (true, "steps-small.svg", "small steps"),
+        ] {
+            if f.responses.iter().any(|r| r.small == small) {
+                let _ = write!(md, "\n![the {what}]({name})\n");
+                files.push((name, steps_svg(f, small, u)));
+            }
+        }
+    }
+    if let Some((up, down)) = &f.sweep {
+        md.push_str(
+            "\n## The sweep\n\nMeasured against commanded, settled at each point: up the range \
+             (blue) and back down (orange), the hysteresis loop between them; the static map is \
+             their mean (grey).\n\n![the sweep](map.svg)\n",
+        );
         files.push((
             "map.svg",
             svg(
-                &[("#1f5fbf", f.map.iter().map(|p| (p[0], p[1])).collect())],
-                "commanded",
-                "measured",
+                &[
+                    (COMMAND, f.map.iter().map(|p| (p[0], p[1])).collect()),
+                    (UP, up.clone()),
+                    (DOWN, down.clone()),
+                ],
+                &Frame {
+                    x_label: format!("commanded {u}"),
+                    y_label: format!("measured {u}"),
+                    legend: vec![
+                        (UP, "up the range".into()),
+                        (DOWN, "down the range".into()),
+                        (COMMAND, "the map (their mean)".into()),
+                    ],
+                },
+            ),
+        ));
+    }
+    if !f.command_path_buckets.is_empty() {
+        md.push_str(
+            "\n## The command path's delay\n\nHow long each command of the run took from its \
+             receipt to its first byte on the wire: commands per bucket of the engine's histogram, \
+             on a logarithmic axis.\n\n![the command path's delay](delay.svg)\n",
+        );
+        files.push((
+            "delay.svg",
+            histogram(
+                &f.command_path_buckets,
+                &Frame {
+                    x_label: "µs, receipt to first byte".into(),
+                    y_label: "commands".into(),
+                    legend: vec![],
+                },
             ),
         ));
     }
@@ -210,7 +395,124 @@ pub fn all(dir: &Path, f: &Figures) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::characterize::analyze::StepFigures;
+    use crate::characterize::analyze::{Sample, StepFigures};
+    use crate::characterize::Response;
+
+    /// The points of each polyline of `svg`, and its bars.
+    fn shapes(svg: &str) -> (Vec<usize>, usize) {
+        let lines = svg
+            .split("<polyline")
+            .skip(1)
+            .map(|l| {
+                let pts = l
+                    .split("points=\"")
+                    .nth(1)
+                    .unwrap()
+                    .split('"')
+                    .next()
+                    .unwrap();
+                pts.split_whitespace().count()
+            })
+            .collect();
+        (lines, svg.matches("<rect class=\"bar\"").count())
+    }
+
+    #[test]
+    fn the_report_plots_every_step_both_sweep_legs_and_the_delay_histogram() {
+        let response = |small: bool, n: usize, up: bool| Response {
+            small,
+            samples: (0..n)
+                .map(|i| Sample {
+                    t: i as f64 * 0.005,
+                    commanded: if up { 1.0 } else { 0.0 },
+                    measured: if up {
+                        i as f64 / n as f64
+                    } else {
+                        1.0 - i as f64 / n as f64
+                    },
+                })
+                .collect(),
+        };
+        let step = StepFigures {
+            delay: 0.03,
+            rate: 1.0,
+            rise: 0.4,
+            overshoot_pct: 1.5,
+            settle: 0.8,
+            lag: None,
+        };
+        let f = Figures {
+            device: "steer".into(),
+            units: "rad<&>".into(),
+            range: [-1.0, 1.0],
+            up: vec![step; 3],
+            down: vec![step; 3],
+            small_up: vec![StepFigures {
+                rise: 0.123,
+                overshoot_pct: 2.2e-14,
+                ..step
+            }],
+            small_down: vec![step],
+            responses: vec![
+                response(false, 40, true),
+                response(false, 41, false),
+                response(true, 12, true),
+                response(true, 13, false),
+            ],
+            sweep: Some((
+                vec![(-0.5, -0.45), (0.0, 0.02), (0.5, 0.52)],
+                vec![(0.5, 0.56), (0.0, 0.06), (-0.5, -0.41)],
+            )),
+            map: vec![[-0.5, -0.43], [0.0, 0.04], [0.5, 0.54]],
+            command_path_buckets: vec![(20.0, 3), (40.0, 10), (1200.0, 1)],
+            ..Figures::default()
+        };
+        let (md, files) = report(&f);
+        let names: Vec<&str> = files.iter().map(|(n, _)| *n).collect();
+        assert_eq!(
+            names,
+            [
+                "run.svg",
+                "steps-large.svg",
+                "steps-small.svg",
+                "map.svg",
+                "delay.svg"
+            ]
+        );
+        for n in &names {
+            assert!(md.contains(&format!("]({n})")), "{n} in the report:\n{md}");
+        }
+        for section in [
+            "## Step responses",
+            "## The sweep",
+            "## The command path's delay",
+        ] {
+            assert!(md.contains(section), "{section}");
+        }
+        assert!(md.contains("| small, up (1) |"), "{md}");
+        assert!(
+            md.contains("| 123 ms | 0 % |"),
+            "a zero overshoot reads 0:\n{md}"
+        );
+        let svg = |n: &str| &files.iter().find(|f| f.0 == n).unwrap().1;
+        assert!(!svg("run.svg").contains("rad<&>") && svg("run.svg").contains("rad&lt;&amp;&gt;"));
+        // Each step's command and reading, one line each, with every sample.
+        assert_eq!(shapes(svg("steps-large.svg")), (vec![40, 40, 41, 41], 0));
+        assert_eq!(shapes(svg("steps-small.svg")), (vec![12, 12, 13, 13], 0));
+        let large = svg("steps-large.svg");
+        assert!(
+            large.contains(UP) && large.contains(DOWN),
+            "up and down told apart"
+        );
+        // The map, then each leg of the loop in its own colour.
+        assert_eq!(shapes(svg("map.svg")), (vec![3, 3, 3], 0));
+        let map = svg("map.svg");
+        assert!(
+            map.contains(&format!("stroke=\"{UP}\""))
+                && map.contains(&format!("stroke=\"{DOWN}\""))
+        );
+        assert_eq!(shapes(svg("delay.svg")), (vec![], 3));
+    }
 
     #[test]
     fn sim_toml_is_a_device_sim_section_the_vehicle_file_takes_back() {
