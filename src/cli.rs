@@ -222,6 +222,13 @@ pub struct CharacterizeArgs {
     /// Directory of the rolling log file (default: as `adrive --log-dir`'s).
     #[arg(long, value_name = "DIR")]
     pub log_dir: Option<PathBuf>,
+    /// Record the run into an MCAP file, or rolling files in a directory, as `adrive
+    /// --record` does (`adrive replay` shows it); default: the vehicle file's `[record]`.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Record the raw serial traffic of every device too.
+    #[arg(long)]
+    pub record_raw: bool,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -475,16 +482,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     paths::create_dir("--log-dir", &log_dir).map_err(anyhow::Error::msg)?;
     let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
     if let Some(r) = &recording {
-        let what = if args.record.is_some() {
-            "--record"
-        } else {
-            "[record] dir"
-        };
-        match &r.target {
-            record::Target::File(p) => paths::check_new_file(what, p),
-            record::Target::Dir { dir, .. } => paths::check_dir_possible(what, dir),
-        }
-        .map_err(anyhow::Error::msg)?;
+        check_recording(args.record.is_some(), r)?;
     }
     let socket_path = args
         .socket
@@ -664,6 +662,17 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     Ok(code)
 }
 
+/// A recording's file (or directory of rolling files) is what it must be before
+/// anything starts; `given`: named by `--record`, else by the vehicle file's `[record]`.
+fn check_recording(given: bool, r: &record::Options) -> anyhow::Result<()> {
+    let what = if given { "--record" } else { "[record] dir" };
+    match &r.target {
+        record::Target::File(p) => paths::check_new_file(what, p),
+        record::Target::Dir { dir, .. } => paths::check_dir_possible(what, dir),
+    }
+    .map_err(anyhow::Error::msg)
+}
+
 /// How often `adrive characterize` polls the device it measures, at most.
 const CHARACTERIZE_POLL: Duration = Duration::from_millis(5);
 
@@ -717,12 +726,21 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         .clone()
         .unwrap_or_else(socket::path::default_path);
     paths::check_place("--socket", &socket_path).map_err(anyhow::Error::msg)?;
+    let recording = record::Options::of(args.record.as_deref(), args.record_raw, &config);
+    if let Some(r) = &recording {
+        check_recording(args.record.is_some(), r)?;
+    }
     let mut opened = if args.sim {
         std::collections::HashMap::new()
     } else {
         open_ports(&config)?
     };
-    let log = logging::init_with(true, Some(&log_dir), Vec::new())?;
+    let tap = Arc::new(crate::vehicle::tap::Tap::default());
+    let mut extra: Vec<logging::ExtraLayer> = Vec::new();
+    if recording.is_some() {
+        extra.push(Box::new(record::log::TapLayer { tap: tap.clone() }));
+    }
+    let log = logging::init_with(true, Some(&log_dir), extra)?;
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
     let sim = if args.sim {
         let s = Sim::start(&config, None)?;
@@ -731,14 +749,25 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     } else {
         None
     };
-    let vehicle = Arc::new(Vehicle::new(config, |c| {
-        let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
-        let mut first = opened.remove(c.name.as_str());
-        Box::new(move || match first.take() {
-            Some(link) => Ok(link),
-            None => driver::open_serial(&path, baud, timeout),
-        })
-    }));
+    let vehicle = Arc::new(Vehicle::with_tap(
+        config,
+        |c| {
+            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+            let mut first = opened.remove(c.name.as_str());
+            Box::new(move || match first.take() {
+                Some(link) => Ok(link),
+                None => driver::open_serial(&path, baud, timeout),
+            })
+        },
+        tap,
+    ));
+    // A recording that cannot start is refused before anything is driven.
+    let recorder = match recording {
+        Some(opts) => {
+            Some(Recorder::start(&vehicle, opts).map_err(|e| anyhow::anyhow!("record: {e}"))?)
+        }
+        None => None,
+    };
     let gate = Arc::new(Gate::new(vehicle.clone()));
     gate.announce();
     let exits = exit::install()?;
@@ -778,6 +807,8 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     stuck.extend(monitor.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
     stuck.extend(engine_stuck);
+    // After the engine: the safe state's commands are in the recording.
+    stuck.extend(recorder.shutdown(Duration::from_secs(2)));
     let at = vehicle
         .devices()
         .iter()
@@ -820,6 +851,12 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
             if safe { "" } else { "NOT " }
         ),
     );
+    if let Some(r) = vehicle.tap().status() {
+        tell(
+            io::stdout(),
+            format_args!("{}\n", headless::record_summary(&r)),
+        );
+    }
     drop(log);
     Ok(if !safe || !stuck.is_empty() {
         exit::UNSAFE

@@ -6,6 +6,7 @@
 
 mod common;
 
+use adrive::record::read::Recording;
 use common::headless::BIN;
 use common::{lines, output_within, tempdir, until, wait_exit, Reaped, DEADLINE};
 use std::path::Path;
@@ -77,6 +78,11 @@ struct Run {
 }
 
 fn characterize(dir: &Path, tag: &str, vehicle: &str) -> Run {
+    characterize_with(dir, tag, vehicle, &[])
+}
+
+/// [`characterize`] with more arguments.
+fn characterize_with(dir: &Path, tag: &str, vehicle: &str, extra: &[&str]) -> Run {
     let config = dir.join(format!("{tag}.toml"));
     std::fs::write(&config, vehicle).unwrap();
     let out = dir.join(tag);
@@ -90,6 +96,7 @@ fn characterize(dir: &Path, tag: &str, vehicle: &str) -> Run {
         .arg(dir.join(format!("{tag}.sock")))
         .arg("--log-dir")
         .arg(dir.join("logs"))
+        .args(extra)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
@@ -501,4 +508,78 @@ fn a_vehicle_that_cannot_prove_it_stands_still_is_refused() {
         "{err}"
     );
     assert!(!dir.path().join("out").exists());
+}
+
+/// `--record`: the run is recorded like any drive — every set point it commanded, as
+/// the characterize source, accepted, and written to the steering, between its engage
+/// and its `characterize done` — in a whole file `adrive replay` and every reader open.
+#[test]
+fn a_recorded_characterization_holds_its_commands() {
+    let dir = tempdir("characterize-record");
+    let file = dir.path().join("run.mcap");
+    let run = characterize_with(
+        dir.path(),
+        "rec",
+        &alice_with_steering(&sim_section(&draw(11))),
+        &["--procedure", "sweep", "--record", file.to_str().unwrap()],
+    );
+    let rec = Recording::open(&file).unwrap();
+    assert!(rec.complete && rec.cut.is_none(), "{:?}", rec.cut);
+    let (msgs, _) = rec.json();
+    let on = |topic: &str| -> Vec<serde_json::Value> {
+        msgs.iter()
+            .filter(|(t, _, _)| t == topic)
+            .map(|(_, _, v)| v.clone())
+            .collect()
+    };
+    let received: Vec<f64> = on("/commands")
+        .iter()
+        .filter(|c| c["source"] == "characterize" && c["device"] == "steer")
+        .inspect(|c| assert_eq!(c["accepted"], true, "{c}"))
+        .filter_map(|c| c["value"].as_f64())
+        .collect();
+    let written: Vec<f64> = on("/steer/command")
+        .iter()
+        .filter_map(|c| c["value"].as_f64())
+        .collect();
+    // Every point of the sweep's map was commanded and written.
+    let map = run.summary["map"].as_array().expect("a map");
+    for point in map {
+        let c = point[0].as_f64().unwrap();
+        assert!(
+            received.iter().any(|v| (v - c).abs() < 1e-6),
+            "{c} not among the recorded commands {received:?}"
+        );
+        assert!(
+            written.iter().any(|v| (v - c).abs() < 1e-6),
+            "{c} not written to the steering in the recording"
+        );
+    }
+    let gate: Vec<String> = on("/gate")
+        .iter()
+        .map(|g| format!("{} {}", g["event"], g["reason"]))
+        .collect();
+    assert!(
+        gate.iter().any(|g| g.starts_with("\"engaged\"")),
+        "{gate:?}"
+    );
+    assert!(
+        gate.iter()
+            .any(|g| g.starts_with("\"disengaged\"") && g.contains("characterize done")),
+        "{gate:?}"
+    );
+    // `adrive replay` takes it: `--check` decides its commands again, as they were.
+    let o = output_within(
+        Process::new(BIN)
+            .arg("replay")
+            .arg(&file)
+            .arg("--check")
+            .arg(dir.path().join("rec.toml")),
+    );
+    assert!(
+        o.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
 }
