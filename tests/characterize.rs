@@ -149,6 +149,12 @@ fn characterize_with(dir: &Path, tag: &str, vehicle: &str, extra: &[&str]) -> Ru
         .lines()
         .count()
         - 1;
+    // The step plots are there when the steps ran (all procedures, or `step` asked).
+    let asked = extra
+        .iter()
+        .position(|a| *a == "--procedure")
+        .map(|i| extra[i + 1]);
+    let stepped = asked.is_none_or(|p| p.split(',').any(|p| p == "step"));
     for (plot, lines) in [
         ("run.svg", Some(vec![samples, samples])),
         ("steps-large.svg", None),
@@ -156,6 +162,13 @@ fn characterize_with(dir: &Path, tag: &str, vehicle: &str, extra: &[&str]) -> Ru
         ("map.svg", Some(vec![5, 5, 5])),
         ("delay.svg", Some(vec![])),
     ] {
+        if plot.starts_with("steps") && !stepped {
+            assert!(
+                !report.contains(&format!("]({plot})")),
+                "{plot} without steps"
+            );
+            continue;
+        }
         assert!(
             report.contains(&format!("]({plot})")),
             "{plot} in report.md"
