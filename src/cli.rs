@@ -1147,12 +1147,12 @@ mod ros2 {
 
     /// The running node, if `--ros2` started one.
     #[cfg(feature = "ros2")]
-    pub struct Running(Option<crate::ros2::Node>);
+    pub(super) struct Running(Option<crate::ros2::Node>);
     #[cfg(not(feature = "ros2"))]
-    pub struct Running;
+    pub(super) struct Running;
 
     #[cfg(feature = "ros2")]
-    pub fn start(
+    pub(super) fn start(
         on: bool,
         gate: &Arc<Gate>,
         net: &Net,
@@ -1166,7 +1166,12 @@ mod ros2 {
     }
 
     #[cfg(not(feature = "ros2"))]
-    pub fn start(on: bool, _: &Arc<Gate>, _: &Net, _: &VehicleConfig) -> anyhow::Result<Running> {
+    pub(super) fn start(
+        on: bool,
+        _: &Arc<Gate>,
+        _: &Net,
+        _: &VehicleConfig,
+    ) -> anyhow::Result<Running> {
         if on {
             anyhow::bail!(NOT_BUILT);
         }
@@ -1175,7 +1180,7 @@ mod ros2 {
 
     impl Running {
         /// Refuse every ROS 2 command from now on.
-        pub fn close(&self) {
+        pub(super) fn close(&self) {
             #[cfg(feature = "ros2")]
             if let Some(n) = &self.0 {
                 n.close();
@@ -1196,7 +1201,7 @@ mod ros2 {
     }
 
     #[cfg(feature = "ros2")]
-    pub fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
+    pub(super) fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
         let opts = crate::ros2::watch::WatchOptions {
             domain: args.domain,
             connect: args.connect.clone(),
@@ -1207,7 +1212,7 @@ mod ros2 {
     }
 
     #[cfg(not(feature = "ros2"))]
-    pub fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
+    pub(super) fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
         anyhow::bail!(NOT_BUILT)
     }
 }

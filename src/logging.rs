@@ -141,7 +141,7 @@ pub(crate) struct RateLimit {
 }
 
 impl RateLimit {
-    pub fn new(per_second: u32) -> RateLimit {
+    pub(crate) fn new(per_second: u32) -> RateLimit {
         RateLimit {
             per_second,
             window: Instant::now(),
@@ -151,7 +151,7 @@ impl RateLimit {
     }
 
     /// May a line be logged now?
-    pub fn allow(&mut self, now: Instant) -> bool {
+    pub(crate) fn allow(&mut self, now: Instant) -> bool {
         if now.saturating_duration_since(self.window) >= Duration::from_secs(1) {
             if self.suppressed > 0 {
                 tracing::warn!(

@@ -17,7 +17,7 @@ fn sig(x: f64) -> f64 {
 }
 
 /// `summary.json`'s object.
-pub fn summary(f: &Figures) -> serde_json::Value {
+pub(crate) fn summary(f: &Figures) -> serde_json::Value {
     let ms = |s: Option<f64>| s.map(|x| sig(x * 1000.0));
     serde_json::json!({
         "device": f.device,
@@ -38,7 +38,7 @@ pub fn summary(f: &Figures) -> serde_json::Value {
 }
 
 /// `sim.toml`: the `[device.sim]` section of what was measured.
-pub fn sim_toml(f: &Figures) -> String {
+pub(crate) fn sim_toml(f: &Figures) -> String {
     let mut out = format!(
         "# {}: measured by adrive characterize in {:.0} s\n[device.sim]\n",
         f.device, f.took
@@ -66,7 +66,7 @@ pub fn sim_toml(f: &Figures) -> String {
 }
 
 /// The samples as CSV: `t_s,commanded,measured`.
-pub fn samples_csv(f: &Figures) -> String {
+pub(crate) fn samples_csv(f: &Figures) -> String {
     let mut out = String::from("t_s,commanded,measured\n");
     for s in &f.samples {
         let _ = writeln!(out, "{:.6},{},{}", s.t, s.commanded, s.measured);
@@ -113,7 +113,7 @@ fn svg(series: &[(&str, Vec<(f64, f64)>)], x_label: &str, y_label: &str) -> Stri
 }
 
 /// `report.md`: the figures, and the plots beside it (`run.svg`, `map.svg`).
-pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
+pub(crate) fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
     let show =
         |x: Option<f64>, unit: &str| x.map_or("—".into(), |v| format!("{} {unit}", sig(v)));
     let u = if f.units.is_empty() {
@@ -193,7 +193,7 @@ pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
 }
 
 /// Write every file into `dir` (created if missing).
-pub fn all(dir: &Path, f: &Figures) -> std::io::Result<()> {
+pub(crate) fn all(dir: &Path, f: &Figures) -> std::io::Result<()> {
     std::fs::create_dir_all(dir)?;
     let json = serde_json::to_string_pretty(&summary(f)).map_err(std::io::Error::other)?;
     std::fs::write(dir.join("summary.json"), json + "\n")?;

@@ -225,7 +225,7 @@ pub(crate) struct LineDriver {
 }
 
 impl LineDriver {
-    pub fn new(map: LineMap, reply_timeout: Duration) -> Self {
+    pub(crate) fn new(map: LineMap, reply_timeout: Duration) -> Self {
         LineDriver {
             map,
             reply_timeout,

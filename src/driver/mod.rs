@@ -167,7 +167,7 @@ pub(crate) struct Deadline {
 impl Deadline {
     /// The deadline `budget` from now (a device's reply timeout, taken as its request
     /// goes out).
-    pub fn after(budget: Duration) -> Deadline {
+    pub(crate) fn after(budget: Duration) -> Deadline {
         Deadline {
             at: Instant::now() + budget,
             budget,

@@ -234,7 +234,7 @@ pub(crate) struct RawMsg {
 }
 
 impl RawMsg {
-    pub fn of(e: &TraceEntry) -> RawMsg {
+    pub(crate) fn of(e: &TraceEntry) -> RawMsg {
         RawMsg {
             dir: match e.dir {
                 Dir::Out => "out".into(),
@@ -247,7 +247,7 @@ impl RawMsg {
     }
 
     /// The bytes back from the hex.
-    pub fn bytes(&self) -> Vec<u8> {
+    pub(crate) fn bytes(&self) -> Vec<u8> {
         self.hex
             .split_whitespace()
             .filter_map(|h| u8::from_str_radix(h, 16).ok())

@@ -114,7 +114,7 @@ pub(crate) enum Arg {
 
 impl Arg {
     /// The argument's form, as help and errors show it.
-    pub fn form(&self) -> String {
+    pub(crate) fn form(&self) -> String {
         match self {
             Arg::Device(Which::Any) => "DEVICE".into(),
             Arg::Device(Which::Setpoint) => "SETPOINT".into(),
@@ -363,7 +363,7 @@ impl Need {
 
 impl Verb {
     /// `name ARG…`, as help and errors show it.
-    pub fn form(&self) -> String {
+    pub(crate) fn form(&self) -> String {
         let mut s = self.name.to_string();
         for a in self.args {
             s.push(' ');

@@ -187,7 +187,7 @@ pub(crate) struct Remote {
 impl Remote {
     /// Attach to the adrive at `path` as a console. `on_gone` is called once, from the
     /// reading thread, if the connection ends.
-    pub fn attach(
+    pub(crate) fn attach(
         path: &Path,
         on_gone: impl FnOnce(String) + Send + 'static,
     ) -> Result<Remote, ClientError> {

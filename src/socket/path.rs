@@ -51,7 +51,7 @@ pub(crate) struct Peer {
 
 impl Peer {
     /// The peer of a connected stream.
-    pub fn of(stream: &UnixStream) -> io::Result<Peer> {
+    pub(crate) fn of(stream: &UnixStream) -> io::Result<Peer> {
         let c = rustix::net::sockopt::socket_peercred(stream)?;
         Ok(Peer {
             pid: rustix::process::Pid::as_raw(Some(c.pid)) as u32,
@@ -60,7 +60,7 @@ impl Peer {
     }
 
     /// `pid 4242 (adrive --sim)`: the process, with its command line when it can be read.
-    pub fn describe(&self) -> String {
+    pub(crate) fn describe(&self) -> String {
         let cmdline = std::fs::read(format!("/proc/{}/cmdline", self.pid))
             .ok()
             .map(|b| {
