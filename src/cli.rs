@@ -1147,12 +1147,12 @@ mod ros2 {
 
     /// The running node, if `--ros2` started one.
     #[cfg(feature = "ros2")]
-    pub(super) struct Running(Option<crate::ros2::Node>);
+    pub(crate) struct Running(Option<crate::ros2::Node>);
     #[cfg(not(feature = "ros2"))]
-    pub(super) struct Running;
+    pub(crate) struct Running;
 
     #[cfg(feature = "ros2")]
-    pub(super) fn start(
+    pub(crate) fn start(
         on: bool,
         gate: &Arc<Gate>,
         net: &Net,
@@ -1166,7 +1166,7 @@ mod ros2 {
     }
 
     #[cfg(not(feature = "ros2"))]
-    pub(super) fn start(
+    pub(crate) fn start(
         on: bool,
         _: &Arc<Gate>,
         _: &Net,
@@ -1180,7 +1180,7 @@ mod ros2 {
 
     impl Running {
         /// Refuse every ROS 2 command from now on.
-        pub(super) fn close(&self) {
+        pub(crate) fn close(&self) {
             #[cfg(feature = "ros2")]
             if let Some(n) = &self.0 {
                 n.close();
@@ -1201,7 +1201,7 @@ mod ros2 {
     }
 
     #[cfg(feature = "ros2")]
-    pub(super) fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
+    pub(crate) fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
         let opts = crate::ros2::watch::WatchOptions {
             domain: args.domain,
             connect: args.connect.clone(),
@@ -1212,7 +1212,7 @@ mod ros2 {
     }
 
     #[cfg(not(feature = "ros2"))]
-    pub(super) fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
+    pub(crate) fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
         anyhow::bail!(NOT_BUILT)
     }
 }

@@ -4,11 +4,11 @@
 //! the file when dropped, so every exit path keeps it alive until the very end.
 //!
 //! Run by systemd (its `JOURNAL_STREAM` names the stderr adrive has), the stderr lines
-//! go to the journal instead ([`journal`]), each event with its fields as journal
+//! go to the journal instead ([`journal`](mod@journal)), each event with its fields as journal
 //! fields (`device=steer` as `DEVICE=steer`, so `journalctl -u adrive DEVICE=steer`
 //! finds a device's lines) and its level as the journal's priority.
 
-pub mod journal;
+pub(crate) mod journal;
 pub mod ring;
 
 use std::fmt::Write as _;

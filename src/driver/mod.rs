@@ -11,12 +11,12 @@
 //! the device gets its turn.
 
 pub mod elm327;
-pub mod line;
-pub mod lock;
+pub(crate) mod line;
+pub(crate) mod lock;
 #[cfg(test)]
 mod mock;
 pub mod modbus;
-pub mod serial;
+pub(crate) mod serial;
 pub mod slcan;
 
 use crate::value::{Command, Reading};

@@ -18,13 +18,13 @@
 //! console replays it (`crate::console::replay`), and [`check`] decides every command
 //! it received again under another vehicle file (`adrive replay --check`).
 
-pub mod check;
-pub mod export;
-pub mod info;
-pub mod log;
-pub mod message;
+pub(crate) mod check;
+pub(crate) mod export;
+pub(crate) mod info;
+pub(crate) mod log;
+pub(crate) mod message;
 pub mod read;
-pub mod repair;
+pub(crate) mod repair;
 pub(crate) mod schema;
 mod writer;
 

@@ -176,7 +176,7 @@ impl ServedBus {
     /// The bus's thread: until stopped, the kit runs (its reports, its watchdog) whether
     /// or not the adapter is plugged in; while it is, the host's bytes are answered and
     /// the bus's frames reach the host.
-    pub(super) fn run(self, master: TTYPort, slave: TTYPort) {
+    pub(crate) fn run(self, master: TTYPort, slave: TTYPort) {
         let now = Instant::now();
         let mut link = Link::Up {
             master,

@@ -18,7 +18,7 @@ use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 
 /// The socket's file name in its directory.
-pub const FILE: &str = "adrive.sock";
+pub(crate) const FILE: &str = "adrive.sock";
 
 /// The default socket path, from the environment (see the module doc).
 pub(crate) fn default_path() -> PathBuf {
@@ -107,7 +107,7 @@ impl Drop for Claim {
 
 /// Claim `path` and listen on it (see the module doc). The error says what is there
 /// and what to do.
-pub fn bind(path: &Path) -> Result<(UnixListener, Claim), String> {
+pub(crate) fn bind(path: &Path) -> Result<(UnixListener, Claim), String> {
     let shown = path.display();
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::DirBuilder::new()

@@ -21,9 +21,9 @@
 //! within its bound: a thread that ended or stalls is named, refuses engage and gets
 //! adrive restarted.
 
-pub mod causes;
+pub(crate) mod causes;
 mod kit;
-pub mod recovery;
+pub(crate) mod recovery;
 mod waiting;
 
 use crate::config::roles::ReadingRef;

@@ -37,7 +37,7 @@ use std::time::{Duration, Instant};
 
 /// One step of a procedure.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Step {
+pub(crate) enum Step {
     /// Command a value and wait until the device acknowledged it.
     Send {
         device: DeviceId,
@@ -69,7 +69,7 @@ pub enum Step {
 }
 
 impl Step {
-    pub fn name(&self) -> String {
+    pub(crate) fn name(&self) -> String {
         match self {
             Step::Send { label, .. } | Step::Shift { label, .. } => label.clone(),
             Step::WaitStopped(_) => "wait stopped".into(),
@@ -130,7 +130,7 @@ impl Step {
     }
 
     /// The step moves an actuator (as opposed to waiting or commanding the safe state).
-    pub fn moves(&self, gate: &Gate) -> bool {
+    pub(crate) fn moves(&self, gate: &Gate) -> bool {
         let safe = crate::safety::safe::state(gate.vehicle().config());
         match self {
             Step::Send {

@@ -16,7 +16,7 @@
 //! after `open` may make the adapter search the protocols, so it waits up to
 //! [`SEARCH_TIMEOUT`]. `running` is `rpm >` [`RUNNING_RPM`].
 
-pub mod proto;
+pub(crate) mod proto;
 
 use self::proto::{ElmError, Pid};
 use super::{read_until, send_request, Driver, DriverError, Link};

@@ -117,7 +117,7 @@ pub(crate) enum ElmError {
 
 /// The lines of a reply up to its prompt: split at `\r` or `\n`, trimmed, empty lines
 /// and the prompt dropped.
-pub fn lines(reply: &[u8]) -> Vec<String> {
+pub(crate) fn lines(reply: &[u8]) -> Vec<String> {
     let end = reply
         .iter()
         .rposition(|&b| b == PROMPT)
