@@ -1184,12 +1184,12 @@ mod ros2 {
 
     /// The running node, if `--ros2` started one.
     #[cfg(feature = "ros2")]
-    pub struct Running(Option<crate::ros2::Node>);
+    pub(crate) struct Running(Option<crate::ros2::Node>);
     #[cfg(not(feature = "ros2"))]
-    pub struct Running;
+    pub(crate) struct Running;
 
     #[cfg(feature = "ros2")]
-    pub fn start(
+    pub(crate) fn start(
         on: bool,
         gate: &Arc<Gate>,
         net: &Net,
@@ -1203,7 +1203,12 @@ mod ros2 {
     }
 
     #[cfg(not(feature = "ros2"))]
-    pub fn start(on: bool, _: &Arc<Gate>, _: &Net, _: &VehicleConfig) -> anyhow::Result<Running> {
+    pub(crate) fn start(
+        on: bool,
+        _: &Arc<Gate>,
+        _: &Net,
+        _: &VehicleConfig,
+    ) -> anyhow::Result<Running> {
         if on {
             anyhow::bail!(NOT_BUILT);
         }
@@ -1212,7 +1217,7 @@ mod ros2 {
 
     impl Running {
         /// Refuse every ROS 2 command from now on.
-        pub fn close(&self) {
+        pub(crate) fn close(&self) {
             #[cfg(feature = "ros2")]
             if let Some(n) = &self.0 {
                 n.close();
@@ -1233,7 +1238,7 @@ mod ros2 {
     }
 
     #[cfg(feature = "ros2")]
-    pub fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
+    pub(crate) fn watch(args: &WatchArgs, stop: &AtomicBool) -> anyhow::Result<i32> {
         let opts = crate::ros2::watch::WatchOptions {
             domain: args.domain,
             connect: args.connect.clone(),
@@ -1244,7 +1249,7 @@ mod ros2 {
     }
 
     #[cfg(not(feature = "ros2"))]
-    pub fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
+    pub(crate) fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
         anyhow::bail!(NOT_BUILT)
     }
 }

@@ -14,7 +14,7 @@ use std::time::Duration;
 pub(crate) const REPORT_EVERY: Duration = Duration::from_secs(10);
 
 /// Run until an exit arrives; returns it.
-pub fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
+pub(crate) fn wait(gate: &Gate, exits: &Receiver<Exit>) -> Exit {
     tracing::info!(
         vehicle = %gate.vehicle().name(),
         devices = gate.vehicle().devices().len(),
@@ -77,7 +77,7 @@ fn name_width(snap: &Snapshot) -> usize {
 }
 
 /// The per-device summary printed on exit.
-pub fn summary(snap: &Snapshot) -> String {
+pub(crate) fn summary(snap: &Snapshot) -> String {
     let w = name_width(snap);
     let mut out = String::new();
     let _ = writeln!(

@@ -17,8 +17,11 @@
 //! vehicle through; [`port_list`] lists the serial ports (`adrive ports`) and [`cli`] puts
 //! it all together; [`service`] tells systemd how it goes.
 
+#![warn(unreachable_pub)]
+
+// The API: the modules the binary (`src/main.rs`), the integration tests, the benchmark
+// (`benches/paper`) and the examples import from.
 pub mod can;
-pub mod characterize;
 pub mod cli;
 pub mod config;
 pub mod console;
@@ -26,19 +29,14 @@ pub mod controls;
 pub mod driver;
 pub mod engine;
 pub mod exit;
-pub mod foxglove;
-pub mod headless;
 pub mod logging;
 pub mod net;
-pub mod paths;
 pub mod port;
-pub(crate) mod port_list;
 pub mod probe;
 pub mod record;
 #[cfg(feature = "ros2")]
 pub mod ros2;
 pub mod safety;
-pub mod service;
 pub mod sim;
 pub mod snapshot;
 pub mod socket;
@@ -50,3 +48,12 @@ pub mod testkit;
 pub mod threads;
 pub mod value;
 pub mod vehicle;
+
+// Internal: only the crate reaches these, so `unreachable_pub` holds their items to
+// `pub(crate)` and the compiler names what nothing uses.
+mod characterize;
+mod foxglove;
+mod headless;
+mod paths;
+mod port_list;
+mod service;

@@ -4,11 +4,11 @@
 //! the file when dropped, so every exit path keeps it alive until the very end.
 //!
 //! Run by systemd (its `JOURNAL_STREAM` names the stderr adrive has), the stderr lines
-//! go to the journal instead ([`journal`]), each event with its fields as journal
+//! go to the journal instead ([`journal`](mod@journal)), each event with its fields as journal
 //! fields (`device=steer` as `DEVICE=steer`, so `journalctl -u adrive DEVICE=steer`
 //! finds a device's lines) and its level as the journal's priority.
 
-pub mod journal;
+pub(crate) mod journal;
 pub mod ring;
 
 use std::fmt::Write as _;
@@ -141,7 +141,7 @@ pub(crate) struct RateLimit {
 }
 
 impl RateLimit {
-    pub fn new(per_second: u32) -> RateLimit {
+    pub(crate) fn new(per_second: u32) -> RateLimit {
         RateLimit {
             per_second,
             window: Instant::now(),
@@ -151,7 +151,7 @@ impl RateLimit {
     }
 
     /// May a line be logged now?
-    pub fn allow(&mut self, now: Instant) -> bool {
+    pub(crate) fn allow(&mut self, now: Instant) -> bool {
         if now.saturating_duration_since(self.window) >= Duration::from_secs(1) {
             if self.suppressed > 0 {
                 tracing::warn!(

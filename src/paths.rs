@@ -53,7 +53,7 @@ fn say(what: &str, path: &Path, problem: &str) -> String {
 
 /// The directory `dir` (`what`: the flag that names it), created with its parents if
 /// missing. The error says what is in the way.
-pub fn create_dir(what: &str, dir: &Path) -> Result<(), String> {
+pub(crate) fn create_dir(what: &str, dir: &Path) -> Result<(), String> {
     match std::fs::create_dir_all(dir) {
         Ok(()) => Ok(()),
         Err(e) => Err(say(what, dir, &dir_problem(dir, &e))),
@@ -73,7 +73,7 @@ fn dir_problem(dir: &Path, e: &io::Error) -> String {
 
 /// A file to read, `what` naming the flag (empty: a path given without one): it exists
 /// and is a file, not a directory.
-pub fn check_file(what: &str, path: &Path) -> Result<(), String> {
+pub(crate) fn check_file(what: &str, path: &Path) -> Result<(), String> {
     let problem = match std::fs::metadata(path) {
         Ok(m) if m.is_dir() => "it is a directory, not a file".into(),
         Ok(_) => match std::fs::File::open(path) {
@@ -86,7 +86,7 @@ pub fn check_file(what: &str, path: &Path) -> Result<(), String> {
 }
 
 /// Why the file `path` could not be read.
-pub fn file_problem(path: &Path, e: &io::Error) -> String {
+pub(crate) fn file_problem(path: &Path, e: &io::Error) -> String {
     match e.kind() {
         io::ErrorKind::IsADirectory => "it is a directory, not a file".into(),
         io::ErrorKind::PermissionDenied => "permission denied: you cannot read it".into(),
@@ -104,13 +104,13 @@ pub fn file_problem(path: &Path, e: &io::Error) -> String {
 }
 
 /// `cannot read: …` for a file that could not be read, in words.
-pub fn cannot_read(path: &Path, e: &io::Error) -> String {
+pub(crate) fn cannot_read(path: &Path, e: &io::Error) -> String {
     format!("cannot read: {}", file_problem(path, e))
 }
 
 /// A directory that is made later (`--record DIR/`): nothing in the way of `dir` being
 /// one, `what` naming the flag.
-pub fn check_dir_possible(what: &str, dir: &Path) -> Result<(), String> {
+pub(crate) fn check_dir_possible(what: &str, dir: &Path) -> Result<(), String> {
     match existing(dir) {
         Some(at) if !at.is_dir() => Err(say(what, dir, &not_a_directory(dir, &at))),
         _ => Ok(()),
@@ -119,7 +119,7 @@ pub fn check_dir_possible(what: &str, dir: &Path) -> Result<(), String> {
 
 /// A file made later in a directory made with it (a control socket): nothing in the
 /// way of its directory being one, `what` naming the flag.
-pub fn check_place(what: &str, path: &Path) -> Result<(), String> {
+pub(crate) fn check_place(what: &str, path: &Path) -> Result<(), String> {
     match existing(parent_of(path)) {
         Some(at) if !at.is_dir() => Err(say(
             what,
@@ -132,7 +132,7 @@ pub fn check_place(what: &str, path: &Path) -> Result<(), String> {
 
 /// A file to create at `path`, `what` naming the flag: its directory exists (a file in
 /// the way is named) and it is not itself a directory.
-pub fn check_new_file(what: &str, path: &Path) -> Result<(), String> {
+pub(crate) fn check_new_file(what: &str, path: &Path) -> Result<(), String> {
     if path.is_dir() {
         return Err(say(what, path, "it is a directory, not a file"));
     }

@@ -173,7 +173,7 @@ pub(crate) struct SimLink {
 /// directories of links under `tmp` (normally the temporary directory), whose process
 /// is alive under `proc` (normally `/proc`). A directory left by a killed simulator
 /// is skipped: its links may point at pseudo-terminals reused by others.
-pub fn simulated(tmp: &Path, proc: &Path) -> Vec<SimLink> {
+pub(crate) fn simulated(tmp: &Path, proc: &Path) -> Vec<SimLink> {
     let mut out = Vec::new();
     for dir in fs::read_dir(tmp).into_iter().flatten().flatten() {
         let name = dir.file_name().to_string_lossy().to_string();
@@ -204,7 +204,7 @@ pub fn simulated(tmp: &Path, proc: &Path) -> Vec<SimLink> {
 }
 
 /// The listing `adrive ports` prints.
-pub fn report(ports: &[PortInfo], ptys: &[PathBuf], sims: &[SimLink]) -> String {
+pub(crate) fn report(ports: &[PortInfo], ptys: &[PathBuf], sims: &[SimLink]) -> String {
     let mut out = String::new();
     if ports.is_empty() {
         out.push_str("no serial ports found: no USB serial adapters (ttyUSB, ttyACM) and no serial hardware.\n");

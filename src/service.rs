@@ -36,7 +36,7 @@ pub(crate) struct Notifier {
 impl Notifier {
     /// The socket `NOTIFY_SOCKET` names (`/run/systemd/notify`, or `@name` for an
     /// abstract one); `None` when the variable is unset or names neither.
-    pub fn at(var: &OsStr) -> Option<Notifier> {
+    pub(crate) fn at(var: &OsStr) -> Option<Notifier> {
         let to = address(var)?;
         let socket = UnixDatagram::unbound().ok()?;
         Some(Notifier {
@@ -47,7 +47,7 @@ impl Notifier {
     }
 
     /// Send `state`, newline-separated `KEY=VALUE` assignments, in one datagram.
-    pub fn send(&self, state: &str) {
+    pub(crate) fn send(&self, state: &str) {
         if let Err(e) = self.socket.send_to_addr(state.as_bytes(), &self.to) {
             if !self.warned.swap(true, Ordering::Relaxed) {
                 tracing::warn!("service manager notification failed (NOTIFY_SOCKET): {e}");
@@ -89,28 +89,28 @@ static RUNNING: OnceLock<String> = OnceLock::new();
 
 /// Startup is finished: every device thread runs. `status` is shown by
 /// `systemctl status`.
-pub fn ready(status: &str) {
+pub(crate) fn ready(status: &str) {
     let _ = RUNNING.set(status.to_string());
     notify(&format!("READY=1\nSTATUS={status}"));
 }
 
 /// The stop has begun (the safe state comes next); `why` for `systemctl status`.
-pub fn stopping(why: &str) {
+pub(crate) fn stopping(why: &str) {
     notify(&format!("STOPPING=1\nSTATUS=stopping: {why}"));
 }
 
 /// A line for `systemctl status`.
-pub fn status(text: &str) {
+pub(crate) fn status(text: &str) {
     notify(&format!("STATUS={text}"));
 }
 
 /// `systemctl status` back to the line [`ready`] said: all is well again.
-pub fn running() {
+pub(crate) fn running() {
     status(RUNNING.get().map_or("running", String::as_str));
 }
 
 /// Tell the service manager adrive is still sound.
-pub fn feed() {
+pub(crate) fn feed() {
     notify("WATCHDOG=1");
 }
 
@@ -138,7 +138,7 @@ fn watchdog_every(usec: Option<&str>, pid: Option<&str>, me: u32) -> Option<Dura
 /// within its bound. A thread that ended is logged once, at ERROR; a thread that
 /// stalls is logged at ERROR when it stalls (`STATUS=` says which) and at WARN when it
 /// turns again, and the feeding resumes.
-pub struct Watchdog {
+pub(crate) struct Watchdog {
     every: Option<Duration>,
     fed: Option<Instant>,
     threads: Liveness,
@@ -149,7 +149,7 @@ pub struct Watchdog {
 
 /// What one turn of the [`Watchdog`] found.
 #[derive(Debug, Default, PartialEq)]
-pub struct Turn {
+pub(crate) struct Turn {
     /// `WATCHDOG=1` was sent.
     pub fed: bool,
     /// The threads stalled now.
@@ -162,12 +162,12 @@ pub struct Turn {
 
 impl Watchdog {
     /// Watch `threads`, feeding at [`watchdog_period`].
-    pub fn new(threads: Liveness) -> Watchdog {
+    pub(crate) fn new(threads: Liveness) -> Watchdog {
         Watchdog::every(watchdog_period(), threads)
     }
 
     /// Watch `threads`, feeding every `every` (`None`: never, only watch).
-    pub fn every(every: Option<Duration>, threads: Liveness) -> Watchdog {
+    pub(crate) fn every(every: Option<Duration>, threads: Liveness) -> Watchdog {
         Watchdog {
             every,
             fed: None,
@@ -178,7 +178,7 @@ impl Watchdog {
     }
 
     /// One turn at `now`: what it found, and whether the watchdog was fed.
-    pub fn turn(&mut self, now: Instant) -> Turn {
+    pub(crate) fn turn(&mut self, now: Instant) -> Turn {
         let effect = match self.every {
             Some(_) => {
                 "the service watchdog is no longer fed: systemd will stop and restart adrive"

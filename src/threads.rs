@@ -97,7 +97,7 @@ impl Drop for EndMark {
 }
 
 impl Threads {
-    pub fn spawn(
+    pub(crate) fn spawn(
         &mut self,
         name: String,
         f: impl FnOnce() + Send + 'static,
@@ -148,13 +148,13 @@ impl Threads {
         Liveness(self.states.clone().into())
     }
 
-    pub fn names(&self) -> Vec<&str> {
+    pub(crate) fn names(&self) -> Vec<&str> {
         self.handles.iter().map(|(n, _)| n.as_str()).collect()
     }
 
     /// Join every thread, waiting at most until `deadline`; returns the names of those
     /// still running (and logs them).
-    pub fn join(self, deadline: Instant) -> Vec<String> {
+    pub(crate) fn join(self, deadline: Instant) -> Vec<String> {
         let mut stuck = Vec::new();
         for (name, h) in self.handles {
             while !h.is_finished() && Instant::now() < deadline {

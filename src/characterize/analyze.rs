@@ -6,7 +6,7 @@ use serde::Serialize;
 
 /// One position reading, with the command in force when it was taken.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Sample {
+pub(crate) struct Sample {
     /// Seconds since the procedure started (the middle of the status transaction).
     pub t: f64,
     pub commanded: f64,
@@ -15,7 +15,7 @@ pub struct Sample {
 
 /// What one step's response shows.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct StepFigures {
+pub(crate) struct StepFigures {
     /// Command to first movement, seconds: where the slew line leaves the start level.
     pub delay: f64,
     /// The slew rate, units a second (positive).
@@ -31,7 +31,7 @@ pub struct StepFigures {
 }
 
 /// The least-squares line through `points`: (slope, intercept).
-pub fn fit_line(points: &[(f64, f64)]) -> Option<(f64, f64)> {
+pub(crate) fn fit_line(points: &[(f64, f64)]) -> Option<(f64, f64)> {
     let n = points.len() as f64;
     if points.len() < 2 {
         return None;
@@ -89,7 +89,7 @@ fn threshold_between(a: f64, b: f64, f: &impl Fn(f64) -> bool) -> f64 {
 
 /// The response to a step commanded at `at` from the settled value `start` to the
 /// settled value `end`, over the samples `s` (from the command to the settling).
-pub fn step(s: &[Sample], at: f64, start: f64, end: f64) -> Option<StepFigures> {
+pub(crate) fn step(s: &[Sample], at: f64, start: f64, end: f64) -> Option<StepFigures> {
     let span = end - start;
     if span == 0.0 || s.len() < 4 {
         return None;
@@ -183,7 +183,7 @@ fn tail_lag(s: &[Sample], end: f64, slew: (f64, f64), span: f64) -> Option<f64> 
 }
 
 /// Mean and standard deviation.
-pub fn mean_sd(v: &[f64]) -> Option<(f64, f64)> {
+pub(crate) fn mean_sd(v: &[f64]) -> Option<(f64, f64)> {
     if v.is_empty() {
         return None;
     }
@@ -194,7 +194,7 @@ pub fn mean_sd(v: &[f64]) -> Option<(f64, f64)> {
 }
 
 /// The median (the mean of the middle two of an even count).
-pub fn median(v: &[f64]) -> Option<f64> {
+pub(crate) fn median(v: &[f64]) -> Option<f64> {
     let mut v = v.to_vec();
     v.sort_by(f64::total_cmp);
     let n = v.len();
@@ -208,7 +208,10 @@ pub fn median(v: &[f64]) -> Option<f64> {
 /// The static map of a sweep: each point's measured value approached from below and
 /// from above, averaged (the hysteresis cancels), and the line through them: (gain,
 /// offset).
-pub fn static_map(up: &[(f64, f64)], down: &[(f64, f64)]) -> (Vec<[f64; 2]>, Option<(f64, f64)>) {
+pub(crate) fn static_map(
+    up: &[(f64, f64)],
+    down: &[(f64, f64)],
+) -> (Vec<[f64; 2]>, Option<(f64, f64)>) {
     let map: Vec<[f64; 2]> = up
         .iter()
         .map(|&(c, m)| {
@@ -225,7 +228,7 @@ pub fn static_map(up: &[(f64, f64)], down: &[(f64, f64)]) -> (Vec<[f64; 2]>, Opt
 
 /// The backlash of a sweep: how much higher each point settles approached from above
 /// than from below, averaged.
-pub fn backlash(up: &[(f64, f64)], down: &[(f64, f64)]) -> Option<f64> {
+pub(crate) fn backlash(up: &[(f64, f64)], down: &[(f64, f64)]) -> Option<f64> {
     let gaps: Vec<f64> = up
         .iter()
         .filter_map(|&(c, m)| {

@@ -14,8 +14,8 @@
 //! where it found it before it lets go. The figures are [`analyze`]'s, from the samples
 //! alone.
 
-pub mod analyze;
-pub mod write;
+pub(crate) mod analyze;
+pub(crate) mod write;
 
 use crate::engine::Gate;
 use crate::exit::Exit;
@@ -56,16 +56,16 @@ impl Procedure {
 }
 
 /// Points of a sweep, each (commanded, settled reading).
-pub type Settled = Vec<(f64, f64)>;
+pub(crate) type Settled = Vec<(f64, f64)>;
 
 /// Why a characterization ended before it was done.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[error("{0}")]
-pub struct Ended(pub String);
+pub(crate) struct Ended(pub String);
 
 /// What a characterization measured (`None`: not asked for, or not seen).
 #[derive(Clone, Debug, Default)]
-pub struct Figures {
+pub(crate) struct Figures {
     pub device: String,
     pub units: String,
     pub range: [f64; 2],
@@ -99,7 +99,7 @@ pub struct Figures {
 /// One step's response, for the report: each sample timed from the moment the step's
 /// command reached the device.
 #[derive(Clone, Debug, Default)]
-pub struct Response {
+pub(crate) struct Response {
     /// A small step (else a large one).
     pub small: bool,
     pub samples: Vec<Sample>,
@@ -111,30 +111,30 @@ impl Figures {
     fn mean(v: &[StepFigures], f: impl Fn(&StepFigures) -> f64) -> Option<f64> {
         analyze::median(&v.iter().map(f).collect::<Vec<_>>())
     }
-    pub fn rate_up(&self) -> Option<f64> {
+    pub(crate) fn rate_up(&self) -> Option<f64> {
         Self::mean(&self.up, |s| s.rate)
     }
-    pub fn rate_down(&self) -> Option<f64> {
+    pub(crate) fn rate_down(&self) -> Option<f64> {
         Self::mean(&self.down, |s| s.rate)
     }
     fn all_steps(&self) -> Vec<StepFigures> {
         self.up.iter().chain(&self.down).copied().collect()
     }
     /// Seconds.
-    pub fn delay(&self) -> Option<f64> {
+    pub(crate) fn delay(&self) -> Option<f64> {
         Self::mean(&self.all_steps(), |s| s.delay)
     }
-    pub fn rise(&self) -> Option<f64> {
+    pub(crate) fn rise(&self) -> Option<f64> {
         Self::mean(&self.all_steps(), |s| s.rise)
     }
-    pub fn overshoot_pct(&self) -> Option<f64> {
+    pub(crate) fn overshoot_pct(&self) -> Option<f64> {
         Self::mean(&self.all_steps(), |s| s.overshoot_pct)
     }
-    pub fn settle(&self) -> Option<f64> {
+    pub(crate) fn settle(&self) -> Option<f64> {
         Self::mean(&self.all_steps(), |s| s.settle)
     }
     /// The tail's lag, where every step showed one.
-    pub fn lag(&self) -> Option<f64> {
+    pub(crate) fn lag(&self) -> Option<f64> {
         let lags: Vec<f64> = self.all_steps().iter().filter_map(|s| s.lag).collect();
         (!lags.is_empty() && lags.len() == self.all_steps().len())
             .then(|| analyze::median(&lags))
@@ -153,7 +153,7 @@ const RESEND: Duration = Duration::from_millis(100);
 const DEADBAND_STEPS: usize = 11;
 
 /// A characterization in progress: the one commander of the engaged vehicle.
-pub struct Bench<'a> {
+pub(crate) struct Bench<'a> {
     gate: &'a Gate,
     exits: &'a Receiver<Exit>,
     id: DeviceId,
@@ -178,7 +178,7 @@ pub struct Bench<'a> {
 
 /// Whether `device` can be characterized here: a setpoint actuator with a position
 /// reading, on this vehicle.
-pub fn check_device(gate: &Gate, device: &str) -> Result<(DeviceId, usize), String> {
+pub(crate) fn check_device(gate: &Gate, device: &str) -> Result<(DeviceId, usize), String> {
     let v = gate.vehicle();
     let d = v
         .devices()
@@ -201,7 +201,7 @@ pub fn check_device(gate: &Gate, device: &str) -> Result<(DeviceId, usize), Stri
 impl<'a> Bench<'a> {
     /// Engage as the bench's own source, once the vehicle is ready and the device
     /// reports; `Err` says why not (nothing moved).
-    pub fn engage(
+    pub(crate) fn engage(
         gate: &'a Gate,
         exits: &'a Receiver<Exit>,
         device: &str,
@@ -439,7 +439,7 @@ impl<'a> Bench<'a> {
 
     /// Large steps up and down, each approached in its own direction (so the play is
     /// taken up before it): the step figures each way, and where it settles.
-    pub fn steps(&mut self, reps: usize, f: &mut Figures) -> Result<(), Ended> {
+    pub(crate) fn steps(&mut self, reps: usize, f: &mut Figures) -> Result<(), Ended> {
         let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
         for _ in 0..reps {
             self.step_pair(m - 0.3 * s, m + 0.3 * s, 0.15 * s, false, f)?;
@@ -451,7 +451,7 @@ impl<'a> Bench<'a> {
 
     /// Small steps up and down about the middle, each approached in its own direction:
     /// a tenth of the range, or twice `deadband` if that is more (so each one moves it).
-    pub fn small_steps(
+    pub(crate) fn small_steps(
         &mut self,
         reps: usize,
         deadband: Option<f64>,
@@ -501,7 +501,7 @@ impl<'a> Bench<'a> {
 
     /// The smallest step up that moves it, by halving: from a point approached from
     /// below, a step either moves it (the point it follows is then the new one) or not.
-    pub fn deadband(&mut self) -> Result<f64, Ended> {
+    pub(crate) fn deadband(&mut self) -> Result<f64, Ended> {
         let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
         let base0 = m - 0.35 * s;
         self.move_to(base0 - 0.15 * s)?;
@@ -534,7 +534,7 @@ impl<'a> Bench<'a> {
     }
 
     /// Points up the range and back down, each settled: (commanded, measured) each way.
-    pub fn sweep(&mut self, points: usize) -> Result<(Settled, Settled), Ended> {
+    pub(crate) fn sweep(&mut self, points: usize) -> Result<(Settled, Settled), Ended> {
         let s = self.span();
         let at: Vec<f64> = (0..points)
             .map(|i| self.range[0] + s * (0.2 + 0.6 * i as f64 / (points - 1).max(1) as f64))
@@ -588,7 +588,7 @@ impl<'a> Bench<'a> {
 
 /// Run the procedures asked for on `device` of the engaged-and-ready vehicle behind
 /// `gate`; every way out of here but success has disengaged it (the safe state).
-pub fn run(
+pub(crate) fn run(
     gate: &Gate,
     exits: &Receiver<Exit>,
     device: &str,

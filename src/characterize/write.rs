@@ -19,7 +19,7 @@ fn sig(x: f64) -> f64 {
 }
 
 /// `summary.json`'s object.
-pub fn summary(f: &Figures) -> serde_json::Value {
+pub(crate) fn summary(f: &Figures) -> serde_json::Value {
     let ms = |s: Option<f64>| s.map(|x| sig(x * 1000.0));
     serde_json::json!({
         "device": f.device,
@@ -40,7 +40,7 @@ pub fn summary(f: &Figures) -> serde_json::Value {
 }
 
 /// `sim.toml`: the `[device.sim]` section of what was measured.
-pub fn sim_toml(f: &Figures) -> String {
+pub(crate) fn sim_toml(f: &Figures) -> String {
     let mut out = format!(
         "# {}: measured by adrive characterize in {:.0} s\n[device.sim]\n",
         f.device, f.took
@@ -68,7 +68,7 @@ pub fn sim_toml(f: &Figures) -> String {
 }
 
 /// The samples as CSV: `t_s,commanded,measured`.
-pub fn samples_csv(f: &Figures) -> String {
+pub(crate) fn samples_csv(f: &Figures) -> String {
     let mut out = String::from("t_s,commanded,measured\n");
     for s in &f.samples {
         let _ = writeln!(out, "{:.6},{},{}", s.t, s.commanded, s.measured);
@@ -224,7 +224,7 @@ fn steps_svg(f: &Figures, small: bool, units: &str) -> String {
 /// `steps-large.svg` and `steps-small.svg` (the step responses), `map.svg` (the
 /// sweep's legs: the hysteresis loop) and `delay.svg` (the command path's delay
 /// histogram).
-pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
+pub(crate) fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
     // A rounding error of a zero figure (an overshoot of 2e-14 %) reads as 0.
     let show = |x: Option<f64>, unit: &str| {
         x.map_or("—".into(), |v| {
@@ -378,7 +378,7 @@ pub fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
 }
 
 /// Write every file into `dir` (created if missing).
-pub fn all(dir: &Path, f: &Figures) -> std::io::Result<()> {
+pub(crate) fn all(dir: &Path, f: &Figures) -> std::io::Result<()> {
     std::fs::create_dir_all(dir)?;
     let json = serde_json::to_string_pretty(&summary(f)).map_err(std::io::Error::other)?;
     std::fs::write(dir.join("summary.json"), json + "\n")?;

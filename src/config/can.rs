@@ -17,10 +17,10 @@ use std::time::Duration;
 use toml::Spanned;
 
 /// The reading a kit reports itself enabled by (a flag): while engaged, 0 is a fault.
-pub const ENABLED: &str = "enabled";
+pub(crate) const ENABLED: &str = "enabled";
 /// The reading a kit reports its operator override by (a flag): adrive's driver
 /// override, beside the estimator's.
-pub const OVERRIDE: &str = "override";
+pub(crate) const OVERRIDE: &str = "override";
 
 /// One CAN bus, checked.
 #[derive(Clone, Debug)]

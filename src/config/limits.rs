@@ -488,7 +488,7 @@ pub(crate) struct Rule {
 impl Rule {
     /// The rule broken by `facts` (`status_max_age 250ms, status_period 1500ms`), about
     /// `paths`, the one to blame first.
-    pub fn violation(&self, paths: &[&str], facts: String) -> Violation {
+    pub(crate) fn violation(&self, paths: &[&str], facts: String) -> Violation {
         Violation {
             paths: paths.iter().map(|p| p.to_string()).collect(),
             message: format!("{facts}: expected {}", self.text),

@@ -14,20 +14,20 @@
 //! - [`document`]: where each key sits in the file, so that a check made after typing
 //!   still names its line.
 
-pub mod can;
-pub mod console;
-pub mod device;
-pub mod document;
+pub(crate) mod can;
+pub(crate) mod console;
+pub(crate) mod device;
+pub(crate) mod document;
 pub mod limits;
 pub mod network;
-pub mod placement;
+pub(crate) mod placement;
 pub(crate) mod ports;
 pub mod protocol_map;
-pub mod record;
-pub mod response;
-pub mod roles;
-pub mod ros2;
-pub mod teleop;
+pub(crate) mod record;
+pub(crate) mod response;
+pub(crate) mod roles;
+pub(crate) mod ros2;
+pub(crate) mod teleop;
 
 pub use console::ConsoleConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};

@@ -26,7 +26,7 @@ pub(crate) struct Resolved {
 
 impl Resolved {
     /// Resolve `port` (relative: to the working directory, where it is opened).
-    pub fn of(port: &str) -> Resolved {
+    pub(crate) fn of(port: &str) -> Resolved {
         let path = Path::new(port);
         let rdev = std::fs::metadata(path).ok().and_then(|m| {
             let t = m.file_type();
@@ -39,7 +39,7 @@ impl Resolved {
     }
 
     /// The two are one port.
-    pub fn same(&self, other: &Resolved) -> bool {
+    pub(crate) fn same(&self, other: &Resolved) -> bool {
         match (self.rdev, other.rdev) {
             (Some(a), Some(b)) => a == b,
             _ => self.path == other.path,

@@ -133,7 +133,7 @@ impl RawResponse {
 }
 
 /// Every value of a response within its limit, in a device whose range is `range`.
-pub fn check(r: &Response, range: [f64; 2]) -> Result<(), Violation> {
+pub(crate) fn check(r: &Response, range: [f64; 2]) -> Result<(), Violation> {
     let span = range[1] - range[0];
     match r.motion {
         Motion::Lag(l) => {

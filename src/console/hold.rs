@@ -31,10 +31,10 @@ use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 /// The key-repeat delay assumed before one is learnt.
-pub const DEFAULT_DELAY: Duration = Duration::from_millis(500);
+pub(crate) const DEFAULT_DELAY: Duration = Duration::from_millis(500);
 /// The key-repeat interval assumed before one is learnt (20 Hz; terminals repeat at
 /// 25–33 Hz by default).
-pub const DEFAULT_INTERVAL: Duration = Duration::from_millis(50);
+pub(crate) const DEFAULT_INTERVAL: Duration = Duration::from_millis(50);
 /// The longest delay before a first repeat taken as one.
 const MAX_DELAY: Duration = Duration::from_millis(1000);
 /// The slowest and fastest intervals taken as a key repeat (10 … 200 Hz): slower is a

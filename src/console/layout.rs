@@ -33,7 +33,7 @@ pub const MIN_HEIGHT: u16 = 22;
 
 /// The screen's rows: the top bar, the body, the message line (when there is room
 /// for it) and the hint bar.
-pub fn split(area: Rect) -> [Rect; 4] {
+pub(crate) fn split(area: Rect) -> [Rect; 4] {
     let msg_h = u16::from(area.height > MIN_HEIGHT);
     Layout::vertical([
         Constraint::Length(1),
@@ -100,7 +100,7 @@ fn page_start(i: usize, size: usize) -> usize {
 /// Lay `n` devices out in `body`. `strip` is how many lines the supervisor has to show
 /// (the recovery and its faults); `cursor` is the index of the device under the
 /// cursor (the last device when the cursor is on something else).
-pub fn devices(n: usize, body: Rect, strip: usize, cursor: usize) -> Devices {
+pub(crate) fn devices(n: usize, body: Rect, strip: usize, cursor: usize) -> Devices {
     let n = n.max(1);
     let h = body.height;
     let cols = grid_cols(body.width);

@@ -23,16 +23,16 @@
 //!   stops the vehicle when the answers stop.
 //! - [`replay`]: the same console playing a recording, read-only.
 
-pub mod hold;
-pub mod input;
+pub(crate) mod hold;
+pub(crate) mod input;
 pub mod keymap;
-pub mod layout;
+pub(crate) mod layout;
 pub mod model;
-pub mod names;
-pub mod panels;
+pub(crate) mod names;
+pub(crate) mod panels;
 pub mod replay;
-pub mod sight;
-pub mod terminal;
+pub(crate) mod sight;
+pub(crate) mod terminal;
 pub mod theme;
 pub mod trail;
 pub mod update;

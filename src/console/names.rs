@@ -10,7 +10,7 @@
 
 /// The devices whose names match `query`, best first: those starting with it in the
 /// vehicle's order, then those containing it. An empty query matches nothing.
-pub fn matches<'a>(names: impl IntoIterator<Item = &'a str>, query: &str) -> Vec<usize> {
+pub(crate) fn matches<'a>(names: impl IntoIterator<Item = &'a str>, query: &str) -> Vec<usize> {
     if query.is_empty() {
         return Vec::new();
     }
@@ -23,7 +23,7 @@ pub fn matches<'a>(names: impl IntoIterator<Item = &'a str>, query: &str) -> Vec
 
 /// The match after device `at` (`step` 1) or before it (−1), in the vehicle's order,
 /// wrapping around; `at` itself when it is the only one.
-pub fn next(matches: &[usize], at: usize, step: isize) -> Option<usize> {
+pub(crate) fn next(matches: &[usize], at: usize, step: isize) -> Option<usize> {
     let mut sorted = matches.to_vec();
     sorted.sort_unstable();
     if step >= 0 {
@@ -40,7 +40,7 @@ pub fn next(matches: &[usize], at: usize, step: isize) -> Option<usize> {
 
 /// What `query` completes to: the longest prefix shared by the names starting with
 /// it (the query itself when none does, or when they part at once).
-pub fn complete<'a>(names: impl IntoIterator<Item = &'a str>, query: &str) -> String {
+pub(crate) fn complete<'a>(names: impl IntoIterator<Item = &'a str>, query: &str) -> String {
     let mut starting = names.into_iter().filter(|n| n.starts_with(query));
     let Some(first) = starting.next() else {
         return query.to_string();

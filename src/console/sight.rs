@@ -74,7 +74,7 @@ impl Drawn {
 
 /// Why an action was refused: its target was not on the screen.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Unseen {
+pub(crate) enum Unseen {
     /// The terminal is smaller than the console: only its size is on the screen.
     Small {
         size: (u16, u16),
@@ -115,7 +115,7 @@ impl fmt::Display for Unseen {
 }
 
 /// What the operator is told: `engage refused: the window is 60×20, …`.
-pub fn refusal(a: Action, why: &Unseen) -> String {
+pub(crate) fn refusal(a: Action, why: &Unseen) -> String {
     let what = match a {
         Action::Input(_) => "typing".to_string(),
         Action::Confirm => "yes".to_string(),
@@ -127,7 +127,7 @@ pub fn refusal(a: Action, why: &Unseen) -> String {
 /// What a key means now: as [`key_to_action`] says in the current mode; below the
 /// minimum size, the main screen's STOP and quit keys are those in every mode (the
 /// small screen names them).
-pub fn key(m: &Model, e: &KeyEvent) -> Option<Action> {
+pub(crate) fn key(m: &Model, e: &KeyEvent) -> Option<Action> {
     let a = key_to_action(&m.keymap, m.mode, e);
     if m.drawn.console {
         return a;
@@ -140,7 +140,7 @@ pub fn key(m: &Model, e: &KeyEvent) -> Option<Action> {
 
 /// The rule: `Ok` when action `a` may act on what the last frame ([`Model::drawn`])
 /// showed, else what was not on the screen.
-pub fn check(m: &Model, a: Action) -> Result<(), Unseen> {
+pub(crate) fn check(m: &Model, a: Action) -> Result<(), Unseen> {
     let d = &m.drawn;
     let field = |f: Field| match d.fields.contains(&f) {
         true => Ok(()),

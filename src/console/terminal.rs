@@ -129,7 +129,7 @@ fn write_by(mut bytes: &[u8], deadline: Instant) -> io::Result<()> {
 /// [`Output::pump`] (or a flush) hands the terminal what it takes; what it does not
 /// take keeps waiting, and nothing blocks. The first failed write marks the terminal
 /// dead (and is returned); from then on everything written is dropped.
-pub struct Output {
+pub(crate) struct Output {
     pending: Vec<u8>,
     /// How many bytes wait, for the [`Screen`].
     waiting: Arc<AtomicUsize>,
@@ -309,7 +309,7 @@ pub(crate) fn enter() -> io::Result<Screen> {
 /// screen that grew with its window, shrinks it back first and pushes its top lines
 /// into the scrollback unless they are blank — quitting after a resize once left the
 /// console's top lines there.
-pub fn restore() {
+pub(crate) fn restore() {
     if !ENTERED.swap(false, SeqCst) {
         return;
     }

@@ -17,8 +17,8 @@
 //! fake of the console's tests. The console's `update` takes a `&dyn Controls`, so it
 //! is tested with no threads.
 
-pub mod live;
-pub mod scene;
+pub(crate) mod live;
+pub(crate) mod scene;
 
 pub use live::Live;
 pub use scene::{capture, secs, Scene, SimFaults, Sources};

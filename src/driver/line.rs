@@ -168,14 +168,14 @@ pub(crate) fn encode_status(r: &Reading, map: &LineMap) -> Vec<u8> {
 
 /// A request as the device sees it.
 #[derive(Debug, PartialEq)]
-pub enum Request {
+pub(crate) enum Request {
     Poll,
     Command(Command),
 }
 
 /// Decode one request line (device side). A word is one of the device's states, then
 /// a control word.
-pub fn decode_request(line: &[u8], map: &LineMap) -> Result<Request, String> {
+pub(crate) fn decode_request(line: &[u8], map: &LineMap) -> Result<Request, String> {
     let text = std::str::from_utf8(trim_line(line)).map_err(|_| "not ASCII".to_string())?;
     if text == "?" {
         return Ok(Request::Poll);
@@ -225,7 +225,7 @@ pub(crate) struct LineDriver {
 }
 
 impl LineDriver {
-    pub fn new(map: LineMap, reply_timeout: Duration) -> Self {
+    pub(crate) fn new(map: LineMap, reply_timeout: Duration) -> Self {
         LineDriver {
             map,
             reply_timeout,

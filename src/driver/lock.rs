@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 
 /// Opening `path` failed with `e`: when another process holds the port, an error of
 /// kind `ResourceBusy` that names it; else `e`.
-pub fn explain(path: &str, e: io::Error) -> io::Error {
+pub(crate) fn explain(path: &str, e: io::Error) -> io::Error {
     let locked = locker(Path::new(path), Path::new("/proc"));
     if locked.is_none() && e.raw_os_error() != Some(libc::EBUSY) {
         return e;

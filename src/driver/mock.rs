@@ -10,7 +10,7 @@ use std::time::Duration;
 
 /// One step of the script.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Step {
+pub(crate) enum Step {
     /// The driver must write exactly these bytes (in one or several `write` calls).
     Tx(Vec<u8>),
     /// The device answers these bytes; reads take them, in as many calls as needed.
@@ -20,12 +20,12 @@ pub enum Step {
 }
 
 /// `Step::Tx` from anything byte-like.
-pub fn tx(bytes: impl AsRef<[u8]>) -> Step {
+pub(crate) fn tx(bytes: impl AsRef<[u8]>) -> Step {
     Step::Tx(bytes.as_ref().to_vec())
 }
 
 /// `Step::Rx` from anything byte-like.
-pub fn rx(bytes: impl AsRef<[u8]>) -> Step {
+pub(crate) fn rx(bytes: impl AsRef<[u8]>) -> Step {
     Step::Rx(bytes.as_ref().to_vec())
 }
 
@@ -42,7 +42,7 @@ pub(crate) struct MockLink {
 }
 
 impl MockLink {
-    pub fn new(script: impl IntoIterator<Item = Step>) -> MockLink {
+    pub(crate) fn new(script: impl IntoIterator<Item = Step>) -> MockLink {
         MockLink {
             script: script.into_iter().collect(),
             written: 0,
@@ -52,7 +52,7 @@ impl MockLink {
     }
 
     /// Panics unless every step of the script was used.
-    pub fn done(&mut self) {
+    pub(crate) fn done(&mut self) {
         let left: Vec<Step> = self.script.drain(..).collect();
         assert!(left.is_empty(), "mock link: steps never used: {left:?}");
     }

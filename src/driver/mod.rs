@@ -11,12 +11,12 @@
 //! the device gets its turn.
 
 pub mod elm327;
-pub mod line;
-pub mod lock;
+pub(crate) mod line;
+pub(crate) mod lock;
 #[cfg(test)]
 mod mock;
 pub mod modbus;
-pub mod serial;
+pub(crate) mod serial;
 pub mod slcan;
 
 use crate::value::{Command, Reading};
@@ -167,7 +167,7 @@ pub(crate) struct Deadline {
 impl Deadline {
     /// The deadline `budget` from now (a device's reply timeout, taken as its request
     /// goes out).
-    pub fn after(budget: Duration) -> Deadline {
+    pub(crate) fn after(budget: Duration) -> Deadline {
         Deadline {
             at: Instant::now() + budget,
             budget,

@@ -30,7 +30,7 @@ pub(crate) struct SerialLink {
 
 impl SerialLink {
     /// Take over a port `serialport` opened and configured.
-    pub fn new(port: TTYPort, timeout: Duration) -> io::Result<SerialLink> {
+    pub(crate) fn new(port: TTYPort, timeout: Duration) -> io::Result<SerialLink> {
         let fd = port.as_raw_fd();
         #[allow(unsafe_code)]
         // SAFETY: the descriptor is open for as long as `port` lives, and it does here.
@@ -42,7 +42,7 @@ impl SerialLink {
 
     /// A second handle on the same open port (a CAN bus: one thread reads every
     /// frame while the devices' command threads write).
-    pub fn try_clone(&self) -> io::Result<SerialLink> {
+    pub(crate) fn try_clone(&self) -> io::Result<SerialLink> {
         let port = self.port.try_clone_native().map_err(io::Error::from)?;
         Ok(SerialLink {
             port,

@@ -27,7 +27,7 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
 
 /// How often the adapter is asked for its status flags.
-pub const STATUS_EVERY: Duration = Duration::from_millis(500);
+pub(crate) const STATUS_EVERY: Duration = Duration::from_millis(500);
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
 pub(crate) const BACKOFF_MAX: Duration = Duration::from_secs(5);
 /// The reader's first turn is due within this (it turns at once, then says its own

@@ -33,13 +33,13 @@ use std::time::Instant;
 
 /// Whether `d`'s configuration allows the fast path at all (the port's own rule is
 /// the port's to apply: [`crate::port::Port::try_acquire_idle`]).
-pub fn allowed(d: &Device) -> bool {
+pub(crate) fn allowed(d: &Device) -> bool {
     d.is_actuator() && d.config().min_command_interval.is_none()
 }
 
 /// What [`send`] did with a command.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Sent {
+pub(crate) enum Sent {
     /// Its request is on the wire; the command thread reads the reply.
     Written,
     /// The port was not idle after all: the command is pending in the slot for the
@@ -53,7 +53,7 @@ pub enum Sent {
 /// Write `command`, received at `received`, to `d`'s port now if the port is idle and
 /// the wire check says send exactly it (asked with the command already in flight, so
 /// that what it sees of the other devices cannot change under it).
-pub fn send(gate: &Gate, d: &Device, command: Command, received: Instant) -> Sent {
+pub(crate) fn send(gate: &Gate, d: &Device, command: Command, received: Instant) -> Sent {
     if !allowed(d) || !d.settings().command_enabled.load(Relaxed) {
         return Sent::NotTaken;
     }

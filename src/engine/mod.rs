@@ -38,18 +38,18 @@
 //! bound (the service watchdog is fed only while all do). docs/architecture.md draws
 //! it.
 
-pub mod admit;
-pub mod bus;
-pub mod command;
+pub(crate) mod admit;
+pub(crate) mod bus;
+pub(crate) mod command;
 pub(crate) mod dispatch;
 mod engagement;
-pub mod fast;
+pub(crate) mod fast;
 mod gate;
-pub mod lease;
+pub(crate) mod lease;
 pub mod monitor;
-pub mod placement;
-pub mod polling;
-pub mod status;
+pub(crate) mod placement;
+pub(crate) mod polling;
+pub(crate) mod status;
 
 pub use command::WireStep;
 pub use gate::Gate;

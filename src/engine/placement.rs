@@ -16,13 +16,13 @@ static WARNED_CPUS: AtomicBool = AtomicBool::new(false);
 
 /// What applying a placement to the calling thread did.
 #[derive(Debug, PartialEq, Eq)]
-pub struct Applied {
+pub(crate) struct Applied {
     pub pinned: Result<(), String>,
     pub(crate) realtime: Result<(), String>,
 }
 
 /// Place the calling thread. Refusals are logged once and returned, never fatal.
-pub fn apply(p: &Placement) -> Applied {
+pub(crate) fn apply(p: &Placement) -> Applied {
     let pinned = if p.cpus.is_empty() {
         Ok(())
     } else {

@@ -32,7 +32,7 @@ pub(crate) struct Schedule {
 
 impl Schedule {
     /// Whether the status thread of `d` polls at this wake-up, at `now`.
-    pub fn due(&self, d: &Device, now: Instant) -> bool {
+    pub(crate) fn due(&self, d: &Device, now: Instant) -> bool {
         if d.config().polling == Polling::Fixed {
             return true;
         }
@@ -56,13 +56,13 @@ impl Schedule {
 
     /// A poll of `d` starts at `at` (a command acknowledged while it runs counts as a
     /// change after it).
-    pub fn start(&mut self, d: &Device, at: Instant) {
+    pub(crate) fn start(&mut self, d: &Device, at: Instant) {
         self.last = Some(at);
         self.command = d.estimator().and_then(|e| e.commanded());
     }
 
     /// The poll ended; `surprised`: its reading was far outside the prediction.
-    pub fn finish(&mut self, surprised: bool) {
+    pub(crate) fn finish(&mut self, surprised: bool) {
         self.surprised = surprised;
     }
 }

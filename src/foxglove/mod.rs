@@ -19,7 +19,7 @@
 //! docs/foxglove.md for what was measured). Read-only: no client publishing, services
 //! or parameters; a client that asks is told so.
 
-pub mod proto;
+pub(crate) mod proto;
 
 use crate::record::message::{self, Clock, Topic};
 use crate::snapshot::{LiveView, ViewerView};
@@ -58,17 +58,16 @@ const HANDSHAKE: Duration = Duration::from_secs(5);
 const PROTOCOL_HEADER: &str = "Sec-WebSocket-Protocol";
 
 /// The running live view.
-pub struct Foxglove {
+pub(crate) struct Foxglove {
     /// Dropped without [`Foxglove::shutdown`] (a panic unwinding): told to stop.
     threads: Group,
-    addr: SocketAddr,
 }
 
 impl Foxglove {
-    /// Listen on `addr` (port 0: any free port; [`Foxglove::addr`] says which) and serve
+    /// Listen on `addr` (port 0: any free port; the log says which) and serve
     /// what `vehicle`'s tap sees. An address that cannot be bound is an error here,
     /// before anything is driven.
-    pub fn start(vehicle: &Arc<Vehicle>, addr: SocketAddr) -> io::Result<Foxglove> {
+    pub(crate) fn start(vehicle: &Arc<Vehicle>, addr: SocketAddr) -> io::Result<Foxglove> {
         let listener = TcpListener::bind(addr).map_err(|e| {
             let why = crate::config::network::bind_error(
                 "--foxglove",
@@ -90,12 +89,7 @@ impl Foxglove {
             Server::new(v, listener, addr, tapped.rx, tapped.reader).run(stop)
         })?;
         tracing::info!("foxglove: live view at ws://{addr} (read-only)");
-        Ok(Foxglove { threads, addr })
-    }
-
-    /// The address it listens on.
-    pub fn addr(&self) -> SocketAddr {
-        self.addr
+        Ok(Foxglove { threads })
     }
 }
 

@@ -37,7 +37,7 @@ pub(crate) fn server_info(name: &str, session: &str, vehicle: &str) -> String {
 }
 
 /// One advertised channel.
-pub struct Channel<'a> {
+pub(crate) struct Channel<'a> {
     pub id: u32,
     pub topic: &'a str,
     pub(crate) schema_name: &'a str,
@@ -46,7 +46,7 @@ pub struct Channel<'a> {
 }
 
 /// `advertise`: the channels, JSON messages with JSON Schemas.
-pub fn advertise(channels: &[Channel]) -> String {
+pub(crate) fn advertise(channels: &[Channel]) -> String {
     let list: Vec<_> = channels
         .iter()
         .map(|c| {
@@ -64,7 +64,7 @@ pub fn advertise(channels: &[Channel]) -> String {
 }
 
 /// `status`: 0 info, 1 warning, 2 error.
-pub fn status(level: u8, message: &str) -> String {
+pub(crate) fn status(level: u8, message: &str) -> String {
     json!({ "op": "status", "level": level, "message": message }).to_string()
 }
 
@@ -81,7 +81,7 @@ pub(crate) fn message_data(subscription: u32, log_time_ns: u64, payload: &[u8]) 
 
 /// What a client asks.
 #[derive(Debug, PartialEq)]
-pub enum ClientOp {
+pub(crate) enum ClientOp {
     /// (subscription id, channel id) pairs.
     Subscribe(Vec<(u32, u32)>),
     Unsubscribe(Vec<u32>),
@@ -109,7 +109,7 @@ enum Op {
 }
 
 /// A client's text message; an error names what was expected.
-pub fn parse(text: &str) -> Result<ClientOp, String> {
+pub(crate) fn parse(text: &str) -> Result<ClientOp, String> {
     let v: serde_json::Value =
         serde_json::from_str(text).map_err(|e| format!("expected a JSON object: {e}"))?;
     let op = v["op"]

@@ -28,7 +28,7 @@ pub(crate) struct Journal {
 
 impl Journal {
     /// The journal at `path` (journald's is [`SOCKET`]), if something listens there.
-    pub fn at(path: &Path) -> io::Result<Journal> {
+    pub(crate) fn at(path: &Path) -> io::Result<Journal> {
         let socket = UnixDatagram::unbound()?;
         // journald drops an empty datagram; sending one tells whether it listens.
         socket.send_to(&[], path)?;

@@ -22,9 +22,9 @@ pub(crate) const REPLY_WAIT: Duration = Duration::from_millis(200);
 pub(crate) const EXPECTED_REPLY_WAIT: Duration = Duration::from_secs(1);
 
 /// `adrive send`'s exit statuses.
-pub mod status {
+pub(crate) mod status {
     /// Sent, and nothing was refused.
-    pub const OK: i32 = 0;
+    pub(crate) const OK: i32 = 0;
     /// Something was refused, or nothing listens at the address (with `--rate`: the
     /// last datagram found nothing listening).
     pub(crate) const REFUSED: i32 = 1;
@@ -59,7 +59,7 @@ pub(crate) fn lines_from_words(words: &[String]) -> String {
 }
 
 /// What `send` does.
-pub struct SendOptions {
+pub(crate) struct SendOptions {
     pub to: SocketAddr,
     /// Repeat at this many datagrams a second until stopped.
     pub rate: Option<f64>,
@@ -77,7 +77,7 @@ fn now_ns() -> u64 {
 }
 
 /// `adrive send`: returns the exit status ([`status`]).
-pub fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32> {
+pub(crate) fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32> {
     let expects_reply = match proto::parse(body.as_bytes(), &Vocabulary::open()) {
         Ok(d) => d.commands.iter().any(|c| {
             matches!(
@@ -306,7 +306,7 @@ fn check_size(text: &str) -> io::Result<()> {
 }
 
 /// Does a reply refuse or reject anything?
-pub fn refused(reply: &str) -> bool {
+pub(crate) fn refused(reply: &str) -> bool {
     reply
         .lines()
         .any(|l| l.starts_with("refused") || l.starts_with("rejected"))
@@ -336,7 +336,7 @@ pub(crate) fn watch_socket(from: SocketAddr) -> io::Result<UdpSocket> {
 }
 
 /// `adrive watch`: print each broadcast until stopped (or `count` of them).
-pub fn watch(
+pub(crate) fn watch(
     from: SocketAddr,
     json: bool,
     count: Option<u64>,

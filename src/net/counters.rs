@@ -123,7 +123,7 @@ pub(crate) struct Inner {
 impl Inner {
     /// The table slot of `addr`, inserted if new (evicting the least recently seen
     /// sender that is not the commander).
-    pub fn sender(&mut self, addr: SocketAddr, now: Instant) -> usize {
+    pub(crate) fn sender(&mut self, addr: SocketAddr, now: Instant) -> usize {
         if let Some(i) = self
             .senders
             .iter()
@@ -148,11 +148,11 @@ impl Inner {
         i
     }
 
-    pub fn get(&mut self, i: usize) -> &mut Sender {
+    pub(crate) fn get(&mut self, i: usize) -> &mut Sender {
         self.senders[i].as_mut().expect("slot filled by sender()")
     }
 
-    pub fn find(&mut self, addr: SocketAddr) -> Option<&mut Sender> {
+    pub(crate) fn find(&mut self, addr: SocketAddr) -> Option<&mut Sender> {
         self.senders.iter_mut().flatten().find(|s| s.addr == addr)
     }
 }

@@ -17,9 +17,9 @@
 //! broadcast; [`client`] holds `adrive send` and `adrive watch`.
 
 pub mod auth;
-pub mod client;
+pub(crate) mod client;
 
-pub mod counters;
+pub(crate) mod counters;
 #[doc(hidden)]
 pub mod fuzzing;
 pub mod intake;

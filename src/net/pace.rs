@@ -42,7 +42,7 @@ pub(crate) struct Pace {
 }
 
 impl Pace {
-    pub fn new(now: Instant, status: &NetStatus) -> Pace {
+    pub(crate) fn new(now: Instant, status: &NetStatus) -> Pace {
         let mut commands = Vec::new();
         status.each_command_count(|_, c| commands.push(c));
         Pace {
@@ -55,7 +55,7 @@ impl Pace {
 
     /// A read returned at `now`, its datagrams handled. Returns when the next read may
     /// start (`None`: at once).
-    pub fn read(&mut self, now: Instant, status: &NetStatus) -> Option<Instant> {
+    pub(crate) fn read(&mut self, now: Instant, status: &NetStatus) -> Option<Instant> {
         let elapsed = now.saturating_duration_since(self.window_start);
         if elapsed >= WINDOW {
             let (mut busiest, mut commands) = (0, 0);
@@ -81,7 +81,7 @@ impl Pace {
 
     /// Whether reads are paced now.
     #[cfg_attr(not(test), allow(dead_code))]
-    pub fn flooded(&self) -> bool {
+    pub(crate) fn flooded(&self) -> bool {
         self.flooded
     }
 }

@@ -57,7 +57,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-pub mod slot;
+pub(crate) mod slot;
 pub mod trace;
 
 /// What readers may know of a device's port without touching it.

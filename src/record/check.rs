@@ -24,7 +24,7 @@ use crate::value::{Command, Control, DeviceId, Kind};
 
 /// One decision that would now differ.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Differs {
+pub(crate) struct Differs {
     /// Seconds from the recording's first message.
     pub at: f64,
     /// `network 127.0.0.1:40001`, `console`.
@@ -39,7 +39,7 @@ pub struct Differs {
 
 /// What the check found.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Report {
+pub(crate) struct Report {
     /// Commands decided again.
     pub decided: usize,
     /// Commands decided by no vehicle file's rule: another source commanded, or the
@@ -55,13 +55,13 @@ pub struct Report {
 
 impl Report {
     /// The exit status: 1 when any decision differs, else 0.
-    pub fn status(&self) -> i32 {
+    pub(crate) fn status(&self) -> i32 {
         i32::from(!self.differ.is_empty())
     }
 
     /// The report in words, for a terminal: a summary line, then each decision that
     /// would differ.
-    pub fn render(&self, file: &str, vehicle: &str) -> String {
+    pub(crate) fn render(&self, file: &str, vehicle: &str) -> String {
         let mut out = format!(
             "{file} under {vehicle}: {} commands decided again, {}\n",
             self.decided,
@@ -107,7 +107,7 @@ impl Report {
 }
 
 /// Decide every command of `rec` again under `config`.
-pub fn check(rec: &Recording, config: &VehicleConfig) -> Report {
+pub(crate) fn check(rec: &Recording, config: &VehicleConfig) -> Report {
     let mut report = Report::default();
     let mut first = None;
     let rules = Rules::active(&config.roles);

@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// The CSV file of a topic: `/steer/reading` → `steer.reading.csv`.
-pub fn file_name(topic: &str) -> String {
+pub(crate) fn file_name(topic: &str) -> String {
     let stem: String = topic
         .trim_start_matches('/')
         .chars()
@@ -24,7 +24,7 @@ pub fn file_name(topic: &str) -> String {
 }
 
 /// Flatten a message into (column, cell) pairs, in the message's order.
-pub fn flatten(v: &Value) -> Vec<(String, String)> {
+pub(crate) fn flatten(v: &Value) -> Vec<(String, String)> {
     let mut out = Vec::new();
     walk(v, String::new(), &mut out);
     out
@@ -89,7 +89,7 @@ fn number(x: f64) -> String {
 
 /// Write one CSV per channel of `rec` into `dir` (created if needed); returns the
 /// files written with their row counts.
-pub fn csv(rec: &Recording, dir: &Path) -> Result<Vec<(PathBuf, u64)>, ReadError> {
+pub(crate) fn csv(rec: &Recording, dir: &Path) -> Result<Vec<(PathBuf, u64)>, ReadError> {
     let fail = |p: &Path, e: &dyn std::fmt::Display| ReadError {
         path: p.display().to_string(),
         message: e.to_string(),

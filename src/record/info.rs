@@ -88,7 +88,7 @@ fn rfc3339(ns: u64) -> String {
 }
 
 /// The report `adrive record info` prints.
-pub fn report(rec: &Recording) -> String {
+pub(crate) fn report(rec: &Recording) -> String {
     let i = gather(rec);
     let mut s = String::new();
     let state = state(rec, i.cut.as_deref());

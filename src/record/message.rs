@@ -28,7 +28,7 @@ pub(crate) const METADATA: &str = "adrive";
 
 /// One channel of a recording.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Topic {
+pub(crate) enum Topic {
     /// `/snapshot`: the state snapshot, as broadcast.
     Snapshot,
     /// `/commands`: every command received (network, console, supervisor) and every
@@ -54,7 +54,7 @@ pub enum Topic {
 
 impl Topic {
     /// The MCAP topic, with device names from `devices`.
-    pub fn name(self, devices: &[DeviceConfig]) -> String {
+    pub(crate) fn name(self, devices: &[DeviceConfig]) -> String {
         let dev = |id: DeviceId| devices[id.index()].name.as_str();
         match self {
             Topic::Snapshot => "/snapshot".into(),
@@ -73,7 +73,7 @@ impl Topic {
     /// Every channel a run of `devices` can have, in the order a viewer lists them: the
     /// vehicle's, then each device's (a command channel for an actuator only), then
     /// raw traffic when it is taken. `/record` is the recorder's own and not here.
-    pub fn channels(devices: &[DeviceConfig], raw: bool) -> Vec<Topic> {
+    pub(crate) fn channels(devices: &[DeviceConfig], raw: bool) -> Vec<Topic> {
         let mut all = vec![
             Topic::Snapshot,
             Topic::Commands,
@@ -97,7 +97,7 @@ impl Topic {
 
     /// The schema's name and its JSON Schema text, as the viewers read it
     /// ([`schema::readable`]): the one schema of this channel, recorded or live.
-    pub fn schema(self, config: &VehicleConfig) -> (String, Vec<u8>) {
+    pub(crate) fn schema(self, config: &VehicleConfig) -> (String, Vec<u8>) {
         let s = schema::readable(&self.generated(config), &schema::Keys::of(config));
         (
             self.schema_name(&config.devices),
@@ -106,7 +106,7 @@ impl Topic {
     }
 
     /// The schema's name.
-    pub fn schema_name(self, devices: &[DeviceConfig]) -> String {
+    pub(crate) fn schema_name(self, devices: &[DeviceConfig]) -> String {
         match self {
             Topic::Snapshot => "adrive.Snapshot".into(),
             Topic::Commands => "adrive.Received".into(),
@@ -140,7 +140,7 @@ impl Topic {
 
 /// `/commands`: a command received, or a datagram refused whole.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
-pub struct Received {
+pub(crate) struct Received {
     /// `network 127.0.0.1:40001`, `console`, `supervisor`.
     pub source: String,
     /// The device (or `accel`); null for a datagram refused whole.
@@ -169,7 +169,7 @@ impl Received {
 
 /// `/DEVICE/command`: one command transaction.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
-pub struct Written {
+pub(crate) struct Written {
     /// The command written, as a number (a set point; a state by its index); null for
     /// a drive-control command.
     pub value: Option<f64>,
@@ -188,7 +188,7 @@ pub struct Written {
 }
 
 impl Written {
-    pub fn of(d: &DeviceConfig, command: Command) -> (Option<f64>, String) {
+    pub(crate) fn of(d: &DeviceConfig, command: Command) -> (Option<f64>, String) {
         let v = command.as_f64();
         (v.is_finite().then_some(v), d.command_text(command))
     }
@@ -234,7 +234,7 @@ pub(crate) struct RawMsg {
 }
 
 impl RawMsg {
-    pub fn of(e: &TraceEntry) -> RawMsg {
+    pub(crate) fn of(e: &TraceEntry) -> RawMsg {
         RawMsg {
             dir: match e.dir {
                 Dir::Out => "out".into(),
@@ -247,7 +247,7 @@ impl RawMsg {
     }
 
     /// The bytes back from the hex.
-    pub fn bytes(&self) -> Vec<u8> {
+    pub(crate) fn bytes(&self) -> Vec<u8> {
         self.hex
             .split_whitespace()
             .filter_map(|h| u8::from_str_radix(h, 16).ok())
@@ -281,7 +281,7 @@ pub(crate) struct LogMsg {
 
 /// Foxglove's `time`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Time {
+pub(crate) struct Time {
     pub sec: u64,
     pub(crate) nsec: u32,
 }
@@ -416,7 +416,7 @@ pub(crate) fn reading_message(
 /// A recorded `/snapshot` message back as the snapshot it was: a recording leaves null
 /// members out ([`schema::without_nulls`]), so a reading not reported yet comes back
 /// as null, every device's readings in the order of its `reading_units`, as broadcast.
-pub fn recorded_snapshot(json: &[u8]) -> serde_json::Result<Snapshot> {
+pub(crate) fn recorded_snapshot(json: &[u8]) -> serde_json::Result<Snapshot> {
     let mut s: Snapshot = serde_json::from_slice(json)?;
     for d in &mut s.devices {
         let mut readings = std::mem::take(&mut d.readings).0;
@@ -444,7 +444,7 @@ pub(crate) fn error_word(code: u32) -> &'static str {
 }
 
 /// The channel an event of the tap goes to.
-pub fn topic(ev: &Event) -> Topic {
+pub(crate) fn topic(ev: &Event) -> Topic {
     match ev {
         Event::Snapshot { .. } => Topic::Snapshot,
         Event::Received { .. } | Event::Refused { .. } => Topic::Commands,
@@ -460,7 +460,7 @@ pub fn topic(ev: &Event) -> Topic {
 
 /// One event of the tap as its channel, its time (wall-clock ns) and its JSON message:
 /// what the recorder writes and the live view sends, made in this one place.
-pub fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
+pub(crate) fn encode(v: &Vehicle, c: &Clock, ev: Event) -> (Topic, u64, Vec<u8>) {
     match ev {
         Event::Snapshot { at, json } => (Topic::Snapshot, c.ns(at), schema::without_nulls(&json)),
         Event::Received {
@@ -600,20 +600,20 @@ fn json(topic: Topic, at: u64, value: &impl Serialize) -> (Topic, u64, Vec<u8>) 
 
 /// Wall-clock nanoseconds of the instants events carry, from one reading of both clocks.
 #[derive(Clone, Copy)]
-pub struct Clock {
+pub(crate) struct Clock {
     at: Instant,
     wall_ns: u64,
 }
 
 impl Clock {
-    pub fn now() -> Clock {
+    pub(crate) fn now() -> Clock {
         Clock {
             at: Instant::now(),
             wall_ns: wall_ns(SystemTime::now()),
         }
     }
 
-    pub fn ns(&self, t: Instant) -> u64 {
+    pub(crate) fn ns(&self, t: Instant) -> u64 {
         match t.checked_duration_since(self.at) {
             Some(d) => self.wall_ns + d.as_nanos() as u64,
             None => self

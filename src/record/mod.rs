@@ -18,13 +18,13 @@
 //! console replays it (`crate::console::replay`), and [`check`] decides every command
 //! it received again under another vehicle file (`adrive replay --check`).
 
-pub mod check;
-pub mod export;
-pub mod info;
-pub mod log;
-pub mod message;
+pub(crate) mod check;
+pub(crate) mod export;
+pub(crate) mod info;
+pub(crate) mod log;
+pub(crate) mod message;
 pub mod read;
-pub mod repair;
+pub(crate) mod repair;
 pub(crate) mod schema;
 mod writer;
 
@@ -67,7 +67,7 @@ impl Options {
     /// From `--record PATH` (a file, or an existing directory or one written with a
     /// trailing `/` for rolling files) and `--record-raw`, else the vehicle file's
     /// `[record]`; `None`: nothing to record.
-    pub fn of(path: Option<&Path>, raw: bool, config: &VehicleConfig) -> Option<Options> {
+    pub(crate) fn of(path: Option<&Path>, raw: bool, config: &VehicleConfig) -> Option<Options> {
         let table = config.record.as_ref();
         let rolling = |dir: PathBuf| Target::Dir {
             dir,
@@ -99,7 +99,7 @@ pub(crate) struct Recorder {
 impl Recorder {
     /// Open the first file and start recording what `vehicle`'s tap sees. A file that
     /// cannot be created is an error here, before anything runs.
-    pub fn start(vehicle: &Arc<Vehicle>, opts: Options) -> std::io::Result<Recorder> {
+    pub(crate) fn start(vehicle: &Arc<Vehicle>, opts: Options) -> std::io::Result<Recorder> {
         #[allow(unsafe_code)]
         // A file size limit (`ulimit -f`, a service's LimitFSIZE) must fail a write
         // like a full disk does, not kill the process that drives the vehicle.

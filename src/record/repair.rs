@@ -14,14 +14,14 @@ use std::path::{Path, PathBuf};
 
 /// What a repair wrote.
 #[derive(Debug)]
-pub struct Repaired {
+pub(crate) struct Repaired {
     pub out: PathBuf,
     pub messages: u64,
     pub channels: usize,
 }
 
 /// Where the copy of `file` goes without `--out`: beside it, `NAME.repaired.mcap`.
-pub fn beside(file: &Path) -> PathBuf {
+pub(crate) fn beside(file: &Path) -> PathBuf {
     let stem = file
         .file_stem()
         .map_or_else(|| "recording".into(), |s| s.to_string_lossy().to_string());
@@ -30,7 +30,7 @@ pub fn beside(file: &Path) -> PathBuf {
 
 /// Write the finished copy of `rec` to `out`, which must not exist. Returns what it
 /// wrote; a copy that cannot be written whole is removed.
-pub fn repair(rec: &Recording, out: &Path, why: &str) -> Result<Repaired, ReadError> {
+pub(crate) fn repair(rec: &Recording, out: &Path, why: &str) -> Result<Repaired, ReadError> {
     let fail = |p: &Path, message: String| ReadError {
         path: p.display().to_string(),
         message,

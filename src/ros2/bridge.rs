@@ -78,7 +78,7 @@ impl fmt::Display for Unmapped {
 }
 
 impl VehicleMap {
-    pub fn new(config: &VehicleConfig, ros2: &Ros2Config) -> VehicleMap {
+    pub(crate) fn new(config: &VehicleConfig, ros2: &Ros2Config) -> VehicleMap {
         let name = |role| config.bound(role).map(|d| d.name.clone());
         let top = |role| config.bound(role).map(|d| (d.name.clone(), d.range[1]));
         let gear = config.roles.gear.as_ref().map(|g| {
@@ -179,7 +179,7 @@ impl VehicleMap {
     /// `accel` (braking wins: a brake command above 0 brakes, whatever the accelerator
     /// says), each as a fraction of its device's range; without `accel`, the pedal
     /// released first, then the other.
-    pub fn actuation(&self, a: &msgs::ActuationCommand) -> Asks {
+    pub(crate) fn actuation(&self, a: &msgs::ActuationCommand) -> Asks {
         let mut out = Asks::new();
         if let Some(s) = self.steering_id {
             out.push(Ask::Set(s, Command::Set(a.steer_cmd)));
@@ -207,7 +207,7 @@ impl VehicleMap {
     }
 
     /// A gear command as an ask; `None` for `NONE`.
-    pub fn gear(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
+    pub(crate) fn gear(&self, code: u8) -> Result<Option<Ask>, Unmapped> {
         if code == gear::NONE {
             return Ok(None);
         }
@@ -239,7 +239,7 @@ impl VehicleMap {
 
     /// The reports of one snapshot, stamped `stamp`. A report whose device has not
     /// reported yet is left out.
-    pub fn reports(&self, snap: &Snapshot, stamp: Time) -> Reports {
+    pub(crate) fn reports(&self, snap: &Snapshot, stamp: Time) -> Reports {
         let position = |name: &Option<String>| {
             name.as_ref()
                 .and_then(|n| snap.device(n))
@@ -349,7 +349,7 @@ pub(crate) struct Reports {
 
 /// The vehicle's health as `diagnostic_msgs`: the gate, then one status per device
 /// (ERROR when faulty, STALE when its reading is old, else OK), its readings as values.
-pub fn diagnostics(snap: &Snapshot, stamp: Time) -> msgs::DiagnosticArray {
+pub(crate) fn diagnostics(snap: &Snapshot, stamp: Time) -> msgs::DiagnosticArray {
     use msgs::{level, DiagnosticStatus, KeyValue};
     let kv = |k: &str, v: String| KeyValue {
         key: k.into(),

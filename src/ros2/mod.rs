@@ -14,6 +14,6 @@ pub(crate) mod bridge;
 pub mod keys;
 pub mod msgs;
 pub mod node;
-pub mod watch;
+pub(crate) mod watch;
 
 pub use node::Node;

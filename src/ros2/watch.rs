@@ -17,7 +17,7 @@ use zenoh::Wait;
 
 /// What `adrive watch --ros2` was asked.
 #[derive(Clone, Debug)]
-pub struct WatchOptions {
+pub(crate) struct WatchOptions {
     pub domain: u32,
     /// Routers or peers to connect to.
     pub connect: Vec<String>,
@@ -78,7 +78,7 @@ fn vehicle_of(topic: &str) -> Option<String> {
     Some(if ns.is_empty() { "/".into() } else { ns.into() })
 }
 
-pub fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
+pub(crate) fn watch(opts: &WatchOptions, stop: &AtomicBool) -> anyhow::Result<i32> {
     let c = Ros2Config {
         domain_id: opts.domain,
         mode: Mode::Peer,

@@ -17,7 +17,7 @@ use crate::value::Command;
 
 /// One of the two pedals `accel` drives.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Pedal {
+pub(crate) enum Pedal {
     Throttle,
     Brake,
 }
@@ -33,14 +33,14 @@ pub(crate) const PEDALS: Plays = Plays {
 /// What an admitted `accel` sends: each pedal's set point as a fraction of its range's
 /// top, in the order they go.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Plan {
+pub(crate) struct Plan {
     pub throttle: f64,
     pub brake: f64,
 }
 
 impl Plan {
     /// The parts of `a`: throttle above 0, brake below it, the other pedal released.
-    pub fn of(a: f64) -> Plan {
+    pub(crate) fn of(a: f64) -> Plan {
         if a > 0.0 {
             Plan {
                 throttle: a,
@@ -57,7 +57,7 @@ impl Plan {
     /// The pedals in the order their commands go: the brake first when it is released
     /// for throttle (the throttle follows the release), the throttle first otherwise
     /// (its release before braking).
-    pub fn order(self) -> [(Pedal, f64); 2] {
+    pub(crate) fn order(self) -> [(Pedal, f64); 2] {
         if self.throttle > 0.0 {
             [(Pedal::Brake, self.brake), (Pedal::Throttle, self.throttle)]
         } else {
@@ -66,14 +66,14 @@ impl Plan {
     }
 
     /// A pedal's part as its device's command: the fraction of its range's top.
-    pub fn command(d: &DeviceConfig, share: f64) -> Command {
+    pub(crate) fn command(d: &DeviceConfig, share: f64) -> Command {
         Command::Set(share * d.range[1])
     }
 }
 
 /// Why an `accel` was refused, and which pedal's part it was (counted on that device).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PedalReject {
+pub(crate) struct PedalReject {
     pub why: Reject,
     pub at: Pedal,
     /// The part refused, when it is the value that is.

@@ -13,7 +13,7 @@ use std::fmt;
 
 /// Why a bench procedure may not move its device now.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Unready {
+pub(crate) enum Unready {
     /// The vehicle's speed is unknown or not below the rules' stopped.
     Moving,
     /// The gearbox does not report park.
@@ -49,7 +49,7 @@ fn bench(b: &Bindings, device: DeviceId) -> bool {
 
 /// May a bench procedure move `device` now, the vehicle's roles `b` and what the rules
 /// see `f` (gathered as for a gear command: brake, gear, speed)?
-pub fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unready> {
+pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unready> {
     if bench(b, device) {
         return Ok(());
     }

@@ -182,7 +182,7 @@ fn shift_on_its_way(w: &WireState) -> bool {
 }
 
 /// A set point of `d` as a fraction of its range top (the rules' scale).
-pub fn share(d: &DeviceConfig, v: f64) -> f64 {
+pub(crate) fn share(d: &DeviceConfig, v: f64) -> f64 {
     let hi = d.range[1];
     if hi > 0.0 {
         v / hi

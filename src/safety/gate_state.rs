@@ -30,7 +30,7 @@ use std::time::Instant;
 /// monitor) is shown when it is faulty or gone, and never refuses nor ends an
 /// engagement: it cannot make the vehicle unsafe, and a vehicle that would wait for its
 /// horn is a vehicle that cannot be driven.
-pub fn needed(v: &Vehicle, d: &Device) -> bool {
+pub(crate) fn needed(v: &Vehicle, d: &Device) -> bool {
     Role::ALL
         .into_iter()
         .any(|r| v.bindings().device(r) == Some(d.id()))
@@ -40,12 +40,12 @@ pub fn needed(v: &Vehicle, d: &Device) -> bool {
 /// the vehicle file lets the network engage (`allow_engage`), or when the vehicle is
 /// engaged already — picking up a vehicle a console engaged and released engages
 /// nothing, and who may pick it up is ownership's to decide ([`super::owner`]).
-pub fn remote_may_engage(allow_engage: bool, engaged: bool) -> bool {
+pub(crate) fn remote_may_engage(allow_engage: bool, engaged: bool) -> bool {
     allow_engage || engaged
 }
 
 /// What refuses an engage now, and disengages an engaged vehicle (empty: all clear).
-pub fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<Blocker> {
+pub(crate) fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<Blocker> {
     let mut why: Vec<Blocker> = overridden
         .iter()
         .map(|d| Blocker::Overridden { device: d.clone() })
@@ -97,7 +97,7 @@ pub(crate) fn check_value(d: &DeviceConfig, command: Command) -> Result<(), Reje
 
 /// The command as the rules see it: throttle and brake set points as fractions of
 /// their range's top.
-pub fn scaled(d: &DeviceConfig, plays: Plays, command: Command) -> Command {
+pub(crate) fn scaled(d: &DeviceConfig, plays: Plays, command: Command) -> Command {
     match command {
         Command::Set(v) if plays.throttle || plays.brake => Command::Set(facts::share(d, v)),
         other => other,
@@ -108,7 +108,7 @@ pub fn scaled(d: &DeviceConfig, plays: Plays, command: Command) -> Command {
 /// commands are checked for the roles `plays`, under `rules`, given what it `seen`: its
 /// value, the gate, a recovery, then the interlocks. A pure function: the live intake
 /// ([`GateState::check`]) and `adrive replay --check` both decide with it.
-pub fn decide(
+pub(crate) fn decide(
     d: &DeviceConfig,
     plays: Plays,
     rules: Rules,
@@ -132,7 +132,7 @@ pub fn decide(
 /// The intake's decision on the virtual `accel` for these pedals (as [`decide`] for one
 /// device): its value, the gate, a recovery of either pedal, then the interlocks over
 /// both ([`accel::interlocks`]). Admitted, what it sends.
-pub fn decide_accel(
+pub(crate) fn decide_accel(
     throttle: &DeviceConfig,
     brake: &DeviceConfig,
     rules: Rules,

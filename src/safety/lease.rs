@@ -20,11 +20,11 @@ use std::time::{Duration, Instant};
 
 /// The longest lease the intake grants: the longest learned key-repeat delay and more.
 /// A console asking more gets this.
-pub const LONGEST: Duration = Duration::from_secs(2);
+pub(crate) const LONGEST: Duration = Duration::from_secs(2);
 
 /// Gas held on a lease.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Lease {
+pub(crate) struct Lease {
     /// Who holds it: the commander when it was granted.
     pub source: Source,
     /// When it runs out.
@@ -36,7 +36,7 @@ pub struct Lease {
 impl Lease {
     /// A lease of `source` for `length` from `from` (at most [`LONGEST`]), ending in
     /// `release` made safe: no gas, a number.
-    pub fn new(source: Source, from: Instant, length: Duration, release: f64) -> Lease {
+    pub(crate) fn new(source: Source, from: Instant, length: Duration, release: f64) -> Lease {
         Lease {
             source,
             until: from + length.min(LONGEST),
@@ -49,13 +49,13 @@ impl Lease {
     }
 
     /// Still running at `now`.
-    pub fn runs(&self, now: Instant) -> bool {
+    pub(crate) fn runs(&self, now: Instant) -> bool {
         now < self.until
     }
 
     /// Renewed by `source` at `now` for `length`: only a running lease of its own, and
     /// never past [`LONGEST`] from `now`. Returns whether it was renewed.
-    pub fn renew(&mut self, source: Source, now: Instant, length: Duration) -> bool {
+    pub(crate) fn renew(&mut self, source: Source, now: Instant, length: Duration) -> bool {
         if source != self.source || !self.runs(now) {
             return false;
         }

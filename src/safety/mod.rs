@@ -17,16 +17,16 @@
 //! the vehicle: the engine ([`crate::engine::Gate`]) applies these decisions to the
 //! devices' slots and ports. The vehicle itself holds state and no policy.
 
-pub mod accel;
-pub mod ask;
-pub mod bench;
-pub mod facts;
-pub mod gate_state;
-pub mod lease;
+pub(crate) mod accel;
+pub(crate) mod ask;
+pub(crate) mod bench;
+pub(crate) mod facts;
+pub(crate) mod gate_state;
+pub(crate) mod lease;
 pub mod owner;
 pub mod rules;
-pub mod safe;
-pub mod wire;
+pub(crate) mod safe;
+pub(crate) mod wire;
 
 pub use ask::{Ask, Done, Held, Refused};
 pub use gate_state::{GateState, Seen};

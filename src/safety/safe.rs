@@ -15,7 +15,7 @@ use crate::value::{Command, DeviceId};
 
 /// Every command of the safe state, by device, in the order they are given: the
 /// throttle first, then the brake, then the devices' own safe values.
-pub fn state(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
+pub(crate) fn state(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
     let b = &config.roles;
     let mut out = Vec::new();
     if let Some(t) = b.throttle {
@@ -36,7 +36,7 @@ pub fn state(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
 }
 
 /// Every command of the manual state: the throttle and the brake released.
-pub fn manual(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
+pub(crate) fn manual(config: &VehicleConfig) -> Vec<(DeviceId, Command)> {
     let b = &config.roles;
     [b.throttle, b.brake]
         .into_iter()

@@ -40,9 +40,9 @@ use std::time::{Duration, Instant};
 
 /// The steering wheel's angle, in degrees, at full travel of the steering device (±1):
 /// a turn and a half each way, as on most cars.
-pub const STEERING_WHEEL_DEG: f64 = 540.0;
+pub(crate) const STEERING_WHEEL_DEG: f64 = 540.0;
 /// The brake master cylinder's pressure, in bar, at full pedal.
-pub const BRAKE_FULL_BAR: f64 = 100.0;
+pub(crate) const BRAKE_FULL_BAR: f64 = 100.0;
 /// The longest the port loop waits for the host before it looks at the bus again.
 const TURN: Duration = Duration::from_millis(5);
 
@@ -69,7 +69,11 @@ pub(crate) struct SimKit {
 impl SimKit {
     /// The kit of bus `index` of `config`, powered up at `now`; refused, by name, when
     /// the bus's DBC is not OSCC's.
-    pub fn new(config: &VehicleConfig, index: usize, now: Instant) -> std::io::Result<SimKit> {
+    pub(crate) fn new(
+        config: &VehicleConfig,
+        index: usize,
+        now: Instant,
+    ) -> std::io::Result<SimKit> {
         let bus = &config.buses[index];
         let kit = Kit::new(&bus.dbc, bus.sim.watchdog, now).map_err(|e| {
             std::io::Error::other(format!(
@@ -101,7 +105,7 @@ impl SimKit {
     }
 
     /// The module that moves `device`.
-    pub fn module_of(&self, device: DeviceId) -> Option<Module> {
+    pub(crate) fn module_of(&self, device: DeviceId) -> Option<Module> {
         self.bindings
             .iter()
             .find(|b| b.device == device)
@@ -172,7 +176,7 @@ impl ServedBus {
     /// The bus's thread: until stopped, the kit runs (its reports, its watchdog) whether
     /// or not the adapter is plugged in; while it is, the host's bytes are answered and
     /// the bus's frames reach the host.
-    pub fn run(self, master: TTYPort, slave: TTYPort) {
+    pub(crate) fn run(self, master: TTYPort, slave: TTYPort) {
         let now = Instant::now();
         let mut link = Link::Up {
             master,

@@ -18,7 +18,7 @@ use std::fmt::Write as _;
 
 /// Which devices an argument may name.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Which {
+pub(crate) enum Which {
     /// Any device.
     Any,
     /// A setpoint device (a drive with a position).
@@ -28,7 +28,7 @@ pub enum Which {
 }
 
 /// The devices of the simulated vehicle: name and kind, by id.
-pub type Devices = [(String, Kind)];
+pub(crate) type Devices = [(String, Kind)];
 
 /// Everything a command may name: the vehicle's devices, which of them are on a CAN
 /// bus (and so have no port of their own) and which a simulated kit's module drives,
@@ -84,7 +84,7 @@ impl Names {
 
 /// A port that faults apply to: a device's own, or a bus's adapter.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Port {
+pub(crate) enum Port {
     Device(DeviceId),
     Bus(usize),
 }
@@ -114,7 +114,7 @@ pub(crate) enum Arg {
 
 impl Arg {
     /// The argument's form, as help and errors show it.
-    pub fn form(&self) -> String {
+    pub(crate) fn form(&self) -> String {
         match self {
             Arg::Device(Which::Any) => "DEVICE".into(),
             Arg::Device(Which::Setpoint) => "SETPOINT".into(),
@@ -240,7 +240,7 @@ fn or_none(names: Vec<&str>) -> String {
 
 /// A parsed argument.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Value {
+pub(crate) enum Value {
     Device(DeviceId),
     Port(Port),
     Bus(usize),
@@ -254,7 +254,7 @@ pub enum Value {
 
 /// One command of the language, parsed.
 #[derive(Clone, Debug, PartialEq)]
-pub enum SimCommand {
+pub(crate) enum SimCommand {
     Estop(EstopState),
     Stall,
     NoStart(bool),
@@ -296,7 +296,7 @@ pub(crate) struct Verb {
 /// What a command acts on beyond the devices its arguments name, which the vehicle
 /// must have for the command to do anything.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Need {
+pub(crate) enum Need {
     Nothing,
     /// A device reading the e-stop.
     Estop,
@@ -363,7 +363,7 @@ impl Need {
 
 impl Verb {
     /// `name ARG…`, as help and errors show it.
-    pub fn form(&self) -> String {
+    pub(crate) fn form(&self) -> String {
         let mut s = self.name.to_string();
         for a in self.args {
             s.push(' ');
@@ -575,7 +575,7 @@ pub(crate) const VERBS: &[Verb] = &[
 
 /// Parse one line against the vehicle's devices. An error says what was wrong and the
 /// form expected.
-pub fn parse(line: &str, names: &Names) -> Result<SimCommand, String> {
+pub(crate) fn parse(line: &str, names: &Names) -> Result<SimCommand, String> {
     let lower = line.trim().to_ascii_lowercase();
     let words: Vec<&str> = lower.split_whitespace().collect();
     let Some((&name, args)) = words.split_first() else {
@@ -612,7 +612,7 @@ pub fn parse(line: &str, names: &Names) -> Result<SimCommand, String> {
 }
 
 /// The table as help text: one line per command, then what each argument may name.
-pub fn help(names: &Names) -> String {
+pub(crate) fn help(names: &Names) -> String {
     let devices = &*names.devices;
     let width = VERBS.iter().map(|v| v.form().len()).max().unwrap_or(0);
     let mut s = String::new();

@@ -17,7 +17,7 @@ pub(crate) trait Plant {
 
 /// One answer from a responder.
 #[derive(Debug, Default, PartialEq)]
-pub struct Reply {
+pub(crate) struct Reply {
     /// Bytes of the input that made up this request (and are now done with).
     pub(crate) consumed: usize,
     /// Bytes to send back; empty for no reply (e.g. a broadcast, or a frame ignored).

@@ -46,7 +46,7 @@ pub(crate) struct Elm327Emulator {
 
 impl Elm327Emulator {
     /// An adapter just powered on, reporting the readings `map` names.
-    pub fn new(map: ElmMap) -> Elm327Emulator {
+    pub(crate) fn new(map: ElmMap) -> Elm327Emulator {
         Elm327Emulator {
             map,
             echo: true,

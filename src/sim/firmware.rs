@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 /// One device's communication-loss watchdog.
 #[derive(Debug)]
-pub struct Watchdog {
+pub(crate) struct Watchdog {
     limit: Option<Duration>,
     /// The last command (`None`: none yet, the watchdog is not armed).
     last_command: Option<Instant>,
@@ -22,7 +22,7 @@ pub struct Watchdog {
 impl Watchdog {
     /// A watchdog that trips `limit` after the last command (none: never), armed by the
     /// first command.
-    pub fn new(limit: Option<Duration>) -> Watchdog {
+    pub(crate) fn new(limit: Option<Duration>) -> Watchdog {
         Watchdog {
             limit,
             last_command: None,
@@ -30,12 +30,12 @@ impl Watchdog {
         }
     }
 
-    pub fn limit(&self) -> Option<Duration> {
+    pub(crate) fn limit(&self) -> Option<Duration> {
         self.limit
     }
 
     /// A command frame arrived at `now`: start counting again.
-    pub fn feed(&mut self, now: Instant) {
+    pub(crate) fn feed(&mut self, now: Instant) {
         self.last_command = Some(now);
         self.tripped = false;
     }

@@ -15,13 +15,13 @@
 //! adapter behind a link named after the bus, with the bus's kit behind it ([`bus`]).
 
 pub(crate) mod bus;
-pub mod commands;
-pub mod device;
-pub mod elm327;
+pub(crate) mod commands;
+pub(crate) mod device;
+pub(crate) mod elm327;
 pub(crate) mod firmware;
-pub mod line;
-pub mod modbus;
-pub mod model;
+pub(crate) mod line;
+pub(crate) mod modbus;
+pub(crate) mod model;
 pub mod oscc;
 pub mod slcan;
 #[cfg(test)]

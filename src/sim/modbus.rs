@@ -27,7 +27,7 @@ pub(crate) struct ModbusSlave {
 }
 
 impl ModbusSlave {
-    pub fn new(map: ModbusMap) -> ModbusSlave {
+    pub(crate) fn new(map: ModbusMap) -> ModbusSlave {
         ModbusSlave {
             id: map.slave,
             map,

@@ -43,7 +43,7 @@ pub(crate) struct Served<P> {
 }
 
 impl<P> Served<P> {
-    pub fn stop(self) -> P {
+    pub(crate) fn stop(self) -> P {
         self.stop.store(true, Ordering::Relaxed);
         self.handle.join().expect("the port loop panicked")
     }

@@ -31,7 +31,7 @@ const HELLO_WITHIN: Duration = Duration::from_secs(5);
 
 /// Why a client could not do what it was asked.
 #[derive(Debug, thiserror::Error)]
-pub enum ClientError {
+pub(crate) enum ClientError {
     /// Nothing (or nothing that answers) at the path.
     #[error("no adrive at {path}: {why} (is it running? its socket is given with --socket PATH)")]
     Nobody { path: String, why: String },
@@ -87,7 +87,7 @@ fn connect(
 }
 
 /// Whether an adrive answers at `path` (without attaching to it).
-pub fn probe(path: &Path) -> Result<(), ClientError> {
+pub(crate) fn probe(path: &Path) -> Result<(), ClientError> {
     connect(path, Role::Once).map(drop)
 }
 
@@ -134,7 +134,7 @@ fn read_msg(r: &mut impl BufRead) -> std::io::Result<Option<Msg>> {
 }
 
 /// One operator command (`adrive ctl`): connect, do `op`, return its answer.
-pub fn once(path: &Path, op: Op) -> Result<Answer, ClientError> {
+pub(crate) fn once(path: &Path, op: Op) -> Result<Answer, ClientError> {
     let (mut stream, mut reader, _) = connect(path, Role::Once)?;
     let gone =
         |e: std::io::Error| ClientError::Refused(format!("the connection to adrive failed: {e}"));
@@ -187,7 +187,7 @@ pub(crate) struct Remote {
 impl Remote {
     /// Attach to the adrive at `path` as a console. `on_gone` is called once, from the
     /// reading thread, if the connection ends.
-    pub fn attach(
+    pub(crate) fn attach(
         path: &Path,
         on_gone: impl FnOnce(String) + Send + 'static,
     ) -> Result<Remote, ClientError> {

@@ -16,9 +16,9 @@
 //!
 //! [`Source::Attached`]: crate::value::Source::Attached
 
-pub mod client;
-pub mod path;
+pub(crate) mod client;
+pub(crate) mod path;
 pub mod proto;
-pub mod server;
+pub(crate) mod server;
 
 pub use server::Server;

@@ -18,7 +18,7 @@ use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 
 /// The socket's file name in its directory.
-pub const FILE: &str = "adrive.sock";
+pub(crate) const FILE: &str = "adrive.sock";
 
 /// The default socket path, from the environment (see the module doc).
 pub(crate) fn default_path() -> PathBuf {
@@ -51,7 +51,7 @@ pub(crate) struct Peer {
 
 impl Peer {
     /// The peer of a connected stream.
-    pub fn of(stream: &UnixStream) -> io::Result<Peer> {
+    pub(crate) fn of(stream: &UnixStream) -> io::Result<Peer> {
         let c = rustix::net::sockopt::socket_peercred(stream)?;
         Ok(Peer {
             pid: rustix::process::Pid::as_raw(Some(c.pid)) as u32,
@@ -60,7 +60,7 @@ impl Peer {
     }
 
     /// `pid 4242 (adrive --sim)`: the process, with its command line when it can be read.
-    pub fn describe(&self) -> String {
+    pub(crate) fn describe(&self) -> String {
         let cmdline = std::fs::read(format!("/proc/{}/cmdline", self.pid))
             .ok()
             .map(|b| {
@@ -107,7 +107,7 @@ impl Drop for Claim {
 
 /// Claim `path` and listen on it (see the module doc). The error says what is there
 /// and what to do.
-pub fn bind(path: &Path) -> Result<(UnixListener, Claim), String> {
+pub(crate) fn bind(path: &Path) -> Result<(UnixListener, Claim), String> {
     let shown = path.display();
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::DirBuilder::new()

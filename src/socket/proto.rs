@@ -272,7 +272,7 @@ pub(crate) struct WireLog {
 }
 
 impl WireLog {
-    pub fn of(l: &LogLine) -> WireLog {
+    pub(crate) fn of(l: &LogLine) -> WireLog {
         WireLog {
             secs: l.secs,
             level: l.level.to_string(),
@@ -280,7 +280,7 @@ impl WireLog {
         }
     }
 
-    pub fn line(&self) -> LogLine {
+    pub(crate) fn line(&self) -> LogLine {
         LogLine {
             secs: self.secs,
             level: self.level.parse().unwrap_or(tracing::Level::WARN),
@@ -299,7 +299,7 @@ pub(crate) struct WireTrace {
 }
 
 impl WireTrace {
-    pub fn of(e: &TraceEntry, now: Instant) -> WireTrace {
+    pub(crate) fn of(e: &TraceEntry, now: Instant) -> WireTrace {
         WireTrace {
             age_us: now.saturating_duration_since(e.at).as_micros() as u64,
             dir: e.dir,
@@ -309,7 +309,7 @@ impl WireTrace {
     }
 
     /// The entry again, its age counted back from `now` (the frame's arrival).
-    pub fn entry(&self, now: Instant) -> TraceEntry {
+    pub(crate) fn entry(&self, now: Instant) -> TraceEntry {
         let at = now
             .checked_sub(Duration::from_micros(self.age_us))
             .unwrap_or(now);

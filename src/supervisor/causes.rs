@@ -23,7 +23,7 @@ use std::time::Duration;
 
 /// A known cause that can move an actuator: never a driver's override.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Cause {
+pub(crate) enum Cause {
     /// adrive's own commands (the planner's, a stop's, a recovery step's).
     Command,
     /// The e-stop in pause or disable: brake full, throttle released.
@@ -32,21 +32,28 @@ pub enum Cause {
     OwnWatchdog,
 }
 
+#[cfg(test)]
 impl Cause {
-    pub const ALL: [Cause; 3] = [Cause::Command, Cause::Estop, Cause::OwnWatchdog];
+    /// Every cause, for the properties that range over them.
+    pub(crate) const ALL: [Cause; 3] = [Cause::Command, Cause::Estop, Cause::OwnWatchdog];
 }
 
 /// A cause and the set points it can drive the device toward: from `toward[0]` to
 /// `toward[1]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Push {
+pub(crate) struct Push {
     pub cause: Cause,
     pub toward: [f64; 2],
 }
 
 /// Every known cause that can be moving set point device `d` (configured as `c` on
 /// `cfg`) in `snap`, and where to.
-pub fn pushes(snap: &Snapshot, cfg: &VehicleConfig, d: &DeviceView, c: &DeviceConfig) -> Vec<Push> {
+pub(crate) fn pushes(
+    snap: &Snapshot,
+    cfg: &VehicleConfig,
+    d: &DeviceView,
+    c: &DeviceConfig,
+) -> Vec<Push> {
     let mut out = Vec::new();
     let mut push = |cause, at: f64| match out.iter_mut().find(|p: &&mut Push| p.cause == cause) {
         Some(p) => p.toward = [p.toward[0].min(at), p.toward[1].max(at)],
@@ -110,7 +117,7 @@ fn estop(snap: &Snapshot, cfg: &VehicleConfig) -> Option<EstopState> {
 
 /// Everything the causes in `pushes` can drive the device toward: the lowest and
 /// highest of their set points (`None`: no known cause).
-pub fn hull(pushes: &[Push]) -> Option<[f64; 2]> {
+pub(crate) fn hull(pushes: &[Push]) -> Option<[f64; 2]> {
     pushes
         .iter()
         .map(|p| p.toward)

@@ -21,9 +21,9 @@
 //! within its bound: a thread that ended or stalls is named, refuses engage and gets
 //! adrive restarted.
 
-pub mod causes;
+pub(crate) mod causes;
 mod kit;
-pub mod recovery;
+pub(crate) mod recovery;
 mod waiting;
 
 use crate::config::roles::ReadingRef;
@@ -518,7 +518,7 @@ pub(crate) struct Supervisor {
 }
 
 impl Supervisor {
-    pub fn new(cfg: SupervisorConfig, exit: ExitSink) -> Supervisor {
+    pub(crate) fn new(cfg: SupervisorConfig, exit: ExitSink) -> Supervisor {
         Supervisor {
             memory: Memory::new(Instant::now()),
             cfg,
@@ -533,7 +533,7 @@ impl Supervisor {
     }
 
     /// One turn: detect, report, act.
-    pub fn tick(&mut self, gate: &Gate, now: Instant) {
+    pub(crate) fn tick(&mut self, gate: &Gate, now: Instant) {
         let v = &gate.vehicle();
         let board = &v.supervision();
         let before = board.faults();

@@ -37,7 +37,7 @@ use std::time::{Duration, Instant};
 
 /// One step of a procedure.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Step {
+pub(crate) enum Step {
     /// Command a value and wait until the device acknowledged it.
     Send {
         device: DeviceId,
@@ -69,7 +69,7 @@ pub enum Step {
 }
 
 impl Step {
-    pub fn name(&self) -> String {
+    pub(crate) fn name(&self) -> String {
         match self {
             Step::Send { label, .. } | Step::Shift { label, .. } => label.clone(),
             Step::WaitStopped(_) => "wait stopped".into(),
@@ -130,7 +130,7 @@ impl Step {
     }
 
     /// The step moves an actuator (as opposed to waiting or commanding the safe state).
-    pub fn moves(&self, gate: &Gate) -> bool {
+    pub(crate) fn moves(&self, gate: &Gate) -> bool {
         let safe = crate::safety::safe::state(gate.vehicle().config());
         match self {
             Step::Send {
@@ -210,7 +210,7 @@ impl Procedure {
 
     /// Engine stall: stop driving, park, start, back in `gear` (a state of the gear
     /// device), release. `None` when the vehicle lacks a binding it needs.
-    pub fn engine_stall(v: &Vehicle, gear: u8, cfg: &SupervisorConfig) -> Option<Procedure> {
+    pub(crate) fn engine_stall(v: &Vehicle, gear: u8, cfg: &SupervisorConfig) -> Option<Procedure> {
         let b = v.bindings();
         let (throttle, brake, g, starter, running) = (
             b.throttle?,
@@ -253,7 +253,7 @@ impl Procedure {
 
     /// Steering drive fault: stand still (throttle off and brake, where bound), then
     /// disable, enable, home, hold where it is.
-    pub fn steering(v: &Vehicle, cfg: &SupervisorConfig) -> Option<Procedure> {
+    pub(crate) fn steering(v: &Vehicle, cfg: &SupervisorConfig) -> Option<Procedure> {
         let b = v.bindings();
         let s = b.steering?;
         let mut steps = stand_still(v);
@@ -278,17 +278,17 @@ impl Procedure {
         Some(Procedure::new("steering", steps, takes, cfg))
     }
 
-    pub fn name(&self) -> &str {
+    pub(crate) fn name(&self) -> &str {
         &self.name
     }
 
     #[cfg_attr(not(test), allow(dead_code))]
-    pub fn steps(&self) -> &[Step] {
+    pub(crate) fn steps(&self) -> &[Step] {
         &self.steps
     }
 
     /// The procedure moves an actuator at some step ([`Step::moves`]).
-    pub fn moves(&self, gate: &Gate) -> bool {
+    pub(crate) fn moves(&self, gate: &Gate) -> bool {
         self.steps.iter().any(|s| s.moves(gate))
     }
 
@@ -299,11 +299,11 @@ impl Procedure {
         !self.moves(gate) || gate.is_engaged()
     }
 
-    pub fn elapsed(&self, now: Instant) -> Duration {
+    pub(crate) fn elapsed(&self, now: Instant) -> Duration {
         now - self.started
     }
 
-    pub fn view(&self) -> RecoveryView {
+    pub(crate) fn view(&self) -> RecoveryView {
         RecoveryView {
             name: self.name.clone(),
             steps: self.steps.iter().map(|s| s.name()).collect(),

@@ -38,7 +38,7 @@ impl Waiting {
     /// One supervisor turn at `now`, over this turn's `faults` (`disconnected`: a port
     /// that cannot be opened): say who went, who is back, who is still awaited (once a
     /// minute); the views for the snapshot.
-    pub fn turn(&mut self, v: &Vehicle, faults: &[Fault], now: Instant) -> Vec<WaitingView> {
+    pub(crate) fn turn(&mut self, v: &Vehicle, faults: &[Fault], now: Instant) -> Vec<WaitingView> {
         let board = v.supervision();
         let gone: Vec<&Fault> = faults
             .iter()
@@ -119,7 +119,7 @@ impl Waiting {
     }
 
     /// The device gone the longest, and for how long.
-    pub fn longest(&self, now: Instant) -> Option<(&str, Duration)> {
+    pub(crate) fn longest(&self, now: Instant) -> Option<(&str, Duration)> {
         self.gone
             .iter()
             .map(|(n, g)| (n.as_str(), now - g.since))

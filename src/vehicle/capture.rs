@@ -9,7 +9,7 @@ use std::time::{Instant, SystemTime, UNIX_EPOCH};
 
 /// The whole vehicle, ages as of `now`, with `gate`'s view and its `rejections` (the
 /// network part is the network's to add).
-pub fn snapshot(
+pub(crate) fn snapshot(
     v: &Vehicle,
     seq: u64,
     now: Instant,

@@ -13,11 +13,11 @@
 //!   [`bus`]: each CAN bus's frames, decoded, as the snapshot carries them.
 
 pub(crate) mod bus;
-pub mod capture;
-pub mod device;
-pub mod estimate;
-pub mod seen;
-pub mod stats;
+pub(crate) mod capture;
+pub(crate) mod device;
+pub(crate) mod estimate;
+pub(crate) mod seen;
+pub(crate) mod stats;
 pub mod supervision;
 pub(crate) mod tap;
 

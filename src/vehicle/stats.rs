@@ -5,7 +5,7 @@
 //! when new samples arrived and the last one is older than [`SUMMARY_EVERY`] — a
 //! snapshot never copies a whole histogram on every tick.
 
-pub use crate::snapshot::{Counters, LatencySummary};
+pub(crate) use crate::snapshot::{Counters, LatencySummary};
 use histogram::{AtomicHistogram, Histogram};
 use parking_lot::Mutex;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};

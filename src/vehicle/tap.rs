@@ -29,7 +29,7 @@ pub(crate) const CAPACITY: usize = 8 * 1024;
 /// Readers a tap takes: the recorder and the live view, and room for one more.
 pub(crate) const READERS: usize = 3;
 
-pub use crate::value::Source;
+pub(crate) use crate::value::Source;
 
 /// What a source asked for.
 #[derive(Clone, Copy, Debug, PartialEq)]

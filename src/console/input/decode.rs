@@ -301,7 +301,7 @@ pub(crate) struct Decoder {
 
 impl Decoder {
     /// Decode `bytes` after what was waiting; every whole token goes to `out`.
-    pub fn feed(&mut self, bytes: &[u8], out: &mut Vec<Token>) {
+    pub(crate) fn feed(&mut self, bytes: &[u8], out: &mut Vec<Token>) {
         self.buf.extend_from_slice(bytes);
         let mut at = self.rest_of_a_cut_reply(out);
         while at < self.buf.len() {
@@ -340,14 +340,14 @@ impl Decoder {
     }
 
     /// Bytes are waiting for the rest of their sequence.
-    pub fn waiting(&self) -> bool {
+    pub(crate) fn waiting(&self) -> bool {
         !self.buf.is_empty()
     }
 
     /// Nothing more came: what waits is taken as it stands — a lone `ESC` is the Esc
     /// key, `ESC` and a key that could begin a sequence (`ESC [`, `ESC O`) is Alt and
     /// that key; a sequence cut short is dropped.
-    pub fn flush(&mut self, out: &mut Vec<Token>) {
+    pub(crate) fn flush(&mut self, out: &mut Vec<Token>) {
         let buf = std::mem::take(&mut self.buf);
         if let Some(i) = buf.iter().rposition(|&b| b == ESC) {
             self.cut = buf[i..].to_vec();

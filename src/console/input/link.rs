@@ -31,7 +31,7 @@ pub(crate) struct RoundTrips {
 impl RoundTrips {
     /// Ask now? Only while the console commands (`commanding`), every [`EVERY`] from the
     /// first. A console that starts commanding again starts afresh.
-    pub fn due(&mut self, commanding: bool, now: Instant) -> bool {
+    pub(crate) fn due(&mut self, commanding: bool, now: Instant) -> bool {
         if !commanding {
             self.next = None;
             return false;
@@ -51,7 +51,7 @@ impl RoundTrips {
     }
 
     /// A cursor position report came: does it answer a request of ours?
-    pub fn answered(&mut self) -> bool {
+    pub(crate) fn answered(&mut self) -> bool {
         if self.waiting == 0 {
             return false;
         }

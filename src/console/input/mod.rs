@@ -21,9 +21,9 @@
 //! - SIGWINCH arrives through a pipe (signal-hook) polled beside the terminal, as
 //!   [`Input::Resize`].
 
-pub mod decode;
-pub mod link;
-pub mod probe;
+pub(crate) mod decode;
+pub(crate) mod link;
+pub(crate) mod probe;
 
 use crate::controls::TICK;
 use crossbeam_channel::{Receiver, Sender};

@@ -33,7 +33,7 @@ pub(crate) struct Probe {
 
 impl Probe {
     /// A probe written at `sent`.
-    pub fn sent(sent: Instant) -> Probe {
+    pub(crate) fn sent(sent: Instant) -> Probe {
         Probe {
             sent,
             flags: false,
@@ -42,7 +42,7 @@ impl Probe {
     }
 
     /// No probe: what the terminal reports is known already (`keyboard`).
-    pub fn known(keyboard: Keyboard, now: Instant) -> Probe {
+    pub(crate) fn known(keyboard: Keyboard, now: Instant) -> Probe {
         Probe {
             sent: now,
             flags: false,
@@ -51,22 +51,22 @@ impl Probe {
     }
 
     /// What was told so far (`None` while the probe waits).
-    pub fn verdict(&self) -> Option<Keyboard> {
+    pub(crate) fn verdict(&self) -> Option<Keyboard> {
         self.told
     }
 
     /// When the probe stops waiting, if it still waits.
-    pub fn deadline(&self) -> Option<Instant> {
+    pub(crate) fn deadline(&self) -> Option<Instant> {
         self.told.is_none().then_some(self.sent + WAIT)
     }
 
     /// The terminal's flags answer arrived.
-    pub fn flags(&mut self) {
+    pub(crate) fn flags(&mut self) {
         self.flags = true;
     }
 
     /// The device attributes arrived: the verdict, if it is news.
-    pub fn attributes(&mut self) -> Option<Keyboard> {
+    pub(crate) fn attributes(&mut self) -> Option<Keyboard> {
         let found = if std::mem::take(&mut self.flags) {
             Keyboard::Releases
         } else {
@@ -81,7 +81,7 @@ impl Probe {
 
     /// Time passed: past [`WAIT`] with no answer, the terminal is taken as reporting
     /// presses only.
-    pub fn tick(&mut self, now: Instant) -> Option<Keyboard> {
+    pub(crate) fn tick(&mut self, now: Instant) -> Option<Keyboard> {
         match self.deadline() {
             Some(d) if now >= d => self.tell(Keyboard::PressesOnly),
             _ => None,

@@ -76,7 +76,7 @@ pub(crate) fn fmt_reading(name: &str, v: Option<&Value>) -> String {
 
 /// What a device takes, short: `-1…1`, `P/R/N/D` (initials when they are distinct),
 /// `off/left/right/hazard`.
-pub fn domain(d: &DeviceView) -> String {
+pub(crate) fn domain(d: &DeviceView) -> String {
     match d.kind {
         Kind::Setpoint => {
             let [lo, hi] = d.range.unwrap_or([0.0, 0.0]);
@@ -115,7 +115,7 @@ pub fn domain(d: &DeviceView) -> String {
 /// The measured value: a setpoint actuator's position (`-` when it reports none, as a
 /// CAN kit's module may not); a state actuator's first reading; a sensor's first, with
 /// its units.
-pub fn measured(d: &DeviceView) -> String {
+pub(crate) fn measured(d: &DeviceView) -> String {
     let first = if d.kind == Kind::Setpoint {
         d.readings.0.iter().find(|(n, _)| n == POSITION)
     } else {
@@ -133,7 +133,7 @@ pub fn measured(d: &DeviceView) -> String {
     }
 }
 
-pub fn age(d: &DeviceView) -> Option<Duration> {
+pub(crate) fn age(d: &DeviceView) -> Option<Duration> {
     d.status_age_ms.map(|ms| Duration::from_secs_f64(ms / 1e3))
 }
 

@@ -96,7 +96,7 @@ impl KeyEvents<'_> {
 }
 
 impl HelpPanel<'_> {
-    pub fn lines(&self) -> Vec<Line<'static>> {
+    pub(crate) fn lines(&self) -> Vec<Line<'static>> {
         let t = &self.theme;
         let mut out = self.events.as_ref().map_or(Vec::new(), |e| e.lines(t));
         out.extend([

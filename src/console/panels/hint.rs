@@ -21,7 +21,7 @@ use unicode_width::UnicodeWidthStr;
 pub(crate) const MESSAGE_FOR: Duration = Duration::from_secs(8);
 
 /// A key as the hint bar writes it: arrows as arrows, the rest as in keymaps.
-pub fn short(k: Key) -> String {
+pub(crate) fn short(k: Key) -> String {
     let plain = !(k.ctrl || k.alt || k.shift);
     match k.code {
         KeyCode::Up if plain => "↑".into(),

@@ -4,22 +4,21 @@
 //! [`Snapshot`]: crate::snapshot::Snapshot
 //! [`Model`]: super::model::Model
 
-pub mod bench;
+pub(crate) mod bench;
 pub(crate) mod bus;
-pub mod chart;
-pub mod device;
+pub(crate) mod chart;
+pub(crate) mod device;
 pub(crate) mod dialog;
 pub(crate) mod fit;
-pub mod header;
-pub mod help;
-pub mod hint;
-pub mod list;
-pub mod log;
-pub mod network;
-pub mod supervisor;
-pub mod teleop;
+pub(crate) mod header;
+pub(crate) mod help;
+pub(crate) mod hint;
+pub(crate) mod list;
+pub(crate) mod log;
+pub(crate) mod network;
+pub(crate) mod supervisor;
+pub(crate) mod teleop;
 
-use ratatui::style::Style;
 use ratatui::text::{Line, Span};
 use std::time::Duration;
 
@@ -42,10 +41,6 @@ pub(crate) fn fmt_age(d: Option<Duration>) -> String {
         }
         Some(d) => format!("{:.1}s", d.as_secs_f64()),
     }
-}
-
-pub fn label<'a>(text: &'a str, style: Style) -> Span<'a> {
-    Span::styled(text, style)
 }
 
 /// Lay groups of spans (a group is never split) out in lines of at most `width`

@@ -127,7 +127,7 @@ impl NetworkPanel<'_> {
     }
 
     /// The lines for a panel `width` columns wide.
-    pub fn lines(&self, width: u16) -> Vec<Line<'static>> {
+    pub(crate) fn lines(&self, width: u16) -> Vec<Line<'static>> {
         let t = &self.theme;
         match &self.snap.net {
             Some(n) => self.running(n, width),

@@ -63,7 +63,7 @@ fn step_spans(r: &RecoveryView, t: &Theme) -> Vec<Span<'static>> {
 
 impl SupervisorPanel<'_> {
     /// Whether there is anything to show beyond "all well".
-    pub fn active(&self) -> bool {
+    pub(crate) fn active(&self) -> bool {
         let s = &self.m.snap;
         s.supervisor.recovery.is_some() || !s.fault_texts().is_empty()
     }
@@ -257,7 +257,7 @@ pub(crate) struct SupervisorStrip<'a> {
 }
 
 impl SupervisorStrip<'_> {
-    pub fn lines(&self) -> Vec<Line<'static>> {
+    pub(crate) fn lines(&self) -> Vec<Line<'static>> {
         let t = &self.theme;
         let mut out = Vec::new();
         if let Some(r) = &self.snap.supervisor.recovery {

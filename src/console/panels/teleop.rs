@@ -155,7 +155,7 @@ impl TeleopPanel<'_> {
     }
 
     /// The lines for `rows` × `cols`, and whether the levels are among them whole.
-    pub fn lines(&self, cols: u16, rows: u16) -> (Vec<Line<'static>>, bool) {
+    pub(crate) fn lines(&self, cols: u16, rows: u16) -> (Vec<Line<'static>>, bool) {
         let cols = usize::from(cols);
         let state = self.state(cols);
         let dead = Line::from(self.deadman());

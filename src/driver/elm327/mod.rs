@@ -16,7 +16,7 @@
 //! after `open` may make the adapter search the protocols, so it waits up to
 //! [`SEARCH_TIMEOUT`]. `running` is `rpm >` [`RUNNING_RPM`].
 
-pub mod proto;
+pub(crate) mod proto;
 
 use self::proto::{ElmError, Pid};
 use super::{read_until, send_request, Driver, DriverError, Link};
@@ -54,7 +54,7 @@ pub(crate) struct Elm327Driver {
 impl Elm327Driver {
     /// A driver that waits up to `reply_timeout` for each OBD answer (an ELM327 gives
     /// up on a silent car after about 200 ms by itself and says `NO DATA`).
-    pub fn new(map: ElmMap, reply_timeout: Duration) -> Elm327Driver {
+    pub(crate) fn new(map: ElmMap, reply_timeout: Duration) -> Elm327Driver {
         Elm327Driver {
             map,
             reply_timeout,

@@ -32,9 +32,9 @@ pub(crate) enum Pid {
 }
 
 impl Pid {
-    pub const ALL: [Pid; 3] = [Pid::Coolant, Pid::Rpm, Pid::Speed];
+    pub(crate) const ALL: [Pid; 3] = [Pid::Coolant, Pid::Rpm, Pid::Speed];
 
-    pub fn code(self) -> u8 {
+    pub(crate) fn code(self) -> u8 {
         match self {
             Pid::Coolant => 0x05,
             Pid::Rpm => 0x0C,
@@ -55,12 +55,12 @@ impl Pid {
     }
 
     /// The request line, e.g. `010C\r`.
-    pub fn request(self) -> String {
+    pub(crate) fn request(self) -> String {
         format!("{:02X}{:02X}\r", MODE_CURRENT, self.code())
     }
 
     /// The value in adrive's units: rpm, m/s, °C.
-    pub fn decode(self, data: &[u8]) -> f64 {
+    pub(crate) fn decode(self, data: &[u8]) -> f64 {
         match self {
             Pid::Rpm => (256.0 * data[0] as f64 + data[1] as f64) / 4.0,
             Pid::Speed => data[0] as f64 / 3.6,
@@ -70,7 +70,7 @@ impl Pid {
 
     /// The data bytes for a value in adrive's units (the simulator's side), clamped to
     /// what the PID can carry.
-    pub fn encode(self, value: f64) -> Vec<u8> {
+    pub(crate) fn encode(self, value: f64) -> Vec<u8> {
         match self {
             Pid::Rpm => {
                 let raw = (value * 4.0).round().clamp(0.0, 65535.0) as u16;
@@ -117,7 +117,7 @@ pub(crate) enum ElmError {
 
 /// The lines of a reply up to its prompt: split at `\r` or `\n`, trimmed, empty lines
 /// and the prompt dropped.
-pub fn lines(reply: &[u8]) -> Vec<String> {
+pub(crate) fn lines(reply: &[u8]) -> Vec<String> {
     let end = reply
         .iter()
         .rposition(|&b| b == PROMPT)
