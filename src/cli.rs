@@ -472,7 +472,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     };
     // A port another adrive (or program) holds stops here too: each port is opened
     // and locked now, and handed to its device as its first open.
-    let mut opened = if args.sim {
+    let opened = if args.sim {
         std::collections::HashMap::new()
     } else {
         open_ports(&config)?
@@ -503,32 +503,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // A live control socket (another adrive) stops here, before anything is driven or
     // simulated, named; a stale one is replaced.
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
-    let sim = if args.sim {
-        let s = Sim::start(&config, None)?;
-        s.patch(&mut config);
-        Some(Arc::new(s))
-    } else {
-        None
-    };
-    let vehicle = Arc::new(Vehicle::with_tap(
-        config,
-        |c| {
-            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
-            let mut first = opened.remove(c.name.as_str());
-            Box::new(move || match first.take() {
-                Some(link) => Ok(link),
-                None => driver::open_serial(&path, baud, timeout),
-            })
-        },
-        tap,
-    ));
-    // A recording that cannot start is refused before anything is driven.
-    let recorder = match recording {
-        Some(opts) => {
-            Some(Recorder::start(&vehicle, opts).map_err(|e| anyhow::anyhow!("record: {e}"))?)
-        }
-        None => None,
-    };
+    let (sim, vehicle, recorder) = bring_up(args.sim, config, opened, tap, recording)?;
     let live = match args.foxglove {
         Some(addr) => Some(crate::foxglove::Foxglove::start(&vehicle, addr)?),
         None => None,
@@ -730,7 +705,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     if let Some(r) = &recording {
         check_recording(args.record.is_some(), r)?;
     }
-    let mut opened = if args.sim {
+    let opened = if args.sim {
         std::collections::HashMap::new()
     } else {
         open_ports(&config)?
@@ -742,32 +717,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     }
     let log = logging::init_with(true, Some(&log_dir), extra)?;
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
-    let sim = if args.sim {
-        let s = Sim::start(&config, None)?;
-        s.patch(&mut config);
-        Some(Arc::new(s))
-    } else {
-        None
-    };
-    let vehicle = Arc::new(Vehicle::with_tap(
-        config,
-        |c| {
-            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
-            let mut first = opened.remove(c.name.as_str());
-            Box::new(move || match first.take() {
-                Some(link) => Ok(link),
-                None => driver::open_serial(&path, baud, timeout),
-            })
-        },
-        tap,
-    ));
-    // A recording that cannot start is refused before anything is driven.
-    let recorder = match recording {
-        Some(opts) => {
-            Some(Recorder::start(&vehicle, opts).map_err(|e| anyhow::anyhow!("record: {e}"))?)
-        }
-        None => None,
-    };
+    let (sim, vehicle, recorder) = bring_up(args.sim, config, opened, tap, recording)?;
     let gate = Arc::new(Gate::new(vehicle.clone()));
     gate.announce();
     let exits = exit::install()?;
@@ -908,6 +858,46 @@ fn injected(thread: &str, after: Duration) -> Option<crate::engine::Injected> {
             after,
             panic,
         })
+}
+
+/// The vehicle both the run and `characterize` drive: its simulator (`sim`), its
+/// devices (each port opened beforehand, in `opened`, handed over as its first open)
+/// and its recorder — a recording that cannot start is refused before anything is
+/// driven.
+type BroughtUp = (Option<Arc<Sim>>, Arc<Vehicle>, Option<Recorder>);
+fn bring_up(
+    sim: bool,
+    mut config: VehicleConfig,
+    mut opened: std::collections::HashMap<String, Box<dyn driver::Link>>,
+    tap: Arc<crate::vehicle::tap::Tap>,
+    recording: Option<record::Options>,
+) -> anyhow::Result<BroughtUp> {
+    let sim = if sim {
+        let s = Sim::start(&config, None)?;
+        s.patch(&mut config);
+        Some(Arc::new(s))
+    } else {
+        None
+    };
+    let vehicle = Arc::new(Vehicle::with_tap(
+        config,
+        |c| {
+            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+            let mut first = opened.remove(c.name.as_str());
+            Box::new(move || match first.take() {
+                Some(link) => Ok(link),
+                None => driver::open_serial(&path, baud, timeout),
+            })
+        },
+        tap,
+    ));
+    let recorder = match recording {
+        Some(opts) => {
+            Some(Recorder::start(&vehicle, opts).map_err(|e| anyhow::anyhow!("record: {e}"))?)
+        }
+        None => None,
+    };
+    Ok((sim, vehicle, recorder))
 }
 
 /// Open and lock every device's port, before anything starts: a port in use by another
