@@ -95,11 +95,18 @@ fn a_status_poll_never_comes_between_a_fast_request_and_its_reply() {
     ));
     let steer = engaged(&rig);
     // A poll may hold the port at the moment of a submit: then the path is the
-    // ordinary one; try again until one goes the fast way.
+    // ordinary one; try again until one goes the fast way. Each try waits for a poll
+    // to end after the last command: the poll that waited for the port through the
+    // command's 100 ms would otherwise take it again just as the slot goes idle, and a
+    // loaded machine would lose that race every time.
     let mut v = 0.0;
     loop {
         v += 0.001;
         assert!(v < 0.5, "no command found the port idle");
+        let polls = steer.stats().polls.load(Relaxed);
+        wait_for("a poll after the last command", || {
+            steer.stats().polls.load(Relaxed) > polls
+        });
         let fast = submit_when_idle(&rig, steer, set(v));
         wait_for("the command to execute", || {
             steer.slot().executed() == Some(set(v))

@@ -66,6 +66,10 @@ pub(crate) fn status_loop(
         let (result, first) = port.transact(|drv, link| drv.poll(link));
         let done = Instant::now();
         drop(port);
+        // The period counts from this poll: after a wait for the port (a command's
+        // transaction), the wake-up due meanwhile would poll again at once and learn
+        // nothing the reading just stored did not say.
+        next = next.max(started + period);
         d.tap_polled(first, done, result.as_ref());
         last_attempt = Some(started);
         Stats::bump(&d.stats().polls);

@@ -466,13 +466,15 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
 /// why where adrive ended it, and the connection closes.
 fn finish(s: &Shared, c: &Conn, ending: &Ending) {
     depart(s, c, ending);
+    // Its place among the clients is free before it hears of its end: a client told
+    // goodbye that connects again (or the next one) finds the place it left.
+    s.open.lock().retain(|(n, _)| *n != c.n);
     match ending {
         Ending::TooLong | Ending::Stopping => c.farewell(ending, WRITE_DEADLINE),
         _ => {
             let _ = c.writer.lock().shutdown(std::net::Shutdown::Both);
         }
     }
-    s.open.lock().retain(|(n, _)| *n != c.n);
 }
 
 /// What one operation comes to, done as `source` through the same [`Live`] controls
