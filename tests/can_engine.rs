@@ -396,6 +396,7 @@ fn the_kit_s_own_override_hands_the_vehicle_to_the_driver_and_disables_every_mod
         MODULES.iter().all(|(m, _)| rig.adapter().enabled(*m))
     });
     // The driver turns the wheel: OSCC's steering module disables itself and says so.
+    let mark = rig.adapter().ids_since(0).len();
     rig.adapter()
         .port
         .lock()
@@ -411,10 +412,16 @@ fn the_kit_s_own_override_hands_the_vehicle_to_the_driver_and_disables_every_mod
         "{:?}",
         rig.faults()
     );
-    // adrive never brakes against the driver, and leaves no module enabled.
-    wait_for("every module disabled", || {
-        MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m))
+    // adrive never brakes against the driver, and leaves no module enabled: each is
+    // disabled by adrive's own message (the kit's override disables modules by itself,
+    // before adrive has said anything).
+    wait_for("adrive's disable of every module", || {
+        let heard = rig.adapter().ids_since(mark);
+        MODULES
+            .iter()
+            .all(|(_, base)| heard.iter().any(|(id, _)| *id == base + 1))
     });
+    assert!(MODULES.iter().all(|(m, _)| !rig.adapter().enabled(*m)));
     // The last brake command before its last disable releases it: adrive never brakes
     // against the driver.
     let heard = rig.adapter().ids_since(0);

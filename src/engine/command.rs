@@ -267,7 +267,10 @@ fn finished(
         d.stats().command_txn.record(done - first);
         *last_sent_at = Some(first);
     }
-    d.slot().finish(command, result.is_ok());
+    // The books first, the slot last: whoever waits on the slot for this command's end
+    // (a test, the fast path's next command, characterize) then reads counts, codes and
+    // health that already include it.
+    let ok = result.is_ok();
     match result {
         Ok(()) => {
             d.estimate_command(command, first.unwrap_or(done));
@@ -282,11 +285,9 @@ fn finished(
                 d.record_ok(done);
             }
         }
-        Err(e) => {
-            Stats::bump(&d.stats().command_errors);
-            d.record_error(&e, true);
-        }
+        Err(e) => d.transaction_failed(&e, true),
     }
+    d.slot().finish(command, ok);
 }
 
 impl Gate {

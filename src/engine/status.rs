@@ -88,8 +88,7 @@ pub(crate) fn status_loop(
                 d.record_ok(done);
             }
             Err(e) => {
-                Stats::bump(&d.stats().status_errors);
-                d.record_error(&e, false);
+                d.transaction_failed(&e, false);
                 // Nothing learnt: try again at the next wake-up.
                 schedule.finish(true);
             }

@@ -422,6 +422,21 @@ impl Device {
         self.health.answered_ns.fetch_max(ns, Relaxed);
     }
 
+    /// One of its own transactions failed (`is_command`: a command's, else a poll's):
+    /// the error is stored, then counted — a reader that sees the count finds the
+    /// error's code and message.
+    pub(crate) fn transaction_failed(&self, e: &DriverError, is_command: bool) {
+        self.record_error(e, is_command);
+        let count = if is_command {
+            &self.stats.command_errors
+        } else {
+            &self.stats.status_errors
+        };
+        count.fetch_add(1, std::sync::atomic::Ordering::Release);
+    }
+
+    /// An error of the device (a transaction's, or its bus's) is stored: its code, its
+    /// message, and whether it says the device is gone.
     pub(crate) fn record_error(&self, e: &DriverError, is_command: bool) {
         let n = self.health.consecutive_errors.fetch_add(1, Relaxed) + 1;
         let code = error_code(e);
