@@ -460,6 +460,10 @@ pub struct SupervisorView {
     /// The last procedure's outcome, as a type.
     #[serde(default)]
     pub outcome: Option<OutcomeKind>,
+    /// How many procedures have ended since adrive started: a reader tells a new
+    /// outcome from the last one by this count (two alike are two).
+    #[serde(default)]
+    pub outcomes: u64,
     /// Recent steps and outcomes, newest last.
     pub history: Vec<String>,
     /// Engine threads that have not turned their loop within their bound (a thread

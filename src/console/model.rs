@@ -285,7 +285,8 @@ pub struct Model {
     /// it, the console commands it to hold where it stopped.
     pub(crate) steer_reset: Option<Instant>,
     /// The supervisor's last recovery outcome already shown as a message.
-    pub(crate) outcome_seen: Option<String>,
+    /// The supervisor's outcomes already told (its count of them).
+    pub(crate) outcomes_seen: u64,
     /// How many asks of other sources the intake had refused at the last tick (a new
     /// one is shown as a message).
     pub(crate) refused_seen: u64,
@@ -341,7 +342,7 @@ impl Model {
             help_scroll: 0,
             accel: None,
             now: Instant::now(),
-            outcome_seen: snap.supervisor.last_outcome.clone(),
+            outcomes_seen: snap.supervisor.outcomes,
             refused_seen: snap.gate.refused,
             steer_reset: None,
             screen: Rect::new(0, 0, layout::MIN_WIDTH, 24),

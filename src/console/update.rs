@@ -39,13 +39,14 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     }
     m.cursor = m.cursor.min(m.fields().len().saturating_sub(1));
     follow_steer_reset(m, c, now);
-    let outcome = m.snap.supervisor.last_outcome.clone();
-    if outcome.is_some() && outcome != m.outcome_seen {
-        let text = outcome.clone().unwrap_or_default();
-        let bad = m.snap.supervisor.outcome == Some(crate::snapshot::OutcomeKind::GaveUp);
-        m.tell(format!("supervisor: {text}"), bad);
-        m.outcome_seen = outcome;
+    let sup = &m.snap.supervisor;
+    if sup.outcomes > m.outcomes_seen {
+        if let Some(text) = sup.last_outcome.clone() {
+            let bad = sup.outcome == Some(crate::snapshot::OutcomeKind::GaveUp);
+            m.tell(format!("supervisor: {text}"), bad);
+        }
     }
+    m.outcomes_seen = m.snap.supervisor.outcomes;
     // Someone else's command refused because of who commands: say it where the
     // operator looks (the log pane has it at WARN too).
     if m.snap.gate.refused > m.refused_seen {

@@ -51,6 +51,7 @@ struct Inner {
     faults: Vec<Fault>,
     recovery: Option<(RecoveryView, Instant)>,
     last_outcome: Option<(OutcomeKind, String)>,
+    outcomes: u64,
     history: VecDeque<String>,
 }
 
@@ -84,6 +85,7 @@ impl Board {
             }),
             last_outcome: i.last_outcome.as_ref().map(|(_, w)| w.clone()),
             outcome: i.last_outcome.as_ref().map(|(k, _)| *k),
+            outcomes: i.outcomes,
             history: i.history.iter().cloned().collect(),
             stalled: stalled(&i, now),
             waiting: i.waiting.clone(),
@@ -164,7 +166,9 @@ impl Board {
 
     /// The last procedure ended as `kind`, said in `words`.
     pub(crate) fn set_outcome(&self, kind: OutcomeKind, words: String) {
-        self.inner.lock().last_outcome = Some((kind, words));
+        let mut i = self.inner.lock();
+        i.last_outcome = Some((kind, words));
+        i.outcomes += 1;
     }
 }
 

@@ -828,16 +828,25 @@ fn a_recovery_outcome_is_said_once() {
     let now = Instant::now();
     f.snap.snap.supervisor.last_outcome = Some("recovery engine_stall done in 6.1 s".into());
     f.snap.snap.supervisor.outcome = Some(OutcomeKind::Done);
+    f.snap.snap.supervisor.outcomes = 1;
     tick(&mut m, &f, now);
     let msg = m.message.take().unwrap();
     assert_eq!(msg.text, "supervisor: recovery engine_stall done in 6.1 s");
     assert!(!msg.bad);
     tick(&mut m, &f, now);
     assert!(m.message.is_none(), "said once");
+    // The same words again are a new outcome: told again.
+    f.snap.snap.supervisor.outcomes = 2;
+    tick(&mut m, &f, now);
+    assert_eq!(
+        m.message.take().unwrap().text,
+        "supervisor: recovery engine_stall done in 6.1 s"
+    );
     // Bad by the outcome's type, whatever its words.
     f.snap.snap.supervisor.last_outcome =
         Some("recovery engine_stall: step park did not complete".into());
     f.snap.snap.supervisor.outcome = Some(OutcomeKind::GaveUp);
+    f.snap.snap.supervisor.outcomes = 3;
     tick(&mut m, &f, now);
     assert!(m.message.take().unwrap().bad);
 }
