@@ -749,7 +749,12 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
                 .join(", ")
         ),
     );
-    let result = crate::characterize::run(&gate, &exits, &args.device, &procedures);
+    let stop = || exits.try_recv().ok().map(|why| why.describe());
+    let watch = crate::characterize::Watch {
+        progress: &|_| {},
+        stop: &stop,
+    };
+    let result = crate::characterize::run(&gate, &watch, &args.device, &procedures);
     control.close();
     gate.disengage(crate::snapshot::DisengageCause::Stopping { why: None });
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
