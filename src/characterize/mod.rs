@@ -15,6 +15,7 @@
 //! alone.
 
 pub(crate) mod analyze;
+pub(crate) mod background;
 pub(crate) mod write;
 
 use crate::engine::Gate;
@@ -714,7 +715,7 @@ const SWEEP_POINTS: usize = 5;
 
 /// A stage of a run, in the order they run: what the progress names.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Stage {
+pub enum Stage {
     /// Waiting for the device's first reading, the precondition, the engage.
     Starting,
     /// The large steps (step, rate, delay, and what the deadband needs).
@@ -764,7 +765,7 @@ pub(crate) fn plan(procedures: &[Procedure]) -> Vec<(Stage, usize)> {
 
 /// Where a run stands.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct Progress {
+pub struct Progress {
     pub stage: Stage,
     /// Moves done, of `total` planned ([`plan`]).
     pub done: usize,

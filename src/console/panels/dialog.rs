@@ -13,6 +13,8 @@ use unicode_width::UnicodeWidthStr;
 
 pub(crate) struct Dialog<'a> {
     pub ask: Question,
+    /// The question in words ([`crate::console::model::Model::question_text`]).
+    pub text: &'a str,
     pub map: &'a Keymap,
     pub theme: Theme,
 }
@@ -37,7 +39,9 @@ impl Dialog<'_> {
     /// drawn whole (what may then be answered).
     pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> bool {
         let w = area.width.min(60);
-        let h = area.height.min(6);
+        // Room for the whole question where the area has it, and its answers.
+        let lines = wrapped(self.text, w.saturating_sub(2)).len() as u16;
+        let h = area.height.min((lines + 4).max(6));
         let r = Rect {
             x: area.x + (area.width - w) / 2,
             y: area.y + (area.height - h) / 2,
@@ -46,7 +50,10 @@ impl Dialog<'_> {
         };
         Clear.render(r, buf);
         let style = match self.ask {
-            Question::Interlocks(false) | Question::Engage | Question::Take => self.theme.warn(),
+            Question::Interlocks(false)
+            | Question::Engage
+            | Question::Take
+            | Question::Characterize(_) => self.theme.warn(),
             _ => self.theme.title(),
         };
         let block = Block::bordered()
@@ -60,7 +67,7 @@ impl Dialog<'_> {
             Span::styled(keys(self.map, Action::Cancel), self.theme.key()),
             Span::raw(" no"),
         ]);
-        let mut question = wrapped(self.ask.text(), inner.width);
+        let mut question = wrapped(self.text, inner.width);
         let whole = question.len() + 2 <= usize::from(inner.height)
             && answers.width() <= usize::from(inner.width)
             && question
@@ -122,6 +129,7 @@ mod tests {
         let map = Keymap::default_map();
         let d = Dialog {
             ask: Question::Take,
+            text: Question::Take.text(),
             map: &map,
             theme: Theme::default(),
         };

@@ -32,6 +32,8 @@ struct Fake {
     deadman: std::cell::Cell<Option<Duration>>,
     /// The engine ended the held gas's lease: a renewal finds nothing to renew.
     lease_ended: std::cell::Cell<bool>,
+    /// The console's characterization, as the engine would report it.
+    characterizing: RefCell<Option<crate::controls::Characterizing>>,
 }
 
 impl Fake {
@@ -56,6 +58,7 @@ impl Fake {
             simulated: false,
             deadman: std::cell::Cell::default(),
             lease_ended: std::cell::Cell::default(),
+            characterizing: RefCell::default(),
         }
     }
     fn log(&self, s: String) {
@@ -191,6 +194,37 @@ impl Controls for Fake {
     }
     fn answered(&self, _at: Instant) {
         self.log("answered".into());
+    }
+    fn characterize_check(&self, id: DeviceId) -> Result<String, String> {
+        self.log(format!("characterize check {}", self.name(id)));
+        crate::characterize::check_device(&self.gate, self.name(id))?;
+        match self.refuse {
+            Some(r) => Err(format!("not ready: {r}")),
+            None => Ok("stopped, in park, the brake held".into()),
+        }
+    }
+    fn characterize(
+        &self,
+        id: DeviceId,
+        procedures: &[crate::characterize::Procedure],
+        out: &std::path::Path,
+    ) -> Result<(), String> {
+        self.log(format!(
+            "characterize {} {} into {}",
+            self.name(id),
+            procedures.len(),
+            out.display()
+        ));
+        Ok(())
+    }
+    fn characterizing(&self) -> Option<crate::controls::Characterizing> {
+        self.characterizing.borrow().clone()
+    }
+    fn characterize_end(&self, why: &str) {
+        self.log(format!("characterize end: {why}"));
+        if let Some(c) = self.characterizing.borrow_mut().as_mut() {
+            c.end.get_or_insert(Err(format!("stopped: {why}")));
+        }
     }
 }
 
