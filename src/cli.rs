@@ -659,9 +659,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         anyhow::bail!("no device {:?} in {}", args.device, config.source);
     };
     // Sample the device fast: the figures are read between its polls.
-    d.status_period = d
-        .status_period
-        .min(crate::characterize::background::POLL);
+    d.status_period = d.status_period.min(crate::characterize::background::POLL);
     let out = args
         .out
         .clone()

@@ -291,7 +291,10 @@ fn measure(
     let d = gate.vehicle().device(device);
     let period = d.settings().status_period();
     if let Err(v) = d.change_settings(|c| c.status_period = c.status_period.min(POLL)) {
-        tracing::info!("characterize {name}: polled at its own period: {}", v.message);
+        tracing::info!(
+            "characterize {name}: polled at its own period: {}",
+            v.message
+        );
     }
     let progress = |p: &Progress| {
         if let Some(s) = shared.state.lock().as_mut() {
@@ -305,7 +308,10 @@ fn measure(
     };
     let result = super::run(gate, &watch, name, procedures);
     if let Err(v) = d.change_settings(|c| c.status_period = period) {
-        tracing::warn!("characterize {name}: its status period not put back: {}", v.message);
+        tracing::warn!(
+            "characterize {name}: its status period not put back: {}",
+            v.message
+        );
     }
     let figures = result.map_err(|Ended(why)| why)?;
     super::write::all(out, &figures).map_err(|e| format!("{}: {e}", out.display()))?;

@@ -325,7 +325,7 @@ impl<'a> Bench<'a> {
         if !self.gate.is_engaged() {
             return Err(Ended(format!(
                 "the vehicle was disengaged: {}",
-                self.gate.reason()
+                self.gate.cause().why()
             )));
         }
         if self.gate.commander() != Some(Source::Bench) {

@@ -6,10 +6,10 @@ use super::scene::{capture, Scene, Sources};
 use super::{Characterizing, Controls, Thread, Tune};
 use crate::characterize::background::{self, Background};
 use crate::characterize::Procedure;
-use std::path::Path;
 use crate::engine::Gate;
 use crate::safety::{Ask, Done, Refused};
 use crate::value::{Command, DeviceId, Source};
+use std::path::Path;
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
 

@@ -24,8 +24,8 @@ pub use live::Live;
 pub use scene::{capture, secs, Scene, SimFaults, Sources};
 
 pub use crate::characterize::background::{Characterizing, Headline};
-pub use crate::characterize::{Progress, Stage};
 use crate::characterize::Procedure;
+pub use crate::characterize::{Progress, Stage};
 use crate::safety::{Ask, Done, Held, Refused};
 use crate::value::{Command, DeviceId};
 use std::path::Path;
@@ -95,8 +95,12 @@ pub trait Controls {
     /// Characterize device `id` (`adrive characterize`'s procedures) into directory
     /// `out`, in the process that runs the engine, on a thread of its own: refused,
     /// with the reason, where it cannot run or the check refuses.
-    fn characterize(&self, id: DeviceId, procedures: &[Procedure], out: &Path)
-        -> Result<(), String>;
+    fn characterize(
+        &self,
+        id: DeviceId,
+        procedures: &[Procedure],
+        out: &Path,
+    ) -> Result<(), String>;
     /// Where this console's characterization stands, or how its last one ended.
     fn characterizing(&self) -> Option<Characterizing>;
     /// End this console's characterization at once — the runner disengages, the safe

@@ -51,14 +51,13 @@ impl RunBox<'_> {
         let t = &self.theme;
         let r = self.run;
         let out = r.out.display().to_string();
+        let w = usize::from(width);
         match &r.end {
             None => {
                 let p = &r.progress;
-                let left = p
-                    .left()
-                    .map_or("estimating what is left".into(), |l| {
-                        format!("about {} left", secs(l))
-                    });
+                let left = p.left().map_or("estimating what is left".into(), |l| {
+                    format!("about {} left", secs(l))
+                });
                 let stop = key_name(self.map, Mode::Bench, Action::Stop);
                 let back = key_name(self.map, Mode::Bench, Action::Back);
                 vec![
@@ -79,21 +78,19 @@ impl RunBox<'_> {
                     ]),
                     Line::from(vec![
                         Span::styled("writing to ", t.label()),
-                        Span::raw(out),
+                        Span::raw(path_in(&out, w.saturating_sub(11))),
                     ]),
                 ]
             }
             Some(Ok(h)) => {
+                let done = format!("done in {}", secs_f(h.took));
+                let room = w.saturating_sub(done.chars().count() + 13);
                 let mut lines = vec![Line::from(vec![
-                    Span::styled(format!("done in {}", secs_f(h.took)), t.good()),
+                    Span::styled(done, t.good()),
                     Span::styled(" · written to ", t.label()),
-                    Span::raw(out),
+                    Span::raw(path_in(&out, room)),
                 ])];
-                let groups = h
-                    .words()
-                    .into_iter()
-                    .map(|w| vec![Span::raw(w)])
-                    .collect();
+                let groups = h.words().into_iter().map(|w| vec![Span::raw(w)]).collect();
                 lines.extend(wrap(groups, width, ""));
                 lines
             }
@@ -108,6 +105,21 @@ impl RunBox<'_> {
             ],
         }
     }
+}
+
+/// `path` in at most `room` columns: whole, or its end after a mark (the end of a
+/// directory's path is what tells it from another).
+fn path_in(path: &str, room: usize) -> String {
+    let chars: Vec<char> = path.chars().collect();
+    if chars.len() <= room {
+        return path.to_string();
+    }
+    let keep = room.saturating_sub(1);
+    format!(
+        "{}{}",
+        fit::MARK,
+        chars[chars.len() - keep..].iter().collect::<String>()
+    )
 }
 
 fn secs_f(s: f64) -> String {
@@ -175,7 +187,11 @@ mod tests {
     #[test]
     fn while_it_runs_the_stage_its_step_the_time_and_the_keys_that_end_it() {
         let r = drawn(&running(), 80, RUN_BOX);
-        assert!(r[0].starts_with("┌ characterize steer: running ─"), "{}", r[0]);
+        assert!(
+            r[0].starts_with("┌ characterize steer: running ─"),
+            "{}",
+            r[0]
+        );
         // 11 moves in 8.1 s: 39 more at that pace.
         assert_eq!(
             r[1],
@@ -184,8 +200,19 @@ mod tests {
                 "large steps · step 12 of 50 · 8.1 s · about 28.7 s left"
             )
         );
-        assert!(r[2].contains("Space STOP or Esc ends it at once"), "{}", r[2]);
-        assert!(r[3].contains("writing to /home/op/characterize-steer-"), "{}", r[3]);
+        assert!(
+            r[2].contains("Space STOP or Esc ends it at once"),
+            "{}",
+            r[2]
+        );
+        assert!(
+            r[3].contains("writing to /home/op/characterize-steer-"),
+            "{}",
+            r[3]
+        );
+        // Too long a path keeps its end, which tells it from another.
+        let r = drawn(&running(), 40, RUN_BOX);
+        assert_eq!(r[3], "│writing to …rize-steer-20261127-140812│");
     }
 
     #[test]
@@ -206,7 +233,10 @@ mod tests {
         let r = drawn(&run, 80, RUN_BOX);
         let text = r.join("\n");
         assert!(r[0].starts_with("┌ characterize steer: done ─"), "{text}");
-        assert!(r[1].contains("done in 31.2 s · written to /home/op/"), "{text}");
+        assert!(
+            r[1].contains("done in 31.2 s · written to /home/op/"),
+            "{text}"
+        );
         for f in [
             "rate up 1.000 /s",
             "down 0.998 /s",
@@ -233,7 +263,10 @@ mod tests {
             "the vehicle was disengaged: stop from console, and then some more words".into(),
         ));
         let r = drawn(&ended, 40, 4);
-        assert!(r[0].starts_with("┌ characterize steer: ended early ─"), "{r:?}");
+        assert!(
+            r[0].starts_with("┌ characterize steer: ended early ─"),
+            "{r:?}"
+        );
         assert!(r[1].starts_with("│ended early: the vehicle was…"), "{r:?}");
     }
 }

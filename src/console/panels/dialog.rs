@@ -9,7 +9,7 @@ use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Clear, Widget};
-use unicode_width::UnicodeWidthStr;
+use unicode_width::{UnicodeWidthChar, UnicodeWidthStr};
 
 pub(crate) struct Dialog<'a> {
     pub ask: Question,
@@ -92,19 +92,26 @@ impl Dialog<'_> {
     }
 }
 
-/// `text` in lines of at most `width` columns, broken between words (a word longer
-/// than a line stands alone on its line, to be cut).
+/// `text` in lines of at most `width` columns, broken between words; a word longer
+/// than a line (a directory's path) is broken across lines, so that a question drawn in
+/// enough rows is drawn whole.
 fn wrapped(text: &str, width: u16) -> Vec<String> {
+    let width = usize::from(width.max(1));
     let mut out: Vec<String> = Vec::new();
     let mut line = String::new();
     for word in text.split_whitespace() {
-        if !line.is_empty() && line.width() + 1 + word.width() > usize::from(width) {
+        if !line.is_empty() && line.width() + 1 + word.width() > width {
             out.push(std::mem::take(&mut line));
         }
         if !line.is_empty() {
             line.push(' ');
         }
-        line.push_str(word);
+        for c in word.chars() {
+            if line.width() + c.width().unwrap_or(0) > width {
+                out.push(std::mem::take(&mut line));
+            }
+            line.push(c);
+        }
     }
     if !line.is_empty() {
         out.push(line);
@@ -144,5 +151,36 @@ mod tests {
         let mut buf = Buffer::empty(Rect::new(0, 0, 24, 5));
         assert!(!d.render_seen(buf.area, &mut buf));
         assert_eq!(rows(&buf)[1], "│Take command? The…    │");
+    }
+
+    /// A characterization's question names a directory longer than a line: the path is
+    /// broken across lines, and the dialog grows to hold the whole question where the
+    /// screen has the rows — at 80×24 too — so that it can be answered.
+    #[test]
+    fn a_long_question_with_a_path_is_drawn_whole_where_there_are_rows() {
+        let map = Keymap::default_map();
+        let text = "Characterize steer (step, sweep, deadband, backlash, rate, delay) into \
+            /home/operator/a/rather/long/working/directory/characterize-steer-20261127-140812? \
+            It moves steer over 90 % of its range for about 30 s; the vehicle must be \
+            stopped, in park, with the brake held. Checked now: stopped, in park, the \
+            brake held.";
+        let d = Dialog {
+            ask: Question::Characterize(crate::value::DeviceId(0)),
+            text,
+            map: &map,
+            theme: Theme::default(),
+        };
+        // The bench's body at 80×24 is 21 rows.
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 21));
+        assert!(d.render_seen(buf.area, &mut buf));
+        let all = rows(&buf).join("\n");
+        // The path, broken where the line ends.
+        assert!(all.contains("directory/characteriz│"), "{all}");
+        assert!(all.contains("│e-steer-20261127-140812?"), "{all}");
+        assert!(all.contains("brake held."), "{all}");
+        assert!(all.contains("y yes   n/Esc no"), "{all}");
+        // Too few rows: not whole, and so not answerable.
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 8));
+        assert!(!d.render_seen(buf.area, &mut buf));
     }
 }

@@ -83,10 +83,36 @@ pub(super) fn holds_the_bench(m: &mut Model, a: Action) -> bool {
 /// The bench is left: a run under way ends at once, saying `why`.
 pub(super) fn left(m: &mut Model, c: &dyn Controls, why: &str) {
     if m.characterize_running() {
-        // How it ended is said at the next tick.
+        // It has ended when this returns: the answer to the operator's key.
         c.characterize_end(why);
+        m.characterizing = c.characterizing();
+        if let Some((text, bad)) = m.characterizing.as_ref().and_then(ending) {
+            m.say(text, bad);
+        }
     }
     m.characterize_shown = false;
+}
+
+/// How run `run` ended, in words, and whether that is bad news; `None` while it runs.
+fn ending(run: &crate::controls::Characterizing) -> Option<(String, bool)> {
+    match run.end.as_ref()? {
+        Ok(h) => Some((
+            format!(
+                "characterize {}: done in {:.1} s, written to {}",
+                run.name,
+                h.took,
+                run.out.display()
+            ),
+            false,
+        )),
+        Err(why) => Some((
+            format!(
+                "characterize {} ended early: {why}; safe state, nothing written",
+                run.name
+            ),
+            true,
+        )),
+    }
 }
 
 /// Read where the run stands; say once how it ended.
@@ -96,26 +122,7 @@ pub(super) fn tick(m: &mut Model, c: &dyn Controls) {
     if !was_running {
         return;
     }
-    let Some(run) = m.characterizing.clone() else {
-        return;
-    };
-    match &run.end {
-        None => {}
-        Some(Ok(h)) => m.tell(
-            format!(
-                "characterize {}: done in {:.1} s, written to {}",
-                run.name,
-                h.took,
-                run.out.display()
-            ),
-            false,
-        ),
-        Some(Err(why)) => m.tell(
-            format!(
-                "characterize {} ended early: {why}; safe state, nothing written",
-                run.name
-            ),
-            true,
-        ),
+    if let Some((text, bad)) = m.characterizing.as_ref().and_then(ending) {
+        m.tell(text, bad);
     }
 }
