@@ -84,7 +84,8 @@ impl RunBox<'_> {
             }
             Some(Ok(h)) => {
                 let done = format!("done in {}", secs_f(h.took));
-                let room = w.saturating_sub(done.chars().count() + 13);
+                let room =
+                    w.saturating_sub(done.chars().count() + " · written to ".chars().count());
                 let mut lines = vec![Line::from(vec![
                     Span::styled(done, t.good()),
                     Span::styled(" · written to ", t.label()),
@@ -230,6 +231,12 @@ mod tests {
             settle: Some(0.62),
             took: 31.2,
         }));
+        // Where the path does not fit, its end.
+        let r = drawn(&run, 60, RUN_BOX);
+        assert_eq!(
+            r[1],
+            "│done in 31.2 s · written to …cterize-steer-20261127-140812│"
+        );
         let r = drawn(&run, 80, RUN_BOX);
         let text = r.join("\n");
         assert!(r[0].starts_with("┌ characterize steer: done ─"), "{text}");
