@@ -648,9 +648,6 @@ fn check_recording(given: bool, r: &record::Options) -> anyhow::Result<()> {
     .map_err(anyhow::Error::msg)
 }
 
-/// How often `adrive characterize` polls the device it measures, at most.
-const CHARACTERIZE_POLL: Duration = Duration::from_millis(5);
-
 /// `adrive characterize DEVICE`: the engine without a console or network, the
 /// procedures of [`crate::characterize`] as the one commander, then the safe state.
 pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
@@ -662,7 +659,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         anyhow::bail!("no device {:?} in {}", args.device, config.source);
     };
     // Sample the device fast: the figures are read between its polls.
-    d.status_period = d.status_period.min(CHARACTERIZE_POLL);
+    d.status_period = d.status_period.min(crate::characterize::background::POLL);
     let out = args
         .out
         .clone()
@@ -749,7 +746,12 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
                 .join(", ")
         ),
     );
-    let result = crate::characterize::run(&gate, &exits, &args.device, &procedures);
+    let stop = || exits.try_recv().ok().map(|why| why.describe());
+    let watch = crate::characterize::Watch {
+        progress: &|_| {},
+        stop: &stop,
+    };
+    let result = crate::characterize::run(&gate, &watch, &args.device, &procedures);
     control.close();
     gate.disengage(crate::snapshot::DisengageCause::Stopping { why: None });
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));

@@ -836,3 +836,23 @@ fn an_attached_console_on_a_slow_but_live_link_keeps_command_for_a_minute() {
     svc.stays_engaged(Duration::from_secs(60));
     assert!(driver.term.cursor_answers() > 150);
 }
+
+/// An attached console's bench key for characterize is refused at once, saying where it
+/// runs; nothing is engaged or moved.
+#[test]
+fn an_attached_console_is_told_where_characterize_runs() {
+    let svc = Service::start("attach-characterize", None);
+    let mut c = Attached::start(&svc.socket);
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("BENCH") && s.contains("┌STEER"));
+    c.keys("M");
+    let s = c.wait_for("refused", |s| s.contains("characterize steer refused"));
+    assert!(
+        s.contains("characterize runs where the vehicle's engine runs"),
+        "{s}"
+    );
+    assert!(!s.contains("Characterize steer ("), "{s}");
+    assert_eq!(svc.gate()["engaged"], false);
+    c.keys("q");
+    assert_eq!(c.wait_exit(), Some(0));
+}

@@ -59,6 +59,31 @@ impl Console {
         play: Play,
         env: &[(&str, &str)],
     ) -> Console {
+        Console::spawn(name, extra, size, play, env, false)
+    }
+
+    /// On [`common::tolerant_alice`] at `size`, working in its log directory (where a
+    /// characterization from the bench writes, and which the test removes).
+    fn start_working(name: &str, size: (u16, u16)) -> Console {
+        Console::spawn(
+            name,
+            &["--config", TOLERANT],
+            size,
+            Play::default(),
+            &[],
+            true,
+        )
+    }
+
+    /// `in_log_dir`: adrive's working directory is its log directory.
+    fn spawn(
+        name: &str,
+        extra: &[&str],
+        size: (u16, u16),
+        play: Play,
+        env: &[(&str, &str)],
+        in_log_dir: bool,
+    ) -> Console {
         let log_dir =
             std::env::temp_dir().join(format!("adrive-e2e-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&log_dir);
@@ -90,6 +115,9 @@ impl Console {
             .env("TERM", "xterm-256color")
             .env_remove("NO_COLOR")
             .envs(env.iter().copied());
+        if in_log_dir {
+            cmd.current_dir(&log_dir);
+        }
         attach(&mut cmd, &slave, true);
         let child = cmd.spawn().expect("start adrive");
         let term = Player::start(master, play);
@@ -1586,4 +1614,277 @@ fn inside_a_real_tmux_the_round_trip_is_answered_by_tmux_and_the_header_says_lin
                 .is_ok_and(|l| l.contains("inside tmux, which answers for the terminal"))),
         "the log says why the link is not checked"
     );
+}
+
+/// What the confirmation dialog on `screen` says, its lines joined without spaces
+/// (its lines break between words, and within a path).
+fn dialog_text(screen: &str) -> String {
+    let rows: Vec<Vec<char>> = screen.lines().map(|l| l.chars().collect()).collect();
+    let Some(top) = rows
+        .iter()
+        .position(|r| r.iter().collect::<String>().contains("┌ confirm"))
+    else {
+        return String::new();
+    };
+    let left = rows[top].iter().position(|&c| c == '┌').unwrap();
+    let right = rows[top].iter().rposition(|&c| c == '┐').unwrap();
+    rows[top + 1..]
+        .iter()
+        .take_while(|r| r.get(left) != Some(&'└'))
+        .map(|r| r[left + 1..right.min(r.len())].iter().collect::<String>())
+        .collect::<String>()
+        .replace(' ', "")
+}
+
+/// The directories a characterization from the bench wrote in `dir`.
+fn characterized(dir: &std::path::Path) -> Vec<PathBuf> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.file_name()
+                .is_some_and(|n| n.to_string_lossy().starts_with("characterize-steer-"))
+        })
+        .collect()
+}
+
+impl Console {
+    /// On the bench of the steering (the first device), `M`: the question, read
+    /// whole; `y`: under way, its progress on the bench.
+    fn characterize_steer(&mut self) -> String {
+        self.wait_for("the main screen", |s| {
+            s.contains("STEER") && s.contains("OBD")
+        });
+        self.keys("x");
+        self.wait_for("the bench", |s| s.contains("BENCH") && s.contains("STEER"));
+        // The devices' first reports prove the vehicle still: until then it is refused.
+        let end = Instant::now() + DEADLINE;
+        loop {
+            self.keys("M");
+            let s = self.wait_for("the question or a refusal", |s| {
+                s.contains("Characterize steer") || s.contains("characterize steer refused")
+            });
+            if s.contains("Characterize steer") {
+                break;
+            }
+            assert!(Instant::now() < end, "refused:\n{s}");
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        let q = self.wait_for("the whole question", |s| s.contains("y yes"));
+        let asked = dialog_text(&q);
+        for words in [
+            "Characterize steer (step, sweep, deadband, backlash, rate, delay) into",
+            &format!("{}/characterize-steer-", self.log_dir.display()),
+            "It moves steer over 90 % of its range for about 30 s; the vehicle must be \
+             stopped, in park, with the brake held.",
+            "Checked now: stopped, in park, the brake held.",
+        ] {
+            assert!(asked.contains(&words.replace(' ', "")), "{words}:\n{q}");
+        }
+        self.keys("y");
+        let s = self.wait_for("under way", |s| {
+            s.contains("characterize steer: running") && s.contains("large steps · step")
+        });
+        assert!(s.contains("STOP or Esc ends it"), "{s}");
+        s
+    }
+
+    /// Who commands the vehicle now, as the engine says (`None`: nobody).
+    fn commander(&self) -> Option<String> {
+        let g = &self.status()["gate"];
+        (g["engaged"] == true).then(|| g["commander"].as_str().unwrap_or("?").to_string())
+    }
+
+    /// The steering's measured position, as the engine has it.
+    fn steer_at(&self) -> f64 {
+        let snap = self.status();
+        snap["devices"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|d| d["name"] == "steer")
+            .and_then(|d| d["readings"]["position"].as_f64())
+            .expect("steer reports its position")
+    }
+
+    /// Wait until the steering stands still: two readings 200 ms apart the same.
+    fn steer_still(&self) -> f64 {
+        let end = Instant::now() + DEADLINE;
+        let mut last = self.steer_at();
+        loop {
+            std::thread::sleep(Duration::from_millis(200));
+            let now = self.steer_at();
+            if (now - last).abs() < 1e-4 {
+                return now;
+            }
+            assert!(Instant::now() < end, "steer still moving: {last} → {now}");
+            last = now;
+        }
+    }
+}
+
+/// At 80×24, the operator's smallest full console: the bench's key asks first, naming
+/// the device, the procedures, the directory, what it does and what was checked; the
+/// run commands as `characterize` beside a console that keeps drawing, shows its
+/// stage, step and time left beside the chart, and ends with its figures on the bench,
+/// its files in the directory it named and its end in the log.
+#[test]
+fn the_bench_characterizes_its_device_and_says_what_it_measured() {
+    let mut c = Console::start_working("char-bench", (80, 24));
+    c.characterize_steer();
+    assert_eq!(c.commander().as_deref(), Some("characterize"));
+    let s = c.wait_for("the chart beside the run", |s| {
+        s.contains("steer over the last")
+    });
+    assert!(s.contains("command") || s.contains("measured"), "{s}");
+    // The console keeps drawing while it runs: the step counts up.
+    let step = |s: &str| -> Option<u32> {
+        let at = s.find("· step ")? + "· step ".len();
+        s[at..].split_whitespace().next()?.parse().ok()
+    };
+    let first = step(&c.screen()).unwrap_or(0);
+    c.wait_for("a later step", |s| step(s).is_some_and(|n| n > first + 2));
+    // A whole characterization takes tens of seconds: its own deadline.
+    let end = Instant::now() + DEADLINE * 8;
+    let s = loop {
+        let s = c.screen();
+        assert!(!s.contains("ended early"), "ended early:\n{s}");
+        if s.contains("characterize steer: done") {
+            break c.wait_for("the figures", |s| s.contains("settle"));
+        }
+        assert!(
+            Instant::now() < end,
+            "not done after {:?}:\n{s}",
+            DEADLINE * 8
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    for f in [
+        "rate up",
+        "delay",
+        "deadband",
+        "backlash",
+        "rise",
+        "overshoot",
+        "settle",
+    ] {
+        assert!(s.contains(f), "{f}:\n{s}");
+    }
+    assert!(
+        s.contains("written to …") || s.contains("written to /"),
+        "{s}"
+    );
+    assert_eq!(c.commander(), None, "let go when done");
+    let dirs = characterized(&c.log_dir);
+    assert_eq!(dirs.len(), 1, "{dirs:?}");
+    for f in ["summary.json", "samples.csv", "sim.toml", "report.md"] {
+        assert!(dirs[0].join(f).is_file(), "{f} in {}", dirs[0].display());
+    }
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dirs[0].join("summary.json")).unwrap())
+            .unwrap();
+    assert!(
+        summary["rate_up"].as_f64().is_some_and(|r| r > 0.5),
+        "{summary}"
+    );
+    let log = c.log();
+    assert!(log.contains("characterize steer: done in"), "{log}");
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    assert!(c.log().contains("safe state acknowledged"));
+}
+
+/// STOP mid-run ends it at once: the vehicle disengaged into its safe state, the
+/// bench saying why, nothing written, the steering still; Esc then leaves the bench.
+#[test]
+fn stop_mid_characterization_ends_it_safe_and_writes_nothing() {
+    let mut c = Console::start_working("char-stop", (80, 24));
+    c.characterize_steer();
+    c.wait_for("the steering moving", |_| c.steer_at().abs() > 0.1);
+    c.keys(" ");
+    let s = c.wait_for("ended early", |s| {
+        s.contains("characterize steer: ended early")
+    });
+    assert!(s.contains("stop from console"), "{s}");
+    assert_eq!(c.commander(), None);
+    let reason = c.status()["gate"]["reason"]
+        .as_str()
+        .unwrap_or("")
+        .to_string();
+    assert!(reason.contains("characterize ended"), "{reason}");
+    c.steer_still();
+    assert!(characterized(&c.log_dir).is_empty(), "nothing written");
+    c.keys("\x1b");
+    c.wait_for("the main screen", |s| {
+        s.contains("GAS") && !s.contains("BENCH")
+    });
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let log = c.log();
+    assert!(
+        log.contains("characterize steer: ended early, nothing written"),
+        "{log}"
+    );
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
+/// Leaving the bench mid-run (Esc) ends it at once, as STOP does, saying why.
+#[test]
+fn leaving_the_bench_mid_characterization_ends_it() {
+    let mut c = Console::start_working("char-esc", (80, 24));
+    c.characterize_steer();
+    // The bench stays on the device while it runs.
+    c.keys("\t");
+    c.wait_for("the bench held", |s| {
+        s.contains("the bench stays on the device")
+    });
+    c.keys("\x1b");
+    let s = c.wait_for("said how it ended", |s| {
+        s.contains("characterize steer ended early")
+    });
+    assert!(s.contains("the operator left the bench view"), "{s}");
+    assert_eq!(c.commander(), None);
+    c.steer_still();
+    assert!(characterized(&c.log_dir).is_empty());
+}
+
+/// The console's terminal closed mid-run (an SSH session dropping): the run ends at
+/// once, safe state first, and adrive stops as on a hang-up.
+#[test]
+fn a_terminal_closed_mid_characterization_ends_it_safe() {
+    let mut c = Console::start_working("char-hup", (80, 24));
+    c.characterize_steer();
+    c.term.hang_up();
+    let status = c.wait_exit();
+    assert_eq!(status.code(), Some(129), "{status:?}");
+    let log = c.log();
+    assert!(log.contains("characterize steer: ended early"), "{log}");
+    assert!(log.contains("the console is stopping"), "{log}");
+    assert!(log.contains("safe state acknowledged"), "{log}");
+    assert!(characterized(&c.log_dir).is_empty());
+}
+
+/// Refused at once, with the reason, where it cannot run: a device that is not a
+/// setpoint actuator, and a vehicle out of park.
+#[test]
+fn characterize_is_refused_for_a_state_device_and_out_of_park() {
+    let mut c = Console::start_working("char-refused", (80, 24));
+    c.engage_in_drive();
+    c.keys("D");
+    c.wait_for("the confirmation", |s| s.contains("Disengage?"));
+    c.keys("y");
+    c.wait_for("disengaged", |s| s.contains("DISENGAGED"));
+    // The cursor is on the gearbox.
+    c.keys("x");
+    c.wait_for("the bench", |s| s.contains("BENCH") && s.contains("TRANS"));
+    c.keys("M");
+    let s = c.wait_for("refused", |s| s.contains("characterize trans refused"));
+    assert!(s.contains("trans is a state device"), "{s}");
+    c.keys("/steer\r");
+    c.wait_for("the steering on the bench", |s| s.contains("┌STEER"));
+    c.keys("M");
+    let s = c.wait_for("refused", |s| s.contains("characterize steer refused"));
+    assert!(s.contains("not ready: the gearbox is not in park"), "{s}");
+    assert!(!s.contains("Characterize steer ("), "{s}");
+    assert_eq!(c.commander(), None);
 }

@@ -83,6 +83,7 @@ impl Fixture {
             source: adrive::value::Source::Console,
             gate: &self.gate,
             sources: &self.sources,
+            characterize: None,
         }
     }
     fn act(&self, m: &mut Model, actions: &[Action]) {

@@ -2,8 +2,8 @@
 //! core (value, can, config, snapshot, driver, port, vehicle, safety, engine,
 //! supervisor, and the test kit at its top) never imports a front end, tests included,
 //! and inside the core every import points down the order below — with no exception.
-//! Above the core, the front ends stand in layers of peers: the simulator and the
-//! network; the control interface the consoles share, the recorder, ROS 2, headless;
+//! Above the core, the front ends stand in layers of peers: the simulator, the
+//! network and the bench's characterization; the control interface the consoles share, the recorder, ROS 2, headless;
 //! the consoles (embedded and attached: `console`, `socket`) and the live view; the
 //! command line. A front end imports the core and the layers below its own, never a
 //! peer: the attached console's client and server reach the vehicle through
@@ -37,8 +37,8 @@ const TESTKIT: &str = "testkit";
 /// Front ends and tools, in layers of peers, bottom first: the core never imports
 /// them; each imports the core and the layers before its own, never one of its own.
 const FRONT: &[&[&str]] = &[
-    &["sim", "net"],
-    &["controls", "record", "ros2", "headless", "characterize"],
+    &["sim", "net", "characterize"],
+    &["controls", "record", "ros2", "headless"],
     &["console", "socket", "foxglove"],
     &["cli"],
 ];

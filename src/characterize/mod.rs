@@ -15,15 +15,14 @@
 //! alone.
 
 pub(crate) mod analyze;
+pub(crate) mod background;
 pub(crate) mod write;
 
 use crate::engine::Gate;
-use crate::exit::Exit;
 use crate::safety::{self, Ask};
 use crate::snapshot::DisengageCause;
 use crate::value::{Command, DeviceId, Kind, Source};
 use analyze::{Sample, StepFigures};
-use crossbeam_channel::Receiver;
 use std::time::{Duration, Instant};
 
 /// One procedure of `--procedure`.
@@ -155,7 +154,7 @@ const DEADBAND_STEPS: usize = 11;
 /// A characterization in progress: the one commander of the engaged vehicle.
 pub(crate) struct Bench<'a> {
     gate: &'a Gate,
-    exits: &'a Receiver<Exit>,
+    watch: &'a Watch<'a>,
     id: DeviceId,
     position: usize,
     range: [f64; 2],
@@ -174,6 +173,8 @@ pub(crate) struct Bench<'a> {
     settled: Vec<(i64, bool, f64)>,
     /// Deviations from the mean of settled windows.
     residuals: Vec<f64>,
+    /// Where the run stands, for [`Watch::progress`].
+    progress: Progress,
 }
 
 /// Whether `device` can be characterized here: a setpoint actuator with a position
@@ -203,8 +204,9 @@ impl<'a> Bench<'a> {
     /// reports; `Err` says why not (nothing moved).
     pub(crate) fn engage(
         gate: &'a Gate,
-        exits: &'a Receiver<Exit>,
+        watch: &'a Watch<'a>,
         device: &str,
+        procedures: &[Procedure],
     ) -> Result<Bench<'a>, Ended> {
         let (id, position) = check_device(gate, device).map_err(Ended)?;
         let v = gate.vehicle();
@@ -243,7 +245,7 @@ impl<'a> Bench<'a> {
         let now = Instant::now();
         let mut b = Bench {
             gate,
-            exits,
+            watch,
             id,
             position,
             range,
@@ -257,9 +259,32 @@ impl<'a> Bench<'a> {
             lag: None,
             settled: Vec::new(),
             residuals: Vec::new(),
+            progress: Progress {
+                stage: Stage::Starting,
+                done: 0,
+                total: plan(procedures).iter().map(|(_, n)| n).sum(),
+                elapsed: Duration::ZERO,
+            },
         };
         b.command(set)?;
         Ok(b)
+    }
+
+    /// A stage begins: say so.
+    fn stage(&mut self, stage: Stage) {
+        self.progress.stage = stage;
+        self.report();
+    }
+
+    /// One move (or deadband probe) of the plan done: say so.
+    fn moved(&mut self) {
+        self.progress.done = (self.progress.done + 1).min(self.progress.total);
+        self.report();
+    }
+
+    fn report(&mut self) {
+        self.progress.elapsed = self.started.elapsed();
+        (self.watch.progress)(&self.progress);
     }
 
     fn span(&self) -> f64 {
@@ -294,14 +319,22 @@ impl<'a> Bench<'a> {
     /// alive; take a new reading, if one came.
     fn tick(&mut self) -> Result<(), Ended> {
         std::thread::sleep(Duration::from_millis(1));
-        if let Ok(why) = self.exits.try_recv() {
-            return Err(Ended(format!("stopped: {}", why.describe())));
+        if let Some(why) = (self.watch.stop)() {
+            return Err(Ended(format!("stopped: {why}")));
         }
-        if !self.gate.is_engaged() || self.gate.commander() != Some(Source::Bench) {
-            return Err(Ended(
-                "the vehicle was disengaged or taken (STOP, a fault, an override, the watchdog)"
-                    .into(),
-            ));
+        if !self.gate.is_engaged() {
+            return Err(Ended(format!(
+                "the vehicle was disengaged: {}",
+                self.gate.cause().why()
+            )));
+        }
+        if self.gate.commander() != Some(Source::Bench) {
+            return Err(Ended(format!(
+                "the vehicle was taken by {}",
+                self.gate
+                    .commander()
+                    .map_or("another source".into(), |s| s.to_string())
+            )));
         }
         let v = self.gate.vehicle();
         let d = v.device(self.id);
@@ -420,6 +453,7 @@ impl<'a> Bench<'a> {
         let y = self.settle()?;
         self.settled
             .push(((target * 1e6).round() as i64, target > before, y));
+        self.moved();
         Ok((y, at.unwrap_or_default(), from))
     }
 
@@ -529,6 +563,7 @@ impl<'a> Bench<'a> {
             } else {
                 lo = step;
             }
+            self.moved();
         }
         Ok(hi)
     }
@@ -578,8 +613,10 @@ impl<'a> Bench<'a> {
     /// Bring the device back to where it was found, and let go (disengage: the safe
     /// state).
     fn finish(mut self, home: f64) -> Result<Vec<Sample>, Ended> {
+        self.stage(Stage::Home);
         self.command(home)?;
         self.settle()?;
+        self.moved();
         self.gate
             .disengage(DisengageCause::Characterize { ended: None });
         Ok(self.samples)
@@ -590,11 +627,11 @@ impl<'a> Bench<'a> {
 /// `gate`; every way out of here but success has disengaged it (the safe state).
 pub(crate) fn run(
     gate: &Gate,
-    exits: &Receiver<Exit>,
+    watch: &Watch,
     device: &str,
     procedures: &[Procedure],
 ) -> Result<Figures, Ended> {
-    let mut bench = Bench::engage(gate, exits, device)?;
+    let mut bench = Bench::engage(gate, watch, device, procedures)?;
     let home = bench.set;
     let result = measure(&mut bench, procedures);
     let mut f = match result {
@@ -640,19 +677,17 @@ fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
         ..Figures::default()
     };
     let wants = |p: &[Procedure]| p.iter().any(|x| procedures.contains(x));
-    if wants(&[
-        Procedure::Step,
-        Procedure::Rate,
-        Procedure::Delay,
-        Procedure::Deadband,
-    ]) {
-        b.steps(3, &mut f)?;
+    if wants(STEPS_FOR) {
+        b.stage(Stage::Steps);
+        b.steps(STEP_REPS, &mut f)?;
     }
     if wants(&[Procedure::Deadband]) {
+        b.stage(Stage::Deadband);
         f.deadband = Some(b.deadband()?);
     }
     if wants(&[Procedure::Sweep, Procedure::Backlash]) {
-        let (up, down) = b.sweep(5)?;
+        b.stage(Stage::Sweep);
+        let (up, down) = b.sweep(SWEEP_POINTS)?;
         let (map, line) = analyze::static_map(&up, &down);
         f.map = map;
         f.gain_offset = line;
@@ -660,7 +695,141 @@ fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
         f.sweep = Some((up, down));
     }
     if wants(&[Procedure::Step]) {
-        b.small_steps(1, f.deadband, &mut f)?;
+        b.stage(Stage::SmallSteps);
+        b.small_steps(SMALL_REPS, f.deadband, &mut f)?;
     }
     Ok(f)
+}
+
+/// The procedures that need the large steps (their delay and lag, for the deadband).
+const STEPS_FOR: &[Procedure] = &[
+    Procedure::Step,
+    Procedure::Rate,
+    Procedure::Delay,
+    Procedure::Deadband,
+];
+/// Large steps each way, small steps each way, and the sweep's points.
+const STEP_REPS: usize = 3;
+const SMALL_REPS: usize = 1;
+const SWEEP_POINTS: usize = 5;
+
+/// A stage of a run, in the order they run: what the progress names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// Waiting for the device's first reading, the precondition, the engage.
+    Starting,
+    /// The large steps (step, rate, delay, and what the deadband needs).
+    Steps,
+    Deadband,
+    /// Up the range and back down (sweep, backlash).
+    Sweep,
+    SmallSteps,
+    /// Back to where the device was found.
+    Home,
+}
+
+impl std::fmt::Display for Stage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Stage::Starting => "starting",
+            Stage::Steps => "large steps",
+            Stage::Deadband => "deadband",
+            Stage::Sweep => "sweep",
+            Stage::SmallSteps => "small steps",
+            Stage::Home => "back home",
+        })
+    }
+}
+
+/// The moves (each a command and its settling, or a deadband probe) each stage of
+/// `procedures` takes, in order: what a run's progress counts.
+pub(crate) fn plan(procedures: &[Procedure]) -> Vec<(Stage, usize)> {
+    let wants = |p: &[Procedure]| p.iter().any(|x| procedures.contains(x));
+    let mut out = Vec::new();
+    if wants(STEPS_FOR) {
+        // Each pair: each way, its lead-in, its start and the step.
+        out.push((Stage::Steps, STEP_REPS * 2 * 3));
+    }
+    if wants(&[Procedure::Deadband]) {
+        out.push((Stage::Deadband, 2 + DEADBAND_STEPS));
+    }
+    if wants(&[Procedure::Sweep, Procedure::Backlash]) {
+        out.push((Stage::Sweep, 2 * (SWEEP_POINTS + 1)));
+    }
+    if wants(&[Procedure::Step]) {
+        out.push((Stage::SmallSteps, SMALL_REPS * 2 * 3));
+    }
+    out.push((Stage::Home, 1));
+    out
+}
+
+/// Where a run stands.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Progress {
+    pub stage: Stage,
+    /// Moves done, of `total` planned ([`plan`]).
+    pub done: usize,
+    pub total: usize,
+    /// Since it engaged.
+    pub elapsed: Duration,
+}
+
+impl Progress {
+    /// How long is left, at the pace so far (`None` before the first move: no pace yet).
+    pub(crate) fn left(&self) -> Option<Duration> {
+        if self.done == 0 {
+            return None;
+        }
+        let per = self.elapsed.as_secs_f64() / self.done as f64;
+        Some(Duration::from_secs_f64(
+            per * self.total.saturating_sub(self.done) as f64,
+        ))
+    }
+}
+
+/// How a run is watched: where its progress goes as it goes, and what ends it early
+/// (`Some(why)`: a signal, the operator leaving), checked at every sample.
+pub(crate) struct Watch<'a> {
+    pub progress: &'a dyn Fn(&Progress),
+    pub stop: &'a dyn Fn() -> Option<String>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plan counts every move the procedures make, as the docs count them: 18
+    /// large, 13 for the deadband (its two lead-ins and eleven probes), 12 for the
+    /// sweep, 6 small, and the way home.
+    #[test]
+    fn the_plan_counts_each_stages_moves() {
+        let total = |p: &[Procedure]| plan(p).iter().map(|(_, n)| n).sum::<usize>();
+        assert_eq!(
+            plan(&Procedure::ALL),
+            [
+                (Stage::Steps, 18),
+                (Stage::Deadband, 13),
+                (Stage::Sweep, 12),
+                (Stage::SmallSteps, 6),
+                (Stage::Home, 1)
+            ]
+        );
+        assert_eq!(total(&[Procedure::Sweep]), 13);
+        assert_eq!(total(&[Procedure::Deadband]), 18 + 13 + 1);
+        assert_eq!(total(&[Procedure::Step]), 18 + 6 + 1);
+    }
+
+    #[test]
+    fn what_is_left_is_the_pace_so_far_times_the_moves_to_come() {
+        let p = |done, secs| Progress {
+            stage: Stage::Steps,
+            done,
+            total: 50,
+            elapsed: Duration::from_secs(secs),
+        };
+        assert_eq!(p(0, 3).left(), None);
+        assert_eq!(p(10, 6).left(), Some(Duration::from_secs(24)));
+        assert_eq!(p(50, 30).left(), Some(Duration::ZERO));
+        assert_eq!(p(60, 30).left(), Some(Duration::ZERO));
+    }
 }

@@ -332,6 +332,9 @@ pub enum Action {
     ReleaseCommand,
     /// Bench, under `--sim`: inject or clear a simulator fault.
     Sim(SimAction),
+    /// Bench: characterize the device on the bench (asks first), as `adrive
+    /// characterize` does.
+    Characterize,
     /// Unbinds a key in a user keymap.
     None,
     /// A character typed while editing (not bindable).
@@ -412,7 +415,7 @@ steer_right, accel_up, accel_down, full_brake, center, gas_more, gas_less, brake
 brake_less, hold_more, hold_less, steer_faster, steer_slower, step_mode, key_events, bench, \
 next_device, prev_device, \
 page_down, page_up, find, find_next, find_prev, complete, clear_override, take_command, \
-release_command, \
+release_command, characterize, \
 sim silent|garbage|corrupt|slow|vanish|clear|stall|jam|override, \
 sim estop pause|run|disable, none";
 
@@ -466,6 +469,7 @@ const SIMPLE: &[(&str, Action)] = &[
     ("clear_override", Action::ClearOverride),
     ("take_command", Action::TakeCommand),
     ("release_command", Action::ReleaseCommand),
+    ("characterize", Action::Characterize),
     ("sim silent", Action::Sim(SimAction::Silent)),
     ("sim garbage", Action::Sim(SimAction::Garbage)),
     ("sim corrupt", Action::Sim(SimAction::Corrupt)),

@@ -80,7 +80,7 @@ impl Default for Options {
 
 /// Run the console with the default keymap until the operator quits or an exit
 /// arrives.
-pub fn run(gate: &Gate, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
+pub fn run(gate: &Arc<Gate>, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
     run_with(gate, exits, Options::default())
 }
 
@@ -89,14 +89,17 @@ pub fn run(gate: &Gate, exits: &Receiver<Exit>) -> std::io::Result<Exit> {
 /// drawn on, or its input hung up) ends the console with [`Exit::HangUp`], and the
 /// caller brings the vehicle to the safe state as for SIGHUP.
 pub(crate) fn run_with(
-    gate: &Gate,
+    gate: &Arc<Gate>,
     exits: &Receiver<Exit>,
     opts: Options,
 ) -> std::io::Result<Exit> {
+    // A characterization from the bench runs beside the console, and ends with it.
+    let characterize = crate::characterize::background::Background::new(gate.clone());
     let live = Live {
         gate,
         sources: &opts.sources,
         source: crate::value::Source::Console,
+        characterize: Some(&characterize),
     };
     drive(&live, exits, opts.keymap, opts.deadman, opts.panic_after)
 }
@@ -244,6 +247,9 @@ pub fn drive(
             break why;
         }
     };
+    // A characterization under way ends first, the vehicle in its safe state, before
+    // the terminal is given back.
+    live.characterize_end(&format!("the console is stopping ({})", why.describe()));
     stop.store(true, Relaxed);
     drop(screen);
     let deadline = Instant::now() + 2 * TICK;

@@ -125,6 +125,9 @@ pub enum Question {
     Take,
     /// Switch the interlocks to this.
     Interlocks(bool),
+    /// Characterize the device on the bench ([`Model::characterize_ask`] says what it
+    /// will do).
+    Characterize(DeviceId),
 }
 
 impl Question {
@@ -137,7 +140,41 @@ impl Question {
             Question::Interlocks(false) => {
                 "Turn the interlocks OFF? Nothing will stop gas against the brake."
             }
+            Question::Characterize(_) => "Characterize the device on the bench?",
         }
+    }
+}
+
+/// What a characterization from the bench will do, asked before it starts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CharacterizeAsk {
+    pub device: DeviceId,
+    pub name: String,
+    pub procedures: Vec<crate::characterize::Procedure>,
+    /// Where it will write.
+    pub out: std::path::PathBuf,
+    /// What proved the vehicle still when it was asked (`stopped, in park, the brake
+    /// held`).
+    pub proof: String,
+}
+
+impl CharacterizeAsk {
+    /// The question in words: the device, the procedures, the directory, what it does
+    /// to the device and what was checked.
+    pub fn text(&self) -> String {
+        let procedures: Vec<String> = self
+            .procedures
+            .iter()
+            .map(|p| format!("{p:?}").to_lowercase())
+            .collect();
+        format!(
+            "Characterize {name} ({procedures}) into {out}? It {what}. Checked now: {proof}.",
+            name = self.name,
+            procedures = procedures.join(", "),
+            out = self.out.display(),
+            what = crate::characterize::background::what_it_does(&self.name),
+            proof = self.proof,
+        )
     }
 }
 
@@ -307,6 +344,13 @@ pub struct Model {
     /// The console's own terminal: what it reports of the keys, and whether the
     /// liveness check can see the operator's link.
     pub terminal: TerminalView,
+    /// The characterization asked about, while the question is open.
+    pub characterize_ask: Option<CharacterizeAsk>,
+    /// The console's characterization as the engine reported it at the last tick,
+    /// shown on the bench while it runs and, once it ended, until the bench is left.
+    pub characterizing: Option<crate::controls::Characterizing>,
+    /// The bench shows the characterization (started from it, not yet left).
+    pub(crate) characterize_shown: bool,
 }
 
 /// What the console knows of its own terminal (set by the console's loop).
@@ -353,6 +397,9 @@ impl Model {
             keys: VecDeque::with_capacity(SEEN_KEYS),
             key_viewer: false,
             terminal: TerminalView::default(),
+            characterize_ask: None,
+            characterizing: None,
+            characterize_shown: false,
             snap,
         }
     }
@@ -533,6 +580,27 @@ impl Model {
                 self.mode,
                 Mode::Edit | Mode::Help | Mode::Confirm | Mode::Find
             ) && self.back_to == Mode::Bench)
+    }
+
+    /// The question's words: a characterization's from what it will do.
+    pub fn question_text(&self, q: Question) -> String {
+        match (q, &self.characterize_ask) {
+            (Question::Characterize(id), Some(a)) if a.device == id => a.text(),
+            _ => q.text().to_string(),
+        }
+    }
+
+    /// The characterization the bench shows, if any: the bench device's, from the
+    /// bench.
+    pub(crate) fn bench_run(&self) -> Option<&crate::controls::Characterizing> {
+        self.characterizing
+            .as_ref()
+            .filter(|c| self.characterize_shown && c.device == self.bench)
+    }
+
+    /// A characterization is under way.
+    pub(crate) fn characterize_running(&self) -> bool {
+        self.characterizing.as_ref().is_some_and(|c| c.running())
     }
 
     /// Whether the teleop view is on screen (possibly under a dialog).

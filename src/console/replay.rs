@@ -337,6 +337,21 @@ impl Controls for Replay<'_> {
     }
     /// A recording commands nothing: no link to prove.
     fn answered(&self, _at: Instant) {}
+    fn characterize_check(&self, _: DeviceId) -> Result<String, String> {
+        Err(READ_ONLY.into())
+    }
+    fn characterize(
+        &self,
+        _: DeviceId,
+        _: &[crate::characterize::Procedure],
+        _: &std::path::Path,
+    ) -> Result<(), String> {
+        Err(READ_ONLY.into())
+    }
+    fn characterizing(&self) -> Option<crate::controls::Characterizing> {
+        None
+    }
+    fn characterize_end(&self, _: &str) {}
 }
 
 /// Every change is refused in a replay: nothing is sent.

@@ -199,7 +199,9 @@ pub(crate) fn check(m: &Model, a: Action) -> Result<(), Unseen> {
         (Mode::Main, Action::Wake(None)) => device(m.field().device()),
         (Mode::Main, Action::Wake(Some(r))) => device(m.snap.bound_id(r)),
         (Mode::Main, Action::ResetSteering) => device(m.snap.bound_id(Role::Steering)),
-        (Mode::Bench, Action::Edit | Action::Wake(_)) => device(Some(m.bench)),
+        (Mode::Bench, Action::Edit | Action::Wake(_) | Action::Characterize) => {
+            device(Some(m.bench))
+        }
         (Mode::Bench, Action::Sim(s)) => match &d.sim_keys {
             // A key the vehicle has no use for is answered by the simulator's
             // refusal, which says what is missing.

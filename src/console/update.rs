@@ -13,6 +13,7 @@ use crate::value::{Command, Control, DeviceId, EstopState, Value};
 use crossterm::event::KeyEvent;
 use std::time::{Duration, Instant};
 
+mod characterize;
 mod find;
 mod teleop;
 
@@ -38,6 +39,7 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
         }
     }
     m.cursor = m.cursor.min(m.fields().len().saturating_sub(1));
+    characterize::tick(m, c);
     follow_steer_reset(m, c, now);
     let sup = &m.snap.supervisor;
     if sup.outcomes > m.outcomes_seen {
@@ -174,7 +176,7 @@ pub fn update(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) -> Flow 
     Flow::Continue
 }
 
-fn ask(m: &mut Model, q: Question) {
+pub(super) fn ask(m: &mut Model, q: Question) {
     m.ask = Some(q);
     m.back_to = m.mode;
     m.mode = Mode::Confirm;
@@ -511,11 +513,13 @@ fn confirm(m: &mut Model, a: Action, c: &dyn Controls) {
                     Ok(()) => m.say(format!("interlocks {}", if on { "ON" } else { "OFF" }), !on),
                     Err(why) => m.say(format!("interlocks refused: {why}"), true),
                 },
+                Some(Question::Characterize(id)) => characterize::confirmed(m, c, id),
                 None => {}
             }
         }
         Action::Cancel | Action::Back => {
             m.ask = None;
+            m.characterize_ask = None;
             m.mode = m.back_to;
             m.say("cancelled", false);
         }
@@ -531,6 +535,7 @@ fn stop(m: &mut Model, c: &dyn Controls) {
     if matches!(m.mode, Mode::Edit | Mode::Confirm | Mode::Find) {
         m.edit = None;
         m.ask = None;
+        m.characterize_ask = None;
         m.find = None;
         m.mode = m.back_to;
     }
@@ -556,6 +561,9 @@ fn stop(m: &mut Model, c: &dyn Controls) {
 fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
     let n = m.snap.devices.len() as u16;
     let i = m.bench.0;
+    if characterize::holds_the_bench(m, a) {
+        return;
+    }
     match a {
         Action::NextDevice | Action::Right | Action::Down if n > 0 => {
             m.bench = DeviceId((i + 1) % n)
@@ -580,7 +588,11 @@ fn bench(m: &mut Model, a: Action, c: &dyn Controls) {
         Action::FindPrev => find::again(m, -1),
         Action::Sim(what) => sim(m, c, what),
         Action::ClearOverride => clear_override(m, c),
-        Action::Back | Action::Cancel => m.mode = Mode::Main,
+        Action::Characterize => characterize::ask(m, c),
+        Action::Back | Action::Cancel => {
+            characterize::left(m, c, "the operator left the bench view");
+            m.mode = Mode::Main;
+        }
         _ => {}
     }
 }

@@ -389,6 +389,7 @@ pub fn draw(m: &Model, area: Rect, buf: &mut Buffer) -> Drawn {
                     .as_deref()
                     .and_then(|b| m.snap.buses.iter().find(|x| x.name == b)),
                 refused: m.sim_refused(),
+                run: m.bench_run(),
             };
             let shown = v.render_seen(body, buf);
             if shown.panel.name {
@@ -423,8 +424,10 @@ pub fn draw(m: &Model, area: Rect, buf: &mut Buffer) -> Drawn {
         }
         Mode::Confirm => {
             if let Some(ask) = m.ask {
+                let text = m.question_text(ask);
                 let d = Dialog {
                     ask,
+                    text: &text,
                     map: &m.keymap,
                     theme: m.theme,
                 };

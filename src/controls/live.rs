@@ -3,10 +3,13 @@
 //! `Live` of its own.
 
 use super::scene::{capture, Scene, Sources};
-use super::{Controls, Thread, Tune};
+use super::{Characterizing, Controls, Thread, Tune};
+use crate::characterize::background::{self, Background};
+use crate::characterize::Procedure;
 use crate::engine::Gate;
 use crate::safety::{Ask, Done, Refused};
 use crate::value::{Command, DeviceId, Source};
+use std::path::Path;
 use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
 
@@ -17,6 +20,8 @@ pub struct Live<'a> {
     pub gate: &'a Gate,
     pub sources: &'a Sources,
     pub source: Source,
+    /// The embedded console's characterizations (`None` for an attached console's).
+    pub characterize: Option<&'a Background>,
 }
 
 /// A console edit of a device's settings, checked as the vehicle file is, and logged.
@@ -105,5 +110,30 @@ impl Controls for Live<'_> {
     }
     fn answered(&self, at: Instant) {
         self.gate.answered(self.source, at);
+    }
+    fn characterize_check(&self, id: DeviceId) -> Result<String, String> {
+        match self.characterize {
+            Some(_) => background::check(self.gate, id),
+            None => Err(super::CHARACTERIZE_WHERE.into()),
+        }
+    }
+    fn characterize(
+        &self,
+        id: DeviceId,
+        procedures: &[Procedure],
+        out: &Path,
+    ) -> Result<(), String> {
+        match self.characterize {
+            Some(b) => b.start(id, procedures, out),
+            None => Err(super::CHARACTERIZE_WHERE.into()),
+        }
+    }
+    fn characterizing(&self) -> Option<Characterizing> {
+        self.characterize.and_then(Background::state)
+    }
+    fn characterize_end(&self, why: &str) {
+        if let Some(b) = self.characterize {
+            b.end(why);
+        }
     }
 }

@@ -23,9 +23,17 @@ pub(crate) mod scene;
 pub use live::Live;
 pub use scene::{capture, secs, Scene, SimFaults, Sources};
 
+pub use crate::characterize::background::{Characterizing, Headline};
+use crate::characterize::Procedure;
+pub use crate::characterize::{Progress, Stage};
 use crate::safety::{Ask, Done, Held, Refused};
 use crate::value::{Command, DeviceId};
+use std::path::Path;
 use std::time::{Duration, Instant};
+
+/// Why an attached console may not characterize: the run needs the engine's process.
+pub(crate) const CHARACTERIZE_WHERE: &str = "characterize runs where the vehicle's engine \
+runs: use `adrive characterize` on that host (or the console it runs with)";
 
 /// How often a console draws a frame, and the control socket sends one to each
 /// attached console.
@@ -80,6 +88,24 @@ pub trait Controls {
     /// `at`: a proof that the operator still sees the vehicle
     /// ([`crate::engine::Gate::answered`]).
     fn answered(&self, at: Instant);
+    /// Whether device `id` may be characterized now: what proved the vehicle still
+    /// (`stopped, in park, the brake held`), or why not
+    /// ([`crate::characterize::background::check`]).
+    fn characterize_check(&self, id: DeviceId) -> Result<String, String>;
+    /// Characterize device `id` (`adrive characterize`'s procedures) into directory
+    /// `out`, in the process that runs the engine, on a thread of its own: refused,
+    /// with the reason, where it cannot run or the check refuses.
+    fn characterize(
+        &self,
+        id: DeviceId,
+        procedures: &[Procedure],
+        out: &Path,
+    ) -> Result<(), String>;
+    /// Where this console's characterization stands, or how its last one ended.
+    fn characterizing(&self) -> Option<Characterizing>;
+    /// End this console's characterization at once — the runner disengages, the safe
+    /// state — saying why (`the operator left the bench view`).
+    fn characterize_end(&self, why: &str);
 
     /// A command through the one intake, as the console's.
     fn submit(&self, id: DeviceId, command: Command) -> Result<(), Refused> {

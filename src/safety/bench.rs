@@ -38,6 +38,28 @@ impl fmt::Display for Unready {
     }
 }
 
+/// What proved that a bench procedure may move its device.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Proof {
+    /// Nothing but the device is bound to a role: a bench.
+    Bench,
+    /// Stopped and in park, and the brake held — or the brake is the device under test
+    /// (`brake_held` false), and park holds the vehicle.
+    Still { brake_held: bool },
+}
+
+impl fmt::Display for Proof {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Proof::Bench => f.write_str("a bench: nothing else is bound to a role"),
+            Proof::Still { brake_held: true } => f.write_str("stopped, in park, the brake held"),
+            Proof::Still { brake_held: false } => {
+                f.write_str("stopped, in park (the brake is the device measured)")
+            }
+        }
+    }
+}
+
 /// Only `device` is bound to a role, or nothing is: a bench, where moving it moves
 /// nothing else.
 fn bench(b: &Bindings, device: DeviceId) -> bool {
@@ -49,9 +71,9 @@ fn bench(b: &Bindings, device: DeviceId) -> bool {
 
 /// May a bench procedure move `device` now, the vehicle's roles `b` and what the rules
 /// see `f` (gathered as for a gear command: brake, gear, speed)?
-pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unready> {
+pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<Proof, Unready> {
     if bench(b, device) {
-        return Ok(());
+        return Ok(Proof::Bench);
     }
     if b.speed.is_none() {
         return Err(Unready::Unproven(Role::Speed));
@@ -68,7 +90,7 @@ pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unr
     }
     // The brake under test cannot also hold the vehicle: park does.
     if b.brake == Some(device) {
-        return Ok(());
+        return Ok(Proof::Still { brake_held: false });
     }
     if b.brake.is_none() {
         return Err(Unready::Unproven(Role::Brake));
@@ -76,7 +98,7 @@ pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unr
     if !f.brake_low.is_some_and(|lo| lo >= SHIFT_BRAKE) {
         return Err(Unready::BrakeNotHeld);
     }
-    Ok(())
+    Ok(Proof::Still { brake_held: true })
 }
 
 #[cfg(test)]
@@ -105,7 +127,10 @@ mod tests {
     #[test]
     fn a_still_vehicle_in_park_with_the_brake_held_is_ready() {
         let (b, steer) = alice();
-        assert_eq!(ready(&b, steer, &still()), Ok(()));
+        assert_eq!(
+            ready(&b, steer, &still()),
+            Ok(Proof::Still { brake_held: true })
+        );
     }
 
     #[test]
@@ -146,7 +171,10 @@ mod tests {
             brake_low: Some(0.0),
             ..still()
         };
-        assert_eq!(ready(&b, brake, &released), Ok(()));
+        assert_eq!(
+            ready(&b, brake, &released),
+            Ok(Proof::Still { brake_held: false })
+        );
         let drive = Facts {
             gear: Some(3),
             ..released
@@ -161,7 +189,7 @@ mod tests {
             steering: Some(steer),
             ..Bindings::default()
         };
-        assert_eq!(ready(&only, steer, &Facts::default()), Ok(()));
+        assert_eq!(ready(&only, steer, &Facts::default()), Ok(Proof::Bench));
         let no_speed = Bindings { speed: None, ..b };
         assert_eq!(
             ready(&no_speed, steer, &still()),

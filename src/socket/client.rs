@@ -370,6 +370,24 @@ impl Controls for Remote {
     fn answered(&self, _at: Instant) {
         self.post(Op::Answered);
     }
+    /// Refused here, before anything is sent: a run belongs to the console of the
+    /// process that runs the engine (its leaving ends the run), and nothing of it
+    /// travels over the control socket.
+    fn characterize_check(&self, _: DeviceId) -> Result<String, String> {
+        Err(crate::controls::CHARACTERIZE_WHERE.into())
+    }
+    fn characterize(
+        &self,
+        _: DeviceId,
+        _: &[crate::characterize::Procedure],
+        _: &std::path::Path,
+    ) -> Result<(), String> {
+        Err(crate::controls::CHARACTERIZE_WHERE.into())
+    }
+    fn characterizing(&self) -> Option<crate::controls::Characterizing> {
+        None
+    }
+    fn characterize_end(&self, _: &str) {}
 }
 
 #[cfg(test)]

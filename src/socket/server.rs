@@ -484,6 +484,7 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
         gate: &s.gate,
         sources: &s.sources,
         source,
+        characterize: None,
     };
     let unit = |r: Result<(), String>| match r {
         Ok(()) => Answer::Ok,

@@ -8,9 +8,13 @@
 //! and command over the last seconds ([`TrailChart`]) above the traffic. A device on a
 //! CAN bus shows its bus instead ([`BusMonitor`]): every identifier's last frame
 //! decoded by the DBC, above its own traffic (the adapter lines it wrote) where every
-//! identifier keeps a line; it has a chart only when it reports a position.
+//! identifier keeps a line; it has a chart only when it reports a position. While a
+//! characterization started from the bench runs (and once it ended, until the bench
+//! is left), its box ([`RunBox`]) takes the traffic's place, and the chart the
+//! histogram's, whatever the height: at 80×24 too.
 
 use super::bus::BusMonitor;
+use super::characterize::{RunBox, RUN_BOX};
 use super::chart::{TrailChart, CHART_MAX, CHART_MIN};
 use super::device::{DevicePanel, Seen};
 use super::fit;
@@ -63,6 +67,8 @@ pub(crate) struct BenchView<'a> {
     /// The simulator keys whose line the simulator would refuse here (what they act on
     /// is not in this vehicle): not offered.
     pub(crate) refused: Vec<SimAction>,
+    /// The characterization of this device started from the bench.
+    pub(crate) run: Option<&'a crate::controls::Characterizing>,
 }
 
 /// Rows the simulator box takes.
@@ -201,8 +207,26 @@ impl BenchView<'_> {
         // gives way and the panels keep their lines.
         // A CAN device without a position has nothing to chart but its command: the
         // bus has the room.
-        let has_chart = self.d.range.is_some()
+        let has_chart = self.run.is_none()
+            && self.d.range.is_some()
             && (self.bus.is_none() || self.d.readings.get(POSITION).is_some());
+        // A characterization's box where the traffic was, the traffic below it with
+        // what is left.
+        let run_h = match self.run {
+            Some(_) if bottom.height >= RUN_BOX + TRAFFIC_MIN => RUN_BOX,
+            Some(_) => bottom.height,
+            None => 0,
+        };
+        let [run_area, bottom] =
+            Layout::vertical([Constraint::Length(run_h), Constraint::Min(0)]).areas(bottom);
+        if let Some(run) = self.run {
+            let b = RunBox {
+                run,
+                map: self.map,
+                theme: *t,
+            };
+            (&b).render(run_area, buf);
+        }
         let chart_h = if has_chart {
             bottom.height.saturating_sub(TRAFFIC_MIN).min(CHART_MAX)
         } else {
@@ -279,6 +303,26 @@ impl BenchView<'_> {
         };
         seen.panel = panel.render_seen(left, buf);
 
+        // During a characterization, the device's chart in the histogram's place.
+        if self.run.is_some() && right.height >= CHART_MIN {
+            let c = TrailChart {
+                id: self.id,
+                d: self.d,
+                trail: self.trail,
+                now: self.now,
+                theme: *t,
+            };
+            (&c).render(right, buf);
+        } else {
+            self.histogram(right, buf);
+        }
+        self.traffic(bottom, buf);
+        seen
+    }
+
+    /// The device's delay histogram, as a bar chart over powers of two.
+    fn histogram(&self, right: Rect, buf: &mut Buffer) {
+        let t = &self.theme;
         let bins = log2_bins(self.buckets);
         let what = if self.d.is_actuator() {
             " receipt → first byte "
@@ -313,7 +357,11 @@ impl BenchView<'_> {
                 .data(BarGroup::default().bars(&bars))
                 .render(right, buf);
         }
+    }
 
+    /// The device's raw traffic, newest at the bottom.
+    fn traffic(&self, bottom: Rect, buf: &mut Buffer) {
+        let t = &self.theme;
         let title = traffic_title(
             &self.d.name,
             self.sim.filter(|f| f.any()).map(|f| f.text.as_str()),
@@ -321,7 +369,7 @@ impl BenchView<'_> {
             self.read_only,
         );
         if bottom.height == 0 {
-            return seen;
+            return;
         }
         let block =
             Block::bordered().title(Span::styled(fit::title(&title, bottom.width), t.title()));
@@ -340,7 +388,6 @@ impl BenchView<'_> {
                 .collect()
         };
         fit::Fitted(lines).render(inner, buf);
-        seen
     }
 }
 
@@ -454,6 +501,7 @@ mod tests {
             trail: &trail,
             bus: None,
             refused: Vec::new(),
+            run: None,
         };
         let roles = f.snap.gate.roles.clone();
         let v = view(&roles);

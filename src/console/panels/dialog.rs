@@ -9,10 +9,12 @@ use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Block, Clear, Widget};
-use unicode_width::UnicodeWidthStr;
+use unicode_width::{UnicodeWidthChar, UnicodeWidthStr};
 
 pub(crate) struct Dialog<'a> {
     pub ask: Question,
+    /// The question in words ([`crate::console::model::Model::question_text`]).
+    pub text: &'a str,
     pub map: &'a Keymap,
     pub theme: Theme,
 }
@@ -37,7 +39,9 @@ impl Dialog<'_> {
     /// drawn whole (what may then be answered).
     pub(crate) fn render_seen(&self, area: Rect, buf: &mut Buffer) -> bool {
         let w = area.width.min(60);
-        let h = area.height.min(6);
+        // Room for the whole question where the area has it, and its answers.
+        let lines = wrapped(self.text, w.saturating_sub(2)).len() as u16;
+        let h = area.height.min((lines + 4).max(6));
         let r = Rect {
             x: area.x + (area.width - w) / 2,
             y: area.y + (area.height - h) / 2,
@@ -46,7 +50,10 @@ impl Dialog<'_> {
         };
         Clear.render(r, buf);
         let style = match self.ask {
-            Question::Interlocks(false) | Question::Engage | Question::Take => self.theme.warn(),
+            Question::Interlocks(false)
+            | Question::Engage
+            | Question::Take
+            | Question::Characterize(_) => self.theme.warn(),
             _ => self.theme.title(),
         };
         let block = Block::bordered()
@@ -60,7 +67,7 @@ impl Dialog<'_> {
             Span::styled(keys(self.map, Action::Cancel), self.theme.key()),
             Span::raw(" no"),
         ]);
-        let mut question = wrapped(self.ask.text(), inner.width);
+        let mut question = wrapped(self.text, inner.width);
         let whole = question.len() + 2 <= usize::from(inner.height)
             && answers.width() <= usize::from(inner.width)
             && question
@@ -85,19 +92,26 @@ impl Dialog<'_> {
     }
 }
 
-/// `text` in lines of at most `width` columns, broken between words (a word longer
-/// than a line stands alone on its line, to be cut).
+/// `text` in lines of at most `width` columns, broken between words; a word longer
+/// than a line (a directory's path) is broken across lines, so that a question drawn in
+/// enough rows is drawn whole.
 fn wrapped(text: &str, width: u16) -> Vec<String> {
+    let width = usize::from(width.max(1));
     let mut out: Vec<String> = Vec::new();
     let mut line = String::new();
     for word in text.split_whitespace() {
-        if !line.is_empty() && line.width() + 1 + word.width() > usize::from(width) {
+        if !line.is_empty() && line.width() + 1 + word.width() > width {
             out.push(std::mem::take(&mut line));
         }
         if !line.is_empty() {
             line.push(' ');
         }
-        line.push_str(word);
+        for c in word.chars() {
+            if line.width() + c.width().unwrap_or(0) > width {
+                out.push(std::mem::take(&mut line));
+            }
+            line.push(c);
+        }
     }
     if !line.is_empty() {
         out.push(line);
@@ -122,6 +136,7 @@ mod tests {
         let map = Keymap::default_map();
         let d = Dialog {
             ask: Question::Take,
+            text: Question::Take.text(),
             map: &map,
             theme: Theme::default(),
         };
@@ -136,5 +151,36 @@ mod tests {
         let mut buf = Buffer::empty(Rect::new(0, 0, 24, 5));
         assert!(!d.render_seen(buf.area, &mut buf));
         assert_eq!(rows(&buf)[1], "│Take command? The…    │");
+    }
+
+    /// A characterization's question names a directory longer than a line: the path is
+    /// broken across lines, and the dialog grows to hold the whole question where the
+    /// screen has the rows — at 80×24 too — so that it can be answered.
+    #[test]
+    fn a_long_question_with_a_path_is_drawn_whole_where_there_are_rows() {
+        let map = Keymap::default_map();
+        let text = "Characterize steer (step, sweep, deadband, backlash, rate, delay) into \
+            /home/operator/a/rather/long/working/directory/characterize-steer-20261127-140812? \
+            It moves steer over 90 % of its range for about 30 s; the vehicle must be \
+            stopped, in park, with the brake held. Checked now: stopped, in park, the \
+            brake held.";
+        let d = Dialog {
+            ask: Question::Characterize(crate::value::DeviceId(0)),
+            text,
+            map: &map,
+            theme: Theme::default(),
+        };
+        // The bench's body at 80×24 is 21 rows.
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 21));
+        assert!(d.render_seen(buf.area, &mut buf));
+        let all = rows(&buf).join("\n");
+        // The path, broken where the line ends.
+        assert!(all.contains("directory/characteriz│"), "{all}");
+        assert!(all.contains("│e-steer-20261127-140812?"), "{all}");
+        assert!(all.contains("brake held."), "{all}");
+        assert!(all.contains("y yes   n/Esc no"), "{all}");
+        // Too few rows: not whole, and so not answerable.
+        let mut buf = Buffer::empty(Rect::new(0, 0, 80, 8));
+        assert!(!d.render_seen(buf.area, &mut buf));
     }
 }

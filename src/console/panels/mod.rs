@@ -6,6 +6,7 @@
 
 pub(crate) mod bench;
 pub(crate) mod bus;
+pub(crate) mod characterize;
 pub(crate) mod chart;
 pub(crate) mod device;
 pub(crate) mod dialog;

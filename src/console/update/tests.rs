@@ -32,6 +32,8 @@ struct Fake {
     deadman: std::cell::Cell<Option<Duration>>,
     /// The engine ended the held gas's lease: a renewal finds nothing to renew.
     lease_ended: std::cell::Cell<bool>,
+    /// The console's characterization, as the engine would report it.
+    characterizing: RefCell<Option<crate::controls::Characterizing>>,
 }
 
 impl Fake {
@@ -56,6 +58,7 @@ impl Fake {
             simulated: false,
             deadman: std::cell::Cell::default(),
             lease_ended: std::cell::Cell::default(),
+            characterizing: RefCell::default(),
         }
     }
     fn log(&self, s: String) {
@@ -191,6 +194,37 @@ impl Controls for Fake {
     }
     fn answered(&self, _at: Instant) {
         self.log("answered".into());
+    }
+    fn characterize_check(&self, id: DeviceId) -> Result<String, String> {
+        self.log(format!("characterize check {}", self.name(id)));
+        crate::characterize::check_device(&self.gate, self.name(id))?;
+        match self.refuse {
+            Some(r) => Err(format!("not ready: {r}")),
+            None => Ok("stopped, in park, the brake held".into()),
+        }
+    }
+    fn characterize(
+        &self,
+        id: DeviceId,
+        procedures: &[crate::characterize::Procedure],
+        out: &std::path::Path,
+    ) -> Result<(), String> {
+        self.log(format!(
+            "characterize {} {} into {}",
+            self.name(id),
+            procedures.len(),
+            out.display()
+        ));
+        Ok(())
+    }
+    fn characterizing(&self) -> Option<crate::controls::Characterizing> {
+        self.characterizing.borrow().clone()
+    }
+    fn characterize_end(&self, why: &str) {
+        self.log(format!("characterize end: {why}"));
+        if let Some(c) = self.characterizing.borrow_mut().as_mut() {
+            c.end.get_or_insert(Err(format!("stopped: {why}")));
+        }
     }
 }
 
@@ -1138,4 +1172,174 @@ fn a_stop_that_did_not_reach_the_engine_is_not_said_to_be_done() {
     press(&mut m, &f, &["D", "y"], Instant::now());
     let msg = m.message.clone().unwrap();
     assert!(msg.text.starts_with("disengage not done"), "{}", msg.text);
+}
+
+/// `M` on the bench: refused at once with the reason where the check refuses, and
+/// nothing asked; else the question names the device, the procedures, the directory
+/// and what was checked, and `y` starts it. While it runs the bench stays on its
+/// device; `Esc` ends it, and how it ended is said at the next tick.
+#[test]
+fn m_on_the_bench_asks_then_characterizes_and_esc_ends_it() {
+    let mut f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["x", "<Tab>", "<Tab>", "<Tab>"], now);
+    assert_eq!(m.bench, id("trans"));
+    press(&mut m, &f, &["M"], now);
+    let said = m.message.clone().unwrap();
+    assert!(
+        said.bad
+            && said
+                .text
+                .starts_with("characterize trans refused: trans is a state")
+    );
+    assert_eq!(m.mode, Mode::Bench, "nothing asked");
+    press(&mut m, &f, &["<Tab>", "<Tab>", "<Tab>"], now);
+    assert_eq!(m.bench, id("steer"));
+    f.refuse = Some(Reject::ShiftWhileMoving);
+    press(&mut m, &f, &["M"], now);
+    assert!(m
+        .message
+        .as_ref()
+        .unwrap()
+        .text
+        .contains("characterize steer refused: not ready"));
+    assert_eq!(m.mode, Mode::Bench);
+    f.refuse = None;
+    press(&mut m, &f, &["M"], now);
+    assert_eq!(m.mode, Mode::Confirm);
+    let text = m.question_text(m.ask.unwrap());
+    assert!(
+        text.starts_with("Characterize steer (step, sweep, deadband, backlash, rate, delay) into "),
+        "{text}"
+    );
+    assert!(text.contains("/characterize-steer-"), "{text}");
+    assert!(text.contains("It moves steer over 90 % of its range for about 30 s; the vehicle must be stopped, in park, with the brake held."), "{text}");
+    assert!(
+        text.ends_with("Checked now: stopped, in park, the brake held."),
+        "{text}"
+    );
+    // The question is drawn whole at 80×24: it may be answered.
+    press(&mut m, &f, &["y"], now);
+    assert_eq!(m.mode, Mode::Bench);
+    let calls = f.calls();
+    assert!(
+        calls
+            .last()
+            .unwrap()
+            .starts_with("characterize steer 6 into "),
+        "{calls:?}"
+    );
+    // Running, as the engine says.
+    *f.characterizing.borrow_mut() = Some(crate::controls::Characterizing {
+        device: id("steer"),
+        name: "steer".into(),
+        procedures: crate::characterize::Procedure::ALL.to_vec(),
+        out: "/x/characterize-steer-1".into(),
+        progress: crate::controls::Progress {
+            stage: crate::controls::Stage::Sweep,
+            done: 30,
+            total: 50,
+            elapsed: Duration::from_secs(15),
+        },
+        end: None,
+    });
+    tick(&mut m, &f, now);
+    let screen = draw(&mut m);
+    let text: String = (0..24)
+        .map(|y| (0..80).map(|x| screen[(x, y)].symbol()).collect::<String>() + "\n")
+        .collect();
+    assert!(text.contains("characterize steer: running"), "{text}");
+    assert!(
+        text.contains("sweep · step 31 of 50 · 15.0 s · about 10.0 s left"),
+        "{text}"
+    );
+    assert!(
+        text.contains("steer over the last 10 s"),
+        "the chart beside it:\n{text}"
+    );
+    press(&mut m, &f, &["<Tab>"], now);
+    assert_eq!(m.bench, id("steer"), "the bench stays on its device");
+    assert!(m
+        .message
+        .as_ref()
+        .unwrap()
+        .text
+        .contains("STOP or Esc ends it"));
+    press(&mut m, &f, &["<Esc>"], now);
+    assert_eq!(m.mode, Mode::Main);
+    assert_eq!(
+        f.calls().last().unwrap(),
+        "characterize end: the operator left the bench view"
+    );
+    let said = m.message.clone().unwrap();
+    assert!(said.bad, "{said:?}");
+    assert_eq!(
+        said.text,
+        "characterize steer ended early: stopped: the operator left the bench view; safe state, nothing written"
+    );
+}
+
+/// The bench with a characterization under way is never drawn blind: at 80×24 and at
+/// the smallest console, 80×22, the run's box says what it does and how to end it;
+/// below that, the small screen names STOP and quit, which still act.
+#[test]
+fn a_characterization_on_the_bench_is_drawn_at_80x24_and_smaller() {
+    let f = Fake::new();
+    let mut m = model(&f);
+    let now = Instant::now();
+    press(&mut m, &f, &["x"], now);
+    m.characterize_shown = true;
+    m.characterizing = Some(crate::controls::Characterizing {
+        device: id("steer"),
+        name: "steer".into(),
+        procedures: crate::characterize::Procedure::ALL.to_vec(),
+        out: "/a/rather/long/directory/of/the/operator/characterize-steer-20261127-140812".into(),
+        progress: crate::controls::Progress {
+            stage: crate::controls::Stage::Steps,
+            done: 3,
+            total: 50,
+            elapsed: Duration::from_secs(2),
+        },
+        end: None,
+    });
+    for (w, h) in [(80, 24), (80, 22), (100, 30), (79, 22), (60, 20)] {
+        m.screen = ratatui::layout::Rect::new(0, 0, w, h);
+        let b = draw(&mut m);
+        let text: String = (0..h)
+            .map(|y| (0..w).map(|x| b[(x, y)].symbol()).collect::<String>() + "\n")
+            .collect();
+        if w >= 80 && h >= 22 {
+            assert!(
+                text.contains("characterize steer: running"),
+                "{w}×{h}:\n{text}"
+            );
+            assert!(
+                text.contains("large steps · step 4 of 50"),
+                "{w}×{h}:\n{text}"
+            );
+            assert!(
+                text.contains("Space STOP or Esc ends it"),
+                "{w}×{h}:\n{text}"
+            );
+            assert!(m.drawn.devices.contains(&id("steer")), "{w}×{h}");
+        } else {
+            assert!(
+                text.contains("needs a terminal of at least 80×22"),
+                "{w}×{h}:\n{text}"
+            );
+            assert!(text.contains("Space"), "{w}×{h}:\n{text}");
+        }
+    }
+    // Where there is room, the traffic stays under the box.
+    m.screen = ratatui::layout::Rect::new(0, 0, 100, 40);
+    let b = draw(&mut m);
+    let text: String = (0..40)
+        .map(|y| (0..100).map(|x| b[(x, y)].symbol()).collect::<String>() + "\n")
+        .collect();
+    assert!(text.contains("raw traffic"), "{text}");
+    assert!(
+        text.contains("writing to /a/rather/long/directory"),
+        "{text}"
+    );
 }
