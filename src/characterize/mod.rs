@@ -132,10 +132,12 @@ impl Figures {
     pub(crate) fn settle(&self) -> Option<f64> {
         Self::mean(&self.all_steps(), |s| s.settle)
     }
-    /// The tail's lag, where every step showed one.
+    /// The tail's lag: the median of the steps that showed one, where most did (a
+    /// drive that stops at its rate shows none; a step whose tail a stall of the
+    /// machine thinned out below a fit does not take the lag from the others).
     pub(crate) fn lag(&self) -> Option<f64> {
         let lags: Vec<f64> = self.all_steps().iter().filter_map(|s| s.lag).collect();
-        (!lags.is_empty() && lags.len() == self.all_steps().len())
+        (lags.len() * 2 > self.all_steps().len())
             .then(|| analyze::median(&lags))
             .flatten()
     }
@@ -797,6 +799,29 @@ pub(crate) struct Watch<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The lag is the steps' median where most showed one: a step a stall thinned out
+    /// does not take it away, a drive that stops at its rate has none.
+    #[test]
+    fn the_lag_is_the_steps_median_where_most_showed_one() {
+        let step = |lag: Option<f64>| StepFigures {
+            lag,
+            ..StepFigures::default()
+        };
+        let figures = |lags: &[Option<f64>]| Figures {
+            up: lags[..3].iter().map(|&l| step(l)).collect(),
+            down: lags[3..].iter().map(|&l| step(l)).collect(),
+            ..Figures::default()
+        };
+        let l = Some(0.08);
+        assert_eq!(figures(&[l, l, l, l, l, l]).lag(), Some(0.08));
+        assert_eq!(
+            figures(&[l, Some(0.07), None, l, Some(0.09), l]).lag(),
+            Some(0.08)
+        );
+        assert_eq!(figures(&[l, None, None, l, None, l]).lag(), None);
+        assert_eq!(figures(&[None; 6]).lag(), None);
+    }
 
     /// The plan counts every move the procedures make, as the docs count them: 18
     /// large, 13 for the deadband (its two lead-ins and eleven probes), 12 for the
