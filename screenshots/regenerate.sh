@@ -6,6 +6,7 @@
 #   screenshots/regenerate.sh many     the many-devices screen only
 #   screenshots/regenerate.sh cart     the cart's screen only
 #   screenshots/regenerate.sh oscc     the OSCC kit's screens only
+#   screenshots/regenerate.sh characterize   the bench's characterization only
 #
 # Needs tmux and python3 (with venv). It builds adrive (release, as the README runs it), runs it with --sim in a
 # detached 80×24 tmux session, drives it with keys, and saves for each screen:
@@ -24,14 +25,16 @@
 # open); cart (vehicles/cart.toml, engaged, in forward, steering and a turn signal
 # commanded); oscc and oscc-bench (vehicles/oscc.toml: the OSCC kit's modules on a CAN
 # bus, engaged with a little steering torque; then the steering's bench at 100×30, the
-# bus's frames decoded by the DBC).
+# bus's frames decoded by the DBC); characterize and characterize-done (the steering's
+# bench measuring it with `M`, under way and done, its files written under the run's
+# temporary directory).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 what=${1:-all}
 case "$what" in
-    all | alice | many | cart | oscc) ;;
+    all | alice | many | cart | oscc | characterize) ;;
     *)
-        echo "usage: $0 [alice|many|cart|oscc]" >&2
+        echo "usage: $0 [alice|many|cart|oscc|characterize]" >&2
         exit 2
         ;;
 esac
@@ -51,8 +54,8 @@ fi
 # ended.
 start() {
     while tmux has-session -t "$session" 2>/dev/null; do sleep 0.1; done
-    tmux new-session -d -s "$session" -x 80 -y 24 \
-        "env TERM=xterm-256color target/release/adrive --sim --listen 127.0.0.1:0 --log-dir $logs --socket $logs/adrive.sock $*"
+    tmux new-session -d -s "$session" -x 80 -y 24 -c "$logs" \
+        "env TERM=xterm-256color $PWD/target/release/adrive --sim --listen 127.0.0.1:0 --log-dir $logs --socket $logs/adrive.sock $*"
 }
 
 # Wait until the screen shows $1 ($2 tenths of a second at most, default 20 s).
@@ -184,7 +187,7 @@ alice() {
 # The tractor: a row for each of its 32 devices. A few devices commanded from the
 # name prompt, then the prompt open on the hydraulics.
 many() {
-    start --config vehicles/tractor.toml
+    start --config $PWD/vehicles/tractor.toml
     wait_for "tyre_press"
     engage
     # Find device $2 by typing $1, then command it $3.
@@ -210,7 +213,7 @@ many() {
 
 # The cart: its own devices under their own names, the keys' hints naming them.
 cart() {
-    start --config vehicles/cart.toml
+    start --config $PWD/vehicles/cart.toml
     wait_for "battery"
     engage
     keys t; wait_for "edit direction command"
@@ -228,7 +231,7 @@ cart() {
 # The OSCC kit on its CAN bus: the modules on the main screen, enabled by the engage,
 # the steering given a little torque; then the steering's bench, the bus decoded.
 oscc() {
-    start --config vehicles/oscc.toml
+    start --config $PWD/vehicles/oscc.toml
     wait_for "CAR"
     engage
     wait_for "enabled 1"
@@ -246,10 +249,34 @@ oscc() {
     keys q
 }
 
+# The steering measured from its bench: asked, under way beside its chart, then done
+# with its figures (written into the run's directory, removed with it).
+characterize() {
+    start
+    wait_for "OBD"
+    wait_gone "never"
+    keys x; wait_for "raw traffic"
+    for _ in $(seq 6); do
+        if tmux capture-pane -p -t "$session" | grep -qF "steer raw traffic"; then break; fi
+        keys BTab; sleep 0.3
+    done
+    wait_for "steer raw traffic"
+    keys M; wait_for "y yes"
+    keys y; wait_for "· step "
+    wait_for "· step 9 " 300
+    shot characterize
+    wait_for "characterize steer: done" 900
+    wait_for "settle"
+    sleep 0.5
+    shot characterize-done
+    keys q
+}
+
 case "$what" in
     alice) alice ;;
     many) many ;;
     cart) cart ;;
     oscc) oscc ;;
-    all) alice; many; cart; oscc ;;
+    characterize) characterize ;;
+    all) alice; many; cart; oscc; characterize ;;
 esac
