@@ -1,7 +1,8 @@
 //! The crate's test kit: a vehicle at rest with plausible readings and figures, built
 //! without threads or ports, for the tests of every layer (safety, snapshot,
 //! supervisor, the front ends), the console's screen snapshots and its fault
-//! screenshot. It sits below the layers that use it and imports only the core.
+//! screenshot; and the check that the guide holds a table the code generates. It sits
+//! below the layers that use it and imports only the core.
 
 use crate::config::{SupervisorConfig, VehicleConfig};
 use crate::engine::Gate;
@@ -195,5 +196,18 @@ pub fn make_recovering(v: &Vehicle, now: Instant) {
     s.set_outcome(
         crate::snapshot::OutcomeKind::Done,
         "recovery steering done in 0.9 s".into(),
+    );
+}
+
+/// `doc` (the guide's page `name`) holds, verbatim, `table`: the Markdown table of
+/// `what` that the code it describes generates — a header, its rule and a row at least
+/// (an empty table is in every page).
+#[cfg(test)]
+pub(crate) fn assert_guide_holds(name: &str, doc: &str, what: &str, table: &str) {
+    let rows = table.lines().filter(|l| l.starts_with('|')).count();
+    assert!(rows >= 3, "the table of {what} has no rows:\n{table}");
+    assert!(
+        doc.contains(table),
+        "{name} must contain, verbatim, the table of {what}:\n{table}"
     );
 }

@@ -203,7 +203,7 @@ pub(crate) const STATUS_PERIOD: Limit<Duration> = Limit {
     min: ms(1),
     max: s(10),
     default: Some(ms(100)),
-    why: "how often the status thread polls",
+    why: "how often the status thread polls (from the start of its last poll: after waiting for the port behind a command, it does not poll twice in a row)",
 };
 pub(crate) const STATUS_MAX_AGE: Limit<Duration> = Limit {
     section: Device,
@@ -795,9 +795,6 @@ mod tests {
     fn the_guide_shows_the_limits_table() {
         let readme = include_str!("../../docs/vehicles.md");
         let table = markdown();
-        assert!(
-            readme.contains(&table),
-            "docs/vehicles.md must contain, verbatim, the table of limits:\n{table}"
-        );
+        crate::testkit::assert_guide_holds("docs/vehicles.md", readme, "limits", &table);
     }
 }

@@ -1230,10 +1230,7 @@ fn a_file_that_cannot_be_read_says_so_without_a_line() {
 fn the_guide_shows_the_well_known_readings() {
     let readme = include_str!("../../docs/vehicles.md");
     let table = device::well_known_markdown();
-    assert!(
-        readme.contains(&table),
-        "docs/vehicles.md must contain, verbatim, the table of well-known readings:\n{table}"
-    );
+    crate::testkit::assert_guide_holds("docs/vehicles.md", readme, "well-known readings", &table);
 }
 
 /// Every way of writing one line wrong that the walk below tries, on a file whose first
@@ -1457,8 +1454,5 @@ fn throttle_and_brake_on_one_device_name_the_second_binding_and_quote_both() {
 fn the_guide_shows_which_roles_may_share_a_device() {
     let readme = include_str!("../../docs/vehicles.md");
     let table = roles::sharing_markdown();
-    assert!(
-        readme.contains(&table),
-        "docs/vehicles.md must contain, verbatim, the table of shared roles:\n{table}"
-    );
+    crate::testkit::assert_guide_holds("docs/vehicles.md", readme, "shared roles", &table);
 }

@@ -688,10 +688,7 @@ mod tests {
         if let Some(path) = std::env::var_os("ADRIVE_PRINT_OWNER_TABLE") {
             std::fs::write(path, &table).unwrap();
         }
-        assert!(
-            readme.contains(&table),
-            "docs/safety.md must contain, verbatim, the table of who commands:\n{table}"
-        );
+        crate::testkit::assert_guide_holds("docs/safety.md", readme, "who commands", &table);
     }
 
     /// A console's link is measured from its last answer: a slow but live terminal
