@@ -2,12 +2,15 @@
 //! `[device.sim]` the run does not know (drawn at random within the limits) is measured,
 //! every figure is checked against what was set, and the `sim.toml` it writes makes a
 //! twin that measures the same. And a STOP mid-run ends it at once with the vehicle
-//! in its safe state, nothing written.
+//! in its safe state, nothing written; so does a precondition broken mid-run by a
+//! driver's hand (the brake lifted, the gear lever moved), against `adrive sim` in a
+//! process of its own.
 
 mod common;
 
 use adrive::record::read::Recording;
 use common::headless::BIN;
+use common::simproc::SimProcess;
 use common::{lines, output_within, tempdir, until, wait_exit, Reaped, DEADLINE};
 use std::path::Path;
 use std::process::{Command as Process, Stdio};
@@ -594,5 +597,263 @@ fn a_recorded_characterization_holds_its_commands() {
         "{}\n{}",
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// `text` with each device's `port` pointing at the simulator's port of that device, in
+/// the vehicle's order (as `adrive sim` prints them).
+fn on_ports(text: &str, sim: &SimProcess) -> String {
+    let mut paths = sim.paths.iter();
+    text.lines()
+        .map(|l| {
+            if l.starts_with("port = ") {
+                format!("port = \"{}\"\n", paths.next().expect("a port per device"))
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect()
+}
+
+/// What a run that a hand broke mid-run left.
+struct Broken {
+    code: Option<i32>,
+    out_lines: Vec<String>,
+    err_lines: Vec<String>,
+    /// From the hand to the process's exit.
+    took: Duration,
+    /// The recording's messages: (topic, wall-clock ns, message).
+    msgs: Vec<(String, u64, serde_json::Value)>,
+    /// The wall-clock ns when the hand was typed into the simulator.
+    hand_ns: u64,
+    /// What the simulator printed after the hand.
+    sim_after: Vec<String>,
+    wrote: bool,
+}
+
+fn wall_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64
+}
+
+/// `adrive sim` with `vehicle` in its own process, and `adrive characterize steer`
+/// against its ports, recorded: once the steering moves under the bench's command,
+/// `hand` is typed into the simulator, as a driver's hand acts on the vehicle.
+fn broken_mid_run(tag: &str, vehicle: &str, hand: &str) -> Broken {
+    let dir = tempdir(tag);
+    let sim_file = dir.path().join("sim.toml");
+    std::fs::write(&sim_file, vehicle).unwrap();
+    let mut sim = SimProcess::start_with(&["--config", sim_file.to_str().unwrap()], 6);
+    let config = dir.path().join("v.toml");
+    std::fs::write(&config, on_ports(vehicle, &sim)).unwrap();
+    let socket = dir.path().join("s.sock");
+    let out = dir.path().join("out");
+    let record = dir.path().join("run.mcap");
+    let mut child = Reaped(
+        Process::new(BIN)
+            .args(["characterize", "steer", "--yes", "--config"])
+            .arg(&config)
+            .arg("--out")
+            .arg(&out)
+            .arg("--socket")
+            .arg(&socket)
+            .arg("--log-dir")
+            .arg(dir.path().join("logs"))
+            .arg("--record")
+            .arg(&record)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let said = lines(child.0.stdout.take().unwrap());
+    let errors = lines(child.0.stderr.take().unwrap());
+    until(&said, "characterizing steer");
+    // Under way: the bench commands the engaged vehicle and the steering has moved.
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let o = output_within(
+            Process::new(BIN)
+                .args(["ctl", "status", "--json", "--socket"])
+                .arg(&socket),
+        );
+        let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
+        let steer = s["devices"]
+            .as_array()
+            .and_then(|d| d.iter().find(|d| d["name"] == "steer"))
+            .and_then(|d| d["readings"]["position"].as_f64());
+        if s["gate"]["engaged"] == true && steer.is_some_and(|x| x.abs() > 0.1) {
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "characterize never got under way: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let mark = sim.mark();
+    let hand_ns = wall_ns();
+    let handed = Instant::now();
+    sim.say(hand);
+    let code = wait_exit(&mut child.0);
+    let took = handed.elapsed();
+    let rec = Recording::open(&record).unwrap();
+    assert!(rec.complete, "{:?}", rec.cut);
+    let (msgs, _) = rec.json();
+    // The safe state's commands reach the simulator after the run ends.
+    std::thread::sleep(Duration::from_millis(300));
+    let sim_after = sim.lines()[mark..].to_vec();
+    sim.stop();
+    Broken {
+        code,
+        out_lines: said.try_iter().collect(),
+        err_lines: errors.try_iter().collect(),
+        took,
+        msgs,
+        hand_ns,
+        sim_after,
+        wrote: out.exists(),
+    }
+}
+
+impl Broken {
+    /// Ended as a STOP ends it: status 1, its cause in words on standard error and as
+    /// the disengage's cause in the recording, the safe state acknowledged, nothing
+    /// written. The time of the disengage (wall-clock ns).
+    fn ended_by(&self, why: &str) -> u64 {
+        let all = format!("{:?}\n{:?}", self.out_lines, self.err_lines);
+        assert_eq!(self.code, Some(1), "{all}");
+        assert!(
+            self.err_lines.iter().any(|l| l.contains(&format!(
+                "adrive: characterize steer: precondition broken: {why}"
+            ))),
+            "{all}"
+        );
+        assert!(
+            self.out_lines
+                .iter()
+                .any(|l| l.contains("safe state acknowledged") && !l.contains("NOT")),
+            "{all}"
+        );
+        assert!(!self.wrote, "nothing written for a run that did not finish");
+        let (_, at, _) = self
+            .msgs
+            .iter()
+            .find(|(t, _, m)| t == "/gate" && m["event"] == "disengaged")
+            .unwrap_or_else(|| panic!("no disengage recorded: {all}"));
+        let reason = self
+            .msgs
+            .iter()
+            .filter(|(t, _, m)| t == "/gate" && m["event"] == "disengaged")
+            .map(|(_, _, m)| m["reason"].as_str().unwrap_or_default().to_string())
+            .collect::<Vec<_>>();
+        assert_eq!(
+            reason.first().map(String::as_str),
+            Some(format!("disengaged: characterize ended: precondition broken: {why}").as_str()),
+            "the first disengage is the bench's own, for its cause: {reason:?}"
+        );
+        *at
+    }
+
+    /// The first reading of `device` after the hand whose `field` satisfies `f` (ns).
+    fn first_reading(&self, device: &str, f: impl Fn(&serde_json::Value) -> bool) -> u64 {
+        self.msgs
+            .iter()
+            .find(|(t, at, m)| *t == format!("/{device}/reading") && *at > self.hand_ns && f(m))
+            .map(|(_, at, _)| *at)
+            .unwrap_or_else(|| panic!("no such reading of {device} recorded"))
+    }
+
+    /// The simulator received `command` for `device` after the hand.
+    fn received(&self, device: &str, command: &str) -> bool {
+        self.sim_after.iter().any(|l| {
+            let w: Vec<&str> = l.split_whitespace().collect();
+            w.get(1) == Some(&device) && w.get(2) == Some(&"<-") && w.get(3) == Some(&command)
+        })
+    }
+}
+
+/// How soon after the reading that shows a precondition broken the run lets go: it
+/// checks at every turn (a millisecond), so a few turns on a loaded machine.
+const AT_THE_SAMPLE: Duration = Duration::from_millis(100);
+
+/// A driver's foot lifts the brake while the steering is characterized. No command
+/// changed, so only the brake's reading shows it: the run ends at the first reading
+/// below the rules' shift brake, and the brake is commanded full again (the safe
+/// state). The brake's override detection is made slow here (its `override_time` the
+/// longest allowed, 2 s), so that what ends the run is the bench's own check rather than
+/// the supervisor's override, which would end it too, later.
+#[test]
+fn a_brake_released_mid_run_ends_it_at_the_first_reading_with_the_vehicle_safe() {
+    let held = "lag = \"80ms\"\n[device.sim]\nlag = \"80ms\"\nwatchdog = \"1s\"           # the actuator's own watchdog: full brake";
+    let vehicle = alice_with_steering(&sim_section(&draw(5)));
+    assert!(
+        vehicle.contains(held),
+        "Alice's brake as this test knows it"
+    );
+    let vehicle = vehicle.replace(held, &format!("override_time = \"2s\"\n{held}"));
+    let run = broken_mid_run("characterize-brake", &vehicle, "override brake 0");
+    let disengaged = run.ended_by("the brake is not held");
+    let released = run.first_reading("brake", |m| m["position"].as_f64().is_some_and(|x| x < 0.3));
+    let after = Duration::from_nanos(disengaged.saturating_sub(released));
+    assert!(
+        disengaged >= released && after < AT_THE_SAMPLE,
+        "let go {after:?} after the brake read released"
+    );
+    // The hand moves the brake at 2 ranges a second: 0.35 s to below 0.3, then at most
+    // a status period (100 ms) until a reading shows it.
+    let from_hand = Duration::from_nanos(disengaged.saturating_sub(run.hand_ns));
+    assert!(
+        from_hand < Duration::from_millis(350 + 100) + AT_THE_SAMPLE * 5,
+        "let go {from_hand:?} after the hand"
+    );
+    assert!(
+        run.took < Duration::from_secs(5),
+        "exited {:?} after the hand",
+        run.took
+    );
+    assert!(
+        run.received("brake", "1.000") && run.received("gas", "0.000"),
+        "the safe state at the devices: {:?}",
+        run.sim_after
+    );
+}
+
+/// A driver's hand moves the gear lever to drive while the steering is characterized:
+/// the run ends at the first reading of the gearbox out of park, in the safe state.
+#[test]
+fn the_gear_moved_mid_run_ends_it_at_the_first_reading_with_the_vehicle_safe() {
+    let vehicle = alice_with_steering(&sim_section(&draw(6)));
+    let run = broken_mid_run("characterize-gear", &vehicle, "lever trans drive");
+    let disengaged = run.ended_by("the gearbox is not in park");
+    let moved = run.first_reading("trans", |m| m["state"] == "drive");
+    let after = Duration::from_nanos(disengaged.saturating_sub(moved));
+    assert!(
+        disengaged >= moved && after < AT_THE_SAMPLE,
+        "let go {after:?} after the gearbox read drive"
+    );
+    // At once in drive, then at most a status period (250 ms) until a reading shows it.
+    let from_hand = Duration::from_nanos(disengaged.saturating_sub(run.hand_ns));
+    assert!(
+        from_hand < Duration::from_millis(250) + AT_THE_SAMPLE * 5,
+        "let go {from_hand:?} after the hand"
+    );
+    assert!(
+        run.took < Duration::from_secs(5),
+        "exited {:?} after the hand",
+        run.took
+    );
+    assert!(
+        run.received("brake", "1.000") && run.received("gas", "0.000"),
+        "the safe state at the devices: {:?}",
+        run.sim_after
+    );
+    assert!(
+        !run.sim_after.iter().any(|l| l.contains("trans <-")),
+        "the gear is the driver's: adrive does not shift it back: {:?}",
+        run.sim_after
     );
 }

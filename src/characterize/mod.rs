@@ -176,6 +176,18 @@ pub(crate) struct Bench<'a> {
     residuals: Vec<f64>,
 }
 
+/// Whether a bench procedure may move device `id` now ([`safety::bench::ready`]), from
+/// what the rules see (gathered as for a gear command) and where the brake reports it is.
+pub(crate) fn ready(gate: &Gate, id: DeviceId) -> Result<(), safety::bench::Unready> {
+    let v = gate.vehicle();
+    safety::bench::ready(
+        v.bindings(),
+        id,
+        &safety::facts::gather(v, safety::Plays::GEAR),
+        safety::facts::brake_reported(v),
+    )
+}
+
 /// Whether `device` can be characterized here: a setpoint actuator with a position
 /// reading, on this vehicle.
 pub(crate) fn check_device(gate: &Gate, device: &str) -> Result<(DeviceId, usize), String> {
@@ -220,11 +232,7 @@ impl<'a> Bench<'a> {
             std::thread::sleep(Duration::from_millis(10));
         }
         // What proves the vehicle still comes from its other devices' first reports.
-        while let Err(u) = safety::bench::ready(
-            v.bindings(),
-            id,
-            &safety::facts::gather(v, safety::Plays::GEAR),
-        ) {
+        while let Err(u) = ready(gate, id) {
             if Instant::now() > deadline {
                 return Err(Ended(format!("not ready: {u}")));
             }
@@ -297,20 +305,21 @@ impl<'a> Bench<'a> {
         if let Ok(why) = self.exits.try_recv() {
             return Err(Ended(format!("stopped: {}", why.describe())));
         }
-        if !self.gate.is_engaged() || self.gate.commander() != Some(Source::Bench) {
-            return Err(Ended(
-                "the vehicle was disengaged or taken (STOP, a fault, an override, the watchdog)"
-                    .into(),
-            ));
+        if !self.gate.is_engaged() {
+            return Err(Ended(format!(
+                "the vehicle was disengaged: {}",
+                self.gate.reason()
+            )));
+        }
+        if self.gate.commander() != Some(Source::Bench) {
+            return Err(Ended("another source took command of the vehicle".into()));
         }
         let v = self.gate.vehicle();
         let d = v.device(self.id);
         if let Some(f) = d.fault() {
             return Err(Ended(format!("{}: {f}", d.name())));
         }
-        let facts = safety::facts::gather(v, safety::Plays::GEAR);
-        safety::bench::ready(v.bindings(), self.id, &facts)
-            .map_err(|u| Ended(format!("precondition broken: {u}")))?;
+        ready(self.gate, self.id).map_err(|u| Ended(format!("precondition broken: {u}")))?;
         if self.sent.elapsed() >= RESEND {
             self.command(self.set)?;
         }

@@ -5,6 +5,11 @@
 //! facts the interlocks read ([`Facts`]) — or on a bench where nothing
 //! but the device under test is bound to a role (`--only DEVICE`). Checked before the
 //! procedure starts and at every sample while it runs; a broken one ends it.
+//!
+//! The brake is held twice over: commanded (the interlocks' own fact, the lowest set
+//! point on its way) and as it reports its position. A driver's foot that lifts the
+//! brake changes no command; only the reading shows it, so a run does not wait for the
+//! supervisor to name an override before it stops moving its device.
 
 use super::rules::{stopped, Facts, SHIFT_BRAKE};
 use crate::config::{Bindings, Role};
@@ -47,9 +52,15 @@ fn bench(b: &Bindings, device: DeviceId) -> bool {
         .all(|d| d == device)
 }
 
-/// May a bench procedure move `device` now, the vehicle's roles `b` and what the rules
-/// see `f` (gathered as for a gear command: brake, gear, speed)?
-pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unready> {
+/// May a bench procedure move `device` now, the vehicle's roles `b`, what the rules
+/// see `f` (gathered as for a gear command: brake, gear, speed) and where the brake
+/// reports it is, as a fraction of its range (`None`: it reports no position)?
+pub(crate) fn ready(
+    b: &Bindings,
+    device: DeviceId,
+    f: &Facts,
+    brake_reported: Option<f64>,
+) -> Result<(), Unready> {
     if bench(b, device) {
         return Ok(());
     }
@@ -74,6 +85,9 @@ pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<(), Unr
         return Err(Unready::Unproven(Role::Brake));
     }
     if !f.brake_low.is_some_and(|lo| lo >= SHIFT_BRAKE) {
+        return Err(Unready::BrakeNotHeld);
+    }
+    if brake_reported.is_some_and(|x| x < SHIFT_BRAKE) {
         return Err(Unready::BrakeNotHeld);
     }
     Ok(())
@@ -105,7 +119,7 @@ mod tests {
     #[test]
     fn a_still_vehicle_in_park_with_the_brake_held_is_ready() {
         let (b, steer) = alice();
-        assert_eq!(ready(&b, steer, &still()), Ok(()));
+        assert_eq!(ready(&b, steer, &still(), Some(1.0)), Ok(()));
     }
 
     #[test]
@@ -115,27 +129,49 @@ mod tests {
             speed: Some(0.5),
             ..still()
         };
-        assert_eq!(ready(&b, steer, &moving), Err(Unready::Moving));
+        assert_eq!(ready(&b, steer, &moving, Some(1.0)), Err(Unready::Moving));
         let unknown = Facts {
             speed: None,
             ..still()
         };
-        assert_eq!(ready(&b, steer, &unknown), Err(Unready::Moving));
+        assert_eq!(ready(&b, steer, &unknown, Some(1.0)), Err(Unready::Moving));
         let drive = Facts {
             gear: Some(3),
             ..still()
         };
-        assert_eq!(ready(&b, steer, &drive), Err(Unready::NotInPark));
+        assert_eq!(ready(&b, steer, &drive, Some(1.0)), Err(Unready::NotInPark));
         let released = Facts {
             brake_low: Some(SHIFT_BRAKE - 0.01),
             ..still()
         };
-        assert_eq!(ready(&b, steer, &released), Err(Unready::BrakeNotHeld));
+        assert_eq!(
+            ready(&b, steer, &released, Some(1.0)),
+            Err(Unready::BrakeNotHeld)
+        );
         let unknown_brake = Facts {
             brake_low: None,
             ..still()
         };
-        assert_eq!(ready(&b, steer, &unknown_brake), Err(Unready::BrakeNotHeld));
+        assert_eq!(
+            ready(&b, steer, &unknown_brake, Some(1.0)),
+            Err(Unready::BrakeNotHeld)
+        );
+    }
+
+    /// A foot lifts the brake: its command still holds it, its reading does not.
+    #[test]
+    fn a_brake_held_on_the_wire_but_reported_released_is_not_held() {
+        let (b, steer) = alice();
+        assert_eq!(
+            ready(&b, steer, &still(), Some(SHIFT_BRAKE - 0.01)),
+            Err(Unready::BrakeNotHeld)
+        );
+        assert_eq!(ready(&b, steer, &still(), Some(SHIFT_BRAKE)), Ok(()));
+        assert_eq!(
+            ready(&b, steer, &still(), None),
+            Ok(()),
+            "no position reported"
+        );
     }
 
     #[test]
@@ -146,12 +182,12 @@ mod tests {
             brake_low: Some(0.0),
             ..still()
         };
-        assert_eq!(ready(&b, brake, &released), Ok(()));
+        assert_eq!(ready(&b, brake, &released, Some(0.0)), Ok(()));
         let drive = Facts {
             gear: Some(3),
             ..released
         };
-        assert_eq!(ready(&b, brake, &drive), Err(Unready::NotInPark));
+        assert_eq!(ready(&b, brake, &drive, Some(0.0)), Err(Unready::NotInPark));
     }
 
     #[test]
@@ -161,10 +197,10 @@ mod tests {
             steering: Some(steer),
             ..Bindings::default()
         };
-        assert_eq!(ready(&only, steer, &Facts::default()), Ok(()));
+        assert_eq!(ready(&only, steer, &Facts::default(), None), Ok(()));
         let no_speed = Bindings { speed: None, ..b };
         assert_eq!(
-            ready(&no_speed, steer, &still()),
+            ready(&no_speed, steer, &still(), Some(1.0)),
             Err(Unready::Unproven(Role::Speed))
         );
     }
