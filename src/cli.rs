@@ -192,7 +192,9 @@ pub struct AttachArgs {
 
 #[derive(Args, Debug, Clone)]
 pub struct CharacterizeArgs {
-    /// The setpoint actuator to measure (it must report a `position`).
+    /// The device to measure: a setpoint actuator (reporting its `position`), a state
+    /// actuator (every transition timed) or a sensor (its update rate and noise,
+    /// listening only).
     #[arg(value_name = "DEVICE")]
     pub device: String,
     /// Vehicle TOML (default: the built-in simulated Alice).
@@ -663,6 +665,18 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     };
     // Sample the device fast: the figures are read between its polls.
     d.status_period = d.status_period.min(CHARACTERIZE_POLL);
+    let kind = d.kind;
+    if kind != crate::value::Kind::Setpoint && !args.procedure.is_empty() {
+        anyhow::bail!(
+            "--procedure applies to a setpoint actuator; {} is a {kind} device: {}",
+            args.device,
+            if kind == crate::value::Kind::State {
+                "every transition between its states is timed"
+            } else {
+                "it is listened to (update rate and noise)"
+            }
+        );
+    }
     let out = args
         .out
         .clone()
@@ -672,7 +686,8 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     } else {
         args.procedure.clone()
     };
-    if !args.yes {
+    // A sensor is only listened to: nothing moves, nothing to confirm.
+    if !args.yes && kind != crate::value::Kind::Sensor {
         use std::io::IsTerminal;
         if !io::stdin().is_terminal() {
             anyhow::bail!(
@@ -683,8 +698,23 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         tell(
             io::stdout(),
             format_args!(
-                "characterize moves {} across its range on its own. Is it free to move, the vehicle stopped, in park, the brake held? [y/N] ",
-                args.device
+                "{} Is it free to move, the vehicle stopped, {}the brake held? [y/N] ",
+                if kind == crate::value::Kind::State {
+                    format!(
+                        "characterize shifts {} through all its states on its own.",
+                        args.device
+                    )
+                } else {
+                    format!(
+                        "characterize moves {} across its range on its own.",
+                        args.device
+                    )
+                },
+                if kind == crate::value::Kind::State {
+                    ""
+                } else {
+                    "in park, "
+                },
             ),
         );
         let mut answer = String::new();
@@ -742,14 +772,20 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         format_args!(
             "characterizing {} ({}): STOP with `adrive ctl stop`, or Ctrl-C\n",
             args.device,
-            procedures
-                .iter()
-                .map(|p| format!("{p:?}").to_lowercase())
-                .collect::<Vec<_>>()
-                .join(", ")
+            match kind {
+                crate::value::Kind::Setpoint => procedures
+                    .iter()
+                    .map(|p| format!("{p:?}").to_lowercase())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                crate::value::Kind::State => "every transition between its states".into(),
+                crate::value::Kind::Sensor => {
+                    "listening only: update rate and noise; nothing is commanded".into()
+                }
+            }
         ),
     );
-    let result = crate::characterize::run(&gate, &exits, &args.device, &procedures);
+    let result = crate::characterize::run_any(&gate, &exits, &args.device, &procedures);
     control.close();
     gate.disengage(crate::snapshot::DisengageCause::Stopping { why: None });
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
@@ -759,17 +795,27 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     stuck.extend(engine_stuck);
     // After the engine: the safe state's commands are in the recording.
     stuck.extend(recorder.shutdown(Duration::from_secs(2)));
-    let at = vehicle
-        .devices()
-        .iter()
-        .find(|d| d.name() == args.device)
-        .and_then(|d| d.config().position().and_then(|i| d.reading(i)));
+    // Where the device ended: a setpoint actuator's position, a state actuator's state.
+    let at = vehicle.find(&args.device).and_then(|d| {
+        let c = d.config();
+        match (c.position(), c.state()) {
+            (Some(i), _) => d.reading(i).map(|p| p.to_string()),
+            (None, Some(i)) => d.reading(i).map(|s| {
+                c.states
+                    .get(s as usize)
+                    .cloned()
+                    .unwrap_or_else(|| s.to_string())
+            }),
+            _ => None,
+        }
+    });
     drop(sim);
     let code = match result {
         Ok(figures) => {
-            crate::characterize::write::all(&out, &figures)
+            figures
+                .write_all(&out)
                 .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
-            let mut summary = crate::characterize::write::summary(&figures);
+            let mut summary = figures.summary();
             if let Some(o) = summary.as_object_mut() {
                 o.remove("map");
             }
@@ -779,7 +825,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
                     "{}\nwritten to {} in {:.1} s\n",
                     serde_json::to_string_pretty(&summary)?,
                     out.display(),
-                    figures.took
+                    figures.took()
                 ),
             );
             0
@@ -797,7 +843,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         format_args!(
             "{} at {}; safe state {}acknowledged\n",
             args.device,
-            at.map_or("?".into(), |p| p.to_string()),
+            at.unwrap_or_else(|| "?".into()),
             if safe { "" } else { "NOT " }
         ),
     );

@@ -857,3 +857,242 @@ fn the_gear_moved_mid_run_ends_it_at_the_first_reading_with_the_vehicle_safe() {
         run.sim_after
     );
 }
+
+/// A run of `adrive characterize DEVICE --sim` on `vehicle` that must succeed: what it
+/// wrote and printed.
+struct Done {
+    summary: serde_json::Value,
+    sim: String,
+    report: String,
+    out: std::path::PathBuf,
+    out_lines: Vec<String>,
+    record: std::path::PathBuf,
+}
+
+fn characterize_device(dir: &Path, device: &str, vehicle: &str, extra: &[&str]) -> Done {
+    let config = dir.join(format!("{device}.toml"));
+    std::fs::write(&config, vehicle).unwrap();
+    let out = dir.join(format!("{device}-out"));
+    let record = dir.join(format!("{device}.mcap"));
+    let mut child = Reaped(
+        Process::new(BIN)
+            .args(["characterize", device, "--sim", "--config"])
+            .arg(&config)
+            .arg("--out")
+            .arg(&out)
+            .arg("--socket")
+            .arg(dir.join(format!("{device}.sock")))
+            .arg("--log-dir")
+            .arg(dir.join("logs"))
+            .arg("--record")
+            .arg(&record)
+            .args(extra)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let said = lines(child.0.stdout.take().unwrap());
+    let errors = lines(child.0.stderr.take().unwrap());
+    let end = Instant::now() + DEADLINE * 8;
+    let code = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s.code();
+        }
+        assert!(Instant::now() < end, "characterize still ran");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let out_lines: Vec<String> = said.try_iter().collect();
+    let err_lines: Vec<String> = errors.try_iter().collect();
+    assert_eq!(code, Some(0), "{out_lines:?}\n{err_lines:?}");
+    let read = |f: &str| std::fs::read_to_string(out.join(f)).unwrap();
+    Done {
+        summary: serde_json::from_str(&read("summary.json")).unwrap(),
+        sim: read("sim.toml"),
+        report: read("report.md"),
+        out,
+        out_lines,
+        record,
+    }
+}
+
+/// A time within 5 ms or 2 % of what was set, whichever is more.
+fn time_within(what: &str, got: f64, want: f64) {
+    assert!(
+        (got - want).abs() <= (want.abs() * 0.02).max(0.005),
+        "{what}: {:.2} ms measured, {:.2} ms set",
+        got * 1e3,
+        want * 1e3
+    );
+}
+
+/// A gearbox whose shift time the run does not know (drawn at random) is timed
+/// transition by transition: every ordered pair of its four states, five times each;
+/// the shift time comes back within 5 ms or 2 %, each transition's median within half
+/// the interval between readings of it, the neutral it passes through is named, and it
+/// ends in park, where it began, the vehicle let go in its safe state.
+#[test]
+fn a_gearbox_s_every_transition_is_timed_and_its_shift_time_recovered() {
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    let mut x = seed | 1;
+    x ^= x << 13;
+    x ^= x >> 7;
+    x ^= x << 17;
+    let settle_ms = 400 + (x % 600);
+    eprintln!("shift time {settle_ms} ms");
+    let dir = tempdir("characterize-gear");
+    let shipped = "settle = \"600ms\"";
+    let vehicle = alice_with_steering(&sim_section(&draw(9)));
+    assert!(
+        vehicle.contains(shipped),
+        "Alice's gearbox as this test knows it"
+    );
+    let vehicle = vehicle.replace(shipped, &format!("settle = \"{settle_ms}ms\""));
+    let run = characterize_device(dir.path(), "trans", &vehicle, &["--yes"]);
+    let s = &run.summary;
+    eprintln!("{s}\n{}", run.sim);
+    assert_eq!(s["device"], "trans");
+    assert_eq!(s["kind"], "state");
+    assert!(s["samples"].as_u64().unwrap() > 100, "{s}");
+    let transitions = s["transitions"].as_array().unwrap();
+    let states = ["park", "reverse", "neutral", "drive"];
+    let mut pairs: Vec<(String, String)> = Vec::new();
+    for t in transitions {
+        let (from, to) = (t["from"].as_str().unwrap(), t["to"].as_str().unwrap());
+        assert!(
+            states.contains(&from) && states.contains(&to) && from != to,
+            "{t}"
+        );
+        pairs.push((from.into(), to.into()));
+        assert_eq!(t["n"], 5, "{t}");
+        let (median, lo, hi) = (
+            t["ms_median"].as_f64().unwrap(),
+            t["ms_min"].as_f64().unwrap(),
+            t["ms_max"].as_f64().unwrap(),
+        );
+        assert!(lo <= median && median <= hi, "{t}");
+        // A reading every 25 ms at the gearbox's 9600 baud, 50 ms when a resend's
+        // transaction comes between two: each time is good to half of that.
+        let want = if to == "neutral" {
+            0.0
+        } else {
+            settle_ms as f64
+        };
+        assert!(
+            (median - want).abs() <= 25.0,
+            "{from} → {to}: {median} ms, {want} ms set"
+        );
+    }
+    pairs.sort();
+    pairs.dedup();
+    assert_eq!(pairs.len(), 12, "every ordered pair once: {transitions:?}");
+    time_within(
+        "sim.toml settle",
+        sim_value(&run.sim, "settle"),
+        settle_ms as f64 / 1e3,
+    );
+    assert!(run.sim.contains("transit = \"neutral\""), "{}", run.sim);
+    assert!(run.report.contains("| park | reverse |"), "{}", run.report);
+    assert!(run.report.contains("](run.svg)"));
+    well_formed(&std::fs::read_to_string(run.out.join("run.svg")).unwrap()).unwrap();
+    assert!(
+        run.out_lines
+            .iter()
+            .any(|l| l.contains("trans at park; safe state acknowledged")),
+        "it ends where it began: {:?}",
+        run.out_lines
+    );
+    // Every shift it asked for went through the rules and was taken: stopped, the brake
+    // held.
+    let rec = Recording::open(&run.record).unwrap();
+    let (msgs, _) = rec.json();
+    let asked: Vec<&serde_json::Value> = msgs
+        .iter()
+        .filter(|(t, _, m)| t == "/commands" && m["source"] == "characterize")
+        .map(|(_, _, m)| m)
+        .collect();
+    assert!(asked.len() >= 60, "{}", asked.len());
+    assert!(asked.iter().all(|m| m["accepted"] == true), "{asked:?}");
+}
+
+/// A sensor is listened to: its update rate and each reading's noise. The OBD-II
+/// sensor with its rpm made noisy by an amount the run does not know gives it back
+/// within 10 %; and nothing was commanded — no ask reached the intake, the vehicle was
+/// never engaged — so it needs neither `--yes` nor a vehicle held still.
+#[test]
+fn a_sensor_s_update_rate_and_noise_are_measured_without_commanding_anything() {
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    let noise = 20.0 + (seed % 8000) as f64 / 100.0;
+    eprintln!("rpm noise {noise}");
+    let dir = tempdir("characterize-sensor");
+    // The OBD-II sensor is Alice's last device: its `[device.sim]` goes at the end.
+    let vehicle = format!(
+        "{}\n[device.sim]\nreadings = {{ rpm = {{ value = 1500.0, noise = {noise} }} }}\n",
+        alice_with_steering(&sim_section(&draw(10)))
+    );
+    // No speed bound: a vehicle that could not prove it stands still is no matter here.
+    let vehicle = vehicle.replace("speed = \"obd.speed\"\n", "");
+    let run = characterize_device(dir.path(), "obd", &vehicle, &[]);
+    let s = &run.summary;
+    eprintln!("{s}\n{}", run.sim);
+    assert_eq!(s["device"], "obd");
+    assert_eq!(s["kind"], "sensor");
+    let samples = s["samples"].as_u64().unwrap();
+    assert!(samples >= 500, "{s}");
+    within(
+        "rpm noise",
+        s["noise"]["rpm"]["sd"].as_f64().unwrap(),
+        noise,
+        0.10,
+    );
+    let (lo, hi) = (
+        s["noise"]["rpm"]["min"].as_f64().unwrap(),
+        s["noise"]["rpm"]["max"].as_f64().unwrap(),
+    );
+    assert!(lo < 1500.0 - noise && hi > 1500.0 + noise, "{s}");
+    assert_eq!(
+        s["noise"]["coolant"]["sd"], 0.0,
+        "a constant reading has none: {s}"
+    );
+    // The rate: its readings over the time they took, as the CSV's times say.
+    let csv = std::fs::read_to_string(run.out.join("samples.csv")).unwrap();
+    let times: Vec<f64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times.len() as u64, samples);
+    let rate = (times.len() - 1) as f64 / (times[times.len() - 1] - times[0]);
+    let hz = s["update_hz"].as_f64().unwrap();
+    assert!(
+        hz >= rate * 0.98 && hz > 1.0,
+        "{hz} Hz, {rate} Hz from the samples"
+    );
+    assert!(
+        run.sim.contains("readings.rpm = { value = 1") && run.sim.contains("noise = "),
+        "{}",
+        run.sim
+    );
+    assert!(run.report.contains("](rpm.svg)"), "{}", run.report);
+    // Nothing commanded: the intake heard no ask, the gate never engaged.
+    let rec = Recording::open(&run.record).unwrap();
+    let (msgs, _) = rec.json();
+    let asks: Vec<_> = msgs.iter().filter(|(t, _, _)| t == "/commands").collect();
+    assert!(asks.is_empty(), "asks: {asks:?}");
+    let engaged: Vec<_> = msgs
+        .iter()
+        .filter(|(t, _, m)| t == "/gate" && m["event"] == "engaged")
+        .collect();
+    assert!(engaged.is_empty(), "{engaged:?}");
+    assert!(
+        msgs.iter().filter(|(t, _, _)| t == "/obd/reading").count() as u64 >= samples,
+        "the readings are in the recording"
+    );
+}

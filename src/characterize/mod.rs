@@ -13,8 +13,14 @@
 //! twentieth of it clear of each end; and when it is done it brings the device back to
 //! where it found it before it lets go. The figures are [`analyze`]'s, from the samples
 //! alone.
+//!
+//! A state actuator (a gearbox) is timed transition by transition ([`state`]), on the
+//! same terms; a sensor is listened to ([`sensor`]): its update rate and noise, with
+//! nothing commanded. [`run_any`] picks by the device's kind.
 
 pub(crate) mod analyze;
+pub(crate) mod sensor;
+pub(crate) mod state;
 pub(crate) mod write;
 
 use crate::engine::Gate;
@@ -188,6 +194,70 @@ pub(crate) fn ready(gate: &Gate, id: DeviceId) -> Result<(), safety::bench::Unre
     )
 }
 
+/// Wait for device `id` to report its reading `reading` (named `what`) and for the
+/// vehicle to be ready, then engage as the bench's own source: the first reading.
+/// `Err` says why not (nothing moved).
+pub(crate) fn engage_as_bench(
+    gate: &Gate,
+    id: DeviceId,
+    reading: usize,
+    what: &str,
+) -> Result<f64, Ended> {
+    let v = gate.vehicle();
+    let d = v.device(id);
+    let deadline = Instant::now() + START_WITHIN;
+    while d.reading(reading).is_none() || d.is_faulty() {
+        if Instant::now() > deadline {
+            return Err(Ended(format!(
+                "{} does not report its {what}: {}",
+                d.name(),
+                d.fault().unwrap_or_else(|| "no reading yet".into())
+            )));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // What proves the vehicle still comes from its other devices' first reports.
+    while let Err(u) = ready(gate, id) {
+        if Instant::now() > deadline {
+            return Err(Ended(format!("not ready: {u}")));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let first = d.reading(reading).expect("checked");
+    // Engaging waits for what blocks it to clear (a device's first reports), as long
+    // as the vehicle may take to report at all.
+    while let Err(r) = gate.admit(Source::Bench, Ask::Engage, Instant::now()) {
+        if Instant::now() > deadline || !matches!(r, safety::Refused::Blocked(_)) {
+            return Err(Ended(format!("engage refused: {r}")));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    Ok(first)
+}
+
+/// What ends a run that commands device `id` at once: a signal, a disengage (STOP, a
+/// fault, an override, the watchdog: named by its cause), another commander, a fault
+/// of the device, a broken precondition.
+pub(crate) fn interrupted(gate: &Gate, exits: &Receiver<Exit>, id: DeviceId) -> Result<(), Ended> {
+    if let Ok(why) = exits.try_recv() {
+        return Err(Ended(format!("stopped: {}", why.describe())));
+    }
+    if !gate.is_engaged() {
+        return Err(Ended(format!(
+            "the vehicle was disengaged: {}",
+            gate.reason()
+        )));
+    }
+    if gate.commander() != Some(Source::Bench) {
+        return Err(Ended("another source took command of the vehicle".into()));
+    }
+    let d = gate.vehicle().device(id);
+    if let Some(f) = d.fault() {
+        return Err(Ended(format!("{}: {f}", d.name())));
+    }
+    ready(gate, id).map_err(|u| Ended(format!("precondition broken: {u}")))
+}
+
 /// Whether `device` can be characterized here: a setpoint actuator with a position
 /// reading, on this vehicle.
 pub(crate) fn check_device(gate: &Gate, device: &str) -> Result<(DeviceId, usize), String> {
@@ -219,35 +289,8 @@ impl<'a> Bench<'a> {
         device: &str,
     ) -> Result<Bench<'a>, Ended> {
         let (id, position) = check_device(gate, device).map_err(Ended)?;
-        let v = gate.vehicle();
-        let d = v.device(id);
-        let deadline = Instant::now() + START_WITHIN;
-        while d.reading(position).is_none() || d.is_faulty() {
-            if Instant::now() > deadline {
-                return Err(Ended(format!(
-                    "{device} does not report its position: {}",
-                    d.fault().unwrap_or_else(|| "no reading yet".into())
-                )));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        // What proves the vehicle still comes from its other devices' first reports.
-        while let Err(u) = ready(gate, id) {
-            if Instant::now() > deadline {
-                return Err(Ended(format!("not ready: {u}")));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        let set = d.reading(position).expect("checked");
-        let range = d.config().range();
-        // Engaging waits for what blocks it to clear (a device's first reports), as
-        // long as the vehicle may take to report at all.
-        while let Err(r) = gate.admit(Source::Bench, Ask::Engage, Instant::now()) {
-            if Instant::now() > deadline || !matches!(r, safety::Refused::Blocked(_)) {
-                return Err(Ended(format!("engage refused: {r}")));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        let set = engage_as_bench(gate, id, position, "position")?;
+        let range = gate.vehicle().device(id).config().range();
         let now = Instant::now();
         let mut b = Bench {
             gate,
@@ -302,24 +345,9 @@ impl<'a> Bench<'a> {
     /// alive; take a new reading, if one came.
     fn tick(&mut self) -> Result<(), Ended> {
         std::thread::sleep(Duration::from_millis(1));
-        if let Ok(why) = self.exits.try_recv() {
-            return Err(Ended(format!("stopped: {}", why.describe())));
-        }
-        if !self.gate.is_engaged() {
-            return Err(Ended(format!(
-                "the vehicle was disengaged: {}",
-                self.gate.reason()
-            )));
-        }
-        if self.gate.commander() != Some(Source::Bench) {
-            return Err(Ended("another source took command of the vehicle".into()));
-        }
+        interrupted(self.gate, self.exits, self.id)?;
         let v = self.gate.vehicle();
         let d = v.device(self.id);
-        if let Some(f) = d.fault() {
-            return Err(Ended(format!("{}: {f}", d.name())));
-        }
-        ready(self.gate, self.id).map_err(|u| Ended(format!("precondition broken: {u}")))?;
         if self.sent.elapsed() >= RESEND {
             self.command(self.set)?;
         }
@@ -592,6 +620,64 @@ impl<'a> Bench<'a> {
         self.gate
             .disengage(DisengageCause::Characterize { ended: None });
         Ok(self.samples)
+    }
+}
+
+/// What a characterization measured, by the kind of device.
+pub(crate) enum Measured {
+    Setpoint(Box<Figures>),
+    State(state::Figures),
+    Sensor(sensor::Figures),
+}
+
+impl Measured {
+    /// How long it took, seconds.
+    pub(crate) fn took(&self) -> f64 {
+        match self {
+            Measured::Setpoint(f) => f.took,
+            Measured::State(f) => f.took,
+            Measured::Sensor(f) => f.took,
+        }
+    }
+
+    /// `summary.json`'s object.
+    pub(crate) fn summary(&self) -> serde_json::Value {
+        match self {
+            Measured::Setpoint(f) => write::summary(f),
+            Measured::State(f) => state::summary(f),
+            Measured::Sensor(f) => sensor::summary(f),
+        }
+    }
+
+    /// Every file into `dir`.
+    pub(crate) fn write_all(&self, dir: &std::path::Path) -> std::io::Result<()> {
+        match self {
+            Measured::Setpoint(f) => write::all(dir, f),
+            Measured::State(f) => state::write_all(dir, f),
+            Measured::Sensor(f) => sensor::write_all(dir, f),
+        }
+    }
+}
+
+/// Characterize `device`, whatever its kind: a setpoint actuator by `procedures`, a
+/// state actuator by its transitions, a sensor by listening.
+pub(crate) fn run_any(
+    gate: &Gate,
+    exits: &Receiver<Exit>,
+    device: &str,
+    procedures: &[Procedure],
+) -> Result<Measured, Ended> {
+    let kind = gate
+        .vehicle()
+        .find(device)
+        .map(|d| d.kind())
+        .ok_or_else(|| Ended(format!("no device {device:?} in this vehicle")))?;
+    match kind {
+        Kind::Setpoint => {
+            run(gate, exits, device, procedures).map(|f| Measured::Setpoint(Box::new(f)))
+        }
+        Kind::State => state::run(gate, exits, device).map(Measured::State),
+        Kind::Sensor => sensor::run(gate, exits, device).map(Measured::Sensor),
     }
 }
 

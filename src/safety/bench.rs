@@ -1,7 +1,8 @@
 //! When a bench procedure may move an actuator on its own (`adrive characterize`): a
 //! procedure steps and sweeps a device with nobody's hand on a key, so it runs only
 //! where that cannot move the vehicle — stopped, in park, with the brake held (unless
-//! the brake is the device under test: park holds the vehicle then), each proven by the
+//! the brake is the device under test: park holds the vehicle then; or the gearbox is,
+//! which shifts out of park: the brake alone holds it then, as for any shift), each proven by the
 //! facts the interlocks read ([`Facts`]) — or on a bench where nothing
 //! but the device under test is bound to a role (`--only DEVICE`). Checked before the
 //! procedure starts and at every sample while it runs; a broken one ends it.
@@ -70,16 +71,21 @@ pub(crate) fn ready(
     if !stopped(f.speed) {
         return Err(Unready::Moving);
     }
-    let park = b.gear.as_ref().and_then(|g| g.park);
-    let Some(park) = park else {
-        return Err(Unready::Unproven(Role::Gear));
-    };
-    if f.gear != Some(park) {
-        return Err(Unready::NotInPark);
-    }
-    // The brake under test cannot also hold the vehicle: park does.
-    if b.brake == Some(device) {
-        return Ok(());
+    // The gearbox under test leaves park by design: the brake alone holds the vehicle
+    // then, as the rules ask of every shift.
+    let gear_under_test = b.gear.as_ref().is_some_and(|g| g.device == device);
+    if !gear_under_test {
+        let park = b.gear.as_ref().and_then(|g| g.park);
+        let Some(park) = park else {
+            return Err(Unready::Unproven(Role::Gear));
+        };
+        if f.gear != Some(park) {
+            return Err(Unready::NotInPark);
+        }
+        // The brake under test cannot also hold the vehicle: park does.
+        if b.brake == Some(device) {
+            return Ok(());
+        }
     }
     if b.brake.is_none() {
         return Err(Unready::Unproven(Role::Brake));
@@ -188,6 +194,26 @@ mod tests {
             ..released
         };
         assert_eq!(ready(&b, brake, &drive, Some(0.0)), Err(Unready::NotInPark));
+    }
+
+    #[test]
+    fn the_gearbox_under_test_may_leave_park_but_the_brake_must_hold() {
+        let (b, _) = alice();
+        let gear = b.gear.as_ref().unwrap().device;
+        let drive = Facts {
+            gear: Some(3),
+            ..still()
+        };
+        assert_eq!(ready(&b, gear, &drive, Some(1.0)), Ok(()));
+        assert_eq!(
+            ready(&b, gear, &drive, Some(0.1)),
+            Err(Unready::BrakeNotHeld)
+        );
+        let moving = Facts {
+            speed: Some(0.5),
+            ..drive
+        };
+        assert_eq!(ready(&b, gear, &moving, Some(1.0)), Err(Unready::Moving));
     }
 
     #[test]
