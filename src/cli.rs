@@ -213,6 +213,15 @@ pub struct CharacterizeArgs {
     /// The procedures to run (repeatable, or comma-separated) [default: all].
     #[arg(long, value_name = "NAME", value_delimiter = ',', value_enum)]
     pub procedure: Vec<crate::characterize::Procedure>,
+    /// The part of the device's range to characterize, inside it: `--range -0.5,0.5`
+    /// [default: all of it].
+    #[arg(long, value_name = "LO,HI", allow_hyphen_values = true, value_parser = parse_range)]
+    pub range: Option<[f64; 2]>,
+    /// The sweep's point spacing and the deadband search's floor, in the device's units
+    /// (a thousandth to a fifth of the range) [default: five sweep points, the deadband
+    /// to 1/17000 of the range].
+    #[arg(long, value_name = "R")]
+    pub resolution: Option<f64>,
     /// Do not ask for confirmation (for scripts): the operator has made sure the
     /// device may move.
     #[arg(long)]
@@ -650,6 +659,22 @@ fn check_recording(given: bool, r: &record::Options) -> anyhow::Result<()> {
     .map_err(anyhow::Error::msg)
 }
 
+/// `--range LO,HI`: two numbers.
+fn parse_range(text: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    match parts[..] {
+        [lo, hi] => match (lo.parse::<f64>(), hi.parse::<f64>()) {
+            (Ok(lo), Ok(hi)) => Ok([lo, hi]),
+            _ => Err(format!(
+                "expected LO,HI, two numbers (-0.5,0.5), got {text:?}"
+            )),
+        },
+        _ => Err(format!(
+            "expected LO,HI, two numbers (-0.5,0.5), got {text:?}"
+        )),
+    }
+}
+
 /// How often `adrive characterize` polls the device it measures, at most.
 const CHARACTERIZE_POLL: Duration = Duration::from_millis(5);
 
@@ -666,9 +691,24 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     // Sample the device fast: the figures are read between its polls.
     d.status_period = d.status_period.min(CHARACTERIZE_POLL);
     let kind = d.kind;
-    if kind != crate::value::Kind::Setpoint && !args.procedure.is_empty() {
+    let scope = crate::characterize::Scope {
+        range: args.range,
+        resolution: args.resolution,
+    };
+    let setpoint_only = [
+        (!args.procedure.is_empty(), "--procedure"),
+        (args.range.is_some(), "--range"),
+        (args.resolution.is_some(), "--resolution"),
+    ]
+    .into_iter()
+    .find_map(|(given, name)| given.then_some(name));
+    if kind == crate::value::Kind::Setpoint {
+        scope
+            .check(d.range())
+            .map_err(|e| anyhow::anyhow!("{}: {e}", args.device))?;
+    } else if let Some(option) = setpoint_only {
         anyhow::bail!(
-            "--procedure applies to a setpoint actuator; {} is a {kind} device: {}",
+            "{option} applies to a setpoint actuator; {} is a {kind} device: {}",
             args.device,
             if kind == crate::value::Kind::State {
                 "every transition between its states is timed"
@@ -785,7 +825,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
             }
         ),
     );
-    let result = crate::characterize::run_any(&gate, &exits, &args.device, &procedures);
+    let result = crate::characterize::run_any(&gate, &exits, &args.device, &procedures, &scope);
     control.close();
     gate.disengage(crate::snapshot::DisengageCause::Stopping { why: None });
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));

@@ -1096,3 +1096,95 @@ fn a_sensor_s_update_rate_and_noise_are_measured_without_commanding_anything() {
         "the readings are in the recording"
     );
 }
+
+/// `--range` and `--resolution`: the sweep covers the middle of the part asked for at
+/// the spacing asked for, every point inside it, and the device ends where it was
+/// found, outside that part; a range outside the device's, or a resolution finer than a
+/// thousandth of it, is refused before anything moves.
+#[test]
+fn a_part_of_the_range_is_swept_at_the_resolution_asked_and_the_rest_refused() {
+    let dir = tempdir("characterize-range");
+    let vehicle = alice_with_steering(&sim_section(&draw(12)));
+    let run = characterize_device(
+        dir.path(),
+        "steer",
+        &vehicle,
+        &[
+            "--yes",
+            "--procedure",
+            "sweep",
+            "--range",
+            "0.2,0.8",
+            "--resolution",
+            "0.06",
+        ],
+    );
+    let map = run.summary["map"].as_array().unwrap();
+    // The middle 60 % of 0.2 … 0.8 (0.36 wide) every 0.06: seven points.
+    let commanded: Vec<f64> = map.iter().map(|p| p[0].as_f64().unwrap()).collect();
+    assert_eq!(commanded.len(), 7, "{commanded:?}");
+    for (i, c) in commanded.iter().enumerate() {
+        let want = 0.32 + 0.06 * i as f64;
+        assert!((c - want).abs() < 1e-6, "{commanded:?}");
+    }
+    // Found at 0, outside the part swept: back there at the end.
+    assert!(
+        run.out_lines
+            .iter()
+            .any(|l| l.starts_with("steer at ") && l.contains("safe state acknowledged")),
+        "{:?}",
+        run.out_lines
+    );
+    let at: f64 = run
+        .out_lines
+        .iter()
+        .find_map(|l| l.strip_prefix("steer at ")?.split(';').next()?.parse().ok())
+        .unwrap();
+    assert!(at.abs() < 0.2, "ended at {at}, found at 0");
+    // Every set point it asked for stayed inside the part, but the last: home.
+    let rec = Recording::open(&run.record).unwrap();
+    let (msgs, _) = rec.json();
+    let asked: Vec<f64> = msgs
+        .iter()
+        .filter(|(t, _, m)| t == "/commands" && m["source"] == "characterize")
+        .filter_map(|(_, _, m)| m["value"].as_f64())
+        .collect();
+    let first_home = asked.iter().position(|v| v.abs() < 1e-3).unwrap();
+    assert!(
+        asked[..first_home].iter().all(|v| (0.2..=0.8).contains(v))
+            && asked[first_home..].iter().all(|v| v.abs() < 1e-3),
+        "inside the part, then home: {asked:?}"
+    );
+
+    for (args, says) in [
+        (
+            &["--range", "-2,0.5"][..],
+            "steer: --range -2,0.5: expected LO,HI with LO < HI inside the device's range -1 … 1",
+        ),
+        (
+            &["--range", "0.5,0.2"][..],
+            "expected LO,HI with LO < HI inside the device's range",
+        ),
+        (
+            &["--resolution", "0.0001"][..],
+            "--resolution 0.0001: expected a step from 0.002 to 0.4",
+        ),
+    ] {
+        let o = output_within(
+            Process::new(BIN)
+                .args(["characterize", "steer", "--sim", "--yes", "--config"])
+                .arg(dir.path().join("steer.toml"))
+                .arg("--out")
+                .arg(dir.path().join("refused"))
+                .arg("--socket")
+                .arg(dir.path().join("r.sock"))
+                .arg("--log-dir")
+                .arg(dir.path().join("logs"))
+                .args(args),
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!dir.path().join("refused").exists());
+    }
+}

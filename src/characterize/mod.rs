@@ -61,6 +61,66 @@ impl Procedure {
     ];
 }
 
+/// What part of a setpoint actuator's range a run covers, and how finely
+/// (`--range`, `--resolution`); by default all of it, five sweep points and eleven
+/// halvings of the deadband search.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct Scope {
+    /// The part of the device's range to characterize, `[lo, hi]`.
+    pub range: Option<[f64; 2]>,
+    /// The sweep's point spacing and the deadband search's floor, in the device's units.
+    pub resolution: Option<f64>,
+}
+
+/// Sweep points by default.
+const SWEEP_POINTS: usize = 5;
+/// The sweep covers this share of the range in its middle; the deadband search starts
+/// from a step of [`DEADBAND_FROM`] of it.
+const SWEEP_SHARE: f64 = 0.6;
+const DEADBAND_FROM: f64 = 0.12;
+
+impl Scope {
+    /// Whether the scope fits a device of range `of`: the range inside it, lo < hi,
+    /// the resolution a positive number from a thousandth of the range to a fifth of it.
+    pub(crate) fn check(&self, of: [f64; 2]) -> Result<(), String> {
+        let [lo, hi] = self.range.unwrap_or(of);
+        if !(lo.is_finite() && hi.is_finite() && lo < hi && of[0] <= lo && hi <= of[1]) {
+            return Err(format!(
+                "--range {lo},{hi}: expected LO,HI with LO < HI inside the device's range {} … {}",
+                of[0], of[1]
+            ));
+        }
+        if let Some(r) = self.resolution {
+            let span = hi - lo;
+            if !(r.is_finite() && r >= span / 1000.0 && r <= span / 5.0) {
+                return Err(format!(
+                    "--resolution {r}: expected a step from {} to {} (a thousandth to a fifth of the range characterized, {lo} … {hi})",
+                    span / 1000.0,
+                    span / 5.0
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The sweep's points over `span` (the range characterized).
+    pub(crate) fn sweep_points(&self, span: f64) -> usize {
+        self.resolution
+            .map_or(SWEEP_POINTS, |r| {
+                (SWEEP_SHARE * span / r).round() as usize + 1
+            })
+            .max(2)
+    }
+
+    /// Halvings of the deadband search over `span`: until the step is below the
+    /// resolution.
+    pub(crate) fn deadband_steps(&self, span: f64) -> usize {
+        self.resolution.map_or(DEADBAND_STEPS, |r| {
+            ((DEADBAND_FROM * span / r).log2().ceil().max(1.0)) as usize
+        })
+    }
+}
+
 /// Points of a sweep, each (commanded, settled reading).
 pub(crate) type Settled = Vec<(f64, f64)>;
 
@@ -166,6 +226,8 @@ pub(crate) struct Bench<'a> {
     position: usize,
     range: [f64; 2],
     started: Instant,
+    /// Where the device was found: where it is brought back to.
+    found: f64,
     /// The set point in force, and when it was last sent.
     set: f64,
     sent: Instant,
@@ -245,7 +307,7 @@ pub(crate) fn interrupted(gate: &Gate, exits: &Receiver<Exit>, id: DeviceId) -> 
     if !gate.is_engaged() {
         return Err(Ended(format!(
             "the vehicle was disengaged: {}",
-            gate.reason()
+            gate.cause().why()
         )));
     }
     if gate.commander() != Some(Source::Bench) {
@@ -287,10 +349,13 @@ impl<'a> Bench<'a> {
         gate: &'a Gate,
         exits: &'a Receiver<Exit>,
         device: &str,
+        scope: &Scope,
     ) -> Result<Bench<'a>, Ended> {
         let (id, position) = check_device(gate, device).map_err(Ended)?;
+        let full = gate.vehicle().device(id).config().range();
+        scope.check(full).map_err(Ended)?;
         let set = engage_as_bench(gate, id, position, "position")?;
-        let range = gate.vehicle().device(id).config().range();
+        let range = scope.range.unwrap_or(full);
         let now = Instant::now();
         let mut b = Bench {
             gate,
@@ -299,6 +364,7 @@ impl<'a> Bench<'a> {
             position,
             range,
             started: now,
+            found: set,
             set,
             sent: now - RESEND,
             last_at: None,
@@ -323,9 +389,15 @@ impl<'a> Bench<'a> {
         v.clamp(self.range[0] + m, self.range[1] - m)
     }
 
-    /// Send set point `v` through the intake; a refusal ends the run.
+    /// Send set point `v` through the intake, inside the travel ([`Bench::clamp`]); a
+    /// refusal ends the run.
     fn command(&mut self, v: f64) -> Result<(), Ended> {
-        let v = self.clamp(v);
+        self.send(self.clamp(v))
+    }
+
+    /// Send set point `v` through the intake as it is (the intake checks it against
+    /// the device's range); a refusal ends the run.
+    fn send(&mut self, v: f64) -> Result<(), Ended> {
         let now = Instant::now();
         self.gate
             .admit(Source::Bench, Ask::Set(self.id, Command::Set(v)), now)
@@ -349,7 +421,7 @@ impl<'a> Bench<'a> {
         let v = self.gate.vehicle();
         let d = v.device(self.id);
         if self.sent.elapsed() >= RESEND {
-            self.command(self.set)?;
+            self.send(self.set)?;
         }
         let c = d.cached();
         if c.at != self.last_at {
@@ -538,15 +610,15 @@ impl<'a> Bench<'a> {
 
     /// The smallest step up that moves it, by halving: from a point approached from
     /// below, a step either moves it (the point it follows is then the new one) or not.
-    pub(crate) fn deadband(&mut self) -> Result<f64, Ended> {
+    pub(crate) fn deadband(&mut self, steps: usize) -> Result<f64, Ended> {
         let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
         let base0 = m - 0.35 * s;
         self.move_to(base0 - 0.15 * s)?;
         self.move_to(base0)?;
         let mut base = self.set;
-        let (mut lo, mut hi) = (0.0, 0.12 * s);
+        let (mut lo, mut hi) = (0.0, DEADBAND_FROM * s);
         let wait = self.delay.unwrap_or(0.1) + 5.0 * self.lag.unwrap_or(0.02) + 0.05;
-        for _ in 0..DEADBAND_STEPS {
+        for _ in 0..steps {
             let step = (lo + hi) / 2.0;
             let before = self.last();
             self.command(base + step)?;
@@ -571,24 +643,61 @@ impl<'a> Bench<'a> {
     }
 
     /// Points up the range and back down, each settled: (commanded, measured) each way.
-    pub(crate) fn sweep(&mut self, points: usize) -> Result<(Settled, Settled), Ended> {
+    ///
+    /// A `fine` sweep (`--resolution`, or a part of the range) may step less than the
+    /// deadband: a point the device does not move to is where it stays
+    /// ([`Bench::probe_to`]).
+    pub(crate) fn sweep(&mut self, points: usize, fine: bool) -> Result<(Settled, Settled), Ended> {
         let s = self.span();
         let at: Vec<f64> = (0..points)
-            .map(|i| self.range[0] + s * (0.2 + 0.6 * i as f64 / (points - 1).max(1) as f64))
+            .map(|i| {
+                self.range[0]
+                    + s * ((1.0 - SWEEP_SHARE) / 2.0
+                        + SWEEP_SHARE * i as f64 / (points - 1).max(1) as f64)
+            })
             .collect();
-        self.move_to(self.range[0])?;
+        self.sweep_to(self.range[0], fine)?;
         let mut up = Vec::new();
         for &c in &at {
-            let (y, _, _) = self.move_to(c)?;
+            let y = self.sweep_to(c, fine)?;
             up.push((self.set, y));
         }
-        self.move_to(self.range[1])?;
+        self.sweep_to(self.range[1], fine)?;
         let mut down = Vec::new();
         for &c in at.iter().rev() {
-            let (y, _, _) = self.move_to(c)?;
+            let y = self.sweep_to(c, fine)?;
             down.push((self.set, y));
         }
         Ok((up, down))
+    }
+
+    /// A sweep's point: a move ([`Bench::move_to`]), or where a `probe` settles.
+    fn sweep_to(&mut self, c: f64, probe: bool) -> Result<f64, Ended> {
+        if probe {
+            self.probe_to(c)
+        } else {
+            self.move_to(c).map(|(y, _, _)| y)
+        }
+    }
+
+    /// Go toward `v`, a step that may be within the deadband: wait as long as a move
+    /// takes to start (its delay and lags, once known), then settle, moved or not.
+    fn probe_to(&mut self, v: f64) -> Result<f64, Ended> {
+        let before = self.last();
+        self.command(v)?;
+        let target = self.set;
+        let wait = self.delay.unwrap_or(0.1) + 5.0 * self.lag.unwrap_or(0.02) + 0.05;
+        let end = Instant::now() + Duration::from_secs_f64(wait);
+        while Instant::now() < end {
+            self.tick()?;
+            if (self.last() - before).abs() > self.still * 4.0 {
+                break;
+            }
+        }
+        let y = self.settle()?;
+        self.settled
+            .push(((target * 1e6).round() as i64, target > before, y));
+        Ok(y)
     }
 
     /// How far settled readings at one point, approached one way, spread (max − min).
@@ -615,7 +724,15 @@ impl<'a> Bench<'a> {
     /// Bring the device back to where it was found, and let go (disengage: the safe
     /// state).
     fn finish(mut self, home: f64) -> Result<Vec<Sample>, Ended> {
-        self.command(home)?;
+        // Where it was found, though that be outside the part characterized; a move
+        // waits out the device's delay, unknown to a sweep alone (a step within the
+        // deadband does not move it: then it waits as long as a move may take to start).
+        let before = self.last();
+        self.send(home)?;
+        let end = Instant::now() + START_WITHIN;
+        while Instant::now() < end && (self.last() - before).abs() <= self.still * 4.0 {
+            self.tick()?;
+        }
         self.settle()?;
         self.gate
             .disengage(DisengageCause::Characterize { ended: None });
@@ -666,6 +783,7 @@ pub(crate) fn run_any(
     exits: &Receiver<Exit>,
     device: &str,
     procedures: &[Procedure],
+    scope: &Scope,
 ) -> Result<Measured, Ended> {
     let kind = gate
         .vehicle()
@@ -674,7 +792,7 @@ pub(crate) fn run_any(
         .ok_or_else(|| Ended(format!("no device {device:?} in this vehicle")))?;
     match kind {
         Kind::Setpoint => {
-            run(gate, exits, device, procedures).map(|f| Measured::Setpoint(Box::new(f)))
+            run(gate, exits, device, procedures, scope).map(|f| Measured::Setpoint(Box::new(f)))
         }
         Kind::State => state::run(gate, exits, device).map(Measured::State),
         Kind::Sensor => sensor::run(gate, exits, device).map(Measured::Sensor),
@@ -688,10 +806,11 @@ pub(crate) fn run(
     exits: &Receiver<Exit>,
     device: &str,
     procedures: &[Procedure],
+    scope: &Scope,
 ) -> Result<Figures, Ended> {
-    let mut bench = Bench::engage(gate, exits, device)?;
-    let home = bench.set;
-    let result = measure(&mut bench, procedures);
+    let mut bench = Bench::engage(gate, exits, device, scope)?;
+    let home = bench.found;
+    let result = measure(&mut bench, procedures, scope);
     let mut f = match result {
         Ok(f) => f,
         Err(e) => {
@@ -726,7 +845,7 @@ fn bench_id(gate: &Gate, device: &str) -> Result<DeviceId, Ended> {
     check_device(gate, device).map(|(id, _)| id).map_err(Ended)
 }
 
-fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
+fn measure(b: &mut Bench, procedures: &[Procedure], scope: &Scope) -> Result<Figures, Ended> {
     let d = b.gate.vehicle().device(b.id);
     let mut f = Figures {
         device: d.name().to_string(),
@@ -744,10 +863,11 @@ fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
         b.steps(3, &mut f)?;
     }
     if wants(&[Procedure::Deadband]) {
-        f.deadband = Some(b.deadband()?);
+        f.deadband = Some(b.deadband(scope.deadband_steps(b.span()))?);
     }
     if wants(&[Procedure::Sweep, Procedure::Backlash]) {
-        let (up, down) = b.sweep(5)?;
+        let fine = scope.resolution.is_some() || scope.range.is_some();
+        let (up, down) = b.sweep(scope.sweep_points(b.span()), fine)?;
         let (map, line) = analyze::static_map(&up, &down);
         f.map = map;
         f.gain_offset = line;
