@@ -396,7 +396,7 @@ pub(crate) fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
         ROUNDS,
     );
     for t in &f.transitions {
-        let show = |x: Option<f64>| x.map_or("—".into(), |v| format!("{:.1} ms", v));
+        let show = |x: Option<f64>| x.map_or("—".into(), |v| format!("{v:.1} ms"));
         let lo = t.ms.iter().copied().reduce(f64::min);
         let hi = t.ms.iter().copied().reduce(f64::max);
         let _ = writeln!(
