@@ -192,7 +192,9 @@ pub struct AttachArgs {
 
 #[derive(Args, Debug, Clone)]
 pub struct CharacterizeArgs {
-    /// The setpoint actuator to measure (it must report a `position`).
+    /// The device to measure: a setpoint actuator (reporting its `position`), a state
+    /// actuator (every transition timed) or a sensor (its update rate and noise,
+    /// listening only).
     #[arg(value_name = "DEVICE")]
     pub device: String,
     /// Vehicle TOML (default: the built-in simulated Alice).
@@ -211,6 +213,15 @@ pub struct CharacterizeArgs {
     /// The procedures to run (repeatable, or comma-separated) [default: all].
     #[arg(long, value_name = "NAME", value_delimiter = ',', value_enum)]
     pub procedure: Vec<crate::characterize::Procedure>,
+    /// The part of the device's range to characterize, inside it: `--range -0.5,0.5`
+    /// [default: all of it].
+    #[arg(long, value_name = "LO,HI", allow_hyphen_values = true, value_parser = parse_range)]
+    pub range: Option<[f64; 2]>,
+    /// The sweep's point spacing and the deadband search's floor, in the device's units
+    /// (a thousandth to a fifth of the range) [default: five sweep points, the deadband
+    /// to 1/17000 of the range].
+    #[arg(long, value_name = "R")]
+    pub resolution: Option<f64>,
     /// Do not ask for confirmation (for scripts): the operator has made sure the
     /// device may move.
     #[arg(long)]
@@ -648,6 +659,22 @@ fn check_recording(given: bool, r: &record::Options) -> anyhow::Result<()> {
     .map_err(anyhow::Error::msg)
 }
 
+/// `--range LO,HI`: two numbers.
+fn parse_range(text: &str) -> Result<[f64; 2], String> {
+    let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+    match parts[..] {
+        [lo, hi] => match (lo.parse::<f64>(), hi.parse::<f64>()) {
+            (Ok(lo), Ok(hi)) => Ok([lo, hi]),
+            _ => Err(format!(
+                "expected LO,HI, two numbers (-0.5,0.5), got {text:?}"
+            )),
+        },
+        _ => Err(format!(
+            "expected LO,HI, two numbers (-0.5,0.5), got {text:?}"
+        )),
+    }
+}
+
 /// `adrive characterize DEVICE`: the engine without a console or network, the
 /// procedures of [`crate::characterize`] as the one commander, then the safe state.
 pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
@@ -660,6 +687,33 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     };
     // Sample the device fast: the figures are read between its polls.
     d.status_period = d.status_period.min(crate::characterize::background::POLL);
+    let kind = d.kind;
+    let scope = crate::characterize::Scope {
+        range: args.range,
+        resolution: args.resolution,
+    };
+    let setpoint_only = [
+        (!args.procedure.is_empty(), "--procedure"),
+        (args.range.is_some(), "--range"),
+        (args.resolution.is_some(), "--resolution"),
+    ]
+    .into_iter()
+    .find_map(|(given, name)| given.then_some(name));
+    if kind == crate::value::Kind::Setpoint {
+        scope
+            .check(d.range())
+            .map_err(|e| anyhow::anyhow!("{}: {e}", args.device))?;
+    } else if let Some(option) = setpoint_only {
+        anyhow::bail!(
+            "{option} applies to a setpoint actuator; {} is a {kind} device: {}",
+            args.device,
+            if kind == crate::value::Kind::State {
+                "every transition between its states is timed"
+            } else {
+                "it is listened to (update rate and noise)"
+            }
+        );
+    }
     let out = args
         .out
         .clone()
@@ -669,7 +723,8 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     } else {
         args.procedure.clone()
     };
-    if !args.yes {
+    // A sensor is only listened to: nothing moves, nothing to confirm.
+    if !args.yes && kind != crate::value::Kind::Sensor {
         use std::io::IsTerminal;
         if !io::stdin().is_terminal() {
             anyhow::bail!(
@@ -680,8 +735,23 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         tell(
             io::stdout(),
             format_args!(
-                "characterize moves {} across its range on its own. Is it free to move, the vehicle stopped, in park, the brake held? [y/N] ",
-                args.device
+                "{} Is it free to move, the vehicle stopped, {}the brake held? [y/N] ",
+                if kind == crate::value::Kind::State {
+                    format!(
+                        "characterize shifts {} through all its states on its own.",
+                        args.device
+                    )
+                } else {
+                    format!(
+                        "characterize moves {} across its range on its own.",
+                        args.device
+                    )
+                },
+                if kind == crate::value::Kind::State {
+                    ""
+                } else {
+                    "in park, "
+                },
             ),
         );
         let mut answer = String::new();
@@ -739,11 +809,17 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         format_args!(
             "characterizing {} ({}): STOP with `adrive ctl stop`, or Ctrl-C\n",
             args.device,
-            procedures
-                .iter()
-                .map(|p| format!("{p:?}").to_lowercase())
-                .collect::<Vec<_>>()
-                .join(", ")
+            match kind {
+                crate::value::Kind::Setpoint => procedures
+                    .iter()
+                    .map(|p| format!("{p:?}").to_lowercase())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                crate::value::Kind::State => "every transition between its states".into(),
+                crate::value::Kind::Sensor => {
+                    "listening only: update rate and noise; nothing is commanded".into()
+                }
+            }
         ),
     );
     let stop = || exits.try_recv().ok().map(|why| why.describe());
@@ -751,7 +827,8 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         progress: &|_| {},
         stop: &stop,
     };
-    let result = crate::characterize::run(&gate, &watch, &args.device, &procedures);
+    let result =
+        crate::characterize::run_any(&gate, &watch, &args.device, &procedures, &scope);
     control.close();
     gate.disengage(crate::snapshot::DisengageCause::Stopping { why: None });
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
@@ -761,17 +838,27 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     stuck.extend(engine_stuck);
     // After the engine: the safe state's commands are in the recording.
     stuck.extend(recorder.shutdown(Duration::from_secs(2)));
-    let at = vehicle
-        .devices()
-        .iter()
-        .find(|d| d.name() == args.device)
-        .and_then(|d| d.config().position().and_then(|i| d.reading(i)));
+    // Where the device ended: a setpoint actuator's position, a state actuator's state.
+    let at = vehicle.find(&args.device).and_then(|d| {
+        let c = d.config();
+        match (c.position(), c.state()) {
+            (Some(i), _) => d.reading(i).map(|p| p.to_string()),
+            (None, Some(i)) => d.reading(i).map(|s| {
+                c.states
+                    .get(s as usize)
+                    .cloned()
+                    .unwrap_or_else(|| s.to_string())
+            }),
+            _ => None,
+        }
+    });
     drop(sim);
     let code = match result {
         Ok(figures) => {
-            crate::characterize::write::all(&out, &figures)
+            figures
+                .write_all(&out)
                 .map_err(|e| anyhow::anyhow!("--out {}: {e}", out.display()))?;
-            let mut summary = crate::characterize::write::summary(&figures);
+            let mut summary = figures.summary();
             if let Some(o) = summary.as_object_mut() {
                 o.remove("map");
             }
@@ -781,7 +868,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
                     "{}\nwritten to {} in {:.1} s\n",
                     serde_json::to_string_pretty(&summary)?,
                     out.display(),
-                    figures.took
+                    figures.took()
                 ),
             );
             0
@@ -799,7 +886,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         format_args!(
             "{} at {}; safe state {}acknowledged\n",
             args.device,
-            at.map_or("?".into(), |p| p.to_string()),
+            at.unwrap_or_else(|| "?".into()),
             if safe { "" } else { "NOT " }
         ),
     );

@@ -2,12 +2,15 @@
 //! `[device.sim]` the run does not know (drawn at random within the limits) is measured,
 //! every figure is checked against what was set, and the `sim.toml` it writes makes a
 //! twin that measures the same. And a STOP mid-run ends it at once with the vehicle
-//! in its safe state, nothing written.
+//! in its safe state, nothing written; so does a precondition broken mid-run by a
+//! driver's hand (the brake lifted, the gear lever moved), against `adrive sim` in a
+//! process of its own.
 
 mod common;
 
 use adrive::record::read::Recording;
 use common::headless::BIN;
+use common::simproc::SimProcess;
 use common::{lines, output_within, tempdir, until, wait_exit, Reaped, DEADLINE};
 use std::path::Path;
 use std::process::{Command as Process, Stdio};
@@ -595,4 +598,593 @@ fn a_recorded_characterization_holds_its_commands() {
         String::from_utf8_lossy(&o.stdout),
         String::from_utf8_lossy(&o.stderr)
     );
+}
+
+/// `text` with each device's `port` pointing at the simulator's port of that device, in
+/// the vehicle's order (as `adrive sim` prints them).
+fn on_ports(text: &str, sim: &SimProcess) -> String {
+    let mut paths = sim.paths.iter();
+    text.lines()
+        .map(|l| {
+            if l.starts_with("port = ") {
+                format!("port = \"{}\"\n", paths.next().expect("a port per device"))
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect()
+}
+
+/// What a run that a hand broke mid-run left.
+struct Broken {
+    code: Option<i32>,
+    out_lines: Vec<String>,
+    err_lines: Vec<String>,
+    /// From the hand to the process's exit.
+    took: Duration,
+    /// The recording's messages: (topic, wall-clock ns, message).
+    msgs: Vec<(String, u64, serde_json::Value)>,
+    /// The wall-clock ns when the hand was typed into the simulator.
+    hand_ns: u64,
+    /// What the simulator printed after the hand.
+    sim_after: Vec<String>,
+    wrote: bool,
+}
+
+fn wall_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64
+}
+
+/// `adrive sim` with `vehicle` in its own process, and `adrive characterize steer`
+/// against its ports, recorded: once the steering moves under the bench's command,
+/// `hand` is typed into the simulator, as a driver's hand acts on the vehicle.
+fn broken_mid_run(tag: &str, vehicle: &str, hand: &str) -> Broken {
+    let dir = tempdir(tag);
+    let sim_file = dir.path().join("sim.toml");
+    std::fs::write(&sim_file, vehicle).unwrap();
+    let mut sim = SimProcess::start_with(&["--config", sim_file.to_str().unwrap()], 6);
+    let config = dir.path().join("v.toml");
+    std::fs::write(&config, on_ports(vehicle, &sim)).unwrap();
+    let socket = dir.path().join("s.sock");
+    let out = dir.path().join("out");
+    let record = dir.path().join("run.mcap");
+    let mut child = Reaped(
+        Process::new(BIN)
+            .args(["characterize", "steer", "--yes", "--config"])
+            .arg(&config)
+            .arg("--out")
+            .arg(&out)
+            .arg("--socket")
+            .arg(&socket)
+            .arg("--log-dir")
+            .arg(dir.path().join("logs"))
+            .arg("--record")
+            .arg(&record)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let said = lines(child.0.stdout.take().unwrap());
+    let errors = lines(child.0.stderr.take().unwrap());
+    until(&said, "characterizing steer");
+    // Under way: the bench commands the engaged vehicle and the steering has moved.
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let o = output_within(
+            Process::new(BIN)
+                .args(["ctl", "status", "--json", "--socket"])
+                .arg(&socket),
+        );
+        let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
+        let steer = s["devices"]
+            .as_array()
+            .and_then(|d| d.iter().find(|d| d["name"] == "steer"))
+            .and_then(|d| d["readings"]["position"].as_f64());
+        if s["gate"]["engaged"] == true && steer.is_some_and(|x| x.abs() > 0.1) {
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "characterize never got under way: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let mark = sim.mark();
+    let hand_ns = wall_ns();
+    let handed = Instant::now();
+    sim.say(hand);
+    let code = wait_exit(&mut child.0);
+    let took = handed.elapsed();
+    let rec = Recording::open(&record).unwrap();
+    assert!(rec.complete, "{:?}", rec.cut);
+    let (msgs, _) = rec.json();
+    // The safe state's commands reach the simulator after the run ends.
+    std::thread::sleep(Duration::from_millis(300));
+    let sim_after = sim.lines()[mark..].to_vec();
+    sim.stop();
+    Broken {
+        code,
+        out_lines: said.try_iter().collect(),
+        err_lines: errors.try_iter().collect(),
+        took,
+        msgs,
+        hand_ns,
+        sim_after,
+        wrote: out.exists(),
+    }
+}
+
+impl Broken {
+    /// Ended as a STOP ends it: status 1, its cause in words on standard error and as
+    /// the disengage's cause in the recording, the safe state acknowledged, nothing
+    /// written. The time of the disengage (wall-clock ns).
+    fn ended_by(&self, why: &str) -> u64 {
+        let all = format!("{:?}\n{:?}", self.out_lines, self.err_lines);
+        assert_eq!(self.code, Some(1), "{all}");
+        assert!(
+            self.err_lines.iter().any(|l| l.contains(&format!(
+                "adrive: characterize steer: precondition broken: {why}"
+            ))),
+            "{all}"
+        );
+        assert!(
+            self.out_lines
+                .iter()
+                .any(|l| l.contains("safe state acknowledged") && !l.contains("NOT")),
+            "{all}"
+        );
+        assert!(!self.wrote, "nothing written for a run that did not finish");
+        let (_, at, _) = self
+            .msgs
+            .iter()
+            .find(|(t, _, m)| t == "/gate" && m["event"] == "disengaged")
+            .unwrap_or_else(|| panic!("no disengage recorded: {all}"));
+        let reason = self
+            .msgs
+            .iter()
+            .filter(|(t, _, m)| t == "/gate" && m["event"] == "disengaged")
+            .map(|(_, _, m)| m["reason"].as_str().unwrap_or_default().to_string())
+            .collect::<Vec<_>>();
+        assert_eq!(
+            reason.first().map(String::as_str),
+            Some(format!("disengaged: characterize ended: precondition broken: {why}").as_str()),
+            "the first disengage is the bench's own, for its cause: {reason:?}"
+        );
+        *at
+    }
+
+    /// The first reading of `device` after the hand whose `field` satisfies `f` (ns).
+    fn first_reading(&self, device: &str, f: impl Fn(&serde_json::Value) -> bool) -> u64 {
+        self.msgs
+            .iter()
+            .find(|(t, at, m)| *t == format!("/{device}/reading") && *at > self.hand_ns && f(m))
+            .map(|(_, at, _)| *at)
+            .unwrap_or_else(|| panic!("no such reading of {device} recorded"))
+    }
+
+    /// The simulator received `command` for `device` after the hand.
+    fn received(&self, device: &str, command: &str) -> bool {
+        self.sim_after.iter().any(|l| {
+            let w: Vec<&str> = l.split_whitespace().collect();
+            w.get(1) == Some(&device) && w.get(2) == Some(&"<-") && w.get(3) == Some(&command)
+        })
+    }
+}
+
+/// How soon after the reading that shows a precondition broken the run lets go: it
+/// checks at every turn (a millisecond), so a few turns on a loaded machine.
+const AT_THE_SAMPLE: Duration = Duration::from_millis(100);
+
+/// A driver's foot lifts the brake while the steering is characterized. No command
+/// changed, so only the brake's reading shows it: the run ends at the first reading
+/// below the rules' shift brake, and the brake is commanded full again (the safe
+/// state). The brake's override detection is made slow here (its `override_time` the
+/// longest allowed, 2 s), so that what ends the run is the bench's own check rather than
+/// the supervisor's override, which would end it too, later.
+#[test]
+fn a_brake_released_mid_run_ends_it_at_the_first_reading_with_the_vehicle_safe() {
+    let held = "lag = \"80ms\"\n[device.sim]\nlag = \"80ms\"\nwatchdog = \"1s\"           # the actuator's own watchdog: full brake";
+    let vehicle = alice_with_steering(&sim_section(&draw(5)));
+    assert!(
+        vehicle.contains(held),
+        "Alice's brake as this test knows it"
+    );
+    let vehicle = vehicle.replace(held, &format!("override_time = \"2s\"\n{held}"));
+    let run = broken_mid_run("characterize-brake", &vehicle, "override brake 0");
+    let disengaged = run.ended_by("the brake is not held");
+    let released = run.first_reading("brake", |m| m["position"].as_f64().is_some_and(|x| x < 0.3));
+    let after = Duration::from_nanos(disengaged.saturating_sub(released));
+    assert!(
+        disengaged >= released && after < AT_THE_SAMPLE,
+        "let go {after:?} after the brake read released"
+    );
+    // The hand moves the brake at 2 ranges a second: 0.35 s to below 0.3, then at most
+    // a status period (100 ms) until a reading shows it.
+    let from_hand = Duration::from_nanos(disengaged.saturating_sub(run.hand_ns));
+    assert!(
+        from_hand < Duration::from_millis(350 + 100) + AT_THE_SAMPLE * 5,
+        "let go {from_hand:?} after the hand"
+    );
+    assert!(
+        run.took < Duration::from_secs(5),
+        "exited {:?} after the hand",
+        run.took
+    );
+    assert!(
+        run.received("brake", "1.000") && run.received("gas", "0.000"),
+        "the safe state at the devices: {:?}",
+        run.sim_after
+    );
+}
+
+/// A driver's hand moves the gear lever to drive while the steering is characterized:
+/// the run ends at the first reading of the gearbox out of park, in the safe state.
+#[test]
+fn the_gear_moved_mid_run_ends_it_at_the_first_reading_with_the_vehicle_safe() {
+    let vehicle = alice_with_steering(&sim_section(&draw(6)));
+    let run = broken_mid_run("characterize-gear", &vehicle, "lever trans drive");
+    let disengaged = run.ended_by("the gearbox is not in park");
+    let moved = run.first_reading("trans", |m| m["state"] == "drive");
+    let after = Duration::from_nanos(disengaged.saturating_sub(moved));
+    assert!(
+        disengaged >= moved && after < AT_THE_SAMPLE,
+        "let go {after:?} after the gearbox read drive"
+    );
+    // At once in drive, then at most a status period (250 ms) until a reading shows it.
+    let from_hand = Duration::from_nanos(disengaged.saturating_sub(run.hand_ns));
+    assert!(
+        from_hand < Duration::from_millis(250) + AT_THE_SAMPLE * 5,
+        "let go {from_hand:?} after the hand"
+    );
+    assert!(
+        run.took < Duration::from_secs(5),
+        "exited {:?} after the hand",
+        run.took
+    );
+    assert!(
+        run.received("brake", "1.000") && run.received("gas", "0.000"),
+        "the safe state at the devices: {:?}",
+        run.sim_after
+    );
+    assert!(
+        !run.sim_after.iter().any(|l| l.contains("trans <-")),
+        "the gear is the driver's: adrive does not shift it back: {:?}",
+        run.sim_after
+    );
+}
+
+/// A run of `adrive characterize DEVICE --sim` on `vehicle` that must succeed: what it
+/// wrote and printed.
+struct Done {
+    summary: serde_json::Value,
+    sim: String,
+    report: String,
+    out: std::path::PathBuf,
+    out_lines: Vec<String>,
+    record: std::path::PathBuf,
+}
+
+fn characterize_device(dir: &Path, device: &str, vehicle: &str, extra: &[&str]) -> Done {
+    let config = dir.join(format!("{device}.toml"));
+    std::fs::write(&config, vehicle).unwrap();
+    let out = dir.join(format!("{device}-out"));
+    let record = dir.join(format!("{device}.mcap"));
+    let mut child = Reaped(
+        Process::new(BIN)
+            .args(["characterize", device, "--sim", "--config"])
+            .arg(&config)
+            .arg("--out")
+            .arg(&out)
+            .arg("--socket")
+            .arg(dir.join(format!("{device}.sock")))
+            .arg("--log-dir")
+            .arg(dir.join("logs"))
+            .arg("--record")
+            .arg(&record)
+            .args(extra)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let said = lines(child.0.stdout.take().unwrap());
+    let errors = lines(child.0.stderr.take().unwrap());
+    let end = Instant::now() + DEADLINE * 8;
+    let code = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s.code();
+        }
+        assert!(Instant::now() < end, "characterize still ran");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let out_lines: Vec<String> = said.try_iter().collect();
+    let err_lines: Vec<String> = errors.try_iter().collect();
+    assert_eq!(code, Some(0), "{out_lines:?}\n{err_lines:?}");
+    let read = |f: &str| std::fs::read_to_string(out.join(f)).unwrap();
+    Done {
+        summary: serde_json::from_str(&read("summary.json")).unwrap(),
+        sim: read("sim.toml"),
+        report: read("report.md"),
+        out,
+        out_lines,
+        record,
+    }
+}
+
+/// A time within 5 ms or 2 % of what was set, whichever is more.
+fn time_within(what: &str, got: f64, want: f64) {
+    assert!(
+        (got - want).abs() <= (want.abs() * 0.02).max(0.005),
+        "{what}: {:.2} ms measured, {:.2} ms set",
+        got * 1e3,
+        want * 1e3
+    );
+}
+
+/// A gearbox whose shift time the run does not know (drawn at random) is timed
+/// transition by transition: every ordered pair of its four states, five times each;
+/// the shift time comes back within 5 ms or 2 %, each transition's median within half
+/// the interval between readings of it, the neutral it passes through is named, and it
+/// ends in park, where it began, the vehicle let go in its safe state.
+#[test]
+fn a_gearbox_s_every_transition_is_timed_and_its_shift_time_recovered() {
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    let mut x = seed | 1;
+    x ^= x << 13;
+    x ^= x >> 7;
+    x ^= x << 17;
+    let settle_ms = 400 + (x % 600);
+    eprintln!("shift time {settle_ms} ms");
+    let dir = tempdir("characterize-gear");
+    let shipped = "settle = \"600ms\"";
+    let vehicle = alice_with_steering(&sim_section(&draw(9)));
+    assert!(
+        vehicle.contains(shipped),
+        "Alice's gearbox as this test knows it"
+    );
+    let vehicle = vehicle.replace(shipped, &format!("settle = \"{settle_ms}ms\""));
+    let run = characterize_device(dir.path(), "trans", &vehicle, &["--yes"]);
+    let s = &run.summary;
+    eprintln!("{s}\n{}", run.sim);
+    assert_eq!(s["device"], "trans");
+    assert_eq!(s["kind"], "state");
+    assert!(s["samples"].as_u64().unwrap() > 100, "{s}");
+    let transitions = s["transitions"].as_array().unwrap();
+    let states = ["park", "reverse", "neutral", "drive"];
+    let mut pairs: Vec<(String, String)> = Vec::new();
+    for t in transitions {
+        let (from, to) = (t["from"].as_str().unwrap(), t["to"].as_str().unwrap());
+        assert!(
+            states.contains(&from) && states.contains(&to) && from != to,
+            "{t}"
+        );
+        pairs.push((from.into(), to.into()));
+        assert_eq!(t["n"], 5, "{t}");
+        let (median, lo, hi) = (
+            t["ms_median"].as_f64().unwrap(),
+            t["ms_min"].as_f64().unwrap(),
+            t["ms_max"].as_f64().unwrap(),
+        );
+        assert!(lo <= median && median <= hi, "{t}");
+        // A reading every 25 ms at the gearbox's 9600 baud, 50 ms when a resend's
+        // transaction comes between two: each time is good to half of that.
+        let want = if to == "neutral" {
+            0.0
+        } else {
+            settle_ms as f64
+        };
+        assert!(
+            (median - want).abs() <= 25.0,
+            "{from} → {to}: {median} ms, {want} ms set"
+        );
+    }
+    pairs.sort();
+    pairs.dedup();
+    assert_eq!(pairs.len(), 12, "every ordered pair once: {transitions:?}");
+    time_within(
+        "sim.toml settle",
+        sim_value(&run.sim, "settle"),
+        settle_ms as f64 / 1e3,
+    );
+    assert!(run.sim.contains("transit = \"neutral\""), "{}", run.sim);
+    assert!(run.report.contains("| park | reverse |"), "{}", run.report);
+    assert!(run.report.contains("](run.svg)"));
+    well_formed(&std::fs::read_to_string(run.out.join("run.svg")).unwrap()).unwrap();
+    assert!(
+        run.out_lines
+            .iter()
+            .any(|l| l.contains("trans at park; safe state acknowledged")),
+        "it ends where it began: {:?}",
+        run.out_lines
+    );
+    // Every shift it asked for went through the rules and was taken: stopped, the brake
+    // held.
+    let rec = Recording::open(&run.record).unwrap();
+    let (msgs, _) = rec.json();
+    let asked: Vec<&serde_json::Value> = msgs
+        .iter()
+        .filter(|(t, _, m)| t == "/commands" && m["source"] == "characterize")
+        .map(|(_, _, m)| m)
+        .collect();
+    assert!(asked.len() >= 60, "{}", asked.len());
+    assert!(asked.iter().all(|m| m["accepted"] == true), "{asked:?}");
+}
+
+/// A sensor is listened to: its update rate and each reading's noise. The OBD-II
+/// sensor with its rpm made noisy by an amount the run does not know gives it back
+/// within 10 %; and nothing was commanded — no ask reached the intake, the vehicle was
+/// never engaged — so it needs neither `--yes` nor a vehicle held still.
+#[test]
+fn a_sensor_s_update_rate_and_noise_are_measured_without_commanding_anything() {
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    let noise = 20.0 + (seed % 8000) as f64 / 100.0;
+    eprintln!("rpm noise {noise}");
+    let dir = tempdir("characterize-sensor");
+    // The OBD-II sensor is Alice's last device: its `[device.sim]` goes at the end.
+    let vehicle = format!(
+        "{}\n[device.sim]\nreadings = {{ rpm = {{ value = 1500.0, noise = {noise} }} }}\n",
+        alice_with_steering(&sim_section(&draw(10)))
+    );
+    // No speed bound: a vehicle that could not prove it stands still is no matter here.
+    let vehicle = vehicle.replace("speed = \"obd.speed\"\n", "");
+    let run = characterize_device(dir.path(), "obd", &vehicle, &[]);
+    let s = &run.summary;
+    eprintln!("{s}\n{}", run.sim);
+    assert_eq!(s["device"], "obd");
+    assert_eq!(s["kind"], "sensor");
+    let samples = s["samples"].as_u64().unwrap();
+    assert!(samples >= 500, "{s}");
+    within(
+        "rpm noise",
+        s["noise"]["rpm"]["sd"].as_f64().unwrap(),
+        noise,
+        0.10,
+    );
+    let (lo, hi) = (
+        s["noise"]["rpm"]["min"].as_f64().unwrap(),
+        s["noise"]["rpm"]["max"].as_f64().unwrap(),
+    );
+    assert!(lo < 1500.0 - noise && hi > 1500.0 + noise, "{s}");
+    assert_eq!(
+        s["noise"]["coolant"]["sd"], 0.0,
+        "a constant reading has none: {s}"
+    );
+    // The rate: its readings over the time they took, as the CSV's times say.
+    let csv = std::fs::read_to_string(run.out.join("samples.csv")).unwrap();
+    let times: Vec<f64> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times.len() as u64, samples);
+    let rate = (times.len() - 1) as f64 / (times[times.len() - 1] - times[0]);
+    let hz = s["update_hz"].as_f64().unwrap();
+    assert!(
+        hz >= rate * 0.98 && hz > 1.0,
+        "{hz} Hz, {rate} Hz from the samples"
+    );
+    assert!(
+        run.sim.contains("readings.rpm = { value = 1") && run.sim.contains("noise = "),
+        "{}",
+        run.sim
+    );
+    assert!(run.report.contains("](rpm.svg)"), "{}", run.report);
+    // Nothing commanded: the intake heard no ask, the gate never engaged.
+    let rec = Recording::open(&run.record).unwrap();
+    let (msgs, _) = rec.json();
+    let asks: Vec<_> = msgs.iter().filter(|(t, _, _)| t == "/commands").collect();
+    assert!(asks.is_empty(), "asks: {asks:?}");
+    let engaged: Vec<_> = msgs
+        .iter()
+        .filter(|(t, _, m)| t == "/gate" && m["event"] == "engaged")
+        .collect();
+    assert!(engaged.is_empty(), "{engaged:?}");
+    assert!(
+        msgs.iter().filter(|(t, _, _)| t == "/obd/reading").count() as u64 >= samples,
+        "the readings are in the recording"
+    );
+}
+
+/// `--range` and `--resolution`: the sweep covers the middle of the part asked for at
+/// the spacing asked for, every point inside it, and the device ends where it was
+/// found, outside that part; a range outside the device's, or a resolution finer than a
+/// thousandth of it, is refused before anything moves.
+#[test]
+fn a_part_of_the_range_is_swept_at_the_resolution_asked_and_the_rest_refused() {
+    let dir = tempdir("characterize-range");
+    let vehicle = alice_with_steering(&sim_section(&draw(12)));
+    let run = characterize_device(
+        dir.path(),
+        "steer",
+        &vehicle,
+        &[
+            "--yes",
+            "--procedure",
+            "sweep",
+            "--range",
+            "0.2,0.8",
+            "--resolution",
+            "0.06",
+        ],
+    );
+    let map = run.summary["map"].as_array().unwrap();
+    // The middle 60 % of 0.2 … 0.8 (0.36 wide) every 0.06: seven points.
+    let commanded: Vec<f64> = map.iter().map(|p| p[0].as_f64().unwrap()).collect();
+    assert_eq!(commanded.len(), 7, "{commanded:?}");
+    for (i, c) in commanded.iter().enumerate() {
+        let want = 0.32 + 0.06 * i as f64;
+        assert!((c - want).abs() < 1e-6, "{commanded:?}");
+    }
+    // Found at 0, outside the part swept: back there at the end.
+    assert!(
+        run.out_lines
+            .iter()
+            .any(|l| l.starts_with("steer at ") && l.contains("safe state acknowledged")),
+        "{:?}",
+        run.out_lines
+    );
+    let at: f64 = run
+        .out_lines
+        .iter()
+        .find_map(|l| l.strip_prefix("steer at ")?.split(';').next()?.parse().ok())
+        .unwrap();
+    assert!(at.abs() < 0.2, "ended at {at}, found at 0");
+    // Every set point it asked for stayed inside the part, but the last: home.
+    let rec = Recording::open(&run.record).unwrap();
+    let (msgs, _) = rec.json();
+    let asked: Vec<f64> = msgs
+        .iter()
+        .filter(|(t, _, m)| t == "/commands" && m["source"] == "characterize")
+        .filter_map(|(_, _, m)| m["value"].as_f64())
+        .collect();
+    let first_home = asked.iter().position(|v| v.abs() < 1e-3).unwrap();
+    assert!(
+        asked[..first_home].iter().all(|v| (0.2..=0.8).contains(v))
+            && asked[first_home..].iter().all(|v| v.abs() < 1e-3),
+        "inside the part, then home: {asked:?}"
+    );
+
+    for (args, says) in [
+        (
+            &["--range", "-2,0.5"][..],
+            "steer: --range -2,0.5: expected LO,HI with LO < HI inside the device's range -1 … 1",
+        ),
+        (
+            &["--range", "0.5,0.2"][..],
+            "expected LO,HI with LO < HI inside the device's range",
+        ),
+        (
+            &["--resolution", "0.0001"][..],
+            "--resolution 0.0001: expected a step from 0.002 to 0.4",
+        ),
+    ] {
+        let o = output_within(
+            Process::new(BIN)
+                .args(["characterize", "steer", "--sim", "--yes", "--config"])
+                .arg(dir.path().join("steer.toml"))
+                .arg("--out")
+                .arg(dir.path().join("refused"))
+                .arg("--socket")
+                .arg(dir.path().join("r.sock"))
+                .arg("--log-dir")
+                .arg(dir.path().join("logs"))
+                .args(args),
+        );
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(says), "{args:?}: {err}");
+        assert!(!dir.path().join("refused").exists());
+    }
 }

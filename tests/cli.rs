@@ -242,7 +242,7 @@ fn sim_prints_port_paths_and_each_command_a_device_receives() {
     assert!(help.contains("override SETPOINT X|on|off"), "{help}");
     assert!(
         help.contains(
-            "SETPOINT is one of steer\n  PORT is a device or a bus (a device on a bus: its bus's adapter): steer, estop"
+            "SETPOINT is one of steer\n  STATEDEV is one of none in this vehicle; STATE one of its states\n  PORT is a device or a bus (a device on a bus: its bus's adapter): steer, estop"
         ),
         "{help}"
     );

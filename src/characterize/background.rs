@@ -11,7 +11,6 @@
 
 use super::{Ended, Figures, Procedure, Progress, Stage, Watch};
 use crate::engine::Gate;
-use crate::safety;
 use crate::value::{DeviceId, Source};
 use parking_lot::Mutex;
 use std::path::{Path, PathBuf};
@@ -129,8 +128,7 @@ pub(crate) fn check(gate: &Gate, device: DeviceId) -> Result<String, String> {
                 .map_or("nobody".into(), |s: Source| s.to_string())
         ));
     }
-    let facts = safety::facts::gather(v, safety::Plays::GEAR);
-    safety::bench::ready(v.bindings(), id, &facts)
+    super::ready(gate, id)
         .map(|p| p.to_string())
         .map_err(|u| format!("not ready: {u}"))
 }
@@ -195,7 +193,14 @@ impl Background {
             let _ = t.join();
         }
         let name = self.gate.vehicle().device(device).name().to_string();
-        let total = super::plan(procedures).iter().map(|(_, n)| n).sum();
+        let span = {
+            let r = self.gate.vehicle().device(device).config().range();
+            r[1] - r[0]
+        };
+        let total = super::plan(procedures, &super::Scope::default(), span)
+            .iter()
+            .map(|(_, n)| n)
+            .sum();
         *self.shared.stop.lock() = None;
         *self.shared.state.lock() = Some(Characterizing {
             device,
@@ -306,7 +311,7 @@ fn measure(
         progress: &progress,
         stop: &stop,
     };
-    let result = super::run(gate, &watch, name, procedures);
+    let result = super::run(gate, &watch, name, procedures, &super::Scope::default());
     if let Err(v) = d.change_settings(|c| c.status_period = period) {
         tracing::warn!(
             "characterize {name}: its status period not put back: {}",

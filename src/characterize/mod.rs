@@ -13,9 +13,15 @@
 //! twentieth of it clear of each end; and when it is done it brings the device back to
 //! where it found it before it lets go. The figures are [`analyze`]'s, from the samples
 //! alone.
+//!
+//! A state actuator (a gearbox) is timed transition by transition ([`state`]), on the
+//! same terms; a sensor is listened to ([`sensor`]): its update rate and noise, with
+//! nothing commanded. [`run_any`] picks by the device's kind.
 
 pub(crate) mod analyze;
 pub(crate) mod background;
+pub(crate) mod sensor;
+pub(crate) mod state;
 pub(crate) mod write;
 
 use crate::engine::Gate;
@@ -52,6 +58,66 @@ impl Procedure {
         Procedure::Rate,
         Procedure::Delay,
     ];
+}
+
+/// What part of a setpoint actuator's range a run covers, and how finely
+/// (`--range`, `--resolution`); by default all of it, five sweep points and eleven
+/// halvings of the deadband search.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct Scope {
+    /// The part of the device's range to characterize, `[lo, hi]`.
+    pub range: Option<[f64; 2]>,
+    /// The sweep's point spacing and the deadband search's floor, in the device's units.
+    pub resolution: Option<f64>,
+}
+
+/// Sweep points by default.
+const SWEEP_POINTS: usize = 5;
+/// The sweep covers this share of the range in its middle; the deadband search starts
+/// from a step of [`DEADBAND_FROM`] of it.
+const SWEEP_SHARE: f64 = 0.6;
+const DEADBAND_FROM: f64 = 0.12;
+
+impl Scope {
+    /// Whether the scope fits a device of range `of`: the range inside it, lo < hi,
+    /// the resolution a positive number from a thousandth of the range to a fifth of it.
+    pub(crate) fn check(&self, of: [f64; 2]) -> Result<(), String> {
+        let [lo, hi] = self.range.unwrap_or(of);
+        if !(lo.is_finite() && hi.is_finite() && lo < hi && of[0] <= lo && hi <= of[1]) {
+            return Err(format!(
+                "--range {lo},{hi}: expected LO,HI with LO < HI inside the device's range {} … {}",
+                of[0], of[1]
+            ));
+        }
+        if let Some(r) = self.resolution {
+            let span = hi - lo;
+            if !(r.is_finite() && r >= span / 1000.0 && r <= span / 5.0) {
+                return Err(format!(
+                    "--resolution {r}: expected a step from {} to {} (a thousandth to a fifth of the range characterized, {lo} … {hi})",
+                    span / 1000.0,
+                    span / 5.0
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The sweep's points over `span` (the range characterized).
+    pub(crate) fn sweep_points(&self, span: f64) -> usize {
+        self.resolution
+            .map_or(SWEEP_POINTS, |r| {
+                (SWEEP_SHARE * span / r).round() as usize + 1
+            })
+            .max(2)
+    }
+
+    /// Halvings of the deadband search over `span`: until the step is below the
+    /// resolution.
+    pub(crate) fn deadband_steps(&self, span: f64) -> usize {
+        self.resolution.map_or(DEADBAND_STEPS, |r| {
+            ((DEADBAND_FROM * span / r).log2().ceil().max(1.0)) as usize
+        })
+    }
 }
 
 /// Points of a sweep, each (commanded, settled reading).
@@ -161,6 +227,8 @@ pub(crate) struct Bench<'a> {
     position: usize,
     range: [f64; 2],
     started: Instant,
+    /// Where the device was found: where it is brought back to.
+    found: f64,
     /// The set point in force, and when it was last sent.
     set: f64,
     sent: Instant,
@@ -177,6 +245,91 @@ pub(crate) struct Bench<'a> {
     residuals: Vec<f64>,
     /// Where the run stands, for [`Watch::progress`].
     progress: Progress,
+}
+
+/// Whether a bench procedure may move device `id` now ([`safety::bench::ready`]), from
+/// what the rules see (gathered as for a gear command) and where the brake reports it is.
+pub(crate) fn ready(
+    gate: &Gate,
+    id: DeviceId,
+) -> Result<safety::bench::Proof, safety::bench::Unready> {
+    let v = gate.vehicle();
+    safety::bench::ready(
+        v.bindings(),
+        id,
+        &safety::facts::gather(v, safety::Plays::GEAR),
+        safety::facts::brake_reported(v),
+    )
+}
+
+/// Wait for device `id` to report its reading `reading` (named `what`) and for the
+/// vehicle to be ready, then engage as the bench's own source: the first reading.
+/// `Err` says why not (nothing moved).
+pub(crate) fn engage_as_bench(
+    gate: &Gate,
+    id: DeviceId,
+    reading: usize,
+    what: &str,
+) -> Result<f64, Ended> {
+    let v = gate.vehicle();
+    let d = v.device(id);
+    let deadline = Instant::now() + START_WITHIN;
+    while d.reading(reading).is_none() || d.is_faulty() {
+        if Instant::now() > deadline {
+            return Err(Ended(format!(
+                "{} does not report its {what}: {}",
+                d.name(),
+                d.fault().unwrap_or_else(|| "no reading yet".into())
+            )));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // What proves the vehicle still comes from its other devices' first reports.
+    while let Err(u) = ready(gate, id) {
+        if Instant::now() > deadline {
+            return Err(Ended(format!("not ready: {u}")));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let first = d.reading(reading).expect("checked");
+    // Engaging waits for what blocks it to clear (a device's first reports), as long
+    // as the vehicle may take to report at all.
+    while let Err(r) = gate.admit(Source::Bench, Ask::Engage, Instant::now()) {
+        if Instant::now() > deadline || !matches!(r, safety::Refused::Blocked(_)) {
+            return Err(Ended(format!("engage refused: {r}")));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    Ok(first)
+}
+
+/// What ends a run that commands device `id` at once: a signal, a disengage (STOP, a
+/// fault, an override, the watchdog: named by its cause), another commander, a fault
+/// of the device, a broken precondition.
+pub(crate) fn interrupted(gate: &Gate, watch: &Watch, id: DeviceId) -> Result<(), Ended> {
+    if let Some(why) = (watch.stop)() {
+        return Err(Ended(format!("stopped: {why}")));
+    }
+    if !gate.is_engaged() {
+        return Err(Ended(format!(
+            "the vehicle was disengaged: {}",
+            gate.cause().why()
+        )));
+    }
+    if gate.commander() != Some(Source::Bench) {
+        return Err(Ended(format!(
+            "the vehicle was taken by {}",
+            gate.commander()
+                .map_or("another source".into(), |s| s.to_string())
+        )));
+    }
+    let d = gate.vehicle().device(id);
+    if let Some(f) = d.fault() {
+        return Err(Ended(format!("{}: {f}", d.name())));
+    }
+    ready(gate, id)
+        .map(|_| ())
+        .map_err(|u| Ended(format!("precondition broken: {u}")))
 }
 
 /// Whether `device` can be characterized here: a setpoint actuator with a position
@@ -209,41 +362,13 @@ impl<'a> Bench<'a> {
         watch: &'a Watch<'a>,
         device: &str,
         procedures: &[Procedure],
+        scope: &Scope,
     ) -> Result<Bench<'a>, Ended> {
         let (id, position) = check_device(gate, device).map_err(Ended)?;
-        let v = gate.vehicle();
-        let d = v.device(id);
-        let deadline = Instant::now() + START_WITHIN;
-        while d.reading(position).is_none() || d.is_faulty() {
-            if Instant::now() > deadline {
-                return Err(Ended(format!(
-                    "{device} does not report its position: {}",
-                    d.fault().unwrap_or_else(|| "no reading yet".into())
-                )));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        // What proves the vehicle still comes from its other devices' first reports.
-        while let Err(u) = safety::bench::ready(
-            v.bindings(),
-            id,
-            &safety::facts::gather(v, safety::Plays::GEAR),
-        ) {
-            if Instant::now() > deadline {
-                return Err(Ended(format!("not ready: {u}")));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
-        let set = d.reading(position).expect("checked");
-        let range = d.config().range();
-        // Engaging waits for what blocks it to clear (a device's first reports), as
-        // long as the vehicle may take to report at all.
-        while let Err(r) = gate.admit(Source::Bench, Ask::Engage, Instant::now()) {
-            if Instant::now() > deadline || !matches!(r, safety::Refused::Blocked(_)) {
-                return Err(Ended(format!("engage refused: {r}")));
-            }
-            std::thread::sleep(Duration::from_millis(10));
-        }
+        let full = gate.vehicle().device(id).config().range();
+        scope.check(full).map_err(Ended)?;
+        let set = engage_as_bench(gate, id, position, "position")?;
+        let range = scope.range.unwrap_or(full);
         let now = Instant::now();
         let mut b = Bench {
             gate,
@@ -252,6 +377,7 @@ impl<'a> Bench<'a> {
             position,
             range,
             started: now,
+            found: set,
             set,
             sent: now - RESEND,
             last_at: None,
@@ -264,7 +390,10 @@ impl<'a> Bench<'a> {
             progress: Progress {
                 stage: Stage::Starting,
                 done: 0,
-                total: plan(procedures).iter().map(|(_, n)| n).sum(),
+                total: plan(procedures, scope, range[1] - range[0])
+                    .iter()
+                    .map(|(_, n)| n)
+                    .sum(),
                 elapsed: Duration::ZERO,
             },
         };
@@ -299,9 +428,15 @@ impl<'a> Bench<'a> {
         v.clamp(self.range[0] + m, self.range[1] - m)
     }
 
-    /// Send set point `v` through the intake; a refusal ends the run.
+    /// Send set point `v` through the intake, inside the travel ([`Bench::clamp`]); a
+    /// refusal ends the run.
     fn command(&mut self, v: f64) -> Result<(), Ended> {
-        let v = self.clamp(v);
+        self.send(self.clamp(v))
+    }
+
+    /// Send set point `v` through the intake as it is (the intake checks it against
+    /// the device's range); a refusal ends the run.
+    fn send(&mut self, v: f64) -> Result<(), Ended> {
         let now = Instant::now();
         self.gate
             .admit(Source::Bench, Ask::Set(self.id, Command::Set(v)), now)
@@ -321,33 +456,11 @@ impl<'a> Bench<'a> {
     /// alive; take a new reading, if one came.
     fn tick(&mut self) -> Result<(), Ended> {
         std::thread::sleep(Duration::from_millis(1));
-        if let Some(why) = (self.watch.stop)() {
-            return Err(Ended(format!("stopped: {why}")));
-        }
-        if !self.gate.is_engaged() {
-            return Err(Ended(format!(
-                "the vehicle was disengaged: {}",
-                self.gate.cause().why()
-            )));
-        }
-        if self.gate.commander() != Some(Source::Bench) {
-            return Err(Ended(format!(
-                "the vehicle was taken by {}",
-                self.gate
-                    .commander()
-                    .map_or("another source".into(), |s| s.to_string())
-            )));
-        }
+        interrupted(self.gate, self.watch, self.id)?;
         let v = self.gate.vehicle();
         let d = v.device(self.id);
-        if let Some(f) = d.fault() {
-            return Err(Ended(format!("{}: {f}", d.name())));
-        }
-        let facts = safety::facts::gather(v, safety::Plays::GEAR);
-        safety::bench::ready(v.bindings(), self.id, &facts)
-            .map_err(|u| Ended(format!("precondition broken: {u}")))?;
         if self.sent.elapsed() >= RESEND {
-            self.command(self.set)?;
+            self.send(self.set)?;
         }
         let c = d.cached();
         if c.at != self.last_at {
@@ -537,15 +650,15 @@ impl<'a> Bench<'a> {
 
     /// The smallest step up that moves it, by halving: from a point approached from
     /// below, a step either moves it (the point it follows is then the new one) or not.
-    pub(crate) fn deadband(&mut self) -> Result<f64, Ended> {
+    pub(crate) fn deadband(&mut self, steps: usize) -> Result<f64, Ended> {
         let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
         let base0 = m - 0.35 * s;
         self.move_to(base0 - 0.15 * s)?;
         self.move_to(base0)?;
         let mut base = self.set;
-        let (mut lo, mut hi) = (0.0, 0.12 * s);
+        let (mut lo, mut hi) = (0.0, DEADBAND_FROM * s);
         let wait = self.delay.unwrap_or(0.1) + 5.0 * self.lag.unwrap_or(0.02) + 0.05;
-        for _ in 0..DEADBAND_STEPS {
+        for _ in 0..steps {
             let step = (lo + hi) / 2.0;
             let before = self.last();
             self.command(base + step)?;
@@ -571,24 +684,61 @@ impl<'a> Bench<'a> {
     }
 
     /// Points up the range and back down, each settled: (commanded, measured) each way.
-    pub(crate) fn sweep(&mut self, points: usize) -> Result<(Settled, Settled), Ended> {
+    ///
+    /// A `fine` sweep (`--resolution`, or a part of the range) may step less than the
+    /// deadband: a point the device does not move to is where it stays
+    /// ([`Bench::probe_to`]).
+    pub(crate) fn sweep(&mut self, points: usize, fine: bool) -> Result<(Settled, Settled), Ended> {
         let s = self.span();
         let at: Vec<f64> = (0..points)
-            .map(|i| self.range[0] + s * (0.2 + 0.6 * i as f64 / (points - 1).max(1) as f64))
+            .map(|i| {
+                self.range[0]
+                    + s * ((1.0 - SWEEP_SHARE) / 2.0
+                        + SWEEP_SHARE * i as f64 / (points - 1).max(1) as f64)
+            })
             .collect();
-        self.move_to(self.range[0])?;
+        self.sweep_to(self.range[0], fine)?;
         let mut up = Vec::new();
         for &c in &at {
-            let (y, _, _) = self.move_to(c)?;
+            let y = self.sweep_to(c, fine)?;
             up.push((self.set, y));
         }
-        self.move_to(self.range[1])?;
+        self.sweep_to(self.range[1], fine)?;
         let mut down = Vec::new();
         for &c in at.iter().rev() {
-            let (y, _, _) = self.move_to(c)?;
+            let y = self.sweep_to(c, fine)?;
             down.push((self.set, y));
         }
         Ok((up, down))
+    }
+
+    /// A sweep's point: a move ([`Bench::move_to`]), or where a `probe` settles.
+    fn sweep_to(&mut self, c: f64, probe: bool) -> Result<f64, Ended> {
+        if probe {
+            self.probe_to(c)
+        } else {
+            self.move_to(c).map(|(y, _, _)| y)
+        }
+    }
+
+    /// Go toward `v`, a step that may be within the deadband: wait as long as a move
+    /// takes to start (its delay and lags, once known), then settle, moved or not.
+    fn probe_to(&mut self, v: f64) -> Result<f64, Ended> {
+        let before = self.last();
+        self.command(v)?;
+        let target = self.set;
+        let wait = self.delay.unwrap_or(0.1) + 5.0 * self.lag.unwrap_or(0.02) + 0.05;
+        let end = Instant::now() + Duration::from_secs_f64(wait);
+        while Instant::now() < end {
+            self.tick()?;
+            if (self.last() - before).abs() > self.still * 4.0 {
+                break;
+            }
+        }
+        let y = self.settle()?;
+        self.settled
+            .push(((target * 1e6).round() as i64, target > before, y));
+        Ok(y)
     }
 
     /// How far settled readings at one point, approached one way, spread (max − min).
@@ -616,12 +766,79 @@ impl<'a> Bench<'a> {
     /// state).
     fn finish(mut self, home: f64) -> Result<Vec<Sample>, Ended> {
         self.stage(Stage::Home);
-        self.command(home)?;
+        // Where it was found, though that be outside the part characterized; a move
+        // waits out the device's delay, unknown to a sweep alone (a step within the
+        // deadband does not move it: then it waits as long as a move may take to start).
+        let before = self.last();
+        self.send(home)?;
+        let end = Instant::now() + START_WITHIN;
+        while Instant::now() < end && (self.last() - before).abs() <= self.still * 4.0 {
+            self.tick()?;
+        }
         self.settle()?;
         self.moved();
         self.gate
             .disengage(DisengageCause::Characterize { ended: None });
         Ok(self.samples)
+    }
+}
+
+/// What a characterization measured, by the kind of device.
+pub(crate) enum Measured {
+    Setpoint(Box<Figures>),
+    State(state::Figures),
+    Sensor(sensor::Figures),
+}
+
+impl Measured {
+    /// How long it took, seconds.
+    pub(crate) fn took(&self) -> f64 {
+        match self {
+            Measured::Setpoint(f) => f.took,
+            Measured::State(f) => f.took,
+            Measured::Sensor(f) => f.took,
+        }
+    }
+
+    /// `summary.json`'s object.
+    pub(crate) fn summary(&self) -> serde_json::Value {
+        match self {
+            Measured::Setpoint(f) => write::summary(f),
+            Measured::State(f) => state::summary(f),
+            Measured::Sensor(f) => sensor::summary(f),
+        }
+    }
+
+    /// Every file into `dir`.
+    pub(crate) fn write_all(&self, dir: &std::path::Path) -> std::io::Result<()> {
+        match self {
+            Measured::Setpoint(f) => write::all(dir, f),
+            Measured::State(f) => state::write_all(dir, f),
+            Measured::Sensor(f) => sensor::write_all(dir, f),
+        }
+    }
+}
+
+/// Characterize `device`, whatever its kind: a setpoint actuator by `procedures`, a
+/// state actuator by its transitions, a sensor by listening.
+pub(crate) fn run_any(
+    gate: &Gate,
+    watch: &Watch,
+    device: &str,
+    procedures: &[Procedure],
+    scope: &Scope,
+) -> Result<Measured, Ended> {
+    let kind = gate
+        .vehicle()
+        .find(device)
+        .map(|d| d.kind())
+        .ok_or_else(|| Ended(format!("no device {device:?} in this vehicle")))?;
+    match kind {
+        Kind::Setpoint => {
+            run(gate, watch, device, procedures, scope).map(|f| Measured::Setpoint(Box::new(f)))
+        }
+        Kind::State => state::run(gate, watch, device).map(Measured::State),
+        Kind::Sensor => sensor::run(gate, watch, device).map(Measured::Sensor),
     }
 }
 
@@ -632,10 +849,11 @@ pub(crate) fn run(
     watch: &Watch,
     device: &str,
     procedures: &[Procedure],
+    scope: &Scope,
 ) -> Result<Figures, Ended> {
-    let mut bench = Bench::engage(gate, watch, device, procedures)?;
-    let home = bench.set;
-    let result = measure(&mut bench, procedures);
+    let mut bench = Bench::engage(gate, watch, device, procedures, scope)?;
+    let home = bench.found;
+    let result = measure(&mut bench, procedures, scope);
     let mut f = match result {
         Ok(f) => f,
         Err(e) => {
@@ -670,7 +888,7 @@ fn bench_id(gate: &Gate, device: &str) -> Result<DeviceId, Ended> {
     check_device(gate, device).map(|(id, _)| id).map_err(Ended)
 }
 
-fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
+fn measure(b: &mut Bench, procedures: &[Procedure], scope: &Scope) -> Result<Figures, Ended> {
     let d = b.gate.vehicle().device(b.id);
     let mut f = Figures {
         device: d.name().to_string(),
@@ -685,11 +903,12 @@ fn measure(b: &mut Bench, procedures: &[Procedure]) -> Result<Figures, Ended> {
     }
     if wants(&[Procedure::Deadband]) {
         b.stage(Stage::Deadband);
-        f.deadband = Some(b.deadband()?);
+        f.deadband = Some(b.deadband(scope.deadband_steps(b.span()))?);
     }
     if wants(&[Procedure::Sweep, Procedure::Backlash]) {
         b.stage(Stage::Sweep);
-        let (up, down) = b.sweep(SWEEP_POINTS)?;
+        let fine = scope.resolution.is_some() || scope.range.is_some();
+        let (up, down) = b.sweep(scope.sweep_points(b.span()), fine)?;
         let (map, line) = analyze::static_map(&up, &down);
         f.map = map;
         f.gain_offset = line;
@@ -710,10 +929,9 @@ const STEPS_FOR: &[Procedure] = &[
     Procedure::Delay,
     Procedure::Deadband,
 ];
-/// Large steps each way, small steps each way, and the sweep's points.
+/// Large steps each way, and small steps each way.
 const STEP_REPS: usize = 3;
 const SMALL_REPS: usize = 1;
-const SWEEP_POINTS: usize = 5;
 
 /// A stage of a run, in the order they run: what the progress names.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -745,7 +963,7 @@ impl std::fmt::Display for Stage {
 
 /// The moves (each a command and its settling, or a deadband probe) each stage of
 /// `procedures` takes, in order: what a run's progress counts.
-pub(crate) fn plan(procedures: &[Procedure]) -> Vec<(Stage, usize)> {
+pub(crate) fn plan(procedures: &[Procedure], scope: &Scope, span: f64) -> Vec<(Stage, usize)> {
     let wants = |p: &[Procedure]| p.iter().any(|x| procedures.contains(x));
     let mut out = Vec::new();
     if wants(STEPS_FOR) {
@@ -753,10 +971,10 @@ pub(crate) fn plan(procedures: &[Procedure]) -> Vec<(Stage, usize)> {
         out.push((Stage::Steps, STEP_REPS * 2 * 3));
     }
     if wants(&[Procedure::Deadband]) {
-        out.push((Stage::Deadband, 2 + DEADBAND_STEPS));
+        out.push((Stage::Deadband, 2 + scope.deadband_steps(span)));
     }
     if wants(&[Procedure::Sweep, Procedure::Backlash]) {
-        out.push((Stage::Sweep, 2 * (SWEEP_POINTS + 1)));
+        out.push((Stage::Sweep, 2 * (scope.sweep_points(span) + 1)));
     }
     if wants(&[Procedure::Step]) {
         out.push((Stage::SmallSteps, SMALL_REPS * 2 * 3));
@@ -828,6 +1046,7 @@ mod tests {
     /// sweep, 6 small, and the way home.
     #[test]
     fn the_plan_counts_each_stages_moves() {
+        let plan = |p: &[Procedure]| plan(p, &Scope::default(), 2.0);
         let total = |p: &[Procedure]| plan(p).iter().map(|(_, n)| n).sum::<usize>();
         assert_eq!(
             plan(&Procedure::ALL),

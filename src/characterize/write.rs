@@ -10,7 +10,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 /// Rounded to 4 significant digits (for people and for a vehicle file).
-fn sig(x: f64) -> f64 {
+pub(super) fn sig(x: f64) -> f64 {
     if x == 0.0 || !x.is_finite() {
         return x;
     }
@@ -85,16 +85,16 @@ fn esc(text: &str) -> String {
 }
 
 /// The colours of the plots: the command, and the measured position moving up, down.
-const COMMAND: &str = "#999";
-const UP: &str = "#1f5fbf";
-const DOWN: &str = "#d9730d";
+pub(super) const COMMAND: &str = "#999";
+pub(super) const UP: &str = "#1f5fbf";
+pub(super) const DOWN: &str = "#d9730d";
 
 /// A plot's frame: its size, and what it shows on each axis.
-struct Frame {
-    x_label: String,
-    y_label: String,
+pub(super) struct Frame {
+    pub x_label: String,
+    pub y_label: String,
     /// (colour, what it shows) for each kind of line.
-    legend: Vec<(&'static str, String)>,
+    pub legend: Vec<(&'static str, String)>,
 }
 
 const W: f64 = 640.0;
@@ -140,7 +140,7 @@ fn open(frame: &Frame, (x0, x1, y0, y1): (f64, f64, f64, f64)) -> String {
 
 /// A small SVG of `series` (each a colour and its points, one polyline each), x and y
 /// scaled to fit.
-fn svg(series: &[(&str, Vec<(f64, f64)>)], frame: &Frame) -> String {
+pub(super) fn svg(series: &[(&str, Vec<(f64, f64)>)], frame: &Frame) -> String {
     let (x0, x1, y0, y1) = extent(series.iter().flat_map(|s| s.1.iter()));
     let sx = |x: f64| PAD + (x - x0) / (x1 - x0).max(1e-9) * (W - 2.0 * PAD);
     let sy = |y: f64| H - PAD - (y - y0) / (y1 - y0).max(1e-9) * (H - 2.0 * PAD);

@@ -395,6 +395,7 @@ impl DeviceConfig {
             SIM_LAG.check(l)?;
         }
         SIM_DELAY.check(self.sim.delay)?;
+        SIM_SETTLE.check(self.sim.settle)?;
         self.check_sim_motion()?;
         if let Wire::Modbus(m) = &self.wire {
             MODBUS_SLAVE.check(u64::from(m.slave))?;
@@ -453,6 +454,14 @@ impl DeviceConfig {
             let written = v != 0.0;
             if written && !(setpoint && v.is_finite() && v > 0.0 && v <= span / 10.0) {
                 return Err(SIM_IN_UNITS.violation(&[key], format!("{key} {v}")));
+            }
+        }
+        for (name, r) in &self.sim.readings {
+            if !(r.noise.is_finite() && r.noise >= 0.0) {
+                return Err(SIM_IN_UNITS.violation(
+                    &["sim.readings"],
+                    format!("sim.readings.{name}.noise {}", r.noise),
+                ));
             }
         }
         Ok(())

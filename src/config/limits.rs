@@ -285,6 +285,15 @@ pub(crate) const SIM_DELAY: Limit<Duration> = Limit {
     default: Some(ms(0)),
     why: "the simulated setpoint actuator acts on a command this long after it arrives (transport delay)",
 };
+pub(crate) const SIM_SETTLE: Limit<Duration> = Limit {
+    section: DeviceSim,
+    key: "settle",
+    min: ms(0),
+    max: s(10),
+    default: Some(ms(0)),
+    why:
+        "the simulated state actuator takes this long to change state (its shift time; 0: at once)",
+};
 pub(crate) const MODBUS_SLAVE: Limit<u64> = Limit {
     section: DeviceModbus,
     key: "slave",
@@ -528,7 +537,7 @@ pub(crate) const HOLD_BELOW_BRAKE: Rule = Rule {
 };
 pub(crate) const SIM_IN_UNITS: Rule = Rule {
     section: DeviceSim,
-    text: "`rate`, `deadband` and `backlash` in the device's units, on setpoint devices only: `rate` above 0 and at most 1000 ranges a second, `deadband` and `backlash` from 0 to a tenth of its range",
+    text: "`rate`, `deadband` and `backlash` in the device's units, on setpoint devices only: `rate` above 0 and at most 1000 ranges a second, `deadband` and `backlash` from 0 to a tenth of its range; a reading's `noise` (`readings = { NAME = { noise = … } }`) a finite number from 0",
 };
 pub(crate) const WATCHDOG_OUTLASTS_RESEND: Rule = Rule {
     section: DeviceSim,
@@ -588,6 +597,7 @@ pub static ALL: &[&dyn Row] = &[
     &SIM_WATCHDOG,
     &SIM_LAG,
     &SIM_DELAY,
+    &SIM_SETTLE,
     &MODBUS_SLAVE,
     &RESPONSE_LAG,
     &OVERRIDE_TIME,
@@ -739,6 +749,7 @@ mod tests {
             &SIM_WATCHDOG,
             &SIM_LAG,
             &SIM_DELAY,
+            &SIM_SETTLE,
             &WATCHDOG_TIMEOUT,
             &SUPERVISOR_PERIOD,
             &ERROR_WINDOW,

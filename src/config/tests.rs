@@ -749,6 +749,20 @@ const ABSURD: &[Absurd] = &[
         says: &["brake: sim.backlash -0.01: expected"],
     },
     Absurd {
+        incident: "a simulated shift that never ends",
+        replace: "# sim",
+        with: "settle = \"1h\"",
+        at: "settle",
+        says: &["brake: sim.settle:", "from 0s to 10s", "got 3600s"],
+    },
+    Absurd {
+        incident: "a simulated reading with negative noise",
+        replace: "# sim",
+        with: "readings = { pressure = { noise = -1.0 } }",
+        at: "readings",
+        says: &["brake: sim.readings.pressure.noise -1: expected", "a finite number from 0"],
+    },
+    Absurd {
         incident: "status period longer than the max age",
         replace: "# device",
         with: "status_period = \"1500ms\"\nstatus_max_age = \"250ms\"",

@@ -1,10 +1,16 @@
 //! When a bench procedure may move an actuator on its own (`adrive characterize`): a
 //! procedure steps and sweeps a device with nobody's hand on a key, so it runs only
 //! where that cannot move the vehicle — stopped, in park, with the brake held (unless
-//! the brake is the device under test: park holds the vehicle then), each proven by the
+//! the brake is the device under test: park holds the vehicle then; or the gearbox is,
+//! which shifts out of park: the brake alone holds it then, as for any shift), each proven by the
 //! facts the interlocks read ([`Facts`]) — or on a bench where nothing
 //! but the device under test is bound to a role (`--only DEVICE`). Checked before the
 //! procedure starts and at every sample while it runs; a broken one ends it.
+//!
+//! The brake is held twice over: commanded (the interlocks' own fact, the lowest set
+//! point on its way) and as it reports its position. A driver's foot that lifts the
+//! brake changes no command; only the reading shows it, so a run does not wait for the
+//! supervisor to name an override before it stops moving its device.
 
 use super::rules::{stopped, Facts, SHIFT_BRAKE};
 use crate::config::{Bindings, Role};
@@ -44,18 +50,27 @@ pub(crate) enum Proof {
     /// Nothing but the device is bound to a role: a bench.
     Bench,
     /// Stopped and in park, and the brake held — or the brake is the device under test
-    /// (`brake_held` false), and park holds the vehicle.
-    Still { brake_held: bool },
+    /// (`brake_held` false), and park holds the vehicle; or the gearbox is (`in_park`
+    /// false: it leaves park), and the brake holds it.
+    Still { in_park: bool, brake_held: bool },
 }
 
 impl fmt::Display for Proof {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Proof::Bench => f.write_str("a bench: nothing else is bound to a role"),
-            Proof::Still { brake_held: true } => f.write_str("stopped, in park, the brake held"),
-            Proof::Still { brake_held: false } => {
-                f.write_str("stopped, in park (the brake is the device measured)")
-            }
+            Proof::Still {
+                in_park: true,
+                brake_held: true,
+            } => f.write_str("stopped, in park, the brake held"),
+            Proof::Still {
+                in_park: true,
+                brake_held: false,
+            } => f.write_str("stopped, in park (the brake is the device measured)"),
+            Proof::Still {
+                in_park: false,
+                brake_held: _,
+            } => f.write_str("stopped, the brake held (the gearbox is the device measured)"),
         }
     }
 }
@@ -69,9 +84,15 @@ fn bench(b: &Bindings, device: DeviceId) -> bool {
         .all(|d| d == device)
 }
 
-/// May a bench procedure move `device` now, the vehicle's roles `b` and what the rules
-/// see `f` (gathered as for a gear command: brake, gear, speed)?
-pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<Proof, Unready> {
+/// May a bench procedure move `device` now, the vehicle's roles `b`, what the rules
+/// see `f` (gathered as for a gear command: brake, gear, speed) and where the brake
+/// reports it is, as a fraction of its range (`None`: it reports no position)?
+pub(crate) fn ready(
+    b: &Bindings,
+    device: DeviceId,
+    f: &Facts,
+    brake_reported: Option<f64>,
+) -> Result<Proof, Unready> {
     if bench(b, device) {
         return Ok(Proof::Bench);
     }
@@ -81,16 +102,24 @@ pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<Proof, 
     if !stopped(f.speed) {
         return Err(Unready::Moving);
     }
-    let park = b.gear.as_ref().and_then(|g| g.park);
-    let Some(park) = park else {
-        return Err(Unready::Unproven(Role::Gear));
-    };
-    if f.gear != Some(park) {
-        return Err(Unready::NotInPark);
-    }
-    // The brake under test cannot also hold the vehicle: park does.
-    if b.brake == Some(device) {
-        return Ok(Proof::Still { brake_held: false });
+    // The gearbox under test leaves park by design: the brake alone holds the vehicle
+    // then, as the rules ask of every shift.
+    let gear_under_test = b.gear.as_ref().is_some_and(|g| g.device == device);
+    if !gear_under_test {
+        let park = b.gear.as_ref().and_then(|g| g.park);
+        let Some(park) = park else {
+            return Err(Unready::Unproven(Role::Gear));
+        };
+        if f.gear != Some(park) {
+            return Err(Unready::NotInPark);
+        }
+        // The brake under test cannot also hold the vehicle: park does.
+        if b.brake == Some(device) {
+            return Ok(Proof::Still {
+                in_park: true,
+                brake_held: false,
+            });
+        }
     }
     if b.brake.is_none() {
         return Err(Unready::Unproven(Role::Brake));
@@ -98,7 +127,13 @@ pub(crate) fn ready(b: &Bindings, device: DeviceId, f: &Facts) -> Result<Proof, 
     if !f.brake_low.is_some_and(|lo| lo >= SHIFT_BRAKE) {
         return Err(Unready::BrakeNotHeld);
     }
-    Ok(Proof::Still { brake_held: true })
+    if brake_reported.is_some_and(|x| x < SHIFT_BRAKE) {
+        return Err(Unready::BrakeNotHeld);
+    }
+    Ok(Proof::Still {
+        in_park: !gear_under_test,
+        brake_held: true,
+    })
 }
 
 #[cfg(test)]
@@ -128,8 +163,11 @@ mod tests {
     fn a_still_vehicle_in_park_with_the_brake_held_is_ready() {
         let (b, steer) = alice();
         assert_eq!(
-            ready(&b, steer, &still()),
-            Ok(Proof::Still { brake_held: true })
+            ready(&b, steer, &still(), Some(1.0)),
+            Ok(Proof::Still {
+                in_park: true,
+                brake_held: true
+            })
         );
     }
 
@@ -140,27 +178,58 @@ mod tests {
             speed: Some(0.5),
             ..still()
         };
-        assert_eq!(ready(&b, steer, &moving), Err(Unready::Moving));
+        assert_eq!(ready(&b, steer, &moving, Some(1.0)), Err(Unready::Moving));
         let unknown = Facts {
             speed: None,
             ..still()
         };
-        assert_eq!(ready(&b, steer, &unknown), Err(Unready::Moving));
+        assert_eq!(ready(&b, steer, &unknown, Some(1.0)), Err(Unready::Moving));
         let drive = Facts {
             gear: Some(3),
             ..still()
         };
-        assert_eq!(ready(&b, steer, &drive), Err(Unready::NotInPark));
+        assert_eq!(ready(&b, steer, &drive, Some(1.0)), Err(Unready::NotInPark));
         let released = Facts {
             brake_low: Some(SHIFT_BRAKE - 0.01),
             ..still()
         };
-        assert_eq!(ready(&b, steer, &released), Err(Unready::BrakeNotHeld));
+        assert_eq!(
+            ready(&b, steer, &released, Some(1.0)),
+            Err(Unready::BrakeNotHeld)
+        );
         let unknown_brake = Facts {
             brake_low: None,
             ..still()
         };
-        assert_eq!(ready(&b, steer, &unknown_brake), Err(Unready::BrakeNotHeld));
+        assert_eq!(
+            ready(&b, steer, &unknown_brake, Some(1.0)),
+            Err(Unready::BrakeNotHeld)
+        );
+    }
+
+    /// A foot lifts the brake: its command still holds it, its reading does not.
+    #[test]
+    fn a_brake_held_on_the_wire_but_reported_released_is_not_held() {
+        let (b, steer) = alice();
+        assert_eq!(
+            ready(&b, steer, &still(), Some(SHIFT_BRAKE - 0.01)),
+            Err(Unready::BrakeNotHeld)
+        );
+        assert_eq!(
+            ready(&b, steer, &still(), Some(SHIFT_BRAKE)),
+            Ok(Proof::Still {
+                in_park: true,
+                brake_held: true
+            })
+        );
+        assert_eq!(
+            ready(&b, steer, &still(), None),
+            Ok(Proof::Still {
+                in_park: true,
+                brake_held: true
+            }),
+            "no position reported"
+        );
     }
 
     #[test]
@@ -172,14 +241,43 @@ mod tests {
             ..still()
         };
         assert_eq!(
-            ready(&b, brake, &released),
-            Ok(Proof::Still { brake_held: false })
+            ready(&b, brake, &released, Some(0.0)),
+            Ok(Proof::Still {
+                in_park: true,
+                brake_held: false
+            })
         );
         let drive = Facts {
             gear: Some(3),
             ..released
         };
-        assert_eq!(ready(&b, brake, &drive), Err(Unready::NotInPark));
+        assert_eq!(ready(&b, brake, &drive, Some(0.0)), Err(Unready::NotInPark));
+    }
+
+    #[test]
+    fn the_gearbox_under_test_may_leave_park_but_the_brake_must_hold() {
+        let (b, _) = alice();
+        let gear = b.gear.as_ref().unwrap().device;
+        let drive = Facts {
+            gear: Some(3),
+            ..still()
+        };
+        assert_eq!(
+            ready(&b, gear, &drive, Some(1.0)),
+            Ok(Proof::Still {
+                in_park: false,
+                brake_held: true
+            })
+        );
+        assert_eq!(
+            ready(&b, gear, &drive, Some(0.1)),
+            Err(Unready::BrakeNotHeld)
+        );
+        let moving = Facts {
+            speed: Some(0.5),
+            ..drive
+        };
+        assert_eq!(ready(&b, gear, &moving, Some(1.0)), Err(Unready::Moving));
     }
 
     #[test]
@@ -189,10 +287,13 @@ mod tests {
             steering: Some(steer),
             ..Bindings::default()
         };
-        assert_eq!(ready(&only, steer, &Facts::default()), Ok(Proof::Bench));
+        assert_eq!(
+            ready(&only, steer, &Facts::default(), None),
+            Ok(Proof::Bench)
+        );
         let no_speed = Bindings { speed: None, ..b };
         assert_eq!(
-            ready(&no_speed, steer, &still()),
+            ready(&no_speed, steer, &still(), Some(1.0)),
             Err(Unready::Unproven(Role::Speed))
         );
     }

@@ -38,6 +38,13 @@ fn brake(v: &Vehicle, b: &Bindings) -> Option<(f64, f64, bool)> {
         .map(|(lo, hi)| (lo, hi, releasing))
 }
 
+/// Where the brake reports it is, as a fraction of its range: what a driver's foot
+/// changes without a command (`None`: no brake bound, or it reports no position yet).
+pub(crate) fn brake_reported(v: &Vehicle) -> Option<f64> {
+    let d = v.device(v.bindings().brake?);
+    Some(fraction(d, d.reading(d.config().position()?)?))
+}
+
 /// `c` is a set point of `d` at or below released.
 fn releases(d: &Device, c: Option<Command>) -> bool {
     c.and_then(Command::set_point)

@@ -23,6 +23,8 @@ pub(crate) enum Which {
     Any,
     /// A setpoint device (a drive with a position).
     Setpoint,
+    /// A state device (a gearbox and its lever).
+    State,
     /// A device that a simulated kit's module drives (on a CAN bus).
     Module,
 }
@@ -110,6 +112,8 @@ pub(crate) enum Arg {
     Estop,
     /// A finite number, `on` or `off`.
     NumberOrOnOff(&'static str),
+    /// A word (a state's name), resolved against the device when applied.
+    Name(&'static str),
 }
 
 impl Arg {
@@ -118,6 +122,7 @@ impl Arg {
         match self {
             Arg::Device(Which::Any) => "DEVICE".into(),
             Arg::Device(Which::Setpoint) => "SETPOINT".into(),
+            Arg::Device(Which::State) => "STATEDEV".into(),
             Arg::Device(Which::Module) => "MODULE".into(),
             Arg::Port => "PORT".into(),
             Arg::Bus => "BUS".into(),
@@ -127,6 +132,7 @@ impl Arg {
             Arg::Number(name) => (*name).into(),
             Arg::Estop => "pause|run|disable".into(),
             Arg::NumberOrOnOff(name) => format!("{name}|on|off"),
+            Arg::Name(name) => (*name).into(),
         }
     }
 
@@ -166,6 +172,7 @@ impl Arg {
                 .map(Value::Bus)
                 .ok_or_else(|| format!("unknown bus {word:?}; the buses are {}", names.buses())),
             Arg::Dtc => Ok(Value::Word(word.to_ascii_uppercase())),
+            Arg::Name(_) => Ok(Value::Word(word.to_string())),
             Arg::Device(which) => {
                 let Some(i) = devices.iter().position(|(n, _)| n == word) else {
                     return Err(format!(
@@ -173,12 +180,17 @@ impl Arg {
                         list(devices, Which::Any)
                     ));
                 };
-                if *which == Which::Setpoint && devices[i].1 != Kind::Setpoint {
-                    return Err(format!(
-                        "it applies to setpoint devices ({}), not {word} (a {})",
-                        list(devices, Which::Setpoint),
-                        devices[i].1
-                    ));
+                for (w, kind, what) in [
+                    (Which::Setpoint, Kind::Setpoint, "setpoint"),
+                    (Which::State, Kind::State, "state"),
+                ] {
+                    if *which == w && devices[i].1 != kind {
+                        return Err(format!(
+                            "it applies to {what} devices ({}), not {word} (a {})",
+                            list(devices, w),
+                            devices[i].1
+                        ));
+                    }
                 }
                 Ok(Value::Device(DeviceId(i as u16)))
             }
@@ -223,7 +235,11 @@ fn list(devices: &Devices, which: Which) -> String {
     or_none(
         devices
             .iter()
-            .filter(|(_, k)| which == Which::Any || *k == Kind::Setpoint)
+            .filter(|(_, k)| match which {
+                Which::Setpoint => *k == Kind::Setpoint,
+                Which::State => *k == Kind::State,
+                Which::Any | Which::Module => true,
+            })
             .map(|(n, _)| n.as_str())
             .collect(),
     )
@@ -264,6 +280,9 @@ pub(crate) enum SimCommand {
     /// A driver's hand pushes the device toward the position (`None`: lets go); on a
     /// kit's module, its operator override goes on with it (off with `None`).
     Override(DeviceId, Option<f64>),
+    /// A driver's hand moves a state device's lever (a gear lever) to the state named:
+    /// it is in that state at once, as a manual shift leaves it, with no command.
+    Lever(DeviceId, String),
     /// A kit's module: the operator overrides it (`true`) or lets go.
     KitOverride(DeviceId, bool),
     /// A kit's module: the condition behind the fault code named holds (`true`) or
@@ -436,6 +455,7 @@ impl Values {
 
 const SETPOINT: Arg = Arg::Device(Which::Setpoint);
 const MODULE: Arg = Arg::Device(Which::Module);
+const STATEDEV: Arg = Arg::Device(Which::State);
 
 /// Every command the simulator takes.
 pub(crate) const VERBS: &[Verb] = &[
@@ -548,6 +568,14 @@ pub(crate) const VERBS: &[Verb] = &[
         },
     },
     Verb {
+        name: "lever",
+        args: &[STATEDEV, Arg::Name("STATE")],
+        does: "a driver's hand moves the lever of a state device (the gear lever) to STATE: it is in STATE at once, with no command; adrive's next command moves it again",
+        example: "lever trans drive",
+        needs: Need::Nothing,
+        build: |v| SimCommand::Lever(v.device(0), v.word(1)),
+    },
+    Verb {
         name: "fault",
         args: &[MODULE, Arg::Dtc, Arg::OnOff],
         does: "the condition behind a kit module's fault code DTC (by its DBC name) holds: INVALID_SENSOR_VAL its sensor reads grounded; the module disables itself and reports the code while it holds, and clears it once off",
@@ -629,6 +657,11 @@ pub(crate) fn help(names: &Names) -> String {
         let _ = writeln!(s, "  not on this vehicle: {}", absent.join("; "));
     }
     let _ = writeln!(s, "  SETPOINT is one of {}", list(devices, Which::Setpoint));
+    let _ = writeln!(
+        s,
+        "  STATEDEV is one of {}; STATE one of its states",
+        list(devices, Which::State)
+    );
     let _ = writeln!(
         s,
         "  PORT is a device or a bus (a device on a bus: its bus's adapter): {}",
@@ -859,6 +892,16 @@ mod tests {
         assert!(e.contains("`bias SETPOINT X`"), "{e}");
         let e = p("jam trans").unwrap_err();
         assert!(e.contains("not trans (a state)"), "{e}");
+        let e = p("lever steer drive").unwrap_err();
+        assert!(
+            e.contains("applies to state devices (trans), not steer (a setpoint)"),
+            "{e}"
+        );
+        assert!(e.contains("`lever STATEDEV STATE`"), "{e}");
+        assert_eq!(
+            p("lever trans Drive"),
+            Ok(SimCommand::Lever(DeviceId(3), "drive".into()))
+        );
     }
 
     #[test]

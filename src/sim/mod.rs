@@ -516,6 +516,10 @@ impl Sim {
         match commands::parse(line, &names)? {
             SimCommand::Help => Ok(format!("commands:\n{}", commands::help(&names).trim_end())),
             SimCommand::KitOverride(id, on) => kit_override(id, on),
+            SimCommand::Lever(id, word) => {
+                let state = self.model.lock().lever(id, &word)?;
+                Ok(format!("{}: a hand moves its lever to {state}", name(id)))
+            }
             SimCommand::Fault(id, dtc, on) => {
                 let (kit, module) = self
                     .module(id)

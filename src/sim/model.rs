@@ -78,6 +78,9 @@ pub struct SimDevice {
     pub state: u8,
     target: Option<(u8, Instant)>,
     settle: Duration,
+    /// A state actuator's states by name, and their other words (aliases).
+    states: Vec<String>,
+    aliases: Vec<(String, u8)>,
     transit: Option<u8>,
     /// A drive's power stage is on.
     pub enabled: bool,
@@ -286,6 +289,8 @@ impl Model {
                     state,
                     target: None,
                     settle: d.sim.settle,
+                    states: d.states.clone(),
+                    aliases: d.aliases.clone(),
                     transit: d.sim.transit.as_deref().and_then(|t| d.state_index(t)),
                     enabled: true,
                     fault_latched: false,
@@ -467,6 +472,35 @@ impl Model {
     pub(crate) fn set_override(&mut self, id: DeviceId, to: Option<f64>) {
         self.step();
         self.device_mut(id).hand = to;
+    }
+
+    /// Fault injection: a driver's hand moves state device `id`'s lever to the state
+    /// named `word` (a name or an alias): it is in that state at once, any shift under
+    /// way abandoned. The state's name, or what the device's states are.
+    pub(crate) fn lever(&mut self, id: DeviceId, word: &str) -> Result<String, String> {
+        self.step();
+        let d = self.device_mut(id);
+        let named = d
+            .states
+            .iter()
+            .position(|n| n.eq_ignore_ascii_case(word))
+            .map(|i| i as u8)
+            .or_else(|| {
+                d.aliases
+                    .iter()
+                    .find(|(a, _)| a.eq_ignore_ascii_case(word))
+                    .map(|a| a.1)
+            });
+        let Some(s) = named.filter(|&s| usize::from(s) < d.states.len()) else {
+            return Err(format!(
+                "lever: {word:?} is not a state of {} ({})",
+                d.name,
+                d.states.join(", ")
+            ));
+        };
+        d.state = s;
+        d.target = None;
+        Ok(d.states[usize::from(s)].clone())
     }
 
     /// The device's own watchdog tripped: no command frame for too long. It goes to
@@ -827,6 +861,19 @@ mod tests {
         m.command(trans, Command::State(2)).unwrap();
         settle(&mut m);
         assert_eq!(m.reading(trans).get(0), Some(2.0), "stopped in neutral");
+    }
+
+    #[test]
+    fn a_hand_on_the_lever_shifts_at_once_without_a_command() {
+        let (mut m, id) = alice();
+        let trans = id("trans");
+        m.command(trans, Command::State(DRIVE)).unwrap();
+        assert_eq!(m.lever(trans, "P"), Ok("park".into()), "an alias");
+        assert_eq!(m.reading(trans).get(0), Some(0.0), "the shift abandoned");
+        assert_eq!(m.lever(trans, "drive"), Ok("drive".into()));
+        assert_eq!(m.reading(trans).get(0), Some(DRIVE as f64), "at once");
+        let e = m.lever(trans, "low").unwrap_err();
+        assert!(e.contains("park, reverse, neutral, drive"), "{e}");
     }
 
     #[test]
