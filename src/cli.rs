@@ -827,8 +827,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
         progress: &|_| {},
         stop: &stop,
     };
-    let result =
-        crate::characterize::run_any(&gate, &watch, &args.device, &procedures, &scope);
+    let result = crate::characterize::run_any(&gate, &watch, &args.device, &procedures, &scope);
     control.close();
     gate.disengage(crate::snapshot::DisengageCause::Stopping { why: None });
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
