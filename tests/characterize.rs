@@ -120,8 +120,8 @@ fn characterize_with(dir: &Path, tag: &str, vehicle: &str, extra: &[&str]) -> Ru
         std::thread::sleep(Duration::from_millis(50));
     };
     let took = started.elapsed();
-    let out_lines: Vec<String> = said.try_iter().collect();
-    let err_lines: Vec<String> = errors.try_iter().collect();
+    let out_lines: Vec<String> = common::to_the_end(&said);
+    let err_lines: Vec<String> = common::to_the_end(&errors);
     assert_eq!(
         code,
         Some(0),
@@ -474,8 +474,8 @@ fn stop_mid_run_ends_it_at_once_with_the_vehicle_safe() {
     );
     let code = wait_exit(&mut child.0);
     let took = stopped.elapsed();
-    let out_lines: Vec<String> = said.try_iter().collect();
-    let err_lines: Vec<String> = errors.try_iter().collect();
+    let out_lines: Vec<String> = common::to_the_end(&said);
+    let err_lines: Vec<String> = common::to_the_end(&errors);
     assert_eq!(code, Some(1), "{out_lines:?}\n{err_lines:?}");
     assert!(
         err_lines
@@ -709,8 +709,8 @@ fn broken_mid_run(tag: &str, vehicle: &str, hand: &str) -> Broken {
     sim.stop();
     Broken {
         code,
-        out_lines: said.try_iter().collect(),
-        err_lines: errors.try_iter().collect(),
+        out_lines: common::to_the_end(&said),
+        err_lines: common::to_the_end(&errors),
         took,
         msgs,
         hand_ns,
@@ -903,8 +903,8 @@ fn characterize_device(dir: &Path, device: &str, vehicle: &str, extra: &[&str]) 
         assert!(Instant::now() < end, "characterize still ran");
         std::thread::sleep(Duration::from_millis(50));
     };
-    let out_lines: Vec<String> = said.try_iter().collect();
-    let err_lines: Vec<String> = errors.try_iter().collect();
+    let out_lines: Vec<String> = common::to_the_end(&said);
+    let err_lines: Vec<String> = common::to_the_end(&errors);
     assert_eq!(code, Some(0), "{out_lines:?}\n{err_lines:?}");
     let read = |f: &str| std::fs::read_to_string(out.join(f)).unwrap();
     Done {

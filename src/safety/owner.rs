@@ -906,6 +906,8 @@ mod tests {
         o.engages(net(1), t + Duration::from_secs(1));
         o.alive(t);
         assert_eq!(o.quiet(t + Duration::from_secs(1)), Duration::ZERO);
+        // Quiet since its last sign of life (the engage), not since the stale one.
+        assert_eq!(o.quiet(t + Duration::from_secs(3)), Duration::from_secs(2));
     }
 
     #[test]

@@ -283,6 +283,22 @@ pub fn lines(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc::Re
     rx
 }
 
+/// Every line of an output whose process has ended, to its end: the reading thread
+/// may still be behind the exit, so what is queued now is not all there is.
+pub fn to_the_end(rx: &std::sync::mpsc::Receiver<String>) -> Vec<String> {
+    let end = Instant::now() + DEADLINE;
+    let mut out = Vec::new();
+    loop {
+        match rx.recv_timeout(end.saturating_duration_since(Instant::now())) {
+            Ok(line) => out.push(line),
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return out,
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                panic!("the output did not end within {DEADLINE:?}: {out:?}")
+            }
+        }
+    }
+}
+
 /// Read lines until one contains `pattern`; returns every line read.
 pub fn until(rx: &std::sync::mpsc::Receiver<String>, pattern: &str) -> Vec<String> {
     until_within(rx, pattern, DEADLINE)
