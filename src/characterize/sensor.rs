@@ -251,9 +251,6 @@ pub(crate) fn report(f: &Figures) -> (String, Vec<(String, String)>) {
 /// Every file into `dir`: summary.json, samples.csv (`t_s` and each reading), sim.toml,
 /// report.md and its plots.
 pub(crate) fn write_all(dir: &Path, f: &Figures) -> std::io::Result<()> {
-    std::fs::create_dir_all(dir)?;
-    let json = serde_json::to_string_pretty(&summary(f)).map_err(std::io::Error::other)?;
-    std::fs::write(dir.join("summary.json"), json + "\n")?;
     let mut csv = format!("t_s,{}\n", f.names.join(","));
     for (t, r) in &f.samples {
         let cells: Vec<String> = r
@@ -262,14 +259,7 @@ pub(crate) fn write_all(dir: &Path, f: &Figures) -> std::io::Result<()> {
             .collect();
         let _ = writeln!(csv, "{t:.6},{}", cells.join(","));
     }
-    std::fs::write(dir.join("samples.csv"), csv)?;
-    std::fs::write(dir.join("sim.toml"), sim_toml(f))?;
-    let (md, plots) = report(f);
-    std::fs::write(dir.join("report.md"), md)?;
-    for (name, text) in plots {
-        std::fs::write(dir.join(name), text)?;
-    }
-    Ok(())
+    super::write::files(dir, &summary(f), &csv, &sim_toml(f), report(f))
 }
 
 #[cfg(test)]

@@ -439,9 +439,6 @@ pub(crate) fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
 /// Every file into `dir`: summary.json, samples.csv (`t_s,commanded,measured`, the
 /// states by name), sim.toml, report.md and its plot.
 pub(crate) fn write_all(dir: &Path, f: &Figures) -> std::io::Result<()> {
-    std::fs::create_dir_all(dir)?;
-    let json = serde_json::to_string_pretty(&summary(f)).map_err(std::io::Error::other)?;
-    std::fs::write(dir.join("summary.json"), json + "\n")?;
     let mut csv = String::from("t_s,commanded,measured\n");
     for s in &f.samples {
         let _ = writeln!(
@@ -452,14 +449,7 @@ pub(crate) fn write_all(dir: &Path, f: &Figures) -> std::io::Result<()> {
             f.name(s.measured as u8)
         );
     }
-    std::fs::write(dir.join("samples.csv"), csv)?;
-    std::fs::write(dir.join("sim.toml"), sim_toml(f))?;
-    let (md, plots) = report(f);
-    std::fs::write(dir.join("report.md"), md)?;
-    for (name, text) in plots {
-        std::fs::write(dir.join(name), text)?;
-    }
-    Ok(())
+    super::write::files(dir, &summary(f), &csv, &sim_toml(f), report(f))
 }
 
 #[cfg(test)]

@@ -379,12 +379,23 @@ pub(crate) fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
 
 /// Write every file into `dir` (created if missing).
 pub(crate) fn all(dir: &Path, f: &Figures) -> std::io::Result<()> {
+    files(dir, &summary(f), &samples_csv(f), &sim_toml(f), report(f))
+}
+
+/// The files of a characterization of any kind into `dir` (created if missing):
+/// summary.json, samples.csv, sim.toml, report.md and the report's plots.
+pub(crate) fn files<N: AsRef<Path>>(
+    dir: &Path,
+    summary: &serde_json::Value,
+    csv: &str,
+    sim: &str,
+    (md, plots): (String, Vec<(N, String)>),
+) -> std::io::Result<()> {
     std::fs::create_dir_all(dir)?;
-    let json = serde_json::to_string_pretty(&summary(f)).map_err(std::io::Error::other)?;
+    let json = serde_json::to_string_pretty(summary).map_err(std::io::Error::other)?;
     std::fs::write(dir.join("summary.json"), json + "\n")?;
-    std::fs::write(dir.join("samples.csv"), samples_csv(f))?;
-    std::fs::write(dir.join("sim.toml"), sim_toml(f))?;
-    let (md, plots) = report(f);
+    std::fs::write(dir.join("samples.csv"), csv)?;
+    std::fs::write(dir.join("sim.toml"), sim)?;
     std::fs::write(dir.join("report.md"), md)?;
     for (name, text) in plots {
         std::fs::write(dir.join(name), text)?;
