@@ -405,6 +405,32 @@ fn characterize_recovers_random_sim_parameters_and_its_twin_measures_the_same() 
     );
 }
 
+/// Wait until the run is under way, as `adrive ctl status` on its socket shows it: the
+/// bench commands the engaged vehicle and the steering has moved.
+fn under_way(socket: &Path) {
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let o = output_within(
+            Process::new(BIN)
+                .args(["ctl", "status", "--json", "--socket"])
+                .arg(socket),
+        );
+        let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
+        let steer = s["devices"]
+            .as_array()
+            .and_then(|d| d.iter().find(|d| d["name"] == "steer"))
+            .and_then(|d| d["readings"]["position"].as_f64());
+        if s["gate"]["engaged"] == true && steer.is_some_and(|x| x.abs() > 0.1) {
+            return;
+        }
+        assert!(
+            Instant::now() < end,
+            "characterize never got under way: {s}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
 /// STOP while it steps the steering: it ends at once, disengaged into the safe state,
 /// and writes nothing.
 #[test]
@@ -435,30 +461,7 @@ fn stop_mid_run_ends_it_at_once_with_the_vehicle_safe() {
     let errors = lines(child.0.stderr.take().unwrap());
     until(&said, "characterizing steer");
     // Under way: the bench commands the engaged vehicle and the steering has moved.
-    let status = |socket: &Path| -> serde_json::Value {
-        let o = output_within(
-            Process::new(BIN)
-                .args(["ctl", "status", "--json", "--socket"])
-                .arg(socket),
-        );
-        serde_json::from_slice(&o.stdout).unwrap_or_default()
-    };
-    let end = Instant::now() + DEADLINE;
-    loop {
-        let s = status(&socket);
-        let steer = s["devices"]
-            .as_array()
-            .and_then(|d| d.iter().find(|d| d["name"] == "steer"))
-            .and_then(|d| d["readings"]["position"].as_f64());
-        if s["gate"]["engaged"] == true && steer.is_some_and(|x| x.abs() > 0.1) {
-            break;
-        }
-        assert!(
-            Instant::now() < end,
-            "characterize never got under way: {s}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    under_way(&socket);
     let stopped = Instant::now();
     let o = output_within(
         Process::new(BIN)
@@ -673,27 +676,7 @@ fn broken_mid_run(tag: &str, vehicle: &str, hand: &str) -> Broken {
     let errors = lines(child.0.stderr.take().unwrap());
     until(&said, "characterizing steer");
     // Under way: the bench commands the engaged vehicle and the steering has moved.
-    let end = Instant::now() + DEADLINE;
-    loop {
-        let o = output_within(
-            Process::new(BIN)
-                .args(["ctl", "status", "--json", "--socket"])
-                .arg(&socket),
-        );
-        let s: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap_or_default();
-        let steer = s["devices"]
-            .as_array()
-            .and_then(|d| d.iter().find(|d| d["name"] == "steer"))
-            .and_then(|d| d["readings"]["position"].as_f64());
-        if s["gate"]["engaged"] == true && steer.is_some_and(|x| x.abs() > 0.1) {
-            break;
-        }
-        assert!(
-            Instant::now() < end,
-            "characterize never got under way: {s}"
-        );
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    under_way(&socket);
     let mark = sim.mark();
     let hand_ns = wall_ns();
     let handed = Instant::now();
