@@ -205,6 +205,31 @@ pub(crate) fn median(v: &[f64]) -> Option<f64> {
     }
 }
 
+/// The value most of the `intervals` agree on: the middle of the stretch that lies in
+/// the most of them (the first such stretch, if several tie). Each interval brackets
+/// one measurement of a constant, as a reading before and a reading after bracket the
+/// moment a state changed: where the brackets' phases are spread, their common part is
+/// far narrower than any one of them, and a few that miss (a jittered timestamp, an
+/// odd shift) only lower the count, not move the answer.
+pub(crate) fn deepest(intervals: &[(f64, f64)]) -> Option<f64> {
+    // Each start before each end at the same place: touching intervals share it.
+    let mut edges: Vec<(f64, i32)> = intervals
+        .iter()
+        .flat_map(|&(lo, hi)| [(lo.min(hi), 1), (lo.max(hi), -1)])
+        .collect();
+    edges.sort_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(&a.1)));
+    let (mut depth, mut best, mut at) = (0, 0, None);
+    for (i, &(x, step)) in edges.iter().enumerate() {
+        depth += step;
+        if step > 0 && depth > best {
+            best = depth;
+            // The stretch ends at the next edge, where the depth falls.
+            at = edges.get(i + 1).map(|&(end, _)| (x + end) / 2.0);
+        }
+    }
+    at
+}
+
 /// The static map of a sweep: each point's measured value approached from below and
 /// from above, averaged (the hysteresis cancels), and the line through them: (gain,
 /// offset).
@@ -243,6 +268,34 @@ pub(crate) fn backlash(up: &[(f64, f64)], down: &[(f64, f64)]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_deepest_point_of_brackets_at_spread_phases_is_the_constant_they_bracket() {
+        // A 400 ms shift read every 23–35 ms at 40 phases: each bracket is up to 35 ms
+        // wide, their midpoints' median off by several ms; their common part is not.
+        let (t, mut x, mut brackets) = (400.0, 7u64, Vec::new());
+        for _ in 0..40 {
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let (u, v) = (
+                (x >> 11) as f64 / 2f64.powi(53),
+                (x & 0xffff) as f64 / 65536.0,
+            );
+            let period = 23.0 + 12.0 * v;
+            let lo = t - u * period;
+            brackets.push((lo, lo + period));
+        }
+        let got = deepest(&brackets).unwrap();
+        assert!((got - t).abs() < 2.0, "{got}");
+        // One bracket that misses it entirely does not move it.
+        brackets.push((500.0, 520.0));
+        assert!((deepest(&brackets).unwrap() - t).abs() < 2.0);
+        // Where two disjoint brackets tie, the first; none, none.
+        assert_eq!(deepest(&[(0.0, 2.0), (5.0, 9.0)]), Some(1.0));
+        assert_eq!(deepest(&[(0.0, 4.0), (2.0, 6.0)]), Some(3.0));
+        assert_eq!(deepest(&[]), None);
+    }
 
     /// A rate-limited first-order response: delay `d`, rate `r`, lag `tau`, from 0 to
     /// `to`, sampled every `dt`.

@@ -219,6 +219,24 @@ const RESEND: Duration = Duration::from_millis(100);
 /// Steps of a deadband search (halving the interval each).
 const DEADBAND_STEPS: usize = 11;
 
+/// When `command` reached device `d`, seconds after `start`, once the device
+/// acknowledged it: about half a command transaction after the transaction's first byte
+/// (as a reading is taken about half a status transaction before it is complete), or,
+/// where that is not known, half a transaction before the acknowledgement. The first
+/// byte's stamp is the better: a late wake-up of the command thread on a busy machine
+/// moves the acknowledgement's, not it. A delay measured from here is the device's own,
+/// without the command path's.
+fn arrived(d: &crate::vehicle::Device, command: Command, start: Instant) -> Option<f64> {
+    let w = d.slot().wire();
+    let acked = w.acked_at.filter(|_| w.acked == Some(command))?;
+    let txn = d.stats().command_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
+    let since = |t: Instant| t.saturating_duration_since(start).as_secs_f64();
+    Some(match w.acked_from {
+        Some(first) => since(first) + txn / 2.0,
+        None => since(acked) - txn / 2.0,
+    })
+}
+
 /// A characterization in progress: the one commander of the engaged vehicle.
 pub(crate) struct Bench<'a> {
     gate: &'a Gate,
@@ -573,17 +591,13 @@ impl<'a> Bench<'a> {
     }
 
     /// When set point `target` reached the device, seconds since the start, once it
-    /// acknowledged it: about half a command transaction before the acknowledgement
-    /// was complete (as a reading is taken about half a status transaction before).
-    /// The delay measured from there is the device's own, without the command path's.
+    /// acknowledged it ([`arrived`]).
     fn arrived(&self, target: f64) -> Option<f64> {
-        let d = self.gate.vehicle().device(self.id);
-        let w = d.slot().wire();
-        let acked = w
-            .acked_at
-            .filter(|_| w.acked == Some(Command::Set(target)))?;
-        let txn = d.stats().command_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
-        Some(acked.saturating_duration_since(self.started).as_secs_f64() - txn / 2.0)
+        arrived(
+            self.gate.vehicle().device(self.id),
+            Command::Set(target),
+            self.started,
+        )
     }
 
     /// Large steps up and down, each approached in its own direction (so the play is

@@ -14,7 +14,10 @@
 //! A reading is timed at the middle of its status transaction, a command at the middle
 //! of its command transaction, as for a setpoint actuator; the new state is taken to
 //! have come halfway between the last reading without it and the first with it, so
-//! each time is good to half the interval between readings.
+//! each time is good to half the interval between readings. The readings' period is
+//! drawn anew for each shift ([`Shifter::vary_polls`]), so the shift time falls
+//! anywhere between two readings, and the simulator's `settle` is where most of the
+//! shifts' brackets overlap ([`analyze::deepest`]): good to a few ms.
 
 use super::analyze::{self, Sample};
 use super::write::{self, Frame, COMMAND, UP};
@@ -30,12 +33,15 @@ use std::time::{Duration, Instant};
 /// How many times each transition is timed.
 pub(crate) const ROUNDS: usize = 5;
 
-/// One transition's times, ms.
+/// One transition's times, ms: each the middle of its [`Transition::within`].
 #[derive(Clone, Debug, Default, PartialEq)]
 pub(crate) struct Transition {
     pub from: u8,
     pub to: u8,
     pub ms: Vec<f64>,
+    /// Each time's bracket: from the last reading without the new state to the first
+    /// with it (ms after the command's arrival).
+    pub within: Vec<(f64, f64)>,
 }
 
 /// What a state actuator's characterization measured.
@@ -63,16 +69,18 @@ impl Figures {
             .unwrap_or_else(|| s.to_string())
     }
 
-    /// The shift time the simulator's `settle` takes: the median of every transition
-    /// not into the transit state (which the simulator reports at once), seconds.
+    /// The shift time the simulator's `settle` takes, seconds: the time most of the
+    /// brackets of every transition not into the transit state (which the simulator
+    /// reports at once) agree on ([`analyze::deepest`]) — good to far less than one
+    /// bracket, whose width is an interval between readings.
     pub(crate) fn settle(&self) -> Option<f64> {
-        let all: Vec<f64> = self
+        let all: Vec<(f64, f64)> = self
             .transitions
             .iter()
             .filter(|t| Some(t.to) != self.transit)
-            .flat_map(|t| t.ms.iter().copied())
+            .flat_map(|t| t.within.iter().copied())
             .collect();
-        analyze::median(&all).map(|ms| ms / 1e3)
+        analyze::deepest(&all).map(|ms| ms / 1e3)
     }
 }
 
@@ -117,11 +125,32 @@ impl Shifter<'_> {
     /// fall at the same place between two readings: drawn, the place is anywhere, and
     /// the median over the rounds is not biased by it.
     fn next_resend(&mut self) -> Duration {
+        RESEND.mul_f64(0.5 + 0.5 * self.uniform())
+    }
+
+    /// A number drawn from [0, 1).
+    fn uniform(&mut self) -> f64 {
         self.draw ^= self.draw << 13;
         self.draw ^= self.draw >> 7;
         self.draw ^= self.draw << 17;
-        let f = (self.draw >> 11) as f64 / (1u64 << 53) as f64;
-        RESEND.mul_f64(0.5 + 0.5 * f)
+        (self.draw >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Draw the readings' period for the next shift, from one status transaction to
+    /// one and a half. Polled back to back, the readings' phase is locked to the
+    /// shift's command (the first poll waits for it), and a resend moves it by only
+    /// the difference between a command's transaction and a poll's, which on a
+    /// register-mapped gearbox is a byte: every shift time would fall at the same
+    /// place between two readings, and its median be off by up to half their
+    /// interval. Drawn, the place is anywhere and the median unbiased.
+    fn vary_polls(&mut self) {
+        let d = self.gate.vehicle().device(self.id);
+        let Some(txn) = d.stats().status_txn.summary().p50_us else {
+            return;
+        };
+        let period = Duration::from_secs_f64(txn * 1e-6 * (1.0 + 0.5 * self.uniform()));
+        // A period past the device's limits leaves it polled as it was.
+        let _ = d.change_settings(|c| c.status_period = period);
     }
 
     fn command(&mut self, s: u8) -> Result<(), Ended> {
@@ -175,14 +204,14 @@ impl Shifter<'_> {
         Ok(())
     }
 
-    /// When state `s` reached the device (seconds since the start), once it
-    /// acknowledged it: half a command transaction before the acknowledgement.
+    /// When state `s` reached the device, seconds since the start, once it
+    /// acknowledged it ([`super::arrived`]).
     fn arrived(&self, s: u8) -> Option<f64> {
-        let d = self.gate.vehicle().device(self.id);
-        let w = d.slot().wire();
-        let acked = w.acked_at.filter(|_| w.acked == Some(Command::State(s)))?;
-        let txn = d.stats().command_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
-        Some(acked.saturating_duration_since(self.started).as_secs_f64() - txn / 2.0)
+        super::arrived(
+            self.gate.vehicle().device(self.id),
+            Command::State(s),
+            self.started,
+        )
     }
 
     fn shows(&self, s: u8) -> bool {
@@ -191,11 +220,13 @@ impl Shifter<'_> {
             .is_some_and(|x| x.measured == f64::from(s))
     }
 
-    /// Shift to `to` and wait for a reading of it: the time it took (ms), and the
-    /// states read in between that are neither the old one nor the new.
-    fn shift(&mut self, to: u8) -> Result<(f64, Vec<u8>), Ended> {
+    /// Shift to `to` and wait for a reading of it: when the new state came (ms after
+    /// the command's arrival), bracketed by the last reading without it and the first
+    /// with it, and the states read in between that are neither the old one nor the new.
+    fn shift(&mut self, to: u8) -> Result<((f64, f64), Vec<u8>), Ended> {
         let from = self.set;
         let n0 = self.samples.len();
+        self.vary_polls();
         self.command(to)?;
         let deadline = Instant::now() + SETTLE_WITHIN;
         let mut at = None;
@@ -229,14 +260,14 @@ impl Shifter<'_> {
         } else {
             at
         };
-        let came = (before + self.samples[first].t.max(at)) / 2.0;
+        let after = self.samples[first].t.max(at);
         let between = self.samples[n0..first]
             .iter()
             .filter(|x| x.t > at)
             .map(|x| x.measured as u8)
             .filter(|&s| s != from && s != to)
             .collect();
-        Ok(((came - at) * 1e3, between))
+        Ok((((before - at) * 1e3, (after - at) * 1e3), between))
     }
 }
 
@@ -273,6 +304,7 @@ pub(crate) fn run(gate: &Gate, watch: &super::Watch, device: &str) -> Result<Fig
     let id = d.id();
     let states = d.config().states.clone();
     let found = engage_as_bench(gate, id, reading, "state")? as u8;
+    let period = d.settings().status_period();
     let now = Instant::now();
     let mut s = Shifter {
         gate,
@@ -303,6 +335,7 @@ pub(crate) fn run(gate: &Gate, watch: &super::Watch, device: &str) -> Result<Fig
             from,
             to,
             ms: Vec::new(),
+            within: Vec::new(),
         })
         .collect();
     let mut seen = Vec::new();
@@ -310,23 +343,32 @@ pub(crate) fn run(gate: &Gate, watch: &super::Watch, device: &str) -> Result<Fig
         s.command(found)?;
         for _ in 0..ROUNDS {
             for &(from, to) in &plan {
-                let (ms, between) = s.shift(to)?;
+                let ((lo, hi), between) = s.shift(to)?;
                 if let Some(t) = transitions
                     .iter_mut()
                     .find(|t| (t.from, t.to) == (from, to))
                 {
-                    t.ms.push(ms);
+                    t.ms.push((lo + hi) / 2.0);
+                    t.within.push((lo, hi));
                 }
                 seen.push((from, to, between));
             }
         }
         Ok(())
     };
-    go().map_err(ended)?;
-    // The circuit ends where it began; let go there.
-    if !s.shows(found) {
-        s.shift(found).map_err(ended)?;
-    }
+    let went = go()
+        .and_then(|()| {
+            // The circuit ends where it began; let go there.
+            if s.shows(found) {
+                Ok(())
+            } else {
+                s.shift(found).map(drop)
+            }
+        })
+        .map_err(ended);
+    // The safe state first (above, on a way out), then the polls as they were.
+    let _ = d.change_settings(|c| c.status_period = period);
+    went?;
     gate.disengage(DisengageCause::Characterize { ended: None });
     let gaps: Vec<f64> = s.samples.windows(2).map(|w| w[1].t - w[0].t).collect();
     Ok(Figures {
@@ -494,10 +536,12 @@ mod tests {
 
     #[test]
     fn sim_toml_says_the_shift_time_without_the_transitions_into_the_transit_state() {
+        // Each time bracketed by readings 20 ms apart.
         let t = |from, to, ms: &[f64]| Transition {
             from,
             to,
             ms: ms.to_vec(),
+            within: ms.iter().map(|m| (m - 10.0, m + 10.0)).collect(),
         };
         let f = Figures {
             device: "trans".into(),

@@ -287,7 +287,7 @@ fn finished(
         }
         Err(e) => d.transaction_failed(&e, true),
     }
-    d.slot().finish(command, ok);
+    d.slot().finish_sent(command, ok, first);
 }
 
 impl Gate {

@@ -67,6 +67,11 @@ pub struct WireState {
     /// resend of it does not move this): a status taken after it reports the command's
     /// effect.
     pub(crate) acked_at: Option<Instant>,
+    /// When the transaction that acknowledged `acked` (the one `acked_at` counts) wrote
+    /// its first byte, where known: the device took the command about half a
+    /// transaction later. Unlike `acked_at`, no late wake-up of the command thread on
+    /// a busy machine moves it.
+    pub(crate) acked_from: Option<Instant>,
 }
 
 impl WireState {
@@ -323,6 +328,11 @@ impl CommandSlot {
     /// The transaction of the command in flight finished: its bytes are on the wire,
     /// and `acked` says whether the device acknowledged it. Wakes anyone waiting.
     pub fn finish(&self, command: Command, acked: bool) {
+        self.finish_sent(command, acked, None);
+    }
+
+    /// [`CommandSlot::finish`], knowing when the transaction wrote its first byte.
+    pub(crate) fn finish_sent(&self, command: Command, acked: bool, first: Option<Instant>) {
         let mut s = self.state.lock();
         s.wire.flight = None;
         let before = s.wire.sent.replace(command);
@@ -339,6 +349,7 @@ impl CommandSlot {
             if s.wire.acked != Some(command) || before != Some(command) {
                 s.wire.acked = Some(command);
                 s.wire.acked_at = Some(now);
+                s.wire.acked_from = first;
             }
         }
         drop(s);
@@ -460,6 +471,26 @@ mod tests {
         assert_eq!(slot.acked_span(Instant::now()), Some([0.0, 0.0]));
         let last = slot.acked_last_at().expect("acknowledged");
         assert!(last > since);
+    }
+
+    /// The stamps of an acknowledgement move with a new command, not with a resend of
+    /// the one acknowledged: a resend's first byte is not when the device took it.
+    #[test]
+    fn a_resend_moves_neither_stamp_of_the_acknowledgement() {
+        let slot = CommandSlot::default();
+        let (a, b) = (Instant::now(), Instant::now() + Duration::from_millis(7));
+        let sent = |v: f64, first: Instant| {
+            slot.fly(Command::Set(v));
+            slot.finish_sent(Command::Set(v), true, Some(first));
+            slot.wire()
+        };
+        let w = sent(0.5, a);
+        assert_eq!((w.acked, w.acked_from), (Some(Command::Set(0.5)), Some(a)));
+        let again = sent(0.5, b);
+        assert_eq!((again.acked_at, again.acked_from), (w.acked_at, Some(a)));
+        let other = sent(0.6, b);
+        assert_eq!(other.acked_from, Some(b));
+        assert!(other.acked_at >= w.acked_at);
     }
 
     #[test]
