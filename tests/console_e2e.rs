@@ -1864,6 +1864,46 @@ fn a_terminal_closed_mid_characterization_ends_it_safe() {
     assert!(characterized(&c.log_dir).is_empty());
 }
 
+/// The console's terminal frozen mid-run without closing (it still reads, it answers
+/// no round trip: a link gone quiet): the operator no longer sees the run, so it ends
+/// within the terminal's bound, the vehicle let go in its safe state, and the bench
+/// says why when the terminal comes back. The console asks while the run is under way
+/// though it does not command.
+#[test]
+fn a_terminal_frozen_mid_characterization_ends_it_within_the_bound() {
+    let mut c = Console::start_working("char-mute", (80, 24));
+    let asked = c.term.cursor_requests();
+    c.characterize_steer();
+    c.wait_for("asked while it runs", |_| {
+        c.term.cursor_requests() > asked + 2
+    });
+    let frozen = Instant::now();
+    c.term.stop_answering();
+    let end = frozen + TERMINAL_TIMEOUT + DEADLINE;
+    while c.commander().is_some() {
+        assert!(Instant::now() < end, "still characterizing, unanswered");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let after = frozen.elapsed();
+    assert!(
+        after >= TERMINAL_TIMEOUT && after < TERMINAL_TIMEOUT + Duration::from_millis(1500),
+        "the run ended {after:?} after the terminal froze"
+    );
+    c.steer_still();
+    assert!(characterized(&c.log_dir).is_empty(), "nothing written");
+    c.term.set(|p| p.cursor = Answer::Now);
+    let s = c.wait_for("why", |s| s.contains("characterize steer ended early"));
+    assert!(s.contains("stopped answering"), "{s}");
+    c.keys("q");
+    assert!(c.wait_exit().success());
+    let log = c.log();
+    assert!(
+        log.contains("nothing written: stopped: the console's terminal stopped answering"),
+        "{log}"
+    );
+    assert!(log.contains("safe state acknowledged"), "{log}");
+}
+
 /// Refused at once, with the reason, where it cannot run: a device that is not a
 /// setpoint actuator, and a vehicle out of park.
 #[test]

@@ -6,6 +6,14 @@
 //! operator leaves the bench view, quits, or the console's terminal goes away; the
 //! runner then disengages, which commands the safe state, as on every way it ends.
 //!
+//! The console's loop is not what holds the operator's link: a terminal frozen without
+//! closing (a laptop asleep, a Wi-Fi link gone) leaves it running. While a run is under
+//! way the console asks its terminal for round trips as a commanding console does
+//! (`console/input/link.rs`) and hands each answer here ([`Background::answered`]); the
+//! run's own thread ends it once none came for `[console] terminal_timeout`, as the
+//! gate's monitor stops a commanding console's vehicle: the operator who started it no
+//! longer sees it.
+//!
 //! The device is polled at [`POLL`] for the run (its own period, if shorter), as the
 //! command line does from the start, and its period is put back when the run ends.
 
@@ -158,6 +166,25 @@ struct Shared {
     state: Mutex<Option<Characterizing>>,
     /// Why the run is to end now (set by [`Background::end`]).
     stop: Mutex<Option<String>>,
+    /// The console's terminal's last answer to a round trip while the run is under way
+    /// (its start, before the first).
+    answered: Mutex<Option<Instant>>,
+}
+
+impl Shared {
+    /// Why the run is to end now: told to, or the console's terminal silent for
+    /// `bound`.
+    fn why_stop(&self, bound: Duration) -> Option<String> {
+        self.stop.lock().clone().or_else(|| {
+            let quiet = (*self.answered.lock())?.elapsed();
+            (quiet >= bound).then(|| {
+                format!(
+                    "the console's terminal stopped answering for {:.1} s",
+                    quiet.as_secs_f64()
+                )
+            })
+        })
+    }
 }
 
 /// How long [`Background::end`] waits for the runner to have let the vehicle go.
@@ -202,6 +229,7 @@ impl Background {
             .map(|(_, n)| n)
             .sum();
         *self.shared.stop.lock() = None;
+        *self.shared.answered.lock() = Some(Instant::now());
         *self.shared.state.lock() = Some(Characterizing {
             device,
             name: name.clone(),
@@ -243,6 +271,14 @@ impl Background {
             .map_err(|e| format!("cannot start its thread: {e}"))?;
         *thread = Some(handle);
         Ok(())
+    }
+
+    /// The console's terminal answered a round trip at `at`: the operator still sees
+    /// the run.
+    pub(crate) fn answered(&self, at: Instant) {
+        if let Some(last) = self.shared.answered.lock().as_mut() {
+            *last = (*last).max(at);
+        }
     }
 
     /// Where the run stands, or how the last one ended; `None` before the first.
@@ -306,7 +342,8 @@ fn measure(
             s.progress = *p;
         }
     };
-    let stop = || shared.stop.lock().clone();
+    let bound = gate.vehicle().config().console.terminal_timeout;
+    let stop = || shared.why_stop(bound);
     let watch = Watch {
         progress: &progress,
         stop: &stop,

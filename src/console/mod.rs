@@ -204,7 +204,9 @@ pub fn drive(
             }
             model.drawn = drawn.unwrap_or_default();
             // The liveness check's request, after the frame it proves was read.
-            if trips.due(model.snap.commands(), Instant::now()) {
+            // Asked while it commands, and while a characterization it started runs.
+            let running = model.characterizing.as_ref().is_some_and(|c| c.running());
+            if trips.due(model.snap.commands() || running, Instant::now()) {
                 if let Err(e) = screen.send(link::ASK) {
                     break Exit::HangUp(format!("cannot write: {e}"));
                 }

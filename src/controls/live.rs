@@ -110,6 +110,9 @@ impl Controls for Live<'_> {
     }
     fn answered(&self, at: Instant) {
         self.gate.answered(self.source, at);
+        if let Some(b) = self.characterize {
+            b.answered(at);
+        }
     }
     fn characterize_check(&self, id: DeviceId) -> Result<String, String> {
         match self.characterize {

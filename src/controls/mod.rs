@@ -86,7 +86,7 @@ pub trait Controls {
     fn sim(&self, line: &str) -> Option<Result<String, String>>;
     /// The console's terminal answered a round trip of its liveness check, read at
     /// `at`: a proof that the operator still sees the vehicle
-    /// ([`crate::engine::Gate::answered`]).
+    /// ([`crate::engine::Gate::answered`]), and the characterization it started.
     fn answered(&self, at: Instant);
     /// Whether device `id` may be characterized now: what proved the vehicle still
     /// (`stopped, in park, the brake held`), or why not

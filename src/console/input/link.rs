@@ -7,8 +7,9 @@
 //! read (and drawn) that frame. While the console commands, it asks every [`EVERY`]
 //! and hands every answer to its controls as a proof ([`Controls::answered`]); the
 //! engine's gate monitor, not the console, holds the bound from the last proof (the
-//! console's loop may itself be what is stuck). A console that only watches does not
-//! ask. An answer counts only against a request the console made: the same bytes
+//! console's loop may itself be what is stuck). It asks too while a characterization it
+//! started from the bench runs, whose own thread holds the same bound
+//! (`characterize/background.rs`). A console that only watches does not ask. An answer counts only against a request the console made: the same bytes
 //! are Shift+F3 on a legacy terminal.
 //!
 //! [`Controls::answered`]: crate::controls::Controls::answered
