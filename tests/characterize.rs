@@ -1080,6 +1080,47 @@ fn a_sensor_s_update_rate_and_noise_are_measured_without_commanding_anything() {
     );
 }
 
+/// The bench commands under the planners' watchdog: on a vehicle whose
+/// `watchdog_timeout` (90 ms) is shorter than the run's usual resend (100 ms), it
+/// resends often enough to keep it fed, and the run ends as it should, not tripped at
+/// the first move.
+#[test]
+fn a_watchdog_shorter_than_the_resend_is_kept_fed() {
+    let dir = tempdir("characterize-watchdog");
+    let shipped = "watchdog_timeout = \"500ms\"";
+    let vehicle = alice_with_steering(&sim_section(&draw(21)));
+    assert!(
+        vehicle.contains(shipped),
+        "Alice's watchdog as this test knows it"
+    );
+    let vehicle = vehicle.replace(shipped, "watchdog_timeout = \"90ms\"");
+    let run = characterize_device(
+        dir.path(),
+        "steer",
+        &vehicle,
+        &["--yes", "--procedure", "rate"],
+    );
+    assert!(
+        run.summary["rate_up"].as_f64().unwrap() > 0.0,
+        "{}",
+        run.summary
+    );
+    let rec = Recording::open(&run.record).unwrap();
+    let (msgs, _) = rec.json();
+    let sent: Vec<u64> = msgs
+        .iter()
+        .filter(|(t, _, m)| t == "/commands" && m["source"] == "characterize")
+        .map(|(_, at, _)| *at)
+        .collect();
+    assert!(sent.len() > 50, "{}", sent.len());
+    let longest = sent.windows(2).map(|w| w[1] - w[0]).max().unwrap();
+    assert!(
+        longest < 90_000_000,
+        "{} ms between two",
+        longest / 1_000_000
+    );
+}
+
 /// `--range` and `--resolution`: the sweep covers the middle of the part asked for at
 /// the spacing asked for, every point inside it, and the device ends where it was
 /// found, outside that part; a range outside the device's, or a resolution finer than a

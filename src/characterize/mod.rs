@@ -214,8 +214,17 @@ const STILL_FOR: Duration = Duration::from_millis(200);
 /// The longest a move may take to start, and to settle.
 const START_WITHIN: Duration = Duration::from_secs(3);
 const SETTLE_WITHIN: Duration = Duration::from_secs(10);
-/// Resend the set point at least this often (the commander's watchdog).
+/// Resend the set point at least this often (the commander's watchdog), or more often
+/// where the watchdog is shorter ([`resend_every`]).
 const RESEND: Duration = Duration::from_millis(100);
+
+/// How often a run resends its command: [`RESEND`], or a third of the vehicle's
+/// `[network] watchdog_timeout` where that is shorter — the bench commands as a
+/// planner does, under the same watchdog, and a run on a vehicle whose watchdog is
+/// shorter than the resend would trip it at the first move.
+fn resend_every(gate: &Gate) -> Duration {
+    RESEND.min(gate.vehicle().config().network.watchdog_timeout / 3)
+}
 /// Steps of a deadband search (halving the interval each).
 const DEADBAND_STEPS: usize = 11;
 
@@ -249,6 +258,8 @@ pub(crate) struct Bench<'a> {
     found: f64,
     /// The set point in force, and when it was last sent.
     set: f64,
+    /// How often the set point is resent ([`resend_every`]).
+    resend: Duration,
     sent: Instant,
     last_at: Option<Instant>,
     samples: Vec<Sample>,
@@ -397,6 +408,7 @@ impl<'a> Bench<'a> {
             started: now,
             found: set,
             set,
+            resend: resend_every(gate),
             sent: now - RESEND,
             last_at: None,
             samples: Vec::new(),
@@ -477,7 +489,7 @@ impl<'a> Bench<'a> {
         interrupted(self.gate, self.watch, self.id)?;
         let v = self.gate.vehicle();
         let d = v.device(self.id);
-        if self.sent.elapsed() >= RESEND {
+        if self.sent.elapsed() >= self.resend {
             self.send(self.set)?;
         }
         let c = d.cached();

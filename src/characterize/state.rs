@@ -21,7 +21,7 @@
 
 use super::analyze::{self, Sample};
 use super::write::{self, Frame, COMMAND, UP};
-use super::{engage_as_bench, interrupted, Ended, RESEND, SETTLE_WITHIN};
+use super::{engage_as_bench, interrupted, resend_every, Ended, RESEND, SETTLE_WITHIN};
 use crate::engine::Gate;
 use crate::safety::Ask;
 use crate::snapshot::DisengageCause;
@@ -119,13 +119,13 @@ struct Shifter<'a> {
 }
 
 impl Shifter<'_> {
-    /// The interval to the next resend, drawn from half [`RESEND`] to all of it. Each
+    /// The interval to the next resend, drawn from half of [`resend_every`] to all of it. Each
     /// resend is a command transaction the polls wait for, so resends at a fixed
     /// interval would lock the polls' phase to the shift, and a shift time would always
     /// fall at the same place between two readings: drawn, the place is anywhere, and
     /// the median over the rounds is not biased by it.
     fn next_resend(&mut self) -> Duration {
-        RESEND.mul_f64(0.5 + 0.5 * self.uniform())
+        resend_every(self.gate).mul_f64(0.5 + 0.5 * self.uniform())
     }
 
     /// A number drawn from [0, 1).
@@ -316,7 +316,7 @@ pub(crate) fn run(gate: &Gate, watch: &super::Watch, device: &str) -> Result<Fig
         sent: now - RESEND,
         last_at: None,
         samples: Vec::new(),
-        resend: RESEND,
+        resend: resend_every(gate),
         draw: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(1, |d| d.as_nanos() as u64)
