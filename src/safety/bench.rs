@@ -159,6 +159,41 @@ mod tests {
         }
     }
 
+    /// What the operator reads before a run ("Checked now: …") and when it is refused:
+    /// each proof and each reason in its own words.
+    #[test]
+    fn each_proof_and_each_refusal_says_what_it_is() {
+        let still = |in_park, brake_held| Proof::Still {
+            in_park,
+            brake_held,
+        };
+        for (proof, words) in [
+            (Proof::Bench, "a bench: nothing else is bound to a role"),
+            (still(true, true), "stopped, in park, the brake held"),
+            (
+                still(true, false),
+                "stopped, in park (the brake is the device measured)",
+            ),
+            (
+                still(false, true),
+                "stopped, the brake held (the gearbox is the device measured)",
+            ),
+        ] {
+            assert_eq!(proof.to_string(), words);
+        }
+        for (unready, words) in [
+            (Unready::Moving, "the vehicle is not known to be stopped"),
+            (Unready::NotInPark, "the gearbox is not in park"),
+            (Unready::BrakeNotHeld, "the brake is not held"),
+            (
+                Unready::Unproven(Role::Speed),
+                "no speed bound to prove the vehicle still (bench: --only DEVICE)",
+            ),
+        ] {
+            assert_eq!(unready.to_string(), words);
+        }
+    }
+
     #[test]
     fn a_still_vehicle_in_park_with_the_brake_held_is_ready() {
         let (b, steer) = alice();
