@@ -228,6 +228,36 @@ fn resend_every(gate: &Gate) -> Duration {
 /// Steps of a deadband search (halving the interval each).
 const DEADBAND_STEPS: usize = 11;
 
+/// A reading of device `d` newer than `last` (the `at` of the one before, updated here),
+/// and when it was taken, seconds after `start`: about half a status transaction before
+/// its reply was complete. `None` when no new reading came, and for one that came after
+/// a stall of the machine — a gap of more than four of the device's turns (its status
+/// period, a poll, and a command's transaction the poll may wait for) and 10 ms: it was
+/// read before the stall, not when it came, so its time is unknown and it is left out.
+/// The one rule for every kind of device characterized.
+fn fresh(
+    d: &crate::vehicle::Device,
+    last: &mut Option<Instant>,
+    start: Instant,
+) -> Option<(crate::value::Reading, Instant, f64)> {
+    let c = d.cached();
+    if c.at == *last {
+        return None;
+    }
+    let before = std::mem::replace(last, c.at);
+    let at = c.at?;
+    let stats = d.stats();
+    let txn = |s: &crate::vehicle::stats::Latency| s.summary().p50_us.unwrap_or(0.0) * 1e-6;
+    let (status, command) = (txn(&stats.status_txn), txn(&stats.command_txn));
+    let turn = d.settings().status_period().as_secs_f64() + status + command;
+    let gap = before.map_or(0.0, |b| at.saturating_duration_since(b).as_secs_f64());
+    if gap > 4.0 * turn + 0.01 {
+        return None;
+    }
+    let t = at.saturating_duration_since(start).as_secs_f64() - status / 2.0;
+    Some((c.reading, at, t))
+}
+
 /// When `command` reached device `d`, seconds after `start`, once the device
 /// acknowledged it: about half a command transaction after the transaction's first byte
 /// (as a reading is taken about half a status transaction before it is complete), or,
@@ -492,26 +522,14 @@ impl<'a> Bench<'a> {
         if self.sent.elapsed() >= self.resend {
             self.send(self.set)?;
         }
-        let c = d.cached();
-        if c.at != self.last_at {
-            // A reply after a gap of several polls (the machine stalled) was read
-            // before the stall, not when it came: its time is unknown, so it is left out.
-            let gap = match (c.at, self.last_at) {
-                (Some(a), Some(b)) => a.saturating_duration_since(b),
-                _ => Duration::ZERO,
-            };
-            let stalled = gap > d.settings().status_period() * 4 + Duration::from_millis(10);
-            if let (Some(at), Some(y), false) = (c.at, c.reading.get(self.position), stalled) {
-                // Taken about half a transaction before its reply was complete.
-                let txn = d.stats().status_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
-                let t = at.saturating_duration_since(self.started).as_secs_f64() - txn / 2.0;
+        if let Some((reading, _, t)) = fresh(d, &mut self.last_at, self.started) {
+            if let Some(y) = reading.get(self.position) {
                 self.samples.push(Sample {
                     t,
                     commanded: self.set,
                     measured: y,
                 });
             }
-            self.last_at = c.at;
         }
         Ok(())
     }

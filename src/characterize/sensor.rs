@@ -93,20 +93,9 @@ pub(crate) fn run(gate: &Gate, watch: &super::Watch, device: &str) -> Result<Fig
         if let Some(f) = d.fault() {
             return Err(Ended(format!("{device}: {f}")));
         }
-        let c = d.cached();
-        if c.at != last_at {
-            let gap = match (c.at, last_at) {
-                (Some(a), Some(b)) => a.saturating_duration_since(b),
-                _ => Duration::ZERO,
-            };
-            let txn = d.stats().status_txn.summary().p50_us.unwrap_or(0.0) * 1e-6;
-            let expected = d.settings().status_period().as_secs_f64() + txn;
-            if let (Some(at), false) = (c.at, gap.as_secs_f64() > 4.0 * expected + 0.01) {
-                first_at = first_at.or(Some(at));
-                let t = at.saturating_duration_since(started).as_secs_f64() - txn / 2.0;
-                samples.push((t, (0..names.len()).map(|i| c.reading.get(i)).collect()));
-            }
-            last_at = c.at;
+        if let Some((reading, at, t)) = super::fresh(d, &mut last_at, started) {
+            first_at = first_at.or(Some(at));
+            samples.push((t, (0..names.len()).map(|i| reading.get(i)).collect()));
         }
         let listened = first_at.map_or(Duration::ZERO, |f| f.elapsed());
         if (listened >= LISTEN && samples.len() >= READINGS) || listened >= LISTEN_AT_MOST {

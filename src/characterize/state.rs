@@ -174,33 +174,15 @@ impl Shifter<'_> {
             self.command(self.set)?;
         }
         let d = self.gate.vehicle().device(self.id);
-        let c = d.cached();
-        if c.at == self.last_at {
-            return Ok(());
+        if let Some((reading, _, t)) = super::fresh(d, &mut self.last_at, self.started) {
+            if let Some(y) = reading.get(self.reading) {
+                self.samples.push(Sample {
+                    t,
+                    commanded: f64::from(self.set),
+                    measured: y,
+                });
+            }
         }
-        let stats = d.stats();
-        let txn = |s: &crate::vehicle::stats::Latency| s.summary().p50_us.unwrap_or(0.0) * 1e-6;
-        let (status, command) = (txn(&stats.status_txn), txn(&stats.command_txn));
-        // A poll may wait for a command's transaction: a gap longer than a few of both
-        // is a stall.
-        let expected = d.settings().status_period().as_secs_f64() + status + command;
-        let gap = match (c.at, self.last_at) {
-            (Some(a), Some(b)) => a.saturating_duration_since(b).as_secs_f64(),
-            _ => 0.0,
-        };
-        if let (Some(at), Some(y), false) = (
-            c.at,
-            c.reading.get(self.reading),
-            gap > 4.0 * expected + 0.01,
-        ) {
-            let t = at.saturating_duration_since(self.started).as_secs_f64() - status / 2.0;
-            self.samples.push(Sample {
-                t,
-                commanded: f64::from(self.set),
-                measured: y,
-            });
-        }
-        self.last_at = c.at;
         Ok(())
     }
 
