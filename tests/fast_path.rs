@@ -2,6 +2,7 @@
 //! by the thread that admitted it, and its reply read by the device's command thread —
 //! exactly once, with the port held in between — while a rate cap or the paper's port
 //! rule keep the ordinary path, and a failed fast transaction is counted like any.
+//! The command thread sleeps on its port: the reply wakes it, and nothing before it.
 
 mod common;
 
@@ -10,7 +11,7 @@ use adrive::value::Command;
 use adrive::vehicle::Device;
 use common::{steer_only, wait_for, Rig};
 use std::sync::atomic::Ordering::Relaxed;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 fn set(v: f64) -> Command {
     Command::Set(v)
@@ -18,8 +19,13 @@ fn set(v: f64) -> Command {
 
 /// Engaged, with the engage hold executed and the command thread asleep in its slot.
 fn engaged(rig: &Rig) -> &Device {
+    engaged_named(rig, "steer")
+}
+
+/// [`engaged`], the steering device named `name`.
+fn engaged_named<'r>(rig: &'r Rig, name: &str) -> &'r Device {
     rig.engage();
-    let steer = rig.device("steer");
+    let steer = rig.device(name);
     wait_for("the engage hold to execute", || {
         steer.stats().executed.load(Relaxed) == 1
     });
@@ -179,10 +185,18 @@ fn a_timed_out_fast_path_transaction_is_counted_and_the_next_goes_out() {
     let steer = engaged(&rig);
     let faults = rig.sim.faults("steer").unwrap();
     faults.silent.store(true, Relaxed);
+    let t = Instant::now();
     assert!(submit_when_idle(&rig, steer, set(0.4)));
     wait_for("the timeout to be counted", || {
         steer.stats().command_errors.load(Relaxed) == 1
     });
+    // The command thread, asleep on its port for the reply, is woken by the reply's
+    // deadline: the transaction ends there, not at its next resend.
+    assert!(
+        t.elapsed() < Duration::from_secs(5),
+        "a reply timeout of 50 ms ended after {:?} (command_timeout: 10 s)",
+        t.elapsed()
+    );
     assert_eq!(
         steer.health().command_error.load(Relaxed),
         1,
@@ -212,4 +226,129 @@ fn a_timed_out_fast_path_transaction_is_counted_and_the_next_goes_out() {
         steer.slot().executed() == Some(set(0.2))
     });
     assert_eq!(steer.stats().executed.load(Relaxed), 3);
+}
+
+/// What the kernel says of one of this process's threads: whether it is asleep, and
+/// how many times it went to sleep so far.
+struct Sleeper {
+    tid: String,
+}
+
+impl Sleeper {
+    /// The thread named `name`.
+    fn named(name: &str) -> Sleeper {
+        let tasks = std::fs::read_dir("/proc/self/task").expect("/proc");
+        for t in tasks {
+            let t = t.unwrap();
+            let comm = std::fs::read_to_string(t.path().join("comm")).unwrap_or_default();
+            if comm.trim_end() == name {
+                return Sleeper {
+                    tid: t.file_name().to_string_lossy().into_owned(),
+                };
+            }
+        }
+        panic!("no thread named {name}");
+    }
+
+    fn read(&self, file: &str) -> String {
+        std::fs::read_to_string(format!("/proc/self/task/{}/{file}", self.tid)).unwrap()
+    }
+
+    /// Asleep in the kernel (`S`), not running or runnable.
+    fn asleep(&self) -> bool {
+        let stat = self.read("stat");
+        // After the name in parentheses: the state.
+        stat.rsplit(')')
+            .next()
+            .unwrap()
+            .trim_start()
+            .starts_with('S')
+    }
+
+    /// How many times it went to sleep: its voluntary context switches.
+    fn sleeps(&self) -> u64 {
+        self.read("status")
+            .lines()
+            .find_map(|l| l.strip_prefix("voluntary_ctxt_switches:"))
+            .expect("voluntary_ctxt_switches")
+            .trim()
+            .parse()
+            .unwrap()
+    }
+}
+
+/// The reason the command thread sleeps on its port: a command's request, written by
+/// the thread that admitted it, wakes nobody — the device's reply wakes the command
+/// thread, which reads it. Counted by the kernel: over fast commands whose device
+/// answers 20 ms after the request, the command thread goes to sleep once per command
+/// (asleep for the next one), not twice (woken after the write, asleep again in the
+/// read of the reply) — nothing else runs between the request's first byte and the
+/// device's answer.
+#[test]
+fn a_fast_command_s_reply_is_what_wakes_the_command_thread() {
+    // Named apart from the other tests' devices: its thread is found by its name.
+    let rig = Rig::start(
+        &steer_only(
+            "status_period = \"10s\"\nstatus_max_age = \"10s\"\ncommand_timeout = \"10s\"",
+            "command_delay = \"20ms\"",
+        )
+        .replace("\"steer\"", "\"sleeper\""),
+    );
+    let steer = engaged_named(&rig, "sleeper");
+    assert!(steer.slot().waits_on_port());
+    let thread = Sleeper::named("sleeper/command");
+    let asleep_idle = || steer.slot().is_idle() && thread.asleep();
+    let (mut commands, mut sleeps) = (0u64, 0u64);
+    for k in 1..=20 {
+        let v = k as f64 / 100.0;
+        wait_for("the command thread to sleep", asleep_idle);
+        let before = thread.sleeps();
+        if !submit_when_idle(&rig, steer, set(v)) {
+            // The status thread's poll held the port: the ordinary path.
+            continue;
+        }
+        wait_for("the reply to be read", || {
+            steer.slot().executed() == Some(set(v))
+        });
+        wait_for("the command thread to sleep again", asleep_idle);
+        commands += 1;
+        sleeps += thread.sleeps() - before;
+    }
+    assert!(commands >= 10, "only {commands} of 20 went the fast way");
+    // One per command; a little more allowed for a lock found taken on a loaded
+    // machine. Woken after each write, it would sleep at least twice per command.
+    assert!(
+        sleeps * 2 < commands * 3,
+        "the command thread slept {sleeps} times over {commands} fast commands"
+    );
+    assert_eq!(steer.stats().command_errors.load(Relaxed), 0);
+}
+
+/// Asleep on its port with nothing in flight, the command thread is rung for the safe
+/// state when the engine stops: the safe state reaches the device, and every thread
+/// stops in time.
+#[test]
+fn a_stop_while_the_command_thread_sleeps_on_its_port_commands_the_safe_state() {
+    let mut rig = Rig::start(&steer_only(
+        "status_period = \"10s\"\nstatus_max_age = \"10s\"\ncommand_timeout = \"10s\"\nsafe = -0.25",
+        "",
+    ));
+    let steer = engaged(&rig);
+    assert!(submit_when_idle(&rig, steer, set(0.5)));
+    wait_for("the command to execute", || {
+        steer.slot().executed() == Some(set(0.5))
+    });
+    wait_for("the command thread to sleep on its port", || {
+        steer.slot().is_idle()
+    });
+    let engine = rig.engine.take().unwrap();
+    let (safe, stuck) = engine.shutdown(Duration::from_secs(5));
+    assert!(safe, "the safe state was acknowledged");
+    assert!(stuck.is_empty(), "threads that did not stop: {stuck:?}");
+    let got: Vec<Command> = rig.received().iter().map(|e| e.command).collect();
+    assert_eq!(
+        got.last(),
+        Some(&set(-0.25)),
+        "the safe state went out last: {got:?}"
+    );
 }

@@ -56,7 +56,7 @@ pub enum Tune {
     CommandTimeout(DeviceId, Duration),
     /// Switch a thread on or off.
     Enabled(DeviceId, Thread, bool),
-    /// Wake a command thread (broadcast its condition variable).
+    /// Wake a command thread (it resends its last command).
     Wake(DeviceId),
 }
 

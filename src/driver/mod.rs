@@ -30,6 +30,12 @@ pub trait Link: Read + Write + Send {
     fn set_timeout(&mut self, timeout: Duration) -> io::Result<()>;
     /// Drop whatever the device sent that nobody asked for (a late reply, noise).
     fn discard_input(&mut self) -> io::Result<()>;
+    /// The descriptor the device's replies arrive on, for a thread to sleep on until
+    /// they do ([`crate::port::wake`]): a serial port's. `None` for a link without one
+    /// (a CAN device's write half, whose replies its bus's reader takes; a test double).
+    fn reply_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
+        None
+    }
 }
 
 impl Link for Box<dyn serialport::SerialPort> {
@@ -48,6 +54,13 @@ impl Link for serialport::TTYPort {
     }
     fn discard_input(&mut self) -> io::Result<()> {
         serialport::SerialPort::clear(self, serialport::ClearBuffer::Input).map_err(io::Error::from)
+    }
+    #[allow(unsafe_code)]
+    fn reply_fd(&self) -> Option<std::os::fd::BorrowedFd<'_>> {
+        use std::os::fd::AsRawFd;
+        // SAFETY: the descriptor is open for as long as the port lives, and the borrow
+        // cannot outlive it.
+        Some(unsafe { std::os::fd::BorrowedFd::borrow_raw(self.as_raw_fd()) })
     }
 }
 

@@ -128,6 +128,10 @@ impl Link for SerialLink {
         rustix::termios::tcflush(self.fd(), rustix::termios::QueueSelector::IFlush)?;
         Ok(())
     }
+
+    fn reply_fd(&self) -> Option<BorrowedFd<'_>> {
+        Some(self.fd())
+    }
 }
 
 impl AsFd for SerialLink {

@@ -1,5 +1,7 @@
 //! An actuator's command thread: the paper's design, kept. It sleeps on the device's
-//! slot ([`crate::port::slot`]) until a command arrives, has it checked at the wire
+//! slot ([`crate::port::slot`]) — a device on a serial line: on its port as well
+//! ([`crate::port::wake`]), so that the reply to a request written by the admitting
+//! thread is what wakes it — until a command arrives, has it checked at the wire
 //! ([`Gate::check_wire`]; a wait for another device it asks for, [`Gate::wait_for`],
 //! happens without the port held), takes the port ([`crate::port`]) and sends the
 //! newest command at once; with nothing new for `command_timeout` it sends the last one
@@ -110,6 +112,8 @@ pub(crate) fn command_loop(gate: &Gate, d: &Device, beat: &Beat) {
                     h.first,
                     &mut last_sent_at,
                 );
+                // After the books: off the way from the reply to the slot.
+                port.disarm_wake();
                 keep_port(gate, d, port, &mut last_sent_at, &pulse);
                 continue;
             }

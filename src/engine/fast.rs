@@ -11,9 +11,13 @@
 //! safety rules' wire check (it must say send *this* command), takes
 //! the port without waiting, writes the request, and
 //! [hands the transaction over](crate::port::slot::CommandSlot::hand_over) with the port still held. The
-//! command thread, woken after the first byte is out, reads the reply and does the
-//! bookkeeping as for any command ([`crate::port::Port::resume`]), then
-//! releases the port.
+//! command thread reads the reply and does the bookkeeping as for any command
+//! ([`crate::port::Port::resume`]), then releases the port. It is woken by the reply
+//! itself, not by the thread that wrote the request: it sleeps on its port, which that
+//! thread arms after the write ([`crate::port::wake`]) — on a machine with few CPUs a
+//! wake-up right after the write would compete with the device's end being woken by the
+//! first byte. (A device without a descriptor to sleep on, a CAN device, has its command
+//! thread woken by the handover.)
 //!
 //! Anything else and the path is the ordinary one: the paper's port rule (first come,
 //! first served), a rate cap (`min_command_interval`), commands switched off, a driver
@@ -81,13 +85,18 @@ pub(crate) fn send(gate: &Gate, d: &Device, command: Command, received: Instant)
     if sent.is_ok() {
         crate::vehicle::stats::Stats::bump(&d.stats().fast);
     }
-    port.hand_over();
+    // Armed after the write: the reply (or its deadline) wakes the command thread, and
+    // nothing does before it.
+    let armed = port.hand_over(sent.is_ok());
     std::mem::forget(claim);
-    d.slot().hand_over(Handover {
-        pending: Pending { command, received },
-        first,
-        sent,
-    });
+    d.slot().hand_over(
+        Handover {
+            pending: Pending { command, received },
+            first,
+            sent,
+        },
+        armed,
+    );
     Sent::Written
 }
 

@@ -59,6 +59,7 @@ use std::time::{Duration, Instant};
 
 pub(crate) mod slot;
 pub mod trace;
+pub(crate) mod wake;
 
 /// What readers may know of a device's port without touching it.
 #[derive(Default, Debug)]
@@ -285,11 +286,22 @@ impl PortGuard<'_> {
 
     /// Leave the port held — `busy`, so no status poll and no other command can take it
     /// — while this thread lets go of it, for the thread that calls [`Port::resume`].
-    pub(crate) fn hand_over(mut self) {
+    /// With `reply_expected` (the request went out), the reply — or its deadline — is
+    /// to wake that thread ([`wake::PortWake::arm`]); returns whether it will, or the
+    /// thread must be woken otherwise.
+    pub(crate) fn hand_over(mut self, reply_expected: bool) -> bool {
+        let armed = reply_expected && self.conn.as_ref().expect("held").arm_wake();
         drop(self.conn.take());
         self.port.arb.lock().handed = true;
         // Not dropped: the port stays busy until the resumed guard is.
         std::mem::forget(self);
+        armed
+    }
+
+    /// The handed-over transaction is over: what was armed to wake its reader and did
+    /// not is disarmed.
+    pub(crate) fn disarm_wake(&self) {
+        self.conn.as_ref().expect("held").disarm_wake();
     }
 
     /// An overdue status poll is waiting: let it have the port next.
@@ -337,6 +349,9 @@ pub struct Conn {
     /// The last exchange heard something after its request (a reply begun, a
     /// trickle): a miss then leaves no whole late reply to come.
     heard: bool,
+    /// What the device's command thread sleeps on, for a request handed over to it to
+    /// wake it by its reply ([`PortGuard::hand_over`]).
+    wake: Option<Arc<wake::PortWake>>,
 }
 
 impl Conn {
@@ -364,6 +379,31 @@ impl Conn {
             quiet_base: drain_quiet(config),
             seen_late: Duration::ZERO,
             heard: false,
+            wake: None,
+        }
+    }
+
+    /// Have the reply to a request handed over wake the command thread sleeping on
+    /// `wake`.
+    pub(crate) fn woken_by(mut self, wake: Arc<wake::PortWake>) -> Conn {
+        self.wake = Some(wake);
+        self
+    }
+
+    /// Arm the command thread's wake-up on the reply to the request just written (see
+    /// [`wake`]). False when nothing was armed — no wake-up, a link without a
+    /// descriptor, a failure — and the thread must be woken otherwise.
+    fn arm_wake(&self) -> bool {
+        let (Some(w), Some(link)) = (&self.wake, &self.link) else {
+            return false;
+        };
+        link.reply_fd()
+            .is_some_and(|fd| w.arm(fd, self.reply_timeout).is_ok())
+    }
+
+    fn disarm_wake(&self) {
+        if let Some(w) = &self.wake {
+            w.disarm(self.link.as_ref().and_then(|l| l.reply_fd()));
         }
     }
 
@@ -776,7 +816,7 @@ mod tests {
             let mut g = port.try_acquire_idle().expect("an idle, open port");
             let (sent, first) = g.send_command(set);
             assert!(sent.is_ok() && first.is_some(), "the request went out");
-            g.hand_over();
+            g.hand_over(true);
             assert!(
                 port.try_acquire_idle().is_none(),
                 "the port stays held between the halves"

@@ -8,11 +8,20 @@
 //! itself and [hands the transaction over](CommandSlot::hand_over): the command thread
 //! wakes to a [`Wake::Handed`] and reads the reply. While a claim stands, the command
 //! thread takes nothing else from its slot.
+//!
+//! A device on a serial line has its command thread sleep on its port as well
+//! ([`super::wake`]): a transaction handed over wakes it by its reply, not by a signal
+//! from the thread that wrote the request — nothing else runs between the request's
+//! first byte and the device's answer. Everything else (a command, a nudge, stop) rings
+//! it at once. A slot without ([`CommandSlot::default`]) has its thread sleep on the
+//! condition variable, woken by all of these.
 
+use super::wake::PortWake;
 use crate::driver::DriverError;
 use crate::value::Command;
 use parking_lot::{Condvar, Mutex, MutexGuard};
 use std::collections::VecDeque;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 /// A command waiting for the wire, stamped where it was born.
@@ -114,6 +123,10 @@ struct State {
     wire: WireState,
     /// The command thread is asleep in [`CommandSlot::wait`].
     waiting: bool,
+    /// In this wait, the port or the reply's deadline woke the thread while a claim
+    /// stood: its request was armed and the handover is still to come, which must
+    /// then wake the thread itself.
+    armed_fired: bool,
     fast: Fast,
     /// When the pending command was born.
     received: Option<Instant>,
@@ -152,9 +165,37 @@ impl State {
 pub struct CommandSlot {
     state: Mutex<State>,
     cv: Condvar,
+    /// What the command thread sleeps on instead of `cv`, if anything.
+    port_wake: Option<Arc<PortWake>>,
 }
 
 impl CommandSlot {
+    /// A slot whose command thread sleeps on `wake`, which the device's port arms for a
+    /// request handed over ([`super::PortGuard::hand_over`]).
+    pub(crate) fn woken_by(wake: Arc<PortWake>) -> CommandSlot {
+        CommandSlot {
+            port_wake: Some(wake),
+            ..CommandSlot::default()
+        }
+    }
+
+    /// Whether the command thread sleeps on its port ([`super::wake`]).
+    pub fn waits_on_port(&self) -> bool {
+        self.port_wake.is_some()
+    }
+
+    /// Wake everyone waiting on the slot; `thread`: the command thread too, if it
+    /// sleeps on its port (`waiting` read under the lock, so a thread that was not
+    /// asleep yet finds what woke it before it sleeps).
+    fn notify(&self, thread: bool) {
+        if thread {
+            if let Some(w) = &self.port_wake {
+                w.ring();
+            }
+        }
+        self.cv.notify_all();
+    }
+
     /// Store a command and wake the command thread. Returns true when it replaced a
     /// command that had not reached the wire yet.
     pub fn submit(&self, command: Command, received: Instant) -> bool {
@@ -162,20 +203,27 @@ impl CommandSlot {
         let superseded = s.wire.pending.is_some();
         s.wire.pending = Some(command);
         s.received = Some(received);
+        let waiting = s.waiting;
         drop(s);
-        self.cv.notify_all();
+        self.notify(waiting);
         superseded
     }
 
     /// Wake the command thread without a new command (it resends the last one).
     pub(crate) fn nudge(&self) {
-        self.state.lock().nudged = true;
-        self.cv.notify_all();
+        let mut s = self.state.lock();
+        s.nudged = true;
+        let waiting = s.waiting;
+        drop(s);
+        self.notify(waiting);
     }
 
     pub fn stop(&self) {
-        self.state.lock().stopped = true;
-        self.cv.notify_all();
+        let mut s = self.state.lock();
+        s.stopped = true;
+        drop(s);
+        // Rung whether asleep or not: stop also ends the thread's other waits.
+        self.notify(true);
     }
 
     /// Sleep until something happens, at most `timeout`. A command taken here is in
@@ -185,43 +233,58 @@ impl CommandSlot {
         let deadline = Instant::now() + timeout;
         let mut s = self.state.lock();
         s.waiting = true;
+        s.armed_fired = false;
         let wake = self.wait_locked(&mut s, deadline);
         s.waiting = false;
+        s.armed_fired = false;
         wake
     }
 
     fn wait_locked(&self, s: &mut MutexGuard<'_, State>, deadline: Instant) -> Wake {
         loop {
-            match std::mem::take(&mut s.fast) {
+            // Checked, then slept on, under the lock (or, on the port, with `waiting`
+            // set under it): whatever comes in between wakes the sleep.
+            let claimed = match std::mem::take(&mut s.fast) {
                 Fast::Handed(h) => return Wake::Handed(h),
                 claimed @ Fast::Claimed { .. } => {
                     s.fast = claimed;
-                    self.cv.wait(s);
-                    continue;
+                    true
                 }
-                Fast::Off => {}
-            }
-            if s.stopped {
-                return Wake::Stop;
-            }
-            if let Some(p) = s.take() {
-                s.nudged = false;
-                return Wake::Command(p);
-            }
-            if std::mem::take(&mut s.nudged) {
-                return Wake::Nudge;
-            }
-            if self.cv.wait_until(s, deadline).timed_out() {
-                if !matches!(s.fast, Fast::Off) {
-                    continue;
-                }
+                Fast::Off => false,
+            };
+            let now = Instant::now();
+            if !claimed {
                 if s.stopped {
                     return Wake::Stop;
                 }
-                return match s.take() {
-                    Some(p) => Wake::Command(p),
-                    None => Wake::Timeout,
-                };
+                if let Some(p) = s.take() {
+                    s.nudged = false;
+                    return Wake::Command(p);
+                }
+                if std::mem::take(&mut s.nudged) {
+                    return Wake::Nudge;
+                }
+                if now >= deadline {
+                    return Wake::Timeout;
+                }
+            }
+            // A claim is waited out with no deadline: its handover or its end wakes.
+            let until = (!claimed).then_some(deadline);
+            match &self.port_wake {
+                None => match until {
+                    Some(d) => {
+                        self.cv.wait_until(s, d);
+                    }
+                    None => self.cv.wait(s),
+                },
+                Some(w) => {
+                    let woken = MutexGuard::unlocked(s, || {
+                        w.wait(until.map(|d| d.saturating_duration_since(now)))
+                    });
+                    if woken.port || woken.timer {
+                        s.armed_fired = true;
+                    }
+                }
             }
         }
     }
@@ -244,14 +307,20 @@ impl CommandSlot {
         true
     }
 
-    /// The claimed command's request went out (or failed to): wake the command thread
-    /// to finish its transaction.
-    pub(crate) fn hand_over(&self, h: Handover) {
+    /// The claimed command's request went out (or failed to): the command thread is to
+    /// finish its transaction. `armed`: its port wakes the thread by the reply, or by
+    /// the reply's deadline ([`super::PortGuard::hand_over`]), and nothing else does —
+    /// unless the port already did, before the handover was here to take; else the
+    /// thread is woken now.
+    pub(crate) fn hand_over(&self, h: Handover, armed: bool) {
         let mut s = self.state.lock();
         debug_assert!(matches!(s.fast, Fast::Claimed { .. }));
         s.fast = Fast::Handed(h);
+        let fired = std::mem::take(&mut s.armed_fired);
         drop(s);
-        self.cv.notify_all();
+        if !armed || fired || self.port_wake.is_none() {
+            self.notify(true);
+        }
     }
 
     /// The claimed command did not go out: end the claim, in one step with what becomes
@@ -281,7 +350,7 @@ impl CommandSlot {
         drop(s);
         // The command thread waits out a claim with no deadline: back to its resend
         // timeout, or to the command.
-        self.cv.notify_all();
+        self.notify(true);
         superseded
     }
 
@@ -531,14 +600,17 @@ mod tests {
     /// The claimed `command` was written: hand its transaction over.
     fn hand_over_written(slot: &CommandSlot, command: Command) {
         let t = Instant::now();
-        slot.hand_over(Handover {
-            pending: Pending {
-                command,
-                received: t,
+        slot.hand_over(
+            Handover {
+                pending: Pending {
+                    command,
+                    received: t,
+                },
+                first: Some(t),
+                sent: Ok(()),
             },
-            first: Some(t),
-            sent: Ok(()),
-        });
+            false,
+        );
     }
 
     fn claim_when_asleep(slot: &CommandSlot, command: Command) {
@@ -637,5 +709,60 @@ mod tests {
         hand_over_written(&slot, Command::Set(0.1));
         assert!(matches!(waiter.join().unwrap(), Wake::Handed(_)));
         assert_eq!(slot.resend(), None, "nothing to resend after the reset");
+    }
+
+    /// The reply can wake the command thread before its handover is stored (the thread
+    /// that wrote the request held up between arming the port and handing over): the
+    /// command thread, finding the claim still standing, sleeps again — and the
+    /// handover then wakes it itself. The port's one shot is spent: nothing else would
+    /// wake it before the reply's deadline, long after the reply came.
+    #[test]
+    fn a_reply_before_its_handover_still_wakes_the_thread() {
+        use crate::driver::Link;
+        use serialport::TTYPort;
+        use std::io::Write;
+        let (mut device, host) = TTYPort::pair().expect("a pseudo-terminal pair");
+        let wake = Arc::new(PortWake::new().unwrap());
+        let slot = Arc::new(CommandSlot::woken_by(wake.clone()));
+        let (tid_tx, tid) = std::sync::mpsc::channel();
+        let (woke_tx, woke) = std::sync::mpsc::channel();
+        let s2 = slot.clone();
+        std::thread::spawn(move || {
+            let me = std::fs::read_link("/proc/thread-self").unwrap();
+            tid_tx.send(me.file_name().unwrap().to_owned()).unwrap();
+            let _ = woke_tx.send(s2.wait(Duration::from_secs(60)));
+        });
+        let stat = std::path::Path::new("/proc/self/task")
+            .join(tid.recv().unwrap())
+            .join("stat");
+        let asleep = || {
+            let s = std::fs::read_to_string(&stat).unwrap();
+            s.rsplit(')').next().unwrap().trim_start().starts_with('S')
+        };
+        claim_when_asleep(&slot, Command::Set(0.1));
+        device.write_all(b"ok\n").unwrap();
+        wake.arm(host.reply_fd().unwrap(), Duration::from_secs(60))
+            .unwrap();
+        // The reply woke the thread, which found the claim and sleeps again.
+        let end = Instant::now() + Duration::from_secs(20);
+        while wake.port_armed() || !asleep() {
+            assert!(Instant::now() < end, "the reply never woke the thread");
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        slot.hand_over(
+            Handover {
+                pending: Pending {
+                    command: Command::Set(0.1),
+                    received: Instant::now(),
+                },
+                first: Some(Instant::now()),
+                sent: Ok(()),
+            },
+            true,
+        );
+        let got = woke
+            .recv_timeout(Duration::from_secs(20))
+            .expect("the handover woke the thread");
+        assert!(matches!(got, Wake::Handed(_)), "{got:?}");
     }
 }

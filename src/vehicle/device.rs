@@ -10,6 +10,7 @@ use crate::config::{DeviceConfig, Role, Violation};
 use crate::driver::DriverError;
 use crate::port::slot::CommandSlot;
 use crate::port::trace::Trace;
+use crate::port::wake::PortWake;
 use crate::port::{Conn, Opener, Port, PortHealth};
 use crate::value::{Command, DeviceId, Kind, Reading};
 use parking_lot::Mutex;
@@ -31,6 +32,24 @@ pub struct Cached {
 impl Cached {
     pub fn age(&self) -> Option<Duration> {
         self.at.map(|t| t.elapsed())
+    }
+}
+
+/// What the command thread of a device on a serial line sleeps on, so that a request
+/// handed over to it wakes it by its reply ([`crate::port::wake`]). A device on a CAN
+/// bus has its replies read by the bus's reader: its command thread sleeps on its slot's
+/// condition variable, as does a sensor's (it has none) and, should the system refuse
+/// the descriptors, any device's.
+fn port_wake(config: &DeviceConfig) -> Option<Arc<PortWake>> {
+    if !config.is_actuator() || config.on_bus() {
+        return None;
+    }
+    match PortWake::new() {
+        Ok(w) => Some(Arc::new(w)),
+        Err(e) => {
+            tracing::warn!(device = %config.name, "cannot wait on the port ({e}): the command thread is woken by a signal");
+            None
+        }
     }
 }
 
@@ -160,19 +179,24 @@ impl Device {
             .response
             .zip(config.position())
             .map(|(r, i)| (Mutex::new(Estimator::new(r, config.range)), i));
+        let mut conn = Conn::new(driver, opener, trace.clone(), port_health.clone(), &config);
+        let slot = match port_wake(&config) {
+            Some(w) => {
+                conn = conn.woken_by(w.clone());
+                CommandSlot::woken_by(w)
+            }
+            None => CommandSlot::default(),
+        };
         Device {
             estimator,
             id,
             roles,
-            port: Port::new(
-                config.port_rule,
-                Conn::new(driver, opener, trace.clone(), port_health.clone(), &config),
-            ),
+            port: Port::new(config.port_rule, conn),
             port_health,
             trace,
             settings: Settings::new(&config),
             config,
-            slot: CommandSlot::default(),
+            slot,
             cache: Mutex::new(Cached::default()),
             stats: Stats::default(),
             health: Health::default(),
