@@ -29,7 +29,7 @@ use rustix::time::{
 use std::io;
 use std::mem::MaybeUninit;
 use std::os::fd::{AsFd, BorrowedFd, OwnedFd};
-use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
 use std::time::Duration;
 
 const BELL: u64 = 0;
@@ -93,23 +93,32 @@ impl PortWake {
             },
             it_value: Timespec::try_from(within).map_err(|_| io::ErrorKind::InvalidInput)?,
         };
-        timerfd_settime(&self.timer, TimerfdTimerFlags::empty(), &deadline)?;
-        self.timer_armed.store(true, Relaxed);
-        let on = EventFlags::IN | EventFlags::ONESHOT;
-        match epoll::modify(&self.epoll, port, EventData::new_u64(PORT), on) {
-            Ok(()) => {}
-            // Not watched yet: a port just (re)opened.
-            Err(Errno::NOENT) => epoll::add(&self.epoll, port, EventData::new_u64(PORT), on)?,
-            Err(e) => return Err(e.into()),
+        // Each flag is raised before its descriptor is armed: armed, it can wake the
+        // thread at once (a reply already there, a deadline already past), whose wake
+        // lowers the flag — raised after, the flag would stay up for a wake that came.
+        self.timer_armed.store(true, SeqCst);
+        if let Err(e) = timerfd_settime(&self.timer, TimerfdTimerFlags::empty(), &deadline) {
+            self.timer_armed.store(false, SeqCst);
+            return Err(e.into());
         }
-        self.port_armed.store(true, Relaxed);
+        self.port_armed.store(true, SeqCst);
+        let on = EventFlags::IN | EventFlags::ONESHOT;
+        let armed = match epoll::modify(&self.epoll, port, EventData::new_u64(PORT), on) {
+            // Not watched yet: a port just (re)opened.
+            Err(Errno::NOENT) => epoll::add(&self.epoll, port, EventData::new_u64(PORT), on),
+            other => other,
+        };
+        if let Err(e) = armed {
+            self.port_armed.store(false, SeqCst);
+            return Err(e.into());
+        }
         Ok(())
     }
 
     /// The armed transaction is over: what did not wake the thread is disarmed, so
     /// neither a later status reply nor a past deadline wakes it for nothing.
     pub(crate) fn disarm(&self, port: Option<BorrowedFd<'_>>) {
-        if self.timer_armed.swap(false, Relaxed) {
+        if self.timer_armed.swap(false, SeqCst) {
             let off = Itimerspec {
                 it_interval: Timespec {
                     tv_sec: 0,
@@ -122,7 +131,7 @@ impl PortWake {
             };
             let _ = timerfd_settime(&self.timer, TimerfdTimerFlags::empty(), &off);
         }
-        if self.port_armed.swap(false, Relaxed) {
+        if self.port_armed.swap(false, SeqCst) {
             if let Some(port) = port {
                 // Still watched, reporting nothing (a hang-up at most, once).
                 let _ = epoll::modify(
@@ -138,7 +147,7 @@ impl PortWake {
     /// The port is armed and has not woken the thread yet.
     #[cfg(test)]
     pub(crate) fn port_armed(&self) -> bool {
-        self.port_armed.load(Relaxed)
+        self.port_armed.load(SeqCst)
     }
 
     /// Sleep until rung, the armed port has input, the reply's deadline passes, or
@@ -172,10 +181,10 @@ impl PortWake {
         }
         if woken.timer {
             let _ = rustix::io::read(&self.timer, &mut count);
-            self.timer_armed.store(false, Relaxed);
+            self.timer_armed.store(false, SeqCst);
         }
         if woken.port {
-            self.port_armed.store(false, Relaxed);
+            self.port_armed.store(false, SeqCst);
         }
         woken
     }
