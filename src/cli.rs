@@ -263,8 +263,16 @@ pub struct CtlArgs {
     #[command(subcommand)]
     pub what: CtlCmd,
     /// The running adrive's control socket (default: as `adrive --socket`'s).
-    #[arg(long, value_name = "PATH", global = true)]
+    #[arg(long, value_name = "PATH", global = true, conflicts_with = "vehicle")]
     pub socket: Option<PathBuf>,
+    /// Ask the vehicle ID of the fleet instead, over Zenoh (status only, so far; built
+    /// with the cargo feature `fleet`).
+    #[arg(long, value_name = "ID", global = true)]
+    pub vehicle: Option<String>,
+    /// With --vehicle: the fleet's Zenoh router to connect to (repeatable, or
+    /// comma-separated).
+    #[arg(long, value_name = "ENDPOINT", global = true, value_delimiter = ',', default_value = config::fleet::DEFAULT_CONNECT)]
+    pub connect: Vec<String>,
 }
 
 #[derive(Subcommand, Debug, Clone)]
@@ -568,7 +576,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // configuration error (status 2), not a half-started vehicle.
     let net = Net::start(gate.clone(), vehicle.config().network.clone(), auth)?;
     let ros2 = ros2::start(args.ros2, &gate, &net, vehicle.config())?;
-    member.publish(&gate)?;
+    member.publish(&gate, &net)?;
     let sources = crate::controls::Sources {
         logs: Some(ring),
         net: Some(net.status().clone()),
@@ -1262,7 +1270,11 @@ pub fn ctl(args: CtlArgs) -> anyhow::Result<i32> {
         CtlCmd::Release => (Op::Release, false),
     };
     let what = format!("{op:?}").to_lowercase();
-    let answer = match once(&path, op) {
+    let asked = match &args.vehicle {
+        Some(id) => fleet::once(&args.connect, id, op),
+        None => once(&path, op),
+    };
+    let answer = match asked {
         Ok(a) => a,
         Err(e) => {
             tell(io::stderr(), format_args!("adrive: {e}\n"));
@@ -1381,6 +1393,9 @@ mod fleet {
     use super::FleetArgs;
     use crate::config::FleetConfig;
     use crate::engine::Gate;
+    use crate::net::Net;
+    use crate::socket::client::ClientError;
+    use crate::socket::proto::{Answer, Op};
     use std::sync::Arc;
     use std::time::Duration;
 
@@ -1413,12 +1428,12 @@ mod fleet {
 
     impl Running {
         /// Publish the vehicle's state, once it runs.
-        pub(crate) fn publish(&mut self, gate: &Arc<Gate>) -> anyhow::Result<()> {
+        pub(crate) fn publish(&mut self, gate: &Arc<Gate>, net: &Net) -> anyhow::Result<()> {
             #[cfg(feature = "fleet")]
             if let Some(m) = &mut self.0 {
-                m.publish(gate.clone())?;
+                m.publish(gate.clone(), net.status().clone())?;
             }
-            let _ = gate;
+            let _ = (gate, net);
             Ok(())
         }
     }
@@ -1455,6 +1470,27 @@ mod fleet {
     #[cfg(not(feature = "fleet"))]
     pub(crate) fn list(_: &FleetArgs) -> anyhow::Result<i32> {
         anyhow::bail!("fleet: {NOT_BUILT}")
+    }
+
+    /// `adrive ctl --vehicle ID`: one operation to a vehicle of the fleet.
+    #[cfg(feature = "fleet")]
+    pub(crate) fn once(connect: &[String], id: &str, op: Op) -> Result<Answer, ClientError> {
+        for e in connect {
+            crate::config::ros2::check_endpoint(e)
+                .map_err(|why| ClientError::Refused(format!("--connect: {why}")))?;
+        }
+        if !crate::config::fleet::valid_id(id) {
+            return Err(ClientError::Refused(format!(
+                "--vehicle: expected {}, got {id:?}",
+                crate::config::fleet::ID_FORM
+            )));
+        }
+        crate::fleet::ctl::once(connect, id, op)
+    }
+
+    #[cfg(not(feature = "fleet"))]
+    pub(crate) fn once(_: &[String], _: &str, _: Op) -> Result<Answer, ClientError> {
+        Err(ClientError::Refused(format!("--vehicle: {NOT_BUILT}")))
     }
 }
 

@@ -2,7 +2,8 @@
 //! itself (the zenoh crate in router mode, on a loopback port it picks, multicast
 //! scouting off, so it never meets another network), three `adrive --sim --headless
 //! --fleet` vehicles join it, and `adrive fleet` lists them with their states, shows
-//! one gone when it is killed, and a fourth vehicle under a taken id is refused.
+//! one gone when it is killed, and a fourth vehicle under a taken id is refused;
+//! `adrive ctl --vehicle ID status` reaches that vehicle alone, and nothing else.
 #![cfg(feature = "fleet")]
 
 mod common;
@@ -66,8 +67,17 @@ fn fleet(endpoint: &str, wait: &str) -> Vec<Value> {
         .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)))
 }
 
+/// `adrive ctl --vehicle ID ARGS` through `endpoint`.
+fn ctl(endpoint: &str, id: &str, args: &[&str]) -> std::process::Output {
+    output_within(
+        Process::new(BIN)
+            .args(["ctl", "--vehicle", id, "--connect", endpoint])
+            .args(args),
+    )
+}
+
 #[test]
-fn the_fleet_lists_every_vehicle_with_its_state_and_one_killed_goes() {
+fn the_fleet_lists_every_vehicle_ctl_asks_one_alone_and_one_killed_goes() {
     let (_router, endpoint) = router();
     let mut cars: Vec<(String, Adrive)> = ["car1", "car2", "car3"]
         .iter()
@@ -91,6 +101,40 @@ fn the_fleet_lists_every_vehicle_with_its_state_and_one_killed_goes() {
         let age = v["state_age_ms"].as_f64().unwrap();
         assert!((0.0..3000.0).contains(&age), "{v:#}");
     }
+
+    // One vehicle's whole status, asked by its id: its own, no other's.
+    for (id, car) in [&cars[0], &cars[2]] {
+        let out = ctl(&endpoint, id, &["status", "--json"]);
+        assert!(out.status.success(), "{out:?}");
+        let snap: Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(snap["vehicle"], "Alice");
+        assert_eq!(
+            snap["devices"].as_array().map(Vec::len),
+            Some(6),
+            "{snap:#}"
+        );
+        assert_eq!(
+            snap["net"]["listen"].as_str(),
+            Some(car.listen.as_str()),
+            "{id}"
+        );
+    }
+    // Watching only: any other operation is refused, with the reason, and changes
+    // nothing.
+    let out = ctl(&endpoint, "car3", &["engage"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("engage: over the fleet a vehicle answers status only"),
+        "{err}"
+    );
+    let out = ctl(&endpoint, "car9", &["status"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("no vehicle car9 on the fleet's network"),
+        "{err}"
+    );
 
     // Watching: the three come, then the one killed goes, and only it.
     let mut watch = Process::new(BIN)
@@ -136,6 +180,7 @@ fn the_fleet_lists_every_vehicle_with_its_state_and_one_killed_goes() {
     let list = fleet(&endpoint, "2s");
     let ids: Vec<&str> = list.iter().map(|v| v["id"].as_str().unwrap()).collect();
     assert_eq!(ids, ["car1", "car3"], "{list:#?}");
+    assert_eq!(list[1]["state"]["gate"]["engaged"], false, "{list:#?}");
 }
 
 #[test]

@@ -19,6 +19,11 @@ pub fn state(id: &str) -> String {
     format!("{ROOT}/{id}/state")
 }
 
+/// Where vehicle `id` answers the control socket's operations (watching only, so far).
+pub fn ctl(id: &str) -> String {
+    format!("{ROOT}/{id}/ctl")
+}
+
 /// The vehicle a token's key names (`adrive/car1` → `car1`).
 pub fn id_of_token(key: &str) -> Option<&str> {
     let id = key.strip_prefix(ROOT)?.strip_prefix('/')?;
@@ -41,7 +46,8 @@ mod tests {
         assert_eq!(id_of_token("adrive/car1/state"), None);
         assert_eq!(id_of_token("adrive/"), None);
         assert_eq!(id_of_token("adrivex/car1"), None);
-        assert_eq!(id_of_state("adrive/car1/ctl"), None);
+        assert_eq!(id_of_state(&ctl("car1")), None);
+        assert_eq!(id_of_token(&ctl("car1")), None);
         assert_eq!(id_of_state("adrive/a/b/state"), None);
     }
 }

@@ -9,10 +9,12 @@
 //!   when a change of it is worth telling at once (pure);
 //! - [`member`]: a running adrive in the fleet (`--fleet`, `[fleet]`): its session,
 //!   its token and the thread that publishes its state;
-//! - [`list`]: `adrive fleet`, every vehicle visible, once or as it changes.
+//! - [`list`]: `adrive fleet`, every vehicle visible, once or as it changes;
+//! - [`ctl`]: `adrive ctl --vehicle ID`, one operation to one vehicle.
 //!
 //! [`Snapshot::head`]: crate::snapshot::Snapshot::head
 
+pub(crate) mod ctl;
 pub mod keys;
 pub(crate) mod list;
 pub mod member;
