@@ -1,6 +1,6 @@
 //! A fleet on one Zenoh network, on the real binary: the test runs a Zenoh router
-//! itself (the zenoh crate in router mode, on a loopback port it picks, multicast
-//! scouting off, so it never meets another network), three `adrive --sim --headless
+//! itself (`common::zenoh_router`: on a loopback port it picks, multicast scouting
+//! off, so it never meets another network), three `adrive --sim --headless
 //! --fleet` vehicles join it, and `adrive fleet` lists them with their states, shows
 //! one gone when it is killed, and a fourth vehicle under a taken id is refused;
 //! `adrive ctl --vehicle ID status` reaches that vehicle alone, and nothing else.
@@ -12,27 +12,6 @@ use common::headless::{Adrive, BIN};
 use common::{lines, output_within, signal, until, Reaped};
 use serde_json::Value;
 use std::process::{Command as Process, Stdio};
-use zenoh::Wait;
-
-/// A Zenoh router on loopback, on a port free right now; its endpoint.
-fn router() -> (zenoh::Session, String) {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    let mut c = zenoh::Config::default();
-    c.insert_json5("mode", "\"router\"").unwrap();
-    c.insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
-        .unwrap();
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .unwrap();
-    let session = zenoh::open(c)
-        .wait()
-        .unwrap_or_else(|e| panic!("a Zenoh router on {endpoint}: {e}"));
-    (session, endpoint)
-}
 
 /// A simulated Alice in the fleet at `endpoint` as `id`.
 fn vehicle(id: &str, endpoint: &str) -> Adrive {
@@ -78,7 +57,7 @@ fn ctl(endpoint: &str, id: &str, args: &[&str]) -> std::process::Output {
 
 #[test]
 fn the_fleet_lists_every_vehicle_ctl_asks_one_alone_and_one_killed_goes() {
-    let (_router, endpoint) = router();
+    let (_router, endpoint) = common::zenoh_router::start();
     let mut cars: Vec<(String, Adrive)> = ["car1", "car2", "car3"]
         .iter()
         .map(|id| (id.to_string(), vehicle(id, &endpoint)))
@@ -185,7 +164,7 @@ fn the_fleet_lists_every_vehicle_ctl_asks_one_alone_and_one_killed_goes() {
 
 #[test]
 fn a_vehicle_under_a_taken_id_is_refused_before_it_starts() {
-    let (_router, endpoint) = router();
+    let (_router, endpoint) = common::zenoh_router::start();
     let _car1 = vehicle("car1", &endpoint);
     let dir = common::tempdir("fleet-taken");
     let out = output_within(
