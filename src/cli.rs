@@ -1,5 +1,5 @@
 //! The command line: `adrive [run]` (the console), `adrive sim`, `adrive send`,
-//! `adrive watch`, `adrive replay`, `adrive record info`, `adrive export`, and
+//! `adrive watch`, `adrive fleet`, `adrive replay`, `adrive record info`, `adrive export`, and
 //! `adrive completions` / `adrive manpage`, generated from the same definitions.
 //! Parsing is clap's; each subcommand is one function here that wires the parts
 //! together.
@@ -53,6 +53,10 @@ pub enum Cmd {
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),
+    /// Every vehicle on the fleet's Zenoh network: there or gone, engaged or not and
+    /// why, who commands, its faults, how old its last state is (built with the cargo
+    /// feature `fleet`).
+    Fleet(FleetArgs),
     /// The console on a running adrive (a service, or another console's session), over
     /// its control socket: watching until it engages or takes command.
     ///
@@ -166,6 +170,17 @@ pub struct RunArgs {
     /// file's `[ros2]`; built with the cargo feature `ros2`).
     #[arg(long)]
     pub ros2: bool,
+    /// Join a fleet over Zenoh as ID (default: the vehicle file's `[fleet]` id, else
+    /// the vehicle's name in lower case): announce the vehicle and publish its state
+    /// under `adrive/ID` (built with the cargo feature `fleet`). A `[fleet]` section
+    /// in the vehicle file joins without this flag.
+    #[arg(long, value_name = "ID", num_args = 0..=1, default_missing_value = "")]
+    pub fleet: Option<String>,
+    /// The fleet's Zenoh router (or a peer) to connect to, instead of the vehicle
+    /// file's `[fleet]` connect (repeatable, or comma-separated; default
+    /// tcp/localhost:7447).
+    #[arg(long, value_name = "ENDPOINT", value_delimiter = ',')]
+    pub fleet_connect: Vec<String>,
     /// Serve a read-only live view to Foxglove or Lichtblick (Foxglove WebSocket
     /// protocol) on ADDR [default: 127.0.0.1:8765; port 0: any free port, logged].
     #[arg(long, value_name = "ADDR", num_args = 0..=1, default_missing_value = crate::foxglove::DEFAULT_ADDR, value_parser = config::network::parse_serve)]
@@ -248,8 +263,16 @@ pub struct CtlArgs {
     #[command(subcommand)]
     pub what: CtlCmd,
     /// The running adrive's control socket (default: as `adrive --socket`'s).
-    #[arg(long, value_name = "PATH", global = true)]
+    #[arg(long, value_name = "PATH", global = true, conflicts_with = "vehicle")]
     pub socket: Option<PathBuf>,
+    /// Ask the vehicle ID of the fleet instead, over Zenoh (status only, so far; built
+    /// with the cargo feature `fleet`).
+    #[arg(long, value_name = "ID", global = true)]
+    pub vehicle: Option<String>,
+    /// With --vehicle: the fleet's Zenoh router to connect to (repeatable, or
+    /// comma-separated).
+    #[arg(long, value_name = "ENDPOINT", global = true, value_delimiter = ',', default_value = config::fleet::DEFAULT_CONNECT)]
+    pub connect: Vec<String>,
 }
 
 #[derive(Subcommand, Debug, Clone)]
@@ -373,6 +396,24 @@ pub struct WatchArgs {
 }
 
 #[derive(Args, Debug, Clone)]
+pub struct FleetArgs {
+    /// Print JSON: an array of vehicles (with --watch: one object per line).
+    #[arg(long)]
+    pub json: bool,
+    /// Print a line each time a vehicle comes, changes (engaged, why, who commands,
+    /// faults) or goes, until interrupted.
+    #[arg(long)]
+    pub watch: bool,
+    /// The fleet's Zenoh router (or a peer) to connect to (repeatable, or
+    /// comma-separated).
+    #[arg(long, value_name = "ENDPOINT", value_delimiter = ',', default_value = config::fleet::DEFAULT_CONNECT)]
+    pub connect: Vec<String>,
+    /// How long to listen for vehicles before the list (without --watch).
+    #[arg(long, value_name = "DURATION", default_value = "1s", value_parser = config::parse_duration)]
+    pub wait: Duration,
+}
+
+#[derive(Args, Debug, Clone)]
 pub struct SimArgs {
     /// Vehicle TOML whose devices to simulate (default: the built-in Alice).
     #[arg(long, value_name = "FILE")]
@@ -403,6 +444,7 @@ pub fn main() -> i32 {
         }
         Some(Cmd::Send(args)) => send(args),
         Some(Cmd::Watch(args)) => watch(args),
+        Some(Cmd::Fleet(args)) => fleet::list(&args),
         Some(Cmd::Attach(args)) => attach(args),
         Some(Cmd::Ctl(args)) => ctl(args),
         Some(Cmd::Characterize(args)) => characterize(args),
@@ -471,6 +513,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         config.network.broadcast_to = args.broadcast_to.clone();
     }
     let auth = network_key(&config)?;
+    let joining = config::FleetConfig::joining(
+        config.fleet.as_ref(),
+        args.fleet.as_deref(),
+        &args.fleet_connect,
+    )
+    .map_err(anyhow::Error::msg)?;
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
     // A bad keymap, or no terminal for the console, stops here, before anything starts.
     let keymap = if args.headless {
@@ -514,6 +562,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // A live control socket (another adrive) stops here, before anything is driven or
     // simulated, named; a stale one is replaced.
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
+    // So does a fleet id another vehicle on the network has.
+    let mut member = fleet::join(joining.as_ref(), &config.vehicle.name)?;
     let (sim, vehicle, recorder) = bring_up(args.sim, config, opened, tap, recording)?;
     let live = match args.foxglove {
         Some(addr) => Some(crate::foxglove::Foxglove::start(&vehicle, addr)?),
@@ -526,6 +576,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // configuration error (status 2), not a half-started vehicle.
     let net = Net::start(gate.clone(), vehicle.config().network.clone(), auth)?;
     let ros2 = ros2::start(args.ros2, &gate, &net, vehicle.config())?;
+    member.publish(&gate, &net)?;
     let sources = crate::controls::Sources {
         logs: Some(ring),
         net: Some(net.status().clone()),
@@ -596,6 +647,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let mut stuck = supervisor.shutdown(Duration::from_millis(500));
     stuck.extend(net.shutdown(Duration::from_millis(500)));
     stuck.extend(ros2.shutdown(Duration::from_millis(500)));
+    stuck.extend(member.shutdown(Duration::from_millis(500)));
     stuck.extend(control.shutdown(Duration::from_millis(500)));
     stuck.extend(monitor.shutdown(Duration::from_millis(200)));
     let (safe, engine_stuck) = engine.shutdown(Duration::from_secs(2));
@@ -1218,7 +1270,11 @@ pub fn ctl(args: CtlArgs) -> anyhow::Result<i32> {
         CtlCmd::Release => (Op::Release, false),
     };
     let what = format!("{op:?}").to_lowercase();
-    let answer = match once(&path, op) {
+    let asked = match &args.vehicle {
+        Some(id) => fleet::once(&args.connect, id, op),
+        None => once(&path, op),
+    };
+    let answer = match asked {
         Ok(a) => a,
         Err(e) => {
             tell(io::stderr(), format_args!("adrive: {e}\n"));
@@ -1329,6 +1385,112 @@ mod ros2 {
     #[cfg(not(feature = "ros2"))]
     pub(crate) fn watch(_: &WatchArgs, _: &AtomicBool) -> anyhow::Result<i32> {
         anyhow::bail!(NOT_BUILT)
+    }
+}
+
+/// The fleet when built in, and what `--fleet` and `adrive fleet` say when it is not.
+mod fleet {
+    use super::FleetArgs;
+    use crate::config::FleetConfig;
+    use crate::engine::Gate;
+    use crate::net::Net;
+    use crate::socket::client::ClientError;
+    use crate::socket::proto::{Answer, Op};
+    use std::sync::Arc;
+    use std::time::Duration;
+
+    #[cfg(not(feature = "fleet"))]
+    const NOT_BUILT: &str = "this adrive was built without the fleet; build it with \
+                             `cargo build --release --features fleet`";
+
+    /// The running member, if the vehicle joined a fleet.
+    #[cfg(feature = "fleet")]
+    pub(crate) struct Running(Option<crate::fleet::Member>);
+    #[cfg(not(feature = "fleet"))]
+    pub(crate) struct Running;
+
+    /// Join the fleet `c` as the vehicle named `vehicle`, if it joins one.
+    #[cfg(feature = "fleet")]
+    pub(crate) fn join(c: Option<&FleetConfig>, vehicle: &str) -> anyhow::Result<Running> {
+        match c {
+            None => Ok(Running(None)),
+            Some(c) => Ok(Running(Some(crate::fleet::Member::join(c, vehicle)?))),
+        }
+    }
+
+    #[cfg(not(feature = "fleet"))]
+    pub(crate) fn join(c: Option<&FleetConfig>, _: &str) -> anyhow::Result<Running> {
+        if c.is_some() {
+            anyhow::bail!("--fleet or [fleet]: {NOT_BUILT}");
+        }
+        Ok(Running)
+    }
+
+    impl Running {
+        /// Publish the vehicle's state, once it runs.
+        pub(crate) fn publish(&mut self, gate: &Arc<Gate>, net: &Net) -> anyhow::Result<()> {
+            #[cfg(feature = "fleet")]
+            if let Some(m) = &mut self.0 {
+                m.publish(gate.clone(), net.status().clone())?;
+            }
+            let _ = (gate, net);
+            Ok(())
+        }
+    }
+
+    impl crate::threads::Shutdown for Running {
+        /// Leave the fleet; the names of the threads that did not stop.
+        fn shutdown(self, deadline: Duration) -> Vec<String> {
+            #[cfg(feature = "fleet")]
+            if let Some(m) = self.0 {
+                return m.shutdown(deadline);
+            }
+            let _ = deadline;
+            Vec::new()
+        }
+    }
+
+    /// `adrive fleet`.
+    #[cfg(feature = "fleet")]
+    pub(crate) fn list(args: &FleetArgs) -> anyhow::Result<i32> {
+        for e in &args.connect {
+            crate::config::ros2::check_endpoint(e)
+                .map_err(|why| anyhow::anyhow!("--connect: {why}"))?;
+        }
+        let opts = crate::fleet::list::Options {
+            connect: args.connect.clone(),
+            wait: args.wait,
+            watch: args.watch,
+            json: args.json,
+        };
+        let stop = super::stop_flag()?;
+        crate::fleet::list::run(&opts, &stop)
+    }
+
+    #[cfg(not(feature = "fleet"))]
+    pub(crate) fn list(_: &FleetArgs) -> anyhow::Result<i32> {
+        anyhow::bail!("fleet: {NOT_BUILT}")
+    }
+
+    /// `adrive ctl --vehicle ID`: one operation to a vehicle of the fleet.
+    #[cfg(feature = "fleet")]
+    pub(crate) fn once(connect: &[String], id: &str, op: Op) -> Result<Answer, ClientError> {
+        for e in connect {
+            crate::config::ros2::check_endpoint(e)
+                .map_err(|why| ClientError::Refused(format!("--connect: {why}")))?;
+        }
+        if !crate::config::fleet::valid_id(id) {
+            return Err(ClientError::Refused(format!(
+                "--vehicle: expected {}, got {id:?}",
+                crate::config::fleet::ID_FORM
+            )));
+        }
+        crate::fleet::ctl::once(connect, id, op)
+    }
+
+    #[cfg(not(feature = "fleet"))]
+    pub(crate) fn once(_: &[String], _: &str, _: Op) -> Result<Answer, ClientError> {
+        Err(ClientError::Refused(format!("--vehicle: {NOT_BUILT}")))
     }
 }
 

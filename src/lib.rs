@@ -9,7 +9,8 @@
 //! state; [`safety`] holds every rule and the engage gate; [`engine`] runs two threads
 //! per actuator; [`supervisor`] names faults and recovers; [`net`] takes commands and
 //! broadcasts state over UDP; `ros2` (cargo feature `ros2`) speaks ROS 2 and
-//! Autoware over Zenoh through the same intake; [`socket`] lets consoles attach to a
+//! Autoware over Zenoh through the same intake; `fleet` (cargo feature `fleet`) puts
+//! many vehicles on one Zenoh network, each watchable from anywhere on it; [`socket`] lets consoles attach to a
 //! running engine and operators command it once; [`sim`] emulates the devices on real
 //! pseudo-terminals; [`record`] keeps a run in an MCAP file, and [`foxglove`] serves it
 //! live to Foxglove and Lichtblick; [`console`] is the operator's screen (and replays
@@ -29,6 +30,8 @@ pub mod controls;
 pub mod driver;
 pub mod engine;
 pub mod exit;
+#[cfg(feature = "fleet")]
+pub mod fleet;
 pub mod logging;
 pub mod net;
 pub mod port;

@@ -82,14 +82,11 @@ impl Snapshot {
         }
         // The devices in order, as many to a part as fit beside the head.
         let head = Snapshot {
-            devices: Vec::new(),
-            net: None,
-            buses: Vec::new(),
             part: Some(Part {
                 index: u16::MAX,
                 count: u16::MAX,
             }),
-            ..self.clone()
+            ..self.head()
         };
         let room = max.saturating_sub(serde_json::to_vec(&head)?.len() + 1);
         let net = serde_json::to_vec(&self.net)?.len() + serde_json::to_vec(&self.buses)?.len();
@@ -126,6 +123,18 @@ impl Snapshot {
                 })
             })
             .collect()
+    }
+
+    /// The snapshot without its devices, its network figures and its buses: the gate,
+    /// the supervisor and the rejections, which every part of a split broadcast carries
+    /// ([`Snapshot::datagrams`]) and a fleet member publishes as its state.
+    pub fn head(&self) -> Snapshot {
+        Snapshot {
+            devices: Vec::new(),
+            net: None,
+            buses: Vec::new(),
+            ..self.clone()
+        }
     }
 
     /// Every faulty device with its last error, `gas: no reply within 100ms`.

@@ -46,6 +46,10 @@ enum How {
     UntilStopped(Vec<String>, &'static str, std::net::UdpSocket),
     /// It is a console: without a terminal it is refused before anything starts.
     NeedsTerminal(Vec<String>),
+    /// It is not built in (a cargo feature): refused, saying how to build it.
+    NotBuilt(Vec<String>),
+    /// Its case needs more around it than the table has: added in the test.
+    Elsewhere,
 }
 
 /// What the walk needs around it: a headless adrive to talk to, and where to put files.
@@ -171,6 +175,9 @@ impl Around {
                 ),
                 ["watch"] => How::Prints(s(&["watch", "--from", &self.broadcast]), First::Nothing),
                 ["attach"] => How::NeedsTerminal(s(&["attach", "--socket", &socket])),
+                // With the fleet built in, it needs a router: the test runs one.
+                ["fleet"] if cfg!(feature = "fleet") => How::Elsewhere,
+                ["fleet"] => How::NotBuilt(s(&["fleet"])),
                 ["ctl", what] => How::Prints(
                     s(&["ctl", what, "--socket", &socket]),
                     match what {
@@ -261,6 +268,18 @@ fn every_subcommand_ends_quietly_with_status_0_on_a_closed_standard_output() {
             First::Nothing,
         ));
     }
+    // `adrive fleet` lists what a router it reaches knows (nothing, here).
+    #[cfg(feature = "fleet")]
+    let _router = {
+        let (router, endpoint) = common::zenoh_router::start();
+        cases.push(How::Prints(
+            ["fleet", "--connect", &endpoint, "--wait", "200ms"]
+                .map(String::from)
+                .to_vec(),
+            First::Nothing,
+        ));
+        router
+    };
     for how in cases {
         let (args, status, said) = match how {
             How::Prints(args, first) => {
@@ -294,6 +313,20 @@ fn every_subcommand_ends_quietly_with_status_0_on_a_closed_standard_output() {
                 assert!(!err.contains("panicked"), "{args:?}: {err}");
                 continue;
             }
+            How::NotBuilt(args) => {
+                let mut child = closed(&args, tmp.path());
+                let err = lines(child.stderr.take().unwrap());
+                let status = wait_exit(&mut child);
+                let err = err.iter().collect::<Vec<_>>().join("\n");
+                assert_eq!(status, Some(2), "{args:?}: {err}");
+                assert!(
+                    err.contains("cargo build --release --features"),
+                    "{args:?}: {err}"
+                );
+                assert!(!err.contains("panicked"), "{args:?}: {err}");
+                continue;
+            }
+            How::Elsewhere => continue,
         };
         assert_eq!(status, Some(0), "{args:?}: {said}");
         assert!(

@@ -5,7 +5,7 @@
 //! Above the core, the front ends stand in layers of peers: the simulator, the
 //! network and the bench's characterization; the control interface the consoles share, the recorder, ROS 2, headless;
 //! the consoles (embedded and attached: `console`, `socket`) and the live view; the
-//! command line. A front end imports the core and the layers below its own, never a
+//! fleet; the command line. A front end imports the core and the layers below its own, never a
 //! peer: the attached console's client and server reach the vehicle through
 //! `controls`, as the embedded console does, not through the console. Doc links are
 //! not imports. A module's tests (its `#[cfg(test)]` module, or a file only tests
@@ -40,6 +40,7 @@ const FRONT: &[&[&str]] = &[
     &["sim", "net", "characterize"],
     &["controls", "record", "ros2", "headless"],
     &["console", "socket", "foxglove"],
+    &["fleet"],
     &["cli"],
 ];
 

@@ -15,7 +15,7 @@ use toml::de::{DeString, DeTable, DeValue};
 use toml::Spanned;
 
 /// Top-level tables of a vehicle file.
-const TABLES: [&str; 9] = [
+const TABLES: [&str; 10] = [
     "vehicle",
     "bus",
     "network",
@@ -24,6 +24,7 @@ const TABLES: [&str; 9] = [
     "record",
     "ros2",
     "teleop",
+    "fleet",
     "device",
 ];
 /// Tables inside a `[[device]]` (headers, or keys whose value may be a table).
@@ -31,7 +32,7 @@ const DEVICE_TABLES: [&str; 7] = [
     "sim", "modbus", "line", "can", "response", "aliases", "readings",
 ];
 /// What the headers of a vehicle file are, for messages.
-const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [console], [supervisor], [record], [ros2], [teleop], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
+const HEADERS: &str = "[vehicle] (with [vehicle.roles], [vehicle.gear]), [network], [console], [supervisor], [record], [ros2], [teleop], [fleet], [[bus]] (with [bus.sim]), [[device]] (with [device.sim], [device.modbus], [device.line], [device.can], [device.response])";
 
 /// The line of every key and table of a vehicle file, by path: `network.listen`,
 /// `device.steer` (its `[[device]]` header), `device.steer.sim.watchdog`. A device is
@@ -256,7 +257,8 @@ pub(crate) fn context(path: &str) -> String {
     match path.split('.').collect::<Vec<_>>()[..] {
         ["device", name, ..] => format!("{name}: "),
         ["bus", name, ..] => format!("bus {name}: "),
-        [section @ ("network" | "console" | "supervisor" | "record" | "ros2" | "teleop"), ..] => {
+        [section @ ("network" | "console" | "supervisor" | "record" | "ros2" | "teleop"
+        | "fleet"), ..] => {
             format!("[{section}] ")
         }
         _ => String::new(),
@@ -316,6 +318,7 @@ fn suggest(written: &str) -> Option<String> {
         "[record]",
         "[ros2]",
         "[teleop]",
+        "[fleet]",
         "[[device]]",
         "[[bus]]",
         "[bus.sim]",

@@ -11,6 +11,7 @@
 //! - [`limits`]: the sane range of every safety-relevant value, in one table;
 //! - [`record`]: `[record]`, recording every run into rolling files;
 //! - [`teleop`]: `[teleop]`, what hold-to-drive teleop commands while a key is held;
+//! - [`fleet`]: `[fleet]`, how the vehicle joins a fleet over Zenoh;
 //! - [`document`]: where each key sits in the file, so that a check made after typing
 //!   still names its line.
 
@@ -18,6 +19,7 @@ pub(crate) mod can;
 pub(crate) mod console;
 pub(crate) mod device;
 pub(crate) mod document;
+pub mod fleet;
 pub mod limits;
 pub mod network;
 pub(crate) mod placement;
@@ -32,6 +34,7 @@ pub(crate) mod teleop;
 pub use console::ConsoleConfig;
 pub use device::{DeviceConfig, DriverKind, PortRule, ReadingKind, ReadingSpec};
 use document::{Document, Lines};
+pub use fleet::FleetConfig;
 pub use limits::{fmt_duration, Violation};
 pub use network::NetworkConfig;
 pub use record::RecordConfig;
@@ -283,6 +286,8 @@ pub struct VehicleConfig {
     pub ros2: Ros2Config,
     /// `[teleop]`: what hold-to-drive teleop commands while a key is held.
     pub teleop: TeleopConfig,
+    /// `[fleet]`: the vehicle joins a fleet over Zenoh (none: only with `--fleet`).
+    pub fleet: Option<FleetConfig>,
     /// Where it was loaded from (for messages).
     pub source: String,
     /// The line of every key in that file, for errors found after loading.
@@ -410,6 +415,8 @@ struct Raw {
     ros2: Option<Ros2Config>,
     #[serde(default)]
     teleop: TeleopConfig,
+    #[serde(default)]
+    fleet: Option<FleetConfig>,
 }
 
 /// Load a vehicle from a file.
@@ -501,6 +508,9 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
     raw.teleop
         .check()
         .map_err(|v| refuse(path, &lines, "teleop", v))?;
+    if let Some(f) = &raw.fleet {
+        f.check().map_err(|v| refuse(path, &lines, "fleet", v))?;
+    }
     Ok(VehicleConfig {
         vehicle: VehicleSettings { name, placement },
         roles,
@@ -512,6 +522,7 @@ pub fn parse(text: &str, path: &str) -> Result<VehicleConfig, ConfigError> {
         record: raw.record,
         ros2,
         teleop: raw.teleop,
+        fleet: raw.fleet,
         source: path.to_string(),
         lines,
     })

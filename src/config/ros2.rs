@@ -146,24 +146,8 @@ impl Ros2Config {
                 ),
             );
         }
-        if self.mode == Mode::Client && self.connect.is_empty() {
-            return bad(
-                "connect",
-                "client mode needs a router to connect to (\"tcp/localhost:7447\")".into(),
-            );
-        }
-        for (key, e) in self
-            .connect
-            .iter()
-            .map(|e| ("connect", e))
-            .chain(self.listen.iter().map(|e| ("listen", e)))
-        {
-            if !e.contains('/') {
-                return bad(
-                    key,
-                    format!("expected a Zenoh endpoint such as \"tcp/10.0.0.2:7447\", got {e:?}"),
-                );
-            }
+        if let Err((key, why)) = check_session(self.mode, &self.connect, &self.listen) {
+            return bad(key, why);
         }
         let bound = [
             ("turn_indicators", &self.turn_indicators, &TURN_STATES[..]),
@@ -195,6 +179,39 @@ impl Ros2Config {
             }
         }
         Ok(())
+    }
+}
+
+/// A Zenoh session's `mode`, `connect` and `listen` (`[ros2]`'s and `[fleet]`'s alike);
+/// the key at fault and why.
+pub(crate) fn check_session(
+    mode: Mode,
+    connect: &[String],
+    listen: &[String],
+) -> Result<(), (&'static str, String)> {
+    if mode == Mode::Client && connect.is_empty() {
+        return Err((
+            "connect",
+            "client mode needs a router to connect to (\"tcp/localhost:7447\")".into(),
+        ));
+    }
+    let endpoints = connect
+        .iter()
+        .map(|e| ("connect", e))
+        .chain(listen.iter().map(|e| ("listen", e)));
+    for (key, e) in endpoints {
+        check_endpoint(e).map_err(|why| (key, why))?;
+    }
+    Ok(())
+}
+
+/// A Zenoh endpoint, `proto/address` (`[ros2]`'s and `[fleet]`'s alike).
+pub(crate) fn check_endpoint(e: &str) -> Result<(), String> {
+    match e.split_once('/') {
+        Some((proto, addr)) if !proto.is_empty() && !addr.is_empty() => Ok(()),
+        _ => Err(format!(
+            "expected a Zenoh endpoint such as \"tcp/10.0.0.2:7447\", got {e:?}"
+        )),
     }
 }
 

@@ -459,6 +459,45 @@ fn a_bad_ros2_table_names_file_line_key_and_expected_form() {
 }
 
 #[test]
+fn a_bad_fleet_table_names_file_line_key_and_expected_form() {
+    let with = |table: &str| error(&format!("{GOOD}\n[fleet]\n{table}\n"));
+    // GOOD ends on line 11; `[fleet]` is line 13, its first key line 14.
+    let e = with("mode = \"client\"\nid = \"car/1\"");
+    assert_eq!(line(&e), 15, "{e}");
+    assert!(
+        e.starts_with("v.toml:15: [fleet] id: expected a fleet id such as \"car1\""),
+        "{e}"
+    );
+    let e = with("connect = [\"10.0.0.1:7447\"]");
+    assert_eq!(line(&e), 14, "{e}");
+    assert!(
+        e.contains("[fleet] connect: expected a Zenoh endpoint such as"),
+        "{e}"
+    );
+    let e = with("connect = []");
+    assert!(
+        e.contains("client mode needs a router to connect to"),
+        "{e}"
+    );
+    let e = with("key = \"k\"");
+    assert_eq!(line(&e), 14, "{e}");
+    assert!(e.contains("unknown field `key`"), "{e}");
+    let e = error(&format!("{GOOD}\n[flete]\nid = \"a\"\n"));
+    assert!(e.contains("did you mean [fleet]?"), "{e}");
+}
+
+#[test]
+fn a_fleet_section_joins_and_its_defaults_reach_a_router_on_this_host() {
+    let v = parse(GOOD, "v.toml").unwrap();
+    assert_eq!(v.fleet, None, "no [fleet]: the vehicle joins no fleet");
+    let v = parse(&format!("{GOOD}\n[fleet]\n"), "v.toml").unwrap();
+    let f = v.fleet.expect("[fleet] joins");
+    assert_eq!(f.id_for(&v.vehicle.name), "bench");
+    assert_eq!(f.connect, ["tcp/localhost:7447"]);
+    assert_eq!(f.mode, crate::config::ros2::Mode::Client);
+}
+
+#[test]
 fn ros2_defaults_are_rmw_zenohs_and_the_namespace_is_the_vehicles() {
     let v = parse(GOOD, "v.toml").unwrap();
     assert_eq!(v.ros2, Ros2Config::default());

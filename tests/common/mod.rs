@@ -6,6 +6,8 @@ pub mod headless;
 pub mod pty;
 pub mod simproc;
 pub mod terminal_player;
+#[cfg(feature = "fleet")]
+pub mod zenoh_router;
 
 use adrive::config::{self, VehicleConfig};
 use adrive::driver;

@@ -1,0 +1,25 @@
+//! A Zenoh router run by the test itself (the zenoh crate in router mode), on a
+//! loopback port free right now, multicast scouting off: the fleet's network, which
+//! never meets another one.
+
+use zenoh::Wait;
+
+/// The router's session (it routes while the session lives) and its endpoint.
+pub fn start() -> (zenoh::Session, String) {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut c = zenoh::Config::default();
+    c.insert_json5("mode", "\"router\"").unwrap();
+    c.insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
+        .unwrap();
+    c.insert_json5("scouting/multicast/enabled", "false")
+        .unwrap();
+    let session = zenoh::open(c)
+        .wait()
+        .unwrap_or_else(|e| panic!("a Zenoh router on {endpoint}: {e}"));
+    (session, endpoint)
+}
