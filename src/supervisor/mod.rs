@@ -968,6 +968,54 @@ mod tests {
         );
     }
 
+    /// A fault that persists keeps the time it was first seen — its own: the same
+    /// kind on the same device, not the same kind on another device, nor another kind
+    /// on the same device (the display's "for 3 s" and how long a fault has lasted).
+    #[test]
+    fn a_persisting_fault_keeps_its_own_since() {
+        let gate = testkit::gate(Instant::now());
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        // Nothing has answered: every device silent 2 s on.
+        let t0 = v.find("steer").unwrap().started();
+        let now = t0 + Duration::from_secs(2);
+        let snap = gate.snapshot_at(0, now);
+        let silent = FaultKind::Silent;
+        let was = |kind, device: &str, ago: u64| Fault {
+            kind,
+            device: Some(device.into()),
+            cause: String::new(),
+            since: now - Duration::from_millis(ago),
+        };
+        let previous = [
+            was(silent, "steer", 700),
+            was(silent, "gas", 500),
+            was(FaultKind::Override, "brake", 300),
+        ];
+        let faults = detect(
+            &snap,
+            v.config(),
+            &sup,
+            &mut Memory::new(t0),
+            &previous,
+            now,
+        );
+        let since = |device: &str| {
+            faults
+                .iter()
+                .find(|f| f.kind == silent && f.device.as_deref() == Some(device))
+                .unwrap_or_else(|| panic!("{device} silent: {faults:?}"))
+                .since
+        };
+        assert_eq!(now - since("steer"), Duration::from_millis(700));
+        assert_eq!(now - since("gas"), Duration::from_millis(500));
+        assert_eq!(
+            since("brake"),
+            now,
+            "another kind on the brake is not its silence"
+        );
+    }
+
     /// A kit's module may keep its override flag until it is enabled again, and
     /// adrive enables no module while disengaged: the flag, once the gate had latched
     /// the override, kept the supervisor naming it, so the operator could never clear
@@ -986,13 +1034,13 @@ mod tests {
         let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
         let mut mem = Memory::new(now);
-        let mut turn = |flag: bool| {
+        let mut turn_aged = |flag: bool, age_ms: f64| {
             let mut snap = gate.snapshot_at(0, now);
             let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
             if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == "override") {
                 *x = Some(Value::Flag(flag));
             }
-            d.status_age_ms = Some(5.0);
+            d.status_age_ms = Some(age_ms);
             let faults = detect(&snap, v.config(), &sup, &mut mem, &[], now);
             let named = faults
                 .iter()
@@ -1002,7 +1050,17 @@ mod tests {
             }
             named
         };
-        assert!(turn(true), "the flag raised: the driver's override");
+        // A flag is believed from a status no older than the module's bound (200 ms,
+        // and the 50 ms a reply may take), not from an older one.
+        assert!(
+            !turn_aged(true, 260.0),
+            "a flag from a status too old to trust"
+        );
+        assert!(
+            turn_aged(true, 245.0),
+            "the flag raised: the driver's override"
+        );
+        let mut turn = |flag: bool| turn_aged(flag, 5.0);
         assert!(!turn(true), "latched: the flag is a memory now");
         assert_eq!(gate.clear_overrides(), Ok(vec!["steer".to_string()]));
         assert!(!turn(true), "cleared, the module still keeps its flag");
