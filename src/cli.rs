@@ -195,8 +195,20 @@ pub struct RunArgs {
 #[derive(Args, Debug, Clone, Default)]
 pub struct AttachArgs {
     /// The running adrive's control socket (default: as `adrive --socket`'s).
-    #[arg(long, value_name = "PATH")]
+    #[arg(long, value_name = "PATH", conflicts_with = "vehicle")]
     pub socket: Option<PathBuf>,
+    /// Attach to the vehicle ID of the fleet instead, over Zenoh (built with the cargo
+    /// feature `fleet`): watching, and commanding with its key.
+    #[arg(long, value_name = "ID")]
+    pub vehicle: Option<String>,
+    /// With --vehicle: the fleet's Zenoh router to connect to (repeatable, or
+    /// comma-separated).
+    #[arg(long, value_name = "ENDPOINT", value_delimiter = ',', default_value = config::fleet::DEFAULT_CONNECT)]
+    pub connect: Vec<String>,
+    /// With --vehicle: the vehicle's key file (its `[network] key_file`), which lets
+    /// this console command it; without it, it watches.
+    #[arg(long, value_name = "FILE", requires = "vehicle")]
+    pub key: Option<PathBuf>,
     /// Keymap TOML merged over the built-in one (default: ~/.config/adrive/keymap.toml if present).
     #[arg(long, value_name = "FILE")]
     pub keymap: Option<PathBuf>,
@@ -265,14 +277,18 @@ pub struct CtlArgs {
     /// The running adrive's control socket (default: as `adrive --socket`'s).
     #[arg(long, value_name = "PATH", global = true, conflicts_with = "vehicle")]
     pub socket: Option<PathBuf>,
-    /// Ask the vehicle ID of the fleet instead, over Zenoh (status only, so far; built
-    /// with the cargo feature `fleet`).
+    /// Ask the vehicle ID of the fleet instead, over Zenoh (built with the cargo
+    /// feature `fleet`).
     #[arg(long, value_name = "ID", global = true)]
     pub vehicle: Option<String>,
     /// With --vehicle: the fleet's Zenoh router to connect to (repeatable, or
     /// comma-separated).
     #[arg(long, value_name = "ENDPOINT", global = true, value_delimiter = ',', default_value = config::fleet::DEFAULT_CONNECT)]
     pub connect: Vec<String>,
+    /// With --vehicle: the vehicle's key file (its `[network] key_file`), needed for
+    /// everything but the status.
+    #[arg(long, value_name = "FILE", global = true)]
+    pub key: Option<PathBuf>,
 }
 
 #[derive(Subcommand, Debug, Clone)]
@@ -519,6 +535,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         &args.fleet_connect,
     )
     .map_err(anyhow::Error::msg)?;
+    if joining.as_ref().is_some_and(|f| f.command) && auth.is_none() {
+        let v = config::Violation {
+            paths: vec!["command".into()],
+            message: "command: a vehicle commanded from the fleet needs its key, which a link \
+                      proves: set [network] key_file"
+                .into(),
+        };
+        return Err(config.refuse("fleet", v).into());
+    }
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
     // A bad keymap, or no terminal for the console, stops here, before anything starts.
     let keymap = if args.headless {
@@ -574,9 +599,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let exits = exit::install()?;
     // The command socket is bound before any device is driven: a busy port is a
     // configuration error (status 2), not a half-started vehicle.
+    let fleet_key = auth.clone();
     let net = Net::start(gate.clone(), vehicle.config().network.clone(), auth)?;
     let ros2 = ros2::start(args.ros2, &gate, &net, vehicle.config())?;
-    member.publish(&gate, &net)?;
+    member.publish(&gate)?;
     let sources = crate::controls::Sources {
         logs: Some(ring),
         net: Some(net.status().clone()),
@@ -584,6 +610,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     };
     let control = socket::Server::start(gate.clone(), sources.clone(), claimed)
         .map_err(anyhow::Error::msg)?;
+    member.serve(&control, fleet_key)?;
     let (panic_in, panic_after) = match args.inject_panic.as_deref() {
         None => ("", Duration::ZERO),
         Some(spec) => match spec.split_once(':') {
@@ -1230,19 +1257,28 @@ pub fn watch(args: WatchArgs) -> anyhow::Result<i32> {
 /// `adrive attach`: the console over a running adrive's control socket.
 pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
     let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
-    let path = args.socket.unwrap_or_else(socket::path::default_path);
+    let to: Arc<dyn socket::client::Dial> = match &args.vehicle {
+        Some(id) => match fleet::dialer(&args.connect, id, args.key.as_deref()) {
+            Ok(d) => d,
+            Err(e) => {
+                tell(io::stderr(), format_args!("adrive: {e}\n"));
+                return Ok(2);
+            }
+        },
+        None => Arc::new(args.socket.unwrap_or_else(socket::path::default_path)),
+    };
     if let Err(no_terminal) =
         console::terminal::check_standard_streams(console::terminal::ATTACH_WITHOUT)
     {
         // Nothing to attach to is the first thing to know; a terminal, the next.
-        if let Err(e) = socket::client::probe(&path) {
+        if let Err(e) = socket::client::probe(&*to) {
             tell(io::stderr(), format_args!("adrive: {e}\n"));
             return Ok(1);
         }
         return Err(anyhow::Error::msg(no_terminal));
     }
     let exits = exit::install()?;
-    let remote = match socket::client::Remote::attach(&path, |why| exit::request(Exit::Lost(why))) {
+    let remote = match socket::client::Remote::attach(to, |why| exit::request(Exit::Lost(why))) {
         Ok(r) => r,
         Err(e) => {
             tell(io::stderr(), format_args!("adrive: {e}\n"));
@@ -1270,8 +1306,19 @@ pub fn ctl(args: CtlArgs) -> anyhow::Result<i32> {
         CtlCmd::Release => (Op::Release, false),
     };
     let what = format!("{op:?}").to_lowercase();
+    if args.key.is_some() && args.vehicle.is_none() {
+        anyhow::bail!(
+            "--key: only with --vehicle (the control socket on this machine needs no key)"
+        );
+    }
     let asked = match &args.vehicle {
-        Some(id) => fleet::once(&args.connect, id, op),
+        Some(id) => match fleet::dialer(&args.connect, id, args.key.as_deref()) {
+            Ok(to) => once(&*to, op),
+            Err(e) => {
+                tell(io::stderr(), format_args!("adrive: {e}\n"));
+                return Ok(2);
+            }
+        },
         None => once(&path, op),
     };
     let answer = match asked {
@@ -1393,9 +1440,9 @@ mod fleet {
     use super::FleetArgs;
     use crate::config::FleetConfig;
     use crate::engine::Gate;
-    use crate::net::Net;
-    use crate::socket::client::ClientError;
-    use crate::socket::proto::{Answer, Op};
+    use crate::net::auth::Auth;
+    use crate::socket::client::Dial;
+    use std::path::Path;
     use std::sync::Arc;
     use std::time::Duration;
 
@@ -1428,12 +1475,26 @@ mod fleet {
 
     impl Running {
         /// Publish the vehicle's state, once it runs.
-        pub(crate) fn publish(&mut self, gate: &Arc<Gate>, net: &Net) -> anyhow::Result<()> {
+        pub(crate) fn publish(&mut self, gate: &Arc<Gate>) -> anyhow::Result<()> {
             #[cfg(feature = "fleet")]
             if let Some(m) = &mut self.0 {
-                m.publish(gate.clone(), net.status().clone())?;
+                m.publish(gate.clone())?;
             }
-            let _ = (gate, net);
+            let _ = gate;
+            Ok(())
+        }
+
+        /// Take links from the fleet to the control socket `control`, proving `key`.
+        pub(crate) fn serve(
+            &mut self,
+            control: &crate::socket::Server,
+            key: Option<Auth>,
+        ) -> anyhow::Result<()> {
+            #[cfg(feature = "fleet")]
+            if let Some(m) = &mut self.0 {
+                return m.serve(control.door(), key);
+            }
+            let _ = (control, key);
             Ok(())
         }
     }
@@ -1472,25 +1533,41 @@ mod fleet {
         anyhow::bail!("fleet: {NOT_BUILT}")
     }
 
-    /// `adrive ctl --vehicle ID`: one operation to a vehicle of the fleet.
+    /// The way to vehicle `id` of the fleet (`--vehicle`), through `connect`, proving
+    /// the key in `key` if given: each option checked, named.
     #[cfg(feature = "fleet")]
-    pub(crate) fn once(connect: &[String], id: &str, op: Op) -> Result<Answer, ClientError> {
+    pub(crate) fn dialer(
+        connect: &[String],
+        id: &str,
+        key: Option<&Path>,
+    ) -> anyhow::Result<Arc<dyn Dial>> {
         for e in connect {
             crate::config::ros2::check_endpoint(e)
-                .map_err(|why| ClientError::Refused(format!("--connect: {why}")))?;
+                .map_err(|why| anyhow::anyhow!("--connect: {why}"))?;
         }
         if !crate::config::fleet::valid_id(id) {
-            return Err(ClientError::Refused(format!(
+            anyhow::bail!(
                 "--vehicle: expected {}, got {id:?}",
                 crate::config::fleet::ID_FORM
-            )));
+            );
         }
-        crate::fleet::ctl::once(connect, id, op)
+        let key = match key {
+            Some(k) => {
+                crate::paths::check_file("--key", k).map_err(anyhow::Error::msg)?;
+                Some(Auth::load(k).map_err(|e| anyhow::anyhow!("--key {e}"))?)
+            }
+            None => None,
+        };
+        Ok(Arc::new(crate::fleet::dial::Dialer {
+            connect: connect.to_vec(),
+            id: id.to_string(),
+            key,
+        }))
     }
 
     #[cfg(not(feature = "fleet"))]
-    pub(crate) fn once(_: &[String], _: &str, _: Op) -> Result<Answer, ClientError> {
-        Err(ClientError::Refused(format!("--vehicle: {NOT_BUILT}")))
+    pub(crate) fn dialer(_: &[String], _: &str, _: Option<&Path>) -> anyhow::Result<Arc<dyn Dial>> {
+        anyhow::bail!("--vehicle: {NOT_BUILT}")
     }
 }
 

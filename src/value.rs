@@ -38,6 +38,10 @@ pub enum Source {
     /// user id the socket vouches for: the same person's `engage` and `release` are one
     /// source.
     Operator(u32),
+    /// An operator's one-shot command over the fleet (`adrive ctl --vehicle`), by the
+    /// vehicle's key its link proved: every holder of the key is one source, as one
+    /// user is on the socket.
+    Fleet,
     /// A network sender, by address.
     Network(SocketAddr),
     /// The ROS 2 node (one actuation publisher at a time within it).
@@ -63,6 +67,7 @@ impl fmt::Display for Source {
             Source::Console => f.write_str("console"),
             Source::Attached(n) => write!(f, "console #{n}"),
             Source::Operator(uid) => write!(f, "operator uid {uid}"),
+            Source::Fleet => f.write_str("fleet operator"),
             Source::Network(a) => write!(f, "{a}"),
             Source::Ros2 => f.write_str("ros2"),
             Source::Supervisor => f.write_str("supervisor"),

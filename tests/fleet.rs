@@ -3,22 +3,33 @@
 //! off, so it never meets another network), three `adrive --sim --headless
 //! --fleet` vehicles join it, and `adrive fleet` lists them with their states, shows
 //! one gone when it is killed, and a fourth vehicle under a taken id is refused;
-//! `adrive ctl --vehicle ID status` reaches that vehicle alone, and nothing else.
+//! `adrive ctl --vehicle ID` reaches that vehicle alone; a console attached over the
+//! fleet with the vehicle's key drives it alone, and its process killed brakes it.
 #![cfg(feature = "fleet")]
 
 mod common;
 
 use common::headless::{Adrive, BIN};
-use common::{lines, output_within, signal, until, Reaped};
+use common::pty::Master;
+use common::terminal_player::Play;
+use common::{engage_answered, lines, output_within, signal, until, wait_exit, Reaped, DEADLINE};
 use serde_json::Value;
-use std::process::{Command as Process, Stdio};
+use std::path::Path;
+use std::process::{Child, Command as Process, Stdio};
+use std::time::{Duration, Instant};
 
 /// A simulated Alice in the fleet at `endpoint` as `id`.
 fn vehicle(id: &str, endpoint: &str) -> Adrive {
+    vehicle_with(id, endpoint, "", "")
+}
+
+/// [`vehicle`], with `network` in its `[network]` and `fleet` in a `[fleet]` section.
+fn vehicle_with(id: &str, endpoint: &str, network: &str, fleet: &str) -> Adrive {
+    let toml = format!("{}\n[fleet]\n{fleet}\n", adrive::config::ALICE_TOML);
     let v = Adrive::start_with(
         "fleet",
-        adrive::config::ALICE_TOML,
-        "",
+        &toml,
+        network,
         &["--fleet", id, "--fleet-connect", endpoint],
     );
     assert!(
@@ -98,13 +109,13 @@ fn the_fleet_lists_every_vehicle_ctl_asks_one_alone_and_one_killed_goes() {
             "{id}"
         );
     }
-    // Watching only: any other operation is refused, with the reason, and changes
-    // nothing.
+    // A vehicle that takes no command from the fleet: watching only, and every
+    // other operation is refused, with the reason, and changes nothing.
     let out = ctl(&endpoint, "car3", &["engage"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(
-        err.contains("engage: over the fleet a vehicle answers status only"),
+        err.contains("engage: car3 takes no command from the fleet (its [fleet] command = false)"),
         "{err}"
     );
     let out = ctl(&endpoint, "car9", &["status"]);
@@ -184,4 +195,206 @@ fn a_vehicle_under_a_taken_id_is_refused_before_it_starts() {
         "{err}"
     );
     assert!(!err.contains("running headless"), "{err}");
+}
+
+/// The gate of the vehicle `id`, asked over the fleet.
+fn gate(endpoint: &str, id: &str) -> Value {
+    let out = ctl(endpoint, id, &["status", "--json"]);
+    assert!(out.status.success(), "{out:?}");
+    let snap: Value = serde_json::from_slice(&out.stdout).unwrap();
+    snap["gate"].clone()
+}
+
+/// What the vehicle `id` last commanded its device `device`, asked over the fleet.
+fn commanded(endpoint: &str, id: &str, device: &str) -> Value {
+    let out = ctl(endpoint, id, &["status", "--json"]);
+    assert!(out.status.success(), "{out:?}");
+    let snap: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let d = snap["devices"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|d| d["name"] == device)
+        .unwrap_or_else(|| panic!("{device} in {snap:#}"));
+    d["commanded"].clone()
+}
+
+/// `adrive attach --vehicle ID` on a terminal of its own.
+struct Attached {
+    child: Child,
+    term: Master,
+}
+
+impl Attached {
+    fn start(endpoint: &str, id: &str, key: Option<&Path>) -> Attached {
+        let mut cmd = Process::new(BIN);
+        cmd.args(["attach", "--vehicle", id, "--connect", endpoint])
+            .env("TERM", "xterm-256color")
+            .env_remove("TMUX")
+            .env_remove("STY");
+        if let Some(k) = key {
+            cmd.arg("--key").arg(k);
+        }
+        let (child, term) = Master::spawn_playing(&mut cmd, 100, 30, true, Play::default());
+        let a = Attached { child, term };
+        a.wait_for("every device", |s| {
+            ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
+                .iter()
+                .all(|d| s.contains(d))
+        });
+        a
+    }
+
+    fn screen(&self) -> String {
+        common::screen_of(&self.term.bytes(), 100, 30)
+    }
+
+    fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
+        common::wait_screen(what, Duration::from_millis(20), || self.screen(), ok)
+    }
+
+    fn keys(&mut self, k: &str) {
+        self.term.write(k.as_bytes());
+    }
+
+    /// `E`, `y`: the outcome said on the screen.
+    fn engage(&mut self) -> String {
+        self.keys("E");
+        self.wait_for("the confirmation", |s| s.contains("Engage?"));
+        self.keys("y");
+        self.wait_for("the engage outcome", engage_answered)
+    }
+}
+
+impl Drop for Attached {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// The issue's scene: three vehicles on one router; a console on another machine
+/// (here, another process with only the router's address) attaches to car1 with its
+/// key, engages it and steers it, while car2 — which takes commands from the fleet,
+/// under the same key — and car3 stay untouched; killing that console brakes car1
+/// (its link's token is its watchdog), and car1 only. Without the key, or with
+/// another, the fleet watches and is refused with the reason.
+#[test]
+fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_it_alone() {
+    let (_router, endpoint) = common::zenoh_router::start();
+    let dir = common::tempdir("fleet-key");
+    let key = dir.path().join("fleet.key");
+    std::fs::write(&key, "0123456789abcdef0123456789abcdef\n").unwrap();
+    let other = dir.path().join("other.key");
+    std::fs::write(&other, "fedcba9876543210fedcba9876543210\n").unwrap();
+    let keyed = format!("key_file = \"{}\"", key.display());
+    let car1 = vehicle_with("car1", &endpoint, &keyed, "command = true");
+    let _car2 = vehicle_with("car2", &endpoint, &keyed, "command = true");
+    let _car3 = vehicle("car3", &endpoint);
+
+    // Without the key, or with another, a link watches: its engage is refused, why.
+    for (k, why) in [
+        (
+            None,
+            "over the fleet, car1 takes commands only from a link that proves its key",
+        ),
+        (Some(&other), "this link's key is not car1's"),
+    ] {
+        let mut args = vec!["engage"];
+        let kp;
+        if let Some(k) = k {
+            kp = k.display().to_string();
+            args.extend(["--key", &kp]);
+        }
+        let out = ctl(&endpoint, "car1", &args);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains(why), "{err}");
+    }
+    assert_eq!(gate(&endpoint, "car1")["engaged"], false);
+
+    // With it, an operator's one-shot engage and stop, as on the vehicle.
+    let k = key.display().to_string();
+    // (Once every device is ready — reported, the OBD adapter done searching: a
+    // vehicle engages no sooner.)
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let out = ctl(&endpoint, "car1", &["engage", "--key", &k]);
+        if out.status.success() {
+            break;
+        }
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(Instant::now() < end, "{err}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let g = gate(&endpoint, "car1");
+    assert_eq!(g["engaged"], true, "{g:#}");
+    assert!(
+        g["commander"]
+            .as_str()
+            .unwrap()
+            .starts_with("fleet operator"),
+        "{g:#}"
+    );
+    let out = ctl(&endpoint, "car1", &["stop", "--key", &k]);
+    assert!(out.status.success(), "{out:?}");
+    assert_eq!(gate(&endpoint, "car1")["engaged"], false);
+
+    // A console over the fleet with the key: engages car1 and steers it.
+    let mut console = Attached::start(&endpoint, "car1", Some(&key));
+    let said = console.engage();
+    assert!(common::engaged_said(&said), "{said}");
+    console.wait_for("the header", |s| s.contains(" COMMANDING "));
+    let me = gate(&endpoint, "car1")["commander"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    assert!(me.starts_with("console #"), "{me}");
+    console.keys("s");
+    console.wait_for("the steering edit", |s| s.contains("edit steer command"));
+    console.keys("\x150.5\r");
+    common::wait_for("car1's steering at 0.5", || {
+        commanded(&endpoint, "car1", "steer") == serde_json::json!(0.5)
+    });
+    // The others heard nothing of it.
+    for id in ["car2", "car3"] {
+        let g = gate(&endpoint, id);
+        assert_eq!(g["engaged"], false, "{id}: {g:#}");
+        assert!(g["commander"].is_null(), "{id}: {g:#}");
+        assert_ne!(
+            commanded(&endpoint, id, "steer"),
+            serde_json::json!(0.5),
+            "{id}"
+        );
+    }
+
+    // The console's process killed (no goodbye): car1 brakes and disengages, its
+    // link's loss the commander's watchdog; the others are as they were.
+    let killed = Instant::now();
+    assert!(signal(&console.child, libc::SIGKILL));
+    let _ = wait_exit(&mut console.child);
+    let end = Instant::now() + DEADLINE;
+    let g = loop {
+        let g = gate(&endpoint, "car1");
+        if g["engaged"] == false {
+            break g;
+        }
+        assert!(Instant::now() < end, "car1 still engaged: {g:#}");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let took = killed.elapsed();
+    let reason = g["reason"].as_str().unwrap();
+    assert!(reason.contains(&format!("{me} went away")), "{reason}");
+    assert_eq!(g["cause"]["why"]["trip"], "gone", "{g:#}");
+    assert_eq!(
+        commanded(&endpoint, "car1", "brake"),
+        serde_json::json!(1.0)
+    );
+    assert_eq!(commanded(&endpoint, "car1", "gas"), serde_json::json!(0.0));
+    eprintln!("car1 disengaged {took:?} after its console was killed");
+    for id in ["car2", "car3"] {
+        let g = gate(&endpoint, id);
+        assert_eq!(g["reason"], "not engaged yet", "{id}: {g:#}");
+    }
+    drop(car1);
 }

@@ -32,6 +32,10 @@ pub struct FleetConfig {
     pub listen: Vec<String>,
     /// Discover peers on the local network by UDP multicast.
     pub(crate) multicast_scouting: bool,
+    /// Take commands from the fleet: a console or an operator's command linked from
+    /// elsewhere that proves the vehicle's key (`[network] key_file`) may command it.
+    /// Without it, the fleet only watches.
+    pub command: bool,
 }
 
 impl Default for FleetConfig {
@@ -42,6 +46,7 @@ impl Default for FleetConfig {
             connect: vec![DEFAULT_CONNECT.to_string()],
             listen: Vec::new(),
             multicast_scouting: false,
+            command: false,
         }
     }
 }

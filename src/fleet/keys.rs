@@ -1,6 +1,9 @@
 //! The fleet's key expressions: every vehicle under `adrive/<id>`, its liveliness
-//! token at that key and its state one level below. One place for every name, so the
-//! member that publishes and the tools that read cannot drift apart.
+//! token at that key and its state one level below; a link to it (a console or an
+//! operator's command from elsewhere) under `adrive/<id>/link/<sid>`: the link's own
+//! token there, what it sends at `…/up`, what it is sent at `…/down`. One place for
+//! every name, so the member that publishes and the tools that read cannot drift
+//! apart.
 
 /// The root of every fleet key.
 pub const ROOT: &str = "adrive";
@@ -19,9 +22,42 @@ pub fn state(id: &str) -> String {
     format!("{ROOT}/{id}/state")
 }
 
-/// Where vehicle `id` answers the control socket's operations (watching only, so far).
-pub fn ctl(id: &str) -> String {
-    format!("{ROOT}/{id}/ctl")
+/// The liveliness token of link `sid` to vehicle `id`: the link is there as long as
+/// it is.
+pub fn link(id: &str, sid: &str) -> String {
+    format!("{ROOT}/{id}/link/{sid}")
+}
+
+/// Every link's token to vehicle `id`.
+pub fn links(id: &str) -> String {
+    format!("{ROOT}/{id}/link/*")
+}
+
+/// What link `sid` sends vehicle `id`.
+pub fn up(id: &str, sid: &str) -> String {
+    format!("{ROOT}/{id}/link/{sid}/up")
+}
+
+/// What every link sends vehicle `id`.
+pub fn ups(id: &str) -> String {
+    format!("{ROOT}/{id}/link/*/up")
+}
+
+/// What vehicle `id` sends link `sid`.
+pub fn down(id: &str, sid: &str) -> String {
+    format!("{ROOT}/{id}/link/{sid}/down")
+}
+
+/// The link a key of vehicle `id` names: its token's (`adrive/car1/link/ab12` → `ab12`),
+/// or with `suffix` `/up`, what it sends.
+pub fn sid_of<'a>(id: &str, key: &'a str, suffix: &str) -> Option<&'a str> {
+    let sid = key
+        .strip_prefix(ROOT)?
+        .strip_prefix('/')?
+        .strip_prefix(id)?
+        .strip_prefix("/link/")?
+        .strip_suffix(suffix)?;
+    (!sid.is_empty() && !sid.contains('/')).then_some(sid)
 }
 
 /// The vehicle a token's key names (`adrive/car1` → `car1`).
@@ -46,8 +82,14 @@ mod tests {
         assert_eq!(id_of_token("adrive/car1/state"), None);
         assert_eq!(id_of_token("adrive/"), None);
         assert_eq!(id_of_token("adrivex/car1"), None);
-        assert_eq!(id_of_state(&ctl("car1")), None);
-        assert_eq!(id_of_token(&ctl("car1")), None);
+        assert_eq!(id_of_state(&link("car1", "ab")), None);
+        assert_eq!(id_of_token(&up("car1", "ab")), None);
+        assert_eq!(sid_of("car1", &link("car1", "ab"), ""), Some("ab"));
+        assert_eq!(sid_of("car1", &up("car1", "ab"), "/up"), Some("ab"));
+        assert_eq!(sid_of("car1", &up("car1", "ab"), ""), None);
+        assert_eq!(sid_of("car2", &link("car1", "ab"), ""), None);
+        assert_eq!(sid_of("car", &link("car1", "ab"), ""), None);
+        assert_eq!(sid_of("car1", &down("car1", "ab"), "/up"), None);
         assert_eq!(id_of_state("adrive/a/b/state"), None);
     }
 }

@@ -6,32 +6,21 @@
 //! start, before the vehicle is announced: two vehicles under one key space would be
 //! one to whoever watches, and commands meant for one would reach both.
 //!
-//! The thread `fleet/ctl` answers the control socket's operations asked at
-//! `adrive/<id>/ctl` (`adrive ctl --vehicle ID`), in the socket's own messages: the
-//! status (the whole snapshot, the network's part included), and for every other
-//! operation a refusal that says why. The member only reads the engine's snapshot: it
-//! takes no command, and a query names one vehicle's key, so no vehicle answers
-//! another's.
+//! Once the control socket runs, [`Member::serve`] takes links from the fleet to it
+//! ([`super::serve`]): consoles and operators' commands from elsewhere, as clients of
+//! the socket, under its rules and the fleet's (who may command).
 
 use super::keys;
 use super::state::{compact, Change, LOOK, PERIOD};
 use crate::config::FleetConfig;
 use crate::engine::Gate;
-use crate::net::NetStatus;
-use crate::socket::proto::{Answer, Msg, Op, Request};
-use crate::threads::{Group, StopSignal};
-use crossbeam_channel::Receiver;
+use crate::threads::Group;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use zenoh::Wait;
 
 /// How long the network is asked whether the id is taken.
 const CLAIM: Duration = Duration::from_secs(2);
-/// Operations waiting for `fleet/ctl` at most; past that a query goes unanswered.
-const BACKLOG: usize = 64;
-/// What every operation but the status is answered over the fleet.
-pub(crate) const WATCH_ONLY: &str =
-    "over the fleet a vehicle answers status only: commanding it from the fleet is not built yet";
 
 /// The running member.
 pub struct Member {
@@ -39,8 +28,10 @@ pub struct Member {
     threads: Group,
     id: String,
     token: Option<zenoh::liveliness::LivelinessToken>,
-    /// The `ctl` queryable lives as long as the member.
-    queryable: Option<zenoh::query::Queryable<()>>,
+    /// Whether links may command ([`FleetConfig::command`]).
+    command: bool,
+    /// The links' subscriptions live as long as the member.
+    links: Option<super::serve::Subscriptions>,
 }
 
 impl Member {
@@ -88,37 +79,19 @@ impl Member {
             threads: Group::default(),
             id,
             token: Some(token),
-            queryable: None,
+            command: c.command,
+            links: None,
         })
     }
 
-    /// Start publishing the state of the vehicle `gate` keeps, and answering the
-    /// status (with the network's part from `net`).
-    pub fn publish(&mut self, gate: Arc<Gate>, net: Arc<NetStatus>) -> anyhow::Result<()> {
+    /// Start publishing the state of the vehicle `gate` keeps.
+    pub fn publish(&mut self, gate: Arc<Gate>) -> anyhow::Result<()> {
         let state_key = keys::state(&self.id);
         let publisher = self
             .session
             .declare_publisher(state_key.clone())
             .wait()
             .map_err(|e| anyhow::anyhow!("fleet: publisher {state_key}: {e}"))?;
-        let ctl_key = keys::ctl(&self.id);
-        let (tx, rx) = crossbeam_channel::bounded(BACKLOG);
-        let queryable = self
-            .session
-            .declare_queryable(ctl_key.clone())
-            .complete(true)
-            .callback(move |q| {
-                let _ = tx.try_send(q);
-            })
-            .wait()
-            .map_err(|e| anyhow::anyhow!("fleet: queryable {ctl_key}: {e}"))?;
-        self.queryable = Some(queryable);
-        let ctl = Ctl {
-            gate: gate.clone(),
-            net,
-        };
-        self.threads
-            .spawn("fleet/ctl", move |stop| ctl.run(&rx, stop))?;
         let mut publish = Publish {
             gate,
             publisher,
@@ -130,6 +103,22 @@ impl Member {
             // The last word: the state as it stops (disengaged, stopping).
             publish.tell();
         })?;
+        Ok(())
+    }
+
+    /// Take links from the fleet to the control socket behind `door`; `key` is the
+    /// vehicle's (`[network] key_file`), which a link proves to command.
+    pub(crate) fn serve(
+        &mut self,
+        door: crate::socket::server::Door,
+        key: Option<crate::net::auth::Auth>,
+    ) -> anyhow::Result<()> {
+        let rule = super::serve::Rule {
+            key,
+            command: self.command,
+        };
+        let subs = super::serve::start(&self.session, &self.id, door, rule, &mut self.threads)?;
+        self.links = Some(subs);
         Ok(())
     }
 
@@ -148,11 +137,7 @@ impl crate::threads::Shutdown for Member {
     /// names of the threads that did not stop.
     fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         let stuck = self.threads.stop(Instant::now() + deadline);
-        if let Some(q) = self.queryable.take() {
-            if let Err(e) = q.undeclare().wait() {
-                tracing::debug!("fleet: withdrawing the queryable: {e}");
-            }
-        }
+        drop(self.links.take());
         if let Some(t) = self.token.take() {
             if let Err(e) = t.undeclare().wait() {
                 tracing::debug!("fleet: withdrawing the token: {e}");
@@ -203,50 +188,6 @@ impl Publish {
         self.seq += 1;
         if let Err(e) = self.publisher.put(bytes).wait() {
             tracing::debug!("fleet: publishing the state: {e}");
-        }
-    }
-}
-
-/// The `fleet/ctl` thread's state.
-struct Ctl {
-    gate: Arc<Gate>,
-    net: Arc<NetStatus>,
-}
-
-impl Ctl {
-    fn run(&self, rx: &Receiver<zenoh::query::Query>, stop: &StopSignal) {
-        while !stop.is_stopped() {
-            match rx.recv_timeout(Duration::from_millis(50)) {
-                Ok(q) => self.reply(&q),
-                Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
-                Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
-            }
-        }
-    }
-
-    /// Answer one query: a [`Request`] in, a [`Msg::Reply`] out, as over the socket.
-    fn reply(&self, q: &zenoh::query::Query) {
-        let payload = q.payload().map(|p| p.to_bytes().into_owned());
-        let (id, answer) = match payload.as_deref().map(serde_json::from_slice::<Request>) {
-            Some(Ok(r)) => (r.id, self.answer(r.op)),
-            Some(Err(e)) => (0, Answer::Error(format!("not a request: {e}"))),
-            None => (0, Answer::Error("not a request: no payload".into())),
-        };
-        let bytes = match serde_json::to_vec(&Msg::Reply { id, answer }) {
-            Ok(b) => b,
-            Err(e) => return tracing::warn!("fleet: a reply does not serialize: {e}"),
-        };
-        if let Err(e) = q.reply(q.key_expr().clone(), bytes).wait() {
-            tracing::debug!("fleet: replying: {e}");
-        }
-    }
-
-    fn answer(&self, op: Op) -> Answer {
-        match op {
-            Op::Status => {
-                Answer::Snapshot(Box::new(crate::net::snapshot(&self.gate, &self.net, 0)))
-            }
-            _ => Answer::Error(WATCH_ONLY.into()),
         }
     }
 }

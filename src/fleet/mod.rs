@@ -10,14 +10,20 @@
 //! - [`member`]: a running adrive in the fleet (`--fleet`, `[fleet]`): its session,
 //!   its token and the thread that publishes its state;
 //! - [`list`]: `adrive fleet`, every vehicle visible, once or as it changes;
-//! - [`ctl`]: `adrive ctl --vehicle ID`, one operation to one vehicle.
+//! - [`link`]: a console or an operator's command reaching a vehicle's control socket
+//!   over the fleet: what goes on the wire and how it is signed (pure);
+//! - [`dial`]: the asking end of a link (`adrive attach --vehicle ID`, `adrive ctl
+//!   --vehicle ID`);
+//! - [`serve`]: the vehicle's end, which takes links to its control socket.
 //!
 //! [`Snapshot::head`]: crate::snapshot::Snapshot::head
 
-pub(crate) mod ctl;
+pub(crate) mod dial;
 pub mod keys;
+pub(crate) mod link;
 pub(crate) mod list;
 pub mod member;
+pub(crate) mod serve;
 pub mod state;
 
 pub use member::Member;

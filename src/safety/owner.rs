@@ -85,6 +85,7 @@ impl std::fmt::Display for Commander {
         match self.0 {
             Source::Network(a) => write!(f, "network {a}"),
             Source::Operator(uid) => write!(f, "operator (uid {uid}, adrive ctl)"),
+            Source::Fleet => f.write_str("fleet operator (adrive ctl --vehicle)"),
             other => write!(f, "{other}"),
         }
     }
@@ -472,7 +473,7 @@ impl Owner {
             Source::Console | Source::Attached(_) => self.deadman,
             // An operator's one-shot `engage` moves nothing: it holds the vehicle as a
             // console does outside teleop, until it is released, stopped or taken.
-            Source::Operator(_) | Source::Supervisor => None,
+            Source::Operator(_) | Source::Fleet | Source::Supervisor => None,
         }
     }
 

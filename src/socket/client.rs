@@ -1,6 +1,8 @@
 //! The control socket's clients: [`Remote`], the [`Controls`] of `adrive attach` — the
 //! same console over a running adrive's frames and intake — and [`once`], one
-//! operator command for `adrive ctl`.
+//! operator command for `adrive ctl`. Both reach adrive through a [`Dial`]: its
+//! socket file, or a link over the fleet (`fleet::dial`) that carries the same
+//! protocol.
 //!
 //! A thread (`attach/in`) reads what the server sends: frames replace the latest one,
 //! replies wake the operation waiting for them. When the connection ends the console
@@ -19,7 +21,7 @@ use parking_lot::Mutex;
 use std::collections::{HashMap, VecDeque};
 use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
-use std::path::Path;
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -43,15 +45,50 @@ pub(crate) enum ClientError {
     NoReply(Duration),
 }
 
+/// A way to a running adrive: a stream that speaks the control protocol.
+pub(crate) trait Dial: Send + Sync {
+    /// A new connection to adrive.
+    fn dial(&self) -> Result<UnixStream, ClientError>;
+    /// Why a connection adrive closed without a word ended (`what`: how it ended
+    /// here): whether adrive can still be reached tells which end it was.
+    fn ended_without_word(&self, what: &str) -> String;
+    /// Where the connection goes, for messages (`/run/user/1000/adrive/control.sock`).
+    fn place(&self) -> String;
+}
+
+/// A running adrive's socket file.
+impl Dial for PathBuf {
+    fn dial(&self) -> Result<UnixStream, ClientError> {
+        UnixStream::connect(self).map_err(|e| ClientError::Nobody {
+            path: self.display().to_string(),
+            why: e.to_string(),
+        })
+    }
+
+    fn ended_without_word(&self, what: &str) -> String {
+        match probe(self) {
+            Ok(()) => format!(
+                "adrive closed this console's connection without saying why ({what}); it still \
+                 runs (`adrive ctl status` shows it)"
+            ),
+            Err(e) => format!("adrive went away ({what}); nothing answers at its socket now: {e}"),
+        }
+    }
+
+    fn place(&self) -> String {
+        self.display().to_string()
+    }
+}
+
 fn connect(
-    path: &Path,
+    to: &dyn Dial,
     role: Role,
 ) -> Result<(UnixStream, BufReader<UnixStream>, String), ClientError> {
     let nobody = |e: std::io::Error| ClientError::Nobody {
-        path: path.display().to_string(),
+        path: to.place(),
         why: e.to_string(),
     };
-    let mut stream = UnixStream::connect(path).map_err(nobody)?;
+    let mut stream = to.dial()?;
     stream
         .set_read_timeout(Some(HELLO_WITHIN))
         .map_err(nobody)?;
@@ -86,21 +123,9 @@ fn connect(
     }
 }
 
-/// Whether an adrive answers at `path` (without attaching to it).
-pub(crate) fn probe(path: &Path) -> Result<(), ClientError> {
-    connect(path, Role::Once).map(drop)
-}
-
-/// Why a connection ended that adrive closed without a word (`what`: how it ended
-/// here): whether adrive still answers at `path` tells which end it was.
-fn ended_without_word(path: &Path, what: &str) -> String {
-    match probe(path) {
-        Ok(()) => format!(
-            "adrive closed this console's connection without saying why ({what}); it still \
-             runs (`adrive ctl status` shows it)"
-        ),
-        Err(e) => format!("adrive went away ({what}); nothing answers at its socket now: {e}"),
-    }
+/// Whether an adrive answers `to` (without attaching to it).
+pub(crate) fn probe(to: &dyn Dial) -> Result<(), ClientError> {
+    connect(to, Role::Once).map(drop)
 }
 
 fn write_line(w: &mut impl Write, req: &Request) -> std::io::Result<()> {
@@ -134,8 +159,8 @@ fn read_msg(r: &mut impl BufRead) -> std::io::Result<Option<Msg>> {
 }
 
 /// One operator command (`adrive ctl`): connect, do `op`, return its answer.
-pub(crate) fn once(path: &Path, op: Op) -> Result<Answer, ClientError> {
-    let (mut stream, mut reader, _) = connect(path, Role::Once)?;
+pub(crate) fn once(to: &dyn Dial, op: Op) -> Result<Answer, ClientError> {
+    let (mut stream, mut reader, _) = connect(to, Role::Once)?;
     let gone =
         |e: std::io::Error| ClientError::Refused(format!("the connection to adrive failed: {e}"));
     stream.set_read_timeout(Some(REPLY_WITHIN)).map_err(gone)?;
@@ -146,10 +171,9 @@ pub(crate) fn once(path: &Path, op: Op) -> Result<Answer, ClientError> {
             Ok(Some(Msg::Bye { why })) => return Err(ClientError::Refused(why)),
             Ok(Some(_)) => continue,
             Ok(None) => {
-                return Err(ClientError::Refused(ended_without_word(
-                    path,
-                    "the connection closed before an answer",
-                )))
+                return Err(ClientError::Refused(
+                    to.ended_without_word("the connection closed before an answer"),
+                ))
             }
             Err(e)
                 if matches!(
@@ -185,20 +209,19 @@ pub(crate) struct Remote {
 }
 
 impl Remote {
-    /// Attach to the adrive at `path` as a console. `on_gone` is called once, from the
-    /// reading thread, if the connection ends.
+    /// Attach to the adrive `to` reaches as a console. `on_gone` is called once, from
+    /// the reading thread, if the connection ends.
     pub(crate) fn attach(
-        path: &Path,
+        to: Arc<dyn Dial>,
         on_gone: impl FnOnce(String) + Send + 'static,
     ) -> Result<Remote, ClientError> {
-        let (stream, mut reader, source) = connect(path, Role::Console)?;
+        let (stream, mut reader, source) = connect(&*to, Role::Console)?;
         let first = loop {
             match read_msg(&mut reader) {
                 Ok(Some(Msg::Frame(f))) => break *f,
                 Ok(Some(_)) => continue,
                 Ok(None) => {
-                    return Err(ClientError::Refused(ended_without_word(
-                        path,
+                    return Err(ClientError::Refused(to.ended_without_word(
                         "the connection closed before the first frame",
                     )))
                 }
@@ -214,7 +237,6 @@ impl Remote {
         });
         inbox.take(first);
         let i = inbox.clone();
-        let path = path.to_path_buf();
         std::thread::Builder::new()
             .name("attach/in".into())
             .spawn(move || {
@@ -231,9 +253,9 @@ impl Remote {
                         // A frame cut short where adrive dropped this console: its
                         // word follows on a line of its own.
                         Err(e) if e.kind() == std::io::ErrorKind::InvalidData => {}
-                        Ok(None) => break ended_without_word(&path, "the connection closed"),
+                        Ok(None) => break to.ended_without_word("the connection closed"),
                         Err(e) => {
-                            break ended_without_word(&path, &format!("the connection failed: {e}"))
+                            break to.ended_without_word(&format!("the connection failed: {e}"))
                         }
                     }
                 };

@@ -56,6 +56,62 @@ struct Shared {
     threads: Mutex<Threads>,
 }
 
+/// A connection that did not come through the socket file: a console or an
+/// operator's command linked over the fleet (`fleet::serve`), whose link carries the
+/// same protocol.
+pub(crate) struct Linked {
+    /// Where it comes from, for the log (`fleet link 3f2a…`).
+    pub from: String,
+    /// Whether it may command.
+    pub permit: Arc<Permit>,
+}
+
+/// Whether a linked connection may command the vehicle, or only watch it, and why:
+/// set by whoever proves the link (its key), read at every operation.
+#[derive(Debug)]
+pub(crate) struct Permit(Mutex<Result<(), String>>);
+
+#[cfg_attr(not(feature = "fleet"), allow(dead_code))]
+impl Permit {
+    /// Watching only, for this reason, until [`Permit::grant`].
+    pub(crate) fn watch_only(why: String) -> Permit {
+        Permit(Mutex::new(Err(why)))
+    }
+    pub(crate) fn grant(&self) {
+        *self.0.lock() = Ok(());
+    }
+    pub(crate) fn deny(&self, why: String) {
+        *self.0.lock() = Err(why);
+    }
+    fn get(&self) -> Result<(), String> {
+        self.0.lock().clone()
+    }
+}
+
+/// Who is at the other end of a connection.
+#[cfg_attr(not(feature = "fleet"), allow(dead_code))]
+enum Origin {
+    /// A process on this machine, through the socket file.
+    Local(Peer),
+    /// A link over the fleet.
+    Linked(Linked),
+}
+
+/// The door a linked connection comes in by: serves a stream as a client of the
+/// control socket, with every rule a local one meets.
+#[derive(Clone)]
+#[cfg_attr(not(feature = "fleet"), allow(dead_code))]
+pub(crate) struct Door(Arc<Shared>);
+
+#[cfg_attr(not(feature = "fleet"), allow(dead_code))]
+impl Door {
+    /// Serve `stream` (one end of a pair whose other end the link carries) as a
+    /// client.
+    pub(crate) fn serve(&self, stream: UnixStream, linked: Linked) -> std::io::Result<()> {
+        serve(stream, Origin::Linked(linked), &self.0)
+    }
+}
+
 /// The running control socket.
 pub struct Server {
     shared: Arc<Shared>,
@@ -102,6 +158,12 @@ impl Server {
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// The way in for connections linked from elsewhere (the fleet).
+    #[cfg_attr(not(feature = "fleet"), allow(dead_code))]
+    pub(crate) fn door(&self) -> Door {
+        Door(self.shared.clone())
     }
 
     /// Refuse every operation and end every connection (the process is stopping: no
@@ -160,7 +222,7 @@ fn accept_loop(listener: UnixListener, s: &Arc<Shared>) {
         }
         match listener.accept() {
             Ok((stream, _)) => {
-                if let Err(e) = serve(stream, s) {
+                if let Err(e) = Peer::of(&stream).and_then(|p| serve(stream, Origin::Local(p), s)) {
                     tracing::warn!("control socket: a client could not be served: {e}");
                 }
             }
@@ -174,7 +236,7 @@ fn accept_loop(listener: UnixListener, s: &Arc<Shared>) {
 }
 
 /// Start a client's threads.
-fn serve(stream: UnixStream, s: &Arc<Shared>) -> std::io::Result<()> {
+fn serve(stream: UnixStream, origin: Origin, s: &Arc<Shared>) -> std::io::Result<()> {
     stream.set_nonblocking(false)?;
     stream.set_write_timeout(Some(WRITE_DEADLINE))?;
     if s.open.lock().len() >= MAX_CLIENTS {
@@ -185,7 +247,6 @@ fn serve(stream: UnixStream, s: &Arc<Shared>) -> std::io::Result<()> {
         let _ = stream.write_all(&line);
         return Ok(());
     }
-    let peer = Peer::of(&stream)?;
     let n = s.next.fetch_add(1, Relaxed);
     s.open.lock().push((n, stream.try_clone()?));
     // The threads of clients gone before.
@@ -193,7 +254,7 @@ fn serve(stream: UnixStream, s: &Arc<Shared>) -> std::io::Result<()> {
     let writer = Arc::new(Mutex::new(stream.try_clone()?));
     let conn = Arc::new(Conn {
         n,
-        peer,
+        origin,
         writer,
         bench: Mutex::new(None),
         role: Mutex::new(None),
@@ -216,7 +277,7 @@ fn serve(stream: UnixStream, s: &Arc<Shared>) -> std::io::Result<()> {
 /// One client.
 struct Conn {
     n: u32,
-    peer: Peer,
+    origin: Origin,
     writer: Arc<Mutex<UnixStream>>,
     bench: Mutex<Option<DeviceId>>,
     /// Set by its hello.
@@ -312,9 +373,26 @@ impl Conn {
     }
 
     fn source_as(&self, role: Role) -> Source {
-        match role {
-            Role::Console => Source::Attached(self.n),
-            Role::Once => Source::Operator(self.peer.uid),
+        match (role, &self.origin) {
+            (Role::Console, _) => Source::Attached(self.n),
+            (Role::Once, Origin::Local(peer)) => Source::Operator(peer.uid),
+            (Role::Once, Origin::Linked(_)) => Source::Fleet,
+        }
+    }
+
+    /// Whether it may command, and why not.
+    fn permit(&self) -> Result<(), String> {
+        match &self.origin {
+            Origin::Local(_) => Ok(()),
+            Origin::Linked(l) => l.permit.get(),
+        }
+    }
+
+    /// Where it comes from, for the log.
+    fn describe(&self) -> String {
+        match &self.origin {
+            Origin::Local(peer) => format!("{}, uid {}", peer.describe(), peer.uid),
+            Origin::Linked(l) => l.from.clone(),
         }
     }
 
@@ -423,10 +501,9 @@ fn read_loop(stream: UnixStream, s: &Shared, c: &Conn) {
             let source = c.source_as(role);
             if role == Role::Console {
                 tracing::info!(
-                    "{} attached ({}, uid {}), watching",
+                    "{} attached ({}), watching",
                     crate::safety::owner::Commander(source),
-                    c.peer.describe(),
-                    c.peer.uid
+                    c.describe(),
                 );
             }
             let welcome = Msg::Welcome {
@@ -491,6 +568,14 @@ fn answer(s: &Shared, c: &Conn, source: Source, op: Op) -> Answer {
         Err(e) => Answer::Error(e),
     };
     let console = source.is_console();
+    // A link that may only watch reads, and asks nothing of the vehicle.
+    let reads = matches!(
+        op,
+        Op::Status | Op::Bench { .. } | Op::Parse { .. } | Op::Answered
+    );
+    if let (false, Err(why)) = (reads, c.permit()) {
+        return Answer::Error(why);
+    }
     if let Some(ask) = op.ask() {
         // An operator's one-shot command only engages, stops, disengages and releases
         // (and reads); the rest is a console's.
