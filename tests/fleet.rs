@@ -398,3 +398,88 @@ fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_
     }
     drop(car1);
 }
+
+/// The status of `v`, asked at its own control socket (on the vehicle: the fleet may
+/// be down).
+fn local_gate(v: &Adrive) -> Value {
+    let out = output_within(
+        Process::new(BIN)
+            .args(["ctl", "status", "--json"])
+            .env("XDG_RUNTIME_DIR", v.dir.path()),
+    );
+    assert!(out.status.success(), "{out:?}");
+    let snap: Value = serde_json::from_slice(&out.stdout).unwrap();
+    snap["gate"].clone()
+}
+
+/// The router stops under an engaged vehicle commanded from the fleet: the vehicle
+/// loses the console's link with the router, and the console was its watchdog — the
+/// safe state, at once; the other vehicle is untouched. The router back on its
+/// address, every vehicle rejoins (Zenoh's client retries its router) and is listed
+/// again, within a bound; the vehicle commanded before stays disengaged (nothing
+/// engages it again on its own).
+#[test]
+fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every_vehicle_rejoins() {
+    let (router, endpoint) = common::zenoh_router::start();
+    let dir = common::tempdir("fleet-router");
+    let key = dir.path().join("fleet.key");
+    std::fs::write(&key, "0123456789abcdef0123456789abcdef\n").unwrap();
+    let keyed = format!("key_file = \"{}\"", key.display());
+    let car1 = vehicle_with("car1", &endpoint, &keyed, "command = true");
+    let car2 = vehicle("car2", &endpoint);
+
+    let mut console = Attached::start(&endpoint, "car1", Some(&key));
+    let end = Instant::now() + DEADLINE;
+    while !common::engaged_said(&console.engage()) {
+        assert!(
+            Instant::now() < end,
+            "car1 never engaged:\n{}",
+            console.screen()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    assert_eq!(local_gate(&car1)["engaged"], true);
+
+    // The router goes.
+    let cut = Instant::now();
+    zenoh::Wait::wait(router.close()).unwrap();
+    drop(router);
+    let end = Instant::now() + DEADLINE;
+    let g = loop {
+        let g = local_gate(&car1);
+        if g["engaged"] == false {
+            break g;
+        }
+        assert!(Instant::now() < end, "car1 still engaged: {g:#}");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let took = cut.elapsed();
+    let reason = g["reason"].as_str().unwrap();
+    assert!(reason.contains("went away"), "{reason}");
+    assert_eq!(g["cause"]["why"]["trip"], "gone", "{g:#}");
+    assert_eq!(local_gate(&car2)["reason"], "not engaged yet");
+    eprintln!("car1 in the safe state {took:?} after its router went");
+
+    // Back: both vehicles listed again.
+    let _router = common::zenoh_router::start_on(&endpoint);
+    let back = Instant::now();
+    let end = back + DEADLINE;
+    loop {
+        let list = fleet(&endpoint, "500ms");
+        let live: Vec<&str> = list
+            .iter()
+            .filter(|v| v["status"] == "live")
+            .map(|v| v["id"].as_str().unwrap())
+            .collect();
+        if live == ["car1", "car2"] {
+            break;
+        }
+        assert!(Instant::now() < end, "{list:#?}");
+    }
+    eprintln!(
+        "every vehicle listed again {:?} after the router came back",
+        back.elapsed()
+    );
+    assert_eq!(local_gate(&car1)["engaged"], false);
+    assert_eq!(gate(&endpoint, "car1")["engaged"], false);
+}

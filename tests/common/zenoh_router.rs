@@ -12,14 +12,19 @@ pub fn start() -> (zenoh::Session, String) {
         .unwrap()
         .port();
     let endpoint = format!("tcp/127.0.0.1:{port}");
+    (start_on(&endpoint), endpoint)
+}
+
+/// A router on `endpoint` (again, after one there stopped).
+#[allow(dead_code)]
+pub fn start_on(endpoint: &str) -> zenoh::Session {
     let mut c = zenoh::Config::default();
     c.insert_json5("mode", "\"router\"").unwrap();
     c.insert_json5("listen/endpoints", &format!("[\"{endpoint}\"]"))
         .unwrap();
     c.insert_json5("scouting/multicast/enabled", "false")
         .unwrap();
-    let session = zenoh::open(c)
+    zenoh::open(c)
         .wait()
-        .unwrap_or_else(|e| panic!("a Zenoh router on {endpoint}: {e}"));
-    (session, endpoint)
+        .unwrap_or_else(|e| panic!("a Zenoh router on {endpoint}: {e}"))
 }
