@@ -20,10 +20,15 @@
 //! 13 a CAN bus: 1 … 16 actuators on one SLCAN adapter ([`can`]); 14 a commanding
 //! console whose terminal stalls: the stall → the safe state at the device, and what
 //! the liveness check costs ([`liveness`]); 15 hold-to-drive teleop: a key's release,
-//! or its repeats' end, → the throttle's 0 at the device ([`teleop`]).
+//! or its repeats' end, → the throttle's 0 at the device ([`teleop`]); 16 (built with
+//! `--features fleet`) a fleet of 1 … 32 vehicles through one Zenoh router: listing,
+//! the cost of being in it, remote against local, cross-talk, the router restarted
+//! (`fleet`).
 
 mod can;
 mod estimator;
+#[cfg(feature = "fleet")]
+mod fleet;
 mod floor;
 mod liveness;
 mod outside;
@@ -212,6 +217,11 @@ struct Results {
 const IDLE: &str = "ADRIVE_BENCH_IDLE_THREADS";
 
 fn main() {
+    #[cfg(feature = "fleet")]
+    if let Ok(endpoint) = std::env::var(fleet::ROUTER) {
+        fleet::router_process(&endpoint);
+        return;
+    }
     if let Ok(port) = std::env::var(outside::RELAY) {
         outside::relay_process(&port);
         return;
@@ -287,6 +297,10 @@ fn main() {
     }
     if on("15") {
         teleop::section15_teleop(&dir, holds());
+    }
+    #[cfg(feature = "fleet")]
+    if on("16") {
+        fleet::section16_fleet(secs);
     }
     summary(&r, &out);
 }

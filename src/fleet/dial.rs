@@ -26,6 +26,18 @@ use zenoh::Wait;
 /// How long the vehicle has to answer an opening.
 const CHALLENGE_WITHIN: Duration = Duration::from_secs(5);
 
+/// A connection to vehicle `id`'s control socket over the fleet, through `connect`,
+/// proving `key` if given: the stream `adrive attach --vehicle` and `adrive ctl
+/// --vehicle` speak the socket's protocol on (for tools, and the benchmark).
+pub fn connect(connect: &[String], id: &str, key: Option<Auth>) -> Result<UnixStream, String> {
+    let d = Dialer {
+        connect: connect.to_vec(),
+        id: id.to_string(),
+        key,
+    };
+    d.dial().map_err(|e| e.to_string())
+}
+
 /// The way to vehicle `id` of the fleet, through `connect`, proving `key` if given.
 pub(crate) struct Dialer {
     pub connect: Vec<String>,

@@ -18,7 +18,7 @@
 //!
 //! [`Snapshot::head`]: crate::snapshot::Snapshot::head
 
-pub(crate) mod dial;
+pub mod dial;
 pub mod keys;
 pub(crate) mod link;
 pub(crate) mod list;

@@ -6,8 +6,8 @@
 //! same Sparrow console as the embedded one — gets the frames the embedded console
 //! draws and sends the operator's operations; an operator's one-shot command (`adrive
 //! ctl status|engage|stop|disengage|release`) does one thing and goes. Remote users
-//! reach it over SSH like everything else on the vehicle; there is no new network
-//! listener.
+//! reach it over SSH like everything else on the vehicle, or, on a vehicle in a fleet,
+//! over a link the fleet carries to it (`fleet::serve`, through [`server::Door`]).
 //!
 //! An attached console is one more source to the intake ([`Source::Attached`]): it
 //! starts watching, engages when nobody commands, takes command under the ownership
