@@ -90,6 +90,9 @@ fn the_fleet_lists_every_vehicle_ctl_asks_one_alone_and_one_killed_goes() {
         assert_eq!(state["devices"], Value::Array(vec![]), "{v:#}");
         let age = v["state_age_ms"].as_f64().unwrap();
         assert!((0.0..3000.0).contains(&age), "{v:#}");
+        // The health of its link: a round trip to it and back, answered.
+        let rtt = v["rtt_ms"].as_f64().unwrap_or(f64::NAN);
+        assert!((0.0..1000.0).contains(&rtt), "{v:#}");
     }
 
     // One vehicle's whole status, asked by its id: its own, no other's.

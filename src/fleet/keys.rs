@@ -22,6 +22,19 @@ pub fn state(id: &str) -> String {
     format!("{ROOT}/{id}/state")
 }
 
+/// Where vehicle `id` answers a ping (the fleet's round-trip time to it).
+pub fn ping(id: &str) -> String {
+    format!("{ROOT}/{id}/ping")
+}
+
+/// Every vehicle's ping.
+pub const PINGS: &str = "adrive/*/ping";
+
+/// The vehicle a ping's key names (`adrive/car1/ping` → `car1`).
+pub fn id_of_ping(key: &str) -> Option<&str> {
+    id_of_token(key.strip_suffix("/ping")?)
+}
+
 /// The liveliness token of link `sid` to vehicle `id`: the link is there as long as
 /// it is.
 pub fn link(id: &str, sid: &str) -> String {
@@ -83,6 +96,8 @@ mod tests {
         assert_eq!(id_of_token("adrive/"), None);
         assert_eq!(id_of_token("adrivex/car1"), None);
         assert_eq!(id_of_state(&link("car1", "ab")), None);
+        assert_eq!(id_of_ping(&ping("car1")), Some("car1"));
+        assert_eq!(id_of_ping(&state("car1")), None);
         assert_eq!(id_of_token(&up("car1", "ab")), None);
         assert_eq!(sid_of("car1", &link("car1", "ab"), ""), Some("ab"));
         assert_eq!(sid_of("car1", &up("car1", "ab"), "/up"), Some("ab"));

@@ -59,6 +59,8 @@ pub(crate) struct Entry<'a> {
     status: Status,
     /// Since its last state arrived, ms (null: none yet).
     state_age_ms: Option<f64>,
+    /// The last round trip to it and back, ms (null: none answered).
+    rtt_ms: Option<f64>,
     state: Option<&'a Snapshot>,
 }
 
@@ -67,6 +69,8 @@ struct Seen {
     status: Status,
     state: Option<Snapshot>,
     at: Option<Instant>,
+    /// The last round trip measured to it.
+    rtt: Option<Duration>,
     /// The last change a `--watch` line told.
     told: Option<Change>,
 }
@@ -78,6 +82,7 @@ impl Seen {
             id,
             status: self.status,
             state_age_ms: self.at.map(|at| now.duration_since(at).as_secs_f64() * 1e3),
+            rtt_ms: self.rtt.map(|d| d.as_secs_f64() * 1e3),
             state: self.state.as_ref(),
         }
     }
@@ -124,7 +129,12 @@ pub(crate) fn run(opts: &Options, stop: &AtomicBool) -> anyhow::Result<i32> {
     let mut fleet: BTreeMap<String, Seen> = BTreeMap::new();
     let end = Instant::now() + opts.wait;
     let tick = Duration::from_millis(100);
+    let mut pinged = Instant::now();
     while !stop.load(Relaxed) {
+        if opts.watch && pinged.elapsed() >= PING_EVERY {
+            ping(&session, &mut fleet);
+            pinged = Instant::now();
+        }
         let left = if opts.watch {
             tick
         } else {
@@ -154,6 +164,9 @@ pub(crate) fn run(opts: &Options, stop: &AtomicBool) -> anyhow::Result<i32> {
     }
     drop(tokens);
     drop(states);
+    if !opts.watch {
+        ping(&session, &mut fleet);
+    }
     let _ = session.close().wait();
     if !opts.watch {
         let now = Instant::now();
@@ -167,6 +180,31 @@ pub(crate) fn run(opts: &Options, stop: &AtomicBool) -> anyhow::Result<i32> {
     Ok(0)
 }
 
+/// How often `--watch` measures the round trips.
+const PING_EVERY: Duration = Duration::from_secs(2);
+/// How long a ping is waited for.
+const PING_WITHIN: Duration = Duration::from_secs(1);
+
+/// Ask every vehicle at once for a ping; each that answers gets its round trip.
+fn ping(session: &zenoh::Session, fleet: &mut BTreeMap<String, Seen>) {
+    let asked = Instant::now();
+    let replies = match session.get(keys::PINGS).timeout(PING_WITHIN).wait() {
+        Ok(r) => r,
+        Err(e) => return tracing::debug!("fleet: ping: {e}"),
+    };
+    while let Ok(reply) = replies.recv() {
+        let took = asked.elapsed();
+        let Ok(sample) = reply.result() else {
+            continue;
+        };
+        if let Some(seen) =
+            keys::id_of_ping(sample.key_expr().as_str()).and_then(|id| fleet.get_mut(id))
+        {
+            seen.rtt = Some(took);
+        }
+    }
+}
+
 /// Take in what was heard; the vehicle and the event worth a `--watch` line, if any.
 fn hear(fleet: &mut BTreeMap<String, Seen>, heard: Heard) -> Option<(String, Event)> {
     match heard {
@@ -177,6 +215,7 @@ fn hear(fleet: &mut BTreeMap<String, Seen>, heard: Heard) -> Option<(String, Eve
                 status,
                 state: None,
                 at: None,
+                rtt: None,
                 told: None,
             });
             let was = seen.status;
@@ -258,8 +297,9 @@ fn table(entries: &[Entry<'_>]) -> String {
         "COMMANDER",
         "FAULTS",
         "STATE AGE",
+        "RTT",
     ];
-    let rows: Vec<[String; 7]> = entries
+    let rows: Vec<[String; 8]> = entries
         .iter()
         .map(|e| {
             let status = match e.status {
@@ -269,6 +309,7 @@ fn table(entries: &[Entry<'_>]) -> String {
             let age = e
                 .state_age_ms
                 .map_or("-".into(), |ms| format!("{:.1} s", ms / 1e3));
+            let rtt = e.rtt_ms.map_or("-".into(), |ms| format!("{ms:.1} ms"));
             match e.state {
                 Some(s) => [
                     e.id.to_string(),
@@ -278,6 +319,7 @@ fn table(entries: &[Entry<'_>]) -> String {
                     commander(s).into(),
                     faults(s),
                     age,
+                    rtt,
                 ],
                 None => [
                     e.id.to_string(),
@@ -287,6 +329,7 @@ fn table(entries: &[Entry<'_>]) -> String {
                     "-".into(),
                     "-".into(),
                     age,
+                    rtt,
                 ],
             }
         })
@@ -374,6 +417,7 @@ mod tests {
             &mut fleet,
             Heard::State("adrive/car1/state".into(), state(false), now),
         );
+        fleet.get_mut("car1").unwrap().rtt = Some(Duration::from_micros(1250));
         let entries: Vec<Entry<'_>> = fleet.iter().map(|(id, s)| s.entry(id, None, now)).collect();
         let t = table(&entries);
         let lines: Vec<&str> = t.lines().collect();
@@ -382,10 +426,12 @@ mod tests {
             lines[1].starts_with("car1  live    no       not engaged yet  nobody"),
             "{t}"
         );
+        assert!(lines[1].ends_with("0.0 s      1.2 ms"), "{t}");
         assert!(
             lines[2].starts_with("car2  live    -        no state yet"),
             "{t}"
         );
+        assert!(lines[2].ends_with('-'), "{t}");
         assert_eq!(table(&[]), "no vehicle on the network\n");
     }
 }

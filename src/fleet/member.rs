@@ -32,6 +32,8 @@ pub struct Member {
     command: bool,
     /// The links' subscriptions live as long as the member.
     links: Option<super::serve::Subscriptions>,
+    /// Answers pings (`adrive fleet`'s round-trip time) as long as the member lives.
+    ping: Option<zenoh::query::Queryable<()>>,
 }
 
 impl Member {
@@ -81,6 +83,7 @@ impl Member {
             token: Some(token),
             command: c.command,
             links: None,
+            ping: None,
         })
     }
 
@@ -98,6 +101,30 @@ impl Member {
             seq: 0,
             told: None,
         };
+        // A ping is answered at once by a thread of its own, whatever else the member
+        // does: what `adrive fleet` times is the network and the router.
+        let ping_key = keys::ping(&self.id);
+        let (tx, rx) = crossbeam_channel::bounded::<zenoh::query::Query>(64);
+        let me = zenoh::key_expr::KeyExpr::try_from(ping_key.clone())
+            .map_err(|e| anyhow::anyhow!("fleet: {ping_key}: {e}"))?;
+        let ping = self
+            .session
+            .declare_queryable(ping_key.clone())
+            .callback(move |q| {
+                let _ = tx.try_send(q);
+            })
+            .wait()
+            .map_err(|e| anyhow::anyhow!("fleet: queryable {ping_key}: {e}"))?;
+        // Answered under its own key, which names the vehicle (the question's may be
+        // every vehicle's, `adrive/*/ping`).
+        self.threads.spawn("fleet/ping", move |stop| {
+            while !stop.is_stopped() {
+                if let Ok(q) = rx.recv_timeout(LOOK) {
+                    let _ = q.reply(me.clone(), Vec::<u8>::new()).wait();
+                }
+            }
+        })?;
+        self.ping = Some(ping);
         self.threads.spawn("fleet/publish", move |stop| {
             crate::threads::every(LOOK, stop, || publish.turn(Instant::now()));
             // The last word: the state as it stops (disengaged, stopping).
@@ -138,6 +165,7 @@ impl crate::threads::Shutdown for Member {
     fn shutdown(mut self, deadline: Duration) -> Vec<String> {
         let stuck = self.threads.stop(Instant::now() + deadline);
         drop(self.links.take());
+        drop(self.ping.take());
         if let Some(t) = self.token.take() {
             if let Err(e) = t.undeclare().wait() {
                 tracing::debug!("fleet: withdrawing the token: {e}");
