@@ -427,6 +427,20 @@ pub struct FleetArgs {
     /// How long to listen for vehicles before the list (without --watch).
     #[arg(long, value_name = "DURATION", default_value = "1s", value_parser = config::parse_duration)]
     pub wait: Duration,
+    /// The list in the console, live, to pick a vehicle from and attach to it (Enter);
+    /// quitting that console comes back to the list.
+    #[arg(long, conflicts_with_all = ["json", "watch"])]
+    pub pick: bool,
+    /// With --pick: the key file the consoles attach with (a vehicle's `[network]
+    /// key_file`), to command a vehicle that allows it; without it, they watch.
+    #[arg(long, value_name = "FILE", requires = "pick")]
+    pub key: Option<PathBuf>,
+    /// With --pick: keymap TOML merged over the built-in one.
+    #[arg(long, value_name = "FILE", requires = "pick")]
+    pub keymap: Option<PathBuf>,
+    /// With --pick: the consoles' teleop deadman (100ms to 5s) [default: 1s].
+    #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman, requires = "pick")]
+    pub deadman: Option<Duration>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -1518,6 +1532,9 @@ mod fleet {
             crate::config::ros2::check_endpoint(e)
                 .map_err(|why| anyhow::anyhow!("--connect: {why}"))?;
         }
+        if args.pick {
+            return pick(args);
+        }
         let opts = crate::fleet::list::Options {
             connect: args.connect.clone(),
             wait: args.wait,
@@ -1526,6 +1543,40 @@ mod fleet {
         };
         let stop = super::stop_flag()?;
         crate::fleet::list::run(&opts, &stop)
+    }
+
+    /// `adrive fleet --pick`.
+    #[cfg(feature = "fleet")]
+    fn pick(args: &FleetArgs) -> anyhow::Result<i32> {
+        use crate::console;
+        let keymap = console::keymap::Keymap::for_run(args.keymap.as_deref())?;
+        let key = match args.key.as_deref() {
+            Some(k) => {
+                crate::paths::check_file("--key", k).map_err(anyhow::Error::msg)?;
+                Some(Auth::load(k).map_err(|e| anyhow::anyhow!("--key {e}"))?)
+            }
+            None => None,
+        };
+        console::terminal::check_standard_streams(console::terminal::ATTACH_WITHOUT)
+            .map_err(anyhow::Error::msg)?;
+        let exits = crate::exit::install()?;
+        let opts = crate::fleet::pick::Options {
+            connect: args.connect.clone(),
+            key,
+            key_file: args.key.as_ref().map(|k| k.display().to_string()),
+            keymap,
+            deadman: args
+                .deadman
+                .unwrap_or(crate::config::limits::DEADMAN_DEFAULT),
+        };
+        let why = crate::fleet::pick::run(&opts, &exits)?;
+        if let crate::exit::Exit::HangUp(_) = why {
+            super::tell(
+                std::io::stderr(),
+                format_args!("adrive: {}\n", why.describe()),
+            );
+        }
+        Ok(crate::exit::status(&why, true, true))
     }
 
     #[cfg(not(feature = "fleet"))]

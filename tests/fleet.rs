@@ -486,3 +486,93 @@ fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every
     assert_eq!(local_gate(&car1)["engaged"], false);
     assert_eq!(gate(&endpoint, "car1")["engaged"], false);
 }
+
+/// `adrive fleet --pick`: the fleet in the console, live; the operator picks car2,
+/// the console attaches to it over the fleet with the key and engages it (car1 and car3
+/// untouched); quitting that console disengages car2 (a commander gone) and comes back
+/// to the list, which says so; `q` leaves.
+#[test]
+fn the_fleet_in_the_console_picks_a_vehicle_attaches_to_it_and_comes_back() {
+    let (_router, endpoint) = common::zenoh_router::start();
+    let dir = common::tempdir("fleet-pick");
+    let key = dir.path().join("fleet.key");
+    std::fs::write(&key, "0123456789abcdef0123456789abcdef\n").unwrap();
+    let keyed = format!("key_file = \"{}\"", key.display());
+    let _car1 = vehicle_with("car1", &endpoint, &keyed, "command = true");
+    let _car2 = vehicle_with("car2", &endpoint, &keyed, "command = true");
+    let _car3 = vehicle("car3", &endpoint);
+
+    let mut cmd = Process::new(BIN);
+    cmd.args(["fleet", "--pick", "--connect", &endpoint])
+        .arg("--key")
+        .arg(&key)
+        .env("TERM", "xterm-256color")
+        .env_remove("TMUX")
+        .env_remove("STY");
+    let (child, term) = Master::spawn_playing(&mut cmd, 100, 30, true, Play::default());
+    let mut c = Attached { child, term };
+    let screen = |c: &Attached| c.screen();
+    let wait = |c: &Attached, what: &str, ok: &dyn Fn(&str) -> bool| {
+        common::wait_screen(what, Duration::from_millis(20), || screen(c), ok)
+    };
+    let row = |s: &str, id: &str| -> Option<String> {
+        s.lines()
+            .find(|l| l.contains(&format!("│{id} ")))
+            .map(str::to_string)
+    };
+    let listed = |s: &str| {
+        ["car1", "car2", "car3"]
+            .iter()
+            .all(|id| row(s, id).is_some_and(|r| r.contains("live") && r.contains(" ms")))
+    };
+    let s = wait(
+        &c,
+        "the three vehicles, live, with their round trips",
+        &listed,
+    );
+    assert!(s.contains("3 vehicles through"), "{s}");
+    assert!(s.contains("commanding where a vehicle allows it"), "{s}");
+
+    // The second row, and Enter: the console, on car2.
+    c.keys("j\r");
+    c.wait_for("every device", |s| {
+        ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
+            .iter()
+            .all(|d| s.contains(d))
+    });
+    let end = Instant::now() + DEADLINE;
+    while !common::engaged_said(&c.engage()) {
+        assert!(Instant::now() < end, "car2 never engaged:\n{}", c.screen());
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let g = gate(&endpoint, "car2");
+    assert_eq!(g["engaged"], true, "{g:#}");
+    assert!(
+        g["commander"].as_str().unwrap().starts_with("console #"),
+        "{g:#}"
+    );
+    for id in ["car1", "car3"] {
+        assert_eq!(gate(&endpoint, id)["engaged"], false, "{id}");
+    }
+
+    // Quit the console: back to the list; car2 in the safe state, its commander gone.
+    c.keys("q");
+    let s = wait(&c, "the list again", &|s: &str| {
+        s.contains("left car2") && listed(s)
+    });
+    let end = Instant::now() + DEADLINE;
+    let g = loop {
+        let g = gate(&endpoint, "car2");
+        if g["engaged"] == false {
+            break g;
+        }
+        assert!(Instant::now() < end, "car2 still engaged: {g:#}\n{s}");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(
+        g["reason"].as_str().unwrap().contains("went away"),
+        "{g:#}\n{s}"
+    );
+    c.keys("q");
+    assert_eq!(wait_exit(&mut c.child), Some(0));
+}

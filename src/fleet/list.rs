@@ -55,17 +55,17 @@ pub(crate) enum Event {
 pub(crate) struct Entry<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     event: Option<Event>,
-    id: &'a str,
-    status: Status,
+    pub id: &'a str,
+    pub status: Status,
     /// Since its last state arrived, ms (null: none yet).
-    state_age_ms: Option<f64>,
+    pub state_age_ms: Option<f64>,
     /// The last round trip to it and back, ms (null: none answered).
-    rtt_ms: Option<f64>,
-    state: Option<&'a Snapshot>,
+    pub rtt_ms: Option<f64>,
+    pub state: Option<&'a Snapshot>,
 }
 
 /// One vehicle seen.
-struct Seen {
+pub(crate) struct Seen {
     status: Status,
     state: Option<Snapshot>,
     at: Option<Instant>,
@@ -91,50 +91,132 @@ impl Seen {
 enum Heard {
     Token(String, bool),
     State(String, Vec<u8>, Instant),
+    /// A vehicle's round trip, measured.
+    Rtt(String, Duration),
+}
+
+/// The fleet as a session hears it: its tokens and states as they come (and, when
+/// asked, the round trips, measured every [`PING_EVERY`] by `fleet/ping`), taken in
+/// by [`Watching::hear`].
+pub(crate) struct Watching {
+    session: zenoh::Session,
+    rx: crossbeam_channel::Receiver<Heard>,
+    tx: crossbeam_channel::Sender<Heard>,
+    /// Every vehicle heard of, by id.
+    pub fleet: BTreeMap<String, Seen>,
+    subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+    /// Stops the pings.
+    pinging: Option<(std::sync::Arc<AtomicBool>, std::thread::JoinHandle<()>)>,
+}
+
+impl Watching {
+    /// Join the fleet's network through `connect` and listen.
+    pub(crate) fn start(connect: &[String]) -> anyhow::Result<Watching> {
+        let session = super::open(&super::Network {
+            mode: Mode::Client,
+            connect,
+            listen: &[],
+            multicast_scouting: false,
+        })?;
+        let (tx, rx) = crossbeam_channel::unbounded();
+        let t = tx.clone();
+        let tokens = session
+            .liveliness()
+            .declare_subscriber(keys::TOKENS)
+            .history(true)
+            .callback(move |s| {
+                let alive = s.kind() == SampleKind::Put;
+                let _ = t.send(Heard::Token(s.key_expr().as_str().to_string(), alive));
+            })
+            .wait()
+            .map_err(|e| anyhow::anyhow!("fleet: liveliness subscription: {e}"))?;
+        let t = tx.clone();
+        let states = session
+            .declare_subscriber(keys::STATES)
+            .callback(move |s| {
+                let at = Instant::now();
+                let _ = t.send(Heard::State(
+                    s.key_expr().as_str().to_string(),
+                    s.payload().to_bytes().into_owned(),
+                    at,
+                ));
+            })
+            .wait()
+            .map_err(|e| anyhow::anyhow!("fleet: state subscription: {e}"))?;
+        Ok(Watching {
+            session,
+            rx,
+            tx,
+            fleet: BTreeMap::new(),
+            subscribers: vec![tokens, states],
+            pinging: None,
+        })
+    }
+
+    /// Measure every vehicle's round trip now, and then every [`PING_EVERY`].
+    pub(crate) fn ping_every(&mut self) -> std::io::Result<()> {
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let (s, session, tx) = (stop.clone(), self.session.clone(), self.tx.clone());
+        let h = std::thread::Builder::new()
+            .name("fleet/ping".into())
+            .spawn(move || {
+                while !s.load(Relaxed) {
+                    for (id, rtt) in ping(&session) {
+                        let _ = tx.send(Heard::Rtt(id, rtt));
+                    }
+                    let until = Instant::now() + PING_EVERY;
+                    while !s.load(Relaxed) && Instant::now() < until {
+                        std::thread::sleep(Duration::from_millis(50));
+                    }
+                }
+            })?;
+        self.pinging = Some((stop, h));
+        Ok(())
+    }
+
+    /// Take in what was heard, waiting at most `within` for the first; the vehicle and
+    /// the event worth a `--watch` line, if one came.
+    fn hear(&mut self, within: Duration) -> Option<(String, Event)> {
+        let heard = self.rx.recv_timeout(within).ok()?;
+        hear(&mut self.fleet, heard)
+    }
+
+    /// Take in everything heard so far.
+    pub(crate) fn hear_all(&mut self) {
+        while let Ok(h) = self.rx.try_recv() {
+            hear(&mut self.fleet, h);
+        }
+    }
+
+    /// Every vehicle as `--json` prints it.
+    pub(crate) fn entries(&self, now: Instant) -> Vec<Entry<'_>> {
+        self.fleet
+            .iter()
+            .map(|(id, s)| s.entry(id, None, now))
+            .collect()
+    }
+
+    /// Stop listening and close the session.
+    pub(crate) fn close(mut self) {
+        if let Some((stop, h)) = self.pinging.take() {
+            stop.store(true, Relaxed);
+            let _ = h.join();
+        }
+        self.subscribers.clear();
+        let _ = self.session.close().wait();
+    }
 }
 
 /// Run `adrive fleet`; the process status.
 pub(crate) fn run(opts: &Options, stop: &AtomicBool) -> anyhow::Result<i32> {
-    let session = super::open(&super::Network {
-        mode: Mode::Client,
-        connect: &opts.connect,
-        listen: &[],
-        multicast_scouting: false,
-    })?;
-    let (tx, rx) = crossbeam_channel::unbounded();
-    let t = tx.clone();
-    let tokens = session
-        .liveliness()
-        .declare_subscriber(keys::TOKENS)
-        .history(true)
-        .callback(move |s| {
-            let alive = s.kind() == SampleKind::Put;
-            let _ = t.send(Heard::Token(s.key_expr().as_str().to_string(), alive));
-        })
-        .wait()
-        .map_err(|e| anyhow::anyhow!("fleet: liveliness subscription: {e}"))?;
-    let states = session
-        .declare_subscriber(keys::STATES)
-        .callback(move |s| {
-            let at = Instant::now();
-            let _ = tx.send(Heard::State(
-                s.key_expr().as_str().to_string(),
-                s.payload().to_bytes().into_owned(),
-                at,
-            ));
-        })
-        .wait()
-        .map_err(|e| anyhow::anyhow!("fleet: state subscription: {e}"))?;
+    let mut w = Watching::start(&opts.connect)?;
+    if opts.watch {
+        w.ping_every()?;
+    }
     let mut out = std::io::stdout().lock();
-    let mut fleet: BTreeMap<String, Seen> = BTreeMap::new();
     let end = Instant::now() + opts.wait;
     let tick = Duration::from_millis(100);
-    let mut pinged = Instant::now();
     while !stop.load(Relaxed) {
-        if opts.watch && pinged.elapsed() >= PING_EVERY {
-            ping(&session, &mut fleet);
-            pinged = Instant::now();
-        }
         let left = if opts.watch {
             tick
         } else {
@@ -143,16 +225,11 @@ pub(crate) fn run(opts: &Options, stop: &AtomicBool) -> anyhow::Result<i32> {
         if !opts.watch && left.is_zero() {
             break;
         }
-        let heard = match rx.recv_timeout(left.min(tick)) {
-            Ok(h) => h,
-            Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
-            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
-        };
-        let Some((id, event)) = hear(&mut fleet, heard) else {
+        let Some((id, event)) = w.hear(left.min(tick)) else {
             continue;
         };
         if opts.watch {
-            let seen = &fleet[&id];
+            let seen = &w.fleet[&id];
             let line = if opts.json {
                 serde_json::to_string(&seen.entry(&id, Some(event), Instant::now()))?
             } else {
@@ -162,47 +239,48 @@ pub(crate) fn run(opts: &Options, stop: &AtomicBool) -> anyhow::Result<i32> {
             out.flush()?;
         }
     }
-    drop(tokens);
-    drop(states);
     if !opts.watch {
-        ping(&session, &mut fleet);
-    }
-    let _ = session.close().wait();
-    if !opts.watch {
+        // Once: the round trips measured now, for the list.
+        for (id, rtt) in ping(&w.session) {
+            hear(&mut w.fleet, Heard::Rtt(id, rtt));
+        }
         let now = Instant::now();
-        let entries: Vec<Entry<'_>> = fleet.iter().map(|(id, s)| s.entry(id, None, now)).collect();
+        let entries = w.entries(now);
         if opts.json {
             writeln!(out, "{}", serde_json::to_string(&entries)?)?;
         } else {
             write!(out, "{}", table(&entries))?;
         }
     }
+    w.close();
     Ok(0)
 }
 
-/// How often `--watch` measures the round trips.
+/// How often the round trips are measured.
 const PING_EVERY: Duration = Duration::from_secs(2);
 /// How long a ping is waited for.
 const PING_WITHIN: Duration = Duration::from_secs(1);
 
-/// Ask every vehicle at once for a ping; each that answers gets its round trip.
-fn ping(session: &zenoh::Session, fleet: &mut BTreeMap<String, Seen>) {
+/// Ask every vehicle at once for a ping: the round trip of each that answers.
+fn ping(session: &zenoh::Session) -> Vec<(String, Duration)> {
     let asked = Instant::now();
     let replies = match session.get(keys::PINGS).timeout(PING_WITHIN).wait() {
         Ok(r) => r,
-        Err(e) => return tracing::debug!("fleet: ping: {e}"),
+        Err(e) => {
+            tracing::debug!("fleet: ping: {e}");
+            return Vec::new();
+        }
     };
+    let mut out = Vec::new();
     while let Ok(reply) = replies.recv() {
         let took = asked.elapsed();
-        let Ok(sample) = reply.result() else {
-            continue;
-        };
-        if let Some(seen) =
-            keys::id_of_ping(sample.key_expr().as_str()).and_then(|id| fleet.get_mut(id))
-        {
-            seen.rtt = Some(took);
+        if let Ok(sample) = reply.result() {
+            if let Some(id) = keys::id_of_ping(sample.key_expr().as_str()) {
+                out.push((id.to_string(), took));
+            }
         }
     }
+    out
 }
 
 /// Take in what was heard; the vehicle and the event worth a `--watch` line, if any.
@@ -250,6 +328,12 @@ fn hear(fleet: &mut BTreeMap<String, Seen>, heard: Heard) -> Option<(String, Eve
             seen.told = Some(change);
             Some((id.to_string(), Event::State))
         }
+        Heard::Rtt(id, rtt) => {
+            if let Some(seen) = fleet.get_mut(&id) {
+                seen.rtt = Some(rtt);
+            }
+            None
+        }
     }
 }
 
@@ -284,56 +368,59 @@ fn watch_line(id: &str, event: Event, seen: &Seen) -> String {
     }
 }
 
+/// The list's columns.
+pub(crate) const HEAD: [&str; 8] = [
+    "ID",
+    "STATUS",
+    "ENGAGED",
+    "WHY",
+    "COMMANDER",
+    "FAULTS",
+    "STATE AGE",
+    "RTT",
+];
+
+/// One vehicle's row of the list.
+pub(crate) fn cells(e: &Entry<'_>) -> [String; 8] {
+    let status = match e.status {
+        Status::Live => "live",
+        Status::Gone => "gone",
+    };
+    let age = e
+        .state_age_ms
+        .map_or("-".into(), |ms| format!("{:.1} s", ms / 1e3));
+    let rtt = e.rtt_ms.map_or("-".into(), |ms| format!("{ms:.1} ms"));
+    match e.state {
+        Some(s) => [
+            e.id.to_string(),
+            status.into(),
+            if s.gate.engaged { "yes" } else { "no" }.into(),
+            s.gate.cause.why(),
+            commander(s).into(),
+            faults(s),
+            age,
+            rtt,
+        ],
+        None => [
+            e.id.to_string(),
+            status.into(),
+            "-".into(),
+            "no state yet".into(),
+            "-".into(),
+            "-".into(),
+            age,
+            rtt,
+        ],
+    }
+}
+
 /// The list without `--json`: a row per vehicle.
 fn table(entries: &[Entry<'_>]) -> String {
     if entries.is_empty() {
         return "no vehicle on the network\n".into();
     }
-    let head = [
-        "ID",
-        "STATUS",
-        "ENGAGED",
-        "WHY",
-        "COMMANDER",
-        "FAULTS",
-        "STATE AGE",
-        "RTT",
-    ];
-    let rows: Vec<[String; 8]> = entries
-        .iter()
-        .map(|e| {
-            let status = match e.status {
-                Status::Live => "live",
-                Status::Gone => "gone",
-            };
-            let age = e
-                .state_age_ms
-                .map_or("-".into(), |ms| format!("{:.1} s", ms / 1e3));
-            let rtt = e.rtt_ms.map_or("-".into(), |ms| format!("{ms:.1} ms"));
-            match e.state {
-                Some(s) => [
-                    e.id.to_string(),
-                    status.into(),
-                    if s.gate.engaged { "yes" } else { "no" }.into(),
-                    s.gate.cause.why(),
-                    commander(s).into(),
-                    faults(s),
-                    age,
-                    rtt,
-                ],
-                None => [
-                    e.id.to_string(),
-                    status.into(),
-                    "-".into(),
-                    "no state yet".into(),
-                    "-".into(),
-                    "-".into(),
-                    age,
-                    rtt,
-                ],
-            }
-        })
-        .collect();
+    let head = HEAD;
+    let rows: Vec<[String; 8]> = entries.iter().map(cells).collect();
     let mut width = head.map(str::len);
     for r in &rows {
         for (w, c) in width.iter_mut().zip(r) {

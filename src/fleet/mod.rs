@@ -10,6 +10,7 @@
 //! - [`member`]: a running adrive in the fleet (`--fleet`, `[fleet]`): its session,
 //!   its token and the thread that publishes its state;
 //! - [`list`]: `adrive fleet`, every vehicle visible, once or as it changes;
+//! - [`pick`]: `adrive fleet --pick`, the list in the console, to attach to one;
 //! - [`link`]: a console or an operator's command reaching a vehicle's control socket
 //!   over the fleet: what goes on the wire and how it is signed (pure);
 //! - [`dial`]: the asking end of a link (`adrive attach --vehicle ID`, `adrive ctl
@@ -23,6 +24,7 @@ pub mod keys;
 pub(crate) mod link;
 pub(crate) mod list;
 pub mod member;
+pub(crate) mod pick;
 pub(crate) mod serve;
 pub mod state;
 

@@ -301,6 +301,14 @@ impl Remote {
     }
 }
 
+/// A console that goes closes its connection at once (its reading thread holds the
+/// stream too): adrive sees it gone when it quits, not when its process ends.
+impl Drop for Remote {
+    fn drop(&mut self) {
+        let _ = self.writer.lock().shutdown(std::net::Shutdown::Both);
+    }
+}
+
 impl Inbox {
     fn take(&self, mut f: WireScene) {
         let mut logs = self.logs.lock();
