@@ -576,3 +576,31 @@ fn the_fleet_in_the_console_picks_a_vehicle_attaches_to_it_and_comes_back() {
     c.keys("q");
     assert_eq!(wait_exit(&mut c.child), Some(0));
 }
+
+/// A vehicle that would take commands from the fleet without a key to prove is
+/// refused before it starts, at the line that asks for it.
+#[test]
+fn a_vehicle_commanded_from_the_fleet_without_a_key_is_refused_at_its_line() {
+    let dir = common::tempdir("fleet-nokey");
+    let file = dir.path().join("v.toml");
+    let text = format!("{}\n[fleet]\ncommand = true\n", adrive::config::ALICE_TOML);
+    let line = text.lines().count();
+    std::fs::write(&file, &text).unwrap();
+    let out = output_within(
+        Process::new(BIN)
+            .args(["--sim", "--headless", "--listen", "127.0.0.1:0", "--config"])
+            .arg(&file)
+            .arg("--log-dir")
+            .arg(dir.path().join("log"))
+            .env("XDG_RUNTIME_DIR", dir.path()),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains(&format!(
+            "v.toml:{line}: [fleet] command: a vehicle commanded from the fleet needs its key"
+        )),
+        "{err}"
+    );
+    assert!(!err.contains("running headless"), "{err}");
+}
