@@ -441,6 +441,18 @@ pub struct FleetArgs {
     /// With --pick: the consoles' teleop deadman (100ms to 5s) [default: 1s].
     #[arg(long, value_name = "DURATION", value_parser = config::limits::parse_deadman, requires = "pick")]
     pub deadman: Option<Duration>,
+    /// Be the fleet's Zenoh router (for a fleet that has none), until interrupted.
+    #[arg(long, conflicts_with_all = ["json", "watch", "pick"])]
+    pub router: bool,
+    /// With --router: the endpoints it listens on (repeatable, or comma-separated)
+    /// [default: tcp/0.0.0.0:7447].
+    #[arg(
+        long,
+        value_name = "ENDPOINT",
+        value_delimiter = ',',
+        requires = "router"
+    )]
+    pub listen: Vec<String>,
 }
 
 #[derive(Args, Debug, Clone)]
@@ -1534,6 +1546,19 @@ mod fleet {
         }
         if args.pick {
             return pick(args);
+        }
+        if args.router {
+            let listen = if args.listen.is_empty() {
+                vec![crate::fleet::router::DEFAULT_LISTEN.to_string()]
+            } else {
+                args.listen.clone()
+            };
+            for e in &listen {
+                crate::config::ros2::check_endpoint(e)
+                    .map_err(|why| anyhow::anyhow!("--listen: {why}"))?;
+            }
+            let stop = super::stop_flag()?;
+            return crate::fleet::router::run(&listen, &stop);
         }
         let opts = crate::fleet::list::Options {
             connect: args.connect.clone(),

@@ -402,6 +402,21 @@ fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_
     drop(car1);
 }
 
+/// `adrive fleet --router` listening on `endpoint`, a process of its own (killed on
+/// drop), once it says it listens.
+fn router_process(endpoint: &str) -> Reaped {
+    let mut child = Process::new(BIN)
+        .args(["fleet", "--router", "--listen", endpoint])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = lines(child.stderr.take().unwrap());
+    let said = until(&err, "listens on");
+    assert!(said.last().unwrap().contains(endpoint), "{said:?}");
+    Reaped(child)
+}
+
 /// The status of `v`, asked at its own control socket (on the vehicle: the fleet may
 /// be down).
 fn local_gate(v: &Adrive) -> Value {
@@ -415,7 +430,8 @@ fn local_gate(v: &Adrive) -> Value {
     snap["gate"].clone()
 }
 
-/// The router stops under an engaged vehicle commanded from the fleet: the vehicle
+/// The router (`adrive fleet --router`) crashes under an engaged vehicle commanded
+/// from the fleet: the vehicle
 /// loses the console's link with the router, and the console was its watchdog — the
 /// safe state, at once; the other vehicle is untouched. The router back on its
 /// address, every vehicle rejoins (Zenoh's client retries its router) and is listed
@@ -423,7 +439,14 @@ fn local_gate(v: &Adrive) -> Value {
 /// engages it again on its own).
 #[test]
 fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every_vehicle_rejoins() {
-    let (router, endpoint) = common::zenoh_router::start();
+    // The router: adrive's own, a process that can crash.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let mut router = router_process(&endpoint);
     let dir = common::tempdir("fleet-router");
     let key = dir.path().join("fleet.key");
     std::fs::write(&key, "0123456789abcdef0123456789abcdef\n").unwrap();
@@ -443,10 +466,10 @@ fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every
     }
     assert_eq!(local_gate(&car1)["engaged"], true);
 
-    // The router goes.
+    // The router crashes (SIGKILL: no goodbye to anyone).
     let cut = Instant::now();
-    zenoh::Wait::wait(router.close()).unwrap();
-    drop(router);
+    assert!(signal(&router.0, libc::SIGKILL));
+    router.0.wait().unwrap();
     let end = Instant::now() + DEADLINE;
     let g = loop {
         let g = local_gate(&car1);
@@ -464,7 +487,7 @@ fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every
     eprintln!("car1 in the safe state {took:?} after its router went");
 
     // Back: both vehicles listed again.
-    let _router = common::zenoh_router::start_on(&endpoint);
+    let _router = router_process(&endpoint);
     let back = Instant::now();
     let end = back + DEADLINE;
     loop {

@@ -1,8 +1,8 @@
 //! Section 16: a fleet on one machine, on loopback, through one Zenoh router (built
 //! with the cargo feature `fleet`). N = 1, 4, 16, 32 vehicles, each `adrive --sim
 //! --headless --fleet carK` on a vehicle of one simulated actuator (the fleet's cost,
-//! not a vehicle's), and the router in a process of its own (this benchmark's binary,
-//! [`ROUTER`]), so that its CPU and memory are its own:
+//! not a vehicle's), and the router in a process of its own (`adrive fleet --router`),
+//! so that its CPU and memory are its own:
 //!
 //! - how long a fresh `adrive fleet --watch` takes to show all N;
 //! - CPU and memory each vehicle pays for being in the fleet (the same N vehicles
@@ -24,27 +24,17 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-/// Set to an endpoint, the benchmark's binary is a Zenoh router there until its
-/// standard input closes.
-pub const ROUTER: &str = "ADRIVE_BENCH_ROUTER";
 const DEADLINE: Duration = Duration::from_secs(60);
 const KEY: &str = "0123456789abcdef0123456789abcdef";
-
-/// Be the router (in the process [`Router::start`] starts).
-pub fn router_process(endpoint: &str) {
-    let session = crate::common::zenoh_router::start_on(endpoint);
-    let _ = std::io::copy(&mut std::io::stdin(), &mut std::io::sink());
-    drop(session);
-}
 
 struct Router(Child);
 
 impl Router {
     fn start(endpoint: &str) -> Router {
-        let child = Command::new(std::env::current_exe().unwrap())
-            .env(ROUTER, endpoint)
-            .stdin(Stdio::piped())
+        let child = Command::new(adrive())
+            .args(["fleet", "--router", "--listen", endpoint])
             .stdout(Stdio::null())
+            .stderr(Stdio::null())
             .spawn()
             .unwrap();
         let addr = endpoint.trim_start_matches("tcp/");

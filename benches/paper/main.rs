@@ -217,11 +217,6 @@ struct Results {
 const IDLE: &str = "ADRIVE_BENCH_IDLE_THREADS";
 
 fn main() {
-    #[cfg(feature = "fleet")]
-    if let Ok(endpoint) = std::env::var(fleet::ROUTER) {
-        fleet::router_process(&endpoint);
-        return;
-    }
     if let Ok(port) = std::env::var(outside::RELAY) {
         outside::relay_process(&port);
         return;

@@ -11,6 +11,7 @@
 //!   its token and the thread that publishes its state;
 //! - [`list`]: `adrive fleet`, every vehicle visible, once or as it changes;
 //! - [`pick`]: `adrive fleet --pick`, the list in the console, to attach to one;
+//! - [`router`]: `adrive fleet --router`, the fleet's Zenoh router;
 //! - [`link`]: a console or an operator's command reaching a vehicle's control socket
 //!   over the fleet: what goes on the wire and how it is signed (pure);
 //! - [`dial`]: the asking end of a link (`adrive attach --vehicle ID`, `adrive ctl
@@ -25,6 +26,7 @@ pub(crate) mod link;
 pub(crate) mod list;
 pub mod member;
 pub(crate) mod pick;
+pub(crate) mod router;
 pub(crate) mod serve;
 pub mod state;
 

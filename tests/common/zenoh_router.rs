@@ -16,7 +16,6 @@ pub fn start() -> (zenoh::Session, String) {
 }
 
 /// A router on `endpoint` (again, after one there stopped).
-#[allow(dead_code)]
 pub fn start_on(endpoint: &str) -> zenoh::Session {
     let mut c = zenoh::Config::default();
     c.insert_json5("mode", "\"router\"").unwrap();
