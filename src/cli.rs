@@ -1304,7 +1304,9 @@ pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
         return Err(anyhow::Error::msg(no_terminal));
     }
     let exits = exit::install()?;
-    let remote = match socket::client::Remote::attach(to, |why| exit::request(Exit::Lost(why))) {
+    let remote = match socket::client::Remote::attach(to.clone(), |why| {
+        exit::request(Exit::Lost(why));
+    }) {
         Ok(r) => r,
         Err(e) => {
             tell(io::stderr(), format_args!("adrive: {e}\n"));
@@ -1313,6 +1315,9 @@ pub fn attach(args: AttachArgs) -> anyhow::Result<i32> {
     };
     let deadman = args.deadman.unwrap_or(config::limits::DEADMAN_DEFAULT);
     let why = console::drive(&remote, &exits, keymap, deadman, None)?;
+    // The console gone, its connection goes: said to the far end before leaving.
+    drop(remote);
+    to.close();
     if let Exit::Lost(_) = why {
         tell(io::stderr(), format_args!("adrive: {}\n", why.describe()));
     }
@@ -1638,6 +1643,7 @@ mod fleet {
             connect: connect.to_vec(),
             id: id.to_string(),
             key,
+            links: parking_lot::Mutex::default(),
         }))
     }
 

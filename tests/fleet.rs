@@ -387,7 +387,12 @@ fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_
     };
     let took = killed.elapsed();
     let reason = g["reason"].as_str().unwrap();
-    assert!(reason.contains(&format!("{me} went away")), "{reason}");
+    assert!(
+        reason.contains(&format!(
+            "{me} lost its link over the fleet (its token was withdrawn"
+        )),
+        "{reason}"
+    );
     assert_eq!(g["cause"]["why"]["trip"], "gone", "{g:#}");
     assert_eq!(
         commanded(&endpoint, "car1", "brake"),
@@ -481,7 +486,7 @@ fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every
     };
     let took = cut.elapsed();
     let reason = g["reason"].as_str().unwrap();
-    assert!(reason.contains("went away"), "{reason}");
+    assert!(reason.contains("lost its link over the fleet"), "{reason}");
     assert_eq!(g["cause"]["why"]["trip"], "gone", "{g:#}");
     assert_eq!(local_gate(&car2)["reason"], "not engaged yet");
     eprintln!("car1 in the safe state {took:?} after its router went");

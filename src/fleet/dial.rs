@@ -11,7 +11,7 @@
 //! loses its session, and with it the token the vehicle watches.
 
 use super::keys;
-use super::link::{hex, nonce_of, random, Down, Up, NONCE};
+use super::link::{hex, nonce_of, random, Down, Up, CLOSE, NONCE};
 use crate::config::ros2::Mode;
 use crate::net::auth::Auth;
 use crate::socket::client::{ClientError, Dial, REPLY_WITHIN};
@@ -25,6 +25,8 @@ use zenoh::Wait;
 
 /// How long the vehicle has to answer an opening.
 const CHALLENGE_WITHIN: Duration = Duration::from_secs(5);
+/// How long a closing link waits for the vehicle to take its close.
+const CLOSE_WITHIN: Duration = Duration::from_secs(1);
 
 /// A connection to vehicle `id`'s control socket over the fleet, through `connect`,
 /// proving `key` if given: the stream `adrive attach --vehicle` and `adrive ctl
@@ -34,6 +36,7 @@ pub fn connect(connect: &[String], id: &str, key: Option<Auth>) -> Result<UnixSt
         connect: connect.to_vec(),
         id: id.to_string(),
         key,
+        links: parking_lot::Mutex::default(),
     };
     d.dial().map_err(|e| e.to_string())
 }
@@ -43,6 +46,8 @@ pub(crate) struct Dialer {
     pub connect: Vec<String>,
     pub id: String,
     pub key: Option<Auth>,
+    /// Each link's `fleet/link/up`, which ends once its link has closed.
+    pub links: parking_lot::Mutex<Vec<std::thread::JoinHandle<()>>>,
 }
 
 /// What the link's down thread hears.
@@ -180,11 +185,16 @@ impl Dialer {
         );
         let key = self.key.clone();
         let (id, s) = (self.id.clone(), session.clone());
+        // Dropped when the vehicle has ended the link (or left).
+        let (down_done, ended) = crossbeam_channel::bounded::<()>(0);
         std::thread::Builder::new()
             .name("fleet/link/down".into())
-            .spawn(move || carry_down(&rx, ends.0))
+            .spawn(move || {
+                carry_down(&rx, ends.0);
+                drop(down_done);
+            })
             .map_err(|e| refused("a thread", &e))?;
-        std::thread::Builder::new()
+        let up_thread = std::thread::Builder::new()
             .name("fleet/link/up".into())
             .spawn(move || {
                 let mut reader = BufReader::new(&ends.1);
@@ -201,13 +211,21 @@ impl Dialer {
                         break;
                     }
                 }
-                // The client closed its end: the link goes, and its token with it.
+                // The client closed its end: the link goes (said, so that the vehicle
+                // knows a console left rather than lost), and its token with it.
+                let bye = Up::signed(key.as_ref(), (&id, &sid, &nonce), CLOSE, b"");
+                if up.put(bye.encode()).wait().is_ok() {
+                    // The token goes once the vehicle has taken it (its end follows
+                    // it down): Zenoh carries a token's withdrawal ahead of data.
+                    let _ = ended.recv_timeout(CLOSE_WITHIN);
+                }
                 let _ = ends.1.shutdown(std::net::Shutdown::Both);
                 drop((down, vehicle));
                 let _ = token.undeclare().wait();
                 let _ = s.close().wait();
             })
             .map_err(|e| refused("a thread", &e))?;
+        self.links.lock().push(up_thread);
         Ok(mine)
     }
 }
@@ -239,15 +257,15 @@ fn challenge(rx: &Receiver<Heard>, id: &str) -> Result<[u8; NONCE], ClientError>
 }
 
 /// What the vehicle sends, into the client's end, until the vehicle ends the link or
-/// leaves.
+/// leaves — also once the client has closed its end (what comes then is dropped):
+/// its end is what the closing waits for.
 fn carry_down(rx: &Receiver<Heard>, mut end: UnixStream) {
+    let mut open = true;
     while let Ok(heard) = rx.recv() {
         match heard {
             Heard::Down(bytes) => match Down::decode(&bytes) {
                 Some(Down::Line(line)) => {
-                    if end.write_all(&line).is_err() {
-                        break;
-                    }
+                    open = open && end.write_all(&line).is_ok();
                 }
                 Some(Down::End) => break,
                 // Another challenge, or what is not a message: nothing to carry.

@@ -9,7 +9,8 @@
 //! [`Up`] messages at `…/up`: the first (`seq` 0) opens the link, the vehicle answers
 //! at `…/down` with a [`Challenge`] (a fresh nonce, and whether it takes commands from
 //! the fleet at all), and from then on every message carries the next `seq` and the
-//! lines of the protocol, each going to the socket's server as from a local client.
+//! lines of the protocol, each going to the socket's server as from a local client;
+//! the last, numbered [`CLOSE`], says the client closed its end.
 //!
 //! **Who may command.** A link proves the vehicle's key (the `[network]` key that signs
 //! its command datagrams, [`Auth`]) by signing every message after the challenge:
@@ -31,6 +32,9 @@ const DOMAIN: &[u8] = b"adrive fleet link 1";
 pub(crate) const TAG: usize = 32;
 /// How long the vehicle's nonce is.
 pub(crate) const NONCE: usize = 16;
+/// The counter of the message that closes a link (its client closed its end): no
+/// line follows it.
+pub(crate) const CLOSE: u64 = u64::MAX;
 /// The longest line a link carries up (the socket's own bound, with room).
 pub(crate) const MAX_UP: usize = 8 + TAG + 4096;
 

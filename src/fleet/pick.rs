@@ -56,12 +56,13 @@ pub(crate) fn run(opts: &Options, exits: &Receiver<Exit>) -> anyhow::Result<Exit
                     connect: opts.connect.clone(),
                     id: id.clone(),
                     key: opts.key.clone(),
+                    links: parking_lot::Mutex::default(),
                 });
                 // The console's connection ending says so while it runs, not after: a
                 // console left is not a link lost for the next one.
                 let running = Arc::new(AtomicBool::new(true));
                 let r = running.clone();
-                let remote = match crate::socket::client::Remote::attach(dial, move |why| {
+                let remote = match crate::socket::client::Remote::attach(dial.clone(), move |why| {
                     if r.load(Relaxed) {
                         crate::exit::request(Exit::Lost(why));
                     }
@@ -76,6 +77,7 @@ pub(crate) fn run(opts: &Options, exits: &Receiver<Exit>) -> anyhow::Result<Exit
                     crate::console::drive(&remote, exits, opts.keymap.clone(), opts.deadman, None)?;
                 running.store(false, Relaxed);
                 drop(remote);
+                crate::socket::client::Dial::close(&*dial);
                 note = match &why {
                     Exit::Quit => format!("left {id}"),
                     Exit::Lost(_) => format!("{id}: {}", why.describe()),

@@ -16,7 +16,7 @@
 //! watchdog, and the vehicle goes to the safe state as for a local console gone.
 
 use super::keys;
-use super::link::{hex, random, valid_sid, Challenge, Down, Up, NONCE};
+use super::link::{hex, random, valid_sid, Challenge, Down, Up, CLOSE, NONCE};
 use crate::net::auth::Auth;
 use crate::socket::server::{Door, Linked, Permit};
 use crate::threads::{Group, StopSignal, Threads};
@@ -137,6 +137,8 @@ struct Link {
     seq: u64,
     /// Messages dropped (not signed, or out of order).
     dropped: u64,
+    /// Why it ended, for the server to say.
+    lost: Arc<parking_lot::Mutex<Option<String>>>,
 }
 
 /// `fleet/links`' state.
@@ -167,7 +169,13 @@ impl Links {
                 }
                 Ok(Heard::Token(sid, false)) => {
                     self.live.remove(&sid);
-                    self.close(&sid, "its token was withdrawn");
+                    self.close(
+                        &sid,
+                        Some(
+                            "its token was withdrawn: the process at the other end ended, or \
+                             the network to it broke",
+                        ),
+                    );
                 }
                 Err(RecvTimeoutError::Timeout) => {}
                 Err(RecvTimeoutError::Disconnected) => break,
@@ -177,7 +185,7 @@ impl Links {
                 .retain(|_, since| now.duration_since(*since) < TOKEN_WITHIN);
         }
         for sid in self.open.keys().cloned().collect::<Vec<_>>() {
-            self.close(&sid, "the vehicle is leaving the fleet");
+            self.close(&sid, Some("the vehicle is leaving the fleet"));
         }
         let threads = std::mem::take(&mut self.threads);
         let stuck = threads.join(Instant::now() + Duration::from_secs(1));
@@ -246,8 +254,12 @@ impl Links {
             );
         }
         link.seq = m.seq;
+        if m.seq == CLOSE {
+            // Its client closed its end, as a local client closes its connection.
+            return self.close(sid, None);
+        }
         if (&link.end).write_all(m.line).is_err() {
-            self.close(sid, "its connection did not take what it sent");
+            self.close(sid, Some("its connection did not take what it sent"));
         }
     }
 
@@ -274,11 +286,13 @@ impl Links {
         let (end, theirs) = UnixStream::pair()?;
         end.set_write_timeout(Some(WRITE_WITHIN))?;
         let permit = Arc::new(Permit::watch_only(self.rule.before_proof(&self.id)));
+        let lost = Arc::new(parking_lot::Mutex::new(None));
         self.door.serve(
             theirs,
             Linked {
                 from: format!("fleet link {sid}"),
                 permit: permit.clone(),
+                lost: lost.clone(),
             },
         )?;
         let reader = end.try_clone()?;
@@ -296,16 +310,24 @@ impl Links {
                 keyed: false,
                 seq: 0,
                 dropped: 0,
+                lost,
             },
         );
         tracing::info!("fleet: link {sid} opened to {}", self.id);
         Ok(())
     }
 
-    /// Close link `sid`'s connection (the server sees its client gone).
-    fn close(&mut self, sid: &str, why: &str) {
+    /// Close link `sid`'s connection (the server sees its client gone): lost, for
+    /// `why`, or (`None`) closed by its client.
+    fn close(&mut self, sid: &str, why: Option<&str>) {
         if let Some(link) = self.open.remove(sid) {
-            tracing::info!("fleet: link {sid} closed: {why}");
+            match why {
+                Some(why) => {
+                    tracing::info!("fleet: link {sid} lost: {why}");
+                    *link.lost.lock() = Some(format!("lost its link over the fleet ({why})"));
+                }
+                None => tracing::info!("fleet: link {sid} closed by its client"),
+            }
             let _ = link.end.shutdown(std::net::Shutdown::Both);
         }
     }

@@ -54,6 +54,10 @@ pub(crate) trait Dial: Send + Sync {
     fn ended_without_word(&self, what: &str) -> String;
     /// Where the connection goes, for messages (`/run/user/1000/adrive/control.sock`).
     fn place(&self) -> String;
+    /// Wait until the connections dialed, closed, have ended at the far end too (a
+    /// link over the fleet says that it closes, so that a console that quit is not
+    /// taken for one lost); the socket file's end at once.
+    fn close(&self) {}
 }
 
 /// A running adrive's socket file.
@@ -160,6 +164,12 @@ fn read_msg(r: &mut impl BufRead) -> std::io::Result<Option<Msg>> {
 
 /// One operator command (`adrive ctl`): connect, do `op`, return its answer.
 pub(crate) fn once(to: &dyn Dial, op: Op) -> Result<Answer, ClientError> {
+    let answer = once_on(to, op);
+    to.close();
+    answer
+}
+
+fn once_on(to: &dyn Dial, op: Op) -> Result<Answer, ClientError> {
     let (mut stream, mut reader, _) = connect(to, Role::Once)?;
     let gone =
         |e: std::io::Error| ClientError::Refused(format!("the connection to adrive failed: {e}"));

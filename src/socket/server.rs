@@ -64,6 +64,9 @@ pub(crate) struct Linked {
     pub from: String,
     /// Whether it may command.
     pub permit: Arc<Permit>,
+    /// Why the link ended, where the far end knows better than a closed stream (its
+    /// token withdrawn): what the gate and the log say of the source that went.
+    pub lost: Arc<Mutex<Option<String>>>,
 }
 
 /// Whether a linked connection may command the vehicle, or only watch it, and why:
@@ -449,12 +452,17 @@ fn depart(s: &Shared, c: &Conn, ending: &Ending) {
         tracing::info!("{who} detached: {}", Ending::Stopping.did());
         return;
     }
-    if s.gate.gone(source, &ending.did()) {
+    let did = match &c.origin {
+        Origin::Linked(l) => l.lost.lock().clone(),
+        Origin::Local(_) => None,
+    }
+    .unwrap_or_else(|| ending.did());
+    if s.gate.gone(source, &did) {
         return;
     }
     match ending {
-        Ending::Closed | Ending::Stopping => tracing::info!("{who} detached: {}", ending.did()),
-        _ => tracing::warn!("{who} detached: {}", ending.did()),
+        Ending::Closed | Ending::Stopping => tracing::info!("{who} detached: {did}"),
+        _ => tracing::warn!("{who} detached: {did}"),
     }
 }
 
