@@ -7,10 +7,11 @@
 
 mod common;
 
+use common::attached::Attached;
 use common::pty::Master;
 use common::simproc::{vehicle_file, SimProcess};
 use common::terminal_player::{Answer, Play, Player};
-use common::{engage_answered, lines, tempdir, wait_exit, DEADLINE};
+use common::{lines, tempdir, wait_exit, DEADLINE};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
@@ -132,90 +133,17 @@ fn ctl(socket: &Path, args: &[&str]) -> Output {
         .unwrap()
 }
 
-/// `adrive attach` on a terminal of its own (its controlling terminal, as over SSH).
-struct Attached {
-    child: Child,
-    term: Master,
+/// `adrive attach` to the socket at `socket`.
+fn attach(socket: &Path) -> Attached {
+    attach_playing(socket, Play::default())
 }
 
-impl Attached {
-    fn start(socket: &Path) -> Attached {
-        Attached::start_playing(socket, Play::default())
-    }
-
-    /// On a terminal that plays `play` (tests/common/terminal_player.rs).
-    fn start_playing(socket: &Path, play: Play) -> Attached {
-        let mut cmd = Command::new(BIN);
-        cmd.arg("attach")
-            .arg("--socket")
-            .arg(socket)
-            .env("TERM", "xterm-256color")
-            .env_remove("TMUX")
-            .env_remove("STY");
-        let (child, term) = Master::spawn_playing(&mut cmd, 100, 30, true, play);
-        let a = Attached { child, term };
-        a.wait_for("every device", |s| {
-            ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
-                .iter()
-                .all(|d| s.contains(d))
-        });
-        a
-    }
-
-    fn screen(&self) -> String {
-        common::screen_of(&self.term.bytes(), 100, 30)
-    }
-
-    fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
-        common::wait_screen(what, Duration::from_millis(20), || self.screen(), ok)
-    }
-
-    fn keys(&mut self, k: &str) {
-        self.term.write(k.as_bytes());
-    }
-
-    /// `E`, `y`, until engaged (the devices may not all have reported yet).
-    fn engage(&mut self) {
-        let end = Instant::now() + DEADLINE;
-        loop {
-            self.keys("E");
-            self.wait_for("the confirmation", |s| s.contains("Engage?"));
-            self.keys("y");
-            // The outcome of this `y`: the frame that closed the question says it (a
-            // refusal still on the screen from the last try is not it).
-            let s = self.wait_for("the engage outcome", engage_answered);
-            if common::engaged_said(&s) {
-                self.wait_for("the header", |s| s.contains(" COMMANDING "));
-                return;
-            }
-            assert!(Instant::now() < end, "could not engage:\n{s}");
-            std::thread::sleep(Duration::from_millis(200));
-        }
-    }
-
-    /// `s`, the value, Enter: the steering command.
-    fn steer(&mut self, value: &str) {
-        self.keys("s");
-        self.wait_for("the steering edit", |s| s.contains("edit steer command"));
-        self.keys(&format!("\x15{value}\r"));
-    }
-}
-
-impl Attached {
-    /// Wait for `adrive attach` to exit; its status, once the terminal read all it
-    /// wrote (its last words come after it left the screen).
-    fn wait_exit(&mut self) -> Option<i32> {
-        let status = wait_exit(&mut self.child);
-        self.term.read_to_end();
-        status
-    }
-}
-
-impl Drop for Attached {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// [`attach`] on a terminal that plays `play` (tests/common/terminal_player.rs).
+fn attach_playing(socket: &Path, play: Play) -> Attached {
+    Attached::spawn(
+        Command::new(BIN).arg("attach").arg("--socket").arg(socket),
+        play,
+    )
 }
 
 #[test]
@@ -223,8 +151,8 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
 ) {
     let sim = SimProcess::start();
     let svc = Service::start("attach-two", Some(&sim));
-    let mut watcher = Attached::start(&svc.socket);
-    let mut driver = Attached::start(&svc.socket);
+    let mut watcher = attach(&svc.socket);
+    let mut driver = attach(&svc.socket);
     for c in [&watcher, &driver] {
         c.wait_for("watching", |s| s.contains("WATCHING"));
     }
@@ -313,7 +241,7 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
     // A console attaches again to the service that kept running, and takes command from
     // an operator who engaged with `adrive ctl` (a console outranks it, with a
     // confirmation); the operator is refused from then on.
-    let mut again = Attached::start(&svc.socket);
+    let mut again = attach(&svc.socket);
     again.wait_for("the reason", |s| s.contains("went away"));
     assert!(svc.ctl(&["engage"]).status.success());
     again.wait_for("the operator commanding", |s| {
@@ -338,7 +266,7 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
 #[test]
 fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit() {
     let svc = Service::start("attach-small", None);
-    let mut c = Attached::start(&svc.socket);
+    let mut c = attach(&svc.socket);
     c.engage();
     c.term.resize(60, 20);
     c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
@@ -390,7 +318,7 @@ fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit()
 #[test]
 fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
     let svc = Service::start("attach-frozen", None);
-    let mut c = Attached::start(&svc.socket);
+    let mut c = attach(&svc.socket);
     c.engage();
     assert!(common::signal(&c.child, libc::SIGSTOP));
     let line = svc.until("stopped reading for");
@@ -431,7 +359,7 @@ fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
 #[test]
 fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
     let mut svc = Service::start("attach-ends", None);
-    let mut c = Attached::start(&svc.socket);
+    let mut c = attach(&svc.socket);
     common::signal(&svc.child, libc::SIGTERM);
     assert_eq!(c.wait_exit(), Some(1));
     let text = String::from_utf8_lossy(&c.term.bytes()).into_owned();
@@ -439,7 +367,7 @@ fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
     let _ = wait_exit(&mut svc.child);
 
     let mut svc = Service::start("attach-killed", None);
-    let mut c = Attached::start(&svc.socket);
+    let mut c = attach(&svc.socket);
     common::signal(&svc.child, libc::SIGKILL);
     let _ = wait_exit(&mut svc.child);
     assert_eq!(c.wait_exit(), Some(1));
@@ -751,8 +679,8 @@ fn an_attached_commander_whose_terminal_stops_answering_stops_the_vehicle() {
 /// then the commander's.
 fn commander_stalls(name: &str, stall: fn(&Player)) {
     let svc = Service::start_tolerant(name);
-    let watcher = Attached::start(&svc.socket);
-    let mut driver = Attached::start(&svc.socket);
+    let watcher = attach(&svc.socket);
+    let mut driver = attach(&svc.socket);
     driver.engage();
     // The watcher's terminal stalls: command is held, well past the bound.
     stall(&watcher.term);
@@ -793,7 +721,7 @@ fn commander_stalls(name: &str, stall: fn(&Player)) {
     });
     driver.wait_for("why", |s| s.contains("stopped answering"));
     // So does a console that attaches afterwards.
-    let later = Attached::start(&svc.socket);
+    let later = attach(&svc.socket);
     later.wait_for("why", |s| s.contains("stopped answering"));
     // And the watcher was never dropped: it reads on once its terminal does.
     watcher.term.set(|p| p.reading = true);
@@ -805,7 +733,7 @@ fn commander_stalls(name: &str, stall: fn(&Player)) {
 #[test]
 fn a_frozen_attach_client_stops_the_vehicle_within_the_bound() {
     let svc = Service::start_tolerant("attach-frozen-proof");
-    let mut driver = Attached::start(&svc.socket);
+    let mut driver = attach(&svc.socket);
     driver.engage();
     svc.stays_engaged(TERMINAL_TIMEOUT * 2);
     let frozen = Instant::now();
@@ -831,7 +759,7 @@ fn an_attached_console_on_a_slow_but_live_link_keeps_command_for_a_minute() {
         cursor: Answer::After(Duration::from_millis(300)),
         ..Play::default()
     };
-    let mut driver = Attached::start_playing(&svc.socket, play);
+    let mut driver = attach_playing(&svc.socket, play);
     driver.engage();
     svc.stays_engaged(Duration::from_secs(60));
     assert!(driver.term.cursor_answers() > 150);
@@ -842,7 +770,7 @@ fn an_attached_console_on_a_slow_but_live_link_keeps_command_for_a_minute() {
 #[test]
 fn an_attached_console_is_told_where_characterize_runs() {
     let svc = Service::start("attach-characterize", None);
-    let mut c = Attached::start(&svc.socket);
+    let mut c = attach(&svc.socket);
     c.keys("x");
     c.wait_for("the bench", |s| s.contains("BENCH") && s.contains("┌STEER"));
     c.keys("M");

@@ -9,13 +9,13 @@
 
 mod common;
 
+use common::attached::Attached;
 use common::headless::{Adrive, BIN};
-use common::pty::Master;
 use common::terminal_player::Play;
-use common::{engage_answered, lines, output_within, signal, until, wait_exit, Reaped, DEADLINE};
+use common::{lines, output_within, signal, until, wait_exit, Reaped, DEADLINE};
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Child, Command as Process, Stdio};
+use std::process::{Command as Process, Stdio};
 use std::time::{Duration, Instant};
 
 /// A simulated Alice in the fleet at `endpoint` as `id`.
@@ -222,57 +222,26 @@ fn commanded(endpoint: &str, id: &str, device: &str) -> Value {
     d["commanded"].clone()
 }
 
-/// `adrive attach --vehicle ID` on a terminal of its own.
-struct Attached {
-    child: Child,
-    term: Master,
+/// `adrive attach --vehicle ID` through `endpoint`, with the key in `key` if given.
+fn attach(endpoint: &str, id: &str, key: Option<&Path>) -> Attached {
+    let mut cmd = Process::new(BIN);
+    cmd.args(["attach", "--vehicle", id, "--connect", endpoint]);
+    if let Some(k) = key {
+        cmd.arg("--key").arg(k);
+    }
+    Attached::spawn(&mut cmd, Play::default())
 }
 
-impl Attached {
-    fn start(endpoint: &str, id: &str, key: Option<&Path>) -> Attached {
-        let mut cmd = Process::new(BIN);
-        cmd.args(["attach", "--vehicle", id, "--connect", endpoint])
-            .env("TERM", "xterm-256color")
-            .env_remove("TMUX")
-            .env_remove("STY");
-        if let Some(k) = key {
-            cmd.arg("--key").arg(k);
+/// Ask `gate_of` vehicle `id`'s gate until it says it is disengaged; that gate.
+fn until_disengaged(id: &str, gate_of: impl Fn() -> Value) -> Value {
+    let end = Instant::now() + DEADLINE;
+    loop {
+        let g = gate_of();
+        if g["engaged"] == false {
+            return g;
         }
-        let (child, term) = Master::spawn_playing(&mut cmd, 100, 30, true, Play::default());
-        let a = Attached { child, term };
-        a.wait_for("every device", |s| {
-            ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
-                .iter()
-                .all(|d| s.contains(d))
-        });
-        a
-    }
-
-    fn screen(&self) -> String {
-        common::screen_of(&self.term.bytes(), 100, 30)
-    }
-
-    fn wait_for(&self, what: &str, ok: impl Fn(&str) -> bool) -> String {
-        common::wait_screen(what, Duration::from_millis(20), || self.screen(), ok)
-    }
-
-    fn keys(&mut self, k: &str) {
-        self.term.write(k.as_bytes());
-    }
-
-    /// `E`, `y`: the outcome said on the screen.
-    fn engage(&mut self) -> String {
-        self.keys("E");
-        self.wait_for("the confirmation", |s| s.contains("Engage?"));
-        self.keys("y");
-        self.wait_for("the engage outcome", engage_answered)
-    }
-}
-
-impl Drop for Attached {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
+        assert!(Instant::now() < end, "{id} still engaged: {g:#}");
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
@@ -344,18 +313,14 @@ fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_
     assert_eq!(gate(&endpoint, "car1")["engaged"], false);
 
     // A console over the fleet with the key: engages car1 and steers it.
-    let mut console = Attached::start(&endpoint, "car1", Some(&key));
-    let said = console.engage();
-    assert!(common::engaged_said(&said), "{said}");
-    console.wait_for("the header", |s| s.contains(" COMMANDING "));
+    let mut console = attach(&endpoint, "car1", Some(&key));
+    console.engage();
     let me = gate(&endpoint, "car1")["commander"]
         .as_str()
         .unwrap()
         .to_string();
     assert!(me.starts_with("console #"), "{me}");
-    console.keys("s");
-    console.wait_for("the steering edit", |s| s.contains("edit steer command"));
-    console.keys("\x150.5\r");
+    console.steer("0.5");
     common::wait_for("car1's steering at 0.5", || {
         commanded(&endpoint, "car1", "steer") == serde_json::json!(0.5)
     });
@@ -376,15 +341,7 @@ fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_
     let killed = Instant::now();
     assert!(signal(&console.child, libc::SIGKILL));
     let _ = wait_exit(&mut console.child);
-    let end = Instant::now() + DEADLINE;
-    let g = loop {
-        let g = gate(&endpoint, "car1");
-        if g["engaged"] == false {
-            break g;
-        }
-        assert!(Instant::now() < end, "car1 still engaged: {g:#}");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let g = until_disengaged("car1", || gate(&endpoint, "car1"));
     let took = killed.elapsed();
     let reason = g["reason"].as_str().unwrap();
     assert!(
@@ -445,12 +402,7 @@ fn local_gate(v: &Adrive) -> Value {
 #[test]
 fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every_vehicle_rejoins() {
     // The router: adrive's own, a process that can crash.
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let endpoint = common::zenoh_router::free_endpoint();
     let mut router = router_process(&endpoint);
     let dir = common::tempdir("fleet-router");
     let key = dir.path().join("fleet.key");
@@ -459,31 +411,15 @@ fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every
     let car1 = vehicle_with("car1", &endpoint, &keyed, "command = true");
     let car2 = vehicle("car2", &endpoint);
 
-    let mut console = Attached::start(&endpoint, "car1", Some(&key));
-    let end = Instant::now() + DEADLINE;
-    while !common::engaged_said(&console.engage()) {
-        assert!(
-            Instant::now() < end,
-            "car1 never engaged:\n{}",
-            console.screen()
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    }
+    let mut console = attach(&endpoint, "car1", Some(&key));
+    console.engage();
     assert_eq!(local_gate(&car1)["engaged"], true);
 
     // The router crashes (SIGKILL: no goodbye to anyone).
     let cut = Instant::now();
     assert!(signal(&router.0, libc::SIGKILL));
     router.0.wait().unwrap();
-    let end = Instant::now() + DEADLINE;
-    let g = loop {
-        let g = local_gate(&car1);
-        if g["engaged"] == false {
-            break g;
-        }
-        assert!(Instant::now() < end, "car1 still engaged: {g:#}");
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let g = until_disengaged("car1", || local_gate(&car1));
     let took = cut.elapsed();
     let reason = g["reason"].as_str().unwrap();
     assert!(reason.contains("lost its link over the fleet"), "{reason}");
@@ -533,16 +469,9 @@ fn the_fleet_in_the_console_picks_a_vehicle_attaches_to_it_and_comes_back() {
     let mut cmd = Process::new(BIN);
     cmd.args(["fleet", "--pick", "--connect", &endpoint])
         .arg("--key")
-        .arg(&key)
-        .env("TERM", "xterm-256color")
-        .env_remove("TMUX")
-        .env_remove("STY");
-    let (child, term) = Master::spawn_playing(&mut cmd, 100, 30, true, Play::default());
-    let mut c = Attached { child, term };
-    let screen = |c: &Attached| c.screen();
-    let wait = |c: &Attached, what: &str, ok: &dyn Fn(&str) -> bool| {
-        common::wait_screen(what, Duration::from_millis(20), || screen(c), ok)
-    };
+        .arg(&key);
+    let mut c = Attached::open(&mut cmd, Play::default());
+    let wait = |c: &Attached, what: &str, ok: &dyn Fn(&str) -> bool| c.wait_for(what, ok);
     let row = |s: &str, id: &str| -> Option<String> {
         s.lines()
             .find(|l| l.contains(&format!("│{id} ")))
@@ -563,16 +492,8 @@ fn the_fleet_in_the_console_picks_a_vehicle_attaches_to_it_and_comes_back() {
 
     // The second row, and Enter: the console, on car2.
     c.keys("j\r");
-    c.wait_for("every device", |s| {
-        ["STEER", "GAS", "BRAKE", "TRANS", "ESTOP", "OBD"]
-            .iter()
-            .all(|d| s.contains(d))
-    });
-    let end = Instant::now() + DEADLINE;
-    while !common::engaged_said(&c.engage()) {
-        assert!(Instant::now() < end, "car2 never engaged:\n{}", c.screen());
-        std::thread::sleep(Duration::from_millis(200));
-    }
+    c.wait_devices();
+    c.engage();
     let g = gate(&endpoint, "car2");
     assert_eq!(g["engaged"], true, "{g:#}");
     assert!(
@@ -588,21 +509,13 @@ fn the_fleet_in_the_console_picks_a_vehicle_attaches_to_it_and_comes_back() {
     let s = wait(&c, "the list again", &|s: &str| {
         s.contains("left car2") && listed(s)
     });
-    let end = Instant::now() + DEADLINE;
-    let g = loop {
-        let g = gate(&endpoint, "car2");
-        if g["engaged"] == false {
-            break g;
-        }
-        assert!(Instant::now() < end, "car2 still engaged: {g:#}\n{s}");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let g = until_disengaged("car2", || gate(&endpoint, "car2"));
     assert!(
         g["reason"].as_str().unwrap().contains("went away"),
         "{g:#}\n{s}"
     );
     c.keys("q");
-    assert_eq!(wait_exit(&mut c.child), Some(0));
+    assert_eq!(c.wait_exit(), Some(0));
 }
 
 /// A vehicle that would take commands from the fleet without a key to prove is

@@ -2,6 +2,7 @@
 //! pseudo-terminals with the real engine on top, and waiting for events with a deadline.
 #![allow(dead_code)]
 
+pub mod attached;
 pub mod headless;
 pub mod pty;
 pub mod simproc;

@@ -6,13 +6,18 @@ use zenoh::Wait;
 
 /// The router's session (it routes while the session lives) and its endpoint.
 pub fn start() -> (zenoh::Session, String) {
+    let endpoint = free_endpoint();
+    (start_on(&endpoint), endpoint)
+}
+
+/// A loopback endpoint whose port is free right now.
+pub fn free_endpoint() -> String {
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
         .unwrap()
         .port();
-    let endpoint = format!("tcp/127.0.0.1:{port}");
-    (start_on(&endpoint), endpoint)
+    format!("tcp/127.0.0.1:{port}")
 }
 
 /// A router on `endpoint` (again, after one there stopped).
