@@ -245,6 +245,21 @@ fn until_disengaged(id: &str, gate_of: impl Fn() -> Value) -> Value {
     }
 }
 
+/// Three vehicles at `endpoint`: car1 and car2 take commands from the fleet with the
+/// key in the file returned (in the directory returned), car3 takes none.
+fn three(tag: &str, endpoint: &str) -> (tempfile::TempDir, std::path::PathBuf, Vec<Adrive>) {
+    let dir = common::tempdir(tag);
+    let key = dir.path().join("fleet.key");
+    std::fs::write(&key, "0123456789abcdef0123456789abcdef\n").unwrap();
+    let keyed = format!("key_file = \"{}\"", key.display());
+    let cars = vec![
+        vehicle_with("car1", endpoint, &keyed, "command = true"),
+        vehicle_with("car2", endpoint, &keyed, "command = true"),
+        vehicle("car3", endpoint),
+    ];
+    (dir, key, cars)
+}
+
 /// The scene: three vehicles on one router; a console on another machine
 /// (here, another process with only the router's address) attaches to car1 with its
 /// key, engages it and steers it, while car2 — which takes commands from the fleet,
@@ -254,15 +269,9 @@ fn until_disengaged(id: &str, gate_of: impl Fn() -> Value) -> Value {
 #[test]
 fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_it_alone() {
     let (_router, endpoint) = common::zenoh_router::start();
-    let dir = common::tempdir("fleet-key");
-    let key = dir.path().join("fleet.key");
-    std::fs::write(&key, "0123456789abcdef0123456789abcdef\n").unwrap();
+    let (dir, key, _cars) = three("fleet-key", &endpoint);
     let other = dir.path().join("other.key");
     std::fs::write(&other, "fedcba9876543210fedcba9876543210\n").unwrap();
-    let keyed = format!("key_file = \"{}\"", key.display());
-    let car1 = vehicle_with("car1", &endpoint, &keyed, "command = true");
-    let _car2 = vehicle_with("car2", &endpoint, &keyed, "command = true");
-    let _car3 = vehicle("car3", &endpoint);
 
     // Without the key, or with another, a link watches: its engage is refused, why.
     for (k, why) in [
@@ -361,7 +370,6 @@ fn a_console_over_the_fleet_with_the_key_drives_one_vehicle_and_its_loss_brakes_
         let g = gate(&endpoint, id);
         assert_eq!(g["reason"], "not engaged yet", "{id}: {g:#}");
     }
-    drop(car1);
 }
 
 /// `adrive fleet --router` listening on `endpoint`, a process of its own (killed on
@@ -458,13 +466,7 @@ fn the_router_gone_cuts_a_fleet_commander_off_into_the_safe_state_and_back_every
 #[test]
 fn the_fleet_in_the_console_picks_a_vehicle_attaches_to_it_and_comes_back() {
     let (_router, endpoint) = common::zenoh_router::start();
-    let dir = common::tempdir("fleet-pick");
-    let key = dir.path().join("fleet.key");
-    std::fs::write(&key, "0123456789abcdef0123456789abcdef\n").unwrap();
-    let keyed = format!("key_file = \"{}\"", key.display());
-    let _car1 = vehicle_with("car1", &endpoint, &keyed, "command = true");
-    let _car2 = vehicle_with("car2", &endpoint, &keyed, "command = true");
-    let _car3 = vehicle("car3", &endpoint);
+    let (_dir, key, _cars) = three("fleet-pick", &endpoint);
 
     let mut cmd = Process::new(BIN);
     cmd.args(["fleet", "--pick", "--connect", &endpoint])
