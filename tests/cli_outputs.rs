@@ -151,11 +151,18 @@ impl Around {
                     )
                 }
                 ["sim"] => How::Prints(s(&["sim"]), First::Nothing),
+                // On the tolerant Alice: the run holds the vehicle engaged for seconds,
+                // and what is tested is its output, not device timing on a loaded
+                // machine (common::tolerant_alice).
                 ["characterize"] => How::Prints(
                     s(&[
                         "characterize",
                         "steer",
                         "--sim",
+                        "--config",
+                        &common::tolerant_alice(self.dir.path())
+                            .display()
+                            .to_string(),
                         "--yes",
                         "--procedure",
                         "sweep",
