@@ -9,6 +9,9 @@
 //!   without `--fleet`, measured in the same run), and the router's;
 //! - a status asked over the fleet against the local socket, and a console's first
 //!   frame, and a console's operation's round trip, remote against local (p50/p99);
+//! - a console's command to the device — its `write` to the first byte at a device's
+//!   end of a pseudo-terminal this process holds (section 11's) — over the fleet and
+//!   over the local socket, alternated;
 //! - cross-talk: commands at every vehicle not addressed, over every command sent;
 //! - the router killed and started again: how long until every vehicle is listed
 //!   again, and how long an engaged vehicle whose remote commander it cut off takes
@@ -284,6 +287,7 @@ pub fn section16_fleet(secs: f64) {
         );
         if n == 4 {
             remote_against_local(&fleet, &endpoint);
+            to_the_device(dir.path(), &endpoint);
             router_restart(fleet, router, &endpoint);
         }
     }
@@ -418,4 +422,92 @@ fn router_restart(cars: Vec<Car>, router: Router, endpoint: &str) {
         back.elapsed().as_secs_f64() * 1e3
     );
     drop(cars);
+}
+
+/// A console's command to the device, over the fleet and over the local socket: a
+/// vehicle ("meas") whose steering is a pseudo-terminal this process reads, each set
+/// point's first byte timed there against when the console wrote it (one clock, one
+/// machine), 200 a way in turns of 50.
+fn to_the_device(dir: &Path, endpoint: &str) {
+    use crate::outside::{measured_device, value, DeviceEnd, Proto};
+    let end = DeviceEnd::open(Proto::Line, true);
+    let file = dir.join("meas.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "[vehicle]\nname = \"meas\"\n[network]\nkey_file = \"car.key\"\n{}[fleet]\ncommand = true\n",
+            measured_device("steer", Proto::Line, &end.path)
+        ),
+    )
+    .unwrap();
+    let socket = dir.join("meas.sock");
+    let mut child = Command::new(adrive())
+        .args(["--headless", "--config"])
+        .arg(&file)
+        .arg("--listen")
+        .arg(format!("127.0.0.1:{}", free_port()))
+        .arg("--socket")
+        .arg(&socket)
+        .arg("--log-dir")
+        .arg(dir.join("logs"))
+        .args(["--fleet", "meas", "--fleet-connect", endpoint])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let err = lines(child.stderr.take().unwrap());
+    while !err
+        .recv_timeout(DEADLINE)
+        .expect("the measured vehicle to start")
+        .contains("running headless")
+    {}
+    std::thread::spawn(move || for _ in err {});
+    let meas = Car { child, socket };
+    let mut delays = [Vec::new(), Vec::new()];
+    let mut i = 0u64;
+    for _turn in 0..4 {
+        for (w, remote_too) in [false, true].into_iter().enumerate() {
+            let s = if remote_too {
+                remote(endpoint, "meas", true)
+            } else {
+                local(&meas)
+            };
+            let mut c = Client::hello(s, Role::Console);
+            let until = Instant::now() + DEADLINE;
+            while !matches!(c.call(Op::Engage), Answer::Done(_)) {
+                assert!(Instant::now() < until, "meas did not engage");
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            let mut sent = Vec::new();
+            for _ in 0..50 {
+                let v = value(i);
+                i += 1;
+                let at = adrive::probe::mono_ns();
+                let a = c.call(Op::Set {
+                    device: 0,
+                    command: adrive::value::Command::Set(v.parse().unwrap()),
+                });
+                assert!(matches!(a, Answer::Done(_)), "{a:?}");
+                sent.push((v, at));
+                // Commands 20 ms apart, as a console's keys come, not a flood.
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let _ = c.call(Op::Disengage);
+            let seen = end.seen.lock().unwrap();
+            delays[w]
+                .extend(sent.iter().filter_map(|(v, at)| {
+                    seen.get(v).map(|&t| t.saturating_sub(*at) as f64 / 1e3)
+                }));
+        }
+    }
+    let (l50, l99) = p50_p99(delays[0].clone());
+    let (r50, r99) = p50_p99(delays[1].clone());
+    println!(
+        "    {:<36} local {l50:>7.0} / {l99:>7.0}   fleet {r50:>7.0} / {r99:>7.0}   ({:.1}× at p50; {} and {} of 200 seen)",
+        "a console's command to the device",
+        r50 / l50,
+        delays[0].len(),
+        delays[1].len()
+    );
+    drop(meas);
 }

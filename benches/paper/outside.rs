@@ -42,7 +42,7 @@ fn sent_per_row(secs: f64) -> u64 {
 
 /// The protocol a measured device speaks.
 #[derive(Clone, Copy, PartialEq)]
-enum Proto {
+pub(super) enum Proto {
     Line,
     Modbus,
 }
@@ -51,16 +51,16 @@ enum Proto {
 const SCALE: f64 = 0.001;
 
 /// The device's end of a pseudo-terminal: every command request's first byte, timed.
-struct DeviceEnd {
-    path: String,
+pub(super) struct DeviceEnd {
+    pub(super) path: String,
     /// Value text → when its request's first byte was read (ns, `CLOCK_MONOTONIC`).
-    seen: Arc<Mutex<HashMap<String, u64>>>,
+    pub(super) seen: Arc<Mutex<HashMap<String, u64>>>,
     _slave: OwnedFd,
 }
 
 impl DeviceEnd {
     /// `answer`: reply to the host (adrive) as the device; a relay gets no replies.
-    fn open(proto: Proto, answer: bool) -> DeviceEnd {
+    pub(super) fn open(proto: Proto, answer: bool) -> DeviceEnd {
         let (master, slave) = openpty(80, 24);
         raw(&slave);
         let mut buf = [0u8; 128];
@@ -192,7 +192,7 @@ fn raw(fd: &OwnedFd) {
 }
 
 /// The value of datagram `i`, as adrive writes it (three decimals), distinct over a row.
-fn value(i: u64) -> String {
+pub(super) fn value(i: u64) -> String {
     format!("{:.3}", (i % 1000) as f64 / 1000.0 - 0.5)
 }
 
@@ -482,7 +482,7 @@ impl Steps {
 }
 
 /// A measured device's table in a vehicle file.
-fn measured_device(name: &str, proto: Proto, path: &str) -> String {
+pub(super) fn measured_device(name: &str, proto: Proto, path: &str) -> String {
     let head = format!(
         "[[device]]\nname = \"{name}\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\nport = \"{path}\"\nbaud = 115200\nstatus_period = \"50ms\"\nreadings = [\"position\"]\n"
     );
