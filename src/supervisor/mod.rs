@@ -1337,4 +1337,146 @@ mod tests {
         assert_eq!(cause("steer"), "reports faults OPERATOR_OVERRIDE (0x0002)");
         assert_eq!(cause("gas"), "status word reports faults 0x0002");
     }
+
+    /// One turn of the supervisor over Alice at `now`, the steering's view changed by
+    /// `edit`: the faults of `kind` it names for the steering.
+    fn steer_turn(
+        gate: &Gate,
+        mem: &mut Memory,
+        now: Instant,
+        kind: FaultKind,
+        edit: impl FnOnce(&mut DeviceView),
+    ) -> Vec<Fault> {
+        let mut snap = gate.snapshot_at(0, now);
+        edit(snap.devices.iter_mut().find(|d| d.name == "steer").unwrap());
+        let sup = SupervisorConfig::default();
+        detect(&snap, gate.vehicle().config(), &sup, mem, &[], now)
+            .into_iter()
+            .filter(|f| f.kind == kind && f.device.as_deref() == Some("steer"))
+            .collect()
+    }
+
+    /// A device's error rate counts every transaction of the window — its polls, good
+    /// or failed, its acknowledged commands and its failed ones — and names how many
+    /// failed of how many; it judges no fewer than 4, and forgets a burst once it has
+    /// left the window.
+    #[test]
+    fn the_error_rate_counts_every_transaction_of_its_window() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let mut mem = Memory::new(t0);
+        // (polls, of which failed, commands acknowledged, commands failed) so far.
+        let counted = |n: (u64, u64, u64, u64)| {
+            move |d: &mut DeviceView| {
+                (
+                    d.counters.polls,
+                    d.counters.status_errors,
+                    d.counters.executed,
+                    d.counters.command_errors,
+                ) = n;
+                d.health.last_error = Some("no reply within 100ms".into());
+                d.health.last_error_age_ms = Some(10.0);
+            }
+        };
+        let rate = |mem: &mut Memory, ms: u64, n| {
+            let now = t0 + Duration::from_millis(ms);
+            steer_turn(&gate, mem, now, FaultKind::ErrorRate, counted(n))
+        };
+        assert_eq!(rate(&mut mem, 0, (100, 10, 50, 5)), vec![]);
+        // Since: 6 polls (4 failed), 3 commands acknowledged, 2 failed: 6 of 11.
+        let f = rate(&mut mem, 1000, (106, 14, 53, 7));
+        assert_eq!(f.len(), 1, "{f:?}");
+        assert_eq!(
+            f[0].cause,
+            "6 of 11 transactions failed in 2 s: no reply within 100ms"
+        );
+        // 2.5 s after the burst, nothing more failed, nothing more was tried.
+        assert_eq!(rate(&mut mem, 3500, (106, 14, 53, 7)), vec![], "forgotten");
+
+        // Too few to judge: 3 transactions, every one failed; then a 4th.
+        let mut mem = Memory::new(t0);
+        assert_eq!(rate(&mut mem, 0, (100, 10, 50, 5)), vec![]);
+        assert_eq!(rate(&mut mem, 100, (102, 12, 50, 6)), vec![], "3 tries");
+        let f = rate(&mut mem, 200, (103, 13, 50, 6));
+        assert_eq!(
+            f.iter().map(|f| f.cause.as_str()).collect::<Vec<_>>(),
+            ["4 of 4 transactions failed in 2 s: no reply within 100ms"]
+        );
+    }
+
+    /// A reading older than `status_max_age` + `reply_timeout` (the steering's 250 +
+    /// 100 ms) is not believed: its fault bits name no device fault (its silence is
+    /// named instead); one within that age is judged.
+    #[test]
+    fn fault_bits_count_from_a_status_no_older_than_its_max_age_and_reply_timeout() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let faulted = |age_ms: f64| {
+            let now = t0 + Duration::from_secs(1);
+            let mut mem = Memory::new(t0);
+            steer_turn(&gate, &mut mem, now, FaultKind::DeviceFault, |d| {
+                d.fault = 0x0004;
+                d.status_age_ms = Some(age_ms);
+            })
+        };
+        let f = faulted(345.0);
+        assert_eq!(f.len(), 1, "{f:?}");
+        assert_eq!(f[0].cause, "status word reports faults 0x0004");
+        assert_eq!(faulted(355.0), vec![], "a status too old to believe");
+    }
+
+    /// A position may stray `range_margin` of the range outside it (the steering's
+    /// [-1, 1]: 0.1 either side) and no further: at the margin it is in range, past it
+    /// on either side it is out, named with its value.
+    #[test]
+    fn a_position_is_out_of_range_past_its_margin_not_at_it() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let out = |pos: f64| {
+            let mut mem = Memory::new(t0);
+            let f = steer_turn(&gate, &mut mem, t0, FaultKind::OutOfRange, |d| {
+                if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                    *x = Some(Value::Number(pos));
+                }
+                d.status_age_ms = Some(5.0);
+            });
+            f.into_iter().map(|f| f.cause).collect::<Vec<_>>()
+        };
+        for pos in [-1.1, -1.09, -1.0, 0.0, 1.0, 1.09, 1.1] {
+            assert_eq!(out(pos), Vec::<String>::new(), "{pos} is in range");
+        }
+        assert_eq!(out(-1.11), ["reports -1.110, outside [-1, 1]"]);
+        assert_eq!(out(1.11), ["reports 1.110, outside [-1, 1]"]);
+    }
+
+    /// Alice at rest — every device answering, no fault bit set — has no fault; a kit's
+    /// module with a fault code, disengaged, is shown by name but is no device fault
+    /// (the kit's own rule, [`kit`]).
+    #[test]
+    fn a_vehicle_at_rest_has_no_fault_and_a_kit_s_codes_disengaged_block_nothing() {
+        let now = Instant::now();
+        let gate = testkit::gate(now);
+        let sup = SupervisorConfig::default();
+        let snap = gate.snapshot_at(0, now);
+        let v = &gate.vehicle();
+        let faults = detect(&snap, v.config(), &sup, &mut Memory::new(now), &[], now);
+        assert_eq!(faults, vec![]);
+
+        let config = crate::config::parse(
+            include_str!("../../vehicles/oscc.toml"),
+            "vehicles/oscc.toml",
+        )
+        .expect("the OSCC vehicle parses");
+        let gate = testkit::gate_of(config, now);
+        let v = &gate.vehicle();
+        let mut snap = gate.snapshot_at(0, now);
+        let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+        d.fault = 0x0002;
+        d.status_age_ms = Some(5.0);
+        let faults = detect(&snap, v.config(), &sup, &mut Memory::new(now), &[], now);
+        assert!(
+            faults.iter().all(|f| f.kind != FaultKind::DeviceFault),
+            "{faults:?}"
+        );
+    }
 }
