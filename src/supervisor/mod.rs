@@ -1479,4 +1479,101 @@ mod tests {
             "{faults:?}"
         );
     }
+
+    /// A hand that pushes the steering (commanded 0.3) to 0.8 and holds it there: named
+    /// a driver's override once it has been away longer than `override_time` (300 ms,
+    /// turns every 50 ms), then held away from its command as long as it stays further
+    /// than `override_threshold` (0.2) from it, on either side, keeping the since of
+    /// its naming; back within 0.2 of its command, the override is over. An override
+    /// named on another device names none on the steering.
+    #[test]
+    fn a_hand_on_the_steering_is_named_after_override_time_and_lasts_until_it_is_back() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let steer_at = |now: Instant, pos: f64| {
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(0.3));
+            d.commanded = Some(Value::Number(0.3));
+            d.executed_span = Some([0.3, 0.3]);
+            d.executed_age_ms = Some(10.0);
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos;
+            }
+            snap
+        };
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let mut named = Vec::new();
+        for k in 0..21u64 {
+            let pos = match k {
+                0 => 0.3,
+                1..=11 => 0.8,
+                12..=14 => -0.2,
+                15..=17 => 0.5,
+                _ => 0.45,
+            };
+            let now = t0 + Duration::from_millis(50 * k);
+            faults = detect(
+                &steer_at(now, pos),
+                v.config(),
+                &sup,
+                &mut mem,
+                &faults,
+                now,
+            );
+            named.extend(
+                faults
+                    .iter()
+                    .filter(|f| {
+                        f.kind == FaultKind::Override && f.device.as_deref() == Some("steer")
+                    })
+                    .map(|f| (k, f.cause.clone(), f.since - t0)),
+            );
+        }
+        let turns: Vec<u64> = named.iter().map(|(k, _, _)| *k).collect();
+        assert_eq!(turns, (8..=14).collect::<Vec<_>>(), "{named:#?}");
+        let since = Duration::from_millis(400);
+        assert!(named.iter().all(|(_, _, s)| *s == since), "{named:#?}");
+        let (_, first, _) = &named[0];
+        assert!(
+            first.starts_with("measured 0.800, commanded 0.300: 0.474 from where its command can have taken it for ")
+                && first.ends_with(" s (a driver's hand)"),
+            "{first}"
+        );
+        let held = |pos: &str| {
+            format!("measured {pos}, commanded 0.300: held away from its command (a driver's hand)")
+        };
+        assert_eq!(named[1].1, held("0.800"));
+        assert_eq!(named[6].1, held("-0.200"));
+
+        // Another device's override is not the steering's.
+        let now = t0 + Duration::from_secs(2);
+        let brake = Fault {
+            kind: FaultKind::Override,
+            device: Some("brake".into()),
+            cause: String::new(),
+            since: t0,
+        };
+        let faults = detect(
+            &steer_at(now, 0.8),
+            v.config(),
+            &sup,
+            &mut Memory::new(t0),
+            &[brake],
+            now,
+        );
+        assert!(
+            faults
+                .iter()
+                .all(|f| !(f.kind == FaultKind::Override && f.device.as_deref() == Some("steer"))),
+            "{faults:?}"
+        );
+    }
 }
