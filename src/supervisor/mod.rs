@@ -1576,4 +1576,107 @@ mod tests {
             "{faults:?}"
         );
     }
+
+    /// Turns of the supervisor every `every` over the steering of `config` (Alice's,
+    /// or one with another response), commanded `cmd(k)` and measured at `pos(k)` at
+    /// turn `k`: the turns that name it not following, and the words of the first.
+    fn following(
+        config: VehicleConfig,
+        every: Duration,
+        turns: u32,
+        cmd: impl Fn(u32) -> f64,
+        pos: impl Fn(u32) -> f64,
+    ) -> (Vec<u32>, Option<String>) {
+        let t0 = Instant::now();
+        let gate = testkit::gate_of(config, t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let (mut named, mut first) = (Vec::new(), None);
+        for k in 0..turns {
+            let now = t0 + every * k;
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos(k)));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(cmd(k)));
+            d.commanded = Some(Value::Number(cmd(k)));
+            d.executed_span = Some([cmd(k), cmd(k)]);
+            d.executed_age_ms = Some(10.0);
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos(k);
+            }
+            faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
+            for f in &faults {
+                if f.kind == FaultKind::NotFollowing && f.device.as_deref() == Some("steer") {
+                    named.push(k);
+                    first.get_or_insert_with(|| f.cause.clone());
+                }
+            }
+        }
+        (named, first)
+    }
+
+    /// A stuck steering motor (full range a second, commanded 0.8 from 0, not moving)
+    /// is named not following once it has made no headway for longer than
+    /// `stall_time` (500 ms; turns every 50 ms), with what it made of what its
+    /// response promised; a new command gives it that time again. One making 40 % of
+    /// its promise (slow but healthy), or resting within its dead band of its command,
+    /// is following.
+    #[test]
+    fn a_stuck_steering_is_not_following_after_stall_time_a_slow_one_is() {
+        let turn = Duration::from_millis(50);
+        let (named, first) = following(VehicleConfig::alice(), turn, 30, |_| 0.8, |_| 0.0);
+        assert_eq!(named, (11..30).collect::<Vec<_>>());
+        assert_eq!(
+            first.as_deref(),
+            Some("measured 0.000, commanded 0.800: 0.000 of the 0.550 its response promises in 0.6 s")
+        );
+        let cmd = |k: u32| if k < 6 { 0.8 } else { 0.6 };
+        let (named, first) = following(VehicleConfig::alice(), turn, 30, cmd, |_| 0.0);
+        assert_eq!(named, (17..30).collect::<Vec<_>>(), "from the new command");
+        assert_eq!(
+            first.as_deref(),
+            Some("measured 0.000, commanded 0.600: 0.000 of the 0.550 its response promises in 0.6 s")
+        );
+        let slow = |k: u32| (0.02 * f64::from(k)).min(0.8);
+        let (named, _) = following(VehicleConfig::alice(), turn, 30, |_| 0.8, slow);
+        assert_eq!(named, Vec::<u32>::new(), "slow but healthy");
+        let (named, _) = following(VehicleConfig::alice(), turn, 30, |_| 0.8, |_| 0.79);
+        assert_eq!(named, Vec::<u32>::new(), "within its dead band");
+    }
+
+    /// A set point device without a declared response (here the steering, range [-1,
+    /// 1]) is not following once measured further than `follow_tolerance` of its range
+    /// (0.2) from its command, on either side, for longer than `follow_time` (2.5 s;
+    /// turns every 100 ms); at that distance or nearer it is following.
+    #[test]
+    fn a_device_without_a_response_is_not_following_past_its_tolerance_for_follow_time() {
+        let mut config = VehicleConfig::alice();
+        let steer = config
+            .devices
+            .iter_mut()
+            .find(|d| d.name == "steer")
+            .unwrap();
+        steer.response = None;
+        let turn = Duration::from_millis(100);
+        let away = |at: f64| following(config.clone(), turn, 30, |_| 0.3, move |_| at);
+        let (named, first) = away(0.0);
+        assert_eq!(named, (26..30).collect::<Vec<_>>());
+        assert_eq!(
+            first.as_deref(),
+            Some("measured 0.000, commanded 0.300 for 2.6 s")
+        );
+        assert_eq!(away(0.6).0, (26..30).collect::<Vec<_>>());
+        for near in [0.15, 0.2, 0.4, 0.5] {
+            assert_eq!(
+                away(near).0,
+                Vec::<u32>::new(),
+                "{near} is within 0.2 of 0.3"
+            );
+        }
+    }
 }
