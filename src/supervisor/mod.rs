@@ -1679,4 +1679,43 @@ mod tests {
             );
         }
     }
+
+    /// What its command explains is never faster than its response: a hand that turns
+    /// the steering (full range a second) from -0.8 to its command 0.8 at once is a
+    /// driver's override, named once `override_time` has passed (turns every 50 ms).
+    #[test]
+    fn a_hand_faster_than_the_response_toward_the_command_is_still_an_override() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let mut named = Vec::new();
+        for k in 0..12u32 {
+            let now = t0 + Duration::from_millis(50 * u64::from(k));
+            let pos = if k == 0 { -0.8 } else { 0.8 };
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(0.8));
+            d.commanded = Some(Value::Number(0.8));
+            d.executed_span = Some([0.8, 0.8]);
+            d.executed_age_ms = Some(10.0);
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos;
+            }
+            faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
+            if faults
+                .iter()
+                .any(|f| f.kind == FaultKind::Override && f.device.as_deref() == Some("steer"))
+            {
+                named.push(k);
+            }
+        }
+        assert_eq!(named, (8..12).collect::<Vec<_>>());
+    }
 }
