@@ -1337,4 +1337,385 @@ mod tests {
         assert_eq!(cause("steer"), "reports faults OPERATOR_OVERRIDE (0x0002)");
         assert_eq!(cause("gas"), "status word reports faults 0x0002");
     }
+
+    /// One turn of the supervisor over Alice at `now`, the steering's view changed by
+    /// `edit`: the faults of `kind` it names for the steering.
+    fn steer_turn(
+        gate: &Gate,
+        mem: &mut Memory,
+        now: Instant,
+        kind: FaultKind,
+        edit: impl FnOnce(&mut DeviceView),
+    ) -> Vec<Fault> {
+        let mut snap = gate.snapshot_at(0, now);
+        edit(snap.devices.iter_mut().find(|d| d.name == "steer").unwrap());
+        let sup = SupervisorConfig::default();
+        detect(&snap, gate.vehicle().config(), &sup, mem, &[], now)
+            .into_iter()
+            .filter(|f| f.kind == kind && f.device.as_deref() == Some("steer"))
+            .collect()
+    }
+
+    /// A device's error rate counts every transaction of the window — its polls, good
+    /// or failed, its acknowledged commands and its failed ones — and names how many
+    /// failed of how many; it judges no fewer than 4, and forgets a burst once it has
+    /// left the window.
+    #[test]
+    fn the_error_rate_counts_every_transaction_of_its_window() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let mut mem = Memory::new(t0);
+        // (polls, of which failed, commands acknowledged, commands failed) so far.
+        let counted = |n: (u64, u64, u64, u64)| {
+            move |d: &mut DeviceView| {
+                (
+                    d.counters.polls,
+                    d.counters.status_errors,
+                    d.counters.executed,
+                    d.counters.command_errors,
+                ) = n;
+                d.health.last_error = Some("no reply within 100ms".into());
+                d.health.last_error_age_ms = Some(10.0);
+            }
+        };
+        let rate = |mem: &mut Memory, ms: u64, n| {
+            let now = t0 + Duration::from_millis(ms);
+            steer_turn(&gate, mem, now, FaultKind::ErrorRate, counted(n))
+        };
+        assert_eq!(rate(&mut mem, 0, (100, 10, 50, 5)), vec![]);
+        // Since: 6 polls (4 failed), 3 commands acknowledged, 2 failed: 6 of 11.
+        let f = rate(&mut mem, 1000, (106, 14, 53, 7));
+        assert_eq!(f.len(), 1, "{f:?}");
+        assert_eq!(
+            f[0].cause,
+            "6 of 11 transactions failed in 2 s: no reply within 100ms"
+        );
+        // 2.5 s after the burst, nothing more failed, nothing more was tried.
+        assert_eq!(rate(&mut mem, 3500, (106, 14, 53, 7)), vec![], "forgotten");
+
+        // Too few to judge: 3 transactions, every one failed; then a 4th.
+        let mut mem = Memory::new(t0);
+        assert_eq!(rate(&mut mem, 0, (100, 10, 50, 5)), vec![]);
+        assert_eq!(rate(&mut mem, 100, (102, 12, 50, 6)), vec![], "3 tries");
+        let f = rate(&mut mem, 200, (103, 13, 50, 6));
+        assert_eq!(
+            f.iter().map(|f| f.cause.as_str()).collect::<Vec<_>>(),
+            ["4 of 4 transactions failed in 2 s: no reply within 100ms"]
+        );
+    }
+
+    /// A reading older than `status_max_age` + `reply_timeout` (the steering's 250 +
+    /// 100 ms) is not believed: its fault bits name no device fault (its silence is
+    /// named instead); one within that age is judged.
+    #[test]
+    fn fault_bits_count_from_a_status_no_older_than_its_max_age_and_reply_timeout() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let faulted = |age_ms: f64| {
+            let now = t0 + Duration::from_secs(1);
+            let mut mem = Memory::new(t0);
+            steer_turn(&gate, &mut mem, now, FaultKind::DeviceFault, |d| {
+                d.fault = 0x0004;
+                d.status_age_ms = Some(age_ms);
+            })
+        };
+        let f = faulted(345.0);
+        assert_eq!(f.len(), 1, "{f:?}");
+        assert_eq!(f[0].cause, "status word reports faults 0x0004");
+        assert_eq!(faulted(355.0), vec![], "a status too old to believe");
+    }
+
+    /// A position may stray `range_margin` of the range outside it (the steering's
+    /// [-1, 1]: 0.1 either side) and no further: at the margin it is in range, past it
+    /// on either side it is out, named with its value.
+    #[test]
+    fn a_position_is_out_of_range_past_its_margin_not_at_it() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let out = |pos: f64| {
+            let mut mem = Memory::new(t0);
+            let f = steer_turn(&gate, &mut mem, t0, FaultKind::OutOfRange, |d| {
+                if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                    *x = Some(Value::Number(pos));
+                }
+                d.status_age_ms = Some(5.0);
+            });
+            f.into_iter().map(|f| f.cause).collect::<Vec<_>>()
+        };
+        for pos in [-1.1, -1.09, -1.0, 0.0, 1.0, 1.09, 1.1] {
+            assert_eq!(out(pos), Vec::<String>::new(), "{pos} is in range");
+        }
+        assert_eq!(out(-1.11), ["reports -1.110, outside [-1, 1]"]);
+        assert_eq!(out(1.11), ["reports 1.110, outside [-1, 1]"]);
+    }
+
+    /// Alice at rest — every device answering, no fault bit set — has no fault; a kit's
+    /// module with a fault code, disengaged, is shown by name but is no device fault
+    /// (the kit's own rule, [`kit`]).
+    #[test]
+    fn a_vehicle_at_rest_has_no_fault_and_a_kit_s_codes_disengaged_block_nothing() {
+        let now = Instant::now();
+        let gate = testkit::gate(now);
+        let sup = SupervisorConfig::default();
+        let snap = gate.snapshot_at(0, now);
+        let v = &gate.vehicle();
+        let faults = detect(&snap, v.config(), &sup, &mut Memory::new(now), &[], now);
+        assert_eq!(faults, vec![]);
+
+        let config = crate::config::parse(
+            include_str!("../../vehicles/oscc.toml"),
+            "vehicles/oscc.toml",
+        )
+        .expect("the OSCC vehicle parses");
+        let gate = testkit::gate_of(config, now);
+        let v = &gate.vehicle();
+        let mut snap = gate.snapshot_at(0, now);
+        let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+        d.fault = 0x0002;
+        d.status_age_ms = Some(5.0);
+        let faults = detect(&snap, v.config(), &sup, &mut Memory::new(now), &[], now);
+        assert!(
+            faults.iter().all(|f| f.kind != FaultKind::DeviceFault),
+            "{faults:?}"
+        );
+    }
+
+    /// A hand that pushes the steering (commanded 0.3) to 0.8 and holds it there: named
+    /// a driver's override once it has been away longer than `override_time` (300 ms,
+    /// turns every 50 ms), then held away from its command as long as it stays further
+    /// than `override_threshold` (0.2) from it, on either side, keeping the since of
+    /// its naming; back within 0.2 of its command, the override is over. An override
+    /// named on another device names none on the steering.
+    #[test]
+    fn a_hand_on_the_steering_is_named_after_override_time_and_lasts_until_it_is_back() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let steer_at = |now: Instant, pos: f64| {
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(0.3));
+            d.commanded = Some(Value::Number(0.3));
+            d.executed_span = Some([0.3, 0.3]);
+            d.executed_age_ms = Some(10.0);
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos;
+            }
+            snap
+        };
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let mut named = Vec::new();
+        for k in 0..21u64 {
+            let pos = match k {
+                0 => 0.3,
+                1..=11 => 0.8,
+                12..=14 => -0.2,
+                15..=17 => 0.5,
+                _ => 0.45,
+            };
+            let now = t0 + Duration::from_millis(50 * k);
+            faults = detect(
+                &steer_at(now, pos),
+                v.config(),
+                &sup,
+                &mut mem,
+                &faults,
+                now,
+            );
+            named.extend(
+                faults
+                    .iter()
+                    .filter(|f| {
+                        f.kind == FaultKind::Override && f.device.as_deref() == Some("steer")
+                    })
+                    .map(|f| (k, f.cause.clone(), f.since - t0)),
+            );
+        }
+        let turns: Vec<u64> = named.iter().map(|(k, _, _)| *k).collect();
+        assert_eq!(turns, (8..=14).collect::<Vec<_>>(), "{named:#?}");
+        let since = Duration::from_millis(400);
+        assert!(named.iter().all(|(_, _, s)| *s == since), "{named:#?}");
+        let (_, first, _) = &named[0];
+        assert!(
+            first.starts_with("measured 0.800, commanded 0.300: 0.474 from where its command can have taken it for ")
+                && first.ends_with(" s (a driver's hand)"),
+            "{first}"
+        );
+        let held = |pos: &str| {
+            format!("measured {pos}, commanded 0.300: held away from its command (a driver's hand)")
+        };
+        assert_eq!(named[1].1, held("0.800"));
+        assert_eq!(named[6].1, held("-0.200"));
+
+        // Another device's override is not the steering's.
+        let now = t0 + Duration::from_secs(2);
+        let brake = Fault {
+            kind: FaultKind::Override,
+            device: Some("brake".into()),
+            cause: String::new(),
+            since: t0,
+        };
+        let faults = detect(
+            &steer_at(now, 0.8),
+            v.config(),
+            &sup,
+            &mut Memory::new(t0),
+            &[brake],
+            now,
+        );
+        assert!(
+            faults
+                .iter()
+                .all(|f| !(f.kind == FaultKind::Override && f.device.as_deref() == Some("steer"))),
+            "{faults:?}"
+        );
+    }
+
+    /// Turns of the supervisor every `every` over the steering of `config` (Alice's,
+    /// or one with another response), commanded `cmd(k)` and measured at `pos(k)` at
+    /// turn `k`: the turns that name it not following, and the words of the first.
+    fn following(
+        config: VehicleConfig,
+        every: Duration,
+        turns: u32,
+        cmd: impl Fn(u32) -> f64,
+        pos: impl Fn(u32) -> f64,
+    ) -> (Vec<u32>, Option<String>) {
+        let t0 = Instant::now();
+        let gate = testkit::gate_of(config, t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let (mut named, mut first) = (Vec::new(), None);
+        for k in 0..turns {
+            let now = t0 + every * k;
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos(k)));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(cmd(k)));
+            d.commanded = Some(Value::Number(cmd(k)));
+            d.executed_span = Some([cmd(k), cmd(k)]);
+            d.executed_age_ms = Some(10.0);
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos(k);
+            }
+            faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
+            for f in &faults {
+                if f.kind == FaultKind::NotFollowing && f.device.as_deref() == Some("steer") {
+                    named.push(k);
+                    first.get_or_insert_with(|| f.cause.clone());
+                }
+            }
+        }
+        (named, first)
+    }
+
+    /// A stuck steering motor (full range a second, commanded 0.8 from 0, not moving)
+    /// is named not following once it has made no headway for longer than
+    /// `stall_time` (500 ms; turns every 50 ms), with what it made of what its
+    /// response promised; a new command gives it that time again. One making 40 % of
+    /// its promise (slow but healthy), or resting within its dead band of its command,
+    /// is following.
+    #[test]
+    fn a_stuck_steering_is_not_following_after_stall_time_a_slow_one_is() {
+        let turn = Duration::from_millis(50);
+        let (named, first) = following(VehicleConfig::alice(), turn, 30, |_| 0.8, |_| 0.0);
+        assert_eq!(named, (11..30).collect::<Vec<_>>());
+        assert_eq!(
+            first.as_deref(),
+            Some("measured 0.000, commanded 0.800: 0.000 of the 0.550 its response promises in 0.6 s")
+        );
+        let cmd = |k: u32| if k < 6 { 0.8 } else { 0.6 };
+        let (named, first) = following(VehicleConfig::alice(), turn, 30, cmd, |_| 0.0);
+        assert_eq!(named, (17..30).collect::<Vec<_>>(), "from the new command");
+        assert_eq!(
+            first.as_deref(),
+            Some("measured 0.000, commanded 0.600: 0.000 of the 0.550 its response promises in 0.6 s")
+        );
+        let slow = |k: u32| (0.02 * f64::from(k)).min(0.8);
+        let (named, _) = following(VehicleConfig::alice(), turn, 30, |_| 0.8, slow);
+        assert_eq!(named, Vec::<u32>::new(), "slow but healthy");
+        let (named, _) = following(VehicleConfig::alice(), turn, 30, |_| 0.8, |_| 0.79);
+        assert_eq!(named, Vec::<u32>::new(), "within its dead band");
+    }
+
+    /// A set point device without a declared response (here the steering, range [-1,
+    /// 1]) is not following once measured further than `follow_tolerance` of its range
+    /// (0.2) from its command, on either side, for longer than `follow_time` (2.5 s;
+    /// turns every 100 ms); at that distance or nearer it is following.
+    #[test]
+    fn a_device_without_a_response_is_not_following_past_its_tolerance_for_follow_time() {
+        let mut config = VehicleConfig::alice();
+        let steer = config
+            .devices
+            .iter_mut()
+            .find(|d| d.name == "steer")
+            .unwrap();
+        steer.response = None;
+        let turn = Duration::from_millis(100);
+        let away = |at: f64| following(config.clone(), turn, 30, |_| 0.3, move |_| at);
+        let (named, first) = away(0.0);
+        assert_eq!(named, (26..30).collect::<Vec<_>>());
+        assert_eq!(
+            first.as_deref(),
+            Some("measured 0.000, commanded 0.300 for 2.6 s")
+        );
+        assert_eq!(away(0.6).0, (26..30).collect::<Vec<_>>());
+        for near in [0.15, 0.2, 0.4, 0.5] {
+            assert_eq!(
+                away(near).0,
+                Vec::<u32>::new(),
+                "{near} is within 0.2 of 0.3"
+            );
+        }
+    }
+
+    /// What its command explains is never faster than its response: a hand that turns
+    /// the steering (full range a second) from -0.8 to its command 0.8 at once is a
+    /// driver's override, named once `override_time` has passed (turns every 50 ms).
+    #[test]
+    fn a_hand_faster_than_the_response_toward_the_command_is_still_an_override() {
+        let t0 = Instant::now();
+        let gate = testkit::gate(t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let mut named = Vec::new();
+        for k in 0..12u32 {
+            let now = t0 + Duration::from_millis(50 * u64::from(k));
+            let pos = if k == 0 { -0.8 } else { 0.8 };
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(0.8));
+            d.commanded = Some(Value::Number(0.8));
+            d.executed_span = Some([0.8, 0.8]);
+            d.executed_age_ms = Some(10.0);
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos;
+            }
+            faults = detect(&snap, v.config(), &sup, &mut mem, &faults, now);
+            if faults
+                .iter()
+                .any(|f| f.kind == FaultKind::Override && f.device.as_deref() == Some("steer"))
+            {
+                named.push(k);
+            }
+        }
+        assert_eq!(named, (8..12).collect::<Vec<_>>());
+    }
 }
