@@ -46,17 +46,28 @@ impl Service {
         Service::start_on(name, None, true)
     }
 
+    /// On `adrive sim`'s ports, Alice made tolerant as [`common::tolerant`], for tests
+    /// that hold the vehicle engaged for seconds.
+    fn start_tolerant_on(name: &str, sim: &SimProcess) -> Service {
+        Service::start_on(name, Some(sim), true)
+    }
+
     fn start_on(name: &str, sim: Option<&SimProcess>, tolerant: bool) -> Service {
         let dir = tempdir(name);
         let socket = dir.path().join("run/adrive.sock");
         let mut cmd = Command::new(BIN);
-        match sim {
-            Some(sim) => cmd.arg("--config").arg(vehicle_file(dir.path(), sim, "")),
-            None => cmd.arg("--sim"),
+        match (sim, tolerant) {
+            (Some(sim), false) => cmd.arg("--config").arg(vehicle_file(dir.path(), sim, "")),
+            (Some(sim), true) => {
+                cmd.arg("--config")
+                    .arg(common::tolerant(vehicle_file(dir.path(), sim, "")))
+            }
+            (None, false) => cmd.arg("--sim"),
+            (None, true) => cmd
+                .arg("--sim")
+                .arg("--config")
+                .arg(common::tolerant_alice(dir.path())),
         };
-        if tolerant {
-            cmd.arg("--config").arg(common::tolerant_alice(dir.path()));
-        }
         let listen = format!("127.0.0.1:{}", common::free_port());
         let broadcast = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
         broadcast
@@ -150,7 +161,9 @@ fn attach_playing(socket: &Path, play: Play) -> Attached {
 fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_drop_is_its_watchdog(
 ) {
     let sim = SimProcess::start();
-    let svc = Service::start("attach-two", Some(&sim));
+    // Held engaged for seconds to prove who commands and the consoles' watchdog, not
+    // device timing: on the tolerant Alice.
+    let svc = Service::start_tolerant_on("attach-two", &sim);
     let mut watcher = attach(&svc.socket);
     let mut driver = attach(&svc.socket);
     for c in [&watcher, &driver] {
@@ -265,7 +278,8 @@ fn two_consoles_attach_one_drives_the_watcher_leaves_freely_and_the_commanders_d
 /// again, the keys act again.
 #[test]
 fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit() {
-    let svc = Service::start("attach-small", None);
+    // Held engaged to prove the console's small-window rule, not device timing: on the tolerant Alice.
+    let svc = Service::start_tolerant("attach-small");
     let mut c = attach(&svc.socket);
     c.engage();
     c.term.resize(60, 20);
@@ -317,7 +331,8 @@ fn an_attached_console_below_the_minimum_size_drives_nothing_but_stop_and_quit()
 /// console, once it runs again, that adrive dropped it and why.
 #[test]
 fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
-    let svc = Service::start("attach-frozen", None);
+    // Held engaged to prove the console's own watchdog, not device timing: on the tolerant Alice.
+    let svc = Service::start_tolerant("attach-frozen");
     let mut c = attach(&svc.socket);
     c.engage();
     assert!(common::signal(&c.child, libc::SIGSTOP));
@@ -388,7 +403,8 @@ fn an_attached_console_says_whether_adrive_stopped_or_went_away() {
 
 #[test]
 fn operator_commands_engage_release_stop_with_exit_statuses() {
-    let svc = Service::start("attach-ctl", None);
+    // Held engaged to prove the operator's commands, not device timing: on the tolerant Alice.
+    let svc = Service::start_tolerant("attach-ctl");
     let out = svc.ctl(&["status"]);
     assert!(out.status.success(), "{out:?}");
     let table = String::from_utf8_lossy(&out.stdout);

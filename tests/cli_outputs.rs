@@ -68,9 +68,14 @@ impl Around {
         let listen = format!("127.0.0.1:{}", free_port());
         let broadcast = format!("127.0.0.1:{}", free_port());
         let socket = dir.path().join("fixture.sock");
+        // On the tolerant Alice: the walk may leave the fixture engaged while later
+        // cases run, and what is tested is their output, not device timing.
+        let vehicle = common::tolerant_alice(dir.path()).display().to_string();
         let (adrive, _, err) = common::headless_sim(
             dir.path(),
             &[
+                "--config",
+                &vehicle,
                 "--listen",
                 &listen,
                 "--broadcast-to",

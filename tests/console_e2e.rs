@@ -281,7 +281,8 @@ fn left_alternate_screen(bytes: &[u8]) -> bool {
 
 #[test]
 fn keys_engage_and_steer_and_q_leaves_the_terminal_and_vehicle_safe() {
-    let mut c = Console::start("steer", &[]);
+    // Held engaged to prove the console, not device timing: on the tolerant Alice.
+    let mut c = Console::start("steer", &["--config", TOLERANT]);
     c.engage();
     // Sparrow's `s`: edit the steering command in place.
     c.keys("s");
@@ -527,7 +528,8 @@ fn a_resize_redraws_and_a_small_window_gets_a_message() {
 /// (read back over the control socket). Grown again, the keys act again.
 #[test]
 fn a_window_below_the_minimum_size_drives_nothing_but_stop_and_quit() {
-    let mut c = Console::start("small", &[]);
+    // Held engaged to prove the console, not device timing: on the tolerant Alice.
+    let mut c = Console::start("small", &["--config", TOLERANT]);
     c.engage();
     c.resize(60, 20);
     c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
@@ -704,7 +706,8 @@ fn quitting_after_a_resize_leaves_the_alternate_screen_blank() {
 /// before the resize, as at any console in use.
 #[test]
 fn a_stop_pressed_after_a_resize_stops_at_once() {
-    let mut c = Console::start("stop-after-resize", &[]);
+    // Held engaged to prove the console, not device timing: on the tolerant Alice.
+    let mut c = Console::start("stop-after-resize", &["--config", TOLERANT]);
     c.engage();
     c.resize(60, 20);
     c.wait_for("the too-small message", |s| s.contains("at least 80×22"));
@@ -732,7 +735,8 @@ fn number_after(screen: &str, label: &str) -> Option<f64> {
 /// and STOP clears it.
 #[test]
 fn one_accel_from_braking_gives_gas_and_stop_clears_it() {
-    let mut c = Console::start("accel", &[]);
+    // Held engaged to prove the console, not device timing: on the tolerant Alice.
+    let mut c = Console::start("accel", &["--config", TOLERANT]);
     c.engage_in_drive();
     c.keys("c");
     c.wait_for("the accel edit", |s| s.contains("edit accel"));
@@ -892,7 +896,8 @@ fn a_network_sender_does_not_steer_the_consoles_vehicle_until_the_operator_relea
 /// from the main screen's accel: refused, the brake stays full.
 #[test]
 fn a_refused_teleop_accel_in_park_leaves_the_bar_and_the_brake_as_applied() {
-    let mut c = Console::start("park", &[]);
+    // Held engaged to prove the console, not device timing: on the tolerant Alice.
+    let mut c = Console::start("park", &["--config", TOLERANT]);
     c.engage();
     c.wait_for("the brake full", |s| s.contains("BRAKE 0…1 cmd 1.000"));
     c.keys("d");
@@ -1252,7 +1257,8 @@ fn commander_stalls(name: &str, stall: fn(&Player)) -> Console {
 /// command — in a real run, while the screenshots were taken — and the vehicle stopped.
 #[test]
 fn a_terminal_answer_beside_the_operators_esc_is_never_keys() {
-    let mut c = Console::start("esc-answer", &[]);
+    // Held engaged to prove the console, not device timing: on the tolerant Alice.
+    let mut c = Console::start("esc-answer", &["--config", TOLERANT]);
     c.engage();
     c.term.write(b"\x1b\x1b[21;76R");
     c.term.write(b"\x1b[21;7");

@@ -24,7 +24,19 @@ struct Adrive {
 
 impl Adrive {
     fn start(name: &str, sim: &SimProcess, extra_args: &[&str], supervisor: &str) -> Adrive {
-        let (dir, port, mut cmd) = Adrive::command(name, sim, supervisor);
+        Adrive::start_on(name, sim, extra_args, supervisor, false)
+    }
+
+    /// `tolerant`: Alice made tolerant of this shared machine's stalls
+    /// ([`common::tolerant`]), for a run held engaged for seconds.
+    fn start_on(
+        name: &str,
+        sim: &SimProcess,
+        extra_args: &[&str],
+        supervisor: &str,
+        tolerant: bool,
+    ) -> Adrive {
+        let (dir, port, mut cmd) = Adrive::command(name, sim, supervisor, tolerant);
         let child = cmd
             .arg("--headless")
             .args(extra_args)
@@ -50,7 +62,7 @@ impl Adrive {
         shows: &str,
         controlling: bool,
     ) -> Adrive {
-        let (dir, port, mut cmd) = Adrive::command(name, sim, "");
+        let (dir, port, mut cmd) = Adrive::command(name, sim, "", false);
         cmd.args(args).env("TERM", "xterm-256color");
         let (child, terminal) = Master::spawn(&mut cmd, 100, 30, controlling);
         let adrive = Adrive {
@@ -71,9 +83,13 @@ impl Adrive {
         name: &str,
         sim: &SimProcess,
         supervisor: &str,
+        tolerant: bool,
     ) -> (tempfile::TempDir, u16, Process) {
         let dir = tempdir(name);
-        let config = vehicle_file(dir.path(), sim, supervisor);
+        let mut config = vehicle_file(dir.path(), sim, supervisor);
+        if tolerant {
+            config = common::tolerant(config);
+        }
         let port = free_port();
         let mut cmd = Process::new(BIN);
         cmd.arg("--config")
@@ -147,17 +163,19 @@ fn drive(sim: &SimProcess, adrive: &Adrive) -> common::Reaped {
 }
 
 /// End adrive the given way while the vehicle drives; check the safe state reached the
-/// devices first, the exit status, and the log.
+/// devices first, the exit status, and the log. `tolerant`: on the tolerant Alice, for
+/// a way that holds the vehicle engaged for seconds first.
 fn ends_safely(
     name: &str,
     args: &[&str],
     supervisor: &str,
+    tolerant: bool,
     end: impl FnOnce(&mut SimProcess, &Adrive),
     status: i32,
     stopping: &str,
 ) {
     let mut sim = SimProcess::start();
-    let mut adrive = Adrive::start(name, &sim, args, supervisor);
+    let mut adrive = Adrive::start_on(name, &sim, args, supervisor, tolerant);
     let mut planner = drive(&sim, &adrive);
     end(&mut sim, &adrive);
     assert_eq!(adrive.wait(), Some(status), "exit status after {name}");
@@ -190,6 +208,7 @@ fn sigint_stops_safely() {
         "int",
         &[],
         "",
+        false,
         |_, a| a.signal(libc::SIGINT),
         0,
         "stopping: SIGINT",
@@ -202,6 +221,7 @@ fn sigterm_stops_safely() {
         "term",
         &[],
         "",
+        false,
         |_, a| a.signal(libc::SIGTERM),
         0,
         "stopping: SIGTERM",
@@ -214,6 +234,7 @@ fn sighup_stops_safely() {
         "hup",
         &[],
         "",
+        false,
         |_, a| a.signal(libc::SIGHUP),
         129,
         "stopping: SIGHUP",
@@ -226,6 +247,8 @@ fn a_panic_in_a_thread_stops_safely() {
         "panic-thread",
         &["--inject-panic", "supervisor:5s"],
         "",
+        // Held engaged for 5 s to prove the exit path, not device timing.
+        true,
         |_, _| {},
         101,
         "stopping: panic: thread supervisor",
@@ -238,6 +261,8 @@ fn a_panic_in_the_main_thread_stops_safely() {
         "panic-main",
         &["--inject-panic", "main:5s"],
         "",
+        // Held engaged for 5 s to prove the exit path, not device timing.
+        true,
         |_, _| {},
         101,
         "engine dropped without shutdown",
@@ -250,6 +275,7 @@ fn a_fatal_device_error_stops_safely() {
         "fatal",
         &[],
         "attempts = 1\nstep_timeout = \"1s\"\ngive_up_after = \"1s\"",
+        false,
         |sim, _| {
             sim.say("nostart on");
             sim.say("stall");

@@ -24,8 +24,14 @@ fn vehicle(id: &str, endpoint: &str) -> Adrive {
 }
 
 /// [`vehicle`], with `network` in its `[network]` and `fleet` in a `[fleet]` section.
+/// Alice is made tolerant of this shared machine's stalls ([`common::tolerant_text`]):
+/// consoles over the fleet hold her engaged for seconds to prove who commands her and
+/// what a lost link does, not device timing.
 fn vehicle_with(id: &str, endpoint: &str, network: &str, fleet: &str) -> Adrive {
-    let toml = format!("{}\n[fleet]\n{fleet}\n", adrive::config::ALICE_TOML);
+    let toml = format!(
+        "{}\n[fleet]\n{fleet}\n",
+        common::tolerant_text(adrive::config::ALICE_TOML)
+    );
     let v = Adrive::start_with(
         "fleet",
         &toml,

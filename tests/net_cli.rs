@@ -40,7 +40,13 @@ fn watchdog(v: &Snapshot) -> WatchdogState {
 /// watchdog brings the vehicle to a safe stop within its timeout.
 #[test]
 fn the_readme_planner_stand_in_drives_and_the_watchdog_stops_it() {
-    let adrive = Adrive::start("planner", ALICE_TOML, "watchdog_timeout = \"500ms\"");
+    // Held engaged for seconds to prove the network watchdog, not device timing: on
+    // the tolerant Alice.
+    let adrive = Adrive::start(
+        "planner",
+        &common::tolerant_text(ALICE_TOML),
+        "watchdog_timeout = \"500ms\"",
+    );
     let watch = Watch::start(&adrive.broadcast);
     watch.until("every device reporting", |v| v.gate.blockers.is_empty());
     let mut sender = common::Reaped(

@@ -44,9 +44,11 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
-/// adrive, headless, on the simulator's ports, recording with `record_args`.
+/// adrive, headless, on the simulator's ports, recording with `record_args`. Alice is
+/// made tolerant of this shared machine's stalls ([`common::tolerant`]): the planners
+/// here hold her engaged for seconds to prove what is recorded, not device timing.
 fn adrive(sim: &SimProcess, dir: &Path, port: u16, record_args: &[&str]) -> Process {
-    let config = vehicle_file(dir, sim, "");
+    let config = common::tolerant(vehicle_file(dir, sim, ""));
     let mut cmd = Process::new(BIN);
     cmd.arg("--config")
         .arg(&config)

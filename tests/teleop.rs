@@ -62,7 +62,7 @@ impl Rig {
         let socket = dir.path().join("adrive.sock");
         let mut cmd = Command::new(BIN);
         cmd.arg("--config")
-            .arg(tolerant(vehicle_file(dir.path(), &sim, "")))
+            .arg(common::tolerant(vehicle_file(dir.path(), &sim, "")))
             .args(["--listen", "127.0.0.1:0", "--log-dir"])
             .arg(dir.path().join("log"))
             .arg("--socket")
@@ -77,7 +77,7 @@ impl Rig {
         let socket = dir.path().join("adrive.sock");
         let service = Command::new(BIN)
             .arg("--config")
-            .arg(tolerant(vehicle_file(dir.path(), &sim, "")))
+            .arg(common::tolerant(vehicle_file(dir.path(), &sim, "")))
             .args(["--headless", "--listen", "127.0.0.1:0", "--log-dir"])
             .arg(dir.path().join("log"))
             .arg("--socket")
@@ -289,24 +289,6 @@ fn screen(term: &Player) -> String {
 
 fn wait_screen(term: &Player, what: &str, ok: impl Fn(&str) -> bool) -> String {
     common::wait_screen(what, Duration::from_millis(20), || screen(term), ok)
-}
-
-/// The vehicle file at `path`, its devices' readings allowed to be 2 s old and their
-/// replies 1 s late: these tests hold the vehicle engaged for seconds to prove what the
-/// keys do, on a shared machine that stalls now and then (a stall of 300 ms froze every
-/// process at once, and Alice's own deadlines then rightly disengaged her).
-fn tolerant(path: PathBuf) -> PathBuf {
-    let text: String = std::fs::read_to_string(&path)
-        .unwrap()
-        .lines()
-        .map(|l| match l {
-            _ if l.starts_with("status_max_age = ") => "status_max_age = \"2s\"\n".to_string(),
-            _ if l.starts_with("reply_timeout = ") => "reply_timeout = \"1s\"\n".to_string(),
-            _ => format!("{l}\n"),
-        })
-        .collect();
-    std::fs::write(&path, text).unwrap();
-    path
 }
 
 fn sleep_until(t: Instant) {

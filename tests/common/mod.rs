@@ -104,8 +104,24 @@ pub fn said(screen: &str) -> &str {
 /// now and then (a stall of 300 ms froze every process at once), and Alice's own
 /// deadlines (200 ms for the e-stop) then rightly find a device faulty and disengage.
 pub fn tolerant_alice(dir: &std::path::Path) -> std::path::PathBuf {
+    let path = dir.join("tolerant-alice.toml");
+    std::fs::write(&path, tolerant_text(config::ALICE_TOML)).unwrap();
+    path
+}
+
+/// The vehicle file at `path` (Alice pointed at `adrive sim`'s ports, as
+/// [`simproc::vehicle_file`] writes her) made tolerant as [`tolerant_alice`].
+pub fn tolerant(path: std::path::PathBuf) -> std::path::PathBuf {
+    let text = tolerant_text(&std::fs::read_to_string(&path).unwrap());
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// `vehicle` (a vehicle file's text) with every device's readings allowed to be 2 s old
+/// and its replies 1 s late.
+pub fn tolerant_text(vehicle: &str) -> String {
     let mut text = String::new();
-    for line in config::ALICE_TOML.lines() {
+    for line in vehicle.lines() {
         if line.starts_with("status_max_age = ") {
             text.push_str("status_max_age = \"2s\"\n");
         } else if line.starts_with("reply_timeout = ") {
@@ -115,9 +131,7 @@ pub fn tolerant_alice(dir: &std::path::Path) -> std::path::PathBuf {
             text.push('\n');
         }
     }
-    let path = dir.join("tolerant-alice.toml");
-    std::fs::write(&path, text).unwrap();
-    path
+    text
 }
 
 pub struct Rig {
