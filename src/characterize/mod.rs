@@ -375,12 +375,23 @@ pub(crate) fn interrupted(gate: &Gate, watch: &Watch, id: DeviceId) -> Result<()
             gate.cause().why()
         )));
     }
-    if gate.commander() != Some(Source::Bench) {
-        return Err(Ended(format!(
-            "the vehicle was taken by {}",
-            gate.commander()
-                .map_or("another source".into(), |s| s.to_string())
-        )));
+    match gate.commander() {
+        Some(Source::Bench) => {}
+        Some(other) => return Err(Ended(format!("the vehicle was taken by {other}"))),
+        // Nobody commands an engaged vehicle only on its way to disengaged (a STOP, a
+        // disengage, a trip take command away first): said as the disengage it is,
+        // once it is one.
+        None => {
+            let until = Instant::now() + Duration::from_millis(200);
+            while gate.is_engaged() && Instant::now() < until {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+            return Err(Ended(if gate.is_engaged() {
+                "nobody commands the vehicle any more".into()
+            } else {
+                format!("the vehicle was disengaged: {}", gate.cause().why())
+            }));
+        }
     }
     let d = gate.vehicle().device(id);
     if let Some(f) = d.fault() {
@@ -1061,6 +1072,42 @@ pub(crate) struct Watch<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A STOP (or a disengage) takes command away, then disengages: a run that looks
+    /// between the two is not told another source took the vehicle; it waits for the
+    /// disengage and says it, with its cause.
+    #[test]
+    fn a_stop_half_done_is_not_another_source_taking_the_vehicle() {
+        let t = Instant::now();
+        let g = crate::testkit::gate(t);
+        let id = g.vehicle().find("steer").unwrap().id();
+        let no_stop = || None;
+        let watch = Watch {
+            progress: &|_| {},
+            stop: &no_stop,
+        };
+        assert_eq!(
+            g.admit(Source::Bench, Ask::Engage, t),
+            Ok(crate::safety::Done::Engaged)
+        );
+        // Command taken away, the vehicle still engaged: no one took it.
+        g.state().owner().nobody();
+        let Err(Ended(said)) = interrupted(&g, &watch, id) else {
+            panic!("a run nobody commands goes on");
+        };
+        assert_eq!(said, "nobody commands the vehicle any more");
+        // The disengage done: said with its cause.
+        g.disengage(DisengageCause::Stop {
+            by: "operator".into(),
+        });
+        let Err(Ended(said)) = interrupted(&g, &watch, id) else {
+            panic!("a run on a disengaged vehicle goes on");
+        };
+        assert!(
+            said.starts_with("the vehicle was disengaged: ") && said.contains("stop from operator"),
+            "{said}"
+        );
+    }
 
     /// The lag is the steps' median where most showed one: a step a stall thinned out
     /// does not take it away, a drive that stops at its rate has none.

@@ -469,6 +469,49 @@ mod tests {
         assert_eq!(g.admit(net(5555), steer, t), Ok(Done::Commanded));
     }
 
+    /// What who commands refuses is recorded with its reason — a set point as its
+    /// device's, an accel as an accel (a recording keeps every refused command); an
+    /// engage of a vehicle one already commands is the same engagement, not a new one;
+    /// a hold asks for nothing on a disengaged vehicle and is refused.
+    #[test]
+    fn refusals_of_who_commands_are_recorded_and_a_repeat_changes_nothing() {
+        let t = Instant::now();
+        let g = sample::gate(t);
+        let tapped = g.vehicle().tap().open(false).expect("a reader");
+        assert_eq!(
+            g.admit(Source::Console, Ask::Hold, t),
+            Err(Refused::Rule(Reject::Disengaged))
+        );
+        assert_eq!(g.admit(Source::Console, Ask::Engage, t), Ok(Done::Engaged));
+        assert_eq!(g.admit(Source::Console, Ask::Engage, t), Ok(Done::Same));
+        let steer = id(&g, "steer");
+        assert!(g
+            .admit(net(5555), Ask::Set(steer, Command::Set(0.5)), t)
+            .is_err());
+        assert!(g.admit(net(5555), Ask::Accel(0.2), t).is_err());
+        let refused: Vec<Asked> = tapped
+            .rx
+            .try_iter()
+            .filter_map(|e| match e {
+                Event::Received {
+                    source,
+                    asked,
+                    refused: Some(_),
+                    ..
+                } if source == net(5555) => Some(asked),
+                _ => None,
+            })
+            .collect();
+        assert!(
+            matches!(
+                refused.as_slice(),
+                [Asked::Device(d, Command::Set(v)), Asked::Accel(a)]
+                    if *d == steer && *v == 0.5 && *a == 0.2
+            ),
+            "{refused:?}"
+        );
+    }
+
     /// The other incident: in neutral with the brake on, `accel 0.3` was rejected
     /// (`gas_not_in_gear`) yet released the brake. A refused accel leaves both slots
     /// as they were.

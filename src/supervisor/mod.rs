@@ -968,6 +968,76 @@ mod tests {
         );
     }
 
+    /// Which faults take the vehicle to the safe state: every one but a stalled engine
+    /// (its own procedure restarts it, the brake held) and a driver's hand (the driver
+    /// takes over, the gate hands the vehicle to them).
+    #[test]
+    fn every_fault_disengages_but_a_stalled_engine_and_a_hand() {
+        use FaultKind::*;
+        for kind in [EngineStall, Override] {
+            assert!(!disengages(kind), "{kind:?}");
+        }
+        for kind in [
+            Silent,
+            Disconnected,
+            ErrorRate,
+            DeviceFault,
+            OutOfRange,
+            NotFollowing,
+            EstopPause,
+            EstopDisable,
+        ] {
+            assert!(disengages(kind), "{kind:?}");
+        }
+    }
+
+    /// The procedure a fault calls for: a stalled engine its restart; the steering not
+    /// following, or faulty, its homing — Alice's own steering only, not another
+    /// device, and not a kit's module (adrive neither homes nor enables one while
+    /// disengaged); anything else none.
+    #[test]
+    fn a_fault_calls_for_its_procedure_on_the_device_that_has_one() {
+        let now = Instant::now();
+        let sup = SupervisorConfig::default();
+        let fault = |kind, device: Option<&str>| Fault {
+            kind,
+            device: device.map(str::to_string),
+            cause: String::new(),
+            since: now,
+        };
+        let alice = testkit::gate(now);
+        let called = |gate: &Gate, kind, device| {
+            procedure_for(&fault(kind, device), gate, &sup).map(|p| p.name().to_string())
+        };
+        assert_eq!(
+            called(&alice, FaultKind::EngineStall, None).as_deref(),
+            Some("engine_stall")
+        );
+        for kind in [FaultKind::NotFollowing, FaultKind::DeviceFault] {
+            assert_eq!(
+                called(&alice, kind, Some("steer")).as_deref(),
+                Some("steering"),
+                "{kind:?}"
+            );
+            assert_eq!(called(&alice, kind, Some("gas")), None, "{kind:?} on the gas");
+            assert_eq!(called(&alice, kind, None), None, "{kind:?} of no device");
+        }
+        assert_eq!(called(&alice, FaultKind::Silent, Some("steer")), None);
+        let oscc = crate::config::parse(
+            include_str!("../../vehicles/oscc.toml"),
+            "vehicles/oscc.toml",
+        )
+        .expect("the OSCC vehicle parses");
+        let kit = testkit::gate_of(oscc, now);
+        let steering = kit.vehicle().bindings().steering.expect("OSCC steers");
+        let name = kit.vehicle().device(steering).config().name.clone();
+        assert_eq!(
+            called(&kit, FaultKind::NotFollowing, Some(&name)),
+            None,
+            "a kit's steering module"
+        );
+    }
+
     /// A fault that persists keeps the time it was first seen — its own: the same
     /// kind on the same device, not the same kind on another device, nor another kind
     /// on the same device (the display's "for 3 s" and how long a fault has lasted).
