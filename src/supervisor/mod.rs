@@ -1019,7 +1019,11 @@ mod tests {
                 Some("steering"),
                 "{kind:?}"
             );
-            assert_eq!(called(&alice, kind, Some("gas")), None, "{kind:?} on the gas");
+            assert_eq!(
+                called(&alice, kind, Some("gas")),
+                None,
+                "{kind:?} on the gas"
+            );
             assert_eq!(called(&alice, kind, None), None, "{kind:?} of no device");
         }
         assert_eq!(called(&alice, FaultKind::Silent, Some("steer")), None);
