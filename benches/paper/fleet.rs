@@ -25,6 +25,7 @@ use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc::Receiver;
 use std::time::{Duration, Instant};
 
 const DEADLINE: Duration = Duration::from_secs(60);
@@ -63,6 +64,42 @@ struct Car {
     socket: PathBuf,
 }
 
+impl Car {
+    /// Start adrive headless on vehicle file `file` (with `args`: `--sim`, `--fleet ID
+    /// --fleet-connect ENDPOINT`) on its own command port and at `socket`; its log lines
+    /// with it, to wait on ([`Car::ready`]).
+    fn spawn(dir: &Path, file: &Path, socket: PathBuf, args: &[&str]) -> (Car, Receiver<String>) {
+        let mut child = Command::new(adrive())
+            .arg("--headless")
+            .args(args)
+            .arg("--config")
+            .arg(file)
+            .arg("--listen")
+            .arg(format!("127.0.0.1:{}", free_port()))
+            .arg("--socket")
+            .arg(&socket)
+            .arg("--log-dir")
+            .arg(dir.join("logs"))
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("adrive starts");
+        let err = lines(child.stderr.take().unwrap());
+        (Car { child, socket }, err)
+    }
+
+    /// Once it runs (its log drained from then on).
+    fn ready((car, err): (Car, Receiver<String>)) -> Car {
+        while !err
+            .recv_timeout(DEADLINE)
+            .expect("a vehicle to start")
+            .contains("running headless")
+        {}
+        std::thread::spawn(move || for _ in err {});
+        car
+    }
+}
+
 impl Drop for Car {
     fn drop(&mut self) {
         stop(&mut self.child);
@@ -87,38 +124,15 @@ fn cars(dir: &Path, n: usize, endpoint: Option<&str>) -> Vec<Car> {
     let started: Vec<_> = (0..n)
         .map(|k| {
             let socket = dir.join(format!("car{k}-{}.sock", endpoint.is_some()));
-            let mut cmd = Command::new(adrive());
-            cmd.args(["--sim", "--headless", "--config"])
-                .arg(&file)
-                .arg("--listen")
-                .arg(format!("127.0.0.1:{}", free_port()))
-                .arg("--socket")
-                .arg(&socket)
-                .arg("--log-dir")
-                .arg(dir.join("logs"))
-                .stdout(Stdio::null())
-                .stderr(Stdio::piped());
+            let id = format!("car{k}");
+            let mut args = vec!["--sim"];
             if let Some(e) = endpoint {
-                cmd.args(["--fleet", &format!("car{k}"), "--fleet-connect", e]);
+                args.extend(["--fleet", &id, "--fleet-connect", e]);
             }
-            let mut child = cmd.spawn().expect("adrive starts");
-            let err = lines(child.stderr.take().unwrap());
-            (Car { child, socket }, err)
+            Car::spawn(dir, &file, socket, &args)
         })
         .collect();
-    started
-        .into_iter()
-        .map(|(car, err)| {
-            loop {
-                let l = err.recv_timeout(DEADLINE).expect("a vehicle to start");
-                if l.contains("running headless") {
-                    break;
-                }
-            }
-            std::thread::spawn(move || for _ in err {});
-            car
-        })
-        .collect()
+    started.into_iter().map(Car::ready).collect()
 }
 
 /// How long a fresh `adrive fleet --watch` takes to have heard the state of `n`.
@@ -440,29 +454,12 @@ fn to_the_device(dir: &Path, endpoint: &str) {
         ),
     )
     .unwrap();
-    let socket = dir.join("meas.sock");
-    let mut child = Command::new(adrive())
-        .args(["--headless", "--config"])
-        .arg(&file)
-        .arg("--listen")
-        .arg(format!("127.0.0.1:{}", free_port()))
-        .arg("--socket")
-        .arg(&socket)
-        .arg("--log-dir")
-        .arg(dir.join("logs"))
-        .args(["--fleet", "meas", "--fleet-connect", endpoint])
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let err = lines(child.stderr.take().unwrap());
-    while !err
-        .recv_timeout(DEADLINE)
-        .expect("the measured vehicle to start")
-        .contains("running headless")
-    {}
-    std::thread::spawn(move || for _ in err {});
-    let meas = Car { child, socket };
+    let meas = Car::ready(Car::spawn(
+        dir,
+        &file,
+        dir.join("meas.sock"),
+        &["--fleet", "meas", "--fleet-connect", endpoint],
+    ));
     let mut delays = [Vec::new(), Vec::new()];
     let mut i = 0u64;
     for _turn in 0..4 {
