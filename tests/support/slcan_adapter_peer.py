@@ -64,6 +64,7 @@ names = {}
 statuses = [0]
 refused = [0]
 stop = threading.Event()
+END_LINE = b"#END\r"  # never an SLCAN command: the end of what adrive wrote
 
 
 def now():
@@ -80,7 +81,11 @@ def reader():
             state["mode"] = word[1]
             emit({"mode": word[1]})
         elif word[:1] == ["END"]:
-            break
+            # The barrier: a line of our own written into the port behind everything
+            # adrive wrote (it has exited by now), so that the judgement waits until the
+            # reading thread has taken every byte before it.
+            os.write(slave, END_LINE)
+            return
     stop.set()
 
 
@@ -268,6 +273,9 @@ def read_loop():
                 break
             i = min(cut)
             line, pending = pending[:i], pending[i + 1 :]
+            if line + b"\r" == END_LINE:
+                stop.set()
+                return
             reply += answer(line, t)
         if reply:
             write(reply)
