@@ -625,6 +625,78 @@ mod tests {
         assert!(!g.is_engaged());
     }
 
+    /// A sign of life is the commander's own ask that held: a refused one (a steer out
+    /// of range, sent again and again by a planner gone wrong) does not keep the
+    /// vehicle engaged past the watchdog's bound.
+    #[test]
+    fn a_refused_ask_of_the_commander_is_no_sign_of_life() {
+        let g = sample::gate(Instant::now());
+        let t0 = Instant::now();
+        let timeout = g.vehicle().config().network.watchdog_timeout;
+        g.admit(net(1), Ask::Engage, t0).unwrap();
+        let wild = Ask::Set(id(&g, "steer"), Command::Set(5.0));
+        assert!(g.admit(net(1), wild, t0 + timeout * 4 / 5).is_err());
+        assert_eq!(
+            g.watch(t0 + timeout),
+            Some(Trip::Silent {
+                commander: net(1),
+                quiet: timeout
+            })
+        );
+        // One that held is.
+        let t1 = t0 + timeout * 2;
+        g.admit(net(1), Ask::Engage, t1).unwrap();
+        let steer = Ask::Set(id(&g, "steer"), Command::Set(0.5));
+        assert_eq!(
+            g.admit(net(1), steer, t1 + timeout * 4 / 5),
+            Ok(Done::Commanded)
+        );
+        assert_eq!(g.watch(t1 + timeout), None);
+    }
+
+    /// A STOP and a disengage end the engagement each under its own cause: the STOP's
+    /// is the full safe state, even in a driver's hands.
+    #[test]
+    fn a_stop_and_a_disengage_are_each_said_as_what_they_were() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        g.admit(net(1), Ask::Engage, t).unwrap();
+        g.admit(net(1), Ask::Stop, t).unwrap();
+        assert_eq!(g.reason(), "disengaged: stop from network 127.0.0.1:1");
+        g.admit(net(1), Ask::Engage, t).unwrap();
+        g.admit(net(1), Ask::Disengage, t).unwrap();
+        assert_eq!(g.reason(), "disengaged: disengage from network 127.0.0.1:1");
+    }
+
+    /// A held key is granted a lease only for gas: a hold at accel 0 (coasting, the
+    /// brake's hold) leaves nothing to renew or to run out.
+    #[test]
+    fn only_gas_is_leased() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        g.admit(Source::Console, Ask::Engage, t).unwrap();
+        let held = |accel: f64| {
+            Ask::Held(Held {
+                accel,
+                lease: Duration::from_millis(300),
+                release: -0.3,
+            })
+        };
+        let renew = Ask::Renew(Duration::from_millis(300));
+        assert_eq!(g.admit(Source::Console, held(0.0), t), Ok(Done::Commanded));
+        assert_eq!(
+            g.admit(Source::Console, renew, t),
+            Ok(Done::Same),
+            "nothing held"
+        );
+        assert_eq!(g.admit(Source::Console, held(-0.4), t), Ok(Done::Commanded));
+        assert_eq!(
+            g.admit(Source::Console, renew, t),
+            Ok(Done::Same),
+            "a brake"
+        );
+    }
+
     /// The incident: over SSH, `adrive attach` engaged, then the operator's ssh client
     /// froze; the vehicle stayed engaged, holding its last commands, for the whole 90 s
     /// watched. A commanding console whose terminal stops answering is a watchdog stop

@@ -453,3 +453,82 @@ impl GateState {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn state() -> (Vehicle, GateState) {
+        let v = crate::testkit::vehicle(Instant::now());
+        let s = GateState::new(&v);
+        (v, s)
+    }
+
+    /// The words every reader shows (the snapshot, the network's answers, the logs) are
+    /// the cause's: not engaged yet, engaged by whom, disengaged and why — a driver's
+    /// override said to be cleared once it is no longer latched.
+    #[test]
+    fn the_reason_is_the_causes_words() {
+        let (_v, s) = state();
+        assert_eq!(s.reason(), "not engaged yet");
+        s.set_engaged("console #1");
+        assert_eq!(s.reason(), "engaged by console #1");
+        s.set_disengaged(DisengageCause::Stop {
+            by: "console #2".into(),
+        });
+        assert_eq!(s.reason(), "disengaged: stop from console #2");
+        assert!(s.latch_override("brake"));
+        s.set_disengaged(DisengageCause::Override {
+            device: "brake".into(),
+            cleared: false,
+        });
+        assert_eq!(s.reason(), "disengaged: driver override on brake");
+        s.clear_overrides(&[]).unwrap();
+        assert_eq!(s.reason(), "disengaged: driver override on brake, cleared");
+        assert_eq!(s.reason(), s.cause().to_string());
+    }
+
+    /// Every refusal is counted, by reason and at its device; its log line is limited
+    /// (a planner refused at 100 Hz must not flood the log), and the first is always
+    /// logged.
+    #[test]
+    fn every_refusal_is_counted_and_the_first_logged_not_each() {
+        use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
+        /// Every line logged, at any level.
+        struct Lines(Arc<Mutex<Vec<String>>>);
+        impl<S: tracing::Subscriber> Layer<S> for Lines {
+            fn on_event(&self, e: &tracing::Event<'_>, _: Context<'_, S>) {
+                self.0.lock().push(crate::logging::EventText::of(e).line());
+            }
+        }
+        let logged = Arc::new(Mutex::new(Vec::new()));
+        let sub = tracing_subscriber::registry().with(Lines(logged.clone()));
+        let (v, s) = state();
+        let (brake, steer) = (v.find("brake").unwrap(), v.find("steer").unwrap());
+        tracing::subscriber::with_default(sub, || {
+            s.reject(
+                Some(brake),
+                Some(Command::Set(0.0)),
+                Reject::BrakeReleaseEstop,
+            );
+            for _ in 0..29 {
+                s.reject(Some(steer), Some(Command::Set(2.0)), Reject::OutOfRange);
+            }
+        });
+        let lines = logged.lock().clone();
+        let of = |device: &str| {
+            lines
+                .iter()
+                .filter(|l| l.starts_with("rejected: ") && l.contains(&format!("device={device}")))
+                .count()
+        };
+        assert_eq!(of("brake"), 1, "the first is logged: {lines:#?}");
+        assert!(of("steer") < 29, "not every one: {lines:#?}");
+        let count = |r: Reject| s.rejections().into_iter().find(|(x, _)| *x == r).unwrap().1;
+        assert_eq!(count(Reject::OutOfRange), 29);
+        assert_eq!(count(Reject::BrakeReleaseEstop), 1);
+        assert_eq!(count(Reject::Disengaged), 0);
+        assert_eq!(steer.stats().rejected.load(Relaxed), 29);
+        assert_eq!(brake.stats().rejected.load(Relaxed), 1);
+    }
+}
