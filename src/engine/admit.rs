@@ -219,12 +219,7 @@ impl Gate {
         };
         let plan = match done {
             Ok(plan) => plan,
-            Err(r) => {
-                if r.why == Reject::AccelWhileShifting {
-                    tracing::debug!("accel {a}: the brake holds until the shift is through");
-                }
-                return (Err(self.reject(pedal(r.at), r.command, r.why)), Some(seen));
-            }
+            Err(r) => return (Err(self.reject(pedal(r.at), r.command, r.why)), Some(seen)),
         };
         for (p, share) in plan.order() {
             if let Some(d) = pedal(p) {
@@ -652,6 +647,38 @@ mod tests {
             Ok(Done::Commanded)
         );
         assert_eq!(g.watch(t1 + timeout), None);
+    }
+
+    /// An admitted command is what the device gets next: nothing after it takes its
+    /// place while the vehicle stays engaged.
+    #[test]
+    fn an_admitted_command_is_the_devices_next() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        g.admit(net(1), Ask::Engage, t).unwrap();
+        let steer = id(&g, "steer");
+        g.admit(net(1), Ask::Set(steer, Command::Set(0.5)), t)
+            .unwrap();
+        assert_eq!(slots(&g)[steer.index()].latest(), Some(Command::Set(0.5)));
+    }
+
+    /// A commander whose stream froze (its rolling counter stopped) trips the watchdog
+    /// as frozen, not as silent: the operator reads which.
+    #[test]
+    fn a_frozen_stream_trips_the_watchdog_as_frozen() {
+        let g = sample::gate(Instant::now());
+        let t0 = Instant::now();
+        let timeout = g.vehicle().config().network.watchdog_timeout;
+        g.admit(net(1), Ask::Engage, t0).unwrap();
+        g.frozen(net(2));
+        g.frozen(net(1));
+        assert_eq!(
+            g.watch(t0 + timeout),
+            Some(Trip::Frozen {
+                commander: net(1),
+                quiet: timeout
+            })
+        );
     }
 
     /// A STOP and a disengage end the engagement each under its own cause: the STOP's

@@ -488,6 +488,38 @@ mod tests {
         assert_eq!(s.reason(), s.cause().to_string());
     }
 
+    /// A driver's override is latched once per device, each device on its own, and
+    /// refuses the engage until it is cleared.
+    #[test]
+    fn an_override_is_latched_once_per_device_and_blocks_until_cleared() {
+        let (v, s) = state();
+        assert_eq!(s.blockers(&v), [], "Alice at rest may engage");
+        assert!(s.latch_override("brake"));
+        assert!(!s.latch_override("brake"), "latched already");
+        assert!(s.latch_override("steer"), "another device");
+        assert_eq!(s.overridden(), ["brake", "steer"]);
+        assert_eq!(
+            s.blockers(&v),
+            [
+                Blocker::Overridden {
+                    device: "brake".into()
+                },
+                Blocker::Overridden {
+                    device: "steer".into()
+                }
+            ]
+        );
+        assert!(
+            s.clear_overrides(&["steer".into()]).is_err(),
+            "a hand still on it"
+        );
+        assert_eq!(
+            s.clear_overrides(&[]),
+            Ok(vec!["brake".into(), "steer".into()])
+        );
+        assert_eq!(s.blockers(&v), []);
+    }
+
     /// Every refusal is counted, by reason and at its device; its log line is limited
     /// (a planner refused at 100 Hz must not flood the log), and the first is always
     /// logged.
