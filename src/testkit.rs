@@ -211,3 +211,21 @@ pub(crate) fn assert_guide_holds(name: &str, doc: &str, what: &str, table: &str)
         "{name} must contain, verbatim, the table of {what}:\n{table}"
     );
 }
+
+/// Every line `f` logs on this thread, at any level, in the words of the log file.
+#[cfg(test)]
+pub(crate) fn logged(f: impl FnOnce()) -> Vec<String> {
+    use parking_lot::Mutex;
+    use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
+    struct Lines(Arc<Mutex<Vec<String>>>);
+    impl<S: tracing::Subscriber> Layer<S> for Lines {
+        fn on_event(&self, e: &tracing::Event<'_>, _: Context<'_, S>) {
+            self.0.lock().push(crate::logging::EventText::of(e).line());
+        }
+    }
+    let lines = Arc::new(Mutex::new(Vec::new()));
+    let sub = tracing_subscriber::registry().with(Lines(lines.clone()));
+    tracing::subscriber::with_default(sub, f);
+    let lines = lines.lock().clone();
+    lines
+}

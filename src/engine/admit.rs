@@ -681,6 +681,47 @@ mod tests {
         );
     }
 
+    /// A console tunes the vehicle (delays, threads, a wake, a simulated fault) when it
+    /// commands or nobody does; nobody tunes a vehicle a planner commands, and a
+    /// planner never tunes.
+    #[test]
+    fn tuning_is_a_consoles_while_no_one_else_commands() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        assert_eq!(g.tune(Source::Console), Ok(()));
+        g.admit(net(1), Ask::Engage, t).unwrap();
+        assert!(g.tune(Source::Console).is_err());
+        assert!(g.tune(net(1)).is_err());
+        g.admit(net(1), Ask::Disengage, t).unwrap();
+        g.admit(Source::Console, Ask::Engage, t).unwrap();
+        assert_eq!(g.tune(Source::Console), Ok(()));
+    }
+
+    /// The watchdog's view in milliseconds: its bound and how long the commander has
+    /// been quiet; an owner's refusal is logged with what was refused, from whom.
+    #[test]
+    fn the_watchdogs_view_is_in_milliseconds_and_a_refusal_is_logged() {
+        let g = sample::gate(Instant::now());
+        let t0 = Instant::now();
+        g.admit(net(1), Ask::Engage, t0).unwrap();
+        let w = g
+            .command_view(t0 + Duration::from_millis(200))
+            .watchdog
+            .unwrap();
+        assert_eq!(w.timeout_ms, 500.0);
+        assert_eq!(w.last_command_age_ms, Some(200.0));
+        let steer = Ask::Set(id(&g, "steer"), Command::Set(0.5));
+        let lines = crate::testkit::logged(|| {
+            let _ = g.admit(net(2), steer, t0);
+        });
+        assert!(
+            lines
+                .iter()
+                .any(|l| l.starts_with("refused steer 0.500 from network 127.0.0.1:2: ")),
+            "{lines:#?}"
+        );
+    }
+
     /// A STOP and a disengage end the engagement each under its own cause: the STOP's
     /// is the full safe state, even in a driver's hands.
     #[test]

@@ -340,6 +340,14 @@ mod tests {
     use crate::testkit as sample;
     use std::sync::Arc;
 
+    /// The longest wait at the wire is the slowest device's: two of its reply timeouts
+    /// and the slack (Alice's OBD adapter: 500 ms twice and 50 ms).
+    #[test]
+    fn the_longest_wait_at_the_wire_is_the_slowest_devices() {
+        let v = crate::testkit::vehicle(Instant::now());
+        assert_eq!(longest_wire_wait(&v), Duration::from_millis(1050));
+    }
+
     /// Alice's sample with the brake sent full and its release waiting in its slot.
     fn releasing() -> Arc<Gate> {
         let gate = sample::gate(Instant::now());

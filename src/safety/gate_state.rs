@@ -520,24 +520,69 @@ mod tests {
         assert_eq!(s.blockers(&v), []);
     }
 
+    /// A recovery's devices are refused at intake — the accel when either pedal is
+    /// one of them — and handed back with an empty list.
+    #[test]
+    fn a_recoverys_devices_are_refused_until_handed_back() {
+        let (v, s) = state();
+        s.set_engaged("test");
+        let (gas, brake, steer) = (
+            v.find("gas").unwrap(),
+            v.find("brake").unwrap(),
+            v.find("steer").unwrap(),
+        );
+        assert_eq!(s.check(&v, steer, Command::Set(0.2)), Ok(()));
+        s.set_recovering(&[brake.id()]);
+        assert!(s.is_recovering(brake.id()) && !s.is_recovering(gas.id()));
+        assert_eq!(
+            s.check(&v, brake, Command::Set(0.5)),
+            Err(Reject::Recovering)
+        );
+        assert_eq!(s.check(&v, steer, Command::Set(0.2)), Ok(()));
+        let accel = |a| s.decided_accel(&v, a).unwrap().0.map_err(|r| r.why);
+        assert_eq!(accel(-0.3).err(), Some(Reject::Recovering), "the brake's");
+        s.set_recovering(&[gas.id()]);
+        assert_eq!(
+            accel(-0.3).err(),
+            Some(Reject::Recovering),
+            "the throttle's"
+        );
+        s.set_recovering(&[]);
+        assert!(!s.is_recovering(gas.id()));
+        assert!(accel(-0.3).is_ok());
+        assert_eq!(
+            s.check(&v, steer, Command::Set(7.0)),
+            Err(Reject::OutOfRange)
+        );
+    }
+
+    /// A decision gathers the vehicle's facts only where the interlocks will look at
+    /// them — engaged, not recovering, interlocks on, a device the rules play — so that
+    /// what a recording keeps of it is what it decided on.
+    #[test]
+    fn a_decision_sees_facts_only_where_the_interlocks_look() {
+        let (v, s) = state();
+        let (gas, steer) = (v.find("gas").unwrap(), v.find("steer").unwrap());
+        let looked = |d: &Device| s.decided(&v, d, Command::Set(0.0)).1.facts.is_some();
+        assert!(!looked(gas), "disengaged");
+        s.set_engaged("test");
+        assert!(looked(gas));
+        assert!(!looked(steer), "no rule plays the steering");
+        s.set_recovering(&[gas.id()]);
+        assert!(!looked(gas), "recovering");
+        s.set_recovering(&[]);
+        s.set_interlocks(false);
+        assert!(!looked(gas), "interlocks off");
+    }
+
     /// Every refusal is counted, by reason and at its device; its log line is limited
     /// (a planner refused at 100 Hz must not flood the log), and the first is always
     /// logged.
     #[test]
     fn every_refusal_is_counted_and_the_first_logged_not_each() {
-        use tracing_subscriber::layer::{Context, Layer, SubscriberExt};
-        /// Every line logged, at any level.
-        struct Lines(Arc<Mutex<Vec<String>>>);
-        impl<S: tracing::Subscriber> Layer<S> for Lines {
-            fn on_event(&self, e: &tracing::Event<'_>, _: Context<'_, S>) {
-                self.0.lock().push(crate::logging::EventText::of(e).line());
-            }
-        }
-        let logged = Arc::new(Mutex::new(Vec::new()));
-        let sub = tracing_subscriber::registry().with(Lines(logged.clone()));
         let (v, s) = state();
         let (brake, steer) = (v.find("brake").unwrap(), v.find("steer").unwrap());
-        tracing::subscriber::with_default(sub, || {
+        let lines = crate::testkit::logged(|| {
             s.reject(
                 Some(brake),
                 Some(Command::Set(0.0)),
@@ -547,7 +592,6 @@ mod tests {
                 s.reject(Some(steer), Some(Command::Set(2.0)), Reject::OutOfRange);
             }
         });
-        let lines = logged.lock().clone();
         let of = |device: &str| {
             lines
                 .iter()
