@@ -234,4 +234,74 @@ mod tests {
             let _ = gate.clear_overrides();
         }
     }
+
+    /// A latched override is cleared only once the supervisor no longer names a
+    /// driver's hand on it — another fault of that device does not hold it — and the
+    /// clearing is logged.
+    #[test]
+    fn an_override_clears_once_no_hand_is_named_on_it() {
+        use crate::snapshot::FaultKind;
+        use crate::vehicle::supervision::Fault;
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        let fault = |kind| Fault {
+            kind,
+            device: Some("brake".into()),
+            cause: "test".into(),
+            since: Instant::now(),
+        };
+        gate.engage("test").unwrap();
+        gate.take_over("brake", "a foot on the pedal");
+        v.supervision().set_faults(vec![fault(FaultKind::Override)]);
+        assert!(gate.clear_overrides().is_err(), "a foot still on it");
+        assert_eq!(gate.overridden(), ["brake"]);
+        v.supervision()
+            .set_faults(vec![fault(FaultKind::NotFollowing)]);
+        let mut cleared = None;
+        let lines = sample::logged(|| cleared = Some(gate.clear_overrides()));
+        assert_eq!(cleared, Some(Ok(vec!["brake".to_string()])));
+        assert!(gate.overridden().is_empty());
+        assert!(
+            lines
+                .iter()
+                .any(|l| l.starts_with("override cleared: brake")),
+            "{lines:#?}"
+        );
+        let lines = sample::logged(|| assert_eq!(gate.clear_overrides(), Ok(vec![])));
+        assert!(
+            lines.is_empty(),
+            "nothing to clear, nothing said: {lines:#?}"
+        );
+    }
+
+    /// A driver's override hands the vehicle over in the manual state: throttle and
+    /// brake released, and nothing more sent to the steering — its pending command is
+    /// dropped, not delivered after the driver has taken the wheel.
+    #[test]
+    fn a_driver_takes_over_and_the_steering_is_no_longer_commanded() {
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        let (steer, gas, brake) = (
+            v.find("steer").unwrap(),
+            v.find("gas").unwrap(),
+            v.find("brake").unwrap(),
+        );
+        gate.engage("test").unwrap();
+        gate.submit(steer.id(), Command::Set(0.5), Instant::now())
+            .unwrap();
+        assert_eq!(steer.slot().wire().pending, Some(Command::Set(0.5)));
+        gate.take_over("brake", "a foot on the pedal");
+        assert!(!gate.is_engaged());
+        assert_eq!(steer.slot().wire().pending, None, "the steering's dropped");
+        assert_eq!(
+            gas.slot().latest(),
+            Some(Command::Set(0.0)),
+            "throttle released"
+        );
+        assert_eq!(
+            brake.slot().latest(),
+            Some(Command::Set(0.0)),
+            "brake released"
+        );
+    }
 }

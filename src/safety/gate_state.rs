@@ -575,6 +575,26 @@ mod tests {
         assert!(!looked(gas), "interlocks off");
     }
 
+    /// The wire checks a command only while the interlocks are on: throttle behind a
+    /// brake still applied is held back, and goes out as it is with them switched off.
+    #[test]
+    fn the_wire_checks_only_while_the_interlocks_are_on() {
+        let (v, s) = state();
+        let (gas, brake) = (v.find("gas").unwrap(), v.find("brake").unwrap());
+        brake.slot().fly(Command::Set(1.0));
+        brake.slot().finish(Command::Set(1.0), true);
+        let gas_on = Command::Set(0.5);
+        assert_ne!(
+            s.wire_verdict(&v, gas, gas_on, false),
+            Verdict::Send(gas_on)
+        );
+        s.set_interlocks(false);
+        assert_eq!(
+            s.wire_verdict(&v, gas, gas_on, false),
+            Verdict::Send(gas_on)
+        );
+    }
+
     /// Every refusal is counted, by reason and at its device; its log line is limited
     /// (a planner refused at 100 Hz must not flood the log), and the first is always
     /// logged.

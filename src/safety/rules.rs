@@ -365,6 +365,14 @@ mod tests {
         check(f, Rules::ALL, plays, c)
     }
 
+    /// Stopped is a known speed below [`STOPPED`], either way; at it, or unknown, the
+    /// vehicle is moving.
+    #[test]
+    fn stopped_is_a_known_speed_below_the_bound() {
+        assert!(stopped(Some(0.0)) && stopped(Some(0.09)) && stopped(Some(-0.09)));
+        assert!(!stopped(Some(STOPPED)) && !stopped(Some(-STOPPED)) && !stopped(None));
+    }
+
     #[test]
     fn gas_passes_when_everything_allows_it() {
         assert_eq!(
