@@ -12,7 +12,8 @@
 //! Two methods measure the relay beside adrive, and the section prints both, each row
 //! with its ratio to its relay:
 //! - *interleaved*: the relay's datagrams go between adrive's, in the same window, so
-//!   that both figures of a row see the same load — every row;
+//!   that both figures of a row see the same load — every row, including the
+//!   placements of the command path (the vehicle file's `cpus`);
 //! - *in rounds*: this process is the planner and the device; adrive runs alone in a
 //!   window of [`ROUNDS_SENT`] datagrams (one line-protocol device polled every 50 ms),
 //!   then the relay alone in a window of its own, adrive stopped — each as it runs on
@@ -536,6 +537,8 @@ struct Row {
     method: Method,
     /// Datagrams per measured device, if not the section's.
     sent: Option<u64>,
+    /// The vehicle file's `[vehicle]` lines (a placement: `cpus = [1]`).
+    head: &'static str,
     /// Devices on `adrive sim` besides the measured ones, and whether they poll at 20 Hz.
     others: usize,
     polling: bool,
@@ -557,6 +560,7 @@ impl Row {
             proto: Proto::Line,
             method: Method::Interleaved,
             sent: None,
+            head: "",
             others: 0,
             polling: false,
             last_too: false,
@@ -612,7 +616,7 @@ fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64, relay: &mut Relay) 
         })
         .collect();
     names.extend(others.iter().cloned());
-    let mut toml = vehicle("", &devices);
+    let mut toml = vehicle(row.head, &devices);
     if !rest.is_empty() {
         toml.push_str(&sim.as_ref().expect("a simulator").patch(&rest.concat()));
     }
@@ -701,6 +705,22 @@ struct Sims {
 /// 16 s at [`RATE`], whatever the section's windows.
 const ROUNDS_SENT: u64 = 1600;
 
+/// The CPUs this process may run on (its affinity: the cgroup's cpuset, `taskset`).
+#[allow(unsafe_code)]
+fn allowed_cpus() -> Vec<usize> {
+    // SAFETY: a zeroed cpu_set_t is the empty set; sched_getaffinity fills it, and
+    // CPU_ISSET reads within it.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+            return Vec::new();
+        }
+        (0..libc::CPU_SETSIZE as usize)
+            .filter(|&c| libc::CPU_ISSET(c, &set))
+            .collect()
+    }
+}
+
 pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     let sent = sent_per_row(secs);
     std::env::set_var(probe::ENV, dir.path().join("outside.probe"));
@@ -764,6 +784,17 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             against: Some(0),
             ..Row::new("one device, ROS 2 on")
         },
+        // The placements: the one-device row is the default (none).
+        Row {
+            head: "cpus = [0]",
+            against: Some(0),
+            ..Row::new("one device, cpus = [0]")
+        },
+        Row {
+            head: "cpus = [1]",
+            against: Some(0),
+            ..Row::new("one device, cpus = [1]")
+        },
         // The second method: the relay in rounds of its own.
         Row {
             method: Method::Rounds,
@@ -773,6 +804,12 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     ];
     if !cfg!(feature = "ros2") {
         rows[7].skip = Some("not built: cargo bench --bench paper --features ros2");
+    }
+    let cpus = allowed_cpus();
+    for (i, cpu) in [(8, 0), (9, 1)] {
+        if !cpus.contains(&cpu) {
+            rows[i].skip = Some("not run: a CPU this process may not use");
+        }
     }
     // `ADRIVE_BENCH_ROWS=0,4`: just those rows (while working on one).
     if let Ok(only) = std::env::var("ADRIVE_BENCH_ROWS") {
@@ -816,6 +853,11 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     println!("The first method: the relay interleaved (its datagrams between adrive's, in the same window).");
     table.print(Method::Interleaved);
     println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row (in brackets: each row's p50/rl against the one-device row's), or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
+    println!(
+        "(placements: the one-device row runs where the kernel puts it; `cpus = [0]`, `cpus = [1]`: the vehicle file pins the command path — net/listen and the device's command thread — to that CPU, the device's end and the planner left to the kernel. This machine lets this process use {} CPU(s) ({cpus:?}): the placements measured are those of a {}-CPU machine; those of 4 or 8 cores need such a machine.)",
+        cpus.len(),
+        cpus.len()
+    );
     println!(
         "\nThe second method: one process is both the planner and the device; adrive alone in a window of {ROUNDS_SENT} datagrams at {RATE} Hz (one line-protocol device polled every 50 ms), then the relay alone in a window of its own, adrive stopped."
     );
