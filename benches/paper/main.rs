@@ -15,8 +15,10 @@
 //! fixed against adaptive polling, the paper's open problem ([`estimator`]); 10 the
 //! command delay and adrive's CPU with the Foxglove live view off, on with no viewer,
 //! and with two viewers subscribed to everything ([`viewer`]); 11 the command path from
-//! outside — a planner's `sendto` to the first byte at the device — beside a bare relay
-//! in the same window, row by row, with its steps ([`outside`]); 12 attached consoles;
+//! outside — a planner's `sendto` to the first byte at the device — beside a bare relay,
+//! by two methods (the relay's datagrams interleaved with adrive's in the same window;
+//! the relay in a window of its own after adrive's), row by row, with its steps and the
+//! command path's placements ([`outside`]); 12 attached consoles;
 //! 13 a CAN bus: 1 … 16 actuators on one SLCAN adapter ([`can`]); 14 a commanding
 //! console whose terminal stalls: the stall → the safe state at the device, and what
 //! the liveness check costs ([`liveness`]); 15 hold-to-drive teleop: a key's release,

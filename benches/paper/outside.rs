@@ -9,10 +9,20 @@
 //! request's first byte is timed as it is read. Every datagram to a measured device
 //! carries a distinct value, matched to the first request that carries it.
 //!
+//! Two methods measure the relay beside adrive, and the section prints both, each row
+//! with its ratio to its relay:
+//! - *interleaved*: the relay's datagrams go between adrive's, in the same window, so
+//!   that both figures of a row see the same load — every row, including the
+//!   placements of the command path (the vehicle file's `cpus`);
+//! - *in rounds*: this process is the planner and the device; adrive runs alone in a
+//!   window of [`ROUNDS_SENT`] datagrams (one line-protocol device polled every 50 ms),
+//!   then the relay alone in a window of its own, adrive stopped — each as it runs on
+//!   the machine by itself.
+//!
 //! Rows run in two rounds, each round with its own relay; each row shows its better
 //! round (the lower p50 against that round's relay). adrive runs with its probe on
-//! ([`adrive::probe`]), so the one-device row's total is broken into its steps under
-//! the table, beside the relay's.
+//! ([`adrive::probe`]), so the one-device rows' totals are broken into their steps
+//! under the tables, beside the relay's.
 
 // The device ends and the relay are pseudo-terminals and raw sockets driven through
 // libc; each block says why it is sound.
@@ -37,8 +47,11 @@ const RATE: f64 = 100.0;
 
 /// Datagrams per measured device in a row: two of the section's windows' worth.
 fn sent_per_row(secs: f64) -> u64 {
-    ((secs * RATE * 2.0) as u64).clamp(300, 999)
+    ((secs * RATE * 2.0) as u64).clamp(300, MOST_SENT)
 }
+
+/// The most datagrams per measured device in a row of the first method.
+const MOST_SENT: u64 = 999;
 
 /// The protocol a measured device speaks.
 #[derive(Clone, Copy, PartialEq)]
@@ -191,10 +204,15 @@ fn raw(fd: &OwnedFd) {
     }
 }
 
-/// The value of datagram `i`, as adrive writes it (three decimals), distinct over a row.
+/// The value of datagram `i`, as adrive writes it (three decimals), distinct over a row
+/// (over [`DISTINCT`] datagrams: a window of the second method is [`ROUNDS_SENT`]).
 pub(super) fn value(i: u64) -> String {
-    format!("{:.3}", (i % 1000) as f64 / 1000.0 - 0.5)
+    format!("{:.3}", (i % DISTINCT) as f64 / 1000.0 - 0.999)
 }
+
+/// Datagrams with distinct values ([`value`]): −0.999 … 0.999.
+const DISTINCT: u64 = 1999;
+const _: () = assert!(ROUNDS_SENT < DISTINCT && MOST_SENT < DISTINCT);
 
 /// One measured datagram: when it was sent and when its first byte was read (ns).
 #[derive(Clone, Copy)]
@@ -501,10 +519,26 @@ fn polling_actuator(name: &str) -> String {
         .replace("status_max_age = \"2s\"", "status_max_age = \"250ms\"")
 }
 
+/// How a row's relay is measured beside adrive.
+#[derive(Clone, Copy, PartialEq)]
+enum Method {
+    /// The relay's datagrams between adrive's, in the same window: both figures see
+    /// the same load.
+    Interleaved,
+    /// adrive alone in its window, then the relay alone in a window of its own (adrive
+    /// stopped): each as it would run on the machine by itself.
+    Rounds,
+}
+
 /// What a row runs: its devices, and what is on beside them.
 struct Row {
     label: &'static str,
     proto: Proto,
+    method: Method,
+    /// Datagrams per measured device, if not the section's.
+    sent: Option<u64>,
+    /// The vehicle file's `[vehicle]` lines (a placement: `cpus = [1]`).
+    head: &'static str,
     /// Devices on `adrive sim` besides the measured ones, and whether they poll at 20 Hz.
     others: usize,
     polling: bool,
@@ -524,6 +558,9 @@ impl Row {
         Row {
             label,
             proto: Proto::Line,
+            method: Method::Interleaved,
+            sent: None,
+            head: "",
             others: 0,
             polling: false,
             last_too: false,
@@ -579,7 +616,7 @@ fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64, relay: &mut Relay) 
         })
         .collect();
     names.extend(others.iter().cloned());
-    let mut toml = vehicle("", &devices);
+    let mut toml = vehicle(row.head, &devices);
     if !rest.is_empty() {
         toml.push_str(&sim.as_ref().expect("a simulator").patch(&rest.concat()));
     }
@@ -604,19 +641,25 @@ fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64, relay: &mut Relay) 
     if let Some(l) = &last {
         measured.push((names.len() - 1, l));
     }
-    // The relay's datagrams go between adrive's, in the same window.
-    names.push("relay".into());
-    measured.push((names.len() - 1, &relay.end));
-    relay.clear();
-    let mut samples = measure(&names, &measured, sent, |t| {
-        if t.starts_with("relay ") {
-            relay.send(t)
-        } else {
-            a.send(t)
+    let sent = row.sent.unwrap_or(sent);
+    let (samples, relay_samples) = match row.method {
+        Method::Interleaved => {
+            // The relay's datagrams go between adrive's, in the same window.
+            names.push("relay".into());
+            measured.push((names.len() - 1, &relay.end));
+            relay.clear();
+            let mut samples = measure(&names, &measured, sent, |t| {
+                if t.starts_with("relay ") {
+                    relay.send(t)
+                } else {
+                    a.send(t)
+                }
+            });
+            let relay_samples = samples.pop().unwrap_or_default();
+            (samples, relay_samples)
         }
-    });
-    let relay_samples = samples.pop().unwrap_or_default();
-    let relay_steps = relay.steps(&relay_samples);
+        Method::Rounds => (measure(&names, &measured, sent, |t| a.send(t)), Vec::new()),
+    };
     let steps = Steps::of(&samples[0], &probe_file);
     let snap = a.snapshot();
     let own = snap
@@ -630,6 +673,16 @@ fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64, relay: &mut Relay) 
         .unwrap_or((f64::NAN, f64::NAN));
     drop(a);
     let _ = std::fs::remove_file(&probe_file);
+    let relay_samples = match row.method {
+        Method::Interleaved => relay_samples,
+        // The relay's own window, after adrive's, adrive stopped.
+        Method::Rounds => {
+            relay.clear();
+            let names = ["relay".to_string()];
+            measure(&names, &[(0, &relay.end)], sent, |t| relay.send(t)).remove(0)
+        }
+    };
+    let relay_steps = relay.steps(&relay_samples);
     Measured {
         samples,
         own,
@@ -648,11 +701,31 @@ struct Sims {
     polling_names: Vec<String>,
 }
 
+/// Datagrams in each window of the second method (the relay in rounds of its own):
+/// 16 s at [`RATE`], whatever the section's windows.
+const ROUNDS_SENT: u64 = 1600;
+
+/// The CPUs this process may run on (its affinity: the cgroup's cpuset, `taskset`).
+#[allow(unsafe_code)]
+fn allowed_cpus() -> Vec<usize> {
+    // SAFETY: a zeroed cpu_set_t is the empty set; sched_getaffinity fills it, and
+    // CPU_ISSET reads within it.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        if libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set) != 0 {
+            return Vec::new();
+        }
+        (0..libc::CPU_SETSIZE as usize)
+            .filter(|&c| libc::CPU_ISSET(c, &set))
+            .collect()
+    }
+}
+
 pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     let sent = sent_per_row(secs);
     std::env::set_var(probe::ENV, dir.path().join("outside.probe"));
     println!(
-        "\n== 11. From outside: a planner's sendto → the first byte at the device, beside a bare relay; {sent} datagrams per device at {RATE} Hz per row, best of two rounds =="
+        "\n== 11. From outside: a planner's sendto → the first byte at the device, beside a bare relay, by two methods; {sent} datagrams per device at {RATE} Hz per row (the second method: {ROUNDS_SENT} per window), best of two rounds =="
     );
     let idle_names: Vec<String> = (0..62).map(|i| format!("a{i:02}")).collect();
     let polling_names: Vec<String> = (0..9).map(|i| format!("p{i:02}")).collect();
@@ -711,9 +784,32 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             against: Some(0),
             ..Row::new("one device, ROS 2 on")
         },
+        // The placements: the one-device row is the default (none).
+        Row {
+            head: "cpus = [0]",
+            against: Some(0),
+            ..Row::new("one device, cpus = [0]")
+        },
+        Row {
+            head: "cpus = [1]",
+            against: Some(0),
+            ..Row::new("one device, cpus = [1]")
+        },
+        // The second method: the relay in rounds of its own.
+        Row {
+            method: Method::Rounds,
+            sent: Some(ROUNDS_SENT),
+            ..Row::new("one device, line")
+        },
     ];
     if !cfg!(feature = "ros2") {
         rows[7].skip = Some("not built: cargo bench --bench paper --features ros2");
+    }
+    let cpus = allowed_cpus();
+    for (i, cpu) in [(8, 0), (9, 1)] {
+        if !cpus.contains(&cpu) {
+            rows[i].skip = Some("not run: a CPU this process may not use");
+        }
     }
     // `ADRIVE_BENCH_ROWS=0,4`: just those rows (while working on one).
     if let Ok(only) = std::env::var("ADRIVE_BENCH_ROWS") {
@@ -727,7 +823,8 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             }
         }
     }
-    // Two rounds; in each, every row with the relay in its own window.
+    // Two rounds; in each, every row with its relay: in the row's window, or (the
+    // second method) in a window of its own after the row's.
     let mut relay = Relay::start();
     let mut results: Vec<Vec<Measured>> = rows.iter().map(|_| Vec::new()).collect();
     for _round in 0..2 {
@@ -738,18 +835,6 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
         }
     }
     drop(relay);
-    println!(
-        "{:<36} {:>5} {:>8} {:>8} {:>8} {:>7} {:>7} {:>15}  {:>13}",
-        "row (round)",
-        "seen",
-        "p50 µs",
-        "p99 µs",
-        "max µs",
-        "p50/rl",
-        "p99/rl",
-        "p50/row",
-        "own p50/p99"
-    );
     // Each row's better round: the lower p50 against the relay of its window.
     let best: Vec<Option<usize>> = results
         .iter()
@@ -760,10 +845,93 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             })
         })
         .collect();
-    for (i, row) in rows.iter().enumerate() {
+    let table = Table {
+        rows: &rows,
+        results: &results,
+        best: &best,
+    };
+    println!("The first method: the relay interleaved (its datagrams between adrive's, in the same window).");
+    table.print(Method::Interleaved);
+    println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row (in brackets: each row's p50/rl against the one-device row's), or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
+    println!(
+        "(placements: the one-device row runs where the kernel puts it; `cpus = [0]`, `cpus = [1]`: the vehicle file pins the command path — net/listen and the device's command thread — to that CPU, the device's end and the planner left to the kernel. This machine lets this process use {} CPU(s) ({cpus:?}): the placements measured are those of a {}-CPU machine; those of 4 or 8 cores need such a machine.)",
+        cpus.len(),
+        cpus.len()
+    );
+    println!(
+        "\nThe second method: one process is both the planner and the device; adrive alone in a window of {ROUNDS_SENT} datagrams at {RATE} Hz (one line-protocol device polled every 50 ms), then the relay alone in a window of its own, adrive stopped."
+    );
+    table.print(Method::Rounds);
+    println!("(rl: the relay of the window after adrive's; both windows' load is whatever the machine had then: interleaved, both figures see the same load, in rounds each sees its own, and adrive's window has its device polled beside it.)");
+    let one = |m: Method| {
+        let i = rows
+            .iter()
+            .position(|r| r.method == m && r.proto == Proto::Line && r.others == 0)?;
+        let m = &results[i][best[i]?];
+        let ((p50, p99, _), (r50, r99, _)) = (m.first(), m.relay());
+        Some(format!("p50 {:.2}×, p99 {:.2}×", p50 / r50, p99 / r99))
+    };
+    if let (Some(a), Some(b)) = (one(Method::Interleaved), one(Method::Rounds)) {
+        println!("one device, line, against its relay: interleaved {a}; in rounds {b}");
+    }
+    println!("\nWhere the time goes, p50 and p99 µs of each step (stamps: the planner's sendto and the device's read here, adrive's probe inside):");
+    let rounds_row = rows.iter().position(|r| r.method == Method::Rounds);
+    for (i, how) in [(Some(0), ""), (rounds_row, ", in rounds")] {
+        let Some(i) = i else { continue };
+        if let Some(r) = best[i] {
+            let m = &results[i][r];
+            m.relay_steps
+                .print(&format!("bare relay{how} ({})", r + 1), &totals(&m.relay));
+            m.steps.print(
+                &format!("adrive, one device, line{how} ({})", r + 1),
+                &totals(&m.samples[0]),
+            );
+        }
+    }
+    println!("(the relay has no checks: its `recv` → write is on the fourth line.)");
+    let (hot, cold) = intake_hot_and_cold();
+    println!(
+        "the network's checks and the intake of one `steer` datagram, timed in this process: {:.2} µs hot (datagram after datagram), {:.2} µs cold (one every 10 ms, as above)",
+        hot as f64 / 1000.0,
+        cold as f64 / 1000.0
+    );
+    std::env::remove_var(probe::ENV);
+}
+
+/// The section's rows and results, for printing.
+struct Table<'a> {
+    rows: &'a [Row],
+    results: &'a [Vec<Measured>],
+    best: &'a [Option<usize>],
+}
+
+impl Table<'_> {
+    /// The rows measured by `method`, each with the relay of its better round.
+    fn print(&self, method: Method) {
+        println!(
+            "{:<36} {:>5} {:>8} {:>8} {:>8} {:>7} {:>7} {:>15}  {:>13}",
+            "row (round)",
+            "seen",
+            "p50 µs",
+            "p99 µs",
+            "max µs",
+            "p50/rl",
+            "p99/rl",
+            "p50/row",
+            "own p50/p99"
+        );
+        for (i, row) in self.rows.iter().enumerate() {
+            if row.method == method {
+                self.print_row(i);
+            }
+        }
+    }
+
+    fn print_row(&self, i: usize) {
+        let (row, results, best) = (&self.rows[i], self.results, self.best);
         let Some(round) = best[i] else {
             println!("{:<36} {}", row.label, row.skip.unwrap_or("not run"));
-            continue;
+            return;
         };
         let m = &results[i][round];
         let (rp50, rp99, rmax) = m.relay();
@@ -807,25 +975,6 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             );
         }
     }
-    println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row (in brackets: each row's p50/rl against the one-device row's), or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
-    println!("\nWhere the time goes, p50 and p99 µs of each step (stamps: the planner's sendto and the device's read here, adrive's probe inside):");
-    if let Some(r) = best[0] {
-        let m = &results[0][r];
-        m.relay_steps
-            .print(&format!("bare relay ({})", r + 1), &totals(&m.relay));
-        m.steps.print(
-            &format!("adrive, one device, line ({})", r + 1),
-            &totals(&m.samples[0]),
-        );
-    }
-    println!("(the relay has no checks: its `recv` → write is on the fourth line.)");
-    let (hot, cold) = intake_hot_and_cold();
-    println!(
-        "the network's checks and the intake of one `steer` datagram, timed in this process: {:.2} µs hot (datagram after datagram), {:.2} µs cold (one every 10 ms, as above)",
-        hot as f64 / 1000.0,
-        cold as f64 / 1000.0
-    );
-    std::env::remove_var(probe::ENV);
 }
 
 /// The network's checks and the one intake for `steer v` (ports closed, so the command
