@@ -274,6 +274,82 @@ mod tests {
         );
     }
 
+    /// A kit the safe state leaves alone (here OSCC's steering without a safe value)
+    /// is enabled with the engage and disabled with the disengage on its own; one the
+    /// safe state commands gets its command, and its driver sends the enable or the
+    /// disable after it.
+    #[test]
+    fn a_kit_the_safe_state_leaves_alone_follows_the_gate_on_its_own() {
+        use crate::value::Control;
+        let shipped = include_str!("../../vehicles/oscc.toml");
+        let text = shipped.replace(
+            "safe = 0.0                 # no torque in the safe state\n",
+            "",
+        );
+        assert_ne!(text, shipped, "OSCC's steering without its safe value");
+        let config = crate::config::parse(&text, "vehicles/oscc.toml").expect("OSCC parses");
+        let gate = sample::gate_of(config, Instant::now());
+        let v = gate.vehicle();
+        let (steer, gas) = (v.find("steer").unwrap(), v.find("gas").unwrap());
+        gate.engage("test").unwrap();
+        assert_eq!(
+            steer.slot().latest(),
+            Some(Command::Control(Control::Enable))
+        );
+        assert_eq!(
+            gas.slot().latest(),
+            Some(Command::Set(0.0)),
+            "its safe command"
+        );
+        gate.disengage(DisengageCause::Disengage { by: "test".into() });
+        assert_eq!(
+            steer.slot().latest(),
+            Some(Command::Control(Control::Disable))
+        );
+        assert_eq!(gas.slot().latest(), Some(Command::Set(0.0)));
+    }
+
+    /// The e-stop in pause while disengaged: its rule commanded, and the e-stop said
+    /// to be why the vehicle is disengaged.
+    #[test]
+    fn the_e_stop_paused_is_why_the_vehicle_is_disengaged() {
+        let gate = sample::gate(Instant::now());
+        let brake = gate.vehicle().find("brake").unwrap();
+        gate.follow_estop(crate::value::EstopState::Pause);
+        assert_eq!(gate.reason(), "disengaged: e-stop is in pause");
+        assert_eq!(brake.slot().latest(), Some(Command::Set(1.0)), "brake full");
+    }
+
+    /// The safe state is acknowledged only when every device the rules act on has
+    /// executed its part of it; until then the wait says so at its deadline.
+    #[test]
+    fn the_safe_state_is_waited_for_until_each_device_executed_it() {
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        gate.command_safe_state();
+        let soon = || Instant::now() + std::time::Duration::from_millis(20);
+        assert!(!gate.wait_safe(soon()), "nothing executed yet");
+        for (id, c) in gate.state().stop_state(v) {
+            v.device(id).slot().fly(c);
+            v.device(id).slot().finish(c, true);
+        }
+        assert!(gate.wait_safe(soon()));
+    }
+
+    /// A command that raced a driver's override (checked before it, stored after the
+    /// override's reset) is dropped by the next safe state, not left to resend to the
+    /// driver's wheel.
+    #[test]
+    fn a_command_that_raced_the_override_is_dropped_by_the_safe_state() {
+        let gate = sample::gate(Instant::now());
+        let steer = gate.vehicle().find("steer").unwrap();
+        gate.engage("test").unwrap();
+        gate.take_over("brake", "a foot on the pedal");
+        steer.slot().submit(Command::Set(0.4), Instant::now());
+        gate.command_safe_state();
+        assert_eq!(steer.slot().wire().pending, None);
+    }
+
     /// A driver's override hands the vehicle over in the manual state: throttle and
     /// brake released, and nothing more sent to the steering — its pending command is
     /// dropped, not delivered after the driver has taken the wheel.
