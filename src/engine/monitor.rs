@@ -63,3 +63,38 @@ impl crate::threads::Shutdown for Monitor {
         self.threads.stop(Instant::now() + deadline)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::threads::Shutdown;
+
+    /// A monitor held up (here on the intake's lock, as a wedged commander's ask would
+    /// hold it) is seen stalled past its bound by the liveness it gives the
+    /// supervisor, and named by a shutdown it does not meet in time; running, it stops
+    /// within the deadline and names nothing.
+    #[test]
+    fn a_monitor_held_up_is_seen_stalled_and_named_at_shutdown() {
+        let gate = crate::testkit::gate(Instant::now());
+        let end = Instant::now() + Duration::from_secs(20);
+        let m = Monitor::start(gate.clone()).unwrap();
+        assert!(m.liveness().wait_running(end).is_empty());
+        assert_eq!(m.shutdown(Duration::from_secs(10)), Vec::<String>::new());
+        let m = Monitor::start(gate.clone()).unwrap();
+        let live = m.liveness();
+        assert!(live.wait_running(end).is_empty());
+        let held = gate.state().owner();
+        let stalled = loop {
+            let s = live.stalled(Instant::now());
+            if !s.is_empty() {
+                break s;
+            }
+            assert!(Instant::now() < end, "never seen stalled");
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        assert_eq!(stalled[0].thread, "gate/monitor");
+        assert_eq!(stalled[0].bound, EVERY);
+        assert_eq!(m.shutdown(Duration::from_millis(20)), ["gate/monitor"]);
+        drop(held);
+    }
+}

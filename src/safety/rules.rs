@@ -525,9 +525,21 @@ mod tests {
             Ok(())
         );
         assert_eq!(rules.names(), vec!["gas_while_braking"]);
-        assert!(Rules::missing(&b)
-            .iter()
-            .any(|m| m.contains("no estop bound")));
+        // Said at start-up: what the safe state cannot do, and each rule whose subject
+        // is there but a fact it needs is not; a rule about a role the vehicle lacks
+        // entirely (a shift, with no gearbox) is simply not there.
+        assert_eq!(
+            Rules::missing(&b),
+            [
+                "no estop bound: an e-stop pause is not watched",
+                "rule gas_not_in_gear is off: no gear bound",
+                "rule gas_engine_off is off: no engine_running bound",
+                "rule gas_estop is off: no estop bound",
+                "rule brake_release_estop is off: no estop bound",
+                "rule brake_release_shifting is off: no gear bound",
+                "rule shift_without_brake is off: no gear bound",
+            ]
+        );
     }
 
     #[test]
