@@ -488,6 +488,65 @@ mod tests {
         assert_eq!(s.reason(), s.cause().to_string());
     }
 
+    /// Engaging needs every device bound to a role, and no other: a horn that is
+    /// faulty holds up nothing, a brake that is does.
+    #[test]
+    fn engaging_needs_the_devices_bound_to_a_role_and_no_other() {
+        let now = Instant::now();
+        let text = format!(
+            "{}\n[[device]]\nname = \"horn\"\nkind = \"setpoint\"\nrange = [0.0, 1.0]\ndriver = \"line\"\n",
+            crate::config::ALICE_TOML
+        );
+        let config = crate::config::parse(&text, "horn.toml").expect("Alice with a horn");
+        let v = crate::testkit::vehicle_of(config, now);
+        let s = GateState::new(&v);
+        for d in v.devices() {
+            assert_eq!(needed(&v, d), d.name() != "horn", "{}", d.name());
+        }
+        crate::testkit::make_faulty(&v, "horn", now);
+        assert_eq!(s.blockers(&v), []);
+        crate::testkit::make_faulty(&v, "brake", now);
+        let b = s.blockers(&v);
+        assert!(
+            matches!(&b[..], [Blocker::Faulty { device, .. }] if device == "brake"),
+            "{b:?}"
+        );
+    }
+
+    /// A command's value, before any state: a sensor takes nothing, not even a
+    /// control; an actuator takes a control, a state among its states, a finite set
+    /// point inside its range, and nothing of another kind.
+    #[test]
+    fn a_commands_value_is_its_devices_kind_inside_its_range() {
+        use crate::value::Control;
+        let v = crate::testkit::vehicle(Instant::now());
+        let of = |name: &str, c: Command| check_value(v.find(name).unwrap().config(), c);
+        assert_eq!(of("estop", Command::Set(1.0)), Err(Reject::NotAnActuator));
+        assert_eq!(
+            of("estop", Command::Control(Control::Enable)),
+            Err(Reject::NotAnActuator)
+        );
+        assert_eq!(of("steer", Command::Control(Control::Enable)), Ok(()));
+        assert_eq!(of("trans", Command::Control(Control::Start)), Ok(()));
+        assert_eq!(of("trans", Command::State(3)), Ok(()), "drive");
+        assert_eq!(of("trans", Command::State(4)), Err(Reject::OutOfRange));
+        assert_eq!(of("trans", Command::Set(0.5)), Err(Reject::WrongKind));
+        assert_eq!(of("steer", Command::State(1)), Err(Reject::WrongKind));
+        assert_eq!(of("steer", Command::Set(-1.0)), Ok(()));
+        assert_eq!(of("steer", Command::Set(1.01)), Err(Reject::OutOfRange));
+        assert_eq!(of("steer", Command::Set(f64::NAN)), Err(Reject::NotFinite));
+    }
+
+    /// A remote source may ask to engage where the vehicle file lets the network
+    /// engage, or a vehicle engaged already (picking it up engages nothing).
+    #[test]
+    fn a_remote_engage_is_the_vehicle_files_or_a_pick_up() {
+        assert!(remote_may_engage(true, false));
+        assert!(remote_may_engage(true, true));
+        assert!(remote_may_engage(false, true));
+        assert!(!remote_may_engage(false, false));
+    }
+
     /// A driver's override is latched once per device, each device on its own, and
     /// refuses the engage until it is cleared.
     #[test]

@@ -365,6 +365,26 @@ mod tests {
         check(f, Rules::ALL, plays, c)
     }
 
+    /// Gas is refused while the brake is applied — above released — and passes with
+    /// the brake at released.
+    #[test]
+    fn gas_is_refused_only_above_a_released_brake() {
+        let gas = Command::Set(0.5);
+        let at = Facts {
+            brake_high: Some(RELEASED),
+            ..driving()
+        };
+        assert_eq!(check_all(&at, Plays::THROTTLE, gas), Ok(()));
+        let above = Facts {
+            brake_high: Some(RELEASED + 0.01),
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&above, Plays::THROTTLE, gas),
+            Err(Reject::GasWhileBraking)
+        );
+    }
+
     /// Stopped is a known speed below [`STOPPED`], either way; at it, or unknown, the
     /// vehicle is moving.
     #[test]
