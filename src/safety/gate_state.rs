@@ -537,6 +537,33 @@ mod tests {
         assert_eq!(of("steer", Command::Set(f64::NAN)), Err(Reject::NotFinite));
     }
 
+    /// The rules see throttle and brake set points as fractions of their range's top,
+    /// any other device's as they are; the rules active are the vehicle's.
+    #[test]
+    fn the_rules_see_pedals_as_fractions_and_the_vehicles_rules_are_active() {
+        let of = |range: &str| {
+            crate::config::one_device(&format!(
+                "name = \"d\"\nkind = \"setpoint\"\nrange = {range}\ndriver = \"line\""
+            ))
+        };
+        let (percent, wheel) = (of("[0.0, 100.0]"), of("[-30.0, 30.0]"));
+        assert_eq!(
+            scaled(&percent, Plays::BRAKE, Command::Set(50.0)),
+            Command::Set(0.5)
+        );
+        assert_eq!(
+            scaled(&percent, Plays::THROTTLE, Command::Set(20.0)),
+            Command::Set(0.2)
+        );
+        assert_eq!(
+            scaled(&wheel, Plays::default(), Command::Set(15.0)),
+            Command::Set(15.0)
+        );
+        let (v, s) = state();
+        assert_eq!(s.rules(), Rules::active(v.bindings()));
+        assert!(s.rules().has(Reject::GasWhileBraking));
+    }
+
     /// A remote source may ask to engage where the vehicle file lets the network
     /// engage, or a vehicle engaged already (picking it up engages nothing).
     #[test]

@@ -383,6 +383,32 @@ mod tests {
             check_all(&above, Plays::THROTTLE, gas),
             Err(Reject::GasWhileBraking)
         );
+        // And the throttle at released is no gas, under any brake.
+        let released = Command::Set(RELEASED);
+        assert_eq!(check_all(&above, Plays::THROTTLE, released), Ok(()));
+        assert_eq!(
+            check_all(&above, Plays::THROTTLE, Command::Set(RELEASED + 0.01)),
+            Err(Reject::GasWhileBraking)
+        );
+    }
+
+    /// The starter runs only out of gear.
+    #[test]
+    fn the_starter_runs_only_out_of_gear() {
+        let starter = Plays {
+            starter: true,
+            ..Plays::default()
+        };
+        let start = Command::Control(Control::Start);
+        assert_eq!(
+            check_all(&driving(), starter, start),
+            Err(Reject::StartInGear)
+        );
+        let parked = Facts {
+            in_gear: false,
+            ..driving()
+        };
+        assert_eq!(check_all(&parked, starter, start), Ok(()));
     }
 
     /// Stopped is a known speed below [`STOPPED`], either way; at it, or unknown, the
