@@ -656,10 +656,16 @@ mod tests {
         let g = sample::gate(Instant::now());
         let t = Instant::now();
         g.admit(net(1), Ask::Engage, t).unwrap();
-        let steer = id(&g, "steer");
-        g.admit(net(1), Ask::Set(steer, Command::Set(0.5)), t)
-            .unwrap();
-        assert_eq!(slots(&g)[steer.index()].latest(), Some(Command::Set(0.5)));
+        for (name, value) in [("steer", 0.5), ("brake", 0.4)] {
+            let d = id(&g, name);
+            g.admit(net(1), Ask::Set(d, Command::Set(value)), t)
+                .unwrap();
+            assert_eq!(
+                slots(&g)[d.index()].latest(),
+                Some(Command::Set(value)),
+                "{name}: not the safe state"
+            );
+        }
     }
 
     /// A commander whose stream froze (its rolling counter stopped) trips the watchdog
