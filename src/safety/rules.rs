@@ -392,6 +392,24 @@ mod tests {
         );
     }
 
+    /// While a shift is under way the brake is not released below the shift's brake;
+    /// at it, it may be.
+    #[test]
+    fn a_shift_holds_the_brake_at_the_shifts_brake() {
+        let shifting = Facts {
+            shifting: true,
+            ..driving()
+        };
+        assert_eq!(
+            check_all(&shifting, Plays::BRAKE, Command::Set(SHIFT_BRAKE)),
+            Ok(())
+        );
+        assert_eq!(
+            check_all(&shifting, Plays::BRAKE, Command::Set(SHIFT_BRAKE - 0.01)),
+            Err(Reject::BrakeReleaseShifting)
+        );
+    }
+
     /// The starter runs only out of gear.
     #[test]
     fn the_starter_runs_only_out_of_gear() {
