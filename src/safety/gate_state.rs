@@ -508,7 +508,7 @@ mod tests {
         crate::testkit::make_faulty(&v, "brake", now);
         let b = s.blockers(&v);
         assert!(
-            matches!(&b[..], [Blocker::Faulty { device, .. }] if device == "brake"),
+            matches!(&*b, [Blocker::Faulty { device, .. }] if device == "brake"),
             "{b:?}"
         );
     }
