@@ -1554,6 +1554,71 @@ mod tests {
         );
     }
 
+    /// A steering held exactly `override_threshold` from where its command can have
+    /// taken it, once its noise and dead band are taken off (all binary fractions here,
+    /// so that "exactly" is exact), is within it: never named, however long; a
+    /// hundredth further is, after `override_time` (300 ms, turns every 50 ms).
+    #[test]
+    fn a_steering_exactly_at_the_threshold_is_no_override() {
+        let t0 = Instant::now();
+        let text = crate::config::ALICE_TOML.replace(
+            "[device.response]         # the real drive: full range a second\nrate = 1.0\n",
+            "[device.response]         # the real drive: full range a second\nrate = 1.0\nnoise = 0.0009765625\ndeadband = 0.00390625\noverride_threshold = 0.25\n",
+        );
+        let config = crate::config::parse(&text, "quiet.toml")
+            .expect("Alice, her steering in binary fractions");
+        let steer = config
+            .device("steer")
+            .unwrap()
+            .response
+            .clone()
+            .expect("a response");
+        assert_eq!((steer.noise, steer.deadband), (1.0 / 1024.0, 1.0 / 256.0));
+        let gate = testkit::gate_of(config, t0);
+        let v = &gate.vehicle();
+        let sup = SupervisorConfig::default();
+        let steer_at = |now: Instant, pos: f64| {
+            let mut snap = gate.snapshot_at(0, now);
+            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+                *x = Some(Value::Number(pos));
+            }
+            d.status_age_ms = Some(5.0);
+            d.executed = Some(Value::Number(0.25));
+            d.commanded = Some(Value::Number(0.25));
+            d.executed_span = Some([0.25, 0.25]);
+            d.executed_age_ms = Some(10.0);
+            if let Some(e) = d.estimate.as_mut() {
+                e.position = pos;
+            }
+            snap
+        };
+        let mut mem = Memory::new(t0);
+        let mut faults: Vec<Fault> = Vec::new();
+        let mut named = Vec::new();
+        for k in 0..40u64 {
+            let pos = match k {
+                0 => 0.25,
+                // 0.25 away once three noises and the dead band are taken off, exactly.
+                1..=19 => 0.25 + 0.25 + 3.0 / 1024.0 + 1.0 / 256.0,
+                _ => 0.26 + 0.25 + 3.0 / 1024.0 + 1.0 / 256.0,
+            };
+            let now = t0 + Duration::from_millis(50 * k);
+            faults = detect(
+                &steer_at(now, pos),
+                v.config(),
+                &sup,
+                &mut mem,
+                &faults,
+                now,
+            );
+            if faults.iter().any(|f| f.kind == FaultKind::Override) {
+                named.push(k);
+            }
+        }
+        assert_eq!(named.first(), Some(&27), "{named:?}");
+    }
+
     /// A hand that pushes the steering (commanded 0.3) to 0.8 and holds it there: named
     /// a driver's override once it has been away longer than `override_time` (300 ms,
     /// turns every 50 ms), then held away from its command as long as it stays further
