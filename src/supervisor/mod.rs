@@ -1554,6 +1554,25 @@ mod tests {
         );
     }
 
+    /// The vehicle at `now` with its steering measured at `pos`, commanded and executed
+    /// `cmd` 10 ms before, its status 5 ms old: a hand holding it, or not.
+    fn steering_held(gate: &Gate, now: Instant, pos: f64, cmd: f64) -> Snapshot {
+        let mut snap = gate.snapshot_at(0, now);
+        let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
+        if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
+            *x = Some(Value::Number(pos));
+        }
+        d.status_age_ms = Some(5.0);
+        d.executed = Some(Value::Number(cmd));
+        d.commanded = Some(Value::Number(cmd));
+        d.executed_span = Some([cmd, cmd]);
+        d.executed_age_ms = Some(10.0);
+        if let Some(e) = d.estimate.as_mut() {
+            e.position = pos;
+        }
+        snap
+    }
+
     /// A steering held exactly `override_threshold` from where its command can have
     /// taken it, once its noise and dead band are taken off (all binary fractions here,
     /// so that "exactly" is exact), is within it: never named, however long; a
@@ -1577,22 +1596,7 @@ mod tests {
         let gate = testkit::gate_of(config, t0);
         let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
-        let steer_at = |now: Instant, pos: f64| {
-            let mut snap = gate.snapshot_at(0, now);
-            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
-            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
-                *x = Some(Value::Number(pos));
-            }
-            d.status_age_ms = Some(5.0);
-            d.executed = Some(Value::Number(0.25));
-            d.commanded = Some(Value::Number(0.25));
-            d.executed_span = Some([0.25, 0.25]);
-            d.executed_age_ms = Some(10.0);
-            if let Some(e) = d.estimate.as_mut() {
-                e.position = pos;
-            }
-            snap
-        };
+        let steer_at = |now: Instant, pos: f64| steering_held(&gate, now, pos, 0.25);
         let mut mem = Memory::new(t0);
         let mut faults: Vec<Fault> = Vec::new();
         let mut named = Vec::new();
@@ -1631,22 +1635,7 @@ mod tests {
         let gate = testkit::gate(t0);
         let v = &gate.vehicle();
         let sup = SupervisorConfig::default();
-        let steer_at = |now: Instant, pos: f64| {
-            let mut snap = gate.snapshot_at(0, now);
-            let d = snap.devices.iter_mut().find(|d| d.name == "steer").unwrap();
-            if let Some((_, x)) = d.readings.0.iter_mut().find(|(n, _)| n == POSITION) {
-                *x = Some(Value::Number(pos));
-            }
-            d.status_age_ms = Some(5.0);
-            d.executed = Some(Value::Number(0.3));
-            d.commanded = Some(Value::Number(0.3));
-            d.executed_span = Some([0.3, 0.3]);
-            d.executed_age_ms = Some(10.0);
-            if let Some(e) = d.estimate.as_mut() {
-                e.position = pos;
-            }
-            snap
-        };
+        let steer_at = |now: Instant, pos: f64| steering_held(&gate, now, pos, 0.3);
         let mut mem = Memory::new(t0);
         let mut faults: Vec<Fault> = Vec::new();
         let mut named = Vec::new();
