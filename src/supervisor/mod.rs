@@ -1590,7 +1590,6 @@ mod tests {
             .device("steer")
             .unwrap()
             .response
-            .clone()
             .expect("a response");
         assert_eq!((steer.noise, steer.deadband), (1.0 / 1024.0, 1.0 / 256.0));
         let gate = testkit::gate_of(config, t0);
