@@ -827,6 +827,73 @@ mod tests {
     use super::*;
     use crate::driver;
 
+    /// Until `what` holds (20 s at most).
+    fn until(what: &str, cond: impl Fn() -> bool) {
+        let end = Instant::now() + Duration::from_secs(20);
+        while !cond() {
+            assert!(Instant::now() < end, "timed out waiting for {what}");
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// The engine's fast path (`engine::fast`), on a simulated steering over a real
+    /// pseudo-terminal, its command thread asleep and its port idle: a command goes the
+    /// fast way only while the vehicle is engaged (one admitted just before a disengage
+    /// is left to the command thread, behind the safe state) and only while commands
+    /// are switched on. (Here, not in `engine`: the core imports no simulator.)
+    #[test]
+    fn the_fast_path_writes_only_for_an_engaged_vehicle_with_commands_on() {
+        use crate::engine::fast::{send, Sent};
+        use crate::engine::{Engine, Gate};
+        use crate::value::Command;
+        use std::sync::atomic::Ordering::Relaxed;
+        use std::sync::Arc;
+        let toml = "[vehicle]\nname = \"t\"\n[vehicle.roles]\nsteering = \"steer\"\n\
+            [[device]]\nname = \"steer\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\n\
+            driver = \"line\"\nbaud = 38400\nstatus_period = \"10s\"\n\
+            status_max_age = \"10s\"\ncommand_timeout = \"10s\"\n";
+        let mut config = crate::config::parse(toml, "t.toml").expect("parses");
+        let sim = Sim::start(&config, None).expect("the simulator starts");
+        sim.patch(&mut config);
+        let vehicle = Arc::new(crate::vehicle::Vehicle::new(config, |c| {
+            let (path, baud, timeout) = (c.port.clone(), c.baud, c.reply_timeout);
+            Box::new(move || crate::driver::open_serial(&path, baud, timeout))
+        }));
+        let gate = Arc::new(Gate::new(vehicle.clone()));
+        let engine = Engine::start(gate.clone()).expect("the engine starts");
+        let steer = vehicle.find("steer").unwrap();
+        until("the steering to report", || gate.blockers().is_empty());
+        let idle = || {
+            until("the command thread to sleep", || steer.slot().is_idle());
+        };
+        // Disengaged: queued for the command thread, never written here.
+        idle();
+        let sent = send(&gate, steer, Command::Set(0.3), Instant::now());
+        assert_eq!(sent, Sent::Queued { superseded: false });
+        gate.engage("test").unwrap();
+        until("the engage's hold to go out", || {
+            steer.slot().executed().is_some() && steer.slot().wire().pending.is_none()
+        });
+        // Engaged: written.
+        idle();
+        assert_eq!(
+            send(&gate, steer, Command::Set(0.4), Instant::now()),
+            Sent::Written
+        );
+        until("its reply", || {
+            steer.slot().executed() == Some(Command::Set(0.4))
+        });
+        // Commands switched off: not taken.
+        steer.settings().command_enabled.store(false, Relaxed);
+        idle();
+        assert_eq!(
+            send(&gate, steer, Command::Set(0.5), Instant::now()),
+            Sent::NotTaken
+        );
+        steer.settings().command_enabled.store(true, Relaxed);
+        engine.shutdown(Duration::from_secs(2));
+    }
+
     const GAS_ONLY: &str = r#"
 [vehicle]
 name = "bench"
