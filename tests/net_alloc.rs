@@ -48,16 +48,10 @@ fn intake_of(gate: &std::sync::Arc<adrive::engine::Gate>) -> adrive::net::intake
     use std::sync::Arc;
 
     let network = gate.vehicle().config().network.clone();
-    let names = gate
-        .vehicle()
-        .devices()
-        .iter()
-        .map(|d| d.name().to_string())
-        .collect();
-    let status = Arc::new(NetStatus::new(
+    let status = Arc::new(NetStatus::of(
+        gate.vehicle(),
         network.listen,
         network.watchdog_timeout,
-        names,
     ));
     adrive::net::intake::Intake::new(
         gate.clone(),

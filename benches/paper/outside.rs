@@ -994,15 +994,10 @@ fn intake_hot_and_cold() -> (u64, u64) {
     // Every device has "reported": the vehicle may engage (no engine runs here).
     let vehicle = Arc::new(adrive::testkit::vehicle_zeroed(config));
     let gate = Arc::new(Gate::new(vehicle.clone()));
-    let names = vehicle
-        .devices()
-        .iter()
-        .map(|d| d.name().to_string())
-        .collect();
-    let status = Arc::new(NetStatus::new(
+    let status = Arc::new(NetStatus::of(
+        &vehicle,
         network.listen,
         network.watchdog_timeout,
-        names,
     ));
     let mut intake = Intake::new(
         gate,

@@ -177,6 +177,21 @@ pub struct NetStatus {
 }
 
 impl NetStatus {
+    /// The network's status for `vehicle`: a command count for each of its devices, by
+    /// name.
+    pub fn of(
+        vehicle: &crate::vehicle::Vehicle,
+        listen: SocketAddr,
+        watchdog_timeout: Duration,
+    ) -> NetStatus {
+        let names = vehicle
+            .devices()
+            .iter()
+            .map(|d| d.name().to_string())
+            .collect();
+        NetStatus::new(listen, watchdog_timeout, names)
+    }
+
     pub fn new(listen: SocketAddr, watchdog_timeout: Duration, devices: Vec<String>) -> NetStatus {
         let now = Instant::now();
         NetStatus {

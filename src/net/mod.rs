@@ -71,13 +71,11 @@ impl Net {
         })?;
         let local = socket.local_addr()?;
         let out = broadcast_socket(&config)?;
-        let names = gate
-            .vehicle()
-            .devices()
-            .iter()
-            .map(|d| d.name().to_string())
-            .collect();
-        let status = Arc::new(NetStatus::new(local, config.watchdog_timeout, names));
+        let status = Arc::new(NetStatus::of(
+            gate.vehicle(),
+            local,
+            config.watchdog_timeout,
+        ));
         let closing = Arc::new(AtomicBool::new(false));
         let mut threads = Group::default();
 
