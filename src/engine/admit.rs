@@ -298,7 +298,7 @@ impl Gate {
             what: words.clone(),
         };
         o.trip(cause);
-        self.disengage(why);
+        self.disengage_engaged(why);
         drop(o);
         tracing::warn!("watchdog: {words}; safe state commanded");
     }

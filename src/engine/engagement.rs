@@ -17,18 +17,16 @@ impl Gate {
     /// hand the vehicle to the driver — disengaged, in the manual state (throttle and
     /// brake released, the steering no longer commanded). Already latched: nothing.
     pub fn take_over(&self, device: &str, why: &str) {
-        if !self.state().latch_override(device) {
+        // Latched and disengaged in one step; said to be cleared once it is
+        // ([`crate::safety::GateState::cause`]).
+        let Some(was) = self.state().take_over(device) else {
             return;
-        }
+        };
         tracing::warn!(device, "driver override: {why}");
+        // Nothing admitted from now on: what was pending for the driver's device goes.
         self.leave_to_the_driver();
         let state = self.state().stop_state(self.vehicle());
-        // Said to be cleared once it is ([`crate::safety::GateState::cause`]).
-        let why = DisengageCause::Override {
-            device: device.to_string(),
-            cleared: false,
-        };
-        self.disengage_with(|g| g.set_disengaged(why), state);
+        self.disengage_with(|_| was, state);
     }
 
     /// Nothing is resent to a device the manual state does not command (the steering
@@ -107,6 +105,18 @@ impl Gate {
     /// a person pressing STOP has decided to brake.
     pub fn stop(&self, why: DisengageCause) -> bool {
         self.disengage_into(why, crate::safety::safe::state(self.vehicle().config()))
+    }
+
+    /// Disengage for `why`, decided while engaged (a blocker seen, a fault, a stalled
+    /// thread, the watchdog), and command the safe state — only if it is still
+    /// engaged: whoever disengaged it since that look (a driver's override, an
+    /// operator's STOP) keeps their cause and the state they commanded. Returns
+    /// whether this disengaged it.
+    pub fn disengage_engaged(&self, why: DisengageCause) -> bool {
+        if !self.state().set_disengaged_if_engaged(why) {
+            return false;
+        }
+        self.disengage_with(|_| true, self.state().stop_state(self.vehicle()))
     }
 
     fn disengage_into(&self, why: DisengageCause, state: Vec<(DeviceId, Command)>) -> bool {

@@ -36,7 +36,7 @@ impl Monitor {
                 let engaged = gate.is_engaged();
                 if engaged {
                     if let Some(blocker) = gate.blockers().into_iter().next() {
-                        gate.disengage(DisengageCause::Blocked { blocker });
+                        gate.disengage_engaged(DisengageCause::Blocked { blocker });
                     }
                 }
                 // The e-stop's rule holds a disengaged vehicle too: brake full, gas 0

@@ -279,6 +279,20 @@ impl GateState {
         was
     }
 
+    /// Disengaged for `why` if it is still engaged; otherwise nothing changes and
+    /// false. For the decisions taken while engaged (a blocker, a fault, a stalled
+    /// thread, the watchdog): whoever disengaged first between that look and this
+    /// step (a driver's override, an operator's STOP) keeps their cause.
+    pub(crate) fn set_disengaged_if_engaged(&self, why: DisengageCause) -> bool {
+        let mut cause = self.cause.lock();
+        if !self.engaged.swap(false, SeqCst) {
+            return false;
+        }
+        self.kits.set(false);
+        *cause = GateCause::Disengaged { why };
+        true
+    }
+
     /// Count (and log, at most 10 a second) a rejection of `command` for `device`.
     pub(crate) fn reject(
         &self,
@@ -328,14 +342,29 @@ impl GateState {
         self.overridden.lock().clone()
     }
 
-    /// Latch a driver's override of `device`; false if it was latched already.
-    pub(crate) fn latch_override(&self, device: &str) -> bool {
-        let mut o = self.overridden.lock();
-        if o.iter().any(|d| d == device) {
-            return false;
+    /// A driver took `device` over: latch it and disengage for it in one step, so that
+    /// nobody sees the override latched on a vehicle still engaged (the gate's monitor
+    /// would take it for a blocker and disengage for it, and its words, not the
+    /// override's, would be said). `None` if it was latched already (nothing changes);
+    /// otherwise whether the vehicle was engaged.
+    pub(crate) fn take_over(&self, device: &str) -> Option<bool> {
+        let mut cause = self.cause.lock();
+        {
+            let mut o = self.overridden.lock();
+            if o.iter().any(|d| d == device) {
+                return None;
+            }
+            o.push(device.to_string());
         }
-        o.push(device.to_string());
-        true
+        let was = self.engaged.swap(false, SeqCst);
+        self.kits.set(false);
+        *cause = GateCause::Disengaged {
+            why: DisengageCause::Override {
+                device: device.to_string(),
+                cleared: false,
+            },
+        };
+        Some(was)
     }
 
     /// Clear the latched overrides, unless a driver's hand is still on one of them
@@ -477,11 +506,7 @@ mod tests {
             by: "console #2".into(),
         });
         assert_eq!(s.reason(), "disengaged: stop from console #2");
-        assert!(s.latch_override("brake"));
-        s.set_disengaged(DisengageCause::Override {
-            device: "brake".into(),
-            cleared: false,
-        });
+        assert_eq!(s.take_over("brake"), Some(false));
         assert_eq!(s.reason(), "disengaged: driver override on brake");
         s.clear_overrides(&[]).unwrap();
         assert_eq!(s.reason(), "disengaged: driver override on brake, cleared");
@@ -564,6 +589,28 @@ mod tests {
         assert!(s.rules().has(Reject::GasWhileBraking));
     }
 
+    /// A decision taken while engaged (a blocker seen, a fault) disengages only a
+    /// vehicle still engaged: one disengaged meanwhile keeps its cause — a driver's
+    /// override latched between the monitor's look and its step is said as the
+    /// override, not as the blocker the monitor then saw.
+    #[test]
+    fn a_disengage_decided_while_engaged_keeps_an_earlier_cause() {
+        let (_v, s) = state();
+        s.set_engaged("test");
+        let blocked = || DisengageCause::Blocked {
+            blocker: Blocker::Overridden {
+                device: "steer".into(),
+            },
+        };
+        assert_eq!(s.take_over("steer"), Some(true));
+        assert!(!s.set_disengaged_if_engaged(blocked()));
+        assert_eq!(s.reason(), "disengaged: driver override on steer");
+        s.set_engaged("test");
+        assert!(s.set_disengaged_if_engaged(blocked()));
+        assert!(!s.is_engaged());
+        assert_eq!(s.cause(), GateCause::Disengaged { why: blocked() });
+    }
+
     /// A remote source may ask to engage where the vehicle file lets the network
     /// engage, or a vehicle engaged already (picking it up engages nothing).
     #[test]
@@ -574,15 +621,19 @@ mod tests {
         assert!(!remote_may_engage(false, false));
     }
 
-    /// A driver's override is latched once per device, each device on its own, and
-    /// refuses the engage until it is cleared.
+    /// A driver's override is latched once per device, each device on its own,
+    /// disengages with it in the same step, and refuses the engage until it is
+    /// cleared.
     #[test]
     fn an_override_is_latched_once_per_device_and_blocks_until_cleared() {
         let (v, s) = state();
         assert_eq!(s.blockers(&v), [], "Alice at rest may engage");
-        assert!(s.latch_override("brake"));
-        assert!(!s.latch_override("brake"), "latched already");
-        assert!(s.latch_override("steer"), "another device");
+        s.set_engaged("test");
+        assert_eq!(s.take_over("brake"), Some(true), "it was engaged");
+        assert!(!s.is_engaged());
+        assert_eq!(s.reason(), "disengaged: driver override on brake");
+        assert_eq!(s.take_over("brake"), None, "latched already");
+        assert_eq!(s.take_over("steer"), Some(false), "another device");
         assert_eq!(s.overridden(), ["brake", "steer"]);
         assert_eq!(
             s.blockers(&v),

@@ -605,7 +605,7 @@ impl Supervisor {
                 .iter()
                 .find(|f| disengages(f.kind) && needed(f) && !dealt_with(f))
             {
-                gate.disengage(DisengageCause::Fault { fault: f.view(now) });
+                gate.disengage_engaged(DisengageCause::Fault { fault: f.view(now) });
             }
         }
         match start {
@@ -798,7 +798,7 @@ pub(crate) fn start_watching(
                     quiet_ms: s.quiet.as_secs_f64() * 1e3,
                     bound_ms: s.bound.as_secs_f64() * 1e3,
                 };
-                gate.disengage(DisengageCause::Stalled { stall });
+                gate.disengage_engaged(DisengageCause::Stalled { stall });
             }
         })
     })?;
