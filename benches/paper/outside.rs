@@ -289,6 +289,12 @@ fn figures(d: &[Duration]) -> (f64, f64, f64) {
 /// The environment variable that makes the bench binary a relay process instead
 /// ([`relay_process`]): the pseudo-terminal to write to.
 pub const RELAY: &str = "ADRIVE_BENCH_RELAY";
+/// With [`RELAY`]: the relay runs under `SCHED_FIFO` at this priority, as the row it is
+/// compared with runs adrive's command path (`realtime_priority`).
+const RELAY_PRIORITY: &str = "ADRIVE_BENCH_RELAY_PRIORITY";
+
+/// The priority of the realtime placement row, adrive's and its relay's.
+const ROW_PRIORITY: i32 = 50;
 
 /// The bench binary run as a bare relay, a process of its own as adrive is: one
 /// thread, `recv` → write `! v\n` to its port (`v`: what follows the datagram's first
@@ -296,6 +302,21 @@ pub const RELAY: &str = "ADRIVE_BENCH_RELAY";
 /// each datagram since the last such (`recv` returned, write returned, ns) and `end`;
 /// on a two-byte one, ends.
 pub fn relay_process(path: &str) {
+    if let Some(p) = std::env::var(RELAY_PRIORITY)
+        .ok()
+        .and_then(|p| p.parse::<i32>().ok())
+    {
+        let param = libc::sched_param { sched_priority: p };
+        // SAFETY: sched_setscheduler reads the parameter handed to it; 0 is this thread.
+        #[allow(unsafe_code)]
+        let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+        assert_eq!(
+            r,
+            0,
+            "the relay's SCHED_FIFO {p}: {}",
+            std::io::Error::last_os_error()
+        );
+    }
     let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
     println!("{}", rx.local_addr().unwrap().port());
     let mut port = std::fs::OpenOptions::new()
@@ -333,6 +354,22 @@ pub fn relay_process(path: &str) {
     }
 }
 
+/// Whether a thread of this process may run under `SCHED_FIFO` (tried on a thread of
+/// its own, which then ends).
+fn fifo_allowed() -> bool {
+    std::thread::spawn(|| {
+        let param = libc::sched_param {
+            sched_priority: ROW_PRIORITY,
+        };
+        // SAFETY: sched_setscheduler reads the parameter handed to it; 0 is this thread.
+        #[allow(unsafe_code)]
+        let r = unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) };
+        r == 0
+    })
+    .join()
+    .unwrap_or(false)
+}
+
 /// A bare relay process ([`relay_process`]) and the device end it writes to, measured
 /// in the same window as adrive, its datagrams between adrive's.
 struct Relay {
@@ -343,14 +380,16 @@ struct Relay {
 }
 
 impl Relay {
-    fn start() -> Relay {
+    /// A relay at normal priority, or under `SCHED_FIFO` at `priority`.
+    fn start(priority: Option<i32>) -> Relay {
         use std::io::BufRead;
         let end = DeviceEnd::open(Proto::Line, false);
-        let mut child = std::process::Command::new(std::env::current_exe().unwrap())
-            .env(RELAY, &end.path)
-            .stdout(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
+        let mut child = std::process::Command::new(std::env::current_exe().unwrap());
+        child.env(RELAY, &end.path);
+        if let Some(p) = priority {
+            child.env(RELAY_PRIORITY, p.to_string());
+        }
+        let mut child = child.stdout(std::process::Stdio::piped()).spawn().unwrap();
         let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
         let mut line = String::new();
         out.read_line(&mut line).unwrap();
@@ -549,6 +588,8 @@ struct Row {
     viewers: usize,
     /// Compared with this row (a feature's cost), by index.
     against: Option<usize>,
+    /// Its relay runs under `SCHED_FIFO` at this priority (the row's own placement).
+    relay_priority: Option<i32>,
     /// Not run, and why.
     skip: Option<&'static str>,
 }
@@ -568,6 +609,7 @@ impl Row {
             consoles: 0,
             viewers: 0,
             against: None,
+            relay_priority: None,
             skip: None,
         }
     }
@@ -795,6 +837,12 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             against: Some(0),
             ..Row::new("one device, cpus = [1]")
         },
+        Row {
+            head: "realtime_priority = 50",
+            against: Some(0),
+            relay_priority: Some(ROW_PRIORITY),
+            ..Row::new("one device, realtime_priority = 50")
+        },
         // The second method: the relay in rounds of its own.
         Row {
             method: Method::Rounds,
@@ -811,6 +859,9 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             rows[i].skip = Some("not run: a CPU this process may not use");
         }
     }
+    if !fifo_allowed() {
+        rows[10].skip = Some("not run: SCHED_FIFO refused here (CAP_SYS_NICE or RLIMIT_RTPRIO)");
+    }
     // `ADRIVE_BENCH_ROWS=0,4`: just those rows (while working on one).
     if let Ok(only) = std::env::var("ADRIVE_BENCH_ROWS") {
         let keep: Vec<usize> = only
@@ -825,16 +876,27 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     }
     // Two rounds; in each, every row with its relay: in the row's window, or (the
     // second method) in a window of its own after the row's.
-    let mut relay = Relay::start();
+    let mut relay = Relay::start(None);
+    // The realtime row's relay runs at the row's priority: each placement against the
+    // least a program placed as it is can do.
+    let mut rt_relay = rows
+        .iter()
+        .any(|r| r.skip.is_none() && r.relay_priority.is_some())
+        .then(|| Relay::start(Some(ROW_PRIORITY)));
     let mut results: Vec<Vec<Measured>> = rows.iter().map(|_| Vec::new()).collect();
     for _round in 0..2 {
         for (row, out) in rows.iter().zip(&mut results) {
             if row.skip.is_none() {
-                out.push(adrive_row(dir.path(), &sims, row, sent, &mut relay));
+                let r = match (row.relay_priority, rt_relay.as_mut()) {
+                    (Some(_), Some(rt)) => rt,
+                    _ => &mut relay,
+                };
+                out.push(adrive_row(dir.path(), &sims, row, sent, r));
             }
         }
     }
     drop(relay);
+    drop(rt_relay);
     // Each row's better round: the lower p50 against the relay of its window.
     let best: Vec<Option<usize>> = results
         .iter()
@@ -854,7 +916,7 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     table.print(Method::Interleaved);
     println!("(bare relay: one thread, recv → write, a process of its own, its datagrams sent between adrive's in the same window; rl: that relay; p50/row: against the one-device row (in brackets: each row's p50/rl against the one-device row's), or the last device against the first; own: adrive's displayed delay, receipt → first byte, for the same commands.)");
     println!(
-        "(placements: the one-device row runs where the kernel puts it; `cpus = [0]`, `cpus = [1]`: the vehicle file pins the command path — net/listen and the device's command thread — to that CPU, the device's end and the planner left to the kernel. This machine lets this process use {} CPU(s) ({cpus:?}): the placements measured are those of a {}-CPU machine; those of 4 or 8 cores need such a machine.)",
+        "(placements: the one-device row runs where the kernel puts it; `cpus = [0]`, `cpus = [1]`: the vehicle file pins the command path — net/listen and the device's command thread — to that CPU, the device's end and the planner left to the kernel; `realtime_priority = 50`: the command path under SCHED_FIFO 50, against a relay under the same. This machine lets this process use {} CPU(s) ({cpus:?}): the placements measured are those of a {}-CPU machine; those of 4 or 8 cores need such a machine.)",
         cpus.len(),
         cpus.len()
     );
@@ -937,7 +999,10 @@ impl Table<'_> {
         let (rp50, rp99, rmax) = m.relay();
         println!(
             "{:<36} {:>5} {rp50:>8.1} {rp99:>8.1} {rmax:>8.1}",
-            format!("bare relay ({})", round + 1),
+            match row.relay_priority {
+                Some(p) => format!("bare relay, SCHED_FIFO {p} ({})", round + 1),
+                None => format!("bare relay ({})", round + 1),
+            },
             m.relay.len()
         );
         for (k, s) in m.samples.iter().enumerate() {
