@@ -17,8 +17,19 @@ fn set(v: f64) -> Command {
     Command::Set(v)
 }
 
-/// Alice with a faster supervisor for tests.
+/// Alice with a faster supervisor (`supervisor`: lines of its table), her devices'
+/// timing made tolerant ([`common::tolerant_text`]): for the tests that hold her
+/// engaged for seconds to prove something other than device timing. On a shared
+/// machine that stalls for 200 ms, her own deadlines rightly find the e-stop silent
+/// and disengage, and the recovery or the sweep under test then waits for an engage
+/// that never comes.
 fn alice(supervisor: &str) -> String {
+    common::tolerant_text(&strict_alice(supervisor))
+}
+
+/// Alice with a faster supervisor and her own deadlines: for the tests of device
+/// timing (silence, late replies, a port that vanishes).
+fn strict_alice(supervisor: &str) -> String {
     format!("{ALICE_TOML}\n[supervisor]\nperiod = \"50ms\"\n{supervisor}\n")
 }
 
@@ -55,7 +66,7 @@ fn steering_still_works(rig: &Rig, v: f64) {
 
 #[test]
 fn a_silent_device_is_named_with_its_cause_and_the_vehicle_stops_safely() {
-    let rig = Rig::supervised(&alice(""));
+    let rig = Rig::supervised(&strict_alice(""));
     rig.engage();
     rig.sim.apply("silent gas on").unwrap();
     // Within twice its status_max_age of 500 ms.
@@ -100,7 +111,7 @@ fn a_silent_device_is_named_with_its_cause_and_the_vehicle_stops_safely() {
 /// than `status_max_age` — which the gate monitor checks every 10 ms.
 #[test]
 fn a_silent_estop_is_detected_within_twice_its_status_max_age() {
-    let rig = Rig::supervised(&alice(""));
+    let rig = Rig::supervised(&strict_alice(""));
     rig.engage();
     let estop = rig.device("estop");
     let bound = 2 * estop.config().status_max_age;
@@ -130,7 +141,7 @@ fn a_silent_estop_is_detected_within_twice_its_status_max_age() {
 
 #[test]
 fn garbage_shows_as_an_error_rate() {
-    let rig = Rig::supervised(&alice(""));
+    let rig = Rig::supervised(&strict_alice(""));
     rig.engage();
     rig.sim.apply("garbage brake on").unwrap();
     let what = fault_within(
@@ -602,7 +613,7 @@ fn estop_pause_disengages_and_holds_the_brake() {
 
 #[test]
 fn a_vanished_device_is_waited_for_and_back_when_its_port_is() {
-    let rig = Rig::supervised(&alice(""));
+    let rig = Rig::supervised(&strict_alice(""));
     rig.engage();
     rig.sim
         .faults("brake")
@@ -656,7 +667,7 @@ fn a_vanished_device_is_waited_for_and_back_when_its_port_is() {
 /// answers again.
 #[test]
 fn a_drive_slower_than_its_reply_timeout_is_named_slow_and_no_reply_is_taken_for_another() {
-    let rig = Rig::supervised(&alice(""));
+    let rig = Rig::supervised(&strict_alice(""));
     let steer = rig.device("steer");
     wait_for("steer answering", || steer.cached().at.is_some());
     rig.sim.apply("slow steer 120").unwrap();
