@@ -272,6 +272,11 @@ impl GateState {
     /// this cause, never the last engage's.
     pub(crate) fn set_disengaged(&self, why: DisengageCause) -> bool {
         let mut cause = self.cause.lock();
+        self.disengaged(&mut cause, why)
+    }
+
+    /// Disengaged for `why`, under the cause's lock (`cause`); whether it was engaged.
+    fn disengaged(&self, cause: &mut GateCause, why: DisengageCause) -> bool {
         let was = self.engaged.swap(false, SeqCst);
         // Kits disable with the vehicle, before the stop's commands are stored.
         self.kits.set(false);
@@ -285,12 +290,7 @@ impl GateState {
     /// step (a driver's override, an operator's STOP) keeps their cause.
     pub(crate) fn set_disengaged_if_engaged(&self, why: DisengageCause) -> bool {
         let mut cause = self.cause.lock();
-        if !self.engaged.swap(false, SeqCst) {
-            return false;
-        }
-        self.kits.set(false);
-        *cause = GateCause::Disengaged { why };
-        true
+        self.is_engaged() && self.disengaged(&mut cause, why)
     }
 
     /// Count (and log, at most 10 a second) a rejection of `command` for `device`.
@@ -356,15 +356,11 @@ impl GateState {
             }
             o.push(device.to_string());
         }
-        let was = self.engaged.swap(false, SeqCst);
-        self.kits.set(false);
-        *cause = GateCause::Disengaged {
-            why: DisengageCause::Override {
-                device: device.to_string(),
-                cleared: false,
-            },
+        let why = DisengageCause::Override {
+            device: device.to_string(),
+            cleared: false,
         };
-        Some(was)
+        Some(self.disengaged(&mut cause, why))
     }
 
     /// Clear the latched overrides, unless a driver's hand is still on one of them
