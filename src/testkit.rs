@@ -51,6 +51,7 @@ pub fn vehicle_zeroed(config: VehicleConfig) -> Vehicle {
         d.store(Cached {
             reading,
             at: Some(Instant::now()),
+            asked: None,
         });
     }
     v
@@ -107,7 +108,11 @@ pub fn vehicle_of(config: VehicleConfig, now: Instant) -> Vehicle {
             }
             r
         };
-        d.store(Cached { reading: r, at });
+        d.store(Cached {
+            reading: r,
+            at,
+            asked: None,
+        });
         if let Some(at) = at {
             d.estimate_reading(&r, at);
         }

@@ -93,7 +93,7 @@ pub(crate) fn run(gate: &Gate, watch: &super::Watch, device: &str) -> Result<Fig
         if let Some(f) = d.fault() {
             return Err(Ended(format!("{device}: {f}")));
         }
-        if let Some((reading, at, t)) = super::fresh(d, &mut last_at, started) {
+        if let Some(super::Fresh { reading, at, t, .. }) = super::fresh(d, &mut last_at, started) {
             first_at = first_at.or(Some(at));
             samples.push((t, (0..names.len()).map(|i| reading.get(i)).collect()));
         }

@@ -165,8 +165,8 @@ impl Shifter<'_> {
     }
 
     /// One turn: end at once on what ends any run; keep the command alive; take a new
-    /// reading, if one came (one after a stall of the machine is left out: its time is
-    /// unknown).
+    /// reading, if one came (one after a stall of the machine, or whose own poll
+    /// stalled, is left out: its time is not known well enough).
     fn tick(&mut self) -> Result<(), Ended> {
         std::thread::sleep(Duration::from_millis(1));
         interrupted(self.gate, self.watch, self.id)?;
@@ -174,7 +174,8 @@ impl Shifter<'_> {
             self.command(self.set)?;
         }
         let d = self.gate.vehicle().device(self.id);
-        if let Some((reading, _, t)) = super::fresh(d, &mut self.last_at, self.started) {
+        let fresh = super::fresh(d, &mut self.last_at, self.started).filter(|f| !f.loose);
+        if let Some(super::Fresh { reading, t, .. }) = fresh {
             if let Some(y) = reading.get(self.reading) {
                 self.samples.push(Sample {
                     t,

@@ -312,6 +312,7 @@ fn store(d: &Device, reading: Reading, at: Instant) {
     d.store(Cached {
         reading,
         at: Some(at),
+        asked: None,
     });
     d.estimate_reading(&reading, at);
     d.health().status_error.store(0, Relaxed);

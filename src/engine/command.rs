@@ -402,6 +402,7 @@ mod tests {
                 r
             },
             at: Some(Instant::now()),
+            asked: None,
         });
         gate.engage("test").unwrap();
         (trans, brake, drive)

@@ -81,6 +81,7 @@ pub(crate) fn status_loop(
                 d.store(Cached {
                     reading,
                     at: Some(done),
+                    asked: first,
                 });
                 let correction = d.estimate_reading(&reading, done);
                 schedule.finish(correction.is_some_and(|c| c.surprise));

@@ -265,6 +265,7 @@ mod tests {
         d.store(Cached {
             reading: r,
             at: Some(at),
+            asked: None,
         });
     }
 
@@ -388,6 +389,7 @@ mod tests {
         obd.store(Cached {
             reading: r,
             at: Some(Instant::now()),
+            asked: None,
         });
         assert_eq!(gather(&v, Plays::THROTTLE).running, Some(false));
     }

@@ -395,6 +395,7 @@ mod tests {
         obd.store(crate::vehicle::Cached {
             reading: r,
             at: Some(Instant::now()),
+            asked: None,
         });
     }
 

@@ -339,6 +339,7 @@ mod tests {
         brake.store(Cached {
             reading,
             at: Some(now),
+            asked: None,
         });
         let snap = capture(&v, now);
         let d = snap.device("brake").unwrap();

@@ -27,6 +27,10 @@ pub struct Cached {
     pub reading: Reading,
     /// When it was read; `None` before the first good poll.
     pub at: Option<Instant>,
+    /// When the request that read it went out (its first byte taken by the kernel):
+    /// the device took the reading between this and [`Cached::at`]. `None` for a
+    /// reading no request of ours asked for (a bus's frames).
+    pub asked: Option<Instant>,
 }
 
 impl Cached {
