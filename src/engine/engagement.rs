@@ -360,6 +360,52 @@ mod tests {
         assert_eq!(steer.slot().wire().pending, None);
     }
 
+    /// A disengage decided while engaged (the monitor's blocker, a fault, the watchdog)
+    /// commands the safe state when it is the one that disengages, and nothing once
+    /// someone else disengaged since its look: an operator's STOP keeps what it
+    /// commanded, nothing is sent after it.
+    #[test]
+    fn a_disengage_decided_while_engaged_commands_only_a_vehicle_still_engaged() {
+        let gate = sample::gate(Instant::now());
+        let v = gate.vehicle();
+        let brake = v.find("brake").unwrap();
+        // Every command pending executed, as the command threads would.
+        let executed = || {
+            for d in v.devices() {
+                if let Some(p) = d.slot().take_newer() {
+                    d.slot().finish(p.command, true);
+                }
+            }
+        };
+        let decided = || DisengageCause::Disengage {
+            by: "a look while engaged".into(),
+        };
+        gate.engage("test").unwrap();
+        executed();
+        assert!(gate.disengage_engaged(decided()));
+        assert!(!gate.is_engaged());
+        assert_eq!(
+            brake.slot().wire().pending,
+            Some(Command::Set(1.0)),
+            "brake full"
+        );
+        executed();
+        gate.engage("test").unwrap();
+        gate.stop(DisengageCause::Stop {
+            by: "operator".into(),
+        });
+        executed();
+        assert!(!gate.disengage_engaged(decided()));
+        for d in v.devices() {
+            assert_eq!(
+                d.slot().wire().pending,
+                None,
+                "{} commanded after the STOP",
+                d.name()
+            );
+        }
+    }
+
     /// A driver's override hands the vehicle over in the manual state: throttle and
     /// brake released, and nothing more sent to the steering — its pending command is
     /// dropped, not delivered after the driver has taken the wheel.
