@@ -491,20 +491,27 @@ fn the_socket_is_0660_in_the_process_group_and_a_second_adrive_on_it_is_refused(
 
 /// Start adrive `args` with its socket at `socket`; once it listens, `end` it; the
 /// socket must be gone after.
+#[allow(unsafe_code)]
 fn socket_removed_after(
     name: &str,
     extra: &[&str],
     end: impl FnOnce(&mut Child, &mut Option<Master>),
 ) {
+    // The default path a user without a runtime directory gets: under the temporary
+    // directory, in a directory of its own that must go with it.
     let dir = tempdir(name);
-    let socket = dir.path().join("adrive.sock");
+    // SAFETY: getuid cannot fail.
+    let uid = unsafe { libc::getuid() };
+    let own = dir.path().join(format!("adrive-{uid}"));
+    let socket = own.join("adrive.sock");
     let mut cmd = Command::new(BIN);
     cmd.args(["--sim", "--listen", "127.0.0.1:0", "--log-dir"])
         .arg(dir.path().join("log"))
-        .arg("--socket")
-        .arg(&socket)
         .args(extra)
-        .env("TERM", "xterm-256color");
+        .env("TERM", "xterm-256color")
+        .env("TMPDIR", dir.path())
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("RUNTIME_DIRECTORY");
     let (mut child, mut term) = if extra.contains(&"--headless") {
         let c = cmd
             .stdout(Stdio::null())
@@ -521,6 +528,7 @@ fn socket_removed_after(
     let status = wait_exit(&mut child);
     assert!(status.is_some(), "{name}: adrive did not exit");
     assert!(!socket.exists(), "{name}: the socket was left behind");
+    assert!(!own.exists(), "{name}: its directory was left behind");
 }
 
 #[test]

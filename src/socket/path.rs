@@ -10,7 +10,8 @@
 //!   anything else at the path is refused and left alone.
 //! - The socket is made mode 0660 (the process's group may attach) and removed when its
 //!   [`Claim`] drops — on every way out of the process that unwinds — but only if it is
-//!   still the file this process made.
+//!   still the file this process made; so is its directory, if this process made it
+//!   and nothing else is in it (`/tmp/adrive-UID` is not left behind).
 
 use std::io;
 use std::os::unix::fs::{DirBuilderExt, FileTypeExt, MetadataExt, PermissionsExt};
@@ -84,6 +85,8 @@ pub struct Claim {
     pub path: PathBuf,
     /// The file made, to leave alone a file another made since.
     id: FileId,
+    /// The directory made for it, if it was not there: removed with it when empty.
+    dir: Option<PathBuf>,
 }
 
 /// A file's identity: device and inode, and its change time, since a new file may get
@@ -102,6 +105,10 @@ impl Drop for Claim {
         if ours {
             let _ = std::fs::remove_file(&self.path);
         }
+        if let Some(dir) = &self.dir {
+            // Refused while anything is in it.
+            let _ = std::fs::remove_dir(dir);
+        }
     }
 }
 
@@ -109,7 +116,9 @@ impl Drop for Claim {
 /// and what to do.
 pub(crate) fn bind(path: &Path) -> Result<(UnixListener, Claim), String> {
     let shown = path.display();
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+    let parent = path.parent().filter(|d| !d.as_os_str().is_empty());
+    let made_dir = parent.filter(|d| !d.exists()).map(Path::to_path_buf);
+    if let Some(dir) = parent {
         std::fs::DirBuilder::new()
             .recursive(true)
             .mode(0o770)
@@ -160,6 +169,7 @@ pub(crate) fn bind(path: &Path) -> Result<(UnixListener, Claim), String> {
     let claim = Claim {
         path: path.to_path_buf(),
         id: file_id(&m),
+        dir: made_dir,
     };
     Ok((listener, claim))
 }
@@ -181,6 +191,15 @@ mod tests {
         drop(listener);
         drop(claim);
         assert!(!path.exists());
+        // The directory it made goes with it; one that was there stays.
+        assert!(!dir.path().join("run").exists(), "the directory it made");
+        assert!(dir.path().exists());
+        // One it made that holds something else stays, with it.
+        let (listener, claim) = bind(&path).unwrap();
+        std::fs::write(dir.path().join("run/other"), "").unwrap();
+        drop((listener, claim));
+        assert!(!path.exists());
+        assert!(dir.path().join("run/other").exists());
     }
 
     #[test]
