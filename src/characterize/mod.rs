@@ -240,8 +240,25 @@ struct Fresh {
     /// Its own poll stalled — longer than half as long again as the device's median
     /// poll, and 1 ms: the device took it somewhere in that poll, and a busy machine's
     /// late wake-up to read the reply would date it late. A response's shape leaves it
-    /// out (a lag's tail dated late reads slow); a count of readings keeps it.
+    /// out (a lag's tail dated late reads slow); a bracket keeps it, by the edge of its
+    /// poll that keeps the bracket true ([`Fresh::bounds`]); a count of readings keeps
+    /// it.
     loose: bool,
+    /// Its poll, seconds after the start: from the request's first byte to the reply
+    /// (`t` for both, for a reading no request asked for).
+    poll: (f64, f64),
+}
+
+impl Fresh {
+    /// When it was taken, at the earliest and the latest, seconds after the start: at
+    /// `t`, or, when its poll stalled, anywhere in the poll.
+    fn bounds(&self) -> (f64, f64) {
+        if self.loose {
+            self.poll
+        } else {
+            (self.t, self.t)
+        }
+    }
 }
 
 /// A reading of device `d` newer than `last` (the `at` of the one before, updated
@@ -265,6 +282,7 @@ fn fresh(d: &crate::vehicle::Device, last: &mut Option<Instant>, start: Instant)
     if gap > 4.0 * turn + 0.01 {
         return None;
     }
+    let since = |i: Instant| i.saturating_duration_since(start).as_secs_f64();
     let (taken, loose) = match c.asked {
         Some(asked) => {
             let took = at.saturating_duration_since(asked);
@@ -276,11 +294,13 @@ fn fresh(d: &crate::vehicle::Device, last: &mut Option<Instant>, start: Instant)
             false,
         ),
     };
+    let t = since(taken);
     Some(Fresh {
         reading: c.reading,
         at,
-        t: taken.saturating_duration_since(start).as_secs_f64(),
+        t,
         loose,
+        poll: c.asked.map_or((t, t), |asked| (since(asked), since(at))),
     })
 }
 
@@ -1102,11 +1122,12 @@ mod tests {
 
     /// The incident: a lag measured 4 % slow on a busy machine — its tail's readings
     /// dated when a late wake-up read them. A reading is dated halfway through the poll
-    /// that read it; one whose poll stalled is marked loose (a response leaves it out);
+    /// that read it; one whose poll stalled is marked loose (a response leaves it out, a
+    /// bracket takes it as anywhere in its poll);
     /// a reading no request asked for (a bus's) is dated half a median poll before it
     /// came.
     #[test]
-    fn a_reading_is_dated_within_its_poll_and_one_whose_poll_stalled_is_left_out() {
+    fn a_reading_is_dated_within_its_poll_and_one_whose_poll_stalled_is_marked_loose() {
         let start = Instant::now();
         let g = crate::testkit::gate(start);
         let d = g.vehicle().device(g.vehicle().find("steer").unwrap().id());
@@ -1125,27 +1146,40 @@ mod tests {
             });
         };
         let mut last = None;
-        let dated = |last: &mut Option<Instant>| fresh(d, last, start).map(|f| (f.t, f.loose));
+        let dated = |last: &mut Option<Instant>| {
+            fresh(d, last, start).map(|f| {
+                let (lo, hi) = f.bounds();
+                assert!(lo <= f.t && f.t <= hi, "{lo} {} {hi}", f.t);
+                (f.t, f.loose, (lo, hi))
+            })
+        };
         // A poll of 2.5 ms: halfway through it.
         read(
             Some(start + ms(10)),
             start + ms(10) + Duration::from_micros(2500),
         );
-        let (t, loose) = dated(&mut last).unwrap();
+        let (t, loose, bounds) = dated(&mut last).unwrap();
         assert!((t - 0.01125).abs() < 1e-6 && !loose, "{t}");
+        assert_eq!(bounds, (t, t));
         // Nothing new: nothing.
         assert!(dated(&mut last).is_none());
-        // A poll that took 5 ms of a median 2: loosely dated.
+        // A poll that took 5 ms of a median 2: loosely dated, taken anywhere in it.
         read(Some(start + ms(20)), start + ms(25));
-        assert!(dated(&mut last).unwrap().1);
+        let (_, loose, (lo, hi)) = dated(&mut last).unwrap();
+        assert!(loose);
+        assert!(
+            (lo - 0.020).abs() < 1e-6 && (hi - 0.025).abs() < 1e-6,
+            "{lo} {hi}"
+        );
         // 4 ms is still within half as long again and 1 ms.
         read(Some(start + ms(30)), start + ms(34));
-        let (t, loose) = dated(&mut last).unwrap();
+        let (t, loose, _) = dated(&mut last).unwrap();
         assert!((t - 0.032).abs() < 1e-6 && !loose, "{t}");
         // Unasked: half a median poll before it came (a bucket's edge, within 2 %).
         read(None, start + ms(40));
-        let (t, loose) = dated(&mut last).unwrap();
+        let (t, loose, bounds) = dated(&mut last).unwrap();
         assert!((t - 0.039).abs() < 2e-5 && !loose, "{t}");
+        assert_eq!(bounds, (t, t));
     }
 
     /// A STOP (or a disengage) takes command away, then disengages: a run that looks

@@ -14,7 +14,8 @@
 //! A reading is timed at the middle of its status transaction, a command at the middle
 //! of its command transaction, as for a setpoint actuator; the new state is taken to
 //! have come halfway between the last reading without it and the first with it, so
-//! each time is good to half the interval between readings. The readings' period is
+//! each time is good to half the interval between readings ([`bracket`]: a reading
+//! whose poll stalled on a busy machine counts as taken anywhere in its poll). The readings' period is
 //! drawn anew for each shift ([`Shifter::vary_polls`]), so the shift time falls
 //! anywhere between two readings, and the simulator's `settle` is where most of the
 //! shifts' brackets overlap ([`analyze::deepest`]): good to a few ms.
@@ -113,6 +114,8 @@ struct Shifter<'a> {
     sent: Instant,
     last_at: Option<Instant>,
     samples: Vec<Sample>,
+    /// When each sample was taken, at the earliest and the latest ([`super::Fresh::bounds`]).
+    taken: Vec<(f64, f64)>,
     /// The next resend's interval, and where it is drawn from.
     resend: Duration,
     draw: u64,
@@ -165,8 +168,8 @@ impl Shifter<'_> {
     }
 
     /// One turn: end at once on what ends any run; keep the command alive; take a new
-    /// reading, if one came (one after a stall of the machine, or whose own poll
-    /// stalled, is left out: its time is not known well enough).
+    /// reading, if one came (one after a stall of the machine is left out: when it was
+    /// taken is not known; one whose own poll stalled is kept, taken anywhere in it).
     fn tick(&mut self) -> Result<(), Ended> {
         std::thread::sleep(Duration::from_millis(1));
         interrupted(self.gate, self.watch, self.id)?;
@@ -174,14 +177,14 @@ impl Shifter<'_> {
             self.command(self.set)?;
         }
         let d = self.gate.vehicle().device(self.id);
-        let fresh = super::fresh(d, &mut self.last_at, self.started).filter(|f| !f.loose);
-        if let Some(super::Fresh { reading, t, .. }) = fresh {
-            if let Some(y) = reading.get(self.reading) {
+        if let Some(f) = super::fresh(d, &mut self.last_at, self.started) {
+            if let Some(y) = f.reading.get(self.reading) {
                 self.samples.push(Sample {
-                    t,
+                    t: f.t,
                     commanded: f64::from(self.set),
                     measured: y,
                 });
+                self.taken.push(f.bounds());
             }
         }
         Ok(())
@@ -230,20 +233,7 @@ impl Shifter<'_> {
             }
         }
         let at = at.expect("waited for");
-        let first = (n0..self.samples.len())
-            .find(|&i| {
-                self.samples[i].measured == f64::from(to)
-                    && self.samples[i..]
-                        .iter()
-                        .all(|x| x.measured == f64::from(to))
-            })
-            .expect("the last reading shows it");
-        let before = if first > 0 {
-            self.samples[first - 1].t.max(at)
-        } else {
-            at
-        };
-        let after = self.samples[first].t.max(at);
+        let (first, (before, after)) = bracket(&self.samples, &self.taken, n0, to, at);
         let between = self.samples[n0..first]
             .iter()
             .filter(|x| x.t > at)
@@ -252,6 +242,28 @@ impl Shifter<'_> {
             .collect();
         Ok((((before - at) * 1e3, (after - at) * 1e3), between))
     }
+}
+
+/// When state `to`, commanded to arrive at `at`, came, seconds after the start: the
+/// first of the readings since `n0` from which on every one shows it (its index), and
+/// the bracket from the last reading without it (at its earliest: the state changed
+/// after it was taken) to that first one (at its latest: before it was taken), neither
+/// before `at`. A reading whose poll stalled widens the bracket by what is not known of
+/// it and never moves it past the truth, as leaving it out would (to the next reading).
+/// The last sample shows `to`.
+fn bracket(
+    samples: &[Sample],
+    taken: &[(f64, f64)],
+    n0: usize,
+    to: u8,
+    at: f64,
+) -> (usize, (f64, f64)) {
+    let to = f64::from(to);
+    let first = (n0..samples.len())
+        .find(|&i| samples[i..].iter().all(|x| x.measured == to))
+        .expect("the last reading shows it");
+    let before = first.checked_sub(1).map_or(at, |i| taken[i].0.max(at));
+    (first, (before, taken[first].1.max(at)))
 }
 
 /// The most frequent state read between the old and the new one, if at least half the
@@ -299,6 +311,7 @@ pub(crate) fn run(gate: &Gate, watch: &super::Watch, device: &str) -> Result<Fig
         sent: now - RESEND,
         last_at: None,
         samples: Vec::new(),
+        taken: Vec::new(),
         resend: resend_every(gate),
         draw: std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -480,6 +493,44 @@ pub(crate) fn write_all(dir: &Path, f: &Figures) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The incident: on a busy CI machine, a reading of neutral whose poll stalled was
+    /// left out, and the shift into neutral (at once, in the simulator) was timed at the
+    /// readings after it: 34 ms for 0. A stalled reading now bounds the bracket by its
+    /// poll's edge: the old state's at its first byte, the new one's at its reply.
+    #[test]
+    fn a_reading_whose_poll_stalled_widens_the_bracket_and_never_moves_it_past_the_truth() {
+        let sample = |t: f64, measured: f64| Sample {
+            t,
+            commanded: 2.0,
+            measured,
+        };
+        // Reverse (1) read at 0.100; the shift to neutral (2) arrives at 0.105; neutral read
+        // in a stalled poll from 0.110 to 0.150, then at 0.160 and 0.185.
+        let samples = [
+            sample(0.100, 1.0),
+            sample(0.130, 2.0),
+            sample(0.160, 2.0),
+            sample(0.185, 2.0),
+        ];
+        let taken = [
+            (0.100, 0.100),
+            (0.110, 0.150),
+            (0.160, 0.160),
+            (0.185, 0.185),
+        ];
+        let (first, (lo, hi)) = bracket(&samples, &taken, 1, 2, 0.105);
+        assert_eq!(first, 1);
+        assert_eq!((lo, hi), (0.105, 0.150));
+        // A stalled reading of the old state after the arrival: at its first byte.
+        let samples = [sample(0.120, 1.0), sample(0.145, 2.0)];
+        let taken = [(0.108, 0.132), (0.145, 0.145)];
+        assert_eq!(bracket(&samples, &taken, 0, 2, 0.105), (1, (0.108, 0.145)));
+        // A state seen, lost and seen again: from the last time it was lost.
+        let samples = [sample(0.12, 2.0), sample(0.14, 1.0), sample(0.16, 2.0)];
+        let taken = [(0.12, 0.12), (0.14, 0.14), (0.16, 0.16)];
+        assert_eq!(bracket(&samples, &taken, 0, 2, 0.105), (2, (0.14, 0.16)));
+    }
 
     #[test]
     fn the_circuit_takes_every_transition_once_from_home_back_to_home() {
