@@ -29,12 +29,19 @@ pub enum Then {
     /// kernel has taken them, as adrive stamps its first byte: the floor of a command
     /// that has to reach a port.
     Write,
+    /// The same write, stamped when the thread draining the pseudo-terminal's other end
+    /// reads the bytes: the write's return comes before the bytes are on their way or
+    /// after, as the kernel's worker that delivers them happens to run (docs/
+    /// performance.md, "What a pty write costs"); their arrival is one event whatever
+    /// ran first.
+    Deliver,
 }
 
-/// A raw pseudo-terminal whose master side is drained by a thread of its own; the
-/// slave to write to.
+/// A raw pseudo-terminal whose master side is drained by a thread of its own: the
+/// slave to write to, and the thread, which ends when the slave is closed and returns
+/// how long after the instant last put in `sent` each read that found it returned.
 #[allow(unsafe_code)]
-fn pty() -> std::fs::File {
+fn pty(sent: Arc<Mutex<Option<Instant>>>) -> (std::fs::File, JoinHandle<Vec<Duration>>) {
     use std::io::Read;
     let (master, slave) = crate::common::pty::openpty(80, 24);
     for fd in [&master, &slave] {
@@ -48,11 +55,17 @@ fn pty() -> std::fs::File {
         }
     }
     let mut m = std::fs::File::from(master);
-    std::thread::spawn(move || {
+    let drain = std::thread::spawn(move || {
         let mut buf = [0u8; 4096];
-        while matches!(m.read(&mut buf), Ok(n) if n > 0) {}
+        let mut out = Vec::with_capacity(8192);
+        while matches!(m.read(&mut buf), Ok(n) if n > 0) {
+            if let Some(t) = sent.lock().take() {
+                out.push(t.elapsed());
+            }
+        }
+        out
     });
-    std::fs::File::from(slave)
+    (std::fs::File::from(slave), drain)
 }
 
 /// Wakes measured at `rate` Hz in the background until [`Floor::finish`].
@@ -60,6 +73,8 @@ pub struct Floor {
     stop: Arc<AtomicBool>,
     waker: Option<JoinHandle<()>>,
     waiter: Option<JoinHandle<Vec<Duration>>>,
+    /// The delivery's stamps ([`Then::Deliver`]).
+    drain: Option<JoinHandle<Vec<Duration>>>,
     pair: Arc<(Mutex<Option<Instant>>, Condvar)>,
 }
 
@@ -79,7 +94,14 @@ impl Floor {
     }
 
     pub fn start_then(rate: f64, cpus: Cpus, then: Then) -> Floor {
-        let mut port = matches!(then, Then::Write).then(pty);
+        let sent = Arc::new(Mutex::new(None::<Instant>));
+        let (mut port, drain) = match then {
+            Then::Stamp => (None, None),
+            Then::Write | Then::Deliver => {
+                let (port, drain) = pty(sent.clone());
+                (Some(port), Some(drain))
+            }
+        };
         let pair = Arc::new((Mutex::new(None::<Instant>), Condvar::new()));
         let stop = Arc::new(AtomicBool::new(false));
         let (p, s) = (pair.clone(), stop.clone());
@@ -98,9 +120,14 @@ impl Floor {
                 if let Some(t) = g.take() {
                     if let Some(p) = port.as_mut() {
                         use std::io::Write;
+                        if matches!(then, Then::Deliver) {
+                            *sent.lock() = Some(t);
+                        }
                         let _ = p.write(b"! 0.250\n");
                     }
-                    out.push(t.elapsed());
+                    if !matches!(then, Then::Deliver) {
+                        out.push(t.elapsed());
+                    }
                 }
                 p.1.wait(&mut g);
             }
@@ -125,6 +152,7 @@ impl Floor {
             stop,
             waker: Some(waker),
             waiter: Some(waiter),
+            drain,
             pair,
         }
     }
@@ -141,6 +169,10 @@ impl Floor {
             .take()
             .map(|w| w.join().unwrap())
             .unwrap_or_default();
+        // The waiter has dropped the slave: the drain thread reads its end and ends.
+        if let Some(d) = self.drain.take() {
+            v.extend(d.join().unwrap());
+        }
         v.sort();
         v
     }

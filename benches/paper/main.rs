@@ -513,6 +513,7 @@ fn section0_floor() {
         ("on two CPUs", Cpus::Apart, Then::Stamp),
         ("… then an 8-byte pty write", Cpus::Any, Then::Write),
         ("… the same on one CPU", Cpus::Same, Then::Write),
+        ("… to the bytes read", Cpus::Any, Then::Deliver),
     ] {
         let f = Floor::start_then(100.0, cpus, then);
         std::thread::sleep(Duration::from_secs(3));
@@ -523,7 +524,7 @@ fn section0_floor() {
             quantile(&v, 0.99)
         );
     }
-    println!("(the write stamped once the kernel has taken it, as adrive stamps its first byte)");
+    println!("(the write stamped once the kernel has taken it, as adrive stamps its first byte; \"to the bytes read\": stamped when a thread reading the terminal's other end has them)");
 }
 
 fn section1_idle_port(dir: &tempfile::TempDir, secs: f64, r: &mut Results) {

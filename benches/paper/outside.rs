@@ -433,6 +433,7 @@ impl Relay {
                 steps.push(0, received.saturating_sub(s.sent));
                 steps.push(3, written.saturating_sub(received));
                 steps.push(5, s.seen.saturating_sub(written));
+                steps.push(7, s.seen.saturating_sub(received));
             }
         }
         steps
@@ -449,13 +450,13 @@ impl Drop for Relay {
 /// The steps of the way from outside, as [`STEPS`] lists them: each step's durations.
 #[derive(Default)]
 struct Steps {
-    d: [Vec<Duration>; 7],
+    d: [Vec<Duration>; 8],
     fast: usize,
     matched: usize,
 }
 
 /// What each step of [`Steps`] is.
-const STEPS: [&str; 7] = [
+const STEPS: [&str; 8] = [
     "sendto → the listener's read returns (loopback UDP, the listener's wake)",
     "the network's checks: sender, grammar, key, counter",
     "the one intake: ownership, value, interlocks",
@@ -463,6 +464,7 @@ const STEPS: [&str; 7] = [
     "  (fast path: to its send returning, the trace included; a preempted write shows here)",
     "write → first byte read at the device (pty delivery, reader's wake)",
     "after the write, the listener busy until it reads again",
+    "inside: the read returns → first byte read at the device (all but the UDP hop)",
 ];
 
 impl Steps {
@@ -501,6 +503,7 @@ impl Steps {
                 s.push(4, fast.saturating_sub(checked));
             }
             s.push(5, x.seen.saturating_sub(first));
+            s.push(7, x.seen.saturating_sub(rcv));
             if handled != 0 {
                 s.push(6, handled.saturating_sub(first));
             }
@@ -517,7 +520,7 @@ impl Steps {
                 continue;
             }
             let p50 = p(&self.d[i], 0.5);
-            if i != 4 && i != 6 {
+            if i < 4 || i == 5 {
                 sum += p50;
             }
             println!("     {what:<76} {p50:>7.1} {:>8.1}", p(&self.d[i], 0.99));
@@ -935,6 +938,32 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     };
     if let (Some(a), Some(b)) = (one(Method::Interleaved), one(Method::Rounds)) {
         println!("one device, line, against its relay: interleaved {a}; in rounds {b}");
+    }
+    // Inside, from the same stamps for both: the listener's read returning to the byte
+    // read at the device. The floor of a command path that hands over to no thread is
+    // the relay's own span; both end at the byte's delivery, not at a `write` that
+    // returns before or after it, as the kernel's worker happens to run.
+    let inside = |m: Method| {
+        let i = rows
+            .iter()
+            .position(|r| r.method == m && r.proto == Proto::Line && r.others == 0)?;
+        let m = &results[i][best[i]?];
+        let q = |d: &[Duration], q| quantile(&sorted(d.to_vec()), q);
+        let (a, r) = (&m.steps.d[7], &m.relay_steps.d[7]);
+        (!a.is_empty() && !r.is_empty()).then(|| {
+            format!(
+                "{:.1} / {:.1} µs against {:.1} / {:.1}: p50 {:.2}×, p99 {:.2}×",
+                q(a, 0.5),
+                q(a, 0.99),
+                q(r, 0.5),
+                q(r, 0.99),
+                q(a, 0.5) / q(r, 0.5),
+                q(a, 0.99) / q(r, 0.99)
+            )
+        })
+    };
+    if let (Some(a), Some(b)) = (inside(Method::Interleaved), inside(Method::Rounds)) {
+        println!("one device, line, inside (the read returns → the byte read at the device), p50 / p99 against its relay's: interleaved {a}; in rounds {b}");
     }
     println!("\nWhere the time goes, p50 and p99 µs of each step (stamps: the planner's sendto and the device's read here, adrive's probe inside):");
     let rounds_row = rows.iter().position(|r| r.method == Method::Rounds);
