@@ -737,6 +737,26 @@ fn adrive_row(dir: &Path, sims: &Sims, row: &Row, sent: u64, relay: &mut Relay) 
     }
 }
 
+/// The method's own noise (an A/A row): a second bare relay, a process of its own,
+/// against `relay`, their datagrams interleaved in one window of `sent` each as a row's
+/// are with adrive's; the second's p50 and p99 against the first's. The same program
+/// on both sides: whatever ratio this gives, the machine gave.
+fn a_a(relay: &mut Relay, sent: u64) -> (f64, f64) {
+    let twin = Relay::start(None);
+    relay.clear();
+    twin.clear();
+    let names = ["relay".to_string(), "twin".to_string()];
+    let s = measure(&names, &[(0, &relay.end), (1, &twin.end)], sent, |t| {
+        if t.starts_with("twin ") {
+            twin.send(t)
+        } else {
+            relay.send(t)
+        }
+    });
+    let ((p50, p99, _), (t50, t99, _)) = (figures(&totals(&s[0])), figures(&totals(&s[1])));
+    (t50 / p50, t99 / p99)
+}
+
 /// The simulators the rows share: idle actuators (polled once a second) and polling
 /// ones (20 Hz), started once for the section.
 struct Sims {
@@ -898,6 +918,7 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
             }
         }
     }
+    let aa: Vec<(f64, f64)> = (0..2).map(|_| a_a(&mut relay, sent)).collect();
     drop(relay);
     drop(rt_relay);
     // Each row's better round: the lower p50 against the relay of its window.
@@ -939,6 +960,15 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     if let (Some(a), Some(b)) = (one(Method::Interleaved), one(Method::Rounds)) {
         println!("one device, line, against its relay: interleaved {a}; in rounds {b}");
     }
+    let aa: Vec<String> = aa
+        .iter()
+        .enumerate()
+        .map(|(i, (p50, p99))| format!("({}) p50 {p50:.2}×, p99 {p99:.2}×", i + 1))
+        .collect();
+    println!(
+        "the method's own noise: a second bare relay against the first, interleaved as the rows are, two windows: {}",
+        aa.join("; ")
+    );
     // Inside, from the same stamps for both: the listener's read returning to the byte
     // read at the device. The floor of a command path that hands over to no thread is
     // the relay's own span; both end at the byte's delivery, not at a `write` that
