@@ -949,11 +949,15 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     );
     table.print(Method::Rounds);
     println!("(rl: the relay of the window after adrive's; both windows' load is whatever the machine had then: interleaved, both figures see the same load, in rounds each sees its own, and adrive's window has its device polled beside it.)");
-    let one = |m: Method| {
+    // The one-device row on the line protocol measured by method `m`, its better round.
+    let one_device = |m: Method| {
         let i = rows
             .iter()
             .position(|r| r.method == m && r.proto == Proto::Line && r.others == 0)?;
-        let m = &results[i][best[i]?];
+        Some(&results[i][best[i]?])
+    };
+    let one = |m: Method| {
+        let m = one_device(m)?;
         let ((p50, p99, _), (r50, r99, _)) = (m.first(), m.relay());
         Some(format!("p50 {:.2}×, p99 {:.2}×", p50 / r50, p99 / r99))
     };
@@ -974,10 +978,7 @@ pub fn section11_outside(dir: &tempfile::TempDir, secs: f64) {
     // the relay's own span; both end at the byte's delivery, not at a `write` that
     // returns before or after it, as the kernel's worker happens to run.
     let inside = |m: Method| {
-        let i = rows
-            .iter()
-            .position(|r| r.method == m && r.proto == Proto::Line && r.others == 0)?;
-        let m = &results[i][best[i]?];
+        let m = one_device(m)?;
         let q = |d: &[Duration], q| quantile(&sorted(d.to_vec()), q);
         let (a, r) = (&m.steps.d[7], &m.relay_steps.d[7]);
         (!a.is_empty() && !r.is_empty()).then(|| {

@@ -15,10 +15,10 @@
 //! of its command transaction, as for a setpoint actuator; the new state is taken to
 //! have come halfway between the last reading without it and the first with it, so
 //! each time is good to half the interval between readings ([`bracket`]: a reading
-//! whose poll stalled on a busy machine counts as taken anywhere in its poll). The readings' period is
-//! drawn anew for each shift ([`Shifter::vary_polls`]), so the shift time falls
-//! anywhere between two readings, and the simulator's `settle` is where most of the
-//! shifts' brackets overlap ([`analyze::deepest`]): good to a few ms.
+//! whose poll stalled on a busy machine counts as taken anywhere in its poll). The
+//! readings' period is drawn anew for each shift ([`Shifter::vary_polls`]), so the
+//! shift time falls anywhere between two readings, and the simulator's `settle` is
+//! where most of the shifts' brackets overlap ([`analyze::deepest`]): good to a few ms.
 
 use super::analyze::{self, Sample};
 use super::write::{self, Frame, COMMAND, UP};
