@@ -212,25 +212,34 @@ impl Deadline {
 /// One read of at most `buf.len()` bytes that waits no longer than `deadline` allows.
 /// Returns how many bytes arrived (at least one); the deadline passing is
 /// [`DriverError::Timeout`], the port closing is an I/O error.
+///
+/// Come to read at or after the deadline (this thread ran late: a loaded machine), what
+/// has arrived is still read, without waiting: a device that answered in time is not a
+/// device that did not. Only what has arrived: the first read that finds nothing is the
+/// timeout, so nothing arriving later stretches the exchange.
 pub(crate) fn read_some(
     link: &mut dyn Link,
     buf: &mut [u8],
     deadline: &Deadline,
 ) -> Result<usize, DriverError> {
     loop {
-        deadline.arm(link)?;
+        let left = deadline.at.saturating_duration_since(Instant::now());
+        link.set_timeout(left)?;
         match link.read(buf) {
             Ok(0) => return Err(DriverError::Io(io::ErrorKind::UnexpectedEof.into())),
             Ok(n) => return Ok(n),
             Err(e) if e.kind() == io::ErrorKind::TimedOut => return Err(deadline.expired()),
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            // Woken with nothing after all: wait again for the time left, if any.
+            Err(e) if e.kind() == io::ErrorKind::Interrupted && !left.is_zero() => {}
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => return Err(deadline.expired()),
             Err(e) => return Err(DriverError::Io(e)),
         }
     }
 }
 
 /// Read from `link` until `terminator` arrives (included in `buf`), the reply grows past
-/// `max` bytes, or `deadline` passes.
+/// `max` bytes, or `deadline` passes (what has arrived by then read, as [`read_some`]
+/// reads it).
 pub(crate) fn read_until(
     link: &mut dyn Link,
     buf: &mut Vec<u8>,
@@ -239,33 +248,8 @@ pub(crate) fn read_until(
     deadline: &Deadline,
 ) -> Result<(), DriverError> {
     let mut chunk = [0u8; 64];
-    let mut looked_late = false;
     loop {
-        // Come to read after the deadline (this thread ran late: a loaded machine), what
-        // has arrived is still looked at once, without waiting: a device that answered
-        // in time is not a device that did not. One look: nothing arriving later
-        // stretches the exchange.
-        let n = if deadline.remaining().is_err() {
-            if std::mem::replace(&mut looked_late, true) {
-                return Err(deadline.expired());
-            }
-            link.set_timeout(Duration::ZERO)?;
-            match link.read(&mut chunk) {
-                Ok(0) => return Err(DriverError::Io(io::ErrorKind::UnexpectedEof.into())),
-                Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        io::ErrorKind::TimedOut | io::ErrorKind::Interrupted
-                    ) =>
-                {
-                    return Err(deadline.expired())
-                }
-                Err(e) => return Err(DriverError::Io(e)),
-            }
-        } else {
-            read_some(link, &mut chunk, deadline)?
-        };
+        let n = read_some(link, &mut chunk, deadline)?;
         buf.extend_from_slice(&chunk[..n]);
         if buf.contains(&terminator) {
             return Ok(());
@@ -370,10 +354,9 @@ mod tests {
     }
 
     /// A reply already there when a late thread comes to read it, past the deadline, is
-    /// taken; one look only: what is not complete then is a timeout, and the device is
-    /// asked nothing more.
+    /// taken; only what has arrived: what is not complete then is a timeout.
     #[test]
-    fn a_reply_read_late_is_still_a_reply_and_looked_at_once() {
+    fn a_reply_read_late_is_still_a_reply_and_only_what_has_arrived() {
         use super::mock::{MockLink, Step};
         let late = || {
             let d = Deadline::after(Duration::from_millis(1));
@@ -385,13 +368,18 @@ mod tests {
         let r = read_until(&mut link, &mut reply, b'\n', 100, &late());
         assert!(r.is_ok(), "{r:?}");
         assert_eq!(reply, b"ok\n");
-        // Half a reply: one look, then the timeout (a second read would find the
-        // script empty and panic).
-        let mut link = MockLink::new([Step::Rx(b"ok".to_vec())]);
+        // Half a reply: the next look finds nothing, and that is the timeout (a read
+        // after it would find the script empty and panic).
+        let mut link = MockLink::new([Step::Rx(b"ok".to_vec()), Step::Silence]);
         let mut reply = Vec::new();
         let r = read_until(&mut link, &mut reply, b'\n', 100, &late());
         assert!(matches!(r, Err(DriverError::Timeout(_))), "{r:?}");
         assert_eq!(reply, b"ok");
+        assert_eq!(
+            link.timeout,
+            Some(Duration::ZERO),
+            "a late look never waits"
+        );
     }
 
     #[test]

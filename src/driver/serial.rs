@@ -164,6 +164,59 @@ mod tests {
         got
     }
 
+    /// A deadline `budget` long that has passed (the reader's thread ran late).
+    fn expired(budget: Duration) -> Deadline {
+        let d = Deadline::after(budget);
+        while d.remaining().is_ok() {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        d
+    }
+
+    /// For every reader of a reply (a frame read by its length, a bus's adapter, a
+    /// line): a thread come late to a reply that is there takes it; and a device
+    /// trickling bytes after the deadline cannot hold the late reader, which takes what
+    /// has arrived and stops at the first look that finds nothing.
+    #[test]
+    fn a_late_reader_takes_what_arrived_and_a_trickle_cannot_hold_it() {
+        use std::sync::atomic::{AtomicBool, Ordering::Relaxed};
+        let (mut device, mut host) = pair();
+        device.write_all(&[0x01, 0x06, 0x00]).unwrap();
+        host.wait(PollFlags::IN).unwrap();
+        let mut buf = [0u8; 3];
+        let r = read_some(&mut host, &mut buf, &expired(Duration::from_millis(1)));
+        assert!(matches!(r, Ok(n) if n > 0), "{r:?}");
+        // The trickle: a byte every 5 ms, for a reader whose budget was 2 s (one that
+        // waited for it would read the 1000 bytes its reply may have, for 5 s).
+        let stop = std::sync::Arc::new(AtomicBool::new(false));
+        let s = stop.clone();
+        let trickle = std::thread::spawn(move || {
+            while !s.load(Relaxed) && device.write_all(b"x").is_ok() {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        });
+        host.set_timeout(Duration::from_secs(5)).unwrap();
+        host.wait(PollFlags::IN).unwrap();
+        let budget = Duration::from_secs(2);
+        let d = expired(budget);
+        let started = Instant::now();
+        let mut reply = Vec::new();
+        let r = read_until(&mut host, &mut reply, b'\n', 1000, &d);
+        let took = started.elapsed();
+        stop.store(true, Relaxed);
+        trickle.join().unwrap();
+        assert!(
+            matches!(r, Err(DriverError::Timeout(t)) if t == budget),
+            "{r:?}"
+        );
+        assert!(!reply.is_empty(), "what had arrived was read");
+        assert!(
+            took < budget,
+            "a late reader was held {took:?} by a trickle ({} bytes)",
+            reply.len()
+        );
+    }
+
     #[test]
     fn bytes_go_both_ways() {
         let (mut device, mut host) = pair();

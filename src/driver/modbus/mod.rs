@@ -520,6 +520,37 @@ pub(crate) mod tests {
         }
     }
 
+    /// The echo there when the command's thread comes to read it after the deadline (a
+    /// loaded machine): the device answered in time, and the frame — read by its
+    /// length, in more than one read — is taken.
+    #[test]
+    fn an_echo_there_when_a_late_thread_reads_it_is_taken() {
+        let mut d = steer();
+        let write = Request::WriteSingle {
+            addr: 0,
+            value: 2500,
+        };
+        let mut link = MockLink::new([tx(encode_request(1, &write))]);
+        d.send_command(&mut link, Command::Set(0.25)).unwrap();
+        drop(link);
+        std::thread::sleep(T + Duration::from_millis(10));
+        let echo = encode_response(
+            1,
+            &Response::WriteSingle {
+                addr: 0,
+                value: 2500,
+            },
+        );
+        let mut link = MockLink::new([rx(&echo)]);
+        let r = d.finish_command(&mut link);
+        assert!(r.is_ok(), "{r:?}");
+        assert_eq!(
+            link.timeout,
+            Some(Duration::ZERO),
+            "a late look never waits"
+        );
+    }
+
     #[test]
     fn silence_is_a_timeout_and_a_cut_reply_is_garbled() {
         let req = encode_request(1, &Request::ReadInput { addr: 0, count: 3 });
