@@ -38,18 +38,15 @@ pub enum WireStep {
 /// this much more.
 const WIRE_SLACK: Duration = Duration::from_millis(50);
 
-/// When a wait at the wire for `d` gives up.
-fn wire_deadline(d: &Device) -> Instant {
-    Instant::now() + d.config().reply_timeout * 2 + WIRE_SLACK
+/// How long a wait at the wire for `d` may last before it gives up.
+fn wire_wait(d: &Device) -> Duration {
+    d.config().reply_timeout * 2 + WIRE_SLACK
 }
 
-/// The longest a command may wait at the wire for another device ([`Gate::wait_for`]).
+/// The longest a command may wait at the wire for another device ([`Gate::wait_for`]):
+/// the slowest of the devices waited for ([`facts::awaitable`]), none other.
 pub(crate) fn longest_wire_wait(v: &crate::vehicle::Vehicle) -> Duration {
-    v.devices()
-        .iter()
-        .map(|d| d.config().reply_timeout * 2 + WIRE_SLACK)
-        .max()
-        .unwrap_or_default()
+    facts::awaitable(v).map(wire_wait).max().unwrap_or_default()
 }
 
 /// How long a turn of `d`'s command thread may take: its sleep on the slot (a resend is
@@ -327,9 +324,10 @@ impl Gate {
         if let Some(c) = a.first {
             self.store(a.device, c, Instant::now());
         }
-        a.device
-            .slot()
-            .wait_wire(|s| (a.over)(a.device, s), wire_deadline(a.device));
+        a.device.slot().wait_wire(
+            |s| (a.over)(a.device, s),
+            Instant::now() + wire_wait(a.device),
+        );
     }
 }
 
@@ -340,12 +338,19 @@ mod tests {
     use crate::testkit as sample;
     use std::sync::Arc;
 
-    /// The longest wait at the wire is the slowest device's: two of its reply timeouts
-    /// and the slack (Alice's OBD adapter: 500 ms twice and 50 ms).
+    /// The longest wait at the wire is the slowest awaited device's: two of its reply
+    /// timeouts and the slack (Alice's gearbox: 200 ms twice and 50 ms; never her OBD
+    /// adapter's 500 ms, a sensor no command waits for, which would loosen every
+    /// command thread's watchdog by 600 ms); none on a vehicle without pedals or gears.
     #[test]
-    fn the_longest_wait_at_the_wire_is_the_slowest_devices() {
+    fn the_longest_wait_at_the_wire_is_the_slowest_awaited_devices() {
         let v = crate::testkit::vehicle(Instant::now());
-        assert_eq!(longest_wire_wait(&v), Duration::from_millis(1050));
+        assert_eq!(longest_wire_wait(&v), Duration::from_millis(450));
+        let text = "[vehicle]\nname = \"t\"\n[[device]]\nname = \"steer\"\nkind = \"setpoint\"\n\
+                    range = [-1.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"900ms\"\nstatus_max_age = \"2s\"\n";
+        let config = crate::config::parse(text, "t.toml").expect("a vehicle of one device");
+        let bare = crate::testkit::vehicle_of(config, Instant::now());
+        assert_eq!(longest_wire_wait(&bare), Duration::ZERO);
     }
 
     /// Alice's sample with the brake sent full and its release waiting in its slot.

@@ -220,6 +220,15 @@ pub(crate) struct Awaited<'a> {
     pub over: fn(&Device, &WireState) -> bool,
 }
 
+/// Every device a command thread may wait at the wire for: the one each [`Wait`] names,
+/// where it is bound. No other device — a sensor, the steering — is ever waited for.
+pub(crate) fn awaitable(v: &Vehicle) -> impl Iterator<Item = &Device> {
+    Wait::ALL
+        .into_iter()
+        .filter_map(|w| awaited(v, w))
+        .map(|a| a.device)
+}
+
 /// What waiting for `w` means on `v` (`None`: the device waited for is not bound).
 pub(crate) fn awaited(v: &Vehicle, w: Wait) -> Option<Awaited<'_>> {
     let b = v.bindings();
@@ -290,6 +299,22 @@ mod tests {
 
     fn device<'a>(v: &'a Vehicle, name: &str) -> &'a Device {
         v.find(name).unwrap()
+    }
+
+    /// The devices a command may wait for are Alice's throttle, brake and gearbox —
+    /// the one device each wait names — and no other: not the steering, not a sensor.
+    #[test]
+    fn only_the_pedals_and_the_gearbox_are_ever_waited_for() {
+        let v = crate::testkit::vehicle(Instant::now());
+        let names: Vec<&str> = awaitable(&v).map(|d| d.name()).collect();
+        assert_eq!(names, ["gas", "brake", "trans"]);
+        for (w, name) in Wait::ALL.into_iter().zip(names) {
+            // Exhaustive: a new wait is not compiled until it is listed in `ALL`.
+            match w {
+                Wait::ThrottleReleased | Wait::BrakeReleased | Wait::ShiftOut => {}
+            }
+            assert_eq!(awaited(&v, w).unwrap().device.name(), name, "{w:?}");
+        }
     }
 
     /// The device went through a transaction of `c`, acknowledged or not.

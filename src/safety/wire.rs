@@ -38,6 +38,11 @@ pub enum Wait {
     ShiftOut,
 }
 
+impl Wait {
+    /// Every wait there is.
+    pub(crate) const ALL: [Wait; 3] = [Wait::ThrottleReleased, Wait::BrakeReleased, Wait::ShiftOut];
+}
+
 /// The verdict on `command` for a device that plays `plays`; `waited` says the thread
 /// already waited once (it then never waits again: braking goes out regardless).
 /// Throttle and brake set points are fractions of their range's top. Every refusal is
