@@ -889,22 +889,27 @@ mod tests {
     /// with `pos=n` (so a reply names the request it answers), one at a time, first 20
     /// ms after the deadline: no poll takes another request's answer, the failures say
     /// it is slower than its reply timeout, and once it is fast again every reply taken
-    /// is its own request's.
+    /// is its own request's. The drain waits for a whole reply timeout of quiet (200
+    /// ms, which its `status_max_age` affords): the device's thread may be scheduled
+    /// 180 ms late (a loaded machine) and its reply still come within it — the scenario
+    /// holds there too (with 50 ms, 30 ms late was a reply after the drain, the case no
+    /// drain can tell).
     #[test]
     fn a_late_reply_is_drained_never_taken_for_the_next_request_s() {
         use crate::config::protocol_map::Wire;
         use serialport::TTYPort;
         use std::sync::atomic::AtomicU64;
         let config = crate::config::one_device(
-            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"50ms\"\nstatus_max_age = \"500ms\"",
+            "name = \"d\"\nkind = \"setpoint\"\nrange = [-1.0, 1.0]\ndriver = \"line\"\nreply_timeout = \"200ms\"\nstatus_max_age = \"2s\"",
         );
+        assert_eq!(drain_quiet(&config), config.reply_timeout);
         let Wire::Line(map) = config.wire.clone() else {
             panic!("a line device")
         };
         let (mut device, host) = TTYPort::pair().expect("a pseudo-terminal pair");
         device.set_timeout(Duration::from_millis(20)).unwrap();
         // How late it answers, ms after a request arrives; u64::MAX stops it.
-        let slow = Arc::new(AtomicU64::new(70));
+        let slow = Arc::new(AtomicU64::new(220));
         let s = slow.clone();
         let served = std::thread::spawn(move || {
             let (mut n, mut line) = (0u64, Vec::new());
@@ -925,9 +930,10 @@ mod tests {
         // Opened again by its path after failed transactions, as a serial port is.
         let path = serialport::SerialPort::name(&host).expect("a pty's path");
         let mut host = Some(host);
+        let reply_timeout = config.reply_timeout;
         let opener: Opener = Box::new(move || match host.take() {
             Some(h) => Ok(Box::new(h) as Box<dyn Link>),
-            None => crate::driver::open_serial(&path, 115_200, Duration::from_millis(50)),
+            None => crate::driver::open_serial(&path, 115_200, reply_timeout),
         });
         let driver = Box::new(LineDriver::new(map, config.reply_timeout));
         let mut conn = Conn::new(
