@@ -187,9 +187,14 @@ impl Deadline {
         }
     }
 
+    /// The time left: zero once it has passed.
+    fn left(&self) -> Duration {
+        self.at.saturating_duration_since(Instant::now())
+    }
+
     /// The time left, or the timeout error once it has passed.
     pub(crate) fn remaining(&self) -> Result<Duration, DriverError> {
-        let left = self.at.saturating_duration_since(Instant::now());
+        let left = self.left();
         if left.is_zero() {
             Err(self.expired())
         } else {
@@ -223,7 +228,7 @@ pub(crate) fn read_some(
     deadline: &Deadline,
 ) -> Result<usize, DriverError> {
     loop {
-        let left = deadline.at.saturating_duration_since(Instant::now());
+        let left = deadline.left();
         link.set_timeout(left)?;
         match link.read(buf) {
             Ok(0) => return Err(DriverError::Io(io::ErrorKind::UnexpectedEof.into())),
