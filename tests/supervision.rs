@@ -660,17 +660,31 @@ fn a_vanished_device_is_waited_for_and_back_when_its_port_is() {
 
 /// The incident: a Modbus drive answering later than its reply timeout had its late
 /// reply taken as the answer to the next request about half the time — the panel
-/// showed a fresh age, and only `error_rate` fired. The simulated steering answers 120
-/// ms after each request (its reply timeout is 100 ms): every late reply is drained,
+/// showed a fresh age, and only `error_rate` fired. The simulated steering answers 220
+/// ms after each request (its reply timeout here 200 ms): every late reply is drained,
 /// none is taken as another request's answer — its reading is never refreshed while it
 /// is slow — and it is named silent, slower than its reply timeout. Fast again, it
 /// answers again.
+///
+/// The drain waits a whole reply timeout of quiet (steer's `status_max_age` is raised
+/// so that its silence rule affords it: the port's `drain_quiet`): the reply, 20 ms
+/// after the deadline, has 180 ms for the scheduler to be late on a loaded machine
+/// before it would be the later reply no drain can tell. Alice's own steering (100 ms,
+/// 250 ms) would leave it 55.
 #[test]
 fn a_drive_slower_than_its_reply_timeout_is_named_slow_and_no_reply_is_taken_for_another() {
-    let rig = Rig::supervised(&strict_alice(""));
+    let steer_at = ALICE_TOML.find("name = \"steer\"").unwrap();
+    let (before, after) = ALICE_TOML.split_at(steer_at);
+    let after = after
+        .replacen("status_max_age = \"250ms\"", "status_max_age = \"1s\"", 1)
+        .replacen("reply_timeout = \"100ms\"", "reply_timeout = \"200ms\"", 1);
+    let vehicle = strict_alice("").replacen(ALICE_TOML, &format!("{before}{after}"), 1);
+    assert_ne!(vehicle, strict_alice(""));
+    let rig = Rig::supervised(&vehicle);
     let steer = rig.device("steer");
+    assert_eq!(steer.config().reply_timeout, Duration::from_millis(200));
     wait_for("steer answering", || steer.cached().at.is_some());
-    rig.sim.apply("slow steer 120").unwrap();
+    rig.sim.apply("slow steer 220").unwrap();
     let slow = |rig: &Rig| {
         rig.vehicle
             .supervision()
@@ -683,8 +697,8 @@ fn a_drive_slower_than_its_reply_timeout_is_named_slow_and_no_reply_is_taken_for
     // From here, poll after poll, no reply is taken.
     let read_at = steer.cached().at;
     let polls = steer.stats().polls.load(Relaxed);
-    wait_for("twenty more polls", || {
-        steer.stats().polls.load(Relaxed) >= polls + 20
+    wait_for("ten more polls", || {
+        steer.stats().polls.load(Relaxed) >= polls + 10
     });
     assert_eq!(
         steer.cached().at,
