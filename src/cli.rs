@@ -104,20 +104,52 @@ pub enum Cmd {
     },
 }
 
+/// The vehicle a run drives: its file, simulated or on its ports, whole or some of its
+/// devices (`adrive`, `adrive serve`, `adrive characterize`).
 #[derive(Args, Debug, Clone, Default)]
-pub struct RunArgs {
+pub struct VehicleArgs {
     /// Vehicle TOML (default: the built-in simulated Alice).
     #[arg(long, value_name = "FILE")]
     pub config: Option<PathBuf>,
     /// Simulate every device on pseudo-terminals.
     #[arg(long)]
     pub sim: bool,
-    /// No console: log and keep figures only; SIGINT/SIGTERM stop safely.
-    #[arg(long)]
-    pub headless: bool,
     /// Run just these devices (repeatable, or comma-separated), for the bench.
     #[arg(long, value_name = "NAME", value_delimiter = ',')]
     pub only: Vec<String>,
+}
+
+impl VehicleArgs {
+    /// The vehicle file (or Alice) narrowed to `--only`, its ports' paths checked
+    /// unless simulated.
+    fn load(&self) -> anyhow::Result<VehicleConfig> {
+        let config = load(&self.config, &self.only)?;
+        if !self.sim {
+            config.check_ports()?;
+        }
+        Ok(config)
+    }
+
+    /// Every device's port opened and locked ([`open_ports`]); none when simulated.
+    fn open_ports(
+        &self,
+        config: &VehicleConfig,
+    ) -> anyhow::Result<std::collections::HashMap<String, Box<dyn driver::Link>>> {
+        if self.sim {
+            Ok(std::collections::HashMap::new())
+        } else {
+            open_ports(config)
+        }
+    }
+}
+
+#[derive(Args, Debug, Clone, Default)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub vehicle: VehicleArgs,
+    /// No console: log and keep figures only; SIGINT/SIGTERM stop safely.
+    #[arg(long)]
+    pub headless: bool,
     /// Keymap TOML merged over the built-in one (default: ~/.config/adrive/keymap.toml if present).
     #[arg(long, value_name = "FILE")]
     pub keymap: Option<PathBuf>,
@@ -224,15 +256,8 @@ pub struct CharacterizeArgs {
     /// listening only).
     #[arg(value_name = "DEVICE")]
     pub device: String,
-    /// Vehicle TOML (default: the built-in simulated Alice).
-    #[arg(long, value_name = "FILE")]
-    pub config: Option<PathBuf>,
-    /// Simulate every device on pseudo-terminals.
-    #[arg(long)]
-    pub sim: bool,
-    /// Run just these devices (repeatable, or comma-separated): the bench.
-    #[arg(long, value_name = "NAME", value_delimiter = ',')]
-    pub only: Vec<String>,
+    #[command(flatten)]
+    pub vehicle: VehicleArgs,
     /// Where to write summary.json, samples.csv, sim.toml and report.md [default:
     /// characterize-DEVICE].
     #[arg(long, value_name = "DIR")]
@@ -538,10 +563,7 @@ fn default_log_dir() -> PathBuf {
 
 /// `adrive run`: the engine with the console or headless.
 pub fn run(args: RunArgs) -> anyhow::Result<i32> {
-    let mut config = load(&args.config, &args.only)?;
-    if !args.sim {
-        config.check_ports()?;
-    }
+    let mut config = args.vehicle.load()?;
     if let Some(d) = args.terminal_timeout {
         config.console.terminal_timeout = d;
     }
@@ -582,11 +604,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     };
     // A port another adrive (or program) holds stops here too: each port is opened
     // and locked now, and handed to its device as its first open.
-    let opened = if args.sim {
-        std::collections::HashMap::new()
-    } else {
-        open_ports(&config)?
-    };
+    let opened = args.vehicle.open_ports(&config)?;
     // Every path given is what it must be before anything starts: the log's directory,
     // the recording's file (or directory of rolling files), the control socket's place.
     paths::create_dir("--log-dir", &log_dir).map_err(anyhow::Error::msg)?;
@@ -615,7 +633,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
     // So does a fleet id another vehicle on the network has.
     let mut member = fleet::join(joining.as_ref(), &config.vehicle.name)?;
-    let (sim, vehicle, recorder) = bring_up(args.sim, config, opened, tap, recording)?;
+    let (sim, vehicle, recorder) = bring_up(args.vehicle.sim, config, opened, tap, recording)?;
     let live = match args.foxglove {
         Some(addr) => Some(crate::foxglove::Foxglove::start(&vehicle, addr)?),
         None => None,
@@ -664,7 +682,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         let _ = exits.recv_timeout(panic_after);
         panic!("injected panic (--inject-panic main)");
     }
-    tracing::info!(threads = ?engine.thread_names(), sim = args.sim, "engine started");
+    tracing::info!(threads = ?engine.thread_names(), sim = args.vehicle.sim, "engine started");
     service_ready(&engine);
     let why = match keymap {
         None => headless::wait(&gate, &exits),
@@ -783,10 +801,7 @@ fn parse_range(text: &str) -> Result<[f64; 2], String> {
 /// `adrive characterize DEVICE`: the engine without a console or network, the
 /// procedures of [`crate::characterize`] as the one commander, then the safe state.
 pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
-    let mut config = load(&args.config, &args.only)?;
-    if !args.sim {
-        config.check_ports()?;
-    }
+    let mut config = args.vehicle.load()?;
     let Some(d) = config.devices.iter_mut().find(|d| d.name == args.device) else {
         anyhow::bail!("no device {:?} in {}", args.device, config.source);
     };
@@ -877,11 +892,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     if let Some(r) = &recording {
         check_recording(args.record.is_some(), r)?;
     }
-    let opened = if args.sim {
-        std::collections::HashMap::new()
-    } else {
-        open_ports(&config)?
-    };
+    let opened = args.vehicle.open_ports(&config)?;
     let tap = Arc::new(crate::vehicle::tap::Tap::default());
     let mut extra: Vec<logging::ExtraLayer> = Vec::new();
     if recording.is_some() {
@@ -889,7 +900,7 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     }
     let log = logging::init_with(true, Some(&log_dir), extra)?;
     let claimed = socket::path::bind(&socket_path).map_err(anyhow::Error::msg)?;
-    let (sim, vehicle, recorder) = bring_up(args.sim, config, opened, tap, recording)?;
+    let (sim, vehicle, recorder) = bring_up(args.vehicle.sim, config, opened, tap, recording)?;
     let gate = Arc::new(Gate::new(vehicle.clone()));
     gate.announce();
     let exits = exit::install()?;
