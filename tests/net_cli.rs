@@ -133,6 +133,47 @@ fn send_once_prints_the_reply_and_its_status_says_whether_it_was_refused() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("nothing is listening"));
 }
 
+/// A stream's status is its last reply's: refused to the end (a disengaged vehicle)
+/// is status 1, with the refusals counted; an `accel` refused while the gearbox
+/// shifts, outlived by the stream, is counted and is not its outcome (status 0), as
+/// the guide's planner stand-in is run.
+#[test]
+fn a_stream_s_status_is_whether_it_was_still_refused_at_its_end() {
+    // Held engaged for seconds: on the tolerant Alice.
+    let adrive = Adrive::start("stream", &common::tolerant_text(ALICE_TOML), "");
+    let watch = Watch::start(&adrive.broadcast);
+    watch.until("every device reporting", |v| v.gate.blockers.is_empty());
+    // At 10 a second each datagram is answered, and a refusal ends the stream's last
+    // 300 ms: 200 ms for a loaded machine to answer late.
+    let out = adrive.send(&["--rate", "10", "--count", "5", "steer", "0.2"]);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(
+        stdout.contains("rejected steer 0.2: disengaged"),
+        "{stdout}"
+    );
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains(" refused"), "{stderr}");
+
+    let out = adrive.send(&[
+        "--rate", "20", "--count", "60", "engage", "trans", "drive", "accel", "0.3",
+    ]);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(stdout.contains("accel_while_shifting"), "{stdout}");
+    assert!(stderr.contains(" refused"), "{stderr}");
+    assert_eq!(out.status.code(), Some(0), "{stdout}\n{stderr}");
+    // Its accel was carried once the shift was through (adrive answers that with
+    // nothing).
+    watch.until("gas at 0.3 in drive", |v| {
+        cmd(v, "gas", true) == Some(Value::Number(0.3))
+    });
+}
+
 #[test]
 fn send_with_a_key_signs_and_unsigned_datagrams_are_rejected() {
     let dir = tempdir("keyfile");

@@ -3,6 +3,7 @@
 //! which prints the state broadcast as it arrives.
 
 use super::auth::Auth;
+use super::intake::REPLY_EVERY;
 use super::proto::{self, NetCommand, Vocabulary, MAX_DATAGRAM};
 use crate::snapshot::{Assembler, Snapshot};
 use crate::value::{Keyword, Value};
@@ -25,8 +26,8 @@ pub(crate) const EXPECTED_REPLY_WAIT: Duration = Duration::from_secs(1);
 pub(crate) mod status {
     /// Sent, and nothing was refused.
     pub(crate) const OK: i32 = 0;
-    /// Something was refused, or nothing listens at the address (with `--rate`: the
-    /// last datagram found nothing listening).
+    /// Something was refused, or nothing listens at the address (with `--rate`: at its
+    /// end, [`still_refused`], or the last datagram found nothing listening).
     pub(crate) const REFUSED: i32 = 1;
     /// A bad command line.
     pub(crate) const USAGE: i32 = 2;
@@ -178,6 +179,9 @@ pub(crate) fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Res
     let mut refused_last = false;
     // An expected reply: got one yet, and said that it is overdue.
     let (mut replied, mut warned) = (false, false);
+    // Replies that refused something, when the last came, and whether the last reply's
+    // text refuses (a reply the same as the last is not read again).
+    let (mut refusals, mut refused_at, mut reply_refuses) = (0u64, None, false);
     eprintln!(
         "adrive send: {} a second to {}; Ctrl-C stops (the watchdog then stops the vehicle)",
         rate, opts.to
@@ -216,6 +220,7 @@ pub(crate) fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Res
                     replied = true;
                     let reply = String::from_utf8_lossy(&buf[..n]).into_owned();
                     if reply != last_reply {
+                        reply_refuses = refused(&reply);
                         // Sending is the job: an output nobody reads (`| head`) is no
                         // reason to stop commanding the vehicle.
                         let mut out = io::stdout().lock();
@@ -225,6 +230,10 @@ pub(crate) fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Res
                         }
                         let _ = out.flush();
                         last_reply = reply;
+                    }
+                    if reply_refuses {
+                        refusals += 1;
+                        refused_at = Some(Instant::now());
                     }
                 }
                 Err(e) if e.kind() == io::ErrorKind::ConnectionRefused => {
@@ -259,24 +268,40 @@ pub(crate) fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Res
         // the asked rate holds; a planner at 20 Hz never sends a burst.
         next = next.max(Instant::now() - period.max(CATCH_UP));
     }
+    let refused_at_end = refused_at.is_some_and(|t| t.elapsed() <= still_refused(period));
     eprintln!(
-        "adrive send: sent {sent} datagrams in {:.1} s{}",
+        "adrive send: sent {sent} datagrams in {:.1} s{}{}",
         start.elapsed().as_secs_f64(),
+        match refusals {
+            0 => String::new(),
+            1 => "; a reply refused something".into(),
+            n => format!("; {n} replies refused something"),
+        },
         if refused_last {
             format!("; nothing is listening at {}", opts.to)
         } else {
             String::new()
         }
     );
-    // As for one datagram: nothing listening at the end is status 1, before a missing
-    // reply (nothing could have answered).
-    Ok(if refused_last {
+    // As for one datagram, at its end: something refused, or nothing listening, is
+    // status 1, before a missing reply (nothing could have answered).
+    Ok(if refused_last || refused_at_end {
         status::REFUSED
     } else if expects_reply && !replied {
         status::NO_REPLY
     } else {
         status::OK
     })
+}
+
+/// How recent a refusal must be, at the end of a stream sent every `period`, for the
+/// stream to have ended refused: its last three periods, and 60 ms at least. adrive
+/// answers an accepted command with nothing and a sender at most every
+/// [`REPLY_EVERY`]: a stream refused to its end has had a refusal within two of the
+/// longer of the two (a third for a late reply), and one that outlived its refusals
+/// (an `accel` while the gearbox shifts) has had none since.
+fn still_refused(period: Duration) -> Duration {
+    3 * period.max(REPLY_EVERY)
 }
 
 /// How far behind its schedule `send --rate` may fall before it gives up making up
