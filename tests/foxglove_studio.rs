@@ -13,7 +13,7 @@ mod common;
 mod node_env;
 
 use adrive::record::read::Recording;
-use common::headless::Adrive;
+use common::headless::{Adrive, Watch};
 use common::DEADLINE;
 use serde_json::{json, Value};
 use std::collections::BTreeMap;
@@ -68,9 +68,10 @@ fn field<'a>(v: &'a Value, topic: &str, ty: &str, field: &str) -> &'a Value {
 }
 
 /// Alice, simulated, recording to `file` (raw traffic too), driven by a planner that
-/// engages and steers for two seconds. She is made tolerant of this shared machine's
-/// stalls ([`common::tolerant_text`]): what is proved is the recording, not device
-/// timing.
+/// engages, once she can be, and steers for two seconds. She is made tolerant of this
+/// shared machine's stalls ([`common::tolerant_text`]): what is proved is the
+/// recording, not device timing. The planner's status is not asked: its `accel` may
+/// still be refused at its end, the gearbox shifting.
 fn recorded_drive(tag: &str, file: &Path) -> Adrive {
     let file = file.display().to_string();
     let a = Adrive::start_with(
@@ -79,10 +80,12 @@ fn recorded_drive(tag: &str, file: &Path) -> Adrive {
         "",
         &["--record", &file, "--record-raw"],
     );
+    Watch::start(&a.broadcast).until("every device reporting", |v| v.gate.blockers.is_empty());
     let out = a.send(&[
         "--rate", "20", "--count", "40", "engage", "trans", "drive", "steer", "0.2", "accel", "0.2",
     ]);
-    assert!(out.status.success(), "{out:?}");
+    let replies = String::from_utf8_lossy(&out.stdout);
+    assert!(replies.contains("ok engaged"), "{out:?}");
     a
 }
 
