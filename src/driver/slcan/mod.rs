@@ -29,6 +29,7 @@ use crate::can::{Frame, Id};
 use crate::config::can::{BusConfig, CanMap};
 use crate::driver::{Driver, DriverError, Link};
 use crate::value::{Command, Control, Reading};
+use arrayvec::ArrayVec;
 use parking_lot::Mutex;
 use proto::Bitrate;
 use std::collections::BTreeMap;
@@ -358,20 +359,33 @@ impl CanDriver {
         Ok(())
     }
 
-    /// After a command: the enable message once the vehicle is engaged, the disable
-    /// message every time it is not.
-    fn follow_gate(&mut self, link: &mut dyn Link) -> Result<(), DriverError> {
-        if self.bus.kits_enabled() {
-            if let (Some(id), false) = (self.map.enable, self.enabled_sent) {
-                self.send(&self.control_frame(id), link)?;
-                self.enabled_sent = true;
-            }
+    /// A command's frame, and after it the enable message once the vehicle is engaged,
+    /// the disable message every time it is not — in one write, under the bus's lock
+    /// once: nothing closes the adapter between them (the bus reader going down, at exit
+    /// or on a failing port), so a kit never hears a command its disable does not follow.
+    fn send_following_gate(
+        &mut self,
+        frame: &Frame,
+        link: &mut dyn Link,
+    ) -> Result<(), DriverError> {
+        let engaged = self.bus.kits_enabled();
+        let after = if engaged {
+            self.map.enable.filter(|_| !self.enabled_sent)
         } else {
-            self.enabled_sent = false;
-            if let Some(id) = self.map.disable {
-                self.send(&self.control_frame(id), link)?;
-            }
+            self.map.disable
+        };
+        let mut lines = ArrayVec::<u8, { 2 * proto::MAX_LINE }>::new();
+        lines.extend(proto::encode_command(&proto::Command::Transmit(*frame)));
+        let after = after.map(|id| self.control_frame(id));
+        if let Some(f) = &after {
+            lines.extend(proto::encode_command(&proto::Command::Transmit(*f)));
         }
+        link.write_all(&lines)?;
+        self.bus.sent(frame);
+        if let Some(f) = &after {
+            self.bus.sent(f);
+        }
+        self.enabled_sent = engaged && (self.enabled_sent || after.is_some());
         Ok(())
     }
 }
@@ -438,8 +452,7 @@ impl Driver for CanDriver {
             ))),
             _ => {
                 let frame = self.encode(command)?;
-                self.send(&frame, link)?;
-                self.follow_gate(link)
+                self.send_following_gate(&frame, link)
             }
         }
     }
@@ -603,6 +616,59 @@ sequence = { counter = "counter", checksum = "checksum", checksum_kind = "xor8" 
         d.bus.kits.set(false);
         let mut link = MockLink::new(vec![tx(command(0, 4)), tx(off)]);
         d.send_command(&mut link, Command::Set(0.0)).unwrap();
+    }
+
+    /// The adapter's port as the bus writes to it: each write it is given, whole.
+    struct Writes(Arc<Mutex<Vec<Vec<u8>>>>);
+
+    impl Read for Writes {
+        fn read(&mut self, _: &mut [u8]) -> io::Result<usize> {
+            Err(io::ErrorKind::TimedOut.into())
+        }
+    }
+
+    impl Write for Writes {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            self.0.lock().push(buf.to_vec());
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Link for Writes {
+        fn set_timeout(&mut self, _: Duration) -> io::Result<()> {
+            Ok(())
+        }
+        fn discard_input(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// Two writes could be parted by the bus going down between them (its reader at
+    /// exit, a failing port): the kit would hear a command its disable does not follow
+    /// — seen once at exit, the steering's last frame a resent command.
+    #[test]
+    fn a_command_and_the_message_after_it_reach_the_adapter_in_one_write() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = driver(&dir);
+        let writes = Arc::new(Mutex::new(Vec::new()));
+        d.bus.up(Box::new(Writes(writes.clone())));
+        let mut link = d.bus.link().unwrap();
+        let (off, on) = (line(0x102, &[0xCD, 0xCC]), line(0x101, &[0xCD, 0xCC]));
+        d.send_command(&mut *link, Command::Set(0.0)).unwrap();
+        d.bus.kits.set(true);
+        d.send_command(&mut *link, Command::Set(0.0)).unwrap();
+        d.send_command(&mut *link, Command::Set(0.1)).unwrap();
+        assert_eq!(
+            *writes.lock(),
+            vec![
+                [command(0, 0), off].concat(),
+                [command(0, 1), on].concat(),
+                command(100, 2)
+            ]
+        );
     }
 
     #[test]
