@@ -372,6 +372,9 @@ impl CanDriver {
         let after = if engaged {
             self.map.enable.filter(|_| !self.enabled_sent)
         } else {
+            // Not engaged: the next engage enables again, whether this write goes out
+            // or not.
+            self.enabled_sent = false;
             self.map.disable
         };
         let mut lines = ArrayVec::<u8, { 2 * proto::MAX_LINE }>::new();
@@ -385,7 +388,7 @@ impl CanDriver {
         if let Some(f) = &after {
             self.bus.sent(f);
         }
-        self.enabled_sent = engaged && (self.enabled_sent || after.is_some());
+        self.enabled_sent |= engaged && after.is_some();
         Ok(())
     }
 }
@@ -669,6 +672,28 @@ sequence = { counter = "counter", checksum = "checksum", checksum_kind = "xor8" 
                 command(100, 2)
             ]
         );
+    }
+
+    /// A disengage whose command and disable did not go out (the adapter failing)
+    /// still means the next engage enables the kit again.
+    #[test]
+    fn after_a_disengage_that_failed_to_reach_the_adapter_the_next_engage_enables_again() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut d = driver(&dir);
+        let writes = Arc::new(Mutex::new(Vec::new()));
+        d.bus.up(Box::new(Writes(writes.clone())));
+        let mut link = d.bus.link().unwrap();
+        d.bus.kits.set(true);
+        d.send_command(&mut *link, Command::Set(0.0)).unwrap();
+        d.bus.kits.set(false);
+        d.bus.writer.lock().take();
+        assert!(d.send_command(&mut *link, Command::Set(0.0)).is_err());
+        d.bus.up(Box::new(Writes(writes.clone())));
+        d.bus.kits.set(true);
+        writes.lock().clear();
+        d.send_command(&mut *link, Command::Set(0.0)).unwrap();
+        let on = line(0x101, &[0xCD, 0xCC]);
+        assert_eq!(*writes.lock(), vec![[command(0, 2), on].concat()]);
     }
 
     #[test]
