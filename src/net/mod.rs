@@ -28,6 +28,7 @@ pub mod proto;
 
 pub use crate::config::NetworkConfig;
 pub use counters::{NetRefusal, NetStatus};
+pub use pace::FLOOD_GAP;
 
 use crate::engine::Gate;
 use crate::logging::Repeats;

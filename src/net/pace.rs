@@ -27,7 +27,7 @@ pub(crate) const FLOOD_PER_DEVICE: u64 = 500;
 /// from which the listener paces its reads.
 pub(crate) const FLOOD_IDLE: u64 = 2000;
 /// The shortest time between two reads while flooded.
-pub(crate) const FLOOD_GAP: Duration = Duration::from_millis(2);
+pub const FLOOD_GAP: Duration = Duration::from_millis(2);
 /// The window over which the rates are counted.
 const WINDOW: Duration = Duration::from_millis(20);
 
