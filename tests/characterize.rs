@@ -1121,6 +1121,35 @@ fn a_watchdog_shorter_than_the_resend_is_kept_fed() {
     );
 }
 
+/// A steering with no deadband is measured as having none. The search halves its step
+/// until the readings cannot show a move that small; a step there, seen not to move
+/// it, is no deadband — the figure says how far below it is known to be, and the twin's
+/// `sim.toml` gets none (a deadband at the readings' floor was written there once).
+#[test]
+fn a_device_without_a_deadband_is_measured_as_having_none() {
+    let dir = tempdir("characterize-no-deadband");
+    let p = Params {
+        deadband: 0.0,
+        ..draw(33)
+    };
+    let run = characterize_device(
+        dir.path(),
+        "steer",
+        &alice_with_steering(&sim_section(&p)),
+        &["--yes", "--procedure", "deadband"],
+    );
+    assert_eq!(run.summary["deadband"], 0.0, "{}", run.summary);
+    // Steering's span is 2: its readings resolve moves past 4e-4 of it.
+    let below = run.summary["deadband_below"].as_f64().unwrap();
+    assert!(below > 0.0 && below <= 2.0 * 8e-4, "{}", run.summary);
+    assert!(!run.sim.contains("deadband"), "{}", run.sim);
+    assert!(
+        run.report.contains(&format!("| deadband | below {below} ")),
+        "{}",
+        run.report
+    );
+}
+
 /// `--range` and `--resolution`: the sweep covers the middle of the part asked for at
 /// the spacing asked for, every point inside it, and the device ends where it was
 /// found, outside that part; a range outside the device's, or a resolution finer than a

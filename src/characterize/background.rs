@@ -17,7 +17,7 @@
 //! The device is polled at [`POLL`] for the run (its own period, if shorter), as the
 //! command line does from the start, and its period is put back when the run ends.
 
-use super::{Ended, Figures, Procedure, Progress, Stage, Watch};
+use super::{Deadband, Ended, Figures, Procedure, Progress, Stage, Watch};
 use crate::engine::Gate;
 use crate::value::{DeviceId, Source};
 use parking_lot::Mutex;
@@ -47,7 +47,7 @@ pub struct Headline {
     pub rate_down: Option<f64>,
     /// Seconds.
     pub delay: Option<f64>,
-    pub deadband: Option<f64>,
+    pub deadband: Option<Deadband>,
     pub backlash: Option<f64>,
     pub rise: Option<f64>,
     pub overshoot_pct: Option<f64>,
@@ -85,7 +85,10 @@ impl Headline {
             format!("rate up {} /s", num(self.rate_up)),
             format!("down {} /s", num(self.rate_down)),
             format!("delay {}", ms(self.delay)),
-            format!("deadband {}{u}", num(self.deadband)),
+            match self.deadband {
+                Some(Deadband::Below(d)) => format!("deadband < {}{u}", num(Some(d))),
+                d => format!("deadband {}{u}", num(d.map(Deadband::value))),
+            },
             format!("backlash {}{u}", num(self.backlash)),
             format!("rise {}", ms(self.rise)),
             format!(

@@ -123,6 +123,29 @@ impl Scope {
 /// Points of a sweep, each (commanded, settled reading).
 pub(crate) type Settled = Vec<(f64, f64)>;
 
+/// What the deadband search found. A step it judged not to move the device is evidence
+/// of a deadband only if a move that size could have been seen: well past the readings'
+/// own resolution (four times their stillness, and no finer than their step). Searching
+/// below it, every device reads as having a deadband there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Deadband {
+    /// The smallest step up that moved it, larger than one that was seen not to.
+    Measured(f64),
+    /// Every step its readings could show moving moved it: any deadband is below this,
+    /// the smallest step seen to move it.
+    Below(f64),
+}
+
+impl Deadband {
+    /// The figure a simulator or a step's size takes: none, when below what was seen.
+    pub fn value(self) -> f64 {
+        match self {
+            Deadband::Measured(d) => d,
+            Deadband::Below(_) => 0.0,
+        }
+    }
+}
+
 /// Why a characterization ended before it was done.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[error("{0}")]
@@ -136,7 +159,7 @@ pub(crate) struct Figures {
     pub range: [f64; 2],
     pub up: Vec<StepFigures>,
     pub down: Vec<StepFigures>,
-    pub deadband: Option<f64>,
+    pub deadband: Option<Deadband>,
     pub backlash: Option<f64>,
     pub map: Vec<[f64; 2]>,
     pub gain_offset: Option<(f64, f64)>,
@@ -752,7 +775,7 @@ impl<'a> Bench<'a> {
 
     /// The smallest step up that moves it, by halving: from a point approached from
     /// below, a step either moves it (the point it follows is then the new one) or not.
-    pub(crate) fn deadband(&mut self, steps: usize) -> Result<f64, Ended> {
+    pub(crate) fn deadband(&mut self, steps: usize) -> Result<Deadband, Ended> {
         let (m, s) = ((self.range[0] + self.range[1]) / 2.0, self.span());
         let base0 = m - 0.35 * s;
         self.move_to(base0 - 0.15 * s)?;
@@ -768,7 +791,7 @@ impl<'a> Bench<'a> {
             let mut moved = false;
             while Instant::now() < end {
                 self.tick()?;
-                if (self.last() - before).abs() > self.still * 4.0 {
+                if self.seen_to_move(before) {
                     moved = true;
                     break;
                 }
@@ -782,7 +805,33 @@ impl<'a> Bench<'a> {
             }
             self.moved();
         }
-        Ok(hi)
+        // A step no larger than twice the resolution may not change what is sent or
+        // what is read at all (a protocol rounds both): not moving it says nothing.
+        Ok(if lo >= 2.0 * self.resolution() {
+            Deadband::Measured(hi)
+        } else {
+            Deadband::Below(hi)
+        })
+    }
+
+    /// Whether the reading has moved from `before`, as far as the readings show: past
+    /// four times their stillness.
+    fn seen_to_move(&self, before: f64) -> bool {
+        (self.last() - before).abs() > self.still * 4.0
+    }
+
+    /// The smallest move the readings resolve: what [`Bench::seen_to_move`] needs, and
+    /// no finer than the smallest step seen between two readings (a protocol that
+    /// writes thousandths reads in thousandths).
+    fn resolution(&self) -> f64 {
+        let rounding = self.still * 1e-3;
+        let quantum = self
+            .samples
+            .windows(2)
+            .map(|w| (w[1].measured - w[0].measured).abs())
+            .filter(|d| *d > rounding)
+            .fold(f64::INFINITY, f64::min);
+        (self.still * 4.0).max(if quantum.is_finite() { quantum } else { 0.0 })
     }
 
     /// Points up the range and back down, each settled: (commanded, measured) each way.
@@ -833,7 +882,7 @@ impl<'a> Bench<'a> {
         let end = Instant::now() + Duration::from_secs_f64(wait);
         while Instant::now() < end {
             self.tick()?;
-            if (self.last() - before).abs() > self.still * 4.0 {
+            if self.seen_to_move(before) {
                 break;
             }
         }
@@ -874,7 +923,7 @@ impl<'a> Bench<'a> {
         let before = self.last();
         self.send(home)?;
         let end = Instant::now() + START_WITHIN;
-        while Instant::now() < end && (self.last() - before).abs() <= self.still * 4.0 {
+        while Instant::now() < end && !self.seen_to_move(before) {
             self.tick()?;
         }
         self.settle()?;
@@ -1019,7 +1068,7 @@ fn measure(b: &mut Bench, procedures: &[Procedure], scope: &Scope) -> Result<Fig
     }
     if wants(&[Procedure::Step]) {
         b.stage(Stage::SmallSteps);
-        b.small_steps(SMALL_REPS, f.deadband, &mut f)?;
+        b.small_steps(SMALL_REPS, f.deadband.map(Deadband::value), &mut f)?;
     }
     Ok(f)
 }

@@ -4,7 +4,7 @@
 //! `report.md` (the figures in tables, and the plots as SVG: the run, the step
 //! responses, the sweep's hysteresis loop and the command path's delay histogram).
 
-use super::{analyze, Figures};
+use super::{analyze, Deadband, Figures};
 use analyze::StepFigures;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -26,7 +26,11 @@ pub(crate) fn summary(f: &Figures) -> serde_json::Value {
         "rate_up": f.rate_up().map(sig),
         "rate_down": f.rate_down().map(sig),
         "delay_ms": ms(f.delay()),
-        "deadband": f.deadband.map(sig),
+        "deadband": f.deadband.map(|d| sig(d.value())),
+        "deadband_below": match f.deadband {
+            Some(Deadband::Below(d)) => Some(sig(d)),
+            _ => None,
+        },
         "backlash": f.backlash.map(sig),
         "rise_ms": ms(f.rise()),
         "overshoot_pct": f.overshoot_pct().map(sig),
@@ -55,7 +59,7 @@ pub(crate) fn sim_toml(f: &Figures) -> String {
     if let Some(l) = f.lag() {
         let _ = writeln!(out, "lag = \"{}us\"", (l * 1e6).round());
     }
-    if let Some(d) = f.deadband.filter(|d| *d > 0.0) {
+    if let Some(d) = f.deadband.map(Deadband::value).filter(|d| *d > 0.0) {
         let _ = writeln!(out, "deadband = {}", sig(d));
     }
     if let Some(b) = f.backlash.filter(|b| *b > 0.0) {
@@ -255,7 +259,16 @@ pub(crate) fn report(f: &Figures) -> (String, Vec<(&'static str, String)>) {
         ("overshoot", show(f.overshoot_pct(), "%")),
         ("settling to 2 %", show(f.settle().map(|d| d * 1e3), "ms")),
         ("lag of the tail", show(f.lag().map(|d| d * 1e3), "ms")),
-        ("deadband", show(f.deadband, u)),
+        (
+            "deadband",
+            match f.deadband {
+                Some(Deadband::Below(d)) => format!(
+                    "below {} (every step its readings resolve moved it)",
+                    show(Some(d), u)
+                ),
+                d => show(d.map(Deadband::value), u),
+            },
+        ),
         ("backlash", show(f.backlash, u)),
         ("gain", show(f.gain_offset.map(|g| g.0), "")),
         ("offset", show(f.gain_offset.map(|g| g.1), u)),
@@ -540,7 +553,7 @@ mod tests {
             range: [-1.0, 1.0],
             up: vec![step],
             down: vec![step],
-            deadband: Some(0.031),
+            deadband: Some(Deadband::Measured(0.031)),
             backlash: Some(0.042),
             ..Figures::default()
         };
@@ -562,6 +575,7 @@ mod tests {
             "rate_down",
             "delay_ms",
             "deadband",
+            "deadband_below",
             "backlash",
             "rise_ms",
             "overshoot_pct",
@@ -574,7 +588,34 @@ mod tests {
         ] {
             assert!(s.get(key).is_some(), "{key} in {s}");
         }
-        assert_eq!(s.as_object().unwrap().len(), 14, "exactly the named fields");
+        assert_eq!(s.as_object().unwrap().len(), 15, "exactly the named fields");
         assert_eq!(s["delay_ms"], 31.5);
+        assert_eq!(s["deadband_below"], serde_json::Value::Null);
+    }
+
+    /// A deadband below what the readings resolve is no deadband for the simulator,
+    /// and the report and summary say how far below it is known to be.
+    #[test]
+    fn a_deadband_below_the_readings_resolution_is_none_and_says_so() {
+        let f = Figures {
+            device: "steer".into(),
+            units: "rad".into(),
+            range: [-1.0, 1.0],
+            deadband: Some(Deadband::Below(0.0009375)),
+            ..Figures::default()
+        };
+        assert!(!sim_toml(&f).contains("deadband"), "{}", sim_toml(&f));
+        let s = summary(&f);
+        assert_eq!(
+            (s["deadband"].as_f64(), s["deadband_below"].as_f64()),
+            (Some(0.0), Some(0.0009375))
+        );
+        let (md, _) = report(&f);
+        assert!(
+            md.contains(
+                "| deadband | below 0.0009375 rad (every step its readings resolve moved it) |"
+            ),
+            "{md}"
+        );
     }
 }

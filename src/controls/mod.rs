@@ -24,6 +24,7 @@ pub use live::Live;
 pub use scene::{capture, secs, Scene, SimFaults, Sources};
 
 pub use crate::characterize::background::{Characterizing, Headline};
+pub use crate::characterize::Deadband;
 use crate::characterize::Procedure;
 pub use crate::characterize::{Progress, Stage};
 use crate::safety::{Ask, Done, Held, Refused};

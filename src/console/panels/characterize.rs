@@ -224,7 +224,7 @@ mod tests {
             rate_up: Some(1.0),
             rate_down: Some(0.998),
             delay: Some(0.012),
-            deadband: Some(0.02),
+            deadband: Some(crate::controls::Deadband::Measured(0.02)),
             backlash: Some(0.031),
             rise: Some(0.48),
             overshoot_pct: Some(0.0),
