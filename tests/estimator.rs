@@ -12,8 +12,11 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::time::{Duration, Instant};
 
 const PERIOD: Duration = Duration::from_millis(50);
-/// What a loaded machine may add to a wake-up and a poll's transaction.
-const SLACK: Duration = Duration::from_millis(40);
+/// What a loaded machine may add to a wake-up and a poll's transaction: up to the
+/// next period's poll and then some, so that the bound (three periods) is where a
+/// stretched interval begins ([`stretched_interval`]). Forty milliseconds was less
+/// than one late wake-up seen on these machines (61 ms, in another test).
+const SLACK: Duration = Duration::from_millis(100);
 
 /// Steering polled adaptively: 50 ms at the fastest, a reading at most 1 s old.
 fn adaptive_steer() -> String {
@@ -58,7 +61,7 @@ fn stretched_interval(steer: &Device) -> Duration {
     let mut last = next_poll(steer);
     for _ in 0..20 {
         let now = next_poll(steer);
-        if now - last > 3 * PERIOD {
+        if now - last > PERIOD + SLACK {
             return now - last;
         }
         last = now;
