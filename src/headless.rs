@@ -4,6 +4,7 @@
 
 use crate::engine::Gate;
 use crate::exit::Exit;
+use crate::net::NetRefusal;
 use crate::snapshot::{NetView, RecordView, Snapshot};
 use crate::vehicle::Vehicle;
 use crossbeam_channel::Receiver;
@@ -124,25 +125,38 @@ pub(crate) fn summary(snap: &Snapshot) -> String {
     out
 }
 
-/// One line of network figures for the summary printed on exit.
+/// One line of network figures for the summary printed on exit: datagrams, those
+/// accepted and those refused whole (every datagram is one or the other), then the
+/// commands refused within accepted ones, each by reason.
 pub(crate) fn net_summary(n: &NetView, gate: &crate::snapshot::GateView) -> String {
     let mut out = format!(
         "network {}: {} datagrams, {} accepted",
         n.listen, n.datagrams, n.accepted
     );
-    let rejected = [
-        &n.rejected.datagram,
-        &n.rejected.intake,
-        &n.rejected.refused,
-    ];
-    let nonzero: Vec<String> = rejected
-        .into_iter()
-        .flat_map(|p| p.iter())
-        .filter(|(_, c)| **c > 0)
-        .map(|(r, c)| format!("{r} {c}"))
-        .collect();
-    if !nonzero.is_empty() {
-        let _ = write!(out, "; rejected: {}", nonzero.join(", "));
+    let whole = n.rejected.datagram.iter().chain(
+        n.rejected
+            .refused
+            .iter()
+            .filter(|(r, _)| NetRefusal::named(r).is_some_and(NetRefusal::refuses_datagram)),
+    );
+    let commands = n.rejected.intake.iter().chain(
+        n.rejected
+            .refused
+            .iter()
+            .filter(|(r, _)| !NetRefusal::named(r).is_some_and(NetRefusal::refuses_datagram)),
+    );
+    for (label, reasons) in [
+        (", refused whole: ", whole.collect::<Vec<_>>()),
+        ("; commands refused: ", commands.collect()),
+    ] {
+        let nonzero: Vec<String> = reasons
+            .into_iter()
+            .filter(|(_, c)| **c > 0)
+            .map(|(r, c)| format!("{r} {c}"))
+            .collect();
+        if !nonzero.is_empty() {
+            let _ = write!(out, "{label}{}", nonzero.join(", "));
+        }
     }
     if let Some(why) = gate.watchdog.as_ref().and_then(|w| w.last_trip.as_ref()) {
         let _ = write!(out, "; watchdog tripped: {why}");

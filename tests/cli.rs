@@ -102,12 +102,35 @@ fn headless_sim(dir: &std::path::Path) -> common::Reaped {
     )
 }
 
+/// The exit summary: a line per device, and the network's — its datagrams, those
+/// accepted and those refused whole, then the commands refused within accepted ones,
+/// each group under its own words (one count of datagrams and commands mixed read as
+/// a contradiction: `111 datagrams, 111 accepted; rejected: disengaged 60`).
 #[test]
 fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     let dir = tempdir("cli");
     let mut child = headless_sim(dir.path());
     let err = lines(child.stderr.take().unwrap());
-    until(&err, "running headless");
+    let said = until(&err, "running headless");
+    let listen = said
+        .iter()
+        .find_map(|l| l.split("network up listen=").nth(1)?.split(' ').next())
+        .expect("the network's address in the log");
+    // A datagram that is no command, and a command while disengaged, each from its own
+    // sender (replies to one are spaced): their replies say they were handled.
+    for (datagram, reply) in [
+        (&b"\xff\x00"[..], "rejected: "),
+        (b"steer 0.2", "rejected steer 0.2: disengaged"),
+    ] {
+        let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        s.connect(listen).unwrap();
+        s.set_read_timeout(Some(common::DEADLINE)).unwrap();
+        s.send(datagram).unwrap();
+        let mut buf = [0u8; 512];
+        let n = s.recv(&mut buf).expect("a reply");
+        let got = String::from_utf8_lossy(&buf[..n]);
+        assert!(got.starts_with(reply), "{got}");
+    }
     signal(&child, libc::SIGTERM);
     assert_eq!(wait_exit(&mut child), Some(0));
     let mut out = String::new();
@@ -124,6 +147,18 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
         );
     }
     assert!(out.contains("delay p99"), "{out}");
+    let network = out.lines().find(|l| l.starts_with("network ")).unwrap();
+    let (head, commands) = network.split_once("; commands refused: ").unwrap();
+    let (counts, whole) = head.split_once(", refused whole: ").unwrap();
+    assert_eq!(
+        counts,
+        format!("network {listen}: 2 datagrams, 1 accepted"),
+        "{network}"
+    );
+    assert!(
+        !whole.contains(',') && whole.ends_with(" 1") && commands == "disengaged 1",
+        "{network}"
+    );
     // The rolling log file was flushed and tells the safe state was reached.
     // The log files (the control socket's directory is beside them).
     let log: String = std::fs::read_dir(dir.path())

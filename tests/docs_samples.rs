@@ -307,6 +307,14 @@ fn drive(s: &mut BTreeMap<&'static str, String>) {
         .position(|l| l.starts_with("device "))
         .expect("the headless summary's table");
     s.insert("headless-summary", summary[table..table + 3].join("\n"));
+    s.insert(
+        "headless-network",
+        summary
+            .iter()
+            .find(|l| l.starts_with("network "))
+            .expect("the headless summary's network line")
+            .clone(),
+    );
     // record info, as a user runs it beside the file.
     let info = Process::new(BIN)
         .args(["record", "info", "drive.mcap"])

@@ -597,6 +597,21 @@ fn a_second_sender_is_refused_while_another_commands() {
     assert!(a
         .ask(b"engage")
         .starts_with("refused engage: disengaged while"));
+    // Every datagram was accepted or refused whole (as the exit summary counts them):
+    // `b`'s two were, the other commander's; the latched engage is a command refused
+    // within an accepted datagram.
+    let snap = n.snap();
+    let whole: u64 = snap.rejected.datagram.iter().map(|(_, c)| c).sum::<u64>()
+        + snap
+            .rejected
+            .refused
+            .iter()
+            .filter(|(r, _)| NetRefusal::named(r).is_some_and(NetRefusal::refuses_datagram))
+            .map(|(_, c)| c)
+            .sum::<u64>();
+    assert_eq!(whole, 2, "{snap:?}");
+    assert_eq!(snap.datagrams, snap.accepted + whole, "{snap:?}");
+    assert_eq!(snap.rejected.get("engage_latched"), 1, "{snap:?}");
 }
 
 #[test]

@@ -72,6 +72,22 @@ impl NetRefusal {
     pub fn index(self) -> usize {
         self as usize
     }
+
+    /// Whether it refuses a whole datagram (the datagram is not accepted), rather than
+    /// one `engage` within an accepted one.
+    pub fn refuses_datagram(self) -> bool {
+        match self {
+            NetRefusal::NotOnAllowList | NetRefusal::OtherCommander | NetRefusal::Closing => true,
+            NetRefusal::EngageNotAllowed
+            | NetRefusal::EngageBlocked
+            | NetRefusal::EngageLatched => false,
+        }
+    }
+
+    /// The refusal named `name` ([`NetRefusal::as_str`]).
+    pub fn named(name: &str) -> Option<NetRefusal> {
+        NetRefusal::ALL.into_iter().find(|r| r.as_str() == name)
+    }
 }
 
 /// One sender in the table.
