@@ -111,26 +111,11 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     let dir = tempdir("cli");
     let mut child = headless_sim(dir.path());
     let err = lines(child.stderr.take().unwrap());
-    let said = until(&err, "running headless");
-    let listen = said
-        .iter()
-        .find_map(|l| l.split("network up listen=").nth(1)?.split(' ').next())
-        .expect("the network's address in the log");
-    // A datagram that is no command, and a command while disengaged, each from its own
-    // sender (replies to one are spaced): their replies say they were handled.
-    for (datagram, reply) in [
-        (&b"\xff\x00"[..], "rejected: "),
-        (b"steer 0.2", "rejected steer 0.2: disengaged"),
-    ] {
-        let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
-        s.connect(listen).unwrap();
-        s.set_read_timeout(Some(common::DEADLINE)).unwrap();
-        s.send(datagram).unwrap();
-        let mut buf = [0u8; 512];
-        let n = s.recv(&mut buf).expect("a reply");
-        let got = String::from_utf8_lossy(&buf[..n]);
-        assert!(got.starts_with(reply), "{got}");
-    }
+    let listen = common::listen_address(&until(&err, "running headless"));
+    // A datagram that is no command, and a command while disengaged: their replies say
+    // they were handled.
+    assert!(common::reply_to(&listen, b"\xff\x00").starts_with("rejected: "));
+    assert!(common::reply_to(&listen, b"steer 0.2").starts_with("rejected steer 0.2: disengaged"));
     signal(&child, libc::SIGTERM);
     assert_eq!(wait_exit(&mut child), Some(0));
     let mut out = String::new();

@@ -119,6 +119,7 @@ fn generate() -> BTreeMap<&'static str, String> {
     let mut s = BTreeMap::new();
     drive(&mut s);
     replay_check(&mut s);
+    exit_network(&mut s);
     cart_start(&mut s);
     config_errors(&mut s);
     s
@@ -307,14 +308,6 @@ fn drive(s: &mut BTreeMap<&'static str, String>) {
         .position(|l| l.starts_with("device "))
         .expect("the headless summary's table");
     s.insert("headless-summary", summary[table..table + 3].join("\n"));
-    s.insert(
-        "headless-network",
-        summary
-            .iter()
-            .find(|l| l.starts_with("network "))
-            .expect("the headless summary's network line")
-            .clone(),
-    );
     // record info, as a user runs it beside the file.
     let info = Process::new(BIN)
         .args(["record", "info", "drive.mcap"])
@@ -418,6 +411,40 @@ fn replay_check(s: &mut BTreeMap<&'static str, String>) {
 fn sim_line(line: &str, _dir: &tempfile::TempDir) -> String {
     let tmp = std::env::temp_dir().display().to_string();
     line.replace(tmp.trim_end_matches('/'), "/tmp")
+}
+
+/// A headless Alice sent a datagram that is no command and a command while she is
+/// disengaged, then stopped: the summary's network line.
+fn exit_network(s: &mut BTreeMap<&'static str, String>) {
+    let dir = common::tempdir("docs-exit");
+    let mut a = common::Reaped(
+        Process::new(BIN)
+            .args([
+                "--sim",
+                "--headless",
+                "--listen",
+                "127.0.0.1:0",
+                "--log-dir",
+            ])
+            .arg(dir.path().join("log"))
+            .env("XDG_RUNTIME_DIR", dir.path())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let out = common::lines(a.stdout.take().unwrap());
+    let err = common::lines(a.stderr.take().unwrap());
+    let listen = common::listen_address(&common::until(&err, "running headless"));
+    assert!(common::reply_to(&listen, b"\xff\x00").starts_with("rejected: "));
+    assert!(common::reply_to(&listen, b"steer 0.2").starts_with("rejected steer 0.2: disengaged"));
+    common::signal(&a, libc::SIGTERM);
+    assert_eq!(common::wait_exit(&mut a), Some(0));
+    let line = common::to_the_end(&out)
+        .into_iter()
+        .find(|l| l.starts_with("network "))
+        .expect("the summary's network line");
+    s.insert("headless-network", line);
 }
 
 /// The cart, started: which interlock rules it has and which are off.

@@ -283,6 +283,27 @@ baud = 38400
     )
 }
 
+/// The command listener's address, from a headless adrive's log up to its start
+/// (`network up listen=ADDR`).
+pub fn listen_address(log: &[String]) -> String {
+    log.iter()
+        .find_map(|l| l.split("network up listen=").nth(1)?.split(' ').next())
+        .expect("the network's address in the log")
+        .to_string()
+}
+
+/// Send `datagram` to the listener at `listen` from a socket of its own (replies to
+/// one sender are spaced) and return adrive's reply: proof it was handled.
+pub fn reply_to(listen: &str, datagram: &[u8]) -> String {
+    let s = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    s.connect(listen).unwrap();
+    s.set_read_timeout(Some(DEADLINE)).unwrap();
+    s.send(datagram).unwrap();
+    let mut buf = [0u8; 1024];
+    let n = s.recv(&mut buf).expect("a reply");
+    String::from_utf8_lossy(&buf[..n]).into_owned()
+}
+
 /// Lines of a child's output, delivered through a channel so reads can time out.
 pub fn lines(stream: impl std::io::Read + Send + 'static) -> std::sync::mpsc::Receiver<String> {
     use std::io::BufRead;
