@@ -585,8 +585,11 @@ impl Supervisor {
         };
         // A fault disengages the vehicle, unless it was there before and a procedure
         // (running, or starting now) deals with it: engaging with it is the permission
-        // to recover.
-        if gate.is_engaged() {
+        // to recover. A vehicle with a blocker (a device faulty or silent by its own
+        // rule, the e-stop) is the gate monitor's to disengage, within its period and
+        // in its words: the supervisor disengages for what only it sees, so that one
+        // thread decides each disengage.
+        if gate.is_engaged() && gate.blockers().is_empty() {
             let dealt_with = |f: &Fault| {
                 let p = self.procedure.as_ref().or(start.as_ref().map(|(p, _)| p));
                 !is_new(f)
@@ -1140,6 +1143,47 @@ mod tests {
         assert!(!turn(true), "cleared, the module still keeps its flag");
         assert!(!turn(false), "enabled again: the flag is down");
         assert!(turn(true), "raised again: a new override");
+    }
+
+    /// One thread decides each disengage: a vehicle with a blocker (here a faulty
+    /// steering) is the gate monitor's to disengage, so the supervisor names the fault it
+    /// sees there and leaves the vehicle to the monitor (no monitor runs here: it stays
+    /// engaged); a fault only the supervisor sees, on a vehicle with no blocker, it
+    /// disengages for itself, in its words.
+    #[test]
+    fn the_supervisor_disengages_only_for_what_the_gate_monitor_does_not() {
+        for blocked in [true, false] {
+            let now = Instant::now();
+            let gate = testkit::gate(now);
+            let v = &gate.vehicle();
+            gate.engage("test").unwrap();
+            let steer = v.find("steer").expect("alice steers");
+            if blocked {
+                testkit::make_faulty(v, "steer", now);
+            }
+            // A fresh reading far outside -1…1: out of range, which only the
+            // supervisor judges.
+            let mut c = steer.cached();
+            c.reading.set(0, 5.0);
+            c.at = Some(now);
+            steer.store(c);
+            assert_eq!(gate.blockers().is_empty(), !blocked);
+            let mut sup = Supervisor::new(SupervisorConfig::default(), Box::new(|_| {}));
+            sup.tick(&gate, Instant::now());
+            assert!(
+                v.supervision().has(FaultKind::OutOfRange, Some("steer")),
+                "named either way"
+            );
+            assert_eq!(gate.is_engaged(), blocked, "{}", gate.reason());
+            if !blocked {
+                assert!(
+                    gate.reason()
+                        .starts_with("disengaged: supervisor: steer out_of_range"),
+                    "{}",
+                    gate.reason()
+                );
+            }
+        }
     }
 
     /// The console once set a status period longer than `status_max_age`: the device
