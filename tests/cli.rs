@@ -81,27 +81,6 @@ fn one_port_spelled_two_ways_is_refused_at_the_second_s_line_before_anything_sta
     assert!(!dir.path().join("log").exists(), "it started");
 }
 
-/// `adrive --sim --headless` logging into `dir`, its output and error piped.
-fn headless_sim(dir: &std::path::Path) -> common::Reaped {
-    common::Reaped(
-        Process::new(BIN)
-            .args([
-                "--sim",
-                "--headless",
-                "--listen",
-                "127.0.0.1:0",
-                "--log-dir",
-            ])
-            .arg(dir)
-            .env("XDG_RUNTIME_DIR", dir)
-            .env_remove("NO_COLOR")
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    )
-}
-
 /// The exit summary: a line per device, and the network's — its datagrams, those
 /// accepted and those refused whole, then the commands refused within accepted ones,
 /// each group under its own words (one count of datagrams and commands mixed read as
@@ -109,7 +88,7 @@ fn headless_sim(dir: &std::path::Path) -> common::Reaped {
 #[test]
 fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     let dir = tempdir("cli");
-    let mut child = headless_sim(dir.path());
+    let mut child = common::headless_piped(dir.path());
     let err = lines(child.stderr.take().unwrap());
     let listen = common::listen_address(&until(&err, "running headless"));
     // A datagram that is no command, and a command while disengaged: their replies say
@@ -390,7 +369,7 @@ fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
 #[test]
 fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
     let dir = tempdir("cli-colour");
-    let mut child = headless_sim(dir.path());
+    let mut child = common::headless_piped(dir.path());
     let err = lines(child.stderr.take().unwrap());
     let mut seen = until(&err, "running headless");
     signal(&child, libc::SIGINT);
@@ -646,7 +625,7 @@ fn sim_says_only_what_happened_at_start_and_confirms_each_fault_given() {
 #[test]
 fn headless_sim_logs_no_device_watchdog_while_it_runs() {
     let dir = tempdir("cli-watchdog");
-    let mut child = headless_sim(dir.path());
+    let mut child = common::headless_piped(dir.path());
     let err = lines(child.stderr.take().unwrap());
     let mut seen = until(&err, "running headless");
     // Past every simulated device's watchdog (1 s), then the sentinel: the stop.

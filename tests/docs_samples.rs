@@ -417,22 +417,7 @@ fn sim_line(line: &str, _dir: &tempfile::TempDir) -> String {
 /// disengaged, then stopped: the summary's network line.
 fn exit_network(s: &mut BTreeMap<&'static str, String>) {
     let dir = common::tempdir("docs-exit");
-    let mut a = common::Reaped(
-        Process::new(BIN)
-            .args([
-                "--sim",
-                "--headless",
-                "--listen",
-                "127.0.0.1:0",
-                "--log-dir",
-            ])
-            .arg(dir.path().join("log"))
-            .env("XDG_RUNTIME_DIR", dir.path())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
+    let mut a = common::headless_piped(dir.path());
     let out = common::lines(a.stdout.take().unwrap());
     let err = common::lines(a.stderr.take().unwrap());
     let listen = common::listen_address(&common::until(&err, "running headless"));

@@ -504,6 +504,28 @@ pub fn sim_dirs(dir: &std::path::Path) -> Vec<String> {
         .unwrap_or_default()
 }
 
+/// `adrive --sim --headless` listening on a free port, logging into `dir` (its runtime
+/// directory too), its output and error piped: for a test that reads its summary.
+pub fn headless_piped(dir: &std::path::Path) -> Reaped {
+    Reaped(
+        std::process::Command::new(env!("CARGO_BIN_EXE_adrive"))
+            .args([
+                "--sim",
+                "--headless",
+                "--listen",
+                "127.0.0.1:0",
+                "--log-dir",
+            ])
+            .arg(dir)
+            .env("XDG_RUNTIME_DIR", dir)
+            .env_remove("NO_COLOR")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    )
+}
+
 /// `adrive --sim --headless ARGS`, its runtime directory and its log in `dir`, once it
 /// says it runs: the child and what it has said so far (its standard error keeps being
 /// read into the receiver).
