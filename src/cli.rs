@@ -958,7 +958,9 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
     let at = vehicle.find(&args.device).and_then(|d| {
         let c = d.config();
         match (c.position(), c.state()) {
-            (Some(i), _) => d.reading(i).map(|p| p.to_string()),
+            (Some(i), _) => d
+                .reading(i)
+                .map(|p| crate::value::Value::Number(p).to_string()),
             (None, Some(i)) => d.reading(i).map(|s| {
                 c.states
                     .get(s as usize)

@@ -1188,11 +1188,18 @@ fn a_part_of_the_range_is_swept_at_the_resolution_asked_and_the_rest_refused() {
         "{:?}",
         run.out_lines
     );
-    let at: f64 = run
+    let word = run
         .out_lines
         .iter()
-        .find_map(|l| l.strip_prefix("steer at ")?.split(';').next()?.parse().ok())
+        .find_map(|l| l.strip_prefix("steer at ")?.split(';').next())
         .unwrap();
+    // Written as every reading is (three decimals), not as the float happens to print
+    // (it read `steer at 0.24230000000000002`).
+    assert!(
+        word.split_once('.').is_some_and(|(_, d)| d.len() == 3),
+        "{word:?}"
+    );
+    let at: f64 = word.parse().unwrap();
     assert!(at.abs() < 0.2, "ended at {at}, found at 0");
     // Every set point it asked for stayed inside the part, but the last: home.
     let rec = Recording::open(&run.record).unwrap();
