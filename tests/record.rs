@@ -758,6 +758,20 @@ fn a_full_disk_stops_the_recording_not_the_vehicle() {
     assert!(!by_topic(&rec)["/snapshot"].is_empty());
     let theirs = python_reads(&file, "make_reader");
     assert_eq!(theirs["counts"], counts(&file), "{theirs}");
+    // The summary's account is what the file holds, not what was handed to the writer
+    // after its last chunk (it said 1334 messages of a file that held 1062).
+    let held: u64 = counts(&file)
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|n| n.as_u64().unwrap())
+        .sum();
+    let size = bytesize::ByteSize::b(std::fs::metadata(&file).unwrap().len())
+        .display()
+        .si()
+        .to_string();
+    let said = format!("recorded {held} messages ({size}) to {}", file.display());
+    assert!(summary.contains(&said), "{said:?} in {summary}");
 }
 
 #[test]

@@ -166,7 +166,7 @@ pub(crate) fn state(rec: &Recording, cut: Option<&str>) -> String {
         None if rec.ending == Ending::Finished => format!("complete, {n} chunks"),
         None => format!(
             "NOT FINISHED, {n} chunks: no summary (adrive stopped without finishing it: \
-             kill -9, a power loss; or another machine is writing it); every MCAP reader \
+             kill -9, a power loss, a full disk; or another machine is writing it); every MCAP reader \
              reads it; {repair} adds the index"
         ),
         Some(why) => format!(

@@ -118,7 +118,11 @@ pub(super) struct Output {
     last: PathBuf,
     last_bytes: u64,
     clock: Clock,
+    /// Messages handed to the MCAP writer, in every file of this recording.
     messages: u64,
+    /// Of those, the messages in what the files hold: up to the last chunk written.
+    /// What a failed write leaves is the recording's account.
+    written: u64,
     sequence: u32,
     /// The drops already said.
     dropped_said: u64,
@@ -137,6 +141,7 @@ impl Output {
             last_bytes: 0,
             clock: Clock::now(),
             messages: 0,
+            written: 0,
             sequence: 0,
             dropped_said: 0,
             reader: None,
@@ -169,9 +174,7 @@ impl Output {
 
     /// Finish the current file (if any) and start the next.
     fn next_file(&mut self) -> io::Result<()> {
-        if let Some(f) = self.file.take() {
-            self.last_bytes = finish(f)?;
-        }
+        self.finish_file()?;
         let path = match &self.target {
             Target::File(p) => p.clone(),
             Target::Dir { dir, .. } => {
@@ -292,6 +295,7 @@ impl Output {
         f.writer.flush().map_err(mcap_io)?;
         f.commit()?;
         f.file.sync_data()?;
+        self.written = self.messages;
         if dropped > self.dropped_said {
             tracing::warn!(
                 "recording: {} events left out, the recorder fell behind (the vehicle did not wait)",
@@ -336,24 +340,37 @@ impl Output {
 
     /// Finish the last file: its index, summary and footer.
     fn close(&mut self) -> io::Result<()> {
+        self.finish_file()
+    }
+
+    /// Finish the file being written, if any: its index, summary and footer. One that
+    /// fails is left at its last checkpoint ([`finish`]), and its size is that.
+    fn finish_file(&mut self) -> io::Result<()> {
         if let Some(f) = self.file.take() {
+            self.last_bytes = f.end + TAIL.len() as u64;
             self.last_bytes = finish(f)?;
+            self.written = self.messages;
         }
         Ok(())
     }
 
     /// Recording failed: leave the file as it was at its last checkpoint, which every
-    /// reader reads. (It is not finished: its index would name the chunk that failed.)
+    /// reader reads (it is not finished: its index would name the chunk that failed),
+    /// and count what it holds, not what was handed to the writer after that.
     fn abandon(&mut self) {
         if let Some(f) = self.file.take() {
             match f.restore() {
                 Ok(()) => self.last_bytes = f.end + TAIL.len() as u64,
-                Err(e) => tracing::warn!(
-                    "recording: {}: cannot end it at its last chunk: {e}",
-                    f.path.display()
-                ),
+                Err(e) => {
+                    self.last_bytes = f.file.metadata().map_or(0, |m| m.len());
+                    tracing::warn!(
+                        "recording: {}: cannot end it at its last chunk: {e}",
+                        f.path.display()
+                    );
+                }
             }
         }
+        self.messages = self.written;
     }
 }
 
@@ -507,9 +524,10 @@ fn fail(out: &mut Output, e: &io::Error) {
     };
     let msg = format!("recording stopped: {what}; the vehicle runs on");
     tracing::error!("{msg}");
-    out.publish(Some(msg));
-    // What was written up to the last chunk stays readable, to every reader.
+    // What was written up to the last chunk stays readable, to every reader; the
+    // account says what that is.
     out.abandon();
+    out.publish(Some(msg));
 }
 
 #[cfg(test)]
