@@ -208,6 +208,8 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
             .iter()
             .any(|e| e.name == "steer" && e.command == set(-0.25))
     });
+    // Sent after `t`, at the device before now: the bracket its delay lies in.
+    let bracket = t.elapsed();
     // Executed, not just commanded: its figures are recorded once it is on the wire.
     let v = n.broadcast_until("steer executed -0.25", |v| {
         v.device("steer").and_then(|d| d.executed.clone()) == Some(Value::Number(-0.25))
@@ -232,13 +234,17 @@ fn a_command_reaches_the_device_and_the_broadcast_shows_it() {
         v.gate.roles.get("throttle").map(String::as_str),
         Some("gas")
     );
-    // The receipt → first byte delay is measured from the socket read.
+    // The receipt → first byte delay is measured from the socket read: within the
+    // span from the send to the byte seen at the device, however late a loaded machine
+    // made either. (The figure is its histogram bucket's upper edge, at most 1/64
+    // above the sample.)
     let d = n.rig.device("steer");
     d.stats().refresh();
     let delay = d.stats().command_delay.summary();
     assert!(
-        delay.count >= 1 && delay.max_us.unwrap() < 100_000.0,
-        "{delay:?}"
+        delay.count >= 1
+            && delay.max_us.unwrap() <= bracket.as_secs_f64() * 1e6 * (1.0 + 1.0 / 64.0),
+        "{delay:?} within {bracket:?}"
     );
 }
 
