@@ -1001,6 +1001,35 @@ fn the_bench_of_a_can_kit_offers_only_the_faults_the_vehicle_has() {
     assert!(status.success(), "{status:?}\n{}", c.log());
 }
 
+/// The incident: on the OSCC kit, `e` (the paper's steering reset: home the drive) was
+/// answered `home sent`; the steering module has no home message, so its driver
+/// dropped the command at the wire, the module heard nothing for its watchdog's 250 ms,
+/// disabled itself, and the supervisor disengaged the vehicle. A control the device's
+/// protocol does not carry is refused at intake, with what it lacks, and the vehicle
+/// stays engaged.
+#[test]
+fn a_steering_reset_a_kit_cannot_take_is_refused_and_the_vehicle_stays_engaged() {
+    let mut c = Console::start("can-reset", &["--config", "vehicles/oscc.toml"]);
+    c.wait_for("the kit's modules", |s| {
+        s.contains("STEER") && s.contains("CAR")
+    });
+    c.engage_now();
+    c.keys("e");
+    let s = c.wait_for("the reset refused", |s| {
+        s.contains("steering reset refused")
+    });
+    assert!(common::said(&s).contains("no such control"), "{s}");
+    // Still engaged, by the console, after the refusal: the gate's own account.
+    let status = ctl(&c, &["status"]);
+    assert!(status.contains("ENGAGED by console"), "{status}");
+    c.keys("q");
+    let status = c.wait_exit();
+    assert!(status.success(), "{status:?}\n{}", c.log());
+    let log = c.log();
+    assert!(!log.contains("unsupported command"), "{log}");
+    assert!(!log.contains("disabled while engaged"), "{log}");
+}
+
 /// `adrive ctl` on the console's control socket; its standard output.
 fn ctl(c: &Console, args: &[&str]) -> String {
     let out = ctl_output(c, args);

@@ -496,6 +496,32 @@ impl DeviceConfig {
         }
     }
 
+    /// Whether its protocol carries drive control `c` (enable, disable, home, start):
+    /// the line protocol carries every one; a Modbus device one with a control register;
+    /// a device on a CAN bus its enable and disable messages, if its file names them;
+    /// an ELM327 none. `Err` says what it lacks. (Whether the device then obeys — a
+    /// starter only on the device that has one — is the device's to answer.)
+    pub fn takes_control(&self, c: crate::value::Control) -> Result<(), String> {
+        use crate::value::Control;
+        let has = match (&self.wire, c) {
+            (Wire::Line(_), _) => true,
+            (Wire::Modbus(m), _) => m.control.is_some(),
+            (Wire::Can(m), Control::Enable) => m.enable.is_some(),
+            (Wire::Can(m), Control::Disable) => m.disable.is_some(),
+            (Wire::Can(_) | Wire::Elm327(_), _) => false,
+        };
+        if has {
+            return Ok(());
+        }
+        Err(match &self.wire {
+            Wire::Modbus(_) => {
+                format!("{}: {c}: its Modbus map has no control register", self.name)
+            }
+            Wire::Can(_) => format!("{}: {c}: its CAN messages carry no {c}", self.name),
+            _ => format!("{}: {c}: its protocol carries no drive controls", self.name),
+        })
+    }
+
     /// The index of its [`POSITION`] reading (every setpoint actuator has one).
     pub fn position(&self) -> Option<usize> {
         self.reading(POSITION)

@@ -74,11 +74,12 @@ pub(crate) fn blockers(v: &Vehicle, overridden: &[String]) -> Vec<Blocker> {
 }
 
 /// Check a command for a device: it must be an actuator, the value of its kind and
-/// inside its range. (Intake's first half; no state involved.)
+/// inside its range, or a drive control its protocol carries. (Intake's first half;
+/// no state involved.)
 pub(crate) fn check_value(d: &DeviceConfig, command: Command) -> Result<(), Reject> {
     match (d.kind, command) {
         (Kind::Sensor, _) => Err(Reject::NotAnActuator),
-        (_, Command::Control(_)) => Ok(()),
+        (_, Command::Control(c)) => d.takes_control(c).map_err(|_| Reject::NoSuchControl),
         (Kind::State, Command::State(s)) if (s as usize) < d.states.len() => Ok(()),
         (Kind::State, Command::State(_)) => Err(Reject::OutOfRange),
         (Kind::Setpoint, Command::Set(v)) => {
@@ -556,6 +557,35 @@ mod tests {
         assert_eq!(of("steer", Command::Set(-1.0)), Ok(()));
         assert_eq!(of("steer", Command::Set(1.01)), Err(Reject::OutOfRange));
         assert_eq!(of("steer", Command::Set(f64::NAN)), Err(Reject::NotFinite));
+        // Alice's gas is a Modbus drive without a control register.
+        assert_eq!(
+            of("gas", Command::Control(Control::Home)),
+            Err(Reject::NoSuchControl)
+        );
+    }
+
+    /// A drive control the device's protocol does not carry is refused at intake, by
+    /// its own reason: OSCC's steering module has enable and disable messages and no
+    /// home (the console's `e` sent one, which the driver dropped at the wire, the
+    /// module's own watchdog then disabled it, and the vehicle disengaged).
+    #[test]
+    fn a_control_is_taken_only_where_the_device_s_protocol_carries_it() {
+        use crate::value::Control;
+        let oscc = crate::config::parse(
+            include_str!("../../vehicles/oscc.toml"),
+            "vehicles/oscc.toml",
+        )
+        .expect("OSCC parses");
+        let steer = oscc.device("steer").unwrap();
+        let of = |c| check_value(steer, Command::Control(c));
+        assert_eq!(of(Control::Enable), Ok(()));
+        assert_eq!(of(Control::Disable), Ok(()));
+        assert_eq!(of(Control::Home), Err(Reject::NoSuchControl));
+        assert_eq!(of(Control::Start), Err(Reject::NoSuchControl));
+        assert_eq!(
+            steer.takes_control(Control::Home),
+            Err("steer: home: its CAN messages carry no home".into())
+        );
     }
 
     /// The rules see throttle and brake set points as fractions of their range's top,

@@ -39,6 +39,7 @@ pub enum Reject {
     NoSuchDevice,
     NotAnActuator,
     WrongKind,
+    NoSuchControl,
     NotFinite,
     OutOfRange,
     GasWhileBraking,
@@ -56,10 +57,11 @@ pub enum Reject {
 }
 
 impl Reject {
-    pub const ALL: [Reject; 17] = [
+    pub const ALL: [Reject; 18] = [
         Reject::NoSuchDevice,
         Reject::NotAnActuator,
         Reject::WrongKind,
+        Reject::NoSuchControl,
         Reject::NotFinite,
         Reject::OutOfRange,
         Reject::GasWhileBraking,
@@ -94,6 +96,7 @@ impl Reject {
             Reject::NoSuchDevice => "no_such_device",
             Reject::NotAnActuator => "not_an_actuator",
             Reject::WrongKind => "wrong_kind",
+            Reject::NoSuchControl => "no_such_control",
             Reject::NotFinite => "not_finite",
             Reject::OutOfRange => "out_of_range",
             Reject::GasWhileBraking => "gas_while_braking",
@@ -138,6 +141,9 @@ impl fmt::Display for Reject {
             Reject::NoSuchDevice => "no such device in this vehicle",
             Reject::NotAnActuator => "the device is a sensor and takes no commands",
             Reject::WrongKind => "wrong kind of value for this device",
+            Reject::NoSuchControl => {
+                "the device's protocol carries no such control (see its vehicle file)"
+            }
             Reject::NotFinite => "value is not a finite number",
             Reject::OutOfRange => "value outside the device's range",
             Reject::GasWhileBraking => "no throttle while the brake is applied",

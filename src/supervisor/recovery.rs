@@ -252,25 +252,26 @@ impl Procedure {
     }
 
     /// Steering drive fault: stand still (throttle off and brake, where bound), then
-    /// disable, enable, home, hold where it is.
+    /// disable, enable, home — each its protocol carries (a kit's module has no home) —
+    /// and hold where it is.
     pub(crate) fn steering(v: &Vehicle, cfg: &SupervisorConfig) -> Option<Procedure> {
         let b = v.bindings();
         let s = b.steering?;
+        let takes = |c: Control| v.device(s).config().takes_control(c).is_ok();
         let mut steps = stand_still(v);
-        steps.extend([
-            Step::Send {
-                device: s,
-                command: Command::Control(Control::Disable),
-                label: "disable".into(),
-            },
-            Step::Send {
-                device: s,
-                command: Command::Control(Control::Enable),
-                label: "enable".into(),
-            },
-            Step::Home(s),
-            Step::Hold(s),
-        ]);
+        for c in [Control::Disable, Control::Enable] {
+            if takes(c) {
+                steps.push(Step::Send {
+                    device: s,
+                    command: Command::Control(c),
+                    label: c.as_str().into(),
+                });
+            }
+        }
+        if takes(Control::Home) {
+            steps.push(Step::Home(s));
+        }
+        steps.push(Step::Hold(s));
         let takes = [Some(s), b.throttle, b.brake]
             .into_iter()
             .flatten()
@@ -477,5 +478,25 @@ mod tests {
             names(&steering, true),
             ["disable", "enable", "home", "hold position"]
         );
+    }
+
+    /// The steering procedure sends only the controls its drive's protocol carries:
+    /// OSCC's steering module is disabled and enabled, and has no home.
+    #[test]
+    fn the_steering_procedure_sends_only_what_the_drive_takes() {
+        let config = crate::config::parse(
+            include_str!("../../vehicles/oscc.toml"),
+            "vehicles/oscc.toml",
+        )
+        .expect("OSCC parses");
+        let gate = crate::testkit::gate_of(config, Instant::now());
+        let steering =
+            Procedure::steering(&gate.vehicle(), &SupervisorConfig::default()).expect("bound");
+        let names: Vec<String> = steering.steps().iter().map(Step::name).collect();
+        assert!(
+            names.ends_with(&["disable".into(), "enable".into(), "hold position".into()]),
+            "{names:?}"
+        );
+        assert!(!names.contains(&"home".into()), "{names:?}");
     }
 }
