@@ -1030,6 +1030,51 @@ fn a_steering_reset_a_kit_cannot_take_is_refused_and_the_vehicle_stays_engaged()
     assert!(!log.contains("disabled while engaged"), "{log}");
 }
 
+/// The incident: on the cart (its steering -30 … 30 degrees), teleop's steering went
+/// from -1 to 1 in the device's units — a degree either way, the gauge at full lock —
+/// and entering teleop with the wheel at 15 degrees would have sent it to 1. Teleop
+/// steers from the range's left end (-1) to its right (1), 0 straight ahead.
+#[test]
+fn teleop_steers_a_cart_over_its_whole_range_in_its_own_units() {
+    let mut c = Console::start("cart-teleop", &["--config", "vehicles/cart.toml"]);
+    c.wait_for("the cart's main screen", |s| {
+        s.contains("STEER") && s.contains("│ MAIN │")
+    });
+    c.engage_now();
+    c.keys("s");
+    c.wait_for("the steering edit", |s| s.contains("edit steer command"));
+    c.keys("15\r");
+    c.wait_for("the command on screen", |s| s.contains("cmd 15.0"));
+    c.keys("d");
+    c.wait_for("teleop", |s| s.contains("TELEOP"));
+    c.keys("m");
+    let s = c.wait_for("step mode", |s| s.contains("TELEOP step"));
+    // Entered where the wheel was told to be: 15 of 30 degrees right is +0.50.
+    assert!(s.contains("steer +0.50"), "{s}");
+    // A step right from there (0.05 of the half range: 1.5 degrees).
+    c.keys("\x1b[C");
+    common::wait_for("the steering at 16.5 degrees", || {
+        c.commanded("steer").as_f64() == Some(16.5)
+    });
+    // Ten steps more: the right end of its range, not 1.
+    for _ in 0..10 {
+        c.keys("\x1b[C");
+    }
+    common::wait_for("the steering at full lock", || {
+        c.commanded("steer").as_f64() == Some(30.0)
+    });
+    c.wait_for("the bar at +1.00", |s| s.contains("steer +1.00"));
+    c.keys("z");
+    common::wait_for("the steering centred", || {
+        c.commanded("steer").as_f64() == Some(0.0)
+    });
+    c.keys(" ");
+    c.wait_for("stopped", |s| s.contains("DISENGAGED"));
+    c.keys("q");
+    let status = c.wait_exit();
+    assert!(status.success(), "{status:?}\n{}", c.log());
+}
+
 /// `adrive ctl` on the console's control socket; its standard output.
 fn ctl(c: &Console, args: &[&str]) -> String {
     let out = ctl_output(c, args);

@@ -91,7 +91,7 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
             m.teleop.accel = a;
         }
         if let Some(s) = m.snap.steering() {
-            m.teleop.steer = s;
+            m.teleop.steer = m.snap.steering_share(s);
         }
     }
     teleop::tick(m, c, now);

@@ -153,6 +153,41 @@ impl Scene {
             .as_f64()
     }
 
+    /// The steering's range (`[-1, 1]` without one): teleop steers from -1, full left,
+    /// to 1, full right, whatever the device's units (a cart's -30 … 30 degrees).
+    fn steering_range(&self) -> [f64; 2] {
+        self.snap
+            .bound(crate::config::Role::Steering.as_str())
+            .and_then(|d| d.range)
+            .filter(|[lo, hi]| hi > lo)
+            .unwrap_or([-1.0, 1.0])
+    }
+
+    /// Teleop's steering `x` (-1 … 1) in the device's units, rounded to the thousandth
+    /// the wire carries: -1 its range's left end, 1 its right, and 0 straight ahead
+    /// (0, where the range spans it; else its middle).
+    pub(crate) fn steering_units(&self, x: f64) -> f64 {
+        let [lo, hi] = self.steering_range();
+        let v = match (lo < 0.0 && hi > 0.0, x < 0.0) {
+            (true, true) => -x * lo,
+            (true, false) => x * hi,
+            (false, _) => (lo + hi) / 2.0 + x * (hi - lo) / 2.0,
+        };
+        (v * 1000.0).round() / 1000.0
+    }
+
+    /// A steering set point `v` in the device's units as teleop's -1 … 1
+    /// ([`Scene::steering_units`] undone).
+    pub(crate) fn steering_share(&self, v: f64) -> f64 {
+        let [lo, hi] = self.steering_range();
+        let x = match (lo < 0.0 && hi > 0.0, v < 0.0) {
+            (true, true) => -v / lo,
+            (true, false) => v / hi,
+            (false, _) => (v - (lo + hi) / 2.0) / ((hi - lo) / 2.0),
+        };
+        x.clamp(-1.0, 1.0)
+    }
+
     /// Red on screen: faulty to the engine (no replies) or to the supervisor (any
     /// fault it names this device in).
     pub fn red(&self, d: &DeviceView) -> bool {

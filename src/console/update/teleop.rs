@@ -29,7 +29,7 @@ pub(super) fn enter(m: &mut Model) {
         .snap
         .steering()
         .or(steer.and_then(|d| d.position()))
-        .unwrap_or(0.0);
+        .map_or(0.0, |v| m.snap.steering_share(v));
     let t = &mut m.teleop;
     *t = crate::console::model::Teleop {
         levels: t.levels,
@@ -236,7 +236,7 @@ fn steer_to(m: &mut Model, c: &dyn Controls, upto: Instant) {
         return;
     }
     match m.snap.bound_id(Role::Steering) {
-        Some(id) => match c.submit(id, Command::Set(to)) {
+        Some(id) => match c.submit(id, Command::Set(m.snap.steering_units(to))) {
             Ok(()) => m.teleop.steer = to,
             Err(why) => {
                 m.teleop.holds.steer = None;
@@ -419,7 +419,7 @@ pub(super) fn action(m: &mut Model, a: Action, c: &dyn Controls, now: Instant) {
     let mut refused = Vec::new();
     if steer != m.teleop.steer || a == Action::Center {
         match m.snap.bound_id(Role::Steering) {
-            Some(id) => match c.submit(id, Command::Set(steer)) {
+            Some(id) => match c.submit(id, Command::Set(m.snap.steering_units(steer))) {
                 Ok(()) => m.teleop.steer = steer,
                 Err(why) => refused.push(format!("steer {steer:.2}: {why}")),
             },
