@@ -369,6 +369,33 @@ fn a_frozen_commanding_console_is_dropped_and_both_ends_say_so() {
     assert!(svc.ctl(&["status"]).status.success(), "adrive still runs");
 }
 
+/// The incident: adrive frozen (SIGSTOP; a hung host, a stalled link to it) under a
+/// commanding `adrive attach`: for as long as it lasted the console showed `COMMANDING
+/// … ENGAGED`, every figure frozen and nothing dimmed, as if live. A console whose
+/// adrive sends no frame for a second says so in the gate's place, in the fault's
+/// colour, with what adrive said last; the first frame after takes it away.
+#[test]
+fn an_attached_console_says_when_its_adrive_sends_nothing() {
+    // Held engaged through a freeze of adrive itself: on the tolerant Alice.
+    let svc = Service::start_tolerant("attach-quiet");
+    let mut c = attach(&svc.socket);
+    c.engage();
+    assert!(common::signal(&svc.child, libc::SIGSTOP));
+    let s = c.wait_for("the header to say adrive is silent", |s| {
+        s.contains("NO WORD FROM ADRIVE")
+    });
+    let top = s.lines().next().unwrap_or_default();
+    assert!(top.contains("(last said engaged)"), "{top}");
+    assert!(!top.contains("│ ENGAGED"), "{top}");
+    assert!(common::signal(&svc.child, libc::SIGCONT));
+    c.wait_for("the gate again", |s| {
+        !s.contains("NO WORD FROM ADRIVE")
+            && s.lines().next().is_some_and(|l| l.contains("ENGAGED"))
+    });
+    c.keys("q");
+    assert_eq!(c.wait_exit(), Some(0));
+}
+
 /// An attached console says how its adrive ended: stopping (adrive's own word), or
 /// gone without a word (killed: nothing answers at its socket any more).
 #[test]

@@ -287,6 +287,7 @@ impl Player {
             sim_names: None,
             you: None,
             teleop: crate::config::TeleopConfig::default(),
+            quiet: None,
         }
     }
 

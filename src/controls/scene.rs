@@ -18,7 +18,7 @@ use crate::snapshot::{DeviceView, FaultKind, FaultView, Snapshot};
 use crate::value::DeviceId;
 use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// The faults switched on in one simulated device.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -79,7 +79,15 @@ pub struct Scene {
     pub(crate) you: Option<String>,
     /// The vehicle file's `[teleop]`: what teleop starts from.
     pub teleop: crate::config::TeleopConfig,
+    /// An attached console whose adrive has sent no frame for longer than
+    /// [`QUIET_AFTER`]: how long (adrive stopped, frozen, or its link stalled). What
+    /// the screen shows is that old.
+    pub(crate) quiet: Option<Duration>,
 }
+
+/// An attached console's adrive sends a frame every console tick; none for this long
+/// and the screen says so: what it shows is no longer the vehicle's state.
+pub(crate) const QUIET_AFTER: Duration = Duration::from_secs(1);
 
 impl std::ops::Deref for Scene {
     type Target = Snapshot;
@@ -384,6 +392,7 @@ pub fn capture(gate: &Gate, sources: &Sources, now: Instant, bench: Option<Devic
             .collect(),
         you: None,
         teleop: v.config().teleop,
+        quiet: None,
         snap,
     }
 }

@@ -333,7 +333,7 @@ impl Inbox {
 }
 
 impl Controls for Remote {
-    fn scene(&self, _now: Instant, bench: Option<DeviceId>) -> Scene {
+    fn scene(&self, now: Instant, bench: Option<DeviceId>) -> Scene {
         {
             let mut asked = self.bench.lock();
             if *asked != Some(bench) {
@@ -355,6 +355,8 @@ impl Controls for Remote {
             sim_names: f.sim_names,
             you: Some(self.source.clone()),
             teleop: f.teleop,
+            quiet: Some(now.saturating_duration_since(at))
+                .filter(|q| *q > crate::controls::scene::QUIET_AFTER),
             snap: f.snap,
         }
     }

@@ -73,10 +73,15 @@ impl Header<'_> {
             ));
             rest.push(Span::styled("│", bar));
         }
-        let (gate, style) = if s.gate.engaged {
-            (" ENGAGED ".to_string(), t.good().patch(bar))
-        } else {
-            (" DISENGAGED ".to_string(), t.warn().patch(bar))
+        let (gate, style) = match s.quiet {
+            // An attached console whose adrive sends nothing: the gate it last said is
+            // not the vehicle's now, and the operator must not read it as such.
+            Some(q) => (
+                format!(" NO WORD FROM ADRIVE {:.0} s ", q.as_secs_f64().floor()),
+                t.fault().patch(bar),
+            ),
+            None if s.gate.engaged => (" ENGAGED ".to_string(), t.good().patch(bar)),
+            None => (" DISENGAGED ".to_string(), t.warn().patch(bar)),
         };
         // Engaged: who commands it; disengaged: why, in the gate's own words (the
         // same the broadcast and `adrive ctl status` carry).
@@ -84,10 +89,11 @@ impl Header<'_> {
             Some(c) => format!("by {c}"),
             None => "nobody commands".to_string(),
         };
-        let why = if s.gate.engaged {
-            who
-        } else {
-            s.gate.cause.why()
+        let why = match (s.quiet, s.gate.engaged) {
+            (Some(_), true) => "last said engaged".to_string(),
+            (Some(_), false) => "last said disengaged".to_string(),
+            (None, true) => who,
+            (None, false) => s.gate.cause.why(),
         };
         let title = format!(" ADRIVE {} ", s.vehicle);
         let mut fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
