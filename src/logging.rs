@@ -180,10 +180,12 @@ pub(crate) const REPEAT_EVERY: Duration = Duration::from_secs(60);
 /// again, a broadcast that cannot be sent — logged once when it starts or changes, then
 /// at most once every [`REPEAT_EVERY`] with how many times it came meanwhile
 /// (`… (repeated 120 times in the last minute)`). [`RateLimit`] is for events that
-/// differ (each rejected command); this is for the same words again.
+/// differ (each rejected command); this is for the same words again. The same words
+/// with other figures are the same condition (`it came 30.8 ms later`, then `28.4 ms
+/// later`: a late reply logged at every poll, once): what changes it is its words.
 #[derive(Debug, Default)]
 pub struct Repeats {
-    /// What was logged last, and when.
+    /// The shape of what was logged last ([`shape`]), and when.
     last: Option<(String, Instant)>,
     /// Times it came since it was last logged.
     unlogged: u64,
@@ -194,8 +196,9 @@ impl Repeats {
     /// suffix when it starts or changes, else how many times it repeated — `None`
     /// when it is only counted.
     pub fn note(&mut self, what: &str, now: Instant) -> Option<String> {
+        let what = shape(what);
         match &mut self.last {
-            Some((said, at)) if said == what => {
+            Some((said, at)) if *said == what => {
                 self.unlogged += 1;
                 let since = now.saturating_duration_since(*at);
                 if since < REPEAT_EVERY {
@@ -213,7 +216,7 @@ impl Repeats {
                 })
             }
             _ => {
-                self.last = Some((what.to_string(), now));
+                self.last = Some((what, now));
                 self.unlogged = 0;
                 Some(String::new())
             }
@@ -225,6 +228,27 @@ impl Repeats {
         self.last = None;
         self.unlogged = 0;
     }
+}
+
+/// `what` with each figure (a run of digits, with its decimal point) as `#`: the
+/// words that say which condition it is.
+fn shape(what: &str) -> String {
+    let mut out = String::with_capacity(what.len());
+    let mut chars = what.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            while chars
+                .peek()
+                .is_some_and(|n| n.is_ascii_digit() || *n == '.')
+            {
+                chars.next();
+            }
+            out.push('#');
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// An event's words, for the layers that keep them (the console's log pane, a
@@ -316,5 +340,26 @@ mod tests {
             r.note("garbled", t + Duration::from_secs(302)),
             Some(" (repeated once in the last 5 minutes)".into())
         );
+    }
+
+    /// A late reply names how late it came, a different figure each poll: one
+    /// condition, logged once (it was logged at every poll, 14 lines in 3 s); other
+    /// words are another.
+    #[test]
+    fn the_same_words_with_other_figures_are_the_same_condition() {
+        let t0 = Instant::now();
+        let mut r = Repeats::default();
+        let late = |ms: f64| format!("status: no reply within 100ms: it came {ms}ms later");
+        assert_eq!(r.note(&late(30.796228), t0), Some(String::new()));
+        assert_eq!(
+            r.note(&late(28.397225), t0 + Duration::from_millis(50)),
+            None
+        );
+        assert_eq!(r.note(&late(1033.5), t0 + Duration::from_millis(100)), None);
+        assert_eq!(
+            r.note("status: garbled reply", t0 + Duration::from_millis(150)),
+            Some(String::new())
+        );
+        assert_eq!(shape("steer 0.25 in 12 ms, v1.2.3"), "steer # in # ms, v#");
     }
 }

@@ -470,7 +470,7 @@ pub(crate) const TELEOP_STEER_RATE: Limit<f64> = Limit {
     min: 0.05,
     max: 2.0,
     default: Some(0.5),
-    why: "`←`/`→` held: the steering command (−1 … 1) moves this much a second",
+    why: "`←`/`→` held: the steering command moves this much of its range a second (−1 … 1: its left end … its right)",
 };
 pub const DEADMAN: Limit<Duration> = Limit {
     section: CommandLine,

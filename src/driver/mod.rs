@@ -80,7 +80,7 @@ pub enum DriverError {
     /// No reply within the reply timeout; it came later, `late` after the deadline, and
     /// was dropped (never taken for the next request's answer): the device answers
     /// slower than its reply timeout.
-    #[error("no reply within {within:?}: it came {late:?} later and was dropped (slower than its reply_timeout)")]
+    #[error("no reply within {within:?}: it came {:.1} ms later and was dropped (slower than its reply_timeout)", late.as_secs_f64() * 1e3)]
     Late { within: Duration, late: Duration },
     /// The command cannot be expressed for this device (e.g. a gear sent to steering).
     #[error("unsupported command: {0}")]
