@@ -999,12 +999,15 @@ pub fn characterize(args: CharacterizeArgs) -> anyhow::Result<i32> {
             1
         }
     };
+    // A sensor is only listened to: nothing of it to say where it ended.
+    let ended = match (kind, at) {
+        (crate::value::Kind::Sensor, _) => format!("{} listened to", args.device),
+        (_, at) => format!("{} at {}", args.device, at.unwrap_or_else(|| "?".into())),
+    };
     tell(
         io::stdout(),
         format_args!(
-            "{} at {}; safe state {}acknowledged\n",
-            args.device,
-            at.unwrap_or_else(|| "?".into()),
+            "{ended}; safe state {}acknowledged\n",
             if safe { "" } else { "NOT " }
         ),
     );

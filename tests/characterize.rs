@@ -1078,6 +1078,14 @@ fn a_sensor_s_update_rate_and_noise_are_measured_without_commanding_anything() {
         msgs.iter().filter(|(t, _, _)| t == "/obd/reading").count() as u64 >= samples,
         "the readings are in the recording"
     );
+    // Its last word says it was listened to (it read `obd at ?`).
+    assert!(
+        run.out_lines
+            .iter()
+            .any(|l| l == "obd listened to; safe state acknowledged"),
+        "{:?}",
+        run.out_lines
+    );
 }
 
 /// The bench commands under the planners' watchdog: on a vehicle whose
