@@ -88,7 +88,9 @@ fn one_port_spelled_two_ways_is_refused_at_the_second_s_line_before_anything_sta
 #[test]
 fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     let dir = tempdir("cli");
-    let mut child = common::headless_piped(dir.path());
+    let rec = tempdir("cli-rec");
+    let file = rec.path().join("run.mcap");
+    let mut child = common::headless_piped(dir.path(), &["--record", file.to_str().unwrap()]);
     let err = lines(child.stderr.take().unwrap());
     let listen = common::listen_address(&until(&err, "running headless"));
     // A datagram that is no command, and a command while disengaged: their replies say
@@ -122,6 +124,25 @@ fn headless_sim_stops_safely_on_sigterm_with_a_summary() {
     assert!(
         !whole.contains(',') && whole.ends_with(" 1") && commands == "disengaged 1",
         "{network}"
+    );
+    // The recording's account is the same: one command, refused, and one datagram
+    // refused whole (it counted the datagram as a command received).
+    let info = Process::new(BIN)
+        .args(["record", "info"])
+        .arg(&file)
+        .output()
+        .unwrap();
+    let info = String::from_utf8_lossy(&info.stdout);
+    let commands = info
+        .lines()
+        .find(|l| l.starts_with("commands received"))
+        .unwrap_or_default();
+    assert_eq!(
+        commands,
+        format!(
+            "commands received 1, accepted 0, refused 1 (disengaged 1); datagrams refused whole 1 ({whole})"
+        ),
+        "{info}"
     );
     // The rolling log file was flushed and tells the safe state was reached.
     // The log files (the control socket's directory is beside them).
@@ -369,7 +390,7 @@ fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
 #[test]
 fn headless_log_on_a_redirected_stderr_has_no_colour_escapes() {
     let dir = tempdir("cli-colour");
-    let mut child = common::headless_piped(dir.path());
+    let mut child = common::headless_piped(dir.path(), &[]);
     let err = lines(child.stderr.take().unwrap());
     let mut seen = until(&err, "running headless");
     signal(&child, libc::SIGINT);
@@ -625,7 +646,7 @@ fn sim_says_only_what_happened_at_start_and_confirms_each_fault_given() {
 #[test]
 fn headless_sim_logs_no_device_watchdog_while_it_runs() {
     let dir = tempdir("cli-watchdog");
-    let mut child = common::headless_piped(dir.path());
+    let mut child = common::headless_piped(dir.path(), &[]);
     let err = lines(child.stderr.take().unwrap());
     let mut seen = until(&err, "running headless");
     // Past every simulated device's watchdog (1 s), then the sentinel: the stop.

@@ -417,7 +417,7 @@ fn sim_line(line: &str, _dir: &tempfile::TempDir) -> String {
 /// disengaged, then stopped: the summary's network line.
 fn exit_network(s: &mut BTreeMap<&'static str, String>) {
     let dir = common::tempdir("docs-exit");
-    let mut a = common::headless_piped(dir.path());
+    let mut a = common::headless_piped(dir.path(), &[]);
     let out = common::lines(a.stdout.take().unwrap());
     let err = common::lines(a.stderr.take().unwrap());
     let listen = common::listen_address(&common::until(&err, "running headless"));

@@ -19,6 +19,8 @@ pub(crate) struct Info {
     pub received: u64,
     /// Refused commands by reason.
     pub refused: BTreeMap<String, u64>,
+    /// Datagrams refused whole (no command in them was looked at), by reason.
+    pub refused_whole: BTreeMap<String, u64>,
     /// (seconds from the start, line) of gate events and faults.
     pub events: Vec<(f64, String)>,
     pub faults: u64,
@@ -43,9 +45,16 @@ pub(crate) fn gather(rec: &Recording) -> Info {
         match m.topic {
             "/commands" => {
                 if let Ok(r) = serde_json::from_slice::<Received>(m.data) {
-                    i.received += 1;
-                    if let Some(why) = r.reason.filter(|_| !r.accepted) {
-                        *i.refused.entry(why).or_default() += 1;
+                    let why = r.reason.filter(|_| !r.accepted);
+                    match (r.device, why) {
+                        // No device: a datagram refused whole, not a command.
+                        (None, Some(why)) => *i.refused_whole.entry(why).or_default() += 1,
+                        (_, why) => {
+                            i.received += 1;
+                            if let Some(why) = why {
+                                *i.refused.entry(why).or_default() += 1;
+                            }
+                        }
                     }
                 }
             }
@@ -130,9 +139,22 @@ pub(crate) fn report(rec: &Recording) -> String {
         i.received,
         i.received - refused
     );
+    let by = |m: &BTreeMap<String, u64>| {
+        m.iter()
+            .map(|(k, n)| format!("{k} {n}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
     if !i.refused.is_empty() {
-        let by: Vec<String> = i.refused.iter().map(|(k, n)| format!("{k} {n}")).collect();
-        let _ = write!(s, " ({})", by.join(", "));
+        let _ = write!(s, " ({})", by(&i.refused));
+    }
+    if !i.refused_whole.is_empty() {
+        let whole: u64 = i.refused_whole.values().sum();
+        let _ = write!(
+            s,
+            "; datagrams refused whole {whole} ({})",
+            by(&i.refused_whole)
+        );
     }
     let _ = writeln!(
         s,

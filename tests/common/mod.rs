@@ -504,9 +504,10 @@ pub fn sim_dirs(dir: &std::path::Path) -> Vec<String> {
         .unwrap_or_default()
 }
 
-/// `adrive --sim --headless` listening on a free port, logging into `dir` (its runtime
-/// directory too), its output and error piped: for a test that reads its summary.
-pub fn headless_piped(dir: &std::path::Path) -> Reaped {
+/// `adrive --sim --headless ARGS` listening on a free port, logging into `dir` (its
+/// runtime directory too), its output and error piped: for a test that reads its
+/// summary.
+pub fn headless_piped(dir: &std::path::Path, args: &[&str]) -> Reaped {
     Reaped(
         std::process::Command::new(env!("CARGO_BIN_EXE_adrive"))
             .args([
@@ -517,6 +518,7 @@ pub fn headless_piped(dir: &std::path::Path) -> Reaped {
                 "--log-dir",
             ])
             .arg(dir)
+            .args(args)
             .env("XDG_RUNTIME_DIR", dir)
             .env_remove("NO_COLOR")
             .stdout(std::process::Stdio::piped())
