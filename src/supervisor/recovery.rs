@@ -491,7 +491,7 @@ mod tests {
         .expect("OSCC parses");
         let gate = crate::testkit::gate_of(config, Instant::now());
         let steering =
-            Procedure::steering(&gate.vehicle(), &SupervisorConfig::default()).expect("bound");
+            Procedure::steering(gate.vehicle(), &SupervisorConfig::default()).expect("bound");
         let names: Vec<String> = steering.steps().iter().map(Step::name).collect();
         assert!(
             names.ends_with(&["disable".into(), "enable".into(), "hold position".into()]),
