@@ -586,6 +586,16 @@ mod tests {
             steer.takes_control(Control::Home),
             Err("steer: home: its CAN messages carry no home".into())
         );
+        // The line protocol carries every control (the cart's throttle speaks it).
+        let cart = crate::config::parse(
+            include_str!("../../vehicles/cart.toml"),
+            "vehicles/cart.toml",
+        )
+        .expect("the cart parses");
+        let throttle = cart.device("throttle").unwrap();
+        for c in Control::ALL {
+            assert_eq!(check_value(throttle, Command::Control(c)), Ok(()), "{c}");
+        }
     }
 
     /// The rules see throttle and brake set points as fractions of their range's top,
