@@ -188,6 +188,16 @@ pub struct GateView {
     pub(crate) last_refused: Option<String>,
 }
 
+impl GateView {
+    /// The watchdog stands tripped by a teleoperating console's deadman (until the next
+    /// engage).
+    pub fn deadman_tripped(&self) -> bool {
+        self.watchdog
+            .as_ref()
+            .is_some_and(|w| w.state == WatchdogState::Tripped && w.trip == Some(TripKind::Deadman))
+    }
+}
+
 /// One device.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct DeviceView {

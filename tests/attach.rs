@@ -396,6 +396,41 @@ fn an_attached_console_says_when_its_adrive_sends_nothing() {
     assert_eq!(c.wait_exit(), Some(0));
 }
 
+/// A STOP an attached console's adrive did not confirm (adrive frozen: a hung host, a
+/// stalled link) was said once, as any message, and faded after 8 s with nothing
+/// confirmed. It stays, counting, until adrive speaks again and shows the vehicle
+/// disengaged — here by doing the STOP that waited in its socket.
+#[test]
+fn a_stop_adrive_did_not_confirm_stays_said_until_adrive_shows_the_vehicle_disengaged() {
+    let svc = Service::start_tolerant("attach-stop-unconfirmed");
+    let mut c = attach(&svc.socket);
+    c.engage();
+    assert!(common::signal(&svc.child, libc::SIGSTOP));
+    c.wait_for("the header to say adrive is silent", |s| {
+        s.contains("NO WORD FROM ADRIVE")
+    });
+    c.keys(" ");
+    // Past the 8 s any other message stays, the STOP is still said not confirmed.
+    let ago = |s: &str| -> Option<u64> {
+        let rest = s.split("STOP NOT CONFIRMED (").nth(1)?;
+        rest.split(" s ago)").next()?.parse().ok()
+    };
+    let s = c.wait_for("the unconfirmed STOP past a message's 8 s", |s| {
+        ago(s).is_some_and(|a| a >= 9)
+    });
+    assert!(s.contains("no reply from adrive within 3 s"), "{s}");
+    assert!(common::signal(&svc.child, libc::SIGCONT));
+    c.wait_for("adrive's word that the vehicle is disengaged", |s| {
+        s.contains("adrive answers again: the vehicle is disengaged")
+            && !s.contains("STOP NOT CONFIRMED")
+            && s.lines().next().is_some_and(|l| l.contains("DISENGAGED"))
+    });
+    let gate = svc.gate();
+    assert_eq!(gate["engaged"], false, "{gate}");
+    c.keys("q");
+    assert_eq!(c.wait_exit(), Some(0));
+}
+
 /// An attached console says how its adrive ended: stopping (adrive's own word), or
 /// gone without a word (killed: nothing answers at its socket any more).
 #[test]

@@ -442,6 +442,11 @@ fn inside_tmux_a_hold_follows_the_learnt_key_repeat_and_a_tap_holds_briefly() {
         r.keys("y");
         let s = r.wait_for("engaged again", common::engage_answered);
         assert!(common::engaged_said(&s), "{s}");
+        // The trip is over with the engage: the bar idles until the next key (it
+        // said `DEADMAN TRIPPED` until then, and the next hold's trip was not seen).
+        r.wait_for("the deadman idle again", |s| {
+            s.contains("DEADMAN idle") && !s.contains("DEADMAN TRIPPED")
+        });
     }
     r.quit();
 }

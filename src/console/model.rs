@@ -194,6 +194,9 @@ pub struct Message {
 /// read is an answer lost. The news waits, then shows; the log pane has it at once.
 pub const ANSWER_HOLDS: std::time::Duration = std::time::Duration::from_millis(1500);
 
+/// How long an outcome message stays on the message line.
+pub(crate) const MESSAGE_FOR: Duration = Duration::from_secs(8);
+
 /// Teleop: set points driven by keys, with a deadman. `steer` and `accel` are what
 /// the intake accepted (the bar shows them). In step mode a key asks for the next step
 /// from them; in hold and repeat modes the keys held ([`Holds`]) say what to ask.
@@ -307,6 +310,14 @@ pub struct Model {
     pub message: Option<Message>,
     /// News from elsewhere waiting for the operator's answer to be read ([`ANSWER_HOLDS`]).
     pub(crate) news: Option<Message>,
+    /// A STOP adrive did not confirm (an attached console's adrive silent): when, and
+    /// why. It stays on the message line until a frame from adrive shows the vehicle
+    /// disengaged or a later STOP is confirmed; a message of its own time fades, this
+    /// does not.
+    pub(crate) stop_unconfirmed: Option<(Instant, String)>,
+    /// The intake's deadman trip the console already knows of: the watchdog stands
+    /// tripped until the next engage, and a trip is said once, when it happens.
+    pub(crate) deadman_trip_seen: bool,
     pub teleop: Teleop,
     /// The device the bench view shows.
     pub bench: DeviceId,
@@ -377,6 +388,8 @@ impl Model {
             ask: None,
             message: None,
             news: None,
+            stop_unconfirmed: None,
+            deadman_trip_seen: snap.gate.deadman_tripped(),
             teleop: Teleop {
                 levels: snap.teleop,
                 ..Teleop::new(deadman)
@@ -552,6 +565,30 @@ impl Model {
             own: false,
         });
         self.show_news();
+    }
+
+    /// What the message line shows now, and whether it is bad news: the last message for
+    /// [`MESSAGE_FOR`]; a STOP not confirmed for as long as it is not, beneath only the
+    /// operator's own answers since.
+    pub(crate) fn message_line(&self) -> Option<(std::borrow::Cow<'_, str>, bool)> {
+        let fresh = self
+            .message
+            .as_ref()
+            .filter(|x| self.now.saturating_duration_since(x.at) < MESSAGE_FOR);
+        match (&self.stop_unconfirmed, fresh) {
+            (Some((at, _)), Some(x)) if x.own && x.at > *at => {
+                Some((x.text.as_str().into(), x.bad))
+            }
+            (Some((at, why)), _) => {
+                let ago = self.now.saturating_duration_since(*at).as_secs();
+                Some((
+                    format!("STOP NOT CONFIRMED ({ago} s ago): {why}").into(),
+                    true,
+                ))
+            }
+            (None, Some(x)) => Some((x.text.as_str().into(), x.bad)),
+            (None, None) => None,
+        }
     }
 
     /// The news waiting, once the operator's answer has held the line long enough.

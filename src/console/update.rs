@@ -39,6 +39,11 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
         }
     }
     m.cursor = m.cursor.min(m.fields().len().saturating_sub(1));
+    // A STOP not confirmed is, once adrive speaks again and says disengaged.
+    if m.stop_unconfirmed.is_some() && m.snap.quiet.is_none() && !m.snap.gate.engaged {
+        m.stop_unconfirmed = None;
+        m.tell("adrive answers again: the vehicle is disengaged", false);
+    }
     characterize::tick(m, c);
     follow_steer_reset(m, c, now);
     let sup = &m.snap.supervisor;
@@ -58,12 +63,19 @@ pub fn tick(m: &mut Model, c: &dyn Controls, now: Instant) {
     }
     m.refused_seen = m.snap.gate.refused;
     // The deadman is the console's watchdog in the intake; here only what it did.
+    // Said once, when it happens: the watchdog stands tripped until the next engage,
+    // and a key after a STOP is no new trip.
     let t = &mut m.teleop;
-    let deadman_tripped = m.snap.gate.watchdog.as_ref().is_some_and(|w| {
-        w.state == crate::snapshot::WatchdogState::Tripped
-            && w.trip == Some(crate::snapshot::TripKind::Deadman)
-    });
-    if t.last_key.is_some() && !t.tripped && deadman_tripped {
+    let deadman_tripped = m.snap.gate.deadman_tripped();
+    let new_trip = deadman_tripped && !m.deadman_trip_seen;
+    m.deadman_trip_seen = deadman_tripped;
+    // Engaged again (or the trip otherwise over): the deadman idles until the next
+    // teleop key, as the intake's does.
+    if t.tripped && !deadman_tripped {
+        t.tripped = false;
+        t.last_key = None;
+    }
+    if t.last_key.is_some() && !t.tripped && new_trip {
         t.let_go();
         t.tripped = true;
         t.accel = -1.0;
@@ -551,10 +563,15 @@ fn stop(m: &mut Model, c: &dyn Controls) {
             if m.mode == Mode::Teleop {
                 m.teleop.accel = -1.0;
             }
+            m.stop_unconfirmed = None;
             m.say("STOP: disengaged, gas 0, brake full", true)
         }
-        // Only an attached console's adrive can fail to take it: say so, loudly.
-        Err(why) => m.say(format!("STOP NOT CONFIRMED: {why}"), true),
+        // Only an attached console's adrive can fail to take it: say so, loudly, and
+        // keep saying so until adrive shows the vehicle disengaged.
+        Err(why) => {
+            m.stop_unconfirmed = Some((m.now, why.to_string()));
+            m.say(format!("STOP NOT CONFIRMED: {why}"), true)
+        }
     }
 }
 

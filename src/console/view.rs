@@ -20,7 +20,7 @@ use super::panels::dialog::Dialog;
 use super::panels::fit;
 use super::panels::header::Header;
 use super::panels::help::{HelpPanel, KeyEvents};
-use super::panels::hint::{key_name, HintBar, MessageLine, MESSAGE_FOR};
+use super::panels::hint::{key_name, HintBar, MessageLine};
 use super::panels::list::DeviceList;
 use super::panels::log::LogPanel;
 use super::panels::network::NetworkPanel;
@@ -310,13 +310,9 @@ fn too_small(m: &Model, area: Rect, buf: &mut Buffer) {
     let t = &m.theme;
     let key = |a| key_name(&m.keymap, Mode::Main, a);
     let mut lines = Vec::new();
-    if let Some(msg) = m
-        .message
-        .as_ref()
-        .filter(|x| m.now.saturating_duration_since(x.at) < MESSAGE_FOR)
-    {
-        let style = if msg.bad { t.fault() } else { t.good() };
-        lines.push(Line::from(Span::styled(msg.text.clone(), style)));
+    if let Some((text, bad)) = m.message_line() {
+        let style = if bad { t.fault() } else { t.good() };
+        lines.push(Line::from(Span::styled(text.into_owned(), style)));
     }
     lines.push(Line::from(format!(
         "adrive needs a terminal of at least {MIN_WIDTH}×{MIN_HEIGHT}; this one is {}×{}.",

@@ -14,11 +14,7 @@ use ratatui::buffer::Buffer;
 use ratatui::layout::Rect;
 use ratatui::text::{Line, Span};
 use ratatui::widgets::{Paragraph, Widget};
-use std::time::Duration;
 use unicode_width::UnicodeWidthStr;
-
-/// How long an outcome message stays.
-pub(crate) const MESSAGE_FOR: Duration = Duration::from_secs(8);
 
 /// A key as the hint bar writes it: arrows as arrows, the rest as in keymaps.
 pub(crate) fn short(k: Key) -> String {
@@ -185,10 +181,7 @@ impl MessageLine<'_> {
     /// A refusal or a fault said just now: worth the hint bar's line where there is no
     /// line of its own (80×22).
     pub(crate) fn urgent(&self) -> bool {
-        let m = self.m;
-        m.message
-            .as_ref()
-            .is_some_and(|x| x.bad && m.now.saturating_duration_since(x.at) < MESSAGE_FOR)
+        self.m.message_line().is_some_and(|(_, bad)| bad)
     }
 }
 
@@ -216,12 +209,12 @@ impl Widget for &MessageLine<'_> {
                 }
             }
         } else {
-            match &m.message {
-                Some(msg) if m.now.saturating_duration_since(msg.at) < MESSAGE_FOR => {
-                    let style = if msg.bad { t.fault() } else { t.good() };
-                    Line::from(Span::styled(msg.text.clone(), style))
+            match m.message_line() {
+                Some((text, bad)) => {
+                    let style = if bad { t.fault() } else { t.good() };
+                    Line::from(Span::styled(text.into_owned(), style))
                 }
-                _ => Line::default(),
+                None => Line::default(),
             }
         };
         Fitted(vec![line]).render(area, buf);
@@ -231,6 +224,7 @@ impl Widget for &MessageLine<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::time::Duration;
 
     fn bar(roles: &Pairs<String>, width: u16) -> String {
         let map = Keymap::default_map();

@@ -632,14 +632,42 @@ fn teleop_keys_arm_the_deadman_and_the_console_shows_its_trip() {
     assert_eq!(m.teleop.accel, -1.0);
     let msg = m.message.clone().unwrap();
     assert!(msg.bad && msg.text.contains("deadman"), "{}", msg.text);
-    // The next key re-arms it.
+    // The next key re-arms it; the watchdog standing tripped (until the next engage)
+    // is no new trip.
     press(&mut m, &f, &["<Left>"], t0 + Duration::from_secs(3));
+    tick(&mut m, &f, t0 + Duration::from_secs(3));
     assert!(matches!(
         m.teleop.state(m.now),
         super::super::model::Deadman::Armed { .. }
     ));
     press(&mut m, &f, &["<Space>"], t0 + Duration::from_secs(3));
     assert_eq!(f.deadman.get(), None, "STOP disarms it");
+    press(&mut m, &f, &["<Left>"], t0 + Duration::from_secs(4));
+    tick(&mut m, &f, t0 + Duration::from_secs(4));
+    let msg = m.message.clone().unwrap();
+    assert!(
+        !msg.text.contains("deadman"),
+        "a trip said twice: {}",
+        msg.text
+    );
+    // Tripped again, then engaged again: the bar leaves the trip and idles, as the
+    // intake's deadman does until the next teleop key.
+    tick(&mut m, &f, t0 + Duration::from_secs(5));
+    f.snap.snap.gate.watchdog = None;
+    tick(&mut m, &f, t0 + Duration::from_secs(6));
+    f.snap.snap.gate.watchdog = Some(crate::snapshot::WatchdogView {
+        state: crate::snapshot::WatchdogState::Tripped,
+        timeout_ms: 500.0,
+        last_command_age_ms: None,
+        last_trip: None,
+        trip: Some(crate::snapshot::TripKind::Deadman),
+    });
+    tick(&mut m, &f, t0 + Duration::from_secs(7));
+    assert_eq!(m.teleop.state(m.now), super::super::model::Deadman::Tripped);
+    f.snap.snap.gate.engaged = true;
+    f.snap.snap.gate.watchdog = None;
+    tick(&mut m, &f, t0 + Duration::from_secs(8));
+    assert_eq!(m.teleop.state(m.now), super::super::model::Deadman::Idle);
 }
 
 /// Another source's command refused because the console commands shows in the
@@ -1172,6 +1200,49 @@ fn a_stop_that_did_not_reach_the_engine_is_not_said_to_be_done() {
     press(&mut m, &f, &["D", "y"], Instant::now());
     let msg = m.message.clone().unwrap();
     assert!(msg.text.starts_with("disengage not done"), "{}", msg.text);
+}
+
+/// A STOP not confirmed outlives a message's time on the line, under the operator's
+/// own answers only (not news), until a frame from adrive shows the vehicle
+/// disengaged; a frame still engaged, or none, leaves it said.
+#[test]
+fn a_stop_not_confirmed_stays_on_the_line_until_adrive_shows_the_vehicle_disengaged() {
+    use crate::console::model::MESSAGE_FOR;
+    let mut f = Fake::new();
+    f.gone = true;
+    f.snap.snap.gate.engaged = true;
+    f.snap.quiet = Some(Duration::from_secs(2));
+    let mut m = model(&f);
+    let t0 = Instant::now();
+    press(&mut m, &f, &["<Space>"], t0);
+    let line = |m: &Model| m.message_line().map(|(t, bad)| (t.into_owned(), bad));
+    let later = t0 + MESSAGE_FOR + Duration::from_secs(2);
+    tick(&mut m, &f, later);
+    let (text, bad) = line(&m).expect("said");
+    assert!(
+        bad && text.starts_with("STOP NOT CONFIRMED (10 s ago): adrive went away"),
+        "{text}"
+    );
+    // News does not cover it; the operator's own answer does, for its time.
+    m.tell("supervisor: something", false);
+    assert!(line(&m).unwrap().0.starts_with("STOP NOT CONFIRMED"));
+    m.say("an answer", false);
+    assert_eq!(line(&m).unwrap().0, "an answer");
+    tick(&mut m, &f, later + MESSAGE_FOR);
+    assert!(line(&m).unwrap().0.starts_with("STOP NOT CONFIRMED"));
+    // adrive speaks again, still engaged: still not confirmed; then disengaged.
+    f.snap.quiet = None;
+    tick(&mut m, &f, later + MESSAGE_FOR);
+    assert!(line(&m).unwrap().0.starts_with("STOP NOT CONFIRMED"));
+    f.snap.snap.gate.engaged = false;
+    tick(&mut m, &f, later + MESSAGE_FOR);
+    assert_eq!(
+        line(&m),
+        Some((
+            "adrive answers again: the vehicle is disengaged".into(),
+            false
+        ))
+    );
 }
 
 /// `M` on the bench: refused at once with the reason where the check refuses, and
