@@ -1529,13 +1529,15 @@ fn a_closed_terminal_in_the_protocol_stops_safely() {
 
 /// Inside tmux on the vehicle, tmux answers for the operator's terminal: the console
 /// does not probe for the kitty protocol (tmux drops releases), says `link unchecked`
-/// in its header, and still asks its round trips (tmux itself may stop).
+/// in its header, and still asks its round trips (tmux itself may stop). At 80×24 the
+/// gate's reason is whole beside it (it read `DISENGAGED (stop from…)` while
+/// `interlocks on` kept its room).
 #[test]
 fn inside_tmux_the_header_says_the_link_is_unchecked() {
     let mut c = Console::start_in(
         "tmux",
         &[],
-        (COLS, ROWS),
+        (80, 24),
         Play::kitty(),
         &[("TMUX", "/tmp/tmux-0/default,1234,0")],
     );
@@ -1549,6 +1551,12 @@ fn inside_tmux_the_header_says_the_link_is_unchecked() {
     );
     c.engage();
     c.wait_for("a request", |_| c.term.cursor_requests() > 0);
+    c.keys(" ");
+    c.wait_for("the stop's reason whole beside the link", |s| {
+        s.lines()
+            .next()
+            .is_some_and(|top| top.contains("│ link unchecked │ DISENGAGED (stop from console)"))
+    });
     c.keys("q");
     assert!(c.wait_exit().success());
     assert!(!pushed(&c.bytes()));

@@ -3,7 +3,9 @@
 //! what an operator looks for, so it is always whole: a reason too long is shortened
 //! at a word, with "…" and every parenthesis it opened closed, never cut in the
 //! middle (at 100 columns it once read `DISENGAGED (gas is faulty (no reply within
-//! 100ms)`); a vehicle name too long gives way before the gate does. An attached
+//! 100ms)`), and the labels that say only the normal state give way before it does
+//! (`GivesWay`: at 80 columns inside tmux it read `(stop from…)` beside `interlocks
+//! on`); a vehicle name too long gives way before the gate does. An attached
 //! console (`adrive attach`) also says whether it commands or watches, and how its own
 //! terminal's keys drive teleop (`keys hold`, `keys repeat ≤100ms`, `keys step`): the
 //! operator's terminal, not the vehicle's — where that leaves the gate's words whole
@@ -27,51 +29,88 @@ pub struct Header<'a> {
     pub m: &'a Model,
 }
 
+/// A label of the bar that gives way to the gate's reason where the reason would
+/// not fit whole: first `KEYS`, then the `ADRIVE` before the vehicle's name, then
+/// `interlocks on` (the normal state: `INTERLOCKS OFF` never gives way), then the mode
+/// (the screen shows it); what commands, `link unchecked`, the faults and the gate
+/// stay.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum GivesWay {
+    Keys,
+    Program,
+    InterlocksOn,
+    Mode,
+}
+
 impl Header<'_> {
     /// The bar for a screen `width` columns wide.
     pub fn line(&self, width: u16) -> Line<'static> {
         let (s, t) = (&self.m.snap, &self.m.theme);
         let bar = t.bar();
+        let sep = || Span::styled("│", bar);
         let mode = match self.m.mode {
             Mode::Help | Mode::Confirm | Mode::Edit | Mode::Find => self.m.back_to,
             m => m,
         };
-        let mut rest = vec![
-            Span::styled("│", bar),
-            Span::styled(format!(" {} ", mode.as_str().to_uppercase()), bar),
-            Span::styled("│", bar),
-            if s.gate.interlocks {
-                Span::styled(" interlocks on ", bar)
-            } else {
-                Span::styled(" INTERLOCKS OFF ", t.fault().patch(bar))
-            },
-            Span::styled("│", bar),
-        ];
-        // An attached console says whether it commands or only watches (and then, where
-        // there is room, how its terminal's keys drive).
-        let mut keys_at = None;
+        // The labels after the title, in order, each with whether (and when) it gives
+        // way to the reason.
+        let mut parts: Vec<(Option<GivesWay>, [Span<'static>; 2])> = vec![(
+            Some(GivesWay::Mode),
+            [
+                sep(),
+                Span::styled(format!(" {} ", mode.as_str().to_uppercase()), bar),
+            ],
+        )];
+        parts.push(if s.gate.interlocks {
+            (
+                Some(GivesWay::InterlocksOn),
+                [sep(), Span::styled(" interlocks on ", bar)],
+            )
+        } else {
+            (
+                None,
+                [
+                    sep(),
+                    Span::styled(" INTERLOCKS OFF ", t.fault().patch(bar)),
+                ],
+            )
+        });
+        // An attached console says whether it commands or only watches, and how its
+        // terminal's keys drive.
         if let Some(you) = &s.you {
-            if s.gate.engaged && s.gate.commander.as_deref() == Some(you.as_str()) {
-                rest.push(Span::styled(" COMMANDING ", t.good().patch(bar)));
+            let who = if s.gate.engaged && s.gate.commander.as_deref() == Some(you.as_str()) {
+                Span::styled(" COMMANDING ", t.good().patch(bar))
             } else {
-                rest.push(Span::styled(" WATCHING ", bar));
-            }
-            rest.push(Span::styled("│", bar));
-            keys_at = Some(rest.len());
+                Span::styled(" WATCHING ", bar)
+            };
+            parts.push((None, [sep(), who]));
+            let keys = crate::console::panels::teleop::drive_label(
+                self.m.drive(),
+                &self.m.repeat.figures(),
+                false,
+            );
+            parts.push((
+                Some(GivesWay::Keys),
+                [sep(), Span::styled(format!(" keys {keys} "), bar)],
+            ));
         }
         // A multiplexer on this machine answers the liveness check's round trips for
         // the operator's terminal: the check cannot see the link (docs/console.md).
         if self.m.terminal.multiplexer.is_some() {
-            rest.push(Span::styled(" link unchecked ", t.warn().patch(bar)));
-            rest.push(Span::styled("│", bar));
+            parts.push((
+                None,
+                [sep(), Span::styled(" link unchecked ", t.warn().patch(bar))],
+            ));
         }
         let faults = s.devices.iter().filter(|d| s.red(d)).count();
         if faults > 0 {
-            rest.push(Span::styled(
-                format!(" {faults} FAULTY "),
-                t.fault().patch(bar),
+            parts.push((
+                None,
+                [
+                    sep(),
+                    Span::styled(format!(" {faults} FAULTY "), t.fault().patch(bar)),
+                ],
             ));
-            rest.push(Span::styled("│", bar));
         }
         let (gate, style) = match s.quiet {
             // An attached console whose adrive sends nothing: the gate it last said is
@@ -95,27 +134,34 @@ impl Header<'_> {
             (None, true) => who,
             (None, false) => s.gate.cause.why(),
         };
-        let title = format!(" ADRIVE {} ", s.vehicle);
-        let mut fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
+        let mut title = format!(" ADRIVE {} ", s.vehicle);
         let width = width as usize;
         let reason_wants = why.width() + 2;
-        // An attached console's own terminal's keys, where they leave the reason whole.
-        if let Some(at) = keys_at {
-            let keys = crate::console::panels::teleop::drive_label(
-                self.m.drive(),
-                &self.m.repeat.figures(),
-                false,
-            );
-            let keys = [
-                Span::styled(format!(" keys {keys} "), bar),
-                Span::styled("│", bar),
-            ];
-            let wants: usize = keys.iter().map(Span::width).sum();
-            if fixed + wants + reason_wants + title.width().min(TITLE_MIN) <= width {
-                fixed += wants;
-                rest.splice(at..at, keys);
+        // What the bar needs with the parts kept and the title at its fewest columns.
+        let needs = |parts: &[(Option<GivesWay>, [Span; 2])], title: &str| {
+            let labels: usize = parts
+                .iter()
+                .flat_map(|(_, p)| p.iter().map(Span::width))
+                .sum();
+            labels + "│".width() + gate.width() + reason_wants + title.width().min(TITLE_MIN)
+        };
+        for give in [
+            GivesWay::Keys,
+            GivesWay::Program,
+            GivesWay::InterlocksOn,
+            GivesWay::Mode,
+        ] {
+            if needs(&parts, &title) <= width {
+                break;
+            }
+            match give {
+                GivesWay::Program => title = format!(" {} ", s.vehicle),
+                _ => parts.retain(|(g, _)| *g != Some(give)),
             }
         }
+        let mut rest: Vec<Span<'static>> = parts.into_iter().flat_map(|(_, p)| p).collect();
+        rest.push(sep());
+        let fixed: usize = rest.iter().map(Span::width).sum::<usize>() + gate.width();
         // A long vehicle name gives way to the reason, down to TITLE_MIN columns.
         let title_room = width
             .saturating_sub(fixed + reason_wants)
@@ -262,8 +308,10 @@ mod tests {
         }
     }
 
+    /// At 100 columns a device's fault once read `DISENGAGED (gas is faulty (no
+    /// reply…))` beside the program's name: the name gives way first.
     #[test]
-    fn at_100_columns_the_reason_is_shortened_not_cut() {
+    fn at_100_columns_the_program_s_name_gives_way_to_the_reason() {
         let faulty = Blocker::Faulty {
             device: "gas".into(),
             fault: "no reply within 100ms".into(),
@@ -271,8 +319,59 @@ mod tests {
         let mut m = disengaged(DisengageCause::Blocked { blocker: faulty }, "Alice");
         m.mode = Mode::Bench;
         let l = text(&Header { m: &m }.line(100));
-        assert!(l.contains(" DISENGAGED (gas is faulty (no reply"), "{l}");
-        assert!(l.trim_end().ends_with("…))"), "{l}");
+        assert!(
+            l.starts_with(" Alice │ BENCH │ interlocks on │ 1 FAULTY │ DISENGAGED (gas is faulty (no reply within 100ms)) "),
+            "{l}"
+        );
+    }
+
+    /// At 80×24, inside tmux, the gate's reason read `(e-stop is…)` while `interlocks
+    /// on` and `link unchecked` kept their room, and an attached console's dropped it
+    /// whole. What gives way does, in its order (the keys, `ADRIVE`, `interlocks on`,
+    /// the mode), until the reason is whole; `INTERLOCKS OFF`, what commands, the link
+    /// and the faults never do.
+    #[test]
+    fn at_80_columns_the_normal_state_s_labels_give_way_to_the_reason() {
+        let estop = || DisengageCause::Blocked {
+            blocker: Blocker::Estop {
+                state: crate::value::EstopState::Pause,
+            },
+        };
+        let line = |mux: bool, you: bool, interlocks: bool, width: u16| {
+            let mut m = disengaged(estop(), "Alice");
+            m.terminal.multiplexer = mux.then_some("tmux");
+            m.snap.you = you.then(|| "console #1".to_string());
+            m.snap.snap.gate.interlocks = interlocks;
+            text(&Header { m: &m }.line(width))
+        };
+        let gate = "│ 1 FAULTY │ DISENGAGED (e-stop is in pause)";
+        for (mux, you, interlocks, want) in [
+            (false, false, true, " Alice │ MAIN │ interlocks on "),
+            (true, false, true, " Alice │ MAIN │ link unchecked "),
+            (false, true, true, " Alice │ MAIN │ WATCHING "),
+            (true, true, true, " Alice │ WATCHING │ link unchecked "),
+            (false, false, false, " Alice │ MAIN │ INTERLOCKS OFF "),
+        ] {
+            let l = line(mux, you, interlocks, 80);
+            assert!(l.starts_with(&format!("{want}{gate}")), "{l}");
+            assert!(l.width() <= 80, "{l}");
+        }
+        // Nothing left to give way: the reason is shortened, at a word.
+        let l = line(true, false, false, 80);
+        assert!(
+            l.starts_with(
+                " Alice │ INTERLOCKS OFF │ link unchecked │ 1 FAULTY │ DISENGAGED (e-stop is in…)"
+            ),
+            "{l}"
+        );
+        // Where there is room, everything.
+        assert!(
+            line(true, true, true, 140).starts_with(&format!(
+                " ADRIVE Alice │ MAIN │ interlocks on │ WATCHING │ keys repeat ≤150ms │ link unchecked {gate}"
+            )),
+            "{}",
+            line(true, true, true, 140)
+        );
     }
 
     #[test]
@@ -283,7 +382,7 @@ mod tests {
         assert!(l.ends_with(" ENGAGED (by network 127.0.0.1:5555) "), "{l}");
         let l = text(&Header { m: &m }.line(80));
         assert!(l.contains(" ENGAGED (by network"), "{l}");
-        assert!(l.starts_with(" ADRIVE a vehicle"), "{l}");
+        assert!(l.starts_with(" a vehicle"), "{l}");
         assert!(l.contains('…') && l.width() <= 80, "{l}");
     }
 
