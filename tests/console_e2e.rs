@@ -1527,6 +1527,31 @@ fn a_closed_terminal_in_the_protocol_stops_safely() {
     assert!(!log.contains("panicked"), "{log}");
 }
 
+/// Interlocks off and engaged (the brake full, as the engage found it), the gas at 0.3:
+/// the one accel value read `0.300` — gas alone, while the brake was full against it.
+/// Both pedals applied are said as both, in the fault's colour, until one lets go.
+#[test]
+fn with_interlocks_off_gas_and_brake_both_applied_are_shown_as_both() {
+    let mut c = Console::start_tolerant("both-pedals", Play::default());
+    c.engage_now();
+    c.keys("I");
+    c.wait_for("the question", |s| s.contains("Turn the interlocks OFF?"));
+    c.keys("y");
+    c.wait_for("interlocks off", |s| s.contains("INTERLOCKS OFF"));
+    c.keys("g");
+    c.wait_for("the gas edit", |s| s.contains("edit gas command"));
+    c.keys("\x150.3\r");
+    c.wait_for("both pedals", |s| {
+        s.contains("accel gas 0.300 + brake 1.000") && s.contains("BRAKE 0…1 cmd 1.000")
+    });
+    c.keys("b");
+    c.wait_for("the brake edit", |s| s.contains("edit brake command"));
+    c.keys("\x150\r");
+    c.wait_for("the gas alone", |s| s.contains("accel 0.300 "));
+    c.keys("q");
+    assert!(c.wait_exit().success());
+}
+
 /// Inside tmux on the vehicle, tmux answers for the operator's terminal: the console
 /// does not probe for the kitty protocol (tmux drops releases), says `link unchecked`
 /// in its header, and still asks its round trips (tmux itself may stop). At 80×24 the

@@ -118,11 +118,9 @@ impl Scene {
             .and_then(|d| self.id_of(&d.name))
     }
 
-    /// The throttle and brake as the intake accepted them, as the one `accel` value
-    /// the console and teleop command them with (−1 full brake … 1 full throttle; the
-    /// inverse of the intake's split): what the vehicle was told, not what the console
-    /// asked. `None` without both bound, or before either was commanded.
-    pub(crate) fn accel(&self) -> Option<f64> {
+    /// The throttle and brake as the intake accepted them, each a share of its range
+    /// (`None` before it was commanded); `None` without both bound.
+    fn pedals(&self) -> Option<(Option<f64>, Option<f64>)> {
         let part = |role: crate::config::Role| {
             let d = self.snap.bound(role.as_str())?;
             let top = d.range?[1];
@@ -132,10 +130,18 @@ impl Scene {
         // Both bound, or the vehicle has no accel.
         self.snap.bound(crate::config::Role::Throttle.as_str())?;
         self.snap.bound(crate::config::Role::Brake.as_str())?;
-        let a = match (
+        Some((
             part(crate::config::Role::Throttle),
             part(crate::config::Role::Brake),
-        ) {
+        ))
+    }
+
+    /// The throttle and brake as the intake accepted them, as the one `accel` value
+    /// the console and teleop command them with (−1 full brake … 1 full throttle; the
+    /// inverse of the intake's split): what the vehicle was told, not what the console
+    /// asked. `None` without both bound, or before either was commanded.
+    pub(crate) fn accel(&self) -> Option<f64> {
+        let a = match self.pedals()? {
             (Some(gas), _) if gas > 0.0 => gas,
             (_, Some(brake)) => -brake,
             (Some(gas), None) => gas,
@@ -143,6 +149,15 @@ impl Scene {
         };
         // Three decimals, as the console asks; never −0.
         Some((a * 1000.0).round() / 1000.0 + 0.0)
+    }
+
+    /// Gas and brake both applied, as only interlocks off let them be (each commanded
+    /// on its own): the one accel value cannot say it, and must not say gas alone.
+    pub(crate) fn gas_and_brake(&self) -> Option<(f64, f64)> {
+        match self.pedals()? {
+            (Some(gas), Some(brake)) if gas > 0.0 && brake > 0.0 => Some((gas, brake)),
+            _ => None,
+        }
     }
 
     /// This console commands the engaged vehicle (the embedded console is `console`,

@@ -75,6 +75,12 @@ impl SupervisorPanel<'_> {
             .accel
             .map(|a| format!("{a:.3}"))
             .unwrap_or_else(|| "-".into());
+        // Gas and brake both applied (interlocks off): both, in the fault's colour.
+        let both = self
+            .m
+            .accel
+            .and(self.m.snap.gas_and_brake())
+            .map(|(gas, brake)| format!("gas {gas:.3} + brake {brake:.3}"));
         match &self.m.edit {
             Some(e) if e.field == Field::Accel => Span::styled(
                 format!("{}▏", e.buffer),
@@ -84,8 +90,13 @@ impl SupervisorPanel<'_> {
                     t.editing()
                 },
             ),
-            _ if self.cursor && self.m.field() == Field::Accel => Span::styled(text, t.cursor()),
-            _ => Span::raw(text),
+            _ if self.cursor && self.m.field() == Field::Accel => {
+                Span::styled(both.unwrap_or(text), t.cursor())
+            }
+            _ => match both {
+                Some(both) => Span::styled(both, t.fault()),
+                None => Span::raw(text),
+            },
         }
     }
 
