@@ -753,6 +753,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             );
         }
     }
+    // The console's screen is gone: the terminal says how adrive ended, as a headless
+    // run's summary does (a terminal that went away drops it).
+    if !args.headless && safe && stuck.is_empty() {
+        tell(
+            io::stderr(),
+            format_args!(
+                "adrive: stopped ({}); safe state acknowledged: {}; log in {}\n",
+                why.describe(),
+                headless::safe_state_words(&vehicle),
+                log_dir.display()
+            ),
+        );
+    }
     if !safe || !stuck.is_empty() {
         let msg = format!(
             "stopped ({}) but the safe state was {}acknowledged{}",

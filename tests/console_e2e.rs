@@ -279,6 +279,16 @@ fn left_alternate_screen(bytes: &[u8]) -> bool {
     bytes.windows(8).any(|w| w == b"\x1b[?1049l")
 }
 
+/// What the terminal shows once the console's screen is gone: written after it left
+/// the alternate screen.
+fn after_the_screen(bytes: &[u8]) -> String {
+    let text = String::from_utf8_lossy(bytes);
+    text.rsplit("\x1b[?1049l")
+        .next()
+        .unwrap_or_default()
+        .to_string()
+}
+
 #[test]
 fn keys_engage_and_steer_and_q_leaves_the_terminal_and_vehicle_safe() {
     // Held engaged to prove the console, not device timing: on the tolerant Alice.
@@ -314,6 +324,14 @@ fn keys_engage_and_steer_and_q_leaves_the_terminal_and_vehicle_safe() {
     let log = c.log();
     assert!(log.contains("stopping: operator quit"), "{log}");
     assert!(log.contains("safe state acknowledged"), "{log}");
+    // The terminal says so too (it said nothing: the safe state was in the log only).
+    let said = after_the_screen(&c.bytes());
+    assert!(
+        said.contains(
+            "adrive: stopped (operator quit); safe state acknowledged: gas 0.000, brake 1.000; log in "
+        ),
+        "{said:?}"
+    );
 }
 
 #[test]
