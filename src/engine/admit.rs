@@ -210,7 +210,10 @@ impl Gate {
     ) -> (Result<(), Reject>, Option<Seen>) {
         let v = self.vehicle();
         let Some((done, seen)) = self.state().decided_accel(v, a) else {
-            return (Err(self.reject(None, None, Reject::NoSuchDevice)), None);
+            return (
+                Err(self.reject_accel(None, a, None, Reject::NoSuchDevice)),
+                None,
+            );
         };
         let b = v.bindings();
         let pedal = |p: Pedal| match p {
@@ -219,7 +222,12 @@ impl Gate {
         };
         let plan = match done {
             Ok(plan) => plan,
-            Err(r) => return (Err(self.reject(pedal(r.at), r.command, r.why)), Some(seen)),
+            Err(r) => {
+                return (
+                    Err(self.reject_accel(pedal(r.at), a, r.command, r.why)),
+                    Some(seen),
+                )
+            }
         };
         for (p, share) in plan.order() {
             if let Some(d) = pedal(p) {
@@ -523,6 +531,30 @@ mod tests {
             Err(Refused::Rule(Reject::GasNotInGear))
         );
         assert_eq!(slots(&g), before, "a refused accel changed a slot");
+    }
+
+    /// A refused accel is logged as the accel asked, with the part refused where
+    /// that is what was (it was logged `command=""`).
+    #[test]
+    fn a_refused_accel_is_logged_as_asked() {
+        let g = sample::gate(Instant::now());
+        let t = Instant::now();
+        g.admit(Source::Console, Ask::Engage, t).unwrap();
+        let lines = sample::logged(|| {
+            let _ = g.admit(Source::Console, Ask::Accel(0.3), t);
+        });
+        let line = lines.iter().find(|l| l.starts_with("rejected: ")).unwrap();
+        assert!(line.contains("device=gas command=accel 0.300"), "{line}");
+        g.state().set_interlocks(false);
+        let lines = sample::logged(|| {
+            let _ = g.admit(
+                Source::Console,
+                Ask::Accel(-7.0),
+                t + Duration::from_secs(1),
+            );
+        });
+        let line = lines.iter().find(|l| l.starts_with("rejected: ")).unwrap();
+        assert!(line.contains("command=accel -7.000"), "{line}");
     }
 
     /// The commander's watchdog, over a clock of our own: a network commander quiet

@@ -135,6 +135,17 @@ impl Gate {
         self.state.reject(device, command, why)
     }
 
+    /// Count and log an accel refused as a whole (see [`GateState::reject_accel`]).
+    pub(crate) fn reject_accel(
+        &self,
+        device: Option<&crate::vehicle::Device>,
+        a: f64,
+        part: Option<Command>,
+        why: Reject,
+    ) -> Reject {
+        self.state.reject_accel(device, a, part, why)
+    }
+
     /// The gate's part of the snapshot.
     pub fn view(&self, now: Instant) -> GateView {
         let b = self.vehicle.bindings();

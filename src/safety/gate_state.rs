@@ -301,6 +301,38 @@ impl GateState {
         command: Option<Command>,
         why: Reject,
     ) -> Reject {
+        self.rejected(device, why, || match (device, command) {
+            (Some(d), Some(c)) => d.config().command_text(c),
+            (None, Some(c)) => format!("{c:?}"),
+            _ => "-".into(),
+        })
+    }
+
+    /// [`GateState::reject`] for an accel `a` refused as a whole (at `device`, the
+    /// pedal that refused it, where one did, and `part`, its share, where that is what
+    /// was refused): logged as the accel asked, `accel 1.500 (gas 1.500)` (it was
+    /// logged with `command=""`).
+    pub(crate) fn reject_accel(
+        &self,
+        device: Option<&Device>,
+        a: f64,
+        part: Option<Command>,
+        why: Reject,
+    ) -> Reject {
+        self.rejected(device, why, || match (device, part) {
+            (Some(d), Some(c)) => {
+                format!("accel {a:.3} ({} {})", d.name(), d.config().command_text(c))
+            }
+            _ => format!("accel {a:.3}"),
+        })
+    }
+
+    fn rejected(
+        &self,
+        device: Option<&Device>,
+        why: Reject,
+        said: impl FnOnce() -> String,
+    ) -> Reject {
         self.rejections[why.index()].fetch_add(1, Relaxed);
         if let Some(d) = device {
             crate::vehicle::stats::Stats::bump(&d.stats().rejected);
@@ -310,11 +342,7 @@ impl GateState {
         }
         tracing::info!(
             device = device.map(|d| d.name()).unwrap_or("-"),
-            command = match (device, command) {
-                (Some(d), Some(c)) => d.config().command_text(c),
-                (None, Some(c)) => format!("{c:?}"),
-                _ => String::new(),
-            },
+            command = said(),
             "rejected: {why}"
         );
         why
