@@ -775,7 +775,7 @@ fn one_accel_from_braking_gives_gas_and_stop_clears_it() {
 }
 
 /// A device's row in the list of many devices: its name and the values after it
-/// (command, measurement, age, delay p50, error code).
+/// (command, measurement, age, delay p50 where it has room, error code).
 fn row(screen: &str, name: &str) -> Vec<String> {
     let key = format!("{name} ");
     screen
@@ -800,7 +800,13 @@ fn cmd_meas(screen: &str, name: &str) -> String {
 fn thirty_two_devices_at_80x24_jump_by_name_and_command_one() {
     let mut c = Console::start_sized("tractor", &["--config", "vehicles/tractor.toml"], (80, 24));
     let s = c.wait_for("a row for every device", |s| {
-        s.contains("device         cmd   meas   age   p50 e") && s.contains("tyre_press…")
+        s.contains("device             cmd     meas   age e") && s.contains("tyre_pressure ")
+    });
+    // Names and states whole (it read `parking_br… appli…`).
+    c.wait_for("the parking brake's state whole", |s| {
+        row(s, "parking_brake")
+            .get(2)
+            .is_some_and(|m| ["applied", "released"].contains(&m.as_str()))
     });
     for name in [
         "steer",

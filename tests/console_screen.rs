@@ -491,21 +491,18 @@ fn thirty_two_devices_at_80x24_each_have_a_row_and_faulty_ones_are_red() {
     let b = render(&m, 80, 24);
     let screen = text(&b);
     snapshot("many_80x24", &screen);
-    // A row for every device: its name (as much as fits the column) at the start of
-    // a column, then its values.
+    // A row for every device: its name whole at the start of a column, then its
+    // values, a state whole (the delay's column gave way: it read `parking_br…
+    // relea…`).
     for d in &m.snap.devices {
-        // The name column is 11 wide: a longer name ends in "…".
-        let shown = if d.name.len() <= 11 {
-            format!("{} ", d.name)
-        } else {
-            format!("{}…", &d.name[..10])
-        };
+        let shown = format!("{} ", d.name);
         let rows = (2..18).flat_map(|y| [(0, y), (40, y)]).filter(|&(x, y)| {
             let row: String = line(&b, y).chars().skip(x).collect();
             row.starts_with(&shown)
         });
         assert_eq!(rows.count(), 1, "{} has no row:\n{screen}", d.name);
     }
+    find(&b, "parking_brake        - released");
     // Faulty rows are red from the name to the error code; a healthy one is not.
     for name in ["hitch ", "gnss "] {
         let (x, y) = find(&b, name);

@@ -1,6 +1,7 @@
 //! The device list, for a vehicle with more devices than panels fit: one line a
 //! device — its name, command, measurement, the age of its status, its receipt →
-//! first-byte delay p50 and its error code — in columns down the screen, under a
+//! first-byte delay p50 (where the names and values are whole beside it: the full
+//! panel under the list has it) and its error code — in columns down the screen, under a
 //! header line (which, when the list pages, says which devices it shows: `35–64/64`).
 //! A faulty device's line is red; a stale value is dimmed. The cursor shows on the
 //! command when it stands there (an edit of it too), else on the name of its device;
@@ -47,27 +48,58 @@ pub(crate) struct DeviceList<'a> {
     pub found: &'a [usize],
 }
 
-/// The widths of a column's fields.
+/// The widths of a column's fields, and whether it has the delay's.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Widths {
     name: usize,
     cmd: usize,
     meas: usize,
+    p50: bool,
 }
 
 impl Widths {
-    /// For a column `width` wide (its last character left blank) and names up to
-    /// `longest`: the values at their narrowest, the name as long as it can be, then
-    /// the values grow.
-    fn of(width: usize, longest: usize) -> Widths {
-        let fixed = 2 * VALUE + AGE + P50 + ERR + 5 + 1;
+    /// For a column `width` wide (its last character left blank), names up to
+    /// `longest` and an actuator's values up to `value` (its longest state, its
+    /// range's ends): the delay's p50 only where the names and values are whole
+    /// beside it (the tractor at 80 columns read `parking_br… relea…`: the panel
+    /// under the list has the delay); then the values at their narrowest, the name as
+    /// long as it can be, and the values grow.
+    fn of(width: usize, longest: usize, value: usize) -> Widths {
+        let whole = longest.max(NAME_MIN) + 2 * value.clamp(VALUE, VALUE_MAX);
+        let p50 = whole + AGE + P50 + ERR + 5 + 1 <= width;
+        let fixed = 2 * VALUE + AGE + ERR + 1 + if p50 { P50 + 5 } else { 4 };
         let room = width.saturating_sub(fixed);
         let name = longest.clamp(NAME_MIN, room.max(NAME_MIN));
         let extra = room.saturating_sub(name);
         let cmd = VALUE + (extra / 2).min(VALUE_MAX - VALUE);
         let meas = VALUE + (extra - (cmd - VALUE)).min(VALUE_MAX - VALUE);
-        Widths { name, cmd, meas }
+        Widths {
+            name,
+            cmd,
+            meas,
+            p50,
+        }
     }
+
+    /// The columns a line of them takes.
+    #[cfg(test)]
+    fn total(&self) -> usize {
+        let p50 = if self.p50 { P50 + 1 } else { 0 };
+        self.name + self.cmd + self.meas + AGE + ERR + 4 + p50
+    }
+}
+
+/// The widest value an actuator's command or measurement can read: its longest
+/// state, or its range's ends as the list writes numbers (a sensor's reading has both
+/// columns).
+fn widest_value(d: &DeviceView) -> usize {
+    let states = d.states.iter().map(|s| s.chars().count());
+    let ends = d
+        .range
+        .into_iter()
+        .flatten()
+        .map(|x| super::device::fmt_num(x).chars().count());
+    states.chain(ends).max().unwrap_or(0)
 }
 
 /// `text` in `width` columns: cut with `…` when longer, padded on the left
@@ -101,13 +133,16 @@ impl DeviceList<'_> {
 
     /// A column's header: `name` over the names, then the values'.
     fn header(&self, name: &str, w: Widths, total: usize) -> Vec<Span<'static>> {
+        let p50 = match w.p50 {
+            true => format!("{} ", fit("p50", P50, true)),
+            false => String::new(),
+        };
         let text = format!(
-            "{} {} {} {} {} {}",
+            "{} {} {} {} {p50}{}",
             fit(name, w.name, false),
             fit("cmd", w.cmd, true),
             fit("meas", w.meas, true),
             fit("age", AGE, true),
-            fit("p50", P50, true),
             fit("e", ERR, true),
         );
         vec![Span::styled(fit(&text, total, false), self.theme.label())]
@@ -172,10 +207,11 @@ impl DeviceList<'_> {
             Span::raw(" "),
             Span::styled(fit(&fmt_age(age(d)), AGE, true), base.patch(dim)),
             Span::raw(" "),
-            Span::styled(fit(&p50, P50, true), base),
-            Span::raw(" "),
-            Span::styled(fit(&code.to_string(), ERR, true), code_style),
         ]);
+        if w.p50 {
+            spans.extend([Span::styled(fit(&p50, P50, true), base), Span::raw(" ")]);
+        }
+        spans.push(Span::styled(fit(&code.to_string(), ERR, true), code_style));
         let used: usize = spans.iter().map(|s| s.content.chars().count()).sum();
         spans.push(Span::raw(" ".repeat(total.saturating_sub(used))));
         spans
@@ -204,7 +240,13 @@ impl DeviceList<'_> {
             .chain(page.as_ref().map(|p| p.chars().count()))
             .max()
             .unwrap_or(0);
-        let w = Widths::of(usize::from(col_w), longest);
+        let value = devices
+            .iter()
+            .filter(|d| d.is_actuator())
+            .map(widest_value)
+            .max()
+            .unwrap_or(0);
+        let w = Widths::of(usize::from(col_w), longest, value);
         for c in 0..cols {
             let x = area.x + c * col_w;
             let width = if c == cols - 1 {
@@ -245,32 +287,51 @@ mod tests {
     use super::*;
 
     #[test]
-    fn at_80_columns_a_column_fits_a_name_of_eleven_and_every_value() {
-        let w = Widths::of(40, 13);
+    fn at_80_columns_a_column_fits_a_name_of_eleven_and_every_number() {
+        let w = Widths::of(40, 11, 6);
         assert_eq!(
             w,
             Widths {
                 name: 11,
                 cmd: 6,
-                meas: 6
+                meas: 6,
+                p50: true
             }
         );
         // Name, the five values and their spaces: 39 columns and the blank one.
-        assert_eq!(w.name + w.cmd + w.meas + AGE + P50 + ERR + 5, 39);
+        assert_eq!(w.total(), 39);
+    }
+
+    /// The tractor at 80 columns read `parking_br… relea…`: the delay gives way and
+    /// the names and states are whole.
+    #[test]
+    fn at_80_columns_the_delay_gives_way_to_whole_names_and_states() {
+        let w = Widths::of(40, 13, 8);
+        assert_eq!(
+            w,
+            Widths {
+                name: 13,
+                cmd: 8,
+                meas: 8,
+                p50: false
+            }
+        );
+        assert_eq!(w.total(), 39);
     }
 
     #[test]
     fn a_wider_column_gives_the_name_its_length_then_the_values_room() {
         assert_eq!(
-            Widths::of(50, 13),
+            Widths::of(50, 13, 8),
             Widths {
                 name: 13,
                 cmd: 9,
-                meas: 9
+                meas: 9,
+                p50: true
             }
         );
-        assert_eq!(Widths::of(60, 5).name, 5);
-        assert_eq!(Widths::of(60, 5).cmd, VALUE_MAX);
+        assert_eq!(Widths::of(60, 5, 0).name, 5);
+        assert_eq!(Widths::of(60, 5, 0).cmd, VALUE_MAX);
     }
 
     #[test]
