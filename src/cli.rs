@@ -594,6 +594,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
         return Err(config.refuse("fleet", v).into());
     }
     let log_dir = args.log_dir.clone().unwrap_or_else(default_log_dir);
+    // So does `--ros2` on a build without it.
+    ros2::built(args.ros2)?;
     // A bad keymap, or no terminal for the console, stops here, before anything starts.
     let keymap = if args.headless {
         None
@@ -1451,10 +1453,18 @@ mod ros2 {
         _: &Net,
         _: &VehicleConfig,
     ) -> anyhow::Result<Running> {
+        built(on)?;
+        Ok(Running)
+    }
+
+    /// `--ros2` (`on`) on a build without it is refused, before anything starts.
+    pub(crate) fn built(on: bool) -> anyhow::Result<()> {
+        #[cfg(not(feature = "ros2"))]
         if on {
             anyhow::bail!(NOT_BUILT);
         }
-        Ok(Running)
+        let _ = on;
+        Ok(())
     }
 
     impl Running {

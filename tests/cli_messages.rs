@@ -307,7 +307,8 @@ fn the_man_page_is_roff_with_every_option_and_subcommand() {
     );
 }
 
-/// `--ros2` on a build without the feature says how to build it, and drives nothing.
+/// `--ros2` on a build without the feature says how to build it, and starts nothing
+/// (it was refused once the devices were up: its log had begun).
 #[cfg(not(feature = "ros2"))]
 #[test]
 fn ros2_without_the_feature_says_how_to_build_it() {
@@ -320,6 +321,11 @@ fn ros2_without_the_feature_says_how_to_build_it() {
         err.contains("--ros2: this adrive was built without ROS 2")
             && err.contains("cargo build --release --features ros2"),
         "{err}"
+    );
+    assert!(
+        !dir.0.path().join("log").exists(),
+        "it started before refusing: {:?}",
+        std::fs::read_dir(dir.0.path().join("log")).map(|d| d.count())
     );
 }
 
