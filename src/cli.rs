@@ -50,7 +50,7 @@ pub enum Cmd {
     /// Exit status: 0 sent and nothing refused; 1 something refused, or nothing
     /// listening (with --rate: at its end — refused in its last three periods, or 60 ms
     /// — or the last datagram found nothing listening); 2 a bad command line; 3 an
-    /// engage, disengage or clear got no reply.
+    /// engage, disengage, release or clear got no reply.
     Send(SendArgs),
     /// Print the state broadcast as it arrives.
     Watch(WatchArgs),

@@ -243,20 +243,26 @@ fn a_missing_key_file_or_a_busy_port_stops_adrive_before_it_starts() {
 
 /// The incident: `adrive send engage` to an adrive that drops the datagram (this sender
 /// not on its allow list) or does not answer (`replies = false`) printed nothing and
-/// exited 0, like a success. Now it says so and exits 3, once or at a rate.
+/// exited 0, like a success. Now it says so and exits 3, once or at a rate — naming
+/// what got no reply (a `release` was said to be an engage or disengage).
 #[test]
 fn send_says_when_an_engage_got_no_reply_and_exits_3() {
     for network in ["allow = [\"10.9.9.9\"]", "replies = false"] {
         let adrive = Adrive::start("noreply", ALICE_TOML, network);
-        for args in [
-            &["engage"][..],
-            &["--rate", "50", "--count", "75", "engage"],
+        for (args, what) in [
+            (&["engage"][..], "the engage may not have been applied"),
+            (
+                &["--rate", "50", "--count", "75", "engage"],
+                "the engage may not",
+            ),
+            (&["release"], "the release may not have been applied"),
+            (&["clear"], "the clear may not have been applied"),
         ] {
             let out = adrive.send(args);
             let err = String::from_utf8_lossy(&out.stderr);
             assert_eq!(out.status.code(), Some(3), "{network} {args:?}: {err}");
             assert!(
-                err.contains(&format!("no reply from {}", adrive.listen)),
+                err.contains(&format!("no reply from {}", adrive.listen)) && err.contains(what),
                 "{network} {args:?}: {err}"
             );
             assert!(out.stdout.is_empty(), "{network} {args:?}");

@@ -17,8 +17,8 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 /// How long a one-shot `send` waits for a reply that may not come (an accepted command
 /// is not answered).
 pub(crate) const REPLY_WAIT: Duration = Duration::from_millis(200);
-/// How long `send` waits for the reply to `engage` or `disengage`, which adrive always
-/// answers unless the datagram was dropped (a sender not on the allow list,
+/// How long `send` waits for the reply to `engage`, `disengage`, `release` or `clear`,
+/// which adrive always answers unless the datagram was dropped (a sender not on the allow list,
 /// `replies = false`, a lost datagram).
 pub(crate) const EXPECTED_REPLY_WAIT: Duration = Duration::from_secs(1);
 
@@ -31,7 +31,8 @@ pub(crate) mod status {
     pub(crate) const REFUSED: i32 = 1;
     /// A bad command line.
     pub(crate) const USAGE: i32 = 2;
-    /// `engage` or `disengage` got no reply: whether it was applied is unknown.
+    /// `engage`, `disengage`, `release` or `clear` got no reply: whether it was applied
+    /// is unknown.
     pub(crate) const NO_REPLY: i32 = 3;
 }
 
@@ -79,29 +80,34 @@ fn now_ns() -> u64 {
 
 /// `adrive send`: returns the exit status ([`status`]).
 pub(crate) fn send(opts: &SendOptions, body: &str, stop: &AtomicBool) -> io::Result<i32> {
-    let expects_reply = match proto::parse(body.as_bytes(), &Vocabulary::open()) {
-        Ok(d) => d.commands.iter().any(|c| {
-            matches!(
-                c,
-                NetCommand::Engage
-                    | NetCommand::Disengage
-                    | NetCommand::Release
-                    | NetCommand::Clear
-            )
-        }),
+    // The keywords adrive always answers, in words, as sent.
+    let answered: Vec<&str> = match proto::parse(body.as_bytes(), &Vocabulary::open()) {
+        Ok(d) => d
+            .commands
+            .iter()
+            .filter_map(|c| match c {
+                NetCommand::Engage => Some("engage"),
+                NetCommand::Disengage => Some("disengage"),
+                NetCommand::Release => Some("release"),
+                NetCommand::Clear => Some("clear"),
+                _ => None,
+            })
+            .collect(),
         Err(e) => {
             eprintln!("adrive send: {e}");
             eprintln!("the commands, one per line, as sent:\n{body}");
             return Ok(status::USAGE);
         }
     };
+    let expects_reply = !answered.is_empty();
     let no_reply = || {
         eprintln!(
-            "adrive send: no reply from {} within {}: the engage or disengage may not have \
-             been applied (this sender not on its allow list, `replies = false`, or the \
-             datagram lost); `adrive watch` shows the vehicle's state",
+            "adrive send: no reply from {} within {}: the {} may not have been applied \
+             (this sender not on its allow list, `replies = false`, or the datagram lost); \
+             `adrive watch` shows the vehicle's state",
             opts.to,
-            humantime::format_duration(EXPECTED_REPLY_WAIT)
+            humantime::format_duration(EXPECTED_REPLY_WAIT),
+            answered.join(" and ")
         );
     };
     let any: SocketAddr = if opts.to.is_ipv6() {
