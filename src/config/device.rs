@@ -652,7 +652,7 @@ pub(super) struct RawDevice {
     #[serde(default)]
     range: Option<Spanned<Vec<f64>>>,
     #[serde(default)]
-    units: Option<String>,
+    units: Option<Spanned<String>>,
     #[serde(default)]
     states: Option<Spanned<Vec<String>>>,
     #[serde(default)]
@@ -730,14 +730,16 @@ impl RawDevice {
         let readings = of.readings(
             &states,
             self.readings,
-            self.units.as_deref(),
+            self.units.as_ref().map(|u| u.get_ref().as_str()),
             driver == DriverKind::Can,
         )?;
-        let units = self.units.unwrap_or_default();
-        check_text("units", &units, true).map_err(|m| (at_name, format!("{name}: {m}")))?;
+        // Said at its own line.
+        let at_units = self.units.as_ref().map_or(at_name, |u| u.span().start);
+        let units = self.units.map(Spanned::into_inner).unwrap_or_default();
+        check_text("units", &units, true).map_err(|m| (at_units, format!("{name}: {m}")))?;
         if kind != Kind::Setpoint && !units.is_empty() {
             return Err((
-                at_name,
+                at_units,
                 format!("{name}: units are for setpoint devices (readings carry their own)"),
             ));
         }

@@ -125,13 +125,20 @@ fn a_free_text_name_with_a_control_character_or_blank_is_refused_at_its_line() {
     }
     let e = error(&GOOD.replace("name = \"bench\"", "name = \"a\\u001b[2J\""));
     assert!(e.contains("('\\u{1b}' is a control character)"), "{e}");
-    // Units, of a setpoint device and of a reading.
+    // Units, of a setpoint device and of a reading: at the units' own line (they were
+    // said at the device's name).
     let e = error(&GOOD.replace(
         "range = [-1.0, 1.0]",
         "range = [-1.0, 1.0]\nunits = \"deg\\r\"",
     ));
-    assert_eq!(line(&e), 6, "{e}");
+    assert_eq!(line(&e), 9, "{e}");
     assert!(e.contains("steer: units \"deg\\r\""), "{e}");
+    let on_a_sensor = format!(
+        "{GOOD}\n[[device]]\nname = \"bms\"\nkind = \"sensor\"\nreadings = [{{ name = \"volts\", units = \"V\" }}]\nunits = \"V\"\ndriver = \"line\"\n"
+    );
+    let e = error(&on_a_sensor);
+    assert_eq!(line(&e), 17, "{e}");
+    assert!(e.contains("bms: units are for setpoint devices"), "{e}");
     let sensor = format!(
         "{GOOD}\n[[device]]\nname = \"bms\"\nkind = \"sensor\"\nreadings = [{{ name = \"volts\", units = \"V\\u0007\" }}]\ndriver = \"line\"\n"
     );
