@@ -1788,11 +1788,14 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
                 }
             }
         })?;
+    let reader_gone = output_closed()?;
     let start = Instant::now();
     let mut dropped = 0;
     let why = loop {
         crossbeam_channel::select! {
             recv(exits) -> why => break why.unwrap_or(Exit::Quit),
+            // `adrive sim | head`: the reader left, and nothing more can be said.
+            recv(reader_gone) -> _ => break Exit::HangUp("its output was closed".into()),
             recv(rx) -> ev => if let Ok(ev) = ev {
                 let now = sim.dropped_events();
                 if now > dropped {
@@ -1828,6 +1831,35 @@ pub fn sim(args: SimArgs) -> anyhow::Result<i32> {
     // Dropping the simulator closes the ports and removes its directory of links.
     drop(sim);
     Ok(0)
+}
+
+/// A message once standard output's reader has gone (a pipe whose reader closed, as
+/// `adrive sim | head` does once it has its lines; a terminal hung up): at once, not
+/// at the next write, which may never come. Never, where it cannot be told (standard
+/// output a file).
+fn output_closed() -> io::Result<crossbeam_channel::Receiver<()>> {
+    use rustix::event::{PollFd, PollFlags};
+    let (tx, rx) = crossbeam_channel::bounded(1);
+    std::thread::Builder::new()
+        .name("sim/stdout".into())
+        .spawn(move || {
+            let out = rustix::stdio::stdout();
+            // No events asked: poll reports only the error and the hang-up, always.
+            let mut fds = [PollFd::new(&out, PollFlags::empty())];
+            loop {
+                match rustix::event::poll(&mut fds, None) {
+                    Ok(_) if fds[0].revents().intersects(PollFlags::ERR | PollFlags::HUP) => {
+                        let _ = tx.send(());
+                        return;
+                    }
+                    Ok(_) if fds[0].revents().is_empty() => continue,
+                    Err(rustix::io::Errno::INTR) => continue,
+                    // Closed (`>&-`: NVAL), or poll failed: nothing to watch.
+                    Ok(_) | Err(_) => return,
+                }
+            }
+        })?;
+    Ok(rx)
 }
 
 /// Bytes as text, with non-printable bytes escaped.

@@ -357,6 +357,32 @@ fn sim_removes_its_directory_of_links_when_signalled() {
     }
 }
 
+/// `adrive sim | head -2` ended only at its next write, which a simulator nobody
+/// drives never makes: it ran on, holding its ports, until Ctrl-C. Its reader gone, it
+/// stops at once (and removes its directory of links).
+#[test]
+fn sim_stops_when_its_output_s_reader_goes() {
+    let tmp = tempdir("sim-head");
+    let mut child = common::Reaped(
+        Process::new(BIN)
+            .args(["sim", "--only", "steer"])
+            .env("TMPDIR", tmp.path())
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    // As `head` does: read what it wants, then close its end.
+    let mut first = String::new();
+    let mut out = std::io::BufReader::new(child.stdout.take().unwrap());
+    std::io::BufRead::read_line(&mut out, &mut first).unwrap();
+    assert!(first.starts_with("steer"), "{first}");
+    drop(out);
+    assert_eq!(wait_exit(&mut child), Some(0));
+    assert_eq!(sim_dirs(tmp.path()), Vec::<String>::new());
+}
+
 #[test]
 fn sim_takes_faults_as_flags_and_refuses_unknown_ones() {
     let (mut child, out) = sim_process(&["--only", "steer", "--fault", "silent steer on"]);
