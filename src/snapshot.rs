@@ -529,15 +529,24 @@ pub struct WaitingView {
 }
 
 impl WaitingView {
-    /// `waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s`
+    /// `waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s`;
+    /// while its backoff still grows, `retrying in 200ms, then less often up to every 5s`
+    /// (the first line read `retrying every 100ms`, which it was not).
     pub fn describe(&self) -> String {
         let every = std::time::Duration::from_millis(self.retry_ms.max(1.0) as u64);
+        let most = crate::port::BACKOFF_MAX;
+        let when = if every < most {
+            format!(
+                "retrying in {}, then less often up to every {}",
+                humantime::format_duration(every),
+                humantime::format_duration(most)
+            )
+        } else {
+            format!("retrying every {}", humantime::format_duration(every))
+        };
         format!(
-            "waiting for {} on {}: {}, retrying every {}",
-            self.device,
-            self.port,
-            self.error,
-            humantime::format_duration(every)
+            "waiting for {} on {}: {}, {when}",
+            self.device, self.port, self.error
         )
     }
 }
@@ -1410,6 +1419,30 @@ mod tests {
         assert_eq!(
             json,
             serde_json::json!({"kind": "faulty", "device": "gas", "fault": "timeout"})
+        );
+    }
+
+    /// A port's backoff doubles to its cap: until then the line says when the next try
+    /// is and that the tries thin out, not that they come every 100 ms.
+    #[test]
+    fn a_waiting_device_says_how_its_retries_go() {
+        let mut w = WaitingView {
+            device: "horn".into(),
+            port: "/dev/ttyUSB3".into(),
+            error: "No such file or directory".into(),
+            gone_ms: 0.0,
+            retry_ms: 100.0,
+            needed: false,
+        };
+        assert_eq!(
+            w.describe(),
+            "waiting for horn on /dev/ttyUSB3: No such file or directory, retrying in 100ms, \
+             then less often up to every 5s"
+        );
+        w.retry_ms = 5_000.0;
+        assert_eq!(
+            w.describe(),
+            "waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s"
         );
     }
 
