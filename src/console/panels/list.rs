@@ -66,7 +66,8 @@ impl Widths {
     /// long as it can be, and the values grow.
     fn of(width: usize, longest: usize, value: usize) -> Widths {
         let whole = longest.max(NAME_MIN) + 2 * value.clamp(VALUE, VALUE_MAX);
-        let p50 = whole + AGE + P50 + ERR + 5 + 1 <= width;
+        // The line and the blank column after it.
+        let p50 = whole + AGE + P50 + ERR + 5 < width;
         let fixed = 2 * VALUE + AGE + ERR + 1 + if p50 { P50 + 5 } else { 4 };
         let room = width.saturating_sub(fixed);
         let name = longest.clamp(NAME_MIN, room.max(NAME_MIN));
