@@ -758,15 +758,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
     // The console's screen is gone: the terminal says how adrive ended, as a headless
     // run's summary does (a terminal that went away drops it).
     if !args.headless && safe && stuck.is_empty() {
-        tell(
-            io::stderr(),
-            format_args!(
-                "adrive: stopped ({}); safe state acknowledged: {}; log in {}\n",
-                why.describe(),
-                headless::safe_state_words(&vehicle),
-                log_dir.display()
-            ),
-        );
+        say_at_end(format!(
+            "adrive: stopped ({}); safe state acknowledged: {}; log in {}\n",
+            why.describe(),
+            headless::safe_state_words(&vehicle),
+            log_dir.display()
+        ));
     }
     if !safe || !stuck.is_empty() {
         let msg = format!(
@@ -780,7 +777,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<i32> {
             }
         );
         tracing::error!("{msg}");
-        tell(io::stderr(), format_args!("adrive: {msg}\n"));
+        say_at_end(format!("adrive: {msg}\n"));
     }
     let code = exit::status(&why, safe, stuck.is_empty());
     drop(log);
@@ -1180,6 +1177,32 @@ fn closed_output(e: &anyhow::Error) -> bool {
 /// would panic on the way out.
 fn tell(mut to: impl Write, text: std::fmt::Arguments) {
     let _ = to.write_fmt(text).and_then(|()| to.flush());
+}
+
+/// Say `text` on standard error at adrive's end, waiting at most a second for it to
+/// be taken: the console's terminal may have stopped reading (a frozen SSH session, its
+/// pseudo-terminal full), and adrive's exit — the safe state already commanded — must
+/// not wait on it. Written past the standard library's lock on standard error, so that
+/// a write left blocked holds up no other.
+fn say_at_end(text: String) {
+    let (done, wait) = crossbeam_channel::bounded::<()>(1);
+    let spawned = std::thread::Builder::new()
+        .name("exit/say".into())
+        .spawn(move || {
+            let mut rest = text.as_bytes();
+            while !rest.is_empty() {
+                match rustix::io::write(rustix::stdio::stderr(), rest) {
+                    Ok(0) => break,
+                    Ok(n) => rest = &rest[n..],
+                    Err(rustix::io::Errno::INTR) => {}
+                    Err(_) => break,
+                }
+            }
+            let _ = done.send(());
+        });
+    if spawned.is_ok() {
+        let _ = wait.recv_timeout(Duration::from_secs(1));
+    }
 }
 
 /// The `[network]` key file, relative to the vehicle file's directory.

@@ -528,13 +528,18 @@ pub struct WaitingView {
     pub needed: bool,
 }
 
+/// How far a port's reopening backs off, at most (a device's, a bus adapter's): it
+/// starts at 100 ms and doubles up to this. Here, below the port and the engine that
+/// back off, because the waiting view says it.
+pub const RETRY_AT_MOST: std::time::Duration = std::time::Duration::from_secs(5);
+
 impl WaitingView {
     /// `waiting for horn on /dev/ttyUSB3: No such file or directory, retrying every 5s`;
     /// while its backoff still grows, `retrying in 200ms, then less often up to every 5s`
     /// (the first line read `retrying every 100ms`, which it was not).
     pub fn describe(&self) -> String {
         let every = std::time::Duration::from_millis(self.retry_ms.max(1.0) as u64);
-        let most = crate::port::BACKOFF_MAX;
+        let most = RETRY_AT_MOST;
         let when = if every < most {
             format!(
                 "retrying in {}, then less often up to every {}",

@@ -29,7 +29,7 @@ use std::time::{Duration, Instant};
 /// How often the adapter is asked for its status flags.
 pub(crate) const STATUS_EVERY: Duration = Duration::from_millis(500);
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
-pub(crate) const BACKOFF_MAX: Duration = Duration::from_secs(5);
+pub(crate) const BACKOFF_MAX: Duration = crate::snapshot::RETRY_AT_MOST;
 /// The reader's first turn is due within this (it turns at once, then says its own
 /// bound for each open, backoff and read).
 pub(crate) const TURN: Duration = Duration::from_secs(10);

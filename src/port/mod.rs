@@ -78,7 +78,7 @@ pub(crate) type Opener = Box<dyn FnMut() -> io::Result<Box<dyn Link>> + Send>;
 
 const BACKOFF_MIN: Duration = Duration::from_millis(100);
 /// The longest wait between two tries to open a port that is gone.
-pub const BACKOFF_MAX: Duration = Duration::from_secs(5);
+pub const BACKOFF_MAX: Duration = crate::snapshot::RETRY_AT_MOST;
 /// After this many failed transactions in a row the port is closed and reopened, and
 /// the driver's `open` runs again (it un-wedges adapters such as the ELM327).
 pub(crate) const REOPEN_AFTER: u32 = 5;
